@@ -1,0 +1,87 @@
+"""Joint-space limits, derived from the drives' limit objects and merged with the URDF's.
+
+Drive limits are facts about the drives; the planner's limits follow from them through the axis
+scaling, never the other way round. Where the URDF is stricter, the URDF wins.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from axes.scaling import AxisScaling, DriveLimits
+from planner.model import RobotModel
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Symmetric velocity/acceleration bounds and position bounds per joint (joint units)."""
+
+    names: tuple[str, ...]
+    lower: NDArray[np.float64]
+    upper: NDArray[np.float64]
+    velocity: NDArray[np.float64]
+    acceleration: NDArray[np.float64]
+    effort: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        n = len(self.names)
+        for name in ("lower", "upper", "velocity", "acceleration", "effort"):
+            arr = np.asarray(getattr(self, name), dtype=float)
+            if arr.shape != (n,):
+                raise ValueError(f"{name} must have one entry per joint ({n}), got shape {arr.shape}")
+            object.__setattr__(self, name, arr)
+
+    @property
+    def dof(self) -> int:
+        return len(self.names)
+
+    @classmethod
+    def from_model(cls, model: RobotModel) -> JointLimits:
+        """The URDF's limits (no acceleration limit there: inf)."""
+        j = model.joints
+        return cls(
+            names=model.joint_names,
+            lower=np.array([x.lower for x in j]),
+            upper=np.array([x.upper for x in j]),
+            velocity=np.array([x.velocity for x in j]),
+            acceleration=np.full(len(j), np.inf),
+            effort=np.array([x.effort for x in j]),
+        )
+
+    def merged_with(self, other: JointLimits) -> JointLimits:
+        """The stricter of the two, joint by joint (matched by name)."""
+        idx = [other.names.index(n) for n in self.names]
+        return JointLimits(
+            names=self.names,
+            lower=np.maximum(self.lower, other.lower[idx]),
+            upper=np.minimum(self.upper, other.upper[idx]),
+            velocity=np.minimum(self.velocity, other.velocity[idx]),
+            acceleration=np.minimum(self.acceleration, other.acceleration[idx]),
+            effort=np.minimum(self.effort, other.effort[idx]),
+        )
+
+    def scaled(self, velocity: float = 1.0, acceleration: float = 1.0) -> JointLimits:
+        """The same limits with velocity and acceleration bounds multiplied (speed override)."""
+        return JointLimits(self.names, self.lower, self.upper, self.velocity * velocity,
+                           self.acceleration * acceleration, self.effort)
+
+
+def joint_limits_from_drives(
+    names: Sequence[str], scalings: Sequence[AxisScaling], drives: Sequence[DriveLimits]
+) -> JointLimits:
+    """0x607F [rpm], 0x60C5 [rpm/s] and 0x607D [qc] of each drive, in joint units."""
+    if not (len(names) == len(scalings) == len(drives)):
+        raise ValueError("one scaling and one set of drive limits per joint")
+    lower, upper, vel, acc = [], [], [], []
+    for s, d in zip(scalings, drives, strict=True):
+        a, b = s.qc_to_position([d.min_position_qc, d.max_position_qc])
+        lower.append(min(a, b))
+        upper.append(max(a, b))
+        vel.append(abs(float(s.rpm_to_velocity(d.max_profile_velocity_rpm))))
+        acc.append(abs(float(s.rpm_s_to_acceleration(d.max_acceleration_rpm_s))))
+    n = len(names)
+    return JointLimits(tuple(names), np.array(lower), np.array(upper), np.array(vel), np.array(acc), np.full(n, np.inf))

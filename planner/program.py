@@ -1,0 +1,238 @@
+"""The PVT program: what pvtflow hands to the drives, and its JSON form (DESIGN.md section 4).
+
+A program is pure data in drive units. It is read and written as JSON text here; opening files
+is the caller's business (the planner does no I/O).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
+from planner import interpolation
+from planner.interpolation import PiecewiseCubic
+
+FORMAT = "pvtflow.pvt-program"
+VERSION = 1
+
+PROFILES = ("epos2_pvt", "cia402_ip_linear", "sync_setpoint", "parker_slvdn")
+FIXED_PERIOD_PROFILES = ("cia402_ip_linear", "sync_setpoint", "parker_slvdn")
+
+TIME_MAX_MS = 255
+
+
+class ProgramFormatError(ValueError):
+    """The text is not a pvtflow PVT program; ``where`` is a JSON path such as axes[2].records[7]."""
+
+    def __init__(self, where: str, problem: str) -> None:
+        self.where = where
+        self.problem = problem
+        super().__init__(f"{where}: {problem}" if where else problem)
+
+
+@dataclass(frozen=True)
+class AxisProgram:
+    """One axis's records and the facts needed to know what its drive will make of them.
+
+    ``interpolation_submode`` is the Parker 0x60C0 value (0 linear, -1 cubic position+velocity,
+    -2 cubic position only); the other profiles have one behaviour each.
+    """
+
+    name: str
+    node_id: int
+    profile: str
+    scaling: AxisScaling
+    limits: DriveLimits
+    records: NDArray[np.int64]
+    interpolation_submode: int | None = None
+
+    @property
+    def duration_ms(self) -> int:
+        return int(self.records[:, 2].sum())
+
+    @property
+    def period_ms(self) -> int | None:
+        """The fixed record period of a fixed-period profile (None for EPOS2 PVT)."""
+        return int(self.records[0, 2]) if self.profile in FIXED_PERIOD_PROFILES else None
+
+    def reconstruction(self) -> PiecewiseCubic:
+        """The motion this axis's drive will execute from these records (qc, ms)."""
+        r = self.records
+        factor = self.scaling.qc_per_ms_per_velocity_unit
+        if self.profile == "epos2_pvt":
+            return interpolation.epos2_pvt(r, factor)
+        period = float(r[0, 2])
+        if self.profile == "parker_slvdn" and self.interpolation_submode == -1:
+            return interpolation.cubic_pv(r, period, factor)
+        if self.profile == "parker_slvdn" and self.interpolation_submode == -2:
+            return interpolation.cubic_p(r, period)
+        return interpolation.linear(r, period)
+
+
+@dataclass(frozen=True)
+class PvtProgram:
+    cell: str
+    axes: tuple[AxisProgram, ...]
+    metadata: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def duration_ms(self) -> int:
+        return max((a.duration_ms for a in self.axes), default=0)
+
+    def axis(self, name: str) -> AxisProgram:
+        for a in self.axes:
+            if a.name == name:
+                return a
+        raise KeyError(name)
+
+    # --- JSON --------------------------------------------------------------------------------
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"format": FORMAT, "version": VERSION, "cell": self.cell, "axes": []}
+        for a in self.axes:
+            entry: dict[str, Any] = {
+                "name": a.name,
+                "node_id": a.node_id,
+                "profile": a.profile,
+                "qc_per_motor_rev": a.scaling.qc_per_motor_rev,
+                "motor_rev_per_joint_unit": a.scaling.motor_rev_per_joint_unit,
+                "velocity_unit_rpm": a.scaling.velocity_unit_rpm,
+                "limits": a.limits.to_json(),
+                "records": a.records.tolist(),
+            }
+            if a.interpolation_submode is not None:
+                entry["interpolation_submode"] = a.interpolation_submode
+            out["axes"].append(entry)
+        if self.metadata:
+            out["metadata"] = dict(self.metadata)
+        return out
+
+    def dumps(self, indent: int | None = None) -> str:
+        if indent is None:
+            return json.dumps(self.to_json(), separators=(",", ":"))
+        # records one per line: readable and diffable
+        text = json.dumps(self.to_json(), indent=indent)
+        return text
+
+    @classmethod
+    def loads(cls, text: str | bytes) -> PvtProgram:
+        try:
+            data = json.loads(text)
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ProgramFormatError("", f"not JSON: {exc}") from None
+        return cls.from_json(data)
+
+    @classmethod
+    def from_json(cls, data: Any) -> PvtProgram:
+        """Parse and check the structure (types and ranges of every field); see validate for the rest."""
+        if not isinstance(data, dict):
+            raise ProgramFormatError("", "not a PVT program: the top level must be a JSON object")
+        if data.get("format") != FORMAT:
+            raise ProgramFormatError("format", f"not a PVT program: expected format {FORMAT!r}, got {data.get('format')!r}")
+        if data.get("version") != VERSION:
+            raise ProgramFormatError("version", f"unsupported version {data.get('version')!r} (this pvtflow reads {VERSION})")
+        cell = data.get("cell", "")
+        if not isinstance(cell, str):
+            raise ProgramFormatError("cell", "must be a string")
+        axes_data = data.get("axes")
+        if not isinstance(axes_data, list) or not axes_data:
+            raise ProgramFormatError("axes", "must be a non-empty list")
+        axes = tuple(_axis_from_json(f"axes[{i}]", a) for i, a in enumerate(axes_data))
+        _unique(axes, "name")
+        _unique(axes, "node_id")
+        metadata = data.get("metadata", {})
+        if not isinstance(metadata, dict):
+            raise ProgramFormatError("metadata", "must be an object")
+        return cls(cell=cell, axes=axes, metadata=metadata)
+
+
+def _unique(axes: Sequence[AxisProgram], attr: str) -> None:
+    seen: dict[Any, int] = {}
+    for i, a in enumerate(axes):
+        value = getattr(a, attr)
+        if value in seen:
+            raise ProgramFormatError(f"axes[{i}].{attr}", f"duplicate {attr} {value!r} (also axes[{seen[value]}])")
+        seen[value] = i
+
+
+def _number(where: str, value: Any, *, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ProgramFormatError(where, f"must be a finite number, got {value!r}")
+    if positive and value <= 0:
+        raise ProgramFormatError(where, f"must be positive, got {value!r}")
+    return float(value)
+
+
+def _integer(where: str, value: Any, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ProgramFormatError(where, f"must be an integer, got {value!r}")
+    if not lo <= value <= hi:
+        raise ProgramFormatError(where, f"{value} is outside [{lo}, {hi}]")
+    return value
+
+
+def _axis_from_json(where: str, a: Any) -> AxisProgram:
+    if not isinstance(a, dict):
+        raise ProgramFormatError(where, "must be an object")
+    for key in ("name", "node_id", "profile", "qc_per_motor_rev", "motor_rev_per_joint_unit", "limits", "records"):
+        if key not in a:
+            raise ProgramFormatError(f"{where}.{key}", "missing")
+    name = a["name"]
+    if not isinstance(name, str) or not name:
+        raise ProgramFormatError(f"{where}.name", "must be a non-empty string")
+    node_id = _integer(f"{where}.node_id", a["node_id"], 1, 127)
+    profile = a["profile"]
+    if profile not in PROFILES:
+        raise ProgramFormatError(f"{where}.profile", f"unknown profile {profile!r} (one of {', '.join(PROFILES)})")
+    qc_per_rev = _number(f"{where}.qc_per_motor_rev", a["qc_per_motor_rev"], positive=True)
+    rev_per_unit = _number(f"{where}.motor_rev_per_joint_unit", a["motor_rev_per_joint_unit"])
+    if rev_per_unit == 0:
+        raise ProgramFormatError(f"{where}.motor_rev_per_joint_unit", "must not be zero")
+    vel_unit = _number(f"{where}.velocity_unit_rpm", a.get("velocity_unit_rpm", 1.0), positive=True)
+    scaling = AxisScaling(qc_per_rev, rev_per_unit, vel_unit)
+
+    lim = a["limits"]
+    lw = f"{where}.limits"
+    if not isinstance(lim, dict):
+        raise ProgramFormatError(lw, "must be an object")
+    for key in ("max_profile_velocity_rpm", "max_acceleration_rpm_s", "min_position_qc", "max_position_qc"):
+        if key not in lim:
+            raise ProgramFormatError(f"{lw}.{key}", "missing")
+    optional = {k: _number(f"{lw}.{k}", lim[k], positive=True)
+                for k in ("profile_velocity_rpm", "profile_acceleration_rpm_s") if lim.get(k) is not None}
+    lo = _integer(f"{lw}.min_position_qc", lim["min_position_qc"], INT32_MIN, INT32_MAX)
+    hi = _integer(f"{lw}.max_position_qc", lim["max_position_qc"], INT32_MIN, INT32_MAX)
+    if lo >= hi:
+        raise ProgramFormatError(lw, f"min_position_qc {lo} must be below max_position_qc {hi}")
+    limits = DriveLimits(
+        max_profile_velocity_rpm=_number(f"{lw}.max_profile_velocity_rpm", lim["max_profile_velocity_rpm"], positive=True),
+        max_acceleration_rpm_s=_number(f"{lw}.max_acceleration_rpm_s", lim["max_acceleration_rpm_s"], positive=True),
+        min_position_qc=lo,
+        max_position_qc=hi,
+        **optional,
+    )
+
+    submode = a.get("interpolation_submode")
+    if submode is not None:
+        if profile != "parker_slvdn":
+            raise ProgramFormatError(f"{where}.interpolation_submode", "only the parker_slvdn profile has submodes")
+        _integer(f"{where}.interpolation_submode", submode, -2, 0)
+
+    records = a["records"]
+    rw = f"{where}.records"
+    if not isinstance(records, list) or len(records) < 2:
+        raise ProgramFormatError(rw, "must be a list of at least 2 records [position_qc, velocity, time_ms]")
+    out = np.empty((len(records), 3), dtype=np.int64)
+    for k, rec in enumerate(records):
+        if not isinstance(rec, list) or len(rec) != 3:
+            raise ProgramFormatError(f"{rw}[{k}]", f"must be [position_qc, velocity, time_ms], got {rec!r}")
+        out[k, 0] = _integer(f"{rw}[{k}] position", rec[0], INT32_MIN, INT32_MAX)
+        out[k, 1] = _integer(f"{rw}[{k}] velocity", rec[1], INT24_MIN, INT24_MAX)
+        out[k, 2] = _integer(f"{rw}[{k}] time", rec[2], 0, TIME_MAX_MS)
+    return AxisProgram(name, node_id, profile, scaling, limits, out, submode)

@@ -1,0 +1,363 @@
+"""Cell configuration: the robot, its CAN bus and its axes, read from YAML and checked field by field.
+
+Every problem is reported as ``FILE: FIELD: PROBLEM`` (a :class:`ConfigError`), never as a
+traceback, so that a commissioning engineer can fix the file without reading code.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
+from planner.limits import JointLimits, joint_limits_from_drives
+from planner.model import ModelError, RobotModel
+from planner.program import FIXED_PERIOD_PROFILES, PROFILES
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+DEFAULT_CELL = CONFIG_DIR / "cells" / "arm6.yaml"
+
+PYTHON_CAN_INTERFACES = (
+    "virtual", "socketcan", "pcan", "kvaser", "vector", "ixxat", "slcan", "serial", "usb2can",
+    "nican", "iscan", "neovi", "canalystii", "systec", "seeedstudio", "cantact", "gs_usb",
+    "nixnet", "etas", "udp_multicast", "socketcand", "robotell", "pcan",
+)
+
+
+class ConfigError(ValueError):
+    """A cell configuration problem: which file, which field, what is wrong."""
+
+    def __init__(self, file: str | Path, where: str, problem: str) -> None:
+        self.file = str(file)
+        self.where = where
+        self.problem = problem
+        super().__init__(f"{self.file}: {where}: {problem}" if where else f"{self.file}: {problem}")
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    interface: str = "virtual"
+    channel: str = "pvtflow"
+    bitrate: int = 1_000_000
+    sync_period_ms: float = 1.0
+    time_stamp: bool = True  # send 0x1013 after every SYNC
+    heartbeat_ms: int = 100  # producer time asked of every node (0x1017)
+    heartbeat_timeout_factor: float = 3.0  # a node is lost after this many missed periods
+
+
+@dataclass(frozen=True)
+class BufferConfig:
+    """EPOS2 0x20C4:02 / :03: the levels the feeder keeps the FIFO between."""
+
+    underflow_warning: int = 4
+    overflow_warning: int = 60
+
+
+@dataclass(frozen=True)
+class AxisConfig:
+    joint: str
+    node_id: int
+    profile: str
+    scaling: AxisScaling
+    limits: DriveLimits
+    period_ms: int | None = None  # fixed-period profiles: one record per period
+    interpolation_submode: int | None = None  # parker_slvdn 0x60C0
+    buffer: BufferConfig = field(default_factory=BufferConfig)
+
+
+@dataclass(frozen=True)
+class PlanningConfig:
+    tcp_frame: str | None = None
+    max_tcp_speed: float | None = None  # m/s
+    torque_limits: bool = True  # only where the URDF has effort limits and masses
+    position_tolerance_qc: float = 1.0
+
+
+@dataclass(frozen=True)
+class CellConfig:
+    name: str
+    source: Path
+    urdf: Path
+    bus: BusConfig
+    axes: tuple[AxisConfig, ...]
+    planning: PlanningConfig
+    simulated: bool
+    model: RobotModel = field(repr=False, compare=False)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Joint order of every plan and program: the robot model's order."""
+        return self.model.joint_names
+
+    def axis_for_joint(self, joint: str) -> AxisConfig:
+        for a in self.axes:
+            if a.joint == joint:
+                return a
+        raise KeyError(joint)
+
+    def ordered_axes(self) -> tuple[AxisConfig, ...]:
+        """The axes in the model's joint order."""
+        return tuple(self.axis_for_joint(j) for j in self.joint_names)
+
+    def joint_limits(self) -> JointLimits:
+        """Joint-space limits: the drives' (through the scaling) merged with the URDF's."""
+        axes = self.ordered_axes()
+        return joint_limits_from_drives(
+            self.joint_names, [a.scaling for a in axes], [a.limits for a in axes]
+        ).merged_with(JointLimits.from_model(self.model))
+
+
+# --- reading ---------------------------------------------------------------------------------------
+T = TypeVar("T")
+
+
+class _Fields:
+    """Reads one YAML mapping, naming the file and the field in every error."""
+
+    def __init__(self, file: Path, where: str, data: Any, allowed: tuple[str, ...]) -> None:
+        self.file = file
+        self.where = where
+        if not isinstance(data, Mapping):
+            raise ConfigError(file, where or "(top level)", f"must be a mapping, got {type(data).__name__}")
+        self.data = data
+        unknown = [k for k in data if k not in allowed]
+        if unknown:
+            raise ConfigError(file, self.path(str(unknown[0])), f"unknown field (allowed: {', '.join(allowed)})")
+
+    def path(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def error(self, key: str, problem: str) -> ConfigError:
+        return ConfigError(self.file, self.path(key), problem)
+
+    def get(self, key: str, convert: Callable[[str, Any], T], default: Any = ...) -> T:
+        if key not in self.data or self.data[key] is None:
+            if default is ...:
+                raise self.error(key, "missing")
+            return default
+        return convert(key, self.data[key])
+
+    # converters -------------------------------------------------------------------------------
+    def number(self, positive: bool = False) -> Callable[[str, Any], float]:
+        def conv(key: str, v: Any) -> float:
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise self.error(key, f"must be a finite number, got {v!r}")
+            if positive and v <= 0:
+                raise self.error(key, f"must be positive, got {v!r}")
+            return float(v)
+
+        return conv
+
+    def integer(self, lo: int, hi: int) -> Callable[[str, Any], int]:
+        def conv(key: str, v: Any) -> int:
+            if isinstance(v, bool) or not isinstance(v, int):
+                raise self.error(key, f"must be an integer, got {v!r}")
+            if not lo <= v <= hi:
+                raise self.error(key, f"{v} is outside [{lo}, {hi}]")
+            return v
+
+        return conv
+
+    def string(self, key: str, v: Any) -> str:
+        if not isinstance(v, str) or not v:
+            raise self.error(key, f"must be a non-empty string, got {v!r}")
+        return v
+
+    def boolean(self, key: str, v: Any) -> bool:
+        if not isinstance(v, bool):
+            raise self.error(key, f"must be true or false, got {v!r}")
+        return v
+
+
+def load_cell_config(path: str | Path | None = None) -> CellConfig:
+    """Read and check a cell YAML file (the demo arm cell when no path is given)."""
+    file = Path(path) if path is not None else DEFAULT_CELL
+    if not file.is_file():
+        raise ConfigError(file, "", "file not found")
+    try:
+        data = yaml.safe_load(file.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise ConfigError(file, "", f"not valid YAML ({exc})") from None
+    return parse_cell_config(data, file)
+
+
+def parse_cell_config(data: Any, file: Path) -> CellConfig:
+    top = _Fields(file, "", data, ("name", "robot", "bus", "axes", "planning", "simulated"))
+    name = top.get("name", top.string)
+
+    robot = _Fields(file, "robot", top.data.get("robot"), ("urdf", "tcp_frame")) if "robot" in top.data else None
+    if robot is None:
+        raise top.error("robot", "missing")
+    urdf = (file.parent / robot.get("urdf", robot.string)).resolve()
+    if not urdf.is_file():
+        raise robot.error("urdf", f"URDF file not found: {urdf}")
+    try:
+        model = RobotModel.from_urdf(urdf)
+    except ModelError as exc:
+        raise robot.error("urdf", str(exc)) from None
+    tcp_frame = robot.get("tcp_frame", robot.string, None)
+    if tcp_frame is not None and not model.model.existFrame(tcp_frame):
+        raise robot.error("tcp_frame", f"the URDF has no frame {tcp_frame!r}")
+
+    bus = _parse_bus(file, top.data.get("bus", {}))
+    planning = _parse_planning(file, top.data.get("planning", {}), tcp_frame, model)
+    simulated = top.get("simulated", top.boolean, bus.interface == "virtual")
+
+    axes_data = top.get("axes", lambda k, v: v)
+    if not isinstance(axes_data, list) or not axes_data:
+        raise top.error("axes", "must be a non-empty list of axes")
+    axes: list[AxisConfig] = []
+    for i, a in enumerate(axes_data):
+        axes.append(_parse_axis(file, f"axes[{i}]", a, model, bus))
+
+    seen_joint: dict[str, int] = {}
+    seen_node: dict[int, int] = {}
+    for i, a in enumerate(axes):
+        if a.joint in seen_joint:
+            raise ConfigError(file, f"axes[{i}].joint", f"joint {a.joint!r} already has an axis (axes[{seen_joint[a.joint]}])")
+        if a.node_id in seen_node:
+            raise ConfigError(file, f"axes[{i}].node_id", f"duplicate node id {a.node_id} (also axes[{seen_node[a.node_id]}])")
+        seen_joint[a.joint] = i
+        seen_node[a.node_id] = i
+    for joint in model.joint_names:
+        if joint not in seen_joint:
+            raise ConfigError(file, "axes", f"joint {joint!r} of the URDF has no axis")
+
+    cell = CellConfig(name, file, urdf, bus, tuple(axes), planning, simulated, model)
+    _check_limits_consistent(file, cell)
+    return cell
+
+
+def _parse_bus(file: Path, data: Any) -> BusConfig:
+    f = _Fields(file, "bus", data, ("interface", "channel", "bitrate", "sync_period_ms", "time_stamp",
+                                    "heartbeat_ms", "heartbeat_timeout_factor"))
+    d = BusConfig()
+    interface = f.get("interface", f.string, d.interface)
+    if interface not in PYTHON_CAN_INTERFACES:
+        raise f.error("interface", f"unknown python-can interface {interface!r}")
+    channel = f.get("channel", lambda k, v: f.string(k, str(v)), d.channel)
+    bitrate = f.get("bitrate", f.integer(10_000, 1_000_000), d.bitrate)
+    sync = f.get("sync_period_ms", f.number(positive=True), d.sync_period_ms)
+    if not 0.1 <= sync <= 255:
+        raise f.error("sync_period_ms", f"{sync} ms is outside [0.1, 255]")
+    return BusConfig(
+        interface=interface,
+        channel=channel,
+        bitrate=bitrate,
+        sync_period_ms=sync,
+        time_stamp=f.get("time_stamp", f.boolean, d.time_stamp),
+        heartbeat_ms=f.get("heartbeat_ms", f.integer(1, 65535), d.heartbeat_ms),
+        heartbeat_timeout_factor=f.get("heartbeat_timeout_factor", f.number(positive=True), d.heartbeat_timeout_factor),
+    )
+
+
+def _parse_planning(file: Path, data: Any, tcp_frame: str | None, model: RobotModel) -> PlanningConfig:
+    f = _Fields(file, "planning", data, ("max_tcp_speed", "torque_limits", "position_tolerance_qc"))
+    max_tcp = f.get("max_tcp_speed", f.number(positive=True), None)
+    if max_tcp is not None and tcp_frame is None:
+        raise f.error("max_tcp_speed", "needs robot.tcp_frame to know which frame to limit")
+    torque = f.get("torque_limits", f.boolean, True)
+    return PlanningConfig(
+        tcp_frame=tcp_frame,
+        max_tcp_speed=max_tcp,
+        torque_limits=torque and model.has_dynamics,
+        position_tolerance_qc=f.get("position_tolerance_qc", f.number(positive=True), 1.0),
+    )
+
+
+def _parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusConfig) -> AxisConfig:
+    f = _Fields(file, where, data, ("joint", "node_id", "profile", "scaling", "limits", "period_ms",
+                                    "interpolation_submode", "buffer"))
+    joint = f.get("joint", f.string)
+    if joint not in model.joint_names:
+        raise f.error("joint", f"unknown joint {joint!r}: the URDF has {', '.join(model.joint_names)}")
+    kind = model.joints[model.index(joint)].kind
+    node_id = f.get("node_id", f.integer(1, 127))
+    profile = f.get("profile", f.string)
+    if profile not in PROFILES:
+        raise f.error("profile", f"unknown drive profile {profile!r} (one of {', '.join(PROFILES)})")
+
+    s = _Fields(file, f.path("scaling"), f.get("scaling", lambda k, v: v),
+                ("qc_per_motor_rev", "gear_ratio", "lead_m", "velocity_unit_rpm", "position_offset_qc"))
+    qc = s.get("qc_per_motor_rev", s.number(positive=True))
+    gear = s.get("gear_ratio", s.number(), 1.0)
+    if gear == 0:
+        raise s.error("gear_ratio", "must not be zero (negative inverts the direction)")
+    vel_unit = s.get("velocity_unit_rpm", s.number(positive=True), 1.0)
+    offset = s.get("position_offset_qc", s.integer(INT32_MIN, INT32_MAX), 0)
+    if kind == "prismatic":
+        lead = s.get("lead_m", s.number(positive=True))
+        scaling = AxisScaling.prismatic(qc, lead, gear, vel_unit, offset)
+    else:
+        if "lead_m" in s.data:
+            raise s.error("lead_m", f"joint {joint!r} is revolute: give gear_ratio only")
+        scaling = AxisScaling.revolute(qc, gear, vel_unit, offset)
+
+    lf = _Fields(file, f.path("limits"), f.get("limits", lambda k, v: v),
+                 ("max_profile_velocity_rpm", "max_acceleration_rpm_s", "min_position_qc", "max_position_qc",
+                  "profile_velocity_rpm", "profile_acceleration_rpm_s"))
+    lo = lf.get("min_position_qc", lf.integer(INT32_MIN, INT32_MAX))
+    hi = lf.get("max_position_qc", lf.integer(INT32_MIN, INT32_MAX))
+    if lo >= hi:
+        raise lf.error("max_position_qc", f"must be above min_position_qc ({hi} <= {lo})")
+    limits = DriveLimits(
+        max_profile_velocity_rpm=lf.get("max_profile_velocity_rpm", lf.number(positive=True)),
+        max_acceleration_rpm_s=lf.get("max_acceleration_rpm_s", lf.number(positive=True)),
+        min_position_qc=lo,
+        max_position_qc=hi,
+        profile_velocity_rpm=lf.get("profile_velocity_rpm", lf.number(positive=True), None),
+        profile_acceleration_rpm_s=lf.get("profile_acceleration_rpm_s", lf.number(positive=True), None),
+    )
+
+    period = f.get("period_ms", f.integer(1, 255), None)
+    submode = f.get("interpolation_submode", f.integer(-2, 0), None)
+    if profile in FIXED_PERIOD_PROFILES:
+        sync = bus.sync_period_ms
+        if period is None:
+            if sync != round(sync):
+                raise f.error("period_ms", f"missing, and the SYNC period {sync} ms is not a whole number of ms")
+            period = int(round(sync))
+        if profile == "sync_setpoint" and (period != sync or not 1 <= period <= 100):
+            raise f.error("period_ms", f"a bufferless drive takes one setpoint per SYNC: must equal "
+                          f"bus.sync_period_ms ({sync}) and lie in [1, 100] ms")
+        if profile == "parker_slvdn" and period != sync:
+            raise f.error("period_ms", f"the Parker cycle (0x1006) is the SYNC period: must equal {sync}")
+        if abs(period / sync - round(period / sync)) > 1e-9:
+            raise f.error("period_ms", f"{period} ms is not a whole number of SYNC periods ({sync} ms)")
+    elif period is not None:
+        raise f.error("period_ms", f"only fixed-period profiles ({', '.join(FIXED_PERIOD_PROFILES)}) have one")
+    if profile == "parker_slvdn":
+        submode = -1 if submode is None else submode
+    elif submode is not None:
+        raise f.error("interpolation_submode", "only the parker_slvdn profile has interpolation submodes")
+
+    buffer = BufferConfig()
+    if "buffer" in f.data:
+        if profile != "epos2_pvt":
+            raise f.error("buffer", "only the epos2_pvt profile has a record buffer")
+        b = _Fields(file, f.path("buffer"), f.data["buffer"], ("underflow_warning", "overflow_warning"))
+        buffer = BufferConfig(
+            underflow_warning=b.get("underflow_warning", b.integer(0, 63), buffer.underflow_warning),
+            overflow_warning=b.get("overflow_warning", b.integer(1, 64), buffer.overflow_warning),
+        )
+        if buffer.underflow_warning + 2 > buffer.overflow_warning:
+            raise b.error("overflow_warning", "must be at least 2 above underflow_warning")
+    return AxisConfig(joint, node_id, profile, scaling, limits, period, submode, buffer)
+
+
+def _check_limits_consistent(file: Path, cell: CellConfig) -> None:
+    """The drive's 0x607D must leave the joint somewhere to be: an empty intersection is a typo."""
+    limits = cell.joint_limits()
+    for k, joint in enumerate(cell.joint_names):
+        if limits.lower[k] >= limits.upper[k]:
+            i = cell.axes.index(cell.axis_for_joint(joint))
+            raise ConfigError(
+                file, f"axes[{i}].limits",
+                f"0x607D [{cell.axes[i].limits.min_position_qc}, {cell.axes[i].limits.max_position_qc}] qc "
+                f"does not overlap the URDF range of {joint!r}",
+            )
