@@ -1,0 +1,151 @@
+"""Object dictionary facts shared by the master and the simulated drives.
+
+Indices, the EPOS2 record (complex data structure 0x0040) and its packing, the bits of the EPOS2
+interpolation buffer status 0x20C4:01, and the PDO layout pvtflow configures for each drive
+profile. Both sides of the bus import these; nothing else restates them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntFlag
+
+from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
+
+# --- CiA 301 / CiA 402 objects ----------------------------------------------------------------
+COMMUNICATION_CYCLE_PERIOD = 0x1006  # us; the Parker SLVDN takes its cycle from it
+HIGH_RESOLUTION_TIME_STAMP = 0x1013  # us, written after each SYNC (EPOS2 app note 2.4)
+PRODUCER_HEARTBEAT_TIME = 0x1017
+CONTROLWORD = 0x6040
+STATUSWORD = 0x6041
+MODES_OF_OPERATION = 0x6060
+MODES_OF_OPERATION_DISPLAY = 0x6061
+POSITION_DEMAND_VALUE = 0x6062
+POSITION_ACTUAL_VALUE = 0x6064
+MAX_FOLLOWING_ERROR = 0x6065
+SOFTWARE_POSITION_LIMIT = 0x607D  # :01 min, :02 max
+MAX_PROFILE_VELOCITY = 0x607F
+PROFILE_VELOCITY = 0x6081
+PROFILE_ACCELERATION = 0x6083
+QUICK_STOP_DECELERATION = 0x6084
+INTERPOLATION_SUBMODE = 0x60C0
+INTERPOLATION_DATA_RECORD = 0x60C1  # :01 target position, :02 velocity (counts/s), :03 velocity (rpm)
+INTERPOLATION_TIME_PERIOD = 0x60C2  # :01 value, :02 index (10^index s)
+INTERPOLATION_DATA_CONFIGURATION = 0x60C4  # :01 max size, :02 free size, ..., :06 buffer clear
+MAX_ACCELERATION = 0x60C5
+
+INTERPOLATED_POSITION_MODE = 7
+
+# --- maxon EPOS2 ---------------------------------------------------------------------------------
+EPOS2_INTERPOLATION_DATA_RECORD = 0x20C1  # the PVT FIFO input, u64
+EPOS2_INTERPOLATION_BUFFER = 0x20C4  # :01 status, :02 underflow warning level, :03 overflow warning level
+EPOS2_BUFFER_SIZE = 64
+
+# --- Parker SLVDN --------------------------------------------------------------------------------
+# Parker drive parameters PrN are reached at 0x2000 + N (pvtflow's simulated SLVDN and configuration).
+PARKER_PARAMETER_BASE = 0x2000
+PARKER_OPERATIVE_MODE = PARKER_PARAMETER_BASE + 31  # Pr31
+PARKER_IP_MODE = 202
+PARKER_CUBIC_THRESHOLD_US = 2500  # below: direct position loop; from it on: interpolated
+
+
+class BufferStatus(IntFlag):
+    """EPOS2 0x20C4:01, as the firmware sets it (DESIGN.md section 5; the app note's Table 13 repeats
+    bits 2 and 3 for the errors, Table 12 reserves 10-13: the firmware uses 10 and 11)."""
+
+    UNDERFLOW_WARNING = 1 << 0
+    OVERFLOW_WARNING = 1 << 1
+    VELOCITY_WARNING = 1 << 2
+    ACCELERATION_WARNING = 1 << 3
+    UNDERFLOW_ERROR = 1 << 8
+    OVERFLOW_ERROR = 1 << 9
+    VELOCITY_ERROR = 1 << 10
+    ACCELERATION_ERROR = 1 << 11
+    BUFFER_ENABLED = 1 << 14
+    IP_MODE_ACTIVE = 1 << 15
+
+
+BUFFER_ERRORS = (
+    BufferStatus.UNDERFLOW_ERROR | BufferStatus.OVERFLOW_ERROR | BufferStatus.VELOCITY_ERROR | BufferStatus.ACCELERATION_ERROR
+)
+
+
+@dataclass(frozen=True)
+class Record:
+    """One PVT reference point as the EPOS2 takes it (time in ms, velocity in velocity units, qc)."""
+
+    position: int
+    velocity: int
+    time: int
+
+    def pack(self) -> int:
+        """The u64 of 0x20C1: time (u8) << 56 | velocity (s24) << 32 | position (s32)."""
+        if not INT32_MIN <= self.position <= INT32_MAX:
+            raise ValueError(f"record position {self.position} is outside int32")
+        if not INT24_MIN <= self.velocity <= INT24_MAX:
+            raise ValueError(f"record velocity {self.velocity} is outside int24")
+        if not 0 <= self.time <= 255:
+            raise ValueError(f"record time {self.time} is outside 0..255 ms")
+        return (self.time << 56) | ((self.velocity & 0xFFFFFF) << 32) | (self.position & 0xFFFFFFFF)
+
+    def to_bytes(self) -> bytes:
+        """The 8 data bytes of the record as they travel in the RPDO or SDO (little endian)."""
+        return self.pack().to_bytes(8, "little")
+
+    @classmethod
+    def unpack(cls, value: int) -> Record:
+        position = value & 0xFFFFFFFF
+        velocity = (value >> 32) & 0xFFFFFF
+        time = (value >> 56) & 0xFF
+        if position >= 1 << 31:
+            position -= 1 << 32
+        if velocity >= 1 << 23:
+            velocity -= 1 << 24
+        return cls(position, velocity, time)
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> Record:
+        return cls.unpack(int.from_bytes(data[:8], "little"))
+
+
+# --- PDO layout (the contract between the master's configuration and the drives) ----------------
+@dataclass(frozen=True)
+class PdoLayout:
+    """One PDO as pvtflow maps it: number (1-4), transmission type, mapped (index, subindex, bits)."""
+
+    number: int
+    transmission_type: int  # 1 = synchronous (every SYNC), 255 = asynchronous / event driven
+    entries: tuple[tuple[int, int, int], ...]
+
+    def cob_id(self, node_id: int, receive: bool) -> int:
+        return (0x100 if receive else 0x080) + 0x100 * self.number + node_id
+
+
+SYNCHRONOUS = 1
+ASYNCHRONOUS = 255
+
+# EPOS2 buffered PVT (app note 3.7): records through an asynchronous RPDO, buffer status and
+# statusword through an event TPDO, the controlword through a synchronous RPDO (synchronous
+# start), and a synchronous TPDO with the position for telemetry and the SYNC-lockstep clock.
+EPOS2_RPDOS = (
+    PdoLayout(1, ASYNCHRONOUS, ((EPOS2_INTERPOLATION_DATA_RECORD, 0, 64),)),
+    PdoLayout(2, SYNCHRONOUS, ((CONTROLWORD, 0, 16),)),
+)
+EPOS2_TPDOS = (
+    PdoLayout(1, ASYNCHRONOUS, ((EPOS2_INTERPOLATION_BUFFER, 1, 16), (STATUSWORD, 0, 16))),
+    PdoLayout(2, SYNCHRONOUS, ((STATUSWORD, 0, 16), (POSITION_ACTUAL_VALUE, 0, 32))),
+)
+
+# Fixed-period drives: one setpoint per period, validated by SYNC, controlword synchronous as well.
+SETPOINT_RPDOS = (
+    PdoLayout(1, SYNCHRONOUS, ((INTERPOLATION_DATA_RECORD, 1, 32),)),
+    PdoLayout(2, SYNCHRONOUS, ((CONTROLWORD, 0, 16),)),
+)
+SETPOINT_TPDOS = (PdoLayout(1, SYNCHRONOUS, ((STATUSWORD, 0, 16), (POSITION_ACTUAL_VALUE, 0, 32))),)
+
+# Parker SLVDN mode 202: position + velocity feed-forward in rpm on the synchronous PDO 4 rx.
+PARKER_RPDOS = (
+    PdoLayout(4, SYNCHRONOUS, ((INTERPOLATION_DATA_RECORD, 1, 32), (INTERPOLATION_DATA_RECORD, 3, 32))),
+    PdoLayout(2, SYNCHRONOUS, ((CONTROLWORD, 0, 16),)),
+)
+PARKER_TPDOS = SETPOINT_TPDOS
