@@ -66,8 +66,9 @@ class JointLimits:
 
     def scaled(self, velocity: float = 1.0, acceleration: float = 1.0) -> JointLimits:
         """The same limits with velocity and acceleration bounds multiplied (speed override)."""
-        return JointLimits(self.names, self.lower, self.upper, self.velocity * velocity,
-                           self.acceleration * acceleration, self.effort)
+        return JointLimits(
+            self.names, self.lower, self.upper, self.velocity * velocity, self.acceleration * acceleration, self.effort
+        )
 
 
 def joint_limits_from_drives(

@@ -26,7 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Time-optimal multi-axis PVT motion for CANopen CiA 402 drives.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name, module_name in COMMANDS.items():
+    for module_name in COMMANDS.values():
         try:
             module = importlib.import_module(module_name)
         except ModuleNotFoundError as exc:

@@ -23,9 +23,29 @@ CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 DEFAULT_CELL = CONFIG_DIR / "cells" / "arm6.yaml"
 
 PYTHON_CAN_INTERFACES = (
-    "virtual", "socketcan", "pcan", "kvaser", "vector", "ixxat", "slcan", "serial", "usb2can",
-    "nican", "iscan", "neovi", "canalystii", "systec", "seeedstudio", "cantact", "gs_usb",
-    "nixnet", "etas", "udp_multicast", "socketcand", "robotell", "pcan",
+    "virtual",
+    "socketcan",
+    "pcan",
+    "kvaser",
+    "vector",
+    "ixxat",
+    "slcan",
+    "serial",
+    "usb2can",
+    "nican",
+    "iscan",
+    "neovi",
+    "canalystii",
+    "systec",
+    "seeedstudio",
+    "cantact",
+    "gs_usb",
+    "nixnet",
+    "etas",
+    "udp_multicast",
+    "socketcand",
+    "robotell",
+    "pcan",
 )
 
 
@@ -219,9 +239,13 @@ def parse_cell_config(data: Any, file: Path) -> CellConfig:
     seen_node: dict[int, int] = {}
     for i, a in enumerate(axes):
         if a.joint in seen_joint:
-            raise ConfigError(file, f"axes[{i}].joint", f"joint {a.joint!r} already has an axis (axes[{seen_joint[a.joint]}])")
+            raise ConfigError(
+                file, f"axes[{i}].joint", f"joint {a.joint!r} already has an axis (axes[{seen_joint[a.joint]}])"
+            )
         if a.node_id in seen_node:
-            raise ConfigError(file, f"axes[{i}].node_id", f"duplicate node id {a.node_id} (also axes[{seen_node[a.node_id]}])")
+            raise ConfigError(
+                file, f"axes[{i}].node_id", f"duplicate node id {a.node_id} (also axes[{seen_node[a.node_id]}])"
+            )
         seen_joint[a.joint] = i
         seen_node[a.node_id] = i
     for joint in model.joint_names:
@@ -234,8 +258,12 @@ def parse_cell_config(data: Any, file: Path) -> CellConfig:
 
 
 def _parse_bus(file: Path, data: Any) -> BusConfig:
-    f = _Fields(file, "bus", data, ("interface", "channel", "bitrate", "sync_period_ms", "time_stamp",
-                                    "heartbeat_ms", "heartbeat_timeout_factor"))
+    f = _Fields(
+        file,
+        "bus",
+        data,
+        ("interface", "channel", "bitrate", "sync_period_ms", "time_stamp", "heartbeat_ms", "heartbeat_timeout_factor"),
+    )
     d = BusConfig()
     interface = f.get("interface", f.string, d.interface)
     if interface not in PYTHON_CAN_INTERFACES:
@@ -271,8 +299,12 @@ def _parse_planning(file: Path, data: Any, tcp_frame: str | None, model: RobotMo
 
 
 def _parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusConfig) -> AxisConfig:
-    f = _Fields(file, where, data, ("joint", "node_id", "profile", "scaling", "limits", "period_ms",
-                                    "interpolation_submode", "buffer"))
+    f = _Fields(
+        file,
+        where,
+        data,
+        ("joint", "node_id", "profile", "scaling", "limits", "period_ms", "interpolation_submode", "buffer"),
+    )
     joint = f.get("joint", f.string)
     if joint not in model.joint_names:
         raise f.error("joint", f"unknown joint {joint!r}: the URDF has {', '.join(model.joint_names)}")
@@ -282,8 +314,12 @@ def _parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusCo
     if profile not in PROFILES:
         raise f.error("profile", f"unknown drive profile {profile!r} (one of {', '.join(PROFILES)})")
 
-    s = _Fields(file, f.path("scaling"), f.get("scaling", lambda k, v: v),
-                ("qc_per_motor_rev", "gear_ratio", "lead_m", "velocity_unit_rpm", "position_offset_qc"))
+    s = _Fields(
+        file,
+        f.path("scaling"),
+        f.get("scaling", lambda k, v: v),
+        ("qc_per_motor_rev", "gear_ratio", "lead_m", "velocity_unit_rpm", "position_offset_qc"),
+    )
     qc = s.get("qc_per_motor_rev", s.number(positive=True))
     gear = s.get("gear_ratio", s.number(), 1.0)
     if gear == 0:
@@ -298,9 +334,19 @@ def _parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusCo
             raise s.error("lead_m", f"joint {joint!r} is revolute: give gear_ratio only")
         scaling = AxisScaling.revolute(qc, gear, vel_unit, offset)
 
-    lf = _Fields(file, f.path("limits"), f.get("limits", lambda k, v: v),
-                 ("max_profile_velocity_rpm", "max_acceleration_rpm_s", "min_position_qc", "max_position_qc",
-                  "profile_velocity_rpm", "profile_acceleration_rpm_s"))
+    lf = _Fields(
+        file,
+        f.path("limits"),
+        f.get("limits", lambda k, v: v),
+        (
+            "max_profile_velocity_rpm",
+            "max_acceleration_rpm_s",
+            "min_position_qc",
+            "max_position_qc",
+            "profile_velocity_rpm",
+            "profile_acceleration_rpm_s",
+        ),
+    )
     lo = lf.get("min_position_qc", lf.integer(INT32_MIN, INT32_MAX))
     hi = lf.get("max_position_qc", lf.integer(INT32_MIN, INT32_MAX))
     if lo >= hi:
@@ -321,10 +367,13 @@ def _parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusCo
         if period is None:
             if sync != round(sync):
                 raise f.error("period_ms", f"missing, and the SYNC period {sync} ms is not a whole number of ms")
-            period = int(round(sync))
+            period = round(sync)
         if profile == "sync_setpoint" and (period != sync or not 1 <= period <= 100):
-            raise f.error("period_ms", f"a bufferless drive takes one setpoint per SYNC: must equal "
-                          f"bus.sync_period_ms ({sync}) and lie in [1, 100] ms")
+            raise f.error(
+                "period_ms",
+                f"a bufferless drive takes one setpoint per SYNC: must equal "
+                f"bus.sync_period_ms ({sync}) and lie in [1, 100] ms",
+            )
         if profile == "parker_slvdn" and period != sync:
             raise f.error("period_ms", f"the Parker cycle (0x1006) is the SYNC period: must equal {sync}")
         if abs(period / sync - round(period / sync)) > 1e-9:
@@ -357,7 +406,8 @@ def _check_limits_consistent(file: Path, cell: CellConfig) -> None:
         if limits.lower[k] >= limits.upper[k]:
             i = cell.axes.index(cell.axis_for_joint(joint))
             raise ConfigError(
-                file, f"axes[{i}].limits",
+                file,
+                f"axes[{i}].limits",
                 f"0x607D [{cell.axes[i].limits.min_position_qc}, {cell.axes[i].limits.max_position_qc}] qc "
                 f"does not overlap the URDF range of {joint!r}",
             )
