@@ -25,9 +25,9 @@ from planner.limits import JointLimits
 from planner.model import RobotModel
 from planner.path import JointPath, PlanError, PlanResult
 
-DEFAULT_GRIDPOINTS = 120
+DEFAULT_GRIDPOINTS = 140
 # sub-samples per grid interval for the post-check
-_CHECK_SUBSAMPLES = 4
+_CHECK_SUBSAMPLES = 8
 
 
 _X_MAX = 1e8  # bound on s'^2 where nothing binds (the solver wants finite numbers)
@@ -239,10 +239,11 @@ class Trajectory:
 
     def limit_ratios(self, limits: JointLimits) -> tuple[float, float]:
         """Worst |qd|/vmax and |qdd|/amax over the check times."""
-        t = self.check_times()
-        rv = float(np.max(np.abs(self.velocity(t)) / limits.velocity))
-        ra = float(np.max(np.abs(self.acceleration(t)) / limits.acceleration))
-        return rv, ra
+        s, sd, sdd, _ = self._state(self.check_times())
+        qs = self.path(s, 1)
+        qd = qs * sd[:, None]
+        qdd = self.path(s, 2) * (sd * sd)[:, None] + qs * sdd[:, None]
+        return float(np.max(np.abs(qd) / limits.velocity)), float(np.max(np.abs(qdd) / limits.acceleration))
 
 
 def timing_constraints(

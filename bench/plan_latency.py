@@ -1,0 +1,91 @@
+"""Planning latency and optimality on the 6-axis arm (issue: foundation).
+
+200 random paths of 8 in-limit waypoints on the arm6 cell, one core. For each path: the wall
+time of Planner.plan (path + TOPP-RA + post-check) and its duration divided by the duration of a
+TOPP-RA reference with 3000 gridpoints under the same constraints.
+
+Run:  python bench/plan_latency.py [--paths 200] [--seed 1] [--constraints joint|cell]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from planner.path import PlanResult  # noqa: E402
+from planner.plan import Planner  # noqa: E402
+from service.config import load_cell_config  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--paths", type=int, default=200)
+    parser.add_argument("--waypoints", type=int, default=8)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--range", type=float, default=0.7, help="waypoints drawn in this fraction of each joint range")
+    parser.add_argument(
+        "--constraints",
+        choices=("joint", "cell"),
+        default="joint",
+        help="joint: the drive-derived joint velocity/acceleration limits (the issue's case); "
+        "cell: plus the cell's torque (RNEA) and TCP speed limits",
+    )
+    args = parser.parse_args(argv)
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+
+    cell = load_cell_config(None)
+    limits = cell.joint_limits()
+    extra = {}
+    if args.constraints == "cell":
+        extra = dict(
+            model=cell.model,
+            tcp_frame=cell.planning.tcp_frame,
+            max_tcp_speed=cell.planning.max_tcp_speed,
+            torque_limits=cell.planning.torque_limits,
+        )
+    planner = Planner(limits, **extra)
+    reference = Planner(limits, gridpoints=3000, **extra)
+
+    rng = np.random.default_rng(args.seed)
+    latencies, ratios, rejected = [], [], 0
+    while len(latencies) < args.paths:
+        mid, half = 0.5 * (limits.upper + limits.lower), 0.5 * args.range * (limits.upper - limits.lower)
+        waypoints = rng.uniform(mid - half, mid + half, (args.waypoints, limits.dof))
+        t0 = time.perf_counter()
+        out = planner.plan(waypoints)
+        elapsed = time.perf_counter() - t0
+        if out.result is PlanResult.PATH_OUT_OF_LIMITS:
+            rejected += 1  # the spline swings past a limit: not an in-limit path, draw again
+            continue
+        if not out.ok:
+            print(f"path {len(latencies)}: {out.result.value}: {out.message}", file=sys.stderr)
+            return 1
+        ref = reference.plan(waypoints)
+        latencies.append(elapsed)
+        ratios.append(out.trajectory.duration / ref.trajectory.duration)
+
+    lat = np.array(latencies) * 1e3
+    r = np.array(ratios)
+    print(
+        f"command: python bench/plan_latency.py --paths {args.paths} --seed {args.seed} "
+        f"--range {args.range} --constraints {args.constraints}"
+    )
+    print(f"cell arm6, {limits.dof} axes, {args.waypoints} waypoints in {args.range:.0%} of each range, {args.paths} paths "
+          f"({rejected} drawn paths left the position limits between waypoints and were redrawn), one core")
+    print(f"planning latency  p50 {np.percentile(lat, 50):.2f} ms   p99 {np.percentile(lat, 99):.2f} ms   "
+          f"max {lat.max():.2f} ms")
+    print(f"duration / 3000-gridpoint reference   min {r.min():.4f}   median {np.median(r):.4f}   max {r.max():.4f}")
+    print(f"paths over 1.01: {int(np.sum(r > 1.01))}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,248 @@
+"""Cell configuration: the shipped cells load, and every kind of mistake is named precisely."""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from service.config import CONFIG_DIR, ConfigError, load_cell_config
+
+ARM = CONFIG_DIR / "cells" / "arm6.yaml"
+GANTRY = CONFIG_DIR / "cells" / "gantry3.yaml"
+
+
+def arm_data() -> dict[str, Any]:
+    data = yaml.safe_load(ARM.read_text())
+    data["robot"]["urdf"] = str(CONFIG_DIR / "robots" / "arm6.urdf")
+    return data
+
+
+def write(tmp_path: Path, data: Any) -> Path:
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump(data) if not isinstance(data, str) else data)
+    return path
+
+
+def expect_error(tmp_path: Path, data: Any, where: str, fragment: str) -> ConfigError:
+    path = write(tmp_path, data)
+    with pytest.raises(ConfigError) as info:
+        load_cell_config(path)
+    err = info.value
+    assert err.file == str(path)
+    assert err.where == where
+    assert fragment in err.problem, err.problem
+    assert str(err).startswith(f"{path}: ")
+    return err
+
+
+def test_shipped_cells_load() -> None:
+    arm = load_cell_config(ARM)
+    assert arm.name == "arm6"
+    assert arm.joint_names == tuple(f"joint_{i}" for i in range(1, 7))
+    assert [a.node_id for a in arm.ordered_axes()] == [1, 2, 3, 4, 5, 6]
+    assert all(a.profile == "epos2_pvt" for a in arm.axes)
+    assert arm.simulated and arm.bus.interface == "virtual"
+    gantry = load_cell_config(GANTRY)
+    assert gantry.joint_names == ("x", "y", "z")
+    assert all(j.kind == "prismatic" for j in gantry.model.joints)
+
+
+def test_default_config_is_the_arm() -> None:
+    assert load_cell_config(None).source == ARM
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="file not found"):
+        load_cell_config(tmp_path / "nope.yaml")
+
+
+def test_not_yaml(tmp_path: Path) -> None:
+    expect_error(tmp_path, "axes: [unclosed", "", "not valid YAML")
+
+
+def test_top_level_not_a_mapping(tmp_path: Path) -> None:
+    expect_error(tmp_path, "- 1\n- 2\n", "(top level)", "must be a mapping")
+
+
+def test_missing_urdf(tmp_path: Path) -> None:
+    data = arm_data()
+    data["robot"]["urdf"] = "no/such/robot.urdf"
+    expect_error(tmp_path, data, "robot.urdf", "URDF file not found")
+
+
+def test_broken_urdf(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.urdf"
+    bad.write_text("<robot name='x'><link name='a'/><joint name='j' type='revolute'><parent link='a'/></joint></robot>")
+    data = arm_data()
+    data["robot"]["urdf"] = str(bad)
+    expect_error(tmp_path, data, "robot.urdf", "not a readable URDF")
+
+
+def test_unknown_tcp_frame(tmp_path: Path) -> None:
+    data = arm_data()
+    data["robot"]["tcp_frame"] = "flange"
+    expect_error(tmp_path, data, "robot.tcp_frame", "no frame 'flange'")
+
+
+def test_unknown_joint(tmp_path: Path) -> None:
+    data = arm_data()
+    data["axes"][2]["joint"] = "joint_7"
+    expect_error(tmp_path, data, "axes[2].joint", "unknown joint 'joint_7'")
+
+
+def test_joint_without_axis(tmp_path: Path) -> None:
+    data = arm_data()
+    del data["axes"][5]
+    expect_error(tmp_path, data, "axes", "joint 'joint_6' of the URDF has no axis")
+
+
+def test_joint_with_two_axes(tmp_path: Path) -> None:
+    data = arm_data()
+    data["axes"][5]["joint"] = "joint_1"
+    expect_error(tmp_path, data, "axes[5].joint", "already has an axis (axes[0])")
+
+
+def test_duplicate_node_id(tmp_path: Path) -> None:
+    data = arm_data()
+    data["axes"][3]["node_id"] = 2
+    expect_error(tmp_path, data, "axes[3].node_id", "duplicate node id 2 (also axes[1])")
+
+
+@pytest.mark.parametrize("node_id", [0, 128, "3", True])
+def test_node_id_out_of_range_or_wrong_type(tmp_path: Path, node_id: Any) -> None:
+    data = arm_data()
+    data["axes"][0]["node_id"] = node_id
+    expect_error(tmp_path, data, "axes[0].node_id", "")
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "fragment"),
+    [
+        ("max_profile_velocity_rpm", 0, "must be positive"),
+        ("max_profile_velocity_rpm", -100, "must be positive"),
+        ("max_acceleration_rpm_s", 0, "must be positive"),
+        ("max_acceleration_rpm_s", "fast", "must be a finite number"),
+        ("max_acceleration_rpm_s", math.inf, "must be a finite number"),
+        ("profile_velocity_rpm", -1, "must be positive"),
+        ("min_position_qc", 1.5, "must be an integer"),
+        ("max_position_qc", 2**31, "outside"),
+    ],
+)
+def test_bad_drive_limit(tmp_path: Path, field: str, value: Any, fragment: str) -> None:
+    data = arm_data()
+    data["axes"][1]["limits"][field] = value
+    expect_error(tmp_path, data, f"axes[1].limits.{field}", fragment)
+
+
+def test_position_limits_reversed(tmp_path: Path) -> None:
+    data = arm_data()
+    data["axes"][0]["limits"]["min_position_qc"] = 5000
+    data["axes"][0]["limits"]["max_position_qc"] = 5000
+    expect_error(tmp_path, data, "axes[0].limits.max_position_qc", "must be above min_position_qc")
+
+
+def test_position_limits_disjoint_from_urdf(tmp_path: Path) -> None:
+    data = arm_data()
+    # 1e6 qc is far past joint_1's URDF range of +-2.97 rad (50930 qc/rad)
+    data["axes"][0]["limits"]["min_position_qc"] = 1_000_000
+    data["axes"][0]["limits"]["max_position_qc"] = 2_000_000
+    expect_error(tmp_path, data, "axes[0].limits", "does not overlap the URDF range")
+
+
+def test_missing_limit(tmp_path: Path) -> None:
+    data = arm_data()
+    del data["axes"][4]["limits"]["max_acceleration_rpm_s"]
+    expect_error(tmp_path, data, "axes[4].limits.max_acceleration_rpm_s", "missing")
+
+
+def test_unknown_field_is_a_typo(tmp_path: Path) -> None:
+    data = arm_data()
+    data["axes"][0]["limits"]["max_profile_velocity"] = 3000
+    expect_error(tmp_path, data, "axes[0].limits.max_profile_velocity", "unknown field")
+
+
+def test_unknown_profile(tmp_path: Path) -> None:
+    data = arm_data()
+    data["axes"][0]["profile"] = "epos4"
+    expect_error(tmp_path, data, "axes[0].profile", "unknown drive profile 'epos4'")
+
+
+def test_zero_gear_ratio(tmp_path: Path) -> None:
+    data = arm_data()
+    data["axes"][0]["scaling"]["gear_ratio"] = 0
+    expect_error(tmp_path, data, "axes[0].scaling.gear_ratio", "must not be zero")
+
+
+def test_lead_on_a_revolute_joint(tmp_path: Path) -> None:
+    data = arm_data()
+    data["axes"][0]["scaling"]["lead_m"] = 0.01
+    expect_error(tmp_path, data, "axes[0].scaling.lead_m", "revolute")
+
+
+def test_prismatic_joint_needs_a_lead(tmp_path: Path) -> None:
+    data = yaml.safe_load(GANTRY.read_text())
+    data["robot"]["urdf"] = str(CONFIG_DIR / "robots" / "gantry3.urdf")
+    del data["axes"][0]["scaling"]["lead_m"]
+    expect_error(tmp_path, data, "axes[0].scaling.lead_m", "missing")
+
+
+def test_unknown_can_interface(tmp_path: Path) -> None:
+    data = arm_data()
+    data["bus"]["interface"] = "vcan0"
+    expect_error(tmp_path, data, "bus.interface", "unknown python-can interface")
+
+
+def test_sync_period_out_of_range(tmp_path: Path) -> None:
+    data = arm_data()
+    data["bus"]["sync_period_ms"] = 0
+    expect_error(tmp_path, data, "bus.sync_period_ms", "must be positive")
+
+
+def test_bufferless_drive_period_must_be_the_sync_period(tmp_path: Path) -> None:
+    data = arm_data()
+    data["axes"][0]["profile"] = "sync_setpoint"
+    data["axes"][0]["period_ms"] = 4
+    expect_error(tmp_path, data, "axes[0].period_ms", "must equal bus.sync_period_ms")
+
+
+def test_period_on_a_buffered_drive(tmp_path: Path) -> None:
+    data = arm_data()
+    data["axes"][0]["period_ms"] = 10
+    expect_error(tmp_path, data, "axes[0].period_ms", "only fixed-period profiles")
+
+
+def test_buffer_levels_checked(tmp_path: Path) -> None:
+    data = arm_data()
+    data["axes"][0]["buffer"] = {"underflow_warning": 40, "overflow_warning": 41}
+    expect_error(tmp_path, data, "axes[0].buffer.overflow_warning", "at least 2 above")
+
+
+def test_tcp_speed_needs_a_frame(tmp_path: Path) -> None:
+    data = arm_data()
+    del data["robot"]["tcp_frame"]
+    expect_error(tmp_path, data, "planning.max_tcp_speed", "needs robot.tcp_frame")
+
+
+def test_mixed_profiles_cell(tmp_path: Path) -> None:
+    data = arm_data()
+    data["bus"]["sync_period_ms"] = 4
+    data["axes"][1]["profile"] = "cia402_ip_linear"
+    data["axes"][1]["period_ms"] = 8
+    data["axes"][2]["profile"] = "sync_setpoint"
+    data["axes"][3]["profile"] = "parker_slvdn"
+    data["axes"][3]["interpolation_submode"] = -2
+    cell = load_cell_config(write(tmp_path, data))
+    assert [a.period_ms for a in cell.axes[:4]] == [None, 8, 4, 4]
+    assert cell.axes[3].interpolation_submode == -2
+
+
+def test_config_is_not_modified_by_loading(tmp_path: Path) -> None:
+    data = arm_data()
+    before = copy.deepcopy(data)
+    load_cell_config(write(tmp_path, data))
+    assert data == before

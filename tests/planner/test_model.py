@@ -1,0 +1,65 @@
+"""The Pinocchio model: joint order, URDF limits, kinematics and dynamics of the shipped robots."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from planner.model import ModelError, RobotModel
+from service.config import CONFIG_DIR
+
+ARM = CONFIG_DIR / "robots" / "arm6.urdf"
+GANTRY = CONFIG_DIR / "robots" / "gantry3.urdf"
+
+
+def test_arm_joints_and_limits() -> None:
+    m = RobotModel.from_urdf(ARM)
+    assert m.joint_names == tuple(f"joint_{i}" for i in range(1, 7))
+    assert m.index("joint_4") == 3
+    assert m.joints[0].kind == "revolute"
+    assert (m.joints[0].lower, m.joints[0].upper, m.joints[0].velocity, m.joints[0].effort) == (-2.97, 2.97, 2.8, 320)
+    assert m.has_dynamics
+    with pytest.raises(KeyError, match="unknown joint"):
+        m.index("joint_9")
+
+
+def test_gantry_is_prismatic_without_gravity_on_xy() -> None:
+    m = RobotModel.from_urdf(GANTRY)
+    assert [j.kind for j in m.joints] == ["prismatic"] * 3
+    tau = m.inverse_dynamics(np.zeros(3), np.zeros(3), np.zeros(3))
+    # only Z carries its weight: (3 kg) * 9.81
+    np.testing.assert_allclose(tau, [0.0, 0.0, 3.0 * 9.81], atol=1e-9)
+
+
+def test_forward_kinematics_and_jacobian() -> None:
+    m = RobotModel.from_urdf(ARM)
+    q = np.array([0.3, -0.4, 0.7, 0.2, -0.5, 0.1])
+    T = m.frame_placement(q, "tool0")
+    J = m.frame_jacobian(q, "tool0")
+    assert T.shape == (4, 4) and J.shape == (6, 6)
+    # the Jacobian's linear part is the derivative of the frame origin
+    eps = 1e-6
+    numeric = np.column_stack(
+        [(m.frame_placement(q + eps * e, "tool0")[:3, 3] - m.frame_placement(q - eps * e, "tool0")[:3, 3]) / (2 * eps)
+         for e in np.eye(6)]
+    )
+    np.testing.assert_allclose(J[:3], numeric, atol=1e-6)
+    # home pose: arm stretched along x, 0.1 + 0.3 high
+    np.testing.assert_allclose(m.frame_placement(np.zeros(6), "tool0")[:3, 3], [1.03, 0.0, 0.4], atol=1e-12)
+
+
+def test_unknown_frame() -> None:
+    with pytest.raises(KeyError, match="unknown frame"):
+        RobotModel.from_urdf(ARM).frame_jacobian(np.zeros(6), "flange")
+
+
+def test_continuous_joint_is_refused() -> None:
+    urdf = """<robot name="c"><link name="a"/><link name="b"/>
+      <joint name="spin" type="continuous"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/></joint></robot>"""
+    with pytest.raises(ModelError, match="revolute or prismatic"):
+        RobotModel.from_urdf_string(urdf)
+
+
+def test_missing_urdf(tmp_path) -> None:
+    with pytest.raises(ModelError, match="not found"):
+        RobotModel.from_urdf(tmp_path / "none.urdf")
