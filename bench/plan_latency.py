@@ -17,11 +17,11 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from planner.path import PlanResult  # noqa: E402
-from planner.plan import Planner  # noqa: E402
-from service.config import load_cell_config  # noqa: E402
+from planner.path import PlanResult
+from planner.plan import Planner
+from service.config import load_cell_config
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -78,10 +78,15 @@ def main(argv: list[str] | None = None) -> int:
         f"command: python bench/plan_latency.py --paths {args.paths} --seed {args.seed} "
         f"--range {args.range} --constraints {args.constraints}"
     )
-    print(f"cell arm6, {limits.dof} axes, {args.waypoints} waypoints in {args.range:.0%} of each range, {args.paths} paths "
-          f"({rejected} drawn paths left the position limits between waypoints and were redrawn), one core")
-    print(f"planning latency  p50 {np.percentile(lat, 50):.2f} ms   p99 {np.percentile(lat, 99):.2f} ms   "
-          f"max {lat.max():.2f} ms")
+    print(
+        f"cell arm6, {limits.dof} axes, {args.waypoints} waypoints in {args.range:.0%} of each range, "
+        f"{args.paths} paths "
+        f"({rejected} drawn paths left the position limits between waypoints and were redrawn), one core"
+    )
+    print(
+        f"planning latency  p50 {np.percentile(lat, 50):.2f} ms   p99 {np.percentile(lat, 99):.2f} ms   "
+        f"max {lat.max():.2f} ms"
+    )
     print(f"duration / 3000-gridpoint reference   min {r.min():.4f}   median {np.median(r):.4f}   max {r.max():.4f}")
     print(f"paths over 1.01: {int(np.sum(r > 1.01))}")
     return 0

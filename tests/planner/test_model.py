@@ -40,8 +40,11 @@ def test_forward_kinematics_and_jacobian() -> None:
     # the Jacobian's linear part is the derivative of the frame origin
     eps = 1e-6
     numeric = np.column_stack(
-        [(m.frame_placement(q + eps * e, "tool0")[:3, 3] - m.frame_placement(q - eps * e, "tool0")[:3, 3]) / (2 * eps)
-         for e in np.eye(6)]
+        [
+            (m.frame_placement(q + eps * e, "tool0")[:3, 3] - m.frame_placement(q - eps * e, "tool0")[:3, 3])
+            / (2 * eps)
+            for e in np.eye(6)
+        ]
     )
     np.testing.assert_allclose(J[:3], numeric, atol=1e-6)
     # home pose: arm stretched along x, 0.1 + 0.3 high

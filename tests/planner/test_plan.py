@@ -79,7 +79,11 @@ def test_single_axis_move_matches_the_closed_form() -> None:
 
 def test_torque_limits_bind_through_rnea() -> None:
     weak = JointLimits(
-        ARM_LIMITS.names, ARM_LIMITS.lower, ARM_LIMITS.upper, ARM_LIMITS.velocity, ARM_LIMITS.acceleration,
+        ARM_LIMITS.names,
+        ARM_LIMITS.lower,
+        ARM_LIMITS.upper,
+        ARM_LIMITS.velocity,
+        ARM_LIMITS.acceleration,
         ARM_LIMITS.effort * np.array([0.25, 0.34, 0.25, 1, 1, 1]),
     )
     w = np.array([[0.0, -1.0, 1.2, 0, 0, 0], [1.5, 0.8, -0.6, 0, 0, 0]])
@@ -90,8 +94,12 @@ def test_torque_limits_bind_through_rnea() -> None:
     assert tr.duration > 1.02 * free.duration  # the torque limit changed the plan
     # torques at the gridpoints (where TOPP-RA holds them) are within the effort limits
     t = tr.breakpoints
-    tau = np.array([ARM.model.inverse_dynamics(q, v, a) for q, v, a in
-                    zip(tr.position(t), tr.velocity(t), tr.acceleration(t), strict=True)])
+    tau = np.array(
+        [
+            ARM.model.inverse_dynamics(q, v, a)
+            for q, v, a in zip(tr.position(t), tr.velocity(t), tr.acceleration(t), strict=True)
+        ]
+    )
     assert np.all(np.abs(tau) <= weak.effort * 1.001)
     assert np.max(np.abs(tau) / weak.effort) > 0.99
 
@@ -102,8 +110,10 @@ def test_tcp_speed_limit() -> None:
     assert out.ok, out.message
     tr = out.trajectory
     t = dense_times(tr.duration, 801)
-    speed = [np.linalg.norm(ARM.model.frame_jacobian(q, "tool0")[:3] @ v)
-             for q, v in zip(tr.position(t), tr.velocity(t), strict=True)]
+    speed = [
+        np.linalg.norm(ARM.model.frame_jacobian(q, "tool0")[:3] @ v)
+        for q, v in zip(tr.position(t), tr.velocity(t), strict=True)
+    ]
     # held exactly at the interval samples; between them the excess is second order
     assert max(speed) <= 0.5 * 1.005
     assert max(speed) >= 0.5 * 0.98
@@ -119,7 +129,11 @@ def test_tcp_speed_limit() -> None:
         ([[0.0] * 6, "abc"], PlanResult.INVALID_INPUT, "list of lists of numbers"),
         ([0.0, 0.1], PlanResult.INVALID_INPUT, "2-D array"),
         ([[0.0] * 6, [0.1] * 6, [0.1] * 6], PlanResult.REPEATED_WAYPOINT, "waypoints 1 and 2 are the same point"),
-        ([[0.0] * 6, [3.5, 0, 0, 0, 0, 0]], PlanResult.WAYPOINT_OUT_OF_LIMITS, "waypoint 1, joint joint_1: 3.5 is outside"),
+        (
+            [[0.0] * 6, [3.5, 0, 0, 0, 0, 0]],
+            PlanResult.WAYPOINT_OUT_OF_LIMITS,
+            "waypoint 1, joint joint_1: 3.5 is outside",
+        ),
         (
             [[2.5, 0, 0, 0, 0, 0], [2.85, 0.2, 0, 0, 0, 0], [-2.0, 0.4, 0, 0, 0, 0]],
             PlanResult.PATH_OUT_OF_LIMITS,
@@ -136,7 +150,11 @@ def test_bad_input_gives_a_clear_result(waypoints: object, result: PlanResult, f
 
 def test_infeasible_when_gravity_exceeds_the_effort_limit() -> None:
     tiny = JointLimits(
-        ARM_LIMITS.names, ARM_LIMITS.lower, ARM_LIMITS.upper, ARM_LIMITS.velocity, ARM_LIMITS.acceleration,
+        ARM_LIMITS.names,
+        ARM_LIMITS.lower,
+        ARM_LIMITS.upper,
+        ARM_LIMITS.velocity,
+        ARM_LIMITS.acceleration,
         np.full(6, 1.0),
     )
     out = plan(PlanInput([[0.0, 0.5, 0, 0, 0, 0], [0.5, 0.5, 0, 0, 0, 0]], tiny, ARM.model, torque_limits=True))
