@@ -49,6 +49,20 @@ PARKER_IP_MODE = 202
 PARKER_CUBIC_THRESHOLD_US = 2500  # below: direct position loop; from it on: interpolated
 
 
+# --- EMCY error codes the (simulated) drives send: CiA 301 / CiA 402 standard codes, and one -----------
+# manufacturer-specific code for the EPOS2 IPM errors.
+EMCY_NO_ERROR = 0x0000  # error reset (sent after a fault reset)
+EMCY_PARAMETER_ERROR = 0x6320  # a configuration the drive cannot run (e.g. interpolation period)
+EMCY_PDO_LENGTH = 0x8210  # PDO not processed due to length error
+EMCY_VELOCITY_LIMIT = 0x8400  # velocity beyond 0x607F (sanity check of the fixed-period drives)
+EMCY_SOFTWARE_POSITION_LIMIT = 0x8612  # position demand outside 0x607D
+# EPOS2 "interpolated position mode error" (underflow, overflow, 0x607F or 0x60C5 exceeded). The seeds
+# give no code: 0xFF0C is taken from memory of maxon's firmware specification, to be checked on a real
+# drive; which error it was is in 0x20C4:01, which the simulated EPOS2 also puts (little endian) in the
+# first two manufacturer-specific bytes of the EMCY.
+EMCY_EPOS2_IPM_ERROR = 0xFF0C
+
+
 class BufferStatus(IntFlag):
     """EPOS2 0x20C4:01, as the firmware sets it (DESIGN.md section 5; the app note's Table 13 repeats
     bits 2 and 3 for the errors, Table 12 reserves 10-13: the firmware uses 10 and 11)."""
@@ -66,7 +80,10 @@ class BufferStatus(IntFlag):
 
 
 BUFFER_ERRORS = (
-    BufferStatus.UNDERFLOW_ERROR | BufferStatus.OVERFLOW_ERROR | BufferStatus.VELOCITY_ERROR | BufferStatus.ACCELERATION_ERROR
+    BufferStatus.UNDERFLOW_ERROR
+    | BufferStatus.OVERFLOW_ERROR
+    | BufferStatus.VELOCITY_ERROR
+    | BufferStatus.ACCELERATION_ERROR
 )
 
 
@@ -149,3 +166,8 @@ PARKER_RPDOS = (
     PdoLayout(2, SYNCHRONOUS, ((CONTROLWORD, 0, 16),)),
 )
 PARKER_TPDOS = SETPOINT_TPDOS
+
+# EPOS2 clock synchronisation (app note 2.4 and 3.7): after each SYNC the master sends its transmit
+# time (0x1013, us) once, on one COB-ID that every EPOS2 takes through its asynchronous RPDO3.
+TIME_STAMP_COB_ID = 0x400  # not in the predefined connection set (RPDO3 of "node 0")
+EPOS2_TIME_STAMP_RPDO = PdoLayout(3, ASYNCHRONOUS, ((HIGH_RESOLUTION_TIME_STAMP, 0, 32),))

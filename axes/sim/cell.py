@@ -1,0 +1,113 @@
+"""A cell of simulated drives: one per axis of a ``CellConfig``, on their own canopen Network.
+
+The simulated network is a second python-can bus on the same channel as the master's (on the
+``virtual`` interface every bus of a channel sees the others' frames), so the master talks to the
+drives exactly as it would to real ones. Each drive is commissioned with its axis's drive limits
+(0x607F, 0x60C5, 0x607D, 0x6081/0x6083: facts about the drive, DESIGN section 3) and runs its
+motion clock at the bus's SYNC period; everything else (modes, periods, PDOs, heartbeat) is left
+to the master to configure.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from types import TracebackType
+
+import canopen
+
+from axes.sim.drive import SimulatedDrive
+from axes.sim.epos2 import Epos2Drive
+from axes.sim.ip_linear import IpLinearDrive
+from axes.sim.parker import ParkerDrive
+from axes.sim.sync_setpoint import SyncSetpointDrive
+from service.config import AxisConfig, CellConfig
+
+DRIVE_CLASSES: dict[str, type[SimulatedDrive]] = {
+    "epos2_pvt": Epos2Drive,
+    "cia402_ip_linear": IpLinearDrive,
+    "sync_setpoint": SyncSetpointDrive,
+    "parker_slvdn": ParkerDrive,
+}
+
+
+def make_drive(
+    axis: AxisConfig, sync_period_ms: float, network: canopen.Network | None = None,
+    eds_path: str | Path | None = None, history_length: int = 20_000,
+) -> SimulatedDrive:
+    """The simulated drive for one configured axis (its profile's class, its scaling and limits)."""
+    cls = DRIVE_CLASSES[axis.profile]
+    return cls(axis.node_id, network, eds_path, scaling=axis.scaling, limits=axis.limits,
+               sync_period_ms=sync_period_ms, history_length=history_length)
+
+
+class SimulatedCell:
+    """Simulated drives for every axis of a cell. ``start()`` connects and boots them; ``stop()`` ends."""
+
+    def __init__(
+        self,
+        cell: CellConfig,
+        *,
+        channel: str | None = None,
+        interface: str | None = None,
+        eds_paths: Mapping[int, str | Path] | None = None,
+        history_length: int = 20_000,
+    ) -> None:
+        self.cell = cell
+        self.interface = interface or cell.bus.interface
+        self.channel = channel or cell.bus.channel
+        self.network = canopen.Network()
+        self.network.NOTIFIER_CYCLE = 0.05  # the notifier thread notices a stop this quickly
+        self.drives: dict[int, SimulatedDrive] = {}
+        eds_paths = eds_paths or {}
+        for axis in cell.axes:
+            self.drives[axis.node_id] = make_drive(axis, cell.bus.sync_period_ms, None,
+                                                   eds_paths.get(axis.node_id), history_length)
+        self._joint_to_node = {a.joint: a.node_id for a in cell.axes}
+        self.running = False
+
+    def start(self) -> SimulatedCell:
+        """Connect to the bus and power the drives on (boot-up frames, then pre-operational)."""
+        if self.running:
+            return self
+        self.network.connect(interface=self.interface, channel=self.channel, bitrate=self.cell.bus.bitrate,
+                             receive_own_messages=False)
+        for drive in self.drives.values():
+            drive.attach(self.network)
+        for drive in self.drives.values():
+            drive.boot()
+        self.running = True
+        return self
+
+    def stop(self) -> None:
+        """Power off: heartbeats stop, the drives leave the bus."""
+        if not self.running:
+            return
+        for drive in self.drives.values():
+            drive.detach()
+        self.network.disconnect()
+        self.running = False
+
+    def __enter__(self) -> SimulatedCell:
+        return self.start()
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
+
+    def drive(self, key: int | str) -> SimulatedDrive:
+        """A drive by node id or by joint name."""
+        node_id = self._joint_to_node[key] if isinstance(key, str) else key
+        return self.drives[node_id]
+
+    def __iter__(self) -> Iterator[SimulatedDrive]:
+        return iter(self.drives.values())
+
+    def wait_sync(self, count: int, timeout: float = 5.0) -> bool:
+        """Wait until every drive has processed its ``count``-th SYNC."""
+        return all(d.wait_sync(count, timeout) for d in self.drives.values())
+
+    @property
+    def internal_errors(self) -> list[BaseException]:
+        """Exceptions raised inside any drive's bus callbacks (empty when the simulation is sound)."""
+        return [e for d in self.drives.values() for e in d.internal_errors]

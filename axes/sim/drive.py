@@ -1,0 +1,662 @@
+"""What every simulated drive shares: a canopen ``LocalNode`` that behaves as a CiA 402 drive.
+
+NMT (boot-up, pre-operational, PDOs only when operational), heartbeat producer per 0x1017
+(wall clock: the only wall-clock part), EMCY producer, the DS402 power state machine driven by the
+controlword, the statusword, SYNC-driven motion clock with 1 kHz interpolation samples, 0x607D on
+every demand sample, fault handling and fault injection. The profile modules (epos2, ip_linear,
+sync_setpoint, parker) add their interpolation on top through a few hooks.
+
+Motion clock: each SYNC advances the drive's motion time by the cell's SYNC period; between two
+SYNCs the drive samples its interpolation at every whole millisecond of that clock. Nothing waits on
+wall-clock time, so a test runs a drive exactly as fast as it sends SYNCs.
+
+Threads: every bus callback runs in the simulated network's notifier thread; test code may call in
+from other threads, so all state is guarded by one lock, and ``changed`` is notified after each
+SYNC, write or frame (``wait_until`` waits on it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import ClassVar
+
+import canopen
+from canopen import objectdictionary
+from canopen.profiles.p402 import State402
+from canopen.sdo import SdoAbortedError
+
+from axes import objects as obj
+from axes.cia402 import Controlword, PowerState, Statusword
+from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
+from axes.sim.pdo import PdoEngine, is_pdo_object
+from planner.interpolation import hermite_coefficients
+
+EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
+# maxon's own EPOS2 70/10 EDS, read where the team keeps it (../shared beside the checkout), never copied
+MAXON_EPOS2_EDS = Path(__file__).resolve().parents[3] / "shared" / "reference" / "maxon-epos2-70-10.eds"
+
+# DS402 power states and statusword/controlword bits: the master's definitions (axes/cia402.py),
+# short names for the drive side
+NOT_READY = PowerState.NOT_READY_TO_SWITCH_ON
+SWITCH_ON_DISABLED = PowerState.SWITCH_ON_DISABLED
+READY_TO_SWITCH_ON = PowerState.READY_TO_SWITCH_ON
+SWITCHED_ON = PowerState.SWITCHED_ON
+OPERATION_ENABLED = PowerState.OPERATION_ENABLED
+QUICK_STOP_ACTIVE = PowerState.QUICK_STOP_ACTIVE
+FAULT_REACTION_ACTIVE = PowerState.FAULT_REACTION_ACTIVE
+FAULT = PowerState.FAULT
+
+VOLTAGE_ENABLED = int(Statusword.VOLTAGE_ENABLED)
+WARNING = int(Statusword.WARNING)
+TARGET_REACHED = int(Statusword.TARGET_REACHED)
+IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
+CW_ENABLE_IP = int(Controlword.ENABLE_IP_MODE)
+CW_FAULT_RESET = int(Controlword.FAULT_RESET)
+CW_HALT = int(Controlword.HALT)
+
+ABORT_VALUE_RANGE = 0x06090030
+ABORT_DEVICE_STATE = 0x08000022
+ABORT_GENERAL = 0x08000000
+
+QUICK_STOP_DECELERATION_CIA402 = 0x6085  # maxon and CiA 402: 0x6084 is the profile deceleration
+ERROR_CODE = 0x603F
+ERROR_REGISTER = 0x1001
+ERROR_HISTORY = 0x1003
+
+
+@dataclass(frozen=True)
+class FaultRecord:
+    """One fault the drive went into: when, the EMCY code it sent and which check tripped."""
+
+    sync: int
+    time_ms: float
+    code: int
+    check: str
+
+
+@dataclass(frozen=True, slots=True)
+class SyncSample:
+    """The drive's demand and actual position at one SYNC instant (after the SYNC's processing)."""
+
+    sync: int
+    time_ms: float
+    demand: float
+    actual: int
+    ip_active: bool
+    state: str
+
+
+@dataclass
+class Segment:
+    """One piece of the drive's interpolation: p(tau) = c0 + c1 tau + c2 tau^2 + c3 tau^3, tau in [0, T]."""
+
+    start: float  # ms on the motion clock
+    duration: float
+    c0: float
+    c1: float
+    c2: float
+    c3: float
+    p1: float  # exact end point and velocity (no rounding drift from chaining)
+    v1: float
+
+    @classmethod
+    def cubic(cls, start: float, p0: float, v0: float, p1: float, v1: float, duration: float) -> Segment:
+        c0, c1, c2, c3 = (float(c) for c in hermite_coefficients(p0, v0, p1, v1, duration))
+        return cls(start, duration, c0, c1, c2, c3, p1, v1)
+
+    @classmethod
+    def linear(cls, start: float, p0: float, p1: float, duration: float) -> Segment:
+        v = (p1 - p0) / duration
+        return cls(start, duration, p0, v, 0.0, 0.0, p1, v)
+
+    @classmethod
+    def braking(cls, start: float, p0: float, v0: float, deceleration: float) -> Segment:
+        duration = abs(v0) / deceleration
+        a = -math.copysign(deceleration, v0)
+        p1 = p0 + v0 * duration + 0.5 * a * duration * duration
+        return cls(start, duration, p0, v0, 0.5 * a, 0.0, p1, 0.0)
+
+    @property
+    def end(self) -> float:
+        return self.start + self.duration
+
+    def at(self, t: float) -> tuple[float, float, float]:
+        """(position, velocity, acceleration) at motion time t (clamped to the segment)."""
+        tau = min(max(t - self.start, 0.0), self.duration)
+        if tau >= self.duration:
+            return self.p1, self.v1, 2.0 * self.c2 + 6.0 * self.c3 * self.duration
+        p = self.c0 + tau * (self.c1 + tau * (self.c2 + tau * self.c3))
+        v = self.c1 + tau * (2.0 * self.c2 + 3.0 * tau * self.c3)
+        return p, v, 2.0 * self.c2 + 6.0 * self.c3 * tau
+
+
+class SimulatedDrive:
+    """A CiA 402 drive on a canopen network, simulated. Subclasses add one interpolation behaviour."""
+
+    PROFILE: ClassVar[str] = ""
+    EDS: ClassVar[str] = ""
+    EMCY_POSITION_LIMIT: ClassVar[int] = obj.EMCY_SOFTWARE_POSITION_LIMIT
+    EMCY_VELOCITY: ClassVar[int] = obj.EMCY_VELOCITY_LIMIT
+
+    def __init__(
+        self,
+        node_id: int,
+        network: canopen.Network | None = None,
+        eds_path: str | Path | None = None,
+        *,
+        scaling: AxisScaling | None = None,
+        limits: DriveLimits | None = None,
+        sync_period_ms: float = 1.0,
+        history_length: int = 20_000,
+    ) -> None:
+        if not 1 <= node_id <= 127:
+            raise ValueError(f"node id {node_id} is outside 1..127")
+        if not (math.isfinite(sync_period_ms) and sync_period_ms > 0):
+            raise ValueError(f"sync_period_ms must be positive, got {sync_period_ms!r}")
+        self.eds_path = Path(eds_path) if eds_path is not None else EDS_DIR / self.EDS
+        self.node = canopen.LocalNode(node_id, str(self.eds_path))
+        self._entries: dict[tuple[int, int], tuple[objectdictionary.ODVariable, int]] = {}
+        self.scaling = scaling if scaling is not None else AxisScaling(2000.0, 1.0)
+        self.sync_period_us = round(sync_period_ms * 1000.0)
+        self.lock = threading.RLock()
+        self.changed = threading.Condition(self.lock)
+        self.network: canopen.Network = canopen.network._UNINITIALIZED_NETWORK
+        self.pdo = PdoEngine(self)
+        # what tests look at
+        self.history: deque[SyncSample] = deque(maxlen=history_length)
+        self.faults: list[FaultRecord] = []
+        self.emcy_sent: list[tuple[int, int, bytes]] = []
+        self.rejected_writes: list[tuple[int, int, int]] = []
+        self.internal_errors: list[BaseException] = []
+        self.time_stamps: deque[int] = deque(maxlen=history_length)  # 0x1013 values (us); no clock correction
+        self.ip_active_sync: int | None = None  # SYNC count at which interpolation last became active
+        self.sync_count = 0
+        self.time_us = 0
+        self.sample_ms = 0.0  # motion time of the sample being computed (or of the last SYNC)
+        self._heartbeat_silenced = False
+        self._commissioned: dict[tuple[int, int], int] = {}  # kept through an NMT reset (stored parameters)
+        # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.scaling
+        self.velocity_factor = self.scaling.qc_per_ms_per_velocity_unit  # record velocity unit -> qc/ms
+        self._rpm_per_qc_ms = float(self.scaling.qc_per_ms_to_rpm(1.0))
+        self._rpm_s_per_qc_ms2 = float(self.scaling.qc_per_ms2_to_rpm_s(1.0))
+        self.node._write_callbacks.remove(self.node.nmt.on_write)  # 0x1017 is handled here
+        self.node.add_write_callback(self._on_write)
+        self._reset_application()
+        if limits is not None:
+            self.apply_limits(limits)
+        if network is not None:
+            self.attach(network)
+
+    # --- object dictionary access (no callbacks) --------------------------------------------------
+    def _entry(self, index: int, subindex: int) -> tuple[objectdictionary.ODVariable, int]:
+        """The OD variable and the sub-index its value is stored under (0 for a plain variable)."""
+        key = (index, subindex)
+        hit = self._entries.get(key)
+        if hit is None:
+            entry = self.node.object_dictionary[index]
+            plain = isinstance(entry, objectdictionary.ODVariable)
+            hit = (entry, 0) if plain else (entry[subindex], subindex)
+            self._entries[key] = hit
+        return hit
+
+    def _var(self, index: int, subindex: int = 0) -> objectdictionary.ODVariable:
+        return self._entry(index, subindex)[0]
+
+    def has(self, index: int, subindex: int = 0) -> bool:
+        try:
+            self._entry(index, subindex)
+        except KeyError:
+            return False
+        return True
+
+    def read(self, index: int, subindex: int = 0) -> int:
+        """The value of an object as the drive holds it (EDS default if never written)."""
+        var, sub = self._entry(index, subindex)
+        raw = self.node.data_store.get(index, {}).get(sub)
+        return var.decode_raw(raw if raw is not None else self.node.get_data(index, sub))
+
+    def store(self, index: int, subindex: int, value: int) -> None:
+        """Set an object's value from the drive's side (no write callbacks)."""
+        var, sub = self._entry(index, subindex)
+        self.node.data_store.setdefault(index, {})[sub] = var.encode_raw(value)
+
+    def read_or(self, index: int, subindex: int, default: int) -> int:
+        return self.read(index, subindex) if self.has(index, subindex) else default
+
+    def apply_limits(self, limits: DriveLimits) -> None:
+        """Commission the drive's own limit objects (facts about the drive, DESIGN section 3)."""
+        values = {
+            (obj.MAX_PROFILE_VELOCITY, 0): round(limits.max_profile_velocity_rpm),
+            (obj.MAX_ACCELERATION, 0): round(limits.max_acceleration_rpm_s),
+            (obj.SOFTWARE_POSITION_LIMIT, 1): limits.min_position_qc,
+            (obj.SOFTWARE_POSITION_LIMIT, 2): limits.max_position_qc,
+        }
+        if limits.profile_velocity_rpm is not None:
+            values[(obj.PROFILE_VELOCITY, 0)] = round(limits.profile_velocity_rpm)
+        if limits.profile_acceleration_rpm_s is not None:
+            values[(obj.PROFILE_ACCELERATION, 0)] = round(limits.profile_acceleration_rpm_s)
+        with self.lock:
+            self._commissioned.update(values)
+            for (index, subindex), value in values.items():
+                self.store(index, subindex, value)
+
+    # --- network ------------------------------------------------------------------------------------
+    @property
+    def node_id(self) -> int:
+        return self.node.id
+
+    def attach(self, network: canopen.Network) -> None:
+        """Join a network (not yet booted: call ``boot`` once the network is connected)."""
+        network.add_node(self.node)
+        self.network = network
+        network.subscribe(0x80, self._on_sync)
+        network.subscribe(0, self._on_nmt)
+
+    def detach(self) -> None:
+        with self.lock:
+            if not self.node.has_network():
+                return
+            self.node.nmt.stop_heartbeat()
+            self.pdo.unsubscribe()
+            self.network.unsubscribe(0x80, self._on_sync)
+            self.network.unsubscribe(0, self._on_nmt)
+            del self.network[self.node.id]
+            self.network = canopen.network._UNINITIALIZED_NETWORK
+
+    def boot(self) -> None:
+        """Power on: boot-up message, then pre-operational with the heartbeat of 0x1017."""
+        with self.lock:
+            self.node.nmt.send_command(0x81)  # initialising: sends the boot-up frame
+            self.node.nmt.send_command(0x80)  # pre-operational: starts the heartbeat
+            if self._heartbeat_silenced:
+                self.node.nmt.stop_heartbeat()
+            self.pdo.reload()
+
+    @property
+    def nmt_state(self) -> str:
+        return self.node.nmt.state
+
+    @property
+    def operational(self) -> bool:
+        return self.node.nmt.state == "OPERATIONAL"
+
+    # --- fault injection --------------------------------------------------------------------------
+    def stop_heartbeat(self) -> None:
+        """The node goes quiet on 0x700 (as a node that lost power would); SDO/PDO still answer."""
+        with self.lock:
+            self._heartbeat_silenced = True
+            self.node.nmt.stop_heartbeat()
+
+    def resume_heartbeat(self) -> None:
+        with self.lock:
+            self._heartbeat_silenced = False
+            period = self.read(obj.PRODUCER_HEARTBEAT_TIME)
+            if period:
+                self.node.nmt.start_heartbeat(period)
+
+    def inject_emcy(self, code: int, *, fault: bool = True, data: bytes = b"") -> None:
+        """Raise an error as the drive would: EMCY with ``code`` and, by default, the fault state."""
+        with self.lock:
+            if fault:
+                self.fault(code, "injected", data)
+            else:
+                self.send_emcy(code, data=data)
+            self._refresh()
+
+    # --- waiting (tests) --------------------------------------------------------------------------
+    def wait_until(self, predicate: Callable[[], bool], timeout: float = 5.0) -> bool:
+        """Wait (on the drive's own events, not by polling sleeps) until predicate() holds."""
+        deadline = time.monotonic() + timeout
+        with self.changed:
+            while not predicate():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                self.changed.wait(remaining)
+            return True
+
+    def wait_sync(self, count: int, timeout: float = 5.0) -> bool:
+        """Wait until the drive has processed its ``count``-th SYNC."""
+        return self.wait_until(lambda: self.sync_count >= count, timeout)
+
+    # --- EMCY and faults --------------------------------------------------------------------------
+    def send_emcy(self, code: int, register: int | None = None, data: bytes = b"") -> None:
+        if register is None:
+            register = self.read_or(ERROR_REGISTER, 0, 0) | (0x01 if code else 0)
+        payload = bytes(data[:5]).ljust(5, b"\0")
+        self.emcy_sent.append((code, register, payload))
+        if self.node.has_network() and self.node.nmt.state != "STOPPED":
+            self.node.emcy.send(code, register, payload)
+
+    def fault(self, code: int, check: str, data: bytes = b"") -> None:
+        """Fault reaction: the drive stops its interpolation, sends EMCY and waits in FAULT for a reset."""
+        if self.state == FAULT:
+            return
+        self.faults.append(FaultRecord(self.sync_count, self.sample_ms, code, check))
+        self._abort_motion()
+        self._stop_segment = None
+        self.velocity = self.acceleration = 0.0
+        self.state = FAULT
+        if self.has(ERROR_CODE):
+            self.store(ERROR_CODE, 0, code)
+        self.store(ERROR_REGISTER, 0, 0x01)
+        if self.has(ERROR_HISTORY, 1):
+            n = min(self.read(ERROR_HISTORY, 0) + 1, 4) if self.has(ERROR_HISTORY, 4) else 1
+            for k in range(n, 1, -1):
+                self.store(ERROR_HISTORY, k, self.read(ERROR_HISTORY, k - 1))
+            self.store(ERROR_HISTORY, 1, code)
+            self.store(ERROR_HISTORY, 0, n)
+        self.send_emcy(code, 0x01, data)
+
+    def _fault_reset(self) -> None:
+        self.state = SWITCH_ON_DISABLED
+        self.store(ERROR_REGISTER, 0, 0)
+        if self.has(ERROR_CODE):
+            self.store(ERROR_CODE, 0, 0)
+        self._on_fault_reset()
+        self.send_emcy(obj.EMCY_NO_ERROR, 0)
+
+    # --- bus callbacks ----------------------------------------------------------------------------
+    def _guard(self, action: Callable[[], None]) -> None:
+        with self.lock:
+            try:
+                action()
+            except SdoAbortedError:
+                raise
+            except Exception as exc:  # a simulator bug must show in the tests, not vanish in a log
+                self.internal_errors.append(exc)
+                raise SdoAbortedError(ABORT_GENERAL) from exc
+            finally:
+                self.changed.notify_all()
+
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if len(data) < 2 or data[1] not in (0, self.node.id):
+            return
+
+        def act() -> None:
+            if self.node.nmt.state == "INITIALISING":  # reset node / reset communication
+                if data[0] == 0x81:
+                    self._reset_application()
+                else:
+                    self._reset_communication()
+                self.boot()
+            self.pdo.reload()
+            if self.operational:
+                self.pdo.transmit_events()
+
+        with contextlib.suppress(SdoAbortedError):
+            self._guard(act)
+
+    def on_rpdo_frame(self, can_id: int, data: bytes) -> None:
+        def act() -> None:
+            if self.operational:
+                self.pdo.receive(can_id, data)
+                self._refresh()
+
+        with contextlib.suppress(SdoAbortedError):
+            self._guard(act)
+
+    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        def act() -> None:
+            self.sync_count += 1
+            new_time = self.time_us + self.sync_period_us
+            self._advance(new_time)
+            self.time_us = new_time
+            self.sample_ms = new_time / 1000.0
+            if self.operational:
+                self.pdo.apply_synchronous()
+            self._on_sync_validated()
+            self._refresh(events=False)
+            self.history.append(SyncSample(self.sync_count, new_time / 1000.0, self.demand,
+                                           self.actual, self.ip_active, self.state))
+            if self.operational:
+                self.pdo.transmit_on_sync()
+                self.pdo.transmit_events()
+
+        with contextlib.suppress(SdoAbortedError):
+            self._guard(act)
+
+    def _on_write(self, index: int, subindex: int, od: objectdictionary.ODVariable, data: bytes) -> None:
+        def act() -> None:
+            value = od.decode_raw(data)
+            if is_pdo_object(index):
+                self.pdo.check_write(index, subindex, value)
+            self._check_write(index, subindex, value)
+            self.node.data_store.setdefault(index, {})[subindex] = bytes(data)  # visible to the actions
+            if is_pdo_object(index):
+                self.pdo.reload()
+            elif index == obj.PRODUCER_HEARTBEAT_TIME:
+                if value == 0 or self._heartbeat_silenced:
+                    self.node.nmt.stop_heartbeat()
+                else:
+                    self.node.nmt.start_heartbeat(value)
+            elif index == obj.HIGH_RESOLUTION_TIME_STAMP:
+                self.time_stamps.append(value)
+            elif index == obj.CONTROLWORD:
+                self._on_controlword(value)
+            elif index == obj.MODES_OF_OPERATION:
+                old = self.read(obj.MODES_OF_OPERATION_DISPLAY)
+                self.store(obj.MODES_OF_OPERATION_DISPLAY, 0, value)
+                if old != value:
+                    self._on_mode_change(old, value)
+            else:
+                self._on_object_write(index, subindex, value)
+            self._refresh()
+
+        self._guard(act)
+
+    # --- DS402 power state machine ----------------------------------------------------------------
+    def _on_controlword(self, cw: int) -> None:
+        previous, self._controlword = self._controlword, cw
+        state = self.state
+        if state == FAULT:
+            if cw & CW_FAULT_RESET and not previous & CW_FAULT_RESET:
+                self._fault_reset()
+            return
+        if state == FAULT_REACTION_ACTIVE:
+            return
+        new = state
+        if cw & 0x0002 == 0:  # disable voltage: 7, 9, 10, 12
+            if state in (READY_TO_SWITCH_ON, SWITCHED_ON, OPERATION_ENABLED, QUICK_STOP_ACTIVE):
+                new = SWITCH_ON_DISABLED
+        elif cw & 0x0006 == 0x0002:  # quick stop: 7, 10, 11
+            if state in (READY_TO_SWITCH_ON, SWITCHED_ON):
+                new = SWITCH_ON_DISABLED
+            elif state == OPERATION_ENABLED:
+                new = QUICK_STOP_ACTIVE
+        elif cw & 0x0007 == 0x0006:  # shutdown: 2, 6, 8
+            if state in (SWITCH_ON_DISABLED, SWITCHED_ON, OPERATION_ENABLED):
+                new = READY_TO_SWITCH_ON
+        elif cw & 0x000F == 0x0007:  # switch on / disable operation: 3, 5
+            if state in (READY_TO_SWITCH_ON, OPERATION_ENABLED):
+                new = SWITCHED_ON
+        elif cw & 0x000F == 0x000F and state in (READY_TO_SWITCH_ON, SWITCHED_ON, QUICK_STOP_ACTIVE):
+            new = OPERATION_ENABLED  # 4, 16 (and 3 + 4 at once, as the EPOS2 accepts)
+        if new != state:
+            if state == OPERATION_ENABLED:
+                if new == QUICK_STOP_ACTIVE:
+                    self._begin_stop(self._deceleration(quick=True))
+                else:
+                    self._abort_motion()
+                    self._stop_segment = None
+                    self.velocity = self.acceleration = 0.0
+            if state == QUICK_STOP_ACTIVE:
+                self._stop_segment = None
+                self.velocity = self.acceleration = 0.0
+            self.state = new
+            if new == QUICK_STOP_ACTIVE and self._stop_segment is None:
+                self.state = SWITCH_ON_DISABLED  # already at rest: quick stop option code 2
+            if new == OPERATION_ENABLED:
+                self._enter_operation()
+        if self.state == OPERATION_ENABLED:
+            if cw & CW_HALT and not previous & CW_HALT:
+                self._begin_stop(self._deceleration(quick=False))
+            self._on_mode_bits(previous, cw)
+
+    def _deceleration(self, quick: bool) -> float:
+        """Halt: profile deceleration 0x6084; quick stop: 0x6085 where the drive has it. In qc/ms^2."""
+        index = QUICK_STOP_DECELERATION_CIA402 if quick and self.has(0x6085) else obj.QUICK_STOP_DECELERATION
+        rpm_s = max(self.read_or(index, 0, 10000), 1)
+        return rpm_s / self._rpm_s_per_qc_ms2
+
+    def _begin_stop(self, deceleration: float) -> None:
+        v = self.velocity
+        self._abort_motion()
+        if abs(v) > 1e-12:
+            self._stop_segment = Segment.braking(self.time_us / 1000.0, self.demand, v, deceleration)
+        else:
+            self._stop_segment = None
+            self.velocity = self.acceleration = 0.0
+
+    @property
+    def halted(self) -> bool:
+        return bool(self._controlword & CW_HALT)
+
+    def statusword(self) -> int:
+        _mask, value = State402.SW_MASK[self.state]
+        word = value
+        if self.state in (READY_TO_SWITCH_ON, SWITCHED_ON, OPERATION_ENABLED, QUICK_STOP_ACTIVE):
+            word |= VOLTAGE_ENABLED
+        if self._warning():
+            word |= WARNING
+        if self.state == OPERATION_ENABLED and self._stop_segment is None and self._target_reached():
+            word |= TARGET_REACHED
+        if self.ip_active:
+            word |= IP_MODE_ACTIVE
+        return word
+
+    # --- motion clock -----------------------------------------------------------------------------
+    def _advance(self, new_time_us: int) -> None:
+        """Run the interpolation from the last SYNC to this one: every whole ms, then the SYNC instant."""
+        t = (self.time_us // 1000 + 1) * 1000
+        while t <= new_time_us:
+            self._sample(t / 1000.0, True)
+            t += 1000
+        if new_time_us % 1000:
+            self._sample(new_time_us / 1000.0, False)
+
+    def _sample(self, t: float, full: bool) -> None:
+        self.sample_ms = t
+        if self._stop_segment is not None:
+            seg = self._stop_segment
+            p, v, a = seg.at(t)
+            if not self._check_position(p):
+                return
+            self.demand, self.velocity, self.acceleration = p, v, a
+            if t >= seg.end:
+                self._stop_segment = None
+                self.velocity = self.acceleration = 0.0
+                if self.state == QUICK_STOP_ACTIVE:
+                    self.state = SWITCH_ON_DISABLED
+            return
+        pva = self._motion_at(t) if self.state == OPERATION_ENABLED else None
+        if pva is None or self.state != OPERATION_ENABLED:
+            self.velocity = self.acceleration = 0.0
+            return
+        if not self._check_position(pva[0]):
+            return
+        self.demand, self.velocity, self.acceleration = pva
+        if full:
+            self._check_dynamics(self.velocity, self.acceleration)
+
+    def _check_position(self, p: float) -> bool:
+        """0x607D bounds every position demand: one outside faults the drive and is not taken."""
+        lo = self.read_or(obj.SOFTWARE_POSITION_LIMIT, 1, INT32_MIN)
+        hi = self.read_or(obj.SOFTWARE_POSITION_LIMIT, 2, INT32_MAX)
+        if lo <= round(p) <= hi:
+            return True
+        self.fault(self.EMCY_POSITION_LIMIT, "software position limit 0x607D")
+        return False
+
+    def _check_dynamics(self, v: float, a: float) -> None:
+        """Default sanity check: 0x607F bounds the demand velocity (fault)."""
+        if abs(v) * self._rpm_per_qc_ms > self.read_or(obj.MAX_PROFILE_VELOCITY, 0, 2**32 - 1):
+            self.fault(self.EMCY_VELOCITY, "max profile velocity 0x607F")
+
+    @property
+    def actual(self) -> int:
+        """Position actual value: the simulated axis follows its demand exactly (rounded to qc)."""
+        return round(self.demand)
+
+    def _refresh(self, events: bool = True) -> None:
+        """Publish the drive's state in its object dictionary (and send event TPDOs on change)."""
+        self.store(obj.STATUSWORD, 0, self.statusword())
+        demand = min(max(round(self.demand), INT32_MIN), INT32_MAX)
+        self.store(obj.POSITION_DEMAND_VALUE, 0, demand)
+        self.store(obj.POSITION_ACTUAL_VALUE, 0, min(max(self.actual, INT32_MIN), INT32_MAX))
+        self._publish()
+        if events and self.operational:
+            self.pdo.transmit_events()
+
+    # --- resets -----------------------------------------------------------------------------------
+    def _reset_communication(self) -> None:
+        for index in [i for i in self.node.data_store if 0x1000 <= i <= 0x1FFF]:
+            del self.node.data_store[index]
+
+    def _reset_application(self) -> None:
+        """Power-on state: defaults from the EDS, switch on disabled (transition 1 is automatic)."""
+        self.node.data_store.clear()
+        for (index, subindex), value in getattr(self, "_commissioned", {}).items():
+            self.store(index, subindex, value)
+        self.state = SWITCH_ON_DISABLED
+        self._controlword = 0
+        self._stop_segment: Segment | None = None
+        self.demand = 0.0
+        self.velocity = 0.0
+        self.acceleration = 0.0
+        self.ip_active = False
+        self._reset_profile()
+        for index, value in ((obj.CONTROLWORD, 0), (obj.MODES_OF_OPERATION_DISPLAY,
+                             self.read_or(obj.MODES_OF_OPERATION, 0, 0)), (ERROR_REGISTER, 0)):
+            if self.has(index):
+                self.store(index, 0, value)
+        self._refresh(events=False)
+
+    # --- hooks for the profiles -------------------------------------------------------------------
+    def _reset_profile(self) -> None:
+        """Clear the profile's own state (power-on)."""
+
+    def _check_write(self, index: int, subindex: int, value: int) -> None:
+        """Refuse a write (raise SdoAbortedError) before it is stored."""
+
+    def _on_object_write(self, index: int, subindex: int, value: int) -> None:
+        """An object other than the common ones was written (already stored)."""
+
+    def _on_mode_change(self, old: int, new: int) -> None:
+        """0x6060 changed."""
+
+    def _on_mode_bits(self, previous: int, controlword: int) -> None:
+        """The controlword's mode-specific bits while operation is enabled."""
+
+    def _enter_operation(self) -> None:
+        """Operation enabled was entered: hold the present position."""
+
+    def _abort_motion(self) -> None:
+        """Stop interpolating at once (fault, disable, halt, quick stop): ip mode inactive."""
+        self.ip_active = False
+
+    def _on_fault_reset(self) -> None:
+        """A fault was reset."""
+
+    def _on_sync_validated(self) -> None:
+        """After a SYNC's synchronous RPDOs were applied: activations and setpoints take effect."""
+
+    def _motion_at(self, t: float) -> tuple[float, float, float] | None:
+        """The interpolation's (position, velocity, acceleration) at motion time t; None: hold."""
+        return None
+
+    def _target_reached(self) -> bool:
+        return not self.ip_active
+
+    def _warning(self) -> bool:
+        return False
+
+    def _publish(self) -> None:
+        """Write the profile's status objects."""

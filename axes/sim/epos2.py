@@ -1,0 +1,220 @@
+"""Simulated maxon EPOS2 in interpolated position mode (buffered cubic PVT, app note "IPM").
+
+Behaviour, as the app note and DESIGN sections 4-5 state it, with the points the note leaves open
+decided here:
+
+* Mode 7; records enter a 64-entry FIFO through 0x20C1 (asynchronous RPDO or SDO) only while the
+  buffer is enabled (0x60C4:06 = 1; 0 clears it and denies access: a record is refused with SDO
+  abort 0x08000022). Selecting mode 7 clears the FIFO (transition I).
+* Controlword bit 4 rising (0x001F) requests interpolation; it starts at the next SYNC, or at the
+  SYNC that applies it when it comes through the synchronous RPDO: that SYNC is t = 0 of the path.
+  Fewer than 2 records in the FIFO then is an underflow error.
+* The first record is the start point (its time a dwell); each record ends a segment of its time,
+  joined by ``planner.interpolation.hermite_coefficients`` from the previous end point (the first
+  segment starts from the present demand at rest): the demand equals ``epos2_pvt`` of the records.
+* A segment that ends needs the next record then: an empty FIFO is an underflow error. A time-0
+  record ends interpolation without error (ip mode inactive, target reached).
+* A record arriving with 64 in the FIFO is an overflow error.
+* Every 1 ms sample: |v| above 0x607F or |a| above 0x60C5 (converted with the axis scaling) is a
+  velocity / acceleration error; above 0x6081 / 0x6083 only sets the warning bit (kept until the
+  next start or fault reset). The end of each segment is checked too (the boundary sample).
+* Errors set their bit of 0x20C4:01, send EMCY 0xFF0C with 0x20C4:01 in the data and fault the
+  drive (app note 3.8); the error bits stay until the fault reset.
+* 0x20C4:01 warnings: underflow when the level is at or below 0x20C4:02, overflow at or above
+  0x20C4:03 ("level is reached", Table 13). 0x60C4:02 is the free size, 0x60C4:04 the level.
+* Halt (bit 8) stops interpolating and brakes with 0x6084; bit 4 falling does the same.
+* 0x1013 writes are kept (``time_stamps``); the motion clock is not corrected by them.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+from canopen.sdo import SdoAbortedError
+
+from axes import objects as obj
+from axes.objects import BUFFER_ERRORS, BufferStatus, Record
+from axes.sim.drive import (
+    ABORT_DEVICE_STATE,
+    ABORT_VALUE_RANGE,
+    CW_ENABLE_IP,
+    CW_HALT,
+    OPERATION_ENABLED,
+    Segment,
+    SimulatedDrive,
+)
+
+
+class Epos2Drive(SimulatedDrive):
+    PROFILE = "epos2_pvt"
+    EDS = "epos2.eds"
+
+    def _reset_profile(self) -> None:
+        self.fifo: deque[Record] = deque()
+        self.buffer_enabled = False
+        self.ip_active = False
+        self._ip_requested = False
+        self._segment: Segment | None = None
+        self.sticky = BufferStatus(0)  # errors and warnings, kept until a start / fault reset
+        self.records_received = 0
+        self.records_consumed: deque[Record] = deque(maxlen=self.history.maxlen)  # in order (start included)
+        self.max_level = 0
+        self.min_level_active: int | None = None
+        self.ended_by_time_zero = 0
+
+    # --- status -----------------------------------------------------------------------------------
+    @property
+    def level(self) -> int:
+        return len(self.fifo)
+
+    def buffer_status(self) -> BufferStatus:
+        status = self.sticky
+        if self.buffer_enabled:
+            status |= BufferStatus.BUFFER_ENABLED
+        if self.level <= self.read(obj.EPOS2_INTERPOLATION_BUFFER, 2):
+            status |= BufferStatus.UNDERFLOW_WARNING
+        if self.level >= self.read(obj.EPOS2_INTERPOLATION_BUFFER, 3):
+            status |= BufferStatus.OVERFLOW_WARNING
+        if self.ip_active:
+            status |= BufferStatus.IP_MODE_ACTIVE
+        return status
+
+    def _publish(self) -> None:
+        self.store(obj.EPOS2_INTERPOLATION_BUFFER, 1, int(self.buffer_status()))
+        self.store(obj.INTERPOLATION_DATA_CONFIGURATION, 1, obj.EPOS2_BUFFER_SIZE)
+        self.store(obj.INTERPOLATION_DATA_CONFIGURATION, 2, obj.EPOS2_BUFFER_SIZE - self.level)
+        self.store(obj.INTERPOLATION_DATA_CONFIGURATION, 4, self.level)
+
+    def _warning(self) -> bool:
+        return bool(self.sticky & (BufferStatus.VELOCITY_WARNING | BufferStatus.ACCELERATION_WARNING))
+
+    def _target_reached(self) -> bool:
+        return not self.ip_active and not self._ip_requested
+
+    # --- writes -----------------------------------------------------------------------------------
+    def _check_write(self, index: int, subindex: int, value: int) -> None:
+        if index == obj.EPOS2_INTERPOLATION_DATA_RECORD and not self.buffer_enabled:
+            raise SdoAbortedError(ABORT_DEVICE_STATE)
+        if index == obj.EPOS2_INTERPOLATION_BUFFER and (
+            (subindex == 2 and not 0 <= value <= 63) or (subindex == 3 and not 1 <= value <= 64)
+        ):
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+        if index == obj.INTERPOLATION_DATA_CONFIGURATION and subindex == 6 and value not in (0, 1):
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+        if index == obj.INTERPOLATION_SUBMODE and value != -1:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)  # the EPOS2 has cubic PVT only
+        if index == obj.INTERPOLATION_TIME_PERIOD and value != {1: 1, 2: -3}.get(subindex, value):
+            raise SdoAbortedError(ABORT_VALUE_RANGE)  # fixed at 1 ms: the records carry their own times
+
+    def _on_object_write(self, index: int, subindex: int, value: int) -> None:
+        if index == obj.EPOS2_INTERPOLATION_DATA_RECORD:
+            self._push(Record.unpack(value))
+        elif index == obj.INTERPOLATION_DATA_CONFIGURATION and subindex == 6:
+            self.buffer_enabled = value == 1
+            if not self.buffer_enabled:
+                self.fifo.clear()
+
+    def _push(self, record: Record) -> None:
+        self.records_received += 1
+        if self.level >= obj.EPOS2_BUFFER_SIZE:
+            self._ipm_error(BufferStatus.OVERFLOW_ERROR, "buffer overflow")
+            return
+        self.fifo.append(record)
+        self.max_level = max(self.max_level, self.level)
+
+    def _on_mode_change(self, old: int, new: int) -> None:
+        if new == obj.INTERPOLATED_POSITION_MODE:
+            self.fifo.clear()  # transition I
+        elif self.ip_active or self._ip_requested:
+            self._abort_motion()  # transition II
+
+    def _on_mode_bits(self, previous: int, controlword: int) -> None:
+        mode = self.read(obj.MODES_OF_OPERATION_DISPLAY)
+        if mode != obj.INTERPOLATED_POSITION_MODE or controlword & CW_HALT:
+            return
+        if controlword & CW_ENABLE_IP and not previous & CW_ENABLE_IP:
+            self._ip_requested = True
+        elif previous & CW_ENABLE_IP and not controlword & CW_ENABLE_IP and (
+            self.ip_active or self._ip_requested
+        ):
+            self._begin_stop(self._deceleration(quick=False))
+
+    # --- faults -----------------------------------------------------------------------------------
+    def _ipm_error(self, bit: BufferStatus, check: str) -> None:
+        self.sticky |= bit
+        status = int(self.buffer_status())
+        self.fault(obj.EMCY_EPOS2_IPM_ERROR, check, status.to_bytes(2, "little"))
+
+    def _abort_motion(self) -> None:
+        self.ip_active = False
+        self._ip_requested = False
+        self._segment = None
+        if self.state != OPERATION_ENABLED or self.sticky & BUFFER_ERRORS:
+            self.fifo.clear()  # app note 3.8: restart only after re-synchronisation
+
+    def _on_fault_reset(self) -> None:
+        self.sticky = BufferStatus(0)
+
+    # --- interpolation ----------------------------------------------------------------------------
+    def _on_sync_validated(self) -> None:
+        if self._ip_requested and self.state == OPERATION_ENABLED:
+            self._ip_requested = False
+            self._start()
+
+    def _start(self) -> None:
+        self.sticky &= ~(BufferStatus.VELOCITY_WARNING | BufferStatus.ACCELERATION_WARNING)
+        if self.level < 2:
+            self._ipm_error(BufferStatus.UNDERFLOW_ERROR, "buffer underflow at start (fewer than 2 records)")
+            return
+        self.ip_active = True
+        self.ip_active_sync = self.sync_count
+        self.min_level_active = self.level
+        self.velocity = self.acceleration = 0.0
+        self._begin(self.time_us / 1000.0, self.demand, 0.0)
+
+    def _begin(self, start: float, p0: float, v0: float) -> bool:
+        """Take the next record at ``start``: a new segment, the end (time 0) or an underflow."""
+        if not self.fifo:
+            self._ipm_error(BufferStatus.UNDERFLOW_ERROR, "buffer underflow")
+            return False
+        record = self.fifo.popleft()
+        self.records_consumed.append(record)
+        self.min_level_active = min(self.level, self.min_level_active if self.min_level_active is not None
+                                    else self.level)
+        if record.time == 0:
+            self.ip_active = False
+            self._segment = None
+            self.ended_by_time_zero += 1
+            return False
+        self._segment = Segment.cubic(start, p0, v0, float(record.position),
+                                      record.velocity * self.velocity_factor, float(record.time))
+        return True
+
+    def _motion_at(self, t: float) -> tuple[float, float, float] | None:
+        if not self.ip_active or self._segment is None:
+            return None
+        segment = self._segment
+        while t >= segment.end - 1e-9:
+            end = segment.at(segment.end)
+            self._check_dynamics(end[1], end[2])
+            if self.state != OPERATION_ENABLED:
+                return None
+            if not self._begin(segment.end, segment.p1, segment.v1):
+                if self.ip_active is False and self.state == OPERATION_ENABLED:
+                    return end[0], 0.0, 0.0  # time-0 end: hold the last point
+                return None
+            segment = self._segment
+            assert segment is not None
+        return segment.at(t)
+
+    def _check_dynamics(self, v: float, a: float) -> None:
+        rpm = abs(v) * self._rpm_per_qc_ms
+        rpm_s = abs(a) * self._rpm_s_per_qc_ms2
+        if rpm > self.read(obj.PROFILE_VELOCITY):
+            self.sticky |= BufferStatus.VELOCITY_WARNING
+        if rpm_s > self.read(obj.PROFILE_ACCELERATION):
+            self.sticky |= BufferStatus.ACCELERATION_WARNING
+        if rpm > self.read(obj.MAX_PROFILE_VELOCITY):
+            self._ipm_error(BufferStatus.VELOCITY_ERROR, "max profile velocity 0x607F")
+        elif rpm_s > self.read(obj.MAX_ACCELERATION):
+            self._ipm_error(BufferStatus.ACCELERATION_ERROR, "max acceleration 0x60C5")

@@ -1,0 +1,130 @@
+"""Shared part of the fixed-period simulated drives: one setpoint per period, validated by SYNC.
+
+A setpoint written to 0x60C1 (by the synchronous RPDO, or by SDO) is *validated* by the next SYNC;
+each profile then says when, and along what curve, the demand reaches it (``delay_periods`` after
+the validating SYNC). A SYNC that validates no new setpoint starts nothing: the drive finishes the
+segment under way and holds its end point (for the Parker cubic without velocity: see parker.py).
+
+The fixed-period drives have no interpolation limits of their own (the master limits the motion);
+as sanity checks 0x607D bounds every demand sample and 0x607F every demand velocity (fault).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+from axes import objects as obj
+from axes.sim.drive import CW_ENABLE_IP, CW_HALT, OPERATION_ENABLED, Segment, SimulatedDrive
+
+
+class FixedPeriodDrive(SimulatedDrive):
+    """Interpolated position mode with one setpoint per period (subclasses: how it is reached)."""
+
+    delay_periods: int = 1
+
+    def _reset_profile(self) -> None:
+        self.ip_active = False
+        self._ip_requested = False
+        self._segment: Segment | None = None
+        self._new_setpoint: int | None = None  # written since the last SYNC
+        self.setpoints: deque[tuple[int, int]] = deque(maxlen=self.history.maxlen)  # (validating SYNC, target)
+        self.first_setpoint_sync: int | None = None  # SYNC that validated the first setpoint of a run
+
+    # --- activation -------------------------------------------------------------------------------
+    def _ip_mode_selected(self) -> bool:
+        return self.read(obj.MODES_OF_OPERATION_DISPLAY) == obj.INTERPOLATED_POSITION_MODE
+
+    def _on_mode_bits(self, previous: int, controlword: int) -> None:
+        if not self._ip_mode_selected() or controlword & CW_HALT:
+            return
+        if controlword & CW_ENABLE_IP and not previous & CW_ENABLE_IP:
+            self._ip_requested = True
+        elif previous & CW_ENABLE_IP and not controlword & CW_ENABLE_IP and (
+            self.ip_active or self._ip_requested
+        ):
+            self._begin_stop(self._deceleration(quick=False))
+
+    def _on_mode_change(self, old: int, new: int) -> None:
+        if new != obj.INTERPOLATED_POSITION_MODE and (self.ip_active or self._ip_requested):
+            self._abort_motion()
+
+    def _abort_motion(self) -> None:
+        self.ip_active = False
+        self._ip_requested = False
+        self._segment = None
+        self._new_setpoint = None
+        self._reset_stream()
+
+    def _activate(self) -> bool:
+        """Interpolation becomes active at this SYNC (False: the configuration is refused)."""
+        self.ip_active = True
+        self.ip_active_sync = self.sync_count
+        self.first_setpoint_sync = None
+        self._segment = None
+        self._reset_stream()
+        return True
+
+    def _on_sync_validated(self) -> None:
+        if self.state != OPERATION_ENABLED:
+            self._new_setpoint = None
+            return
+        if self._ip_requested:
+            self._ip_requested = False
+            if not self._activate():
+                return
+        if not self.ip_active:
+            self._new_setpoint = None
+            return
+        target, self._new_setpoint = self._new_setpoint, None
+        if target is not None:
+            self.setpoints.append((self.sync_count, target))
+            if self.first_setpoint_sync is None:
+                self.first_setpoint_sync = self.sync_count
+        self._validated(self.time_us / 1000.0, target)
+
+    # --- writes -----------------------------------------------------------------------------------
+    def _on_object_write(self, index: int, subindex: int, value: int) -> None:
+        if index == obj.INTERPOLATION_DATA_RECORD and subindex == 1:
+            self._new_setpoint = value
+
+    # --- motion -----------------------------------------------------------------------------------
+    @property
+    def period_ms(self) -> float:
+        """The interpolation period 0x60C2 (value x 10^index s), in ms."""
+        value = self.read(obj.INTERPOLATION_TIME_PERIOD, 1)
+        index = self.read(obj.INTERPOLATION_TIME_PERIOD, 2)
+        return value * 10.0 ** (index + 3)
+
+    def _motion_at(self, t: float) -> tuple[float, float, float] | None:
+        if not self.ip_active or self._segment is None:
+            return None
+        p, v, a = self._segment.at(t)
+        if t > self._segment.end + 1e-9:
+            return p, 0.0, 0.0  # reached: holds there until the next validated setpoint moves it
+        return p, v, a  # up to and including the end sample, the segment's own velocity
+
+    def _target_reached(self) -> bool:
+        return self._segment is None or self.time_us / 1000.0 >= self._segment.end - 1e-9
+
+    def _start_point(self) -> tuple[float, float]:
+        """Where a new segment starts: the running segment's present point (position, velocity)."""
+        if self._segment is None:
+            return self.demand, 0.0
+        t = self.time_us / 1000.0
+        if t >= self._segment.end - 1e-9:
+            return self._segment.p1, self._segment.v1
+        p, v, _ = self._segment.at(t)
+        return p, v
+
+    def _ramp(self, start: float, target: float, period: float) -> None:
+        """A linear ramp from the present demand to ``target`` over ``period`` ms from ``start``."""
+        p0, _ = self._start_point()
+        self._segment = Segment.linear(start, p0, float(target), period)
+
+    # --- subclass hooks ---------------------------------------------------------------------------
+    def _reset_stream(self) -> None:
+        """Forget the points of the previous run."""
+
+    def _validated(self, now: float, target: int | None) -> None:
+        """A SYNC validated ``target`` (None: no new setpoint since the last SYNC)."""
+        raise NotImplementedError

@@ -1,0 +1,49 @@
+"""Simulated CiA 402 drive with linear interpolation and one target point (seed
+cia402-ip-linear-single-setpoint).
+
+Mode 7; 0x60C2:01 is the time between two targets (ms); 0x60C4:06 = 1 must be written before
+0x60C1:01 is accepted (otherwise SDO abort 0x08000022, and an RPDO value is dropped). Bit 4 of the
+controlword enables interpolation from the next SYNC. A target validated by SYNC s is reached, on a
+straight line from the present demand, at the end of the period that SYNC starts (one period of
+delay): with the master sending record k to be validated at program time k*T the demand is
+``planner.interpolation.linear`` of the records.
+"""
+
+from __future__ import annotations
+
+from canopen.sdo import SdoAbortedError
+
+from axes import objects as obj
+from axes.sim.drive import ABORT_DEVICE_STATE, ABORT_VALUE_RANGE
+from axes.sim.fixed_period import FixedPeriodDrive
+
+
+class IpLinearDrive(FixedPeriodDrive):
+    PROFILE = "cia402_ip_linear"
+    EDS = "cia402_ip_linear.eds"
+    delay_periods = 1
+
+    def _reset_profile(self) -> None:
+        super()._reset_profile()
+        self.buffer_enabled = False
+
+    def _check_write(self, index: int, subindex: int, value: int) -> None:
+        if index == obj.INTERPOLATION_DATA_RECORD and subindex == 1 and not self.buffer_enabled:
+            raise SdoAbortedError(ABORT_DEVICE_STATE)
+        if index == obj.INTERPOLATION_DATA_CONFIGURATION and subindex == 6 and value not in (0, 1):
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+        if index == obj.INTERPOLATION_SUBMODE and value != 0:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)  # "only linear interpolation is supported"
+        if index == obj.INTERPOLATION_TIME_PERIOD and subindex == 1 and value == 0:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+
+    def _on_object_write(self, index: int, subindex: int, value: int) -> None:
+        if index == obj.INTERPOLATION_DATA_CONFIGURATION and subindex == 6:
+            self.buffer_enabled = value == 1
+            if not self.buffer_enabled:
+                self._new_setpoint = None
+        super()._on_object_write(index, subindex, value)
+
+    def _validated(self, now: float, target: int | None) -> None:
+        if target is not None:
+            self._ramp(now, target, self.period_ms)

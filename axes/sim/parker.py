@@ -1,0 +1,127 @@
+"""Simulated Parker SLVDN in interpolated position mode, operative mode 202 (seed parker-slvdn-ip-mode-202).
+
+Pr31 (0x201F) = 202 selects the mode; interpolation runs whenever operation is enabled in it (the
+seed names no controlword bit for it; bit 8 halt still brakes). The cycle is 0x1006 (us):
+
+* below 2500 us the position reference is taken directly on the SYNC that validates it (no delay);
+* from 2500 us on, 0x60C0 selects the interpolation, on the program timeline of
+  ``planner.interpolation``: 0 linear (one cycle of delay, ``linear``), -1 cubic through position
+  and velocity 0x60C1:03 in rpm (one cycle, ``cubic_pv``), -2 cubic through positions only (two
+  cycles, ``cubic_p``: the velocity at a point is the central difference of its neighbours, so the
+  segment to point k starts when point k+1 is validated; a SYNC without a new point ends the
+  stream: the last segment arrives at rest).
+
+A missing cycle (0x1006 = 0) or an unknown submode faults the drive (EMCY 0x6320) when the mode
+starts.
+"""
+
+from __future__ import annotations
+
+from canopen.sdo import SdoAbortedError
+
+from axes import objects as obj
+from axes.sim.drive import ABORT_VALUE_RANGE, CW_HALT, OPERATION_ENABLED, Segment
+from axes.sim.fixed_period import FixedPeriodDrive
+
+DIRECT = "direct"
+
+
+class ParkerDrive(FixedPeriodDrive):
+    PROFILE = "parker_slvdn"
+    EDS = "parker_slvdn.eds"
+
+    def _reset_stream(self) -> None:
+        self._points: list[float] | None = None  # submode -2: the last three points of the stream
+        self._v_last = 0.0
+
+    # --- mode ---------------------------------------------------------------------------------------
+    @property
+    def cycle_us(self) -> int:
+        return self.read(obj.COMMUNICATION_CYCLE_PERIOD)
+
+    @property
+    def period_ms(self) -> float:
+        return self.cycle_us / 1000.0
+
+    @property
+    def interpolation(self) -> str | int:
+        """DIRECT below 2500 us, else the submode 0x60C0 (0, -1, -2)."""
+        if self.cycle_us < obj.PARKER_CUBIC_THRESHOLD_US:
+            return DIRECT
+        return self.read(obj.INTERPOLATION_SUBMODE)
+
+    @property
+    def delay_periods(self) -> int:  # type: ignore[override]
+        mode = self.interpolation
+        return 0 if mode == DIRECT else 2 if mode == -2 else 1
+
+    def _ip_mode_selected(self) -> bool:
+        return self.read(obj.PARKER_OPERATIVE_MODE) == obj.PARKER_IP_MODE
+
+    def _check_write(self, index: int, subindex: int, value: int) -> None:
+        if index == obj.INTERPOLATION_SUBMODE and value not in (0, -1, -2):
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+
+    def _on_mode_bits(self, previous: int, controlword: int) -> None:
+        """Mode 202 does not wait for bit 4 (see the module docstring)."""
+
+    def _on_object_write(self, index: int, subindex: int, value: int) -> None:
+        if index == obj.PARKER_OPERATIVE_MODE and value != obj.PARKER_IP_MODE and self.ip_active:
+            self._abort_motion()
+        super()._on_object_write(index, subindex, value)
+
+    def _on_sync_validated(self) -> None:
+        if (self.state == OPERATION_ENABLED and not self.ip_active and self._ip_mode_selected()
+                and not self._controlword & CW_HALT and self._stop_segment is None):
+            self._ip_requested = True
+        super()._on_sync_validated()
+
+    def _activate(self) -> bool:
+        if self.cycle_us <= 0:
+            self.fault(obj.EMCY_PARAMETER_ERROR, "communication cycle period 0x1006 not set")
+            return False
+        if self.interpolation not in (DIRECT, 0, -1, -2):
+            self.fault(obj.EMCY_PARAMETER_ERROR, f"interpolation submode 0x60C0 = {self.interpolation}")
+            return False
+        return super()._activate()
+
+    # --- setpoints ----------------------------------------------------------------------------------
+    def _validated(self, now: float, target: int | None) -> None:
+        mode, period = self.interpolation, self.period_ms
+        if mode == DIRECT:
+            if target is not None:
+                previous = self.demand
+                if not self._check_position(float(target)):
+                    return
+                self._segment = Segment(now, 0.0, float(target), 0.0, 0.0, 0.0, float(target), 0.0)
+                self.demand = float(target)
+                self._check_dynamics((target - previous) / period, 0.0)
+        elif mode == 0:
+            if target is not None:
+                self._ramp(now, target, period)
+        elif mode == -1:
+            if target is not None:
+                p0, v0 = self._start_point()
+                rpm = self.read(obj.INTERPOLATION_DATA_RECORD, 3)
+                v1 = float(self.scaling.rpm_to_qc_per_ms(rpm))
+                self._segment = Segment.cubic(now, p0, v0, float(target), v1, period)
+        else:
+            self._cubic_positions(now, target, period)
+
+    def _cubic_positions(self, now: float, target: int | None, period: float) -> None:
+        points = self._points
+        if target is not None:
+            if points is None:
+                points = self._points = [self._start_point()[0]]
+                self._v_last = 0.0
+            points.append(float(target))
+            del points[:-3]
+            if len(points) == 3:
+                v_next = (points[2] - points[0]) / (2.0 * period)
+                self._segment = Segment.cubic(now, points[0], self._v_last, points[1], v_next, period)
+                self._v_last = v_next
+        elif points is not None:
+            if len(points) >= 2:
+                self._segment = Segment.cubic(now, points[-2], self._v_last, points[-1], 0.0, period)
+            self._points = None
+            self._v_last = 0.0

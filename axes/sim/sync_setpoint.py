@@ -1,0 +1,45 @@
+"""Simulated bufferless servodrive in interpolated position mode (seed servodrive-ip-no-buffer).
+
+No data buffer (no 0x60C4): one setpoint per SYNC period, 0x60C2 between 1.0 and 100.0 ms
+(checked when interpolation starts: EMCY 0x6320 and fault otherwise). Setpoint(K), validated by
+SYNC K, is reached by the end of the NEXT period: the drive starts a straight ramp to it at SYNC K+1
+and gets there at SYNC K+2 (two periods of delay). Profile parameters do not limit it; only
+0x607D and the 0x607F sanity check fault it. With the master sending record k to be validated at
+program time (k - 1)*T the demand is ``planner.interpolation.linear`` of the records.
+"""
+
+from __future__ import annotations
+
+from canopen.sdo import SdoAbortedError
+
+from axes import objects as obj
+from axes.sim.drive import ABORT_VALUE_RANGE
+from axes.sim.fixed_period import FixedPeriodDrive
+
+MIN_PERIOD_MS, MAX_PERIOD_MS = 1.0, 100.0
+
+
+class SyncSetpointDrive(FixedPeriodDrive):
+    PROFILE = "sync_setpoint"
+    EDS = "sync_setpoint.eds"
+    delay_periods = 2
+
+    def _reset_stream(self) -> None:
+        self._pending: int | None = None  # validated at the last SYNC, ramped to from this one
+
+    def _check_write(self, index: int, subindex: int, value: int) -> None:
+        if index == obj.INTERPOLATION_SUBMODE and value != 0:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)  # only the default linear interpolation
+
+    def _activate(self) -> bool:
+        period = self.period_ms
+        if not MIN_PERIOD_MS - 1e-9 <= period <= MAX_PERIOD_MS + 1e-9:
+            why = f"interpolation period 0x60C2 = {period:g} ms outside 1.0-100.0 ms"
+            self.fault(obj.EMCY_PARAMETER_ERROR, why)
+            return False
+        return super()._activate()
+
+    def _validated(self, now: float, target: int | None) -> None:
+        if self._pending is not None:
+            self._ramp(now, self._pending, self.period_ms)
+        self._pending = target

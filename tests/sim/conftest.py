@@ -1,0 +1,134 @@
+"""A plain master for the drive-side tests: a canopen Network with RemoteNodes and raw frames on a
+python-can virtual channel of its own (one per test), plus the simulated drive's own network."""
+
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import can
+import canopen
+import pytest
+
+from axes import objects as obj
+from axes.objects import PdoLayout
+from axes.sim.drive import EDS_DIR, SimulatedDrive
+
+
+class FrameLog(can.Listener):
+    """Every frame the master's bus receives, waitable."""
+
+    def __init__(self) -> None:
+        self.frames: list[can.Message] = []
+        self.cond = threading.Condition()
+
+    def on_message_received(self, msg: can.Message) -> None:
+        with self.cond:
+            self.frames.append(msg)
+            self.cond.notify_all()
+
+    def of(self, can_id: int) -> list[can.Message]:
+        with self.cond:
+            return [m for m in self.frames if m.arbitration_id == can_id]
+
+    def wait_for(self, can_id: int, count: int = 1, timeout: float = 5.0,
+                 where: Callable[[can.Message], bool] | None = None) -> list[can.Message]:
+        """Wait until ``count`` frames with this id (and ``where``) arrived; returns them."""
+        deadline = time.monotonic() + timeout
+        with self.cond:
+            while True:
+                hits = [m for m in self.frames if m.arbitration_id == can_id and (where is None or where(m))]
+                remaining = deadline - time.monotonic()
+                if len(hits) >= count or remaining <= 0:
+                    return hits
+                self.cond.wait(remaining)
+
+    def clear(self) -> None:
+        with self.cond:
+            self.frames.clear()
+
+
+class Bench:
+    """The simulated drives' network and a master network on one fresh virtual channel."""
+
+    def __init__(self) -> None:
+        self.channel = f"pvtflow-sim-{uuid.uuid4().hex[:12]}"
+        self.sim = canopen.Network()
+        self.sim.NOTIFIER_CYCLE = 0.02  # quick shutdown: the notifier thread wakes this often
+        self.sim.connect(interface="virtual", channel=self.channel, receive_own_messages=False)
+        self.master = canopen.Network()
+        self.master.NOTIFIER_CYCLE = 0.02
+        self.log = FrameLog()
+        self.master.listeners.append(self.log)
+        self.master.connect(interface="virtual", channel=self.channel, receive_own_messages=False)
+        self.drives: list[SimulatedDrive] = []
+        self.syncs = 0
+
+    def add(self, drive: SimulatedDrive) -> SimulatedDrive:
+        drive.attach(self.sim)
+        drive.boot()
+        self.drives.append(drive)
+        return drive
+
+    def remote(self, drive: SimulatedDrive, eds: str | Path | None = None) -> canopen.RemoteNode:
+        node = self.master.add_node(drive.node_id, str(eds or drive.eds_path))
+        node.sdo.RESPONSE_TIMEOUT = 2.0
+        return node
+
+    def sync(self, n: int = 1, wait: bool = True) -> int:
+        """Send n SYNC frames; by default wait until every drive processed them. Returns the SYNC count."""
+        for _ in range(n):
+            self.master.send_message(0x80, b"")
+        self.syncs += n
+        if wait:
+            for d in self.drives:
+                assert d.wait_sync(self.syncs, 10.0), f"node {d.node_id} did not process SYNC {self.syncs}"
+        return self.syncs
+
+    def send(self, can_id: int, data: bytes) -> None:
+        self.master.send_message(can_id, data)
+
+    def close(self) -> None:
+        for d in self.drives:
+            d.detach()
+        self.master.disconnect()
+        self.sim.disconnect()
+
+
+@pytest.fixture
+def bench() -> Iterator[Bench]:
+    b = Bench()
+    try:
+        yield b
+    finally:
+        errors = [e for d in b.drives for e in d.internal_errors]
+        b.close()
+    assert not errors, f"simulated drive raised internally: {errors!r}"
+
+
+def enable(node: canopen.RemoteNode, mode: int = obj.INTERPOLATED_POSITION_MODE) -> None:
+    """Mode, then shutdown / switch on / enable operation over SDO."""
+    node.sdo[obj.MODES_OF_OPERATION].raw = mode
+    for cw in (0x0006, 0x0007, 0x000F):
+        node.sdo[obj.CONTROLWORD].raw = cw
+
+
+def configure_pdos(node: canopen.RemoteNode, rpdos: tuple[PdoLayout, ...], tpdos: tuple[PdoLayout, ...]) -> None:
+    """The CiA 301 way, with python-canopen's master API: read, remap, save (disable, map, enable)."""
+    for layouts, maps, receive in ((rpdos, node.rpdo, True), (tpdos, node.tpdo, False)):
+        maps.read()
+        for layout in layouts:
+            m = maps[layout.number]
+            m.clear()
+            for index, subindex, bits in layout.entries:
+                m.add_variable(index, subindex, bits)
+            m.trans_type = layout.transmission_type
+            m.cob_id = layout.cob_id(node.id, receive)
+            m.enabled = True
+            m.save()
+
+
+__all__ = ["EDS_DIR", "Bench", "FrameLog", "configure_pdos", "enable"]

@@ -1,0 +1,44 @@
+"""SimulatedCell: one simulated drive per configured axis, on the cell's virtual channel."""
+
+from __future__ import annotations
+
+import uuid
+from pathlib import Path
+
+import canopen
+
+from axes import objects as obj
+from axes.sim import Epos2Drive
+from axes.sim.cell import SimulatedCell
+from service.config import load_cell_config
+
+from .conftest import FrameLog
+
+CELLS = Path(__file__).resolve().parents[2] / "configs" / "cells"
+
+
+def test_arm6_cell_boots_six_epos2_with_the_configured_limits() -> None:
+    cell = load_cell_config(CELLS / "arm6.yaml")
+    channel = f"pvtflow-cell-{uuid.uuid4().hex[:10]}"
+    master = canopen.Network()
+    master.NOTIFIER_CYCLE = 0.02
+    log = FrameLog()
+    master.listeners.append(log)
+    master.connect(interface="virtual", channel=channel)
+    try:
+        with SimulatedCell(cell, channel=channel) as sim:
+            for axis in cell.axes:
+                assert log.wait_for(0x700 + axis.node_id), f"no boot-up from node {axis.node_id}"
+            assert all(isinstance(d, Epos2Drive) for d in sim)
+            assert sim.drive("joint_3") is sim.drive(3)
+            axis = cell.axis_for_joint("joint_2")
+            node = master.add_node(axis.node_id, str(sim.drive(axis.node_id).eds_path))
+            assert node.sdo[obj.MAX_PROFILE_VELOCITY].raw == axis.limits.max_profile_velocity_rpm
+            assert node.sdo[obj.MAX_ACCELERATION].raw == axis.limits.max_acceleration_rpm_s
+            assert node.sdo[obj.SOFTWARE_POSITION_LIMIT][2].raw == axis.limits.max_position_qc
+            master.send_message(0x80, b"")
+            assert sim.wait_sync(1)
+            assert sim.internal_errors == []
+        assert not sim.running
+    finally:
+        master.disconnect()
