@@ -1,0 +1,332 @@
+"""Drive behaviours: one module per profile, each with its configuration, its feed, its delay, its end.
+
+``AxisLink`` is the master's handle on one drive (SDO access by index, controlword, the values its
+TPDOs bring); ``Profile`` is what a behaviour adds to it. ``profile_for(link)`` picks the module
+from ``AxisConfig.profile``.
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, ClassVar
+
+import canopen
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+from axes import objects as od
+from axes.cia402 import (
+    CONTROLWORD_FAULT_RESET,
+    Controlword,
+    PowerState,
+    PowerStateMachine,
+    decode_state,
+)
+from axes.objects import BufferStatus, PdoLayout
+from service.config import AxisConfig
+
+if TYPE_CHECKING:
+    from axes.bus import CellBus
+    from axes.feeder import Feeder
+    from planner.program import AxisProgram
+
+DEFAULT_MAX_FOLLOWING_ERROR_QC = 2000  # app note Table 17 default for 0x6065
+
+
+class DriveError(RuntimeError):
+    """A drive did not accept its configuration or a state change (node, object, what happened)."""
+
+    def __init__(self, node_id: int, message: str) -> None:
+        self.node_id = node_id
+        super().__init__(f"node {node_id}: {message}")
+
+
+# Signedness and size of the objects pvtflow maps into PDOs (decode by the layouts of axes.objects).
+_PDO_FORMATS: dict[tuple[int, int], str] = {
+    (od.STATUSWORD, 0): "H",
+    (od.CONTROLWORD, 0): "H",
+    (od.POSITION_ACTUAL_VALUE, 0): "i",
+    (od.POSITION_DEMAND_VALUE, 0): "i",
+    (od.EPOS2_INTERPOLATION_BUFFER, 1): "H",
+    (od.INTERPOLATION_DATA_RECORD, 1): "i",
+    (od.INTERPOLATION_DATA_RECORD, 2): "i",
+    (od.INTERPOLATION_DATA_RECORD, 3): "i",
+    (od.EPOS2_INTERPOLATION_DATA_RECORD, 0): "Q",
+    (od.HIGH_RESOLUTION_TIME_STAMP, 0): "I",
+}
+
+
+def pdo_struct(layout: PdoLayout) -> struct.Struct:
+    """The little-endian struct of one PDO's data bytes, from its layout."""
+    return struct.Struct("<" + "".join(_PDO_FORMATS[(i, s)] for i, s, _ in layout.entries))
+
+
+class AxisLink:
+    """The master's view of one drive: SDO by index, controlword out, statusword/position/buffer in."""
+
+    def __init__(self, bus: CellBus, config: AxisConfig) -> None:
+        self.bus = bus
+        self.config = config
+        self.node_id = config.node_id
+        self.node: canopen.RemoteNode = bus.add_node(config.node_id)
+        self.psm = PowerStateMachine()
+        self.statusword = 0
+        self.position: int | None = None
+        self.buffer_status = 0
+        self.last_emcy: tuple[int, str] | None = None
+        self.updated = threading.Condition()
+        self.status_listeners: list[Callable[[AxisLink], None]] = []
+        self._subscribed: list[tuple[int, Callable[..., None]]] = []
+
+    @property
+    def joint(self) -> str:
+        return self.config.joint
+
+    @property
+    def state(self) -> PowerState:
+        return decode_state(self.statusword)
+
+    # --- SDO -------------------------------------------------------------------------------------
+    def write(self, index: int, subindex: int, value: int, fmt: str) -> None:
+        """Expedited SDO download of one value packed as ``fmt`` (struct code: B, H, I, b, h, i)."""
+        if not self._download(index, subindex, value, fmt, optional=False):
+            raise AssertionError("unreachable")
+
+    def write_optional(self, index: int, subindex: int, value: int, fmt: str) -> bool:
+        """An SDO write the drive may not have the object for (abort 0x0602xxxx / 0x0609xxxx): False then."""
+        return self._download(index, subindex, value, fmt, optional=True)
+
+    def _download(self, index: int, subindex: int, value: int, fmt: str, optional: bool) -> bool:
+        where = f"0x{index:04X}:{subindex:02X}"
+        try:
+            self.node.sdo.download(index, subindex, struct.pack("<" + fmt, value))
+        except SdoAbortedError as exc:
+            if optional and exc.code >> 16 in (0x0602, 0x0609):
+                return False
+            raise DriveError(self.node_id, f"SDO write {where} = {value} failed: {exc}") from None
+        except (SdoCommunicationError, struct.error) as exc:
+            raise DriveError(self.node_id, f"SDO write {where} = {value} failed: {exc}") from None
+        return True
+
+    def read(self, index: int, subindex: int, fmt: str) -> int:
+        try:
+            data = self.node.sdo.upload(index, subindex)
+            return struct.unpack_from("<" + fmt, data.ljust(struct.calcsize(fmt), b"\0"))[0]
+        except (SdoAbortedError, SdoCommunicationError, struct.error) as exc:
+            raise DriveError(self.node_id, f"SDO read 0x{index:04X}:{subindex:02X} failed: {exc}") from None
+
+    def read_statusword(self) -> int:
+        self._set_statusword(self.read(od.STATUSWORD, 0, "H"))
+        return self.statusword
+
+    # --- PDO configuration (CiA 301: invalidate, clear the mapping, map, count, type, validate) --
+    def map_pdo(self, layout: PdoLayout, receive: bool, cob_id: int | None = None) -> None:
+        comm = (0x1400 if receive else 0x1800) + layout.number - 1
+        mapping = (0x1600 if receive else 0x1A00) + layout.number - 1
+        cob = layout.cob_id(self.node_id, receive) if cob_id is None else cob_id
+        self.write(comm, 1, cob | 0x8000_0000, "I")
+        self.write(mapping, 0, 0, "B")
+        for k, (index, subindex, bits) in enumerate(layout.entries, start=1):
+            self.write(mapping, k, (index << 16) | (subindex << 8) | bits, "I")
+        self.write(mapping, 0, len(layout.entries), "B")
+        self.write(comm, 2, layout.transmission_type, "B")
+        self.write(comm, 1, cob, "I")
+
+    def disable_pdo(self, number: int, receive: bool) -> None:
+        """Invalidate a PDO pvtflow does not use (silently skipped where the drive has no such PDO)."""
+        comm = (0x1400 if receive else 0x1800) + number - 1
+        try:
+            cob = self.read(comm, 1, "I")
+            self.write(comm, 1, cob | 0x8000_0000, "I")
+        except DriveError:
+            pass
+
+    def map_pdos(
+        self, rpdos: tuple[PdoLayout, ...], tpdos: tuple[PdoLayout, ...], rpdo_cob_ids: dict[int, int] | None = None
+    ) -> None:
+        """Map pvtflow's PDOs and invalidate the others (``rpdo_cob_ids``: RPDO number -> shared COB-ID)."""
+        cobs = rpdo_cob_ids or {}
+        used_r = {p.number for p in rpdos}
+        used_t = {p.number for p in tpdos}
+        for n in range(1, 5):
+            if n not in used_r:
+                self.disable_pdo(n, True)
+            if n not in used_t:
+                self.disable_pdo(n, False)
+        for p in rpdos:
+            self.map_pdo(p, True, cobs.get(p.number))
+        for p in tpdos:
+            self.map_pdo(p, False)
+
+    def subscribe_tpdos(self, tpdos: tuple[PdoLayout, ...]) -> None:
+        self.unsubscribe()
+        for layout in tpdos:
+            cob = layout.cob_id(self.node_id, receive=False)
+            cb = self._decoder(layout)
+            self.bus.network.subscribe(cob, cb)
+            self._subscribed.append((cob, cb))
+
+    def unsubscribe(self) -> None:
+        for cob, cb in self._subscribed:
+            self.bus.network.unsubscribe(cob, cb)
+        self._subscribed.clear()
+
+    def _decoder(self, layout: PdoLayout) -> Callable[[int, bytearray, float], None]:
+        fmt = pdo_struct(layout)
+        keys = [(i, s) for i, s, _ in layout.entries]
+
+        def on_tpdo(can_id: int, data: bytearray, timestamp: float) -> None:
+            if len(data) < fmt.size:
+                return
+            for key, value in zip(keys, fmt.unpack_from(data), strict=True):
+                if key == (od.STATUSWORD, 0):
+                    self._set_statusword(value)
+                elif key == (od.POSITION_ACTUAL_VALUE, 0):
+                    self.position = value
+                elif key == (od.EPOS2_INTERPOLATION_BUFFER, 1):
+                    self.buffer_status = value
+            for cb in list(self.status_listeners):
+                cb(self)
+
+        return on_tpdo
+
+    def _set_statusword(self, value: int) -> None:
+        self.statusword = value
+        self.psm.update(value)
+
+    # --- controlword -----------------------------------------------------------------------------
+    def controlword_cob_id(self) -> int:
+        """The synchronous RPDO that carries the controlword (RPDO2 in every pvtflow layout)."""
+        return 0x300 + self.node_id
+
+    def send_controlword(self, controlword: int) -> None:
+        """Through the synchronous RPDO: takes effect at the next SYNC."""
+        self.bus.network.send_message(self.controlword_cob_id(), struct.pack("<H", controlword))
+        self.psm.sent(controlword)
+
+    def write_controlword(self, controlword: int) -> None:
+        """By SDO: takes effect at once (configuration, enable, recovery)."""
+        self.write(od.CONTROLWORD, 0, controlword, "H")
+        self.psm.sent(controlword)
+
+    def reach(self, target: PowerState, timeout_s: float = 2.0) -> PowerState:
+        """Walk the power state machine to ``target`` by SDO (fault reset on a rising bit 7 included).
+
+        Each step is confirmed by reading the statusword back; the timeout only detects a drive
+        that does not move.
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            state = decode_state(self.read_statusword())
+            if state == target:
+                return state
+            words = self.psm.step(self.statusword, target)
+            if state == PowerState.FAULT and not words:
+                words = [CONTROLWORD_FAULT_RESET]
+            for word in words:
+                self.write_controlword(word)
+            if time.monotonic() > deadline:
+                raise DriveError(
+                    self.node_id,
+                    f"did not reach {target.value} (state {state.value}, statusword 0x{self.statusword:04X})",
+                )
+            if not words:
+                time.sleep(0.001)  # a transition the drive makes by itself (fault reaction, boot)
+
+    def describe_buffer(self) -> str:
+        names = [f.name.lower() for f in BufferStatus if f & self.buffer_status and f.name]
+        return ", ".join(names) if names else "none"
+
+
+class Profile:
+    """One drive behaviour. Subclasses set the class attributes and implement configure/feeder."""
+
+    name: ClassVar[str]
+    rpdos: ClassVar[tuple[PdoLayout, ...]]
+    tpdos: ClassVar[tuple[PdoLayout, ...]]
+    sync_tpdo: ClassVar[int]  # the synchronous TPDO number that answers every SYNC
+
+    def __init__(self, link: AxisLink) -> None:
+        self.link = link
+        self.config = link.config
+
+    @property
+    def sync_answer_cob_id(self) -> int:
+        return 0x80 + 0x100 * self.sync_tpdo + self.link.node_id
+
+    @property
+    def delay_periods(self) -> int:
+        """SYNC periods from the SYNC that validates a setpoint to the one where it is reached
+        (fixed-period profiles; 0 for the buffered EPOS2, which runs on the records' own times)."""
+        return 0
+
+    @property
+    def lead_periods(self) -> int:
+        """How far ahead of the program's timeline the master sends: the drive's delay, less the part
+        the program's reconstruction (planner.interpolation) already contains."""
+        return self.delay_periods
+
+    def configure(self) -> None:
+        """The SDO configuration sequence (node in PRE-OPERATIONAL)."""
+        raise NotImplementedError
+
+    def enable(self) -> None:
+        """From any state to OPERATION ENABLED, then whatever the mode needs before records."""
+        self.enable_operation()
+
+    def enable_operation(self) -> None:
+        """OPERATION ENABLED with bits 4 and 8 low (0x000F), so that the start word is a rising bit 4."""
+        self.link.reach(PowerState.OPERATION_ENABLED)
+        self.link.write_controlword(self.end_controlword())
+
+    def feeder(self, program: AxisProgram) -> Feeder:
+        raise NotImplementedError
+
+    def start_controlword(self) -> int:
+        return int(Controlword.ENABLE_OPERATION | Controlword.ENABLE_IP_MODE | Controlword.ENABLE_VOLTAGE
+                   | Controlword.QUICK_STOP | Controlword.SWITCH_ON)
+
+    def halt_controlword(self) -> int:
+        return self.start_controlword() | int(Controlword.HALT)
+
+    def end_controlword(self) -> int:
+        """After the end: ip mode off, operation still enabled (0x000F)."""
+        return self.start_controlword() & ~int(Controlword.ENABLE_IP_MODE)
+
+    def write_limits(self, velocity_objects: bool = True) -> None:
+        """0x607D and, where the drive takes them, 0x607F/0x60C5/0x6081/0x6083/0x6084, in drive units."""
+        lim = self.config.limits
+        unit = self.config.scaling.velocity_unit_rpm
+        link = self.link
+        link.write(od.SOFTWARE_POSITION_LIMIT, 1, lim.min_position_qc, "i")
+        link.write(od.SOFTWARE_POSITION_LIMIT, 2, lim.max_position_qc, "i")
+        if not velocity_objects:
+            return
+        link.write(od.MAX_PROFILE_VELOCITY, 0, round(lim.max_profile_velocity_rpm / unit), "I")
+        link.write(od.MAX_ACCELERATION, 0, round(lim.max_acceleration_rpm_s), "I")
+        profile_velocity = lim.profile_velocity_rpm or lim.max_profile_velocity_rpm
+        profile_acceleration = lim.profile_acceleration_rpm_s or lim.max_acceleration_rpm_s
+        link.write(od.PROFILE_VELOCITY, 0, round(profile_velocity / unit), "I")
+        link.write(od.PROFILE_ACCELERATION, 0, round(profile_acceleration), "I")
+        link.write(od.QUICK_STOP_DECELERATION, 0, round(lim.max_acceleration_rpm_s), "I")
+
+    def write_heartbeat(self) -> None:
+        self.link.write(od.PRODUCER_HEARTBEAT_TIME, 0, self.link.bus.config.heartbeat_ms, "H")
+
+
+def profile_for(link: AxisLink) -> Profile:
+    """The profile module named by the axis's configuration."""
+    from axes.profiles.cia402_ip_linear import Cia402IpLinear
+    from axes.profiles.epos2_pvt import Epos2Pvt
+    from axes.profiles.parker_slvdn import ParkerSlvdn
+    from axes.profiles.sync_setpoint import SyncSetpoint
+
+    classes: dict[str, type[Profile]] = {
+        c.name: c for c in (Epos2Pvt, Cia402IpLinear, SyncSetpoint, ParkerSlvdn)
+    }
+    try:
+        return classes[link.config.profile](link)
+    except KeyError:
+        raise DriveError(link.node_id, f"unknown profile {link.config.profile!r}") from None

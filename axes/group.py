@@ -1,0 +1,616 @@
+"""AxisGroup: one program on one cell: configure, enable, preload, start on one SYNC, feed, halt, recover.
+
+The group is the only place that decides about the motion as a whole. It is event driven: the SYNC
+answers (``SyncClock`` listeners) step the feeders and check the drives, the status TPDOs feed the
+buffers, the bus reports EMCY, heartbeat loss and lost SYNC. Any fault, or ``stop()``, sends the
+halt controlword (0x011F) to every axis through the synchronous RPDO before the next SYNC, so all
+axes halt on the same SYNC, within one period of the event. The outcome is one ``RunResult`` with a
+``Result`` enum (ruckig style) that names the axis and the reason.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from enum import Enum
+
+from axes import objects as od
+from axes.bus import BusFault, CellBus
+from axes.cia402 import PowerState, Statusword, decode_state
+from axes.feeder import Feeder, FeedStats
+from axes.objects import BUFFER_ERRORS, BufferStatus
+from axes.profiles import AxisLink, DriveError, Profile, profile_for
+from planner.program import AxisProgram, PvtProgram
+from service.config import AxisConfig
+
+_IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
+_TARGET_REACHED = int(Statusword.TARGET_REACHED)
+_FAULT_BITS = int(Statusword.FAULT)  # set in FAULT and FAULT REACTION ACTIVE
+_BUFFER_ERRORS = int(BUFFER_ERRORS)
+START_CHECK_SYNCS = 2  # SYNCs after the start SYNC by which every axis must report ip mode active
+NMT_PRE_OPERATIONAL = 0x80
+NMT_START = 0x01
+
+
+class Result(Enum):
+    """How a run ended (ruckig style: one enum, details in the result object)."""
+
+    FINISHED = "finished"  # every axis reached its end record
+    STOPPED = "stopped"  # stop() was called: all axes halted
+    DRIVE_FAULT = "drive_fault"  # a drive reported a fault (statusword, buffer error bits)
+    EMCY = "emcy"  # a drive sent an emergency
+    HEARTBEAT_LOST = "heartbeat_lost"  # a drive's heartbeat stopped, or it left OPERATIONAL
+    LOST_SYNC = "lost_sync"  # a drive stopped answering SYNC
+    REJECTED = "rejected"  # the program does not fit the cell (nothing moved)
+    CONFIGURATION_ERROR = "configuration_error"  # a drive refused its configuration or enable
+
+    @property
+    def ok(self) -> bool:
+        return self is Result.FINISHED
+
+
+@dataclass
+class AxisReport:
+    """Per axis, after a run."""
+
+    joint: str
+    node_id: int
+    profile: str
+    state: str
+    statusword: int
+    position: int | None
+    target_position: int | None
+    feed: FeedStats
+    start_sync: int | None  # absolute SYNC number at which the drive first reported ip mode active
+    buffer_status: int = 0
+    last_emcy: tuple[int, str] | None = None
+
+
+@dataclass
+class RunResult:
+    result: Result
+    message: str
+    joint: str | None = None  # the axis that caused the end (None: all / none)
+    node_id: int | None = None
+    start_sync: int | None = None  # absolute SYNC number of the start SYNC (program t = 0)
+    end_sync: int | None = None  # last SYNC answered
+    fault_sync: int | None = None  # the last SYNC sent when the event was seen (its period)
+    halt_sync: int | None = None  # the SYNC that carried the halt
+    halt_latency_s: float | None = None  # wall time from the event to the halt frames
+    sync_period_ms: float = 1.0
+    axes: list[AxisReport] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return self.result.ok
+
+    @property
+    def start_skew_syncs(self) -> int | None:
+        """Spread of the SYNCs at which the axes entered ip mode active (0: all on the same SYNC)."""
+        starts = [a.start_sync for a in self.axes if a.start_sync is not None]
+        return max(starts) - min(starts) if starts else None
+
+    @property
+    def halt_latency_syncs(self) -> int | None:
+        """SYNC periods from the SYNC after which the fault was seen to the SYNC that halted."""
+        if self.fault_sync is None or self.halt_sync is None:
+            return None
+        return self.halt_sync - self.fault_sync
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "result": self.result.value,
+            "message": self.message,
+            "joint": self.joint,
+            "node_id": self.node_id,
+            "start_sync": self.start_sync,
+            "end_sync": self.end_sync,
+            "halt_latency_syncs": self.halt_latency_syncs,
+            "start_skew_syncs": self.start_skew_syncs,
+            "axes": [
+                {
+                    "joint": a.joint, "node_id": a.node_id, "state": a.state, "statusword": a.statusword,
+                    "position": a.position, "target_position": a.target_position,
+                    "records_sent": a.feed.sent, "underflows": a.feed.underflows, "overflows": a.feed.overflows,
+                    "min_level": a.feed.min_level, "max_level": a.feed.max_level,
+                }
+                for a in self.axes
+            ],
+        }
+
+
+@dataclass(frozen=True)
+class AxisStatus:
+    """What one drive says (the zenoh service publishes this)."""
+
+    joint: str
+    node_id: int
+    profile: str
+    state: str
+    statusword: int
+    position: int | None
+    buffer_status: int
+    buffer_flags: tuple[str, ...]
+    buffer_level: int | None  # the feeder's estimate (EPOS2), None when idle or bufferless
+    last_emcy: tuple[int, str] | None
+    nmt_state: int | None
+
+
+@dataclass(frozen=True)
+class GroupStatus:
+    running: bool
+    sync_count: int
+    elapsed_ms: float | None  # program time (None when not running)
+    axes: tuple[AxisStatus, ...]
+    last_result: Result | None
+
+
+@dataclass(frozen=True)
+class Progress:
+    """Telemetry after a SYNC: program time and per-axis position, buffer level, state."""
+
+    sync: int
+    elapsed_ms: float
+    positions: tuple[int | None, ...]
+    levels: tuple[int | None, ...]
+    states: tuple[str, ...]
+    statuswords: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class Event:
+    """A discrete event for the service's ``events`` publication."""
+
+    kind: str  # "started", "fault", "emcy", "halted", "finished", "stopped", "recovered"
+    message: str
+    joint: str | None = None
+    node_id: int | None = None
+
+
+ProgressCallback = Callable[[Progress], None]
+EventCallback = Callable[[Event], None]
+
+
+class GroupError(RuntimeError):
+    """A request the group cannot take in its present state (e.g. run while running)."""
+
+
+class AxisGroup:
+    """All axes of one cell on one bus.
+
+    ``AxisGroup(bus, axes, on_progress=..., on_event=..., progress_every=10)``: ``bus`` is an open
+    ``CellBus``, ``axes`` the cell's ``AxisConfig``s (``cell.ordered_axes()``).
+
+    - ``run(program, timeout_s=None) -> RunResult``: configure (first time), enable, preload, start,
+      feed, wait for the outcome. ``start(program)`` (None, or a RunResult when refused at once) and
+      ``wait(timeout_s)`` are the same in two steps.
+    - ``stop(reason)``: any thread; every axis halts on the next SYNC; the run ends STOPPED.
+    - ``recover() -> RunResult``: fault reset and re-enable every axis (FINISHED when all enabled).
+    - ``status(refresh=False) -> GroupStatus``; ``last_result``; ``running``; ``feeders``.
+    - ``on_progress(Progress)`` every ``progress_every`` SYNCs and ``on_event(Event)`` run in the bus's
+      receive thread: keep them short (hand over to a queue).
+    """
+
+    def __init__(
+        self,
+        bus: CellBus,
+        axes: Sequence[AxisConfig],
+        *,
+        on_progress: ProgressCallback | None = None,
+        on_event: EventCallback | None = None,
+        progress_every: int = 10,
+        start_tolerance_qc: int = 100,
+        halt_timeout_ms: float = 3000.0,
+    ) -> None:
+        self.bus = bus
+        self.links = [AxisLink(bus, a) for a in axes]
+        self.profiles: list[Profile] = [profile_for(link) for link in self.links]
+        self.on_progress = on_progress
+        self.on_event = on_event
+        self.progress_every = max(1, progress_every)
+        self.start_tolerance_qc = start_tolerance_qc
+        self.halt_timeout_ms = halt_timeout_ms
+        self.configured = False
+        self.last_result: RunResult | None = None
+        self._lock = threading.RLock()
+        self._done = threading.Event()
+        self._done.set()
+        self._feeders: list[Feeder] = []
+        self._programs: list[AxisProgram] = []
+        self._start_sync: int | None = None
+        self._ip_start: list[int | None] = []
+        self._ending: RunResult | None = None  # set once the run is halting / ending
+        self._halt_deadline: int | None = None
+        self._end_words_sent = [False] * len(self.links)
+        self._running = False
+        self._halted_at: float | None = None
+        self._starting = False
+        self._stop_request: str | None = None
+        for link in self.links:
+            link.status_listeners.append(self._on_status)
+        bus.on_fault(self._on_bus_fault)
+
+    # --- configuration -----------------------------------------------------------------------
+    def configure(self) -> None:
+        """Every drive: PRE-OPERATIONAL, its profile's SDO sequence, then OPERATIONAL and consumers."""
+        for link in self.links:  # addressed, not broadcast: other nodes on the bus are not ours
+            self.bus.nmt(link.node_id, NMT_PRE_OPERATIONAL)
+        for link, profile in zip(self.links, self.profiles, strict=True):
+            profile.configure()
+            link.subscribe_tpdos(profile.tpdos)
+        self.bus.sync.expect(p.sync_answer_cob_id for p in self.profiles)
+        for link in self.links:
+            self.bus.nmt(link.node_id, NMT_START)
+        self.bus.watch_heartbeat(link.node_id for link in self.links)
+        self.configured = True
+
+    def _event(self, kind: str, message: str, link: AxisLink | None = None) -> None:
+        if self.on_event is not None:
+            self.on_event(Event(kind, message, link.joint if link else None, link.node_id if link else None))
+
+    # --- checks before anything moves ------------------------------------------------------------
+    def check_program(self, program: PvtProgram) -> str | None:
+        """Why this program cannot run on this cell (None: it can)."""
+        by_node = {a.node_id: a for a in program.axes}
+        for link in self.links:
+            a = by_node.get(link.node_id)
+            if a is None:
+                return f"the program has no axis for node {link.node_id} ({link.joint})"
+            if a.profile != link.config.profile:
+                return f"axis {a.name}: program profile {a.profile} but node {link.node_id} runs {link.config.profile}"
+            if a.name != link.joint:
+                return f"axis {a.name}: node {link.node_id} is joint {link.joint} in this cell"
+            if a.profile != "epos2_pvt":
+                period = link.config.period_ms
+                if not (a.records[:, 2] == period).all():
+                    return f"axis {a.name}: every record time must be the axis period {period} ms"
+            lo, hi = link.config.limits.min_position_qc, link.config.limits.max_position_qc
+            if a.records[:, 0].min() < lo or a.records[:, 0].max() > hi:
+                return f"axis {a.name}: a record position is outside 0x607D [{lo}, {hi}] qc"
+        extra = set(by_node) - {link.node_id for link in self.links}
+        if extra:
+            return f"the program has axes for nodes {sorted(extra)} that are not in this cell"
+        return None
+
+    # --- running ---------------------------------------------------------------------------------
+    def run(self, program: PvtProgram, timeout_s: float | None = None) -> RunResult:
+        """Configure (once), enable, preload, start on one SYNC, feed to the end: the outcome."""
+        early = self.start(program)
+        if early is not None:
+            return early
+        return self.wait(timeout_s)
+
+    def start(self, program: PvtProgram) -> RunResult | None:
+        """Start a run; returns a result at once only when the program is refused or a drive fails."""
+        with self._lock:
+            if self._running:
+                raise GroupError("a program is already running on this cell")
+            reason = self.check_program(program)
+            if reason is not None:
+                return self._finish_early(Result.REJECTED, reason)
+            try:
+                if not self.configured:
+                    self.configure()
+                by_node = {a.node_id: a for a in program.axes}
+                self._programs = [by_node[link.node_id] for link in self.links]
+                self._stop_request = None
+                self._starting = True
+                for link, prog in zip(self.links, self._programs, strict=True):
+                    if decode_state(link.read_statusword()).is_fault:
+                        return self._finish_early(
+                            Result.REJECTED, f"axis {link.joint} (node {link.node_id}) is in FAULT "
+                            f"(statusword 0x{link.statusword:04X}): recover first", link)
+                    pos = link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
+                    link.position = pos
+                    start = int(prog.records[0, 0])
+                    if abs(pos - start) > self.start_tolerance_qc:
+                        return self._finish_early(
+                            Result.REJECTED,
+                            f"axis {link.joint} is at {pos} qc, the program starts at {start} qc", link)
+                for profile in self.profiles:
+                    profile.enable()
+            except DriveError as exc:
+                link = next((lk for lk in self.links if lk.node_id == exc.node_id), None)
+                return self._finish_early(Result.CONFIGURATION_ERROR, str(exc), link)
+            finally:
+                self._starting = False
+            if self._stop_request is not None:
+                return self._finish_early(Result.STOPPED, self._stop_request)
+
+            self._feeders = [p.feeder(prog) for p, prog in zip(self.profiles, self._programs, strict=True)]
+            self._ip_start = [None] * len(self.links)
+            self._end_words_sent = [False] * len(self.links)
+            self._ending = None
+            self._halted_at = None
+            self._halt_deadline = None
+        sync = self.bus.sync
+        with sync.lock, self._lock:
+            self._done.clear()
+            self._running = True
+            for feeder in self._feeders:
+                feeder.preload()
+            self._start_sync = sync.count + 1
+            for link, profile in zip(self.links, self.profiles, strict=True):
+                link.send_controlword(profile.start_controlword())
+            sync.add_listener(self._on_sync)
+            self.bus.arm_sync_watch()
+            self._event("started", f"program of {program.duration_ms} ms started on SYNC {self._start_sync}")
+            sync.start()
+        return None
+
+    def wait(self, timeout_s: float | None = None) -> RunResult:
+        """Block until the run ends. The timeouts only detect a cell that stopped answering: the run
+        is then halted, and if no drive answers the halt SYNCs either, ended with what is known."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        halt_grace = self.halt_timeout_ms / 1000.0 + 2.0 * self.bus.lost_sync_timeout_s
+        while not self._done.wait(0.05):
+            now = time.monotonic()
+            if deadline is not None and now > deadline and self._ending is None:
+                self.stop("timeout waiting for the program to end")
+            if self._ending is not None and self._halted_at is not None and now - self._halted_at > halt_grace:
+                self._end(self._ending)  # nobody answers the halt SYNCs any more
+        assert self.last_result is not None
+        return self.last_result
+
+    @property
+    def running(self) -> bool:
+        return self._running
+
+    @property
+    def feeders(self) -> tuple[Feeder, ...]:
+        """The feeders of the present (or last) run, in axis order."""
+        return tuple(self._feeders)
+
+    def elapsed_syncs(self) -> int | None:
+        return None if self._start_sync is None else self.bus.sync.answered - self._start_sync
+
+    # --- events ----------------------------------------------------------------------------------
+    def _on_sync(self, n: int) -> None:
+        """After every answered SYNC (notifier thread; before the next SYNC in lockstep)."""
+        with self._lock:
+            if not self._running or self._start_sync is None:
+                return
+            elapsed = n - self._start_sync
+            for i, link in enumerate(self.links):
+                if self._ip_start[i] is None and link.statusword & _IP_MODE_ACTIVE:
+                    self._ip_start[i] = n
+            if self._ending is None:
+                self._check_drives()
+            if self._ending is None and elapsed >= START_CHECK_SYNCS:
+                self._check_started()
+            if self._ending is None:
+                for feeder in self._feeders:
+                    feeder.on_sync(elapsed)
+                self._check_finished(elapsed)
+            else:
+                self._check_halted(n)
+            if self.on_progress is not None and n % self.progress_every == 0:
+                self.on_progress(self._progress(n))
+
+    def _check_drives(self) -> None:
+        for link in self.links:
+            if not (link.statusword & _FAULT_BITS or link.buffer_status & _BUFFER_ERRORS):
+                continue
+            state = decode_state(link.statusword)
+            if state.is_fault or link.buffer_status & _BUFFER_ERRORS:
+                why = f"statusword 0x{link.statusword:04X} ({state.value})"
+                if link.buffer_status & BUFFER_ERRORS:
+                    why += f", buffer: {link.describe_buffer()}"
+                if link.last_emcy is not None:
+                    why += f", last EMCY 0x{link.last_emcy[0]:04X} {link.last_emcy[1]}"
+                self._halt(Result.DRIVE_FAULT, f"axis {link.joint} (node {link.node_id}) faulted: {why}", link)
+                return
+
+    def _check_started(self) -> None:
+        for i, link in enumerate(self.links):
+            if self._ip_start[i] is None:
+                self._halt(Result.DRIVE_FAULT, f"axis {link.joint} (node {link.node_id}) did not enter ip mode "
+                           f"(statusword 0x{link.statusword:04X})", link)
+                return
+
+    def _check_finished(self, elapsed: int) -> None:
+        done = True
+        for i, (link, profile, feeder) in enumerate(zip(self.links, self.profiles, self._feeders, strict=True)):
+            ip_active = bool(link.statusword & _IP_MODE_ACTIVE)
+            if feeder.finished(elapsed, ip_active and profile.name == "epos2_pvt"):
+                if profile.name != "epos2_pvt" and not self._end_words_sent[i]:
+                    link.send_controlword(profile.end_controlword())  # the fixed-period end: bit 4 off
+                    self._end_words_sent[i] = True
+                    done = False
+            else:
+                done = False
+        if done:
+            self.bus.sync.stop()
+            self._end(self._result(Result.FINISHED, "every axis reached its end record"))
+
+    def _on_status(self, link: AxisLink) -> None:
+        """A TPDO arrived (notifier thread): buffered feeders react to the buffer status at once."""
+        if not self._running:
+            return
+        i = self.links.index(link)
+        if self._feeders and link.buffer_status:
+            self._feeders[i].on_status(link.buffer_status)
+
+    def _on_bus_fault(self, fault: BusFault) -> None:
+        link = next((lk for lk in self.links if lk.node_id == fault.node_id), None)
+        if link is not None and fault.kind == "emcy":
+            link.last_emcy = (fault.code, fault.message)
+        self._event(fault.kind, fault.message, link)
+        if not self._running:
+            return
+        kind = {"emcy": Result.EMCY, "heartbeat": Result.HEARTBEAT_LOST, "nmt": Result.HEARTBEAT_LOST,
+                "lost_sync": Result.LOST_SYNC}[fault.kind]
+        sync = self.bus.sync
+        with sync.lock, self._lock:
+            if self._ending is not None or not self._running:
+                return
+            gone = kind in (Result.HEARTBEAT_LOST, Result.LOST_SYNC)
+            stalled = bool(sync.behind())
+            if gone:
+                self.configured = False  # the node may come back reset: recover() configures again
+            if gone and link is not None:
+                # stop waiting for a drive that is gone, so the others still get their halt SYNC
+                sync.expect(p.sync_answer_cob_id for p, lk in zip(self.profiles, self.links, strict=True)
+                            if lk is not link)
+            self._halt(kind, fault.message, link)
+            if gone and stalled and sync.lockstep:
+                sync.step()
+
+    # --- halt / stop -----------------------------------------------------------------------------
+    def _halt(self, result: Result, message: str, link: AxisLink | None) -> None:
+        """Halt every axis on the next SYNC and stop feeding (called with the lock held)."""
+        t0 = time.perf_counter()
+        sync = self.bus.sync
+        with sync.lock:
+            for feeder in self._feeders:
+                feeder.enabled = False
+            for lk, profile in zip(self.links, self.profiles, strict=True):
+                lk.send_controlword(profile.halt_controlword())
+            halt_sync = sync.count + 1
+            fault_sync = sync.count  # the SYNC period in which the event was seen
+        res = self._result(result, message, link)
+        res.fault_sync = fault_sync
+        res.halt_sync = halt_sync
+        res.halt_latency_s = time.perf_counter() - t0
+        self._ending = res
+        self._halted_at = time.monotonic()
+        self._halt_deadline = halt_sync + int(self.halt_timeout_ms / self.bus.config.sync_period_ms)
+        self._event("halted", f"all axes halted: {message}", link)
+
+    def _check_halted(self, n: int) -> None:
+        assert self._ending is not None and self._halt_deadline is not None
+        if n < (self._ending.halt_sync or 0):
+            return
+        still = [lk for lk in self.links
+                 if decode_state(lk.statusword) == PowerState.OPERATION_ENABLED
+                 and not lk.statusword & _TARGET_REACHED]
+        if not still or n >= self._halt_deadline:
+            self.bus.sync.stop()
+            self._end(self._ending)
+
+    def stop(self, reason: str = "stop requested") -> None:
+        """Halt all axes on the next SYNC (any thread). The run then ends with Result.STOPPED; a
+        start still configuring the drives does not start the motion."""
+        if self._starting:
+            self._stop_request = reason
+        with self.bus.sync.lock, self._lock:
+            if not self._running or self._ending is not None:
+                return
+            self._halt(Result.STOPPED, reason, None)
+
+    def _result(self, result: Result, message: str, link: AxisLink | None = None) -> RunResult:
+        res = RunResult(result, message, link.joint if link else None, link.node_id if link else None,
+                        self._start_sync, self.bus.sync.answered, sync_period_ms=self.bus.config.sync_period_ms)
+        return res
+
+    def _reports(self) -> list[AxisReport]:
+        out = []
+        for i, link in enumerate(self.links):
+            prog = self._programs[i] if i < len(self._programs) else None
+            feeder = self._feeders[i] if i < len(self._feeders) else None
+            out.append(AxisReport(
+                joint=link.joint, node_id=link.node_id, profile=link.config.profile,
+                state=decode_state(link.statusword).value, statusword=link.statusword, position=link.position,
+                target_position=int(prog.records[-1, 0]) if prog is not None else None,
+                feed=feeder.stats if feeder is not None else FeedStats(),
+                start_sync=self._ip_start[i] if i < len(self._ip_start) else None,
+                buffer_status=link.buffer_status, last_emcy=link.last_emcy,
+            ))
+        return out
+
+    def _end(self, result: RunResult) -> None:
+        with self.bus.sync.lock, self._lock:
+            if not self._running:
+                return
+            self.bus.sync.remove_listener(self._on_sync)
+            self.bus.watch_sync = False
+            result.end_sync = self.bus.sync.answered
+            result.axes = self._reports()
+            self.last_result = result
+            self._running = False
+            self._event("finished" if result.ok else result.result.value, result.message,
+                        next((lk for lk in self.links if lk.node_id == result.node_id), None))
+            self._done.set()
+
+    def _finish_early(self, result: Result, message: str, link: AxisLink | None = None) -> RunResult:
+        res = self._result(result, message, link)
+        res.axes = self._reports()
+        self.last_result = res
+        self._event(result.value, message, link)
+        return res
+
+    # --- recovery and status ---------------------------------------------------------------------
+    def recover(self) -> RunResult:
+        """Fault reset and re-enable every axis (by SDO), and put lost nodes back to OPERATIONAL."""
+        with self._lock:
+            if self._running:
+                raise GroupError("cannot recover while a program is running: stop it first")
+            self.bus.sync.stop()
+            if not self.configured:
+                try:
+                    self.configure()
+                except DriveError as exc:
+                    return self._finish_early(Result.CONFIGURATION_ERROR, str(exc))
+            for link in self.links:
+                self.bus.nmt(link.node_id, NMT_START)
+            self.bus.sync.expect(p.sync_answer_cob_id for p in self.profiles)
+            for link, profile in zip(self.links, self.profiles, strict=True):
+                try:
+                    profile.enable()
+                except DriveError as exc:
+                    return self._finish_early(Result.CONFIGURATION_ERROR, f"recover failed: {exc}", link)
+                link.last_emcy = None
+                link.buffer_status = link.buffer_status & ~int(BUFFER_ERRORS)
+            self.bus.watch_heartbeat(link.node_id for link in self.links)
+            self._event("recovered", "all axes fault-free and enabled")
+            res = self._result(Result.FINISHED, "recovered: every axis is enabled")
+            res.axes = self._reports()
+            return res
+
+    def _progress(self, n: int) -> Progress:
+        return Progress(
+            sync=n,
+            elapsed_ms=(n - (self._start_sync or n)) * self.bus.config.sync_period_ms,
+            positions=tuple(lk.position for lk in self.links),
+            levels=tuple(f.level for f in self._feeders),
+            states=tuple(decode_state(lk.statusword).value for lk in self.links),
+            statuswords=tuple(lk.statusword for lk in self.links),
+        )
+
+    def status(self, refresh: bool = False) -> GroupStatus:
+        """What the drives say: from their TPDOs while running; ``refresh`` reads statusword and
+        position by SDO first when idle (no SYNC, so no TPDO, flows between runs in lockstep)."""
+        if refresh and not self._running:
+            with contextlib.suppress(DriveError):
+                self.refresh()
+        axes = []
+        for i, link in enumerate(self.links):
+            level = self._feeders[i].level if self._running and i < len(self._feeders) else None
+            axes.append(AxisStatus(
+                joint=link.joint, node_id=link.node_id, profile=link.config.profile,
+                state=decode_state(link.statusword).value, statusword=link.statusword, position=link.position,
+                buffer_status=link.buffer_status,
+                buffer_flags=tuple(f.name.lower() for f in BufferStatus if f & link.buffer_status and f.name),
+                buffer_level=level, last_emcy=link.last_emcy, nmt_state=self.bus.heartbeat_state(link.node_id),
+            ))
+        elapsed = None
+        if self._running and self._start_sync is not None:
+            elapsed = (self.bus.sync.answered - self._start_sync) * self.bus.config.sync_period_ms
+        return GroupStatus(self._running, self.bus.sync.count, elapsed, tuple(axes),
+                           self.last_result.result if self.last_result else None)
+
+    def refresh(self) -> None:
+        """Read every statusword and position by SDO (when no TPDO flows, e.g. between runs)."""
+        for link in self.links:
+            link.read_statusword()
+            link.position = link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
+
+    def close(self) -> None:
+        for link in self.links:
+            link.unsubscribe()
+            if self._on_status in link.status_listeners:
+                link.status_listeners.remove(self._on_status)
+        self.bus.remove_fault_callback(self._on_bus_fault)

@@ -1,0 +1,78 @@
+"""CiA 402 interpolated position mode, linear, one target (seed cia402-ip-linear-single-setpoint).
+
+Configuration: mode 7, 0x60C2:01 = the axis period in ms (0x60C2:02 = -3), 0x60C4:06 = 1 to allow
+writing the target, 0x607D where the drive has it; synchronous RPDO1 with 0x60C1:01 and RPDO2 with
+the controlword, synchronous TPDO1 with statusword + position that answers every SYNC.
+Feed: one target position (0x60C1:01, INT32) per period. Delay: the drive moves linearly from
+where it is to the target over the period that follows the SYNC validating it, so the target of
+record k is validated one period before its program time (k + 1) periods. End: the last target is
+held and bit 4 of the controlword is cleared.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from axes import objects as od
+from axes.feeder import Feeder, SetpointFeeder
+from axes.objects import SETPOINT_RPDOS, SETPOINT_TPDOS
+from axes.profiles import Profile
+
+if TYPE_CHECKING:
+    from planner.program import AxisProgram
+
+MS_INDEX = -3  # 0x60C2:02: the period is given in 10^-3 s
+
+
+class FixedPeriodProfile(Profile):
+    """Shared by the fixed-period behaviours: a SetpointFeeder on RPDO1, TPDO1 answers SYNC."""
+
+    rpdos = SETPOINT_RPDOS
+    tpdos = SETPOINT_TPDOS
+    sync_tpdo = 1
+
+    @property
+    def period_ms(self) -> int:
+        period = self.config.period_ms
+        if period is None:
+            raise ValueError(f"axis {self.config.joint}: a fixed-period profile needs period_ms")
+        return period
+
+    @property
+    def delay_periods(self) -> int:
+        return 1
+
+    def frame(self, record: NDArray[np.int64]) -> tuple[int, bytes]:
+        return self._cob, struct.pack("<i", int(record[0]))
+
+    def feeder(self, program: AxisProgram) -> Feeder:
+        self._cob = self.rpdos[0].cob_id(self.link.node_id, receive=True)
+        bus = self.link.bus
+        return SetpointFeeder(program.records, self.frame, bus.network.send_message, self.period_ms,
+                              self.lead_periods)
+
+    def write_period(self) -> None:
+        self.link.write(od.INTERPOLATION_TIME_PERIOD, 1, self.period_ms, "B")
+        self.link.write_optional(od.INTERPOLATION_TIME_PERIOD, 2, MS_INDEX, "b")
+
+
+class Cia402IpLinear(FixedPeriodProfile):
+    name = "cia402_ip_linear"
+
+    def configure(self) -> None:
+        link = self.link
+        link.write(od.MODES_OF_OPERATION, 0, od.INTERPOLATED_POSITION_MODE, "b")
+        self.write_period()
+        lim = self.config.limits
+        link.write_optional(od.SOFTWARE_POSITION_LIMIT, 1, lim.min_position_qc, "i")
+        link.write_optional(od.SOFTWARE_POSITION_LIMIT, 2, lim.max_position_qc, "i")
+        link.map_pdos(self.rpdos, self.tpdos)
+        self.write_heartbeat()
+
+    def enable(self) -> None:
+        super().enable()
+        self.link.write(od.INTERPOLATION_DATA_CONFIGURATION, 6, 1, "B")  # allow writing 0x60C1:01

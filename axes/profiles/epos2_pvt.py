@@ -1,0 +1,67 @@
+"""maxon EPOS2 buffered PVT (interpolated position mode, app note "Interpolation Position Mode").
+
+Configuration: app note Table 17 (mode 7, 0x6065, 0x607D, 0x607F, 0x60C5, 0x6081, 0x6083, 0x6084),
+the warning levels 0x20C4:02/03, the PDO layout of axes.objects (records on an asynchronous RPDO1,
+controlword on the synchronous RPDO2, buffer status + statusword on an event TPDO1, statusword +
+position on the synchronous TPDO2 that answers every SYNC), heartbeat 0x1017; with the bus's
+``time_stamp`` the asynchronous RPDO3 takes 0x1013 from the master's one time-stamp frame after
+each SYNC (app note 2.4, on TIME_STAMP_COB_ID for all drives).
+Feed: each record is the u64 of 0x20C1 (``Record.to_bytes``) on RPDO1; a ``BufferFeeder`` keeps
+the FIFO filled. Delay: none to compensate, the drive runs on the records' own times from the start
+SYNC. End: the time-0 record (interpolation inactive without error).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from axes import objects as od
+from axes.feeder import BufferFeeder, Feeder
+from axes.objects import EPOS2_RPDOS, EPOS2_TIME_STAMP_RPDO, EPOS2_TPDOS, TIME_STAMP_COB_ID, Record
+from axes.profiles import DEFAULT_MAX_FOLLOWING_ERROR_QC, Profile
+
+if TYPE_CHECKING:
+    from planner.program import AxisProgram
+
+BUFFER_CLEAR = 0
+BUFFER_ENABLE = 1
+
+
+class Epos2Pvt(Profile):
+    name = "epos2_pvt"
+    rpdos = EPOS2_RPDOS
+    tpdos = EPOS2_TPDOS
+    sync_tpdo = 2
+
+    def configure(self) -> None:
+        link = self.link
+        link.write(od.MODES_OF_OPERATION, 0, od.INTERPOLATED_POSITION_MODE, "b")
+        link.write(od.MAX_FOLLOWING_ERROR, 0, DEFAULT_MAX_FOLLOWING_ERROR_QC, "I")
+        self.write_limits()
+        if link.bus.config.time_stamp:  # the master's 0x1013 after every SYNC, on one shared COB-ID
+            link.map_pdos((*self.rpdos, EPOS2_TIME_STAMP_RPDO), self.tpdos,
+                          {EPOS2_TIME_STAMP_RPDO.number: TIME_STAMP_COB_ID})
+        else:
+            link.map_pdos(self.rpdos, self.tpdos)
+        buffer = self.config.buffer
+        link.write(od.EPOS2_INTERPOLATION_BUFFER, 2, buffer.underflow_warning, "H")
+        link.write(od.EPOS2_INTERPOLATION_BUFFER, 3, buffer.overflow_warning, "H")
+        self.write_heartbeat()
+
+    def enable(self) -> None:
+        """Shutdown, switch on, enable operation; then clear the FIFO and enable access to it."""
+        self.enable_operation()
+        self.link.write(od.INTERPOLATION_DATA_CONFIGURATION, 6, BUFFER_CLEAR, "B")
+        self.link.write(od.INTERPOLATION_DATA_CONFIGURATION, 6, BUFFER_ENABLE, "B")
+
+    def frame(self, record: NDArray[np.int64]) -> tuple[int, bytes]:
+        return self._cob, Record(int(record[0]), int(record[1]), int(record[2])).to_bytes()
+
+    def feeder(self, program: AxisProgram) -> Feeder:
+        self._cob = self.rpdos[0].cob_id(self.link.node_id, receive=True)
+        bus = self.link.bus
+        return BufferFeeder(program.records, self.frame, bus.network.send_message, bus.config.sync_period_ms,
+                            self.config.buffer)

@@ -1,0 +1,32 @@
+"""A bufferless servodrive: one setpoint per SYNC (seed servodrive-ip-no-buffer).
+
+Configuration: mode 7, 0x60C2:01 = the SYNC period (1-100 ms), no 0x60C4 (the drive has no buffer);
+the same PDOs as the other fixed-period profiles. Feed: one target position per SYNC; the drive
+ignores its profile objects, so the program alone keeps speed and acceleration in bounds (the
+validator checks the linear reconstruction). Delay: the drive ramps to a setpoint by the end of the
+period after the one the validating SYNC starts: two periods from validation (DESIGN section 5,
+"two-period delay to compensate"), so record k is validated at program time (k - 1) periods and
+record 0, the start position where the axis already is, is not sent. End: the last setpoint is
+held and bit 4 cleared.
+"""
+
+from __future__ import annotations
+
+from axes import objects as od
+from axes.profiles.cia402_ip_linear import FixedPeriodProfile
+
+
+class SyncSetpoint(FixedPeriodProfile):
+    name = "sync_setpoint"
+
+    @property
+    def delay_periods(self) -> int:
+        return 2
+
+    def configure(self) -> None:
+        link = self.link
+        link.write(od.MODES_OF_OPERATION, 0, od.INTERPOLATED_POSITION_MODE, "b")
+        self.write_period()
+        link.write_optional(od.COMMUNICATION_CYCLE_PERIOD, 0, self.period_ms * 1000, "I")
+        link.map_pdos(self.rpdos, self.tpdos)
+        self.write_heartbeat()

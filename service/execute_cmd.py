@@ -1,0 +1,180 @@
+"""``pvtflow execute PROGRAM.json [--config FILE] [--can-log FILE]``: run a PVT program on a cell.
+
+The program is read, validated (planner.validate, the one validator) and matched against the cell
+(node ids, profiles, joints, the drive limits and scaling it was planned for) before anything is
+sent. A simulated cell (the default arm6 demo: ``simulated: true``) gets its simulated drives on
+the virtual bus first and runs in SYNC lockstep, faster than real time; a real cell runs SYNC in
+real time. Exit codes: 0 the program ran to its end, 1 refused (violations, wrong cell) or ended by
+a fault / stop, 2 unreadable input (program, configuration, log file or bus).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from axes.bus import BusError, CellBus
+from axes.group import AxisGroup, Event, Progress, RunResult
+from planner.program import ProgramFormatError, PvtProgram
+from service.config import CellConfig, ConfigError, load_cell_config
+
+EXIT_OK, EXIT_FAILED, EXIT_UNREADABLE = 0, 1, 2
+PROG = "pvtflow execute"
+
+
+def add_parser(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "execute",
+        help="run a PVT program on a cell's drives (exit 0 done, 1 refused or faulted, 2 unreadable input)",
+        description="Validate a PVT program, configure the cell's drives, start every axis on one SYNC and "
+        "feed the program to its end. The default configuration is the simulated arm6 demo cell.",
+    )
+    p.add_argument("program", metavar="PROGRAM.json", help="the PVT program (pvtflow.pvt-program JSON)")
+    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
+    p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
+    p.add_argument("--quiet", action="store_true", help="print the outcome only")
+    p.set_defaults(run=run)
+
+
+def _fail(message: str, code: int) -> int:
+    print(f"{PROG}: {message}", file=sys.stderr)
+    return code
+
+
+def read_program(path: Path) -> PvtProgram:
+    """The program's structure; record ranges are left to the validator (a violation, exit 1)."""
+    if path.is_dir():
+        raise ProgramFormatError("", "is a directory, not a program file")
+    return PvtProgram.loads(path.read_bytes(), check_ranges=False)
+
+
+def cell_mismatch(program: PvtProgram, cell: CellConfig) -> list[str]:
+    """Why the program was not made for this cell (empty: it was)."""
+    problems: list[str] = []
+    by_node = {a.node_id: a for a in program.axes}
+    for axis in cell.ordered_axes():
+        a = by_node.pop(axis.node_id, None)
+        if a is None:
+            problems.append(f"the program has no axis for node {axis.node_id} ({axis.joint})")
+            continue
+        where = f"axis {a.name} (node {a.node_id})"
+        if a.name != axis.joint:
+            problems.append(f"{where}: node {axis.node_id} is joint {axis.joint} in cell {cell.name}")
+        if a.profile != axis.profile:
+            problems.append(f"{where}: profile {a.profile}, the cell's drive runs {axis.profile}")
+        submode = -1 if a.interpolation_submode is None else a.interpolation_submode
+        if a.profile == "parker_slvdn" and submode != axis.interpolation_submode:
+            problems.append(f"{where}: interpolation submode {a.interpolation_submode}, "
+                            f"the cell's drive uses {axis.interpolation_submode}")
+        if a.limits.to_json() != axis.limits.to_json():
+            problems.append(f"{where}: planned for drive limits {a.limits.to_json()}, "
+                            f"the cell's drive has {axis.limits.to_json()}")
+        for name in ("qc_per_motor_rev", "motor_rev_per_joint_unit", "velocity_unit_rpm"):
+            mine, theirs = getattr(a.scaling, name), getattr(axis.scaling, name)
+            if not math.isclose(mine, theirs, rel_tol=1e-6):
+                problems.append(f"{where}: {name} {mine:g}, the cell has {theirs:g}")
+        if axis.period_ms is not None and a.period_ms != axis.period_ms:
+            problems.append(f"{where}: period {a.period_ms} ms, the cell's axis runs {axis.period_ms} ms")
+    for a in by_node.values():
+        problems.append(f"axis {a.name}: node {a.node_id} is not in cell {cell.name}")
+    return problems
+
+
+def validation_problems(program: PvtProgram, source: str) -> tuple[bool, str]:
+    """(ok, report text) from the shared validator."""
+    from planner.validate import validate_program
+
+    report = validate_program(program, source=source)
+    return report.ok, report.format_text()
+
+
+def describe(result: RunResult) -> str:
+    lines = [f"{result.result.value}: {result.message}"]
+    if result.start_sync is not None and result.end_sync is not None:
+        ms = (result.end_sync - result.start_sync) * result.sync_period_ms
+        lines.append(f"  started on SYNC {result.start_sync}, {ms:.0f} ms of motion, "
+                     f"start skew {result.start_skew_syncs} SYNC(s)")
+    if result.halt_sync is not None:
+        lines.append(f"  halt sent for SYNC {result.halt_sync} ({result.halt_latency_syncs} SYNC period(s) "
+                     f"after the event)")
+    for a in result.axes:
+        feed = a.feed
+        levels = "" if feed.max_level is None else f", buffer {feed.min_level}..{feed.max_level}"
+        lines.append(f"  {a.joint} (node {a.node_id}, {a.profile}): {a.state}, position {a.position} qc "
+                     f"(program end {a.target_position}), {feed.sent}/{feed.records} records{levels}")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    path = Path(args.program)
+    try:
+        program = read_program(path)
+    except FileNotFoundError:
+        return _fail(f"{path}: file not found", EXIT_UNREADABLE)
+    except OSError as exc:
+        return _fail(f"{path}: {exc.strerror or exc}", EXIT_UNREADABLE)
+    except ProgramFormatError as exc:
+        return _fail(f"{path}: {exc}", EXIT_UNREADABLE)
+    try:
+        cell = load_cell_config(args.config)
+    except ConfigError as exc:
+        return _fail(str(exc), EXIT_UNREADABLE)
+
+    ok, report = validation_problems(program, str(path))
+    if not ok:
+        print(report, file=sys.stderr)
+        return _fail(f"{path}: the program breaks its drives' rules: nothing was sent", EXIT_FAILED)
+    mismatch = cell_mismatch(program, cell)
+    if mismatch:
+        for line in mismatch:
+            print(f"  {line}", file=sys.stderr)
+        return _fail(f"{path}: the program was not made for cell {cell.name}: nothing was sent", EXIT_FAILED)
+
+    quiet = bool(args.quiet)
+
+    def on_event(event: Event) -> None:
+        if not quiet and event.kind not in ("finished",):
+            where = f" [{event.joint}]" if event.joint else ""
+            print(f"{event.kind}{where}: {event.message}", flush=True)
+
+    def on_progress(p: Progress) -> None:
+        levels = " ".join("-" if lv is None else str(lv) for lv in p.levels)
+        print(f"t={p.elapsed_ms / 1000:8.3f} s  SYNC {p.sync}  buffer levels {levels}", flush=True)
+
+    sim = None
+    try:
+        bus = CellBus(cell.bus, lockstep=cell.simulated, can_log=args.can_log)
+    except (ValueError, OSError) as exc:
+        return _fail(f"cannot write the CAN log {args.can_log}: {exc}", EXIT_UNREADABLE)
+    try:
+        if cell.simulated:
+            from axes.sim.cell import SimulatedCell
+
+            sim = SimulatedCell(cell).start()
+        bus.open()
+    except (BusError, OSError) as exc:
+        if sim is not None:
+            sim.stop()
+        bus.recorder.stop()
+        return _fail(str(exc), EXIT_UNREADABLE)
+    duration_syncs = max(1, int(program.duration_ms / cell.bus.sync_period_ms))
+    group = AxisGroup(bus, cell.ordered_axes(), on_event=on_event,
+                      on_progress=None if quiet else on_progress, progress_every=max(1, duration_syncs // 10))
+    try:
+        try:
+            result = group.run(program)
+        except KeyboardInterrupt:
+            group.stop("interrupted")
+            result = group.wait(10.0)
+    finally:
+        group.close()
+        bus.close()
+        if sim is not None:
+            sim.stop()
+    print(describe(result), flush=True)
+    if args.can_log:
+        print(f"CAN log: {args.can_log} ({bus.recorder.frames} frames)")
+    return EXIT_OK if result.ok else EXIT_FAILED

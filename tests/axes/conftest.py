@@ -1,0 +1,57 @@
+"""Fixtures of the axes tests: a simulated cell on its own virtual channel, with the master on it."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from axes_rig import unique_channel
+
+from axes.bus import CellBus
+from axes.group import AxisGroup
+from axes.sim.cell import SimulatedCell
+from service.config import CellConfig, load_cell_config
+
+
+@dataclass
+class Rig:
+    cell: CellConfig
+    sim: SimulatedCell
+    bus: CellBus
+    group: AxisGroup
+
+
+@pytest.fixture(scope="session")
+def arm6() -> CellConfig:
+    return load_cell_config(None)
+
+
+@pytest.fixture
+def make_rig() -> Iterator[Callable[..., Rig]]:
+    rigs: list[Rig] = []
+
+    def make(
+        cell: CellConfig, *, heartbeat_ms: int | None = None, eds_paths: dict[int, str | Path] | None = None,
+        can_log: Path | None = None, lost_sync_timeout_s: float = 1.0, **group_kwargs: object,
+    ) -> Rig:
+        channel = unique_channel()
+        changes: dict[str, object] = {"channel": channel}
+        if heartbeat_ms is not None:
+            changes["heartbeat_ms"] = heartbeat_ms
+        bus_config = dataclasses.replace(cell.bus, **changes)
+        cell = dataclasses.replace(cell, bus=bus_config)
+        sim = SimulatedCell(cell, channel=channel, eds_paths=eds_paths).start()
+        bus = CellBus(bus_config, can_log=can_log, lost_sync_timeout_s=lost_sync_timeout_s).open()
+        group = AxisGroup(bus, cell.ordered_axes(), **group_kwargs)  # type: ignore[arg-type]
+        rig = Rig(cell, sim, bus, group)
+        rigs.append(rig)
+        return rig
+
+    yield make
+    for rig in rigs:
+        rig.group.close()
+        rig.bus.close()
+        rig.sim.stop()

@@ -1,0 +1,179 @@
+"""CellBus on raw frames: lockstep and real-time SYNC, 0x1013, NMT, heartbeat/EMCY consumers, traffic log."""
+
+from __future__ import annotations
+
+import struct
+import threading
+from pathlib import Path
+
+import can
+import pytest
+from axes_rig import unique_channel
+
+from axes.bus import NMT_PRE_OPERATIONAL, BusFault, CellBus
+from axes.objects import TIME_STAMP_COB_ID
+from service.config import BusConfig
+
+
+class Responder(can.Listener):
+    """Raw-frame drives: answer every SYNC with one frame per node on 0x280 + id."""
+
+    def __init__(self, channel: str, nodes: tuple[int, ...] = (1, 2)) -> None:
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.nodes = list(nodes)
+        self.frames: list[can.Message] = []
+        self.syncs = 0
+        self.cond = threading.Condition()
+        self.notifier = can.Notifier(self.bus, [self], 0.05)
+
+    def on_message_received(self, msg: can.Message) -> None:
+        with self.cond:
+            self.frames.append(msg)
+            if msg.arbitration_id == 0x80:
+                self.syncs += 1
+                for nid in self.nodes:
+                    self.bus.send(can.Message(arbitration_id=0x280 + nid, data=struct.pack("<Hi", 0x1637, self.syncs),
+                                              is_extended_id=False))
+            self.cond.notify_all()
+
+    def wait(self, predicate, timeout: float = 5.0) -> bool:
+        with self.cond:
+            return self.cond.wait_for(predicate, timeout)
+
+    def close(self) -> None:
+        self.notifier.stop()
+        self.bus.shutdown()
+
+
+@pytest.fixture
+def channel() -> str:
+    return unique_channel("bus")
+
+
+def test_lockstep_sync_waits_for_every_answer_and_runs_listeners_in_between(channel):
+    responder = Responder(channel)
+    bus = CellBus(BusConfig(channel=channel, time_stamp=True), lockstep=True).open()
+    try:
+        seen: list[tuple[int, int]] = []
+        done = threading.Event()
+
+        def on_sync(n: int) -> None:
+            seen.append((n, bus.sync.count))
+            if n == 200:
+                bus.sync.stop()
+                done.set()
+
+        bus.sync.expect([0x281, 0x282])
+        bus.sync.add_listener(on_sync)
+        bus.sync.start()
+        assert done.wait(10)
+        # every SYNC answered by both nodes before the next one went out
+        assert seen == [(n, n) for n in range(1, 201)]
+        assert bus.sync.count == bus.sync.answered == 200
+        assert responder.wait(lambda: responder.syncs == 200)
+        ids = [m.arbitration_id for m in responder.frames]
+        # each SYNC is followed by its 0x1013 high-resolution time stamp (us, u32)
+        for k, cob in enumerate(ids):
+            if cob == 0x80:
+                assert ids[k + 1] == TIME_STAMP_COB_ID
+        stamps = [struct.unpack("<I", m.data)[0] for m in responder.frames if m.arbitration_id == TIME_STAMP_COB_ID]
+        assert len(stamps) == 200 and stamps == sorted(stamps)
+    finally:
+        bus.close()
+        responder.close()
+
+
+@pytest.mark.parametrize("suffix", [".log", ".asc", ".blf"])
+def test_can_log_records_sent_and_received_frames(channel, tmp_path: Path, suffix):
+    responder = Responder(channel, nodes=(5,))
+    path = tmp_path / f"traffic{suffix}"
+    bus = CellBus(BusConfig(channel=channel, time_stamp=False), can_log=path).open()
+    try:
+        bus.nmt_broadcast(NMT_PRE_OPERATIONAL)
+        bus.sync.expect([0x285])
+        done = threading.Event()
+        bus.sync.add_listener(lambda n: (bus.sync.stop(), done.set()) if n == 10 else None)
+        bus.sync.start()
+        assert done.wait(5)
+        assert responder.wait(lambda: len([m for m in responder.frames if m.arbitration_id == 0x80]) == 10)
+    finally:
+        bus.close()
+        responder.close()
+    logged = [m.arbitration_id for m in can.LogReader(str(path))]
+    assert logged.count(0x80) == 10  # the master's own SYNCs
+    assert logged.count(0x285) == 10  # the drive's answers
+    assert 0x000 in logged  # NMT
+    assert bus.recorder.frames == len(logged)
+
+
+def test_real_time_sync_is_produced_periodically(channel):
+    responder = Responder(channel, nodes=(3,))
+    for can_log in (None, "x"):
+        bus = CellBus(BusConfig(channel=channel, sync_period_ms=2.0, time_stamp=False), lockstep=False).open()
+        if can_log:
+            bus.recorder.taps.append(lambda msg: None)  # a tap selects the master's own SYNC thread
+        try:
+            start = responder.syncs
+            bus.sync.expect([0x283])
+            bus.sync.start()
+            assert responder.wait(lambda s=start: responder.syncs >= s + 20)
+            bus.sync.stop()
+            assert bus.sync.answered >= 19
+        finally:
+            bus.close()
+    responder.close()
+
+
+def test_heartbeat_emcy_and_lost_sync_are_reported(channel):
+    responder = Responder(channel, nodes=(7, 8))
+    config = BusConfig(channel=channel, heartbeat_ms=10, heartbeat_timeout_factor=3.0)
+    bus = CellBus(config, lost_sync_timeout_s=0.2).open()
+    faults: list[BusFault] = []
+    got = threading.Condition()
+
+    def on_fault(f: BusFault) -> None:
+        with got:
+            faults.append(f)
+            got.notify_all()
+
+    bus.on_fault(on_fault)
+    try:
+        bus.add_node(7)
+        bus.add_node(8)
+        heartbeat7 = responder.bus.send_periodic(can.Message(arbitration_id=0x707, data=[5], is_extended_id=False),
+                                                 0.005)
+        heartbeat8 = responder.bus.send_periodic(can.Message(arbitration_id=0x708, data=[5], is_extended_id=False),
+                                                 0.005)
+        bus.watch_heartbeat([7, 8])
+        # EMCY 0x8612 from node 8
+        responder.bus.send(can.Message(arbitration_id=0x88, data=b"\x12\x86\x01\0\0\0\0\0", is_extended_id=False))
+        with got:
+            assert got.wait_for(lambda: any(f.kind == "emcy" for f in faults), 5)
+        emcy = next(f for f in faults if f.kind == "emcy")
+        assert emcy.node_id == 8 and emcy.code == 0x8612
+        heartbeat7.stop()
+        with got:
+            assert got.wait_for(lambda: any(f.kind == "heartbeat" for f in faults), 5)
+        lost = next(f for f in faults if f.kind == "heartbeat")
+        assert lost.node_id == 7 and "heartbeat" in lost.message
+        assert not any(f.kind == "heartbeat" and f.node_id == 8 for f in faults)
+        # node 8 stops answering SYNC: lost SYNC names it
+        bus.sync.expect([0x287, 0x288])
+        responder.nodes = [7]
+        bus.arm_sync_watch()
+        bus.sync.start()
+        with got:
+            assert got.wait_for(lambda: any(f.kind == "lost_sync" for f in faults), 5)
+        lost_sync = next(f for f in faults if f.kind == "lost_sync")
+        assert lost_sync.node_id == 8 and "[8]" in lost_sync.message
+        heartbeat8.stop()
+    finally:
+        bus.close()
+        responder.close()
+
+
+def test_unknown_interface_is_one_clear_error():
+    from axes.bus import BusError
+
+    with pytest.raises(BusError, match="cannot open CAN bus"):
+        CellBus(BusConfig(interface="socketcan", channel="pvtflow-does-not-exist")).open()

@@ -1,0 +1,131 @@
+"""Feeders against a model FIFO: what they send, when, and the level they keep (no bus)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from axes.feeder import BufferFeeder, SetpointFeeder
+from axes.objects import BufferStatus, Record
+from service.config import BufferConfig
+
+
+def records(n: int, dt: int = 2, end: bool = False) -> np.ndarray:
+    r = np.array([[10 * k, k, dt] for k in range(n)], dtype=np.int64)
+    if end:
+        r = np.vstack([r, [[r[-1, 0], 0, 0]]])
+    return r
+
+
+class FifoModel:
+    """The EPOS2 FIFO as the app note states it: a record leaves when its segment starts."""
+
+    def __init__(self) -> None:
+        self.fifo: list[Record] = []
+        self.received: list[Record] = []
+        self.max_level = 0
+        self.next_start = 0.0
+
+    def send(self, cob: int, data: bytes) -> None:
+        assert cob == 0x201
+        rec = Record.from_bytes(data)
+        self.fifo.append(rec)
+        self.received.append(rec)
+        self.max_level = max(self.max_level, len(self.fifo))
+        assert len(self.fifo) <= 64, "overflow"
+
+    def advance(self, t: float) -> None:
+        while self.fifo and self.next_start <= t:
+            rec = self.fifo.pop(0)
+            if rec.time == 0:
+                break
+            self.next_start += rec.time
+
+
+def frame(row: np.ndarray) -> tuple[int, bytes]:
+    return 0x201, Record(int(row[0]), int(row[1]), int(row[2])).to_bytes()
+
+
+@pytest.mark.parametrize(("n", "dt"), [(3, 5), (40, 1), (500, 1), (500, 7)])
+def test_buffer_feeder_keeps_the_level_between_the_warnings(n, dt):
+    model = FifoModel()
+    buf = BufferConfig(underflow_warning=4, overflow_warning=60)
+    feeder = BufferFeeder(records(n, dt), frame, model.send, 1.0, buf)
+    preloaded = feeder.preload()
+    assert preloaded == min(n + 1, 59) and preloaded >= 2
+    elapsed = 0
+    while True:
+        model.advance(float(elapsed))
+        if model.received and model.received[-1].time == 0 and not model.fifo:
+            break
+        feeder.on_sync(elapsed)
+        assert len(model.fifo) < buf.overflow_warning  # never at the overflow warning level
+        # the level the feeder believes is never below the true one (it never overfills)
+        assert feeder.level >= len(model.fifo)
+        remaining_ms = sum(r.time for r in model.fifo)
+        if not feeder.all_sent:
+            assert remaining_ms > 1, "underflow: the drive would run dry"
+        elapsed += 1
+        assert elapsed < n * dt + 100
+    sent = np.array([[r.position, r.velocity, r.time] for r in model.received])
+    np.testing.assert_array_equal(sent[:-1], records(n, dt))
+    assert tuple(sent[-1]) == (records(n, dt)[-1, 0], 0, 0)  # the end record
+
+
+def test_end_record_is_not_doubled():
+    model = FifoModel()
+    feeder = BufferFeeder(records(5, end=True), frame, model.send, 1.0, BufferConfig())
+    feeder.preload()
+    assert [r.time for r in model.received].count(0) == 1
+
+
+def test_overflow_warning_holds_and_underflow_warning_refills():
+    model = FifoModel()
+    feeder = BufferFeeder(records(300, 1), frame, model.send, 1.0, BufferConfig(4, 60))
+    feeder.preload()
+    sent = len(model.received)
+    feeder.on_status(int(BufferStatus.OVERFLOW_WARNING | BufferStatus.IP_MODE_ACTIVE))
+    model.advance(30.0)
+    feeder.on_sync(30)  # 30 records consumed by the clock, but the drive says it is full
+    assert len(model.received) == sent
+    feeder.on_status(int(BufferStatus.UNDERFLOW_WARNING | BufferStatus.IP_MODE_ACTIVE))
+    assert len(model.received) > sent
+    assert feeder.stats.overflow_warnings == 1 and feeder.stats.underflow_warnings == 1
+    feeder.on_status(int(BufferStatus.UNDERFLOW_ERROR))
+    assert feeder.stats.underflows == 1
+
+
+def test_disabled_feeder_sends_nothing():
+    model = FifoModel()
+    feeder = BufferFeeder(records(300, 1), frame, model.send, 1.0, BufferConfig())
+    feeder.preload()
+    feeder.enabled = False
+    sent = len(model.received)
+    for k in range(100):
+        feeder.on_sync(k)
+    assert len(model.received) == sent
+
+
+@pytest.mark.parametrize("lead", [0, 1, 2])
+def test_setpoint_feeder_validates_record_k_at_start_plus_k_plus_1_minus_lead(lead):
+    sent: list[tuple[int, int]] = []  # (SYNC that will validate it, position)
+    sync = {"next": 0}  # the start SYNC is 0
+
+    def send(cob: int, data: bytes) -> None:
+        sent.append((sync["next"], int.from_bytes(data[:4], "little", signed=True)))
+
+    recs = records(20, 4)
+    feeder = SetpointFeeder(recs, lambda row: (0x201, int(row[0]).to_bytes(4, "little", signed=True)),
+                            send, 4.0, lead)
+    feeder.preload()
+    for elapsed in range(25):
+        sync["next"] = elapsed + 1
+        feeder.on_sync(elapsed)
+        if feeder.finished(elapsed, True):
+            break
+    first = max(0, lead - 1)
+    assert [p for _, p in sent] == list(recs[first:, 0])
+    for validating, position in sent:
+        k = int(position // 10)
+        assert validating == k + 1 - lead
+    assert feeder.finished(len(recs), True) and not feeder.finished(len(recs) - 1, True)

@@ -1,0 +1,259 @@
+"""Six simulated EPOS2 axes run programs through AxisGroup on python-can's virtual bus."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+from axes_programs import check_limits, program
+
+from axes.cia402 import PowerState
+from axes.group import GroupError, Result
+
+
+def test_six_axes_start_on_one_sync_and_end_on_their_last_records(arm6, make_rig):
+    rig = make_rig(arm6)
+    prog = program(arm6.ordered_axes(), 600, spacing_ms=5)  # 122 records per axis: the FIFO is refilled
+    check_limits(prog)
+    result = rig.group.run(prog, timeout_s=30)
+    assert result.result is Result.FINISHED, result.message
+    # every drive entered ip mode active on the same SYNC, the start SYNC of the run
+    starts = {d.ip_active_sync for d in rig.sim}
+    assert len(starts) == 1
+    assert result.start_skew_syncs == 0
+    assert result.start_sync == starts.pop()
+    for axis, report in zip(prog.axes, result.axes, strict=True):
+        drive = rig.sim.drive(axis.node_id)
+        assert drive.faults == []
+        assert drive.actual == axis.records[-1, 0]
+        assert report.position == axis.records[-1, 0]
+        # the drive took exactly the program's records, in order, the time-0 end included
+        taken = np.array([[r.position, r.velocity, r.time] for r in drive.records_consumed])
+        np.testing.assert_array_equal(taken, axis.records)
+        assert drive.ended_by_time_zero == 1
+        assert report.feed.underflows == 0 and report.feed.overflows == 0
+        assert drive.max_level <= arm6.axis_for_joint(axis.name).buffer.overflow_warning
+        assert drive.max_level > 2  # preloaded as many as fit, not just two
+    assert rig.sim.internal_errors == []
+
+
+def test_demand_follows_the_programs_reconstruction(arm6, make_rig):
+    rig = make_rig(arm6)
+    prog = program(arm6.ordered_axes(), 300, spacing_ms=7)
+    result = rig.group.run(prog, timeout_s=30)
+    assert result.ok, result.message
+    for axis in prog.axes:
+        rec = axis.reconstruction()
+        samples = [s for s in rig.sim.drive(axis.node_id).history if s.sync >= result.start_sync]
+        t = np.array([(s.sync - result.start_sync) * arm6.bus.sync_period_ms for s in samples])
+        demand = np.array([s.demand for s in samples])
+        np.testing.assert_allclose(demand, rec.position(t), atol=1e-6)
+
+
+def test_starved_feeder_halts_every_axis(arm6, make_rig):
+    rig = make_rig(arm6)
+    prog = program(arm6.ordered_axes(), 800, spacing_ms=5)
+    assert rig.group.start(prog) is None
+    rig.group.feeders[2].enabled = False  # node 3's feeder stops after its preload
+    result = rig.group.wait(timeout_s=30)
+    assert result.result in (Result.DRIVE_FAULT, Result.EMCY), result.message
+    assert result.node_id == 3 and result.joint == "joint_3"
+    assert "node 3" in result.message
+    starved = rig.sim.drive(3)
+    assert starved.faults and "underflow" in starved.faults[0].check
+    assert result.halt_latency_syncs == 1
+    for drive in rig.sim:
+        if drive.node_id != 3:
+            assert drive.halted and not drive.ip_active and drive.faults == []
+            assert drive.velocity == 0.0
+
+
+def test_program_breaking_a_limit_faults_and_halts(arm6, make_rig):
+    rig = make_rig(arm6)
+    prog = program(arm6.ordered_axes(), 300, fraction=0.5)
+    # joint_2 moves 2.5 times as far in the same time: its peak velocity is above 0x607F
+    a = prog.axes[1]
+    records = a.records.copy()
+    records[:, 0] = np.round(records[:, 0] * 2.5)
+    records[:, 1] = np.round(records[:, 1] * 2.5)
+    bad = type(prog)(prog.cell, (*prog.axes[:1], type(a)(a.name, a.node_id, a.profile, a.scaling, a.limits,
+                                                         records), *prog.axes[2:]))
+    with pytest.raises(AssertionError):
+        check_limits(bad)
+    result = rig.group.run(bad, timeout_s=30)
+    assert result.result in (Result.DRIVE_FAULT, Result.EMCY), result.message
+    assert result.node_id == 2
+    assert rig.sim.drive(2).faults[0].check.startswith(("max profile velocity", "max acceleration"))
+    for drive in rig.sim:
+        if drive.node_id != 2:
+            assert drive.halted and drive.faults == []
+
+
+def test_drive_emcy_halts_every_axis_and_recover_runs_again(arm6, make_rig):
+    rig = make_rig(arm6)
+    prog = program(arm6.ordered_axes(), 1000, spacing_ms=10)
+    assert rig.group.start(prog) is None
+    drive4 = rig.sim.drive(4)
+    assert drive4.wait_sync(rig.group.bus.sync.count + 40)
+    drive4.inject_emcy(0x5530, fault=False)  # an EMCY without a fault still stops the motion
+    result = rig.group.wait(timeout_s=30)
+    assert result.result is Result.EMCY, result.message
+    assert result.node_id == 4 and "0x5530" in result.message.upper().replace("0X", "0x")
+    assert result.halt_latency_syncs == 1
+    for drive in rig.sim:
+        assert drive.halted
+
+    recovered = rig.group.recover()
+    assert recovered.ok, recovered.message
+    assert {a.state for a in recovered.axes} == {PowerState.OPERATION_ENABLED.value}
+    rig.group.refresh()
+    starts = [lk.position for lk in rig.group.links]
+    again = program(arm6.ordered_axes(), 200, starts=starts, fraction=0.3, sign=-1)
+    check_limits(again)
+    result = rig.group.run(again, timeout_s=30)
+    assert result.ok, result.message
+    for axis in again.axes:
+        assert rig.sim.drive(axis.node_id).actual == axis.records[-1, 0]
+
+
+def test_drive_fault_then_recover(arm6, make_rig):
+    rig = make_rig(arm6)
+    prog = program(arm6.ordered_axes(), 1000, spacing_ms=10)
+    assert rig.group.start(prog) is None
+    drive6 = rig.sim.drive(6)
+    assert drive6.wait_sync(rig.group.bus.sync.count + 30)
+    drive6.inject_emcy(0x7320)  # position sensor error: EMCY and fault
+    result = rig.group.wait(timeout_s=30)
+    assert result.result in (Result.EMCY, Result.DRIVE_FAULT)
+    assert result.node_id == 6
+    status = rig.group.status()
+    assert status.axes[5].state == PowerState.FAULT.value
+    assert status.axes[5].last_emcy is not None and status.axes[5].last_emcy[0] == 0x7320
+    rig.group.refresh()
+    again = program(arm6.ordered_axes(), 100, starts=[lk.position for lk in rig.group.links], fraction=0.1)
+    refused = rig.group.run(again, timeout_s=30)
+    assert refused.result is Result.REJECTED and "recover first" in refused.message
+    assert refused.node_id == 6
+    recovered = rig.group.recover()
+    assert recovered.ok, recovered.message
+    assert rig.group.status().axes[5].state == PowerState.OPERATION_ENABLED.value
+
+
+def test_lost_heartbeat_halts_every_axis(arm6, make_rig):
+    rig = make_rig(arm6, heartbeat_ms=50)
+    prog = program(arm6.ordered_axes(), 5000, spacing_ms=20)
+    assert rig.group.start(prog) is None
+    drive5 = rig.sim.drive(5)
+    assert drive5.wait_sync(rig.group.bus.sync.count + 20)
+    drive5.stop_heartbeat()
+    result = rig.group.wait(timeout_s=30)
+    assert result.result is Result.HEARTBEAT_LOST, result.message
+    assert result.node_id == 5 and "heartbeat" in result.message
+    assert result.end_sync is not None and result.end_sync - result.start_sync < 5000
+    for drive in rig.sim:
+        assert drive.halted
+
+
+def test_stop_from_another_thread_halts_within_one_sync(arm6, make_rig):
+    events = []
+    rig = make_rig(arm6, on_event=events.append)
+    prog = program(arm6.ordered_axes(), 2000, spacing_ms=10)
+    assert rig.group.start(prog) is None
+    assert rig.sim.drive(1).wait_sync(rig.group.bus.sync.count + 30)
+    stopper = threading.Thread(target=rig.group.stop)
+    stopper.start()
+    stopper.join()
+    result = rig.group.wait(timeout_s=30)
+    assert result.result is Result.STOPPED
+    assert result.halt_latency_syncs == 1
+    halt_syncs = set()
+    for drive in rig.sim:
+        assert drive.halted and drive.faults == [] and drive.velocity == 0.0
+        # the SYNC on which each drive stopped interpolating
+        active = [s.sync for s in drive.history if s.ip_active]
+        halt_syncs.add(active[-1] + 1)
+    assert halt_syncs == {result.halt_sync}
+    assert [e.kind for e in events][:1] == ["started"] and "halted" in [e.kind for e in events]
+
+
+def test_status_and_progress_report_the_drives(arm6, make_rig):
+    seen = []
+    rig = make_rig(arm6, on_progress=seen.append, progress_every=50)
+    prog = program(arm6.ordered_axes(), 300, spacing_ms=10)
+    result = rig.group.run(prog, timeout_s=30)
+    assert result.ok
+    assert seen and all(len(p.positions) == 6 and len(p.levels) == 6 for p in seen)
+    assert all(level is not None and 0 <= level <= 64 for p in seen for level in p.levels)
+    status = rig.group.status()
+    assert not status.running and status.last_result is Result.FINISHED
+    for axis, st in zip(prog.axes, status.axes, strict=True):
+        assert st.position == axis.records[-1, 0]
+        assert st.state == PowerState.OPERATION_ENABLED.value
+        assert "buffer_enabled" in st.buffer_flags
+    refreshed = rig.group.status(refresh=True)  # by SDO: no TPDOs flow between runs
+    assert [a.position for a in refreshed.axes] == [int(a.records[-1, 0]) for a in prog.axes]
+    assert all(a.nmt_state == 5 for a in refreshed.axes)  # OPERATIONAL, from the heartbeats
+
+
+def test_drive_that_stops_answering_sync_is_a_lost_sync(arm6, make_rig):
+    rig = make_rig(arm6, lost_sync_timeout_s=0.1)
+    prog = program(arm6.ordered_axes(), 3000, spacing_ms=20)
+    assert rig.group.start(prog) is None
+    gone = rig.sim.drive(3)
+    assert gone.wait_sync(rig.bus.sync.count + 20)
+    gone.detach()  # off the bus: no more SYNC answers
+    result = rig.group.wait(timeout_s=30)
+    assert result.result in (Result.LOST_SYNC, Result.HEARTBEAT_LOST), result.message
+    assert result.node_id == 3
+    for drive in rig.sim:
+        if drive is not gone:
+            assert drive.halted and not drive.ip_active and drive.faults == []
+
+
+def test_time_stamp_follows_every_sync(arm6, make_rig):
+    rig = make_rig(arm6)
+    assert arm6.bus.time_stamp
+    prog = program(arm6.ordered_axes(), 200, spacing_ms=10)
+    result = rig.group.run(prog, timeout_s=30)
+    assert result.ok, result.message
+    for drive in rig.sim:
+        stamps = list(drive.time_stamps)
+        assert len(stamps) == rig.bus.sync.count  # one 0x1013 per SYNC, through RPDO3
+        assert stamps == sorted(stamps)
+
+
+def test_real_time_sync_runs_a_program(arm6, make_rig):
+    """The same group with SYNC produced on the wall clock (canopen's periodic SYNC), two axes."""
+    import dataclasses
+
+    cell = dataclasses.replace(arm6, bus=dataclasses.replace(arm6.bus, sync_period_ms=2.0, time_stamp=False))
+    rig = make_rig(cell)
+    rig.bus.close()
+    from axes.bus import CellBus
+    from axes.group import AxisGroup
+
+    rig.group.close()
+    rig.bus = CellBus(rig.cell.bus, lockstep=False).open()
+    axes = rig.cell.ordered_axes()[:2]
+    rig.group = AxisGroup(rig.bus, axes)
+    prog = program(axes, 200, spacing_ms=10)
+    result = rig.group.run(prog, timeout_s=30)
+    assert result.ok, result.message
+    assert result.start_skew_syncs == 0
+    for axis in prog.axes:
+        assert rig.sim.drive(axis.node_id).actual == axis.records[-1, 0]
+
+
+def test_program_for_other_nodes_or_a_second_start_is_refused(arm6, make_rig):
+    rig = make_rig(arm6)
+    prog = program(arm6.ordered_axes(), 1000, spacing_ms=10)
+    wrong = type(prog)(prog.cell, prog.axes[:5])
+    refused = rig.group.run(wrong, timeout_s=30)
+    assert refused.result is Result.REJECTED and "no axis for node 6" in refused.message
+    assert rig.bus.sync.count == 0  # nothing moved, no SYNC
+    assert rig.group.start(prog) is None
+    with pytest.raises(GroupError):
+        rig.group.start(prog)
+    rig.group.stop()
+    assert rig.group.wait(timeout_s=30).result is Result.STOPPED
