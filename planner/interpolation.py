@@ -120,12 +120,14 @@ def _velocity_roots(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Both roots of c1 + 2 c2 tau + 3 c3 tau^2 (NaN where there is none)."""
     a, b, c = 3.0 * c3, 2.0 * c2, c1
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         disc = b * b - 4.0 * a * c
         sq = np.sqrt(np.where(disc >= 0.0, disc, np.nan))
-        quadratic = np.abs(a) > 1e-300
-        r1 = np.where(quadratic, (-b - sq) / (2.0 * a), -c / b)
-        r2 = np.where(quadratic, (-b + sq) / (2.0 * a), np.nan)
+        # the cancellation-free form: a parabola's c3 is float noise (1e-18), where (-b + sq) / 2a
+        # would lose the root entirely
+        q = -0.5 * (b + np.where(b >= 0.0, sq, -sq))
+        r1 = np.where(a != 0.0, q / a, np.where(b != 0.0, -c / b, np.nan))
+        r2 = np.where(q != 0.0, c / q, np.where(a != 0.0, 0.0, np.nan))
     return r1, r2
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -26,6 +27,9 @@ PROFILES = ("epos2_pvt", "cia402_ip_linear", "sync_setpoint", "parker_slvdn")
 FIXED_PERIOD_PROFILES = ("cia402_ip_linear", "sync_setpoint", "parker_slvdn")
 
 TIME_MAX_MS = 255
+
+# an indented record as json.dumps lays it out (one number per line), to put back on one line
+_RECORD_LINE = re.compile(r"\[\s*(-?\d+),\s*(-?\d+),\s*(-?\d+)\s*\]")
 
 
 class ProgramFormatError(ValueError):
@@ -118,32 +122,41 @@ class PvtProgram:
             return json.dumps(self.to_json(), separators=(",", ":"))
         # records one per line: readable and diffable
         text = json.dumps(self.to_json(), indent=indent)
-        return text
+        return _RECORD_LINE.sub(r"[\1, \2, \3]", text)
 
     @classmethod
-    def loads(cls, text: str | bytes) -> PvtProgram:
+    def loads(cls, text: str | bytes, *, check_ranges: bool = True) -> PvtProgram:
         try:
             data = json.loads(text)
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ProgramFormatError("", f"not JSON: {exc}") from None
-        return cls.from_json(data)
+        return cls.from_json(data, check_ranges=check_ranges)
 
     @classmethod
-    def from_json(cls, data: Any) -> PvtProgram:
-        """Parse and check the structure (types and ranges of every field); see validate for the rest."""
+    def from_json(cls, data: Any, *, check_ranges: bool = True) -> PvtProgram:
+        """Parse and check the structure (types and ranges of every field); see validate for the rest.
+
+        With ``check_ranges=False`` record values only have to be integers: the offline validator
+        reads a program that way so that an out-of-range record is reported as a finding (which
+        axis, which record, by how much) instead of refusing the whole file.
+        """
         if not isinstance(data, dict):
             raise ProgramFormatError("", "not a PVT program: the top level must be a JSON object")
         if data.get("format") != FORMAT:
-            raise ProgramFormatError("format", f"not a PVT program: expected format {FORMAT!r}, got {data.get('format')!r}")
+            raise ProgramFormatError(
+                "format", f"not a PVT program: expected format {FORMAT!r}, got {data.get('format')!r}"
+            )
         if data.get("version") != VERSION:
-            raise ProgramFormatError("version", f"unsupported version {data.get('version')!r} (this pvtflow reads {VERSION})")
+            raise ProgramFormatError(
+                "version", f"unsupported version {data.get('version')!r} (this pvtflow reads {VERSION})"
+            )
         cell = data.get("cell", "")
         if not isinstance(cell, str):
             raise ProgramFormatError("cell", "must be a string")
         axes_data = data.get("axes")
         if not isinstance(axes_data, list) or not axes_data:
             raise ProgramFormatError("axes", "must be a non-empty list")
-        axes = tuple(_axis_from_json(f"axes[{i}]", a) for i, a in enumerate(axes_data))
+        axes = tuple(_axis_from_json(f"axes[{i}]", a, check_ranges) for i, a in enumerate(axes_data))
         _unique(axes, "name")
         _unique(axes, "node_id")
         metadata = data.get("metadata", {})
@@ -177,7 +190,7 @@ def _integer(where: str, value: Any, lo: int, hi: int) -> int:
     return value
 
 
-def _axis_from_json(where: str, a: Any) -> AxisProgram:
+def _axis_from_json(where: str, a: Any, check_ranges: bool = True) -> AxisProgram:
     if not isinstance(a, dict):
         raise ProgramFormatError(where, "must be an object")
     for key in ("name", "node_id", "profile", "qc_per_motor_rev", "motor_rev_per_joint_unit", "limits", "records"):
@@ -204,14 +217,19 @@ def _axis_from_json(where: str, a: Any) -> AxisProgram:
     for key in ("max_profile_velocity_rpm", "max_acceleration_rpm_s", "min_position_qc", "max_position_qc"):
         if key not in lim:
             raise ProgramFormatError(f"{lw}.{key}", "missing")
-    optional = {k: _number(f"{lw}.{k}", lim[k], positive=True)
-                for k in ("profile_velocity_rpm", "profile_acceleration_rpm_s") if lim.get(k) is not None}
+    optional = {
+        k: _number(f"{lw}.{k}", lim[k], positive=True)
+        for k in ("profile_velocity_rpm", "profile_acceleration_rpm_s")
+        if lim.get(k) is not None
+    }
     lo = _integer(f"{lw}.min_position_qc", lim["min_position_qc"], INT32_MIN, INT32_MAX)
     hi = _integer(f"{lw}.max_position_qc", lim["max_position_qc"], INT32_MIN, INT32_MAX)
     if lo >= hi:
         raise ProgramFormatError(lw, f"min_position_qc {lo} must be below max_position_qc {hi}")
     limits = DriveLimits(
-        max_profile_velocity_rpm=_number(f"{lw}.max_profile_velocity_rpm", lim["max_profile_velocity_rpm"], positive=True),
+        max_profile_velocity_rpm=_number(
+            f"{lw}.max_profile_velocity_rpm", lim["max_profile_velocity_rpm"], positive=True
+        ),
         max_acceleration_rpm_s=_number(f"{lw}.max_acceleration_rpm_s", lim["max_acceleration_rpm_s"], positive=True),
         min_position_qc=lo,
         max_position_qc=hi,
@@ -229,10 +247,13 @@ def _axis_from_json(where: str, a: Any) -> AxisProgram:
     if not isinstance(records, list) or len(records) < 2:
         raise ProgramFormatError(rw, "must be a list of at least 2 records [position_qc, velocity, time_ms]")
     out = np.empty((len(records), 3), dtype=np.int64)
+    # without range checks a value only has to fit the int64 array (the validator reports ranges)
+    wide = (-(2**62), 2**62)
+    strict = ((INT32_MIN, INT32_MAX), (INT24_MIN, INT24_MAX), (0, TIME_MAX_MS))
+    ranges = strict if check_ranges else (wide,) * 3
     for k, rec in enumerate(records):
         if not isinstance(rec, list) or len(rec) != 3:
             raise ProgramFormatError(f"{rw}[{k}]", f"must be [position_qc, velocity, time_ms], got {rec!r}")
-        out[k, 0] = _integer(f"{rw}[{k}] position", rec[0], INT32_MIN, INT32_MAX)
-        out[k, 1] = _integer(f"{rw}[{k}] velocity", rec[1], INT24_MIN, INT24_MAX)
-        out[k, 2] = _integer(f"{rw}[{k}] time", rec[2], 0, TIME_MAX_MS)
+        for j, what in enumerate(("position", "velocity", "time")):
+            out[k, j] = _integer(f"{rw}[{k}] {what}", rec[j], *ranges[j])
     return AxisProgram(name, node_id, profile, scaling, limits, out, submode)

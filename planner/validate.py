@@ -1,0 +1,559 @@
+"""Checks of a PVT program against the rules its drives enforce: the one validator.
+
+The CLI, the service and the tests all call :func:`validate_program`. Every motion check runs on
+what the drive itself will execute, ``AxisProgram.reconstruction()`` (planner.interpolation),
+never on a formula of its own: exactly (closed-form extrema per segment) and at the drive's 1 kHz
+samples. Errors are what makes a drive refuse or fault (0x607F, 0x60C5, 0x607D, record ranges,
+the start and end rules); warnings are what only sets a warning bit (0x6081, 0x6083).
+
+Each finding carries a stable rule code, so that tools can react to it without parsing text:
+
+=======================  =========================================================================
+``record-range``         position outside int32, velocity outside int24, time outside 0..255
+``time-range``           a motion record's time outside 1..255 ms (0 ends interpolation early)
+``start-record``         records[0] must be the start point at rest (velocity 0)
+``end-record``           the program must end at rest (EPOS2: with a time-0 record)
+``period``               a fixed-period profile's record times must all equal its period
+``position-limit``       the reconstruction leaves 0x607D
+``velocity-limit``       |velocity| of the reconstruction above 0x607F (the drive faults)
+``acceleration-limit``   |acceleration| of the reconstruction above 0x60C5 (the drive faults)
+``profile-velocity``     |velocity| above 0x6081 (warning bit only)
+``profile-acceleration`` |acceleration| above 0x6083 (warning bit only)
+=======================  =========================================================================
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
+from planner.interpolation import DRIVE_SAMPLE_MS, PiecewiseCubic
+from planner.program import FIXED_PERIOD_PROFILES, TIME_MAX_MS, AxisProgram, PvtProgram
+
+ERROR = "error"
+WARNING = "warning"
+
+# Relative slack for float noise in the limit comparisons: a reconstruction that reaches a limit
+# exactly (to 1e-9) is at the limit, not above it.
+_REL_EPS = 1e-9
+# At most this many findings of one rule per axis are listed in the text report.
+_TEXT_FINDINGS_PER_RULE = 8
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One broken rule: on which axis, at which record, by how much.
+
+    ``record`` is the index of the record concerned (for a motion check: the record that ends the
+    segment where the worst value occurs), or None for a whole-axis finding. ``amount`` is by how
+    much the value exceeds the limit, in ``unit``; ``value``/``limit`` are the numbers compared.
+    """
+
+    severity: str
+    rule: str
+    axis: str
+    record: int | None
+    message: str
+    amount: float = 0.0
+    value: float | None = None
+    limit: float | None = None
+    unit: str = ""
+    time_ms: float | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "severity": self.severity,
+            "rule": self.rule,
+            "axis": self.axis,
+            "record": self.record,
+            "message": self.message,
+            "amount": self.amount,
+            "value": self.value,
+            "limit": self.limit,
+            "unit": self.unit,
+            "time_ms": self.time_ms,
+        }
+
+    def format(self) -> str:
+        where = f"record {self.record}" if self.record is not None else "axis"
+        return f"{self.severity}: {self.axis} {where}: [{self.rule}] {self.message}"
+
+
+@dataclass(frozen=True)
+class AxisSummary:
+    """Worst values of one axis's reconstruction, in drive units and as fractions of its limits."""
+
+    axis: str
+    profile: str
+    records: int
+    duration_ms: float
+    max_velocity_rpm: float | None = None  # exact, over the whole reconstruction
+    max_acceleration_rpm_s: float | None = None
+    velocity_ratio: float | None = None  # max |v| / 0x607F
+    acceleration_ratio: float | None = None  # max |a| / 0x60C5
+    sampled_velocity_ratio: float | None = None  # the same at the drive's 1 kHz samples
+    sampled_acceleration_ratio: float | None = None
+    min_position_qc: float | None = None
+    max_position_qc: float | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+@dataclass(frozen=True)
+class ValidationReport:
+    """Everything found in one program. ``ok`` means no errors (warnings allowed)."""
+
+    cell: str
+    errors: tuple[Finding, ...]
+    warnings: tuple[Finding, ...]
+    axes: tuple[AxisSummary, ...] = field(default_factory=tuple)
+    source: str | None = None  # the file it came from, when there is one
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+    @property
+    def findings(self) -> tuple[Finding, ...]:
+        return self.errors + self.warnings
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "ok": self.ok,
+            "cell": self.cell,
+            "errors": [f.to_json() for f in self.errors],
+            "warnings": [f.to_json() for f in self.warnings],
+            "axes": [a.to_json() for a in self.axes],
+        }
+        if self.source is not None:
+            out["source"] = self.source
+        return out
+
+    def format_text(self) -> str:
+        """A report for a person: verdict first, then every finding (grouped per axis and rule)."""
+        name = self.source or f"program of cell {self.cell!r}"
+        verdict = "VALID" if self.ok else "INVALID"
+        lines = [f"{name}: {verdict} ({len(self.errors)} error(s), {len(self.warnings)} warning(s))"]
+        for a in self.axes:
+            parts = [f"{a.axis} [{a.profile}]: {a.records} records, {a.duration_ms:.0f} ms"]
+            if a.velocity_ratio is not None and a.acceleration_ratio is not None:
+                parts.append(
+                    f"max |v| {a.max_velocity_rpm:.1f} rpm ({100 * a.velocity_ratio:.1f}% of 0x607F)"
+                )
+                parts.append(
+                    f"max |a| {a.max_acceleration_rpm_s:.0f} rpm/s "
+                    f"({100 * a.acceleration_ratio:.1f}% of 0x60C5)"
+                )
+            lines.append("  " + ", ".join(parts))
+        shown: Counter[tuple[str, str]] = Counter()
+        hidden: Counter[tuple[str, str]] = Counter()
+        for f in self.findings:
+            key = (f.axis, f.rule)
+            if shown[key] < _TEXT_FINDINGS_PER_RULE:
+                shown[key] += 1
+                lines.append("  " + f.format())
+            else:
+                hidden[key] += 1
+        for (axis, rule), n in hidden.items():
+            lines.append(f"  ... and {n} more [{rule}] finding(s) on {axis}")
+        return "\n".join(lines)
+
+
+# --- the checks ------------------------------------------------------------------------------------
+def validate_program(
+    program: PvtProgram,
+    *,
+    sample_period_ms: float | None = DRIVE_SAMPLE_MS,
+    source: str | None = None,
+) -> ValidationReport:
+    """Check every axis of ``program`` against its drive's rules; never raises for a bad program.
+
+    ``sample_period_ms=None`` skips the look at the drive's own samples: the exact checks alone
+    decide (they bound the samples), which is what the planner's last check before output needs.
+    """
+    errors: list[Finding] = []
+    warnings: list[Finding] = []
+    summaries: list[AxisSummary] = []
+    for axis in program.axes:
+        found, summary = _validate_axis(axis, sample_period_ms)
+        errors.extend(f for f in found if f.severity == ERROR)
+        warnings.extend(f for f in found if f.severity == WARNING)
+        summaries.append(summary)
+    return ValidationReport(program.cell, tuple(errors), tuple(warnings), tuple(summaries), source)
+
+
+def _validate_axis(axis: AxisProgram, sample_period_ms: float | None) -> tuple[list[Finding], AxisSummary]:
+    r = np.asarray(axis.records, dtype=np.int64)
+    out: list[Finding] = []
+    bare = AxisSummary(
+        axis.name, axis.profile, len(r), float(r[:, 2].sum()) if r.ndim == 2 and len(r) else 0.0
+    )
+    if r.ndim != 2 or r.shape[1] != 3 or len(r) < 2:
+        out.append(
+            Finding(
+                ERROR,
+                "record-range",
+                axis.name,
+                None,
+                f"needs at least 2 records [position_qc, velocity, time_ms], has {len(r)}",
+            )
+        )
+        return out, bare
+    out.extend(_check_ranges(axis.name, r))
+    fixed = axis.profile in FIXED_PERIOD_PROFILES
+    structural = _check_fixed_period(axis, r) if fixed else _check_epos2(axis.name, r)
+    out.extend(structural)
+    if r[0, 2] < 1 or np.any(r[:, 2] < 0):
+        # no first segment (or negative durations): there is no reconstruction to check
+        return out, bare
+    recon = axis.reconstruction()
+    motion, summary = _check_motion(axis, recon, sample_period_ms)
+    out.extend(motion)
+    return out, summary
+
+
+def _check_ranges(name: str, r: NDArray[np.int64]) -> list[Finding]:
+    out = []
+    fields = (
+        (0, "position", INT32_MIN, INT32_MAX, "qc", "int32"),
+        (1, "velocity", INT24_MIN, INT24_MAX, "velocity units", "int24"),
+        (2, "time", 0, TIME_MAX_MS, "ms", "0..255 (uint8)"),
+    )
+    for col, what, lo, hi, unit, kind in fields:
+        for k in np.flatnonzero((r[:, col] < lo) | (r[:, col] > hi)):
+            v = int(r[k, col])
+            over = v - hi if v > hi else lo - v
+            out.append(
+                Finding(
+                    ERROR,
+                    "record-range",
+                    name,
+                    int(k),
+                    f"{what} {v} {unit} is outside {kind} [{lo}, {hi}] by {over}",
+                    float(over),
+                    float(v),
+                    float(hi if v > hi else lo),
+                    unit,
+                )
+            )
+    return out
+
+
+def _check_epos2(name: str, r: NDArray[np.int64]) -> list[Finding]:
+    """records[0]: start at rest, dwell >= 1 ms; motion records 1..255 ms; last: time 0 at rest."""
+    out = []
+    n = len(r)
+    if r[0, 1] != 0:
+        out.append(
+            Finding(
+                ERROR,
+                "start-record",
+                name,
+                0,
+                f"the start record must have velocity 0 (the axis is at rest), has {int(r[0, 1])}",
+                float(abs(r[0, 1])),
+                float(r[0, 1]),
+                0.0,
+                "velocity units",
+            )
+        )
+    if not 1 <= r[0, 2] <= TIME_MAX_MS:
+        out.append(
+            Finding(
+                ERROR,
+                "time-range",
+                name,
+                0,
+                f"the start record's time (dwell before the first segment) must be in 1..255 ms, "
+                f"is {int(r[0, 2])}",
+                float(1 - r[0, 2] if r[0, 2] < 1 else r[0, 2] - TIME_MAX_MS),
+                float(r[0, 2]),
+                1.0 if r[0, 2] < 1 else float(TIME_MAX_MS),
+                "ms",
+            )
+        )
+    for k in range(1, n - 1):
+        t = int(r[k, 2])
+        if t == 0:
+            out.append(
+                Finding(
+                    ERROR,
+                    "time-range",
+                    name,
+                    k,
+                    f"time 0 ends interpolation here, before the last record: records {k + 1}.."
+                    f"{n - 1} would never run",
+                    1.0,
+                    0.0,
+                    1.0,
+                    "ms",
+                )
+            )
+        elif not 1 <= t <= TIME_MAX_MS:
+            over = 1 - t if t < 1 else t - TIME_MAX_MS
+            out.append(
+                Finding(
+                    ERROR,
+                    "time-range",
+                    name,
+                    k,
+                    f"segment time {t} ms is outside 1..255 ms by {over}",
+                    float(over),
+                    float(t),
+                    1.0 if t < 1 else float(TIME_MAX_MS),
+                    "ms",
+                )
+            )
+    last = n - 1
+    if r[last, 2] != 0:
+        out.append(
+            Finding(
+                ERROR,
+                "end-record",
+                name,
+                last,
+                f"the last record must have time 0 (it ends interpolation; without it the drive "
+                f"runs its buffer empty and faults with an underflow), has {int(r[last, 2])} ms",
+            )
+        )
+    else:
+        if r[last, 1] != 0 or r[last - 1, 1] != 0:
+            k = last if r[last, 1] != 0 else last - 1
+            out.append(
+                Finding(
+                    ERROR,
+                    "end-record",
+                    name,
+                    k,
+                    f"the motion must end at rest: record {k} has velocity {int(r[k, 1])}",
+                    float(abs(r[k, 1])),
+                    float(r[k, 1]),
+                    0.0,
+                    "velocity units",
+                )
+            )
+        if r[last, 0] != r[last - 1, 0] and last >= 1:
+            d = int(r[last, 0] - r[last - 1, 0])
+            out.append(
+                Finding(
+                    ERROR,
+                    "end-record",
+                    name,
+                    last,
+                    f"the end record must repeat the final position {int(r[last - 1, 0])} qc, "
+                    f"differs by {d} qc",
+                    float(abs(d)),
+                    float(r[last, 0]),
+                    float(r[last - 1, 0]),
+                    "qc",
+                )
+            )
+    return out
+
+
+def _check_fixed_period(axis: AxisProgram, r: NDArray[np.int64]) -> list[Finding]:
+    """One setpoint per period: every time equals the period; the program starts and ends at rest."""
+    out = []
+    name = axis.name
+    period = int(r[0, 2])
+    if not 1 <= period <= TIME_MAX_MS:
+        out.append(
+            Finding(
+                ERROR,
+                "period",
+                name,
+                0,
+                f"the period (time of every record) must be in 1..255 ms, is {period}",
+                0.0,
+                float(period),
+                None,
+                "ms",
+            )
+        )
+    else:
+        for k in np.flatnonzero(r[:, 2] != period):
+            d = int(r[k, 2]) - period
+            out.append(
+                Finding(
+                    ERROR,
+                    "period",
+                    name,
+                    int(k),
+                    f"time {int(r[k, 2])} ms differs from the axis's period {period} ms by {d:+d} ms "
+                    f"({axis.profile} takes one setpoint per period)",
+                    float(abs(d)),
+                    float(r[k, 2]),
+                    float(period),
+                    "ms",
+                )
+            )
+    if r[0, 1] != 0:
+        out.append(
+            Finding(
+                ERROR,
+                "start-record",
+                name,
+                0,
+                f"the start record must have velocity 0 (the axis is at rest), has {int(r[0, 1])}",
+                float(abs(r[0, 1])),
+                float(r[0, 1]),
+                0.0,
+                "velocity units",
+            )
+        )
+    last = len(r) - 1
+    if r[last, 1] != 0:
+        out.append(
+            Finding(
+                ERROR,
+                "end-record",
+                name,
+                last,
+                f"the motion must end at rest: the last record has velocity {int(r[last, 1])}",
+                float(abs(r[last, 1])),
+                float(r[last, 1]),
+                0.0,
+                "velocity units",
+            )
+        )
+    if r[last, 0] != r[last - 1, 0]:
+        d = int(r[last, 0] - r[last - 1, 0])
+        out.append(
+            Finding(
+                ERROR,
+                "end-record",
+                name,
+                last,
+                f"the motion must end at rest: the last setpoint must repeat the one before "
+                f"({int(r[last - 1, 0])} qc), differs by {d} qc",
+                float(abs(d)),
+                float(r[last, 0]),
+                float(r[last - 1, 0]),
+                "qc",
+            )
+        )
+    return out
+
+
+def _check_motion(
+    axis: AxisProgram, recon: PiecewiseCubic, sample_period_ms: float | None
+) -> tuple[list[Finding], AxisSummary]:
+    """0x607D, 0x607F, 0x60C5 (errors) and 0x6081, 0x6083 (warnings) along the reconstruction."""
+    s = axis.scaling
+    lim = axis.limits
+    name = axis.name
+    out: list[Finding] = []
+
+    # exact per-segment extrema, converted to the drive's units through the axis scaling
+    seg_v = np.asarray(s.qc_per_ms_to_rpm(recon.max_abs_velocity()))
+    seg_a = np.asarray(s.qc_per_ms2_to_rpm_s(recon.max_abs_acceleration()))
+    lo, hi = recon.position_range()
+    # and what the drive computes at its own 1 kHz samples
+    t = recon.sample_times(sample_period_ms) if sample_period_ms else np.zeros(0)
+    sv = np.abs(np.asarray(s.qc_per_ms_to_rpm(recon.velocity(t))))
+    sa = np.abs(np.asarray(s.qc_per_ms2_to_rpm_s(recon.acceleration(t))))
+    seg_of_sample = np.clip(np.searchsorted(recon.start, t, side="right") - 1, 0, len(recon.start) - 1)
+
+    # the record that ends each reconstruction segment (cubic_p starts one period late: same index)
+    records_of_segment = np.arange(len(recon.start))
+
+    def over_limit(
+        kind: str,
+        rule: str,
+        severity: str,
+        seg: NDArray[np.float64],
+        sampled: NDArray[np.float64],
+        limit: float,
+        obj: str,
+        unit: str,
+    ) -> None:
+        bad = np.flatnonzero(seg > limit * (1.0 + _REL_EPS))
+        for k in bad:
+            in_seg = seg_of_sample == k
+            worst_sample = float(sampled[in_seg].max()) if in_seg.any() else 0.0
+            seen = "also" if worst_sample > limit * (1.0 + _REL_EPS) else "not"
+            samples = (f"; {seen} at the drive's {sample_period_ms:g} ms samples (worst {worst_sample:.6g})"
+                       if sample_period_ms else "")
+            value = float(seg[k])
+            out.append(
+                Finding(
+                    severity,
+                    rule,
+                    name,
+                    int(records_of_segment[k]),
+                    f"|{kind}| reaches {value:.6g} {unit} on the segment ending here ({recon.start[k]:.0f}.."
+                    f"{recon.start[k] + recon.duration[k]:.0f} ms): above {obj} {limit:.6g} {unit} by "
+                    f"{value - limit:.4g} {unit} ({100 * (value / limit - 1):.2f}%){samples}",
+                    value - limit,
+                    value,
+                    limit,
+                    unit,
+                    float(recon.start[k]),
+                )
+            )
+
+    over_limit("velocity", "velocity-limit", ERROR, seg_v, sv, lim.max_profile_velocity_rpm, "0x607F", "rpm")
+    over_limit(
+        "acceleration", "acceleration-limit", ERROR, seg_a, sa, lim.max_acceleration_rpm_s, "0x60C5", "rpm/s"
+    )
+    if lim.profile_velocity_rpm is not None:
+        over_limit(
+            "velocity", "profile-velocity", WARNING, seg_v, sv, lim.profile_velocity_rpm, "0x6081", "rpm"
+        )
+    if lim.profile_acceleration_rpm_s is not None:
+        over_limit(
+            "acceleration",
+            "profile-acceleration",
+            WARNING,
+            seg_a,
+            sa,
+            lim.profile_acceleration_rpm_s,
+            "0x6083",
+            "rpm/s",
+        )
+
+    for k in np.flatnonzero((lo < lim.min_position_qc) | (hi > lim.max_position_qc)):
+        if hi[k] > lim.max_position_qc:
+            value, limit, side = float(hi[k]), float(lim.max_position_qc), "above 0x607D:02"
+        else:
+            value, limit, side = float(lo[k]), float(lim.min_position_qc), "below 0x607D:01"
+        out.append(
+            Finding(
+                ERROR,
+                "position-limit",
+                name,
+                int(records_of_segment[k]),
+                f"position reaches {value:.1f} qc on the segment ending here ({recon.start[k]:.0f}.."
+                f"{recon.start[k] + recon.duration[k]:.0f} ms): {side} {limit:.0f} qc "
+                f"by {abs(value - limit):.1f} qc",
+                abs(value - limit),
+                value,
+                limit,
+                "qc",
+                float(recon.start[k]),
+            )
+        )
+
+    vmax = float(seg_v.max()) if len(seg_v) else 0.0
+    amax = float(seg_a.max()) if len(seg_a) else 0.0
+    summary = AxisSummary(
+        axis=name,
+        profile=axis.profile,
+        records=len(axis.records),
+        duration_ms=recon.end_time,
+        max_velocity_rpm=vmax,
+        max_acceleration_rpm_s=amax,
+        velocity_ratio=vmax / lim.max_profile_velocity_rpm,
+        acceleration_ratio=amax / lim.max_acceleration_rpm_s,
+        sampled_velocity_ratio=float(sv.max()) / lim.max_profile_velocity_rpm if len(sv) else 0.0,
+        sampled_acceleration_ratio=float(sa.max()) / lim.max_acceleration_rpm_s if len(sa) else 0.0,
+        min_position_qc=float(lo.min()),
+        max_position_qc=float(hi.max()),
+    )
+    return out, summary

@@ -1,0 +1,146 @@
+"""``pvtflow plan --config FILE --waypoints FILE -o PROGRAM.json``: plan a motion, write its program.
+
+Exit codes: 0 written, 1 the waypoints cannot be planned on this cell (the message says why),
+2 unreadable input (configuration, waypoint file) or the output cannot be written.
+
+:func:`plan_cell_program` is the whole pipeline for one cell (waypoints -> TOPP-RA trajectory ->
+knots -> validated program), for the service as well as for this command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from numpy.typing import ArrayLike
+
+from planner.build import BuildError, BuildOutput, build_program
+from planner.knots import DriveAxis, KnotOptions
+from planner.plan import PlanInput, PlanOutput, plan
+from planner.program import PvtProgram
+from service.config import CellConfig, ConfigError, load_cell_config
+from service.waypoints import WaypointError, load_waypoints
+
+EXIT_OK, EXIT_NOT_PLANNED, EXIT_BAD_INPUT = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class CellPlan:
+    """The outcome of planning on a cell: a program, or the reason (``code``, ``message``)."""
+
+    code: str  # "ok", a planner.path.PlanResult value, or "program_error"
+    message: str = ""
+    program: PvtProgram | None = None
+    plan: PlanOutput | None = None
+    build: BuildOutput | None = None
+    timing: dict[str, float] = field(default_factory=dict)  # s: plan, knots, total
+
+    @property
+    def ok(self) -> bool:
+        return self.program is not None
+
+
+def plan_input_for_cell(cell: CellConfig, waypoints: ArrayLike, gridpoints: int | None = None) -> PlanInput:
+    """The planner's input for ``cell``: its joint limits, model and planning options."""
+    return PlanInput(
+        waypoints=waypoints,
+        limits=cell.joint_limits(),
+        model=cell.model,
+        tcp_frame=cell.planning.tcp_frame,
+        max_tcp_speed=cell.planning.max_tcp_speed,
+        torque_limits=cell.planning.torque_limits,
+        gridpoints=gridpoints,
+    )
+
+
+def plan_cell_program(cell: CellConfig, waypoints: ArrayLike, tolerance_qc: float | None = None,
+                      metadata: dict[str, Any] | None = None) -> CellPlan:
+    """Waypoints (N, dof, the cell's joint order) -> a validated PVT program for the cell's drives."""
+    start = time.perf_counter()
+    out = plan(plan_input_for_cell(cell, waypoints))
+    t_plan = time.perf_counter() - start
+    if not out.ok or out.trajectory is None:
+        return CellPlan(out.result.value, out.message, None, out, None, {"plan": t_plan})
+    axes = [DriveAxis.from_config(a) for a in cell.ordered_axes()]
+    tol = cell.planning.position_tolerance_qc if tolerance_qc is None else tolerance_qc
+    try:
+        built = build_program(out.trajectory, axes, cell.name, KnotOptions(tolerance_qc=tol), metadata)
+    except (BuildError, ValueError) as exc:
+        return CellPlan("program_error", str(exc), None, out, None, {"plan": t_plan})
+    total = time.perf_counter() - start
+    return CellPlan("ok", "", built.program, out, built, {"plan": t_plan, "knots": total - t_plan, "total": total})
+
+
+def add_parser(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "plan",
+        help="plan a time-optimal motion through waypoints and write its PVT program",
+        description="Plan a time-optimal motion through the waypoints on a cell and write the PVT program "
+        "(validated: the drives' own reconstruction stays inside their limits). Exit 0 written, "
+        "1 cannot be planned, 2 unreadable input.",
+    )
+    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the demo arm cell)")
+    p.add_argument("--waypoints", metavar="FILE", required=True,
+                   help="waypoints: pvtflow JSON, or a ROS JointTrajectory as JSON or YAML")
+    p.add_argument("-o", "--output", metavar="PROGRAM.json", required=True, help="where to write the program")
+    p.add_argument("--tolerance", type=float, metavar="QC",
+                   help="position tolerance in counts (default: the cell's planning.position_tolerance_qc)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary instead of text")
+    p.set_defaults(run=run)
+
+
+def _fail(code: int, message: str) -> int:
+    print(f"pvtflow plan: {message}", file=sys.stderr)
+    return code
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        cell = load_cell_config(args.config)
+    except ConfigError as exc:
+        return _fail(EXIT_BAD_INPUT, str(exc))
+    try:
+        waypoints = load_waypoints(args.waypoints, cell.joint_names)
+    except WaypointError as exc:
+        return _fail(EXIT_BAD_INPUT, str(exc))
+    if args.tolerance is not None and not args.tolerance >= 0.5:
+        return _fail(EXIT_BAD_INPUT, f"--tolerance must be at least 0.5 count, got {args.tolerance}")
+
+    result = plan_cell_program(cell, waypoints, args.tolerance)
+    if not result.ok or result.program is None or result.build is None:
+        why = f"({result.code}): {result.message}"
+        return _fail(EXIT_NOT_PLANNED, f"cannot plan this motion on cell {cell.name!r} {why}")
+
+    out = Path(args.output)
+    try:
+        out.write_text(result.program.dumps(indent=1) + "\n", encoding="utf-8")
+    except OSError as exc:
+        return _fail(EXIT_BAD_INPUT, f"cannot write {out}: {exc.strerror or exc}")
+
+    knots = result.build.knots
+    duration_s = (knots.duration_ms + 1) / 1000.0
+    summary = {
+        "output": str(out),
+        "cell": cell.name,
+        "duration_s": duration_s,
+        "time_scale": knots.time_scale,
+        "records": {a.name: len(a.records) for a in knots.axes},
+        "deviation_qc": {a.name: round(a.deviation_qc, 4) for a in knots.axes},
+        "velocity_ratio": {a.name: round(a.velocity_ratio, 5) for a in knots.axes},
+        "acceleration_ratio": {a.name: round(a.acceleration_ratio, 5) for a in knots.axes},
+        "timing_ms": {k: round(v * 1000.0, 2) for k, v in result.timing.items()},
+    }
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(f"{out}: {len(knots.axes)} axes, {duration_s:.3f} s, worst deviation {knots.deviation_qc:.2f} qc, "
+              f"planned in {result.timing['total'] * 1000:.1f} ms")
+        for a in knots.axes:
+            print(f"  {a.name}: {len(a.records)} records, |v| {100 * a.velocity_ratio:.1f}% of 0x607F, "
+                  f"|a| {100 * a.acceleration_ratio:.1f}% of 0x60C5, deviation {a.deviation_qc:.2f} qc")
+    return EXIT_OK

@@ -1,0 +1,119 @@
+"""Waypoint files: pvtflow's own JSON and the shape of a ROS ``trajectory_msgs/JointTrajectory``.
+
+Accepted (JSON, or YAML for the ROS shape; the file's content decides, not its extension):
+
+- pvtflow: ``{"joint_names": [...], "waypoints": [[q1, ..., qn], ...]}`` (``joint_names`` optional:
+  without it the values are in the cell's joint order), or a bare list of lists;
+- ROS JointTrajectory: ``{"joint_names": [...], "points": [{"positions": [...], ...}, ...]}``,
+  also wrapped as ``{"trajectory": {...}}`` or ``{"joint_trajectory": {...}}`` (as in a
+  ``rostopic echo`` / ``ros2 topic echo`` dump or a MoveIt result). Only the positions are used:
+  pvtflow computes its own timing.
+
+Joint values are reordered by name into the cell's joint order. Every problem is a
+:class:`WaypointError` naming the file and the place in it, never a traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+
+class WaypointError(ValueError):
+    """A waypoint file that cannot be used; the message says which file and where."""
+
+
+def load_waypoints(path: str | Path, joint_names: Sequence[str]) -> NDArray[np.float64]:
+    """(N, dof) waypoints from ``path`` in the order of ``joint_names``."""
+    file = Path(path)
+    if not file.is_file():
+        raise WaypointError(f"{file}: {'is a directory' if file.is_dir() else 'file not found'}")
+    try:
+        text = file.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise WaypointError(f"{file}: cannot read: {exc}") from None
+    return parse_waypoints(text, joint_names, str(file))
+
+
+def parse_waypoints(text: str, joint_names: Sequence[str], source: str = "waypoints") -> NDArray[np.float64]:
+    """Waypoints from JSON or YAML text (see the module doc for the accepted shapes)."""
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError:
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise WaypointError(f"{source}: neither JSON nor YAML ({str(exc).splitlines()[0]})") from None
+    return waypoints_from_data(data, joint_names, source)
+
+
+def waypoints_from_data(data: Any, joint_names: Sequence[str], source: str = "waypoints") -> NDArray[np.float64]:
+    if isinstance(data, dict):
+        for key in ("trajectory", "joint_trajectory"):
+            if key in data and isinstance(data[key], dict) and "points" in data[key]:
+                data = data[key]
+                break
+    if isinstance(data, list):
+        names, rows, kind = None, data, "waypoints"
+        where = ""
+    elif isinstance(data, dict) and "points" in data:
+        names = data.get("joint_names")
+        points = data["points"]
+        if not isinstance(points, list) or not points:
+            raise WaypointError(f"{source}: points: must be a non-empty list of trajectory points")
+        rows = []
+        for i, pt in enumerate(points):
+            if not isinstance(pt, dict) or "positions" not in pt:
+                raise WaypointError(f"{source}: points[{i}]: needs 'positions' (a JointTrajectoryPoint)")
+            rows.append(pt["positions"])
+        kind, where = "points", ".positions"
+    elif isinstance(data, dict) and "waypoints" in data:
+        names = data.get("joint_names")
+        rows, kind, where = data["waypoints"], "waypoints", ""
+    else:
+        raise WaypointError(
+            f"{source}: not a waypoint file: expected {{'waypoints': [[...], ...]}} or a ROS JointTrajectory "
+            "{'joint_names': [...], 'points': [{'positions': [...]}, ...]}"
+        )
+    if not isinstance(rows, list) or not rows:
+        raise WaypointError(f"{source}: {kind}: must be a non-empty list")
+
+    dof = len(joint_names)
+    if names is not None:
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise WaypointError(f"{source}: joint_names: must be a list of strings")
+        if len(set(names)) != len(names):
+            raise WaypointError(f"{source}: joint_names: a joint is listed twice")
+        unknown = [n for n in names if n not in joint_names]
+        if unknown:
+            raise WaypointError(f"{source}: joint_names: unknown joint {unknown[0]!r} (the cell has "
+                                f"{', '.join(joint_names)})")
+        missing = [n for n in joint_names if n not in names]
+        if missing:
+            raise WaypointError(f"{source}: joint_names: joint {missing[0]!r} of the cell is missing")
+        order = [names.index(n) for n in joint_names]
+        width = len(names)
+    else:
+        order = list(range(dof))
+        width = dof
+
+    out = np.empty((len(rows), dof))
+    for i, row in enumerate(rows):
+        here = f"{source}: {kind}[{i}]{where}"
+        if not isinstance(row, list) or len(row) != width:
+            got = f"{len(row)} values" if isinstance(row, list) else repr(row)
+            raise WaypointError(f"{here}: must be a list of {width} joint values, got {got}")
+        for j, x in enumerate(row):
+            if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+                raise WaypointError(f"{here}[{j}]: must be a finite number, got {x!r}")
+        out[i] = [float(row[k]) for k in order]
+    if len(out) < 2:
+        raise WaypointError(f"{source}: a motion needs at least 2 waypoints, got {len(out)}")
+    return out
