@@ -121,6 +121,17 @@ class RobotModel:
         q = np.asarray(q, dtype=float)
         return pin.computeFrameJacobian(self.model, self.data, q, fid, pin.LOCAL_WORLD_ALIGNED).copy()
 
+    def frame_speeds(self, q: ArrayLike, qd: ArrayLike, frame: str) -> NDArray[np.float64]:
+        """|linear velocity| of ``frame``'s origin for each row of q, qd: one kinematics pass per row,
+        no Jacobian matrix (what a TCP speed limit needs, many times per plan)."""
+        fid = self.frame_id(frame)
+        model, data = self.model, self.data
+        out = np.empty(len(q))
+        for k, (qk, vk) in enumerate(zip(np.asarray(q, dtype=float), np.asarray(qd, dtype=float), strict=True)):
+            pin.forwardKinematics(model, data, qk, vk)
+            out[k] = np.sqrt(np.dot(v := pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED).linear, v))
+        return out
+
     def inverse_dynamics(self, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike) -> NDArray[np.float64]:
         """Joint torques/forces (RNEA) needed for qdd at (q, qd), gravity included."""
         return pin.rnea(

@@ -56,15 +56,21 @@ class _IntervalSpeedConstraint(constraint.LinearConstraint):
 
     def compute_constraint_params(self, path: JointPath, gridpoints: NDArray[np.float64]):  # type: ignore[override]
         n, f = len(gridpoints), len(self.FRACTIONS)
-        sigma = np.append(np.diff(gridpoints), 0.0)[:, None] * self.FRACTIONS[None, :]  # (n, f)
-        s = np.minimum(gridpoints[:, None] + sigma, gridpoints[-1])
-        g2 = self.speed_factors(path, s.ravel()).reshape(n, f, -1) ** 2
+        delta = np.append(np.diff(gridpoints), 0.0)
+        sigma = delta[:, None] * self.FRACTIONS[None, :]  # (n, f)
+        # the end of interval i is gridpoint i + 1: evaluate the gridpoints once, the inner samples once
+        at_grid = self.speed_factors(path, gridpoints) ** 2  # (n, m)
+        inner = self.FRACTIONS < 1.0
+        s_inner = (gridpoints[:-1, None] + sigma[:-1, inner]).ravel()
+        g2 = np.empty((n, f, at_grid.shape[1]))
+        g2[:-1, inner] = (self.speed_factors(path, s_inner) ** 2).reshape(n - 1, int(inner.sum()), -1)
+        g2[:-1, ~inner] = at_grid[1:, None, :]
+        g2[-1] = at_grid[-1]
         a = (2.0 * sigma[:, :, None] * g2).reshape(n, -1)
         b = g2.reshape(n, -1)
         m = a.shape[1]
-        at_gridpoint = self.speed_factors(path, gridpoints) ** 2
         with np.errstate(divide="ignore"):
-            x_max = np.min(np.where(at_gridpoint > 0, self.limit**2 / np.maximum(at_gridpoint, 1e-300), np.inf), axis=1)
+            x_max = np.min(np.where(at_grid > 0, self.limit**2 / np.maximum(at_grid, 1e-300), np.inf), axis=1)
         xbound = np.column_stack((np.zeros(n), np.minimum(x_max, _X_MAX)))
         return a, b, np.zeros_like(a), np.eye(m), np.tile(self.limit**2, f), None, xbound
 
@@ -126,13 +132,7 @@ class TcpSpeedConstraint(_IntervalSpeedConstraint):
         self._format_string = f"    TCP speed limit: {max_speed} m/s at {frame}\n"
 
     def speed_factors(self, path: JointPath, s: NDArray[np.float64]) -> NDArray[np.float64]:
-        q, qs = path(s), path(s, 1)
-        return np.array(
-            [
-                [np.linalg.norm(self.model.frame_jacobian(qi, self.frame)[:3] @ qsi)]
-                for qi, qsi in zip(q, qs, strict=True)
-            ]
-        )
+        return self.model.frame_speeds(path(s), path(s, 1), self.frame)[:, None]
 
 
 @dataclass(frozen=True)
