@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from axes.objects import PARKER_CUBIC_THRESHOLD_US
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 from planner import interpolation
 from planner.interpolation import PiecewiseCubic
@@ -73,9 +74,12 @@ class AxisProgram:
         if self.profile == "epos2_pvt":
             return interpolation.epos2_pvt(r, factor)
         period = float(r[0, 2])
-        if self.profile == "parker_slvdn" and self.interpolation_submode == -1:
+        # Parker SLVDN interpolates only from a 2.5 ms cycle on; below, the position loop takes each
+        # setpoint as it comes, which on the program's timeline is the linear reconstruction
+        parker_interpolates = self.profile == "parker_slvdn" and period * 1000.0 >= PARKER_CUBIC_THRESHOLD_US
+        if parker_interpolates and self.interpolation_submode == -1:
             return interpolation.cubic_pv(r, period, factor)
-        if self.profile == "parker_slvdn" and self.interpolation_submode == -2:
+        if parker_interpolates and self.interpolation_submode == -2:
             return interpolation.cubic_p(r, period)
         return interpolation.linear(r, period)
 
