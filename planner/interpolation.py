@@ -22,6 +22,16 @@ from numpy.typing import ArrayLike, NDArray
 
 DRIVE_SAMPLE_MS = 1.0  # the EPOS2 (and the simulated drives) interpolate at 1 kHz
 
+# A value within this relative distance of a limit is AT the limit, not over it: float round-off of
+# the same exact cubic must not make the validator pass what the (simulated) drive faults on, or the
+# other way round. Both sides of the bus judge a limit with exceeds().
+LIMIT_RTOL = 1e-9
+
+
+def exceeds(value: ArrayLike, limit: ArrayLike) -> NDArray[np.bool_]:
+    """value > limit, with the shared round-off allowance LIMIT_RTOL."""
+    return np.asarray(value) > np.asarray(limit) * (1.0 + LIMIT_RTOL)
+
 
 class Interpolation(Enum):
     """How the drive joins its setpoints."""

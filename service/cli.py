@@ -17,6 +17,8 @@ COMMANDS: dict[str, str] = {
     "validate": "service.validate_cmd",
     "execute": "service.execute_cmd",
     "demo": "service.demo_cmd",
+    "serve": "service.serve_cmd",
+    "request": "service.request_cmd",
 }
 
 

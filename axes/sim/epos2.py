@@ -43,6 +43,7 @@ from axes.sim.drive import (
     Segment,
     SimulatedDrive,
 )
+from planner.interpolation import exceeds
 
 
 class Epos2Drive(SimulatedDrive):
@@ -210,11 +211,11 @@ class Epos2Drive(SimulatedDrive):
     def _check_dynamics(self, v: float, a: float) -> None:
         rpm = abs(v) * self._rpm_per_qc_ms
         rpm_s = abs(a) * self._rpm_s_per_qc_ms2
-        if rpm > self.read(obj.PROFILE_VELOCITY):
+        if exceeds(rpm, self.read(obj.PROFILE_VELOCITY)):
             self.sticky |= BufferStatus.VELOCITY_WARNING
-        if rpm_s > self.read(obj.PROFILE_ACCELERATION):
+        if exceeds(rpm_s, self.read(obj.PROFILE_ACCELERATION)):
             self.sticky |= BufferStatus.ACCELERATION_WARNING
-        if rpm > self.read(obj.MAX_PROFILE_VELOCITY):
+        if exceeds(rpm, self.read(obj.MAX_PROFILE_VELOCITY)):
             self._ipm_error(BufferStatus.VELOCITY_ERROR, "max profile velocity 0x607F")
-        elif rpm_s > self.read(obj.MAX_ACCELERATION):
+        elif exceeds(rpm_s, self.read(obj.MAX_ACCELERATION)):
             self._ipm_error(BufferStatus.ACCELERATION_ERROR, "max acceleration 0x60C5")

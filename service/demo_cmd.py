@@ -1,0 +1,232 @@
+"""``pvtflow demo``: a service on simulated drives, a move planned and run through zenoh, a plot.
+
+Everything goes the way a cell's software would go: the service (the arm6 demo cell on simulated
+EPOS2 drives, a zenoh peer on a free loopback port) and a client session in this process talk
+only over zenoh. The client plans a tour through a few waypoints, executes it, shows a progress
+bar from the telemetry while the axes move, prints the drives' final state from ``status`` and
+writes a plot of the telemetry (joint positions and buffer levels over time).
+Exit codes: 0 the motion finished, 1 it did not (the reason is printed), 2 cannot start.
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from axes.bus import BusError
+from service.api import key
+from service.config import ConfigError, load_cell_config
+from service.journal import JournalError
+from service.motion import MotionService
+from service.request_cmd import Client
+from service.server import Server, peer_config, zenoh_message
+
+EXIT_OK, EXIT_FAILED, EXIT_CANNOT_START = 0, 1, 2
+PROG = "pvtflow demo"
+
+
+def add_parser(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "demo",
+        help="start a service on simulated drives, plan and run a move through zenoh, plot it",
+        description="Start the arm6 demo cell's service on simulated drives, plan a tour through waypoints and "
+        "run it through zenoh with a progress bar, then write a plot of the telemetry.",
+    )
+    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
+    p.add_argument("--plot", metavar="OUT.png", default="pvtflow-demo.png", help="plot file (default %(default)s)")
+    p.add_argument("--port", type=int, default=0, help="loopback TCP port of the service (default: a free one)")
+    p.add_argument("--real-time", action="store_true", help="SYNC on the wall clock instead of in lockstep with the "
+                   "simulated drives (needs a machine fast enough for 1 kHz SYNC on every simulated drive)")
+    p.add_argument("--journal", metavar="DIR", help="motion journal directory (default: a temporary one)")
+    p.add_argument("--waypoints", type=int, default=4, help="waypoints of the tour after the start (default 4)")
+    p.set_defaults(run=run)
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def tour(lower: np.ndarray, upper: np.ndarray, n: int, seed: int = 7) -> list[list[float]]:
+    """``n`` waypoints inside the middle 40 % of every joint's range, ending back at the middle."""
+    rng = np.random.default_rng(seed)
+    mid, half = 0.5 * (lower + upper), 0.5 * (upper - lower)
+    pts = [mid + 0.4 * half * rng.uniform(-1.0, 1.0, len(mid)) for _ in range(max(1, n - 1))]
+    pts.append(mid)
+    return [[float(x) for x in p] for p in pts]
+
+
+class _Follower:
+    """Collects telemetry and events of one cell, and draws the progress bar."""
+
+    def __init__(self, width: int = 40) -> None:
+        self.width = width
+        self.telemetry: list[dict[str, Any]] = []
+        self.events: list[dict[str, Any]] = []
+        self.states: list[str] = []
+        self.ended = threading.Event()
+        self.outcome: dict[str, Any] | None = None
+        self.motion_id: str | None = None
+        self._t0: float | None = None
+
+    def on_telemetry(self, cell: str, d: dict[str, Any]) -> None:
+        del cell
+        if d.get("motion_id") is None or d.get("motion_id") != self.motion_id:
+            return
+        self.telemetry.append(d)
+        progress = d.get("progress") or 0.0
+        filled = round(progress * self.width)
+        levels = " ".join("-" if lv is None else f"{lv:2d}" for lv in d["buffer_levels"])
+        sys.stdout.write(f"\r  [{'#' * filled}{'.' * (self.width - filled)}] {100 * progress:5.1f}%  "
+                         f"t={d['elapsed_ms'] / 1000:6.3f} s  buffers {levels} ")
+        sys.stdout.flush()
+
+    def on_event(self, cell: str, d: dict[str, Any]) -> None:
+        del cell
+        self.events.append(d)
+        if d.get("kind") == "motion_ended" and d.get("motion_id") == self.motion_id:
+            self.outcome = d.get("outcome")
+            self.ended.set()
+
+    def on_state(self, cell: str, d: dict[str, Any]) -> None:
+        del cell
+        self.states.append(d["state"])
+
+
+def write_plot(path: Path, follower: _Follower, joint_names: list[str], title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tel = follower.telemetry
+    t = np.array([d["elapsed_ms"] / 1000.0 for d in tel])
+    q = np.array([[np.nan if x is None else x for x in d["positions"]] for d in tel])
+    lv = np.array([[np.nan if x is None else x for x in d["buffer_levels"]] for d in tel])
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True, height_ratios=(2, 1))
+    for j, name in enumerate(joint_names):
+        ax1.plot(t, q[:, j], label=name)
+        ax2.plot(t, lv[:, j], label=name)
+    ax1.set_ylabel("joint position (rad / m)")
+    ax1.set_title(title)
+    ax1.legend(ncol=3, fontsize=8)
+    ax1.grid(alpha=0.3)
+    ax2.set_ylabel("buffer level (records)")
+    ax2.set_xlabel("program time (s), from pvtflow/<cell>/telemetry")
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        cell = load_cell_config(args.config)
+    except ConfigError as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return EXIT_CANNOT_START
+    if not cell.simulated:
+        print(f"{PROG}: cell {cell.name} has real drives (simulated: false): the demo only runs simulated cells",
+              file=sys.stderr)
+        return EXIT_CANNOT_START
+    if not 1 <= args.waypoints <= 20:
+        print(f"{PROG}: --waypoints must be 1..20, got {args.waypoints}", file=sys.stderr)
+        return EXIT_CANNOT_START
+    plot = Path(args.plot)
+    if not plot.parent.is_dir():
+        print(f"{PROG}: cannot write {plot}: {plot.parent} is not a directory", file=sys.stderr)
+        return EXIT_CANNOT_START
+    endpoint = f"tcp/127.0.0.1:{args.port or free_port()}"
+    journal_dir = args.journal or tempfile.mkdtemp(prefix="pvtflow-demo-")
+    try:
+        service = MotionService(cell, journal_dir=journal_dir, lockstep=not args.real_time).open()
+    except (BusError, JournalError, OSError) as exc:
+        print(f"{PROG}: cannot start the cell: {exc}", file=sys.stderr)
+        return EXIT_CANNOT_START
+    try:
+        server = Server(service, peer_config(listen=[endpoint])).start()
+    except Exception as exc:
+        service.close()
+        print(f"{PROG}: cannot open zenoh on {endpoint}: {zenoh_message(exc)}", file=sys.stderr)
+        return EXIT_CANNOT_START
+    client = None
+    try:
+        client = Client(connect=endpoint)
+        return _demo(client, cell.name, plot, endpoint, service, journal_dir, args.waypoints)
+    finally:
+        if client is not None:
+            client.close()
+        server.close()
+        service.close()
+
+
+def _demo(client: Client, name: str, plot: Path, endpoint: str, service: MotionService, journal_dir: str,
+          n_waypoints: int) -> int:
+    print(f"{PROG}: service for cell {name} on simulated drives, zenoh peer on {endpoint} "
+          f"(SYNC {'lockstep' if service.lockstep else 'real time'}); journal in {journal_dir}")
+    follower = _Follower()
+    subs = [client.follow(name, "telemetry", follower.on_telemetry), client.follow(name, "events", follower.on_event),
+            client.follow(name, "state", follower.on_state)]
+    deadline = time.monotonic() + 5.0
+    while name not in client.alive(name, timeout=1.0):
+        if time.monotonic() > deadline:
+            print(f"{PROG}: the service's liveliness token {key(name, 'alive')} did not appear", file=sys.stderr)
+            return EXIT_FAILED
+    status = client.request(name, "status", {"recent": 0})
+    if not status.ok:
+        print(f"{PROG}: status failed: {status.data['error']['message']}", file=sys.stderr)
+        return EXIT_FAILED
+    joints = status.data["joint_names"]
+    print(f"  {key(name, 'alive')} is up; axes: " + ", ".join(f"{a['joint']} {a['state'].lower()}"
+                                                              for a in status.data["axes"]))
+    limits = service.limits
+    waypoints = tour(limits.lower, limits.upper, n_waypoints)
+    t0 = time.perf_counter()
+    plan = client.request(name, "plan", {"waypoints": waypoints, "label": "pvtflow demo tour"})
+    dt = time.perf_counter() - t0
+    if not plan.ok:
+        err = plan.data["error"]
+        print(f"{PROG}: plan refused: {err['code']}: {err['message']}", file=sys.stderr)
+        return EXIT_FAILED
+    p = plan.data
+    print(f"  plan {p['plan_id']}: {p['waypoints']} waypoints, {p['duration_s']:.3f} s of motion, "
+          f"{sum(p['records'].values())} PVT records, validated; reply in {1000 * dt:.1f} ms "
+          f"(planning {p['timing_ms'].get('total', 0):.1f} ms)")
+    ex = client.request(name, "execute", {"plan_id": p["plan_id"]})
+    if not ex.ok:
+        err = ex.data["error"]
+        print(f"{PROG}: execute refused: {err['code']}: {err['message']}", file=sys.stderr)
+        return EXIT_FAILED
+    follower.motion_id = ex.data["motion_id"]
+    print(f"  motion {follower.motion_id} started on SYNC {ex.data['start_sync']}")
+    if not follower.ended.wait(max(30.0, 10 * p["duration_s"])):
+        print(f"\n{PROG}: the motion did not end in time: stopping it", file=sys.stderr)
+        client.request(name, "stop", {"reason": "demo timeout"})
+        return EXIT_FAILED
+    print()
+    final = client.request(name, "status", {"recent": 1})
+    outcome = follower.outcome or {}
+    print(f"  outcome: {outcome.get('result')}: {outcome.get('message')}")
+    if not final.ok:
+        print(f"  status failed: {final.data['error']['code']}: {final.data['error']['message']}")
+    else:
+        for a in final.data["axes"]:
+            print(f"    {a['joint']}: {a['state'].lower()}, statusword {a['statusword_hex']}, position "
+                  f"{a['position']:+.4f} ({a['position_qc']} qc)")
+    events = [e["kind"] for e in follower.events if e.get("motion_id") == follower.motion_id]
+    print(f"  events: {', '.join(events)}; states: {' -> '.join(dict.fromkeys(follower.states))}")
+    if follower.telemetry:
+        write_plot(plot, follower, joints, f"pvtflow demo: cell {name}, motion {follower.motion_id}")
+        print(f"  plot: {plot} ({len(follower.telemetry)} telemetry samples)")
+    del subs
+    return EXIT_OK if outcome.get("result") == "finished" else EXIT_FAILED
+

@@ -1,0 +1,157 @@
+"""The motion journal: every accepted motion (its program, then its outcome), append-only, on disk.
+
+One JSON object per line in ``<directory>/journal.jsonl``. A motion is written (and fsync'ed) before
+its first record goes to a drive, so what ran is never lost: after a crash the journal still has the
+program, and a motion without an outcome line is reported as ``interrupted``. Lines are never
+rewritten; a torn last line (power loss mid-write) is skipped on reading.
+
+Line kinds: ``{"kind": "motion", "motion_id", "time", "plan_id", "label", "cell", "program", ...}``
+and ``{"kind": "outcome", "motion_id", "time", "outcome": {...RunResult JSON}}``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+JOURNAL_FILE = "journal.jsonl"
+
+
+def default_directory(cell: str) -> Path:
+    """``$XDG_STATE_HOME/pvtflow/<cell>`` (``~/.local/state/pvtflow/<cell>`` by default)."""
+    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(base) / "pvtflow" / cell
+
+
+def _iso(t: float) -> str:
+    return datetime.fromtimestamp(t, UTC).isoformat(timespec="milliseconds")
+
+
+@dataclass
+class MotionEntry:
+    """One motion as the journal knows it."""
+
+    motion_id: str
+    accepted_at: float
+    plan_id: str | None
+    label: str | None
+    duration_ms: int
+    program: dict[str, Any] = field(repr=False)
+    outcome: dict[str, Any] | None = None
+    ended_at: float | None = None
+
+    def summary(self, running: bool = False) -> dict[str, Any]:
+        state = "ended" if self.outcome is not None else ("running" if running else "interrupted")
+        return {
+            "motion_id": self.motion_id, "plan_id": self.plan_id, "label": self.label, "state": state,
+            "accepted_at": _iso(self.accepted_at),
+            "ended_at": _iso(self.ended_at) if self.ended_at is not None else None,
+            "duration_ms": self.duration_ms, "outcome": self.outcome,
+        }
+
+
+class JournalError(OSError):
+    """The journal cannot be opened or written (the motion is then refused: nothing unrecorded runs)."""
+
+
+class Journal:
+    """Append-only JSON-lines journal of one cell's motions."""
+
+    def __init__(self, directory: str | Path, keep_in_memory: int = 200) -> None:
+        self.directory = Path(directory)
+        self.path = self.directory / JOURNAL_FILE
+        self.keep_in_memory = keep_in_memory
+        self.skipped_lines = 0
+        self._lock = threading.Lock()
+        self._entries: OrderedDict[str, MotionEntry] = OrderedDict()
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            self._load()
+            self._file = open(self.path, "ab")  # noqa: SIM115 - held open for the service's life
+            if self._file.tell() > 0 and not self._ends_with_newline():
+                self._append_raw(b"\n")  # a torn last line stays alone on its line: the next record is whole
+        except OSError as exc:
+            raise JournalError(f"cannot open the motion journal {self.path}: {exc.strerror or exc}") from None
+
+    def _load(self) -> None:
+        if not self.path.exists():
+            return
+        with open(self.path, "rb") as f:
+            for raw in f:
+                try:
+                    line = json.loads(raw)
+                    kind = line["kind"]
+                    if kind == "motion":
+                        self._remember(MotionEntry(line["motion_id"], float(line["time"]), line.get("plan_id"),
+                                                   line.get("label"), int(line.get("duration_ms", 0)),
+                                                   line.get("program", {})))
+                    elif kind == "outcome":
+                        entry = self._entries.get(line["motion_id"])
+                        if entry is not None:
+                            entry.outcome = line["outcome"]
+                            entry.ended_at = float(line["time"])
+                except (ValueError, KeyError, TypeError):
+                    self.skipped_lines += 1  # a torn or foreign line: keep reading
+
+    def _ends_with_newline(self) -> bool:
+        with open(self.path, "rb") as f:
+            f.seek(-1, os.SEEK_END)
+            return f.read(1) == b"\n"
+
+    def _append_raw(self, data: bytes) -> None:
+        self._file.write(data)
+        self._file.flush()
+        os.fsync(self._file.fileno())
+
+    def _remember(self, entry: MotionEntry) -> None:
+        self._entries[entry.motion_id] = entry
+        while len(self._entries) > self.keep_in_memory:
+            self._entries.popitem(last=False)
+
+    def _append(self, line: dict[str, Any]) -> None:
+        data = json.dumps(line, separators=(",", ":"), allow_nan=False).encode() + b"\n"
+        try:
+            self._append_raw(data)
+        except (OSError, ValueError) as exc:
+            raise JournalError(f"cannot write the motion journal {self.path}: {exc}") from None
+
+    def record_motion(self, motion_id: str, program: dict[str, Any], *, plan_id: str | None, label: str | None,
+                      duration_ms: int, cell: str) -> MotionEntry:
+        """Write (and fsync) an accepted motion; call before anything is sent to a drive."""
+        now = time.time()
+        entry = MotionEntry(motion_id, now, plan_id, label, duration_ms, program)
+        with self._lock:
+            self._append({"kind": "motion", "motion_id": motion_id, "time": now, "cell": cell, "plan_id": plan_id,
+                          "label": label, "duration_ms": duration_ms, "program": program})
+            self._remember(entry)
+        return entry
+
+    def record_outcome(self, motion_id: str, outcome: dict[str, Any]) -> None:
+        now = time.time()
+        with self._lock:
+            self._append({"kind": "outcome", "motion_id": motion_id, "time": now, "outcome": outcome})
+            entry = self._entries.get(motion_id)
+            if entry is not None:
+                entry.outcome = outcome
+                entry.ended_at = now
+
+    def get(self, motion_id: str) -> MotionEntry | None:
+        with self._lock:
+            return self._entries.get(motion_id)
+
+    def recent(self, n: int) -> list[MotionEntry]:
+        """The ``n`` most recent motions, newest first."""
+        with self._lock:
+            return list(reversed(self._entries.values()))[:n] if n > 0 else []
+
+    def close(self) -> None:
+        with self._lock:
+            if not self._file.closed:
+                self._file.close()

@@ -1,0 +1,551 @@
+"""plan -> validate -> execute on one cell's AxisGroup: the service's motion logic, without zenoh.
+
+One :class:`MotionService` per cell. It owns the cell's bus (and its simulated drives when the cell
+is simulated), one AxisGroup, the plans (by id, in memory) and the journal (on disk). Rules:
+
+- One motion at a time: an execute while a motion runs is refused (``busy``); nothing changes.
+- ``stop`` always preempts: it takes the motion lock only after an execute has finished starting
+  (so a stop can never slip in before the start and be lost), then halts every axis on the next SYNC.
+- A fault (drive, EMCY, heartbeat, lost SYNC) puts the cell in ``fault``: execute is refused until
+  ``recover``, so that a fault is always acknowledged by someone.
+- Every accepted motion is journaled (fsync) before its first record is sent, its outcome after.
+- Status is what the drives say: their statuswords, positions and buffer status (from their TPDOs
+  while moving, read by SDO when idle), never what the service hopes.
+
+Publications go through ``publish(topic, payload)`` (the server queues them to zenoh); it is
+called from the bus threads and must not block.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+import uuid
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from axes.bus import BusError, CellBus
+from axes.group import AxisGroup, AxisStatus, Event, GroupError, Progress, Result, RunResult
+from axes.profiles import DriveError
+from planner.program import ProgramFormatError, PvtProgram
+from planner.validate import validate_program
+from service.api import (
+    ApiError,
+    ErrorCode,
+    ExecuteRequest,
+    PlanRequest,
+    RecoverRequest,
+    StatusRequest,
+    StopRequest,
+    ValidateRequest,
+)
+from service.config import CellConfig
+from service.execute_cmd import cell_mismatch
+from service.journal import Journal, JournalError, MotionEntry, default_directory
+from service.plan_cmd import plan_cell_program
+
+Publish = Callable[[str, dict[str, Any]], None]
+log = logging.getLogger("pvtflow.motion")
+
+FAULT_RESULTS = frozenset({Result.DRIVE_FAULT, Result.EMCY, Result.HEARTBEAT_LOST, Result.LOST_SYNC,
+                           Result.CONFIGURATION_ERROR})
+FAULT_EVENTS = frozenset({"emcy", "heartbeat", "nmt", "lost_sync"})
+IDLE, MOVING, STOPPING, FAULT = "idle", "moving", "stopping", "fault"
+
+
+def _new_id(prefix: str) -> str:
+    return f"{prefix}-{uuid.uuid4().hex[:16]}"
+
+
+@dataclass
+class StoredPlan:
+    plan_id: str
+    program: PvtProgram
+    reply: dict[str, Any]
+    label: str | None
+    created: float = field(default_factory=time.time)
+
+
+@dataclass
+class Motion:
+    """The motion running (or last run) on the cell."""
+
+    motion_id: str
+    plan_id: str | None
+    label: str | None
+    program: PvtProgram
+    accepted_at: float
+    start_sync: int | None = None
+    outcome: dict[str, Any] | None = None
+    result: RunResult | None = None
+    done: threading.Event = field(default_factory=threading.Event)
+
+    def summary(self) -> dict[str, Any]:
+        return {"motion_id": self.motion_id, "plan_id": self.plan_id, "label": self.label,
+                "state": "ended" if self.done.is_set() else "running",
+                "duration_ms": int(self.program.duration_ms), "start_sync": self.start_sync,
+                "outcome": self.outcome}
+
+
+def _no_publish(topic: str, payload: dict[str, Any]) -> None:
+    del topic, payload
+
+
+class MotionService:
+    """One cell: its bus, drives, plans, journal and the one motion that may run on it."""
+
+    def __init__(
+        self,
+        cell: CellConfig,
+        *,
+        journal_dir: str | Path | None = None,
+        lockstep: bool | None = None,
+        can_log: str | Path | None = None,
+        simulate: bool | None = None,
+        telemetry_period_ms: float = 20.0,
+        max_plans: int = 64,
+        publish: Publish | None = None,
+    ) -> None:
+        self.cell = cell
+        self.axes = cell.ordered_axes()
+        self.joint_names: tuple[str, ...] = tuple(cell.joint_names)
+        self.limits = cell.joint_limits()
+        self.simulate = cell.simulated if simulate is None else simulate
+        self.lockstep = self.simulate if lockstep is None else lockstep
+        self.can_log = can_log
+        self.journal = Journal(journal_dir if journal_dir is not None else default_directory(cell.name))
+        self.publish: Publish = publish or _no_publish
+        self.max_plans = max_plans
+        self.telemetry_every = max(1, round(telemetry_period_ms / cell.bus.sync_period_ms))
+        self.bus: CellBus | None = None
+        self.sim: Any = None
+        self.group: AxisGroup | None = None
+        self.plans: OrderedDict[str, StoredPlan] = OrderedDict()
+        self.motion: Motion | None = None
+        self.state = IDLE
+        self.fault_reason: str | None = None
+        self._lock = threading.RLock()  # execute / stop / recover / SDO: one at a time
+        self._plans_lock = threading.Lock()
+        self._state_lock = threading.Lock()
+        self._state_seq = 0
+        self._last_states: tuple[str, ...] = ()
+        self._started: queue.Queue[Motion | None] = queue.Queue()
+        self._watcher: threading.Thread | None = None
+
+    # --- life cycle ------------------------------------------------------------------------------
+    def open(self) -> MotionService:
+        """Bus up (simulated drives first when the cell is simulated), drives configured, state read."""
+        self.bus = CellBus(self.cell.bus, lockstep=self.lockstep, can_log=self.can_log)
+        try:
+            if self.simulate:
+                from axes.sim.cell import SimulatedCell
+
+                self.sim = SimulatedCell(self.cell).start()
+            self.bus.open()
+            self.group = AxisGroup(self.bus, self.axes, on_progress=self._on_progress, on_event=self._on_event,
+                                   progress_every=self.telemetry_every)
+            self.group.configure()
+            self.group.refresh()
+        except (BusError, DriveError, OSError) as exc:
+            self.close()
+            raise BusError(f"cell {self.cell.name}: {exc}") from None
+        self._last_states = tuple(a.state for a in self.group.status().axes)
+        self._watcher = threading.Thread(target=self._watch_motions, name=f"pvtflow-motions-{self.cell.name}",
+                                         daemon=True)
+        self._watcher.start()
+        self._publish_state()
+        return self
+
+    def close(self) -> None:
+        """Halt a running motion, then bus, drives and journal down."""
+        group = self.group
+        if group is not None and group.running:
+            group.stop("the service is shutting down")
+            if self.motion is not None:
+                self.motion.done.wait(group.halt_timeout_ms / 1000.0 + 2.0)
+        if self._watcher is not None:
+            self._started.put(None)
+            self._watcher.join(timeout=2.0)
+            self._watcher = None
+        if group is not None:
+            group.close()
+        if self.bus is not None:
+            self.bus.close()
+        if self.sim is not None:
+            self.sim.stop()
+        self.journal.close()
+        self.group, self.bus, self.sim = None, None, None
+
+    def __enter__(self) -> MotionService:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def running(self) -> bool:
+        return self.group is not None and self.group.running
+
+    def _group(self) -> AxisGroup:
+        if self.group is None:
+            raise ApiError(ErrorCode.BUS_ERROR, f"cell {self.cell.name} is not connected to its bus")
+        return self.group
+
+    # --- positions -------------------------------------------------------------------------------
+    def positions_qc(self, refresh: bool = False) -> list[int | None]:
+        group = self._group()
+        if refresh and not group.running:
+            with self._lock:
+                if not group.running:
+                    try:
+                        group.refresh()
+                    except DriveError as exc:
+                        raise ApiError(ErrorCode.BUS_ERROR, f"cannot read the drives: {exc}") from None
+        return [link.position for link in group.links]
+
+    def to_joint(self, positions_qc: Sequence[int | None]) -> list[float | None]:
+        return [None if p is None else float(a.scaling.qc_to_position(p)) for a, p in zip(self.axes, positions_qc,
+                                                                                           strict=True)]
+
+    def current_joint_positions(self) -> NDArray[np.float64]:
+        qc = self.positions_qc(refresh=True)
+        if any(p is None for p in qc):
+            raise ApiError(ErrorCode.BUS_ERROR, "the drives' positions are unknown")
+        return np.array(self.to_joint(qc), dtype=float)
+
+    # --- plan ------------------------------------------------------------------------------------
+    def plan(self, req: PlanRequest) -> dict[str, Any]:
+        """Waypoints -> a validated program kept under a new plan id (PLAN_FAILED when impossible)."""
+        t0 = time.perf_counter()
+        waypoints = req.waypoints
+        if req.start == "current":
+            q0 = self.current_joint_positions()
+            first_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, waypoints[0], strict=True)]
+            here_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, q0, strict=True)]
+            if max(abs(x - y) for x, y in zip(first_qc, here_qc, strict=True)) <= 1.0:
+                waypoints = np.vstack([q0, waypoints[1:]])  # the first waypoint is where the axes are
+            else:
+                waypoints = np.vstack([q0, waypoints])
+            if len(waypoints) < 2:
+                raise ApiError(ErrorCode.PLAN_FAILED, "the axes are already at the target: nothing to move",
+                               {"result": "repeated_waypoint"})
+        plan_id = _new_id("p")
+        result = plan_cell_program(self.cell, waypoints, req.tolerance_qc, {"plan_id": plan_id})
+        if not result.ok or result.program is None or result.build is None:
+            raise ApiError(ErrorCode.PLAN_FAILED, f"cannot plan this motion on cell {self.cell.name} "
+                           f"({result.code}): {result.message}", {"result": result.code})
+        program = result.program
+        timing = {k: round(v * 1000.0, 3) for k, v in result.timing.items()}
+        timing["request"] = round((time.perf_counter() - t0) * 1000.0, 3)
+        reply: dict[str, Any] = {
+            "plan_id": plan_id,
+            "cell": self.cell.name,
+            "label": req.label,
+            "joint_names": list(self.joint_names),
+            "duration_s": program.duration_ms / 1000.0,
+            "waypoints": len(waypoints),
+            "start": [float(x) for x in waypoints[0]],
+            "end": [float(x) for x in waypoints[-1]],
+            "records": {a.name: len(a.records) for a in program.axes},
+            "validation": {"ok": result.build.report.ok, "warnings": len(result.build.report.warnings)},
+            "timing_ms": timing,
+        }
+        with self._plans_lock:
+            self.plans[plan_id] = StoredPlan(plan_id, program, reply, req.label)
+            while len(self.plans) > self.max_plans:
+                self.plans.popitem(last=False)
+        if req.include_program:
+            return {**reply, "program": program.to_json()}
+        return reply
+
+    def stored_plan(self, plan_id: str) -> StoredPlan:
+        with self._plans_lock:
+            stored = self.plans.get(plan_id)
+        if stored is None:
+            raise ApiError(ErrorCode.UNKNOWN_PLAN, f"no plan {plan_id!r} on cell {self.cell.name} (plans are kept "
+                           f"in memory, the last {self.max_plans})", {"plan_id": plan_id})
+        return stored
+
+    def _program_from_json(self, data: dict[str, Any]) -> PvtProgram:
+        try:
+            return PvtProgram.from_json(data)
+        except ProgramFormatError as exc:
+            raise ApiError(ErrorCode.INVALID_REQUEST, f"$.program: {exc}", {"path": "$.program"}) from None
+
+    # --- validate --------------------------------------------------------------------------------
+    def validate(self, req: ValidateRequest) -> dict[str, Any]:
+        """The validator's report on a stored plan or a given program, and whether it fits this cell."""
+        if req.plan_id is not None:
+            program = self.stored_plan(req.plan_id).program
+        else:
+            assert req.program is not None
+            program = self._program_from_json(req.program)
+        report = validate_program(program)
+        problems = cell_mismatch(program, self.cell)
+        return {"ok": report.ok and not problems, "report": report.to_json(), "cell_problems": problems}
+
+    # --- execute ---------------------------------------------------------------------------------
+    def execute(self, req: ExecuteRequest) -> dict[str, Any]:
+        """Start a stored plan or a given program; refused (nothing sent) unless everything checks out."""
+        if req.plan_id is not None:
+            stored = self.stored_plan(req.plan_id)
+            program, plan_id, label = stored.program, stored.plan_id, req.label or stored.label
+        else:
+            assert req.program is not None
+            program, plan_id, label = self._program_from_json(req.program), None, req.label
+            report = validate_program(program)
+            if not report.ok:
+                raise ApiError(ErrorCode.VALIDATION_FAILED, "the program breaks its drives' rules: nothing was sent: "
+                               + "; ".join(f.format() for f in report.errors[:3]), {"report": report.to_json()})
+            problems = cell_mismatch(program, self.cell)
+            if problems:
+                raise ApiError(ErrorCode.WRONG_CELL, f"the program was not made for cell {self.cell.name}: "
+                               + "; ".join(problems[:3]), {"problems": problems})
+        group = self._group()
+        with self._lock:
+            self._refuse_unless_ready(group)
+            self._refuse_unless_at_start(group, program)
+            motion = Motion(_new_id("m"), plan_id, label, program, time.time())
+            try:
+                self.journal.record_motion(motion.motion_id, program.to_json(), plan_id=plan_id, label=label,
+                                           duration_ms=int(program.duration_ms), cell=self.cell.name)
+            except JournalError as exc:
+                raise ApiError(ErrorCode.JOURNAL_ERROR, f"{exc}: nothing was sent") from None
+            self.motion = motion
+            try:
+                early = group.start(program)
+            except GroupError as exc:  # cannot happen under the lock; kept as a guard
+                raise ApiError(ErrorCode.BUSY, str(exc)) from None
+            except (BusError, DriveError, OSError) as exc:
+                early = RunResult(Result.CONFIGURATION_ERROR, f"the bus failed during the start: {exc}")
+            if early is not None:
+                self._finish(motion, early)
+                raise self._start_error(early, motion)
+            elapsed = group.elapsed_syncs()
+            motion.start_sync = None if elapsed is None else group.bus.sync.answered - elapsed
+            self._set_state(MOVING, motion.motion_id)
+            self._started.put(motion)
+        if req.wait:
+            motion.done.wait()
+        return motion.summary()
+
+    def _refuse_unless_ready(self, group: AxisGroup) -> None:
+        previous = self.motion
+        if previous is not None and not previous.done.is_set() and not group.running:
+            previous.done.wait(2.0)  # it has just ended: its outcome is being journaled
+        if group.running or (previous is not None and not previous.done.is_set()):
+            moving = previous.motion_id if previous else None
+            raise ApiError(ErrorCode.BUSY, f"a motion is running on cell {self.cell.name} ({moving}): one at a time; "
+                           "stop it or wait for its end", {"motion_id": moving})
+        if self.state == FAULT:
+            raise ApiError(ErrorCode.DRIVE_FAULT, f"cell {self.cell.name} is in fault ({self.fault_reason}): call "
+                           "recover first", {"reason": self.fault_reason})
+        faulted = [s for s in group.status().axes if _is_fault(s)]
+        if faulted:
+            s = faulted[0]
+            raise ApiError(ErrorCode.DRIVE_FAULT, f"axis {s.joint} (node {s.node_id}) is {s.state} (statusword "
+                           f"0x{s.statusword:04X}): call recover first", {"joint": s.joint, "node_id": s.node_id})
+
+    def _refuse_unless_at_start(self, group: AxisGroup, program: PvtProgram) -> None:
+        """START_MISMATCH before anything is journaled or sent, from the positions the drives last reported
+        (the group checks again by SDO at the start: this only keeps a plainly wrong request out of the journal)."""
+        starts = {a.node_id: int(a.records[0, 0]) for a in program.axes}
+        tolerance = group.start_tolerance_qc
+        for link in group.links:
+            start = starts.get(link.node_id)
+            if start is not None and link.position is not None and abs(link.position - start) > tolerance:
+                raise ApiError(ErrorCode.START_MISMATCH, f"axis {link.joint} is at {link.position} qc, the program "
+                               f"starts at {start} qc: plan again from the current position",
+                               {"joint": link.joint, "position_qc": link.position, "start_qc": start})
+
+    def _start_error(self, early: RunResult, motion: Motion) -> ApiError:
+        details = {"motion_id": motion.motion_id, "outcome": early.to_json()}
+        if early.result is Result.REJECTED and early.joint is not None:
+            return ApiError(ErrorCode.START_MISMATCH, f"{early.message}: plan again from the current position",
+                            details)
+        if early.result is Result.REJECTED:
+            return ApiError(ErrorCode.WRONG_CELL, early.message, details)
+        return ApiError(ErrorCode.DRIVE_FAULT, f"the drives did not start: {early.message}", details)
+
+    def _watch_motions(self) -> None:
+        """One long-lived thread waits for each motion's end (a thread start per execute costs ms)."""
+        while True:
+            motion = self._started.get()
+            if motion is None or self.group is None:
+                return
+            try:
+                self._finish(motion, self.group.wait())
+            except Exception:  # never leave a motion without an end: the cell would stay "moving"
+                log.exception("while ending motion %s", motion.motion_id)
+                self._set_state(IDLE if not self.running else self.state, motion.motion_id)
+                motion.done.set()
+
+    def _finish(self, motion: Motion, result: RunResult) -> None:
+        """Journal the outcome, then state and events (the journal first: it is the record)."""
+        outcome = result.to_json()
+        motion.result = result
+        motion.outcome = outcome
+        try:
+            self.journal.record_outcome(motion.motion_id, outcome)
+        except JournalError as exc:
+            self.publish("events", self.event_payload("journal_error", str(exc), motion_id=motion.motion_id))
+        if result.result in FAULT_RESULTS:
+            self.fault_reason = result.message
+            self._set_state(FAULT, motion.motion_id)
+        else:
+            self._set_state(IDLE, motion.motion_id)
+        self.publish("events", self.event_payload("motion_ended", f"{result.result.value}: {result.message}",
+                                                   motion_id=motion.motion_id, outcome=outcome,
+                                                   joint=result.joint, node_id=result.node_id))
+        motion.done.set()
+
+    # --- stop ------------------------------------------------------------------------------------
+    def stop(self, req: StopRequest) -> dict[str, Any]:
+        """Halt every axis now (on the next SYNC) and wait until they stand still."""
+        group = self._group()
+        with self._lock:  # an execute still starting has finished its start: its motion is stopped
+            motion = self.motion
+            was_moving = group.running
+            if was_moving:
+                self._set_state(STOPPING, motion.motion_id if motion else None)
+                group.stop(req.reason)
+        if was_moving and motion is not None:
+            motion.done.wait(group.halt_timeout_ms / 1000.0 + 5.0)
+        return {"was_moving": was_moving, "motion_id": motion.motion_id if (motion and was_moving) else None,
+                "outcome": motion.outcome if (motion and was_moving) else None,
+                "axes": [self._axis_json(s) for s in group.status().axes]}
+
+    # --- recover ---------------------------------------------------------------------------------
+    def recover(self, req: RecoverRequest) -> dict[str, Any]:
+        """Fault reset and re-enable every axis; the cell is idle again when every drive is."""
+        del req
+        group = self._group()
+        with self._lock:
+            if group.running:
+                raise ApiError(ErrorCode.BUSY, "cannot recover while a motion runs: stop it first",
+                               {"motion_id": self.motion.motion_id if self.motion else None})
+            try:
+                res = group.recover()
+                group.refresh()
+            except (GroupError, DriveError, BusError) as exc:
+                raise ApiError(ErrorCode.DRIVE_FAULT, f"recover failed: {exc}") from None
+            if not res.ok:
+                raise ApiError(ErrorCode.DRIVE_FAULT, f"recover failed: {res.message}",
+                               {"joint": res.joint, "node_id": res.node_id})
+            self.fault_reason = None
+            with self._state_lock:
+                self.state = IDLE
+            self._publish_state(None)  # the drives' power states changed even when the cell was idle
+            return {"ok": True, "message": res.message, "axes": [self._axis_json(s) for s in group.status().axes]}
+
+    # --- status ----------------------------------------------------------------------------------
+    def status(self, req: StatusRequest) -> dict[str, Any]:
+        """What the drives say now, the motion, and the recent motions of the journal."""
+        group = self._group()
+        if not group.running:
+            self.positions_qc(refresh=True)
+        st = group.status()
+        motion = self.motion
+        running_id = motion.motion_id if (motion and not motion.done.is_set()) else None
+        recent = [e.summary(running=e.motion_id == running_id) for e in self.journal.recent(req.recent)]
+        last = motion.outcome if motion is not None else None
+        with self._plans_lock:
+            n_plans = len(self.plans)
+        return {
+            "cell": self.cell.name,
+            "state": self.state,
+            "fault_reason": self.fault_reason,
+            "motion": motion.summary() if motion is not None else None,
+            "sync_count": st.sync_count,
+            "elapsed_ms": st.elapsed_ms,
+            "joint_names": list(self.joint_names),
+            "axes": [self._axis_json(s) for s in st.axes],
+            "recent": recent,
+            "plans": n_plans,
+            "last_result": last,
+        }
+
+    def journal_entry(self, motion_id: str) -> MotionEntry | None:
+        return self.journal.get(motion_id)
+
+    def _axis_json(self, s: AxisStatus) -> dict[str, Any]:
+        axis = self.cell.axis_for_joint(s.joint)
+        return {
+            "joint": s.joint, "node_id": s.node_id, "profile": s.profile, "state": s.state,
+            "statusword": s.statusword, "statusword_hex": f"0x{s.statusword:04X}",
+            "position_qc": s.position,
+            "position": None if s.position is None else float(axis.scaling.qc_to_position(s.position)),
+            "buffer_status": s.buffer_status, "buffer_flags": list(s.buffer_flags), "buffer_level": s.buffer_level,
+            "last_emcy": None if s.last_emcy is None else {
+                "code": s.last_emcy[0], "code_hex": f"0x{s.last_emcy[0]:04X}", "message": s.last_emcy[1]},
+            "nmt_state": s.nmt_state, "fault": _is_fault(s),
+        }
+
+    # --- publications ----------------------------------------------------------------------------
+    def _set_state(self, state: str, motion_id: str | None) -> None:
+        with self._state_lock:
+            changed = state != self.state
+            self.state = state
+        if changed:
+            self._publish_state(motion_id)
+
+    def _publish_state(self, motion_id: str | None = None) -> None:
+        group = self.group
+        if group is not None and not group.running:  # idle: the drives' last word (no bus traffic)
+            self._last_states = tuple(a.state for a in group.status().axes)
+        axes = [] if group is None else [{"joint": lk.joint, "state": s, "statusword": lk.statusword}
+                                         for lk, s in zip(group.links, self._last_states, strict=False)]
+        with self._state_lock:
+            self._state_seq += 1
+            seq = self._state_seq
+        self.publish("state", {"cell": self.cell.name, "state": self.state, "motion_id": motion_id,
+                               "fault_reason": self.fault_reason, "axes": axes, "seq": seq, "time": time.time()})
+
+    def event_payload(self, kind: str, message: str, **extra: Any) -> dict[str, Any]:
+        return {"cell": self.cell.name, "kind": kind, "message": message, "time": time.time(), "joint": None,
+                "node_id": None, "motion_id": None, **extra}
+
+    def _on_event(self, event: Event) -> None:
+        motion = self.motion
+        motion_id = motion.motion_id if motion is not None and not motion.done.is_set() else None
+        self.publish("events", self.event_payload(event.kind, event.message, joint=event.joint,
+                                                   node_id=event.node_id, motion_id=motion_id))
+        if event.kind in FAULT_EVENTS and not self.running:
+            self.fault_reason = event.message  # a drive faulted while idle: recover before the next motion
+            self._set_state(FAULT, None)
+
+    def _on_progress(self, p: Progress) -> None:
+        """Every ``telemetry_every`` SYNCs during a motion (SYNC thread: hand over, never block)."""
+        motion = self.motion
+        duration = motion.program.duration_ms if motion is not None else 0
+        self.publish("telemetry", {
+            "cell": self.cell.name, "motion_id": motion.motion_id if motion else None, "sync": p.sync,
+            "elapsed_ms": p.elapsed_ms, "progress": min(1.0, p.elapsed_ms / duration) if duration else None,
+            "positions_qc": list(p.positions), "positions": self.to_joint(p.positions),
+            "buffer_levels": list(p.levels), "states": list(p.states), "time": time.time(),
+        })
+        if p.states != self._last_states:
+            self._last_states = p.states
+            self._publish_state(motion.motion_id if motion else None)
+
+    def telemetry_snapshot(self) -> dict[str, Any]:
+        """Idle telemetry: the last positions the drives reported (no bus traffic)."""
+        group = self._group()
+        st = group.status()
+        positions = [s.position for s in st.axes]
+        return {"cell": self.cell.name, "motion_id": None, "sync": st.sync_count, "elapsed_ms": None,
+                "progress": None, "positions_qc": positions, "positions": self.to_joint(positions),
+                "buffer_levels": [s.buffer_level for s in st.axes], "states": [s.state for s in st.axes],
+                "time": time.time()}
+
+
+def _is_fault(s: AxisStatus) -> bool:
+    return "FAULT" in s.state.upper()

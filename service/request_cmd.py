@@ -1,0 +1,246 @@
+"""``pvtflow request plan|validate|execute|stop|status|recover ...``: talk to a running service over zenoh.
+
+Also :class:`Client`, the small Python client the demo, the benchmarks and the tests use: one
+zenoh session, ``request(cell, op, payload)`` -> :class:`Reply` (``ok``, ``data``, ``cell``), and
+``follow(cell, on_sample)`` for the publications. Exit codes of the command: 0 the service
+answered with a result, 1 it answered with an error (code and message on stderr), 2 no answer
+(nobody serves the cell, unreachable endpoint) or unusable input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from service.api import QUERYABLES, key
+from service.server import (
+    DEFAULT_ENDPOINT,
+    ZenohConfigError,
+    client_config,
+    config_endpoints,
+    load_zenoh_config,
+    zenoh_message,
+)
+from service.waypoints import WaypointError, load_waypoints
+
+EXIT_OK, EXIT_ERROR_REPLY, EXIT_NO_ANSWER = 0, 1, 2
+PROG = "pvtflow request"
+
+
+@dataclass(frozen=True)
+class Reply:
+    ok: bool
+    data: Any  # the reply JSON, or {"error": {...}} for an error reply
+    cell: str | None  # from the reply's key expression pvtflow/<cell>/<op>
+
+    @property
+    def error_code(self) -> str | None:
+        if self.ok or not isinstance(self.data, dict):
+            return None
+        return str(self.data.get("error", {}).get("code"))
+
+
+class Client:
+    """A zenoh session that talks to pvtflow services (default: a client of tcp/127.0.0.1:7447).
+
+    zenoh.open fails (ZError) when a client cannot reach any of its endpoints or is refused.
+    """
+
+    def __init__(self, config: zenoh.Config | None = None, *, connect: str | None = None) -> None:
+        if config is None:
+            config = client_config([connect or DEFAULT_ENDPOINT])
+        self.session = zenoh.open(config)
+
+    def close(self) -> None:
+        self.session.close()
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def replies(self, cell: str, op: str, payload: Any = None, timeout: float = 10.0) -> list[Reply]:
+        """Every reply to one request (several with ``cell="*"``). ``payload``: JSON value or raw bytes."""
+        if payload is None:
+            body: bytes | None = None
+        elif isinstance(payload, bytes | bytearray):
+            body = bytes(payload)
+        else:
+            body = json.dumps(payload).encode()
+        out: list[Reply] = []
+        for r in self.session.get(key(cell, op), payload=body, timeout=timeout, target=zenoh.QueryTarget.ALL,
+                                  consolidation=zenoh.ConsolidationMode.NONE):
+            if r.ok is not None:
+                sample = r.ok
+                out.append(Reply(True, _json(sample.payload.to_bytes()), _cell_of(str(sample.key_expr))))
+            else:
+                assert r.err is not None
+                out.append(Reply(False, _json(r.err.payload.to_bytes()), None))
+        return out
+
+    def request(self, cell: str, op: str, payload: Any = None, timeout: float = 10.0) -> Reply:
+        """The one reply of one cell; a Reply(False, {"error": {"code": "no_reply", ...}}) when none came."""
+        got = self.replies(cell, op, payload, timeout)
+        if not got:
+            return Reply(False, {"error": {"code": "no_reply", "message": f"no reply from {key(cell, op)} within "
+                                           f"{timeout:g} s: is the service running and reachable?", "details": {}}},
+                         None)
+        return got[0]
+
+    def follow(self, cell: str, topic: str, callback: Callable[[str, dict[str, Any]], None]) -> Any:
+        """Subscribe to ``pvtflow/<cell>/<topic>``; callback(cell, payload). Keep the result alive."""
+        def on_sample(sample: zenoh.Sample) -> None:
+            callback(_cell_of(str(sample.key_expr)) or cell, _json(sample.payload.to_bytes()))
+
+        return self.session.declare_subscriber(key(cell, topic), on_sample)
+
+    def alive(self, cell: str = "*", timeout: float = 2.0) -> list[str]:
+        """The cells whose liveliness token is up."""
+        cells = []
+        for r in self.session.liveliness().get(key(cell, "alive"), timeout=timeout):
+            if r.ok is not None:
+                name = _cell_of(str(r.ok.key_expr))
+                if name:
+                    cells.append(name)
+        return sorted(cells)
+
+
+def _json(data: bytes) -> Any:
+    try:
+        return json.loads(data)
+    except (ValueError, UnicodeDecodeError):
+        return {"error": {"code": "malformed_reply", "message": repr(data[:200]), "details": {}}}
+
+
+def _cell_of(key_expr: str) -> str | None:
+    parts = key_expr.split("/")
+    return parts[1] if len(parts) >= 3 and parts[0] == "pvtflow" else None
+
+
+# --- the command -----------------------------------------------------------------------------------
+def add_parser(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "request",
+        help="send a request to a pvtflow service over zenoh (plan, validate, execute, stop, status, recover)",
+        description="Talk to `pvtflow serve` over zenoh. Exit 0 answered, 1 error reply, 2 no answer or bad input.",
+    )
+    p.add_argument("op", choices=QUERYABLES, help="the request")
+    p.add_argument("plan_id", nargs="?", help="validate / execute: the plan id from a plan reply")
+    p.add_argument("--cell", default="arm6", help="the cell (default arm6; '*' asks every cell: status)")
+    p.add_argument("--connect", metavar="ENDPOINT", help=f"the service's endpoint (default {DEFAULT_ENDPOINT})")
+    p.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 client configuration, used as is")
+    p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the reply (default 30)")
+    p.add_argument("--waypoints", metavar="FILE", help="plan: waypoint file (pvtflow JSON or ROS JointTrajectory)")
+    p.add_argument("--target", metavar="Q1,Q2,...", help="plan: one goal in joint units, comma separated")
+    p.add_argument("--start", choices=("current", "first"), help="plan: start at the axes (default) or the first "
+                   "waypoint")
+    p.add_argument("--program", metavar="FILE", help="validate / execute: a PVT program file instead of a plan id")
+    p.add_argument("--wait", action="store_true", help="execute: reply at the end of the motion, with its outcome")
+    p.add_argument("--reason", help="stop: why (journaled with the outcome)")
+    p.add_argument("--recent", type=int, help="status: how many recent motions to list")
+    p.add_argument("--json", dest="raw", metavar="PAYLOAD", help="send this JSON payload as is (overrides the rest)")
+    p.set_defaults(run=run)
+
+
+class _InputError(ValueError):
+    pass
+
+
+def _payload(args: argparse.Namespace, client: Client) -> Any:
+    if args.raw is not None:
+        return args.raw.encode()
+    op = args.op
+    out: dict[str, Any] = {}
+    if op == "plan":
+        if args.target:
+            try:
+                out["target"] = [float(x) for x in args.target.split(",")]
+            except ValueError:
+                raise _InputError(f"--target: not a comma-separated list of numbers: {args.target!r}") from None
+        elif args.waypoints:
+            status = client.request(args.cell, "status", {"recent": 0}, args.timeout)
+            if not status.ok:
+                raise _InputError(f"cannot learn the joints of cell {args.cell}: {status.data['error']['message']}")
+            names = status.data["joint_names"]
+            try:
+                out["waypoints"] = load_waypoints(args.waypoints, names).tolist()
+            except WaypointError as exc:
+                raise _InputError(str(exc)) from None
+        else:
+            raise _InputError("plan needs --waypoints FILE or --target Q1,Q2,...")
+        if args.start:
+            out["start"] = args.start
+    elif op in ("validate", "execute"):
+        if args.program:
+            try:
+                out["program"] = json.loads(Path(args.program).read_text(encoding="utf-8"))
+            except (OSError, ValueError) as exc:
+                raise _InputError(f"{args.program}: {exc}") from None
+        elif args.plan_id:
+            out["plan_id"] = args.plan_id
+        else:
+            raise _InputError(f"{op} needs a PLAN_ID or --program FILE")
+        if op == "execute" and args.wait:
+            out["wait"] = True
+    elif op == "stop" and args.reason:
+        out["reason"] = args.reason
+    elif op == "status" and args.recent is not None:
+        out["recent"] = args.recent
+    return out
+
+
+def _client_config(args: argparse.Namespace) -> zenoh.Config:
+    if args.zenoh_config:
+        return load_zenoh_config(args.zenoh_config)
+    return client_config([args.connect or DEFAULT_ENDPOINT])
+
+
+def _print_replies(replies: Iterator[Reply] | list[Reply], many: bool) -> int:
+    code = EXIT_OK
+    for r in replies:
+        if r.ok:
+            text = json.dumps({r.cell: r.data} if many else r.data, indent=2)
+            print(text)
+        else:
+            err = r.data.get("error", {}) if isinstance(r.data, dict) else {}
+            print(f"{PROG}: {err.get('code')}: {err.get('message')}", file=sys.stderr)
+            if err.get("details"):
+                print(json.dumps(err["details"], indent=2)[:4000], file=sys.stderr)
+            code = EXIT_ERROR_REPLY
+    return code
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        config = _client_config(args)
+    except ZenohConfigError as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return EXIT_NO_ANSWER
+    try:
+        client = Client(config)
+    except Exception as exc:  # zenoh cannot open the session: nobody at the endpoint, refused, bad syntax
+        print(f"{PROG}: cannot reach the service ({', '.join(config_endpoints(config, 'connect')) or 'no endpoint'}): "
+              f"{zenoh_message(exc)}", file=sys.stderr)
+        return EXIT_NO_ANSWER
+    try:
+        payload = _payload(args, client)
+        replies = client.replies(args.cell, args.op, payload, args.timeout)
+        if not replies:
+            print(f"{PROG}: no reply from {key(args.cell, args.op)} within {args.timeout:g} s: is `pvtflow serve` "
+                  "running, and reachable at the endpoint given?", file=sys.stderr)
+            return EXIT_NO_ANSWER
+        return _print_replies(replies, "*" in args.cell)
+    except _InputError as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return EXIT_NO_ANSWER
+    finally:
+        client.close()
+

@@ -1,0 +1,145 @@
+"""``pvtflow serve [--config FILE] [--zenoh-config FILE] [--can-log FILE]``: the cell service (the main job).
+
+Brings the cell's bus up (with simulated drives when the cell is simulated: the default arm6 demo
+cell), configures the drives, opens the zenoh session and serves the cell until Ctrl-C / SIGTERM,
+then halts any motion and closes. It prints where it listens and how to talk to it. Exit codes:
+0 stopped by a signal, 2 cannot start (configuration, bus, journal, zenoh endpoint).
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+from axes.bus import BusError
+from service.api import LIVELINESS, PUBLICATIONS, QUERYABLES, StopRequest, key
+from service.config import ConfigError, load_cell_config
+from service.journal import JournalError
+from service.motion import MotionService
+from service.server import Server, ZenohConfigError, config_endpoints, load_zenoh_config, zenoh_message
+
+EXIT_OK, EXIT_CANNOT_START = 0, 2
+PROG = "pvtflow serve"
+
+
+def add_parser(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "serve",
+        help="serve a cell over zenoh: plan, validate, execute, stop, status, recover (the main job)",
+        description="Run the motion service of one cell. The default configuration is the arm6 demo cell on "
+        "simulated drives, listening on tcp/127.0.0.1:7447 without scouting.",
+    )
+    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
+    p.add_argument("--zenoh-config", metavar="FILE", help="zenoh JSON5 configuration, used as is "
+                   "(default: configs/zenoh/service.json5: peer on tcp/127.0.0.1:7447, no scouting)")
+    p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
+    p.add_argument("--journal", metavar="DIR", help="motion journal directory (default "
+                   "$XDG_STATE_HOME/pvtflow/<cell>, i.e. ~/.local/state/pvtflow/<cell>)")
+    p.add_argument("--real-time", action="store_true", help="simulated cell: SYNC on the wall clock instead of in "
+                   "lockstep with the simulated drives (the default for them: as fast as they answer, so that a busy "
+                   "machine slows the simulation down instead of faulting it); a real cell always runs in real time")
+    p.add_argument("--telemetry-ms", type=float, default=20.0, metavar="MS",
+                   help="telemetry period during a motion (default 20 ms)")
+    p.set_defaults(run=run)
+
+
+def _fail(message: str) -> int:
+    print(f"{PROG}: {message}", file=sys.stderr)
+    return EXIT_CANNOT_START
+
+
+def banner(service: MotionService, server: Server) -> str:
+    cell = service.cell
+    name = cell.name
+    listen = server.listen_endpoints
+    connect = config_endpoints(server.config, "connect")
+    drives = "simulated " if service.simulate else ""
+    profiles = sorted({a.profile for a in cell.axes})
+    sync = "in lockstep with the simulated drives" if service.lockstep else "real time"
+    lines = [
+        f"{PROG}: cell {name}: {len(cell.axes)} axes ({', '.join(service.joint_names)}), {drives}drives "
+        f"{'/'.join(profiles)} on {cell.bus.interface}:{cell.bus.channel}, SYNC {cell.bus.sync_period_ms:g} ms "
+        f"{sync}",
+    ]
+    if listen:
+        lines.append(f"  zenoh: listening on {', '.join(listen)}" + (f", connected to {', '.join(connect)}"
+                                                                      if connect else ""))
+    else:
+        lines.append(f"  zenoh: not listening; connecting to {', '.join(connect) or '(nothing: check the config)'}")
+    lines += [
+        f"  queryables:   {key(name, '{' + ','.join(QUERYABLES) + '}')}",
+        f"  publications: {key(name, '{' + ','.join(PUBLICATIONS) + '}')}   liveliness: {key(name, LIVELINESS)}",
+        f"  journal:      {service.journal.path}",
+    ]
+    endpoint = listen[0] if listen else (connect[0] if connect else "tcp/127.0.0.1:7447")
+    endpoint = endpoint.replace("0.0.0.0", "127.0.0.1")
+    target = ",".join("0.3" if i % 2 == 0 else "-0.2" for i in range(len(cell.axes)))
+    lines += [
+        "  talk to it:",
+        f"    pvtflow request status --cell {name} --connect {endpoint}",
+        f"    pvtflow request plan --cell {name} --connect {endpoint} --target {target}",
+        f"    pvtflow request execute PLAN_ID --cell {name} --connect {endpoint}",
+        f"    pvtflow request stop --cell {name} --connect {endpoint}",
+        "  Ctrl-C stops the service (a running motion is halted first).",
+    ]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        cell = load_cell_config(args.config)
+    except ConfigError as exc:
+        return _fail(str(exc))
+    try:
+        zconfig = load_zenoh_config(args.zenoh_config)
+    except ZenohConfigError as exc:
+        return _fail(str(exc))
+    if not args.telemetry_ms > 0:
+        return _fail(f"--telemetry-ms must be positive, got {args.telemetry_ms}")
+    if args.can_log:
+        parent = Path(args.can_log).parent
+        if not parent.is_dir():
+            return _fail(f"cannot write the CAN log {args.can_log}: {parent} is not a directory")
+
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: object) -> None:
+        del signum, frame
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        try:
+            service = MotionService(cell, journal_dir=args.journal, lockstep=cell.simulated and not args.real_time,
+                                    can_log=args.can_log, telemetry_period_ms=args.telemetry_ms)
+        except JournalError as exc:
+            return _fail(str(exc))
+        except (ValueError, OSError) as exc:
+            return _fail(f"cannot start cell {cell.name}: {exc}")
+        try:
+            service.open()
+        except BusError as exc:
+            return _fail(str(exc))
+        try:
+            server = Server(service, zconfig).start()
+        except Exception as exc:  # zenoh: endpoint in use, bad locator, ...
+            service.close()
+            return _fail(f"cannot open the zenoh session: {zenoh_message(exc)}")
+        print(banner(service, server), flush=True)
+        try:
+            while not stop.wait(0.5):
+                pass
+        finally:
+            print(f"{PROG}: stopping", flush=True)
+            if service.running:  # halt first: a client waiting for the motion's end gets its reply
+                service.stop(StopRequest("the service is shutting down"))
+            server.close()
+            service.close()
+        return EXIT_OK
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)

@@ -1,0 +1,57 @@
+"""The motion journal: append-only JSON lines, fsync'ed, read back after a restart or a crash."""
+
+from __future__ import annotations
+
+import json
+
+from service.journal import JOURNAL_FILE, Journal
+
+PROGRAM = {"format": "pvtflow.pvt-program", "version": 1, "cell": "c", "axes": []}
+
+
+def test_motions_and_outcomes_survive_a_restart_newest_first(tmp_path):
+    j = Journal(tmp_path)
+    j.record_motion("m-1", PROGRAM, plan_id="p-1", label="one", duration_ms=10, cell="c")
+    j.record_outcome("m-1", {"result": "finished", "message": "ok"})
+    j.record_motion("m-2", PROGRAM, plan_id=None, label=None, duration_ms=20, cell="c")
+    j.close()
+    again = Journal(tmp_path)
+    recent = again.recent(10)
+    assert [e.motion_id for e in recent] == ["m-2", "m-1"]
+    assert recent[1].outcome == {"result": "finished", "message": "ok"}
+    # a motion without an outcome line: the service stopped (or crashed) while it ran
+    assert recent[0].summary()["state"] == "interrupted"
+    assert recent[1].summary()["state"] == "ended"
+    assert again.recent(1)[0].motion_id == "m-2" and again.recent(0) == []
+
+
+def test_the_file_is_only_ever_appended_and_a_torn_last_line_is_skipped(tmp_path):
+    j = Journal(tmp_path)
+    j.record_motion("m-1", PROGRAM, plan_id=None, label=None, duration_ms=1, cell="c")
+    j.close()
+    path = tmp_path / JOURNAL_FILE
+    before = path.read_bytes()
+    with open(path, "ab") as f:
+        f.write(b'{"kind": "outcome", "motion_id": "m-1", "ti')  # power lost mid-write
+    j = Journal(tmp_path)
+    assert j.skipped_lines == 1
+    assert j.recent(5)[0].outcome is None
+    j.record_outcome("m-1", {"result": "stopped", "message": "late"})
+    j.close()
+    data = path.read_bytes()
+    assert data.startswith(before)
+    lines = data.splitlines()
+    assert json.loads(lines[0])["program"] == PROGRAM
+    assert json.loads(lines[-1])["outcome"]["message"] == "late"  # whole, on its own line
+    assert Journal(tmp_path).recent(1)[0].outcome == {"result": "stopped", "message": "late"}
+
+
+def test_an_unwritable_journal_is_a_clear_error(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    try:
+        Journal(blocker / "journal")
+    except OSError as exc:
+        assert "journal" in str(exc)
+    else:
+        raise AssertionError("a journal under a file must not open")
