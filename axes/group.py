@@ -13,9 +13,11 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import TypeVar
 
 from axes import objects as od
 from axes.bus import BusFault, CellBus
@@ -25,6 +27,9 @@ from axes.objects import BUFFER_ERRORS, BufferStatus
 from axes.profiles import AxisLink, DriveError, Profile, profile_for
 from planner.program import AxisProgram, PvtProgram
 from service.config import AxisConfig
+
+_T = TypeVar("_T")
+_R = TypeVar("_R")
 
 _IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
 _TARGET_REACHED = int(Statusword.TARGET_REACHED)
@@ -229,6 +234,7 @@ class AxisGroup:
         self._halted_at: float | None = None
         self._starting = False
         self._stop_request: str | None = None
+        self._pool = ThreadPoolExecutor(max_workers=max(1, len(self.links)), thread_name_prefix="axis-sdo")
         for link in self.links:
             link.status_listeners.append(self._on_status)
         bus.on_fault(self._on_bus_fault)
@@ -298,20 +304,13 @@ class AxisGroup:
                 self._programs = [by_node[link.node_id] for link in self.links]
                 self._stop_request = None
                 self._starting = True
-                for link, prog in zip(self.links, self._programs, strict=True):
-                    if decode_state(link.read_statusword()).is_fault:
-                        return self._finish_early(
-                            Result.REJECTED, f"axis {link.joint} (node {link.node_id}) is in FAULT "
-                            f"(statusword 0x{link.statusword:04X}): recover first", link)
-                    pos = link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
-                    link.position = pos
-                    start = int(prog.records[0, 0])
-                    if abs(pos - start) > self.start_tolerance_qc:
-                        return self._finish_early(
-                            Result.REJECTED,
-                            f"axis {link.joint} is at {pos} qc, the program starts at {start} qc", link)
-                for profile in self.profiles:
-                    profile.enable()
+                # every drive is asked at once (one SDO round trip per question, not per axis):
+                # first all checks, and only when every axis passes, all enables
+                refusals = list(self._per_axis(self._start_check, zip(self.links, self._programs, strict=True)))
+                refusal = next((r for r in refusals if r is not None), None)
+                if refusal is not None:
+                    return self._finish_early(Result.REJECTED, refusal[1], refusal[0])
+                list(self._per_axis(lambda profile: profile.enable(), self.profiles))
             except DriveError as exc:
                 link = next((lk for lk in self.links if lk.node_id == exc.node_id), None)
                 return self._finish_early(Result.CONFIGURATION_ERROR, str(exc), link)
@@ -339,6 +338,27 @@ class AxisGroup:
             self.bus.arm_sync_watch()
             self._event("started", f"program of {program.duration_ms} ms started on SYNC {self._start_sync}")
             sync.start()
+        return None
+
+    def _per_axis(self, work: Callable[[_T], _R], items: Iterable[_T]) -> Iterator[_R]:
+        """``work`` on every axis concurrently (the drives answer SDO in parallel); results in axis
+        order; the first DriveError in axis order is raised."""
+        futures = [self._pool.submit(work, item) for item in items]
+        return (f.result() for f in futures)
+
+    def _start_check(self, link_and_program: tuple[AxisLink, AxisProgram]) -> tuple[AxisLink, str] | None:
+        """Why this axis cannot start the program now (None: it can)."""
+        link, prog = link_and_program
+        if decode_state(link.read_statusword()).is_fault:
+            return link, (
+                f"axis {link.joint} (node {link.node_id}) is in FAULT "
+                f"(statusword 0x{link.statusword:04X}): recover first"
+            )
+        pos = link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
+        link.position = pos
+        start = int(prog.records[0, 0])
+        if abs(pos - start) > self.start_tolerance_qc:
+            return link, f"axis {link.joint} is at {pos} qc, the program starts at {start} qc"
         return None
 
     def wait(self, timeout_s: float | None = None) -> RunResult:
@@ -609,6 +629,7 @@ class AxisGroup:
             link.position = link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
 
     def close(self) -> None:
+        self._pool.shutdown(wait=True)
         for link in self.links:
             link.unsubscribe()
             if self._on_status in link.status_listeners:
