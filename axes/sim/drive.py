@@ -144,6 +144,7 @@ class SimulatedDrive:
     EDS: ClassVar[str] = ""
     EMCY_POSITION_LIMIT: ClassVar[int] = obj.EMCY_SOFTWARE_POSITION_LIMIT
     EMCY_VELOCITY: ClassVar[int] = obj.EMCY_VELOCITY_LIMIT
+    _ip_requested: bool = False  # bit 4 rose: ip mode starts on the next SYNC (profiles reset it)
 
     def __init__(
         self,
@@ -632,8 +633,19 @@ class SimulatedDrive:
     def _on_mode_change(self, old: int, new: int) -> None:
         """0x6060 changed."""
 
+    def _ip_mode_selected(self) -> bool:
+        """Interpolated position mode is what 0x6061 shows (the Parker selects it through Pr31)."""
+        return self.read(obj.MODES_OF_OPERATION_DISPLAY) == obj.INTERPOLATED_POSITION_MODE
+
     def _on_mode_bits(self, previous: int, controlword: int) -> None:
-        """The controlword's mode-specific bits while operation is enabled."""
+        """Controlword bit 4 while operation is enabled: a rising edge asks for ip mode on the next
+        SYNC, a falling one brings a running interpolation to a stop; halt (bit 8) holds both."""
+        if not self._ip_mode_selected() or controlword & CW_HALT:
+            return
+        if controlword & CW_ENABLE_IP and not previous & CW_ENABLE_IP:
+            self._ip_requested = True
+        elif previous & CW_ENABLE_IP and not controlword & CW_ENABLE_IP and (self.ip_active or self._ip_requested):
+            self._begin_stop(self._deceleration(quick=False))
 
     def _enter_operation(self) -> None:
         """Operation enabled was entered: hold the present position."""

@@ -37,8 +37,6 @@ from axes.objects import BUFFER_ERRORS, BufferStatus, Record
 from axes.sim.drive import (
     ABORT_DEVICE_STATE,
     ABORT_VALUE_RANGE,
-    CW_ENABLE_IP,
-    CW_HALT,
     OPERATION_ENABLED,
     Segment,
     SimulatedDrive,
@@ -128,17 +126,6 @@ class Epos2Drive(SimulatedDrive):
             self.fifo.clear()  # transition I
         elif self.ip_active or self._ip_requested:
             self._abort_motion()  # transition II
-
-    def _on_mode_bits(self, previous: int, controlword: int) -> None:
-        mode = self.read(obj.MODES_OF_OPERATION_DISPLAY)
-        if mode != obj.INTERPOLATED_POSITION_MODE or controlword & CW_HALT:
-            return
-        if controlword & CW_ENABLE_IP and not previous & CW_ENABLE_IP:
-            self._ip_requested = True
-        elif previous & CW_ENABLE_IP and not controlword & CW_ENABLE_IP and (
-            self.ip_active or self._ip_requested
-        ):
-            self._begin_stop(self._deceleration(quick=False))
 
     # --- faults -----------------------------------------------------------------------------------
     def _ipm_error(self, bit: BufferStatus, check: str) -> None:

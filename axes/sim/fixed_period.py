@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections import deque
 
 from axes import objects as obj
-from axes.sim.drive import CW_ENABLE_IP, CW_HALT, OPERATION_ENABLED, Segment, SimulatedDrive
+from axes.sim.drive import OPERATION_ENABLED, Segment, SimulatedDrive
 
 
 class FixedPeriodDrive(SimulatedDrive):
@@ -31,19 +31,6 @@ class FixedPeriodDrive(SimulatedDrive):
         self.first_setpoint_sync: int | None = None  # SYNC that validated the first setpoint of a run
 
     # --- activation -------------------------------------------------------------------------------
-    def _ip_mode_selected(self) -> bool:
-        return self.read(obj.MODES_OF_OPERATION_DISPLAY) == obj.INTERPOLATED_POSITION_MODE
-
-    def _on_mode_bits(self, previous: int, controlword: int) -> None:
-        if not self._ip_mode_selected() or controlword & CW_HALT:
-            return
-        if controlword & CW_ENABLE_IP and not previous & CW_ENABLE_IP:
-            self._ip_requested = True
-        elif previous & CW_ENABLE_IP and not controlword & CW_ENABLE_IP and (
-            self.ip_active or self._ip_requested
-        ):
-            self._begin_stop(self._deceleration(quick=False))
-
     def _on_mode_change(self, old: int, new: int) -> None:
         if new != obj.INTERPOLATED_POSITION_MODE and (self.ip_active or self._ip_requested):
             self._abort_motion()
