@@ -19,7 +19,9 @@ import numpy as np
 import toppra.algorithm as algo
 import toppra.constraint as constraint
 from numpy.typing import ArrayLike, NDArray
+from toppra.algorithm.algorithm import ParameterizationAlgorithm
 from toppra.constants import MAX_TRIES, SMALL, TINY
+from toppra.solverwrapper.cy_seidel_solverwrapper import seidelWrapper
 
 from planner.limits import JointLimits
 from planner.model import RobotModel
@@ -287,7 +289,10 @@ class LeanTOPPRA(algo.TOPPRA):
     def __init__(
         self, constraint_list: list[constraint.Constraint], path: JointPath, gridpoints: NDArray[np.float64]
     ) -> None:
-        super().__init__(constraint_list, path, gridpoints=gridpoints, solver_wrapper="seidel")
+        # toppra's ReachabilityAlgorithm.__init__ would first probe the importable solvers (a
+        # file-system search on every plan); the solver here is always seidel, so set it up directly
+        ParameterizationAlgorithm.__init__(self, constraint_list, path, gridpoints=gridpoints)
+        self.solver_wrapper = seidelWrapper(self.constraints, self.path, self.gridpoints, solve_lp1d=True)
         n_vars = self.solver_wrapper.get_no_vars()
         self._g_max_x = np.zeros(n_vars)
         self._g_max_x[0], self._g_max_x[1] = 1e-9, -1.0
