@@ -9,7 +9,9 @@ limits. Prints, over all paths:
 - the worst deviation from the plan in counts (at the drive's 1 kHz samples);
 - the program duration over the reference duration (and the planner's own share of it);
 - records per axis per second, and the CAN bus load that implies for 8 axes at 1 Mbit/s;
-- the latency of plan (trajectory + knots + validated program) for 6 axes and 8 waypoints.
+- the latency of plan (trajectory + knots + validated program) for 6 axes and 8 waypoints, with
+  its breakdown: trajectory, knots + program + validation, and inside that knot placement and
+  validation (p50, p99).
 
 Run:  python bench/pvt_quality.py [--paths 200] [--gantry-paths 50] [--waypoints 8] [--seed 1]
 """
@@ -53,6 +55,8 @@ class PathResult:
     records_per_axis_s: float
     t_plan: float  # s: trajectory only
     t_total: float  # s: trajectory + knots + validated program
+    t_knots: float = math.nan  # s: knot placement (inside build_program)
+    t_validation: float = math.nan  # s: the validation of the program (inside build_program)
 
 
 def random_waypoints(cell: CellConfig, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -100,6 +104,8 @@ def run_path(cell: CellConfig, wp: np.ndarray) -> PathResult | None:
         records_per_axis_s=float(np.mean([len(a.records) for a in result.program.axes])) / motion_s,
         t_plan=result.timing["plan"],
         t_total=result.timing["total"],
+        t_knots=result.build.timing.get("knots", math.nan),
+        t_validation=result.build.timing.get("validation", math.nan),
     )
 
 
@@ -135,6 +141,8 @@ def main() -> int:
     scale = np.array([r.time_scale for r in ok])
     t_total = np.array([r.t_total for r in arm]) * 1000
     t_plan = np.array([r.t_plan for r in arm]) * 1000
+    t_knots = np.array([r.t_knots for r in arm]) * 1000
+    t_valid = np.array([r.t_validation for r in arm]) * 1000
 
     rec_mean = float(rec.mean())
     per_record = frame_bits(8)  # the 0x20C1 record RPDO
@@ -159,10 +167,12 @@ def main() -> int:
     print(f"  CAN load, 8 axes at 1 Mbit/s (worst-case bit stuffing): records {100 * load_records:.1f}%, "
           f"records + buffer-status TPDOs {100 * load_with_status:.1f}%, plus SYNC + 0x1013 at 1 kHz "
           f"{100 * sync_and_stamp:.1f}%  (10 ms grid: records {100 * 8 * 100 * per_record / 1e6:.1f}%)")
-    print(f"  plan latency, arm6 6 axes {args.waypoints} waypoints: total p50 {np.percentile(t_total, 50):.1f} ms, "
-          f"p99 {np.percentile(t_total, 99):.1f} ms; of which the trajectory p50 {np.percentile(t_plan, 50):.1f} ms, "
-          f"p99 {np.percentile(t_plan, 99):.1f} ms; knots + program p50 "
-          f"{np.percentile(t_total - t_plan, 50):.1f} ms, p99 {np.percentile(t_total - t_plan, 99):.1f} ms")
+    def p50_p99(x: np.ndarray) -> str:
+        return f"p50 {np.percentile(x, 50):.1f} ms, p99 {np.percentile(x, 99):.1f} ms"
+
+    print(f"  plan latency, arm6 6 axes {args.waypoints} waypoints: total {p50_p99(t_total)}")
+    print(f"    trajectory {p50_p99(t_plan)}; knots + program + validation {p50_p99(t_total - t_plan)}")
+    print(f"    of which knot placement {p50_p99(t_knots)}, validation {p50_p99(t_valid)}")
     print(f"command: python bench/pvt_quality.py --paths {args.paths} --gantry-paths {args.gantry_paths} "
           f"--waypoints {args.waypoints} --seed {args.seed}")
     return 0

@@ -27,6 +27,14 @@ EPOS2 PVT (``epos2_pvt``), per axis (the axes share only the start SYNC and the 
    calls for and the knots are placed again (from the previous ones, stretched). No blanket
    margin: a motion that fits is not slowed at all.
 
+All EPOS2 axes are placed together, as one flat problem (their samples end to end), so that each
+step is one set of array operations for all of them. The axes' blocks are independent: an axis
+gets the records it would get alone (up to the QP solver's round-off), and leaves as soon as it
+is done. Work that repeats is not redone: the check evaluates only the segments whose cubic
+changed, the least-squares fit reuses the right-hand side of every unchanged segment and
+re-evaluates a segment's fit only where its verdict could change, and a repair already solved for
+the same neighbourhood is not solved again.
+
 Fixed-period profiles take one record per period and are checked by their own reconstruction
 (linear, or Parker's cubic submodes) the same way. All numbers here are in drive units: qc,
 velocity units (qc/ms inside the interpolation), ms.
@@ -34,6 +42,7 @@ velocity units (qc/ms inside the interpolation), ms.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -197,22 +206,40 @@ def _check(axis: DriveAxis, records: NDArray[np.int64], plan_qc: NDArray[np.floa
     """The exact reconstruction of ``records`` against the limits and the plan.
 
     The plan's sample j (ms) is compared with the reconstruction at the time the drive reaches it:
-    j plus the time at which records[0] is reached (the dwell, or the fixed-period delay).
+    j plus the time at which records[0] is reached (the dwell, or the fixed-period delay). Every
+    record time is a whole ms, so the samples of each segment are a contiguous run found by
+    arithmetic (no search), and the position range is solved exactly only on the segments whose
+    cheap bound (the Hermite cubic stays within T (|V0| + |V1|) 4/27 of its end points) reaches
+    0x607D.
     """
     recon = axis.program(records).reconstruction()
     s = axis.scaling
     lim = axis.limits
     v = np.asarray(s.qc_per_ms_to_rpm(recon.max_abs_velocity())) / lim.max_profile_velocity_rpm
     a = np.asarray(s.qc_per_ms2_to_rpm_s(recon.max_abs_acceleration())) / lim.max_acceleration_rpm_s
-    lo, hi = recon.position_range()
-    out = (lo < lim.min_position_qc) | (hi > lim.max_position_qc)
+    T = recon.duration
+    p_end = recon.c0 + T * (recon.c1 + T * (recon.c2 + T * recon.c3))
+    reach = T * (np.abs(recon.c1) + np.abs(recon.c1 + T * (2.0 * recon.c2 + 3.0 * T * recon.c3))) * (4.0 / 27.0)
+    near = ((np.minimum(recon.c0, p_end) - reach < lim.min_position_qc)
+            | (np.maximum(recon.c0, p_end) + reach > lim.max_position_qc))
+    out = np.zeros(len(T), dtype=bool)
+    if near.any():
+        m = np.flatnonzero(near)
+        part = PiecewiseCubic(recon.start[m], T[m], recon.c0[m], recon.c1[m], recon.c2[m], recon.c3[m],
+                              recon.interpolation)
+        lo, hi = part.position_range()
+        out[m] = (lo < lim.min_position_qc) | (hi > lim.max_position_qc)
     shift = float(recon.start[0] + recon.duration[0])
-    t = np.arange(len(plan_qc)) + shift
-    err = np.abs(recon.position(t) - plan_qc)
-    # worst error per segment (samples are in time order: contiguous groups)
-    first = np.minimum(np.searchsorted(t, recon.start), len(t) - 1)
+    n_t = len(plan_qc)
+    # sample j sits at t = j + shift; segment k holds the samples from the first t >= start[k]
+    first = np.clip(np.ceil(recon.start - shift - 1e-9), 0, n_t).astype(np.int64)
+    k = np.repeat(np.arange(len(first)), np.diff(np.append(first, n_t)))
+    first = np.minimum(first, n_t - 1)
+    tau = np.clip(np.arange(n_t) + shift - recon.start[k], 0.0, T[k])
+    pos = recon.c0[k] + tau * (recon.c1[k] + tau * (recon.c2[k] + tau * recon.c3[k]))
+    err = np.abs(pos - plan_qc)
     seg_dev = np.maximum.reduceat(err, first)
-    empty = np.append(first[1:] <= first[:-1], False) | (recon.start > t[-1])
+    empty = np.append(first[1:] <= first[:-1], False) | (recon.start > n_t - 1 + shift)
     seg_dev[empty] = 0.0
     return _Check(seg_dev, v, a, out), recon
 
@@ -242,14 +269,15 @@ def _switch_knots(switch_ms: NDArray[np.float64], jump: NDArray[np.float64], thr
     if not len(big):
         return np.zeros(0, dtype=np.int64)
     order = big[np.argsort(-jump[big])]
-    blocked = np.zeros(n_ms + 1, dtype=bool)
-    blocked[:min_gap] = blocked[n_ms - min_gap + 1:] = True  # too close to the start or the end
-    taken: list[int] = []
-    for t in np.rint(switch_ms[order]).astype(np.int64):
-        if not blocked[t]:
-            taken.append(int(t))
-            blocked[max(t - min_gap + 1, 0):t + min_gap] = True
-    return np.array(sorted(taken), dtype=np.int64)
+    taken: list[int] = []  # sorted
+    for t in np.rint(switch_ms[order]).astype(np.int64).tolist():
+        if t < min_gap or t > n_ms - min_gap:  # too close to the start or the end
+            continue
+        i = bisect.bisect_left(taken, t)
+        if (i < len(taken) and taken[i] - t < min_gap) or (i > 0 and t - taken[i - 1] < min_gap):
+            continue
+        taken.insert(i, t)
+    return np.array(taken, dtype=np.int64)
 
 
 def _split(knots: NDArray[np.int64], segments: NDArray[np.int64]) -> NDArray[np.int64]:
@@ -261,6 +289,7 @@ def _split(knots: NDArray[np.int64], segments: NDArray[np.int64]) -> NDArray[np.
 
 _COARSE = 4.0  # first cut: exact-sample cubics to this multiple of the fit target (cheap), then least squares
 _QP_WINDOW = 4  # knots on either side of a segment over a limit whose velocities the QP may move
+_QP_REACH = np.arange(-_QP_WINDOW + 1, _QP_WINDOW + 1)  # those knots, from the segment's start knot
 _MIN_SPLIT_MS = 12  # segments shorter than twice this are not split for a limit (rounding grows as 1/T^2)
 _FIT_PROBES = np.arange(1, 8) / 8.0  # where a candidate segment's fit is judged
 
@@ -323,26 +352,153 @@ def _basis_table() -> _BasisTable:
     return _BASIS
 
 
-def _lsq_fit(knots: NDArray[np.int64], p: NDArray[np.float64], v: NDArray[np.float64]
-             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+@dataclass(frozen=True)
+class _Flat:
+    """Several EPOS2 axes placed as one: their plan samples end to end (axis a's ms j at flat index
+    a * stride + j) and their knots in that index, so that every step below is one set of array
+    operations for all axes (the axes are independent: numpy's fixed cost per call is paid once,
+    not once per axis). Consecutive knots of one axis bound a segment; the step from an axis's last
+    knot to the next axis's first is none (``_real`` is False there, it is never split, fitted,
+    checked or repaired). Per-axis constants are arrays indexed by the axis number."""
+
+    axes: tuple[DriveAxis, ...]
+    stride: int  # samples per axis: n_ms + 1
+    p: NDArray[np.float64]  # plan positions (qc), flat
+    v: NDArray[np.float64]  # plan velocities (qc/ms), flat
+    f: NDArray[np.float64]  # qc/ms per velocity unit
+    amax: NDArray[np.float64]  # 0x60C5 in qc/ms^2
+    vmax: NDArray[np.float64]  # 0x607F in qc/ms
+    v_units: NDArray[np.float64]  # 0x607F in whole velocity units
+    pos_lo: NDArray[np.float64]  # 0x607D
+    pos_hi: NDArray[np.float64]
+    rv_per: NDArray[np.float64]  # |v| / 0x607F per qc/ms
+    ra_per: NDArray[np.float64]  # |a| / 0x60C5 per qc/ms^2
+    ids: NDArray[np.int64]  # each axis's place in the first _Flat (stays when others leave: ``subset``)
+
+    @classmethod
+    def of(cls, axes: Sequence[DriveAxis], cols: Sequence[int], smp: _Samples) -> _Flat:
+        sc = [a.scaling for a in axes]
+        lim = [a.limits for a in axes]
+        return cls(
+            tuple(axes), smp.n_ms + 1,
+            np.ascontiguousarray(smp.position[:, cols].T).ravel(),
+            np.ascontiguousarray(smp.velocity[:, cols].T).ravel(),
+            np.array([s.qc_per_ms_per_velocity_unit for s in sc]),
+            np.array([float(s.rpm_s_to_qc_per_ms2(m.max_acceleration_rpm_s)) for s, m in zip(sc, lim, strict=True)]),
+            np.array([float(s.rpm_to_qc_per_ms(m.max_profile_velocity_rpm)) for s, m in zip(sc, lim, strict=True)]),
+            np.array([math.floor(m.max_profile_velocity_rpm / s.velocity_unit_rpm + 1e-9)
+                      for s, m in zip(sc, lim, strict=True)], dtype=float),
+            np.array([float(m.min_position_qc) for m in lim]),
+            np.array([float(m.max_position_qc) for m in lim]),
+            np.array([float(s.qc_per_ms_to_rpm(1.0)) / m.max_profile_velocity_rpm
+                      for s, m in zip(sc, lim, strict=True)]),
+            np.array([float(s.qc_per_ms2_to_rpm_s(1.0)) / m.max_acceleration_rpm_s
+                      for s, m in zip(sc, lim, strict=True)]),
+            np.arange(len(axes)),
+        )
+
+    def subset(self, keep: NDArray[np.int64]) -> _Flat:
+        """The axes ``keep`` (positions in this one) alone; ``moved_knots`` maps knots across."""
+        m = len(self.axes)
+        return _Flat(tuple(self.axes[a] for a in keep), self.stride,
+                     self.p.reshape(m, self.stride)[keep].ravel(), self.v.reshape(m, self.stride)[keep].ravel(),
+                     self.f[keep], self.amax[keep], self.vmax[keep], self.v_units[keep], self.pos_lo[keep],
+                     self.pos_hi[keep], self.rv_per[keep], self.ra_per[keep], self.ids[keep])
+
+    def moved_knots(self, keep: NDArray[np.int64], knots: NDArray[np.int64]
+                    ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """For knots of this one: (the indices of those on the axes ``keep``, where they are in
+        ``subset(keep)``)."""
+        new_pos = np.full(len(self.axes), -1)
+        new_pos[keep] = np.arange(len(keep))
+        ax = self.axis_of(knots)
+        sel = np.flatnonzero(new_pos[ax] >= 0)
+        return sel, knots[sel] + (new_pos[ax[sel]] - ax[sel]) * self.stride
+
+    def axis_of(self, idx: NDArray[np.int64]) -> NDArray[np.int64]:
+        return idx // self.stride
+
+    def is_end(self, knots: NDArray[np.int64]) -> NDArray[np.bool_]:
+        """Knots at an axis's start or goal: at rest, at the plan's position, never moved."""
+        r = knots % self.stride
+        return (r == 0) | (r == self.stride - 1)
+
+    def flat_knots(self, per_axis: Sequence[NDArray[np.int64]]) -> NDArray[np.int64]:
+        n = self.stride - 1
+        return np.concatenate([np.union1d([0, n], k[(k > 0) & (k < n)]) + a * self.stride
+                               for a, k in enumerate(per_axis)]).astype(np.int64)
+
+
+def _real(fl: _Flat, knots: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Per knot segment: both ends on the same axis (a segment, not the step between two axes)."""
+    return fl.axis_of(knots[:-1]) == fl.axis_of(knots[1:])
+
+
+@dataclass(frozen=True)
+class _Fitted:
+    """A least-squares fit with what the next one can reuse: each segment's right-hand side (its
+    basis cubics against the plan) and its worst deviation."""
+
+    knots: NDArray[np.int64]
+    rhs: NDArray[np.float64]  # (4, segments)
+    P: NDArray[np.float64]
+    V: NDArray[np.float64]
+    worst: NDArray[np.float64] | None  # per segment, None when not asked for
+
+
+def _segment_samples(knots: NDArray[np.int64], segs: NDArray[np.int64]
+                     ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64],
+                                NDArray[np.int64]]:
+    """For the segments ``segs``, over the whole ms inside them (start included, end excluded):
+    (their lengths, the first sample of each, every sample's tau, its basis table column, its
+    plan index). Per-segment values reach the samples by ``np.repeat(x, lengths)``."""
+    table = _basis_table()
+    T = knots[segs + 1] - knots[segs]
+    first = np.cumsum(T) - T
+    ar = np.arange(int(first[-1] + T[-1]))
+    return T, first, ar - np.repeat(first, T), np.repeat(table.offset[T] - first, T) + ar, \
+        np.repeat(knots[segs] - first, T) + ar
+
+
+def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, target: float | None = None
+             ) -> _Fitted:
     """Knot positions and velocities (qc, qc/ms) whose cubics fit the plan best at every ms.
 
-    Least squares over all drive samples: a banded (block-tridiagonal) system, solved in one go.
-    The ends stay at the plan's start and goal at rest; a faint pull towards the exact samples
-    keeps the system regular. Returns (P, V, worst |fit - plan| per segment).
+    Least squares over all drive samples: a banded (block-tridiagonal) system, solved in one go
+    for all axes (the step between two axes contributes nothing, so the blocks are independent).
+    Each axis's ends stay at the plan's start and goal at rest; a faint pull towards the exact
+    samples keeps the system regular.
+
+    With ``target``, the worst |fit - plan| per segment is returned as well, as far as the
+    comparison with ``target`` needs it: a segment of ``prev`` whose cubic moved by at most d
+    (its ends by dP, dV: d <= max |dP| + 4/27 T (|dV0| + |dV1|)) keeps its verdict when its
+    previous worst is more than d away from the target; only the others are evaluated again.
     """
     from scipy.linalg import solveh_banded
 
+    p, v = fl.p, fl.v
     table = _basis_table()
     n = np.diff(knots)
     T = n.astype(float)
+    real = _real(fl, knots)
     nk = len(knots)
-    seg = np.repeat(np.arange(nk - 1), n)
-    j = np.arange(knots[0], knots[-1])
-    starts = np.cumsum(n) - n
-    b = table.values[:, table.offset[n][seg] + (j - knots[seg])]  # (4, N): basis cubics at the samples
-    G = table.gram[n].transpose(1, 2, 0)  # (4, 4, segments)
-    r = np.array([np.add.reduceat(b[a] * p[j], starts) for a in range(4)])  # (4, segments)
+    nseg = nk - 1
+    r = np.zeros((4, nseg))
+    todo = real.copy()
+    same = np.zeros(nseg, dtype=bool)
+    i = np.zeros(nseg, dtype=np.int64)
+    if prev is not None:
+        i = np.minimum(np.searchsorted(prev.knots, knots[:-1]), len(prev.knots) - 2)
+        same = (prev.knots[i] == knots[:-1]) & (prev.knots[i + 1] == knots[1:])
+        r[:, same] = prev.rhs[:, i[same]]
+        todo &= ~same
+    new = np.flatnonzero(todo)
+    b = None
+    if len(new):
+        Tn, first, _, col, j = _segment_samples(knots, new)
+        b = np.take(table.values, col, axis=1)  # (4, samples): the basis cubics at the samples
+        r[:, new] = np.add.reduceat(b * p[j], first, axis=1)
+    G = table.gram[n].transpose(1, 2, 0) * real  # (4, 4, segments)
     # unknowns z = (P0, V0, P1, V1, ...): segment k touches 2k .. 2k + 3; upper banded form, u = 3
     m = 2 * nk
     ab = np.zeros((4, m))
@@ -358,44 +514,160 @@ def _lsq_fit(knots: NDArray[np.int64], p: NDArray[np.float64], v: NDArray[np.flo
     ab[3, 1::2] += reg_v
     rhs[0::2] += reg_p * p[knots]
     rhs[1::2] += reg_v * v[knots]
-    big = 1e9 * (1.0 + np.abs(ab[3]).max())
-    for idx, target in ((0, p[knots[0]]), (1, 0.0), (m - 2, p[knots[-1]]), (m - 1, 0.0)):
-        ab[3, idx] += big
-        rhs[idx] += big * target
+    # pin each axis's ends (per axis: its block is then solved as it would be alone)
+    ends = np.flatnonzero(fl.is_end(knots))
+    big = 1e9 * (1.0 + np.maximum.reduceat(np.abs(ab[3]), 2 * ends[0::2])[fl.axis_of(knots[ends])])
+    ab[3, 2 * ends] += big
+    rhs[2 * ends] += big * p[knots[ends]]
+    ab[3, 2 * ends + 1] += big
     z = solveh_banded(ab, rhs, check_finite=False)
     P, V = z[0::2], z[1::2]
-    P[0], P[-1], V[0], V[-1] = p[knots[0]], p[knots[-1]], 0.0, 0.0
-    local = np.array([P[seg], V[seg], P[seg + 1], V[seg + 1]])
-    fit = (local * b).sum(axis=0)
-    worst = np.maximum.reduceat(np.abs(fit - p[j]), starts)
-    return P, V, worst
+    P[ends], V[ends] = p[knots[ends]], 0.0
+    if target is None:
+        return _Fitted(knots, r, P, V, None)
+    worst = np.zeros(nseg)
+    todo = real.copy()
+    if prev is not None and prev.worst is not None:
+        d = (np.maximum(np.abs(P[:-1] - prev.P[i]), np.abs(P[1:] - prev.P[i + 1]))
+             + (4.0 / 27.0) * T * (np.abs(V[:-1] - prev.V[i]) + np.abs(V[1:] - prev.V[i + 1])))
+        d = d * (1.0 + 1e-9) + 1e-9
+        w_prev = prev.worst[i]
+        keep = same & ((w_prev + d <= target) | (w_prev - d > target))
+        worst = np.where(keep, w_prev, 0.0)
+        todo &= ~keep
+    ev = np.flatnonzero(todo)
+    if len(ev):
+        if b is not None and len(ev) == len(new) and np.array_equal(ev, new):
+            Te = Tn  # the same samples as the right-hand side's
+        else:
+            Te, first, _, col, j = _segment_samples(knots, ev)
+            b = np.take(table.values, col, axis=1)
+        fit = (np.repeat(P[ev], Te) * b[0] + np.repeat(V[ev], Te) * b[1] + np.repeat(P[ev + 1], Te) * b[2]
+               + np.repeat(V[ev + 1], Te) * b[3])
+        worst[ev] = np.maximum.reduceat(np.abs(fit - p[j]), first)
+    return _Fitted(knots, r, P, V, worst)
 
 
-def _fit_knots(knots: NDArray[np.int64], p: NDArray[np.float64], v: NDArray[np.float64], target: float,
-               max_rounds: int) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+def _fitted_subset(fl: _Flat, keep: NDArray[np.int64], fitted: _Fitted | None) -> _Fitted | None:
+    if fitted is None:
+        return None
+    sel, knots = fl.moved_knots(keep, fitted.knots)
+    seg = sel[:-1]  # the segment after each kept knot (the step to the next kept axis: none, as before)
+    worst = None if fitted.worst is None else fitted.worst[seg]
+    return _Fitted(knots, fitted.rhs[:, seg], fitted.P[sel], fitted.V[sel], worst)
+
+
+def _fit_knots(fl: _Flat, knots: NDArray[np.int64], target: float, max_rounds: int
+               ) -> tuple[NDArray[np.int64], _Fitted]:
     """Split segments until the least-squares cubics stay within ``target`` of the plan."""
+    fitted: _Fitted | None = None
     for _ in range(max_rounds):
-        P, V, worst = _lsq_fit(knots, p, v)
+        fitted = _lsq_fit(fl, knots, fitted, target)
+        assert fitted.worst is not None
         T = np.diff(knots)
-        bad = np.flatnonzero(((worst > target) & (T >= 2)) | (T > TIME_MAX_MS))
+        bad = np.flatnonzero(((fitted.worst > target) & (T >= 2)) | (T > TIME_MAX_MS))
         if not len(bad):
             break
         knots = _split(knots, bad)
-    return knots, P, V
+    assert fitted is not None
+    return knots, fitted
 
 
-def _epos2_records(axis: DriveAxis, knots: NDArray[np.int64], P: NDArray[np.int64], v: NDArray[np.float64],
-                   dwell: int) -> NDArray[np.int64]:
-    """Records from integer knot positions and knot velocities in qc/ms (rounded to the drive's unit)."""
-    V = _round_velocities(v, axis)
-    V[0] = V[-1] = 0
-    times = np.concatenate(([dwell], np.diff(knots)))
-    rec = np.column_stack((P, V, times))
-    end = np.array([[P[-1], 0, 0]], dtype=np.int64)
-    return np.vstack((rec, end)).astype(np.int64)
+def _round_knots(fl: _Flat, knots: NDArray[np.int64], p: NDArray[np.float64], v: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Knot positions to counts (inside 0x607D), velocities to the drive's unit (inside 0x607F)."""
+    ax = fl.axis_of(knots)
+    r = np.rint(p)
+    out = (r < INT32_MIN) | (r > INT32_MAX)
+    if out.any():
+        raise KnotError(f"{fl.axes[ax[np.argmax(out)]].name}: the motion leaves the int32 position range of a record")
+    P = np.clip(r, fl.pos_lo[ax], fl.pos_hi[ax]).astype(np.int64)
+    V = np.clip(np.rint(v / fl.f[ax]), -fl.v_units[ax], fl.v_units[ax])
+    out = (V < INT24_MIN) | (V > INT24_MAX)
+    if out.any():
+        raise KnotError(f"{fl.axes[ax[np.argmax(out)]].name}: a velocity does not fit the int24 of a record "
+                        "(velocity unit too fine?)")
+    V[fl.is_end(knots)] = 0
+    return P, V.astype(np.int64)
 
 
-def _velocity_qp(axis: DriveAxis, knots: NDArray[np.int64], P: NDArray[np.int64], v: NDArray[np.float64],
+@dataclass(frozen=True)
+class _Checked:
+    """A check with the quantized knots it judged: the next check reuses the deviation of every
+    segment whose two knots (times, positions, velocities) did not change."""
+
+    knots: NDArray[np.int64]
+    P: NDArray[np.int64]
+    V: NDArray[np.int64]
+    chk: _Check
+
+
+def _checked_subset(fl: _Flat, keep: NDArray[np.int64], checked: _Checked | None) -> _Checked | None:
+    if checked is None:
+        return None
+    sel, knots = fl.moved_knots(keep, checked.knots)
+    seg = sel[:-1]
+    c = checked.chk
+    return _Checked(knots, checked.P[sel], checked.V[sel],
+                    _Check(c.seg_deviation[seg], c.velocity_ratio[seg], c.acceleration_ratio[seg], c.position_out[seg]))
+
+
+def _check_knots(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64],
+                 prev: _Checked | None = None) -> _Checked:
+    """``_check`` of the quantized knots of all axes at once, per knot segment.
+
+    The drive's segment between two records is THE Hermite cubic through their integer positions
+    and velocities (``hermite_coefficients``, as ``epos2_pvt`` builds it), judged by
+    ``PiecewiseCubic``'s exact extrema and at every ms against the plan. The samples are evaluated
+    only on the segments that differ from ``prev`` (the same cubic has the same deviation).
+    """
+    T = np.diff(knots)
+    nseg = len(T)
+    ax = fl.axis_of(knots[:-1])
+    real = _real(fl, knots)
+    f = fl.f[ax]
+    Pf = P.astype(float)
+    c = hermite_coefficients(Pf[:-1], V[:-1] * f, Pf[1:], V[1:] * f, T)
+    cub = PiecewiseCubic(knots[:-1].astype(float), T.astype(float), *c)
+    rv = cub.max_abs_velocity() * fl.rv_per[ax] * real
+    ra = cub.max_abs_acceleration() * fl.ra_per[ax] * real
+    # 0x607D: exactly only where the cheap bound (within T (|V0| + |V1|) 4/27 of the ends) reaches it
+    reach = T * (np.abs(c[1]) + np.abs(V[1:] * f)) * (4.0 / 27.0)
+    lo_lim, hi_lim = fl.pos_lo[ax], fl.pos_hi[ax]
+    near = real & ((np.minimum(Pf[:-1], Pf[1:]) - reach < lo_lim) | (np.maximum(Pf[:-1], Pf[1:]) + reach > hi_lim))
+    out = np.zeros(nseg, dtype=bool)
+    if near.any():
+        m = np.flatnonzero(near)
+        lo, hi = PiecewiseCubic(cub.start[m], cub.duration[m], c[0][m], c[1][m], c[2][m], c[3][m]).position_range()
+        out[m] = (lo < lo_lim[m]) | (hi > hi_lim[m])
+    # deviation at every ms: a segment holds the samples from its start knot on; an axis's last
+    # sample (its goal) belongs to its last segment, at tau = T
+    seg_dev = np.zeros(nseg)
+    todo = real.copy()
+    if prev is not None:
+        i = np.minimum(np.searchsorted(prev.knots, knots[:-1]), len(prev.knots) - 2)
+        same = ((prev.knots[i] == knots[:-1]) & (prev.knots[i + 1] == knots[1:]) & (prev.P[i] == P[:-1])
+                & (prev.P[i + 1] == P[1:]) & (prev.V[i] == V[:-1]) & (prev.V[i + 1] == V[1:]))
+        seg_dev = np.where(same, prev.chk.seg_deviation[i], 0.0)
+        todo &= ~same
+    ch = np.flatnonzero(todo)
+    if len(ch):
+        Tc, first, tau_i, _, j = _segment_samples(knots, ch)
+        tau = tau_i.astype(float)
+        pos = np.repeat(c[0][ch], Tc) + tau * (np.repeat(c[1][ch], Tc) + tau * (
+            np.repeat(c[2][ch], Tc) + tau * np.repeat(c[3][ch], Tc)))
+        dev = np.maximum.reduceat(np.abs(pos - fl.p[j]), first)
+        last = (ch == nseg - 1) | ~real[np.minimum(ch + 1, nseg - 1)]  # the axis's goal sample too
+        if last.any():
+            e = ch[last]
+            Te = T[e].astype(float)
+            p_end = c[0][e] + Te * (c[1][e] + Te * (c[2][e] + Te * c[3][e]))
+            dev[last] = np.maximum(dev[last], np.abs(p_end - fl.p[knots[e + 1]]))
+        seg_dev[ch] = dev
+    return _Checked(knots, P, V, _Check(seg_dev, rv, ra, out))
+
+
+def _velocity_qp(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], v: NDArray[np.float64],
                  room: NDArray[np.float64], over: NDArray[np.int64]) -> NDArray[np.float64] | None:
     """Knot velocities (qc/ms) closest to ``v`` that keep every cubic inside 0x607F/0x60C5.
 
@@ -406,129 +678,208 @@ def _velocity_qp(axis: DriveAxis, knots: NDArray[np.int64], P: NDArray[np.int64]
     absorb what rounding the positions did to the accelerations, each segment's interior moving
     by at most its ``room`` (counts) at a third and two thirds of it. Only the velocities within
     ``_QP_WINDOW`` knots of the segments ``over`` a limit move (the rest are fixed), which keeps the
-    QP small. None when infeasible.
+    QP small. All axes go into one QP (their blocks are independent); if it is infeasible, each
+    axis's block is solved on its own and the feasible ones are kept. None when nothing moved.
     """
+    out = v.copy()
+    moved = _qp_solve(fl, knots, P, v, room, over)
+    if moved is None:
+        ax = fl.axis_of(knots[over])
+        groups = [over[ax == a] for a in np.unique(ax)]
+        if len(groups) < 2:
+            return None
+        parts = [m for m in (_qp_solve(fl, knots, P, v, room, g) for g in groups) if m is not None]
+        if not parts:
+            return None
+        moved = (np.concatenate([m[0] for m in parts]), np.concatenate([m[1] for m in parts]))
+    out[moved[0]] += moved[1]
+    return out
+
+
+def _qp_solve(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], v: NDArray[np.float64],
+              room: NDArray[np.float64], over: NDArray[np.int64]
+              ) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
+    """The QP of ``_velocity_qp`` for the segments ``over``: (knots moved, their velocity change)."""
     import casadi
 
-    s = axis.scaling
-    amax = float(s.rpm_s_to_qc_per_ms2(axis.limits.max_acceleration_rpm_s))
-    vmax = float(s.rpm_to_qc_per_ms(axis.limits.max_profile_velocity_rpm))
     n = len(knots)
-    # the window: free velocities near the segments over a limit, and the segments they touch
+    ax = fl.axis_of(knots)
+    # the window: free velocities near the segments over a limit (on their axis), and the segments they touch
     free = np.zeros(n, dtype=bool)
-    for d in range(-_QP_WINDOW + 1, _QP_WINDOW + 1):
-        free[np.clip(over + d, 0, n - 1)] = True
-    free[0] = free[-1] = False  # at rest at both ends
+    idx = np.clip(over[:, None] + _QP_REACH[None, :], 0, n - 1)
+    free[idx[ax[idx] == ax[over][:, None]]] = True
+    free &= ~fl.is_end(knots)  # at rest at both ends of every axis
     if not free.any():
         return None
     cols = np.flatnonzero(free)
     col_of = np.full(n, -1)
     col_of[cols] = np.arange(len(cols))
-    segs = np.flatnonzero(free[:-1] | free[1:])
+    segs = np.flatnonzero(free[:-1] | free[1:])  # a free knot is no axis end: both its segments are real
     T = (knots[segs + 1] - knots[segs]).astype(float)
     dp = (P[segs + 1] - P[segs]).astype(float)
     v0, v1 = v[segs], v[segs + 1]
     a0 = (6.0 * dp - (4.0 * v0 + 2.0 * v1) * T) / (T * T)
     a1 = (-6.0 * dp + (2.0 * v0 + 4.0 * v1) * T) / (T * T)
-    # rows per segment: start acceleration, end acceleration, position at T/3 and at 2T/3
-    coef = np.stack((np.stack((-4.0 / T, -2.0 / T), 1), np.stack((2.0 / T, 4.0 / T), 1),
-                     np.stack((4.0 * T / 27, -2.0 * T / 27), 1), np.stack((2.0 * T / 27, -4.0 * T / 27), 1)), 1)
-    A = np.zeros((4 * len(segs), len(cols)))
+    # rows per segment: start acceleration, end acceleration, position at T/3 and at 2T/3; the
+    # coefficients of the segment's start velocity, then of its end velocity
+    coef = (np.column_stack((-4.0 / T, 2.0 / T, 4.0 * T / 27, 2.0 * T / 27)),
+            np.column_stack((-2.0 / T, 4.0 / T, -2.0 * T / 27, -4.0 * T / 27)))
+    row = 4 * np.arange(len(segs))[:, None] + np.arange(4)[None, :]
+    rows, cidx, vals = [], [], []
     for end, knot in enumerate((segs, segs + 1)):
         c = col_of[knot]
         ok = c >= 0
-        rows = 4 * np.flatnonzero(ok)
-        for r in range(4):
-            A[rows + r, c[ok]] = coef[ok, r, end]
+        rows.append(row[ok].ravel())
+        cidx.append(np.repeat(c[ok], 4))
+        vals.append(coef[end][ok].ravel())
+    m = len(cols)
+    A = casadi.DM.triplet(np.concatenate(rows).tolist(), np.concatenate(cidx).tolist(),
+                          np.concatenate(vals).tolist(), 4 * len(segs), m)
+    amax = fl.amax[ax[segs]]
     r_seg = room[segs]
     lo = np.stack((-amax - a0, -amax - a1, -r_seg, -r_seg), 1).ravel()
     hi = np.stack((amax - a0, amax - a1, r_seg, r_seg), 1).ravel()
+    vmax = fl.vmax[ax[cols]]
     lbx = np.clip(-vmax - v[cols], None, 0.0)
     ubx = np.clip(vmax - v[cols], 0.0, None)
     # weight: the position effect of a velocity change grows with the adjacent segment times
     w = 0.5 * (knots[cols + 1] - knots[cols - 1]).astype(float)
-    m = len(cols)
     h_sp = casadi.Sparsity.diag(m)
-    a_sp = casadi.Sparsity.dense(A.shape[0], m)
-    solver = casadi.conic("knot_velocities", "daqp", {"h": h_sp, "a": a_sp}, {"error_on_fail": False})
-    res = solver(h=casadi.DM(h_sp, 2.0 * w * w), g=np.zeros(m), a=casadi.DM(A), lba=lo, uba=hi, lbx=lbx, ubx=ubx)
+    solver = casadi.conic("knot_velocities", "daqp", {"h": h_sp, "a": A.sparsity()}, {"error_on_fail": False})
+    res = solver(h=casadi.DM(h_sp, 2.0 * w * w), g=np.zeros(m), a=A, lba=lo, uba=hi, lbx=lbx, ubx=ubx)
     if not solver.stats().get("success", False):
         return None
-    out = v.copy()
-    out[cols] += np.asarray(res["x"]).ravel()
-    return out
+    return cols, np.asarray(res["x"]).ravel()
 
 
-def _epos2_axis(axis: DriveAxis, i: int, smp: _Samples, opts: KnotOptions,
-                hint: NDArray[np.int64] | None = None) -> tuple[AxisKnots, float]:
-    """Records of one EPOS2 axis, and the slow-down its limits still call for (1.0: none).
+def _place_epos2(fl: _Flat, smp: _Samples, cols: Sequence[int], opts: KnotOptions, mode: str,
+                 initial: Sequence[NDArray[np.int64]] | None = None) -> list[tuple[AxisKnots, float]]:
+    """Records of the axes of ``fl`` (columns ``cols`` of ``smp``), and the slow-down each still
+    calls for. ``mode``: "hint" (start from ``initial``, then least squares), "lsq" (switch knots,
+    a coarse cut, least squares) or "exact" (cubics through the exact samples).
+
+    Steps 2-4 of the module docstring, for all axes at once. An axis without a segment to split
+    is done (as it would be on its own) and leaves: the next rounds work on the others only.
+    """
+    n = smp.n_ms
+    tol = opts.tolerance_qc
+    fitted: _Fitted | None = None
+    target = opts.fit_fraction * tol
+    if mode == "hint":
+        assert initial is not None
+        knots, fitted = _fit_knots(fl, fl.flat_knots(initial), target, opts.max_splits)
+        p_fit, v_fit = fitted.P, fitted.V
+    else:
+        switch = [_switch_knots(smp.switch_ms, smp.jump[:, c], abs(fl.amax[a]) * opts.switch_fraction, n,
+                                opts.min_switch_gap_ms) for a, c in enumerate(cols)]
+        knots = fl.flat_knots(switch)
+        if mode == "lsq":  # a coarse first cut with the cheap exact-sample cubics, then least-squares fits
+            knots = _refine(knots, fl.p, fl.v, _COARSE * target, opts.max_splits)
+            knots, fitted = _fit_knots(fl, knots, target, opts.max_splits)
+            p_fit, v_fit = fitted.P, fitted.V
+        else:
+            knots = _refine(knots, fl.p, fl.v, target, opts.max_splits)
+            p_fit, v_fit = fl.p[knots], fl.v[knots]
+    checked: _Checked | None = None
+    settled: dict[bytes, int] = {}
+    out: dict[int, tuple[AxisKnots, float]] = {}
+    for _ in range(opts.max_splits):
+        if len(p_fit) != len(knots):
+            if mode == "exact":
+                p_fit, v_fit = fl.p[knots], fl.v[knots]
+            else:
+                fitted = _lsq_fit(fl, knots, fitted)
+                p_fit, v_fit = fitted.P, fitted.V
+        P, V = _round_knots(fl, knots, p_fit, v_fit)
+        checked = _check_knots(fl, knots, P, V, checked)
+        over = _over(checked.chk)
+        if over.any():
+            room = np.maximum(tol - checked.chk.seg_deviation, 0.0)
+            v_qp = _velocity_qp(fl, knots, P, v_fit, room, np.flatnonzero(over))
+            if v_qp is not None:
+                V = _round_knots(fl, knots, p_fit, v_qp)[1]
+                checked = _check_knots(fl, knots, P, V, checked)
+        for _ in range(3):  # rounding the velocities, or fixing one segment, can push another over
+            over = _over(checked.chk)
+            if not over.any():
+                break
+            P, V, moved = _repair(fl, knots, P, V, np.flatnonzero(over), tol, settled)
+            if not moved:  # asked again, the same neighbourhoods give the same answers
+                break
+            checked = _check_knots(fl, knots, P, V, checked)
+        chk = checked.chk
+        T = np.diff(knots)
+        bad = np.flatnonzero((chk.seg_deviation > tol) | chk.position_out)
+        bad = bad[T[bad] >= 2]
+        # a segment still over a limit with a long span: another knot gives the QP room to fix it
+        stuck = np.flatnonzero(_over(chk))
+        bad = np.union1d(bad, stuck[T[stuck] >= 2 * _MIN_SPLIT_MS])
+        if not len(bad):
+            break
+        # the axes without a bad segment are done (as each would be on its own): they leave
+        busy = np.unique(fl.axis_of(knots[bad]))
+        if len(busy) < len(fl.axes):
+            for a in np.setdiff1d(np.arange(len(fl.axes)), busy):
+                out[int(fl.ids[a])] = _axis_knots(fl, a, knots, P, V, chk, opts.dwell_ms)
+            sel, moved_knots = fl.moved_knots(busy, knots)
+            bad = np.searchsorted(sel, bad)  # every bad segment starts at a knot of a busy axis
+            p_fit, v_fit = p_fit[sel], v_fit[sel]
+            fitted = _fitted_subset(fl, busy, fitted)
+            checked = _checked_subset(fl, busy, checked)
+            fl, knots = fl.subset(busy), moved_knots
+        knots = _split(knots, bad)
+    assert checked is not None
+    for a in range(len(fl.axes)):
+        out[int(fl.ids[a])] = _axis_knots(fl, a, knots, P, V, checked.chk, opts.dwell_ms)
+    return [out[i] for i in range(len(out))]
+
+
+def _axis_knots(fl: _Flat, a: int, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64],
+                chk: _Check, dwell_ms: int) -> tuple[AxisKnots, float]:
+    """The records of axis ``a`` of ``fl``, what their reconstruction does, the slow-down it needs."""
+    k0, k1 = np.searchsorted(knots, [a * fl.stride, (a + 1) * fl.stride])  # knots k0 .. k1 - 1
+    times = np.concatenate(([dwell_ms], np.diff(knots[k0:k1])))
+    records = np.vstack((np.column_stack((P[k0:k1], V[k0:k1], times)), [[P[k1 - 1], 0, 0]])).astype(np.int64)
+    dev = float(chk.seg_deviation[k0:k1 - 1].max())
+    rv = float(chk.velocity_ratio[k0:k1 - 1].max())
+    ra = float(chk.acceleration_ratio[k0:k1 - 1].max())
+    return AxisKnots(fl.axes[a].name, records, dev, rv, ra), _needed_scale(rv, ra)
+
+
+def _epos2_axes(axes: Sequence[DriveAxis], cols: Sequence[int], smp: _Samples, opts: KnotOptions,
+                hints: Sequence[NDArray[np.int64]] | None) -> list[tuple[AxisKnots, float]]:
+    """Records of the EPOS2 ``axes`` (columns ``cols`` of the samples), all placed together.
 
     Least-squares cubics need the fewest records for the tolerance, but spend most of it: where
     the quantized result still exceeds a limit, cubics through the exact samples (more records,
     more room for the velocity QP) are tried as well, and the one that needs less slow-down wins.
-    ``hint``: the knots of a previous, faster round, scaled to this one (tried first: cheap).
+    ``hints``: the knots of a previous, faster round, scaled to this one (tried first: cheap).
     """
-    if hint is not None:
-        fit, need = _epos2_axis_with(axis, i, smp, opts, least_squares=True, initial=hint)
-        if need <= 1.0:
-            return fit, need
-    fit, need = _epos2_axis_with(axis, i, smp, opts, least_squares=True)
-    if need > 1.0:
-        exact, need_exact = _epos2_axis_with(axis, i, smp, opts, least_squares=False)
-        if need_exact < need:
-            return exact, need_exact
-    return fit, need
+    results: dict[int, tuple[AxisKnots, float]] = {}
+    todo = list(range(len(axes)))
 
+    def place(which: list[int], mode: str, initial: Sequence[NDArray[np.int64]] | None = None
+              ) -> list[tuple[AxisKnots, float]]:
+        fl = _Flat.of([axes[i] for i in which], [cols[i] for i in which], smp)
+        return _place_epos2(fl, smp, [cols[i] for i in which], opts, mode, initial)
 
-def _epos2_axis_with(axis: DriveAxis, i: int, smp: _Samples, opts: KnotOptions, least_squares: bool,
-                     initial: NDArray[np.int64] | None = None) -> tuple[AxisKnots, float]:
-    p, v, n = smp.position[:, i], smp.velocity[:, i], smp.n_ms
-    amax = float(axis.scaling.rpm_s_to_qc_per_ms2(axis.limits.max_acceleration_rpm_s))
-    threshold = abs(amax) * opts.switch_fraction
-    if initial is not None:
-        knots = np.union1d([0, n], initial[(initial > 0) & (initial < n)])
-        knots, p_fit, v_fit = _fit_knots(knots, p, v, opts.fit_fraction * opts.tolerance_qc, opts.max_splits)
-    elif least_squares:
-        knots = np.union1d([0, n], _switch_knots(smp.switch_ms, smp.jump[:, i], threshold, n, opts.min_switch_gap_ms))
-        # a coarse first cut with the cheap exact-sample cubics, then least-squares fits
-        knots = _refine(knots, p, v, _COARSE * opts.fit_fraction * opts.tolerance_qc, opts.max_splits)
-        knots, p_fit, v_fit = _fit_knots(knots, p, v, opts.fit_fraction * opts.tolerance_qc, opts.max_splits)
-    else:
-        knots = np.union1d([0, n], _switch_knots(smp.switch_ms, smp.jump[:, i], threshold, n, opts.min_switch_gap_ms))
-        knots = _refine(knots, p, v, opts.fit_fraction * opts.tolerance_qc, opts.max_splits)
-        p_fit, v_fit = p[knots], v[knots]
-    for _ in range(opts.max_splits):
-        if len(p_fit) != len(knots):
-            p_fit, v_fit = (_lsq_fit(knots, p, v)[:2]) if least_squares else (p[knots], v[knots])
-        P = _round_positions(p_fit, axis)
-        records = _epos2_records(axis, knots, P, v_fit, opts.dwell_ms)
-        chk, _ = _check(axis, records, p)
-        if _over(chk).any():
-            room = np.maximum(opts.tolerance_qc - chk.seg_deviation[1:], 0.0)
-            v_qp = _velocity_qp(axis, knots, P, v_fit, room, np.flatnonzero(_over(chk)[1:]))
-            if v_qp is not None:
-                records = _epos2_records(axis, knots, P, v_qp, opts.dwell_ms)
-                chk, _ = _check(axis, records, p)
-        for _ in range(3):  # rounding the velocities, or fixing one segment, can push another over
-            over = np.flatnonzero(_over(chk))
-            if not len(over):
-                break
-            records = _repair(axis, records, over, knots, p, opts.tolerance_qc)
-            chk, _ = _check(axis, records, p)
-        # reconstruction segment k >= 1 is knot segment k - 1 (segment 0 is the dwell)
-        T = np.diff(knots)
-        bad = np.flatnonzero((chk.seg_deviation[1:] > opts.tolerance_qc) | chk.position_out[1:])
-        bad = bad[T[bad] >= 2]
-        # a segment still over a limit with a long span: another knot gives the QP room to fix it
-        stuck = np.flatnonzero(_over(chk)[1:])
-        bad = np.union1d(bad, stuck[T[stuck] >= 2 * _MIN_SPLIT_MS])
-        if not len(bad):
-            break
-        knots = _split(knots, bad)
-    ra = float(chk.acceleration_ratio.max())
-    rv = float(chk.velocity_ratio.max())
-    result = AxisKnots(axis.name, records, chk.deviation, rv, ra)
-    return result, _needed_scale(rv, ra)
+    if hints is not None:
+        for i, res in zip(todo, place(todo, "hint", list(hints)), strict=True):
+            if res[1] <= 1.0:
+                results[i] = res
+        todo = [i for i in todo if i not in results]
+    if todo:
+        fit = place(todo, "lsq")
+        redo = []
+        for i, res in zip(todo, fit, strict=True):
+            results[i] = res
+            if res[1] > 1.0:
+                redo.append(i)
+        if redo:
+            for i, res in zip(redo, place(redo, "exact"), strict=True):
+                if res[1] < results[i][1]:
+                    results[i] = res
+    return [results[i] for i in range(len(axes))]
 
 
 # every combination of these count / velocity-unit nudges of a segment's two end records is tried
@@ -536,11 +887,17 @@ _NUDGE_P = np.arange(-1, 2)
 _NUDGE_V = np.arange(-2, 3)
 _COMBOS = np.stack(np.meshgrid(_NUDGE_P, _NUDGE_V, _NUDGE_P, _NUDGE_V, indexing="ij"), axis=-1).reshape(-1, 4)
 _PROBES = np.array([0.25, 0.5, 0.75])  # where inside a segment the deviation of a nudge is judged
+_WINDOW = np.arange(-1, 3)  # knots s-1 .. s+2 around the ends (s, s+1) of a repaired segment s
+_ZERO = np.zeros(len(_COMBOS), dtype=np.int64)
+_COMBO_P = np.column_stack((_ZERO, _COMBOS[:, 0], _COMBOS[:, 2], _ZERO))  # (C, 4): per knot of the window
+_COMBO_V = np.column_stack((_ZERO, _COMBOS[:, 1], _COMBOS[:, 3], _ZERO))
+_COMBO_NONE = int(np.flatnonzero(~_COMBOS.any(axis=1))[0])  # the combination that moves nothing
 
 
-def _repair(axis: DriveAxis, records: NDArray[np.int64], segments: NDArray[np.int64], knots: NDArray[np.int64],
-            p: NDArray[np.float64], tolerance: float) -> NDArray[np.int64]:
-    """Re-round the end records of segments whose quantized reconstruction exceeds a limit.
+def _repair(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64],
+            segments: NDArray[np.int64], tolerance: float, settled: dict[bytes, int]
+            ) -> tuple[NDArray[np.int64], NDArray[np.int64], bool]:
+    """Re-round the end knots of segments whose quantized reconstruction exceeds a limit.
 
     Rounding each number to its nearest integer ignores that a cubic's end accelerations move
     by 6/T^2 per count: on a segment at the limit that alone can cross it. Here the two end
@@ -548,45 +905,86 @@ def _repair(axis: DriveAxis, records: NDArray[np.int64], segments: NDArray[np.in
     combinations at once); among those that keep the knots and the segments' interiors within
     the tolerance of the plan, the one with the lowest worst limit ratio over the three segments
     they touch wins.
+
+    Segments 4 or more apart touch different knots: they are solved together (all axes at once),
+    in four waves (segment index on its axis mod 4), each seeing the waves before it. ``settled`` remembers
+    the answer (the nudge, or -1: none helps) for every neighbourhood (knots, counts, velocities)
+    already solved: asked again, the answer is the same, so it is not computed again (the main
+    loop asks again after every split). Returns (P, V, whether anything moved).
     """
-    r = records.copy()
-    f = axis.scaling.qc_per_ms_per_velocity_unit
-    s = axis.scaling
-    lim = axis.limits
-    last_motion = len(r) - 2  # its velocity is 0 and its position the goal: fixed
-    for b in segments:
-        if b < 1 or b > last_motion:
-            continue
-        ends = (b - 1, b)
-        free = np.array([[k >= 1 and k < last_motion] * 2 for k in ends]).reshape(-1)  # P, V of each end
-        combos = _COMBOS[np.all((_COMBOS == 0) | free, axis=1)]
-        first, last = max(b - 1, 1), min(b + 1, last_motion)  # reconstruction segments touched
-        idx = np.arange(first - 1, last + 1)  # records spanning them (record k sits at knot k)
-        P = np.repeat(r[idx, 0][None, :].astype(float), len(combos), axis=0)
-        V = np.repeat(r[idx, 1][None, :].astype(float), len(combos), axis=0)
-        for j, k in enumerate(ends):
-            col = k - (first - 1)
-            P[:, col] += combos[:, 2 * j]
-            V[:, col] += combos[:, 2 * j + 1]
-        T = np.repeat(r[idx[1:], 2][None, :].astype(float), len(combos), axis=0)
-        c = hermite_coefficients(P[:, :-1], V[:, :-1] * f, P[:, 1:], V[:, 1:] * f, T)
-        # deviation at the knots and at probes inside each segment
-        dev = np.abs(P - p[knots[idx]][None, :]).max(axis=1)
-        for q in _PROBES:
-            tau = np.floor(q * T[0])
-            h = c[0] + tau * (c[1] + tau * (c[2] + tau * c[3]))
-            dev = np.maximum(dev, np.abs(h - p[knots[idx[:-1]] + tau.astype(np.int64)][None, :]).max(axis=1))
-        cub = PiecewiseCubic(np.zeros(T.size), T.ravel(), *(x.ravel() for x in c))
-        rv = np.asarray(s.qc_per_ms_to_rpm(cub.max_abs_velocity())).reshape(T.shape) / lim.max_profile_velocity_rpm
-        ra = np.asarray(s.qc_per_ms2_to_rpm_s(cub.max_abs_acceleration())).reshape(T.shape) / lim.max_acceleration_rpm_s
-        worst = np.maximum(rv, ra).max(axis=1)
-        worst = np.where(dev <= tolerance, worst + 1e-6 * dev, np.inf)
-        best = int(np.argmin(worst))
-        if np.isfinite(worst[best]):
-            r[idx, 0] = P[best].astype(np.int64)
-            r[idx, 1] = V[best].astype(np.int64)
-    r[-1, 0] = r[-2, 0]
-    return r
+    P, V = P.copy(), V.copy()
+    moved = False
+    ax = fl.axis_of(knots[segments])
+    local = segments - np.searchsorted(knots, ax * fl.stride)  # the segment's place on its own axis
+    for w in range(4):
+        sel = segments[local % 4 == w]
+        if len(sel):
+            moved |= _repair_wave(fl, knots, P, V, sel, tolerance, settled)
+    return P, V, moved
+
+
+def _window_keys(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64],
+                 idx: NDArray[np.int64]) -> list[bytes]:
+    """One key per row of ``idx`` (knot indices): what a repair of that neighbourhood depends on
+    (the axis, and its knots in its own ms, counts and velocities: it holds across ``subset``)."""
+    kn = knots[idx]
+    ax = fl.ids[fl.axis_of(kn[:, 1:2])]
+    return [row.tobytes() for row in np.concatenate((ax, kn % fl.stride, P[idx], V[idx]), axis=1)]
+
+
+def _repair_wave(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64],
+                 s: NDArray[np.int64], tolerance: float, settled: dict[bytes, int]) -> bool:
+    """``_repair`` of segments ``s`` (none within 3 of another) at once, in place in ``P``, ``V``."""
+    nk = len(knots)
+    idx_c = np.clip(s[:, None] + _WINDOW[None, :], 0, nk - 1)
+    keys = _window_keys(fl, knots, P, V, idx_c)
+    known = np.array([settled.get(k, -2) for k in keys])
+    moved = False
+    done = known >= -1
+    if done.any():  # asked before: the same answer, without asking
+        go = np.flatnonzero(known >= 0)
+        for j in (1, 2):
+            P[idx_c[go, j]] += _COMBO_P[known[go], j]
+            V[idx_c[go, j]] += _COMBO_V[known[go], j]
+        moved = len(go) > 0
+        if done.all():
+            return moved
+        s, idx_c = s[~done], idx_c[~done]
+        keys = [k for k, d in zip(keys, done, strict=True) if not d]
+    idx = s[:, None] + _WINDOW[None, :]  # (S, 4): knots s-1 .. s+2
+    ax = fl.axis_of(knots[s])
+    rec_ok = (idx >= 0) & (idx < nk) & (fl.axis_of(knots[idx_c]) == ax[:, None])  # knots of the same axis
+    seg_ok = rec_ok[:, :-1] & rec_ok[:, 1:]  # (S, 3): segments s-1, s, s+1
+    free = np.repeat(~fl.is_end(knots[idx_c[:, 1:3]]), 2, axis=1)  # (S, 4): P, V of each end
+    allowed = np.all((_COMBOS[None, :, :] == 0) | free[:, None, :], axis=2)  # (S, C)
+    f = fl.f[ax][:, None, None]
+    Pc = P[idx_c][:, None, :] + _COMBO_P[None]  # (S, C, 4)
+    Vc = V[idx_c][:, None, :] + _COMBO_V[None]
+    Vq = Vc * f
+    kn = knots[idx_c]
+    T = np.where(seg_ok, np.diff(kn, axis=1), 1).astype(float)[:, None, :]  # (S, 1, 3)
+    c = hermite_coefficients(Pc[:, :, :-1], Vq[:, :, :-1], Pc[:, :, 1:], Vq[:, :, 1:], T)
+    # deviation at the knots (the two that move; the fixed ones as they are) and inside each segment
+    p = fl.p
+    fixed_dev = np.where(rec_ok[:, [0, 3]], np.abs(P[idx_c[:, [0, 3]]] - p[kn[:, [0, 3]]]), 0.0).max(axis=1)
+    dev = np.maximum(np.abs(Pc[:, :, 1:3] - p[kn[:, None, 1:3]]).max(axis=2), fixed_dev[:, None])
+    tau = np.floor(_PROBES[:, None, None, None] * T[None])  # (probes, S, 1, 3)
+    h = c[0] + tau * (c[1] + tau * (c[2] + tau * c[3]))  # (probes, S, C, 3)
+    plan_at = p[np.minimum(kn[None, :, None, :-1] + tau.astype(np.int64), len(p) - 1)]
+    inner = np.where(seg_ok[None, :, None, :], np.abs(h - plan_at), 0.0).max(axis=(0, 3))
+    dev = np.maximum(dev, inner)
+    cub = PiecewiseCubic(T, T, *c)  # elementwise: the exact extrema of every candidate cubic
+    rv = cub.max_abs_velocity() * fl.rv_per[ax][:, None, None]
+    ra = cub.max_abs_acceleration() * fl.ra_per[ax][:, None, None]
+    worst = np.where(seg_ok[:, None, :], np.maximum(rv, ra), 0.0).max(axis=2)  # (S, C)
+    worst = np.where((dev <= tolerance) & allowed, worst + 1e-6 * dev, np.inf)
+    best = np.argmin(worst, axis=1)
+    ok = np.isfinite(worst[np.arange(len(s)), best]) & (best != _COMBO_NONE)
+    for j in (1, 2):  # only the two ends move
+        P[idx_c[ok, j]] += _COMBO_P[best[ok], j]
+        V[idx_c[ok, j]] += _COMBO_V[best[ok], j]
+    settled.update(zip(keys, np.where(ok, best, -1).tolist(), strict=True))
+    return moved or bool(ok.any())
 
 
 def _over(chk: _Check) -> NDArray[np.bool_]:
@@ -687,19 +1085,21 @@ def place_knots(traj: TimedTrajectory, axes: Sequence[DriveAxis], options: KnotO
     last_n = 0
     for rounds in range(1, opts.max_rounds + 1):
         smp = _sample(traj, axes, scale)
-        results = []
-        need = 1.0
-        for i, axis in enumerate(axes):
-            if axis.profile == "epos2_pvt":
-                hint = None
-                if last:  # the previous round's knots, stretched with the motion
+        placed: dict[int, tuple[AxisKnots, float]] = {}
+        epos2 = [i for i, a in enumerate(axes) if a.profile == "epos2_pvt"]
+        if epos2:
+            hints = None
+            if last:  # the previous round's knots, stretched with the motion
+                hints = []
+                for i in epos2:
                     prev = np.concatenate(([0], np.cumsum(last[i].records[1:-1, 2])))
-                    hint = np.unique(np.rint(prev * smp.n_ms / last_n).astype(np.int64))
-                res, k = _epos2_axis(axis, i, smp, opts, hint)
-            else:
-                res, k = _fixed_period_axis(axis, i, smp, opts)
-            results.append(res)
-            need = max(need, k)
+                    hints.append(np.unique(np.rint(prev * smp.n_ms / last_n).astype(np.int64)))
+            placed.update(zip(epos2, _epos2_axes([axes[i] for i in epos2], epos2, smp, opts, hints), strict=True))
+        for i, axis in enumerate(axes):
+            if axis.profile != "epos2_pvt":
+                placed[i] = _fixed_period_axis(axis, i, smp, opts)
+        results = [placed[i][0] for i in range(len(axes))]
+        need = max([1.0] + [placed[i][1] for i in range(len(axes))])
         last = tuple(results)
         last_n = smp.n_ms
         if need <= 1.0:

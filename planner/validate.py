@@ -278,7 +278,8 @@ def _check_epos2(name: str, r: NDArray[np.int64]) -> list[Finding]:
                 "ms",
             )
         )
-    for k in range(1, n - 1):
+    inner = r[1:n - 1, 2]
+    for k in (1 + np.flatnonzero((inner < 1) | (inner > TIME_MAX_MS))).tolist():  # the bad ones, in order
         t = int(r[k, 2])
         if t == 0:
             out.append(
@@ -455,10 +456,14 @@ def _check_motion(
     seg_a = np.asarray(s.qc_per_ms2_to_rpm_s(recon.max_abs_acceleration()))
     lo, hi = recon.position_range()
     # and what the drive computes at its own 1 kHz samples
-    t = recon.sample_times(sample_period_ms) if sample_period_ms else np.zeros(0)
-    sv = np.abs(np.asarray(s.qc_per_ms_to_rpm(recon.velocity(t))))
-    sa = np.abs(np.asarray(s.qc_per_ms2_to_rpm_s(recon.acceleration(t))))
-    seg_of_sample = np.clip(np.searchsorted(recon.start, t, side="right") - 1, 0, len(recon.start) - 1)
+    if sample_period_ms:
+        t = recon.sample_times(sample_period_ms)
+        sv = np.abs(np.asarray(s.qc_per_ms_to_rpm(recon.velocity(t))))
+        sa = np.abs(np.asarray(s.qc_per_ms2_to_rpm_s(recon.acceleration(t))))
+        seg_of_sample = np.clip(np.searchsorted(recon.start, t, side="right") - 1, 0, len(recon.start) - 1)
+    else:  # the exact checks alone (they bound the samples)
+        sv = sa = np.zeros(0)
+        seg_of_sample = np.zeros(0, dtype=np.intp)
 
     # the record that ends each reconstruction segment (cubic_p starts one period late: same index)
     records_of_segment = np.arange(len(recon.start))
