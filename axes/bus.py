@@ -102,8 +102,14 @@ class RecordingNetwork(canopen.Network):
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         if not self.bus:
             raise RuntimeError("Not connected to CAN bus")
-        msg = can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data,
-                          is_remote_frame=remote, is_rx=False, channel=self.channel_name)
+        msg = can.Message(
+            is_extended_id=can_id > 0x7FF,
+            arbitration_id=can_id,
+            data=data,
+            is_remote_frame=remote,
+            is_rx=False,
+            channel=self.channel_name,
+        )
         with self.send_lock:
             msg.timestamp = time.time()
             self.bus.send(msg)
@@ -379,15 +385,26 @@ class CellBus:
                         lost.append(nid)
                         self._watched.discard(nid)
             for nid in lost:
-                self._report(BusFault("heartbeat", nid, f"no heartbeat from node {nid} for "
-                                      f"{now - self._heartbeat_seen[nid]:.3f} s (timeout {timeout:.3f} s)"))
+                self._report(
+                    BusFault(
+                        "heartbeat",
+                        nid,
+                        f"no heartbeat from node {nid} for "
+                        f"{now - self._heartbeat_seen[nid]:.3f} s (timeout {timeout:.3f} s)",
+                    )
+                )
             stalled = now - self.sync.last_progress > self.lost_sync_timeout_s
             if self.watch_sync and self.sync.running and not self._sync_reported and stalled:
                 nodes = sorted({cob & 0x7F for cob in self.sync.behind()})
                 self._sync_reported = True
-                self._report(BusFault("lost_sync", nodes[0] if nodes else None,
-                                      f"SYNC {self.sync.count} not answered by node(s) {nodes} within "
-                                      f"{self.lost_sync_timeout_s:.3f} s"))
+                self._report(
+                    BusFault(
+                        "lost_sync",
+                        nodes[0] if nodes else None,
+                        f"SYNC {self.sync.count} not answered by node(s) {nodes} within "
+                        f"{self.lost_sync_timeout_s:.3f} s",
+                    )
+                )
 
     def arm_sync_watch(self) -> None:
         self._sync_reported = False

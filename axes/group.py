@@ -117,10 +117,17 @@ class RunResult:
             "start_skew_syncs": self.start_skew_syncs,
             "axes": [
                 {
-                    "joint": a.joint, "node_id": a.node_id, "state": a.state, "statusword": a.statusword,
-                    "position": a.position, "target_position": a.target_position,
-                    "records_sent": a.feed.sent, "underflows": a.feed.underflows, "overflows": a.feed.overflows,
-                    "min_level": a.feed.min_level, "max_level": a.feed.max_level,
+                    "joint": a.joint,
+                    "node_id": a.node_id,
+                    "state": a.state,
+                    "statusword": a.statusword,
+                    "position": a.position,
+                    "target_position": a.target_position,
+                    "records_sent": a.feed.sent,
+                    "underflows": a.feed.underflows,
+                    "overflows": a.feed.overflows,
+                    "min_level": a.feed.min_level,
+                    "max_level": a.feed.max_level,
                 }
                 for a in self.axes
             ],
@@ -427,8 +434,12 @@ class AxisGroup:
     def _check_started(self) -> None:
         for i, link in enumerate(self.links):
             if self._ip_start[i] is None:
-                self._halt(Result.DRIVE_FAULT, f"axis {link.joint} (node {link.node_id}) did not enter ip mode "
-                           f"(statusword 0x{link.statusword:04X})", link)
+                self._halt(
+                    Result.DRIVE_FAULT,
+                    f"axis {link.joint} (node {link.node_id}) did not enter ip mode "
+                    f"(statusword 0x{link.statusword:04X})",
+                    link,
+                )
                 return
 
     def _check_finished(self, elapsed: int) -> None:
@@ -461,8 +472,12 @@ class AxisGroup:
         self._event(fault.kind, fault.message, link)
         if not self._running:
             return
-        kind = {"emcy": Result.EMCY, "heartbeat": Result.HEARTBEAT_LOST, "nmt": Result.HEARTBEAT_LOST,
-                "lost_sync": Result.LOST_SYNC}[fault.kind]
+        kind = {
+            "emcy": Result.EMCY,
+            "heartbeat": Result.HEARTBEAT_LOST,
+            "nmt": Result.HEARTBEAT_LOST,
+            "lost_sync": Result.LOST_SYNC,
+        }[fault.kind]
         sync = self.bus.sync
         with sync.lock, self._lock:
             if self._ending is not None or not self._running:
@@ -473,8 +488,9 @@ class AxisGroup:
                 self.configured = False  # the node may come back reset: recover() configures again
             if gone and link is not None:
                 # stop waiting for a drive that is gone, so the others still get their halt SYNC
-                sync.expect(p.sync_answer_cob_id for p, lk in zip(self.profiles, self.links, strict=True)
-                            if lk is not link)
+                sync.expect(
+                    p.sync_answer_cob_id for p, lk in zip(self.profiles, self.links, strict=True) if lk is not link
+                )
             self._halt(kind, fault.message, link)
             if gone and stalled and sync.lockstep:
                 sync.step()
@@ -504,9 +520,11 @@ class AxisGroup:
         assert self._ending is not None and self._halt_deadline is not None
         if n < (self._ending.halt_sync or 0):
             return
-        still = [lk for lk in self.links
-                 if decode_state(lk.statusword) == PowerState.OPERATION_ENABLED
-                 and not lk.statusword & _TARGET_REACHED]
+        still = [
+            lk
+            for lk in self.links
+            if decode_state(lk.statusword) == PowerState.OPERATION_ENABLED and not lk.statusword & _TARGET_REACHED
+        ]
         if not still or n >= self._halt_deadline:
             self.bus.sync.stop()
             self._end(self._ending)
@@ -522,8 +540,15 @@ class AxisGroup:
             self._halt(Result.STOPPED, reason, None)
 
     def _result(self, result: Result, message: str, link: AxisLink | None = None) -> RunResult:
-        res = RunResult(result, message, link.joint if link else None, link.node_id if link else None,
-                        self._start_sync, self.bus.sync.answered, sync_period_ms=self.bus.config.sync_period_ms)
+        res = RunResult(
+            result,
+            message,
+            link.joint if link else None,
+            link.node_id if link else None,
+            self._start_sync,
+            self.bus.sync.answered,
+            sync_period_ms=self.bus.config.sync_period_ms,
+        )
         return res
 
     def _reports(self) -> list[AxisReport]:
@@ -531,14 +556,21 @@ class AxisGroup:
         for i, link in enumerate(self.links):
             prog = self._programs[i] if i < len(self._programs) else None
             feeder = self._feeders[i] if i < len(self._feeders) else None
-            out.append(AxisReport(
-                joint=link.joint, node_id=link.node_id, profile=link.config.profile,
-                state=decode_state(link.statusword).value, statusword=link.statusword, position=link.position,
-                target_position=int(prog.records[-1, 0]) if prog is not None else None,
-                feed=feeder.stats if feeder is not None else FeedStats(),
-                start_sync=self._ip_start[i] if i < len(self._ip_start) else None,
-                buffer_status=link.buffer_status, last_emcy=link.last_emcy,
-            ))
+            out.append(
+                AxisReport(
+                    joint=link.joint,
+                    node_id=link.node_id,
+                    profile=link.config.profile,
+                    state=decode_state(link.statusword).value,
+                    statusword=link.statusword,
+                    position=link.position,
+                    target_position=int(prog.records[-1, 0]) if prog is not None else None,
+                    feed=feeder.stats if feeder is not None else FeedStats(),
+                    start_sync=self._ip_start[i] if i < len(self._ip_start) else None,
+                    buffer_status=link.buffer_status,
+                    last_emcy=link.last_emcy,
+                )
+            )
         return out
 
     def _end(self, result: RunResult) -> None:
@@ -551,8 +583,11 @@ class AxisGroup:
             result.axes = self._reports()
             self.last_result = result
             self._running = False
-            self._event("finished" if result.ok else result.result.value, result.message,
-                        next((lk for lk in self.links if lk.node_id == result.node_id), None))
+            self._event(
+                "finished" if result.ok else result.result.value,
+                result.message,
+                next((lk for lk in self.links if lk.node_id == result.node_id), None),
+            )
             self._done.set()
 
     def _finish_early(self, result: Result, message: str, link: AxisLink | None = None) -> RunResult:
@@ -609,18 +644,31 @@ class AxisGroup:
         axes = []
         for i, link in enumerate(self.links):
             level = self._feeders[i].level if self._running and i < len(self._feeders) else None
-            axes.append(AxisStatus(
-                joint=link.joint, node_id=link.node_id, profile=link.config.profile,
-                state=decode_state(link.statusword).value, statusword=link.statusword, position=link.position,
-                buffer_status=link.buffer_status,
-                buffer_flags=tuple(f.name.lower() for f in BufferStatus if f & link.buffer_status and f.name),
-                buffer_level=level, last_emcy=link.last_emcy, nmt_state=self.bus.heartbeat_state(link.node_id),
-            ))
+            axes.append(
+                AxisStatus(
+                    joint=link.joint,
+                    node_id=link.node_id,
+                    profile=link.config.profile,
+                    state=decode_state(link.statusword).value,
+                    statusword=link.statusword,
+                    position=link.position,
+                    buffer_status=link.buffer_status,
+                    buffer_flags=tuple(f.name.lower() for f in BufferStatus if f & link.buffer_status and f.name),
+                    buffer_level=level,
+                    last_emcy=link.last_emcy,
+                    nmt_state=self.bus.heartbeat_state(link.node_id),
+                )
+            )
         elapsed = None
         if self._running and self._start_sync is not None:
             elapsed = (self.bus.sync.answered - self._start_sync) * self.bus.config.sync_period_ms
-        return GroupStatus(self._running, self.bus.sync.count, elapsed, tuple(axes),
-                           self.last_result.result if self.last_result else None)
+        return GroupStatus(
+            self._running,
+            self.bus.sync.count,
+            elapsed,
+            tuple(axes),
+            self.last_result.result if self.last_result else None,
+        )
 
     def refresh(self) -> None:
         """Read every statusword and position by SDO (when no TPDO flows, e.g. between runs)."""

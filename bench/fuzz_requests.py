@@ -45,8 +45,15 @@ Request = tuple[str, bytes]
 class BadRequests:
     """Seeded generator of requests that must all be refused (each class returns op + payload)."""
 
-    def __init__(self, rng: random.Random, joint_names: tuple[str, ...], lower: list[float], upper: list[float],
-                 program: dict[str, Any], other_program: dict[str, Any]) -> None:
+    def __init__(
+        self,
+        rng: random.Random,
+        joint_names: tuple[str, ...],
+        lower: list[float],
+        upper: list[float],
+        program: dict[str, Any],
+        other_program: dict[str, Any],
+    ) -> None:
         self.rng = rng
         self.names = joint_names
         self.dof = len(joint_names)
@@ -54,11 +61,18 @@ class BadRequests:
         self.program = program
         self.other_program = other_program
         self.classes: dict[str, Callable[[], Request]] = {
-            "not_json": self.not_json, "not_object": self.not_object, "unknown_field": self.unknown_field,
-            "wrong_type": self.wrong_type, "wrong_joint_count": self.wrong_joint_count,
-            "not_finite": self.not_finite, "out_of_limits": self.out_of_limits, "unknown_joint": self.unknown_joint,
-            "unknown_plan": self.unknown_plan, "too_many_waypoints": self.too_many_waypoints,
-            "bad_program": self.bad_program, "bad_fields": self.bad_fields,
+            "not_json": self.not_json,
+            "not_object": self.not_object,
+            "unknown_field": self.unknown_field,
+            "wrong_type": self.wrong_type,
+            "wrong_joint_count": self.wrong_joint_count,
+            "not_finite": self.not_finite,
+            "out_of_limits": self.out_of_limits,
+            "unknown_joint": self.unknown_joint,
+            "unknown_plan": self.unknown_plan,
+            "too_many_waypoints": self.too_many_waypoints,
+            "bad_program": self.bad_program,
+            "bad_fields": self.bad_fields,
         }
         self.rare = {"oversized": self.oversized}
 
@@ -79,7 +93,7 @@ class BadRequests:
         kinds = ["int", "float", "str", "bool", "null"] + (["list", "dict"] if depth < 3 else [])
         k = self.rng.choice(kinds)
         if k == "int":
-            return self.rng.randint(-10**12, 10**12)
+            return self.rng.randint(-(10**12), 10**12)
         if k == "float":
             return self.rng.uniform(-1e6, 1e6)
         if k == "str":
@@ -115,9 +129,21 @@ class BadRequests:
             text = self.enc({"waypoints": [self.q(), self.q()]})
             return op, text[: self.rng.randint(1, len(text) - 1)]
         if choice == 2:  # Python / JSON5 syntax
-            return op, self.rng.choice([b"{'target': [0]}", b"{target: [0]}", b'{"a": 1,}', b"[1, 2", b"None",
-                                        b"\t", b" ", b"\x00", b'{"a": 01}', b"0x10"])
-        return op, "{\"label\": \"\udcff\"}".encode("utf-8", "surrogatepass")  # not UTF-8
+            return op, self.rng.choice(
+                [
+                    b"{'target': [0]}",
+                    b"{target: [0]}",
+                    b'{"a": 1,}',
+                    b"[1, 2",
+                    b"None",
+                    b"\t",
+                    b" ",
+                    b"\x00",
+                    b'{"a": 01}',
+                    b"0x10",
+                ]
+            )
+        return op, '{"label": "\udcff"}'.encode("utf-8", "surrogatepass")  # not UTF-8
 
     def not_object(self) -> Request:
         op = self.rng.choice(["plan", "validate", "execute", "stop", "status", "recover"])
@@ -128,24 +154,61 @@ class BadRequests:
 
     def unknown_field(self) -> Request:
         op = self.rng.choice(["plan", "validate", "execute", "stop", "status", "recover"])
-        base: dict[str, Any] = {"plan": {"target": self.q()}, "validate": {"plan_id": "p-1"},
-                                "execute": {"plan_id": "p-1"}, "stop": {}, "status": {}, "recover": {}}[op]
+        base: dict[str, Any] = {
+            "plan": {"target": self.q()},
+            "validate": {"plan_id": "p-1"},
+            "execute": {"plan_id": "p-1"},
+            "stop": {},
+            "status": {},
+            "recover": {},
+        }[op]
         key = self.junk_key()
-        while key in ("target", "waypoints", "joint_names", "start", "tolerance_qc", "label", "include_program",
-                      "plan_id", "program", "wait", "reason", "recent"):
+        while key in (
+            "target",
+            "waypoints",
+            "joint_names",
+            "start",
+            "tolerance_qc",
+            "label",
+            "include_program",
+            "plan_id",
+            "program",
+            "wait",
+            "reason",
+            "recent",
+        ):
             key = self.junk_key() + "_x"
         return op, self.enc({**base, key: self.junk()})
 
     def wrong_type(self) -> Request:
-        field = self.rng.choice(["waypoints", "target", "joint_names", "start", "tolerance_qc", "label",
-                                 "include_program"])
+        field = self.rng.choice(
+            ["waypoints", "target", "joint_names", "start", "tolerance_qc", "label", "include_program"]
+        )
         bad: Any = self.junk()
         if field == "waypoints":
-            bad = self.rng.choice([self.junk_key(), 5, {"a": 1}, [self.junk_key()], [[self.junk_key()] * self.dof],
-                                   [[True] * self.dof], [None], []])
+            bad = self.rng.choice(
+                [
+                    self.junk_key(),
+                    5,
+                    {"a": 1},
+                    [self.junk_key()],
+                    [[self.junk_key()] * self.dof],
+                    [[True] * self.dof],
+                    [None],
+                    [],
+                ]
+            )
         elif field == "target":
-            bad = self.rng.choice([self.junk_key(), [str(x) for x in self.q()], [None] * self.dof, {"q": 1},
-                                   [[0.0] * self.dof], [False] * self.dof])
+            bad = self.rng.choice(
+                [
+                    self.junk_key(),
+                    [str(x) for x in self.q()],
+                    [None] * self.dof,
+                    {"q": 1},
+                    [[0.0] * self.dof],
+                    [False] * self.dof,
+                ]
+            )
         elif field in ("start",):
             bad = self.rng.choice([self.junk_key(), 1, None, ["current"]])
         elif field == "tolerance_qc":
@@ -181,12 +244,16 @@ class BadRequests:
         vec = self.q()
         j = self.rng.randrange(self.dof)
         span = self.upper[j] - self.lower[j]
-        vec[j] = self.upper[j] + self.rng.uniform(1e-6, span) if self.rng.random() < 0.5 else \
-            self.lower[j] - self.rng.uniform(1e-6, span)
+        vec[j] = (
+            self.upper[j] + self.rng.uniform(1e-6, span)
+            if self.rng.random() < 0.5
+            else self.lower[j] - self.rng.uniform(1e-6, span)
+        )
         if self.rng.random() < 0.5:
             return "plan", self.enc({"target": vec})
-        return "plan", self.enc({"waypoints": [self.q(), vec, self.q()], "start": self.rng.choice(["first",
-                                                                                                  "current"])})
+        return "plan", self.enc(
+            {"waypoints": [self.q(), vec, self.q()], "start": self.rng.choice(["first", "current"])}
+        )
 
     def unknown_joint(self) -> Request:
         names = list(self.names)
@@ -273,8 +340,14 @@ def main(argv: list[str] | None = None) -> int:
         other = plan_cell_program(gantry, [[0.0, 0.0, 0.0], [0.1, 0.1, -0.05]]).program
         assert program is not None and other is not None
         lim = service.limits
-        gen = BadRequests(random.Random(args.seed), service.joint_names, list(map(float, lim.lower)),
-                          list(map(float, lim.upper)), program.to_json(), other.to_json())
+        gen = BadRequests(
+            random.Random(args.seed),
+            service.joint_names,
+            list(map(float, lim.lower)),
+            list(map(float, lim.upper)),
+            program.to_json(),
+            other.to_json(),
+        )
         t0 = time.perf_counter()
         for _ in range(args.count):
             name, op, payload = gen.draw()
@@ -300,12 +373,16 @@ def main(argv: list[str] | None = None) -> int:
 
     crashes = codes.get("internal_error", 0)
     print(f"command: python bench/fuzz_requests.py --count {args.count} --seed {args.seed}")
-    print(f"cell {cell.name} (6 simulated EPOS2 axes), zenoh peer {endpoint}; {os.cpu_count()} CPU(s); "
-          f"{args.count} requests in {elapsed:.1f} s ({1000 * elapsed / args.count:.2f} ms each)")
+    print(
+        f"cell {cell.name} (6 simulated EPOS2 axes), zenoh peer {endpoint}; {os.cpu_count()} CPU(s); "
+        f"{args.count} requests in {elapsed:.1f} s ({1000 * elapsed / args.count:.2f} ms each)"
+    )
     print("requests by class: " + ", ".join(f"{k} {v}" for k, v in sorted(by_class.items())))
     print("error replies by code: " + ", ".join(f"{k} {v}" for k, v in sorted(codes.items())))
-    print(f"answered with an error: {sum(codes.values())}/{args.count}; not an error: {len(not_errors)}; "
-          f"no reply: {no_reply}; internal errors (crashes caught): {crashes}")
+    print(
+        f"answered with an error: {sum(codes.values())}/{args.count}; not an error: {len(not_errors)}; "
+        f"no reply: {no_reply}; internal errors (crashes caught): {crashes}"
+    )
     print(f"after: service answers status: {alive}; records sent to drives: {records}; motions started: {motions}")
     for item in not_errors[:5]:
         print(f"  NOT REFUSED: {item}")

@@ -84,8 +84,19 @@ def run_path(cell: CellConfig, wp: np.ndarray) -> PathResult | None:
     if not result.ok:
         if result.code == "program_error":
             print(f"  PROGRAM ERROR on {cell.name}: {result.message}", file=sys.stderr)
-            return PathResult(cell.name, 1, math.nan, math.nan, math.nan, math.nan, math.nan, math.nan, math.nan,
-                              result.timing.get("plan", 0.0), math.nan)
+            return PathResult(
+                cell.name,
+                1,
+                math.nan,
+                math.nan,
+                math.nan,
+                math.nan,
+                math.nan,
+                math.nan,
+                math.nan,
+                result.timing.get("plan", 0.0),
+                math.nan,
+            )
         return None  # the planner refused the path (e.g. it leaves the position limits): not a program
     report = validate_program(result.program)
     ref = plan(plan_input_for_cell(cell, wp, gridpoints=3000))
@@ -151,30 +162,45 @@ def main() -> int:
     load_with_status = 8 * rec_mean * (per_record + status) / 1e6
     sync_and_stamp = 1000 * (frame_bits(0) + frame_bits(4)) / 1e6  # SYNC + 0x1013 every 1 ms
 
-    print(f"pvt_quality: {len(results)} paths ({len(arm)} arm6 6-axis, {len(results) - len(arm)} gantry3), "
-          f"{args.waypoints} waypoints each, seed {args.seed}; {refused} random paths refused by the planner")
-    print(f"  limit violations after reconstruction (validator errors): {sum(r.violations for r in results)} "
-          f"on {sum(r.violations > 0 for r in results)} path(s); program errors: {len(results) - len(ok)}")
+    print(
+        f"pvt_quality: {len(results)} paths ({len(arm)} arm6 6-axis, {len(results) - len(arm)} gantry3), "
+        f"{args.waypoints} waypoints each, seed {args.seed}; {refused} random paths refused by the planner"
+    )
+    print(
+        f"  limit violations after reconstruction (validator errors): {sum(r.violations for r in results)} "
+        f"on {sum(r.violations > 0 for r in results)} path(s); program errors: {len(results) - len(ok)}"
+    )
     print(f"  worst |v|/0x607F {max(r.v_ratio for r in ok):.6f}, worst |a|/0x60C5 {max(r.a_ratio for r in ok):.6f}")
     print(f"  worst deviation from the plan: {max(r.deviation_qc for r in ok):.3f} qc (tolerance 1 qc)")
-    print(f"  duration / 3000-gridpoint reference: mean {dur.mean():.4f}, p95 {np.percentile(dur, 95):.4f}, "
-          f"max {dur.max():.4f}  (planner alone: mean {planner.mean():.4f}, max {planner.max():.4f}; "
-          f"knots' slow-down: mean {scale.mean():.4f}, max {scale.max():.4f})")
-    per_cell = ", ".join(f"{c} {np.mean([r.records_per_axis_s for r in ok if r.cell == c]):.1f}"
-                         for c in dict.fromkeys(r.cell for r in ok))
-    print(f"  records per axis per second: mean {rec_mean:.1f} ({per_cell}), p95 {np.percentile(rec, 95):.1f}, "
-          f"max {rec.max():.1f}  (a uniform 10 ms grid: 100)")
-    print(f"  CAN load, 8 axes at 1 Mbit/s (worst-case bit stuffing): records {100 * load_records:.1f}%, "
-          f"records + buffer-status TPDOs {100 * load_with_status:.1f}%, plus SYNC + 0x1013 at 1 kHz "
-          f"{100 * sync_and_stamp:.1f}%  (10 ms grid: records {100 * 8 * 100 * per_record / 1e6:.1f}%)")
+    print(
+        f"  duration / 3000-gridpoint reference: mean {dur.mean():.4f}, p95 {np.percentile(dur, 95):.4f}, "
+        f"max {dur.max():.4f}  (planner alone: mean {planner.mean():.4f}, max {planner.max():.4f}; "
+        f"knots' slow-down: mean {scale.mean():.4f}, max {scale.max():.4f})"
+    )
+    per_cell = ", ".join(
+        f"{c} {np.mean([r.records_per_axis_s for r in ok if r.cell == c]):.1f}"
+        for c in dict.fromkeys(r.cell for r in ok)
+    )
+    print(
+        f"  records per axis per second: mean {rec_mean:.1f} ({per_cell}), p95 {np.percentile(rec, 95):.1f}, "
+        f"max {rec.max():.1f}  (a uniform 10 ms grid: 100)"
+    )
+    print(
+        f"  CAN load, 8 axes at 1 Mbit/s (worst-case bit stuffing): records {100 * load_records:.1f}%, "
+        f"records + buffer-status TPDOs {100 * load_with_status:.1f}%, plus SYNC + 0x1013 at 1 kHz "
+        f"{100 * sync_and_stamp:.1f}%  (10 ms grid: records {100 * 8 * 100 * per_record / 1e6:.1f}%)"
+    )
+
     def p50_p99(x: np.ndarray) -> str:
         return f"p50 {np.percentile(x, 50):.1f} ms, p99 {np.percentile(x, 99):.1f} ms"
 
     print(f"  plan latency, arm6 6 axes {args.waypoints} waypoints: total {p50_p99(t_total)}")
     print(f"    trajectory {p50_p99(t_plan)}; knots + program + validation {p50_p99(t_total - t_plan)}")
     print(f"    of which knot placement {p50_p99(t_knots)}, validation {p50_p99(t_valid)}")
-    print(f"command: python bench/pvt_quality.py --paths {args.paths} --gantry-paths {args.gantry_paths} "
-          f"--waypoints {args.waypoints} --seed {args.seed}")
+    print(
+        f"command: python bench/pvt_quality.py --paths {args.paths} --gantry-paths {args.gantry_paths} "
+        f"--waypoints {args.waypoints} --seed {args.seed}"
+    )
     return 0
 
 

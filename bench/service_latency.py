@@ -115,8 +115,11 @@ def main(argv: list[str] | None = None) -> int:
                     redrawn += 1
                     continue
                 errors += 1  # the service survives a bug in the planner: count it, show how to reproduce it
-                print(f"plan error {reply.data['error']['code']}: {reply.data['error']['message']}\n  waypoints "
-                      f"(start: first): {wp}", file=sys.stderr)
+                print(
+                    f"plan error {reply.data['error']['code']}: {reply.data['error']['message']}\n  waypoints "
+                    f"(start: first): {wp}",
+                    file=sys.stderr,
+                )
                 if errors > 10:
                     return 1
                 continue
@@ -162,23 +165,35 @@ def main(argv: list[str] | None = None) -> int:
 
     sync_ms = cell.bus.sync_period_ms
     p50_plan = pct(plan_ms, 50)
-    print(f"command: python bench/service_latency.py --plans {args.plans} --executes {args.executes} "
-          f"--waypoints {args.waypoints} --range {args.range} --seed {args.seed}")
-    print(f"cell {cell.name}: {len(cell.axes)} simulated EPOS2 axes, SYNC {sync_ms:g} ms lockstep; zenoh peer on "
-          f"{endpoint}, client session in-process; {os.cpu_count()} CPU(s)")
-    print(f"plan request -> reply ({args.waypoints} waypoints, {args.plans} plans, {redrawn} drawn paths "
-          f"redrawn, {errors} other errors):  p50 {p50_plan:.2f} ms   p99 {pct(plan_ms, 99):.2f} ms   "
-          f"max {max(plan_ms):.2f} ms")
-    print(f"  in the service: total p50 {pct(plan_service, 50):.2f} ms = TOPP-RA p50 {pct(plan_topp, 50):.2f} ms "
-          f"+ knots/validation p50 {pct(plan_knots, 50):.2f} ms; zenoh + JSON ~{p50_plan - pct(plan_service, 50):.2f}"
-          " ms")
-    print(f"execute request -> all {len(cell.axes)} axes in ip mode ({args.executes} moves):  p50 "
-          f"{pct(exec_ms, 50):.2f} ms   p99 {pct(exec_ms, 99):.2f} ms   max {max(exec_ms):.2f} ms  "
-          f"(reply p50 {pct(reply_ms, 50):.2f} ms)")
+    print(
+        f"command: python bench/service_latency.py --plans {args.plans} --executes {args.executes} "
+        f"--waypoints {args.waypoints} --range {args.range} --seed {args.seed}"
+    )
+    print(
+        f"cell {cell.name}: {len(cell.axes)} simulated EPOS2 axes, SYNC {sync_ms:g} ms lockstep; zenoh peer on "
+        f"{endpoint}, client session in-process; {os.cpu_count()} CPU(s)"
+    )
+    print(
+        f"plan request -> reply ({args.waypoints} waypoints, {args.plans} plans, {redrawn} drawn paths "
+        f"redrawn, {errors} other errors):  p50 {p50_plan:.2f} ms   p99 {pct(plan_ms, 99):.2f} ms   "
+        f"max {max(plan_ms):.2f} ms"
+    )
+    print(
+        f"  in the service: total p50 {pct(plan_service, 50):.2f} ms = TOPP-RA p50 {pct(plan_topp, 50):.2f} ms "
+        f"+ knots/validation p50 {pct(plan_knots, 50):.2f} ms; zenoh + JSON ~{p50_plan - pct(plan_service, 50):.2f}"
+        " ms"
+    )
+    print(
+        f"execute request -> all {len(cell.axes)} axes in ip mode ({args.executes} moves):  p50 "
+        f"{pct(exec_ms, 50):.2f} ms   p99 {pct(exec_ms, 99):.2f} ms   max {max(exec_ms):.2f} ms  "
+        f"(reply p50 {pct(reply_ms, 50):.2f} ms)"
+    )
     for label, plan_time in (("measured plan p50", p50_plan), ("10 ms plan target", 10.0)):
         bound = plan_time + 2 * sync_ms
-        print(f"  bound {label} + 2 SYNC = {bound:.2f} ms: p50 {'within' if pct(exec_ms, 50) <= bound else 'OVER'}, "
-              f"p99 {'within' if pct(exec_ms, 99) <= bound else 'OVER'}")
+        print(
+            f"  bound {label} + 2 SYNC = {bound:.2f} ms: p50 {'within' if pct(exec_ms, 50) <= bound else 'OVER'}, "
+            f"p99 {'within' if pct(exec_ms, 99) <= bound else 'OVER'}"
+        )
     return 0
 
 

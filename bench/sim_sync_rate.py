@@ -63,9 +63,11 @@ def main() -> int:
         elapsed = time.perf_counter() - t0
         active = sum(d.ip_active for d in drives)
         print(f"command: python3 bench/sim_sync_rate.py --config {args.config} --syncs {args.syncs}")
-        print(f"cell {cell.name}: {len(sim.drives)} drives ({active} interpolating), {args.syncs} SYNCs "
-              f"in {elapsed:.3f} s = {args.syncs / elapsed:.0f} SYNC/s "
-              f"({elapsed / args.syncs * 1e6:.0f} us per SYNC for the whole cell)")
+        print(
+            f"cell {cell.name}: {len(sim.drives)} drives ({active} interpolating), {args.syncs} SYNCs "
+            f"in {elapsed:.3f} s = {args.syncs / elapsed:.0f} SYNC/s "
+            f"({elapsed / args.syncs * 1e6:.0f} us per SYNC for the whole cell)"
+        )
         one = drives[0]
         t0 = time.perf_counter()
         for _ in range(args.syncs):

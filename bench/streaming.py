@@ -82,14 +82,14 @@ class FrameTap:
 
     def __call__(self, msg: can.Message) -> None:
         with self.lock:
-            self.frames.append((msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, msg.dlc,
-                                bytes(msg.data)))
+            self.frames.append((msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, msg.dlc, bytes(msg.data)))
 
     def bits(self, start: int = 0) -> int:
         total = 0
         for ident, ext, remote, dlc, data in self.frames[start:]:
-            total += frame_bits(can.Message(arbitration_id=ident, is_extended_id=ext, is_remote_frame=remote,
-                                            dlc=dlc, data=data))
+            total += frame_bits(
+                can.Message(arbitration_id=ident, is_extended_id=ext, is_remote_frame=remote, dlc=dlc, data=data)
+            )
         return total
 
 
@@ -97,9 +97,7 @@ class FrameTap:
 def bench_cell(n_axes: int, sync_ms: float) -> tuple[CellConfig, tuple[AxisConfig, ...]]:
     arm = load_cell_config(None)
     base = arm.ordered_axes()
-    axes = tuple(
-        dataclasses.replace(base[i % len(base)], joint=f"axis_{i + 1}", node_id=i + 1) for i in range(n_axes)
-    )
+    axes = tuple(dataclasses.replace(base[i % len(base)], joint=f"axis_{i + 1}", node_id=i + 1) for i in range(n_axes))
     bus = dataclasses.replace(arm.bus, channel=f"bench-{uuid.uuid4().hex[:8]}", sync_period_ms=sync_ms)
     return dataclasses.replace(arm, name="bench", axes=axes, bus=bus), axes
 
@@ -114,8 +112,9 @@ def long_program(axes: tuple[AxisConfig, ...], records_per_axis: int, record_ms:
         move_ms = span / moves
         vmax = float(sc.rpm_to_qc_per_ms(lim.max_profile_velocity_rpm))
         amax = float(sc.rpm_s_to_qc_per_ms2(lim.max_acceleration_rpm_s))
-        dist = 0.4 * min(vmax * move_ms / 1.875, amax * move_ms**2 / 5.7735,
-                         0.8 * min(lim.max_position_qc, -lim.min_position_qc))
+        dist = 0.4 * min(
+            vmax * move_ms / 1.875, amax * move_ms**2 / 5.7735, 0.8 * min(lim.max_position_qc, -lim.min_position_qc)
+        )
         t = np.arange(records_per_axis) * record_ms
         k = np.minimum(np.floor(t / move_ms), moves - 1)
         u = (t - k * move_ms) / move_ms
@@ -194,22 +193,32 @@ def streaming_run(args: argparse.Namespace) -> None:
     underflows = sum(a.feed.underflows for a in result.axes)
     overflows = sum(a.feed.overflows for a in result.axes)
     drive_faults = sum(len(d.faults) for d in sim)
-    print(f"program: {len(axes)} axes x {per_axis + 1} records = {total_records} records, "
-          f"{prog.duration_ms / 1000:.1f} s of motion, records every {args.record_ms} ms, SYNC every {args.sync_ms} ms")
+    print(
+        f"program: {len(axes)} axes x {per_axis + 1} records = {total_records} records, "
+        f"{prog.duration_ms / 1000:.1f} s of motion, records every {args.record_ms} ms, SYNC every {args.sync_ms} ms"
+    )
     print(f"result: {result.result.value}; drive faults {drive_faults}")
     print(f"underflows: {underflows}   overflows: {overflows}   (buffer error bits and drive faults: must be 0)")
     print("FIFO level per axis while records were left to send (drive's own count; feeder's estimate):")
     for i, (a, d) in enumerate(zip(result.axes, drives, strict=True)):
-        print(f"  {a.joint:7s} node {a.node_id}: drive min {low[i]} max {d.max_level}; "
-              f"feeder min {a.feed.min_level} max {a.feed.max_level}; records sent {a.feed.sent}")
-    print(f"start skew: {result.start_skew_syncs} SYNC period(s) (master, statusword bit 12); "
-          f"drives entered ip mode at SYNC(s) {sorted({d.ip_active_sync for d in sim})}")
+        print(
+            f"  {a.joint:7s} node {a.node_id}: drive min {low[i]} max {d.max_level}; "
+            f"feeder min {a.feed.min_level} max {a.feed.max_level}; records sent {a.feed.sent}"
+        )
+    print(
+        f"start skew: {result.start_skew_syncs} SYNC period(s) (master, statusword bit 12); "
+        f"drives entered ip mode at SYNC(s) {sorted({d.ip_active_sync for d in sim})}"
+    )
     print(f"wall time {wall:.2f} s for {bus_time_s:.1f} s of bus time: {bus_time_s / wall:.2f}x real time")
-    print(f"host CPU per record: master receive thread {1e6 * cpu_master / total_records:.1f} us, "
-          f"whole process incl. simulated drives {1e6 * cpu_proc / total_records:.1f} us")
+    print(
+        f"host CPU per record: master receive thread {1e6 * cpu_master / total_records:.1f} us, "
+        f"whole process incl. simulated drives {1e6 * cpu_proc / total_records:.1f} us"
+    )
     print(f"frames: {frames} ({frames / wall:.0f} frames/s wall, {frames / bus_time_s:.0f} frames/s of bus time)")
-    print(f"bus load at {cell.bus.bitrate / 1e6:g} Mbit/s: {bits / bus_time_s / cell.bus.bitrate * 100:.1f}% "
-          f"({bits / frames:.1f} bits per frame with stuffing)")
+    print(
+        f"bus load at {cell.bus.bitrate / 1e6:g} Mbit/s: {bits / bus_time_s / cell.bus.bitrate * 100:.1f}% "
+        f"({bits / frames:.1f} bits per frame with stuffing)"
+    )
 
 
 def halt_run(args: argparse.Namespace) -> None:
@@ -236,13 +245,19 @@ def halt_run(args: argparse.Namespace) -> None:
             continue
         active = [s.sync for s in d.history if s.ip_active]
         halts.append(active[-1] + 1 - fault_sync)  # the first SYNC without interpolation, after the fault's
-    print(f"halt after a fault on node {faulty.node_id} ({faulty.faults[0].check}; "
-          f"{result.result.value}: {result.message})")
-    print(f"  master: halt controlword on SYNC {result.halt_sync}, {result.halt_latency_syncs} SYNC period(s) "
-          f"after the period of the fault; {1e6 * (result.halt_latency_s or 0):.0f} us from the fault report "
-          f"to the last halt frame sent")
-    print(f"  drives: every other axis stopped interpolating {min(halts)}..{max(halts)} SYNC period(s) after "
-          f"the SYNC on which node {faulty.node_id} faulted (must be <= 1)")
+    print(
+        f"halt after a fault on node {faulty.node_id} ({faulty.faults[0].check}; "
+        f"{result.result.value}: {result.message})"
+    )
+    print(
+        f"  master: halt controlword on SYNC {result.halt_sync}, {result.halt_latency_syncs} SYNC period(s) "
+        f"after the period of the fault; {1e6 * (result.halt_latency_s or 0):.0f} us from the fault report "
+        f"to the last halt frame sent"
+    )
+    print(
+        f"  drives: every other axis stopped interpolating {min(halts)}..{max(halts)} SYNC period(s) after "
+        f"the SYNC on which node {faulty.node_id} faulted (must be <= 1)"
+    )
 
 
 def main() -> None:

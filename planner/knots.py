@@ -52,11 +52,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
-from planner.interpolation import PiecewiseCubic, hermite_coefficients
+from planner.interpolation import LIMIT_RTOL, PiecewiseCubic, exceeds, hermite_coefficients
 from planner.program import FIXED_PERIOD_PROFILES, PROFILES, TIME_MAX_MS, AxisProgram
-
-# relative slack for float noise when comparing a reconstruction with a limit (as the validator)
-_REL_EPS = 1e-9
 
 
 class TimedTrajectory(Protocol):
@@ -100,12 +97,20 @@ class DriveAxis:
     @classmethod
     def from_config(cls, axis: Any) -> DriveAxis:
         """From a cell's axis configuration (service.config.AxisConfig, read by attribute)."""
-        return cls(axis.joint, axis.node_id, axis.profile, axis.scaling, axis.limits, axis.period_ms,
-                   axis.interpolation_submode)
+        return cls(
+            axis.joint,
+            axis.node_id,
+            axis.profile,
+            axis.scaling,
+            axis.limits,
+            axis.period_ms,
+            axis.interpolation_submode,
+        )
 
     def program(self, records: NDArray[np.int64]) -> AxisProgram:
-        return AxisProgram(self.name, self.node_id, self.profile, self.scaling, self.limits, records,
-                           self.interpolation_submode)
+        return AxisProgram(
+            self.name, self.node_id, self.profile, self.scaling, self.limits, records, self.interpolation_submode
+        )
 
 
 @dataclass(frozen=True)
@@ -172,7 +177,7 @@ def _sample(traj: TimedTrajectory, axes: Sequence[DriveAxis], scale: float) -> _
     bp = np.asarray(traj.breakpoints, dtype=float)[1:-1]
     eps = 1e-9 * max(traj.duration, 1.0)
     if len(bp):
-        jump_joint = (np.atleast_2d(traj.acceleration(bp + eps)) - np.atleast_2d(traj.acceleration(bp - eps)))
+        jump_joint = np.atleast_2d(traj.acceleration(bp + eps)) - np.atleast_2d(traj.acceleration(bp - eps))
         jump_joint = np.abs(jump_joint) / (scale * scale)
     else:
         jump_joint = np.zeros((0, len(axes)))
@@ -220,13 +225,15 @@ def _check(axis: DriveAxis, records: NDArray[np.int64], plan_qc: NDArray[np.floa
     T = recon.duration
     p_end = recon.c0 + T * (recon.c1 + T * (recon.c2 + T * recon.c3))
     reach = T * (np.abs(recon.c1) + np.abs(recon.c1 + T * (2.0 * recon.c2 + 3.0 * T * recon.c3))) * (4.0 / 27.0)
-    near = ((np.minimum(recon.c0, p_end) - reach < lim.min_position_qc)
-            | (np.maximum(recon.c0, p_end) + reach > lim.max_position_qc))
+    near = (np.minimum(recon.c0, p_end) - reach < lim.min_position_qc) | (
+        np.maximum(recon.c0, p_end) + reach > lim.max_position_qc
+    )
     out = np.zeros(len(T), dtype=bool)
     if near.any():
         m = np.flatnonzero(near)
-        part = PiecewiseCubic(recon.start[m], T[m], recon.c0[m], recon.c1[m], recon.c2[m], recon.c3[m],
-                              recon.interpolation)
+        part = PiecewiseCubic(
+            recon.start[m], T[m], recon.c0[m], recon.c1[m], recon.c2[m], recon.c3[m], recon.interpolation
+        )
         lo, hi = part.position_range()
         out[m] = (lo < lim.min_position_qc) | (hi > lim.max_position_qc)
     shift = float(recon.start[0] + recon.duration[0])
@@ -262,8 +269,9 @@ def _round_velocities(v_qc_per_ms: NDArray[np.float64], axis: DriveAxis) -> NDAr
 
 
 # --- EPOS2 PVT ---------------------------------------------------------------------------------------
-def _switch_knots(switch_ms: NDArray[np.float64], jump: NDArray[np.float64], threshold: float, n_ms: int,
-                  min_gap: int) -> NDArray[np.int64]:
+def _switch_knots(
+    switch_ms: NDArray[np.float64], jump: NDArray[np.float64], threshold: float, n_ms: int, min_gap: int
+) -> NDArray[np.int64]:
     """Integer ms at the significant acceleration switches, largest jumps first, min_gap apart."""
     big = np.flatnonzero(jump > threshold)
     if not len(big):
@@ -294,8 +302,9 @@ _MIN_SPLIT_MS = 12  # segments shorter than twice this are not split for a limit
 _FIT_PROBES = np.arange(1, 8) / 8.0  # where a candidate segment's fit is judged
 
 
-def _refine(knots: NDArray[np.int64], p: NDArray[np.float64], v: NDArray[np.float64], target: float,
-            max_rounds: int) -> NDArray[np.int64]:
+def _refine(
+    knots: NDArray[np.int64], p: NDArray[np.float64], v: NDArray[np.float64], target: float, max_rounds: int
+) -> NDArray[np.int64]:
     """Split segments until the cubic through the exact samples stays within ``target`` of the plan.
 
     The fit is judged at seven whole-ms probes per segment (a cheap first cut: the exact
@@ -380,33 +389,53 @@ class _Flat:
         sc = [a.scaling for a in axes]
         lim = [a.limits for a in axes]
         return cls(
-            tuple(axes), smp.n_ms + 1,
+            tuple(axes),
+            smp.n_ms + 1,
             np.ascontiguousarray(smp.position[:, cols].T).ravel(),
             np.ascontiguousarray(smp.velocity[:, cols].T).ravel(),
             np.array([s.qc_per_ms_per_velocity_unit for s in sc]),
             np.array([float(s.rpm_s_to_qc_per_ms2(m.max_acceleration_rpm_s)) for s, m in zip(sc, lim, strict=True)]),
             np.array([float(s.rpm_to_qc_per_ms(m.max_profile_velocity_rpm)) for s, m in zip(sc, lim, strict=True)]),
-            np.array([math.floor(m.max_profile_velocity_rpm / s.velocity_unit_rpm + 1e-9)
-                      for s, m in zip(sc, lim, strict=True)], dtype=float),
+            np.array(
+                [
+                    math.floor(m.max_profile_velocity_rpm / s.velocity_unit_rpm + 1e-9)
+                    for s, m in zip(sc, lim, strict=True)
+                ],
+                dtype=float,
+            ),
             np.array([float(m.min_position_qc) for m in lim]),
             np.array([float(m.max_position_qc) for m in lim]),
-            np.array([float(s.qc_per_ms_to_rpm(1.0)) / m.max_profile_velocity_rpm
-                      for s, m in zip(sc, lim, strict=True)]),
-            np.array([float(s.qc_per_ms2_to_rpm_s(1.0)) / m.max_acceleration_rpm_s
-                      for s, m in zip(sc, lim, strict=True)]),
+            np.array(
+                [float(s.qc_per_ms_to_rpm(1.0)) / m.max_profile_velocity_rpm for s, m in zip(sc, lim, strict=True)]
+            ),
+            np.array(
+                [float(s.qc_per_ms2_to_rpm_s(1.0)) / m.max_acceleration_rpm_s for s, m in zip(sc, lim, strict=True)]
+            ),
             np.arange(len(axes)),
         )
 
     def subset(self, keep: NDArray[np.int64]) -> _Flat:
         """The axes ``keep`` (positions in this one) alone; ``moved_knots`` maps knots across."""
         m = len(self.axes)
-        return _Flat(tuple(self.axes[a] for a in keep), self.stride,
-                     self.p.reshape(m, self.stride)[keep].ravel(), self.v.reshape(m, self.stride)[keep].ravel(),
-                     self.f[keep], self.amax[keep], self.vmax[keep], self.v_units[keep], self.pos_lo[keep],
-                     self.pos_hi[keep], self.rv_per[keep], self.ra_per[keep], self.ids[keep])
+        return _Flat(
+            tuple(self.axes[a] for a in keep),
+            self.stride,
+            self.p.reshape(m, self.stride)[keep].ravel(),
+            self.v.reshape(m, self.stride)[keep].ravel(),
+            self.f[keep],
+            self.amax[keep],
+            self.vmax[keep],
+            self.v_units[keep],
+            self.pos_lo[keep],
+            self.pos_hi[keep],
+            self.rv_per[keep],
+            self.ra_per[keep],
+            self.ids[keep],
+        )
 
-    def moved_knots(self, keep: NDArray[np.int64], knots: NDArray[np.int64]
-                    ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    def moved_knots(
+        self, keep: NDArray[np.int64], knots: NDArray[np.int64]
+    ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """For knots of this one: (the indices of those on the axes ``keep``, where they are in
         ``subset(keep)``)."""
         new_pos = np.full(len(self.axes), -1)
@@ -425,8 +454,9 @@ class _Flat:
 
     def flat_knots(self, per_axis: Sequence[NDArray[np.int64]]) -> NDArray[np.int64]:
         n = self.stride - 1
-        return np.concatenate([np.union1d([0, n], k[(k > 0) & (k < n)]) + a * self.stride
-                               for a, k in enumerate(per_axis)]).astype(np.int64)
+        return np.concatenate(
+            [np.union1d([0, n], k[(k > 0) & (k < n)]) + a * self.stride for a, k in enumerate(per_axis)]
+        ).astype(np.int64)
 
 
 def _real(fl: _Flat, knots: NDArray[np.int64]) -> NDArray[np.bool_]:
@@ -446,9 +476,9 @@ class _Fitted:
     worst: NDArray[np.float64] | None  # per segment, None when not asked for
 
 
-def _segment_samples(knots: NDArray[np.int64], segs: NDArray[np.int64]
-                     ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64],
-                                NDArray[np.int64]]:
+def _segment_samples(
+    knots: NDArray[np.int64], segs: NDArray[np.int64]
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
     """For the segments ``segs``, over the whole ms inside them (start included, end excluded):
     (their lengths, the first sample of each, every sample's tau, its basis table column, its
     plan index). Per-segment values reach the samples by ``np.repeat(x, lengths)``."""
@@ -456,12 +486,16 @@ def _segment_samples(knots: NDArray[np.int64], segs: NDArray[np.int64]
     T = knots[segs + 1] - knots[segs]
     first = np.cumsum(T) - T
     ar = np.arange(int(first[-1] + T[-1]))
-    return T, first, ar - np.repeat(first, T), np.repeat(table.offset[T] - first, T) + ar, \
-        np.repeat(knots[segs] - first, T) + ar
+    return (
+        T,
+        first,
+        ar - np.repeat(first, T),
+        np.repeat(table.offset[T] - first, T) + ar,
+        np.repeat(knots[segs] - first, T) + ar,
+    )
 
 
-def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, target: float | None = None
-             ) -> _Fitted:
+def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, target: float | None = None) -> _Fitted:
     """Knot positions and velocities (qc, qc/ms) whose cubics fit the plan best at every ms.
 
     Least squares over all drive samples: a banded (block-tridiagonal) system, solved in one go
@@ -505,9 +539,9 @@ def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, t
     rhs = np.zeros(m)
     span = 2 * (nk - 1)
     for a in range(4):  # segment k's entries (a, c) sit at 2k + a, 2k + c: one strided slice per pair
-        rhs[a:a + span:2] += r[a]
+        rhs[a : a + span : 2] += r[a]
         for c in range(a, 4):
-            ab[3 - (c - a), c:c + span:2] += G[a, c]
+            ab[3 - (c - a), c : c + span : 2] += G[a, c]
     tw = np.concatenate(([T[0]], 0.5 * (T[:-1] + T[1:]), [T[-1]]))
     reg_p, reg_v = 1e-3, 1e-3 * tw * tw
     ab[3, 0::2] += reg_p
@@ -528,8 +562,9 @@ def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, t
     worst = np.zeros(nseg)
     todo = real.copy()
     if prev is not None and prev.worst is not None:
-        d = (np.maximum(np.abs(P[:-1] - prev.P[i]), np.abs(P[1:] - prev.P[i + 1]))
-             + (4.0 / 27.0) * T * (np.abs(V[:-1] - prev.V[i]) + np.abs(V[1:] - prev.V[i + 1])))
+        d = np.maximum(np.abs(P[:-1] - prev.P[i]), np.abs(P[1:] - prev.P[i + 1])) + (4.0 / 27.0) * T * (
+            np.abs(V[:-1] - prev.V[i]) + np.abs(V[1:] - prev.V[i + 1])
+        )
         d = d * (1.0 + 1e-9) + 1e-9
         w_prev = prev.worst[i]
         keep = same & ((w_prev + d <= target) | (w_prev - d > target))
@@ -542,8 +577,12 @@ def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, t
         else:
             Te, first, _, col, j = _segment_samples(knots, ev)
             b = np.take(table.values, col, axis=1)
-        fit = (np.repeat(P[ev], Te) * b[0] + np.repeat(V[ev], Te) * b[1] + np.repeat(P[ev + 1], Te) * b[2]
-               + np.repeat(V[ev + 1], Te) * b[3])
+        fit = (
+            np.repeat(P[ev], Te) * b[0]
+            + np.repeat(V[ev], Te) * b[1]
+            + np.repeat(P[ev + 1], Te) * b[2]
+            + np.repeat(V[ev + 1], Te) * b[3]
+        )
         worst[ev] = np.maximum.reduceat(np.abs(fit - p[j]), first)
     return _Fitted(knots, r, P, V, worst)
 
@@ -557,8 +596,9 @@ def _fitted_subset(fl: _Flat, keep: NDArray[np.int64], fitted: _Fitted | None) -
     return _Fitted(knots, fitted.rhs[:, seg], fitted.P[sel], fitted.V[sel], worst)
 
 
-def _fit_knots(fl: _Flat, knots: NDArray[np.int64], target: float, max_rounds: int
-               ) -> tuple[NDArray[np.int64], _Fitted]:
+def _fit_knots(
+    fl: _Flat, knots: NDArray[np.int64], target: float, max_rounds: int
+) -> tuple[NDArray[np.int64], _Fitted]:
     """Split segments until the least-squares cubics stay within ``target`` of the plan."""
     fitted: _Fitted | None = None
     for _ in range(max_rounds):
@@ -573,8 +613,9 @@ def _fit_knots(fl: _Flat, knots: NDArray[np.int64], target: float, max_rounds: i
     return knots, fitted
 
 
-def _round_knots(fl: _Flat, knots: NDArray[np.int64], p: NDArray[np.float64], v: NDArray[np.float64]
-                 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+def _round_knots(
+    fl: _Flat, knots: NDArray[np.int64], p: NDArray[np.float64], v: NDArray[np.float64]
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Knot positions to counts (inside 0x607D), velocities to the drive's unit (inside 0x607F)."""
     ax = fl.axis_of(knots)
     r = np.rint(p)
@@ -585,8 +626,10 @@ def _round_knots(fl: _Flat, knots: NDArray[np.int64], p: NDArray[np.float64], v:
     V = np.clip(np.rint(v / fl.f[ax]), -fl.v_units[ax], fl.v_units[ax])
     out = (V < INT24_MIN) | (V > INT24_MAX)
     if out.any():
-        raise KnotError(f"{fl.axes[ax[np.argmax(out)]].name}: a velocity does not fit the int24 of a record "
-                        "(velocity unit too fine?)")
+        raise KnotError(
+            f"{fl.axes[ax[np.argmax(out)]].name}: a velocity does not fit the int24 of a record "
+            "(velocity unit too fine?)"
+        )
     V[fl.is_end(knots)] = 0
     return P, V.astype(np.int64)
 
@@ -608,12 +651,17 @@ def _checked_subset(fl: _Flat, keep: NDArray[np.int64], checked: _Checked | None
     sel, knots = fl.moved_knots(keep, checked.knots)
     seg = sel[:-1]
     c = checked.chk
-    return _Checked(knots, checked.P[sel], checked.V[sel],
-                    _Check(c.seg_deviation[seg], c.velocity_ratio[seg], c.acceleration_ratio[seg], c.position_out[seg]))
+    return _Checked(
+        knots,
+        checked.P[sel],
+        checked.V[sel],
+        _Check(c.seg_deviation[seg], c.velocity_ratio[seg], c.acceleration_ratio[seg], c.position_out[seg]),
+    )
 
 
-def _check_knots(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64],
-                 prev: _Checked | None = None) -> _Checked:
+def _check_knots(
+    fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64], prev: _Checked | None = None
+) -> _Checked:
     """``_check`` of the quantized knots of all axes at once, per knot segment.
 
     The drive's segment between two records is THE Hermite cubic through their integer positions
@@ -646,16 +694,23 @@ def _check_knots(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: N
     todo = real.copy()
     if prev is not None:
         i = np.minimum(np.searchsorted(prev.knots, knots[:-1]), len(prev.knots) - 2)
-        same = ((prev.knots[i] == knots[:-1]) & (prev.knots[i + 1] == knots[1:]) & (prev.P[i] == P[:-1])
-                & (prev.P[i + 1] == P[1:]) & (prev.V[i] == V[:-1]) & (prev.V[i + 1] == V[1:]))
+        same = (
+            (prev.knots[i] == knots[:-1])
+            & (prev.knots[i + 1] == knots[1:])
+            & (prev.P[i] == P[:-1])
+            & (prev.P[i + 1] == P[1:])
+            & (prev.V[i] == V[:-1])
+            & (prev.V[i + 1] == V[1:])
+        )
         seg_dev = np.where(same, prev.chk.seg_deviation[i], 0.0)
         todo &= ~same
     ch = np.flatnonzero(todo)
     if len(ch):
         Tc, first, tau_i, _, j = _segment_samples(knots, ch)
         tau = tau_i.astype(float)
-        pos = np.repeat(c[0][ch], Tc) + tau * (np.repeat(c[1][ch], Tc) + tau * (
-            np.repeat(c[2][ch], Tc) + tau * np.repeat(c[3][ch], Tc)))
+        pos = np.repeat(c[0][ch], Tc) + tau * (
+            np.repeat(c[1][ch], Tc) + tau * (np.repeat(c[2][ch], Tc) + tau * np.repeat(c[3][ch], Tc))
+        )
         dev = np.maximum.reduceat(np.abs(pos - fl.p[j]), first)
         last = (ch == nseg - 1) | ~real[np.minimum(ch + 1, nseg - 1)]  # the axis's goal sample too
         if last.any():
@@ -667,8 +722,14 @@ def _check_knots(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: N
     return _Checked(knots, P, V, _Check(seg_dev, rv, ra, out))
 
 
-def _velocity_qp(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], v: NDArray[np.float64],
-                 room: NDArray[np.float64], over: NDArray[np.int64]) -> NDArray[np.float64] | None:
+def _velocity_qp(
+    fl: _Flat,
+    knots: NDArray[np.int64],
+    P: NDArray[np.int64],
+    v: NDArray[np.float64],
+    room: NDArray[np.float64],
+    over: NDArray[np.int64],
+) -> NDArray[np.float64] | None:
     """Knot velocities (qc/ms) closest to ``v`` that keep every cubic inside 0x607F/0x60C5.
 
     With the positions fixed at their counts, a cubic's end accelerations are linear in its end
@@ -696,9 +757,14 @@ def _velocity_qp(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], v: N
     return out
 
 
-def _qp_solve(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], v: NDArray[np.float64],
-              room: NDArray[np.float64], over: NDArray[np.int64]
-              ) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
+def _qp_solve(
+    fl: _Flat,
+    knots: NDArray[np.int64],
+    P: NDArray[np.int64],
+    v: NDArray[np.float64],
+    room: NDArray[np.float64],
+    over: NDArray[np.int64],
+) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
     """The QP of ``_velocity_qp`` for the segments ``over``: (knots moved, their velocity change)."""
     import casadi
 
@@ -722,8 +788,10 @@ def _qp_solve(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], v: NDAr
     a1 = (-6.0 * dp + (2.0 * v0 + 4.0 * v1) * T) / (T * T)
     # rows per segment: start acceleration, end acceleration, position at T/3 and at 2T/3; the
     # coefficients of the segment's start velocity, then of its end velocity
-    coef = (np.column_stack((-4.0 / T, 2.0 / T, 4.0 * T / 27, 2.0 * T / 27)),
-            np.column_stack((-2.0 / T, 4.0 / T, -2.0 * T / 27, -4.0 * T / 27)))
+    coef = (
+        np.column_stack((-4.0 / T, 2.0 / T, 4.0 * T / 27, 2.0 * T / 27)),
+        np.column_stack((-2.0 / T, 4.0 / T, -2.0 * T / 27, -4.0 * T / 27)),
+    )
     row = 4 * np.arange(len(segs))[:, None] + np.arange(4)[None, :]
     rows, cidx, vals = [], [], []
     for end, knot in enumerate((segs, segs + 1)):
@@ -733,8 +801,9 @@ def _qp_solve(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], v: NDAr
         cidx.append(np.repeat(c[ok], 4))
         vals.append(coef[end][ok].ravel())
     m = len(cols)
-    A = casadi.DM.triplet(np.concatenate(rows).tolist(), np.concatenate(cidx).tolist(),
-                          np.concatenate(vals).tolist(), 4 * len(segs), m)
+    A = casadi.DM.triplet(
+        np.concatenate(rows).tolist(), np.concatenate(cidx).tolist(), np.concatenate(vals).tolist(), 4 * len(segs), m
+    )
     amax = fl.amax[ax[segs]]
     r_seg = room[segs]
     lo = np.stack((-amax - a0, -amax - a1, -r_seg, -r_seg), 1).ravel()
@@ -752,8 +821,14 @@ def _qp_solve(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], v: NDAr
     return cols, np.asarray(res["x"]).ravel()
 
 
-def _place_epos2(fl: _Flat, smp: _Samples, cols: Sequence[int], opts: KnotOptions, mode: str,
-                 initial: Sequence[NDArray[np.int64]] | None = None) -> list[tuple[AxisKnots, float]]:
+def _place_epos2(
+    fl: _Flat,
+    smp: _Samples,
+    cols: Sequence[int],
+    opts: KnotOptions,
+    mode: str,
+    initial: Sequence[NDArray[np.int64]] | None = None,
+) -> list[tuple[AxisKnots, float]]:
     """Records of the axes of ``fl`` (columns ``cols`` of ``smp``), and the slow-down each still
     calls for. ``mode``: "hint" (start from ``initial``, then least squares), "lsq" (switch knots,
     a coarse cut, least squares) or "exact" (cubics through the exact samples).
@@ -770,8 +845,12 @@ def _place_epos2(fl: _Flat, smp: _Samples, cols: Sequence[int], opts: KnotOption
         knots, fitted = _fit_knots(fl, fl.flat_knots(initial), target, opts.max_splits)
         p_fit, v_fit = fitted.P, fitted.V
     else:
-        switch = [_switch_knots(smp.switch_ms, smp.jump[:, c], abs(fl.amax[a]) * opts.switch_fraction, n,
-                                opts.min_switch_gap_ms) for a, c in enumerate(cols)]
+        switch = [
+            _switch_knots(
+                smp.switch_ms, smp.jump[:, c], abs(fl.amax[a]) * opts.switch_fraction, n, opts.min_switch_gap_ms
+            )
+            for a, c in enumerate(cols)
+        ]
         knots = fl.flat_knots(switch)
         if mode == "lsq":  # a coarse first cut with the cheap exact-sample cubics, then least-squares fits
             knots = _refine(knots, fl.p, fl.v, _COARSE * target, opts.max_splits)
@@ -834,20 +913,26 @@ def _place_epos2(fl: _Flat, smp: _Samples, cols: Sequence[int], opts: KnotOption
     return [out[i] for i in range(len(out))]
 
 
-def _axis_knots(fl: _Flat, a: int, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64],
-                chk: _Check, dwell_ms: int) -> tuple[AxisKnots, float]:
+def _axis_knots(
+    fl: _Flat, a: int, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64], chk: _Check, dwell_ms: int
+) -> tuple[AxisKnots, float]:
     """The records of axis ``a`` of ``fl``, what their reconstruction does, the slow-down it needs."""
     k0, k1 = np.searchsorted(knots, [a * fl.stride, (a + 1) * fl.stride])  # knots k0 .. k1 - 1
     times = np.concatenate(([dwell_ms], np.diff(knots[k0:k1])))
     records = np.vstack((np.column_stack((P[k0:k1], V[k0:k1], times)), [[P[k1 - 1], 0, 0]])).astype(np.int64)
-    dev = float(chk.seg_deviation[k0:k1 - 1].max())
-    rv = float(chk.velocity_ratio[k0:k1 - 1].max())
-    ra = float(chk.acceleration_ratio[k0:k1 - 1].max())
+    dev = float(chk.seg_deviation[k0 : k1 - 1].max())
+    rv = float(chk.velocity_ratio[k0 : k1 - 1].max())
+    ra = float(chk.acceleration_ratio[k0 : k1 - 1].max())
     return AxisKnots(fl.axes[a].name, records, dev, rv, ra), _needed_scale(rv, ra)
 
 
-def _epos2_axes(axes: Sequence[DriveAxis], cols: Sequence[int], smp: _Samples, opts: KnotOptions,
-                hints: Sequence[NDArray[np.int64]] | None) -> list[tuple[AxisKnots, float]]:
+def _epos2_axes(
+    axes: Sequence[DriveAxis],
+    cols: Sequence[int],
+    smp: _Samples,
+    opts: KnotOptions,
+    hints: Sequence[NDArray[np.int64]] | None,
+) -> list[tuple[AxisKnots, float]]:
     """Records of the EPOS2 ``axes`` (columns ``cols`` of the samples), all placed together.
 
     Least-squares cubics need the fewest records for the tolerance, but spend most of it: where
@@ -858,8 +943,9 @@ def _epos2_axes(axes: Sequence[DriveAxis], cols: Sequence[int], smp: _Samples, o
     results: dict[int, tuple[AxisKnots, float]] = {}
     todo = list(range(len(axes)))
 
-    def place(which: list[int], mode: str, initial: Sequence[NDArray[np.int64]] | None = None
-              ) -> list[tuple[AxisKnots, float]]:
+    def place(
+        which: list[int], mode: str, initial: Sequence[NDArray[np.int64]] | None = None
+    ) -> list[tuple[AxisKnots, float]]:
         fl = _Flat.of([axes[i] for i in which], [cols[i] for i in which], smp)
         return _place_epos2(fl, smp, [cols[i] for i in which], opts, mode, initial)
 
@@ -894,9 +980,15 @@ _COMBO_V = np.column_stack((_ZERO, _COMBOS[:, 1], _COMBOS[:, 3], _ZERO))
 _COMBO_NONE = int(np.flatnonzero(~_COMBOS.any(axis=1))[0])  # the combination that moves nothing
 
 
-def _repair(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64],
-            segments: NDArray[np.int64], tolerance: float, settled: dict[bytes, int]
-            ) -> tuple[NDArray[np.int64], NDArray[np.int64], bool]:
+def _repair(
+    fl: _Flat,
+    knots: NDArray[np.int64],
+    P: NDArray[np.int64],
+    V: NDArray[np.int64],
+    segments: NDArray[np.int64],
+    tolerance: float,
+    settled: dict[bytes, int],
+) -> tuple[NDArray[np.int64], NDArray[np.int64], bool]:
     """Re-round the end knots of segments whose quantized reconstruction exceeds a limit.
 
     Rounding each number to its nearest integer ignores that a cubic's end accelerations move
@@ -923,8 +1015,9 @@ def _repair(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArra
     return P, V, moved
 
 
-def _window_keys(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64],
-                 idx: NDArray[np.int64]) -> list[bytes]:
+def _window_keys(
+    fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64], idx: NDArray[np.int64]
+) -> list[bytes]:
     """One key per row of ``idx`` (knot indices): what a repair of that neighbourhood depends on
     (the axis, and its knots in its own ms, counts and velocities: it holds across ``subset``)."""
     kn = knots[idx]
@@ -932,8 +1025,15 @@ def _window_keys(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: N
     return [row.tobytes() for row in np.concatenate((ax, kn % fl.stride, P[idx], V[idx]), axis=1)]
 
 
-def _repair_wave(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64],
-                 s: NDArray[np.int64], tolerance: float, settled: dict[bytes, int]) -> bool:
+def _repair_wave(
+    fl: _Flat,
+    knots: NDArray[np.int64],
+    P: NDArray[np.int64],
+    V: NDArray[np.int64],
+    s: NDArray[np.int64],
+    tolerance: float,
+    settled: dict[bytes, int],
+) -> bool:
     """``_repair`` of segments ``s`` (none within 3 of another) at once, in place in ``P``, ``V``."""
     nk = len(knots)
     idx_c = np.clip(s[:, None] + _WINDOW[None, :], 0, nk - 1)
@@ -988,13 +1088,13 @@ def _repair_wave(fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: N
 
 
 def _over(chk: _Check) -> NDArray[np.bool_]:
-    return (chk.acceleration_ratio > 1.0 + _REL_EPS) | (chk.velocity_ratio > 1.0 + _REL_EPS)
+    return exceeds(chk.acceleration_ratio, 1.0) | exceeds(chk.velocity_ratio, 1.0)
 
 
 def _needed_scale(rv: float, ra: float) -> float:
     """Slowing down by k divides velocities by k and accelerations by k^2."""
     k = max(rv, math.sqrt(max(ra, 0.0)))
-    return k * (1.0 + 1e-4) if k > 1.0 + _REL_EPS else 1.0
+    return k * (1.0 + 1e-4) if exceeds(k, 1.0) else 1.0
 
 
 # --- fixed-period profiles -------------------------------------------------------------------------------
@@ -1031,8 +1131,8 @@ def _track_linear(P: NDArray[np.int64], p: NDArray[np.float64], axis: DriveAxis,
     rest to rest. Where there is none, the plain rounding is kept (and the check slows down).
     """
     s = axis.scaling
-    a_max = float(s.rpm_s_to_qc_per_ms2(axis.limits.max_acceleration_rpm_s)) * period * period * (1 + _REL_EPS)
-    v_max = float(s.rpm_to_qc_per_ms(axis.limits.max_profile_velocity_rpm)) * period * (1 + _REL_EPS)
+    a_max = float(s.rpm_s_to_qc_per_ms2(axis.limits.max_acceleration_rpm_s)) * period * period * (1 + LIMIT_RTOL)
+    v_max = float(s.rpm_to_qc_per_ms(axis.limits.max_profile_velocity_rpm)) * period * (1 + LIMIT_RTOL)
     steps = np.diff(np.concatenate(([P[0]], P, [P[-1]])))  # from rest, to rest
     if np.all(np.abs(np.diff(steps)) <= a_max) and np.all(np.abs(steps) <= v_max):
         return P

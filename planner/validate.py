@@ -32,15 +32,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
-from planner.interpolation import DRIVE_SAMPLE_MS, PiecewiseCubic
+from planner.interpolation import DRIVE_SAMPLE_MS, PiecewiseCubic, exceeds
 from planner.program import FIXED_PERIOD_PROFILES, TIME_MAX_MS, AxisProgram, PvtProgram
 
 ERROR = "error"
 WARNING = "warning"
 
-# Relative slack for float noise in the limit comparisons: a reconstruction that reaches a limit
-# exactly (to 1e-9) is at the limit, not above it.
-_REL_EPS = 1e-9
 # At most this many findings of one rule per axis are listed in the text report.
 _TEXT_FINDINGS_PER_RULE = 8
 
@@ -143,12 +140,9 @@ class ValidationReport:
         for a in self.axes:
             parts = [f"{a.axis} [{a.profile}]: {a.records} records, {a.duration_ms:.0f} ms"]
             if a.velocity_ratio is not None and a.acceleration_ratio is not None:
+                parts.append(f"max |v| {a.max_velocity_rpm:.1f} rpm ({100 * a.velocity_ratio:.1f}% of 0x607F)")
                 parts.append(
-                    f"max |v| {a.max_velocity_rpm:.1f} rpm ({100 * a.velocity_ratio:.1f}% of 0x607F)"
-                )
-                parts.append(
-                    f"max |a| {a.max_acceleration_rpm_s:.0f} rpm/s "
-                    f"({100 * a.acceleration_ratio:.1f}% of 0x60C5)"
+                    f"max |a| {a.max_acceleration_rpm_s:.0f} rpm/s ({100 * a.acceleration_ratio:.1f}% of 0x60C5)"
                 )
             lines.append("  " + ", ".join(parts))
         shown: Counter[tuple[str, str]] = Counter()
@@ -191,9 +185,7 @@ def validate_program(
 def _validate_axis(axis: AxisProgram, sample_period_ms: float | None) -> tuple[list[Finding], AxisSummary]:
     r = np.asarray(axis.records, dtype=np.int64)
     out: list[Finding] = []
-    bare = AxisSummary(
-        axis.name, axis.profile, len(r), float(r[:, 2].sum()) if r.ndim == 2 and len(r) else 0.0
-    )
+    bare = AxisSummary(axis.name, axis.profile, len(r), float(r[:, 2].sum()) if r.ndim == 2 and len(r) else 0.0)
     if r.ndim != 2 or r.shape[1] != 3 or len(r) < 2:
         out.append(
             Finding(
@@ -270,15 +262,14 @@ def _check_epos2(name: str, r: NDArray[np.int64]) -> list[Finding]:
                 "time-range",
                 name,
                 0,
-                f"the start record's time (dwell before the first segment) must be in 1..255 ms, "
-                f"is {int(r[0, 2])}",
+                f"the start record's time (dwell before the first segment) must be in 1..255 ms, is {int(r[0, 2])}",
                 float(1 - r[0, 2] if r[0, 2] < 1 else r[0, 2] - TIME_MAX_MS),
                 float(r[0, 2]),
                 1.0 if r[0, 2] < 1 else float(TIME_MAX_MS),
                 "ms",
             )
         )
-    inner = r[1:n - 1, 2]
+    inner = r[1 : n - 1, 2]
     for k in (1 + np.flatnonzero((inner < 1) | (inner > TIME_MAX_MS))).tolist():  # the bad ones, in order
         t = int(r[k, 2])
         if t == 0:
@@ -288,8 +279,7 @@ def _check_epos2(name: str, r: NDArray[np.int64]) -> list[Finding]:
                     "time-range",
                     name,
                     k,
-                    f"time 0 ends interpolation here, before the last record: records {k + 1}.."
-                    f"{n - 1} would never run",
+                    f"time 0 ends interpolation here, before the last record: records {k + 1}..{n - 1} would never run",
                     1.0,
                     0.0,
                     1.0,
@@ -347,8 +337,7 @@ def _check_epos2(name: str, r: NDArray[np.int64]) -> list[Finding]:
                     "end-record",
                     name,
                     last,
-                    f"the end record must repeat the final position {int(r[last - 1, 0])} qc, "
-                    f"differs by {d} qc",
+                    f"the end record must repeat the final position {int(r[last - 1, 0])} qc, differs by {d} qc",
                     float(abs(d)),
                     float(r[last, 0]),
                     float(r[last - 1, 0]),
@@ -478,13 +467,16 @@ def _check_motion(
         obj: str,
         unit: str,
     ) -> None:
-        bad = np.flatnonzero(seg > limit * (1.0 + _REL_EPS))
+        bad = np.flatnonzero(exceeds(seg, limit))
         for k in bad:
             in_seg = seg_of_sample == k
             worst_sample = float(sampled[in_seg].max()) if in_seg.any() else 0.0
-            seen = "also" if worst_sample > limit * (1.0 + _REL_EPS) else "not"
-            samples = (f"; {seen} at the drive's {sample_period_ms:g} ms samples (worst {worst_sample:.6g})"
-                       if sample_period_ms else "")
+            seen = "also" if exceeds(worst_sample, limit) else "not"
+            samples = (
+                f"; {seen} at the drive's {sample_period_ms:g} ms samples (worst {worst_sample:.6g})"
+                if sample_period_ms
+                else ""
+            )
             value = float(seg[k])
             out.append(
                 Finding(
@@ -504,13 +496,9 @@ def _check_motion(
             )
 
     over_limit("velocity", "velocity-limit", ERROR, seg_v, sv, lim.max_profile_velocity_rpm, "0x607F", "rpm")
-    over_limit(
-        "acceleration", "acceleration-limit", ERROR, seg_a, sa, lim.max_acceleration_rpm_s, "0x60C5", "rpm/s"
-    )
+    over_limit("acceleration", "acceleration-limit", ERROR, seg_a, sa, lim.max_acceleration_rpm_s, "0x60C5", "rpm/s")
     if lim.profile_velocity_rpm is not None:
-        over_limit(
-            "velocity", "profile-velocity", WARNING, seg_v, sv, lim.profile_velocity_rpm, "0x6081", "rpm"
-        )
+        over_limit("velocity", "profile-velocity", WARNING, seg_v, sv, lim.profile_velocity_rpm, "0x6081", "rpm")
     if lim.profile_acceleration_rpm_s is not None:
         over_limit(
             "acceleration",

@@ -76,8 +76,7 @@ ERROR_DESCRIPTIONS: dict[ErrorCode, str] = {
     ErrorCode.UNKNOWN_JOINT: "joint_names names a joint the cell does not have, misses one, or repeats one.",
     ErrorCode.OUT_OF_LIMITS: "A waypoint is outside the joint position limits (the stricter of the drives' "
     "0x607D and the URDF's); details has the joint, the value and the limits.",
-    ErrorCode.TOO_LARGE: f"The payload is over {MAX_REQUEST_BYTES} bytes or has more than {MAX_WAYPOINTS} "
-    "waypoints.",
+    ErrorCode.TOO_LARGE: f"The payload is over {MAX_REQUEST_BYTES} bytes or has more than {MAX_WAYPOINTS} waypoints.",
     ErrorCode.UNKNOWN_PLAN: "No plan with this plan_id on this cell (plans live in memory: a restart or "
     "too many newer plans forget it).",
     ErrorCode.WRONG_CELL: "The program was made for another cell, other node ids, profiles, scaling or limits.",
@@ -145,18 +144,27 @@ def parse_payload(payload: bytes | None) -> Any:
     if payload is None or len(payload) == 0:
         return {}
     if len(payload) > MAX_REQUEST_BYTES:
-        raise ApiError(ErrorCode.TOO_LARGE, f"the request is {len(payload)} bytes, the limit is {MAX_REQUEST_BYTES}",
-                       {"bytes": len(payload), "limit": MAX_REQUEST_BYTES})
+        raise ApiError(
+            ErrorCode.TOO_LARGE,
+            f"the request is {len(payload)} bytes, the limit is {MAX_REQUEST_BYTES}",
+            {"bytes": len(payload), "limit": MAX_REQUEST_BYTES},
+        )
     try:
         text = payload.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise ApiError(ErrorCode.MALFORMED_JSON, f"the payload is not UTF-8 text: {exc.reason} at byte {exc.start}",
-                       {"position": exc.start}) from None
+        raise ApiError(
+            ErrorCode.MALFORMED_JSON,
+            f"the payload is not UTF-8 text: {exc.reason} at byte {exc.start}",
+            {"position": exc.start},
+        ) from None
     try:
         data = json.loads(text, parse_constant=_parse_constant)
     except json.JSONDecodeError as exc:
-        raise ApiError(ErrorCode.MALFORMED_JSON, f"the payload is not JSON: {exc.msg} (line {exc.lineno}, "
-                       f"column {exc.colno})", {"line": exc.lineno, "column": exc.colno}) from None
+        raise ApiError(
+            ErrorCode.MALFORMED_JSON,
+            f"the payload is not JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})",
+            {"line": exc.lineno, "column": exc.colno},
+        ) from None
     except RecursionError:
         raise ApiError(ErrorCode.MALFORMED_JSON, "the payload is nested too deeply to be a request") from None
     except ValueError as exc:  # e.g. an integer literal of more than 4300 digits
@@ -172,8 +180,11 @@ def _check_finite(data: Any) -> None:
         value, path = stack.pop()
         if isinstance(value, float):
             if not math.isfinite(value):
-                raise ApiError(ErrorCode.NOT_FINITE, f"{path} is {value!r}: numbers must be finite",
-                               {"path": path, "value": str(value)})
+                raise ApiError(
+                    ErrorCode.NOT_FINITE,
+                    f"{path} is {value!r}: numbers must be finite",
+                    {"path": path, "value": str(value)},
+                )
         elif isinstance(value, dict):
             stack.extend((v, f"{path}.{k}") for k, v in value.items())
         elif isinstance(value, list):
@@ -214,40 +225,73 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
         body = _obj(
             {
                 "waypoints": {
-                    "type": "array", "minItems": 1, "maxItems": MAX_WAYPOINTS,
+                    "type": "array",
+                    "minItems": 1,
+                    "maxItems": MAX_WAYPOINTS,
                     "items": _vector(dof, "joint positions (rad / m), in joint_names order"),
                     "description": "positions to pass through; with start=current the motion starts at the axes' "
                     "present position and goes through all of them",
                 },
                 "target": _vector(dof, "a single goal: the same as waypoints=[target] with start=current"),
-                "joint_names": {"type": "array", "items": {"type": "string"}, "minItems": 1,
-                                "description": "the order of the values (default: the cell's joint order)"},
-                "start": {"enum": ["current", "first"], "default": "current",
-                          "description": "current: from where the axes are now; first: the first waypoint is the "
-                          "start (execute then checks the axes are there)"},
-                "tolerance_qc": {"type": "number", "minimum": 0.5, "maximum": 10000,
-                                 "description": "knot placement tolerance in counts (default: the cell's)"},
+                "joint_names": {
+                    "type": "array",
+                    "items": {"type": "string"},
+                    "minItems": 1,
+                    "description": "the order of the values (default: the cell's joint order)",
+                },
+                "start": {
+                    "enum": ["current", "first"],
+                    "default": "current",
+                    "description": "current: from where the axes are now; first: the first waypoint is the "
+                    "start (execute then checks the axes are there)",
+                },
+                "tolerance_qc": {
+                    "type": "number",
+                    "minimum": 0.5,
+                    "maximum": 10000,
+                    "description": "knot placement tolerance in counts (default: the cell's)",
+                },
                 "label": _TEXT,
-                "include_program": {"type": "boolean", "default": False,
-                                    "description": "put the whole PVT program in the reply"},
+                "include_program": {
+                    "type": "boolean",
+                    "default": False,
+                    "description": "put the whole PVT program in the reply",
+                },
             },
             oneOf=[{"required": ["waypoints"]}, {"required": ["target"]}],
         )
     elif name == "validate":
-        body = _obj({"plan_id": _PLAN_ID, "program": _PROGRAM},
-                    oneOf=[{"required": ["plan_id"]}, {"required": ["program"]}])
+        body = _obj(
+            {"plan_id": _PLAN_ID, "program": _PROGRAM}, oneOf=[{"required": ["plan_id"]}, {"required": ["program"]}]
+        )
     elif name == "execute":
         body = _obj(
-            {"plan_id": _PLAN_ID, "program": _PROGRAM, "label": _TEXT,
-             "wait": {"type": "boolean", "default": False,
-                      "description": "reply at the end of the motion (with its outcome) instead of at its start"}},
+            {
+                "plan_id": _PLAN_ID,
+                "program": _PROGRAM,
+                "label": _TEXT,
+                "wait": {
+                    "type": "boolean",
+                    "default": False,
+                    "description": "reply at the end of the motion (with its outcome) instead of at its start",
+                },
+            },
             oneOf=[{"required": ["plan_id"]}, {"required": ["program"]}],
         )
     elif name == "stop":
         body = _obj({"reason": _TEXT})
     elif name == "status":
-        body = _obj({"recent": {"type": "integer", "minimum": 0, "maximum": MAX_RECENT, "default": 10,
-                                "description": "how many recent motions (from the journal) to list"}})
+        body = _obj(
+            {
+                "recent": {
+                    "type": "integer",
+                    "minimum": 0,
+                    "maximum": MAX_RECENT,
+                    "default": 10,
+                    "description": "how many recent motions (from the journal) to list",
+                }
+            }
+        )
     elif name == "recover":
         body = _obj({})
     else:
@@ -257,10 +301,14 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
 
 _AXIS_STATUS = _obj(
     {
-        "joint": {"type": "string"}, "node_id": {"type": "integer"}, "profile": {"type": "string"},
+        "joint": {"type": "string"},
+        "node_id": {"type": "integer"},
+        "profile": {"type": "string"},
         "state": {"type": "string", "description": "CiA 402 power state decoded from the statusword"},
-        "statusword": {"type": "integer"}, "statusword_hex": {"type": "string"},
-        "position_qc": _INT_OR_NULL, "position": _NUM_OR_NULL,
+        "statusword": {"type": "integer"},
+        "statusword_hex": {"type": "string"},
+        "position_qc": _INT_OR_NULL,
+        "position": _NUM_OR_NULL,
         "buffer_status": {"type": "integer", "description": "EPOS2 0x20C4:01 (0 for other profiles)"},
         "buffer_flags": {"type": "array", "items": {"type": "string"}},
         "buffer_level": _INT_OR_NULL,
@@ -270,15 +318,23 @@ _AXIS_STATUS = _obj(
     },
     required=["joint", "node_id", "state", "statusword", "position_qc", "position", "buffer_status", "fault"],
 )
-_RUN_RESULT = {"type": "object", "required": ["result", "message"],
-               "properties": {"result": {"type": "string"}, "message": {"type": "string"}}}
+_RUN_RESULT = {
+    "type": "object",
+    "required": ["result", "message"],
+    "properties": {"result": {"type": "string"}, "message": {"type": "string"}},
+}
 _MOTION = {
-    "type": "object", "required": ["motion_id", "state"],
+    "type": "object",
+    "required": ["motion_id", "state"],
     "properties": {
-        "motion_id": _MOTION_ID, "plan_id": _STR_OR_NULL, "label": _STR_OR_NULL,
+        "motion_id": _MOTION_ID,
+        "plan_id": _STR_OR_NULL,
+        "label": _STR_OR_NULL,
         "state": {"enum": ["running", "ended", "interrupted"]},
-        "accepted_at": {"type": "string"}, "ended_at": _STR_OR_NULL,
-        "duration_ms": {"type": "integer"}, "outcome": {"type": ["object", "null"]},
+        "accepted_at": {"type": "string"},
+        "ended_at": _STR_OR_NULL,
+        "duration_ms": {"type": "integer"},
+        "outcome": {"type": ["object", "null"]},
     },
 }
 SERVICE_STATES = ("idle", "moving", "stopping", "fault")
@@ -291,73 +347,154 @@ def reply_schema(name: str) -> dict[str, Any]:
             "type": "object",
             "required": ["plan_id", "cell", "joint_names", "duration_s", "start", "end", "validation", "timing_ms"],
             "properties": {
-                "plan_id": _PLAN_ID, "cell": {"type": "string"},
+                "plan_id": _PLAN_ID,
+                "cell": {"type": "string"},
                 "joint_names": {"type": "array", "items": {"type": "string"}},
-                "duration_s": {"type": "number"}, "waypoints": {"type": "integer"},
+                "duration_s": {"type": "number"},
+                "waypoints": {"type": "integer"},
                 "start": {"type": "array", "items": {"type": "number"}},
                 "end": {"type": "array", "items": {"type": "number"}},
                 "records": {"type": "object", "additionalProperties": {"type": "integer"}},
-                "validation": {"type": "object"}, "timing_ms": {"type": "object"},
-                "program": _PROGRAM, "label": _STR_OR_NULL,
+                "validation": {"type": "object"},
+                "timing_ms": {"type": "object"},
+                "program": _PROGRAM,
+                "label": _STR_OR_NULL,
             },
         }
     elif name == "validate":
-        body = {"type": "object", "required": ["ok", "report", "cell_problems"],
-                "properties": {"ok": {"type": "boolean"}, "report": {"type": "object"},
-                               "cell_problems": {"type": "array", "items": {"type": "string"}}}}
+        body = {
+            "type": "object",
+            "required": ["ok", "report", "cell_problems"],
+            "properties": {
+                "ok": {"type": "boolean"},
+                "report": {"type": "object"},
+                "cell_problems": {"type": "array", "items": {"type": "string"}},
+            },
+        }
     elif name == "execute":
-        body = {"type": "object", "required": ["motion_id", "state", "duration_ms"],
-                "properties": {"motion_id": _MOTION_ID, "plan_id": _STR_OR_NULL,
-                               "state": {"enum": ["running", "ended"]}, "duration_ms": {"type": "integer"},
-                               "start_sync": _INT_OR_NULL, "outcome": {"type": ["object", "null"]}}}
+        body = {
+            "type": "object",
+            "required": ["motion_id", "state", "duration_ms"],
+            "properties": {
+                "motion_id": _MOTION_ID,
+                "plan_id": _STR_OR_NULL,
+                "state": {"enum": ["running", "ended"]},
+                "duration_ms": {"type": "integer"},
+                "start_sync": _INT_OR_NULL,
+                "outcome": {"type": ["object", "null"]},
+            },
+        }
     elif name == "stop":
-        body = {"type": "object", "required": ["was_moving", "motion_id", "axes"],
-                "properties": {"was_moving": {"type": "boolean"}, "motion_id": {"type": ["string", "null"]},
-                               "outcome": {"type": ["object", "null"]},
-                               "axes": {"type": "array", "items": _AXIS_STATUS}}}
+        body = {
+            "type": "object",
+            "required": ["was_moving", "motion_id", "axes"],
+            "properties": {
+                "was_moving": {"type": "boolean"},
+                "motion_id": {"type": ["string", "null"]},
+                "outcome": {"type": ["object", "null"]},
+                "axes": {"type": "array", "items": _AXIS_STATUS},
+            },
+        }
     elif name == "status":
-        body = {"type": "object",
-                "required": ["cell", "state", "motion", "axes", "joint_names", "recent", "plans"],
-                "properties": {"cell": {"type": "string"}, "state": {"enum": list(SERVICE_STATES)},
-                               "motion": {"type": ["object", "null"]}, "sync_count": {"type": "integer"},
-                               "elapsed_ms": _NUM_OR_NULL,
-                               "joint_names": {"type": "array", "items": {"type": "string"}},
-                               "axes": {"type": "array", "items": _AXIS_STATUS},
-                               "recent": {"type": "array", "items": _MOTION}, "plans": {"type": "integer"},
-                               "last_result": {"type": ["object", "null"]}}}
+        body = {
+            "type": "object",
+            "required": ["cell", "state", "motion", "axes", "joint_names", "recent", "plans"],
+            "properties": {
+                "cell": {"type": "string"},
+                "state": {"enum": list(SERVICE_STATES)},
+                "motion": {"type": ["object", "null"]},
+                "sync_count": {"type": "integer"},
+                "elapsed_ms": _NUM_OR_NULL,
+                "joint_names": {"type": "array", "items": {"type": "string"}},
+                "axes": {"type": "array", "items": _AXIS_STATUS},
+                "recent": {"type": "array", "items": _MOTION},
+                "plans": {"type": "integer"},
+                "last_result": {"type": ["object", "null"]},
+            },
+        }
     elif name == "recover":
-        body = {"type": "object", "required": ["ok", "message", "axes"],
-                "properties": {"ok": {"type": "boolean"}, "message": {"type": "string"},
-                               "axes": {"type": "array", "items": _AXIS_STATUS}}}
+        body = {
+            "type": "object",
+            "required": ["ok", "message", "axes"],
+            "properties": {
+                "ok": {"type": "boolean"},
+                "message": {"type": "string"},
+                "axes": {"type": "array", "items": _AXIS_STATUS},
+            },
+        }
     elif name == "state":
-        body = {"type": "object", "required": ["cell", "state", "motion_id", "axes", "seq", "time"],
-                "properties": {"cell": {"type": "string"}, "state": {"enum": list(SERVICE_STATES)},
-                               "motion_id": {"type": ["string", "null"]}, "seq": {"type": "integer"},
-                               "time": {"type": "number"},
-                               "axes": {"type": "array", "items": {"type": "object", "required": ["joint", "state"]}}}}
+        body = {
+            "type": "object",
+            "required": ["cell", "state", "motion_id", "axes", "seq", "time"],
+            "properties": {
+                "cell": {"type": "string"},
+                "state": {"enum": list(SERVICE_STATES)},
+                "motion_id": {"type": ["string", "null"]},
+                "seq": {"type": "integer"},
+                "time": {"type": "number"},
+                "axes": {"type": "array", "items": {"type": "object", "required": ["joint", "state"]}},
+            },
+        }
     elif name == "telemetry":
-        body = {"type": "object",
-                "required": ["cell", "motion_id", "sync", "elapsed_ms", "positions_qc", "positions", "buffer_levels",
-                             "states", "time"],
-                "properties": {"cell": {"type": "string"}, "motion_id": {"type": ["string", "null"]},
-                               "sync": {"type": "integer"}, "elapsed_ms": _NUM_OR_NULL,
-                               "progress": _NUM_OR_NULL, "time": {"type": "number"},
-                               "positions_qc": {"type": "array", "items": _INT_OR_NULL},
-                               "positions": {"type": "array", "items": _NUM_OR_NULL},
-                               "buffer_levels": {"type": "array", "items": _INT_OR_NULL},
-                               "states": {"type": "array", "items": {"type": "string"}}}}
+        body = {
+            "type": "object",
+            "required": [
+                "cell",
+                "motion_id",
+                "sync",
+                "elapsed_ms",
+                "positions_qc",
+                "positions",
+                "buffer_levels",
+                "states",
+                "time",
+            ],
+            "properties": {
+                "cell": {"type": "string"},
+                "motion_id": {"type": ["string", "null"]},
+                "sync": {"type": "integer"},
+                "elapsed_ms": _NUM_OR_NULL,
+                "progress": _NUM_OR_NULL,
+                "time": {"type": "number"},
+                "positions_qc": {"type": "array", "items": _INT_OR_NULL},
+                "positions": {"type": "array", "items": _NUM_OR_NULL},
+                "buffer_levels": {"type": "array", "items": _INT_OR_NULL},
+                "states": {"type": "array", "items": {"type": "string"}},
+            },
+        }
     elif name == "events":
-        body = {"type": "object", "required": ["cell", "kind", "message", "time"],
-                "properties": {"cell": {"type": "string"}, "kind": {"type": "string"},
-                               "message": {"type": "string"}, "joint": _STR_OR_NULL, "node_id": _INT_OR_NULL,
-                               "motion_id": {"type": ["string", "null"]}, "time": {"type": "number"},
-                               "outcome": {"type": ["object", "null"]}}}
+        body = {
+            "type": "object",
+            "required": ["cell", "kind", "message", "time"],
+            "properties": {
+                "cell": {"type": "string"},
+                "kind": {"type": "string"},
+                "message": {"type": "string"},
+                "joint": _STR_OR_NULL,
+                "node_id": _INT_OR_NULL,
+                "motion_id": {"type": ["string", "null"]},
+                "time": {"type": "number"},
+                "outcome": {"type": ["object", "null"]},
+            },
+        }
     elif name == "error":
-        body = {"type": "object", "required": ["error"], "additionalProperties": False,
-                "properties": {"error": {
-                    "type": "object", "required": ["code", "message", "details"], "additionalProperties": False,
-                    "properties": {"code": {"enum": [c.value for c in ErrorCode]}, "message": {"type": "string"},
-                                   "details": {"type": "object"}}}}}
+        body = {
+            "type": "object",
+            "required": ["error"],
+            "additionalProperties": False,
+            "properties": {
+                "error": {
+                    "type": "object",
+                    "required": ["code", "message", "details"],
+                    "additionalProperties": False,
+                    "properties": {
+                        "code": {"enum": [c.value for c in ErrorCode]},
+                        "message": {"type": "string"},
+                        "details": {"type": "object"},
+                    },
+                }
+            },
+        }
     else:
         raise KeyError(name)
     return {"$schema": SCHEMA_DIALECT, "$id": f"pvtflow:{name}.reply", "title": f"{name} reply", **body}
@@ -383,19 +520,28 @@ def check_schema(name: str, data: Any, dof: int | None) -> dict[str, Any]:
         if err.validator in ("minItems", "maxItems") and path and path[0] in ("waypoints", "target"):
             if path == ["waypoints"]:
                 if err.validator == "maxItems":
-                    raise ApiError(ErrorCode.TOO_LARGE, f"{len(err.instance)} waypoints, at most {MAX_WAYPOINTS}",
-                                   {"waypoints": len(err.instance), "limit": MAX_WAYPOINTS})
+                    raise ApiError(
+                        ErrorCode.TOO_LARGE,
+                        f"{len(err.instance)} waypoints, at most {MAX_WAYPOINTS}",
+                        {"waypoints": len(err.instance), "limit": MAX_WAYPOINTS},
+                    )
                 continue
-            raise ApiError(ErrorCode.WRONG_JOINT_COUNT,
-                           f"{_json_path(path)} has {len(err.instance)} values, the cell has {dof} joints",
-                           {"path": _json_path(path), "expected": dof, "got": len(err.instance)})
+            raise ApiError(
+                ErrorCode.WRONG_JOINT_COUNT,
+                f"{_json_path(path)} has {len(err.instance)} values, the cell has {dof} joints",
+                {"path": _json_path(path), "expected": dof, "got": len(err.instance)},
+            )
     raise _schema_error(name, data, errors)
 
 
 def _schema_error(name: str, data: Any, errors: list[ValidationError]) -> ApiError:
     if not isinstance(data, dict):
-        return ApiError(ErrorCode.INVALID_REQUEST, f"a {name} request must be a JSON object, got "
-                        f"{type(data).__name__ if not isinstance(data, list) else 'an array'}", {"path": "$"})
+        return ApiError(
+            ErrorCode.INVALID_REQUEST,
+            f"a {name} request must be a JSON object, got "
+            f"{type(data).__name__ if not isinstance(data, list) else 'an array'}",
+            {"path": "$"},
+        )
     err = min(errors, key=lambda e: (e.validator != "additionalProperties", -len(e.absolute_path)))
     path = _json_path(list(err.absolute_path))
     if err.validator == "additionalProperties":
@@ -407,8 +553,11 @@ def _schema_error(name: str, data: Any, errors: list[ValidationError]) -> ApiErr
         message = f"a {name} request needs exactly one of {' or '.join(choices)}"
     else:
         message = _short(err.message)
-    return ApiError(ErrorCode.INVALID_REQUEST, f"{path}: {message}" if path != "$" else message,
-                    {"path": path, "rule": str(err.validator)})
+    return ApiError(
+        ErrorCode.INVALID_REQUEST,
+        f"{path}: {message}" if path != "$" else message,
+        {"path": path, "rule": str(err.validator)},
+    )
 
 
 def _short(message: str, limit: int = 160) -> str:
@@ -468,28 +617,37 @@ def parse_plan(data: Any, joint_names: Sequence[str], limits: JointLimits | None
             raise ApiError(ErrorCode.UNKNOWN_JOINT, "joint_names lists a joint twice", {"joint_names": names})
         unknown = [n for n in names if n not in joint_names]
         if unknown:
-            raise ApiError(ErrorCode.UNKNOWN_JOINT, f"unknown joint {unknown[0]!r}; the cell has "
-                           f"{', '.join(joint_names)}", {"joint": unknown[0], "joints": list(joint_names)})
+            raise ApiError(
+                ErrorCode.UNKNOWN_JOINT,
+                f"unknown joint {unknown[0]!r}; the cell has {', '.join(joint_names)}",
+                {"joint": unknown[0], "joints": list(joint_names)},
+            )
         missing = [n for n in joint_names if n not in names]
         if missing:
-            raise ApiError(ErrorCode.UNKNOWN_JOINT, f"joint_names misses joint {missing[0]!r} of the cell",
-                           {"joint": missing[0], "joints": list(joint_names)})
+            raise ApiError(
+                ErrorCode.UNKNOWN_JOINT,
+                f"joint_names misses joint {missing[0]!r} of the cell",
+                {"joint": missing[0], "joints": list(joint_names)},
+            )
         order = [names.index(n) for n in joint_names]
     try:
         waypoints = np.array([[float(row[k]) for k in order] for row in rows], dtype=float)
     except OverflowError:
-        raise ApiError(ErrorCode.NOT_FINITE, f"$.{field_name}: an integer too large for a joint value",
-                       {"path": f"$.{field_name}"}) from None
+        raise ApiError(
+            ErrorCode.NOT_FINITE, f"$.{field_name}: an integer too large for a joint value", {"path": f"$.{field_name}"}
+        ) from None
     if limits is not None:
         check_limits(waypoints, limits, field_name)
     start = data.get("start", "current")
     if field_name == "target":
         start = "current"
     if start == "first" and len(waypoints) < 2:
-        raise ApiError(ErrorCode.INVALID_REQUEST, "with start=first a motion needs at least 2 waypoints",
-                       {"path": "$.waypoints"})
-    return PlanRequest(waypoints, start, data.get("tolerance_qc"), data.get("label"),
-                       bool(data.get("include_program", False)))
+        raise ApiError(
+            ErrorCode.INVALID_REQUEST, "with start=first a motion needs at least 2 waypoints", {"path": "$.waypoints"}
+        )
+    return PlanRequest(
+        waypoints, start, data.get("tolerance_qc"), data.get("label"), bool(data.get("include_program", False))
+    )
 
 
 def check_limits(waypoints: NDArray[np.float64], limits: JointLimits, field_name: str = "waypoints") -> None:
@@ -502,9 +660,11 @@ def check_limits(waypoints: NDArray[np.float64], limits: JointLimits, field_name
         value = float(waypoints[i, j])
         lo, hi = float(limits.lower[j]), float(limits.upper[j])
         path = f"$.{field_name}[{i}]" if field_name == "waypoints" else "$.target"
-        raise ApiError(ErrorCode.OUT_OF_LIMITS, f"{path}: joint {limits.names[j]} = {value:.6g} is outside its "
-                       f"position limits [{lo:.6g}, {hi:.6g}]",
-                       {"path": path, "joint": limits.names[j], "value": value, "lower": lo, "upper": hi})
+        raise ApiError(
+            ErrorCode.OUT_OF_LIMITS,
+            f"{path}: joint {limits.names[j]} = {value:.6g} is outside its position limits [{lo:.6g}, {hi:.6g}]",
+            {"path": path, "joint": limits.names[j], "value": value, "lower": lo, "upper": hi},
+        )
 
 
 def parse_execute(data: Any) -> ExecuteRequest:

@@ -43,8 +43,12 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
     p.add_argument("--plot", metavar="OUT.png", default="pvtflow-demo.png", help="plot file (default %(default)s)")
     p.add_argument("--port", type=int, default=0, help="loopback TCP port of the service (default: a free one)")
-    p.add_argument("--real-time", action="store_true", help="SYNC on the wall clock instead of in lockstep with the "
-                   "simulated drives (needs a machine fast enough for 1 kHz SYNC on every simulated drive)")
+    p.add_argument(
+        "--real-time",
+        action="store_true",
+        help="SYNC on the wall clock instead of in lockstep with the "
+        "simulated drives (needs a machine fast enough for 1 kHz SYNC on every simulated drive)",
+    )
     p.add_argument("--journal", metavar="DIR", help="motion journal directory (default: a temporary one)")
     p.add_argument("--waypoints", type=int, default=4, help="waypoints of the tour after the start (default 4)")
     p.set_defaults(run=run)
@@ -86,8 +90,10 @@ class _Follower:
         progress = d.get("progress") or 0.0
         filled = round(progress * self.width)
         levels = " ".join("-" if lv is None else f"{lv:2d}" for lv in d["buffer_levels"])
-        sys.stdout.write(f"\r  [{'#' * filled}{'.' * (self.width - filled)}] {100 * progress:5.1f}%  "
-                         f"t={d['elapsed_ms'] / 1000:6.3f} s  buffers {levels} ")
+        sys.stdout.write(
+            f"\r  [{'#' * filled}{'.' * (self.width - filled)}] {100 * progress:5.1f}%  "
+            f"t={d['elapsed_ms'] / 1000:6.3f} s  buffers {levels} "
+        )
         sys.stdout.flush()
 
     def on_event(self, cell: str, d: dict[str, Any]) -> None:
@@ -135,8 +141,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return EXIT_CANNOT_START
     if not cell.simulated:
-        print(f"{PROG}: cell {cell.name} has real drives (simulated: false): the demo only runs simulated cells",
-              file=sys.stderr)
+        print(
+            f"{PROG}: cell {cell.name} has real drives (simulated: false): the demo only runs simulated cells",
+            file=sys.stderr,
+        )
         return EXIT_CANNOT_START
     if not 1 <= args.waypoints <= 20:
         print(f"{PROG}: --waypoints must be 1..20, got {args.waypoints}", file=sys.stderr)
@@ -169,13 +177,19 @@ def run(args: argparse.Namespace) -> int:
         service.close()
 
 
-def _demo(client: Client, name: str, plot: Path, endpoint: str, service: MotionService, journal_dir: str,
-          n_waypoints: int) -> int:
-    print(f"{PROG}: service for cell {name} on simulated drives, zenoh peer on {endpoint} "
-          f"(SYNC {'lockstep' if service.lockstep else 'real time'}); journal in {journal_dir}")
+def _demo(
+    client: Client, name: str, plot: Path, endpoint: str, service: MotionService, journal_dir: str, n_waypoints: int
+) -> int:
+    print(
+        f"{PROG}: service for cell {name} on simulated drives, zenoh peer on {endpoint} "
+        f"(SYNC {'lockstep' if service.lockstep else 'real time'}); journal in {journal_dir}"
+    )
     follower = _Follower()
-    subs = [client.follow(name, "telemetry", follower.on_telemetry), client.follow(name, "events", follower.on_event),
-            client.follow(name, "state", follower.on_state)]
+    subs = [
+        client.follow(name, "telemetry", follower.on_telemetry),
+        client.follow(name, "events", follower.on_event),
+        client.follow(name, "state", follower.on_state),
+    ]
     deadline = time.monotonic() + 5.0
     while name not in client.alive(name, timeout=1.0):
         if time.monotonic() > deadline:
@@ -186,8 +200,10 @@ def _demo(client: Client, name: str, plot: Path, endpoint: str, service: MotionS
         print(f"{PROG}: status failed: {status.data['error']['message']}", file=sys.stderr)
         return EXIT_FAILED
     joints = status.data["joint_names"]
-    print(f"  {key(name, 'alive')} is up; axes: " + ", ".join(f"{a['joint']} {a['state'].lower()}"
-                                                              for a in status.data["axes"]))
+    print(
+        f"  {key(name, 'alive')} is up; axes: "
+        + ", ".join(f"{a['joint']} {a['state'].lower()}" for a in status.data["axes"])
+    )
     limits = service.limits
     waypoints = tour(limits.lower, limits.upper, n_waypoints)
     t0 = time.perf_counter()
@@ -198,9 +214,11 @@ def _demo(client: Client, name: str, plot: Path, endpoint: str, service: MotionS
         print(f"{PROG}: plan refused: {err['code']}: {err['message']}", file=sys.stderr)
         return EXIT_FAILED
     p = plan.data
-    print(f"  plan {p['plan_id']}: {p['waypoints']} waypoints, {p['duration_s']:.3f} s of motion, "
-          f"{sum(p['records'].values())} PVT records, validated; reply in {1000 * dt:.1f} ms "
-          f"(planning {p['timing_ms'].get('total', 0):.1f} ms)")
+    print(
+        f"  plan {p['plan_id']}: {p['waypoints']} waypoints, {p['duration_s']:.3f} s of motion, "
+        f"{sum(p['records'].values())} PVT records, validated; reply in {1000 * dt:.1f} ms "
+        f"(planning {p['timing_ms'].get('total', 0):.1f} ms)"
+    )
     ex = client.request(name, "execute", {"plan_id": p["plan_id"]})
     if not ex.ok:
         err = ex.data["error"]
@@ -220,8 +238,10 @@ def _demo(client: Client, name: str, plot: Path, endpoint: str, service: MotionS
         print(f"  status failed: {final.data['error']['code']}: {final.data['error']['message']}")
     else:
         for a in final.data["axes"]:
-            print(f"    {a['joint']}: {a['state'].lower()}, statusword {a['statusword_hex']}, position "
-                  f"{a['position']:+.4f} ({a['position_qc']} qc)")
+            print(
+                f"    {a['joint']}: {a['state'].lower()}, statusword {a['statusword_hex']}, position "
+                f"{a['position']:+.4f} ({a['position_qc']} qc)"
+            )
     events = [e["kind"] for e in follower.events if e.get("motion_id") == follower.motion_id]
     print(f"  events: {', '.join(events)}; states: {' -> '.join(dict.fromkeys(follower.states))}")
     if follower.telemetry:
@@ -229,4 +249,3 @@ def _demo(client: Client, name: str, plot: Path, endpoint: str, service: MotionS
         print(f"  plot: {plot} ({len(follower.telemetry)} telemetry samples)")
     del subs
     return EXIT_OK if outcome.get("result") == "finished" else EXIT_FAILED
-

@@ -67,11 +67,14 @@ def cell_mismatch(program: PvtProgram, cell: CellConfig) -> list[str]:
             problems.append(f"{where}: profile {a.profile}, the cell's drive runs {axis.profile}")
         submode = -1 if a.interpolation_submode is None else a.interpolation_submode
         if a.profile == "parker_slvdn" and submode != axis.interpolation_submode:
-            problems.append(f"{where}: interpolation submode {a.interpolation_submode}, "
-                            f"the cell's drive uses {axis.interpolation_submode}")
+            problems.append(
+                f"{where}: interpolation submode {a.interpolation_submode}, "
+                f"the cell's drive uses {axis.interpolation_submode}"
+            )
         if a.limits.to_json() != axis.limits.to_json():
-            problems.append(f"{where}: planned for drive limits {a.limits.to_json()}, "
-                            f"the cell's drive has {axis.limits.to_json()}")
+            problems.append(
+                f"{where}: planned for drive limits {a.limits.to_json()}, the cell's drive has {axis.limits.to_json()}"
+            )
         for name in ("qc_per_motor_rev", "motor_rev_per_joint_unit", "velocity_unit_rpm"):
             mine, theirs = getattr(a.scaling, name), getattr(axis.scaling, name)
             if not math.isclose(mine, theirs, rel_tol=1e-6):
@@ -95,16 +98,21 @@ def describe(result: RunResult) -> str:
     lines = [f"{result.result.value}: {result.message}"]
     if result.start_sync is not None and result.end_sync is not None:
         ms = (result.end_sync - result.start_sync) * result.sync_period_ms
-        lines.append(f"  started on SYNC {result.start_sync}, {ms:.0f} ms of motion, "
-                     f"start skew {result.start_skew_syncs} SYNC(s)")
+        lines.append(
+            f"  started on SYNC {result.start_sync}, {ms:.0f} ms of motion, "
+            f"start skew {result.start_skew_syncs} SYNC(s)"
+        )
     if result.halt_sync is not None:
-        lines.append(f"  halt sent for SYNC {result.halt_sync} ({result.halt_latency_syncs} SYNC period(s) "
-                     f"after the event)")
+        lines.append(
+            f"  halt sent for SYNC {result.halt_sync} ({result.halt_latency_syncs} SYNC period(s) after the event)"
+        )
     for a in result.axes:
         feed = a.feed
         levels = "" if feed.max_level is None else f", buffer {feed.min_level}..{feed.max_level}"
-        lines.append(f"  {a.joint} (node {a.node_id}, {a.profile}): {a.state}, position {a.position} qc "
-                     f"(program end {a.target_position}), {feed.sent}/{feed.records} records{levels}")
+        lines.append(
+            f"  {a.joint} (node {a.node_id}, {a.profile}): {a.state}, position {a.position} qc "
+            f"(program end {a.target_position}), {feed.sent}/{feed.records} records{levels}"
+        )
     return "\n".join(lines)
 
 
@@ -161,8 +169,13 @@ def run(args: argparse.Namespace) -> int:
         bus.recorder.stop()
         return _fail(str(exc), EXIT_UNREADABLE)
     duration_syncs = max(1, int(program.duration_ms / cell.bus.sync_period_ms))
-    group = AxisGroup(bus, cell.ordered_axes(), on_event=on_event,
-                      on_progress=None if quiet else on_progress, progress_every=max(1, duration_syncs // 10))
+    group = AxisGroup(
+        bus,
+        cell.ordered_axes(),
+        on_event=on_event,
+        on_progress=None if quiet else on_progress,
+        progress_every=max(1, duration_syncs // 10),
+    )
     try:
         try:
             result = group.run(program)

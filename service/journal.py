@@ -50,10 +50,14 @@ class MotionEntry:
     def summary(self, running: bool = False) -> dict[str, Any]:
         state = "ended" if self.outcome is not None else ("running" if running else "interrupted")
         return {
-            "motion_id": self.motion_id, "plan_id": self.plan_id, "label": self.label, "state": state,
+            "motion_id": self.motion_id,
+            "plan_id": self.plan_id,
+            "label": self.label,
+            "state": state,
             "accepted_at": _iso(self.accepted_at),
             "ended_at": _iso(self.ended_at) if self.ended_at is not None else None,
-            "duration_ms": self.duration_ms, "outcome": self.outcome,
+            "duration_ms": self.duration_ms,
+            "outcome": self.outcome,
         }
 
 
@@ -89,9 +93,16 @@ class Journal:
                     line = json.loads(raw)
                     kind = line["kind"]
                     if kind == "motion":
-                        self._remember(MotionEntry(line["motion_id"], float(line["time"]), line.get("plan_id"),
-                                                   line.get("label"), int(line.get("duration_ms", 0)),
-                                                   line.get("program", {})))
+                        self._remember(
+                            MotionEntry(
+                                line["motion_id"],
+                                float(line["time"]),
+                                line.get("plan_id"),
+                                line.get("label"),
+                                int(line.get("duration_ms", 0)),
+                                line.get("program", {}),
+                            )
+                        )
                     elif kind == "outcome":
                         entry = self._entries.get(line["motion_id"])
                         if entry is not None:
@@ -122,14 +133,32 @@ class Journal:
         except (OSError, ValueError) as exc:
             raise JournalError(f"cannot write the motion journal {self.path}: {exc}") from None
 
-    def record_motion(self, motion_id: str, program: dict[str, Any], *, plan_id: str | None, label: str | None,
-                      duration_ms: int, cell: str) -> MotionEntry:
+    def record_motion(
+        self,
+        motion_id: str,
+        program: dict[str, Any],
+        *,
+        plan_id: str | None,
+        label: str | None,
+        duration_ms: int,
+        cell: str,
+    ) -> MotionEntry:
         """Write (and fsync) an accepted motion; call before anything is sent to a drive."""
         now = time.time()
         entry = MotionEntry(motion_id, now, plan_id, label, duration_ms, program)
         with self._lock:
-            self._append({"kind": "motion", "motion_id": motion_id, "time": now, "cell": cell, "plan_id": plan_id,
-                          "label": label, "duration_ms": duration_ms, "program": program})
+            self._append(
+                {
+                    "kind": "motion",
+                    "motion_id": motion_id,
+                    "time": now,
+                    "cell": cell,
+                    "plan_id": plan_id,
+                    "label": label,
+                    "duration_ms": duration_ms,
+                    "program": program,
+                }
+            )
             self._remember(entry)
         return entry
 

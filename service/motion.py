@@ -55,8 +55,9 @@ from service.plan_cmd import plan_cell_program
 Publish = Callable[[str, dict[str, Any]], None]
 log = logging.getLogger("pvtflow.motion")
 
-FAULT_RESULTS = frozenset({Result.DRIVE_FAULT, Result.EMCY, Result.HEARTBEAT_LOST, Result.LOST_SYNC,
-                           Result.CONFIGURATION_ERROR})
+FAULT_RESULTS = frozenset(
+    {Result.DRIVE_FAULT, Result.EMCY, Result.HEARTBEAT_LOST, Result.LOST_SYNC, Result.CONFIGURATION_ERROR}
+)
 FAULT_EVENTS = frozenset({"emcy", "heartbeat", "nmt", "lost_sync"})
 IDLE, MOVING, STOPPING, FAULT = "idle", "moving", "stopping", "fault"
 
@@ -89,10 +90,15 @@ class Motion:
     done: threading.Event = field(default_factory=threading.Event)
 
     def summary(self) -> dict[str, Any]:
-        return {"motion_id": self.motion_id, "plan_id": self.plan_id, "label": self.label,
-                "state": "ended" if self.done.is_set() else "running",
-                "duration_ms": int(self.program.duration_ms), "start_sync": self.start_sync,
-                "outcome": self.outcome}
+        return {
+            "motion_id": self.motion_id,
+            "plan_id": self.plan_id,
+            "label": self.label,
+            "state": "ended" if self.done.is_set() else "running",
+            "duration_ms": int(self.program.duration_ms),
+            "start_sync": self.start_sync,
+            "outcome": self.outcome,
+        }
 
 
 def _no_publish(topic: str, payload: dict[str, Any]) -> None:
@@ -150,16 +156,22 @@ class MotionService:
 
                 self.sim = SimulatedCell(self.cell).start()
             self.bus.open()
-            self.group = AxisGroup(self.bus, self.axes, on_progress=self._on_progress, on_event=self._on_event,
-                                   progress_every=self.telemetry_every)
+            self.group = AxisGroup(
+                self.bus,
+                self.axes,
+                on_progress=self._on_progress,
+                on_event=self._on_event,
+                progress_every=self.telemetry_every,
+            )
             self.group.configure()
             self.group.refresh()
         except (BusError, DriveError, OSError) as exc:
             self.close()
             raise BusError(f"cell {self.cell.name}: {exc}") from None
         self._last_states = tuple(a.state for a in self.group.status().axes)
-        self._watcher = threading.Thread(target=self._watch_motions, name=f"pvtflow-motions-{self.cell.name}",
-                                         daemon=True)
+        self._watcher = threading.Thread(
+            target=self._watch_motions, name=f"pvtflow-motions-{self.cell.name}", daemon=True
+        )
         self._watcher.start()
         self._publish_state()
         return self
@@ -212,8 +224,10 @@ class MotionService:
         return [link.position for link in group.links]
 
     def to_joint(self, positions_qc: Sequence[int | None]) -> list[float | None]:
-        return [None if p is None else float(a.scaling.qc_to_position(p)) for a, p in zip(self.axes, positions_qc,
-                                                                                           strict=True)]
+        return [
+            None if p is None else float(a.scaling.qc_to_position(p))
+            for a, p in zip(self.axes, positions_qc, strict=True)
+        ]
 
     def current_joint_positions(self) -> NDArray[np.float64]:
         qc = self.positions_qc(refresh=True)
@@ -235,13 +249,19 @@ class MotionService:
             else:
                 waypoints = np.vstack([q0, waypoints])
             if len(waypoints) < 2:
-                raise ApiError(ErrorCode.PLAN_FAILED, "the axes are already at the target: nothing to move",
-                               {"result": "repeated_waypoint"})
+                raise ApiError(
+                    ErrorCode.PLAN_FAILED,
+                    "the axes are already at the target: nothing to move",
+                    {"result": "repeated_waypoint"},
+                )
         plan_id = _new_id("p")
         result = plan_cell_program(self.cell, waypoints, req.tolerance_qc, {"plan_id": plan_id})
         if not result.ok or result.program is None or result.build is None:
-            raise ApiError(ErrorCode.PLAN_FAILED, f"cannot plan this motion on cell {self.cell.name} "
-                           f"({result.code}): {result.message}", {"result": result.code})
+            raise ApiError(
+                ErrorCode.PLAN_FAILED,
+                f"cannot plan this motion on cell {self.cell.name} ({result.code}): {result.message}",
+                {"result": result.code},
+            )
         program = result.program
         timing = {k: round(v * 1000.0, 3) for k, v in result.timing.items()}
         timing["request"] = round((time.perf_counter() - t0) * 1000.0, 3)
@@ -270,8 +290,11 @@ class MotionService:
         with self._plans_lock:
             stored = self.plans.get(plan_id)
         if stored is None:
-            raise ApiError(ErrorCode.UNKNOWN_PLAN, f"no plan {plan_id!r} on cell {self.cell.name} (plans are kept "
-                           f"in memory, the last {self.max_plans})", {"plan_id": plan_id})
+            raise ApiError(
+                ErrorCode.UNKNOWN_PLAN,
+                f"no plan {plan_id!r} on cell {self.cell.name} (plans are kept in memory, the last {self.max_plans})",
+                {"plan_id": plan_id},
+            )
         return stored
 
     def _program_from_json(self, data: dict[str, Any]) -> PvtProgram:
@@ -303,20 +326,33 @@ class MotionService:
             program, plan_id, label = self._program_from_json(req.program), None, req.label
             report = validate_program(program)
             if not report.ok:
-                raise ApiError(ErrorCode.VALIDATION_FAILED, "the program breaks its drives' rules: nothing was sent: "
-                               + "; ".join(f.format() for f in report.errors[:3]), {"report": report.to_json()})
+                raise ApiError(
+                    ErrorCode.VALIDATION_FAILED,
+                    "the program breaks its drives' rules: nothing was sent: "
+                    + "; ".join(f.format() for f in report.errors[:3]),
+                    {"report": report.to_json()},
+                )
             problems = cell_mismatch(program, self.cell)
             if problems:
-                raise ApiError(ErrorCode.WRONG_CELL, f"the program was not made for cell {self.cell.name}: "
-                               + "; ".join(problems[:3]), {"problems": problems})
+                raise ApiError(
+                    ErrorCode.WRONG_CELL,
+                    f"the program was not made for cell {self.cell.name}: " + "; ".join(problems[:3]),
+                    {"problems": problems},
+                )
         group = self._group()
         with self._lock:
             self._refuse_unless_ready(group)
             self._refuse_unless_at_start(group, program)
             motion = Motion(_new_id("m"), plan_id, label, program, time.time())
             try:
-                self.journal.record_motion(motion.motion_id, program.to_json(), plan_id=plan_id, label=label,
-                                           duration_ms=int(program.duration_ms), cell=self.cell.name)
+                self.journal.record_motion(
+                    motion.motion_id,
+                    program.to_json(),
+                    plan_id=plan_id,
+                    label=label,
+                    duration_ms=int(program.duration_ms),
+                    cell=self.cell.name,
+                )
             except JournalError as exc:
                 raise ApiError(ErrorCode.JOURNAL_ERROR, f"{exc}: nothing was sent") from None
             self.motion = motion
@@ -343,16 +379,25 @@ class MotionService:
             previous.done.wait(2.0)  # it has just ended: its outcome is being journaled
         if group.running or (previous is not None and not previous.done.is_set()):
             moving = previous.motion_id if previous else None
-            raise ApiError(ErrorCode.BUSY, f"a motion is running on cell {self.cell.name} ({moving}): one at a time; "
-                           "stop it or wait for its end", {"motion_id": moving})
+            raise ApiError(
+                ErrorCode.BUSY,
+                f"a motion is running on cell {self.cell.name} ({moving}): one at a time; stop it or wait for its end",
+                {"motion_id": moving},
+            )
         if self.state == FAULT:
-            raise ApiError(ErrorCode.DRIVE_FAULT, f"cell {self.cell.name} is in fault ({self.fault_reason}): call "
-                           "recover first", {"reason": self.fault_reason})
+            raise ApiError(
+                ErrorCode.DRIVE_FAULT,
+                f"cell {self.cell.name} is in fault ({self.fault_reason}): call recover first",
+                {"reason": self.fault_reason},
+            )
         faulted = [s for s in group.status().axes if _is_fault(s)]
         if faulted:
             s = faulted[0]
-            raise ApiError(ErrorCode.DRIVE_FAULT, f"axis {s.joint} (node {s.node_id}) is {s.state} (statusword "
-                           f"0x{s.statusword:04X}): call recover first", {"joint": s.joint, "node_id": s.node_id})
+            raise ApiError(
+                ErrorCode.DRIVE_FAULT,
+                f"axis {s.joint} (node {s.node_id}) is {s.state} (statusword 0x{s.statusword:04X}): call recover first",
+                {"joint": s.joint, "node_id": s.node_id},
+            )
 
     def _refuse_unless_at_start(self, group: AxisGroup, program: PvtProgram) -> None:
         """START_MISMATCH before anything is journaled or sent, from the positions the drives last reported
@@ -362,15 +407,17 @@ class MotionService:
         for link in group.links:
             start = starts.get(link.node_id)
             if start is not None and link.position is not None and abs(link.position - start) > tolerance:
-                raise ApiError(ErrorCode.START_MISMATCH, f"axis {link.joint} is at {link.position} qc, the program "
-                               f"starts at {start} qc: plan again from the current position",
-                               {"joint": link.joint, "position_qc": link.position, "start_qc": start})
+                raise ApiError(
+                    ErrorCode.START_MISMATCH,
+                    f"axis {link.joint} is at {link.position} qc, the program "
+                    f"starts at {start} qc: plan again from the current position",
+                    {"joint": link.joint, "position_qc": link.position, "start_qc": start},
+                )
 
     def _start_error(self, early: RunResult, motion: Motion) -> ApiError:
         details = {"motion_id": motion.motion_id, "outcome": early.to_json()}
         if early.result is Result.REJECTED and early.joint is not None:
-            return ApiError(ErrorCode.START_MISMATCH, f"{early.message}: plan again from the current position",
-                            details)
+            return ApiError(ErrorCode.START_MISMATCH, f"{early.message}: plan again from the current position", details)
         if early.result is Result.REJECTED:
             return ApiError(ErrorCode.WRONG_CELL, early.message, details)
         return ApiError(ErrorCode.DRIVE_FAULT, f"the drives did not start: {early.message}", details)
@@ -402,9 +449,17 @@ class MotionService:
             self._set_state(FAULT, motion.motion_id)
         else:
             self._set_state(IDLE, motion.motion_id)
-        self.publish("events", self.event_payload("motion_ended", f"{result.result.value}: {result.message}",
-                                                   motion_id=motion.motion_id, outcome=outcome,
-                                                   joint=result.joint, node_id=result.node_id))
+        self.publish(
+            "events",
+            self.event_payload(
+                "motion_ended",
+                f"{result.result.value}: {result.message}",
+                motion_id=motion.motion_id,
+                outcome=outcome,
+                joint=result.joint,
+                node_id=result.node_id,
+            ),
+        )
         motion.done.set()
 
     # --- stop ------------------------------------------------------------------------------------
@@ -419,9 +474,12 @@ class MotionService:
                 group.stop(req.reason)
         if was_moving and motion is not None:
             motion.done.wait(group.halt_timeout_ms / 1000.0 + 5.0)
-        return {"was_moving": was_moving, "motion_id": motion.motion_id if (motion and was_moving) else None,
-                "outcome": motion.outcome if (motion and was_moving) else None,
-                "axes": [self._axis_json(s) for s in group.status().axes]}
+        return {
+            "was_moving": was_moving,
+            "motion_id": motion.motion_id if (motion and was_moving) else None,
+            "outcome": motion.outcome if (motion and was_moving) else None,
+            "axes": [self._axis_json(s) for s in group.status().axes],
+        }
 
     # --- recover ---------------------------------------------------------------------------------
     def recover(self, req: RecoverRequest) -> dict[str, Any]:
@@ -430,16 +488,22 @@ class MotionService:
         group = self._group()
         with self._lock:
             if group.running:
-                raise ApiError(ErrorCode.BUSY, "cannot recover while a motion runs: stop it first",
-                               {"motion_id": self.motion.motion_id if self.motion else None})
+                raise ApiError(
+                    ErrorCode.BUSY,
+                    "cannot recover while a motion runs: stop it first",
+                    {"motion_id": self.motion.motion_id if self.motion else None},
+                )
             try:
                 res = group.recover()
                 group.refresh()
             except (GroupError, DriveError, BusError) as exc:
                 raise ApiError(ErrorCode.DRIVE_FAULT, f"recover failed: {exc}") from None
             if not res.ok:
-                raise ApiError(ErrorCode.DRIVE_FAULT, f"recover failed: {res.message}",
-                               {"joint": res.joint, "node_id": res.node_id})
+                raise ApiError(
+                    ErrorCode.DRIVE_FAULT,
+                    f"recover failed: {res.message}",
+                    {"joint": res.joint, "node_id": res.node_id},
+                )
             self.fault_reason = None
             with self._state_lock:
                 self.state = IDLE
@@ -479,14 +543,22 @@ class MotionService:
     def _axis_json(self, s: AxisStatus) -> dict[str, Any]:
         axis = self.cell.axis_for_joint(s.joint)
         return {
-            "joint": s.joint, "node_id": s.node_id, "profile": s.profile, "state": s.state,
-            "statusword": s.statusword, "statusword_hex": f"0x{s.statusword:04X}",
+            "joint": s.joint,
+            "node_id": s.node_id,
+            "profile": s.profile,
+            "state": s.state,
+            "statusword": s.statusword,
+            "statusword_hex": f"0x{s.statusword:04X}",
             "position_qc": s.position,
             "position": None if s.position is None else float(axis.scaling.qc_to_position(s.position)),
-            "buffer_status": s.buffer_status, "buffer_flags": list(s.buffer_flags), "buffer_level": s.buffer_level,
-            "last_emcy": None if s.last_emcy is None else {
-                "code": s.last_emcy[0], "code_hex": f"0x{s.last_emcy[0]:04X}", "message": s.last_emcy[1]},
-            "nmt_state": s.nmt_state, "fault": _is_fault(s),
+            "buffer_status": s.buffer_status,
+            "buffer_flags": list(s.buffer_flags),
+            "buffer_level": s.buffer_level,
+            "last_emcy": None
+            if s.last_emcy is None
+            else {"code": s.last_emcy[0], "code_hex": f"0x{s.last_emcy[0]:04X}", "message": s.last_emcy[1]},
+            "nmt_state": s.nmt_state,
+            "fault": _is_fault(s),
         }
 
     # --- publications ----------------------------------------------------------------------------
@@ -501,23 +573,51 @@ class MotionService:
         group = self.group
         if group is not None and not group.running:  # idle: the drives' last word (no bus traffic)
             self._last_states = tuple(a.state for a in group.status().axes)
-        axes = [] if group is None else [{"joint": lk.joint, "state": s, "statusword": lk.statusword}
-                                         for lk, s in zip(group.links, self._last_states, strict=False)]
+        axes = (
+            []
+            if group is None
+            else [
+                {"joint": lk.joint, "state": s, "statusword": lk.statusword}
+                for lk, s in zip(group.links, self._last_states, strict=False)
+            ]
+        )
         with self._state_lock:
             self._state_seq += 1
             seq = self._state_seq
-        self.publish("state", {"cell": self.cell.name, "state": self.state, "motion_id": motion_id,
-                               "fault_reason": self.fault_reason, "axes": axes, "seq": seq, "time": time.time()})
+        self.publish(
+            "state",
+            {
+                "cell": self.cell.name,
+                "state": self.state,
+                "motion_id": motion_id,
+                "fault_reason": self.fault_reason,
+                "axes": axes,
+                "seq": seq,
+                "time": time.time(),
+            },
+        )
 
     def event_payload(self, kind: str, message: str, **extra: Any) -> dict[str, Any]:
-        return {"cell": self.cell.name, "kind": kind, "message": message, "time": time.time(), "joint": None,
-                "node_id": None, "motion_id": None, **extra}
+        return {
+            "cell": self.cell.name,
+            "kind": kind,
+            "message": message,
+            "time": time.time(),
+            "joint": None,
+            "node_id": None,
+            "motion_id": None,
+            **extra,
+        }
 
     def _on_event(self, event: Event) -> None:
         motion = self.motion
         motion_id = motion.motion_id if motion is not None and not motion.done.is_set() else None
-        self.publish("events", self.event_payload(event.kind, event.message, joint=event.joint,
-                                                   node_id=event.node_id, motion_id=motion_id))
+        self.publish(
+            "events",
+            self.event_payload(
+                event.kind, event.message, joint=event.joint, node_id=event.node_id, motion_id=motion_id
+            ),
+        )
         if event.kind in FAULT_EVENTS and not self.running:
             self.fault_reason = event.message  # a drive faulted while idle: recover before the next motion
             self._set_state(FAULT, None)
@@ -526,12 +626,21 @@ class MotionService:
         """Every ``telemetry_every`` SYNCs during a motion (SYNC thread: hand over, never block)."""
         motion = self.motion
         duration = motion.program.duration_ms if motion is not None else 0
-        self.publish("telemetry", {
-            "cell": self.cell.name, "motion_id": motion.motion_id if motion else None, "sync": p.sync,
-            "elapsed_ms": p.elapsed_ms, "progress": min(1.0, p.elapsed_ms / duration) if duration else None,
-            "positions_qc": list(p.positions), "positions": self.to_joint(p.positions),
-            "buffer_levels": list(p.levels), "states": list(p.states), "time": time.time(),
-        })
+        self.publish(
+            "telemetry",
+            {
+                "cell": self.cell.name,
+                "motion_id": motion.motion_id if motion else None,
+                "sync": p.sync,
+                "elapsed_ms": p.elapsed_ms,
+                "progress": min(1.0, p.elapsed_ms / duration) if duration else None,
+                "positions_qc": list(p.positions),
+                "positions": self.to_joint(p.positions),
+                "buffer_levels": list(p.levels),
+                "states": list(p.states),
+                "time": time.time(),
+            },
+        )
         if p.states != self._last_states:
             self._last_states = p.states
             self._publish_state(motion.motion_id if motion else None)
@@ -541,10 +650,18 @@ class MotionService:
         group = self._group()
         st = group.status()
         positions = [s.position for s in st.axes]
-        return {"cell": self.cell.name, "motion_id": None, "sync": st.sync_count, "elapsed_ms": None,
-                "progress": None, "positions_qc": positions, "positions": self.to_joint(positions),
-                "buffer_levels": [s.buffer_level for s in st.axes], "states": [s.state for s in st.axes],
-                "time": time.time()}
+        return {
+            "cell": self.cell.name,
+            "motion_id": None,
+            "sync": st.sync_count,
+            "elapsed_ms": None,
+            "progress": None,
+            "positions_qc": positions,
+            "positions": self.to_joint(positions),
+            "buffer_levels": [s.buffer_level for s in st.axes],
+            "states": [s.state for s in st.axes],
+            "time": time.time(),
+        }
 
 
 def _is_fault(s: AxisStatus) -> bool:

@@ -58,8 +58,9 @@ def plan_input_for_cell(cell: CellConfig, waypoints: ArrayLike, gridpoints: int 
     )
 
 
-def plan_cell_program(cell: CellConfig, waypoints: ArrayLike, tolerance_qc: float | None = None,
-                      metadata: dict[str, Any] | None = None) -> CellPlan:
+def plan_cell_program(
+    cell: CellConfig, waypoints: ArrayLike, tolerance_qc: float | None = None, metadata: dict[str, Any] | None = None
+) -> CellPlan:
     """Waypoints (N, dof, the cell's joint order) -> a validated PVT program for the cell's drives."""
     start = time.perf_counter()
     out = plan(plan_input_for_cell(cell, waypoints))
@@ -85,11 +86,19 @@ def add_parser(subparsers: Any) -> None:
         "1 cannot be planned, 2 unreadable input.",
     )
     p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the demo arm cell)")
-    p.add_argument("--waypoints", metavar="FILE", required=True,
-                   help="waypoints: pvtflow JSON, or a ROS JointTrajectory as JSON or YAML")
+    p.add_argument(
+        "--waypoints",
+        metavar="FILE",
+        required=True,
+        help="waypoints: pvtflow JSON, or a ROS JointTrajectory as JSON or YAML",
+    )
     p.add_argument("-o", "--output", metavar="PROGRAM.json", required=True, help="where to write the program")
-    p.add_argument("--tolerance", type=float, metavar="QC",
-                   help="position tolerance in counts (default: the cell's planning.position_tolerance_qc)")
+    p.add_argument(
+        "--tolerance",
+        type=float,
+        metavar="QC",
+        help="position tolerance in counts (default: the cell's planning.position_tolerance_qc)",
+    )
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of text")
     p.set_defaults(run=run)
 
@@ -138,9 +147,13 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
-        print(f"{out}: {len(knots.axes)} axes, {duration_s:.3f} s, worst deviation {knots.deviation_qc:.2f} qc, "
-              f"planned in {result.timing['total'] * 1000:.1f} ms")
+        print(
+            f"{out}: {len(knots.axes)} axes, {duration_s:.3f} s, worst deviation {knots.deviation_qc:.2f} qc, "
+            f"planned in {result.timing['total'] * 1000:.1f} ms"
+        )
         for a in knots.axes:
-            print(f"  {a.name}: {len(a.records)} records, |v| {100 * a.velocity_ratio:.1f}% of 0x607F, "
-                  f"|a| {100 * a.acceleration_ratio:.1f}% of 0x60C5, deviation {a.deviation_qc:.2f} qc")
+            print(
+                f"  {a.name}: {len(a.records)} records, |v| {100 * a.velocity_ratio:.1f}% of 0x607F, "
+                f"|a| {100 * a.acceleration_ratio:.1f}% of 0x60C5, deviation {a.deviation_qc:.2f} qc"
+            )
     return EXIT_OK

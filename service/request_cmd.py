@@ -76,8 +76,13 @@ class Client:
         else:
             body = json.dumps(payload).encode()
         out: list[Reply] = []
-        for r in self.session.get(key(cell, op), payload=body, timeout=timeout, target=zenoh.QueryTarget.ALL,
-                                  consolidation=zenoh.ConsolidationMode.NONE):
+        for r in self.session.get(
+            key(cell, op),
+            payload=body,
+            timeout=timeout,
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,
+        ):
             if r.ok is not None:
                 sample = r.ok
                 out.append(Reply(True, _json(sample.payload.to_bytes()), _cell_of(str(sample.key_expr))))
@@ -90,13 +95,23 @@ class Client:
         """The one reply of one cell; a Reply(False, {"error": {"code": "no_reply", ...}}) when none came."""
         got = self.replies(cell, op, payload, timeout)
         if not got:
-            return Reply(False, {"error": {"code": "no_reply", "message": f"no reply from {key(cell, op)} within "
-                                           f"{timeout:g} s: is the service running and reachable?", "details": {}}},
-                         None)
+            return Reply(
+                False,
+                {
+                    "error": {
+                        "code": "no_reply",
+                        "message": f"no reply from {key(cell, op)} within "
+                        f"{timeout:g} s: is the service running and reachable?",
+                        "details": {},
+                    }
+                },
+                None,
+            )
         return got[0]
 
     def follow(self, cell: str, topic: str, callback: Callable[[str, dict[str, Any]], None]) -> Any:
         """Subscribe to ``pvtflow/<cell>/<topic>``; callback(cell, payload). Keep the result alive."""
+
         def on_sample(sample: zenoh.Sample) -> None:
             callback(_cell_of(str(sample.key_expr)) or cell, _json(sample.payload.to_bytes()))
 
@@ -140,8 +155,9 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the reply (default 30)")
     p.add_argument("--waypoints", metavar="FILE", help="plan: waypoint file (pvtflow JSON or ROS JointTrajectory)")
     p.add_argument("--target", metavar="Q1,Q2,...", help="plan: one goal in joint units, comma separated")
-    p.add_argument("--start", choices=("current", "first"), help="plan: start at the axes (default) or the first "
-                   "waypoint")
+    p.add_argument(
+        "--start", choices=("current", "first"), help="plan: start at the axes (default) or the first waypoint"
+    )
     p.add_argument("--program", metavar="FILE", help="validate / execute: a PVT program file instead of a plan id")
     p.add_argument("--wait", action="store_true", help="execute: reply at the end of the motion, with its outcome")
     p.add_argument("--reason", help="stop: why (journaled with the outcome)")
@@ -227,15 +243,21 @@ def run(args: argparse.Namespace) -> int:
     try:
         client = Client(config)
     except Exception as exc:  # zenoh cannot open the session: nobody at the endpoint, refused, bad syntax
-        print(f"{PROG}: cannot reach the service ({', '.join(config_endpoints(config, 'connect')) or 'no endpoint'}): "
-              f"{zenoh_message(exc)}", file=sys.stderr)
+        print(
+            f"{PROG}: cannot reach the service ({', '.join(config_endpoints(config, 'connect')) or 'no endpoint'}): "
+            f"{zenoh_message(exc)}",
+            file=sys.stderr,
+        )
         return EXIT_NO_ANSWER
     try:
         payload = _payload(args, client)
         replies = client.replies(args.cell, args.op, payload, args.timeout)
         if not replies:
-            print(f"{PROG}: no reply from {key(args.cell, args.op)} within {args.timeout:g} s: is `pvtflow serve` "
-                  "running, and reachable at the endpoint given?", file=sys.stderr)
+            print(
+                f"{PROG}: no reply from {key(args.cell, args.op)} within {args.timeout:g} s: is `pvtflow serve` "
+                "running, and reachable at the endpoint given?",
+                file=sys.stderr,
+            )
             return EXIT_NO_ANSWER
         return _print_replies(replies, "*" in args.cell)
     except _InputError as exc:
@@ -243,4 +265,3 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_NO_ANSWER
     finally:
         client.close()
-

@@ -34,16 +34,32 @@ def add_parser(subparsers: Any) -> None:
         "simulated drives, listening on tcp/127.0.0.1:7447 without scouting.",
     )
     p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
-    p.add_argument("--zenoh-config", metavar="FILE", help="zenoh JSON5 configuration, used as is "
-                   "(default: configs/zenoh/service.json5: peer on tcp/127.0.0.1:7447, no scouting)")
+    p.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        help="zenoh JSON5 configuration, used as is "
+        "(default: configs/zenoh/service.json5: peer on tcp/127.0.0.1:7447, no scouting)",
+    )
     p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
-    p.add_argument("--journal", metavar="DIR", help="motion journal directory (default "
-                   "$XDG_STATE_HOME/pvtflow/<cell>, i.e. ~/.local/state/pvtflow/<cell>)")
-    p.add_argument("--real-time", action="store_true", help="simulated cell: SYNC on the wall clock instead of in "
-                   "lockstep with the simulated drives (the default for them: as fast as they answer, so that a busy "
-                   "machine slows the simulation down instead of faulting it); a real cell always runs in real time")
-    p.add_argument("--telemetry-ms", type=float, default=20.0, metavar="MS",
-                   help="telemetry period during a motion (default 20 ms)")
+    p.add_argument(
+        "--journal",
+        metavar="DIR",
+        help="motion journal directory (default $XDG_STATE_HOME/pvtflow/<cell>, i.e. ~/.local/state/pvtflow/<cell>)",
+    )
+    p.add_argument(
+        "--real-time",
+        action="store_true",
+        help="simulated cell: SYNC on the wall clock instead of in "
+        "lockstep with the simulated drives (the default for them: as fast as they answer, so that a busy "
+        "machine slows the simulation down instead of faulting it); a real cell always runs in real time",
+    )
+    p.add_argument(
+        "--telemetry-ms",
+        type=float,
+        default=20.0,
+        metavar="MS",
+        help="telemetry period during a motion (default 20 ms)",
+    )
     p.set_defaults(run=run)
 
 
@@ -66,8 +82,9 @@ def banner(service: MotionService, server: Server) -> str:
         f"{sync}",
     ]
     if listen:
-        lines.append(f"  zenoh: listening on {', '.join(listen)}" + (f", connected to {', '.join(connect)}"
-                                                                      if connect else ""))
+        lines.append(
+            f"  zenoh: listening on {', '.join(listen)}" + (f", connected to {', '.join(connect)}" if connect else "")
+        )
     else:
         lines.append(f"  zenoh: not listening; connecting to {', '.join(connect) or '(nothing: check the config)'}")
     lines += [
@@ -114,8 +131,13 @@ def run(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         try:
-            service = MotionService(cell, journal_dir=args.journal, lockstep=cell.simulated and not args.real_time,
-                                    can_log=args.can_log, telemetry_period_ms=args.telemetry_ms)
+            service = MotionService(
+                cell,
+                journal_dir=args.journal,
+                lockstep=cell.simulated and not args.real_time,
+                can_log=args.can_log,
+                telemetry_period_ms=args.telemetry_ms,
+            )
         except JournalError as exc:
             return _fail(str(exc))
         except (ValueError, OSError) as exc:

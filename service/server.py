@@ -77,21 +77,29 @@ def load_zenoh_config(path: str | Path | None = None) -> zenoh.Config:
 
 def peer_config(listen: list[str] | tuple[str, ...] = (), connect: list[str] | tuple[str, ...] = ()) -> zenoh.Config:
     """A peer on explicit endpoints, multicast and gossip scouting off (what tests and clients use)."""
-    return zenoh.Config.from_json5(json.dumps({
-        "mode": "peer",
-        "listen": {"endpoints": list(listen)},
-        "connect": {"endpoints": list(connect)},
-        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
-    }))
+    return zenoh.Config.from_json5(
+        json.dumps(
+            {
+                "mode": "peer",
+                "listen": {"endpoints": list(listen)},
+                "connect": {"endpoints": list(connect)},
+                "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+            }
+        )
+    )
 
 
 def client_config(connect: list[str] | tuple[str, ...] = (DEFAULT_ENDPOINT,)) -> zenoh.Config:
     """A client session on explicit endpoints (a service's peer, or a router), scouting off."""
-    return zenoh.Config.from_json5(json.dumps({
-        "mode": "client",
-        "connect": {"endpoints": list(connect)},
-        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
-    }))
+    return zenoh.Config.from_json5(
+        json.dumps(
+            {
+                "mode": "client",
+                "connect": {"endpoints": list(connect)},
+                "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+            }
+        )
+    )
 
 
 def config_endpoints(config: zenoh.Config, which: str = "listen") -> list[str]:
@@ -110,8 +118,14 @@ def config_endpoints(config: zenoh.Config, which: str = "listen") -> list[str]:
 class Server:
     """One cell's MotionService on a zenoh session."""
 
-    def __init__(self, service: MotionService, config: zenoh.Config | None = None, *,
-                 idle_telemetry_s: float = 1.0, workers: int = 8) -> None:
+    def __init__(
+        self,
+        service: MotionService,
+        config: zenoh.Config | None = None,
+        *,
+        idle_telemetry_s: float = 1.0,
+        workers: int = 8,
+    ) -> None:
         self.service = service
         self.cell = check_cell_name(service.cell.name)
         self.config = config if config is not None else load_zenoh_config(None)
@@ -145,8 +159,7 @@ class Server:
             return False, exc.to_bytes()
         except Exception as exc:  # a bug must not take the service down
             log.error("internal error in %s: %s", op, traceback.format_exc())
-            err = ApiError(ErrorCode.INTERNAL_ERROR, f"internal error while handling {op}: "
-                           f"{type(exc).__name__}: {exc}")
+            err = ApiError(ErrorCode.INTERNAL_ERROR, f"internal error while handling {op}: {type(exc).__name__}: {exc}")
             return False, err.to_bytes()
 
     # --- zenoh ---------------------------------------------------------------------------------
@@ -159,8 +172,9 @@ class Server:
         if self.idle_telemetry_s > 0:
             self._spawn(self._idle_telemetry_loop, "telemetry")
         for op in QUERYABLES:
-            self._queryables.append(self.session.declare_queryable(
-                key(self.cell, op), lambda query, op=op: self._on_query(op, query)))
+            self._queryables.append(
+                self.session.declare_queryable(key(self.cell, op), lambda query, op=op: self._on_query(op, query))
+            )
         self._token = self.session.liveliness().declare_token(key(self.cell, LIVELINESS))
         self._enqueue("events", self.service.event_payload("service_started", f"cell {self.cell} is being served"))
         return self

@@ -29,9 +29,11 @@ def add_parser(subparsers: Any) -> None:
     )
     p.add_argument("programs", nargs="+", metavar="PROGRAM", help="program file(s) or folder(s) of *.json")
     p.add_argument("--json", action="store_true", help="print the report(s) as JSON on stdout")
-    p.add_argument("--plot", metavar="OUT.png",
-                   help="write position, velocity and acceleration of every axis against its limits "
-                        "(one program only)")
+    p.add_argument(
+        "--plot",
+        metavar="OUT.png",
+        help="write position, velocity and acceleration of every axis against its limits (one program only)",
+    )
     p.set_defaults(run=run)
 
 
@@ -115,11 +117,21 @@ def summary_table(outcomes: list[Outcome]) -> str:
         r = o.report
         v = max((a.velocity_ratio or 0.0 for a in r.axes), default=0.0)
         a = max((a.acceleration_ratio or 0.0 for a in r.axes), default=0.0)
-        rows.append((o.path, "valid" if r.ok else "INVALID", str(len(r.errors)), str(len(r.warnings)),
-                     f"{100 * v:.1f}%", f"{100 * a:.1f}%"))
+        rows.append(
+            (
+                o.path,
+                "valid" if r.ok else "INVALID",
+                str(len(r.errors)),
+                str(len(r.warnings)),
+                f"{100 * v:.1f}%",
+                f"{100 * a:.1f}%",
+            )
+        )
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
-    lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths, strict=True)))
-             for row in rows]
+    lines = [
+        "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths, strict=True)))
+        for row in rows
+    ]
     lines.insert(1, "-" * len(lines[0]))
     n_valid = sum(o.exit_code == EXIT_VALID for o in outcomes)
     n_bad = sum(o.exit_code == EXIT_VIOLATIONS for o in outcomes)
@@ -145,8 +157,10 @@ def run(args: argparse.Namespace) -> int:
         if o.problem is not None:
             print(f"pvtflow validate: {o.path}: cannot read a PVT program: {o.problem}", file=sys.stderr)
     if args.json:
-        reports = [o.report.to_json() if o.report else {"source": o.path, "ok": False, "unreadable": o.problem}
-                   for o in outcomes]
+        reports = [
+            o.report.to_json() if o.report else {"source": o.path, "ok": False, "unreadable": o.problem}
+            for o in outcomes
+        ]
         print(json.dumps(reports[0] if len(reports) == 1 else reports, indent=2))
     else:
         for o in outcomes:
@@ -181,18 +195,27 @@ def plot_program(program: PvtProgram, report: ValidationReport, out: Path) -> No
     for row, axis in zip(grid, program.axes, strict=True):
         r = axis.records
         if len(r) < 2 or r[0, 2] < 1 or (r[:, 2] < 0).any():
-            row[0].text(0.5, 0.5, f"{axis.name}: no reconstruction (bad record times)", ha="center",
-                        transform=row[0].transAxes)
+            row[0].text(
+                0.5, 0.5, f"{axis.name}: no reconstruction (bad record times)", ha="center", transform=row[0].transAxes
+            )
             continue
         recon = axis.reconstruction()
         t = np.linspace(0.0, recon.end_time, max(int(recon.end_time * 4), 2))
         s, lim = axis.scaling, axis.limits
         curves = (
             (recon.position(t), "position [qc]", (lim.min_position_qc, lim.max_position_qc), None),
-            (s.qc_per_ms_to_rpm(recon.velocity(t)), "velocity [rpm]", lim.max_profile_velocity_rpm,
-             lim.profile_velocity_rpm),
-            (s.qc_per_ms2_to_rpm_s(recon.acceleration(t)), "acceleration [rpm/s]", lim.max_acceleration_rpm_s,
-             lim.profile_acceleration_rpm_s),
+            (
+                s.qc_per_ms_to_rpm(recon.velocity(t)),
+                "velocity [rpm]",
+                lim.max_profile_velocity_rpm,
+                lim.profile_velocity_rpm,
+            ),
+            (
+                s.qc_per_ms2_to_rpm_s(recon.acceleration(t)),
+                "acceleration [rpm/s]",
+                lim.max_acceleration_rpm_s,
+                lim.profile_acceleration_rpm_s,
+            ),
         )
         rules = ("position-limit", "velocity-limit", "acceleration-limit")
         for ax, (y, label, limit, profile), rule in zip(row, curves, rules, strict=True):
@@ -213,8 +236,12 @@ def plot_program(program: PvtProgram, report: ValidationReport, out: Path) -> No
                 if not rule.startswith(kind):
                     continue
                 k = f.record
-                ax.axvspan(recon.start[k], recon.start[k] + recon.duration[k], alpha=0.3,
-                           color="red" if f.severity == "error" else "orange")
+                ax.axvspan(
+                    recon.start[k],
+                    recon.start[k] + recon.duration[k],
+                    alpha=0.3,
+                    color="red" if f.severity == "error" else "orange",
+                )
             ax.set_ylabel(label, fontsize=8)
             ax.tick_params(labelsize=7)
         row[0].set_title(f"{axis.name} ({axis.profile}, node {axis.node_id})", fontsize=9, loc="left")

@@ -93,8 +93,9 @@ def waypoints_from_data(data: Any, joint_names: Sequence[str], source: str = "wa
             raise WaypointError(f"{source}: joint_names: a joint is listed twice")
         unknown = [n for n in names if n not in joint_names]
         if unknown:
-            raise WaypointError(f"{source}: joint_names: unknown joint {unknown[0]!r} (the cell has "
-                                f"{', '.join(joint_names)})")
+            raise WaypointError(
+                f"{source}: joint_names: unknown joint {unknown[0]!r} (the cell has {', '.join(joint_names)})"
+            )
         missing = [n for n in joint_names if n not in names]
         if missing:
             raise WaypointError(f"{source}: joint_names: joint {missing[0]!r} of the cell is missing")

@@ -285,8 +285,13 @@ class Profile:
         raise NotImplementedError
 
     def start_controlword(self) -> int:
-        return int(Controlword.ENABLE_OPERATION | Controlword.ENABLE_IP_MODE | Controlword.ENABLE_VOLTAGE
-                   | Controlword.QUICK_STOP | Controlword.SWITCH_ON)
+        return int(
+            Controlword.ENABLE_OPERATION
+            | Controlword.ENABLE_IP_MODE
+            | Controlword.ENABLE_VOLTAGE
+            | Controlword.QUICK_STOP
+            | Controlword.SWITCH_ON
+        )
 
     def halt_controlword(self) -> int:
         return self.start_controlword() | int(Controlword.HALT)
@@ -323,9 +328,7 @@ def profile_for(link: AxisLink) -> Profile:
     from axes.profiles.parker_slvdn import ParkerSlvdn
     from axes.profiles.sync_setpoint import SyncSetpoint
 
-    classes: dict[str, type[Profile]] = {
-        c.name: c for c in (Epos2Pvt, Cia402IpLinear, SyncSetpoint, ParkerSlvdn)
-    }
+    classes: dict[str, type[Profile]] = {c.name: c for c in (Epos2Pvt, Cia402IpLinear, SyncSetpoint, ParkerSlvdn)}
     try:
         return classes[link.config.profile](link)
     except KeyError:

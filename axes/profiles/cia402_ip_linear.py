@@ -52,8 +52,7 @@ class FixedPeriodProfile(Profile):
     def feeder(self, program: AxisProgram) -> Feeder:
         self._cob = self.rpdos[0].cob_id(self.link.node_id, receive=True)
         bus = self.link.bus
-        return SetpointFeeder(program.records, self.frame, bus.network.send_message, self.period_ms,
-                              self.lead_periods)
+        return SetpointFeeder(program.records, self.frame, bus.network.send_message, self.period_ms, self.lead_periods)
 
     def write_period(self) -> None:
         self.link.write(od.INTERPOLATION_TIME_PERIOD, 1, self.period_ms, "B")

@@ -42,8 +42,9 @@ class Epos2Pvt(Profile):
         link.write(od.MAX_FOLLOWING_ERROR, 0, DEFAULT_MAX_FOLLOWING_ERROR_QC, "I")
         self.write_limits()
         if link.bus.config.time_stamp:  # the master's 0x1013 after every SYNC, on one shared COB-ID
-            link.map_pdos((*self.rpdos, EPOS2_TIME_STAMP_RPDO), self.tpdos,
-                          {EPOS2_TIME_STAMP_RPDO.number: TIME_STAMP_COB_ID})
+            link.map_pdos(
+                (*self.rpdos, EPOS2_TIME_STAMP_RPDO), self.tpdos, {EPOS2_TIME_STAMP_RPDO.number: TIME_STAMP_COB_ID}
+            )
         else:
             link.map_pdos(self.rpdos, self.tpdos)
         buffer = self.config.buffer
@@ -63,5 +64,6 @@ class Epos2Pvt(Profile):
     def feeder(self, program: AxisProgram) -> Feeder:
         self._cob = self.rpdos[0].cob_id(self.link.node_id, receive=True)
         bus = self.link.bus
-        return BufferFeeder(program.records, self.frame, bus.network.send_message, bus.config.sync_period_ms,
-                            self.config.buffer)
+        return BufferFeeder(
+            program.records, self.frame, bus.network.send_message, bus.config.sync_period_ms, self.config.buffer
+        )

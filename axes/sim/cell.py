@@ -32,13 +32,23 @@ DRIVE_CLASSES: dict[str, type[SimulatedDrive]] = {
 
 
 def make_drive(
-    axis: AxisConfig, sync_period_ms: float, network: canopen.Network | None = None,
-    eds_path: str | Path | None = None, history_length: int = 20_000,
+    axis: AxisConfig,
+    sync_period_ms: float,
+    network: canopen.Network | None = None,
+    eds_path: str | Path | None = None,
+    history_length: int = 20_000,
 ) -> SimulatedDrive:
     """The simulated drive for one configured axis (its profile's class, its scaling and limits)."""
     cls = DRIVE_CLASSES[axis.profile]
-    return cls(axis.node_id, network, eds_path, scaling=axis.scaling, limits=axis.limits,
-               sync_period_ms=sync_period_ms, history_length=history_length)
+    return cls(
+        axis.node_id,
+        network,
+        eds_path,
+        scaling=axis.scaling,
+        limits=axis.limits,
+        sync_period_ms=sync_period_ms,
+        history_length=history_length,
+    )
 
 
 class SimulatedCell:
@@ -61,8 +71,9 @@ class SimulatedCell:
         self.drives: dict[int, SimulatedDrive] = {}
         eds_paths = eds_paths or {}
         for axis in cell.axes:
-            self.drives[axis.node_id] = make_drive(axis, cell.bus.sync_period_ms, None,
-                                                   eds_paths.get(axis.node_id), history_length)
+            self.drives[axis.node_id] = make_drive(
+                axis, cell.bus.sync_period_ms, None, eds_paths.get(axis.node_id), history_length
+            )
         self._joint_to_node = {a.joint: a.node_id for a in cell.axes}
         self.running = False
 
@@ -70,8 +81,9 @@ class SimulatedCell:
         """Connect to the bus and power the drives on (boot-up frames, then pre-operational)."""
         if self.running:
             return self
-        self.network.connect(interface=self.interface, channel=self.channel, bitrate=self.cell.bus.bitrate,
-                             receive_own_messages=False)
+        self.network.connect(
+            interface=self.interface, channel=self.channel, bitrate=self.cell.bus.bitrate, receive_own_messages=False
+        )
         for drive in self.drives.values():
             drive.attach(self.network)
         for drive in self.drives.values():
@@ -91,8 +103,9 @@ class SimulatedCell:
     def __enter__(self) -> SimulatedCell:
         return self.start()
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
         self.stop()
 
     def drive(self, key: int | str) -> SimulatedDrive:

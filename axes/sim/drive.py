@@ -415,8 +415,9 @@ class SimulatedDrive:
                 self.pdo.apply_synchronous()
             self._on_sync_validated()
             self._refresh(events=False)
-            self.history.append(SyncSample(self.sync_count, new_time / 1000.0, self.demand,
-                                           self.actual, self.ip_active, self.state))
+            self.history.append(
+                SyncSample(self.sync_count, new_time / 1000.0, self.demand, self.actual, self.ip_active, self.state)
+            )
             if self.operational:
                 self.pdo.transmit_on_sync()
                 self.pdo.transmit_events()
@@ -614,8 +615,11 @@ class SimulatedDrive:
         self.acceleration = 0.0
         self.ip_active = False
         self._reset_profile()
-        for index, value in ((obj.CONTROLWORD, 0), (obj.MODES_OF_OPERATION_DISPLAY,
-                             self.read_or(obj.MODES_OF_OPERATION, 0, 0)), (ERROR_REGISTER, 0)):
+        for index, value in (
+            (obj.CONTROLWORD, 0),
+            (obj.MODES_OF_OPERATION_DISPLAY, self.read_or(obj.MODES_OF_OPERATION, 0, 0)),
+            (ERROR_REGISTER, 0),
+        ):
             if self.has(index):
                 self.store(index, 0, value)
         self._refresh(events=False)

@@ -43,22 +43,36 @@ Entry = Var | Rec
 def _pdo_objects(n_rpdo: int, n_tpdo: int) -> dict[int, Entry]:
     out: dict[int, Entry] = {}
     for i in range(n_rpdo):
-        out[0x1400 + i] = Rec(f"Receive PDO {i + 1} parameter", (
-            Var(f"COB-ID used by RPDO {i + 1}", U32, "rw", f"$NODEID+0x{0x200 + 0x100 * i:X}"),
-            Var("Transmission type", U8, "rw", 255),
-        ))
-        out[0x1600 + i] = Rec(f"Receive PDO {i + 1} mapping", tuple(
-            Var(f"Mapped object {k}", U32, "rw", 0) for k in range(1, 9)), count_access="rw", count_default=0)
+        out[0x1400 + i] = Rec(
+            f"Receive PDO {i + 1} parameter",
+            (
+                Var(f"COB-ID used by RPDO {i + 1}", U32, "rw", f"$NODEID+0x{0x200 + 0x100 * i:X}"),
+                Var("Transmission type", U8, "rw", 255),
+            ),
+        )
+        out[0x1600 + i] = Rec(
+            f"Receive PDO {i + 1} mapping",
+            tuple(Var(f"Mapped object {k}", U32, "rw", 0) for k in range(1, 9)),
+            count_access="rw",
+            count_default=0,
+        )
     for i in range(n_tpdo):
-        out[0x1800 + i] = Rec(f"Transmit PDO {i + 1} parameter", (
-            Var(f"COB-ID used by TPDO {i + 1}", U32, "rw", f"$NODEID+0x{0x80000180 + 0x100 * i:X}"),
-            Var("Transmission type", U8, "rw", 255),
-            Var("Inhibit time", U16, "rw", 0),
-            Var("Reserved", U8, "rw", 0),
-            Var("Event timer", U16, "rw", 0),
-        ))
-        out[0x1A00 + i] = Rec(f"Transmit PDO {i + 1} mapping", tuple(
-            Var(f"Mapped object {k}", U32, "rw", 0) for k in range(1, 9)), count_access="rw", count_default=0)
+        out[0x1800 + i] = Rec(
+            f"Transmit PDO {i + 1} parameter",
+            (
+                Var(f"COB-ID used by TPDO {i + 1}", U32, "rw", f"$NODEID+0x{0x80000180 + 0x100 * i:X}"),
+                Var("Transmission type", U8, "rw", 255),
+                Var("Inhibit time", U16, "rw", 0),
+                Var("Reserved", U8, "rw", 0),
+                Var("Event timer", U16, "rw", 0),
+            ),
+        )
+        out[0x1A00 + i] = Rec(
+            f"Transmit PDO {i + 1} mapping",
+            tuple(Var(f"Mapped object {k}", U32, "rw", 0) for k in range(1, 9)),
+            count_access="rw",
+            count_default=0,
+        )
     return out
 
 
@@ -67,19 +81,26 @@ def _common(device_type: int, product: str) -> dict[int, Entry]:
     d: dict[int, Entry] = {
         0x1000: Var("Device type", U32, "ro", device_type),
         0x1001: Var("Error register", U8, "ro", 0),
-        0x1003: Rec("Pre-defined error field", tuple(Var(f"Standard error field {k}", U32, "ro", 0)
-                                                     for k in range(1, 5)), array=True,
-                      count_access="rw", count_default=0),
+        0x1003: Rec(
+            "Pre-defined error field",
+            tuple(Var(f"Standard error field {k}", U32, "ro", 0) for k in range(1, 5)),
+            array=True,
+            count_access="rw",
+            count_default=0,
+        ),
         0x1005: Var("COB-ID SYNC message", U32, "rw", 0x80),
         0x1008: Var("Manufacturer device name", 0x9, "const", product),
         0x1014: Var("COB-ID EMCY", U32, "ro", "$NODEID+0x80"),
         0x1017: Var("Producer heartbeat time", U16, "rw", 0),
-        0x1018: Rec("Identity object", (
-            Var("Vendor-ID", U32, "ro", 0x00000000),
-            Var("Product code", U32, "ro", 0x0),
-            Var("Revision number", U32, "ro", 0x00010000),
-            Var("Serial number", U32, "ro", 0),
-        )),
+        0x1018: Rec(
+            "Identity object",
+            (
+                Var("Vendor-ID", U32, "ro", 0x00000000),
+                Var("Product code", U32, "ro", 0x0),
+                Var("Revision number", U32, "ro", 0x00010000),
+                Var("Serial number", U32, "ro", 0),
+            ),
+        ),
         obj.HIGH_RESOLUTION_TIME_STAMP: Var("High resolution time stamp", U32, "rw", 0, pdo=True),
         0x603F: Var("Error code", U16, "ro", 0, pdo=True),
         obj.CONTROLWORD: Var("Controlword", U16, "rw", 0, pdo=True),
@@ -90,10 +111,14 @@ def _common(device_type: int, product: str) -> dict[int, Entry]:
         obj.POSITION_DEMAND_VALUE: Var("Position demand value", I32, "ro", 0, pdo=True),
         obj.POSITION_ACTUAL_VALUE: Var("Position actual value", I32, "ro", 0, pdo=True),
         obj.MAX_FOLLOWING_ERROR: Var("Max following error", U32, "rw", 2000, pdo=True),
-        obj.SOFTWARE_POSITION_LIMIT: Rec("Software position limit", (
-            Var("Min position limit", I32, "rw", -(2**31)),
-            Var("Max position limit", I32, "rw", 2**31 - 1),
-        ), array=True),
+        obj.SOFTWARE_POSITION_LIMIT: Rec(
+            "Software position limit",
+            (
+                Var("Min position limit", I32, "rw", -(2**31)),
+                Var("Max position limit", I32, "rw", 2**31 - 1),
+            ),
+            array=True,
+        ),
         obj.MAX_PROFILE_VELOCITY: Var("Max profile velocity", U32, "rw", 25000),
         obj.PROFILE_VELOCITY: Var("Profile velocity", U32, "rw", 1000, pdo=True),
         obj.PROFILE_ACCELERATION: Var("Profile acceleration", U32, "rw", 10000, pdo=True),
@@ -108,44 +133,58 @@ def epos2() -> dict[int, Entry]:
     d = _common(0x00020192, "pvtflow simulated EPOS2")
     d.update(_pdo_objects(4, 4))
     d[obj.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode selection", I16, "rw", -1)
-    d[obj.INTERPOLATION_TIME_PERIOD] = Rec("Interpolation time period", (
-        Var("Interpolation time period value", U8, "rw", 1),
-        Var("Interpolation time index", I8, "rw", -3),
-    ))
+    d[obj.INTERPOLATION_TIME_PERIOD] = Rec(
+        "Interpolation time period",
+        (
+            Var("Interpolation time period value", U8, "rw", 1),
+            Var("Interpolation time index", I8, "rw", -3),
+        ),
+    )
     d[obj.INTERPOLATION_DATA_CONFIGURATION] = _buffer_config()
     d[obj.EPOS2_INTERPOLATION_DATA_RECORD] = Var("Interpolation data record", U64, "wo", None, pdo=True)
-    d[obj.EPOS2_INTERPOLATION_BUFFER] = Rec("Interpolation buffer", (
-        Var("Interpolation buffer status", U16, "ro", 0, pdo=True),
-        Var("Interpolation buffer underflow warning", U16, "rw", 4),
-        Var("Interpolation buffer overflow warning", U16, "rw", 60),
-    ))
+    d[obj.EPOS2_INTERPOLATION_BUFFER] = Rec(
+        "Interpolation buffer",
+        (
+            Var("Interpolation buffer status", U16, "ro", 0, pdo=True),
+            Var("Interpolation buffer underflow warning", U16, "rw", 4),
+            Var("Interpolation buffer overflow warning", U16, "rw", 60),
+        ),
+    )
     return d
 
 
 def _buffer_config() -> Rec:
-    return Rec("Interpolation data configuration", (
-        Var("Maximum buffer size", U32, "ro", obj.EPOS2_BUFFER_SIZE),
-        Var("Actual buffer size", U32, "ro", obj.EPOS2_BUFFER_SIZE),
-        Var("Buffer organisation", U8, "rw", 0),
-        Var("Buffer position", U16, "rw", 0),
-        Var("Size of data record", U8, "wo", 8),
-        Var("Buffer clear", U8, "wo", 0),
-    ))
+    return Rec(
+        "Interpolation data configuration",
+        (
+            Var("Maximum buffer size", U32, "ro", obj.EPOS2_BUFFER_SIZE),
+            Var("Actual buffer size", U32, "ro", obj.EPOS2_BUFFER_SIZE),
+            Var("Buffer organisation", U8, "rw", 0),
+            Var("Buffer position", U16, "rw", 0),
+            Var("Size of data record", U8, "wo", 8),
+            Var("Buffer clear", U8, "wo", 0),
+        ),
+    )
 
 
 def _setpoint_record(with_velocity: bool) -> Rec:
     subs = [Var("Interpolation target position", I32, "rw", 0, pdo=True)]
     if with_velocity:
-        subs += [Var("Interpolation velocity (counts/s)", I32, "rw", 0, pdo=True),
-                 Var("Interpolation velocity (rpm)", I32, "rw", 0, pdo=True)]
+        subs += [
+            Var("Interpolation velocity (counts/s)", I32, "rw", 0, pdo=True),
+            Var("Interpolation velocity (rpm)", I32, "rw", 0, pdo=True),
+        ]
     return Rec("Interpolation data record", tuple(subs), array=True)
 
 
 def _time_period() -> Rec:
-    return Rec("Interpolation time period", (
-        Var("Interpolation time period value", U8, "rw", 1),
-        Var("Interpolation time index", I8, "rw", -3),
-    ))
+    return Rec(
+        "Interpolation time period",
+        (
+            Var("Interpolation time period value", U8, "rw", 1),
+            Var("Interpolation time index", I8, "rw", -3),
+        ),
+    )
 
 
 def cia402_ip_linear() -> dict[int, Entry]:
@@ -154,14 +193,17 @@ def cia402_ip_linear() -> dict[int, Entry]:
     d[obj.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
     d[obj.INTERPOLATION_DATA_RECORD] = _setpoint_record(False)
     d[obj.INTERPOLATION_TIME_PERIOD] = _time_period()
-    d[obj.INTERPOLATION_DATA_CONFIGURATION] = Rec("Interpolation data configuration", (
-        Var("Maximum buffer size", U32, "ro", 1),
-        Var("Actual buffer size", U32, "ro", 1),
-        Var("Buffer organisation", U8, "rw", 0),
-        Var("Buffer position", U16, "rw", 0),
-        Var("Size of data record", U8, "wo", 4),
-        Var("Buffer clear", U8, "wo", 0),
-    ))
+    d[obj.INTERPOLATION_DATA_CONFIGURATION] = Rec(
+        "Interpolation data configuration",
+        (
+            Var("Maximum buffer size", U32, "ro", 1),
+            Var("Actual buffer size", U32, "ro", 1),
+            Var("Buffer organisation", U8, "rw", 0),
+            Var("Buffer position", U16, "rw", 0),
+            Var("Size of data record", U8, "wo", 4),
+            Var("Buffer clear", U8, "wo", 0),
+        ),
+    )
     return d
 
 
@@ -201,8 +243,13 @@ def _fmt(value: str | int, data_type: int) -> str:
 
 
 def _var_lines(section: str, v: Var) -> list[str]:
-    lines = [f"[{section}]", f"ParameterName={v.name}", "ObjectType=0x7", f"DataType=0x{v.data_type:04X}",
-             f"AccessType={v.access}"]
+    lines = [
+        f"[{section}]",
+        f"ParameterName={v.name}",
+        "ObjectType=0x7",
+        f"DataType=0x{v.data_type:04X}",
+        f"AccessType={v.access}",
+    ]
     if v.default is not None:
         lines.append(f"DefaultValue={_fmt(v.default, v.data_type)}")
     lines += [f"PDOMapping={int(v.pdo)}", ""]
@@ -218,18 +265,46 @@ def render(filename: str) -> str:
     manufacturer = [i for i in sorted(d) if 0x2000 <= i < 0x6000]
     out = [
         "; pvtflow simulated drive object dictionary: generated by axes/sim/edsgen.py, do not edit",
-        "[FileInfo]", f"FileName={filename}", "FileVersion=1", "FileRevision=0", "EDSVersion=4.0",
-        f"Description={description}", "CreatedBy=pvtflow", "",
-        "[DeviceInfo]", "VendorName=pvtflow (simulated)", "VendorNumber=0x00000000",
-        f"ProductName={filename[:-4]}", "ProductNumber=0x0", "RevisionNumber=0x00010000",
-        "BaudRate_10=1", "BaudRate_20=1", "BaudRate_50=1", "BaudRate_125=1", "BaudRate_250=1",
-        "BaudRate_500=1", "BaudRate_800=1", "BaudRate_1000=1", "SimpleBootUpMaster=0",
-        "SimpleBootUpSlave=1", "Granularity=8", "DynamicChannelsSupported=0", "GroupMessaging=0",
-        "NrOfRXPDO=4", "NrOfTXPDO=4", "LSS_Supported=0", "",
-        "[DummyUsage]", *(f"Dummy000{k}=0" for k in range(1, 8)), "",
+        "[FileInfo]",
+        f"FileName={filename}",
+        "FileVersion=1",
+        "FileRevision=0",
+        "EDSVersion=4.0",
+        f"Description={description}",
+        "CreatedBy=pvtflow",
+        "",
+        "[DeviceInfo]",
+        "VendorName=pvtflow (simulated)",
+        "VendorNumber=0x00000000",
+        f"ProductName={filename[:-4]}",
+        "ProductNumber=0x0",
+        "RevisionNumber=0x00010000",
+        "BaudRate_10=1",
+        "BaudRate_20=1",
+        "BaudRate_50=1",
+        "BaudRate_125=1",
+        "BaudRate_250=1",
+        "BaudRate_500=1",
+        "BaudRate_800=1",
+        "BaudRate_1000=1",
+        "SimpleBootUpMaster=0",
+        "SimpleBootUpSlave=1",
+        "Granularity=8",
+        "DynamicChannelsSupported=0",
+        "GroupMessaging=0",
+        "NrOfRXPDO=4",
+        "NrOfTXPDO=4",
+        "LSS_Supported=0",
+        "",
+        "[DummyUsage]",
+        *(f"Dummy000{k}=0" for k in range(1, 8)),
+        "",
     ]
-    for title, indices in (("MandatoryObjects", mandatory), ("OptionalObjects", optional),
-                           ("ManufacturerObjects", manufacturer)):
+    for title, indices in (
+        ("MandatoryObjects", mandatory),
+        ("OptionalObjects", optional),
+        ("ManufacturerObjects", manufacturer),
+    ):
         out += [f"[{title}]", f"SupportedObjects={len(indices)}"]
         out += [f"{k}=0x{i:04X}" for k, i in enumerate(indices, 1)]
         out.append("")
@@ -238,8 +313,13 @@ def render(filename: str) -> str:
         if isinstance(e, Var):
             out += _var_lines(f"{index:04X}", e)
             continue
-        out += [f"[{index:04X}]", f"ParameterName={e.name}", f"ObjectType=0x{8 if e.array else 9:X}",
-                f"SubNumber={len(e.subs) + 1}", ""]
+        out += [
+            f"[{index:04X}]",
+            f"ParameterName={e.name}",
+            f"ObjectType=0x{8 if e.array else 9:X}",
+            f"SubNumber={len(e.subs) + 1}",
+            "",
+        ]
         count = len(e.subs) if e.count_default is None else e.count_default
         out += _var_lines(f"{index:04X}sub0", Var("Highest sub-index supported", U8, e.count_access, count))
         for k, v in enumerate(e.subs, 1):

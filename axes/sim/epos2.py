@@ -167,15 +167,17 @@ class Epos2Drive(SimulatedDrive):
             return False
         record = self.fifo.popleft()
         self.records_consumed.append(record)
-        self.min_level_active = min(self.level, self.min_level_active if self.min_level_active is not None
-                                    else self.level)
+        self.min_level_active = min(
+            self.level, self.min_level_active if self.min_level_active is not None else self.level
+        )
         if record.time == 0:
             self.ip_active = False
             self._segment = None
             self.ended_by_time_zero += 1
             return False
-        self._segment = Segment.cubic(start, p0, v0, float(record.position),
-                                      record.velocity * self.velocity_factor, float(record.time))
+        self._segment = Segment.cubic(
+            start, p0, v0, float(record.position), record.velocity * self.velocity_factor, float(record.time)
+        )
         return True
 
     def _motion_at(self, t: float) -> tuple[float, float, float] | None:

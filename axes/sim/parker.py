@@ -71,8 +71,13 @@ class ParkerDrive(FixedPeriodDrive):
         super()._on_object_write(index, subindex, value)
 
     def _on_sync_validated(self) -> None:
-        if (self.state == OPERATION_ENABLED and not self.ip_active and self._ip_mode_selected()
-                and not self._controlword & CW_HALT and self._stop_segment is None):
+        if (
+            self.state == OPERATION_ENABLED
+            and not self.ip_active
+            and self._ip_mode_selected()
+            and not self._controlword & CW_HALT
+            and self._stop_segment is None
+        ):
             self._ip_requested = True
         super()._on_sync_validated()
 

@@ -184,7 +184,7 @@ class PdoEngine:
     def _apply(self, pdo: PdoState, data: bytes) -> None:
         offset = 0
         for index, subindex, bits in pdo.entries:
-            chunk = data[offset // 8:(offset + bits) // 8]
+            chunk = data[offset // 8 : (offset + bits) // 8]
             offset += bits
             try:
                 self.drive.node.set_data(index, subindex, chunk)

@@ -33,13 +33,19 @@ def safe_distance(axis: AxisConfig, duration_ms: float, fraction: float = 0.5) -
     vmax = float(sc.rpm_to_qc_per_ms(lim.max_profile_velocity_rpm))
     amax = float(sc.rpm_s_to_qc_per_ms2(lim.max_acceleration_rpm_s))
     half_range = (lim.max_position_qc - lim.min_position_qc) / 2
-    return min(fraction * min(vmax * duration_ms / PEAK_VELOCITY, amax * duration_ms**2 / PEAK_ACCELERATION),
-               0.4 * half_range)
+    return min(
+        fraction * min(vmax * duration_ms / PEAK_VELOCITY, amax * duration_ms**2 / PEAK_ACCELERATION), 0.4 * half_range
+    )
 
 
 def axis_program(
-    axis: AxisConfig, start_qc: int, distance_qc: float, duration_ms: int, spacing_ms: int | None = None,
-    *, end_record: bool = True,
+    axis: AxisConfig,
+    start_qc: int,
+    distance_qc: float,
+    duration_ms: int,
+    spacing_ms: int | None = None,
+    *,
+    end_record: bool = True,
 ) -> AxisProgram:
     sc = axis.scaling
     if axis.profile == "epos2_pvt":
@@ -64,13 +70,20 @@ def axis_program(
         records[:, 0] = np.round(p)
         records[:, 1] = np.round(v / sc.qc_per_ms_per_velocity_unit)
         records[:, 2] = period
-    return AxisProgram(axis.joint, axis.node_id, axis.profile, axis.scaling, axis.limits, records,
-                       axis.interpolation_submode)
+    return AxisProgram(
+        axis.joint, axis.node_id, axis.profile, axis.scaling, axis.limits, records, axis.interpolation_submode
+    )
 
 
 def program(
-    axes: Sequence[AxisConfig], duration_ms: int = 300, *, starts: Sequence[int] | None = None,
-    fraction: float = 0.5, spacing_ms: int | None = None, cell: str = "test", sign: int = 1,
+    axes: Sequence[AxisConfig],
+    duration_ms: int = 300,
+    *,
+    starts: Sequence[int] | None = None,
+    fraction: float = 0.5,
+    spacing_ms: int | None = None,
+    cell: str = "test",
+    sign: int = 1,
 ) -> PvtProgram:
     out = []
     for i, a in enumerate(axes):

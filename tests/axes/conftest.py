@@ -34,8 +34,13 @@ def make_rig() -> Iterator[Callable[..., Rig]]:
     rigs: list[Rig] = []
 
     def make(
-        cell: CellConfig, *, heartbeat_ms: int | None = None, eds_paths: dict[int, str | Path] | None = None,
-        can_log: Path | None = None, lost_sync_timeout_s: float = 1.0, **group_kwargs: object,
+        cell: CellConfig,
+        *,
+        heartbeat_ms: int | None = None,
+        eds_paths: dict[int, str | Path] | None = None,
+        can_log: Path | None = None,
+        lost_sync_timeout_s: float = 1.0,
+        **group_kwargs: object,
     ) -> Rig:
         channel = unique_channel()
         changes: dict[str, object] = {"channel": channel}

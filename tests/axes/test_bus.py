@@ -32,8 +32,13 @@ class Responder(can.Listener):
             if msg.arbitration_id == 0x80:
                 self.syncs += 1
                 for nid in self.nodes:
-                    self.bus.send(can.Message(arbitration_id=0x280 + nid, data=struct.pack("<Hi", 0x1637, self.syncs),
-                                              is_extended_id=False))
+                    self.bus.send(
+                        can.Message(
+                            arbitration_id=0x280 + nid,
+                            data=struct.pack("<Hi", 0x1637, self.syncs),
+                            is_extended_id=False,
+                        )
+                    )
             self.cond.notify_all()
 
     def wait(self, predicate, timeout: float = 5.0) -> bool:
@@ -140,10 +145,12 @@ def test_heartbeat_emcy_and_lost_sync_are_reported(channel):
     try:
         bus.add_node(7)
         bus.add_node(8)
-        heartbeat7 = responder.bus.send_periodic(can.Message(arbitration_id=0x707, data=[5], is_extended_id=False),
-                                                 0.005)
-        heartbeat8 = responder.bus.send_periodic(can.Message(arbitration_id=0x708, data=[5], is_extended_id=False),
-                                                 0.005)
+        heartbeat7 = responder.bus.send_periodic(
+            can.Message(arbitration_id=0x707, data=[5], is_extended_id=False), 0.005
+        )
+        heartbeat8 = responder.bus.send_periodic(
+            can.Message(arbitration_id=0x708, data=[5], is_extended_id=False), 0.005
+        )
         bus.watch_heartbeat([7, 8])
         # EMCY 0x8612 from node 8
         responder.bus.send(can.Message(arbitration_id=0x88, data=b"\x12\x86\x01\0\0\0\0\0", is_extended_id=False))

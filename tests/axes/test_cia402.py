@@ -21,25 +21,28 @@ from axes.cia402 import (
 )
 
 
-@pytest.mark.parametrize(("statusword", "state"), [
-    # EPOS2 firmware patterns (bit 8 "offset current measured", bits 14/15 manufacturer specific)
-    (0x0140, PowerState.SWITCH_ON_DISABLED),
-    (0x0121, PowerState.READY_TO_SWITCH_ON),
-    (0x0123, PowerState.SWITCHED_ON),
-    (0x0137, PowerState.OPERATION_ENABLED),
-    (0x1537, PowerState.OPERATION_ENABLED),  # ip mode active + target reached
-    (0x8137, PowerState.OPERATION_ENABLED),
-    (0x0117, PowerState.QUICK_STOP_ACTIVE),
-    (0x011F, PowerState.FAULT_REACTION_ACTIVE),
-    (0x0108, PowerState.FAULT),
-    (0x0128, PowerState.FAULT),
-    (0x0000, PowerState.NOT_READY_TO_SWITCH_ON),
-    # plain CiA 402
-    (0x0040, PowerState.SWITCH_ON_DISABLED),
-    (0x0031, PowerState.READY_TO_SWITCH_ON),
-    (0x0033, PowerState.SWITCHED_ON),
-    (0x0037, PowerState.OPERATION_ENABLED),
-])
+@pytest.mark.parametrize(
+    ("statusword", "state"),
+    [
+        # EPOS2 firmware patterns (bit 8 "offset current measured", bits 14/15 manufacturer specific)
+        (0x0140, PowerState.SWITCH_ON_DISABLED),
+        (0x0121, PowerState.READY_TO_SWITCH_ON),
+        (0x0123, PowerState.SWITCHED_ON),
+        (0x0137, PowerState.OPERATION_ENABLED),
+        (0x1537, PowerState.OPERATION_ENABLED),  # ip mode active + target reached
+        (0x8137, PowerState.OPERATION_ENABLED),
+        (0x0117, PowerState.QUICK_STOP_ACTIVE),
+        (0x011F, PowerState.FAULT_REACTION_ACTIVE),
+        (0x0108, PowerState.FAULT),
+        (0x0128, PowerState.FAULT),
+        (0x0000, PowerState.NOT_READY_TO_SWITCH_ON),
+        # plain CiA 402
+        (0x0040, PowerState.SWITCH_ON_DISABLED),
+        (0x0031, PowerState.READY_TO_SWITCH_ON),
+        (0x0033, PowerState.SWITCHED_ON),
+        (0x0037, PowerState.OPERATION_ENABLED),
+    ],
+)
 def test_states_decode_from_statusword(statusword, state):
     assert decode_state(statusword) is state
 
@@ -66,13 +69,19 @@ def test_walk_to_operation_enabled_from_every_state():
         while state is not PowerState.OPERATION_ENABLED and seen < 6:
             word = next_controlword(state, PowerState.OPERATION_ENABLED)
             if state in (PowerState.FAULT_REACTION_ACTIVE, PowerState.NOT_READY_TO_SWITCH_ON):
-                state = {PowerState.FAULT_REACTION_ACTIVE: PowerState.FAULT,
-                         PowerState.NOT_READY_TO_SWITCH_ON: PowerState.SWITCH_ON_DISABLED}[state]
+                state = {
+                    PowerState.FAULT_REACTION_ACTIVE: PowerState.FAULT,
+                    PowerState.NOT_READY_TO_SWITCH_ON: PowerState.SWITCH_ON_DISABLED,
+                }[state]
             else:
                 assert word is not None
-                state = next(PowerState(b) for (a, b), w in State402.TRANSITIONTABLE.items()
-                             if a == state.value and w == word and b in (
-                                 "SWITCH ON DISABLED", "READY TO SWITCH ON", "SWITCHED ON", "OPERATION ENABLED"))
+                state = next(
+                    PowerState(b)
+                    for (a, b), w in State402.TRANSITIONTABLE.items()
+                    if a == state.value
+                    and w == word
+                    and b in ("SWITCH ON DISABLED", "READY TO SWITCH ON", "SWITCHED ON", "OPERATION ENABLED")
+                )
             seen += 1
         assert state is PowerState.OPERATION_ENABLED, start
 

@@ -27,8 +27,10 @@ def write(tmp_path: Path, prog: PvtProgram, name: str = "program.json") -> Path:
 
 def replace_axis(prog: PvtProgram, index: int, **changes) -> PvtProgram:
     a = prog.axes[index]
-    fields = {k: getattr(a, k) for k in ("name", "node_id", "profile", "scaling", "limits", "records",
-                                         "interpolation_submode")}
+    fields = {
+        k: getattr(a, k)
+        for k in ("name", "node_id", "profile", "scaling", "limits", "records", "interpolation_submode")
+    }
     fields.update(changes)
     axes = list(prog.axes)
     axes[index] = AxisProgram(**fields)

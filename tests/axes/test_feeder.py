@@ -115,8 +115,7 @@ def test_setpoint_feeder_validates_record_k_at_start_plus_k_plus_1_minus_lead(le
         sent.append((sync["next"], int.from_bytes(data[:4], "little", signed=True)))
 
     recs = records(20, 4)
-    feeder = SetpointFeeder(recs, lambda row: (0x201, int(row[0]).to_bytes(4, "little", signed=True)),
-                            send, 4.0, lead)
+    feeder = SetpointFeeder(recs, lambda row: (0x201, int(row[0]).to_bytes(4, "little", signed=True)), send, 4.0, lead)
     feeder.preload()
     for elapsed in range(25):
         sync["next"] = elapsed + 1

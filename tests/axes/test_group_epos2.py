@@ -77,8 +77,9 @@ def test_program_breaking_a_limit_faults_and_halts(arm6, make_rig):
     records = a.records.copy()
     records[:, 0] = np.round(records[:, 0] * 2.5)
     records[:, 1] = np.round(records[:, 1] * 2.5)
-    bad = type(prog)(prog.cell, (*prog.axes[:1], type(a)(a.name, a.node_id, a.profile, a.scaling, a.limits,
-                                                         records), *prog.axes[2:]))
+    bad = type(prog)(
+        prog.cell, (*prog.axes[:1], type(a)(a.name, a.node_id, a.profile, a.scaling, a.limits, records), *prog.axes[2:])
+    )
     with pytest.raises(AssertionError):
         check_limits(bad)
     result = rig.group.run(bad, timeout_s=30)

@@ -34,14 +34,18 @@ def run_and_check(rig, duration_ms: int = 300):
 
 
 def test_cia402_linear_sync_setpoint_and_parker_direct_at_1ms(arm6, make_rig):
-    cell = with_profiles(arm6, {
-        "joint_1": {"profile": "cia402_ip_linear", "period_ms": 1},
-        "joint_2": {"profile": "cia402_ip_linear", "period_ms": 1},
-        "joint_3": {"profile": "sync_setpoint", "period_ms": 1},
-        "joint_4": {"profile": "sync_setpoint", "period_ms": 1},
-        "joint_5": {"profile": "parker_slvdn", "period_ms": 1, "interpolation_submode": 0},  # direct loop
-        "joint_6": {"profile": "epos2_pvt"},
-    }, sync_period_ms=1.0)
+    cell = with_profiles(
+        arm6,
+        {
+            "joint_1": {"profile": "cia402_ip_linear", "period_ms": 1},
+            "joint_2": {"profile": "cia402_ip_linear", "period_ms": 1},
+            "joint_3": {"profile": "sync_setpoint", "period_ms": 1},
+            "joint_4": {"profile": "sync_setpoint", "period_ms": 1},
+            "joint_5": {"profile": "parker_slvdn", "period_ms": 1, "interpolation_submode": 0},  # direct loop
+            "joint_6": {"profile": "epos2_pvt"},
+        },
+        sync_period_ms=1.0,
+    )
     rig = make_rig(cell)
     run_and_check(rig)
 
@@ -49,24 +53,32 @@ def test_cia402_linear_sync_setpoint_and_parker_direct_at_1ms(arm6, make_rig):
 @pytest.mark.parametrize("submode", [0, -1, -2])
 def test_parker_interpolated_at_4ms(arm6, make_rig, submode):
     fixed = {"period_ms": 4}
-    cell = with_profiles(arm6, {
-        "joint_1": {"profile": "parker_slvdn", "interpolation_submode": submode, **fixed},
-        "joint_2": {"profile": "parker_slvdn", "interpolation_submode": submode, **fixed},
-        "joint_3": {"profile": "sync_setpoint", **fixed},
-        "joint_4": {"profile": "cia402_ip_linear", **fixed},
-        "joint_5": {"profile": "epos2_pvt"},
-        "joint_6": {"profile": "epos2_pvt"},
-    }, sync_period_ms=4.0)
+    cell = with_profiles(
+        arm6,
+        {
+            "joint_1": {"profile": "parker_slvdn", "interpolation_submode": submode, **fixed},
+            "joint_2": {"profile": "parker_slvdn", "interpolation_submode": submode, **fixed},
+            "joint_3": {"profile": "sync_setpoint", **fixed},
+            "joint_4": {"profile": "cia402_ip_linear", **fixed},
+            "joint_5": {"profile": "epos2_pvt"},
+            "joint_6": {"profile": "epos2_pvt"},
+        },
+        sync_period_ms=4.0,
+    )
     rig = make_rig(cell)
     run_and_check(rig, duration_ms=400)
 
 
 def test_fixed_period_halt_on_stop(arm6, make_rig):
-    cell = with_profiles(arm6, {
-        "joint_1": {"profile": "cia402_ip_linear", "period_ms": 1},
-        "joint_2": {"profile": "sync_setpoint", "period_ms": 1},
-        "joint_3": {"profile": "parker_slvdn", "period_ms": 1, "interpolation_submode": -1},
-    }, sync_period_ms=1.0)
+    cell = with_profiles(
+        arm6,
+        {
+            "joint_1": {"profile": "cia402_ip_linear", "period_ms": 1},
+            "joint_2": {"profile": "sync_setpoint", "period_ms": 1},
+            "joint_3": {"profile": "parker_slvdn", "period_ms": 1, "interpolation_submode": -1},
+        },
+        sync_period_ms=1.0,
+    )
     rig = make_rig(cell)
     prog = program(cell.ordered_axes(), 2000, fraction=0.4)
     assert rig.group.start(prog) is None

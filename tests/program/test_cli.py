@@ -42,8 +42,10 @@ def test_plan_writes_a_valid_program(planned: Path, capsys) -> None:
 
 def test_plan_takes_a_ros_joint_trajectory_in_yaml_and_json(tmp_path: Path, planned: Path) -> None:
     order = list(reversed(NAMES))  # a ROS message names its joints: any order
-    points = [{"positions": list(reversed(w)), "velocities": [0.0] * 6, "time_from_start": {"sec": i, "nanosec": 0}}
-              for i, w in enumerate(WAYPOINTS)]
+    points = [
+        {"positions": list(reversed(w)), "velocities": [0.0] * 6, "time_from_start": {"sec": i, "nanosec": 0}}
+        for i, w in enumerate(WAYPOINTS)
+    ]
     msg = {"header": {"frame_id": ""}, "joint_names": order, "points": points}
     ours = PvtProgram.loads(planned.read_text())
     for name, text in (("wp.yaml", yaml.safe_dump({"joint_trajectory": msg})), ("wp.json", json.dumps(msg))):
@@ -161,8 +163,9 @@ def test_waypoint_formats_and_errors() -> None:
     assert ours.shape == (3, 6)
     bare = parse_waypoints(json.dumps(WAYPOINTS), NAMES)
     assert np.array_equal(ours, bare)
-    ros_yaml = yaml.safe_dump({"trajectory": {"joint_names": list(NAMES),
-                                              "points": [{"positions": w} for w in WAYPOINTS]}})
+    ros_yaml = yaml.safe_dump(
+        {"trajectory": {"joint_names": list(NAMES), "points": [{"positions": w} for w in WAYPOINTS]}}
+    )
     assert np.array_equal(parse_waypoints(ros_yaml, NAMES), ours)
     for text, msg in [
         ("joint_names: [a]\npoints: []", "points: must be a non-empty list"),

@@ -24,7 +24,7 @@ def _segment(c: tuple[np.ndarray, ...], T: float) -> PiecewiseCubic:
 def test_hermite_meets_both_end_points_with_both_velocities() -> None:
     rng = np.random.default_rng(3)
     for _ in range(200):
-        p0, p1 = rng.integers(-10**6, 10**6, 2)
+        p0, p1 = rng.integers(-(10**6), 10**6, 2)
         v0, v1 = rng.normal(0, 50, 2)
         T = float(rng.integers(1, 256))
         seg = _segment(hermite_coefficients(p0, v0, p1, v1, T), T)
@@ -96,8 +96,9 @@ def test_exact_extrema_bound_dense_sampling() -> None:
 def test_position_range_of_a_parabola_with_float_noise_in_c3() -> None:
     """A constant-acceleration segment turning around inside: c3 is 0 up to float noise. The
     cancellation-prone root formula lost the extremum (a bug fixed here)."""
-    seg = PiecewiseCubic(np.array([0.0]), np.array([10.0]), np.array([0.0]), np.array([5.0]),
-                         np.array([-0.5]), np.array([1e-18]))
+    seg = PiecewiseCubic(
+        np.array([0.0]), np.array([10.0]), np.array([0.0]), np.array([5.0]), np.array([-0.5]), np.array([1e-18])
+    )
     _, hi = seg.position_range()
     assert hi[0] == pytest.approx(12.5)
 

@@ -88,8 +88,9 @@ def test_naive_sampling_overshoots_but_placed_knots_do_not(arm6) -> None:
     q, qd = traj.position(t_ms / 1000), traj.velocity(t_ms / 1000)
     for i, ax in enumerate(axes):
         s = ax.scaling
-        rec = np.column_stack((np.rint(s.position_to_qc(q[:, i])), np.rint(s.velocity_to_drive(qd[:, i])),
-                               np.full(len(t_ms), 10)))
+        rec = np.column_stack(
+            (np.rint(s.position_to_qc(q[:, i])), np.rint(s.velocity_to_drive(qd[:, i])), np.full(len(t_ms), 10))
+        )
         rec = np.vstack((rec, [rec[-1, 0], 0, 0])).astype(np.int64)
         rec[0, 2] = 1
         pc = epos2_pvt(rec, s.qc_per_ms_per_velocity_unit)
@@ -146,7 +147,7 @@ def test_fixed_period_profiles_one_record_per_period() -> None:
 def test_too_slow_drive_is_refused_with_the_axis_named() -> None:
     """A linear drive at 1 ms whose 0x60C5 is below 1 qc/ms^2 cannot take whole-count steps."""
     s = AxisScaling.revolute(500, 1.0)
-    lim = DriveLimits(3000, 5000, -10**6, 10**6)  # 5000 rpm/s = 0.04 qc/ms^2 at 500 qc/rev
+    lim = DriveLimits(3000, 5000, -(10**6), 10**6)  # 5000 rpm/s = 0.04 qc/ms^2 at 500 qc/rev
     axes = [DriveAxis("j", 1, "cia402_ip_linear", s, lim, period_ms=1)]
     limits = joint_limits_from_drives(["j"], [s], [lim])
     traj = plan(PlanInput(np.array([[0.0], [3.0]]), limits)).trajectory

@@ -14,13 +14,23 @@ DESIGN_EXAMPLE = {
     "format": "pvtflow.pvt-program",
     "version": 1,
     "cell": "demo",
-    "axes": [{
-        "name": "joint_1", "node_id": 1, "profile": "epos2_pvt", "qc_per_motor_rev": 2048,
-        "motor_rev_per_joint_unit": 15.915494, "velocity_unit_rpm": 1.0,
-        "limits": {"max_profile_velocity_rpm": 8000, "max_acceleration_rpm_s": 40000,
-                   "min_position_qc": -2000000, "max_position_qc": 2000000},
-        "records": [[0, 0, 1], [1520, 412, 37], [5230, 1177, 52], [9000, 0, 40], [9000, 0, 0]],
-    }],
+    "axes": [
+        {
+            "name": "joint_1",
+            "node_id": 1,
+            "profile": "epos2_pvt",
+            "qc_per_motor_rev": 2048,
+            "motor_rev_per_joint_unit": 15.915494,
+            "velocity_unit_rpm": 1.0,
+            "limits": {
+                "max_profile_velocity_rpm": 8000,
+                "max_acceleration_rpm_s": 40000,
+                "min_position_qc": -2000000,
+                "max_position_qc": 2000000,
+            },
+            "records": [[0, 0, 1], [1520, 412, 37], [5230, 1177, 52], [9000, 0, 40], [9000, 0, 0]],
+        }
+    ],
 }
 
 
@@ -65,9 +75,10 @@ def test_not_json_and_not_a_program() -> None:
         PvtProgram.loads('{"waypoints": [[0, 0]]}')
 
 
-@pytest.mark.parametrize(("position", "velocity", "time"),
-                         [(0, 0, 0), (1520, 412, 37), (-5230, -1177, 255), (2**31 - 1, 2**23 - 1, 1),
-                          (-(2**31), -(2**23), 200)])
+@pytest.mark.parametrize(
+    ("position", "velocity", "time"),
+    [(0, 0, 0), (1520, 412, 37), (-5230, -1177, 255), (2**31 - 1, 2**23 - 1, 1), (-(2**31), -(2**23), 200)],
+)
 def test_record_packing_round_trip(position: int, velocity: int, time: int) -> None:
     rec = Record(position, velocity, time)
     value = rec.pack()
@@ -85,8 +96,9 @@ def test_record_packing_by_hand() -> None:
     assert Record(1520, 412, 37).to_bytes() == bytes([0xF0, 0x05, 0, 0, 0x9C, 0x01, 0, 0x25])
 
 
-@pytest.mark.parametrize(("position", "velocity", "time", "what"),
-                         [(2**31, 0, 1, "int32"), (0, 2**23, 1, "int24"), (0, 0, 256, "0..255")])
+@pytest.mark.parametrize(
+    ("position", "velocity", "time", "what"), [(2**31, 0, 1, "int32"), (0, 2**23, 1, "int24"), (0, 0, 256, "0..255")]
+)
 def test_record_packing_refuses_out_of_range(position: int, velocity: int, time: int, what: str) -> None:
     with pytest.raises(ValueError, match=what):
         Record(position, velocity, time).pack()

@@ -87,8 +87,14 @@ def test_motion_must_end_at_rest() -> None:
 
 def test_velocity_limit_with_record_and_amount() -> None:
     # 0 -> 10000 qc in 100 ms: peak 1.5 * 100 = 150 qc/ms = 4500 rpm > 4000 (0x607F)
-    report = validate_program(program(axis([[0, 0, 1], [10000, 0, 100], [10000, 0, 0]],
-                                           limits=dataclasses.replace(LIMITS, max_acceleration_rpm_s=1e6))))
+    report = validate_program(
+        program(
+            axis(
+                [[0, 0, 1], [10000, 0, 100], [10000, 0, 0]],
+                limits=dataclasses.replace(LIMITS, max_acceleration_rpm_s=1e6),
+            )
+        )
+    )
     f = only(report, "velocity-limit")[0]
     assert f.record == 1 and f.severity == "error"
     assert f.value == pytest.approx(4500.0) and f.amount == pytest.approx(500.0)
@@ -107,8 +113,9 @@ def test_position_limit_between_records() -> None:
     """Both records inside 0x607D, the cubic between them outside: caught along the reconstruction."""
     lim = dataclasses.replace(LIMITS, max_position_qc=1000, max_profile_velocity_rpm=1e5, max_acceleration_rpm_s=1e7)
     # from 900 at +30 qc/ms (900 units) back to 900 at rest in 40 ms: swings past 1000
-    report = validate_program(program(axis([[900, 0, 1], [1000, 0, 10], [1000, 900, 1], [900, 0, 40],
-                                            [900, 0, 0]], limits=lim)))
+    report = validate_program(
+        program(axis([[900, 0, 1], [1000, 0, 10], [1000, 900, 1], [900, 0, 40], [900, 0, 0]], limits=lim))
+    )
     f = only(report, "position-limit")[0]
     assert f.record == 3 and "above 0x607D:02 1000 qc" in f.message and f.amount > 0
 
@@ -129,8 +136,9 @@ def test_fixed_period_rules() -> None:
     assert f.record == 2 and "differs from the axis's period 2 ms by +1 ms" in f.message
     stop = validate_program(program(axis([[0, 0, 2], [1, 0, 2], [3, 0, 2]], profile="cia402_ip_linear")))
     assert "must repeat the one before" in only(stop, "end-record")[0].message
-    ok = validate_program(program(axis([[0, 0, 2], [1, 0, 2], [3, 0, 2], [4, 0, 2], [4, 0, 2]],
-                                       profile="sync_setpoint")))
+    ok = validate_program(
+        program(axis([[0, 0, 2], [1, 0, 2], [3, 0, 2], [4, 0, 2], [4, 0, 2]], profile="sync_setpoint"))
+    )
     assert ok.ok, ok.format_text()
 
 

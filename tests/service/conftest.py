@@ -27,6 +27,7 @@ def gantry3() -> CellConfig:
 def serve(tmp_path: Path) -> Iterator[Callable[..., Served]]:
     """serve(cell, journal_dir=None, zconfig=None, client=None, port=None) -> Served, closed after the test."""
     with ExitStack() as stack:
+
         def make(cell: CellConfig, *, journal_dir: Path | None = None, **kwargs: object) -> Served:
             jdir = journal_dir or (tmp_path / f"journal-{cell.name}-{uuid.uuid4().hex[:6]}")
             return stack.enter_context(served_cell(cell, jdir, **kwargs))  # type: ignore[arg-type]

@@ -59,8 +59,9 @@ def check_reply(op: str, data: Any) -> None:
 class Collector:
     """Everything published on pvtflow/<cell>/{state,telemetry,events}, in arrival order."""
 
-    samples: dict[str, list[dict[str, Any]]] = field(default_factory=lambda: {"state": [], "telemetry": [],
-                                                                              "events": []})
+    samples: dict[str, list[dict[str, Any]]] = field(
+        default_factory=lambda: {"state": [], "telemetry": [], "events": []}
+    )
     lock: threading.Lock = field(default_factory=threading.Lock)
     subscribers: list[Any] = field(default_factory=list)
 
@@ -77,8 +78,11 @@ class Collector:
             return list(self.samples[topic])
 
     def events(self, kind: str, motion_id: str | None = None) -> list[dict[str, Any]]:
-        return [e for e in self.get("events") if e["kind"] == kind and (motion_id is None or
-                                                                        e.get("motion_id") == motion_id)]
+        return [
+            e
+            for e in self.get("events")
+            if e["kind"] == kind and (motion_id is None or e.get("motion_id") == motion_id)
+        ]
 
 
 @dataclass
@@ -106,8 +110,14 @@ class Served:
 
 
 @contextmanager
-def served_cell(cell: CellConfig, journal_dir: Path, zconfig: Any = None, client: Client | None = None,
-                port: int | None = None, client_zconfig: Any = None) -> Iterator[Served]:
+def served_cell(
+    cell: CellConfig,
+    journal_dir: Path,
+    zconfig: Any = None,
+    client: Client | None = None,
+    port: int | None = None,
+    client_zconfig: Any = None,
+) -> Iterator[Served]:
     """A cell's service on its own CAN channel and loopback port, with a client connected to it
     (``client``, or a new one: a client of the endpoint, or one made from ``client_zconfig``)."""
     cell = on_own_channel(cell)

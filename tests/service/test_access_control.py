@@ -27,8 +27,12 @@ def shipped(name: str, **endpoints: list[str]) -> zenoh.Config:
 def test_only_the_operator_may_command_and_a_denied_caller_gets_nothing(arm6, serve):
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    s = serve(arm6, zconfig=shipped("access-control.json5", listen=[endpoint]), port=port,
-              client_zconfig=shipped("operator-client.json5", connect=[endpoint]))
+    s = serve(
+        arm6,
+        zconfig=shipped("access-control.json5", listen=[endpoint]),
+        port=port,
+        client_zconfig=shipped("operator-client.json5", connect=[endpoint]),
+    )
     operator = s.client
     observer = Client(shipped("observer-client.json5", connect=[endpoint]))
     try:

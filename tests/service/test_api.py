@@ -42,8 +42,11 @@ def test_every_schema_is_a_valid_json_schema_and_every_code_is_documented():
 
 def test_plan_requests_are_reordered_by_joint_name_and_checked_against_limits(arm6):
     names = arm6.joint_names
-    req = parse_plan({"waypoints": [[0.1, 0.2, 0.3, 0.4, 0.5, 0.6]], "joint_names": list(reversed(names))},
-                     names, arm6.joint_limits())
+    req = parse_plan(
+        {"waypoints": [[0.1, 0.2, 0.3, 0.4, 0.5, 0.6]], "joint_names": list(reversed(names))},
+        names,
+        arm6.joint_limits(),
+    )
     np.testing.assert_allclose(req.waypoints, [[0.6, 0.5, 0.4, 0.3, 0.2, 0.1]])
     assert req.start == "current"
     lim = arm6.joint_limits()
@@ -56,15 +59,18 @@ def test_plan_requests_are_reordered_by_joint_name_and_checked_against_limits(ar
     assert code_of(parse_plan, {"waypoints": [[0.0] * 6], "start": "first"}, names, lim) == "invalid_request"
 
 
-@pytest.mark.parametrize(("payload", "code"), [
-    (b"{", "malformed_json"),
-    (b"\x80", "malformed_json"),
-    (b"1" * 5000, "malformed_json"),  # an integer literal longer than Python parses
-    (b"[" * 100000, "malformed_json"),  # deeper than the parser's recursion
-    (b'{"a": [1, {"b": NaN}]}', "not_finite"),
-    (b'{"a": -Infinity}', "not_finite"),
-    (b"x" * (2 << 20), "too_large"),
-])
+@pytest.mark.parametrize(
+    ("payload", "code"),
+    [
+        (b"{", "malformed_json"),
+        (b"\x80", "malformed_json"),
+        (b"1" * 5000, "malformed_json"),  # an integer literal longer than Python parses
+        (b"[" * 100000, "malformed_json"),  # deeper than the parser's recursion
+        (b'{"a": [1, {"b": NaN}]}', "not_finite"),
+        (b'{"a": -Infinity}', "not_finite"),
+        (b"x" * (2 << 20), "too_large"),
+    ],
+)
 def test_payload_problems_have_their_codes(payload, code):
     assert code_of(parse_payload, payload) == code
 

@@ -108,9 +108,14 @@ def test_bad_programs_are_refused_before_anything_is_sent(served, gantry3):
 
 
 # --- generated bad requests (the bench runs 10 000 of them: bench/fuzz_requests.py) --------------------
-ALLOWED = {"plan": {"waypoints", "target", "joint_names", "start", "tolerance_qc", "label", "include_program"},
-           "validate": {"plan_id", "program"}, "execute": {"plan_id", "program", "label", "wait"},
-           "stop": {"reason"}, "status": {"recent"}, "recover": set()}
+ALLOWED = {
+    "plan": {"waypoints", "target", "joint_names", "start", "tolerance_qc", "label", "include_program"},
+    "validate": {"plan_id", "program"},
+    "execute": {"plan_id", "program", "label", "wait"},
+    "stop": {"reason"},
+    "status": {"recent"},
+    "recover": set(),
+}
 OPS = sorted(ALLOWED)
 json_values = st.recursive(
     st.none() | st.booleans() | st.integers() | st.floats(allow_nan=True, allow_infinity=True) | st.text(max_size=8),
@@ -144,21 +149,22 @@ def bad_requests(draw: st.DrawFn) -> tuple[str, bytes]:
     if kind == "bad_vector":
         n = draw(st.integers(0, 9))
         bad = st.floats(allow_nan=True, allow_infinity=True).filter(lambda x: x != x or abs(x) > 4.0)
-        vector = draw(st.lists(st.floats(-1, 1) | bad | st.text(max_size=3) | st.booleans(), min_size=n,
-                               max_size=n))
+        vector = draw(st.lists(st.floats(-1, 1) | bad | st.text(max_size=3) | st.booleans(), min_size=n, max_size=n))
         if n == 6 and all(isinstance(x, float) and abs(x) <= 1.0 for x in vector):
             vector[0] = float("nan")  # keep it bad
         return "plan", json.dumps({"target": vector}).encode()
     if kind == "bad_id":
-        return draw(st.sampled_from(["execute", "validate"])), json.dumps({"plan_id": draw(st.text(max_size=70))
-                                                                          }).encode()
+        return draw(st.sampled_from(["execute", "validate"])), json.dumps(
+            {"plan_id": draw(st.text(max_size=70))}
+        ).encode()
     in_range = st.integers().filter(lambda r: not 0 <= r <= 100)
     not_a_count = st.floats().filter(lambda f: not (math.isfinite(f) and f.is_integer() and 0 <= f <= 100))
     return "status", json.dumps({"recent": draw(in_range | st.text() | not_a_count)}).encode()
 
 
-@settings(max_examples=250, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                                                     HealthCheck.too_slow])
+@settings(
+    max_examples=250, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
+)
 @given(request=bad_requests())
 def test_generated_bad_requests_are_all_answered_with_errors(served, request):
     op, payload = request

@@ -13,10 +13,18 @@ from service.server import client_config, peer_config
 
 def router(port: int) -> zenoh.Session:
     """A zenoh router on loopback (what zenohd with configs/zenoh/router.json5 is), scouting off."""
-    return zenoh.open(zenoh.Config.from_json5(json.dumps({
-        "mode": "router", "listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}, "connect": {"endpoints": []},
-        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
-    })))
+    return zenoh.open(
+        zenoh.Config.from_json5(
+            json.dumps(
+                {
+                    "mode": "router",
+                    "listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]},
+                    "connect": {"endpoints": []},
+                    "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+                }
+            )
+        )
+    )
 
 
 def test_two_cells_on_one_network_answer_one_wildcard_request(arm6, gantry3, serve):
@@ -25,10 +33,10 @@ def test_two_cells_on_one_network_answer_one_wildcard_request(arm6, gantry3, ser
     try:
         client = Client(client_config([hub]))  # clients reach peers behind a router in client mode
         try:
-            a = serve(arm6, zconfig=peer_config(listen=[f"tcp/127.0.0.1:{free_port()}"], connect=[hub]),
-                      client=client)
-            b = serve(gantry3, zconfig=peer_config(listen=[f"tcp/127.0.0.1:{free_port()}"], connect=[hub]),
-                      client=client)
+            a = serve(arm6, zconfig=peer_config(listen=[f"tcp/127.0.0.1:{free_port()}"], connect=[hub]), client=client)
+            b = serve(
+                gantry3, zconfig=peer_config(listen=[f"tcp/127.0.0.1:{free_port()}"], connect=[hub]), client=client
+            )
             assert wait_until(lambda: client.alive("*", timeout=0.5) == ["arm6", "gantry3"], timeout=10)
 
             replies = client.replies("*", "status", {"recent": 0}, timeout=10)

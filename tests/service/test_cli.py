@@ -24,13 +24,29 @@ def test_serve_prints_how_to_talk_to_it_and_request_plans_and_executes(tmp_path,
     zconfig = tmp_path / "service.json5"
     zconfig.write_text((CONFIGS / "zenoh" / "service.json5").read_text().replace("7447", str(port)))
     channel_cell = tmp_path / "arm6.yaml"  # the demo cell on a CAN channel of its own
-    channel_cell.write_text((CONFIGS / "cells" / "arm6.yaml").read_text()
-                            .replace("channel: pvtflow-arm6", f"channel: cli-{port}")
-                            .replace("../robots/arm6.urdf", str(CONFIGS / "robots" / "arm6.urdf")))
+    channel_cell.write_text(
+        (CONFIGS / "cells" / "arm6.yaml")
+        .read_text()
+        .replace("channel: pvtflow-arm6", f"channel: cli-{port}")
+        .replace("../robots/arm6.urdf", str(CONFIGS / "robots" / "arm6.urdf"))
+    )
     proc = subprocess.Popen(
-        [sys.executable, "-m", "service.cli", "serve", "--config", str(channel_cell), "--zenoh-config", str(zconfig),
-         "--journal", str(tmp_path / "journal")],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        [
+            sys.executable,
+            "-m",
+            "service.cli",
+            "serve",
+            "--config",
+            str(channel_cell),
+            "--zenoh-config",
+            str(zconfig),
+            "--journal",
+            str(tmp_path / "journal"),
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     try:
@@ -60,8 +76,14 @@ def test_serve_prints_how_to_talk_to_it_and_request_plans_and_executes(tmp_path,
         assert done["outcome"]["result"] == "finished"
 
         waypoints = tmp_path / "wp.json"
-        waypoints.write_text(json.dumps({"joint_names": [f"joint_{i}" for i in range(6, 0, -1)],
-                                         "waypoints": [[0.1, 0.2, 0.1, 0.2, 0.1, 0.2], [0.0] * 6]}))
+        waypoints.write_text(
+            json.dumps(
+                {
+                    "joint_names": [f"joint_{i}" for i in range(6, 0, -1)],
+                    "waypoints": [[0.1, 0.2, 0.1, 0.2, 0.1, 0.2], [0.0] * 6],
+                }
+            )
+        )
         assert main(["request", "plan", "--connect", endpoint, "--waypoints", str(waypoints)]) == 0
         back = json.loads(capsys.readouterr().out)
         assert back["end"] == [0.0] * 6 and back["waypoints"] == 3  # from where the axes are, through both
@@ -98,11 +120,16 @@ def test_request_without_a_service_and_serve_with_bad_files_fail_clearly(tmp_pat
         zconfig = tmp_path / "taken.json5"
         zconfig.write_text((CONFIGS / "zenoh" / "service.json5").read_text().replace("7447", str(port)))
         cell = tmp_path / "arm6.yaml"
-        cell.write_text((CONFIGS / "cells" / "arm6.yaml").read_text()
-                        .replace("channel: pvtflow-arm6", f"channel: taken-{port}")
-                        .replace("../robots/arm6.urdf", str(CONFIGS / "robots" / "arm6.urdf")))
-        assert main(["serve", "--config", str(cell), "--zenoh-config", str(zconfig),
-                     "--journal", str(tmp_path / "j")]) == 2
+        cell.write_text(
+            (CONFIGS / "cells" / "arm6.yaml")
+            .read_text()
+            .replace("channel: pvtflow-arm6", f"channel: taken-{port}")
+            .replace("../robots/arm6.urdf", str(CONFIGS / "robots" / "arm6.urdf"))
+        )
+        assert (
+            main(["serve", "--config", str(cell), "--zenoh-config", str(zconfig), "--journal", str(tmp_path / "j")])
+            == 2
+        )
         assert "cannot open the zenoh session" in capsys.readouterr().err
 
 

@@ -46,8 +46,9 @@ def test_plan_and_execute_six_axes_following_state_and_telemetry_to_the_end(arm6
     assert len({d.ip_active_sync for d in s.sim}) == 1
 
     # telemetry followed the motion to its end; the last sample of the motion is at the program's end
-    assert wait_until(lambda: any(t["motion_id"] == motion_id and t["progress"] and t["progress"] > 0.9
-                                  for t in col.get("telemetry")))
+    assert wait_until(
+        lambda: any(t["motion_id"] == motion_id and t["progress"] and t["progress"] > 0.9 for t in col.get("telemetry"))
+    )
     tel = [t for t in col.get("telemetry") if t["motion_id"] == motion_id]
     assert len(tel) >= 5
     for t in tel:
@@ -85,8 +86,9 @@ def test_stop_mid_move_halts_every_axis(arm6, serve):
     ex = s.request("execute", {"plan_id": plan.data["plan_id"]})
     assert ex.ok, ex.data
     motion_id = ex.data["motion_id"]
-    assert wait_until(lambda: any(t["motion_id"] == motion_id and t["elapsed_ms"] >= 300
-                                  for t in col.get("telemetry")), timeout=20)
+    assert wait_until(
+        lambda: any(t["motion_id"] == motion_id and t["elapsed_ms"] >= 300 for t in col.get("telemetry")), timeout=20
+    )
 
     moving = s.request("status")
     assert moving.ok and moving.data["state"] == "moving" and moving.data["elapsed_ms"] > 0
@@ -252,5 +254,6 @@ def test_a_restart_keeps_the_journal(arm6, serve, tmp_path):
     # the program that ran is on disk, as sent
     kept = second.service.journal_entry(motion_id)
     assert kept is not None and kept.program["cell"] == "arm6"
-    assert [a["records"] for a in kept.program["axes"]] == [a["records"] for a in
-                                                               first.service.journal_entry(motion_id).program["axes"]]
+    assert [a["records"] for a in kept.program["axes"]] == [
+        a["records"] for a in first.service.journal_entry(motion_id).program["axes"]
+    ]

@@ -34,8 +34,9 @@ class FrameLog(can.Listener):
         with self.cond:
             return [m for m in self.frames if m.arbitration_id == can_id]
 
-    def wait_for(self, can_id: int, count: int = 1, timeout: float = 5.0,
-                 where: Callable[[can.Message], bool] | None = None) -> list[can.Message]:
+    def wait_for(
+        self, can_id: int, count: int = 1, timeout: float = 5.0, where: Callable[[can.Message], bool] | None = None
+    ) -> list[can.Message]:
         """Wait until ``count`` frames with this id (and ``where``) arrived; returns them."""
         deadline = time.monotonic() + timeout
         with self.cond:

@@ -19,14 +19,16 @@ LIMITS = DriveLimits(8000, 2_000_000, -1_000_000, 1_000_000, 4000, 400_000)
 FACTOR = SCALING.qc_per_ms_per_velocity_unit  # qc/ms per rpm
 
 # a smooth move: start point (dwell 3 ms), four segments, rest, end marker
-PROGRAM = np.array([
-    [0, 0, 3],
-    [400, 600, 10],
-    [2400, 1200, 15],
-    [5000, 600, 17],
-    [6000, 0, 12],
-    [6000, 0, 0],
-])
+PROGRAM = np.array(
+    [
+        [0, 0, 3],
+        [400, 600, 10],
+        [2400, 1200, 15],
+        [5000, 600, 17],
+        [6000, 0, 12],
+        [6000, 0, 0],
+    ]
+)
 
 
 def make(bench: Bench, node_id: int, **kw) -> tuple[Epos2Drive, object]:
@@ -177,7 +179,7 @@ def velocity_program(peak_rpm: float) -> np.ndarray:
 
 
 def test_velocity_and_acceleration_errors_fault_the_drive(bench: Bench) -> None:
-    limits = DriveLimits(3000, 10**6, -10**7, 10**7)
+    limits = DriveLimits(3000, 10**6, -(10**7), 10**7)
     drive, node = make(bench, 28, limits=limits)
     push(node, velocity_program(3500))
     node.sdo[obj.CONTROLWORD].raw = 0x001F
@@ -207,7 +209,7 @@ def test_velocity_and_acceleration_errors_fault_the_drive(bench: Bench) -> None:
 
 def test_violation_between_syncs_is_caught_by_the_1khz_samples(bench: Bench) -> None:
     """With a 10 ms SYNC the peak velocity (at 20.x ms) falls between SYNCs: the 1 ms samples see it."""
-    limits = DriveLimits(3000, 10**6, -10**7, 10**7)
+    limits = DriveLimits(3000, 10**6, -(10**7), 10**7)
     drive, node = make(bench, 29, limits=limits, sync_period_ms=10.0)
     push(node, velocity_program(3200))
     node.sdo[obj.CONTROLWORD].raw = 0x001F
@@ -217,7 +219,7 @@ def test_violation_between_syncs_is_caught_by_the_1khz_samples(bench: Bench) -> 
 
 
 def test_profile_velocity_and_acceleration_only_warn(bench: Bench) -> None:
-    limits = DriveLimits(5000, 10**6, -10**7, 10**7, profile_velocity_rpm=1000, profile_acceleration_rpm_s=1000)
+    limits = DriveLimits(5000, 10**6, -(10**7), 10**7, profile_velocity_rpm=1000, profile_acceleration_rpm_s=1000)
     drive, node = make(bench, 30, limits=limits)
     push(node, velocity_program(2000))
     node.sdo[obj.CONTROLWORD].raw = 0x001F

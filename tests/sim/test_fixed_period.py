@@ -16,7 +16,7 @@ from planner.interpolation import PiecewiseCubic, cubic_p, cubic_pv, linear
 from .conftest import Bench, configure_pdos, enable
 
 SCALING = AxisScaling(4096.0, 1.0)
-LIMITS = DriveLimits(6000, 10**7, -10**6, 10**6)
+LIMITS = DriveLimits(6000, 10**7, -(10**6), 10**6)
 FACTOR = SCALING.qc_per_ms_per_velocity_unit
 
 
@@ -150,8 +150,9 @@ def parker(bench: Bench, node_id: int, cycle_us: int, submode: int) -> tuple[Par
 
 
 def pv_frames(records: np.ndarray) -> list[bytes]:
-    return [int(p).to_bytes(4, "little", signed=True) + int(v).to_bytes(4, "little", signed=True)
-            for p, v, _ in records]
+    return [
+        int(p).to_bytes(4, "little", signed=True) + int(v).to_bytes(4, "little", signed=True) for p, v, _ in records
+    ]
 
 
 def test_parker_direct_below_2500_us_takes_the_reference_on_the_sync(bench: Bench) -> None:
@@ -165,11 +166,14 @@ def test_parker_direct_below_2500_us_takes_the_reference_on_the_sync(bench: Benc
     assert demand_error(drive, linear(records, 2), v0 - 1, 2.0) < 1e-6
 
 
-@pytest.mark.parametrize(("submode", "reconstruct", "delay"), [
-    (0, lambda r, T: linear(r, T), 1),
-    (-1, lambda r, T: cubic_pv(r, T, FACTOR), 1),
-    (-2, lambda r, T: cubic_p(r, T), 2),
-])
+@pytest.mark.parametrize(
+    ("submode", "reconstruct", "delay"),
+    [
+        (0, lambda r, T: linear(r, T), 1),
+        (-1, lambda r, T: cubic_pv(r, T, FACTOR), 1),
+        (-2, lambda r, T: cubic_p(r, T), 2),
+    ],
+)
 def test_parker_interpolated_from_2500_us_matches_the_planner(bench: Bench, submode, reconstruct, delay) -> None:
     period = 4
     drive, _ = parker(bench, 46, period * 1000, submode)
