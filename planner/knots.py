@@ -453,10 +453,28 @@ class _Flat:
         return (r == 0) | (r == self.stride - 1)
 
     def flat_knots(self, per_axis: Sequence[NDArray[np.int64]]) -> NDArray[np.int64]:
+        """Each axis's knots (both ends added, no segment over 255 ms) laid end to end."""
         n = self.stride - 1
         return np.concatenate(
-            [np.union1d([0, n], k[(k > 0) & (k < n)]) + a * self.stride for a, k in enumerate(per_axis)]
+            [
+                _within_record_time(np.union1d([0, n], k[(k > 0) & (k < n)])) + a * self.stride
+                for a, k in enumerate(per_axis)
+            ]
         ).astype(np.int64)
+
+
+def _within_record_time(knots: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Sorted knots with every gap longer than a record's 255 ms split evenly."""
+    gaps = np.diff(knots)
+    long = np.flatnonzero(gaps > TIME_MAX_MS)
+    if not len(long):
+        return knots
+    extra = [
+        knots[i] + (gaps[i] * np.arange(1, pieces)) // pieces
+        for i in long
+        for pieces in [-(-int(gaps[i]) // TIME_MAX_MS)]
+    ]
+    return np.union1d(knots, np.concatenate(extra))
 
 
 def _real(fl: _Flat, knots: NDArray[np.int64]) -> NDArray[np.bool_]:
