@@ -237,24 +237,30 @@ def _check_ranges(name: str, r: NDArray[np.int64]) -> list[Finding]:
     return out
 
 
+def _check_start_at_rest(name: str, r: NDArray[np.int64]) -> list[Finding]:
+    """Every profile: records[0] is where the axis stands when the program starts, at rest."""
+    if r[0, 1] == 0:
+        return []
+    return [
+        Finding(
+            ERROR,
+            "start-record",
+            name,
+            0,
+            f"the start record must have velocity 0 (the axis is at rest), has {int(r[0, 1])}",
+            float(abs(r[0, 1])),
+            float(r[0, 1]),
+            0.0,
+            "velocity units",
+        )
+    ]
+
+
 def _check_epos2(name: str, r: NDArray[np.int64]) -> list[Finding]:
     """records[0]: start at rest, dwell >= 1 ms; motion records 1..255 ms; last: time 0 at rest."""
     out = []
     n = len(r)
-    if r[0, 1] != 0:
-        out.append(
-            Finding(
-                ERROR,
-                "start-record",
-                name,
-                0,
-                f"the start record must have velocity 0 (the axis is at rest), has {int(r[0, 1])}",
-                float(abs(r[0, 1])),
-                float(r[0, 1]),
-                0.0,
-                "velocity units",
-            )
-        )
+    out.extend(_check_start_at_rest(name, r))
     if not 1 <= r[0, 2] <= TIME_MAX_MS:
         out.append(
             Finding(
@@ -383,20 +389,7 @@ def _check_fixed_period(axis: AxisProgram, r: NDArray[np.int64]) -> list[Finding
                     "ms",
                 )
             )
-    if r[0, 1] != 0:
-        out.append(
-            Finding(
-                ERROR,
-                "start-record",
-                name,
-                0,
-                f"the start record must have velocity 0 (the axis is at rest), has {int(r[0, 1])}",
-                float(abs(r[0, 1])),
-                float(r[0, 1]),
-                0.0,
-                "velocity units",
-            )
-        )
+    out.extend(_check_start_at_rest(name, r))
     last = len(r) - 1
     if r[last, 1] != 0:
         out.append(
