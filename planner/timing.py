@@ -44,8 +44,9 @@ class _IntervalSpeedConstraint(constraint.LinearConstraint):
     gives the linear row  G^2 (x_i + 2 u sigma) <= limit^2  on the stage variables (u, x_i).
     """
 
-    # where inside each interval the bound is held (the gridpoint itself is the box on x)
-    FRACTIONS = np.array([0.25, 0.5, 0.75, 1.0])
+    # where inside each interval the bound is held; both ends are the gridpoints' boxes on x (the
+    # end's box binds through the next stage's controllable set)
+    FRACTIONS = np.array([0.25, 0.5, 0.75])
 
     def __init__(self, limit: NDArray[np.float64]) -> None:
         super().__init__()
@@ -124,7 +125,7 @@ class TcpSpeedConstraint(_IntervalSpeedConstraint):
     """|v_tcp| <= max_speed at ``frame``, through the Jacobian of its origin (a Jacobian per
     sample is the expensive part, so fewer samples than for the joints)."""
 
-    FRACTIONS = np.array([0.5, 1.0])
+    FRACTIONS = np.array([0.5])
 
     def __init__(self, model: RobotModel, frame: str, max_speed: float) -> None:
         super().__init__(np.array([float(max_speed)]))
