@@ -526,7 +526,7 @@ def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, t
     (its ends by dP, dV: d <= max |dP| + 4/27 T (|dV0| + |dV1|)) keeps its verdict when its
     previous worst is more than d away from the target; only the others are evaluated again.
     """
-    from scipy.linalg import solveh_banded
+    from scipy.linalg.lapack import dpbsv
 
     p, v = fl.p, fl.v
     table = _basis_table()
@@ -572,7 +572,10 @@ def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, t
     ab[3, 2 * ends] += big
     rhs[2 * ends] += big * p[knots[ends]]
     ab[3, 2 * ends + 1] += big
-    z = solveh_banded(ab, rhs, check_finite=False)
+    # LAPACK's banded Cholesky solve (what scipy.linalg.solveh_banded calls), without its wrapper
+    _, z, info = dpbsv(ab, rhs, lower=0, overwrite_ab=1, overwrite_b=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"least-squares knot fit: banded Cholesky solve failed (info {info})")
     P, V = z[0::2], z[1::2]
     P[ends], V[ends] = p[knots[ends]], 0.0
     if target is None:
@@ -879,6 +882,7 @@ def _place_epos2(
             p_fit, v_fit = fl.p[knots], fl.v[knots]
     checked: _Checked | None = None
     settled: dict[bytes, int] = {}
+    last_stuck = np.full(len(fl.axes), np.iinfo(np.int64).max)  # per axis (by ``ids``), "exact" mode
     out: dict[int, tuple[AxisKnots, float]] = {}
     for _ in range(opts.max_splits):
         if len(p_fit) != len(knots):
@@ -910,6 +914,16 @@ def _place_epos2(
         bad = bad[T[bad] >= 2]
         # a segment still over a limit with a long span: another knot gives the QP room to fix it
         stuck = np.flatnonzero(_over(chk))
+        if mode == "exact":
+            # the fallback is worth its splits while they help: an axis whose segments over a
+            # limit did not get fewer (and that strays nowhere) stops here, as it is
+            ax_stuck = fl.axis_of(knots[stuck])
+            n_stuck = np.bincount(ax_stuck, minlength=len(fl.axes))
+            strays = np.zeros(len(fl.axes), dtype=bool)
+            strays[fl.axis_of(knots[bad])] = True
+            give_up = (n_stuck > 0) & ~strays & (n_stuck >= last_stuck[fl.ids])
+            last_stuck[fl.ids] = n_stuck
+            stuck = stuck[~give_up[ax_stuck]]
         bad = np.union1d(bad, stuck[T[stuck] >= 2 * _MIN_SPLIT_MS])
         if not len(bad):
             break
@@ -996,6 +1010,38 @@ _ZERO = np.zeros(len(_COMBOS), dtype=np.int64)
 _COMBO_P = np.column_stack((_ZERO, _COMBOS[:, 0], _COMBOS[:, 2], _ZERO))  # (C, 4): per knot of the window
 _COMBO_V = np.column_stack((_ZERO, _COMBOS[:, 1], _COMBOS[:, 3], _ZERO))
 _COMBO_NONE = int(np.flatnonzero(~_COMBOS.any(axis=1))[0])  # the combination that moves nothing
+_END_P = np.repeat(_NUDGE_P, len(_NUDGE_V))  # the 15 nudges (count, velocity unit) of one knot
+_END_V = np.tile(_NUDGE_V, len(_NUDGE_P))
+_END0 = np.arange(len(_COMBOS)) // len(_END_P)  # per combination: its nudge of knot s ...
+_END1 = np.arange(len(_COMBOS)) % len(_END_P)  # ... and of knot s + 1
+# per (knot s free, knot s + 1 free) as 2 a + b: the combinations that move only free knots
+_STILL0, _STILL1 = ~_COMBOS[:, :2].any(axis=1), ~_COMBOS[:, 2:].any(axis=1)
+_ALLOWED = np.array([(_STILL0 | a) & (_STILL1 | b) for a in (False, True) for b in (False, True)])
+_SIDE = np.repeat([0, 1, 2], [len(_END_P), len(_COMBOS), len(_END_P)])  # column -> segment s-1, s, s+1
+
+
+def _nudge_judge(
+    fl: _Flat,
+    ax: NDArray[np.int64],
+    P0: NDArray[np.float64],
+    V0: NDArray[np.float64],
+    P1: NDArray[np.float64],
+    V1: NDArray[np.float64],
+    T: NDArray[np.float64],
+    k0: NDArray[np.int64],
+    ok: NDArray[np.bool_],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The candidate cubics of one segment, a row per repair (S, n): their worst |cubic - plan| at
+    the probes and their worst limit ratio, both 0 where the row has no such segment."""
+    c = hermite_coefficients(P0, V0, P1, V1, T)
+    tau = np.floor(_PROBES[:, None, None] * T[None])  # (probes, S, n)
+    h = c[0] + tau * (c[1] + tau * (c[2] + tau * c[3]))
+    plan_at = fl.p[np.minimum(k0[None] + tau.astype(np.int64), len(fl.p) - 1)]
+    inner = np.abs(h - plan_at).max(axis=0)
+    cub = PiecewiseCubic(T, T, *c)  # elementwise: the exact extrema of every candidate cubic
+    rv = cub.max_abs_velocity() * fl.rv_per[ax][:, None]
+    ra = cub.max_abs_acceleration() * fl.ra_per[ax][:, None]
+    return np.where(ok, inner, 0.0), np.where(ok, np.maximum(rv, ra), 0.0)
 
 
 def _repair(
@@ -1016,21 +1062,38 @@ def _repair(
     the tolerance of the plan, the one with the lowest worst limit ratio over the three segments
     they touch wins.
 
-    Segments 4 or more apart touch different knots: they are solved together (all axes at once),
-    in four waves (segment index on its axis mod 4), each seeing the waves before it. ``settled`` remembers
+    Segments 3 or more apart touch different knots: they are solved together (all axes at once),
+    in waves (``_waves``), each seeing the waves before it. ``settled`` remembers
     the answer (the nudge, or -1: none helps) for every neighbourhood (knots, counts, velocities)
     already solved: asked again, the answer is the same, so it is not computed again (the main
     loop asks again after every split). Returns (P, V, whether anything moved).
     """
     P, V = P.copy(), V.copy()
     moved = False
-    ax = fl.axis_of(knots[segments])
-    local = segments - np.searchsorted(knots, ax * fl.stride)  # the segment's place on its own axis
-    for w in range(4):
-        sel = segments[local % 4 == w]
-        if len(sel):
-            moved |= _repair_wave(fl, knots, P, V, sel, tolerance, settled)
+    for sel in _waves(fl, knots, segments):
+        moved |= _repair_wave(fl, knots, P, V, sel, tolerance, settled)
     return P, V, moved
+
+
+def _waves(fl: _Flat, knots: NDArray[np.int64], segments: NDArray[np.int64]) -> list[NDArray[np.int64]]:
+    """``segments`` (sorted) in the fewest waves that give the answer of the four mod-4 waves.
+
+    A repair of segment s reads knots s-1 .. s+2 and moves s, s+1: segments 3 or more apart (or
+    on different axes) neither read nor move each other's knots, so only the order of two within
+    2 of each other matters, and that is kept (the one of the lower class, its place on its axis
+    mod 4, first). Each segment goes into the first wave after every such segment before it: an
+    over-limit segment alone in its neighbourhood is repaired in the first wave, not its class's.
+    """
+    ax = fl.axis_of(knots[segments])
+    cls = (segments - np.searchsorted(knots, ax * fl.stride)) % 4  # the segment's place on its own axis
+    n = len(segments)
+    level = np.zeros(n, dtype=np.int64)
+    for w in range(1, 4):
+        for i in np.flatnonzero(cls == w):
+            for j in range(max(i - 2, 0), min(i + 3, n)):
+                if cls[j] < w and ax[j] == ax[i] and abs(int(segments[j]) - int(segments[i])) <= 2:
+                    level[i] = max(level[i], level[j] + 1)
+    return [segments[level == lv] for lv in range(int(level.max()) + 1 if n else 0)]
 
 
 def _window_keys(
@@ -1071,30 +1134,33 @@ def _repair_wave(
         keys = [k for k, d in zip(keys, done, strict=True) if not d]
     idx = s[:, None] + _WINDOW[None, :]  # (S, 4): knots s-1 .. s+2
     ax = fl.axis_of(knots[s])
-    rec_ok = (idx >= 0) & (idx < nk) & (fl.axis_of(knots[idx_c]) == ax[:, None])  # knots of the same axis
-    seg_ok = rec_ok[:, :-1] & rec_ok[:, 1:]  # (S, 3): segments s-1, s, s+1
-    free = np.repeat(~fl.is_end(knots[idx_c[:, 1:3]]), 2, axis=1)  # (S, 4): P, V of each end
-    allowed = np.all((_COMBOS[None, :, :] == 0) | free[:, None, :], axis=2)  # (S, C)
-    f = fl.f[ax][:, None, None]
-    Pc = P[idx_c][:, None, :] + _COMBO_P[None]  # (S, C, 4)
-    Vc = V[idx_c][:, None, :] + _COMBO_V[None]
-    Vq = Vc * f
     kn = knots[idx_c]
-    T = np.where(seg_ok, np.diff(kn, axis=1), 1).astype(float)[:, None, :]  # (S, 1, 3)
-    c = hermite_coefficients(Pc[:, :, :-1], Vq[:, :, :-1], Pc[:, :, 1:], Vq[:, :, 1:], T)
-    # deviation at the knots (the two that move; the fixed ones as they are) and inside each segment
+    rec_ok = (idx >= 0) & (idx < nk) & (fl.axis_of(kn) == ax[:, None])  # knots of the same axis
+    seg_ok = rec_ok[:, :-1] & rec_ok[:, 1:]  # (S, 3): segments s-1, s, s+1
+    free = ~fl.is_end(kn[:, 1:3])  # (S, 2): the two ends may move
+    allowed = _ALLOWED[2 * free[:, 0] + free[:, 1]]  # (S, C)
+    f = fl.f[ax][:, None]
+    T = np.where(seg_ok, np.diff(kn, axis=1), 1).astype(float)  # (S, 3)
     p = fl.p
-    fixed_dev = np.where(rec_ok[:, [0, 3]], np.abs(P[idx_c[:, [0, 3]]] - p[kn[:, [0, 3]]]), 0.0).max(axis=1)
-    dev = np.maximum(np.abs(Pc[:, :, 1:3] - p[kn[:, None, 1:3]]).max(axis=2), fixed_dev[:, None])
-    tau = np.floor(_PROBES[:, None, None, None] * T[None])  # (probes, S, 1, 3)
-    h = c[0] + tau * (c[1] + tau * (c[2] + tau * c[3]))  # (probes, S, C, 3)
-    plan_at = p[np.minimum(kn[None, :, None, :-1] + tau.astype(np.int64), len(p) - 1)]
-    inner = np.where(seg_ok[None, :, None, :], np.abs(h - plan_at), 0.0).max(axis=(0, 3))
-    dev = np.maximum(dev, inner)
-    cub = PiecewiseCubic(T, T, *c)  # elementwise: the exact extrema of every candidate cubic
-    rv = cub.max_abs_velocity() * fl.rv_per[ax][:, None, None]
-    ra = cub.max_abs_acceleration() * fl.ra_per[ax][:, None, None]
-    worst = np.where(seg_ok[:, None, :], np.maximum(rv, ra), 0.0).max(axis=2)  # (S, C)
+    Pw, Vw = P[idx_c], V[idx_c]
+    # segment s-1 sees only the nudge of knot s, segment s+1 only that of knot s + 1 (15 each):
+    # they are judged on those and spread over the 225 combinations by _END0 / _END1
+    Ps, Vs = Pw[:, 1:2] + _END_P[None], (Vw[:, 1:2] + _END_V[None]) * f  # (S, 15): knot s nudged
+    Pe, Ve = Pw[:, 2:3] + _END_P[None], (Vw[:, 2:3] + _END_V[None]) * f  # knot s + 1 nudged
+    # the three segments' candidates side by side (S, 15 + 225 + 15): one evaluation for all
+    n_e = len(_END_P)
+    P0 = np.concatenate((np.broadcast_to(Pw[:, 0:1], Ps.shape), Ps[:, _END0], Pe), axis=1)
+    V0 = np.concatenate((np.broadcast_to(Vw[:, 0:1] * f, Vs.shape), Vs[:, _END0], Ve), axis=1)
+    P1 = np.concatenate((Ps, Pe[:, _END1], np.broadcast_to(Pw[:, 3:4], Pe.shape)), axis=1)
+    V1 = np.concatenate((Vs, Ve[:, _END1], np.broadcast_to(Vw[:, 3:4] * f, Ve.shape)), axis=1)
+    inner, ratio = _nudge_judge(fl, ax, P0, V0, P1, V1, T[:, _SIDE], kn[:, _SIDE], seg_ok[:, _SIDE])
+    left, mid, right = (slice(0, n_e), slice(n_e, n_e + len(_COMBOS)), slice(n_e + len(_COMBOS), None))
+    # deviation at the knots (the two that move; the fixed ones as they are) and inside each segment
+    fixed_dev = np.where(rec_ok[:, [0, 3]], np.abs(Pw[:, [0, 3]] - p[kn[:, [0, 3]]]), 0.0).max(axis=1)
+    dev_s = np.maximum(np.abs(Ps - p[kn[:, 1:2]]), inner[:, left])  # (S, 15)
+    dev_e = np.maximum(np.abs(Pe - p[kn[:, 2:3]]), inner[:, right])
+    dev = np.maximum(np.maximum(dev_s[:, _END0], dev_e[:, _END1]), np.maximum(inner[:, mid], fixed_dev[:, None]))
+    worst = np.maximum(ratio[:, mid], np.maximum(ratio[:, left][:, _END0], ratio[:, right][:, _END1]))  # (S, C)
     worst = np.where((dev <= tolerance) & allowed, worst + 1e-6 * dev, np.inf)
     best = np.argmin(worst, axis=1)
     ok = np.isfinite(worst[np.arange(len(s)), best]) & (best != _COMBO_NONE)
