@@ -67,6 +67,9 @@ class FrameRecorder(can.Listener):
     def __init__(self, path: str | Path | None = None) -> None:
         self._lock = threading.Lock()
         self._logger: can.Listener | None = can.Logger(str(path)) if path is not None else None
+        # BLF and ASC store a channel NUMBER (python-can takes the name's trailing digits): a
+        # name like "cell-20260401" would not fit, and one cell is one bus anyway
+        self._numbered = path is not None and Path(path).suffix.lower() in (".blf", ".asc")
         self.frames = 0
         self.frames_sent = 0
         self.taps: list[Callable[[can.Message], None]] = []  # see every frame (benchmarks, monitors)
@@ -75,9 +78,27 @@ class FrameRecorder(can.Listener):
         with self._lock:
             self.frames += 1
             if self._logger is not None:
-                self._logger.on_message_received(msg)
+                self._logger.on_message_received(self._for_log(msg))
             for tap in self.taps:
                 tap(msg)
+
+    def _for_log(self, msg: can.Message) -> can.Message:
+        if not self._numbered:
+            return msg
+        number = can.util.channel2int(msg.channel)
+        if number is not None and 0 <= number < 0xFFFF:
+            return msg
+        return can.Message(
+            timestamp=msg.timestamp,
+            arbitration_id=msg.arbitration_id,
+            is_extended_id=msg.is_extended_id,
+            is_remote_frame=msg.is_remote_frame,
+            is_error_frame=msg.is_error_frame,
+            dlc=msg.dlc,
+            data=msg.data,
+            is_rx=msg.is_rx,
+            channel=0,
+        )
 
     def on_message_sent(self, msg: can.Message) -> None:
         with self._lock:

@@ -21,7 +21,8 @@ EPOS2 PVT (``epos2_pvt``), per axis (the axes share only the start SYNC and the 
 4. the exact reconstruction of the quantized records is checked: a segment that strays more than
    the tolerance, or stays over a limit, is split and steps 3-4 are redone. Where the
    least-squares knots cannot be made to fit the limits, cubics through the exact samples (more
-   records, more room) are tried and the better of the two is kept;
+   records, more room) are tried and the better of the two is kept (that fallback stops splitting
+   an axis whose segments over a limit do not get fewer: more of the same costs time, not excess);
 5. where the quantized reconstruction still exceeds 0x607F/0x60C5 (rounding at the limit costs a
    few tenths of a percent), the whole motion is slowed down by the smallest factor the excess
    calls for and the knots are placed again (from the previous ones, stretched). No blanket
@@ -495,22 +496,16 @@ class _Fitted:
 
 
 def _segment_samples(
-    knots: NDArray[np.int64], segs: NDArray[np.int64]
-) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    knots: NDArray[np.int64], segs: NDArray[np.int64], basis: bool
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
     """For the segments ``segs``, over the whole ms inside them (start included, end excluded):
-    (their lengths, the first sample of each, every sample's tau, its basis table column, its
-    plan index). Per-segment values reach the samples by ``np.repeat(x, lengths)``."""
-    table = _basis_table()
+    (their lengths, the first sample of each, every sample's basis table column if ``basis``
+    else its tau, its plan index). Per-segment values reach the samples by ``np.repeat(x, lengths)``."""
     T = knots[segs + 1] - knots[segs]
     first = np.cumsum(T) - T
     ar = np.arange(int(first[-1] + T[-1]))
-    return (
-        T,
-        first,
-        ar - np.repeat(first, T),
-        np.repeat(table.offset[T] - first, T) + ar,
-        np.repeat(knots[segs] - first, T) + ar,
-    )
+    where = np.repeat(_basis_table().offset[T] - first, T) + ar if basis else ar - np.repeat(first, T)
+    return T, first, where, np.repeat(knots[segs] - first, T) + ar
 
 
 def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, target: float | None = None) -> _Fitted:
@@ -547,7 +542,7 @@ def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, t
     new = np.flatnonzero(todo)
     b = None
     if len(new):
-        Tn, first, _, col, j = _segment_samples(knots, new)
+        Tn, first, col, j = _segment_samples(knots, new, basis=True)
         b = np.take(table.values, col, axis=1)  # (4, samples): the basis cubics at the samples
         r[:, new] = np.add.reduceat(b * p[j], first, axis=1)
     G = table.gram[n].transpose(1, 2, 0) * real  # (4, 4, segments)
@@ -596,7 +591,7 @@ def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, t
         if b is not None and len(ev) == len(new) and np.array_equal(ev, new):
             Te = Tn  # the same samples as the right-hand side's
         else:
-            Te, first, _, col, j = _segment_samples(knots, ev)
+            Te, first, col, j = _segment_samples(knots, ev, basis=True)
             b = np.take(table.values, col, axis=1)
         fit = (
             np.repeat(P[ev], Te) * b[0]
@@ -727,7 +722,7 @@ def _check_knots(
         todo &= ~same
     ch = np.flatnonzero(todo)
     if len(ch):
-        Tc, first, tau_i, _, j = _segment_samples(knots, ch)
+        Tc, first, tau_i, j = _segment_samples(knots, ch, basis=False)
         tau = tau_i.astype(float)
         pos = np.repeat(c[0][ch], Tc) + tau * (
             np.repeat(c[1][ch], Tc) + tau * (np.repeat(c[2][ch], Tc) + tau * np.repeat(c[3][ch], Tc))

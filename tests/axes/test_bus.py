@@ -10,7 +10,7 @@ import can
 import pytest
 from axes_rig import unique_channel
 
-from axes.bus import NMT_PRE_OPERATIONAL, BusFault, CellBus
+from axes.bus import NMT_PRE_OPERATIONAL, BusFault, CellBus, FrameRecorder
 from axes.objects import TIME_STAMP_COB_ID
 from service.config import BusConfig
 
@@ -184,3 +184,15 @@ def test_unknown_interface_is_one_clear_error():
 
     with pytest.raises(BusError, match="cannot open CAN bus"):
         CellBus(BusConfig(interface="socketcan", channel="pvtflow-does-not-exist")).open()
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".asc"])
+def test_can_log_with_a_channel_name_that_is_no_channel_number(tmp_path: Path, suffix):
+    """BLF and ASC keep a channel number; a name ending in many digits must not break the log."""
+    path = tmp_path / f"traffic{suffix}"
+    recorder = FrameRecorder(path)
+    recorder.on_message_received(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False, channel="t-98765432"))
+    recorder.on_message_received(can.Message(arbitration_id=0x185, data=b"\x01", is_extended_id=False, channel="can1"))
+    recorder.stop()
+    logged = list(can.LogReader(str(path)))
+    assert [m.arbitration_id for m in logged] == [0x80, 0x185]

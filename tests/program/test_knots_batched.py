@@ -19,6 +19,8 @@ from planner.knots import (
     _Flat,
     _lsq_fit,
     _place_epos2,
+    _repair,
+    _repair_wave,
     _round_knots,
     _sample,
     _switch_knots,
@@ -107,6 +109,29 @@ def test_incremental_fit_gives_the_same_verdicts(arm6_plan) -> None:
     np.testing.assert_allclose(fast.P, full.P, rtol=0, atol=1e-9)
     np.testing.assert_allclose(fast.V, full.V, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(fast.worst > target, full.worst > target)
+
+
+def test_repair_in_fewest_waves_as_in_four(arm6_plan) -> None:
+    """Repairs batched by neighbourhood give what the four waves by segment index mod 4 give."""
+    _, axes, _, smp = arm6_plan
+    fl = _Flat.of(axes, list(range(len(axes))), smp)
+    knots = fl.flat_knots([np.arange(0, smp.n_ms, 30) for _ in axes])
+    fit = _lsq_fit(fl, knots)
+    P, V = _round_knots(fl, knots, fit.P, fit.V)
+    real = np.flatnonzero(fl.axis_of(knots[:-1]) == fl.axis_of(knots[1:]))
+    rng = np.random.default_rng(5)
+    for _ in range(3):  # runs of neighbours, lone segments, every axis
+        segs = np.unique(np.concatenate((rng.choice(real, 25, replace=False), real[10:16], real[-4:])))
+        fast_P, fast_V, fast_moved = _repair(fl, knots, P, V, segs, 1.0, {})
+        ref_P, ref_V = P.copy(), V.copy()
+        local = segs - np.searchsorted(knots, fl.axis_of(knots[segs]) * fl.stride)
+        ref_moved = False
+        for w in range(4):
+            if (local % 4 == w).any():
+                ref_moved |= _repair_wave(fl, knots, ref_P, ref_V, segs[local % 4 == w], 1.0, {})
+        np.testing.assert_array_equal(fast_P, ref_P)
+        np.testing.assert_array_equal(fast_V, ref_V)
+        assert fast_moved == ref_moved
 
 
 def test_switch_knots_largest_first_apart_and_inside() -> None:
