@@ -143,7 +143,7 @@ def test_drive_fault_then_recover(arm6, make_rig):
 
 def test_lost_heartbeat_halts_every_axis(arm6, make_rig):
     # heartbeats run on the wall clock while the lockstep cell runs faster than real time: a long
-    # program, and 100 ms heartbeats (lost after 300 ms) so that a busy host does not lose another
+    # program, so that the loss (after 10 periods of 100 ms in this cell) comes before its end
     rig = make_rig(arm6, heartbeat_ms=100)
     prog = program(arm6.ordered_axes(), 20000, spacing_ms=20)
     assert rig.group.start(prog) is None
