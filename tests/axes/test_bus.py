@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import struct
 import threading
+import time
 from pathlib import Path
 
 import can
@@ -122,6 +123,10 @@ def test_real_time_sync_is_produced_periodically(channel):
             bus.sync.expect([0x283])
             bus.sync.start()
             assert responder.wait(lambda s=start: responder.syncs >= s + 20)
+            # the answers reach the master on its receive thread: wait for them, do not race them
+            deadline = time.monotonic() + 5.0
+            while bus.sync.answered < 19 and time.monotonic() < deadline:
+                time.sleep(0.001)
             bus.sync.stop()
             assert bus.sync.answered >= 19
         finally:
@@ -131,7 +136,8 @@ def test_real_time_sync_is_produced_periodically(channel):
 
 def test_heartbeat_emcy_and_lost_sync_are_reported(channel):
     responder = Responder(channel, nodes=(7, 8))
-    config = BusConfig(channel=channel, heartbeat_ms=10, heartbeat_timeout_factor=3.0)
+    # heartbeats every 5 ms, lost after 150 ms: room for a busy host, and still quick
+    config = BusConfig(channel=channel, heartbeat_ms=50, heartbeat_timeout_factor=3.0)
     bus = CellBus(config, lost_sync_timeout_s=0.2).open()
     faults: list[BusFault] = []
     got = threading.Condition()
