@@ -682,32 +682,16 @@ def _check_knots(
 
     The drive's segment between two records is THE Hermite cubic through their integer positions
     and velocities (``hermite_coefficients``, as ``epos2_pvt`` builds it), judged by
-    ``PiecewiseCubic``'s exact extrema and at every ms against the plan. The samples are evaluated
-    only on the segments that differ from ``prev`` (the same cubic has the same deviation).
+    ``PiecewiseCubic``'s exact extrema and at every ms against the plan. Only the segments that
+    differ from ``prev`` are judged (the same two records make the same cubic, with the same
+    extrema and deviation).
     """
     T = np.diff(knots)
     nseg = len(T)
-    ax = fl.axis_of(knots[:-1])
     real = _real(fl, knots)
-    f = fl.f[ax]
-    Pf = P.astype(float)
-    c = hermite_coefficients(Pf[:-1], V[:-1] * f, Pf[1:], V[1:] * f, T)
-    cub = PiecewiseCubic(knots[:-1].astype(float), T.astype(float), *c)
-    rv = cub.max_abs_velocity() * fl.rv_per[ax] * real
-    ra = cub.max_abs_acceleration() * fl.ra_per[ax] * real
-    # 0x607D: exactly only where the cheap bound (within T (|V0| + |V1|) 4/27 of the ends) reaches it
-    reach = T * (np.abs(c[1]) + np.abs(V[1:] * f)) * (4.0 / 27.0)
-    lo_lim, hi_lim = fl.pos_lo[ax], fl.pos_hi[ax]
-    near = real & ((np.minimum(Pf[:-1], Pf[1:]) - reach < lo_lim) | (np.maximum(Pf[:-1], Pf[1:]) + reach > hi_lim))
+    seg_dev, rv, ra = np.zeros(nseg), np.zeros(nseg), np.zeros(nseg)
     out = np.zeros(nseg, dtype=bool)
-    if near.any():
-        m = np.flatnonzero(near)
-        lo, hi = PiecewiseCubic(cub.start[m], cub.duration[m], c[0][m], c[1][m], c[2][m], c[3][m]).position_range()
-        out[m] = (lo < lo_lim[m]) | (hi > hi_lim[m])
-    # deviation at every ms: a segment holds the samples from its start knot on; an axis's last
-    # sample (its goal) belongs to its last segment, at tau = T
-    seg_dev = np.zeros(nseg)
-    todo = real.copy()
+    todo = real
     if prev is not None:
         i = np.minimum(np.searchsorted(prev.knots, knots[:-1]), len(prev.knots) - 2)
         same = (
@@ -718,23 +702,46 @@ def _check_knots(
             & (prev.V[i] == V[:-1])
             & (prev.V[i + 1] == V[1:])
         )
-        seg_dev = np.where(same, prev.chk.seg_deviation[i], 0.0)
-        todo &= ~same
-    ch = np.flatnonzero(todo)
-    if len(ch):
-        Tc, first, tau_i, j = _segment_samples(knots, ch, basis=False)
-        tau = tau_i.astype(float)
-        pos = np.repeat(c[0][ch], Tc) + tau * (
-            np.repeat(c[1][ch], Tc) + tau * (np.repeat(c[2][ch], Tc) + tau * np.repeat(c[3][ch], Tc))
+        pc = prev.chk
+        seg_dev[same], rv[same], ra[same], out[same] = (
+            pc.seg_deviation[i[same]],
+            pc.velocity_ratio[i[same]],
+            pc.acceleration_ratio[i[same]],
+            pc.position_out[i[same]],
         )
-        dev = np.maximum.reduceat(np.abs(pos - fl.p[j]), first)
-        last = (ch == nseg - 1) | ~real[np.minimum(ch + 1, nseg - 1)]  # the axis's goal sample too
-        if last.any():
-            e = ch[last]
-            Te = T[e].astype(float)
-            p_end = c[0][e] + Te * (c[1][e] + Te * (c[2][e] + Te * c[3][e]))
-            dev[last] = np.maximum(dev[last], np.abs(p_end - fl.p[knots[e + 1]]))
-        seg_dev[ch] = dev
+        todo = real & ~same
+    ch = np.flatnonzero(todo)
+    if not len(ch):
+        return _Checked(knots, P, V, _Check(seg_dev, rv, ra, out))
+    ax = fl.axis_of(knots[ch])
+    f = fl.f[ax]
+    P0, P1 = P[ch].astype(float), P[ch + 1].astype(float)
+    V1 = V[ch + 1] * f
+    Tc = T[ch]
+    c = hermite_coefficients(P0, V[ch] * f, P1, V1, Tc)
+    cub = PiecewiseCubic(knots[ch].astype(float), Tc.astype(float), *c)
+    rv[ch] = cub.max_abs_velocity() * fl.rv_per[ax]
+    ra[ch] = cub.max_abs_acceleration() * fl.ra_per[ax]
+    # 0x607D: exactly only where the cheap bound (within T (|V0| + |V1|) 4/27 of the ends) reaches it
+    reach = Tc * (np.abs(c[1]) + np.abs(V1)) * (4.0 / 27.0)
+    lo_lim, hi_lim = fl.pos_lo[ax], fl.pos_hi[ax]
+    near = (np.minimum(P0, P1) - reach < lo_lim) | (np.maximum(P0, P1) + reach > hi_lim)
+    if near.any():
+        m = np.flatnonzero(near)
+        lo, hi = PiecewiseCubic(cub.start[m], cub.duration[m], c[0][m], c[1][m], c[2][m], c[3][m]).position_range()
+        out[ch[m]] = (lo < lo_lim[m]) | (hi > hi_lim[m])
+    # deviation at every ms: a segment holds the samples from its start knot on; an axis's last
+    # sample (its goal) belongs to its last segment, at tau = T
+    Tn, first, tau_i, j = _segment_samples(knots, ch, basis=False)
+    tau = tau_i.astype(float)
+    pos = np.repeat(c[0], Tn) + tau * (np.repeat(c[1], Tn) + tau * (np.repeat(c[2], Tn) + tau * np.repeat(c[3], Tn)))
+    dev = np.maximum.reduceat(np.abs(pos - fl.p[j]), first)
+    last = np.flatnonzero((ch == nseg - 1) | ~real[np.minimum(ch + 1, nseg - 1)])  # the axis's goal sample too
+    if len(last):
+        Te = Tc[last].astype(float)
+        p_end = c[0][last] + Te * (c[1][last] + Te * (c[2][last] + Te * c[3][last]))
+        dev[last] = np.maximum(dev[last], np.abs(p_end - fl.p[knots[ch[last] + 1]]))
+    seg_dev[ch] = dev
     return _Checked(knots, P, V, _Check(seg_dev, rv, ra, out))
 
 
