@@ -5,6 +5,10 @@ limits (and, where the robot has them, joint torques through Pinocchio's RNEA an
 limit through the frame Jacobian). Between gridpoints the path acceleration s'' is constant, so
 the trajectory here is exact for that profile ("constant acceleration" parametrizer).
 
+Torque and TCP speed need Pinocchio at every sample: those calls are batched (one RNEA call for
+a whole grid), and torque limits, which rarely bind, are checked on the result of a solve without
+them before being solved with (see ``parameterize``).
+
 TOPP-RA enforces the constraints at the gridpoints. Between them the joint velocity and
 acceleration can exceed the limits by a hair; the trajectory is checked densely afterwards and,
 where needed, slowed down uniformly by the smallest factor that brings it inside (reported as
@@ -41,7 +45,10 @@ class _IntervalSpeedConstraint(constraint.LinearConstraint):
     toppra's joint velocity constraint bounds s' at the gridpoints only, and between them |qd| can
     overshoot by a few percent on a coarse grid. Here the bound is imposed inside the interval:
     with u = s'' constant on [s_i, s_i+1], s'^2 at s_i + sigma is x_i + 2 u sigma, so each sample
-    gives the linear row  G^2 (x_i + 2 u sigma) <= limit^2  on the stage variables (u, x_i).
+    gives the linear row  G^2 (x_i + 2 u sigma) <= limit^2  on the stage variables (u, x_i). All the
+    quantities at one sample share that direction: only the tightest, x_i + 2 u sigma <=
+    min(limit^2 / G^2), can bind, so one row per sample says exactly the same with m times fewer
+    rows for the solver to copy and check.
     """
 
     # where inside each interval the bound is held; both ends are the gridpoints' boxes on x (the
@@ -61,21 +68,21 @@ class _IntervalSpeedConstraint(constraint.LinearConstraint):
         n, f = len(gridpoints), len(self.FRACTIONS)
         delta = np.append(np.diff(gridpoints), 0.0)
         sigma = delta[:, None] * self.FRACTIONS[None, :]  # (n, f)
-        # the end of interval i is gridpoint i + 1: evaluate the gridpoints once, the inner samples once
-        at_grid = self.speed_factors(path, gridpoints) ** 2  # (n, m)
+        # the end of interval i is gridpoint i + 1: the gridpoints and the inner samples in one evaluation
         inner = self.FRACTIONS < 1.0
         s_inner = (gridpoints[:-1, None] + sigma[:-1, inner]).ravel()
-        g2 = np.empty((n, f, at_grid.shape[1]))
-        g2[:-1, inner] = (self.speed_factors(path, s_inner) ** 2).reshape(n - 1, int(inner.sum()), -1)
-        g2[:-1, ~inner] = at_grid[1:, None, :]
-        g2[-1] = at_grid[-1]
-        a = (2.0 * sigma[:, :, None] * g2).reshape(n, -1)
-        b = g2.reshape(n, -1)
-        m = a.shape[1]
+        factors2 = self.speed_factors(path, np.concatenate((gridpoints, s_inner))) ** 2
         with np.errstate(divide="ignore"):
-            x_max = np.min(np.where(at_grid > 0, self.limit**2 / np.maximum(at_grid, 1e-300), np.inf), axis=1)
-        xbound = np.column_stack((np.zeros(n), np.minimum(x_max, _X_MAX)))
-        return a, b, np.zeros_like(a), np.eye(m), np.tile(self.limit**2, f), None, xbound
+            # the largest s'^2 each sample allows (inf where nothing moves: capped, the solver wants numbers)
+            x_max = np.minimum(np.min(self.limit**2 / factors2, axis=1), _X_MAX)
+        at_grid = x_max[:n]
+        bound = np.empty((n, f))
+        bound[:-1, inner] = x_max[n:].reshape(n - 1, int(inner.sum()))
+        bound[:-1, ~inner] = at_grid[1:, None]
+        bound[-1] = at_grid[-1]
+        # rows 2 sigma u + x - bound <= 0
+        xbound = np.column_stack((np.zeros(n), at_grid))
+        return 2.0 * sigma, np.ones((n, f)), -bound, np.eye(f), np.zeros(f), None, xbound
 
 
 class JointVelocityConstraint(_IntervalSpeedConstraint):
@@ -122,8 +129,8 @@ class JointAccelerationConstraint(constraint.LinearConstraint):
 
 
 class TcpSpeedConstraint(_IntervalSpeedConstraint):
-    """|v_tcp| <= max_speed at ``frame``, through the Jacobian of its origin (a Jacobian per
-    sample is the expensive part, so fewer samples than for the joints)."""
+    """|v_tcp| <= max_speed at ``frame``'s origin, at the gridpoints and mid-interval (the frame
+    speed per unit path speed comes from one batched Pinocchio call for all samples)."""
 
     FRACTIONS = np.array([0.5])
 
@@ -136,6 +143,48 @@ class TcpSpeedConstraint(_IntervalSpeedConstraint):
 
     def speed_factors(self, path: JointPath, s: NDArray[np.float64]) -> NDArray[np.float64]:
         return self.model.frame_speeds(path(s), path(s, 1), self.frame)[:, None]
+
+
+class JointTorqueConstraint(constraint.LinearConstraint):
+    """|tau_j| <= effort_j at every gridpoint (toppra's collocation scheme), tau from Pinocchio's RNEA.
+
+    Along the path tau = a(s) s'' + b(s) s'^2 + c(s) with c = g(q) = rnea(q, 0, 0),
+    a = M(q) q' = rnea(q, 0, q') - c and b = M(q) q'' + C(q, q') q' = rnea(q, q', q'') - c: the
+    three RNEAs per gridpoint of toppra's JointTorqueConstraint, same numbers, but all in one
+    batched Pinocchio call (3 N Python calls were a quarter of a plan).
+    """
+
+    def __init__(self, model: RobotModel, effort: NDArray[np.float64]) -> None:
+        super().__init__()
+        self.model = model
+        self.effort = np.asarray(effort, dtype=float)
+        self.dof = len(self.effort)
+        self.identical = True
+        self._format_string = "    Joint torque limit (RNEA, collocation)\n"
+
+    def compute_constraint_params(self, path: JointPath, gridpoints: NDArray[np.float64]):  # type: ignore[override]
+        n = len(gridpoints)
+        q, qs, qss = path(gridpoints), path(gridpoints, 1), path(gridpoints, 2)
+        zero = np.zeros_like(q)
+        tau = self.model.inverse_dynamics_rows(
+            np.concatenate((q, q, q)), np.concatenate((zero, zero, qs)), np.concatenate((zero, qs, qss))
+        )
+        c = tau[:n]
+        a = tau[n : 2 * n] - c
+        b = tau[2 * n :] - c
+        F = np.vstack((np.eye(self.dof), -np.eye(self.dof)))
+        return a, b, c, F, np.tile(self.effort, 2), None, None
+
+    def holds_on(self, traj: Trajectory) -> bool:
+        """True when ``traj`` meets the limits where this constraint would hold them: at every
+        gridpoint, with the s'' of the interval that starts there (the last: the one that ends there)."""
+        grid, sd = traj.gridpoints, traj.sd
+        sdd = np.append(traj.sdd, traj.sdd[-1])
+        qs, qss = traj.path(grid, 1), traj.path(grid, 2)
+        qd = qs * sd[:, None]
+        qdd = qss * (sd * sd)[:, None] + qs * sdd[:, None]
+        tau = self.model.inverse_dynamics_rows(traj.path(grid), qd, qdd)
+        return bool(np.all(np.abs(tau) <= self.effort))
 
 
 @dataclass(frozen=True)
@@ -214,6 +263,12 @@ class Trajectory:
         sd = self.sd[i] + self.sdd[i] * tau
         return s, sd, self.sdd[i], scalar
 
+    def states(self, t: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Positions and velocities, each (len(t), dof), at the times t in one pass (one s(t) for
+        both): for sampling at every drive ms. A scalar t gives (1, dof) arrays."""
+        s, sd, _, _ = self._state(t)
+        return self.path(s), self.path(s, 1) * sd[:, None]
+
     def position(self, t: ArrayLike) -> NDArray[np.float64]:
         s, _, _, scalar = self._state(t)
         q = self.path(s)
@@ -263,19 +318,80 @@ def timing_constraints(
         JointAccelerationConstraint(limits.acceleration),
     ]
     if torque_limits and model is not None and model.has_dynamics and np.all(np.isfinite(limits.effort)):
-        out.append(
-            constraint.JointTorqueConstraint(
-                model.inverse_dynamics,
-                np.column_stack((-limits.effort, limits.effort)),
-                np.zeros(limits.dof),
-                discretization_scheme=constraint.DiscretizationType.Collocation,
-            )
-        )
+        out.append(JointTorqueConstraint(model, limits.effort))
     if max_tcp_speed is not None:
         if model is None or tcp_frame is None:
             raise ValueError("a TCP speed limit needs the robot model and the TCP frame")
         out.append(TcpSpeedConstraint(model, tcp_frame, max_tcp_speed))
     return out
+
+
+class _Computed(constraint.LinearConstraint):
+    """A constraint's parameters on one grid, computed once: the solver wrapper and the rest check
+    of LeanTOPPRA both read them."""
+
+    def __init__(self, source: constraint.Constraint, params: tuple) -> None:
+        super().__init__()
+        self.identical = source.identical
+        self.params = params
+
+    def compute_constraint_params(self, path: JointPath, gridpoints: NDArray[np.float64]):  # type: ignore[override]
+        return self.params
+
+
+# the solver wrapper's box on u and x at every stage (toppra's seidel VAR_MIN / VAR_MAX)
+_VAR_MAX = 1e8
+
+
+def _times(F: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """F v at every stage: F the same at every stage (2-D) or one per stage (3-D)."""
+    return v @ F.T if F.ndim == 2 else np.einsum("ikj,ij->ik", F, v)
+
+
+@dataclass(frozen=True)
+class _StageRows:
+    """Every stage's rows A u + B x + C <= 0 (all constraints stacked, as the solver wrapper does)
+    and its boxes on x and u, (n, m) and (n,) arrays: what the LP skips of LeanTOPPRA read."""
+
+    A: NDArray[np.float64]
+    B: NDArray[np.float64]
+    C: NDArray[np.float64]
+    x_lo: NDArray[np.float64]
+    x_hi: NDArray[np.float64]
+    u_lo: NDArray[np.float64]
+    u_hi: NDArray[np.float64]
+
+    @classmethod
+    def stack(cls, params: list[tuple], n: int) -> _StageRows:
+        x_lo, x_hi = np.full(n, -_VAR_MAX), np.full(n, _VAR_MAX)
+        u_lo, u_hi = np.full(n, -_VAR_MAX), np.full(n, _VAR_MAX)
+        A, B, C = [np.zeros((n, 0))], [np.zeros((n, 0))], [np.zeros((n, 0))]
+        for a, b, c, F, h, ubound, xbound in params:
+            if a is not None:
+                A.append(_times(F, a))
+                B.append(_times(F, b))
+                C.append(_times(F, c) - h)
+            if xbound is not None:
+                x_lo, x_hi = np.maximum(x_lo, xbound[:, 0]), np.minimum(x_hi, xbound[:, 1])
+            if ubound is not None:
+                u_lo, u_hi = np.maximum(u_lo, ubound[:, 0]), np.minimum(u_hi, ubound[:, 1])
+        return cls(np.hstack(A), np.hstack(B), np.hstack(C), x_lo, x_hi, u_lo, u_hi)
+
+    def rest_feasible(self) -> NDArray[np.bool_]:
+        """Stages at which (u, x) = (0, 0), standing still, satisfies every row and box."""
+        return np.all(self.C <= 0.0, axis=1) & (self.x_lo <= 0.0) & (self.u_lo <= 0.0) & (self.u_hi >= 0.0)
+
+    def u_range_at(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The exact range [lo, hi] of u that satisfies every row and box at x (one x per stage;
+        lo = inf where none does)."""
+        A = self.A
+        r = self.B * x[:, None] + self.C
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bound = -r / A
+        hi = np.minimum(self.u_hi, np.min(np.where(A > 0.0, bound, np.inf), axis=1, initial=np.inf))
+        lo = np.maximum(self.u_lo, np.max(np.where(A < 0.0, bound, -np.inf), axis=1, initial=-np.inf))
+        lo[np.any((A == 0.0) & (r > 0.0), axis=1) | (x < self.x_lo) | (x > self.x_hi)] = np.inf
+        return lo, hi
 
 
 class LeanTOPPRA(algo.TOPPRA):
@@ -284,7 +400,13 @@ class LeanTOPPRA(algo.TOPPRA):
     Same algorithm, same solver wrapper, same results: the backward pass (controllable sets) and
     the forward pass call the seidel solver exactly as toppra does, but without re-allocating the
     objective vectors and re-checking NaNs through numpy at every stage, which is where most of
-    the time of a coarse-grid solve goes.
+    the time of a coarse-grid solve goes. LPs are skipped where their answer is known exactly
+    (checked in closed form, with every stage's rows stacked once up front):
+
+    - the lower end of a controllable set is 0 wherever standing still is allowed and leads into
+      a set that contains 0 (a rest-to-rest move: almost every stage);
+    - its upper end is the stage's own bound x_top (speed limits) wherever some u allowed at
+      x_top leads into the next set (cruising at a speed limit: most stages);
     """
 
     def __init__(
@@ -293,7 +415,13 @@ class LeanTOPPRA(algo.TOPPRA):
         # toppra's ReachabilityAlgorithm.__init__ would first probe the importable solvers (a
         # file-system search on every plan); the solver here is always seidel, so set it up directly
         ParameterizationAlgorithm.__init__(self, constraint_list, path, gridpoints=gridpoints)
-        self.solver_wrapper = seidelWrapper(self.constraints, self.path, self.gridpoints, solve_lp1d=True)
+        params = [c.compute_constraint_params(self.path, self.gridpoints) for c in self.constraints]
+        rows = _StageRows.stack(params, len(self.gridpoints))
+        self._rest = rows.rest_feasible()
+        self._x_top = rows.x_hi
+        self._u_top = rows.u_range_at(rows.x_hi)
+        computed = [_Computed(c, p) for c, p in zip(self.constraints, params, strict=True)]
+        self.solver_wrapper = seidelWrapper(computed, self.path, self.gridpoints, solve_lp1d=True)
         n_vars = self.solver_wrapper.get_no_vars()
         self._g_max_x = np.zeros(n_vars)
         self._g_max_x[0], self._g_max_x[1] = 1e-9, -1.0
@@ -305,20 +433,36 @@ class LeanTOPPRA(algo.TOPPRA):
 
     def compute_controllable_sets(self, sdmin: float, sdmax: float) -> NDArray[np.float64]:
         n = self._N
-        K = np.zeros((n + 1, 2))
+        K = np.full((n + 1, 2), np.nan)
         K[n] = (sdmin**2, sdmax**2)
         solve = self.solver_wrapper.solve_stagewise_optim
+        g_max, g_min, nan = self._g_max_x, self._g_min_x, np.nan
+        rest = self._rest.tolist()
+        x_top, (u_lo, u_hi) = self._x_top.tolist(), (v.tolist() for v in self._u_top)
+        two_delta = (2.0 * self.solver_wrapper.get_deltas()).tolist()
         self.solver_wrapper.setup_solver()
-        lo, hi = K[n, 0], K[n, 1]
+        lo, hi = float(K[n, 0]), float(K[n, 1])
+        los, his = [], []
         for i in range(n - 1, -1, -1):
-            x_hi = solve(i, None, self._g_max_x, np.nan, np.nan, lo, hi)[1]
-            x_lo = solve(i, None, self._g_min_x, np.nan, np.nan, lo, hi)[1]
+            # a u feasible at x_top[i] that lands in [lo, hi]: x_top[i] is the LP's maximum
+            x = x_top[i]
+            first = max(u_lo[i], (lo - x) / two_delta[i])
+            if first + 1e-9 * (1.0 + abs(first)) <= min(u_hi[i], (hi - x) / two_delta[i]):
+                x_hi = x
+            else:
+                x_hi = solve(i, None, g_max, nan, nan, lo, hi)[1]
+            # standing still is allowed here and 0 is in [lo, hi]: the minimum is 0
+            x_lo = 0.0 if lo == 0.0 and rest[i] else solve(i, None, g_min, nan, nan, lo, hi)[1]
             lo, hi = max(x_lo, 0.0), x_hi
-            K[i, 0], K[i, 1] = lo, hi
-            if lo != lo or hi != hi:  # NaN: no controllable state at this stage
-                K[i] = np.nan
-                return K
-        self.solver_wrapper.close_solver()
+            if lo != lo or hi != hi:  # NaN: no controllable state at this stage (K stays NaN there)
+                break
+            los.append(lo)
+            his.append(hi)
+        else:
+            self.solver_wrapper.close_solver()
+        k = len(los)
+        K[n - k : n, 0] = los[::-1]
+        K[n - k : n, 1] = his[::-1]
         return K
 
     def compute_parameterization(self, sd_start: float, sd_end: float, return_data: bool = False):  # type: ignore[override]
@@ -330,19 +474,20 @@ class LeanTOPPRA(algo.TOPPRA):
         if x_start + SMALL < K[0, 0] or K[0, 1] + SMALL < x_start:
             return (None, None, None, K) if return_data else (None, None, None)
         n = self._N
-        deltas = self.solver_wrapper.get_deltas()
-        xs = np.zeros(n + 1)
-        us = np.zeros(n)
-        xs[0] = x_start
+        two_delta = (2.0 * self.solver_wrapper.get_deltas()).tolist()
+        xs = [x_start] + [0.0] * n
+        us = [0.0] * n
         solve = self.solver_wrapper.solve_stagewise_optim
+        k_los, k_his = K[:, 0].tolist(), K[:, 1].tolist()
+        g_forward = list(self._g_forward)
         self.solver_wrapper.setup_solver()
         i, tries, x = 0, 0, x_start
         while i < n:
-            k_lo, k_hi = K[i + 1, 0], K[i + 1, 1]
-            u = solve(i, None, self._g_forward[i], x, x, k_lo, k_hi)[0]
+            k_lo, k_hi = k_los[i + 1], k_his[i + 1]
+            u = solve(i, None, g_forward[i], x, x, k_lo, k_hi)[0]
             if u != u:  # slightly infeasible from round-off: back off x a little, as toppra does
                 if tries >= MAX_TRIES:
-                    xs[i + 1 :] = np.nan
+                    xs[i + 1 :] = [np.nan] * (n - i)
                     break
                 x = max(x - TINY, 0.999 * x)
                 xs[i] = x
@@ -350,14 +495,14 @@ class LeanTOPPRA(algo.TOPPRA):
                 continue
             tries = 0
             us[i] = u
-            x_next = x + 2.0 * deltas[i] * u
+            x_next = x + two_delta[i] * u
             x_next = max(x_next - TINY, 0.9999 * x_next)
             x = min(k_hi, max(k_lo, x_next))
             xs[i + 1] = x
             i += 1
         self.solver_wrapper.close_solver()
-        sd = np.sqrt(xs)
-        return (us, sd, None, K) if return_data else (us, sd, None)
+        sd, us_arr = np.sqrt(np.array(xs)), np.array(us)
+        return (us_arr, sd, None, K) if return_data else (us_arr, sd, None)
 
 
 # Starting from and stopping at rest is where a coarse grid loses most of its time (the profile
@@ -379,18 +524,10 @@ def make_gridpoints(path: JointPath, n: int) -> NDArray[np.float64]:
     return grid
 
 
-def parameterize(
-    path: JointPath,
-    limits: JointLimits,
-    constraints: list[constraint.Constraint],
-    gridpoints: int = DEFAULT_GRIDPOINTS,
+def _solve(
+    path: JointPath, grid: NDArray[np.float64], limits: JointLimits, constraints: list[constraint.Constraint]
 ) -> Trajectory:
-    """The time-optimal rest-to-rest trajectory along ``path`` under ``constraints``.
-
-    ``limits`` are the joint limits the constraints were built from: the result is checked
-    against them between the gridpoints and slowed down uniformly where it exceeds them.
-    """
-    grid = make_gridpoints(path, gridpoints)
+    """TOPP-RA on ``grid``, then the between-gridpoint check against ``limits`` (slowed where needed)."""
     instance = LeanTOPPRA(constraints, path, grid)
     _sdd, sd, _v = instance.compute_parameterization(0.0, 0.0)
     if sd is None or np.any(~np.isfinite(sd)):
@@ -403,9 +540,36 @@ def parameterize(
     return traj
 
 
+def parameterize(
+    path: JointPath,
+    limits: JointLimits,
+    constraints: list[constraint.Constraint],
+    gridpoints: int = DEFAULT_GRIDPOINTS,
+) -> Trajectory:
+    """The time-optimal rest-to-rest trajectory along ``path`` under ``constraints``.
+
+    ``limits`` are the joint limits the constraints were built from: the result is checked
+    against them between the gridpoints and slowed down uniformly where it exceeds them.
+
+    Joint torque limits rarely bind on a well-sized robot, and their rows cost three RNEAs per
+    gridpoint: the first solve leaves them out and the result is checked against them (one RNEA
+    per gridpoint). Where it holds them, it is also the optimum with them (a constraint the
+    optimum already meets changes nothing); where it does not, the solve is made again with them.
+    """
+    grid = make_gridpoints(path, gridpoints)
+    deferred = [c for c in constraints if isinstance(c, JointTorqueConstraint)]
+    if not deferred:
+        return _solve(path, grid, limits, constraints)
+    traj = _solve(path, grid, limits, [c for c in constraints if not isinstance(c, JointTorqueConstraint)])
+    if all(c.holds_on(traj) for c in deferred):
+        return traj
+    return _solve(path, grid, limits, constraints)
+
+
 __all__ = [
     "DEFAULT_GRIDPOINTS",
     "JointAccelerationConstraint",
+    "JointTorqueConstraint",
     "JointVelocityConstraint",
     "LeanTOPPRA",
     "TcpSpeedConstraint",

@@ -66,3 +66,22 @@ def test_continuous_joint_is_refused() -> None:
 def test_missing_urdf(tmp_path) -> None:
     with pytest.raises(ModelError, match="not found"):
         RobotModel.from_urdf(tmp_path / "none.urdf")
+
+
+def test_batched_inverse_dynamics_and_frame_speeds_match_one_by_one() -> None:
+    """The batched forms the planner uses give the per-configuration RNEA and |J_lin qd|."""
+    m = RobotModel.from_urdf(ARM)
+    rng = np.random.default_rng(3)
+    q, qd, qdd = (rng.uniform(-2.0, 2.0, (25, 6)) for _ in range(3))
+    tau = m.inverse_dynamics_rows(q, qd, qdd)
+    np.testing.assert_allclose(tau, [m.inverse_dynamics(*x) for x in zip(q, qd, qdd, strict=True)], atol=1e-12)
+    speeds = m.frame_speeds(q, qd, "tool0")
+    expected = [np.linalg.norm(m.frame_jacobian(a, "tool0")[:3] @ v) for a, v in zip(q, qd, strict=True)]
+    np.testing.assert_allclose(speeds, expected, rtol=1e-12, atol=1e-12)
+    assert m.inverse_dynamics_rows(q[:0], qd[:0], qdd[:0]).shape == (0, 6)
+    with pytest.raises(ValueError, match="expected an"):
+        m.inverse_dynamics_rows(q[:, :5], qd, qdd)
+    with pytest.raises(ValueError, match="same shape"):
+        m.inverse_dynamics_rows(q, qd[:3], qdd)
+    with pytest.raises(KeyError, match="unknown frame"):
+        m.frame_speeds(q, qd, "nowhere")

@@ -1,0 +1,126 @@
+"""TOPP-RA pieces: the cell's torque constraint, the lean algorithm, trajectory sampling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import toppra.algorithm as algo
+import toppra.constraint as constraint
+
+from planner.limits import JointLimits
+from planner.path import JointPath
+from planner.plan import Planner
+from planner.timing import (
+    DEFAULT_GRIDPOINTS,
+    JointTorqueConstraint,
+    LeanTOPPRA,
+    _solve,
+    make_gridpoints,
+    parameterize,
+    timing_constraints,
+)
+from service.config import CONFIG_DIR, load_cell_config
+
+ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
+LIMITS = ARM.joint_limits()
+WAYPOINTS = np.array(
+    [
+        [0.0, -1.0, 1.2, 0.3, -0.2, 0.0],
+        [1.1, 0.2, -0.4, -0.6, 0.5, 1.0],
+        [-0.5, 0.6, 0.3, 0.8, -0.7, -1.2],
+        [0.4, -0.3, -0.9, 0.1, 0.3, 0.4],
+    ]
+)
+
+
+def test_torque_constraint_equals_toppras() -> None:
+    """Same a, b, c as toppra's JointTorqueConstraint on Pinocchio's RNEA (three calls per gridpoint)."""
+    path = JointPath(WAYPOINTS, LIMITS)
+    grid = make_gridpoints(path, 60)
+    ours = JointTorqueConstraint(ARM.model, LIMITS.effort).compute_constraint_params(path, grid)
+    stock = constraint.JointTorqueConstraint(
+        ARM.model.inverse_dynamics,
+        np.column_stack((-LIMITS.effort, LIMITS.effort)),
+        np.zeros(6),
+        discretization_scheme=constraint.DiscretizationType.Collocation,
+    ).compute_constraint_params(path, grid)
+    for mine, theirs in zip(ours[:3], stock[:3], strict=True):
+        np.testing.assert_allclose(mine, theirs, rtol=1e-12, atol=1e-9)
+    # same rows: F tau <= g  <=>  -effort <= tau <= effort
+    np.testing.assert_array_equal(ours[3], stock[3])
+    np.testing.assert_array_equal(ours[4], stock[4])
+
+
+def test_lean_toppra_equals_toppra_on_the_cell_constraints() -> None:
+    """The skipped lower-bound LPs and the batched constraints change nothing: toppra's own TOPPRA
+    (seidel) gives the same controllable sets and path velocities."""
+    path = JointPath(WAYPOINTS, LIMITS)
+    grid = make_gridpoints(path, 80)
+    cons = timing_constraints(LIMITS, ARM.model, torque_limits=True, tcp_frame="tool0", max_tcp_speed=2.0)
+    lean = LeanTOPPRA(cons, path, grid)
+    stock = algo.TOPPRA(cons, path, gridpoints=grid, solver_wrapper="seidel")
+    # the stock lower bounds are 0 up to the LP's round-off (1e-16)
+    K_lean, K_stock = lean.compute_controllable_sets(0.0, 0.0), stock.compute_controllable_sets(0.0, 0.0)
+    np.testing.assert_allclose(K_lean, K_stock, rtol=1e-12, atol=1e-12)
+    sd_lean = lean.compute_parameterization(0.0, 0.0)[1]
+    sd_stock = stock.compute_parameterization(0.0, 0.0)[1]
+    np.testing.assert_allclose(sd_lean, sd_stock, rtol=1e-9, atol=1e-9)
+
+
+def test_lower_bound_lp_still_solved_where_rest_is_not_allowed() -> None:
+    """Where gravity alone exceeds an effort limit, standing still is infeasible: the LP decides."""
+    weak = JointLimits(LIMITS.names, LIMITS.lower, LIMITS.upper, LIMITS.velocity, LIMITS.acceleration, np.ones(6))
+    path = JointPath(WAYPOINTS[:2], LIMITS)
+    cons = timing_constraints(weak, ARM.model, torque_limits=True)
+    K = LeanTOPPRA(cons, path, make_gridpoints(path, 20)).compute_controllable_sets(0.0, 0.0)
+    assert np.isnan(K).any()
+
+
+def test_states_equal_position_and_velocity() -> None:
+    tr = Planner(LIMITS, ARM.model, "tool0", 2.0, torque_limits=True).plan(WAYPOINTS).trajectory
+    assert tr is not None
+    t = np.concatenate((np.linspace(-0.1, tr.duration + 0.1, 1001), tr.breakpoints))
+    q, qd = tr.states(t)
+    assert q.shape == qd.shape == (len(t), 6)
+    np.testing.assert_array_equal(q, tr.position(t))
+    np.testing.assert_array_equal(qd, tr.velocity(t))
+    q1, qd1 = tr.states(0.5 * tr.duration)
+    np.testing.assert_array_equal(q1, tr.position(0.5 * tr.duration)[None, :])
+    np.testing.assert_array_equal(qd1, tr.velocity(0.5 * tr.duration)[None, :])
+    assert tr.states(np.array([]))[0].shape == (0, 6)
+
+
+@pytest.mark.parametrize("max_speed", [0.5, 2.0])
+def test_cell_plan_holds_torque_at_the_gridpoints_and_tcp_speed(max_speed: float) -> None:
+    tr = Planner(LIMITS, ARM.model, "tool0", max_speed, torque_limits=True).plan(WAYPOINTS).trajectory
+    assert tr is not None
+    t = tr.breakpoints
+    tau = ARM.model.inverse_dynamics_rows(tr.position(t), tr.velocity(t), tr.acceleration(t))
+    assert np.all(np.abs(tau) <= LIMITS.effort * (1 + 1e-6))
+    mid = 0.5 * (t[1:] + t[:-1])
+    speed = ARM.model.frame_speeds(tr.position(mid), tr.velocity(mid), "tool0")
+    assert speed.max() <= max_speed * 1.005
+
+
+def test_deferred_torque_limits_give_the_same_plan_as_solving_with_them() -> None:
+    """parameterize solves without the torque rows first and checks the result against them: where
+    they hold, that is the plan with them; where they do not, it solves again with them."""
+    path = JointPath(WAYPOINTS, LIMITS)
+    cons = timing_constraints(LIMITS, ARM.model, torque_limits=True, tcp_frame="tool0", max_tcp_speed=2.0)
+    torque = next(c for c in cons if isinstance(c, JointTorqueConstraint))
+    fast = parameterize(path, LIMITS, cons)
+    assert torque.holds_on(fast)
+    full = _solve(path, make_gridpoints(path, DEFAULT_GRIDPOINTS), LIMITS, cons)
+    np.testing.assert_allclose(fast.sd, full.sd, rtol=1e-9, atol=1e-9)
+    assert fast.duration == pytest.approx(full.duration, rel=1e-12)
+
+    weak = JointLimits(
+        LIMITS.names, LIMITS.lower, LIMITS.upper, LIMITS.velocity, LIMITS.acceleration, LIMITS.effort * 0.3
+    )
+    weak_cons = timing_constraints(weak, ARM.model, torque_limits=True)
+    weak_torque = next(c for c in weak_cons if isinstance(c, JointTorqueConstraint))
+    free = parameterize(path, weak, [c for c in weak_cons if c is not weak_torque])
+    assert not weak_torque.holds_on(free)  # the unconstrained plan needs more torque than there is
+    held = parameterize(path, weak, weak_cons)
+    assert weak_torque.holds_on(held)
+    assert held.duration > free.duration
