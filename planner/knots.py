@@ -66,9 +66,7 @@ class TimedTrajectory(Protocol):
     @property
     def breakpoints(self) -> NDArray[np.float64]: ...
 
-    def position(self, t: Any) -> NDArray[np.float64]: ...
-
-    def velocity(self, t: Any) -> NDArray[np.float64]: ...
+    def states(self, t: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...  # positions, velocities
 
     def acceleration(self, t: Any) -> NDArray[np.float64]: ...
 
@@ -173,8 +171,8 @@ def _sample(traj: TimedTrajectory, axes: Sequence[DriveAxis], scale: float) -> _
     duration_ms = traj.duration * 1000.0 * scale
     n = max(1, math.ceil(duration_ms - 1e-6))
     t = np.arange(n + 1) / (1000.0 * scale)  # trajectory time of each drive ms
-    q = np.atleast_2d(traj.position(t))
-    qd = np.atleast_2d(traj.velocity(t)) / scale
+    q, qd = traj.states(t)
+    qd = qd / scale
     bp = np.asarray(traj.breakpoints, dtype=float)[1:-1]
     eps = 1e-9 * max(traj.duration, 1.0)
     if len(bp):
