@@ -173,8 +173,25 @@ def parse_payload(payload: bytes | None) -> Any:
     return data
 
 
+def _all_finite(data: Any) -> bool:
+    """Whether every number in ``data`` is finite: the common case, checked without building paths."""
+    stack: list[Any] = [data]
+    while stack:
+        value = stack.pop()
+        if isinstance(value, float):
+            if not math.isfinite(value):
+                return False
+        elif isinstance(value, list):
+            stack.extend(value)
+        elif isinstance(value, dict):
+            stack.extend(value.values())
+    return True
+
+
 def _check_finite(data: Any) -> None:
     """NOT_FINITE for the first NaN / Infinity / 1e999 anywhere in the request (iterative: no recursion)."""
+    if _all_finite(data):
+        return
     stack: list[tuple[Any, str]] = [(data, "$")]
     while stack:
         value, path = stack.pop()
@@ -509,8 +526,50 @@ def _json_path(path: Sequence[Any]) -> str:
     return "$" + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in path)
 
 
+_NUMBER_TYPES = frozenset({int, float})  # JSON numbers as json.loads makes them (bool is not one)
+_PLAN_PROPERTIES = request_schema("plan")["properties"]
+_PLAN_FIELDS = frozenset(_PLAN_PROPERTIES)
+_PLAN_STARTS = frozenset(_PLAN_PROPERTIES["start"]["enum"])
+_PLAN_TOLERANCE = (_PLAN_PROPERTIES["tolerance_qc"]["minimum"], _PLAN_PROPERTIES["tolerance_qc"]["maximum"])
+
+
+def _numbers(row: Any, dof: int | None) -> bool:
+    return type(row) is list and (dof is None or len(row) == dof) and all(type(v) in _NUMBER_TYPES for v in row)
+
+
+def _plain_plan(data: Any, dof: int | None) -> bool:
+    """True only for a plan request the plan schema certainly accepts (the common, well-formed one).
+
+    The same rules in plain Python, ~20 times faster than jsonschema (0.45 ms for 8 waypoints on
+    this VM); anything it does not recognise goes to jsonschema, which finds and words the error.
+    A subset of the schema, never a second definition of it: False is always a safe answer.
+    """
+    if type(data) is not dict or not _PLAN_FIELDS.issuperset(data) or ("waypoints" in data) == ("target" in data):
+        return False
+    for name, value in data.items():
+        if name == "waypoints":
+            ok = type(value) is list and 1 <= len(value) <= MAX_WAYPOINTS and all(_numbers(r, dof) for r in value)
+        elif name == "target":
+            ok = _numbers(value, dof)
+        elif name == "joint_names":
+            ok = type(value) is list and len(value) > 0 and all(type(n) is str for n in value)
+        elif name == "start":
+            ok = type(value) is str and value in _PLAN_STARTS
+        elif name == "tolerance_qc":
+            ok = type(value) in _NUMBER_TYPES and _PLAN_TOLERANCE[0] <= value <= _PLAN_TOLERANCE[1]
+        elif name == "label":
+            ok = type(value) is str and len(value) <= MAX_TEXT
+        else:  # include_program
+            ok = type(value) is bool
+        if not ok:
+            return False
+    return True
+
+
 def check_schema(name: str, data: Any, dof: int | None) -> dict[str, Any]:
     """Raise the ApiError for the first schema problem of a ``name`` request (None: it follows it)."""
+    if name == "plan" and _plain_plan(data, dof):
+        return data  # type: ignore[no-any-return]
     errors = list(_validator(name, dof).iter_errors(data))
     if not errors:
         return data  # type: ignore[no-any-return]

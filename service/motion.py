@@ -50,7 +50,8 @@ from service.api import (
 from service.config import CellConfig
 from service.execute_cmd import cell_mismatch
 from service.journal import Journal, JournalError, MotionEntry, default_directory
-from service.plan_cmd import plan_cell_program
+from service.plan_cmd import CellPlanner
+from service.planning import PlanningProcess
 
 Publish = Callable[[str, dict[str, Any]], None]
 log = logging.getLogger("pvtflow.motion")
@@ -119,15 +120,18 @@ class MotionService:
         telemetry_period_ms: float = 20.0,
         max_plans: int = 64,
         publish: Publish | None = None,
+        planner_process: bool = False,
     ) -> None:
         self.cell = cell
         self.axes = cell.ordered_axes()
         self.joint_names: tuple[str, ...] = tuple(cell.joint_names)
-        self.limits = cell.joint_limits()
         self.simulate = cell.simulated if simulate is None else simulate
         self.lockstep = self.simulate if lockstep is None else lockstep
         self.can_log = can_log
         self.journal = Journal(journal_dir if journal_dir is not None else default_directory(cell.name))
+        # built once: a plan request pays for planning only (in a child process: service/planning.py)
+        self.planner: CellPlanner | PlanningProcess = PlanningProcess(cell) if planner_process else CellPlanner(cell)
+        self.limits = self.planner.limits
         self.publish: Publish = publish or _no_publish
         self.max_plans = max_plans
         self.telemetry_every = max(1, round(telemetry_period_ms / cell.bus.sync_period_ms))
@@ -140,6 +144,7 @@ class MotionService:
         self.fault_reason: str | None = None
         self._lock = threading.RLock()  # execute / stop / recover / SDO: one at a time
         self._plans_lock = threading.Lock()
+        self._planner_lock = threading.Lock()  # the CellPlanner is not for concurrent use
         self._state_lock = threading.Lock()
         self._state_seq = 0
         self._last_states: tuple[str, ...] = ()
@@ -193,6 +198,8 @@ class MotionService:
             self.bus.close()
         if self.sim is not None:
             self.sim.stop()
+        if isinstance(self.planner, PlanningProcess):
+            self.planner.close()
         self.journal.close()
         self.group, self.bus, self.sim = None, None, None
 
@@ -255,7 +262,8 @@ class MotionService:
                     {"result": "repeated_waypoint"},
                 )
         plan_id = _new_id("p")
-        result = plan_cell_program(self.cell, waypoints, req.tolerance_qc, {"plan_id": plan_id})
+        with self._planner_lock:
+            result = self.planner.plan(waypoints, req.tolerance_qc, {"plan_id": plan_id})
         if not result.ok or result.program is None or result.build is None:
             raise ApiError(
                 ErrorCode.PLAN_FAILED,

@@ -3,8 +3,9 @@
 Exit codes: 0 written, 1 the waypoints cannot be planned on this cell (the message says why),
 2 unreadable input (configuration, waypoint file) or the output cannot be written.
 
-:func:`plan_cell_program` is the whole pipeline for one cell (waypoints -> TOPP-RA trajectory ->
-knots -> validated program), for the service as well as for this command.
+:class:`CellPlanner` is the whole pipeline for one cell (waypoints -> TOPP-RA trajectory -> knots ->
+validated program), built once per cell by the service; :func:`plan_cell_program` is a one-off call
+of it, for this command.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from numpy.typing import ArrayLike
 
 from planner.build import BuildError, BuildOutput, build_program
 from planner.knots import DriveAxis, KnotOptions
-from planner.plan import PlanInput, PlanOutput, plan
+from planner.path import PlanResult
+from planner.plan import PlanInput, Planner, PlanOutput
 from planner.program import PvtProgram
 from service.config import CellConfig, ConfigError, load_cell_config
 from service.waypoints import WaypointError, load_waypoints
@@ -58,23 +60,60 @@ def plan_input_for_cell(cell: CellConfig, waypoints: ArrayLike, gridpoints: int 
     )
 
 
+class CellPlanner:
+    """The planning pipeline of one cell, built once: its Planner (toppra constraints), drive axes
+    and default tolerance. A service keeps one per cell, so a request pays for planning only.
+
+    Not for concurrent use: the Planner's constraint objects are shared between calls (the service
+    plans on one worker thread).
+    """
+
+    def __init__(self, cell: CellConfig, gridpoints: int | None = None) -> None:
+        inp = plan_input_for_cell(cell, (), gridpoints)  # no waypoints yet: the cell's side of the input
+        self.cell = cell
+        self.limits = inp.limits
+        self.axes = tuple(DriveAxis.from_config(a) for a in cell.ordered_axes())
+        self.tolerance_qc = cell.planning.position_tolerance_qc
+        self.planner: Planner | None = None
+        self.setup_error = ""
+        try:
+            self.planner = Planner(
+                inp.limits, inp.model, inp.tcp_frame, inp.max_tcp_speed, inp.torque_limits, inp.gridpoints
+            )
+        except ValueError as exc:  # a planning option the planner refuses: every plan says so
+            self.setup_error = str(exc)
+
+    def plan(
+        self, waypoints: ArrayLike, tolerance_qc: float | None = None, metadata: dict[str, Any] | None = None
+    ) -> CellPlan:
+        """Waypoints (N, dof, the cell's joint order) -> a validated PVT program for the cell's drives.
+
+        ``timing`` (s): ``plan`` TOPP-RA, ``knots`` knot placement + validation, ``total``, and
+        ``cpu`` the CPU time of this thread over the whole call (``total - cpu``: time the thread
+        waited for the CPU or the GIL).
+        """
+        start, cpu = time.perf_counter(), time.thread_time()
+        if self.planner is None:
+            return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
+        out = self.planner.plan(waypoints)
+        t_plan = time.perf_counter() - start
+        if not out.ok or out.trajectory is None:
+            return CellPlan(out.result.value, out.message, None, out, None, {"plan": t_plan})
+        tol = self.tolerance_qc if tolerance_qc is None else tolerance_qc
+        try:
+            built = build_program(out.trajectory, self.axes, self.cell.name, KnotOptions(tolerance_qc=tol), metadata)
+        except (BuildError, ValueError) as exc:
+            return CellPlan("program_error", str(exc), None, out, None, {"plan": t_plan})
+        total = time.perf_counter() - start
+        timing = {"plan": t_plan, "knots": total - t_plan, "total": total, "cpu": time.thread_time() - cpu}
+        return CellPlan("ok", "", built.program, out, built, timing)
+
+
 def plan_cell_program(
     cell: CellConfig, waypoints: ArrayLike, tolerance_qc: float | None = None, metadata: dict[str, Any] | None = None
 ) -> CellPlan:
-    """Waypoints (N, dof, the cell's joint order) -> a validated PVT program for the cell's drives."""
-    start = time.perf_counter()
-    out = plan(plan_input_for_cell(cell, waypoints))
-    t_plan = time.perf_counter() - start
-    if not out.ok or out.trajectory is None:
-        return CellPlan(out.result.value, out.message, None, out, None, {"plan": t_plan})
-    axes = [DriveAxis.from_config(a) for a in cell.ordered_axes()]
-    tol = cell.planning.position_tolerance_qc if tolerance_qc is None else tolerance_qc
-    try:
-        built = build_program(out.trajectory, axes, cell.name, KnotOptions(tolerance_qc=tol), metadata)
-    except (BuildError, ValueError) as exc:
-        return CellPlan("program_error", str(exc), None, out, None, {"plan": t_plan})
-    total = time.perf_counter() - start
-    return CellPlan("ok", "", built.program, out, built, {"plan": t_plan, "knots": total - t_plan, "total": total})
+    """One-off planning on ``cell`` (the CLI): a CellPlanner built for this call."""
+    return CellPlanner(cell).plan(waypoints, tolerance_qc, metadata)
 
 
 def add_parser(subparsers: Any) -> None:

@@ -69,13 +69,16 @@ class Client:
 
     def replies(self, cell: str, op: str, payload: Any = None, timeout: float = 10.0) -> list[Reply]:
         """Every reply to one request (several with ``cell="*"``). ``payload``: JSON value or raw bytes."""
+        return list(self._replies(cell, op, payload, timeout))
+
+    def _replies(self, cell: str, op: str, payload: Any, timeout: float) -> Iterator[Reply]:
+        """The replies as they arrive (zenoh's FIFO handler: the loop blocks in Rust, without the GIL)."""
         if payload is None:
             body: bytes | None = None
         elif isinstance(payload, bytes | bytearray):
             body = bytes(payload)
         else:
             body = json.dumps(payload).encode()
-        out: list[Reply] = []
         for r in self.session.get(
             key(cell, op),
             payload=body,
@@ -85,29 +88,28 @@ class Client:
         ):
             if r.ok is not None:
                 sample = r.ok
-                out.append(Reply(True, _json(sample.payload.to_bytes()), _cell_of(str(sample.key_expr))))
+                yield Reply(True, _json(sample.payload.to_bytes()), _cell_of(str(sample.key_expr)))
             else:
                 assert r.err is not None
-                out.append(Reply(False, _json(r.err.payload.to_bytes()), None))
-        return out
+                yield Reply(False, _json(r.err.payload.to_bytes()), None)
 
     def request(self, cell: str, op: str, payload: Any = None, timeout: float = 10.0) -> Reply:
-        """The one reply of one cell; a Reply(False, {"error": {"code": "no_reply", ...}}) when none came."""
-        got = self.replies(cell, op, payload, timeout)
-        if not got:
-            return Reply(
-                False,
-                {
-                    "error": {
-                        "code": "no_reply",
-                        "message": f"no reply from {key(cell, op)} within "
-                        f"{timeout:g} s: is the service running and reachable?",
-                        "details": {},
-                    }
-                },
-                None,
-            )
-        return got[0]
+        """The first reply (one cell: its reply, returned as soon as it arrives, without waiting for
+        the end of the query); a Reply(False, {"error": {"code": "no_reply", ...}}) when none came."""
+        for reply in self._replies(cell, op, payload, timeout):
+            return reply
+        return Reply(
+            False,
+            {
+                "error": {
+                    "code": "no_reply",
+                    "message": f"no reply from {key(cell, op)} within "
+                    f"{timeout:g} s: is the service running and reachable?",
+                    "details": {},
+                }
+            },
+            None,
+        )
 
     def follow(self, cell: str, topic: str, callback: Callable[[str, dict[str, Any]], None]) -> Any:
         """Subscribe to ``pvtflow/<cell>/<topic>``; callback(cell, payload). Keep the result alive."""

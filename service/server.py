@@ -18,6 +18,7 @@ import json
 import logging
 import queue
 import threading
+import time
 import traceback
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -150,11 +151,21 @@ class Server:
         }
 
     # --- the pure part: payload in, (ok, JSON bytes) out -------------------------------------------
-    def handle(self, op: str, payload: bytes | None) -> tuple[bool, bytes]:
-        """Answer one request; never raises (a bug becomes an ``internal_error`` reply)."""
+    def handle(self, op: str, payload: bytes | None, received: float | None = None) -> tuple[bool, bytes]:
+        """Answer one request; never raises (a bug becomes an ``internal_error`` reply).
+
+        ``received`` (time.perf_counter() when the query arrived): a plan reply's ``timing_ms``
+        then gets ``service``, the time from the query's arrival to its reply being built (queue,
+        parsing, planning, bookkeeping), so that a client can tell the service's time from the
+        network's.
+        """
         try:
             data = parse_payload(payload)
-            return True, dumps(self.handlers[op](data))
+            out = self.handlers[op](data)
+            if received is not None and op == "plan":
+                service_ms = round((time.perf_counter() - received) * 1000.0, 3)
+                out = {**out, "timing_ms": {**out["timing_ms"], "service": service_ms}}
+            return True, dumps(out)
         except ApiError as exc:
             return False, exc.to_bytes()
         except Exception as exc:  # a bug must not take the service down
@@ -186,16 +197,17 @@ class Server:
 
     def _on_query(self, op: str, query: zenoh.Query) -> None:
         """zenoh callback thread: hand the query to a worker and return at once."""
+        received = time.perf_counter()
         payload = query.payload.to_bytes() if query.payload is not None else None
         pool = self._planning if op in PLANNING_OPS else self._control
         try:
-            pool.submit(self._answer, op, query, payload)
+            pool.submit(self._answer, op, query, payload, received)
         except RuntimeError:  # shutting down
             query.reply_err(ApiError(ErrorCode.NOT_ALLOWED, "the service is shutting down").to_bytes(), encoding=JSON)
             query.drop()
 
-    def _answer(self, op: str, query: zenoh.Query, payload: bytes | None) -> None:
-        ok, body = self.handle(op, payload)
+    def _answer(self, op: str, query: zenoh.Query, payload: bytes | None, received: float) -> None:
+        ok, body = self.handle(op, payload, received)
         try:
             if ok:
                 query.reply(key(self.cell, op), body, encoding=JSON)
