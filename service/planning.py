@@ -5,9 +5,12 @@ drives) take turns on the GIL: a motion runs slower while a plan is computed and
 longer (bench/service_latency.py ``--during``), and on a real cell the SYNC producer would wait up to
 the interpreter's switch interval. :class:`PlanningProcess` keeps one :class:`CellPlanner` in a
 spawned child (spawn, not fork: the parent runs zenoh and CAN threads) built once at start; a plan
-costs one pipe round trip of a few kB of pickles. Same ``plan()`` as CellPlanner. Opt-in
-(``MotionService(planner_process=True)``, ``pvtflow serve --planner-process``): it costs a second
-interpreter (~2 s of start-up CPU, ~150 MB) and ~0.5 ms per plan, and pays off while motions run.
+costs one pipe round trip of a few kB of pickles. Same ``plan()`` as CellPlanner.
+``MotionService(planner_process=True)``; ``pvtflow serve`` uses it wherever SYNC runs on the wall
+clock (a real cell, ``--real-time``: there a GIL held by a plan would delay SYNC, records and a
+bufferless drive's setpoints by up to the switch interval) and not for lockstep simulations
+(``--planner-process on|off`` overrides). It costs a second interpreter (~2 s of start-up CPU,
+~150 MB) and ~0.5-4 ms per plan, and pays off while motions run.
 As with any spawned process, the program's main module must be importable without side effects
 (``if __name__ == "__main__":``).
 """

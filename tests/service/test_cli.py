@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from svc_helpers import CONFIGS, free_port
 
 from service.cli import main
@@ -18,7 +19,8 @@ from service.cli import main
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_serve_prints_how_to_talk_to_it_and_request_plans_and_executes(tmp_path, capsys):
+@pytest.mark.parametrize("planner", ["auto", "on"])
+def test_serve_prints_how_to_talk_to_it_and_request_plans_and_executes(tmp_path, capsys, planner):
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     zconfig = tmp_path / "service.json5"
@@ -42,6 +44,8 @@ def test_serve_prints_how_to_talk_to_it_and_request_plans_and_executes(tmp_path,
             str(zconfig),
             "--journal",
             str(tmp_path / "journal"),
+            "--planner-process",
+            planner,
         ],
         cwd=ROOT,
         stdout=subprocess.PIPE,
@@ -63,6 +67,8 @@ def test_serve_prints_how_to_talk_to_it_and_request_plans_and_executes(tmp_path,
         assert f"listening on {endpoint}" in text, text + proc.stderr.read()
         assert "pvtflow/arm6/{plan,validate,execute,stop,status,recover}" in text
         assert "pvtflow/arm6/alive" in text
+        # a lockstep simulation plans in the service's process unless told otherwise
+        assert ("planner:      in a child process" if planner == "on" else "planner:      in this process") in text
         assert f"pvtflow request status --cell arm6 --connect {endpoint}" in text
 
         assert main(["request", "status", "--connect", endpoint]) == 0
