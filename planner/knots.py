@@ -13,11 +13,12 @@ EPOS2 PVT (``epos2_pvt``), per axis (the axes share only the start SYNC and the 
 2. adaptive refinement: segments are halved while the least-squares cubics (a banded linear
    system over the knot positions and velocities, fitted to the plan at every drive ms) stray
    more than ``fit_fraction * tolerance_qc`` from the plan, or are longer than 255 ms;
-3. quantization: positions to counts (inside 0x607D); where that pushes a cubic over a limit, a
-   QP (casadi, daqp) moves the knot velocities by the least amount that keeps every cubic's end
+3. quantization: positions to counts (inside 0x607D), velocities to the drive's unit; where that
+   pushes a cubic over a limit, its end records are re-rounded (nudged by a count or a few
+   velocity units: cheap, and enough for most segments); what the nudges cannot fix goes to a QP
+   (casadi, daqp) that moves the knot velocities by the least amount that keeps every cubic's end
    accelerations inside 0x60C5 (they are linear in the velocities once the positions are fixed),
-   within the tolerance; velocities are rounded to the drive's unit, and any segment still over a
-   limit is re-rounded (its end records nudged by a count or a few velocity units);
+   within the tolerance, and is kept if its rounded, re-nudged result is better;
 4. the exact reconstruction of the quantized records is checked: a segment that strays more than
    the tolerance, or stays over a limit, is split and steps 3-4 are redone. Where the
    least-squares knots cannot be made to fit the limits, cubics through the exact samples (more
@@ -893,21 +894,17 @@ def _place_epos2(
                 p_fit, v_fit = fitted.P, fitted.V
         P, V = _round_knots(fl, knots, p_fit, v_fit)
         checked = _check_knots(fl, knots, P, V, checked)
+        P, V, checked = _repair_rounds(fl, knots, P, V, checked, tol, settled)
         over = _over(checked.chk)
-        if over.any():
+        if over.any():  # what the nudges could not fix: the exact QP over the window's velocities
             room = np.maximum(tol - checked.chk.seg_deviation, 0.0)
-            v_qp = _velocity_qp(fl, knots, P, v_fit, room, np.flatnonzero(over))
+            v_qp = _velocity_qp(fl, knots, P, V * fl.f[fl.axis_of(knots)], room, np.flatnonzero(over))
             if v_qp is not None:
-                V = _round_knots(fl, knots, p_fit, v_qp)[1]
-                checked = _check_knots(fl, knots, P, V, checked)
-        for _ in range(3):  # rounding the velocities, or fixing one segment, can push another over
-            over = _over(checked.chk)
-            if not over.any():
-                break
-            P, V, moved = _repair(fl, knots, P, V, np.flatnonzero(over), tol, settled)
-            if not moved:  # asked again, the same neighbourhoods give the same answers
-                break
-            checked = _check_knots(fl, knots, P, V, checked)
+                V_qp = _round_knots(fl, knots, p_fit, v_qp)[1]
+                trial = _check_knots(fl, knots, P, V_qp, checked)
+                P_qp, V_qp, trial = _repair_rounds(fl, knots, P, V_qp, trial, tol, settled)
+                if _worst_excess(trial.chk) < _worst_excess(checked.chk):
+                    P, V, checked = P_qp, V_qp, trial
         chk = checked.chk
         T = np.diff(knots)
         bad = np.flatnonzero((chk.seg_deviation > tol) | chk.position_out)
@@ -943,6 +940,33 @@ def _place_epos2(
     for a in range(len(fl.axes)):
         out[int(fl.ids[a])] = _axis_knots(fl, a, knots, P, V, checked.chk, opts.dwell_ms)
     return [out[i] for i in range(len(out))]
+
+
+def _repair_rounds(
+    fl: _Flat,
+    knots: NDArray[np.int64],
+    P: NDArray[np.int64],
+    V: NDArray[np.int64],
+    checked: _Checked,
+    tol: float,
+    settled: dict[bytes, int],
+) -> tuple[NDArray[np.int64], NDArray[np.int64], _Checked]:
+    """``_repair`` the segments over a limit, check, again: fixing one segment can push a
+    neighbour over (at most three rounds; none once the same neighbourhoods give the same answers)."""
+    for _ in range(3):
+        over = _over(checked.chk)
+        if not over.any():
+            break
+        P, V, moved = _repair(fl, knots, P, V, np.flatnonzero(over), tol, settled)
+        if not moved:
+            break
+        checked = _check_knots(fl, knots, P, V, checked)
+    return P, V, checked
+
+
+def _worst_excess(chk: _Check) -> float:
+    """How far the worst segment is over a limit (0 when none is), as a ratio."""
+    return max(float(np.max(chk.velocity_ratio, initial=0.0)), float(np.max(chk.acceleration_ratio, initial=0.0)), 1.0)
 
 
 def _axis_knots(
