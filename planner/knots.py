@@ -181,17 +181,16 @@ def _sample(traj: TimedTrajectory, axes: Sequence[DriveAxis], scale: float) -> _
         jump_joint = np.abs(jump_joint) / (scale * scale)
     else:
         jump_joint = np.zeros((0, len(axes)))
-    pos = np.empty((n + 1, len(axes)))
-    vel = np.empty((n + 1, len(axes)))
-    jump = np.empty((len(bp), len(axes)))
-    for i, a in enumerate(axes):
-        s = a.scaling
-        pos[:, i] = s.position_to_qc(q[:, i])
-        vel[:, i] = s.drive_velocity_to_qc_per_ms(s.velocity_to_drive(qd[:, i]))
-        jump[:, i] = np.abs(s.rpm_s_to_qc_per_ms2(s.acceleration_to_rpm_s(jump_joint[:, i])))
+    # every conversion is affine: each axis's (offset, gain) from its scaling, then all axes at once
+    unit = np.array([0.0, 1.0])
+    pos_0, pos_1 = np.array([a.scaling.position_to_qc(unit) for a in axes]).T
+    vel_1 = np.array([a.scaling.drive_velocity_to_qc_per_ms(a.scaling.velocity_to_drive(1.0)) for a in axes])
+    acc_1 = np.array([a.scaling.rpm_s_to_qc_per_ms2(a.scaling.acceleration_to_rpm_s(1.0)) for a in axes])
+    pos = pos_0 + q * (pos_1 - pos_0)
+    vel = qd * vel_1
     vel[0] = 0.0
     vel[-1] = 0.0
-    return _Samples(scale, n, pos, vel, bp * 1000.0 * scale, jump)
+    return _Samples(scale, n, pos, vel, bp * 1000.0 * scale, jump_joint * np.abs(acc_1))
 
 
 # --- checks shared by every profile --------------------------------------------------------------------
