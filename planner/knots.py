@@ -891,17 +891,17 @@ def _place_epos2(
             else:
                 fitted = _lsq_fit(fl, knots, fitted)
                 p_fit, v_fit = fitted.P, fitted.V
-        P, V = _round_knots(fl, knots, p_fit, v_fit)
-        checked = _check_knots(fl, knots, P, V, checked)
-        P, V, checked = _repair_rounds(fl, knots, P, V, checked, tol, settled)
-        over = _over(checked.chk)
-        if over.any():  # what the nudges could not fix: the exact QP over the window's velocities
-            room = np.maximum(tol - checked.chk.seg_deviation, 0.0)
-            v_qp = _velocity_qp(fl, knots, P, V * fl.f[fl.axis_of(knots)], room, np.flatnonzero(over))
+        P_round, V = _round_knots(fl, knots, p_fit, v_fit)
+        rounded = _check_knots(fl, knots, P_round, V, checked)
+        P, V, checked = _repair_rounds(fl, knots, P_round, V, rounded, tol, settled)
+        if _over(checked.chk).any():  # what the nudges could not fix: the exact QP, from the rounding
+            over = np.flatnonzero(_over(rounded.chk))
+            room = np.maximum(tol - rounded.chk.seg_deviation, 0.0)
+            v_qp = _velocity_qp(fl, knots, P_round, v_fit, room, over)
             if v_qp is not None:
                 V_qp = _round_knots(fl, knots, p_fit, v_qp)[1]
-                trial = _check_knots(fl, knots, P, V_qp, checked)
-                P_qp, V_qp, trial = _repair_rounds(fl, knots, P, V_qp, trial, tol, settled)
+                trial = _check_knots(fl, knots, P_round, V_qp, checked)
+                P_qp, V_qp, trial = _repair_rounds(fl, knots, P_round, V_qp, trial, tol, settled)
                 if _worst_excess(trial.chk) < _worst_excess(checked.chk):
                     P, V, checked = P_qp, V_qp, trial
         chk = checked.chk
