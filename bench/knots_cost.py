@@ -1,0 +1,77 @@
+"""What knot placement costs, by the length of the motion: CPU time of ``place_knots`` on the arm6
+cell for paths drawn in a centred fraction of each joint range (short, acceleration-bound moves
+and long ones), with the placements and slow-down rounds it took.
+
+For each range: ``--paths`` random paths of ``--waypoints`` waypoints, planned with the cell's
+constraints; each placement is timed ``--repeat`` times (best CPU time kept: the VM's speed
+drifts). Prints per range the median motion length, the knot placement p50/p90 (ms), its cost per
+second of motion, records, and how often a path needed more than one round (slow-down).
+
+Run:  python bench/knots_cost.py [--paths 25] [--waypoints 8] [--repeat 3] [--seed 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from planner.knots import place_knots
+from service.config import CONFIG_DIR, load_cell_config
+from service.plan_cmd import CellPlanner
+
+RANGES = (0.2, 0.5, 0.8)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--paths", type=int, default=25)
+    ap.add_argument("--waypoints", type=int, default=8)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=5)
+    args = ap.parse_args()
+
+    cell = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
+    cell_planner = CellPlanner(cell)
+    planner, axes = cell_planner.planner, list(cell_planner.axes)
+    assert planner is not None, cell_planner.setup_error
+    lim = cell.joint_limits()
+    mid, half = (lim.lower + lim.upper) / 2.0, (lim.upper - lim.lower) / 2.0
+    rng = np.random.default_rng(args.seed)
+    print(
+        f"command: python bench/knots_cost.py --paths {args.paths} --waypoints {args.waypoints} "
+        f"--repeat {args.repeat} --seed {args.seed}"
+    )
+    print("range  motion p50  knots p50  knots p90  ms per s of motion  records/axis p50  paths with >1 round")
+    for frac in RANGES:
+        cpu, length, records, rounds = [], [], [], []
+        while len(cpu) < args.paths:
+            wp = mid - frac * half + 2.0 * frac * half * rng.random((args.waypoints, lim.dof))
+            out = planner.plan(wp)
+            if not out.ok or out.trajectory is None:
+                continue  # the spline leaves the limits: draw again
+            best = np.inf
+            for _ in range(args.repeat):
+                start = time.process_time()
+                result = place_knots(out.trajectory, axes)
+                best = min(best, time.process_time() - start)
+            cpu.append(best * 1000.0)
+            length.append(result.duration_ms / 1000.0)
+            records.append(np.mean([len(a.records) for a in result.axes]))
+            rounds.append(result.rounds)
+        c, s = np.array(cpu), np.array(length)
+        print(
+            f"{frac:4.0%}   {np.median(s):7.2f} s  {np.median(c):7.1f} ms  {np.percentile(c, 90):7.1f} ms"
+            f"  {np.median(c / s):12.2f}        {np.median(records):10.0f}        "
+            f"{sum(r > 1 for r in rounds)}/{len(rounds)}"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
