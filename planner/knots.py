@@ -22,8 +22,10 @@ EPOS2 PVT (``epos2_pvt``), per axis (the axes share only the start SYNC and the 
 4. the exact reconstruction of the quantized records is checked: a segment that strays more than
    the tolerance, or stays over a limit, is split and steps 3-4 are redone. Where the
    least-squares knots cannot be made to fit the limits, cubics through the exact samples (more
-   records, more room) are tried and the better of the two is kept (that fallback stops splitting
-   an axis whose segments over a limit do not get fewer: more of the same costs time, not excess);
+   records, more room) are tried and the better of the two is kept. Splitting for a limit stops on
+   an axis whose segments over a limit do not get fewer (more of the same costs time, not excess),
+   and each axis keeps the records of its round that needed the least slow-down (shorter segments
+   feel rounding more: a split can make the excess worse);
 5. where the quantized reconstruction still exceeds 0x607F/0x60C5 (rounding at the limit costs a
    few tenths of a percent), the whole motion is slowed down by the smallest factor the excess
    calls for and the knots are placed again (from the previous ones, stretched). No blanket
@@ -884,6 +886,7 @@ def _place_epos2(
     settled: dict[bytes, int] = {}
     last_stuck = np.full(len(fl.axes), np.iinfo(np.int64).max)  # per axis (by ``ids``), "exact" mode
     out: dict[int, tuple[AxisKnots, float]] = {}
+    best: dict[int, tuple[AxisKnots, float]] = {}  # per axis (by ``ids``): its least slow-down so far
     for _ in range(opts.max_splits):
         if len(p_fit) != len(knots):
             if mode == "exact":
@@ -910,16 +913,22 @@ def _place_epos2(
         bad = bad[T[bad] >= 2]
         # a segment still over a limit with a long span: another knot gives the QP room to fix it
         stuck = np.flatnonzero(_over(chk))
-        if mode == "exact":
-            # the fallback is worth its splits while they help: an axis whose segments over a
-            # limit did not get fewer (and that strays nowhere) stops here, as it is
-            ax_stuck = fl.axis_of(knots[stuck])
-            n_stuck = np.bincount(ax_stuck, minlength=len(fl.axes))
-            strays = np.zeros(len(fl.axes), dtype=bool)
-            strays[fl.axis_of(knots[bad])] = True
-            give_up = (n_stuck > 0) & ~strays & (n_stuck >= last_stuck[fl.ids])
-            last_stuck[fl.ids] = n_stuck
-            stuck = stuck[~give_up[ax_stuck]]
+        # splits are worth it while they help: an axis whose segments over a limit did not get
+        # fewer (and that strays nowhere) stops here, as it is
+        ax_stuck = fl.axis_of(knots[stuck])
+        n_stuck = np.bincount(ax_stuck, minlength=len(fl.axes))
+        strays = np.zeros(len(fl.axes), dtype=bool)
+        strays[fl.axis_of(knots[bad])] = True
+        give_up = (n_stuck > 0) & ~strays & (n_stuck >= last_stuck[fl.ids])
+        last_stuck[fl.ids] = n_stuck
+        stuck = stuck[~give_up[ax_stuck]]
+        # an axis that strays nowhere has a usable program now: keep it if it is the best so far
+        # (splitting for a limit can also make it worse: shorter segments feel rounding more)
+        for a in np.flatnonzero(~strays & (n_stuck > 0)):
+            cand = _axis_knots(fl, int(a), knots, P, V, chk, opts.dwell_ms)
+            kept = best.get(int(fl.ids[a]))
+            if kept is None or cand[1] < kept[1]:
+                best[int(fl.ids[a])] = cand
         bad = np.union1d(bad, stuck[T[stuck] >= 2 * _MIN_SPLIT_MS])
         if not len(bad):
             break
@@ -938,6 +947,9 @@ def _place_epos2(
     assert checked is not None
     for a in range(len(fl.axes)):
         out[int(fl.ids[a])] = _axis_knots(fl, a, knots, P, V, checked.chk, opts.dwell_ms)
+    for i, kept in best.items():
+        if kept[1] < out[i][1]:
+            out[i] = kept
     return [out[i] for i in range(len(out))]
 
 
