@@ -884,7 +884,7 @@ def _place_epos2(
             p_fit, v_fit = fl.p[knots], fl.v[knots]
     checked: _Checked | None = None
     settled: dict[bytes, int] = {}
-    last_stuck = np.full(len(fl.axes), np.iinfo(np.int64).max)  # per axis (by ``ids``), "exact" mode
+    last_stuck = np.full(len(fl.axes), np.iinfo(np.int64).max)  # per axis (by ``ids``): segments over a limit
     out: dict[int, tuple[AxisKnots, float]] = {}
     best: dict[int, tuple[AxisKnots, float]] = {}  # per axis (by ``ids``): its least slow-down so far
     for _ in range(opts.max_splits):

@@ -377,22 +377,31 @@ def _check_epos2(name: str, r: NDArray[np.int64]) -> list[Finding]:
                     "velocity units",
                 )
             )
-        if r[last, 0] != r[last - 1, 0] and last >= 1:
-            d = int(r[last, 0] - r[last - 1, 0])
-            out.append(
-                Finding(
-                    ERROR,
-                    "end-record",
-                    name,
-                    last,
-                    f"the end record must repeat the final position {int(r[last - 1, 0])} qc, differs by {d} qc",
-                    float(abs(d)),
-                    float(r[last, 0]),
-                    float(r[last - 1, 0]),
-                    "qc",
-                )
-            )
+        if last >= 1:
+            out.extend(_repeats_final_position(name, r, "the end record must repeat the final position {} qc"))
     return out
+
+
+def _repeats_final_position(name: str, r: NDArray[np.int64], rule: str) -> list[Finding]:
+    """The end-record finding when the last record does not repeat the one before's position
+    (``rule`` words it for the profile, ``{}`` for that position)."""
+    last = len(r) - 1
+    if r[last, 0] == r[last - 1, 0]:
+        return []
+    d = int(r[last, 0] - r[last - 1, 0])
+    return [
+        Finding(
+            ERROR,
+            "end-record",
+            name,
+            last,
+            rule.format(int(r[last - 1, 0])) + f", differs by {d} qc",
+            float(abs(d)),
+            float(r[last, 0]),
+            float(r[last - 1, 0]),
+            "qc",
+        )
+    ]
 
 
 def _check_fixed_period(axis: AxisProgram, r: NDArray[np.int64]) -> list[Finding]:
@@ -447,22 +456,11 @@ def _check_fixed_period(axis: AxisProgram, r: NDArray[np.int64]) -> list[Finding
                 "velocity units",
             )
         )
-    if r[last, 0] != r[last - 1, 0]:
-        d = int(r[last, 0] - r[last - 1, 0])
-        out.append(
-            Finding(
-                ERROR,
-                "end-record",
-                name,
-                last,
-                f"the motion must end at rest: the last setpoint must repeat the one before "
-                f"({int(r[last - 1, 0])} qc), differs by {d} qc",
-                float(abs(d)),
-                float(r[last, 0]),
-                float(r[last - 1, 0]),
-                "qc",
-            )
+    out.extend(
+        _repeats_final_position(
+            name, r, "the motion must end at rest: the last setpoint must repeat the one before ({} qc)"
         )
+    )
     return out
 
 
