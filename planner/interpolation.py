@@ -14,10 +14,12 @@ conditions p(0) = P0, p'(0) = V0, p(T) = P1, p'(T) = V1.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 DRIVE_SAMPLE_MS = 1.0  # the EPOS2 (and the simulated drives) interpolate at 1 kHz
@@ -99,25 +101,16 @@ class PiecewiseCubic:
         rest).
         """
         if self.interpolation is Interpolation.CUBIC:
-            T = self.duration
-            return np.maximum(np.abs(2.0 * self.c2), np.abs(2.0 * self.c2 + 6.0 * self.c3 * T))
+            shape, flat = _flat(self.c2, self.c3, self.duration)
+            return _peak_accelerations(*flat).reshape(shape)
         v_prev = np.concatenate(([0.0], self.c1[:-1]))
         return np.abs(self.c1 - v_prev) / self.duration
 
     def position_range(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Per segment, exact (min, max) of the position."""
-        T = self.duration
-        p_end = self.c0 + T * (self.c1 + T * (self.c2 + T * self.c3))
-        lo = np.minimum(self.c0, p_end)
-        hi = np.maximum(self.c0, p_end)
-        # interior stationary points: c1 + 2 c2 tau + 3 c3 tau^2 = 0
-        for tau in _velocity_roots(self.c1, self.c2, self.c3):
-            inside = np.isfinite(tau) & (tau > 0.0) & (tau < T)
-            tt = np.where(inside, tau, 0.0)
-            p = self.c0 + tt * (self.c1 + tt * (self.c2 + tt * self.c3))
-            lo = np.where(inside, np.minimum(lo, p), lo)
-            hi = np.where(inside, np.maximum(hi, p), hi)
-        return lo, hi
+        """Per segment, exact (min, max) of the position (``cubic_position_range``)."""
+        shape, flat = _flat(self.c0, self.c1, self.c2, self.c3, self.duration)
+        lo, hi = _position_ranges(*flat)
+        return lo.reshape(shape), hi.reshape(shape)
 
     def sample_times(self, period_ms: float = DRIVE_SAMPLE_MS) -> NDArray[np.float64]:
         """The drive's own sampling instants over the motion (1 kHz from the start SYNC)."""
@@ -125,45 +118,112 @@ class PiecewiseCubic:
         return np.arange(n + 1, dtype=float) * period_ms
 
 
-def _velocity_roots(
-    c1: NDArray[np.float64], c2: NDArray[np.float64], c3: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Both roots of c1 + 2 c2 tau + 3 c3 tau^2 (NaN where there is none)."""
-    a, b, c = 3.0 * c3, 2.0 * c2, c1
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        disc = b * b - 4.0 * a * c
-        sq = np.sqrt(np.where(disc >= 0.0, disc, np.nan))
-        # the cancellation-free form: a parabola's c3 is float noise (1e-18), where (-b + sq) / 2a
-        # would lose the root entirely
-        q = -0.5 * (b + np.where(b >= 0.0, sq, -sq))
-        r1 = np.where(a != 0.0, q / a, np.where(b != 0.0, -c / b, np.nan))
-        r2 = np.where(q != 0.0, c / q, np.where(a != 0.0, 0.0, np.nan))
-    return r1, r2
+# --- the cubic's facts, once ---------------------------------------------------------------------
+# Each is a scalar function compiled with numba: the knot placement's kernels call them per segment,
+# and the array forms below (what the validator and the tests use) loop over them, so there is one
+# implementation of each formula, not a numpy one and a compiled one.
+def _hermite(p0: float, v0: float, p1: float, v1: float, T: float) -> tuple[float, float, float, float]:
+    dp = p1 - p0
+    c2 = (3.0 * dp - (2.0 * v0 + v1) * T) / (T * T)
+    c3 = (-2.0 * dp + (v0 + v1) * T) / (T * T * T)
+    return p0, v0, c2, c3
 
 
-def max_abs_cubic_velocity(
-    c1: NDArray[np.float64], c2: NDArray[np.float64], c3: NDArray[np.float64], T: NDArray[np.float64]
-) -> NDArray[np.float64]:
+hermite = njit(cache=True)(_hermite)  # THE drive cubic: (p0, v0) at tau = 0, (p1, v1) at tau = T
+
+
+@njit(cache=True)
+def cubic_peak_speed(c1: float, c2: float, c3: float, T: float) -> float:
     """max |c1 + 2 c2 tau + 3 c3 tau^2| over tau in [0, T]: the ends, or the vertex -c2 / (3 c3)."""
     v_end = c1 + T * (2.0 * c2 + 3.0 * c3 * T)
-    best = np.maximum(np.abs(c1), np.abs(v_end))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tau = np.where(c3 != 0.0, -c2 / (3.0 * c3), np.nan)
-    inside = np.isfinite(tau) & (tau > 0.0) & (tau < T)
-    tt = np.where(inside, tau, 0.0)
-    v_vertex = c1 + tt * (2.0 * c2 + 3.0 * c3 * tt)
-    return np.where(inside, np.maximum(best, np.abs(v_vertex)), best)
+    best = max(abs(c1), abs(v_end))
+    if c3 != 0.0:
+        tau = -c2 / (3.0 * c3)
+        if tau > 0.0 and tau < T:
+            best = max(best, abs(c1 + tau * (2.0 * c2 + 3.0 * c3 * tau)))
+    return best
+
+
+@njit(cache=True)
+def cubic_peak_acceleration(c2: float, c3: float, T: float) -> float:
+    """A cubic's acceleration is linear: its largest magnitude is at an end."""
+    return max(abs(2.0 * c2), abs(2.0 * c2 + 6.0 * c3 * T))
+
+
+@njit(cache=True)
+def cubic_position_range(c0: float, c1: float, c2: float, c3: float, T: float) -> tuple[float, float]:
+    """Exact (min, max) of c0 + c1 tau + c2 tau^2 + c3 tau^3 over tau in [0, T]."""
+    p_end = c0 + T * (c1 + T * (c2 + T * c3))
+    lo, hi = min(c0, p_end), max(c0, p_end)
+    # interior stationary points: c1 + 2 c2 tau + 3 c3 tau^2 = 0, in the cancellation-free form (a
+    # parabola's c3 is float noise, 1e-18, where (-b + sq) / 2a would lose the root entirely)
+    a, b, c = 3.0 * c3, 2.0 * c2, c1
+    disc = b * b - 4.0 * a * c
+    if not disc >= 0.0:
+        return lo, hi
+    sq = math.sqrt(disc)
+    q = -0.5 * (b + (sq if b >= 0.0 else -sq))
+    r1 = q / a if a != 0.0 else (-c / b if b != 0.0 else math.nan)
+    r2 = c / q if q != 0.0 else (0.0 if a != 0.0 else math.nan)
+    for tau in (r1, r2):
+        if math.isfinite(tau) and tau > 0.0 and tau < T:
+            p = c0 + tau * (c1 + tau * (c2 + tau * c3))
+            lo, hi = min(lo, p), max(hi, p)
+    return lo, hi
+
+
+@njit(cache=True)
+def _peak_speeds(
+    c1: NDArray[np.float64], c2: NDArray[np.float64], c3: NDArray[np.float64], T: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    out = np.empty(len(c1))
+    for k in range(len(c1)):
+        out[k] = cubic_peak_speed(c1[k], c2[k], c3[k], T[k])
+    return out
+
+
+@njit(cache=True)
+def _peak_accelerations(
+    c2: NDArray[np.float64], c3: NDArray[np.float64], T: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    out = np.empty(len(c2))
+    for k in range(len(c2)):
+        out[k] = cubic_peak_acceleration(c2[k], c3[k], T[k])
+    return out
+
+
+@njit(cache=True)
+def _position_ranges(
+    c0: NDArray[np.float64],
+    c1: NDArray[np.float64],
+    c2: NDArray[np.float64],
+    c3: NDArray[np.float64],
+    T: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    lo, hi = np.empty(len(c0)), np.empty(len(c0))
+    for k in range(len(c0)):
+        lo[k], hi[k] = cubic_position_range(c0[k], c1[k], c2[k], c3[k], T[k])
+    return lo, hi
+
+
+def _flat(*xs: ArrayLike) -> tuple[tuple[int, ...], list[NDArray[np.float64]]]:
+    """Broadcast to one shape and flatten (the compiled loops take 1-D float arrays)."""
+    arrs = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in xs))
+    return arrs[0].shape, [np.ascontiguousarray(a).ravel() for a in arrs]
+
+
+def max_abs_cubic_velocity(c1: ArrayLike, c2: ArrayLike, c3: ArrayLike, T: ArrayLike) -> NDArray[np.float64]:
+    """Elementwise ``cubic_peak_speed``."""
+    shape, flat = _flat(c1, c2, c3, T)
+    return _peak_speeds(*flat).reshape(shape)
 
 
 def hermite_coefficients(
     p0: ArrayLike, v0: ArrayLike, p1: ArrayLike, v1: ArrayLike, T: ArrayLike
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """The cubic through (p0, v0) at tau = 0 and (p1, v1) at tau = T: THE drive cubic formula."""
+    """Elementwise ``hermite``: the cubic through (p0, v0) at tau = 0 and (p1, v1) at tau = T."""
     p0, v0, p1, v1, T = (np.asarray(x, dtype=float) for x in (p0, v0, p1, v1, T))
-    dp = p1 - p0
-    c2 = (3.0 * dp - (2.0 * v0 + v1) * T) / (T * T)
-    c3 = (-2.0 * dp + (v0 + v1) * T) / (T * T * T)
-    return p0, v0, c2, c3
+    return _hermite(p0, v0, p1, v1, T)  # the same source as ``hermite``, run by numpy on the arrays
 
 
 def _segments_from_points(

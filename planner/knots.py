@@ -56,6 +56,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
+from planner import knot_kernels as kernels
 from planner.interpolation import LIMIT_RTOL, PiecewiseCubic, exceeds, hermite_coefficients
 from planner.program import FIXED_PERIOD_PROFILES, PROFILES, TIME_MAX_MS, AxisProgram
 
@@ -315,18 +316,15 @@ def _refine(
     pending = knots[:-1]  # start times of the segments still to judge
     for _ in range(max_rounds):
         idx = np.searchsorted(knots, pending)
-        lo, hi = knots[idx], knots[idx + 1]
-        T = (hi - lo).astype(float)
-        c = hermite_coefficients(p[lo], v[lo], p[hi], v[hi], T)
-        tau = np.floor(T[:, None] * _FIT_PROBES[None, :])
-        fit = c[0][:, None] + tau * (c[1][:, None] + tau * (c[2][:, None] + tau * c[3][:, None]))
-        worst = np.abs(fit - p[lo[:, None] + tau.astype(np.int64)]).max(axis=1)
+        T = knots[idx + 1] - knots[idx]
+        worst = kernels.probe_fit(knots, idx, p, v, _FIT_PROBES)
         bad = ((worst > target) & (T >= 2)) | (T > TIME_MAX_MS)
         if not bad.any():
             break
-        mid = (lo[bad] + hi[bad]) // 2
+        lo, hi = knots[idx[bad]], knots[idx[bad] + 1]
+        mid = (lo + hi) // 2
         knots = np.union1d(knots, mid)
-        pending = np.concatenate((lo[bad], mid))
+        pending = np.concatenate((lo, mid))
     return knots
 
 
@@ -495,17 +493,9 @@ class _Fitted:
     worst: NDArray[np.float64] | None  # per segment, None when not asked for
 
 
-def _segment_samples(
-    knots: NDArray[np.int64], segs: NDArray[np.int64], basis: bool
-) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
-    """For the segments ``segs``, over the whole ms inside them (start included, end excluded):
-    (their lengths, the first sample of each, every sample's basis table column if ``basis``
-    else its tau, its plan index). Per-segment values reach the samples by ``np.repeat(x, lengths)``."""
-    T = knots[segs + 1] - knots[segs]
-    first = np.cumsum(T) - T
-    ar = np.arange(int(first[-1] + T[-1]))
-    where = np.repeat(_basis_table().offset[T] - first, T) + ar if basis else ar - np.repeat(first, T)
-    return T, first, where, np.repeat(knots[segs] - first, T) + ar
+_NO_INT = np.zeros(0, dtype=np.int64)
+_NO_FLOAT = np.zeros(0)
+_NO_RHS = np.zeros((4, 0))
 
 
 def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, target: float | None = None) -> _Fitted:
@@ -514,92 +504,45 @@ def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, t
     Least squares over all drive samples: a banded (block-tridiagonal) system, solved in one go
     for all axes (the step between two axes contributes nothing, so the blocks are independent).
     Each axis's ends stay at the plan's start and goal at rest; a faint pull towards the exact
-    samples keeps the system regular.
+    samples keeps the system regular. The right-hand side of every segment unchanged since
+    ``prev`` is reused.
 
     With ``target``, the worst |fit - plan| per segment is returned as well, as far as the
-    comparison with ``target`` needs it: a segment of ``prev`` whose cubic moved by at most d
-    (its ends by dP, dV: d <= max |dP| + 4/27 T (|dV0| + |dV1|)) keeps its verdict when its
-    previous worst is more than d away from the target; only the others are evaluated again.
+    comparison with ``target`` needs it (``knot_kernels.lsq_worst``).
     """
     from scipy.linalg.lapack import dpbsv
 
-    p, v = fl.p, fl.v
     table = _basis_table()
-    n = np.diff(knots)
-    T = n.astype(float)
-    real = _real(fl, knots)
-    nk = len(knots)
-    nseg = nk - 1
-    r = np.zeros((4, nseg))
-    todo = real.copy()
-    same = np.zeros(nseg, dtype=bool)
-    i = np.zeros(nseg, dtype=np.int64)
-    if prev is not None:
-        i = np.minimum(np.searchsorted(prev.knots, knots[:-1]), len(prev.knots) - 2)
-        same = (prev.knots[i] == knots[:-1]) & (prev.knots[i + 1] == knots[1:])
-        r[:, same] = prev.rhs[:, i[same]]
-        todo &= ~same
-    new = np.flatnonzero(todo)
-    b = None
-    if len(new):
-        Tn, first, col, j = _segment_samples(knots, new, basis=True)
-        b = np.take(table.values, col, axis=1)  # (4, samples): the basis cubics at the samples
-        r[:, new] = np.add.reduceat(b * p[j], first, axis=1)
-    G = table.gram[n].transpose(1, 2, 0) * real  # (4, 4, segments)
-    # unknowns z = (P0, V0, P1, V1, ...): segment k touches 2k .. 2k + 3; upper banded form, u = 3
-    m = 2 * nk
-    ab = np.zeros((4, m))
-    rhs = np.zeros(m)
-    span = 2 * (nk - 1)
-    for a in range(4):  # segment k's entries (a, c) sit at 2k + a, 2k + c: one strided slice per pair
-        rhs[a : a + span : 2] += r[a]
-        for c in range(a, 4):
-            ab[3 - (c - a), c : c + span : 2] += G[a, c]
-    tw = np.concatenate(([T[0]], 0.5 * (T[:-1] + T[1:]), [T[-1]]))
-    reg_p, reg_v = 1e-3, 1e-3 * tw * tw
-    ab[3, 0::2] += reg_p
-    ab[3, 1::2] += reg_v
-    rhs[0::2] += reg_p * p[knots]
-    rhs[1::2] += reg_v * v[knots]
-    # pin each axis's ends (per axis: its block is then solved as it would be alone)
-    ends = np.flatnonzero(fl.is_end(knots))
-    big = 1e9 * (1.0 + np.maximum.reduceat(np.abs(ab[3]), 2 * ends[0::2])[fl.axis_of(knots[ends])])
-    ab[3, 2 * ends] += big
-    rhs[2 * ends] += big * p[knots[ends]]
-    ab[3, 2 * ends + 1] += big
+    prev_knots = _NO_INT if prev is None else prev.knots
+    r, same, where = kernels.lsq_rhs(
+        knots, fl.stride, fl.p, table.values, table.offset, prev_knots, _NO_RHS if prev is None else prev.rhs
+    )
+    ends = fl.is_end(knots)
+    ab, rhs = kernels.lsq_system(knots, fl.stride, r, table.gram, fl.p, fl.v, ends)
     # LAPACK's banded Cholesky solve (what scipy.linalg.solveh_banded calls), without its wrapper
     _, z, info = dpbsv(ab, rhs, lower=0, overwrite_ab=1, overwrite_b=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"least-squares knot fit: banded Cholesky solve failed (info {info})")
     P, V = z[0::2], z[1::2]
-    P[ends], V[ends] = p[knots[ends]], 0.0
+    P[ends], V[ends] = fl.p[knots[ends]], 0.0
     if target is None:
         return _Fitted(knots, r, P, V, None)
-    worst = np.zeros(nseg)
-    todo = real.copy()
-    if prev is not None and prev.worst is not None:
-        d = np.maximum(np.abs(P[:-1] - prev.P[i]), np.abs(P[1:] - prev.P[i + 1])) + (4.0 / 27.0) * T * (
-            np.abs(V[:-1] - prev.V[i]) + np.abs(V[1:] - prev.V[i + 1])
-        )
-        d = d * (1.0 + 1e-9) + 1e-9
-        w_prev = prev.worst[i]
-        keep = same & ((w_prev + d <= target) | (w_prev - d > target))
-        worst = np.where(keep, w_prev, 0.0)
-        todo &= ~keep
-    ev = np.flatnonzero(todo)
-    if len(ev):
-        if b is not None and len(ev) == len(new) and np.array_equal(ev, new):
-            Te = Tn  # the same samples as the right-hand side's
-        else:
-            Te, first, col, j = _segment_samples(knots, ev, basis=True)
-            b = np.take(table.values, col, axis=1)
-        fit = (
-            np.repeat(P[ev], Te) * b[0]
-            + np.repeat(V[ev], Te) * b[1]
-            + np.repeat(P[ev + 1], Te) * b[2]
-            + np.repeat(V[ev + 1], Te) * b[3]
-        )
-        worst[ev] = np.maximum.reduceat(np.abs(fit - p[j]), first)
+    keep = prev is not None and prev.worst is not None
+    worst = kernels.lsq_worst(
+        knots,
+        fl.stride,
+        fl.p,
+        table.values,
+        table.offset,
+        np.ascontiguousarray(P),
+        np.ascontiguousarray(V),
+        target,
+        same,
+        where,
+        prev.P if keep else _NO_FLOAT,
+        prev.V if keep else _NO_FLOAT,
+        prev.worst if keep else _NO_FLOAT,
+    )
     return _Fitted(knots, r, P, V, worst)
 
 
@@ -681,68 +624,20 @@ def _check_knots(
     """``_check`` of the quantized knots of all axes at once, per knot segment.
 
     The drive's segment between two records is THE Hermite cubic through their integer positions
-    and velocities (``hermite_coefficients``, as ``epos2_pvt`` builds it), judged by
-    ``PiecewiseCubic``'s exact extrema and at every ms against the plan. Only the segments that
-    differ from ``prev`` are judged (the same two records make the same cubic, with the same
-    extrema and deviation).
+    and velocities (``hermite``, as ``epos2_pvt`` builds it), judged by its exact extrema and at
+    every ms against the plan (``knot_kernels.check_segments``). Only the segments that differ
+    from ``prev`` are judged (the same two records make the same cubic, with the same extrema and
+    deviation).
     """
-    T = np.diff(knots)
-    nseg = len(T)
-    real = _real(fl, knots)
-    seg_dev, rv, ra = np.zeros(nseg), np.zeros(nseg), np.zeros(nseg)
-    out = np.zeros(nseg, dtype=bool)
-    todo = real
-    if prev is not None:
-        i = np.minimum(np.searchsorted(prev.knots, knots[:-1]), len(prev.knots) - 2)
-        same = (
-            (prev.knots[i] == knots[:-1])
-            & (prev.knots[i + 1] == knots[1:])
-            & (prev.P[i] == P[:-1])
-            & (prev.P[i + 1] == P[1:])
-            & (prev.V[i] == V[:-1])
-            & (prev.V[i + 1] == V[1:])
-        )
-        pc = prev.chk
-        seg_dev[same], rv[same], ra[same], out[same] = (
-            pc.seg_deviation[i[same]],
-            pc.velocity_ratio[i[same]],
-            pc.acceleration_ratio[i[same]],
-            pc.position_out[i[same]],
-        )
-        todo = real & ~same
-    ch = np.flatnonzero(todo)
-    if not len(ch):
-        return _Checked(knots, P, V, _Check(seg_dev, rv, ra, out))
-    ax = fl.axis_of(knots[ch])
-    f = fl.f[ax]
-    P0, P1 = P[ch].astype(float), P[ch + 1].astype(float)
-    V1 = V[ch + 1] * f
-    Tc = T[ch]
-    c = hermite_coefficients(P0, V[ch] * f, P1, V1, Tc)
-    cub = PiecewiseCubic(knots[ch].astype(float), Tc.astype(float), *c)
-    rv[ch] = cub.max_abs_velocity() * fl.rv_per[ax]
-    ra[ch] = cub.max_abs_acceleration() * fl.ra_per[ax]
-    # 0x607D: exactly only where the cheap bound (within T (|V0| + |V1|) 4/27 of the ends) reaches it
-    reach = Tc * (np.abs(c[1]) + np.abs(V1)) * (4.0 / 27.0)
-    lo_lim, hi_lim = fl.pos_lo[ax], fl.pos_hi[ax]
-    near = (np.minimum(P0, P1) - reach < lo_lim) | (np.maximum(P0, P1) + reach > hi_lim)
-    if near.any():
-        m = np.flatnonzero(near)
-        lo, hi = PiecewiseCubic(cub.start[m], cub.duration[m], c[0][m], c[1][m], c[2][m], c[3][m]).position_range()
-        out[ch[m]] = (lo < lo_lim[m]) | (hi > hi_lim[m])
-    # deviation at every ms: a segment holds the samples from its start knot on; an axis's last
-    # sample (its goal) belongs to its last segment, at tau = T
-    Tn, first, tau_i, j = _segment_samples(knots, ch, basis=False)
-    tau = tau_i.astype(float)
-    pos = np.repeat(c[0], Tn) + tau * (np.repeat(c[1], Tn) + tau * (np.repeat(c[2], Tn) + tau * np.repeat(c[3], Tn)))
-    dev = np.maximum.reduceat(np.abs(pos - fl.p[j]), first)
-    last = np.flatnonzero((ch == nseg - 1) | ~real[np.minimum(ch + 1, nseg - 1)])  # the axis's goal sample too
-    if len(last):
-        Te = Tc[last].astype(float)
-        p_end = c[0][last] + Te * (c[1][last] + Te * (c[2][last] + Te * c[3][last]))
-        dev[last] = np.maximum(dev[last], np.abs(p_end - fl.p[knots[ch[last] + 1]]))
-    seg_dev[ch] = dev
-    return _Checked(knots, P, V, _Check(seg_dev, rv, ra, out))
+    if prev is None:
+        old = (_NO_INT, _NO_INT, _NO_INT, _NO_FLOAT, _NO_FLOAT, _NO_FLOAT, np.zeros(0, dtype=bool))
+    else:
+        c = prev.chk
+        old = (prev.knots, prev.P, prev.V, c.seg_deviation, c.velocity_ratio, c.acceleration_ratio, c.position_out)
+    dev, rv, ra, out = kernels.check_segments(
+        knots, P, V, fl.stride, fl.f, fl.rv_per, fl.ra_per, fl.pos_lo, fl.pos_hi, fl.p, *old
+    )
+    return _Checked(knots, P, V, _Check(dev, rv, ra, out))
 
 
 def _velocity_qp(
@@ -883,7 +778,6 @@ def _place_epos2(
             knots = _refine(knots, fl.p, fl.v, target, opts.max_splits)
             p_fit, v_fit = fl.p[knots], fl.v[knots]
     checked: _Checked | None = None
-    settled: dict[bytes, int] = {}
     last_stuck = np.full(len(fl.axes), np.iinfo(np.int64).max)  # per axis (by ``ids``): segments over a limit
     out: dict[int, tuple[AxisKnots, float]] = {}
     best: dict[int, tuple[AxisKnots, float]] = {}  # per axis (by ``ids``): its least slow-down so far
@@ -896,7 +790,7 @@ def _place_epos2(
                 p_fit, v_fit = fitted.P, fitted.V
         P_round, V = _round_knots(fl, knots, p_fit, v_fit)
         rounded = _check_knots(fl, knots, P_round, V, checked)
-        P, V, checked = _repair_rounds(fl, knots, P_round, V, rounded, tol, settled)
+        P, V, checked = _repair_rounds(fl, knots, P_round, V, rounded, tol)
         if _over(checked.chk).any():  # what the nudges could not fix: the exact QP, from the rounding
             over = np.flatnonzero(_over(rounded.chk))
             room = np.maximum(tol - rounded.chk.seg_deviation, 0.0)
@@ -904,7 +798,7 @@ def _place_epos2(
             if v_qp is not None:
                 V_qp = _round_knots(fl, knots, p_fit, v_qp)[1]
                 trial = _check_knots(fl, knots, P_round, V_qp, checked)
-                P_qp, V_qp, trial = _repair_rounds(fl, knots, P_round, V_qp, trial, tol, settled)
+                P_qp, V_qp, trial = _repair_rounds(fl, knots, P_round, V_qp, trial, tol)
                 if _worst_excess(trial.chk) < _worst_excess(checked.chk):
                     P, V, checked = P_qp, V_qp, trial
         chk = checked.chk
@@ -960,16 +854,25 @@ def _repair_rounds(
     V: NDArray[np.int64],
     checked: _Checked,
     tol: float,
-    settled: dict[bytes, int],
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], _Checked]:
-    """``_repair`` the segments over a limit, check, again: fixing one segment can push a
-    neighbour over (at most three rounds; none once the same neighbourhoods give the same answers)."""
+    """Re-round the end records of the segments over a limit, check, again: fixing one segment can
+    push a neighbour over (at most three rounds).
+
+    Rounding each number to its nearest integer ignores that a cubic's end accelerations move by
+    6/T^2 per count: on a segment at the limit that alone can cross it. So the two end records of
+    such a segment are nudged by up to 1 count and 2 velocity units (all 225 combinations); among
+    those that keep the knots and the segments' interiors within the tolerance of the plan, the
+    one with the lowest worst limit ratio over the three segments they touch wins
+    (``knot_kernels.repair_segments``).
+    """
     for _ in range(3):
         over = _over(checked.chk)
         if not over.any():
             break
-        P, V, moved = _repair(fl, knots, P, V, np.flatnonzero(over), tol, settled)
-        if not moved:
+        P, V = P.copy(), V.copy()  # repaired in place; ``checked`` keeps the records it judged
+        if not kernels.repair_segments(
+            knots, P, V, np.flatnonzero(over), fl.stride, fl.f, fl.rv_per, fl.ra_per, fl.p, tol
+        ):
             break
         checked = _check_knots(fl, knots, P, V, checked)
     return P, V, checked
@@ -1033,177 +936,6 @@ def _epos2_axes(
                 if res[1] < results[i][1]:
                     results[i] = res
     return [results[i] for i in range(len(axes))]
-
-
-# every combination of these count / velocity-unit nudges of a segment's two end records is tried
-_NUDGE_P = np.arange(-1, 2)
-_NUDGE_V = np.arange(-2, 3)
-_COMBOS = np.stack(np.meshgrid(_NUDGE_P, _NUDGE_V, _NUDGE_P, _NUDGE_V, indexing="ij"), axis=-1).reshape(-1, 4)
-_PROBES = np.array([0.25, 0.5, 0.75])  # where inside a segment the deviation of a nudge is judged
-_WINDOW = np.arange(-1, 3)  # knots s-1 .. s+2 around the ends (s, s+1) of a repaired segment s
-_ZERO = np.zeros(len(_COMBOS), dtype=np.int64)
-_COMBO_P = np.column_stack((_ZERO, _COMBOS[:, 0], _COMBOS[:, 2], _ZERO))  # (C, 4): per knot of the window
-_COMBO_V = np.column_stack((_ZERO, _COMBOS[:, 1], _COMBOS[:, 3], _ZERO))
-_COMBO_NONE = int(np.flatnonzero(~_COMBOS.any(axis=1))[0])  # the combination that moves nothing
-_END_P = np.repeat(_NUDGE_P, len(_NUDGE_V))  # the 15 nudges (count, velocity unit) of one knot
-_END_V = np.tile(_NUDGE_V, len(_NUDGE_P))
-_END0 = np.arange(len(_COMBOS)) // len(_END_P)  # per combination: its nudge of knot s ...
-_END1 = np.arange(len(_COMBOS)) % len(_END_P)  # ... and of knot s + 1
-# per (knot s free, knot s + 1 free) as 2 a + b: the combinations that move only free knots
-_STILL0, _STILL1 = ~_COMBOS[:, :2].any(axis=1), ~_COMBOS[:, 2:].any(axis=1)
-_ALLOWED = np.array([(_STILL0 | a) & (_STILL1 | b) for a in (False, True) for b in (False, True)])
-_SIDE = np.repeat([0, 1, 2], [len(_END_P), len(_COMBOS), len(_END_P)])  # column -> segment s-1, s, s+1
-
-
-def _nudge_judge(
-    fl: _Flat,
-    ax: NDArray[np.int64],
-    P0: NDArray[np.float64],
-    V0: NDArray[np.float64],
-    P1: NDArray[np.float64],
-    V1: NDArray[np.float64],
-    T: NDArray[np.float64],
-    k0: NDArray[np.int64],
-    ok: NDArray[np.bool_],
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The candidate cubics of one segment, a row per repair (S, n): their worst |cubic - plan| at
-    the probes and their worst limit ratio, both 0 where the row has no such segment."""
-    c = hermite_coefficients(P0, V0, P1, V1, T)
-    tau = np.floor(_PROBES[:, None, None] * T[None])  # (probes, S, n)
-    h = c[0] + tau * (c[1] + tau * (c[2] + tau * c[3]))
-    plan_at = fl.p[np.minimum(k0[None] + tau.astype(np.int64), len(fl.p) - 1)]
-    inner = np.abs(h - plan_at).max(axis=0)
-    cub = PiecewiseCubic(T, T, *c)  # elementwise: the exact extrema of every candidate cubic
-    rv = cub.max_abs_velocity() * fl.rv_per[ax][:, None]
-    ra = cub.max_abs_acceleration() * fl.ra_per[ax][:, None]
-    return np.where(ok, inner, 0.0), np.where(ok, np.maximum(rv, ra), 0.0)
-
-
-def _repair(
-    fl: _Flat,
-    knots: NDArray[np.int64],
-    P: NDArray[np.int64],
-    V: NDArray[np.int64],
-    segments: NDArray[np.int64],
-    tolerance: float,
-    settled: dict[bytes, int],
-) -> tuple[NDArray[np.int64], NDArray[np.int64], bool]:
-    """Re-round the end knots of segments whose quantized reconstruction exceeds a limit.
-
-    Rounding each number to its nearest integer ignores that a cubic's end accelerations move
-    by 6/T^2 per count: on a segment at the limit that alone can cross it. Here the two end
-    records of such a segment are nudged by up to 1 count and 2 velocity units (all 225
-    combinations at once); among those that keep the knots and the segments' interiors within
-    the tolerance of the plan, the one with the lowest worst limit ratio over the three segments
-    they touch wins.
-
-    Segments 3 or more apart touch different knots: they are solved together (all axes at once),
-    in waves (``_waves``), each seeing the waves before it. ``settled`` remembers
-    the answer (the nudge, or -1: none helps) for every neighbourhood (knots, counts, velocities)
-    already solved: asked again, the answer is the same, so it is not computed again (the main
-    loop asks again after every split). Returns (P, V, whether anything moved).
-    """
-    P, V = P.copy(), V.copy()
-    moved = False
-    for sel in _waves(fl, knots, segments):
-        moved |= _repair_wave(fl, knots, P, V, sel, tolerance, settled)
-    return P, V, moved
-
-
-def _waves(fl: _Flat, knots: NDArray[np.int64], segments: NDArray[np.int64]) -> list[NDArray[np.int64]]:
-    """``segments`` (sorted) in the fewest waves that give the answer of the four mod-4 waves.
-
-    A repair of segment s reads knots s-1 .. s+2 and moves s, s+1: segments 3 or more apart (or
-    on different axes) neither read nor move each other's knots, so only the order of two within
-    2 of each other matters, and that is kept (the one of the lower class, its place on its axis
-    mod 4, first). Each segment goes into the first wave after every such segment before it: an
-    over-limit segment alone in its neighbourhood is repaired in the first wave, not its class's.
-    """
-    ax = fl.axis_of(knots[segments])
-    cls = (segments - np.searchsorted(knots, ax * fl.stride)) % 4  # the segment's place on its own axis
-    n = len(segments)
-    level = np.zeros(n, dtype=np.int64)
-    for w in range(1, 4):
-        for i in np.flatnonzero(cls == w):
-            for j in range(max(i - 2, 0), min(i + 3, n)):
-                if cls[j] < w and ax[j] == ax[i] and abs(int(segments[j]) - int(segments[i])) <= 2:
-                    level[i] = max(level[i], level[j] + 1)
-    return [segments[level == lv] for lv in range(int(level.max()) + 1 if n else 0)]
-
-
-def _window_keys(
-    fl: _Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64], idx: NDArray[np.int64]
-) -> list[bytes]:
-    """One key per row of ``idx`` (knot indices): what a repair of that neighbourhood depends on
-    (the axis, and its knots in its own ms, counts and velocities: it holds across ``subset``)."""
-    kn = knots[idx]
-    ax = fl.ids[fl.axis_of(kn[:, 1:2])]
-    return [row.tobytes() for row in np.concatenate((ax, kn % fl.stride, P[idx], V[idx]), axis=1)]
-
-
-def _repair_wave(
-    fl: _Flat,
-    knots: NDArray[np.int64],
-    P: NDArray[np.int64],
-    V: NDArray[np.int64],
-    s: NDArray[np.int64],
-    tolerance: float,
-    settled: dict[bytes, int],
-) -> bool:
-    """``_repair`` of segments ``s`` (none within 3 of another) at once, in place in ``P``, ``V``."""
-    nk = len(knots)
-    idx_c = np.clip(s[:, None] + _WINDOW[None, :], 0, nk - 1)
-    keys = _window_keys(fl, knots, P, V, idx_c)
-    known = np.array([settled.get(k, -2) for k in keys])
-    moved = False
-    done = known >= -1
-    if done.any():  # asked before: the same answer, without asking
-        go = np.flatnonzero(known >= 0)
-        for j in (1, 2):
-            P[idx_c[go, j]] += _COMBO_P[known[go], j]
-            V[idx_c[go, j]] += _COMBO_V[known[go], j]
-        moved = len(go) > 0
-        if done.all():
-            return moved
-        s, idx_c = s[~done], idx_c[~done]
-        keys = [k for k, d in zip(keys, done, strict=True) if not d]
-    idx = s[:, None] + _WINDOW[None, :]  # (S, 4): knots s-1 .. s+2
-    ax = fl.axis_of(knots[s])
-    kn = knots[idx_c]
-    rec_ok = (idx >= 0) & (idx < nk) & (fl.axis_of(kn) == ax[:, None])  # knots of the same axis
-    seg_ok = rec_ok[:, :-1] & rec_ok[:, 1:]  # (S, 3): segments s-1, s, s+1
-    free = ~fl.is_end(kn[:, 1:3])  # (S, 2): the two ends may move
-    allowed = _ALLOWED[2 * free[:, 0] + free[:, 1]]  # (S, C)
-    f = fl.f[ax][:, None]
-    T = np.where(seg_ok, np.diff(kn, axis=1), 1).astype(float)  # (S, 3)
-    p = fl.p
-    Pw, Vw = P[idx_c], V[idx_c]
-    # segment s-1 sees only the nudge of knot s, segment s+1 only that of knot s + 1 (15 each):
-    # they are judged on those and spread over the 225 combinations by _END0 / _END1
-    Ps, Vs = Pw[:, 1:2] + _END_P[None], (Vw[:, 1:2] + _END_V[None]) * f  # (S, 15): knot s nudged
-    Pe, Ve = Pw[:, 2:3] + _END_P[None], (Vw[:, 2:3] + _END_V[None]) * f  # knot s + 1 nudged
-    # the three segments' candidates side by side (S, 15 + 225 + 15): one evaluation for all
-    n_e = len(_END_P)
-    P0 = np.concatenate((np.broadcast_to(Pw[:, 0:1], Ps.shape), Ps[:, _END0], Pe), axis=1)
-    V0 = np.concatenate((np.broadcast_to(Vw[:, 0:1] * f, Vs.shape), Vs[:, _END0], Ve), axis=1)
-    P1 = np.concatenate((Ps, Pe[:, _END1], np.broadcast_to(Pw[:, 3:4], Pe.shape)), axis=1)
-    V1 = np.concatenate((Vs, Ve[:, _END1], np.broadcast_to(Vw[:, 3:4] * f, Ve.shape)), axis=1)
-    inner, ratio = _nudge_judge(fl, ax, P0, V0, P1, V1, T[:, _SIDE], kn[:, _SIDE], seg_ok[:, _SIDE])
-    left, mid, right = (slice(0, n_e), slice(n_e, n_e + len(_COMBOS)), slice(n_e + len(_COMBOS), None))
-    # deviation at the knots (the two that move; the fixed ones as they are) and inside each segment
-    fixed_dev = np.where(rec_ok[:, [0, 3]], np.abs(Pw[:, [0, 3]] - p[kn[:, [0, 3]]]), 0.0).max(axis=1)
-    dev_s = np.maximum(np.abs(Ps - p[kn[:, 1:2]]), inner[:, left])  # (S, 15)
-    dev_e = np.maximum(np.abs(Pe - p[kn[:, 2:3]]), inner[:, right])
-    dev = np.maximum(np.maximum(dev_s[:, _END0], dev_e[:, _END1]), np.maximum(inner[:, mid], fixed_dev[:, None]))
-    worst = np.maximum(ratio[:, mid], np.maximum(ratio[:, left][:, _END0], ratio[:, right][:, _END1]))  # (S, C)
-    worst = np.where((dev <= tolerance) & allowed, worst + 1e-6 * dev, np.inf)
-    best = np.argmin(worst, axis=1)
-    ok = np.isfinite(worst[np.arange(len(s)), best]) & (best != _COMBO_NONE)
-    for j in (1, 2):  # only the two ends move
-        P[idx_c[ok, j]] += _COMBO_P[best[ok], j]
-        V[idx_c[ok, j]] += _COMBO_V[best[ok], j]
-    settled.update(zip(keys, np.where(ok, best, -1).tolist(), strict=True))
-    return moved or bool(ok.any())
 
 
 def _over(chk: _Check) -> NDArray[np.bool_]:

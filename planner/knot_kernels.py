@@ -1,0 +1,384 @@
+"""The per-segment loops of knot placement (planner.knots), compiled with numba.
+
+Knot placement judges hundreds of short cubics many times over: each judgement is a handful of
+flops, so in numpy its cost was the fixed price of the calls, not the arithmetic. These loops do
+the same judgements segment by segment in compiled code. They hold no formula of their own: the
+cubic and its extrema are ``planner.interpolation``'s (``hermite``, ``cubic_peak_speed``, ...).
+
+Layout (as in ``knots._Flat``): all EPOS2 axes' plan samples end to end, axis ``a``'s ms ``j``
+at flat index ``a * stride + j``; ``knots`` are sorted flat indices; a knot segment whose two
+knots lie on different axes is the step between two axes, not a segment, and is skipped. Units
+are the drive's: qc, velocity units (``f`` qc/ms each), ms.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from planner.interpolation import cubic_peak_acceleration, cubic_peak_speed, cubic_position_range, hermite
+
+_F = NDArray[np.float64]
+_I = NDArray[np.int64]
+
+
+@njit(cache=True)
+def _horner(c0: float, c1: float, c2: float, c3: float, tau: float) -> float:
+    return c0 + tau * (c1 + tau * (c2 + tau * c3))
+
+
+@njit(cache=True)
+def _prev_segment(prev_knots: _I, j: int, k0: int, k1: int) -> tuple[int, bool]:
+    """Advance ``j`` to the previous knots' segment starting at k0; whether it is k0 .. k1."""
+    while j < len(prev_knots) - 2 and prev_knots[j] < k0:
+        j += 1
+    return j, len(prev_knots) >= 2 and prev_knots[j] == k0 and prev_knots[j + 1] == k1
+
+
+@njit(cache=True)
+def check_segments(
+    knots: _I,
+    P: _I,
+    V: _I,
+    stride: int,
+    f: _F,
+    rv_per: _F,
+    ra_per: _F,
+    pos_lo: _F,
+    pos_hi: _F,
+    plan: _F,
+    prev_knots: _I,
+    prev_P: _I,
+    prev_V: _I,
+    prev_dev: _F,
+    prev_rv: _F,
+    prev_ra: _F,
+    prev_out: NDArray[np.bool_],
+) -> tuple[_F, _F, _F, NDArray[np.bool_]]:
+    """Per knot segment, the quantized records' cubic judged exactly: worst |cubic - plan| at every
+    ms (an axis's last segment also at its goal), max |v| / 0x607F, max |a| / 0x60C5, and whether
+    it leaves 0x607D. A segment whose two records equal the previous check's keeps its verdict."""
+    nseg = len(knots) - 1
+    dev, rv, ra = np.zeros(nseg), np.zeros(nseg), np.zeros(nseg)
+    out = np.zeros(nseg, dtype=np.bool_)
+    j = 0
+    for k in range(nseg):
+        k0, k1 = knots[k], knots[k + 1]
+        a = k0 // stride
+        if k1 // stride != a:
+            continue
+        j, same = _prev_segment(prev_knots, j, k0, k1)
+        if same and prev_P[j] == P[k] and prev_P[j + 1] == P[k + 1] and prev_V[j] == V[k] and prev_V[j + 1] == V[k + 1]:
+            dev[k], rv[k], ra[k], out[k] = prev_dev[j], prev_rv[j], prev_ra[j], prev_out[j]
+            continue
+        T = float(k1 - k0)
+        p0, p1 = float(P[k]), float(P[k + 1])
+        v1 = V[k + 1] * f[a]
+        c0, c1, c2, c3 = hermite(p0, V[k] * f[a], p1, v1, T)
+        rv[k] = cubic_peak_speed(c1, c2, c3, T) * rv_per[a]
+        ra[k] = cubic_peak_acceleration(c2, c3, T) * ra_per[a]
+        # 0x607D: exactly only where the cheap bound (within T (|V0| + |V1|) 4/27 of the ends) reaches it
+        reach = T * (abs(c1) + abs(v1)) * (4.0 / 27.0)
+        if min(p0, p1) - reach < pos_lo[a] or max(p0, p1) + reach > pos_hi[a]:
+            lo, hi = cubic_position_range(c0, c1, c2, c3, T)
+            out[k] = lo < pos_lo[a] or hi > pos_hi[a]
+        worst = 0.0
+        for t in range(k1 - k0):
+            worst = max(worst, abs(_horner(c0, c1, c2, c3, float(t)) - plan[k0 + t]))
+        if k == nseg - 1 or knots[k + 2] // stride != a:  # the axis's goal sample belongs to its last segment
+            worst = max(worst, abs(_horner(c0, c1, c2, c3, T) - plan[k1]))
+        dev[k] = worst
+    return dev, rv, ra, out
+
+
+@njit(cache=True)
+def probe_fit(knots: _I, segments: _I, p: _F, v: _F, probes: _F) -> _F:
+    """For the knot ``segments``, the worst |cubic through the exact samples - plan| at the whole
+    ms ``floor(T * probes)`` (a cheap first cut of the refinement)."""
+    worst = np.zeros(len(segments))
+    for n in range(len(segments)):
+        lo, hi = knots[segments[n]], knots[segments[n] + 1]
+        T = float(hi - lo)
+        c0, c1, c2, c3 = hermite(p[lo], v[lo], p[hi], v[hi], T)
+        w = 0.0
+        for x in probes:
+            tau = np.floor(T * x)
+            w = max(w, abs(_horner(c0, c1, c2, c3, tau) - p[lo + int(tau)]))
+        worst[n] = w
+    return worst
+
+
+@njit(cache=True)
+def lsq_rhs(
+    knots: _I, stride: int, plan: _F, values: _F, offset: _I, prev_knots: _I, prev_rhs: _F
+) -> tuple[_F, NDArray[np.bool_], _I]:
+    """Per knot segment, its four basis cubics against the plan summed over its samples (the
+    least-squares right-hand side; ``values[:, offset[T] + tau]`` is basis cubic b at tau for
+    length T). Reused from ``prev_rhs`` where the segment is unchanged. Also returns, per
+    segment, whether it is unchanged and its index in ``prev_knots``."""
+    nseg = len(knots) - 1
+    r = np.zeros((4, nseg))
+    same = np.zeros(nseg, dtype=np.bool_)
+    where = np.zeros(nseg, dtype=np.int64)
+    j = 0
+    for k in range(nseg):
+        k0, k1 = knots[k], knots[k + 1]
+        j, same_k = _prev_segment(prev_knots, j, k0, k1)
+        where[k] = j
+        if k1 // stride != k0 // stride:
+            continue
+        if same_k:
+            same[k] = True
+            for b in range(4):
+                r[b, k] = prev_rhs[b, j]
+            continue
+        base = offset[k1 - k0]
+        for b in range(4):
+            s = 0.0
+            for t in range(k1 - k0):
+                s += values[b, base + t] * plan[k0 + t]
+            r[b, k] = s
+    return r, same, where
+
+
+@njit(cache=True)
+def lsq_worst(
+    knots: _I,
+    stride: int,
+    plan: _F,
+    values: _F,
+    offset: _I,
+    P: _F,
+    V: _F,
+    target: float,
+    same: NDArray[np.bool_],
+    where: _I,
+    prev_P: _F,
+    prev_V: _F,
+    prev_worst: _F,
+) -> _F:
+    """Per knot segment, the worst |least-squares cubic - plan| over its samples, as far as the
+    comparison with ``target`` needs it: an unchanged segment whose cubic moved by at most d (its
+    ends by dP, dV: d <= max |dP| + 4/27 T (|dV0| + |dV1|)) keeps its previous worst when that is
+    more than d away from the target (``prev_worst`` empty: no previous fit)."""
+    nseg = len(knots) - 1
+    worst = np.zeros(nseg)
+    for k in range(nseg):
+        k0, k1 = knots[k], knots[k + 1]
+        if k1 // stride != k0 // stride:
+            continue
+        T = float(k1 - k0)
+        if same[k] and len(prev_worst):
+            i = where[k]
+            d = max(abs(P[k] - prev_P[i]), abs(P[k + 1] - prev_P[i + 1])) + (4.0 / 27.0) * T * (
+                abs(V[k] - prev_V[i]) + abs(V[k + 1] - prev_V[i + 1])
+            )
+            d = d * (1.0 + 1e-9) + 1e-9
+            w = prev_worst[i]
+            if w + d <= target or w - d > target:
+                worst[k] = w
+                continue
+        base = offset[k1 - k0]
+        w = 0.0
+        for t in range(k1 - k0):
+            fit = (
+                P[k] * values[0, base + t]
+                + V[k] * values[1, base + t]
+                + P[k + 1] * values[2, base + t]
+                + V[k + 1] * values[3, base + t]
+            )
+            w = max(w, abs(fit - plan[k0 + t]))
+        worst[k] = w
+    return worst
+
+
+@njit(cache=True)
+def lsq_system(knots: _I, stride: int, r: _F, gram: _F, p: _F, v: _F, ends: NDArray[np.bool_]) -> tuple[_F, _F]:
+    """The least-squares normal equations over z = (P0, V0, P1, V1, ...) in LAPACK's upper banded
+    form (u = 3): each segment's Gram matrix and right-hand side, a faint pull towards the exact
+    samples (keeps the system regular), and each axis's end knots pinned at the plan, at rest."""
+    nk = len(knots)
+    m = 2 * nk
+    ab = np.zeros((4, m))
+    rhs = np.zeros(m)
+    for k in range(nk - 1):
+        k0, k1 = knots[k], knots[k + 1]
+        if k1 // stride != k0 // stride:
+            continue
+        n = k1 - k0
+        for a in range(4):
+            rhs[2 * k + a] += r[a, k]
+            for c in range(a, 4):
+                ab[3 - (c - a), 2 * k + c] += gram[n, a, c]
+    for k in range(nk):
+        tw = (
+            float(knots[k + 1] - knots[k])
+            if k == 0
+            else (float(knots[k] - knots[k - 1]) if k == nk - 1 else 0.5 * float(knots[k + 1] - knots[k - 1]))
+        )
+        reg_v = 1e-3 * tw * tw
+        ab[3, 2 * k] += 1e-3
+        ab[3, 2 * k + 1] += reg_v
+        rhs[2 * k] += 1e-3 * p[knots[k]]
+        rhs[2 * k + 1] += reg_v * v[knots[k]]
+    # pin each axis's ends, with a weight far above its block's diagonal (per axis: its block is
+    # then solved as it would be alone)
+    k = 0
+    while k < nk:
+        a = knots[k] // stride
+        e = k
+        big = 0.0
+        while e < nk and knots[e] // stride == a:
+            big = max(big, abs(ab[3, 2 * e]), abs(ab[3, 2 * e + 1]))
+            e += 1
+        big = 1e9 * (1.0 + big)
+        for i in (k, e - 1):
+            if ends[i]:
+                ab[3, 2 * i] += big
+                rhs[2 * i] += big * p[knots[i]]
+                ab[3, 2 * i + 1] += big
+        k = e
+    return ab, rhs
+
+
+# --- the integer repair --------------------------------------------------------------------------
+# every combination of these count / velocity-unit nudges of a segment's two end records is tried:
+# nudge e of one knot is (e // 5 - 1) counts and (e % 5 - 2) velocity units; combination
+# c = 15 e0 + e1 nudges the segment's start knot by e0 and its end knot by e1
+_N_END = 15
+_STILL = 7  # the nudge that moves nothing
+_PROBES = (0.25, 0.5, 0.75)  # where inside a segment the deviation of a nudge is judged
+
+
+@njit(cache=True)
+def _nudged_cubic(
+    p0: float, v0: float, p1: float, v1: float, T: float, k0: int, plan: _F, rv_per: float, ra_per: float
+) -> tuple[float, float]:
+    """A candidate cubic's worst |cubic - plan| at the probes and its worst limit ratio."""
+    c0, c1, c2, c3 = hermite(p0, v0, p1, v1, T)
+    inner = 0.0
+    last = len(plan) - 1
+    for x in _PROBES:
+        tau = np.floor(x * T)
+        inner = max(inner, abs(_horner(c0, c1, c2, c3, tau) - plan[min(k0 + int(tau), last)]))
+    ratio = max(cubic_peak_speed(c1, c2, c3, T) * rv_per, cubic_peak_acceleration(c2, c3, T) * ra_per)
+    return inner, ratio
+
+
+@njit(cache=True)
+def _repair_segment(
+    knots: _I, P: _I, V: _I, s: int, stride: int, f: float, rv_per: float, ra_per: float, plan: _F, tol: float
+) -> bool:
+    """Re-round the two end records of segment ``s`` (in place): among the nudges that keep the
+    knots and the three segments they touch within ``tol`` of the plan, the one with the lowest
+    worst limit ratio over those segments (ties: the smallest deviation, then the first)."""
+    nk = len(knots)
+    a = knots[s] // stride
+    has_left = s >= 1 and knots[s - 1] // stride == a
+    has_right = s + 2 < nk and knots[s + 2] // stride == a
+    free0 = knots[s] % stride != 0 and knots[s] % stride != stride - 1  # an axis's ends never move
+    free1 = knots[s + 1] % stride != 0 and knots[s + 1] % stride != stride - 1
+    fixed_dev = 0.0
+    if has_left:
+        fixed_dev = max(fixed_dev, abs(P[s - 1] - plan[knots[s - 1]]))
+    if has_right:
+        fixed_dev = max(fixed_dev, abs(P[s + 2] - plan[knots[s + 2]]))
+    # the side segments see the nudge of one knot only: 15 each
+    dev_s, ratio_s = np.zeros(_N_END), np.zeros(_N_END)
+    dev_e, ratio_e = np.zeros(_N_END), np.zeros(_N_END)
+    for e in range(_N_END):
+        ps, vs = P[s] + e // 5 - 1, (V[s] + e % 5 - 2) * f
+        pe, ve = P[s + 1] + e // 5 - 1, (V[s + 1] + e % 5 - 2) * f
+        inner_s, inner_e = 0.0, 0.0
+        if has_left:
+            T = float(knots[s] - knots[s - 1])
+            inner_s, ratio_s[e] = _nudged_cubic(
+                float(P[s - 1]), V[s - 1] * f, float(ps), vs, T, knots[s - 1], plan, rv_per, ra_per
+            )
+        if has_right:
+            T = float(knots[s + 2] - knots[s + 1])
+            inner_e, ratio_e[e] = _nudged_cubic(
+                float(pe), ve, float(P[s + 2]), V[s + 2] * f, T, knots[s + 1], plan, rv_per, ra_per
+            )
+        dev_s[e] = max(abs(ps - plan[knots[s]]), inner_s)
+        dev_e[e] = max(abs(pe - plan[knots[s + 1]]), inner_e)
+    T = float(knots[s + 1] - knots[s])
+    best, best_score = -1, np.inf
+    for e0 in range(_N_END):
+        if not free0 and e0 != _STILL:
+            continue
+        for e1 in range(_N_END):
+            if not free1 and e1 != _STILL:
+                continue
+            inner, ratio = _nudged_cubic(
+                float(P[s] + e0 // 5 - 1),
+                (V[s] + e0 % 5 - 2) * f,
+                float(P[s + 1] + e1 // 5 - 1),
+                (V[s + 1] + e1 % 5 - 2) * f,
+                T,
+                knots[s],
+                plan,
+                rv_per,
+                ra_per,
+            )
+            dev = max(max(dev_s[e0], dev_e[e1]), max(inner, fixed_dev))
+            if dev > tol:
+                continue
+            score = max(ratio, max(ratio_s[e0], ratio_e[e1])) + 1e-6 * dev
+            if score < best_score:
+                best, best_score = _N_END * e0 + e1, score
+    if best < 0 or best == _N_END * _STILL + _STILL:
+        return False
+    e0, e1 = best // _N_END, best % _N_END
+    P[s] += e0 // 5 - 1
+    V[s] += e0 % 5 - 2
+    P[s + 1] += e1 // 5 - 1
+    V[s + 1] += e1 % 5 - 2
+    return True
+
+
+@njit(cache=True)
+def repair_segments(
+    knots: _I, P: _I, V: _I, segments: _I, stride: int, f: _F, rv_per: _F, ra_per: _F, plan: _F, tol: float
+) -> bool:
+    """``_repair_segment`` every segment of ``segments`` (sorted), in place; whether any moved.
+
+    A repair of segment s reads knots s-1 .. s+2 and moves s, s+1, so only the order of two
+    segments within 2 of each other on one axis matters. That order is fixed: the one of the lower
+    class (its place on its axis mod 4) first, each segment in the first wave after every such
+    segment before it; within a wave no two segments touch, so repairing them one after the other
+    is repairing them at once.
+    """
+    n = len(segments)
+    cls = np.empty(n, dtype=np.int64)
+    first = 0  # index of the first knot of the current segment's axis
+    for i in range(n):
+        s = segments[i]
+        a = knots[s] // stride
+        if knots[first] // stride != a or first > s:
+            first = s
+            while first > 0 and knots[first - 1] // stride == a:
+                first -= 1
+        cls[i] = (s - first) % 4
+    level = np.zeros(n, dtype=np.int64)
+    for w in range(1, 4):
+        for i in range(n):
+            if cls[i] != w:
+                continue
+            for j in range(max(i - 2, 0), min(i + 3, n)):
+                if (
+                    cls[j] < w
+                    and knots[segments[j]] // stride == knots[segments[i]] // stride
+                    and abs(segments[j] - segments[i]) <= 2
+                ):
+                    level[i] = max(level[i], level[j] + 1)
+    moved = False
+    top = level.max() if n else -1
+    for lv in range(top + 1):
+        for i in range(n):
+            if level[i] == lv:
+                s = segments[i]
+                a = knots[s] // stride
+                moved |= _repair_segment(knots, P, V, s, stride, f[a], rv_per[a], ra_per[a], plan, tol)
+    return moved
