@@ -70,9 +70,9 @@ class TimedTrajectory(Protocol):
     @property
     def breakpoints(self) -> NDArray[np.float64]: ...
 
-    def states(self, t: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...  # positions, velocities
+    def states(self, t: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...  # q, q' (dof, len(t))
 
-    def acceleration(self, t: Any) -> NDArray[np.float64]: ...
+    def acceleration_jumps(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...  # times, (n, dof)
 
 
 class KnotError(ValueError):
@@ -165,8 +165,8 @@ class _Samples:
 
     scale: float
     n_ms: int  # last sample index: samples at 0..n_ms ms
-    position: NDArray[np.float64]  # (n_ms + 1, dof) qc
-    velocity: NDArray[np.float64]  # (n_ms + 1, dof) qc/ms
+    position: NDArray[np.float64]  # (dof, n_ms + 1) qc
+    velocity: NDArray[np.float64]  # (dof, n_ms + 1) qc/ms
     switch_ms: NDArray[np.float64]  # breakpoint times (ms)
     jump: NDArray[np.float64]  # (len(switch_ms), dof) |acceleration jump| qc/ms^2
 
@@ -174,26 +174,19 @@ class _Samples:
 def _sample(traj: TimedTrajectory, axes: Sequence[DriveAxis], scale: float) -> _Samples:
     duration_ms = traj.duration * 1000.0 * scale
     n = max(1, math.ceil(duration_ms - 1e-6))
-    t = np.arange(n + 1) / (1000.0 * scale)  # trajectory time of each drive ms
-    q, qd = traj.states(t)
-    qd = qd / scale
-    bp = np.asarray(traj.breakpoints, dtype=float)[1:-1]
-    eps = 1e-9 * max(traj.duration, 1.0)
-    if len(bp):
-        jump_joint = np.atleast_2d(traj.acceleration(bp + eps)) - np.atleast_2d(traj.acceleration(bp - eps))
-        jump_joint = np.abs(jump_joint) / (scale * scale)
-    else:
-        jump_joint = np.zeros((0, len(axes)))
+    q, qd = traj.states(np.arange(n + 1) / (1000.0 * scale))  # trajectory time of each drive ms
+    switch_s, jump_joint = traj.acceleration_jumps()
     # every conversion is affine: each axis's (offset, gain) from its scaling, then all axes at once
     unit = np.array([0.0, 1.0])
     pos_0, pos_1 = np.array([a.scaling.position_to_qc(unit) for a in axes]).T
     vel_1 = np.array([a.scaling.drive_velocity_to_qc_per_ms(a.scaling.velocity_to_drive(1.0)) for a in axes])
     acc_1 = np.array([a.scaling.rpm_s_to_qc_per_ms2(a.scaling.acceleration_to_rpm_s(1.0)) for a in axes])
-    pos = pos_0 + q * (pos_1 - pos_0)
-    vel = qd * vel_1
-    vel[0] = 0.0
-    vel[-1] = 0.0
-    return _Samples(scale, n, pos, vel, bp * 1000.0 * scale, jump_joint * np.abs(acc_1))
+    q *= (pos_1 - pos_0)[:, None]
+    q += pos_0[:, None]
+    qd *= (vel_1 / scale)[:, None]
+    qd[:, 0] = 0.0
+    qd[:, -1] = 0.0
+    return _Samples(scale, n, q, qd, switch_s * 1000.0 * scale, jump_joint * (np.abs(acc_1) / (scale * scale)))
 
 
 # --- checks shared by every profile --------------------------------------------------------------------
@@ -390,8 +383,8 @@ class _Flat:
         return cls(
             tuple(axes),
             smp.n_ms + 1,
-            np.ascontiguousarray(smp.position[:, cols].T).ravel(),
-            np.ascontiguousarray(smp.velocity[:, cols].T).ravel(),
+            smp.position[list(cols)].ravel(),
+            smp.velocity[list(cols)].ravel(),
             np.array([s.qc_per_ms_per_velocity_unit for s in sc]),
             np.array([float(s.rpm_s_to_qc_per_ms2(m.max_acceleration_rpm_s)) for s, m in zip(sc, lim, strict=True)]),
             np.array([float(s.rpm_to_qc_per_ms(m.max_profile_velocity_rpm)) for s, m in zip(sc, lim, strict=True)]),
@@ -953,17 +946,17 @@ def _fixed_period_axis(axis: DriveAxis, i: int, smp: _Samples, opts: KnotOptions
     period = int(axis.period_ms or 1)
     n_rec = math.ceil(smp.n_ms / period)
     t_ms = np.minimum(np.arange(n_rec + 1) * period, smp.n_ms)
-    p = smp.position[t_ms, i]
+    p = smp.position[i, t_ms]
     P = _round_positions(p, axis)
     if axis.profile == "parker_slvdn" and axis.interpolation_submode == -1:
-        V = _round_velocities(smp.velocity[t_ms, i], axis)
+        V = _round_velocities(smp.velocity[i, t_ms], axis)
     else:
         V = np.zeros(len(P), dtype=np.int64)
     V[0] = V[-1] = 0
     if axis.profile != "parker_slvdn" or axis.interpolation_submode == 0:
         P = _track_linear(P, p, axis, period)
     records = np.column_stack((np.append(P, P[-1]), np.append(V, 0), np.full(len(P) + 1, period))).astype(np.int64)
-    chk, _ = _check(axis, records, smp.position[:, i])
+    chk, _ = _check(axis, records, smp.position[i])
     ra = float(chk.acceleration_ratio.max())
     rv = float(chk.velocity_ratio.max())
     return AxisKnots(axis.name, records, chk.deviation, rv, ra), _needed_scale(rv, ra)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import toppra.algorithm as algo
 import toppra.constraint as constraint
+from numba import njit
 from numpy.typing import ArrayLike, NDArray
 from toppra.algorithm.algorithm import ParameterizationAlgorithm
 from toppra.constants import MAX_TRIES, SMALL, TINY
@@ -187,6 +188,60 @@ class JointTorqueConstraint(constraint.LinearConstraint):
         return bool(np.all(np.abs(tau) <= self.effort))
 
 
+@njit(cache=True)
+def _path_state(
+    t: float,
+    breakpoints: NDArray[np.float64],
+    gridpoints: NDArray[np.float64],
+    sd: NDArray[np.float64],
+    sdd: NDArray[np.float64],
+) -> tuple[float, float, float]:
+    """s, s', s'' at time t (clipped to the motion): s'' is constant between two gridpoints."""
+    t = min(max(t, 0.0), breakpoints[-1])
+    i = min(max(np.searchsorted(breakpoints, t, side="right") - 1, 0), len(sdd) - 1)
+    tau = t - breakpoints[i]
+    s = min(gridpoints[i] + sd[i] * tau + 0.5 * sdd[i] * tau * tau, gridpoints[i + 1])
+    return s, sd[i] + sdd[i] * tau, sdd[i]
+
+
+@njit(cache=True)
+def _path_states(
+    t: NDArray[np.float64],
+    breakpoints: NDArray[np.float64],
+    gridpoints: NDArray[np.float64],
+    sd: NDArray[np.float64],
+    sdd: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    s, s_d, s_dd = np.empty(len(t)), np.empty(len(t)), np.empty(len(t))
+    for k in range(len(t)):
+        s[k], s_d[k], s_dd[k] = _path_state(t[k], breakpoints, gridpoints, sd, sdd)
+    return s, s_d, s_dd
+
+
+@njit(cache=True)
+def _joint_states(
+    t: NDArray[np.float64],
+    breakpoints: NDArray[np.float64],
+    gridpoints: NDArray[np.float64],
+    sd: NDArray[np.float64],
+    sdd: NDArray[np.float64],
+    x: NDArray[np.float64],
+    c: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """q and q' = q_s(s) s', each (dof, len(t)), from the path's cubic pieces (scipy's PPoly
+    layout: breakpoints ``x``, ``c[k, piece, joint]`` highest power first) in one pass."""
+    dof = c.shape[2]
+    q, qd = np.empty((dof, len(t))), np.empty((dof, len(t)))
+    for k in range(len(t)):
+        s, s_d, _ = _path_state(t[k], breakpoints, gridpoints, sd, sdd)
+        i = min(max(np.searchsorted(x, s, side="right") - 1, 0), len(x) - 2)
+        h = s - x[i]
+        for j in range(dof):
+            q[j, k] = ((c[0, i, j] * h + c[1, i, j]) * h + c[2, i, j]) * h + c[3, i, j]
+            qd[j, k] = ((3.0 * c[0, i, j] * h + 2.0 * c[1, i, j]) * h + c[2, i, j]) * s_d
+    return q, qd
+
+
 @dataclass(frozen=True)
 class Trajectory:
     """q(t) = path(s(t)) with s'' constant between gridpoints: numbers in, numbers out.
@@ -256,18 +311,29 @@ class Trajectory:
     def _state(self, t: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], bool]:
         t_arr = np.asarray(t, dtype=float)
         scalar = t_arr.ndim == 0
-        t_arr = np.clip(np.atleast_1d(t_arr), 0.0, self.duration)
-        i = np.clip(np.searchsorted(self.breakpoints, t_arr, side="right") - 1, 0, len(self.sdd) - 1)
-        tau = t_arr - self.breakpoints[i]
-        s = np.minimum(self.gridpoints[i] + self.sd[i] * tau + 0.5 * self.sdd[i] * tau * tau, self.gridpoints[i + 1])
-        sd = self.sd[i] + self.sdd[i] * tau
-        return s, sd, self.sdd[i], scalar
+        s, sd, sdd = _path_states(np.atleast_1d(t_arr).ravel(), self.breakpoints, self.gridpoints, self.sd, self.sdd)
+        return s, sd, sdd, scalar
 
     def states(self, t: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Positions and velocities, each (len(t), dof), at the times t in one pass (one s(t) for
-        both): for sampling at every drive ms. A scalar t gives (1, dof) arrays."""
-        s, sd, _, _ = self._state(t)
-        return self.path(s), self.path(s, 1) * sd[:, None]
+        """Positions and velocities, each (dof, len(t)), at the times t in one pass: for sampling
+        at every drive ms (one row per joint, as the drives take them)."""
+        spline = self.path.cspl
+        return _joint_states(
+            np.atleast_1d(np.asarray(t, dtype=float)).ravel(),
+            self.breakpoints,
+            self.gridpoints,
+            self.sd,
+            self.sdd,
+            spline.x,
+            np.ascontiguousarray(spline.c),
+        )
+
+    def acceleration_jumps(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The times of the inner gridpoints and |q''(t+) - q''(t-)| there, (n, dof): where the
+        time-optimal profile switches, and by how much. s and s' are continuous, so only s''
+        jumps: q'' = q_ss s'^2 + q_s s'' jumps by q_s (s''_i - s''_(i-1))."""
+        qs = self.path(self.gridpoints[1:-1], 1)
+        return self.breakpoints[1:-1], np.abs(qs * np.diff(self.sdd)[:, None])
 
     def position(self, t: ArrayLike) -> NDArray[np.float64]:
         s, _, _, scalar = self._state(t)

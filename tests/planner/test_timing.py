@@ -77,17 +77,30 @@ def test_lower_bound_lp_still_solved_where_rest_is_not_allowed() -> None:
 
 
 def test_states_equal_position_and_velocity() -> None:
+    """The one-pass sampling (rows per joint) is the path's own spline at s(t), times s'(t)."""
     tr = Planner(LIMITS, ARM.model, "tool0", 2.0, torque_limits=True).plan(WAYPOINTS).trajectory
     assert tr is not None
     t = np.concatenate((np.linspace(-0.1, tr.duration + 0.1, 1001), tr.breakpoints))
     q, qd = tr.states(t)
-    assert q.shape == qd.shape == (len(t), 6)
-    np.testing.assert_array_equal(q, tr.position(t))
-    np.testing.assert_array_equal(qd, tr.velocity(t))
+    assert q.shape == qd.shape == (6, len(t))
+    scale = np.abs(tr.path.points).max()
+    np.testing.assert_allclose(q.T, tr.position(t), rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(qd.T, tr.velocity(t), rtol=0, atol=1e-12 * np.abs(qd).max())
     q1, qd1 = tr.states(0.5 * tr.duration)
-    np.testing.assert_array_equal(q1, tr.position(0.5 * tr.duration)[None, :])
-    np.testing.assert_array_equal(qd1, tr.velocity(0.5 * tr.duration)[None, :])
-    assert tr.states(np.array([]))[0].shape == (0, 6)
+    np.testing.assert_allclose(qd1[:, 0], tr.velocity(0.5 * tr.duration), rtol=0, atol=1e-12 * np.abs(qd).max())
+    np.testing.assert_allclose(q1[:, 0], tr.position(0.5 * tr.duration), rtol=0, atol=1e-12 * scale)
+    assert tr.states(np.array([]))[0].shape == (6, 0)
+
+
+def test_acceleration_jumps_are_the_switches_of_the_profile() -> None:
+    tr = Planner(LIMITS, ARM.model, "tool0", 2.0).plan(WAYPOINTS).trajectory
+    assert tr is not None
+    times, jumps = tr.acceleration_jumps()
+    np.testing.assert_array_equal(times, tr.breakpoints[1:-1])
+    eps = 1e-9 * tr.duration
+    seen = np.abs(tr.acceleration(times + eps) - tr.acceleration(times - eps))
+    np.testing.assert_allclose(jumps, seen, rtol=1e-5, atol=1e-6 * np.abs(seen).max())
+    assert jumps.max() > 0.1 * np.abs(tr.acceleration(times)).max()  # a time-optimal profile does switch
 
 
 @pytest.mark.parametrize("max_speed", [0.5, 2.0])
