@@ -516,7 +516,7 @@ def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, t
     _, z, info = dpbsv(ab, rhs, lower=0, overwrite_ab=1, overwrite_b=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"least-squares knot fit: banded Cholesky solve failed (info {info})")
-    P, V = z[0::2], z[1::2]
+    P, V = z[0::2].copy(), z[1::2].copy()  # contiguous: the compiled loops take one layout
     P[ends], V[ends] = fl.p[knots[ends]], 0.0
     if target is None:
         return _Fitted(knots, r, P, V, None)
@@ -527,8 +527,8 @@ def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, t
         fl.p,
         table.values,
         table.offset,
-        np.ascontiguousarray(P),
-        np.ascontiguousarray(V),
+        P,
+        V,
         target,
         same,
         where,
@@ -545,7 +545,7 @@ def _fitted_subset(fl: _Flat, keep: NDArray[np.int64], fitted: _Fitted | None) -
     sel, knots = fl.moved_knots(keep, fitted.knots)
     seg = sel[:-1]  # the segment after each kept knot (the step to the next kept axis: none, as before)
     worst = None if fitted.worst is None else fitted.worst[seg]
-    return _Fitted(knots, fitted.rhs[:, seg], fitted.P[sel], fitted.V[sel], worst)
+    return _Fitted(knots, np.ascontiguousarray(fitted.rhs[:, seg]), fitted.P[sel], fitted.V[sel], worst)
 
 
 def _fit_knots(

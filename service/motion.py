@@ -130,7 +130,12 @@ class MotionService:
         self.can_log = can_log
         self.journal = Journal(journal_dir if journal_dir is not None else default_directory(cell.name))
         # built once: a plan request pays for planning only (in a child process: service/planning.py)
-        self.planner: CellPlanner | PlanningProcess = PlanningProcess(cell) if planner_process else CellPlanner(cell)
+        self.planner: CellPlanner | PlanningProcess
+        if planner_process:
+            self.planner = PlanningProcess(cell)  # warms up in the child
+        else:
+            self.planner = CellPlanner(cell)
+            self.planner.warm_up()
         self.limits = self.planner.limits
         self.publish: Publish = publish or _no_publish
         self.max_plans = max_plans

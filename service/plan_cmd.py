@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from numpy.typing import ArrayLike
 
 from planner.build import BuildError, BuildOutput, build_program
@@ -82,6 +83,18 @@ class CellPlanner:
             )
         except ValueError as exc:  # a planning option the planner refuses: every plan says so
             self.setup_error = str(exc)
+
+    def warm_up(self) -> None:
+        """Plan a short move in the middle of the joint ranges and drop it.
+
+        The first plan of a process loads the planner's compiled loops (numba's cache; on a new
+        machine it compiles them first, some seconds, once). A service pays that at start, not
+        with its first request.
+        """
+        if self.planner is None:
+            return
+        lo, hi = self.limits.lower, self.limits.upper
+        self.plan(np.array([lo + 0.45 * (hi - lo), lo + 0.55 * (hi - lo)]))
 
     def plan(
         self, waypoints: ArrayLike, tolerance_qc: float | None = None, metadata: dict[str, Any] | None = None

@@ -43,6 +43,7 @@ def _child(conn: Connection, source: Path, name: str, axes: tuple[AxisConfig, ..
     try:
         cell = dataclasses.replace(load_cell_config(source), name=name, axes=axes, planning=planning)
         planner = CellPlanner(cell)
+        planner.warm_up()
     except Exception:
         conn.send(traceback.format_exc())
         return
