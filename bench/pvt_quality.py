@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from planner.plan import plan
 from planner.validate import validate_program
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
-from service.plan_cmd import plan_cell_program, plan_input_for_cell
+from service.plan_cmd import CellPlanner, plan_cell_program, plan_input_for_cell
 
 
 # CAN 2.0A data frame: 47 bits of overhead + 8 per data byte, plus at most one stuff bit per 4 of
@@ -128,6 +129,11 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args()
 
+    # the first plan of a process loads numba's compiled loops (on a new machine: compiles them);
+    # a service does that at start (CellPlanner.warm_up), so it is not part of the latency here
+    t0 = time.perf_counter()
+    CellPlanner(load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")).warm_up()
+    print(f"  warm-up (compiled loops loaded or compiled): {time.perf_counter() - t0:.2f} s", file=sys.stderr)
     rng = np.random.default_rng(args.seed)
     results: list[PathResult] = []
     refused = 0

@@ -242,6 +242,115 @@ def lsq_system(knots: _I, stride: int, r: _F, gram: _F, p: _F, v: _F, ends: NDAr
     return ab, rhs
 
 
+@njit(cache=True)
+def _cholesky_solve_banded(ab: _F, rhs: _F) -> bool:
+    """Solve A z = rhs in place (z in ``rhs``) for a symmetric positive definite band matrix in
+    LAPACK's upper band storage, ``ab[kd + i - j, j] = A[i, j]`` (LAPACK's unblocked dpbtf2 and
+    dpbtrs: A = U^T U, then two triangular solves). False if A is not positive definite."""
+    kd, n = ab.shape[0] - 1, ab.shape[1]
+    for j in range(n):
+        d = ab[kd, j]
+        if not d > 0.0:
+            return False
+        d = np.sqrt(d)
+        ab[kd, j] = d
+        kn = min(kd, n - 1 - j)
+        for m in range(1, kn + 1):
+            ab[kd - m, j + m] /= d
+        for b in range(1, kn + 1):
+            for a in range(1, b + 1):
+                ab[kd + a - b, j + b] -= ab[kd - a, j + a] * ab[kd - b, j + b]
+    for j in range(n):  # U^T y = rhs
+        acc = rhs[j]
+        for i in range(max(0, j - kd), j):
+            acc -= ab[kd + i - j, j] * rhs[i]
+        rhs[j] = acc / ab[kd, j]
+    for j in range(n - 1, -1, -1):  # U z = y
+        acc = rhs[j]
+        for k in range(j + 1, min(n - 1, j + kd) + 1):
+            acc -= ab[kd + j - k, k] * rhs[k]
+        rhs[j] = acc / ab[kd, j]
+    return True
+
+
+@njit(cache=True)
+def lsq_solve(knots: _I, stride: int, r: _F, gram: _F, p: _F, v: _F, ends: NDArray[np.bool_]) -> tuple[_F, _F, bool]:
+    """The least-squares knot positions and velocities: ``lsq_system`` solved (banded Cholesky),
+    each axis's ends exactly at the plan, at rest. The flag is False if the solve failed."""
+    ab, z = lsq_system(knots, stride, r, gram, p, v, ends)
+    ok = _cholesky_solve_banded(ab, z)
+    P, V = z[0::2].copy(), z[1::2].copy()
+    for k in range(len(knots)):
+        if ends[k]:
+            P[k], V[k] = p[knots[k]], 0.0
+    return P, V, ok
+
+
+@njit(cache=True)
+def qp_problem(
+    knots: _I, P: _I, v: _F, room: _F, over: _I, stride: int, amax: _F, vmax: _F, window: int
+) -> tuple[_I, _I, _I, _F, _F, _F, _F, _F, _F]:
+    """The velocity QP of ``knots._velocity_qp`` for the segments ``over``, as arrays.
+
+    Free: the velocities of the knots within ``window`` of a segment over a limit (on its axis,
+    not an axis's end). Rows, four per segment touching a free knot: its start and end
+    acceleration, (6 dP - (4 V0 + 2 V1) T) / T^2 and (-6 dP + (2 V0 + 4 V1) T) / T^2, and its
+    position change at T/3 and 2T/3 (4 T dV0 / 27 + 2 T dV1 / 27 and 2 T dV0 / 27 + 4 T dV1 / 27,
+    from the Hermite basis), each linear in the velocity changes x. Returns (free knots, the
+    constraint matrix as triplets (row, col, value), its lower and upper bounds, the bounds on
+    x, the diagonal of the cost's Hessian)."""
+    n = len(knots)
+    free = np.zeros(n, dtype=np.bool_)
+    for o in over:
+        a = knots[o] // stride
+        for k in range(max(o - window + 1, 0), min(o + window, n - 1) + 1):
+            r = knots[k] - a * stride
+            if 0 < r < stride - 1:  # on the segment's axis, and no axis end (at rest, never moved)
+                free[k] = True
+    col_of = np.full(n, -1)
+    m = 0
+    for k in range(n):
+        if free[k]:
+            col_of[k] = m
+            m += 1
+    cols = np.flatnonzero(free)
+    segs = np.flatnonzero(free[:-1] | free[1:])  # a free knot is no axis end: both its segments are real
+    ns = len(segs)
+    rows, cidx, vals = np.empty(8 * ns, np.int64), np.empty(8 * ns, np.int64), np.empty(8 * ns)
+    lo, hi = np.empty(4 * ns), np.empty(4 * ns)
+    nz = 0
+    for q in range(ns):
+        k = segs[q]
+        am = amax[knots[k] // stride]
+        T = float(knots[k + 1] - knots[k])
+        dp = float(P[k + 1] - P[k])
+        v0, v1 = v[k], v[k + 1]
+        a0 = (6.0 * dp - (4.0 * v0 + 2.0 * v1) * T) / (T * T)
+        a1 = (-6.0 * dp + (2.0 * v0 + 4.0 * v1) * T) / (T * T)
+        lo[4 * q : 4 * q + 4] = (-am - a0, -am - a1, -room[k], -room[k])
+        hi[4 * q : 4 * q + 4] = (am - a0, am - a1, room[k], room[k])
+        for end in range(2):
+            c = col_of[k + end]
+            if c < 0:
+                continue
+            if end == 0:
+                coef = (-4.0 / T, 2.0 / T, 4.0 * T / 27, 2.0 * T / 27)
+            else:
+                coef = (-2.0 / T, 4.0 / T, -2.0 * T / 27, -4.0 * T / 27)
+            for r in range(4):
+                rows[nz], cidx[nz], vals[nz] = 4 * q + r, c, coef[r]
+                nz += 1
+    lbx, ubx, h = np.empty(m), np.empty(m), np.empty(m)
+    for j in range(m):
+        k = cols[j]
+        vm = vmax[knots[k] // stride]
+        lbx[j] = min(-vm - v[k], 0.0)
+        ubx[j] = max(vm - v[k], 0.0)
+        w = 0.5 * float(knots[k + 1] - knots[k - 1])  # the position effect of a change grows with it
+        h[j] = 2.0 * w * w
+    return cols, rows[:nz], cidx[:nz], vals[:nz], lo, hi, lbx, ubx, h
+
+
 # --- the integer repair --------------------------------------------------------------------------
 # every combination of these count / velocity-unit nudges of a segment's two end records is tried:
 # nudge e of one knot is (e // 5 - 1) counts and (e % 5 - 2) velocity units; combination

@@ -292,7 +292,6 @@ def _split(knots: NDArray[np.int64], segments: NDArray[np.int64]) -> NDArray[np.
 
 _COARSE = 4.0  # first cut: exact-sample cubics to this multiple of the fit target (cheap), then least squares
 _QP_WINDOW = 4  # knots on either side of a segment over a limit whose velocities the QP may move
-_QP_REACH = np.arange(-_QP_WINDOW + 1, _QP_WINDOW + 1)  # those knots, from the segment's start knot
 _MIN_SPLIT_MS = 12  # segments shorter than twice this are not split for a limit (rounding grows as 1/T^2)
 _FIT_PROBES = np.arange(1, 8) / 8.0  # where a candidate segment's fit is judged
 
@@ -503,21 +502,14 @@ def _lsq_fit(fl: _Flat, knots: NDArray[np.int64], prev: _Fitted | None = None, t
     With ``target``, the worst |fit - plan| per segment is returned as well, as far as the
     comparison with ``target`` needs it (``knot_kernels.lsq_worst``).
     """
-    from scipy.linalg.lapack import dpbsv
-
     table = _basis_table()
     prev_knots = _NO_INT if prev is None else prev.knots
     r, same, where = kernels.lsq_rhs(
         knots, fl.stride, fl.p, table.values, table.offset, prev_knots, _NO_RHS if prev is None else prev.rhs
     )
-    ends = fl.is_end(knots)
-    ab, rhs = kernels.lsq_system(knots, fl.stride, r, table.gram, fl.p, fl.v, ends)
-    # LAPACK's banded Cholesky solve (what scipy.linalg.solveh_banded calls), without its wrapper
-    _, z, info = dpbsv(ab, rhs, lower=0, overwrite_ab=1, overwrite_b=1)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"least-squares knot fit: banded Cholesky solve failed (info {info})")
-    P, V = z[0::2].copy(), z[1::2].copy()  # contiguous: the compiled loops take one layout
-    P[ends], V[ends] = fl.p[knots[ends]], 0.0
+    P, V, ok = kernels.lsq_solve(knots, fl.stride, r, table.gram, fl.p, fl.v, fl.is_end(knots))
+    if not ok:
+        raise np.linalg.LinAlgError("least-squares knot fit: the banded normal equations are not positive definite")
     if target is None:
         return _Fitted(knots, r, P, V, None)
     keep = prev is not None and prev.worst is not None
@@ -679,54 +671,16 @@ def _qp_solve(
     """The QP of ``_velocity_qp`` for the segments ``over``: (knots moved, their velocity change)."""
     import casadi
 
-    n = len(knots)
-    ax = fl.axis_of(knots)
-    # the window: free velocities near the segments over a limit (on their axis), and the segments they touch
-    free = np.zeros(n, dtype=bool)
-    idx = np.clip(over[:, None] + _QP_REACH[None, :], 0, n - 1)
-    free[idx[ax[idx] == ax[over][:, None]]] = True
-    free &= ~fl.is_end(knots)  # at rest at both ends of every axis
-    if not free.any():
-        return None
-    cols = np.flatnonzero(free)
-    col_of = np.full(n, -1)
-    col_of[cols] = np.arange(len(cols))
-    segs = np.flatnonzero(free[:-1] | free[1:])  # a free knot is no axis end: both its segments are real
-    T = (knots[segs + 1] - knots[segs]).astype(float)
-    dp = (P[segs + 1] - P[segs]).astype(float)
-    v0, v1 = v[segs], v[segs + 1]
-    a0 = (6.0 * dp - (4.0 * v0 + 2.0 * v1) * T) / (T * T)
-    a1 = (-6.0 * dp + (2.0 * v0 + 4.0 * v1) * T) / (T * T)
-    # rows per segment: start acceleration, end acceleration, position at T/3 and at 2T/3; the
-    # coefficients of the segment's start velocity, then of its end velocity
-    coef = (
-        np.column_stack((-4.0 / T, 2.0 / T, 4.0 * T / 27, 2.0 * T / 27)),
-        np.column_stack((-2.0 / T, 4.0 / T, -2.0 * T / 27, -4.0 * T / 27)),
+    cols, rows, cidx, vals, lo, hi, lbx, ubx, h = kernels.qp_problem(
+        knots, P, v, room, over, fl.stride, fl.amax, fl.vmax, _QP_WINDOW
     )
-    row = 4 * np.arange(len(segs))[:, None] + np.arange(4)[None, :]
-    rows, cidx, vals = [], [], []
-    for end, knot in enumerate((segs, segs + 1)):
-        c = col_of[knot]
-        ok = c >= 0
-        rows.append(row[ok].ravel())
-        cidx.append(np.repeat(c[ok], 4))
-        vals.append(coef[end][ok].ravel())
     m = len(cols)
-    A = casadi.DM.triplet(
-        np.concatenate(rows).tolist(), np.concatenate(cidx).tolist(), np.concatenate(vals).tolist(), 4 * len(segs), m
-    )
-    amax = fl.amax[ax[segs]]
-    r_seg = room[segs]
-    lo = np.stack((-amax - a0, -amax - a1, -r_seg, -r_seg), 1).ravel()
-    hi = np.stack((amax - a0, amax - a1, r_seg, r_seg), 1).ravel()
-    vmax = fl.vmax[ax[cols]]
-    lbx = np.clip(-vmax - v[cols], None, 0.0)
-    ubx = np.clip(vmax - v[cols], 0.0, None)
-    # weight: the position effect of a velocity change grows with the adjacent segment times
-    w = 0.5 * (knots[cols + 1] - knots[cols - 1]).astype(float)
+    if not m:
+        return None
+    A = casadi.DM.triplet(rows.tolist(), cidx.tolist(), vals.tolist(), len(lo), m)  # lists: numpy is 20x slower here
     h_sp = casadi.Sparsity.diag(m)
     solver = casadi.conic("knot_velocities", "daqp", {"h": h_sp, "a": A.sparsity()}, {"error_on_fail": False})
-    res = solver(h=casadi.DM(h_sp, 2.0 * w * w), g=np.zeros(m), a=A, lba=lo, uba=hi, lbx=lbx, ubx=ubx)
+    res = solver(h=casadi.DM(h_sp, h), g=np.zeros(m), a=A, lba=lo, uba=hi, lbx=lbx, ubx=ubx)
     if not solver.stats().get("success", False):
         return None
     return cols, np.asarray(res["x"]).ravel()

@@ -229,3 +229,23 @@ def test_build_reports_its_timing(arm6_plan) -> None:
     built = build_program(traj, axes, cell.name)
     assert set(built.timing) == {"knots", "validation"}
     assert all(t >= 0.0 for t in built.timing.values())
+
+
+def test_banded_cholesky_solves_as_lapack() -> None:
+    """The least-squares solve (LAPACK's unblocked banded Cholesky, compiled) against scipy's."""
+    from scipy.linalg import solveh_banded
+
+    rng = np.random.default_rng(4)
+    n, kd = 60, 3
+    ab = np.zeros((kd + 1, n))
+    ab[:kd] = rng.normal(size=(kd, n))
+    ab[kd] = 4.0 * kd + rng.random(n)  # diagonally dominant: positive definite
+    for d in range(1, kd + 1):
+        ab[kd - d, :d] = 0.0  # the band's unused corner
+    rhs = rng.normal(size=n)
+    want = solveh_banded(ab, rhs)
+    got_ab, got = ab.copy(), rhs.copy()
+    assert knot_kernels._cholesky_solve_banded(got_ab, got)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    ab[kd, 5] = -1.0  # not positive definite: refused, not a wrong answer
+    assert not knot_kernels._cholesky_solve_banded(ab, rhs.copy())
