@@ -93,20 +93,56 @@ def check_segments(
 
 
 @njit(cache=True)
-def probe_fit(knots: _I, segments: _I, p: _F, v: _F, probes: _F) -> _F:
-    """For the knot ``segments``, the worst |cubic through the exact samples - plan| at the whole
-    ms ``floor(T * probes)`` (a cheap first cut of the refinement)."""
-    worst = np.zeros(len(segments))
-    for n in range(len(segments)):
-        lo, hi = knots[segments[n]], knots[segments[n] + 1]
-        T = float(hi - lo)
-        c0, c1, c2, c3 = hermite(p[lo], v[lo], p[hi], v[hi], T)
-        w = 0.0
-        for x in probes:
-            tau = np.floor(T * x)
-            w = max(w, abs(_horner(c0, c1, c2, c3, tau) - p[lo + int(tau)]))
-        worst[n] = w
-    return worst
+def refine(knots: _I, p: _F, v: _F, probes: _F, target: float, max_rounds: int, t_max: int) -> _I:
+    """Halve knot segments until the cubic through the exact samples stays within ``target`` of
+    the plan at the whole ms ``floor(T * probes)`` (a cheap first cut), or is 1 ms long; none
+    longer than ``t_max``. Round by round: each round judges the halves the last one made."""
+    is_knot = np.zeros(len(p), dtype=np.bool_)
+    is_knot[knots] = True
+    pending = knots[:-1].copy()
+    for _ in range(max_rounds):
+        split = np.empty(2 * len(pending), dtype=np.int64)
+        n_split = 0
+        for lo in pending:
+            hi = lo + 1
+            while not is_knot[hi]:
+                hi += 1
+            T = float(hi - lo)
+            c0, c1, c2, c3 = hermite(p[lo], v[lo], p[hi], v[hi], T)
+            worst = 0.0
+            for x in probes:
+                tau = np.floor(T * x)
+                worst = max(worst, abs(_horner(c0, c1, c2, c3, tau) - p[lo + int(tau)]))
+            if (worst > target and hi - lo >= 2) or hi - lo > t_max:
+                mid = (lo + hi) // 2
+                is_knot[mid] = True
+                split[n_split], split[n_split + 1] = lo, mid
+                n_split += 2
+        if not n_split:
+            break
+        pending = np.sort(split[:n_split])
+    return np.flatnonzero(is_knot)
+
+
+@njit(cache=True)
+def switch_knots(switch_ms: _F, jump: _F, threshold: float, n_ms: int, min_gap: int) -> _I:
+    """Whole ms at the acceleration switches whose jump exceeds ``threshold``, largest jumps first,
+    none within ``min_gap`` of a knot already taken or of the motion's start and end."""
+    taken = np.zeros(n_ms + 1, dtype=np.bool_)
+    for i in np.argsort(-jump):
+        if not jump[i] > threshold:
+            break
+        t = int(np.rint(switch_ms[i]))
+        if t < min_gap or t > n_ms - min_gap:
+            continue
+        near = False
+        for u in range(max(t - min_gap + 1, 0), min(t + min_gap - 1, n_ms) + 1):
+            if taken[u]:
+                near = True
+                break
+        if not near:
+            taken[t] = True
+    return np.flatnonzero(taken)
 
 
 @njit(cache=True)

@@ -46,7 +46,6 @@ velocity units (qc/ms inside the interpolation), ms.
 
 from __future__ import annotations
 
-import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -268,26 +267,14 @@ def _switch_knots(
     switch_ms: NDArray[np.float64], jump: NDArray[np.float64], threshold: float, n_ms: int, min_gap: int
 ) -> NDArray[np.int64]:
     """Integer ms at the significant acceleration switches, largest jumps first, min_gap apart."""
-    big = np.flatnonzero(jump > threshold)
-    if not len(big):
-        return np.zeros(0, dtype=np.int64)
-    order = big[np.argsort(-jump[big])]
-    taken: list[int] = []  # sorted
-    for t in np.rint(switch_ms[order]).astype(np.int64).tolist():
-        if t < min_gap or t > n_ms - min_gap:  # too close to the start or the end
-            continue
-        i = bisect.bisect_left(taken, t)
-        if (i < len(taken) and taken[i] - t < min_gap) or (i > 0 and t - taken[i - 1] < min_gap):
-            continue
-        taken.insert(i, t)
-    return np.array(taken, dtype=np.int64)
+    return kernels.switch_knots(np.ascontiguousarray(switch_ms), np.ascontiguousarray(jump), threshold, n_ms, min_gap)
 
 
 def _split(knots: NDArray[np.int64], segments: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Halve the given knot segments (those of 1 ms cannot be split and are left alone)."""
+    """Halve the given knot segments (sorted, unique; those of 1 ms cannot be split and are left alone)."""
     lo, hi = knots[segments], knots[segments + 1]
     ok = hi - lo >= 2
-    return np.union1d(knots, (lo[ok] + hi[ok]) // 2)
+    return np.insert(knots, segments[ok] + 1, (lo[ok] + hi[ok]) // 2)  # each inside its segment: still sorted
 
 
 _COARSE = 4.0  # first cut: exact-sample cubics to this multiple of the fit target (cheap), then least squares
@@ -302,22 +289,10 @@ def _refine(
     """Split segments until the cubic through the exact samples stays within ``target`` of the plan.
 
     The fit is judged at seven whole-ms probes per segment (a cheap first cut: the exact
-    reconstruction is checked at every ms afterwards and splits what this misses). Only the
-    segments made by the last split are judged again.
+    reconstruction is checked at every ms afterwards and splits what this misses), by
+    ``knot_kernels.refine``. Only the segments made by the last split are judged again.
     """
-    pending = knots[:-1]  # start times of the segments still to judge
-    for _ in range(max_rounds):
-        idx = np.searchsorted(knots, pending)
-        T = knots[idx + 1] - knots[idx]
-        worst = kernels.probe_fit(knots, idx, p, v, _FIT_PROBES)
-        bad = ((worst > target) & (T >= 2)) | (T > TIME_MAX_MS)
-        if not bad.any():
-            break
-        lo, hi = knots[idx[bad]], knots[idx[bad] + 1]
-        mid = (lo + hi) // 2
-        knots = np.union1d(knots, mid)
-        pending = np.concatenate((lo, mid))
-    return knots
+    return kernels.refine(knots, p, v, _FIT_PROBES, target, max_rounds, TIME_MAX_MS)
 
 
 def _hermite_basis(T: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -444,14 +419,14 @@ class _Flat:
         return (r == 0) | (r == self.stride - 1)
 
     def flat_knots(self, per_axis: Sequence[NDArray[np.int64]]) -> NDArray[np.int64]:
-        """Each axis's knots (both ends added, no segment over 255 ms) laid end to end."""
+        """Each axis's knots (sorted, unique; both ends added, no segment over 255 ms) laid end to end."""
         n = self.stride - 1
-        return np.concatenate(
-            [
-                _within_record_time(np.union1d([0, n], k[(k > 0) & (k < n)])) + a * self.stride
-                for a, k in enumerate(per_axis)
-            ]
-        ).astype(np.int64)
+        parts = []
+        for a, k in enumerate(per_axis):
+            base = a * self.stride
+            parts += [[base], k[(k > 0) & (k < n)] + base, [base + n]]
+        # the step from an axis's end to the next one's start is 1: only real segments are split
+        return _within_record_time(np.concatenate(parts).astype(np.int64))
 
 
 def _within_record_time(knots: NDArray[np.int64]) -> NDArray[np.int64]:
