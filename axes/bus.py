@@ -20,6 +20,7 @@ used only to *detect* a failure, never to pace the motion.
 from __future__ import annotations
 
 import struct
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -41,6 +42,7 @@ NMT_PRE_OPERATIONAL = 0x80
 NMT_RESET_COMMUNICATION = 0x82
 NMT_STATE_OPERATIONAL = 5
 NMT_STATE_PRE_OPERATIONAL = 127
+SWITCH_INTERVAL_S = 0.0005  # the interpreter hands the GIL on at least this often while a bus is open
 
 
 class BusError(RuntimeError):
@@ -303,6 +305,11 @@ class CellBus:
 
     # --- life cycle ------------------------------------------------------------------------------
     def open(self) -> CellBus:
+        # The bus is served by threads (SYNC answers, feeders, consumers; in a simulation the drives
+        # too) that must get the GIL within a fraction of a SYNC period, not after CPython's 5 ms
+        # switch interval: a process with a bus open keeps it at SWITCH_INTERVAL_S (not restored on
+        # close: other buses of the process may still be open).
+        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
         kwargs: dict[str, object] = {"interface": self.config.interface, "channel": self.config.channel}
         if self.config.interface != "virtual":
             kwargs["bitrate"] = self.config.bitrate

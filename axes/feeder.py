@@ -2,8 +2,12 @@
 
 Two kinds, both driven by events only (the SYNC answers and the status TPDO), never by a sleep:
 
-- ``BufferFeeder`` (EPOS2 PVT): preloads as many records as fit below the overflow warning level
-  (at least 2), then after every SYNC tops the FIFO up to that mark. The EPOS2 does not PDO-map its
+- ``BufferFeeder`` (EPOS2 PVT): preloads the records of the first ``PRELOAD_MS`` of motion (at least
+  two above the underflow warning level), then after every SYNC tops the FIFO up towards the
+  overflow warning mark, ``TOP_UP_PER_SYNC`` records at a time. Every frame sent before the start
+  SYNC delays the start (a full FIFO of six axes is ~45 ms of a 1 Mbit/s bus), and a burst of them
+  on one SYNC would hold the bus as long: the FIFO fills during the first SYNCs of the motion
+  instead, and stays deep from then on (depth is what rides out a stalled master). The EPOS2 does not PDO-map its
   FIFO level (0x60C4:02), so the level is *estimated*: records sent minus records consumed, a record
   being consumed once the drive's clock (one SYNC period per SYNC since the start SYNC) has passed
   its end time. The estimate counts the segment in progress as still buffered, so it is never
@@ -34,6 +38,9 @@ _IP_MODE_ACTIVE = int(BufferStatus.IP_MODE_ACTIVE)
 
 FrameOf = Callable[[NDArray[np.int64]], tuple[int, bytes]]
 Send = Callable[[int, bytes], None]
+
+PRELOAD_MS = 50.0  # motion the records sent before the start SYNC cover (the first top-ups follow on SYNC)
+TOP_UP_PER_SYNC = 4  # records per axis per SYNC at most (more while the level is at the underflow warning)
 
 
 @dataclass
@@ -114,6 +121,7 @@ class BufferFeeder(Feeder):
         self.capacity = capacity
         # the mark the level is topped up to: just below the overflow warning, inside the FIFO
         self.high = max(2, min(capacity, buffer.overflow_warning - 1))
+        self.low = min(buffer.underflow_warning, self.high - 2)  # the level the drive warns below
         # end time of each record (ms from the start SYNC); the end record ends with the last one
         self.end_ms = np.cumsum(self.records[:, 2])
         self._end = self.end_ms.tolist()
@@ -137,14 +145,21 @@ class BufferFeeder(Feeder):
         if not self.enabled or self._hold or self.all_sent:
             return
         self.stats.level(self.level)  # the low point the drive came down to, before refilling
-        while not self.all_sent and self.level < self.high:
+        budget = TOP_UP_PER_SYNC
+        while not self.all_sent and (level := self.level) < self.high and (budget > 0 or level <= self.low):
             self._send_next()
+            budget -= 1
         self.stats.level(self.level)
 
     def preload(self) -> int:
+        """Records for the first PRELOAD_MS of motion, and at least two above the underflow warning."""
         self.elapsed_ms = 0.0
         self._consumed = 0
-        while not self.all_sent and self.next < self.high:
+        while (
+            not self.all_sent
+            and self.next < self.high
+            and (self.next <= self.low + 1 or self._end[self.next - 1] < PRELOAD_MS)
+        ):
             self._send_next()
         self.stats.level(self.level)
         return self.next

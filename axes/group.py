@@ -317,7 +317,7 @@ class AxisGroup:
                 refusal = next((r for r in refusals if r is not None), None)
                 if refusal is not None:
                     return self._finish_early(Result.REJECTED, refusal[1], refusal[0])
-                list(self._per_axis(lambda profile: profile.enable(), self.profiles))
+                list(self._per_axis(lambda profile: profile.enable(fresh=True), self.profiles))  # checks read it
             except DriveError as exc:
                 link = next((lk for lk in self.links if lk.node_id == exc.node_id), None)
                 return self._finish_early(Result.CONFIGURATION_ERROR, str(exc), link)

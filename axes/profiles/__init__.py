@@ -211,15 +211,17 @@ class AxisLink:
         self.write(od.CONTROLWORD, 0, controlword, "H")
         self.psm.sent(controlword)
 
-    def reach(self, target: PowerState, timeout_s: float = 2.0) -> PowerState:
+    def reach(self, target: PowerState, timeout_s: float = 2.0, fresh: bool = False) -> PowerState:
         """Walk the power state machine to ``target`` by SDO (fault reset on a rising bit 7 included).
 
         Each step is confirmed by reading the statusword back; the timeout only detects a drive
-        that does not move.
+        that does not move. ``fresh``: ``statusword`` was read just now (a start's check), so the
+        first reading is that one, not another SDO round trip.
         """
         deadline = time.monotonic() + timeout_s
         while True:
-            state = decode_state(self.read_statusword())
+            state = decode_state(self.statusword if fresh else self.read_statusword())
+            fresh = False
             if state == target:
                 return state
             words = self.psm.step(self.statusword, target)
@@ -272,13 +274,14 @@ class Profile:
         """The SDO configuration sequence (node in PRE-OPERATIONAL)."""
         raise NotImplementedError
 
-    def enable(self) -> None:
-        """From any state to OPERATION ENABLED, then whatever the mode needs before records."""
-        self.enable_operation()
+    def enable(self, fresh: bool = False) -> None:
+        """From any state to OPERATION ENABLED, then whatever the mode needs before records
+        (``fresh``: the link's statusword was read just now, see ``AxisLink.reach``)."""
+        self.enable_operation(fresh)
 
-    def enable_operation(self) -> None:
+    def enable_operation(self, fresh: bool = False) -> None:
         """OPERATION ENABLED with bits 4 and 8 low (0x000F), so that the start word is a rising bit 4."""
-        self.link.reach(PowerState.OPERATION_ENABLED)
+        self.link.reach(PowerState.OPERATION_ENABLED, fresh=fresh)
         self.link.write_controlword(self.end_controlword())
 
     def feeder(self, program: AxisProgram) -> Feeder:

@@ -72,6 +72,6 @@ class Cia402IpLinear(FixedPeriodProfile):
         link.map_pdos(self.rpdos, self.tpdos)
         self.write_heartbeat()
 
-    def enable(self) -> None:
-        super().enable()
+    def enable(self, fresh: bool = False) -> None:
+        super().enable(fresh)
         self.link.write(od.INTERPOLATION_DATA_CONFIGURATION, 6, 1, "B")  # allow writing 0x60C1:01

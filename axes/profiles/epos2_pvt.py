@@ -52,9 +52,9 @@ class Epos2Pvt(Profile):
         link.write(od.EPOS2_INTERPOLATION_BUFFER, 3, buffer.overflow_warning, "H")
         self.write_heartbeat()
 
-    def enable(self) -> None:
+    def enable(self, fresh: bool = False) -> None:
         """Shutdown, switch on, enable operation; then clear the FIFO and enable access to it."""
-        self.enable_operation()
+        self.enable_operation(fresh)
         self.link.write(od.INTERPOLATION_DATA_CONFIGURATION, 6, BUFFER_CLEAR, "B")
         self.link.write(od.INTERPOLATION_DATA_CONFIGURATION, 6, BUFFER_ENABLE, "B")
 

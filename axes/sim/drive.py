@@ -35,7 +35,7 @@ from canopen.sdo import SdoAbortedError
 from axes import objects as obj
 from axes.cia402 import Controlword, PowerState, Statusword
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
-from axes.sim.pdo import PdoEngine, is_pdo_object
+from axes.sim.pdo import PdoEngine, is_pdo_object, unsubscribe
 from planner.interpolation import hermite_coefficients
 
 EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
@@ -266,8 +266,8 @@ class SimulatedDrive:
                 return
             self.node.nmt.stop_heartbeat()
             self.pdo.unsubscribe()
-            self.network.unsubscribe(0x80, self._on_sync)
-            self.network.unsubscribe(0, self._on_nmt)
+            unsubscribe(self.network, 0x80, self._on_sync)
+            unsubscribe(self.network, 0, self._on_nmt)
             del self.network[self.node.id]
             self.network = canopen.network._UNINITIALIZED_NETWORK
 

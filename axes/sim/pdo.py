@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+import canopen
 from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
@@ -34,6 +35,20 @@ ABORT_DEVICE_STATE = 0x08000022
 ABORT_NOT_MAPPABLE = 0x06040041
 ABORT_PDO_LENGTH = 0x06040042
 ABORT_VALUE_RANGE = 0x06090030
+
+
+def unsubscribe(network: canopen.Network, can_id: int, callback: Callable[..., None]) -> None:
+    """``network.unsubscribe`` without mutating the list a dispatch may be walking right now.
+
+    canopen's ``Network.notify`` iterates the subscriber list of a CAN-ID in the bus thread;
+    removing from that very list in another thread (a drive leaving the bus) makes it skip the
+    next subscriber, so another drive would miss that SYNC. The list is replaced instead.
+    """
+    remaining = [cb for cb in network.subscribers.get(can_id, []) if cb != callback]
+    if remaining:
+        network.subscribers[can_id] = remaining
+    else:
+        network.subscribers.pop(can_id, None)
 
 
 def is_pdo_object(index: int) -> bool:
@@ -125,7 +140,7 @@ class PdoEngine:
         """Re-read every PDO from the object dictionary and (re)subscribe the valid RPDOs."""
         network = self.drive.network
         for cob_id, callback in self._subscribed.items():
-            network.unsubscribe(cob_id, callback)
+            unsubscribe(network, cob_id, callback)
         self._subscribed.clear()
         self.rpdos = self._read_all(RPDO_COMM, RPDO_MAP, True)
         self.tpdos = self._read_all(TPDO_COMM, TPDO_MAP, False)
@@ -136,7 +151,7 @@ class PdoEngine:
 
     def unsubscribe(self) -> None:
         for cob_id, callback in self._subscribed.items():
-            self.drive.network.unsubscribe(cob_id, callback)
+            unsubscribe(self.drive.network, cob_id, callback)
         self._subscribed.clear()
 
     def _read_all(self, comm: int, mapping: int, receive: bool) -> dict[int, PdoState]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from axes.feeder import BufferFeeder, SetpointFeeder
+from axes.feeder import PRELOAD_MS, TOP_UP_PER_SYNC, BufferFeeder, SetpointFeeder
 from axes.objects import BufferStatus, Record
 from service.config import BufferConfig
 
@@ -52,13 +52,19 @@ def test_buffer_feeder_keeps_the_level_between_the_warnings(n, dt):
     buf = BufferConfig(underflow_warning=4, overflow_warning=60)
     feeder = BufferFeeder(records(n, dt), frame, model.send, 1.0, buf)
     preloaded = feeder.preload()
-    assert preloaded == min(n + 1, 59) and preloaded >= 2
+    # before the start: the first PRELOAD_MS of motion and two above the underflow warning, no more
+    recs = feeder.records
+    covered = recs[:preloaded, 2].sum()
+    assert preloaded == len(recs) or (preloaded >= buf.underflow_warning + 2 and covered >= PRELOAD_MS)
+    assert preloaded <= buf.underflow_warning + 2 or recs[: preloaded - 1, 2].sum() < PRELOAD_MS
     elapsed = 0
     while True:
         model.advance(float(elapsed))
         if model.received and model.received[-1].time == 0 and not model.fifo:
             break
+        before = len(model.received)
         feeder.on_sync(elapsed)
+        assert len(model.received) - before <= TOP_UP_PER_SYNC or len(model.fifo) <= buf.underflow_warning + 1
         assert len(model.fifo) < buf.overflow_warning  # never at the overflow warning level
         # the level the feeder believes is never below the true one (it never overfills)
         assert feeder.level >= len(model.fifo)
@@ -68,6 +74,8 @@ def test_buffer_feeder_keeps_the_level_between_the_warnings(n, dt):
         elapsed += 1
         assert elapsed < n * dt + 100
     sent = np.array([[r.position, r.velocity, r.time] for r in model.received])
+    if n * dt > 200:  # a long program: the FIFO was filled to just below the overflow warning
+        assert model.max_level >= buf.overflow_warning - 2  # (the segment running counts as buffered)
     np.testing.assert_array_equal(sent[:-1], records(n, dt))
     assert tuple(sent[-1]) == (records(n, dt)[-1, 0], 0, 0)  # the end record
 

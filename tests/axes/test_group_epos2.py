@@ -34,7 +34,7 @@ def test_six_axes_start_on_one_sync_and_end_on_their_last_records(arm6, make_rig
         assert drive.ended_by_time_zero == 1
         assert report.feed.underflows == 0 and report.feed.overflows == 0
         assert drive.max_level <= arm6.axis_for_joint(axis.name).buffer.overflow_warning
-        assert drive.max_level > 2  # preloaded as many as fit, not just two
+        assert drive.max_level > 2  # filled up on SYNC after a short preload, not kept at two
     assert rig.sim.internal_errors == []
 
 
@@ -208,7 +208,7 @@ def test_drive_that_stops_answering_sync_is_a_lost_sync(arm6, make_rig):
     gone.detach()  # off the bus: no more SYNC answers
     result = rig.group.wait(timeout_s=30)
     assert result.result in (Result.LOST_SYNC, Result.HEARTBEAT_LOST), result.message
-    assert result.node_id == 3
+    assert result.node_id == 3, result.message
     for drive in rig.sim:
         if drive is not gone:
             assert drive.halted and not drive.ip_active and drive.faults == []
