@@ -247,22 +247,49 @@ def _segments_from_points(
     return PiecewiseCubic(starts, durations.astype(float), c0, c1, c2, c3, interpolation)
 
 
-def epos2_pvt(records: ArrayLike, qc_per_ms_per_velocity_unit: float) -> PiecewiseCubic:
-    """EPOS2 cubic PVT (app note 2.3) of a program's records [position_qc, velocity, time_ms].
+@njit(cache=True)
+def epos2_end(rows: NDArray[np.int64], first: int, stop: int) -> int:
+    """The row after the last one the EPOS2 interpolates of the records rows[first:stop]: it stops at
+    a time-0 record (the end marker) after the first one."""
+    for k in range(first + 1, stop):
+        if rows[k, 2] == 0:
+            return k
+    return stop
 
-    records[0] is the start point at rest: its time is a dwell from the start SYNC. Record k ends a
-    segment of records[k].time ms begun at record k-1. Interpolation stops at a time-0 record.
-    """
-    r = np.asarray(records, dtype=np.int64)
+
+@njit(cache=True)
+def epos2_segment(rows: NDArray[np.int64], first: int, k: int, f: float) -> tuple[float, float, float, float, float]:
+    """THE EPOS2 PVT rule (app note 2.3) for segment k of the records starting at row ``first``:
+    (p0, v0, p1, v1, T) for ``hermite``. Record k ends a segment of its time (ms) begun at record
+    k-1; the first record's segment is its dwell, from the start point at rest. ``f``: qc/ms per
+    velocity unit."""
+    p1, v1, T = float(rows[k, 0]), rows[k, 1] * f, float(rows[k, 2])
+    if k == first:
+        return p1, 0.0, p1, v1, T
+    return float(rows[k - 1, 0]), rows[k - 1, 1] * f, p1, v1, T
+
+
+@njit(cache=True)
+def _epos2_cubics(rows: NDArray[np.int64], f: float) -> tuple[NDArray[np.float64], ...]:
+    n = epos2_end(rows, 0, len(rows))
+    start, duration = np.empty(n), np.empty(n)
+    c0, c1, c2, c3 = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    t = 0.0
+    for k in range(n):
+        p0, v0, p1, v1, T = epos2_segment(rows, 0, k, f)
+        c0[k], c1[k], c2[k], c3[k] = hermite(p0, v0, p1, v1, T)
+        start[k], duration[k] = t, T
+        t += T
+    return start, duration, c0, c1, c2, c3
+
+
+def epos2_pvt(records: ArrayLike, qc_per_ms_per_velocity_unit: float) -> PiecewiseCubic:
+    """EPOS2 cubic PVT (app note 2.3) of a program's records [position_qc, velocity, time_ms]:
+    ``epos2_segment`` for every record up to the end marker (``epos2_end``)."""
+    r = np.ascontiguousarray(records, dtype=np.int64)
     if r.ndim != 2 or r.shape[1] != 3 or len(r) < 2:
         raise ValueError("records must be an (N >= 2, 3) array of [position_qc, velocity, time_ms]")
-    times = r[:, 2]
-    zero = np.flatnonzero(times[1:] == 0)
-    n = zero[0] + 1 if len(zero) else len(r)  # records up to (excluding) the end marker
-    positions = np.concatenate(([r[0, 0]], r[:n, 0])).astype(float)
-    velocities = np.concatenate(([0.0], r[:n, 1] * qc_per_ms_per_velocity_unit))
-    durations = times[:n].astype(float)
-    return _segments_from_points(positions, velocities, durations, 0.0, Interpolation.CUBIC)
+    return PiecewiseCubic(*_epos2_cubics(r, float(qc_per_ms_per_velocity_unit)), Interpolation.CUBIC)
 
 
 def _fixed_period(records: ArrayLike) -> NDArray[np.int64]:

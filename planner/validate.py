@@ -6,6 +6,12 @@ never on a formula of its own: exactly (closed-form extrema per segment) and at 
 samples. Errors are what makes a drive refuse or fault (0x607F, 0x60C5, 0x607D, record ranges,
 the start and end rules); warnings are what only sets a warning bit (0x6081, 0x6083).
 
+The planner validates every program it emits, so the common case, nothing to report, is fast: the
+EPOS2 axes' worst values come from one compiled pass over all their segments (``epos2_segment``
+and ``hermite``, as ``epos2_pvt`` builds them, and the same closed-form extrema: the very same
+numbers), and only an axis with something to report is gone through segment by
+segment on its ``reconstruction()``.
+
 Each finding carries a stable rule code, so that tools can react to it without parsing text:
 
 =======================  =========================================================================
@@ -24,15 +30,27 @@ Each finding carries a stable rule code, so that tools can react to it without p
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
-from planner.interpolation import DRIVE_SAMPLE_MS, PiecewiseCubic, exceeds
+from planner.interpolation import (
+    DRIVE_SAMPLE_MS,
+    PiecewiseCubic,
+    cubic_peak_acceleration,
+    cubic_peak_speed,
+    cubic_position_range,
+    epos2_end,
+    epos2_segment,
+    exceeds,
+    hermite,
+)
 from planner.program import FIXED_PERIOD_PROFILES, TIME_MAX_MS, AxisProgram, PvtProgram
 
 ERROR = "error"
@@ -170,97 +188,175 @@ def validate_program(
 
     ``sample_period_ms=None`` skips the look at the drive's own samples: the exact checks alone
     decide (they bound the samples), which is what the planner's last check before output needs.
+    All axes' records are looked at once (:func:`_screen`); an axis is gone through segment by
+    segment only where that look finds something to report.
     """
     errors: list[Finding] = []
     warnings: list[Finding] = []
     summaries: list[AxisSummary] = []
-    for axis, motion in zip(program.axes, _motions(program.axes), strict=True):
-        found, summary = _validate_axis(axis, sample_period_ms, motion)
-        errors.extend(f for f in found if f.severity == ERROR)
-        warnings.extend(f for f in found if f.severity == WARNING)
+    records = [np.asarray(axis.records, dtype=np.int64) for axis in program.axes]
+    for axis, r, screen in zip(program.axes, records, _screen(program.axes, records), strict=True):
+        found, summary = _validate_axis(axis, r, sample_period_ms, screen)
+        for f in found:
+            (errors if f.severity == ERROR else warnings).append(f)
         summaries.append(summary)
     return ValidationReport(program.cell, tuple(errors), tuple(warnings), tuple(summaries), source)
 
 
+# The fields of a record and their ranges: (column, what, lowest, highest, unit, kind).
+_RECORD_FIELDS = (
+    (0, "position", INT32_MIN, INT32_MAX, "qc", "int32"),
+    (1, "velocity", INT24_MIN, INT24_MAX, "velocity units", "int24"),
+    (2, "time", 0, TIME_MAX_MS, "ms", "0..255 (uint8)"),
+)
+_FIELD_LO = np.array([lo for _, _, lo, _, _, _ in _RECORD_FIELDS], dtype=np.int64)
+_FIELD_HI = np.array([hi for _, _, _, hi, _, _ in _RECORD_FIELDS], dtype=np.int64)
+
+
+def _outside_ranges(r: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Per record and field, whether the value is outside the field's range (the record-range rule)."""
+    return (r < _FIELD_LO) | (r > _FIELD_HI)
+
+
+def _outside_motion_time(t: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Per record time, whether it is outside a motion record's 1..255 ms (the time-range rule)."""
+    return (t < 1) | (t > TIME_MAX_MS)
+
+
+class _Worst(NamedTuple):
+    """The worst values of an axis's EPOS2 reconstruction over all its segments (exact: closed forms)."""
+
+    speed: float  # max |v|, qc/ms
+    acceleration: float  # max |a|, qc/ms^2
+    lowest: float  # min position, qc
+    highest: float  # max position, qc
+    end_ms: float  # the reconstruction's end time
+
+
 @dataclass(frozen=True)
-class _Motion:
-    """An axis's reconstruction and its exact per-segment extrema (computed for all axes at once)."""
+class _Screen:
+    """What the look at all axes' records at once found about one axis."""
 
-    recon: PiecewiseCubic
-    max_abs_velocity: NDArray[np.float64]  # qc/ms
-    position_lo: NDArray[np.float64]  # qc
-    position_hi: NDArray[np.float64]
-
-
-def _has_motion(r: NDArray[np.int64]) -> bool:
-    """Records that have a reconstruction to check (the rest gets its structural findings only)."""
-    return r.ndim == 2 and r.shape[1] == 3 and len(r) >= 2 and r[0, 2] >= 1 and not np.any(r[:, 2] < 0)
+    in_range: bool  # every field of every record is in range: no record-range finding
+    bad_inner_times: list[int]  # records 1..N-2 whose time is outside 1..255 ms, in order
+    worst: _Worst | None  # None: not EPOS2 PVT, or no reconstruction to check
 
 
-def _motions(axes: tuple[AxisProgram, ...]) -> list[_Motion | None]:
-    """Every axis's reconstruction, and its exact extrema in one pass over all axes' segments
-    (the closed forms are per segment: the same numbers as axis by axis, at a fraction of the calls)."""
-    recons = [axis.reconstruction() if _has_motion(np.asarray(axis.records, dtype=np.int64)) else None for axis in axes]
-    some = [r for r in recons if r is not None]
-    if not some:
-        return [None] * len(axes)
-    cat = [np.concatenate([getattr(r, f) for r in some]) for f in ("start", "duration", "c0", "c1", "c2", "c3")]
-    every = PiecewiseCubic(*cat)
-    v = every.max_abs_velocity()
-    lo, hi = every.position_range()
-    out: list[_Motion | None] = []
-    k = 0
-    for r in recons:
-        if r is None:
-            out.append(None)
-            continue
-        n = len(r.start)
-        out.append(_Motion(r, v[k : k + n], lo[k : k + n], hi[k : k + n]))
-        k += n
+def _has_motion(r: NDArray[np.int64], in_range: bool) -> bool:
+    """(N >= 2, 3) records that have a reconstruction to check (the rest gets its structural findings
+    only): a first segment, and no negative time (which records in range cannot have)."""
+    return bool(r[0, 2] >= 1) and (in_range or not np.any(r[:, 2] < 0))
+
+
+def _screen(axes: tuple[AxisProgram, ...], records: list[NDArray[np.int64]]) -> list[_Screen]:
+    """Per axis, whether its records are all in range, which motion records have a time outside
+    1..255 ms, and the worst values of its EPOS2 reconstruction: one check of each rule over all
+    axes' records at once and one compiled pass over all EPOS2 axes' segments
+    (:func:`_epos2_worst`), instead of a dozen numpy calls per axis."""
+    shaped = [i for i, r in enumerate(records) if r.ndim == 2 and r.shape[1] == 3 and len(r) >= 2]
+    screens = [_Screen(False, [], None)] * len(axes)  # the others fail the shape check before any use
+    if not shaped:
+        return screens
+    rows = np.ascontiguousarray(np.concatenate([records[i] for i in shaped]))  # C order: one compiled signature
+    first = np.cumsum([0] + [len(records[i]) for i in shaped])  # each shaped axis's first row (and the end)
+    outside = _outside_ranges(rows)
+    if outside.any():
+        in_range = [not outside[first[j] : first[j + 1]].any() for j in range(len(shaped))]
+    else:
+        in_range = [True] * len(shaped)
+    # the rows with a time outside 1..255 ms (usually just the end records, whose time is 0), and
+    # where each axis's begin among them
+    bad_time = np.flatnonzero(_outside_motion_time(rows[:, 2]))
+    bad_time_cut = np.searchsorted(bad_time, first).tolist()
+    bad_time_rows, bounds = bad_time.tolist(), first.tolist()
+    epos2 = [j for j, i in enumerate(shaped) if axes[i].profile == "epos2_pvt" and _has_motion(records[i], in_range[j])]
+    worst: dict[int, _Worst] = {}
+    if epos2:
+        factor = np.array([axes[shaped[j]].scaling.qc_per_ms_per_velocity_unit for j in epos2], dtype=np.float64)
+        js = np.array(epos2, dtype=np.intp)
+        found = _epos2_worst(rows, first[js], first[js + 1], factor)
+        worst = {j: _Worst(*w) for j, w in zip(epos2, found.tolist(), strict=True)}
+    for j, i in enumerate(shaped):
+        begin, end = bounds[j], bounds[j + 1]
+        inner = [g - begin for g in bad_time_rows[bad_time_cut[j] : bad_time_cut[j + 1]] if begin < g < end - 1]
+        screens[i] = _Screen(in_range[j], inner, worst.get(j))
+    return screens
+
+
+@njit(cache=True)
+def _epos2_worst(
+    rows: NDArray[np.int64], begin: NDArray[np.int64], end: NDArray[np.int64], factor: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Per axis (records rows[begin:end], velocity factor qc/ms per unit), the :class:`_Worst` of its
+    EPOS2 reconstruction: the segments as ``epos2_pvt`` builds them (``epos2_segment`` up to
+    ``epos2_end``, ``hermite``), judged by ``cubic_peak_speed``, ``cubic_peak_acceleration``,
+    ``cubic_position_range``.
+    An axis with a value that is not finite gets NaN (it is then gone through segment by segment).
+    """
+    out = np.empty((len(begin), 5))
+    for a in range(len(begin)):
+        f = factor[a]
+        speed, accel, lowest, highest = -math.inf, -math.inf, math.inf, -math.inf
+        end_ms = 0.0
+        finite = True
+        for k in range(begin[a], epos2_end(rows, begin[a], end[a])):
+            p0, v0, p1, v1, T = epos2_segment(rows, begin[a], k, f)
+            c0, c1, c2, c3 = hermite(p0, v0, p1, v1, T)
+            s = cubic_peak_speed(c1, c2, c3, T)
+            acc = cubic_peak_acceleration(c2, c3, T)
+            lo, hi = cubic_position_range(c0, c1, c2, c3, T)
+            finite = finite and math.isfinite(s) and math.isfinite(acc) and math.isfinite(lo) and math.isfinite(hi)
+            speed, accel = max(speed, s), max(accel, acc)
+            lowest, highest = min(lowest, lo), max(highest, hi)
+            end_ms += T
+        out[a, 0], out[a, 1], out[a, 2], out[a, 3], out[a, 4] = speed, accel, lowest, highest, end_ms
+        if not finite:
+            out[a, :] = math.nan
     return out
 
 
+def _bare_summary(axis: AxisProgram, r: NDArray[np.int64]) -> AxisSummary:
+    """The summary of an axis without a reconstruction to check."""
+    shaped = r.ndim == 2 and r.shape[1] == 3 and len(r)
+    return AxisSummary(axis.name, axis.profile, len(r), float(r[:, 2].sum()) if shaped else 0.0)
+
+
 def _validate_axis(
-    axis: AxisProgram, sample_period_ms: float | None, motion: _Motion | None = None
+    axis: AxisProgram, r: NDArray[np.int64], sample_period_ms: float | None, screen: _Screen
 ) -> tuple[list[Finding], AxisSummary]:
-    r = np.asarray(axis.records, dtype=np.int64)
     out: list[Finding] = []
-    bare = AxisSummary(axis.name, axis.profile, len(r), float(r[:, 2].sum()) if r.ndim == 2 and len(r) else 0.0)
     if r.ndim != 2 or r.shape[1] != 3 or len(r) < 2:
+        bare = _bare_summary(axis, r)
         out.append(
             Finding(
                 ERROR,
                 "record-range",
                 axis.name,
                 None,
-                f"needs at least 2 records [position_qc, velocity, time_ms], has {len(r)}",
+                f"needs at least 2 records [position_qc, velocity, time_ms], has {len(r)}"
+                if r.ndim == 2 and r.shape[1] == 3
+                else f"records are rows of [position_qc, velocity, time_ms]: got an array of shape {r.shape}",
             )
         )
         return out, bare
-    out.extend(_check_ranges(axis.name, r))
+    if not screen.in_range:
+        out.extend(_check_ranges(axis.name, r))
     fixed = axis.profile in FIXED_PERIOD_PROFILES
-    structural = _check_fixed_period(axis, r) if fixed else _check_epos2(axis.name, r)
+    structural = _check_fixed_period(axis, r) if fixed else _check_epos2(axis.name, r, screen.bad_inner_times)
     out.extend(structural)
-    if r[0, 2] < 1 or np.any(r[:, 2] < 0):
+    if not _has_motion(r, screen.in_range):
         # no first segment (or negative durations): there is no reconstruction to check
-        return out, bare
-    if motion is None:
-        motion = _motions((axis,))[0]
-        assert motion is not None
-    found, summary = _check_motion(axis, motion, sample_period_ms)
+        return out, _bare_summary(axis, r)
+    found, summary = _check_motion(axis, sample_period_ms, screen.worst)
     out.extend(found)
     return out, summary
 
 
 def _check_ranges(name: str, r: NDArray[np.int64]) -> list[Finding]:
     out = []
-    fields = (
-        (0, "position", INT32_MIN, INT32_MAX, "qc", "int32"),
-        (1, "velocity", INT24_MIN, INT24_MAX, "velocity units", "int24"),
-        (2, "time", 0, TIME_MAX_MS, "ms", "0..255 (uint8)"),
-    )
-    for col, what, lo, hi, unit, kind in fields:
-        for k in np.flatnonzero((r[:, col] < lo) | (r[:, col] > hi)):
+    outside = _outside_ranges(r)
+    for col, what, lo, hi, unit, kind in _RECORD_FIELDS:
+        for k in np.flatnonzero(outside[:, col]):
             v = int(r[k, col])
             over = v - hi if v > hi else lo - v
             out.append(
@@ -298,8 +394,9 @@ def _check_start_at_rest(name: str, r: NDArray[np.int64]) -> list[Finding]:
     ]
 
 
-def _check_epos2(name: str, r: NDArray[np.int64]) -> list[Finding]:
-    """records[0]: start at rest, dwell >= 1 ms; motion records 1..255 ms; last: time 0 at rest."""
+def _check_epos2(name: str, r: NDArray[np.int64], bad_inner_times: list[int]) -> list[Finding]:
+    """records[0]: start at rest, dwell >= 1 ms; motion records 1..255 ms (``bad_inner_times``: those
+    outside, from :func:`_screen`); last: time 0 at rest."""
     out = []
     n = len(r)
     out.extend(_check_start_at_rest(name, r))
@@ -317,8 +414,7 @@ def _check_epos2(name: str, r: NDArray[np.int64]) -> list[Finding]:
                 "ms",
             )
         )
-    inner = r[1 : n - 1, 2]
-    for k in (1 + np.flatnonzero((inner < 1) | (inner > TIME_MAX_MS))).tolist():  # the bad ones, in order
+    for k in bad_inner_times:
         t = int(r[k, 2])
         if t == 0:
             out.append(
@@ -464,25 +560,98 @@ def _check_fixed_period(axis: AxisProgram, r: NDArray[np.int64]) -> list[Finding
     return out
 
 
+def _samples(
+    axis: AxisProgram, recon: PiecewiseCubic, sample_period_ms: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The drive's sampling instants and |velocity| (rpm), |acceleration| (rpm/s) there."""
+    s = axis.scaling
+    t = recon.sample_times(sample_period_ms)
+    sv = np.abs(np.asarray(s.qc_per_ms_to_rpm(recon.velocity(t))))
+    sa = np.abs(np.asarray(s.qc_per_ms2_to_rpm_s(recon.acceleration(t))))
+    return t, sv, sa
+
+
+def _summary(
+    axis: AxisProgram,
+    duration_ms: float,
+    vmax: float,
+    amax: float,
+    sv: NDArray[np.float64],
+    sa: NDArray[np.float64],
+    lowest: float,
+    highest: float,
+) -> AxisSummary:
+    lim = axis.limits
+    return AxisSummary(
+        axis=axis.name,
+        profile=axis.profile,
+        records=len(axis.records),
+        duration_ms=duration_ms,
+        max_velocity_rpm=vmax,
+        max_acceleration_rpm_s=amax,
+        velocity_ratio=vmax / lim.max_profile_velocity_rpm,
+        acceleration_ratio=amax / lim.max_acceleration_rpm_s,
+        sampled_velocity_ratio=float(sv.max()) / lim.max_profile_velocity_rpm if len(sv) else 0.0,
+        sampled_acceleration_ratio=float(sa.max()) / lim.max_acceleration_rpm_s if len(sa) else 0.0,
+        min_position_qc=lowest,
+        max_position_qc=highest,
+    )
+
+
+def _summary_within_limits(axis: AxisProgram, worst: _Worst, sample_period_ms: float | None) -> AxisSummary | None:
+    """The axis's summary if its worst values are within every limit (then no segment has a motion
+    finding), else None.
+
+    The unit conversions are monotonic, so the converted worst value is the worst converted value:
+    these are the very numbers the segment-by-segment check reports.
+    """
+    s = axis.scaling
+    lim = axis.limits
+    vmax = float(s.qc_per_ms_to_rpm(worst.speed))
+    amax = float(s.qc_per_ms2_to_rpm_s(worst.acceleration))
+    values = [vmax, amax]
+    limits = [lim.max_profile_velocity_rpm, lim.max_acceleration_rpm_s]
+    if lim.profile_velocity_rpm is not None:
+        values.append(vmax)
+        limits.append(lim.profile_velocity_rpm)
+    if lim.profile_acceleration_rpm_s is not None:
+        values.append(amax)
+        limits.append(lim.profile_acceleration_rpm_s)
+    if not all(math.isfinite(x) for x in worst):
+        return None  # a segment's NaN would hide behind the worst value: look at each one
+    if exceeds(values, limits).any() or worst.lowest < lim.min_position_qc or worst.highest > lim.max_position_qc:
+        return None
+    sv = sa = np.zeros(0)
+    if sample_period_ms:
+        _, sv, sa = _samples(axis, axis.reconstruction(), sample_period_ms)
+    return _summary(axis, worst.end_ms, vmax, amax, sv, sa, worst.lowest, worst.highest)
+
+
 def _check_motion(
-    axis: AxisProgram, motion: _Motion, sample_period_ms: float | None
+    axis: AxisProgram, sample_period_ms: float | None, worst: _Worst | None = None
 ) -> tuple[list[Finding], AxisSummary]:
-    """0x607D, 0x607F, 0x60C5 (errors) and 0x6081, 0x6083 (warnings) along the reconstruction."""
+    """0x607D, 0x607F, 0x60C5 (errors) and 0x6081, 0x6083 (warnings) along the reconstruction.
+
+    With the ``worst`` values of an EPOS2 axis, only an axis that breaks a limit is gone through
+    segment by segment.
+    """
+    if worst is not None:
+        summary = _summary_within_limits(axis, worst, sample_period_ms)
+        if summary is not None:
+            return [], summary
     s = axis.scaling
     lim = axis.limits
     name = axis.name
     out: list[Finding] = []
-    recon = motion.recon
+    recon = axis.reconstruction()
 
     # exact per-segment extrema, converted to the drive's units through the axis scaling
-    seg_v = np.asarray(s.qc_per_ms_to_rpm(motion.max_abs_velocity))
+    seg_v = np.asarray(s.qc_per_ms_to_rpm(recon.max_abs_velocity()))
     seg_a = np.asarray(s.qc_per_ms2_to_rpm_s(recon.max_abs_acceleration()))
-    lo, hi = motion.position_lo, motion.position_hi
+    lo, hi = recon.position_range()
     # and what the drive computes at its own 1 kHz samples
     if sample_period_ms:
-        t = recon.sample_times(sample_period_ms)
-        sv = np.abs(np.asarray(s.qc_per_ms_to_rpm(recon.velocity(t))))
-        sa = np.abs(np.asarray(s.qc_per_ms2_to_rpm_s(recon.acceleration(t))))
+        t, sv, sa = _samples(axis, recon, sample_period_ms)
         seg_of_sample = np.clip(np.searchsorted(recon.start, t, side="right") - 1, 0, len(recon.start) - 1)
     else:  # the exact checks alone (they bound the samples)
         sv = sa = np.zeros(0)
@@ -569,18 +738,4 @@ def _check_motion(
 
     vmax = float(seg_v.max()) if len(seg_v) else 0.0
     amax = float(seg_a.max()) if len(seg_a) else 0.0
-    summary = AxisSummary(
-        axis=name,
-        profile=axis.profile,
-        records=len(axis.records),
-        duration_ms=recon.end_time,
-        max_velocity_rpm=vmax,
-        max_acceleration_rpm_s=amax,
-        velocity_ratio=vmax / lim.max_profile_velocity_rpm,
-        acceleration_ratio=amax / lim.max_acceleration_rpm_s,
-        sampled_velocity_ratio=float(sv.max()) / lim.max_profile_velocity_rpm if len(sv) else 0.0,
-        sampled_acceleration_ratio=float(sa.max()) / lim.max_acceleration_rpm_s if len(sa) else 0.0,
-        min_position_qc=float(lo.min()),
-        max_position_qc=float(hi.max()),
-    )
-    return out, summary
+    return out, _summary(axis, recon.end_time, vmax, amax, sv, sa, float(lo.min()), float(hi.max()))

@@ -12,7 +12,7 @@ from axes.scaling import DriveLimits
 from planner.program import PvtProgram
 from planner.validate import validate_program
 
-from .conftest import GOOD_RECORDS, LIMITS, axis, program
+from .conftest import GOOD_RECORDS, LIMITS, SCALING, axis, program
 
 
 def only(report, rule: str):
@@ -183,3 +183,97 @@ def test_unchecked_ranges_round_trip_through_json() -> None:
 
 def test_drive_limits_fixture_is_consistent() -> None:
     assert DriveLimits(**LIMITS.to_json()) == LIMITS
+
+
+def random_epos2_records(rng: np.random.Generator, n: int) -> np.ndarray:
+    """A wandering EPOS2 program: start at rest, n motion records of 1..255 ms, end at rest with time 0."""
+    positions = np.cumsum(rng.integers(-400, 400, n))
+    velocities = rng.integers(-300, 300, n)
+    velocities[-1] = 0
+    times = rng.integers(1, 256, n)
+    motion = np.column_stack([positions, velocities, times])
+    return np.vstack([[0, 0, int(rng.integers(1, 10))], motion, [positions[-1], 0, 0]])
+
+
+@pytest.mark.parametrize("sample_period_ms", [None, 1.0])
+def test_summary_is_the_reconstructions_exact_worst(sample_period_ms) -> None:
+    """Per axis, the summary's numbers are those of the drive's reconstruction, to the last bit."""
+    rng = np.random.default_rng(7)
+    lim = dataclasses.replace(LIMITS, max_profile_velocity_rpm=1e7, max_acceleration_rpm_s=1e9)
+    axes = [axis(random_epos2_records(rng, 40 + 10 * k), f"joint_{k}", k, limits=lim) for k in range(1, 5)]
+    report = validate_program(program(*axes), sample_period_ms=sample_period_ms)
+    assert report.ok, report.format_text()
+    for a, summary in zip(axes, report.axes, strict=True):
+        recon = a.reconstruction()
+        lo, hi = recon.position_range()
+        assert summary.max_velocity_rpm == float(np.max(a.scaling.qc_per_ms_to_rpm(recon.max_abs_velocity())))
+        assert summary.max_acceleration_rpm_s == float(
+            np.max(a.scaling.qc_per_ms2_to_rpm_s(recon.max_abs_acceleration()))
+        )
+        assert (summary.min_position_qc, summary.max_position_qc) == (float(lo.min()), float(hi.max()))
+        assert summary.duration_ms == recon.end_time == float(a.records[:, 2].sum())
+        assert summary.velocity_ratio == summary.max_velocity_rpm / lim.max_profile_velocity_rpm
+        assert (summary.sampled_velocity_ratio > 0.0) == (sample_period_ms is not None)
+
+
+def test_a_limit_at_the_worst_value_is_kept_just_above_it_is_broken() -> None:
+    """The round-off allowance of ``exceeds``: at 0x607F (or within 1e-9 above) passes, beyond it fails."""
+    rng = np.random.default_rng(3)
+    records = random_epos2_records(rng, 60)
+    wide = dataclasses.replace(LIMITS, max_profile_velocity_rpm=1e7, max_acceleration_rpm_s=1e9)
+    worst = validate_program(program(axis(records, limits=wide)), sample_period_ms=None).axes[0]
+    for limit, ok in (
+        (worst.max_velocity_rpm, True),
+        (worst.max_velocity_rpm / (1 + 0.5e-9), True),
+        (worst.max_velocity_rpm / (1 + 2e-9), False),
+    ):
+        lim = dataclasses.replace(wide, max_profile_velocity_rpm=limit)
+        report = validate_program(program(axis(records, limits=lim)), sample_period_ms=None)
+        assert report.ok is ok
+        if not ok:  # on the segments that reach the worst value, and no other
+            recon = axis(records).reconstruction()
+            seg_v = SCALING.qc_per_ms_to_rpm(recon.max_abs_velocity())
+            found = only(report, "velocity-limit")
+            assert [f.record for f in found] == np.flatnonzero(seg_v == worst.max_velocity_rpm).tolist()
+            assert all(f.value == worst.max_velocity_rpm and f.amount > 0 for f in found)
+
+
+def test_record_findings_land_on_their_own_axis_and_record() -> None:
+    """Rules checked over all axes' records at once still name each axis and its record index."""
+    good = [[0, 0, 1], [100, 0, 50], [200, 0, 50], [300, 0, 50], [300, 0, 0]]
+    times = [[0, 0, 1], [100, 0, 0], [200, 0, 300], [300, 0, 50], [300, 0, 0]]
+    ranges = [[0, 0, 1], [100, 2**23, 50], [2**31, 0, 50], [300, 0, 256], [300, 0, 0]]
+    report = validate_program(
+        program(
+            axis(good, "joint_1", 1),
+            axis(times, "joint_2", 2),
+            axis(good, "joint_3", 3),
+            axis(ranges, "joint_4", 4),
+            axis(good, "joint_5", 5),
+        )
+    )
+    found = {(f.axis, f.rule, f.record) for f in report.findings if f.rule in ("time-range", "record-range")}
+    assert found == {
+        ("joint_2", "time-range", 1),
+        ("joint_2", "time-range", 2),
+        ("joint_2", "record-range", 2),
+        ("joint_4", "record-range", 1),
+        ("joint_4", "record-range", 2),
+        ("joint_4", "record-range", 3),
+        ("joint_4", "time-range", 3),
+    }
+    assert [a.axis for a in report.axes] == [f"joint_{k}" for k in range(1, 6)]
+    assert report.axes[0] == dataclasses.replace(report.axes[2], axis="joint_1")
+
+
+@pytest.mark.parametrize("cut", ["two_columns", "flat"])
+def test_records_of_the_wrong_shape_are_a_finding_not_a_crash(cut: str, good_program: PvtProgram) -> None:
+    prog = good_program
+    ax = prog.axes[0]
+    records = ax.records[:, :2] if cut == "two_columns" else ax.records[:, 0]
+    broken = dataclasses.replace(prog, axes=(dataclasses.replace(ax, records=records), *prog.axes[1:]))
+    for period in (None, 1.0):
+        report = validate_program(broken, sample_period_ms=period)
+        assert not report.ok
+        assert [f.axis for f in report.errors] == [ax.name]
+        assert "got an array of shape" in report.errors[0].message
