@@ -6,8 +6,11 @@ For each range: ``--paths`` random paths of ``--waypoints`` waypoints, planned w
 constraints; each placement is timed ``--repeat`` times (best CPU time kept: the VM's speed
 drifts). Prints per range the median motion length, the knot placement p50/p90 (ms), its cost per
 second of motion, records, and how often a path needed more than one round (slow-down).
+``--stages``: also where the time goes, per range: the CPU time per path of each step of the
+placement (timers wrapped around ``planner.knots``' step functions; nested steps are inside their
+callers' figures).
 
-Run:  python bench/knots_cost.py [--paths 25] [--waypoints 8] [--repeat 3] [--seed 5]
+Run:  python bench/knots_cost.py [--paths 25] [--waypoints 8] [--repeat 3] [--seed 5] [--stages]
 """
 
 from __future__ import annotations
@@ -21,11 +24,42 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+import planner.knots as knots
 from planner.knots import place_knots
 from service.config import CONFIG_DIR, load_cell_config
 from service.plan_cmd import CellPlanner
 
 RANGES = (0.2, 0.5, 0.8)
+STAGES = (
+    "_sample",
+    "_switch_knots",
+    "_refine",
+    "_lsq_fit",
+    "_round_knots",
+    "_check_knots",
+    "_repair_rounds",
+    "_velocity_qp",
+    "_split",
+    "_axis_knots",
+    "_fixed_period_axis",
+)
+
+
+def time_stages() -> dict[str, float]:
+    """Wrap the knot placement's steps with CPU timers; returns the running totals (s) by step."""
+    spent = dict.fromkeys(STAGES, 0.0)
+    for name in STAGES:
+        step = getattr(knots, name)
+
+        def timed(*a, _step=step, _name=name, **k):  # type: ignore[no-untyped-def]
+            start = time.process_time()
+            try:
+                return _step(*a, **k)
+            finally:
+                spent[_name] += time.process_time() - start
+
+        setattr(knots, name, timed)
+    return spent
 
 
 def main() -> int:
@@ -34,21 +68,28 @@ def main() -> int:
     ap.add_argument("--waypoints", type=int, default=8)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--stages", action="store_true", help="also the CPU time of each step of the placement")
     args = ap.parse_args()
+    spent = time_stages() if args.stages else None
 
     cell = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
     cell_planner = CellPlanner(cell)
     planner, axes = cell_planner.planner, list(cell_planner.axes)
     assert planner is not None, cell_planner.setup_error
+    cell_planner.warm_up()  # numba's compiled loops: loaded (or compiled) before anything is timed
     lim = cell.joint_limits()
     mid, half = (lim.lower + lim.upper) / 2.0, (lim.upper - lim.lower) / 2.0
     rng = np.random.default_rng(args.seed)
     print(
         f"command: python bench/knots_cost.py --paths {args.paths} --waypoints {args.waypoints} "
-        f"--repeat {args.repeat} --seed {args.seed}"
+        f"--repeat {args.repeat} --seed {args.seed}{' --stages' if args.stages else ''}"
     )
     print("range  motion p50  knots p50  knots p90  ms per s of motion  records/axis p50  paths with >1 round")
+    stage_rows = []
     for frac in RANGES:
+        if spent is not None:
+            for name in spent:
+                spent[name] = 0.0
         cpu, length, records, rounds = [], [], [], []
         while len(cpu) < args.paths:
             wp = mid - frac * half + 2.0 * frac * half * rng.random((args.waypoints, lim.dof))
@@ -70,6 +111,14 @@ def main() -> int:
             f"  {np.median(c / s):12.2f}        {np.median(records):10.0f}        "
             f"{sum(r > 1 for r in rounds)}/{len(rounds)}"
         )
+        if spent is not None:
+            per_path = 1000.0 / (args.paths * args.repeat)
+            stage_rows.append(
+                f"{frac:4.0%}   " + ", ".join(f"{n.strip('_')} {t * per_path:.2f}" for n, t in spent.items())
+            )
+    if stage_rows:
+        print("CPU ms per path by step (knots.<step>):")
+        print("\n".join(stage_rows))
     return 0
 
 
