@@ -617,21 +617,17 @@ def _velocity_qp(
     absorb what rounding the positions did to the accelerations, each segment's interior moving
     by at most its ``room`` (counts) at a third and two thirds of it. Only the velocities within
     ``_QP_WINDOW`` knots of the segments ``over`` a limit move (the rest are fixed), which keeps the
-    QP small. All axes go into one QP (their blocks are independent); if it is infeasible, each
-    axis's block is solved on its own and the feasible ones are kept. None when nothing moved.
+    QP small. Each axis is its own QP (the axes are independent: one that cannot be helped does not
+    make the others' infeasible, and solving them together first cost a failed solve in most calls);
+    the feasible ones are kept. None when nothing moved.
     """
+    ax = fl.axis_of(knots[over])
+    parts = [m for m in (_qp_solve(fl, knots, P, v, room, over[ax == a]) for a in np.unique(ax)) if m is not None]
+    if not parts:
+        return None
     out = v.copy()
-    moved = _qp_solve(fl, knots, P, v, room, over)
-    if moved is None:
-        ax = fl.axis_of(knots[over])
-        groups = [over[ax == a] for a in np.unique(ax)]
-        if len(groups) < 2:
-            return None
-        parts = [m for m in (_qp_solve(fl, knots, P, v, room, g) for g in groups) if m is not None]
-        if not parts:
-            return None
-        moved = (np.concatenate([m[0] for m in parts]), np.concatenate([m[1] for m in parts]))
-    out[moved[0]] += moved[1]
+    for cols, dv in parts:
+        out[cols] += dv
     return out
 
 
