@@ -144,6 +144,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         try:
             lockstep = cell.simulated and not args.real_time
+            print(
+                f"{PROG}: starting cell {cell.name}; the planner loads its compiled loops (on a new machine numba "
+                "compiles them first: ~15 s, once)",
+                file=sys.stderr,
+                flush=True,
+            )
             service = MotionService(
                 cell,
                 journal_dir=args.journal,
