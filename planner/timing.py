@@ -219,6 +219,13 @@ def _path_states(
 
 
 @njit(cache=True)
+def _spline_piece(x: NDArray[np.float64], s: float) -> tuple[int, float]:
+    """The cubic piece of the path at s and the offset into it (scipy's PPoly: clipped to the ends)."""
+    i = min(max(np.searchsorted(x, s, side="right") - 1, 0), len(x) - 2)
+    return i, s - x[i]
+
+
+@njit(cache=True)
 def _joint_states(
     t: NDArray[np.float64],
     breakpoints: NDArray[np.float64],
@@ -234,12 +241,36 @@ def _joint_states(
     q, qd = np.empty((dof, len(t))), np.empty((dof, len(t)))
     for k in range(len(t)):
         s, s_d, _ = _path_state(t[k], breakpoints, gridpoints, sd, sdd)
-        i = min(max(np.searchsorted(x, s, side="right") - 1, 0), len(x) - 2)
-        h = s - x[i]
+        i, h = _spline_piece(x, s)
         for j in range(dof):
             q[j, k] = ((c[0, i, j] * h + c[1, i, j]) * h + c[2, i, j]) * h + c[3, i, j]
             qd[j, k] = ((3.0 * c[0, i, j] * h + 2.0 * c[1, i, j]) * h + c[2, i, j]) * s_d
     return q, qd
+
+
+@njit(cache=True)
+def _worst_ratios(
+    t: NDArray[np.float64],
+    breakpoints: NDArray[np.float64],
+    gridpoints: NDArray[np.float64],
+    sd: NDArray[np.float64],
+    sdd: NDArray[np.float64],
+    x: NDArray[np.float64],
+    c: NDArray[np.float64],
+    vmax: NDArray[np.float64],
+    amax: NDArray[np.float64],
+) -> tuple[float, float]:
+    """max |q'| / vmax and max |q''| / amax over the times t, q' = q_s s', q'' = q_ss s'^2 + q_s s''."""
+    rv, ra = 0.0, 0.0
+    for k in range(len(t)):
+        s, s_d, s_dd = _path_state(t[k], breakpoints, gridpoints, sd, sdd)
+        i, h = _spline_piece(x, s)
+        for j in range(c.shape[2]):
+            q_s = (3.0 * c[0, i, j] * h + 2.0 * c[1, i, j]) * h + c[2, i, j]
+            q_ss = 6.0 * c[0, i, j] * h + 2.0 * c[1, i, j]
+            rv = max(rv, abs(q_s * s_d) / vmax[j])
+            ra = max(ra, abs(q_ss * s_d * s_d + q_s * s_dd) / amax[j])
+    return rv, ra
 
 
 @dataclass(frozen=True)
@@ -363,11 +394,18 @@ class Trajectory:
 
     def limit_ratios(self, limits: JointLimits) -> tuple[float, float]:
         """Worst |qd|/vmax and |qdd|/amax over the check times."""
-        s, sd, sdd, _ = self._state(self.check_times())
-        qs = self.path(s, 1)
-        qd = qs * sd[:, None]
-        qdd = self.path(s, 2) * (sd * sd)[:, None] + qs * sdd[:, None]
-        return float(np.max(np.abs(qd) / limits.velocity)), float(np.max(np.abs(qdd) / limits.acceleration))
+        spline = self.path.cspl
+        return _worst_ratios(
+            self.check_times(),
+            self.breakpoints,
+            self.gridpoints,
+            self.sd,
+            self.sdd,
+            spline.x,
+            np.ascontiguousarray(spline.c),
+            np.asarray(limits.velocity, dtype=float),
+            np.asarray(limits.acceleration, dtype=float),
+        )
 
 
 def timing_constraints(

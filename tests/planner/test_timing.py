@@ -137,3 +137,17 @@ def test_deferred_torque_limits_give_the_same_plan_as_solving_with_them() -> Non
     held = parameterize(path, weak, weak_cons)
     assert weak_torque.holds_on(held)
     assert held.duration > free.duration
+
+
+def test_limit_ratios_are_the_paths_own_derivatives() -> None:
+    """The compiled post-check gives what the path's spline (scipy) says at every check time."""
+    tr = Planner(LIMITS, ARM.model, "tool0", 2.0).plan(WAYPOINTS).trajectory
+    assert tr is not None
+    s, sd, sdd, _ = tr._state(tr.check_times())
+    qs = tr.path(s, 1)
+    qd = qs * sd[:, None]
+    qdd = tr.path(s, 2) * (sd * sd)[:, None] + qs * sdd[:, None]
+    rv, ra = tr.limit_ratios(LIMITS)
+    assert rv == pytest.approx(float(np.max(np.abs(qd) / LIMITS.velocity)), rel=1e-12)
+    assert ra == pytest.approx(float(np.max(np.abs(qdd) / LIMITS.acceleration)), rel=1e-12)
+    assert 0.5 < max(rv, ra) <= 1.0 + 1e-9  # a time-optimal plan reaches a limit, and keeps it
