@@ -89,8 +89,9 @@ class PiecewiseCubic:
 
     # --- exact extrema per segment ---------------------------------------------------------------
     def max_abs_velocity(self) -> NDArray[np.float64]:
-        """Per segment, the largest |velocity| on [0, T] (closed form: ends or the vertex)."""
-        return max_abs_cubic_velocity(self.c1, self.c2, self.c3, self.duration)
+        """Per segment, the largest |velocity| on [0, T] (``cubic_peak_speed``)."""
+        shape, flat = _flat(self.c1, self.c2, self.c3, self.duration)
+        return _peak_speeds(*flat).reshape(shape)
 
     def max_abs_acceleration(self) -> NDArray[np.float64]:
         """Per segment, the largest |acceleration|.
@@ -210,12 +211,6 @@ def _flat(*xs: ArrayLike) -> tuple[tuple[int, ...], list[NDArray[np.float64]]]:
     """Broadcast to one shape and flatten (the compiled loops take 1-D float arrays)."""
     arrs = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in xs))
     return arrs[0].shape, [np.ascontiguousarray(a).ravel() for a in arrs]
-
-
-def max_abs_cubic_velocity(c1: ArrayLike, c2: ArrayLike, c3: ArrayLike, T: ArrayLike) -> NDArray[np.float64]:
-    """Elementwise ``cubic_peak_speed``."""
-    shape, flat = _flat(c1, c2, c3, T)
-    return _peak_speeds(*flat).reshape(shape)
 
 
 def hermite_coefficients(

@@ -29,6 +29,18 @@ def _horner(c0: float, c1: float, c2: float, c3: float, tau: float) -> float:
 
 
 @njit(cache=True)
+def _probe_deviation(c0: float, c1: float, c2: float, c3: float, T: float, k0: int, plan: _F, probes: _F) -> float:
+    """Worst |cubic - plan| at the whole ms ``floor(T * x)`` of a segment that starts at plan index
+    ``k0`` (a cheap judgement: a few probes, not every ms)."""
+    worst = 0.0
+    last = len(plan) - 1
+    for x in probes:
+        tau = np.floor(T * x)
+        worst = max(worst, abs(_horner(c0, c1, c2, c3, tau) - plan[min(k0 + int(tau), last)]))
+    return worst
+
+
+@njit(cache=True)
 def _prev_segment(prev_knots: _I, j: int, k0: int, k1: int) -> tuple[int, bool]:
     """Advance ``j`` to the previous knots' segment starting at k0; whether it is k0 .. k1."""
     while j < len(prev_knots) - 2 and prev_knots[j] < k0:
@@ -109,10 +121,7 @@ def refine(knots: _I, p: _F, v: _F, probes: _F, target: float, max_rounds: int, 
                 hi += 1
             T = float(hi - lo)
             c0, c1, c2, c3 = hermite(p[lo], v[lo], p[hi], v[hi], T)
-            worst = 0.0
-            for x in probes:
-                tau = np.floor(T * x)
-                worst = max(worst, abs(_horner(c0, c1, c2, c3, tau) - p[lo + int(tau)]))
+            worst = _probe_deviation(c0, c1, c2, c3, T, lo, p, probes)
             if (worst > target and hi - lo >= 2) or hi - lo > t_max:
                 mid = (lo + hi) // 2
                 is_knot[mid] = True
@@ -393,7 +402,7 @@ def qp_problem(
 # c = 15 e0 + e1 nudges the segment's start knot by e0 and its end knot by e1
 _N_END = 15
 _STILL = 7  # the nudge that moves nothing
-_PROBES = (0.25, 0.5, 0.75)  # where inside a segment the deviation of a nudge is judged
+_PROBES = np.array([0.25, 0.5, 0.75])  # where inside a segment the deviation of a nudge is judged
 
 
 @njit(cache=True)
@@ -402,11 +411,7 @@ def _nudged_cubic(
 ) -> tuple[float, float]:
     """A candidate cubic's worst |cubic - plan| at the probes and its worst limit ratio."""
     c0, c1, c2, c3 = hermite(p0, v0, p1, v1, T)
-    inner = 0.0
-    last = len(plan) - 1
-    for x in _PROBES:
-        tau = np.floor(x * T)
-        inner = max(inner, abs(_horner(c0, c1, c2, c3, tau) - plan[min(k0 + int(tau), last)]))
+    inner = _probe_deviation(c0, c1, c2, c3, T, k0, plan, _PROBES)
     ratio = max(cubic_peak_speed(c1, c2, c3, T) * rv_per, cubic_peak_acceleration(c2, c3, T) * ra_per)
     return inner, ratio
 

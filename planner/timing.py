@@ -219,10 +219,15 @@ def _path_states(
 
 
 @njit(cache=True)
-def _spline_piece(x: NDArray[np.float64], s: float) -> tuple[int, float]:
-    """The cubic piece of the path at s and the offset into it (scipy's PPoly: clipped to the ends)."""
+def _spline_at(x: NDArray[np.float64], c: NDArray[np.float64], s: float, j: int) -> tuple[float, float, float]:
+    """Joint j of the path at s: q, q_s, q_ss from its cubic piece (scipy's PPoly layout:
+    breakpoints ``x``, ``c[k, piece, joint]`` highest power first; clipped to the end pieces)."""
     i = min(max(np.searchsorted(x, s, side="right") - 1, 0), len(x) - 2)
-    return i, s - x[i]
+    h = s - x[i]
+    q = ((c[0, i, j] * h + c[1, i, j]) * h + c[2, i, j]) * h + c[3, i, j]
+    q_s = (3.0 * c[0, i, j] * h + 2.0 * c[1, i, j]) * h + c[2, i, j]
+    q_ss = 6.0 * c[0, i, j] * h + 2.0 * c[1, i, j]
+    return q, q_s, q_ss
 
 
 @njit(cache=True)
@@ -235,16 +240,14 @@ def _joint_states(
     x: NDArray[np.float64],
     c: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """q and q' = q_s(s) s', each (dof, len(t)), from the path's cubic pieces (scipy's PPoly
-    layout: breakpoints ``x``, ``c[k, piece, joint]`` highest power first) in one pass."""
+    """q and q' = q_s(s) s', each (dof, len(t)), in one pass."""
     dof = c.shape[2]
     q, qd = np.empty((dof, len(t))), np.empty((dof, len(t)))
     for k in range(len(t)):
         s, s_d, _ = _path_state(t[k], breakpoints, gridpoints, sd, sdd)
-        i, h = _spline_piece(x, s)
         for j in range(dof):
-            q[j, k] = ((c[0, i, j] * h + c[1, i, j]) * h + c[2, i, j]) * h + c[3, i, j]
-            qd[j, k] = ((3.0 * c[0, i, j] * h + 2.0 * c[1, i, j]) * h + c[2, i, j]) * s_d
+            q[j, k], q_s, _ = _spline_at(x, c, s, j)
+            qd[j, k] = q_s * s_d
     return q, qd
 
 
@@ -264,10 +267,8 @@ def _worst_ratios(
     rv, ra = 0.0, 0.0
     for k in range(len(t)):
         s, s_d, s_dd = _path_state(t[k], breakpoints, gridpoints, sd, sdd)
-        i, h = _spline_piece(x, s)
         for j in range(c.shape[2]):
-            q_s = (3.0 * c[0, i, j] * h + 2.0 * c[1, i, j]) * h + c[2, i, j]
-            q_ss = 6.0 * c[0, i, j] * h + 2.0 * c[1, i, j]
+            _, q_s, q_ss = _spline_at(x, c, s, j)
             rv = max(rv, abs(q_s * s_d) / vmax[j])
             ra = max(ra, abs(q_ss * s_d * s_d + q_s * s_dd) / amax[j])
     return rv, ra
@@ -345,19 +346,15 @@ class Trajectory:
         s, sd, sdd = _path_states(np.atleast_1d(t_arr).ravel(), self.breakpoints, self.gridpoints, self.sd, self.sdd)
         return s, sd, sdd, scalar
 
+    def _profile_and_path(self) -> tuple[NDArray[np.float64], ...]:
+        """What the compiled loops need of the motion: the s'' profile and the path's cubic pieces."""
+        spline = self.path.cspl
+        return self.breakpoints, self.gridpoints, self.sd, self.sdd, spline.x, np.ascontiguousarray(spline.c)
+
     def states(self, t: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Positions and velocities, each (dof, len(t)), at the times t in one pass: for sampling
         at every drive ms (one row per joint, as the drives take them)."""
-        spline = self.path.cspl
-        return _joint_states(
-            np.atleast_1d(np.asarray(t, dtype=float)).ravel(),
-            self.breakpoints,
-            self.gridpoints,
-            self.sd,
-            self.sdd,
-            spline.x,
-            np.ascontiguousarray(spline.c),
-        )
+        return _joint_states(np.atleast_1d(np.asarray(t, dtype=float)).ravel(), *self._profile_and_path())
 
     def acceleration_jumps(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The times of the inner gridpoints and |q''(t+) - q''(t-)| there, (n, dof): where the
@@ -394,15 +391,9 @@ class Trajectory:
 
     def limit_ratios(self, limits: JointLimits) -> tuple[float, float]:
         """Worst |qd|/vmax and |qdd|/amax over the check times."""
-        spline = self.path.cspl
         return _worst_ratios(
             self.check_times(),
-            self.breakpoints,
-            self.gridpoints,
-            self.sd,
-            self.sdd,
-            spline.x,
-            np.ascontiguousarray(spline.c),
+            *self._profile_and_path(),
             np.asarray(limits.velocity, dtype=float),
             np.asarray(limits.acceleration, dtype=float),
         )

@@ -598,6 +598,35 @@ def _summary(
     )
 
 
+class _MotionLimit(NamedTuple):
+    """A limit on |velocity| or |acceleration| along the reconstruction, and how a breach is reported."""
+
+    kind: str  # "velocity" or "acceleration"
+    rule: str
+    severity: str
+    limit: float
+    obj: str
+    unit: str
+
+
+def _motion_limits(axis: AxisProgram) -> list[_MotionLimit]:
+    """0x607F and 0x60C5 (errors), and 0x6081 and 0x6083 where the axis has them (warnings)."""
+    lim = axis.limits
+    out = [
+        _MotionLimit("velocity", "velocity-limit", ERROR, lim.max_profile_velocity_rpm, "0x607F", "rpm"),
+        _MotionLimit("acceleration", "acceleration-limit", ERROR, lim.max_acceleration_rpm_s, "0x60C5", "rpm/s"),
+    ]
+    if lim.profile_velocity_rpm is not None:
+        out.append(_MotionLimit("velocity", "profile-velocity", WARNING, lim.profile_velocity_rpm, "0x6081", "rpm"))
+    if lim.profile_acceleration_rpm_s is not None:
+        out.append(
+            _MotionLimit(
+                "acceleration", "profile-acceleration", WARNING, lim.profile_acceleration_rpm_s, "0x6083", "rpm/s"
+            )
+        )
+    return out
+
+
 def _summary_within_limits(axis: AxisProgram, worst: _Worst, sample_period_ms: float | None) -> AxisSummary | None:
     """The axis's summary if its worst values are within every limit (then no segment has a motion
     finding), else None.
@@ -609,17 +638,12 @@ def _summary_within_limits(axis: AxisProgram, worst: _Worst, sample_period_ms: f
     lim = axis.limits
     vmax = float(s.qc_per_ms_to_rpm(worst.speed))
     amax = float(s.qc_per_ms2_to_rpm_s(worst.acceleration))
-    values = [vmax, amax]
-    limits = [lim.max_profile_velocity_rpm, lim.max_acceleration_rpm_s]
-    if lim.profile_velocity_rpm is not None:
-        values.append(vmax)
-        limits.append(lim.profile_velocity_rpm)
-    if lim.profile_acceleration_rpm_s is not None:
-        values.append(amax)
-        limits.append(lim.profile_acceleration_rpm_s)
     if not all(math.isfinite(x) for x in worst):
         return None  # a segment's NaN would hide behind the worst value: look at each one
-    if exceeds(values, limits).any() or worst.lowest < lim.min_position_qc or worst.highest > lim.max_position_qc:
+    value = {"velocity": vmax, "acceleration": amax}
+    if any(exceeds(value[m.kind], m.limit) for m in _motion_limits(axis)):
+        return None
+    if worst.lowest < lim.min_position_qc or worst.highest > lim.max_position_qc:
         return None
     sv = sa = np.zeros(0)
     if sample_period_ms:
@@ -698,21 +722,9 @@ def _check_motion(
                 )
             )
 
-    over_limit("velocity", "velocity-limit", ERROR, seg_v, sv, lim.max_profile_velocity_rpm, "0x607F", "rpm")
-    over_limit("acceleration", "acceleration-limit", ERROR, seg_a, sa, lim.max_acceleration_rpm_s, "0x60C5", "rpm/s")
-    if lim.profile_velocity_rpm is not None:
-        over_limit("velocity", "profile-velocity", WARNING, seg_v, sv, lim.profile_velocity_rpm, "0x6081", "rpm")
-    if lim.profile_acceleration_rpm_s is not None:
-        over_limit(
-            "acceleration",
-            "profile-acceleration",
-            WARNING,
-            seg_a,
-            sa,
-            lim.profile_acceleration_rpm_s,
-            "0x6083",
-            "rpm/s",
-        )
+    per_kind = {"velocity": (seg_v, sv), "acceleration": (seg_a, sa)}
+    for m in _motion_limits(axis):
+        over_limit(m.kind, m.rule, m.severity, *per_kind[m.kind], m.limit, m.obj, m.unit)
 
     for k in np.flatnonzero((lo < lim.min_position_qc) | (hi > lim.max_position_qc)):
         if hi[k] > lim.max_position_qc:
