@@ -397,138 +397,172 @@ def qp_problem(
 
 
 # --- the integer repair --------------------------------------------------------------------------
-# every combination of these count / velocity-unit nudges of a segment's two end records is tried:
-# nudge e of one knot is (e // 5 - 1) counts and (e % 5 - 2) velocity units; combination
-# c = 15 e0 + e1 nudges the segment's start knot by e0 and its end knot by e1
-_N_END = 15
-_STILL = 7  # the nudge that moves nothing
+# A record may move by up to _DP counts and _DV velocity units off its rounding: nudge e of a record
+# moves it by _dp(e) counts and _dv(e) units (e = _STILL moves nothing).
+_DP, _DV = 1, 2
+_N_NUDGES = (2 * _DP + 1) * (2 * _DV + 1)
+_STILL = _DP * (2 * _DV + 1) + _DV
 _PROBES = np.array([0.25, 0.5, 0.75])  # where inside a segment the deviation of a nudge is judged
+_EXCESS_WEIGHT = 1e6  # a ratio excess of 1e-5 outweighs a chain's deviations (counts): excess first
 
 
 @njit(cache=True)
-def _nudged_cubic(
-    p0: float, v0: float, p1: float, v1: float, T: float, k0: int, plan: _F, rv_per: float, ra_per: float
+def _dp(e: int) -> int:
+    return e // (2 * _DV + 1) - _DP
+
+
+@njit(cache=True)
+def _dv(e: int) -> int:
+    return e % (2 * _DV + 1) - _DV
+
+
+@njit(cache=True)
+def _chain_cubic(
+    p0: float,
+    v0: float,
+    p1: float,
+    v1: float,
+    T: float,
+    k0: int,
+    plan: _F,
+    rv_per: float,
+    ra_per: float,
+    pos_lo: float,
+    pos_hi: float,
+    tol: float,
 ) -> tuple[float, float]:
-    """A candidate cubic's worst |cubic - plan| at the probes and its worst limit ratio."""
+    """A candidate cubic's worst limit ratio (inf where it strays more than ``tol`` from the plan at
+    its ends and probes, or leaves 0x607D) and that deviation."""
     c0, c1, c2, c3 = hermite(p0, v0, p1, v1, T)
-    inner = _probe_deviation(c0, c1, c2, c3, T, k0, plan, _PROBES)
+    dev = max(abs(p0 - plan[k0]), abs(p1 - plan[k0 + int(T)]))
+    dev = max(dev, _probe_deviation(c0, c1, c2, c3, T, k0, plan, _PROBES))
+    if dev > tol:
+        return np.inf, dev
+    reach = T * (abs(v0) + abs(v1)) * (4.0 / 27.0)
+    if min(p0, p1) - reach < pos_lo or max(p0, p1) + reach > pos_hi:
+        lo, hi = cubic_position_range(c0, c1, c2, c3, T)
+        if lo < pos_lo or hi > pos_hi:
+            return np.inf, dev
     ratio = max(cubic_peak_speed(c1, c2, c3, T) * rv_per, cubic_peak_acceleration(c2, c3, T) * ra_per)
-    return inner, ratio
+    return ratio, dev
 
 
 @njit(cache=True)
-def _repair_segment(
-    knots: _I, P: _I, V: _I, s: int, stride: int, f: float, rv_per: float, ra_per: float, plan: _F, tol: float
+def _repair_chain(
+    knots: _I,
+    P: _I,
+    V: _I,
+    i0: int,
+    i1: int,
+    stride: int,
+    f: float,
+    rv_per: float,
+    ra_per: float,
+    pos_lo: float,
+    pos_hi: float,
+    plan: _F,
+    tol: float,
 ) -> bool:
-    """Re-round the two end records of segment ``s`` (in place): among the nudges that keep the
-    knots and the three segments they touch within ``tol`` of the plan, the one with the lowest
-    worst limit ratio over those segments (ties: the smallest deviation, then the first)."""
-    nk = len(knots)
-    a = knots[s] // stride
-    has_left = s >= 1 and knots[s - 1] // stride == a
-    has_right = s + 2 < nk and knots[s + 2] // stride == a
-    free0 = knots[s] % stride != 0 and knots[s] % stride != stride - 1  # an axis's ends never move
-    free1 = knots[s + 1] % stride != 0 and knots[s + 1] % stride != stride - 1
-    fixed_dev = 0.0
-    if has_left:
-        fixed_dev = max(fixed_dev, abs(P[s - 1] - plan[knots[s - 1]]))
-    if has_right:
-        fixed_dev = max(fixed_dev, abs(P[s + 2] - plan[knots[s + 2]]))
-    # the side segments see the nudge of one knot only: 15 each
-    dev_s, ratio_s = np.zeros(_N_END), np.zeros(_N_END)
-    dev_e, ratio_e = np.zeros(_N_END), np.zeros(_N_END)
-    for e in range(_N_END):
-        ps, vs = P[s] + e // 5 - 1, (V[s] + e % 5 - 2) * f
-        pe, ve = P[s + 1] + e // 5 - 1, (V[s + 1] + e % 5 - 2) * f
-        inner_s, inner_e = 0.0, 0.0
-        if has_left:
-            T = float(knots[s] - knots[s - 1])
-            inner_s, ratio_s[e] = _nudged_cubic(
-                float(P[s - 1]), V[s - 1] * f, float(ps), vs, T, knots[s - 1], plan, rv_per, ra_per
-            )
-        if has_right:
-            T = float(knots[s + 2] - knots[s + 1])
-            inner_e, ratio_e[e] = _nudged_cubic(
-                float(pe), ve, float(P[s + 2]), V[s + 2] * f, T, knots[s + 1], plan, rv_per, ra_per
-            )
-        dev_s[e] = max(abs(ps - plan[knots[s]]), inner_s)
-        dev_e[e] = max(abs(pe - plan[knots[s + 1]]), inner_e)
-    T = float(knots[s + 1] - knots[s])
-    best, best_score = -1, np.inf
-    for e0 in range(_N_END):
-        if not free0 and e0 != _STILL:
-            continue
-        for e1 in range(_N_END):
-            if not free1 and e1 != _STILL:
+    """Nudge the records of knots i0 .. i1 (in place, between the fixed knots i0 - 1 and i1 + 1)
+    to the combination whose worst limit ratio over the chain's segments is the least (a
+    bottleneck path over the nudges of each knot); among those that keep every segment under
+    max(that, 1), the one with the least summed excess over 1 (fewest segments left for the QP and
+    the splits), then the closest to the plan (a shortest path). Whether it moved anything."""
+    L = i1 - i0 + 1
+    R = np.full((L + 1, _N_NUDGES, _N_NUDGES), np.inf)
+    D = np.zeros((L + 1, _N_NUDGES, _N_NUDGES))
+    for j in range(L + 1):
+        k = i0 - 1 + j
+        T = float(knots[k + 1] - knots[k])
+        for e0 in range(_N_NUDGES):
+            if j == 0 and e0 != _STILL:
                 continue
-            inner, ratio = _nudged_cubic(
-                float(P[s] + e0 // 5 - 1),
-                (V[s] + e0 % 5 - 2) * f,
-                float(P[s + 1] + e1 // 5 - 1),
-                (V[s + 1] + e1 % 5 - 2) * f,
-                T,
-                knots[s],
-                plan,
-                rv_per,
-                ra_per,
-            )
-            dev = max(max(dev_s[e0], dev_e[e1]), max(inner, fixed_dev))
-            if dev > tol:
-                continue
-            score = max(ratio, max(ratio_s[e0], ratio_e[e1])) + 1e-6 * dev
-            if score < best_score:
-                best, best_score = _N_END * e0 + e1, score
-    if best < 0 or best == _N_END * _STILL + _STILL:
+            p0, v0 = float(P[k] + _dp(e0)), (V[k] + _dv(e0)) * f
+            for e1 in range(_N_NUDGES):
+                if j == L and e1 != _STILL:
+                    continue
+                p1, v1 = float(P[k + 1] + _dp(e1)), (V[k + 1] + _dv(e1)) * f
+                R[j, e0, e1], D[j, e0, e1] = _chain_cubic(
+                    p0, v0, p1, v1, T, knots[k], plan, rv_per, ra_per, pos_lo, pos_hi, tol
+                )
+    now = 0.0
+    for j in range(L + 1):
+        now = max(now, R[j, _STILL, _STILL])
+    # pass 1: the least worst ratio
+    M = np.full(_N_NUDGES, np.inf)
+    M[_STILL] = 0.0
+    for j in range(L + 1):
+        M_next = np.full(_N_NUDGES, np.inf)
+        for e1 in range(_N_NUDGES):
+            for e0 in range(_N_NUDGES):
+                M_next[e1] = min(M_next[e1], max(M[e0], R[j, e0, e1]))
+        M = M_next
+    best = M[_STILL]
+    if not best < now:
         return False
-    e0, e1 = best // _N_END, best % _N_END
-    P[s] += e0 // 5 - 1
-    V[s] += e0 % 5 - 2
-    P[s + 1] += e1 // 5 - 1
-    V[s + 1] += e1 % 5 - 2
-    return True
+    # pass 2: under max(best, 1), the least excess, then the closest to the plan
+    cap = max(best, 1.0)
+    S = np.full(_N_NUDGES, np.inf)
+    S[_STILL] = 0.0
+    back = np.zeros((L + 1, _N_NUDGES), dtype=np.int64)
+    for j in range(L + 1):
+        S_next = np.full(_N_NUDGES, np.inf)
+        for e1 in range(_N_NUDGES):
+            for e0 in range(_N_NUDGES):
+                r = R[j, e0, e1]
+                cost = S[e0] + _EXCESS_WEIGHT * max(r - 1.0, 0.0) + D[j, e0, e1]
+                if r <= cap and cost < S_next[e1]:
+                    S_next[e1] = cost
+                    back[j, e1] = e0
+        S = S_next
+    e = _STILL
+    moved = False
+    for j in range(L, 0, -1):
+        e = back[j, e]
+        k = i0 - 1 + j
+        P[k] += _dp(e)
+        V[k] += _dv(e)
+        moved |= e != _STILL
+    return moved
 
 
 @njit(cache=True)
-def repair_segments(
-    knots: _I, P: _I, V: _I, segments: _I, stride: int, f: _F, rv_per: _F, ra_per: _F, plan: _F, tol: float
+def repair_chains(
+    knots: _I,
+    P: _I,
+    V: _I,
+    segments: _I,
+    stride: int,
+    f: _F,
+    rv_per: _F,
+    ra_per: _F,
+    pos_lo: _F,
+    pos_hi: _F,
+    plan: _F,
+    tol: float,
+    reach: int,
 ) -> bool:
-    """``_repair_segment`` every segment of ``segments`` (sorted), in place; whether any moved.
-
-    A repair of segment s reads knots s-1 .. s+2 and moves s, s+1, so only the order of two
-    segments within 2 of each other on one axis matters. That order is fixed: the one of the lower
-    class (its place on its axis mod 4) first, each segment in the first wave after every such
-    segment before it; within a wave no two segments touch, so repairing them one after the other
-    is repairing them at once.
-    """
-    n = len(segments)
-    cls = np.empty(n, dtype=np.int64)
-    first = 0  # index of the first knot of the current segment's axis
-    for i in range(n):
-        s = segments[i]
+    """Re-round the records within ``reach`` knots of every segment of ``segments`` (in place):
+    each run of such knots is one chain, repaired as a whole (``_repair_chain``). Whether any
+    record moved."""
+    nk = len(knots)
+    free = np.zeros(nk, dtype=np.bool_)
+    for s in segments:
         a = knots[s] // stride
-        if knots[first] // stride != a or first > s:
-            first = s
-            while first > 0 and knots[first - 1] // stride == a:
-                first -= 1
-        cls[i] = (s - first) % 4
-    level = np.zeros(n, dtype=np.int64)
-    for w in range(1, 4):
-        for i in range(n):
-            if cls[i] != w:
-                continue
-            for j in range(max(i - 2, 0), min(i + 3, n)):
-                if (
-                    cls[j] < w
-                    and knots[segments[j]] // stride == knots[segments[i]] // stride
-                    and abs(segments[j] - segments[i]) <= 2
-                ):
-                    level[i] = max(level[i], level[j] + 1)
+        for k in range(max(s - reach + 1, 0), min(s + reach, nk - 1) + 1):
+            r = knots[k] - a * stride
+            if 0 < r < stride - 1:  # on the segment's axis, and no axis end (at rest, never moved)
+                free[k] = True
     moved = False
-    top = level.max() if n else -1
-    for lv in range(top + 1):
-        for i in range(n):
-            if level[i] == lv:
-                s = segments[i]
-                a = knots[s] // stride
-                moved |= _repair_segment(knots, P, V, s, stride, f[a], rv_per[a], ra_per[a], plan, tol)
+    k = 0
+    while k < nk:
+        if not free[k]:
+            k += 1
+            continue
+        i0 = k
+        while k + 1 < nk and free[k + 1]:
+            k += 1
+        a = knots[i0] // stride
+        moved |= _repair_chain(knots, P, V, i0, k, stride, f[a], rv_per[a], ra_per[a], pos_lo[a], pos_hi[a], plan, tol)
+        k += 1
     return moved

@@ -14,8 +14,9 @@ EPOS2 PVT (``epos2_pvt``), per axis (the axes share only the start SYNC and the 
    system over the knot positions and velocities, fitted to the plan at every drive ms) stray
    more than ``fit_fraction * tolerance_qc`` from the plan, or are longer than 255 ms;
 3. quantization: positions to counts (inside 0x607D), velocities to the drive's unit; where that
-   pushes a cubic over a limit, its end records are re-rounded (nudged by a count or a few
-   velocity units: cheap, and enough for most segments); what the nudges cannot fix goes to a QP
+   pushes a cubic over a limit, the records around it are re-rounded together (each nudged by a
+   count or a few velocity units, the best combination of a whole run found exactly: cheap, and
+   enough for most segments); what the nudges cannot fix goes to a QP
    (casadi, daqp) that moves the knot velocities by the least amount that keeps every cubic's end
    accelerations inside 0x60C5 (they are linear in the velocities once the positions are fixed),
    within the tolerance, and is kept if its rounded, re-nudged result is better;
@@ -36,8 +37,7 @@ step is one set of array operations for all of them. The axes' blocks are indepe
 gets the records it would get alone (up to the QP solver's round-off), and leaves as soon as it
 is done. Work that repeats is not redone: the check evaluates only the segments whose cubic
 changed, the least-squares fit reuses the right-hand side of every unchanged segment and
-re-evaluates a segment's fit only where its verdict could change, and a repair already solved for
-the same neighbourhood is not solved again.
+re-evaluates a segment's fit only where its verdict could change.
 
 Fixed-period profiles take one record per period and are checked by their own reconstruction
 (linear, or Parker's cubic submodes) the same way. All numbers here are in drive units: qc,
@@ -281,6 +281,7 @@ _COARSE = 4.0  # first cut: exact-sample cubics to this multiple of the fit targ
 _QP_WINDOW = 4  # knots on either side of a segment over a limit whose velocities the QP may move
 _MIN_SPLIT_MS = 12  # segments shorter than twice this are not split for a limit (rounding grows as 1/T^2)
 _FIT_PROBES = np.arange(1, 8) / 8.0  # where a candidate segment's fit is judged
+_REPAIR_REACH = 2  # knots on either side of a segment over a limit whose records the repair may move
 
 
 def _refine(
@@ -773,24 +774,25 @@ def _repair_rounds(
     checked: _Checked,
     tol: float,
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], _Checked]:
-    """Re-round the end records of the segments over a limit, check, again: fixing one segment can
-    push a neighbour over (at most three rounds).
+    """Re-round the records around the segments over a limit, check, again (at most three rounds:
+    the repair judges deviations at probes, the check at every ms).
 
     Rounding each number to its nearest integer ignores that a cubic's end accelerations move by
-    6/T^2 per count: on a segment at the limit that alone can cross it. So the two end records of
-    such a segment are nudged by up to 1 count and 2 velocity units (all 225 combinations); among
-    those that keep the knots and the segments' interiors within the tolerance of the plan, the
-    one with the lowest worst limit ratio over the three segments they touch wins
-    (``knot_kernels.repair_segments``).
+    6/T^2 per count and 4 f/T per velocity unit: on a segment at the limit that alone can cross
+    it, and on a run of segments at the limit (a time-optimal acceleration phase) fixing one end
+    pushes the next segment over. So the records within ``_REPAIR_REACH`` knots of every segment
+    over a limit are re-rounded together, each by up to a count and two velocity units: the
+    combination with the least worst limit ratio over the segments they touch, and among those
+    that stay under max(that, 1), the one closest to the plan, all within the tolerance
+    (``knot_kernels.repair_chains``: a shortest path over the nudges, exact, not greedy).
     """
     for _ in range(3):
         over = _over(checked.chk)
         if not over.any():
             break
         P, V = P.copy(), V.copy()  # repaired in place; ``checked`` keeps the records it judged
-        if not kernels.repair_segments(
-            knots, P, V, np.flatnonzero(over), fl.stride, fl.f, fl.rv_per, fl.ra_per, fl.p, tol
-        ):
+        per_axis = (fl.f, fl.rv_per, fl.ra_per, fl.pos_lo, fl.pos_hi)
+        if not kernels.repair_chains(knots, P, V, np.flatnonzero(over), fl.stride, *per_axis, fl.p, tol, _REPAIR_REACH):
             break
         checked = _check_knots(fl, knots, P, V, checked)
     return P, V, checked

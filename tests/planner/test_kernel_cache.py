@@ -28,7 +28,7 @@ def test_the_stamp_changes_with_any_source(tmp_path: Path) -> None:
 
 
 def test_planner_kernels_use_the_planner_locator() -> None:
-    for kernel in (knot_kernels.check_segments, knot_kernels.repair_segments, interpolation.hermite):
+    for kernel in (knot_kernels.check_segments, knot_kernels.repair_chains, interpolation.hermite):
         locator = kernel._cache._impl._locator
         assert isinstance(locator, PlannerCacheLocator)
         stamp = locator.get_source_stamp()

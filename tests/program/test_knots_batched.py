@@ -1,11 +1,14 @@
 """Knot placement of all EPOS2 axes at once: the shortcuts it takes change no answer.
 
 The axes are placed as one flat problem (their samples end to end) and the work that repeats is
-reused (deviations of unchanged segments, right-hand sides of unchanged least-squares segments,
-answers of repairs already solved). Each shortcut must give what the full computation gives.
+reused (deviations of unchanged segments, right-hand sides of unchanged least-squares segments);
+the integer repair searches combinations by a shortest path. Each shortcut must give what the full
+computation gives.
 """
 
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 import pytest
@@ -120,99 +123,109 @@ def _repair_setup(arm6_plan, spacing: int):
     return fl, knots, P, V, real
 
 
-def _repair_at_once(fl, knots, P, V, segs) -> bool:
-    """Every segment of ``segs`` repaired from the same records, the changes applied together."""
-    base_P, base_V = P.copy(), V.copy()
-    moved = False
-    for s in segs:
-        a = fl.axis_of(knots[s])
-        p, v = base_P.copy(), base_V.copy()
-        moved |= knot_kernels._repair_segment(knots, p, v, s, fl.stride, fl.f[a], fl.rv_per[a], fl.ra_per[a], fl.p, 1.0)
-        P[s : s + 2], V[s : s + 2] = p[s : s + 2], v[s : s + 2]
-    return moved
-
-
-def test_repair_in_fewest_waves_as_in_four(arm6_plan) -> None:
-    """Repairs batched by neighbourhood give what the four waves by segment index mod 4 give, each
-    wave's segments repaired at once."""
-    fl, knots, P, V, real = _repair_setup(arm6_plan, 30)
-    rng = np.random.default_rng(5)
-    for _ in range(3):  # runs of neighbours, lone segments, every axis
-        segs = np.unique(np.concatenate((rng.choice(real, 25, replace=False), real[10:16], real[-4:])))
-        fast_P, fast_V = P.copy(), V.copy()
-        fast_moved = knot_kernels.repair_segments(
-            knots, fast_P, fast_V, segs, fl.stride, fl.f, fl.rv_per, fl.ra_per, fl.p, 1.0
-        )
-        ref_P, ref_V = P.copy(), V.copy()
-        local = segs - np.searchsorted(knots, fl.axis_of(knots[segs]) * fl.stride)
-        ref_moved = False
-        for w in range(4):
-            ref_moved |= _repair_at_once(fl, knots, ref_P, ref_V, segs[local % 4 == w])
-        np.testing.assert_array_equal(fast_P, ref_P)
-        np.testing.assert_array_equal(fast_V, ref_V)
-        assert fast_moved == ref_moved
-
-
-def _best_nudge(fl, knots, P, V, s, tol):
-    """The repair rule, restated with the array forms of the reconstruction: every nudge of the two
-    end records, judged on the three segments they touch."""
-    a = fl.axis_of(knots[s])
+def _combination_scores(fl, knots, P, V, i0, i1, tol):
+    """Every nudge combination of the records i0 .. i1, judged with the array forms of the
+    reconstruction: (nudges, worst limit ratio over the segments i0 - 1 .. i1, their summed
+    excess over 1, their summed deviation at the ends and probes); the ratio is inf where a
+    segment strays more than tol."""
+    a = fl.axis_of(knots[i0])
     f = fl.f[a]
-    same = [0 <= k < len(knots) and fl.axis_of(knots[k]) == a for k in (s - 1, s, s + 1, s + 2)]
-    free = [not fl.is_end(knots[k : k + 1])[0] for k in (s, s + 1)]
-    best, best_score = None, np.inf
-    for dp0 in (-1, 0, 1):
-        for dv0 in (-2, -1, 0, 1, 2):
-            for dp1 in (-1, 0, 1):
-                for dv1 in (-2, -1, 0, 1, 2):
-                    if (not free[0] and (dp0 or dv0)) or (not free[1] and (dp1 or dv1)):
-                        continue
-                    p, v = P.astype(float), V.astype(float)
-                    p[s] += dp0
-                    v[s] += dv0
-                    p[s + 1] += dp1
-                    v[s + 1] += dv1
-                    dev = max(
-                        abs(p[k] - fl.p[knots[k]]) for k, ok in zip((s - 1, s, s + 1, s + 2), same, strict=True) if ok
-                    )
-                    ratio = 0.0
-                    for k in (s - 1, s, s + 1):
-                        if not (same[k - s + 1] and same[k - s + 2]):
-                            continue
-                        T = float(knots[k + 1] - knots[k])
-                        c = hermite_coefficients(p[k], v[k] * f, p[k + 1], v[k + 1] * f, T)
-                        tau = np.floor(np.array([0.25, 0.5, 0.75]) * T)
-                        h = c[0] + tau * (c[1] + tau * (c[2] + tau * c[3]))
-                        dev = max(dev, float(np.abs(h - fl.p[knots[k] + tau.astype(int)]).max()))
-                        cub = PiecewiseCubic(np.zeros(1), np.array([T]), *(np.atleast_1d(x) for x in c))
-                        ratio = max(
-                            ratio,
-                            float(cub.max_abs_velocity()[0]) * fl.rv_per[a],
-                            float(cub.max_abs_acceleration()[0]) * fl.ra_per[a],
-                        )
-                    score = ratio + 1e-6 * dev
-                    if dev <= tol and score < best_score:
-                        best, best_score = (dp0, dv0, dp1, dv1), score
-    return best
+    nudges = [(dp, dv) for dp in (-1, 0, 1) for dv in (-2, -1, 0, 1, 2)]
+    out = []
+    for combo in itertools.product(nudges, repeat=i1 - i0 + 1):
+        p, v = P.astype(float), V.astype(float)
+        for k, (dp, dv) in zip(range(i0, i1 + 1), combo, strict=True):
+            p[k] += dp
+            v[k] += dv
+        ratio, excess, total = 0.0, 0.0, 0.0
+        for k in range(i0 - 1, i1 + 1):
+            T = float(knots[k + 1] - knots[k])
+            c = hermite_coefficients(p[k], v[k] * f, p[k + 1], v[k + 1] * f, T)
+            tau = np.floor(np.array([0.25, 0.5, 0.75]) * T)
+            h = c[0] + tau * (c[1] + tau * (c[2] + tau * c[3]))
+            dev = max(
+                abs(p[k] - fl.p[knots[k]]),
+                abs(p[k + 1] - fl.p[knots[k + 1]]),
+                float(np.abs(h - fl.p[knots[k] + tau.astype(int)]).max()),
+            )
+            cub = PiecewiseCubic(np.zeros(1), np.array([T]), *(np.atleast_1d(x) for x in c))
+            lo, hi = cub.position_range()
+            seg = max(
+                float(cub.max_abs_velocity()[0]) * fl.rv_per[a], float(cub.max_abs_acceleration()[0]) * fl.ra_per[a]
+            )
+            if dev > tol or lo[0] < fl.pos_lo[a] or hi[0] > fl.pos_hi[a]:
+                seg = np.inf
+            ratio = max(ratio, seg)
+            excess += max(seg - 1.0, 0.0)
+            total += dev
+        out.append((combo, ratio, excess, total))
+    return out
 
 
-def test_repair_picks_the_best_nudge(arm6_plan) -> None:
-    """The compiled repair chooses what the rule says, by the array forms of the reconstruction."""
+@pytest.mark.parametrize("free", [1, 2])
+def test_chain_repair_finds_the_best_combination(arm6_plan, free: int) -> None:
+    """The compiled chain repair finds, over every combination of its records' nudges, the least
+    worst limit ratio, and among the combinations under max(that, 1) the least summed excess, then
+    the closest to the plan (brute force with the array forms of the reconstruction); it moves
+    nothing when no combination beats the rounding."""
     fl, knots, P, V, real = _repair_setup(arm6_plan, 25)
-    rng = np.random.default_rng(8)
-    checked = 0
-    for s in rng.choice(real, 40, replace=False):
-        a = fl.axis_of(knots[s])
-        want = _best_nudge(fl, knots, P, V, s, 1.0)
+    chk = _check_knots(fl, knots, P, V).chk
+    rng = np.random.default_rng(8 + free)
+    # chains around the segments the rounding left over a limit, and some at random
+    over = np.flatnonzero((chk.acceleration_ratio > 1.0) | (chk.velocity_ratio > 1.0))
+    starts = np.concatenate((over, rng.choice(real, 20, replace=False)))
+    improved = 0
+    for i0 in starts:
+        i1 = i0 + free - 1
+        if fl.is_end(knots[i0 - 1 : i1 + 2]).any() or len(np.unique(fl.axis_of(knots[i0 - 1 : i1 + 2]))) != 1:
+            continue  # a chain has a fixed knot on each side on its own axis and moves no axis end
+        scores = _combination_scores(fl, knots, P, V, i0, i1, 1.0)
+        still = next(r for combo, r, _, _ in scores if all(n == (0, 0) for n in combo))
+        best = min(r for _, r, _, _ in scores)
+        a = fl.axis_of(knots[i0])
         p, v = P.copy(), V.copy()
-        moved = knot_kernels._repair_segment(knots, p, v, s, fl.stride, fl.f[a], fl.rv_per[a], fl.ra_per[a], fl.p, 1.0)
-        got = (p[s] - P[s], v[s] - V[s], p[s + 1] - P[s + 1], v[s + 1] - V[s + 1])
-        if want is None or want == (0, 0, 0, 0):
-            assert not moved and got == (0, 0, 0, 0)
-        else:
-            assert moved and got == want
-            checked += 1
-    assert checked > 5  # the case moves records (the test would be empty otherwise)
+        moved = knot_kernels._repair_chain(
+            knots, p, v, i0, i1, fl.stride, fl.f[a], fl.rv_per[a], fl.ra_per[a], fl.pos_lo[a], fl.pos_hi[a], fl.p, 1.0
+        )
+        if not best < still:
+            assert not moved
+            np.testing.assert_array_equal(p, P)
+            continue
+        cap = max(best, 1.0)
+        least = min(knot_kernels._EXCESS_WEIGHT * e + d for _, r, e, d in scores if r <= cap)
+        got = tuple((int(p[k] - P[k]), int(v[k] - V[k])) for k in range(i0, i1 + 1))
+        _, got_ratio, got_excess, got_dev = next(s for s in scores if s[0] == got)
+        assert got_ratio <= cap * (1 + 1e-12)
+        assert knot_kernels._EXCESS_WEIGHT * got_excess + got_dev == pytest.approx(least, rel=1e-9, abs=1e-9)
+        improved += 1
+    assert improved > 3  # the case moves records (the test would be empty otherwise)
+
+
+def test_repair_chains_moves_only_the_neighbourhood(arm6_plan) -> None:
+    """Only records within reach of a segment over a limit move, never an axis's end, the worst
+    limit ratio does not grow and fewer segments are over a limit."""
+    fl, knots, P, V, _ = _repair_setup(arm6_plan, 10)  # a fit within the tolerance, as placed
+    chk = _check_knots(fl, knots, P, V).chk
+    assert chk.seg_deviation.max() <= 1.0
+    over = np.flatnonzero((chk.acceleration_ratio > 1.0) | (chk.velocity_ratio > 1.0))
+    assert len(over) > 3
+    reach = 2
+    p, v = P.copy(), V.copy()
+    assert knot_kernels.repair_chains(
+        knots, p, v, over, fl.stride, fl.f, fl.rv_per, fl.ra_per, fl.pos_lo, fl.pos_hi, fl.p, 1.0, reach
+    )
+    near = np.zeros(len(knots), dtype=bool)
+    for s in over:
+        for k in range(s - reach + 1, s + reach + 1):
+            near[k] |= fl.axis_of(knots[k]) == fl.axis_of(knots[s])
+    near &= ~fl.is_end(knots)
+    moved = (p != P) | (v != V)
+    assert moved.any() and not (moved & ~near).any()
+    after = _check_knots(fl, knots, p, v).chk
+    worst_before = np.maximum(chk.acceleration_ratio, chk.velocity_ratio)
+    worst_after = np.maximum(after.acceleration_ratio, after.velocity_ratio)
+    assert worst_after.max() <= worst_before.max()
+    assert (worst_after > 1.0).sum() < (worst_before > 1.0).sum()
 
 
 def test_switch_knots_largest_first_apart_and_inside() -> None:
