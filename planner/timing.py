@@ -189,19 +189,32 @@ class JointTorqueConstraint(constraint.LinearConstraint):
 
 
 @njit(cache=True)
+def _interval(a: NDArray[np.float64], v: float, i: int, hi: int) -> int:
+    """The last i <= hi with a[i] <= v (0 if none), walking on from the hint ``i``: the times and
+    path parameters of one sampling pass only grow, so each step is one comparison, not a search."""
+    if a[i] > v:
+        return min(max(np.searchsorted(a, v, side="right") - 1, 0), hi)
+    while i < hi and a[i + 1] <= v:
+        i += 1
+    return i
+
+
+@njit(cache=True)
 def _path_state(
     t: float,
+    i: int,
     breakpoints: NDArray[np.float64],
     gridpoints: NDArray[np.float64],
     sd: NDArray[np.float64],
     sdd: NDArray[np.float64],
-) -> tuple[float, float, float]:
-    """s, s', s'' at time t (clipped to the motion): s'' is constant between two gridpoints."""
+) -> tuple[float, float, float, int]:
+    """s, s', s'' at time t (clipped to the motion), and its grid interval (``i``: a hint for it):
+    s'' is constant between two gridpoints."""
     t = min(max(t, 0.0), breakpoints[-1])
-    i = min(max(np.searchsorted(breakpoints, t, side="right") - 1, 0), len(sdd) - 1)
+    i = _interval(breakpoints, t, i, len(sdd) - 1)
     tau = t - breakpoints[i]
     s = min(gridpoints[i] + sd[i] * tau + 0.5 * sdd[i] * tau * tau, gridpoints[i + 1])
-    return s, sd[i] + sdd[i] * tau, sdd[i]
+    return s, sd[i] + sdd[i] * tau, sdd[i], i
 
 
 @njit(cache=True)
@@ -213,17 +226,24 @@ def _path_states(
     sdd: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     s, s_d, s_dd = np.empty(len(t)), np.empty(len(t)), np.empty(len(t))
+    i = 0
     for k in range(len(t)):
-        s[k], s_d[k], s_dd[k] = _path_state(t[k], breakpoints, gridpoints, sd, sdd)
+        s[k], s_d[k], s_dd[k], i = _path_state(t[k], i, breakpoints, gridpoints, sd, sdd)
     return s, s_d, s_dd
 
 
 @njit(cache=True)
-def _spline_at(x: NDArray[np.float64], c: NDArray[np.float64], s: float, j: int) -> tuple[float, float, float]:
-    """Joint j of the path at s: q, q_s, q_ss from its cubic piece (scipy's PPoly layout:
-    breakpoints ``x``, ``c[k, piece, joint]`` highest power first; clipped to the end pieces)."""
-    i = min(max(np.searchsorted(x, s, side="right") - 1, 0), len(x) - 2)
-    h = s - x[i]
+def _spline_piece(x: NDArray[np.float64], s: float, i: int) -> tuple[int, float]:
+    """The path's spline piece at s (``i``: a hint for it) and the offset into it (scipy's PPoly
+    layout: breakpoints ``x``; clipped to the end pieces)."""
+    i = _interval(x, s, i, len(x) - 2)
+    return i, s - x[i]
+
+
+@njit(cache=True)
+def _spline_at(c: NDArray[np.float64], i: int, h: float, j: int) -> tuple[float, float, float]:
+    """Joint j of the path on piece i at offset h: q, q_s, q_ss (``c[k, piece, joint]``, highest
+    power first)."""
     q = ((c[0, i, j] * h + c[1, i, j]) * h + c[2, i, j]) * h + c[3, i, j]
     q_s = (3.0 * c[0, i, j] * h + 2.0 * c[1, i, j]) * h + c[2, i, j]
     q_ss = 6.0 * c[0, i, j] * h + 2.0 * c[1, i, j]
@@ -243,10 +263,12 @@ def _joint_states(
     """q and q' = q_s(s) s', each (dof, len(t)), in one pass."""
     dof = c.shape[2]
     q, qd = np.empty((dof, len(t))), np.empty((dof, len(t)))
+    g, i = 0, 0
     for k in range(len(t)):
-        s, s_d, _ = _path_state(t[k], breakpoints, gridpoints, sd, sdd)
+        s, s_d, _, g = _path_state(t[k], g, breakpoints, gridpoints, sd, sdd)
+        i, h = _spline_piece(x, s, i)
         for j in range(dof):
-            q[j, k], q_s, _ = _spline_at(x, c, s, j)
+            q[j, k], q_s, _ = _spline_at(c, i, h, j)
             qd[j, k] = q_s * s_d
     return q, qd
 
@@ -265,10 +287,12 @@ def _worst_ratios(
 ) -> tuple[float, float]:
     """max |q'| / vmax and max |q''| / amax over the times t, q' = q_s s', q'' = q_ss s'^2 + q_s s''."""
     rv, ra = 0.0, 0.0
+    g, i = 0, 0
     for k in range(len(t)):
-        s, s_d, s_dd = _path_state(t[k], breakpoints, gridpoints, sd, sdd)
+        s, s_d, s_dd, g = _path_state(t[k], g, breakpoints, gridpoints, sd, sdd)
+        i, h = _spline_piece(x, s, i)
         for j in range(c.shape[2]):
-            _, q_s, q_ss = _spline_at(x, c, s, j)
+            _, q_s, q_ss = _spline_at(c, i, h, j)
             rv = max(rv, abs(q_s * s_d) / vmax[j])
             ra = max(ra, abs(q_ss * s_d * s_d + q_s * s_dd) / amax[j])
     return rv, ra

@@ -90,6 +90,11 @@ def test_states_equal_position_and_velocity() -> None:
     np.testing.assert_allclose(qd1[:, 0], tr.velocity(0.5 * tr.duration), rtol=0, atol=1e-12 * np.abs(qd).max())
     np.testing.assert_allclose(q1[:, 0], tr.position(0.5 * tr.duration), rtol=0, atol=1e-12 * scale)
     assert tr.states(np.array([]))[0].shape == (6, 0)
+    # the pass walks on from one sample's interval to the next: times in any order give the same
+    order = np.random.default_rng(3).permutation(len(t))
+    q2, qd2 = tr.states(t[order])
+    np.testing.assert_array_equal(q2, q[:, order])
+    np.testing.assert_array_equal(qd2, qd[:, order])
 
 
 def test_acceleration_jumps_are_the_switches_of_the_profile() -> None:
