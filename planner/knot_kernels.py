@@ -111,25 +111,24 @@ def refine(knots: _I, p: _F, v: _F, probes: _F, target: float, max_rounds: int, 
     longer than ``t_max``. Round by round: each round judges the halves the last one made."""
     is_knot = np.zeros(len(p), dtype=np.bool_)
     is_knot[knots] = True
-    pending = knots[:-1].copy()
+    lows, highs = knots[:-1].copy(), knots[1:].copy()  # the segments to judge
     for _ in range(max_rounds):
-        split = np.empty(2 * len(pending), dtype=np.int64)
+        new_lows, new_highs = np.empty(2 * len(lows), dtype=np.int64), np.empty(2 * len(lows), dtype=np.int64)
         n_split = 0
-        for lo in pending:
-            hi = lo + 1
-            while not is_knot[hi]:
-                hi += 1
+        for i in range(len(lows)):
+            lo, hi = lows[i], highs[i]
             T = float(hi - lo)
             c0, c1, c2, c3 = hermite(p[lo], v[lo], p[hi], v[hi], T)
             worst = _probe_deviation(c0, c1, c2, c3, T, lo, p, probes)
             if (worst > target and hi - lo >= 2) or hi - lo > t_max:
                 mid = (lo + hi) // 2
                 is_knot[mid] = True
-                split[n_split], split[n_split + 1] = lo, mid
+                new_lows[n_split], new_highs[n_split] = lo, mid
+                new_lows[n_split + 1], new_highs[n_split + 1] = mid, hi
                 n_split += 2
         if not n_split:
             break
-        pending = np.sort(split[:n_split])
+        lows, highs = new_lows[:n_split], new_highs[:n_split]
     return np.flatnonzero(is_knot)
 
 
@@ -179,11 +178,14 @@ def lsq_rhs(
                 r[b, k] = prev_rhs[b, j]
             continue
         base = offset[k1 - k0]
-        for b in range(4):
-            s = 0.0
-            for t in range(k1 - k0):
-                s += values[b, base + t] * plan[k0 + t]
-            r[b, k] = s
+        s0, s1, s2, s3 = 0.0, 0.0, 0.0, 0.0
+        for t in range(k1 - k0):
+            x = plan[k0 + t]
+            s0 += values[0, base + t] * x
+            s1 += values[1, base + t] * x
+            s2 += values[2, base + t] * x
+            s3 += values[3, base + t] * x
+        r[0, k], r[1, k], r[2, k], r[3, k] = s0, s1, s2, s3
     return r, same, where
 
 
@@ -239,23 +241,32 @@ def lsq_worst(
 
 
 @njit(cache=True)
-def lsq_system(knots: _I, stride: int, r: _F, gram: _F, p: _F, v: _F, ends: NDArray[np.bool_]) -> tuple[_F, _F]:
-    """The least-squares normal equations over z = (P0, V0, P1, V1, ...) in LAPACK's upper banded
-    form (u = 3): each segment's Gram matrix and right-hand side, a faint pull towards the exact
-    samples (keeps the system regular), and each axis's end knots pinned at the plan, at rest."""
+def lsq_system(knots: _I, stride: int, r: _F, gram: _F, p: _F, v: _F, ends: NDArray[np.bool_]) -> tuple[_F, _F, _F]:
+    """The least-squares normal equations over each knot's (P, V), block tridiagonal: per knot its
+    symmetric 2x2 diagonal block ``D[k] = (d_PP, d_PV, d_VV)``, the 2x2 block ``E[k] = (e_PP,
+    e_PV, e_VP, e_VV)`` that couples it to knot k + 1 (rows k, columns k + 1), and its right-hand
+    side ``b[k]``. Each segment adds its Gram matrix and right-hand side, a faint pull towards the
+    exact samples keeps the system regular, and each axis's end knots are pinned at the plan, at
+    rest. The step between two axes couples nothing: each axis's block is solved as it would be
+    alone."""
     nk = len(knots)
-    m = 2 * nk
-    ab = np.zeros((4, m))
-    rhs = np.zeros(m)
+    D, E, b = np.zeros((nk, 3)), np.zeros((nk, 4)), np.zeros((nk, 2))
     for k in range(nk - 1):
         k0, k1 = knots[k], knots[k + 1]
         if k1 // stride != k0 // stride:
             continue
-        n = k1 - k0
-        for a in range(4):
-            rhs[2 * k + a] += r[a, k]
-            for c in range(a, 4):
-                ab[3 - (c - a), 2 * k + c] += gram[n, a, c]
+        n = k1 - k0  # gram[n]: over (P0, V0, P1, V1), symmetric
+        D[k, 0] += gram[n, 0, 0]
+        D[k, 1] += gram[n, 0, 1]
+        D[k, 2] += gram[n, 1, 1]
+        D[k + 1, 0] += gram[n, 2, 2]
+        D[k + 1, 1] += gram[n, 2, 3]
+        D[k + 1, 2] += gram[n, 3, 3]
+        E[k, 0], E[k, 1], E[k, 2], E[k, 3] = gram[n, 0, 2], gram[n, 0, 3], gram[n, 1, 2], gram[n, 1, 3]
+        b[k, 0] += r[0, k]
+        b[k, 1] += r[1, k]
+        b[k + 1, 0] += r[2, k]
+        b[k + 1, 1] += r[3, k]
     for k in range(nk):
         tw = (
             float(knots[k + 1] - knots[k])
@@ -263,68 +274,77 @@ def lsq_system(knots: _I, stride: int, r: _F, gram: _F, p: _F, v: _F, ends: NDAr
             else (float(knots[k] - knots[k - 1]) if k == nk - 1 else 0.5 * float(knots[k + 1] - knots[k - 1]))
         )
         reg_v = 1e-3 * tw * tw
-        ab[3, 2 * k] += 1e-3
-        ab[3, 2 * k + 1] += reg_v
-        rhs[2 * k] += 1e-3 * p[knots[k]]
-        rhs[2 * k + 1] += reg_v * v[knots[k]]
-    # pin each axis's ends, with a weight far above its block's diagonal (per axis: its block is
-    # then solved as it would be alone)
+        D[k, 0] += 1e-3
+        D[k, 2] += reg_v
+        b[k, 0] += 1e-3 * p[knots[k]]
+        b[k, 1] += reg_v * v[knots[k]]
+    # pin each axis's ends, with a weight far above its block's diagonal
     k = 0
     while k < nk:
         a = knots[k] // stride
         e = k
         big = 0.0
         while e < nk and knots[e] // stride == a:
-            big = max(big, abs(ab[3, 2 * e]), abs(ab[3, 2 * e + 1]))
+            big = max(big, abs(D[e, 0]), abs(D[e, 2]))
             e += 1
         big = 1e9 * (1.0 + big)
         for i in (k, e - 1):
             if ends[i]:
-                ab[3, 2 * i] += big
-                rhs[2 * i] += big * p[knots[i]]
-                ab[3, 2 * i + 1] += big
+                D[i, 0] += big
+                b[i, 0] += big * p[knots[i]]
+                D[i, 2] += big
         k = e
-    return ab, rhs
+    return D, E, b
 
 
 @njit(cache=True)
-def _cholesky_solve_banded(ab: _F, rhs: _F) -> bool:
-    """Solve A z = rhs in place (z in ``rhs``) for a symmetric positive definite band matrix in
-    LAPACK's upper band storage, ``ab[kd + i - j, j] = A[i, j]`` (LAPACK's unblocked dpbtf2 and
-    dpbtrs: A = U^T U, then two triangular solves). False if A is not positive definite."""
-    kd, n = ab.shape[0] - 1, ab.shape[1]
-    for j in range(n):
-        d = ab[kd, j]
-        if not d > 0.0:
+def _solve_block_tridiagonal(D: _F, E: _F, b: _F) -> bool:
+    """Solve the symmetric block tridiagonal system of ``lsq_system`` in place (z in ``b``): block
+    elimination with 2x2 blocks (S_k = D_k - E_k-1^T S_k-1^-1 E_k-1, then back substitution), a
+    few scalar operations per knot. False if a pivot block is not positive definite (the normal
+    equations are then not either)."""
+    n = len(D)
+    W = np.empty((n, 3))  # S_k^-1, symmetric
+    w00, w01, w11 = 0.0, 0.0, 0.0
+    for k in range(n):
+        s00, s01, s11 = D[k, 0], D[k, 1], D[k, 2]
+        y0, y1 = b[k, 0], b[k, 1]
+        if k > 0:
+            e00, e01, e10, e11 = E[k - 1, 0], E[k - 1, 1], E[k - 1, 2], E[k - 1, 3]
+            # F = W_k-1 E_k-1; S -= E^T F; y -= F^T y_k-1
+            f00, f01 = w00 * e00 + w01 * e10, w00 * e01 + w01 * e11
+            f10, f11 = w01 * e00 + w11 * e10, w01 * e01 + w11 * e11
+            s00 -= e00 * f00 + e10 * f10
+            s01 -= e00 * f01 + e10 * f11
+            s11 -= e01 * f01 + e11 * f11
+            p0, p1 = b[k - 1, 0], b[k - 1, 1]
+            y0 -= f00 * p0 + f10 * p1
+            y1 -= f01 * p0 + f11 * p1
+        det = s00 * s11 - s01 * s01
+        if not (s00 > 0.0 and det > 0.0):
             return False
-        d = np.sqrt(d)
-        ab[kd, j] = d
-        kn = min(kd, n - 1 - j)
-        for m in range(1, kn + 1):
-            ab[kd - m, j + m] /= d
-        for b in range(1, kn + 1):
-            for a in range(1, b + 1):
-                ab[kd + a - b, j + b] -= ab[kd - a, j + a] * ab[kd - b, j + b]
-    for j in range(n):  # U^T y = rhs
-        acc = rhs[j]
-        for i in range(max(0, j - kd), j):
-            acc -= ab[kd + i - j, j] * rhs[i]
-        rhs[j] = acc / ab[kd, j]
-    for j in range(n - 1, -1, -1):  # U z = y
-        acc = rhs[j]
-        for k in range(j + 1, min(n - 1, j + kd) + 1):
-            acc -= ab[kd + j - k, k] * rhs[k]
-        rhs[j] = acc / ab[kd, j]
+        w00, w01, w11 = s11 / det, -s01 / det, s00 / det
+        W[k, 0], W[k, 1], W[k, 2] = w00, w01, w11
+        b[k, 0], b[k, 1] = y0, y1
+    z0, z1 = 0.0, 0.0
+    for k in range(n - 1, -1, -1):
+        y0, y1 = b[k, 0], b[k, 1]
+        if k < n - 1:
+            y0 -= E[k, 0] * z0 + E[k, 1] * z1
+            y1 -= E[k, 2] * z0 + E[k, 3] * z1
+        z0 = W[k, 0] * y0 + W[k, 1] * y1
+        z1 = W[k, 1] * y0 + W[k, 2] * y1
+        b[k, 0], b[k, 1] = z0, z1
     return True
 
 
 @njit(cache=True)
 def lsq_solve(knots: _I, stride: int, r: _F, gram: _F, p: _F, v: _F, ends: NDArray[np.bool_]) -> tuple[_F, _F, bool]:
-    """The least-squares knot positions and velocities: ``lsq_system`` solved (banded Cholesky),
+    """The least-squares knot positions and velocities: ``lsq_system`` solved by block elimination,
     each axis's ends exactly at the plan, at rest. The flag is False if the solve failed."""
-    ab, z = lsq_system(knots, stride, r, gram, p, v, ends)
-    ok = _cholesky_solve_banded(ab, z)
-    P, V = z[0::2].copy(), z[1::2].copy()
+    D, E, z = lsq_system(knots, stride, r, gram, p, v, ends)
+    ok = _solve_block_tridiagonal(D, E, z)
+    P, V = z[:, 0].copy(), z[:, 1].copy()
     for k in range(len(knots)):
         if ends[k]:
             P[k], V[k] = p[knots[k]], 0.0

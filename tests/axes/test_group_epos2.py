@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -220,6 +221,10 @@ def test_time_stamp_follows_every_sync(arm6, make_rig):
     prog = program(arm6.ordered_axes(), 200, spacing_ms=10)
     result = rig.group.run(prog, timeout_s=30)
     assert result.ok, result.message
+    # the stamp follows its SYNC on the bus: the drives' receive threads may still be on the last one
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline and any(len(d.time_stamps) < rig.bus.sync.count for d in rig.sim):
+        time.sleep(0.01)
     for drive in rig.sim:
         stamps = list(drive.time_stamps)
         assert len(stamps) == rig.bus.sync.count  # one 0x1013 per SYNC, through RPDO3

@@ -244,21 +244,26 @@ def test_build_reports_its_timing(arm6_plan) -> None:
     assert all(t >= 0.0 for t in built.timing.values())
 
 
-def test_banded_cholesky_solves_as_lapack() -> None:
-    """The least-squares solve (LAPACK's unblocked banded Cholesky, compiled) against scipy's."""
-    from scipy.linalg import solveh_banded
-
+def test_block_tridiagonal_solve_equals_a_dense_solve() -> None:
+    """The least-squares solve (2x2 block elimination, compiled) against numpy's dense solve of
+    the same symmetric block tridiagonal matrix."""
     rng = np.random.default_rng(4)
-    n, kd = 60, 3
-    ab = np.zeros((kd + 1, n))
-    ab[:kd] = rng.normal(size=(kd, n))
-    ab[kd] = 4.0 * kd + rng.random(n)  # diagonally dominant: positive definite
-    for d in range(1, kd + 1):
-        ab[kd - d, :d] = 0.0  # the band's unused corner
-    rhs = rng.normal(size=n)
-    want = solveh_banded(ab, rhs)
-    got_ab, got = ab.copy(), rhs.copy()
-    assert knot_kernels._cholesky_solve_banded(got_ab, got)
+    n = 40
+    D = np.column_stack((8.0 + rng.random(n), rng.normal(size=n), 8.0 + rng.random(n)))
+    E = rng.normal(size=(n, 4))
+    E[-1] = 0.0  # the last knot couples to nothing
+    E[17] = 0.0  # the step between two axes couples nothing
+    A = np.zeros((2 * n, 2 * n))
+    for k in range(n):
+        A[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = [[D[k, 0], D[k, 1]], [D[k, 1], D[k, 2]]]
+        if k < n - 1:
+            A[2 * k : 2 * k + 2, 2 * k + 2 : 2 * k + 4] = E[k].reshape(2, 2)
+            A[2 * k + 2 : 2 * k + 4, 2 * k : 2 * k + 2] = E[k].reshape(2, 2).T
+    assert np.all(np.linalg.eigvalsh(A) > 0.0)  # diagonally dominant: positive definite
+    b = rng.normal(size=(n, 2))
+    want = np.linalg.solve(A, b.ravel()).reshape(n, 2)
+    got = b.copy()
+    assert knot_kernels._solve_block_tridiagonal(D, E, got)
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
-    ab[kd, 5] = -1.0  # not positive definite: refused, not a wrong answer
-    assert not knot_kernels._cholesky_solve_banded(ab, rhs.copy())
+    D[5, 0] = -1.0  # not positive definite: refused, not a wrong answer
+    assert not knot_kernels._solve_block_tridiagonal(D, E, b.copy())
