@@ -21,12 +21,16 @@ EPOS2 PVT (``epos2_pvt``), per axis (the axes share only the start SYNC and the 
    accelerations inside 0x60C5 (they are linear in the velocities once the positions are fixed),
    within the tolerance, and is kept if its rounded, re-nudged result is better;
 4. the exact reconstruction of the quantized records is checked: a segment that strays more than
-   the tolerance, or stays over a limit, is split and steps 3-4 are redone. Where the
-   least-squares knots cannot be made to fit the limits, cubics through the exact samples (more
-   records, more room) are tried and the better of the two is kept. Splitting for a limit stops on
-   an axis whose segments over a limit do not get fewer (more of the same costs time, not excess),
-   and each axis keeps the records of its round that needed the least slow-down (shorter segments
-   feel rounding more: a split can make the excess worse);
+   the tolerance, or stays over a limit, is split and steps 3-4 are redone. Splitting for a limit
+   stops on an axis whose segments over a limit do not get fewer (more of the same costs time,
+   not excess), and each axis keeps the records of its round that needed the least slow-down
+   (shorter segments feel rounding more: a split can make the excess worse). Where that still
+   exceeds a limit, the knots around the segments over it may move by a ms in the same exact
+   search: a T-ms cubic's end accelerations are integer combinations of 6/T^2 (a count) and
+   2f/T (a velocity unit), a lattice whose step at T = 16 ms is 0.05 % of arm6 joint_1's 0x60C5,
+   and at a time-optimal limit the nearest point below it can be out of a nudge's reach; a
+   cubic of another length has another lattice. After that, cubics through the exact samples
+   (more records, more room) are tried as well, and the better is kept;
 5. where the quantized reconstruction still exceeds 0x607F/0x60C5 (rounding at the limit costs a
    few tenths of a percent), the whole motion is slowed down by the smallest factor the excess
    calls for and the knots are placed again (from the previous ones, stretched). No blanket
@@ -709,7 +713,7 @@ def _place_epos2(
                 p_fit, v_fit = fitted.P, fitted.V
         P_round, V = _round_knots(fl, knots, p_fit, v_fit)
         rounded = _check_knots(fl, knots, P_round, V, checked)
-        P, V, checked = _repair_rounds(fl, knots, P_round, V, rounded, tol)
+        _, P, V, checked = _repair_rounds(fl, knots, P_round, V, rounded, tol)
         if _over(checked.chk).any():  # what the nudges could not fix: the exact QP, from the rounding
             over = np.flatnonzero(_over(rounded.chk))
             room = np.maximum(tol - rounded.chk.seg_deviation, 0.0)
@@ -717,7 +721,7 @@ def _place_epos2(
             if v_qp is not None:
                 V_qp = _round_knots(fl, knots, p_fit, v_qp)[1]
                 trial = _check_knots(fl, knots, P_round, V_qp, checked)
-                P_qp, V_qp, trial = _repair_rounds(fl, knots, P_round, V_qp, trial, tol)
+                _, P_qp, V_qp, trial = _repair_rounds(fl, knots, P_round, V_qp, trial, tol)
                 if _worst_excess(trial.chk) < _worst_excess(checked.chk):
                     P, V, checked = P_qp, V_qp, trial
         chk = checked.chk
@@ -773,9 +777,11 @@ def _repair_rounds(
     V: NDArray[np.int64],
     checked: _Checked,
     tol: float,
-) -> tuple[NDArray[np.int64], NDArray[np.int64], _Checked]:
+    shift: int = 0,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], _Checked]:
     """Re-round the records around the segments over a limit, check, again (at most three rounds:
-    the repair judges deviations at probes, the check at every ms).
+    the repair judges deviations at probes, the check at every ms). Returns the knots (moved
+    only with ``shift``), the records and their check.
 
     Rounding each number to its nearest integer ignores that a cubic's end accelerations move by
     6/T^2 per count and 4 f/T per velocity unit: on a segment at the limit that alone can cross
@@ -784,18 +790,39 @@ def _repair_rounds(
     over a limit are re-rounded together, each by up to a count and two velocity units: the
     combination with the least worst limit ratio over the segments they touch, and among those
     that stay under max(that, 1), the one closest to the plan, all within the tolerance
-    (``knot_kernels.repair_chains``: a shortest path over the nudges, exact, not greedy).
+    (``knot_kernels.repair_chains``: a shortest path over the nudges, exact, not greedy). With
+    ``shift`` the knots may also move by up to that many ms (the integers of a cubic of another
+    length make other accelerations).
     """
+    per_axis = (fl.f, fl.rv_per, fl.ra_per, fl.pos_lo, fl.pos_hi, fl.v_units)
     for _ in range(3):
         over = _over(checked.chk)
         if not over.any():
             break
-        P, V = P.copy(), V.copy()  # repaired in place; ``checked`` keeps the records it judged
-        per_axis = (fl.f, fl.rv_per, fl.ra_per, fl.pos_lo, fl.pos_hi)
-        if not kernels.repair_chains(knots, P, V, np.flatnonzero(over), fl.stride, *per_axis, fl.p, tol, _REPAIR_REACH):
+        # repaired in place; ``checked`` keeps the records it judged
+        knots, P, V = (knots.copy() if shift else knots), P.copy(), V.copy()
+        segments = np.flatnonzero(over)
+        if not kernels.repair_chains(
+            knots, P, V, segments, _REPAIR_REACH, shift, fl.stride, *per_axis, fl.p, fl.v, tol
+        ):
             break
         checked = _check_knots(fl, knots, P, V, checked)
-    return P, V, checked
+    return knots, P, V, checked
+
+
+def _shifted(fl: _Flat, placed: tuple[AxisKnots, float], opts: KnotOptions) -> tuple[AxisKnots, float]:
+    """The records of ``fl``'s one axis with the knots around its segments over a limit moved by a
+    ms where that brings them inside (and within the tolerance): the last try before the whole
+    motion is slowed down. ``placed`` if it does not."""
+    records = placed[0].records
+    knots = np.concatenate(([0], np.cumsum(records[1:-1, 2]))).astype(np.int64)
+    P, V = records[:-1, 0].copy(), records[:-1, 1].copy()
+    knots, P, V, checked = _repair_rounds(fl, knots, P, V, _check_knots(fl, knots, P, V), opts.tolerance_qc, shift=1)
+    chk = checked.chk
+    if chk.position_out.any() or exceeds(chk.seg_deviation, opts.tolerance_qc).any():
+        return placed
+    moved = _axis_knots(fl, 0, knots, P, V, chk, opts.dwell_ms)
+    return moved if moved[1] < placed[1] else placed
 
 
 def _worst_excess(chk: _Check) -> float:
@@ -839,6 +866,9 @@ def _epos2_axes(
         fl = _Flat.of([axes[i] for i in which], [cols[i] for i in which], smp)
         return _place_epos2(fl, smp, [cols[i] for i in which], opts, mode, initial)
 
+    def shifted(i: int, placed: tuple[AxisKnots, float]) -> tuple[AxisKnots, float]:
+        return _shifted(_Flat.of([axes[i]], [cols[i]], smp), placed, opts)
+
     if hints is not None:
         for i, res in zip(todo, place(todo, "hint", list(hints)), strict=True):
             if res[1] <= 1.0:
@@ -848,11 +878,15 @@ def _epos2_axes(
         fit = place(todo, "lsq")
         redo = []
         for i, res in zip(todo, fit, strict=True):
+            if res[1] > 1.0:  # knots a ms earlier or later first (cheap), then the exact samples
+                res = shifted(i, res)
             results[i] = res
             if res[1] > 1.0:
                 redo.append(i)
         if redo:
             for i, res in zip(redo, place(redo, "exact"), strict=True):
+                if res[1] > 1.0:
+                    res = shifted(i, res)
                 if res[1] < results[i][1]:
                     results[i] = res
     return [results[i] for i in range(len(axes))]
