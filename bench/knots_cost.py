@@ -38,7 +38,6 @@ STAGES = (
     "_round_knots",
     "_check_knots",
     "_repair_rounds",
-    "_velocity_qp",
     "_split",
     "_axis_knots",
     "_fixed_period_axis",

@@ -351,71 +351,6 @@ def lsq_solve(knots: _I, stride: int, r: _F, gram: _F, p: _F, v: _F, ends: NDArr
     return P, V, ok
 
 
-@njit(cache=True)
-def qp_problem(
-    knots: _I, P: _I, v: _F, room: _F, over: _I, stride: int, amax: _F, vmax: _F, window: int
-) -> tuple[_I, _I, _I, _F, _F, _F, _F, _F, _F]:
-    """The velocity QP of ``knots._velocity_qp`` for the segments ``over``, as arrays.
-
-    Free: the velocities of the knots within ``window`` of a segment over a limit (on its axis,
-    not an axis's end). Rows, four per segment touching a free knot: its start and end
-    acceleration, (6 dP - (4 V0 + 2 V1) T) / T^2 and (-6 dP + (2 V0 + 4 V1) T) / T^2, and its
-    position change at T/3 and 2T/3 (4 T dV0 / 27 + 2 T dV1 / 27 and 2 T dV0 / 27 + 4 T dV1 / 27,
-    from the Hermite basis), each linear in the velocity changes x. Returns (free knots, the
-    constraint matrix as triplets (row, col, value), its lower and upper bounds, the bounds on
-    x, the diagonal of the cost's Hessian)."""
-    n = len(knots)
-    free = np.zeros(n, dtype=np.bool_)
-    for o in over:
-        a = knots[o] // stride
-        for k in range(max(o - window + 1, 0), min(o + window, n - 1) + 1):
-            r = knots[k] - a * stride
-            if 0 < r < stride - 1:  # on the segment's axis, and no axis end (at rest, never moved)
-                free[k] = True
-    col_of = np.full(n, -1)
-    m = 0
-    for k in range(n):
-        if free[k]:
-            col_of[k] = m
-            m += 1
-    cols = np.flatnonzero(free)
-    segs = np.flatnonzero(free[:-1] | free[1:])  # a free knot is no axis end: both its segments are real
-    ns = len(segs)
-    rows, cidx, vals = np.empty(8 * ns, np.int64), np.empty(8 * ns, np.int64), np.empty(8 * ns)
-    lo, hi = np.empty(4 * ns), np.empty(4 * ns)
-    nz = 0
-    for q in range(ns):
-        k = segs[q]
-        am = amax[knots[k] // stride]
-        T = float(knots[k + 1] - knots[k])
-        dp = float(P[k + 1] - P[k])
-        v0, v1 = v[k], v[k + 1]
-        a0 = (6.0 * dp - (4.0 * v0 + 2.0 * v1) * T) / (T * T)
-        a1 = (-6.0 * dp + (2.0 * v0 + 4.0 * v1) * T) / (T * T)
-        lo[4 * q : 4 * q + 4] = (-am - a0, -am - a1, -room[k], -room[k])
-        hi[4 * q : 4 * q + 4] = (am - a0, am - a1, room[k], room[k])
-        for end in range(2):
-            c = col_of[k + end]
-            if c < 0:
-                continue
-            if end == 0:
-                coef = (-4.0 / T, 2.0 / T, 4.0 * T / 27, 2.0 * T / 27)
-            else:
-                coef = (-2.0 / T, 4.0 / T, -2.0 * T / 27, -4.0 * T / 27)
-            for r in range(4):
-                rows[nz], cidx[nz], vals[nz] = 4 * q + r, c, coef[r]
-                nz += 1
-    lbx, ubx, h = np.empty(m), np.empty(m), np.empty(m)
-    for j in range(m):
-        k = cols[j]
-        vm = vmax[knots[k] // stride]
-        lbx[j] = min(-vm - v[k], 0.0)
-        ubx[j] = max(vm - v[k], 0.0)
-        w = 0.5 * float(knots[k + 1] - knots[k - 1])  # the position effect of a change grows with it
-        h[j] = 2.0 * w * w
-    return cols, rows[:nz], cidx[:nz], vals[:nz], lo, hi, lbx, ubx, h
-
-
 # --- the integer repair --------------------------------------------------------------------------
 # A record may move by up to _DP counts and _DV velocity units off its rounding: nudge e of a record
 # moves it by _dp(e) counts and _dv(e) units (nudge 0 moves nothing).
@@ -520,8 +455,8 @@ def _repair_chain(
     """Re-choose the records of knots i0 .. i1 (in place, between the fixed knots i0 - 1 and
     i1 + 1) among their ``_candidates``: the combination whose worst limit ratio over the chain's
     segments is the least (a bottleneck path), and among those that keep every segment under
-    max(that, 1), the one with the least summed excess over 1 (fewest segments left for the QP and
-    the splits), then the closest to the plan (a shortest path). Whether it moved anything."""
+    max(that, 1), the one with the least summed excess over 1 (fewest segments left for the
+    splits), then the closest to the plan (a shortest path). Whether it moved anything."""
     L = i1 - i0 + 1
     nc = (2 * shift + 1) * _N_NUDGES
     ct, cp, cv = (

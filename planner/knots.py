@@ -14,12 +14,13 @@ EPOS2 PVT (``epos2_pvt``), per axis (the axes share only the start SYNC and the 
    system over the knot positions and velocities, fitted to the plan at every drive ms) stray
    more than ``fit_fraction * tolerance_qc`` from the plan, or are longer than 255 ms;
 3. quantization: positions to counts (inside 0x607D), velocities to the drive's unit; where that
-   pushes a cubic over a limit, the records around it are re-rounded together (each nudged by a
-   count or a few velocity units, the best combination of a whole run found exactly: cheap, and
-   enough for most segments); what the nudges cannot fix goes to a QP
-   (casadi, daqp) that moves the knot velocities by the least amount that keeps every cubic's end
-   accelerations inside 0x60C5 (they are linear in the velocities once the positions are fixed),
-   within the tolerance, and is kept if its rounded, re-nudged result is better;
+   pushes a cubic over a limit, the records around it are re-rounded together: each may move by
+   a count and two velocity units, and the best combination of a whole run is found exactly (a
+   shortest path over the candidates, ``knot_kernels.repair_chains``). Integers need an integer
+   search: a velocity QP (casadi/daqp) used to follow the nudges here, and a continuous optimum
+   is only as good as its rounding (121 of its 122 feasible solutions were over a limit again once
+   rounded); after this search came in, dropping the QP changed no program on 300 bench paths,
+   and a QP held back by its rounding's reach was infeasible in all 59 calls on 800;
 4. the exact reconstruction of the quantized records is checked: a segment that strays more than
    the tolerance, or stays over a limit, is split and steps 3-4 are redone. Splitting for a limit
    stops on an axis whose segments over a limit do not get fewer (more of the same costs time,
@@ -38,10 +39,10 @@ EPOS2 PVT (``epos2_pvt``), per axis (the axes share only the start SYNC and the 
 
 All EPOS2 axes are placed together, as one flat problem (their samples end to end), so that each
 step is one set of array operations for all of them. The axes' blocks are independent: an axis
-gets the records it would get alone (up to the QP solver's round-off), and leaves as soon as it
-is done. Work that repeats is not redone: the check evaluates only the segments whose cubic
-changed, the least-squares fit reuses the right-hand side of every unchanged segment and
-re-evaluates a segment's fit only where its verdict could change.
+gets the records it would get alone, and leaves as soon as it is done. Work that repeats is not
+redone: the check evaluates only the segments whose cubic changed, the least-squares fit reuses
+the right-hand side of every unchanged segment and re-evaluates a segment's fit only where its
+verdict could change.
 
 Fixed-period profiles take one record per period and are checked by their own reconstruction
 (linear, or Parker's cubic submodes) the same way. All numbers here are in drive units: qc,
@@ -282,7 +283,6 @@ def _split(knots: NDArray[np.int64], segments: NDArray[np.int64]) -> NDArray[np.
 
 
 _COARSE = 4.0  # first cut: exact-sample cubics to this multiple of the fit target (cheap), then least squares
-_QP_WINDOW = 4  # knots on either side of a segment over a limit whose velocities the QP may move
 _MIN_SPLIT_MS = 12  # segments shorter than twice this are not split for a limit (rounding grows as 1/T^2)
 _FIT_PROBES = np.arange(1, 8) / 8.0  # where a candidate segment's fit is judged
 _REPAIR_REACH = 2  # knots on either side of a segment over a limit whose records the repair may move
@@ -605,63 +605,6 @@ def _check_knots(
     return _Checked(knots, P, V, _Check(dev, rv, ra, out))
 
 
-def _velocity_qp(
-    fl: _Flat,
-    knots: NDArray[np.int64],
-    P: NDArray[np.int64],
-    v: NDArray[np.float64],
-    room: NDArray[np.float64],
-    over: NDArray[np.int64],
-) -> NDArray[np.float64] | None:
-    """Knot velocities (qc/ms) closest to ``v`` that keep every cubic inside 0x607F/0x60C5.
-
-    With the positions fixed at their counts, a cubic's end accelerations are linear in its end
-    velocities, (6 dP - (4 V0 + 2 V1) T) / T^2 and (-6 dP + (2 V0 + 4 V1) T) / T^2, and so is its
-    position at any fixed time inside. So "as close to the plan as possible, exactly inside the
-    acceleration limit" is a QP (casadi, daqp) over the velocities: it moves them just enough to
-    absorb what rounding the positions did to the accelerations, each segment's interior moving
-    by at most its ``room`` (counts) at a third and two thirds of it. Only the velocities within
-    ``_QP_WINDOW`` knots of the segments ``over`` a limit move (the rest are fixed), which keeps the
-    QP small. Each axis is its own QP (the axes are independent: one that cannot be helped does not
-    make the others' infeasible, and solving them together first cost a failed solve in most calls);
-    the feasible ones are kept. None when nothing moved.
-    """
-    ax = fl.axis_of(knots[over])
-    parts = [m for m in (_qp_solve(fl, knots, P, v, room, over[ax == a]) for a in np.unique(ax)) if m is not None]
-    if not parts:
-        return None
-    out = v.copy()
-    for cols, dv in parts:
-        out[cols] += dv
-    return out
-
-
-def _qp_solve(
-    fl: _Flat,
-    knots: NDArray[np.int64],
-    P: NDArray[np.int64],
-    v: NDArray[np.float64],
-    room: NDArray[np.float64],
-    over: NDArray[np.int64],
-) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
-    """The QP of ``_velocity_qp`` for the segments ``over``: (knots moved, their velocity change)."""
-    import casadi
-
-    cols, rows, cidx, vals, lo, hi, lbx, ubx, h = kernels.qp_problem(
-        knots, P, v, room, over, fl.stride, fl.amax, fl.vmax, _QP_WINDOW
-    )
-    m = len(cols)
-    if not m:
-        return None
-    A = casadi.DM.triplet(rows.tolist(), cidx.tolist(), vals.tolist(), len(lo), m)  # lists: numpy is 20x slower here
-    h_sp = casadi.Sparsity.diag(m)
-    solver = casadi.conic("knot_velocities", "daqp", {"h": h_sp, "a": A.sparsity()}, {"error_on_fail": False})
-    res = solver(h=casadi.DM(h_sp, h), g=np.zeros(m), a=A, lba=lo, uba=hi, lbx=lbx, ubx=ubx)
-    if not solver.stats().get("success", False):
-        return None
-    return cols, np.asarray(res["x"]).ravel()
-
-
 def _place_epos2(
     fl: _Flat,
     smp: _Samples,
@@ -714,21 +657,11 @@ def _place_epos2(
         P_round, V = _round_knots(fl, knots, p_fit, v_fit)
         rounded = _check_knots(fl, knots, P_round, V, checked)
         _, P, V, checked = _repair_rounds(fl, knots, P_round, V, rounded, tol)
-        if _over(checked.chk).any():  # what the nudges could not fix: the exact QP, from the rounding
-            over = np.flatnonzero(_over(rounded.chk))
-            room = np.maximum(tol - rounded.chk.seg_deviation, 0.0)
-            v_qp = _velocity_qp(fl, knots, P_round, v_fit, room, over)
-            if v_qp is not None:
-                V_qp = _round_knots(fl, knots, p_fit, v_qp)[1]
-                trial = _check_knots(fl, knots, P_round, V_qp, checked)
-                _, P_qp, V_qp, trial = _repair_rounds(fl, knots, P_round, V_qp, trial, tol)
-                if _worst_excess(trial.chk) < _worst_excess(checked.chk):
-                    P, V, checked = P_qp, V_qp, trial
         chk = checked.chk
         T = np.diff(knots)
         bad = np.flatnonzero((chk.seg_deviation > tol) | chk.position_out)
         bad = bad[T[bad] >= 2]
-        # a segment still over a limit with a long span: another knot gives the QP room to fix it
+        # a segment still over a limit with a long span: another knot gives the repair room to fix it
         stuck = np.flatnonzero(_over(chk))
         # splits are worth it while they help: an axis whose segments over a limit did not get
         # fewer (and that strays nowhere) stops here, as it is
@@ -825,11 +758,6 @@ def _shifted(fl: _Flat, placed: tuple[AxisKnots, float], opts: KnotOptions) -> t
     return moved if moved[1] < placed[1] else placed
 
 
-def _worst_excess(chk: _Check) -> float:
-    """How far the worst segment is over a limit (0 when none is), as a ratio."""
-    return max(float(np.max(chk.velocity_ratio, initial=0.0)), float(np.max(chk.acceleration_ratio, initial=0.0)), 1.0)
-
-
 def _axis_knots(
     fl: _Flat, a: int, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64], chk: _Check, dwell_ms: int
 ) -> tuple[AxisKnots, float]:
@@ -854,7 +782,7 @@ def _epos2_axes(
 
     Least-squares cubics need the fewest records for the tolerance, but spend most of it: where
     the quantized result still exceeds a limit, cubics through the exact samples (more records,
-    more room for the velocity QP) are tried as well, and the one that needs less slow-down wins.
+    more room for the repair) are tried as well, and the one that needs less slow-down wins.
     ``hints``: the knots of a previous, faster round, scaled to this one (tried first: cheap).
     """
     results: dict[int, tuple[AxisKnots, float]] = {}
