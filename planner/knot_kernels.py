@@ -470,8 +470,15 @@ def _repair_chain(
         if j == 0 or j == L + 1:  # the fixed ends: the record as it is
             ct[j, 0], cp[j, 0], cv[j, 0], n_cand[j] = knots[k], P[k], V[k], 1
         else:
-            ct[j], cp[j], cv[j] = _candidates(knots, P, V, k, shift, plan, plan_v, f, v_units)
-            n_cand[j] = nc
+            t, p, v = _candidates(knots, P, V, k, shift, plan, plan_v, f, v_units)
+            # a candidate further than tol from the plan at its own time is out whatever its neighbours
+            # (the record as it is stays first, to judge the chain as it is)
+            n = 0
+            for c in range(nc):
+                if c == 0 or abs(p[c] - plan[t[c]]) <= tol:
+                    ct[j, n], cp[j, n], cv[j, n] = t[c], p[c], v[c]
+                    n += 1
+            n_cand[j] = n
     R = np.full((L + 1, nc, nc), np.inf)
     D = np.zeros((L + 1, nc, nc))
     for j in range(L + 1):

@@ -286,6 +286,7 @@ _COARSE = 4.0  # first cut: exact-sample cubics to this multiple of the fit targ
 _MIN_SPLIT_MS = 12  # segments shorter than twice this are not split for a limit (rounding grows as 1/T^2)
 _FIT_PROBES = np.arange(1, 8) / 8.0  # where a candidate segment's fit is judged
 _REPAIR_REACH = 2  # knots on either side of a segment over a limit whose records the repair may move
+_MAX_SHIFT_MS = 3  # how far the last try before a slow-down may move a knot
 
 
 def _refine(
@@ -744,13 +745,18 @@ def _repair_rounds(
 
 
 def _shifted(fl: _Flat, placed: tuple[AxisKnots, float], opts: KnotOptions) -> tuple[AxisKnots, float]:
-    """The records of ``fl``'s one axis with the knots around its segments over a limit moved by a
-    ms where that brings them inside (and within the tolerance): the last try before the whole
-    motion is slowed down. ``placed`` if it does not."""
+    """The records of ``fl``'s one axis with the knots around its segments over a limit moved by up
+    to ``_MAX_SHIFT_MS`` where that brings them inside (and within the tolerance): the last try
+    before the whole motion is slowed down. A ms first, further only where that is not enough
+    (the search grows with the square of the candidates). ``placed`` if it does not help."""
     records = placed[0].records
-    knots = np.concatenate(([0], np.cumsum(records[1:-1, 2]))).astype(np.int64)
-    P, V = records[:-1, 0].copy(), records[:-1, 1].copy()
-    knots, P, V, checked = _repair_rounds(fl, knots, P, V, _check_knots(fl, knots, P, V), opts.tolerance_qc, shift=1)
+    knots0 = np.concatenate(([0], np.cumsum(records[1:-1, 2]))).astype(np.int64)
+    P0, V0 = records[:-1, 0].copy(), records[:-1, 1].copy()
+    checked0 = _check_knots(fl, knots0, P0, V0)
+    for shift in range(1, _MAX_SHIFT_MS + 1):  # each from the placed records: the search of that reach
+        knots, P, V, checked = _repair_rounds(fl, knots0, P0, V0, checked0, opts.tolerance_qc, shift)
+        if not _over(checked.chk).any():
+            break
     chk = checked.chk
     if chk.position_out.any() or exceeds(chk.seg_deviation, opts.tolerance_qc).any():
         return placed
