@@ -14,7 +14,7 @@ import contextlib
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import TypeVar
@@ -196,9 +196,11 @@ class AxisGroup:
     ``AxisGroup(bus, axes, on_progress=..., on_event=..., progress_every=10)``: ``bus`` is an open
     ``CellBus``, ``axes`` the cell's ``AxisConfig``s (``cell.ordered_axes()``).
 
-    - ``run(program, timeout_s=None) -> RunResult``: configure (first time), enable, preload, start,
-      feed, wait for the outcome. ``start(program)`` (None, or a RunResult when refused at once) and
-      ``wait(timeout_s)`` are the same in two steps.
+    - ``run(program, timeout_s=None) -> RunResult``: configure (first time), check, enable, preload,
+      start, feed, wait for the outcome. ``start(program)`` (None, or a RunResult when refused at
+      once) and ``wait(timeout_s)`` are the same in two steps. After a run that finished (and after
+      ``recover``) every axis is enabled for the next start in the background, so that start only
+      checks (statusword and position) before its records: 2 SDO round trips instead of 5.
     - ``stop(reason)``: any thread; every axis halts on the next SYNC; the run ends STOPPED.
     - ``recover() -> RunResult``: fault reset and re-enable every axis (FINISHED when all enabled).
     - ``status(refresh=False) -> GroupStatus``; ``last_result``; ``running``; ``feeders``.
@@ -242,6 +244,10 @@ class AxisGroup:
         self._starting = False
         self._stop_request: str | None = None
         self._pool = ThreadPoolExecutor(max_workers=max(1, len(self.links)), thread_name_prefix="axis-sdo")
+        # per axis: the link's controlwords_sent when it was last made ready for a start (enabled, end
+        # controlword written, buffer cleared and open) after a run or a recovery; None: not ready
+        self._ready: list[int | None] = [None] * len(self.links)
+        self._readying: list[Future[None]] = []
         for link in self.links:
             link.status_listeners.append(self._on_status)
         bus.on_fault(self._on_bus_fault)
@@ -258,6 +264,7 @@ class AxisGroup:
         for link in self.links:
             self.bus.nmt(link.node_id, NMT_START)
         self.bus.watch_heartbeat(link.node_id for link in self.links)
+        self._ready = [None] * len(self.links)
         self.configured = True
 
     def _event(self, kind: str, message: str, link: AxisLink | None = None) -> None:
@@ -311,13 +318,15 @@ class AxisGroup:
                 self._programs = [by_node[link.node_id] for link in self.links]
                 self._stop_request = None
                 self._starting = True
+                for readying in self._readying:  # the last run's preparation for this one, if still going
+                    readying.result()
                 # every drive is asked at once (one SDO round trip per question, not per axis):
                 # first all checks, and only when every axis passes, all enables
                 refusals = list(self._per_axis(self._start_check, zip(self.links, self._programs, strict=True)))
                 refusal = next((r for r in refusals if r is not None), None)
                 if refusal is not None:
                     return self._finish_early(Result.REJECTED, refusal[1], refusal[0])
-                list(self._per_axis(lambda profile: profile.enable(fresh=True), self.profiles))  # checks read it
+                list(self._per_axis(self._enable_unless_ready, range(len(self.links))))
             except DriveError as exc:
                 link = next((lk for lk in self.links if lk.node_id == exc.node_id), None)
                 return self._finish_early(Result.CONFIGURATION_ERROR, str(exc), link)
@@ -352,6 +361,36 @@ class AxisGroup:
         order; the first DriveError in axis order is raised."""
         futures = [self._pool.submit(work, item) for item in items]
         return (f.result() for f in futures)
+
+    def _enable_unless_ready(self, i: int) -> None:
+        """Enable axis i for the start (from the statusword its check just read), unless it was made
+        ready after the last run or recovery and nothing has happened to it since: no controlword
+        sent (a halt, a stop, a recovery's, anyone's), still OPERATION ENABLED, no fault."""
+        link, ready = self.links[i], self._ready[i]
+        self._ready[i] = None  # a start uses it up
+        if ready is not None and ready == link.controlwords_sent and link.state == PowerState.OPERATION_ENABLED:
+            return
+        self.profiles[i].enable(fresh=True)
+
+    def _prepare_next(self) -> None:
+        """After a run that finished: make every axis ready for the next start now, in the background
+        (the enable a start would do: end controlword, buffer cleared and open), so that a start
+        needs only its checks. A start waits for this to end; an axis that fails it is enabled at
+        the start as usual."""
+        self._readying = [self._pool.submit(self._make_ready, i) for i in range(len(self.links))]
+
+    def _make_ready(self, i: int) -> None:
+        """Only from OPERATION ENABLED: a drive that has left it (a fault, a reset) is not walked back
+        here (that would reset a fault behind the user's back); the start refuses it or enables it."""
+        link = self.links[i]
+        self._ready[i] = None
+        try:
+            if decode_state(link.read_statusword()) is not PowerState.OPERATION_ENABLED:
+                return
+            self.profiles[i].enable(fresh=True)  # reach() has nothing to do: no fault reset is ever sent
+        except DriveError:
+            return
+        self._ready[i] = link.controlwords_sent
 
     def _start_check(self, link_and_program: tuple[AxisLink, AxisProgram]) -> tuple[AxisLink, str] | None:
         """Why this axis cannot start the program now (None: it can)."""
@@ -469,6 +508,8 @@ class AxisGroup:
         link = next((lk for lk in self.links if lk.node_id == fault.node_id), None)
         if link is not None and fault.kind == "emcy":
             link.last_emcy = (fault.code, fault.message)
+        if link is not None:  # whatever it was, that drive is enabled again at the next start
+            self._ready[self.links.index(link)] = None
         self._event(fault.kind, fault.message, link)
         if not self._running:
             return
@@ -583,6 +624,8 @@ class AxisGroup:
             result.axes = self._reports()
             self.last_result = result
             self._running = False
+            if result.ok:
+                self._prepare_next()
             self._event(
                 "finished" if result.ok else result.result.value,
                 result.message,
@@ -619,6 +662,7 @@ class AxisGroup:
                     return self._finish_early(Result.CONFIGURATION_ERROR, f"recover failed: {exc}", link)
                 link.last_emcy = None
                 link.buffer_status = link.buffer_status & ~int(BUFFER_ERRORS)
+            self._ready = [link.controlwords_sent for link in self.links]  # enabled just now: ready
             self.bus.watch_heartbeat(link.node_id for link in self.links)
             self._event("recovered", "all axes fault-free and enabled")
             res = self._result(Result.FINISHED, "recovered: every axis is enabled")

@@ -78,7 +78,9 @@ class AxisLink:
         self.last_emcy: tuple[int, str] | None = None
         self.updated = threading.Condition()
         self.status_listeners: list[Callable[[AxisLink], None]] = []
+        self.controlwords_sent = 0  # every controlword the master sends, by SDO or RPDO, counts
         self._subscribed: list[tuple[int, Callable[..., None]]] = []
+        self._sdo = threading.Lock()  # one SDO transfer at a time: the node has one SDO server channel
 
     @property
     def joint(self) -> str:
@@ -101,7 +103,8 @@ class AxisLink:
     def _download(self, index: int, subindex: int, value: int, fmt: str, optional: bool) -> bool:
         where = f"0x{index:04X}:{subindex:02X}"
         try:
-            self.node.sdo.download(index, subindex, struct.pack("<" + fmt, value))
+            with self._sdo:
+                self.node.sdo.download(index, subindex, struct.pack("<" + fmt, value))
         except SdoAbortedError as exc:
             if optional and exc.code >> 16 in (0x0602, 0x0609):
                 return False
@@ -112,7 +115,8 @@ class AxisLink:
 
     def read(self, index: int, subindex: int, fmt: str) -> int:
         try:
-            data = self.node.sdo.upload(index, subindex)
+            with self._sdo:
+                data = self.node.sdo.upload(index, subindex)
             return struct.unpack_from("<" + fmt, data.ljust(struct.calcsize(fmt), b"\0"))[0]
         except (SdoAbortedError, SdoCommunicationError, struct.error) as exc:
             raise DriveError(self.node_id, f"SDO read 0x{index:04X}:{subindex:02X} failed: {exc}") from None
@@ -205,11 +209,13 @@ class AxisLink:
         """Through the synchronous RPDO: takes effect at the next SYNC."""
         self.bus.network.send_message(self.controlword_cob_id(), struct.pack("<H", controlword))
         self.psm.sent(controlword)
+        self.controlwords_sent += 1
 
     def write_controlword(self, controlword: int) -> None:
         """By SDO: takes effect at once (configuration, enable, recovery)."""
         self.write(od.CONTROLWORD, 0, controlword, "H")
         self.psm.sent(controlword)
+        self.controlwords_sent += 1
 
     def reach(self, target: PowerState, timeout_s: float = 2.0, fresh: bool = False) -> PowerState:
         """Walk the power state machine to ``target`` by SDO (fault reset on a rising bit 7 included).

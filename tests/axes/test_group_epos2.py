@@ -5,11 +5,12 @@ from __future__ import annotations
 import threading
 import time
 
+import can
 import numpy as np
 import pytest
 from axes_programs import check_limits, program
 
-from axes.cia402 import PowerState
+from axes.cia402 import PowerState, decode_state
 from axes.group import GroupError, Result
 
 
@@ -265,3 +266,78 @@ def test_program_for_other_nodes_or_a_second_start_is_refused(arm6, make_rig):
         rig.group.start(prog)
     rig.group.stop()
     assert rig.group.wait(timeout_s=30).result is Result.STOPPED
+
+
+class _SdoCounter(can.Listener):
+    """SDO requests per node on the cell's channel until the first SYNC after ``arm``."""
+
+    def __init__(self) -> None:
+        self.counts: dict[int, int] = {}
+        self.on = False
+
+    def arm(self) -> None:
+        self.counts, self.on = {}, True
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if not self.on:
+            return
+        if msg.arbitration_id == 0x80:  # the start SYNC: the start sequence is over
+            self.on = False
+        elif 0x600 < msg.arbitration_id <= 0x67F:
+            node = msg.arbitration_id - 0x600
+            self.counts[node] = self.counts.get(node, 0) + 1
+
+
+def _start_sdos(rig, prog) -> dict[int, int]:
+    """SDO requests per node from the start of ``prog`` to its start SYNC (and the run's outcome)."""
+    counter = _SdoCounter()
+    spy = can.Bus(interface="virtual", channel=rig.bus.config.channel, receive_own_messages=False)
+    notifier = can.Notifier(spy, [counter], 0.05)
+    try:
+        counter.arm()
+        result = rig.group.run(prog, timeout_s=30)
+        assert result.ok, result.message
+        time.sleep(0.05)  # the spy's thread has every frame of the start by now (the run is over)
+    finally:
+        notifier.stop()
+        spy.shutdown()
+    return counter.counts
+
+
+def test_a_start_after_a_finished_run_needs_only_its_checks(arm6, make_rig):
+    """After a run finishes, every axis is made ready for the next start in the background (end
+    controlword, FIFO cleared and opened): that start reads statusword and position (2 SDO per
+    axis) and sends records. A controlword sent to an axis in between (here one written by SDO)
+    means that axis is enabled again at the start, in full."""
+    rig = make_rig(arm6)
+    axes = arm6.ordered_axes()
+    first = _start_sdos(rig, program(axes, 200, spacing_ms=20))
+    assert all(first[a.node_id] >= 5 for a in axes)  # check (2), end controlword, FIFO clear and open
+    here = [lk.position for lk in rig.group.links]
+    second = _start_sdos(rig, program(axes, 200, starts=here, spacing_ms=20, sign=-1))
+    assert second == {a.node_id: 2 for a in axes}
+    link3 = rig.group.links[2]
+    link3.write_controlword(rig.group.profiles[2].end_controlword())
+    here = [lk.position for lk in rig.group.links]
+    third = _start_sdos(rig, program(axes, 200, starts=here, spacing_ms=20))
+    assert third[link3.node_id] >= 5
+    assert all(third[a.node_id] == 2 for a in axes if a.node_id != link3.node_id)
+    for drive in rig.sim:  # each run took exactly its records: nothing left over from the one before
+        assert drive.faults == [] and drive.ended_by_time_zero == 3
+    assert rig.sim.internal_errors == []
+
+
+def test_a_recovered_cell_starts_with_its_checks_and_a_fault_undoes_the_readiness(arm6, make_rig):
+    rig = make_rig(arm6)
+    axes = arm6.ordered_axes()
+    assert rig.group.run(program(axes, 200, spacing_ms=20), timeout_s=30).ok
+    drive2 = rig.sim.drive(2)
+    drive2.inject_emcy(0x7320)  # a fault between runs: the start refuses, recover enables all
+    assert drive2.wait_until(lambda: decode_state(drive2.statusword()) is PowerState.FAULT)
+    here = [lk.position for lk in rig.group.links]
+    refused = rig.group.run(program(axes, 200, starts=here, spacing_ms=20), timeout_s=30)
+    assert refused.result is Result.REJECTED and refused.node_id == 2
+    assert rig.group.recover().ok
+    here = [lk.position for lk in rig.group.links]
+    counts = _start_sdos(rig, program(axes, 200, starts=here, spacing_ms=20))
+    assert counts == {a.node_id: 2 for a in axes}
