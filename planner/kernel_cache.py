@@ -18,7 +18,9 @@ from numba.core import config
 from numba.core.caching import InTreeCacheLocator
 
 HERE = Path(__file__).resolve().parent
-KERNEL_SOURCES = tuple(HERE / name for name in ("interpolation.py", "knot_kernels.py", "timing.py", "validate.py"))
+KERNEL_SOURCES = tuple(
+    HERE / name for name in ("interpolation.py", "knot_kernels.py", "path.py", "timing.py", "validate.py")
+)
 
 
 def sources_stamp(paths: tuple[Path, ...]) -> tuple[tuple[int, int], ...]:

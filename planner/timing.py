@@ -30,7 +30,7 @@ from toppra.solverwrapper.cy_seidel_solverwrapper import seidelWrapper
 
 from planner.limits import JointLimits
 from planner.model import RobotModel
-from planner.path import JointPath, PlanError, PlanResult
+from planner.path import JointPath, PlanError, PlanResult, interval, spline_at, spline_piece
 
 DEFAULT_GRIDPOINTS = 140
 # sub-samples per grid interval for the post-check
@@ -189,17 +189,6 @@ class JointTorqueConstraint(constraint.LinearConstraint):
 
 
 @njit(cache=True)
-def _interval(a: NDArray[np.float64], v: float, i: int, hi: int) -> int:
-    """The last i <= hi with a[i] <= v (0 if none), walking on from the hint ``i``: the times and
-    path parameters of one sampling pass only grow, so each step is one comparison, not a search."""
-    if a[i] > v:
-        return min(max(np.searchsorted(a, v, side="right") - 1, 0), hi)
-    while i < hi and a[i + 1] <= v:
-        i += 1
-    return i
-
-
-@njit(cache=True)
 def _path_state(
     t: float,
     i: int,
@@ -211,7 +200,7 @@ def _path_state(
     """s, s', s'' at time t (clipped to the motion), and its grid interval (``i``: a hint for it):
     s'' is constant between two gridpoints."""
     t = min(max(t, 0.0), breakpoints[-1])
-    i = _interval(breakpoints, t, i, len(sdd) - 1)
+    i = interval(breakpoints, t, i, len(sdd) - 1)
     tau = t - breakpoints[i]
     s = min(gridpoints[i] + sd[i] * tau + 0.5 * sdd[i] * tau * tau, gridpoints[i + 1])
     return s, sd[i] + sdd[i] * tau, sdd[i], i
@@ -233,24 +222,6 @@ def _path_states(
 
 
 @njit(cache=True)
-def _spline_piece(x: NDArray[np.float64], s: float, i: int) -> tuple[int, float]:
-    """The path's spline piece at s (``i``: a hint for it) and the offset into it (scipy's PPoly
-    layout: breakpoints ``x``; clipped to the end pieces)."""
-    i = _interval(x, s, i, len(x) - 2)
-    return i, s - x[i]
-
-
-@njit(cache=True)
-def _spline_at(c: NDArray[np.float64], i: int, h: float, j: int) -> tuple[float, float, float]:
-    """Joint j of the path on piece i at offset h: q, q_s, q_ss (``c[k, piece, joint]``, highest
-    power first)."""
-    q = ((c[0, i, j] * h + c[1, i, j]) * h + c[2, i, j]) * h + c[3, i, j]
-    q_s = (3.0 * c[0, i, j] * h + 2.0 * c[1, i, j]) * h + c[2, i, j]
-    q_ss = 6.0 * c[0, i, j] * h + 2.0 * c[1, i, j]
-    return q, q_s, q_ss
-
-
-@njit(cache=True)
 def _joint_states(
     t: NDArray[np.float64],
     breakpoints: NDArray[np.float64],
@@ -266,9 +237,9 @@ def _joint_states(
     g, i = 0, 0
     for k in range(len(t)):
         s, s_d, _, g = _path_state(t[k], g, breakpoints, gridpoints, sd, sdd)
-        i, h = _spline_piece(x, s, i)
+        i, h = spline_piece(x, s, i)
         for j in range(dof):
-            q[j, k], q_s, _ = _spline_at(c, i, h, j)
+            q[j, k], q_s, _ = spline_at(c, i, h, j)
             qd[j, k] = q_s * s_d
     return q, qd
 
@@ -290,9 +261,9 @@ def _worst_ratios(
     g, i = 0, 0
     for k in range(len(t)):
         s, s_d, s_dd, g = _path_state(t[k], g, breakpoints, gridpoints, sd, sdd)
-        i, h = _spline_piece(x, s, i)
+        i, h = spline_piece(x, s, i)
         for j in range(c.shape[2]):
-            _, q_s, q_ss = _spline_at(c, i, h, j)
+            _, q_s, q_ss = spline_at(c, i, h, j)
             rv = max(rv, abs(q_s * s_d) / vmax[j])
             ra = max(ra, abs(q_ss * s_d * s_d + q_s * s_dd) / amax[j])
     return rv, ra
@@ -372,8 +343,7 @@ class Trajectory:
 
     def _profile_and_path(self) -> tuple[NDArray[np.float64], ...]:
         """What the compiled loops need of the motion: the s'' profile and the path's cubic pieces."""
-        spline = self.path.cspl
-        return self.breakpoints, self.gridpoints, self.sd, self.sdd, spline.x, np.ascontiguousarray(spline.c)
+        return self.breakpoints, self.gridpoints, self.sd, self.sdd, *self.path.pieces
 
     def states(self, t: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Positions and velocities, each (dof, len(t)), at the times t in one pass: for sampling

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import toppra
 import toppra.algorithm as algo
 import toppra.constraint as constraint
 
@@ -156,3 +157,18 @@ def test_limit_ratios_are_the_paths_own_derivatives() -> None:
     assert rv == pytest.approx(float(np.max(np.abs(qd) / LIMITS.velocity)), rel=1e-12)
     assert ra == pytest.approx(float(np.max(np.abs(qdd) / LIMITS.acceleration)), rel=1e-12)
     assert 0.5 < max(rv, ra) <= 1.0 + 1e-9  # a time-optimal plan reaches a limit, and keeps it
+
+
+def test_path_evaluation_is_toppras_spline() -> None:
+    """JointPath evaluates its spline in one compiled pass; the numbers are toppra's (scipy's
+    CubicSpline and its derivatives), scalars and arrays alike, past the ends too."""
+    path = JointPath(WAYPOINTS, LIMITS)
+    ref = toppra.SplineInterpolator(path.waypoint_s, path.points, bc_type="not-a-knot")
+    s = np.concatenate((np.linspace(-0.1, path.length + 0.1, 997), path.waypoint_s))
+    for order in (0, 1, 2):
+        want = ref(s, order)
+        np.testing.assert_allclose(path(s, order), want, rtol=0, atol=1e-12 * np.abs(want).max())
+        np.testing.assert_allclose(path(s[5], order), ref(s[5], order), rtol=0, atol=1e-12 * np.abs(want).max())
+        assert path(s[:1000].reshape(-1, 2)[:, :1], order).shape == (500, 1, LIMITS.dof)
+    with pytest.raises(ValueError, match="order"):
+        path(s, 3)
