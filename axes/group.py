@@ -248,6 +248,7 @@ class AxisGroup:
         # controlword written, buffer cleared and open) after a run or a recovery; None: not ready
         self._ready: list[int | None] = [None] * len(self.links)
         self._readying: list[Future[None]] = []
+        self._preloaded: list[bool] = []  # per axis: its feeder's preload went out with the start's checks
         for link in self.links:
             link.status_listeners.append(self._on_status)
         bus.on_fault(self._on_bus_fault)
@@ -311,6 +312,7 @@ class AxisGroup:
             reason = self.check_program(program)
             if reason is not None:
                 return self._finish_early(Result.REJECTED, reason)
+            feeders: list[Feeder | None] = [None] * len(self.links)
             try:
                 if not self.configured:
                     self.configure()
@@ -321,12 +323,25 @@ class AxisGroup:
                 for readying in self._readying:  # the last run's preparation for this one, if still going
                     readying.result()
                 # every drive is asked at once (one SDO round trip per question, not per axis):
-                # first all checks, and only when every axis passes, all enables
-                refusals = list(self._per_axis(self._start_check, zip(self.links, self._programs, strict=True)))
+                # first all checks, and only when every axis passes, the enables it needs
+                checks = self._per_axis(self._start_check, zip(self.links, self._programs, strict=True))  # asked now
+                ready = [self._is_ready(i) for i in range(len(self.links))]
+                self._ready = [None] * len(self.links)  # a start uses it up, whatever its outcome
+                if all(ready):
+                    # every buffer is open and empty: the records go out while the drives answer the
+                    # checks (no start word yet, so they move nothing; after a refusal the next
+                    # start's enable clears the buffers)
+                    feeders = [p.feeder(prog) for p, prog in zip(self.profiles, self._programs, strict=True)]
+                    for feeder in feeders:
+                        feeder.preload()
+                refusals = list(checks)
                 refusal = next((r for r in refusals if r is not None), None)
                 if refusal is not None:
                     return self._finish_early(Result.REJECTED, refusal[1], refusal[0])
-                list(self._per_axis(self._enable_unless_ready, range(len(self.links))))
+                enabled = list(self._per_axis(self._enable_unless_ready, enumerate(ready)))
+                for i in range(len(self.links)):
+                    if enabled[i]:  # its buffer was cleared: its records go out again below
+                        feeders[i] = None
             except DriveError as exc:
                 link = next((lk for lk in self.links if lk.node_id == exc.node_id), None)
                 return self._finish_early(Result.CONFIGURATION_ERROR, str(exc), link)
@@ -335,7 +350,11 @@ class AxisGroup:
             if self._stop_request is not None:
                 return self._finish_early(Result.STOPPED, self._stop_request)
 
-            self._feeders = [p.feeder(prog) for p, prog in zip(self.profiles, self._programs, strict=True)]
+            self._feeders = [
+                f if f is not None else p.feeder(prog)
+                for f, p, prog in zip(feeders, self.profiles, self._programs, strict=True)
+            ]
+            self._preloaded = [f is not None for f in feeders]
             self._ip_start = [None] * len(self.links)
             self._end_words_sent = [False] * len(self.links)
             self._ending = None
@@ -345,8 +364,9 @@ class AxisGroup:
         with sync.lock, self._lock:
             self._done.clear()
             self._running = True
-            for feeder in self._feeders:
-                feeder.preload()
+            for feeder, preloaded in zip(self._feeders, self._preloaded, strict=True):
+                if not preloaded:
+                    feeder.preload()
             self._start_sync = sync.count + 1
             for link, profile in zip(self.links, self.profiles, strict=True):
                 link.send_controlword(profile.start_controlword())
@@ -362,15 +382,19 @@ class AxisGroup:
         futures = [self._pool.submit(work, item) for item in items]
         return (f.result() for f in futures)
 
-    def _enable_unless_ready(self, i: int) -> None:
-        """Enable axis i for the start (from the statusword its check just read), unless it was made
-        ready after the last run or recovery and nothing has happened to it since: no controlword
-        sent (a halt, a stop, a recovery's, anyone's), still OPERATION ENABLED, no fault."""
-        link, ready = self.links[i], self._ready[i]
-        self._ready[i] = None  # a start uses it up
-        if ready is not None and ready == link.controlwords_sent and link.state == PowerState.OPERATION_ENABLED:
-            return
+    def _is_ready(self, i: int) -> bool:
+        """Axis i was made ready after the last run or recovery and no controlword (a halt, a stop, a
+        recovery's, anyone's) or bus fault has come since."""
+        return self._ready[i] is not None and self._ready[i] == self.links[i].controlwords_sent
+
+    def _enable_unless_ready(self, axis_and_ready: tuple[int, bool]) -> bool:
+        """Enable axis i for the start (from the statusword its check just read) unless it was ready
+        and is still OPERATION ENABLED; whether it was enabled (its buffer cleared)."""
+        i, ready = axis_and_ready
+        if ready and self.links[i].state == PowerState.OPERATION_ENABLED:
+            return False
         self.profiles[i].enable(fresh=True)
+        return True
 
     def _prepare_next(self) -> None:
         """After a run that finished: make every axis ready for the next start now, in the background

@@ -322,8 +322,24 @@ def test_a_start_after_a_finished_run_needs_only_its_checks(arm6, make_rig):
     third = _start_sdos(rig, program(axes, 200, starts=here, spacing_ms=20))
     assert third[link3.node_id] >= 5
     assert all(third[a.node_id] == 2 for a in axes if a.node_id != link3.node_id)
-    for drive in rig.sim:  # each run took exactly its records: nothing left over from the one before
-        assert drive.faults == [] and drive.ended_by_time_zero == 3
+    # a start refused by its checks (the program starts elsewhere) after its records went out with
+    # them: nothing moves, and the next start clears the buffers (a full enable) before its own
+    here = [lk.position for lk in rig.group.links]
+    elsewhere = program(axes, 200, starts=[p + 5000 for p in here], spacing_ms=20)
+    refused = rig.group.run(elsewhere, timeout_s=30)
+    assert refused.result is Result.REJECTED and "the program starts at" in refused.message
+    assert all(d.wait_until(lambda d=d: d.level > 0) for d in rig.sim)  # its records did go out
+    rig.group.refresh()
+    assert [lk.position for lk in rig.group.links] == here
+    last = program(axes, 200, starts=here, spacing_ms=20, sign=-1)
+    fourth = _start_sdos(rig, last)
+    assert all(fourth[a.node_id] >= 5 for a in axes)
+    for axis in last.axes:
+        # each run took exactly its records: nothing left over from the one before, or the refused one
+        drive = rig.sim.drive(axis.node_id)
+        assert drive.faults == [] and drive.ended_by_time_zero == 4
+        taken = np.array([[r.position, r.velocity, r.time] for r in list(drive.records_consumed)[-len(axis.records) :]])
+        np.testing.assert_array_equal(taken, axis.records)
     assert rig.sim.internal_errors == []
 
 
