@@ -304,8 +304,12 @@ class AxisGroup:
             return early
         return self.wait(timeout_s)
 
-    def start(self, program: PvtProgram) -> RunResult | None:
-        """Start a run; returns a result at once only when the program is refused or a drive fails."""
+    def start(self, program: PvtProgram, before_records: Callable[[], object] | None = None) -> RunResult | None:
+        """Start a run; returns a result at once only when the program is refused or a drive fails.
+
+        ``before_records``: called once the start's checks are asked, before the first record goes
+        out (a service journals the motion there, while the drives answer); what it raises ends
+        the start with nothing sent, and is raised from here."""
         with self._lock:
             if self._running:
                 raise GroupError("a program is already running on this cell")
@@ -327,6 +331,8 @@ class AxisGroup:
                 checks = self._per_axis(self._start_check, zip(self.links, self._programs, strict=True))  # asked now
                 ready = [self._is_ready(i) for i in range(len(self.links))]
                 self._ready = [None] * len(self.links)  # a start uses it up, whatever its outcome
+                if before_records is not None:
+                    before_records()
                 if all(ready):
                     # every buffer is open and empty: the records go out while the drives answer the
                     # checks (no start word yet, so they move nothing; after a refusal the next

@@ -25,6 +25,7 @@ import time
 import uuid
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -129,6 +130,8 @@ class MotionService:
         self.lockstep = self.simulate if lockstep is None else lockstep
         self.can_log = can_log
         self.journal = Journal(journal_dir if journal_dir is not None else default_directory(cell.name))
+        # a motion is journaled while the drives answer the start's checks (an fsync is a round trip too)
+        self._journal_writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="journal")
         # built once: a plan request pays for planning only (in a child process: service/planning.py)
         self.planner: CellPlanner | PlanningProcess
         if planner_process:
@@ -205,6 +208,7 @@ class MotionService:
             self.sim.stop()
         if isinstance(self.planner, PlanningProcess):
             self.planner.close()
+        self._journal_writer.shutdown(wait=True)
         self.journal.close()
         self.group, self.bus, self.sim = None, None, None
 
@@ -357,8 +361,8 @@ class MotionService:
             self._refuse_unless_ready(group)
             self._refuse_unless_at_start(group, program)
             motion = Motion(_new_id("m"), plan_id, label, program, time.time())
-            try:
-                self.journal.record_motion(
+            journaled = self._journal_writer.submit(
+                lambda: self.journal.record_motion(
                     motion.motion_id,
                     program.to_json(),
                     plan_id=plan_id,
@@ -366,11 +370,14 @@ class MotionService:
                     duration_ms=int(program.duration_ms),
                     cell=self.cell.name,
                 )
-            except JournalError as exc:
-                raise ApiError(ErrorCode.JOURNAL_ERROR, f"{exc}: nothing was sent") from None
-            self.motion = motion
+            )
+            previous, self.motion = self.motion, motion
             try:
-                early = group.start(program)
+                # the group asks the drives its checks, then waits for this before the first record
+                early = group.start(program, before_records=journaled.result)
+            except JournalError as exc:
+                self.motion = previous
+                raise ApiError(ErrorCode.JOURNAL_ERROR, f"{exc}: nothing was sent") from None
             except GroupError as exc:  # cannot happen under the lock; kept as a guard
                 raise ApiError(ErrorCode.BUSY, str(exc)) from None
             except (BusError, DriveError, OSError) as exc:

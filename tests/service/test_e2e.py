@@ -218,11 +218,15 @@ def test_the_motion_is_on_disk_before_its_first_record_is_sent(arm6, serve, monk
     seen_at_start: list[list[dict]] = []
     start = s.service.group.start
 
-    def start_and_look(program):
-        records = sum(d.records_received for d in s.sim)
-        seen_at_start.append([json.loads(x) for x in journal.read_bytes().splitlines()])
-        assert records == 0
-        return start(program)
+    def start_and_look(program, before_records=None):
+        def look() -> None:  # where the group is about to send its first record
+            if before_records is not None:
+                before_records()
+            records = sum(d.records_received for d in s.sim)
+            seen_at_start.append([json.loads(x) for x in journal.read_bytes().splitlines()])
+            assert records == 0
+
+        return start(program, before_records=look)
 
     monkeypatch.setattr(s.service.group, "start", start_and_look)
     plan = s.request("plan", {"target": SHORT_TARGET})

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import json
+import time
 
-from service.journal import JOURNAL_FILE, Journal
+from svc_helpers import SHORT_TARGET, nothing_moved
+
+from service.journal import JOURNAL_FILE, Journal, JournalError
 
 PROGRAM = {"format": "pvtflow.pvt-program", "version": 1, "cell": "c", "axes": []}
 
@@ -55,3 +58,27 @@ def test_an_unwritable_journal_is_a_clear_error(tmp_path):
         assert "journal" in str(exc)
     else:
         raise AssertionError("a journal under a file must not open")
+
+
+def test_a_motion_the_journal_cannot_take_is_refused_with_nothing_sent(arm6, serve):
+    """The motion is journaled while the drives answer the start's checks; when that write fails,
+    no record has gone out, the execute answers journal_error and the service stays usable."""
+    s = serve(arm6)
+    plan = s.request("plan", {"target": SHORT_TARGET})
+    assert plan.ok, plan.data
+    journal = s.service.journal
+    written = journal.record_motion
+
+    def full_disk(*args: object, **kwargs: object) -> None:
+        time.sleep(0.02)  # after the start's checks have gone out to the drives
+        raise JournalError("journal: no space left on device")
+
+    journal.record_motion = full_disk  # type: ignore[method-assign]
+    refused = s.request("execute", {"plan_id": plan.data["plan_id"]})
+    assert not refused.ok and refused.data["error"]["code"] == "journal_error", refused.data
+    assert "nothing was sent" in refused.data["error"]["message"]
+    nothing_moved(s)
+    journal.record_motion = written  # type: ignore[method-assign]
+    ran = s.request("execute", {"plan_id": plan.data["plan_id"], "wait": True}, timeout=60)
+    assert ran.ok and ran.data["outcome"]["result"] == "finished", ran.data
+    assert [m.motion_id for m in journal.recent(5)] == [ran.data["motion_id"]]
