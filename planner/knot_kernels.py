@@ -18,6 +18,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from planner.interpolation import cubic_peak_acceleration, cubic_peak_speed, cubic_position_range, hermite
+from planner.program import TIME_MAX_MS
 
 _F = NDArray[np.float64]
 _I = NDArray[np.int64]
@@ -356,7 +357,6 @@ def lsq_solve(knots: _I, stride: int, r: _F, gram: _F, p: _F, v: _F, ends: NDArr
 # moves it by _dp(e) counts and _dv(e) units (nudge 0 moves nothing).
 _DP, _DV = 1, 2
 _N_NUDGES = (2 * _DP + 1) * (2 * _DV + 1)
-_T_MAX = 255  # a record's longest time (ms)
 _PROBES = np.array([0.25, 0.5, 0.75])  # where inside a segment the deviation of a nudge is judged
 _EXCESS_WEIGHT = 1e6  # a ratio excess of 1e-5 outweighs a chain's deviations (counts): excess first
 
@@ -485,7 +485,7 @@ def _repair_chain(
         for e0 in range(n_cand[j]):
             for e1 in range(n_cand[j + 1]):
                 T = ct[j + 1, e1] - ct[j, e0]
-                if T < 1 or T > _T_MAX:
+                if T < 1 or T > TIME_MAX_MS:
                     continue
                 R[j, e0, e1], D[j, e0, e1] = _chain_cubic(
                     float(cp[j, e0]),

@@ -723,8 +723,9 @@ def _repair_rounds(
     pushes the next segment over. So the records within ``_REPAIR_REACH`` knots of every segment
     over a limit are re-rounded together, each by up to a count and two velocity units: the
     combination with the least worst limit ratio over the segments they touch, and among those
-    that stay under max(that, 1), the one closest to the plan, all within the tolerance
-    (``knot_kernels.repair_chains``: a shortest path over the nudges, exact, not greedy). With
+    that stay under max(that, 1), the least summed excess, then the closest to the plan, all
+    within the tolerance (``knot_kernels.repair_chains``: a shortest path over the nudges, exact,
+    not greedy). With
     ``shift`` the knots may also move by up to that many ms (the integers of a cubic of another
     length make other accelerations).
     """
