@@ -248,6 +248,7 @@ class AxisGroup:
         # controlword written, buffer cleared and open) after a run or a recovery; None: not ready
         self._ready: list[int | None] = [None] * len(self.links)
         self._readying: list[Future[None]] = []
+        self._bus_faults = 0  # how many the bus has reported: a readiness made across one is not kept
         self._preloaded: list[bool] = []  # per axis: its feeder's preload went out with the start's checks
         for link in self.links:
             link.status_listeners.append(self._on_status)
@@ -412,7 +413,7 @@ class AxisGroup:
     def _make_ready(self, i: int) -> None:
         """Only from OPERATION ENABLED: a drive that has left it (a fault, a reset) is not walked back
         here (that would reset a fault behind the user's back); the start refuses it or enables it."""
-        link = self.links[i]
+        link, faults = self.links[i], self._bus_faults
         self._ready[i] = None
         try:
             if decode_state(link.read_statusword()) is not PowerState.OPERATION_ENABLED:
@@ -420,7 +421,8 @@ class AxisGroup:
             self.profiles[i].enable(fresh=True)  # reach() has nothing to do: no fault reset is ever sent
         except DriveError:
             return
-        self._ready[i] = link.controlwords_sent
+        if self._bus_faults == faults:
+            self._ready[i] = link.controlwords_sent
 
     def _start_check(self, link_and_program: tuple[AxisLink, AxisProgram]) -> tuple[AxisLink, str] | None:
         """Why this axis cannot start the program now (None: it can)."""
@@ -538,6 +540,7 @@ class AxisGroup:
         link = next((lk for lk in self.links if lk.node_id == fault.node_id), None)
         if link is not None and fault.kind == "emcy":
             link.last_emcy = (fault.code, fault.message)
+        self._bus_faults += 1
         if link is not None:  # whatever it was, that drive is enabled again at the next start
             self._ready[self.links.index(link)] = None
         self._event(fault.kind, fault.message, link)
@@ -676,6 +679,8 @@ class AxisGroup:
         with self._lock:
             if self._running:
                 raise GroupError("cannot recover while a program is running: stop it first")
+            for readying in self._readying:  # not two enables of one drive at once
+                readying.result()
             self.bus.sync.stop()
             if not self.configured:
                 try:
