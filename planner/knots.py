@@ -441,12 +441,11 @@ def _within_record_time(knots: NDArray[np.int64]) -> NDArray[np.int64]:
     long = np.flatnonzero(gaps > TIME_MAX_MS)
     if not len(long):
         return knots
-    extra = [
-        knots[i] + (gaps[i] * np.arange(1, pieces)) // pieces
-        for i in long
-        for pieces in [-(-int(gaps[i]) // TIME_MAX_MS)]
-    ]
-    return np.union1d(knots, np.concatenate(extra))
+    pieces = -(-gaps[long] // TIME_MAX_MS)
+    at = np.repeat(long, pieces - 1)  # the gap each new knot splits
+    n = np.repeat(pieces, pieces - 1)
+    j = np.arange(len(at)) - np.repeat(np.cumsum(pieces - 1) - (pieces - 1), pieces - 1) + 1  # 1 .. n - 1
+    return np.union1d(knots, knots[at] + (gaps[at] * j) // n)
 
 
 def _real(fl: _Flat, knots: NDArray[np.int64]) -> NDArray[np.bool_]:
@@ -770,8 +769,11 @@ def _axis_knots(
 ) -> tuple[AxisKnots, float]:
     """The records of axis ``a`` of ``fl``, what their reconstruction does, the slow-down it needs."""
     k0, k1 = np.searchsorted(knots, [a * fl.stride, (a + 1) * fl.stride])  # knots k0 .. k1 - 1
-    times = np.concatenate(([dwell_ms], np.diff(knots[k0:k1])))
-    records = np.vstack((np.column_stack((P[k0:k1], V[k0:k1], times)), [[P[k1 - 1], 0, 0]])).astype(np.int64)
+    records = np.zeros((k1 - k0 + 1, 3), dtype=np.int64)  # the last: the end record (P, 0, 0)
+    records[:-1, 0], records[:-1, 1] = P[k0:k1], V[k0:k1]
+    records[-1, 0] = P[k1 - 1]
+    records[0, 2] = dwell_ms
+    records[1:-1, 2] = np.diff(knots[k0:k1])
     dev = float(chk.seg_deviation[k0 : k1 - 1].max())
     rv = float(chk.velocity_ratio[k0 : k1 - 1].max())
     ra = float(chk.acceleration_ratio[k0 : k1 - 1].max())

@@ -26,6 +26,7 @@ from planner.knots import (
     _round_knots,
     _sample,
     _switch_knots,
+    _within_record_time,
 )
 from planner.plan import plan
 from service.config import load_cell_config
@@ -317,3 +318,17 @@ def test_block_tridiagonal_solve_equals_a_dense_solve() -> None:
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
     D[5, 0] = -1.0  # not positive definite: refused, not a wrong answer
     assert not knot_kernels._solve_block_tridiagonal(D, E, b.copy())
+
+
+def test_long_gaps_are_split_evenly_within_a_record_time() -> None:
+    """Every gap longer than 255 ms is cut into the fewest pieces of at most 255 ms, as even as whole
+    ms make them; the knots there were are kept."""
+    rng = np.random.default_rng(12)
+    for _ in range(300):
+        knots = np.unique(np.concatenate(([0], rng.integers(0, 20000, rng.integers(1, 40)), [20003])))
+        out = _within_record_time(knots)
+        assert set(knots) <= set(out) and np.all(np.diff(out) <= 255) and np.all(np.diff(out) >= 1)
+        for k0, k1 in itertools.pairwise(knots):
+            inside = np.diff(out[(out >= k0) & (out <= k1)])
+            assert len(inside) == -(-(k1 - k0) // 255)  # the fewest pieces
+            assert inside.max() - inside.min() <= 1  # even, to the ms
