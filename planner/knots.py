@@ -51,6 +51,7 @@ velocity units (qc/ms inside the interpolation), ms.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -175,16 +176,29 @@ class _Samples:
     jump: NDArray[np.float64]  # (len(switch_ms), dof) |acceleration jump| qc/ms^2
 
 
+def _read_only(*arrays: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+    for a in arrays:
+        a.flags.writeable = False  # shared by every plan on these axes
+    return arrays
+
+
+@functools.lru_cache(maxsize=64)
+def _unit_conversions(axes: tuple[DriveAxis, ...]) -> tuple[NDArray[np.float64], ...]:
+    """Joint units to drive units, per axis: every conversion is affine, so (position offset,
+    position at 1, velocity gain, acceleration gain) from each axis's scaling, once per set of axes."""
+    unit = np.array([0.0, 1.0])
+    pos_0, pos_1 = np.array([a.scaling.position_to_qc(unit) for a in axes]).T
+    vel_1 = np.array([a.scaling.drive_velocity_to_qc_per_ms(a.scaling.velocity_to_drive(1.0)) for a in axes])
+    acc_1 = np.array([a.scaling.rpm_s_to_qc_per_ms2(a.scaling.acceleration_to_rpm_s(1.0)) for a in axes])
+    return _read_only(pos_0.copy(), pos_1.copy(), vel_1, acc_1)
+
+
 def _sample(traj: TimedTrajectory, axes: Sequence[DriveAxis], scale: float) -> _Samples:
     duration_ms = traj.duration * 1000.0 * scale
     n = max(1, math.ceil(duration_ms - 1e-6))
     q, qd = traj.states(np.arange(n + 1) / (1000.0 * scale))  # trajectory time of each drive ms
     switch_s, jump_joint = traj.acceleration_jumps()
-    # every conversion is affine: each axis's (offset, gain) from its scaling, then all axes at once
-    unit = np.array([0.0, 1.0])
-    pos_0, pos_1 = np.array([a.scaling.position_to_qc(unit) for a in axes]).T
-    vel_1 = np.array([a.scaling.drive_velocity_to_qc_per_ms(a.scaling.velocity_to_drive(1.0)) for a in axes])
-    acc_1 = np.array([a.scaling.rpm_s_to_qc_per_ms2(a.scaling.acceleration_to_rpm_s(1.0)) for a in axes])
+    pos_0, pos_1, vel_1, acc_1 = _unit_conversions(tuple(axes))
     q *= (pos_1 - pos_0)[:, None]
     q += pos_0[:, None]
     qd *= (vel_1 / scale)[:, None]
@@ -333,6 +347,25 @@ def _basis_table() -> _BasisTable:
     return _BASIS
 
 
+@functools.lru_cache(maxsize=64)
+def _axis_constants(axes: tuple[DriveAxis, ...]) -> tuple[NDArray[np.float64], ...]:
+    """The per-axis constants of ``_Flat`` (f, amax, vmax, v_units, pos_lo, pos_hi, rv_per, ra_per),
+    once per set of axes."""
+    sc = [a.scaling for a in axes]
+    lim = [a.limits for a in axes]
+    pairs = list(zip(sc, lim, strict=True))
+    return _read_only(
+        np.array([s.qc_per_ms_per_velocity_unit for s in sc]),
+        np.array([float(s.rpm_s_to_qc_per_ms2(m.max_acceleration_rpm_s)) for s, m in pairs]),
+        np.array([float(s.rpm_to_qc_per_ms(m.max_profile_velocity_rpm)) for s, m in pairs]),
+        np.array([math.floor(m.max_profile_velocity_rpm / s.velocity_unit_rpm + 1e-9) for s, m in pairs], dtype=float),
+        np.array([float(m.min_position_qc) for m in lim]),
+        np.array([float(m.max_position_qc) for m in lim]),
+        np.array([float(s.qc_per_ms_to_rpm(1.0)) / m.max_profile_velocity_rpm for s, m in pairs]),
+        np.array([float(s.qc_per_ms2_to_rpm_s(1.0)) / m.max_acceleration_rpm_s for s, m in pairs]),
+    )
+
+
 @dataclass(frozen=True)
 class _Flat:
     """Several EPOS2 axes placed as one: their plan samples end to end (axis a's ms j at flat index
@@ -358,31 +391,12 @@ class _Flat:
 
     @classmethod
     def of(cls, axes: Sequence[DriveAxis], cols: Sequence[int], smp: _Samples) -> _Flat:
-        sc = [a.scaling for a in axes]
-        lim = [a.limits for a in axes]
         return cls(
             tuple(axes),
             smp.n_ms + 1,
             smp.position[list(cols)].ravel(),
             smp.velocity[list(cols)].ravel(),
-            np.array([s.qc_per_ms_per_velocity_unit for s in sc]),
-            np.array([float(s.rpm_s_to_qc_per_ms2(m.max_acceleration_rpm_s)) for s, m in zip(sc, lim, strict=True)]),
-            np.array([float(s.rpm_to_qc_per_ms(m.max_profile_velocity_rpm)) for s, m in zip(sc, lim, strict=True)]),
-            np.array(
-                [
-                    math.floor(m.max_profile_velocity_rpm / s.velocity_unit_rpm + 1e-9)
-                    for s, m in zip(sc, lim, strict=True)
-                ],
-                dtype=float,
-            ),
-            np.array([float(m.min_position_qc) for m in lim]),
-            np.array([float(m.max_position_qc) for m in lim]),
-            np.array(
-                [float(s.qc_per_ms_to_rpm(1.0)) / m.max_profile_velocity_rpm for s, m in zip(sc, lim, strict=True)]
-            ),
-            np.array(
-                [float(s.qc_per_ms2_to_rpm_s(1.0)) / m.max_acceleration_rpm_s for s, m in zip(sc, lim, strict=True)]
-            ),
+            *_axis_constants(tuple(axes)),
             np.arange(len(axes)),
         )
 
