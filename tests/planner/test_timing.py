@@ -9,7 +9,7 @@ import toppra.algorithm as algo
 import toppra.constraint as constraint
 
 from planner.limits import JointLimits
-from planner.path import JointPath
+from planner.path import JointPath, PlanError
 from planner.plan import Planner
 from planner.timing import (
     DEFAULT_GRIDPOINTS,
@@ -172,3 +172,23 @@ def test_path_evaluation_is_toppras_spline() -> None:
         assert path(s[:1000].reshape(-1, 2)[:, :1], order).shape == (500, 1, LIMITS.dof)
     with pytest.raises(ValueError, match="order"):
         path(s, 3)
+
+
+def test_compiled_forward_pass_equals_toppras_on_random_paths() -> None:
+    """The forward pass's one-variable LPs, solved in the compiled loop, give toppra's own path
+    velocities (stock TOPPRA, seidel) on random paths of the cell's constraints."""
+    rng = np.random.default_rng(21)
+    cons = timing_constraints(LIMITS, ARM.model, tcp_frame="tool0", max_tcp_speed=2.0)
+    compared = 0
+    while compared < 15:
+        wp = LIMITS.lower + (LIMITS.upper - LIMITS.lower) * (0.25 + 0.5 * rng.random((5, LIMITS.dof)))
+        try:
+            path = JointPath(wp, LIMITS)
+        except PlanError:
+            continue  # the spline leaves the limits between waypoints: not a path
+        grid = make_gridpoints(path, 100)
+        sd_lean = LeanTOPPRA(cons, path, grid).compute_parameterization(0.0, 0.0)[1]
+        stock = algo.TOPPRA(cons, path, gridpoints=grid, solver_wrapper="seidel")
+        sd_stock = stock.compute_parameterization(0.0, 0.0)[1]
+        np.testing.assert_allclose(sd_lean, sd_stock, rtol=1e-9, atol=1e-9)
+        compared += 1
