@@ -42,6 +42,17 @@ def _probe_deviation(c0: float, c1: float, c2: float, c3: float, T: float, k0: i
 
 
 @njit(cache=True)
+def _leaves(c0: float, c1: float, c2: float, c3: float, T: float, p1: float, v1: float, lo: float, hi: float) -> bool:
+    """Whether a segment's cubic (from c0 to p1, end velocity v1) leaves [lo, hi] (0x607D): solved
+    exactly only where the cheap bound (within T (|V0| + |V1|) 4/27 of its ends) reaches a limit."""
+    reach = T * (abs(c1) + abs(v1)) * (4.0 / 27.0)
+    if min(c0, p1) - reach >= lo and max(c0, p1) + reach <= hi:
+        return False
+    p_lo, p_hi = cubic_position_range(c0, c1, c2, c3, T)
+    return p_lo < lo or p_hi > hi
+
+
+@njit(cache=True)
 def _prev_segment(prev_knots: _I, j: int, k0: int, k1: int) -> tuple[int, bool]:
     """Advance ``j`` to the previous knots' segment starting at k0; whether it is k0 .. k1."""
     while j < len(prev_knots) - 2 and prev_knots[j] < k0:
@@ -91,11 +102,7 @@ def check_segments(
         c0, c1, c2, c3 = hermite(p0, V[k] * f[a], p1, v1, T)
         rv[k] = cubic_peak_speed(c1, c2, c3, T) * rv_per[a]
         ra[k] = cubic_peak_acceleration(c2, c3, T) * ra_per[a]
-        # 0x607D: exactly only where the cheap bound (within T (|V0| + |V1|) 4/27 of the ends) reaches it
-        reach = T * (abs(c1) + abs(v1)) * (4.0 / 27.0)
-        if min(p0, p1) - reach < pos_lo[a] or max(p0, p1) + reach > pos_hi[a]:
-            lo, hi = cubic_position_range(c0, c1, c2, c3, T)
-            out[k] = lo < pos_lo[a] or hi > pos_hi[a]
+        out[k] = _leaves(c0, c1, c2, c3, T, p1, v1, pos_lo[a], pos_hi[a])
         worst = 0.0
         for t in range(k1 - k0):
             worst = max(worst, abs(_horner(c0, c1, c2, c3, float(t)) - plan[k0 + t]))
@@ -395,11 +402,8 @@ def _chain_cubic(
     dev = max(dev, _probe_deviation(c0, c1, c2, c3, T, k0, plan, _PROBES))
     if dev > tol:
         return np.inf, dev
-    reach = T * (abs(v0) + abs(v1)) * (4.0 / 27.0)
-    if min(p0, p1) - reach < pos_lo or max(p0, p1) + reach > pos_hi:
-        lo, hi = cubic_position_range(c0, c1, c2, c3, T)
-        if lo < pos_lo or hi > pos_hi:
-            return np.inf, dev
+    if _leaves(c0, c1, c2, c3, T, p1, v1, pos_lo, pos_hi):
+        return np.inf, dev
     ratio = max(cubic_peak_speed(c1, c2, c3, T) * rv_per, cubic_peak_acceleration(c2, c3, T) * ra_per)
     return ratio, dev
 

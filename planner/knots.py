@@ -764,7 +764,7 @@ def _shifted(fl: _Flat, placed: tuple[AxisKnots, float], opts: KnotOptions) -> t
     before the whole motion is slowed down. A ms first, further only where that is not enough
     (the search grows with the square of the candidates). ``placed`` if it does not help."""
     records = placed[0].records
-    knots0 = np.concatenate(([0], np.cumsum(records[1:-1, 2]))).astype(np.int64)
+    knots0 = _record_knots(records)
     P0, V0 = records[:-1, 0].copy(), records[:-1, 1].copy()
     checked0 = _check_knots(fl, knots0, P0, V0)
     for shift in range(1, _MAX_SHIFT_MS + 1):  # each from the placed records: the search of that reach
@@ -776,6 +776,11 @@ def _shifted(fl: _Flat, placed: tuple[AxisKnots, float], opts: KnotOptions) -> t
         return placed
     moved = _axis_knots(fl, 0, knots, P, V, chk, opts.dwell_ms)
     return moved if moved[1] < placed[1] else placed
+
+
+def _record_knots(records: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The knots (ms from the first record) of an axis's records: ``_axis_knots`` backwards."""
+    return np.concatenate(([0], np.cumsum(records[1:-1, 2]))).astype(np.int64)
 
 
 def _axis_knots(
@@ -948,7 +953,7 @@ def place_knots(traj: TimedTrajectory, axes: Sequence[DriveAxis], options: KnotO
             if last:  # the previous round's knots, stretched with the motion
                 hints = []
                 for i in epos2:
-                    prev = np.concatenate(([0], np.cumsum(last[i].records[1:-1, 2])))
+                    prev = _record_knots(last[i].records)
                     hints.append(np.unique(np.rint(prev * smp.n_ms / last_n).astype(np.int64)))
             placed.update(zip(epos2, _epos2_axes([axes[i] for i in epos2], epos2, smp, opts, hints), strict=True))
         for i, axis in enumerate(axes):
