@@ -158,6 +158,8 @@ class SyncClock:
         self._answers: dict[int, int] = {}  # cob id -> SYNCs answered
         self._listeners: list[SyncCallback] = []
         self.lock = threading.RLock()  # held while SYNC listeners run and while a SYNC goes out
+        self._answered_changed = threading.Condition(self.lock)
+        self.last_sent = time.monotonic()  # when the last SYNC went out
         self._running = False
         self._task: threading.Thread | None = None
         self._periodic = False
@@ -165,7 +167,9 @@ class SyncClock:
 
     # --- answers ---------------------------------------------------------------------------------
     def expect(self, cob_ids: Iterable[int]) -> None:
-        """The synchronous TPDOs that answer every SYNC (one per drive)."""
+        """The synchronous TPDOs that answer every SYNC (one per drive). Call it after the links have
+        subscribed their TPDO decoders: an answer is then decoded before it is counted, so whoever
+        waits for a SYNC's answers (``wait_answered``) reads what the drives said on it."""
         with self.lock:
             for cob in self._answers:
                 self.bus.network.unsubscribe(cob, self._on_answer)
@@ -192,6 +196,7 @@ class SyncClock:
             if n is None or (self.lockstep and n >= self.count):
                 return  # an answer without a SYNC (or a duplicate): nothing to count
             self._answers[can_id] = n + 1
+            self._answered_changed.notify_all()
             done = min(self._answers.values())
             if done <= self.answered:
                 return
@@ -207,6 +212,7 @@ class SyncClock:
     def _transmit(self) -> None:
         with self.lock:
             self.count += 1
+            self.last_sent = time.monotonic()
             self.bus.network.send_message(SYNC_COB_ID, b"")
             if self.time_stamp_cob_id is not None:
                 stamp = (time.monotonic_ns() // 1000 - self._t0_us) & 0xFFFFFFFF
@@ -253,9 +259,33 @@ class SyncClock:
             with self.lock:
                 self.count = max(self.count, 1 + int((time.monotonic() - t0) / period))
 
-    def step(self) -> None:
-        """Send one SYNC by hand (lockstep before ``start``, e.g. to settle drives)."""
-        self._transmit()
+    def step(self) -> dict[int, int]:
+        """Send one SYNC by hand, outside production (e.g. the start's check: every drive answers it
+        with its synchronous TPDO); what each drive's answer count will be once it has answered,
+        for ``wait_answered`` (in real time ``count`` is a wall-clock estimate, not a SYNC's number)."""
+        with self.lock:
+            owed = {cob: n + 1 for cob, n in self._answers.items()}
+            self._transmit()
+            return owed
+
+    def wait_answered(self, owed: dict[int, int], timeout_s: float) -> list[int]:
+        """Wait until every drive has answered the SYNC ``step`` sent; the COB-IDs of the answers
+        still missing then (empty: every drive answered in time)."""
+
+        def missing() -> list[int]:
+            return [cob for cob, n in owed.items() if self._answers.get(cob, 0) < n]
+
+        with self.lock:
+            self._answered_changed.wait_for(lambda: not missing(), timeout_s)
+            return missing()
+
+    def keep_period(self) -> None:
+        """Real time: wait until one period after the last SYNC sent, so that the next one (``start``)
+        keeps the cell's SYNC period after a SYNC sent by hand. Lockstep: nothing to wait for."""
+        if not self.lockstep:
+            delay = self.last_sent + self.period_ms / 1000.0 - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
 
     def stop(self) -> None:
         with self.lock:

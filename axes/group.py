@@ -190,6 +190,9 @@ class GroupError(RuntimeError):
     """A request the group cannot take in its present state (e.g. run while running)."""
 
 
+_Refusal = tuple[Result, str, "AxisLink | None"]  # why a start does not go ahead, and which axis
+
+
 class AxisGroup:
     """All axes of one cell on one bus.
 
@@ -200,7 +203,8 @@ class AxisGroup:
       start, feed, wait for the outcome. ``start(program)`` (None, or a RunResult when refused at
       once) and ``wait(timeout_s)`` are the same in two steps. After a run that finished (and after
       ``recover``) every axis is enabled for the next start in the background, so that start only
-      checks (statusword and position) before its records: 2 SDO round trips instead of 5.
+      checks statusword and position, from the drives' answers to one check SYNC (no SDO), and
+      starts on the SYNC after it.
     - ``stop(reason)``: any thread; every axis halts on the next SYNC; the run ends STOPPED.
     - ``recover() -> RunResult``: fault reset and re-enable every axis (FINISHED when all enabled).
     - ``status(refresh=False) -> GroupStatus``; ``last_result``; ``running``; ``feeders``.
@@ -327,28 +331,15 @@ class AxisGroup:
                 self._starting = True
                 for readying in self._readying:  # the last run's preparation for this one, if still going
                     readying.result()
-                # every drive is asked at once (one SDO round trip per question, not per axis):
-                # first all checks, and only when every axis passes, the enables it needs
-                checks = self._per_axis(self._start_check, zip(self.links, self._programs, strict=True))  # asked now
                 ready = [self._is_ready(i) for i in range(len(self.links))]
                 self._ready = [None] * len(self.links)  # a start uses it up, whatever its outcome
-                if before_records is not None:
-                    before_records()
                 if all(ready):
-                    # every buffer is open and empty: the records go out while the drives answer the
-                    # checks (no start word yet, so they move nothing; after a refusal the next
-                    # start's enable clears the buffers)
-                    feeders = [p.feeder(prog) for p, prog in zip(self.profiles, self._programs, strict=True)]
-                    for feeder in feeders:
-                        feeder.preload()
-                refusals = list(checks)
-                refusal = next((r for r in refusals if r is not None), None)
+                    feeders, refusal = self._check_by_sync(before_records)
+                else:
+                    refusal = self._check_by_sdo(ready, before_records)
                 if refusal is not None:
-                    return self._finish_early(Result.REJECTED, refusal[1], refusal[0])
-                enabled = list(self._per_axis(self._enable_unless_ready, enumerate(ready)))
-                for i in range(len(self.links)):
-                    if enabled[i]:  # its buffer was cleared: its records go out again below
-                        feeders[i] = None
+                    result, message, link = refusal
+                    return self._finish_early(result, message, link)
             except DriveError as exc:
                 link = next((lk for lk in self.links if lk.node_id == exc.node_id), None)
                 return self._finish_early(Result.CONFIGURATION_ERROR, str(exc), link)
@@ -368,6 +359,7 @@ class AxisGroup:
             self._halted_at = None
             self._halt_deadline = None
         sync = self.bus.sync
+        sync.keep_period()  # real time: the start SYNC one period after the check SYNC
         with sync.lock, self._lock:
             self._done.clear()
             self._running = True
@@ -424,19 +416,84 @@ class AxisGroup:
         if self._bus_faults == faults:
             self._ready[i] = link.controlwords_sent
 
-    def _start_check(self, link_and_program: tuple[AxisLink, AxisProgram]) -> tuple[AxisLink, str] | None:
-        """Why this axis cannot start the program now (None: it can)."""
-        link, prog = link_and_program
-        if decode_state(link.read_statusword()).is_fault:
-            return link, (
-                f"axis {link.joint} (node {link.node_id}) is in FAULT "
-                f"(statusword 0x{link.statusword:04X}): recover first"
+    def _check_by_sync(
+        self, before_records: Callable[[], object] | None
+    ) -> tuple[list[Feeder | None], _Refusal | None]:
+        """Every axis is ready (enabled, buffer cleared and open): the start's check is the drives'
+        answers to one SYNC, every statusword and position as of the same instant, in one SYNC round
+        instead of two SDO round trips per axis. The records go out while the drives answer (no
+        start word yet, so they move nothing; a refused start leaves the next start to clear the
+        buffers with a full enable), after the check SYNC, so a fixed-period drive's first setpoint
+        is validated by the start SYNC, not by the check. The start SYNC follows one period later:
+        the motion starts two SYNC periods after the records are out."""
+        sync = self.bus.sync
+        check = sync.step()
+        if before_records is not None:
+            before_records()
+        feeders: list[Feeder | None] = [p.feeder(prog) for p, prog in zip(self.profiles, self._programs, strict=True)]
+        for feeder in feeders:
+            assert feeder is not None
+            feeder.preload()
+        silent = sorted({cob & 0x7F for cob in sync.wait_answered(check, self.bus.lost_sync_timeout_s)})
+        if silent:
+            link = next((lk for lk in self.links if lk.node_id in silent), None)
+            self.configured = False  # it may come back reset: the next start configures again
+            return feeders, (
+                Result.LOST_SYNC,
+                f"node(s) {silent} did not answer the start's check SYNC within "
+                f"{self.bus.lost_sync_timeout_s:.3f} s: nothing started",
+                link,
             )
-        pos = link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
-        link.position = pos
+        for link, prog in zip(self.links, self._programs, strict=True):
+            refusal = self._refusal(link, prog)
+            if refusal is not None:
+                return feeders, refusal
+        # a drive that left OPERATION ENABLED without a fault (nothing should do that) is enabled
+        # again, which clears its buffer: its records go out again at the start
+        stale = [i for i, link in enumerate(self.links) if link.state is not PowerState.OPERATION_ENABLED]
+        for _ in self._per_axis(lambda i: self.profiles[i].enable(fresh=True), stale):
+            pass
+        for i in stale:
+            feeders[i] = None
+        return feeders, None
+
+    def _check_by_sdo(self, ready: list[bool], before_records: Callable[[], object] | None) -> _Refusal | None:
+        """Not every axis is ready (the first start, or after a fault, a stop or a recovery's failure):
+        every drive is asked its statusword and position by SDO at once (one round trip per
+        question, not per axis), and only when every axis passes, the enables it needs."""
+        checks = self._per_axis(self._start_check, zip(self.links, self._programs, strict=True))  # asked now
+        if before_records is not None:
+            before_records()
+        refusal = next((r for r in list(checks) if r is not None), None)
+        if refusal is not None:
+            return refusal
+        for _ in self._per_axis(self._enable_unless_ready, enumerate(ready)):
+            pass
+        return None
+
+    def _start_check(self, link_and_program: tuple[AxisLink, AxisProgram]) -> _Refusal | None:
+        """Read what the drive says now (SDO), then judge it."""
+        link, prog = link_and_program
+        link.read_statusword()
+        link.position = link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
+        return self._refusal(link, prog)
+
+    def _refusal(self, link: AxisLink, prog: AxisProgram) -> _Refusal | None:
+        """Why this axis cannot start the program, from the statusword and position it last reported
+        (None: it can)."""
+        if decode_state(link.statusword).is_fault:
+            return (
+                Result.REJECTED,
+                (
+                    f"axis {link.joint} (node {link.node_id}) is in FAULT "
+                    f"(statusword 0x{link.statusword:04X}): recover first"
+                ),
+                link,
+            )
         start = int(prog.records[0, 0])
-        if abs(pos - start) > self.start_tolerance_qc:
-            return link, f"axis {link.joint} is at {pos} qc, the program starts at {start} qc"
+        if link.position is None or abs(link.position - start) > self.start_tolerance_qc:
+            where = f"axis {link.joint} is at {link.position} qc, the program starts at {start} qc"
+            return Result.REJECTED, where, link
         return None
 
     def wait(self, timeout_s: float | None = None) -> RunResult:

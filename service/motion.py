@@ -421,7 +421,8 @@ class MotionService:
 
     def _refuse_unless_at_start(self, group: AxisGroup, program: PvtProgram) -> None:
         """START_MISMATCH before anything is journaled or sent, from the positions the drives last reported
-        (the group checks again by SDO at the start: this only keeps a plainly wrong request out of the journal)."""
+        (the group checks again with what the drives answer at the start: this only keeps a plainly wrong
+        request out of the journal)."""
         starts = {a.node_id: int(a.records[0, 0]) for a in program.axes}
         tolerance = group.start_tolerance_qc
         for link in group.links:

@@ -164,6 +164,7 @@ class SimulatedDrive:
         self.eds_path = Path(eds_path) if eds_path is not None else EDS_DIR / self.EDS
         self.node = canopen.LocalNode(node_id, str(self.eds_path))
         self._entries: dict[tuple[int, int], tuple[objectdictionary.ODVariable, int]] = {}
+        self._published: dict[tuple[int, int], tuple[int, int, bytes]] = {}  # see publish()
         self.scaling = scaling if scaling is not None else AxisScaling(2000.0, 1.0)
         self.sync_period_us = round(sync_period_ms * 1000.0)
         self.lock = threading.RLock()
@@ -227,6 +228,19 @@ class SimulatedDrive:
         """Set an object's value from the drive's side (no write callbacks)."""
         var, sub = self._entry(index, subindex)
         self.node.data_store.setdefault(index, {})[sub] = var.encode_raw(value)
+
+    def publish(self, index: int, subindex: int, value: int) -> None:
+        """``store`` for the status objects every event refreshes: nothing to do when the object
+        still holds this value (the same bytes this call stored last; anything that replaced them,
+        a write or a reset, makes it store again). Most refreshes change one or two of them."""
+        key = (index, subindex)
+        held = self._published.get(key)
+        if held is not None and held[0] == value and self.node.data_store.get(index, {}).get(held[1]) is held[2]:
+            return
+        var, sub = self._entry(index, subindex)
+        raw = var.encode_raw(value)
+        self.node.data_store.setdefault(index, {})[sub] = raw
+        self._published[key] = (value, sub, raw)
 
     def read_or(self, index: int, subindex: int, default: int) -> int:
         return self.read(index, subindex) if self.has(index, subindex) else default
@@ -396,10 +410,10 @@ class SimulatedDrive:
             self._guard(act)
 
     def on_rpdo_frame(self, can_id: int, data: bytes) -> None:
+        # what an RPDO changes it changes by writing objects, and every write refreshes the state
         def act() -> None:
             if self.operational:
                 self.pdo.receive(can_id, data)
-                self._refresh()
 
         with contextlib.suppress(SdoAbortedError):
             self._guard(act)
@@ -589,10 +603,10 @@ class SimulatedDrive:
 
     def _refresh(self, events: bool = True) -> None:
         """Publish the drive's state in its object dictionary (and send event TPDOs on change)."""
-        self.store(obj.STATUSWORD, 0, self.statusword())
+        self.publish(obj.STATUSWORD, 0, self.statusword())
         demand = min(max(round(self.demand), INT32_MIN), INT32_MAX)
-        self.store(obj.POSITION_DEMAND_VALUE, 0, demand)
-        self.store(obj.POSITION_ACTUAL_VALUE, 0, min(max(self.actual, INT32_MIN), INT32_MAX))
+        self.publish(obj.POSITION_DEMAND_VALUE, 0, demand)
+        self.publish(obj.POSITION_ACTUAL_VALUE, 0, min(max(self.actual, INT32_MIN), INT32_MAX))
         self._publish()
         if events and self.operational:
             self.pdo.transmit_events()

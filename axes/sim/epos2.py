@@ -79,10 +79,10 @@ class Epos2Drive(SimulatedDrive):
         return status
 
     def _publish(self) -> None:
-        self.store(obj.EPOS2_INTERPOLATION_BUFFER, 1, int(self.buffer_status()))
-        self.store(obj.INTERPOLATION_DATA_CONFIGURATION, 1, obj.EPOS2_BUFFER_SIZE)
-        self.store(obj.INTERPOLATION_DATA_CONFIGURATION, 2, obj.EPOS2_BUFFER_SIZE - self.level)
-        self.store(obj.INTERPOLATION_DATA_CONFIGURATION, 4, self.level)
+        self.publish(obj.EPOS2_INTERPOLATION_BUFFER, 1, int(self.buffer_status()))
+        self.publish(obj.INTERPOLATION_DATA_CONFIGURATION, 1, obj.EPOS2_BUFFER_SIZE)
+        self.publish(obj.INTERPOLATION_DATA_CONFIGURATION, 2, obj.EPOS2_BUFFER_SIZE - self.level)
+        self.publish(obj.INTERPOLATION_DATA_CONFIGURATION, 4, self.level)
 
     def _warning(self) -> bool:
         return bool(self.sticky & (BufferStatus.VELOCITY_WARNING | BufferStatus.ACCELERATION_WARNING))

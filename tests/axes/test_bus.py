@@ -134,6 +134,35 @@ def test_real_time_sync_is_produced_periodically(channel):
     responder.close()
 
 
+def test_a_sync_sent_by_hand_is_waited_for_and_the_next_keeps_the_period(channel):
+    """``step`` (the start's check SYNC): ``wait_answered`` returns once every expected node has
+    answered it, or names the one that did not; in real time the next produced SYNC comes at least
+    one period after it (``keep_period``)."""
+    responder = Responder(channel, nodes=(3, 4))
+    for lockstep in (True, False):
+        responder.frames.clear()
+        responder.syncs = 0
+        config = BusConfig(channel=channel, sync_period_ms=20.0, time_stamp=False)
+        bus = CellBus(config, lockstep=lockstep).open()
+        try:
+            bus.sync.expect([0x283, 0x284])
+            assert bus.sync.wait_answered(bus.sync.step(), 5.0) == []
+            syncs = [m.timestamp for m in responder.frames if m.arbitration_id == 0x80]
+            before = len(syncs)
+            bus.sync.keep_period()
+            bus.sync.start()
+            assert responder.wait(lambda n=before: responder.syncs >= n + 1)
+            bus.sync.stop()
+            produced = [m.timestamp for m in responder.frames if m.arbitration_id == 0x80][len(syncs)]
+            if not lockstep:
+                assert produced - syncs[-1] >= 0.95 * config.sync_period_ms / 1000.0
+            bus.sync.expect([0x283, 0x285])  # node 5 is not there: its answer is missing
+            assert bus.sync.wait_answered(bus.sync.step(), 0.2) == [0x285]
+        finally:
+            bus.close()
+    responder.close()
+
+
 def test_heartbeat_emcy_and_lost_sync_are_reported(channel):
     responder = Responder(channel, nodes=(7, 8))
     # heartbeats every 5 ms, lost after 150 ms: room for a busy host, and still quick

@@ -252,6 +252,13 @@ def test_real_time_sync_runs_a_program(arm6, make_rig):
     assert result.start_skew_syncs == 0
     for axis in prog.axes:
         assert rig.sim.drive(axis.node_id).actual == axis.records[-1, 0]
+    # and the next one from there (checked by one SYNC, or by SDO where a bus event undid an
+    # axis's readiness: either way it runs)
+    here = [lk.position for lk in rig.group.links]
+    frames = _start_frames(rig, program(axes, 200, starts=here, spacing_ms=10, sign=-1))
+    if frames.checks:  # the start SYNC kept the period after the check SYNC
+        check, start = frames.sync_times[:2]
+        assert start - check >= 0.95 * cell.bus.sync_period_ms / 1000.0
 
 
 def test_program_for_other_nodes_or_a_second_start_is_refused(arm6, make_rig):
@@ -268,54 +275,84 @@ def test_program_for_other_nodes_or_a_second_start_is_refused(arm6, make_rig):
     assert rig.group.wait(timeout_s=30).result is Result.STOPPED
 
 
-class _SdoCounter(can.Listener):
-    """SDO requests per node on the cell's channel until the first SYNC after ``arm``."""
+class _StartFrames(can.Listener):
+    """The frames of a start on the cell's channel, from ``arm`` to the start SYNC (the first SYNC
+    after a start controlword, 0x001F on RPDO2): SDO requests per node, and the SYNCs before it
+    (the check SYNC of a start whose axes were all ready)."""
 
     def __init__(self) -> None:
         self.counts: dict[int, int] = {}
-        self.on = False
+        self.checks = 0
+        self.records_before_check = 0
+        self.sync_times: list[float] = []  # when each SYNC went on the bus (the check's, the start's)
+        self.on = self.started = False
 
     def arm(self) -> None:
-        self.counts, self.on = {}, True
+        self.counts, self.checks, self.records_before_check, self.sync_times = {}, 0, 0, []
+        self.on, self.started = True, False
 
     def on_message_received(self, msg: can.Message) -> None:
         if not self.on:
             return
-        if msg.arbitration_id == 0x80:  # the start SYNC: the start sequence is over
-            self.on = False
-        elif 0x600 < msg.arbitration_id <= 0x67F:
-            node = msg.arbitration_id - 0x600
-            self.counts[node] = self.counts.get(node, 0) + 1
+        cob = msg.arbitration_id
+        if cob == 0x80:
+            self.sync_times.append(msg.timestamp)
+            if self.started:  # the start SYNC: the start sequence is over
+                self.on = False
+            else:
+                self.checks += 1
+        elif 0x301 <= cob <= 0x37F and bytes(msg.data[:2]) == b"\x1f\x00":
+            self.started = True
+        elif 0x201 <= cob <= 0x27F and self.checks == 0:
+            self.records_before_check += 1
+        elif 0x600 < cob <= 0x67F:
+            self.counts[cob - 0x600] = self.counts.get(cob - 0x600, 0) + 1
 
 
-def _start_sdos(rig, prog) -> dict[int, int]:
-    """SDO requests per node from the start of ``prog`` to its start SYNC (and the run's outcome)."""
-    counter = _SdoCounter()
+def _start_frames(rig, prog) -> _StartFrames:
+    """The frames of the start of ``prog`` (which must then run to its end)."""
+    frames = _StartFrames()
     spy = can.Bus(interface="virtual", channel=rig.bus.config.channel, receive_own_messages=False)
-    notifier = can.Notifier(spy, [counter], 0.05)
+    notifier = can.Notifier(spy, [frames], 0.05)
     try:
-        counter.arm()
+        frames.arm()
         result = rig.group.run(prog, timeout_s=30)
         assert result.ok, result.message
         time.sleep(0.05)  # the spy's thread has every frame of the start by now (the run is over)
     finally:
         notifier.stop()
         spy.shutdown()
-    return counter.counts
+    return frames
 
 
-def test_a_start_after_a_finished_run_needs_only_its_checks(arm6, make_rig):
+def _start_sdos(rig, prog) -> dict[int, int]:
+    """SDO requests per node from the start of ``prog`` to its start SYNC; a start by SDO sends
+    no check SYNC."""
+    frames = _start_frames(rig, prog)
+    assert frames.checks == 0
+    return frames.counts
+
+
+def _assert_checked_by_sync(rig, prog) -> None:
+    """A start whose axes were all ready: no SDO, one check SYNC before the start word (the drives'
+    answers to it are the check), and no record before that SYNC."""
+    frames = _start_frames(rig, prog)
+    assert frames.counts == {}
+    assert frames.checks == 1
+    assert frames.records_before_check == 0
+
+
+def test_a_start_after_a_finished_run_is_checked_by_one_sync(arm6, make_rig):
     """After a run finishes, every axis is made ready for the next start in the background (end
-    controlword, FIFO cleared and opened): that start reads statusword and position (2 SDO per
-    axis) and sends records. A controlword sent to an axis in between (here one written by SDO)
-    means that axis is enabled again at the start, in full."""
+    controlword, FIFO cleared and opened): that start's check is the drives' answers to one SYNC
+    (statusword and position), no SDO. A controlword sent to an axis in between (here one written
+    by SDO) means that axis is enabled again at the start, in full, and the start goes by SDO."""
     rig = make_rig(arm6)
     axes = arm6.ordered_axes()
     first = _start_sdos(rig, program(axes, 200, spacing_ms=20))
     assert all(first[a.node_id] >= 5 for a in axes)  # check (2), end controlword, FIFO clear and open
     here = [lk.position for lk in rig.group.links]
-    second = _start_sdos(rig, program(axes, 200, starts=here, spacing_ms=20, sign=-1))
-    assert second == {a.node_id: 2 for a in axes}
+    _assert_checked_by_sync(rig, program(axes, 200, starts=here, spacing_ms=20, sign=-1))
     link3 = rig.group.links[2]
     link3.write_controlword(rig.group.profiles[2].end_controlword())
     here = [lk.position for lk in rig.group.links]
@@ -355,5 +392,45 @@ def test_a_recovered_cell_starts_with_its_checks_and_a_fault_undoes_the_readines
     assert refused.result is Result.REJECTED and refused.node_id == 2
     assert rig.group.recover().ok
     here = [lk.position for lk in rig.group.links]
-    counts = _start_sdos(rig, program(axes, 200, starts=here, spacing_ms=20))
-    assert counts == {a.node_id: 2 for a in axes}
+    _assert_checked_by_sync(rig, program(axes, 200, starts=here, spacing_ms=20))
+
+
+def test_the_check_sync_reads_where_the_axes_are_now(arm6, make_rig):
+    """The check of a start whose axes were ready is what the drives answer to its SYNC, not what
+    the master last heard: an axis moved behind its back between runs (no TPDO flows while idle) is
+    found there, and the start is refused with nothing moving."""
+    rig = make_rig(arm6)
+    axes = arm6.ordered_axes()
+    assert rig.group.run(program(axes, 200, spacing_ms=20), timeout_s=30).ok
+    here = [lk.position for lk in rig.group.links]
+    started = {d.node_id: d.ip_active_sync for d in rig.sim}
+    pushed = rig.sim.drive(4)
+    with pushed.lock:
+        pushed.demand += 5000  # moved by hand: the master's last report of node 4 is stale now
+    refused = rig.group.run(program(axes, 200, starts=here, spacing_ms=20), timeout_s=30)
+    assert refused.result is Result.REJECTED and refused.node_id == 4, refused.message
+    assert f"is at {here[3] + 5000} qc" in refused.message
+    assert rig.group.links[3].position == here[3] + 5000
+    time.sleep(0.05)
+    for drive in rig.sim:  # none started again
+        assert drive.ip_active_sync == started[drive.node_id] and not drive.ip_active and drive.faults == []
+
+
+def test_a_drive_silent_at_the_check_sync_refuses_the_start(arm6, make_rig):
+    """A drive that does not answer the check SYNC (gone from the bus before its heartbeat is
+    missed) refuses the start with LOST_SYNC, naming it: the others never get a start word."""
+    rig = make_rig(arm6, lost_sync_timeout_s=0.2)
+    axes = arm6.ordered_axes()
+    assert rig.group.run(program(axes, 200, spacing_ms=20), timeout_s=30).ok
+    for readying in rig.group._readying:  # the background enable for the next start is over
+        readying.result()
+    here = [lk.position for lk in rig.group.links]
+    started = {d.node_id: d.ip_active_sync for d in rig.sim}
+    gone = rig.sim.drive(3)
+    gone.detach()
+    refused = rig.group.run(program(axes, 200, starts=here, spacing_ms=20), timeout_s=30)
+    assert refused.result is Result.LOST_SYNC and refused.node_id == 3, refused.message
+    assert "did not answer the start's check SYNC" in refused.message
+    time.sleep(0.05)
+    for drive in rig.sim:
+        assert drive.ip_active_sync == started[drive.node_id] and not drive.ip_active  # never started again
