@@ -19,8 +19,9 @@ sends the requests, like any cell software would.
 - execute: ``--executes`` moves alternating between two targets, each planned first; timed from
   ``session.get`` of execute to the CAN frame in which the LAST of the six drives reports ip mode
   active in its SYNC answer (TPDO2 statusword bit 12): that SYNC is program t = 0 on every axis. A
-  listener on the cell's virtual CAN channel finds the frames; the time is the frame's own (when it
-  went on the bus), and when the listener got it is printed as well. The bound the issue sets is
+  tap on the master's frame recorder finds the frames (no second bus on the channel, no thread of
+  the bench's own); the time is the frame's own (when it went on the bus), and when the master's
+  receive thread got it is printed as well. The bound the issue sets is
   "plan time + 2 SYNC periods"; both the measured plan p50 and the 10 ms plan target are used.
 - plans during a motion (``--during N``, N pairs): a ~2 s tour runs alone, then again while a second
   client sends plan requests back to back. Planner and drives share one interpreter (unless
@@ -61,7 +62,7 @@ TARGETS = ([0.3, -0.2, 0.3, -0.2, 0.3, -0.2], [0.0] * 6)
 class IpActiveWatch(can.Listener):
     """The first SYNC answer (TPDO2, 0x280 + node) with ip mode active, per node: when the frame was
     on the bus (its timestamp: python-can's virtual bus stamps a frame with time.time() when it is
-    sent) and when this listener got it (perf_counter; later by however long the listener thread
+    sent) and when the master got it (perf_counter; later by however long its receive thread
     waited for the interpreter, which the bench's process shares with the service and the drives)."""
 
     def __init__(self, nodes: list[int]) -> None:
@@ -194,8 +195,11 @@ def main(argv: list[str] | None = None) -> int:
     server = Server(service, peer_config(listen=[endpoint])).start()
     client = Client(connect=endpoint)
     watch = IpActiveWatch([a.node_id for a in cell.axes])
-    spy = can.Bus(interface="virtual", channel=cell.bus.channel, receive_own_messages=False)
-    notifier = can.Notifier(spy, [watch], 0.05)
+    # the master's frame recorder hands every frame it receives to its taps, in its receive thread:
+    # no second bus on the channel (one more copy of every frame) and no thread of the bench's own
+    # competing with the service and the drives for the interpreter
+    taps = service.group.bus.recorder.taps  # type: ignore[union-attr]
+    taps.append(watch.on_message_received)
     try:
         name = cell.name
         lim = cell.joint_limits()
@@ -269,8 +273,7 @@ def main(argv: list[str] | None = None) -> int:
             for with_plans in (False, True):
                 during[with_plans].append(motion_with_plans(client, service, endpoint, rng, mid, half, with_plans))
     finally:
-        notifier.stop()
-        spy.shutdown()
+        taps.remove(watch.on_message_received)
         client.close()
         server.close()
         service.close()
@@ -304,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"execute request -> all {len(cell.axes)} axes in ip mode ({args.executes} moves):  p50 "
         f"{pct(exec_ms, 50):.2f} ms   p99 {pct(exec_ms, 99):.2f} ms   max {max(exec_ms):.2f} ms  "
-        f"(reply p50 {pct(reply_ms, 50):.2f} ms; that frame received by the bench's listener p50 "
+        f"(reply p50 {pct(reply_ms, 50):.2f} ms; that frame received by the master p50 "
         f"{pct(received_ms, 50):.2f} ms)"
     )
     for label, plan_time in (("measured plan p50", p50_plan), ("10 ms plan target", 10.0)):

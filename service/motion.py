@@ -25,7 +25,6 @@ import time
 import uuid
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -130,8 +129,6 @@ class MotionService:
         self.lockstep = self.simulate if lockstep is None else lockstep
         self.can_log = can_log
         self.journal = Journal(journal_dir if journal_dir is not None else default_directory(cell.name))
-        # a motion is journaled while the drives answer the start's checks (an fsync is a round trip too)
-        self._journal_writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="journal")
         # built once: a plan request pays for planning only (in a child process: service/planning.py)
         self.planner: CellPlanner | PlanningProcess
         if planner_process:
@@ -208,7 +205,6 @@ class MotionService:
             self.sim.stop()
         if isinstance(self.planner, PlanningProcess):
             self.planner.close()
-        self._journal_writer.shutdown(wait=True)
         self.journal.close()
         self.group, self.bus, self.sim = None, None, None
 
@@ -361,8 +357,9 @@ class MotionService:
             self._refuse_unless_ready(group)
             self._refuse_unless_at_start(group, program)
             motion = Motion(_new_id("m"), plan_id, label, program, time.time())
-            journaled = self._journal_writer.submit(
-                lambda: self.journal.record_motion(
+
+            def journaled() -> None:
+                self.journal.record_motion(
                     motion.motion_id,
                     program.to_json(),
                     plan_id=plan_id,
@@ -370,11 +367,12 @@ class MotionService:
                     duration_ms=int(program.duration_ms),
                     cell=self.cell.name,
                 )
-            )
+
             previous, self.motion = self.motion, motion
             try:
-                # the group asks the drives its checks, then waits for this before the first record
-                early = group.start(program, before_records=journaled.result)
+                # the group asks the drives its checks (a check SYNC or SDO requests), journals the
+                # motion while they answer (the fsync lets them have the interpreter), then records
+                early = group.start(program, before_records=journaled)
             except JournalError as exc:
                 self.motion = previous
                 raise ApiError(ErrorCode.JOURNAL_ERROR, f"{exc}: nothing was sent") from None
