@@ -31,6 +31,7 @@ from numpy.typing import ArrayLike
 
 from service.config import AxisConfig, CellConfig, PlanningConfig, load_cell_config
 from service.plan_cmd import CellPlan, CellPlanner
+from service.runtime import freeze_startup_objects
 
 READY = "ready"
 
@@ -44,6 +45,7 @@ def _child(conn: Connection, source: Path, name: str, axes: tuple[AxisConfig, ..
         cell = dataclasses.replace(load_cell_config(source), name=name, axes=axes, planning=planning)
         planner = CellPlanner(cell)
         planner.warm_up()
+        freeze_startup_objects()
     except Exception:
         conn.send(traceback.format_exc())
         return
