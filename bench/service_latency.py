@@ -310,11 +310,18 @@ def main(argv: list[str] | None = None) -> int:
         f"(reply p50 {pct(reply_ms, 50):.2f} ms; that frame received by the master p50 "
         f"{pct(received_ms, 50):.2f} ms)"
     )
+    ready = exec_ms[1:] or exec_ms  # after the first run every start finds the cell ready (AxisGroup)
+    print(
+        f"  the first (the cell not ready yet: every axis enabled by SDO) {exec_ms[0]:.2f} ms; the other "
+        f"{len(ready)} (ready after the run before: checked by one SYNC) p50 {pct(ready, 50):.2f} ms   "
+        f"p99 {pct(ready, 99):.2f} ms   max {max(ready):.2f} ms"
+    )
     for label, plan_time in (("measured plan p50", p50_plan), ("10 ms plan target", 10.0)):
         bound = plan_time + 2 * sync_ms
         print(
             f"  bound {label} + 2 SYNC = {bound:.2f} ms: p50 {'within' if pct(exec_ms, 50) <= bound else 'OVER'}, "
-            f"p99 {'within' if pct(exec_ms, 99) <= bound else 'OVER'}"
+            f"p99 {'within' if pct(exec_ms, 99) <= bound else 'OVER'}; ready cell p50 "
+            f"{'within' if pct(ready, 50) <= bound else 'OVER'}, p99 {'within' if pct(ready, 99) <= bound else 'OVER'}"
         )
     for with_plans, runs in during.items():
         if runs:
