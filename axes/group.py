@@ -386,14 +386,15 @@ class AxisGroup:
         recovery's, anyone's) or bus fault has come since."""
         return self._ready[i] is not None and self._ready[i] == self.links[i].controlwords_sent
 
-    def _enable_unless_ready(self, axis_and_ready: tuple[int, bool]) -> bool:
-        """Enable axis i for the start (from the statusword its check just read) unless it was ready
-        and is still OPERATION ENABLED; whether it was enabled (its buffer cleared)."""
-        i, ready = axis_and_ready
-        if ready and self.links[i].state == PowerState.OPERATION_ENABLED:
-            return False
-        self.profiles[i].enable(fresh=True)
-        return True
+    def _needs_enable(self, i: int, ready: bool) -> bool:
+        """Axis i is enabled at the start (its buffer cleared) unless it was ready and its check just
+        found it OPERATION ENABLED."""
+        return not (ready and self.links[i].state is PowerState.OPERATION_ENABLED)
+
+    def _enable(self, axes: list[int]) -> None:
+        """Enable these axes for the start, all at once, from the statusword their check just read."""
+        for _ in self._per_axis(lambda i: self.profiles[i].enable(fresh=True), axes):
+            pass
 
     def _prepare_next(self) -> None:
         """After a run that finished: make every axis ready for the next start now, in the background
@@ -430,10 +431,10 @@ class AxisGroup:
         check = sync.step()
         if before_records is not None:
             before_records()
-        feeders: list[Feeder | None] = [p.feeder(prog) for p, prog in zip(self.profiles, self._programs, strict=True)]
-        for feeder in feeders:
-            assert feeder is not None
+        preloaded = [p.feeder(prog) for p, prog in zip(self.profiles, self._programs, strict=True)]
+        for feeder in preloaded:
             feeder.preload()
+        feeders: list[Feeder | None] = list(preloaded)
         silent = sorted({cob & 0x7F for cob in sync.wait_answered(check, self.bus.lost_sync_timeout_s)})
         if silent:
             link = next((lk for lk in self.links if lk.node_id in silent), None)
@@ -450,9 +451,8 @@ class AxisGroup:
                 return feeders, refusal
         # a drive that left OPERATION ENABLED without a fault (nothing should do that) is enabled
         # again, which clears its buffer: its records go out again at the start
-        stale = [i for i, link in enumerate(self.links) if link.state is not PowerState.OPERATION_ENABLED]
-        for _ in self._per_axis(lambda i: self.profiles[i].enable(fresh=True), stale):
-            pass
+        stale = [i for i in range(len(self.links)) if self._needs_enable(i, True)]
+        self._enable(stale)
         for i in stale:
             feeders[i] = None
         return feeders, None
@@ -467,8 +467,7 @@ class AxisGroup:
         refusal = next((r for r in list(checks) if r is not None), None)
         if refusal is not None:
             return refusal
-        for _ in self._per_axis(self._enable_unless_ready, enumerate(ready)):
-            pass
+        self._enable([i for i, r in enumerate(ready) if self._needs_enable(i, r)])
         return None
 
     def _start_check(self, link_and_program: tuple[AxisLink, AxisProgram]) -> _Refusal | None:

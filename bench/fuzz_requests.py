@@ -37,6 +37,7 @@ from service.config import load_cell_config
 from service.demo_cmd import free_port
 from service.motion import MotionService
 from service.request_cmd import Client
+from service.runtime import freeze_startup_objects
 from service.server import Server, peer_config
 
 Request = tuple[str, bytes]
@@ -327,6 +328,7 @@ def main(argv: list[str] | None = None) -> int:
     gantry = load_cell_config(Path(__file__).resolve().parent.parent / "configs" / "cells" / "gantry3.yaml")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     service = MotionService(cell, journal_dir=tempfile.mkdtemp(prefix="pvtflow-fuzz-"), lockstep=True).open()
+    freeze_startup_objects()  # as pvtflow serve does once its service is open
     server = Server(service, peer_config(listen=[endpoint])).start()
     client = Client(connect=endpoint)
     codes: Counter[str] = Counter()

@@ -53,6 +53,7 @@ from service.config import load_cell_config
 from service.demo_cmd import free_port, tour
 from service.motion import MotionService
 from service.request_cmd import Client
+from service.runtime import freeze_startup_objects
 from service.server import Server, peer_config
 
 IP_MODE_ACTIVE = 0x1000
@@ -192,6 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     journal = tempfile.mkdtemp(prefix="pvtflow-bench-")
     service = MotionService(cell, journal_dir=journal, lockstep=True, planner_process=args.planner_process).open()
+    freeze_startup_objects()  # as pvtflow serve does once its service is open
     server = Server(service, peer_config(listen=[endpoint])).start()
     client = Client(connect=endpoint)
     watch = IpActiveWatch([a.node_id for a in cell.axes])

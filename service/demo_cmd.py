@@ -27,6 +27,7 @@ from service.config import ConfigError, load_cell_config
 from service.journal import JournalError
 from service.motion import MotionService
 from service.request_cmd import Client
+from service.runtime import freeze_startup_objects
 from service.server import Server, peer_config, zenoh_message
 
 EXIT_OK, EXIT_FAILED, EXIT_CANNOT_START = 0, 1, 2
@@ -157,6 +158,7 @@ def run(args: argparse.Namespace) -> int:
     journal_dir = args.journal or tempfile.mkdtemp(prefix="pvtflow-demo-")
     try:
         service = MotionService(cell, journal_dir=journal_dir, lockstep=not args.real_time).open()
+        freeze_startup_objects()
     except (BusError, JournalError, OSError) as exc:
         print(f"{PROG}: cannot start the cell: {exc}", file=sys.stderr)
         return EXIT_CANNOT_START

@@ -52,7 +52,6 @@ from service.execute_cmd import cell_mismatch
 from service.journal import Journal, JournalError, MotionEntry, default_directory
 from service.plan_cmd import CellPlanner
 from service.planning import PlanningProcess
-from service.runtime import freeze_startup_objects
 
 Publish = Callable[[str, dict[str, Any]], None]
 log = logging.getLogger("pvtflow.motion")
@@ -185,7 +184,6 @@ class MotionService:
         )
         self._watcher.start()
         self._publish_state()
-        freeze_startup_objects()  # planner warmed up, drives configured: start-up is over
         return self
 
     def close(self) -> None:

@@ -6,6 +6,10 @@ planner) there are about 200,000 of them, and a full collection over them takes 
 project's VM: a pause that any plan request or execute could land in (it was the 60-110 ms tail of
 ``bench/service_latency.py``). Start-up objects live as long as the process, so they are moved out
 of the collector's reach once start-up is over; collections then walk only what came after.
+
+A process-wide policy, so the processes call it, not the library: ``pvtflow serve`` and ``demo``
+once their service is open, the planning child after its warm-up, and the benchmarks that stand
+in for ``serve``.
 """
 
 from __future__ import annotations

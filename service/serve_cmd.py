@@ -21,6 +21,7 @@ from service.config import ConfigError, load_cell_config
 from service.journal import JournalError
 from service.motion import MotionService
 from service.planning import PlanningProcess
+from service.runtime import freeze_startup_objects
 from service.server import Server, ZenohConfigError, config_endpoints, load_zenoh_config, zenoh_message
 
 EXIT_OK, EXIT_CANNOT_START = 0, 2
@@ -166,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
             service.open()
         except BusError as exc:
             return _fail(str(exc))
+        freeze_startup_objects()  # planner warmed up, drives configured: start-up is over
         try:
             server = Server(service, zconfig).start()
         except Exception as exc:  # zenoh: endpoint in use, bad locator, ...
