@@ -66,12 +66,13 @@ class AxisReport:
     profile: str
     state: str
     statusword: int
-    position: int | None
-    target_position: int | None
+    position: int | None  # qc (0x6064)
+    target_position: int | None  # qc: the program's last record
     feed: FeedStats
     start_sync: int | None  # absolute SYNC number at which the drive first reported ip mode active
     buffer_status: int = 0
     last_emcy: tuple[int, str] | None = None
+    joint_position: float | None = None  # ``position`` in joint units (rad or m), through the axis scaling
 
 
 @dataclass
@@ -121,8 +122,9 @@ class RunResult:
                     "node_id": a.node_id,
                     "state": a.state,
                     "statusword": a.statusword,
-                    "position": a.position,
-                    "target_position": a.target_position,
+                    "position_qc": a.position,
+                    "position": a.joint_position,
+                    "target_position_qc": a.target_position,
                     "records_sent": a.feed.sent,
                     "underflows": a.feed.underflows,
                     "overflows": a.feed.overflows,
@@ -699,6 +701,9 @@ class AxisGroup:
                     start_sync=self._ip_start[i] if i < len(self._ip_start) else None,
                     buffer_status=link.buffer_status,
                     last_emcy=link.last_emcy,
+                    joint_position=None
+                    if link.position is None
+                    else float(link.config.scaling.qc_to_position(link.position)),
                 )
             )
         return out

@@ -2,7 +2,30 @@
 
 from __future__ import annotations
 
+import os
+import sys
+from pathlib import Path
+
 import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+_OUTSIDE = str(REPO.parent / "shared")  # the team's folder beside a checkout: a user's clone has none
+
+
+def _refuse_outside(event: str, args: tuple[object, ...]) -> None:
+    """The suite must pass on a clone alone: any file opened or listed in ../shared fails the test
+    that does it (CI runs with ../shared beside the clone, where such a read would pass unseen)."""
+    if event not in ("open", "os.listdir", "os.scandir") or not args:
+        return
+    path = args[0]
+    if isinstance(path, int) or path is None:
+        return
+    text = os.fsdecode(path) if isinstance(path, str | bytes | os.PathLike) else ""
+    if text and os.path.abspath(text).startswith(_OUTSIDE):
+        raise PermissionError(f"the project reads {text}, outside the repository: keep what it needs inside it")
+
+
+sys.addaudithook(_refuse_outside)
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:

@@ -39,8 +39,8 @@ from axes.sim.pdo import PdoEngine, is_pdo_object, unsubscribe
 from planner.interpolation import hermite_coefficients
 
 EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
-# maxon's own EPOS2 70/10 EDS, read where the team keeps it (../shared beside the checkout), never copied
-MAXON_EPOS2_EDS = Path(__file__).resolve().parents[3] / "shared" / "reference" / "maxon-epos2-70-10.eds"
+# maxon's own published EPOS2 70/10 EDS, kept unchanged as a vendor data file (configs/eds/vendor/README.md)
+MAXON_EPOS2_EDS = EDS_DIR / "vendor" / "maxon-epos2-70-10.eds"
 
 # DS402 power states and statusword/controlword bits: the master's definitions (axes/cia402.py),
 # short names for the drive side

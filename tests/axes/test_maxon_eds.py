@@ -6,7 +6,7 @@ from axes_programs import check_limits, program
 
 from axes import objects as od
 from axes.group import Result
-from axes.sim.drive import MAXON_EPOS2_EDS as MAXON_EDS  # read in place (../shared), never copied
+from axes.sim.drive import MAXON_EPOS2_EDS as MAXON_EDS  # configs/eds/vendor: maxon's file, unchanged
 
 
 def test_master_configures_a_node_with_the_maxon_eds(arm6, make_rig):
