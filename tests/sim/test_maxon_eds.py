@@ -1,4 +1,4 @@
-"""The simulated EPOS2 on maxon's own EDS (configs/eds/vendor/maxon-epos2-70-10.eds: maxon's published file, unchanged)."""
+"""The simulated EPOS2 on maxon's own EDS (configs/eds/vendor: maxon's published file, unchanged)."""
 
 from __future__ import annotations
 
