@@ -201,9 +201,26 @@ def load_cell_config(path: str | Path | None = None) -> CellConfig:
         raise ConfigError(file, "", "file not found")
     try:
         data = yaml.safe_load(file.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(file, "", f"not valid YAML ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(file, "", f"not UTF-8 text (byte {exc.start})") from None
+    except yaml.YAMLError as exc:
+        raise _yaml_error(file, exc) from None
     return parse_cell_config(data, file)
+
+
+def _yaml_error(file: Path, exc: yaml.YAMLError) -> ConfigError:
+    """A YAML syntax error in one line, ``FILE: line L, column C: not valid YAML: PROBLEM (CONTEXT)``, like every
+    other mistake in a cell file (PyYAML's own message spans several lines and quotes the source)."""
+    if not isinstance(exc, yaml.MarkedYAMLError) or exc.problem_mark is None:
+        return ConfigError(file, "", f"not valid YAML: {' '.join(str(exc).split())}")
+    mark = exc.problem_mark
+    problem = f"not valid YAML: {exc.problem}"
+    if exc.context:
+        context = exc.context
+        if exc.context_mark is not None and exc.context_mark.line != mark.line:
+            context += f" from line {exc.context_mark.line + 1}"
+        problem += f" ({context})"
+    return ConfigError(file, f"line {mark.line + 1}, column {mark.column + 1}", problem)
 
 
 def parse_cell_config(data: Any, file: Path) -> CellConfig:

@@ -23,7 +23,7 @@ import numpy as np
 
 from axes.bus import BusError
 from service.api import key
-from service.config import ConfigError, load_cell_config
+from service.config import CellConfig, ConfigError, load_cell_config
 from service.journal import JournalError
 from service.motion import MotionService
 from service.request_cmd import Client
@@ -50,8 +50,18 @@ def add_parser(subparsers: Any) -> None:
         help="SYNC on the wall clock instead of in lockstep with the "
         "simulated drives (needs a machine fast enough for 1 kHz SYNC on every simulated drive)",
     )
-    p.add_argument("--journal", metavar="DIR", help="motion journal directory (default: a temporary one)")
-    p.add_argument("--waypoints", type=int, default=4, help="waypoints of the tour after the start (default 4)")
+    p.add_argument(
+        "--journal", metavar="DIR", help="motion journal directory (default: a temporary one, removed at the end)"
+    )
+    p.add_argument(
+        "--tour-points",
+        type=int,
+        default=4,
+        metavar="N",
+        help="how many waypoints the tour goes through after its start, 1..20 (default 4)",
+    )
+    # the option's first name, kept working: it is a count, not a waypoint file as in plan and request
+    p.add_argument("--waypoints", type=int, dest="tour_points", help=argparse.SUPPRESS)
     p.set_defaults(run=run)
 
 
@@ -147,15 +157,21 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_CANNOT_START
-    if not 1 <= args.waypoints <= 20:
-        print(f"{PROG}: --waypoints must be 1..20, got {args.waypoints}", file=sys.stderr)
+    if not 1 <= args.tour_points <= 20:
+        print(f"{PROG}: --tour-points must be 1..20, got {args.tour_points}", file=sys.stderr)
         return EXIT_CANNOT_START
     plot = Path(args.plot)
     if not plot.parent.is_dir():
         print(f"{PROG}: cannot write {plot}: {plot.parent} is not a directory", file=sys.stderr)
         return EXIT_CANNOT_START
     endpoint = f"tcp/127.0.0.1:{args.port or free_port()}"
-    journal_dir = args.journal or tempfile.mkdtemp(prefix="pvtflow-demo-")
+    if args.journal:
+        return _serve_and_demo(args, cell, plot, endpoint, args.journal)
+    with tempfile.TemporaryDirectory(prefix="pvtflow-demo-") as journal_dir:  # gone on every way out
+        return _serve_and_demo(args, cell, plot, endpoint, journal_dir)
+
+
+def _serve_and_demo(args: argparse.Namespace, cell: CellConfig, plot: Path, endpoint: str, journal_dir: str) -> int:
     try:
         service = MotionService(cell, journal_dir=journal_dir, lockstep=not args.real_time).open()
         freeze_startup_objects()
@@ -171,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
     client = None
     try:
         client = Client(connect=endpoint)
-        return _demo(client, cell.name, plot, endpoint, service, journal_dir, args.waypoints)
+        return _demo(client, cell.name, plot, endpoint, service, journal_dir, args.tour_points)
     finally:
         if client is not None:
             client.close()
@@ -238,11 +254,12 @@ def _demo(
     print(f"  outcome: {outcome.get('result')}: {outcome.get('message')}")
     if not final.ok:
         print(f"  status failed: {final.data['error']['code']}: {final.data['error']['message']}")
-    else:
+    else:  # what the drives say now (status), next to where the program ended them (the outcome)
+        ends = {a["joint"]: a.get("target_position_qc") for a in outcome.get("axes", [])}
         for a in final.data["axes"]:
             print(
                 f"    {a['joint']}: {a['state'].lower()}, statusword {a['statusword_hex']}, position "
-                f"{a['position']:+.4f} ({a['position_qc']} qc)"
+                f"{a['position']:+.4f} ({a['position_qc']} qc; program end {ends.get(a['joint'])} qc)"
             )
     events = [e["kind"] for e in follower.events if e.get("motion_id") == follower.motion_id]
     print(f"  events: {', '.join(events)}; states: {' -> '.join(dict.fromkeys(follower.states))}")

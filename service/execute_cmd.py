@@ -18,8 +18,10 @@ from typing import Any
 
 from axes.bus import BusError, CellBus
 from axes.group import AxisGroup, Event, Progress, RunResult
-from planner.program import ProgramFormatError, PvtProgram
+from planner.program import PvtProgram
+from service.cli import can_log_problem
 from service.config import CellConfig, ConfigError, load_cell_config
+from service.validate_cmd import ProgramFileError, read_program
 
 EXIT_OK, EXIT_FAILED, EXIT_UNREADABLE = 0, 1, 2
 PROG = "pvtflow execute"
@@ -42,13 +44,6 @@ def add_parser(subparsers: Any) -> None:
 def _fail(message: str, code: int) -> int:
     print(f"{PROG}: {message}", file=sys.stderr)
     return code
-
-
-def read_program(path: Path) -> PvtProgram:
-    """The program's structure; record ranges are left to the validator (a violation, exit 1)."""
-    if path.is_dir():
-        raise ProgramFormatError("", "is a directory, not a program file")
-    return PvtProgram.loads(path.read_bytes(), check_ranges=False)
 
 
 def cell_mismatch(program: PvtProgram, cell: CellConfig) -> list[str]:
@@ -109,22 +104,22 @@ def describe(result: RunResult) -> str:
     for a in result.axes:
         feed = a.feed
         levels = "" if feed.max_level is None else f", buffer {feed.min_level}..{feed.max_level}"
+        # the names of the outcome's JSON (RunResult.to_json): position in joint units, position_qc in counts
+        position = "unknown" if a.joint_position is None else f"{a.joint_position:+.6g}"
         lines.append(
-            f"  {a.joint} (node {a.node_id}, {a.profile}): {a.state}, position {a.position} qc "
-            f"(program end {a.target_position}), {feed.sent}/{feed.records} records{levels}"
+            f"  {a.joint} (node {a.node_id}, {a.profile}): {a.state}, position {position} ({a.position} qc; "
+            f"program end {a.target_position} qc), {feed.sent}/{feed.records} records{levels}"
         )
     return "\n".join(lines)
 
 
 def run(args: argparse.Namespace) -> int:
     path = Path(args.program)
+    if args.can_log and (problem := can_log_problem(args.can_log)):
+        return _fail(problem, EXIT_UNREADABLE)
     try:
-        program = read_program(path)
-    except FileNotFoundError:
-        return _fail(f"{path}: file not found", EXIT_UNREADABLE)
-    except OSError as exc:
-        return _fail(f"{path}: {exc.strerror or exc}", EXIT_UNREADABLE)
-    except ProgramFormatError as exc:
+        program = read_program(path)  # record ranges are left to the validator (a violation, exit 1)
+    except ProgramFileError as exc:
         return _fail(f"{path}: {exc}", EXIT_UNREADABLE)
     try:
         cell = load_cell_config(args.config)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -28,6 +29,7 @@ from service.server import (
     load_zenoh_config,
     zenoh_message,
 )
+from service.validate_cmd import ProgramFileError, read_program
 from service.waypoints import WaypointError, load_waypoints
 
 EXIT_OK, EXIT_ERROR_REPLY, EXIT_NO_ANSWER = 0, 1, 2
@@ -55,7 +57,7 @@ class Client:
 
     def __init__(self, config: zenoh.Config | None = None, *, connect: str | None = None) -> None:
         if config is None:
-            config = client_config([connect or DEFAULT_ENDPOINT])
+            config = client_config([check_endpoint(connect or DEFAULT_ENDPOINT)])
         self.session = zenoh.open(config)
 
     def close(self) -> None:
@@ -130,6 +132,19 @@ class Client:
         return sorted(cells)
 
 
+def check_endpoint(endpoint: str) -> str:
+    """``endpoint`` when zenoh takes it as one (judged by zenoh's own parser); else a ValueError saying the
+    form, so that ``127.0.0.1:7447`` is one clear line instead of a zenoh traceback."""
+    try:
+        client_config([endpoint])
+    except Exception:  # zenoh.ZError
+        hint = f" (did you mean tcp/{endpoint}?)" if endpoint and "/" not in endpoint else ""
+        raise ValueError(
+            f"{endpoint!r} is not a zenoh endpoint: PROTOCOL/ADDRESS:PORT, e.g. {DEFAULT_ENDPOINT}{hint}"
+        ) from None
+    return endpoint
+
+
 def _json(data: bytes) -> Any:
     try:
         return json.loads(data)
@@ -152,11 +167,26 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("op", choices=QUERYABLES, help="the request")
     p.add_argument("plan_id", nargs="?", help="validate / execute: the plan id from a plan reply")
     p.add_argument("--cell", default="arm6", help="the cell (default arm6; '*' asks every cell: status)")
-    p.add_argument("--connect", metavar="ENDPOINT", help=f"the service's endpoint (default {DEFAULT_ENDPOINT})")
-    p.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 client configuration, used as is")
+    p.add_argument(
+        "--connect",
+        metavar="ENDPOINT",
+        help=f"the service's endpoint (default {DEFAULT_ENDPOINT}); with --zenoh-config, it replaces the file's "
+        "connect endpoints",
+    )
+    p.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        help="a zenoh JSON5 client configuration, used as is (credentials, TLS, a router)",
+    )
     p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the reply (default 30)")
-    p.add_argument("--waypoints", metavar="FILE", help="plan: waypoint file (pvtflow JSON or ROS JointTrajectory)")
-    p.add_argument("--target", metavar="Q1,Q2,...", help="plan: one goal in joint units, comma separated")
+    p.add_argument(
+        "--waypoints",
+        metavar="FILE",
+        help="plan: waypoint file (pvtflow JSON or ROS JointTrajectory; one waypoint or more)",
+    )
+    p.add_argument(
+        "--target", metavar="Q1,Q2,...", help="plan: one goal in joint units, comma separated (not with --waypoints)"
+    )
     p.add_argument(
         "--start", choices=("current", "first"), help="plan: start at the axes (default) or the first waypoint"
     )
@@ -172,37 +202,59 @@ class _InputError(ValueError):
     pass
 
 
-def _payload(args: argparse.Namespace, client: Client) -> Any:
+# option (argparse dest) -> the requests it belongs to: given to another one, it would be silently ignored
+_FOR_OPS: dict[str, tuple[str, ...]] = {
+    "plan_id": ("validate", "execute"),
+    "waypoints": ("plan",),
+    "target": ("plan",),
+    "start": ("plan",),
+    "program": ("validate", "execute"),
+    "wait": ("execute",),
+    "reason": ("stop",),
+    "recent": ("status",),
+}
+
+
+def _option_name(dest: str) -> str:
+    return "PLAN_ID" if dest == "plan_id" else "--" + dest.replace("_", "-")
+
+
+def _local_payload(args: argparse.Namespace) -> Any:
+    """The request as far as it needs no service (the waypoints need the cell's joint names): every mistake
+    in the command line is refused here, before a session opens."""
     if args.raw is not None:
         return args.raw.encode()
     op = args.op
+    for dest, ops in _FOR_OPS.items():
+        if getattr(args, dest, None) not in (None, False) and op not in ops:
+            raise _InputError(f"{_option_name(dest)} is for {' / '.join(ops)}, not {op}")
     out: dict[str, Any] = {}
     if op == "plan":
-        if args.target:
+        if args.target is not None and args.waypoints is not None:
+            raise _InputError("plan takes --target Q1,Q2,... or --waypoints FILE, not both")
+        if args.target is not None:
             try:
-                out["target"] = [float(x) for x in args.target.split(",")]
+                target = [float(x) for x in args.target.split(",")]
             except ValueError:
-                raise _InputError(f"--target: not a comma-separated list of numbers: {args.target!r}") from None
-        elif args.waypoints:
-            status = client.request(args.cell, "status", {"recent": 0}, args.timeout)
-            if not status.ok:
-                raise _InputError(f"cannot learn the joints of cell {args.cell}: {status.data['error']['message']}")
-            names = status.data["joint_names"]
-            try:
-                out["waypoints"] = load_waypoints(args.waypoints, names).tolist()
-            except WaypointError as exc:
-                raise _InputError(str(exc)) from None
-        else:
+                target = []
+            if not target or not all(math.isfinite(x) for x in target):
+                raise _InputError(f"--target: not a comma-separated list of finite numbers: {args.target!r}")
+            out["target"] = target
+        elif args.waypoints is None:
             raise _InputError("plan needs --waypoints FILE or --target Q1,Q2,...")
         if args.start:
             out["start"] = args.start
     elif op in ("validate", "execute"):
-        if args.program:
+        if args.program is not None and args.plan_id is not None:
+            raise _InputError(f"{op} takes a PLAN_ID or --program FILE, not both")
+        if args.program is not None:
+            path = Path(args.program)
             try:
-                out["program"] = json.loads(Path(args.program).read_text(encoding="utf-8"))
-            except (OSError, ValueError) as exc:
-                raise _InputError(f"{args.program}: {exc}") from None
-        elif args.plan_id:
+                read_program(path)  # the reader of every command: the same words for the same file
+            except ProgramFileError as exc:
+                raise _InputError(f"{path}: {exc}") from None
+            out["program"] = json.loads(path.read_bytes())
+        elif args.plan_id is not None:
             out["plan_id"] = args.plan_id
         else:
             raise _InputError(f"{op} needs a PLAN_ID or --program FILE")
@@ -215,10 +267,29 @@ def _payload(args: argparse.Namespace, client: Client) -> Any:
     return out
 
 
+def _add_waypoints(args: argparse.Namespace, client: Client, payload: dict[str, Any]) -> None:
+    """plan --waypoints: the file read in the cell's joint order (asked of the service). One waypoint is a
+    motion from where the axes are, as the service takes it."""
+    status = client.request(args.cell, "status", {"recent": 0}, args.timeout)
+    if not status.ok:
+        raise _InputError(f"cannot learn the joints of cell {args.cell}: {status.data['error']['message']}")
+    try:
+        payload["waypoints"] = load_waypoints(args.waypoints, status.data["joint_names"], min_count=1).tolist()
+    except WaypointError as exc:
+        raise _InputError(str(exc)) from None
+
+
 def _client_config(args: argparse.Namespace) -> zenoh.Config:
-    if args.zenoh_config:
-        return load_zenoh_config(args.zenoh_config)
-    return client_config([args.connect or DEFAULT_ENDPOINT])
+    """The user's config file as is (with --connect: its connect endpoints replaced), or a client of the
+    endpoint; ZenohConfigError / ValueError (an endpoint zenoh cannot take) otherwise."""
+    if args.connect is not None:
+        check_endpoint(args.connect)
+    if not args.zenoh_config:
+        return client_config([args.connect or DEFAULT_ENDPOINT])
+    config = load_zenoh_config(args.zenoh_config)
+    if args.connect is not None:
+        config.insert_json5("connect/endpoints", json.dumps([args.connect]))
+    return config
 
 
 def _print_replies(replies: Iterator[Reply] | list[Reply], many: bool) -> int:
@@ -238,9 +309,13 @@ def _print_replies(replies: Iterator[Reply] | list[Reply], many: bool) -> int:
 
 def run(args: argparse.Namespace) -> int:
     try:
+        payload = _local_payload(args)
         config = _client_config(args)
-    except ZenohConfigError as exc:
+    except (_InputError, ZenohConfigError) as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
+        return EXIT_NO_ANSWER
+    except ValueError as exc:  # an endpoint zenoh cannot take
+        print(f"{PROG}: --connect: {exc}", file=sys.stderr)
         return EXIT_NO_ANSWER
     try:
         client = Client(config)
@@ -252,7 +327,8 @@ def run(args: argparse.Namespace) -> int:
         )
         return EXIT_NO_ANSWER
     try:
-        payload = _payload(args, client)
+        if args.op == "plan" and isinstance(payload, dict) and args.waypoints is not None:
+            _add_waypoints(args, client, payload)
         replies = client.replies(args.cell, args.op, payload, args.timeout)
         if not replies:
             print(

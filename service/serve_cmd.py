@@ -9,20 +9,32 @@ then halts any motion and closes. It prints where it listens and how to talk to 
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import sys
 import threading
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import zenoh
+
 from axes.bus import BusError
 from service.api import LIVELINESS, PUBLICATIONS, QUERYABLES, StopRequest, key
+from service.cli import can_log_problem
 from service.config import ConfigError, load_cell_config
 from service.journal import JournalError
 from service.motion import MotionService
 from service.planning import PlanningProcess
 from service.runtime import freeze_startup_objects
-from service.server import Server, ZenohConfigError, config_endpoints, load_zenoh_config, zenoh_message
+from service.server import (
+    ZENOH_CONFIG_DIR,
+    Server,
+    ZenohConfigError,
+    config_endpoints,
+    load_zenoh_config,
+    zenoh_message,
+)
 
 EXIT_OK, EXIT_CANNOT_START = 0, 2
 PROG = "pvtflow serve"
@@ -107,16 +119,71 @@ def banner(service: MotionService, server: Server) -> str:
     ]
     endpoint = listen[0] if listen else (connect[0] if connect else "tcp/127.0.0.1:7447")
     endpoint = endpoint.replace("0.0.0.0", "127.0.0.1")
-    target = ",".join("0.3" if i % 2 == 0 else "-0.2" for i in range(len(cell.axes)))
+    target = ",".join(f"{x:g}" for x in example_target(service.limits.lower, service.limits.upper))
+    observer = operator = f"--connect {endpoint}"
+    dictionary = auth_dictionary(server.config)
+    if dictionary is not None:
+        observer, operator, note = _credentials(dictionary, endpoint)
+        lines.append(f"  clients must authenticate: zenoh user/password, users in {dictionary}; {note}")
     lines += [
         "  talk to it:",
-        f"    pvtflow request status --cell {name} --connect {endpoint}",
-        f"    pvtflow request plan --cell {name} --connect {endpoint} --target {target}",
-        f"    pvtflow request execute PLAN_ID --cell {name} --connect {endpoint}",
-        f"    pvtflow request stop --cell {name} --connect {endpoint}",
+        f"    pvtflow request status --cell {name} {observer}",
+        f"    pvtflow request plan --cell {name} {observer} --target {target}",
+        f"    pvtflow request execute PLAN_ID --cell {name} {operator}",
+        f"    pvtflow request stop --cell {name} {operator}",
         "  Ctrl-C stops the service (a running motion is halted first).",
     ]
     return "\n".join(lines)
+
+
+def example_target(lower: Sequence[float], upper: Sequence[float]) -> list[float]:
+    """The banner's example goal: a tenth of each joint's range off its middle (alternately up and
+    down), so that the printed plan command fits the cell, whatever its joints and units."""
+    out = []
+    for i, (lo, hi) in enumerate(zip(lower, upper, strict=True)):
+        x = 0.5 * (lo + hi) + (0.1 if i % 2 == 0 else -0.1) * (hi - lo)
+        short = round(x, 2)
+        out.append(short if lo < short < hi else float(x))
+    return out
+
+
+def auth_dictionary(config: zenoh.Config) -> str | None:
+    """The user/password dictionary of a session that requires clients to authenticate (None: it does not)."""
+    try:
+        usrpwd = json.loads(config.get_json("transport/auth/usrpwd"))
+    except Exception:  # a zenoh without the key: no authentication
+        return None
+    dictionary = usrpwd.get("dictionary_file") if isinstance(usrpwd, dict) else None
+    return str(dictionary) if dictionary else None
+
+
+def _credentials(dictionary: str, endpoint: str) -> tuple[str, str, str]:
+    """The request options of an observer and of an operator, and a note on where they come from: the
+    shipped client configs when the service uses the shipped dictionary, a client config to write otherwise."""
+    shipped = ZENOH_CONFIG_DIR / "credentials.txt"
+    if Path(dictionary).resolve() == shipped.resolve():
+        observer, operator = (_shown(ZENOH_CONFIG_DIR / f"{who}-client.json5") for who in ("observer", "operator"))
+        note = (
+            f"{observer} (user observer: plan, validate, status) and {operator} (user operator: also "
+            "execute, stop, recover) are clients of it"
+        )
+        return (
+            f"--zenoh-config {observer} --connect {endpoint}",
+            f"--zenoh-config {operator} --connect {endpoint}",
+            note,
+        )
+    example = _shown(ZENOH_CONFIG_DIR / "operator-client.json5")
+    note = f"CLIENT.json5 is a client config with one of those users (transport.auth.usrpwd; see {example})"
+    both = f"--zenoh-config CLIENT.json5 --connect {endpoint}"
+    return both, both, note
+
+
+def _shown(path: Path) -> str:
+    """``path`` relative to the working directory when it is below it (shorter to type), else absolute."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path.resolve())
 
 
 def run(args: argparse.Namespace) -> int:
@@ -130,10 +197,8 @@ def run(args: argparse.Namespace) -> int:
         return _fail(str(exc))
     if not args.telemetry_ms > 0:
         return _fail(f"--telemetry-ms must be positive, got {args.telemetry_ms}")
-    if args.can_log:
-        parent = Path(args.can_log).parent
-        if not parent.is_dir():
-            return _fail(f"cannot write the CAN log {args.can_log}: {parent} is not a directory")
+    if args.can_log and (problem := can_log_problem(args.can_log)):
+        return _fail(problem)
 
     stop = threading.Event()
 
@@ -167,6 +232,9 @@ def run(args: argparse.Namespace) -> int:
             service.open()
         except BusError as exc:
             return _fail(str(exc))
+        except (ValueError, OSError) as exc:  # the CAN log cannot be opened after all (its checks passed)
+            service.close()
+            return _fail(f"cannot start cell {cell.name}: {exc}")
         freeze_startup_objects()  # planner warmed up, drives configured: start-up is over
         try:
             server = Server(service, zconfig).start()

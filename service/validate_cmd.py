@@ -53,22 +53,38 @@ class Outcome:
         return EXIT_VALID if self.report.ok else EXIT_VIOLATIONS
 
 
+class ProgramFileError(ValueError):
+    """A program file that cannot be read; the message is the reason in one line, without the file's name."""
+
+
 def read_program(path: Path) -> PvtProgram:
-    """The program in ``path`` (ranges unchecked: the validator reports them); ProgramFormatError/OSError."""
+    """The program in ``path``, with record ranges unchecked (the validator reports them as violations).
+
+    The one reader of program files for every command (validate, execute, request), so that each says
+    the same about the same file: ``file not found``, ``is a directory``, ``not JSON: ...``,
+    ``not a PVT program: ...`` (ProgramFileError).
+    """
     if path.is_dir():
-        raise ProgramFormatError("", "is a directory with no *.json program in it")
-    data = path.read_bytes()
-    return PvtProgram.loads(data, check_ranges=False)
+        raise ProgramFileError("is a directory, not a program file")
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise ProgramFileError("file not found") from None
+    except OSError as exc:
+        raise ProgramFileError(exc.strerror or str(exc)) from None
+    try:
+        return PvtProgram.loads(data, check_ranges=False)
+    except ProgramFormatError as exc:
+        raise ProgramFileError(str(exc)) from None
 
 
 def check_file(path: Path) -> Outcome:
+    if path.is_dir():  # a folder stands for its *.json: here it had none
+        return Outcome(str(path), problem="is a directory with no *.json program in it")
     try:
         program = read_program(path)
-    except FileNotFoundError:
-        return Outcome(str(path), problem="file not found")
-    except (OSError, ProgramFormatError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-        return Outcome(str(path), problem=reason)
+    except ProgramFileError as exc:
+        return Outcome(str(path), problem=str(exc))
     return Outcome(str(path), validate_program(program, source=str(path)), program)
 
 

@@ -30,8 +30,9 @@ class WaypointError(ValueError):
     """A waypoint file that cannot be used; the message says which file and where."""
 
 
-def load_waypoints(path: str | Path, joint_names: Sequence[str]) -> NDArray[np.float64]:
-    """(N, dof) waypoints from ``path`` in the order of ``joint_names``."""
+def load_waypoints(path: str | Path, joint_names: Sequence[str], min_count: int = 2) -> NDArray[np.float64]:
+    """(N, dof) waypoints from ``path`` in the order of ``joint_names``; at least ``min_count`` of them
+    (2 for a motion planned on its own; 1 for the service, which starts from where the axes are)."""
     file = Path(path)
     if not file.is_file():
         raise WaypointError(f"{file}: {'is a directory' if file.is_dir() else 'file not found'}")
@@ -39,10 +40,12 @@ def load_waypoints(path: str | Path, joint_names: Sequence[str]) -> NDArray[np.f
         text = file.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise WaypointError(f"{file}: cannot read: {exc}") from None
-    return parse_waypoints(text, joint_names, str(file))
+    return parse_waypoints(text, joint_names, str(file), min_count)
 
 
-def parse_waypoints(text: str, joint_names: Sequence[str], source: str = "waypoints") -> NDArray[np.float64]:
+def parse_waypoints(
+    text: str, joint_names: Sequence[str], source: str = "waypoints", min_count: int = 2
+) -> NDArray[np.float64]:
     """Waypoints from JSON or YAML text (see the module doc for the accepted shapes)."""
     try:
         data = json.loads(text)
@@ -51,10 +54,12 @@ def parse_waypoints(text: str, joint_names: Sequence[str], source: str = "waypoi
             data = yaml.safe_load(text)
         except yaml.YAMLError as exc:
             raise WaypointError(f"{source}: neither JSON nor YAML ({str(exc).splitlines()[0]})") from None
-    return waypoints_from_data(data, joint_names, source)
+    return waypoints_from_data(data, joint_names, source, min_count)
 
 
-def waypoints_from_data(data: Any, joint_names: Sequence[str], source: str = "waypoints") -> NDArray[np.float64]:
+def waypoints_from_data(
+    data: Any, joint_names: Sequence[str], source: str = "waypoints", min_count: int = 2
+) -> NDArray[np.float64]:
     if isinstance(data, dict):
         for key in ("trajectory", "joint_trajectory"):
             if key in data and isinstance(data[key], dict) and "points" in data[key]:
@@ -115,6 +120,6 @@ def waypoints_from_data(data: Any, joint_names: Sequence[str], source: str = "wa
             if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
                 raise WaypointError(f"{here}[{j}]: must be a finite number, got {x!r}")
         out[i] = [float(row[k]) for k in order]
-    if len(out) < 2:
-        raise WaypointError(f"{source}: a motion needs at least 2 waypoints, got {len(out)}")
+    if len(out) < min_count:
+        raise WaypointError(f"{source}: a motion needs at least {min_count} waypoints, got {len(out)}")
     return out
