@@ -35,6 +35,14 @@ from canopen.sdo import SdoAbortedError
 from axes import objects as obj
 from axes.cia402 import Controlword, PowerState, Statusword
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
+from axes.sim.device import (
+    SIMULATED_MODE,
+    SUPPORTED_DRIVE_MODES,
+    DriveModes,
+    Value,
+    complete_object_dictionary,
+    identity_values,
+)
 from axes.sim.pdo import PdoEngine, is_pdo_object, unsubscribe
 from planner.interpolation import hermite_coefficients
 
@@ -144,6 +152,7 @@ class SimulatedDrive:
     EDS: ClassVar[str] = ""
     EMCY_POSITION_LIMIT: ClassVar[int] = obj.EMCY_SOFTWARE_POSITION_LIMIT
     EMCY_VELOCITY: ClassVar[int] = obj.EMCY_VELOCITY_LIMIT
+    MODES: ClassVar[DriveModes] = DriveModes((SIMULATED_MODE,))  # 0x6502 / 0x6060 (axes/sim/device.py)
     _ip_requested: bool = False  # bit 4 rose: ip mode starts on the next SYNC (profiles reset it)
 
     def __init__(
@@ -163,6 +172,8 @@ class SimulatedDrive:
             raise ValueError(f"sync_period_ms must be positive, got {sync_period_ms!r}")
         self.eds_path = Path(eds_path) if eds_path is not None else EDS_DIR / self.EDS
         self.node = canopen.LocalNode(node_id, str(self.eds_path))
+        own = {**identity_values(self.node.object_dictionary, self.MODES), **self._own_values()}
+        complete_object_dictionary(self.node.object_dictionary, own, frozenset({(SUPPORTED_DRIVE_MODES, 0)}))
         self._entries: dict[tuple[int, int], tuple[objectdictionary.ODVariable, int]] = {}
         self._published: dict[tuple[int, int], tuple[int, int, bytes]] = {}  # see publish()
         self.scaling = scaling if scaling is not None else AxisScaling(2000.0, 1.0)
@@ -445,6 +456,8 @@ class SimulatedDrive:
             if is_pdo_object(index):
                 self.pdo.check_write(index, subindex, value)
             self._check_write(index, subindex, value)
+            if index == obj.MODES_OF_OPERATION and not self.MODES.accepts(value):
+                raise SdoAbortedError(ABORT_VALUE_RANGE)  # a mode 0x6502 does not list
             self.node.data_store.setdefault(index, {})[subindex] = bytes(data)  # visible to the actions
             if is_pdo_object(index):
                 self.pdo.reload()
@@ -639,6 +652,10 @@ class SimulatedDrive:
         self._refresh(events=False)
 
     # --- hooks for the profiles -------------------------------------------------------------------
+    def _own_values(self) -> dict[tuple[int, int], Value]:
+        """The drive's own values of objects its EDS may leave without a default (axes/sim/device.py)."""
+        return {}
+
     def _reset_profile(self) -> None:
         """Clear the profile's own state (power-on)."""
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from axes import objects as obj
+from axes.sim import device
 
 EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
 
@@ -76,10 +77,11 @@ def _pdo_objects(n_rpdo: int, n_tpdo: int) -> dict[int, Entry]:
     return out
 
 
-def _common(device_type: int, product: str) -> dict[int, Entry]:
-    """CiA 301 communication objects and the CiA 402 objects every simulated drive has."""
+def _common(product: str, modes: device.DriveModes) -> dict[int, Entry]:
+    """CiA 301 communication objects and the CiA 402 objects every simulated drive has; 0x6502 says
+    which modes 0x6060 accepts (axes/sim/device.py)."""
     d: dict[int, Entry] = {
-        0x1000: Var("Device type", U32, "ro", device_type),
+        0x1000: Var("Device type", U32, "ro", device.CIA402_SERVO_DRIVE),
         0x1001: Var("Error register", U8, "ro", 0),
         0x1003: Rec(
             "Pre-defined error field",
@@ -125,12 +127,13 @@ def _common(device_type: int, product: str) -> dict[int, Entry]:
         obj.QUICK_STOP_DECELERATION: Var("Profile deceleration", U32, "rw", 10000, pdo=True),
         0x6085: Var("Quick stop deceleration", U32, "rw", 10000, pdo=True),
         obj.MAX_ACCELERATION: Var("Max acceleration", U32, "rw", 0xFFFFFFFF),
+        device.SUPPORTED_DRIVE_MODES: Var("Supported drive modes", U32, "ro", modes.supported),
     }
     return d
 
 
 def epos2() -> dict[int, Entry]:
-    d = _common(0x00020192, "pvtflow simulated EPOS2")
+    d = _common("pvtflow simulated EPOS2", device.EPOS2_MODES)
     d.update(_pdo_objects(4, 4))
     d[obj.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode selection", I16, "rw", -1)
     d[obj.INTERPOLATION_TIME_PERIOD] = Rec(
@@ -188,7 +191,7 @@ def _time_period() -> Rec:
 
 
 def cia402_ip_linear() -> dict[int, Entry]:
-    d = _common(0x00020192, "pvtflow simulated CiA 402 linear IP drive")
+    d = _common("pvtflow simulated CiA 402 linear IP drive", device.IP_LINEAR_MODES)
     d.update(_pdo_objects(4, 4))
     d[obj.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
     d[obj.INTERPOLATION_DATA_RECORD] = _setpoint_record(False)
@@ -208,7 +211,7 @@ def cia402_ip_linear() -> dict[int, Entry]:
 
 
 def sync_setpoint() -> dict[int, Entry]:
-    d = _common(0x00020192, "pvtflow simulated bufferless IP servodrive")
+    d = _common("pvtflow simulated bufferless IP servodrive", device.SYNC_SETPOINT_MODES)
     d.update(_pdo_objects(4, 4))
     d[obj.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
     d[obj.INTERPOLATION_DATA_RECORD] = _setpoint_record(False)
@@ -217,7 +220,7 @@ def sync_setpoint() -> dict[int, Entry]:
 
 
 def parker_slvdn() -> dict[int, Entry]:
-    d = _common(0x00020192, "pvtflow simulated Parker SLVDN")
+    d = _common("pvtflow simulated Parker SLVDN", device.PARKER_MODES)
     d.update(_pdo_objects(4, 4))
     d[obj.COMMUNICATION_CYCLE_PERIOD] = Var("Communication cycle period", U32, "rw", 0)
     d[obj.PARKER_OPERATIVE_MODE] = Var("Pr31 operative mode", I16, "rw", 0)

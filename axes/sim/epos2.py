@@ -34,6 +34,7 @@ from canopen.sdo import SdoAbortedError
 
 from axes import objects as obj
 from axes.objects import BUFFER_ERRORS, BufferStatus, Record
+from axes.sim.device import EPOS2_MODES, Value
 from axes.sim.drive import (
     ABORT_DEVICE_STATE,
     ABORT_VALUE_RANGE,
@@ -43,10 +44,25 @@ from axes.sim.drive import (
 )
 from planner.interpolation import exceeds
 
+EPOS2_VERSION = 0x2003  # :01 software version, :02 hardware version (maxon's EDS)
+
 
 class Epos2Drive(SimulatedDrive):
     PROFILE = "epos2_pvt"
     EDS = "epos2.eds"
+    MODES = EPOS2_MODES
+
+    def _own_values(self) -> dict[tuple[int, int], Value]:
+        """Where maxon's EDS gives no default: cubic PVT (0x60C0 = -1, app note 3.6.5), the buffer
+        size, and the firmware / hardware versions (0x2003:01/:02), which maxon's EDS carries in the
+        high words of its revision number and product code (0x2122, 0x6420 in its comments)."""
+        info = self.node.object_dictionary.device_information
+        return {
+            (obj.INTERPOLATION_SUBMODE, 0): -1,
+            (obj.INTERPOLATION_DATA_CONFIGURATION, 1): obj.EPOS2_BUFFER_SIZE,
+            (EPOS2_VERSION, 1): (info.revision_number or 0) >> 16,
+            (EPOS2_VERSION, 2): (info.product_number or 0) >> 16,
+        }
 
     def _reset_profile(self) -> None:
         self.fifo: deque[Record] = deque()

@@ -14,6 +14,7 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from axes import objects as obj
+from axes.sim.device import IP_LINEAR_MODES
 from axes.sim.drive import ABORT_DEVICE_STATE, ABORT_VALUE_RANGE
 from axes.sim.fixed_period import FixedPeriodDrive
 
@@ -21,6 +22,7 @@ from axes.sim.fixed_period import FixedPeriodDrive
 class IpLinearDrive(FixedPeriodDrive):
     PROFILE = "cia402_ip_linear"
     EDS = "cia402_ip_linear.eds"
+    MODES = IP_LINEAR_MODES
     delay_periods = 1
 
     def _reset_profile(self) -> None:

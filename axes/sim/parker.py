@@ -1,7 +1,10 @@
 """Simulated Parker SLVDN in interpolated position mode, operative mode 202 (seed parker-slvdn-ip-mode-202).
 
 Pr31 (0x201F) = 202 selects the mode; interpolation runs whenever operation is enabled in it (the
-seed names no controlword bit for it; bit 8 halt still brakes). The cycle is 0x1006 (us):
+seed names no controlword bit for it; bit 8 halt still brakes). Operative mode 202 is CiA 402's
+interpolated position mode, so a CiA 402 master selects it through 0x6060 as well: 0x6060 = 7 sets
+Pr31 = 202, 0 (CiA 402's "no mode") changes nothing, any other value is refused (0x06090030), and
+0x6061 shows the mode in force: 7 while Pr31 = 202, else 0. The cycle is 0x1006 (us):
 
 * below 2500 us the position reference is taken directly on the SYNC that validates it (no delay);
 * from 2500 us on, 0x60C0 selects the interpolation, on the program timeline of
@@ -20,6 +23,7 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from axes import objects as obj
+from axes.sim.device import NO_MODE, PARKER_MODES
 from axes.sim.drive import ABORT_VALUE_RANGE, CW_HALT, OPERATION_ENABLED, Segment
 from axes.sim.fixed_period import FixedPeriodDrive
 
@@ -29,6 +33,7 @@ DIRECT = "direct"
 class ParkerDrive(FixedPeriodDrive):
     PROFILE = "parker_slvdn"
     EDS = "parker_slvdn.eds"
+    MODES = PARKER_MODES
 
     def _reset_stream(self) -> None:
         self._points: list[float] | None = None  # submode -2: the last three points of the stream
@@ -66,9 +71,22 @@ class ParkerDrive(FixedPeriodDrive):
         """Mode 202 does not wait for bit 4 (see the module docstring)."""
 
     def _on_object_write(self, index: int, subindex: int, value: int) -> None:
-        if index == obj.PARKER_OPERATIVE_MODE and value != obj.PARKER_IP_MODE and self.ip_active:
-            self._abort_motion()
+        if index == obj.PARKER_OPERATIVE_MODE:
+            if value != obj.PARKER_IP_MODE and self.ip_active:
+                self._abort_motion()
+            self._show_mode()
         super()._on_object_write(index, subindex, value)
+
+    def _on_mode_change(self, old: int, new: int) -> None:
+        """0x6060 = 7 is operative mode 202 (see the module docstring)."""
+        if new == obj.INTERPOLATED_POSITION_MODE:
+            self.store(obj.PARKER_OPERATIVE_MODE, 0, obj.PARKER_IP_MODE)
+        self._show_mode()
+
+    def _show_mode(self) -> None:
+        """0x6061: the CiA 402 mode of the operative mode in force (Pr31)."""
+        mode = obj.INTERPOLATED_POSITION_MODE if self._ip_mode_selected() else NO_MODE
+        self.store(obj.MODES_OF_OPERATION_DISPLAY, 0, mode)
 
     def _on_sync_validated(self) -> None:
         if (

@@ -13,6 +13,7 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from axes import objects as obj
+from axes.sim.device import SYNC_SETPOINT_MODES
 from axes.sim.drive import ABORT_VALUE_RANGE
 from axes.sim.fixed_period import FixedPeriodDrive
 
@@ -22,6 +23,7 @@ MIN_PERIOD_MS, MAX_PERIOD_MS = 1.0, 100.0
 class SyncSetpointDrive(FixedPeriodDrive):
     PROFILE = "sync_setpoint"
     EDS = "sync_setpoint.eds"
+    MODES = SYNC_SETPOINT_MODES
     delay_periods = 2
 
     def _reset_stream(self) -> None:
