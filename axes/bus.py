@@ -161,7 +161,7 @@ class SyncClock:
         self._answered_changed = threading.Condition(self.lock)
         self.last_sent = time.monotonic()  # when the last SYNC went out
         self._running = False
-        self._task: threading.Thread | None = None
+        self._production = 0  # which start() the producing thread serves: a stale one stops by itself
         self._periodic = False
         self._t0_us = time.monotonic_ns() // 1000
 
@@ -235,28 +235,38 @@ class SyncClock:
             with self.lock:
                 self.count += 1  # the periodic task sends its first SYNC at once
             self.bus.network.sync.start(self.period_ms / 1000.0)
-            self._task = threading.Thread(target=self._count_periodic, name="pvtflow-sync-count", daemon=True)
+            target = self._count_periodic
         else:
-            self._task = threading.Thread(target=self._produce, name="pvtflow-sync", daemon=True)
-        self._task.start()
+            target = self._produce
+        name = "pvtflow-sync-count" if self._periodic else "pvtflow-sync"
+        threading.Thread(target=target, args=(self._production,), name=name, daemon=True).start()
 
-    def _produce(self) -> None:
+    def _producing(self, production: int) -> bool:
+        """Still the production this thread was started for (called with the lock held)."""
+        return self._running and self._production == production
+
+    def _produce(self, production: int) -> None:
         period = self.period_ms / 1000.0
         deadline = time.monotonic()
-        while self._running:
-            self._transmit()
+        while True:
+            with self.lock:  # never a SYNC after stop(): it is judged under the lock stop() takes
+                if not self._producing(production):
+                    return
+                self._transmit()
             deadline += period
             delay = deadline - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
 
-    def _count_periodic(self) -> None:
+    def _count_periodic(self, production: int) -> None:
         # the periodic task does not tell us when it sends: count by wall clock for bookkeeping only
         t0 = time.monotonic()
         period = self.period_ms / 1000.0
-        while self._running:
+        while True:
             time.sleep(period)
             with self.lock:
+                if not self._producing(production):
+                    return
                 self.count = max(self.count, 1 + int((time.monotonic() - t0) / period))
 
     def step(self) -> dict[int, int]:
@@ -288,14 +298,15 @@ class SyncClock:
                 time.sleep(delay)
 
     def stop(self) -> None:
+        """No SYNC after this returns. The producing thread is not joined: stop() is called from SYNC
+        listeners, which hold the lock that thread needs to see it must end (joining there blocked
+        the bus's receive thread, and every SDO answer with it, for the join's whole timeout)."""
         with self.lock:
             self._running = False
-        if self._periodic:
-            self.bus.network.sync.stop()
-            self._periodic = False
-        if self._task is not None and self._task is not threading.current_thread():
-            self._task.join(timeout=1.0)
-        self._task = None
+            self._production += 1
+            if self._periodic:
+                self.bus.network.sync.stop()
+                self._periodic = False
 
     @property
     def running(self) -> bool:

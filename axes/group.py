@@ -15,6 +15,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import wait as wait_futures
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import TypeVar
@@ -36,6 +37,7 @@ _TARGET_REACHED = int(Statusword.TARGET_REACHED)
 _FAULT_BITS = int(Statusword.FAULT)  # set in FAULT and FAULT REACTION ACTIVE
 _BUFFER_ERRORS = int(BUFFER_ERRORS)
 START_CHECK_SYNCS = 2  # SYNCs after the start SYNC by which every axis must report ip mode active
+SETTLE_ATTEMPTS = 3  # SDO tries per axis to empty its buffer after a run (the start enables it otherwise)
 NMT_PRE_OPERATIONAL = 0x80
 NMT_START = 0x01
 
@@ -399,25 +401,38 @@ class AxisGroup:
             pass
 
     def _prepare_next(self) -> None:
-        """After a run that finished: make every axis ready for the next start now, in the background
-        (the enable a start would do: end controlword, buffer cleared and open), so that a start
-        needs only its checks. A start waits for this to end; an axis that fails it is enabled at
-        the start as usual."""
+        """After every run, however it ended (finished, stopped, faulted): in the background, every
+        axis's interpolation is ended and its buffer emptied, so that nothing of this run is left in
+        a drive for the next one to start behind (a stopped EPOS2 still holds the rest of its
+        records). An axis still OPERATION ENABLED is also made ready for the next start (the enable
+        a start would do: end controlword, buffer cleared and open), so that the start needs only
+        its checks. A start, a recovery and ``settle`` wait for this to end; an axis that fails it
+        is enabled at the start as usual."""
         self._readying = [self._pool.submit(self._make_ready, i) for i in range(len(self.links))]
 
     def _make_ready(self, i: int) -> None:
         """Only from OPERATION ENABLED: a drive that has left it (a fault, a reset) is not walked back
-        here (that would reset a fault behind the user's back); the start refuses it or enables it."""
+        here (that would reset a fault behind the user's back): its buffer is only cleared, and the
+        start refuses it or the recovery enables it."""
         link, faults = self.links[i], self._bus_faults
         self._ready[i] = None
-        try:
-            if decode_state(link.read_statusword()) is not PowerState.OPERATION_ENABLED:
-                return
-            self.profiles[i].enable(fresh=True)  # reach() has nothing to do: no fault reset is ever sent
-        except DriveError:
-            return
+        for attempt in range(SETTLE_ATTEMPTS):  # a drive still working off the run's traffic answers late
+            try:
+                if decode_state(link.read_statusword()) is not PowerState.OPERATION_ENABLED:
+                    self.profiles[i].clear_buffer()
+                    return
+                self.profiles[i].enable(fresh=True)  # reach() has nothing to do: no fault reset is ever sent
+                break
+            except DriveError:
+                if attempt == SETTLE_ATTEMPTS - 1:
+                    return
         if self._bus_faults == faults:
             self._ready[i] = link.controlwords_sent
+
+    def settle(self, timeout_s: float | None = None) -> bool:
+        """Wait until the end of the last run has been cleaned up in every drive (buffers empty,
+        interpolation ended; see ``_prepare_next``). False: not within ``timeout_s``."""
+        return not wait_futures(list(self._readying), timeout=timeout_s).not_done
 
     def _check_by_sync(
         self, before_records: Callable[[], object] | None
@@ -718,8 +733,7 @@ class AxisGroup:
             result.axes = self._reports()
             self.last_result = result
             self._running = False
-            if result.ok:
-                self._prepare_next()
+            self._prepare_next()
             self._event(
                 "finished" if result.ok else result.result.value,
                 result.message,

@@ -493,6 +493,7 @@ class MotionService:
                 group.stop(req.reason)
         if was_moving and motion is not None:
             motion.done.wait(group.halt_timeout_ms / 1000.0 + 5.0)
+            group.settle(5.0)  # the reply says what the drives say once nothing of the motion is left in them
         return {
             "was_moving": was_moving,
             "motion_id": motion.motion_id if (motion and was_moving) else None,

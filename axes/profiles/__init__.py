@@ -293,6 +293,10 @@ class Profile:
     def feeder(self, program: AxisProgram) -> Feeder:
         raise NotImplementedError
 
+    def clear_buffer(self) -> None:
+        """Empty the drive's setpoint buffer in any power state (after a fault: nothing of the
+        interrupted run may be left for the next one). Bufferless drives have nothing to clear."""
+
     def start_controlword(self) -> int:
         return int(
             Controlword.ENABLE_OPERATION

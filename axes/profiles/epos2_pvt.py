@@ -55,8 +55,12 @@ class Epos2Pvt(Profile):
     def enable(self, fresh: bool = False) -> None:
         """Shutdown, switch on, enable operation; then clear the FIFO and enable access to it."""
         self.enable_operation(fresh)
-        self.link.write(od.INTERPOLATION_DATA_CONFIGURATION, 6, BUFFER_CLEAR, "B")
+        self.clear_buffer()
         self.link.write(od.INTERPOLATION_DATA_CONFIGURATION, 6, BUFFER_ENABLE, "B")
+
+    def clear_buffer(self) -> None:
+        """0x60C4:06 = 0: the FIFO and every record in it cleared, access denied until enabled."""
+        self.link.write(od.INTERPOLATION_DATA_CONFIGURATION, 6, BUFFER_CLEAR, "B")
 
     def frame(self, record: NDArray[np.int64]) -> tuple[int, bytes]:
         return self._cob, Record(int(record[0]), int(record[1]), int(record[2])).to_bytes()

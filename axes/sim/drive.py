@@ -126,9 +126,13 @@ class Segment:
 
     @classmethod
     def braking(cls, start: float, p0: float, v0: float, deceleration: float) -> Segment:
-        duration = abs(v0) / deceleration
-        a = -math.copysign(deceleration, v0)
-        p1 = p0 + v0 * duration + 0.5 * a * duration * duration
+        """A ramp to rest at up to ``deceleration`` that ends on a whole count: a drive's position
+        demand at standstill is a whole number of increments (what 0x6062 shows), so the ramp takes
+        the deceleration that stops exactly on the first count at or past its natural stop."""
+        natural = p0 + v0 * abs(v0) / (2.0 * deceleration)
+        p1 = float(math.ceil(natural) if v0 > 0 else math.floor(natural))
+        duration = 2.0 * abs(p1 - p0) / abs(v0)
+        a = -v0 / duration
         return cls(start, duration, p0, v0, 0.5 * a, 0.0, p1, 0.0)
 
     @property
@@ -369,6 +373,7 @@ class SimulatedDrive:
         self._abort_motion()
         self._stop_segment = None
         self.velocity = self.acceleration = 0.0
+        self.demand = float(self.actual)  # the power stage is off: the demand follows the actual position
         self.state = FAULT
         if self.has(ERROR_CODE):
             self.store(ERROR_CODE, 0, code)
@@ -540,9 +545,10 @@ class SimulatedDrive:
         self._abort_motion()
         if abs(v) > 1e-12:
             self._stop_segment = Segment.braking(self.time_us / 1000.0, self.demand, v, deceleration)
-        else:
+        else:  # at rest: the demand settles on its whole count (see Segment.braking)
             self._stop_segment = None
             self.velocity = self.acceleration = 0.0
+            self.demand = float(round(self.demand))
 
     @property
     def halted(self) -> bool:
@@ -683,7 +689,10 @@ class SimulatedDrive:
             self._begin_stop(self._deceleration(quick=False))
 
     def _enter_operation(self) -> None:
-        """Operation enabled was entered: hold the present position."""
+        """Operation enabled was entered: hold the present position (the demand takes the actual
+        position, a whole count, as a drive's position loop does when it is enabled)."""
+        self.demand = float(self.actual)
+        self.velocity = self.acceleration = 0.0
 
     def _abort_motion(self) -> None:
         """Stop interpolating at once (fault, disable, halt, quick stop): ip mode inactive."""
