@@ -28,6 +28,7 @@ COMMANDS: dict[str, str] = {
     "demo": "service.demo_cmd",
     "serve": "service.serve_cmd",
     "request": "service.request_cmd",
+    "sim": "service.sim_cmd",
 }
 
 
