@@ -45,7 +45,7 @@ def test_executes_on_the_simulated_demo_cell(tmp_path, arm6_program, capsys):
     assert "finished: every axis reached its end record" in out
     assert "start skew 0 SYNC(s)" in out
     for axis in arm6_program.axes:
-        assert f"position {axis.records[-1, 0]} qc (program end {axis.records[-1, 0]})" in out
+        assert f"({axis.records[-1, 0]} qc; program end {axis.records[-1, 0]} qc)" in out
     frames = list(can.LogReader(str(log)))
     assert sum(1 for m in frames if m.arbitration_id == 0x80) >= arm6_program.duration_ms
     assert sum(1 for m in frames if m.arbitration_id == 0x201) == len(arm6_program.axes[0].records)
