@@ -124,7 +124,7 @@ def banner(service: MotionService, server: Server) -> str:
     dictionary = auth_dictionary(server.config)
     if dictionary is not None:
         observer, operator, note = _credentials(dictionary, endpoint)
-        lines.append(f"  clients must authenticate: zenoh user/password, users in {dictionary}; {note}")
+        lines += [f"  clients must authenticate (zenoh user/password, users in {dictionary}):", f"    {note}"]
     lines += [
         "  talk to it:",
         f"    pvtflow request status --cell {name} {observer}",
@@ -164,8 +164,8 @@ def _credentials(dictionary: str, endpoint: str) -> tuple[str, str, str]:
     if Path(dictionary).resolve() == shipped.resolve():
         observer, operator = (_shown(ZENOH_CONFIG_DIR / f"{who}-client.json5") for who in ("observer", "operator"))
         note = (
-            f"{observer} (user observer: plan, validate, status) and {operator} (user operator: also "
-            "execute, stop, recover) are clients of it"
+            f"{observer} is user observer (plan, validate, status), {operator} user operator (also "
+            "execute, stop, recover)"
         )
         return (
             f"--zenoh-config {observer} --connect {endpoint}",
