@@ -214,13 +214,13 @@ def _yaml_error(file: Path, exc: yaml.YAMLError) -> ConfigError:
     if not isinstance(exc, yaml.MarkedYAMLError) or exc.problem_mark is None:
         return ConfigError(file, "", f"not valid YAML: {' '.join(str(exc).split())}")
     mark = exc.problem_mark
-    problem = f"not valid YAML: {exc.problem}"
+    problem = f"line {mark.line + 1}, column {mark.column + 1}: not valid YAML: {exc.problem}"
     if exc.context:
         context = exc.context
         if exc.context_mark is not None and exc.context_mark.line != mark.line:
             context += f" from line {exc.context_mark.line + 1}"
         problem += f" ({context})"
-    return ConfigError(file, f"line {mark.line + 1}, column {mark.column + 1}", problem)
+    return ConfigError(file, "", problem)  # no field: the file is not YAML yet
 
 
 def parse_cell_config(data: Any, file: Path) -> CellConfig:
