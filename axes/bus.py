@@ -4,8 +4,10 @@ SYNC has two modes (``CellBus(lockstep=...)``):
 
 - real time: SYNC every ``sync_period_ms`` of wall-clock time. Without a time stamp or a traffic log
   it is canopen's ``network.sync.start(period)`` (python-can periodic send; the kernel's broadcast
-  manager on socketcan, lowest jitter). With them a master thread sends SYNC on absolute deadlines
-  followed by the 0x1013 time stamp, so both appear in the log.
+  manager on socketcan, lowest jitter). With them, or with frames that must follow every SYNC (a
+  fixed-period drive's setpoints: ``add_sender``), a master thread sends SYNC on absolute deadlines
+  followed by the 0x1013 time stamp and those frames, so a setpoint is on the bus a whole period
+  before the SYNC that validates it whatever the process does meanwhile, and all appear in the log.
 - lockstep (simulation): the next SYNC goes out once every drive has answered the previous one with
   its synchronous TPDO and the SYNC listeners (the feeders) have run. Drive time advances one period
   per SYNC, so a simulated cell runs as fast as the bus and the CPU allow, and nothing depends on a
@@ -157,6 +159,7 @@ class SyncClock:
         self.last_progress = time.monotonic()
         self._answers: dict[int, int] = {}  # cob id -> SYNCs answered
         self._listeners: list[SyncCallback] = []
+        self._senders: list[SyncCallback] = []  # run right after each SYNC goes out, by whoever sends it
         self.lock = threading.RLock()  # held while SYNC listeners run and while a SYNC goes out
         self._answered_changed = threading.Condition(self.lock)
         self.last_sent = time.monotonic()  # when the last SYNC went out
@@ -184,6 +187,19 @@ class SyncClock:
     def remove_listener(self, callback: SyncCallback) -> None:
         if callback in self._listeners:
             self._listeners.remove(callback)
+
+    def add_sender(self, callback: SyncCallback) -> None:
+        """``callback(n)`` right after SYNC number ``n`` is on the bus, in the thread that sent it and
+        before the next SYNC can go out: what must be on the bus before SYNC n + 1 (a fixed-period
+        drive's next setpoint) is sent there, never paced by the drives' answers, so the wall clock
+        cannot make it late. Keep it to sending precomputed frames."""
+        with self.lock:
+            self._senders.append(callback)
+
+    def remove_sender(self, callback: SyncCallback) -> None:
+        with self.lock:
+            if callback in self._senders:
+                self._senders.remove(callback)
 
     def behind(self) -> list[int]:
         """COB-IDs of the answers still missing for the last SYNC sent."""
@@ -217,6 +233,8 @@ class SyncClock:
             if self.time_stamp_cob_id is not None:
                 stamp = (time.monotonic_ns() // 1000 - self._t0_us) & 0xFFFFFFFF
                 self.bus.network.send_message(self.time_stamp_cob_id, struct.pack("<I", stamp))
+            for send in self._senders:
+                send(self.count)
 
     def start(self) -> None:
         """Send the first SYNC now and keep producing (lockstep: on answers; real time: periodic)."""
@@ -230,7 +248,12 @@ class SyncClock:
                 if not self._answers:  # nobody to wait for: a single SYNC
                     self._running = False
                 return
-        if self.time_stamp_cob_id is None and not self.bus.recorder.taps and self.bus.can_log is None:
+        if (
+            self.time_stamp_cob_id is None
+            and not self._senders
+            and not self.bus.recorder.taps
+            and self.bus.can_log is None
+        ):
             self._periodic = True
             with self.lock:
                 self.count += 1  # the periodic task sends its first SYNC at once

@@ -15,7 +15,10 @@ Two kinds, both driven by events only (the SYNC answers and the status TPDO), ne
   least 0x20C4:03, stop; underflow warning: it is below 0x20C4:02, send). After the last record
   the time-0 end record goes out.
 - ``SetpointFeeder`` (fixed-period profiles): one setpoint per SYNC, sent ahead by the profile's
-  delay so that record k is reached at (k + 1) periods on the program's timeline.
+  delay so that record k is reached at (k + 1) periods on the program's timeline. Its frames are
+  packed before the start and go out right after each SYNC, from the thread that sends the SYNC
+  (``after_sync``): a drive's answers never pace them, so on the wall clock a setpoint is never
+  late for its SYNC (a missed one makes the drive hold, and the next asks for twice the step).
 """
 
 from __future__ import annotations
@@ -62,8 +65,9 @@ class FeedStats:
 
 
 class Feeder:
-    """Common interface: ``preload`` before the start, ``on_sync(elapsed)`` after each answered SYNC
-    (``elapsed`` = SYNCs since the start SYNC, 0 at the start SYNC), ``on_status`` on a status TPDO."""
+    """Common interface: ``preload`` before the start, ``after_sync(elapsed)`` right after each SYNC
+    is sent and ``on_sync(elapsed)`` once the drives have answered it (``elapsed`` = SYNCs since the
+    start SYNC, 0 at the start SYNC), ``on_status`` on a status TPDO."""
 
     def __init__(self, records: NDArray[np.int64], frame_of: FrameOf, send: Send, period_ms: float) -> None:
         self.records = np.asarray(records, dtype=np.int64)
@@ -87,8 +91,11 @@ class Feeder:
     def preload(self) -> int:
         raise NotImplementedError
 
+    def after_sync(self, elapsed: int) -> None:
+        """Right after the SYNC went out, in the sending thread (fixed-period setpoints)."""
+
     def on_sync(self, elapsed: int) -> None:
-        raise NotImplementedError
+        """After the drives answered the SYNC (buffered drives top up)."""
 
     def on_status(self, buffer_status: int) -> None:
         """Buffered drives react to the buffer status; fixed-period drives have none."""
@@ -206,6 +213,13 @@ class SetpointFeeder(Feeder):
             raise ValueError("a fixed-period drive is fed 0, 1 or 2 periods ahead")
         self.lead = lead_periods
         self.next = max(0, lead_periods - 1)
+        self.frames = [frame_of(r) for r in self.records]  # packed before the start: sending is all that is left
+
+    def _send_next(self) -> None:
+        cob, data = self.frames[self.next]
+        self.send(cob, data)
+        self.next += 1
+        self.stats.sent = self.next
 
     def preload(self) -> int:
         """The setpoint the start SYNC validates (record lead - 1) goes out with the start word."""
@@ -214,11 +228,11 @@ class SetpointFeeder(Feeder):
             return 1
         return 0
 
-    def on_sync(self, elapsed: int) -> None:
-        # after SYNC start+elapsed, the next SYNC validates record elapsed + lead
+    def after_sync(self, elapsed: int) -> None:
+        # SYNC start+elapsed is out: the next SYNC validates record elapsed + lead
         k = elapsed + self.lead
         if self.enabled and self.next <= k < len(self.records):
-            self.next = k  # a skipped SYNC skips its setpoint: the timeline is the SYNC count
+            self.next = k  # a SYNC without a setpoint (none can be skipped here) would skip its record
             self._send_next()
 
     def finished(self, elapsed: int, ip_active: bool) -> bool:

@@ -261,6 +261,8 @@ class AxisGroup:
         for link in self.links:
             link.status_listeners.append(self._on_status)
         bus.on_fault(self._on_bus_fault)
+        if any(p.fixed_period for p in self.profiles):
+            bus.sync.add_sender(self._after_sync)
 
     # --- configuration -----------------------------------------------------------------------
     def configure(self) -> None:
@@ -539,6 +541,16 @@ class AxisGroup:
         return None if self._start_sync is None else self.bus.sync.answered - self._start_sync
 
     # --- events ----------------------------------------------------------------------------------
+    def _after_sync(self, n: int) -> None:
+        """SYNC ``n`` is on the bus (the sending thread, SYNC lock held): the frames that must precede
+        SYNC n + 1 go out now, unpaced by the drives' answers. No group lock: a halt disables the
+        feeders under the SYNC lock, so none sends after it."""
+        start = self._start_sync
+        if not self._running or start is None or n < start or self._ending is not None:
+            return
+        for feeder in self._feeders:
+            feeder.after_sync(n - start)
+
     def _on_sync(self, n: int) -> None:
         """After every answered SYNC (notifier thread; before the next SYNC in lockstep)."""
         with self._lock:
@@ -831,6 +843,7 @@ class AxisGroup:
             link.position = link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
 
     def close(self) -> None:
+        self.bus.sync.remove_sender(self._after_sync)
         self._pool.shutdown(wait=True)
         for link in self.links:
             link.unsubscribe()

@@ -255,6 +255,7 @@ class Profile:
     rpdos: ClassVar[tuple[PdoLayout, ...]]
     tpdos: ClassVar[tuple[PdoLayout, ...]]
     sync_tpdo: ClassVar[int]  # the synchronous TPDO number that answers every SYNC
+    fixed_period: ClassVar[bool] = False  # one setpoint per SYNC, sent right after the SYNC before it
 
     def __init__(self, link: AxisLink) -> None:
         self.link = link

@@ -34,6 +34,7 @@ class FixedPeriodProfile(Profile):
     rpdos = SETPOINT_RPDOS
     tpdos = SETPOINT_TPDOS
     sync_tpdo = 1
+    fixed_period = True
 
     @property
     def period_ms(self) -> int:

@@ -127,7 +127,10 @@ def test_setpoint_feeder_validates_record_k_at_start_plus_k_plus_1_minus_lead(le
     feeder.preload()
     for elapsed in range(25):
         sync["next"] = elapsed + 1
-        feeder.on_sync(elapsed)
+        before = len(sent)
+        feeder.on_sync(elapsed)  # the drives' answers pace nothing: the setpoint goes out after the SYNC
+        assert len(sent) == before
+        feeder.after_sync(elapsed)
         if feeder.finished(elapsed, True):
             break
     first = max(0, lead - 1)
