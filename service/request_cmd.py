@@ -52,7 +52,8 @@ class Reply:
 class Client:
     """A zenoh session that talks to pvtflow services (default: a client of tcp/127.0.0.1:7447).
 
-    zenoh.open fails (ZError) when a client cannot reach any of its endpoints or is refused.
+    zenoh.open fails (ZError) when a client cannot reach any of its endpoints or is refused; a ``connect``
+    that is no endpoint at all is a ValueError (:func:`check_endpoint`).
     """
 
     def __init__(self, config: zenoh.Config | None = None, *, connect: str | None = None) -> None:
