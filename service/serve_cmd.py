@@ -142,7 +142,7 @@ def example_target(lower: Sequence[float], upper: Sequence[float]) -> list[float
     out = []
     for i, (lo, hi) in enumerate(zip(lower, upper, strict=True)):
         x = 0.5 * (lo + hi) + (0.1 if i % 2 == 0 else -0.1) * (hi - lo)
-        short = round(x, 2)
+        short = round(float(x), 2)
         out.append(short if lo < short < hi else float(x))
     return out
 
