@@ -26,6 +26,12 @@ VERSION = 1
 
 PROFILES = ("epos2_pvt", "cia402_ip_linear", "sync_setpoint", "parker_slvdn")
 FIXED_PERIOD_PROFILES = ("cia402_ip_linear", "sync_setpoint", "parker_slvdn")
+# The shortest SYNC period pvtflow holds for each fixed-period profile: its setpoints go out from the
+# thread that sends SYNC, one per period, and a CPython master holds a 1 ms period on the wall clock
+# (bench/realtime.py) but not less. The seeds ask no less: the linear IP drive's 0x60C2 counts whole
+# ms (1 ms recommended), the bufferless drive takes 1.0-100.0 ms, the Parker's direct loop runs at
+# any cycle below 2.5 ms.
+SHORTEST_PERIOD_MS = {"cia402_ip_linear": 1.0, "sync_setpoint": 1.0, "parker_slvdn": 1.0}
 
 TIME_MAX_MS = 255
 

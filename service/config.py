@@ -17,7 +17,7 @@ import yaml
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 from planner.limits import JointLimits, joint_limits_from_drives
 from planner.model import ModelError, RobotModel
-from planner.program import FIXED_PERIOD_PROFILES, PROFILES
+from planner.program import FIXED_PERIOD_PROFILES, PROFILES, SHORTEST_PERIOD_MS
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 DEFAULT_CELL = CONFIG_DIR / "cells" / "arm6.yaml"
@@ -381,20 +381,25 @@ def _parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusCo
     submode = f.get("interpolation_submode", f.integer(-2, 0), None)
     if profile in FIXED_PERIOD_PROFILES:
         sync = bus.sync_period_ms
+        shortest = SHORTEST_PERIOD_MS[profile]
+        if sync < shortest:
+            raise f.error(
+                "profile",
+                f"{profile} takes one setpoint per SYNC, sent right after the SYNC before it: the shortest "
+                f"SYNC period pvtflow holds for it is {shortest:g} ms, bus.sync_period_ms is {sync:g}",
+            )
         if period is None:
             if sync != round(sync):
                 raise f.error("period_ms", f"missing, and the SYNC period {sync} ms is not a whole number of ms")
             period = round(sync)
-        if profile == "sync_setpoint" and (period != sync or not 1 <= period <= 100):
+        if profile == "sync_setpoint" and not 1 <= period <= 100:
+            raise f.error("period_ms", f"a bufferless drive takes 1 to 100 ms per setpoint, got {period}")
+        if period != sync:
             raise f.error(
                 "period_ms",
-                f"a bufferless drive takes one setpoint per SYNC: must equal "
-                f"bus.sync_period_ms ({sync}) and lie in [1, 100] ms",
+                f"{profile} gets one setpoint per SYNC (the Parker's cycle 0x1006 is the SYNC period): "
+                f"must equal bus.sync_period_ms ({sync:g}), got {period}",
             )
-        if profile == "parker_slvdn" and period != sync:
-            raise f.error("period_ms", f"the Parker cycle (0x1006) is the SYNC period: must equal {sync}")
-        if abs(period / sync - round(period / sync)) > 1e-9:
-            raise f.error("period_ms", f"{period} ms is not a whole number of SYNC periods ({sync} ms)")
     elif period is not None:
         raise f.error("period_ms", f"only fixed-period profiles ({', '.join(FIXED_PERIOD_PROFILES)}) have one")
     if profile == "parker_slvdn":

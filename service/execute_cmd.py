@@ -1,11 +1,12 @@
-"""``pvtflow execute PROGRAM.json [--config FILE] [--can-log FILE]``: run a PVT program on a cell.
+"""``pvtflow execute PROGRAM.json [--config FILE] [--can-log FILE] [--real-time]``: run a PVT program on a cell.
 
 The program is read, validated (planner.validate, the one validator) and matched against the cell
 (node ids, profiles, joints, the drive limits and scaling it was planned for) before anything is
 sent. A simulated cell (the default arm6 demo: ``simulated: true``) gets its simulated drives on
-the virtual bus first and runs in SYNC lockstep, faster than real time; a real cell runs SYNC in
-real time. Exit codes: 0 the program ran to its end, 1 refused (violations, wrong cell) or ended by
-a fault / stop, 2 unreadable input (program, configuration, log file or bus).
+the virtual bus first and runs in SYNC lockstep, faster than real time (``--real-time``: on the
+wall clock, as a real cell always does). Exit codes: 0 the program ran to its end, 1 refused
+(violations, wrong cell) or ended by a fault / stop, 2 unreadable input (program, configuration,
+log file or bus).
 """
 
 from __future__ import annotations
@@ -38,6 +39,12 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
     p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
     p.add_argument("--quiet", action="store_true", help="print the outcome only")
+    p.add_argument(
+        "--real-time",
+        action="store_true",
+        help="a simulated cell runs SYNC on the wall clock, as a real cell does (default there: lockstep, "
+        "faster than real time)",
+    )
     p.set_defaults(run=run)
 
 
@@ -149,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
 
     sim = None
     try:
-        bus = CellBus(cell.bus, lockstep=cell.simulated, can_log=args.can_log)
+        bus = CellBus(cell.bus, lockstep=cell.simulated and not args.real_time, can_log=args.can_log)
     except (ValueError, OSError) as exc:
         return _fail(f"cannot write the CAN log {args.can_log}: {exc}", EXIT_UNREADABLE)
     try:

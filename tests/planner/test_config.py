@@ -232,13 +232,33 @@ def test_mixed_profiles_cell(tmp_path: Path) -> None:
     data = arm_data()
     data["bus"]["sync_period_ms"] = 4
     data["axes"][1]["profile"] = "cia402_ip_linear"
-    data["axes"][1]["period_ms"] = 8
+    data["axes"][1]["period_ms"] = 4
     data["axes"][2]["profile"] = "sync_setpoint"
     data["axes"][3]["profile"] = "parker_slvdn"
     data["axes"][3]["interpolation_submode"] = -2
     cell = load_cell_config(write(tmp_path, data))
-    assert [a.period_ms for a in cell.axes[:4]] == [None, 8, 4, 4]
+    assert [a.period_ms for a in cell.axes[:4]] == [None, 4, 4, 4]
     assert cell.axes[3].interpolation_submode == -2
+
+
+def test_a_fixed_period_axis_gets_one_setpoint_per_sync(tmp_path: Path) -> None:
+    data = arm_data()
+    data["bus"]["sync_period_ms"] = 4
+    data["axes"][1]["profile"] = "cia402_ip_linear"
+    data["axes"][1]["period_ms"] = 8
+    expect_error(tmp_path, data, "axes[1].period_ms", "must equal bus.sync_period_ms (4), got 8")
+
+
+@pytest.mark.parametrize("profile", ["cia402_ip_linear", "sync_setpoint", "parker_slvdn"])
+def test_a_sync_period_the_service_cannot_hold_is_refused(tmp_path: Path, profile: str) -> None:
+    """Below 1 ms a fixed-period drive's setpoints cannot be held on the wall clock: the cell file
+    is refused, naming the profile and the shortest period (the EPOS2, buffered, is not concerned)."""
+    data = arm_data()
+    data["bus"]["sync_period_ms"] = 0.5
+    load_cell_config(write(tmp_path, data))  # every axis an EPOS2: fine
+    data["axes"][2]["profile"] = profile
+    expect_error(tmp_path, data, "axes[2].profile", f"{profile} takes one setpoint per SYNC")
+    expect_error(tmp_path, data, "axes[2].profile", "the shortest SYNC period pvtflow holds for it is 1 ms")
 
 
 def test_config_is_not_modified_by_loading(tmp_path: Path) -> None:

@@ -20,7 +20,7 @@ from service.api import parse_execute, parse_plan, parse_recover, parse_stop
 from service.config import CellConfig, load_cell_config
 from service.motion import MotionService
 
-CELLS = ("arm6", "gantry3", "gantry3-ip-linear", "gantry3-sync-setpoint", "gantry3-parker", "gantry3-mixed")
+CELLS = sorted(p.stem for p in (CONFIGS / "cells").glob("*.yaml"))  # every cell the project ships
 STOP_AFTER_MS = 300.0  # program time at which the motion is interrupted (every tour lasts longer)
 
 
@@ -34,8 +34,7 @@ def tour(cell: CellConfig, fractions: list[float]) -> list[list[float]]:
     return [[lo + f * (hi - lo) for lo, hi in zip(lim.lower, lim.upper, strict=True)] for f in fractions]
 
 
-WALL_CLOCK_CELLS = ("arm6", "gantry3-ip-linear", "gantry3-sync-setpoint", "gantry3-parker", "gantry3-mixed")
-CASES = [(c, True) for c in CELLS] + [(c, False) for c in WALL_CLOCK_CELLS]
+CASES = [(c, lockstep) for c in CELLS for lockstep in (True, False)]
 
 
 @pytest.fixture(params=CASES, ids=[f"{c}-{'lockstep' if lock else 'wall-clock'}" for c, lock in CASES])
