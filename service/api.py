@@ -606,7 +606,11 @@ def _schema_error(name: str, data: Any, errors: list[ValidationError]) -> ApiErr
     if err.validator == "additionalProperties":
         allowed = sorted(request_schema(name)["properties"])
         unknown = sorted(set(err.instance) - set(allowed)) if isinstance(err.instance, dict) else []
-        message = f"unknown field {', '.join(map(repr, unknown))} (allowed: {', '.join(allowed)})"
+        fields = ", ".join(map(repr, unknown))
+        if allowed:
+            message = f"unknown field {fields} (allowed: {', '.join(allowed)})"
+        else:
+            message = f"a {name} request takes no fields, got {fields}"
     elif err.validator == "oneOf" and not err.absolute_path:
         choices = [next(iter(s["required"])) for s in err.validator_value]
         message = f"a {name} request needs exactly one of {' or '.join(choices)}"

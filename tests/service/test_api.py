@@ -17,6 +17,7 @@ from service.api import (
     key,
     parse_payload,
     parse_plan,
+    parse_recover,
     reply_schema,
     request_schema,
 )
@@ -113,3 +114,8 @@ def test_docs_api_md_has_the_current_schemas_and_every_error_code():
     assert doc[start:end] == schema_document(), "docs/API.md is stale: regenerate with python -m service.api"
     for code in ErrorCode:
         assert f"| `{code.value}` |" in doc, code
+
+
+def test_a_request_that_takes_no_fields_says_so() -> None:
+    with pytest.raises(ApiError, match="a recover request takes no fields, got 'x'"):
+        parse_recover({"x": 1})
