@@ -105,7 +105,7 @@ class PiecewiseCubic:
             shape, flat = _flat(self.c2, self.c3, self.duration)
             return _peak_accelerations(*flat).reshape(shape)
         v_prev = np.concatenate(([0.0], self.c1[:-1]))
-        return np.abs(self.c1 - v_prev) / self.duration
+        return _linear_step_acceleration(v_prev, self.c1, self.duration)
 
     def position_range(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Per segment, exact (min, max) of the position (``cubic_position_range``)."""
@@ -131,6 +131,31 @@ def _hermite(p0: float, v0: float, p1: float, v1: float, T: float) -> tuple[floa
 
 
 hermite = njit(cache=True)(_hermite)  # THE drive cubic: (p0, v0) at tau = 0, (p1, v1) at tau = T
+
+
+def _linear_segment(p0: float, p1: float, T: float) -> tuple[float, float]:
+    return p0, (p1 - p0) / T
+
+
+linear_segment = njit(cache=True)(_linear_segment)  # a linear interpolator's segment: (c0, c1), c2 = c3 = 0
+
+
+def _linear_step_acceleration(v_prev: float, v: float, T: float) -> float:
+    return abs(v - v_prev) / T
+
+
+# A linear interpolator has no acceleration inside a segment: what the position loop sees is the
+# velocity step at the segment start, spread over the segment.
+linear_step_acceleration = njit(cache=True)(_linear_step_acceleration)
+
+
+def _central_velocity(p_prev: float, p_next: float, T: float) -> float:
+    return (p_next - p_prev) / (2.0 * T)
+
+
+# Parker 0x60C0 = -2 has no velocity record: its velocity at a point is the central difference of
+# the neighbouring points.
+central_velocity = njit(cache=True)(_central_velocity)
 
 
 @njit(cache=True)
@@ -235,8 +260,7 @@ def _segments_from_points(
         assert velocities is not None
         c0, c1, c2, c3 = hermite_coefficients(p0, velocities[:-1], p1, velocities[1:], durations)
     else:
-        c0 = p0.astype(float)
-        c1 = (p1 - p0) / durations
+        c0, c1 = _linear_segment(p0.astype(float), p1, durations)
         c2 = np.zeros_like(c0)
         c3 = np.zeros_like(c0)
     return PiecewiseCubic(starts, durations.astype(float), c0, c1, c2, c3, interpolation)
@@ -329,7 +353,7 @@ def cubic_p(records: ArrayLike, period_ms: float) -> PiecewiseCubic:
     padded = np.concatenate((positions, [positions[-1]]))
     velocities = np.empty_like(positions)
     velocities[0] = 0.0
-    velocities[1:] = (padded[2:] - padded[:-2]) / (2.0 * period_ms)
+    velocities[1:] = _central_velocity(padded[:-2], padded[2:], period_ms)
     velocities[-1] = 0.0
     durations = np.full(len(r), float(period_ms))
     return _segments_from_points(positions, velocities, durations, period_ms, Interpolation.CUBIC)

@@ -60,6 +60,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from axes.objects import PARKER_CUBIC_THRESHOLD_US
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 from planner import knot_kernels as kernels
 from planner.interpolation import LIMIT_RTOL, PiecewiseCubic, exceeds, hermite_coefficients
@@ -859,73 +860,99 @@ def _needed_scale(rv: float, ra: float) -> float:
 
 
 # --- fixed-period profiles -------------------------------------------------------------------------------
-def _fixed_period_axis(axis: DriveAxis, i: int, smp: _Samples, opts: KnotOptions) -> tuple[AxisKnots, float]:
+_FP_REACH = 3  # counts (and records) a cubic's setpoint may move off the plan around a segment over a limit
+
+
+def _reconstruction_kind(axis: DriveAxis) -> int:
+    """Which reconstruction the axis's drive makes of its setpoints (``knot_kernels.LINEAR``,
+    ``CUBIC_PV``, ``CUBIC_P``), as ``AxisProgram.reconstruction`` picks it: Parker interpolates its
+    cubic submodes only from a 2.5 ms cycle on; below, and for every other fixed-period drive, the
+    setpoints are joined linearly."""
+    parker_interpolates = (
+        axis.profile == "parker_slvdn" and int(axis.period_ms or 0) * 1000.0 >= PARKER_CUBIC_THRESHOLD_US
+    )
+    if parker_interpolates and axis.interpolation_submode == -1:
+        return kernels.CUBIC_PV
+    if parker_interpolates and axis.interpolation_submode == -2:
+        return kernels.CUBIC_P
+    return kernels.LINEAR
+
+
+def _record_times(axis: DriveAxis, smp: _Samples) -> NDArray[np.int64]:
+    """The plan's ms of each record of a fixed-period axis: one per period, the last at the goal."""
     period = int(axis.period_ms or 1)
-    n_rec = math.ceil(smp.n_ms / period)
-    t_ms = np.minimum(np.arange(n_rec + 1) * period, smp.n_ms)
+    return np.minimum(np.arange(math.ceil(smp.n_ms / period) + 1) * period, smp.n_ms)
+
+
+def _lattice(axis: DriveAxis, counts: float, what: str, obj: str) -> float:
+    """A limit of ``counts`` (per period, or per period squared) over the largest whole number of
+    counts within it; KnotError where there is none (no motion at all stays inside)."""
+    whole = math.floor(counts * (1.0 + LIMIT_RTOL))
+    if not whole:
+        raise KnotError(
+            f"{axis.name}: the drive's reconstruction still exceeds its limits whatever the slow-down: at a "
+            f"{axis.period_ms} ms period a setpoint one count off moves its {what} by more than {obj} allows "
+            f"({counts:.3g} counts)"
+        )
+    return counts / whole
+
+
+def _drive_slowdown(axis: DriveAxis, i: int, smp: _Samples) -> tuple[float, float]:
+    """What a fixed-period axis's drive alone calls for on this plan, before any integer is chosen:
+    (the least slow-down, the slow-down of the plan's exact samples).
+
+    Whole counts put a linear reconstruction's velocities on multiples of 1/T qc/ms and its
+    accelerations (and cubic_p's) on multiples of 1/T^2 qc/ms^2: the largest of them within
+    0x607F / 0x60C5 can lie well below (at 1 ms on a 4096-count encoder, 2 qc/ms^2 is the most
+    below a 0x60C5 of 40,000 rpm/s = 2.73 qc/ms^2). A plan that keeps its acceleration for more
+    than a period or two cannot be followed faster than that: the least slow-down is the plan's own
+    (its samples joined linearly) on that lattice. On top, a cubic through the plan's exact samples
+    overshoots where the plan's acceleration jumps between two records (up to 1.5 times with the
+    plan's velocities, 2 times with central ones): the second figure is the drive's reconstruction
+    of the exact samples on the lattice, which the integer search usually beats.
+    """
+    kind = _reconstruction_kind(axis)
+    period = float(axis.period_ms or 1)
+    f, amax, vmax, *_ = (float(x[0]) for x in _axis_constants((axis,)))
+    lattice_v = lattice_a = 1.0
+    if kind != kernels.CUBIC_PV:
+        lattice_a = _lattice(axis, amax * period * period, "acceleration", "0x60C5")
+    if kind == kernels.LINEAR:
+        lattice_v = _lattice(axis, vmax * period, "velocity", "0x607F")
+    t_ms = _record_times(axis, smp)
     p = smp.position[i, t_ms]
-    P = _round_positions(p, axis)
+    v = smp.velocity[i, t_ms] / f
+    args = (smp.position[i], int(period), f, *(float(x[0]) for x in _axis_constants((axis,))[6:8]), -math.inf, math.inf)
+    out = []
+    for k in (kernels.LINEAR, kind):
+        rv, ra = kernels.fixed_period_ratios(k, p, v, *args)
+        out.append(max(float(rv.max()) * lattice_v, math.sqrt(float(ra.max()) * lattice_a), 1.0))
+    return out[0], max(out)
+
+
+def _fixed_period_axis(axis: DriveAxis, i: int, smp: _Samples, opts: KnotOptions) -> tuple[AxisKnots, float]:
+    """One record per period: the plan's samples rounded, then re-chosen among the integers around
+    them where the drive's reconstruction of the rounding exceeds a limit
+    (``knot_kernels.track_fixed_period``: exact, over the whole motion)."""
+    period = int(axis.period_ms or 1)
+    t_ms = _record_times(axis, smp)
+    P = _round_positions(smp.position[i, t_ms], axis)
     if axis.profile == "parker_slvdn" and axis.interpolation_submode == -1:
         V = _round_velocities(smp.velocity[i, t_ms], axis)
     else:
         V = np.zeros(len(P), dtype=np.int64)
     V[0] = V[-1] = 0
-    if axis.profile != "parker_slvdn" or axis.interpolation_submode == 0:
-        P = _track_linear(P, p, axis, period)
+    f, _, _, v_units, pos_lo, pos_hi, rv_per, ra_per = (float(x[0]) for x in _axis_constants((axis,)))
+    kind = _reconstruction_kind(axis)
+    reach = _FP_REACH if kind == kernels.CUBIC_P else 1
+    P, V, _ = kernels.track_fixed_period(
+        kind, P, V, smp.position[i], period, f, rv_per, ra_per, pos_lo, pos_hi, v_units, reach
+    )
     records = np.column_stack((np.append(P, P[-1]), np.append(V, 0), np.full(len(P) + 1, period))).astype(np.int64)
     chk, _ = _check(axis, records, smp.position[i])
     ra = float(chk.acceleration_ratio.max())
     rv = float(chk.velocity_ratio.max())
     return AxisKnots(axis.name, records, chk.deviation, rv, ra), _needed_scale(rv, ra)
-
-
-_OFFSETS = np.array([-1, 0, 1])  # counts a setpoint may move off its nearest integer
-
-
-def _track_linear(P: NDArray[np.int64], p: NDArray[np.float64], axis: DriveAxis, period: int) -> NDArray[np.int64]:
-    """Integer setpoints whose steps respect 0x607F/0x60C5 for a linear interpolator.
-
-    Rounding each setpoint alone adds up to 2 counts to a second difference (a velocity step),
-    which at a short period can be more than 0x60C5 allows. A Viterbi pass over the choices
-    round(p) - 1, round(p), round(p) + 1 per setpoint (state: the last two choices) finds the
-    sequence closest to the plan whose steps and step changes all stay inside the limits, from
-    rest to rest. Where there is none, the plain rounding is kept (and the check slows down).
-    """
-    s = axis.scaling
-    a_max = float(s.rpm_s_to_qc_per_ms2(axis.limits.max_acceleration_rpm_s)) * period * period * (1 + LIMIT_RTOL)
-    v_max = float(s.rpm_to_qc_per_ms(axis.limits.max_profile_velocity_rpm)) * period * (1 + LIMIT_RTOL)
-    steps = np.diff(np.concatenate(([P[0]], P, [P[-1]])))  # from rest, to rest
-    if np.all(np.abs(np.diff(steps)) <= a_max) and np.all(np.abs(steps) <= v_max):
-        return P
-    n = len(P)
-    err = (P[:, None] + _OFFSETS[None, :] - p[:, None]) ** 2  # (n, 3)
-    inf = np.inf
-    # cost[i, j]: best cost with offset i at k-1 and j at k; start: k = 0 fixed at offset 0, at rest
-    cost = np.full((3, 3), inf)
-    cost[1, 1] = 0.0
-    back = np.zeros((n, 3, 3), dtype=np.int8)
-    o = _OFFSETS
-    for k in range(1, n):
-        x_prev2 = (P[k - 2] if k >= 2 else P[0]) + o[:, None, None]  # offsets i (k-2)
-        x_prev = P[k - 1] + o[None, :, None]  # j (k-1)
-        x = P[k] + o[None, None, :]  # l (k)
-        step = x - x_prev
-        ok = (np.abs(step) <= v_max) & (np.abs(step - (x_prev - x_prev2)) <= a_max)
-        total = np.where(ok, cost[:, :, None], inf)  # (i, j, l)
-        best_i = np.argmin(total, axis=0)  # (j, l)
-        cost = np.take_along_axis(total, best_i[None], axis=0)[0] + err[k][None, :]
-        back[k] = best_i
-        if k == n - 1:  # the goal: offset 0, and the stop after it (a repeated setpoint) within 0x60C5
-            stop = np.abs(P[k] + o[None, :] - (P[k - 1] + o[:, None])) <= a_max
-            cost = np.where(stop & (o[None, :] == 0), cost, inf)
-    if not np.isfinite(cost).any():
-        return P
-    last2, last = np.unravel_index(int(np.argmin(cost)), cost.shape)
-    choice = np.zeros(n, dtype=np.int64)
-    choice[n - 1], choice[n - 2] = last, last2
-    for k in range(n - 1, 1, -1):
-        choice[k - 2] = back[k, choice[k - 1], choice[k]]
-    return P + o[choice]
 
 
 # --- the front door -----------------------------------------------------------------------------------------
@@ -944,6 +971,15 @@ def place_knots(traj: TimedTrajectory, axes: Sequence[DriveAxis], options: KnotO
     scale = math.ceil(duration_ms - 1e-6) / duration_ms
     last: tuple[AxisKnots, ...] = ()
     last_n = 0
+    least = drives = 1.0  # the slow-downs the fixed-period drives alone call for (``_drive_slowdown``)
+    if any(a.profile != "epos2_pvt" for a in axes):
+        smp = _sample(traj, axes, scale)
+        for i, axis in enumerate(axes):
+            if axis.profile != "epos2_pvt":
+                k_least, k_drive = _drive_slowdown(axis, i, smp)
+                least, drives = max(least, scale * k_least), max(drives, scale * k_drive)
+        if least > scale:  # no integers make less: no round below it
+            scale = math.ceil(duration_ms * least - 1e-6) / duration_ms
     for rounds in range(1, opts.max_rounds + 1):
         smp = _sample(traj, axes, scale)
         placed: dict[int, tuple[AxisKnots, float]] = {}
@@ -971,12 +1007,17 @@ def place_knots(traj: TimedTrajectory, axes: Sequence[DriveAxis], options: KnotO
         # The excess of a quantized program overstates what a slower one needs (its integers
         # can be placed better with a little room): grow by at most 1, 2, 4 ... % per round.
         scale *= min(max(need, 1.0 + 1e-3 * rounds), 1.0 + 0.01 * 2 ** (rounds - 1))
+        if least > scale:  # no integers make less: no round below it
+            scale = least
         scale = math.ceil(duration_ms * scale - 1e-6) / duration_ms  # and end on a whole ms again
-        if scale > opts.max_time_scale and duration_ms * (scale - 1.0) > opts.max_extra_ms:
+        # the limit on the slow-down is on what the integers cost, on top of what the drives' own
+        # interpolation of this plan calls for (a plan that asks more than they can take)
+        if scale > opts.max_time_scale * drives and duration_ms * (scale - drives) > opts.max_extra_ms:
             break
     worst = max(last, key=lambda a: max(a.velocity_ratio, a.acceleration_ratio))
+    beyond = f" beyond the {drives:.4f} the drives' interpolation of this plan calls for" if drives > 1.0 else ""
     raise KnotError(
         f"{worst.name}: the drive's reconstruction still exceeds its limits (|v| {100 * worst.velocity_ratio:.2f}% "
         f"of 0x607F, |a| {100 * worst.acceleration_ratio:.2f}% of 0x60C5) after slowing down by "
-        f"{scale:.4f} (max {opts.max_time_scale}, or {opts.max_extra_ms} ms)"
+        f"{scale:.4f} (max {opts.max_time_scale}{beyond}, or {opts.max_extra_ms} ms)"
     )
