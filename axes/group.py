@@ -37,7 +37,7 @@ _TARGET_REACHED = int(Statusword.TARGET_REACHED)
 _FAULT_BITS = int(Statusword.FAULT)  # set in FAULT and FAULT REACTION ACTIVE
 _BUFFER_ERRORS = int(BUFFER_ERRORS)
 START_CHECK_SYNCS = 2  # SYNCs after the start SYNC by which every axis must report ip mode active
-SETTLE_ATTEMPTS = 3  # SDO tries per axis to empty its buffer after a run (the start enables it otherwise)
+SETTLE_TIMEOUT_S = 3.0  # how long a drive is asked to empty its buffer after a run (the start enables it otherwise)
 NMT_PRE_OPERATIONAL = 0x80
 NMT_START = 0x01
 
@@ -418,7 +418,8 @@ class AxisGroup:
         start refuses it or the recovery enables it."""
         link, faults = self.links[i], self._bus_faults
         self._ready[i] = None
-        for attempt in range(SETTLE_ATTEMPTS):  # a drive still working off the run's traffic answers late
+        deadline = time.monotonic() + SETTLE_TIMEOUT_S
+        while True:  # a drive still working off the run's traffic answers late: ask again
             try:
                 if decode_state(link.read_statusword()) is not PowerState.OPERATION_ENABLED:
                     self.profiles[i].clear_buffer()
@@ -426,7 +427,7 @@ class AxisGroup:
                 self.profiles[i].enable(fresh=True)  # reach() has nothing to do: no fault reset is ever sent
                 break
             except DriveError:
-                if attempt == SETTLE_ATTEMPTS - 1:
+                if time.monotonic() > deadline:
                     return
         if self._bus_faults == faults:
             self._ready[i] = link.controlwords_sent
