@@ -34,10 +34,14 @@ import canopen
 from canopen.emcy import EmcyError
 from canopen.objectdictionary import ObjectDictionary
 
+from axes.config import BusConfig
 from axes.objects import TIME_STAMP_COB_ID
-from service.config import BusConfig
 
 SYNC_COB_ID = 0x80
+# How long the master waits for one SDO answer. python-canopen's 0.3 s is tight for a simulated cell
+# on a loaded 2-core host (a drive's thread may not run for that long); a real drive answers within
+# milliseconds, so a longer wait only delays the report of a drive that is really gone.
+SDO_RESPONSE_TIMEOUT_S = 1.0
 NMT_OPERATIONAL = 0x01
 NMT_STOPPED = 0x02
 NMT_PRE_OPERATIONAL = 0x80
@@ -412,6 +416,7 @@ class CellBus:
         if node_id in self.nodes:
             return self.nodes[node_id]
         node = canopen.RemoteNode(node_id, ObjectDictionary())
+        node.sdo.RESPONSE_TIMEOUT = SDO_RESPONSE_TIMEOUT_S
         self.network.add_node(node)
         node.nmt.add_heartbeat_callback(lambda state, nid=node_id: self._on_heartbeat(nid, state))
         node.emcy.add_callback(lambda err, nid=node_id: self._on_emcy(nid, err))

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from axes.config import BufferConfig
 from axes.objects import EPOS2_BUFFER_SIZE, BufferStatus
-from service.config import BufferConfig
 
 # plain ints: these are tested on every status frame
 _UNDERFLOW_WARNING = int(BufferStatus.UNDERFLOW_WARNING)

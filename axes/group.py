@@ -23,11 +23,11 @@ from typing import TypeVar
 from axes import objects as od
 from axes.bus import BusFault, CellBus
 from axes.cia402 import PowerState, Statusword, decode_state
+from axes.config import AxisConfig
 from axes.feeder import Feeder, FeedStats
 from axes.objects import BUFFER_ERRORS, BufferStatus
 from axes.profiles import AxisLink, DriveError, Profile, profile_for
-from planner.program import AxisProgram, PvtProgram
-from service.config import AxisConfig
+from axes.program import AxisProgram, PvtProgram
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")

@@ -26,10 +26,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from axes.bus import CellBus
+from axes.config import AxisConfig
 from axes.group import AxisGroup, Result
+from axes.program import AxisProgram, PvtProgram
 from axes.sim.cell import SimulatedCell
-from planner.program import AxisProgram, PvtProgram
-from service.config import AxisConfig, CellConfig, load_cell_config
+from service.config import CellConfig, load_cell_config
 
 
 # --- CAN frame length ---------------------------------------------------------------------------------

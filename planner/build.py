@@ -11,8 +11,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from axes.program import PvtProgram
 from planner.knots import DriveAxis, KnotError, KnotOptions, KnotResult, TimedTrajectory, place_knots
-from planner.program import PvtProgram
 from planner.validate import ValidationReport, validate_program
 
 

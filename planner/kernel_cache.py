@@ -1,8 +1,8 @@
 """Where numba keeps the planner's compiled loops, and when it must compile them again.
 
 numba caches a compiled function next to its source and recompiles it when *that* file changes,
-not when a function it calls from another file does. The planner's kernels inline the cubic's
-facts of ``planner.interpolation`` into ``knot_kernels`` and ``validate``: after an edit of
+not when a function it calls from another file does. The planner's kernels inline the drive's
+cubic (``axes.interpolation``) into ``knot_kernels`` and ``validate``: after an edit of
 ``hermite`` alone they would keep running the old formula from the cache. So every planner kernel
 is stamped with all the kernel sources (``KERNEL_SOURCES``): a change to any of them recompiles
 them all (about 15 s, once), and a stale kernel is never loaded.
@@ -18,9 +18,8 @@ from numba.core import config
 from numba.core.caching import InTreeCacheLocator
 
 HERE = Path(__file__).resolve().parent
-KERNEL_SOURCES = tuple(
-    HERE / name for name in ("interpolation.py", "knot_kernels.py", "path.py", "timing.py", "validate.py")
-)
+INTERPOLATION = HERE.parent / "axes" / "interpolation.py"  # the drive's cubic, inlined by the kernels
+KERNEL_SOURCES = (INTERPOLATION, *(HERE / n for n in ("knot_kernels.py", "path.py", "timing.py", "validate.py")))
 
 
 def sources_stamp(paths: tuple[Path, ...]) -> tuple[tuple[int, int], ...]:

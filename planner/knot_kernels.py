@@ -3,7 +3,7 @@
 Knot placement judges hundreds of short cubics many times over: each judgement is a handful of
 flops, so in numpy its cost was the fixed price of the calls, not the arithmetic. These loops do
 the same judgements segment by segment in compiled code. They hold no formula of their own: the
-cubic and its extrema are ``planner.interpolation``'s (``hermite``, ``cubic_peak_speed``, ...).
+cubic and its extrema are ``axes.interpolation``'s (``hermite``, ``cubic_peak_speed``, ...).
 
 Layout (as in ``knots._Flat``): all EPOS2 axes' plan samples end to end, axis ``a``'s ms ``j``
 at flat index ``a * stride + j``; ``knots`` are sorted flat indices; a knot segment whose two
@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from planner.interpolation import (
+from axes.interpolation import (
     LIMIT_RTOL,
     central_velocity,
     cubic_peak_acceleration,
@@ -27,7 +27,7 @@ from planner.interpolation import (
     linear_segment,
     linear_step_acceleration,
 )
-from planner.program import TIME_MAX_MS
+from axes.program import TIME_MAX_MS
 
 _F = NDArray[np.float64]
 _I = NDArray[np.int64]
@@ -617,7 +617,7 @@ def repair_chains(
 
 
 # --- fixed-period profiles: the exact integer search ---------------------------------------------------
-# The reconstructions a fixed-period drive applies to its setpoints (planner.interpolation's
+# The reconstructions a fixed-period drive applies to its setpoints (axes.interpolation's
 # ``linear``, ``cubic_pv``, ``cubic_p``). Each judges a segment on a window of consecutive points of
 # the records padded with copies of their first and last point (velocity 0 there), so that the rest
 # at both ends comes out of each segment's own rule: linear [R0, R0, R0, R1 .. RN, RN] (the velocity

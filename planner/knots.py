@@ -1,7 +1,7 @@
 """PVT knot placement: from a timed trajectory to integer records the drive executes as they are.
 
 The drive does not execute the planner's curve: it rebuilds the motion from the records with its
-own interpolation (planner.interpolation), from integer ms, integer velocity units and integer
+own interpolation (axes.interpolation), from integer ms, integer velocity units and integer
 counts, and faults where that rebuild exceeds 0x607F or 0x60C5. So every candidate program is
 judged here by that very reconstruction of its *quantized* records, exactly (closed-form extrema
 per segment), never by the planned curve.
@@ -60,11 +60,11 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from axes.interpolation import LIMIT_RTOL, PiecewiseCubic, exceeds, hermite_coefficients
 from axes.objects import PARKER_CUBIC_THRESHOLD_US
+from axes.program import FIXED_PERIOD_PROFILES, PROFILES, TIME_MAX_MS, AxisProgram
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 from planner import knot_kernels as kernels
-from planner.interpolation import LIMIT_RTOL, PiecewiseCubic, exceeds, hermite_coefficients
-from planner.program import FIXED_PERIOD_PROFILES, PROFILES, TIME_MAX_MS, AxisProgram
 
 
 class TimedTrajectory(Protocol):

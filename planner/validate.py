@@ -1,7 +1,7 @@
 """Checks of a PVT program against the rules its drives enforce: the one validator.
 
 The CLI, the service and the tests all call :func:`validate_program`. Every motion check runs on
-what the drive itself will execute, ``AxisProgram.reconstruction()`` (planner.interpolation),
+what the drive itself will execute, ``AxisProgram.reconstruction()`` (axes.interpolation),
 never on a formula of its own: exactly (closed-form extrema per segment) and at the drive's 1 kHz
 samples. Errors are what makes a drive refuse or fault (0x607F, 0x60C5, 0x607D, record ranges,
 the start and end rules); warnings are what only sets a warning bit (0x6081, 0x6083).
@@ -39,8 +39,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
-from planner.interpolation import (
+from axes.interpolation import (
     DRIVE_SAMPLE_MS,
     PiecewiseCubic,
     cubic_peak_acceleration,
@@ -51,7 +50,8 @@ from planner.interpolation import (
     exceeds,
     hermite,
 )
-from planner.program import FIXED_PERIOD_PROFILES, TIME_MAX_MS, AxisProgram, PvtProgram
+from axes.program import FIXED_PERIOD_PROFILES, TIME_MAX_MS, AxisProgram, PvtProgram
+from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 
 ERROR = "error"
 WARNING = "warning"

@@ -32,14 +32,17 @@ COMMANDS: dict[str, str] = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The whole command line, or (``only``) one sub-command's: each sub-command's module loads
+    what it runs on, so ``pvtflow validate`` does not load the robot model, zenoh or the bus."""
     parser = argparse.ArgumentParser(
         prog="pvtflow",
         description="Time-optimal multi-axis PVT motion for CANopen CiA 402 drives.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module_name in COMMANDS.values():
-        importlib.import_module(module_name).add_parser(sub)
+    for name, module_name in COMMANDS.items():
+        if only is None or name == only:
+            importlib.import_module(module_name).add_parser(sub)
     return parser
 
 
@@ -107,8 +110,9 @@ def can_log_problem(path: str) -> str | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else argv, parser))
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(only=argv[0] if argv and argv[0] in COMMANDS else None)
+    args = parser.parse_args(join_negative_values(argv, parser))
     try:
         return int(args.run(args))
     except KeyboardInterrupt:

@@ -13,40 +13,20 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import yaml
+from can.interfaces import VALID_INTERFACES
 
+from axes.config import AxisConfig, BufferConfig, BusConfig
+from axes.program import FIXED_PERIOD_PROFILES, PROFILES, SHORTEST_PERIOD_MS
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 from planner.limits import JointLimits, joint_limits_from_drives
 from planner.model import ModelError, RobotModel
-from planner.program import FIXED_PERIOD_PROFILES, PROFILES, SHORTEST_PERIOD_MS
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 DEFAULT_CELL = CONFIG_DIR / "cells" / "arm6.yaml"
 
-PYTHON_CAN_INTERFACES = (
-    "virtual",
-    "socketcan",
-    "pcan",
-    "kvaser",
-    "vector",
-    "ixxat",
-    "slcan",
-    "serial",
-    "usb2can",
-    "nican",
-    "iscan",
-    "neovi",
-    "canalystii",
-    "systec",
-    "seeedstudio",
-    "cantact",
-    "gs_usb",
-    "nixnet",
-    "etas",
-    "udp_multicast",
-    "socketcand",
-    "robotell",
-    "pcan",
-)
+# python-can's own list of interfaces (``udp_multicast`` among them: it sends to a multicast group,
+# off this host, so the tests never name it).
+PYTHON_CAN_INTERFACES: tuple[str, ...] = tuple(sorted(VALID_INTERFACES))
 
 
 class ConfigError(ValueError):
@@ -57,37 +37,6 @@ class ConfigError(ValueError):
         self.where = where
         self.problem = problem
         super().__init__(f"{self.file}: {where}: {problem}" if where else f"{self.file}: {problem}")
-
-
-@dataclass(frozen=True)
-class BusConfig:
-    interface: str = "virtual"
-    channel: str = "pvtflow"
-    bitrate: int = 1_000_000
-    sync_period_ms: float = 1.0
-    time_stamp: bool = True  # send 0x1013 after every SYNC
-    heartbeat_ms: int = 100  # producer time asked of every node (0x1017)
-    heartbeat_timeout_factor: float = 3.0  # a node is lost after this many missed periods
-
-
-@dataclass(frozen=True)
-class BufferConfig:
-    """EPOS2 0x20C4:02 / :03: the levels the feeder keeps the FIFO between."""
-
-    underflow_warning: int = 4
-    overflow_warning: int = 60
-
-
-@dataclass(frozen=True)
-class AxisConfig:
-    joint: str
-    node_id: int
-    profile: str
-    scaling: AxisScaling
-    limits: DriveLimits
-    period_ms: int | None = None  # fixed-period profiles: one record per period
-    interpolation_submode: int | None = None  # parker_slvdn 0x60C0
-    buffer: BufferConfig = field(default_factory=BufferConfig)
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from typing import Any
 
 from axes.bus import BusError, CellBus
 from axes.group import AxisGroup, Event, Progress, RunResult
-from planner.program import PvtProgram
+from axes.program import PvtProgram
 from service.cli import can_log_problem
 from service.config import CellConfig, ConfigError, load_cell_config
 from service.validate_cmd import ProgramFileError, read_program

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from axes.bus import BusError, CellBus
 from axes.group import AxisGroup, AxisStatus, Event, GroupError, Progress, Result, RunResult
 from axes.profiles import DriveError
-from planner.program import ProgramFormatError, PvtProgram
+from axes.program import ProgramFormatError, PvtProgram
 from planner.validate import validate_program
 from service.api import (
     ApiError,

@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from axes.program import PvtProgram
 from planner.build import BuildError, BuildOutput, build_program
 from planner.knots import DriveAxis, KnotOptions
 from planner.path import PlanResult
 from planner.plan import PlanInput, Planner, PlanOutput
-from planner.program import PvtProgram
 from service.config import CellConfig, ConfigError, load_cell_config
 from service.waypoints import WaypointError, load_waypoints
 

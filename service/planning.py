@@ -29,7 +29,8 @@ from typing import Any
 
 from numpy.typing import ArrayLike
 
-from service.config import AxisConfig, CellConfig, PlanningConfig, load_cell_config
+from axes.config import AxisConfig
+from service.config import CellConfig, PlanningConfig, load_cell_config
 from service.plan_cmd import CellPlan, CellPlanner
 from service.runtime import freeze_startup_objects
 

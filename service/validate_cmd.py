@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
-from planner.program import ProgramFormatError, PvtProgram
+from axes.program import ProgramFormatError, PvtProgram
 from planner.validate import ValidationReport, validate_program
 
 EXIT_VALID, EXIT_VIOLATIONS, EXIT_UNREADABLE = 0, 1, 2

@@ -24,13 +24,13 @@ from axes.cia402 import (
     PowerStateMachine,
     decode_state,
 )
+from axes.config import AxisConfig
 from axes.objects import BufferStatus, PdoLayout
-from service.config import AxisConfig
 
 if TYPE_CHECKING:
     from axes.bus import CellBus
     from axes.feeder import Feeder
-    from planner.program import AxisProgram
+    from axes.program import AxisProgram
 
 DEFAULT_MAX_FOLLOWING_ERROR_QC = 2000  # app note Table 17 default for 0x6065
 
@@ -274,7 +274,7 @@ class Profile:
     @property
     def lead_periods(self) -> int:
         """How far ahead of the program's timeline the master sends: the drive's delay, less the part
-        the program's reconstruction (planner.interpolation) already contains."""
+        the program's reconstruction (axes.interpolation) already contains."""
         return self.delay_periods
 
     def configure(self) -> None:

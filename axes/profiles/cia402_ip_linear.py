@@ -23,7 +23,7 @@ from axes.objects import SETPOINT_RPDOS, SETPOINT_TPDOS
 from axes.profiles import Profile
 
 if TYPE_CHECKING:
-    from planner.program import AxisProgram
+    from axes.program import AxisProgram
 
 MS_INDEX = -3  # 0x60C2:02: the period is given in 10^-3 s
 

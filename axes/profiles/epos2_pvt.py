@@ -24,7 +24,7 @@ from axes.objects import EPOS2_RPDOS, EPOS2_TIME_STAMP_RPDO, EPOS2_TPDOS, TIME_S
 from axes.profiles import DEFAULT_MAX_FOLLOWING_ERROR_QC, Profile
 
 if TYPE_CHECKING:
-    from planner.program import AxisProgram
+    from axes.program import AxisProgram
 
 BUFFER_CLEAR = 0
 BUFFER_ENABLE = 1

@@ -16,12 +16,12 @@ from types import TracebackType
 
 import canopen
 
+from axes.config import AxisConfig, CellWiring
 from axes.sim.drive import SimulatedDrive
 from axes.sim.epos2 import Epos2Drive
 from axes.sim.ip_linear import IpLinearDrive
 from axes.sim.parker import ParkerDrive
 from axes.sim.sync_setpoint import SyncSetpointDrive
-from service.config import AxisConfig, CellConfig
 
 DRIVE_CLASSES: dict[str, type[SimulatedDrive]] = {
     "epos2_pvt": Epos2Drive,
@@ -56,7 +56,7 @@ class SimulatedCell:
 
     def __init__(
         self,
-        cell: CellConfig,
+        cell: CellWiring,
         *,
         channel: str | None = None,
         interface: str | None = None,

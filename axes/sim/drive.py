@@ -34,6 +34,7 @@ from canopen.sdo import SdoAbortedError
 
 from axes import objects as obj
 from axes.cia402 import Controlword, PowerState, Statusword
+from axes.interpolation import hermite_coefficients
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 from axes.sim.device import (
     SIMULATED_MODE,
@@ -44,7 +45,6 @@ from axes.sim.device import (
     identity_values,
 )
 from axes.sim.pdo import PdoEngine, is_pdo_object, unsubscribe
-from planner.interpolation import hermite_coefficients
 
 EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
 # maxon's own published EPOS2 70/10 EDS, kept unchanged as a vendor data file (configs/eds/vendor/README.md)

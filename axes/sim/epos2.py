@@ -10,7 +10,7 @@ decided here:
   SYNC that applies it when it comes through the synchronous RPDO: that SYNC is t = 0 of the path.
   Fewer than 2 records in the FIFO then is an underflow error.
 * The first record is the start point (its time a dwell); each record ends a segment of its time,
-  joined by ``planner.interpolation.hermite_coefficients`` from the previous end point (the first
+  joined by ``axes.interpolation.hermite_coefficients`` from the previous end point (the first
   segment starts from the present demand at rest): the demand equals ``epos2_pvt`` of the records.
 * A segment that ends needs the next record then: an empty FIFO is an underflow error. A time-0
   record ends interpolation without error (ip mode inactive, target reached).
@@ -33,6 +33,7 @@ from collections import deque
 from canopen.sdo import SdoAbortedError
 
 from axes import objects as obj
+from axes.interpolation import exceeds
 from axes.objects import BUFFER_ERRORS, BufferStatus, Record
 from axes.sim.device import EPOS2_MODES, Value
 from axes.sim.drive import (
@@ -42,7 +43,6 @@ from axes.sim.drive import (
     Segment,
     SimulatedDrive,
 )
-from planner.interpolation import exceeds
 
 EPOS2_VERSION = 0x2003  # :01 software version, :02 hardware version (maxon's EDS)
 

@@ -6,7 +6,7 @@ Mode 7; 0x60C2:01 is the time between two targets (ms); 0x60C4:06 = 1 must be wr
 controlword enables interpolation from the next SYNC. A target validated by SYNC s is reached, on a
 straight line from the present demand, at the end of the period that SYNC starts (one period of
 delay): with the master sending record k to be validated at program time k*T the demand is
-``planner.interpolation.linear`` of the records.
+``axes.interpolation.linear`` of the records.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ Pr31 = 202, 0 (CiA 402's "no mode") changes nothing, any other value is refused 
 
 * below 2500 us the position reference is taken directly on the SYNC that validates it (no delay);
 * from 2500 us on, 0x60C0 selects the interpolation, on the program timeline of
-  ``planner.interpolation``: 0 linear (one cycle of delay, ``linear``), -1 cubic through position
+  ``axes.interpolation``: 0 linear (one cycle of delay, ``linear``), -1 cubic through position
   and velocity 0x60C1:03 in rpm (one cycle, ``cubic_pv``), -2 cubic through positions only (two
   cycles, ``cubic_p``: the velocity at a point is the central difference of its neighbours, so the
   segment to point k starts when point k+1 is validated; a SYNC without a new point ends the

@@ -5,7 +5,7 @@ No data buffer (no 0x60C4): one setpoint per SYNC period, 0x60C2 between 1.0 and
 SYNC K, is reached by the end of the NEXT period: the drive starts a straight ramp to it at SYNC K+1
 and gets there at SYNC K+2 (two periods of delay). Profile parameters do not limit it; only
 0x607D and the 0x607F sanity check fault it. With the master sending record k to be validated at
-program time (k - 1)*T the demand is ``planner.interpolation.linear`` of the records.
+program time (k - 1)*T the demand is ``axes.interpolation.linear`` of the records.
 """
 
 from __future__ import annotations

@@ -11,9 +11,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from planner.interpolation import Interpolation
-from planner.program import AxisProgram, PvtProgram
-from service.config import AxisConfig
+from axes.config import AxisConfig
+from axes.interpolation import Interpolation
+from axes.program import AxisProgram, PvtProgram
 
 PEAK_VELOCITY = 1.875  # max of s'(u)
 PEAK_ACCELERATION = 5.7735  # max of |s''(u)|

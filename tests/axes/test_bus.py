@@ -12,8 +12,8 @@ import pytest
 from axes_rig import unique_channel
 
 from axes.bus import NMT_PRE_OPERATIONAL, BusFault, CellBus, FrameRecorder
+from axes.config import BusConfig
 from axes.objects import TIME_STAMP_COB_ID
-from service.config import BusConfig
 
 
 class Responder(can.Listener):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from axes_programs import program
 
-from planner.program import AxisProgram, PvtProgram
+from axes.program import AxisProgram, PvtProgram
 from service.cli import main
 
 

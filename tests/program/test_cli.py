@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from planner.program import PvtProgram
+from axes.program import PvtProgram
 from service.cli import main
 from service.config import load_cell_config
 from service.waypoints import WaypointError, parse_waypoints

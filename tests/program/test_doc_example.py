@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.program import PvtProgram
+from axes.program import PvtProgram
 from planner.validate import validate_program
 from service.config import CONFIG_DIR, load_cell_config
 from service.execute_cmd import cell_mismatch

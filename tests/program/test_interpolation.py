@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from axes.scaling import AxisScaling
-from planner.interpolation import (
+from axes.interpolation import (
     Interpolation,
     PiecewiseCubic,
     cubic_p,
@@ -15,6 +14,7 @@ from planner.interpolation import (
     hermite_coefficients,
     linear,
 )
+from axes.scaling import AxisScaling
 
 
 def _segment(c: tuple[np.ndarray, ...], T: float) -> PiecewiseCubic:

@@ -9,9 +9,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from axes.interpolation import epos2_pvt
 from axes.scaling import AxisScaling, DriveLimits
 from planner.build import build_program
-from planner.interpolation import epos2_pvt
 from planner.knots import DriveAxis, KnotError, KnotOptions, place_knots
 from planner.limits import joint_limits_from_drives
 from planner.plan import PlanInput, plan

@@ -13,9 +13,9 @@ import itertools
 import numpy as np
 import pytest
 
+from axes.interpolation import PiecewiseCubic, epos2_pvt, hermite_coefficients
 from planner import knot_kernels
 from planner.build import build_program
-from planner.interpolation import PiecewiseCubic, epos2_pvt, hermite_coefficients
 from planner.knots import (
     DriveAxis,
     KnotOptions,

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from axes.program import TIME_MAX_MS
 from planner.knots import _within_record_time
-from planner.program import TIME_MAX_MS
 from planner.validate import validate_program
 from service.config import load_cell_config
 from service.plan_cmd import plan_cell_program

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from axes.objects import Record
-from planner.program import FORMAT, ProgramFormatError, PvtProgram
+from axes.program import FORMAT, ProgramFormatError, PvtProgram
 
 DESIGN_EXAMPLE = {
     "format": "pvtflow.pvt-program",

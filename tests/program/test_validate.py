@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
+from axes.program import PvtProgram
 from axes.scaling import DriveLimits
-from planner.program import PvtProgram
 from planner.validate import validate_program
 
 from .conftest import GOOD_RECORDS, LIMITS, SCALING, axis, program

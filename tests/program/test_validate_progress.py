@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from planner.program import PvtProgram
+from axes.program import PvtProgram
 from service.validate_cmd import Progress
 
 from .test_doc_example import documented

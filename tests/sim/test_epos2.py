@@ -7,10 +7,10 @@ import pytest
 from canopen.sdo import SdoAbortedError
 
 from axes import objects as obj
+from axes.interpolation import epos2_pvt
 from axes.objects import EPOS2_RPDOS, EPOS2_TPDOS, BufferStatus, Record
 from axes.scaling import AxisScaling, DriveLimits
 from axes.sim import Epos2Drive
-from planner.interpolation import epos2_pvt
 
 from .conftest import Bench, configure_pdos, enable
 

@@ -1,4 +1,4 @@
-"""The fixed-period simulated drives: delays and interpolation against planner/interpolation.py."""
+"""The fixed-period simulated drives: delays and interpolation against axes/interpolation.py."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import pytest
 from canopen.sdo import SdoAbortedError
 
 from axes import objects as obj
+from axes.interpolation import PiecewiseCubic, cubic_p, cubic_pv, linear
 from axes.objects import PARKER_RPDOS, PARKER_TPDOS, SETPOINT_RPDOS, SETPOINT_TPDOS
 from axes.scaling import AxisScaling, DriveLimits
 from axes.sim import IpLinearDrive, ParkerDrive, SyncSetpointDrive
 from axes.sim.drive import SimulatedDrive
-from planner.interpolation import PiecewiseCubic, cubic_p, cubic_pv, linear
 
 from .conftest import Bench, configure_pdos, enable
 

@@ -6,11 +6,11 @@ import canopen
 import numpy as np
 
 from axes import objects as obj
+from axes.interpolation import epos2_pvt
 from axes.objects import EPOS2_RPDOS, EPOS2_TPDOS, BufferStatus, Record
 from axes.scaling import AxisScaling, DriveLimits
 from axes.sim import Epos2Drive
 from axes.sim.drive import MAXON_EPOS2_EDS
-from planner.interpolation import epos2_pvt
 
 from .conftest import Bench, configure_pdos, enable
 

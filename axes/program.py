@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from axes import interpolation
+from axes.interpolation import PiecewiseCubic
 from axes.objects import PARKER_CUBIC_THRESHOLD_US
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
-from planner import interpolation
-from planner.interpolation import PiecewiseCubic
 
 FORMAT = "pvtflow.pvt-program"
 VERSION = 1
