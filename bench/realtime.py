@@ -74,13 +74,12 @@ class SyncArrivals:
         return d[d < 50.0]  # the gaps between motions are not periods
 
 
-def late_setpoints(drive: FixedPeriodDrive) -> int:
-    """SYNCs of the last run's setpoint stream that validated no new setpoint."""
-    first = drive.first_setpoint_sync
-    if first is None:
-        return 0
-    syncs = [s for s, _ in drive.setpoints if s >= first]
-    return (syncs[-1] - first + 1) - len(set(syncs)) if syncs else 0
+def late_setpoints(drive: FixedPeriodDrive, since: int) -> int:
+    """SYNCs inside the setpoint stream of the run started after SYNC ``since`` that validated no new
+    setpoint. (A Parker's interpolation stays active between runs: the run's stream starts with its
+    own first setpoint, not with the drive's activation.)"""
+    syncs = sorted({s for s, _ in drive.setpoints if s > since})
+    return (syncs[-1] - syncs[0] + 1) - len(syncs) if syncs else 0
 
 
 def run_case(cell: CellConfig, moves: int, rng: np.random.Generator, planning_load: bool) -> dict[str, Any]:
@@ -121,6 +120,7 @@ def run_case(cell: CellConfig, moves: int, rng: np.random.Generator, planning_lo
                     out["refused"].append(str(exc)[:140])
                     continue
                 out["planned"] += 1
+                started = {id(d): d.sync_count for d in svc.sim if isinstance(d, FixedPeriodDrive)}
                 try:
                     outcome = svc.execute(parse_execute({"plan_id": plan_id, "wait": True}))["outcome"]
                     result, why = outcome["result"], outcome["message"]
@@ -137,7 +137,7 @@ def run_case(cell: CellConfig, moves: int, rng: np.random.Generator, planning_lo
                         break
                 for drive in svc.sim:
                     if isinstance(drive, FixedPeriodDrive):
-                        out["late"] += late_setpoints(drive)
+                        out["late"] += late_setpoints(drive, started[id(drive)])
                 if result != "refused":
                     for axis in outcome["axes"]:
                         if axis["min_level"] is not None:
