@@ -1,0 +1,63 @@
+"""The axes layer: CiA 402 drives on a CANopen bus running PVT programs, with no planner needed.
+
+A program (``PvtProgram``, the JSON contract of docs/pvt-program.md) runs on a cell's drives through
+``CellBus`` (the network, SYNC, heartbeats) and ``AxisGroup`` (configure, start on one SYNC, feed,
+halt, recover); ``SimulatedCell`` gives simulated drives to run it on. Requires canopen, python-can,
+numpy and numba only."""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+# public name -> the module that defines it (loaded on first use: ``import axes.scaling`` stays light)
+_HOMES: dict[str, str] = {
+    "AxisProgram": "axes.program",
+    "PvtProgram": "axes.program",
+    "ProgramFormatError": "axes.program",
+    "program_mismatch": "axes.program",
+    "axes_of": "axes.program",
+    "AxisConfig": "axes.config",
+    "BufferConfig": "axes.config",
+    "BusConfig": "axes.config",
+    "Wiring": "axes.config",
+    "AxisScaling": "axes.scaling",
+    "DriveLimits": "axes.scaling",
+    "BusError": "axes.bus",
+    "CellBus": "axes.bus",
+    "AxisGroup": "axes.group",
+    "GroupError": "axes.group",
+    "Result": "axes.group",
+    "RunResult": "axes.group",
+    "SimulatedCell": "axes.sim.cell",
+}
+__all__ = [
+    "AxisConfig",
+    "AxisGroup",
+    "AxisProgram",
+    "AxisScaling",
+    "BufferConfig",
+    "BusConfig",
+    "BusError",
+    "CellBus",
+    "DriveLimits",
+    "GroupError",
+    "ProgramFormatError",
+    "PvtProgram",
+    "Result",
+    "RunResult",
+    "SimulatedCell",
+    "Wiring",
+    "axes_of",
+    "program_mismatch",
+]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _HOMES:
+        return getattr(importlib.import_module(_HOMES[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -44,6 +44,14 @@ class AxisConfig:
     buffer: BufferConfig = field(default_factory=BufferConfig)
 
 
+@dataclass(frozen=True)
+class Wiring:
+    """A bus and its axes without a cell file (``service.config.CellConfig`` is the other kind)."""
+
+    bus: BusConfig
+    axes: tuple[AxisConfig, ...]
+
+
 class CellWiring(Protocol):
     """The part of a cell description a bus of drives needs: the bus and its axes."""
 

@@ -27,7 +27,7 @@ from axes.config import AxisConfig
 from axes.feeder import Feeder, FeedStats
 from axes.objects import BUFFER_ERRORS, BufferStatus
 from axes.profiles import AxisLink, DriveError, Profile, profile_for
-from axes.program import AxisProgram, PvtProgram
+from axes.program import AxisProgram, PvtProgram, program_mismatch
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
@@ -286,26 +286,8 @@ class AxisGroup:
     # --- checks before anything moves ------------------------------------------------------------
     def check_program(self, program: PvtProgram) -> str | None:
         """Why this program cannot run on this cell (None: it can)."""
-        by_node = {a.node_id: a for a in program.axes}
-        for link in self.links:
-            a = by_node.get(link.node_id)
-            if a is None:
-                return f"the program has no axis for node {link.node_id} ({link.joint})"
-            if a.profile != link.config.profile:
-                return f"axis {a.name}: program profile {a.profile} but node {link.node_id} runs {link.config.profile}"
-            if a.name != link.joint:
-                return f"axis {a.name}: node {link.node_id} is joint {link.joint} in this cell"
-            if a.profile != "epos2_pvt":
-                period = link.config.period_ms
-                if not (a.records[:, 2] == period).all():
-                    return f"axis {a.name}: every record time must be the axis period {period} ms"
-            lo, hi = link.config.limits.min_position_qc, link.config.limits.max_position_qc
-            if a.records[:, 0].min() < lo or a.records[:, 0].max() > hi:
-                return f"axis {a.name}: a record position is outside 0x607D [{lo}, {hi}] qc"
-        extra = set(by_node) - {link.node_id for link in self.links}
-        if extra:
-            return f"the program has axes for nodes {sorted(extra)} that are not in this cell"
-        return None
+        problems = program_mismatch(program, [link.config for link in self.links], "this cell")
+        return "; ".join(problems[:3]) if problems else None
 
     # --- running ---------------------------------------------------------------------------------
     def run(self, program: PvtProgram, timeout_s: float | None = None) -> RunResult:

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes import interpolation
+from axes.config import AxisConfig
 from axes.interpolation import PiecewiseCubic
 from axes.objects import PARKER_CUBIC_THRESHOLD_US
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
@@ -267,3 +268,60 @@ def _axis_from_json(where: str, a: Any, check_ranges: bool = True) -> AxisProgra
         for j, what in enumerate(("position", "velocity", "time")):
             out[k, j] = _integer(f"{rw}[{k}] {what}", rec[j], *ranges[j])
     return AxisProgram(name, node_id, profile, scaling, limits, out, submode)
+
+
+def axes_of(program: PvtProgram) -> tuple[AxisConfig, ...]:
+    """The axis settings a program was made for (node, profile, scaling, limits, period): what a
+    user of the axes layer without a cell file gives the bus and the group."""
+    return tuple(
+        AxisConfig(
+            joint=a.name,
+            node_id=a.node_id,
+            profile=a.profile,
+            scaling=a.scaling,
+            limits=a.limits,
+            period_ms=a.period_ms,
+            interpolation_submode=a.interpolation_submode,
+        )
+        for a in program.axes
+    )
+
+
+def program_mismatch(program: PvtProgram, axes: Sequence[AxisConfig], cell_name: str) -> list[str]:
+    """Why ``program`` was not made for the cell whose axes are ``axes`` (empty: it was): the one
+    check of a program against a cell, for the group's start, ``pvtflow execute`` and the service."""
+    problems: list[str] = []
+    by_node = {a.node_id: a for a in program.axes}
+    for axis in axes:
+        a = by_node.pop(axis.node_id, None)
+        if a is None:
+            problems.append(f"the program has no axis for node {axis.node_id} ({axis.joint})")
+            continue
+        where = f"axis {a.name} (node {a.node_id})"
+        if a.name != axis.joint:
+            problems.append(f"{where}: node {axis.node_id} is joint {axis.joint} in cell {cell_name}")
+        if a.profile != axis.profile:
+            problems.append(f"{where}: profile {a.profile}, the cell's drive runs {axis.profile}")
+            continue
+        submode = -1 if a.interpolation_submode is None else a.interpolation_submode
+        if a.profile == "parker_slvdn" and submode != axis.interpolation_submode:
+            problems.append(
+                f"{where}: interpolation submode {a.interpolation_submode}, "
+                f"the cell's drive uses {axis.interpolation_submode}"
+            )
+        if a.limits.to_json() != axis.limits.to_json():
+            problems.append(
+                f"{where}: planned for drive limits {a.limits.to_json()}, the cell's drive has {axis.limits.to_json()}"
+            )
+        for name in ("qc_per_motor_rev", "motor_rev_per_joint_unit", "velocity_unit_rpm"):
+            mine, theirs = getattr(a.scaling, name), getattr(axis.scaling, name)
+            if not math.isclose(mine, theirs, rel_tol=1e-6):
+                problems.append(f"{where}: {name} {mine:g}, the cell has {theirs:g}")
+        if axis.period_ms is not None and not (a.records[:, 2] == axis.period_ms).all():
+            problems.append(f"{where}: every record time must be the axis period {axis.period_ms} ms")
+        lo, hi = axis.limits.min_position_qc, axis.limits.max_position_qc
+        if a.records[:, 0].min() < lo or a.records[:, 0].max() > hi:
+            problems.append(f"{where}: a record position is outside 0x607D [{lo}, {hi}] qc")
+    for a in by_node.values():
+        problems.append(f"axis {a.name}: node {a.node_id} is not in cell {cell_name}")
+    return problems

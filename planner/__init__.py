@@ -1,5 +1,52 @@
-"""The planner: pure computation (numbers in, numbers out; no I/O)."""
+"""The planner: pure computation (numbers in, numbers out; no I/O).
+
+``Planner`` (settings once) plans ``PlanInput`` waypoints into a time-optimal trajectory
+(``PlanOutput``, ``PlanResult``); ``build_program`` places the drives' records (a ``PvtProgram`` of
+axes.program); ``validate_program`` checks any program against its drives' rules."""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 from planner.kernel_cache import install as _install_kernel_cache
 
 _install_kernel_cache()  # before any planner module compiles a kernel
+
+# public name -> the module that defines it (loaded on first use: ``import planner.validate`` loads no robot model)
+_HOMES: dict[str, str] = {
+    "PlanInput": "planner.plan",
+    "PlanOutput": "planner.plan",
+    "Planner": "planner.plan",
+    "PlanError": "planner.path",
+    "PlanResult": "planner.path",
+    "BuildError": "planner.build",
+    "build_program": "planner.build",
+    "ValidationReport": "planner.validate",
+    "validate_program": "planner.validate",
+    "RobotModel": "planner.model",
+    "JointLimits": "planner.limits",
+}
+__all__ = [
+    "BuildError",
+    "JointLimits",
+    "PlanError",
+    "PlanInput",
+    "PlanOutput",
+    "PlanResult",
+    "Planner",
+    "RobotModel",
+    "ValidationReport",
+    "build_program",
+    "validate_program",
+]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _HOMES:
+        return getattr(importlib.import_module(_HOMES[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

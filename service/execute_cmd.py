@@ -12,16 +12,15 @@ log file or bus).
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 from typing import Any
 
 from axes.bus import BusError, CellBus
 from axes.group import AxisGroup, Event, Progress, RunResult
-from axes.program import PvtProgram
+from axes.program import PvtProgram, program_mismatch
 from service.cli import can_log_problem
-from service.config import CellConfig, ConfigError, load_cell_config
+from service.config import ConfigError, load_cell_config
 from service.validate_cmd import ProgramFileError, read_program
 
 EXIT_OK, EXIT_FAILED, EXIT_UNREADABLE = 0, 1, 2
@@ -51,41 +50,6 @@ def add_parser(subparsers: Any) -> None:
 def _fail(message: str, code: int) -> int:
     print(f"{PROG}: {message}", file=sys.stderr)
     return code
-
-
-def cell_mismatch(program: PvtProgram, cell: CellConfig) -> list[str]:
-    """Why the program was not made for this cell (empty: it was)."""
-    problems: list[str] = []
-    by_node = {a.node_id: a for a in program.axes}
-    for axis in cell.ordered_axes():
-        a = by_node.pop(axis.node_id, None)
-        if a is None:
-            problems.append(f"the program has no axis for node {axis.node_id} ({axis.joint})")
-            continue
-        where = f"axis {a.name} (node {a.node_id})"
-        if a.name != axis.joint:
-            problems.append(f"{where}: node {axis.node_id} is joint {axis.joint} in cell {cell.name}")
-        if a.profile != axis.profile:
-            problems.append(f"{where}: profile {a.profile}, the cell's drive runs {axis.profile}")
-        submode = -1 if a.interpolation_submode is None else a.interpolation_submode
-        if a.profile == "parker_slvdn" and submode != axis.interpolation_submode:
-            problems.append(
-                f"{where}: interpolation submode {a.interpolation_submode}, "
-                f"the cell's drive uses {axis.interpolation_submode}"
-            )
-        if a.limits.to_json() != axis.limits.to_json():
-            problems.append(
-                f"{where}: planned for drive limits {a.limits.to_json()}, the cell's drive has {axis.limits.to_json()}"
-            )
-        for name in ("qc_per_motor_rev", "motor_rev_per_joint_unit", "velocity_unit_rpm"):
-            mine, theirs = getattr(a.scaling, name), getattr(axis.scaling, name)
-            if not math.isclose(mine, theirs, rel_tol=1e-6):
-                problems.append(f"{where}: {name} {mine:g}, the cell has {theirs:g}")
-        if axis.period_ms is not None and a.period_ms != axis.period_ms:
-            problems.append(f"{where}: period {a.period_ms} ms, the cell's axis runs {axis.period_ms} ms")
-    for a in by_node.values():
-        problems.append(f"axis {a.name}: node {a.node_id} is not in cell {cell.name}")
-    return problems
 
 
 def validation_problems(program: PvtProgram, source: str) -> tuple[bool, str]:
@@ -137,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
     if not ok:
         print(report, file=sys.stderr)
         return _fail(f"{path}: the program breaks its drives' rules: nothing was sent", EXIT_FAILED)
-    mismatch = cell_mismatch(program, cell)
+    mismatch = program_mismatch(program, cell.ordered_axes(), cell.name)
     if mismatch:
         for line in mismatch:
             print(f"  {line}", file=sys.stderr)

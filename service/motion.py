@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from axes.bus import BusError, CellBus
 from axes.group import AxisGroup, AxisStatus, Event, GroupError, Progress, Result, RunResult
 from axes.profiles import DriveError
-from axes.program import ProgramFormatError, PvtProgram
+from axes.program import ProgramFormatError, PvtProgram, program_mismatch
 from planner.validate import validate_program
 from service.api import (
     ApiError,
@@ -48,7 +48,6 @@ from service.api import (
     ValidateRequest,
 )
 from service.config import CellConfig
-from service.execute_cmd import cell_mismatch
 from service.journal import Journal, JournalError, MotionEntry, default_directory
 from service.plan_cmd import CellPlanner
 from service.planning import PlanningProcess
@@ -325,7 +324,7 @@ class MotionService:
             assert req.program is not None
             program = self._program_from_json(req.program)
         report = validate_program(program)
-        problems = cell_mismatch(program, self.cell)
+        problems = program_mismatch(program, self.cell.ordered_axes(), self.cell.name)
         return {"ok": report.ok and not problems, "report": report.to_json(), "cell_problems": problems}
 
     # --- execute ---------------------------------------------------------------------------------
@@ -345,7 +344,7 @@ class MotionService:
                     + "; ".join(f.format() for f in report.errors[:3]),
                     {"report": report.to_json()},
                 )
-            problems = cell_mismatch(program, self.cell)
+            problems = program_mismatch(program, self.cell.ordered_axes(), self.cell.name)
             if problems:
                 raise ApiError(
                     ErrorCode.WRONG_CELL,

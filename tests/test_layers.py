@@ -6,6 +6,7 @@ Each import check runs in a fresh interpreter: the test process itself has every
 from __future__ import annotations
 
 import ast
+import importlib
 import json
 import subprocess
 import sys
@@ -71,3 +72,12 @@ def test_validating_a_program_needs_no_robot_model(tmp_path: Path) -> None:
     )
     top = {m.split(".")[0] for m in modules}
     assert sorted(top & {"pinocchio", "toppra", "casadi", "zenoh", "matplotlib"}) == []
+
+
+@pytest.mark.parametrize("package", ["axes", "planner", "service"])
+def test_each_package_front_door_names_what_it_exports(package: str) -> None:
+    """``from axes import AxisGroup`` and the like: every name in ``__all__`` resolves."""
+    module = importlib.import_module(package)
+    assert module.__all__, f"{package} has no public surface"
+    for name in module.__all__:
+        assert getattr(module, name) is not None, name

@@ -9,10 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from axes.program import PvtProgram
+from axes.program import PvtProgram, program_mismatch
 from planner.validate import validate_program
 from service.config import CONFIG_DIR, load_cell_config
-from service.execute_cmd import cell_mismatch
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "pvt-program.md"
 
@@ -39,7 +38,7 @@ def test_the_documented_program_is_valid_and_lasts_what_its_metadata_says() -> N
 def test_the_documented_program_fits_its_cell_and_goes_where_the_text_says() -> None:
     prose, program = documented()
     cell = load_cell_config(CONFIG_DIR / "cells" / f"{program.cell}.yaml")
-    assert cell_mismatch(program, cell) == []
+    assert program_mismatch(program, cell.ordered_axes(), cell.name) == []
     waypoints = json.loads(re.search(r'`(\{"waypoints": .*?\})`', prose).group(1))["waypoints"]
     for axis, start, end in zip(program.axes, *np.asarray(waypoints), strict=True):
         s = axis.scaling
