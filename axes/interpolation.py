@@ -140,13 +140,43 @@ def _linear_segment(p0: float, p1: float, T: float) -> tuple[float, float]:
 linear_segment = njit(cache=True)(_linear_segment)  # a linear interpolator's segment: (c0, c1), c2 = c3 = 0
 
 
+# Whole-count setpoints put a linear reconstruction's velocity step off the ideal one by up to two
+# counts per period: the rounding of the three positions around it (half a count each, the middle
+# one twice). What is judged against 0x60C5 is the step beyond that: the part a plan can control.
+LINEAR_QUANTIZATION_QC = 2.0
+
+
 def _linear_step_acceleration(v_prev: float, v: float, T: float) -> float:
-    return abs(v - v_prev) / T
+    return np.maximum(np.abs(v - v_prev) - LINEAR_QUANTIZATION_QC / T, 0.0) / T  # arrays too
 
 
 # A linear interpolator has no acceleration inside a segment: what the position loop sees is the
-# velocity step at the segment start, spread over the segment.
+# velocity step at the segment start, spread over the segment, less the rounding of whole counts
+# (over any longer span the validator holds the velocity change to 0x60C5 with the same allowance:
+# ``linear_span_excess``).
 linear_step_acceleration = njit(cache=True)(_linear_step_acceleration)
+
+
+def linear_span_excess(velocity: NDArray[np.float64], T: float, a_max: float) -> tuple[int, int, float]:
+    """The worst span of a linear reconstruction (segment velocities ``velocity``, qc/ms, from rest)
+    over which the velocity changes by more than ``a_max`` (qc/ms^2) allows plus the rounding of
+    whole counts: (first segment, last segment, excess in qc/ms; <= 0 when every span is inside).
+
+    Over segments k < j: |v_j - v_k| <= a_max (j - k) T + LINEAR_QUANTIZATION_QC / T. With
+    f = v - a_max k T that is f_j - min(f_k) and, the other way, max(g_k) - g_j with g = v + a_max k T:
+    one pass over the segments."""
+    v = np.concatenate(([0.0], np.asarray(velocity, dtype=np.float64)))
+    k = np.arange(len(v)) * (a_max * T)
+    f, g = v - k, v + k
+    low_at = np.minimum.accumulate(f)
+    high_at = np.maximum.accumulate(g)
+    rise = f - low_at
+    fall = high_at - g
+    excess = np.maximum(rise, fall) - LINEAR_QUANTIZATION_QC / T
+    j = int(np.argmax(excess))
+    ref = f[: j + 1] if rise[j] >= fall[j] else -g[: j + 1]
+    i = int(np.argmin(ref))
+    return max(i - 1, 0), j - 1, float(excess[j])
 
 
 def _central_velocity(p_prev: float, p_next: float, T: float) -> float:

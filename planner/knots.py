@@ -915,7 +915,7 @@ def _drive_slowdown(axis: DriveAxis, i: int, smp: _Samples) -> tuple[float, floa
     period = float(axis.period_ms or 1)
     f, amax, vmax, *_ = (float(x[0]) for x in _axis_constants((axis,)))
     lattice_v = lattice_a = 1.0
-    if kind != kernels.CUBIC_PV:
+    if kind == kernels.CUBIC_P:  # a linear step is judged net of the rounding (LINEAR_QUANTIZATION_QC)
         lattice_a = _lattice(axis, amax * period * period, "acceleration", "0x60C5")
     if kind == kernels.LINEAR:
         lattice_v = _lattice(axis, vmax * period, "velocity", "0x607F")

@@ -41,6 +41,8 @@ from numpy.typing import NDArray
 
 from axes.interpolation import (
     DRIVE_SAMPLE_MS,
+    LINEAR_QUANTIZATION_QC,
+    Interpolation,
     PiecewiseCubic,
     cubic_peak_acceleration,
     cubic_peak_speed,
@@ -49,6 +51,7 @@ from axes.interpolation import (
     epos2_segment,
     exceeds,
     hermite,
+    linear_span_excess,
 )
 from axes.program import FIXED_PERIOD_PROFILES, TIME_MAX_MS, AxisProgram, PvtProgram
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
@@ -651,6 +654,39 @@ def _summary_within_limits(axis: AxisProgram, worst: _Worst, sample_period_ms: f
     return _summary(axis, worst.end_ms, vmax, amax, sv, sa, worst.lowest, worst.highest)
 
 
+def _linear_spans(axis: AxisProgram, recon: PiecewiseCubic) -> list[Finding]:
+    """A linear reconstruction's velocity change over any span of periods, against 0x60C5 with the
+    rounding of whole counts allowed once (``linear_span_excess``): the steps alone, each net of that
+    rounding, would let a run of one-count steps accelerate past 0x60C5 for ever."""
+    s = axis.scaling
+    T = float(recon.duration[0])
+    a_max = float(s.rpm_s_to_qc_per_ms2(axis.limits.max_acceleration_rpm_s))
+    first, last, excess = linear_span_excess(recon.c1, T, a_max)
+    allowed = a_max * (last - first + 1) * T
+    if not exceeds(allowed + excess, allowed):
+        return []
+    span_ms = (last - first + 1) * T
+    rounding = LINEAR_QUANTIZATION_QC / T
+    value = float(s.qc_per_ms2_to_rpm_s((allowed + excess) / span_ms))
+    limit = axis.limits.max_acceleration_rpm_s
+    return [
+        Finding(
+            ERROR,
+            "acceleration-limit",
+            axis.name,
+            int(last),
+            f"the velocity changes by {excess + allowed + rounding:.4g} qc/ms over the {last - first + 1} periods "
+            f"{recon.start[first]:.0f}..{recon.start[last] + T:.0f} ms ending here: {value:.6g} rpm/s on average "
+            f"less the rounding of whole counts ({rounding:.3g} qc/ms), above 0x60C5 {limit:.6g} rpm/s",
+            value - limit,
+            value,
+            limit,
+            "rpm/s",
+            float(recon.start[last]),
+        )
+    ]
+
+
 def _check_motion(
     axis: AxisProgram, sample_period_ms: float | None, worst: _Worst | None = None
 ) -> tuple[list[Finding], AxisSummary]:
@@ -725,6 +761,8 @@ def _check_motion(
     per_kind = {"velocity": (seg_v, sv), "acceleration": (seg_a, sa)}
     for m in _motion_limits(axis):
         over_limit(m.kind, m.rule, m.severity, *per_kind[m.kind], m.limit, m.obj, m.unit)
+    if recon.interpolation is Interpolation.LINEAR and len(recon.start):
+        out.extend(_linear_spans(axis, recon))
 
     for k in np.flatnonzero((lo < lim.min_position_qc) | (hi > lim.max_position_qc)):
         if hi[k] > lim.max_position_qc:

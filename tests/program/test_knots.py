@@ -9,10 +9,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from axes.interpolation import epos2_pvt
+from axes.interpolation import LINEAR_QUANTIZATION_QC, epos2_pvt, linear, linear_span_excess
+from axes.program import AxisProgram, PvtProgram
 from axes.scaling import AxisScaling, DriveLimits
 from planner.build import build_program
-from planner.knots import DriveAxis, KnotError, KnotOptions, place_knots
+from planner.knots import DriveAxis, KnotOptions, place_knots
 from planner.limits import joint_limits_from_drives
 from planner.plan import PlanInput, plan
 from planner.validate import validate_program
@@ -144,15 +145,28 @@ def test_fixed_period_profiles_one_record_per_period() -> None:
     assert np.all(built.program.axis("x").records[:, 1] == 0)
 
 
-def test_too_slow_drive_is_refused_with_the_axis_named() -> None:
-    """A linear drive at 1 ms whose 0x60C5 is below 1 qc/ms^2 cannot take whole-count steps."""
+def test_linear_drive_below_one_count_per_period_squared_plans_within_its_acceleration() -> None:
+    """A linear drive at 1 ms whose 0x60C5 is far below one count per period squared: its records
+    step by whole counts (each step judged net of the rounding), and over any span of periods the
+    velocity changes no faster than 0x60C5 allows plus the rounding of whole counts."""
     s = AxisScaling.revolute(500, 1.0)
-    lim = DriveLimits(3000, 5000, -(10**6), 10**6)  # 5000 rpm/s = 0.04 qc/ms^2 at 500 qc/rev
+    lim = DriveLimits(3000, 5000, -(10**6), 10**6)  # 5000 rpm/s = 0.042 qc/ms^2 at 500 qc/rev
     axes = [DriveAxis("j", 1, "cia402_ip_linear", s, lim, period_ms=1)]
     limits = joint_limits_from_drives(["j"], [s], [lim])
     traj = plan(PlanInput(np.array([[0.0], [3.0]]), limits)).trajectory
-    with pytest.raises(KnotError, match="j: the drive's reconstruction still exceeds"):
-        place_knots(traj, axes, KnotOptions(max_time_scale=1.05))
+    result = place_knots(traj, axes, KnotOptions(max_time_scale=1.05))
+    records = result.axes[0].records
+    recon = linear(records, 1.0)
+    a_max = float(s.rpm_s_to_qc_per_ms2(lim.max_acceleration_rpm_s))
+    assert a_max < 1.0  # one count per ms^2 is more than the drive allows
+    assert linear_span_excess(recon.c1, 1.0, a_max)[2] <= 1e-9
+    assert np.abs(np.diff(records[:, 0], 2)).max() <= math.floor(a_max + LINEAR_QUANTIZATION_QC)
+    program = PvtProgram("t", (AxisProgram("j", 1, "cia402_ip_linear", s, lim, records),))
+    assert validate_program(program).ok
+    # the same records with one sustained count more per period squared break the span rule
+    steps = np.diff(records[:-1, 0])
+    pushed = np.concatenate(([records[0, 0]], records[0, 0] + np.cumsum(steps + np.arange(len(steps)))))
+    assert linear_span_excess(np.diff(pushed).astype(float), 1.0, a_max)[2] > 0
 
 
 def test_options_are_checked() -> None:

@@ -277,3 +277,15 @@ def test_records_of_the_wrong_shape_are_a_finding_not_a_crash(cut: str, good_pro
         assert not report.ok
         assert [f.axis for f in report.errors] == [ax.name]
         assert "got an array of shape" in report.errors[0].message
+
+
+def test_linear_steps_of_one_count_cannot_accelerate_past_0x60c5_for_long() -> None:
+    """A step of one count is within the rounding of whole counts, a run of them is not: 20 periods
+    of one count more each is 1 qc/ms^2 on average, against a 0x60C5 of 0.5 qc/ms^2."""
+    lim = DriveLimits(4000, 15000, -100000, 100000)  # 15000 rpm/s = 0.5 qc/ms^2 at 2000 qc/rev
+    steps = np.concatenate((np.arange(1, 21), np.arange(20, 0, -1)))
+    positions = np.concatenate(([0], np.cumsum(steps), [steps.sum()]))
+    records = [[int(p), 0, 1] for p in positions]
+    report = validate_program(program(axis(records, profile="cia402_ip_linear", limits=lim)))
+    spans = [f for f in report.errors if f.rule == "acceleration-limit"]
+    assert spans and "periods" in spans[0].message and "0x60C5 15000" in spans[0].message
