@@ -17,10 +17,7 @@ EPOS2 PVT (``epos2_pvt``), per axis (the axes share only the start SYNC and the 
    pushes a cubic over a limit, the records around it are re-rounded together: each may move by
    a count and two velocity units, and the best combination of a whole run is found exactly (a
    shortest path over the candidates, ``knot_kernels.repair_chains``). Integers need an integer
-   search: a velocity QP (casadi/daqp) used to follow the nudges here, and a continuous optimum
-   is only as good as its rounding (121 of its 122 feasible solutions were over a limit again once
-   rounded); after this search came in, dropping the QP changed no program on 300 bench paths,
-   and a QP held back by its rounding's reach was infeasible in all 59 calls on 800;
+   search: a continuous optimum is only as good as its rounding;
 4. the exact reconstruction of the quantized records is checked: a segment that strays more than
    the tolerance, or stays over a limit, is split and steps 3-4 are redone. Splitting for a limit
    stops on an axis whose segments over a limit do not get fewer (more of the same costs time,
