@@ -149,7 +149,7 @@ def test_limit_ratios_are_the_paths_own_derivatives() -> None:
     """The compiled post-check gives what the path's spline (scipy) says at every check time."""
     tr = Planner(LIMITS, ARM.model, "tool0", 2.0).plan(WAYPOINTS).trajectory
     assert tr is not None
-    s, sd, sdd, _ = tr._state(tr.check_times())
+    s, sd, sdd, _, _ = tr._state(tr.check_times())
     qs = tr.path(s, 1)
     qd = qs * sd[:, None]
     qdd = tr.path(s, 2) * (sd * sd)[:, None] + qs * sdd[:, None]
