@@ -40,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from pvt_quality import random_waypoints
 
 from planner.jerk import JerkTrajectory
-from planner.program import PvtProgram
+from axes.program import PvtProgram
 from planner.validate import validate_program
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
 from service.plan_cmd import CellPlan, CellPlanner

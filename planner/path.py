@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import CubicSpline
 from toppra.interpolator import AbstractGeometricPath
 
-from planner.interpolation import cubic_position_range, hermite_coefficients
+from axes.interpolation import cubic_position_range, hermite_coefficients
 from planner.limits import JointLimits
 
 # Two waypoints closer than this (joint units, Euclidean) are the same point.
