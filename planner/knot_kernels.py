@@ -775,21 +775,15 @@ def track_fixed_period(
     T = float(period)
     rv, ra = fixed_period_ratios(kind, P * 1.0, V * 1.0, plan, period, f, rv_per, ra_per, pos_lo, pos_hi)
     plain = 1.0
-    for w in range(len(rv)):
-        plain = max(plain, _slowdown(rv[w], ra[w]))
-    if plain <= 1.0 + LIMIT_RTOL:
-        return P.copy(), V.copy(), 1.0
-    # where the reconstruction of the plan's exact samples exceeds a limit (not just their rounding)
     near = np.zeros(L, dtype=np.int64)  # per point: how far it may move off its rounding
-    if reach > 1:
-        exact = np.empty(n + 1)
-        for k in range(n + 1):
-            exact[k] = plan[min(k * period, len(plan) - 1)]
-        rv, ra = fixed_period_ratios(kind, exact, V * 1.0, plan, period, f, rv_per, ra_per, pos_lo, pos_hi)
-        for w in range(len(rv)):
-            if not _slowdown(rv[w], ra[w]) <= 1.0 + LIMIT_RTOL:
-                for j in range(max(w - SPREAD, 0), min(w + W - 1 + SPREAD, L - 1) + 1):
-                    near[j] = reach
+    for w in range(len(rv)):
+        need = _slowdown(rv[w], ra[w])
+        if not need <= 1.0 + LIMIT_RTOL:
+            plain = max(plain, need)
+            for j in range(max(w - reach, 0), min(w + W - 1 + reach, L - 1) + 1):
+                near[j] = reach
+    if plain == 1.0:
+        return P.copy(), V.copy(), 1.0
     C = _N_NUDGES if kind == CUBIC_PV else 2 * max(reach, 1) + 1
     cp, cv = np.empty((L, C), dtype=np.int64), np.zeros((L, C), dtype=np.int64)
     nc = np.ones(L, dtype=np.int64)
@@ -868,4 +862,3 @@ def track_fixed_period(
             P_out[i - pad_l], V_out[i - pad_l] = cp[i, c], cv[i, c]
         s = back[offset[i] + s]
     return P_out, V_out, max(best, 1.0)
-SPREAD = 1

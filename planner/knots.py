@@ -54,7 +54,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
@@ -878,85 +878,56 @@ def _reconstruction_kind(axis: DriveAxis) -> int:
     return kernels.LINEAR
 
 
-def _fixed_period_reach(kind: int) -> int:
-    """How far (counts) the search may move a record off its rounding: cubic_p's overshoot at the
-    plan's acceleration jumps needs more room than a count."""
-    return _FP_REACH if kind == kernels.CUBIC_P else 1
-
-
 def _record_times(axis: DriveAxis, smp: _Samples) -> NDArray[np.int64]:
     """The plan's ms of each record of a fixed-period axis: one per period, the last at the goal."""
     period = int(axis.period_ms or 1)
     return np.minimum(np.arange(math.ceil(smp.n_ms / period) + 1) * period, smp.n_ms)
 
 
-def whole_count_limits(axis: DriveAxis) -> DriveLimits:
-    """The 0x607F and 0x60C5 an axis's drive can be held to with whole counts: the drive's own,
-    except where its reconstruction puts them on a lattice.
-
-    A fixed-period drive that joins its setpoints linearly moves at multiples of 1/T qc/ms and
-    accelerates at multiples of 1/T^2 qc/ms^2 (Parker's cubic_p too: its end accelerations are
-    integer combinations of 1/T^2); the largest of them within a limit can lie well below it (at
-    1 ms on a 4096-count encoder, 2 qc/ms^2 is the most below a 0x60C5 of 40,000 rpm/s = 2.73
-    qc/ms^2). A plan that keeps a faster acceleration for more than a period or two cannot be
-    followed (a planner that plans with these limits instead of the drive's is not slowed down
-    for them). KnotError where no whole count fits a limit at all.
-    """
-    lim = axis.limits
-    if axis.profile not in FIXED_PERIOD_PROFILES:
-        return lim
-    kind = _reconstruction_kind(axis)
-    T = float(axis.period_ms or 1)
-    _, amax, vmax, *_ = (float(x[0]) for x in _axis_constants((axis,)))
-    out = {}
-    for name, counts, applies in (
-        ("max_acceleration_rpm_s", abs(amax) * T * T, kind != kernels.CUBIC_PV),
-        ("max_profile_velocity_rpm", abs(vmax) * T, kind == kernels.LINEAR),
-    ):
-        if applies:
-            whole = math.floor(counts * (1.0 + LIMIT_RTOL))
-            if not whole:
-                raise KnotError(
-                    f"{axis.name}: the drive's reconstruction still exceeds its limits whatever the slow-down: "
-                    f"at a {axis.period_ms} ms period one count moves it by more than {name} allows"
-                )
-            out[name] = getattr(lim, name) * min(whole / counts, 1.0)
-    return replace(lim, **out)
+def _lattice(axis: DriveAxis, counts: float, what: str, obj: str) -> float:
+    """A limit of ``counts`` (per period, or per period squared) over the largest whole number of
+    counts within it; KnotError where there is none (no motion at all stays inside)."""
+    whole = math.floor(counts * (1.0 + LIMIT_RTOL))
+    if not whole:
+        raise KnotError(
+            f"{axis.name}: the drive's reconstruction still exceeds its limits whatever the slow-down: at a "
+            f"{axis.period_ms} ms period a setpoint one count off moves its {what} by more than {obj} allows "
+            f"({counts:.3g} counts)"
+        )
+    return counts / whole
 
 
 def _drive_slowdown(axis: DriveAxis, i: int, smp: _Samples) -> tuple[float, float]:
     """What a fixed-period axis's drive alone calls for on this plan, before any integer is chosen:
-    (a slow-down below which no integers fit, the slow-down of the plan's exact samples).
+    (the least slow-down, the slow-down of the plan's exact samples).
 
-    The first: ``whole_count_limits`` bound every step of the records' positions and every change
-    of step; records within ``reach`` + 0.5 counts of the plan's samples follow the plan's steps to
-    within twice that, so over any k periods the plan's steps may not change by more than k times
-    the largest whole change, plus that. The second: a cubic through the plan's exact samples
+    Whole counts put a linear reconstruction's velocities on multiples of 1/T qc/ms and its
+    accelerations (and cubic_p's) on multiples of 1/T^2 qc/ms^2: the largest of them within
+    0x607F / 0x60C5 can lie well below (at 1 ms on a 4096-count encoder, 2 qc/ms^2 is the most
+    below a 0x60C5 of 40,000 rpm/s = 2.73 qc/ms^2). A plan that keeps its acceleration for more
+    than a period or two cannot be followed faster than that: the least slow-down is the plan's own
+    (its samples joined linearly) on that lattice. On top, a cubic through the plan's exact samples
     overshoots where the plan's acceleration jumps between two records (up to 1.5 times with the
-    plan's velocities, 2 times with central ones); the drive's reconstruction of the exact samples
-    against ``whole_count_limits`` (the integer search usually beats it).
+    plan's velocities, 2 times with central ones): the second figure is the drive's reconstruction
+    of the exact samples on the lattice, which the integer search usually beats.
     """
     kind = _reconstruction_kind(axis)
-    whole = whole_count_limits(axis)
-    lattice_v = axis.limits.max_profile_velocity_rpm / whole.max_profile_velocity_rpm
-    lattice_a = axis.limits.max_acceleration_rpm_s / whole.max_acceleration_rpm_s
-    f, amax, vmax, _, _, _, rv_per, ra_per = (float(x[0]) for x in _axis_constants((axis,)))
-    period = int(axis.period_ms or 1)
+    period = float(axis.period_ms or 1)
+    f, amax, vmax, *_ = (float(x[0]) for x in _axis_constants((axis,)))
+    lattice_v = lattice_a = 1.0
+    if kind != kernels.CUBIC_PV:
+        lattice_a = _lattice(axis, amax * period * period, "acceleration", "0x60C5")
+    if kind == kernels.LINEAR:
+        lattice_v = _lattice(axis, vmax * period, "velocity", "0x607F")
     t_ms = _record_times(axis, smp)
     p = smp.position[i, t_ms]
-    rv, ra = kernels.fixed_period_ratios(
-        kind, p, smp.velocity[i, t_ms] / f, smp.position[i], period, f, rv_per, ra_per, -math.inf, math.inf
-    )
-    exact = max(float(rv.max()) * lattice_v, math.sqrt(float(ra.max()) * lattice_a), 1.0)
-    slack = 2 * (_fixed_period_reach(kind) + 0.5)
-    step = np.abs(np.diff(p))
-    least = float(step.max()) / (abs(vmax) * period / lattice_v + slack) if kind == kernels.LINEAR else 1.0
-    change = abs(amax) * period * period / lattice_a  # the largest whole change of a step
-    k = 1
-    while k < len(step):
-        least = max(least, math.sqrt(float(np.abs(step[k:] - step[:-k]).max()) / (k * change + 2 * slack)))
-        k *= 2
-    return max(least, 1.0), max(exact, least, 1.0)
+    v = smp.velocity[i, t_ms] / f
+    args = (smp.position[i], int(period), f, *(float(x[0]) for x in _axis_constants((axis,))[6:8]), -math.inf, math.inf)
+    out = []
+    for k in (kernels.LINEAR, kind):
+        rv, ra = kernels.fixed_period_ratios(k, p, v, *args)
+        out.append(max(float(rv.max()) * lattice_v, math.sqrt(float(ra.max()) * lattice_a), 1.0))
+    return out[0], max(out)
 
 
 def _fixed_period_axis(axis: DriveAxis, i: int, smp: _Samples, opts: KnotOptions) -> tuple[AxisKnots, float]:
@@ -973,8 +944,9 @@ def _fixed_period_axis(axis: DriveAxis, i: int, smp: _Samples, opts: KnotOptions
     V[0] = V[-1] = 0
     f, _, _, v_units, pos_lo, pos_hi, rv_per, ra_per = (float(x[0]) for x in _axis_constants((axis,)))
     kind = _reconstruction_kind(axis)
+    reach = _FP_REACH if kind == kernels.CUBIC_P else 1
     P, V, _ = kernels.track_fixed_period(
-        kind, P, V, smp.position[i], period, f, rv_per, ra_per, pos_lo, pos_hi, v_units, _fixed_period_reach(kind)
+        kind, P, V, smp.position[i], period, f, rv_per, ra_per, pos_lo, pos_hi, v_units, reach
     )
     records = np.column_stack((np.append(P, P[-1]), np.append(V, 0), np.full(len(P) + 1, period))).astype(np.int64)
     chk, _ = _check(axis, records, smp.position[i])
@@ -984,45 +956,11 @@ def _fixed_period_axis(axis: DriveAxis, i: int, smp: _Samples, opts: KnotOptions
 
 
 # --- the front door -----------------------------------------------------------------------------------------
-def _place_round(
-    traj: TimedTrajectory,
-    axes: Sequence[DriveAxis],
-    scale: float,
-    opts: KnotOptions,
-    last: tuple[AxisKnots, ...],
-    last_n: int,
-) -> tuple[tuple[AxisKnots, ...], float, int]:
-    """Every axis's records for the trajectory slowed down by ``scale``: (the records, the
-    slow-down they still call for, the motion's last ms). ``last``, ``last_n``: the previous
-    round's records and last ms (their knots, stretched, are the EPOS2 axes' hints)."""
-    smp = _sample(traj, axes, scale)
-    placed: dict[int, tuple[AxisKnots, float]] = {}
-    epos2 = [i for i, a in enumerate(axes) if a.profile == "epos2_pvt"]
-    if epos2:
-        hints = None
-        if last:  # the previous round's knots, stretched with the motion
-            hints = []
-            for i in epos2:
-                prev = _record_knots(last[i].records)
-                hints.append(np.unique(np.rint(prev * smp.n_ms / last_n).astype(np.int64)))
-        placed.update(zip(epos2, _epos2_axes([axes[i] for i in epos2], epos2, smp, opts, hints), strict=True))
-    for i, axis in enumerate(axes):
-        if axis.profile != "epos2_pvt":
-            placed[i] = _fixed_period_axis(axis, i, smp, opts)
-    need = max([1.0] + [placed[i][1] for i in range(len(axes))])
-    return tuple(placed[i][0] for i in range(len(axes))), need, smp.n_ms
-
-
-_JUMP = True
-_HALVINGS = 2  # fixed-period cells: how often the gap between the last scale too fast and the first that fits is halved
-
-
 def place_knots(traj: TimedTrajectory, axes: Sequence[DriveAxis], options: KnotOptions | None = None) -> KnotResult:
     """Records for every axis whose quantized reconstruction stays inside the drive limits.
 
     ``axes`` are in the trajectory's joint order. Raises KnotError when no program within
-    ``options.max_time_scale`` (on top of what fixed-period drives' own interpolation of this
-    plan calls for, ``_drive_slowdown``) meets the limits.
+    ``options.max_time_scale`` meets the limits.
     """
     opts = options or KnotOptions()
     if traj.duration <= 0:
@@ -1033,52 +971,53 @@ def place_knots(traj: TimedTrajectory, axes: Sequence[DriveAxis], options: KnotO
     scale = math.ceil(duration_ms - 1e-6) / duration_ms
     last: tuple[AxisKnots, ...] = ()
     last_n = 0
-    fixed = [i for i, a in enumerate(axes) if a.profile != "epos2_pvt"]
-    drives = 1.0  # the slow-down the fixed-period drives' own interpolation of this plan calls for
-    if fixed:
+    least = drives = 1.0  # the slow-downs the fixed-period drives alone call for (``_drive_slowdown``)
+    if any(a.profile != "epos2_pvt" for a in axes):
         smp = _sample(traj, axes, scale)
-        slowdowns = [_drive_slowdown(axes[i], i, smp) for i in fixed]
-        least, drives = scale * max(k[0] for k in slowdowns), scale * max(k[1] for k in slowdowns)
-        if least > scale and _JUMP:  # no integers fit below it: no round there
+        for i, axis in enumerate(axes):
+            if axis.profile != "epos2_pvt":
+                k_least, k_drive = _drive_slowdown(axis, i, smp)
+                least, drives = max(least, scale * k_least), max(drives, scale * k_drive)
+        if least > scale:  # no integers make less: no round below it
             scale = math.ceil(duration_ms * least - 1e-6) / duration_ms
-    result: KnotResult | None = None
-    too_fast = 0.0  # the last scale that did not fit
     for rounds in range(1, opts.max_rounds + 1):
-        last, need, last_n = _place_round(traj, axes, scale, opts, last, last_n)
+        smp = _sample(traj, axes, scale)
+        placed: dict[int, tuple[AxisKnots, float]] = {}
+        epos2 = [i for i, a in enumerate(axes) if a.profile == "epos2_pvt"]
+        if epos2:
+            hints = None
+            if last:  # the previous round's knots, stretched with the motion
+                hints = []
+                for i in epos2:
+                    prev = _record_knots(last[i].records)
+                    hints.append(np.unique(np.rint(prev * smp.n_ms / last_n).astype(np.int64)))
+            placed.update(zip(epos2, _epos2_axes([axes[i] for i in epos2], epos2, smp, opts, hints), strict=True))
+        for i, axis in enumerate(axes):
+            if axis.profile != "epos2_pvt":
+                placed[i] = _fixed_period_axis(axis, i, smp, opts)
+        results = [placed[i][0] for i in range(len(axes))]
+        need = max([1.0] + [placed[i][1] for i in range(len(axes))])
+        last = tuple(results)
+        last_n = smp.n_ms
         if need <= 1.0:
-            result = KnotResult(last, scale, last_n, rounds)
-            break
-        too_fast = scale
+            return KnotResult(last, scale, smp.n_ms, rounds)
         # A new scale re-places the knots, whose rounding differs: the residual excess is no
         # measure of what the next round needs. Rounding moves a segment's acceleration by a few
         # tenths of a percent, so ask at least for that much room, a little more each round.
         # The excess of a quantized program overstates what a slower one needs (its integers
         # can be placed better with a little room): grow by at most 1, 2, 4 ... % per round.
         scale *= min(max(need, 1.0 + 1e-3 * rounds), 1.0 + 0.01 * 2 ** (rounds - 1))
+        if least > scale:  # no integers make less: no round below it
+            scale = least
         scale = math.ceil(duration_ms * scale - 1e-6) / duration_ms  # and end on a whole ms again
         # the limit on the slow-down is on what the integers cost, on top of what the drives' own
         # interpolation of this plan calls for (a plan that asks more than they can take)
         if scale > opts.max_time_scale * drives and duration_ms * (scale - drives) > opts.max_extra_ms:
             break
-    if result is None:
-        worst = max(last, key=lambda a: max(a.velocity_ratio, a.acceleration_ratio))
-        beyond = f" beyond the {drives:.4f} the drives' interpolation of this plan calls for" if drives > 1.0 else ""
-        raise KnotError(
-            f"{worst.name}: the drive's reconstruction still exceeds its limits (|v| "
-            f"{100 * worst.velocity_ratio:.2f}% of 0x607F, |a| {100 * worst.acceleration_ratio:.2f}% of 0x60C5) "
-            f"after slowing down by {scale:.4f} (max {opts.max_time_scale}{beyond}, or {opts.max_extra_ms} ms)"
-        )
-    # A fixed-period drive's excess is on a lattice of whole counts: it says little about what a
-    # slower plan needs, so the rounds above overshoot by up to their step. The gap to the last
-    # scale that did not fit is halved (each try a round of these cheap axes).
-    for _ in range(_HALVINGS if fixed and too_fast else 0):
-        scale = math.ceil(duration_ms * 0.5 * (too_fast + result.time_scale) - 1e-6) / duration_ms
-        if not too_fast < scale < result.time_scale:
-            break
-        records, need, n_ms = _place_round(traj, axes, scale, opts, last, last_n)
-        if need <= 1.0:
-            result = KnotResult(records, scale, n_ms, result.rounds + 1)
-        else:
-            too_fast = scale
-            result = replace(result, rounds=result.rounds + 1)
-    return result
+    worst = max(last, key=lambda a: max(a.velocity_ratio, a.acceleration_ratio))
+    beyond = f" beyond the {drives:.4f} the drives' interpolation of this plan calls for" if drives > 1.0 else ""
+    raise KnotError(
+        f"{worst.name}: the drive's reconstruction still exceeds its limits (|v| {100 * worst.velocity_ratio:.2f}% "
+        f"of 0x607F, |a| {100 * worst.acceleration_ratio:.2f}% of 0x60C5) after slowing down by "
+        f"{scale:.4f} (max {opts.max_time_scale}{beyond}, or {opts.max_extra_ms} ms)"
+    )

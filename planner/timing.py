@@ -75,7 +75,7 @@ class _IntervalSpeedConstraint(constraint.LinearConstraint):
         inner = self.FRACTIONS < 1.0
         s_inner = (gridpoints[:-1, None] + sigma[:-1, inner]).ravel()
         factors2 = self.speed_factors(path, np.concatenate((gridpoints, s_inner))) ** 2
-        with np.errstate(divide="ignore"):
+        with np.errstate(divide="ignore", over="ignore"):
             # the largest s'^2 each sample allows (inf where nothing moves: capped, the solver wants numbers)
             x_max = np.minimum(np.min(self.limit**2 / factors2, axis=1), _X_MAX)
         at_grid = x_max[:n]
@@ -540,7 +540,7 @@ class _StageRows:
         lo = inf where none does)."""
         A = self.A
         r = self.B * x[:, None] + self.C
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             bound = -r / A
         hi = np.minimum(self.u_hi, np.min(np.where(A > 0.0, bound, np.inf), axis=1, initial=np.inf))
         lo = np.maximum(self.u_lo, np.max(np.where(A < 0.0, bound, -np.inf), axis=1, initial=-np.inf))

@@ -83,7 +83,9 @@ def test_the_spline_stays_where_it_is_inside() -> None:
     from scipy.interpolate import CubicSpline
 
     limits = CELLS["arm6"]
-    w = np.array([[0.0, -1.0, 1.2, 0.3, -0.2, 0.0], [1.1, 0.2, -0.4, -0.6, 0.5, 1.0], [-0.5, 0.6, 0.3, 0.8, -0.7, -1.2]])
+    w = np.array(
+        [[0.0, -1.0, 1.2, 0.3, -0.2, 0.0], [1.1, 0.2, -0.4, -0.6, 0.5, 1.0], [-0.5, 0.6, 0.3, 0.8, -0.7, -1.2]]
+    )
     path = JointPath(w, limits)
     assert not path.clamped.any() and len(path.kinks) == 0
     np.testing.assert_array_equal(path.pieces[1], CubicSpline(path.waypoint_s, w, bc_type="not-a-knot").c)
