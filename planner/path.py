@@ -243,7 +243,7 @@ class JointPath(AbstractGeometricPath):
         # the inner waypoints next to a rebuilt (Hermite) piece: where the second derivative may jump
         rebuilt = (clamped[:-1] | clamped[1:]).any(axis=1)
         self.kinks: NDArray[np.float64] = ss[1:-1][rebuilt[:-1] | rebuilt[1:]]
-        self._check_within(limits)
+        self.check_within(limits)
 
     @property
     def pieces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -253,9 +253,8 @@ class JointPath(AbstractGeometricPath):
 
     def __call__(self, path_positions: ArrayLike, order: int = 0) -> NDArray[np.float64]:
         """toppra's evaluation (q, q_s or q_ss at s; (dof,) for a scalar s, (n, dof) for n of them),
-        in one compiled pass: a plan evaluates its path a dozen times on hundreds of points, and
-        scipy's per-call overhead was a tenth of the planning time. At a waypoint, the piece that
-        starts there."""
+        in one compiled pass (a plan evaluates its path a dozen times on hundreds of points). At a
+        waypoint, the piece that starts there."""
         s = np.asarray(path_positions, dtype=float)
         flat = np.atleast_1d(s).ravel()
         out = self._values(flat, flat, order)
@@ -290,7 +289,7 @@ class JointPath(AbstractGeometricPath):
     def length(self) -> float:
         return float(self.waypoint_s[-1])
 
-    def _check_within(self, limits: JointLimits) -> None:
+    def check_within(self, limits: JointLimits) -> None:
         """Exact extrema of every piece against the position limits: the safety net under
         ``within_limits_pieces`` (which keeps every piece inside; this never fires on waypoints
         inside the limits)."""

@@ -698,7 +698,7 @@ class LeanTOPPRA(algo.TOPPRA):
 # last uniform intervals are split geometrically. So are the intervals on both sides of a kink (a
 # waypoint where the path's second derivative jumps, ``JointPath.kinks``): where the curvature
 # jumps up, holding the acceleration takes a burst of s'' that one constant s'' over a whole
-# interval turns into a near stop (up to 4 % of the duration on gantry3 paths without it).
+# interval turns into a near stop (what that costs: bench/RESULTS.md, issue 13).
 END_REFINEMENT = 0.5 ** np.arange(1, 7)
 
 

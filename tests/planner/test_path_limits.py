@@ -124,5 +124,5 @@ def test_the_safety_net_still_names_the_segment() -> None:
     c[1, 0, 0] = 100.0  # a bulge on joint_1
     path._pieces = (path.pieces[0], c)
     with pytest.raises(Exception, match="between waypoints 0 and 1 takes joint joint_1") as exc:
-        path._check_within(narrow)
+        path.check_within(narrow)
     assert exc.value.result is PlanResult.PATH_OUT_OF_LIMITS
