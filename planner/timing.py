@@ -278,24 +278,27 @@ def _worst_ratios(
 
 
 @njit(cache=True)
-def _peak_accelerations(
+def _interval_peaks(
     gridpoints: NDArray[np.float64],
     sd: NDArray[np.float64],
     sdd: NDArray[np.float64],
     x: NDArray[np.float64],
     c: NDArray[np.float64],
+    vmax: NDArray[np.float64],
     amax: NDArray[np.float64],
-) -> float:
-    """max |q''| / amax inside the grid intervals, exactly: with s'' = u constant on an interval and
-    s'^2 = x_i + 2 u sigma, q'' = q_ss (x_i + 2 u sigma) + q_s u is a quadratic in sigma on the
-    interval's piece (q_ss linear, q_s quadratic), so its peak is at an end or at its vertex. The
-    ends are gridpoints, which the check times hold; here the vertex."""
-    worst = 0.0
+) -> tuple[float, float]:
+    """max |q'| / vmax and max |q''| / amax inside the grid intervals, exactly.
+
+    With s'' = u constant on an interval and s'^2 = x_i + 2 u sigma, q'' = q_ss (x_i + 2 u sigma)
+    + q_s u is a quadratic in sigma on the interval's piece (q_ss linear, q_s quadratic): its peak
+    is at an end or at its vertex, and |q'| = |q_s| s' peaks at an end or where q'' = 0, a root of
+    that quadratic. The ends are gridpoints, which the check times hold; here the inside."""
+    rv, ra = 0.0, 0.0
     i = 0
+    f = np.empty(3)
     for g in range(len(sdd)):
         delta = gridpoints[g + 1] - gridpoints[g]
         x_g, u = sd[g] * sd[g], sdd[g]
-        f = np.empty(3)
         for j in range(c.shape[2]):
             for m in range(3):
                 i, h = spline_piece(x, gridpoints[g], gridpoints[g] + 0.5 * m * delta, i)
@@ -306,8 +309,23 @@ def _peak_accelerations(
             b = 4.0 * f[1] - 3.0 * f[0] - f[2]
             r = -b / (2.0 * a) if a != 0.0 else -1.0
             if 0.0 < r < 1.0:
-                worst = max(worst, abs(f[0] + (b + a * r) * r) / amax[j])
-    return worst
+                ra = max(ra, abs(f[0] + (b + a * r) * r) / amax[j])
+            # where q'' = 0 inside: the velocity's extrema
+            if a != 0.0:
+                disc = b * b - 4.0 * a * f[0]
+                roots = (math.nan, math.nan)
+                if disc >= 0.0:
+                    sq = math.sqrt(disc)
+                    roots = ((-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a))
+            else:
+                roots = (-f[0] / b if b != 0.0 else math.nan, math.nan)
+            for r0 in roots:
+                if 0.0 < r0 < 1.0:
+                    sigma = r0 * delta
+                    i, h = spline_piece(x, gridpoints[g], gridpoints[g] + sigma, i)
+                    _, q_s, _ = spline_at(c, i, h, j)
+                    rv = max(rv, abs(q_s) * math.sqrt(max(x_g + 2.0 * u * sigma, 0.0)) / vmax[j])
+    return rv, ra
 
 
 @dataclass(frozen=True)
@@ -436,13 +454,12 @@ class Trajectory:
         return inner.ravel()
 
     def limit_ratios(self, limits: JointLimits) -> tuple[float, float]:
-        """Worst |qd|/vmax over the check times and |qdd|/amax there and at its peak inside every
-        grid interval (exact: ``_peak_accelerations``)."""
-        amax = np.asarray(limits.acceleration, dtype=float)
-        rv, ra = _worst_ratios(
-            self.check_times(), *self._profile_and_path(), np.asarray(limits.velocity, dtype=float), amax
-        )
-        return rv, max(ra, _peak_accelerations(self.gridpoints, self.sd, self.sdd, *self.path.pieces, amax))
+        """Worst |qd|/vmax and |qdd|/amax over the check times and at their peaks inside every grid
+        interval (exact: ``_interval_peaks``)."""
+        vmax, amax = np.asarray(limits.velocity, dtype=float), np.asarray(limits.acceleration, dtype=float)
+        rv, ra = _worst_ratios(self.check_times(), *self._profile_and_path(), vmax, amax)
+        rv_in, ra_in = _interval_peaks(self.gridpoints, self.sd, self.sdd, *self.path.pieces, vmax, amax)
+        return max(rv, rv_in), max(ra, ra_in)
 
 
 def timing_constraints(

@@ -45,10 +45,10 @@ def test_any_waypoints_inside_the_limits_are_planned_inside_them(cell: str) -> N
     limits = CELLS[cell]
 
     @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-    @given(waypoints=waypoints_in(limits))
-    def check(waypoints: np.ndarray) -> None:
+    @given(waypoints=waypoints_in(limits), scale=st.sampled_from([1.0, 1.0, 0.5, 0.3]))
+    def check(waypoints: np.ndarray, scale: float) -> None:
         assume(np.all(np.linalg.norm(np.diff(waypoints, axis=0), axis=1) >= MIN_WAYPOINT_DISTANCE))
-        out = PLANNERS[cell].plan(waypoints)
+        out = PLANNERS[cell].plan(waypoints, scale, scale)
         assert out.ok, f"{out.result.value}: {out.message}"
         tr = out.trajectory
         assert tr is not None
@@ -57,8 +57,9 @@ def test_any_waypoints_inside_the_limits_are_planned_inside_them(cell: str) -> N
         t = np.concatenate((np.linspace(0.0, tr.duration, 4001), tr.check_times()))
         q = tr.position(t)
         assert np.all(q >= limits.lower - 1e-9) and np.all(q <= limits.upper + 1e-9)
-        assert np.all(np.abs(tr.velocity(t)) <= limits.velocity * (1 + 1e-3))
-        assert np.all(np.abs(tr.acceleration(t)) <= limits.acceleration * (1 + 1e-9))
+        # the post-check holds both limits at their exact peaks between its samples too
+        assert np.all(np.abs(tr.velocity(t)) <= scale * limits.velocity * (1 + 1e-9))
+        assert np.all(np.abs(tr.acceleration(t)) <= scale * limits.acceleration * (1 + 1e-9))
 
     check()
 
