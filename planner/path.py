@@ -187,9 +187,9 @@ def within_limits_pieces(
     slope become the cubic Hermites through their waypoints with the new slopes. Every such range
     holds 0 (the waypoints are inside), so a slope clamped again only moves towards 0 and stays in
     every range it was clamped into: a piece whose two slopes have been clamped for it stays inside
-    for good, each round changes at least one slope (a piece whose control points are all inside
-    does not leave), and after at most 2 (N - 1) rounds no piece leaves the limits. Pieces no clamp
-    touched keep the spline's own coefficients, bit for bit.
+    for good, and each round clamps at least one more piece (one whose control points are all
+    inside does not leave), so at most N - 1 rounds change anything. Pieces no clamp touched keep
+    the spline's own coefficients, bit for bit.
     """
     n = len(w)
     spline = CubicSpline(s, w, bc_type="not-a-knot")
