@@ -8,7 +8,7 @@ acceleration and ms for time. Everything in pvtflow that crosses that border cal
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -153,6 +153,15 @@ class DriveLimits:
                 f"software position limits must satisfy int32 min <= min < max <= int32 max, "
                 f"got [{self.min_position_qc}, {self.max_position_qc}]"
             )
+
+    def scaled(self, velocity: float, acceleration: float) -> DriveLimits:
+        """0x607F and 0x60C5 multiplied by a speed override: what a scaled plan's records are held
+        to. The drive keeps its own objects (a program carries those)."""
+        return replace(
+            self,
+            max_profile_velocity_rpm=self.max_profile_velocity_rpm * velocity,
+            max_acceleration_rpm_s=self.max_acceleration_rpm_s * acceleration,
+        )
 
     def to_json(self) -> dict[str, float | int]:
         out: dict[str, float | int] = {

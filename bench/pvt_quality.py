@@ -11,7 +11,13 @@ limits. Prints, over all paths:
 - records per axis per second, and the CAN bus load that implies for 8 axes at 1 Mbit/s;
 - the latency of plan (trajectory + knots + validated program) for 6 axes and 8 waypoints, with
   its breakdown: trajectory, knots + program + validation, and inside that knot placement and
-  validation (p50, p99).
+  validation (p50, p99);
+- how many drawn waypoint sets the planner refused (every one is planned: none is redrawn), and
+  against the path before issue 13 (the not-a-knot spline, bench/old_spline.py): on the sets it
+  accepted, the new trajectory's duration and the path's length over the spline's; on the sets it
+  refused (it left the position limits), the same against the spline timed as if it had not;
+- the same paths planned with velocity_scale 0.5: the worst |v| / (0.5 x 0x607F) of the drives'
+  reconstruction over every program (the validator's exact check).
 
 Run:  python bench/pvt_quality.py [--paths 200] [--gantry-paths 50] [--waypoints 8] [--seed 1]
 """
@@ -32,7 +38,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from old_spline import arc_length, spline_path
+
 from planner.plan import plan
+from planner.timing import parameterize
 from planner.validate import validate_program
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
 from service.plan_cmd import CellPlanner, plan_cell_program, plan_input_for_cell
@@ -61,6 +70,11 @@ class PathResult:
     t_total: float  # s: trajectory + knots + validated program
     t_knots: float = math.nan  # s: knot placement (inside build_program)
     t_validation: float = math.nan  # s: the validation of the program (inside build_program)
+    spline_accepted: bool = True  # the path before issue 13 (the not-a-knot spline) stayed inside the limits
+    spline_duration_ratio: float = math.nan  # planned duration / the spline's (timed as if it were allowed)
+    spline_length_ratio: float = math.nan  # path length in joint space / the spline's
+    half_speed_v_ratio: float = math.nan  # velocity_scale 0.5: worst |v| / (0.5 x 0x607F), reconstruction
+    half_speed_a_ratio: float = math.nan  # ... and |a| / 0x60C5 (acceleration_scale 1)
 
 
 def random_waypoints(cell: CellConfig, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -83,7 +97,28 @@ def independent_deviation(cell: CellConfig, result) -> float:
     return worst
 
 
-def run_path(cell: CellConfig, wp: np.ndarray) -> PathResult | None:
+def against_spline(planner: CellPlanner, wp: np.ndarray, result) -> tuple[bool, float, float]:
+    """(the old spline accepted these waypoints, duration / the spline's, path length / the spline's)."""
+    spline, accepted = spline_path(wp, planner.limits)
+    p = planner.planner
+    old = parameterize(spline, planner.limits, p.constraints, p.gridpoints)
+    traj = result.plan.trajectory
+    return accepted, traj.duration / old.duration, arc_length(traj.path) / arc_length(spline)
+
+
+def half_speed(planner: CellPlanner, wp: np.ndarray) -> tuple[float, float]:
+    """velocity_scale 0.5: the worst |v| / (0.5 x 0x607F) and |a| / 0x60C5 of the drives' reconstruction."""
+    result = planner.plan(wp, velocity_scale=0.5)
+    if not result.ok:
+        print(f"  velocity_scale 0.5 NOT PLANNED on {planner.cell.name}: {result.message}", file=sys.stderr)
+        return math.inf, math.inf
+    report = validate_program(result.program)
+    return max(a.velocity_ratio or 0.0 for a in report.axes) / 0.5, max(
+        a.acceleration_ratio or 0.0 for a in report.axes
+    )
+
+
+def run_path(cell: CellConfig, wp: np.ndarray, planner: CellPlanner) -> PathResult | None:
     result = plan_cell_program(cell, wp)
     if not result.ok:
         if result.code == "program_error":
@@ -101,12 +136,15 @@ def run_path(cell: CellConfig, wp: np.ndarray) -> PathResult | None:
                 result.timing.get("plan", 0.0),
                 math.nan,
             )
-        return None  # the planner refused the path (e.g. it leaves the position limits): not a program
+        print(f"  REFUSED on {cell.name}: {result.code}: {result.message}", file=sys.stderr)
+        return None  # the planner refused the waypoints: not a program
     report = validate_program(result.program)
     ref = plan(plan_input_for_cell(cell, wp, gridpoints=3000))
     knots = result.build.knots
     motion_s = knots.duration_ms / 1000.0
     ref_s = ref.trajectory.duration if ref.ok and ref.trajectory is not None else math.nan
+    accepted, spline_duration, spline_length = against_spline(planner, wp, result)
+    half_v, half_a = half_speed(planner, wp)
     return PathResult(
         cell=cell.name,
         violations=len(report.errors),
@@ -121,6 +159,11 @@ def run_path(cell: CellConfig, wp: np.ndarray) -> PathResult | None:
         t_total=result.timing["total"],
         t_knots=result.build.timing.get("knots", math.nan),
         t_validation=result.build.timing.get("validation", math.nan),
+        spline_accepted=accepted,
+        spline_duration_ratio=spline_duration,
+        spline_length_ratio=spline_length,
+        half_speed_v_ratio=half_v,
+        half_speed_a_ratio=half_a,
     )
 
 
@@ -142,14 +185,13 @@ def main() -> int:
     refused = 0
     for cell_file, n_paths in (("arm6.yaml", args.paths), ("gantry3.yaml", args.gantry_paths)):
         cell = load_cell_config(CONFIG_DIR / "cells" / cell_file)
-        done = 0
-        while done < n_paths:
-            r = run_path(cell, random_waypoints(cell, rng, args.waypoints))
+        planner = CellPlanner(cell)
+        for done in range(1, n_paths + 1):  # every drawn set is a result: none is redrawn
+            r = run_path(cell, random_waypoints(cell, rng, args.waypoints), planner)
             if r is None:
                 refused += 1
-                continue
-            results.append(r)
-            done += 1
+            else:
+                results.append(r)
             if done % 25 == 0:
                 print(f"  {cell.name}: {done}/{n_paths} paths", file=sys.stderr)
 
@@ -173,7 +215,8 @@ def main() -> int:
 
     print(
         f"pvt_quality: {len(results)} paths ({len(arm)} arm6 6-axis, {len(results) - len(arm)} gantry3), "
-        f"{args.waypoints} waypoints each, seed {args.seed}; {refused} random paths refused by the planner"
+        f"{args.waypoints} waypoints each, seed {args.seed}; {refused} of {args.paths + args.gantry_paths} drawn "
+        "waypoint sets refused by the planner (none redrawn)"
     )
     print(
         f"  limit violations after reconstruction (validator errors): {sum(r.violations for r in results)} "
@@ -206,6 +249,29 @@ def main() -> int:
     print(f"  plan latency, arm6 6 axes {args.waypoints} waypoints: total {p50_p99(t_total)}")
     print(f"    trajectory {p50_p99(t_plan)}; knots + program + validation {p50_p99(t_total - t_plan)}")
     print(f"    of which knot placement {p50_p99(t_knots)}, validation {p50_p99(t_valid)}")
+    for cell_name in dict.fromkeys(r.cell for r in ok):
+        mine = [r for r in ok if r.cell == cell_name]
+        kept = [r for r in mine if r.spline_accepted]
+        moved = [r for r in mine if not r.spline_accepted]
+        print(
+            f"  against the not-a-knot spline (the path before issue 13), {cell_name}: {len(kept)} of {len(mine)} "
+            f"sets it accepted, {len(moved)} it refused"
+        )
+        for what, rs in (("accepted (same waypoints)", kept), ("refused (spline timed as if allowed)", moved)):
+            if rs:
+                d = np.array([r.spline_duration_ratio for r in rs])
+                n = np.array([r.spline_length_ratio for r in rs])
+                print(
+                    f"    {what}: duration / spline's median {np.median(d):.4f}, worst {d.max():.4f} "
+                    f"(min {d.min():.4f}); path length / spline's median {np.median(n):.4f}, "
+                    f"min {n.min():.4f}, max {n.max():.4f}"
+                )
+    half_v = max(r.half_speed_v_ratio for r in ok)
+    half_a = max(r.half_speed_a_ratio for r in ok)
+    print(
+        f"  velocity_scale 0.5 on every path: worst |v| / (0.5 x 0x607F) {half_v:.9f}, worst |a| / 0x60C5 "
+        f"{half_a:.6f} (the drives' reconstruction of every program)"
+    )
     print(
         f"command: python bench/pvt_quality.py --paths {args.paths} --gantry-paths {args.gantry_paths} "
         f"--waypoints {args.waypoints} --seed {args.seed}"

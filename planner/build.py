@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from axes.program import PvtProgram
@@ -34,12 +34,23 @@ def build_program(
     cell: str,
     options: KnotOptions | None = None,
     metadata: Mapping[str, Any] | None = None,
+    velocity_scale: float = 1.0,
+    acceleration_scale: float = 1.0,
 ) -> BuildOutput:
-    """Place the knots, assemble the program, validate it; BuildError if any of that fails."""
+    """Place the knots, assemble the program, validate it; BuildError if any of that fails.
+
+    ``velocity_scale``, ``acceleration_scale``: the speed override the trajectory was planned with.
+    The knots are placed so that the drives' reconstruction stays inside 0x607F and 0x60C5 scaled
+    by it (a 0.5 plan stays under half the drives' speed on the drive too, not only in the plan);
+    the program carries the drives' own objects, which is what the drives are checked against.
+    """
     opts = options or KnotOptions()
     start = time.perf_counter()
+    placing = axes
+    if (velocity_scale, acceleration_scale) != (1.0, 1.0):
+        placing = [replace(a, limits=a.limits.scaled(velocity_scale, acceleration_scale)) for a in axes]
     try:
-        knots = place_knots(trajectory, axes, opts)
+        knots = place_knots(trajectory, placing, opts)
     except KnotError as exc:
         raise BuildError(str(exc)) from None
     placed = time.perf_counter()
@@ -49,6 +60,8 @@ def build_program(
         "time_scale": knots.time_scale,
         "tolerance_qc": opts.tolerance_qc,
         "deviation_qc": {a.name: round(a.deviation_qc, 4) for a in knots.axes},
+        "velocity_scale": velocity_scale,
+        "acceleration_scale": acceleration_scale,
     }
     meta.update(metadata or {})
     program = PvtProgram(cell, tuple(ax.program(k.records) for ax, k in zip(axes, knots.axes, strict=True)), meta)

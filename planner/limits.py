@@ -65,10 +65,22 @@ class JointLimits:
         )
 
     def scaled(self, velocity: float = 1.0, acceleration: float = 1.0) -> JointLimits:
-        """The same limits with velocity and acceleration bounds multiplied (speed override)."""
-        return JointLimits(
-            self.names, self.lower, self.upper, self.velocity * velocity, self.acceleration * acceleration, self.effort
-        )
+        """The same limits with the velocity and acceleration bounds multiplied by a speed override
+        (``check_scale``: each in (0, 1]); positions and efforts stay."""
+        v, a = check_scale("velocity_scale", velocity), check_scale("acceleration_scale", acceleration)
+        return JointLimits(self.names, self.lower, self.upper, self.velocity * v, self.acceleration * a, self.effort)
+
+
+def check_scale(name: str, value: object) -> float:
+    """A speed override (``velocity_scale``, ``acceleration_scale``) as a float in (0, 1]; ValueError
+    naming ``name`` for anything else (0, negative, above 1, NaN, not a number): an override may slow
+    a motion down, never make it faster than the drives allow."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number in (0, 1], got {value!r}")
+    x = float(value)
+    if not 0.0 < x <= 1.0:  # NaN fails both comparisons
+        raise ValueError(f"{name} must be in (0, 1], got {x:g}")
+    return x
 
 
 def joint_limits_from_drives(

@@ -1,20 +1,26 @@
 """Geometric paths through joint waypoints: where the axes go, not yet when.
 
-The path is toppra's cubic spline through the waypoints, parameterised by the cumulative chord
-length in joint space (s in [0, L]). A spline can swing past a position limit between two
-waypoints that are both inside; that is checked exactly on every spline piece, not sampled.
+The path is a piecewise cubic through the waypoints, parameterised by the cumulative chord length
+in joint space (s in [0, L]): the not-a-knot cubic spline (C2), except where the spline would swing
+past a position limit between two waypoints that are both inside. There that joint's slopes at
+the piece's ends are clamped so that the piece's Bezier control points lie inside the limits, and
+the pieces next to a clamped slope become cubic Hermites through the same waypoints (C1 there: the
+second derivative may jump at such a waypoint). A cubic lies within the hull of its control
+points, so waypoints inside the limits always give a path inside them; the exact extrema of every
+piece are checked all the same, as a safety net (docs/planning.md).
 """
 
 from __future__ import annotations
 
 from enum import Enum
-from functools import cached_property
 
 import numpy as np
-import toppra
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
+from scipy.interpolate import CubicSpline
+from toppra.interpolator import AbstractGeometricPath
 
+from axes.interpolation import cubic_position_range, hermite_coefficients
 from planner.limits import JointLimits
 
 # Two waypoints closer than this (joint units, Euclidean) are the same point.
@@ -103,10 +109,13 @@ def interval(a: NDArray[np.float64], v: float, i: int, hi: int) -> int:
 
 
 @njit(cache=True)
-def spline_piece(x: NDArray[np.float64], s: float, i: int) -> tuple[int, float]:
-    """The path's spline piece at s (``i``: a hint for it) and the offset into it (scipy's PPoly
-    layout: breakpoints ``x``; clipped to the end pieces)."""
-    i = interval(x, s, i, len(x) - 2)
+def spline_piece(x: NDArray[np.float64], anchor: float, s: float, i: int) -> tuple[int, float]:
+    """The path's piece that holds ``anchor`` (``i``: a hint for it; at a waypoint, the piece that
+    starts there; clipped to the end pieces) and the offset of s into it (scipy's PPoly layout:
+    breakpoints ``x``). The anchor is s itself, or the start of the grid interval s lies in: the
+    second derivative may jump at a waypoint, and every sample of one grid interval (its end
+    included) belongs to the interval's own piece."""
+    i = interval(x, anchor, i, len(x) - 2)
     return i, s - x[i]
 
 
@@ -122,85 +131,177 @@ def spline_at(c: NDArray[np.float64], i: int, h: float, j: int) -> tuple[float, 
 
 @njit(cache=True)
 def _spline_values(
-    x: NDArray[np.float64], c: NDArray[np.float64], s: NDArray[np.float64], order: int
+    x: NDArray[np.float64], c: NDArray[np.float64], anchor: NDArray[np.float64], s: NDArray[np.float64], order: int
 ) -> NDArray[np.float64]:
-    """The spline's ``order``-th derivative (0, 1, 2) at every s, (len(s), dof), in one pass."""
+    """The path's ``order``-th derivative (0, 1, 2) at every s, (len(s), dof), in one pass, on the
+    piece that holds the sample's anchor (``spline_piece``)."""
     out = np.empty((len(s), c.shape[2]))
     i = 0
     for k in range(len(s)):
-        i, h = spline_piece(x, s[k], i)
+        i, h = spline_piece(x, anchor[k], s[k], i)
         for j in range(c.shape[2]):
             q, q_s, q_ss = spline_at(c, i, h, j)
             out[k, j] = q if order == 0 else (q_s if order == 1 else q_ss)
     return out
 
 
-class JointPath(toppra.SplineInterpolator):
-    """A cubic spline through (N, dof) waypoints, s = cumulative chord length.
+@njit(cache=True)
+def _piece_ranges(x: NDArray[np.float64], c: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Exact (min, max) of every piece and joint, each (pieces, dof) (``cubic_position_range``)."""
+    n, dof = c.shape[1], c.shape[2]
+    lo, hi = np.empty((n, dof)), np.empty((n, dof))
+    for i in range(n):
+        for j in range(dof):
+            lo[i, j], hi[i, j] = cubic_position_range(c[3, i, j], c[2, i, j], c[1, i, j], c[0, i, j], x[i + 1] - x[i])
+    return lo, hi
 
-    Subclassing toppra's SplineInterpolator keeps it a toppra geometric path (constraints and the
-    algorithm take it directly) while adding what the planner needs: the waypoints' path
-    parameters and an exact position-limit check.
+
+def _outside(
+    x: NDArray[np.float64], c: NDArray[np.float64], lower: NDArray[np.float64], upper: NDArray[np.float64]
+) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64]]:
+    """Which pieces (pieces, dof) leave [lower, upper] (beyond the shared tolerance), and the ranges."""
+    lo, hi = _piece_ranges(x, c)
+    out = (lo < lower - (POSITION_TOLERANCE + 1e-12 * np.abs(lo))) | (
+        hi > upper + POSITION_TOLERANCE + 1e-12 * np.abs(hi)
+    )
+    return out, lo, hi
+
+
+def _hermite_pieces(
+    s: NDArray[np.float64], w: NDArray[np.float64], m: NDArray[np.float64], k: NDArray[np.intp], j: NDArray[np.intp]
+) -> NDArray[np.float64]:
+    """The Hermite cubics of pieces k, joints j (through w and slopes m): rows of ``c``, highest power first."""
+    c0, c1, c2, c3 = hermite_coefficients(w[k, j], m[k, j], w[k + 1, j], m[k + 1, j], s[k + 1] - s[k])
+    return np.stack((c3, c2, c1, c0))
+
+
+def within_limits_pieces(
+    s: NDArray[np.float64], w: NDArray[np.float64], lower: NDArray[np.float64], upper: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """The path's cubic pieces through waypoints ``w`` at ``s``: ``c[k, piece, joint]`` (highest power
+    first), and which slopes (N, dof) were clamped to keep it inside [lower, upper].
+
+    Start from the not-a-knot cubic spline. While a piece of joint j leaves the limits, j's slopes at
+    both its ends are clamped into the range that keeps the piece's Bezier control points
+    p0 + m0 h / 3 and p1 - m1 h / 3 inside the limits, and the pieces on either side of a changed
+    slope become the cubic Hermites through their waypoints with the new slopes. Every such range
+    holds 0 (the waypoints are inside), so a slope clamped again only moves towards 0 and stays in
+    every range it was clamped into: a piece whose two slopes have been clamped for it stays inside
+    for good, and each round clamps at least one more piece (one whose control points are all
+    inside does not leave), so at most N - 1 rounds change anything. Pieces no clamp touched keep
+    the spline's own coefficients, bit for bit.
+    """
+    n = len(w)
+    spline = CubicSpline(s, w, bc_type="not-a-knot")
+    c = np.array(spline.c)
+    slopes = np.vstack((c[2], spline(s[-1], 1)[None, :]))
+    h = np.diff(s)
+    p = np.clip(w, lower, upper)  # on the limit at worst: every slope range holds 0
+    clamped = np.zeros(w.shape, dtype=bool)
+    for _ in range(2 * (n - 1)):
+        out, _, _ = _outside(s, c, lower, upper)
+        if not out.any():
+            break
+        piece, joint = np.nonzero(out)
+        hk = h[piece]
+        # piece k's start slope keeps p_k + m h / 3 inside, its end slope p_k+1 - m h / 3
+        ends = np.concatenate((piece, piece + 1))
+        joints = np.concatenate((joint, joint))
+        low = np.concatenate(((lower[joint] - p[piece, joint]) / hk, (p[piece + 1, joint] - upper[joint]) / hk))
+        high = np.concatenate(((upper[joint] - p[piece, joint]) / hk, (p[piece + 1, joint] - lower[joint]) / hk))
+        lo_bound, hi_bound = np.full(w.shape, -np.inf), np.full(w.shape, np.inf)
+        np.maximum.at(lo_bound, (ends, joints), 3.0 * low)
+        np.minimum.at(hi_bound, (ends, joints), 3.0 * high)
+        new = np.clip(slopes, lo_bound, hi_bound)
+        changed = new != slopes
+        slopes = new
+        clamped |= changed
+        k, j = np.nonzero(changed[:-1] | changed[1:])  # the pieces on either side of a changed slope
+        c[:, k, j] = _hermite_pieces(s, w, slopes, k, j)
+    return np.ascontiguousarray(c), clamped
+
+
+class JointPath(AbstractGeometricPath):
+    """A piecewise cubic through (N, dof) waypoints, inside the position limits between them,
+    s = cumulative chord length: the spline, C1 where it had to be clamped (``within_limits_pieces``).
+
+    A toppra geometric path (constraints and the algorithm take it directly), plus what the planner
+    needs: the waypoints' path parameters, the pieces for the compiled loops, evaluation on a
+    chosen piece (the second derivative may jump at a waypoint) and an exact position-limit check.
     """
 
     def __init__(self, waypoints: ArrayLike, limits: JointLimits) -> None:
+        super().__init__()
         w = check_waypoints(waypoints, limits)
         ss = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(w, axis=0), axis=1))))
-        super().__init__(ss, w, bc_type="not-a-knot")
         self.points: NDArray[np.float64] = w
         self.waypoint_s: NDArray[np.float64] = ss
-        self._check_within(limits)
+        c, clamped = within_limits_pieces(ss, w, limits.lower, limits.upper)
+        self._pieces = (ss, c)
+        # the slopes (N, dof) that were clamped to keep the path inside the limits
+        self.clamped: NDArray[np.bool_] = clamped
+        # the inner waypoints next to a rebuilt (Hermite) piece: where the second derivative may jump
+        rebuilt = (clamped[:-1] | clamped[1:]).any(axis=1)
+        self.kinks: NDArray[np.float64] = ss[1:-1][rebuilt[:-1] | rebuilt[1:]]
+        self.check_within(limits)
 
-    @cached_property
+    @property
     def pieces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """The spline's pieces as the compiled loops take them (scipy's PPoly layout): breakpoints,
-        and ``c[k, piece, joint]``, highest power first."""
-        return self.cspl.x, np.ascontiguousarray(self.cspl.c)
+        """The path's pieces as the compiled loops take them (scipy's PPoly layout): breakpoints
+        (the waypoints' s), and ``c[k, piece, joint]``, highest power first."""
+        return self._pieces
 
     def __call__(self, path_positions: ArrayLike, order: int = 0) -> NDArray[np.float64]:
         """toppra's evaluation (q, q_s or q_ss at s; (dof,) for a scalar s, (n, dof) for n of them),
-        from the same spline pieces in one compiled pass: a plan evaluates its path a dozen times on
-        hundreds of points, and scipy's per-call overhead was a tenth of the planning time."""
+        in one compiled pass (a plan evaluates its path a dozen times on hundreds of points). At a
+        waypoint, the piece that starts there."""
+        s = np.asarray(path_positions, dtype=float)
+        flat = np.atleast_1d(s).ravel()
+        out = self._values(flat, flat, order)
+        return out[0] if s.ndim == 0 else out.reshape(*s.shape, out.shape[1])
+
+    def on_piece_of(self, anchor: ArrayLike, s: ArrayLike, order: int) -> NDArray[np.float64]:
+        """The ``order``-th derivative at every s on the piece that holds its anchor, (n, dof): with
+        the grid interval's start as the anchor, all of an interval's samples on its own piece, its
+        end included (q_ss of the piece that ends at a waypoint, not of the one that starts there)."""
+        s_arr = np.asarray(s, dtype=float).ravel()
+        a_arr = np.broadcast_to(np.asarray(anchor, dtype=float).ravel(), s_arr.shape)
+        return self._values(np.ascontiguousarray(a_arr), s_arr, order)
+
+    def _values(self, anchor: NDArray[np.float64], s: NDArray[np.float64], order: int) -> NDArray[np.float64]:
         if order not in (0, 1, 2):
             raise ValueError(f"Invalid order {order}")
-        s = np.asarray(path_positions, dtype=float)
-        out = _spline_values(*self.pieces, np.atleast_1d(s).ravel(), order)
-        return out[0] if s.ndim == 0 else out.reshape(*s.shape, out.shape[1])
+        return _spline_values(*self._pieces, anchor, s, order)
+
+    @property
+    def dof(self) -> int:
+        return int(self.points.shape[1])
+
+    @property
+    def path_interval(self) -> NDArray[np.float64]:
+        return np.array([self.waypoint_s[0], self.waypoint_s[-1]])
+
+    @property
+    def waypoints(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        return self.waypoint_s, self.points
 
     @property
     def length(self) -> float:
         return float(self.waypoint_s[-1])
 
-    def _check_within(self, limits: JointLimits) -> None:
-        """Exact extrema of every spline piece against the position limits."""
-        spline = self.cspl  # scipy CubicSpline: c[k, piece, joint], highest power first
-        c3, c2, c1 = spline.c[0], spline.c[1], spline.c[2]
-        h = np.diff(spline.x)[:, None]
-        # stationary points of each piece: 3 c3 t^2 + 2 c2 t + c1 = 0
-        a, b = 3.0 * c3, 2.0 * c2
-        with np.errstate(divide="ignore", invalid="ignore"):
-            disc = b * b - 4.0 * a * c1
-            sq = np.sqrt(np.where(disc >= 0.0, disc, np.nan))
-            quad = np.abs(a) > 1e-14
-            roots = (np.where(quad, (-b - sq) / (2.0 * a), -c1 / b), np.where(quad, (-b + sq) / (2.0 * a), np.nan))
-        for t in roots:
-            inside = np.isfinite(t) & (t > 0.0) & (t < h)
-            if not inside.any():
-                continue
-            piece, joint = np.nonzero(inside)
-            tt = t[piece, joint]
-            q = spline(spline.x[piece] + tt)[np.arange(len(piece)), joint]
-            tol = POSITION_TOLERANCE + 1e-12 * np.abs(q)
-            out = (q < limits.lower[joint] - tol) | (q > limits.upper[joint] + tol)
-            if out.any():
-                k = int(np.flatnonzero(out)[0])
-                j = int(joint[k])
-                raise PlanError(
-                    PlanResult.PATH_OUT_OF_LIMITS,
-                    f"the path between waypoints {piece[k]} and {piece[k] + 1} takes joint {limits.names[j]} to "
-                    f"{q[k]:.6g}, outside [{limits.lower[j]:.6g}, {limits.upper[j]:.6g}]; add a waypoint there "
-                    "or move the neighbours away from the limit",
-                    segment=int(piece[k]),
-                    joint=limits.names[j],
-                    value=float(q[k]),
-                )
+    def check_within(self, limits: JointLimits) -> None:
+        """Exact extrema of every piece against the position limits: the safety net under
+        ``within_limits_pieces`` (which keeps every piece inside; this never fires on waypoints
+        inside the limits)."""
+        out, lo, hi = _outside(*self._pieces, limits.lower, limits.upper)
+        if out.any():
+            k, j = (int(v) for v in np.argwhere(out)[0])
+            q = float(lo[k, j] if lo[k, j] < limits.lower[j] else hi[k, j])
+            raise PlanError(
+                PlanResult.PATH_OUT_OF_LIMITS,
+                f"the path between waypoints {k} and {k + 1} takes joint {limits.names[j]} to "
+                f"{q:.6g}, outside [{limits.lower[j]:.6g}, {limits.upper[j]:.6g}]",
+                segment=k,
+                joint=limits.names[j],
+                value=q,
+            )

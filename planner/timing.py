@@ -17,6 +17,7 @@ where needed, slowed down uniformly by the smallest factor that brings it inside
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,7 @@ import toppra.algorithm as algo
 import toppra.constraint as constraint
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import linprog
 from toppra.algorithm.algorithm import ParameterizationAlgorithm
 from toppra.constants import MAX_TRIES, SMALL, TINY
 from toppra.solverwrapper.cy_seidel_solverwrapper import seidelWrapper
@@ -73,7 +75,7 @@ class _IntervalSpeedConstraint(constraint.LinearConstraint):
         inner = self.FRACTIONS < 1.0
         s_inner = (gridpoints[:-1, None] + sigma[:-1, inner]).ravel()
         factors2 = self.speed_factors(path, np.concatenate((gridpoints, s_inner))) ** 2
-        with np.errstate(divide="ignore"):
+        with np.errstate(divide="ignore", over="ignore"):
             # the largest s'^2 each sample allows (inf where nothing moves: capped, the solver wants numbers)
             x_max = np.minimum(np.min(self.limit**2 / factors2, axis=1), _X_MAX)
         at_grid = x_max[:n]
@@ -104,6 +106,7 @@ class JointAccelerationConstraint(constraint.LinearConstraint):
     toppra's interpolation discretization holds the bound at both ends of an interval; the middle
     row closes most of the remaining gap. With u constant on the interval and
     s'^2 = x + 2 u sigma, qdd = q''(s) s'^2 + q'(s) u = (q' + 2 sigma q'') u + q'' x: linear in (u, x).
+    Every sample is taken on the interval's own path piece (the path's q'' may jump at a waypoint).
     """
 
     FRACTIONS = np.array([0.0, 0.5, 1.0])
@@ -118,9 +121,12 @@ class JointAccelerationConstraint(constraint.LinearConstraint):
     def compute_constraint_params(self, path: JointPath, gridpoints: NDArray[np.float64]):  # type: ignore[override]
         n, f = len(gridpoints), len(self.FRACTIONS)
         sigma = np.append(np.diff(gridpoints), 0.0)[:, None] * self.FRACTIONS[None, :]
-        s = np.minimum(gridpoints[:, None] + sigma, gridpoints[-1]).ravel()
-        qs = path(s, 1).reshape(n, f, -1)
-        qss = path(s, 2).reshape(n, f, -1)
+        # every sample on its interval's own piece: q_ss may jump at a waypoint (a gridpoint), and
+        # the interval that ends there is held with the q_ss of the piece that ends there
+        anchor = np.repeat(gridpoints, f)
+        s = anchor + sigma.ravel()
+        qs = path.on_piece_of(anchor, s, 1).reshape(n, f, -1)
+        qss = path.on_piece_of(anchor, s, 2).reshape(n, f, -1)
         a = (qs + 2.0 * sigma[:, :, None] * qss).reshape(n, -1)
         b = qss.reshape(n, -1)
         m = a.shape[1]
@@ -213,12 +219,14 @@ def _path_states(
     gridpoints: NDArray[np.float64],
     sd: NDArray[np.float64],
     sdd: NDArray[np.float64],
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    s, s_d, s_dd = np.empty(len(t)), np.empty(len(t)), np.empty(len(t))
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """s, s', s'' at every t, and the start (s) of the grid interval each lies in."""
+    s, s_d, s_dd, start = np.empty(len(t)), np.empty(len(t)), np.empty(len(t)), np.empty(len(t))
     i = 0
     for k in range(len(t)):
         s[k], s_d[k], s_dd[k], i = _path_state(t[k], i, breakpoints, gridpoints, sd, sdd)
-    return s, s_d, s_dd
+        start[k] = gridpoints[i]
+    return s, s_d, s_dd, start
 
 
 @njit(cache=True)
@@ -237,7 +245,7 @@ def _joint_states(
     g, i = 0, 0
     for k in range(len(t)):
         s, s_d, _, g = _path_state(t[k], g, breakpoints, gridpoints, sd, sdd)
-        i, h = spline_piece(x, s, i)
+        i, h = spline_piece(x, gridpoints[g], s, i)
         for j in range(dof):
             q[j, k], q_s, _ = spline_at(c, i, h, j)
             qd[j, k] = q_s * s_d
@@ -261,11 +269,62 @@ def _worst_ratios(
     g, i = 0, 0
     for k in range(len(t)):
         s, s_d, s_dd, g = _path_state(t[k], g, breakpoints, gridpoints, sd, sdd)
-        i, h = spline_piece(x, s, i)
+        i, h = spline_piece(x, gridpoints[g], s, i)
         for j in range(c.shape[2]):
             _, q_s, q_ss = spline_at(c, i, h, j)
             rv = max(rv, abs(q_s * s_d) / vmax[j])
             ra = max(ra, abs(q_ss * s_d * s_d + q_s * s_dd) / amax[j])
+    return rv, ra
+
+
+@njit(cache=True)
+def _interval_peaks(
+    gridpoints: NDArray[np.float64],
+    sd: NDArray[np.float64],
+    sdd: NDArray[np.float64],
+    x: NDArray[np.float64],
+    c: NDArray[np.float64],
+    vmax: NDArray[np.float64],
+    amax: NDArray[np.float64],
+) -> tuple[float, float]:
+    """max |q'| / vmax and max |q''| / amax inside the grid intervals, exactly.
+
+    With s'' = u constant on an interval and s'^2 = x_i + 2 u sigma, q'' = q_ss (x_i + 2 u sigma)
+    + q_s u is a quadratic in sigma on the interval's piece (q_ss linear, q_s quadratic): its peak
+    is at an end or at its vertex, and |q'| = |q_s| s' peaks at an end or where q'' = 0, a root of
+    that quadratic. The ends are gridpoints, which the check times hold; here the inside."""
+    rv, ra = 0.0, 0.0
+    i = 0
+    f = np.empty(3)
+    for g in range(len(sdd)):
+        delta = gridpoints[g + 1] - gridpoints[g]
+        x_g, u = sd[g] * sd[g], sdd[g]
+        for j in range(c.shape[2]):
+            for m in range(3):
+                i, h = spline_piece(x, gridpoints[g], gridpoints[g] + 0.5 * m * delta, i)
+                _, q_s, q_ss = spline_at(c, i, h, j)
+                f[m] = q_ss * (x_g + u * m * delta) + q_s * u
+            # the quadratic through the three, f0 + b r + a r^2 with r = sigma / delta
+            a = 2.0 * (f[0] - 2.0 * f[1] + f[2])
+            b = 4.0 * f[1] - 3.0 * f[0] - f[2]
+            r = -b / (2.0 * a) if a != 0.0 else -1.0
+            if 0.0 < r < 1.0:
+                ra = max(ra, abs(f[0] + (b + a * r) * r) / amax[j])
+            # where q'' = 0 inside: the velocity's extrema
+            if a != 0.0:
+                disc = b * b - 4.0 * a * f[0]
+                roots = (math.nan, math.nan)
+                if disc >= 0.0:
+                    sq = math.sqrt(disc)
+                    roots = ((-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a))
+            else:
+                roots = (-f[0] / b if b != 0.0 else math.nan, math.nan)
+            for r0 in roots:
+                if 0.0 < r0 < 1.0:
+                    sigma = r0 * delta
+                    i, h = spline_piece(x, gridpoints[g], gridpoints[g] + sigma, i)
+                    _, q_s, _ = spline_at(c, i, h, j)
+                    rv = max(rv, abs(q_s) * math.sqrt(max(x_g + 2.0 * u * sigma, 0.0)) / vmax[j])
     return rv, ra
 
 
@@ -335,11 +394,17 @@ class Trajectory:
             tau = np.where(np.abs(a) > 1e-12, (disc - v) / a, ds / v)
         return self.breakpoints[i] + np.where(ds > 0, tau, 0.0)
 
-    def _state(self, t: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], bool]:
+    def _state(
+        self, t: ArrayLike
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], bool]:
+        """s, s', s'' at t, the start of each one's grid interval (the anchor of its path piece), and
+        whether t was a scalar."""
         t_arr = np.asarray(t, dtype=float)
         scalar = t_arr.ndim == 0
-        s, sd, sdd = _path_states(np.atleast_1d(t_arr).ravel(), self.breakpoints, self.gridpoints, self.sd, self.sdd)
-        return s, sd, sdd, scalar
+        s, sd, sdd, start = _path_states(
+            np.atleast_1d(t_arr).ravel(), self.breakpoints, self.gridpoints, self.sd, self.sdd
+        )
+        return s, sd, sdd, start, scalar
 
     def _profile_and_path(self) -> tuple[NDArray[np.float64], ...]:
         """What the compiled loops need of the motion: the s'' profile and the path's cubic pieces."""
@@ -352,24 +417,29 @@ class Trajectory:
 
     def acceleration_jumps(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The times of the inner gridpoints and |q''(t+) - q''(t-)| there, (n, dof): where the
-        time-optimal profile switches, and by how much. s and s' are continuous, so only s''
-        jumps: q'' = q_ss s'^2 + q_s s'' jumps by q_s (s''_i - s''_(i-1))."""
-        qs = self.path(self.gridpoints[1:-1], 1)
-        return self.breakpoints[1:-1], np.abs(qs * np.diff(self.sdd)[:, None])
+        time-optimal profile switches or the path's curvature jumps (at a waypoint where it is C1
+        only), and by how much. s, s' and q_s are continuous, so q'' = q_ss s'^2 + q_s s'' jumps
+        by q_s (s''_i - s''_(i-1)) + (q_ss+ - q_ss-) s'^2."""
+        grid = self.gridpoints
+        qs = self.path(grid[1:-1], 1)
+        curvature = self.path(grid[1:-1], 2) - self.path.on_piece_of(grid[:-2], grid[1:-1], 2)
+        jump = qs * np.diff(self.sdd)[:, None] + curvature * (self.sd[1:-1] ** 2)[:, None]
+        return self.breakpoints[1:-1], np.abs(jump)
 
     def position(self, t: ArrayLike) -> NDArray[np.float64]:
-        s, _, _, scalar = self._state(t)
-        q = self.path(s)
+        s, _, _, start, scalar = self._state(t)
+        q = self.path.on_piece_of(start, s, 0)
         return q[0] if scalar else q
 
     def velocity(self, t: ArrayLike) -> NDArray[np.float64]:
-        s, sd, _, scalar = self._state(t)
-        qd = self.path(s, 1) * sd[:, None]
+        s, sd, _, start, scalar = self._state(t)
+        qd = self.path.on_piece_of(start, s, 1) * sd[:, None]
         return qd[0] if scalar else qd
 
     def acceleration(self, t: ArrayLike) -> NDArray[np.float64]:
-        s, sd, sdd, scalar = self._state(t)
-        qdd = self.path(s, 2) * (sd * sd)[:, None] + self.path(s, 1) * sdd[:, None]
+        s, sd, sdd, start, scalar = self._state(t)
+        q_s, q_ss = self.path.on_piece_of(start, s, 1), self.path.on_piece_of(start, s, 2)
+        qdd = q_ss * (sd * sd)[:, None] + q_s * sdd[:, None]
         return qdd[0] if scalar else qdd
 
     def check_times(self, subsamples: int = _CHECK_SUBSAMPLES) -> NDArray[np.float64]:
@@ -384,13 +454,12 @@ class Trajectory:
         return inner.ravel()
 
     def limit_ratios(self, limits: JointLimits) -> tuple[float, float]:
-        """Worst |qd|/vmax and |qdd|/amax over the check times."""
-        return _worst_ratios(
-            self.check_times(),
-            *self._profile_and_path(),
-            np.asarray(limits.velocity, dtype=float),
-            np.asarray(limits.acceleration, dtype=float),
-        )
+        """Worst |qd|/vmax and |qdd|/amax over the check times and at their peaks inside every grid
+        interval (exact: ``_interval_peaks``)."""
+        vmax, amax = np.asarray(limits.velocity, dtype=float), np.asarray(limits.acceleration, dtype=float)
+        rv, ra = _worst_ratios(self.check_times(), *self._profile_and_path(), vmax, amax)
+        rv_in, ra_in = _interval_peaks(self.gridpoints, self.sd, self.sdd, *self.path.pieces, vmax, amax)
+        return max(rv, rv_in), max(ra, ra_in)
 
 
 def timing_constraints(
@@ -470,12 +539,25 @@ class _StageRows:
         """Stages at which (u, x) = (0, 0), standing still, satisfies every row and box."""
         return np.all(self.C <= 0.0, axis=1) & (self.x_lo <= 0.0) & (self.u_lo <= 0.0) & (self.u_hi >= 0.0)
 
+    def x_extreme(self, i: int, two_delta: float, lo: float, hi: float, highest: bool) -> float:
+        """The largest (lowest) x at stage i from which some u satisfies every row and box and
+        lands x + two_delta u in [lo, hi]; NaN where none does. HiGHS, for the rare stage whose LP
+        toppra's seidel solver gives up on although it is feasible: next to a point where the path
+        stops (q' = 0 at a waypoint in a corner of the joint box, or where it reverses), the rows
+        there span u from 1e-16 to 1e4 and the seidel solver returns NaN, stock toppra's too."""
+        rows = np.column_stack((self.A[i], self.B[i]))
+        a_ub = np.vstack((rows, [[two_delta, 1.0], [-two_delta, -1.0]]))
+        b_ub = np.concatenate((-self.C[i], [hi, -lo]))
+        bounds = [(self.u_lo[i], self.u_hi[i]), (max(self.x_lo[i], 0.0), self.x_hi[i])]
+        res = linprog([0.0, -1.0 if highest else 1.0], A_ub=a_ub, b_ub=b_ub, bounds=bounds, method="highs")
+        return float(res.x[1]) if res.status == 0 else math.nan
+
     def u_range_at(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The exact range [lo, hi] of u that satisfies every row and box at x (one x per stage;
         lo = inf where none does)."""
         A = self.A
         r = self.B * x[:, None] + self.C
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             bound = -r / A
         hi = np.minimum(self.u_hi, np.min(np.where(A > 0.0, bound, np.inf), axis=1, initial=np.inf))
         lo = np.maximum(self.u_lo, np.max(np.where(A < 0.0, bound, -np.inf), axis=1, initial=-np.inf))
@@ -594,8 +676,12 @@ class LeanTOPPRA(algo.TOPPRA):
                 x_hi = x
             else:
                 x_hi = solve(i, None, g_max, nan, nan, lo, hi)[1]
+                if x_hi != x_hi:
+                    x_hi = self._rows.x_extreme(i, two_delta[i], lo, hi, highest=True)
             # standing still is allowed here and 0 is in [lo, hi]: the minimum is 0
             x_lo = 0.0 if lo == 0.0 and rest[i] else solve(i, None, g_min, nan, nan, lo, hi)[1]
+            if x_lo != x_lo and x_hi == x_hi:
+                x_lo = self._rows.x_extreme(i, two_delta[i], lo, hi, highest=False)
             lo, hi = max(x_lo, 0.0), x_hi
             if lo != lo or hi != hi:  # NaN: no controllable state at this stage (K stays NaN there)
                 break
@@ -626,19 +712,31 @@ class LeanTOPPRA(algo.TOPPRA):
 
 # Starting from and stopping at rest is where a coarse grid loses most of its time (the profile
 # s'(s) ~ sqrt(s) there is far from what one constant s'' per interval can follow): the first and
-# last uniform intervals are split geometrically.
+# last uniform intervals are split geometrically. So are the intervals on both sides of a kink (a
+# waypoint where the path's second derivative jumps, ``JointPath.kinks``): where the curvature
+# jumps up, holding the acceleration takes a burst of s'' that one constant s'' over a whole
+# interval turns into a near stop (what that costs: bench/RESULTS.md, issue 13).
 END_REFINEMENT = 0.5 ** np.arange(1, 7)
 
 
 def make_gridpoints(path: JointPath, n: int) -> NDArray[np.float64]:
-    """n uniform intervals, every waypoint, and a geometric refinement towards both ends."""
+    """n uniform intervals, every waypoint, and a geometric refinement towards both ends and both
+    sides of every kink."""
     length = path.length
     h = length / n
-    ends = np.concatenate((h * END_REFINEMENT, length - h * END_REFINEMENT))
-    grid = np.union1d(np.union1d(np.linspace(0.0, length, n + 1), path.waypoint_s), ends)
-    # drop slivers left by the union (they only cost time), never an end point
-    keep = np.concatenate(([True], np.diff(grid) > 1e-3 * h * END_REFINEMENT[-1]))
-    grid = grid[keep]
+    steps = h * END_REFINEMENT
+    ends = np.concatenate((steps, length - steps))
+    kinks = (path.kinks[:, None] + np.concatenate((steps, -steps))[None, :]).ravel()
+    kinks = kinks[(kinks > 0.0) & (kinks < length)]
+    grid = np.union1d(np.union1d(np.linspace(0.0, length, n + 1), path.waypoint_s), np.union1d(ends, kinks))
+    # drop slivers left by the union (they only cost time): the later point of the pair, unless it
+    # is a waypoint (the path's pieces meet there: a waypoint is always a gridpoint), then the earlier
+    sliver = np.diff(grid) <= 1e-3 * h * END_REFINEMENT[-1]
+    waypoint = np.isin(grid, path.waypoint_s)
+    drop = np.zeros(len(grid), dtype=bool)
+    drop[1:] = sliver & ~waypoint[1:]
+    drop[:-1] |= sliver & waypoint[1:] & ~waypoint[:-1]
+    grid = grid[~drop]
     grid[-1] = length
     return grid
 

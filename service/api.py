@@ -26,7 +26,7 @@ from jsonschema import Draft202012Validator
 from jsonschema.exceptions import ValidationError
 from numpy.typing import NDArray
 
-from planner.limits import JointLimits
+from planner.limits import JointLimits, check_scale
 
 API_VERSION = 1
 PREFIX = "pvtflow"
@@ -267,6 +267,21 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
                     "minimum": 0.5,
                     "maximum": 10000,
                     "description": "knot placement tolerance in counts (default: the cell's)",
+                },
+                "velocity_scale": {
+                    "type": "number",
+                    "exclusiveMinimum": 0,
+                    "maximum": 1,
+                    "default": 1,
+                    "description": "speed override: plan with the joint velocity limits times this (the drives' "
+                    "0x607F in the program stays the drives' own)",
+                },
+                "acceleration_scale": {
+                    "type": "number",
+                    "exclusiveMinimum": 0,
+                    "maximum": 1,
+                    "default": 1,
+                    "description": "the same for the joint acceleration limits (0x60C5)",
                 },
                 "label": _TEXT,
                 "include_program": {
@@ -531,6 +546,7 @@ _PLAN_PROPERTIES = request_schema("plan")["properties"]
 _PLAN_FIELDS = frozenset(_PLAN_PROPERTIES)
 _PLAN_STARTS = frozenset(_PLAN_PROPERTIES["start"]["enum"])
 _PLAN_TOLERANCE = (_PLAN_PROPERTIES["tolerance_qc"]["minimum"], _PLAN_PROPERTIES["tolerance_qc"]["maximum"])
+_PLAN_SCALES = ("velocity_scale", "acceleration_scale")
 
 
 def _numbers(row: Any, dof: int | None) -> bool:
@@ -557,6 +573,8 @@ def _plain_plan(data: Any, dof: int | None) -> bool:
             ok = type(value) is str and value in _PLAN_STARTS
         elif name == "tolerance_qc":
             ok = type(value) in _NUMBER_TYPES and _PLAN_TOLERANCE[0] <= value <= _PLAN_TOLERANCE[1]
+        elif name in _PLAN_SCALES:
+            ok = type(value) in _NUMBER_TYPES and 0 < value <= 1
         elif name == "label":
             ok = type(value) is str and len(value) <= MAX_TEXT
         else:  # include_program
@@ -635,6 +653,8 @@ class PlanRequest:
     tolerance_qc: float | None = None
     label: str | None = None
     include_program: bool = False
+    velocity_scale: float = 1.0  # speed override in (0, 1] (planner.limits.check_scale)
+    acceleration_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -708,8 +728,19 @@ def parse_plan(data: Any, joint_names: Sequence[str], limits: JointLimits | None
         raise ApiError(
             ErrorCode.INVALID_REQUEST, "with start=first a motion needs at least 2 waypoints", {"path": "$.waypoints"}
         )
+    scales = {}
+    for name in _PLAN_SCALES:  # the schema has refused what is not in (0, 1]; the planner's rule, once more
+        try:
+            scales[name] = check_scale(name, data.get(name, 1.0))
+        except ValueError as exc:
+            raise ApiError(ErrorCode.INVALID_REQUEST, f"$.{name}: {exc}", {"path": f"$.{name}"}) from None
     return PlanRequest(
-        waypoints, start, data.get("tolerance_qc"), data.get("label"), bool(data.get("include_program", False))
+        waypoints,
+        start,
+        data.get("tolerance_qc"),
+        data.get("label"),
+        bool(data.get("include_program", False)),
+        **scales,
     )
 
 

@@ -267,7 +267,9 @@ class MotionService:
                 )
         plan_id = _new_id("p")
         with self._planner_lock:
-            result = self.planner.plan(waypoints, req.tolerance_qc, {"plan_id": plan_id})
+            result = self.planner.plan(
+                waypoints, req.tolerance_qc, {"plan_id": plan_id}, req.velocity_scale, req.acceleration_scale
+            )
         if not result.ok or result.program is None or result.build is None:
             raise ApiError(
                 ErrorCode.PLAN_FAILED,

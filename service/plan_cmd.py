@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike
 from axes.program import PvtProgram
 from planner.build import BuildError, BuildOutput, build_program
 from planner.knots import DriveAxis, KnotOptions
+from planner.limits import check_scale
 from planner.path import PlanResult
 from planner.plan import PlanInput, Planner, PlanOutput
 from service.config import CellConfig, ConfigError, load_cell_config
@@ -97,9 +98,17 @@ class CellPlanner:
         self.plan(np.array([lo + 0.45 * (hi - lo), lo + 0.55 * (hi - lo)]))
 
     def plan(
-        self, waypoints: ArrayLike, tolerance_qc: float | None = None, metadata: dict[str, Any] | None = None
+        self,
+        waypoints: ArrayLike,
+        tolerance_qc: float | None = None,
+        metadata: dict[str, Any] | None = None,
+        velocity_scale: float = 1.0,
+        acceleration_scale: float = 1.0,
     ) -> CellPlan:
         """Waypoints (N, dof, the cell's joint order) -> a validated PVT program for the cell's drives.
+
+        ``velocity_scale``, ``acceleration_scale`` (0, 1]: the speed override, for the plan and for
+        the knots (``build_program``); recorded in the program's metadata.
 
         ``timing`` (s): ``plan`` TOPP-RA, ``knots`` knot placement + validation, ``total``, and
         ``cpu`` the CPU time of this thread over the whole call (``total - cpu``: time the thread
@@ -108,13 +117,21 @@ class CellPlanner:
         start, cpu = time.perf_counter(), time.thread_time()
         if self.planner is None:
             return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
-        out = self.planner.plan(waypoints)
+        out = self.planner.plan(waypoints, velocity_scale, acceleration_scale)
         t_plan = time.perf_counter() - start
         if not out.ok or out.trajectory is None:
             return CellPlan(out.result.value, out.message, None, out, None, {"plan": t_plan})
         tol = self.tolerance_qc if tolerance_qc is None else tolerance_qc
         try:
-            built = build_program(out.trajectory, self.axes, self.cell.name, KnotOptions(tolerance_qc=tol), metadata)
+            built = build_program(
+                out.trajectory,
+                self.axes,
+                self.cell.name,
+                KnotOptions(tolerance_qc=tol),
+                metadata,
+                float(velocity_scale),
+                float(acceleration_scale),
+            )
         except (BuildError, ValueError) as exc:
             return CellPlan("program_error", str(exc), None, out, None, {"plan": t_plan})
         total = time.perf_counter() - start
@@ -123,10 +140,15 @@ class CellPlanner:
 
 
 def plan_cell_program(
-    cell: CellConfig, waypoints: ArrayLike, tolerance_qc: float | None = None, metadata: dict[str, Any] | None = None
+    cell: CellConfig,
+    waypoints: ArrayLike,
+    tolerance_qc: float | None = None,
+    metadata: dict[str, Any] | None = None,
+    velocity_scale: float = 1.0,
+    acceleration_scale: float = 1.0,
 ) -> CellPlan:
     """One-off planning on ``cell`` (the CLI): a CellPlanner built for this call."""
-    return CellPlanner(cell).plan(waypoints, tolerance_qc, metadata)
+    return CellPlanner(cell).plan(waypoints, tolerance_qc, metadata, velocity_scale, acceleration_scale)
 
 
 def add_parser(subparsers: Any) -> None:
@@ -151,6 +173,20 @@ def add_parser(subparsers: Any) -> None:
         metavar="QC",
         help="position tolerance in counts (default: the cell's planning.position_tolerance_qc)",
     )
+    p.add_argument(
+        "--velocity-scale",
+        type=float,
+        default=1.0,
+        metavar="F",
+        help="speed override in (0, 1]: plan with the joint velocity limits times F (default 1)",
+    )
+    p.add_argument(
+        "--acceleration-scale",
+        type=float,
+        default=1.0,
+        metavar="F",
+        help="the same for the joint acceleration limits (default 1)",
+    )
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of text")
     p.set_defaults(run=run)
 
@@ -171,8 +207,15 @@ def run(args: argparse.Namespace) -> int:
         return _fail(EXIT_BAD_INPUT, str(exc))
     if args.tolerance is not None and not args.tolerance >= 0.5:
         return _fail(EXIT_BAD_INPUT, f"--tolerance must be at least 0.5 count, got {args.tolerance}")
+    for option, value in (("--velocity-scale", args.velocity_scale), ("--acceleration-scale", args.acceleration_scale)):
+        try:
+            check_scale(option, value)
+        except ValueError as exc:
+            return _fail(EXIT_BAD_INPUT, str(exc))
 
-    result = plan_cell_program(cell, waypoints, args.tolerance)
+    result = plan_cell_program(
+        cell, waypoints, args.tolerance, velocity_scale=args.velocity_scale, acceleration_scale=args.acceleration_scale
+    )
     if not result.ok or result.program is None or result.build is None:
         why = f"({result.code}): {result.message}"
         return _fail(EXIT_NOT_PLANNED, f"cannot plan this motion on cell {cell.name!r} {why}")
@@ -192,8 +235,11 @@ def run(args: argparse.Namespace) -> int:
         "time_scale": knots.time_scale,
         "records": {a.name: len(a.records) for a in knots.axes},
         "deviation_qc": {a.name: round(a.deviation_qc, 4) for a in knots.axes},
-        "velocity_ratio": {a.name: round(a.velocity_ratio, 5) for a in knots.axes},
-        "acceleration_ratio": {a.name: round(a.acceleration_ratio, 5) for a in knots.axes},
+        "velocity_scale": args.velocity_scale,
+        "acceleration_scale": args.acceleration_scale,
+        # of the drives' own 0x607F / 0x60C5 (knot placement held them to the scaled ones)
+        "velocity_ratio": {a.name: round(a.velocity_ratio * args.velocity_scale, 5) for a in knots.axes},
+        "acceleration_ratio": {a.name: round(a.acceleration_ratio * args.acceleration_scale, 5) for a in knots.axes},
         "timing_ms": {k: round(v * 1000.0, 2) for k, v in result.timing.items()},
     }
     if args.json:
@@ -205,7 +251,8 @@ def run(args: argparse.Namespace) -> int:
         )
         for a in knots.axes:
             print(
-                f"  {a.name}: {len(a.records)} records, |v| {100 * a.velocity_ratio:.1f}% of 0x607F, "
-                f"|a| {100 * a.acceleration_ratio:.1f}% of 0x60C5, deviation {a.deviation_qc:.2f} qc"
+                f"  {a.name}: {len(a.records)} records, |v| {100 * a.velocity_ratio * args.velocity_scale:.1f}% of "
+                f"0x607F, |a| {100 * a.acceleration_ratio * args.acceleration_scale:.1f}% of 0x60C5, "
+                f"deviation {a.deviation_qc:.2f} qc"
             )
     return EXIT_OK

@@ -39,7 +39,8 @@ READY = "ready"
 
 def _child(conn: Connection, source: Path, name: str, axes: tuple[AxisConfig, ...], planning: PlanningConfig) -> None:
     """The child: the cell as the parent has it (the robot model is reloaded, not pickled), then one
-    ``(waypoints, tolerance_qc, metadata)`` in, one CellPlan (or an error text) out, until EOF."""
+    ``(waypoints, tolerance_qc, metadata, velocity_scale, acceleration_scale)`` in, one CellPlan (or
+    an error text) out, until EOF."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it closes the pipe, we end on EOF
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     try:
@@ -53,11 +54,11 @@ def _child(conn: Connection, source: Path, name: str, axes: tuple[AxisConfig, ..
     conn.send(READY)
     while True:
         try:
-            waypoints, tolerance_qc, metadata = conn.recv()
+            args = conn.recv()
         except (EOFError, OSError):  # the parent closed the pipe (or went away)
             return
         try:
-            result = planner.plan(waypoints, tolerance_qc, metadata)
+            result = planner.plan(*args)
             conn.send(dataclasses.replace(result, plan=None))  # the TOPP-RA trajectory stays: the program is the output
         except Exception:  # a bug in the planner: the parent reports it, the child keeps serving
             conn.send(traceback.format_exc())
@@ -116,14 +117,19 @@ class PlanningProcess:
             self._wait_ready()
 
     def plan(
-        self, waypoints: ArrayLike, tolerance_qc: float | None = None, metadata: dict[str, Any] | None = None
+        self,
+        waypoints: ArrayLike,
+        tolerance_qc: float | None = None,
+        metadata: dict[str, Any] | None = None,
+        velocity_scale: float = 1.0,
+        acceleration_scale: float = 1.0,
     ) -> CellPlan:
         """Like CellPlanner.plan; PlanningError for a planner bug or a dead child (then restarted)."""
         with self._lock:
             try:
                 self._wait_ready()
                 assert self._conn is not None
-                self._conn.send((waypoints, tolerance_qc, metadata))
+                self._conn.send((waypoints, tolerance_qc, metadata, velocity_scale, acceleration_scale))
                 answer = self._conn.recv()
             except (EOFError, OSError, BrokenPipeError):
                 self._stop()

@@ -20,6 +20,7 @@ from typing import Any
 
 import zenoh
 
+from planner.limits import check_scale
 from service.api import QUERYABLES, key
 from service.server import (
     DEFAULT_ENDPOINT,
@@ -191,6 +192,18 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument(
         "--start", choices=("current", "first"), help="plan: start at the axes (default) or the first waypoint"
     )
+    p.add_argument(
+        "--velocity-scale",
+        type=float,
+        metavar="F",
+        help="plan: speed override in (0, 1], the joint velocity limits times F (default 1)",
+    )
+    p.add_argument(
+        "--acceleration-scale",
+        type=float,
+        metavar="F",
+        help="plan: the same for the joint acceleration limits (default 1)",
+    )
     p.add_argument("--program", metavar="FILE", help="validate / execute: a PVT program file instead of a plan id")
     p.add_argument("--wait", action="store_true", help="execute: reply at the end of the motion, with its outcome")
     p.add_argument("--reason", help="stop: why (journaled with the outcome)")
@@ -209,6 +222,8 @@ _FOR_OPS: dict[str, tuple[str, ...]] = {
     "waypoints": ("plan",),
     "target": ("plan",),
     "start": ("plan",),
+    "velocity_scale": ("plan",),
+    "acceleration_scale": ("plan",),
     "program": ("validate", "execute"),
     "wait": ("execute",),
     "reason": ("stop",),
@@ -245,6 +260,13 @@ def _local_payload(args: argparse.Namespace) -> Any:
             raise _InputError("plan needs --waypoints FILE or --target Q1,Q2,...")
         if args.start:
             out["start"] = args.start
+        for dest in ("velocity_scale", "acceleration_scale"):
+            value = getattr(args, dest)
+            if value is not None:
+                try:
+                    out[dest] = check_scale(_option_name(dest), value)
+                except ValueError as exc:
+                    raise _InputError(str(exc)) from None
     elif op in ("validate", "execute"):
         if args.program is not None and args.plan_id is not None:
             raise _InputError(f"{op} takes a PLAN_ID or --program FILE, not both")

@@ -18,15 +18,9 @@ ARM_LIMITS = ARM.joint_limits()
 
 
 def random_paths(limits: JointLimits, count: int, seed: int, n_waypoints: int = 8) -> list[np.ndarray]:
-    """Seeded random in-limit waypoint sets whose spline stays inside the limits."""
+    """Seeded random in-limit waypoint sets (every one is a path: tests/planner/test_path_limits.py)."""
     rng = np.random.default_rng(seed)
-    planner = Planner(limits, gridpoints=10)
-    out = []
-    while len(out) < count:
-        w = rng.uniform(0.7 * limits.lower, 0.7 * limits.upper, (n_waypoints, limits.dof))
-        if planner.plan(w).result is not PlanResult.PATH_OUT_OF_LIMITS:
-            out.append(w)
-    return out
+    return [rng.uniform(0.7 * limits.lower, 0.7 * limits.upper, (n_waypoints, limits.dof)) for _ in range(count)]
 
 
 def dense_times(duration: float, n: int = 4001) -> np.ndarray:
@@ -133,11 +127,6 @@ def test_tcp_speed_limit() -> None:
             [[0.0] * 6, [3.5, 0, 0, 0, 0, 0]],
             PlanResult.WAYPOINT_OUT_OF_LIMITS,
             "waypoint 1, joint joint_1: 3.5 is outside",
-        ),
-        (
-            [[2.5, 0, 0, 0, 0, 0], [2.85, 0.2, 0, 0, 0, 0], [-2.0, 0.4, 0, 0, 0, 0]],
-            PlanResult.PATH_OUT_OF_LIMITS,
-            "between waypoints 1 and 2 takes joint joint_1 to",
         ),
     ],
 )

@@ -69,6 +69,29 @@ def test_plan_bad_inputs_exit_2_with_one_line(tmp_path: Path, capsys) -> None:
     assert not (tmp_path / "x.json").exists()
 
 
+def test_plan_scales_speed_and_acceleration_and_records_it(tmp_path: Path, planned: Path, capsys) -> None:
+    wp = tmp_path / "wp.json"
+    wp.write_text(json.dumps({"joint_names": list(NAMES), "waypoints": WAYPOINTS}))
+    out = tmp_path / "half.json"
+    assert main(["plan", "--waypoints", str(wp), "-o", str(out), "--velocity-scale", "0.5", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["velocity_scale"] == 0.5 and max(summary["velocity_ratio"].values()) <= 0.5 * (1 + 1e-9)
+    half, full = PvtProgram.loads(out.read_text()), PvtProgram.loads(planned.read_text())
+    assert half.metadata["velocity_scale"] == 0.5 and half.metadata["acceleration_scale"] == 1.0
+    assert half.duration_ms > full.duration_ms
+    assert [a.limits for a in half.axes] == [a.limits for a in full.axes]  # the drives' own 0x607F / 0x60C5
+    for option, value, says in (
+        ("--velocity-scale", "0", "--velocity-scale must be in (0, 1], got 0"),
+        ("--acceleration-scale", "-1", "--acceleration-scale must be in (0, 1], got -1"),
+        ("--acceleration-scale", "1.01", "--acceleration-scale must be in (0, 1], got 1.01"),
+        ("--velocity-scale", "nan", "--velocity-scale must be in (0, 1], got nan"),
+    ):
+        bad = tmp_path / "bad.json"
+        assert main(["plan", "--waypoints", str(wp), "-o", str(bad), f"{option}={value}"]) == 2
+        err = capsys.readouterr().err
+        assert says in err and len(err.strip().splitlines()) == 1 and not bad.exists()
+
+
 def test_plan_unplannable_exits_1(tmp_path: Path, capsys) -> None:
     wp = tmp_path / "far.json"
     wp.write_text(json.dumps({"waypoints": [[0.0] * 6, [50.0] + [0.0] * 5]}))  # outside joint_1's range

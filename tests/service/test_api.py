@@ -119,3 +119,20 @@ def test_docs_api_md_has_the_current_schemas_and_every_error_code():
 def test_a_request_that_takes_no_fields_says_so() -> None:
     with pytest.raises(ApiError, match="a recover request takes no fields, got 'x'"):
         parse_recover({"x": 1})
+
+
+def test_plan_requests_take_speed_and_acceleration_scales_in_0_1():
+    req = parse_plan({"target": [0, 0, 0]}, NAMES)
+    assert (req.velocity_scale, req.acceleration_scale) == (1.0, 1.0)
+    req = parse_plan({"target": [0, 0, 0], "velocity_scale": 0.5, "acceleration_scale": 1}, NAMES)
+    assert (req.velocity_scale, req.acceleration_scale) == (0.5, 1.0)
+    for field in ("velocity_scale", "acceleration_scale"):
+        for value in (0, -0.1, 1.5, "0.5", None, True, [0.5]):
+            with pytest.raises(ApiError) as err:
+                parse_plan({"target": [0, 0, 0], field: value}, NAMES)
+            assert err.value.code is ErrorCode.INVALID_REQUEST, (field, value)
+            assert err.value.message.startswith(f"$.{field}: ") and err.value.details["path"] == f"$.{field}"
+        payload = json.dumps({"target": [0, 0, 0], field: 0.5}).replace("0.5", "NaN").encode()
+        with pytest.raises(ApiError) as err:
+            parse_plan(parse_payload(payload), NAMES)
+        assert err.value.code is ErrorCode.NOT_FINITE and err.value.details["path"] == f"$.{field}"

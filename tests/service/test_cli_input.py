@@ -74,6 +74,10 @@ def test_request_mistakes_are_refused_before_a_session_opens(tmp_path, capsys) -
         (["stop", "--wait"], "--wait is for execute, not stop"),
         (["status", "p-0123"], "PLAN_ID is for validate / execute, not status"),
         (["execute", "p-0123", "--target", "1,2"], "--target is for plan, not execute"),
+        (["plan", "--target", "0.1,0.2", "--velocity-scale", "0"], "--velocity-scale must be in (0, 1], got 0"),
+        (["plan", "--target", "0.1,0.2", "--acceleration-scale", "1.5"], "--acceleration-scale must be in (0, 1]"),
+        (["plan", "--target", "0.1,0.2", "--velocity-scale", "nan"], "--velocity-scale must be in (0, 1], got nan"),
+        (["status", "--velocity-scale", "0.5"], "--velocity-scale is for plan, not status"),
     ]
     for args, expected in cases:
         assert main(["request", *args, *nowhere]) == 2, args

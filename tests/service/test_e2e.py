@@ -261,3 +261,24 @@ def test_a_restart_keeps_the_journal(arm6, serve, tmp_path):
     assert [a["records"] for a in kept.program["axes"]] == [
         a["records"] for a in first.service.journal_entry(motion_id).program["axes"]
     ]
+
+
+def test_a_plan_request_with_a_speed_override_runs_slower_and_a_bad_one_plans_nothing(arm6, serve):
+    s = serve(arm6)
+    full = s.request("plan", {"target": SHORT_TARGET})
+    half = s.request(
+        "plan", {"target": SHORT_TARGET, "velocity_scale": 0.5, "acceleration_scale": 0.5, "include_program": True}
+    )
+    assert full.ok and half.ok, (full.data, half.data)
+    assert half.data["duration_s"] > full.data["duration_s"]
+    meta = half.data["program"]["metadata"]
+    assert meta["velocity_scale"] == 0.5 and meta["acceleration_scale"] == 0.5
+    for ax, cfg in zip(half.data["program"]["axes"], arm6.ordered_axes(), strict=True):
+        assert ax["limits"]["max_profile_velocity_rpm"] == cfg.limits.max_profile_velocity_rpm
+    stored = len(s.service.plans)
+    bad = s.request("plan", {"target": SHORT_TARGET, "velocity_scale": 0})
+    assert not bad.ok and bad.data["error"]["code"] == "invalid_request"
+    assert "$.velocity_scale" in bad.data["error"]["message"]
+    assert len(s.service.plans) == stored  # nothing planned
+    done = s.request("execute", {"plan_id": half.data["plan_id"], "wait": True}, timeout=60)
+    assert done.ok and done.data["outcome"]["result"] == "finished", done.data

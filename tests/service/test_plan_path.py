@@ -35,6 +35,8 @@ def _valid_requests() -> list[dict[str, Any]]:
         {"target": [0] * DOF, "label": "x" * MAX_TEXT, "include_program": True},
         {"waypoints": [ROW], "start": "current", "tolerance_qc": 0.5, "joint_names": ["a"]},
         {"waypoints": [ROW], "tolerance_qc": 10000, "label": "", "include_program": False},
+        {"target": ROW, "velocity_scale": 0.5, "acceleration_scale": 1},
+        {"waypoints": [ROW], "velocity_scale": 1, "acceleration_scale": 1e-3},
     ]
     return base
 
@@ -52,6 +54,8 @@ def _mutations(req: dict[str, Any]) -> list[Any]:
             "tolerance_qc",
             "label",
             "include_program",
+            "velocity_scale",
+            "acceleration_scale",
             "extra",
         ],
         bad_values,
@@ -78,7 +82,15 @@ def _mutations(req: dict[str, Any]) -> list[Any]:
             m = copy.deepcopy(req)
             edit(m["waypoints"])
             out.append(m)
-    for extra in ({"tolerance_qc": 0.49}, {"tolerance_qc": 10000.5}, {"label": "x" * (MAX_TEXT + 1)}, {"start": "now"}):
+    for extra in (
+        {"tolerance_qc": 0.49},
+        {"tolerance_qc": 10000.5},
+        {"label": "x" * (MAX_TEXT + 1)},
+        {"start": "now"},
+        {"velocity_scale": 1.0000001},
+        {"acceleration_scale": 0.0},
+        {"velocity_scale": -1e-9},
+    ):
         m = copy.deepcopy(req)
         m.update(extra)
         out.append(m)
