@@ -12,15 +12,22 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
+from planner.cartesian import CartesianResult, Motion, PoseSolver, ToolPath
+from planner.ik import IkSolver
 from planner.limits import JointLimits
 from planner.model import RobotModel
 from planner.path import JointPath, PlanError, PlanResult
 from planner.timing import DEFAULT_GRIDPOINTS, Trajectory, parameterize, timing_constraints
 
+# What a plan can end with: the joint-space outcomes, and the refusals of tool poses.
+PlanOutcome = PlanResult | CartesianResult
+
 
 @dataclass(frozen=True)
 class PlanInput:
-    """Everything a plan depends on. Waypoints are (N, dof) in the limits' joint order."""
+    """Everything a plan depends on. Waypoints are (N, dof) in the limits' joint order; or, with
+    ``poses`` (N, 7 tool poses: planner/cartesian.py), ``waypoints`` is the one joint position the
+    motion starts from and ``motion`` says how the tool goes through the poses."""
 
     waypoints: ArrayLike
     limits: JointLimits
@@ -29,11 +36,14 @@ class PlanInput:
     max_tcp_speed: float | None = None
     torque_limits: bool = False
     gridpoints: int | None = None  # TOPP-RA grid intervals; None: DEFAULT_GRIDPOINTS
+    max_tcp_angular_speed: float | None = None  # rad/s
+    poses: ArrayLike | None = None
+    motion: str = Motion.LINEAR.value
 
 
 @dataclass(frozen=True)
 class PlanOutput:
-    result: PlanResult
+    result: PlanOutcome
     message: str = ""
     trajectory: Trajectory | None = None
     planning_time: float = 0.0  # s, wall clock
@@ -59,14 +69,22 @@ class Planner:
         max_tcp_speed: float | None = None,
         torque_limits: bool = False,
         gridpoints: int | None = None,
+        max_tcp_angular_speed: float | None = None,
     ) -> None:
         self.limits = limits
         self.gridpoints = DEFAULT_GRIDPOINTS if gridpoints is None else int(gridpoints)
         if self.gridpoints < 2:
             raise ValueError(f"gridpoints must be >= 2, got {self.gridpoints}")
-        if max_tcp_speed is not None and not (np.isfinite(max_tcp_speed) and max_tcp_speed > 0):
-            raise ValueError(f"max_tcp_speed must be a positive number, got {max_tcp_speed}")
-        self.constraints = timing_constraints(limits, model, torque_limits, tcp_frame, max_tcp_speed)
+        for name, value in (("max_tcp_speed", max_tcp_speed), ("max_tcp_angular_speed", max_tcp_angular_speed)):
+            if value is not None and not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value}")
+        self.constraints = timing_constraints(
+            limits, model, torque_limits, tcp_frame, max_tcp_speed, max_tcp_angular_speed
+        )
+        # tool poses need the robot and its tool frame
+        self.poses: PoseSolver | None = None
+        if model is not None and tcp_frame is not None:
+            self.poses = PoseSolver(IkSolver(model, tcp_frame, limits.lower, limits.upper), limits)
 
     def plan(self, waypoints: ArrayLike) -> PlanOutput:
         """Time-optimal rest-to-rest trajectory through the waypoints, or the reason there is none."""
@@ -78,13 +96,46 @@ class Planner:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - start, dict(exc.details))
         return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - start)
 
+    def plan_poses(self, start: ArrayLike, poses: ArrayLike, motion: str | Motion = Motion.LINEAR) -> PlanOutput:
+        """Time-optimal rest-to-rest trajectory of the tool from joint positions ``start`` through
+        ``poses`` (straight lines or joint moves: planner/cartesian.py), or the reason there is none.
+        ``details["ik"]``: the inverse kinematics' share of the planning time [s], and the number of
+        joint samples it made."""
+        t0 = time.perf_counter()
+        if self.poses is None:
+            return PlanOutput(PlanResult.INVALID_INPUT, "tool poses need the robot model and its tcp_frame")
+        try:
+            kind = Motion(motion)
+        except ValueError:
+            choices = ", ".join(m.value for m in Motion)
+            return PlanOutput(PlanResult.INVALID_INPUT, f"motion must be one of {choices}, got {motion!r}")
+        try:
+            tool: ToolPath = self.poses.solve(start, poses, kind)
+            t_ik = time.perf_counter() - t0
+            trajectory = parameterize(tool.path, self.limits, self.constraints, self.gridpoints)
+        except PlanError as exc:
+            return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))
+        details: dict[str, object] = {"ik_s": t_ik, "samples": len(tool.path.points)}
+        return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - t0, details)
+
 
 def plan(inp: PlanInput) -> PlanOutput:
-    """Plan once: a Planner for ``inp``'s limits and constraints, applied to its waypoints."""
+    """Plan once: a Planner for ``inp``'s limits and constraints, applied to its waypoints (or poses)."""
     start = time.perf_counter()
     try:
-        planner = Planner(inp.limits, inp.model, inp.tcp_frame, inp.max_tcp_speed, inp.torque_limits, inp.gridpoints)
+        planner = Planner(
+            inp.limits,
+            inp.model,
+            inp.tcp_frame,
+            inp.max_tcp_speed,
+            inp.torque_limits,
+            inp.gridpoints,
+            inp.max_tcp_angular_speed,
+        )
     except ValueError as exc:
         return PlanOutput(PlanResult.INVALID_INPUT, str(exc), None, time.perf_counter() - start)
-    out = planner.plan(inp.waypoints)
+    if inp.poses is not None:
+        out = planner.plan_poses(inp.waypoints, inp.poses, inp.motion)
+    else:
+        out = planner.plan(inp.waypoints)
     return PlanOutput(out.result, out.message, out.trajectory, time.perf_counter() - start, out.details)

@@ -19,10 +19,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from axes.program import PvtProgram
 from planner.build import BuildError, BuildOutput, build_program
+from planner.cartesian import placement_pose
 from planner.knots import DriveAxis, KnotOptions
 from planner.path import PlanResult
 from planner.plan import PlanInput, Planner, PlanOutput
@@ -36,12 +37,14 @@ EXIT_OK, EXIT_NOT_PLANNED, EXIT_BAD_INPUT = 0, 1, 2
 class CellPlan:
     """The outcome of planning on a cell: a program, or the reason (``code``, ``message``)."""
 
-    code: str  # "ok", a planner.path.PlanResult value, or "program_error"
+    code: str  # "ok", a planner.plan.PlanOutcome value, or "program_error"
     message: str = ""
     program: PvtProgram | None = None
     plan: PlanOutput | None = None
     build: BuildOutput | None = None
-    timing: dict[str, float] = field(default_factory=dict)  # s: plan, knots, total
+    timing: dict[str, float] = field(default_factory=dict)  # s: plan (ik: its inverse kinematics), knots, total
+    waypoints: NDArray[np.float64] | None = None  # the joint waypoints planned through (poses: the IK samples)
+    details: dict[str, Any] = field(default_factory=dict)  # where it failed (PlanError details)
 
     @property
     def ok(self) -> bool:
@@ -58,6 +61,7 @@ def plan_input_for_cell(cell: CellConfig, waypoints: ArrayLike, gridpoints: int 
         max_tcp_speed=cell.planning.max_tcp_speed,
         torque_limits=cell.planning.torque_limits,
         gridpoints=gridpoints,
+        max_tcp_angular_speed=cell.planning.max_tcp_angular_speed,
     )
 
 
@@ -79,7 +83,13 @@ class CellPlanner:
         self.setup_error = ""
         try:
             self.planner = Planner(
-                inp.limits, inp.model, inp.tcp_frame, inp.max_tcp_speed, inp.torque_limits, inp.gridpoints
+                inp.limits,
+                inp.model,
+                inp.tcp_frame,
+                inp.max_tcp_speed,
+                inp.torque_limits,
+                inp.gridpoints,
+                inp.max_tcp_angular_speed,
             )
         except ValueError as exc:  # a planning option the planner refuses: every plan says so
             self.setup_error = str(exc)
@@ -94,7 +104,10 @@ class CellPlanner:
         if self.planner is None:
             return
         lo, hi = self.limits.lower, self.limits.upper
-        self.plan(np.array([lo + 0.45 * (hi - lo), lo + 0.55 * (hi - lo)]))
+        a, b = lo + 0.45 * (hi - lo), lo + 0.55 * (hi - lo)
+        self.plan(np.array([a, b]))
+        if self.planner.poses is not None:  # and the inverse kinematics' compiled steps
+            self.plan_poses(a, [placement_pose(self.planner.poses.ik.fk(b))])
 
     def plan(
         self, waypoints: ArrayLike, tolerance_qc: float | None = None, metadata: dict[str, Any] | None = None
@@ -108,18 +121,50 @@ class CellPlanner:
         start, cpu = time.perf_counter(), time.thread_time()
         if self.planner is None:
             return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
-        out = self.planner.plan(waypoints)
+        return self._build(self.planner.plan(waypoints), start, cpu, tolerance_qc, metadata)
+
+    def plan_poses(
+        self,
+        start_joints: ArrayLike,
+        poses: ArrayLike,
+        motion: str = "linear",
+        tolerance_qc: float | None = None,
+        metadata: dict[str, Any] | None = None,
+    ) -> CellPlan:
+        """Tool poses (N, 7) from joint positions ``start_joints`` -> a validated PVT program, like
+        ``plan`` (``timing["ik"]``: the inverse kinematics' part of ``plan``)."""
+        start, cpu = time.perf_counter(), time.thread_time()
+        if self.planner is None:
+            return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
+        out = self.planner.plan_poses(start_joints, poses, motion)
+        return self._build(out, start, cpu, tolerance_qc, metadata, {"motion": motion})
+
+    def _build(
+        self,
+        out: PlanOutput,
+        start: float,
+        cpu: float,
+        tolerance_qc: float | None,
+        metadata: dict[str, Any] | None,
+        extra: dict[str, Any] | None = None,
+    ) -> CellPlan:
+        """The program of a planned trajectory (or the planner's refusal as a CellPlan)."""
         t_plan = time.perf_counter() - start
+        timing = {"plan": t_plan}
+        if "ik_s" in out.details:
+            timing["ik"] = float(out.details["ik_s"])  # type: ignore[arg-type]
         if not out.ok or out.trajectory is None:
-            return CellPlan(out.result.value, out.message, None, out, None, {"plan": t_plan})
+            return CellPlan(out.result.value, out.message, None, out, None, timing, details=dict(out.details))
+        points = out.trajectory.path.points
         tol = self.tolerance_qc if tolerance_qc is None else tolerance_qc
+        meta = {**(extra or {}), **(metadata or {})}
         try:
-            built = build_program(out.trajectory, self.axes, self.cell.name, KnotOptions(tolerance_qc=tol), metadata)
+            built = build_program(out.trajectory, self.axes, self.cell.name, KnotOptions(tolerance_qc=tol), meta)
         except (BuildError, ValueError) as exc:
-            return CellPlan("program_error", str(exc), None, out, None, {"plan": t_plan})
+            return CellPlan("program_error", str(exc), None, out, None, timing, points)
         total = time.perf_counter() - start
-        timing = {"plan": t_plan, "knots": total - t_plan, "total": total, "cpu": time.thread_time() - cpu}
-        return CellPlan("ok", "", built.program, out, built, timing)
+        timing.update({"knots": total - t_plan, "total": total, "cpu": time.thread_time() - cpu})
+        return CellPlan("ok", "", built.program, out, built, timing, points)
 
 
 def plan_cell_program(
