@@ -28,7 +28,7 @@ from planner.knots import DriveAxis, KnotOptions
 from planner.path import PlanResult
 from planner.plan import PlanInput, Planner, PlanOutput
 from service.config import CellConfig, ConfigError, load_cell_config
-from service.waypoints import WaypointError, load_waypoints
+from service.waypoints import PoseTargets, WaypointError, load_motion
 
 EXIT_OK, EXIT_NOT_PLANNED, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -177,7 +177,7 @@ def plan_cell_program(
 def add_parser(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "plan",
-        help="plan a time-optimal motion through waypoints and write its PVT program",
+        help="plan a time-optimal motion through waypoints (or tool poses) and write its PVT program",
         description="Plan a time-optimal motion through the waypoints on a cell and write the PVT program "
         "(validated: the drives' own reconstruction stays inside their limits). Exit 0 written, "
         "1 cannot be planned, 2 unreadable input.",
@@ -187,7 +187,8 @@ def add_parser(subparsers: Any) -> None:
         "--waypoints",
         metavar="FILE",
         required=True,
-        help="waypoints: pvtflow JSON, or a ROS JointTrajectory as JSON or YAML",
+        help="waypoints: pvtflow JSON, or a ROS JointTrajectory as JSON or YAML; or tool poses: "
+        '{"poses": [[x, y, z, qx, qy, qz, qw], ...], "motion": "linear" or "joint", "start": [joint values]}',
     )
     p.add_argument("-o", "--output", metavar="PROGRAM.json", required=True, help="where to write the program")
     p.add_argument(
@@ -211,13 +212,23 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         return _fail(EXIT_BAD_INPUT, str(exc))
     try:
-        waypoints = load_waypoints(args.waypoints, cell.joint_names)
+        motion = load_motion(args.waypoints, cell.joint_names)
     except WaypointError as exc:
         return _fail(EXIT_BAD_INPUT, str(exc))
+    if isinstance(motion, PoseTargets) and motion.start is None:
+        return _fail(
+            EXIT_BAD_INPUT,
+            f"{args.waypoints}: start: planning offline needs the joint positions the motion starts from "
+            '(a list of joint values; "current" is for a running service)',
+        )
     if args.tolerance is not None and not args.tolerance >= 0.5:
         return _fail(EXIT_BAD_INPUT, f"--tolerance must be at least 0.5 count, got {args.tolerance}")
 
-    result = plan_cell_program(cell, waypoints, args.tolerance)
+    if isinstance(motion, PoseTargets):
+        assert motion.start is not None
+        result = CellPlanner(cell).plan_poses(motion.start, motion.poses, motion.motion, args.tolerance)
+    else:
+        result = plan_cell_program(cell, motion, args.tolerance)
     if not result.ok or result.program is None or result.build is None:
         why = f"({result.code}): {result.message}"
         return _fail(EXIT_NOT_PLANNED, f"cannot plan this motion on cell {cell.name!r} {why}")
@@ -241,6 +252,9 @@ def run(args: argparse.Namespace) -> int:
         "acceleration_ratio": {a.name: round(a.acceleration_ratio, 5) for a in knots.axes},
         "timing_ms": {k: round(v * 1000.0, 2) for k, v in result.timing.items()},
     }
+    if isinstance(motion, PoseTargets) and result.waypoints is not None:
+        summary["motion"] = motion.motion
+        summary["joint_samples"] = len(result.waypoints)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
