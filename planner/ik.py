@@ -36,6 +36,7 @@ class IkOptions:
     position_tolerance: float = 1e-6  # m: a solution is this close to the target
     orientation_tolerance: float = 1e-5  # rad
     max_iterations: int = 60
+    max_step: float = 0.5  # rad or m: the largest joint step of one iteration
     damping: float = 1e-6  # Levenberg-Marquardt damping added to J J^T
     # smallest singular value of the frame Jacobian (m/rad and rad/rad mixed: the tool's own scale)
     # below which a solution is a singularity: the joint speeds for a tool speed grow as 1 / sigma
@@ -108,7 +109,7 @@ class IkSolver:
                 return IkSolution(q, IkStatus.CONVERGED, dp, dr, it, _sigma_min(jac), None, jac.copy())
             if it == opt.max_iterations:
                 break
-            q, held = _dls_step(pin.Jlog6(error.inverse()) @ jac, err, q, lower, upper, opt.damping)
+            q, held = _dls_step(pin.Jlog6(error.inverse()) @ jac, err, q, lower, upper, opt.damping, opt.max_step)
         sigma = _sigma_min(jac)
         if held >= 0:
             return IkSolution(q, IkStatus.JOINT_LIMIT, dp, dr, it, sigma, held)
@@ -137,6 +138,7 @@ def _dls_step(
     lower: NDArray[np.float64],
     upper: NDArray[np.float64],
     damping: float,
+    max_step: float,
 ) -> tuple[NDArray[np.float64], int]:
     """One damped least-squares step J^T (J J^T + lambda I)^-1 e, clipped into the limits.
 
@@ -162,6 +164,9 @@ def _dls_step(
         free[pushed] = False
         if held < 0:
             held = pushed
+    largest = np.max(np.abs(step))
+    if largest > max_step:  # far from the target the linearization is poor: a shorter step, same direction
+        step = step * (max_step / largest)
     out = np.empty(n)
     for k in range(n):
         out[k] = min(max(q[k] + step[k], lower[k]), upper[k])
