@@ -84,14 +84,14 @@ def check_poses(poses: ArrayLike) -> NDArray[np.float64]:
         p = np.array(poses, dtype=float)
     except (TypeError, ValueError):
         raise PlanError(PlanResult.INVALID_INPUT, "poses must be a list of [x, y, z, qx, qy, qz, qw]") from None
+    if p.size == 0:
+        raise PlanError(PlanResult.INVALID_INPUT, "poses: at least one pose is needed")
     if p.ndim != 2 or p.shape[1] != POSE_LENGTH:
         shape = p.shape[1] if p.ndim == 2 else p.shape
         raise PlanError(
             PlanResult.INVALID_INPUT,
             f"each pose is [x, y, z, qx, qy, qz, qw] (7 numbers), got {shape}",
         )
-    if len(p) == 0:
-        raise PlanError(PlanResult.INVALID_INPUT, "poses: at least one pose is needed")
     bad = np.argwhere(~np.isfinite(p))
     if len(bad):
         i, j = (int(x) for x in bad[0])
