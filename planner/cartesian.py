@@ -296,6 +296,9 @@ class PoseSolver:
         while u < 1.0:
             if h < MIN_LINE_STEP:
                 raise self._stuck(line, failure, pose, u, q)
+            fastest = float(np.max(np.abs(rate)))
+            if fastest * h > 0.9 * MAX_JOINT_STEP:  # the joints' rates say how long a step may be
+                h = 0.9 * MAX_JOINT_STEP / fastest
             u1 = min(1.0, u + h)
             d = u1 - u
             sol = self.ik.solve(line.at(u1), q + rate * d)
