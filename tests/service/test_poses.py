@@ -141,3 +141,24 @@ def test_a_linear_move_runs_on_the_simulated_arm_and_ends_on_the_pose(arm6, serv
     far = s.request("plan", {"poses": [[3.0, 0.0, 0.5, *POSE[3:]]]})
     assert not far.ok and far.error_code == "plan_failed"
     assert far.data["error"]["details"]["result"] == "unreachable" and far.data["error"]["details"]["pose"] == 0
+
+
+def test_the_planning_process_plans_poses_like_the_service_s_own_planner(arm6, tmp_path) -> None:
+    from service.api import PlanRequest
+    from service.motion import MotionService
+    from service.plan_cmd import CellPlanner
+    from service.planning import PlanningProcess
+
+    req = parse_plan({"poses": [POSE], "start": Q1, "include_program": True}, NAMES, LIMITS)
+    assert isinstance(req, PlanRequest)
+    service = MotionService(arm6, journal_dir=tmp_path, planner_process=True)  # planning only: no bus needed
+    try:
+        assert isinstance(service.planner, PlanningProcess)
+        reply = service.plan(req)
+        here = CellPlanner(arm6).plan_poses(np.array(Q1), [POSE], "linear")
+        assert here.program is not None and here.waypoints is not None
+        assert reply["waypoints"] == len(here.waypoints)
+        for axis, expected in zip(reply["program"]["axes"], here.program.axes, strict=True):
+            assert np.array_equal(np.asarray(axis["records"]), expected.records)
+    finally:
+        service.close()
