@@ -46,7 +46,12 @@ MAX_JOINT_STEP = 0.2  # rad or m
 # The shortest step along a line (a fraction of it) before the line is refused.
 MIN_LINE_STEP = 1e-5
 # Rounds of adding samples where the joint path between two samples leaves the tolerance.
-MAX_VERIFY_ROUNDS = 12
+MAX_VERIFY_ROUNDS = 16
+# Next to a corner the spline's error peaks between the quarter points it is checked at: checked
+# against this share of the tolerance there.
+CORNER_MARGIN = 0.9
+# After the first check of the joint path, the intervals this close to an added sample are checked again.
+RECHECK_SPAN = 4
 # Seeds tried for a pose the previous solution does not lead to (joint motions, reachability).
 RESTARTS = 24
 
@@ -241,31 +246,53 @@ class PoseSolver:
     ) -> ToolPath:
         """The joint path through the samples, with a sample added wherever the tool, halfway
         between two samples on that path, is not within tolerance of its line (the samples were
-        placed on a cubic estimate of it: this checks the path itself)."""
+        placed on a cubic estimate of it: this checks the path itself).
+
+        The first pass checks every interval; after it, the intervals within ``RECHECK_SPAN`` of an
+        added sample (a cubic spline's change from one more knot fades by about 4x per interval).
+        """
         tol = self.tolerance
+        check = range(len(qs) - 1)
         for _ in range(MAX_VERIFY_ROUNDS):
             path = JointPath(np.array(qs), self.limits)
             s = path.waypoint_s
-            middles = path(0.5 * (s[:-1] + s[1:]))
-            bad = []
-            for k, q in enumerate(middles):
+            # where two lines meet, the spline rounds the corner: its error peaks off the middle there
+            corners = [j for j in range(1, len(qs) - 1) if pose_of[j] != pose_of[j + 1]]
+            ks, fs, margin = [], [], []
+            for k in check:
+                near_corner = any(abs(k - j) <= 2 for j in corners)
+                for f in (0.25, 0.5, 0.75) if near_corner else (0.5,):
+                    ks.append(k)
+                    fs.append(f)
+                    margin.append(CORNER_MARGIN if near_corner else 1.0)
+            k_arr, f_arr = np.array(ks, dtype=np.int64), np.array(fs)
+            points = path(s[k_arr] + f_arr * (s[k_arr + 1] - s[k_arr]))
+            bad: list[tuple[int, NDArray[np.float64]]] = []
+            for k, q, m in zip(ks, points, margin, strict=True):
+                if bad and bad[-1][0] == k:
+                    continue  # this interval gets a sample anyway
                 dp, dr, _ = lines[pose_of[k + 1]].deviation(self.ik.fk(q), tol)
-                if dp > tol.position or dr > tol.orientation:
-                    bad.append(k)
+                if dp > m * tol.position or dr > m * tol.orientation:
+                    bad.append((k, path(0.5 * (s[k] + s[k + 1]))))
             if not bad:
                 return ToolPath(path, np.array(pose_of), np.array(fraction), Motion.LINEAR)
-            for k in reversed(bad):  # from the end: the indices before k stay valid
+            for k, q in reversed(bad):  # from the end: the indices before k stay valid
                 pose = pose_of[k + 1]
                 u0 = fraction[k] if pose_of[k] == pose else 0.0
                 um = 0.5 * (u0 + fraction[k + 1])
-                qm = self._solve_on_line(lines[pose], um, middles[k], pose)
+                qm = self._solve_on_line(lines[pose], um, q, pose)
                 qs.insert(k + 1, qm)
                 pose_of.insert(k + 1, pose)
                 fraction.insert(k + 1, um)
+            # the added samples' new indices: bad[i] moved on by the i samples added before it
+            added = [k + 1 + i for i, (k, _) in enumerate(bad)]
+            near = {j for a in added for j in range(a - RECHECK_SPAN - 1, a + RECHECK_SPAN + 1)}
+            check = sorted(j for j in near if 0 <= j < len(qs) - 1)
+        k = bad[0][0]
         raise self._refusal(
             CartesianResult.SINGULAR,
-            pose_of[bad[0] + 1],
-            fraction[bad[0] + 1],
+            pose_of[k + 1],
+            fraction[k + 1],
             "the joint path cannot be made to follow the line there (a sharp turn of the joints)",
         )
 

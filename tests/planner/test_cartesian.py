@@ -214,3 +214,26 @@ def test_the_cell_validates_the_angular_speed_limit(tmp_path) -> None:
     with pytest.raises(ConfigError) as err:
         load_cell_config(bad)
     assert "planning.max_tcp_angular_speed: must be positive" in str(err.value)
+
+
+def test_corners_between_lines_stay_within_the_tolerance_on_the_joint_path() -> None:
+    """Three lines meeting at corners: the spline through the samples rounds each corner, and
+    samples are added there until it keeps within the tolerance of the lines."""
+    p1 = moved(Q1, dx=-0.2, dz=0.1)
+    p2 = p1.copy()
+    p2[1] += 0.15
+    p3 = p2.copy()
+    p3[0] += 0.1
+    tool = POSES.solve(Q1, [p1, p2, p3])
+    lines = [ToolLine(IK.fk(Q1), pose_placement(p1)), ToolLine(pose_placement(p1), pose_placement(p2))]
+    lines.append(ToolLine(pose_placement(p2), pose_placement(p3)))
+    path = tool.path
+    worst = np.zeros(2)
+    for q in path(np.linspace(0.0, path.length, 6000)):
+        placement = IK.fk(q)
+        worst = np.maximum(worst, min((line.deviation(placement, TOL)[:2] for line in lines), key=lambda d: d[0]))
+    assert worst[0] <= TOL.position and worst[1] <= TOL.orientation
+    # each pose is a sample: the path goes through the corners exactly
+    ends = [k for k in range(1, len(tool.pose_of) - 1) if tool.pose_of[k] != tool.pose_of[k + 1]]
+    assert [int(tool.pose_of[k]) for k in ends] == [0, 1]
+    assert all(tool.fraction[k] == 1.0 for k in ends)
