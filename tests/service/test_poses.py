@@ -162,3 +162,18 @@ def test_the_planning_process_plans_poses_like_the_service_s_own_planner(arm6, t
             assert np.array_equal(np.asarray(axis["records"]), expected.records)
     finally:
         service.close()
+
+
+def test_pvtflow_request_plan_sends_a_pose_file_as_a_poses_request(arm6, serve, tmp_path, capsys) -> None:
+    s = serve(arm6)
+    file = tmp_path / "poses.json"
+    file.write_text(json.dumps({"poses": [POSE], "motion": "joint", "start": Q1}))
+    assert main(["request", "plan", "--connect", s.endpoint, "--waypoints", str(file)]) == 0
+    reply = json.loads(capsys.readouterr().out)
+    check_reply("plan", reply)
+    np.testing.assert_allclose(reply["start"], Q1)
+    end = IK.fk(np.array(reply["end"]))
+    assert np.linalg.norm(end.translation - np.array(POSE[:3])) < 1e-5
+    # --start belongs to waypoints: refused before anything is sent
+    assert main(["request", "plan", "--connect", s.endpoint, "--waypoints", str(file), "--start", "first"]) == 2
+    assert "pose file" in capsys.readouterr().err
