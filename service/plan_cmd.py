@@ -178,7 +178,8 @@ def add_parser(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "plan",
         help="plan a time-optimal motion through waypoints (or tool poses) and write its PVT program",
-        description="Plan a time-optimal motion through the waypoints on a cell and write the PVT program "
+        description="Plan a time-optimal motion through the waypoints (or the tool poses: straight tool lines "
+        "or joint moves, solved by inverse kinematics) on a cell and write the PVT program "
         "(validated: the drives' own reconstruction stays inside their limits). Exit 0 written, "
         "1 cannot be planned, 2 unreadable input.",
     )
