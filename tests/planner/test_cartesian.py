@@ -107,8 +107,12 @@ def test_the_samples_stay_on_one_branch_along_the_line() -> None:
         dp, dr, u = lines[int(tool.pose_of[k])].deviation(IK.fk(q[k]), TOL)
         assert dp < 1e-5 and dr < 1e-4
         assert u == pytest.approx(tool.fraction[k], abs=1e-4)
-    # the joint-space solution of the same poses from a far seed would be another branch: not taken here
     assert list(tool.pose_of[[0, -1]]) == [-1, 1]
+    # the last pose has other solutions (other branches, found from far seeds): the line ends on the
+    # one it started on, not on whichever a solver would find first
+    end = pose_placement(moved(qa, dx=-0.25, dy=0.2, dz=0.15))
+    others = [sol.q for sol in (IK.solve(end, seed) for seed in POSES._restart_seeds()) if sol.ok]
+    assert any(np.max(np.abs(o - q[-1])) > 1.0 for o in others)
 
 
 def test_an_unreachable_pose_is_refused_with_its_index() -> None:
