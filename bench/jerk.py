@@ -39,8 +39,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from pvt_quality import random_waypoints
 
-from planner.jerk import JerkTrajectory
 from axes.program import PvtProgram
+from planner.jerk import JerkTrajectory
 from planner.validate import validate_program
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
 from service.plan_cmd import CellPlan, CellPlanner

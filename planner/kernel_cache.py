@@ -19,7 +19,10 @@ from numba.core.caching import InTreeCacheLocator
 
 HERE = Path(__file__).resolve().parent
 INTERPOLATION = HERE.parent / "axes" / "interpolation.py"  # the drive's cubic, inlined by the kernels
-KERNEL_SOURCES = (INTERPOLATION, *(HERE / n for n in ("knot_kernels.py", "path.py", "timing.py", "validate.py")))
+KERNEL_SOURCES = (
+    INTERPOLATION,
+    *(HERE / n for n in ("cartesian.py", "ik.py", "knot_kernels.py", "path.py", "timing.py", "validate.py")),
+)
 
 
 def sources_stamp(paths: tuple[Path, ...]) -> tuple[tuple[int, int], ...]:

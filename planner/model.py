@@ -64,7 +64,7 @@ class RobotModel:
         self._index = {j.name: k for k, j in enumerate(joints)}
         # batched RNEA (one Pinocchio call for a whole grid), created on first use
         self._pool: pin.ModelPool | None = None
-        self._point_mass_pools: dict[int, pin.ModelPool] = {}
+        self._probe_pools: dict[tuple[int, bool], pin.ModelPool] = {}
 
     @classmethod
     def from_urdf(cls, path: str | Path) -> RobotModel:
@@ -133,7 +133,15 @@ class RobotModel:
         M(q) qd = rnea(q, 0, qd) of that model without gravity: exact, and batched by Pinocchio.
         """
         q, qd = self._rows(q), self._rows(qd)
-        m_qd = self._rnea_rows(self._point_mass_pool(self.frame_id(frame)), q, np.zeros_like(qd), qd)
+        m_qd = self._rnea_rows(self._probe_pool(self.frame_id(frame), rotation=False), q, np.zeros_like(qd), qd)
+        return np.sqrt(np.maximum(np.einsum("ij,ij->i", qd, m_qd), 0.0))
+
+    def frame_angular_speeds(self, q: ArrayLike, qd: ArrayLike, frame: str) -> NDArray[np.float64]:
+        """|angular velocity| of ``frame`` for each row of q, qd: the same batched RNEA as
+        ``frame_speeds``, on a model whose only inertia is a unit rotational one (no mass) on the
+        frame's body: its kinetic energy is |omega|^2 / 2, whatever the body's orientation."""
+        q, qd = self._rows(q), self._rows(qd)
+        m_qd = self._rnea_rows(self._probe_pool(self.frame_id(frame), rotation=True), q, np.zeros_like(qd), qd)
         return np.sqrt(np.maximum(np.einsum("ij,ij->i", qd, m_qd), 0.0))
 
     def inverse_dynamics(self, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike) -> NDArray[np.float64]:
@@ -168,16 +176,21 @@ class RobotModel:
             pin.rneaInParallel(1, pool, q.T, qd.T, qdd.T, tau.T)
         return tau
 
-    def _point_mass_pool(self, fid: int) -> pin.ModelPool:
-        """A copy of the model with a unit point mass at frame ``fid``'s origin, no other inertia and
-        no gravity (see ``frame_speeds``)."""
-        pool = self._point_mass_pools.get(fid)
+    def _probe_pool(self, fid: int, rotation: bool) -> pin.ModelPool:
+        """A copy of the model with no inertia and no gravity but, on frame ``fid``'s body, a unit
+        point mass at the frame's origin (``frame_speeds``) or, with ``rotation``, a unit rotational
+        inertia without mass (``frame_angular_speeds``)."""
+        pool = self._probe_pools.get((fid, rotation))
         if pool is None:
             frame = self.model.frames[fid]
             model = pin.Model(self.model)
             model.gravity = pin.Motion.Zero()
             for jid in range(model.njoints):
                 model.inertias[jid] = pin.Inertia.Zero()
-            model.inertias[frame.parentJoint] = pin.Inertia(1.0, frame.placement.translation.copy(), np.zeros((3, 3)))
-            pool = self._point_mass_pools[fid] = pin.ModelPool(model, 1)
+            if rotation:
+                probe = pin.Inertia(0.0, np.zeros(3), np.eye(3))
+            else:
+                probe = pin.Inertia(1.0, frame.placement.translation.copy(), np.zeros((3, 3)))
+            model.inertias[frame.parentJoint] = probe
+            pool = self._probe_pools[(fid, rotation)] = pin.ModelPool(model, 1)
         return pool

@@ -152,6 +152,23 @@ class TcpSpeedConstraint(_IntervalSpeedConstraint):
         return self.model.frame_speeds(path(s), path(s, 1), self.frame)[:, None]
 
 
+class TcpAngularSpeedConstraint(_IntervalSpeedConstraint):
+    """|omega_tcp| <= max_speed (rad/s) of ``frame``, sampled as TcpSpeedConstraint is (one batched
+    Pinocchio call: ``RobotModel.frame_angular_speeds``)."""
+
+    FRACTIONS = np.array([0.5])
+
+    def __init__(self, model: RobotModel, frame: str, max_speed: float) -> None:
+        super().__init__(np.array([float(max_speed)]))
+        self.model = model
+        self.frame = frame
+        self.dof = model.dof
+        self._format_string = f"    TCP angular speed limit: {max_speed} rad/s at {frame}\n"
+
+    def speed_factors(self, path: JointPath, s: NDArray[np.float64]) -> NDArray[np.float64]:
+        return self.model.frame_angular_speeds(path(s), path(s, 1), self.frame)[:, None]
+
+
 class JointTorqueConstraint(constraint.LinearConstraint):
     """|tau_j| <= effort_j at every gridpoint (toppra's collocation scheme), tau from Pinocchio's RNEA.
 
@@ -468,9 +485,11 @@ def timing_constraints(
     torque_limits: bool = False,
     tcp_frame: str | None = None,
     max_tcp_speed: float | None = None,
+    max_tcp_angular_speed: float | None = None,
 ) -> list[constraint.Constraint]:
     """The toppra constraints of a cell: joint velocity and acceleration always; joint torque
-    (RNEA) where asked for and the model has effort limits and masses; TCP speed where asked for."""
+    (RNEA) where asked for and the model has effort limits and masses; TCP linear and angular speed
+    where asked for."""
     out: list[constraint.Constraint] = [
         JointVelocityConstraint(limits.velocity),
         JointAccelerationConstraint(limits.acceleration),
@@ -481,6 +500,10 @@ def timing_constraints(
         if model is None or tcp_frame is None:
             raise ValueError("a TCP speed limit needs the robot model and the TCP frame")
         out.append(TcpSpeedConstraint(model, tcp_frame, max_tcp_speed))
+    if max_tcp_angular_speed is not None:
+        if model is None or tcp_frame is None:
+            raise ValueError("a TCP angular speed limit needs the robot model and the TCP frame")
+        out.append(TcpAngularSpeedConstraint(model, tcp_frame, max_tcp_angular_speed))
     return out
 
 
@@ -789,6 +812,7 @@ __all__ = [
     "JointTorqueConstraint",
     "JointVelocityConstraint",
     "LeanTOPPRA",
+    "TcpAngularSpeedConstraint",
     "TcpSpeedConstraint",
     "Trajectory",
     "make_gridpoints",

@@ -26,7 +26,9 @@ from jsonschema import Draft202012Validator
 from jsonschema.exceptions import ValidationError
 from numpy.typing import NDArray
 
+from planner.cartesian import POSE_LENGTH, QUATERNION_TOLERANCE, Motion, check_poses
 from planner.limits import JointLimits, check_scale
+from planner.path import PlanError
 
 API_VERSION = 1
 PREFIX = "pvtflow"
@@ -69,7 +71,7 @@ ERROR_DESCRIPTIONS: dict[ErrorCode, str] = {
     ErrorCode.MALFORMED_JSON: "The payload is not UTF-8 JSON (syntax error, bad encoding, binary data).",
     ErrorCode.INVALID_REQUEST: "Valid JSON that does not follow the request's JSON Schema: not an object, a "
     "missing or unknown field, a wrong type, an empty list. details.path is the JSON path of the problem.",
-    ErrorCode.WRONG_JOINT_COUNT: "A waypoint or target does not have exactly one value per joint of the cell "
+    ErrorCode.WRONG_JOINT_COUNT: "A waypoint, target or start does not have exactly one value per joint of the cell "
     "(details.expected, details.got, details.path).",
     ErrorCode.NOT_FINITE: "NaN, Infinity or a number too large for a double (1e999) where a joint value is "
     "needed (details.path).",
@@ -80,8 +82,10 @@ ERROR_DESCRIPTIONS: dict[ErrorCode, str] = {
     ErrorCode.UNKNOWN_PLAN: "No plan with this plan_id on this cell (plans live in memory: a restart or "
     "too many newer plans forget it).",
     ErrorCode.WRONG_CELL: "The program was made for another cell, other node ids, profiles, scaling or limits.",
-    ErrorCode.PLAN_FAILED: "The planner found no motion through these waypoints (details.result: "
-    "repeated_waypoint, path_out_of_limits, infeasible, ... or program_error).",
+    ErrorCode.PLAN_FAILED: "The planner found no motion through these waypoints or poses (details.result: "
+    "repeated_waypoint, path_out_of_limits, infeasible, ... or program_error; for poses also unreachable, "
+    "singular or joint_limit, with details.pose, the pose the line leads to, and details.fraction, how far "
+    "along it).",
     ErrorCode.VALIDATION_FAILED: "The program breaks its drives' rules (details.report is the validator's "
     "report): nothing was sent.",
     ErrorCode.BUSY: "A motion is running on this cell (details.motion_id). One motion at a time: stop it or "
@@ -256,11 +260,35 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
                     "minItems": 1,
                     "description": "the order of the values (default: the cell's joint order)",
                 },
+                "poses": {
+                    "type": "array",
+                    "minItems": 1,
+                    "maxItems": MAX_WAYPOINTS,
+                    "items": {
+                        "type": "array",
+                        "items": {"type": "number"},
+                        "minItems": POSE_LENGTH,
+                        "maxItems": POSE_LENGTH,
+                        "description": "[x, y, z, qx, qy, qz, qw]: the cell's tcp_frame in the robot's base frame "
+                        f"(m; a unit quaternion, normalized within {QUATERNION_TOLERANCE:g})",
+                    },
+                    "description": "tool poses to go through (instead of waypoints or target), from the start",
+                },
+                "motion": {
+                    "enum": [m.value for m in Motion],
+                    "default": Motion.LINEAR.value,
+                    "description": "poses only: linear, the tool on straight lines between the poses (orientation "
+                    "by slerp); joint, a joint path through the inverse-kinematics solutions of the poses",
+                },
                 "start": {
-                    "enum": ["current", "first"],
+                    "anyOf": [
+                        {"enum": ["current", "first"]},
+                        {"type": "array", "items": {"type": "number"}},
+                    ],
                     "default": "current",
-                    "description": "current: from where the axes are now; first: the first waypoint is the "
-                    "start (execute then checks the axes are there)",
+                    "description": "current: from where the axes are now; first (waypoints): the first waypoint is "
+                    "the start; a list of joint values (poses): the motion starts there (execute then checks the "
+                    "axes are there)",
                 },
                 "tolerance_qc": {
                     "type": "number",
@@ -290,7 +318,7 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
                     "description": "put the whole PVT program in the reply",
                 },
             },
-            oneOf=[{"required": ["waypoints"]}, {"required": ["target"]}],
+            oneOf=[{"required": ["waypoints"]}, {"required": ["target"]}, {"required": ["poses"]}],
         )
     elif name == "validate":
         body = _obj(
@@ -544,7 +572,7 @@ def _json_path(path: Sequence[Any]) -> str:
 _NUMBER_TYPES = frozenset({int, float})  # JSON numbers as json.loads makes them (bool is not one)
 _PLAN_PROPERTIES = request_schema("plan")["properties"]
 _PLAN_FIELDS = frozenset(_PLAN_PROPERTIES)
-_PLAN_STARTS = frozenset(_PLAN_PROPERTIES["start"]["enum"])
+_PLAN_STARTS = frozenset(_PLAN_PROPERTIES["start"]["anyOf"][0]["enum"])
 _PLAN_TOLERANCE = (_PLAN_PROPERTIES["tolerance_qc"]["minimum"], _PLAN_PROPERTIES["tolerance_qc"]["maximum"])
 _PLAN_SCALES = ("velocity_scale", "acceleration_scale")
 
@@ -594,6 +622,19 @@ def check_schema(name: str, data: Any, dof: int | None) -> dict[str, Any]:
     # the most telling error first: a joint count or a size beats a generic shape problem
     for err in sorted(errors, key=lambda e: (len(e.absolute_path), str(e.message))):
         path = list(err.absolute_path)
+        if err.validator in ("minItems", "maxItems") and path and path[0] == "poses":
+            if path == ["poses"] and err.validator == "maxItems":
+                raise ApiError(
+                    ErrorCode.TOO_LARGE,
+                    f"{len(err.instance)} poses, at most {MAX_WAYPOINTS}",
+                    {"poses": len(err.instance), "limit": MAX_WAYPOINTS},
+                )
+            if len(path) == 2:
+                raise ApiError(
+                    ErrorCode.INVALID_REQUEST,
+                    f"{_json_path(path)} has {len(err.instance)} values; a pose is [x, y, z, qx, qy, qz, qw]",
+                    {"path": _json_path(path), "expected": POSE_LENGTH, "got": len(err.instance)},
+                )
         if err.validator in ("minItems", "maxItems") and path and path[0] in ("waypoints", "target"):
             if path == ["waypoints"]:
                 if err.validator == "maxItems":
@@ -648,13 +689,16 @@ def _short(message: str, limit: int = 160) -> str:
 # --- requests --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class PlanRequest:
-    waypoints: NDArray[np.float64]  # (N, dof) in the cell's joint order
-    start: str = "current"
+    waypoints: NDArray[np.float64]  # (N, dof) in the cell's joint order; (0, dof) for poses
+    start: str = "current"  # "current", "first" (waypoints) or "joints" (poses from start_joints)
     tolerance_qc: float | None = None
     label: str | None = None
     include_program: bool = False
     velocity_scale: float = 1.0  # speed override in (0, 1] (planner.limits.check_scale)
     acceleration_scale: float = 1.0
+    poses: NDArray[np.float64] | None = None  # (N, 7), unit quaternions
+    motion: str = Motion.LINEAR.value
+    start_joints: NDArray[np.float64] | None = None  # (dof,) in the cell's joint order
 
 
 @dataclass(frozen=True)
@@ -690,9 +734,108 @@ def parse_plan(data: Any, joint_names: Sequence[str], limits: JointLimits | None
     """A checked plan request; waypoints reordered into the cell's joint order and inside ``limits``."""
     dof = len(joint_names)
     check_schema("plan", data, dof)
+    order = _joint_order(data.get("joint_names"), joint_names)
+    if "poses" in data:
+        return _parse_pose_plan(data, order, limits)
+    if "motion" in data:
+        raise ApiError(ErrorCode.INVALID_REQUEST, "motion is for poses, not waypoints or target", {"path": "$.motion"})
+    if isinstance(data.get("start"), list):
+        raise ApiError(
+            ErrorCode.INVALID_REQUEST,
+            "a list of joint values as start is for poses; waypoints start at current or first",
+            {"path": "$.start"},
+        )
     rows = data["waypoints"] if "waypoints" in data else [data["target"]]
     field_name = "waypoints" if "waypoints" in data else "target"
-    names = data.get("joint_names")
+    try:
+        waypoints = np.array([[float(row[k]) for k in order] for row in rows], dtype=float)
+    except OverflowError:
+        raise ApiError(
+            ErrorCode.NOT_FINITE, f"$.{field_name}: an integer too large for a joint value", {"path": f"$.{field_name}"}
+        ) from None
+    if limits is not None:
+        check_limits(waypoints, limits, field_name)
+    start = data.get("start", "current")
+    if field_name == "target":
+        start = "current"
+    if start == "first" and len(waypoints) < 2:
+        raise ApiError(
+            ErrorCode.INVALID_REQUEST, "with start=first a motion needs at least 2 waypoints", {"path": "$.waypoints"}
+        )
+    return PlanRequest(
+        waypoints,
+        start,
+        data.get("tolerance_qc"),
+        data.get("label"),
+        bool(data.get("include_program", False)),
+        **_scales(data),
+    )
+
+
+def _scales(data: dict[str, Any]) -> dict[str, float]:
+    """velocity_scale, acceleration_scale: the schema has refused what is not in (0, 1]; the
+    planner's rule (planner.limits.check_scale), once more."""
+    scales = {}
+    for name in _PLAN_SCALES:
+        try:
+            scales[name] = check_scale(name, data.get(name, 1.0))
+        except ValueError as exc:
+            raise ApiError(ErrorCode.INVALID_REQUEST, f"$.{name}: {exc}", {"path": f"$.{name}"}) from None
+    return scales
+
+
+def _parse_pose_plan(data: dict[str, Any], order: list[int], limits: JointLimits | None) -> PlanRequest:
+    """A plan request with poses: the poses checked (planner.cartesian's rules: 7 numbers, a unit
+    quaternion), the start current or joint values inside the limits."""
+    dof = len(order)
+    try:
+        poses = check_poses(data["poses"])
+    except PlanError as exc:
+        i = exc.details.get("pose")
+        path = f"$.poses[{i}]" if i is not None else "$.poses"
+        raise ApiError(ErrorCode.INVALID_REQUEST, f"{path}: {exc.message}", {"path": path}) from None
+    except OverflowError:
+        raise ApiError(ErrorCode.NOT_FINITE, "$.poses: a number too large", {"path": "$.poses"}) from None
+    start = data.get("start", "current")
+    start_joints = None
+    if start == "first":
+        raise ApiError(
+            ErrorCode.INVALID_REQUEST,
+            "with poses, start is current or a list of joint values (first is for waypoints)",
+            {"path": "$.start"},
+        )
+    if isinstance(start, list):
+        if len(start) != dof:
+            raise ApiError(
+                ErrorCode.WRONG_JOINT_COUNT,
+                f"$.start has {len(start)} values, the cell has {dof} joints",
+                {"path": "$.start", "expected": dof, "got": len(start)},
+            )
+        try:
+            start_joints = np.array([float(start[k]) for k in order], dtype=float)
+        except OverflowError:
+            raise ApiError(
+                ErrorCode.NOT_FINITE, "$.start: an integer too large for a joint value", {"path": "$.start"}
+            ) from None
+        if limits is not None:
+            check_limits(start_joints[None, :], limits, "start")
+        start = "joints"
+    return PlanRequest(
+        np.empty((0, dof)),
+        start,
+        data.get("tolerance_qc"),
+        data.get("label"),
+        bool(data.get("include_program", False)),
+        poses=poses,
+        motion=data.get("motion", Motion.LINEAR.value),
+        start_joints=start_joints,
+        **_scales(data),
+    )
+
+
+def _joint_order(names: Any, joint_names: Sequence[str]) -> list[int]:
+    """Where each of the cell's joints is in a request's values (``joint_names``: their order)."""
+    dof = len(joint_names)
     if names is None:
         order = list(range(dof))
     else:
@@ -713,35 +856,7 @@ def parse_plan(data: Any, joint_names: Sequence[str], limits: JointLimits | None
                 {"joint": missing[0], "joints": list(joint_names)},
             )
         order = [names.index(n) for n in joint_names]
-    try:
-        waypoints = np.array([[float(row[k]) for k in order] for row in rows], dtype=float)
-    except OverflowError:
-        raise ApiError(
-            ErrorCode.NOT_FINITE, f"$.{field_name}: an integer too large for a joint value", {"path": f"$.{field_name}"}
-        ) from None
-    if limits is not None:
-        check_limits(waypoints, limits, field_name)
-    start = data.get("start", "current")
-    if field_name == "target":
-        start = "current"
-    if start == "first" and len(waypoints) < 2:
-        raise ApiError(
-            ErrorCode.INVALID_REQUEST, "with start=first a motion needs at least 2 waypoints", {"path": "$.waypoints"}
-        )
-    scales = {}
-    for name in _PLAN_SCALES:  # the schema has refused what is not in (0, 1]; the planner's rule, once more
-        try:
-            scales[name] = check_scale(name, data.get(name, 1.0))
-        except ValueError as exc:
-            raise ApiError(ErrorCode.INVALID_REQUEST, f"$.{name}: {exc}", {"path": f"$.{name}"}) from None
-    return PlanRequest(
-        waypoints,
-        start,
-        data.get("tolerance_qc"),
-        data.get("label"),
-        bool(data.get("include_program", False)),
-        **scales,
-    )
+    return order
 
 
 def check_limits(waypoints: NDArray[np.float64], limits: JointLimits, field_name: str = "waypoints") -> None:
@@ -753,7 +868,7 @@ def check_limits(waypoints: NDArray[np.float64], limits: JointLimits, field_name
         i, j = (int(x) for x in bad[0])
         value = float(waypoints[i, j])
         lo, hi = float(limits.lower[j]), float(limits.upper[j])
-        path = f"$.{field_name}[{i}]" if field_name == "waypoints" else "$.target"
+        path = f"$.{field_name}[{i}]" if field_name == "waypoints" else f"$.{field_name}"
         raise ApiError(
             ErrorCode.OUT_OF_LIMITS,
             f"{path}: joint {limits.names[j]} = {value:.6g} is outside its position limits [{lo:.6g}, {hi:.6g}]",

@@ -43,6 +43,7 @@ class ConfigError(ValueError):
 class PlanningConfig:
     tcp_frame: str | None = None
     max_tcp_speed: float | None = None  # m/s
+    max_tcp_angular_speed: float | None = None  # rad/s
     torque_limits: bool = True  # only where the URDF has effort limits and masses
     position_tolerance_qc: float = 1.0
 
@@ -251,14 +252,20 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
 
 
 def _parse_planning(file: Path, data: Any, tcp_frame: str | None, model: RobotModel) -> PlanningConfig:
-    f = _Fields(file, "planning", data, ("max_tcp_speed", "torque_limits", "position_tolerance_qc"))
+    f = _Fields(
+        file, "planning", data, ("max_tcp_speed", "max_tcp_angular_speed", "torque_limits", "position_tolerance_qc")
+    )
     max_tcp = f.get("max_tcp_speed", f.number(positive=True), None)
     if max_tcp is not None and tcp_frame is None:
         raise f.error("max_tcp_speed", "needs robot.tcp_frame to know which frame to limit")
+    max_turn = f.get("max_tcp_angular_speed", f.number(positive=True), None)
+    if max_turn is not None and tcp_frame is None:
+        raise f.error("max_tcp_angular_speed", "needs robot.tcp_frame to know which frame to limit")
     torque = f.get("torque_limits", f.boolean, True)
     return PlanningConfig(
         tcp_frame=tcp_frame,
         max_tcp_speed=max_tcp,
+        max_tcp_angular_speed=max_turn,
         torque_limits=torque and model.has_dynamics,
         position_tolerance_qc=f.get("position_tolerance_qc", f.number(positive=True), 1.0),
     )

@@ -3,8 +3,10 @@
 Everything goes the way a cell's software would go: the service (the arm6 demo cell on simulated
 EPOS2 drives, a zenoh peer on a free loopback port) and a client session in this process talk
 only over zenoh. The client plans a tour through a few waypoints, executes it, shows a progress
-bar from the telemetry while the axes move, prints the drives' final state from ``status`` and
-writes a plot of the telemetry (joint positions and buffer levels over time).
+bar from the telemetry while the axes move, prints the drives' final state from ``status``, then
+moves the tool on a straight line (a joint move off the middle of the ranges, where the wrist is
+straight, then a poses request with motion linear) and writes a plot of the telemetry (joint
+positions and buffer levels of the tour over time; the tool's path during the line).
 Exit codes: 0 the motion finished, 1 it did not (the reason is printed), 2 cannot start.
 """
 
@@ -16,12 +18,15 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
 from axes.bus import BusError
+from planner.cartesian import placement_pose
 from service.api import key
 from service.config import CellConfig, ConfigError, load_cell_config
 from service.journal import JournalError
@@ -80,18 +85,43 @@ def tour(lower: np.ndarray, upper: np.ndarray, n: int, seed: int = 7) -> list[li
     return [[float(x) for x in p] for p in pts]
 
 
+# where the linear move starts: off the middle of the ranges (the arm's wrist is straight there, a
+# singularity), as fractions of each joint's half range
+LIFT = (0.2, 0.5, 0.5, 0.2, 1.0, 0.2)
+LINE = (-0.12, 0.0, 0.08)  # m: the linear move's offset of the tool in the base frame
+
+
+@dataclass(frozen=True)
+class ToolTrace:
+    """The linear move as the plot shows it: the commanded line and the tool's positions."""
+
+    motion_id: str
+    start: np.ndarray
+    end: np.ndarray
+    positions: np.ndarray  # (n, 3), from the telemetry's joint positions
+    worst_mm: float  # the largest distance of those from the line, m
+
+
 class _Follower:
     """Collects telemetry and events of one cell, and draws the progress bar."""
 
     def __init__(self, width: int = 40) -> None:
         self.width = width
-        self.telemetry: list[dict[str, Any]] = []
+        self.telemetry: list[dict[str, Any]] = []  # of the present motion
+        self.by_motion: dict[str, list[dict[str, Any]]] = {}
         self.events: list[dict[str, Any]] = []
         self.states: list[str] = []
         self.ended = threading.Event()
         self.outcome: dict[str, Any] | None = None
         self.motion_id: str | None = None
         self._t0: float | None = None
+
+    def follow(self, motion_id: str) -> None:
+        """From now on, collect the telemetry and wait for the end of ``motion_id``."""
+        self.telemetry = self.by_motion.setdefault(motion_id, [])
+        self.outcome = None
+        self.ended.clear()
+        self.motion_id = motion_id
 
     def on_telemetry(self, cell: str, d: dict[str, Any]) -> None:
         del cell
@@ -119,17 +149,36 @@ class _Follower:
         self.states.append(d["state"])
 
 
-def write_plot(path: Path, follower: _Follower, joint_names: list[str], title: str) -> None:
+def write_plot(
+    path: Path, tel: list[dict[str, Any]], joint_names: list[str], title: str, tool: ToolTrace | None = None
+) -> None:
+    """Joint positions and buffer levels of the tour over time; with ``tool``, a third panel: the
+    tool's path during the linear move (forward kinematics of its telemetry) against the line."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    tel = follower.telemetry
     t = np.array([d["elapsed_ms"] / 1000.0 for d in tel])
     q = np.array([[np.nan if x is None else x for x in d["positions"]] for d in tel])
     lv = np.array([[np.nan if x is None else x for x in d["buffer_levels"]] for d in tel])
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True, height_ratios=(2, 1))
+    if tool is not None:
+        fig = plt.figure(figsize=(13, 6.5))
+        grid = fig.add_gridspec(3, 2, width_ratios=(3, 2))
+        ax1 = fig.add_subplot(grid[:2, 0])
+        ax2 = fig.add_subplot(grid[2, 0], sharex=ax1)
+        ax3 = fig.add_subplot(grid[:, 1])
+        a, b, xyz = tool.start, tool.end, tool.positions
+        ax3.plot([a[0], b[0]], [a[2], b[2]], "--", color="0.5", label="commanded line")
+        ax3.plot(xyz[:, 0], xyz[:, 2], ".", ms=3, label="tool (telemetry, forward kinematics)")
+        ax3.set_xlabel("x (m)")
+        ax3.set_ylabel("z (m)")
+        ax3.set_aspect("equal", adjustable="datalim")
+        ax3.set_title(f"linear move, {tool.motion_id}: worst {1000 * tool.worst_mm:.3f} mm off the line", fontsize=9)
+        ax3.legend(fontsize=8)
+        ax3.grid(alpha=0.3)
+    else:
+        fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True, height_ratios=(2, 1))
     for j, name in enumerate(joint_names):
         ax1.plot(t, q[:, j], label=name)
         ax2.plot(t, lv[:, j], label=name)
@@ -143,6 +192,66 @@ def write_plot(path: Path, follower: _Follower, joint_names: list[str], title: s
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _run_motion(client: Client, name: str, request: dict[str, Any], follower: _Follower, what: str) -> str | None:
+    """Plan ``request``, execute it and wait for its end: its motion id, or None (said why)."""
+    plan = client.request(name, "plan", request)
+    if not plan.ok:
+        err = plan.data["error"]
+        print(f"{PROG}: {what}: plan refused: {err['code']}: {err['message']}", file=sys.stderr)
+        return None
+    p = plan.data
+    ex = client.request(name, "execute", {"plan_id": p["plan_id"]})
+    if not ex.ok:
+        err = ex.data["error"]
+        print(f"{PROG}: {what}: execute refused: {err['code']}: {err['message']}", file=sys.stderr)
+        return None
+    follower.follow(ex.data["motion_id"])
+    if not follower.ended.wait(max(30.0, 10 * p["duration_s"])):
+        print(f"\n{PROG}: {what}: the motion did not end in time: stopping it", file=sys.stderr)
+        client.request(name, "stop", {"reason": "demo timeout"})
+        return None
+    print()
+    outcome = follower.outcome or {}
+    print(
+        f"  {what}: plan {p['plan_id']}, {p['waypoints']} joint waypoints, {p['duration_s']:.3f} s; "
+        f"outcome {outcome.get('result')}"
+    )
+    return ex.data["motion_id"] if outcome.get("result") == "finished" else None
+
+
+def _linear_move(
+    client: Client, name: str, service: MotionService, follower: _Follower
+) -> tuple[bool, ToolTrace | None]:
+    """A joint move off the middle of the ranges, then a straight line of the tool (a poses request,
+    motion linear, from where the axes are): whether both finished, and the tool's path from the
+    telemetry (None for a cell without a tool frame: no linear move there)."""
+    frame = service.cell.planning.tcp_frame
+    if frame is None:
+        print("  (no robot.tcp_frame in the cell: no linear move)")
+        return True, None
+    limits = service.limits
+    mid, half = 0.5 * (limits.lower + limits.upper), 0.5 * (limits.upper - limits.lower)
+    lift = mid + 0.3 * half * np.resize(np.array(LIFT), limits.dof)
+    if _run_motion(client, name, {"target": [float(x) for x in lift]}, follower, "joint move") is None:
+        return False, None
+    model = service.cell.model
+    start = pin.SE3(model.frame_placement(lift, frame))
+    end = start.copy()
+    end.translation = start.translation + np.array(LINE)
+    request = {"poses": [[float(x) for x in placement_pose(end)]], "motion": "linear", "label": "demo line"}
+    motion_id = _run_motion(client, name, request, follower, "linear move")
+    if motion_id is None:
+        return False, None
+    q = np.array([d["positions"] for d in follower.by_motion.get(motion_id, []) if None not in d["positions"]])
+    xyz = np.array([model.frame_placement(x, frame)[:3, 3] for x in q]).reshape(-1, 3)
+    a, b = start.translation, end.translation
+    u = np.clip((xyz - a) @ (b - a) / float((b - a) @ (b - a)), 0.0, 1.0)
+    off = np.linalg.norm(xyz - (a + u[:, None] * (b - a)), axis=1)
+    worst = float(off.max()) if len(off) else 0.0
+    print(f"  the tool stayed within {1000 * worst:.3f} mm of the line ({len(xyz)} telemetry samples)")
+    return True, ToolTrace(motion_id, a.copy(), b.copy(), xyz, worst)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -242,7 +351,7 @@ def _demo(
         err = ex.data["error"]
         print(f"{PROG}: execute refused: {err['code']}: {err['message']}", file=sys.stderr)
         return EXIT_FAILED
-    follower.motion_id = ex.data["motion_id"]
+    follower.follow(ex.data["motion_id"])
     print(f"  motion {follower.motion_id} started on SYNC {ex.data['start_sync']}")
     if not follower.ended.wait(max(30.0, 10 * p["duration_s"])):
         print(f"\n{PROG}: the motion did not end in time: stopping it", file=sys.stderr)
@@ -263,8 +372,15 @@ def _demo(
             )
     events = [e["kind"] for e in follower.events if e.get("motion_id") == follower.motion_id]
     print(f"  events: {', '.join(events)}; states: {' -> '.join(dict.fromkeys(follower.states))}")
-    if follower.telemetry:
-        write_plot(plot, follower, joints, f"pvtflow demo: cell {name}, motion {follower.motion_id}")
-        print(f"  plot: {plot} ({len(follower.telemetry)} telemetry samples)")
+    tour_tel, tour_id = list(follower.telemetry), follower.motion_id
+    if outcome.get("result") != "finished":
+        return EXIT_FAILED
+    ok, tool = _linear_move(client, name, service, follower)
+    if not ok:
+        return EXIT_FAILED
+    if tour_tel:
+        write_plot(plot, tour_tel, joints, f"pvtflow demo: cell {name}, motion {tour_id}", tool)
+        line = "; the tool's path on the line" if tool is not None else ""
+        print(f"  plot: {plot} ({len(tour_tel)} telemetry samples of the tour{line})")
     del subs
-    return EXIT_OK if outcome.get("result") == "finished" else EXIT_FAILED
+    return EXIT_OK

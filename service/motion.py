@@ -248,33 +248,47 @@ class MotionService:
 
     # --- plan ------------------------------------------------------------------------------------
     def plan(self, req: PlanRequest) -> dict[str, Any]:
-        """Waypoints -> a validated program kept under a new plan id (PLAN_FAILED when impossible)."""
+        """Waypoints or poses -> a validated program kept under a new plan id (PLAN_FAILED when impossible)."""
         t0 = time.perf_counter()
-        waypoints = req.waypoints
-        if req.start == "current":
-            q0 = self.current_joint_positions()
-            first_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, waypoints[0], strict=True)]
-            here_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, q0, strict=True)]
-            if max(abs(x - y) for x, y in zip(first_qc, here_qc, strict=True)) <= 1.0:
-                waypoints = np.vstack([q0, waypoints[1:]])  # the first waypoint is where the axes are
-            else:
-                waypoints = np.vstack([q0, waypoints])
-            if len(waypoints) < 2:
-                raise ApiError(
-                    ErrorCode.PLAN_FAILED,
-                    "the axes are already at the target: nothing to move",
-                    {"result": "repeated_waypoint"},
-                )
         plan_id = _new_id("p")
-        with self._planner_lock:
-            result = self.planner.plan(
-                waypoints, req.tolerance_qc, {"plan_id": plan_id}, req.velocity_scale, req.acceleration_scale
-            )
+        if req.poses is not None:
+            q0 = req.start_joints if req.start_joints is not None else self.current_joint_positions()
+            with self._planner_lock:
+                result = self.planner.plan_poses(
+                    q0,
+                    req.poses,
+                    req.motion,
+                    req.tolerance_qc,
+                    {"plan_id": plan_id},
+                    req.velocity_scale,
+                    req.acceleration_scale,
+                )
+            waypoints = result.waypoints if result.waypoints is not None else q0[None, :]
+        else:
+            waypoints = req.waypoints
+            if req.start == "current":
+                q0 = self.current_joint_positions()
+                first_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, waypoints[0], strict=True)]
+                here_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, q0, strict=True)]
+                if max(abs(x - y) for x, y in zip(first_qc, here_qc, strict=True)) <= 1.0:
+                    waypoints = np.vstack([q0, waypoints[1:]])  # the first waypoint is where the axes are
+                else:
+                    waypoints = np.vstack([q0, waypoints])
+                if len(waypoints) < 2:
+                    raise ApiError(
+                        ErrorCode.PLAN_FAILED,
+                        "the axes are already at the target: nothing to move",
+                        {"result": "repeated_waypoint"},
+                    )
+            with self._planner_lock:
+                result = self.planner.plan(
+                    waypoints, req.tolerance_qc, {"plan_id": plan_id}, req.velocity_scale, req.acceleration_scale
+                )
         if not result.ok or result.program is None or result.build is None:
             raise ApiError(
                 ErrorCode.PLAN_FAILED,
                 f"cannot plan this motion on cell {self.cell.name} ({result.code}): {result.message}",
-                {"result": result.code},
+                {"result": result.code, **_plain(result.details)},
             )
         program = result.program
         timing = {k: round(v * 1000.0, 3) for k, v in result.timing.items()}
@@ -683,6 +697,11 @@ class MotionService:
             "states": [s.state for s in st.axes],
             "time": time.time(),
         }
+
+
+def _plain(details: dict[str, Any]) -> dict[str, Any]:
+    """A planner's error details as JSON values (numbers, strings)."""
+    return {k: v if isinstance(v, str | int | float | bool) or v is None else str(v) for k, v in details.items()}
 
 
 def _is_fault(s: AxisStatus) -> bool:

@@ -19,16 +19,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from axes.program import PvtProgram
 from planner.build import BuildError, BuildOutput, build_program
+from planner.cartesian import placement_pose
 from planner.knots import DriveAxis, KnotOptions
 from planner.limits import check_scale
 from planner.path import PlanResult
 from planner.plan import PlanInput, Planner, PlanOutput
 from service.config import CellConfig, ConfigError, load_cell_config
-from service.waypoints import WaypointError, load_waypoints
+from service.waypoints import PoseTargets, WaypointError, load_motion
 
 EXIT_OK, EXIT_NOT_PLANNED, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -37,12 +38,14 @@ EXIT_OK, EXIT_NOT_PLANNED, EXIT_BAD_INPUT = 0, 1, 2
 class CellPlan:
     """The outcome of planning on a cell: a program, or the reason (``code``, ``message``)."""
 
-    code: str  # "ok", a planner.path.PlanResult value, or "program_error"
+    code: str  # "ok", a planner.plan.PlanOutcome value, or "program_error"
     message: str = ""
     program: PvtProgram | None = None
     plan: PlanOutput | None = None
     build: BuildOutput | None = None
-    timing: dict[str, float] = field(default_factory=dict)  # s: plan, knots, total
+    timing: dict[str, float] = field(default_factory=dict)  # s: plan (ik: its inverse kinematics), knots, total
+    waypoints: NDArray[np.float64] | None = None  # the joint waypoints planned through (poses: the IK samples)
+    details: dict[str, Any] = field(default_factory=dict)  # where it failed (PlanError details)
 
     @property
     def ok(self) -> bool:
@@ -59,6 +62,7 @@ def plan_input_for_cell(cell: CellConfig, waypoints: ArrayLike, gridpoints: int 
         max_tcp_speed=cell.planning.max_tcp_speed,
         torque_limits=cell.planning.torque_limits,
         gridpoints=gridpoints,
+        max_tcp_angular_speed=cell.planning.max_tcp_angular_speed,
     )
 
 
@@ -80,7 +84,13 @@ class CellPlanner:
         self.setup_error = ""
         try:
             self.planner = Planner(
-                inp.limits, inp.model, inp.tcp_frame, inp.max_tcp_speed, inp.torque_limits, inp.gridpoints
+                inp.limits,
+                inp.model,
+                inp.tcp_frame,
+                inp.max_tcp_speed,
+                inp.torque_limits,
+                inp.gridpoints,
+                inp.max_tcp_angular_speed,
             )
         except ValueError as exc:  # a planning option the planner refuses: every plan says so
             self.setup_error = str(exc)
@@ -95,7 +105,10 @@ class CellPlanner:
         if self.planner is None:
             return
         lo, hi = self.limits.lower, self.limits.upper
-        self.plan(np.array([lo + 0.45 * (hi - lo), lo + 0.55 * (hi - lo)]))
+        a, b = lo + 0.45 * (hi - lo), lo + 0.55 * (hi - lo)
+        self.plan(np.array([a, b]))
+        if self.planner.poses is not None:  # and the inverse kinematics' compiled steps
+            self.plan_poses(a, [placement_pose(self.planner.poses.ik.fk(b))])
 
     def plan(
         self,
@@ -118,25 +131,63 @@ class CellPlanner:
         if self.planner is None:
             return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
         out = self.planner.plan(waypoints, velocity_scale, acceleration_scale)
+        return self._build(out, start, cpu, tolerance_qc, metadata, velocity_scale, acceleration_scale)
+
+    def plan_poses(
+        self,
+        start_joints: ArrayLike,
+        poses: ArrayLike,
+        motion: str = "linear",
+        tolerance_qc: float | None = None,
+        metadata: dict[str, Any] | None = None,
+        velocity_scale: float = 1.0,
+        acceleration_scale: float = 1.0,
+    ) -> CellPlan:
+        """Tool poses (N, 7) from joint positions ``start_joints`` -> a validated PVT program, like
+        ``plan`` (``timing["ik"]``: the inverse kinematics' part of ``plan``)."""
+        start, cpu = time.perf_counter(), time.thread_time()
+        if self.planner is None:
+            return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
+        out = self.planner.plan_poses(start_joints, poses, motion, velocity_scale, acceleration_scale)
+        extra = {"motion": motion}
+        return self._build(out, start, cpu, tolerance_qc, metadata, velocity_scale, acceleration_scale, extra)
+
+    def _build(
+        self,
+        out: PlanOutput,
+        start: float,
+        cpu: float,
+        tolerance_qc: float | None,
+        metadata: dict[str, Any] | None,
+        velocity_scale: float = 1.0,
+        acceleration_scale: float = 1.0,
+        extra: dict[str, Any] | None = None,
+    ) -> CellPlan:
+        """The program of a planned trajectory (or the planner's refusal as a CellPlan)."""
         t_plan = time.perf_counter() - start
+        timing = {"plan": t_plan}
+        if "ik_s" in out.details:
+            timing["ik"] = float(out.details["ik_s"])  # type: ignore[arg-type]
         if not out.ok or out.trajectory is None:
-            return CellPlan(out.result.value, out.message, None, out, None, {"plan": t_plan})
+            return CellPlan(out.result.value, out.message, None, out, None, timing, details=dict(out.details))
+        points = out.trajectory.path.points
         tol = self.tolerance_qc if tolerance_qc is None else tolerance_qc
+        meta = {**(extra or {}), **(metadata or {})}
         try:
             built = build_program(
                 out.trajectory,
                 self.axes,
                 self.cell.name,
                 KnotOptions(tolerance_qc=tol),
-                metadata,
+                meta,
                 float(velocity_scale),
                 float(acceleration_scale),
             )
         except (BuildError, ValueError) as exc:
-            return CellPlan("program_error", str(exc), None, out, None, {"plan": t_plan})
+            return CellPlan("program_error", str(exc), None, out, None, timing, points)
         total = time.perf_counter() - start
-        timing = {"plan": t_plan, "knots": total - t_plan, "total": total, "cpu": time.thread_time() - cpu}
-        return CellPlan("ok", "", built.program, out, built, timing)
+        timing.update({"knots": total - t_plan, "total": total, "cpu": time.thread_time() - cpu})
+        return CellPlan("ok", "", built.program, out, built, timing, points)
 
 
 def plan_cell_program(
@@ -154,8 +205,9 @@ def plan_cell_program(
 def add_parser(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "plan",
-        help="plan a time-optimal motion through waypoints and write its PVT program",
-        description="Plan a time-optimal motion through the waypoints on a cell and write the PVT program "
+        help="plan a time-optimal motion through waypoints (or tool poses) and write its PVT program",
+        description="Plan a time-optimal motion through the waypoints (or the tool poses: straight tool lines "
+        "or joint moves, solved by inverse kinematics) on a cell and write the PVT program "
         "(validated: the drives' own reconstruction stays inside their limits). Exit 0 written, "
         "1 cannot be planned, 2 unreadable input.",
     )
@@ -164,7 +216,8 @@ def add_parser(subparsers: Any) -> None:
         "--waypoints",
         metavar="FILE",
         required=True,
-        help="waypoints: pvtflow JSON, or a ROS JointTrajectory as JSON or YAML",
+        help="waypoints: pvtflow JSON, or a ROS JointTrajectory as JSON or YAML; or tool poses: "
+        '{"poses": [[x, y, z, qx, qy, qz, qw], ...], "motion": "linear" or "joint", "start": [joint values]}',
     )
     p.add_argument("-o", "--output", metavar="PROGRAM.json", required=True, help="where to write the program")
     p.add_argument(
@@ -202,9 +255,15 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         return _fail(EXIT_BAD_INPUT, str(exc))
     try:
-        waypoints = load_waypoints(args.waypoints, cell.joint_names)
+        motion = load_motion(args.waypoints, cell.joint_names)
     except WaypointError as exc:
         return _fail(EXIT_BAD_INPUT, str(exc))
+    if isinstance(motion, PoseTargets) and motion.start is None:
+        return _fail(
+            EXIT_BAD_INPUT,
+            f"{args.waypoints}: start: planning offline needs the joint positions the motion starts from "
+            '(a list of joint values; "current" is for a running service)',
+        )
     if args.tolerance is not None and not args.tolerance >= 0.5:
         return _fail(EXIT_BAD_INPUT, f"--tolerance must be at least 0.5 count, got {args.tolerance}")
     for option, value in (("--velocity-scale", args.velocity_scale), ("--acceleration-scale", args.acceleration_scale)):
@@ -213,9 +272,12 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as exc:
             return _fail(EXIT_BAD_INPUT, str(exc))
 
-    result = plan_cell_program(
-        cell, waypoints, args.tolerance, velocity_scale=args.velocity_scale, acceleration_scale=args.acceleration_scale
-    )
+    scales = {"velocity_scale": args.velocity_scale, "acceleration_scale": args.acceleration_scale}
+    if isinstance(motion, PoseTargets):
+        assert motion.start is not None
+        result = CellPlanner(cell).plan_poses(motion.start, motion.poses, motion.motion, args.tolerance, **scales)
+    else:
+        result = plan_cell_program(cell, motion, args.tolerance, **scales)
     if not result.ok or result.program is None or result.build is None:
         why = f"({result.code}): {result.message}"
         return _fail(EXIT_NOT_PLANNED, f"cannot plan this motion on cell {cell.name!r} {why}")
@@ -242,6 +304,9 @@ def run(args: argparse.Namespace) -> int:
         "acceleration_ratio": {a.name: round(a.acceleration_ratio * args.acceleration_scale, 5) for a in knots.axes},
         "timing_ms": {k: round(v * 1000.0, 2) for k, v in result.timing.items()},
     }
+    if isinstance(motion, PoseTargets) and result.waypoints is not None:
+        summary["motion"] = motion.motion
+        summary["joint_samples"] = len(result.waypoints)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

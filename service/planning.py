@@ -39,8 +39,8 @@ READY = "ready"
 
 def _child(conn: Connection, source: Path, name: str, axes: tuple[AxisConfig, ...], planning: PlanningConfig) -> None:
     """The child: the cell as the parent has it (the robot model is reloaded, not pickled), then one
-    ``(waypoints, tolerance_qc, metadata, velocity_scale, acceleration_scale)`` in, one CellPlan (or
-    an error text) out, until EOF."""
+    ``(method, args)`` in (``plan`` or ``plan_poses`` of CellPlanner), one CellPlan (or an error
+    text) out, until EOF."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it closes the pipe, we end on EOF
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     try:
@@ -54,11 +54,11 @@ def _child(conn: Connection, source: Path, name: str, axes: tuple[AxisConfig, ..
     conn.send(READY)
     while True:
         try:
-            args = conn.recv()
+            method, args = conn.recv()
         except (EOFError, OSError):  # the parent closed the pipe (or went away)
             return
         try:
-            result = planner.plan(*args)
+            result = planner.plan_poses(*args) if method == "plan_poses" else planner.plan(*args)
             conn.send(dataclasses.replace(result, plan=None))  # the TOPP-RA trajectory stays: the program is the output
         except Exception:  # a bug in the planner: the parent reports it, the child keeps serving
             conn.send(traceback.format_exc())
@@ -125,11 +125,28 @@ class PlanningProcess:
         acceleration_scale: float = 1.0,
     ) -> CellPlan:
         """Like CellPlanner.plan; PlanningError for a planner bug or a dead child (then restarted)."""
+        return self._ask("plan", (waypoints, tolerance_qc, metadata, velocity_scale, acceleration_scale))
+
+    def plan_poses(
+        self,
+        start_joints: ArrayLike,
+        poses: ArrayLike,
+        motion: str = "linear",
+        tolerance_qc: float | None = None,
+        metadata: dict[str, Any] | None = None,
+        velocity_scale: float = 1.0,
+        acceleration_scale: float = 1.0,
+    ) -> CellPlan:
+        """Like CellPlanner.plan_poses, in the child."""
+        args = (start_joints, poses, motion, tolerance_qc, metadata, velocity_scale, acceleration_scale)
+        return self._ask("plan_poses", args)
+
+    def _ask(self, method: str, args: tuple[Any, ...]) -> CellPlan:
         with self._lock:
             try:
                 self._wait_ready()
                 assert self._conn is not None
-                self._conn.send((waypoints, tolerance_qc, metadata, velocity_scale, acceleration_scale))
+                self._conn.send((method, args))
                 answer = self._conn.recv()
             except (EOFError, OSError, BrokenPipeError):
                 self._stop()

@@ -31,7 +31,7 @@ from service.server import (
     zenoh_message,
 )
 from service.validate_cmd import ProgramFileError, read_program
-from service.waypoints import WaypointError, load_waypoints
+from service.waypoints import PoseTargets, WaypointError, load_motion
 
 EXIT_OK, EXIT_ERROR_REPLY, EXIT_NO_ANSWER = 0, 1, 2
 PROG = "pvtflow request"
@@ -184,7 +184,8 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument(
         "--waypoints",
         metavar="FILE",
-        help="plan: waypoint file (pvtflow JSON or ROS JointTrajectory; one waypoint or more)",
+        help="plan: waypoint file (pvtflow JSON or ROS JointTrajectory; one waypoint or more), or a pose file "
+        '{"poses": [[x, y, z, qx, qy, qz, qw], ...], "motion": "linear" or "joint", "start": "current" or joints}',
     )
     p.add_argument(
         "--target", metavar="Q1,Q2,...", help="plan: one goal in joint units, comma separated (not with --waypoints)"
@@ -292,14 +293,23 @@ def _local_payload(args: argparse.Namespace) -> Any:
 
 def _add_waypoints(args: argparse.Namespace, client: Client, payload: dict[str, Any]) -> None:
     """plan --waypoints: the file read in the cell's joint order (asked of the service). One waypoint is a
-    motion from where the axes are, as the service takes it."""
+    motion from where the axes are, as the service takes it; a pose file becomes a poses request."""
     status = client.request(args.cell, "status", {"recent": 0}, args.timeout)
     if not status.ok:
         raise _InputError(f"cannot learn the joints of cell {args.cell}: {status.data['error']['message']}")
     try:
-        payload["waypoints"] = load_waypoints(args.waypoints, status.data["joint_names"], min_count=1).tolist()
+        motion = load_motion(args.waypoints, status.data["joint_names"], min_count=1)
     except WaypointError as exc:
         raise _InputError(str(exc)) from None
+    if isinstance(motion, PoseTargets):
+        if args.start is not None:
+            raise _InputError("--start is for waypoints; a pose file says where it starts (its start field)")
+        payload["poses"] = motion.poses.tolist()
+        payload["motion"] = motion.motion
+        if motion.start is not None:
+            payload["start"] = motion.start.tolist()
+    else:
+        payload["waypoints"] = motion.tolist()
 
 
 def _client_config(args: argparse.Namespace) -> zenoh.Config:

@@ -9,6 +9,11 @@ Accepted (JSON, or YAML for the ROS shape; the file's content decides, not its e
   ``rostopic echo`` / ``ros2 topic echo`` dump or a MoveIt result). Only the positions are used:
   pvtflow computes its own timing.
 
+- tool poses: ``{"poses": [[x, y, z, qx, qy, qz, qw], ...], "motion": "linear", "start": [q1, ..., qn]}``
+  (``motion``: linear, the default, or joint; ``start``: joint values, or "current" where a service
+  knows where the axes are; ``joint_names`` optional, the order of ``start``): read by
+  :func:`load_motion` as :class:`PoseTargets`.
+
 Joint values are reordered by name into the cell's joint order. Every problem is a
 :class:`WaypointError` naming the file and the place in it, never a traceback.
 """
@@ -18,6 +23,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,14 +31,79 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from planner.cartesian import Motion, check_poses
+from planner.path import PlanError
+
+POSE_FILE_FIELDS = ("poses", "motion", "start", "joint_names")
+
 
 class WaypointError(ValueError):
     """A waypoint file that cannot be used; the message says which file and where."""
 
 
+@dataclass(frozen=True)
+class PoseTargets:
+    """A pose file: the tool poses (N, 7, unit quaternions), how to go through them, and the joint
+    positions to start from (None: where the axes are)."""
+
+    poses: NDArray[np.float64]
+    motion: str
+    start: NDArray[np.float64] | None
+
+
+def load_motion(path: str | Path, joint_names: Sequence[str], min_count: int = 2) -> NDArray[np.float64] | PoseTargets:
+    """The waypoints of ``path`` (as :func:`load_waypoints`), or its poses when it is a pose file."""
+    data = _read(path)
+    if isinstance(data, dict) and "poses" in data:
+        return poses_from_data(data, joint_names, str(path))
+    return waypoints_from_data(data, joint_names, str(path), min_count)
+
+
+def poses_from_data(data: dict[str, Any], joint_names: Sequence[str], source: str) -> PoseTargets:
+    """A pose file's content, checked (the poses by the planner's own rules)."""
+    unknown = sorted(set(data) - set(POSE_FILE_FIELDS))
+    if unknown:
+        raise WaypointError(f"{source}: unknown field {unknown[0]!r} (a pose file has {', '.join(POSE_FILE_FIELDS)})")
+    rows = data["poses"]
+    if not isinstance(rows, list) or not rows:
+        raise WaypointError(f"{source}: poses: must be a non-empty list of [x, y, z, qx, qy, qz, qw]")
+    for i, row in enumerate(rows):
+        if not isinstance(row, list) or len(row) != 7:
+            got = f"{len(row)} values" if isinstance(row, list) else repr(row)
+            raise WaypointError(f"{source}: poses[{i}]: must be [x, y, z, qx, qy, qz, qw], got {got}")
+        for j, x in enumerate(row):
+            if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+                raise WaypointError(f"{source}: poses[{i}][{j}]: must be a finite number, got {x!r}")
+    try:
+        poses = check_poses(rows)
+    except PlanError as exc:
+        raise WaypointError(f"{source}: poses: {exc.message}") from None
+    motion = data.get("motion", Motion.LINEAR.value)
+    if motion not in [m.value for m in Motion]:
+        raise WaypointError(f"{source}: motion: must be linear or joint, got {motion!r}")
+    start = data.get("start", "current")
+    if start == "current":
+        return PoseTargets(poses, motion, None)
+    if not isinstance(start, list):
+        raise WaypointError(f'{source}: start: must be a list of joint values or "current", got {start!r}')
+    names = data.get("joint_names")
+    try:
+        rows_in_order = waypoints_from_data(
+            {"waypoints": [start], **({"joint_names": names} if names is not None else {})}, joint_names, source, 1
+        )
+    except WaypointError as exc:  # the joint values' own checks, worded for the start
+        raise WaypointError(str(exc).replace("waypoints[0]", "start")) from None
+    return PoseTargets(poses, motion, rows_in_order[0])
+
+
 def load_waypoints(path: str | Path, joint_names: Sequence[str], min_count: int = 2) -> NDArray[np.float64]:
     """(N, dof) waypoints from ``path`` in the order of ``joint_names``; at least ``min_count`` of them
     (2 for a motion planned on its own; 1 for the service, which starts from where the axes are)."""
+    return waypoints_from_data(_read(path), joint_names, str(path), min_count)
+
+
+def _read(path: str | Path) -> Any:
+    """The JSON or YAML content of a waypoint file."""
     file = Path(path)
     if not file.is_file():
         raise WaypointError(f"{file}: {'is a directory' if file.is_dir() else 'file not found'}")
@@ -40,21 +111,24 @@ def load_waypoints(path: str | Path, joint_names: Sequence[str], min_count: int 
         text = file.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise WaypointError(f"{file}: cannot read: {exc}") from None
-    return parse_waypoints(text, joint_names, str(file), min_count)
+    return _parse(text, str(file))
 
 
 def parse_waypoints(
     text: str, joint_names: Sequence[str], source: str = "waypoints", min_count: int = 2
 ) -> NDArray[np.float64]:
     """Waypoints from JSON or YAML text (see the module doc for the accepted shapes)."""
+    return waypoints_from_data(_parse(text, source), joint_names, source, min_count)
+
+
+def _parse(text: str, source: str) -> Any:
     try:
-        data = json.loads(text)
+        return json.loads(text)
     except json.JSONDecodeError:
         try:
-            data = yaml.safe_load(text)
+            return yaml.safe_load(text)
         except yaml.YAMLError as exc:
             raise WaypointError(f"{source}: neither JSON nor YAML ({str(exc).splitlines()[0]})") from None
-    return waypoints_from_data(data, joint_names, source, min_count)
 
 
 def waypoints_from_data(

@@ -144,5 +144,8 @@ def test_demo_plans_and_runs_a_move_through_zenoh_and_writes_a_plot(tmp_path, ca
     assert main(["demo", "--plot", str(plot), "--journal", str(tmp_path / "j")]) == 0
     out = capsys.readouterr().out
     assert "outcome: finished" in out and "%" in out
+    assert "linear move: plan" in out and "outcome finished" in out
+    worst_mm = float(out.split("the tool stayed within ")[1].split(" mm")[0])
+    assert worst_mm <= 0.1  # the telemetry's positions on the line, by forward kinematics
     assert plot.stat().st_size > 10_000
     assert (tmp_path / "j" / "journal.jsonl").exists()
