@@ -4,6 +4,7 @@ carries the messages and no carriage returns (a log file or CI output stays clea
 from __future__ import annotations
 
 import os
+import select
 import subprocess
 import sys
 from pathlib import Path
@@ -54,7 +55,11 @@ def test_the_progress_bar_is_drawn_on_a_terminal(tmp_path: Path) -> None:
             assert bar.enabled
             bar.update(1, "a.json")
             bar.close()
-        drawn = os.read(primary, 4096).decode()
+        drawn = ""
+        while not drawn.endswith("\r") or drawn.count("\r") < 2:  # the terminal may hand it over in pieces
+            ready, _, _ = select.select([primary], [], [], 5.0)
+            assert ready, f"the bar stopped at {drawn!r}"
+            drawn += os.read(primary, 4096).decode()
         assert drawn.startswith("\r[##########....................] 1/3 a.json") and drawn.endswith("\r")
     finally:
         os.close(primary)
