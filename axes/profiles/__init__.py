@@ -40,6 +40,7 @@ class DriveError(RuntimeError):
 
     def __init__(self, node_id: int, message: str) -> None:
         self.node_id = node_id
+        self.detail = message  # the message without the node
         super().__init__(f"node {node_id}: {message}")
 
 
@@ -256,6 +257,9 @@ class Profile:
     tpdos: ClassVar[tuple[PdoLayout, ...]]
     sync_tpdo: ClassVar[int]  # the synchronous TPDO number that answers every SYNC
     fixed_period: ClassVar[bool] = False  # one setpoint per SYNC, sent right after the SYNC before it
+    # 0x6007 when the master's heartbeat stops: fault, so that the drive brakes on its fault reaction
+    # (0x605E, quick stop ramp) and stays in FAULT (EMCY 0x8130) until a master acknowledges it
+    abort_connection_option: ClassVar[od.AbortConnectionOption] = od.AbortConnectionOption.FAULT_SIGNAL
 
     def __init__(self, link: AxisLink) -> None:
         self.link = link
@@ -333,6 +337,37 @@ class Profile:
 
     def write_heartbeat(self) -> None:
         self.link.write(od.PRODUCER_HEARTBEAT_TIME, 0, self.link.bus.config.heartbeat_ms, "H")
+
+    def supervise_master(self) -> None:
+        """Make the drive stop by itself when the master is lost: 0x1016:01 watches the master's
+        heartbeat (node id, consumer time), 0x6007 says what to do when it stops, 0x6085 (where the
+        drive has it) is the quick stop ramp its reaction brakes on (the drive's 0x60C5). The first
+        two are read back; a drive that does not take them is refused, naming node and object: it
+        would go on moving without a master."""
+        bus = self.link.bus.config
+        entry = (bus.master_node_id << od.CONSUMER_NODE_SHIFT) | bus.master_consumer_time_ms
+        what = f"watching the master's heartbeat (node {bus.master_node_id}, {bus.master_consumer_time_ms} ms)"
+        self._write_read_back(od.CONSUMER_HEARTBEAT_TIME, 1, entry, "I", f"consumer heartbeat time, {what}")
+        option = self.abort_connection_option
+        self._write_read_back(
+            od.ABORT_CONNECTION_OPTION_CODE, 0, int(option), "h", f"abort connection option code {option.name.lower()}"
+        )
+        self.link.write_optional(
+            od.QUICK_STOP_DECELERATION_CIA402, 0, round(self.config.limits.max_acceleration_rpm_s), "I"
+        )
+
+    def _write_read_back(self, index: int, subindex: int, value: int, fmt: str, what: str) -> None:
+        where = f"0x{index:04X}:{subindex:02X}"
+        why = "without it the drive goes on moving when the master is lost"
+        try:
+            self.link.write(index, subindex, value, fmt)
+            back = self.link.read(index, subindex, fmt)
+        except DriveError as exc:
+            raise DriveError(self.link.node_id, f"{where} ({what}) not accepted: {exc.detail}; {why}") from None
+        if back != value:
+            raise DriveError(
+                self.link.node_id, f"{where} ({what}) reads back 0x{back:X} after writing 0x{value:X}; {why}"
+            )
 
 
 def profile_for(link: AxisLink) -> Profile:
