@@ -257,9 +257,9 @@ class Profile:
     tpdos: ClassVar[tuple[PdoLayout, ...]]
     sync_tpdo: ClassVar[int]  # the synchronous TPDO number that answers every SYNC
     fixed_period: ClassVar[bool] = False  # one setpoint per SYNC, sent right after the SYNC before it
-    # 0x6007 when the master's heartbeat stops: fault, so that the drive brakes on its fault reaction
-    # (0x605E, quick stop ramp) and stays in FAULT (EMCY 0x8130) until a master acknowledges it
-    abort_connection_option: ClassVar[od.AbortConnectionOption] = od.AbortConnectionOption.FAULT_SIGNAL
+    # 0x6007 when the master's heartbeat stops: quick stop, braking on the quick stop ramp (0x6085 =
+    # the drive's 0x60C5) rather than coasting (2, disable voltage); EMCY 0x8130 tells who is listening
+    abort_connection_option: ClassVar[od.AbortConnectionOption] = od.AbortConnectionOption.QUICK_STOP
 
     def __init__(self, link: AxisLink) -> None:
         self.link = link

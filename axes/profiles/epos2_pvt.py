@@ -7,9 +7,10 @@ position on the synchronous TPDO2 that answers every SYNC), heartbeat 0x1017; wi
 ``time_stamp`` the asynchronous RPDO3 takes 0x1013 from the master's one time-stamp frame after
 each SYNC (app note 2.4, on TIME_STAMP_COB_ID for all drives). Master loss (``supervise_master``):
 maxon's EDS has both CiA objects, 0x1016 (two consumer entries: pvtflow takes :01) and 0x6007
-(INTEGER16, no default given); 0x6007 = 1 makes a lost master a fault ("CAN heartbeat error", EMCY
-0x8130) whose reaction is 0x605E (maxon's default 2: quick stop ramp on 0x6085), so the FIFO stops,
-the axis brakes and waits in FAULT (app note 3.8: restart only after re-synchronisation).
+(INTEGER16, no default given), and pvtflow writes 0x6007 = 3 (quick stop) as for every profile; but
+maxon's firmware takes a heartbeat error as one of its device errors (EMCY 0x8130), so what stops
+the axis is its error reaction 0x605E (maxon's default 2: quick stop ramp on 0x6085): the FIFO is
+emptied, the axis brakes and waits in FAULT (app note 3.8: restart only after re-synchronisation).
 Feed: each record is the u64 of 0x20C1 (``Record.to_bytes``) on RPDO1; a ``BufferFeeder`` keeps
 the FIFO filled. Delay: none to compensate, the drive runs on the records' own times from the start
 SYNC. End: the time-0 record (interpolation inactive without error).

@@ -4,7 +4,7 @@ Configuration: Pr31 = 202 (0x2000 + 31), the cycle in 0x1006 (us) = the SYNC per
 interpolation submode (0 linear, -1 cubic position + velocity, -2 cubic position only), PDO 4 rx
 synchronous with the target position 0x60C1:01 and the velocity feed-forward in rpm 0x60C1:03,
 RPDO2 controlword, TPDO1 statusword + position answering every SYNC; the master's heartbeat
-watched (0x1016, 0x6007 = 1: ``Profile.supervise_master``; the seed names neither object, so a real
+watched (0x1016, 0x6007 = 3, quick stop: ``Profile.supervise_master``; the seed names neither object, so a real
 SLVDN that lacks them is refused at configuration).
 Feed: position + velocity (record velocity x velocity unit, in rpm) per cycle. Delay: below
 2500 us the position loop takes the setpoint at the SYNC that validates it (no delay: record k is

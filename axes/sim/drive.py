@@ -9,9 +9,11 @@ few hooks.
 
 Master loss: when a heartbeat 0x1016 watches stops (``axes/sim/consumer.py``), the drive sends
 EMCY 0x8130 (CiA 301 heartbeat error, error register generic + communication) and does what 0x6007
-says: 1 fault, braking first as 0x605E says (2: on the quick stop ramp 0x6085; the state is FAULT
-REACTION ACTIVE until the demand is at rest, then FAULT), 2 disable voltage, 3 quick stop, 0
-nothing more. Its motion clock then runs on the wall clock as long as it brakes and no SYNC comes:
+says: 3 quick stop (the ramp 0x6085, then SWITCH ON DISABLED), 2 disable voltage, 1 fault, braking
+first as 0x605E says (2: on the quick stop ramp; FAULT REACTION ACTIVE until the demand is at rest,
+then FAULT), 0 nothing more. A drive whose firmware treats a heartbeat error as one of its errors
+(``HEARTBEAT_ERROR_FAULTS``: the EPOS2) takes the fault path whatever 0x6007 says.
+Its motion clock then runs on the wall clock as long as it brakes and no SYNC comes:
 without SYNC a simulated drive's clock stands still (a real drive's runs on), and a lost master
 sends no SYNC. Other faults stop the axis at once, as before (the power stage off, the demand on
 the actual position).
@@ -185,6 +187,8 @@ class SimulatedDrive:
     EMCY_POSITION_LIMIT: ClassVar[int] = obj.EMCY_SOFTWARE_POSITION_LIMIT
     EMCY_VELOCITY: ClassVar[int] = obj.EMCY_VELOCITY_LIMIT
     MODES: ClassVar[DriveModes] = DriveModes((SIMULATED_MODE,))  # 0x6502 / 0x6060 (axes/sim/device.py)
+    # a lost master's heartbeat is one of the drive's own errors: its fault reaction (0x605E), then FAULT
+    HEARTBEAT_ERROR_FAULTS: ClassVar[bool] = False
     _ip_requested: bool = False  # bit 4 rose: ip mode starts on the next SYNC (profiles reset it)
 
     def __init__(
@@ -488,7 +492,9 @@ class SimulatedDrive:
             self.master_losses.append(loss)
             register = REGISTER_GENERIC | REGISTER_COMMUNICATION
             check = f"heartbeat of node {node_id} lost ({silent_s * 1000:.0f} ms silent)"
-            if option == obj.AbortConnectionOption.FAULT_SIGNAL:
+            if option == obj.AbortConnectionOption.FAULT_SIGNAL or (
+                self.HEARTBEAT_ERROR_FAULTS and option != obj.AbortConnectionOption.NO_ACTION
+            ):
                 self.fault_braking(obj.EMCY_HEARTBEAT_ERROR, check, register=register)
             else:
                 self.send_emcy(obj.EMCY_HEARTBEAT_ERROR, register)
