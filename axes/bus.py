@@ -556,8 +556,13 @@ class CellBus:
             self._fault_callbacks.remove(callback)
 
     def _report(self, fault: BusFault) -> None:
+        """Every callback hears of the fault; one that fails (a halt on a bus that has gone away)
+        is logged, and neither stops the others nor the thread that reports (the watchdog)."""
         for cb in list(self._fault_callbacks):
-            cb(fault)
+            try:
+                cb(fault)
+            except (can.CanError, OSError, RuntimeError) as exc:
+                log.error("reporting %s of node %s failed: %s", fault.kind, fault.node_id, exc)
 
     # --- NMT -------------------------------------------------------------------------------------
     def nmt_broadcast(self, command: int) -> None:
