@@ -164,8 +164,11 @@ def test_drives_watch_the_master_after_configuration(arm6, make_rig):
         assert d.read(od.ABORT_CONNECTION_OPTION_CODE) == od.AbortConnectionOption.QUICK_STOP, d.node_id
         limits = next(a.limits for a in cell.axes if a.node_id == d.node_id)
         assert d.read(od.QUICK_STOP_DECELERATION_CIA402) == round(limits.max_acceleration_rpm_s)
-    # the drives hear the master: their consumer entry is armed
-    assert all(d.consumer.active(cell.bus.master_node_id) for d in rig.sim)
+    # the drives hear the master: their consumer entry is armed by its next heartbeat
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline and not all(d.consumer.active(cell.bus.master_node_id) for d in rig.sim):
+        time.sleep(0.01)
+    assert [d.node_id for d in rig.sim if not d.consumer.active(cell.bus.master_node_id)] == []
 
 
 def without_object(eds: Path, index: int, out: Path) -> Path:
