@@ -70,7 +70,7 @@ def kill_master(rig, how: str, release: threading.Event) -> None:
     kill_at_sync = round(KILL_AT_MS / rig.cell.bus.sync_period_ms)
 
     def listener(n: int) -> None:  # runs in the master's receive thread
-        elapsed = rig.group.elapsed_syncs()
+        elapsed = rig.group.elapsed_syncs() if rig.group.running else None
         if elapsed is None or elapsed < kill_at_sync or killed.is_set():
             return
         killed.set()
