@@ -195,4 +195,8 @@ PARKER_TPDOS = SETPOINT_TPDOS
 # EPOS2 clock synchronisation (app note 2.4 and 3.7): after each SYNC the master sends its transmit
 # time (0x1013, us) once, on one COB-ID that every EPOS2 takes through its asynchronous RPDO3.
 TIME_STAMP_COB_ID = 0x400  # not in the predefined connection set (RPDO3 of "node 0")
+
+# CiA 301 NMT error control: a node's heartbeat is one byte, its NMT state, on 0x700 + node id
+HEARTBEAT_COB_ID_BASE = 0x700
+NMT_STATE_OPERATIONAL = 5
 EPOS2_TIME_STAMP_RPDO = PdoLayout(3, ASYNCHRONOUS, ((HIGH_RESOLUTION_TIME_STAMP, 0, 32),))
