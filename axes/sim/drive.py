@@ -12,7 +12,7 @@ EMCY 0x8130 (CiA 301 heartbeat error, error register generic + communication) an
 says: 3 quick stop (the ramp 0x6085, then SWITCH ON DISABLED), 2 disable voltage, 1 fault, braking
 first as 0x605E says (2: on the quick stop ramp; FAULT REACTION ACTIVE until the demand is at rest,
 then FAULT), 0 nothing more. A drive whose firmware treats a heartbeat error as one of its errors
-(``HEARTBEAT_ERROR_FAULTS``: the EPOS2) takes the fault path whatever 0x6007 says.
+(``HEARTBEAT_ERROR_FAULTS``: the EPOS2) takes the fault path whatever 0x6007 says (but 0).
 Its motion clock then runs on the wall clock as long as it brakes and no SYNC comes:
 without SYNC a simulated drive's clock stands still (a real drive's runs on), and a lost master
 sends no SYNC. Other faults stop the axis at once, as before (the power stage off, the demand on
