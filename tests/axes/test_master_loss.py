@@ -21,8 +21,9 @@ from axes_programs import check_limits, program
 from axes_rig import with_profiles
 
 from axes import objects as od
+from axes.bus import CellBus
 from axes.cia402 import PowerState
-from axes.group import Result
+from axes.group import AxisGroup, Result
 from axes.sim.drive import MAXON_EPOS2_EDS, SimulatedDrive
 
 PROGRAM_MS = 2000
@@ -204,3 +205,32 @@ def test_a_drive_without_master_supervision_is_refused(arm6, make_rig, tmp_path,
     assert "0x06020000" in result.message  # the drive's SDO abort code: object does not exist
     assert "goes on moving when the master is lost" in result.message
     assert all(d.velocity == 0.0 and d.state is not PowerState.OPERATION_ENABLED for d in rig.sim)
+
+
+@pytest.mark.parametrize("profile", ["epos2_pvt", "cia402_ip_linear"])
+def test_a_new_master_recovers_the_cell_the_dead_one_left(arm6, make_rig, profile):
+    """After the crash, a new master (a restarted service) finds the drives stopped by themselves
+    (FAULT, SWITCH ON DISABLED), recovers them and runs from where they stand."""
+    rig = make_rig(cell_of(arm6, profile))
+    kill_master(rig, "dead", threading.Event())
+    drives = list(rig.sim)
+    wait_standstill(drives, timeout_s=rig.cell.bus.master_consumer_time_ms / 1000.0 + 10.0)
+    bus = CellBus(rig.cell.bus).open()
+    group = AxisGroup(bus, rig.cell.ordered_axes())
+    try:
+        recovered = group.recover()
+        assert recovered.result is Result.FINISHED, recovered.message
+        assert all(d.state is PowerState.OPERATION_ENABLED for d in drives)
+        axes = rig.cell.ordered_axes()
+        starts = [rig.sim.drive(a.node_id).actual for a in axes]
+        prog = program(axes, 300, starts=starts, fraction=0.2, sign=-1)
+        check_limits(prog)
+        result = group.run(prog, timeout_s=30)
+        assert result.result is Result.FINISHED, result.message
+        for axis in prog.axes:
+            assert rig.sim.drive(axis.node_id).actual == axis.records[-1, 0]
+        # and the drives watch the new master: it is their consumer's node, armed again
+        assert all(d.consumer.active(rig.cell.bus.master_node_id) for d in drives)
+    finally:
+        group.close()
+        bus.close()
