@@ -260,6 +260,8 @@ class Profile:
     # 0x6007 when the master's heartbeat stops: quick stop, braking on the quick stop ramp (0x6085 =
     # the drive's 0x60C5) rather than coasting (2, disable voltage); EMCY 0x8130 tells who is listening
     abort_connection_option: ClassVar[od.AbortConnectionOption] = od.AbortConnectionOption.QUICK_STOP
+    # 0x605E, where a lost master is one of the drive's own errors (the EPOS2): its fault reaction brakes
+    fault_reaction_on_master_loss: ClassVar[od.FaultReaction | None] = None
 
     def __init__(self, link: AxisLink) -> None:
         self.link = link
@@ -340,10 +342,11 @@ class Profile:
 
     def supervise_master(self) -> None:
         """Make the drive stop by itself when the master is lost: 0x1016:01 watches the master's
-        heartbeat (node id, consumer time), 0x6007 says what to do when it stops, 0x6085 (where the
-        drive has it) is the quick stop ramp its reaction brakes on (the drive's 0x60C5). The first
-        two are read back; a drive that does not take them is refused, naming node and object: it
-        would go on moving without a master."""
+        heartbeat (node id, consumer time), 0x6007 says what to do when it stops (and 0x605E, for a
+        drive that takes the loss as a fault of its own), 0x6085 (where the drive has it) is the
+        quick stop ramp its reaction brakes on (the drive's 0x60C5). All but 0x6085 are read back; a
+        drive that does not take them is refused, naming node and object: it would go on moving
+        without a master."""
         bus = self.link.bus.config
         entry = (bus.master_node_id << od.CONSUMER_NODE_SHIFT) | bus.master_consumer_time_ms
         what = f"watching the master's heartbeat (node {bus.master_node_id}, {bus.master_consumer_time_ms} ms)"
@@ -352,6 +355,10 @@ class Profile:
         self._write_read_back(
             od.ABORT_CONNECTION_OPTION_CODE, 0, int(option), "h", f"abort connection option code {option.name.lower()}"
         )
+        reaction = self.fault_reaction_on_master_loss
+        if reaction is not None:
+            what = f"fault reaction option code {reaction.name.lower()}"
+            self._write_read_back(od.FAULT_REACTION_OPTION_CODE, 0, int(reaction), "h", what)
         self.link.write_optional(
             od.QUICK_STOP_DECELERATION_CIA402, 0, round(self.config.limits.max_acceleration_rpm_s), "I"
         )

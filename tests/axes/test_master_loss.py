@@ -163,6 +163,8 @@ def test_drives_watch_the_master_after_configuration(arm6, make_rig):
     for d in rig.sim:
         assert d.read(od.CONSUMER_HEARTBEAT_TIME, 1) == entry, d.node_id
         assert d.read(od.ABORT_CONNECTION_OPTION_CODE) == od.AbortConnectionOption.QUICK_STOP, d.node_id
+        if d.PROFILE == "epos2_pvt":  # its master-loss reaction is its fault reaction: on the quick stop ramp
+            assert d.read(od.FAULT_REACTION_OPTION_CODE) == od.FaultReaction.QUICK_STOP, d.node_id
         limits = next(a.limits for a in cell.axes if a.node_id == d.node_id)
         assert d.read(od.QUICK_STOP_DECELERATION_CIA402) == round(limits.max_acceleration_rpm_s)
     # the drives hear the master: their consumer entry is armed by its next heartbeat
@@ -194,7 +196,9 @@ def without_object(eds: Path, index: int, out: Path) -> Path:
     return out
 
 
-@pytest.mark.parametrize("index", [od.ABORT_CONNECTION_OPTION_CODE, od.CONSUMER_HEARTBEAT_TIME])
+@pytest.mark.parametrize(
+    "index", [od.ABORT_CONNECTION_OPTION_CODE, od.CONSUMER_HEARTBEAT_TIME, od.FAULT_REACTION_OPTION_CODE]
+)
 def test_a_drive_without_master_supervision_is_refused(arm6, make_rig, tmp_path, index):
     eds = without_object(MAXON_EPOS2_EDS, index, tmp_path / "no-supervision.eds")
     rig = make_rig(arm6, eds_paths={3: eds})
