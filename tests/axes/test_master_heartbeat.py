@@ -7,8 +7,10 @@ import threading
 import time
 
 import can
+from axes_rig import unique_channel
 
 from axes import objects as od
+from axes.bus import CellBus
 
 
 class Beats(can.Listener):
@@ -85,4 +87,32 @@ def test_the_master_beats_while_it_supervises_and_falls_silent_when_it_hangs(arm
         assert beats.since(closed_at + 0.02) == 0 and not heartbeat.running
     finally:
         release.set()
+        beats.close()
+
+
+def test_with_sync_on_the_wall_clock_a_stuck_sync_producer_silences_the_master(arm6):
+    """Real time: the SYNC count must move. Its lock held (here by the test) blocks the producer;
+    no drive is on this bus, so only this rule can withhold the beats."""
+    config = dataclasses.replace(
+        arm6.bus, channel=unique_channel("hb"), heartbeat_ms=20, master_heartbeat_ms=10, master_node_id=120
+    )
+    bus = CellBus(config, lockstep=False).open()
+    beats = Beats(config.channel, od.HEARTBEAT_COB_ID_BASE + 120)
+    heartbeat = bus.master_heartbeat
+    try:
+        bus.sync.start()
+        time.sleep(0.3)
+        assert heartbeat.withheld is None and beats.since(0.0) > 0
+        with bus.sync.lock:  # the SYNC producer waits for it
+            deadline = time.monotonic() + heartbeat.stall_s + 5.0
+            while heartbeat.withheld is None and time.monotonic() < deadline:
+                time.sleep(0.01)
+            why = heartbeat.withheld
+        assert why is not None and "SYNC" in why
+        deadline = time.monotonic() + 5.0
+        while heartbeat.withheld is not None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert heartbeat.withheld is None  # SYNC moves again: so do the beats
+    finally:
+        bus.close()
         beats.close()
