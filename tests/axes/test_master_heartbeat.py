@@ -7,33 +7,28 @@ import threading
 import time
 
 import can
-from axes_rig import unique_channel
+from axes_rig import BusObserver, unique_channel
 
 from axes import objects as od
 from axes.bus import CellBus
 
 
-class Beats(can.Listener):
-    """Another node on the bus: when each of the master's heartbeats arrived."""
+class Beats:
+    """The master's heartbeats as another node on the bus sees them."""
 
     def __init__(self, channel: str, cob_id: int) -> None:
+        self.observer = BusObserver(channel)
         self.cob_id = cob_id
-        self.times: list[float] = []
-        self.payloads: set[bytes] = set()
-        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        self.notifier = can.Notifier(self.bus, [self], timeout=0.02)
-
-    def on_message_received(self, msg: can.Message) -> None:
-        if msg.arbitration_id == self.cob_id:
-            self.times.append(time.monotonic())
-            self.payloads.add(bytes(msg.data))
 
     def since(self, t: float) -> int:
-        return sum(1 for x in list(self.times) if x > t)
+        return len(self.observer.on(self.cob_id, since=t))
+
+    @property
+    def payloads(self) -> set[bytes]:
+        return set(self.observer.on(self.cob_id))
 
     def close(self) -> None:
-        self.notifier.stop()
-        self.bus.shutdown()
+        self.observer.close()
 
 
 def test_the_master_beats_while_it_supervises_and_falls_silent_when_it_hangs(arm6, make_rig):

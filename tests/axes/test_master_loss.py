@@ -15,10 +15,9 @@ import threading
 import time
 from pathlib import Path
 
-import can
 import pytest
 from axes_programs import check_limits, program
-from axes_rig import with_profiles
+from axes_rig import BusObserver, with_profiles
 
 from axes import objects as od
 from axes.bus import CellBus
@@ -43,26 +42,6 @@ def cell_of(arm6, profile: str):
     period_ms = float(PROFILES[profile].get("period_ms", 1))
     cell = with_profiles(arm6, {a.joint: PROFILES[profile] for a in arm6.axes}, sync_period_ms=period_ms)
     return dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, master_heartbeat_ms=MASTER_HEARTBEAT_MS))
-
-
-class Observer(can.Listener):
-    """A third node on the bus: collects the EMCY frames (0x80 + node id) the drives send."""
-
-    def __init__(self, channel: str) -> None:
-        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        self.emcy: list[tuple[int, int]] = []  # (node id, error code)
-        self.notifier = can.Notifier(self.bus, [self], timeout=0.05)
-
-    def on_message_received(self, msg: can.Message) -> None:
-        if 0x81 <= msg.arbitration_id <= 0xFF and len(msg.data) >= 2:
-            self.emcy.append((msg.arbitration_id - 0x80, int.from_bytes(msg.data[:2], "little")))
-
-    def nodes_with(self, code: int) -> set[int]:
-        return {n for n, c in list(self.emcy) if c == code}
-
-    def close(self) -> None:
-        self.notifier.stop()
-        self.bus.shutdown()
 
 
 def kill_master(rig, how: str, release: threading.Event) -> None:
@@ -107,7 +86,7 @@ def wait_standstill(drives: list[SimulatedDrive], timeout_s: float) -> None:
 def test_every_axis_stops_by_itself_when_the_master_is_lost(arm6, make_rig, profile, how):
     cell = cell_of(arm6, profile)
     rig = make_rig(cell)
-    observer = Observer(rig.cell.bus.channel)
+    observer = BusObserver(rig.cell.bus.channel)
     release = threading.Event()
     consumer_s = cell.bus.master_consumer_time_ms / 1000.0
     try:
@@ -134,11 +113,10 @@ def test_every_axis_stops_by_itself_when_the_master_is_lost(arm6, make_rig, prof
         time.sleep(0.1)
         assert {d.node_id: d.demand for d in drives} == demands
         deadline = time.monotonic() + 2.0
-        while time.monotonic() < deadline and len({n for n, c in observer.emcy if c == od.EMCY_HEARTBEAT_ERROR}) < len(
-            drives
-        ):
+        nodes = {d.node_id for d in drives}
+        while time.monotonic() < deadline and observer.emcy_nodes(od.EMCY_HEARTBEAT_ERROR) != nodes:
             time.sleep(0.02)
-        assert {n for n, c in observer.emcy if c == od.EMCY_HEARTBEAT_ERROR} == {d.node_id for d in drives}
+        assert observer.emcy_nodes(od.EMCY_HEARTBEAT_ERROR) == nodes
         assert rig.bus.master_heartbeat.withheld is not None
         assert rig.sim.internal_errors == []
     finally:
