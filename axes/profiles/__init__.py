@@ -349,6 +349,7 @@ class Profile:
         without a master."""
         bus = self.link.bus.config
         entry = (bus.master_node_id << od.CONSUMER_NODE_SHIFT) | bus.master_consumer_time_ms
+        self._release_other_entries(bus.master_node_id)
         what = f"watching the master's heartbeat (node {bus.master_node_id}, {bus.master_consumer_time_ms} ms)"
         self._write_read_back(od.CONSUMER_HEARTBEAT_TIME, 1, entry, "I", f"consumer heartbeat time, {what}")
         option = self.abort_connection_option
@@ -362,6 +363,18 @@ class Profile:
         self.link.write_optional(
             od.QUICK_STOP_DECELERATION_CIA402, 0, round(self.config.limits.max_acceleration_rpm_s), "I"
         )
+
+    def _release_other_entries(self, node_id: int) -> None:
+        """CiA 301 refuses a second 0x1016 entry for one node (abort 0x06040043): an entry past :01
+        that already watches the master's node id (an earlier commissioning) is switched off."""
+        try:
+            count = self.link.read(od.CONSUMER_HEARTBEAT_TIME, 0, "B")
+        except DriveError:
+            return  # no 0x1016 at all: the write of :01 says so
+        for sub in range(2, count + 1):
+            value = self.link.read(od.CONSUMER_HEARTBEAT_TIME, sub, "I")
+            if (value >> od.CONSUMER_NODE_SHIFT) & 0xFF == node_id and value & 0xFFFF:
+                self.link.write(od.CONSUMER_HEARTBEAT_TIME, sub, 0, "I")
 
     def _write_read_back(self, index: int, subindex: int, value: int, fmt: str, what: str) -> None:
         where = f"0x{index:04X}:{subindex:02X}"

@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 from axes_programs import check_limits, program
 from axes_rig import BusObserver, with_profiles
+from canopen.sdo.exceptions import SdoAbortedError
 
 from axes import objects as od
 from axes.bus import CellBus
@@ -216,3 +217,19 @@ def test_a_new_master_recovers_the_cell_the_dead_one_left(arm6, make_rig, profil
     finally:
         group.close()
         bus.close()
+
+
+def test_an_earlier_entry_for_the_master_node_is_switched_off(arm6, make_rig):
+    """CiA 301: one 0x1016 entry per node; an earlier commissioning's entry for the master's node id
+    in :02 would make the drive refuse :01 (abort 0x06040043), so configuration switches it off."""
+    rig = make_rig(arm6)
+    drive = rig.sim.drive(2)
+    earlier = (arm6.bus.master_node_id << 16) | 5000
+    drive.store(od.CONSUMER_HEARTBEAT_TIME, 2, earlier)
+    entry = (arm6.bus.master_node_id << 16) | arm6.bus.master_consumer_time_ms
+    with pytest.raises(SdoAbortedError) as refused:  # the drive keeps the rule
+        rig.bus.add_node(2).sdo.download(od.CONSUMER_HEARTBEAT_TIME, 1, entry.to_bytes(4, "little"))
+    assert refused.value.code == 0x06040043
+    rig.group.configure()
+    assert drive.read(od.CONSUMER_HEARTBEAT_TIME, 2) == 0
+    assert drive.read(od.CONSUMER_HEARTBEAT_TIME, 1) == entry
