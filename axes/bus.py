@@ -17,10 +17,14 @@ Failures are watched by one thread: heartbeat loss (no heartbeat for ``heartbeat
 heartbeat_timeout_factor``), lost SYNC (no answered SYNC for ``lost_sync_timeout_s``), NMT state
 change of a node. EMCY frames are reported as they arrive. The watchdog polls: wall-clock time is
 used only to *detect* a failure, never to pace the motion.
+
+The master has a heartbeat of its own (``axes/heartbeat.py``), started and stopped with the bus,
+that every drive watches (0x1016) and stops on when it stops (0x6007).
 """
 
 from __future__ import annotations
 
+import logging
 import struct
 import sys
 import threading
@@ -35,7 +39,8 @@ from canopen.emcy import EmcyError
 from canopen.objectdictionary import ObjectDictionary
 
 from axes.config import BusConfig
-from axes.objects import TIME_STAMP_COB_ID
+from axes.heartbeat import MasterHeartbeat
+from axes.objects import NMT_STATE_OPERATIONAL, TIME_STAMP_COB_ID
 
 SYNC_COB_ID = 0x80
 # How long the master waits for one SDO answer. python-canopen's 0.3 s is tight for a simulated cell
@@ -46,9 +51,10 @@ NMT_OPERATIONAL = 0x01
 NMT_STOPPED = 0x02
 NMT_PRE_OPERATIONAL = 0x80
 NMT_RESET_COMMUNICATION = 0x82
-NMT_STATE_OPERATIONAL = 5
 NMT_STATE_PRE_OPERATIONAL = 127
 SWITCH_INTERVAL_S = 0.0005  # the interpreter hands the GIL on at least this often while a bus is open
+
+log = logging.getLogger("pvtflow.bus")
 
 
 class BusError(RuntimeError):
@@ -370,6 +376,7 @@ class CellBus:
         self._closing = threading.Event()
         self.watch_sync = False
         self._sync_reported = False
+        self.master_heartbeat = MasterHeartbeat(self)
 
     # --- life cycle ------------------------------------------------------------------------------
     def open(self) -> CellBus:
@@ -391,10 +398,12 @@ class CellBus:
         self._closing.clear()
         self._watchdog = threading.Thread(target=self._watch, name="pvtflow-watchdog", daemon=True)
         self._watchdog.start()
+        self.master_heartbeat.start()
         return self
 
     def close(self) -> None:
         self.sync.stop()
+        self.master_heartbeat.stop()
         self._closing.set()
         if self._watchdog is not None:
             self._watchdog.join(timeout=2.0)
@@ -431,8 +440,13 @@ class CellBus:
             self._fault_callbacks.remove(callback)
 
     def _report(self, fault: BusFault) -> None:
+        """Every callback hears of the fault; one that fails (a halt on a bus that has gone away)
+        is logged, and neither stops the others nor the thread that reports (the watchdog)."""
         for cb in list(self._fault_callbacks):
-            cb(fault)
+            try:
+                cb(fault)
+            except (can.CanError, OSError, RuntimeError) as exc:
+                log.error("reporting %s of node %s failed: %s", fault.kind, fault.node_id, exc)
 
     # --- NMT -------------------------------------------------------------------------------------
     def nmt_broadcast(self, command: int) -> None:

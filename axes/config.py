@@ -6,6 +6,7 @@ below every layer that reads them, so that the axes never import the service or 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -21,7 +22,15 @@ class BusConfig:
     sync_period_ms: float = 1.0
     time_stamp: bool = True  # send 0x1013 after every SYNC
     heartbeat_ms: int = 100  # producer time asked of every node (0x1017)
-    heartbeat_timeout_factor: float = 3.0  # a node is lost after this many missed periods
+    heartbeat_timeout_factor: float = 3.0  # a node is lost after this many missed periods (either way)
+    master_node_id: int = 127  # the master's own heartbeat (0x700 + id), which every drive watches (0x1016)
+    master_heartbeat_ms: int = 100  # the master's heartbeat period
+
+    @property
+    def master_consumer_time_ms(self) -> int:
+        """The drives' 0x1016 time for the master's heartbeat: the same number of missed periods as
+        the master allows a drive (``heartbeat_timeout_factor``), in whole ms."""
+        return math.ceil(self.master_heartbeat_ms * self.heartbeat_timeout_factor)
 
 
 @dataclass(frozen=True)

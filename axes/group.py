@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import TypeVar
 
+import can
+
 from axes import objects as od
 from axes.bus import BusFault, CellBus
 from axes.cia402 import PowerState, Statusword, decode_state
@@ -645,8 +647,12 @@ class AxisGroup:
         with sync.lock:
             for feeder in self._feeders:
                 feeder.enabled = False
+            unsent = []
             for lk, profile in zip(self.links, self.profiles, strict=True):
-                lk.send_controlword(profile.halt_controlword())
+                try:
+                    lk.send_controlword(profile.halt_controlword())
+                except can.CanError as exc:  # the bus is gone: the drives stop on the master's heartbeat loss
+                    unsent.append(f"node {lk.node_id}: {exc}")
             halt_sync = sync.count + 1
             fault_sync = sync.count  # the SYNC period in which the event was seen
         res = self._result(result, message, link)
@@ -656,7 +662,8 @@ class AxisGroup:
         self._ending = res
         self._halted_at = time.monotonic()
         self._halt_deadline = halt_sync + int(self.halt_timeout_ms / self.bus.config.sync_period_ms)
-        self._event("halted", f"all axes halted: {message}", link)
+        lost = f" (not sent to {'; '.join(unsent)}: those drives stop on the master's heartbeat loss)" if unsent else ""
+        self._event("halted", f"all axes halted: {message}{lost}", link)
 
     def _check_halted(self, n: int) -> None:
         assert self._ending is not None and self._halt_deadline is not None

@@ -8,14 +8,17 @@ profile. Both sides of the bus import these; nothing else restates them.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import IntFlag
+from enum import IntEnum, IntFlag
 
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 
 # --- CiA 301 / CiA 402 objects ----------------------------------------------------------------
 COMMUNICATION_CYCLE_PERIOD = 0x1006  # us; the Parker SLVDN takes its cycle from it
 HIGH_RESOLUTION_TIME_STAMP = 0x1013  # us, written after each SYNC (EPOS2 app note 2.4)
+CONSUMER_HEARTBEAT_TIME = 0x1016  # :n = node id << 16 | time in ms: the heartbeats this node watches
 PRODUCER_HEARTBEAT_TIME = 0x1017
+ABORT_CONNECTION_OPTION_CODE = 0x6007  # what a CiA 402 drive does when it loses its master (heartbeat)
+FAULT_REACTION_OPTION_CODE = 0x605E  # how it brakes on a fault (2: on the quick stop ramp)
 CONTROLWORD = 0x6040
 STATUSWORD = 0x6041
 MODES_OF_OPERATION = 0x6060
@@ -27,7 +30,8 @@ SOFTWARE_POSITION_LIMIT = 0x607D  # :01 min, :02 max
 MAX_PROFILE_VELOCITY = 0x607F
 PROFILE_VELOCITY = 0x6081
 PROFILE_ACCELERATION = 0x6083
-QUICK_STOP_DECELERATION = 0x6084
+QUICK_STOP_DECELERATION = 0x6084  # app note Table 17's name; maxon's EDS and CiA 402: profile deceleration
+QUICK_STOP_DECELERATION_CIA402 = 0x6085  # the quick stop ramp (maxon's EDS: QuickStop Deceleration)
 INTERPOLATION_SUBMODE = 0x60C0
 INTERPOLATION_DATA_RECORD = 0x60C1  # :01 target position, :02 velocity (counts/s), :03 velocity (rpm)
 INTERPOLATION_TIME_PERIOD = 0x60C2  # :01 value, :02 index (10^index s)
@@ -35,6 +39,26 @@ INTERPOLATION_DATA_CONFIGURATION = 0x60C4  # :01 max size, :02 free size, ..., :
 MAX_ACCELERATION = 0x60C5
 
 INTERPOLATED_POSITION_MODE = 7
+
+CONSUMER_NODE_SHIFT = 16  # 0x1016:n bits 23-16: the watched node id; bits 15-0: its time in ms (0: unused)
+
+
+class AbortConnectionOption(IntEnum):
+    """0x6007 (CiA 402): what the drive does when its connection to the master is lost (heartbeat)."""
+
+    NO_ACTION = 0
+    FAULT_SIGNAL = 1  # the drive faults: its fault reaction (0x605E) brakes it, then FAULT
+    DISABLE_VOLTAGE = 2  # power stage off at once: the axis coasts
+    QUICK_STOP = 3  # quick stop ramp (0x6085), then SWITCH ON DISABLED (0x605A = 2)
+
+
+class FaultReaction(IntEnum):
+    """0x605E (CiA 402): how a drive brakes on its way into FAULT."""
+
+    DISABLE_DRIVE = 0  # power stage off at once
+    SLOW_DOWN = 1  # on the profile deceleration 0x6084
+    QUICK_STOP = 2  # on the quick stop deceleration 0x6085 (maxon's EDS default)
+
 
 # --- maxon EPOS2 ---------------------------------------------------------------------------------
 EPOS2_INTERPOLATION_DATA_RECORD = 0x20C1  # the PVT FIFO input, u64
@@ -56,6 +80,7 @@ EMCY_PARAMETER_ERROR = 0x6320  # a configuration the drive cannot run (e.g. inte
 EMCY_PDO_LENGTH = 0x8210  # PDO not processed due to length error
 EMCY_VELOCITY_LIMIT = 0x8400  # velocity beyond 0x607F (sanity check of the fixed-period drives)
 EMCY_SOFTWARE_POSITION_LIMIT = 0x8612  # position demand outside 0x607D
+EMCY_HEARTBEAT_ERROR = 0x8130  # CiA 301 life guard / heartbeat error: a watched node (the master) fell silent
 # EPOS2 "interpolated position mode error" (underflow, overflow, 0x607F or 0x60C5 exceeded). The seeds
 # give no code: 0xFF0C is taken from memory of maxon's firmware specification, to be checked on a real
 # drive; which error it was is in 0x20C4:01, which the simulated EPOS2 also puts (little endian) in the
@@ -170,4 +195,8 @@ PARKER_TPDOS = SETPOINT_TPDOS
 # EPOS2 clock synchronisation (app note 2.4 and 3.7): after each SYNC the master sends its transmit
 # time (0x1013, us) once, on one COB-ID that every EPOS2 takes through its asynchronous RPDO3.
 TIME_STAMP_COB_ID = 0x400  # not in the predefined connection set (RPDO3 of "node 0")
+
+# CiA 301 NMT error control: a node's heartbeat is one byte, its NMT state, on 0x700 + node id
+HEARTBEAT_COB_ID_BASE = 0x700
+NMT_STATE_OPERATIONAL = 5
 EPOS2_TIME_STAMP_RPDO = PdoLayout(3, ASYNCHRONOUS, ((HIGH_RESOLUTION_TIME_STAMP, 0, 32),))

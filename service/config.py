@@ -215,6 +215,14 @@ def parse_cell_config(data: Any, file: Path) -> CellConfig:
             )
         seen_joint[a.joint] = i
         seen_node[a.node_id] = i
+    if bus.master_node_id in seen_node:
+        i = seen_node[bus.master_node_id]
+        raise ConfigError(
+            file,
+            "bus.master_node_id",
+            f"{bus.master_node_id} is the node id of axes[{i}] ({axes[i].joint}): the master's heartbeat "
+            "needs a node id no drive uses",
+        )
     for joint in model.joint_names:
         if joint not in seen_joint:
             raise ConfigError(file, "axes", f"joint {joint!r} of the URDF has no axis")
@@ -229,7 +237,17 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
         file,
         "bus",
         data,
-        ("interface", "channel", "bitrate", "sync_period_ms", "time_stamp", "heartbeat_ms", "heartbeat_timeout_factor"),
+        (
+            "interface",
+            "channel",
+            "bitrate",
+            "sync_period_ms",
+            "time_stamp",
+            "heartbeat_ms",
+            "heartbeat_timeout_factor",
+            "master_node_id",
+            "master_heartbeat_ms",
+        ),
     )
     d = BusConfig()
     interface = f.get("interface", f.string, d.interface)
@@ -240,15 +258,30 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
     sync = f.get("sync_period_ms", f.number(positive=True), d.sync_period_ms)
     if not 0.1 <= sync <= 255:
         raise f.error("sync_period_ms", f"{sync} ms is outside [0.1, 255]")
-    return BusConfig(
+    factor = f.get("heartbeat_timeout_factor", f.number(positive=True), d.heartbeat_timeout_factor)
+    if factor <= 1:
+        raise f.error(
+            "heartbeat_timeout_factor",
+            f"{factor:g} would count a node lost between two of its heartbeats: must be above 1",
+        )
+    bus = BusConfig(
         interface=interface,
         channel=channel,
         bitrate=bitrate,
         sync_period_ms=sync,
         time_stamp=f.get("time_stamp", f.boolean, d.time_stamp),
         heartbeat_ms=f.get("heartbeat_ms", f.integer(1, 65535), d.heartbeat_ms),
-        heartbeat_timeout_factor=f.get("heartbeat_timeout_factor", f.number(positive=True), d.heartbeat_timeout_factor),
+        heartbeat_timeout_factor=factor,
+        master_node_id=f.get("master_node_id", f.integer(1, 127), d.master_node_id),
+        master_heartbeat_ms=f.get("master_heartbeat_ms", f.integer(1, 65535), d.master_heartbeat_ms),
     )
+    if bus.master_consumer_time_ms > 0xFFFF:
+        raise f.error(
+            "master_heartbeat_ms",
+            f"the drives would wait {bus.master_consumer_time_ms} ms (master_heartbeat_ms x heartbeat_timeout_factor) "
+            "for the master's heartbeat: 0x1016 holds at most 65535 ms",
+        )
+    return bus
 
 
 def _parse_planning(file: Path, data: Any, tcp_frame: str | None, model: RobotModel) -> PlanningConfig:

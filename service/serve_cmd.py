@@ -1,5 +1,9 @@
 """``pvtflow serve [--config FILE] [--zenoh-config FILE] [--can-log FILE]``: the cell service (the main job).
 
+Before it opens anything it checks who could reach it (``service/exposure.py``): a zenoh config that
+listens, connects or scouts beyond this host without authentication and access control is refused,
+unless ``--allow-unauthenticated`` says so, which the banner then repeats.
+
 Brings the cell's bus up (with simulated drives when the cell is simulated: the default arm6 demo
 cell), configures the drives, opens the zenoh session and serves the cell until Ctrl-C / SIGTERM,
 then halts any motion and closes. It prints where it listens and how to talk to it. Exit codes:
@@ -23,6 +27,7 @@ from axes.bus import BusError
 from service.api import LIVELINESS, PUBLICATIONS, QUERYABLES, StopRequest, key
 from service.cli import can_log_problem
 from service.config import ConfigError, load_cell_config
+from service.exposure import exposure
 from service.journal import JournalError
 from service.motion import MotionService
 from service.planning import PlanningProcess
@@ -55,6 +60,13 @@ def add_parser(subparsers: Any) -> None:
         "(default: configs/zenoh/service.json5: peer on tcp/127.0.0.1:7447, no scouting)",
     )
     p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
+    p.add_argument(
+        "--allow-unauthenticated",
+        action="store_true",
+        help="serve even though the zenoh config reaches beyond this host (a non-loopback listen or connect "
+        "endpoint, multicast scouting) without authentication and access control: anyone who reaches it can "
+        "execute motions (the banner says so). Without it such a config is refused",
+    )
     p.add_argument(
         "--journal",
         metavar="DIR",
@@ -91,7 +103,7 @@ def _fail(message: str) -> int:
     return EXIT_CANNOT_START
 
 
-def banner(service: MotionService, server: Server) -> str:
+def banner(service: MotionService, server: Server, allow_unauthenticated: bool = False) -> str:
     cell = service.cell
     name = cell.name
     listen = server.listen_endpoints
@@ -110,6 +122,16 @@ def banner(service: MotionService, server: Server) -> str:
         )
     else:
         lines.append(f"  zenoh: not listening; connecting to {', '.join(connect) or '(nothing: check the config)'}")
+    if allow_unauthenticated:
+        exposed = exposure(server.config)
+        lines.append(
+            "  --allow-unauthenticated: "
+            + (
+                f"anyone who reaches {', '.join(exposed.reachable)} can execute motions on this cell"
+                if exposed.open
+                else "given, but this zenoh config needs no exception (loopback only, or authenticated)"
+            )
+        )
     lines += [
         f"  queryables:   {key(name, '{' + ','.join(QUERYABLES) + '}')}",
         f"  publications: {key(name, '{' + ','.join(PUBLICATIONS) + '}')}   liveliness: {key(name, LIVELINESS)}",
@@ -195,6 +217,9 @@ def run(args: argparse.Namespace) -> int:
         zconfig = load_zenoh_config(args.zenoh_config)
     except ZenohConfigError as exc:
         return _fail(str(exc))
+    exposed = exposure(zconfig)
+    if exposed.open and not args.allow_unauthenticated:
+        return _fail(exposed.refusal(f"zenoh config {args.zenoh_config or 'default'}"))
     if not args.telemetry_ms > 0:
         return _fail(f"--telemetry-ms must be positive, got {args.telemetry_ms}")
     if args.can_log and (problem := can_log_problem(args.can_log)):
@@ -241,7 +266,7 @@ def run(args: argparse.Namespace) -> int:
         except Exception as exc:  # zenoh: endpoint in use, bad locator, ...
             service.close()
             return _fail(f"cannot open the zenoh session: {zenoh_message(exc)}")
-        print(banner(service, server), flush=True)
+        print(banner(service, server, args.allow_unauthenticated), flush=True)
         try:
             while not stop.wait(0.5):
                 pass

@@ -104,16 +104,26 @@ def client_config(connect: list[str] | tuple[str, ...] = (DEFAULT_ENDPOINT,)) ->
 
 
 def config_endpoints(config: zenoh.Config, which: str = "listen") -> list[str]:
-    """The endpoints a config lists under ``listen`` or ``connect`` (empty when it names none)."""
+    """The endpoints a config lists under ``listen`` or ``connect`` (empty when it names none); the
+    per-mode form ``{"router": [...], "peer": [...]}`` (zenoh's own default) gives the config's mode's."""
     try:
         value = config.get_json(f"{which}/endpoints")
         if isinstance(value, str):
             value = json.loads(value)
     except Exception:
         return []
-    if isinstance(value, dict):  # per-mode form {"router": [...], "peer": [...]}
-        value = value.get("peer") or next(iter(value.values()), [])
+    if isinstance(value, dict):
+        value = value.get(config_mode(config), [])
     return [str(v) for v in value or []]
+
+
+def config_mode(config: zenoh.Config) -> str:
+    """The session's mode: ``peer`` (zenoh's default), ``client`` or ``router``."""
+    try:
+        mode = json.loads(config.get_json("mode"))
+    except Exception:
+        return "peer"
+    return mode if isinstance(mode, str) else "peer"
 
 
 class Server:

@@ -40,6 +40,7 @@ class DriveError(RuntimeError):
 
     def __init__(self, node_id: int, message: str) -> None:
         self.node_id = node_id
+        self.detail = message  # the message without the node
         super().__init__(f"node {node_id}: {message}")
 
 
@@ -256,6 +257,11 @@ class Profile:
     tpdos: ClassVar[tuple[PdoLayout, ...]]
     sync_tpdo: ClassVar[int]  # the synchronous TPDO number that answers every SYNC
     fixed_period: ClassVar[bool] = False  # one setpoint per SYNC, sent right after the SYNC before it
+    # 0x6007 when the master's heartbeat stops: quick stop, braking on the quick stop ramp (0x6085 =
+    # the drive's 0x60C5) rather than coasting (2, disable voltage); EMCY 0x8130 tells who is listening
+    abort_connection_option: ClassVar[od.AbortConnectionOption] = od.AbortConnectionOption.QUICK_STOP
+    # 0x605E, where a lost master is one of the drive's own errors (the EPOS2): its fault reaction brakes
+    fault_reaction_on_master_loss: ClassVar[od.FaultReaction | None] = None
 
     def __init__(self, link: AxisLink) -> None:
         self.link = link
@@ -333,6 +339,55 @@ class Profile:
 
     def write_heartbeat(self) -> None:
         self.link.write(od.PRODUCER_HEARTBEAT_TIME, 0, self.link.bus.config.heartbeat_ms, "H")
+
+    def supervise_master(self) -> None:
+        """Make the drive stop by itself when the master is lost: 0x1016:01 watches the master's
+        heartbeat (node id, consumer time), 0x6007 says what to do when it stops (and 0x605E, for a
+        drive that takes the loss as a fault of its own), 0x6085 (where the drive has it) is the
+        quick stop ramp its reaction brakes on (the drive's 0x60C5). All but 0x6085 are read back; a
+        drive that does not take them is refused, naming node and object: it would go on moving
+        without a master."""
+        bus = self.link.bus.config
+        entry = (bus.master_node_id << od.CONSUMER_NODE_SHIFT) | bus.master_consumer_time_ms
+        self._release_other_entries(bus.master_node_id)
+        what = f"watching the master's heartbeat (node {bus.master_node_id}, {bus.master_consumer_time_ms} ms)"
+        self._write_read_back(od.CONSUMER_HEARTBEAT_TIME, 1, entry, "I", f"consumer heartbeat time, {what}")
+        option = self.abort_connection_option
+        self._write_read_back(
+            od.ABORT_CONNECTION_OPTION_CODE, 0, int(option), "h", f"abort connection option code {option.name.lower()}"
+        )
+        reaction = self.fault_reaction_on_master_loss
+        if reaction is not None:
+            what = f"fault reaction option code {reaction.name.lower()}"
+            self._write_read_back(od.FAULT_REACTION_OPTION_CODE, 0, int(reaction), "h", what)
+        self.link.write_optional(
+            od.QUICK_STOP_DECELERATION_CIA402, 0, round(self.config.limits.max_acceleration_rpm_s), "I"
+        )
+
+    def _release_other_entries(self, node_id: int) -> None:
+        """CiA 301 refuses a second 0x1016 entry for one node (abort 0x06040043): an entry past :01
+        that already watches the master's node id (an earlier commissioning) is switched off."""
+        try:
+            count = self.link.read(od.CONSUMER_HEARTBEAT_TIME, 0, "B")
+        except DriveError:
+            return  # no 0x1016 at all: the write of :01 says so
+        for sub in range(2, count + 1):
+            value = self.link.read(od.CONSUMER_HEARTBEAT_TIME, sub, "I")
+            if (value >> od.CONSUMER_NODE_SHIFT) & 0xFF == node_id and value & 0xFFFF:
+                self.link.write(od.CONSUMER_HEARTBEAT_TIME, sub, 0, "I")
+
+    def _write_read_back(self, index: int, subindex: int, value: int, fmt: str, what: str) -> None:
+        where = f"0x{index:04X}:{subindex:02X}"
+        why = "without it the drive goes on moving when the master is lost"
+        try:
+            self.link.write(index, subindex, value, fmt)
+            back = self.link.read(index, subindex, fmt)
+        except DriveError as exc:
+            raise DriveError(self.link.node_id, f"{where} ({what}) not accepted: {exc.detail}; {why}") from None
+        if back != value:
+            raise DriveError(
+                self.link.node_id, f"{where} ({what}) reads back 0x{back:X} after writing 0x{value:X}; {why}"
+            )
 
 
 def profile_for(link: AxisLink) -> Profile:

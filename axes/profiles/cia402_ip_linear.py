@@ -2,7 +2,9 @@
 
 Configuration: mode 7, 0x60C2:01 = the axis period in ms (0x60C2:02 = -3), 0x60C4:06 = 1 to allow
 writing the target, 0x607D where the drive has it; synchronous RPDO1 with 0x60C1:01 and RPDO2 with
-the controlword, synchronous TPDO1 with statusword + position that answers every SYNC.
+the controlword, synchronous TPDO1 with statusword + position that answers every SYNC; the master's
+heartbeat watched (0x1016) with 0x6007 = 3, quick stop (``Profile.supervise_master``): without it the drive
+would hold its last target with nobody watching.
 Feed: one target position (0x60C1:01, INT32) per period. Delay: the drive moves linearly from
 where it is to the target over the period that follows the SYNC validating it, so the target of
 record k is validated one period before its program time (k + 1) periods. End: the last target is
@@ -72,6 +74,7 @@ class Cia402IpLinear(FixedPeriodProfile):
         link.write_optional(od.SOFTWARE_POSITION_LIMIT, 2, lim.max_position_qc, "i")
         link.map_pdos(self.rpdos, self.tpdos)
         self.write_heartbeat()
+        self.supervise_master()
 
     def enable(self, fresh: bool = False) -> None:
         super().enable(fresh)

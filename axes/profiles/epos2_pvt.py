@@ -5,7 +5,12 @@ the warning levels 0x20C4:02/03, the PDO layout of axes.objects (records on an a
 controlword on the synchronous RPDO2, buffer status + statusword on an event TPDO1, statusword +
 position on the synchronous TPDO2 that answers every SYNC), heartbeat 0x1017; with the bus's
 ``time_stamp`` the asynchronous RPDO3 takes 0x1013 from the master's one time-stamp frame after
-each SYNC (app note 2.4, on TIME_STAMP_COB_ID for all drives).
+each SYNC (app note 2.4, on TIME_STAMP_COB_ID for all drives). Master loss (``supervise_master``):
+maxon's EDS has both CiA objects, 0x1016 (two consumer entries: pvtflow takes :01) and 0x6007
+(INTEGER16, no default given), and pvtflow writes 0x6007 = 3 (quick stop) as for every profile; but
+maxon's firmware takes a heartbeat error as one of its device errors (EMCY 0x8130), so what stops
+the axis is its error reaction 0x605E (written: 2, maxon's default, quick stop ramp on 0x6085): the FIFO is
+emptied, the axis brakes and waits in FAULT (app note 3.8: restart only after re-synchronisation).
 Feed: each record is the u64 of 0x20C1 (``Record.to_bytes``) on RPDO1; a ``BufferFeeder`` keeps
 the FIFO filled. Delay: none to compensate, the drive runs on the records' own times from the start
 SYNC. End: the time-0 record (interpolation inactive without error).
@@ -35,6 +40,7 @@ class Epos2Pvt(Profile):
     rpdos = EPOS2_RPDOS
     tpdos = EPOS2_TPDOS
     sync_tpdo = 2
+    fault_reaction_on_master_loss = od.FaultReaction.QUICK_STOP
 
     def configure(self) -> None:
         link = self.link
@@ -51,6 +57,7 @@ class Epos2Pvt(Profile):
         link.write(od.EPOS2_INTERPOLATION_BUFFER, 2, buffer.underflow_warning, "H")
         link.write(od.EPOS2_INTERPOLATION_BUFFER, 3, buffer.overflow_warning, "H")
         self.write_heartbeat()
+        self.supervise_master()
 
     def enable(self, fresh: bool = False) -> None:
         """Shutdown, switch on, enable operation; then clear the FIFO and enable access to it."""

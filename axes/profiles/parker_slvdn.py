@@ -3,7 +3,9 @@
 Configuration: Pr31 = 202 (0x2000 + 31), the cycle in 0x1006 (us) = the SYNC period, 0x60C0 the
 interpolation submode (0 linear, -1 cubic position + velocity, -2 cubic position only), PDO 4 rx
 synchronous with the target position 0x60C1:01 and the velocity feed-forward in rpm 0x60C1:03,
-RPDO2 controlword, TPDO1 statusword + position answering every SYNC.
+RPDO2 controlword, TPDO1 statusword + position answering every SYNC; the master's heartbeat
+watched (0x1016, 0x6007 = 3, quick stop: ``Profile.supervise_master``; the seed names neither object, so a real
+SLVDN that lacks them is refused at configuration).
 Feed: position + velocity (record velocity x velocity unit, in rpm) per cycle. Delay: below
 2500 us the position loop takes the setpoint at the SYNC that validates it (no delay: record k is
 validated at its own program time); from 2500 us on it is reached one cycle after validation
@@ -55,6 +57,7 @@ class ParkerSlvdn(FixedPeriodProfile):
         link.write(od.INTERPOLATION_SUBMODE, 0, self.submode, "h")
         link.map_pdos(self.rpdos, self.tpdos)
         self.write_heartbeat()
+        self.supervise_master()
 
     def frame(self, record: NDArray[np.int64]) -> tuple[int, bytes]:
         rpm = round(float(record[1]) * self.config.scaling.velocity_unit_rpm)

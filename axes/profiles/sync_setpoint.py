@@ -1,7 +1,9 @@
 """A bufferless servodrive: one setpoint per SYNC (seed servodrive-ip-no-buffer).
 
 Configuration: mode 7, 0x60C2:01 = the SYNC period (1-100 ms), no 0x60C4 (the drive has no buffer);
-the same PDOs as the other fixed-period profiles. Feed: one target position per SYNC; the drive
+the same PDOs as the other fixed-period profiles; the master's heartbeat watched (0x1016, 0x6007 = 1:
+``Profile.supervise_master``; the seed names neither object, so a real drive that lacks them is
+refused at configuration). Feed: one target position per SYNC; the drive
 ignores its profile objects, so the program alone keeps speed and acceleration in bounds (the
 validator checks the linear reconstruction). Delay: the drive ramps to a setpoint by the end of the
 period after the one the validating SYNC starts: two periods from validation (DESIGN section 5,
@@ -30,3 +32,4 @@ class SyncSetpoint(FixedPeriodProfile):
         link.write_optional(od.COMMUNICATION_CYCLE_PERIOD, 0, self.period_ms * 1000, "I")
         link.map_pdos(self.rpdos, self.tpdos)
         self.write_heartbeat()
+        self.supervise_master()

@@ -1,14 +1,27 @@
 """What every simulated drive shares: a canopen ``LocalNode`` that behaves as a CiA 402 drive.
 
-NMT (boot-up, pre-operational, PDOs only when operational), heartbeat producer per 0x1017
-(wall clock: the only wall-clock part), EMCY producer, the DS402 power state machine driven by the
-controlword, the statusword, SYNC-driven motion clock with 1 kHz interpolation samples, 0x607D on
-every demand sample, fault handling and fault injection. The profile modules (epos2, ip_linear,
-sync_setpoint, parker) add their interpolation on top through a few hooks.
+NMT (boot-up, pre-operational, PDOs only when operational), heartbeat producer per 0x1017 and
+heartbeat consumer per 0x1016 (wall clock: the only wall-clock parts), EMCY producer, the DS402
+power state machine driven by the controlword, the statusword, SYNC-driven motion clock with 1 kHz
+interpolation samples, 0x607D on every demand sample, fault handling and fault injection. The
+profile modules (epos2, ip_linear, sync_setpoint, parker) add their interpolation on top through a
+few hooks.
+
+Master loss: when a heartbeat 0x1016 watches stops (``axes/sim/consumer.py``), the drive sends
+EMCY 0x8130 (CiA 301 heartbeat error, error register generic + communication) and does what 0x6007
+says: 3 quick stop (the ramp 0x6085, then SWITCH ON DISABLED), 2 disable voltage, 1 fault, braking
+first as 0x605E says (2: on the quick stop ramp; FAULT REACTION ACTIVE until the demand is at rest,
+then FAULT), 0 nothing more. A drive whose firmware treats a heartbeat error as one of its errors
+(``HEARTBEAT_ERROR_FAULTS``: the EPOS2) takes the fault path whatever 0x6007 says (but 0).
+Its motion clock then runs on the wall clock as long as it brakes and no SYNC comes:
+without SYNC a simulated drive's clock stands still (a real drive's runs on), and a lost master
+sends no SYNC. Other faults stop the axis at once, as before (the power stage off, the demand on
+the actual position).
 
 Motion clock: each SYNC advances the drive's motion time by the cell's SYNC period; between two
 SYNCs the drive samples its interpolation at every whole millisecond of that clock. Nothing waits on
-wall-clock time, so a test runs a drive exactly as fast as it sends SYNCs.
+wall-clock time (but the reaction to a lost master, above), so a test runs a drive exactly as fast
+as it sends SYNCs.
 
 Threads: every bus callback runs in the simulated network's notifier thread; test code may call in
 from other threads, so all state is guarded by one lock, and ``changed`` is notified after each
@@ -36,6 +49,7 @@ from axes import objects as obj
 from axes.cia402 import Controlword, PowerState, Statusword
 from axes.interpolation import hermite_coefficients
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
+from axes.sim.consumer import HeartbeatConsumer
 from axes.sim.device import (
     SIMULATED_MODE,
     SUPPORTED_DRIVE_MODES,
@@ -73,10 +87,12 @@ ABORT_VALUE_RANGE = 0x06090030
 ABORT_DEVICE_STATE = 0x08000022
 ABORT_GENERAL = 0x08000000
 
-QUICK_STOP_DECELERATION_CIA402 = 0x6085  # maxon and CiA 402: 0x6084 is the profile deceleration
+ABORT_PARAMETER_INCOMPATIBLE = 0x06040043  # CiA 301: a 0x1016 entry for a node another entry watches
 ERROR_CODE = 0x603F
 ERROR_REGISTER = 0x1001
 ERROR_HISTORY = 0x1003
+REGISTER_GENERIC = 0x01  # 0x1001 bits
+REGISTER_COMMUNICATION = 0x10
 
 
 @dataclass(frozen=True)
@@ -87,6 +103,20 @@ class FaultRecord:
     time_ms: float
     code: int
     check: str
+
+
+@dataclass
+class MasterLoss:
+    """A heartbeat the drive watches (0x1016) stopped: when, and how the drive took it (tests, benches)."""
+
+    node_id: int  # whose heartbeat stopped
+    silent_s: float  # since its last heartbeat when the consumer fired
+    detected: float  # time.monotonic()
+    last_heartbeat: float | None  # time.monotonic() of that node's last heartbeat
+    option: int  # 0x6007 in force
+    state: str  # the power state the drive was in
+    velocity_rpm: float  # the demand velocity then (motor rpm)
+    standstill: float | None = None  # time.monotonic() when the demand came to rest (None: still moving)
 
 
 @dataclass(frozen=True, slots=True)
@@ -157,6 +187,8 @@ class SimulatedDrive:
     EMCY_POSITION_LIMIT: ClassVar[int] = obj.EMCY_SOFTWARE_POSITION_LIMIT
     EMCY_VELOCITY: ClassVar[int] = obj.EMCY_VELOCITY_LIMIT
     MODES: ClassVar[DriveModes] = DriveModes((SIMULATED_MODE,))  # 0x6502 / 0x6060 (axes/sim/device.py)
+    # a lost master's heartbeat is one of the drive's own errors: its fault reaction (0x605E), then FAULT
+    HEARTBEAT_ERROR_FAULTS: ClassVar[bool] = False
     _ip_requested: bool = False  # bit 4 rose: ip mode starts on the next SYNC (profiles reset it)
 
     def __init__(
@@ -198,6 +230,10 @@ class SimulatedDrive:
         self.time_us = 0
         self.sample_ms = 0.0  # motion time of the sample being computed (or of the last SYNC)
         self._heartbeat_silenced = False
+        self.consumer = HeartbeatConsumer(str(node_id), self._on_heartbeat_lost, self._wall_clock_tick)
+        self.master_losses: list[MasterLoss] = []
+        self._tick_at = 0.0  # wall clock (time.monotonic()) up to which the motion clock has run on its own
+        self._tick_sync = 0  # sync_count at the last wall-clock tick: a SYNC since then runs the clock itself
         self._commissioned: dict[tuple[int, int], int] = {}  # kept through an NMT reset (stored parameters)
         # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.scaling
         self.velocity_factor = self.scaling.qc_per_ms_per_velocity_unit  # record velocity unit -> qc/ms
@@ -288,8 +324,10 @@ class SimulatedDrive:
         self.network = network
         network.subscribe(0x80, self._on_sync)
         network.subscribe(0, self._on_nmt)
+        self.consumer.attach(network)
 
     def detach(self) -> None:
+        self.consumer.detach()  # joins its thread, which takes the lock: before taking it
         with self.lock:
             if not self.node.has_network():
                 return
@@ -308,6 +346,7 @@ class SimulatedDrive:
             if self._heartbeat_silenced:
                 self.node.nmt.stop_heartbeat()
             self.pdo.reload()
+            self._configure_consumer()
 
     @property
     def nmt_state(self) -> str:
@@ -365,7 +404,7 @@ class SimulatedDrive:
         if self.node.has_network() and self.node.nmt.state != "STOPPED":
             self.node.emcy.send(code, register, payload)
 
-    def fault(self, code: int, check: str, data: bytes = b"") -> None:
+    def fault(self, code: int, check: str, data: bytes = b"", register: int = REGISTER_GENERIC) -> None:
         """Fault reaction: the drive stops its interpolation, sends EMCY and waits in FAULT for a reset."""
         if self.state == FAULT:
             return
@@ -375,16 +414,136 @@ class SimulatedDrive:
         self.velocity = self.acceleration = 0.0
         self.demand = float(self.actual)  # the power stage is off: the demand follows the actual position
         self.state = FAULT
+        self._signal_fault(code, data, register)
+
+    def fault_braking(self, code: int, check: str, data: bytes = b"", register: int = REGISTER_GENERIC) -> None:
+        """A fault whose reaction brakes first, as 0x605E says (1: profile deceleration, 2: quick stop
+        ramp; 0, or at rest: at once, as ``fault``): FAULT REACTION ACTIVE while braking, then FAULT."""
+        if self.state in (FAULT, FAULT_REACTION_ACTIVE):
+            return
+        reaction = self.read_or(obj.FAULT_REACTION_OPTION_CODE, 0, obj.FaultReaction.QUICK_STOP)
+        v = self.velocity
+        moving = self.state in (OPERATION_ENABLED, QUICK_STOP_ACTIVE) and abs(v) > 1e-12
+        if reaction not in (obj.FaultReaction.SLOW_DOWN, obj.FaultReaction.QUICK_STOP) or not moving:
+            self.fault(code, check, data, register)
+            return
+        self.faults.append(FaultRecord(self.sync_count, self.sample_ms, code, check))
+        deceleration = self._deceleration(quick=reaction == obj.FaultReaction.QUICK_STOP)
+        self.state = FAULT_REACTION_ACTIVE  # before the abort: an EPOS2 empties its FIFO (app note 3.8)
+        self._abort_motion()
+        self._stop_segment = Segment.braking(self.time_us / 1000.0, self.demand, v, deceleration)
+        self._signal_fault(code, data, register)
+
+    def _signal_fault(self, code: int, data: bytes, register: int) -> None:
+        """0x603F, 0x1001, 0x1003 and the EMCY of a fault."""
         if self.has(ERROR_CODE):
             self.store(ERROR_CODE, 0, code)
-        self.store(ERROR_REGISTER, 0, 0x01)
+        self.store(ERROR_REGISTER, 0, register)
         if self.has(ERROR_HISTORY, 1):
             n = min(self.read(ERROR_HISTORY, 0) + 1, 4) if self.has(ERROR_HISTORY, 4) else 1
             for k in range(n, 1, -1):
                 self.store(ERROR_HISTORY, k, self.read(ERROR_HISTORY, k - 1))
             self.store(ERROR_HISTORY, 1, code)
             self.store(ERROR_HISTORY, 0, n)
-        self.send_emcy(code, 0x01, data)
+        self.send_emcy(code, register, data)
+
+    # --- master loss (0x1016, 0x6007) -------------------------------------------------------------
+    def _configure_consumer(self) -> None:
+        """0x1016 as it now is, to the consumer (after a write, and after every reset)."""
+        entries: dict[int, int] = {}
+        sub = 1
+        while self.has(obj.CONSUMER_HEARTBEAT_TIME, sub):
+            value = self.read(obj.CONSUMER_HEARTBEAT_TIME, sub)
+            node, ms = (value >> obj.CONSUMER_NODE_SHIFT) & 0xFF, value & 0xFFFF
+            if node and ms:
+                entries[node] = ms
+            sub += 1
+        self.consumer.configure(entries)
+
+    def _check_consumer_entry(self, subindex: int, value: int) -> None:
+        """CiA 301: one entry per watched node (another entry for the same node: abort 0x06040043)."""
+        node = (value >> obj.CONSUMER_NODE_SHIFT) & 0xFF
+        if subindex == 0 or not node or not value & 0xFFFF:
+            return
+        sub = 1
+        while self.has(obj.CONSUMER_HEARTBEAT_TIME, sub):
+            other = self.read(obj.CONSUMER_HEARTBEAT_TIME, sub)
+            if sub != subindex and (other >> obj.CONSUMER_NODE_SHIFT) & 0xFF == node and other & 0xFFFF:
+                raise SdoAbortedError(ABORT_PARAMETER_INCOMPATIBLE)
+            sub += 1
+
+    def _on_heartbeat_lost(self, node_id: int, silent_s: float) -> None:
+        """The consumer's thread: a watched heartbeat stopped. EMCY 0x8130, then 0x6007's action."""
+
+        def act() -> None:
+            if not self.node.has_network():
+                return
+            now = time.monotonic()
+            option = self.read_or(obj.ABORT_CONNECTION_OPTION_CODE, 0, obj.AbortConnectionOption.NO_ACTION)
+            loss = MasterLoss(
+                node_id,
+                silent_s,
+                now,
+                self.consumer.last_heard.get(node_id),
+                option,
+                self.state.value,
+                self.velocity * self._rpm_per_qc_ms,
+            )
+            self.master_losses.append(loss)
+            register = REGISTER_GENERIC | REGISTER_COMMUNICATION
+            check = f"heartbeat of node {node_id} lost ({silent_s * 1000:.0f} ms silent)"
+            if option == obj.AbortConnectionOption.FAULT_SIGNAL or (
+                self.HEARTBEAT_ERROR_FAULTS and option != obj.AbortConnectionOption.NO_ACTION
+            ):
+                self.fault_braking(obj.EMCY_HEARTBEAT_ERROR, check, register=register)
+            else:
+                self.send_emcy(obj.EMCY_HEARTBEAT_ERROR, register)
+                if option == obj.AbortConnectionOption.DISABLE_VOLTAGE:
+                    self._on_controlword(0x0000)  # CiA 402: the disable voltage command
+                elif option == obj.AbortConnectionOption.QUICK_STOP:
+                    self._on_controlword(0x0002)  # the quick stop command
+            self._refresh()
+            self._tick_at, self._tick_sync = now, self.sync_count
+            if self._stop_segment is not None:
+                self.consumer.tick()  # brake on the wall clock: no SYNC may come any more
+            elif option != obj.AbortConnectionOption.NO_ACTION or abs(self.velocity) <= 1e-12:
+                loss.standstill = now
+
+        self._in_own_thread(act)
+
+    def _wall_clock_tick(self) -> bool:
+        """The consumer's thread, every ms while the drive brakes after a lost master: the motion
+        clock runs by the wall clock's elapsed time unless a SYNC came since the last tick (then
+        SYNC runs it). False once the demand is at rest."""
+        result = False
+
+        def act() -> None:
+            nonlocal result
+            now = time.monotonic()
+            if self._stop_segment is not None:
+                if self.sync_count != self._tick_sync:
+                    self._tick_sync = self.sync_count
+                elif (elapsed_us := round((now - self._tick_at) * 1e6)) > 0:
+                    new_time = self.time_us + elapsed_us
+                    self._advance(new_time)
+                    self.time_us = new_time
+                    self.sample_ms = new_time / 1000.0
+                    self._refresh()
+            self._tick_at = now
+            if self._stop_segment is None:
+                for loss in self.master_losses:
+                    if loss.standstill is None:
+                        loss.standstill = now
+                return
+            result = True
+
+        self._in_own_thread(act)
+        return result
+
+    def _in_own_thread(self, action: Callable[[], None]) -> None:
+        """Run ``action`` under the lock from a thread of the drive's own (no SDO to abort)."""
+        with contextlib.suppress(SdoAbortedError):
+            self._guard(action)
 
     def _fault_reset(self) -> None:
         self.state = SWITCH_ON_DISABLED
@@ -460,12 +619,18 @@ class SimulatedDrive:
             value = od.decode_raw(data)
             if is_pdo_object(index):
                 self.pdo.check_write(index, subindex, value)
+            if index == obj.CONSUMER_HEARTBEAT_TIME:
+                self._check_consumer_entry(subindex, value)
+            if index == obj.ABORT_CONNECTION_OPTION_CODE and value not in set(obj.AbortConnectionOption):
+                raise SdoAbortedError(ABORT_VALUE_RANGE)  # no manufacturer-specific options here
             self._check_write(index, subindex, value)
             if index == obj.MODES_OF_OPERATION and not self.MODES.accepts(value):
                 raise SdoAbortedError(ABORT_VALUE_RANGE)  # a mode 0x6502 does not list
             self.node.data_store.setdefault(index, {})[subindex] = bytes(data)  # visible to the actions
             if is_pdo_object(index):
                 self.pdo.reload()
+            elif index == obj.CONSUMER_HEARTBEAT_TIME:
+                self._configure_consumer()
             elif index == obj.PRODUCER_HEARTBEAT_TIME:
                 if value == 0 or self._heartbeat_silenced:
                     self.node.nmt.stop_heartbeat()
@@ -536,7 +701,8 @@ class SimulatedDrive:
 
     def _deceleration(self, quick: bool) -> float:
         """Halt: profile deceleration 0x6084; quick stop: 0x6085 where the drive has it. In qc/ms^2."""
-        index = QUICK_STOP_DECELERATION_CIA402 if quick and self.has(0x6085) else obj.QUICK_STOP_DECELERATION
+        quick_stop = obj.QUICK_STOP_DECELERATION_CIA402
+        index = quick_stop if quick and self.has(quick_stop) else obj.QUICK_STOP_DECELERATION
         rpm_s = max(self.read_or(index, 0, 10000), 1)
         return rpm_s / self._rpm_s_per_qc_ms2
 
@@ -590,6 +756,8 @@ class SimulatedDrive:
                 self.velocity = self.acceleration = 0.0
                 if self.state == QUICK_STOP_ACTIVE:
                     self.state = SWITCH_ON_DISABLED
+                elif self.state == FAULT_REACTION_ACTIVE:
+                    self.state = FAULT  # braked to rest: the power stage goes off
             return
         pva = self._motion_at(t) if self.state == OPERATION_ENABLED else None
         if pva is None or self.state != OPERATION_ENABLED:

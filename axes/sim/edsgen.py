@@ -93,6 +93,12 @@ def _common(product: str, modes: device.DriveModes) -> dict[int, Entry]:
         0x1005: Var("COB-ID SYNC message", U32, "rw", 0x80),
         0x1008: Var("Manufacturer device name", 0x9, "const", product),
         0x1014: Var("COB-ID EMCY", U32, "ro", "$NODEID+0x80"),
+        # two consumer entries, as maxon's EPOS2 has: pvtflow's master takes :01 for its own heartbeat
+        obj.CONSUMER_HEARTBEAT_TIME: Rec(
+            "Consumer heartbeat time",
+            tuple(Var(f"Consumer heartbeat time {k}", U32, "rw", 0) for k in (1, 2)),
+            array=True,
+        ),
         0x1017: Var("Producer heartbeat time", U16, "rw", 0),
         0x1018: Rec(
             "Identity object",
@@ -105,9 +111,12 @@ def _common(product: str, modes: device.DriveModes) -> dict[int, Entry]:
         ),
         obj.HIGH_RESOLUTION_TIME_STAMP: Var("High resolution time stamp", U32, "rw", 0, pdo=True),
         0x603F: Var("Error code", U16, "ro", 0, pdo=True),
+        # 0: no action until a master says what to do when it is lost (pvtflow writes 1, fault)
+        obj.ABORT_CONNECTION_OPTION_CODE: Var("Abort connection option code", I16, "rw", 0),
         obj.CONTROLWORD: Var("Controlword", U16, "rw", 0, pdo=True),
         obj.STATUSWORD: Var("Statusword", U16, "ro", 0, pdo=True),
         0x605A: Var("Quick stop option code", I16, "rw", 2),
+        obj.FAULT_REACTION_OPTION_CODE: Var("Fault reaction option code", I16, "rw", 2),
         obj.MODES_OF_OPERATION: Var("Modes of operation", I8, "rw", 0, pdo=True),
         obj.MODES_OF_OPERATION_DISPLAY: Var("Modes of operation display", I8, "ro", 0, pdo=True),
         obj.POSITION_DEMAND_VALUE: Var("Position demand value", I32, "ro", 0, pdo=True),
@@ -125,7 +134,7 @@ def _common(product: str, modes: device.DriveModes) -> dict[int, Entry]:
         obj.PROFILE_VELOCITY: Var("Profile velocity", U32, "rw", 1000, pdo=True),
         obj.PROFILE_ACCELERATION: Var("Profile acceleration", U32, "rw", 10000, pdo=True),
         obj.QUICK_STOP_DECELERATION: Var("Profile deceleration", U32, "rw", 10000, pdo=True),
-        0x6085: Var("Quick stop deceleration", U32, "rw", 10000, pdo=True),
+        obj.QUICK_STOP_DECELERATION_CIA402: Var("Quick stop deceleration", U32, "rw", 10000, pdo=True),
         obj.MAX_ACCELERATION: Var("Max acceleration", U32, "rw", 0xFFFFFFFF),
         device.SUPPORTED_DRIVE_MODES: Var("Supported drive modes", U32, "ro", modes.supported),
     }

@@ -51,6 +51,9 @@ class Epos2Drive(SimulatedDrive):
     PROFILE = "epos2_pvt"
     EDS = "epos2.eds"
     MODES = EPOS2_MODES
+    # maxon's firmware: a heartbeat error (EMCY 0x8130) is a device error like any other, so the
+    # error reaction runs (0x605E, maxon's default 2: quick stop ramp), the FIFO is emptied, FAULT
+    HEARTBEAT_ERROR_FAULTS = True
 
     def _own_values(self) -> dict[tuple[int, int], Value]:
         """Where maxon's EDS gives no default: cubic PVT (0x60C0 = -1, app note 3.6.5), the buffer
