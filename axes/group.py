@@ -833,6 +833,13 @@ class AxisGroup:
             link.position = link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
 
     def close(self) -> None:
+        """Release the drives (at rest, each stops watching the master's heartbeat: an orderly close
+        is not a lost master) and let go of the bus. A close during a run leaves them watching: the
+        heartbeat stops with the bus and every drive stops by itself."""
+        if self.configured and not self._running:
+            for profile in self.profiles:
+                profile.release_master()
+            self.configured = False  # a group used again arms the consumers again
         self.bus.sync.remove_sender(self._after_sync)
         self._pool.shutdown(wait=True)
         for link in self.links:

@@ -7,6 +7,7 @@ from ``AxisConfig.profile``.
 
 from __future__ import annotations
 
+import contextlib
 import struct
 import threading
 import time
@@ -363,6 +364,14 @@ class Profile:
         self.link.write_optional(
             od.QUICK_STOP_DECELERATION_CIA402, 0, round(self.config.limits.max_acceleration_rpm_s), "I"
         )
+
+    def release_master(self) -> None:
+        """A master that closes says goodbye: 0x1016:01 off, so that the drive, at rest, does not
+        take an orderly close for a lost master (which would quick stop it, and fault an EPOS2 the
+        next master would have to recover). A master that dies or hangs says nothing: the drive
+        stops. Best effort: a drive that does not answer is left watching."""
+        with contextlib.suppress(DriveError):
+            self.link.write(od.CONSUMER_HEARTBEAT_TIME, 1, 0, "I")
 
     def _release_other_entries(self, node_id: int) -> None:
         """CiA 301 refuses a second 0x1016 entry for one node (abort 0x06040043): an entry past :01
