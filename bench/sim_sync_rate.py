@@ -20,7 +20,7 @@ import canopen
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes import objects as obj
+from axes import objects as od
 from axes.objects import Record
 from axes.sim.cell import SimulatedCell
 from axes.sim.epos2 import Epos2Drive
@@ -30,15 +30,15 @@ from service.config import load_cell_config
 def prepare(drive: Epos2Drive) -> None:
     """Enable and start a slow 60-record program straight through the object dictionary."""
     n = drive.node
-    n.sdo[obj.MODES_OF_OPERATION].raw = obj.INTERPOLATED_POSITION_MODE
+    n.sdo[od.MODES_OF_OPERATION].raw = od.INTERPOLATED_POSITION_MODE
     for cw in (0x0006, 0x000F):
-        n.sdo[obj.CONTROLWORD].raw = cw
-    n.sdo[obj.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
+        n.sdo[od.CONTROLWORD].raw = cw
+    n.sdo[od.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
     start = round(drive.demand)
-    n.sdo[obj.EPOS2_INTERPOLATION_DATA_RECORD].raw = Record(start, 0, 1).pack()
+    n.sdo[od.EPOS2_INTERPOLATION_DATA_RECORD].raw = Record(start, 0, 1).pack()
     for k in range(1, 60):
-        n.sdo[obj.EPOS2_INTERPOLATION_DATA_RECORD].raw = Record(start + 5 * k, 0, 200).pack()
-    n.sdo[obj.CONTROLWORD].raw = 0x001F
+        n.sdo[od.EPOS2_INTERPOLATION_DATA_RECORD].raw = Record(start + 5 * k, 0, 200).pack()
+    n.sdo[od.CONTROLWORD].raw = 0x001F
 
 
 def main() -> int:

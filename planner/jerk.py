@@ -47,9 +47,9 @@ from numpy.typing import ArrayLike, NDArray
 from planner.limits import JointLimits
 from planner.path import JointPath, PlanError, PlanResult
 from planner.timing import (
-    JointAccelerationConstraint,
-    JointTorqueConstraint,
-    JointVelocityConstraint,
+    IntervalJointAccelerationConstraint,
+    IntervalJointVelocityConstraint,
+    RneaJointTorqueConstraint,
     TcpSpeedConstraint,
     Trajectory,
 )
@@ -406,15 +406,15 @@ def _rows(
     sd_max_mid = np.full(n, np.inf)
     torque = None
     for c in constraints:
-        if isinstance(c, JointVelocityConstraint | TcpSpeedConstraint):
+        if isinstance(c, IntervalJointVelocityConstraint | TcpSpeedConstraint):
             with np.errstate(divide="ignore"):
                 sd_max = np.minimum(sd_max, np.min(c.limit / np.abs(c.speed_factors(path, grid)), axis=1))
                 if isinstance(c, TcpSpeedConstraint):
                     sd_max_mid = np.minimum(sd_max_mid, np.min(c.limit / np.abs(c.speed_factors(path, mid)), axis=1))
-        elif isinstance(c, JointTorqueConstraint):
+        elif isinstance(c, RneaJointTorqueConstraint):
             a, b, cc, _F, _g, _ub, _xb = c.compute_constraint_params(path, grid[:-1])
             torque = (a / c.effort, b / c.effort, -1.0 - cc / c.effort, 1.0 - cc / c.effort)
-        elif not isinstance(c, JointAccelerationConstraint):
+        elif not isinstance(c, IntervalJointAccelerationConstraint):
             raise ValueError(f"the jerk-limited timing cannot hold a {type(c).__name__}")
     e1 = q1 + D[:, None] * (q2 + 0.5 * D[:, None] * q3)
     e2 = q2 + D[:, None] * q3

@@ -88,7 +88,7 @@ class _IntervalSpeedConstraint(constraint.LinearConstraint):
         return 2.0 * sigma, np.ones((n, f)), -bound, np.eye(f), np.zeros(f), None, xbound
 
 
-class JointVelocityConstraint(_IntervalSpeedConstraint):
+class IntervalJointVelocityConstraint(_IntervalSpeedConstraint):
     """|qd_j| <= vmax_j inside every grid interval, not only at the gridpoints."""
 
     def __init__(self, vmax: NDArray[np.float64]) -> None:
@@ -100,7 +100,7 @@ class JointVelocityConstraint(_IntervalSpeedConstraint):
         return path(s, 1)
 
 
-class JointAccelerationConstraint(constraint.LinearConstraint):
+class IntervalJointAccelerationConstraint(constraint.LinearConstraint):
     """|qdd_j| <= amax_j at the start, middle and end of every grid interval.
 
     toppra's interpolation discretization holds the bound at both ends of an interval; the middle
@@ -169,7 +169,7 @@ class TcpAngularSpeedConstraint(_IntervalSpeedConstraint):
         return self.model.frame_angular_speeds(path(s), path(s, 1), self.frame)[:, None]
 
 
-class JointTorqueConstraint(constraint.LinearConstraint):
+class RneaJointTorqueConstraint(constraint.LinearConstraint):
     """|tau_j| <= effort_j at every gridpoint (toppra's collocation scheme), tau from Pinocchio's RNEA.
 
     Along the path tau = a(s) s'' + b(s) s'^2 + c(s) with c = g(q) = rnea(q, 0, 0),
@@ -491,11 +491,11 @@ def timing_constraints(
     (RNEA) where asked for and the model has effort limits and masses; TCP linear and angular speed
     where asked for."""
     out: list[constraint.Constraint] = [
-        JointVelocityConstraint(limits.velocity),
-        JointAccelerationConstraint(limits.acceleration),
+        IntervalJointVelocityConstraint(limits.velocity),
+        IntervalJointAccelerationConstraint(limits.acceleration),
     ]
     if torque_limits and model is not None and model.has_dynamics and np.all(np.isfinite(limits.effort)):
-        out.append(JointTorqueConstraint(model, limits.effort))
+        out.append(RneaJointTorqueConstraint(model, limits.effort))
     if max_tcp_speed is not None:
         if model is None or tcp_frame is None:
             raise ValueError("a TCP speed limit needs the robot model and the TCP frame")
@@ -797,10 +797,10 @@ def parameterize(
     optimum already meets changes nothing); where it does not, the solve is made again with them.
     """
     grid = make_gridpoints(path, gridpoints)
-    deferred = [c for c in constraints if isinstance(c, JointTorqueConstraint)]
+    deferred = [c for c in constraints if isinstance(c, RneaJointTorqueConstraint)]
     if not deferred:
         return _solve(path, grid, limits, constraints)
-    traj = _solve(path, grid, limits, [c for c in constraints if not isinstance(c, JointTorqueConstraint)])
+    traj = _solve(path, grid, limits, [c for c in constraints if not isinstance(c, RneaJointTorqueConstraint)])
     if all(c.holds_on(traj) for c in deferred):
         return traj
     return _solve(path, grid, limits, constraints)
@@ -808,10 +808,10 @@ def parameterize(
 
 __all__ = [
     "DEFAULT_GRIDPOINTS",
-    "JointAccelerationConstraint",
-    "JointTorqueConstraint",
-    "JointVelocityConstraint",
+    "IntervalJointAccelerationConstraint",
+    "IntervalJointVelocityConstraint",
     "LeanTOPPRA",
+    "RneaJointTorqueConstraint",
     "TcpAngularSpeedConstraint",
     "TcpSpeedConstraint",
     "Trajectory",

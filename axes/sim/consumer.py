@@ -20,7 +20,7 @@ from collections.abc import Callable, Mapping
 
 import canopen
 
-from axes import objects as obj
+from axes import objects as od
 from axes.sim.pdo import unsubscribe
 
 TICK_S = 0.001  # the motion clock's step while it runs on the wall clock (the drives sample every ms)
@@ -66,9 +66,9 @@ class HeartbeatConsumer:
             network = self._network
             if network is not None:
                 for node in self._times.keys() - times.keys():
-                    unsubscribe(network, obj.HEARTBEAT_COB_ID_BASE + node, self._on_heartbeat)
+                    unsubscribe(network, od.HEARTBEAT_COB_ID_BASE + node, self._on_heartbeat)
                 for node in times.keys() - self._times.keys():
-                    _subscribe(network, obj.HEARTBEAT_COB_ID_BASE + node, self._on_heartbeat)
+                    _subscribe(network, od.HEARTBEAT_COB_ID_BASE + node, self._on_heartbeat)
             for node in list(self._heard):
                 if times.get(node) != self._times.get(node):
                     del self._heard[node]
@@ -80,7 +80,7 @@ class HeartbeatConsumer:
         with self._cond:
             self._network = network
             for node in self._times:
-                _subscribe(network, obj.HEARTBEAT_COB_ID_BASE + node, self._on_heartbeat)
+                _subscribe(network, od.HEARTBEAT_COB_ID_BASE + node, self._on_heartbeat)
             self._stopping = False
             if self._thread is None:
                 self._thread = threading.Thread(target=self._run, name=f"sim-consumer-{self.name}", daemon=True)
@@ -92,7 +92,7 @@ class HeartbeatConsumer:
             network, self._network = self._network, None
             if network is not None:
                 for node in self._times:
-                    unsubscribe(network, obj.HEARTBEAT_COB_ID_BASE + node, self._on_heartbeat)
+                    unsubscribe(network, od.HEARTBEAT_COB_ID_BASE + node, self._on_heartbeat)
             self._heard.clear()
             self._ticking = False
             self._stopping = True
@@ -109,7 +109,7 @@ class HeartbeatConsumer:
 
     # --- the wall-clock part ---------------------------------------------------------------------
     def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        node = can_id - obj.HEARTBEAT_COB_ID_BASE
+        node = can_id - od.HEARTBEAT_COB_ID_BASE
         now = time.monotonic()
         with self._cond:
             self.last_heard[node] = now

@@ -45,7 +45,7 @@ from canopen import objectdictionary
 from canopen.profiles.p402 import State402
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as obj
+from axes import objects as od
 from axes.cia402 import Controlword, PowerState, Statusword
 from axes.interpolation import hermite_coefficients
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
@@ -184,8 +184,8 @@ class SimulatedDrive:
 
     PROFILE: ClassVar[str] = ""
     EDS: ClassVar[str] = ""
-    EMCY_POSITION_LIMIT: ClassVar[int] = obj.EMCY_SOFTWARE_POSITION_LIMIT
-    EMCY_VELOCITY: ClassVar[int] = obj.EMCY_VELOCITY_LIMIT
+    EMCY_POSITION_LIMIT: ClassVar[int] = od.EMCY_SOFTWARE_POSITION_LIMIT
+    EMCY_VELOCITY: ClassVar[int] = od.EMCY_VELOCITY_LIMIT
     MODES: ClassVar[DriveModes] = DriveModes((SIMULATED_MODE,))  # 0x6502 / 0x6060 (axes/sim/device.py)
     # a lost master's heartbeat is one of the drive's own errors: its fault reaction (0x605E), then FAULT
     HEARTBEAT_ERROR_FAULTS: ClassVar[bool] = False
@@ -240,7 +240,8 @@ class SimulatedDrive:
         self._rpm_per_qc_ms = float(self.scaling.qc_per_ms_to_rpm(1.0))
         self._rpm_s_per_qc_ms2 = float(self.scaling.qc_per_ms2_to_rpm_s(1.0))
         self.node._write_callbacks.remove(self.node.nmt.on_write)  # 0x1017 is handled here
-        self.node.add_write_callback(self._on_write)
+        # canopen passes the written entry as the keyword ``od``, which is this module's name for axes.objects
+        self.node.add_write_callback(lambda index, subindex, od, data: self._on_write(index, subindex, od, data))
         self._reset_application()
         if limits is not None:
             self.apply_limits(limits)
@@ -299,15 +300,15 @@ class SimulatedDrive:
     def apply_limits(self, limits: DriveLimits) -> None:
         """Commission the drive's own limit objects (facts about the drive, DESIGN section 3)."""
         values = {
-            (obj.MAX_PROFILE_VELOCITY, 0): round(limits.max_profile_velocity_rpm),
-            (obj.MAX_ACCELERATION, 0): round(limits.max_acceleration_rpm_s),
-            (obj.SOFTWARE_POSITION_LIMIT, 1): limits.min_position_qc,
-            (obj.SOFTWARE_POSITION_LIMIT, 2): limits.max_position_qc,
+            (od.MAX_PROFILE_VELOCITY, 0): round(limits.max_profile_velocity_rpm),
+            (od.MAX_ACCELERATION, 0): round(limits.max_acceleration_rpm_s),
+            (od.SOFTWARE_POSITION_LIMIT, 1): limits.min_position_qc,
+            (od.SOFTWARE_POSITION_LIMIT, 2): limits.max_position_qc,
         }
         if limits.profile_velocity_rpm is not None:
-            values[(obj.PROFILE_VELOCITY, 0)] = round(limits.profile_velocity_rpm)
+            values[(od.PROFILE_VELOCITY, 0)] = round(limits.profile_velocity_rpm)
         if limits.profile_acceleration_rpm_s is not None:
-            values[(obj.PROFILE_ACCELERATION, 0)] = round(limits.profile_acceleration_rpm_s)
+            values[(od.PROFILE_ACCELERATION, 0)] = round(limits.profile_acceleration_rpm_s)
         with self.lock:
             self._commissioned.update(values)
             for (index, subindex), value in values.items():
@@ -366,7 +367,7 @@ class SimulatedDrive:
     def resume_heartbeat(self) -> None:
         with self.lock:
             self._heartbeat_silenced = False
-            period = self.read(obj.PRODUCER_HEARTBEAT_TIME)
+            period = self.read(od.PRODUCER_HEARTBEAT_TIME)
             if period:
                 self.node.nmt.start_heartbeat(period)
 
@@ -421,14 +422,14 @@ class SimulatedDrive:
         ramp; 0, or at rest: at once, as ``fault``): FAULT REACTION ACTIVE while braking, then FAULT."""
         if self.state in (FAULT, FAULT_REACTION_ACTIVE):
             return
-        reaction = self.read_or(obj.FAULT_REACTION_OPTION_CODE, 0, obj.FaultReaction.QUICK_STOP)
+        reaction = self.read_or(od.FAULT_REACTION_OPTION_CODE, 0, od.FaultReaction.QUICK_STOP)
         v = self.velocity
         moving = self.state in (OPERATION_ENABLED, QUICK_STOP_ACTIVE) and abs(v) > 1e-12
-        if reaction not in (obj.FaultReaction.SLOW_DOWN, obj.FaultReaction.QUICK_STOP) or not moving:
+        if reaction not in (od.FaultReaction.SLOW_DOWN, od.FaultReaction.QUICK_STOP) or not moving:
             self.fault(code, check, data, register)
             return
         self.faults.append(FaultRecord(self.sync_count, self.sample_ms, code, check))
-        deceleration = self._deceleration(quick=reaction == obj.FaultReaction.QUICK_STOP)
+        deceleration = self._deceleration(quick=reaction == od.FaultReaction.QUICK_STOP)
         self.state = FAULT_REACTION_ACTIVE  # before the abort: an EPOS2 empties its FIFO (app note 3.8)
         self._abort_motion()
         self._stop_segment = Segment.braking(self.time_us / 1000.0, self.demand, v, deceleration)
@@ -452,9 +453,9 @@ class SimulatedDrive:
         """0x1016 as it now is, to the consumer (after a write, and after every reset)."""
         entries: dict[int, int] = {}
         sub = 1
-        while self.has(obj.CONSUMER_HEARTBEAT_TIME, sub):
-            value = self.read(obj.CONSUMER_HEARTBEAT_TIME, sub)
-            node, ms = (value >> obj.CONSUMER_NODE_SHIFT) & 0xFF, value & 0xFFFF
+        while self.has(od.CONSUMER_HEARTBEAT_TIME, sub):
+            value = self.read(od.CONSUMER_HEARTBEAT_TIME, sub)
+            node, ms = (value >> od.CONSUMER_NODE_SHIFT) & 0xFF, value & 0xFFFF
             if node and ms:
                 entries[node] = ms
             sub += 1
@@ -462,13 +463,13 @@ class SimulatedDrive:
 
     def _check_consumer_entry(self, subindex: int, value: int) -> None:
         """CiA 301: one entry per watched node (another entry for the same node: abort 0x06040043)."""
-        node = (value >> obj.CONSUMER_NODE_SHIFT) & 0xFF
+        node = (value >> od.CONSUMER_NODE_SHIFT) & 0xFF
         if subindex == 0 or not node or not value & 0xFFFF:
             return
         sub = 1
-        while self.has(obj.CONSUMER_HEARTBEAT_TIME, sub):
-            other = self.read(obj.CONSUMER_HEARTBEAT_TIME, sub)
-            if sub != subindex and (other >> obj.CONSUMER_NODE_SHIFT) & 0xFF == node and other & 0xFFFF:
+        while self.has(od.CONSUMER_HEARTBEAT_TIME, sub):
+            other = self.read(od.CONSUMER_HEARTBEAT_TIME, sub)
+            if sub != subindex and (other >> od.CONSUMER_NODE_SHIFT) & 0xFF == node and other & 0xFFFF:
                 raise SdoAbortedError(ABORT_PARAMETER_INCOMPATIBLE)
             sub += 1
 
@@ -479,7 +480,7 @@ class SimulatedDrive:
             if not self.node.has_network():
                 return
             now = time.monotonic()
-            option = self.read_or(obj.ABORT_CONNECTION_OPTION_CODE, 0, obj.AbortConnectionOption.NO_ACTION)
+            option = self.read_or(od.ABORT_CONNECTION_OPTION_CODE, 0, od.AbortConnectionOption.NO_ACTION)
             loss = MasterLoss(
                 node_id,
                 silent_s,
@@ -492,21 +493,21 @@ class SimulatedDrive:
             self.master_losses.append(loss)
             register = REGISTER_GENERIC | REGISTER_COMMUNICATION
             check = f"heartbeat of node {node_id} lost ({silent_s * 1000:.0f} ms silent)"
-            if option == obj.AbortConnectionOption.FAULT_SIGNAL or (
-                self.HEARTBEAT_ERROR_FAULTS and option != obj.AbortConnectionOption.NO_ACTION
+            if option == od.AbortConnectionOption.FAULT_SIGNAL or (
+                self.HEARTBEAT_ERROR_FAULTS and option != od.AbortConnectionOption.NO_ACTION
             ):
-                self.fault_braking(obj.EMCY_HEARTBEAT_ERROR, check, register=register)
+                self.fault_braking(od.EMCY_HEARTBEAT_ERROR, check, register=register)
             else:
-                self.send_emcy(obj.EMCY_HEARTBEAT_ERROR, register)
-                if option == obj.AbortConnectionOption.DISABLE_VOLTAGE:
+                self.send_emcy(od.EMCY_HEARTBEAT_ERROR, register)
+                if option == od.AbortConnectionOption.DISABLE_VOLTAGE:
                     self._on_controlword(0x0000)  # CiA 402: the disable voltage command
-                elif option == obj.AbortConnectionOption.QUICK_STOP:
+                elif option == od.AbortConnectionOption.QUICK_STOP:
                     self._on_controlword(0x0002)  # the quick stop command
             self._refresh()
             self._tick_at, self._tick_sync = now, self.sync_count
             if self._stop_segment is not None:
                 self.consumer.tick()  # brake on the wall clock: no SYNC may come any more
-            elif option != obj.AbortConnectionOption.NO_ACTION or abs(self.velocity) <= 1e-12:
+            elif option != od.AbortConnectionOption.NO_ACTION or abs(self.velocity) <= 1e-12:
                 loss.standstill = now
 
         self._in_own_thread(act)
@@ -551,7 +552,7 @@ class SimulatedDrive:
         if self.has(ERROR_CODE):
             self.store(ERROR_CODE, 0, 0)
         self._on_fault_reset()
-        self.send_emcy(obj.EMCY_NO_ERROR, 0)
+        self.send_emcy(od.EMCY_NO_ERROR, 0)
 
     # --- bus callbacks ----------------------------------------------------------------------------
     def _guard(self, action: Callable[[], None]) -> None:
@@ -614,35 +615,35 @@ class SimulatedDrive:
         with contextlib.suppress(SdoAbortedError):
             self._guard(act)
 
-    def _on_write(self, index: int, subindex: int, od: objectdictionary.ODVariable, data: bytes) -> None:
+    def _on_write(self, index: int, subindex: int, variable: objectdictionary.ODVariable, data: bytes) -> None:
         def act() -> None:
-            value = od.decode_raw(data)
+            value = variable.decode_raw(data)
             if is_pdo_object(index):
                 self.pdo.check_write(index, subindex, value)
-            if index == obj.CONSUMER_HEARTBEAT_TIME:
+            if index == od.CONSUMER_HEARTBEAT_TIME:
                 self._check_consumer_entry(subindex, value)
-            if index == obj.ABORT_CONNECTION_OPTION_CODE and value not in set(obj.AbortConnectionOption):
+            if index == od.ABORT_CONNECTION_OPTION_CODE and value not in set(od.AbortConnectionOption):
                 raise SdoAbortedError(ABORT_VALUE_RANGE)  # no manufacturer-specific options here
             self._check_write(index, subindex, value)
-            if index == obj.MODES_OF_OPERATION and not self.MODES.accepts(value):
+            if index == od.MODES_OF_OPERATION and not self.MODES.accepts(value):
                 raise SdoAbortedError(ABORT_VALUE_RANGE)  # a mode 0x6502 does not list
             self.node.data_store.setdefault(index, {})[subindex] = bytes(data)  # visible to the actions
             if is_pdo_object(index):
                 self.pdo.reload()
-            elif index == obj.CONSUMER_HEARTBEAT_TIME:
+            elif index == od.CONSUMER_HEARTBEAT_TIME:
                 self._configure_consumer()
-            elif index == obj.PRODUCER_HEARTBEAT_TIME:
+            elif index == od.PRODUCER_HEARTBEAT_TIME:
                 if value == 0 or self._heartbeat_silenced:
                     self.node.nmt.stop_heartbeat()
                 else:
                     self.node.nmt.start_heartbeat(value)
-            elif index == obj.HIGH_RESOLUTION_TIME_STAMP:
+            elif index == od.HIGH_RESOLUTION_TIME_STAMP:
                 self.time_stamps.append(value)
-            elif index == obj.CONTROLWORD:
+            elif index == od.CONTROLWORD:
                 self._on_controlword(value)
-            elif index == obj.MODES_OF_OPERATION:
-                old = self.read(obj.MODES_OF_OPERATION_DISPLAY)
-                self.store(obj.MODES_OF_OPERATION_DISPLAY, 0, value)
+            elif index == od.MODES_OF_OPERATION:
+                old = self.read(od.MODES_OF_OPERATION_DISPLAY)
+                self.store(od.MODES_OF_OPERATION_DISPLAY, 0, value)
                 if old != value:
                     self._on_mode_change(old, value)
             else:
@@ -701,8 +702,8 @@ class SimulatedDrive:
 
     def _deceleration(self, quick: bool) -> float:
         """Halt: profile deceleration 0x6084; quick stop: 0x6085 where the drive has it. In qc/ms^2."""
-        quick_stop = obj.QUICK_STOP_DECELERATION_CIA402
-        index = quick_stop if quick and self.has(quick_stop) else obj.QUICK_STOP_DECELERATION
+        quick_stop = od.QUICK_STOP_DECELERATION_CIA402
+        index = quick_stop if quick and self.has(quick_stop) else od.QUICK_STOP_DECELERATION
         rpm_s = max(self.read_or(index, 0, 10000), 1)
         return rpm_s / self._rpm_s_per_qc_ms2
 
@@ -771,8 +772,8 @@ class SimulatedDrive:
 
     def _check_position(self, p: float) -> bool:
         """0x607D bounds every position demand: one outside faults the drive and is not taken."""
-        lo = self.read_or(obj.SOFTWARE_POSITION_LIMIT, 1, INT32_MIN)
-        hi = self.read_or(obj.SOFTWARE_POSITION_LIMIT, 2, INT32_MAX)
+        lo = self.read_or(od.SOFTWARE_POSITION_LIMIT, 1, INT32_MIN)
+        hi = self.read_or(od.SOFTWARE_POSITION_LIMIT, 2, INT32_MAX)
         if lo <= round(p) <= hi:
             return True
         self.fault(self.EMCY_POSITION_LIMIT, "software position limit 0x607D")
@@ -780,7 +781,7 @@ class SimulatedDrive:
 
     def _check_dynamics(self, v: float, a: float) -> None:
         """Default sanity check: 0x607F bounds the demand velocity (fault)."""
-        if abs(v) * self._rpm_per_qc_ms > self.read_or(obj.MAX_PROFILE_VELOCITY, 0, 2**32 - 1):
+        if abs(v) * self._rpm_per_qc_ms > self.read_or(od.MAX_PROFILE_VELOCITY, 0, 2**32 - 1):
             self.fault(self.EMCY_VELOCITY, "max profile velocity 0x607F")
 
     @property
@@ -790,10 +791,10 @@ class SimulatedDrive:
 
     def _refresh(self, events: bool = True) -> None:
         """Publish the drive's state in its object dictionary (and send event TPDOs on change)."""
-        self.publish(obj.STATUSWORD, 0, self.statusword())
+        self.publish(od.STATUSWORD, 0, self.statusword())
         demand = min(max(round(self.demand), INT32_MIN), INT32_MAX)
-        self.publish(obj.POSITION_DEMAND_VALUE, 0, demand)
-        self.publish(obj.POSITION_ACTUAL_VALUE, 0, min(max(self.actual, INT32_MIN), INT32_MAX))
+        self.publish(od.POSITION_DEMAND_VALUE, 0, demand)
+        self.publish(od.POSITION_ACTUAL_VALUE, 0, min(max(self.actual, INT32_MIN), INT32_MAX))
         self._publish()
         if events and self.operational:
             self.pdo.transmit_events()
@@ -817,8 +818,8 @@ class SimulatedDrive:
         self.ip_active = False
         self._reset_profile()
         for index, value in (
-            (obj.CONTROLWORD, 0),
-            (obj.MODES_OF_OPERATION_DISPLAY, self.read_or(obj.MODES_OF_OPERATION, 0, 0)),
+            (od.CONTROLWORD, 0),
+            (od.MODES_OF_OPERATION_DISPLAY, self.read_or(od.MODES_OF_OPERATION, 0, 0)),
             (ERROR_REGISTER, 0),
         ):
             if self.has(index):
@@ -844,7 +845,7 @@ class SimulatedDrive:
 
     def _ip_mode_selected(self) -> bool:
         """Interpolated position mode is what 0x6061 shows (the Parker selects it through Pr31)."""
-        return self.read(obj.MODES_OF_OPERATION_DISPLAY) == obj.INTERPOLATED_POSITION_MODE
+        return self.read(od.MODES_OF_OPERATION_DISPLAY) == od.INTERPOLATED_POSITION_MODE
 
     def _on_mode_bits(self, previous: int, controlword: int) -> None:
         """Controlword bit 4 while operation is enabled: a rising edge asks for ip mode on the next

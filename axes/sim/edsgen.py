@@ -11,7 +11,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from axes import objects as obj
+from axes import objects as od
 from axes.sim import device
 
 EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
@@ -94,7 +94,7 @@ def _common(product: str, modes: device.DriveModes) -> dict[int, Entry]:
         0x1008: Var("Manufacturer device name", 0x9, "const", product),
         0x1014: Var("COB-ID EMCY", U32, "ro", "$NODEID+0x80"),
         # two consumer entries, as maxon's EPOS2 has: pvtflow's master takes :01 for its own heartbeat
-        obj.CONSUMER_HEARTBEAT_TIME: Rec(
+        od.CONSUMER_HEARTBEAT_TIME: Rec(
             "Consumer heartbeat time",
             tuple(Var(f"Consumer heartbeat time {k}", U32, "rw", 0) for k in (1, 2)),
             array=True,
@@ -109,20 +109,20 @@ def _common(product: str, modes: device.DriveModes) -> dict[int, Entry]:
                 Var("Serial number", U32, "ro", 0),
             ),
         ),
-        obj.HIGH_RESOLUTION_TIME_STAMP: Var("High resolution time stamp", U32, "rw", 0, pdo=True),
+        od.HIGH_RESOLUTION_TIME_STAMP: Var("High resolution time stamp", U32, "rw", 0, pdo=True),
         0x603F: Var("Error code", U16, "ro", 0, pdo=True),
         # 0: no action until a master says what to do when it is lost (pvtflow writes 1, fault)
-        obj.ABORT_CONNECTION_OPTION_CODE: Var("Abort connection option code", I16, "rw", 0),
-        obj.CONTROLWORD: Var("Controlword", U16, "rw", 0, pdo=True),
-        obj.STATUSWORD: Var("Statusword", U16, "ro", 0, pdo=True),
+        od.ABORT_CONNECTION_OPTION_CODE: Var("Abort connection option code", I16, "rw", 0),
+        od.CONTROLWORD: Var("Controlword", U16, "rw", 0, pdo=True),
+        od.STATUSWORD: Var("Statusword", U16, "ro", 0, pdo=True),
         0x605A: Var("Quick stop option code", I16, "rw", 2),
-        obj.FAULT_REACTION_OPTION_CODE: Var("Fault reaction option code", I16, "rw", 2),
-        obj.MODES_OF_OPERATION: Var("Modes of operation", I8, "rw", 0, pdo=True),
-        obj.MODES_OF_OPERATION_DISPLAY: Var("Modes of operation display", I8, "ro", 0, pdo=True),
-        obj.POSITION_DEMAND_VALUE: Var("Position demand value", I32, "ro", 0, pdo=True),
-        obj.POSITION_ACTUAL_VALUE: Var("Position actual value", I32, "ro", 0, pdo=True),
-        obj.MAX_FOLLOWING_ERROR: Var("Max following error", U32, "rw", 2000, pdo=True),
-        obj.SOFTWARE_POSITION_LIMIT: Rec(
+        od.FAULT_REACTION_OPTION_CODE: Var("Fault reaction option code", I16, "rw", 2),
+        od.MODES_OF_OPERATION: Var("Modes of operation", I8, "rw", 0, pdo=True),
+        od.MODES_OF_OPERATION_DISPLAY: Var("Modes of operation display", I8, "ro", 0, pdo=True),
+        od.POSITION_DEMAND_VALUE: Var("Position demand value", I32, "ro", 0, pdo=True),
+        od.POSITION_ACTUAL_VALUE: Var("Position actual value", I32, "ro", 0, pdo=True),
+        od.MAX_FOLLOWING_ERROR: Var("Max following error", U32, "rw", 2000, pdo=True),
+        od.SOFTWARE_POSITION_LIMIT: Rec(
             "Software position limit",
             (
                 Var("Min position limit", I32, "rw", -(2**31)),
@@ -130,12 +130,12 @@ def _common(product: str, modes: device.DriveModes) -> dict[int, Entry]:
             ),
             array=True,
         ),
-        obj.MAX_PROFILE_VELOCITY: Var("Max profile velocity", U32, "rw", 25000),
-        obj.PROFILE_VELOCITY: Var("Profile velocity", U32, "rw", 1000, pdo=True),
-        obj.PROFILE_ACCELERATION: Var("Profile acceleration", U32, "rw", 10000, pdo=True),
-        obj.QUICK_STOP_DECELERATION: Var("Profile deceleration", U32, "rw", 10000, pdo=True),
-        obj.QUICK_STOP_DECELERATION_CIA402: Var("Quick stop deceleration", U32, "rw", 10000, pdo=True),
-        obj.MAX_ACCELERATION: Var("Max acceleration", U32, "rw", 0xFFFFFFFF),
+        od.MAX_PROFILE_VELOCITY: Var("Max profile velocity", U32, "rw", 25000),
+        od.PROFILE_VELOCITY: Var("Profile velocity", U32, "rw", 1000, pdo=True),
+        od.PROFILE_ACCELERATION: Var("Profile acceleration", U32, "rw", 10000, pdo=True),
+        od.QUICK_STOP_DECELERATION: Var("Profile deceleration", U32, "rw", 10000, pdo=True),
+        od.QUICK_STOP_DECELERATION_CIA402: Var("Quick stop deceleration", U32, "rw", 10000, pdo=True),
+        od.MAX_ACCELERATION: Var("Max acceleration", U32, "rw", 0xFFFFFFFF),
         device.SUPPORTED_DRIVE_MODES: Var("Supported drive modes", U32, "ro", modes.supported),
     }
     return d
@@ -144,17 +144,17 @@ def _common(product: str, modes: device.DriveModes) -> dict[int, Entry]:
 def epos2() -> dict[int, Entry]:
     d = _common("pvtflow simulated EPOS2", device.EPOS2_MODES)
     d.update(_pdo_objects(4, 4))
-    d[obj.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode selection", I16, "rw", -1)
-    d[obj.INTERPOLATION_TIME_PERIOD] = Rec(
+    d[od.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode selection", I16, "rw", -1)
+    d[od.INTERPOLATION_TIME_PERIOD] = Rec(
         "Interpolation time period",
         (
             Var("Interpolation time period value", U8, "rw", 1),
             Var("Interpolation time index", I8, "rw", -3),
         ),
     )
-    d[obj.INTERPOLATION_DATA_CONFIGURATION] = _buffer_config()
-    d[obj.EPOS2_INTERPOLATION_DATA_RECORD] = Var("Interpolation data record", U64, "wo", None, pdo=True)
-    d[obj.EPOS2_INTERPOLATION_BUFFER] = Rec(
+    d[od.INTERPOLATION_DATA_CONFIGURATION] = _buffer_config()
+    d[od.EPOS2_INTERPOLATION_DATA_RECORD] = Var("Interpolation data record", U64, "wo", None, pdo=True)
+    d[od.EPOS2_INTERPOLATION_BUFFER] = Rec(
         "Interpolation buffer",
         (
             Var("Interpolation buffer status", U16, "ro", 0, pdo=True),
@@ -169,8 +169,8 @@ def _buffer_config() -> Rec:
     return Rec(
         "Interpolation data configuration",
         (
-            Var("Maximum buffer size", U32, "ro", obj.EPOS2_BUFFER_SIZE),
-            Var("Actual buffer size", U32, "ro", obj.EPOS2_BUFFER_SIZE),
+            Var("Maximum buffer size", U32, "ro", od.EPOS2_BUFFER_SIZE),
+            Var("Actual buffer size", U32, "ro", od.EPOS2_BUFFER_SIZE),
             Var("Buffer organisation", U8, "rw", 0),
             Var("Buffer position", U16, "rw", 0),
             Var("Size of data record", U8, "wo", 8),
@@ -202,10 +202,10 @@ def _time_period() -> Rec:
 def cia402_ip_linear() -> dict[int, Entry]:
     d = _common("pvtflow simulated CiA 402 linear IP drive", device.IP_LINEAR_MODES)
     d.update(_pdo_objects(4, 4))
-    d[obj.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
-    d[obj.INTERPOLATION_DATA_RECORD] = _setpoint_record(False)
-    d[obj.INTERPOLATION_TIME_PERIOD] = _time_period()
-    d[obj.INTERPOLATION_DATA_CONFIGURATION] = Rec(
+    d[od.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
+    d[od.INTERPOLATION_DATA_RECORD] = _setpoint_record(False)
+    d[od.INTERPOLATION_TIME_PERIOD] = _time_period()
+    d[od.INTERPOLATION_DATA_CONFIGURATION] = Rec(
         "Interpolation data configuration",
         (
             Var("Maximum buffer size", U32, "ro", 1),
@@ -222,19 +222,19 @@ def cia402_ip_linear() -> dict[int, Entry]:
 def sync_setpoint() -> dict[int, Entry]:
     d = _common("pvtflow simulated bufferless IP servodrive", device.SYNC_SETPOINT_MODES)
     d.update(_pdo_objects(4, 4))
-    d[obj.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
-    d[obj.INTERPOLATION_DATA_RECORD] = _setpoint_record(False)
-    d[obj.INTERPOLATION_TIME_PERIOD] = _time_period()
+    d[od.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
+    d[od.INTERPOLATION_DATA_RECORD] = _setpoint_record(False)
+    d[od.INTERPOLATION_TIME_PERIOD] = _time_period()
     return d
 
 
 def parker_slvdn() -> dict[int, Entry]:
     d = _common("pvtflow simulated Parker SLVDN", device.PARKER_MODES)
     d.update(_pdo_objects(4, 4))
-    d[obj.COMMUNICATION_CYCLE_PERIOD] = Var("Communication cycle period", U32, "rw", 0)
-    d[obj.PARKER_OPERATIVE_MODE] = Var("Pr31 operative mode", I16, "rw", 0)
-    d[obj.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
-    d[obj.INTERPOLATION_DATA_RECORD] = _setpoint_record(True)
+    d[od.COMMUNICATION_CYCLE_PERIOD] = Var("Communication cycle period", U32, "rw", 0)
+    d[od.PARKER_OPERATIVE_MODE] = Var("Pr31 operative mode", I16, "rw", 0)
+    d[od.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
+    d[od.INTERPOLATION_DATA_RECORD] = _setpoint_record(True)
     return d
 
 

@@ -32,7 +32,7 @@ from collections import deque
 
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as obj
+from axes import objects as od
 from axes.interpolation import exceeds
 from axes.objects import BUFFER_ERRORS, BufferStatus, Record
 from axes.sim.device import EPOS2_MODES, Value
@@ -61,8 +61,8 @@ class Epos2Drive(SimulatedDrive):
         high words of its revision number and product code (0x2122, 0x6420 in its comments)."""
         info = self.node.object_dictionary.device_information
         return {
-            (obj.INTERPOLATION_SUBMODE, 0): -1,
-            (obj.INTERPOLATION_DATA_CONFIGURATION, 1): obj.EPOS2_BUFFER_SIZE,
+            (od.INTERPOLATION_SUBMODE, 0): -1,
+            (od.INTERPOLATION_DATA_CONFIGURATION, 1): od.EPOS2_BUFFER_SIZE,
             (EPOS2_VERSION, 1): (info.revision_number or 0) >> 16,
             (EPOS2_VERSION, 2): (info.product_number or 0) >> 16,
         }
@@ -89,19 +89,19 @@ class Epos2Drive(SimulatedDrive):
         status = self.sticky
         if self.buffer_enabled:
             status |= BufferStatus.BUFFER_ENABLED
-        if self.level <= self.read(obj.EPOS2_INTERPOLATION_BUFFER, 2):
+        if self.level <= self.read(od.EPOS2_INTERPOLATION_BUFFER, 2):
             status |= BufferStatus.UNDERFLOW_WARNING
-        if self.level >= self.read(obj.EPOS2_INTERPOLATION_BUFFER, 3):
+        if self.level >= self.read(od.EPOS2_INTERPOLATION_BUFFER, 3):
             status |= BufferStatus.OVERFLOW_WARNING
         if self.ip_active:
             status |= BufferStatus.IP_MODE_ACTIVE
         return status
 
     def _publish(self) -> None:
-        self.publish(obj.EPOS2_INTERPOLATION_BUFFER, 1, int(self.buffer_status()))
-        self.publish(obj.INTERPOLATION_DATA_CONFIGURATION, 1, obj.EPOS2_BUFFER_SIZE)
-        self.publish(obj.INTERPOLATION_DATA_CONFIGURATION, 2, obj.EPOS2_BUFFER_SIZE - self.level)
-        self.publish(obj.INTERPOLATION_DATA_CONFIGURATION, 4, self.level)
+        self.publish(od.EPOS2_INTERPOLATION_BUFFER, 1, int(self.buffer_status()))
+        self.publish(od.INTERPOLATION_DATA_CONFIGURATION, 1, od.EPOS2_BUFFER_SIZE)
+        self.publish(od.INTERPOLATION_DATA_CONFIGURATION, 2, od.EPOS2_BUFFER_SIZE - self.level)
+        self.publish(od.INTERPOLATION_DATA_CONFIGURATION, 4, self.level)
 
     def _warning(self) -> bool:
         return bool(self.sticky & (BufferStatus.VELOCITY_WARNING | BufferStatus.ACCELERATION_WARNING))
@@ -111,37 +111,37 @@ class Epos2Drive(SimulatedDrive):
 
     # --- writes -----------------------------------------------------------------------------------
     def _check_write(self, index: int, subindex: int, value: int) -> None:
-        if index == obj.EPOS2_INTERPOLATION_DATA_RECORD and not self.buffer_enabled:
+        if index == od.EPOS2_INTERPOLATION_DATA_RECORD and not self.buffer_enabled:
             raise SdoAbortedError(ABORT_DEVICE_STATE)
-        if index == obj.EPOS2_INTERPOLATION_BUFFER and (
+        if index == od.EPOS2_INTERPOLATION_BUFFER and (
             (subindex == 2 and not 0 <= value <= 63) or (subindex == 3 and not 1 <= value <= 64)
         ):
             raise SdoAbortedError(ABORT_VALUE_RANGE)
-        if index == obj.INTERPOLATION_DATA_CONFIGURATION and subindex == 6 and value not in (0, 1):
+        if index == od.INTERPOLATION_DATA_CONFIGURATION and subindex == 6 and value not in (0, 1):
             raise SdoAbortedError(ABORT_VALUE_RANGE)
-        if index == obj.INTERPOLATION_SUBMODE and value != -1:
+        if index == od.INTERPOLATION_SUBMODE and value != -1:
             raise SdoAbortedError(ABORT_VALUE_RANGE)  # the EPOS2 has cubic PVT only
-        if index == obj.INTERPOLATION_TIME_PERIOD and value != {1: 1, 2: -3}.get(subindex, value):
+        if index == od.INTERPOLATION_TIME_PERIOD and value != {1: 1, 2: -3}.get(subindex, value):
             raise SdoAbortedError(ABORT_VALUE_RANGE)  # fixed at 1 ms: the records carry their own times
 
     def _on_object_write(self, index: int, subindex: int, value: int) -> None:
-        if index == obj.EPOS2_INTERPOLATION_DATA_RECORD:
+        if index == od.EPOS2_INTERPOLATION_DATA_RECORD:
             self._push(Record.unpack(value))
-        elif index == obj.INTERPOLATION_DATA_CONFIGURATION and subindex == 6:
+        elif index == od.INTERPOLATION_DATA_CONFIGURATION and subindex == 6:
             self.buffer_enabled = value == 1
             if not self.buffer_enabled:
                 self.fifo.clear()
 
     def _push(self, record: Record) -> None:
         self.records_received += 1
-        if self.level >= obj.EPOS2_BUFFER_SIZE:
+        if self.level >= od.EPOS2_BUFFER_SIZE:
             self._ipm_error(BufferStatus.OVERFLOW_ERROR, "buffer overflow")
             return
         self.fifo.append(record)
         self.max_level = max(self.max_level, self.level)
 
     def _on_mode_change(self, old: int, new: int) -> None:
-        if new == obj.INTERPOLATED_POSITION_MODE:
+        if new == od.INTERPOLATED_POSITION_MODE:
             self.fifo.clear()  # transition I
         elif self.ip_active or self._ip_requested:
             self._abort_motion()  # transition II
@@ -150,7 +150,7 @@ class Epos2Drive(SimulatedDrive):
     def _ipm_error(self, bit: BufferStatus, check: str) -> None:
         self.sticky |= bit
         status = int(self.buffer_status())
-        self.fault(obj.EMCY_EPOS2_IPM_ERROR, check, status.to_bytes(2, "little"))
+        self.fault(od.EMCY_EPOS2_IPM_ERROR, check, status.to_bytes(2, "little"))
 
     def _abort_motion(self) -> None:
         self.ip_active = False
@@ -219,11 +219,11 @@ class Epos2Drive(SimulatedDrive):
     def _check_dynamics(self, v: float, a: float) -> None:
         rpm = abs(v) * self._rpm_per_qc_ms
         rpm_s = abs(a) * self._rpm_s_per_qc_ms2
-        if exceeds(rpm, self.read(obj.PROFILE_VELOCITY)):
+        if exceeds(rpm, self.read(od.PROFILE_VELOCITY)):
             self.sticky |= BufferStatus.VELOCITY_WARNING
-        if exceeds(rpm_s, self.read(obj.PROFILE_ACCELERATION)):
+        if exceeds(rpm_s, self.read(od.PROFILE_ACCELERATION)):
             self.sticky |= BufferStatus.ACCELERATION_WARNING
-        if exceeds(rpm, self.read(obj.MAX_PROFILE_VELOCITY)):
+        if exceeds(rpm, self.read(od.MAX_PROFILE_VELOCITY)):
             self._ipm_error(BufferStatus.VELOCITY_ERROR, "max profile velocity 0x607F")
-        elif exceeds(rpm_s, self.read(obj.MAX_ACCELERATION)):
+        elif exceeds(rpm_s, self.read(od.MAX_ACCELERATION)):
             self._ipm_error(BufferStatus.ACCELERATION_ERROR, "max acceleration 0x60C5")

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections import deque
 
-from axes import objects as obj
+from axes import objects as od
 from axes.sim.drive import OPERATION_ENABLED, Segment, SimulatedDrive
 
 
@@ -32,7 +32,7 @@ class FixedPeriodDrive(SimulatedDrive):
 
     # --- activation -------------------------------------------------------------------------------
     def _on_mode_change(self, old: int, new: int) -> None:
-        if new != obj.INTERPOLATED_POSITION_MODE and (self.ip_active or self._ip_requested):
+        if new != od.INTERPOLATED_POSITION_MODE and (self.ip_active or self._ip_requested):
             self._abort_motion()
 
     def _abort_motion(self) -> None:
@@ -71,15 +71,15 @@ class FixedPeriodDrive(SimulatedDrive):
 
     # --- writes -----------------------------------------------------------------------------------
     def _on_object_write(self, index: int, subindex: int, value: int) -> None:
-        if index == obj.INTERPOLATION_DATA_RECORD and subindex == 1:
+        if index == od.INTERPOLATION_DATA_RECORD and subindex == 1:
             self._new_setpoint = value
 
     # --- motion -----------------------------------------------------------------------------------
     @property
     def period_ms(self) -> float:
         """The interpolation period 0x60C2 (value x 10^index s), in ms."""
-        value = self.read(obj.INTERPOLATION_TIME_PERIOD, 1)
-        index = self.read(obj.INTERPOLATION_TIME_PERIOD, 2)
+        value = self.read(od.INTERPOLATION_TIME_PERIOD, 1)
+        index = self.read(od.INTERPOLATION_TIME_PERIOD, 2)
         return value * 10.0 ** (index + 3)
 
     def _motion_at(self, t: float) -> tuple[float, float, float] | None:

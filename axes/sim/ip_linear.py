@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as obj
+from axes import objects as od
 from axes.sim.device import IP_LINEAR_MODES
 from axes.sim.drive import ABORT_DEVICE_STATE, ABORT_VALUE_RANGE
 from axes.sim.fixed_period import FixedPeriodDrive
@@ -30,17 +30,17 @@ class IpLinearDrive(FixedPeriodDrive):
         self.buffer_enabled = False
 
     def _check_write(self, index: int, subindex: int, value: int) -> None:
-        if index == obj.INTERPOLATION_DATA_RECORD and subindex == 1 and not self.buffer_enabled:
+        if index == od.INTERPOLATION_DATA_RECORD and subindex == 1 and not self.buffer_enabled:
             raise SdoAbortedError(ABORT_DEVICE_STATE)
-        if index == obj.INTERPOLATION_DATA_CONFIGURATION and subindex == 6 and value not in (0, 1):
+        if index == od.INTERPOLATION_DATA_CONFIGURATION and subindex == 6 and value not in (0, 1):
             raise SdoAbortedError(ABORT_VALUE_RANGE)
-        if index == obj.INTERPOLATION_SUBMODE and value != 0:
+        if index == od.INTERPOLATION_SUBMODE and value != 0:
             raise SdoAbortedError(ABORT_VALUE_RANGE)  # "only linear interpolation is supported"
-        if index == obj.INTERPOLATION_TIME_PERIOD and subindex == 1 and value == 0:
+        if index == od.INTERPOLATION_TIME_PERIOD and subindex == 1 and value == 0:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
 
     def _on_object_write(self, index: int, subindex: int, value: int) -> None:
-        if index == obj.INTERPOLATION_DATA_CONFIGURATION and subindex == 6:
+        if index == od.INTERPOLATION_DATA_CONFIGURATION and subindex == 6:
             self.buffer_enabled = value == 1
             if not self.buffer_enabled:
                 self._new_setpoint = None

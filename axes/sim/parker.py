@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as obj
+from axes import objects as od
 from axes.sim.device import NO_MODE, PARKER_MODES
 from axes.sim.drive import ABORT_VALUE_RANGE, CW_HALT, OPERATION_ENABLED, Segment
 from axes.sim.fixed_period import FixedPeriodDrive
@@ -42,7 +42,7 @@ class ParkerDrive(FixedPeriodDrive):
     # --- mode ---------------------------------------------------------------------------------------
     @property
     def cycle_us(self) -> int:
-        return self.read(obj.COMMUNICATION_CYCLE_PERIOD)
+        return self.read(od.COMMUNICATION_CYCLE_PERIOD)
 
     @property
     def period_ms(self) -> float:
@@ -51,9 +51,9 @@ class ParkerDrive(FixedPeriodDrive):
     @property
     def interpolation(self) -> str | int:
         """DIRECT below 2500 us, else the submode 0x60C0 (0, -1, -2)."""
-        if self.cycle_us < obj.PARKER_CUBIC_THRESHOLD_US:
+        if self.cycle_us < od.PARKER_CUBIC_THRESHOLD_US:
             return DIRECT
-        return self.read(obj.INTERPOLATION_SUBMODE)
+        return self.read(od.INTERPOLATION_SUBMODE)
 
     @property
     def delay_periods(self) -> int:  # type: ignore[override]
@@ -61,32 +61,32 @@ class ParkerDrive(FixedPeriodDrive):
         return 0 if mode == DIRECT else 2 if mode == -2 else 1
 
     def _ip_mode_selected(self) -> bool:
-        return self.read(obj.PARKER_OPERATIVE_MODE) == obj.PARKER_IP_MODE
+        return self.read(od.PARKER_OPERATIVE_MODE) == od.PARKER_IP_MODE
 
     def _check_write(self, index: int, subindex: int, value: int) -> None:
-        if index == obj.INTERPOLATION_SUBMODE and value not in (0, -1, -2):
+        if index == od.INTERPOLATION_SUBMODE and value not in (0, -1, -2):
             raise SdoAbortedError(ABORT_VALUE_RANGE)
 
     def _on_mode_bits(self, previous: int, controlword: int) -> None:
         """Mode 202 does not wait for bit 4 (see the module docstring)."""
 
     def _on_object_write(self, index: int, subindex: int, value: int) -> None:
-        if index == obj.PARKER_OPERATIVE_MODE:
-            if value != obj.PARKER_IP_MODE and self.ip_active:
+        if index == od.PARKER_OPERATIVE_MODE:
+            if value != od.PARKER_IP_MODE and self.ip_active:
                 self._abort_motion()
             self._show_mode()
         super()._on_object_write(index, subindex, value)
 
     def _on_mode_change(self, old: int, new: int) -> None:
         """0x6060 = 7 is operative mode 202 (see the module docstring)."""
-        if new == obj.INTERPOLATED_POSITION_MODE:
-            self.store(obj.PARKER_OPERATIVE_MODE, 0, obj.PARKER_IP_MODE)
+        if new == od.INTERPOLATED_POSITION_MODE:
+            self.store(od.PARKER_OPERATIVE_MODE, 0, od.PARKER_IP_MODE)
         self._show_mode()
 
     def _show_mode(self) -> None:
         """0x6061: the CiA 402 mode of the operative mode in force (Pr31)."""
-        mode = obj.INTERPOLATED_POSITION_MODE if self._ip_mode_selected() else NO_MODE
-        self.store(obj.MODES_OF_OPERATION_DISPLAY, 0, mode)
+        mode = od.INTERPOLATED_POSITION_MODE if self._ip_mode_selected() else NO_MODE
+        self.store(od.MODES_OF_OPERATION_DISPLAY, 0, mode)
 
     def _on_sync_validated(self) -> None:
         if (
@@ -101,10 +101,10 @@ class ParkerDrive(FixedPeriodDrive):
 
     def _activate(self) -> bool:
         if self.cycle_us <= 0:
-            self.fault(obj.EMCY_PARAMETER_ERROR, "communication cycle period 0x1006 not set")
+            self.fault(od.EMCY_PARAMETER_ERROR, "communication cycle period 0x1006 not set")
             return False
         if self.interpolation not in (DIRECT, 0, -1, -2):
-            self.fault(obj.EMCY_PARAMETER_ERROR, f"interpolation submode 0x60C0 = {self.interpolation}")
+            self.fault(od.EMCY_PARAMETER_ERROR, f"interpolation submode 0x60C0 = {self.interpolation}")
             return False
         return super()._activate()
 
@@ -125,7 +125,7 @@ class ParkerDrive(FixedPeriodDrive):
         elif mode == -1:
             if target is not None:
                 p0, v0 = self._start_point()
-                rpm = self.read(obj.INTERPOLATION_DATA_RECORD, 3)
+                rpm = self.read(od.INTERPOLATION_DATA_RECORD, 3)
                 v1 = float(self.scaling.rpm_to_qc_per_ms(rpm))
                 self._segment = Segment.cubic(now, p0, v0, float(target), v1, period)
         else:

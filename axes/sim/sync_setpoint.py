@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as obj
+from axes import objects as od
 from axes.sim.device import SYNC_SETPOINT_MODES
 from axes.sim.drive import ABORT_VALUE_RANGE
 from axes.sim.fixed_period import FixedPeriodDrive
@@ -30,14 +30,14 @@ class SyncSetpointDrive(FixedPeriodDrive):
         self._pending: int | None = None  # validated at the last SYNC, ramped to from this one
 
     def _check_write(self, index: int, subindex: int, value: int) -> None:
-        if index == obj.INTERPOLATION_SUBMODE and value != 0:
+        if index == od.INTERPOLATION_SUBMODE and value != 0:
             raise SdoAbortedError(ABORT_VALUE_RANGE)  # only the default linear interpolation
 
     def _activate(self) -> bool:
         period = self.period_ms
         if not MIN_PERIOD_MS - 1e-9 <= period <= MAX_PERIOD_MS + 1e-9:
             why = f"interpolation period 0x60C2 = {period:g} ms outside 1.0-100.0 ms"
-            self.fault(obj.EMCY_PARAMETER_ERROR, why)
+            self.fault(od.EMCY_PARAMETER_ERROR, why)
             return False
         return super()._activate()
 

@@ -13,8 +13,8 @@ from planner.path import JointPath, PlanError
 from planner.plan import Planner
 from planner.timing import (
     DEFAULT_GRIDPOINTS,
-    JointTorqueConstraint,
     LeanTOPPRA,
+    RneaJointTorqueConstraint,
     _solve,
     make_gridpoints,
     parameterize,
@@ -38,7 +38,7 @@ def test_torque_constraint_equals_toppras() -> None:
     """Same a, b, c as toppra's JointTorqueConstraint on Pinocchio's RNEA (three calls per gridpoint)."""
     path = JointPath(WAYPOINTS, LIMITS)
     grid = make_gridpoints(path, 60)
-    ours = JointTorqueConstraint(ARM.model, LIMITS.effort).compute_constraint_params(path, grid)
+    ours = RneaJointTorqueConstraint(ARM.model, LIMITS.effort).compute_constraint_params(path, grid)
     stock = constraint.JointTorqueConstraint(
         ARM.model.inverse_dynamics,
         np.column_stack((-LIMITS.effort, LIMITS.effort)),
@@ -126,7 +126,7 @@ def test_deferred_torque_limits_give_the_same_plan_as_solving_with_them() -> Non
     they hold, that is the plan with them; where they do not, it solves again with them."""
     path = JointPath(WAYPOINTS, LIMITS)
     cons = timing_constraints(LIMITS, ARM.model, torque_limits=True, tcp_frame="tool0", max_tcp_speed=2.0)
-    torque = next(c for c in cons if isinstance(c, JointTorqueConstraint))
+    torque = next(c for c in cons if isinstance(c, RneaJointTorqueConstraint))
     fast = parameterize(path, LIMITS, cons)
     assert torque.holds_on(fast)
     full = _solve(path, make_gridpoints(path, DEFAULT_GRIDPOINTS), LIMITS, cons)
@@ -137,7 +137,7 @@ def test_deferred_torque_limits_give_the_same_plan_as_solving_with_them() -> Non
         LIMITS.names, LIMITS.lower, LIMITS.upper, LIMITS.velocity, LIMITS.acceleration, LIMITS.effort * 0.3
     )
     weak_cons = timing_constraints(weak, ARM.model, torque_limits=True)
-    weak_torque = next(c for c in weak_cons if isinstance(c, JointTorqueConstraint))
+    weak_torque = next(c for c in weak_cons if isinstance(c, RneaJointTorqueConstraint))
     free = parameterize(path, weak, [c for c in weak_cons if c is not weak_torque])
     assert not weak_torque.holds_on(free)  # the unconstrained plan needs more torque than there is
     held = parameterize(path, weak, weak_cons)

@@ -13,7 +13,7 @@ import can
 import canopen
 import pytest
 
-from axes import objects as obj
+from axes import objects as od
 from axes.objects import PdoLayout
 from axes.sim.drive import EDS_DIR, SimulatedDrive
 
@@ -110,11 +110,11 @@ def bench() -> Iterator[Bench]:
     assert not errors, f"simulated drive raised internally: {errors!r}"
 
 
-def enable(node: canopen.RemoteNode, mode: int = obj.INTERPOLATED_POSITION_MODE) -> None:
+def enable(node: canopen.RemoteNode, mode: int = od.INTERPOLATED_POSITION_MODE) -> None:
     """Mode, then shutdown / switch on / enable operation over SDO."""
-    node.sdo[obj.MODES_OF_OPERATION].raw = mode
+    node.sdo[od.MODES_OF_OPERATION].raw = mode
     for cw in (0x0006, 0x0007, 0x000F):
-        node.sdo[obj.CONTROLWORD].raw = cw
+        node.sdo[od.CONTROLWORD].raw = cw
 
 
 def configure_pdos(node: canopen.RemoteNode, rpdos: tuple[PdoLayout, ...], tpdos: tuple[PdoLayout, ...]) -> None:

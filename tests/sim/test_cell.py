@@ -7,7 +7,7 @@ from pathlib import Path
 
 import canopen
 
-from axes import objects as obj
+from axes import objects as od
 from axes.sim import Epos2Drive
 from axes.sim.cell import SimulatedCell
 from service.config import load_cell_config
@@ -33,9 +33,9 @@ def test_arm6_cell_boots_six_epos2_with_the_configured_limits() -> None:
             assert sim.drive("joint_3") is sim.drive(3)
             axis = cell.axis_for_joint("joint_2")
             node = master.add_node(axis.node_id, str(sim.drive(axis.node_id).eds_path))
-            assert node.sdo[obj.MAX_PROFILE_VELOCITY].raw == axis.limits.max_profile_velocity_rpm
-            assert node.sdo[obj.MAX_ACCELERATION].raw == axis.limits.max_acceleration_rpm_s
-            assert node.sdo[obj.SOFTWARE_POSITION_LIMIT][2].raw == axis.limits.max_position_qc
+            assert node.sdo[od.MAX_PROFILE_VELOCITY].raw == axis.limits.max_profile_velocity_rpm
+            assert node.sdo[od.MAX_ACCELERATION].raw == axis.limits.max_acceleration_rpm_s
+            assert node.sdo[od.SOFTWARE_POSITION_LIMIT][2].raw == axis.limits.max_position_qc
             master.send_message(0x80, b"")
             assert sim.wait_sync(1)
             assert sim.internal_errors == []

@@ -14,7 +14,7 @@ from canopen import objectdictionary
 from canopen.profiles.p402 import BaseNode402, OperationMode
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as obj
+from axes import objects as od
 from axes.sim import Epos2Drive, IpLinearDrive, ParkerDrive, SimulatedDrive, SyncSetpointDrive
 from axes.sim.device import EPOS2_MODES, SUPPORTED_DRIVE_MODES
 from axes.sim.drive import MAXON_EPOS2_EDS
@@ -62,7 +62,7 @@ def test_base_node_402_enables_the_drive_in_interpolated_position_mode(
         node.state = state
         assert node.state == state
         assert drive.state == state
-    assert drive.read(obj.MODES_OF_OPERATION_DISPLAY) == obj.INTERPOLATED_POSITION_MODE
+    assert drive.read(od.MODES_OF_OPERATION_DISPLAY) == od.INTERPOLATED_POSITION_MODE
     assert drive.faults == []
     if eds is not None:  # maxon's EDS maps the statusword to TPDO1: BaseNode402 followed it by PDO
         assert 0x6041 in node.tpdo_values and 0x6040 in node.rpdo_pointers
@@ -77,20 +77,20 @@ def test_modes_of_operation_refuses_a_mode_the_drive_does_not_support(
     supported = node.sdo[SUPPORTED_DRIVE_MODES].raw
     assert supported == drive.MODES.supported
     assert supported & OperationMode.SUPPORTED["INTERPOLATED POSITION"]
-    shown = node.sdo[obj.MODES_OF_OPERATION_DISPLAY].raw
+    shown = node.sdo[od.MODES_OF_OPERATION_DISPLAY].raw
     torque = OperationMode.PROFILED_TORQUE  # supported by none of the four
     assert not supported & OperationMode.SUPPORTED["PROFILED TORQUE"]
     with pytest.raises(SdoAbortedError) as refused:
-        node.sdo[obj.MODES_OF_OPERATION].raw = torque
+        node.sdo[od.MODES_OF_OPERATION].raw = torque
     assert refused.value.code == ABORT_VALUE_RANGE
-    assert node.sdo[obj.MODES_OF_OPERATION_DISPLAY].raw == shown
+    assert node.sdo[od.MODES_OF_OPERATION_DISPLAY].raw == shown
     with pytest.raises(TypeError):  # BaseNode402 reads 0x6502 first, then refuses itself
         node.op_mode = "PROFILED TORQUE"
     with pytest.raises(SdoAbortedError) as refused:
-        node.sdo[obj.MODES_OF_OPERATION].raw = 42
+        node.sdo[od.MODES_OF_OPERATION].raw = 42
     assert refused.value.code == ABORT_VALUE_RANGE
-    node.sdo[obj.MODES_OF_OPERATION].raw = obj.INTERPOLATED_POSITION_MODE
-    assert node.sdo[obj.MODES_OF_OPERATION_DISPLAY].raw == obj.INTERPOLATED_POSITION_MODE
+    node.sdo[od.MODES_OF_OPERATION].raw = od.INTERPOLATED_POSITION_MODE
+    assert node.sdo[od.MODES_OF_OPERATION_DISPLAY].raw == od.INTERPOLATED_POSITION_MODE
 
 
 def test_epos2_accepts_its_other_modes_and_shows_the_mode_in_force(bench: Bench) -> None:
@@ -98,19 +98,19 @@ def test_epos2_accepts_its_other_modes_and_shows_the_mode_in_force(bench: Bench)
     only, but accepts every mode of the real drive and reports it (axes/sim/device.py)."""
     drive = bench.add(Epos2Drive(7, eds_path=MAXON_EPOS2_EDS))
     node = bench.remote(drive)
-    assert node.sdo[obj.MODES_OF_OPERATION_DISPLAY].raw == OperationMode.PROFILED_POSITION
+    assert node.sdo[od.MODES_OF_OPERATION_DISPLAY].raw == OperationMode.PROFILED_POSITION
     for mode in EPOS2_MODES.codes:
-        node.sdo[obj.MODES_OF_OPERATION].raw = mode
-        assert node.sdo[obj.MODES_OF_OPERATION_DISPLAY].raw == mode
+        node.sdo[od.MODES_OF_OPERATION].raw = mode
+        assert node.sdo[od.MODES_OF_OPERATION_DISPLAY].raw == mode
     for mode in (OperationMode.CYCLIC_SYNCHRONOUS_POSITION, OperationMode.CYCLIC_SYNCHRONOUS_VELOCITY, -4):
         with pytest.raises(SdoAbortedError):
-            node.sdo[obj.MODES_OF_OPERATION].raw = mode
-    assert node.sdo[obj.MODES_OF_OPERATION_DISPLAY].raw == EPOS2_MODES.codes[-1]
+            node.sdo[od.MODES_OF_OPERATION].raw = mode
+    assert node.sdo[od.MODES_OF_OPERATION_DISPLAY].raw == EPOS2_MODES.codes[-1]
 
 
-def readable_variables(od: canopen.ObjectDictionary) -> list[objectdictionary.ODVariable]:
+def readable_variables(dictionary: canopen.ObjectDictionary) -> list[objectdictionary.ODVariable]:
     out: list[objectdictionary.ODVariable] = []
-    for entry in od.values():
+    for entry in dictionary.values():
         variables = [entry] if isinstance(entry, objectdictionary.ODVariable) else list(entry.values())
         out.extend(v for v in variables if v.readable)
     return out
@@ -143,7 +143,7 @@ def test_epos2_on_maxon_eds_reports_maxon_identity_and_cubic_pvt(bench: Bench) -
     assert node.sdo[0x1008].raw == "EPOS2 70/10"
     assert [node.sdo[0x1018][k].raw for k in (1, 2, 3)] == [0xFB, 0x64200000, 0x21220000]
     assert node.sdo[0x2003][1].raw == 0x2122 and node.sdo[0x2003][2].raw == 0x6420  # the EDS's comments
-    assert node.sdo[obj.INTERPOLATION_SUBMODE].raw == -1
+    assert node.sdo[od.INTERPOLATION_SUBMODE].raw == -1
     assert node.sdo[SUPPORTED_DRIVE_MODES].raw == 0x00370065
     node.nmt.send_command(0x81)  # reset node: the drive's own values come back with the defaults
     assert drive.wait_until(lambda: drive.nmt_state == "PRE-OPERATIONAL")
@@ -152,21 +152,21 @@ def test_epos2_on_maxon_eds_reports_maxon_identity_and_cubic_pvt(bench: Bench) -
 
 @pytest.mark.parametrize("cls", [Epos2Drive, IpLinearDrive, SyncSetpointDrive, ParkerDrive])
 def test_own_eds_states_the_drives_supported_modes(cls: type[SimulatedDrive]) -> None:
-    od = canopen.import_od(str(Path(__file__).resolve().parents[2] / "configs" / "eds" / cls.EDS), 1)
-    assert od[SUPPORTED_DRIVE_MODES].default == cls.MODES.supported
-    assert od[SUPPORTED_DRIVE_MODES].access_type == "ro"
+    dictionary = canopen.import_od(str(Path(__file__).resolve().parents[2] / "configs" / "eds" / cls.EDS), 1)
+    assert dictionary[SUPPORTED_DRIVE_MODES].default == cls.MODES.supported
+    assert dictionary[SUPPORTED_DRIVE_MODES].access_type == "ro"
 
 
 def test_parker_mode_202_is_interpolated_position_either_way(bench: Bench) -> None:
     """0x6060 = 7 selects Pr31 = 202; Pr31 = 202 (pvtflow's master) shows as 7 in 0x6061."""
     drive = bench.add(ParkerDrive(10))
     node = bench.remote(drive)
-    assert node.sdo[obj.MODES_OF_OPERATION_DISPLAY].raw == 0
-    node.sdo[obj.MODES_OF_OPERATION].raw = obj.INTERPOLATED_POSITION_MODE
-    assert node.sdo[obj.PARKER_OPERATIVE_MODE].raw == obj.PARKER_IP_MODE
-    node.sdo[obj.MODES_OF_OPERATION].raw = 0  # "no mode": no change
-    assert node.sdo[obj.MODES_OF_OPERATION_DISPLAY].raw == obj.INTERPOLATED_POSITION_MODE
-    node.sdo[obj.PARKER_OPERATIVE_MODE].raw = 0
-    assert node.sdo[obj.MODES_OF_OPERATION_DISPLAY].raw == 0
-    node.sdo[obj.PARKER_OPERATIVE_MODE].raw = obj.PARKER_IP_MODE
-    assert node.sdo[obj.MODES_OF_OPERATION_DISPLAY].raw == obj.INTERPOLATED_POSITION_MODE
+    assert node.sdo[od.MODES_OF_OPERATION_DISPLAY].raw == 0
+    node.sdo[od.MODES_OF_OPERATION].raw = od.INTERPOLATED_POSITION_MODE
+    assert node.sdo[od.PARKER_OPERATIVE_MODE].raw == od.PARKER_IP_MODE
+    node.sdo[od.MODES_OF_OPERATION].raw = 0  # "no mode": no change
+    assert node.sdo[od.MODES_OF_OPERATION_DISPLAY].raw == od.INTERPOLATED_POSITION_MODE
+    node.sdo[od.PARKER_OPERATIVE_MODE].raw = 0
+    assert node.sdo[od.MODES_OF_OPERATION_DISPLAY].raw == 0
+    node.sdo[od.PARKER_OPERATIVE_MODE].raw = od.PARKER_IP_MODE
+    assert node.sdo[od.MODES_OF_OPERATION_DISPLAY].raw == od.INTERPOLATED_POSITION_MODE

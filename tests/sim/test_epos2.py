@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as obj
+from axes import objects as od
 from axes.interpolation import epos2_pvt
 from axes.objects import EPOS2_RPDOS, EPOS2_TPDOS, BufferStatus, Record
 from axes.scaling import AxisScaling, DriveLimits
@@ -35,17 +35,17 @@ def make(bench: Bench, node_id: int, **kw) -> tuple[Epos2Drive, object]:
     drive = bench.add(Epos2Drive(node_id, scaling=SCALING, limits=kw.pop("limits", LIMITS), **kw))
     node = bench.remote(drive)
     enable(node)
-    node.sdo[obj.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
+    node.sdo[od.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
     return drive, node
 
 
 def push(node, records) -> None:
     for p, v, t in records:
-        node.sdo[obj.EPOS2_INTERPOLATION_DATA_RECORD].raw = Record(int(p), int(v), int(t)).pack()
+        node.sdo[od.EPOS2_INTERPOLATION_DATA_RECORD].raw = Record(int(p), int(v), int(t)).pack()
 
 
 def status(node) -> BufferStatus:
-    return BufferStatus(node.sdo[obj.EPOS2_INTERPOLATION_BUFFER][1].raw)
+    return BufferStatus(node.sdo[od.EPOS2_INTERPOLATION_BUFFER][1].raw)
 
 
 def demand_error(drive: Epos2Drive, records, period_ms: float = 1.0) -> float:
@@ -61,39 +61,39 @@ def demand_error(drive: Epos2Drive, records, period_ms: float = 1.0) -> float:
 
 def test_fifo_fill_levels_and_warning_bits(bench: Bench) -> None:
     drive, node = make(bench, 21)
-    node.sdo[obj.EPOS2_INTERPOLATION_BUFFER][2].raw = 3
-    node.sdo[obj.EPOS2_INTERPOLATION_BUFFER][3].raw = 6
+    node.sdo[od.EPOS2_INTERPOLATION_BUFFER][2].raw = 3
+    node.sdo[od.EPOS2_INTERPOLATION_BUFFER][3].raw = 6
     assert status(node) == BufferStatus.BUFFER_ENABLED | BufferStatus.UNDERFLOW_WARNING
     push(node, [[0, 0, 1]] * 3)
     assert BufferStatus.UNDERFLOW_WARNING in status(node)  # level 3 == 0x20C4:02: reached
     push(node, [[0, 0, 1]])
     assert status(node) == BufferStatus.BUFFER_ENABLED  # level 4: between the levels
-    assert node.sdo[obj.INTERPOLATION_DATA_CONFIGURATION][2].raw == 60  # free size
+    assert node.sdo[od.INTERPOLATION_DATA_CONFIGURATION][2].raw == 60  # free size
     push(node, [[0, 0, 1]] * 2)
     assert BufferStatus.OVERFLOW_WARNING in status(node)  # level 6 == 0x20C4:03
     assert drive.level == 6 and drive.max_level == 6
-    node.sdo[obj.INTERPOLATION_DATA_CONFIGURATION][6].raw = 0  # clear + deny access
+    node.sdo[od.INTERPOLATION_DATA_CONFIGURATION][6].raw = 0  # clear + deny access
     assert drive.level == 0 and BufferStatus.BUFFER_ENABLED not in status(node)
     with pytest.raises(SdoAbortedError) as err:
         push(node, [[0, 0, 1]])
     assert err.value.code == 0x08000022
     with pytest.raises(SdoAbortedError):
-        node.sdo[obj.EPOS2_INTERPOLATION_BUFFER][3].raw = 65
+        node.sdo[od.EPOS2_INTERPOLATION_BUFFER][3].raw = 65
 
 
 def test_overflow_error_faults_with_emcy(bench: Bench) -> None:
     drive, node = make(bench, 22)
     push(node, [[0, 0, 5]] * 64)
-    assert node.sdo[obj.INTERPOLATION_DATA_CONFIGURATION][2].raw == 0
+    assert node.sdo[od.INTERPOLATION_DATA_CONFIGURATION][2].raw == 0
     assert drive.state == "OPERATION ENABLED"
     push(node, [[0, 0, 5]])  # the 65th
     assert drive.state == "FAULT"
     emcy = bench.log.wait_for(0x80 + 22)
-    assert int.from_bytes(emcy[0].data[:2], "little") == obj.EMCY_EPOS2_IPM_ERROR
+    assert int.from_bytes(emcy[0].data[:2], "little") == od.EMCY_EPOS2_IPM_ERROR
     assert BufferStatus.OVERFLOW_ERROR in BufferStatus(int.from_bytes(emcy[0].data[3:5], "little"))
     assert BufferStatus.OVERFLOW_ERROR in status(node)
     assert drive.faults[-1].check == "buffer overflow"
-    node.sdo[obj.CONTROLWORD].raw = 0x0080
+    node.sdo[od.CONTROLWORD].raw = 0x0080
     assert BufferStatus.OVERFLOW_ERROR not in status(node)
 
 
@@ -130,9 +130,9 @@ def test_demand_equals_epos2_pvt_at_every_sync(bench: Bench, sync_ms: float) -> 
     drive, node = make(bench, 24, sync_period_ms=sync_ms)
     bench.sync(3)
     with pytest.raises(SdoAbortedError):  # 0x20C1 is write-only
-        _ = node.sdo[obj.EPOS2_INTERPOLATION_DATA_RECORD].raw
+        _ = node.sdo[od.EPOS2_INTERPOLATION_DATA_RECORD].raw
     push(node, PROGRAM)
-    node.sdo[obj.CONTROLWORD].raw = 0x001F  # by SDO: starts at the next SYNC
+    node.sdo[od.CONTROLWORD].raw = 0x001F  # by SDO: starts at the next SYNC
     bench.sync(int(70 / sync_ms))
     assert drive.ip_active_sync == 4  # t = 0 at 1.5 ms of the motion clock when the SYNC is 0.5 ms
     assert drive.faults == [] and drive.ended_by_time_zero == 1
@@ -143,7 +143,7 @@ def test_demand_equals_epos2_pvt_at_every_sync(bench: Bench, sync_ms: float) -> 
 def test_underflow_when_a_segment_ends_with_an_empty_fifo(bench: Bench) -> None:
     drive, node = make(bench, 25)
     push(node, PROGRAM[:3])  # no more records: the third segment has no successor
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(40)
     assert drive.state == "FAULT" and not drive.ip_active
     assert drive.faults[0].check == "buffer underflow"
@@ -155,7 +155,7 @@ def test_underflow_when_a_segment_ends_with_an_empty_fifo(bench: Bench) -> None:
 def test_underflow_when_started_with_fewer_than_two_records(bench: Bench) -> None:
     drive, node = make(bench, 26)
     push(node, PROGRAM[:1])
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(1)
     assert drive.state == "FAULT" and drive.faults[0].check.startswith("buffer underflow at start")
 
@@ -163,12 +163,12 @@ def test_underflow_when_started_with_fewer_than_two_records(bench: Bench) -> Non
 def test_time_zero_record_ends_without_error(bench: Bench) -> None:
     drive, node = make(bench, 27)
     push(node, [[0, 0, 2], [100, 0, 10], [100, 0, 0], [900, 0, 10]])
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(30)
     assert drive.state == "OPERATION ENABLED" and drive.faults == []
     assert not drive.ip_active and drive.demand == 100.0
     assert drive.level == 1  # what follows the end marker stays for the next start
-    assert node.sdo[obj.STATUSWORD].raw & (1 << 12) == 0
+    assert node.sdo[od.STATUSWORD].raw & (1 << 12) == 0
 
 
 def velocity_program(peak_rpm: float) -> np.ndarray:
@@ -182,7 +182,7 @@ def test_velocity_and_acceleration_errors_fault_the_drive(bench: Bench) -> None:
     limits = DriveLimits(3000, 10**6, -(10**7), 10**7)
     drive, node = make(bench, 28, limits=limits)
     push(node, velocity_program(3500))
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(50)
     assert drive.state == "FAULT"
     assert drive.faults[0].check == "max profile velocity 0x607F"
@@ -190,18 +190,18 @@ def test_velocity_and_acceleration_errors_fault_the_drive(bench: Bench) -> None:
     emcy = bench.log.wait_for(0x80 + 28)[0]
     assert BufferStatus.VELOCITY_ERROR in BufferStatus(int.from_bytes(emcy.data[3:5], "little"))
     # and the acceleration limit: the same move within 0x607F but above 0x60C5
-    node.sdo[obj.CONTROLWORD].raw = 0x0080
+    node.sdo[od.CONTROLWORD].raw = 0x0080
     assert BufferStatus.VELOCITY_ERROR not in status(node)
-    node.sdo[obj.MAX_ACCELERATION].raw = 50000
-    node.sdo[obj.MAX_PROFILE_VELOCITY].raw = 10000
+    node.sdo[od.MAX_ACCELERATION].raw = 50000
+    node.sdo[od.MAX_PROFILE_VELOCITY].raw = 10000
     for cw in (0x0006, 0x000F):
-        node.sdo[obj.CONTROLWORD].raw = cw
-    node.sdo[obj.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
+        node.sdo[od.CONTROLWORD].raw = cw
+    node.sdo[od.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
     start = drive.demand
     program = velocity_program(3500)
     program[:, 0] += round(start)
     push(node, program)
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(50)
     assert drive.faults[-1].check == "max acceleration 0x60C5"
     assert BufferStatus.ACCELERATION_ERROR in status(node)
@@ -212,7 +212,7 @@ def test_violation_between_syncs_is_caught_by_the_1khz_samples(bench: Bench) -> 
     limits = DriveLimits(3000, 10**6, -(10**7), 10**7)
     drive, node = make(bench, 29, limits=limits, sync_period_ms=10.0)
     push(node, velocity_program(3200))
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(6)
     assert drive.state == "FAULT" and drive.faults[0].check == "max profile velocity 0x607F"
     assert drive.faults[0].time_ms % 10 != 0  # found between two SYNC instants
@@ -222,60 +222,60 @@ def test_profile_velocity_and_acceleration_only_warn(bench: Bench) -> None:
     limits = DriveLimits(5000, 10**6, -(10**7), 10**7, profile_velocity_rpm=1000, profile_acceleration_rpm_s=1000)
     drive, node = make(bench, 30, limits=limits)
     push(node, velocity_program(2000))
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(50)
     assert drive.faults == [] and drive.ended_by_time_zero == 1
     s = status(node)
     assert BufferStatus.VELOCITY_WARNING in s and BufferStatus.ACCELERATION_WARNING in s
-    assert not s & obj.BUFFER_ERRORS
-    assert node.sdo[obj.STATUSWORD].raw & (1 << 7)  # warning bit
+    assert not s & od.BUFFER_ERRORS
+    assert node.sdo[od.STATUSWORD].raw & (1 << 7)  # warning bit
 
 
 def test_software_position_limit_faults(bench: Bench) -> None:
     limits = DriveLimits(5000, 10**6, -1000, 1000)
     drive, node = make(bench, 31, limits=limits)
     push(node, [[0, 0, 1], [2000, 0, 20], [2000, 0, 0]])
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(25)
-    assert drive.state == "FAULT" and drive.faults[0].code == obj.EMCY_SOFTWARE_POSITION_LIMIT
+    assert drive.state == "FAULT" and drive.faults[0].code == od.EMCY_SOFTWARE_POSITION_LIMIT
     assert abs(drive.demand) <= 1000  # the demand outside was not taken
 
 
 def test_halt_brakes_to_standstill(bench: Bench) -> None:
     drive, node = make(bench, 32)
-    node.sdo[obj.QUICK_STOP_DECELERATION].raw = 20000  # rpm/s
+    node.sdo[od.QUICK_STOP_DECELERATION].raw = 20000  # rpm/s
     push(node, [[0, 0, 1], [3000, 1500, 30], [6000, 1500, 30], [9000, 0, 30], [9000, 0, 0]])
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(35)
     v0 = drive.velocity
     assert v0 > 0
-    node.sdo[obj.CONTROLWORD].raw = 0x011F  # halt
+    node.sdo[od.CONTROLWORD].raw = 0x011F  # halt
     assert not drive.ip_active
-    assert node.sdo[obj.STATUSWORD].raw & (1 << 10) == 0  # braking
+    assert node.sdo[od.STATUSWORD].raw & (1 << 10) == 0  # braking
     stop_ms = v0 / SCALING.rpm_s_to_qc_per_ms2(20000)
     bench.sync(int(stop_ms) + 2)
     assert drive.velocity == 0.0 and drive.faults == []
-    assert node.sdo[obj.STATUSWORD].raw & (1 << 10)  # halted: velocity 0
+    assert node.sdo[od.STATUSWORD].raw & (1 << 10)  # halted: velocity 0
     assert drive.demand == pytest.approx(drive.history[-1].demand)
 
 
 def test_time_stamps_are_kept(bench: Bench) -> None:
     drive, node = make(bench, 33)
     for us in (1000, 2001, 3002):
-        node.sdo[obj.HIGH_RESOLUTION_TIME_STAMP].raw = us
+        node.sdo[od.HIGH_RESOLUTION_TIME_STAMP].raw = us
     assert list(drive.time_stamps) == [1000, 2001, 3002]
 
 
 def test_quick_stop_brakes_with_0x6085_then_switches_on_disabled(bench: Bench) -> None:
     drive, node = make(bench, 34)
     node.sdo[0x6085].raw = 50000  # quick stop deceleration, rpm/s
-    node.sdo[obj.QUICK_STOP_DECELERATION].raw = 1000  # profile deceleration: not the one used
+    node.sdo[od.QUICK_STOP_DECELERATION].raw = 1000  # profile deceleration: not the one used
     push(node, [[0, 0, 1], [3000, 1500, 30], [6000, 1500, 30], [9000, 0, 30], [9000, 0, 0]])
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(35)
     v0 = drive.velocity
-    node.sdo[obj.CONTROLWORD].raw = 0x000B  # quick stop
-    assert drive.state == "QUICK STOP ACTIVE" and node.sdo[obj.STATUSWORD].raw & 0x6F == 0x07
+    node.sdo[od.CONTROLWORD].raw = 0x000B  # quick stop
+    assert drive.state == "QUICK STOP ACTIVE" and node.sdo[od.STATUSWORD].raw & 0x6F == 0x07
     stop_ms = v0 / SCALING.rpm_s_to_qc_per_ms2(50000)
     bench.sync(int(stop_ms) + 2)
     assert drive.state == "SWITCH ON DISABLED" and drive.faults == []

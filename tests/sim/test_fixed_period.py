@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as obj
+from axes import objects as od
 from axes.interpolation import PiecewiseCubic, cubic_p, cubic_pv, linear
 from axes.objects import PARKER_RPDOS, PARKER_TPDOS, SETPOINT_RPDOS, SETPOINT_TPDOS
 from axes.scaling import AxisScaling, DriveLimits
@@ -63,11 +63,11 @@ def test_ip_linear_needs_buffer_enable_then_reaches_each_target_one_period_later
     drive = bench.add(IpLinearDrive(41, scaling=SCALING, limits=LIMITS, sync_period_ms=period))
     node = start_operational(bench, drive, SETPOINT_RPDOS, SETPOINT_TPDOS)
     enable(node)
-    node.sdo[obj.INTERPOLATION_TIME_PERIOD][1].raw = period
+    node.sdo[od.INTERPOLATION_TIME_PERIOD][1].raw = period
     with pytest.raises(SdoAbortedError) as err:
-        node.sdo[obj.INTERPOLATION_DATA_RECORD][1].raw = 10
+        node.sdo[od.INTERPOLATION_DATA_RECORD][1].raw = 10
     assert err.value.code == 0x08000022
-    node.sdo[obj.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
+    node.sdo[od.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
     bench.send(0x300 + 41, (0x001F).to_bytes(2, "little"))
     active = bench.sync(1)
     assert drive.ip_active_sync == active and drive.statusword() & (1 << 12)
@@ -87,10 +87,10 @@ def test_sync_setpoint_reaches_each_setpoint_by_the_end_of_the_next_period(bench
     period = 4
     drive = bench.add(SyncSetpointDrive(42, scaling=SCALING, limits=LIMITS, sync_period_ms=period))
     node = start_operational(bench, drive, SETPOINT_RPDOS, SETPOINT_TPDOS)
-    assert not drive.has(obj.INTERPOLATION_DATA_CONFIGURATION)  # no buffer on this drive
+    assert not drive.has(od.INTERPOLATION_DATA_CONFIGURATION)  # no buffer on this drive
     enable(node)
-    node.sdo[obj.INTERPOLATION_TIME_PERIOD][1].raw = period
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.INTERPOLATION_TIME_PERIOD][1].raw = period
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(1)
     records = program(period)
     stream(bench, 0x200 + 42, position_frames(records))
@@ -106,12 +106,12 @@ def test_sync_setpoint_period_outside_1_to_100_ms_faults(bench: Bench) -> None:
     drive = bench.add(SyncSetpointDrive(43, scaling=SCALING, limits=LIMITS))
     node = bench.remote(drive)
     enable(node)
-    node.sdo[obj.INTERPOLATION_TIME_PERIOD][1].raw = 200
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.INTERPOLATION_TIME_PERIOD][1].raw = 200
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(1)
-    assert drive.state == "FAULT" and drive.faults[0].code == obj.EMCY_PARAMETER_ERROR
+    assert drive.state == "FAULT" and drive.faults[0].code == od.EMCY_PARAMETER_ERROR
     emcy = bench.log.wait_for(0x80 + 43)
-    assert int.from_bytes(emcy[0].data[:2], "little") == obj.EMCY_PARAMETER_ERROR
+    assert int.from_bytes(emcy[0].data[:2], "little") == od.EMCY_PARAMETER_ERROR
 
 
 def test_sync_setpoint_velocity_sanity_and_position_limit(bench: Bench) -> None:
@@ -119,31 +119,31 @@ def test_sync_setpoint_velocity_sanity_and_position_limit(bench: Bench) -> None:
     drive = bench.add(SyncSetpointDrive(44, scaling=SCALING, limits=limits))
     node = bench.remote(drive)
     enable(node)
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(1)
-    node.sdo[obj.INTERPOLATION_DATA_RECORD][1].raw = 100  # 100 qc/ms = 1465 rpm > 600
+    node.sdo[od.INTERPOLATION_DATA_RECORD][1].raw = 100  # 100 qc/ms = 1465 rpm > 600
     bench.sync(3)
-    assert drive.state == "FAULT" and drive.faults[0].code == obj.EMCY_VELOCITY_LIMIT
-    node.sdo[obj.CONTROLWORD].raw = 0x0080
+    assert drive.state == "FAULT" and drive.faults[0].code == od.EMCY_VELOCITY_LIMIT
+    node.sdo[od.CONTROLWORD].raw = 0x0080
     assert drive.demand == 100  # the fault came at the end of the ramp
     drive.apply_limits(DriveLimits(6000, 10**7, -150, 150))
     for cw in (0x0006, 0x000F, 0x001F):
-        node.sdo[obj.CONTROLWORD].raw = cw
+        node.sdo[od.CONTROLWORD].raw = cw
     bench.sync(1)
-    node.sdo[obj.INTERPOLATION_DATA_RECORD][1].raw = 200
+    node.sdo[od.INTERPOLATION_DATA_RECORD][1].raw = 200
     bench.sync(3)
-    assert drive.faults[-1].code == obj.EMCY_SOFTWARE_POSITION_LIMIT
+    assert drive.faults[-1].code == od.EMCY_SOFTWARE_POSITION_LIMIT
     assert drive.demand <= 150  # the demand beyond 0x607D was not taken
 
 
 def parker(bench: Bench, node_id: int, cycle_us: int, submode: int) -> tuple[ParkerDrive, object]:
     drive = bench.add(ParkerDrive(node_id, scaling=SCALING, limits=LIMITS, sync_period_ms=cycle_us / 1000))
     node = start_operational(bench, drive, PARKER_RPDOS, PARKER_TPDOS)
-    node.sdo[obj.COMMUNICATION_CYCLE_PERIOD].raw = cycle_us
-    node.sdo[obj.INTERPOLATION_SUBMODE].raw = submode
-    node.sdo[obj.PARKER_OPERATIVE_MODE].raw = obj.PARKER_IP_MODE
+    node.sdo[od.COMMUNICATION_CYCLE_PERIOD].raw = cycle_us
+    node.sdo[od.INTERPOLATION_SUBMODE].raw = submode
+    node.sdo[od.PARKER_OPERATIVE_MODE].raw = od.PARKER_IP_MODE
     for cw in (0x0006, 0x0007, 0x000F):
-        node.sdo[obj.CONTROLWORD].raw = cw
+        node.sdo[od.CONTROLWORD].raw = cw
     bench.sync(1)
     assert drive.ip_active
     return drive, node
@@ -192,13 +192,13 @@ def test_parker_interpolated_from_2500_us_matches_the_planner(bench: Bench, subm
 def test_parker_without_cycle_period_faults_when_enabled(bench: Bench) -> None:
     drive = bench.add(ParkerDrive(47, scaling=SCALING, limits=LIMITS))
     node = bench.remote(drive)
-    node.sdo[obj.PARKER_OPERATIVE_MODE].raw = obj.PARKER_IP_MODE
+    node.sdo[od.PARKER_OPERATIVE_MODE].raw = od.PARKER_IP_MODE
     for cw in (0x0006, 0x0007, 0x000F):
-        node.sdo[obj.CONTROLWORD].raw = cw
+        node.sdo[od.CONTROLWORD].raw = cw
     bench.sync(1)
-    assert drive.state == "FAULT" and drive.faults[0].code == obj.EMCY_PARAMETER_ERROR
+    assert drive.state == "FAULT" and drive.faults[0].code == od.EMCY_PARAMETER_ERROR
     with pytest.raises(SdoAbortedError):
-        node.sdo[obj.INTERPOLATION_SUBMODE].raw = -3
+        node.sdo[od.INTERPOLATION_SUBMODE].raw = -3
 
 
 def test_ip_linear_period_of_several_syncs(bench: Bench) -> None:
@@ -206,13 +206,13 @@ def test_ip_linear_period_of_several_syncs(bench: Bench) -> None:
     drive = bench.add(IpLinearDrive(48, scaling=SCALING, limits=LIMITS, sync_period_ms=1.0))
     node = bench.remote(drive)
     enable(node)
-    node.sdo[obj.INTERPOLATION_TIME_PERIOD][1].raw = 4
-    node.sdo[obj.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.INTERPOLATION_TIME_PERIOD][1].raw = 4
+    node.sdo[od.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(1)
     records = program(4, n=12)
     for p in records[:, 0]:
-        node.sdo[obj.INTERPOLATION_DATA_RECORD][1].raw = int(p)
+        node.sdo[od.INTERPOLATION_DATA_RECORD][1].raw = int(p)
         bench.sync(4)
     bench.sync(6)
     assert drive.faults == [] and len(drive.setpoints) == len(records)
@@ -223,16 +223,16 @@ def test_halt_brakes_a_fixed_period_drive(bench: Bench) -> None:
     drive = bench.add(SyncSetpointDrive(49, scaling=SCALING, limits=LIMITS))
     node = bench.remote(drive)
     enable(node)
-    node.sdo[obj.QUICK_STOP_DECELERATION].raw = 100000
-    node.sdo[obj.CONTROLWORD].raw = 0x001F
+    node.sdo[od.QUICK_STOP_DECELERATION].raw = 100000
+    node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(1)
     for k in range(1, 6):
-        node.sdo[obj.INTERPOLATION_DATA_RECORD][1].raw = 20 * k
+        node.sdo[od.INTERPOLATION_DATA_RECORD][1].raw = 20 * k
         bench.sync(1)
     assert drive.velocity > 0
-    node.sdo[obj.CONTROLWORD].raw = 0x011F
+    node.sdo[od.CONTROLWORD].raw = 0x011F
     assert not drive.ip_active
-    node.sdo[obj.INTERPOLATION_DATA_RECORD][1].raw = 5000  # ignored while halted
+    node.sdo[od.INTERPOLATION_DATA_RECORD][1].raw = 5000  # ignored while halted
     bench.sync(10)
     assert drive.velocity == 0.0 and drive.demand < 200 and drive.faults == []
-    assert node.sdo[obj.STATUSWORD].raw & (1 << 10)
+    assert node.sdo[od.STATUSWORD].raw & (1 << 10)

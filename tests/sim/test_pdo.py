@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as obj
+from axes import objects as od
 from axes.objects import EPOS2_RPDOS, EPOS2_TPDOS
 from axes.sim import Epos2Drive
 
@@ -16,9 +16,9 @@ def test_mapping_written_by_the_master_is_honoured(bench: Bench) -> None:
     drive = bench.add(Epos2Drive(51))
     node = bench.remote(drive)
     configure_pdos(node, EPOS2_RPDOS, EPOS2_TPDOS)
-    assert drive.pdo.rpdos[1].entries == ((obj.EPOS2_INTERPOLATION_DATA_RECORD, 0, 64),)
+    assert drive.pdo.rpdos[1].entries == ((od.EPOS2_INTERPOLATION_DATA_RECORD, 0, 64),)
     assert drive.pdo.rpdos[2].transmission_type == 1 and drive.pdo.rpdos[2].valid
-    assert drive.pdo.tpdos[1].entries == ((obj.EPOS2_INTERPOLATION_BUFFER, 1, 16), (obj.STATUSWORD, 0, 16))
+    assert drive.pdo.tpdos[1].entries == ((od.EPOS2_INTERPOLATION_BUFFER, 1, 16), (od.STATUSWORD, 0, 16))
     # pre-operational: no PDO either way
     bench.send(0x300 + 51, (0x0006).to_bytes(2, "little"))
     bench.sync(2)
@@ -52,14 +52,14 @@ def test_mapping_changes_are_refused_while_the_pdo_is_valid(bench: Bench) -> Non
     node.sdo[0x1400][1].raw = 0x80000000 | (0x200 + 52)  # invalidate
     node.sdo[0x1600][0].raw = 0
     with pytest.raises(SdoAbortedError) as err:  # 0x60C4:02 is not PDO-mappable
-        node.sdo[0x1600][1].raw = (obj.INTERPOLATION_DATA_CONFIGURATION << 16) | (2 << 8) | 32
+        node.sdo[0x1600][1].raw = (od.INTERPOLATION_DATA_CONFIGURATION << 16) | (2 << 8) | 32
     assert err.value.code == 0x06040041
     with pytest.raises(SdoAbortedError):  # statusword is read-only: not in an RPDO
-        node.sdo[0x1600][1].raw = (obj.STATUSWORD << 16) | 16
-    node.sdo[0x1600][1].raw = (obj.CONTROLWORD << 16) | 16
+        node.sdo[0x1600][1].raw = (od.STATUSWORD << 16) | 16
+    node.sdo[0x1600][1].raw = (od.CONTROLWORD << 16) | 16
     node.sdo[0x1600][0].raw = 1
     node.sdo[0x1400][1].raw = 0x200 + 52
-    assert drive.pdo.rpdos[1].entries == ((obj.CONTROLWORD, 0, 16),) and drive.pdo.rpdos[1].valid
+    assert drive.pdo.rpdos[1].entries == ((od.CONTROLWORD, 0, 16),) and drive.pdo.rpdos[1].valid
 
 
 def test_short_rpdo_is_dropped_with_emcy(bench: Bench) -> None:
@@ -68,8 +68,8 @@ def test_short_rpdo_is_dropped_with_emcy(bench: Bench) -> None:
     configure_pdos(node, EPOS2_RPDOS, EPOS2_TPDOS)
     node.nmt.state = "OPERATIONAL"
     enable(node)
-    node.sdo[obj.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
+    node.sdo[od.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
     bench.send(0x200 + 53, b"\x01\x02\x03")
     emcy = bench.log.wait_for(0x80 + 53)
-    assert int.from_bytes(emcy[0].data[:2], "little") == obj.EMCY_PDO_LENGTH
+    assert int.from_bytes(emcy[0].data[:2], "little") == od.EMCY_PDO_LENGTH
     assert drive.level == 0 and drive.state == "OPERATION ENABLED"

@@ -20,7 +20,7 @@ import pytest
 import yaml
 from canopen.profiles.p402 import BaseNode402
 
-from axes import objects as obj
+from axes import objects as od
 from axes.sim.device import SUPPORTED_DRIVE_MODES, SYNC_SETPOINT_MODES
 from axes.sim.drive import EDS_DIR
 from service import sim_cmd
@@ -54,12 +54,12 @@ def other_tool(channel: str, log: FrameLog, master: canopen.Network, done: threa
         z.sdo.RESPONSE_TIMEOUT = 2.0
         seen["z_modes"] = z.sdo[SUPPORTED_DRIVE_MODES].raw
         # the EPOS2 started with an empty buffer: underflow at the SYNC, EMCY and fault
-        node.sdo[obj.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
+        node.sdo[od.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
         node.controlword = 0x001F
         master.send_message(0x80, b"")
         emcy = log.wait_for(0x8B, 1, timeout=5.0)
         seen["emcy"] = int.from_bytes(emcy[0].data[:2], "little") if emcy else None
-        seen["state_after"] = node.sdo[obj.STATUSWORD].raw & 0x4F
+        seen["state_after"] = node.sdo[od.STATUSWORD].raw & 0x4F
     except Exception as exc:  # reported by the test, never left to hang the command
         seen["error"] = repr(exc)
     finally:
@@ -89,7 +89,7 @@ def test_pvtflow_sim_serves_the_cells_drives_to_another_master_until_sigterm(cap
     assert seen.get("booted") and "error" not in seen, seen
     assert seen["mode"] == "INTERPOLATED POSITION" and seen["state"] == "OPERATION ENABLED"
     assert seen["z_modes"] == SYNC_SETPOINT_MODES.supported
-    assert seen["emcy"] == obj.EMCY_EPOS2_IPM_ERROR and seen["state_after"] == 0x08  # FAULT
+    assert seen["emcy"] == od.EMCY_EPOS2_IPM_ERROR and seen["state_after"] == 0x08  # FAULT
     assert code == sim_cmd.EXIT_OK
     assert f"cell gantry3-mixed: 3 simulated drives on virtual:{channel}" in out
     for node_id, profile, eds in ((11, "epos2_pvt", "epos2.eds"), (12, "cia402_ip_linear", "cia402_ip_linear.eds")):
