@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import random
 import threading
 import time
 from collections import deque
@@ -47,6 +48,7 @@ from canopen.sdo import SdoAbortedError
 
 from axes import objects as od
 from axes.cia402 import Controlword, PowerState, Statusword
+from axes.config import AxisSimulation
 from axes.interpolation import hermite_coefficients
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 from axes.sim.consumer import HeartbeatConsumer
@@ -58,6 +60,7 @@ from axes.sim.device import (
     complete_object_dictionary,
     identity_values,
 )
+from axes.sim.homing import HomingRun, HomingState, Machine
 from axes.sim.pdo import PdoEngine, is_pdo_object, unsubscribe
 
 EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
@@ -79,6 +82,9 @@ VOLTAGE_ENABLED = int(Statusword.VOLTAGE_ENABLED)
 WARNING = int(Statusword.WARNING)
 TARGET_REACHED = int(Statusword.TARGET_REACHED)
 IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
+HOMING_ATTAINED = int(Statusword.HOMING_ATTAINED)
+HOMING_ERROR = int(Statusword.HOMING_ERROR)
+CW_HOMING_START = int(Controlword.HOMING_START)
 CW_ENABLE_IP = int(Controlword.ENABLE_IP_MODE)
 CW_FAULT_RESET = int(Controlword.FAULT_RESET)
 CW_HALT = int(Controlword.HALT)
@@ -189,6 +195,8 @@ class SimulatedDrive:
     MODES: ClassVar[DriveModes] = DriveModes((SIMULATED_MODE,))  # 0x6502 / 0x6060 (axes/sim/device.py)
     # a lost master's heartbeat is one of the drive's own errors: its fault reaction (0x605E), then FAULT
     HEARTBEAT_ERROR_FAULTS: ClassVar[bool] = False
+    HOMING_METHODS: ClassVar[frozenset[int]] = frozenset()  # 0x6098 values it runs in mode 6 (axes/sim/homing.py)
+    REFERENCED_BIT: ClassVar[int] = 0  # a manufacturer statusword bit that says "homed since power-on"
     _ip_requested: bool = False  # bit 4 rose: ip mode starts on the next SYNC (profiles reset it)
 
     def __init__(
@@ -201,6 +209,7 @@ class SimulatedDrive:
         limits: DriveLimits | None = None,
         sync_period_ms: float = 1.0,
         history_length: int = 20_000,
+        simulation: AxisSimulation | None = None,
     ) -> None:
         if not 1 <= node_id <= 127:
             raise ValueError(f"node id {node_id} is outside 1..127")
@@ -235,6 +244,15 @@ class SimulatedDrive:
         self._tick_at = 0.0  # wall clock (time.monotonic()) up to which the motion clock has run on its own
         self._tick_sync = 0  # sync_count at the last wall-clock tick: a SYNC since then runs the clock itself
         self._commissioned: dict[tuple[int, int], int] = {}  # kept through an NMT reset (stored parameters)
+        # the machine: where the encoder's 0 is (the machine position = demand + origin; an incremental
+        # encoder counts from 0 wherever the axis stands at power-on), switches, index pulse, hard stops
+        self.simulation = simulation
+        self.machine = Machine(simulation or AxisSimulation())
+        self.origin = self._power_up_position(node_id, simulation, limits)
+        self.referenced = False  # homed since the last power-on / reset
+        self.homing_runs: list[HomingRun] = []  # every homing started (tests, benches)
+        self._homing: HomingRun | None = None
+        self._homing_t = 0.0
         # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.scaling
         self.velocity_factor = self.scaling.qc_per_ms_per_velocity_unit  # record velocity unit -> qc/ms
         self._rpm_per_qc_ms = float(self.scaling.qc_per_ms_to_rpm(1.0))
@@ -313,6 +331,35 @@ class SimulatedDrive:
             self._commissioned.update(values)
             for (index, subindex), value in values.items():
                 self.store(index, subindex, value)
+
+    @staticmethod
+    def _power_up_position(node_id: int, sim: AxisSimulation | None, limits: DriveLimits | None) -> float:
+        """Where the machine stands at power-on: nowhere in particular for an axis with a simulated
+        machine (seeded: between its limit switches or hard stops, else in its 0x607D range), at its
+        encoder's 0 otherwise (an absolute encoder: nothing to home)."""
+        if sim is None:
+            return 0.0
+        if sim.power_up_qc is not None:
+            return float(sim.power_up_qc)
+        lows = [x for x in (sim.negative_limit_switch_qc, sim.negative_hard_stop_qc) if x is not None]
+        highs = [x for x in (sim.positive_limit_switch_qc, sim.positive_hard_stop_qc) if x is not None]
+        lo = max(lows) if lows else (limits.min_position_qc if limits is not None else -100_000)
+        hi = min(highs) if highs else (limits.max_position_qc if limits is not None else 100_000)
+        margin = 0.05 * (hi - lo)
+        return float(round(random.Random(sim.seed * 1000 + node_id).uniform(lo + margin, hi - margin)))
+
+    @property
+    def machine_position(self) -> float:
+        """Where the axis really is (qc of the machine): what its position reads once correctly homed."""
+        return self.demand + self.origin
+
+    def power_cycle(self) -> None:
+        """Power off and on: the encoder counts from 0 again where the axis stands, not homed, boot-up."""
+        with self.lock:
+            self._reset_application()
+            if self.node.has_network():
+                self.boot()
+            self.changed.notify_all()
 
     # --- network ------------------------------------------------------------------------------------
     @property
@@ -411,6 +458,7 @@ class SimulatedDrive:
             return
         self.faults.append(FaultRecord(self.sync_count, self.sample_ms, code, check))
         self._abort_motion()
+        self._interrupt_homing()
         self._stop_segment = None
         self.velocity = self.acceleration = 0.0
         self.demand = float(self.actual)  # the power stage is off: the demand follows the actual position
@@ -432,6 +480,7 @@ class SimulatedDrive:
         deceleration = self._deceleration(quick=reaction == od.FaultReaction.QUICK_STOP)
         self.state = FAULT_REACTION_ACTIVE  # before the abort: an EPOS2 empties its FIFO (app note 3.8)
         self._abort_motion()
+        self._interrupt_homing()
         self._stop_segment = Segment.braking(self.time_us / 1000.0, self.demand, v, deceleration)
         self._signal_fault(code, data, register)
 
@@ -624,6 +673,8 @@ class SimulatedDrive:
                 self._check_consumer_entry(subindex, value)
             if index == od.ABORT_CONNECTION_OPTION_CODE and value not in set(od.AbortConnectionOption):
                 raise SdoAbortedError(ABORT_VALUE_RANGE)  # no manufacturer-specific options here
+            if index == od.HOMING_METHOD and value not in self.HOMING_METHODS:
+                raise SdoAbortedError(ABORT_VALUE_RANGE)  # a method this drive does not have
             self._check_write(index, subindex, value)
             if index == od.MODES_OF_OPERATION and not self.MODES.accepts(value):
                 raise SdoAbortedError(ABORT_VALUE_RANGE)  # a mode 0x6502 does not list
@@ -644,7 +695,11 @@ class SimulatedDrive:
             elif index == od.MODES_OF_OPERATION:
                 old = self.read(od.MODES_OF_OPERATION_DISPLAY)
                 self.store(od.MODES_OF_OPERATION_DISPLAY, 0, value)
+                self.mode_display = value
                 if old != value:
+                    if old == od.HOMING_MODE and self._homing is not None:
+                        self._interrupt_homing()
+                        self._begin_stop(self._deceleration(quick=False))
                     self._on_mode_change(old, value)
             else:
                 self._on_object_write(index, subindex, value)
@@ -681,6 +736,7 @@ class SimulatedDrive:
             new = OPERATION_ENABLED  # 4, 16 (and 3 + 4 at once, as the EPOS2 accepts)
         if new != state:
             if state == OPERATION_ENABLED:
+                self._interrupt_homing()
                 if new == QUICK_STOP_ACTIVE:
                     self._begin_stop(self._deceleration(quick=True))
                 else:
@@ -728,11 +784,98 @@ class SimulatedDrive:
             word |= VOLTAGE_ENABLED
         if self._warning():
             word |= WARNING
-        if self.state == OPERATION_ENABLED and self._stop_segment is None and self._target_reached():
-            word |= TARGET_REACHED
-        if self.ip_active:
-            word |= IP_MODE_ACTIVE
+        if self.mode_display == od.HOMING_MODE:
+            word |= self._homing_status()
+        else:
+            if self.state == OPERATION_ENABLED and self._stop_segment is None and self._target_reached():
+                word |= TARGET_REACHED
+            if self.ip_active:
+                word |= IP_MODE_ACTIVE
+        if self.referenced:
+            word |= self.REFERENCED_BIT
         return word
+
+    # --- homing (mode 6, axes/sim/homing.py) ------------------------------------------------------
+    def _homing_status(self) -> int:
+        """Statusword bits 13, 12, 10 in homing mode (CiA 402): in progress 000, interrupted or not
+        started 001, attained 01x, completed 011, error 10x (bit 10: the axis is at rest)."""
+        rest = self.state == OPERATION_ENABLED and self._stop_segment is None and abs(self.velocity) <= 1e-12
+        run = self._homing
+        word = TARGET_REACHED if rest else 0
+        if run is None or run.state is HomingState.INTERRUPTED:
+            return word
+        if run.state is HomingState.RUNNING:
+            return 0
+        if run.state is HomingState.ATTAINED:
+            return HOMING_ATTAINED | word
+        return HOMING_ERROR | word
+
+    def _start_homing(self) -> None:
+        """Controlword bit 4 rose in mode 6: the method of 0x6098 at the speeds of 0x6099 and 0x609A."""
+        self.referenced = False
+        method = self.read_or(od.HOMING_METHOD, 0, 0)
+        rpm_per_qc_ms = self._rpm_per_qc_ms
+        try:
+            run = HomingRun(
+                method,
+                self.machine,
+                self.machine_position,
+                switch_speed=self.read_or(od.HOMING_SPEEDS, 1, 0) / rpm_per_qc_ms,
+                zero_speed=self.read_or(od.HOMING_SPEEDS, 2, 0) / rpm_per_qc_ms,
+                acceleration=self.read_or(od.HOMING_ACCELERATION, 0, 0) / self._rpm_s_per_qc_ms2,
+                current_threshold_ma=self.read_or(od.EPOS2_HOMING_CURRENT_THRESHOLD, 0, 500),
+                on_reference=self._home_found,
+            )
+        except ValueError as exc:  # a method 0x6098 holds but this drive does not run
+            run = HomingRun(
+                od.HomingMethod.CURRENT_POSITION,
+                self.machine,
+                self.machine_position,
+                switch_speed=1.0,
+                zero_speed=1.0,
+                acceleration=1.0,
+                current_threshold_ma=0,
+                on_reference=lambda home, m: None,
+            )
+            run.state, run.reason = HomingState.ERROR, str(exc)
+        self._homing = run
+        self._homing_t = self.time_us / 1000.0
+        self.homing_runs.append(run)
+        if run.state is HomingState.ATTAINED:
+            self._homing_attained()
+
+    def _home_found(self, home: float, m: float) -> None:
+        """The home position: from now on the position reads 0x607C there."""
+        self.origin = home - self.read_or(od.HOME_OFFSET, 0, 0)
+        self.demand = m - self.origin
+
+    def _homing_attained(self) -> None:
+        self.demand = float(round(self.demand))
+        self.velocity = self.acceleration = 0.0
+        self.referenced = True
+
+    def _homing_sample(self, t: float) -> None:
+        run = self._homing
+        assert run is not None
+        run.step(t - self._homing_t)
+        self._homing_t = t
+        self.demand = run.m - self.origin
+        self.velocity, self.acceleration = run.v, run.a
+        if run.state is HomingState.ATTAINED:
+            self._homing_attained()
+
+    def _homing_moves(self) -> bool:
+        run = self._homing
+        return (
+            run is not None
+            and self.state == OPERATION_ENABLED
+            and self.mode_display == od.HOMING_MODE
+            and (run.state is HomingState.RUNNING or (run.state is HomingState.ERROR and not run.at_rest))
+        )
+
+    def _interrupt_homing(self) -> None:
+        if self._homing is not None:
+            self._homing.interrupt()
 
     # --- motion clock -----------------------------------------------------------------------------
     def _advance(self, new_time_us: int) -> None:
@@ -759,6 +902,9 @@ class SimulatedDrive:
                     self.state = SWITCH_ON_DISABLED
                 elif self.state == FAULT_REACTION_ACTIVE:
                     self.state = FAULT  # braked to rest: the power stage goes off
+            return
+        if self._homing_moves():
+            self._homing_sample(t)
             return
         pva = self._motion_at(t) if self.state == OPERATION_ENABLED else None
         if pva is None or self.state != OPERATION_ENABLED:
@@ -805,7 +951,11 @@ class SimulatedDrive:
             del self.node.data_store[index]
 
     def _reset_application(self) -> None:
-        """Power-on state: defaults from the EDS, switch on disabled (transition 1 is automatic)."""
+        """Power-on state: defaults from the EDS, switch on disabled (transition 1 is automatic); the
+        encoder counts from 0 where the axis stands, not homed."""
+        self.origin += getattr(self, "demand", 0.0)
+        self.referenced = False
+        self._homing = None
         self.node.data_store.clear()
         for (index, subindex), value in getattr(self, "_commissioned", {}).items():
             self.store(index, subindex, value)
@@ -824,6 +974,7 @@ class SimulatedDrive:
         ):
             if self.has(index):
                 self.store(index, 0, value)
+        self.mode_display = self.read_or(od.MODES_OF_OPERATION_DISPLAY, 0, 0)
         self._refresh(events=False)
 
     # --- hooks for the profiles -------------------------------------------------------------------
@@ -849,7 +1000,18 @@ class SimulatedDrive:
 
     def _on_mode_bits(self, previous: int, controlword: int) -> None:
         """Controlword bit 4 while operation is enabled: a rising edge asks for ip mode on the next
-        SYNC, a falling one brings a running interpolation to a stop; halt (bit 8) holds both."""
+        SYNC, a falling one brings a running interpolation to a stop; halt (bit 8) holds both. In
+        homing mode a rising bit 4 starts homing; halt or bit 4 low interrupts it."""
+        if self.mode_display == od.HOMING_MODE and self.MODES.accepts(od.HOMING_MODE):
+            running = self._homing is not None and self._homing.state is HomingState.RUNNING
+            if controlword & CW_HALT or not controlword & CW_HOMING_START:
+                if running:
+                    self._interrupt_homing()
+                    if not controlword & CW_HALT:  # bit 4 low: brake as a halt would (halt already does)
+                        self._begin_stop(self._deceleration(quick=False))
+            elif not previous & CW_HOMING_START:
+                self._start_homing()
+            return
         if not self._ip_mode_selected() or controlword & CW_HALT:
             return
         if controlword & CW_ENABLE_IP and not previous & CW_ENABLE_IP:
