@@ -52,6 +52,7 @@ NMT_STOPPED = 0x02
 NMT_PRE_OPERATIONAL = 0x80
 NMT_RESET_COMMUNICATION = 0x82
 NMT_STATE_PRE_OPERATIONAL = 127
+NMT_STATE_BOOT_UP = 0  # the boot-up message: a heartbeat frame with state 0
 SWITCH_INTERVAL_S = 0.0005  # the interpreter hands the GIL on at least this often while a bus is open
 
 log = logging.getLogger("pvtflow.bus")
@@ -370,6 +371,7 @@ class CellBus:
         self._fault_callbacks: list[FaultCallback] = []
         self._heartbeat_seen: dict[int, float] = {}
         self._heartbeat_state: dict[int, int] = {}
+        self._boots: dict[int, int] = {}  # boot-up messages seen per node (NMT reset, power-on)
         self._watched: set[int] = set()
         self._lock = threading.Lock()
         self._watchdog: threading.Thread | None = None
@@ -471,7 +473,14 @@ class CellBus:
     def heartbeat_state(self, node_id: int) -> int | None:
         return self._heartbeat_state.get(node_id)
 
+    def boot_count(self, node_id: int) -> int:
+        """How many boot-up messages this node has sent since the bus opened: a drive that boots again
+        (reset, power loss) has lost what it knew (its homing, its configuration)."""
+        return self._boots.get(node_id, 0)
+
     def _on_heartbeat(self, node_id: int, state: int) -> None:
+        if state == NMT_STATE_BOOT_UP:
+            self._boots[node_id] = self._boots.get(node_id, 0) + 1
         previous = self._heartbeat_state.get(node_id)
         self._heartbeat_seen[node_id] = time.monotonic()
         self._heartbeat_state[node_id] = state

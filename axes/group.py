@@ -18,7 +18,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import wait as wait_futures
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import can
 
@@ -30,6 +30,9 @@ from axes.feeder import Feeder, FeedStats
 from axes.objects import BUFFER_ERRORS, BufferStatus
 from axes.profiles import AxisLink, DriveError, Profile, profile_for
 from axes.program import AxisProgram, PvtProgram, program_mismatch
+
+if TYPE_CHECKING:
+    from axes.homing import CellHoming
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
@@ -155,6 +158,7 @@ class AxisStatus:
     buffer_level: int | None  # the feeder's estimate (EPOS2), None when idle or bufferless
     last_emcy: tuple[int, str] | None
     nmt_state: int | None
+    homed: bool = True  # nothing to home, or homed since its drive last booted
 
 
 @dataclass(frozen=True)
@@ -260,6 +264,9 @@ class AxisGroup:
         self._readying: list[Future[None]] = []
         self._bus_faults = 0  # how many the bus has reported: a readiness made across one is not kept
         self._preloaded: list[bool] = []  # per axis: its feeder's preload went out with the start's checks
+        self._homing: CellHoming | None = None  # the homing running on the cell (axes/homing.py)
+        self._homed_boot: list[int | None] = [None] * len(self.links)  # the drive's boot count when it homed
+        self._configured_boots: dict[int, int] = {}  # every drive's boot count when it was configured
         for link in self.links:
             link.status_listeners.append(self._on_status)
         bus.on_fault(self._on_bus_fault)
@@ -271,8 +278,10 @@ class AxisGroup:
         """Every drive: PRE-OPERATIONAL, its profile's SDO sequence, then OPERATIONAL and consumers."""
         for link in self.links:  # addressed, not broadcast: other nodes on the bus are not ours
             self.bus.nmt(link.node_id, NMT_PRE_OPERATIONAL)
+        self._configured_boots = {link.node_id: self.bus.boot_count(link.node_id) for link in self.links}
         for link, profile in zip(self.links, self.profiles, strict=True):
             profile.configure()
+            profile.write_homing()
             link.subscribe_tpdos(profile.tpdos)
         self.bus.sync.expect(p.sync_answer_cob_id for p in self.profiles)
         for link in self.links:
@@ -280,6 +289,50 @@ class AxisGroup:
         self.bus.watch_heartbeat(link.node_id for link in self.links)
         self._ready = [None] * len(self.links)
         self.configured = True
+
+    def configure_if_needed(self) -> None:
+        """Configure unless configured since every drive last booted (a rebooted drive has its EDS
+        defaults again: no PDOs, no mode, no homing settings)."""
+        if not self.configured or self.rebooted():
+            self.configure()
+
+    def rebooted(self) -> bool:
+        """A drive has booted since the group configured it."""
+        return any(self.bus.boot_count(lk.node_id) != self._configured_boots.get(lk.node_id) for lk in self.links)
+
+    # --- homing (axes/homing.py) -------------------------------------------------------------------
+    @property
+    def homed(self) -> tuple[bool, ...]:
+        """Per axis: nothing to home, or homed by this group since its drive last booted (a boot-up
+        message, an NMT reset or a lost heartbeat, a power loss, undoes it)."""
+        return tuple(
+            link.config.homing is None or self._homed_boot[i] == self.bus.boot_count(link.node_id)
+            for i, link in enumerate(self.links)
+        )
+
+    def mark_homed(self, i: int) -> None:
+        self._homed_boot[i] = self.bus.boot_count(self.links[i].node_id)
+
+    def begin_homing(self, homing: CellHoming) -> None:
+        with self._lock:
+            if self._running or self._homing is not None:
+                raise GroupError("a program or a homing is already running on this cell")
+            for readying in self._readying:
+                readying.result()
+            self._homing = homing
+
+    def end_homing(self, homing: CellHoming) -> None:
+        with self._lock:
+            if self._homing is homing:
+                self._homing = None
+
+    @property
+    def homing(self) -> bool:
+        return self._homing is not None
+
+    def forget_readiness(self) -> None:
+        """Every axis is enabled afresh at the next start (after a homing: its mode changed)."""
+        self._ready = [None] * len(self.links)
 
     def _event(self, kind: str, message: str, link: AxisLink | None = None) -> None:
         if self.on_event is not None:
@@ -308,6 +361,8 @@ class AxisGroup:
         with self._lock:
             if self._running:
                 raise GroupError("a program is already running on this cell")
+            if self._homing is not None:
+                raise GroupError("the cell is homing: one motion at a time")
             reason = self.check_program(program)
             if reason is not None:
                 return self._finish_early(Result.REJECTED, reason)
@@ -613,6 +668,8 @@ class AxisGroup:
         self._bus_faults += 1
         if link is not None:  # whatever it was, that drive is enabled again at the next start
             self._ready[self.links.index(link)] = None
+            if fault.kind == "heartbeat":  # it may have lost power: its position means nothing any more
+                self._homed_boot[self.links.index(link)] = None
         self._event(fault.kind, fault.message, link)
         if not self._running:
             return
@@ -683,6 +740,9 @@ class AxisGroup:
         start still configuring the drives does not start the motion."""
         if self._starting:
             self._stop_request = reason
+        homing = self._homing
+        if homing is not None:
+            homing.stop(reason)
         with self.bus.sync.lock, self._lock:
             if not self._running or self._ending is not None:
                 return
@@ -759,7 +819,7 @@ class AxisGroup:
             for readying in self._readying:  # not two enables of one drive at once
                 readying.result()
             self.bus.sync.stop()
-            if not self.configured:
+            if not self.configured or self.rebooted():
                 try:
                     self.configure()
                 except DriveError as exc:
@@ -798,6 +858,7 @@ class AxisGroup:
             with contextlib.suppress(DriveError):
                 self.refresh()
         axes = []
+        homed = self.homed
         for i, link in enumerate(self.links):
             level = self._feeders[i].level if self._running and i < len(self._feeders) else None
             axes.append(
@@ -813,6 +874,7 @@ class AxisGroup:
                     buffer_level=level,
                     last_emcy=link.last_emcy,
                     nmt_state=self.bus.heartbeat_state(link.node_id),
+                    homed=homed[i],
                 )
             )
         elapsed = None
