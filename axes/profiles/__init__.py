@@ -419,15 +419,20 @@ class Profile:
             )
 
 
-def profile_for(link: AxisLink) -> Profile:
-    """The profile module named by the axis's configuration."""
+def profile_class(name: str) -> type[Profile]:
+    """The profile module's class by its name (KeyError: no such profile)."""
     from axes.profiles.cia402_ip_linear import Cia402IpLinear
     from axes.profiles.epos2_pvt import Epos2Pvt
     from axes.profiles.parker_slvdn import ParkerSlvdn
     from axes.profiles.sync_setpoint import SyncSetpoint
 
     classes: dict[str, type[Profile]] = {c.name: c for c in (Epos2Pvt, Cia402IpLinear, SyncSetpoint, ParkerSlvdn)}
+    return classes[name]
+
+
+def profile_for(link: AxisLink) -> Profile:
+    """The profile module named by the axis's configuration."""
     try:
-        return classes[link.config.profile](link)
+        return profile_class(link.config.profile)(link)
     except KeyError:
         raise DriveError(link.node_id, f"unknown profile {link.config.profile!r}") from None
