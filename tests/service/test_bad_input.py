@@ -115,6 +115,7 @@ ALLOWED = {
     "stop": {"reason"},
     "status": {"recent"},
     "recover": set(),
+    "home": {"joints", "wait"},
 }
 OPS = sorted(ALLOWED)
 json_values = st.recursive(
