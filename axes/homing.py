@@ -254,12 +254,18 @@ class CellHoming:
             sync.start()
         self._event("homing", f"homing {names} from SYNC {self._start_sync}", None)
         deadline = time.monotonic() + timeout_s + HALT_TIMEOUT_S + WALL_GRACE_S
-        while not self._done.wait(0.05):
-            if time.monotonic() > deadline:
-                with sync.lock, self._lock:
-                    if self._ending is None:
-                        self._halt(HomingResult.TIMEOUT, f"homing {names}: the SYNC stalled", None)
-                    self._end()
+        try:
+            while not self._done.wait(0.05):
+                if time.monotonic() > deadline:
+                    with sync.lock, self._lock:
+                        if self._ending is None:
+                            self._halt(HomingResult.TIMEOUT, f"homing {names}: the SYNC stalled", None)
+                        self._end()
+        except KeyboardInterrupt:  # Ctrl-C in the thread that waits: halt every axis before leaving
+            self.stop("interrupted")
+            self._done.wait(HALT_TIMEOUT_S + WALL_GRACE_S)
+            sync.remove_listener(self._on_sync)
+            raise
         sync.remove_listener(self._on_sync)
         self.bus.watch_sync = False
         for i in stage:
