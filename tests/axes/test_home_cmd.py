@@ -57,3 +57,11 @@ def test_execute_refuses_an_unhomed_gantry_and_homes_it_with_home(
     out = capsys.readouterr().out
     assert "homed: homed z, x + y" in out
     assert "finished: every axis reached its end record" in out
+
+
+def test_the_gantry_demo_homes_first_and_says_so(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    plot = tmp_path / "demo.png"
+    assert main(["demo", "--config", str(GANTRY), "--plot", str(plot), "--tour-points", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "homing first: cell gantry3 requires it" in out
+    assert "homed z then x + y" in out and out.index("homed z then x + y") < out.index("outcome: finished")
