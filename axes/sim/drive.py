@@ -710,6 +710,10 @@ class SimulatedDrive:
     # --- DS402 power state machine ----------------------------------------------------------------
     def _on_controlword(self, cw: int) -> None:
         previous, self._controlword = self._controlword, cw
+        if cw & CW_HALT and not previous & CW_HALT:
+            self._halt_seen = True
+        elif cw & CW_ENABLE_IP and not previous & CW_ENABLE_IP and not cw & CW_HALT:
+            self._halt_seen = False
         state = self.state
         if state == FAULT:
             if cw & CW_FAULT_RESET and not previous & CW_FAULT_RESET:
@@ -775,7 +779,9 @@ class SimulatedDrive:
 
     @property
     def halted(self) -> bool:
-        return bool(self._controlword & CW_HALT)
+        """A halt (bit 8 rising) came since the last start (bit 4 rising without halt): what tests ask
+        after a run that halted, whatever the master has written since to make the drive ready."""
+        return self._halt_seen
 
     def statusword(self) -> int:
         _mask, value = State402.SW_MASK[self.state]
@@ -961,6 +967,7 @@ class SimulatedDrive:
             self.store(index, subindex, value)
         self.state = SWITCH_ON_DISABLED
         self._controlword = 0
+        self._halt_seen = False
         self._stop_segment: Segment | None = None
         self.demand = 0.0
         self.velocity = 0.0
