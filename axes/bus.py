@@ -401,6 +401,10 @@ class CellBus:
         self.master_heartbeat.start()
         return self
 
+    @property
+    def is_open(self) -> bool:
+        return self.network.bus is not None
+
     def close(self) -> None:
         self.sync.stop()
         self.master_heartbeat.stop()
