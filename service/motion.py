@@ -26,6 +26,7 @@ import uuid
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.bus import BusError, CellBus
-from axes.group import AxisGroup, AxisStatus, Event, GroupError, Progress, Result, RunResult
+from axes.group import AxisGroup, AxisStatus, Event, EventKind, GroupError, Progress, Result, RunResult
 from axes.profiles import DriveError
 from axes.program import ProgramFormatError, PvtProgram, program_mismatch
 from planner.validate import validate_program
@@ -58,8 +59,23 @@ log = logging.getLogger("pvtflow.motion")
 FAULT_RESULTS = frozenset(
     {Result.DRIVE_FAULT, Result.EMCY, Result.HEARTBEAT_LOST, Result.LOST_SYNC, Result.CONFIGURATION_ERROR}
 )
-FAULT_EVENTS = frozenset({"emcy", "heartbeat", "nmt", "lost_sync"})
-IDLE, MOVING, STOPPING, FAULT = "idle", "moving", "stopping", "fault"
+
+
+class ServiceEventKind(StrEnum):
+    """The service's own ``events`` beside the axis group's (``axes.group.EventKind``)."""
+
+    SERVICE_STARTED = "service_started"
+    MOTION_ENDED = "motion_ended"
+    JOURNAL_ERROR = "journal_error"
+
+
+class CellState(StrEnum):
+    """The cell as the service reports it (``state`` publication, ``status``)."""
+
+    IDLE = "idle"
+    MOVING = "moving"
+    STOPPING = "stopping"
+    FAULT = "fault"
 
 
 def _new_id(prefix: str) -> str:
@@ -144,7 +160,7 @@ class MotionService:
         self.group: AxisGroup | None = None
         self.plans: OrderedDict[str, StoredPlan] = OrderedDict()
         self.motion: Motion | None = None
-        self.state = IDLE
+        self.state = CellState.IDLE
         self.fault_reason: str | None = None
         self._lock = threading.RLock()  # execute / stop / recover / SDO: one at a time
         self._plans_lock = threading.Lock()
@@ -400,7 +416,7 @@ class MotionService:
                 raise self._start_error(early, motion)
             elapsed = group.elapsed_syncs()
             motion.start_sync = None if elapsed is None else group.bus.sync.answered - elapsed
-            self._set_state(MOVING, motion.motion_id)
+            self._set_state(CellState.MOVING, motion.motion_id)
             self._started.put(motion)
         if req.wait:
             motion.done.wait()
@@ -417,7 +433,7 @@ class MotionService:
                 f"a motion is running on cell {self.cell.name} ({moving}): one at a time; stop it or wait for its end",
                 {"motion_id": moving},
             )
-        if self.state == FAULT:
+        if self.state == CellState.FAULT:
             raise ApiError(
                 ErrorCode.DRIVE_FAULT,
                 f"cell {self.cell.name} is in fault ({self.fault_reason}): call recover first",
@@ -466,7 +482,7 @@ class MotionService:
                 self._finish(motion, self.group.wait())
             except Exception:  # never leave a motion without an end: the cell would stay "moving"
                 log.exception("while ending motion %s", motion.motion_id)
-                self._set_state(IDLE if not self.running else self.state, motion.motion_id)
+                self._set_state(CellState.IDLE if not self.running else self.state, motion.motion_id)
                 motion.done.set()
 
     def _finish(self, motion: Motion, result: RunResult) -> None:
@@ -477,16 +493,18 @@ class MotionService:
         try:
             self.journal.record_outcome(motion.motion_id, outcome)
         except JournalError as exc:
-            self.publish("events", self.event_payload("journal_error", str(exc), motion_id=motion.motion_id))
+            self.publish(
+                "events", self.event_payload(ServiceEventKind.JOURNAL_ERROR, str(exc), motion_id=motion.motion_id)
+            )
         if result.result in FAULT_RESULTS:
             self.fault_reason = result.message
-            self._set_state(FAULT, motion.motion_id)
+            self._set_state(CellState.FAULT, motion.motion_id)
         else:
-            self._set_state(IDLE, motion.motion_id)
+            self._set_state(CellState.IDLE, motion.motion_id)
         self.publish(
             "events",
             self.event_payload(
-                "motion_ended",
+                ServiceEventKind.MOTION_ENDED,
                 f"{result.result.value}: {result.message}",
                 motion_id=motion.motion_id,
                 outcome=outcome,
@@ -504,7 +522,7 @@ class MotionService:
             motion = self.motion
             was_moving = group.running
             if was_moving:
-                self._set_state(STOPPING, motion.motion_id if motion else None)
+                self._set_state(CellState.STOPPING, motion.motion_id if motion else None)
                 group.stop(req.reason)
         if was_moving and motion is not None:
             motion.done.wait(group.halt_timeout_ms / 1000.0 + 5.0)
@@ -541,7 +559,7 @@ class MotionService:
                 )
             self.fault_reason = None
             with self._state_lock:
-                self.state = IDLE
+                self.state = CellState.IDLE
             self._publish_state(None)  # the drives' power states changed even when the cell was idle
             return {"ok": True, "message": res.message, "axes": [self._axis_json(s) for s in group.status().axes]}
 
@@ -597,7 +615,7 @@ class MotionService:
         }
 
     # --- publications ----------------------------------------------------------------------------
-    def _set_state(self, state: str, motion_id: str | None) -> None:
+    def _set_state(self, state: CellState, motion_id: str | None) -> None:
         with self._state_lock:
             changed = state != self.state
             self.state = state
@@ -632,7 +650,7 @@ class MotionService:
             },
         )
 
-    def event_payload(self, kind: str, message: str, **extra: Any) -> dict[str, Any]:
+    def event_payload(self, kind: EventKind | ServiceEventKind, message: str, **extra: Any) -> dict[str, Any]:
         return {
             "cell": self.cell.name,
             "kind": kind,
@@ -653,9 +671,9 @@ class MotionService:
                 event.kind, event.message, joint=event.joint, node_id=event.node_id, motion_id=motion_id
             ),
         )
-        if event.kind in FAULT_EVENTS and not self.running:
+        if event.kind.is_bus_fault and not self.running:
             self.fault_reason = event.message  # a drive faulted while idle: recover before the next motion
-            self._set_state(FAULT, None)
+            self._set_state(CellState.FAULT, None)
 
     def _on_progress(self, p: Progress) -> None:
         """Every ``telemetry_every`` SYNCs during a motion (SYNC thread: hand over, never block)."""
