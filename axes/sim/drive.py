@@ -227,6 +227,7 @@ class SimulatedDrive:
         self.time_stamps: deque[int] = deque(maxlen=history_length)  # 0x1013 values (us); no clock correction
         self.ip_active_sync: int | None = None  # SYNC count at which interpolation last became active
         self.sync_count = 0
+        self.halts: list[int] = []  # the SYNC count at every halt (controlword bit 8) taken in OPERATION ENABLED
         self.time_us = 0
         self.sample_ms = 0.0  # motion time of the sample being computed (or of the last SYNC)
         self._heartbeat_silenced = False
@@ -697,6 +698,7 @@ class SimulatedDrive:
                 self._enter_operation()
         if self.state == OPERATION_ENABLED:
             if cw & CW_HALT and not previous & CW_HALT:
+                self.halts.append(self.sync_count)
                 self._begin_stop(self._deceleration(quick=False))
             self._on_mode_bits(previous, cw)
 
@@ -719,6 +721,8 @@ class SimulatedDrive:
 
     @property
     def halted(self) -> bool:
+        """Halt is set now (the master clears it again when it readies the drive for the next run:
+        ``halts`` tells whether a run was halted)."""
         return bool(self._controlword & CW_HALT)
 
     def statusword(self) -> int:
