@@ -31,6 +31,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 
 import can
@@ -62,11 +63,20 @@ class BusError(RuntimeError):
     """The bus cannot be opened or a frame cannot be sent (one clear line for the user)."""
 
 
+class FaultKind(StrEnum):
+    """What the bus saw fail."""
+
+    EMCY = "emcy"  # a node sent an emergency
+    HEARTBEAT = "heartbeat"  # a node's heartbeat stopped
+    NMT = "nmt"  # a node left OPERATIONAL (or booted)
+    LOST_SYNC = "lost_sync"  # a node stopped answering SYNC
+
+
 @dataclass(frozen=True)
 class BusFault:
-    """A failure seen on the bus: kind is "emcy", "heartbeat", "nmt" or "lost_sync"."""
+    """A failure seen on the bus."""
 
-    kind: str
+    kind: FaultKind
     node_id: int | None
     message: str
     code: int = 0
@@ -403,6 +413,10 @@ class CellBus:
         self.master_heartbeat.start()
         return self
 
+    @property
+    def is_open(self) -> bool:
+        return self.network.bus is not None
+
     def close(self) -> None:
         self.sync.stop()
         self.master_heartbeat.stop()
@@ -485,13 +499,13 @@ class CellBus:
         self._heartbeat_seen[node_id] = time.monotonic()
         self._heartbeat_state[node_id] = state
         if node_id in self._watched and previous == NMT_STATE_OPERATIONAL and state != NMT_STATE_OPERATIONAL:
-            self._report(BusFault("nmt", node_id, f"node {node_id} left OPERATIONAL (NMT state {state})"))
+            self._report(BusFault(FaultKind.NMT, node_id, f"node {node_id} left OPERATIONAL (NMT state {state})"))
 
     def _on_emcy(self, node_id: int, err: EmcyError) -> None:
         if err.code == 0:
             return  # error reset / no error
         text = f"EMCY 0x{err.code:04X} from node {node_id}: {err.get_desc()}".rstrip(": ")
-        self._report(BusFault("emcy", node_id, text, err.code))
+        self._report(BusFault(FaultKind.EMCY, node_id, text, err.code))
 
     def _watch(self) -> None:
         timeout = self.config.heartbeat_ms * self.config.heartbeat_timeout_factor / 1000.0
@@ -507,7 +521,7 @@ class CellBus:
             for nid in lost:
                 self._report(
                     BusFault(
-                        "heartbeat",
+                        FaultKind.HEARTBEAT,
                         nid,
                         f"no heartbeat from node {nid} for "
                         f"{now - self._heartbeat_seen[nid]:.3f} s (timeout {timeout:.3f} s)",
@@ -519,7 +533,7 @@ class CellBus:
                 self._sync_reported = True
                 self._report(
                     BusFault(
-                        "lost_sync",
+                        FaultKind.LOST_SYNC,
                         nodes[0] if nodes else None,
                         f"SYNC {self.sync.count} not answered by node(s) {nodes} within "
                         f"{self.lost_sync_timeout_s:.3f} s",

@@ -17,13 +17,13 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import wait as wait_futures
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import Enum, StrEnum
 from typing import TYPE_CHECKING, TypeVar
 
 import can
 
 from axes import objects as od
-from axes.bus import BusFault, CellBus
+from axes.bus import BusFault, CellBus, FaultKind
 from axes.cia402 import PowerState, Statusword, decode_state
 from axes.config import AxisConfig
 from axes.feeder import Feeder, FeedStats
@@ -182,11 +182,35 @@ class Progress:
     statuswords: tuple[int, ...] = ()
 
 
+class EventKind(StrEnum):
+    """What an ``Event`` reports: the group's own steps, how a run ended (``Result``'s values) and
+    what the bus saw fail (``FaultKind``'s), one closed set."""
+
+    STARTED = "started"
+    HALTED = "halted"
+    RECOVERED = "recovered"
+    FINISHED = Result.FINISHED.value
+    STOPPED = Result.STOPPED.value
+    DRIVE_FAULT = Result.DRIVE_FAULT.value
+    EMCY = Result.EMCY.value
+    HEARTBEAT_LOST = Result.HEARTBEAT_LOST.value
+    LOST_SYNC = Result.LOST_SYNC.value
+    REJECTED = Result.REJECTED.value
+    CONFIGURATION_ERROR = Result.CONFIGURATION_ERROR.value
+    HEARTBEAT = FaultKind.HEARTBEAT.value
+    NMT = FaultKind.NMT.value
+
+    @property
+    def is_bus_fault(self) -> bool:
+        """A drive failed on the bus (also between runs: the cell is faulted until recovered)."""
+        return self.value in {k.value for k in FaultKind}
+
+
 @dataclass(frozen=True)
 class Event:
     """A discrete event for the service's ``events`` publication."""
 
-    kind: str  # "started", "fault", "emcy", "halted", "finished", "stopped", "recovered"
+    kind: EventKind
     message: str
     joint: str | None = None
     node_id: int | None = None
@@ -334,7 +358,7 @@ class AxisGroup:
         """Every axis is enabled afresh at the next start (after a homing: its mode changed)."""
         self._ready = [None] * len(self.links)
 
-    def _event(self, kind: str, message: str, link: AxisLink | None = None) -> None:
+    def _event(self, kind: EventKind, message: str, link: AxisLink | None = None) -> None:
         if self.on_event is not None:
             self.on_event(Event(kind, message, link.joint if link else None, link.node_id if link else None))
 
@@ -416,7 +440,7 @@ class AxisGroup:
                 link.send_controlword(profile.start_controlword())
             sync.add_listener(self._on_sync)
             self.bus.arm_sync_watch()
-            self._event("started", f"program of {program.duration_ms} ms started on SYNC {self._start_sync}")
+            self._event(EventKind.STARTED, f"program of {program.duration_ms} ms started on SYNC {self._start_sync}")
             sync.start()
         return None
 
@@ -663,21 +687,21 @@ class AxisGroup:
 
     def _on_bus_fault(self, fault: BusFault) -> None:
         link = next((lk for lk in self.links if lk.node_id == fault.node_id), None)
-        if link is not None and fault.kind == "emcy":
+        if link is not None and fault.kind is FaultKind.EMCY:
             link.last_emcy = (fault.code, fault.message)
         self._bus_faults += 1
         if link is not None:  # whatever it was, that drive is enabled again at the next start
             self._ready[self.links.index(link)] = None
-            if fault.kind == "heartbeat":  # it may have lost power: its position means nothing any more
+            if fault.kind is FaultKind.HEARTBEAT:  # it may have lost power: its position means nothing any more
                 self._homed_boot[self.links.index(link)] = None
-        self._event(fault.kind, fault.message, link)
+        self._event(EventKind(fault.kind.value), fault.message, link)
         if not self._running:
             return
         kind = {
-            "emcy": Result.EMCY,
-            "heartbeat": Result.HEARTBEAT_LOST,
-            "nmt": Result.HEARTBEAT_LOST,
-            "lost_sync": Result.LOST_SYNC,
+            FaultKind.EMCY: Result.EMCY,
+            FaultKind.HEARTBEAT: Result.HEARTBEAT_LOST,
+            FaultKind.NMT: Result.HEARTBEAT_LOST,
+            FaultKind.LOST_SYNC: Result.LOST_SYNC,
         }[fault.kind]
         sync = self.bus.sync
         with sync.lock, self._lock:
@@ -720,7 +744,7 @@ class AxisGroup:
         self._halted_at = time.monotonic()
         self._halt_deadline = halt_sync + int(self.halt_timeout_ms / self.bus.config.sync_period_ms)
         lost = f" (not sent to {'; '.join(unsent)}: those drives stop on the master's heartbeat loss)" if unsent else ""
-        self._event("halted", f"all axes halted: {message}{lost}", link)
+        self._event(EventKind.HALTED, f"all axes halted: {message}{lost}", link)
 
     def _check_halted(self, n: int) -> None:
         assert self._ending is not None and self._halt_deadline is not None
@@ -797,7 +821,7 @@ class AxisGroup:
             self._running = False
             self._prepare_next()
             self._event(
-                "finished" if result.ok else result.result.value,
+                EventKind(result.result.value),
                 result.message,
                 next((lk for lk in self.links if lk.node_id == result.node_id), None),
             )
@@ -807,7 +831,7 @@ class AxisGroup:
         res = self._result(result, message, link)
         res.axes = self._reports()
         self.last_result = res
-        self._event(result.value, message, link)
+        self._event(EventKind(result.value), message, link)
         return res
 
     # --- recovery and status ---------------------------------------------------------------------
@@ -836,7 +860,7 @@ class AxisGroup:
                 link.buffer_status = link.buffer_status & ~int(BUFFER_ERRORS)
             self._ready = [link.controlwords_sent for link in self.links]  # enabled just now: ready
             self.bus.watch_heartbeat(link.node_id for link in self.links)
-            self._event("recovered", "all axes fault-free and enabled")
+            self._event(EventKind.RECOVERED, "all axes fault-free and enabled")
             res = self._result(Result.FINISHED, "recovered: every axis is enabled")
             res.axes = self._reports()
             return res
@@ -897,8 +921,9 @@ class AxisGroup:
     def close(self) -> None:
         """Release the drives (at rest, each stops watching the master's heartbeat: an orderly close
         is not a lost master) and let go of the bus. A close during a run leaves them watching: the
-        heartbeat stops with the bus and every drive stops by itself."""
-        if self.configured and not self._running:
+        heartbeat stops with the bus and every drive stops by itself; so does a close after the bus's
+        (nothing can be said on a closed bus)."""
+        if self.configured and not self._running and self.bus.is_open:
             for profile in self.profiles:
                 profile.release_master()
             self.configured = False  # a group used again arms the consumers again

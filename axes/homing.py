@@ -24,13 +24,13 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import Enum, StrEnum
 from typing import TYPE_CHECKING
 
 import can
 
 from axes import objects as od
-from axes.bus import BusFault
+from axes.bus import BusFault, FaultKind
 from axes.cia402 import Controlword, PowerState, Statusword, decode_state
 from axes.config import AxisConfig
 from axes.profiles import AxisLink, DriveError
@@ -67,6 +67,14 @@ class HomingResult(Enum):
     @property
     def ok(self) -> bool:
         return self is HomingResult.HOMED
+
+
+class HomingEventKind(StrEnum):
+    """What a homing reports as it goes (``CellHoming(on_event=...)``)."""
+
+    HOMING = "homing"  # a stage started
+    HOMED = "homed"  # a stage's axes are homed
+    HALTED = "halted"  # every axis was halted: the homing ends
 
 
 class HomingRequestError(ValueError):
@@ -150,7 +158,9 @@ def homing_stages(
 class CellHoming:
     """Homes the axes of one ``AxisGroup``; ``run(stages)`` blocks, ``stop(reason)`` from any thread."""
 
-    def __init__(self, group: AxisGroup, on_event: Callable[[str, str, str | None], None] | None = None) -> None:
+    def __init__(
+        self, group: AxisGroup, on_event: Callable[[HomingEventKind, str, str | None], None] | None = None
+    ) -> None:
         self.group = group
         self.bus = group.bus
         self.on_event = on_event
@@ -195,7 +205,7 @@ class CellHoming:
                 for i in stage:
                     group.mark_homed(i)
                     report[i].homed = True
-                self._event("homed", f"{', '.join(group.links[i].joint for i in stage)} homed", None)
+                self._event(HomingEventKind.HOMED, f"{', '.join(group.links[i].joint for i in stage)} homed", None)
             else:
                 outcome.message = f"homed {', '.join(' + '.join(s) for s in names)}" if names else "nothing to home"
         finally:
@@ -252,7 +262,7 @@ class CellHoming:
             sync.add_listener(self._on_sync)
             self.bus.arm_sync_watch()
             sync.start()
-        self._event("homing", f"homing {names} from SYNC {self._start_sync}", None)
+        self._event(HomingEventKind.HOMING, f"homing {names} from SYNC {self._start_sync}", None)
         deadline = time.monotonic() + timeout_s + HALT_TIMEOUT_S + WALL_GRACE_S
         try:
             while not self._done.wait(0.05):
@@ -311,10 +321,10 @@ class CellHoming:
 
     def _on_fault(self, fault: BusFault) -> None:
         kind = {
-            "emcy": HomingResult.EMCY,
-            "heartbeat": HomingResult.HEARTBEAT_LOST,
-            "nmt": HomingResult.HEARTBEAT_LOST,
-            "lost_sync": HomingResult.LOST_SYNC,
+            FaultKind.EMCY: HomingResult.EMCY,
+            FaultKind.HEARTBEAT: HomingResult.HEARTBEAT_LOST,
+            FaultKind.NMT: HomingResult.HEARTBEAT_LOST,
+            FaultKind.LOST_SYNC: HomingResult.LOST_SYNC,
         }[fault.kind]
         link = next((lk for lk in self.group.links if lk.node_id == fault.node_id), None)
         with self.bus.sync.lock, self._lock:
@@ -344,7 +354,7 @@ class CellHoming:
         self._halt_deadline = self.bus.sync.count + max(
             1, round(HALT_TIMEOUT_S * 1000.0 / self.bus.config.sync_period_ms)
         )
-        self._event("halted", f"all axes halted: {message}{lost}", link)
+        self._event(HomingEventKind.HALTED, f"all axes halted: {message}{lost}", link)
 
     def _check_halted(self, n: int) -> None:
         moving = [
@@ -381,6 +391,6 @@ class CellHoming:
                 continue  # a drive that is gone is configured again before its next use
         group.forget_readiness()
 
-    def _event(self, kind: str, message: str, link: AxisLink | None) -> None:
+    def _event(self, kind: HomingEventKind, message: str, link: AxisLink | None) -> None:
         if self.on_event is not None:
             self.on_event(kind, message, link.joint if link is not None else None)

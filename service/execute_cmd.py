@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from axes.bus import BusError, CellBus
-from axes.group import AxisGroup, Event, Progress, RunResult
+from axes.group import AxisGroup, Event, EventKind, Progress, RunResult
 from axes.program import PvtProgram, program_mismatch
 from service.cli import can_log_problem
 from service.config import ConfigError, load_cell_config
@@ -125,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
     quiet = bool(args.quiet)
 
     def on_event(event: Event) -> None:
-        if not quiet and event.kind not in ("finished",):
+        if not quiet and event.kind is not EventKind.FINISHED:
             where = f" [{event.joint}]" if event.joint else ""
             print(f"{event.kind}{where}: {event.message}", flush=True)
 

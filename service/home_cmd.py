@@ -21,7 +21,7 @@ from typing import Any
 
 from axes.bus import BusError, CellBus
 from axes.group import AxisGroup
-from axes.homing import CellHoming, HomingOutcome, HomingRequestError
+from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
 from service.cli import can_log_problem
 from service.config import CellConfig, ConfigError, load_cell_config
 
@@ -65,7 +65,7 @@ def home_cell(cell: CellConfig, group: AxisGroup, joints: list[str] | None, quie
     Raises HomingRequestError for an axis the cell does not have or that has nothing to home."""
     stages = cell.homing_stages(joints)
 
-    def on_event(kind: str, message: str, joint: str | None) -> None:
+    def on_event(kind: HomingEventKind, message: str, joint: str | None) -> None:
         if not quiet:
             where = f" [{joint}]" if joint else ""
             print(f"{kind}{where}: {message}", flush=True)

@@ -29,6 +29,7 @@ import uuid
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -36,8 +37,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.bus import BusError, CellBus
-from axes.group import AxisGroup, AxisStatus, Event, GroupError, Progress, Result, RunResult
-from axes.homing import CellHoming, HomingOutcome, HomingRequestError, HomingResult
+from axes.group import AxisGroup, AxisStatus, Event, EventKind, GroupError, Progress, Result, RunResult
+from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError, HomingResult
 from axes.profiles import DriveError
 from axes.program import ProgramFormatError, PvtProgram, program_mismatch
 from planner.validate import validate_program
@@ -63,8 +64,27 @@ log = logging.getLogger("pvtflow.motion")
 FAULT_RESULTS = frozenset(
     {Result.DRIVE_FAULT, Result.EMCY, Result.HEARTBEAT_LOST, Result.LOST_SYNC, Result.CONFIGURATION_ERROR}
 )
-FAULT_EVENTS = frozenset({"emcy", "heartbeat", "nmt", "lost_sync"})
-IDLE, MOVING, STOPPING, FAULT, HOMING = "idle", "moving", "stopping", "fault", "homing"
+
+
+class ServiceEventKind(StrEnum):
+    """The service's own ``events`` beside the axis group's (``axes.group.EventKind``)."""
+
+    SERVICE_STARTED = "service_started"
+    MOTION_ENDED = "motion_ended"
+    JOURNAL_ERROR = "journal_error"
+    HOMING_ENDED = "homing_ended"  # with its outcome (the homing's steps: axes.homing.HomingEventKind)
+
+
+class CellState(StrEnum):
+    """The cell as the service reports it (``state`` publication, ``status``)."""
+
+    IDLE = "idle"
+    MOVING = "moving"
+    STOPPING = "stopping"
+    FAULT = "fault"
+    HOMING = "homing"
+
+
 HOMING_FAULTS = frozenset(
     {
         HomingResult.DRIVE_FAULT,
@@ -179,7 +199,7 @@ class MotionService:
         self.motion: Motion | None = None
         self.homing: Homing | None = None
         self._homer: CellHoming | None = None
-        self.state = IDLE
+        self.state = CellState.IDLE
         self.fault_reason: str | None = None
         self._lock = threading.RLock()  # execute / stop / recover / SDO: one at a time
         self._plans_lock = threading.Lock()
@@ -444,7 +464,7 @@ class MotionService:
                 raise self._start_error(early, motion)
             elapsed = group.elapsed_syncs()
             motion.start_sync = None if elapsed is None else group.bus.sync.answered - elapsed
-            self._set_state(MOVING, motion.motion_id)
+            self._set_state(CellState.MOVING, motion.motion_id)
             self._started.put(motion)
         if req.wait:
             motion.done.wait()
@@ -484,7 +504,7 @@ class MotionService:
             )
 
     def _refuse_if_faulted(self, group: AxisGroup) -> None:
-        if self.state == FAULT:
+        if self.state == CellState.FAULT:
             raise ApiError(
                 ErrorCode.DRIVE_FAULT,
                 f"cell {self.cell.name} is in fault ({self.fault_reason}): call recover first",
@@ -533,7 +553,7 @@ class MotionService:
                 self._finish(motion, self.group.wait())
             except Exception:  # never leave a motion without an end: the cell would stay "moving"
                 log.exception("while ending motion %s", motion.motion_id)
-                self._set_state(IDLE if not self.running else self.state, motion.motion_id)
+                self._set_state(CellState.IDLE if not self.running else self.state, motion.motion_id)
                 motion.done.set()
 
     def _finish(self, motion: Motion, result: RunResult) -> None:
@@ -544,16 +564,18 @@ class MotionService:
         try:
             self.journal.record_outcome(motion.motion_id, outcome)
         except JournalError as exc:
-            self.publish("events", self.event_payload("journal_error", str(exc), motion_id=motion.motion_id))
+            self.publish(
+                "events", self.event_payload(ServiceEventKind.JOURNAL_ERROR, str(exc), motion_id=motion.motion_id)
+            )
         if result.result in FAULT_RESULTS:
             self.fault_reason = result.message
-            self._set_state(FAULT, motion.motion_id)
+            self._set_state(CellState.FAULT, motion.motion_id)
         else:
-            self._set_state(IDLE, motion.motion_id)
+            self._set_state(CellState.IDLE, motion.motion_id)
         self.publish(
             "events",
             self.event_payload(
-                "motion_ended",
+                ServiceEventKind.MOTION_ENDED,
                 f"{result.result.value}: {result.message}",
                 motion_id=motion.motion_id,
                 outcome=outcome,
@@ -587,7 +609,7 @@ class MotionService:
                 raise ApiError(ErrorCode.JOURNAL_ERROR, f"{exc}: nothing moved") from None
             self.homing = homing
             self._homer = CellHoming(group, on_event=self._on_homing_event)
-            self._set_state(HOMING, None)
+            self._set_state(CellState.HOMING, None)
             threading.Thread(
                 target=self._run_homing, args=(homing, self._homer), name=f"pvtflow-home-{self.cell.name}", daemon=True
             ).start()
@@ -607,16 +629,16 @@ class MotionService:
         try:
             self.journal.record_homing_outcome(homing.homing_id, outcome.to_json())
         except JournalError as exc:
-            self.publish("events", self.event_payload("journal_error", str(exc)))
+            self.publish("events", self.event_payload(ServiceEventKind.JOURNAL_ERROR, str(exc)))
         if outcome.result in HOMING_FAULTS:
             self.fault_reason = outcome.message
-            self._set_state(FAULT, None)
+            self._set_state(CellState.FAULT, None)
         else:
-            self._set_state(IDLE, None)
+            self._set_state(CellState.IDLE, None)
         self.publish(
             "events",
             self.event_payload(
-                "homing_ended",
+                ServiceEventKind.HOMING_ENDED,
                 f"{outcome.result.value}: {outcome.message}",
                 homing_id=homing.homing_id,
                 outcome=outcome.to_json(),
@@ -626,7 +648,7 @@ class MotionService:
         )
         homing.done.set()
 
-    def _on_homing_event(self, kind: str, message: str, joint: str | None) -> None:
+    def _on_homing_event(self, kind: HomingEventKind, message: str, joint: str | None) -> None:
         homing = self.homing
         self.publish(
             "events",
@@ -639,7 +661,7 @@ class MotionService:
         group = self._group()
         homing = self.homing
         if homing is not None and not homing.done.is_set():
-            self._set_state(STOPPING, None)
+            self._set_state(CellState.STOPPING, None)
             group.stop(req.reason)
             homing.done.wait(60.0)
             return {
@@ -653,7 +675,7 @@ class MotionService:
             motion = self.motion
             was_moving = group.running
             if was_moving:
-                self._set_state(STOPPING, motion.motion_id if motion else None)
+                self._set_state(CellState.STOPPING, motion.motion_id if motion else None)
                 group.stop(req.reason)
         if was_moving and motion is not None:
             motion.done.wait(group.halt_timeout_ms / 1000.0 + 5.0)
@@ -691,7 +713,7 @@ class MotionService:
                 )
             self.fault_reason = None
             with self._state_lock:
-                self.state = IDLE
+                self.state = CellState.IDLE
             self._publish_state(None)  # the drives' power states changed even when the cell was idle
             return {"ok": True, "message": res.message, "axes": [self._axis_json(s) for s in group.status().axes]}
 
@@ -752,7 +774,7 @@ class MotionService:
         }
 
     # --- publications ----------------------------------------------------------------------------
-    def _set_state(self, state: str, motion_id: str | None) -> None:
+    def _set_state(self, state: CellState, motion_id: str | None) -> None:
         with self._state_lock:
             changed = state != self.state
             self.state = state
@@ -787,7 +809,9 @@ class MotionService:
             },
         )
 
-    def event_payload(self, kind: str, message: str, **extra: Any) -> dict[str, Any]:
+    def event_payload(
+        self, kind: EventKind | ServiceEventKind | HomingEventKind, message: str, **extra: Any
+    ) -> dict[str, Any]:
         return {
             "cell": self.cell.name,
             "kind": kind,
@@ -808,9 +832,9 @@ class MotionService:
                 event.kind, event.message, joint=event.joint, node_id=event.node_id, motion_id=motion_id
             ),
         )
-        if event.kind in FAULT_EVENTS and not self.running:
+        if event.kind.is_bus_fault and not self.running:
             self.fault_reason = event.message  # a drive faulted while idle: recover before the next motion
-            self._set_state(FAULT, None)
+            self._set_state(CellState.FAULT, None)
 
     def _on_progress(self, p: Progress) -> None:
         """Every ``telemetry_every`` SYNCs during a motion (SYNC thread: hand over, never block)."""

@@ -46,7 +46,7 @@ from service.api import (
     parse_validate,
 )
 from service.config import CONFIG_DIR
-from service.motion import MotionService
+from service.motion import MotionService, ServiceEventKind
 
 log = logging.getLogger("pvtflow.server")
 
@@ -199,7 +199,9 @@ class Server:
                 self.session.declare_queryable(key(self.cell, op), lambda query, op=op: self._on_query(op, query))
             )
         self._token = self.session.liveliness().declare_token(key(self.cell, LIVELINESS))
-        self._enqueue("events", self.service.event_payload("service_started", f"cell {self.cell} is being served"))
+        self._enqueue(
+            "events", self.service.event_payload(ServiceEventKind.SERVICE_STARTED, f"cell {self.cell} is being served")
+        )
         return self
 
     def _spawn(self, target: Callable[[], None], name: str) -> None:

@@ -236,6 +236,7 @@ class SimulatedDrive:
         self.time_stamps: deque[int] = deque(maxlen=history_length)  # 0x1013 values (us); no clock correction
         self.ip_active_sync: int | None = None  # SYNC count at which interpolation last became active
         self.sync_count = 0
+        self.halts: list[int] = []  # the SYNC count at every halt (controlword bit 8) taken in OPERATION ENABLED
         self.time_us = 0
         self.sample_ms = 0.0  # motion time of the sample being computed (or of the last SYNC)
         self._heartbeat_silenced = False
@@ -710,10 +711,6 @@ class SimulatedDrive:
     # --- DS402 power state machine ----------------------------------------------------------------
     def _on_controlword(self, cw: int) -> None:
         previous, self._controlword = self._controlword, cw
-        if cw & CW_HALT and not previous & CW_HALT:
-            self._halt_seen = True
-        elif cw & CW_ENABLE_IP and not previous & CW_ENABLE_IP and not cw & CW_HALT:
-            self._halt_seen = False
         state = self.state
         if state == FAULT:
             if cw & CW_FAULT_RESET and not previous & CW_FAULT_RESET:
@@ -757,6 +754,7 @@ class SimulatedDrive:
                 self._enter_operation()
         if self.state == OPERATION_ENABLED:
             if cw & CW_HALT and not previous & CW_HALT:
+                self.halts.append(self.sync_count)
                 self._begin_stop(self._deceleration(quick=False))
             self._on_mode_bits(previous, cw)
 
@@ -779,9 +777,9 @@ class SimulatedDrive:
 
     @property
     def halted(self) -> bool:
-        """A halt (bit 8 rising) came since the last start (bit 4 rising without halt): what tests ask
-        after a run that halted, whatever the master has written since to make the drive ready."""
-        return self._halt_seen
+        """Halt is set now (the master clears it again when it readies the drive for the next run:
+        ``halts`` tells whether a run was halted)."""
+        return bool(self._controlword & CW_HALT)
 
     def statusword(self) -> int:
         _mask, value = State402.SW_MASK[self.state]
@@ -967,7 +965,6 @@ class SimulatedDrive:
             self.store(index, subindex, value)
         self.state = SWITCH_ON_DISABLED
         self._controlword = 0
-        self._halt_seen = False
         self._stop_segment: Segment | None = None
         self.demand = 0.0
         self.velocity = 0.0

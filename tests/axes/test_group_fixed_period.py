@@ -88,4 +88,4 @@ def test_fixed_period_halt_on_stop(arm6, make_rig):
     assert result.result is Result.STOPPED and result.message == "operator"
     assert result.halt_latency_syncs == 1
     for drive in rig.sim:
-        assert drive.halted and drive.faults == []
+        assert drive.halts and drive.faults == []

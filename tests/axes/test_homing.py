@@ -8,9 +8,9 @@ import dataclasses
 import threading
 import uuid
 from collections.abc import Callable
+from typing import Any
 
 import pytest
-from conftest import Rig
 
 from axes import objects as od
 from axes.bus import CellBus
@@ -90,7 +90,7 @@ def test_the_cell_order_gives_the_stages(gantry3: CellConfig) -> None:
 
 @pytest.mark.parametrize("method", sorted(CASES), ids=lambda m: f"{int(m)}-{M(m).name.lower()}")
 def test_every_method_homes_on_its_home_position(
-    gantry3: CellConfig, make_rig: Callable[..., Rig], method: int
+    gantry3: CellConfig, make_rig: Callable[..., Any], method: int
 ) -> None:
     machine, home = CASES[method]
     homing = HomingConfig(method, offset_qc=home, timeout_s=10.0, **FAST)  # type: ignore[arg-type]
@@ -109,7 +109,7 @@ def test_every_method_homes_on_its_home_position(
     assert rig.sim.internal_errors == []
 
 
-def test_a_homing_error_halts_the_cell(gantry3: CellConfig, make_rig: Callable[..., Rig]) -> None:
+def test_a_homing_error_halts_the_cell(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
     """A hard stop before the limit switch the method looks for: the drive's following error."""
     blocked = dataclasses.replace(SWITCHES, negative_hard_stop_qc=1000)
     homing = HomingConfig(M.NEGATIVE_LIMIT_SWITCH, timeout_s=10.0, **FAST)  # type: ignore[arg-type]
@@ -121,7 +121,7 @@ def test_a_homing_error_halts_the_cell(gantry3: CellConfig, make_rig: Callable[.
     assert "hard stop" in rig.sim.drive("x").homing_runs[-1].reason
 
 
-def test_a_search_that_finds_nothing_times_out(gantry3: CellConfig, make_rig: Callable[..., Rig]) -> None:
+def test_a_search_that_finds_nothing_times_out(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
     nothing = AxisSimulation(power_up_qc=0)  # no switch anywhere: the search goes on
     homing = HomingConfig(M.NEGATIVE_LIMIT_SWITCH, timeout_s=0.3, **FAST)  # type: ignore[arg-type]
     rig = make_rig(with_homing(gantry3, {"x": (homing, nothing)}))
@@ -133,7 +133,7 @@ def test_a_search_that_finds_nothing_times_out(gantry3: CellConfig, make_rig: Ca
     assert rig.group.homed[0] is False
 
 
-def test_a_fault_during_homing_halts_every_axis(gantry3: CellConfig, make_rig: Callable[..., Rig]) -> None:
+def test_a_fault_during_homing_halts_every_axis(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
     """x and y home together; y faults while both search: x halts on the next SYNC, z never starts."""
     slow = HomingConfig(M.NEGATIVE_LIMIT_SWITCH, timeout_s=30.0, switch_speed_rpm=100.0, acceleration_rpm_s=20000.0)
     far = dataclasses.replace(SWITCHES, power_up_qc=20000)
@@ -153,7 +153,7 @@ def test_a_fault_during_homing_halts_every_axis(gantry3: CellConfig, make_rig: C
     assert rig.group.homed == (False, False, False)
 
 
-def test_a_stop_during_homing_halts_it(gantry3: CellConfig, make_rig: Callable[..., Rig]) -> None:
+def test_a_stop_during_homing_halts_it(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
     slow = HomingConfig(M.NEGATIVE_LIMIT_SWITCH, timeout_s=30.0, switch_speed_rpm=100.0, acceleration_rpm_s=20000.0)
     far = dataclasses.replace(SWITCHES, power_up_qc=20000)
     rig = make_rig(with_homing(gantry3, {"x": (slow, far)}))
@@ -168,7 +168,7 @@ def test_a_stop_during_homing_halts_it(gantry3: CellConfig, make_rig: Callable[.
     assert x.velocity == 0.0 and rig.group.homed[0] is False
 
 
-def test_a_reboot_undoes_homing(gantry3: CellConfig, make_rig: Callable[..., Rig]) -> None:
+def test_a_reboot_undoes_homing(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
     homing = HomingConfig(M.CURRENT_POSITION, offset_qc=5000)
     rig = make_rig(with_homing(gantry3, {"x": (homing, SWITCHES), "y": (homing, SWITCHES)}))
     assert CellHoming(rig.group).run([["x", "y"]]).ok
