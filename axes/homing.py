@@ -230,6 +230,15 @@ class CellHoming:
         """One stage: enable, mode 6, start on one SYNC, wait for every axis attained (or the end)."""
         links = [self.group.links[i] for i in stage]
         try:
+            for link in links:  # a fault is acknowledged by someone (recover), never reset behind their back
+                if decode_state(link.read_statusword()).is_fault:
+                    return HomingOutcome(
+                        HomingResult.DRIVE_FAULT,
+                        f"axis {link.joint} (node {link.node_id}) is in FAULT "
+                        f"(statusword 0x{link.statusword:04X}): recover first",
+                        link.joint,
+                        link.node_id,
+                    )
             for link in links:
                 link.reach(PowerState.OPERATION_ENABLED)
                 link.write_controlword(ENABLED_WORD)  # bits 4 and 8 low: the start is a rising edge

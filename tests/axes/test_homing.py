@@ -200,3 +200,15 @@ def test_homing_with_sync_on_the_wall_clock(gantry3: CellConfig) -> None:
             bus.close()
     assert outcome.ok, outcome.message
     assert sim.drive("x").actual == sim.drive("x").machine_position == 123 + 2 * INDEX
+
+
+def test_a_faulted_drive_is_not_reset_behind_the_users_back(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
+    homing = HomingConfig(M.CURRENT_POSITION, offset_qc=5000)
+    rig = make_rig(with_homing(gantry3, {"x": (homing, SWITCHES)}))
+    rig.group.configure()
+    rig.sim.drive("x").inject_emcy(0x5530)
+    outcome = CellHoming(rig.group).run([["x"]])
+    assert outcome.result is HomingResult.DRIVE_FAULT and "recover first" in outcome.message
+    assert rig.sim.drive("x").homing_runs == [] and rig.group.homed[0] is False
+    assert rig.group.recover().ok
+    assert CellHoming(rig.group).run([["x"]]).ok
