@@ -119,6 +119,11 @@ EMCY_PARAMETER_ERROR = 0x6320  # a configuration the drive cannot run (e.g. inte
 EMCY_PDO_LENGTH = 0x8210  # PDO not processed due to length error
 EMCY_VELOCITY_LIMIT = 0x8400  # velocity beyond 0x607F (sanity check of the fixed-period drives)
 EMCY_SOFTWARE_POSITION_LIMIT = 0x8612  # position demand outside 0x607D
+# The simulated machine (axes/sim/homing.py) outside homing: a limit switch reached is CiA 402's
+# "reference limit" too (the seeds give no code of maxon's own for it), a hard stop run into the
+# drive's following error.
+EMCY_LIMIT_SWITCH = EMCY_SOFTWARE_POSITION_LIMIT
+EMCY_FOLLOWING_ERROR = 0x8611
 EMCY_HEARTBEAT_ERROR = 0x8130  # CiA 301 life guard / heartbeat error: a watched node (the master) fell silent
 # EPOS2 "interpolated position mode error" (underflow, overflow, 0x607F or 0x60C5 exceeded). The seeds
 # give no code: 0xFF0C is taken from memory of maxon's firmware specification, to be checked on a real

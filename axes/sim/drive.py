@@ -914,11 +914,30 @@ class SimulatedDrive:
         if pva is None or self.state != OPERATION_ENABLED:
             self.velocity = self.acceleration = 0.0
             return
-        if not self._check_position(pva[0]):
+        if not self._check_position(pva[0]) or not self._check_machine(pva[0]):
             return
         self.demand, self.velocity, self.acceleration = pva
         if full:
             self._check_dynamics(self.velocity, self.acceleration)
+
+    def _check_machine(self, p: float) -> bool:
+        """The simulated machine bounds every motion outside homing: a limit switch that becomes active
+        faults the drive (EMCY 0x8612), a hard stop stops the axis where it stands and faults it with a
+        following error (0x8611). So an axis that did not home, whose encoder's 0 is anywhere, really
+        runs into them where the program thought it had room."""
+        if self.simulation is None:
+            return True
+        m0, m1 = self.demand + self.origin, p + self.origin
+        stop = self.machine.stop_between(m0, m1)
+        if stop is not None:
+            self.demand = stop - self.origin
+            self.fault(od.EMCY_FOLLOWING_ERROR, f"ran into the hard stop at {stop:.0f} qc of the machine")
+            return False
+        for name, switch in (("negative", self.machine.negative_limit), ("positive", self.machine.positive_limit)):
+            if switch(m1) and not switch(m0):
+                self.fault(od.EMCY_LIMIT_SWITCH, f"{name} limit switch at {m1:.0f} qc of the machine")
+                return False
+        return True
 
     def _check_position(self, p: float) -> bool:
         """0x607D bounds every position demand: one outside faults the drive and is not taken."""

@@ -15,8 +15,9 @@ import pytest
 from axes import objects as od
 from axes.bus import CellBus
 from axes.config import AxisSimulation, HomingConfig
-from axes.group import AxisGroup
+from axes.group import AxisGroup, Result
 from axes.homing import CellHoming, HomingRequestError, HomingResult, homing_stages
+from axes.program import PvtProgram
 from axes.sim.cell import SimulatedCell
 from axes.sim.homing import HomingState
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
@@ -212,3 +213,20 @@ def test_a_faulted_drive_is_not_reset_behind_the_users_back(gantry3: CellConfig,
     assert rig.sim.drive("x").homing_runs == [] and rig.group.homed[0] is False
     assert rig.group.recover().ok
     assert CellHoming(rig.group).run([["x"]]).ok
+
+
+def test_an_unhomed_program_is_really_wrong(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
+    """x powers up somewhere on its machine (seeded) with its encoder at 0: a program from 0 to 0.7 m,
+    planned as if 0 were the machine's 0, runs into the positive limit switch (at 1.21 m)."""
+    from axes_programs import axis_program
+
+    rig = make_rig(gantry3)
+    drive = rig.sim.drive("x")
+    assert drive.actual == 0 and drive.machine_position > 100_000  # seed 0: half a metre from the machine's 0
+    axes = gantry3.ordered_axes()
+    far = int(axes[0].scaling.position_to_qc(0.7))
+    moves = [axis_program(a, 0, far if a.joint == "x" else 0, 1500, 10) for a in axes]
+    result = rig.group.run(PvtProgram("gantry3", tuple(moves)), timeout_s=30)
+    assert result.result in (Result.DRIVE_FAULT, Result.EMCY) and result.joint == "x", result.message
+    assert "positive limit switch" in drive.faults[-1].check
+    assert drive.machine_position < gantry3.axis_for_joint("x").simulation.positive_limit_switch_qc  # type: ignore[union-attr]
