@@ -5,7 +5,8 @@ heartbeat consumer per 0x1016 (wall clock: the only wall-clock parts), EMCY prod
 power state machine driven by the controlword, the statusword, SYNC-driven motion clock with 1 kHz
 interpolation samples, 0x607D on every demand sample, fault handling and fault injection. The
 profile modules (epos2, ip_linear, sync_setpoint, parker) add their interpolation on top through a
-few hooks.
+few hooks. The machine around the axis (power-up anywhere, limit switches, hard stops) and homing
+mode 6 on it come from ``axes/sim/homing.py`` (``HomingMixin``), for drives whose 0x6502 has mode 6.
 
 Master loss: when a heartbeat 0x1016 watches stops (``axes/sim/consumer.py``), the drive sends
 EMCY 0x8130 (CiA 301 heartbeat error, error register generic + communication) and does what 0x6007
@@ -32,7 +33,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import random
 import threading
 import time
 from collections import deque
@@ -60,7 +60,7 @@ from axes.sim.device import (
     complete_object_dictionary,
     identity_values,
 )
-from axes.sim.homing import HomingRun, HomingState, Machine
+from axes.sim.homing import HomingMixin, HomingState, Machine
 from axes.sim.pdo import PdoEngine, is_pdo_object, unsubscribe
 
 EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
@@ -82,8 +82,6 @@ VOLTAGE_ENABLED = int(Statusword.VOLTAGE_ENABLED)
 WARNING = int(Statusword.WARNING)
 TARGET_REACHED = int(Statusword.TARGET_REACHED)
 IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
-HOMING_ATTAINED = int(Statusword.HOMING_ATTAINED)
-HOMING_ERROR = int(Statusword.HOMING_ERROR)
 CW_HOMING_START = int(Controlword.HOMING_START)
 CW_ENABLE_IP = int(Controlword.ENABLE_IP_MODE)
 CW_FAULT_RESET = int(Controlword.FAULT_RESET)
@@ -185,7 +183,7 @@ class Segment:
         return p, v, 2.0 * self.c2 + 6.0 * self.c3 * tau
 
 
-class SimulatedDrive:
+class SimulatedDrive(HomingMixin):
     """A CiA 402 drive on a canopen network, simulated. Subclasses add one interpolation behaviour."""
 
     PROFILE: ClassVar[str] = ""
@@ -251,8 +249,8 @@ class SimulatedDrive:
         self.machine = Machine(simulation or AxisSimulation())
         self.origin = self._power_up_position(node_id, simulation, limits)
         self.referenced = False  # homed since the last power-on / reset
-        self.homing_runs: list[HomingRun] = []  # every homing started (tests, benches)
-        self._homing: HomingRun | None = None
+        self.homing_runs = []  # every homing started (tests, benches)
+        self._homing = None
         self._homing_t = 0.0
         # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.scaling
         self.velocity_factor = self.scaling.qc_per_ms_per_velocity_unit  # record velocity unit -> qc/ms
@@ -332,27 +330,6 @@ class SimulatedDrive:
             self._commissioned.update(values)
             for (index, subindex), value in values.items():
                 self.store(index, subindex, value)
-
-    @staticmethod
-    def _power_up_position(node_id: int, sim: AxisSimulation | None, limits: DriveLimits | None) -> float:
-        """Where the machine stands at power-on: nowhere in particular for an axis with a simulated
-        machine (seeded: between its limit switches or hard stops, else in its 0x607D range), at its
-        encoder's 0 otherwise (an absolute encoder: nothing to home)."""
-        if sim is None:
-            return 0.0
-        if sim.power_up_qc is not None:
-            return float(sim.power_up_qc)
-        lows = [x for x in (sim.negative_limit_switch_qc, sim.negative_hard_stop_qc) if x is not None]
-        highs = [x for x in (sim.positive_limit_switch_qc, sim.positive_hard_stop_qc) if x is not None]
-        lo = max(lows) if lows else (limits.min_position_qc if limits is not None else -100_000)
-        hi = min(highs) if highs else (limits.max_position_qc if limits is not None else 100_000)
-        margin = 0.05 * (hi - lo)
-        return float(round(random.Random(sim.seed * 1000 + node_id).uniform(lo + margin, hi - margin)))
-
-    @property
-    def machine_position(self) -> float:
-        """Where the axis really is (qc of the machine): what its position reads once correctly homed."""
-        return self.demand + self.origin
 
     def power_cycle(self) -> None:
         """Power off and on: the encoder counts from 0 again where the axis stands, not homed, boot-up."""
@@ -799,88 +776,6 @@ class SimulatedDrive:
             word |= self.REFERENCED_BIT
         return word
 
-    # --- homing (mode 6, axes/sim/homing.py) ------------------------------------------------------
-    def _homing_status(self) -> int:
-        """Statusword bits 13, 12, 10 in homing mode (CiA 402): in progress 000, interrupted or not
-        started 001, attained 01x, completed 011, error 10x (bit 10: the axis is at rest)."""
-        rest = self.state == OPERATION_ENABLED and self._stop_segment is None and abs(self.velocity) <= 1e-12
-        run = self._homing
-        word = TARGET_REACHED if rest else 0
-        if run is None or run.state is HomingState.INTERRUPTED:
-            return word
-        if run.state is HomingState.RUNNING:
-            return 0
-        if run.state is HomingState.ATTAINED:
-            return HOMING_ATTAINED | word
-        return HOMING_ERROR | word
-
-    def _start_homing(self) -> None:
-        """Controlword bit 4 rose in mode 6: the method of 0x6098 at the speeds of 0x6099 and 0x609A."""
-        self.referenced = False
-        method = self.read_or(od.HOMING_METHOD, 0, 0)
-        rpm_per_qc_ms = self._rpm_per_qc_ms
-        try:
-            run = HomingRun(
-                method,
-                self.machine,
-                self.machine_position,
-                switch_speed=self.read_or(od.HOMING_SPEEDS, 1, 0) / rpm_per_qc_ms,
-                zero_speed=self.read_or(od.HOMING_SPEEDS, 2, 0) / rpm_per_qc_ms,
-                acceleration=self.read_or(od.HOMING_ACCELERATION, 0, 0) / self._rpm_s_per_qc_ms2,
-                current_threshold_ma=self.read_or(od.EPOS2_HOMING_CURRENT_THRESHOLD, 0, 500),
-                on_reference=self._home_found,
-            )
-        except ValueError as exc:  # a method 0x6098 holds but this drive does not run
-            run = HomingRun(
-                od.HomingMethod.CURRENT_POSITION,
-                self.machine,
-                self.machine_position,
-                switch_speed=1.0,
-                zero_speed=1.0,
-                acceleration=1.0,
-                current_threshold_ma=0,
-                on_reference=lambda home, m: None,
-            )
-            run.state, run.reason = HomingState.ERROR, str(exc)
-        self._homing = run
-        self._homing_t = self.time_us / 1000.0
-        self.homing_runs.append(run)
-        if run.state is HomingState.ATTAINED:
-            self._homing_attained()
-
-    def _home_found(self, home: float, m: float) -> None:
-        """The home position: from now on the position reads 0x607C there."""
-        self.origin = home - self.read_or(od.HOME_OFFSET, 0, 0)
-        self.demand = m - self.origin
-
-    def _homing_attained(self) -> None:
-        self.demand = float(round(self.demand))
-        self.velocity = self.acceleration = 0.0
-        self.referenced = True
-
-    def _homing_sample(self, t: float) -> None:
-        run = self._homing
-        assert run is not None
-        run.step(t - self._homing_t)
-        self._homing_t = t
-        self.demand = run.m - self.origin
-        self.velocity, self.acceleration = run.v, run.a
-        if run.state is HomingState.ATTAINED:
-            self._homing_attained()
-
-    def _homing_moves(self) -> bool:
-        run = self._homing
-        return (
-            run is not None
-            and self.state == OPERATION_ENABLED
-            and self.mode_display == od.HOMING_MODE
-            and (run.state is HomingState.RUNNING or (run.state is HomingState.ERROR and not run.at_rest))
-        )
-
-    def _interrupt_homing(self) -> None:
-        if self._homing is not None:
-            self._homing.interrupt()
-
     # --- motion clock -----------------------------------------------------------------------------
     def _advance(self, new_time_us: int) -> None:
         """Run the interpolation from the last SYNC to this one: every whole ms, then the SYNC instant."""
@@ -919,25 +814,6 @@ class SimulatedDrive:
         self.demand, self.velocity, self.acceleration = pva
         if full:
             self._check_dynamics(self.velocity, self.acceleration)
-
-    def _check_machine(self, p: float) -> bool:
-        """The simulated machine bounds every motion outside homing: a limit switch that becomes active
-        faults the drive (EMCY 0x8612), a hard stop stops the axis where it stands and faults it with a
-        following error (0x8611). So an axis that did not home, whose encoder's 0 is anywhere, really
-        runs into them where the program thought it had room."""
-        if self.simulation is None:
-            return True
-        m0, m1 = self.demand + self.origin, p + self.origin
-        stop = self.machine.stop_between(m0, m1)
-        if stop is not None:
-            self.demand = stop - self.origin
-            self.fault(od.EMCY_FOLLOWING_ERROR, f"ran into the hard stop at {stop:.0f} qc of the machine")
-            return False
-        for name, switch in (("negative", self.machine.negative_limit), ("positive", self.machine.positive_limit)):
-            if switch(m1) and not switch(m0):
-                self.fault(od.EMCY_LIMIT_SWITCH, f"{name} limit switch at {m1:.0f} qc of the machine")
-                return False
-        return True
 
     def _check_position(self, p: float) -> bool:
         """0x607D bounds every position demand: one outside faults the drive and is not taken."""

@@ -20,15 +20,26 @@ real drive with too low a threshold does).
 from __future__ import annotations
 
 import math
+import random
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
+from typing import TYPE_CHECKING, ClassVar
 
 from axes import objects as od
+from axes.cia402 import PowerState, Statusword
 from axes.config import AxisSimulation
+from axes.scaling import DriveLimits
+
+if TYPE_CHECKING:
+    from axes.sim.drive import Segment
 
 M = od.HomingMethod
 RETURN_TOLERANCE_QC = 1e-6
+OPERATION_ENABLED = PowerState.OPERATION_ENABLED
+TARGET_REACHED = int(Statusword.TARGET_REACHED)
+HOMING_ATTAINED = int(Statusword.HOMING_ATTAINED)
+HOMING_ERROR = int(Statusword.HOMING_ERROR)
 
 
 class HomingState(Enum):
@@ -295,3 +306,152 @@ class HomingRun:
     def _error(self, reason: str) -> None:
         self.state = HomingState.ERROR
         self.reason = reason
+
+
+class HomingMixin:
+    """The simulated machine around an axis and homing mode 6 on it, as part of a ``SimulatedDrive``
+    (which calls these from its controlword, sample and statusword code, owns the state below and
+    gives them ``read_or`` and ``fault``).
+
+    The machine position is the drive's demand plus ``origin``: at power-on the encoder counts from 0
+    wherever the axis stands; homing moves ``origin`` so that the home position reads 0x607C."""
+
+    REFERENCED_BIT: ClassVar[int]
+    simulation: AxisSimulation | None
+    machine: Machine
+    origin: float
+    referenced: bool
+    homing_runs: list[HomingRun]
+    _homing: HomingRun | None
+    _homing_t: float
+    demand: float
+    velocity: float
+    acceleration: float
+    state: PowerState
+    mode_display: int
+    time_us: int
+    _stop_segment: Segment | None
+    _rpm_per_qc_ms: float
+    _rpm_s_per_qc_ms2: float
+
+    @staticmethod
+    def _power_up_position(node_id: int, sim: AxisSimulation | None, limits: DriveLimits | None) -> float:
+        """Where the machine stands at power-on: nowhere in particular for an axis with a simulated
+        machine (seeded: between its limit switches or hard stops, else in its 0x607D range), at its
+        encoder's 0 otherwise (an absolute encoder: nothing to home)."""
+        if sim is None:
+            return 0.0
+        if sim.power_up_qc is not None:
+            return float(sim.power_up_qc)
+        lows = [x for x in (sim.negative_limit_switch_qc, sim.negative_hard_stop_qc) if x is not None]
+        highs = [x for x in (sim.positive_limit_switch_qc, sim.positive_hard_stop_qc) if x is not None]
+        lo = max(lows) if lows else (limits.min_position_qc if limits is not None else -100_000)
+        hi = min(highs) if highs else (limits.max_position_qc if limits is not None else 100_000)
+        margin = 0.05 * (hi - lo)
+        return float(round(random.Random(sim.seed * 1000 + node_id).uniform(lo + margin, hi - margin)))
+
+    @property
+    def machine_position(self) -> float:
+        """Where the axis really is (qc of the machine): what its position reads once correctly homed."""
+        return self.demand + self.origin
+
+    # --- homing (mode 6) -------------------------------------------------------------------------
+    def _homing_status(self) -> int:
+        """Statusword bits 13, 12, 10 in homing mode (CiA 402): in progress 000, interrupted or not
+        started 001, attained 01x, completed 011, error 10x (bit 10: the axis is at rest)."""
+        rest = self.state == OPERATION_ENABLED and self._stop_segment is None and abs(self.velocity) <= 1e-12
+        run = self._homing
+        word = TARGET_REACHED if rest else 0
+        if run is None or run.state is HomingState.INTERRUPTED:
+            return word
+        if run.state is HomingState.RUNNING:
+            return 0
+        if run.state is HomingState.ATTAINED:
+            return HOMING_ATTAINED | word
+        return HOMING_ERROR | word
+
+    def _start_homing(self) -> None:
+        """Controlword bit 4 rose in mode 6: the method of 0x6098 at the speeds of 0x6099 and 0x609A."""
+        self.referenced = False
+        method = self.read_or(od.HOMING_METHOD, 0, 0)
+        rpm_per_qc_ms = self._rpm_per_qc_ms
+        try:
+            run = HomingRun(
+                method,
+                self.machine,
+                self.machine_position,
+                switch_speed=self.read_or(od.HOMING_SPEEDS, 1, 0) / rpm_per_qc_ms,
+                zero_speed=self.read_or(od.HOMING_SPEEDS, 2, 0) / rpm_per_qc_ms,
+                acceleration=self.read_or(od.HOMING_ACCELERATION, 0, 0) / self._rpm_s_per_qc_ms2,
+                current_threshold_ma=self.read_or(od.EPOS2_HOMING_CURRENT_THRESHOLD, 0, 500),
+                on_reference=self._home_found,
+            )
+        except ValueError as exc:  # a method 0x6098 holds but this drive does not run
+            run = HomingRun(
+                od.HomingMethod.CURRENT_POSITION,
+                self.machine,
+                self.machine_position,
+                switch_speed=1.0,
+                zero_speed=1.0,
+                acceleration=1.0,
+                current_threshold_ma=0,
+                on_reference=lambda home, m: None,
+            )
+            run.state, run.reason = HomingState.ERROR, str(exc)
+        self._homing = run
+        self._homing_t = self.time_us / 1000.0
+        self.homing_runs.append(run)
+        if run.state is HomingState.ATTAINED:
+            self._homing_attained()
+
+    def _home_found(self, home: float, m: float) -> None:
+        """The home position: from now on the position reads 0x607C there."""
+        self.origin = home - self.read_or(od.HOME_OFFSET, 0, 0)
+        self.demand = m - self.origin
+
+    def _homing_attained(self) -> None:
+        self.demand = float(round(self.demand))
+        self.velocity = self.acceleration = 0.0
+        self.referenced = True
+
+    def _homing_sample(self, t: float) -> None:
+        run = self._homing
+        assert run is not None
+        run.step(t - self._homing_t)
+        self._homing_t = t
+        self.demand = run.m - self.origin
+        self.velocity, self.acceleration = run.v, run.a
+        if run.state is HomingState.ATTAINED:
+            self._homing_attained()
+
+    def _homing_moves(self) -> bool:
+        run = self._homing
+        return (
+            run is not None
+            and self.state == OPERATION_ENABLED
+            and self.mode_display == od.HOMING_MODE
+            and (run.state is HomingState.RUNNING or (run.state is HomingState.ERROR and not run.at_rest))
+        )
+
+    def _interrupt_homing(self) -> None:
+        if self._homing is not None:
+            self._homing.interrupt()
+
+    def _check_machine(self, p: float) -> bool:
+        """The simulated machine bounds every motion outside homing: a limit switch that becomes active
+        faults the drive (EMCY 0x8612), a hard stop stops the axis where it stands and faults it with a
+        following error (0x8611). So an axis that did not home, whose encoder's 0 is anywhere, really
+        runs into them where the program thought it had room."""
+        if self.simulation is None:
+            return True
+        m0, m1 = self.demand + self.origin, p + self.origin
+        stop = self.machine.stop_between(m0, m1)
+        if stop is not None:
+            self.demand = stop - self.origin
+            self.fault(od.EMCY_FOLLOWING_ERROR, f"ran into the hard stop at {stop:.0f} qc of the machine")
+            return False
+        for name, switch in (("negative", self.machine.negative_limit), ("positive", self.machine.positive_limit)):
+            if switch(m1) and not switch(m0):
+                self.fault(od.EMCY_LIMIT_SWITCH, f"{name} limit switch at {m1:.0f} qc of the machine")
+                return False
+        return True
