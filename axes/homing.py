@@ -398,7 +398,7 @@ class CellHoming:
                 link.write(od.MODES_OF_OPERATION, 0, od.INTERPOLATED_POSITION_MODE, "b")
             except DriveError:
                 continue  # a drive that is gone is configured again before its next use
-        group.forget_readiness()
+        group.readiness.forget()  # its mode changed: every axis is enabled afresh at the next start
 
     def _event(self, kind: HomingEventKind, message: str, link: AxisLink | None) -> None:
         if self.on_event is not None:

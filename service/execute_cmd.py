@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from axes.bus import BusError, CellBus
-from axes.group import AxisGroup, Event, EventKind, Progress, RunResult
+from axes.group import AxisGroup
+from axes.outcome import Event, EventKind, Progress, RunResult
 from axes.program import PvtProgram, program_mismatch
 from service.cli import can_log_problem
 from service.config import ConfigError, load_cell_config

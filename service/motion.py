@@ -37,8 +37,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.bus import BusError, CellBus
-from axes.group import AxisGroup, AxisStatus, Event, EventKind, GroupError, Progress, Result, RunResult
+from axes.group import AxisGroup
 from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError, HomingResult
+from axes.outcome import AxisStatus, Event, EventKind, GroupError, Progress, Result, RunResult
 from axes.profiles import DriveError
 from axes.program import ProgramFormatError, PvtProgram, program_mismatch
 from planner.validate import validate_program

@@ -11,7 +11,7 @@ import pytest
 from axes_programs import check_limits, program
 
 from axes.cia402 import PowerState, decode_state
-from axes.group import GroupError, Result
+from axes.outcome import GroupError, Result
 
 
 def test_six_axes_start_on_one_sync_and_end_on_their_last_records(arm6, make_rig):
@@ -422,8 +422,7 @@ def test_a_drive_silent_at_the_check_sync_refuses_the_start(arm6, make_rig):
     rig = make_rig(arm6, lost_sync_timeout_s=0.2)
     axes = arm6.ordered_axes()
     assert rig.group.run(program(axes, 200, spacing_ms=20), timeout_s=30).ok
-    for readying in rig.group._readying:  # the background enable for the next start is over
-        readying.result()
+    rig.group.readiness.wait()  # the background enable for the next start is over
     here = [lk.position for lk in rig.group.links]
     started = {d.node_id: d.ip_active_sync for d in rig.sim}
     gone = rig.sim.drive(3)

@@ -7,7 +7,7 @@ import pytest
 from axes_programs import check_limits, program
 from axes_rig import with_profiles
 
-from axes.group import Result
+from axes.outcome import Result
 
 
 def run_and_check(rig, duration_ms: int = 300):

@@ -15,8 +15,9 @@ import pytest
 from axes import objects as od
 from axes.bus import CellBus
 from axes.config import AxisSimulation, HomingConfig
-from axes.group import AxisGroup, Result
+from axes.group import AxisGroup
 from axes.homing import CellHoming, HomingRequestError, HomingResult, homing_stages
+from axes.outcome import Result
 from axes.program import PvtProgram
 from axes.sim.cell import SimulatedCell
 from axes.sim.homing import HomingState
