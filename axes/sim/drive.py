@@ -37,7 +37,6 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
 
@@ -49,7 +48,6 @@ from canopen.sdo import SdoAbortedError
 from axes import objects as od
 from axes.cia402 import Controlword, PowerState, Statusword
 from axes.config import AxisSimulation
-from axes.interpolation import hermite_coefficients
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 from axes.sim.consumer import HeartbeatConsumer
 from axes.sim.device import (
@@ -62,6 +60,8 @@ from axes.sim.device import (
 )
 from axes.sim.homing import HomingMixin, HomingState, Machine
 from axes.sim.pdo import PdoEngine, is_pdo_object, unsubscribe
+from axes.sim.records import FaultRecord, MasterLoss, SyncSample
+from axes.sim.segment import Segment
 
 EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
 # maxon's own published EPOS2 70/10 EDS, kept unchanged as a vendor data file (configs/eds/vendor/README.md)
@@ -97,90 +97,6 @@ ERROR_REGISTER = 0x1001
 ERROR_HISTORY = 0x1003
 REGISTER_GENERIC = 0x01  # 0x1001 bits
 REGISTER_COMMUNICATION = 0x10
-
-
-@dataclass(frozen=True)
-class FaultRecord:
-    """One fault the drive went into: when, the EMCY code it sent and which check tripped."""
-
-    sync: int
-    time_ms: float
-    code: int
-    check: str
-
-
-@dataclass
-class MasterLoss:
-    """A heartbeat the drive watches (0x1016) stopped: when, and how the drive took it (tests, benches)."""
-
-    node_id: int  # whose heartbeat stopped
-    silent_s: float  # since its last heartbeat when the consumer fired
-    detected: float  # time.monotonic()
-    last_heartbeat: float | None  # time.monotonic() of that node's last heartbeat
-    option: int  # 0x6007 in force
-    state: str  # the power state the drive was in
-    velocity_rpm: float  # the demand velocity then (motor rpm)
-    standstill: float | None = None  # time.monotonic() when the demand came to rest (None: still moving)
-
-
-@dataclass(frozen=True, slots=True)
-class SyncSample:
-    """The drive's demand and actual position at one SYNC instant (after the SYNC's processing)."""
-
-    sync: int
-    time_ms: float
-    demand: float
-    actual: int
-    ip_active: bool
-    state: str
-
-
-@dataclass
-class Segment:
-    """One piece of the drive's interpolation: p(tau) = c0 + c1 tau + c2 tau^2 + c3 tau^3, tau in [0, T]."""
-
-    start: float  # ms on the motion clock
-    duration: float
-    c0: float
-    c1: float
-    c2: float
-    c3: float
-    p1: float  # exact end point and velocity (no rounding drift from chaining)
-    v1: float
-
-    @classmethod
-    def cubic(cls, start: float, p0: float, v0: float, p1: float, v1: float, duration: float) -> Segment:
-        c0, c1, c2, c3 = (float(c) for c in hermite_coefficients(p0, v0, p1, v1, duration))
-        return cls(start, duration, c0, c1, c2, c3, p1, v1)
-
-    @classmethod
-    def linear(cls, start: float, p0: float, p1: float, duration: float) -> Segment:
-        v = (p1 - p0) / duration
-        return cls(start, duration, p0, v, 0.0, 0.0, p1, v)
-
-    @classmethod
-    def braking(cls, start: float, p0: float, v0: float, deceleration: float) -> Segment:
-        """A ramp to rest at up to ``deceleration`` that ends on a whole count: a drive's position
-        demand at standstill is a whole number of increments (what 0x6062 shows), so the ramp takes
-        the deceleration that stops exactly on the first count at or past its natural stop."""
-        natural = p0 + v0 * abs(v0) / (2.0 * deceleration)
-        p1 = float(math.ceil(natural) if v0 > 0 else math.floor(natural))
-        duration = 2.0 * abs(p1 - p0) / abs(v0)
-        a = -v0 / duration
-        return cls(start, duration, p0, v0, 0.5 * a, 0.0, p1, 0.0)
-
-    @property
-    def end(self) -> float:
-        return self.start + self.duration
-
-    def at(self, t: float) -> tuple[float, float, float]:
-        """(position, velocity, acceleration) at motion time t (clamped to the segment)."""
-        tau = min(max(t - self.start, 0.0), self.duration)
-        if tau >= self.duration:
-            return self.p1, self.v1, 2.0 * self.c2 + 6.0 * self.c3 * self.duration
-        p = self.c0 + tau * (self.c1 + tau * (self.c2 + tau * self.c3))
-        v = self.c1 + tau * (2.0 * self.c2 + 3.0 * tau * self.c3)
-        return p, v, 2.0 * self.c2 + 6.0 * self.c3 * tau
 
 
 class SimulatedDrive(HomingMixin):

@@ -43,9 +43,9 @@ from axes.sim.drive import (
     ABORT_DEVICE_STATE,
     ABORT_VALUE_RANGE,
     OPERATION_ENABLED,
-    Segment,
     SimulatedDrive,
 )
+from axes.sim.segment import Segment
 
 EPOS2_VERSION = 0x2003  # :01 software version, :02 hardware version (maxon's EDS)
 

@@ -32,7 +32,7 @@ from axes.config import AxisSimulation
 from axes.scaling import DriveLimits
 
 if TYPE_CHECKING:
-    from axes.sim.drive import Segment
+    from axes.sim.segment import Segment
 
 M = od.HomingMethod
 RETURN_TOLERANCE_QC = 1e-6
