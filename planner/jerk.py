@@ -50,17 +50,21 @@ from planner.timing import (
     IntervalJointAccelerationConstraint,
     IntervalJointVelocityConstraint,
     RneaJointTorqueConstraint,
+    TcpAngularSpeedConstraint,
     TcpSpeedConstraint,
     Trajectory,
 )
 
 DEFAULT_JERK_INTERVALS = 48
 _CHECK_SUBSAMPLES = 16
-_MIDDLE = 0.5
 # intervals between two rests at least: one constant jerk per interval needs 3 to stop again (+, -, +)
 MIN_REST_TO_REST = 4
 # a jump of the path's second derivative at a waypoint above this is a C1 joint, not round-off
 _CURVATURE_JUMP = 1e-8
+
+
+# bounds on a speed |G(s) q_s| s' <= limit (the joint velocity, the TCP's linear and angular speed)
+_SPEED_CONSTRAINTS = (IntervalJointVelocityConstraint, TcpSpeedConstraint, TcpAngularSpeedConstraint)
 
 
 def _interval_coefficients(path: JointPath, grid: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
@@ -200,6 +204,15 @@ class JerkTrajectory:
             float(np.max(np.abs(self._joint(t, 3)) / jmax)),
         )
 
+    def speed_ratio(self, constraints: Sequence[constraint.Constraint]) -> float:
+        """Worst speed / limit of the cell's TCP speed constraints over the check times (1 / 0: none)."""
+        tcp = [c for c in constraints if isinstance(c, TcpSpeedConstraint | TcpAngularSpeedConstraint)]
+        if not tcp:
+            return 0.0
+        k, sigma, sd, _, _ = self._path_state(self.check_times())
+        s = np.clip(self.gridpoints[k] + sigma, 0.0, self.gridpoints[-1])
+        return max(float(np.max(np.abs(c.speed_factors(self.path, s)) * sd[:, None] / c.limit)) for c in tcp)
+
     def min_path_velocity(self) -> float:
         """The smallest s' over the motion, exactly (s' is a quadratic in time on each interval)."""
         h = np.diff(self.breakpoints)
@@ -228,16 +241,23 @@ class _Rows:
 
 
 # variables per stage: the state (s', s'') at the gridpoint, then the interval's controls: its time,
-# its jerk s''', and sigma and s' at its middle in time (lifted: the middle's rows are then low-degree
-# polynomials of few variables, which halves the work of the Hessian and the Jacobian)
-_STATE, _CONTROL = ("sd", "a"), ("h", "j", "sigma_mid", "sd_mid")
-_EQUALITIES = 5  # per stage: the next state (2), the distance, the middle's sigma and s'
+# its jerk s''', and sigma and s' at fixed fractions of its time (lifted: the rows there are then
+# low-degree polynomials of few variables, which halves the work of the Hessian and the Jacobian)
+_FRACTIONS = (0.5,)  # where in time the joint velocity and acceleration rows are held (bench/RESULTS.md)
+_MIDDLE_INDEX = 0  # the fraction that is the middle (jerk and TCP speed rows there)
+_STATE = ("sd", "a")
+_CONTROL = ("h", "j", *(f"sigma_{i}" for i in range(len(_FRACTIONS))), *(f"sd_{i}" for i in range(len(_FRACTIONS))))
+_EQUALITIES = 3 + 2 * len(_FRACTIONS)  # per stage: the next state (2), the distance, sigma and s' at the fractions
+_JERK_ROWS = 3  # per joint: start, middle, end
 
 
 def _stage_function(dof: int, torque: bool) -> ca.Function:
     """The rows of one interval: (its variables and numbers) -> the state at its end, then the
-    distance and middle residuals and its inequality rows (normalised to [-1, 1] but torque's)."""
-    sd, a, h, j, sgm, sdm = (ca.SX.sym(n) for n in (*_STATE, *_CONTROL))
+    distance and lifted residuals and its inequality rows (normalised to [-1, 1] but torque's)."""
+    m = len(_FRACTIONS)
+    sd, a, h, j = (ca.SX.sym(n) for n in (*_STATE, *_CONTROL[:2]))
+    sgs = [ca.SX.sym(f"sigma_{i}") for i in range(m)]
+    sds = [ca.SX.sym(f"sd_{i}") for i in range(m)]
     D = ca.SX.sym("D")
     q1, q2, q3, e1, e2, ta, tb = (ca.SX.sym(n, dof) for n in ("q1", "q2", "q3", "e1", "e2", "ta", "tb"))
     inv_v, inv_a, inv_j = (ca.SX.sym(n, dof) for n in ("inv_v", "inv_a", "inv_j"))
@@ -250,21 +270,21 @@ def _stage_function(dof: int, torque: bool) -> ca.Function:
         return (q3 * s_d**3 + 3.0 * q_ss * (s_d * s_dd) + q_s * j) * inv_j
 
     sg1, sd1, a1 = at(h)
-    sgm_h, sdm_h, am = at(0.5 * h)
-    q_sm, q_ssm = q1 + sgm * (q2 + 0.5 * sgm * q3), q2 + sgm * q3  # the path at the middle, exactly
     rows = [(q2 * sd**2 + q1 * a) * inv_a]
     if torque:
         rows.append(ta * a + tb * sd**2)
-    rows += [
-        q_sm * sdm * inv_v,
-        (q_ssm * sdm**2 + q_sm * am) * inv_a,
-        jerk(q1, q2, sd, a),
-        jerk(q_sm, q_ssm, sdm, am),
-        jerk(e1, e2, sd1, a1),  # the end: sigma = D there once the distance row holds
-    ]
-    inputs = [sd, a, h, j, sgm, sdm, D, q1, q2, q3, e1, e2, inv_v, inv_a, inv_j, ta, tb]
-    residual = ca.vertcat((sg1 - D) / D, sgm - sgm_h, sdm - sdm_h)
-    return ca.Function("stage", inputs, [ca.vertcat(sd1, a1), residual, ca.vertcat(*rows)])
+    residual = [(sg1 - D) / D]
+    jerk_mid = ca.SX.zeros(dof)
+    for i, f in enumerate(_FRACTIONS):
+        sg_h, sd_h, a_f = at(f * h)
+        residual += [sgs[i] - sg_h, sds[i] - sd_h]
+        q_s, q_ss = q1 + sgs[i] * (q2 + 0.5 * sgs[i] * q3), q2 + sgs[i] * q3  # the path there, exactly
+        rows += [q_s * sds[i] * inv_v, (q_ss * sds[i] ** 2 + q_s * a_f) * inv_a]
+        if i == _MIDDLE_INDEX:
+            jerk_mid = jerk(q_s, q_ss, sds[i], a_f)
+    rows += [jerk(q1, q2, sd, a), jerk_mid, jerk(e1, e2, sd1, a1)]  # the end: sigma = D once the distance holds
+    inputs = [sd, a, h, j, *sgs, *sds, D, q1, q2, q3, e1, e2, inv_v, inv_a, inv_j, ta, tb]
+    return ca.Function("stage", inputs, [ca.vertcat(sd1, a1), ca.vertcat(*residual), ca.vertcat(*rows)])
 
 
 @dataclass
@@ -406,10 +426,10 @@ def _rows(
     sd_max_mid = np.full(n, np.inf)
     torque = None
     for c in constraints:
-        if isinstance(c, IntervalJointVelocityConstraint | TcpSpeedConstraint):
+        if isinstance(c, _SPEED_CONSTRAINTS):
             with np.errstate(divide="ignore"):
                 sd_max = np.minimum(sd_max, np.min(c.limit / np.abs(c.speed_factors(path, grid)), axis=1))
-                if isinstance(c, TcpSpeedConstraint):
+                if not isinstance(c, IntervalJointVelocityConstraint):
                     sd_max_mid = np.minimum(sd_max_mid, np.min(c.limit / np.abs(c.speed_factors(path, mid)), axis=1))
         elif isinstance(c, RneaJointTorqueConstraint):
             a, b, cc, _F, _g, _ub, _xb = c.compute_constraint_params(path, grid[:-1])
@@ -432,7 +452,9 @@ def _bounds(rows: _Rows, program: _Program) -> dict[str, NDArray[np.float64]]:
     # solver away from h -> 0, where the distance row loses its gradient (a trap of local infeasibility)
     finite = rows.sd_max[np.isfinite(rows.sd_max) & (rows.sd_max > 0.0)]
     lbx[:-1, 2] = 0.25 * rows.D / (np.max(finite) if len(finite) else 1e6)
-    lbx[:-1, 5], ubx[:-1, 5] = 0.0, rows.sd_max_mid
+    first_sd = len(_STATE) + 2 + len(_FRACTIONS)  # the column of the first lifted s'
+    lbx[:-1, first_sd : first_sd + len(_FRACTIONS)] = 0.0
+    ubx[:-1, first_sd + _MIDDLE_INDEX] = rows.sd_max_mid
     # at rest with zero acceleration at both ends and at every stop on the way (a stop with s'' != 0
     # would run backwards along the path on one side of it)
     rest = rows.sd_max == 0.0
@@ -443,8 +465,9 @@ def _bounds(rows: _Rows, program: _Program) -> dict[str, NDArray[np.float64]]:
     if rows.torque is not None:
         lo.append(rows.torque[2])
         hi.append(rows.torque[3])
-    lo += [-one] * 5
-    hi += [one] * 5
+    rest_rows = 2 * len(_FRACTIONS) + _JERK_ROWS
+    lo += [-one] * rest_rows
+    hi += [one] * rest_rows
     cut = len(_CONTROL)  # the last stage has a state only
     return {
         "lbx": lbx.ravel()[:-cut],
@@ -473,11 +496,11 @@ def _start(profile: WarmProfile, grid: NDArray[np.float64], sd_max: NDArray[np.f
     a[[0, -1]] = 0.0
     h = np.diff(grid) / np.maximum(0.5 * (sd[:-1] + sd[1:]), 1e-3 * np.max(sd))
     j = np.diff(a) / h
-    tau = 0.5 * h
     v, u = sd[:-1], a[:-1]
-    sigma_mid = tau * (v + tau * (0.5 * u + tau * j / 6.0))
-    sd_mid = np.maximum(v + tau * (u + 0.5 * j * tau), 0.0)
-    stages = np.column_stack((v, u, h, j, sigma_mid, sd_mid))
+    tau = [f * h for f in _FRACTIONS]
+    sigma = [t * (v + t * (0.5 * u + t * j / 6.0)) for t in tau]
+    speed = [np.maximum(v + t * (u + 0.5 * j * t), 0.0) for t in tau]
+    stages = np.column_stack((v, u, h, j, *sigma, *speed))
     return np.concatenate((stages.ravel(), [0.0, 0.0]))
 
 
@@ -554,7 +577,7 @@ def jerk_limited(
     if traj.min_path_velocity() < -1e-6 * max(np.max(traj.sd), 1e-9):
         raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing reverses along the path", solver=sol.solver)
     rv, ra, rj = traj.limit_ratios(limits, jmax)
-    k = max(rv, np.sqrt(ra), np.cbrt(rj))
+    k = max(rv, np.sqrt(ra), np.cbrt(rj), traj.speed_ratio(constraints))
     if k > 1.0:
         traj = traj.slowed(k * (1.0 + 1e-9))
     return traj

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -46,6 +46,8 @@ class PlanningConfig:
     max_tcp_angular_speed: float | None = None  # rad/s
     torque_limits: bool = True  # only where the URDF has effort limits and masses
     position_tolerance_qc: float = 1.0
+    # joint units / s^3 per joint in the model's joint order (inf: that axis sets none); None: no axis sets one
+    max_jerk: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -199,8 +201,12 @@ def parse_cell_config(data: Any, file: Path) -> CellConfig:
     if not isinstance(axes_data, list) or not axes_data:
         raise top.error("axes", "must be a non-empty list of axes")
     axes: list[AxisConfig] = []
+    jerk: dict[str, float] = {}  # joint -> its axis's max_jerk
     for i, a in enumerate(axes_data):
-        axes.append(_parse_axis(file, f"axes[{i}]", a, model, bus))
+        axis, max_jerk = _parse_axis(file, f"axes[{i}]", a, model, bus)
+        axes.append(axis)
+        if max_jerk is not None:
+            jerk[axis.joint] = max_jerk
 
     seen_joint: dict[str, int] = {}
     seen_node: dict[int, int] = {}
@@ -227,6 +233,8 @@ def parse_cell_config(data: Any, file: Path) -> CellConfig:
         if joint not in seen_joint:
             raise ConfigError(file, "axes", f"joint {joint!r} of the URDF has no axis")
 
+    if jerk:
+        planning = replace(planning, max_jerk=tuple(jerk.get(j, math.inf) for j in model.joint_names))
     cell = CellConfig(name, file, urdf, bus, tuple(axes), planning, simulated, model)
     _check_limits_consistent(file, cell)
     return cell
@@ -304,12 +312,25 @@ def _parse_planning(file: Path, data: Any, tcp_frame: str | None, model: RobotMo
     )
 
 
-def _parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusConfig) -> AxisConfig:
+def _parse_axis(
+    file: Path, where: str, data: Any, model: RobotModel, bus: BusConfig
+) -> tuple[AxisConfig, float | None]:
+    """The axis, and its joint's jerk limit for planning (joint units / s^3; None: unlimited)."""
     f = _Fields(
         file,
         where,
         data,
-        ("joint", "node_id", "profile", "scaling", "limits", "period_ms", "interpolation_submode", "buffer"),
+        (
+            "joint",
+            "node_id",
+            "profile",
+            "scaling",
+            "limits",
+            "period_ms",
+            "interpolation_submode",
+            "buffer",
+            "max_jerk",
+        ),
     )
     joint = f.get("joint", f.string)
     if joint not in model.joint_names:
@@ -407,7 +428,8 @@ def _parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusCo
         )
         if buffer.underflow_warning + 2 > buffer.overflow_warning:
             raise b.error("overflow_warning", "must be at least 2 above underflow_warning")
-    return AxisConfig(joint, node_id, profile, scaling, limits, period, submode, buffer)
+    max_jerk = f.get("max_jerk", f.number(positive=True), None)
+    return AxisConfig(joint, node_id, profile, scaling, limits, period, submode, buffer), max_jerk
 
 
 def _check_limits_consistent(file: Path, cell: CellConfig) -> None:
