@@ -310,6 +310,7 @@ class _Program:
 
 
 _MAX_ITER = 300
+_START_JERK_SLACK = 10.0  # the warm start may exceed the jerk limit this many times (see ``_start``)
 _TOL = 1e-6  # optimality (relative duration)
 _CONSTRAINT_TOL = 1e-9  # the residuals: positions along the path continuous to 1e-9 of an interval
 
@@ -485,17 +486,27 @@ def _parameters(rows: _Rows, limits: JointLimits, max_jerk: NDArray[np.float64])
     return np.concatenate((rows.D, *(m.ravel("F") for m in per_stage), inv))
 
 
-def _start(profile: WarmProfile, grid: NDArray[np.float64], sd_max: NDArray[np.float64]) -> NDArray[np.float64]:
+def _start(
+    profile: WarmProfile, grid: NDArray[np.float64], rows: _Rows, max_jerk: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """The program's variables along ``profile`` on ``grid``, within the speed bounds: s' and a
     smoothed s'' (TOPP-RA's jumps between its intervals) at the gridpoints, the times between
-    them, the jerk that joins the s'', and the middles that follow from those."""
-    x = np.minimum(np.interp(grid, profile.s, profile.x), sd_max**2)
+    them, the jerk that joins the s'', and the middles that follow from those.
+
+    Slowed down uniformly where its joint jerk at the interval starts is more than
+    ``_START_JERK_SLACK`` times the limit: far outside the jerk rows (a limit far below what the
+    TOPP-RA profile's jerk), the solvers spend their time in restoration instead of solving."""
+    x = np.minimum(np.interp(grid, profile.s, profile.x), rows.sd_max**2)
     sd = np.sqrt(np.maximum(x, 0.0))
     a = 0.5 * np.gradient(x, grid)
-    a[sd_max == 0.0] = 0.0
+    a[rows.sd_max == 0.0] = 0.0
     a[[0, -1]] = 0.0
     h = np.diff(grid) / np.maximum(0.5 * (sd[:-1] + sd[1:]), 1e-3 * np.max(sd))
     j = np.diff(a) / h
+    v, u = sd[:-1, None], a[:-1, None]
+    jerk = rows.q3 * v**3 + 3.0 * rows.q2 * v * u + rows.q1 * j[:, None]
+    k = np.cbrt(max(1.0, float(np.max(np.abs(jerk) / max_jerk)) / _START_JERK_SLACK))
+    sd, a, h, j = sd / k, a / (k * k), h * k, j / (k * k * k)
     v, u = sd[:-1], a[:-1]
     tau = [f * h for f in _FRACTIONS]
     sigma = [t * (v + t * (0.5 * u + t * j / 6.0)) for t in tau]
@@ -555,7 +566,7 @@ def jerk_limited(
     program = _program(n, limits.dof, rows.torque is not None)
     args = _bounds(rows, program)
     args["p"] = _parameters(rows, limits, jmax)
-    args["x0"] = _start(profile, grid, rows.sd_max)
+    args["x0"] = _start(profile, grid, rows, jmax)
     sol, status = _solve(program, args)
     if sol is None:
         raise PlanError(
