@@ -57,6 +57,7 @@ from planner.timing import (
 
 DEFAULT_JERK_INTERVALS = 48
 _CHECK_SUBSAMPLES = 16
+_BISECTIONS = 40  # a peak's time to 1e-12 of the samples' spacing
 # intervals between two rests at least: one constant jerk per interval needs 3 to stop again (+, -, +)
 MIN_REST_TO_REST = 4
 # a jump of the path's second derivative at a waypoint above this is a C1 joint, not round-off
@@ -195,14 +196,35 @@ class JerkTrajectory:
         return inner.ravel()
 
     def limit_ratios(self, limits: JointLimits, max_jerk: ArrayLike) -> tuple[float, float, float]:
-        """Worst |q'|/vmax, |q''|/amax and |q'''|/max_jerk over the check times."""
+        """Worst |q'|/vmax, |q''|/amax and |q'''|/max_jerk over the check times, and for the velocity
+        and the acceleration also at their peaks between two check times (``_peak_ratio``)."""
         t = self.check_times()
         jmax = np.asarray(max_jerk, dtype=float)
+        t2d = t.reshape(len(self.sddd), -1)
+        rv = float(np.max(np.abs(self._joint(t, 1)) / limits.velocity))
+        ra = float(np.max(np.abs(self._joint(t, 2)) / limits.acceleration))
         return (
-            float(np.max(np.abs(self._joint(t, 1)) / limits.velocity)),
-            float(np.max(np.abs(self._joint(t, 2)) / limits.acceleration)),
+            max(rv, self._peak_ratio(t2d, 1, limits.velocity)),
+            max(ra, self._peak_ratio(t2d, 2, limits.acceleration)),
             float(np.max(np.abs(self._joint(t, 3)) / jmax)),
         )
+
+    def _peak_ratio(self, t2d: NDArray[np.float64], order: int, bound: NDArray[np.float64]) -> float:
+        """Worst |order-th derivative| / bound at its extrema between consecutive check times of an
+        interval (rows of ``t2d``): where the next derivative changes sign, found by bisection. The
+        samples alone can miss a peak between them by 1e-4 of the limit."""
+        d = self._joint(t2d.ravel(), order + 1).reshape(*t2d.shape, -1)
+        i, p, j = np.nonzero(d[:, :-1] * d[:, 1:] < 0.0)
+        if len(i) == 0:
+            return 0.0
+        lo, hi, f_lo = t2d[i, p], t2d[i, p + 1], d[i, p, j]
+        rows = np.arange(len(i))
+        for _ in range(_BISECTIONS):
+            mid = 0.5 * (lo + hi)
+            f_mid = self._joint(mid, order + 1)[rows, j]
+            left = np.sign(f_mid) == np.sign(f_lo)
+            lo, f_lo, hi = np.where(left, mid, lo), np.where(left, f_mid, f_lo), np.where(left, hi, mid)
+        return float(np.max(np.abs(self._joint(0.5 * (lo + hi), order)[rows, j]) / bound[j]))
 
     def speed_ratio(self, constraints: Sequence[constraint.Constraint]) -> float:
         """Worst speed / limit of the cell's TCP speed constraints over the check times (1 / 0: none)."""
