@@ -351,21 +351,28 @@ def _program(n: int, dof: int, torque: bool) -> _Program:
     D = ca.SX.sym("D", n)
     per_stage = [ca.SX.sym(name, n, dof) for name in ("q1", "q2", "q3", "e1", "e2", "ta", "tb")]
     inv = ca.SX.sym("inv", 3 * dof)
+    # the variables are the program's own divided by a typical magnitude of each (``_scales``)
+    scale = ca.SX.sym("scale", len(_STATE) + len(_CONTROL))
+    x_scale, u_scale = scale[: len(_STATE)], scale[len(_STATE) :]
+    m = len(_FRACTIONS)
+    sigma_scale, sd_scale = u_scale[2], u_scale[2 + m]
+    residual_scale = ca.vertcat(1.0, *([sigma_scale, sd_scale] * m))
     x = [ca.SX.sym(f"x{k}", len(_STATE)) for k in range(n + 1)]
     u = [ca.SX.sym(f"u{k}", len(_CONTROL)) for k in range(n)]
     w: list[ca.SX] = []
     g: list[ca.SX] = []
     equality: list[bool] = []
     for k in range(n):
-        q1, q2, q3, e1, e2, ta, tb = (m[k, :].T for m in per_stage)
-        controls = (u[k][i] for i in range(len(_CONTROL)))
+        q1, q2, q3, e1, e2, ta, tb = (mat[k, :].T for mat in per_stage)
+        xs, us = x[k] * x_scale, u[k] * u_scale
+        controls = (us[i] for i in range(len(_CONTROL)))
         limits = (inv[:dof], inv[dof : 2 * dof], inv[2 * dof :])
-        x1, residual, rows = stage(x[k][0], x[k][1], *controls, D[k], q1, q2, q3, e1, e2, *limits, ta, tb)
+        x1, residual, rows = stage(xs[0], xs[1], *controls, D[k], q1, q2, q3, e1, e2, *limits, ta, tb)
         w += [x[k], u[k]]
-        g += [x[k + 1] - x1, residual, rows]
+        g += [x[k + 1] - x1 / x_scale, residual / residual_scale, rows]
         equality += [True] * _EQUALITIES + [False] * rows.shape[0]
     w.append(x[n])
-    p = ca.vertcat(D, *(ca.vec(m) for m in per_stage), inv)
+    p = ca.vertcat(D, *(ca.vec(mat) for mat in per_stage), inv, scale)
     objective = ca.sum1(ca.vertcat(*(uk[0] for uk in u)))
     return _Program(n, dof, torque, {"x": ca.vertcat(*w), "p": p, "f": objective, "g": ca.vertcat(*g)}, equality)
 
@@ -508,6 +515,16 @@ def _parameters(rows: _Rows, limits: JointLimits, max_jerk: NDArray[np.float64])
     return np.concatenate((rows.D, *(m.ravel("F") for m in per_stage), inv))
 
 
+def _scales(start: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A typical magnitude of each of a stage's variables (the 90th percentile of its |start| over
+    the stages, 1 where that is 0): fatrop, unlike ipopt, does not scale a program itself, and the
+    jerk s''' is 1e3-1e4 times the times h here."""
+    width = len(_STATE) + len(_CONTROL)
+    stages = np.append(start, np.zeros(len(_CONTROL))).reshape(-1, width)[:-1]
+    typical = np.percentile(np.abs(stages), 90, axis=0)
+    return np.where(typical > 0.0, typical, 1.0)
+
+
 def _start(
     profile: WarmProfile, grid: NDArray[np.float64], rows: _Rows, max_jerk: NDArray[np.float64]
 ) -> NDArray[np.float64]:
@@ -547,8 +564,9 @@ class _Solution:
     iterations: int
 
 
-def _solve(program: _Program, args: dict[str, Any]) -> tuple[_Solution | None, str]:
-    """fatrop, then ipopt from the same start where fatrop does not converge."""
+def _solve(program: _Program, args: dict[str, Any], scale: NDArray[np.float64]) -> tuple[_Solution | None, str]:
+    """fatrop, then ipopt from the same start where fatrop does not converge (``args`` scaled by
+    ``scale``, the solution is not)."""
     statuses = []
     width = len(_STATE) + len(_CONTROL)
     for name in ("fatrop", "ipopt"):
@@ -557,8 +575,10 @@ def _solve(program: _Program, args: dict[str, Any]) -> tuple[_Solution | None, s
         stats = solver.stats()
         if stats["success"]:
             w = np.append(np.asarray(out["x"]).ravel(), np.zeros(len(_CONTROL))).reshape(program.n + 1, width)
+            w = w * scale
             return _Solution(w[:, 0], w[:, 1], w[:-1, 2], w[:-1, 3], name, int(stats.get("iter_count", 0))), ""
-        statuses.append(f"{name}: {stats['return_status']}")
+        status = stats.get("return_status", "")
+        statuses.append(f"{name}: {status}" if isinstance(status, str) else f"{name}: failed (return status {status})")
     return None, "; ".join(statuses)
 
 
@@ -586,10 +606,14 @@ def jerk_limited(
     rows = _rows(path, grid, limits, constraints)
     rows.sd_max[np.searchsorted(grid, stops)] = 0.0
     program = _program(n, limits.dof, rows.torque is not None)
-    args = _bounds(rows, program)
-    args["p"] = _parameters(rows, limits, jmax)
-    args["x0"] = _start(profile, grid, rows, jmax)
-    sol, status = _solve(program, args)
+    start = _start(profile, grid, rows, jmax)
+    scale = _scales(start)
+    per_variable = np.tile(scale, n + 1)[: len(start)]
+    args = {k: v / per_variable for k, v in _bounds(rows, program).items() if k in ("lbx", "ubx")}
+    args |= {k: v for k, v in _bounds(rows, program).items() if k in ("lbg", "ubg")}
+    args["p"] = np.concatenate((_parameters(rows, limits, jmax), scale))
+    args["x0"] = start / per_variable
+    sol, status = _solve(program, args, scale)
     if sol is None:
         raise PlanError(
             PlanResult.INFEASIBLE,
