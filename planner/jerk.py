@@ -56,7 +56,7 @@ from planner.timing import (
 )
 
 DEFAULT_JERK_INTERVALS = 48
-_CHECK_SUBSAMPLES = 16
+_CHECK_SUBSAMPLES = 32
 _BISECTIONS = 40  # a peak's time to 1e-12 of the samples' spacing
 # intervals between two rests at least: one constant jerk per interval needs 3 to stop again (+, -, +)
 MIN_REST_TO_REST = 4

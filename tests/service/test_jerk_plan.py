@@ -149,7 +149,7 @@ def test_a_jerk_limited_linear_tool_move_holds_the_tcp_speeds() -> None:
     traj = out.trajectory
     t = traj.check_times(64)
     q, qd = traj.position(t), traj.velocity(t)
-    # held at the rows and 16 samples per interval (as TOPP-RA holds them at its samples): between those, by 1e-4
+    # held at the rows and 32 samples per interval (as TOPP-RA holds them at its samples): between those, by 1e-4
     assert CELL.model.frame_speeds(q, qd, "tool0").max() <= 0.3 * (1 + 1e-3)
     assert CELL.model.frame_angular_speeds(q, qd, "tool0").max() <= 0.5 * (1 + 1e-3)
     assert np.max(np.abs(traj.jerk(t)) / jerk) <= 1.001
