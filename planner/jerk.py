@@ -634,7 +634,10 @@ def jerk_limited(
     if traj.min_path_velocity() < -1e-6 * max(np.max(traj.sd), 1e-9):
         raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing reverses along the path", solver=sol.solver)
     rv, ra, rj = traj.limit_ratios(limits, jmax)
-    k = max(rv, np.sqrt(ra), np.cbrt(rj), traj.speed_ratio(constraints))
+    factors = (rv, np.sqrt(ra), np.cbrt(rj), traj.speed_ratio(constraints))
+    if not np.all(np.isfinite(factors)):  # a solver's "success" that is no motion: never handed on
+        raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing returned no finite motion", solver=sol.solver)
+    k = max(factors)
     if k > 1.0:
         traj = traj.slowed(k * (1.0 + 1e-9))
     return traj

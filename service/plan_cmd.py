@@ -131,7 +131,8 @@ class CellPlanner:
         joint, joint units / s^3): the jerk limit of this plan instead of the cell's; the one held is
         recorded in the metadata (``max_jerk``, null for a joint without one).
 
-        ``timing`` (s): ``plan`` TOPP-RA, ``knots`` knot placement + validation, ``total``, and
+        ``timing`` (s): ``plan`` the timing (with a jerk limit, ``topp`` and ``jerk`` its two parts), ``knots``
+        knot placement + validation, ``total``, and
         ``cpu`` the CPU time of this thread over the whole call (``total - cpu``: time the thread
         waited for the CPU or the GIL).
         """
