@@ -332,7 +332,7 @@ class _Program:
 
 
 _MAX_ITER = 300
-_START_JERK_SLACK = 10.0  # the warm start may exceed the jerk limit this many times (see ``_start``)
+_START_JERK_SLACK = 0.3  # the start's joint jerk at most this fraction of the limit (see ``_start``)
 _TOL = 1e-6  # optimality (relative duration)
 _CONSTRAINT_TOL = 1e-9  # the residuals: positions along the path continuous to 1e-9 of an interval
 
@@ -532,9 +532,11 @@ def _start(
     smoothed s'' (TOPP-RA's jumps between its intervals) at the gridpoints, the times between
     them, the jerk that joins the s'', and the middles that follow from those.
 
-    Slowed down uniformly where its joint jerk at the interval starts is more than
-    ``_START_JERK_SLACK`` times the limit: far outside the jerk rows (a limit far below what the
-    TOPP-RA profile's jerk), the solvers spend their time in restoration instead of solving."""
+    Slowed down uniformly until its joint jerk at the interval starts is at most
+    ``_START_JERK_SLACK`` of the limit: a start inside the jerk rows, with room to speed up. From a
+    start far outside them (a limit far below the TOPP-RA profile's jerk) the solvers spend their
+    time in restoration; from one near or on them, fatrop's iterations have a long tail
+    (bench/RESULTS.md)."""
     x = np.minimum(np.interp(grid, profile.s, profile.x), rows.sd_max**2)
     sd = np.sqrt(np.maximum(x, 0.0))
     a = 0.5 * np.gradient(x, grid)
@@ -544,7 +546,7 @@ def _start(
     j = np.diff(a) / h
     v, u = sd[:-1, None], a[:-1, None]
     jerk = rows.q3 * v**3 + 3.0 * rows.q2 * v * u + rows.q1 * j[:, None]
-    k = np.cbrt(max(1.0, float(np.max(np.abs(jerk) / max_jerk)) / _START_JERK_SLACK))
+    k = np.cbrt(max(1.0, float(np.max(np.abs(jerk) / max_jerk) / _START_JERK_SLACK)))
     sd, a, h, j = sd / k, a / (k * k), h * k, j / (k * k * k)
     v, u = sd[:-1], a[:-1]
     tau = [f * h for f in _FRACTIONS]
