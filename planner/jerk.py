@@ -23,13 +23,15 @@ a nonlinear program, warm-started from the TOPP-RA solution:
 - objective: the duration, sum of h_k.
 
 The program is a discrete optimal control problem (state (sd, a), control (h, j)), which is
-the structure fatrop's Riccati-based interior point exploits: about 2-3 times faster per
+the structure fatrop's Riccati-based interior point exploits: about 4 times cheaper per
 iteration than ipopt with MUMPS here. Where fatrop does not converge, ipopt is tried from the
-same start; where neither does, the plan is refused with the solvers' statuses.
+same start; where neither does, the plan is refused with the solvers' statuses. The variables
+are scaled by their typical magnitudes (``_scales``: fatrop does not scale a program) and the
+start is slowed down to well inside the jerk rows (``_start``): both cut the solve time's tail.
 
-After the solve the trajectory is checked densely (``JerkTrajectory.limit_ratios``), and
-slowed down uniformly where a sample between the rows exceeds a limit (velocity / k,
-acceleration / k^2, jerk / k^3), as TOPP-RA's trajectory is.
+After the solve the trajectory is checked densely (``JerkTrajectory.limit_ratios``,
+``speed_ratio``), and slowed down uniformly where a sample between the rows exceeds a limit
+(velocity / k, acceleration / k^2, jerk / k^3), as TOPP-RA's trajectory is.
 """
 
 from __future__ import annotations
