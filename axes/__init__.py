@@ -2,7 +2,8 @@
 
 A program (``PvtProgram``, the JSON contract of docs/pvt-program.md) runs on a cell's drives through
 ``CellBus`` (the network, SYNC, heartbeats) and ``AxisGroup`` (configure, start on one SYNC, feed,
-halt, recover); ``SimulatedCell`` gives simulated drives to run it on. Requires canopen, python-can,
+halt, recover); ``CellHoming`` homes the axes first (CiA 402 mode 6); ``SimulatedCell`` gives
+simulated drives to run it on. Requires canopen, python-can,
 numpy and numba only."""
 
 from __future__ import annotations
@@ -26,22 +27,33 @@ _HOMES: dict[str, str] = {
     "BusError": "axes.bus",
     "CellBus": "axes.bus",
     "AxisGroup": "axes.group",
-    "GroupError": "axes.group",
-    "Result": "axes.group",
-    "RunResult": "axes.group",
+    "GroupError": "axes.outcome",
+    "Result": "axes.outcome",
+    "RunResult": "axes.outcome",
     "SimulatedCell": "axes.sim.cell",
+    "HomingConfig": "axes.config",
+    "AxisSimulation": "axes.config",
+    "CellHoming": "axes.homing",
+    "HomingOutcome": "axes.homing",
+    "HomingResult": "axes.homing",
+    "homing_stages": "axes.homing",
 }
 __all__ = [
     "AxisConfig",
     "AxisGroup",
     "AxisProgram",
     "AxisScaling",
+    "AxisSimulation",
     "BufferConfig",
     "BusConfig",
     "BusError",
     "CellBus",
+    "CellHoming",
     "DriveLimits",
     "GroupError",
+    "HomingConfig",
+    "HomingOutcome",
+    "HomingResult",
     "ProgramFormatError",
     "PvtProgram",
     "Result",
@@ -49,6 +61,7 @@ __all__ = [
     "SimulatedCell",
     "Wiring",
     "axes_of",
+    "homing_stages",
     "program_mismatch",
 ]
 

@@ -31,6 +31,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 
 import can
@@ -52,6 +53,7 @@ NMT_STOPPED = 0x02
 NMT_PRE_OPERATIONAL = 0x80
 NMT_RESET_COMMUNICATION = 0x82
 NMT_STATE_PRE_OPERATIONAL = 127
+NMT_STATE_BOOT_UP = 0  # the boot-up message: a heartbeat frame with state 0
 SWITCH_INTERVAL_S = 0.0005  # the interpreter hands the GIL on at least this often while a bus is open
 
 log = logging.getLogger("pvtflow.bus")
@@ -61,11 +63,20 @@ class BusError(RuntimeError):
     """The bus cannot be opened or a frame cannot be sent (one clear line for the user)."""
 
 
+class FaultKind(StrEnum):
+    """What the bus saw fail."""
+
+    EMCY = "emcy"  # a node sent an emergency
+    HEARTBEAT = "heartbeat"  # a node's heartbeat stopped
+    NMT = "nmt"  # a node left OPERATIONAL (or booted)
+    LOST_SYNC = "lost_sync"  # a node stopped answering SYNC
+
+
 @dataclass(frozen=True)
 class BusFault:
-    """A failure seen on the bus: kind is "emcy", "heartbeat", "nmt" or "lost_sync"."""
+    """A failure seen on the bus."""
 
-    kind: str
+    kind: FaultKind
     node_id: int | None
     message: str
     code: int = 0
@@ -370,6 +381,7 @@ class CellBus:
         self._fault_callbacks: list[FaultCallback] = []
         self._heartbeat_seen: dict[int, float] = {}
         self._heartbeat_state: dict[int, int] = {}
+        self._boots: dict[int, int] = {}  # boot-up messages seen per node (NMT reset, power-on)
         self._watched: set[int] = set()
         self._lock = threading.Lock()
         self._watchdog: threading.Thread | None = None
@@ -400,6 +412,10 @@ class CellBus:
         self._watchdog.start()
         self.master_heartbeat.start()
         return self
+
+    @property
+    def is_open(self) -> bool:
+        return self.network.bus is not None
 
     def close(self) -> None:
         self.sync.stop()
@@ -471,18 +487,25 @@ class CellBus:
     def heartbeat_state(self, node_id: int) -> int | None:
         return self._heartbeat_state.get(node_id)
 
+    def boot_count(self, node_id: int) -> int:
+        """How many boot-up messages this node has sent since the bus opened: a drive that boots again
+        (reset, power loss) has lost what it knew (its homing, its configuration)."""
+        return self._boots.get(node_id, 0)
+
     def _on_heartbeat(self, node_id: int, state: int) -> None:
+        if state == NMT_STATE_BOOT_UP:
+            self._boots[node_id] = self._boots.get(node_id, 0) + 1
         previous = self._heartbeat_state.get(node_id)
         self._heartbeat_seen[node_id] = time.monotonic()
         self._heartbeat_state[node_id] = state
         if node_id in self._watched and previous == NMT_STATE_OPERATIONAL and state != NMT_STATE_OPERATIONAL:
-            self._report(BusFault("nmt", node_id, f"node {node_id} left OPERATIONAL (NMT state {state})"))
+            self._report(BusFault(FaultKind.NMT, node_id, f"node {node_id} left OPERATIONAL (NMT state {state})"))
 
     def _on_emcy(self, node_id: int, err: EmcyError) -> None:
         if err.code == 0:
             return  # error reset / no error
         text = f"EMCY 0x{err.code:04X} from node {node_id}: {err.get_desc()}".rstrip(": ")
-        self._report(BusFault("emcy", node_id, text, err.code))
+        self._report(BusFault(FaultKind.EMCY, node_id, text, err.code))
 
     def _watch(self) -> None:
         timeout = self.config.heartbeat_ms * self.config.heartbeat_timeout_factor / 1000.0
@@ -498,7 +521,7 @@ class CellBus:
             for nid in lost:
                 self._report(
                     BusFault(
-                        "heartbeat",
+                        FaultKind.HEARTBEAT,
                         nid,
                         f"no heartbeat from node {nid} for "
                         f"{now - self._heartbeat_seen[nid]:.3f} s (timeout {timeout:.3f} s)",
@@ -510,7 +533,7 @@ class CellBus:
                 self._sync_reported = True
                 self._report(
                     BusFault(
-                        "lost_sync",
+                        FaultKind.LOST_SYNC,
                         nodes[0] if nodes else None,
                         f"SYNC {self.sync.count} not answered by node(s) {nodes} within "
                         f"{self.lost_sync_timeout_s:.3f} s",

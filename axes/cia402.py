@@ -45,6 +45,7 @@ class Controlword(IntFlag):
     QUICK_STOP = 1 << 2  # active low: 0 requests a quick stop
     ENABLE_OPERATION = 1 << 3
     ENABLE_IP_MODE = 1 << 4  # mode specific: interpolated position mode enable
+    HOMING_START = 1 << 4  # the same bit in homing mode (6): a rising edge starts homing, 0 interrupts it
     FAULT_RESET = 1 << 7  # acts on the rising edge only
     HALT = 1 << 8
 
@@ -65,7 +66,9 @@ class Statusword(IntFlag):
     TARGET_REACHED = 1 << 10  # ip mode: halt=1 -> velocity is 0
     INTERNAL_LIMIT_ACTIVE = 1 << 11
     IP_MODE_ACTIVE = 1 << 12  # mode specific: interpolation active
+    HOMING_ATTAINED = 1 << 12  # the same bit in homing mode (6)
     FOLLOWING_ERROR = 1 << 13
+    HOMING_ERROR = 1 << 13  # the same bit in homing mode (6)
     MANUFACTURER_14 = 1 << 14  # EPOS2: refresh cycle of power stage
     MANUFACTURER_15 = 1 << 15  # EPOS2: position referenced to home position
 

@@ -42,6 +42,41 @@ class BufferConfig:
 
 
 @dataclass(frozen=True)
+class HomingConfig:
+    """How one axis homes (CiA 402 mode 6), written at configuration: 0x6098, 0x6099:01/02, 0x609A,
+    0x607C (and maxon's 0x2080 for the hard-stop methods). Speeds in motor rpm, acceleration in rpm/s."""
+
+    method: int  # 0x6098 (axes.objects.HomingMethod)
+    switch_speed_rpm: float = 100.0  # 0x6099:01, the search for a switch or a hard stop
+    zero_speed_rpm: float = 10.0  # 0x6099:02, the search for the edge or the index pulse
+    acceleration_rpm_s: float = 1000.0  # 0x609A
+    offset_qc: int = 0  # 0x607C: what the position reads at the home position
+    current_threshold_ma: int | None = None  # 0x2080 (EPOS2 methods -1 to -4)
+    timeout_s: float = 60.0  # of drive time (SYNC periods): a search that finds nothing ends here
+
+
+@dataclass(frozen=True)
+class AxisSimulation:
+    """What a simulated axis's machine has around it (cell file ``simulation:``), in qc of the machine:
+    the position the axis reads there once homed. None: not fitted. The axis powers up at
+    ``power_up_qc`` or, when None, at a seeded random place between its limit switches / hard stops
+    (its 0x607D range where it has neither), while its encoder counts from 0 (incremental)."""
+
+    power_up_qc: int | None = None
+    seed: int = 0
+    negative_limit_switch_qc: int | None = None  # active at and below
+    positive_limit_switch_qc: int | None = None  # active at and above
+    home_switch_qc: int | None = None  # the edge of the home switch
+    home_switch_active_above: bool = True  # a positive home switch (methods 19/20); False: negative (21/22)
+    index_spacing_qc: int | None = None  # an index pulse every this many qc (one per motor revolution)
+    index_offset_qc: int = 0  # where one of them is
+    negative_hard_stop_qc: int | None = None
+    positive_hard_stop_qc: int | None = None
+    stall_current_ma: int = 2000  # the current against a hard stop
+    moving_current_ma: int = 300  # the current of a free motion at homing speed
+
+
+@dataclass(frozen=True)
 class AxisConfig:
     joint: str
     node_id: int
@@ -51,6 +86,8 @@ class AxisConfig:
     period_ms: int | None = None  # fixed-period profiles: one record per period
     interpolation_submode: int | None = None  # parker_slvdn 0x60C0
     buffer: BufferConfig = field(default_factory=BufferConfig)
+    homing: HomingConfig | None = None  # None: nothing to home (an absolute encoder)
+    simulation: AxisSimulation | None = None  # the simulated machine around the axis (switches, stops)
 
 
 @dataclass(frozen=True)

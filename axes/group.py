@@ -6,6 +6,9 @@ buffers, the bus reports EMCY, heartbeat loss and lost SYNC. Any fault, or ``sto
 halt controlword (0x011F) to every axis through the synchronous RPDO before the next SYNC, so all
 axes halt on the same SYNC, within one period of the event. The outcome is one ``RunResult`` with a
 ``Result`` enum (ruckig style) that names the axis and the reason.
+
+What a run reports lives in ``axes.outcome``; the cleanup after a run that readies every axis for
+the next start, in ``axes.readiness``; homing a cell, in ``axes.homing`` (which takes the group).
 """
 
 from __future__ import annotations
@@ -14,22 +17,36 @@ import contextlib
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
-from concurrent.futures import wait as wait_futures
-from dataclasses import dataclass, field
-from enum import Enum
-from typing import TypeVar
+from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING, TypeVar
 
 import can
 
 from axes import objects as od
-from axes.bus import BusFault, CellBus
+from axes.bus import BusFault, CellBus, FaultKind
 from axes.cia402 import PowerState, Statusword, decode_state
 from axes.config import AxisConfig
 from axes.feeder import Feeder, FeedStats
 from axes.objects import BUFFER_ERRORS, BufferStatus
+from axes.outcome import (
+    AxisReport,
+    AxisStatus,
+    Event,
+    EventCallback,
+    EventKind,
+    GroupError,
+    GroupStatus,
+    Progress,
+    ProgressCallback,
+    Result,
+    RunResult,
+)
 from axes.profiles import AxisLink, DriveError, Profile, profile_for
 from axes.program import AxisProgram, PvtProgram, program_mismatch
+from axes.readiness import Readiness
+
+if TYPE_CHECKING:
+    from axes.homing import CellHoming
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
@@ -39,161 +56,8 @@ _TARGET_REACHED = int(Statusword.TARGET_REACHED)
 _FAULT_BITS = int(Statusword.FAULT)  # set in FAULT and FAULT REACTION ACTIVE
 _BUFFER_ERRORS = int(BUFFER_ERRORS)
 START_CHECK_SYNCS = 2  # SYNCs after the start SYNC by which every axis must report ip mode active
-SETTLE_TIMEOUT_S = 3.0  # how long a drive is asked to empty its buffer after a run (the start enables it otherwise)
 NMT_PRE_OPERATIONAL = 0x80
 NMT_START = 0x01
-
-
-class Result(Enum):
-    """How a run ended (ruckig style: one enum, details in the result object)."""
-
-    FINISHED = "finished"  # every axis reached its end record
-    STOPPED = "stopped"  # stop() was called: all axes halted
-    DRIVE_FAULT = "drive_fault"  # a drive reported a fault (statusword, buffer error bits)
-    EMCY = "emcy"  # a drive sent an emergency
-    HEARTBEAT_LOST = "heartbeat_lost"  # a drive's heartbeat stopped, or it left OPERATIONAL
-    LOST_SYNC = "lost_sync"  # a drive stopped answering SYNC
-    REJECTED = "rejected"  # the program does not fit the cell (nothing moved)
-    CONFIGURATION_ERROR = "configuration_error"  # a drive refused its configuration or enable
-
-    @property
-    def ok(self) -> bool:
-        return self is Result.FINISHED
-
-
-@dataclass
-class AxisReport:
-    """Per axis, after a run."""
-
-    joint: str
-    node_id: int
-    profile: str
-    state: str
-    statusword: int
-    position: int | None  # qc (0x6064)
-    target_position: int | None  # qc: the program's last record
-    feed: FeedStats
-    start_sync: int | None  # absolute SYNC number at which the drive first reported ip mode active
-    buffer_status: int = 0
-    last_emcy: tuple[int, str] | None = None
-    joint_position: float | None = None  # ``position`` in joint units (rad or m), through the axis scaling
-
-
-@dataclass
-class RunResult:
-    result: Result
-    message: str
-    joint: str | None = None  # the axis that caused the end (None: all / none)
-    node_id: int | None = None
-    start_sync: int | None = None  # absolute SYNC number of the start SYNC (program t = 0)
-    end_sync: int | None = None  # last SYNC answered
-    fault_sync: int | None = None  # the last SYNC sent when the event was seen (its period)
-    halt_sync: int | None = None  # the SYNC that carried the halt
-    halt_latency_s: float | None = None  # wall time from the event to the halt frames
-    sync_period_ms: float = 1.0
-    axes: list[AxisReport] = field(default_factory=list)
-
-    @property
-    def ok(self) -> bool:
-        return self.result.ok
-
-    @property
-    def start_skew_syncs(self) -> int | None:
-        """Spread of the SYNCs at which the axes entered ip mode active (0: all on the same SYNC)."""
-        starts = [a.start_sync for a in self.axes if a.start_sync is not None]
-        return max(starts) - min(starts) if starts else None
-
-    @property
-    def halt_latency_syncs(self) -> int | None:
-        """SYNC periods from the SYNC after which the fault was seen to the SYNC that halted."""
-        if self.fault_sync is None or self.halt_sync is None:
-            return None
-        return self.halt_sync - self.fault_sync
-
-    def to_json(self) -> dict[str, object]:
-        return {
-            "result": self.result.value,
-            "message": self.message,
-            "joint": self.joint,
-            "node_id": self.node_id,
-            "start_sync": self.start_sync,
-            "end_sync": self.end_sync,
-            "halt_latency_syncs": self.halt_latency_syncs,
-            "start_skew_syncs": self.start_skew_syncs,
-            "axes": [
-                {
-                    "joint": a.joint,
-                    "node_id": a.node_id,
-                    "state": a.state,
-                    "statusword": a.statusword,
-                    "position_qc": a.position,
-                    "position": a.joint_position,
-                    "target_position_qc": a.target_position,
-                    "records_sent": a.feed.sent,
-                    "underflows": a.feed.underflows,
-                    "overflows": a.feed.overflows,
-                    "min_level": a.feed.min_level,
-                    "max_level": a.feed.max_level,
-                }
-                for a in self.axes
-            ],
-        }
-
-
-@dataclass(frozen=True)
-class AxisStatus:
-    """What one drive says (the zenoh service publishes this)."""
-
-    joint: str
-    node_id: int
-    profile: str
-    state: str
-    statusword: int
-    position: int | None
-    buffer_status: int
-    buffer_flags: tuple[str, ...]
-    buffer_level: int | None  # the feeder's estimate (EPOS2), None when idle or bufferless
-    last_emcy: tuple[int, str] | None
-    nmt_state: int | None
-
-
-@dataclass(frozen=True)
-class GroupStatus:
-    running: bool
-    sync_count: int
-    elapsed_ms: float | None  # program time (None when not running)
-    axes: tuple[AxisStatus, ...]
-    last_result: Result | None
-
-
-@dataclass(frozen=True)
-class Progress:
-    """Telemetry after a SYNC: program time and per-axis position, buffer level, state."""
-
-    sync: int
-    elapsed_ms: float
-    positions: tuple[int | None, ...]
-    levels: tuple[int | None, ...]
-    states: tuple[str, ...]
-    statuswords: tuple[int, ...] = ()
-
-
-@dataclass(frozen=True)
-class Event:
-    """A discrete event for the service's ``events`` publication."""
-
-    kind: str  # "started", "fault", "emcy", "halted", "finished", "stopped", "recovered"
-    message: str
-    joint: str | None = None
-    node_id: int | None = None
-
-
-ProgressCallback = Callable[[Progress], None]
-EventCallback = Callable[[Event], None]
-
-
-class GroupError(RuntimeError):
-    """A request the group cannot take in its present state (e.g. run while running)."""
 
 
 _Refusal = tuple[Result, str, "AxisLink | None"]  # why a start does not go ahead, and which axis
@@ -254,12 +118,12 @@ class AxisGroup:
         self._starting = False
         self._stop_request: str | None = None
         self._pool = ThreadPoolExecutor(max_workers=max(1, len(self.links)), thread_name_prefix="axis-sdo")
-        # per axis: the link's controlwords_sent when it was last made ready for a start (enabled, end
-        # controlword written, buffer cleared and open) after a run or a recovery; None: not ready
-        self._ready: list[int | None] = [None] * len(self.links)
-        self._readying: list[Future[None]] = []
-        self._bus_faults = 0  # how many the bus has reported: a readiness made across one is not kept
+        self._bus_faults = 0  # how many the bus has reported
+        self.readiness = Readiness(self.links, self.profiles, self._pool, lambda: self._bus_faults)
         self._preloaded: list[bool] = []  # per axis: its feeder's preload went out with the start's checks
+        self._homing: CellHoming | None = None  # the homing running on the cell (axes/homing.py)
+        self._homed_boot: list[int | None] = [None] * len(self.links)  # the drive's boot count when it homed
+        self._configured_boots: dict[int, int] = {}  # every drive's boot count when it was configured
         for link in self.links:
             link.status_listeners.append(self._on_status)
         bus.on_fault(self._on_bus_fault)
@@ -271,17 +135,58 @@ class AxisGroup:
         """Every drive: PRE-OPERATIONAL, its profile's SDO sequence, then OPERATIONAL and consumers."""
         for link in self.links:  # addressed, not broadcast: other nodes on the bus are not ours
             self.bus.nmt(link.node_id, NMT_PRE_OPERATIONAL)
+        self._configured_boots = {link.node_id: self.bus.boot_count(link.node_id) for link in self.links}
         for link, profile in zip(self.links, self.profiles, strict=True):
             profile.configure()
+            profile.write_homing()
             link.subscribe_tpdos(profile.tpdos)
         self.bus.sync.expect(p.sync_answer_cob_id for p in self.profiles)
         for link in self.links:
             self.bus.nmt(link.node_id, NMT_START)
         self.bus.watch_heartbeat(link.node_id for link in self.links)
-        self._ready = [None] * len(self.links)
+        self.readiness.forget()
         self.configured = True
 
-    def _event(self, kind: str, message: str, link: AxisLink | None = None) -> None:
+    def configure_if_needed(self) -> None:
+        """Configure unless configured since every drive last booted (a rebooted drive has its EDS
+        defaults again: no PDOs, no mode, no homing settings)."""
+        if not self.configured or self.rebooted():
+            self.configure()
+
+    def rebooted(self) -> bool:
+        """A drive has booted since the group configured it."""
+        return any(self.bus.boot_count(lk.node_id) != self._configured_boots.get(lk.node_id) for lk in self.links)
+
+    # --- homing (axes/homing.py) -------------------------------------------------------------------
+    @property
+    def homed(self) -> tuple[bool, ...]:
+        """Per axis: nothing to home, or homed by this group since its drive last booted (a boot-up
+        message, an NMT reset or a lost heartbeat, a power loss, undoes it)."""
+        return tuple(
+            link.config.homing is None or self._homed_boot[i] == self.bus.boot_count(link.node_id)
+            for i, link in enumerate(self.links)
+        )
+
+    def mark_homed(self, i: int) -> None:
+        self._homed_boot[i] = self.bus.boot_count(self.links[i].node_id)
+
+    def begin_homing(self, homing: CellHoming) -> None:
+        with self._lock:
+            if self._running or self._homing is not None:
+                raise GroupError("a program or a homing is already running on this cell")
+            self.readiness.wait()
+            self._homing = homing
+
+    def end_homing(self, homing: CellHoming) -> None:
+        with self._lock:
+            if self._homing is homing:
+                self._homing = None
+
+    @property
+    def homing(self) -> bool:
+        return self._homing is not None
+
+    def _event(self, kind: EventKind, message: str, link: AxisLink | None = None) -> None:
         if self.on_event is not None:
             self.on_event(Event(kind, message, link.joint if link else None, link.node_id if link else None))
 
@@ -308,6 +213,8 @@ class AxisGroup:
         with self._lock:
             if self._running:
                 raise GroupError("a program is already running on this cell")
+            if self._homing is not None:
+                raise GroupError("the cell is homing: one motion at a time")
             reason = self.check_program(program)
             if reason is not None:
                 return self._finish_early(Result.REJECTED, reason)
@@ -319,10 +226,8 @@ class AxisGroup:
                 self._programs = [by_node[link.node_id] for link in self.links]
                 self._stop_request = None
                 self._starting = True
-                for readying in self._readying:  # the last run's preparation for this one, if still going
-                    readying.result()
-                ready = [self._is_ready(i) for i in range(len(self.links))]
-                self._ready = [None] * len(self.links)  # a start uses it up, whatever its outcome
+                self.readiness.wait()  # the last run's cleanup, if still going
+                ready = self.readiness.take()
                 if all(ready):
                     feeders, refusal = self._check_by_sync(before_records)
                 else:
@@ -361,7 +266,7 @@ class AxisGroup:
                 link.send_controlword(profile.start_controlword())
             sync.add_listener(self._on_sync)
             self.bus.arm_sync_watch()
-            self._event("started", f"program of {program.duration_ms} ms started on SYNC {self._start_sync}")
+            self._event(EventKind.STARTED, f"program of {program.duration_ms} ms started on SYNC {self._start_sync}")
             sync.start()
         return None
 
@@ -370,11 +275,6 @@ class AxisGroup:
         order; the first DriveError in axis order is raised."""
         futures = [self._pool.submit(work, item) for item in items]
         return (f.result() for f in futures)
-
-    def _is_ready(self, i: int) -> bool:
-        """Axis i was made ready after the last run or recovery and no controlword (a halt, a stop, a
-        recovery's, anyone's) or bus fault has come since."""
-        return self._ready[i] is not None and self._ready[i] == self.links[i].controlwords_sent
 
     def _needs_enable(self, i: int, ready: bool) -> bool:
         """Axis i is enabled at the start (its buffer cleared) unless it was ready and its check just
@@ -386,40 +286,10 @@ class AxisGroup:
         for _ in self._per_axis(lambda i: self.profiles[i].enable(fresh=True), axes):
             pass
 
-    def _prepare_next(self) -> None:
-        """After every run, however it ended (finished, stopped, faulted): in the background, every
-        axis's interpolation is ended and its buffer emptied, so that nothing of this run is left in
-        a drive for the next one to start behind (a stopped EPOS2 still holds the rest of its
-        records). An axis still OPERATION ENABLED is also made ready for the next start (the enable
-        a start would do: end controlword, buffer cleared and open), so that the start needs only
-        its checks. A start, a recovery and ``settle`` wait for this to end; an axis that fails it
-        is enabled at the start as usual."""
-        self._readying = [self._pool.submit(self._make_ready, i) for i in range(len(self.links))]
-
-    def _make_ready(self, i: int) -> None:
-        """Only from OPERATION ENABLED: a drive that has left it (a fault, a reset) is not walked back
-        here (that would reset a fault behind the user's back): its buffer is only cleared, and the
-        start refuses it or the recovery enables it."""
-        link, faults = self.links[i], self._bus_faults
-        self._ready[i] = None
-        deadline = time.monotonic() + SETTLE_TIMEOUT_S
-        while True:  # a drive still working off the run's traffic answers late: ask again
-            try:
-                if decode_state(link.read_statusword()) is not PowerState.OPERATION_ENABLED:
-                    self.profiles[i].clear_buffer()
-                    return
-                self.profiles[i].enable(fresh=True)  # reach() has nothing to do: no fault reset is ever sent
-                break
-            except DriveError:
-                if time.monotonic() > deadline:
-                    return
-        if self._bus_faults == faults:
-            self._ready[i] = link.controlwords_sent
-
     def settle(self, timeout_s: float | None = None) -> bool:
         """Wait until the end of the last run has been cleaned up in every drive (buffers empty,
-        interpolation ended; see ``_prepare_next``). False: not within ``timeout_s``."""
-        return not wait_futures(list(self._readying), timeout=timeout_s).not_done
+        interpolation ended: ``axes.readiness``). False: not within ``timeout_s``."""
+        return self.readiness.settle(timeout_s)
 
     def _check_by_sync(
         self, before_records: Callable[[], object] | None
@@ -608,19 +478,21 @@ class AxisGroup:
 
     def _on_bus_fault(self, fault: BusFault) -> None:
         link = next((lk for lk in self.links if lk.node_id == fault.node_id), None)
-        if link is not None and fault.kind == "emcy":
+        if link is not None and fault.kind is FaultKind.EMCY:
             link.last_emcy = (fault.code, fault.message)
         self._bus_faults += 1
         if link is not None:  # whatever it was, that drive is enabled again at the next start
-            self._ready[self.links.index(link)] = None
-        self._event(fault.kind, fault.message, link)
+            self.readiness.forget(self.links.index(link))
+            if fault.kind is FaultKind.HEARTBEAT:  # it may have lost power: its position means nothing any more
+                self._homed_boot[self.links.index(link)] = None
+        self._event(EventKind(fault.kind.value), fault.message, link)
         if not self._running:
             return
         kind = {
-            "emcy": Result.EMCY,
-            "heartbeat": Result.HEARTBEAT_LOST,
-            "nmt": Result.HEARTBEAT_LOST,
-            "lost_sync": Result.LOST_SYNC,
+            FaultKind.EMCY: Result.EMCY,
+            FaultKind.HEARTBEAT: Result.HEARTBEAT_LOST,
+            FaultKind.NMT: Result.HEARTBEAT_LOST,
+            FaultKind.LOST_SYNC: Result.LOST_SYNC,
         }[fault.kind]
         sync = self.bus.sync
         with sync.lock, self._lock:
@@ -663,7 +535,7 @@ class AxisGroup:
         self._halted_at = time.monotonic()
         self._halt_deadline = halt_sync + int(self.halt_timeout_ms / self.bus.config.sync_period_ms)
         lost = f" (not sent to {'; '.join(unsent)}: those drives stop on the master's heartbeat loss)" if unsent else ""
-        self._event("halted", f"all axes halted: {message}{lost}", link)
+        self._event(EventKind.HALTED, f"all axes halted: {message}{lost}", link)
 
     def _check_halted(self, n: int) -> None:
         assert self._ending is not None and self._halt_deadline is not None
@@ -683,6 +555,9 @@ class AxisGroup:
         start still configuring the drives does not start the motion."""
         if self._starting:
             self._stop_request = reason
+        homing = self._homing
+        if homing is not None:
+            homing.stop(reason)
         with self.bus.sync.lock, self._lock:
             if not self._running or self._ending is not None:
                 return
@@ -735,9 +610,9 @@ class AxisGroup:
             result.axes = self._reports()
             self.last_result = result
             self._running = False
-            self._prepare_next()
+            self.readiness.prepare()
             self._event(
-                "finished" if result.ok else result.result.value,
+                EventKind(result.result.value),
                 result.message,
                 next((lk for lk in self.links if lk.node_id == result.node_id), None),
             )
@@ -747,7 +622,7 @@ class AxisGroup:
         res = self._result(result, message, link)
         res.axes = self._reports()
         self.last_result = res
-        self._event(result.value, message, link)
+        self._event(EventKind(result.value), message, link)
         return res
 
     # --- recovery and status ---------------------------------------------------------------------
@@ -756,10 +631,9 @@ class AxisGroup:
         with self._lock:
             if self._running:
                 raise GroupError("cannot recover while a program is running: stop it first")
-            for readying in self._readying:  # not two enables of one drive at once
-                readying.result()
+            self.readiness.wait()  # not two enables of one drive at once
             self.bus.sync.stop()
-            if not self.configured:
+            if not self.configured or self.rebooted():
                 try:
                     self.configure()
                 except DriveError as exc:
@@ -774,9 +648,9 @@ class AxisGroup:
                     return self._finish_early(Result.CONFIGURATION_ERROR, f"recover failed: {exc}", link)
                 link.last_emcy = None
                 link.buffer_status = link.buffer_status & ~int(BUFFER_ERRORS)
-            self._ready = [link.controlwords_sent for link in self.links]  # enabled just now: ready
+            self.readiness.mark_all()  # enabled just now: ready
             self.bus.watch_heartbeat(link.node_id for link in self.links)
-            self._event("recovered", "all axes fault-free and enabled")
+            self._event(EventKind.RECOVERED, "all axes fault-free and enabled")
             res = self._result(Result.FINISHED, "recovered: every axis is enabled")
             res.axes = self._reports()
             return res
@@ -798,6 +672,7 @@ class AxisGroup:
             with contextlib.suppress(DriveError):
                 self.refresh()
         axes = []
+        homed = self.homed
         for i, link in enumerate(self.links):
             level = self._feeders[i].level if self._running and i < len(self._feeders) else None
             axes.append(
@@ -813,6 +688,7 @@ class AxisGroup:
                     buffer_level=level,
                     last_emcy=link.last_emcy,
                     nmt_state=self.bus.heartbeat_state(link.node_id),
+                    homed=homed[i],
                 )
             )
         elapsed = None
@@ -835,8 +711,9 @@ class AxisGroup:
     def close(self) -> None:
         """Release the drives (at rest, each stops watching the master's heartbeat: an orderly close
         is not a lost master) and let go of the bus. A close during a run leaves them watching: the
-        heartbeat stops with the bus and every drive stops by itself."""
-        if self.configured and not self._running:
+        heartbeat stops with the bus and every drive stops by itself; so does a close after the bus's
+        (nothing can be said on a closed bus)."""
+        if self.configured and not self._running and self.bus.is_open:
             for profile in self.profiles:
                 profile.release_master()
             self.configured = False  # a group used again arms the consumers again

@@ -26,12 +26,16 @@ MODES_OF_OPERATION_DISPLAY = 0x6061
 POSITION_DEMAND_VALUE = 0x6062
 POSITION_ACTUAL_VALUE = 0x6064
 MAX_FOLLOWING_ERROR = 0x6065
+HOME_OFFSET = 0x607C  # qc: what the position reads at the home position once homing is attained
 SOFTWARE_POSITION_LIMIT = 0x607D  # :01 min, :02 max
 MAX_PROFILE_VELOCITY = 0x607F
 PROFILE_VELOCITY = 0x6081
 PROFILE_ACCELERATION = 0x6083
 QUICK_STOP_DECELERATION = 0x6084  # app note Table 17's name; maxon's EDS and CiA 402: profile deceleration
 QUICK_STOP_DECELERATION_CIA402 = 0x6085  # the quick stop ramp (maxon's EDS: QuickStop Deceleration)
+HOMING_METHOD = 0x6098
+HOMING_SPEEDS = 0x6099  # :01 speed for switch search, :02 speed for zero search (velocity units)
+HOMING_ACCELERATION = 0x609A
 INTERPOLATION_SUBMODE = 0x60C0
 INTERPOLATION_DATA_RECORD = 0x60C1  # :01 target position, :02 velocity (counts/s), :03 velocity (rpm)
 INTERPOLATION_TIME_PERIOD = 0x60C2  # :01 value, :02 index (10^index s)
@@ -39,6 +43,7 @@ INTERPOLATION_DATA_CONFIGURATION = 0x60C4  # :01 max size, :02 free size, ..., :
 MAX_ACCELERATION = 0x60C5
 
 INTERPOLATED_POSITION_MODE = 7
+HOMING_MODE = 6
 
 CONSUMER_NODE_SHIFT = 16  # 0x1016:n bits 23-16: the watched node id; bits 15-0: its time in ms (0: unused)
 
@@ -65,6 +70,40 @@ EPOS2_INTERPOLATION_DATA_RECORD = 0x20C1  # the PVT FIFO input, u64
 EPOS2_INTERPOLATION_BUFFER = 0x20C4  # :01 status, :02 underflow warning level, :03 overflow warning level
 EPOS2_BUFFER_SIZE = 64
 
+EPOS2_HOMING_CURRENT_THRESHOLD = 0x2080  # mA: the current that says "hard stop" (methods -1 to -4)
+
+
+class HomingMethod(IntEnum):
+    """0x6098 values pvtflow knows (CiA 402 methods; negative: maxon's, current threshold at a hard stop).
+
+    Where the home position is: at a switch's edge, at the first index pulse past it, at a hard stop,
+    or where the axis stands. "Positive/negative home switch": the switch is active on that side of
+    its edge. The number is the drive's, the name says what it does."""
+
+    NEGATIVE_LIMIT_SWITCH_INDEX = 1  # to the negative limit switch, back off it to the first index pulse
+    POSITIVE_LIMIT_SWITCH_INDEX = 2
+    NEGATIVE_LIMIT_SWITCH = 17  # home where the negative limit switch goes inactive
+    POSITIVE_LIMIT_SWITCH = 18
+    POSITIVE_HOME_SWITCH_FROM_ABOVE = 19  # positive home switch, its edge approached moving negative
+    POSITIVE_HOME_SWITCH_FROM_BELOW = 20  # approached moving positive
+    NEGATIVE_HOME_SWITCH_FROM_BELOW = 21  # negative home switch, its edge approached moving positive
+    NEGATIVE_HOME_SWITCH_FROM_ABOVE = 22  # approached moving negative
+    INDEX_NEGATIVE = 33  # the first index pulse moving negative
+    INDEX_POSITIVE = 34
+    CURRENT_POSITION = 35  # no motion: here is home (CiA 402 before 2016)
+    CURRENT_POSITION_37 = 37  # the same, as CiA 402 numbers it since (EPOS4 and later drives)
+    HARD_STOP_POSITIVE_INDEX = -1  # maxon: current threshold moving positive, then the index pulse moving back
+    HARD_STOP_NEGATIVE_INDEX = -2
+    HARD_STOP_POSITIVE = -3  # maxon: current threshold moving positive: home at the hard stop
+    HARD_STOP_NEGATIVE = -4
+
+
+# What the drives pvtflow knows do in mode 6 (and what their simulations implement): the CiA 402
+# methods above for every drive with homing, maxon's hard-stop methods on the EPOS2 only.
+CIA402_HOMING_METHODS = frozenset(m for m in HomingMethod if m > 0)
+EPOS2_HOMING_METHODS = frozenset(HomingMethod)
+
+
 # --- Parker SLVDN --------------------------------------------------------------------------------
 # Parker drive parameters PrN are reached at 0x2000 + N (pvtflow's simulated SLVDN and configuration).
 PARKER_PARAMETER_BASE = 0x2000
@@ -80,6 +119,11 @@ EMCY_PARAMETER_ERROR = 0x6320  # a configuration the drive cannot run (e.g. inte
 EMCY_PDO_LENGTH = 0x8210  # PDO not processed due to length error
 EMCY_VELOCITY_LIMIT = 0x8400  # velocity beyond 0x607F (sanity check of the fixed-period drives)
 EMCY_SOFTWARE_POSITION_LIMIT = 0x8612  # position demand outside 0x607D
+# The simulated machine (axes/sim/homing.py) outside homing: a limit switch reached is CiA 402's
+# "reference limit" too (the seeds give no code of maxon's own for it), a hard stop run into the
+# drive's following error.
+EMCY_LIMIT_SWITCH = EMCY_SOFTWARE_POSITION_LIMIT
+EMCY_FOLLOWING_ERROR = 0x8611
 EMCY_HEARTBEAT_ERROR = 0x8130  # CiA 301 life guard / heartbeat error: a watched node (the master) fell silent
 # EPOS2 "interpolated position mode error" (underflow, overflow, 0x607F or 0x60C5 exceeded). The seeds
 # give no code: 0xFF0C is taken from memory of maxon's firmware specification, to be checked on a real

@@ -24,31 +24,33 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import planner.knots as knots
-from planner.knots import place_knots
+import planner.knots
+from planner.knots import check, epos2, fixed_period, place_knots, quantize, refine, samples
 from service.config import CONFIG_DIR, load_cell_config
 from service.plan_cmd import CellPlanner
 
 RANGES = (0.2, 0.5, 0.8)
 STAGES = (
-    "_sample",
-    "_switch_knots",
-    "_refine",
-    "_lsq_fit",
-    "_round_knots",
-    "_check_knots",
-    "_repair_rounds",
-    "_split",
-    "_axis_knots",
-    "_fixed_period_axis",
+    "sample_trajectory",
+    "switch_knots",
+    "refine",
+    "lsq_fit",
+    "round_knots",
+    "check_knots",
+    "repair_rounds",
+    "split_segments",
+    "axis_records",
+    "fixed_period_axis",
 )
+# every module of the package that calls a step holds its own name for it
+MODULES = (planner.knots, check, epos2, fixed_period, quantize, refine, samples)
 
 
 def time_stages() -> dict[str, float]:
     """Wrap the knot placement's steps with CPU timers; returns the running totals (s) by step."""
     spent = dict.fromkeys(STAGES, 0.0)
     for name in STAGES:
-        step = getattr(knots, name)
+        step = next(getattr(m, name) for m in MODULES if hasattr(m, name))
 
         def timed(*a, _step=step, _name=name, **k):  # type: ignore[no-untyped-def]
             start = time.process_time()
@@ -57,7 +59,9 @@ def time_stages() -> dict[str, float]:
             finally:
                 spent[_name] += time.process_time() - start
 
-        setattr(knots, name, timed)
+        for m in MODULES:
+            if getattr(m, name, None) is step:
+                setattr(m, name, timed)
     return spent
 
 
@@ -116,7 +120,7 @@ def main() -> int:
                 f"{frac:4.0%}   " + ", ".join(f"{n.strip('_')} {t * per_path:.2f}" for n, t in spent.items())
             )
     if stage_rows:
-        print("CPU ms per path by step (knots.<step>):")
+        print("CPU ms per path by step (planner.knots.<module>.<step>):")
         print("\n".join(stage_rows))
     return 0
 

@@ -43,7 +43,8 @@ PROFILES = "epos2_pvt,cia402_ip_linear,sync_setpoint,parker_slvdn:0,parker_slvdn
 
 
 def variant(cell: CellConfig, profile: str, submode: int | None, sync_ms: float) -> CellConfig:
-    """The cell with every axis on one drive behaviour at one SYNC period, on its own virtual channel."""
+    """The cell with every axis on one drive behaviour at one SYNC period, on its own virtual channel
+    (without homing: not every behaviour has a homing mode, and the streaming is what is measured)."""
     fixed = profile != "epos2_pvt"
     axes = tuple(
         dataclasses.replace(
@@ -51,11 +52,14 @@ def variant(cell: CellConfig, profile: str, submode: int | None, sync_ms: float)
             profile=profile,
             period_ms=round(sync_ms) if fixed else None,
             interpolation_submode=submode if profile == "parker_slvdn" else None,
+            homing=None,
+            simulation=None,
         )
         for a in cell.axes
     )
     bus = dataclasses.replace(cell.bus, sync_period_ms=sync_ms, channel=f"rt-{uuid.uuid4().hex[:10]}")
-    return dataclasses.replace(cell, axes=axes, bus=bus, name=f"{cell.name}-{profile}{submode or ''}")
+    name = f"{cell.name}-{profile}{submode or ''}"
+    return dataclasses.replace(cell, axes=axes, bus=bus, name=name, homing_order=(), requires_homing=False)
 
 
 class SyncArrivals:

@@ -27,7 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from axes.bus import CellBus
 from axes.config import AxisConfig
-from axes.group import AxisGroup, Result
+from axes.group import AxisGroup
+from axes.outcome import Result
 from axes.program import AxisProgram, PvtProgram
 from axes.sim.cell import SimulatedCell
 from service.config import CellConfig, load_cell_config

@@ -21,7 +21,18 @@ HERE = Path(__file__).resolve().parent
 INTERPOLATION = HERE.parent / "axes" / "interpolation.py"  # the drive's cubic, inlined by the kernels
 KERNEL_SOURCES = (
     INTERPOLATION,
-    *(HERE / n for n in ("cartesian.py", "ik.py", "knot_kernels.py", "path.py", "timing.py", "validate.py")),
+    *(
+        HERE / n
+        for n in (
+            "cartesian.py",
+            "ik.py",
+            "knot_kernels.py",
+            "lean_toppra.py",
+            "path.py",
+            "trajectory.py",
+            "validate.py",
+        )
+    ),
 )
 
 

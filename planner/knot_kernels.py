@@ -1,12 +1,12 @@
 """The per-segment loops of knot placement (planner.knots), compiled with numba.
 
 Knot placement judges hundreds of short cubics many times over: each judgement is a handful of
-flops, so in numpy its cost was the fixed price of the calls, not the arithmetic. These loops do
-the same judgements segment by segment in compiled code. They hold no formula of their own: the
+flops, whose cost in numpy would be the fixed price of the calls, not the arithmetic. These loops
+do the judgements segment by segment in compiled code. They hold no formula of their own: the
 cubic and its extrema are ``axes.interpolation``'s (``hermite``, ``cubic_peak_speed``, ...).
 
-Layout (as in ``knots._Flat``): all EPOS2 axes' plan samples end to end, axis ``a``'s ms ``j``
-at flat index ``a * stride + j``; ``knots`` are sorted flat indices; a knot segment whose two
+Layout (as in ``planner.knots.flat.Flat``): all EPOS2 axes' plan samples end to end, axis
+``a``'s ms ``j`` at flat index ``a * stride + j``; ``knots`` are sorted flat indices; a knot segment whose two
 knots lie on different axes is the step between two axes, not a segment, and is skipped. Units
 are the drive's: qc, velocity units (``f`` qc/ms each), ms.
 """

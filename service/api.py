@@ -32,7 +32,7 @@ from planner.path import PlanError
 
 API_VERSION = 1
 PREFIX = "pvtflow"
-QUERYABLES = ("plan", "validate", "execute", "stop", "status", "recover")
+QUERYABLES = ("plan", "validate", "execute", "stop", "status", "recover", "home")
 PUBLICATIONS = ("state", "telemetry", "events")
 LIVELINESS = "alive"
 
@@ -60,6 +60,7 @@ class ErrorCode(StrEnum):
     VALIDATION_FAILED = "validation_failed"  # the program breaks its drives' rules
     BUSY = "busy"  # a motion is running on this cell: one at a time
     START_MISMATCH = "start_mismatch"  # the axes are not where the program starts
+    NOT_HOMED = "not_homed"  # the cell must home first (an axis has not homed since its drive booted)
     DRIVE_FAULT = "drive_fault"  # a drive is faulted or refused to enable: recover first
     NOT_ALLOWED = "not_allowed"  # the request is not possible in the cell's present state
     BUS_ERROR = "bus_error"  # the CAN bus failed
@@ -92,6 +93,9 @@ ERROR_DESCRIPTIONS: dict[ErrorCode, str] = {
     "wait for its end.",
     ErrorCode.START_MISMATCH: "The axes are not where the program starts (they moved since it was planned): "
     "plan again from the current position.",
+    ErrorCode.NOT_HOMED: "The cell requires homing and an axis has not homed since its drive last booted "
+    "(power-on, NMT reset, power loss): its position means nothing yet. Call home, then plan again "
+    "(details.joints are the axes not homed).",
     ErrorCode.DRIVE_FAULT: "A drive is faulted, the last motion ended in a fault, or a drive refused to "
     "enable: call recover (after fixing the cause) before the next execute.",
     ErrorCode.NOT_ALLOWED: "The request is not possible in the cell's present state.",
@@ -362,6 +366,23 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
         )
     elif name == "recover":
         body = _obj({})
+    elif name == "home":
+        body = _obj(
+            {
+                "joints": {
+                    "type": "array",
+                    "items": {"type": "string"},
+                    "minItems": 1,
+                    "uniqueItems": True,
+                    "description": "the axes to home (default: every axis with homing), in the cell's homing order",
+                },
+                "wait": {
+                    "type": "boolean",
+                    "default": False,
+                    "description": "reply at the end of the homing (with its outcome) instead of at its start",
+                },
+            }
+        )
     else:
         raise KeyError(name)
     return {"$schema": SCHEMA_DIALECT, "$id": f"pvtflow:{name}.request", "title": f"{name} request", **body}
@@ -383,6 +404,8 @@ _AXIS_STATUS = _obj(
         "last_emcy": {"type": ["object", "null"]},
         "nmt_state": _INT_OR_NULL,
         "fault": {"type": "boolean"},
+        "homing": {"type": "boolean", "description": "the axis has homing (an incremental encoder)"},
+        "homed": {"type": "boolean", "description": "nothing to home, or homed since its drive last booted"},
     },
     required=["joint", "node_id", "state", "statusword", "position_qc", "position", "buffer_status", "fault"],
 )
@@ -405,7 +428,21 @@ _MOTION = {
         "outcome": {"type": ["object", "null"]},
     },
 }
-SERVICE_STATES = ("idle", "moving", "stopping", "fault")
+SERVICE_STATES = ("idle", "moving", "stopping", "fault", "homing")
+_HOMING = {
+    "type": "object",
+    "required": ["homing_id", "state", "stages"],
+    "properties": {
+        "homing_id": _MOTION_ID,
+        "state": {"enum": ["running", "ended"]},
+        "stages": {"type": "array", "items": {"type": "array", "items": {"type": "string"}}},
+        "outcome": {
+            "type": ["object", "null"],
+            "description": "result (homed, stopped, homing_error, timeout, drive_fault, emcy, heartbeat_lost, "
+            "lost_sync, configuration_error), message, joint, axes (per axis: method, homed, time_s, position_qc)",
+        },
+    },
+}
 
 
 def reply_schema(name: str) -> dict[str, Any]:
@@ -459,6 +496,7 @@ def reply_schema(name: str) -> dict[str, Any]:
             "properties": {
                 "was_moving": {"type": "boolean"},
                 "motion_id": {"type": ["string", "null"]},
+                "homing_id": {"type": ["string", "null"], "description": "the homing it stopped, if one ran"},
                 "outcome": {"type": ["object", "null"]},
                 "axes": {"type": "array", "items": _AXIS_STATUS},
             },
@@ -478,6 +516,9 @@ def reply_schema(name: str) -> dict[str, Any]:
                 "recent": {"type": "array", "items": _MOTION},
                 "plans": {"type": "integer"},
                 "last_result": {"type": ["object", "null"]},
+                "requires_homing": {"type": "boolean"},
+                "homed": {"type": "boolean", "description": "every axis homed since its drive last booted"},
+                "homing": {"type": ["object", "null"], "description": "the last homing (as the home reply)"},
             },
         }
     elif name == "recover":
@@ -490,6 +531,8 @@ def reply_schema(name: str) -> dict[str, Any]:
                 "axes": {"type": "array", "items": _AXIS_STATUS},
             },
         }
+    elif name == "home":
+        body = _HOMING
     elif name == "state":
         body = {
             "type": "object",
@@ -737,6 +780,12 @@ class StatusRequest:
 
 
 @dataclass(frozen=True)
+class HomeRequest:
+    joints: tuple[str, ...] | None = None  # None: every axis with homing
+    wait: bool = False
+
+
+@dataclass(frozen=True)
 class RecoverRequest:
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -919,6 +968,12 @@ def parse_stop(data: Any) -> StopRequest:
 def parse_status(data: Any) -> StatusRequest:
     check_schema("status", data, None)
     return StatusRequest(int(data.get("recent", 10)))
+
+
+def parse_home(data: Any) -> HomeRequest:
+    check_schema("home", data, None)
+    joints = data.get("joints")
+    return HomeRequest(tuple(joints) if joints is not None else None, bool(data.get("wait", False)))
 
 
 def parse_recover(data: Any) -> RecoverRequest:

@@ -25,6 +25,7 @@ COMMANDS: dict[str, str] = {
     "plan": "service.plan_cmd",
     "validate": "service.validate_cmd",
     "execute": "service.execute_cmd",
+    "home": "service.home_cmd",
     "demo": "service.demo_cmd",
     "serve": "service.serve_cmd",
     "request": "service.request_cmd",

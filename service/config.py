@@ -15,7 +15,10 @@ from typing import Any, TypeVar
 import yaml
 from can.interfaces import VALID_INTERFACES
 
-from axes.config import AxisConfig, BufferConfig, BusConfig
+from axes import objects as od
+from axes.config import AxisConfig, AxisSimulation, BufferConfig, BusConfig, HomingConfig
+from axes.homing import homing_stages
+from axes.profiles import profile_class
 from axes.program import FIXED_PERIOD_PROFILES, PROFILES, SHORTEST_PERIOD_MS
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 from planner.limits import JointLimits, joint_limits_from_drives
@@ -60,6 +63,12 @@ class CellConfig:
     planning: PlanningConfig
     simulated: bool
     model: RobotModel = field(repr=False, compare=False)
+    homing_order: tuple[tuple[str, ...], ...] = ()  # stages of joints homed together (empty: one at a time)
+    requires_homing: bool = False  # motion is refused (not_homed) until every axis has homed since it booted
+
+    def homing_stages(self, joints: list[str] | None = None) -> list[list[str]]:
+        """The stages to home ``joints`` (None: every axis with homing) in (axes.homing.homing_stages)."""
+        return homing_stages(self.ordered_axes(), self.homing_order, joints)
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -176,7 +185,9 @@ def _yaml_error(file: Path, exc: yaml.YAMLError) -> ConfigError:
 
 
 def parse_cell_config(data: Any, file: Path) -> CellConfig:
-    top = _Fields(file, "", data, ("name", "robot", "bus", "axes", "planning", "simulated"))
+    top = _Fields(
+        file, "", data, ("name", "robot", "bus", "axes", "planning", "simulated", "homing_order", "requires_homing")
+    )
     name = top.get("name", top.string)
 
     robot = _Fields(file, "robot", top.data.get("robot"), ("urdf", "tcp_frame")) if "robot" in top.data else None
@@ -233,11 +244,45 @@ def parse_cell_config(data: Any, file: Path) -> CellConfig:
         if joint not in seen_joint:
             raise ConfigError(file, "axes", f"joint {joint!r} of the URDF has no axis")
 
+    homing = [a.joint for a in axes if a.homing is not None]
+    order = _parse_homing_order(top, homing, [a.joint for a in axes])
+    requires = top.get("requires_homing", top.boolean, bool(homing))
+    if requires and not homing:
+        raise top.error("requires_homing", "no axis has a homing section: nothing to home")
     if jerk:
         planning = replace(planning, max_jerk=tuple(jerk.get(j, math.inf) for j in model.joint_names))
-    cell = CellConfig(name, file, urdf, bus, tuple(axes), planning, simulated, model)
+    cell = CellConfig(name, file, urdf, bus, tuple(axes), planning, simulated, model, order, requires)
     _check_limits_consistent(file, cell)
     return cell
+
+
+def _parse_homing_order(top: _Fields, homing: list[str], joints: list[str]) -> tuple[tuple[str, ...], ...]:
+    """``homing_order``: a list of stages, each a joint or a list of joints homed together."""
+    raw = top.get("homing_order", lambda k, v: v, None)
+    if raw is None:
+        return ()
+    if not isinstance(raw, list) or not raw:
+        raise top.error("homing_order", "must be a list of stages (a joint, or a list of joints homed together)")
+    seen: set[str] = set()
+    stages: list[tuple[str, ...]] = []
+    for i, entry in enumerate(raw):
+        names = entry if isinstance(entry, list) else [entry]
+        where = f"homing_order[{i}]"
+        if not names:
+            raise top.error(where, "an empty stage")
+        for name in names:
+            if not isinstance(name, str) or name not in joints:
+                raise top.error(where, f"unknown joint {name!r} (the cell has {', '.join(joints)})")
+            if name not in homing:
+                raise top.error(where, f"joint {name!r} has no homing section: nothing to home")
+            if name in seen:
+                raise top.error(where, f"joint {name!r} is in the order twice")
+            seen.add(name)
+        stages.append(tuple(names))
+    missing = [j for j in homing if j not in seen]
+    if missing:
+        raise top.error("homing_order", f"leaves out {', '.join(missing)}: every axis with homing needs its stage")
+    return tuple(stages)
 
 
 def _parse_bus(file: Path, data: Any) -> BusConfig:
@@ -330,6 +375,8 @@ def _parse_axis(
             "interpolation_submode",
             "buffer",
             "max_jerk",
+            "homing",
+            "simulation",
         ),
     )
     joint = f.get("joint", f.string)
@@ -428,8 +475,93 @@ def _parse_axis(
         )
         if buffer.underflow_warning + 2 > buffer.overflow_warning:
             raise b.error("overflow_warning", "must be at least 2 above underflow_warning")
+    homing = _parse_homing(f, profile, limits) if "homing" in f.data else None
+    simulation = _parse_simulation(f) if "simulation" in f.data else None
     max_jerk = f.get("max_jerk", f.number(positive=True), None)
-    return AxisConfig(joint, node_id, profile, scaling, limits, period, submode, buffer), max_jerk
+    return AxisConfig(joint, node_id, profile, scaling, limits, period, submode, buffer, homing, simulation), max_jerk
+
+
+HOMING_FIELDS = (
+    "method",
+    "switch_speed_rpm",
+    "zero_speed_rpm",
+    "acceleration_rpm_s",
+    "offset_qc",
+    "current_threshold_ma",
+    "timeout_s",
+)
+
+
+def _parse_homing(f: _Fields, profile: str, limits: DriveLimits) -> HomingConfig:
+    """``axes[i].homing``: the method (its 0x6098 number or its name in axes.objects.HomingMethod) the
+    profile has, speeds within the drive's 0x607F, the home offset, the hard-stop current threshold."""
+    methods = profile_class(profile).homing_methods
+    if not methods:
+        raise f.error("homing", f"the {profile} profile has no homing mode (0x6060 = 6)")
+    h = _Fields(f.file, f.path("homing"), f.data["homing"], HOMING_FIELDS)
+
+    def method_of(key: str, v: Any) -> int:
+        if isinstance(v, str) and v.upper() in od.HomingMethod.__members__:
+            return int(od.HomingMethod[v.upper()])
+        if isinstance(v, bool) or not isinstance(v, int) or v not in methods:
+            have = ", ".join(f"{int(m)} {od.HomingMethod(m).name.lower()}" for m in sorted(methods))
+            raise h.error(key, f"{v!r} is not a homing method of {profile} (one of: {have})")
+        return v
+
+    method = h.get("method", method_of)
+    if method not in methods:
+        raise h.error("method", f"{od.HomingMethod(method).name.lower()} is not a homing method of {profile}")
+    d = HomingConfig(method)
+    speeds = {}
+    for key, default in (("switch_speed_rpm", d.switch_speed_rpm), ("zero_speed_rpm", d.zero_speed_rpm)):
+        speeds[key] = h.get(key, h.number(positive=True), default)
+        if speeds[key] > limits.max_profile_velocity_rpm:
+            raise h.error(
+                key,
+                f"{speeds[key]:g} rpm is above the drive's max profile velocity "
+                f"({limits.max_profile_velocity_rpm:g} rpm)",
+            )
+    threshold = h.get("current_threshold_ma", h.integer(1, 65535), None)
+    if threshold is not None and method >= 0:
+        raise h.error("current_threshold_ma", "only the hard-stop methods (-1 to -4) use a current threshold")
+    return HomingConfig(
+        method=method,
+        switch_speed_rpm=speeds["switch_speed_rpm"],
+        zero_speed_rpm=speeds["zero_speed_rpm"],
+        acceleration_rpm_s=h.get("acceleration_rpm_s", h.number(positive=True), d.acceleration_rpm_s),
+        offset_qc=h.get("offset_qc", h.integer(INT32_MIN, INT32_MAX), d.offset_qc),
+        current_threshold_ma=threshold,
+        timeout_s=h.get("timeout_s", h.number(positive=True), d.timeout_s),
+    )
+
+
+def _parse_simulation(f: _Fields) -> AxisSimulation:
+    """``axes[i].simulation``: the simulated machine around the axis (qc of the machine)."""
+    keys = tuple(AxisSimulation.__dataclass_fields__)
+    s = _Fields(f.file, f.path("simulation"), f.data["simulation"], keys)
+    d = AxisSimulation()
+    qc = s.integer(INT32_MIN, INT32_MAX)
+    values: dict[str, Any] = {}
+    for key in keys:
+        default = getattr(d, key)
+        if key == "home_switch_active_above":
+            values[key] = s.get(key, s.boolean, default)
+        elif key in ("index_spacing_qc",):
+            values[key] = s.get(key, s.integer(1, INT32_MAX), default)
+        elif key in ("stall_current_ma", "moving_current_ma"):
+            values[key] = s.get(key, s.integer(0, 65535), default)
+        elif key == "seed":
+            values[key] = s.get(key, s.integer(0, 2**31 - 1), default)
+        else:
+            values[key] = s.get(key, qc, default)
+    sim = AxisSimulation(**values)
+    for lo, hi in (
+        ("negative_limit_switch_qc", "positive_limit_switch_qc"),
+        ("negative_hard_stop_qc", "positive_hard_stop_qc"),
+    ):
+        if values[lo] is not None and values[hi] is not None and values[lo] >= values[hi]:
+            raise s.error(hi, f"must be above {lo} ({values[hi]} <= {values[lo]})")
+    return sim
 
 
 def _check_limits_consistent(file: Path, cell: CellConfig) -> None:

@@ -6,7 +6,8 @@ only over zenoh. The client plans a tour through a few waypoints, executes it, s
 bar from the telemetry while the axes move, prints the drives' final state from ``status``, then
 moves the tool on a straight line (a joint move off the middle of the ranges, where the wrist is
 straight, then a poses request with motion linear) and writes a plot of the telemetry (joint
-positions and buffer levels of the tour over time; the tool's path during the line).
+positions and buffer levels of the tour over time; the tool's path during the line). A cell that
+requires homing (gantry3: incremental encoders) homes first, through zenoh too, and says so.
 Exit codes: 0 the motion finished, 1 it did not (the reason is printed), 2 cannot start.
 """
 
@@ -304,6 +305,26 @@ def _serve_and_demo(args: argparse.Namespace, cell: CellConfig, plot: Path, endp
         service.close()
 
 
+def _home(client: Client, name: str) -> bool:
+    """A cell with incremental encoders homes before anything else moves (``not_homed`` otherwise)."""
+    print(f"  homing first: cell {name} requires it (incremental encoders; its axes powered up anywhere)")
+    t0 = time.perf_counter()
+    reply = client.request(name, "home", {"wait": True}, timeout=120.0)
+    if not reply.ok:
+        err = reply.data["error"]
+        print(f"{PROG}: home refused: {err['code']}: {err['message']}", file=sys.stderr)
+        return False
+    outcome = reply.data["outcome"]
+    stages = " then ".join(" + ".join(stage) for stage in reply.data["stages"])
+    print(f"  homed {stages} in {time.perf_counter() - t0:.2f} s: {outcome['result']}: {outcome['message']}")
+    for a in outcome["axes"]:
+        took = "-" if a["time_s"] is None else f"{a['time_s']:.3f} s"
+        print(f"    {a['joint']}: method {a['method']}, {took} of drive time, now at {a['position_qc']} qc")
+    if outcome["result"] != "homed":
+        print(f"{PROG}: the homing failed: {outcome['message']}", file=sys.stderr)
+    return bool(outcome["result"] == "homed")
+
+
 def _demo(
     client: Client, name: str, plot: Path, endpoint: str, service: MotionService, journal_dir: str, n_waypoints: int
 ) -> int:
@@ -331,6 +352,8 @@ def _demo(
         f"  {key(name, 'alive')} is up; axes: "
         + ", ".join(f"{a['joint']} {a['state'].lower()}" for a in status.data["axes"])
     )
+    if status.data.get("requires_homing") and not status.data.get("homed") and not _home(client, name):
+        return EXIT_FAILED
     limits = service.limits
     waypoints = tour(limits.lower, limits.upper, n_waypoints)
     t0 = time.perf_counter()

@@ -1,12 +1,15 @@
-"""``pvtflow execute PROGRAM.json [--config FILE] [--can-log FILE] [--real-time]``: run a PVT program on a cell.
+"""``pvtflow execute PROGRAM.json [--config FILE] [--can-log FILE] [--real-time] [--home]``: run a PVT program.
 
 The program is read, validated (planner.validate, the one validator) and matched against the cell
 (node ids, profiles, joints, the drive limits and scaling it was planned for) before anything is
 sent. A simulated cell (the default arm6 demo: ``simulated: true``) gets its simulated drives on
 the virtual bus first and runs in SYNC lockstep, faster than real time (``--real-time``: on the
-wall clock, as a real cell always does). Exit codes: 0 the program ran to its end, 1 refused
-(violations, wrong cell) or ended by a fault / stop, 2 unreadable input (program, configuration,
-log file or bus).
+wall clock, as a real cell always does). A cell that requires homing is refused (``not_homed``,
+nothing sent) unless ``--home``: then its axes home first (axes/homing.py), and the program runs
+only when every axis homed; a new master process cannot know whether a drive rebooted since an
+earlier homing, so it homes itself. Exit codes: 0 the program ran to its end, 1 refused
+(violations, wrong cell, not homed) or ended by a fault / stop / failed homing, 2 unreadable input
+(program, configuration, log file or bus).
 """
 
 from __future__ import annotations
@@ -17,10 +20,12 @@ from pathlib import Path
 from typing import Any
 
 from axes.bus import BusError, CellBus
-from axes.group import AxisGroup, Event, Progress, RunResult
+from axes.group import AxisGroup
+from axes.outcome import Event, EventKind, Progress, RunResult
 from axes.program import PvtProgram, program_mismatch
 from service.cli import can_log_problem
 from service.config import ConfigError, load_cell_config
+from service.home_cmd import describe_homing, home_cell
 from service.validate_cmd import ProgramFileError, read_program
 
 EXIT_OK, EXIT_FAILED, EXIT_UNREADABLE = 0, 1, 2
@@ -43,6 +48,11 @@ def add_parser(subparsers: Any) -> None:
         action="store_true",
         help="a simulated cell runs SYNC on the wall clock, as a real cell does (default there: lockstep, "
         "faster than real time)",
+    )
+    p.add_argument(
+        "--home",
+        action="store_true",
+        help="home the cell's axes first when the cell requires homing (without it such a cell refuses: not_homed)",
     )
     p.set_defaults(run=run)
 
@@ -107,10 +117,16 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {line}", file=sys.stderr)
         return _fail(f"{path}: the program was not made for cell {cell.name}: nothing was sent", EXIT_FAILED)
 
+    if cell.requires_homing and not args.home:
+        return _fail(
+            f"not_homed: cell {cell.name} requires homing (incremental encoders): nothing was sent; "
+            "home it with --home (or plan for where its axes stand after homing)",
+            EXIT_FAILED,
+        )
     quiet = bool(args.quiet)
 
     def on_event(event: Event) -> None:
-        if not quiet and event.kind not in ("finished",):
+        if not quiet and event.kind is not EventKind.FINISHED:
             where = f" [{event.joint}]" if event.joint else ""
             print(f"{event.kind}{where}: {event.message}", flush=True)
 
@@ -143,6 +159,12 @@ def run(args: argparse.Namespace) -> int:
         progress_every=max(1, duration_syncs // 10),
     )
     try:
+        if args.home and cell.homing_stages():  # (a cell with nothing to home takes --home as a no-op)
+            homing = home_cell(cell, group, None, quiet)
+            print(describe_homing(homing), flush=True)
+            if not homing.ok:
+                print(f"{PROG}: the homing failed: the program was not sent", file=sys.stderr)
+                return EXIT_FAILED
         try:
             result = group.run(program)
         except KeyboardInterrupt:

@@ -6,7 +6,9 @@ program, and a motion without an outcome line is reported as ``interrupted``. Li
 rewritten; a torn last line (power loss mid-write) is skipped on reading.
 
 Line kinds: ``{"kind": "motion", "motion_id", "time", "plan_id", "label", "cell", "program", ...}``
-and ``{"kind": "outcome", "motion_id", "time", "outcome": {...RunResult JSON}}``.
+and ``{"kind": "outcome", "motion_id", "time", "outcome": {...RunResult JSON}}``; every homing (it
+moves the axes too) as ``{"kind": "homing", "homing_id", "time", "cell", "stages"}`` before it starts
+and ``{"kind": "homing_outcome", "homing_id", "time", "outcome": {...HomingOutcome JSON}}`` after.
 """
 
 from __future__ import annotations
@@ -61,6 +63,28 @@ class MotionEntry:
         }
 
 
+@dataclass
+class HomingEntry:
+    """One homing as the journal knows it."""
+
+    homing_id: str
+    accepted_at: float
+    stages: list[list[str]]
+    outcome: dict[str, Any] | None = None
+    ended_at: float | None = None
+
+    def summary(self, running: bool = False) -> dict[str, Any]:
+        state = "ended" if self.outcome is not None else ("running" if running else "interrupted")
+        return {
+            "homing_id": self.homing_id,
+            "state": state,
+            "stages": self.stages,
+            "accepted_at": _iso(self.accepted_at),
+            "ended_at": _iso(self.ended_at) if self.ended_at is not None else None,
+            "outcome": self.outcome,
+        }
+
+
 class JournalError(OSError):
     """The journal cannot be opened or written (the motion is then refused: nothing unrecorded runs)."""
 
@@ -75,6 +99,7 @@ class Journal:
         self.skipped_lines = 0
         self._lock = threading.Lock()
         self._entries: OrderedDict[str, MotionEntry] = OrderedDict()
+        self._homings: OrderedDict[str, HomingEntry] = OrderedDict()
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
             self._load()
@@ -108,6 +133,13 @@ class Journal:
                         if entry is not None:
                             entry.outcome = line["outcome"]
                             entry.ended_at = float(line["time"])
+                    elif kind == "homing":
+                        self._remember_homing(HomingEntry(line["homing_id"], float(line["time"]), line["stages"]))
+                    elif kind == "homing_outcome":
+                        homing = self._homings.get(line["homing_id"])
+                        if homing is not None:
+                            homing.outcome = line["outcome"]
+                            homing.ended_at = float(line["time"])
                 except (ValueError, KeyError, TypeError):
                     self.skipped_lines += 1  # a torn or foreign line: keep reading
 
@@ -125,6 +157,11 @@ class Journal:
         self._entries[entry.motion_id] = entry
         while len(self._entries) > self.keep_in_memory:
             self._entries.popitem(last=False)
+
+    def _remember_homing(self, entry: HomingEntry) -> None:
+        self._homings[entry.homing_id] = entry
+        while len(self._homings) > self.keep_in_memory:
+            self._homings.popitem(last=False)
 
     def _append(self, line: dict[str, Any]) -> None:
         data = json.dumps(line, separators=(",", ":"), allow_nan=False).encode() + b"\n"
@@ -170,6 +207,33 @@ class Journal:
             if entry is not None:
                 entry.outcome = outcome
                 entry.ended_at = now
+
+    def record_homing(self, homing_id: str, stages: list[list[str]], *, cell: str) -> HomingEntry:
+        """Write (and fsync) an accepted homing; call before any axis moves."""
+        now = time.time()
+        entry = HomingEntry(homing_id, now, stages)
+        with self._lock:
+            self._append({"kind": "homing", "homing_id": homing_id, "time": now, "cell": cell, "stages": stages})
+            self._remember_homing(entry)
+        return entry
+
+    def record_homing_outcome(self, homing_id: str, outcome: dict[str, Any]) -> None:
+        now = time.time()
+        with self._lock:
+            self._append({"kind": "homing_outcome", "homing_id": homing_id, "time": now, "outcome": outcome})
+            entry = self._homings.get(homing_id)
+            if entry is not None:
+                entry.outcome = outcome
+                entry.ended_at = now
+
+    def homing(self, homing_id: str) -> HomingEntry | None:
+        with self._lock:
+            return self._homings.get(homing_id)
+
+    def recent_homings(self, n: int) -> list[HomingEntry]:
+        """The ``n`` most recent homings, newest first."""
+        with self._lock:
+            return list(reversed(self._homings.values()))[:n] if n > 0 else []
 
     def get(self, motion_id: str) -> MotionEntry | None:
         with self._lock:

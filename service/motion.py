@@ -9,6 +9,9 @@ is simulated), one AxisGroup, the plans (by id, in memory) and the journal (on d
 - A fault (drive, EMCY, heartbeat, lost SYNC) puts the cell in ``fault``: execute is refused until
   ``recover``, so that a fault is always acknowledged by someone.
 - Every accepted motion is journaled (fsync) before its first record is sent, its outcome after.
+- Homing (``home``) is a motion too: one at a time, journaled, stopped by ``stop``, a fault puts the
+  cell in ``fault``. A cell that ``requires_homing`` refuses ``execute`` and plans from the current
+  position (``not_homed``) until every axis has homed since its drive last booted (axes.homing).
 - Status is what the drives say: their statuswords, positions and buffer status (from their TPDOs
   while moving, read by SDO when idle), never what the service hopes.
 
@@ -26,6 +29,7 @@ import uuid
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +37,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.bus import BusError, CellBus
-from axes.group import AxisGroup, AxisStatus, Event, GroupError, Progress, Result, RunResult
+from axes.group import AxisGroup
+from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError, HomingResult
+from axes.outcome import AxisStatus, Event, EventKind, GroupError, Progress, Result, RunResult
 from axes.profiles import DriveError
 from axes.program import ProgramFormatError, PvtProgram, program_mismatch
 from planner.validate import validate_program
@@ -41,6 +47,7 @@ from service.api import (
     ApiError,
     ErrorCode,
     ExecuteRequest,
+    HomeRequest,
     PlanRequest,
     RecoverRequest,
     StatusRequest,
@@ -58,8 +65,36 @@ log = logging.getLogger("pvtflow.motion")
 FAULT_RESULTS = frozenset(
     {Result.DRIVE_FAULT, Result.EMCY, Result.HEARTBEAT_LOST, Result.LOST_SYNC, Result.CONFIGURATION_ERROR}
 )
-FAULT_EVENTS = frozenset({"emcy", "heartbeat", "nmt", "lost_sync"})
-IDLE, MOVING, STOPPING, FAULT = "idle", "moving", "stopping", "fault"
+
+
+class ServiceEventKind(StrEnum):
+    """The service's own ``events`` beside the axis group's (``axes.group.EventKind``)."""
+
+    SERVICE_STARTED = "service_started"
+    MOTION_ENDED = "motion_ended"
+    JOURNAL_ERROR = "journal_error"
+    HOMING_ENDED = "homing_ended"  # with its outcome (the homing's steps: axes.homing.HomingEventKind)
+
+
+class CellState(StrEnum):
+    """The cell as the service reports it (``state`` publication, ``status``)."""
+
+    IDLE = "idle"
+    MOVING = "moving"
+    STOPPING = "stopping"
+    FAULT = "fault"
+    HOMING = "homing"
+
+
+HOMING_FAULTS = frozenset(
+    {
+        HomingResult.DRIVE_FAULT,
+        HomingResult.EMCY,
+        HomingResult.HEARTBEAT_LOST,
+        HomingResult.LOST_SYNC,
+        HomingResult.CONFIGURATION_ERROR,
+    }
+)
 
 
 def _new_id(prefix: str) -> str:
@@ -98,6 +133,25 @@ class Motion:
             "duration_ms": int(self.program.duration_ms),
             "start_sync": self.start_sync,
             "outcome": self.outcome,
+        }
+
+
+@dataclass
+class Homing:
+    """The homing running on the cell (or the last one)."""
+
+    homing_id: str
+    stages: list[list[str]]
+    accepted_at: float
+    outcome: HomingOutcome | None = None
+    done: threading.Event = field(default_factory=threading.Event)
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "homing_id": self.homing_id,
+            "state": "ended" if self.done.is_set() else "running",
+            "stages": self.stages,
+            "outcome": self.outcome.to_json() if self.outcome is not None else None,
         }
 
 
@@ -144,7 +198,9 @@ class MotionService:
         self.group: AxisGroup | None = None
         self.plans: OrderedDict[str, StoredPlan] = OrderedDict()
         self.motion: Motion | None = None
-        self.state = IDLE
+        self.homing: Homing | None = None
+        self._homer: CellHoming | None = None
+        self.state = CellState.IDLE
         self.fault_reason: str | None = None
         self._lock = threading.RLock()  # execute / stop / recover / SDO: one at a time
         self._plans_lock = threading.Lock()
@@ -188,6 +244,10 @@ class MotionService:
     def close(self) -> None:
         """Halt a running motion, then bus, drives and journal down."""
         group = self.group
+        homing = self.homing
+        if group is not None and homing is not None and not homing.done.is_set():
+            group.stop("the service is shutting down")
+            homing.done.wait(30.0)
         if group is not None and group.running:
             group.stop("the service is shutting down")
             if self.motion is not None:
@@ -252,6 +312,8 @@ class MotionService:
         t0 = time.perf_counter()
         plan_id = _new_id("p")
         if req.poses is not None:
+            if req.start_joints is None:
+                self._refuse_unless_homed(self._group())
             q0 = req.start_joints if req.start_joints is not None else self.current_joint_positions()
             with self._planner_lock:
                 result = self.planner.plan_poses(
@@ -268,6 +330,7 @@ class MotionService:
         else:
             waypoints = req.waypoints
             if req.start == "current":
+                self._refuse_unless_homed(self._group())
                 q0 = self.current_joint_positions()
                 first_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, waypoints[0], strict=True)]
                 here_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, q0, strict=True)]
@@ -375,7 +438,9 @@ class MotionService:
                 )
         group = self._group()
         with self._lock:
-            self._refuse_unless_ready(group)
+            self._refuse_if_busy(group)
+            self._refuse_unless_homed(group)
+            self._refuse_if_faulted(group)
             self._refuse_unless_at_start(group, program)
             motion = Motion(_new_id("m"), plan_id, label, program, time.time())
 
@@ -406,13 +471,21 @@ class MotionService:
                 raise self._start_error(early, motion)
             elapsed = group.elapsed_syncs()
             motion.start_sync = None if elapsed is None else group.bus.sync.answered - elapsed
-            self._set_state(MOVING, motion.motion_id)
+            self._set_state(CellState.MOVING, motion.motion_id)
             self._started.put(motion)
         if req.wait:
             motion.done.wait()
         return motion.summary()
 
-    def _refuse_unless_ready(self, group: AxisGroup) -> None:
+    def _refuse_if_busy(self, group: AxisGroup) -> None:
+        homing = self.homing
+        if homing is not None and not homing.done.is_set():
+            raise ApiError(
+                ErrorCode.BUSY,
+                f"cell {self.cell.name} is homing ({homing.homing_id}): one motion at a time; "
+                "stop it or wait for its end",
+                {"homing_id": homing.homing_id},
+            )
         previous = self.motion
         if previous is not None and not previous.done.is_set() and not group.running:
             previous.done.wait(2.0)  # it has just ended: its outcome is being journaled
@@ -423,7 +496,22 @@ class MotionService:
                 f"a motion is running on cell {self.cell.name} ({moving}): one at a time; stop it or wait for its end",
                 {"motion_id": moving},
             )
-        if self.state == FAULT:
+
+    def _refuse_unless_homed(self, group: AxisGroup) -> None:
+        """NOT_HOMED on a cell that requires homing while an axis has not homed since its drive booted."""
+        if not self.cell.requires_homing:
+            return
+        missing = [link.joint for link, homed in zip(group.links, group.homed, strict=True) if not homed]
+        if missing:
+            raise ApiError(
+                ErrorCode.NOT_HOMED,
+                f"cell {self.cell.name} must home first: {', '.join(missing)} not homed since "
+                f"{'its drive' if len(missing) == 1 else 'their drives'} last booted: call home",
+                {"joints": missing},
+            )
+
+    def _refuse_if_faulted(self, group: AxisGroup) -> None:
+        if self.state == CellState.FAULT:
             raise ApiError(
                 ErrorCode.DRIVE_FAULT,
                 f"cell {self.cell.name} is in fault ({self.fault_reason}): call recover first",
@@ -472,7 +560,7 @@ class MotionService:
                 self._finish(motion, self.group.wait())
             except Exception:  # never leave a motion without an end: the cell would stay "moving"
                 log.exception("while ending motion %s", motion.motion_id)
-                self._set_state(IDLE if not self.running else self.state, motion.motion_id)
+                self._set_state(CellState.IDLE if not self.running else self.state, motion.motion_id)
                 motion.done.set()
 
     def _finish(self, motion: Motion, result: RunResult) -> None:
@@ -483,16 +571,18 @@ class MotionService:
         try:
             self.journal.record_outcome(motion.motion_id, outcome)
         except JournalError as exc:
-            self.publish("events", self.event_payload("journal_error", str(exc), motion_id=motion.motion_id))
+            self.publish(
+                "events", self.event_payload(ServiceEventKind.JOURNAL_ERROR, str(exc), motion_id=motion.motion_id)
+            )
         if result.result in FAULT_RESULTS:
             self.fault_reason = result.message
-            self._set_state(FAULT, motion.motion_id)
+            self._set_state(CellState.FAULT, motion.motion_id)
         else:
-            self._set_state(IDLE, motion.motion_id)
+            self._set_state(CellState.IDLE, motion.motion_id)
         self.publish(
             "events",
             self.event_payload(
-                "motion_ended",
+                ServiceEventKind.MOTION_ENDED,
                 f"{result.result.value}: {result.message}",
                 motion_id=motion.motion_id,
                 outcome=outcome,
@@ -502,15 +592,97 @@ class MotionService:
         )
         motion.done.set()
 
+    # --- home ------------------------------------------------------------------------------------
+    def home(self, req: HomeRequest) -> dict[str, Any]:
+        """Home the cell's axes (all with homing, or those named) in the cell's homing order."""
+        group = self._group()
+        try:
+            stages = self.cell.homing_stages(list(req.joints) if req.joints is not None else None)
+        except HomingRequestError as exc:
+            unknown = "unknown axis" in str(exc)
+            code = ErrorCode.UNKNOWN_JOINT if unknown else ErrorCode.NOT_ALLOWED
+            raise ApiError(
+                code, f"cell {self.cell.name}: {exc}: nothing moved", {"joints": list(req.joints or ())}
+            ) from None
+        if not stages:
+            raise ApiError(ErrorCode.NOT_ALLOWED, f"cell {self.cell.name} has no axis to home (absolute encoders)")
+        with self._lock:
+            self._refuse_if_busy(group)
+            self._refuse_if_faulted(group)
+            homing = Homing(_new_id("h"), stages, time.time())
+            try:
+                self.journal.record_homing(homing.homing_id, stages, cell=self.cell.name)
+            except JournalError as exc:
+                raise ApiError(ErrorCode.JOURNAL_ERROR, f"{exc}: nothing moved") from None
+            self.homing = homing
+            self._homer = CellHoming(group, on_event=self._on_homing_event)
+            self._set_state(CellState.HOMING, None)
+            threading.Thread(
+                target=self._run_homing, args=(homing, self._homer), name=f"pvtflow-home-{self.cell.name}", daemon=True
+            ).start()
+        if req.wait:
+            homing.done.wait()
+        return homing.summary()
+
+    def _run_homing(self, homing: Homing, homer: CellHoming) -> None:
+        try:
+            outcome = homer.run(homing.stages)
+        except (GroupError, BusError, OSError) as exc:
+            outcome = HomingOutcome(HomingResult.CONFIGURATION_ERROR, f"homing failed: {exc}")
+        except Exception as exc:  # never leave a homing without an end: the cell would stay "homing"
+            log.exception("while homing %s", homing.homing_id)
+            outcome = HomingOutcome(HomingResult.CONFIGURATION_ERROR, f"homing failed: {type(exc).__name__}: {exc}")
+        homing.outcome = outcome
+        try:
+            self.journal.record_homing_outcome(homing.homing_id, outcome.to_json())
+        except JournalError as exc:
+            self.publish("events", self.event_payload(ServiceEventKind.JOURNAL_ERROR, str(exc)))
+        if outcome.result in HOMING_FAULTS:
+            self.fault_reason = outcome.message
+            self._set_state(CellState.FAULT, None)
+        else:
+            self._set_state(CellState.IDLE, None)
+        self.publish(
+            "events",
+            self.event_payload(
+                ServiceEventKind.HOMING_ENDED,
+                f"{outcome.result.value}: {outcome.message}",
+                homing_id=homing.homing_id,
+                outcome=outcome.to_json(),
+                joint=outcome.joint,
+                node_id=outcome.node_id,
+            ),
+        )
+        homing.done.set()
+
+    def _on_homing_event(self, kind: HomingEventKind, message: str, joint: str | None) -> None:
+        homing = self.homing
+        self.publish(
+            "events",
+            self.event_payload(kind, message, joint=joint, homing_id=homing.homing_id if homing else None),
+        )
+
     # --- stop ------------------------------------------------------------------------------------
     def stop(self, req: StopRequest) -> dict[str, Any]:
         """Halt every axis now (on the next SYNC) and wait until they stand still."""
         group = self._group()
+        homing = self.homing
+        if homing is not None and not homing.done.is_set():
+            self._set_state(CellState.STOPPING, None)
+            group.stop(req.reason)
+            homing.done.wait(60.0)
+            return {
+                "was_moving": True,
+                "motion_id": None,
+                "homing_id": homing.homing_id,
+                "outcome": homing.outcome.to_json() if homing.outcome is not None else None,
+                "axes": [self._axis_json(s) for s in group.status().axes],
+            }
         with self._lock:  # an execute still starting has finished its start: its motion is stopped
             motion = self.motion
             was_moving = group.running
             if was_moving:
-                self._set_state(STOPPING, motion.motion_id if motion else None)
+                self._set_state(CellState.STOPPING, motion.motion_id if motion else None)
                 group.stop(req.reason)
         if was_moving and motion is not None:
             motion.done.wait(group.halt_timeout_ms / 1000.0 + 5.0)
@@ -528,7 +700,8 @@ class MotionService:
         del req
         group = self._group()
         with self._lock:
-            if group.running:
+            homing = self.homing
+            if group.running or (homing is not None and not homing.done.is_set()):
                 raise ApiError(
                     ErrorCode.BUSY,
                     "cannot recover while a motion runs: stop it first",
@@ -547,7 +720,7 @@ class MotionService:
                 )
             self.fault_reason = None
             with self._state_lock:
-                self.state = IDLE
+                self.state = CellState.IDLE
             self._publish_state(None)  # the drives' power states changed even when the cell was idle
             return {"ok": True, "message": res.message, "axes": [self._axis_json(s) for s in group.status().axes]}
 
@@ -576,6 +749,9 @@ class MotionService:
             "recent": recent,
             "plans": n_plans,
             "last_result": last,
+            "requires_homing": self.cell.requires_homing,
+            "homed": all(s.homed for s in st.axes),
+            "homing": self.homing.summary() if self.homing is not None else None,
         }
 
     def journal_entry(self, motion_id: str) -> MotionEntry | None:
@@ -600,10 +776,12 @@ class MotionService:
             else {"code": s.last_emcy[0], "code_hex": f"0x{s.last_emcy[0]:04X}", "message": s.last_emcy[1]},
             "nmt_state": s.nmt_state,
             "fault": _is_fault(s),
+            "homing": axis.homing is not None,
+            "homed": s.homed,
         }
 
     # --- publications ----------------------------------------------------------------------------
-    def _set_state(self, state: str, motion_id: str | None) -> None:
+    def _set_state(self, state: CellState, motion_id: str | None) -> None:
         with self._state_lock:
             changed = state != self.state
             self.state = state
@@ -638,7 +816,9 @@ class MotionService:
             },
         )
 
-    def event_payload(self, kind: str, message: str, **extra: Any) -> dict[str, Any]:
+    def event_payload(
+        self, kind: EventKind | ServiceEventKind | HomingEventKind, message: str, **extra: Any
+    ) -> dict[str, Any]:
         return {
             "cell": self.cell.name,
             "kind": kind,
@@ -659,9 +839,9 @@ class MotionService:
                 event.kind, event.message, joint=event.joint, node_id=event.node_id, motion_id=motion_id
             ),
         )
-        if event.kind in FAULT_EVENTS and not self.running:
+        if event.kind.is_bus_fault and not self.running:
             self.fault_reason = event.message  # a drive faulted while idle: recover before the next motion
-            self._set_state(FAULT, None)
+            self._set_state(CellState.FAULT, None)
 
     def _on_progress(self, p: Progress) -> None:
         """Every ``telemetry_every`` SYNCs during a motion (SYNC thread: hand over, never block)."""

@@ -1,4 +1,4 @@
-"""``pvtflow request plan|validate|execute|stop|status|recover ...``: talk to a running service over zenoh.
+"""``pvtflow request plan|validate|execute|stop|status|recover|home ...``: talk to a running service over zenoh.
 
 Also :class:`Client`, the small Python client the demo, the benchmarks and the tests use: one
 zenoh session, ``request(cell, op, payload)`` -> :class:`Reply` (``ok``, ``data``, ``cell``), and
@@ -163,7 +163,7 @@ def _cell_of(key_expr: str) -> str | None:
 def add_parser(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "request",
-        help="send a request to a pvtflow service over zenoh (plan, validate, execute, stop, status, recover)",
+        help="send a request to a pvtflow service over zenoh (plan, validate, execute, stop, status, recover, home)",
         description="Talk to `pvtflow serve` over zenoh. Exit 0 answered, 1 error reply, 2 no answer or bad input.",
     )
     p.add_argument("op", choices=QUERYABLES, help="the request")
@@ -211,7 +211,14 @@ def add_parser(subparsers: Any) -> None:
         help="plan: jerk limit per joint in joint units/s^3, in the cell's joint order (default: the cell's)",
     )
     p.add_argument("--program", metavar="FILE", help="validate / execute: a PVT program file instead of a plan id")
-    p.add_argument("--wait", action="store_true", help="execute: reply at the end of the motion, with its outcome")
+    p.add_argument(
+        "--wait", action="store_true", help="execute / home: reply at the end of the motion or homing, with its outcome"
+    )
+    p.add_argument(
+        "--joints",
+        metavar="J1,J2,...",
+        help="home: the axes to home, comma separated (default: every axis with homing)",
+    )
     p.add_argument("--reason", help="stop: why (journaled with the outcome)")
     p.add_argument("--recent", type=int, help="status: how many recent motions to list")
     p.add_argument("--json", dest="raw", metavar="PAYLOAD", help="send this JSON payload as is (overrides the rest)")
@@ -232,7 +239,8 @@ _FOR_OPS: dict[str, tuple[str, ...]] = {
     "acceleration_scale": ("plan",),
     "max_jerk": ("plan",),
     "program": ("validate", "execute"),
-    "wait": ("execute",),
+    "wait": ("execute", "home"),
+    "joints": ("home",),
     "reason": ("stop",),
     "recent": ("status",),
 }
@@ -291,6 +299,14 @@ def _local_payload(args: argparse.Namespace) -> Any:
         else:
             raise _InputError(f"{op} needs a PLAN_ID or --program FILE")
         if op == "execute" and args.wait:
+            out["wait"] = True
+    elif op == "home":
+        if args.joints is not None:
+            joints = [j.strip() for j in args.joints.split(",")]
+            if not all(joints):
+                raise _InputError(f"--joints: not a comma-separated list of axis names: {args.joints!r}")
+            out["joints"] = joints
+        if args.wait:
             out["wait"] = True
     elif op == "stop" and args.reason:
         out["reason"] = args.reason

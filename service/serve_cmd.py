@@ -48,7 +48,7 @@ PROG = "pvtflow serve"
 def add_parser(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "serve",
-        help="serve a cell over zenoh: plan, validate, execute, stop, status, recover (the main job)",
+        help="serve a cell over zenoh: plan, validate, execute, stop, status, recover, home (the main job)",
         description="Run the motion service of one cell. The default configuration is the arm6 demo cell on "
         "simulated drives, listening on tcp/127.0.0.1:7447 without scouting.",
     )
@@ -147,9 +147,10 @@ def banner(service: MotionService, server: Server, allow_unauthenticated: bool =
     if dictionary is not None:
         observer, operator, note = _credentials(dictionary, endpoint)
         lines += [f"  clients must authenticate (zenoh user/password, users in {dictionary}):", f"    {note}"]
+    lines += ["  talk to it:", f"    pvtflow request status --cell {name} {observer}"]
+    if service.cell.requires_homing:  # incremental encoders: nothing moves (not_homed) before this
+        lines.append(f"    pvtflow request home --cell {name} {operator} --wait")
     lines += [
-        "  talk to it:",
-        f"    pvtflow request status --cell {name} {observer}",
         f"    pvtflow request plan --cell {name} {observer} --target {target}",
         f"    pvtflow request execute PLAN_ID --cell {name} {operator}",
         f"    pvtflow request stop --cell {name} {operator}",
@@ -187,7 +188,7 @@ def _credentials(dictionary: str, endpoint: str) -> tuple[str, str, str]:
         observer, operator = (_shown(ZENOH_CONFIG_DIR / f"{who}-client.json5") for who in ("observer", "operator"))
         note = (
             f"{observer} is user observer (plan, validate, status), {operator} user operator (also "
-            "execute, stop, recover)"
+            "execute, stop, recover, home)"
         )
         return (
             f"--zenoh-config {observer} --connect {endpoint}",

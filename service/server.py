@@ -1,6 +1,6 @@
 """The zenoh face of one cell: queryables, publications and the liveliness token (DESIGN section 7).
 
-``pvtflow/<cell>/{plan,validate,execute,stop,status,recover}`` are queryables (JSON in, JSON out,
+``pvtflow/<cell>/{plan,validate,execute,stop,status,recover,home}`` are queryables (JSON in, JSON out,
 errors as ``reply_err`` with ``{"error": {"code", "message", "details"}}``);
 ``pvtflow/<cell>/{state,telemetry,events}`` are publications; ``pvtflow/<cell>/alive`` is the
 liveliness token. The session is a peer on explicit endpoints with multicast and gossip scouting
@@ -8,7 +8,7 @@ off (configs/zenoh/service.json5), unless the user gives a zenoh JSON5 file, use
 
 Queries are handed from zenoh's callback threads to worker pools at once, so a long plan never
 delays a stop: planning (plan, validate) has its own workers, motion commands (execute, stop,
-status, recover) theirs. Publications go through a queue and one publisher thread, so the bus
+status, recover, home) theirs. Publications go through a queue and one publisher thread, so the bus
 threads that produce telemetry never wait on the network.
 """
 
@@ -37,6 +37,7 @@ from service.api import (
     dumps,
     key,
     parse_execute,
+    parse_home,
     parse_payload,
     parse_plan,
     parse_recover,
@@ -45,7 +46,7 @@ from service.api import (
     parse_validate,
 )
 from service.config import CONFIG_DIR
-from service.motion import MotionService
+from service.motion import MotionService, ServiceEventKind
 
 log = logging.getLogger("pvtflow.server")
 
@@ -158,6 +159,7 @@ class Server:
             "stop": lambda d: service.stop(parse_stop(d)),
             "status": lambda d: service.status(parse_status(d)),
             "recover": lambda d: service.recover(parse_recover(d)),
+            "home": lambda d: service.home(parse_home(d)),
         }
 
     # --- the pure part: payload in, (ok, JSON bytes) out -------------------------------------------
@@ -197,7 +199,9 @@ class Server:
                 self.session.declare_queryable(key(self.cell, op), lambda query, op=op: self._on_query(op, query))
             )
         self._token = self.session.liveliness().declare_token(key(self.cell, LIVELINESS))
-        self._enqueue("events", self.service.event_payload("service_started", f"cell {self.cell} is being served"))
+        self._enqueue(
+            "events", self.service.event_payload(ServiceEventKind.SERVICE_STARTED, f"cell {self.cell} is being served")
+        )
         return self
 
     def _spawn(self, target: Callable[[], None], name: str) -> None:

@@ -263,6 +263,7 @@ class Profile:
     abort_connection_option: ClassVar[od.AbortConnectionOption] = od.AbortConnectionOption.QUICK_STOP
     # 0x605E, where a lost master is one of the drive's own errors (the EPOS2): its fault reaction brakes
     fault_reaction_on_master_loss: ClassVar[od.FaultReaction | None] = None
+    homing_methods: ClassVar[frozenset[int]] = frozenset()  # 0x6098 values it homes with (none: no mode 6)
 
     def __init__(self, link: AxisLink) -> None:
         self.link = link
@@ -338,6 +339,25 @@ class Profile:
         link.write(od.PROFILE_ACCELERATION, 0, round(profile_acceleration), "I")
         link.write(od.QUICK_STOP_DECELERATION, 0, round(lim.max_acceleration_rpm_s), "I")
 
+    def write_homing(self) -> None:
+        """The axis's homing settings (0x6098, 0x6099:01/02, 0x609A, 0x607C, maxon's 0x2080), in drive
+        units; nothing for an axis without homing. A method the profile does not have is refused."""
+        homing = self.config.homing
+        if homing is None:
+            return
+        if homing.method not in self.homing_methods:
+            have = ", ".join(str(m) for m in sorted(self.homing_methods)) or "none: no homing mode"
+            raise DriveError(self.link.node_id, f"homing method {homing.method} is not one of {self.name}'s ({have})")
+        unit = self.config.scaling.velocity_unit_rpm
+        link = self.link
+        link.write(od.HOMING_METHOD, 0, homing.method, "b")
+        link.write(od.HOMING_SPEEDS, 1, round(homing.switch_speed_rpm / unit), "I")
+        link.write(od.HOMING_SPEEDS, 2, round(homing.zero_speed_rpm / unit), "I")
+        link.write(od.HOMING_ACCELERATION, 0, round(homing.acceleration_rpm_s), "I")
+        link.write(od.HOME_OFFSET, 0, homing.offset_qc, "i")
+        if homing.current_threshold_ma is not None:
+            link.write(od.EPOS2_HOMING_CURRENT_THRESHOLD, 0, homing.current_threshold_ma, "H")
+
     def write_heartbeat(self) -> None:
         self.link.write(od.PRODUCER_HEARTBEAT_TIME, 0, self.link.bus.config.heartbeat_ms, "H")
 
@@ -399,15 +419,20 @@ class Profile:
             )
 
 
-def profile_for(link: AxisLink) -> Profile:
-    """The profile module named by the axis's configuration."""
+def profile_class(name: str) -> type[Profile]:
+    """The profile module's class by its name (KeyError: no such profile)."""
     from axes.profiles.cia402_ip_linear import Cia402IpLinear
     from axes.profiles.epos2_pvt import Epos2Pvt
     from axes.profiles.parker_slvdn import ParkerSlvdn
     from axes.profiles.sync_setpoint import SyncSetpoint
 
     classes: dict[str, type[Profile]] = {c.name: c for c in (Epos2Pvt, Cia402IpLinear, SyncSetpoint, ParkerSlvdn)}
+    return classes[name]
+
+
+def profile_for(link: AxisLink) -> Profile:
+    """The profile module named by the axis's configuration."""
     try:
-        return classes[link.config.profile](link)
+        return profile_class(link.config.profile)(link)
     except KeyError:
         raise DriveError(link.node_id, f"unknown profile {link.config.profile!r}") from None

@@ -41,6 +41,7 @@ class Epos2Pvt(Profile):
     tpdos = EPOS2_TPDOS
     sync_tpdo = 2
     fault_reaction_on_master_loss = od.FaultReaction.QUICK_STOP
+    homing_methods = od.EPOS2_HOMING_METHODS
 
     def configure(self) -> None:
         link = self.link

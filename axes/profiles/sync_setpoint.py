@@ -20,6 +20,7 @@ from axes.profiles.cia402_ip_linear import FixedPeriodProfile
 
 class SyncSetpoint(FixedPeriodProfile):
     name = "sync_setpoint"
+    homing_methods = od.CIA402_HOMING_METHODS  # mode 6 (the seed's 0x60E3: "see the servodrive manual")
 
     @property
     def delay_periods(self) -> int:

@@ -48,6 +48,7 @@ def make_drive(
         limits=axis.limits,
         sync_period_ms=sync_period_ms,
         history_length=history_length,
+        simulation=axis.simulation,
     )
 
 

@@ -10,8 +10,9 @@ gives each such object the drive's own value as its default, in the drive's priv
 dictionary, so a reset restores it as a power cycle would.
 
 Modes (decided here, from the seeds and maxon's EDS; the simulation moves the axis in mode 7,
-interpolated position, only: in any other mode it accepts, the drive holds its position, as a drive
-does that was given no target in that mode):
+interpolated position, and homes it in mode 6 where the drive has it (axes/sim/homing.py): in any
+other mode it accepts, the drive holds its position, as a drive does that was given no target in
+that mode):
 
 * ``epos2_pvt`` (maxon EPOS2): profile position 1, profile velocity 3, homing 6, interpolated
   position 7 and maxon's position -1, velocity -2, current -3, master encoder -5 and step/direction

@@ -5,7 +5,8 @@ heartbeat consumer per 0x1016 (wall clock: the only wall-clock parts), EMCY prod
 power state machine driven by the controlword, the statusword, SYNC-driven motion clock with 1 kHz
 interpolation samples, 0x607D on every demand sample, fault handling and fault injection. The
 profile modules (epos2, ip_linear, sync_setpoint, parker) add their interpolation on top through a
-few hooks.
+few hooks. The machine around the axis (power-up anywhere, limit switches, hard stops) and homing
+mode 6 on it come from ``axes/sim/homing.py`` (``HomingMixin``), for drives whose 0x6502 has mode 6.
 
 Master loss: when a heartbeat 0x1016 watches stops (``axes/sim/consumer.py``), the drive sends
 EMCY 0x8130 (CiA 301 heartbeat error, error register generic + communication) and does what 0x6007
@@ -36,7 +37,6 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
 
@@ -47,7 +47,7 @@ from canopen.sdo import SdoAbortedError
 
 from axes import objects as od
 from axes.cia402 import Controlword, PowerState, Statusword
-from axes.interpolation import hermite_coefficients
+from axes.config import AxisSimulation
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 from axes.sim.consumer import HeartbeatConsumer
 from axes.sim.device import (
@@ -58,7 +58,10 @@ from axes.sim.device import (
     complete_object_dictionary,
     identity_values,
 )
+from axes.sim.homing import HomingMixin, HomingState, Machine
 from axes.sim.pdo import PdoEngine, is_pdo_object, unsubscribe
+from axes.sim.records import FaultRecord, MasterLoss, SyncSample
+from axes.sim.segment import Segment
 
 EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
 # maxon's own published EPOS2 70/10 EDS, kept unchanged as a vendor data file (configs/eds/vendor/README.md)
@@ -79,6 +82,7 @@ VOLTAGE_ENABLED = int(Statusword.VOLTAGE_ENABLED)
 WARNING = int(Statusword.WARNING)
 TARGET_REACHED = int(Statusword.TARGET_REACHED)
 IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
+CW_HOMING_START = int(Controlword.HOMING_START)
 CW_ENABLE_IP = int(Controlword.ENABLE_IP_MODE)
 CW_FAULT_RESET = int(Controlword.FAULT_RESET)
 CW_HALT = int(Controlword.HALT)
@@ -95,91 +99,7 @@ REGISTER_GENERIC = 0x01  # 0x1001 bits
 REGISTER_COMMUNICATION = 0x10
 
 
-@dataclass(frozen=True)
-class FaultRecord:
-    """One fault the drive went into: when, the EMCY code it sent and which check tripped."""
-
-    sync: int
-    time_ms: float
-    code: int
-    check: str
-
-
-@dataclass
-class MasterLoss:
-    """A heartbeat the drive watches (0x1016) stopped: when, and how the drive took it (tests, benches)."""
-
-    node_id: int  # whose heartbeat stopped
-    silent_s: float  # since its last heartbeat when the consumer fired
-    detected: float  # time.monotonic()
-    last_heartbeat: float | None  # time.monotonic() of that node's last heartbeat
-    option: int  # 0x6007 in force
-    state: str  # the power state the drive was in
-    velocity_rpm: float  # the demand velocity then (motor rpm)
-    standstill: float | None = None  # time.monotonic() when the demand came to rest (None: still moving)
-
-
-@dataclass(frozen=True, slots=True)
-class SyncSample:
-    """The drive's demand and actual position at one SYNC instant (after the SYNC's processing)."""
-
-    sync: int
-    time_ms: float
-    demand: float
-    actual: int
-    ip_active: bool
-    state: str
-
-
-@dataclass
-class Segment:
-    """One piece of the drive's interpolation: p(tau) = c0 + c1 tau + c2 tau^2 + c3 tau^3, tau in [0, T]."""
-
-    start: float  # ms on the motion clock
-    duration: float
-    c0: float
-    c1: float
-    c2: float
-    c3: float
-    p1: float  # exact end point and velocity (no rounding drift from chaining)
-    v1: float
-
-    @classmethod
-    def cubic(cls, start: float, p0: float, v0: float, p1: float, v1: float, duration: float) -> Segment:
-        c0, c1, c2, c3 = (float(c) for c in hermite_coefficients(p0, v0, p1, v1, duration))
-        return cls(start, duration, c0, c1, c2, c3, p1, v1)
-
-    @classmethod
-    def linear(cls, start: float, p0: float, p1: float, duration: float) -> Segment:
-        v = (p1 - p0) / duration
-        return cls(start, duration, p0, v, 0.0, 0.0, p1, v)
-
-    @classmethod
-    def braking(cls, start: float, p0: float, v0: float, deceleration: float) -> Segment:
-        """A ramp to rest at up to ``deceleration`` that ends on a whole count: a drive's position
-        demand at standstill is a whole number of increments (what 0x6062 shows), so the ramp takes
-        the deceleration that stops exactly on the first count at or past its natural stop."""
-        natural = p0 + v0 * abs(v0) / (2.0 * deceleration)
-        p1 = float(math.ceil(natural) if v0 > 0 else math.floor(natural))
-        duration = 2.0 * abs(p1 - p0) / abs(v0)
-        a = -v0 / duration
-        return cls(start, duration, p0, v0, 0.5 * a, 0.0, p1, 0.0)
-
-    @property
-    def end(self) -> float:
-        return self.start + self.duration
-
-    def at(self, t: float) -> tuple[float, float, float]:
-        """(position, velocity, acceleration) at motion time t (clamped to the segment)."""
-        tau = min(max(t - self.start, 0.0), self.duration)
-        if tau >= self.duration:
-            return self.p1, self.v1, 2.0 * self.c2 + 6.0 * self.c3 * self.duration
-        p = self.c0 + tau * (self.c1 + tau * (self.c2 + tau * self.c3))
-        v = self.c1 + tau * (2.0 * self.c2 + 3.0 * tau * self.c3)
-        return p, v, 2.0 * self.c2 + 6.0 * self.c3 * tau
-
-
-class SimulatedDrive:
+class SimulatedDrive(HomingMixin):
     """A CiA 402 drive on a canopen network, simulated. Subclasses add one interpolation behaviour."""
 
     PROFILE: ClassVar[str] = ""
@@ -189,6 +109,8 @@ class SimulatedDrive:
     MODES: ClassVar[DriveModes] = DriveModes((SIMULATED_MODE,))  # 0x6502 / 0x6060 (axes/sim/device.py)
     # a lost master's heartbeat is one of the drive's own errors: its fault reaction (0x605E), then FAULT
     HEARTBEAT_ERROR_FAULTS: ClassVar[bool] = False
+    HOMING_METHODS: ClassVar[frozenset[int]] = frozenset()  # 0x6098 values it runs in mode 6 (axes/sim/homing.py)
+    REFERENCED_BIT: ClassVar[int] = 0  # a manufacturer statusword bit that says "homed since power-on"
     _ip_requested: bool = False  # bit 4 rose: ip mode starts on the next SYNC (profiles reset it)
 
     def __init__(
@@ -201,6 +123,7 @@ class SimulatedDrive:
         limits: DriveLimits | None = None,
         sync_period_ms: float = 1.0,
         history_length: int = 20_000,
+        simulation: AxisSimulation | None = None,
     ) -> None:
         if not 1 <= node_id <= 127:
             raise ValueError(f"node id {node_id} is outside 1..127")
@@ -227,6 +150,7 @@ class SimulatedDrive:
         self.time_stamps: deque[int] = deque(maxlen=history_length)  # 0x1013 values (us); no clock correction
         self.ip_active_sync: int | None = None  # SYNC count at which interpolation last became active
         self.sync_count = 0
+        self.halts: list[int] = []  # the SYNC count at every halt (controlword bit 8) taken in OPERATION ENABLED
         self.time_us = 0
         self.sample_ms = 0.0  # motion time of the sample being computed (or of the last SYNC)
         self._heartbeat_silenced = False
@@ -235,6 +159,15 @@ class SimulatedDrive:
         self._tick_at = 0.0  # wall clock (time.monotonic()) up to which the motion clock has run on its own
         self._tick_sync = 0  # sync_count at the last wall-clock tick: a SYNC since then runs the clock itself
         self._commissioned: dict[tuple[int, int], int] = {}  # kept through an NMT reset (stored parameters)
+        # the machine: where the encoder's 0 is (the machine position = demand + origin; an incremental
+        # encoder counts from 0 wherever the axis stands at power-on), switches, index pulse, hard stops
+        self.simulation = simulation
+        self.machine = Machine(simulation or AxisSimulation())
+        self.origin = self._power_up_position(node_id, simulation, limits)
+        self.referenced = False  # homed since the last power-on / reset
+        self.homing_runs = []  # every homing started (tests, benches)
+        self._homing = None
+        self._homing_t = 0.0
         # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.scaling
         self.velocity_factor = self.scaling.qc_per_ms_per_velocity_unit  # record velocity unit -> qc/ms
         self._rpm_per_qc_ms = float(self.scaling.qc_per_ms_to_rpm(1.0))
@@ -313,6 +246,14 @@ class SimulatedDrive:
             self._commissioned.update(values)
             for (index, subindex), value in values.items():
                 self.store(index, subindex, value)
+
+    def power_cycle(self) -> None:
+        """Power off and on: the encoder counts from 0 again where the axis stands, not homed, boot-up."""
+        with self.lock:
+            self._reset_application()
+            if self.node.has_network():
+                self.boot()
+            self.changed.notify_all()
 
     # --- network ------------------------------------------------------------------------------------
     @property
@@ -411,6 +352,7 @@ class SimulatedDrive:
             return
         self.faults.append(FaultRecord(self.sync_count, self.sample_ms, code, check))
         self._abort_motion()
+        self._interrupt_homing()
         self._stop_segment = None
         self.velocity = self.acceleration = 0.0
         self.demand = float(self.actual)  # the power stage is off: the demand follows the actual position
@@ -432,6 +374,7 @@ class SimulatedDrive:
         deceleration = self._deceleration(quick=reaction == od.FaultReaction.QUICK_STOP)
         self.state = FAULT_REACTION_ACTIVE  # before the abort: an EPOS2 empties its FIFO (app note 3.8)
         self._abort_motion()
+        self._interrupt_homing()
         self._stop_segment = Segment.braking(self.time_us / 1000.0, self.demand, v, deceleration)
         self._signal_fault(code, data, register)
 
@@ -624,6 +567,8 @@ class SimulatedDrive:
                 self._check_consumer_entry(subindex, value)
             if index == od.ABORT_CONNECTION_OPTION_CODE and value not in set(od.AbortConnectionOption):
                 raise SdoAbortedError(ABORT_VALUE_RANGE)  # no manufacturer-specific options here
+            if index == od.HOMING_METHOD and value not in self.HOMING_METHODS:
+                raise SdoAbortedError(ABORT_VALUE_RANGE)  # a method this drive does not have
             self._check_write(index, subindex, value)
             if index == od.MODES_OF_OPERATION and not self.MODES.accepts(value):
                 raise SdoAbortedError(ABORT_VALUE_RANGE)  # a mode 0x6502 does not list
@@ -644,7 +589,11 @@ class SimulatedDrive:
             elif index == od.MODES_OF_OPERATION:
                 old = self.read(od.MODES_OF_OPERATION_DISPLAY)
                 self.store(od.MODES_OF_OPERATION_DISPLAY, 0, value)
+                self.mode_display = value
                 if old != value:
+                    if old == od.HOMING_MODE and self._homing is not None:
+                        self._interrupt_homing()
+                        self._begin_stop(self._deceleration(quick=False))
                     self._on_mode_change(old, value)
             else:
                 self._on_object_write(index, subindex, value)
@@ -681,6 +630,7 @@ class SimulatedDrive:
             new = OPERATION_ENABLED  # 4, 16 (and 3 + 4 at once, as the EPOS2 accepts)
         if new != state:
             if state == OPERATION_ENABLED:
+                self._interrupt_homing()
                 if new == QUICK_STOP_ACTIVE:
                     self._begin_stop(self._deceleration(quick=True))
                 else:
@@ -697,6 +647,7 @@ class SimulatedDrive:
                 self._enter_operation()
         if self.state == OPERATION_ENABLED:
             if cw & CW_HALT and not previous & CW_HALT:
+                self.halts.append(self.sync_count)
                 self._begin_stop(self._deceleration(quick=False))
             self._on_mode_bits(previous, cw)
 
@@ -719,6 +670,8 @@ class SimulatedDrive:
 
     @property
     def halted(self) -> bool:
+        """Halt is set now (the master clears it again when it readies the drive for the next run:
+        ``halts`` tells whether a run was halted)."""
         return bool(self._controlword & CW_HALT)
 
     def statusword(self) -> int:
@@ -728,10 +681,15 @@ class SimulatedDrive:
             word |= VOLTAGE_ENABLED
         if self._warning():
             word |= WARNING
-        if self.state == OPERATION_ENABLED and self._stop_segment is None and self._target_reached():
-            word |= TARGET_REACHED
-        if self.ip_active:
-            word |= IP_MODE_ACTIVE
+        if self.mode_display == od.HOMING_MODE:
+            word |= self._homing_status()
+        else:
+            if self.state == OPERATION_ENABLED and self._stop_segment is None and self._target_reached():
+                word |= TARGET_REACHED
+            if self.ip_active:
+                word |= IP_MODE_ACTIVE
+        if self.referenced:
+            word |= self.REFERENCED_BIT
         return word
 
     # --- motion clock -----------------------------------------------------------------------------
@@ -760,11 +718,14 @@ class SimulatedDrive:
                 elif self.state == FAULT_REACTION_ACTIVE:
                     self.state = FAULT  # braked to rest: the power stage goes off
             return
+        if self._homing_moves():
+            self._homing_sample(t)
+            return
         pva = self._motion_at(t) if self.state == OPERATION_ENABLED else None
         if pva is None or self.state != OPERATION_ENABLED:
             self.velocity = self.acceleration = 0.0
             return
-        if not self._check_position(pva[0]):
+        if not self._check_position(pva[0]) or not self._check_machine(pva[0]):
             return
         self.demand, self.velocity, self.acceleration = pva
         if full:
@@ -805,7 +766,11 @@ class SimulatedDrive:
             del self.node.data_store[index]
 
     def _reset_application(self) -> None:
-        """Power-on state: defaults from the EDS, switch on disabled (transition 1 is automatic)."""
+        """Power-on state: defaults from the EDS, switch on disabled (transition 1 is automatic); the
+        encoder counts from 0 where the axis stands, not homed."""
+        self.origin += getattr(self, "demand", 0.0)
+        self.referenced = False
+        self._homing = None
         self.node.data_store.clear()
         for (index, subindex), value in getattr(self, "_commissioned", {}).items():
             self.store(index, subindex, value)
@@ -824,6 +789,7 @@ class SimulatedDrive:
         ):
             if self.has(index):
                 self.store(index, 0, value)
+        self.mode_display = self.read_or(od.MODES_OF_OPERATION_DISPLAY, 0, 0)
         self._refresh(events=False)
 
     # --- hooks for the profiles -------------------------------------------------------------------
@@ -849,7 +815,18 @@ class SimulatedDrive:
 
     def _on_mode_bits(self, previous: int, controlword: int) -> None:
         """Controlword bit 4 while operation is enabled: a rising edge asks for ip mode on the next
-        SYNC, a falling one brings a running interpolation to a stop; halt (bit 8) holds both."""
+        SYNC, a falling one brings a running interpolation to a stop; halt (bit 8) holds both. In
+        homing mode a rising bit 4 starts homing; halt or bit 4 low interrupts it."""
+        if self.mode_display == od.HOMING_MODE and self.MODES.accepts(od.HOMING_MODE):
+            running = self._homing is not None and self._homing.state is HomingState.RUNNING
+            if controlword & CW_HALT or not controlword & CW_HOMING_START:
+                if running:
+                    self._interrupt_homing()
+                    if not controlword & CW_HALT:  # bit 4 low: brake as a halt would (halt already does)
+                        self._begin_stop(self._deceleration(quick=False))
+            elif not previous & CW_HOMING_START:
+                self._start_homing()
+            return
         if not self._ip_mode_selected() or controlword & CW_HALT:
             return
         if controlword & CW_ENABLE_IP and not previous & CW_ENABLE_IP:

@@ -141,9 +141,28 @@ def _common(product: str, modes: device.DriveModes) -> dict[int, Entry]:
     return d
 
 
+def _homing(default_method: int) -> dict[int, Entry]:
+    """The CiA 402 homing objects (mode 6), with maxon's data types and defaults but the method."""
+    return {
+        od.HOME_OFFSET: Var("Home offset", I32, "rw", 0, pdo=True),
+        od.HOMING_METHOD: Var("Homing method", I8, "rw", default_method, pdo=True),
+        od.HOMING_SPEEDS: Rec(
+            "Homing speeds",
+            (
+                Var("Speed for switch search", U32, "rw", 100, pdo=True),
+                Var("Speed for zero search", U32, "rw", 10, pdo=True),
+            ),
+            array=True,
+        ),
+        od.HOMING_ACCELERATION: Var("Homing acceleration", U32, "rw", 1000, pdo=True),
+    }
+
+
 def epos2() -> dict[int, Entry]:
     d = _common("pvtflow simulated EPOS2", device.EPOS2_MODES)
     d.update(_pdo_objects(4, 4))
+    d.update(_homing(od.HomingMethod.CURRENT_POSITION))  # maxon's default, 7, is a method not simulated
+    d[od.EPOS2_HOMING_CURRENT_THRESHOLD] = Var("Current threshold for homing mode", U16, "rw", 500, pdo=True)
     d[od.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode selection", I16, "rw", -1)
     d[od.INTERPOLATION_TIME_PERIOD] = Rec(
         "Interpolation time period",
@@ -222,6 +241,7 @@ def cia402_ip_linear() -> dict[int, Entry]:
 def sync_setpoint() -> dict[int, Entry]:
     d = _common("pvtflow simulated bufferless IP servodrive", device.SYNC_SETPOINT_MODES)
     d.update(_pdo_objects(4, 4))
+    d.update(_homing(od.HomingMethod.CURRENT_POSITION))
     d[od.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
     d[od.INTERPOLATION_DATA_RECORD] = _setpoint_record(False)
     d[od.INTERPOLATION_TIME_PERIOD] = _time_period()

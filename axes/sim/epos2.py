@@ -24,6 +24,8 @@ decided here:
   0x20C4:03 ("level is reached", Table 13). 0x60C4:02 is the free size, 0x60C4:04 the level.
 * Halt (bit 8) stops interpolating and brakes with 0x6084; bit 4 falling does the same.
 * 0x1013 writes are kept (``time_stamps``); the motion clock is not corrected by them.
+* Homing (mode 6, axes/sim/homing.py): the CiA 402 methods and maxon's hard-stop methods -1 to -4
+  (current threshold 0x2080); statusword bit 15 says the position is referenced (homed since power-on).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from collections import deque
 from canopen.sdo import SdoAbortedError
 
 from axes import objects as od
+from axes.cia402 import Statusword
 from axes.interpolation import exceeds
 from axes.objects import BUFFER_ERRORS, BufferStatus, Record
 from axes.sim.device import EPOS2_MODES, Value
@@ -40,9 +43,9 @@ from axes.sim.drive import (
     ABORT_DEVICE_STATE,
     ABORT_VALUE_RANGE,
     OPERATION_ENABLED,
-    Segment,
     SimulatedDrive,
 )
+from axes.sim.segment import Segment
 
 EPOS2_VERSION = 0x2003  # :01 software version, :02 hardware version (maxon's EDS)
 
@@ -54,6 +57,8 @@ class Epos2Drive(SimulatedDrive):
     # maxon's firmware: a heartbeat error (EMCY 0x8130) is a device error like any other, so the
     # error reaction runs (0x605E, maxon's default 2: quick stop ramp), the FIFO is emptied, FAULT
     HEARTBEAT_ERROR_FAULTS = True
+    HOMING_METHODS = od.EPOS2_HOMING_METHODS
+    REFERENCED_BIT = int(Statusword.MANUFACTURER_15)  # maxon: "position referenced to home position"
 
     def _own_values(self) -> dict[tuple[int, int], Value]:
         """Where maxon's EDS gives no default: cubic PVT (0x60C0 = -1, app note 3.6.5), the buffer

@@ -14,7 +14,8 @@ from __future__ import annotations
 from collections import deque
 
 from axes import objects as od
-from axes.sim.drive import OPERATION_ENABLED, Segment, SimulatedDrive
+from axes.sim.drive import OPERATION_ENABLED, SimulatedDrive
+from axes.sim.segment import Segment
 
 
 class FixedPeriodDrive(SimulatedDrive):

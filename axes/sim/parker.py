@@ -24,8 +24,9 @@ from canopen.sdo import SdoAbortedError
 
 from axes import objects as od
 from axes.sim.device import NO_MODE, PARKER_MODES
-from axes.sim.drive import ABORT_VALUE_RANGE, CW_HALT, OPERATION_ENABLED, Segment
+from axes.sim.drive import ABORT_VALUE_RANGE, CW_HALT, OPERATION_ENABLED
 from axes.sim.fixed_period import FixedPeriodDrive
+from axes.sim.segment import Segment
 
 DIRECT = "direct"
 

@@ -24,6 +24,7 @@ class SyncSetpointDrive(FixedPeriodDrive):
     PROFILE = "sync_setpoint"
     EDS = "sync_setpoint.eds"
     MODES = SYNC_SETPOINT_MODES
+    HOMING_METHODS = od.CIA402_HOMING_METHODS  # its 0x60E3 lists "the methods of the servodrive manual"
     delay_periods = 2
 
     def _reset_stream(self) -> None:

@@ -11,7 +11,7 @@ import can
 import pytest
 from axes_rig import unique_channel
 
-from axes.bus import NMT_PRE_OPERATIONAL, BusFault, CellBus, FrameRecorder
+from axes.bus import NMT_PRE_OPERATIONAL, BusFault, CellBus, FaultKind, FrameRecorder
 from axes.config import BusConfig
 from axes.objects import TIME_STAMP_COB_ID
 
@@ -190,23 +190,23 @@ def test_heartbeat_emcy_and_lost_sync_are_reported(channel):
         # EMCY 0x8612 from node 8
         responder.bus.send(can.Message(arbitration_id=0x88, data=b"\x12\x86\x01\0\0\0\0\0", is_extended_id=False))
         with got:
-            assert got.wait_for(lambda: any(f.kind == "emcy" for f in faults), 5)
-        emcy = next(f for f in faults if f.kind == "emcy")
+            assert got.wait_for(lambda: any(f.kind is FaultKind.EMCY for f in faults), 5)
+        emcy = next(f for f in faults if f.kind is FaultKind.EMCY)
         assert emcy.node_id == 8 and emcy.code == 0x8612
         heartbeat7.stop()
         with got:
-            assert got.wait_for(lambda: any(f.kind == "heartbeat" for f in faults), 5)
-        lost = next(f for f in faults if f.kind == "heartbeat")
+            assert got.wait_for(lambda: any(f.kind is FaultKind.HEARTBEAT for f in faults), 5)
+        lost = next(f for f in faults if f.kind is FaultKind.HEARTBEAT)
         assert lost.node_id == 7 and "heartbeat" in lost.message
-        assert not any(f.kind == "heartbeat" and f.node_id == 8 for f in faults)
+        assert not any(f.kind is FaultKind.HEARTBEAT and f.node_id == 8 for f in faults)
         # node 8 stops answering SYNC: lost SYNC names it
         bus.sync.expect([0x287, 0x288])
         responder.nodes = [7]
         bus.arm_sync_watch()
         bus.sync.start()
         with got:
-            assert got.wait_for(lambda: any(f.kind == "lost_sync" for f in faults), 5)
-        lost_sync = next(f for f in faults if f.kind == "lost_sync")
+            assert got.wait_for(lambda: any(f.kind is FaultKind.LOST_SYNC for f in faults), 5)
+        lost_sync = next(f for f in faults if f.kind is FaultKind.LOST_SYNC)
         assert lost_sync.node_id == 8 and "[8]" in lost_sync.message
         heartbeat8.stop()
     finally:

@@ -11,7 +11,7 @@ import pytest
 from axes_programs import check_limits, program
 
 from axes.cia402 import PowerState, decode_state
-from axes.group import GroupError, Result
+from axes.outcome import GroupError, Result
 
 
 def test_six_axes_start_on_one_sync_and_end_on_their_last_records(arm6, make_rig):
@@ -67,7 +67,7 @@ def test_starved_feeder_halts_every_axis(arm6, make_rig):
     assert result.halt_latency_syncs == 1
     for drive in rig.sim:
         if drive.node_id != 3:
-            assert drive.halted and not drive.ip_active and drive.faults == []
+            assert drive.halts and not drive.ip_active and drive.faults == []
             assert drive.velocity == 0.0
 
 
@@ -90,7 +90,7 @@ def test_program_breaking_a_limit_faults_and_halts(arm6, make_rig):
     assert rig.sim.drive(2).faults[0].check.startswith(("max profile velocity", "max acceleration"))
     for drive in rig.sim:
         if drive.node_id != 2:
-            assert drive.halted and drive.faults == []
+            assert drive.halts and drive.faults == []
 
 
 def test_drive_emcy_halts_every_axis_and_recover_runs_again(arm6, make_rig):
@@ -105,7 +105,7 @@ def test_drive_emcy_halts_every_axis_and_recover_runs_again(arm6, make_rig):
     assert result.node_id == 4 and "0x5530" in result.message.upper().replace("0X", "0x")
     assert result.halt_latency_syncs == 1
     for drive in rig.sim:
-        assert drive.halted
+        assert drive.halts
 
     recovered = rig.group.recover()
     assert recovered.ok, recovered.message
@@ -157,7 +157,7 @@ def test_lost_heartbeat_halts_every_axis(arm6, make_rig):
     assert result.node_id == 5 and "heartbeat" in result.message
     assert result.end_sync is not None and result.end_sync - result.start_sync < 20000
     for drive in rig.sim:
-        assert drive.halted
+        assert drive.halts
 
 
 def test_stop_from_another_thread_halts_within_one_sync(arm6, make_rig):
@@ -174,7 +174,7 @@ def test_stop_from_another_thread_halts_within_one_sync(arm6, make_rig):
     assert result.halt_latency_syncs == 1
     halt_syncs = set()
     for drive in rig.sim:
-        assert drive.halted and drive.faults == [] and drive.velocity == 0.0
+        assert drive.halts and drive.faults == [] and drive.velocity == 0.0
         # the SYNC on which each drive stopped interpolating
         active = [s.sync for s in drive.history if s.ip_active]
         halt_syncs.add(active[-1] + 1)
@@ -213,7 +213,7 @@ def test_drive_that_stops_answering_sync_is_a_lost_sync(arm6, make_rig):
     assert result.node_id == 3, result.message
     for drive in rig.sim:
         if drive is not gone:
-            assert drive.halted and not drive.ip_active and drive.faults == []
+            assert drive.halts and not drive.ip_active and drive.faults == []
 
 
 def test_time_stamp_follows_every_sync(arm6, make_rig):
@@ -422,8 +422,7 @@ def test_a_drive_silent_at_the_check_sync_refuses_the_start(arm6, make_rig):
     rig = make_rig(arm6, lost_sync_timeout_s=0.2)
     axes = arm6.ordered_axes()
     assert rig.group.run(program(axes, 200, spacing_ms=20), timeout_s=30).ok
-    for readying in rig.group._readying:  # the background enable for the next start is over
-        readying.result()
+    rig.group.readiness.wait()  # the background enable for the next start is over
     here = [lk.position for lk in rig.group.links]
     started = {d.node_id: d.ip_active_sync for d in rig.sim}
     gone = rig.sim.drive(3)

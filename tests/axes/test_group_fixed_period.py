@@ -7,7 +7,7 @@ import pytest
 from axes_programs import check_limits, program
 from axes_rig import with_profiles
 
-from axes.group import Result
+from axes.outcome import Result
 
 
 def run_and_check(rig, duration_ms: int = 300):
@@ -88,4 +88,4 @@ def test_fixed_period_halt_on_stop(arm6, make_rig):
     assert result.result is Result.STOPPED and result.message == "operator"
     assert result.halt_latency_syncs == 1
     for drive in rig.sim:
-        assert drive.halted and drive.faults == []
+        assert drive.halts and drive.faults == []

@@ -23,7 +23,8 @@ from canopen.sdo.exceptions import SdoAbortedError
 from axes import objects as od
 from axes.bus import CellBus
 from axes.cia402 import PowerState
-from axes.group import AxisGroup, Result
+from axes.group import AxisGroup
+from axes.outcome import Result
 from axes.sim.drive import MAXON_EPOS2_EDS, OPERATION_ENABLED, SimulatedDrive
 
 PROGRAM_MS = 2000

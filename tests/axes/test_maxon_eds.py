@@ -5,7 +5,7 @@ from __future__ import annotations
 from axes_programs import check_limits, program
 
 from axes import objects as od
-from axes.group import Result
+from axes.outcome import Result
 from axes.sim.drive import MAXON_EPOS2_EDS as MAXON_EDS  # configs/eds/vendor: maxon's file, unchanged
 
 

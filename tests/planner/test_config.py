@@ -295,3 +295,77 @@ def test_bad_master_heartbeat_settings(tmp_path: Path, changes: dict[str, Any], 
     data = arm_data()
     data["bus"].update(changes)
     expect_error(tmp_path, data, where, fragment)
+
+
+# --- homing -----------------------------------------------------------------------------------------------
+def gantry_data() -> dict[str, Any]:
+    data = yaml.safe_load(GANTRY.read_text())
+    data["robot"]["urdf"] = str(CONFIG_DIR / "robots" / "gantry3.urdf")
+    return data
+
+
+def test_the_gantry_homes_and_the_arm_does_not() -> None:
+    gantry = load_cell_config(GANTRY)
+    assert gantry.requires_homing and gantry.homing_order == (("z",), ("x", "y"))
+    x = gantry.axis_for_joint("x")
+    assert x.homing is not None and x.homing.method == 1 and x.homing.offset_qc == 1500
+    assert x.simulation is not None and x.simulation.index_spacing_qc == 4096
+    arm = load_cell_config(ARM)
+    assert not arm.requires_homing and all(a.homing is None and a.simulation is None for a in arm.axes)
+
+
+def test_a_homing_method_by_name_and_no_order(tmp_path: Path) -> None:
+    data = gantry_data()
+    data["axes"][0]["homing"]["method"] = "negative_limit_switch"
+    del data["homing_order"]
+    cell = load_cell_config(write(tmp_path, data))
+    assert cell.axis_for_joint("x").homing.method == 17  # type: ignore[union-attr]
+    assert cell.homing_stages() == [["x"], ["y"], ["z"]]  # no order: one axis at a time
+
+
+@pytest.mark.parametrize(
+    ("change", "where", "fragment"),
+    [
+        (lambda d: d["axes"][0]["homing"].update(method=7), "axes[0].homing.method", "7 is not a homing method"),
+        (lambda d: d["axes"][0]["homing"].update(method="spin"), "axes[0].homing.method", "'spin' is not a homing"),
+        (lambda d: d["axes"][0]["homing"].update(speed=3), "axes[0].homing.speed", "unknown field"),
+        (
+            lambda d: d["axes"][0]["homing"].update(switch_speed_rpm=5000),
+            "axes[0].homing.switch_speed_rpm",
+            "above the drive's max profile velocity",
+        ),
+        (
+            lambda d: d["axes"][0]["homing"].update(current_threshold_ma=800),
+            "axes[0].homing.current_threshold_ma",
+            "only the hard-stop methods",
+        ),
+        (
+            lambda d: d["axes"][0].update(profile="parker_slvdn", period_ms=1),
+            "axes[0].homing",
+            "the parker_slvdn profile has no homing mode",
+        ),
+        (lambda d: d.update(homing_order=[["x", "w"]]), "homing_order[0]", "unknown joint 'w'"),
+        (lambda d: d.update(homing_order=[["x"], ["y"]]), "homing_order", "leaves out z"),
+        (lambda d: d.update(homing_order=[["x", "y"], "x", "z"]), "homing_order[1]", "in the order twice"),
+        (
+            lambda d: d["axes"][0]["simulation"].update(positive_limit_switch_qc=-5000),
+            "axes[0].simulation.positive_limit_switch_qc",
+            "must be above negative_limit_switch_qc",
+        ),
+        (
+            lambda d: d["axes"][0]["simulation"].update(index_spacing_qc=0),
+            "axes[0].simulation.index_spacing_qc",
+            "0 is outside",
+        ),
+    ],
+)
+def test_homing_mistakes_are_named(tmp_path: Path, change: Any, where: str, fragment: str) -> None:
+    data = gantry_data()
+    change(data)
+    expect_error(tmp_path, data, where, fragment)
+
+
+def test_requires_homing_without_anything_to_home(tmp_path: Path) -> None:
+    data = arm_data()
+    data["requires_homing"] = True
+    expect_error(tmp_path, data, "requires_homing", "no axis has a homing section")

@@ -33,7 +33,7 @@ def _random_waypoints(cell, rng: np.random.Generator, n: int) -> np.ndarray:
 
 
 def _deviation_qc(program, trajectory, axes, time_scale: float) -> np.ndarray:
-    """Worst |reconstruction - plan| per axis, measured here independently of knots.py."""
+    """Worst |reconstruction - plan| per axis, measured here independently of planner.knots."""
     n = math.ceil(trajectory.duration * 1000.0 * time_scale - 1e-6)
     t_ms = np.arange(n + 1.0)
     q = trajectory.position(t_ms / (1000.0 * time_scale))

@@ -16,18 +16,13 @@ import pytest
 from axes.interpolation import PiecewiseCubic, epos2_pvt, hermite_coefficients
 from planner import knot_kernels
 from planner.build import build_program
-from planner.knots import (
-    DriveAxis,
-    KnotOptions,
-    _check_knots,
-    _Flat,
-    _lsq_fit,
-    _place_epos2,
-    _round_knots,
-    _sample,
-    _switch_knots,
-    _within_record_time,
-)
+from planner.knots import DriveAxis, KnotOptions
+from planner.knots.check import check_knots
+from planner.knots.epos2 import Start, place_epos2
+from planner.knots.flat import Flat, within_record_time
+from planner.knots.quantize import round_knots
+from planner.knots.refine import lsq_fit, switch_knots
+from planner.knots.samples import sample_trajectory
 from planner.plan import plan
 from service.config import load_cell_config
 from service.plan_cmd import plan_input_for_cell
@@ -42,7 +37,7 @@ def arm6_plan():
     wp = lim.lower + (lim.upper - lim.lower) * (0.15 + 0.7 * rng.random((4, lim.dof)))
     out = plan(plan_input_for_cell(cell, wp))
     assert out.ok, out.message
-    smp = _sample(out.trajectory, axes, 1.0)
+    smp = sample_trajectory(out.trajectory, axes, 1.0)
     return cell, axes, out.trajectory, smp
 
 
@@ -50,9 +45,9 @@ def test_axes_placed_together_as_each_alone(arm6_plan) -> None:
     """The flat problem is block-independent: an axis gets the same records with the others as alone."""
     _, axes, _, smp = arm6_plan
     cols = list(range(len(axes)))
-    together = _place_epos2(_Flat.of(axes, cols, smp), smp, cols, KnotOptions(), "lsq")
+    together = place_epos2(Flat.of(axes, cols, smp), smp, cols, KnotOptions(), Start.LEAST_SQUARES)
     for i in (0, 2, 5):
-        alone = _place_epos2(_Flat.of([axes[i]], [i], smp), smp, [i], KnotOptions(), "lsq")[0]
+        alone = place_epos2(Flat.of([axes[i]], [i], smp), smp, [i], KnotOptions(), Start.LEAST_SQUARES)[0]
         np.testing.assert_array_equal(alone[0].records, together[i][0].records)
         assert alone[0].deviation_qc == pytest.approx(together[i][0].deviation_qc, abs=1e-12)
 
@@ -61,7 +56,7 @@ def test_flat_check_is_the_drive_reconstruction(arm6_plan) -> None:
     """Per axis, the flat check's deviation and limit ratios are those of ``epos2_pvt`` of the records."""
     _, axes, _, smp = arm6_plan
     cols = list(range(len(axes)))
-    placed = _place_epos2(_Flat.of(axes, cols, smp), smp, cols, KnotOptions(), "lsq")
+    placed = place_epos2(Flat.of(axes, cols, smp), smp, cols, KnotOptions(), Start.LEAST_SQUARES)
     t = np.arange(smp.n_ms + 1.0)
     for i, (ax, (res, _)) in enumerate(zip(axes, placed, strict=True)):
         recon = epos2_pvt(res.records, ax.scaling.qc_per_ms_per_velocity_unit)
@@ -75,12 +70,12 @@ def test_flat_check_is_the_drive_reconstruction(arm6_plan) -> None:
 
 def test_incremental_check_equals_the_full_one(arm6_plan) -> None:
     _, axes, _, smp = arm6_plan
-    fl = _Flat.of(axes, list(range(len(axes))), smp)
+    fl = Flat.of(axes, list(range(len(axes))), smp)
     rng = np.random.default_rng(3)
     knots = fl.flat_knots([np.arange(0, smp.n_ms, 40) for _ in axes])
-    fit = _lsq_fit(fl, knots)
-    P, V = _round_knots(fl, knots, fit.P, fit.V)
-    prev = _check_knots(fl, knots, P, V)
+    fit = lsq_fit(fl, knots)
+    P, V = round_knots(fl, knots, fit.P, fit.V)
+    prev = check_knots(fl, knots, P, V)
     # nudge a few knots, split a few segments: only those segments are evaluated again
     inner = np.flatnonzero(~fl.is_end(knots))
     moved = rng.choice(inner, 12, replace=False)
@@ -88,11 +83,11 @@ def test_incremental_check_equals_the_full_one(arm6_plan) -> None:
     P2[moved] += 1
     V2[moved[:6]] -= 2
     knots2 = np.union1d(knots, knots[inner[:5]] + 7)
-    fit2 = _lsq_fit(fl, knots2)
-    P3, V3 = _round_knots(fl, knots2, fit2.P, fit2.V)
+    fit2 = lsq_fit(fl, knots2)
+    P3, V3 = round_knots(fl, knots2, fit2.P, fit2.V)
     for k, p, v in ((knots, P2, V2), (knots2, P3, V3)):
-        fast = _check_knots(fl, k, p, v, prev).chk
-        full = _check_knots(fl, k, p, v).chk
+        fast = check_knots(fl, k, p, v, prev).chk
+        full = check_knots(fl, k, p, v).chk
         np.testing.assert_array_equal(fast.seg_deviation, full.seg_deviation)
         np.testing.assert_array_equal(fast.acceleration_ratio, full.acceleration_ratio)
         np.testing.assert_array_equal(fast.position_out, full.position_out)
@@ -101,14 +96,14 @@ def test_incremental_check_equals_the_full_one(arm6_plan) -> None:
 def test_incremental_fit_gives_the_same_verdicts(arm6_plan) -> None:
     """Reused right-hand sides give the same solution; skipped segments keep their verdict."""
     _, axes, _, smp = arm6_plan
-    fl = _Flat.of(axes, list(range(len(axes))), smp)
+    fl = Flat.of(axes, list(range(len(axes))), smp)
     target = 0.6
     knots = fl.flat_knots([np.arange(0, smp.n_ms, 60) for _ in axes])
-    prev = _lsq_fit(fl, knots, None, target)
+    prev = lsq_fit(fl, knots, None, target)
     bad = np.flatnonzero(prev.worst > target)
     knots2 = np.union1d(knots, (knots[bad] + knots[bad + 1]) // 2)
-    fast = _lsq_fit(fl, knots2, prev, target)
-    full = _lsq_fit(fl, knots2, None, target)
+    fast = lsq_fit(fl, knots2, prev, target)
+    full = lsq_fit(fl, knots2, None, target)
     np.testing.assert_allclose(fast.P, full.P, rtol=0, atol=1e-9)
     np.testing.assert_allclose(fast.V, full.V, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(fast.worst > target, full.worst > target)
@@ -116,10 +111,10 @@ def test_incremental_fit_gives_the_same_verdicts(arm6_plan) -> None:
 
 def _repair_setup(arm6_plan, spacing: int):
     _, axes, _, smp = arm6_plan
-    fl = _Flat.of(axes, list(range(len(axes))), smp)
+    fl = Flat.of(axes, list(range(len(axes))), smp)
     knots = fl.flat_knots([np.arange(0, smp.n_ms, spacing) for _ in axes])
-    fit = _lsq_fit(fl, knots)
-    P, V = _round_knots(fl, knots, fit.P, fit.V)
+    fit = lsq_fit(fl, knots)
+    P, V = round_knots(fl, knots, fit.P, fit.V)
     real = np.flatnonzero(fl.axis_of(knots[:-1]) == fl.axis_of(knots[1:]))
     return fl, knots, P, V, real
 
@@ -185,7 +180,7 @@ def test_chain_repair_finds_the_best_combination(arm6_plan, free: int, shift: in
     under max(that, 1) the least summed excess, then the closest to the plan (brute force with the
     array forms of the reconstruction); it moves nothing when no combination beats the rounding."""
     fl, knots, P, V, real = _repair_setup(arm6_plan, 25)
-    chk = _check_knots(fl, knots, P, V).chk
+    chk = check_knots(fl, knots, P, V).chk
     rng = np.random.default_rng(8 + free)
     # chains around the segments the rounding left over a limit, and some at random
     over = np.flatnonzero((chk.acceleration_ratio > 1.0) | (chk.velocity_ratio > 1.0))
@@ -241,7 +236,7 @@ def test_repair_chains_moves_only_the_neighbourhood(arm6_plan) -> None:
     """Only records within reach of a segment over a limit move, never an axis's end, the worst
     limit ratio does not grow and fewer segments are over a limit."""
     fl, knots, P, V, _ = _repair_setup(arm6_plan, 10)  # a fit within the tolerance, as placed
-    chk = _check_knots(fl, knots, P, V).chk
+    chk = check_knots(fl, knots, P, V).chk
     assert chk.seg_deviation.max() <= 1.0
     over = np.flatnonzero((chk.acceleration_ratio > 1.0) | (chk.velocity_ratio > 1.0))
     assert len(over) > 3
@@ -272,7 +267,7 @@ def test_repair_chains_moves_only_the_neighbourhood(arm6_plan) -> None:
     near &= ~fl.is_end(knots)
     moved = (p != P) | (v != V)
     assert moved.any() and not (moved & ~near).any()
-    after = _check_knots(fl, knots, p, v).chk
+    after = check_knots(fl, knots, p, v).chk
     worst_before = np.maximum(chk.acceleration_ratio, chk.velocity_ratio)
     worst_after = np.maximum(after.acceleration_ratio, after.velocity_ratio)
     assert worst_after.max() <= worst_before.max()
@@ -283,9 +278,9 @@ def test_switch_knots_largest_first_apart_and_inside() -> None:
     switch_ms = np.array([3.0, 20.0, 24.0, 40.0, 47.0, 95.0, 98.0])
     jump = np.array([9.0, 1.0, 5.0, 2.0, 3.0, 4.0, 8.0])
     # 3 and 98 are too close to the ends; 24 beats 20, 47 beats 40 (within 8 ms of each other)
-    np.testing.assert_array_equal(_switch_knots(switch_ms, jump, 0.5, 100, 8), [24, 47])
-    np.testing.assert_array_equal(_switch_knots(switch_ms, jump, 4.5, 100, 8), [24])
-    assert len(_switch_knots(switch_ms, jump, 10.0, 100, 8)) == 0
+    np.testing.assert_array_equal(switch_knots(switch_ms, jump, 0.5, 100, 8), [24, 47])
+    np.testing.assert_array_equal(switch_knots(switch_ms, jump, 4.5, 100, 8), [24])
+    assert len(switch_knots(switch_ms, jump, 10.0, 100, 8)) == 0
 
 
 def test_build_reports_its_timing(arm6_plan) -> None:
@@ -326,7 +321,7 @@ def test_long_gaps_are_split_evenly_within_a_record_time() -> None:
     rng = np.random.default_rng(12)
     for _ in range(300):
         knots = np.unique(np.concatenate(([0], rng.integers(0, 20000, rng.integers(1, 40)), [20003])))
-        out = _within_record_time(knots)
+        out = within_record_time(knots)
         assert set(knots) <= set(out) and np.all(np.diff(out) <= 255) and np.all(np.diff(out) >= 1)
         for k0, k1 in itertools.pairwise(knots):
             inside = np.diff(out[(out >= k0) & (out <= k1)])

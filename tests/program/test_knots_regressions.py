@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from axes.program import TIME_MAX_MS
-from planner.knots import _within_record_time
+from planner.knots.flat import within_record_time
 from planner.validate import validate_program
 from service.config import load_cell_config
 from service.plan_cmd import plan_cell_program
@@ -81,10 +81,10 @@ LONG_SEGMENT_PATH = [
 
 def test_long_gaps_are_split_to_record_times() -> None:
     knots = np.array([0, 10, 700, 701, 1300])
-    out = _within_record_time(knots)
+    out = within_record_time(knots)
     assert set(knots) <= set(out.tolist())
     assert np.all(np.diff(out) <= TIME_MAX_MS) and np.all(np.diff(out) >= 1)
-    np.testing.assert_array_equal(_within_record_time(np.array([0, 255, 510])), [0, 255, 510])
+    np.testing.assert_array_equal(within_record_time(np.array([0, 255, 510])), [0, 255, 510])
 
 
 def test_path_with_a_long_hinted_segment_plans_and_validates() -> None:

@@ -46,7 +46,8 @@ def test_only_the_operator_may_command_and_a_denied_caller_gets_nothing(arm6, se
         plan = observer.request("arm6", "plan", {"target": SHORT_TARGET})
         assert plan.ok, plan.data
         # ...but its commands never reach the service: no reply at all, and nothing moves
-        for op, payload in (("execute", {"plan_id": plan.data["plan_id"]}), ("stop", {}), ("recover", {})):
+        commands = (("execute", {"plan_id": plan.data["plan_id"]}), ("stop", {}), ("recover", {}), ("home", {}))
+        for op, payload in commands:
             assert observer.replies("arm6", op, payload, timeout=1.5) == [], op
         nothing_moved(s)
 
@@ -54,6 +55,8 @@ def test_only_the_operator_may_command_and_a_denied_caller_gets_nothing(arm6, se
         done = operator.request("arm6", "execute", {"plan_id": plan.data["plan_id"], "wait": True})
         assert done.ok and done.data["outcome"]["result"] == "finished", done.data
         assert operator.request("arm6", "stop").ok
+        home = operator.request("arm6", "home")  # reaches the service (arm6 has nothing to home)
+        assert home.data["error"]["code"] == "not_allowed", home.data
         assert [e.motion_id for e in s.service.journal.recent(5)] == [done.data["motion_id"]]
     finally:
         observer.close()

@@ -120,6 +120,7 @@ ALLOWED = {
     "stop": {"reason"},
     "status": {"recent"},
     "recover": set(),
+    "home": {"joints", "wait"},
 }
 OPS = sorted(ALLOWED)
 json_values = st.recursive(

@@ -71,7 +71,7 @@ def test_request_mistakes_are_refused_before_a_session_opens(tmp_path, capsys) -
         (["plan", "--target", "0.1,nan"], "--target: not a comma-separated list of finite numbers"),
         (["plan"], "plan needs --waypoints FILE or --target"),
         (["execute", "p-0123", "--program", str(program)], "a PLAN_ID or --program FILE, not both"),
-        (["stop", "--wait"], "--wait is for execute, not stop"),
+        (["stop", "--wait"], "--wait is for execute / home, not stop"),
         (["status", "p-0123"], "PLAN_ID is for validate / execute, not status"),
         (["execute", "p-0123", "--target", "1,2"], "--target is for plan, not execute"),
         (["plan", "--target", "0.1,0.2", "--velocity-scale", "0"], "--velocity-scale must be in (0, 1], got 0"),
@@ -135,12 +135,14 @@ def test_a_negative_leading_target_and_a_single_waypoint_plan_and_the_outcome_sa
 
 
 # --- what serve prints fits the cell ---------------------------------------------------------------------
-def run_printed(text: str, request: str, capsys: pytest.CaptureFixture[str], **replace: str) -> tuple[int, str]:
+def run_printed(
+    text: str, request: str, capsys: pytest.CaptureFixture[str], timeout: float = 5.0, **replace: str
+) -> tuple[int, str]:
     """Run the ``pvtflow request <request>`` line the banner printed, as a user would paste it."""
     line = next(x.strip() for x in text.splitlines() if x.strip().startswith(f"pvtflow request {request}"))
     for old, new in replace.items():
         line = line.replace(old, new)
-    code = main([*shlex.split(line)[1:], "--timeout", "5"])
+    code = main([*shlex.split(line)[1:], "--timeout", f"{timeout:g}"])
     return code, capsys.readouterr().out
 
 
@@ -154,6 +156,9 @@ def test_the_printed_plan_command_fits_the_cell(cell_name, request, tmp_path, ca
         lim = s.service.limits
         assert np.all(np.asarray(lim.lower) < target) and np.all(target < np.asarray(lim.upper)), target
         assert target == example_target(lim.lower, lim.upper)
+        if cell.requires_homing:  # the gantry's incremental encoders: the banner says to home first
+            code, out = run_printed(text, "home", capsys, timeout=60.0)
+            assert code == 0 and json.loads(out)["outcome"]["result"] == "homed", out
         code, out = run_printed(text, "plan", capsys)
         assert code == 0, out
         assert json.loads(out)["end"] == target

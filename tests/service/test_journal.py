@@ -28,6 +28,23 @@ def test_motions_and_outcomes_survive_a_restart_newest_first(tmp_path):
     assert again.recent(1)[0].motion_id == "m-2" and again.recent(0) == []
 
 
+def test_homings_survive_a_restart_beside_the_motions(tmp_path):
+    j = Journal(tmp_path)
+    j.record_homing("h-1", [["z"], ["x", "y"]], cell="c")
+    j.record_homing_outcome("h-1", {"result": "homed", "message": "ok"})
+    j.record_motion("m-1", PROGRAM, plan_id=None, label=None, duration_ms=10, cell="c")
+    j.record_homing("h-2", [["x"]], cell="c")
+    j.close()
+    again = Journal(tmp_path)
+    homings = again.recent_homings(10)
+    assert [h.homing_id for h in homings] == ["h-2", "h-1"]
+    assert homings[1].summary()["state"] == "ended" and homings[1].outcome == {"result": "homed", "message": "ok"}
+    assert homings[0].summary()["state"] == "interrupted" and homings[0].stages == [["x"]]
+    assert [e.motion_id for e in again.recent(10)] == ["m-1"]  # homings are not motions
+    kinds = [json.loads(line)["kind"] for line in (tmp_path / JOURNAL_FILE).read_text().splitlines()]
+    assert kinds == ["homing", "homing_outcome", "motion", "homing"]
+
+
 def test_the_file_is_only_ever_appended_and_a_torn_last_line_is_skipped(tmp_path):
     j = Journal(tmp_path)
     j.record_motion("m-1", PROGRAM, plan_id=None, label=None, duration_ms=1, cell="c")

@@ -9,6 +9,7 @@ directly (MotionService, no zenoh: the zenoh path is tested elsewhere), on simul
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -16,7 +17,7 @@ import pytest
 from svc_helpers import CONFIGS, on_own_channel, wait_until
 
 from axes.sim.epos2 import Epos2Drive
-from service.api import parse_execute, parse_plan, parse_recover, parse_stop
+from service.api import parse_execute, parse_home, parse_plan, parse_recover, parse_stop
 from service.config import CellConfig, load_cell_config
 from service.motion import MotionService
 
@@ -25,7 +26,15 @@ STOP_AFTER_MS = 300.0  # program time at which the motion is interrupted (every 
 
 
 def cell_file(name: str) -> CellConfig:
-    return on_own_channel(load_cell_config(CONFIGS / "cells" / f"{name}.yaml"))
+    """The shipped cell; an axis that homes powers up near its home (a short homing: not what is tested)."""
+    cell = on_own_channel(load_cell_config(CONFIGS / "cells" / f"{name}.yaml"))
+    axes = tuple(
+        dataclasses.replace(a, simulation=dataclasses.replace(a.simulation, power_up_qc=a.homing.offset_qc))
+        if a.homing is not None and a.simulation is not None
+        else a
+        for a in cell.axes
+    )
+    return dataclasses.replace(cell, axes=axes)
 
 
 def tour(cell: CellConfig, fractions: list[float]) -> list[list[float]]:
@@ -42,6 +51,8 @@ def service(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[MotionSe
     name, lockstep = request.param
     svc = MotionService(cell_file(name), journal_dir=tmp_path / "journal", lockstep=lockstep).open()
     try:
+        if svc.cell.requires_homing:  # incremental encoders: nothing moves before the cell has homed
+            assert svc.home(parse_home({"wait": True}))["outcome"]["result"] == "homed"
         yield svc
     finally:
         svc.close()

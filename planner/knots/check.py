@@ -1,0 +1,161 @@
+"""Step 4: the exact reconstruction of quantized records against the limits and the plan.
+
+A segment is judged by its exact extrema (0x607F, 0x60C5, 0x607D) and at every drive ms against
+the plan; the EPOS2 axes all at once (``check_knots``), a fixed-period axis by its drive's own
+reconstruction (``check_records``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from axes.interpolation import PiecewiseCubic, exceeds
+from planner import knot_kernels as kernels
+from planner.knots.flat import Flat
+from planner.knots.types import AxisKnots, DriveAxis
+
+
+@dataclass(frozen=True)
+class Check:
+    seg_deviation: NDArray[np.float64]  # per reconstruction segment, worst |recon - plan| (qc)
+    velocity_ratio: NDArray[np.float64]  # per segment, exact max |v| / 0x607F
+    acceleration_ratio: NDArray[np.float64]
+    position_out: NDArray[np.bool_]  # per segment: leaves 0x607D
+
+    @property
+    def deviation(self) -> float:
+        return float(self.seg_deviation.max()) if len(self.seg_deviation) else 0.0
+
+
+def check_records(
+    axis: DriveAxis, records: NDArray[np.int64], plan_qc: NDArray[np.float64]
+) -> tuple[Check, PiecewiseCubic]:
+    """The exact reconstruction of ``records`` against the limits and the plan.
+
+    The plan's sample j (ms) is compared with the reconstruction at the time the drive reaches it:
+    j plus the time at which records[0] is reached (the dwell, or the fixed-period delay). Every
+    record time is a whole ms, so the samples of each segment are a contiguous run found by
+    arithmetic (no search), and the position range is solved exactly only on the segments whose
+    cheap bound (the Hermite cubic stays within T (|V0| + |V1|) 4/27 of its end points) reaches
+    0x607D.
+    """
+    recon = axis.program(records).reconstruction()
+    s = axis.scaling
+    lim = axis.limits
+    v = np.asarray(s.qc_per_ms_to_rpm(recon.max_abs_velocity())) / lim.max_profile_velocity_rpm
+    a = np.asarray(s.qc_per_ms2_to_rpm_s(recon.max_abs_acceleration())) / lim.max_acceleration_rpm_s
+    T = recon.duration
+    p_end = recon.c0 + T * (recon.c1 + T * (recon.c2 + T * recon.c3))
+    reach = T * (np.abs(recon.c1) + np.abs(recon.c1 + T * (2.0 * recon.c2 + 3.0 * T * recon.c3))) * (4.0 / 27.0)
+    near = (np.minimum(recon.c0, p_end) - reach < lim.min_position_qc) | (
+        np.maximum(recon.c0, p_end) + reach > lim.max_position_qc
+    )
+    out = np.zeros(len(T), dtype=bool)
+    if near.any():
+        m = np.flatnonzero(near)
+        part = PiecewiseCubic(
+            recon.start[m], T[m], recon.c0[m], recon.c1[m], recon.c2[m], recon.c3[m], recon.interpolation
+        )
+        lo, hi = part.position_range()
+        out[m] = (lo < lim.min_position_qc) | (hi > lim.max_position_qc)
+    shift = float(recon.start[0] + recon.duration[0])
+    n_t = len(plan_qc)
+    # sample j sits at t = j + shift; segment k holds the samples from the first t >= start[k]
+    first = np.clip(np.ceil(recon.start - shift - 1e-9), 0, n_t).astype(np.int64)
+    k = np.repeat(np.arange(len(first)), np.diff(np.append(first, n_t)))
+    first = np.minimum(first, n_t - 1)
+    tau = np.clip(np.arange(n_t) + shift - recon.start[k], 0.0, T[k])
+    pos = recon.c0[k] + tau * (recon.c1[k] + tau * (recon.c2[k] + tau * recon.c3[k]))
+    err = np.abs(pos - plan_qc)
+    seg_dev = np.maximum.reduceat(err, first)
+    empty = np.append(first[1:] <= first[:-1], False) | (recon.start > n_t - 1 + shift)
+    seg_dev[empty] = 0.0
+    return Check(seg_dev, v, a, out), recon
+
+
+def over_limit(chk: Check) -> NDArray[np.bool_]:
+    return exceeds(chk.acceleration_ratio, 1.0) | exceeds(chk.velocity_ratio, 1.0)
+
+
+def needed_scale(rv: float, ra: float) -> float:
+    """Slowing down by k divides velocities by k and accelerations by k^2."""
+    k = max(rv, math.sqrt(max(ra, 0.0)))
+    return k * (1.0 + 1e-4) if exceeds(k, 1.0) else 1.0
+
+
+NO_INT = np.zeros(0, dtype=np.int64)
+
+
+NO_FLOAT = np.zeros(0)
+
+
+@dataclass(frozen=True)
+class Checked:
+    """A check with the quantized knots it judged: the next check reuses the deviation of every
+    segment whose two knots (times, positions, velocities) did not change."""
+
+    knots: NDArray[np.int64]
+    P: NDArray[np.int64]
+    V: NDArray[np.int64]
+    chk: Check
+
+
+def checked_subset(fl: Flat, keep: NDArray[np.int64], checked: Checked | None) -> Checked | None:
+    if checked is None:
+        return None
+    sel, knots = fl.moved_knots(keep, checked.knots)
+    seg = sel[:-1]
+    c = checked.chk
+    return Checked(
+        knots,
+        checked.P[sel],
+        checked.V[sel],
+        Check(c.seg_deviation[seg], c.velocity_ratio[seg], c.acceleration_ratio[seg], c.position_out[seg]),
+    )
+
+
+def check_knots(
+    fl: Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64], prev: Checked | None = None
+) -> Checked:
+    """``check_records`` of the quantized knots of all axes at once, per knot segment.
+
+    The drive's segment between two records is THE Hermite cubic through their integer positions
+    and velocities (``hermite``, as ``epos2_pvt`` builds it), judged by its exact extrema and at
+    every ms against the plan (``knot_kernels.check_segments``). Only the segments that differ
+    from ``prev`` are judged (the same two records make the same cubic, with the same extrema and
+    deviation).
+    """
+    if prev is None:
+        old = (NO_INT, NO_INT, NO_INT, NO_FLOAT, NO_FLOAT, NO_FLOAT, np.zeros(0, dtype=bool))
+    else:
+        c = prev.chk
+        old = (prev.knots, prev.P, prev.V, c.seg_deviation, c.velocity_ratio, c.acceleration_ratio, c.position_out)
+    dev, rv, ra, out = kernels.check_segments(
+        knots, P, V, fl.stride, fl.f, fl.rv_per, fl.ra_per, fl.pos_lo, fl.pos_hi, fl.p, *old
+    )
+    return Checked(knots, P, V, Check(dev, rv, ra, out))
+
+
+def record_knots(records: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The knots (ms from the first record) of an axis's records: ``axis_records`` backwards."""
+    return np.concatenate(([0], np.cumsum(records[1:-1, 2]))).astype(np.int64)
+
+
+def axis_records(
+    fl: Flat, a: int, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64], chk: Check, dwell_ms: int
+) -> tuple[AxisKnots, float]:
+    """The records of axis ``a`` of ``fl``, what their reconstruction does, the slow-down it needs."""
+    k0, k1 = np.searchsorted(knots, [a * fl.stride, (a + 1) * fl.stride])  # knots k0 .. k1 - 1
+    records = np.zeros((k1 - k0 + 1, 3), dtype=np.int64)  # the last: the end record (P, 0, 0)
+    records[:-1, 0], records[:-1, 1] = P[k0:k1], V[k0:k1]
+    records[-1, 0] = P[k1 - 1]
+    records[0, 2] = dwell_ms
+    records[1:-1, 2] = np.diff(knots[k0:k1])
+    dev = float(chk.seg_deviation[k0 : k1 - 1].max())
+    rv = float(chk.velocity_ratio[k0 : k1 - 1].max())
+    ra = float(chk.acceleration_ratio[k0 : k1 - 1].max())
+    return AxisKnots(fl.axes[a].name, records, dev, rv, ra), needed_scale(rv, ra)

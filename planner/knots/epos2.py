@@ -1,0 +1,176 @@
+"""EPOS2 PVT: steps 1-4 for all the EPOS2 axes of a plan at once (see the package docstring)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from enum import Enum
+
+import numpy as np
+from numpy.typing import NDArray
+
+from planner.knots.check import Checked, axis_records, check_knots, checked_subset, over_limit
+from planner.knots.flat import Flat
+from planner.knots.quantize import repair_rounds, round_knots, shifted_records
+from planner.knots.refine import Fitted, fit_knots, fitted_subset, lsq_fit, refine, split_segments, switch_knots
+from planner.knots.samples import Samples
+from planner.knots.types import AxisKnots, DriveAxis, KnotOptions
+
+_COARSE = 4.0  # first cut: exact-sample cubics to this multiple of the fit target (cheap), then least squares
+
+
+_MIN_SPLIT_MS = 12  # segments shorter than twice this are not split for a limit (rounding grows as 1/T^2)
+
+
+class Start(Enum):
+    """Where the knots of a placement come from before the splits."""
+
+    HINT = "hint"  # the knots of a previous, faster round, then least-squares fits
+    LEAST_SQUARES = "least_squares"  # switch knots, a coarse cut with exact-sample cubics, least-squares fits
+    EXACT = "exact"  # switch knots, cubics through the exact samples (more records, more room for repair)
+
+
+def place_epos2(
+    fl: Flat,
+    smp: Samples,
+    cols: Sequence[int],
+    opts: KnotOptions,
+    start: Start,
+    initial: Sequence[NDArray[np.int64]] | None = None,
+) -> list[tuple[AxisKnots, float]]:
+    """Records of the axes of ``fl`` (columns ``cols`` of ``smp``), and the slow-down each still
+    calls for, the knots starting as ``start`` says (``Start.HINT``: from ``initial``).
+
+    Steps 2-4 of the module docstring, for all axes at once. An axis without a segment to split
+    is done (as it would be on its own) and leaves: the next rounds work on the others only.
+    """
+    n = smp.n_ms
+    tol = opts.tolerance_qc
+    fitted: Fitted | None = None
+    target = opts.fit_fraction * tol
+    if start is Start.HINT:
+        assert initial is not None
+        knots, fitted = fit_knots(fl, fl.flat_knots(initial), target, opts.max_splits)
+        p_fit, v_fit = fitted.P, fitted.V
+    else:
+        switch = [
+            switch_knots(
+                smp.switch_ms, smp.jump[:, c], abs(fl.amax[a]) * opts.switch_fraction, n, opts.min_switch_gap_ms
+            )
+            for a, c in enumerate(cols)
+        ]
+        knots = fl.flat_knots(switch)
+        # a coarse first cut with the cheap exact-sample cubics, then least-squares fits
+        if start is Start.LEAST_SQUARES:
+            knots = refine(knots, fl.p, fl.v, _COARSE * target, opts.max_splits)
+            knots, fitted = fit_knots(fl, knots, target, opts.max_splits)
+            p_fit, v_fit = fitted.P, fitted.V
+        else:
+            knots = refine(knots, fl.p, fl.v, target, opts.max_splits)
+            p_fit, v_fit = fl.p[knots], fl.v[knots]
+    checked: Checked | None = None
+    last_stuck = np.full(len(fl.axes), np.iinfo(np.int64).max)  # per axis (by ``ids``): segments over a limit
+    out: dict[int, tuple[AxisKnots, float]] = {}
+    best: dict[int, tuple[AxisKnots, float]] = {}  # per axis (by ``ids``): its least slow-down so far
+    for _ in range(opts.max_splits):
+        if len(p_fit) != len(knots):
+            if start is Start.EXACT:
+                p_fit, v_fit = fl.p[knots], fl.v[knots]
+            else:
+                fitted = lsq_fit(fl, knots, fitted)
+                p_fit, v_fit = fitted.P, fitted.V
+        P_round, V = round_knots(fl, knots, p_fit, v_fit)
+        rounded = check_knots(fl, knots, P_round, V, checked)
+        _, P, V, checked = repair_rounds(fl, knots, P_round, V, rounded, tol)
+        chk = checked.chk
+        T = np.diff(knots)
+        bad = np.flatnonzero((chk.seg_deviation > tol) | chk.position_out)
+        bad = bad[T[bad] >= 2]
+        # a segment still over a limit with a long span: another knot gives the repair room to fix it
+        stuck = np.flatnonzero(over_limit(chk))
+        # splits are worth it while they help: an axis whose segments over a limit did not get
+        # fewer (and that strays nowhere) stops here, as it is
+        ax_stuck = fl.axis_of(knots[stuck])
+        n_stuck = np.bincount(ax_stuck, minlength=len(fl.axes))
+        strays = np.zeros(len(fl.axes), dtype=bool)
+        strays[fl.axis_of(knots[bad])] = True
+        give_up = (n_stuck > 0) & ~strays & (n_stuck >= last_stuck[fl.ids])
+        last_stuck[fl.ids] = n_stuck
+        stuck = stuck[~give_up[ax_stuck]]
+        # an axis that strays nowhere has a usable program now: keep it if it is the best so far
+        # (splitting for a limit can also make it worse: shorter segments feel rounding more)
+        for a in np.flatnonzero(~strays & (n_stuck > 0)):
+            cand = axis_records(fl, int(a), knots, P, V, chk, opts.dwell_ms)
+            kept = best.get(int(fl.ids[a]))
+            if kept is None or cand[1] < kept[1]:
+                best[int(fl.ids[a])] = cand
+        bad = np.union1d(bad, stuck[T[stuck] >= 2 * _MIN_SPLIT_MS])
+        if not len(bad):
+            break
+        # the axes without a bad segment are done (as each would be on its own): they leave
+        busy = np.unique(fl.axis_of(knots[bad]))
+        if len(busy) < len(fl.axes):
+            for a in np.setdiff1d(np.arange(len(fl.axes)), busy):
+                out[int(fl.ids[a])] = axis_records(fl, a, knots, P, V, chk, opts.dwell_ms)
+            sel, moved_knots = fl.moved_knots(busy, knots)
+            bad = np.searchsorted(sel, bad)  # every bad segment starts at a knot of a busy axis
+            p_fit, v_fit = p_fit[sel], v_fit[sel]
+            fitted = fitted_subset(fl, busy, fitted)
+            checked = checked_subset(fl, busy, checked)
+            fl, knots = fl.subset(busy), moved_knots
+        knots = split_segments(knots, bad)
+    assert checked is not None
+    for a in range(len(fl.axes)):
+        out[int(fl.ids[a])] = axis_records(fl, a, knots, P, V, checked.chk, opts.dwell_ms)
+    for i, kept in best.items():
+        if kept[1] < out[i][1]:
+            out[i] = kept
+    return [out[i] for i in range(len(out))]
+
+
+def epos2_axes(
+    axes: Sequence[DriveAxis],
+    cols: Sequence[int],
+    smp: Samples,
+    opts: KnotOptions,
+    hints: Sequence[NDArray[np.int64]] | None,
+) -> list[tuple[AxisKnots, float]]:
+    """Records of the EPOS2 ``axes`` (columns ``cols`` of the samples), all placed together.
+
+    Least-squares cubics need the fewest records for the tolerance, but spend most of it: where
+    the quantized result still exceeds a limit, cubics through the exact samples (more records,
+    more room for the repair) are tried as well, and the one that needs less slow-down wins.
+    ``hints``: the knots of a previous, faster round, scaled to this one (tried first: cheap).
+    """
+    results: dict[int, tuple[AxisKnots, float]] = {}
+    todo = list(range(len(axes)))
+
+    def place(
+        which: list[int], start: Start, initial: Sequence[NDArray[np.int64]] | None = None
+    ) -> list[tuple[AxisKnots, float]]:
+        fl = Flat.of([axes[i] for i in which], [cols[i] for i in which], smp)
+        return place_epos2(fl, smp, [cols[i] for i in which], opts, start, initial)
+
+    def shifted(i: int, placed: tuple[AxisKnots, float]) -> tuple[AxisKnots, float]:
+        return shifted_records(Flat.of([axes[i]], [cols[i]], smp), placed, opts)
+
+    if hints is not None:
+        for i, res in zip(todo, place(todo, Start.HINT, list(hints)), strict=True):
+            if res[1] <= 1.0:
+                results[i] = res
+        todo = [i for i in todo if i not in results]
+    if todo:
+        fit = place(todo, Start.LEAST_SQUARES)
+        redo = []
+        for i, res in zip(todo, fit, strict=True):
+            if res[1] > 1.0:  # knots a ms earlier or later first (cheap), then the exact samples
+                res = shifted(i, res)
+            results[i] = res
+            if res[1] > 1.0:
+                redo.append(i)
+        if redo:
+            for i, res in zip(redo, place(redo, Start.EXACT), strict=True):
+                if res[1] > 1.0:
+                    res = shifted(i, res)
+                if res[1] < results[i][1]:
+                    results[i] = res
+    return [results[i] for i in range(len(axes))]

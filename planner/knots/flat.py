@@ -1,0 +1,114 @@
+"""Several EPOS2 axes laid end to end as one problem, and the records of each axis read back from it."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from axes.program import TIME_MAX_MS
+from planner.knots.samples import Samples, axis_constants
+from planner.knots.types import DriveAxis
+
+
+@dataclass(frozen=True)
+class Flat:
+    """Several EPOS2 axes placed as one: their plan samples end to end (axis a's ms j at flat index
+    a * stride + j) and their knots in that index, so that every step below is one set of array
+    operations for all axes (the axes are independent: numpy's fixed cost per call is paid once,
+    not once per axis). Consecutive knots of one axis bound a segment; the step from an axis's last
+    knot to the next axis's first is none (``real_segments`` is False there, it is never split, fitted,
+    checked or repaired). Per-axis constants are arrays indexed by the axis number."""
+
+    axes: tuple[DriveAxis, ...]
+    stride: int  # samples per axis: n_ms + 1
+    p: NDArray[np.float64]  # plan positions (qc), flat
+    v: NDArray[np.float64]  # plan velocities (qc/ms), flat
+    f: NDArray[np.float64]  # qc/ms per velocity unit
+    amax: NDArray[np.float64]  # 0x60C5 in qc/ms^2
+    vmax: NDArray[np.float64]  # 0x607F in qc/ms
+    v_units: NDArray[np.float64]  # 0x607F in whole velocity units
+    pos_lo: NDArray[np.float64]  # 0x607D
+    pos_hi: NDArray[np.float64]
+    rv_per: NDArray[np.float64]  # |v| / 0x607F per qc/ms
+    ra_per: NDArray[np.float64]  # |a| / 0x60C5 per qc/ms^2
+    ids: NDArray[np.int64]  # each axis's place in the first Flat (stays when others leave: ``subset``)
+
+    @classmethod
+    def of(cls, axes: Sequence[DriveAxis], cols: Sequence[int], smp: Samples) -> Flat:
+        return cls(
+            tuple(axes),
+            smp.n_ms + 1,
+            smp.position[list(cols)].ravel(),
+            smp.velocity[list(cols)].ravel(),
+            *axis_constants(tuple(axes)),
+            np.arange(len(axes)),
+        )
+
+    def subset(self, keep: NDArray[np.int64]) -> Flat:
+        """The axes ``keep`` (positions in this one) alone; ``moved_knots`` maps knots across."""
+        m = len(self.axes)
+        return Flat(
+            tuple(self.axes[a] for a in keep),
+            self.stride,
+            self.p.reshape(m, self.stride)[keep].ravel(),
+            self.v.reshape(m, self.stride)[keep].ravel(),
+            self.f[keep],
+            self.amax[keep],
+            self.vmax[keep],
+            self.v_units[keep],
+            self.pos_lo[keep],
+            self.pos_hi[keep],
+            self.rv_per[keep],
+            self.ra_per[keep],
+            self.ids[keep],
+        )
+
+    def moved_knots(
+        self, keep: NDArray[np.int64], knots: NDArray[np.int64]
+    ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """For knots of this one: (the indices of those on the axes ``keep``, where they are in
+        ``subset(keep)``)."""
+        new_pos = np.full(len(self.axes), -1)
+        new_pos[keep] = np.arange(len(keep))
+        ax = self.axis_of(knots)
+        sel = np.flatnonzero(new_pos[ax] >= 0)
+        return sel, knots[sel] + (new_pos[ax[sel]] - ax[sel]) * self.stride
+
+    def axis_of(self, idx: NDArray[np.int64]) -> NDArray[np.int64]:
+        return idx // self.stride
+
+    def is_end(self, knots: NDArray[np.int64]) -> NDArray[np.bool_]:
+        """Knots at an axis's start or goal: at rest, at the plan's position, never moved."""
+        r = knots % self.stride
+        return (r == 0) | (r == self.stride - 1)
+
+    def flat_knots(self, per_axis: Sequence[NDArray[np.int64]]) -> NDArray[np.int64]:
+        """Each axis's knots (sorted, unique; both ends added, no segment over 255 ms) laid end to end."""
+        n = self.stride - 1
+        parts = []
+        for a, k in enumerate(per_axis):
+            base = a * self.stride
+            parts += [[base], k[(k > 0) & (k < n)] + base, [base + n]]
+        # the step from an axis's end to the next one's start is 1: only real segments are split
+        return within_record_time(np.concatenate(parts).astype(np.int64))
+
+
+def within_record_time(knots: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Sorted knots with every gap longer than a record's 255 ms split evenly."""
+    gaps = np.diff(knots)
+    long = np.flatnonzero(gaps > TIME_MAX_MS)
+    if not len(long):
+        return knots
+    pieces = -(-gaps[long] // TIME_MAX_MS)
+    at = np.repeat(long, pieces - 1)  # the gap each new knot splits
+    n = np.repeat(pieces, pieces - 1)
+    j = np.arange(len(at)) - np.repeat(np.cumsum(pieces - 1) - (pieces - 1), pieces - 1) + 1  # 1 .. n - 1
+    return np.union1d(knots, knots[at] + (gaps[at] * j) // n)
+
+
+def real_segments(fl: Flat, knots: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Per knot segment: both ends on the same axis (a segment, not the step between two axes)."""
+    return fl.axis_of(knots[:-1]) == fl.axis_of(knots[1:])

@@ -1,0 +1,110 @@
+"""What knot placement takes and gives: the trajectory it samples, the axes, the options, the records."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from axes.program import FIXED_PERIOD_PROFILES, PROFILES, TIME_MAX_MS, AxisProgram
+from axes.scaling import AxisScaling, DriveLimits
+
+
+class TimedTrajectory(Protocol):
+    """What knot placement needs of a trajectory (planner.timing.Trajectory): seconds, joint units."""
+
+    @property
+    def duration(self) -> float: ...
+
+    @property
+    def breakpoints(self) -> NDArray[np.float64]: ...
+
+    def states(self, t: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...  # q, q' (dof, len(t))
+
+    def acceleration_jumps(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...  # times, (n, dof)
+
+
+class KnotError(ValueError):
+    """No program within the options meets the drive's limits (e.g. more slow-down than allowed)."""
+
+
+@dataclass(frozen=True)
+class DriveAxis:
+    """One axis as knot placement sees it: its drive's profile, scaling and limit objects."""
+
+    name: str
+    node_id: int
+    profile: str
+    scaling: AxisScaling
+    limits: DriveLimits
+    period_ms: int | None = None  # fixed-period profiles
+    interpolation_submode: int | None = None  # parker_slvdn 0x60C0
+
+    def __post_init__(self) -> None:
+        if self.profile not in PROFILES:
+            raise ValueError(f"unknown profile {self.profile!r}")
+        if self.profile in FIXED_PERIOD_PROFILES and not (self.period_ms and 1 <= self.period_ms <= TIME_MAX_MS):
+            raise ValueError(f"{self.name}: a {self.profile} axis needs a period of 1..255 ms, got {self.period_ms}")
+
+    @classmethod
+    def from_config(cls, axis: Any) -> DriveAxis:
+        """From a cell's axis configuration (service.config.AxisConfig, read by attribute)."""
+        return cls(
+            axis.joint,
+            axis.node_id,
+            axis.profile,
+            axis.scaling,
+            axis.limits,
+            axis.period_ms,
+            axis.interpolation_submode,
+        )
+
+    def program(self, records: NDArray[np.int64]) -> AxisProgram:
+        return AxisProgram(
+            self.name, self.node_id, self.profile, self.scaling, self.limits, records, self.interpolation_submode
+        )
+
+
+@dataclass(frozen=True)
+class KnotOptions:
+    tolerance_qc: float = 1.0  # max |reconstruction - plan| at the drive's 1 kHz samples
+    fit_fraction: float = 0.6  # refinement target for the exact-sample cubic, fraction of the tolerance
+    switch_fraction: float = 0.02  # an acceleration jump above this fraction of 0x60C5 gets its own knot
+    min_switch_gap_ms: int = 8  # switch knots closer than this are merged (short segments amplify rounding)
+    dwell_ms: int = 1  # time of records[0]: the wait from the start SYNC to the first segment
+    max_time_scale: float = 1.05  # give up rather than slow the motion down more than this ...
+    max_extra_ms: int = 50  # ... unless that is less than this much time (a short move's whole ms cost more)
+    max_rounds: int = 10  # slow-down rounds
+    max_splits: int = 40  # refinement rounds per axis
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.tolerance_qc) and self.tolerance_qc >= 0.5):
+            raise ValueError(f"tolerance_qc must be >= 0.5 count (positions are integers), got {self.tolerance_qc}")
+        if not 1 <= self.dwell_ms <= TIME_MAX_MS:
+            raise ValueError(f"dwell_ms must be in 1..255, got {self.dwell_ms}")
+
+
+@dataclass(frozen=True)
+class AxisKnots:
+    """The records of one axis and what their reconstruction does."""
+
+    name: str
+    records: NDArray[np.int64]
+    deviation_qc: float  # worst |reconstruction - plan| at 1 kHz
+    velocity_ratio: float  # exact max |v| / 0x607F of the reconstruction
+    acceleration_ratio: float  # exact max |a| / 0x60C5
+
+
+@dataclass(frozen=True)
+class KnotResult:
+    axes: tuple[AxisKnots, ...]
+    time_scale: float  # slow-down applied to the trajectory (1.0: none)
+    duration_ms: int  # motion time of the program (without the start dwell)
+    rounds: int
+
+    @property
+    def deviation_qc(self) -> float:
+        return max((a.deviation_qc for a in self.axes), default=0.0)

@@ -1,0 +1,244 @@
+"""toppra's TOPP-RA algorithm with its per-stage bookkeeping done once up front (``LeanTOPPRA``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import toppra.algorithm as algo
+import toppra.constraint as constraint
+from numba import njit
+from numpy.typing import NDArray
+from scipy.optimize import linprog
+from toppra.algorithm.algorithm import ParameterizationAlgorithm
+from toppra.constants import MAX_TRIES, SMALL, TINY
+from toppra.solverwrapper.cy_seidel_solverwrapper import seidelWrapper
+
+from planner.path import JointPath
+
+
+class _Computed(constraint.LinearConstraint):
+    """A constraint's parameters on one grid, computed once: the solver wrapper and the rest check
+    of LeanTOPPRA both read them."""
+
+    def __init__(self, source: constraint.Constraint, params: tuple) -> None:
+        super().__init__()
+        self.identical = source.identical
+        self.params = params
+
+    def compute_constraint_params(self, path: JointPath, gridpoints: NDArray[np.float64]):  # type: ignore[override]
+        return self.params
+
+
+# the solver wrapper's box on u and x at every stage (toppra's seidel VAR_MIN / VAR_MAX)
+_VAR_MAX = 1e8
+
+
+def _times(F: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """F v at every stage: F the same at every stage (2-D) or one per stage (3-D)."""
+    return v @ F.T if F.ndim == 2 else np.einsum("ikj,ij->ik", F, v)
+
+
+@dataclass(frozen=True)
+class _StageRows:
+    """Every stage's rows A u + B x + C <= 0 (all constraints stacked, as the solver wrapper does)
+    and its boxes on x and u, (n, m) and (n,) arrays: what the LP skips of LeanTOPPRA read."""
+
+    A: NDArray[np.float64]
+    B: NDArray[np.float64]
+    C: NDArray[np.float64]
+    x_lo: NDArray[np.float64]
+    x_hi: NDArray[np.float64]
+    u_lo: NDArray[np.float64]
+    u_hi: NDArray[np.float64]
+
+    @classmethod
+    def stack(cls, params: list[tuple], n: int) -> _StageRows:
+        x_lo, x_hi = np.full(n, -_VAR_MAX), np.full(n, _VAR_MAX)
+        u_lo, u_hi = np.full(n, -_VAR_MAX), np.full(n, _VAR_MAX)
+        A, B, C = [np.zeros((n, 0))], [np.zeros((n, 0))], [np.zeros((n, 0))]
+        for a, b, c, F, h, ubound, xbound in params:
+            if a is not None:
+                A.append(_times(F, a))
+                B.append(_times(F, b))
+                C.append(_times(F, c) - h)
+            if xbound is not None:
+                x_lo, x_hi = np.maximum(x_lo, xbound[:, 0]), np.minimum(x_hi, xbound[:, 1])
+            if ubound is not None:
+                u_lo, u_hi = np.maximum(u_lo, ubound[:, 0]), np.minimum(u_hi, ubound[:, 1])
+        return cls(np.hstack(A), np.hstack(B), np.hstack(C), x_lo, x_hi, u_lo, u_hi)
+
+    def rest_feasible(self) -> NDArray[np.bool_]:
+        """Stages at which (u, x) = (0, 0), standing still, satisfies every row and box."""
+        return np.all(self.C <= 0.0, axis=1) & (self.x_lo <= 0.0) & (self.u_lo <= 0.0) & (self.u_hi >= 0.0)
+
+    def x_extreme(self, i: int, two_delta: float, lo: float, hi: float, highest: bool) -> float:
+        """The largest (lowest) x at stage i from which some u satisfies every row and box and
+        lands x + two_delta u in [lo, hi]; NaN where none does. HiGHS, for the rare stage whose LP
+        toppra's seidel solver gives up on although it is feasible: next to a point where the path
+        stops (q' = 0 at a waypoint in a corner of the joint box, or where it reverses), the rows
+        there span u from 1e-16 to 1e4 and the seidel solver returns NaN, stock toppra's too."""
+        rows = np.column_stack((self.A[i], self.B[i]))
+        a_ub = np.vstack((rows, [[two_delta, 1.0], [-two_delta, -1.0]]))
+        b_ub = np.concatenate((-self.C[i], [hi, -lo]))
+        bounds = [(self.u_lo[i], self.u_hi[i]), (max(self.x_lo[i], 0.0), self.x_hi[i])]
+        res = linprog([0.0, -1.0 if highest else 1.0], A_ub=a_ub, b_ub=b_ub, bounds=bounds, method="highs")
+        return float(res.x[1]) if res.status == 0 else math.nan
+
+    def u_range_at(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The exact range [lo, hi] of u that satisfies every row and box at x (one x per stage;
+        lo = inf where none does)."""
+        A = self.A
+        r = self.B * x[:, None] + self.C
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            bound = -r / A
+        hi = np.minimum(self.u_hi, np.min(np.where(A > 0.0, bound, np.inf), axis=1, initial=np.inf))
+        lo = np.maximum(self.u_lo, np.max(np.where(A < 0.0, bound, -np.inf), axis=1, initial=-np.inf))
+        lo[np.any((A == 0.0) & (r > 0.0), axis=1) | (x < self.x_lo) | (x > self.x_hi)] = np.inf
+        return lo, hi
+
+
+# rows whose u-coefficient is smaller than this are not a bound on u (toppra's seidel solver, TINY)
+_SEIDEL_TINY = 1e-10
+
+
+@njit(cache=True)
+def _forward_pass(
+    A: NDArray[np.float64],
+    B: NDArray[np.float64],
+    C: NDArray[np.float64],
+    u_lo: NDArray[np.float64],
+    u_hi: NDArray[np.float64],
+    x_lo: NDArray[np.float64],
+    x_hi: NDArray[np.float64],
+    K: NDArray[np.float64],
+    two_delta: NDArray[np.float64],
+    x_start: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """toppra's greedy forward pass: at every stage the largest u whose x + 2 delta u lands in the
+    next controllable set. With x fixed, the stage's LP has one variable, and it is solved as
+    toppra's seidel wrapper solves it then (its 1-D LP: the tightest row above and below, rows with
+    |a| <= TINY skipped, infeasible when they cross); same safeguards (back off x by TINY or 0.1 %,
+    at most MAX_TRIES times, when a stage is infeasible from round-off). Returns u per stage and x
+    per gridpoint (NaN from where it gave up)."""
+    n = len(two_delta)
+    us, xs = np.zeros(n), np.full(n + 1, np.nan)
+    xs[0] = x_start
+    i, tries, x = 0, 0, x_start
+    while i < n:
+        k_lo, k_hi = K[i + 1, 0], K[i + 1, 1]
+        lo, hi = u_lo[i], u_hi[i]
+        for j in range(A.shape[1]):
+            a = A[i, j]
+            if a > _SEIDEL_TINY:
+                hi = min(hi, -(B[i, j] * x + C[i, j]) / a)
+            elif a < -_SEIDEL_TINY:
+                lo = max(lo, -(B[i, j] * x + C[i, j]) / a)
+        hi = min(hi, (k_hi - x) / two_delta[i])
+        lo = max(lo, (k_lo - x) / two_delta[i])
+        if lo > hi or x < x_lo[i] or x > x_hi[i]:  # slightly infeasible from round-off: back off x a little
+            if tries >= MAX_TRIES:
+                return us, xs
+            x = max(x - TINY, 0.999 * x)
+            xs[i] = x
+            tries += 1
+            continue
+        tries = 0
+        us[i] = hi
+        x_next = x + two_delta[i] * hi
+        x_next = max(x_next - TINY, 0.9999 * x_next)
+        x = min(k_hi, max(k_lo, x_next))
+        xs[i + 1] = x
+        i += 1
+    return us, xs
+
+
+class LeanTOPPRA(algo.TOPPRA):
+    """toppra's TOPPRA, with the per-stage bookkeeping of its two passes done once up front.
+
+    Same algorithm, same solver wrapper, same results: the backward pass (controllable sets) calls
+    the seidel solver exactly as toppra does, but without re-allocating the objective vectors and
+    re-checking NaNs through numpy at every stage, which is where most of the time of a coarse-grid
+    solve goes. The forward pass fixes x at every stage, so its LP has one variable: it is solved
+    in one compiled loop by the rule toppra's seidel wrapper applies to it (``_forward_pass``; the
+    same u, bit for bit, on 70,000 stages of arm6 and gantry3 plans). LPs of the backward pass are
+    skipped where their answer is known exactly (checked in closed form, with every stage's rows
+    stacked once up front):
+
+    - the lower end of a controllable set is 0 wherever standing still is allowed and leads into
+      a set that contains 0 (a rest-to-rest move: almost every stage);
+    - its upper end is the stage's own bound x_top (speed limits) wherever some u allowed at
+      x_top leads into the next set (cruising at a speed limit: most stages);
+    """
+
+    def __init__(
+        self, constraint_list: list[constraint.Constraint], path: JointPath, gridpoints: NDArray[np.float64]
+    ) -> None:
+        # toppra's ReachabilityAlgorithm.__init__ would first probe the importable solvers (a
+        # file-system search on every plan); the solver here is always seidel, so set it up directly
+        ParameterizationAlgorithm.__init__(self, constraint_list, path, gridpoints=gridpoints)
+        params = [c.compute_constraint_params(self.path, self.gridpoints) for c in self.constraints]
+        rows = self._rows = _StageRows.stack(params, len(self.gridpoints))
+        self._rest = rows.rest_feasible()
+        self._x_top = rows.x_hi
+        self._u_top = rows.u_range_at(rows.x_hi)
+        computed = [_Computed(c, p) for c, p in zip(self.constraints, params, strict=True)]
+        self.solver_wrapper = seidelWrapper(computed, self.path, self.gridpoints, solve_lp1d=True)
+        n_vars = self.solver_wrapper.get_no_vars()
+        self._g_max_x = np.zeros(n_vars)
+        self._g_max_x[0], self._g_max_x[1] = 1e-9, -1.0
+        self._g_min_x = -self._g_max_x
+
+    def compute_controllable_sets(self, sdmin: float, sdmax: float) -> NDArray[np.float64]:
+        n = self._N
+        K = np.full((n + 1, 2), np.nan)
+        K[n] = (sdmin**2, sdmax**2)
+        solve = self.solver_wrapper.solve_stagewise_optim
+        g_max, g_min, nan = self._g_max_x, self._g_min_x, np.nan
+        rest = self._rest.tolist()
+        x_top, (u_lo, u_hi) = self._x_top.tolist(), (v.tolist() for v in self._u_top)
+        two_delta = (2.0 * self.solver_wrapper.get_deltas()).tolist()
+        self.solver_wrapper.setup_solver()
+        lo, hi = float(K[n, 0]), float(K[n, 1])
+        los, his = [], []
+        for i in range(n - 1, -1, -1):
+            # a u feasible at x_top[i] that lands in [lo, hi]: x_top[i] is the LP's maximum
+            x = x_top[i]
+            first = max(u_lo[i], (lo - x) / two_delta[i])
+            if first + 1e-9 * (1.0 + abs(first)) <= min(u_hi[i], (hi - x) / two_delta[i]):
+                x_hi = x
+            else:
+                x_hi = solve(i, None, g_max, nan, nan, lo, hi)[1]
+                if x_hi != x_hi:
+                    x_hi = self._rows.x_extreme(i, two_delta[i], lo, hi, highest=True)
+            # standing still is allowed here and 0 is in [lo, hi]: the minimum is 0
+            x_lo = 0.0 if lo == 0.0 and rest[i] else solve(i, None, g_min, nan, nan, lo, hi)[1]
+            if x_lo != x_lo and x_hi == x_hi:
+                x_lo = self._rows.x_extreme(i, two_delta[i], lo, hi, highest=False)
+            lo, hi = max(x_lo, 0.0), x_hi
+            if lo != lo or hi != hi:  # NaN: no controllable state at this stage (K stays NaN there)
+                break
+            los.append(lo)
+            his.append(hi)
+        else:
+            self.solver_wrapper.close_solver()
+        k = len(los)
+        K[n - k : n, 0] = los[::-1]
+        K[n - k : n, 1] = his[::-1]
+        return K
+
+    def compute_parameterization(self, sd_start: float, sd_end: float, return_data: bool = False):  # type: ignore[override]
+        """toppra's forward pass (greedy: the largest controllable x at every stage), same safeguards,
+        each stage's one-variable LP solved in a compiled loop (``_forward_pass``)."""
+        K = self.compute_controllable_sets(sd_end, sd_end)
+        if np.isnan(K).any():
+            return (None, None, None, K) if return_data else (None, None, None)
+        x_start = sd_start**2
+        if x_start + SMALL < K[0, 0] or K[0, 1] + SMALL < x_start:
+            return (None, None, None, K) if return_data else (None, None, None)
+        r = self._rows
+        two_delta = 2.0 * self.solver_wrapper.get_deltas()
+        us, xs = _forward_pass(r.A, r.B, r.C, r.u_lo, r.u_hi, r.x_lo, r.x_hi, K, two_delta, x_start)
+        sd = np.sqrt(xs)
+        return (us, sd, None, K) if return_data else (us, sd, None)
