@@ -103,7 +103,7 @@ def run_path(cp: CellPlanner, wp: np.ndarray, factor: float, topp: CellPlan) -> 
     v, a, j = dense_ratios(traj, cp, max_jerk)
     return PathResult(
         factor=factor,
-        t_solve=res.plan.details.get("jerk_time", math.nan),  # type: ignore[arg-type]
+        t_solve=float(res.plan.details.get("jerk_s", math.nan)),  # type: ignore[arg-type]
         t_total=res.timing["total"],
         duration_ratio=traj.duration / topp.plan.trajectory.duration,
         program_ratio=res.program.duration_ms / topp.program.duration_ms,
@@ -178,7 +178,7 @@ def main() -> int:
     cell = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
     t0 = time.perf_counter()
     cp = CellPlanner(cell)
-    cp.warm_up()
+    cp.warm_up(jerk=True)
     print(f"  warm-up (compiled loops, casadi program): {time.perf_counter() - t0:.2f} s", file=sys.stderr)
     rng = np.random.default_rng(args.seed)
     paths: list[tuple[np.ndarray, CellPlan]] = []
@@ -218,22 +218,21 @@ def main() -> int:
         pr = np.array([r.program_ratio for r in rs])
         it = np.array([r.iterations for r in rs])
         solvers = {s: sum(r.solver == s for r in rs) for s in dict.fromkeys(r.solver for r in rs)}
+        p50, p99 = np.percentile(ts, 50), np.percentile(ts, 99)
         print(
-            f"  solve time p50 {np.percentile(ts, 50):.1f} ms, p99 {np.percentile(ts, 99):.1f} ms, max {ts.max():.1f} ms "
+            f"  solve time p50 {p50:.1f} ms, p99 {p99:.1f} ms, max {ts.max():.1f} ms "
             f"(iterations p50 {np.percentile(it, 50):.0f}, max {it.max()}; solvers {solvers})"
         )
-        print(f"  whole plan (TOPP-RA + timing + knots + validation) p50 {np.percentile(tt, 50):.1f} ms, p99 {np.percentile(tt, 99):.1f} ms")
+        p50, p99 = np.percentile(tt, 50), np.percentile(tt, 99)
+        print(f"  whole plan (TOPP-RA + timing + knots + validation) p50 {p50:.1f} ms, p99 {p99:.1f} ms")
         print(
             f"  duration / TOPP-RA's: mean {dr.mean():.3f}, p50 {np.percentile(dr, 50):.3f}, max {dr.max():.3f} "
             f"(programs: mean {pr.mean():.3f})"
         )
-        print(
-            f"  worst planned |jerk| / limit {max(r.jerk_ratio for r in rs):.6f}, |v| / vmax {max(r.v_ratio for r in rs):.6f}, "
-            f"|a| / amax {max(r.a_ratio for r in rs):.6f}"
-        )
-        print(
-            f"  validator errors: jerk-limited {sum(r.violations for r in rs)}, TOPP-RA {sum(r.topp_violations for r in rs)}"
-        )
+        worst_j, worst_v, worst_a = (max(getattr(r, f) for r in rs) for f in ("jerk_ratio", "v_ratio", "a_ratio"))
+        print(f"  worst planned |jerk| / limit {worst_j:.6f}, |v| / vmax {worst_v:.6f}, |a| / amax {worst_a:.6f}")
+        errors, topp_errors = sum(r.violations for r in rs), sum(r.topp_violations for r in rs)
+        print(f"  validator errors: jerk-limited {errors}, TOPP-RA {topp_errors}")
         print(
             f"  records per axis per second: jerk-limited {np.mean([r.records for r in rs]):.1f}, "
             f"TOPP-RA {np.mean([r.topp_records for r in rs]):.1f}"

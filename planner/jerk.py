@@ -23,13 +23,15 @@ a nonlinear program, warm-started from the TOPP-RA solution:
 - objective: the duration, sum of h_k.
 
 The program is a discrete optimal control problem (state (sd, a), control (h, j)), which is
-the structure fatrop's Riccati-based interior point exploits: about 2-3 times faster per
+the structure fatrop's Riccati-based interior point exploits: about 4 times cheaper per
 iteration than ipopt with MUMPS here. Where fatrop does not converge, ipopt is tried from the
-same start; where neither does, the plan is refused with the solvers' statuses.
+same start; where neither does, the plan is refused with the solvers' statuses. The variables
+are scaled by their typical magnitudes (``_scales``: fatrop does not scale a program) and the
+start is slowed down to well inside the jerk rows (``_start``): both cut the solve time's tail.
 
-After the solve the trajectory is checked densely (``JerkTrajectory.limit_ratios``), and
-slowed down uniformly where a sample between the rows exceeds a limit (velocity / k,
-acceleration / k^2, jerk / k^3), as TOPP-RA's trajectory is.
+After the solve the trajectory is checked densely (``JerkTrajectory.limit_ratios``,
+``speed_ratio``), and slowed down uniformly where a sample between the rows exceeds a limit
+(velocity / k, acceleration / k^2, jerk / k^3), as TOPP-RA's trajectory is.
 """
 
 from __future__ import annotations
@@ -50,17 +52,22 @@ from planner.timing import (
     IntervalJointAccelerationConstraint,
     IntervalJointVelocityConstraint,
     RneaJointTorqueConstraint,
+    TcpAngularSpeedConstraint,
     TcpSpeedConstraint,
     Trajectory,
 )
 
 DEFAULT_JERK_INTERVALS = 48
-_CHECK_SUBSAMPLES = 16
-_MIDDLE = 0.5
+_CHECK_SUBSAMPLES = 32
+_BISECTIONS = 40  # a peak's time to 1e-12 of the samples' spacing
 # intervals between two rests at least: one constant jerk per interval needs 3 to stop again (+, -, +)
 MIN_REST_TO_REST = 4
 # a jump of the path's second derivative at a waypoint above this is a C1 joint, not round-off
 _CURVATURE_JUMP = 1e-8
+
+
+# bounds on a speed |G(s) q_s| s' <= limit (the joint velocity, the TCP's linear and angular speed)
+_SPEED_CONSTRAINTS = (IntervalJointVelocityConstraint, TcpSpeedConstraint, TcpAngularSpeedConstraint)
 
 
 def _interval_coefficients(path: JointPath, grid: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
@@ -191,14 +198,44 @@ class JerkTrajectory:
         return inner.ravel()
 
     def limit_ratios(self, limits: JointLimits, max_jerk: ArrayLike) -> tuple[float, float, float]:
-        """Worst |q'|/vmax, |q''|/amax and |q'''|/max_jerk over the check times."""
+        """Worst |q'|/vmax, |q''|/amax and |q'''|/max_jerk over the check times, and for the velocity
+        and the acceleration also at their peaks between two check times (``_peak_ratio``)."""
         t = self.check_times()
         jmax = np.asarray(max_jerk, dtype=float)
+        t2d = t.reshape(len(self.sddd), -1)
+        rv = float(np.max(np.abs(self._joint(t, 1)) / limits.velocity))
+        ra = float(np.max(np.abs(self._joint(t, 2)) / limits.acceleration))
         return (
-            float(np.max(np.abs(self._joint(t, 1)) / limits.velocity)),
-            float(np.max(np.abs(self._joint(t, 2)) / limits.acceleration)),
+            max(rv, self._peak_ratio(t2d, 1, limits.velocity)),
+            max(ra, self._peak_ratio(t2d, 2, limits.acceleration)),
             float(np.max(np.abs(self._joint(t, 3)) / jmax)),
         )
+
+    def _peak_ratio(self, t2d: NDArray[np.float64], order: int, bound: NDArray[np.float64]) -> float:
+        """Worst |order-th derivative| / bound at its extrema between consecutive check times of an
+        interval (rows of ``t2d``): where the next derivative changes sign, found by bisection. The
+        samples alone can miss a peak between them by 1e-4 of the limit."""
+        d = self._joint(t2d.ravel(), order + 1).reshape(*t2d.shape, -1)
+        i, p, j = np.nonzero(d[:, :-1] * d[:, 1:] < 0.0)
+        if len(i) == 0:
+            return 0.0
+        lo, hi, f_lo = t2d[i, p], t2d[i, p + 1], d[i, p, j]
+        rows = np.arange(len(i))
+        for _ in range(_BISECTIONS):
+            mid = 0.5 * (lo + hi)
+            f_mid = self._joint(mid, order + 1)[rows, j]
+            left = np.sign(f_mid) == np.sign(f_lo)
+            lo, f_lo, hi = np.where(left, mid, lo), np.where(left, f_mid, f_lo), np.where(left, hi, mid)
+        return float(np.max(np.abs(self._joint(0.5 * (lo + hi), order)[rows, j]) / bound[j]))
+
+    def speed_ratio(self, constraints: Sequence[constraint.Constraint]) -> float:
+        """Worst speed / limit of the cell's TCP speed constraints over the check times (1 / 0: none)."""
+        tcp = [c for c in constraints if isinstance(c, TcpSpeedConstraint | TcpAngularSpeedConstraint)]
+        if not tcp:
+            return 0.0
+        k, sigma, sd, _, _ = self._path_state(self.check_times())
+        s = np.clip(self.gridpoints[k] + sigma, 0.0, self.gridpoints[-1])
+        return max(float(np.max(np.abs(c.speed_factors(self.path, s)) * sd[:, None] / c.limit)) for c in tcp)
 
     def min_path_velocity(self) -> float:
         """The smallest s' over the motion, exactly (s' is a quadratic in time on each interval)."""
@@ -228,16 +265,23 @@ class _Rows:
 
 
 # variables per stage: the state (s', s'') at the gridpoint, then the interval's controls: its time,
-# its jerk s''', and sigma and s' at its middle in time (lifted: the middle's rows are then low-degree
-# polynomials of few variables, which halves the work of the Hessian and the Jacobian)
-_STATE, _CONTROL = ("sd", "a"), ("h", "j", "sigma_mid", "sd_mid")
-_EQUALITIES = 5  # per stage: the next state (2), the distance, the middle's sigma and s'
+# its jerk s''', and sigma and s' at fixed fractions of its time (lifted: the rows there are then
+# low-degree polynomials of few variables, which halves the work of the Hessian and the Jacobian)
+_FRACTIONS = (0.5,)  # where in time the joint velocity and acceleration rows are held (bench/RESULTS.md)
+_MIDDLE_INDEX = 0  # the fraction that is the middle (jerk and TCP speed rows there)
+_STATE = ("sd", "a")
+_CONTROL = ("h", "j", *(f"sigma_{i}" for i in range(len(_FRACTIONS))), *(f"sd_{i}" for i in range(len(_FRACTIONS))))
+_EQUALITIES = 3 + 2 * len(_FRACTIONS)  # per stage: the next state (2), the distance, sigma and s' at the fractions
+_JERK_ROWS = 3  # per joint: start, middle, end
 
 
 def _stage_function(dof: int, torque: bool) -> ca.Function:
     """The rows of one interval: (its variables and numbers) -> the state at its end, then the
-    distance and middle residuals and its inequality rows (normalised to [-1, 1] but torque's)."""
-    sd, a, h, j, sgm, sdm = (ca.SX.sym(n) for n in (*_STATE, *_CONTROL))
+    distance and lifted residuals and its inequality rows (normalised to [-1, 1] but torque's)."""
+    m = len(_FRACTIONS)
+    sd, a, h, j = (ca.SX.sym(n) for n in (*_STATE, *_CONTROL[:2]))
+    sgs = [ca.SX.sym(f"sigma_{i}") for i in range(m)]
+    sds = [ca.SX.sym(f"sd_{i}") for i in range(m)]
     D = ca.SX.sym("D")
     q1, q2, q3, e1, e2, ta, tb = (ca.SX.sym(n, dof) for n in ("q1", "q2", "q3", "e1", "e2", "ta", "tb"))
     inv_v, inv_a, inv_j = (ca.SX.sym(n, dof) for n in ("inv_v", "inv_a", "inv_j"))
@@ -250,21 +294,21 @@ def _stage_function(dof: int, torque: bool) -> ca.Function:
         return (q3 * s_d**3 + 3.0 * q_ss * (s_d * s_dd) + q_s * j) * inv_j
 
     sg1, sd1, a1 = at(h)
-    sgm_h, sdm_h, am = at(0.5 * h)
-    q_sm, q_ssm = q1 + sgm * (q2 + 0.5 * sgm * q3), q2 + sgm * q3  # the path at the middle, exactly
     rows = [(q2 * sd**2 + q1 * a) * inv_a]
     if torque:
         rows.append(ta * a + tb * sd**2)
-    rows += [
-        q_sm * sdm * inv_v,
-        (q_ssm * sdm**2 + q_sm * am) * inv_a,
-        jerk(q1, q2, sd, a),
-        jerk(q_sm, q_ssm, sdm, am),
-        jerk(e1, e2, sd1, a1),  # the end: sigma = D there once the distance row holds
-    ]
-    inputs = [sd, a, h, j, sgm, sdm, D, q1, q2, q3, e1, e2, inv_v, inv_a, inv_j, ta, tb]
-    residual = ca.vertcat((sg1 - D) / D, sgm - sgm_h, sdm - sdm_h)
-    return ca.Function("stage", inputs, [ca.vertcat(sd1, a1), residual, ca.vertcat(*rows)])
+    residual = [(sg1 - D) / D]
+    jerk_mid = ca.SX.zeros(dof)
+    for i, f in enumerate(_FRACTIONS):
+        sg_h, sd_h, a_f = at(f * h)
+        residual += [sgs[i] - sg_h, sds[i] - sd_h]
+        q_s, q_ss = q1 + sgs[i] * (q2 + 0.5 * sgs[i] * q3), q2 + sgs[i] * q3  # the path there, exactly
+        rows += [q_s * sds[i] * inv_v, (q_ss * sds[i] ** 2 + q_s * a_f) * inv_a]
+        if i == _MIDDLE_INDEX:
+            jerk_mid = jerk(q_s, q_ss, sds[i], a_f)
+    rows += [jerk(q1, q2, sd, a), jerk_mid, jerk(e1, e2, sd1, a1)]  # the end: sigma = D once the distance holds
+    inputs = [sd, a, h, j, *sgs, *sds, D, q1, q2, q3, e1, e2, inv_v, inv_a, inv_j, ta, tb]
+    return ca.Function("stage", inputs, [ca.vertcat(sd1, a1), ca.vertcat(*residual), ca.vertcat(*rows)])
 
 
 @dataclass
@@ -290,6 +334,7 @@ class _Program:
 
 
 _MAX_ITER = 300
+_START_JERK_SLACK = 0.3  # the start's joint jerk at most this fraction of the limit (see ``_start``)
 _TOL = 1e-6  # optimality (relative duration)
 _CONSTRAINT_TOL = 1e-9  # the residuals: positions along the path continuous to 1e-9 of an interval
 
@@ -308,21 +353,28 @@ def _program(n: int, dof: int, torque: bool) -> _Program:
     D = ca.SX.sym("D", n)
     per_stage = [ca.SX.sym(name, n, dof) for name in ("q1", "q2", "q3", "e1", "e2", "ta", "tb")]
     inv = ca.SX.sym("inv", 3 * dof)
+    # the variables are the program's own divided by a typical magnitude of each (``_scales``)
+    scale = ca.SX.sym("scale", len(_STATE) + len(_CONTROL))
+    x_scale, u_scale = scale[: len(_STATE)], scale[len(_STATE) :]
+    m = len(_FRACTIONS)
+    sigma_scale, sd_scale = u_scale[2], u_scale[2 + m]
+    residual_scale = ca.vertcat(1.0, *([sigma_scale, sd_scale] * m))
     x = [ca.SX.sym(f"x{k}", len(_STATE)) for k in range(n + 1)]
     u = [ca.SX.sym(f"u{k}", len(_CONTROL)) for k in range(n)]
     w: list[ca.SX] = []
     g: list[ca.SX] = []
     equality: list[bool] = []
     for k in range(n):
-        q1, q2, q3, e1, e2, ta, tb = (m[k, :].T for m in per_stage)
-        controls = (u[k][i] for i in range(len(_CONTROL)))
+        q1, q2, q3, e1, e2, ta, tb = (mat[k, :].T for mat in per_stage)
+        xs, us = x[k] * x_scale, u[k] * u_scale
+        controls = (us[i] for i in range(len(_CONTROL)))
         limits = (inv[:dof], inv[dof : 2 * dof], inv[2 * dof :])
-        x1, residual, rows = stage(x[k][0], x[k][1], *controls, D[k], q1, q2, q3, e1, e2, *limits, ta, tb)
+        x1, residual, rows = stage(xs[0], xs[1], *controls, D[k], q1, q2, q3, e1, e2, *limits, ta, tb)
         w += [x[k], u[k]]
-        g += [x[k + 1] - x1, residual, rows]
+        g += [x[k + 1] - x1 / x_scale, residual / residual_scale, rows]
         equality += [True] * _EQUALITIES + [False] * rows.shape[0]
     w.append(x[n])
-    p = ca.vertcat(D, *(ca.vec(m) for m in per_stage), inv)
+    p = ca.vertcat(D, *(ca.vec(mat) for mat in per_stage), inv, scale)
     objective = ca.sum1(ca.vertcat(*(uk[0] for uk in u)))
     return _Program(n, dof, torque, {"x": ca.vertcat(*w), "p": p, "f": objective, "g": ca.vertcat(*g)}, equality)
 
@@ -406,10 +458,10 @@ def _rows(
     sd_max_mid = np.full(n, np.inf)
     torque = None
     for c in constraints:
-        if isinstance(c, IntervalJointVelocityConstraint | TcpSpeedConstraint):
+        if isinstance(c, _SPEED_CONSTRAINTS):
             with np.errstate(divide="ignore"):
                 sd_max = np.minimum(sd_max, np.min(c.limit / np.abs(c.speed_factors(path, grid)), axis=1))
-                if isinstance(c, TcpSpeedConstraint):
+                if not isinstance(c, IntervalJointVelocityConstraint):
                     sd_max_mid = np.minimum(sd_max_mid, np.min(c.limit / np.abs(c.speed_factors(path, mid)), axis=1))
         elif isinstance(c, RneaJointTorqueConstraint):
             a, b, cc, _F, _g, _ub, _xb = c.compute_constraint_params(path, grid[:-1])
@@ -432,7 +484,9 @@ def _bounds(rows: _Rows, program: _Program) -> dict[str, NDArray[np.float64]]:
     # solver away from h -> 0, where the distance row loses its gradient (a trap of local infeasibility)
     finite = rows.sd_max[np.isfinite(rows.sd_max) & (rows.sd_max > 0.0)]
     lbx[:-1, 2] = 0.25 * rows.D / (np.max(finite) if len(finite) else 1e6)
-    lbx[:-1, 5], ubx[:-1, 5] = 0.0, rows.sd_max_mid
+    first_sd = len(_STATE) + 2 + len(_FRACTIONS)  # the column of the first lifted s'
+    lbx[:-1, first_sd : first_sd + len(_FRACTIONS)] = 0.0
+    ubx[:-1, first_sd + _MIDDLE_INDEX] = rows.sd_max_mid
     # at rest with zero acceleration at both ends and at every stop on the way (a stop with s'' != 0
     # would run backwards along the path on one side of it)
     rest = rows.sd_max == 0.0
@@ -443,8 +497,9 @@ def _bounds(rows: _Rows, program: _Program) -> dict[str, NDArray[np.float64]]:
     if rows.torque is not None:
         lo.append(rows.torque[2])
         hi.append(rows.torque[3])
-    lo += [-one] * 5
-    hi += [one] * 5
+    rest_rows = 2 * len(_FRACTIONS) + _JERK_ROWS
+    lo += [-one] * rest_rows
+    hi += [one] * rest_rows
     cut = len(_CONTROL)  # the last stage has a state only
     return {
         "lbx": lbx.ravel()[:-cut],
@@ -462,22 +517,44 @@ def _parameters(rows: _Rows, limits: JointLimits, max_jerk: NDArray[np.float64])
     return np.concatenate((rows.D, *(m.ravel("F") for m in per_stage), inv))
 
 
-def _start(profile: WarmProfile, grid: NDArray[np.float64], sd_max: NDArray[np.float64]) -> NDArray[np.float64]:
+def _scales(start: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A typical magnitude of each of a stage's variables (the 90th percentile of its |start| over
+    the stages, 1 where that is 0): fatrop, unlike ipopt, does not scale a program itself, and the
+    jerk s''' is 1e3-1e4 times the times h here."""
+    width = len(_STATE) + len(_CONTROL)
+    stages = np.append(start, np.zeros(len(_CONTROL))).reshape(-1, width)[:-1]
+    typical = np.percentile(np.abs(stages), 90, axis=0)
+    return np.where(typical > 0.0, typical, 1.0)
+
+
+def _start(
+    profile: WarmProfile, grid: NDArray[np.float64], rows: _Rows, max_jerk: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """The program's variables along ``profile`` on ``grid``, within the speed bounds: s' and a
     smoothed s'' (TOPP-RA's jumps between its intervals) at the gridpoints, the times between
-    them, the jerk that joins the s'', and the middles that follow from those."""
-    x = np.minimum(np.interp(grid, profile.s, profile.x), sd_max**2)
+    them, the jerk that joins the s'', and the middles that follow from those.
+
+    Slowed down uniformly until its joint jerk at the interval starts is at most
+    ``_START_JERK_SLACK`` of the limit: a start inside the jerk rows, with room to speed up. From a
+    start far outside them (a limit far below the TOPP-RA profile's jerk) the solvers spend their
+    time in restoration; from one near or on them, fatrop's iterations have a long tail
+    (bench/RESULTS.md)."""
+    x = np.minimum(np.interp(grid, profile.s, profile.x), rows.sd_max**2)
     sd = np.sqrt(np.maximum(x, 0.0))
     a = 0.5 * np.gradient(x, grid)
-    a[sd_max == 0.0] = 0.0
+    a[rows.sd_max == 0.0] = 0.0
     a[[0, -1]] = 0.0
     h = np.diff(grid) / np.maximum(0.5 * (sd[:-1] + sd[1:]), 1e-3 * np.max(sd))
     j = np.diff(a) / h
-    tau = 0.5 * h
+    v, u = sd[:-1, None], a[:-1, None]
+    jerk = rows.q3 * v**3 + 3.0 * rows.q2 * v * u + rows.q1 * j[:, None]
+    k = np.cbrt(max(1.0, float(np.max(np.abs(jerk) / max_jerk) / _START_JERK_SLACK)))
+    sd, a, h, j = sd / k, a / (k * k), h * k, j / (k * k * k)
     v, u = sd[:-1], a[:-1]
-    sigma_mid = tau * (v + tau * (0.5 * u + tau * j / 6.0))
-    sd_mid = np.maximum(v + tau * (u + 0.5 * j * tau), 0.0)
-    stages = np.column_stack((v, u, h, j, sigma_mid, sd_mid))
+    tau = [f * h for f in _FRACTIONS]
+    sigma = [t * (v + t * (0.5 * u + t * j / 6.0)) for t in tau]
+    speed = [np.maximum(v + t * (u + 0.5 * j * t), 0.0) for t in tau]
+    stages = np.column_stack((v, u, h, j, *sigma, *speed))
     return np.concatenate((stages.ravel(), [0.0, 0.0]))
 
 
@@ -491,8 +568,9 @@ class _Solution:
     iterations: int
 
 
-def _solve(program: _Program, args: dict[str, Any]) -> tuple[_Solution | None, str]:
-    """fatrop, then ipopt from the same start where fatrop does not converge."""
+def _solve(program: _Program, args: dict[str, Any], scale: NDArray[np.float64]) -> tuple[_Solution | None, str]:
+    """fatrop, then ipopt from the same start where fatrop does not converge (``args`` scaled by
+    ``scale``, the solution is not)."""
     statuses = []
     width = len(_STATE) + len(_CONTROL)
     for name in ("fatrop", "ipopt"):
@@ -501,8 +579,10 @@ def _solve(program: _Program, args: dict[str, Any]) -> tuple[_Solution | None, s
         stats = solver.stats()
         if stats["success"]:
             w = np.append(np.asarray(out["x"]).ravel(), np.zeros(len(_CONTROL))).reshape(program.n + 1, width)
+            w = w * scale
             return _Solution(w[:, 0], w[:, 1], w[:-1, 2], w[:-1, 3], name, int(stats.get("iter_count", 0))), ""
-        statuses.append(f"{name}: {stats['return_status']}")
+        status = stats.get("return_status", "")
+        statuses.append(f"{name}: {status}" if isinstance(status, str) else f"{name}: failed (return status {status})")
     return None, "; ".join(statuses)
 
 
@@ -530,10 +610,14 @@ def jerk_limited(
     rows = _rows(path, grid, limits, constraints)
     rows.sd_max[np.searchsorted(grid, stops)] = 0.0
     program = _program(n, limits.dof, rows.torque is not None)
-    args = _bounds(rows, program)
-    args["p"] = _parameters(rows, limits, jmax)
-    args["x0"] = _start(profile, grid, rows.sd_max)
-    sol, status = _solve(program, args)
+    start = _start(profile, grid, rows, jmax)
+    scale = _scales(start)
+    per_variable = np.tile(scale, n + 1)[: len(start)]
+    args = {k: v / per_variable for k, v in _bounds(rows, program).items() if k in ("lbx", "ubx")}
+    args |= {k: v for k, v in _bounds(rows, program).items() if k in ("lbg", "ubg")}
+    args["p"] = np.concatenate((_parameters(rows, limits, jmax), scale))
+    args["x0"] = start / per_variable
+    sol, status = _solve(program, args, scale)
     if sol is None:
         raise PlanError(
             PlanResult.INFEASIBLE,
@@ -554,7 +638,10 @@ def jerk_limited(
     if traj.min_path_velocity() < -1e-6 * max(np.max(traj.sd), 1e-9):
         raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing reverses along the path", solver=sol.solver)
     rv, ra, rj = traj.limit_ratios(limits, jmax)
-    k = max(rv, np.sqrt(ra), np.cbrt(rj))
+    factors = (rv, np.sqrt(ra), np.cbrt(rj), traj.speed_ratio(constraints))
+    if not np.all(np.isfinite(factors)):  # a solver's "success" that is no motion: never handed on
+        raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing returned no finite motion", solver=sol.solver)
+    k = max(factors)
     if k > 1.0:
         traj = traj.slowed(k * (1.0 + 1e-9))
     return traj

@@ -83,6 +83,23 @@ def check_scale(name: str, value: object) -> float:
     return x
 
 
+def check_max_jerk(name: str, value: object, dof: int) -> NDArray[np.float64]:
+    """Per-joint jerk limits (joint units / s^3) as a float array of ``dof`` entries, each positive
+    (inf: that joint unlimited); ValueError naming ``name`` for anything else (a wrong count, NaN, 0,
+    negative, not a number): a jerk limit that cannot be met is refused, not ignored."""
+    if isinstance(value, str | bytes) or not isinstance(value, Sequence | np.ndarray):
+        raise ValueError(f"{name} must be a list of {dof} positive numbers (one per joint), got {value!r}")
+    items = list(value)
+    if len(items) != dof:
+        raise ValueError(f"{name} has {len(items)} values, the cell has {dof} joints")
+    for k, v in enumerate(items):
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+            raise ValueError(f"{name}[{k}] must be a positive number, got {v!r}")
+        if not float(v) > 0.0:  # NaN fails too
+            raise ValueError(f"{name}[{k}] must be positive, got {float(v):g}")
+    return np.array(items, dtype=float)
+
+
 def joint_limits_from_drives(
     names: Sequence[str], scalings: Sequence[AxisScaling], drives: Sequence[DriveLimits]
 ) -> JointLimits:

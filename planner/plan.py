@@ -8,16 +8,21 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import ArrayLike
+import toppra.constraint as constraint
+from numpy.typing import ArrayLike, NDArray
 
 from planner.cartesian import CartesianResult, Motion, PoseSolver, ToolPath
 from planner.ik import IkSolver
-from planner.limits import JointLimits, check_scale
+from planner.limits import JointLimits, check_max_jerk, check_scale
 from planner.model import RobotModel
 from planner.path import JointPath, PlanError, PlanResult
 from planner.timing import DEFAULT_GRIDPOINTS, Trajectory, parameterize, timing_constraints
+
+if TYPE_CHECKING:  # planner.jerk loads casadi: only a plan with a jerk limit does
+    from planner.jerk import JerkTrajectory
 
 # What a plan can end with: the joint-space outcomes, and the refusals of tool poses.
 PlanOutcome = PlanResult | CartesianResult
@@ -29,6 +34,14 @@ def _scale(name: str, value: object) -> float:
         return check_scale(name, value)
     except ValueError as exc:
         raise PlanError(PlanResult.INVALID_INPUT, str(exc), field=name) from None
+
+
+def _max_jerk(value: object, dof: int) -> NDArray[np.float64]:
+    """``check_max_jerk``'s answer as a PlanError (INVALID_INPUT, ``details["field"]``: max_jerk)."""
+    try:
+        return check_max_jerk("max_jerk", value, dof)
+    except ValueError as exc:
+        raise PlanError(PlanResult.INVALID_INPUT, str(exc), field="max_jerk") from None
 
 
 @dataclass(frozen=True)
@@ -49,13 +62,14 @@ class PlanInput:
     max_tcp_angular_speed: float | None = None  # rad/s
     poses: ArrayLike | None = None
     motion: str = Motion.LINEAR.value
+    max_jerk: ArrayLike | None = None  # joint units / s^3, one per joint (inf: unlimited); None: TOPP-RA
 
 
 @dataclass(frozen=True)
 class PlanOutput:
     result: PlanOutcome
     message: str = ""
-    trajectory: Trajectory | None = None
+    trajectory: Trajectory | JerkTrajectory | None = None
     planning_time: float = 0.0  # s, wall clock
     details: dict[str, object] = field(default_factory=dict)
 
@@ -72,6 +86,12 @@ class Planner:
     ``acceleration_scale``) plans with the joint velocity and acceleration limits scaled down: its
     constraints are built for that call (cheap: the constraints compute nothing until they see a
     path). The TCP speed and torque limits stay as the cell sets them.
+
+    With a jerk limit (``max_jerk``: the cell's, or a request's, which replaces it), the TOPP-RA
+    solution is the warm start of the jerk-limited timing along the same path (planner/jerk.py,
+    casadi) under the same constraints; ``details``: ``topp_s`` and ``jerk_s`` (their shares of
+    the planning time), ``solver``, ``iterations``, ``time_scale`` of the jerk-limited solve and
+    the ``max_jerk`` it held.
     """
 
     def __init__(
@@ -83,8 +103,10 @@ class Planner:
         torque_limits: bool = False,
         gridpoints: int | None = None,
         max_tcp_angular_speed: float | None = None,
+        max_jerk: ArrayLike | None = None,
     ) -> None:
         self.limits = limits
+        self.max_jerk = None if max_jerk is None else check_max_jerk("max_jerk", max_jerk, limits.dof)
         self.gridpoints = DEFAULT_GRIDPOINTS if gridpoints is None else int(gridpoints)
         if self.gridpoints < 2:
             raise ValueError(f"gridpoints must be >= 2, got {self.gridpoints}")
@@ -108,19 +130,63 @@ class Planner:
         limits = self.limits.scaled(*scales)
         return limits, timing_constraints(limits, *self._cell_constraints)
 
-    def plan(self, waypoints: ArrayLike, velocity_scale: float = 1.0, acceleration_scale: float = 1.0) -> PlanOutput:
+    def _jerk_limit(self, max_jerk: ArrayLike | None) -> NDArray[np.float64] | None:
+        """The jerk limit of one plan: the request's, else the cell's; None where no joint has one."""
+        jerk = self.max_jerk if max_jerk is None else _max_jerk(max_jerk, self.limits.dof)
+        return jerk if jerk is not None and np.any(np.isfinite(jerk)) else None
+
+    def _timed(
+        self,
+        path: JointPath,
+        limits: JointLimits,
+        constraints: list[constraint.Constraint],
+        max_jerk: NDArray[np.float64] | None,
+    ) -> tuple[Trajectory | JerkTrajectory, dict[str, object]]:
+        """TOPP-RA along ``path``; with a jerk limit, the jerk-limited timing warm-started from it."""
+        t0 = time.perf_counter()
+        trajectory = parameterize(path, limits, constraints, self.gridpoints)
+        if max_jerk is None:
+            return trajectory, {}
+        from planner.jerk import jerk_limited  # casadi: loaded by the first plan that needs it
+
+        t1 = time.perf_counter()
+        try:
+            jerky = jerk_limited(path, limits, constraints, max_jerk, trajectory)
+        except (ValueError, RuntimeError) as exc:  # PlanError is a ValueError: passed on as it is
+            if isinstance(exc, PlanError):
+                raise
+            raise PlanError(PlanResult.INFEASIBLE, f"the jerk-limited timing failed: {exc}") from None
+        details: dict[str, object] = {
+            "topp_s": t1 - t0,
+            "jerk_s": time.perf_counter() - t1,
+            "solver": jerky.solver,
+            "iterations": jerky.iterations,
+            "time_scale": jerky.time_scale,
+            "max_jerk": [float(j) if np.isfinite(j) else None for j in max_jerk],  # None: that joint unlimited
+        }
+        return jerky, details
+
+    def plan(
+        self,
+        waypoints: ArrayLike,
+        velocity_scale: float = 1.0,
+        acceleration_scale: float = 1.0,
+        max_jerk: ArrayLike | None = None,
+    ) -> PlanOutput:
         """Time-optimal rest-to-rest trajectory through the waypoints, or the reason there is none.
 
         ``velocity_scale``, ``acceleration_scale`` in (0, 1]: the joint velocity and acceleration
-        limits are multiplied by them for this plan (INVALID_INPUT naming the field otherwise)."""
+        limits are multiplied by them for this plan (INVALID_INPUT naming the field otherwise).
+        ``max_jerk``: this plan's jerk limit, one per joint (None: the cell's, if any)."""
         start = time.perf_counter()
         try:
             limits, constraints = self._scaled(velocity_scale, acceleration_scale)
+            jerk = self._jerk_limit(max_jerk)
             path = JointPath(waypoints, limits)
-            trajectory = parameterize(path, limits, constraints, self.gridpoints)
+            trajectory, details = self._timed(path, limits, constraints, jerk)
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - start, dict(exc.details))
-        return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - start)
+        return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - start, details)
 
     def plan_poses(
         self,
@@ -129,6 +195,7 @@ class Planner:
         motion: str | Motion = Motion.LINEAR,
         velocity_scale: float = 1.0,
         acceleration_scale: float = 1.0,
+        max_jerk: ArrayLike | None = None,
     ) -> PlanOutput:
         """Time-optimal rest-to-rest trajectory of the tool from joint positions ``start`` through
         ``poses`` (straight lines or joint moves: planner/cartesian.py), or the reason there is none.
@@ -144,12 +211,13 @@ class Planner:
             return PlanOutput(PlanResult.INVALID_INPUT, f"motion must be one of {choices}, got {motion!r}")
         try:
             limits, constraints = self._scaled(velocity_scale, acceleration_scale)
+            jerk = self._jerk_limit(max_jerk)
             tool: ToolPath = self.poses.solve(start, poses, kind)
             t_ik = time.perf_counter() - t0
-            trajectory = parameterize(tool.path, limits, constraints, self.gridpoints)
+            trajectory, timed = self._timed(tool.path, limits, constraints, jerk)
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))
-        details: dict[str, object] = {"ik_s": t_ik, "samples": len(tool.path.points)}
+        details: dict[str, object] = {"ik_s": t_ik, "samples": len(tool.path.points), **timed}
         return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - t0, details)
 
 
@@ -168,8 +236,9 @@ def plan(inp: PlanInput) -> PlanOutput:
         )
     except ValueError as exc:
         return PlanOutput(PlanResult.INVALID_INPUT, str(exc), None, time.perf_counter() - start)
+    scales = (inp.velocity_scale, inp.acceleration_scale)
     if inp.poses is not None:
-        out = planner.plan_poses(inp.waypoints, inp.poses, inp.motion, inp.velocity_scale, inp.acceleration_scale)
+        out = planner.plan_poses(inp.waypoints, inp.poses, inp.motion, *scales, max_jerk=inp.max_jerk)
     else:
-        out = planner.plan(inp.waypoints, inp.velocity_scale, inp.acceleration_scale)
+        out = planner.plan(inp.waypoints, *scales, max_jerk=inp.max_jerk)
     return PlanOutput(out.result, out.message, out.trajectory, time.perf_counter() - start, out.details)

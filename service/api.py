@@ -27,7 +27,7 @@ from jsonschema.exceptions import ValidationError
 from numpy.typing import NDArray
 
 from planner.cartesian import POSE_LENGTH, QUATERNION_TOLERANCE, Motion, check_poses
-from planner.limits import JointLimits, check_scale
+from planner.limits import JointLimits, check_max_jerk, check_scale
 from planner.path import PlanError
 
 API_VERSION = 1
@@ -314,6 +314,14 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
                     "maximum": 1,
                     "default": 1,
                     "description": "the same for the joint acceleration limits (0x60C5)",
+                },
+                "max_jerk": {
+                    **_vector(
+                        dof,
+                        "jerk limit per joint (rad/s^3 or m/s^3, in joint_names order) instead of the cell's "
+                        "axes' max_jerk: the timing is then solved jerk-limited (docs/planning.md)",
+                    ),
+                    "items": {"type": "number", "exclusiveMinimum": 0},
                 },
                 "label": _TEXT,
                 "include_program": {
@@ -646,6 +654,8 @@ def _plain_plan(data: Any, dof: int | None) -> bool:
             ok = type(value) in _NUMBER_TYPES and _PLAN_TOLERANCE[0] <= value <= _PLAN_TOLERANCE[1]
         elif name in _PLAN_SCALES:
             ok = type(value) in _NUMBER_TYPES and 0 < value <= 1
+        elif name == "max_jerk":
+            ok = _numbers(value, dof) and all(v > 0 for v in value)
         elif name == "label":
             ok = type(value) is str and len(value) <= MAX_TEXT
         else:  # include_program
@@ -678,7 +688,7 @@ def check_schema(name: str, data: Any, dof: int | None) -> dict[str, Any]:
                     f"{_json_path(path)} has {len(err.instance)} values; a pose is [x, y, z, qx, qy, qz, qw]",
                     {"path": _json_path(path), "expected": POSE_LENGTH, "got": len(err.instance)},
                 )
-        if err.validator in ("minItems", "maxItems") and path and path[0] in ("waypoints", "target"):
+        if err.validator in ("minItems", "maxItems") and path and path[0] in ("waypoints", "target", "max_jerk"):
             if path == ["waypoints"]:
                 if err.validator == "maxItems":
                     raise ApiError(
@@ -742,6 +752,7 @@ class PlanRequest:
     poses: NDArray[np.float64] | None = None  # (N, 7), unit quaternions
     motion: str = Motion.LINEAR.value
     start_joints: NDArray[np.float64] | None = None  # (dof,) in the cell's joint order
+    max_jerk: NDArray[np.float64] | None = None  # (dof,) in the cell's joint order; None: the cell's
 
 
 @dataclass(frozen=True)
@@ -817,6 +828,7 @@ def parse_plan(data: Any, joint_names: Sequence[str], limits: JointLimits | None
         data.get("tolerance_qc"),
         data.get("label"),
         bool(data.get("include_program", False)),
+        max_jerk=_max_jerk(data, order),
         **_scales(data),
     )
 
@@ -831,6 +843,18 @@ def _scales(data: dict[str, Any]) -> dict[str, float]:
         except ValueError as exc:
             raise ApiError(ErrorCode.INVALID_REQUEST, f"$.{name}: {exc}", {"path": f"$.{name}"}) from None
     return scales
+
+
+def _max_jerk(data: dict[str, Any], order: list[int]) -> NDArray[np.float64] | None:
+    """max_jerk in the cell's joint order: the schema has refused a wrong count and what is not
+    positive; the planner's rule (planner.limits.check_max_jerk), once more."""
+    if "max_jerk" not in data:
+        return None
+    try:
+        values = [data["max_jerk"][k] for k in order]
+        return check_max_jerk("max_jerk", values, len(order))
+    except (ValueError, IndexError, TypeError) as exc:
+        raise ApiError(ErrorCode.INVALID_REQUEST, f"$.max_jerk: {exc}", {"path": "$.max_jerk"}) from None
 
 
 def _parse_pose_plan(data: dict[str, Any], order: list[int], limits: JointLimits | None) -> PlanRequest:
@@ -878,6 +902,7 @@ def _parse_pose_plan(data: dict[str, Any], order: list[int], limits: JointLimits
         poses=poses,
         motion=data.get("motion", Motion.LINEAR.value),
         start_joints=start_joints,
+        max_jerk=_max_jerk(data, order),
         **_scales(data),
     )
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -49,6 +49,8 @@ class PlanningConfig:
     max_tcp_angular_speed: float | None = None  # rad/s
     torque_limits: bool = True  # only where the URDF has effort limits and masses
     position_tolerance_qc: float = 1.0
+    # joint units / s^3 per joint in the model's joint order (inf: that axis sets none); None: no axis sets one
+    max_jerk: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -210,8 +212,12 @@ def parse_cell_config(data: Any, file: Path) -> CellConfig:
     if not isinstance(axes_data, list) or not axes_data:
         raise top.error("axes", "must be a non-empty list of axes")
     axes: list[AxisConfig] = []
+    jerk: dict[str, float] = {}  # joint -> its axis's max_jerk
     for i, a in enumerate(axes_data):
-        axes.append(_parse_axis(file, f"axes[{i}]", a, model, bus))
+        axis, max_jerk = _parse_axis(file, f"axes[{i}]", a, model, bus)
+        axes.append(axis)
+        if max_jerk is not None:
+            jerk[axis.joint] = max_jerk
 
     seen_joint: dict[str, int] = {}
     seen_node: dict[int, int] = {}
@@ -243,6 +249,8 @@ def parse_cell_config(data: Any, file: Path) -> CellConfig:
     requires = top.get("requires_homing", top.boolean, bool(homing))
     if requires and not homing:
         raise top.error("requires_homing", "no axis has a homing section: nothing to home")
+    if jerk:
+        planning = replace(planning, max_jerk=tuple(jerk.get(j, math.inf) for j in model.joint_names))
     cell = CellConfig(name, file, urdf, bus, tuple(axes), planning, simulated, model, order, requires)
     _check_limits_consistent(file, cell)
     return cell
@@ -349,7 +357,10 @@ def _parse_planning(file: Path, data: Any, tcp_frame: str | None, model: RobotMo
     )
 
 
-def _parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusConfig) -> AxisConfig:
+def _parse_axis(
+    file: Path, where: str, data: Any, model: RobotModel, bus: BusConfig
+) -> tuple[AxisConfig, float | None]:
+    """The axis, and its joint's jerk limit for planning (joint units / s^3; None: unlimited)."""
     f = _Fields(
         file,
         where,
@@ -363,6 +374,7 @@ def _parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusCo
             "period_ms",
             "interpolation_submode",
             "buffer",
+            "max_jerk",
             "homing",
             "simulation",
         ),
@@ -465,7 +477,8 @@ def _parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusCo
             raise b.error("overflow_warning", "must be at least 2 above underflow_warning")
     homing = _parse_homing(f, profile, limits) if "homing" in f.data else None
     simulation = _parse_simulation(f) if "simulation" in f.data else None
-    return AxisConfig(joint, node_id, profile, scaling, limits, period, submode, buffer, homing, simulation)
+    max_jerk = f.get("max_jerk", f.number(positive=True), None)
+    return AxisConfig(joint, node_id, profile, scaling, limits, period, submode, buffer, homing, simulation), max_jerk
 
 
 HOMING_FIELDS = (

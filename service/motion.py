@@ -324,6 +324,7 @@ class MotionService:
                     {"plan_id": plan_id},
                     req.velocity_scale,
                     req.acceleration_scale,
+                    req.max_jerk,
                 )
             waypoints = result.waypoints if result.waypoints is not None else q0[None, :]
         else:
@@ -345,7 +346,12 @@ class MotionService:
                     )
             with self._planner_lock:
                 result = self.planner.plan(
-                    waypoints, req.tolerance_qc, {"plan_id": plan_id}, req.velocity_scale, req.acceleration_scale
+                    waypoints,
+                    req.tolerance_qc,
+                    {"plan_id": plan_id},
+                    req.velocity_scale,
+                    req.acceleration_scale,
+                    req.max_jerk,
                 )
         if not result.ok or result.program is None or result.build is None:
             raise ApiError(

@@ -25,7 +25,7 @@ from axes.program import PvtProgram
 from planner.build import BuildError, BuildOutput, build_program
 from planner.cartesian import placement_pose
 from planner.knots import DriveAxis, KnotOptions
-from planner.limits import check_scale
+from planner.limits import check_max_jerk, check_scale
 from planner.path import PlanResult
 from planner.plan import PlanInput, Planner, PlanOutput
 from service.config import CellConfig, ConfigError, load_cell_config
@@ -63,6 +63,7 @@ def plan_input_for_cell(cell: CellConfig, waypoints: ArrayLike, gridpoints: int 
         torque_limits=cell.planning.torque_limits,
         gridpoints=gridpoints,
         max_tcp_angular_speed=cell.planning.max_tcp_angular_speed,
+        max_jerk=cell.planning.max_jerk,
     )
 
 
@@ -91,22 +92,26 @@ class CellPlanner:
                 inp.torque_limits,
                 inp.gridpoints,
                 inp.max_tcp_angular_speed,
+                inp.max_jerk,
             )
         except ValueError as exc:  # a planning option the planner refuses: every plan says so
             self.setup_error = str(exc)
 
-    def warm_up(self) -> None:
+    def warm_up(self, jerk: bool | None = None) -> None:
         """Plan a short move in the middle of the joint ranges and drop it.
 
         The first plan of a process loads the planner's compiled loops (numba's cache; on a new
         machine it compiles them first, some seconds, once). A service pays that at start, not
-        with its first request.
+        with its first request. ``jerk`` (default: where the cell sets a jerk limit): the same move
+        jerk-limited too, which loads casadi and builds its program for a short path (0.2-0.3 s).
         """
         if self.planner is None:
             return
         lo, hi = self.limits.lower, self.limits.upper
         a, b = lo + 0.45 * (hi - lo), lo + 0.55 * (hi - lo)
         self.plan(np.array([a, b]))
+        if jerk or (jerk is None and self.planner.max_jerk is not None):
+            self.plan(np.array([a, b]), max_jerk=10.0 * self.limits.acceleration)
         if self.planner.poses is not None:  # and the inverse kinematics' compiled steps
             self.plan_poses(a, [placement_pose(self.planner.poses.ik.fk(b))])
 
@@ -117,20 +122,24 @@ class CellPlanner:
         metadata: dict[str, Any] | None = None,
         velocity_scale: float = 1.0,
         acceleration_scale: float = 1.0,
+        max_jerk: ArrayLike | None = None,
     ) -> CellPlan:
         """Waypoints (N, dof, the cell's joint order) -> a validated PVT program for the cell's drives.
 
         ``velocity_scale``, ``acceleration_scale`` (0, 1]: the speed override, for the plan and for
-        the knots (``build_program``); recorded in the program's metadata.
+        the knots (``build_program``); recorded in the program's metadata. ``max_jerk`` (one per
+        joint, joint units / s^3): the jerk limit of this plan instead of the cell's; the one held is
+        recorded in the metadata (``max_jerk``, null for a joint without one).
 
-        ``timing`` (s): ``plan`` TOPP-RA, ``knots`` knot placement + validation, ``total``, and
+        ``timing`` (s): ``plan`` the timing (with a jerk limit, ``topp`` and ``jerk`` its two parts), ``knots``
+        knot placement + validation, ``total``, and
         ``cpu`` the CPU time of this thread over the whole call (``total - cpu``: time the thread
         waited for the CPU or the GIL).
         """
         start, cpu = time.perf_counter(), time.thread_time()
         if self.planner is None:
             return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
-        out = self.planner.plan(waypoints, velocity_scale, acceleration_scale)
+        out = self.planner.plan(waypoints, velocity_scale, acceleration_scale, max_jerk)
         return self._build(out, start, cpu, tolerance_qc, metadata, velocity_scale, acceleration_scale)
 
     def plan_poses(
@@ -142,13 +151,14 @@ class CellPlanner:
         metadata: dict[str, Any] | None = None,
         velocity_scale: float = 1.0,
         acceleration_scale: float = 1.0,
+        max_jerk: ArrayLike | None = None,
     ) -> CellPlan:
         """Tool poses (N, 7) from joint positions ``start_joints`` -> a validated PVT program, like
         ``plan`` (``timing["ik"]``: the inverse kinematics' part of ``plan``)."""
         start, cpu = time.perf_counter(), time.thread_time()
         if self.planner is None:
             return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
-        out = self.planner.plan_poses(start_joints, poses, motion, velocity_scale, acceleration_scale)
+        out = self.planner.plan_poses(start_joints, poses, motion, velocity_scale, acceleration_scale, max_jerk)
         extra = {"motion": motion}
         return self._build(out, start, cpu, tolerance_qc, metadata, velocity_scale, acceleration_scale, extra)
 
@@ -166,13 +176,16 @@ class CellPlanner:
         """The program of a planned trajectory (or the planner's refusal as a CellPlan)."""
         t_plan = time.perf_counter() - start
         timing = {"plan": t_plan}
-        if "ik_s" in out.details:
-            timing["ik"] = float(out.details["ik_s"])  # type: ignore[arg-type]
+        for key, name in (("ik_s", "ik"), ("topp_s", "topp"), ("jerk_s", "jerk")):
+            if key in out.details:
+                timing[name] = float(out.details[key])  # type: ignore[arg-type]
         if not out.ok or out.trajectory is None:
             return CellPlan(out.result.value, out.message, None, out, None, timing, details=dict(out.details))
         points = out.trajectory.path.points
         tol = self.tolerance_qc if tolerance_qc is None else tolerance_qc
         meta = {**(extra or {}), **(metadata or {})}
+        if "max_jerk" in out.details:
+            meta["max_jerk"] = out.details["max_jerk"]
         try:
             built = build_program(
                 out.trajectory,
@@ -197,9 +210,10 @@ def plan_cell_program(
     metadata: dict[str, Any] | None = None,
     velocity_scale: float = 1.0,
     acceleration_scale: float = 1.0,
+    max_jerk: ArrayLike | None = None,
 ) -> CellPlan:
     """One-off planning on ``cell`` (the CLI): a CellPlanner built for this call."""
-    return CellPlanner(cell).plan(waypoints, tolerance_qc, metadata, velocity_scale, acceleration_scale)
+    return CellPlanner(cell).plan(waypoints, tolerance_qc, metadata, velocity_scale, acceleration_scale, max_jerk)
 
 
 def add_parser(subparsers: Any) -> None:
@@ -240,8 +254,22 @@ def add_parser(subparsers: Any) -> None:
         metavar="F",
         help="the same for the joint acceleration limits (default 1)",
     )
+    p.add_argument(
+        "--max-jerk",
+        metavar="J1,...,Jn",
+        help="jerk limit per joint in joint units/s^3 (rad/s^3, m/s^3), in the cell's joint order, instead of "
+        "the cell's axes' max_jerk: the timing is then solved jerk-limited (casadi) instead of by TOPP-RA alone",
+    )
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of text")
     p.set_defaults(run=run)
+
+
+def _numbers(text: str) -> list[float] | str:
+    """A comma-separated list of numbers; the text itself where it is not one (check_max_jerk words it)."""
+    try:
+        return [float(x) for x in text.split(",")]
+    except ValueError:
+        return text
 
 
 def _fail(code: int, message: str) -> int:
@@ -272,7 +300,18 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as exc:
             return _fail(EXIT_BAD_INPUT, str(exc))
 
-    scales = {"velocity_scale": args.velocity_scale, "acceleration_scale": args.acceleration_scale}
+    max_jerk = None
+    if args.max_jerk is not None:
+        try:
+            max_jerk = check_max_jerk("--max-jerk", _numbers(args.max_jerk), len(cell.joint_names))
+        except ValueError as exc:
+            return _fail(EXIT_BAD_INPUT, str(exc))
+
+    scales: dict[str, Any] = {
+        "velocity_scale": args.velocity_scale,
+        "acceleration_scale": args.acceleration_scale,
+        "max_jerk": max_jerk,
+    }
     if isinstance(motion, PoseTargets):
         assert motion.start is not None
         result = CellPlanner(cell).plan_poses(motion.start, motion.poses, motion.motion, args.tolerance, **scales)
@@ -299,6 +338,7 @@ def run(args: argparse.Namespace) -> int:
         "deviation_qc": {a.name: round(a.deviation_qc, 4) for a in knots.axes},
         "velocity_scale": args.velocity_scale,
         "acceleration_scale": args.acceleration_scale,
+        "max_jerk": result.program.metadata.get("max_jerk"),
         # of the drives' own 0x607F / 0x60C5 (knot placement held them to the scaled ones)
         "velocity_ratio": {a.name: round(a.velocity_ratio * args.velocity_scale, 5) for a in knots.axes},
         "acceleration_ratio": {a.name: round(a.acceleration_ratio * args.acceleration_scale, 5) for a in knots.axes},

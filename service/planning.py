@@ -123,9 +123,10 @@ class PlanningProcess:
         metadata: dict[str, Any] | None = None,
         velocity_scale: float = 1.0,
         acceleration_scale: float = 1.0,
+        max_jerk: ArrayLike | None = None,
     ) -> CellPlan:
         """Like CellPlanner.plan; PlanningError for a planner bug or a dead child (then restarted)."""
-        return self._ask("plan", (waypoints, tolerance_qc, metadata, velocity_scale, acceleration_scale))
+        return self._ask("plan", (waypoints, tolerance_qc, metadata, velocity_scale, acceleration_scale, max_jerk))
 
     def plan_poses(
         self,
@@ -136,9 +137,10 @@ class PlanningProcess:
         metadata: dict[str, Any] | None = None,
         velocity_scale: float = 1.0,
         acceleration_scale: float = 1.0,
+        max_jerk: ArrayLike | None = None,
     ) -> CellPlan:
         """Like CellPlanner.plan_poses, in the child."""
-        args = (start_joints, poses, motion, tolerance_qc, metadata, velocity_scale, acceleration_scale)
+        args = (start_joints, poses, motion, tolerance_qc, metadata, velocity_scale, acceleration_scale, max_jerk)
         return self._ask("plan_poses", args)
 
     def _ask(self, method: str, args: tuple[Any, ...]) -> CellPlan:

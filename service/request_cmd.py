@@ -205,6 +205,11 @@ def add_parser(subparsers: Any) -> None:
         metavar="F",
         help="plan: the same for the joint acceleration limits (default 1)",
     )
+    p.add_argument(
+        "--max-jerk",
+        metavar="J1,...,Jn",
+        help="plan: jerk limit per joint in joint units/s^3, in the cell's joint order (default: the cell's)",
+    )
     p.add_argument("--program", metavar="FILE", help="validate / execute: a PVT program file instead of a plan id")
     p.add_argument(
         "--wait", action="store_true", help="execute / home: reply at the end of the motion or homing, with its outcome"
@@ -232,6 +237,7 @@ _FOR_OPS: dict[str, tuple[str, ...]] = {
     "start": ("plan",),
     "velocity_scale": ("plan",),
     "acceleration_scale": ("plan",),
+    "max_jerk": ("plan",),
     "program": ("validate", "execute"),
     "wait": ("execute", "home"),
     "joints": ("home",),
@@ -276,6 +282,8 @@ def _local_payload(args: argparse.Namespace) -> Any:
                     out[dest] = check_scale(_option_name(dest), value)
                 except ValueError as exc:
                     raise _InputError(str(exc)) from None
+        if args.max_jerk is not None:
+            out["max_jerk"] = _max_jerk(args.max_jerk)
     elif op in ("validate", "execute"):
         if args.program is not None and args.plan_id is not None:
             raise _InputError(f"{op} takes a PLAN_ID or --program FILE, not both")
@@ -305,6 +313,17 @@ def _local_payload(args: argparse.Namespace) -> Any:
     elif op == "status" and args.recent is not None:
         out["recent"] = args.recent
     return out
+
+
+def _max_jerk(text: str) -> list[float]:
+    """--max-jerk: positive numbers, comma separated (the service checks that there is one per joint)."""
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        values = []
+    if not values or not all(math.isfinite(v) and v > 0 for v in values):
+        raise _InputError(f"--max-jerk: not a comma-separated list of positive numbers: {text!r}")
+    return values
 
 
 def _add_waypoints(args: argparse.Namespace, client: Client, payload: dict[str, Any]) -> None:
