@@ -34,8 +34,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from axes.program import PvtProgram
 from planner.cartesian import LineTolerance, ToolLine, placement_pose
+from service.cell_planner import CellPlanner
 from service.config import CONFIG_DIR, load_cell_config
-from service.plan_cmd import CellPlanner
 
 
 def reconstructed(program: PvtProgram, joint_names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:

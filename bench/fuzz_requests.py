@@ -336,7 +336,7 @@ def main(argv: list[str] | None = None) -> int:
     not_errors: list[tuple[str, str, bytes, Any]] = []
     no_reply = 0
     try:
-        from service.plan_cmd import plan_cell_program
+        from service.cell_planner import plan_cell_program
 
         program = plan_cell_program(cell, [[0.0] * 6, [0.2, -0.1, 0.2, -0.1, 0.2, -0.1]]).program
         other = plan_cell_program(gantry, [[0.0, 0.0, 0.0], [0.1, 0.1, -0.05]]).program

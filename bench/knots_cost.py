@@ -26,8 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import planner.knots
 from planner.knots import check, epos2, fixed_period, place_knots, quantize, refine, samples
+from planner.plan import PlanInput
+from service.cell_planner import CellPlanner
 from service.config import CONFIG_DIR, load_cell_config
-from service.plan_cmd import CellPlanner
 
 RANGES = (0.2, 0.5, 0.8)
 STAGES = (
@@ -96,7 +97,7 @@ def main() -> int:
         cpu, length, records, rounds = [], [], [], []
         while len(cpu) < args.paths:
             wp = mid - frac * half + 2.0 * frac * half * rng.random((args.waypoints, lim.dof))
-            out = planner.plan(wp)
+            out = planner.plan(PlanInput(wp))
             if not out.ok or out.trajectory is None:
                 continue  # the spline leaves the limits: draw again
             best = np.inf

@@ -16,8 +16,8 @@ import statistics
 
 import numpy as np
 
+from service.cell_planner import CellPlanner
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
-from service.plan_cmd import CellPlanner
 
 SUBMODES = (0, -1, -2)
 

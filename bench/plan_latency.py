@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # this tree's p
 
 from old_spline import arc_length, spline_path
 
-from planner.plan import Planner
+from planner.plan import PlanInput, Planner
 from planner.timing import parameterize
 from service.config import load_cell_config
 
@@ -69,13 +69,13 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(args.seed)
     warm = np.random.default_rng(args.seed + 1000)  # warm caches and clocks on paths that are not measured
     for _ in range(20):
-        planner.plan(warm.uniform(0.3 * limits.lower, 0.3 * limits.upper, (args.waypoints, limits.dof)))
+        planner.plan(PlanInput(warm.uniform(0.3 * limits.lower, 0.3 * limits.upper, (args.waypoints, limits.dof))))
     latencies, cpu_times, durations, paths, planned, refused = [], [], [], [], [], 0
     for k in range(args.paths):  # every drawn set is planned: none is redrawn
         mid, half = 0.5 * (limits.upper + limits.lower), 0.5 * args.range * (limits.upper - limits.lower)
         waypoints = rng.uniform(mid - half, mid + half, (args.waypoints, limits.dof))
         c0, t0 = time.process_time(), time.perf_counter()
-        out = planner.plan(waypoints)
+        out = planner.plan(PlanInput(waypoints))
         elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
         if not out.ok:
             print(f"path {k}: REFUSED: {out.result.value}: {out.message}", file=sys.stderr)
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
         paths.append(waypoints)
         planned.append(out.trajectory)
     # the references afterwards, so that their big solves do not disturb the timed ones
-    ratios = [d / reference.plan(w).trajectory.duration for d, w in zip(durations, paths, strict=True)]
+    ratios = [d / reference.plan(PlanInput(w)).trajectory.duration for d, w in zip(durations, paths, strict=True)]
     accepted, spline_duration, spline_length = [], [], []
     for w, traj in zip(paths, planned, strict=True):
         spline, ok = spline_path(w, limits)

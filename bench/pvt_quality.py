@@ -40,11 +40,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from old_spline import arc_length, spline_path
 
-from planner.plan import plan
+from planner.plan import PlanInput
 from planner.timing import parameterize
 from planner.validate import validate_program
+from service.cell_planner import CellPlanner, plan_cell_program, planner_for_cell
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
-from service.plan_cmd import CellPlanner, plan_cell_program, plan_input_for_cell
 
 
 # CAN 2.0A data frame: 47 bits of overhead + 8 per data byte, plus at most one stuff bit per 4 of
@@ -139,7 +139,7 @@ def run_path(cell: CellConfig, wp: np.ndarray, planner: CellPlanner) -> PathResu
         print(f"  REFUSED on {cell.name}: {result.code}: {result.message}", file=sys.stderr)
         return None  # the planner refused the waypoints: not a program
     report = validate_program(result.program)
-    ref = plan(plan_input_for_cell(cell, wp, gridpoints=3000))
+    ref = planner_for_cell(cell, 3000).plan(PlanInput(wp))
     knots = result.build.knots
     motion_s = knots.duration_ms / 1000.0
     ref_s = ref.trajectory.duration if ref.ok and ref.trajectory is not None else math.nan

@@ -46,23 +46,17 @@ def _max_jerk(value: object, dof: int) -> NDArray[np.float64]:
 
 @dataclass(frozen=True)
 class PlanInput:
-    """Everything a plan depends on. Waypoints are (N, dof) in the limits' joint order; or, with
-    ``poses`` (N, 7 tool poses: planner/cartesian.py), ``waypoints`` is the one joint position the
-    motion starts from and ``motion`` says how the tool goes through the poses."""
+    """What changes from one plan to the next (the robot, its limits and the cell's constraints are
+    the ``Planner``'s, fixed when it is built). ``waypoints`` (N, dof) in the limits' joint order;
+    or, with ``poses`` (N, 7 tool poses: planner/cartesian.py), the one joint position the motion
+    starts from, ``motion`` saying how the tool goes through the poses."""
 
     waypoints: ArrayLike
-    limits: JointLimits
-    model: RobotModel | None = None
-    tcp_frame: str | None = None
-    max_tcp_speed: float | None = None
-    torque_limits: bool = False
-    gridpoints: int | None = None  # TOPP-RA grid intervals; None: DEFAULT_GRIDPOINTS
+    poses: ArrayLike | None = None
+    motion: str | Motion = Motion.LINEAR
     velocity_scale: float = 1.0  # speed override in (0, 1]: the joint velocity limits planned with
     acceleration_scale: float = 1.0  # the same for the joint acceleration limits
-    max_tcp_angular_speed: float | None = None  # rad/s
-    poses: ArrayLike | None = None
-    motion: str = Motion.LINEAR.value
-    max_jerk: ArrayLike | None = None  # joint units / s^3, one per joint (inf: unlimited); None: TOPP-RA
+    max_jerk: ArrayLike | None = None  # joint units / s^3, one per joint (inf: unlimited); None: the planner's
 
 
 @dataclass(frozen=True)
@@ -81,8 +75,9 @@ class PlanOutput:
 class Planner:
     """Plans for one robot and one set of limits; builds its toppra constraints once.
 
-    ``plan(waypoints)`` is what a service calls per request; the module-level ``plan(PlanInput)``
-    is the same for a one-off call. A request's speed override (``velocity_scale``,
+    ``Planner(limits, ...)`` holds what is fixed (ruckig style: settings once), ``plan(PlanInput)``
+    what changes per request, and never raises: a refusal is a ``PlanOutput`` with its result. A
+    request's speed override (``velocity_scale``,
     ``acceleration_scale``) plans with the joint velocity and acceleration limits scaled down: its
     constraints are built for that call (cheap: the constraints compute nothing until they see a
     path). The TCP speed and torque limits stay as the cell sets them.
@@ -166,18 +161,25 @@ class Planner:
         }
         return jerky, details
 
-    def plan(
-        self,
-        waypoints: ArrayLike,
-        velocity_scale: float = 1.0,
-        acceleration_scale: float = 1.0,
-        max_jerk: ArrayLike | None = None,
-    ) -> PlanOutput:
-        """Time-optimal rest-to-rest trajectory through the waypoints, or the reason there is none.
+    def plan(self, inp: PlanInput) -> PlanOutput:
+        """Time-optimal rest-to-rest trajectory through the waypoints (or of the tool through the
+        poses), or the reason there is none.
 
         ``velocity_scale``, ``acceleration_scale`` in (0, 1]: the joint velocity and acceleration
         limits are multiplied by them for this plan (INVALID_INPUT naming the field otherwise).
-        ``max_jerk``: this plan's jerk limit, one per joint (None: the cell's, if any)."""
+        ``max_jerk``: this plan's jerk limit, one per joint (None: the planner's, if any)."""
+        scales = (inp.velocity_scale, inp.acceleration_scale, inp.max_jerk)
+        if inp.poses is not None:
+            return self._plan_poses(inp.waypoints, inp.poses, inp.motion, *scales)
+        return self._plan_waypoints(inp.waypoints, *scales)
+
+    def _plan_waypoints(
+        self,
+        waypoints: ArrayLike,
+        velocity_scale: float,
+        acceleration_scale: float,
+        max_jerk: ArrayLike | None,
+    ) -> PlanOutput:
         start = time.perf_counter()
         try:
             limits, constraints = self._scaled(velocity_scale, acceleration_scale)
@@ -188,19 +190,18 @@ class Planner:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - start, dict(exc.details))
         return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - start, details)
 
-    def plan_poses(
+    def _plan_poses(
         self,
         start: ArrayLike,
         poses: ArrayLike,
-        motion: str | Motion = Motion.LINEAR,
-        velocity_scale: float = 1.0,
-        acceleration_scale: float = 1.0,
-        max_jerk: ArrayLike | None = None,
+        motion: str | Motion,
+        velocity_scale: float,
+        acceleration_scale: float,
+        max_jerk: ArrayLike | None,
     ) -> PlanOutput:
-        """Time-optimal rest-to-rest trajectory of the tool from joint positions ``start`` through
-        ``poses`` (straight lines or joint moves: planner/cartesian.py), or the reason there is none.
-        ``details["ik"]``: the inverse kinematics' share of the planning time [s], and the number of
-        joint samples it made."""
+        """The tool from joint positions ``start`` through ``poses`` (straight lines or joint moves:
+        planner/cartesian.py). ``details["ik_s"]``: the inverse kinematics' share of the planning
+        time [s], ``details["samples"]``: the joint samples it made."""
         t0 = time.perf_counter()
         if self.poses is None:
             return PlanOutput(PlanResult.INVALID_INPUT, "tool poses need the robot model and its tcp_frame")
@@ -219,26 +220,3 @@ class Planner:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))
         details: dict[str, object] = {"ik_s": t_ik, "samples": len(tool.path.points), **timed}
         return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - t0, details)
-
-
-def plan(inp: PlanInput) -> PlanOutput:
-    """Plan once: a Planner for ``inp``'s limits and constraints, applied to its waypoints (or poses)."""
-    start = time.perf_counter()
-    try:
-        planner = Planner(
-            inp.limits,
-            inp.model,
-            inp.tcp_frame,
-            inp.max_tcp_speed,
-            inp.torque_limits,
-            inp.gridpoints,
-            inp.max_tcp_angular_speed,
-        )
-    except ValueError as exc:
-        return PlanOutput(PlanResult.INVALID_INPUT, str(exc), None, time.perf_counter() - start)
-    scales = (inp.velocity_scale, inp.acceleration_scale)
-    if inp.poses is not None:
-        out = planner.plan_poses(inp.waypoints, inp.poses, inp.motion, *scales, max_jerk=inp.max_jerk)
-    else:
-        out = planner.plan(inp.waypoints, *scales, max_jerk=inp.max_jerk)
-    return PlanOutput(out.result, out.message, out.trajectory, time.perf_counter() - start, out.details)

@@ -54,9 +54,9 @@ from service.api import (
     StopRequest,
     ValidateRequest,
 )
+from service.cell_planner import CellPlanner
 from service.config import CellConfig
 from service.journal import Journal, JournalError, MotionEntry, default_directory
-from service.plan_cmd import CellPlanner
 from service.planning import PlanningProcess
 
 Publish = Callable[[str, dict[str, Any]], None]

@@ -30,8 +30,8 @@ from typing import Any
 from numpy.typing import ArrayLike
 
 from axes.config import AxisConfig
+from service.cell_planner import CellPlan, CellPlanner
 from service.config import CellConfig, PlanningConfig, load_cell_config
-from service.plan_cmd import CellPlan, CellPlanner
 from service.runtime import freeze_startup_objects
 
 READY = "ready"

@@ -41,7 +41,7 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     compiling them, and no test's timeout includes a compilation."""
     if hasattr(session.config, "workerinput"):  # a pytest-xdist worker
         return
+    from service.cell_planner import CellPlanner
     from service.config import load_cell_config
-    from service.plan_cmd import CellPlanner
 
     CellPlanner(load_cell_config()).warm_up()

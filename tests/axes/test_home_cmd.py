@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from service.cell_planner import plan_cell_program
 from service.cli import main
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
-from service.plan_cmd import plan_cell_program
 
 GANTRY = CONFIG_DIR / "cells" / "gantry3.yaml"
 

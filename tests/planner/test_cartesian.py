@@ -20,7 +20,7 @@ from planner.cartesian import (
 )
 from planner.ik import IkSolver, IkStatus
 from planner.path import PlanError, PlanResult
-from planner.plan import Planner
+from planner.plan import PlanInput, Planner
 from service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
@@ -174,7 +174,7 @@ def test_a_nearly_unit_quaternion_is_normalized() -> None:
 def test_planned_linear_move_holds_the_tcp_speeds() -> None:
     """TOPP-RA along the joint path of a line, with the TCP linear and angular speed limits."""
     planner = Planner(LIMITS, ARM.model, "tool0", max_tcp_speed=0.3, max_tcp_angular_speed=0.5)
-    out = planner.plan_poses(Q1, [moved(Q1, dx=-0.25, dz=0.15)], "linear")
+    out = planner.plan(PlanInput(Q1, [moved(Q1, dx=-0.25, dz=0.15)], "linear"))
     assert out.ok, out.message
     traj = out.trajectory
     assert traj is not None and out.details["samples"] == len(traj.path.points)
@@ -195,13 +195,13 @@ def test_angular_speed_matches_the_frame_jacobian() -> None:
 
 
 def test_plan_poses_refuses_without_a_tool_frame_and_an_unknown_motion() -> None:
-    assert Planner(LIMITS).plan_poses(Q1, [moved(Q1, dz=0.05)]).result is PlanResult.INVALID_INPUT
-    out = Planner(LIMITS, ARM.model, "tool0").plan_poses(Q1, [moved(Q1, dz=0.05)], "circular")
+    assert Planner(LIMITS).plan(PlanInput(Q1, [moved(Q1, dz=0.05)])).result is PlanResult.INVALID_INPUT
+    out = Planner(LIMITS, ARM.model, "tool0").plan(PlanInput(Q1, [moved(Q1, dz=0.05)], "circular"))
     assert out.result is PlanResult.INVALID_INPUT and "circular" in out.message
 
 
 def test_the_tool_already_at_the_pose_is_nothing_to_move() -> None:
-    out = Planner(LIMITS, ARM.model, "tool0").plan_poses(Q1, [placement_pose(IK.fk(Q1))])
+    out = Planner(LIMITS, ARM.model, "tool0").plan(PlanInput(Q1, [placement_pose(IK.fk(Q1))]))
     assert out.result is PlanResult.REPEATED_WAYPOINT
 
 

@@ -13,10 +13,10 @@ import pytest
 
 import planner.jerk as jerk_module
 from planner.jerk import JerkTrajectory
-from planner.plan import PlanInput, Planner, plan
+from planner.plan import PlanInput, Planner
 from planner.validate import validate_program
+from service.cell_planner import CellPlanner
 from service.config import CONFIG_DIR, load_cell_config
-from service.plan_cmd import CellPlanner
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
 LIMITS = ARM.joint_limits()
@@ -74,7 +74,10 @@ def test_jerk_limited_plans_hold_every_limit_densely_and_validate(cell_planner: 
 def test_the_acceleration_is_continuous_where_topp_ra_switches() -> None:
     """TOPP-RA's acceleration jumps between its intervals; the jerk-limited one only by round-off."""
     planner = Planner(LIMITS)
-    topp, jl = planner.plan(WAYPOINTS).trajectory, planner.plan(WAYPOINTS, max_jerk=10 * LIMITS.acceleration).trajectory
+    topp, jl = (
+        planner.plan(PlanInput(WAYPOINTS)).trajectory,
+        planner.plan(PlanInput(WAYPOINTS, max_jerk=10 * LIMITS.acceleration)).trajectory,
+    )
     assert topp is not None and isinstance(jl, JerkTrajectory)
     assert np.max(topp.acceleration_jumps()[1] / LIMITS.acceleration) > 0.5
     assert np.max(jl.acceleration_jumps()[1] / LIMITS.acceleration) < 1e-6
@@ -84,13 +87,13 @@ def test_a_lower_jerk_limit_is_slower_and_one_joint_may_go_unlimited() -> None:
     planner = Planner(LIMITS)
     durations = []
     for factor in (20.0, 5.0, 2.0):
-        out = planner.plan(WAYPOINTS, max_jerk=factor * LIMITS.acceleration)
+        out = planner.plan(PlanInput(WAYPOINTS, max_jerk=factor * LIMITS.acceleration))
         assert out.ok and out.trajectory is not None
         durations.append(out.trajectory.duration)
     assert durations[0] < durations[1] < durations[2]
     only_last = np.full(LIMITS.dof, math.inf)
     only_last[5] = 2.0 * LIMITS.acceleration[5]
-    out = planner.plan(WAYPOINTS, max_jerk=only_last)
+    out = planner.plan(PlanInput(WAYPOINTS, max_jerk=only_last))
     assert out.ok and isinstance(out.trajectory, JerkTrajectory)
     t = out.trajectory.check_times(64)
     assert np.max(np.abs(out.trajectory.jerk(t)[:, 5])) <= only_last[5] * 1.001
@@ -101,15 +104,15 @@ def test_a_lower_jerk_limit_is_slower_and_one_joint_may_go_unlimited() -> None:
 def test_the_cells_jerk_limit_applies_and_a_requests_replaces_it() -> None:
     cell_jerk = 3.0 * LIMITS.acceleration
     planner = Planner(LIMITS, max_jerk=cell_jerk)
-    by_cell = planner.plan(WAYPOINTS)
+    by_cell = planner.plan(PlanInput(WAYPOINTS))
     assert isinstance(by_cell.trajectory, JerkTrajectory)
     assert by_cell.details["max_jerk"] == pytest.approx(list(cell_jerk))
-    by_request = planner.plan(WAYPOINTS, max_jerk=30.0 * LIMITS.acceleration)
+    by_request = planner.plan(PlanInput(WAYPOINTS, max_jerk=30.0 * LIMITS.acceleration))
     assert isinstance(by_request.trajectory, JerkTrajectory)
     assert by_request.trajectory.duration < by_cell.trajectory.duration
-    unlimited = planner.plan(WAYPOINTS, max_jerk=[math.inf] * LIMITS.dof)  # no joint limited: TOPP-RA
+    unlimited = planner.plan(PlanInput(WAYPOINTS, max_jerk=[math.inf] * LIMITS.dof))  # no joint limited: TOPP-RA
     assert unlimited.ok and not isinstance(unlimited.trajectory, JerkTrajectory)
-    assert Planner(LIMITS).plan(WAYPOINTS).trajectory.duration == unlimited.trajectory.duration
+    assert Planner(LIMITS).plan(PlanInput(WAYPOINTS)).trajectory.duration == unlimited.trajectory.duration
 
 
 @pytest.mark.parametrize(
@@ -127,7 +130,7 @@ def test_the_cells_jerk_limit_applies_and_a_requests_replaces_it() -> None:
     ],
 )
 def test_a_bad_jerk_limit_is_refused_naming_the_field_and_nothing_is_planned(value: object, words: str) -> None:
-    out = plan(PlanInput(WAYPOINTS, LIMITS, max_jerk=value))  # type: ignore[arg-type]
+    out = Planner(LIMITS).plan(PlanInput(WAYPOINTS, max_jerk=value))  # type: ignore[arg-type]
     assert not out.ok and out.trajectory is None
     assert out.result.value == "invalid_input"
     assert words in out.message
@@ -146,7 +149,7 @@ def two_iterations(monkeypatch: pytest.MonkeyPatch):
 
 
 def test_a_program_the_solvers_do_not_solve_is_infeasible_with_their_status(two_iterations: None) -> None:
-    out = Planner(LIMITS).plan(WAYPOINTS, max_jerk=10.0 * LIMITS.acceleration)
+    out = Planner(LIMITS).plan(PlanInput(WAYPOINTS, max_jerk=10.0 * LIMITS.acceleration))
     assert not out.ok and out.trajectory is None
     assert out.result.value == "infeasible"
     assert "fatrop:" in out.message and "ipopt: Maximum_Iterations_Exceeded" in out.message
@@ -157,7 +160,7 @@ def test_a_tiny_jerk_limit_is_met_slowly_not_broken() -> None:
     """A limit a million times below the acceleration limit per second: a long motion within it
     (the start is slowed down towards it, the solvers do not get lost in restoration)."""
     max_jerk = 1e-4 * LIMITS.acceleration
-    out = Planner(LIMITS).plan(WAYPOINTS[:2], max_jerk=max_jerk)
+    out = Planner(LIMITS).plan(PlanInput(WAYPOINTS[:2], max_jerk=max_jerk))
     assert out.ok and isinstance(out.trajectory, JerkTrajectory), out.message
     rv, ra, rj = dense_ratios(out.trajectory, max_jerk)
     assert rv <= 1.0 + 1e-9 and ra <= 1.0 + 1e-9 and rj <= 1.001

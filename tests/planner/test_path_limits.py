@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from planner.limits import JointLimits
 from planner.path import MIN_WAYPOINT_DISTANCE, JointPath, PlanResult
-from planner.plan import Planner
+from planner.plan import PlanInput, Planner
 from service.config import CONFIG_DIR, load_cell_config
 
 CELLS = {name: load_cell_config(CONFIG_DIR / "cells" / f"{name}.yaml").joint_limits() for name in ("arm6", "gantry3")}
@@ -48,7 +48,7 @@ def test_any_waypoints_inside_the_limits_are_planned_inside_them(cell: str) -> N
     @given(waypoints=waypoints_in(limits), scale=st.sampled_from([1.0, 1.0, 0.5, 0.3]))
     def check(waypoints: np.ndarray, scale: float) -> None:
         assume(np.all(np.linalg.norm(np.diff(waypoints, axis=0), axis=1) >= MIN_WAYPOINT_DISTANCE))
-        out = PLANNERS[cell].plan(waypoints, scale, scale)
+        out = PLANNERS[cell].plan(PlanInput(waypoints, velocity_scale=scale, acceleration_scale=scale))
         assert out.ok, f"{out.result.value}: {out.message}"
         tr = out.trajectory
         assert tr is not None
@@ -100,7 +100,7 @@ def test_a_swing_past_the_limit_is_clamped_c1_at_the_waypoints() -> None:
     derivative jumps only at the kinks it reports."""
     limits = CELLS["arm6"]
     w = np.array([[2.5, 0, 0, 0, 0, 0], [2.85, 0.2, 0, 0, 0, 0], [-2.0, 0.4, 0, 0, 0, 0]])
-    out = PLANNERS["arm6"].plan(w)
+    out = PLANNERS["arm6"].plan(PlanInput(w))
     assert out.ok, out.message
     path = out.trajectory.path
     assert path.clamped[:, 0].any() and not path.clamped[:, 2:].any()

@@ -9,7 +9,7 @@ import pytest
 
 from planner.limits import JointLimits
 from planner.path import PlanResult
-from planner.plan import PlanInput, Planner, plan
+from planner.plan import PlanInput, Planner
 from service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
@@ -29,7 +29,7 @@ def dense_times(duration: float, n: int = 4001) -> np.ndarray:
 
 @pytest.mark.parametrize("waypoints", random_paths(ARM_LIMITS, 4, seed=7))
 def test_trajectory_respects_limits_and_passes_waypoints(waypoints: np.ndarray) -> None:
-    out = Planner(ARM_LIMITS).plan(waypoints)
+    out = Planner(ARM_LIMITS).plan(PlanInput(waypoints))
     assert out.ok, out.message
     tr = out.trajectory
     assert tr is not None
@@ -55,7 +55,7 @@ def test_duration_within_one_percent_of_the_fine_reference() -> None:
     reference = Planner(ARM_LIMITS, gridpoints=3000)
     ratios = []
     for w in random_paths(ARM_LIMITS, 6, seed=2026):
-        ratios.append(fast.plan(w).trajectory.duration / reference.plan(w).trajectory.duration)
+        ratios.append(fast.plan(PlanInput(w)).trajectory.duration / reference.plan(PlanInput(w)).trajectory.duration)
     assert max(ratios) <= 1.01, ratios
     assert min(ratios) >= 0.995, ratios  # not faster than the converged optimum: no limit cheating
 
@@ -64,7 +64,7 @@ def test_single_axis_move_matches_the_closed_form() -> None:
     """A straight gantry move along X is a trapezoid: T = d / v + v / a."""
     lim = GANTRY.joint_limits()
     start, goal = np.array([0.1, 0.4, -0.1]), np.array([1.1, 0.4, -0.1])
-    tr = Planner(lim).plan([start, goal]).trajectory
+    tr = Planner(lim).plan(PlanInput([start, goal])).trajectory
     v, a = lim.velocity[0], lim.acceleration[0]
     expected = 1.0 / v + v / a
     assert tr.duration == pytest.approx(expected, rel=0.01)
@@ -81,8 +81,8 @@ def test_torque_limits_bind_through_rnea() -> None:
         ARM_LIMITS.effort * np.array([0.25, 0.34, 0.25, 1, 1, 1]),
     )
     w = np.array([[0.0, -1.0, 1.2, 0, 0, 0], [1.5, 0.8, -0.6, 0, 0, 0]])
-    free = Planner(weak, ARM.model).plan(w).trajectory
-    out = Planner(weak, ARM.model, torque_limits=True).plan(w)
+    free = Planner(weak, ARM.model).plan(PlanInput(w)).trajectory
+    out = Planner(weak, ARM.model, torque_limits=True).plan(PlanInput(w))
     assert out.ok, out.message
     tr = out.trajectory
     assert tr.duration > 1.02 * free.duration  # the torque limit changed the plan
@@ -100,7 +100,7 @@ def test_torque_limits_bind_through_rnea() -> None:
 
 def test_tcp_speed_limit() -> None:
     w = np.array([[-1.2, -0.3, 0.5, 0.2, -0.4, 0.0], [1.2, 0.4, -0.6, -0.2, 0.4, 1.0]])
-    out = Planner(ARM_LIMITS, ARM.model, "tool0", max_tcp_speed=0.5).plan(w)
+    out = Planner(ARM_LIMITS, ARM.model, "tool0", max_tcp_speed=0.5).plan(PlanInput(w))
     assert out.ok, out.message
     tr = out.trajectory
     t = dense_times(tr.duration, 801)
@@ -131,7 +131,7 @@ def test_tcp_speed_limit() -> None:
     ],
 )
 def test_bad_input_gives_a_clear_result(waypoints: object, result: PlanResult, fragment: str) -> None:
-    out = plan(PlanInput(waypoints, ARM_LIMITS))
+    out = Planner(ARM_LIMITS).plan(PlanInput(waypoints))
     assert out.result is result
     assert fragment in out.message, out.message
     assert out.trajectory is None
@@ -146,12 +146,13 @@ def test_infeasible_when_gravity_exceeds_the_effort_limit() -> None:
         ARM_LIMITS.acceleration,
         np.full(6, 1.0),
     )
-    out = plan(PlanInput([[0.0, 0.5, 0, 0, 0, 0], [0.5, 0.5, 0, 0, 0, 0]], tiny, ARM.model, torque_limits=True))
+    out = Planner(tiny, ARM.model, torque_limits=True).plan(PlanInput([[0.0, 0.5, 0, 0, 0, 0], [0.5, 0.5, 0, 0, 0, 0]]))
     assert out.result is PlanResult.INFEASIBLE
     assert "satisfies the limits" in out.message
 
 
 def test_bad_planner_settings() -> None:
-    assert plan(PlanInput([[0] * 6, [0.1] * 6], ARM_LIMITS, gridpoints=1)).result is PlanResult.INVALID_INPUT
-    out = plan(PlanInput([[0] * 6, [0.1] * 6], ARM_LIMITS, ARM.model, "tool0", max_tcp_speed=-1.0))
-    assert out.result is PlanResult.INVALID_INPUT and "max_tcp_speed" in out.message
+    with pytest.raises(ValueError, match="gridpoints"):
+        Planner(ARM_LIMITS, gridpoints=1)
+    with pytest.raises(ValueError, match="max_tcp_speed"):
+        Planner(ARM_LIMITS, ARM.model, "tool0", max_tcp_speed=-1.0)

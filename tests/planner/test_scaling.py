@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from axes.interpolation import exceeds
-from planner.plan import PlanInput, Planner, plan
+from planner.plan import PlanInput, Planner
 from planner.validate import validate_program
+from service.cell_planner import CellPlanner
 from service.config import CONFIG_DIR, load_cell_config
-from service.plan_cmd import CellPlanner
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
 GANTRY = load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml")
@@ -27,7 +27,7 @@ WAYPOINTS = np.array([[0.0] * 6, [0.6, -0.4, 0.5, 0.3, -0.3, 0.8], [-0.3, 0.2, -
 @pytest.mark.parametrize("field", ["velocity_scale", "acceleration_scale"])
 @pytest.mark.parametrize("value", [0.0, -0.5, 1.0001, 2, math.nan, math.inf, "0.5", None, True])
 def test_a_scale_outside_0_1_is_refused_naming_the_field(field: str, value: object) -> None:
-    out = plan(PlanInput(WAYPOINTS, LIMITS, **{field: value}))  # type: ignore[arg-type]
+    out = Planner(LIMITS).plan(PlanInput(WAYPOINTS, **{field: value}))  # type: ignore[arg-type]
     assert not out.ok and out.trajectory is None
     assert out.result.value == "invalid_input"
     assert out.message.startswith(f"{field} must be") and "(0, 1]" in out.message
@@ -36,12 +36,15 @@ def test_a_scale_outside_0_1_is_refused_naming_the_field(field: str, value: obje
 
 def test_scale_1_is_the_unscaled_plan_and_a_smaller_one_is_slower_and_inside_the_scaled_limits() -> None:
     planner = Planner(LIMITS)
-    full = planner.plan(WAYPOINTS).trajectory
+    full = planner.plan(PlanInput(WAYPOINTS)).trajectory
     assert full is not None
-    assert planner.plan(WAYPOINTS, 1.0, 1.0).trajectory.duration == full.duration
+    assert (
+        planner.plan(PlanInput(WAYPOINTS, velocity_scale=1.0, acceleration_scale=1.0)).trajectory.duration
+        == full.duration
+    )
     previous = full.duration
     for vs, acc in ((1.0, 0.5), (0.5, 1.0), (0.5, 0.5), (0.1, 0.25)):
-        tr = planner.plan(WAYPOINTS, vs, acc).trajectory
+        tr = planner.plan(PlanInput(WAYPOINTS, velocity_scale=vs, acceleration_scale=acc)).trajectory
         assert tr is not None
         t = np.concatenate((np.linspace(0.0, tr.duration, 4001), tr.check_times()))
         assert np.abs(tr.velocity(t)).max(axis=0).max() > 0
@@ -55,7 +58,7 @@ def test_scale_1_is_the_unscaled_plan_and_a_smaller_one_is_slower_and_inside_the
         previous = tr.duration
     # a pure velocity scale on a motion that is velocity-bound everywhere would take 1/vs as long;
     # here it takes longer than the full plan and at most twice as long
-    half = planner.plan(WAYPOINTS, 0.5, 1.0).trajectory
+    half = planner.plan(PlanInput(WAYPOINTS, velocity_scale=0.5, acceleration_scale=1.0)).trajectory
     assert full.duration < half.duration <= 2.0 * full.duration * (1 + 1e-6)
 
 

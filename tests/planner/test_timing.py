@@ -10,7 +10,7 @@ import toppra.constraint as constraint
 
 from planner.limits import JointLimits
 from planner.path import JointPath, PlanError
-from planner.plan import Planner
+from planner.plan import PlanInput, Planner
 from planner.timing import (
     DEFAULT_GRIDPOINTS,
     LeanTOPPRA,
@@ -79,7 +79,7 @@ def test_lower_bound_lp_still_solved_where_rest_is_not_allowed() -> None:
 
 def test_states_equal_position_and_velocity() -> None:
     """The one-pass sampling (rows per joint) is the path's own spline at s(t), times s'(t)."""
-    tr = Planner(LIMITS, ARM.model, "tool0", 2.0, torque_limits=True).plan(WAYPOINTS).trajectory
+    tr = Planner(LIMITS, ARM.model, "tool0", 2.0, torque_limits=True).plan(PlanInput(WAYPOINTS)).trajectory
     assert tr is not None
     t = np.concatenate((np.linspace(-0.1, tr.duration + 0.1, 1001), tr.breakpoints))
     q, qd = tr.states(t)
@@ -99,7 +99,7 @@ def test_states_equal_position_and_velocity() -> None:
 
 
 def test_acceleration_jumps_are_the_switches_of_the_profile() -> None:
-    tr = Planner(LIMITS, ARM.model, "tool0", 2.0).plan(WAYPOINTS).trajectory
+    tr = Planner(LIMITS, ARM.model, "tool0", 2.0).plan(PlanInput(WAYPOINTS)).trajectory
     assert tr is not None
     times, jumps = tr.acceleration_jumps()
     np.testing.assert_array_equal(times, tr.breakpoints[1:-1])
@@ -111,7 +111,7 @@ def test_acceleration_jumps_are_the_switches_of_the_profile() -> None:
 
 @pytest.mark.parametrize("max_speed", [0.5, 2.0])
 def test_cell_plan_holds_torque_at_the_gridpoints_and_tcp_speed(max_speed: float) -> None:
-    tr = Planner(LIMITS, ARM.model, "tool0", max_speed, torque_limits=True).plan(WAYPOINTS).trajectory
+    tr = Planner(LIMITS, ARM.model, "tool0", max_speed, torque_limits=True).plan(PlanInput(WAYPOINTS)).trajectory
     assert tr is not None
     t = tr.breakpoints
     tau = ARM.model.inverse_dynamics_rows(tr.position(t), tr.velocity(t), tr.acceleration(t))
@@ -149,7 +149,7 @@ def test_limit_ratios_are_the_paths_own_derivatives() -> None:
     """The compiled post-check gives what the path's own derivatives say: |qd| and |qdd| at every
     check time and at their peaks inside every grid interval (at least the check times' worst, at
     most a dense sampling's, within the sampling's error)."""
-    tr = Planner(LIMITS, ARM.model, "tool0", 2.0).plan(WAYPOINTS).trajectory
+    tr = Planner(LIMITS, ARM.model, "tool0", 2.0).plan(PlanInput(WAYPOINTS)).trajectory
     assert tr is not None
 
     def ratios(t: np.ndarray) -> tuple[float, float]:

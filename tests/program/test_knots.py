@@ -15,10 +15,10 @@ from axes.scaling import AxisScaling, DriveLimits
 from planner.build import build_program
 from planner.knots import DriveAxis, KnotOptions, place_knots
 from planner.limits import joint_limits_from_drives
-from planner.plan import PlanInput, plan
+from planner.plan import PlanInput, Planner
 from planner.validate import validate_program
+from service.cell_planner import planner_for_cell
 from service.config import load_cell_config
-from service.plan_cmd import plan_input_for_cell
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +48,7 @@ def _deviation_qc(program, trajectory, axes, time_scale: float) -> np.ndarray:
 def test_arm6_program_is_valid_close_and_sparse(arm6) -> None:
     cell, axes = arm6
     wp = _random_waypoints(cell, np.random.default_rng(4), 5)
-    out = plan(plan_input_for_cell(cell, wp))
+    out = planner_for_cell(cell).plan(PlanInput(wp))
     assert out.ok, out.message
     built = build_program(out.trajectory, axes, cell.name)
     report = validate_program(built.program)
@@ -71,8 +71,8 @@ def test_arm6_program_is_valid_close_and_sparse(arm6) -> None:
 def test_duration_close_to_the_fine_reference(arm6) -> None:
     cell, axes = arm6
     wp = _random_waypoints(cell, np.random.default_rng(8), 4)
-    out = plan(plan_input_for_cell(cell, wp))
-    ref = plan(plan_input_for_cell(cell, wp, gridpoints=3000))
+    out = planner_for_cell(cell).plan(PlanInput(wp))
+    ref = planner_for_cell(cell, 3000).plan(PlanInput(wp))
     built = build_program(out.trajectory, axes, cell.name)
     # the knots add at most the whole-ms rounding and a small slow-down to the planned duration
     assert built.program.duration_ms / 1000.0 <= out.trajectory.duration * built.knots.time_scale + 0.0025
@@ -83,7 +83,7 @@ def test_naive_sampling_overshoots_but_placed_knots_do_not(arm6) -> None:
     """The issue's premise: a uniform 10 ms grid of exact samples violates 0x60C5 on the EPOS2."""
     cell, axes = arm6
     wp = _random_waypoints(cell, np.random.default_rng(1), 3)
-    traj = plan(plan_input_for_cell(cell, wp)).trajectory
+    traj = planner_for_cell(cell).plan(PlanInput(wp)).trajectory
     worst = 0.0
     t_ms = np.arange(0, math.floor(traj.duration * 1000) + 1, 10.0)
     q, qd = traj.position(t_ms / 1000), traj.velocity(t_ms / 1000)
@@ -107,7 +107,7 @@ def test_naive_sampling_overshoots_but_placed_knots_do_not(arm6) -> None:
 def test_random_plans_always_validate(arm6, seed: int, n: int) -> None:
     cell, axes = arm6
     wp = _random_waypoints(cell, np.random.default_rng(seed), n)
-    out = plan(plan_input_for_cell(cell, wp))
+    out = planner_for_cell(cell).plan(PlanInput(wp))
     if not out.ok:  # the planner may refuse a path (e.g. out of limits): not this test's subject
         return
     built = build_program(out.trajectory, axes, cell.name)
@@ -132,7 +132,7 @@ def test_fixed_period_profiles_one_record_per_period() -> None:
     axes = _fixed_period_axes()
     limits = joint_limits_from_drives([a.name for a in axes], [a.scaling for a in axes], [a.limits for a in axes])
     wp = np.array([[0.01] * 5, [0.4, 0.3, 0.2, 0.25, 0.35], [0.1, 0.45, 0.05, 0.3, 0.2]])
-    traj = plan(PlanInput(wp, limits)).trajectory
+    traj = Planner(limits).plan(PlanInput(wp)).trajectory
     built = build_program(traj, axes, "mixed")
     report = validate_program(built.program)
     assert report.ok, report.format_text()
@@ -153,7 +153,7 @@ def test_linear_drive_below_one_count_per_period_squared_plans_within_its_accele
     lim = DriveLimits(3000, 5000, -(10**6), 10**6)  # 5000 rpm/s = 0.042 qc/ms^2 at 500 qc/rev
     axes = [DriveAxis("j", 1, "cia402_ip_linear", s, lim, period_ms=1)]
     limits = joint_limits_from_drives(["j"], [s], [lim])
-    traj = plan(PlanInput(np.array([[0.0], [3.0]]), limits)).trajectory
+    traj = Planner(limits).plan(PlanInput(np.array([[0.0], [3.0]]))).trajectory
     result = place_knots(traj, axes, KnotOptions(max_time_scale=1.05))
     records = result.axes[0].records
     recon = linear(records, 1.0)
@@ -182,7 +182,7 @@ def test_short_moves_are_executable(arm6, step: float) -> None:
     cell, axes = arm6
     lim = cell.joint_limits()
     mid = 0.5 * (lim.lower + lim.upper)
-    out = plan(plan_input_for_cell(cell, np.array([mid, mid + step])))
+    out = planner_for_cell(cell).plan(PlanInput(np.array([mid, mid + step])))
     assert out.ok, out.message
     built = build_program(out.trajectory, axes, cell.name)
     assert validate_program(built.program).ok

@@ -23,9 +23,9 @@ from planner.knots.flat import Flat, within_record_time
 from planner.knots.quantize import round_knots
 from planner.knots.refine import lsq_fit, switch_knots
 from planner.knots.samples import sample_trajectory
-from planner.plan import plan
+from planner.plan import PlanInput
+from service.cell_planner import planner_for_cell
 from service.config import load_cell_config
-from service.plan_cmd import plan_input_for_cell
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +35,7 @@ def arm6_plan():
     lim = cell.joint_limits()
     rng = np.random.default_rng(11)
     wp = lim.lower + (lim.upper - lim.lower) * (0.15 + 0.7 * rng.random((4, lim.dof)))
-    out = plan(plan_input_for_cell(cell, wp))
+    out = planner_for_cell(cell).plan(PlanInput(wp))
     assert out.ok, out.message
     smp = sample_trajectory(out.trajectory, axes, 1.0)
     return cell, axes, out.trajectory, smp

@@ -7,8 +7,8 @@ import numpy as np
 from axes.program import TIME_MAX_MS
 from planner.knots.flat import within_record_time
 from planner.validate import validate_program
+from service.cell_planner import plan_cell_program
 from service.config import load_cell_config
-from service.plan_cmd import plan_cell_program
 
 # an arm6 path whose knot hints once held a segment longer than 255 ms (IndexError in the fit)
 LONG_SEGMENT_PATH = [

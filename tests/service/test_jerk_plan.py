@@ -16,12 +16,12 @@ from axes.program import PvtProgram
 from planner.cartesian import placement_pose
 from planner.ik import IkSolver
 from planner.jerk import JerkTrajectory
-from planner.plan import Planner
+from planner.plan import PlanInput, Planner
 from planner.validate import validate_program
 from service.api import ApiError, ErrorCode, parse_plan
+from service.cell_planner import CellPlanner
 from service.cli import main
 from service.config import CONFIG_DIR, ConfigError, load_cell_config
-from service.plan_cmd import CellPlanner
 
 ARM = CONFIG_DIR / "cells" / "arm6.yaml"
 CELL = load_cell_config(ARM)
@@ -143,8 +143,8 @@ def test_a_jerk_limited_linear_tool_move_holds_the_tcp_speeds() -> None:
     target = placement_pose(IkSolver(CELL.model, "tool0", LIMITS.lower, LIMITS.upper).fk(q1))
     target[:3] += (-0.25, 0.0, 0.15)
     jerk = 10.0 * LIMITS.acceleration
-    topp = planner.plan_poses(q1, [target], "linear")
-    out = planner.plan_poses(q1, [target], "linear", max_jerk=jerk)
+    topp = planner.plan(PlanInput(q1, [target], "linear"))
+    out = planner.plan(PlanInput(q1, [target], "linear", max_jerk=jerk))
     assert out.ok and topp.ok and isinstance(out.trajectory, JerkTrajectory), out.message
     traj = out.trajectory
     t = traj.check_times(64)

@@ -20,7 +20,7 @@ from service.api import (
     parse_payload,
     parse_plan,
 )
-from service.plan_cmd import CellPlanner, plan_cell_program
+from service.cell_planner import CellPlanner, plan_cell_program
 
 DOF = 6
 ROW = [0.1, -0.2, 0.3, -0.1, 0.2, 0.0]

@@ -145,8 +145,8 @@ def test_a_linear_move_runs_on_the_simulated_arm_and_ends_on_the_pose(arm6, serv
 
 def test_the_planning_process_plans_poses_like_the_service_s_own_planner(arm6, tmp_path) -> None:
     from service.api import PlanRequest
+    from service.cell_planner import CellPlanner
     from service.motion import MotionService
-    from service.plan_cmd import CellPlanner
     from service.planning import PlanningProcess
 
     req = parse_plan({"poses": [POSE], "start": Q1, "include_program": True}, NAMES, LIMITS)

@@ -1,0 +1,200 @@
+"""The planning pipeline of one cell: waypoints (or tool poses) -> trajectory -> knots -> a
+validated PVT program for the cell's drives.
+
+:class:`CellPlanner` is built once per cell (the service keeps one; ``service/planning.py`` runs it
+in a child process); :func:`plan_cell_program` is a one-off call of it (``pvtflow plan``). The
+service and the command line both import it from here.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from axes.program import PvtProgram
+from planner.build import BuildError, BuildOutput, build_program
+from planner.cartesian import placement_pose
+from planner.knots import DriveAxis, KnotOptions
+from planner.path import PlanResult
+from planner.plan import PlanInput, Planner, PlanOutput
+from service.config import CellConfig
+
+
+@dataclass(frozen=True)
+class CellPlan:
+    """The outcome of planning on a cell: a program, or the reason (``code``, ``message``)."""
+
+    code: str  # "ok", a planner.plan.PlanOutcome value, or "program_error"
+    message: str = ""
+    program: PvtProgram | None = None
+    plan: PlanOutput | None = None
+    build: BuildOutput | None = None
+    timing: dict[str, float] = field(default_factory=dict)  # s: plan (ik: its inverse kinematics), knots, total
+    waypoints: NDArray[np.float64] | None = None  # the joint waypoints planned through (poses: the IK samples)
+    details: dict[str, Any] = field(default_factory=dict)  # where it failed (PlanError details)
+
+    @property
+    def ok(self) -> bool:
+        return self.program is not None
+
+
+def planner_for_cell(cell: CellConfig, gridpoints: int | None = None) -> Planner:
+    """The cell's Planner: its joint limits, robot model and planning options (ValueError where the
+    planner refuses an option)."""
+    return Planner(
+        cell.joint_limits(),
+        cell.model,
+        cell.planning.tcp_frame,
+        cell.planning.max_tcp_speed,
+        cell.planning.torque_limits,
+        gridpoints,
+        cell.planning.max_tcp_angular_speed,
+        cell.planning.max_jerk,
+    )
+
+
+class CellPlanner:
+    """The planning pipeline of one cell, built once: its Planner (toppra constraints), drive axes
+    and default tolerance. A service keeps one per cell, so a request pays for planning only.
+
+    Not for concurrent use: the Planner's constraint objects are shared between calls (the service
+    plans on one worker thread).
+    """
+
+    def __init__(self, cell: CellConfig, gridpoints: int | None = None) -> None:
+        self.cell = cell
+        self.limits = cell.joint_limits()
+        self.axes = tuple(DriveAxis.from_config(a) for a in cell.ordered_axes())
+        self.tolerance_qc = cell.planning.position_tolerance_qc
+        self.planner: Planner | None = None
+        self.setup_error = ""
+        try:
+            self.planner = planner_for_cell(cell, gridpoints)
+        except ValueError as exc:  # a planning option the planner refuses: every plan says so
+            self.setup_error = str(exc)
+
+    def warm_up(self, jerk: bool | None = None) -> None:
+        """Plan a short move in the middle of the joint ranges and drop it.
+
+        The first plan of a process loads the planner's compiled loops (numba's cache; on a new
+        machine it compiles them first, some seconds, once). A service pays that at start, not
+        with its first request. ``jerk`` (default: where the cell sets a jerk limit): the same move
+        jerk-limited too, which loads casadi and builds its program for a short path (0.2-0.3 s).
+        """
+        if self.planner is None:
+            return
+        lo, hi = self.limits.lower, self.limits.upper
+        a, b = lo + 0.45 * (hi - lo), lo + 0.55 * (hi - lo)
+        self.plan(np.array([a, b]))
+        if jerk or (jerk is None and self.planner.max_jerk is not None):
+            self.plan(np.array([a, b]), max_jerk=10.0 * self.limits.acceleration)
+        if self.planner.poses is not None:  # and the inverse kinematics' compiled steps
+            self.plan_poses(a, [placement_pose(self.planner.poses.ik.fk(b))])
+
+    def plan(
+        self,
+        waypoints: ArrayLike,
+        tolerance_qc: float | None = None,
+        metadata: dict[str, Any] | None = None,
+        velocity_scale: float = 1.0,
+        acceleration_scale: float = 1.0,
+        max_jerk: ArrayLike | None = None,
+    ) -> CellPlan:
+        """Waypoints (N, dof, the cell's joint order) -> a validated PVT program for the cell's drives.
+
+        ``velocity_scale``, ``acceleration_scale`` (0, 1]: the speed override, for the plan and for
+        the knots (``build_program``); recorded in the program's metadata. ``max_jerk`` (one per
+        joint, joint units / s^3): the jerk limit of this plan instead of the cell's; the one held is
+        recorded in the metadata (``max_jerk``, null for a joint without one).
+
+        ``timing`` (s): ``plan`` the timing (with a jerk limit, ``topp`` and ``jerk`` its two parts), ``knots``
+        knot placement + validation, ``total``, and
+        ``cpu`` the CPU time of this thread over the whole call (``total - cpu``: time the thread
+        waited for the CPU or the GIL).
+        """
+        start, cpu = time.perf_counter(), time.thread_time()
+        if self.planner is None:
+            return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
+        out = self.planner.plan(
+            PlanInput(
+                waypoints, None, velocity_scale=velocity_scale, acceleration_scale=acceleration_scale, max_jerk=max_jerk
+            )
+        )
+        return self._build(out, start, cpu, tolerance_qc, metadata, velocity_scale, acceleration_scale)
+
+    def plan_poses(
+        self,
+        start_joints: ArrayLike,
+        poses: ArrayLike,
+        motion: str = "linear",
+        tolerance_qc: float | None = None,
+        metadata: dict[str, Any] | None = None,
+        velocity_scale: float = 1.0,
+        acceleration_scale: float = 1.0,
+        max_jerk: ArrayLike | None = None,
+    ) -> CellPlan:
+        """Tool poses (N, 7) from joint positions ``start_joints`` -> a validated PVT program, like
+        ``plan`` (``timing["ik"]``: the inverse kinematics' part of ``plan``)."""
+        start, cpu = time.perf_counter(), time.thread_time()
+        if self.planner is None:
+            return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
+        out = self.planner.plan(PlanInput(start_joints, poses, motion, velocity_scale, acceleration_scale, max_jerk))
+        extra = {"motion": motion}
+        return self._build(out, start, cpu, tolerance_qc, metadata, velocity_scale, acceleration_scale, extra)
+
+    def _build(
+        self,
+        out: PlanOutput,
+        start: float,
+        cpu: float,
+        tolerance_qc: float | None,
+        metadata: dict[str, Any] | None,
+        velocity_scale: float = 1.0,
+        acceleration_scale: float = 1.0,
+        extra: dict[str, Any] | None = None,
+    ) -> CellPlan:
+        """The program of a planned trajectory (or the planner's refusal as a CellPlan)."""
+        t_plan = time.perf_counter() - start
+        timing = {"plan": t_plan}
+        for key, name in (("ik_s", "ik"), ("topp_s", "topp"), ("jerk_s", "jerk")):
+            if key in out.details:
+                timing[name] = float(out.details[key])  # type: ignore[arg-type]
+        if not out.ok or out.trajectory is None:
+            return CellPlan(out.result.value, out.message, None, out, None, timing, details=dict(out.details))
+        points = out.trajectory.path.points
+        tol = self.tolerance_qc if tolerance_qc is None else tolerance_qc
+        meta = {**(extra or {}), **(metadata or {})}
+        if "max_jerk" in out.details:
+            meta["max_jerk"] = out.details["max_jerk"]
+        try:
+            built = build_program(
+                out.trajectory,
+                self.axes,
+                self.cell.name,
+                KnotOptions(tolerance_qc=tol),
+                meta,
+                float(velocity_scale),
+                float(acceleration_scale),
+            )
+        except (BuildError, ValueError) as exc:
+            return CellPlan("program_error", str(exc), None, out, None, timing, points)
+        total = time.perf_counter() - start
+        timing.update({"knots": total - t_plan, "total": total, "cpu": time.thread_time() - cpu})
+        return CellPlan("ok", "", built.program, out, built, timing, points)
+
+
+def plan_cell_program(
+    cell: CellConfig,
+    waypoints: ArrayLike,
+    tolerance_qc: float | None = None,
+    metadata: dict[str, Any] | None = None,
+    velocity_scale: float = 1.0,
+    acceleration_scale: float = 1.0,
+    max_jerk: ArrayLike | None = None,
+) -> CellPlan:
+    """One-off planning on ``cell`` (the CLI): a CellPlanner built for this call."""
+    return CellPlanner(cell).plan(waypoints, tolerance_qc, metadata, velocity_scale, acceleration_scale, max_jerk)
