@@ -45,6 +45,7 @@ from axes.program import ProgramFormatError, PvtProgram, program_mismatch
 from planner.validate import validate_program
 from service.api import (
     ApiError,
+    CellState,
     ErrorCode,
     ExecuteRequest,
     HomeRequest,
@@ -74,16 +75,6 @@ class ServiceEventKind(StrEnum):
     MOTION_ENDED = "motion_ended"
     JOURNAL_ERROR = "journal_error"
     HOMING_ENDED = "homing_ended"  # with its outcome (the homing's steps: axes.homing.HomingEventKind)
-
-
-class CellState(StrEnum):
-    """The cell as the service reports it (``state`` publication, ``status``)."""
-
-    IDLE = "idle"
-    MOVING = "moving"
-    STOPPING = "stopping"
-    FAULT = "fault"
-    HOMING = "homing"
 
 
 HOMING_FAULTS = frozenset(

@@ -15,11 +15,10 @@ from service.api import (
     MAX_TEXT,
     MAX_WAYPOINTS,
     ApiError,
-    _plain_plan,
-    _validator,
     parse_payload,
     parse_plan,
 )
+from service.api.schemas import _plain_plan, _validator
 from service.cell_planner import CellPlanner, plan_cell_program
 
 DOF = 6

@@ -1,222 +1,30 @@
-"""The zenoh API of one cell: key expressions, request/reply payloads, JSON Schemas, error codes.
-
-Every payload is JSON. A request is checked in this order, and the first problem found is the
-answer (a :class:`ApiError`, sent with ``reply_err``): size (``too_large``), JSON syntax
-(``malformed_json``), the request's JSON Schema (``invalid_request``, ``wrong_joint_count``,
-``too_large``), then the values (``not_finite``, ``unknown_joint``, ``out_of_limits``). Only a
-request that passes all of them reaches the planner or the drives, so a bad request changes nothing.
-
-The schemas below are the one description of the payloads: the service validates with them,
-docs/API.md prints them, and the tests check every reply against them.
-"""
+"""The JSON Schemas of every request, reply and publication: the one description of the payloads
+(the service validates with them, docs/API.md prints them, the tests check every reply against them)."""
 
 from __future__ import annotations
 
 import json
-import math
-import re
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from enum import StrEnum
+from collections.abc import Sequence
 from functools import cache
 from typing import Any
 
-import numpy as np
 from jsonschema import Draft202012Validator
 from jsonschema.exceptions import ValidationError
-from numpy.typing import NDArray
 
-from planner.cartesian import POSE_LENGTH, QUATERNION_TOLERANCE, Motion, check_poses
-from planner.limits import JointLimits, check_max_jerk, check_scale
-from planner.path import PlanError
+from planner.cartesian import POSE_LENGTH, QUATERNION_TOLERANCE, Motion
+from service.api.wire import (
+    ID_PATTERN,
+    MAX_RECENT,
+    MAX_TEXT,
+    MAX_WAYPOINTS,
+    PUBLICATIONS,
+    QUERYABLES,
+    ApiError,
+    CellState,
+    ErrorCode,
+    _short,
+)
 
-API_VERSION = 1
-PREFIX = "pvtflow"
-QUERYABLES = ("plan", "validate", "execute", "stop", "status", "recover", "home")
-PUBLICATIONS = ("state", "telemetry", "events")
-LIVELINESS = "alive"
-
-MAX_REQUEST_BYTES = 1 << 20  # 1 MiB: a program of ~60 000 records fits, a runaway client does not
-MAX_WAYPOINTS = 500
-MAX_RECENT = 100
-MAX_TEXT = 200
-ID_PATTERN = r"^[A-Za-z0-9_.-]{1,64}$"
-_KEY_CHUNK = re.compile(r"^[A-Za-z0-9_.-]+$")
-
-
-class ErrorCode(StrEnum):
-    """Stable error codes (``error.code`` of every ``reply_err``); docs/API.md explains each."""
-
-    MALFORMED_JSON = "malformed_json"  # the payload is not UTF-8 JSON
-    INVALID_REQUEST = "invalid_request"  # JSON, but not the request's schema (type, field, shape)
-    WRONG_JOINT_COUNT = "wrong_joint_count"  # a joint vector without one value per joint of the cell
-    NOT_FINITE = "not_finite"  # NaN or +-inf where a number is needed
-    UNKNOWN_JOINT = "unknown_joint"  # joint_names do not name the cell's joints
-    OUT_OF_LIMITS = "out_of_limits"  # a waypoint outside the joint position limits
-    TOO_LARGE = "too_large"  # payload over MAX_REQUEST_BYTES, or too many waypoints
-    UNKNOWN_PLAN = "unknown_plan"  # no plan with this id (never made, or forgotten)
-    WRONG_CELL = "wrong_cell"  # a program made for another cell or other drives
-    PLAN_FAILED = "plan_failed"  # the planner found no motion (details.result says why)
-    VALIDATION_FAILED = "validation_failed"  # the program breaks its drives' rules
-    BUSY = "busy"  # a motion is running on this cell: one at a time
-    START_MISMATCH = "start_mismatch"  # the axes are not where the program starts
-    NOT_HOMED = "not_homed"  # the cell must home first (an axis has not homed since its drive booted)
-    DRIVE_FAULT = "drive_fault"  # a drive is faulted or refused to enable: recover first
-    NOT_ALLOWED = "not_allowed"  # the request is not possible in the cell's present state
-    BUS_ERROR = "bus_error"  # the CAN bus failed
-    JOURNAL_ERROR = "journal_error"  # the motion could not be written to the journal: nothing was sent
-    INTERNAL_ERROR = "internal_error"  # a bug: the request was dropped, the service stays up
-
-
-ERROR_DESCRIPTIONS: dict[ErrorCode, str] = {
-    ErrorCode.MALFORMED_JSON: "The payload is not UTF-8 JSON (syntax error, bad encoding, binary data).",
-    ErrorCode.INVALID_REQUEST: "Valid JSON that does not follow the request's JSON Schema: not an object, a "
-    "missing or unknown field, a wrong type, an empty list. details.path is the JSON path of the problem.",
-    ErrorCode.WRONG_JOINT_COUNT: "A waypoint, target or start does not have exactly one value per joint of the cell "
-    "(details.expected, details.got, details.path).",
-    ErrorCode.NOT_FINITE: "NaN, Infinity or a number too large for a double (1e999) where a joint value is "
-    "needed (details.path).",
-    ErrorCode.UNKNOWN_JOINT: "joint_names names a joint the cell does not have, misses one, or repeats one.",
-    ErrorCode.OUT_OF_LIMITS: "A waypoint is outside the joint position limits (the stricter of the drives' "
-    "0x607D and the URDF's); details has the joint, the value and the limits.",
-    ErrorCode.TOO_LARGE: f"The payload is over {MAX_REQUEST_BYTES} bytes or has more than {MAX_WAYPOINTS} waypoints.",
-    ErrorCode.UNKNOWN_PLAN: "No plan with this plan_id on this cell (plans live in memory: a restart or "
-    "too many newer plans forget it).",
-    ErrorCode.WRONG_CELL: "The program was made for another cell, other node ids, profiles, scaling or limits.",
-    ErrorCode.PLAN_FAILED: "The planner found no motion through these waypoints or poses (details.result: "
-    "repeated_waypoint, path_out_of_limits, infeasible, ... or program_error; for poses also unreachable, "
-    "singular or joint_limit, with details.pose, the pose the line leads to, and details.fraction, how far "
-    "along it).",
-    ErrorCode.VALIDATION_FAILED: "The program breaks its drives' rules (details.report is the validator's "
-    "report): nothing was sent.",
-    ErrorCode.BUSY: "A motion is running on this cell (details.motion_id). One motion at a time: stop it or "
-    "wait for its end.",
-    ErrorCode.START_MISMATCH: "The axes are not where the program starts (they moved since it was planned): "
-    "plan again from the current position.",
-    ErrorCode.NOT_HOMED: "The cell requires homing and an axis has not homed since its drive last booted "
-    "(power-on, NMT reset, power loss): its position means nothing yet. Call home, then plan again "
-    "(details.joints are the axes not homed).",
-    ErrorCode.DRIVE_FAULT: "A drive is faulted, the last motion ended in a fault, or a drive refused to "
-    "enable: call recover (after fixing the cause) before the next execute.",
-    ErrorCode.NOT_ALLOWED: "The request is not possible in the cell's present state.",
-    ErrorCode.BUS_ERROR: "The CAN bus or a drive did not answer.",
-    ErrorCode.JOURNAL_ERROR: "The motion could not be written to the journal on disk (full, read-only): "
-    "it was not started, because what runs must be recorded first.",
-    ErrorCode.INTERNAL_ERROR: "An unexpected error in the service (a bug: please report it with the "
-    "message). The request was dropped; the service keeps running.",
-}
-
-
-class ApiError(Exception):
-    """A request refused with a stable code; ``to_json()`` is the ``reply_err`` payload."""
-
-    def __init__(self, code: ErrorCode, message: str, details: Mapping[str, Any] | None = None) -> None:
-        super().__init__(message)
-        self.code = ErrorCode(code)
-        self.message = message
-        self.details: dict[str, Any] = dict(details or {})
-
-    def to_json(self) -> dict[str, Any]:
-        return {"error": {"code": self.code.value, "message": self.message, "details": self.details}}
-
-    def to_bytes(self) -> bytes:
-        return dumps(self.to_json())
-
-
-# --- key expressions -------------------------------------------------------------------------------
-def check_cell_name(cell: str) -> str:
-    """A cell name must be one key-expression chunk (no '/', '*', '$', '?', '#')."""
-    if not _KEY_CHUNK.match(cell):
-        raise ValueError(f"cell name {cell!r} cannot be a zenoh key chunk: use letters, digits, '_', '-', '.'")
-    return cell
-
-
-def key(cell: str, name: str) -> str:
-    """``pvtflow/<cell>/<name>``; ``cell`` may be ``*`` for a client addressing every cell."""
-    return f"{PREFIX}/{cell}/{name}"
-
-
-# --- JSON ------------------------------------------------------------------------------------------
-def _parse_constant(name: str) -> float:
-    """NaN / Infinity / -Infinity literals (not JSON, but Python's json reads them): kept, then refused."""
-    return float(name.replace("Infinity", "inf"))
-
-
-def dumps(data: Any) -> bytes:
-    """Compact JSON; NaN never leaves the service (allow_nan=False makes that a bug, not bad JSON)."""
-    return json.dumps(data, separators=(",", ":"), allow_nan=False).encode()
-
-
-def parse_payload(payload: bytes | None) -> Any:
-    """Bytes -> JSON value. Empty payload = ``{}`` (status, stop and recover need no fields)."""
-    if payload is None or len(payload) == 0:
-        return {}
-    if len(payload) > MAX_REQUEST_BYTES:
-        raise ApiError(
-            ErrorCode.TOO_LARGE,
-            f"the request is {len(payload)} bytes, the limit is {MAX_REQUEST_BYTES}",
-            {"bytes": len(payload), "limit": MAX_REQUEST_BYTES},
-        )
-    try:
-        text = payload.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ApiError(
-            ErrorCode.MALFORMED_JSON,
-            f"the payload is not UTF-8 text: {exc.reason} at byte {exc.start}",
-            {"position": exc.start},
-        ) from None
-    try:
-        data = json.loads(text, parse_constant=_parse_constant)
-    except json.JSONDecodeError as exc:
-        raise ApiError(
-            ErrorCode.MALFORMED_JSON,
-            f"the payload is not JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})",
-            {"line": exc.lineno, "column": exc.colno},
-        ) from None
-    except RecursionError:
-        raise ApiError(ErrorCode.MALFORMED_JSON, "the payload is nested too deeply to be a request") from None
-    except ValueError as exc:  # e.g. an integer literal of more than 4300 digits
-        raise ApiError(ErrorCode.MALFORMED_JSON, f"the payload is not usable JSON: {_short(str(exc))}") from None
-    _check_finite(data)
-    return data
-
-
-def _all_finite(data: Any) -> bool:
-    """Whether every number in ``data`` is finite: the common case, checked without building paths."""
-    stack: list[Any] = [data]
-    while stack:
-        value = stack.pop()
-        if isinstance(value, float):
-            if not math.isfinite(value):
-                return False
-        elif isinstance(value, list):
-            stack.extend(value)
-        elif isinstance(value, dict):
-            stack.extend(value.values())
-    return True
-
-
-def _check_finite(data: Any) -> None:
-    """NOT_FINITE for the first NaN / Infinity / 1e999 anywhere in the request (iterative: no recursion)."""
-    if _all_finite(data):
-        return
-    stack: list[tuple[Any, str]] = [(data, "$")]
-    while stack:
-        value, path = stack.pop()
-        if isinstance(value, float):
-            if not math.isfinite(value):
-                raise ApiError(
-                    ErrorCode.NOT_FINITE,
-                    f"{path} is {value!r}: numbers must be finite",
-                    {"path": path, "value": str(value)},
-                )
-        elif isinstance(value, dict):
-            stack.extend((v, f"{path}.{k}") for k, v in value.items())
-        elif isinstance(value, list):
-            stack.extend((v, f"{path}[{i}]") for i, v in enumerate(value))
-
-
-# --- schemas ---------------------------------------------------------------------------------------
 SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 
 
@@ -236,11 +44,23 @@ def _obj(properties: dict[str, Any], required: Sequence[str] = (), **extra: Any)
 
 
 _PLAN_ID = {"type": "string", "pattern": ID_PATTERN, "description": "a plan id from a plan reply"}
+
+
 _MOTION_ID = {"type": "string", "pattern": ID_PATTERN}
+
+
 _TEXT = {"type": "string", "maxLength": MAX_TEXT}
+
+
 _PROGRAM = {"type": "object", "description": "a PVT program (pvtflow.pvt-program JSON, docs/program-format)"}
+
+
 _INT_OR_NULL = {"type": ["integer", "null"]}
+
+
 _NUM_OR_NULL = {"type": ["number", "null"]}
+
+
 _STR_OR_NULL = {"type": ["string", "null"]}
 
 
@@ -409,11 +229,15 @@ _AXIS_STATUS = _obj(
     },
     required=["joint", "node_id", "state", "statusword", "position_qc", "position", "buffer_status", "fault"],
 )
+
+
 _RUN_RESULT = {
     "type": "object",
     "required": ["result", "message"],
     "properties": {"result": {"type": "string"}, "message": {"type": "string"}},
 }
+
+
 _MOTION = {
     "type": "object",
     "required": ["motion_id", "state"],
@@ -428,7 +252,11 @@ _MOTION = {
         "outcome": {"type": ["object", "null"]},
     },
 }
-SERVICE_STATES = ("idle", "moving", "stopping", "fault", "homing")
+
+
+SERVICE_STATES = tuple(s.value for s in CellState)
+
+
 _HOMING = {
     "type": "object",
     "required": ["homing_id", "state", "stages"],
@@ -621,10 +449,20 @@ def _json_path(path: Sequence[Any]) -> str:
 
 
 _NUMBER_TYPES = frozenset({int, float})  # JSON numbers as json.loads makes them (bool is not one)
+
+
 _PLAN_PROPERTIES = request_schema("plan")["properties"]
+
+
 _PLAN_FIELDS = frozenset(_PLAN_PROPERTIES)
+
+
 _PLAN_STARTS = frozenset(_PLAN_PROPERTIES["start"]["anyOf"][0]["enum"])
+
+
 _PLAN_TOLERANCE = (_PLAN_PROPERTIES["tolerance_qc"]["minimum"], _PLAN_PROPERTIES["tolerance_qc"]["maximum"])
+
+
 _PLAN_SCALES = ("velocity_scale", "acceleration_scale")
 
 
@@ -735,254 +573,9 @@ def _schema_error(name: str, data: Any, errors: list[ValidationError]) -> ApiErr
     )
 
 
-def _short(message: str, limit: int = 160) -> str:
-    return message if len(message) <= limit else message[: limit - 3] + "..."
-
-
-# --- requests --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class PlanRequest:
-    waypoints: NDArray[np.float64]  # (N, dof) in the cell's joint order; (0, dof) for poses
-    start: str = "current"  # "current", "first" (waypoints) or "joints" (poses from start_joints)
-    tolerance_qc: float | None = None
-    label: str | None = None
-    include_program: bool = False
-    velocity_scale: float = 1.0  # speed override in (0, 1] (planner.limits.check_scale)
-    acceleration_scale: float = 1.0
-    poses: NDArray[np.float64] | None = None  # (N, 7), unit quaternions
-    motion: str = Motion.LINEAR.value
-    start_joints: NDArray[np.float64] | None = None  # (dof,) in the cell's joint order
-    max_jerk: NDArray[np.float64] | None = None  # (dof,) in the cell's joint order; None: the cell's
-
-
-@dataclass(frozen=True)
-class ExecuteRequest:
-    plan_id: str | None = None
-    program: dict[str, Any] | None = None
-    label: str | None = None
-    wait: bool = False
-
-
-@dataclass(frozen=True)
-class ValidateRequest:
-    plan_id: str | None = None
-    program: dict[str, Any] | None = None
-
-
-@dataclass(frozen=True)
-class StopRequest:
-    reason: str = "stop requested"
-
-
-@dataclass(frozen=True)
-class StatusRequest:
-    recent: int = 10
-
-
-@dataclass(frozen=True)
-class HomeRequest:
-    joints: tuple[str, ...] | None = None  # None: every axis with homing
-    wait: bool = False
-
-
-@dataclass(frozen=True)
-class RecoverRequest:
-    extra: dict[str, Any] = field(default_factory=dict)
-
-
-def parse_plan(data: Any, joint_names: Sequence[str], limits: JointLimits | None = None) -> PlanRequest:
-    """A checked plan request; waypoints reordered into the cell's joint order and inside ``limits``."""
-    dof = len(joint_names)
-    check_schema("plan", data, dof)
-    order = _joint_order(data.get("joint_names"), joint_names)
-    if "poses" in data:
-        return _parse_pose_plan(data, order, limits)
-    if "motion" in data:
-        raise ApiError(ErrorCode.INVALID_REQUEST, "motion is for poses, not waypoints or target", {"path": "$.motion"})
-    if isinstance(data.get("start"), list):
-        raise ApiError(
-            ErrorCode.INVALID_REQUEST,
-            "a list of joint values as start is for poses; waypoints start at current or first",
-            {"path": "$.start"},
-        )
-    rows = data["waypoints"] if "waypoints" in data else [data["target"]]
-    field_name = "waypoints" if "waypoints" in data else "target"
-    try:
-        waypoints = np.array([[float(row[k]) for k in order] for row in rows], dtype=float)
-    except OverflowError:
-        raise ApiError(
-            ErrorCode.NOT_FINITE, f"$.{field_name}: an integer too large for a joint value", {"path": f"$.{field_name}"}
-        ) from None
-    if limits is not None:
-        check_limits(waypoints, limits, field_name)
-    start = data.get("start", "current")
-    if field_name == "target":
-        start = "current"
-    if start == "first" and len(waypoints) < 2:
-        raise ApiError(
-            ErrorCode.INVALID_REQUEST, "with start=first a motion needs at least 2 waypoints", {"path": "$.waypoints"}
-        )
-    return PlanRequest(
-        waypoints,
-        start,
-        data.get("tolerance_qc"),
-        data.get("label"),
-        bool(data.get("include_program", False)),
-        max_jerk=_max_jerk(data, order),
-        **_scales(data),
-    )
-
-
-def _scales(data: dict[str, Any]) -> dict[str, float]:
-    """velocity_scale, acceleration_scale: the schema has refused what is not in (0, 1]; the
-    planner's rule (planner.limits.check_scale), once more."""
-    scales = {}
-    for name in _PLAN_SCALES:
-        try:
-            scales[name] = check_scale(name, data.get(name, 1.0))
-        except ValueError as exc:
-            raise ApiError(ErrorCode.INVALID_REQUEST, f"$.{name}: {exc}", {"path": f"$.{name}"}) from None
-    return scales
-
-
-def _max_jerk(data: dict[str, Any], order: list[int]) -> NDArray[np.float64] | None:
-    """max_jerk in the cell's joint order: the schema has refused a wrong count and what is not
-    positive; the planner's rule (planner.limits.check_max_jerk), once more."""
-    if "max_jerk" not in data:
-        return None
-    try:
-        values = [data["max_jerk"][k] for k in order]
-        return check_max_jerk("max_jerk", values, len(order))
-    except (ValueError, IndexError, TypeError) as exc:
-        raise ApiError(ErrorCode.INVALID_REQUEST, f"$.max_jerk: {exc}", {"path": "$.max_jerk"}) from None
-
-
-def _parse_pose_plan(data: dict[str, Any], order: list[int], limits: JointLimits | None) -> PlanRequest:
-    """A plan request with poses: the poses checked (planner.cartesian's rules: 7 numbers, a unit
-    quaternion), the start current or joint values inside the limits."""
-    dof = len(order)
-    try:
-        poses = check_poses(data["poses"])
-    except PlanError as exc:
-        i = exc.details.get("pose")
-        path = f"$.poses[{i}]" if i is not None else "$.poses"
-        raise ApiError(ErrorCode.INVALID_REQUEST, f"{path}: {exc.message}", {"path": path}) from None
-    except OverflowError:
-        raise ApiError(ErrorCode.NOT_FINITE, "$.poses: a number too large", {"path": "$.poses"}) from None
-    start = data.get("start", "current")
-    start_joints = None
-    if start == "first":
-        raise ApiError(
-            ErrorCode.INVALID_REQUEST,
-            "with poses, start is current or a list of joint values (first is for waypoints)",
-            {"path": "$.start"},
-        )
-    if isinstance(start, list):
-        if len(start) != dof:
-            raise ApiError(
-                ErrorCode.WRONG_JOINT_COUNT,
-                f"$.start has {len(start)} values, the cell has {dof} joints",
-                {"path": "$.start", "expected": dof, "got": len(start)},
-            )
-        try:
-            start_joints = np.array([float(start[k]) for k in order], dtype=float)
-        except OverflowError:
-            raise ApiError(
-                ErrorCode.NOT_FINITE, "$.start: an integer too large for a joint value", {"path": "$.start"}
-            ) from None
-        if limits is not None:
-            check_limits(start_joints[None, :], limits, "start")
-        start = "joints"
-    return PlanRequest(
-        np.empty((0, dof)),
-        start,
-        data.get("tolerance_qc"),
-        data.get("label"),
-        bool(data.get("include_program", False)),
-        poses=poses,
-        motion=data.get("motion", Motion.LINEAR.value),
-        start_joints=start_joints,
-        max_jerk=_max_jerk(data, order),
-        **_scales(data),
-    )
-
-
-def _joint_order(names: Any, joint_names: Sequence[str]) -> list[int]:
-    """Where each of the cell's joints is in a request's values (``joint_names``: their order)."""
-    dof = len(joint_names)
-    if names is None:
-        order = list(range(dof))
-    else:
-        if len(set(names)) != len(names):
-            raise ApiError(ErrorCode.UNKNOWN_JOINT, "joint_names lists a joint twice", {"joint_names": names})
-        unknown = [n for n in names if n not in joint_names]
-        if unknown:
-            raise ApiError(
-                ErrorCode.UNKNOWN_JOINT,
-                f"unknown joint {unknown[0]!r}; the cell has {', '.join(joint_names)}",
-                {"joint": unknown[0], "joints": list(joint_names)},
-            )
-        missing = [n for n in joint_names if n not in names]
-        if missing:
-            raise ApiError(
-                ErrorCode.UNKNOWN_JOINT,
-                f"joint_names misses joint {missing[0]!r} of the cell",
-                {"joint": missing[0], "joints": list(joint_names)},
-            )
-        order = [names.index(n) for n in joint_names]
-    return order
-
-
-def check_limits(waypoints: NDArray[np.float64], limits: JointLimits, field_name: str = "waypoints") -> None:
-    """OUT_OF_LIMITS naming the first waypoint and joint outside [lower, upper]."""
-    low = waypoints < limits.lower
-    high = waypoints > limits.upper
-    bad = np.argwhere(low | high)
-    if len(bad):
-        i, j = (int(x) for x in bad[0])
-        value = float(waypoints[i, j])
-        lo, hi = float(limits.lower[j]), float(limits.upper[j])
-        path = f"$.{field_name}[{i}]" if field_name == "waypoints" else f"$.{field_name}"
-        raise ApiError(
-            ErrorCode.OUT_OF_LIMITS,
-            f"{path}: joint {limits.names[j]} = {value:.6g} is outside its position limits [{lo:.6g}, {hi:.6g}]",
-            {"path": path, "joint": limits.names[j], "value": value, "lower": lo, "upper": hi},
-        )
-
-
-def parse_execute(data: Any) -> ExecuteRequest:
-    check_schema("execute", data, None)
-    return ExecuteRequest(data.get("plan_id"), data.get("program"), data.get("label"), bool(data.get("wait", False)))
-
-
-def parse_validate(data: Any) -> ValidateRequest:
-    check_schema("validate", data, None)
-    return ValidateRequest(data.get("plan_id"), data.get("program"))
-
-
-def parse_stop(data: Any) -> StopRequest:
-    check_schema("stop", data, None)
-    return StopRequest(data.get("reason") or "stop requested")
-
-
-def parse_status(data: Any) -> StatusRequest:
-    check_schema("status", data, None)
-    return StatusRequest(int(data.get("recent", 10)))
-
-
-def parse_home(data: Any) -> HomeRequest:
-    check_schema("home", data, None)
-    joints = data.get("joints")
-    return HomeRequest(tuple(joints) if joints is not None else None, bool(data.get("wait", False)))
-
-
-def parse_recover(data: Any) -> RecoverRequest:
-    check_schema("recover", data, None)
-    return RecoverRequest()
-
-
-# --- documentation ---------------------------------------------------------------------------------
 SCHEMA_DOC_BEGIN = "<!-- schemas: generated by `python -m service.api`; do not edit by hand -->"
+
+
 SCHEMA_DOC_END = "<!-- end of generated schemas -->"
 
 
@@ -997,7 +590,3 @@ def schema_document(dof: int = 6) -> str:
         parts += [f"### {title}", "", "```json", json.dumps(reply_schema(topic), indent=2), "```", ""]
     parts.append(SCHEMA_DOC_END)
     return "\n".join(parts)
-
-
-if __name__ == "__main__":
-    print(schema_document())

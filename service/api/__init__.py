@@ -1,0 +1,108 @@
+"""The zenoh API of one cell: key expressions, request/reply payloads, JSON Schemas, error codes.
+
+Every payload is JSON. A request is checked in this order, and the first problem found is the
+answer (a :class:`ApiError`, sent with ``reply_err``): size (``too_large``), JSON syntax
+(``malformed_json``), the request's JSON Schema (``invalid_request``, ``wrong_joint_count``,
+``too_large``), then the values (``not_finite``, ``unknown_joint``, ``out_of_limits``). Only a
+request that passes all of them reaches the planner or the drives, so a bad request changes nothing.
+
+The schemas below are the one description of the payloads: the service validates with them,
+docs/API.md prints them, and the tests check every reply against them.
+
+Where each part lives: ``wire`` (key expressions, error codes, JSON, limits, cell states),
+``schemas`` (the JSON Schemas and the check against them, docs/API.md's schema section: ``python
+-m service.api``), ``requests`` (each request checked and parsed). The names below are the API's
+public surface.
+"""
+
+from __future__ import annotations
+
+from service.api.requests import (
+    ExecuteRequest,
+    HomeRequest,
+    PlanRequest,
+    RecoverRequest,
+    StatusRequest,
+    StopRequest,
+    ValidateRequest,
+    check_limits,
+    parse_execute,
+    parse_home,
+    parse_plan,
+    parse_recover,
+    parse_status,
+    parse_stop,
+    parse_validate,
+)
+from service.api.schemas import (
+    SCHEMA_DIALECT,
+    SCHEMA_DOC_BEGIN,
+    SCHEMA_DOC_END,
+    check_schema,
+    reply_schema,
+    request_schema,
+    schema_document,
+)
+from service.api.wire import (
+    API_VERSION,
+    ERROR_DESCRIPTIONS,
+    ID_PATTERN,
+    LIVELINESS,
+    MAX_RECENT,
+    MAX_REQUEST_BYTES,
+    MAX_TEXT,
+    MAX_WAYPOINTS,
+    PREFIX,
+    PUBLICATIONS,
+    QUERYABLES,
+    ApiError,
+    CellState,
+    ErrorCode,
+    check_cell_name,
+    dumps,
+    key,
+    parse_payload,
+)
+
+__all__ = [
+    "API_VERSION",
+    "ERROR_DESCRIPTIONS",
+    "ID_PATTERN",
+    "LIVELINESS",
+    "MAX_RECENT",
+    "MAX_REQUEST_BYTES",
+    "MAX_TEXT",
+    "MAX_WAYPOINTS",
+    "PREFIX",
+    "PUBLICATIONS",
+    "QUERYABLES",
+    "SCHEMA_DIALECT",
+    "SCHEMA_DOC_BEGIN",
+    "SCHEMA_DOC_END",
+    "ApiError",
+    "CellState",
+    "ErrorCode",
+    "ExecuteRequest",
+    "HomeRequest",
+    "PlanRequest",
+    "RecoverRequest",
+    "StatusRequest",
+    "StopRequest",
+    "ValidateRequest",
+    "check_cell_name",
+    "check_limits",
+    "check_schema",
+    "dumps",
+    "key",
+    "parse_execute",
+    "parse_home",
+    "parse_payload",
+    "parse_plan",
+    "parse_recover",
+    "parse_status",
+    "parse_stop",
+    "parse_validate",
+    "reply_schema",
+    "request_schema",
+    "schema_document",
+]
