@@ -19,10 +19,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from axes.bus import BusError, CellBus
 from axes.group import AxisGroup
 from axes.outcome import Event, EventKind, Progress, RunResult
 from axes.program import PvtProgram, program_mismatch
+from service.cell_bus import CellBusError, add_bus_options, open_cell_bus
 from service.cli import can_log_problem
 from service.config import ConfigError, load_cell_config
 from service.home_cmd import describe_homing, home_cell
@@ -40,15 +40,7 @@ def add_parser(subparsers: Any) -> None:
         "feed the program to its end. The default configuration is the simulated arm6 demo cell.",
     )
     p.add_argument("program", metavar="PROGRAM.json", help="the PVT program (pvtflow.pvt-program JSON)")
-    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
-    p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
-    p.add_argument("--quiet", action="store_true", help="print the outcome only")
-    p.add_argument(
-        "--real-time",
-        action="store_true",
-        help="a simulated cell runs SYNC on the wall clock, as a real cell does (default there: lockstep, "
-        "faster than real time)",
-    )
+    add_bus_options(p)
     p.add_argument(
         "--home",
         action="store_true",
@@ -134,47 +126,32 @@ def run(args: argparse.Namespace) -> int:
         levels = " ".join("-" if lv is None else str(lv) for lv in p.levels)
         print(f"t={p.elapsed_ms / 1000:8.3f} s  SYNC {p.sync}  buffer levels {levels}", flush=True)
 
-    sim = None
-    try:
-        bus = CellBus(cell.bus, lockstep=cell.simulated and not args.real_time, can_log=args.can_log)
-    except (ValueError, OSError) as exc:
-        return _fail(f"cannot write the CAN log {args.can_log}: {exc}", EXIT_UNREADABLE)
-    try:
-        if cell.simulated:
-            from axes.sim.cell import SimulatedCell
-
-            sim = SimulatedCell(cell).start()
-        bus.open()
-    except (BusError, OSError) as exc:
-        if sim is not None:
-            sim.stop()
-        bus.recorder.stop()
-        return _fail(str(exc), EXIT_UNREADABLE)
     duration_syncs = max(1, int(program.duration_ms / cell.bus.sync_period_ms))
-    group = AxisGroup(
-        bus,
-        cell.ordered_axes(),
-        on_event=on_event,
-        on_progress=None if quiet else on_progress,
-        progress_every=max(1, duration_syncs // 10),
-    )
     try:
-        if args.home and cell.homing_stages():  # (a cell with nothing to home takes --home as a no-op)
-            homing = home_cell(cell, group, None, quiet)
-            print(describe_homing(homing), flush=True)
-            if not homing.ok:
-                print(f"{PROG}: the homing failed: the program was not sent", file=sys.stderr)
-                return EXIT_FAILED
-        try:
-            result = group.run(program)
-        except KeyboardInterrupt:
-            group.stop("interrupted")
-            result = group.wait(10.0)
-    finally:
-        group.close()
-        bus.close()
-        if sim is not None:
-            sim.stop()
+        with open_cell_bus(cell, args.real_time, args.can_log) as bus:
+            group = AxisGroup(
+                bus,
+                cell.ordered_axes(),
+                on_event=on_event,
+                on_progress=None if quiet else on_progress,
+                progress_every=max(1, duration_syncs // 10),
+            )
+            try:
+                if args.home and cell.homing_stages():  # (a cell with nothing to home takes --home as a no-op)
+                    homing = home_cell(cell, group, None, quiet)
+                    print(describe_homing(homing), flush=True)
+                    if not homing.ok:
+                        print(f"{PROG}: the homing failed: the program was not sent", file=sys.stderr)
+                        return EXIT_FAILED
+                try:
+                    result = group.run(program)
+                except KeyboardInterrupt:
+                    group.stop("interrupted")
+                    result = group.wait(10.0)
+            finally:
+                group.close()
+    except CellBusError as exc:
+        return _fail(str(exc), EXIT_UNREADABLE)
     print(describe(result), flush=True)
     if args.can_log:
         print(f"CAN log: {args.can_log} ({bus.recorder.frames} frames)")

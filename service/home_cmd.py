@@ -19,9 +19,9 @@ import argparse
 import sys
 from typing import Any
 
-from axes.bus import BusError, CellBus
 from axes.group import AxisGroup
 from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
+from service.cell_bus import CellBusError, add_bus_options, open_cell_bus
 from service.cli import can_log_problem
 from service.config import CellConfig, ConfigError, load_cell_config
 
@@ -36,15 +36,8 @@ def add_parser(subparsers: Any) -> None:
         description="Configure the cell's drives and home its axes (CiA 402 homing mode 6) in the cell's "
         "homing_order. The default configuration is the simulated arm6 demo cell (nothing to home).",
     )
-    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
     p.add_argument("--joints", metavar="J1,J2,...", help="the axes to home (default: every axis with homing)")
-    p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
-    p.add_argument("--quiet", action="store_true", help="print the outcome only")
-    p.add_argument(
-        "--real-time",
-        action="store_true",
-        help="a simulated cell runs SYNC on the wall clock, as a real cell does (default there: lockstep)",
-    )
+    add_bus_options(p)
     p.set_defaults(run=run)
 
 
@@ -91,32 +84,16 @@ def run(args: argparse.Namespace) -> int:
     if not stages:
         print(f"{PROG}: cell {cell.name} has no axis to home (no homing section): nothing moved", file=sys.stderr)
         return EXIT_FAILED
-    sim = None
     try:
-        bus = CellBus(cell.bus, lockstep=cell.simulated and not args.real_time, can_log=args.can_log)
-    except (ValueError, OSError) as exc:
-        print(f"{PROG}: cannot write the CAN log {args.can_log}: {exc}", file=sys.stderr)
-        return EXIT_UNREADABLE
-    try:
-        if cell.simulated:
-            from axes.sim.cell import SimulatedCell
-
-            sim = SimulatedCell(cell).start()
-        bus.open()
-    except (BusError, OSError) as exc:
-        if sim is not None:
-            sim.stop()
-        bus.recorder.stop()
+        with open_cell_bus(cell, args.real_time, args.can_log) as bus:
+            group = AxisGroup(bus, cell.ordered_axes())
+            try:
+                outcome = home_cell(cell, group, joints, args.quiet)  # Ctrl-C: every axis halted, then exit 130
+            finally:
+                group.close()
+    except CellBusError as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return EXIT_UNREADABLE
-    group = AxisGroup(bus, cell.ordered_axes())
-    try:
-        outcome = home_cell(cell, group, joints, args.quiet)  # Ctrl-C: every axis halted, then exit 130
-    finally:
-        group.close()
-        bus.close()
-        if sim is not None:
-            sim.stop()
     print(describe_homing(outcome), flush=True)
     if args.can_log:
         print(f"CAN log: {args.can_log} ({bus.recorder.frames} frames)")

@@ -1,0 +1,60 @@
+"""The cell's bus for a command that runs without the service (``pvtflow execute``, ``pvtflow home``).
+
+Both take the same options and open the bus the same way: the simulated drives first where the
+cell is simulated, SYNC in lockstep with them unless ``--real-time``, every frame recorded with
+``--can-log``; and both close it the same way, whatever happened in between.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+from collections.abc import Iterator
+
+from axes.bus import BusError, CellBus
+from service.config import CellConfig
+
+
+class CellBusError(Exception):
+    """The bus cannot be opened (one line for the user); nothing was sent."""
+
+
+def add_bus_options(p: argparse.ArgumentParser) -> None:
+    """--config, --can-log, --quiet, --real-time: what every command that drives a cell alone takes."""
+    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
+    p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
+    p.add_argument("--quiet", action="store_true", help="print the outcome only")
+    p.add_argument(
+        "--real-time",
+        action="store_true",
+        help="a simulated cell runs SYNC on the wall clock, as a real cell does (default there: lockstep, "
+        "faster than real time)",
+    )
+
+
+@contextlib.contextmanager
+def open_cell_bus(cell: CellConfig, real_time: bool, can_log: str | None) -> Iterator[CellBus]:
+    """The cell's bus, open (its simulated drives started first where the cell is simulated); on
+    exit the bus closed and the simulated drives stopped. CellBusError where it cannot open."""
+    try:
+        bus = CellBus(cell.bus, lockstep=cell.simulated and not real_time, can_log=can_log)
+    except (ValueError, OSError) as exc:
+        raise CellBusError(f"cannot write the CAN log {can_log}: {exc}") from None
+    sim = None
+    try:
+        if cell.simulated:
+            from axes.sim.cell import SimulatedCell
+
+            sim = SimulatedCell(cell).start()
+        bus.open()
+    except (BusError, OSError) as exc:
+        if sim is not None:
+            sim.stop()
+        bus.recorder.stop()
+        raise CellBusError(str(exc)) from None
+    try:
+        yield bus
+    finally:
+        bus.close()
+        if sim is not None:
+            sim.stop()
