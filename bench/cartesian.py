@@ -34,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from axes.program import PvtProgram
 from planner.cartesian import LineTolerance, ToolLine, placement_pose
+from planner.plan import PlanInput
 from service.cell_planner import CellPlanner
 from service.config import CONFIG_DIR, load_cell_config
 
@@ -80,7 +81,7 @@ def main() -> None:
         qb = mid + 0.7 * half * rng.uniform(-1.0, 1.0, limits.dof)
         pose = placement_pose(ik.fk(qb))
         t0, c0 = time.perf_counter(), time.thread_time()
-        result = planner.plan_poses(qa, [pose], "linear")
+        result = planner.plan(PlanInput(qa, [pose], "linear"))
         t1, c1 = time.perf_counter(), time.thread_time()
         if not result.ok or result.program is None or result.waypoints is None:
             refused[result.code] += 1
@@ -95,7 +96,7 @@ def main() -> None:
         worst_p.append(dev[:, 0].max())
         worst_r.append(dev[:, 1].max())
         speed.append(model.frame_speeds(q, qd, frame).max() / cell.planning.max_tcp_speed)
-        joint = planner.plan_poses(qa, [pose], "joint")
+        joint = planner.plan(PlanInput(qa, [pose], "joint"))
         if joint.program is not None:
             ratio.append(result.program.duration_ms / joint.program.duration_ms)
 

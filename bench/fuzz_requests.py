@@ -32,6 +32,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from planner.plan import PlanInput
 from service.api import MAX_REQUEST_BYTES, MAX_WAYPOINTS
 from service.config import load_cell_config
 from service.demo_cmd import free_port
@@ -338,8 +339,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         from service.cell_planner import plan_cell_program
 
-        program = plan_cell_program(cell, [[0.0] * 6, [0.2, -0.1, 0.2, -0.1, 0.2, -0.1]]).program
-        other = plan_cell_program(gantry, [[0.0, 0.0, 0.0], [0.1, 0.1, -0.05]]).program
+        program = plan_cell_program(cell, PlanInput([[0.0] * 6, [0.2, -0.1, 0.2, -0.1, 0.2, -0.1]])).program
+        other = plan_cell_program(gantry, PlanInput([[0.0, 0.0, 0.0], [0.1, 0.1, -0.05]])).program
         assert program is not None and other is not None
         lim = service.limits
         gen = BadRequests(

@@ -41,9 +41,10 @@ from pvt_quality import random_waypoints
 
 from axes.program import PvtProgram
 from planner.jerk import JerkTrajectory
+from planner.plan import PlanInput
 from planner.validate import validate_program
+from service.cell_planner import CellPlan, CellPlanner
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
-from service.plan_cmd import CellPlan, CellPlanner
 
 DENSE = 64  # samples per grid interval for the planned jerk / velocity / acceleration
 
@@ -94,7 +95,7 @@ def dense_ratios(traj: JerkTrajectory, cp: CellPlanner, max_jerk: np.ndarray) ->
 
 def run_path(cp: CellPlanner, wp: np.ndarray, factor: float, topp: CellPlan) -> PathResult:
     max_jerk = factor * cp.limits.acceleration
-    res = cp.plan(wp, max_jerk=max_jerk)
+    res = cp.plan(PlanInput(wp, max_jerk=max_jerk))
     if not res.ok or res.program is None or res.plan is None:
         raise RuntimeError(f"jerk-limited plan failed ({res.code}): {res.message}")
     traj = res.plan.trajectory
@@ -130,7 +131,7 @@ def plot(cp: CellPlanner, wp: np.ndarray, factor: float, out: Path) -> None:
     import matplotlib.pyplot as plt
 
     max_jerk = factor * cp.limits.acceleration
-    topp, jl = cp.plan(wp), cp.plan(wp, max_jerk=max_jerk)
+    topp, jl = cp.plan(PlanInput(wp)), cp.plan(PlanInput(wp, max_jerk=max_jerk))
     assert topp.plan and topp.plan.trajectory and jl.plan and jl.plan.trajectory and topp.program and jl.program
     fig, axes = plt.subplots(2, 2, figsize=(13, 7), sharex="col", sharey="row")
     for col, (name, res) in enumerate((("TOPP-RA", topp), (f"jerk-limited ({factor:g} x amax / s)", jl))):
@@ -185,7 +186,7 @@ def main() -> int:
     refused = 0
     while len(paths) < args.paths:
         wp = random_waypoints(cell, rng, args.waypoints)
-        topp = cp.plan(wp)
+        topp = cp.plan(PlanInput(wp))
         if not topp.ok:
             refused += 1
             continue

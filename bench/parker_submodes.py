@@ -16,6 +16,7 @@ import statistics
 
 import numpy as np
 
+from planner.plan import PlanInput
 from service.cell_planner import CellPlanner
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
 
@@ -56,7 +57,7 @@ def main() -> None:
                 planner = CellPlanner(variant(base, submode, period))
                 durations[submode] = []
                 for start, target in moves:
-                    out = planner.plan(np.array([start, target]))
+                    out = planner.plan(PlanInput(np.array([start, target])))
                     if submode == 0:
                         traj = out.plan.trajectory if out.plan is not None else None
                         trajectory.append(traj.duration * 1000.0 if traj is not None else None)

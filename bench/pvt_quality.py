@@ -108,7 +108,7 @@ def against_spline(planner: CellPlanner, wp: np.ndarray, result) -> tuple[bool, 
 
 def half_speed(planner: CellPlanner, wp: np.ndarray) -> tuple[float, float]:
     """velocity_scale 0.5: the worst |v| / (0.5 x 0x607F) and |a| / 0x60C5 of the drives' reconstruction."""
-    result = planner.plan(wp, velocity_scale=0.5)
+    result = planner.plan(PlanInput(wp, velocity_scale=0.5))
     if not result.ok:
         print(f"  velocity_scale 0.5 NOT PLANNED on {planner.cell.name}: {result.message}", file=sys.stderr)
         return math.inf, math.inf
@@ -119,7 +119,7 @@ def half_speed(planner: CellPlanner, wp: np.ndarray) -> tuple[float, float]:
 
 
 def run_path(cell: CellConfig, wp: np.ndarray, planner: CellPlanner) -> PathResult | None:
-    result = plan_cell_program(cell, wp)
+    result = plan_cell_program(cell, PlanInput(wp))
     if not result.ok:
         if result.code == "program_error":
             print(f"  PROGRAM ERROR on {cell.name}: {result.message}", file=sys.stderr)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import inspect
 import sys
 from pathlib import Path
 
@@ -28,6 +29,10 @@ CELLS = (("arm6", 40), ("gantry3", 15))
 def main() -> int:
     home = "service.cell_planner" if (ROOT / "service" / "cell_planner.py").exists() else "service.plan_cmd"
     plan_cell_program = importlib.import_module(home).plan_cell_program
+    # since the plan input became an object (planner.plan.PlanInput) it is passed as one
+    takes_input = "inp" in inspect.signature(plan_cell_program).parameters
+    if takes_input:
+        from planner.plan import PlanInput
     digest, programs = hashlib.sha256(), 0
     for name, count in CELLS:
         cell = load_cell_config(CONFIG_DIR / "cells" / f"{name}.yaml")
@@ -35,7 +40,7 @@ def main() -> int:
         rng = np.random.default_rng(1)
         for _ in range(count):
             waypoints = lim.lower + (lim.upper - lim.lower) * (0.1 + 0.8 * rng.random((8, lim.dof)))
-            result = plan_cell_program(cell, waypoints)
+            result = plan_cell_program(cell, PlanInput(waypoints) if takes_input else waypoints)
             if not result.ok or result.program is None:
                 digest.update(b"refused")
                 continue

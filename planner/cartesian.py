@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import Enum
+from enum import Enum, StrEnum
 
 import numpy as np
 import pinocchio as pin
@@ -68,7 +68,7 @@ class CartesianResult(Enum):
     JOINT_LIMIT = "joint_limit"  # a line that needs a joint past its position limit
 
 
-class Motion(Enum):
+class Motion(StrEnum):
     """How the tool goes from pose to pose."""
 
     LINEAR = "linear"  # straight lines, orientation by slerp

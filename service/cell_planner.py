@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from axes.program import PvtProgram
 from planner.build import BuildError, BuildOutput, build_program
@@ -89,73 +89,43 @@ class CellPlanner:
             return
         lo, hi = self.limits.lower, self.limits.upper
         a, b = lo + 0.45 * (hi - lo), lo + 0.55 * (hi - lo)
-        self.plan(np.array([a, b]))
+        self.plan(PlanInput(np.array([a, b])))
         if jerk or (jerk is None and self.planner.max_jerk is not None):
-            self.plan(np.array([a, b]), max_jerk=10.0 * self.limits.acceleration)
+            self.plan(PlanInput(np.array([a, b]), max_jerk=10.0 * self.limits.acceleration))
         if self.planner.poses is not None:  # and the inverse kinematics' compiled steps
-            self.plan_poses(a, [placement_pose(self.planner.poses.ik.fk(b))])
+            self.plan(PlanInput(a, [placement_pose(self.planner.poses.ik.fk(b))]))
 
     def plan(
-        self,
-        waypoints: ArrayLike,
-        tolerance_qc: float | None = None,
-        metadata: dict[str, Any] | None = None,
-        velocity_scale: float = 1.0,
-        acceleration_scale: float = 1.0,
-        max_jerk: ArrayLike | None = None,
+        self, inp: PlanInput, tolerance_qc: float | None = None, metadata: dict[str, Any] | None = None
     ) -> CellPlan:
-        """Waypoints (N, dof, the cell's joint order) -> a validated PVT program for the cell's drives.
+        """A plan (waypoints in the cell's joint order, or tool poses from a start: planner.plan)
+        -> a validated PVT program for the cell's drives. ``tolerance_qc``: the knots' position
+        tolerance (default: the cell's); ``metadata``: recorded in the program.
 
-        ``velocity_scale``, ``acceleration_scale`` (0, 1]: the speed override, for the plan and for
-        the knots (``build_program``); recorded in the program's metadata. ``max_jerk`` (one per
-        joint, joint units / s^3): the jerk limit of this plan instead of the cell's; the one held is
-        recorded in the metadata (``max_jerk``, null for a joint without one).
+        The speed override (``velocity_scale``, ``acceleration_scale``) holds for the plan and for
+        the knots (``build_program``); it is recorded in the program's metadata, as are the tool
+        poses' ``motion`` and the jerk limit held (``max_jerk``, null for a joint without one).
 
-        ``timing`` (s): ``plan`` the timing (with a jerk limit, ``topp`` and ``jerk`` its two parts), ``knots``
-        knot placement + validation, ``total``, and
-        ``cpu`` the CPU time of this thread over the whole call (``total - cpu``: time the thread
+        ``timing`` (s): ``plan`` the timing (``ik``: the inverse kinematics' part of it; with a jerk
+        limit, ``topp`` and ``jerk`` its two parts), ``knots`` knot placement + validation, ``total``,
+        and ``cpu`` the CPU time of this thread over the whole call (``total - cpu``: time the thread
         waited for the CPU or the GIL).
         """
         start, cpu = time.perf_counter(), time.thread_time()
         if self.planner is None:
             return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
-        out = self.planner.plan(
-            PlanInput(
-                waypoints, None, velocity_scale=velocity_scale, acceleration_scale=acceleration_scale, max_jerk=max_jerk
-            )
-        )
-        return self._build(out, start, cpu, tolerance_qc, metadata, velocity_scale, acceleration_scale)
-
-    def plan_poses(
-        self,
-        start_joints: ArrayLike,
-        poses: ArrayLike,
-        motion: str = "linear",
-        tolerance_qc: float | None = None,
-        metadata: dict[str, Any] | None = None,
-        velocity_scale: float = 1.0,
-        acceleration_scale: float = 1.0,
-        max_jerk: ArrayLike | None = None,
-    ) -> CellPlan:
-        """Tool poses (N, 7) from joint positions ``start_joints`` -> a validated PVT program, like
-        ``plan`` (``timing["ik"]``: the inverse kinematics' part of ``plan``)."""
-        start, cpu = time.perf_counter(), time.thread_time()
-        if self.planner is None:
-            return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
-        out = self.planner.plan(PlanInput(start_joints, poses, motion, velocity_scale, acceleration_scale, max_jerk))
-        extra = {"motion": motion}
-        return self._build(out, start, cpu, tolerance_qc, metadata, velocity_scale, acceleration_scale, extra)
+        out = self.planner.plan(inp)
+        meta = dict(metadata or {}) if inp.poses is None else {"motion": str(inp.motion), **(metadata or {})}
+        return self._build(out, start, cpu, inp, tolerance_qc, meta)
 
     def _build(
         self,
         out: PlanOutput,
         start: float,
         cpu: float,
+        inp: PlanInput,
         tolerance_qc: float | None,
-        metadata: dict[str, Any] | None,
-        velocity_scale: float = 1.0,
-        acceleration_scale: float = 1.0,
-        extra: dict[str, Any] | None = None,
+        metadata: dict[str, Any],
     ) -> CellPlan:
         """The program of a planned trajectory (or the planner's refusal as a CellPlan)."""
         t_plan = time.perf_counter() - start
@@ -167,7 +137,7 @@ class CellPlanner:
             return CellPlan(out.result.value, out.message, None, out, None, timing, details=dict(out.details))
         points = out.trajectory.path.points
         tol = self.tolerance_qc if tolerance_qc is None else tolerance_qc
-        meta = {**(extra or {}), **(metadata or {})}
+        meta = dict(metadata)
         if "max_jerk" in out.details:
             meta["max_jerk"] = out.details["max_jerk"]
         try:
@@ -177,8 +147,8 @@ class CellPlanner:
                 self.cell.name,
                 KnotOptions(tolerance_qc=tol),
                 meta,
-                float(velocity_scale),
-                float(acceleration_scale),
+                float(inp.velocity_scale),
+                float(inp.acceleration_scale),
             )
         except (BuildError, ValueError) as exc:
             return CellPlan("program_error", str(exc), None, out, None, timing, points)
@@ -188,13 +158,7 @@ class CellPlanner:
 
 
 def plan_cell_program(
-    cell: CellConfig,
-    waypoints: ArrayLike,
-    tolerance_qc: float | None = None,
-    metadata: dict[str, Any] | None = None,
-    velocity_scale: float = 1.0,
-    acceleration_scale: float = 1.0,
-    max_jerk: ArrayLike | None = None,
+    cell: CellConfig, inp: PlanInput, tolerance_qc: float | None = None, metadata: dict[str, Any] | None = None
 ) -> CellPlan:
     """One-off planning on ``cell`` (the CLI): a CellPlanner built for this call."""
-    return CellPlanner(cell).plan(waypoints, tolerance_qc, metadata, velocity_scale, acceleration_scale, max_jerk)
+    return CellPlanner(cell).plan(inp, tolerance_qc, metadata)

@@ -42,6 +42,7 @@ from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingReques
 from axes.outcome import AxisStatus, Event, EventKind, GroupError, Progress, Result, RunResult
 from axes.profiles import DriveError
 from axes.program import ProgramFormatError, PvtProgram, program_mismatch
+from planner.plan import PlanInput
 from planner.validate import validate_program
 from service.api import (
     ApiError,
@@ -302,20 +303,18 @@ class MotionService:
         """Waypoints or poses -> a validated program kept under a new plan id (PLAN_FAILED when impossible)."""
         t0 = time.perf_counter()
         plan_id = _new_id("p")
+        scales: dict[str, Any] = {
+            "velocity_scale": req.velocity_scale,
+            "acceleration_scale": req.acceleration_scale,
+            "max_jerk": req.max_jerk,
+        }
         if req.poses is not None:
             if req.start_joints is None:
                 self._refuse_unless_homed(self._group())
             q0 = req.start_joints if req.start_joints is not None else self.current_joint_positions()
             with self._planner_lock:
-                result = self.planner.plan_poses(
-                    q0,
-                    req.poses,
-                    req.motion,
-                    req.tolerance_qc,
-                    {"plan_id": plan_id},
-                    req.velocity_scale,
-                    req.acceleration_scale,
-                    req.max_jerk,
+                result = self.planner.plan(
+                    PlanInput(q0, req.poses, req.motion, **scales), req.tolerance_qc, {"plan_id": plan_id}
                 )
             waypoints = result.waypoints if result.waypoints is not None else q0[None, :]
         else:
@@ -336,14 +335,7 @@ class MotionService:
                         {"result": "repeated_waypoint"},
                     )
             with self._planner_lock:
-                result = self.planner.plan(
-                    waypoints,
-                    req.tolerance_qc,
-                    {"plan_id": plan_id},
-                    req.velocity_scale,
-                    req.acceleration_scale,
-                    req.max_jerk,
-                )
+                result = self.planner.plan(PlanInput(waypoints, **scales), req.tolerance_qc, {"plan_id": plan_id})
         if not result.ok or result.program is None or result.build is None:
             raise ApiError(
                 ErrorCode.PLAN_FAILED,

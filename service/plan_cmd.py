@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from planner.limits import check_max_jerk, check_scale
-from service.cell_planner import CellPlanner, plan_cell_program
+from planner.plan import PlanInput
+from service.cell_planner import plan_cell_program
 from service.config import ConfigError, load_cell_config
 from service.waypoints import PoseTargets, WaypointError, load_motion
 
@@ -120,9 +121,10 @@ def run(args: argparse.Namespace) -> int:
     }
     if isinstance(motion, PoseTargets):
         assert motion.start is not None
-        result = CellPlanner(cell).plan_poses(motion.start, motion.poses, motion.motion, args.tolerance, **scales)
+        inp = PlanInput(motion.start, motion.poses, motion.motion, **scales)
     else:
-        result = plan_cell_program(cell, motion, args.tolerance, **scales)
+        inp = PlanInput(motion, **scales)
+    result = plan_cell_program(cell, inp, args.tolerance)
     if not result.ok or result.program is None or result.build is None:
         why = f"({result.code}): {result.message}"
         return _fail(EXIT_NOT_PLANNED, f"cannot plan this motion on cell {cell.name!r} {why}")

@@ -27,9 +27,8 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from numpy.typing import ArrayLike
-
 from axes.config import AxisConfig
+from planner.plan import PlanInput
 from service.cell_planner import CellPlan, CellPlanner
 from service.config import CellConfig, PlanningConfig, load_cell_config
 from service.runtime import freeze_startup_objects
@@ -39,8 +38,8 @@ READY = "ready"
 
 def _child(conn: Connection, source: Path, name: str, axes: tuple[AxisConfig, ...], planning: PlanningConfig) -> None:
     """The child: the cell as the parent has it (the robot model is reloaded, not pickled), then one
-    ``(method, args)`` in (``plan`` or ``plan_poses`` of CellPlanner), one CellPlan (or an error
-    text) out, until EOF."""
+    ``(PlanInput, tolerance_qc, metadata)`` in (CellPlanner.plan's arguments), one CellPlan (or an
+    error text) out, until EOF."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it closes the pipe, we end on EOF
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     try:
@@ -54,11 +53,11 @@ def _child(conn: Connection, source: Path, name: str, axes: tuple[AxisConfig, ..
     conn.send(READY)
     while True:
         try:
-            method, args = conn.recv()
+            args = conn.recv()
         except (EOFError, OSError):  # the parent closed the pipe (or went away)
             return
         try:
-            result = planner.plan_poses(*args) if method == "plan_poses" else planner.plan(*args)
+            result = planner.plan(*args)
             conn.send(dataclasses.replace(result, plan=None))  # the TOPP-RA trajectory stays: the program is the output
         except Exception:  # a bug in the planner: the parent reports it, the child keeps serving
             conn.send(traceback.format_exc())
@@ -117,38 +116,18 @@ class PlanningProcess:
             self._wait_ready()
 
     def plan(
-        self,
-        waypoints: ArrayLike,
-        tolerance_qc: float | None = None,
-        metadata: dict[str, Any] | None = None,
-        velocity_scale: float = 1.0,
-        acceleration_scale: float = 1.0,
-        max_jerk: ArrayLike | None = None,
+        self, inp: PlanInput, tolerance_qc: float | None = None, metadata: dict[str, Any] | None = None
     ) -> CellPlan:
-        """Like CellPlanner.plan; PlanningError for a planner bug or a dead child (then restarted)."""
-        return self._ask("plan", (waypoints, tolerance_qc, metadata, velocity_scale, acceleration_scale, max_jerk))
+        """Like CellPlanner.plan, in the child; PlanningError for a planner bug or a dead child (then
+        restarted)."""
+        return self._ask((inp, tolerance_qc, metadata))
 
-    def plan_poses(
-        self,
-        start_joints: ArrayLike,
-        poses: ArrayLike,
-        motion: str = "linear",
-        tolerance_qc: float | None = None,
-        metadata: dict[str, Any] | None = None,
-        velocity_scale: float = 1.0,
-        acceleration_scale: float = 1.0,
-        max_jerk: ArrayLike | None = None,
-    ) -> CellPlan:
-        """Like CellPlanner.plan_poses, in the child."""
-        args = (start_joints, poses, motion, tolerance_qc, metadata, velocity_scale, acceleration_scale, max_jerk)
-        return self._ask("plan_poses", args)
-
-    def _ask(self, method: str, args: tuple[Any, ...]) -> CellPlan:
+    def _ask(self, args: tuple[Any, ...]) -> CellPlan:
         with self._lock:
             try:
                 self._wait_ready()
                 assert self._conn is not None
-                self._conn.send((method, args))
+                self._conn.send(args)
                 answer = self._conn.recv()
             except (EOFError, OSError, BrokenPipeError):
                 self._stop()

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from planner.plan import PlanInput
 from service.cell_planner import plan_cell_program
 from service.cli import main
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
@@ -23,7 +24,7 @@ def gantry3() -> CellConfig:
 def from_home(gantry3: CellConfig, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A program that starts where the gantry's axes stand once homed (each reads its home offset)."""
     home = [float(a.scaling.qc_to_position(a.homing.offset_qc)) for a in gantry3.ordered_axes() if a.homing is not None]
-    result = plan_cell_program(gantry3, [home, [0.1, 0.08, -0.05]])
+    result = plan_cell_program(gantry3, PlanInput([home, [0.1, 0.08, -0.05]]))
     assert result.ok and result.program is not None, result.message
     path = tmp_path_factory.mktemp("gantry") / "from-home.json"
     path.write_text(result.program.dumps())

@@ -52,8 +52,8 @@ def test_jerk_limited_plans_hold_every_limit_densely_and_validate(cell_planner: 
     max_jerk = factor * LIMITS.acceleration
     assert cell_planner.planner is not None
     for wp in random_paths(3, 6, seed=int(factor)):
-        topp = cell_planner.plan(wp)
-        res = cell_planner.plan(wp, max_jerk=max_jerk)
+        topp = cell_planner.plan(PlanInput(wp))
+        res = cell_planner.plan(PlanInput(wp, max_jerk=max_jerk))
         assert topp.ok and res.ok, res.message
         assert res.plan is not None and topp.plan is not None and res.program is not None
         traj = res.plan.trajectory

@@ -71,7 +71,7 @@ def test_a_half_speed_program_stays_under_half_the_drives_limits_and_records_the
     planner = CellPlanner(cell)
     for _ in range(3):
         w = lim.lower + (lim.upper - lim.lower) * (0.1 + 0.8 * rng.random((5, lim.dof)))
-        res = planner.plan(w, velocity_scale=0.5, acceleration_scale=0.7)
+        res = planner.plan(PlanInput(w, velocity_scale=0.5, acceleration_scale=0.7))
         assert res.ok, res.message
         prog = res.program
         assert prog.metadata["velocity_scale"] == 0.5 and prog.metadata["acceleration_scale"] == 0.7
@@ -82,12 +82,12 @@ def test_a_half_speed_program_stays_under_half_the_drives_limits_and_records_the
         # at most the scaled limit, with the round-off allowance both sides of the bus judge limits by
         assert not exceeds(max(a.velocity_ratio for a in report.axes), 0.5)
         assert not exceeds(max(a.acceleration_ratio for a in report.axes), 0.7)
-    full = planner.plan(w)
+    full = planner.plan(PlanInput(w))
     assert full.program.metadata["velocity_scale"] == 1.0
     assert full.program.duration_ms < res.program.duration_ms
 
 
 def test_a_bad_scale_on_the_cell_plans_nothing() -> None:
-    res = CellPlanner(ARM).plan(WAYPOINTS, velocity_scale=math.nan)
+    res = CellPlanner(ARM).plan(PlanInput(WAYPOINTS, velocity_scale=math.nan))
     assert not res.ok and res.program is None and res.code == "invalid_input"
     assert "velocity_scale" in res.message

@@ -6,6 +6,7 @@ import numpy as np
 
 from axes.program import TIME_MAX_MS
 from planner.knots.flat import within_record_time
+from planner.plan import PlanInput
 from planner.validate import validate_program
 from service.cell_planner import plan_cell_program
 from service.config import load_cell_config
@@ -88,7 +89,7 @@ def test_long_gaps_are_split_to_record_times() -> None:
 
 
 def test_path_with_a_long_hinted_segment_plans_and_validates() -> None:
-    plan = plan_cell_program(load_cell_config(None), LONG_SEGMENT_PATH)
+    plan = plan_cell_program(load_cell_config(None), PlanInput(LONG_SEGMENT_PATH))
     assert plan.code == "ok", plan.message
     assert validate_program(plan.program).ok
     assert all(int(a.records[1:-1, 2].max()) <= TIME_MAX_MS for a in plan.program.axes)

@@ -46,18 +46,18 @@ def test_a_cell_file_with_max_jerk_plans_jerk_limited_and_a_request_overrides_it
     assert cell.planning.max_jerk == (60.0, math.inf, math.inf, 200.0, math.inf, math.inf)
     assert load_cell_config(ARM).planning.max_jerk is None
     planner = CellPlanner(cell)
-    by_cell = planner.plan(WAYPOINTS)
+    by_cell = planner.plan(PlanInput(WAYPOINTS))
     assert by_cell.ok and by_cell.program is not None and by_cell.plan is not None
     assert isinstance(by_cell.plan.trajectory, JerkTrajectory)
     assert by_cell.program.metadata["max_jerk"] == [60.0, None, None, 200.0, None, None]
     assert {"topp", "jerk"} <= set(by_cell.timing)
     assert not validate_program(by_cell.program).errors
     override = [1000.0] * 6
-    by_request = planner.plan(WAYPOINTS, max_jerk=override)
+    by_request = planner.plan(PlanInput(WAYPOINTS, max_jerk=override))
     assert by_request.ok and by_request.program is not None
     assert by_request.program.metadata["max_jerk"] == override
     assert by_request.program.duration_ms < by_cell.program.duration_ms
-    refused = planner.plan(WAYPOINTS, max_jerk=[1.0] * 5)
+    refused = planner.plan(PlanInput(WAYPOINTS, max_jerk=[1.0] * 5))
     assert not refused.ok and refused.code == "invalid_input" and "max_jerk has 5 values" in refused.message
 
 
@@ -186,7 +186,7 @@ def test_the_planning_process_plans_jerk_limited_like_the_service_s_own_planner(
         reply = service.plan(PlanRequest(waypoints, start="first", include_program=True, max_jerk=jerk))
     finally:
         service.close()
-    here = CellPlanner(arm6).plan(waypoints, max_jerk=jerk)
+    here = CellPlanner(arm6).plan(PlanInput(waypoints, max_jerk=jerk))
     assert here.program is not None
     assert reply["program"]["metadata"]["max_jerk"] == pytest.approx(list(jerk))
     for axis, expected in zip(reply["program"]["axes"], here.program.axes, strict=True):

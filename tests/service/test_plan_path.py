@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from svc_helpers import SHORT_TARGET
 
+from planner.plan import PlanInput
 from service.api import (
     MAX_TEXT,
     MAX_WAYPOINTS,
@@ -141,8 +142,8 @@ def test_a_cell_planner_built_once_plans_like_a_one_off_call(arm6):
     second = np.vstack([mid, np.asarray(SHORT_TARGET)])
     planner = CellPlanner(arm6)
     for waypoints in (first, second, first):  # the same planner, again and again
-        reused = planner.plan(waypoints)
-        once = plan_cell_program(arm6, waypoints)
+        reused = planner.plan(PlanInput(waypoints))
+        once = plan_cell_program(arm6, PlanInput(waypoints))
         assert reused.ok and once.ok and reused.program is not None and once.program is not None
         for a, b in zip(reused.program.axes, once.program.axes, strict=True):
             assert np.array_equal(a.records, b.records)
@@ -154,7 +155,7 @@ def test_a_cell_planner_refusing_its_options_answers_every_plan_with_the_reason(
     import dataclasses
 
     bad = dataclasses.replace(arm6, planning=dataclasses.replace(arm6.planning, max_tcp_speed=-1.0))
-    result = CellPlanner(bad).plan([[0.0] * DOF, SHORT_TARGET])
+    result = CellPlanner(bad).plan(PlanInput([[0.0] * DOF, SHORT_TARGET]))
     assert not result.ok and result.code == "invalid_input" and "max_tcp_speed" in result.message
 
 
@@ -185,7 +186,7 @@ def test_the_planning_process_plans_like_the_service_s_own_planner_and_survives_
     try:
         assert isinstance(service.planner, PlanningProcess)
         reply = service.plan(PlanRequest(waypoints, start="first", include_program=True))
-        here = CellPlanner(arm6).plan(waypoints)
+        here = CellPlanner(arm6).plan(PlanInput(waypoints))
         assert here.program is not None
         for axis, expected in zip(reply["program"]["axes"], here.program.axes, strict=True):
             assert np.array_equal(np.asarray(axis["records"]), expected.records)
@@ -193,7 +194,7 @@ def test_the_planning_process_plans_like_the_service_s_own_planner_and_survives_
 
         os.kill(service.planner._process.pid, signal.SIGKILL)  # the child dies: one request fails, clearly
         with pytest.raises(PlanningError, match="restarted"):
-            service.planner.plan(waypoints)
+            service.planner.plan(PlanInput(waypoints))
         again = service.plan(PlanRequest(waypoints, start="first"))  # and a new child answers the next one
         assert again["records"] == reply["records"]
     finally:

@@ -11,6 +11,7 @@ from svc_helpers import check_reply, wait_until
 
 from planner.cartesian import LineTolerance, ToolLine, placement_pose, pose_placement
 from planner.ik import IkSolver
+from planner.plan import PlanInput
 from service.api import ApiError, parse_plan
 from service.cli import main
 from service.config import CONFIG_DIR, load_cell_config
@@ -155,7 +156,7 @@ def test_the_planning_process_plans_poses_like_the_service_s_own_planner(arm6, t
     try:
         assert isinstance(service.planner, PlanningProcess)
         reply = service.plan(req)
-        here = CellPlanner(arm6).plan_poses(np.array(Q1), [POSE], "linear")
+        here = CellPlanner(arm6).plan(PlanInput(np.array(Q1), [POSE], "linear"))
         assert here.program is not None and here.waypoints is not None
         assert reply["waypoints"] == len(here.waypoints)
         for axis, expected in zip(reply["program"]["axes"], here.program.axes, strict=True):
