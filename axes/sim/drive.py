@@ -171,6 +171,8 @@ class SimulatedDrive(HomingMixin):
         # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.scaling
         self.velocity_factor = self.scaling.qc_per_ms_per_velocity_unit  # record velocity unit -> qc/ms
         self._rpm_per_qc_ms = float(self.scaling.qc_per_ms_to_rpm(1.0))
+        # velocity objects (0x607F, 0x6081, 0x6099) in the drive's velocity unit, as the master writes them
+        self._units_per_qc_ms = self._rpm_per_qc_ms / self.scaling.velocity_unit_rpm
         self._rpm_s_per_qc_ms2 = float(self.scaling.qc_per_ms2_to_rpm_s(1.0))
         self.node._write_callbacks.remove(self.node.nmt.on_write)  # 0x1017 is handled here
         # canopen passes the written entry as the keyword ``od``, which is this module's name for axes.objects
@@ -233,13 +235,13 @@ class SimulatedDrive(HomingMixin):
     def apply_limits(self, limits: DriveLimits) -> None:
         """Commission the drive's own limit objects (facts about the drive, DESIGN section 3)."""
         values = {
-            (od.MAX_PROFILE_VELOCITY, 0): round(limits.max_profile_velocity_rpm),
+            (od.MAX_PROFILE_VELOCITY, 0): round(limits.max_profile_velocity_rpm / self.scaling.velocity_unit_rpm),
             (od.MAX_ACCELERATION, 0): round(limits.max_acceleration_rpm_s),
             (od.SOFTWARE_POSITION_LIMIT, 1): limits.min_position_qc,
             (od.SOFTWARE_POSITION_LIMIT, 2): limits.max_position_qc,
         }
         if limits.profile_velocity_rpm is not None:
-            values[(od.PROFILE_VELOCITY, 0)] = round(limits.profile_velocity_rpm)
+            values[(od.PROFILE_VELOCITY, 0)] = round(limits.profile_velocity_rpm / self.scaling.velocity_unit_rpm)
         if limits.profile_acceleration_rpm_s is not None:
             values[(od.PROFILE_ACCELERATION, 0)] = round(limits.profile_acceleration_rpm_s)
         with self.lock:
@@ -742,7 +744,7 @@ class SimulatedDrive(HomingMixin):
 
     def _check_dynamics(self, v: float, a: float) -> None:
         """Default sanity check: 0x607F bounds the demand velocity (fault)."""
-        if abs(v) * self._rpm_per_qc_ms > self.read_or(od.MAX_PROFILE_VELOCITY, 0, 2**32 - 1):
+        if abs(v) * self._units_per_qc_ms > self.read_or(od.MAX_PROFILE_VELOCITY, 0, 2**32 - 1):
             self.fault(self.EMCY_VELOCITY, "max profile velocity 0x607F")
 
     @property

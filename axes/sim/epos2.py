@@ -222,13 +222,13 @@ class Epos2Drive(SimulatedDrive):
         return segment.at(t)
 
     def _check_dynamics(self, v: float, a: float) -> None:
-        rpm = abs(v) * self._rpm_per_qc_ms
+        speed = abs(v) * self._units_per_qc_ms  # in 0x607F's unit
         rpm_s = abs(a) * self._rpm_s_per_qc_ms2
-        if exceeds(rpm, self.read(od.PROFILE_VELOCITY)):
+        if exceeds(speed, self.read(od.PROFILE_VELOCITY)):
             self.sticky |= BufferStatus.VELOCITY_WARNING
         if exceeds(rpm_s, self.read(od.PROFILE_ACCELERATION)):
             self.sticky |= BufferStatus.ACCELERATION_WARNING
-        if exceeds(rpm, self.read(od.MAX_PROFILE_VELOCITY)):
+        if exceeds(speed, self.read(od.MAX_PROFILE_VELOCITY)):
             self._ipm_error(BufferStatus.VELOCITY_ERROR, "max profile velocity 0x607F")
         elif exceeds(rpm_s, self.read(od.MAX_ACCELERATION)):
             self._ipm_error(BufferStatus.ACCELERATION_ERROR, "max acceleration 0x60C5")

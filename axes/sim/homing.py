@@ -331,7 +331,7 @@ class HomingMixin:
     mode_display: int
     time_us: int
     _stop_segment: Segment | None
-    _rpm_per_qc_ms: float
+    _units_per_qc_ms: float
     _rpm_s_per_qc_ms2: float
 
     @staticmethod
@@ -374,14 +374,14 @@ class HomingMixin:
         """Controlword bit 4 rose in mode 6: the method of 0x6098 at the speeds of 0x6099 and 0x609A."""
         self.referenced = False
         method = self.read_or(od.HOMING_METHOD, 0, 0)
-        rpm_per_qc_ms = self._rpm_per_qc_ms
+        units_per_qc_ms = self._units_per_qc_ms  # 0x6099 in the drive's velocity unit
         try:
             run = HomingRun(
                 method,
                 self.machine,
                 self.machine_position,
-                switch_speed=self.read_or(od.HOMING_SPEEDS, 1, 0) / rpm_per_qc_ms,
-                zero_speed=self.read_or(od.HOMING_SPEEDS, 2, 0) / rpm_per_qc_ms,
+                switch_speed=self.read_or(od.HOMING_SPEEDS, 1, 0) / units_per_qc_ms,
+                zero_speed=self.read_or(od.HOMING_SPEEDS, 2, 0) / units_per_qc_ms,
                 acceleration=self.read_or(od.HOMING_ACCELERATION, 0, 0) / self._rpm_s_per_qc_ms2,
                 current_threshold_ma=self.read_or(od.EPOS2_HOMING_CURRENT_THRESHOLD, 0, 500),
                 on_reference=self._home_found,

@@ -178,6 +178,24 @@ def velocity_program(peak_rpm: float) -> np.ndarray:
     return np.array([[0, 0, 1], [dist, int(mid_v), 20], [2 * dist, 0, 20], [2 * dist, 0, 0]])
 
 
+@pytest.mark.parametrize(("peak_rpm", "faults"), [(2500, False), (3500, True)])
+def test_velocity_objects_are_in_the_drives_velocity_unit(bench: Bench, peak_rpm: float, faults: bool) -> None:
+    """With a velocity unit of 0.1 rpm, 0x607F is commissioned and judged in 0.1 rpm, as the master
+    writes it: 3000 rpm is 30000 units, and a move at 2500 rpm (its record velocities in 0.1 rpm) runs."""
+    scaling = AxisScaling(2000.0, 1.0, velocity_unit_rpm=0.1)
+    drive = bench.add(Epos2Drive(30, scaling=scaling, limits=DriveLimits(3000, 10**6, -(10**7), 10**7)))
+    node = bench.remote(drive)
+    enable(node)
+    node.sdo[od.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
+    assert drive.read(od.MAX_PROFILE_VELOCITY) == 30000
+    dist = int(peak_rpm * FACTOR * 20 * 0.75)  # FACTOR: qc/ms per rpm
+    push(node, [[0, 0, 1], [dist, int(peak_rpm / 0.1), 20], [2 * dist, 0, 20], [2 * dist, 0, 0]])
+    node.sdo[od.CONTROLWORD].raw = 0x001F
+    bench.sync(50)
+    assert (drive.state == "FAULT") is faults
+    assert [f.check for f in drive.faults] == (["max profile velocity 0x607F"] if faults else [])
+
+
 def test_velocity_and_acceleration_errors_fault_the_drive(bench: Bench) -> None:
     limits = DriveLimits(3000, 10**6, -(10**7), 10**7)
     drive, node = make(bench, 28, limits=limits)
