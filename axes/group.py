@@ -220,8 +220,7 @@ class AxisGroup:
                 return self._finish_early(Result.REJECTED, reason)
             feeders: list[Feeder | None] = [None] * len(self.links)
             try:
-                if not self.configured:
-                    self.configure()
+                self.configure_if_needed()
                 by_node = {a.node_id: a for a in program.axes}
                 self._programs = [by_node[link.node_id] for link in self.links]
                 self._stop_request = None
@@ -633,11 +632,10 @@ class AxisGroup:
                 raise GroupError("cannot recover while a program is running: stop it first")
             self.readiness.wait()  # not two enables of one drive at once
             self.bus.sync.stop()
-            if not self.configured or self.rebooted():
-                try:
-                    self.configure()
-                except DriveError as exc:
-                    return self._finish_early(Result.CONFIGURATION_ERROR, str(exc))
+            try:
+                self.configure_if_needed()
+            except DriveError as exc:
+                return self._finish_early(Result.CONFIGURATION_ERROR, str(exc))
             for link in self.links:
                 self.bus.nmt(link.node_id, NMT_START)
             self.bus.sync.expect(p.sync_answer_cob_id for p in self.profiles)
