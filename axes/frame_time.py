@@ -64,7 +64,9 @@ def _frame_bits(can_id: int, extended: bool, remote: bool, dlc: int, data: bytes
     return _stuffed_length(body) + FIXED_TAIL_BITS
 
 
-def frame_bits(can_id: int, data: bytes = b"", *, extended: bool = False, remote: bool = False, dlc: int | None = None) -> int:
+def frame_bits(
+    can_id: int, data: bytes = b"", *, extended: bool = False, remote: bool = False, dlc: int | None = None
+) -> int:
     """Bits the frame occupies the bus for, interframe space included (exact stuffing)."""
     length = len(data) if dlc is None else dlc
     if not 0 <= length <= 8:

@@ -13,7 +13,7 @@ def _crc15(bits: list[int]) -> int:
     reg = [0] * 15
     for bit in bits:
         nxt = bit ^ reg[0]
-        reg = reg[1:] + [0]
+        reg = [*reg[1:], 0]
         if nxt:
             for tap in (0, 4, 6, 7, 10, 11, 14):  # 0x4599 read from the top bit down
                 reg[tap] ^= 1
