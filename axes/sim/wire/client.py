@@ -1,0 +1,130 @@
+"""A bus's link to a simwire server in another process (protocol: ``axes.sim.wire.protocol``)."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import socket
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import can
+from can import BusState
+
+from axes.sim.wire import protocol as p
+from axes.sim.wire.medium import LateSync, WireConfigError, WireStats
+
+CONNECT_TIMEOUT = 5.0
+
+
+class WireLink:
+    """Control connection (synchronous requests, the sender's thread reads its own answer) and
+    receive connection (a reader thread hands each frame to ``deliver``)."""
+
+    def __init__(
+        self,
+        name: str,
+        host: str,
+        port: int,
+        hello: dict[str, Any],
+        deliver: Callable[[can.Message], None],
+        on_close: Callable[[], None],
+    ) -> None:
+        self.channel = name
+        self._deliver = deliver
+        self._on_close = on_close
+        self._lock = threading.Lock()
+        self.closed = False
+        try:
+            self._control = p.configure(socket.create_connection((host, port), timeout=CONNECT_TIMEOUT))
+        except OSError as error:
+            raise can.CanInitializationError(
+                f"simwire: no server for channel {name!r} at {host}:{port} ({error.strerror or error})"
+            ) from None
+        self._control.settimeout(None)
+        self._stream = self._control.makefile("rb")
+        kind, body = self._request(p.pack_json(p.HELLO, {"channel": name, **hello}))
+        if kind == p.FAIL:
+            self._control.close()
+            raise WireConfigError(p.unpack_fail(body)[1])
+        welcome = json.loads(body)
+        self.node: str = welcome["node"]
+        self.params = {k: welcome[k] for k in ("bitrate", "clock", "sync_period")}
+        self._receive = p.configure(socket.create_connection((host, port), timeout=CONNECT_TIMEOUT))
+        self._receive.settimeout(None)
+        self._receive.sendall(p.pack_json(p.ATTACH, {"token": welcome["token"]}))
+        self._reader = threading.Thread(target=self._read, name=f"simwire-rx-{self.node}", daemon=True)
+        self._reader.start()
+
+    def _request(self, data: bytes) -> tuple[int, bytes]:
+        with self._lock:
+            if self.closed:
+                raise can.CanOperationError(f"simwire channel {self.channel!r}: the bus is closed")
+            try:
+                self._control.sendall(data)
+                return p.read_message(self._stream)
+            except (OSError, p.ProtocolError) as error:
+                raise can.CanOperationError(f"simwire channel {self.channel!r}: server gone ({error})") from None
+
+    def send(self, msg: can.Message, local_time: float, timeout: float | None) -> None:
+        kind, body = self._request(p.pack_send(msg, local_time, timeout))
+        if kind == p.FAIL:
+            code, text = p.unpack_fail(body)
+            raise can.CanOperationError(text, code or None)
+
+    def call(self, what: str, **args: Any) -> Any:
+        kind, body = self._request(p.pack_json(p.CALL, {"call": what, **args}))
+        if kind == p.FAIL:
+            raise ValueError(p.unpack_fail(body)[1])
+        return json.loads(body)
+
+    def _read(self) -> None:
+        buffer = bytearray()
+        channel = self.channel
+        try:
+            while True:
+                chunk = self._receive.recv(65536)
+                if not chunk:
+                    break
+                buffer += chunk
+                for kind, body in p.split_messages(buffer):
+                    if kind == p.FRAME:
+                        self._deliver(p.unpack_frame(body, channel))
+        except (OSError, p.ProtocolError):
+            pass
+        self._on_close()
+
+    def close(self) -> None:
+        with self._lock:
+            if self.closed:
+                return
+            self.closed = True
+        for sock in (self._control, self._receive):
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
+            sock.close()
+        if threading.current_thread() is not self._reader:
+            self._reader.join(timeout=2.0)
+
+
+class RemoteMedium:
+    """The medium's accounting and test hooks, reached through the server (``Medium``'s names)."""
+
+    def __init__(self, link: WireLink) -> None:
+        self._link = link
+
+    def stats(self) -> WireStats:
+        return WireStats.from_dict(self._link.call("stats"))
+
+    def late_syncs(self) -> list[LateSync]:
+        return self.stats().late_syncs
+
+    def set_state(self, name: str, state: BusState) -> None:
+        self._link.call("set_state", node=name, state=state.name)
+
+    def inject_error_frame(self, can_id: int = 0x008, data: bytes = bytes(8)) -> None:
+        self._link.call("inject_error_frame", can_id=can_id, data=data.hex())
+
+    def node_state(self) -> BusState:
+        return BusState[self._link.call("state")]

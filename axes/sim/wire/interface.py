@@ -1,0 +1,166 @@
+"""``SimWireBus``: the python-can interface ``simwire`` (entry point ``can.interface``).
+
+    can.Bus(interface="simwire", channel="cell", bitrate=1_000_000, clock="lockstep", sync_period=0.001)
+    can.Bus(interface="simwire", channel="cell@127.0.0.1:29536")   # the medium served by another process
+
+A plain channel name is this process's medium of that name (``axes.sim.wire.registry``); a
+``NAME@127.0.0.1:PORT`` channel is the medium a ``serve_wire`` of another process hosts. Each bus
+is one node of the medium (package docstring for the semantics).
+"""
+
+from __future__ import annotations
+
+import queue
+import re
+from typing import Any
+
+import can
+from can import BusState
+from can.typechecking import AutoDetectedConfig, CanFilters
+
+from axes.sim.wire.client import RemoteMedium, WireLink
+from axes.sim.wire.medium import DEFAULT_TXQUEUELEN, Medium, Node, WireConfigError
+from axes.sim.wire.registry import acquire_medium, open_channels, release_medium
+from axes.sim.wire.server import require_loopback
+
+_REMOTE = re.compile(r"^(?P<name>[^@]+)@(?P<host>[^:@]+):(?P<port>\d{1,5})$")
+_CLOSED = object()
+
+
+def parse_channel(channel: str) -> tuple[str, str | None, int | None]:
+    """``NAME`` -> (NAME, None, None); ``NAME@HOST:PORT`` -> (NAME, HOST, PORT), HOST loopback only."""
+    if not isinstance(channel, str) or not channel:
+        raise WireConfigError(f"a simwire channel is NAME or NAME@127.0.0.1:PORT, got {channel!r}")
+    if "@" not in channel:
+        return channel, None, None
+    match = _REMOTE.match(channel)
+    if match is None or not 0 < int(match["port"]) < 65536:
+        raise WireConfigError(f"a simwire channel is NAME or NAME@127.0.0.1:PORT, got {channel!r}")
+    return match["name"], require_loopback(match["host"]), int(match["port"])
+
+
+class SimWireBus(can.BusABC):
+    """One node on a simulated classic CAN bus with bit timing, arbitration and a bounded
+    transmit FIFO.
+
+    :param channel: ``NAME`` (this process) or ``NAME@127.0.0.1:PORT`` (a ``serve_wire`` elsewhere)
+    :param bitrate: bit/s; the medium's creator sets it (default 1 Mbit/s), later openers must agree
+        or leave it None
+    :param clock: ``"wall"`` or ``"lockstep"`` (same rule; default wall)
+    :param sync_period: seconds; required by lockstep (same rule)
+    :param txqueuelen: this node's transmit FIFO bound (default 10, SocketCAN's)
+    :param receive_own_messages: the node receives its own frames (is_rx False), as on socketcan
+    :param node_name: the node's name in the medium's accounting and test hooks (default nodeN)
+    """
+
+    def __init__(
+        self,
+        channel: str = "simwire",
+        can_filters: CanFilters | None = None,
+        *,
+        bitrate: int | None = None,
+        clock: str | None = None,
+        sync_period: float | None = None,
+        txqueuelen: int = DEFAULT_TXQUEUELEN,
+        receive_own_messages: bool = False,
+        node_name: str | None = None,
+        fd: bool = False,
+        **kwargs: Any,
+    ) -> None:
+        if fd:
+            raise WireConfigError("simwire is a classic CAN bus: CAN FD is not simulated")
+        name, host, port = parse_channel(channel)
+        self.channel_info = f"simwire channel {channel}"
+        self.channel = channel
+        self._rx: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._local_time = 0.0
+        self._medium: Medium | None = None
+        self._node: Node | None = None
+        self._link: WireLink | None = None
+        self._closed = False
+        if host is None:
+            self._medium = acquire_medium(name, bitrate=bitrate, clock=clock, sync_period=sync_period)
+            try:
+                self._node = self._medium.attach(
+                    self._rx.put, name=node_name, txqueuelen=txqueuelen, receive_own=receive_own_messages
+                )
+            except WireConfigError:
+                release_medium(name)
+                raise
+            self._name = name
+            self.clock = self._medium.clock
+            self.node_name = self._node.name
+        else:
+            hello = {
+                "bitrate": bitrate,
+                "clock": clock,
+                "sync_period": sync_period,
+                "txqueuelen": txqueuelen,
+                "receive_own": receive_own_messages,
+                "name": node_name,
+            }
+            self._link = WireLink(name, host, port, hello, self._rx.put, self._remote_closed)
+            self.clock = self._link.params["clock"]
+            self.node_name = self._link.node
+        super().__init__(channel=channel, can_filters=can_filters, **kwargs)
+
+    @property
+    def medium(self) -> Medium | RemoteMedium:
+        """The medium's accounting (``stats()``) and test hooks (``set_state``, ``inject_error_frame``)."""
+        return self._medium if self._medium is not None else RemoteMedium(self._link)
+
+    @property
+    def state(self) -> BusState:
+        """ACTIVE, PASSIVE (error passive) or ERROR (bus off), as the medium's test hook set it."""
+        if self._node is not None:
+            return self._node.state
+        return RemoteMedium(self._link).node_state()
+
+    @state.setter
+    def state(self, new_state: BusState) -> None:
+        raise NotImplementedError("a simwire node's state is set by the medium's test hook (Medium.set_state)")
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """Queue ``msg`` in this node's transmit FIFO. Full: CanOperationError (ENOBUFS), at once or
+        after ``timeout`` seconds without room; bus off: CanOperationError (ENETDOWN)."""
+        if self._closed:
+            raise can.CanOperationError(f"{self.channel_info}: the bus is closed")
+        if self._node is not None:
+            self._medium.submit(self._node, msg, timeout=timeout)
+        else:
+            self._link.send(msg, self._local_time, timeout)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self._closed:
+            raise can.CanOperationError(f"{self.channel_info}: the bus is closed")
+        try:
+            msg = self._rx.get(timeout=timeout)
+        except queue.Empty:
+            return None, False
+        if msg is _CLOSED:
+            self._rx.put(_CLOSED)
+            raise can.CanOperationError(f"{self.channel_info}: the bus is closed")
+        if msg.is_rx and msg.timestamp > self._local_time:
+            self._local_time = msg.timestamp
+            if self._node is not None and self.clock == "lockstep":
+                self._medium.received(self._node, msg.timestamp)
+        return msg, False
+
+    def _remote_closed(self) -> None:
+        self._rx.put(_CLOSED)
+
+    def shutdown(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        super().shutdown()
+        if self._medium is not None:
+            self._medium.detach(self._node)
+            release_medium(self._name)
+        else:
+            self._link.close()
+        self._rx.put(_CLOSED)
+
+    @staticmethod
+    def _detect_available_configs() -> list[AutoDetectedConfig]:
+        return [{"interface": "simwire", "channel": name} for name in open_channels()]

@@ -1,0 +1,518 @@
+"""The shared bus of one simulated-wire channel: who transmits when, and what it cost.
+
+Pure scheduling logic under one lock: no thread of its own. On the ``lockstep`` clock a frame is
+scheduled and delivered inside ``submit``; on the ``wall`` clock ``submit`` queues it in its node's
+transmit FIFO and ``step(now)`` (called by ``axes.sim.wire.wall.WallDriver``, or by a test with
+the time it chooses) puts the frames whose time has come on the wire. Deliveries happen under the
+lock, so every node sees the frames in bus order. The semantics are the package docstring's.
+"""
+
+from __future__ import annotations
+
+import errno
+import itertools
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import can
+from can import BusState
+
+from axes.frame_time import frame_bits
+
+CLOCKS = ("wall", "lockstep")
+SYNC_ID = 0x80
+DEFAULT_TXQUEUELEN = 10  # SocketCAN's default txqueuelen for a CAN interface
+DEFAULT_RECORD_LIMIT = 500_000  # frames kept for the accounting (about three minutes at 3000 frames/s)
+BUS_OFF = BusState.ERROR  # python-can's name for a controller that left the bus
+ERROR_PASSIVE = BusState.PASSIVE
+LATE_FRACTION = 0.05  # a SYNC later than its nominal time by more than this share of the period is late
+
+# SocketCAN error frames (linux/can/error.h), as python-can's socketcan hands them over.
+CAN_ERR_CRTL = 0x004
+CAN_ERR_PROT = 0x008
+CAN_ERR_BUSOFF = 0x040
+CAN_ERR_RESTARTED = 0x100
+CAN_ERR_CRTL_RX_PASSIVE = 0x10
+CAN_ERR_CRTL_TX_PASSIVE = 0x20
+CAN_ERR_CRTL_ACTIVE = 0x40
+
+Deliver = Callable[[can.Message], None]
+
+
+class WireConfigError(ValueError):
+    """A bus asked for a medium that disagrees with the channel's (clock, bit rate, SYNC period)."""
+
+
+def transmit_queue_full(node: str, txqueuelen: int) -> can.CanOperationError:
+    """The error a full transmit FIFO raises, with ENOBUFS as python-can's socketcan carries it."""
+    return can.CanOperationError(
+        f"Failed to transmit: No buffer space available (node {node}: {txqueuelen} frames queued)", errno.ENOBUFS
+    )
+
+
+def bus_off_error(node: str) -> can.CanOperationError:
+    return can.CanOperationError(f"Failed to transmit: node {node} is bus off", errno.ENETDOWN)
+
+
+@dataclass(slots=True)
+class _Pending:
+    """A frame in a wall-clock transmit FIFO."""
+
+    msg: can.Message
+    bits: int
+    enqueued: float
+    priority: tuple[int, int, int]
+
+
+@dataclass(slots=True)
+class Node:
+    """One opener of the channel: its receive callback, its transmit FIFO, its counters."""
+
+    name: str
+    deliver: Deliver
+    txqueuelen: int
+    receive_own: bool
+    state: BusState = BusState.ACTIVE
+    local_time: float = 0.0  # lockstep: the latest time stamp among frames it received
+    last_end: float = 0.0  # lockstep: end of its previous frame
+    ends: deque[float] = field(default_factory=deque)  # lockstep: end times of its frames still queued
+    fifo: deque[_Pending] = field(default_factory=deque)  # wall: queued frames, the one on the wire first
+    enobufs: int = 0
+    max_depth: int = 0
+    frames: int = 0
+    waiters: int = 0  # senders waiting for room (send with a timeout)
+
+
+@dataclass(frozen=True, slots=True)
+class FrameRecord:
+    start: float
+    end: float
+    can_id: int
+    dlc: int
+    sender: str
+
+
+@dataclass(frozen=True, slots=True)
+class LateSync:
+    nominal: float  # lockstep: when it was due; wall: the previous SYNC's start + period
+    start: float
+    lateness: float  # start - nominal, seconds
+
+
+@dataclass
+class WireStats:
+    """The medium's accounting, JSON-able (``asdict``) so a server can hand it to a client."""
+
+    channel: str
+    clock: str
+    bitrate: int
+    sync_period: float | None
+    frames: int
+    bits: int
+    first_start: float | None
+    last_end: float | None
+    mean_load: float  # busy time / (last_end - first_start)
+    period_loads: list[float]  # load of each SYNC period from the first frame on (empty without a period)
+    late_syncs: list[LateSync]
+    sync_intervals: list[float]  # between consecutive SYNC starts
+    enobufs: dict[str, int]
+    max_fifo_depth: dict[str, int]
+    error_frames: int
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> WireStats:
+        return cls(**{**data, "late_syncs": [LateSync(**s) for s in data["late_syncs"]]})
+
+
+def _priority(msg: can.Message) -> tuple[int, int, int]:
+    """Arbitration order, smallest wins: the 11 base bits, then base before extended (SRR/IDE
+    recessive), then the 18 extension bits, then data before remote (RTR recessive)."""
+    if msg.is_extended_id:
+        return ((msg.arbitration_id >> 18) & 0x7FF, 1, ((msg.arbitration_id & 0x3FFFF) << 1) | msg.is_remote_frame)
+    return (msg.arbitration_id & 0x7FF, 0, int(msg.is_remote_frame))
+
+
+class Medium:
+    """One channel's bus: nodes, arbitration, bus time, accounting."""
+
+    def __init__(
+        self,
+        channel: str = "simwire",
+        *,
+        bitrate: int = 1_000_000,
+        clock: str = "wall",
+        sync_period: float | None = None,
+        sync_id: int = SYNC_ID,
+        record_limit: int = DEFAULT_RECORD_LIMIT,
+    ) -> None:
+        if clock not in CLOCKS:
+            raise WireConfigError(f"simwire clock must be one of {', '.join(CLOCKS)}, got {clock!r}")
+        if not isinstance(bitrate, int) or bitrate <= 0:
+            raise WireConfigError(f"simwire bitrate must be a positive integer (bit/s), got {bitrate!r}")
+        if sync_period is not None and not sync_period > 0:
+            raise WireConfigError(f"simwire sync_period must be positive seconds, got {sync_period!r}")
+        if clock == "lockstep" and sync_period is None:
+            raise WireConfigError("simwire clock lockstep needs sync_period (seconds): bus time advances with it")
+        self.channel = channel
+        self.bitrate = bitrate
+        self.clock = clock
+        self.sync_period = sync_period
+        self.sync_id = sync_id
+        self.cond = threading.Condition(threading.RLock())
+        self.nodes: list[Node] = []
+        self._names = itertools.count(1)
+        self._records: deque[FrameRecord] = deque(maxlen=record_limit)
+        self._frames = 0
+        self._bits = 0
+        self._error_frames = 0
+        self._syncs: deque[tuple[float, float]] = deque(maxlen=record_limit)  # (nominal or nan, start)
+        self.bus_end = 0.0  # end of the last frame on the bus
+        self._last_sync_nominal: float | None = None  # lockstep
+        self._on_wire: tuple[Node, _Pending, float, float] | None = None  # wall: (node, frame, start, end)
+        self._seconds_per_bit = 1.0 / bitrate
+        self._epoch = time.time() - time.monotonic()
+        self.closed = False
+
+    # -- time ----------------------------------------------------------------------------------
+
+    def now(self) -> float:
+        """Bus time: wall clock as epoch seconds (monotonic-based); lockstep: the end of the last frame."""
+        if self.clock == "wall":
+            return self._epoch + time.monotonic()
+        return self.bus_end
+
+    def params(self) -> dict:
+        return {"bitrate": self.bitrate, "clock": self.clock, "sync_period": self.sync_period}
+
+    def check_agrees(self, *, bitrate: int | None, clock: str | None, sync_period: float | None) -> None:
+        """Every opener of a channel must agree with its medium; None agrees with anything."""
+        for name, asked, have in (
+            ("bitrate", bitrate, self.bitrate),
+            ("clock", clock, self.clock),
+            ("sync_period", sync_period, self.sync_period),
+        ):
+            if asked is not None and asked != have:
+                raise WireConfigError(
+                    f"simwire channel {self.channel!r} runs with {name}={have!r}; this bus asked for {asked!r}"
+                )
+
+    # -- nodes ---------------------------------------------------------------------------------
+
+    def attach(
+        self, deliver: Deliver, *, name: str | None = None, txqueuelen: int = DEFAULT_TXQUEUELEN, receive_own=False
+    ) -> Node:
+        if not isinstance(txqueuelen, int) or txqueuelen < 1:
+            raise WireConfigError(f"simwire txqueuelen must be a positive integer, got {txqueuelen!r}")
+        with self.cond:
+            if name is None:
+                name = f"node{next(self._names)}"
+            if any(n.name == name for n in self.nodes):
+                raise WireConfigError(f"simwire channel {self.channel!r} already has a node named {name!r}")
+            node = Node(name=name, deliver=deliver, txqueuelen=txqueuelen, receive_own=bool(receive_own))
+            if self.clock == "lockstep":
+                node.local_time = self.bus_end
+            self.nodes.append(node)
+            return node
+
+    def detach(self, node: Node) -> None:
+        """The node leaves: its queued frames with it (a frame on the wire finishes)."""
+        with self.cond:
+            if node in self.nodes:
+                self.nodes.remove(node)
+            node.fifo = deque(p for p in node.fifo if self._on_wire and self._on_wire[1] is p)
+            self.cond.notify_all()
+
+    def node(self, name: str) -> Node:
+        with self.cond:
+            for n in self.nodes:
+                if n.name == name:
+                    return n
+        raise KeyError(f"simwire channel {self.channel!r} has no node {name!r}")
+
+    # -- transmit ------------------------------------------------------------------------------
+
+    def submit(self, node: Node, msg: can.Message, *, timeout: float | None = None, now: float | None = None) -> None:
+        """Queue ``msg`` for transmission; lockstep delivers it before returning. A full FIFO raises
+        CanOperationError with ENOBUFS, at once or, with ``timeout`` > 0, when no room came within
+        it (as socketcan's select on a writable socket); a bus-off node raises ENETDOWN."""
+        if msg.is_fd or msg.dlc > 8 or len(msg.data) > 8:
+            raise can.CanOperationError(f"simwire carries classic CAN frames (0..8 bytes), got {msg}")
+        if msg.is_error_frame:
+            raise can.CanOperationError("an error frame is not sent: it is what the controllers signal")
+        bits = frame_bits(
+            msg.arbitration_id, bytes(msg.data), extended=msg.is_extended_id, remote=msg.is_remote_frame, dlc=msg.dlc
+        )
+        deadline = None if timeout is None or timeout <= 0 else time.monotonic() + timeout
+        with self.cond:
+            while True:
+                if node.state == BUS_OFF:
+                    raise bus_off_error(node.name)
+                try:
+                    if self.clock == "lockstep":
+                        self._submit_lockstep(node, msg, bits)
+                    else:
+                        self._submit_wall(node, msg, bits, self.now() if now is None else now)
+                    return
+                except can.CanOperationError:
+                    if deadline is None or not self.wait_for_room(node, deadline):
+                        node.enobufs += 1
+                        raise
+
+    def _is_sync(self, msg: can.Message) -> bool:
+        return msg.arbitration_id == self.sync_id and not msg.is_extended_id and not msg.is_remote_frame
+
+    def _submit_lockstep(self, node: Node, msg: can.Message, bits: int) -> None:
+        sync = self._is_sync(msg)
+        last = self._last_sync_nominal
+        if sync:
+            enqueue = node.local_time if last is None else max(node.local_time, last + self.sync_period)
+        else:
+            enqueue = node.local_time if last is None else max(node.local_time, last)
+        ends = node.ends
+        while ends and ends[0] <= enqueue:
+            ends.popleft()
+        if len(ends) >= node.txqueuelen:
+            raise transmit_queue_full(node.name, node.txqueuelen)
+        if sync:
+            self._last_sync_nominal = enqueue
+        start = max(enqueue, node.last_end, self.bus_end)
+        end = start + bits * self._seconds_per_bit
+        ends.append(end)
+        node.last_end = end
+        node.max_depth = max(node.max_depth, len(ends))
+        if sync:
+            self._syncs.append((enqueue, start))
+        self._transmitted(node, msg, bits, start, end)
+
+    def _submit_wall(self, node: Node, msg: can.Message, bits: int, now: float) -> None:
+        if len(node.fifo) >= node.txqueuelen:
+            raise transmit_queue_full(node.name, node.txqueuelen)
+        node.fifo.append(_Pending(msg, bits, now, _priority(msg)))
+        node.max_depth = max(node.max_depth, len(node.fifo))
+        if self._on_wire is None:
+            self.cond.notify_all()  # the driver sleeps while the bus is idle
+
+    def step(self, now: float) -> float | None:
+        """Wall clock: deliver every frame whose last bit has left the wire by ``now`` and start the
+        next by arbitration. Returns when the frame on the wire ends (None: the bus is idle)."""
+        with self.cond:
+            while True:
+                if self._on_wire is not None:
+                    node, pending, start, end = self._on_wire
+                    if end > now:
+                        return end
+                    self._on_wire = None
+                    node.fifo.popleft()
+                    if self._is_sync(pending.msg):
+                        self._syncs.append((float("nan"), start))
+                    self._transmitted(node, pending.msg, pending.bits, start, end)
+                    self.cond.notify_all()  # room in a FIFO
+                heads = [n for n in self.nodes if n.fifo]
+                if not heads:
+                    return None
+                start = max(self.bus_end, min(n.fifo[0].enqueued for n in heads))
+                winner = min((n for n in heads if n.fifo[0].enqueued <= start), key=lambda n: n.fifo[0].priority)
+                pending = winner.fifo[0]
+                self._on_wire = (winner, pending, start, start + pending.bits * self._seconds_per_bit)
+
+    def wait_for_room(self, node: Node, deadline: float) -> bool:
+        """Block (wall time) until ``node``'s FIFO has room or ``deadline`` (time.monotonic) passes."""
+        with self.cond:
+            node.waiters += 1
+            try:
+                while self._queued(node) >= node.txqueuelen and node.state != BUS_OFF:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0 or self.closed:
+                        return False
+                    self.cond.wait(remaining)
+                return True
+            finally:
+                node.waiters -= 1
+
+    def _queued(self, node: Node) -> int:
+        if self.clock == "wall":
+            return len(node.fifo)
+        last = self._last_sync_nominal
+        enqueue = node.local_time if last is None else max(node.local_time, last)
+        return sum(1 for e in node.ends if e > enqueue)
+
+    def received(self, node: Node, timestamp: float) -> None:
+        """Lockstep: a frame of another node was handed to ``node``'s reader; its local time follows."""
+        if timestamp > node.local_time:
+            node.local_time = timestamp
+            if node.waiters:
+                with self.cond:
+                    self.cond.notify_all()
+
+    def _transmitted(self, sender: Node, msg: can.Message, bits: int, start: float, end: float) -> None:
+        """Account for the frame and hand it to every node (under the lock: bus order)."""
+        self.bus_end = end
+        sender.frames += 1
+        self._frames += 1
+        self._bits += bits
+        self._records.append(FrameRecord(start, end, msg.arbitration_id, msg.dlc, sender.name))
+        for n in self.nodes:
+            if n.state == BUS_OFF:
+                continue
+            own = n is sender
+            if own and not n.receive_own:
+                continue
+            n.deliver(
+                can.Message(
+                    timestamp=end,
+                    arbitration_id=msg.arbitration_id,
+                    is_extended_id=msg.is_extended_id,
+                    is_remote_frame=msg.is_remote_frame,
+                    dlc=msg.dlc,
+                    data=msg.data,
+                    channel=self.channel,
+                    is_rx=not own,
+                    check=False,
+                )
+            )
+
+    # -- test hooks: bus states and error frames -----------------------------------------------
+
+    def set_state(self, name: str, state: BusState) -> None:
+        """Put node ``name`` into ``state`` (ACTIVE, PASSIVE = error passive, ERROR = bus off), as
+        its controller would; it receives the SocketCAN controller error frame that says so. A node
+        going bus off loses its queued frames (one on the wire is aborted: nothing of it reaches the
+        wire)."""
+        if state not in (BusState.ACTIVE, BusState.PASSIVE, BusState.ERROR):
+            raise ValueError(f"bus state must be ACTIVE, PASSIVE or ERROR (bus off), got {state!r}")
+        with self.cond:
+            node = next((n for n in self.nodes if n.name == name), None)
+            if node is None:
+                raise KeyError(f"simwire channel {self.channel!r} has no node {name!r}")
+            before, node.state = node.state, state
+            if state == BUS_OFF:
+                node.deliver(self._error_frame(CAN_ERR_BUSOFF, bytes(8)))
+                if self._on_wire is not None and self._on_wire[0] is node:
+                    self.bus_end = max(self.bus_end, self._on_wire[2])
+                    self._on_wire = None
+                node.fifo.clear()
+                node.ends.clear()
+                self.cond.notify_all()
+                return  # a bus-off controller hears nothing more
+            if before == BUS_OFF:
+                can_id, data = CAN_ERR_RESTARTED, bytes(8)
+            elif state == ERROR_PASSIVE:
+                can_id, data = CAN_ERR_CRTL, bytes([0, CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE, *bytes(6)])
+            else:
+                can_id, data = CAN_ERR_CRTL, bytes([0, CAN_ERR_CRTL_ACTIVE, *bytes(6)])
+            node.deliver(self._error_frame(can_id, data))
+            self.cond.notify_all()
+
+    def inject_error_frame(self, can_id: int = CAN_ERR_PROT, data: bytes = bytes(8)) -> None:
+        """An error frame on the bus (default: a protocol violation), delivered to every node that
+        is not bus off, stamped with the bus time. It takes no bus time in the accounting."""
+        with self.cond:
+            self._error_frames += 1
+            for n in self.nodes:
+                if n.state != BUS_OFF:
+                    n.deliver(self._error_frame(can_id, data))
+
+    def _error_frame(self, can_id: int, data: bytes) -> can.Message:
+        return can.Message(
+            timestamp=self.now(),
+            arbitration_id=can_id,
+            is_extended_id=False,
+            is_error_frame=True,
+            dlc=len(data),
+            data=data,
+            channel=self.channel,
+            is_rx=True,
+            check=False,
+        )
+
+    # -- accounting ----------------------------------------------------------------------------
+
+    def records(self) -> list[FrameRecord]:
+        with self.cond:
+            return list(self._records)
+
+    def load(self, t0: float, t1: float) -> float:
+        """Share of [t0, t1) the bus was busy (frames clipped to the interval)."""
+        return _load(self.records(), t0, t1)
+
+    def period_loads(self, period: float | None = None) -> list[float]:
+        """Load of each consecutive ``period`` (default the SYNC period) from the first frame on."""
+        return _period_loads(self.records(), period or self.sync_period)
+
+    def sync_intervals(self) -> list[float]:
+        with self.cond:
+            starts = [s for _, s in self._syncs]
+        return [b - a for a, b in itertools.pairwise(starts)]
+
+    def late_syncs(self, fraction: float = LATE_FRACTION) -> list[LateSync]:
+        """Lockstep: SYNCs that started more than ``fraction`` of the period after their nominal time.
+        Wall: SYNCs that started more than that after the previous SYNC's start + period."""
+        period = self.sync_period
+        with self.cond:
+            syncs = list(self._syncs)
+        if period is None:
+            return []
+        late: list[LateSync] = []
+        for i, (nominal, start) in enumerate(syncs):
+            if self.clock == "wall":
+                if i == 0:
+                    continue
+                nominal = syncs[i - 1][1] + period
+            if start - nominal > fraction * period:
+                late.append(LateSync(nominal, start, start - nominal))
+        return late
+
+    def stats(self) -> WireStats:
+        records = self.records()
+        with self.cond:
+            frames, bits, error_frames = self._frames, self._bits, self._error_frames
+            enobufs = {n.name: n.enobufs for n in self.nodes}
+            depth = {n.name: n.max_depth for n in self.nodes}
+        first = records[0].start if records else None
+        last = records[-1].end if records else None
+        return WireStats(
+            channel=self.channel,
+            clock=self.clock,
+            bitrate=self.bitrate,
+            sync_period=self.sync_period,
+            frames=frames,
+            bits=bits,
+            first_start=first,
+            last_end=last,
+            mean_load=_load(records, first, last) if records and last > first else 0.0,
+            period_loads=_period_loads(records, self.sync_period),
+            late_syncs=self.late_syncs(),
+            sync_intervals=self.sync_intervals(),
+            enobufs=enobufs,
+            max_fifo_depth=depth,
+            error_frames=error_frames,
+        )
+
+
+def _load(records: list[FrameRecord], t0: float, t1: float) -> float:
+    if t1 <= t0:
+        raise ValueError(f"an interval needs t1 > t0, got [{t0}, {t1})")
+    busy = sum(max(0.0, min(r.end, t1) - max(r.start, t0)) for r in records)
+    return busy / (t1 - t0)
+
+
+def _period_loads(records: list[FrameRecord], period: float | None) -> list[float]:
+    if not records or period is None:
+        return []
+    origin = records[0].start
+    count = int((records[-1].end - origin) / period) + 1
+    busy = [0.0] * count
+    for r in records:
+        i = int((r.start - origin) / period)
+        t = r.start
+        while t < r.end and i < count:  # a frame may straddle a period boundary
+            edge = origin + (i + 1) * period
+            busy[i] += min(r.end, edge) - t
+            t, i = edge, i + 1
+    return [b / period for b in busy]

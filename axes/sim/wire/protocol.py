@@ -1,0 +1,140 @@
+"""The simwire loopback protocol: length-prefixed messages over TCP (TCP_NODELAY).
+
+Every message is a 4-byte little-endian length, then a kind byte and its body. A client opens two
+connections to the server:
+
+* the **control** connection carries requests, each answered before the next is sent: ``HELLO``
+  (JSON: channel, bitrate, clock, sync_period, txqueuelen, receive_own, name) -> ``WELCOME`` (JSON:
+  node, token, the medium's parameters) or ``FAIL``; ``SEND`` (a frame, the sender's lockstep local
+  time and its send timeout) -> ``OK`` or ``FAIL`` (errno + text: ENOBUFS, bus off); ``CALL``
+  (JSON: a medium hook: stats, set_state, inject_error_frame, state) -> ``REPLY`` (JSON) or ``FAIL``.
+  A send is acknowledged synchronously, so a full transmit FIFO is the sender's error at its
+  ``send()``, as on SocketCAN, and the sending thread reads its own answer (no thread hop).
+* the **receive** connection: ``ATTACH`` (JSON: the token) and then the server streams ``FRAME``s
+  (time stamp, identifier, flags, DLC, 8 data bytes), in bus order, batched when they come fast.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import struct
+from typing import Any
+
+import can
+
+HELLO, WELCOME, SEND, OK, FAIL, CALL, REPLY, ATTACH, FRAME = b"HWSKFCRAM"
+_LEN = struct.Struct("<I")
+_FRAME = struct.Struct("<dIBB8s")  # time stamp, identifier, flags, dlc, data
+_SEND = struct.Struct("<ddIBB8s")  # local time, timeout (< 0: None), identifier, flags, dlc, data
+_FAIL = struct.Struct("<i")
+EXTENDED, REMOTE, ERROR, RX = 1, 2, 4, 8
+MAX_MESSAGE = 16 * 1024 * 1024
+
+
+class ProtocolError(ConnectionError):
+    """The peer sent something this protocol does not have, or went away."""
+
+
+def pack(kind: int, body: bytes = b"") -> bytes:
+    return _LEN.pack(len(body) + 1) + bytes((kind,)) + body
+
+
+def pack_json(kind: int, value: Any) -> bytes:
+    return pack(kind, json.dumps(value).encode())
+
+
+def _flags(msg: can.Message) -> int:
+    return (
+        (EXTENDED if msg.is_extended_id else 0)
+        | (REMOTE if msg.is_remote_frame else 0)
+        | (ERROR if msg.is_error_frame else 0)
+        | (RX if msg.is_rx else 0)
+    )
+
+
+def pack_frame(msg: can.Message) -> bytes:
+    body = _FRAME.pack(msg.timestamp, msg.arbitration_id, _flags(msg), msg.dlc, bytes(msg.data))
+    return _LEN.pack(len(body) + 1) + bytes((FRAME,)) + body
+
+
+def unpack_frame(body: bytes, channel: str) -> can.Message:
+    timestamp, can_id, flags, dlc, data = _FRAME.unpack(body)
+    return can.Message(
+        timestamp=timestamp,
+        arbitration_id=can_id,
+        is_extended_id=bool(flags & EXTENDED),
+        is_remote_frame=bool(flags & REMOTE),
+        is_error_frame=bool(flags & ERROR),
+        is_rx=bool(flags & RX),
+        dlc=dlc,
+        data=b"" if flags & REMOTE else data[: min(dlc, 8)],
+        channel=channel,
+        check=False,
+    )
+
+
+def pack_send(msg: can.Message, local_time: float, timeout: float | None) -> bytes:
+    body = _SEND.pack(
+        local_time, -1.0 if timeout is None else timeout, msg.arbitration_id, _flags(msg), msg.dlc, bytes(msg.data)
+    )
+    return pack(SEND, body)
+
+
+def unpack_send(body: bytes) -> tuple[can.Message, float, float | None]:
+    local_time, timeout, can_id, flags, dlc, data = _SEND.unpack(body)
+    msg = can.Message(
+        arbitration_id=can_id,
+        is_extended_id=bool(flags & EXTENDED),
+        is_remote_frame=bool(flags & REMOTE),
+        is_error_frame=bool(flags & ERROR),
+        dlc=dlc,
+        data=b"" if flags & REMOTE else data[: min(dlc, 8)],
+        check=False,
+    )
+    return msg, local_time, None if timeout < 0 else timeout
+
+
+def pack_fail(code: int, text: str) -> bytes:
+    return pack(FAIL, _FAIL.pack(code) + text.encode())
+
+
+def unpack_fail(body: bytes) -> tuple[int, str]:
+    (code,) = _FAIL.unpack_from(body)
+    return code, body[_FAIL.size :].decode()
+
+
+def read_message(stream: Any) -> tuple[int, bytes]:
+    """One message from a buffered binary stream (``socket.makefile('rb')``)."""
+    head = stream.read(4)
+    if len(head) < 4:
+        raise ProtocolError("connection closed")
+    (length,) = _LEN.unpack(head)
+    if not 1 <= length <= MAX_MESSAGE:
+        raise ProtocolError(f"bad message length {length}")
+    body = stream.read(length)
+    if len(body) < length:
+        raise ProtocolError("connection closed")
+    return body[0], body[1:]
+
+
+def split_messages(buffer: bytearray) -> list[tuple[int, bytes]]:
+    """Complete messages at the front of ``buffer`` (removed from it)."""
+    out: list[tuple[int, bytes]] = []
+    pos = 0
+    size = len(buffer)
+    while size - pos >= 4:
+        (length,) = _LEN.unpack_from(buffer, pos)
+        if not 1 <= length <= MAX_MESSAGE:
+            raise ProtocolError(f"bad message length {length}")
+        if size - pos - 4 < length:
+            break
+        out.append((buffer[pos + 4], bytes(buffer[pos + 5 : pos + 4 + length])))
+        pos += 4 + length
+    del buffer[:pos]
+    return out
+
+
+def configure(sock: socket.socket) -> socket.socket:
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    return sock

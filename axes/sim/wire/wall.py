@@ -1,0 +1,43 @@
+"""The thread that runs a wall-clock medium in real time.
+
+It sleeps on the medium's condition until the frame on the wire is due to end (or, on an idle
+bus, until a frame is queued), then lets ``Medium.step`` deliver every frame whose end has passed
+and start the next: a late wake delivers a batch, each frame still stamped with its exact end.
+No busy wait: the sleep is a condition wait (sub-millisecond where the OS gives it).
+"""
+
+from __future__ import annotations
+
+import threading
+
+from axes.sim.wire.medium import Medium
+
+
+class WallDriver:
+    def __init__(self, medium: Medium) -> None:
+        if medium.clock != "wall":
+            raise ValueError(f"a wall driver runs a wall-clock medium, not {medium.clock}")
+        self.medium = medium
+        self._stop = False
+        self.thread = threading.Thread(target=self._run, name=f"simwire-{medium.channel}", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        medium = self.medium
+        cond = medium.cond
+        with cond:
+            while not self._stop:
+                due = medium.step(medium.now())
+                if due is None:
+                    cond.wait()
+                else:
+                    remaining = due - medium.now()
+                    if remaining > 0:
+                        cond.wait(remaining)
+
+    def close(self) -> None:
+        with self.medium.cond:
+            self._stop = True
+            self.medium.cond.notify_all()
+        if threading.current_thread() is not self.thread:
+            self.thread.join(timeout=2.0)
