@@ -171,6 +171,7 @@ class Medium:
         self._frames = 0
         self._bits = 0
         self._error_frames = 0
+        self._departed: dict[str, tuple[int, int]] = {}  # name: (ENOBUFS, max FIFO depth) of nodes that left
         self._syncs: deque[tuple[float, float]] = deque(maxlen=record_limit)  # (nominal or nan, start)
         self.bus_end = 0.0  # end of the last frame on the bus
         self._last_sync_nominal: float | None = None  # lockstep
@@ -225,6 +226,8 @@ class Medium:
         with self.cond:
             if node in self.nodes:
                 self.nodes.remove(node)
+                enobufs, depth = self._departed.get(node.name, (0, 0))
+                self._departed[node.name] = (enobufs + node.enobufs, max(depth, node.max_depth))
             node.fifo = deque(p for p in node.fifo if self._on_wire and self._on_wire[1] is p)
             self.cond.notify_all()
 
@@ -472,8 +475,11 @@ class Medium:
         records = self.records()
         with self.cond:
             frames, bits, error_frames = self._frames, self._bits, self._error_frames
-            enobufs = {n.name: n.enobufs for n in self.nodes}
-            depth = {n.name: n.max_depth for n in self.nodes}
+            enobufs = {name: count for name, (count, _) in self._departed.items()}
+            depth = {name: most for name, (_, most) in self._departed.items()}
+            for n in self.nodes:
+                enobufs[n.name] = enobufs.get(n.name, 0) + n.enobufs
+                depth[n.name] = max(depth.get(n.name, 0), n.max_depth)
         first = records[0].start if records else None
         last = records[-1].end if records else None
         return WireStats(

@@ -159,7 +159,8 @@ class WireServer:
             self._closed = True
             clients = list(self._clients)
         with contextlib.suppress(OSError):
-            self._listener.close()
+            self._listener.shutdown(socket.SHUT_RDWR)  # wakes the blocked accept()
+        self._listener.close()
         for client in clients:
             client.close()
         self._acceptor.join(timeout=2.0)

@@ -1,0 +1,515 @@
+"""The simulated wire (``axes.sim.wire``): bit timing, arbitration, the bounded transmit FIFO,
+late SYNCs, bus states, the loopback server, and python-canopen over it, on both clocks."""
+
+from __future__ import annotations
+
+import errno
+import os
+import subprocess
+import sys
+import textwrap
+import tomllib
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+import canopen
+import pytest
+from can import BusState
+
+from axes.frame_time import frame_bits
+from axes.sim.wire import BUS_OFF, ERROR_PASSIVE, Medium, SimWireBus, WireConfigError
+from axes.sim.wire.medium import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_PROT
+
+REPO = Path(__file__).resolve().parents[2]
+SYNC = 0x80
+PERIOD = 0.001
+SERVED_BITRATE = 125_000  # a frame about 1 ms: a remote burst outruns the wire
+
+
+def frame(can_id: int, data: bytes = b"", *, extended: bool = False, remote: bool = False) -> can.Message:
+    return can.Message(
+        arbitration_id=can_id, data=data, is_extended_id=extended, is_remote_frame=remote, dlc=len(data) or None
+    )
+
+
+def seconds(msg: can.Message, bitrate: int) -> float:
+    return frame_bits(msg.arbitration_id, bytes(msg.data), extended=msg.is_extended_id) / bitrate
+
+
+class Buses:
+    """Buses opened on fresh channels, shut down after the test."""
+
+    def __init__(self) -> None:
+        self.opened: list[can.BusABC] = []
+
+    def channel(self) -> str:
+        return f"wire-{uuid.uuid4().hex[:10]}"
+
+    def open(self, channel: str, **kwargs: object) -> SimWireBus:
+        bus = SimWireBus(channel, **kwargs)
+        self.opened.append(bus)
+        return bus
+
+    def close(self) -> None:
+        for bus in reversed(self.opened):
+            bus.shutdown()
+
+
+@pytest.fixture
+def buses() -> Iterator[Buses]:
+    b = Buses()
+    yield b
+    b.close()
+
+
+def drain(bus: can.BusABC, count: int, timeout: float = 5.0) -> list[can.Message]:
+    out = []
+    for _ in range(count):
+        msg = bus.recv(timeout)
+        assert msg is not None, f"only {len(out)} of {count} frames arrived"
+        out.append(msg)
+    return out
+
+
+# -- bit timing ------------------------------------------------------------------------------------
+
+
+def test_lockstep_back_to_back_frames_are_stamped_with_their_exact_end(buses: Buses) -> None:
+    ch = buses.channel()
+    master = buses.open(ch, clock="lockstep", sync_period=PERIOD, bitrate=500_000)
+    drive = buses.open(ch)
+    first, second = frame(SYNC), frame(0x201, bytes(range(8)))
+    master.send(first)
+    master.send(second)
+    got = drain(drive, 2)
+    assert got[0].timestamp == pytest.approx(seconds(first, 500_000), abs=1e-12)
+    assert got[1].timestamp == pytest.approx(got[0].timestamp + seconds(second, 500_000), abs=1e-12)
+    assert [m.is_rx for m in got] == [True, True]
+    assert master.recv(0) is None  # no echo without receive_own_messages
+
+
+def test_wall_back_to_back_frames_arrive_in_order_a_frame_apart(buses: Buses) -> None:
+    ch = buses.channel()
+    a = buses.open(ch, bitrate=20_000)
+    b = buses.open(ch)
+    msgs = [frame(0x181 + i, bytes([i] * 8)) for i in range(3)]
+    for m in msgs:
+        a.send(m)
+    got = drain(b, 3)
+    assert [m.arbitration_id for m in got] == [0x181, 0x182, 0x183]
+    for prev, cur, sent in zip(got, got[1:], msgs[1:], strict=False):
+        assert cur.timestamp - prev.timestamp >= seconds(sent, 20_000) - 1e-6  # epoch floats: 0.24 us steps
+
+
+def test_own_frames_come_back_only_when_asked_and_not_as_received(buses: Buses) -> None:
+    ch = buses.channel()
+    a = buses.open(ch, clock="lockstep", sync_period=PERIOD, receive_own_messages=True)
+    b = buses.open(ch)
+    a.send(frame(0x601, bytes(8)))
+    own, other = a.recv(1), b.recv(1)
+    assert own.is_rx is False and other.is_rx is True
+    assert own.timestamp == other.timestamp
+
+
+# -- arbitration -----------------------------------------------------------------------------------
+
+
+def test_wall_arbitration_when_the_bus_goes_idle_lowest_identifier_first() -> None:
+    """Medium.step with chosen times: what is queued while a frame is on the wire competes when it ends."""
+    medium = Medium("arb", bitrate=100_000, clock="wall")
+    heard: list[can.Message] = []
+    listener = medium.attach(heard.append)
+    a, b, c, d = (medium.attach(lambda m: None) for _ in range(4))
+    medium.submit(a, frame(0x500, bytes(8)), now=0.0)
+    assert medium.step(0.0) is not None  # 0x500 on the wire
+    medium.submit(b, frame(0x300), now=1e-5)
+    medium.submit(c, frame(0x100, extended=True), now=2e-5)  # base bits 0x000: beats 0x300
+    medium.submit(d, frame(0x100, remote=True), now=3e-5)
+    medium.submit(a, frame(0x050), now=4e-5)  # behind a's own 0x500 in its FIFO until that ends
+    medium.step(1.0)
+    assert listener is medium.nodes[0]
+    order = [(m.arbitration_id, m.is_extended_id, m.is_remote_frame) for m in heard]
+    assert order == [
+        (0x500, False, False),
+        (0x100, True, False),
+        (0x050, False, False),
+        (0x100, False, True),
+        (0x300, False, False),
+    ]
+    ends = [m.timestamp for m in heard]
+    assert ends == sorted(ends)
+    assert ends[0] == pytest.approx(seconds(frame(0x500, bytes(8)), 100_000))
+
+
+def test_wall_arbitration_base_before_extended_and_data_before_remote() -> None:
+    medium = Medium("arb2", bitrate=100_000, clock="wall")
+    heard: list[can.Message] = []
+    medium.attach(heard.append)
+    senders = [medium.attach(lambda m: None) for _ in range(4)]
+    blocker = medium.attach(lambda m: None)
+    medium.submit(blocker, frame(0x7FF, bytes(8)), now=0.0)
+    medium.step(0.0)
+    queued = [
+        frame(0x123 << 18, extended=True, remote=True),
+        frame(0x123, remote=True),
+        frame(0x123 << 18, extended=True),
+        frame(0x123),
+    ]
+    for node, msg in zip(senders, queued, strict=True):
+        medium.submit(node, msg, now=1e-5)
+    medium.step(1.0)
+    assert [(m.is_extended_id, m.is_remote_frame) for m in heard[1:]] == [
+        (False, False),
+        (False, True),
+        (True, False),
+        (True, True),
+    ]
+
+
+def test_wall_arbitration_between_two_nodes_in_real_time(buses: Buses) -> None:
+    ch = buses.channel()
+    a = buses.open(ch, bitrate=2_000)  # about 55 ms a frame: the other two queue while a's first is on
+    b = buses.open(ch)
+    c = buses.open(ch)
+    listener = buses.open(ch)
+    a.send(frame(0x500, bytes(8)))
+    a.send(frame(0x501, bytes(1)))
+    b.send(frame(0x300, bytes(1)))
+    c.send(frame(0x100, bytes(1)))
+    assert [m.arbitration_id for m in drain(listener, 4)] == [0x500, 0x100, 0x300, 0x501]
+
+
+# -- the transmit FIFO -----------------------------------------------------------------------------
+
+
+def test_lockstep_burst_after_sync_gets_enobufs_on_the_eleventh_frame(buses: Buses) -> None:
+    ch = buses.channel()
+    master = buses.open(ch, clock="lockstep", sync_period=PERIOD, node_name="master")
+    drive = buses.open(ch, node_name="drive")
+    master.send(frame(SYNC))
+    for i in range(9):
+        master.send(frame(0x200 + i, bytes(8)))
+    with pytest.raises(can.CanOperationError) as raised:
+        master.send(frame(0x209, bytes(8)))
+    assert raised.value.error_code == errno.ENOBUFS
+    stats = master.medium.stats()
+    assert stats.enobufs == {"master": 1, "drive": 0}
+    assert stats.max_fifo_depth["master"] == 10
+    # The drive answers after what it received: once the master has read it, its queue has drained.
+    got = drain(drive, 10)
+    drive.send(frame(0x181, bytes(2)))
+    answer = master.recv(1)
+    assert answer.timestamp > got[-1].timestamp
+    master.send(frame(0x209, bytes(8)))
+
+
+def test_lockstep_sends_of_another_node_after_a_sync_fill_its_own_fifo(buses: Buses) -> None:
+    ch = buses.channel()
+    sync = buses.open(ch, clock="lockstep", sync_period=PERIOD)
+    master = buses.open(ch)
+    sync.send(frame(SYNC))
+    for i in range(10):
+        master.send(frame(0x300 + i, bytes(8)))
+    with pytest.raises(can.CanOperationError) as raised:
+        master.send(frame(0x30A, bytes(8)))
+    assert raised.value.error_code == errno.ENOBUFS
+
+
+def test_wall_burst_bigger_than_txqueuelen_raises_enobufs(buses: Buses) -> None:
+    ch = buses.channel()
+    master = buses.open(ch, bitrate=10_000, node_name="master")  # ~10 ms a frame
+    buses.open(ch)
+    sent = 0
+    with pytest.raises(can.CanOperationError) as raised:
+        for i in range(40):
+            master.send(frame(0x200 + i, bytes(8)))
+            sent += 1
+    assert raised.value.error_code == errno.ENOBUFS
+    assert sent >= 10
+    assert master.medium.stats().enobufs["master"] == 1
+
+
+def test_wall_send_with_a_timeout_waits_for_room(buses: Buses) -> None:
+    ch = buses.channel()
+    master = buses.open(ch, bitrate=50_000, txqueuelen=3)
+    listener = buses.open(ch)
+    for i in range(12):
+        master.send(frame(0x200 + i, bytes(8)), timeout=2.0)
+    assert [m.arbitration_id for m in drain(listener, 12)] == [0x200 + i for i in range(12)]
+    assert master.medium.stats().max_fifo_depth[master.node_name] == 3
+
+
+# -- late SYNC -------------------------------------------------------------------------------------
+
+
+def test_lockstep_sync_behind_its_senders_busy_fifo_is_late_by_the_queue(buses: Buses) -> None:
+    ch = buses.channel()
+    bitrate = 500_000
+    master = buses.open(ch, clock="lockstep", sync_period=PERIOD, bitrate=bitrate, txqueuelen=20)
+    drive = buses.open(ch)
+    master.send(frame(SYNC))
+    records = [frame(0x401 + i, bytes([0x55, i, 0, 0, 0, 0, 0, 0])) for i in range(9)]
+    for msg in records:
+        master.send(msg)
+    busy_until = seconds(frame(SYNC), bitrate) + sum(seconds(m, bitrate) for m in records)
+    assert busy_until > PERIOD
+    master.send(frame(SYNC))
+    got = drain(drive, 11)
+    second_sync = got[-1]
+    assert second_sync.arbitration_id == SYNC
+    assert second_sync.timestamp == pytest.approx(busy_until + seconds(frame(SYNC), bitrate), abs=1e-12)
+    late = master.medium.late_syncs()
+    assert len(late) == 1
+    assert late[0].nominal == pytest.approx(PERIOD)
+    assert late[0].lateness == pytest.approx(busy_until - PERIOD, abs=1e-12)
+
+
+def test_lockstep_sync_on_time_is_not_late_and_loads_are_per_period(buses: Buses) -> None:
+    ch = buses.channel()
+    master = buses.open(ch, clock="lockstep", sync_period=PERIOD)
+    drive = buses.open(ch)
+    for _ in range(3):
+        master.send(frame(SYNC))
+        master.send(frame(0x201, bytes(8)))
+        drain(drive, 2)
+    stats = master.medium.stats()
+    assert stats.late_syncs == []
+    assert stats.sync_intervals == pytest.approx([PERIOD, PERIOD])
+    busy = seconds(frame(SYNC), 1_000_000) + seconds(frame(0x201, bytes(8)), 1_000_000)
+    assert stats.period_loads == pytest.approx([busy / PERIOD] * 3)
+
+
+# -- bus states and error frames -------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("clock", ["lockstep", "wall"])
+def test_bus_off_node_cannot_send_and_hears_nothing(buses: Buses, clock: str) -> None:
+    ch = buses.channel()
+    a = buses.open(ch, clock=clock, sync_period=PERIOD, node_name="a")
+    b = buses.open(ch, node_name="b")
+    a.medium.set_state("a", BUS_OFF)
+    assert a.state == BusState.ERROR
+    notice = a.recv(1)
+    assert notice.is_error_frame and notice.arbitration_id == CAN_ERR_BUSOFF
+    with pytest.raises(can.CanOperationError) as raised:
+        a.send(frame(0x181, bytes(2)))
+    assert raised.value.error_code == errno.ENETDOWN
+    b.send(frame(0x601, bytes(8)))
+    assert b.recv(0.2) is None  # a's frame never reached the wire
+    assert a.recv(0.2) is None  # and a hears nothing
+    a.medium.set_state("a", BusState.ACTIVE)
+    a.send(frame(0x181, bytes(2)))
+    assert b.recv(1).arbitration_id == 0x181
+
+
+def test_bus_off_drops_the_queued_frames_of_the_node() -> None:
+    medium = Medium("off", bitrate=100_000, clock="wall")
+    heard: list[can.Message] = []
+    medium.attach(heard.append)
+    node = medium.attach(lambda m: None, name="victim")
+    for i in range(3):
+        medium.submit(node, frame(0x200 + i, bytes(8)), now=0.0)
+    medium.step(0.0)
+    medium.set_state("victim", BUS_OFF)
+    assert medium.step(1.0) is None
+    assert heard == []
+
+
+@pytest.mark.parametrize("clock", ["lockstep", "wall"])
+def test_error_passive_is_reported_and_error_frames_reach_every_node(buses: Buses, clock: str) -> None:
+    ch = buses.channel()
+    a = buses.open(ch, clock=clock, sync_period=PERIOD, node_name="a")
+    b = buses.open(ch, node_name="b")
+    a.medium.set_state("a", ERROR_PASSIVE)
+    assert a.state == BusState.PASSIVE and b.state == BusState.ACTIVE
+    notice = a.recv(1)
+    assert notice.is_error_frame and notice.arbitration_id == CAN_ERR_CRTL and notice.data[1] & 0x30
+    a.send(frame(0x181, bytes(2)))  # error passive still sends
+    assert b.recv(1).arbitration_id == 0x181
+    a.medium.inject_error_frame()
+    for bus in (a, b):
+        msg = bus.recv(1)
+        assert msg.is_error_frame and msg.arbitration_id == CAN_ERR_PROT
+
+
+# -- configuration ---------------------------------------------------------------------------------
+
+
+def test_openers_of_a_channel_must_agree(buses: Buses) -> None:
+    ch = buses.channel()
+    buses.open(ch, clock="lockstep", sync_period=PERIOD, bitrate=500_000)
+    buses.open(ch, bitrate=500_000)
+    with pytest.raises(WireConfigError, match="clock"):
+        buses.open(ch, clock="wall")
+    with pytest.raises(WireConfigError, match="bitrate"):
+        buses.open(ch, bitrate=1_000_000)
+    with pytest.raises(WireConfigError, match="sync_period"):
+        buses.open(buses.channel(), clock="lockstep")
+    with pytest.raises(WireConfigError, match="loopback"):
+        buses.open("cell@192.168.1.4:29536")
+    with pytest.raises(WireConfigError, match=r"NAME@127\.0\.0\.1:PORT"):
+        buses.open("cell@127.0.0.1")
+
+
+def test_the_entry_point_is_declared_and_python_can_finds_it(tmp_path: Path) -> None:
+    """python-can and canopen find ``simwire`` through the ``can.interface`` entry point the
+    project declares (a dist-info on the path carries it, as an install would)."""
+    declared = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["entry-points"]["can.interface"]
+    assert declared == {"simwire": "axes.sim.wire.interface:SimWireBus"}
+    dist = tmp_path / "pvtflow_simwire_probe-0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: pvtflow-simwire-probe\nVersion: 0\n")
+    (dist / "entry_points.txt").write_text(f"[can.interface]\nsimwire = {declared['simwire']}\n")
+    probe = textwrap.dedent(
+        """
+        import can, canopen
+        bus = can.Bus(interface="simwire", channel="ep", clock="lockstep", sync_period=0.001)
+        other = can.Bus(interface="simwire", channel="ep")
+        net = canopen.Network().connect(interface="simwire", channel="ep")
+        net.send_message(0x181, b"\\x01\\x02")
+        msg = bus.recv(1)
+        print(type(bus).__name__, hex(msg.arbitration_id), msg.timestamp > 0)
+        net.disconnect(); other.shutdown(); bus.shutdown()
+        """
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(REPO)])}
+    out = subprocess.run(
+        [sys.executable, "-c", probe], cwd=REPO, env=env, capture_output=True, text=True, timeout=60, check=True
+    )
+    assert out.stdout.split() == ["SimWireBus", "0x181", "True"]
+
+
+# -- python-canopen over the wire ------------------------------------------------------------------
+
+
+def sdo_pair(master_bus: can.BusABC, drive_bus: can.BusABC) -> tuple[canopen.Network, canopen.Network, object]:
+    od = canopen.ObjectDictionary()
+    var = canopen.objectdictionary.ODVariable("target", 0x2000, 0)
+    var.data_type = canopen.objectdictionary.UNSIGNED32
+    var.access_type = "rw"
+    var.default = 7
+    od.add_object(var)
+    name = canopen.objectdictionary.ODVariable("name", 0x2001, 0)
+    name.data_type = canopen.objectdictionary.VISIBLE_STRING
+    name.access_type = "rw"
+    name.default = "simulated wire drive"
+    od.add_object(name)
+    drive_net = canopen.Network(drive_bus).connect()
+    drive_net.add_node(canopen.LocalNode(5, od))
+    master_net = canopen.Network(master_bus).connect()
+    remote = master_net.add_node(canopen.RemoteNode(5, od))
+    return master_net, drive_net, remote
+
+
+def check_sdo(remote: canopen.RemoteNode) -> None:
+    assert remote.sdo[0x2000].raw == 7
+    remote.sdo[0x2000].raw = 0xDEADBEEF
+    assert remote.sdo.upload(0x2000, 0) == (0xDEADBEEF).to_bytes(4, "little")
+    assert remote.sdo[0x2001].raw == "simulated wire drive"  # segmented upload
+    remote.sdo[0x2001].raw = "a longer string than four bytes"  # segmented download
+    assert remote.sdo[0x2001].raw == "a longer string than four bytes"
+
+
+@pytest.mark.parametrize("clock", ["lockstep", "wall"])
+def test_sdo_upload_and_download_in_process(buses: Buses, clock: str) -> None:
+    ch = buses.channel()
+    master_bus = buses.open(ch, clock=clock, sync_period=PERIOD, node_name="master")
+    drive_bus = buses.open(ch, node_name="drive")
+    master_net, drive_net, remote = sdo_pair(master_bus, drive_bus)
+    try:
+        check_sdo(remote)
+    finally:
+        master_net.disconnect()
+        drive_net.disconnect()
+    stats = master_bus.medium.stats()
+    assert stats.frames >= 12 and stats.enobufs == {"master": 0, "drive": 0}
+
+
+# -- another process -------------------------------------------------------------------------------
+
+
+@pytest.fixture(params=["lockstep", "wall"])
+def server(request: pytest.FixtureRequest) -> Iterator[tuple[str, str]]:
+    """A simwire server in a child process; yields (channel string, clock)."""
+    clock = request.param
+    code = (
+        "import sys\n"
+        "from axes.sim.wire import serve_wire\n"
+        f"s = serve_wire('cell', 0, clock={clock!r}, bitrate={SERVED_BITRATE}, sync_period={PERIOD})\n"
+        "print(s.address, flush=True)\n"
+        "sys.stdin.read()\n"
+        "s.close()\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    child = subprocess.Popen(
+        [sys.executable, "-c", code], cwd=REPO, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        address = child.stdout.readline().strip()
+        assert address.startswith("cell@127.0.0.1:")
+        yield address, clock
+    finally:
+        child.stdin.close()
+        child.wait(timeout=10)
+
+
+def test_two_clients_exchange_frames_through_a_server_in_another_process(buses: Buses, server: tuple[str, str]) -> None:
+    address, clock = server
+    a = buses.open(address, node_name="a", txqueuelen=10)
+    b = buses.open(address, clock=clock, node_name="b")
+    assert a.clock == clock
+    a.send(frame(SYNC))
+    a.send(frame(0x201, bytes(range(8))))
+    got = drain(b, 2)
+    assert [m.arbitration_id for m in got] == [SYNC, 0x201]
+    assert got[1].data == bytearray(range(8))
+    gap = got[1].timestamp - got[0].timestamp
+    if clock == "lockstep":
+        assert gap == pytest.approx(seconds(got[1], SERVED_BITRATE), abs=1e-12)
+    else:  # the second send may come after the SYNC left the wire
+        assert gap >= seconds(got[1], SERVED_BITRATE) - 1e-6
+    b.send(frame(0x181, bytes(2)))
+    assert a.recv(2).arbitration_id == 0x181
+    stats = a.medium.stats()
+    assert stats.frames == 3 and stats.clock == clock
+    b.medium.inject_error_frame()
+    assert a.recv(2).is_error_frame and b.recv(2).is_error_frame
+    a.medium.set_state("a", BUS_OFF)
+    assert a.state == BusState.ERROR
+    with pytest.raises(can.CanOperationError):
+        a.send(frame(0x181, bytes(2)))
+
+
+def test_a_remote_burst_gets_enobufs_at_send(buses: Buses, server: tuple[str, str]) -> None:
+    address, clock = server
+    master = buses.open(address, node_name="master")
+    buses.open(address, node_name="drive")
+    sent = 0
+    with pytest.raises(can.CanOperationError) as raised:
+        for i in range(200 if clock == "wall" else 11):
+            master.send(frame(0x200 + (i % 64), bytes(8)))
+            sent += 1
+    assert raised.value.error_code == errno.ENOBUFS
+    if clock == "lockstep":
+        assert sent == 10
+    assert master.medium.stats().enobufs["master"] == 1
+
+
+def test_a_client_with_other_parameters_is_refused(buses: Buses, server: tuple[str, str]) -> None:
+    address, _ = server
+    with pytest.raises(WireConfigError, match="bitrate"):
+        buses.open(address, bitrate=250_000)
+    with pytest.raises(WireConfigError, match="serves channel"):
+        buses.open(address.replace("cell@", "other@"))
+
+
+def test_canopen_sdo_over_the_loopback_server(buses: Buses, server: tuple[str, str]) -> None:
+    address, _ = server
+    master_net, drive_net, remote = sdo_pair(buses.open(address), buses.open(address))
+    try:
+        check_sdo(remote)
+    finally:
+        master_net.disconnect()
+        drive_net.disconnect()
