@@ -478,8 +478,11 @@ def test_two_clients_exchange_frames_through_a_server_in_another_process(buses: 
     assert a.recv(2).is_error_frame and b.recv(2).is_error_frame
     a.medium.set_state("a", BUS_OFF)
     assert a.state == BusState.ERROR
-    with pytest.raises(can.CanOperationError):
+    notice = a.recv(2)
+    assert notice.is_error_frame and notice.arbitration_id == CAN_ERR_BUSOFF
+    with pytest.raises(can.CanOperationError) as raised:
         a.send(frame(0x181, bytes(2)))
+    assert raised.value.error_code == errno.ENETDOWN
 
 
 def test_a_remote_burst_gets_enobufs_at_send(buses: Buses, server: tuple[str, str]) -> None:

@@ -13,7 +13,19 @@ import can
 from can import BusState
 
 from axes.sim.wire import protocol as p
-from axes.sim.wire.medium import LateSync, WireConfigError, WireStats
+from axes.sim.wire.medium import (
+    BUS_OFF,
+    CAN_ERR_BUSOFF,
+    CAN_ERR_CRTL,
+    CAN_ERR_CRTL_ACTIVE,
+    CAN_ERR_RESTARTED,
+    ERROR_PASSIVE,
+    LateSync,
+    WireConfigError,
+    WireStats,
+    bus_off_error,
+    transmit_queue_full,
+)
 
 CONNECT_TIMEOUT = 5.0
 
@@ -51,6 +63,11 @@ class WireLink:
         welcome = json.loads(body)
         self.node: str = welcome["node"]
         self.params = {k: welcome[k] for k in ("bitrate", "clock", "sync_period")}
+        self.pipelined = self.params["clock"] == "wall"
+        self.txqueuelen: int = hello["txqueuelen"]
+        self.state = BusState.ACTIVE  # followed from the controller error frames received
+        self._inflight = 0
+        self._room = threading.Condition(threading.Lock())
         self._receive = p.configure(socket.create_connection((host, port), timeout=CONNECT_TIMEOUT))
         self._receive.settimeout(None)
         self._receive.sendall(p.pack_json(p.ATTACH, {"token": welcome["token"]}))
@@ -68,10 +85,54 @@ class WireLink:
                 raise can.CanOperationError(f"simwire channel {self.channel!r}: server gone ({error})") from None
 
     def send(self, msg: can.Message, local_time: float, timeout: float | None) -> None:
+        if self.pipelined:
+            self._post(msg, timeout)
+            return
         kind, body = self._request(p.pack_send(msg, local_time, timeout))
         if kind == p.FAIL:
             code, text = p.unpack_fail(body)
             raise can.CanOperationError(text, code or None)
+
+    def _post(self, msg: can.Message, timeout: float | None) -> None:
+        """Wall clock: count the frame in flight and post it; a full FIFO is refused here."""
+        if msg.is_fd or msg.dlc > 8 or len(msg.data) > 8 or msg.is_error_frame:
+            raise can.CanOperationError(f"simwire carries classic CAN data and remote frames, got {msg}")
+        with self._room:
+            if self.state == BUS_OFF:
+                raise bus_off_error(self.node)
+            if self._inflight >= self.txqueuelen and timeout is not None and timeout > 0:
+                self._room.wait_for(lambda: self._inflight < self.txqueuelen or self.closed, timeout)
+            if self._inflight >= self.txqueuelen:
+                refused = True
+            else:
+                refused = False
+                self._inflight += 1
+        if refused:
+            self._write(p.pack_count(p.REFUSED, 1))
+            raise transmit_queue_full(self.node, self.txqueuelen)
+        self._write(p.pack_post(msg))
+
+    def _write(self, data: bytes) -> None:
+        with self._lock:
+            if self.closed:
+                raise can.CanOperationError(f"simwire channel {self.channel!r}: the bus is closed")
+            try:
+                self._control.sendall(data)
+            except OSError as error:
+                raise can.CanOperationError(f"simwire channel {self.channel!r}: server gone ({error})") from None
+
+    def _follow_state(self, msg: can.Message) -> None:
+        if msg.arbitration_id == CAN_ERR_BUSOFF:
+            state = BUS_OFF
+        elif msg.arbitration_id == CAN_ERR_RESTARTED:
+            state = BusState.ACTIVE
+        elif msg.arbitration_id == CAN_ERR_CRTL:
+            state = BusState.ACTIVE if msg.data[1] & CAN_ERR_CRTL_ACTIVE else ERROR_PASSIVE
+        else:
+            return
+        with self._room:
+            self.state = state
+            self._room.notify_all()
 
     def call(self, what: str, **args: Any) -> Any:
         kind, body = self._request(p.pack_json(p.CALL, {"call": what, **args}))
@@ -90,7 +151,14 @@ class WireLink:
                 buffer += chunk
                 for kind, body in p.split_messages(buffer):
                     if kind == p.FRAME:
-                        self._deliver(p.unpack_frame(body, channel))
+                        msg = p.unpack_frame(body, channel)
+                        if msg.is_error_frame:
+                            self._follow_state(msg)
+                        self._deliver(msg)
+                    elif kind == p.DONE:
+                        with self._room:
+                            self._inflight -= p.unpack_count(body)
+                            self._room.notify_all()
         except (OSError, p.ProtocolError):
             pass
         self._on_close()
@@ -100,6 +168,8 @@ class WireLink:
             if self.closed:
                 return
             self.closed = True
+        with self._room:
+            self._room.notify_all()
         for sock in (self._control, self._receive):
             with contextlib.suppress(OSError):
                 sock.shutdown(socket.SHUT_RDWR)

@@ -84,6 +84,7 @@ class Node:
     max_depth: int = 0
     frames: int = 0
     waiters: int = 0  # senders waiting for room (send with a timeout)
+    on_done: Callable[[int], None] | None = None  # wall: told how many frames left the FIFO (sent or dropped)
 
 
 @dataclass(frozen=True, slots=True)
@@ -312,6 +313,8 @@ class Medium:
                         return end
                     self._on_wire = None
                     node.fifo.popleft()
+                    if node.on_done is not None:
+                        node.on_done(1)
                     if self._is_sync(pending.msg):
                         self._syncs.append((float("nan"), start))
                     self._transmitted(node, pending.msg, pending.bits, start, end)
@@ -399,8 +402,11 @@ class Medium:
                 if self._on_wire is not None and self._on_wire[0] is node:
                     self.bus_end = max(self.bus_end, self._on_wire[2])
                     self._on_wire = None
+                dropped = len(node.fifo)
                 node.fifo.clear()
                 node.ends.clear()
+                if dropped and node.on_done is not None:
+                    node.on_done(dropped)
                 self.cond.notify_all()
                 return  # a bus-off controller hears nothing more
             if before == BUS_OFF:

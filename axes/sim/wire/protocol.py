@@ -8,10 +8,19 @@ connections to the server:
   node, token, the medium's parameters) or ``FAIL``; ``SEND`` (a frame, the sender's lockstep local
   time and its send timeout) -> ``OK`` or ``FAIL`` (errno + text: ENOBUFS, bus off); ``CALL``
   (JSON: a medium hook: stats, set_state, inject_error_frame, state) -> ``REPLY`` (JSON) or ``FAIL``.
-  A send is acknowledged synchronously, so a full transmit FIFO is the sender's error at its
-  ``send()``, as on SocketCAN, and the sending thread reads its own answer (no thread hop).
+  On the lockstep clock a send is acknowledged synchronously (the FIFO bound is judged in
+  virtual time, which only the medium knows), so a full transmit FIFO is the sender's error at
+  its ``send()``, as on SocketCAN, and the sending thread reads its own answer (no thread hop).
+  On the wall clock a round trip per frame would cost the master more than the frame costs the
+  wire, so sends are pipelined: ``POST`` (a frame, no answer); the client counts its frames in
+  flight (posted, not yet reported ``DONE``) and raises ENOBUFS itself when ``txqueuelen`` are,
+  telling the server (``REFUSED``, no answer) so the medium's ENOBUFS count stays whole. Frames in
+  the socket count as queued: the client's FIFO is never emptier than the medium's.
 * the **receive** connection: ``ATTACH`` (JSON: the token) and then the server streams ``FRAME``s
-  (time stamp, identifier, flags, DLC, 8 data bytes), in bus order, batched when they come fast.
+  (time stamp, identifier, flags, DLC, 8 data bytes), in bus order, batched when they come fast,
+  and on the wall clock ``DONE`` (count) when frames of this client left its FIFO (sent, or
+  dropped at bus off). The client follows its bus state from the controller error frames it
+  receives (CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_RESTARTED), as a socketcan user does.
 """
 
 from __future__ import annotations
@@ -23,11 +32,12 @@ from typing import Any
 
 import can
 
-HELLO, WELCOME, SEND, OK, FAIL, CALL, REPLY, ATTACH, FRAME = b"HWSKFCRAM"
+HELLO, WELCOME, SEND, OK, FAIL, CALL, REPLY, ATTACH, FRAME, POST, DONE, REFUSED = b"HWSKFCRAMPDN"
 _LEN = struct.Struct("<I")
 _FRAME = struct.Struct("<dIBB8s")  # time stamp, identifier, flags, dlc, data
 _SEND = struct.Struct("<ddIBB8s")  # local time, timeout (< 0: None), identifier, flags, dlc, data
 _FAIL = struct.Struct("<i")
+_COUNT = struct.Struct("<I")
 EXTENDED, REMOTE, ERROR, RX = 1, 2, 4, 8
 MAX_MESSAGE = 16 * 1024 * 1024
 
@@ -93,6 +103,18 @@ def unpack_send(body: bytes) -> tuple[can.Message, float, float | None]:
         check=False,
     )
     return msg, local_time, None if timeout < 0 else timeout
+
+
+def pack_post(msg: can.Message) -> bytes:
+    return pack(POST, _SEND.pack(0.0, -1.0, msg.arbitration_id, _flags(msg), msg.dlc, bytes(msg.data)))
+
+
+def pack_count(kind: int, count: int) -> bytes:
+    return pack(kind, _COUNT.pack(count))
+
+
+def unpack_count(body: bytes) -> int:
+    return _COUNT.unpack(body)[0]
 
 
 def pack_fail(code: int, text: str) -> bytes:

@@ -16,7 +16,6 @@ import json
 import secrets
 import socket
 import threading
-from collections import deque
 from typing import Any
 
 import can
@@ -41,42 +40,61 @@ def require_loopback(host: str) -> str:
 
 
 class _Outbox:
-    """Frames for one remote node, written by a thread of their own so the bus never waits on a
-    socket; a busy bus sends them in batches."""
+    """Frames for one remote node. The delivering thread writes them to the socket itself when the
+    socket takes them at once (MSG_DONTWAIT: no thread hop per frame); what it does not take waits
+    in a backlog that a thread of the outbox's own writes, so the bus never waits on a slow reader."""
 
     def __init__(self, name: str) -> None:
         self.cond = threading.Condition(threading.Lock())
-        self.items: deque[bytes] = deque()
+        self.backlog = bytearray()
         self.sock: socket.socket | None = None
         self.closed = False
+        self.flushing = False  # the outbox thread writes a batch: put() must not overtake it
         self.thread = threading.Thread(target=self._run, name=f"simwire-out-{name}", daemon=True)
 
     def put(self, msg: can.Message) -> None:
-        data = p.pack_frame(msg)
+        self.put_bytes(p.pack_frame(msg))
+
+    def put_done(self, count: int) -> None:
+        self.put_bytes(p.pack_count(p.DONE, count))
+
+    def put_bytes(self, data: bytes) -> None:
         with self.cond:
-            self.items.append(data)
-            if len(self.items) == 1:
+            if self.backlog or self.flushing or self.sock is None:
+                self.backlog += data
+                return
+            try:
+                sent = self.sock.send(data, socket.MSG_DONTWAIT)
+            except BlockingIOError:
+                sent = 0
+            except OSError:
+                return
+            if sent < len(data):
+                self.backlog += data[sent:]
                 self.cond.notify()
 
     def attach(self, sock: socket.socket) -> None:
         with self.cond:
             self.sock = sock
+            self.cond.notify()
         self.thread.start()
 
     def _run(self) -> None:
         while True:
             with self.cond:
-                while not self.items and not self.closed:
+                while not self.backlog and not self.closed:
                     self.cond.wait()
                 if self.closed:
                     return
-                batch = b"".join(self.items)
-                self.items.clear()
-                sock = self.sock
+                batch = bytes(self.backlog)
+                self.backlog.clear()
+                self.flushing = True
             try:
-                sock.sendall(batch)
+                self.sock.sendall(batch)
             except OSError:
                 return
+            with self.cond:
+                self.flushing = False
 
     def close(self) -> None:
         with self.cond:
@@ -224,6 +242,8 @@ class WireServer:
             sock.sendall(p.pack_fail(0, str(error)))
             sock.close()
             return None
+        if self.medium.clock == "wall":
+            node.on_done = outbox.put_done
         client = _Client(self, node, outbox, sock)
         with self._lock:
             if self._closed:
@@ -260,6 +280,15 @@ class WireServer:
                 msg, local_time, timeout = p.unpack_send(body)
                 medium.received(node, local_time)
                 sock.sendall(self._send(node, msg, timeout))
+            elif kind == p.POST:
+                msg, _, _ = p.unpack_send(body)
+                try:
+                    medium.submit(node, msg)
+                except can.CanOperationError:
+                    client.outbox.put_done(1)  # bus off meanwhile: the frame is lost, its place freed
+            elif kind == p.REFUSED:
+                with medium.cond:
+                    node.enobufs += 1
             elif kind == p.CALL:
                 sock.sendall(self._call(node, json.loads(body)))
             else:
