@@ -27,6 +27,7 @@ from axes.cia402 import (
 )
 from axes.config import AxisConfig
 from axes.objects import BufferStatus, PdoLayout
+from axes.subscriptions import subscribe, unsubscribe
 
 if TYPE_CHECKING:
     from axes.bus import CellBus
@@ -171,12 +172,12 @@ class AxisLink:
         for layout in tpdos:
             cob = layout.cob_id(self.node_id, receive=False)
             cb = self._decoder(layout)
-            self.bus.network.subscribe(cob, cb)
+            subscribe(self.bus.network, cob, cb)
             self._subscribed.append((cob, cb))
 
     def unsubscribe(self) -> None:
         for cob, cb in self._subscribed:
-            self.bus.network.unsubscribe(cob, cb)
+            unsubscribe(self.bus.network, cob, cb)
         self._subscribed.clear()
 
     def _decoder(self, layout: PdoLayout) -> Callable[[int, bytearray, float], None]:

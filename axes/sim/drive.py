@@ -59,9 +59,10 @@ from axes.sim.device import (
     identity_values,
 )
 from axes.sim.homing import HomingMixin, HomingState, Machine
-from axes.sim.pdo import PdoEngine, is_pdo_object, unsubscribe
+from axes.sim.pdo import PdoEngine, is_pdo_object
 from axes.sim.records import FaultRecord, MasterLoss, SyncSample
 from axes.sim.segment import Segment
+from axes.subscriptions import subscribe, unsubscribe
 
 EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
 # maxon's own published EPOS2 70/10 EDS, kept unchanged as a vendor data file (configs/eds/vendor/README.md)
@@ -266,8 +267,8 @@ class SimulatedDrive(HomingMixin):
         """Join a network (not yet booted: call ``boot`` once the network is connected)."""
         network.add_node(self.node)
         self.network = network
-        network.subscribe(0x80, self._on_sync)
-        network.subscribe(0, self._on_nmt)
+        subscribe(network, 0x80, self._on_sync)
+        subscribe(network, 0, self._on_nmt)
         self.consumer.attach(network)
 
     def detach(self) -> None:
