@@ -350,6 +350,11 @@ class SyncClock:
                 self._running = False
                 self._production += 1
                 failed = BusFault(FaultKind.TX_FAILED, None, f"after SYNC {done}: {exc}")
+            except Exception as exc:
+                log.exception("a SYNC listener failed")
+                self._running = False
+                self._production += 1
+                failed = BusFault(FaultKind.SYNC_STOPPED, None, f"SYNC ended after SYNC {done}: {exc!r}")
         if failed is not None:
             self.bus.report(failed)
 
@@ -445,12 +450,12 @@ class SyncClock:
                     return
                 now = time.monotonic()
                 late = now - deadline
-                if late > period / 2:  # never late in a burst: on to the next deadline still ahead
+                if late > period / 2:  # never late in a burst: on to the next deadline not yet half a period past
                     missed = math.ceil((late - period / 2) / period)
                     self.skipped += missed
                     deadline += missed * period
                 gap = None
-                if deadline - now <= period / 2:
+                if now >= deadline:
                     gap = None if self._previous is None else now - self._previous
                     self._transmit()
                     deadline += period

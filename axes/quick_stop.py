@@ -118,28 +118,42 @@ def quick_stop_all(
         subscribe(network, SDO_RESPONSE_BASE + node, on_response)
     request = quick_stop_request()
     stop.started = time.monotonic()
-    for node in stop.node_ids:
-        try:
-            network.send_message(SDO_REQUEST_BASE + node, request)
-        except (can.CanError, OSError, RuntimeError) as exc:
-            with answered:
-                stop.refused[node] = f"quick stop not sent: {exc}"
+    unsent: dict[int, str] = {}  # requests the interface refused: sent again until the deadline
+
+    def send_requests(nodes: Iterable[int]) -> None:
+        for node in nodes:
+            try:
+                network.send_message(SDO_REQUEST_BASE + node, request)
+                unsent.pop(node, None)
+            except (can.CanError, OSError, RuntimeError) as exc:
+                unsent[node] = f"quick stop not sent: {exc}"
+
+    send_requests(stop.node_ids)
     confirm_s = bus.config.quick_stop_confirm_ms / 1000.0
+
+    def answered_all() -> bool:
+        return all(n in stop.refused for n in stop.missing)
 
     def finish() -> None:
         deadline = stop.started + confirm_s
-        with answered:
-            answered.wait_for(
-                lambda: len(stop.confirmed) + len(stop.refused) >= len(stop.node_ids), deadline - time.monotonic()
-            )
+        while (left := deadline - time.monotonic()) > 0:
+            with answered:
+                if answered.wait_for(answered_all, min(left, 0.001)):
+                    break
+            send_requests(list(unsent))
         for node in stop.node_ids:
             unsubscribe(network, SDO_RESPONSE_BASE + node, on_response)
+        with answered:
+            for node, why in unsent.items():
+                stop.refused.setdefault(node, why)
         for node in stop.missing:
             try:
                 network.send_message(0, bytes([NMT_STOP, node]))
                 stop.nmt_stopped.append(node)
             except (can.CanError, OSError, RuntimeError) as exc:
                 stop.unsent.append(f"NMT stop of node {node}: {exc}")
+        if stop.unsent:  # nothing reaches them: the master falls silent, and they stop on its heartbeat's loss
+            bus.master_heartbeat.stop()
         stop.done.set()
         if on_done is not None:
             on_done(stop)
