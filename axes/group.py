@@ -573,7 +573,9 @@ class AxisGroup:
         self._end(ending)
 
     def _check_halted(self, n: int) -> None:
-        assert self._ending is not None and self._halt_deadline is not None
+        assert self._ending is not None
+        if self._halt_deadline is None:
+            return  # quick stopped by SDO: the quick stop ends the run (_quick_stopped)
         if n < (self._ending.halt_sync or 0):
             return
         still = [
