@@ -455,13 +455,16 @@ class SyncClock:
                     self.skipped += missed
                     deadline += missed * period
                 gap = None
-                if now >= deadline:
+                # not before its deadline, nor within half a period of the last SYNC (one sent late)
+                due = deadline if self._previous is None else max(deadline, self._previous + period / 2)
+                if now >= due:
                     gap = None if self._previous is None else now - self._previous
                     self._transmit()
                     deadline += period
+                    due = deadline
             if gap is not None:
                 self._gap(gap)
-            delay = deadline - time.monotonic()
+            delay = due - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
 

@@ -500,6 +500,9 @@ class AxisGroup:
         }.get(fault.kind, Result.BUS_ERROR)
         sync = self.bus.sync
         with sync.lock, self._lock:
+            if self._ending is not None and self._running and fault.kind.sync_failed and self._halt_deadline:
+                self._quick_stop_too(fault.message, link)  # the halt word waits for a SYNC that will not come
+                return
             if self._ending is not None or not self._running:
                 return
             if fault.kind.sync_failed:
@@ -558,6 +561,13 @@ class AxisGroup:
         self._halted_at = time.monotonic()
         self._halt_deadline = None
         self.readiness.forget()
+        self._event(EventKind.HALTED, f"all axes quick stopped by SDO (no SYNC): {message}", link)
+        self.last_quick_stop = self.bus.quick_stop([lk.node_id for lk in self.links], message, self._quick_stopped)
+
+    def _quick_stop_too(self, message: str, link: AxisLink | None) -> None:
+        """A halt by the synchronous RPDO is under way and SYNC fails: quick stop by SDO as well."""
+        self.bus.sync.stop()
+        self._halt_deadline = None
         self._event(EventKind.HALTED, f"all axes quick stopped by SDO (no SYNC): {message}", link)
         self.last_quick_stop = self.bus.quick_stop([lk.node_id for lk in self.links], message, self._quick_stopped)
 
