@@ -2,12 +2,25 @@
 
 SYNC has two modes (``CellBus(lockstep=...)``):
 
-- real time: SYNC every ``sync_period_ms`` of wall-clock time. Without a time stamp or a traffic log
-  it is canopen's ``network.sync.start(period)`` (python-can periodic send; the kernel's broadcast
-  manager on socketcan, lowest jitter). With them, or with frames that must follow every SYNC (a
-  fixed-period drive's setpoints: ``add_sender``), a master thread sends SYNC on absolute deadlines
-  followed by the 0x1013 time stamp and those frames, so a setpoint is on the bus a whole period
-  before the SYNC that validates it whatever the process does meanwhile, and all appear in the log.
+- real time: SYNC every ``sync_period_ms`` of wall-clock time, followed by the 0x1013 time stamp and
+  the frames that must follow every SYNC (a fixed-period drive's setpoints: ``add_sender``), so a
+  setpoint is on the bus a whole period before the SYNC that validates it. Where the interface sends
+  SYNC cyclically by itself (python-can's ``send_periodic`` not falling back on its
+  ``ThreadBasedCyclicSendTask``: socketcan's broadcast manager), it does, and a master thread follows
+  each SYNC the bus hears. Elsewhere (virtual, pcan) a master thread sends SYNC on absolute
+  deadlines: a deadline passed by more than half a period is skipped and counted (``skipped``),
+  never sent late in a burst (a fixed-period drive would take two setpoints in one period), and no
+  SYNC goes out within half a period of the one before. The thread asks for SCHED_FIFO
+  (``BusConfig.sync_priority``; not permitted: one warning, normal priority).
+  A gap longer than the drives ride out is reported (``FaultKind.SYNC_GAP``, the gap in ms): the
+  rule is ``BusConfig.max_sync_gap_periods`` when the cell sets it, else the profiles' (``Profile.
+  max_sync_gap_ms``): 2 periods for a drive that takes one setpoint per SYNC (one SYNC skipped
+  makes it hold one period, more would be a jump), and for the EPOS2, which runs its records on
+  its own clock and only loses its feed in a gap, the time of its program's shortest run of
+  ``underflow_warning`` records (the FIFO reserve its feeder keeps). The SYNC thread never ends
+  silently: a frame the interface refuses past ``tx_retry_ms`` of retries (``TX_FAILED``) or any
+  other error (``SYNC_STOPPED``) is reported, and the group then quick stops every axis by SDO
+  (``axes.quick_stop``), which does not need SYNC.
 - lockstep (simulation): the next SYNC goes out once every drive has answered the previous one with
   its synchronous TPDO and the SYNC listeners (the feeders) have run. Drive time advances one period
   per SYNC, so a simulated cell runs as fast as the bus and the CPU allow, and nothing depends on a
@@ -15,7 +28,9 @@ SYNC has two modes (``CellBus(lockstep=...)``):
 
 Failures are watched by one thread: heartbeat loss (no heartbeat for ``heartbeat_ms *
 heartbeat_timeout_factor``), lost SYNC (no answered SYNC for ``lost_sync_timeout_s``), NMT state
-change of a node. EMCY frames are reported as they arrive. The watchdog polls: wall-clock time is
+change of a node, error frames (``BUS_WARNING``, at most once a second) and python-can's
+``bus.state`` (error passive: ``BUS_WARNING``; bus-off: ``BUS_OFF``, nothing can be sent). EMCY
+frames are reported as they arrive (the CAN ones in their words: 0x8110, 0x8120, 0x8140). The watchdog polls: wall-clock time is
 used only to *detect* a failure, never to pace the motion.
 
 The master has a heartbeat of its own (``axes/heartbeat.py``), started and stopped with the bus,
