@@ -30,8 +30,8 @@ Failures are watched by one thread: heartbeat loss (no heartbeat for ``heartbeat
 heartbeat_timeout_factor``), lost SYNC (no answered SYNC for ``lost_sync_timeout_s``), NMT state
 change of a node, error frames (``BUS_WARNING``, at most once a second) and python-can's
 ``bus.state`` (error passive: ``BUS_WARNING``; bus-off: ``BUS_OFF``, nothing can be sent). EMCY
-frames are reported as they arrive (the CAN ones in their words: 0x8110, 0x8120, 0x8140). The watchdog polls: wall-clock time is
-used only to *detect* a failure, never to pace the motion.
+frames are reported as they arrive (the CAN ones in their words: 0x8110, 0x8120, 0x8140). The
+watchdog polls: wall-clock time is used only to *detect* a failure, never to pace the motion.
 
 The master has a heartbeat of its own (``axes/heartbeat.py``), started and stopped with the bus,
 that every drive watches (0x1016) and stops on when it stops (0x6007).
