@@ -2,12 +2,25 @@
 
 SYNC has two modes (``CellBus(lockstep=...)``):
 
-- real time: SYNC every ``sync_period_ms`` of wall-clock time. Without a time stamp or a traffic log
-  it is canopen's ``network.sync.start(period)`` (python-can periodic send; the kernel's broadcast
-  manager on socketcan, lowest jitter). With them, or with frames that must follow every SYNC (a
-  fixed-period drive's setpoints: ``add_sender``), a master thread sends SYNC on absolute deadlines
-  followed by the 0x1013 time stamp and those frames, so a setpoint is on the bus a whole period
-  before the SYNC that validates it whatever the process does meanwhile, and all appear in the log.
+- real time: SYNC every ``sync_period_ms`` of wall-clock time, followed by the 0x1013 time stamp and
+  the frames that must follow every SYNC (a fixed-period drive's setpoints: ``add_sender``), so a
+  setpoint is on the bus a whole period before the SYNC that validates it. Where the interface sends
+  SYNC cyclically by itself (python-can's ``send_periodic`` not falling back on its
+  ``ThreadBasedCyclicSendTask``: socketcan's broadcast manager), it does, and a master thread follows
+  each SYNC the bus hears. Elsewhere (virtual, pcan) a master thread sends SYNC on absolute
+  deadlines: a deadline passed by more than half a period is skipped and counted (``skipped``),
+  never sent late in a burst (a fixed-period drive would take two setpoints in one period), and no
+  SYNC goes out within half a period of the one before. The thread asks for SCHED_FIFO
+  (``BusConfig.sync_priority``; not permitted: one warning, normal priority).
+  A gap longer than the drives ride out is reported (``FaultKind.SYNC_GAP``, the gap in ms): the
+  rule is ``BusConfig.max_sync_gap_periods`` when the cell sets it, else the profiles' (``Profile.
+  max_sync_gap_ms``): 2 periods for a drive that takes one setpoint per SYNC (one SYNC skipped
+  makes it hold one period, more would be a jump), and for the EPOS2, which runs its records on
+  its own clock and only loses its feed in a gap, the time of its program's shortest run of
+  ``underflow_warning`` records (the FIFO reserve its feeder keeps). The SYNC thread never ends
+  silently: a frame the interface refuses past ``tx_retry_ms`` of retries (``TX_FAILED``) or any
+  other error (``SYNC_STOPPED``) is reported, and the group then quick stops every axis by SDO
+  (``axes.quick_stop``), which does not need SYNC.
 - lockstep (simulation): the next SYNC goes out once every drive has answered the previous one with
   its synchronous TPDO and the SYNC listeners (the feeders) have run. Drive time advances one period
   per SYNC, so a simulated cell runs as fast as the bus and the CPU allow, and nothing depends on a
@@ -15,8 +28,10 @@ SYNC has two modes (``CellBus(lockstep=...)``):
 
 Failures are watched by one thread: heartbeat loss (no heartbeat for ``heartbeat_ms *
 heartbeat_timeout_factor``), lost SYNC (no answered SYNC for ``lost_sync_timeout_s``), NMT state
-change of a node. EMCY frames are reported as they arrive. The watchdog polls: wall-clock time is
-used only to *detect* a failure, never to pace the motion.
+change of a node, error frames (``BUS_WARNING``, at most once a second) and python-can's
+``bus.state`` (error passive: ``BUS_WARNING``; bus-off: ``BUS_OFF``, nothing can be sent). EMCY
+frames are reported as they arrive (the CAN ones in their words: 0x8110, 0x8120, 0x8140). The
+watchdog polls: wall-clock time is used only to *detect* a failure, never to pace the motion.
 
 The master has a heartbeat of its own (``axes/heartbeat.py``), started and stopped with the bus,
 that every drive watches (0x1016) and stops on when it stops (0x6007).
@@ -25,6 +40,8 @@ that every drive watches (0x1016) and stops on when it stops (0x6007).
 from __future__ import annotations
 
 import logging
+import math
+import os
 import struct
 import sys
 import threading
@@ -41,7 +58,9 @@ from canopen.objectdictionary import ObjectDictionary
 
 from axes.config import BusConfig
 from axes.heartbeat import MasterHeartbeat
-from axes.objects import NMT_STATE_OPERATIONAL, TIME_STAMP_COB_ID
+from axes.objects import CAN_EMCY_WORDS, NMT_STATE_OPERATIONAL, TIME_STAMP_COB_ID
+from axes.quick_stop import QuickStop, quick_stop_all
+from axes.subscriptions import subscribe, unsubscribe
 
 SYNC_COB_ID = 0x80
 # How long the master waits for one SDO answer. python-canopen's 0.3 s is tight for a simulated cell
@@ -55,6 +74,8 @@ NMT_RESET_COMMUNICATION = 0x82
 NMT_STATE_PRE_OPERATIONAL = 127
 NMT_STATE_BOOT_UP = 0  # the boot-up message: a heartbeat frame with state 0
 SWITCH_INTERVAL_S = 0.0005  # the interpreter hands the GIL on at least this often while a bus is open
+TX_RETRY_PAUSE_S = 0.0002  # between two tries of a frame the interface refused
+ERROR_FRAME_REPORT_S = 1.0  # error frames are reported at most this often (with the count since the last report)
 
 log = logging.getLogger("pvtflow.bus")
 
@@ -70,6 +91,21 @@ class FaultKind(StrEnum):
     HEARTBEAT = "heartbeat"  # a node's heartbeat stopped
     NMT = "nmt"  # a node left OPERATIONAL (or booted)
     LOST_SYNC = "lost_sync"  # a node stopped answering SYNC
+    SYNC_GAP = "sync_gap"  # the master sent no SYNC for longer than the drives ride out (the gap in ms)
+    SYNC_STOPPED = "sync_stopped"  # the thread that sends SYNC ended by an error
+    TX_FAILED = "tx_failed"  # the interface refused a frame past the retries (queue full, an error)
+    BUS_OFF = "bus_off"  # the master's CAN controller is bus-off: it can send nothing
+    BUS_WARNING = "bus_warning"  # error frames on the bus, or the master's controller error passive
+
+    @property
+    def warning(self) -> bool:
+        """Reported, but the motion goes on: the bus still carries every frame."""
+        return self is FaultKind.BUS_WARNING
+
+    @property
+    def sync_failed(self) -> bool:
+        """The master cannot keep SYNC: a halt must not wait for one (``axes.quick_stop``)."""
+        return self in (FaultKind.SYNC_GAP, FaultKind.SYNC_STOPPED, FaultKind.TX_FAILED, FaultKind.BUS_OFF)
 
 
 @dataclass(frozen=True)
@@ -84,6 +120,7 @@ class BusFault:
 
 FaultCallback = Callable[[BusFault], None]
 SyncCallback = Callable[[int], None]
+DEFAULT_MAX_GAP_PERIODS = 2.0  # a fixed-period drive misses a setpoint in a longer gap (module docstring)
 
 
 class FrameRecorder(can.Listener):
@@ -144,6 +181,8 @@ class RecordingNetwork(canopen.Network):
         super().__init__(bus)
         self.recorder = recorder
         self.channel_name: str | None = None  # written into the log with the frames we send
+        self.tx_retry_s = 0.002  # a frame the interface refuses is tried again this long (BusConfig.tx_retry_ms)
+        self.tx_retries = 0  # tries that failed, all frames together
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         if not self.bus:
@@ -156,11 +195,66 @@ class RecordingNetwork(canopen.Network):
             is_rx=False,
             channel=self.channel_name,
         )
-        with self.send_lock:
-            msg.timestamp = time.time()
-            self.bus.send(msg)
+        deadline: float | None = None
+        while True:
+            try:
+                with self.send_lock:
+                    msg.timestamp = time.time()
+                    self.bus.send(msg)
+                break
+            except (can.CanOperationError, OSError) as exc:  # a full transmit queue (ENOBUFS), a refusing controller
+                now = time.monotonic()
+                if deadline is None:
+                    deadline = now + self.tx_retry_s
+                self.tx_retries += 1
+                if now >= deadline:
+                    raise can.CanOperationError(
+                        f"frame 0x{can_id:03X} not sent within {self.tx_retry_s * 1000:.1f} ms: {exc}"
+                    ) from exc
+                time.sleep(TX_RETRY_PAUSE_S)
         if self.recorder is not None:
             self.recorder.on_message_sent(msg)
+
+
+_realtime_warned = False
+
+
+def ask_realtime(priority: int) -> bool:
+    """SCHED_FIFO at ``priority`` for the calling thread (Linux applies it to the thread, not the
+    process). Not permitted (EPERM), or no such call on this OS: one warning per process, and the
+    thread runs at normal priority. ``priority`` 0: not asked."""
+    global _realtime_warned
+    if priority <= 0:
+        return False
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        return True
+    except (AttributeError, OSError) as exc:  # AttributeError: no SCHED_FIFO on this OS
+        if not _realtime_warned:
+            _realtime_warned = True
+            log.warning(
+                "SYNC runs at normal priority: SCHED_FIFO %d not granted (%s); permit it with root, "
+                "CAP_SYS_NICE or an rtprio limit (README, the wall clock), or set sync_priority: 0",
+                priority,
+                exc,
+            )
+        return False
+
+
+def native_cyclic_task(bus: can.BusABC, msg: can.Message, period_s: float) -> can.broadcastmanager.CyclicTask | None:
+    """A cyclic send of ``msg`` that the interface times by itself (socketcan: the kernel's broadcast
+    manager), not started yet; None where python-can would fall back on a thread of its own
+    (``ThreadBasedCyclicSendTask``: virtual, pcan, ...), which is no better than the SYNC thread."""
+    if type(bus)._send_periodic_internal is can.BusABC._send_periodic_internal:
+        return None
+    try:
+        task = bus.send_periodic(msg, period_s, autostart=False)
+    except (can.CanError, NotImplementedError, OSError, TypeError):
+        return None
+    if isinstance(task, can.broadcastmanager.ThreadBasedCyclicSendTask):
+        task.stop()
+        return None
+    return task
 
 
 class SyncClock:
@@ -168,15 +262,32 @@ class SyncClock:
 
     ``count`` is the number of SYNCs sent, ``answered`` the number every expected node has answered.
     Listeners get the number of the SYNC just answered; in lockstep they run before the next SYNC.
+    On the wall clock: ``skipped`` periods whose SYNC was skipped (never sent late), ``longest_gap_s``
+    the longest time between two SYNCs, ``max_gap_s`` the gap that is reported (``FaultKind.SYNC_GAP``),
+    ``realtime`` whether the sending thread got SCHED_FIFO, ``native`` whether the interface sends SYNC.
     """
 
-    def __init__(self, bus: CellBus, period_ms: float, lockstep: bool, time_stamp_cob_id: int | None = None):
+    def __init__(
+        self,
+        bus: CellBus,
+        period_ms: float,
+        lockstep: bool,
+        time_stamp_cob_id: int | None = None,
+        priority: int = 0,
+        max_gap_periods: float = DEFAULT_MAX_GAP_PERIODS,
+    ):
         self.bus = bus
         self.period_ms = period_ms
         self.lockstep = lockstep
         self.time_stamp_cob_id = time_stamp_cob_id
+        self.priority = priority
+        self.max_gap_s = max_gap_periods * period_ms / 1000.0
         self.count = 0
         self.answered = 0
+        self.skipped = 0
+        self.longest_gap_s = 0.0
+        self.realtime: bool | None = None  # None: no SYNC thread has run yet
+        self.native = False
         self.last_progress = time.monotonic()
         self._answers: dict[int, int] = {}  # cob id -> SYNCs answered
         self._listeners: list[SyncCallback] = []
@@ -184,10 +295,14 @@ class SyncClock:
         self.lock = threading.RLock()  # held while SYNC listeners run and while a SYNC goes out
         self._answered_changed = threading.Condition(self.lock)
         self.last_sent = time.monotonic()  # when the last SYNC went out
+        self._previous: float | None = None  # when this production's last SYNC went out (gaps)
         self._running = False
         self._production = 0  # which start() the producing thread serves: a stale one stops by itself
-        self._periodic = False
+        self._task: can.broadcastmanager.CyclicTask | None = None  # the interface's own cyclic SYNC
+        self._echo = threading.Condition(threading.Lock())
+        self._echoes = 0  # SYNC frames the interface sent and the bus heard (native mode)
         self._t0_us = time.monotonic_ns() // 1000
+        self.hold: Callable[[], None] | None = None  # benchmarks and tests: called before each wall-clock SYNC
 
     # --- answers ---------------------------------------------------------------------------------
     def expect(self, cob_ids: Iterable[int]) -> None:
@@ -196,11 +311,11 @@ class SyncClock:
         waits for a SYNC's answers (``wait_answered``) reads what the drives said on it."""
         with self.lock:
             for cob in self._answers:
-                self.bus.network.unsubscribe(cob, self._on_answer)
+                unsubscribe(self.bus.network, cob, self._on_answer)
             self._answers = {cob: self.count for cob in cob_ids}
             self.answered = self.count
             for cob in self._answers:
-                self.bus.network.subscribe(cob, self._on_answer)
+                subscribe(self.bus.network, cob, self._on_answer)
 
     def add_listener(self, callback: SyncCallback) -> None:
         self._listeners.append(callback)
@@ -228,6 +343,7 @@ class SyncClock:
             return [cob for cob, n in self._answers.items() if n < self.count]
 
     def _on_answer(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        failed: BusFault | None = None
         with self.lock:
             n = self._answers.get(can_id)
             if n is None or (self.lockstep and n >= self.count):
@@ -238,19 +354,37 @@ class SyncClock:
             if done <= self.answered:
                 return
             self.answered = done
-            self.count = max(self.count, done)  # real time: the periodic task does not report its SYNCs
+            self.count = max(self.count, done)
             self.last_progress = time.monotonic()
-            for cb in list(self._listeners):
-                cb(done)
-            if self.lockstep and self._running and self.answered == self.count:
-                self._transmit()
+            try:  # a frame a listener cannot send must not end the bus's receive thread
+                for cb in list(self._listeners):
+                    cb(done)
+                if self.lockstep and self._running and self.answered == self.count:
+                    self._transmit()
+            except (can.CanError, OSError) as exc:
+                self._running = False
+                self._production += 1
+                failed = BusFault(FaultKind.TX_FAILED, None, f"after SYNC {done}: {exc}")
+            except Exception as exc:
+                log.exception("a SYNC listener failed")
+                self._running = False
+                self._production += 1
+                failed = BusFault(FaultKind.SYNC_STOPPED, None, f"SYNC ended after SYNC {done}: {exc!r}")
+        if failed is not None:
+            self.bus.report(failed)
 
     # --- production ------------------------------------------------------------------------------
-    def _transmit(self) -> None:
+    def _transmit(self, sync_frame: bool = True) -> None:
+        """SYNC (unless the interface sent it: ``sync_frame`` False), the time stamp, the senders."""
         with self.lock:
             self.count += 1
-            self.last_sent = time.monotonic()
-            self.bus.network.send_message(SYNC_COB_ID, b"")
+            now = time.monotonic()
+            self.last_sent = now
+            if self._previous is not None:
+                self.longest_gap_s = max(self.longest_gap_s, now - self._previous)
+            self._previous = now
+            if sync_frame:
+                self.bus.network.send_message(SYNC_COB_ID, b"")
             if self.time_stamp_cob_id is not None:
                 stamp = (time.monotonic_ns() // 1000 - self._t0_us) & 0xFFFFFFFF
                 self.bus.network.send_message(self.time_stamp_cob_id, struct.pack("<I", stamp))
@@ -263,55 +397,130 @@ class SyncClock:
             if self._running:
                 return
             self._running = True
+            self._previous = None
             self.last_progress = time.monotonic()
             if self.lockstep:
-                self._transmit()
+                try:
+                    self._transmit()
+                except (can.CanError, OSError):
+                    self._running = False
+                    raise
                 if not self._answers:  # nobody to wait for: a single SYNC
                     self._running = False
                 return
-        if (
-            self.time_stamp_cob_id is None
-            and not self._senders
-            and not self.bus.recorder.taps
-            and self.bus.can_log is None
-        ):
-            self._periodic = True
-            with self.lock:
-                self.count += 1  # the periodic task sends its first SYNC at once
-            self.bus.network.sync.start(self.period_ms / 1000.0)
-            target = self._count_periodic
-        else:
-            target = self._produce
-        name = "pvtflow-sync-count" if self._periodic else "pvtflow-sync"
-        threading.Thread(target=target, args=(self._production,), name=name, daemon=True).start()
+            production = self._production
+            msg = can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
+            assert self.bus.network.bus is not None
+            self._task = native_cyclic_task(self.bus.network.bus, msg, self.period_ms / 1000.0)
+            self.native = self._task is not None
+        target = self._follow if self.native else self._produce
+        name = "pvtflow-sync-follow" if self.native else "pvtflow-sync"
+        threading.Thread(target=self._guarded, args=(target, production), name=name, daemon=True).start()
 
     def _producing(self, production: int) -> bool:
         """Still the production this thread was started for (called with the lock held)."""
         return self._running and self._production == production
 
+    def _guarded(self, target: Callable[[int], None], production: int) -> None:
+        """The SYNC thread never ends silently: a send that fails past its retries, or any error,
+        ends the production and is reported (the motion halts without SYNC: ``axes.quick_stop``)."""
+        self.realtime = ask_realtime(self.priority)
+        try:
+            target(production)
+        except (can.CanError, OSError) as exc:
+            self._fail(production, BusFault(FaultKind.TX_FAILED, None, f"SYNC {self.count + 1} not sent: {exc}"))
+        except Exception as exc:
+            log.exception("the SYNC thread failed")
+            self._fail(production, BusFault(FaultKind.SYNC_STOPPED, None, f"the SYNC thread ended: {exc!r}"))
+
+    def _fail(self, production: int, fault: BusFault) -> None:
+        with self.lock:
+            if not self._producing(production):
+                return  # stopped meanwhile: nothing of this production is wanted any more
+            self._running = False
+            self._production += 1
+        self.bus.report(fault)
+
+    def _gap(self, gap_s: float) -> None:
+        """Report a gap the drives do not ride out (called without the lock)."""
+        if gap_s > self.max_gap_s:
+            self.bus.report(
+                BusFault(
+                    FaultKind.SYNC_GAP,
+                    None,
+                    f"no SYNC for {gap_s * 1000:.1f} ms (the drives ride out {self.max_gap_s * 1000:.1f} ms)",
+                    round(gap_s * 1000),
+                )
+            )
+
     def _produce(self, production: int) -> None:
+        """SYNC on absolute deadlines; a deadline passed by more than half a period is skipped."""
         period = self.period_ms / 1000.0
         deadline = time.monotonic()
         while True:
+            if self.hold is not None:
+                self.hold()
             with self.lock:  # never a SYNC after stop(): it is judged under the lock stop() takes
                 if not self._producing(production):
                     return
-                self._transmit()
-            deadline += period
-            delay = deadline - time.monotonic()
+                now = time.monotonic()
+                late = now - deadline
+                if late > period / 2:  # never late in a burst: on to the next deadline not yet half a period past
+                    missed = math.ceil((late - period / 2) / period)
+                    self.skipped += missed
+                    deadline += missed * period
+                gap = None
+                # not before its deadline, nor within half a period of the last SYNC (one sent late)
+                due = deadline if self._previous is None else max(deadline, self._previous + period / 2)
+                if now >= due:
+                    gap = None if self._previous is None else now - self._previous
+                    self._transmit()
+                    deadline += period
+                    due = deadline
+            if gap is not None:
+                self._gap(gap)
+            delay = due - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
 
-    def _count_periodic(self, production: int) -> None:
-        # the periodic task does not tell us when it sends: count by wall clock for bookkeeping only
-        t0 = time.monotonic()
-        period = self.period_ms / 1000.0
-        while True:
-            time.sleep(period)
-            with self.lock:
-                if not self._producing(production):
-                    return
-                self.count = max(self.count, 1 + int((time.monotonic() - t0) / period))
+    def _on_sync_echo(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self._echo:
+            self._echoes += 1
+            self._echo.notify_all()
+
+    def _follow(self, production: int) -> None:
+        """The interface sends SYNC: this thread follows each one the bus hears with the time stamp
+        and the setpoints. SYNCs that came while it was held are counted, one time stamp and one
+        setpoint follow the last (the feeder sends the setpoint due after it)."""
+        network = self.bus.network
+        seen, silent = 0, False
+        subscribe(network, SYNC_COB_ID, self._on_sync_echo)
+        try:
+            assert self._task is not None
+            if isinstance(self._task, can.broadcastmanager.RestartableCyclicTaskABC):
+                self._task.start()
+            while True:
+                with self._echo:
+                    self._echo.wait_for(lambda seen=seen: self._echoes > seen, self.max_gap_s)
+                    echoes = self._echoes
+                now = time.monotonic()
+                gap = None
+                with self.lock:
+                    if not self._producing(production):
+                        return
+                    if echoes > seen:
+                        self.skipped += echoes - seen - 1  # heard, but not followed one by one
+                        self.count += echoes - seen - 1
+                        gap = None if self._previous is None else now - self._previous
+                        self._transmit(sync_frame=False)
+                        seen, silent = echoes, False
+                    elif not silent:  # no SYNC heard for the whole gap the drives ride out: once
+                        silent = True
+                        gap = now - (self._previous if self._previous is not None else now)
+                if gap is not None:
+                    self._gap(gap)
+        finally:
+            unsubscribe(network, SYNC_COB_ID, self._on_sync_echo)
 
     def step(self) -> dict[int, int]:
         """Send one SYNC by hand, outside production (e.g. the start's check: every drive answers it
@@ -348,9 +557,9 @@ class SyncClock:
         with self.lock:
             self._running = False
             self._production += 1
-            if self._periodic:
-                self.bus.network.sync.stop()
-                self._periodic = False
+            task, self._task = self._task, None
+        if task is not None:
+            task.stop()
 
     @property
     def running(self) -> bool:
@@ -375,7 +584,18 @@ class CellBus:
         self.network = RecordingNetwork(recorder=self.recorder)
         self.network.channel_name = config.channel
         stamp = config.time_stamp if time_stamp is None else time_stamp
-        self.sync = SyncClock(self, config.sync_period_ms, lockstep, TIME_STAMP_COB_ID if stamp else None)
+        gap = config.max_sync_gap_periods if config.max_sync_gap_periods is not None else DEFAULT_MAX_GAP_PERIODS
+        self.sync = SyncClock(
+            self,
+            config.sync_period_ms,
+            lockstep,
+            TIME_STAMP_COB_ID if stamp else None,
+            priority=config.sync_priority,
+            max_gap_periods=gap,
+        )
+        self.network.tx_retry_s = config.tx_retry_ms / 1000.0
+        self.errors = ErrorFrames()
+        self.state = can.BusState.ACTIVE  # the master's controller as python-can last reported it
         self.lost_sync_timeout_s = lost_sync_timeout_s
         self.nodes: dict[int, canopen.RemoteNode] = {}
         self._fault_callbacks: list[FaultCallback] = []
@@ -406,7 +626,7 @@ class CellBus:
             where = f"{self.config.interface}:{self.config.channel}"
             raise BusError(f"cannot open CAN bus {where}: {exc}") from None
         self.network.bus = bus
-        self.network.notifier = can.Notifier(bus, [*self.network.listeners, self.recorder], 0.1)
+        self.network.notifier = can.Notifier(bus, [*self.network.listeners, self.recorder, self.errors], 0.1)
         self._closing.clear()
         self._watchdog = threading.Thread(target=self._watch, name="pvtflow-watchdog", daemon=True)
         self._watchdog.start()
@@ -455,14 +675,14 @@ class CellBus:
         if callback in self._fault_callbacks:
             self._fault_callbacks.remove(callback)
 
-    def _report(self, fault: BusFault) -> None:
+    def report(self, fault: BusFault) -> None:
         """Every callback hears of the fault; one that fails (a halt on a bus that has gone away)
         is logged, and neither stops the others nor the thread that reports (the watchdog)."""
         for cb in list(self._fault_callbacks):
             try:
                 cb(fault)
-            except (can.CanError, OSError, RuntimeError) as exc:
-                log.error("reporting %s of node %s failed: %s", fault.kind, fault.node_id, exc)
+            except Exception:  # the reporting thread (watchdog, SYNC) must live on
+                log.exception("reporting %s of node %s failed", fault.kind, fault.node_id)
 
     # --- NMT -------------------------------------------------------------------------------------
     def nmt_broadcast(self, command: int) -> None:
@@ -499,13 +719,14 @@ class CellBus:
         self._heartbeat_seen[node_id] = time.monotonic()
         self._heartbeat_state[node_id] = state
         if node_id in self._watched and previous == NMT_STATE_OPERATIONAL and state != NMT_STATE_OPERATIONAL:
-            self._report(BusFault(FaultKind.NMT, node_id, f"node {node_id} left OPERATIONAL (NMT state {state})"))
+            self.report(BusFault(FaultKind.NMT, node_id, f"node {node_id} left OPERATIONAL (NMT state {state})"))
 
     def _on_emcy(self, node_id: int, err: EmcyError) -> None:
         if err.code == 0:
             return  # error reset / no error
-        text = f"EMCY 0x{err.code:04X} from node {node_id}: {err.get_desc()}".rstrip(": ")
-        self._report(BusFault(FaultKind.EMCY, node_id, text, err.code))
+        words = CAN_EMCY_WORDS.get(err.code) or err.get_desc()
+        text = f"EMCY 0x{err.code:04X} from node {node_id}: {words}".rstrip(": ")
+        self.report(BusFault(FaultKind.EMCY, node_id, text, err.code))
 
     def _watch(self) -> None:
         timeout = self.config.heartbeat_ms * self.config.heartbeat_timeout_factor / 1000.0
@@ -519,7 +740,7 @@ class CellBus:
                         lost.append(nid)
                         self._watched.discard(nid)
             for nid in lost:
-                self._report(
+                self.report(
                     BusFault(
                         FaultKind.HEARTBEAT,
                         nid,
@@ -527,11 +748,12 @@ class CellBus:
                         f"{now - self._heartbeat_seen[nid]:.3f} s (timeout {timeout:.3f} s)",
                     )
                 )
+            self._watch_wire(now)
             stalled = now - self.sync.last_progress > self.lost_sync_timeout_s
             if self.watch_sync and self.sync.running and not self._sync_reported and stalled:
                 nodes = sorted({cob & 0x7F for cob in self.sync.behind()})
                 self._sync_reported = True
-                self._report(
+                self.report(
                     BusFault(
                         FaultKind.LOST_SYNC,
                         nodes[0] if nodes else None,
@@ -544,3 +766,76 @@ class CellBus:
         self._sync_reported = False
         self.sync.last_progress = time.monotonic()
         self.watch_sync = True
+
+    def _watch_wire(self, now: float) -> None:
+        """Error frames (counted as they come, reported at most every ERROR_FRAME_REPORT_S) and the
+        master's controller state (python-can's ``bus.state``), reported when it changes."""
+        frames = self.errors.take(now, ERROR_FRAME_REPORT_S)
+        if frames:
+            self.report(
+                BusFault(
+                    FaultKind.BUS_WARNING,
+                    None,
+                    f"{frames} CAN error frame(s) in the last {ERROR_FRAME_REPORT_S:g} s ({self.errors.count} in all)",
+                    frames,
+                )
+            )
+        bus = self.network.bus
+        if bus is None:
+            return
+        try:
+            state = bus.state
+        except (can.CanError, NotImplementedError, OSError):
+            return
+        if state == self.state:
+            return
+        previous, self.state = self.state, state
+        if state == can.BusState.ERROR:
+            self.report(
+                BusFault(
+                    FaultKind.BUS_OFF,
+                    None,
+                    "the master's CAN controller is bus-off: it can send nothing (no SYNC, no quick stop); "
+                    "the drives stop on the master's heartbeat loss",
+                )
+            )
+        elif state == can.BusState.PASSIVE:
+            self.report(
+                BusFault(FaultKind.BUS_WARNING, None, "the master's CAN controller is error passive (many errors)")
+            )
+        else:
+            self.report(
+                BusFault(
+                    FaultKind.BUS_WARNING,
+                    None,
+                    f"the master's CAN controller is error active again (was {previous.name.lower()})",
+                )
+            )
+
+    # --- the stop that does not need SYNC -------------------------------------------------------
+    def quick_stop(
+        self, node_ids: Iterable[int], reason: str, on_done: Callable[[QuickStop], None] | None = None
+    ) -> QuickStop:
+        """Quick stop these drives by SDO now, NMT stop for those that do not confirm (``axes.quick_stop``)."""
+        return quick_stop_all(self, node_ids, reason, on_done)
+
+
+class ErrorFrames(can.Listener):
+    """Counts the error frames the interface delivers (``is_error_frame``)."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self._reported = 0
+        self._reported_at = 0.0
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if msg.is_error_frame:
+            self.count += 1
+
+    def take(self, now: float, every_s: float) -> int:
+        """Error frames since the last report, when one is due (0: none, or not yet)."""
+        new = self.count - self._reported
+        if new <= 0 or now - self._reported_at < every_s:
+            return 0
+        self._reported, self._reported_at = self.count, now
+        return new

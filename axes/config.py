@@ -25,6 +25,12 @@ class BusConfig:
     heartbeat_timeout_factor: float = 3.0  # a node is lost after this many missed periods (either way)
     master_node_id: int = 127  # the master's own heartbeat (0x700 + id), which every drive watches (0x1016)
     master_heartbeat_ms: int = 100  # the master's heartbeat period
+    # the longest time between two SYNCs the drives ride out, in SYNC periods (None: the profiles say,
+    # axes.bus's module docstring); a longer gap halts the motion (FaultKind.SYNC_GAP)
+    max_sync_gap_periods: float | None = None
+    sync_priority: int = 50  # SCHED_FIFO priority of the thread that sends SYNC (0: do not ask)
+    tx_retry_ms: float = 2.0  # how long a frame the interface refuses (queue full) is tried again
+    quick_stop_confirm_ms: float = 10.0  # the SDO quick stop's answers are waited for this long, then NMT stop
 
     @property
     def master_consumer_time_ms(self) -> int:

@@ -43,6 +43,7 @@ from axes.outcome import (
 )
 from axes.profiles import AxisLink, DriveError, Profile, profile_for
 from axes.program import AxisProgram, PvtProgram, program_mismatch
+from axes.quick_stop import QuickStop
 from axes.readiness import Readiness
 
 if TYPE_CHECKING:
@@ -122,6 +123,7 @@ class AxisGroup:
         self.readiness = Readiness(self.links, self.profiles, self._pool, lambda: self._bus_faults)
         self._preloaded: list[bool] = []  # per axis: its feeder's preload went out with the start's checks
         self._homing: CellHoming | None = None  # the homing running on the cell (axes/homing.py)
+        self.last_quick_stop: QuickStop | None = None  # the last halt that did not wait for SYNC
         self._homed_boot: list[int | None] = [None] * len(self.links)  # the drive's boot count when it homed
         self._configured_boots: dict[int, int] = {}  # every drive's boot count when it was configured
         for link in self.links:
@@ -261,6 +263,9 @@ class AxisGroup:
                 if not preloaded:
                     feeder.preload()
             self._start_sync = sync.count + 1
+            if self.bus.config.max_sync_gap_periods is None:  # the profiles say (axes.bus)
+                gaps = (p.max_sync_gap_ms(prog) for p, prog in zip(self.profiles, self._programs, strict=True))
+                sync.max_gap_s = min(gaps) / 1000.0
             for link, profile in zip(self.links, self.profiles, strict=True):
                 link.send_controlword(profile.start_controlword())
             sync.add_listener(self._on_sync)
@@ -485,17 +490,23 @@ class AxisGroup:
             if fault.kind is FaultKind.HEARTBEAT:  # it may have lost power: its position means nothing any more
                 self._homed_boot[self.links.index(link)] = None
         self._event(EventKind(fault.kind.value), fault.message, link)
-        if not self._running:
+        if not self._running or fault.kind.warning:
             return
         kind = {
             FaultKind.EMCY: Result.EMCY,
             FaultKind.HEARTBEAT: Result.HEARTBEAT_LOST,
             FaultKind.NMT: Result.HEARTBEAT_LOST,
             FaultKind.LOST_SYNC: Result.LOST_SYNC,
-        }[fault.kind]
+        }.get(fault.kind, Result.BUS_ERROR)
         sync = self.bus.sync
         with sync.lock, self._lock:
+            if self._ending is not None and self._running and fault.kind.sync_failed and self._halt_deadline:
+                self._quick_stop_too(fault.message, link)  # the halt word waits for a SYNC that will not come
+                return
             if self._ending is not None or not self._running:
+                return
+            if fault.kind.sync_failed:
+                self._quick_stop(kind, fault.message, link)
                 return
             gone = kind in (Result.HEARTBEAT_LOST, Result.LOST_SYNC)
             stalled = bool(sync.behind())
@@ -536,8 +547,45 @@ class AxisGroup:
         lost = f" (not sent to {'; '.join(unsent)}: those drives stop on the master's heartbeat loss)" if unsent else ""
         self._event(EventKind.HALTED, f"all axes halted: {message}{lost}", link)
 
+    def _quick_stop(self, result: Result, message: str, link: AxisLink | None) -> None:
+        """The master cannot keep SYNC: no more SYNC, every axis quick stopped by SDO, NMT stop for
+        the drives that do not confirm (``axes.quick_stop``); the run ends when that is done (called
+        with the SYNC lock and the group lock held)."""
+        sync = self.bus.sync
+        for feeder in self._feeders:
+            feeder.enabled = False
+        sync.stop()
+        res = self._result(result, message, link)
+        res.fault_sync = sync.count
+        self._ending = res
+        self._halted_at = time.monotonic()
+        self._halt_deadline = None
+        self.readiness.forget()
+        self._event(EventKind.HALTED, f"all axes quick stopped by SDO (no SYNC): {message}", link)
+        self.last_quick_stop = self.bus.quick_stop([lk.node_id for lk in self.links], message, self._quick_stopped)
+
+    def _quick_stop_too(self, message: str, link: AxisLink | None) -> None:
+        """A halt by the synchronous RPDO is under way and SYNC fails: quick stop by SDO as well."""
+        self.bus.sync.stop()
+        self._halt_deadline = None
+        self._event(EventKind.HALTED, f"all axes quick stopped by SDO (no SYNC): {message}", link)
+        self.last_quick_stop = self.bus.quick_stop([lk.node_id for lk in self.links], message, self._quick_stopped)
+
+    def _quick_stopped(self, stop: QuickStop) -> None:
+        """Every drive confirmed the quick stop or was sent NMT stop (the quick stop's thread)."""
+        ending = self._ending
+        if ending is None:
+            return
+        ending.halt_latency_s = stop.latency_s
+        ending.message = f"{ending.message}; {stop.describe()}"
+        if stop.nmt_stopped or stop.unsent:
+            self.configured = False  # NMT STOPPED: the next start configures again
+        self._end(ending)
+
     def _check_halted(self, n: int) -> None:
-        assert self._ending is not None and self._halt_deadline is not None
+        assert self._ending is not None
+        if self._halt_deadline is None:
+            return  # quick stopped by SDO: the quick stop ends the run (_quick_stopped)
         if n < (self._ending.halt_sync or 0):
             return
         still = [
@@ -557,10 +605,14 @@ class AxisGroup:
         homing = self._homing
         if homing is not None:
             homing.stop(reason)
-        with self.bus.sync.lock, self._lock:
+        sync = self.bus.sync
+        with sync.lock, self._lock:
             if not self._running or self._ending is not None:
                 return
-            self._halt(Result.STOPPED, reason, None)
+            if not sync.running and not sync.lockstep:  # no SYNC to carry the halt word
+                self._quick_stop(Result.STOPPED, reason, None)
+            else:
+                self._halt(Result.STOPPED, reason, None)
 
     def _result(self, result: Result, message: str, link: AxisLink | None = None) -> RunResult:
         res = RunResult(

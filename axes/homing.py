@@ -329,17 +329,20 @@ class CellHoming:
                 self._halt(HomingResult.TIMEOUT, f"{', '.join(waiting)} not homed within {ms / 1000.0:g} s", None)
 
     def _on_fault(self, fault: BusFault) -> None:
+        if fault.kind.warning:
+            return
         kind = {
             FaultKind.EMCY: HomingResult.EMCY,
             FaultKind.HEARTBEAT: HomingResult.HEARTBEAT_LOST,
             FaultKind.NMT: HomingResult.HEARTBEAT_LOST,
-            FaultKind.LOST_SYNC: HomingResult.LOST_SYNC,
-        }[fault.kind]
+        }.get(fault.kind, HomingResult.LOST_SYNC)  # LOST_SYNC, and the master's own SYNC failures
         link = next((lk for lk in self.group.links if lk.node_id == fault.node_id), None)
         with self.bus.sync.lock, self._lock:
             if not self._active or self._ending is not None:
                 return
             self._halt(kind, fault.message, link)
+            if fault.kind.sync_failed:  # the halt word waits for a SYNC that will not come
+                self.bus.quick_stop([lk.node_id for lk in self.group.links], fault.message)
             if kind in (HomingResult.HEARTBEAT_LOST, HomingResult.LOST_SYNC):
                 self._end()  # a drive that is gone answers no SYNC: do not wait for it to stand still
 

@@ -125,6 +125,16 @@ EMCY_SOFTWARE_POSITION_LIMIT = 0x8612  # position demand outside 0x607D
 EMCY_LIMIT_SWITCH = EMCY_SOFTWARE_POSITION_LIMIT
 EMCY_FOLLOWING_ERROR = 0x8611
 EMCY_HEARTBEAT_ERROR = 0x8130  # CiA 301 life guard / heartbeat error: a watched node (the master) fell silent
+EMCY_CAN_OVERRUN = 0x8110  # CiA 301: CAN overrun, frames lost
+EMCY_CAN_ERROR_PASSIVE = 0x8120  # CiA 301: the drive's CAN controller is error passive
+EMCY_CAN_BUS_OFF_RECOVERED = 0x8140  # CiA 301: the drive's CAN controller recovered from bus off
+# what the CAN communication EMCYs mean, in the words the master reports them with
+CAN_EMCY_WORDS = {
+    EMCY_CAN_OVERRUN: "CAN overrun (frames lost)",
+    EMCY_CAN_ERROR_PASSIVE: "CAN in error passive",
+    EMCY_HEARTBEAT_ERROR: "heartbeat error (a watched node fell silent)",
+    EMCY_CAN_BUS_OFF_RECOVERED: "recovered from bus off",
+}
 # EPOS2 "interpolated position mode error" (underflow, overflow, 0x607F or 0x60C5 exceeded). The seeds
 # give no code: 0xFF0C is taken from memory of maxon's firmware specification, to be checked on a real
 # drive; which error it was is in 0x20C4:01, which the simulated EPOS2 also puts (little endian) in the

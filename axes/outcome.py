@@ -20,6 +20,7 @@ class Result(Enum):
     EMCY = "emcy"  # a drive sent an emergency
     HEARTBEAT_LOST = "heartbeat_lost"  # a drive's heartbeat stopped, or it left OPERATIONAL
     LOST_SYNC = "lost_sync"  # a drive stopped answering SYNC
+    BUS_ERROR = "bus_error"  # the master could not keep SYNC (a gap, a dead SYNC thread, a frame not sent, bus-off)
     REJECTED = "rejected"  # the program does not fit the cell (nothing moved)
     CONFIGURATION_ERROR = "configuration_error"  # a drive refused its configuration or enable
 
@@ -159,15 +160,22 @@ class EventKind(StrEnum):
     EMCY = Result.EMCY.value
     HEARTBEAT_LOST = Result.HEARTBEAT_LOST.value
     LOST_SYNC = Result.LOST_SYNC.value
+    BUS_ERROR = Result.BUS_ERROR.value
     REJECTED = Result.REJECTED.value
     CONFIGURATION_ERROR = Result.CONFIGURATION_ERROR.value
     HEARTBEAT = FaultKind.HEARTBEAT.value
     NMT = FaultKind.NMT.value
+    SYNC_GAP = FaultKind.SYNC_GAP.value
+    SYNC_STOPPED = FaultKind.SYNC_STOPPED.value
+    TX_FAILED = FaultKind.TX_FAILED.value
+    BUS_OFF = FaultKind.BUS_OFF.value
+    BUS_WARNING = FaultKind.BUS_WARNING.value
 
     @property
     def is_bus_fault(self) -> bool:
-        """A drive failed on the bus (also between runs: the cell is faulted until recovered)."""
-        return self.value in {k.value for k in FaultKind}
+        """A drive or the bus failed (also between runs: the cell is faulted until recovered); a
+        warning (error frames, error passive) is no fault."""
+        return self.value in {k.value for k in FaultKind if not k.warning}
 
 
 @dataclass(frozen=True)

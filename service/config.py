@@ -300,6 +300,10 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
             "heartbeat_timeout_factor",
             "master_node_id",
             "master_heartbeat_ms",
+            "max_sync_gap_periods",
+            "sync_priority",
+            "tx_retry_ms",
+            "quick_stop_confirm_ms",
         ),
     )
     d = BusConfig()
@@ -327,7 +331,16 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
         heartbeat_timeout_factor=factor,
         master_node_id=f.get("master_node_id", f.integer(1, 127), d.master_node_id),
         master_heartbeat_ms=f.get("master_heartbeat_ms", f.integer(1, 65535), d.master_heartbeat_ms),
+        max_sync_gap_periods=f.get("max_sync_gap_periods", f.number(positive=True), d.max_sync_gap_periods),
+        sync_priority=f.get("sync_priority", f.integer(0, 99), d.sync_priority),
+        tx_retry_ms=f.get("tx_retry_ms", f.number(positive=True), d.tx_retry_ms),
+        quick_stop_confirm_ms=f.get("quick_stop_confirm_ms", f.number(positive=True), d.quick_stop_confirm_ms),
     )
+    if bus.max_sync_gap_periods is not None and bus.max_sync_gap_periods < 1.5:
+        raise f.error(
+            "max_sync_gap_periods",
+            f"{bus.max_sync_gap_periods:g} periods: a gap of one period is every SYNC; at least 1.5",
+        )
     if bus.master_consumer_time_ms > 0xFFFF:
         raise f.error(
             "master_heartbeat_ms",

@@ -18,6 +18,7 @@ import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from axes import objects as od
+from axes.bus import DEFAULT_MAX_GAP_PERIODS
 from axes.cia402 import (
     CONTROLWORD_FAULT_RESET,
     Controlword,
@@ -27,6 +28,7 @@ from axes.cia402 import (
 )
 from axes.config import AxisConfig
 from axes.objects import BufferStatus, PdoLayout
+from axes.subscriptions import subscribe, unsubscribe
 
 if TYPE_CHECKING:
     from axes.bus import CellBus
@@ -171,12 +173,12 @@ class AxisLink:
         for layout in tpdos:
             cob = layout.cob_id(self.node_id, receive=False)
             cb = self._decoder(layout)
-            self.bus.network.subscribe(cob, cb)
+            subscribe(self.bus.network, cob, cb)
             self._subscribed.append((cob, cb))
 
     def unsubscribe(self) -> None:
         for cob, cb in self._subscribed:
-            self.bus.network.unsubscribe(cob, cb)
+            unsubscribe(self.bus.network, cob, cb)
         self._subscribed.clear()
 
     def _decoder(self, layout: PdoLayout) -> Callable[[int, bytearray, float], None]:
@@ -284,6 +286,12 @@ class Profile:
         """How far ahead of the program's timeline the master sends: the drive's delay, less the part
         the program's reconstruction (axes.interpolation) already contains."""
         return self.delay_periods
+
+    def max_sync_gap_ms(self, program: AxisProgram) -> float:
+        """The longest time between two SYNCs this drive rides out while it runs ``program``: two
+        periods for a drive that takes a setpoint per SYNC (one SYNC skipped, ``axes.bus``: it holds one
+        period, no more)."""
+        return DEFAULT_MAX_GAP_PERIODS * self.link.bus.config.sync_period_ms
 
     def configure(self) -> None:
         """The SDO configuration sequence (node in PRE-OPERATIONAL)."""

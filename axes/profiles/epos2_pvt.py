@@ -43,6 +43,19 @@ class Epos2Pvt(Profile):
     fault_reaction_on_master_loss = od.FaultReaction.QUICK_STOP
     homing_methods = od.EPOS2_HOMING_METHODS
 
+    def max_sync_gap_ms(self, program: AxisProgram) -> float:
+        """The EPOS2 runs its records on its own clock: a gap only holds the feed back, which tops the
+        FIFO up on the SYNC answers, and the feeder never lets it fall below the underflow warning
+        level (``BufferFeeder.low``). So it rides out the time of its shortest run of that many
+        records in this program (at least the fixed-period drives' two periods)."""
+        times = np.asarray(program.records[:, 2], dtype=np.float64)
+        keep = max(1, self.config.buffer.underflow_warning)
+        floor = super().max_sync_gap_ms(program)
+        if len(times) < keep:
+            return max(floor, float(times.sum()))
+        window = np.convolve(times, np.ones(keep), mode="valid")
+        return max(floor, float(window.min()))
+
     def configure(self) -> None:
         link = self.link
         link.write(od.MODES_OF_OPERATION, 0, od.INTERPOLATED_POSITION_MODE, "b")

@@ -21,7 +21,7 @@ from collections.abc import Callable, Mapping
 import canopen
 
 from axes import objects as od
-from axes.sim.pdo import unsubscribe
+from axes.subscriptions import subscribe, unsubscribe
 
 TICK_S = 0.001  # the motion clock's step while it runs on the wall clock (the drives sample every ms)
 
@@ -68,7 +68,7 @@ class HeartbeatConsumer:
                 for node in self._times.keys() - times.keys():
                     unsubscribe(network, od.HEARTBEAT_COB_ID_BASE + node, self._on_heartbeat)
                 for node in times.keys() - self._times.keys():
-                    _subscribe(network, od.HEARTBEAT_COB_ID_BASE + node, self._on_heartbeat)
+                    subscribe(network, od.HEARTBEAT_COB_ID_BASE + node, self._on_heartbeat)
             for node in list(self._heard):
                 if times.get(node) != self._times.get(node):
                     del self._heard[node]
@@ -80,7 +80,7 @@ class HeartbeatConsumer:
         with self._cond:
             self._network = network
             for node in self._times:
-                _subscribe(network, od.HEARTBEAT_COB_ID_BASE + node, self._on_heartbeat)
+                subscribe(network, od.HEARTBEAT_COB_ID_BASE + node, self._on_heartbeat)
             self._stopping = False
             if self._thread is None:
                 self._thread = threading.Thread(target=self._run, name=f"sim-consumer-{self.name}", daemon=True)
@@ -144,10 +144,3 @@ class HeartbeatConsumer:
                 if not self.on_tick():
                     with self._cond:
                         self._ticking = False
-
-
-def _subscribe(network: canopen.Network, can_id: int, callback: Callable[..., None]) -> None:
-    """``network.subscribe`` without mutating the list a dispatch may be walking (see ``unsubscribe``)."""
-    current = network.subscribers.get(can_id, [])
-    if callback not in current:
-        network.subscribers[can_id] = [*current, callback]

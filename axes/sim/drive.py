@@ -59,9 +59,10 @@ from axes.sim.device import (
     identity_values,
 )
 from axes.sim.homing import HomingMixin, HomingState, Machine
-from axes.sim.pdo import PdoEngine, is_pdo_object, unsubscribe
+from axes.sim.pdo import PdoEngine, is_pdo_object
 from axes.sim.records import FaultRecord, MasterLoss, SyncSample
 from axes.sim.segment import Segment
+from axes.subscriptions import subscribe, unsubscribe
 
 EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
 # maxon's own published EPOS2 70/10 EDS, kept unchanged as a vendor data file (configs/eds/vendor/README.md)
@@ -93,6 +94,7 @@ ABORT_GENERAL = 0x08000000
 
 ABORT_PARAMETER_INCOMPATIBLE = 0x06040043  # CiA 301: a 0x1016 entry for a node another entry watches
 ERROR_CODE = 0x603F
+EMCY_COMMUNICATION = 0x8100  # CiA 301: communication, generic
 ERROR_REGISTER = 0x1001
 ERROR_HISTORY = 0x1003
 REGISTER_GENERIC = 0x01  # 0x1001 bits
@@ -154,6 +156,7 @@ class SimulatedDrive(HomingMixin):
         self.time_us = 0
         self.sample_ms = 0.0  # motion time of the sample being computed (or of the last SYNC)
         self._heartbeat_silenced = False
+        self._nmt_left = "INITIALISING"  # the NMT state the last NMT command found (0x6007 on leaving OPERATIONAL)
         self.consumer = HeartbeatConsumer(str(node_id), self._on_heartbeat_lost, self._wall_clock_tick)
         self.master_losses: list[MasterLoss] = []
         self._tick_at = 0.0  # wall clock (time.monotonic()) up to which the motion clock has run on its own
@@ -264,10 +267,11 @@ class SimulatedDrive(HomingMixin):
 
     def attach(self, network: canopen.Network) -> None:
         """Join a network (not yet booted: call ``boot`` once the network is connected)."""
+        subscribe(network, 0, self._note_nmt_state)  # before the node's own NMT handling: the state it leaves
         network.add_node(self.node)
         self.network = network
-        network.subscribe(0x80, self._on_sync)
-        network.subscribe(0, self._on_nmt)
+        subscribe(network, 0x80, self._on_sync)
+        subscribe(network, 0, self._on_nmt)
         self.consumer.attach(network)
 
     def detach(self) -> None:
@@ -279,6 +283,7 @@ class SimulatedDrive(HomingMixin):
             self.pdo.unsubscribe()
             unsubscribe(self.network, 0x80, self._on_sync)
             unsubscribe(self.network, 0, self._on_nmt)
+            unsubscribe(self.network, 0, self._note_nmt_state)
             del self.network[self.node.id]
             self.network = canopen.network._UNINITIALIZED_NETWORK
 
@@ -457,6 +462,24 @@ class SimulatedDrive(HomingMixin):
 
         self._in_own_thread(act)
 
+    def _brake_on_own_clock(self) -> None:
+        """A quick stop brakes whether or not SYNC comes (a master that lost SYNC quick stops by SDO):
+        the motion clock runs on the wall clock between SYNCs until the demand is at rest."""
+        self._tick_at, self._tick_sync = time.monotonic(), self.sync_count
+        self.consumer.tick()
+
+    def _on_nmt_stopped(self) -> None:
+        """CiA 402: entering NMT STOPPED from OPERATIONAL is an abort connection event (0x6007)."""
+        option = self.read_or(od.ABORT_CONNECTION_OPTION_CODE, 0, od.AbortConnectionOption.NO_ACTION)
+        if option == od.AbortConnectionOption.FAULT_SIGNAL:
+            self.fault_braking(EMCY_COMMUNICATION, "NMT stopped while operational")
+            if self._stop_segment is not None:
+                self._brake_on_own_clock()
+        elif option == od.AbortConnectionOption.DISABLE_VOLTAGE:
+            self._on_controlword(0x0000)  # CiA 402: the disable voltage command
+        elif option == od.AbortConnectionOption.QUICK_STOP:
+            self._on_controlword(0x0002)  # the quick stop command
+
     def _wall_clock_tick(self) -> bool:
         """The consumer's thread, every ms while the drive brakes after a lost master: the motion
         clock runs by the wall clock's elapsed time unless a SYNC came since the last tick (then
@@ -512,11 +535,17 @@ class SimulatedDrive(HomingMixin):
             finally:
                 self.changed.notify_all()
 
+    def _note_nmt_state(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if len(data) >= 2 and data[1] in (0, self.node.id):
+            self._nmt_left = self.node.nmt.state
+
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if len(data) < 2 or data[1] not in (0, self.node.id):
             return
 
         def act() -> None:
+            if self._nmt_left == "OPERATIONAL" and self.node.nmt.state == "STOPPED":
+                self._on_nmt_stopped()
             if self.node.nmt.state == "INITIALISING":  # reset node / reset communication
                 if data[0] == 0x81:
                     self._reset_application()
@@ -645,6 +674,8 @@ class SimulatedDrive(HomingMixin):
             self.state = new
             if new == QUICK_STOP_ACTIVE and self._stop_segment is None:
                 self.state = SWITCH_ON_DISABLED  # already at rest: quick stop option code 2
+            elif new == QUICK_STOP_ACTIVE:
+                self._brake_on_own_clock()
             if new == OPERATION_ENABLED:
                 self._enter_operation()
         if self.state == OPERATION_ENABLED:

@@ -19,11 +19,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-import canopen
 from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
 from axes.objects import EMCY_PDO_LENGTH
+from axes.subscriptions import subscribe, unsubscribe
 
 if TYPE_CHECKING:
     from axes.sim.drive import SimulatedDrive
@@ -35,20 +35,6 @@ ABORT_DEVICE_STATE = 0x08000022
 ABORT_NOT_MAPPABLE = 0x06040041
 ABORT_PDO_LENGTH = 0x06040042
 ABORT_VALUE_RANGE = 0x06090030
-
-
-def unsubscribe(network: canopen.Network, can_id: int, callback: Callable[..., None]) -> None:
-    """``network.unsubscribe`` without mutating the list a dispatch may be walking right now.
-
-    canopen's ``Network.notify`` iterates the subscriber list of a CAN-ID in the bus thread;
-    removing from that very list in another thread (a drive leaving the bus) makes it skip the
-    next subscriber, so another drive would miss that SYNC. The list is replaced instead.
-    """
-    remaining = [cb for cb in network.subscribers.get(can_id, []) if cb != callback]
-    if remaining:
-        network.subscribers[can_id] = remaining
-    else:
-        network.subscribers.pop(can_id, None)
 
 
 def is_pdo_object(index: int) -> bool:
@@ -146,7 +132,7 @@ class PdoEngine:
         self.tpdos = self._read_all(TPDO_COMM, TPDO_MAP, False)
         for pdo in self.rpdos.values():
             if pdo.valid and pdo.entries and pdo.cob_id not in self._subscribed:
-                network.subscribe(pdo.cob_id, self._on_frame)
+                subscribe(network, pdo.cob_id, self._on_frame)
                 self._subscribed[pdo.cob_id] = self._on_frame
 
     def unsubscribe(self) -> None:

@@ -4,10 +4,14 @@ this folder is not a package, so ``conftest`` itself is not imported by the test
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 import uuid
+from collections.abc import Sequence
+from typing import ClassVar
 
 import can
+from can.interfaces.virtual import VirtualBus
 
 from service.config import CellConfig
 
@@ -52,3 +56,86 @@ class BusObserver(can.Listener):
     def close(self) -> None:
         self.notifier.stop()
         self.bus.shutdown()
+
+
+class FlakyBus(VirtualBus):
+    """A test double of the CAN interface: python-can's virtual bus whose transmit path can be made
+    to fail (``fail(channel, seconds)``: ``can.CanOperationError`` as socketcan raises it on a full
+    queue, ENOBUFS) and whose controller state can be set (``set_state``). Opened as the python-can
+    interface ``pvtflow_test_flaky`` (registered below)."""
+
+    failing_until: ClassVar[dict[str, float]] = {}
+    states: ClassVar[dict[str, can.BusState]] = {}
+    refused: ClassVar[dict[str, int]] = {}
+
+    @classmethod
+    def fail(cls, channel: str, seconds: float) -> None:
+        cls.failing_until[channel] = time.monotonic() + seconds
+
+    @classmethod
+    def set_state(cls, channel: str, state: can.BusState) -> None:
+        cls.states[channel] = state
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if time.monotonic() < FlakyBus.failing_until.get(self.channel_id, 0.0):
+            FlakyBus.refused[self.channel_id] = FlakyBus.refused.get(self.channel_id, 0) + 1
+            raise can.CanOperationError("Failed to transmit: [Errno 105] No buffer space available")
+        super().send(msg, timeout)
+
+    @property
+    def state(self) -> can.BusState:
+        return FlakyBus.states.get(self.channel_id, can.BusState.ACTIVE)
+
+
+class KernelTask(can.broadcastmanager.RestartableCyclicTaskABC):
+    """A cyclic send timed outside the master's threads, as the kernel's broadcast manager does it:
+    its own virtual bus on the channel (the kernel's socket), absolute deadlines."""
+
+    def __init__(self, channel: str, msgs: Sequence[can.Message], period: float) -> None:
+        super().__init__(msgs, period)
+        self.bus = VirtualBus(channel=channel)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        deadline = time.monotonic()
+        while not self._stop.is_set():
+            for msg in self.messages:
+                self.bus.send(msg)
+            deadline += self.period
+            self._stop.wait(max(0.0, deadline - time.monotonic()))
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(1.0)
+        self.bus.shutdown()
+
+
+class KernelCyclicBus(VirtualBus):
+    """A test double of an interface that sends cyclically by itself (socketcan's BCM): the python-can
+    interface ``pvtflow_test_kernel``."""
+
+    def _send_periodic_internal(
+        self,
+        msgs: Sequence[can.Message],
+        period: float,
+        duration: float | None = None,
+        autostart: bool = True,
+        modifier_callback: object = None,
+    ) -> KernelTask:
+        task = KernelTask(self.channel_id, msgs, period)
+        if autostart:
+            task.start()
+        return task
+
+
+# what python-can's plugin entry point does for an installed interface
+for _name, _cls in (("pvtflow_test_flaky", "FlakyBus"), ("pvtflow_test_kernel", "KernelCyclicBus")):
+    can.interfaces.BACKENDS[_name] = ("axes_rig", _cls)
+can.interfaces.VALID_INTERFACES = can.util.VALID_INTERFACES = frozenset(can.interfaces.BACKENDS)

@@ -1,0 +1,345 @@
+"""The master keeps SYNC on the wall clock and halts without it (issue 23, parts 3 and 5).
+
+Bus-level checks run on raw frames (no drives); the halts run a simulated cell. The interface's
+failures come from test doubles of the python-can BUS (``axes_rig.FlakyBus``: a send that raises
+``can.CanOperationError``, a controller state; ``KernelCyclicBus``: a cyclic send timed outside the
+master), the product code is the real one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import struct
+import threading
+import time
+
+import can
+import canopen
+import pytest
+from axes_programs import program
+from axes_rig import BusObserver, FlakyBus, unique_channel, with_profiles
+
+from axes import objects as od
+from axes.bus import SYNC_COB_ID, BusFault, CellBus, FaultKind
+from axes.config import BusConfig
+from axes.group import AxisGroup
+from axes.outcome import Result
+from axes.sim.cell import SimulatedCell
+from axes.sim.drive import SWITCH_ON_DISABLED
+from axes.subscriptions import subscribe, unsubscribe
+
+# --- subscriptions --------------------------------------------------------------------------------
+
+
+def dispatch_with_unsubscribe(remove) -> list[str]:
+    """Three listeners on one CAN-ID; the first unsubscribes itself while the frame is dispatched."""
+    network = canopen.Network()
+    heard: list[str] = []
+
+    def first(can_id: int, data: bytearray, timestamp: float) -> None:
+        heard.append("first")
+        remove(network, can_id, first)
+
+    def second(can_id: int, data: bytearray, timestamp: float) -> None:
+        heard.append("second")
+
+    def third(can_id: int, data: bytearray, timestamp: float) -> None:
+        heard.append("third")
+
+    for cb in (first, second, third):
+        subscribe(network, 0x181, cb)
+    network.notify(0x181, bytearray(b"\x00"), 0.0)
+    return heard
+
+
+def test_a_listener_that_unsubscribes_during_notify_costs_no_other_listener_its_frame():
+    assert dispatch_with_unsubscribe(unsubscribe) == ["first", "second", "third"]
+    # python-canopen's own unsubscribe removes from the list notify is walking: one listener misses it
+    assert dispatch_with_unsubscribe(lambda net, cob, cb: net.unsubscribe(cob, cb)) == ["first", "third"]
+
+
+# --- SYNC on the wall clock --------------------------------------------------------------------------
+
+
+def sync_times(observer: BusObserver, since: float = 0.0) -> list[float]:
+    return [t for t, cob, _ in list(observer.frames) if cob == SYNC_COB_ID and t > since]
+
+
+def test_no_catch_up_burst_after_a_stall_and_the_skipped_periods_are_counted():
+    channel = unique_channel("sync")
+    observer = BusObserver(channel)
+    period_ms = 2.0
+    bus = CellBus(
+        BusConfig(channel=channel, sync_period_ms=period_ms, time_stamp=False, max_sync_gap_periods=100),
+        lockstep=False,
+    ).open()
+    try:
+        bus.sync.start()
+        time.sleep(0.05)
+        with bus.sync.lock:  # the SYNC thread cannot send for 20 ms (10 periods)
+            time.sleep(0.02)
+            released = time.monotonic()
+        time.sleep(0.05)
+        bus.sync.stop()
+        after = sync_times(observer, released)
+        window = [t for t in after if t <= released + 0.010]
+        # a catch-up would send the 10 missed SYNCs back to back: 10 ms after the stall carries at
+        # most the 5 SYNCs of its own periods (and one at its edge)
+        assert len(window) <= 6, [round((t - released) * 1000, 2) for t in window]
+        gaps = [b - a for a, b in itertools.pairwise(after)]
+        assert min(gaps) >= period_ms / 2000.0 * 0.9  # no SYNC half a period after the one before
+        assert bus.sync.skipped >= 8
+        assert bus.sync.longest_gap_s >= 0.02
+    finally:
+        bus.close()
+        observer.close()
+
+
+def test_a_sync_gap_longer_than_the_drives_ride_out_is_reported_with_the_gap():
+    channel = unique_channel("sync")
+    bus = CellBus(
+        BusConfig(channel=channel, sync_period_ms=5.0, time_stamp=False, max_sync_gap_periods=4), lockstep=False
+    ).open()
+    faults: list[BusFault] = []
+    bus.on_fault(faults.append)
+    try:
+        bus.sync.start()
+        time.sleep(0.03)
+        with bus.sync.lock:
+            time.sleep(0.06)
+        deadline = time.monotonic() + 2.0
+        while not any(f.kind is FaultKind.SYNC_GAP for f in faults) and time.monotonic() < deadline:
+            time.sleep(0.005)
+        gap = next(f for f in faults if f.kind is FaultKind.SYNC_GAP)
+        assert gap.code >= 55  # the gap in ms
+        assert "no SYNC for" in gap.message and "ride out 20.0 ms" in gap.message
+    finally:
+        bus.close()
+
+
+def test_the_interface_s_own_cyclic_sync_is_followed_by_the_time_stamp():
+    channel = unique_channel("kernel")
+    observer = BusObserver(channel)
+    bus = CellBus(
+        BusConfig(interface="pvtflow_test_kernel", channel=channel, sync_period_ms=5.0, time_stamp=True),
+        lockstep=False,
+    ).open()
+    try:
+        bus.sync.start()
+        time.sleep(0.2)
+        bus.sync.stop()
+        assert bus.sync.native
+        ids = [cob for _, cob, _ in list(observer.frames) if cob in (SYNC_COB_ID, od.TIME_STAMP_COB_ID)]
+        syncs = ids.count(SYNC_COB_ID)
+        assert syncs >= 20
+        # every SYNC the interface sent is followed by one time stamp from the master
+        assert ids.count(od.TIME_STAMP_COB_ID) >= syncs - 2
+        assert bus.sync.count >= syncs - 2
+    finally:
+        bus.close()
+        observer.close()
+
+
+def test_a_virtual_bus_has_no_cyclic_send_of_its_own_so_the_sync_thread_sends():
+    channel = unique_channel("sync")
+    bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0), lockstep=False).open()
+    try:
+        bus.sync.start()
+        time.sleep(0.05)
+        bus.sync.stop()
+        assert not bus.sync.native and bus.sync.count >= 5
+        assert bus.sync.realtime is not None  # asked (granted or not: a warning says which)
+    finally:
+        bus.close()
+
+
+# --- the bus reports what it is -----------------------------------------------------------------
+
+
+def test_error_frames_bus_state_and_the_can_emcys_are_reported_as_what_they_are():
+    channel = unique_channel("flaky")
+    other = can.Bus(interface="virtual", channel=channel)
+    bus = CellBus(BusConfig(interface="pvtflow_test_flaky", channel=channel), lockstep=True).open()
+    faults: list[BusFault] = []
+    bus.on_fault(faults.append)
+    bus.add_node(3)
+
+    def wait_for(predicate) -> None:
+        deadline = time.monotonic() + 3.0
+        while not predicate() and time.monotonic() < deadline:
+            time.sleep(0.005)
+
+    try:
+        for _ in range(3):
+            other.send(can.Message(arbitration_id=0, is_error_frame=True, is_extended_id=False))
+        wait_for(lambda: any("error frame" in f.message for f in faults))
+        frames = next(f for f in faults if "error frame" in f.message)
+        assert frames.kind is FaultKind.BUS_WARNING and bus.errors.count == 3
+
+        FlakyBus.set_state(channel, can.BusState.PASSIVE)
+        wait_for(lambda: any("error passive" in f.message for f in faults))
+        assert next(f for f in faults if "error passive" in f.message).kind is FaultKind.BUS_WARNING
+        FlakyBus.set_state(channel, can.BusState.ERROR)
+        wait_for(lambda: any(f.kind is FaultKind.BUS_OFF for f in faults))
+        assert "bus-off" in next(f for f in faults if f.kind is FaultKind.BUS_OFF).message
+
+        for code in (od.EMCY_CAN_ERROR_PASSIVE, od.EMCY_CAN_BUS_OFF_RECOVERED, od.EMCY_CAN_OVERRUN):
+            other.send(can.Message(arbitration_id=0x83, data=struct.pack("<HB5x", code, 0x11), is_extended_id=False))
+        wait_for(lambda: len([f for f in faults if f.kind is FaultKind.EMCY]) == 3)
+        emcys = [f.message for f in faults if f.kind is FaultKind.EMCY]
+        assert emcys == [
+            "EMCY 0x8120 from node 3: CAN in error passive",
+            "EMCY 0x8140 from node 3: recovered from bus off",
+            "EMCY 0x8110 from node 3: CAN overrun (frames lost)",
+        ]
+    finally:
+        FlakyBus.states.pop(channel, None)
+        bus.close()
+        other.shutdown()
+
+
+def test_a_send_the_interface_refuses_is_tried_again_within_the_bound():
+    channel = unique_channel("flaky")
+    bus = CellBus(BusConfig(interface="pvtflow_test_flaky", channel=channel, tx_retry_ms=20.0)).open()
+    try:
+        FlakyBus.fail(channel, 0.005)
+        bus.network.send_message(0x123, b"\x01")  # refused for 5 ms, sent within the 20 ms bound
+        assert bus.network.tx_retries > 0
+        FlakyBus.fail(channel, 0.5)
+        with pytest.raises(can.CanOperationError, match=r"not sent within 20\.0 ms"):
+            bus.network.send_message(0x123, b"\x01")
+    finally:
+        FlakyBus.failing_until.pop(channel, None)
+        bus.close()
+
+
+# --- halts without SYNC on a simulated cell -------------------------------------------------------
+
+
+def sim_rig(cell, *, lockstep: bool, interface: str = "virtual", **bus_changes):
+    channel = unique_channel()
+    bus_config = dataclasses.replace(cell.bus, channel=channel, **bus_changes)
+    cell = dataclasses.replace(cell, bus=bus_config)
+    sim = SimulatedCell(cell, channel=channel, interface="virtual").start()
+    master = dataclasses.replace(bus_config, interface=interface)
+    bus = CellBus(master, lockstep=lockstep).open()
+    group = AxisGroup(bus, cell.ordered_axes())
+    return cell, sim, bus, group
+
+
+def close_rig(sim, bus, group) -> None:
+    group.close()
+    bus.close()
+    sim.stop()
+
+
+def fixed_period_cell(arm6, period_ms: int):
+    profile = {"profile": "cia402_ip_linear", "period_ms": period_ms}
+    return with_profiles(arm6, {a.joint: profile for a in arm6.axes}, sync_period_ms=float(period_ms))
+
+
+def assert_quick_stopped(group: AxisGroup, sim: SimulatedCell, result, kind: Result) -> None:
+    assert result.result is kind, result.message
+    stop = group.last_quick_stop
+    assert stop is not None and stop.done.wait(2.0)
+    nodes = sorted(d.node_id for d in sim)
+    assert sorted(stop.confirmed) == nodes, stop.describe()
+    assert "quick stop by SDO confirmed" in result.message
+    for drive in sim:  # every axis braked on its own clock, without SYNC, to rest
+        assert drive.wait_until(lambda d=drive: d.state == SWITCH_ON_DISABLED, 5.0), (drive.node_id, drive.state)
+        assert drive.faults == [], drive.faults  # the quick stop ramp is within the drive's limits
+
+
+@pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "wall_clock"])
+def test_a_dead_sync_thread_quick_stops_every_axis_by_sdo(arm6, lockstep):
+    cell = fixed_period_cell(arm6, 5)
+    cell, sim, bus, group = sim_rig(cell, lockstep=lockstep, max_sync_gap_periods=50)
+    try:
+        prog = program(cell.ordered_axes(), 1500, fraction=0.3)
+        killed = threading.Event()
+
+        def die(n: int) -> None:
+            start = group._start_sync
+            if start is not None and n >= start + 60 and not killed.is_set():
+                killed.set()
+                raise RuntimeError("injected: the SYNC thread dies")
+
+        bus.sync.add_sender(die)
+        assert group.start(prog) is None
+        result = group.wait(30.0)
+        assert killed.is_set()
+        assert "the SYNC" in result.message and "injected" in result.message
+        assert_quick_stopped(group, sim, result, Result.BUS_ERROR)
+        assert any(d.halts == [] for d in sim)  # not the synchronous halt word: nothing carried it
+    finally:
+        close_rig(sim, bus, group)
+
+
+@pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "wall_clock"])
+def test_a_transmit_queue_that_stays_full_is_retried_then_halts_and_is_reported(arm6, lockstep):
+    cell = fixed_period_cell(arm6, 5)
+    cell, sim, bus, group = sim_rig(
+        cell, lockstep=lockstep, interface="pvtflow_test_flaky", max_sync_gap_periods=50, quick_stop_confirm_ms=50.0
+    )
+    try:
+        prog = program(cell.ordered_axes(), 1500, fraction=0.3)
+        failed = threading.Event()
+
+        def fill_queue(n: int) -> None:
+            start = group._start_sync
+            if start is not None and n >= start + 60 and not failed.is_set():
+                failed.set()
+                FlakyBus.fail(bus.config.channel, 0.01)  # 10 ms: past the 2 ms of retries
+
+        bus.sync.add_sender(fill_queue)
+        assert group.start(prog) is None
+        result = group.wait(30.0)
+        assert failed.is_set()
+        assert "not sent within 2.0 ms" in result.message and "No buffer space" in result.message
+        assert bus.network.tx_retries > 0
+        assert_quick_stopped(group, sim, result, Result.BUS_ERROR)
+    finally:
+        FlakyBus.failing_until.pop(bus.config.channel, None)
+        close_rig(sim, bus, group)
+
+
+def test_a_sync_gap_beyond_the_limit_halts_the_motion_on_the_wall_clock(arm6):
+    cell = fixed_period_cell(arm6, 10)
+    cell, sim, bus, group = sim_rig(cell, lockstep=False, max_sync_gap_periods=5)
+    events = []
+    group.on_event = events.append
+    try:
+        prog = program(cell.ordered_axes(), 2000, fraction=0.3)
+        assert group.start(prog) is None
+        while group.running and (group.elapsed_syncs() or 0) < 30:
+            time.sleep(0.005)
+        with bus.sync.lock:  # the master holds SYNC back for 120 ms: the drives ride out 50
+            time.sleep(0.12)
+        result = group.wait(30.0)
+        assert "no SYNC for" in result.message
+        assert any(e.kind.value == "sync_gap" for e in events)
+        assert_quick_stopped(group, sim, result, Result.BUS_ERROR)
+    finally:
+        close_rig(sim, bus, group)
+
+
+def test_an_nmt_stop_brakes_a_simulated_drive_as_its_abort_connection_option_says(arm6):
+    cell = fixed_period_cell(arm6, 5)
+    cell, sim, bus, group = sim_rig(cell, lockstep=True)
+    try:
+        prog = program(cell.ordered_axes(), 1500, fraction=0.3)
+        drive = next(iter(sim))
+
+        def nmt_stop(n: int) -> None:
+            start = group._start_sync
+            if start is not None and n == start + 60:
+                bus.nmt(drive.node_id, 0x02)
+
+        bus.sync.add_listener(nmt_stop)
+        assert group.start(prog) is None
+        group.wait(30.0)
+        assert drive.nmt_state == "STOPPED"
+        assert drive.wait_until(lambda: drive.state == SWITCH_ON_DISABLED and abs(drive.velocity) < 1e-12, 5.0)
+    finally:
+        close_rig(sim, bus, group)
