@@ -7,7 +7,8 @@ time as a real one does, by its quartz:
 * ``Quartz``: the process's ``time.monotonic`` scaled by a drift in ppm (a drive parameter, for
   tests: real crystals are within about +-100 ppm).
 * ``MotionClock``: the drive's motion time (us), its quartz times a rate, continuous when the rate
-  changes (the EPOS2 slews it to follow SYNC; the fixed-period drives leave it at 1).
+  changes (the EPOS2 slews it for a period after each SYNC to follow SYNC; the fixed-period drives
+  leave it at 1).
 * ``Ticker``: one thread for a whole cell that wakes every ms and advances every drive to now,
   sample by sample when it was held back (the samples are drive time; the thread is only how the
   simulation gets the CPU). SYNC and the other frames still arrive through the bus callbacks.
@@ -42,11 +43,26 @@ def check_clock(clock: str, drift_ppm: float = 0.0) -> None:
 
 def arrival(timestamp: float) -> float:
     """``time.monotonic()`` of a frame's arrival: its bus time stamp (Unix time) when plausible, else now."""
-    mono, wall = time.monotonic(), time.time()
+    mono, wall = _now_pair()
     age = wall - timestamp
-    if -0.001 <= age <= MAX_STAMP_AGE_S:
-        return mono - max(age, 0.0)
+    if -0.001 <= age <= MAX_STAMP_AGE_S:  # a stamp just ahead of this process's reading is still its own
+        return mono - age
     return mono
+
+
+def _now_pair() -> tuple[float, float]:
+    """(time.monotonic(), time.time()) of one instant: another thread may run between two reads, so
+    the pair read closest together of a few tries (it maps a Unix time stamp to the monotonic clock)."""
+    best = (math.inf, 0.0, 0.0)
+    for _ in range(3):
+        w1 = time.time()
+        mono = time.monotonic()
+        w2 = time.time()
+        if w2 - w1 < best[0]:
+            best = (w2 - w1, mono, (w1 + w2) / 2.0)
+        if best[0] < 20e-6:
+            break
+    return best[1], best[2]
 
 
 class Quartz:
@@ -62,23 +78,30 @@ class Quartz:
 
 
 class MotionClock:
-    """Motion time (us) = a reference time + the quartz time since the reference x ``rate``."""
+    """Motion time (us) = a reference time + the quartz time since the reference x ``rate`` for
+    ``duration`` quartz us, then x 1."""
 
     def __init__(self, quartz: Quartz, motion_us: float, mono: float) -> None:
         self.quartz = quartz
         self.rate = 1.0
         self._t0 = motion_us
         self._q0 = quartz.us(mono)
+        self._duration = math.inf
 
     def at(self, mono: float) -> float:
         """The motion time at ``mono`` (a ``time.monotonic()``)."""
-        return self._t0 + (self.quartz.us(mono) - self._q0) * self.rate
+        dq = self.quartz.us(mono) - self._q0
+        if dq <= self._duration:
+            return self._t0 + dq * self.rate
+        return self._t0 + self._duration * self.rate + (dq - self._duration)
 
-    def slew(self, rate: float, mono: float) -> None:
-        """Run at ``rate`` from ``mono`` on (the motion time itself does not jump)."""
+    def slew(self, rate: float, mono: float, duration_us: float = math.inf) -> None:
+        """Run at ``rate`` from ``mono`` on for ``duration_us`` of the quartz, then at 1 (the motion
+        time itself does not jump)."""
         self._t0 = self.at(mono)
         self._q0 = self.quartz.us(mono)
         self.rate = rate
+        self._duration = duration_us
 
 
 class Ticking(Protocol):

@@ -599,7 +599,7 @@ class SimulatedDrive(HomingMixin):
                 self.pdo.apply_synchronous()
             self._on_sync_validated()
             if clock is not None:
-                self._on_sync_clock(latched)
+                self._on_sync_clock(latched, mono)
             self._refresh(events=False)
             self.history.append(
                 SyncSample(self.sync_count, new_time / 1000.0, self.demand, self.actual, self.ip_active, self.state)
@@ -903,8 +903,9 @@ class SimulatedDrive(HomingMixin):
     def _on_sync_validated(self) -> None:
         """After a SYNC's synchronous RPDOs were applied: activations and setpoints take effect."""
 
-    def _on_sync_clock(self, instant_us: float) -> None:
-        """Wall clock: a SYNC arrived at ``instant_us`` of the motion clock (after ``_on_sync_validated``)."""
+    def _on_sync_clock(self, instant_us: float, mono: float) -> None:
+        """Wall clock: a SYNC arrived at ``mono`` (a ``time.monotonic()``), ``instant_us`` on the motion
+        clock (called after ``_on_sync_validated``)."""
 
     def _motion_at(self, t: float) -> tuple[float, float, float] | None:
         """The interpolation's (position, velocity, acceleration) at motion time t; None: hold."""

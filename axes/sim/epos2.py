@@ -33,7 +33,11 @@ decided here:
   relation to the time latched in the last SYNC": it compares the latched time with start + n x
   period (n: the period boundary nearest to it, not a SYNC count, so a master that skips a period is
   not read as a drive a period fast; the period is 0x1006 where written, else the cell's SYNC
-  period) and runs its clock at 1 - error/period until the next SYNC, bounded to +-1 % (``MAX_SLEW``).
+  period) and runs its clock at 1 - error/period for one period from that SYNC's arrival, then at 1
+  again, bounded to +-1 % (``MAX_SLEW``): the error is closed within a period when it can be and a
+  late next SYNC cannot make the correction overshoot; the clock is a function of the SYNC
+  instants, not of when the simulation got to them. The drift itself is not estimated: it adds
+  period x drift (1 us at 1 ms and 1000 ppm) to the error each period and the next SYNC removes it.
   Why 1 %: it covers 20 times the 500 ppm the tests give the quartz (a real crystal: about
   100 ppm), so the drift is taken out within a SYNC or two, while one SYNC that is off by a whole
   period (late, or one of a burst) moves the path by at most 1 % of a period and changes its speed
@@ -45,7 +49,6 @@ decided here:
 
 from __future__ import annotations
 
-import time
 from collections import deque
 from dataclasses import dataclass
 
@@ -75,7 +78,7 @@ class ClockCheck:
     sync: int
     n: int  # the period boundary it was compared with
     error_us: float  # latched time - (start + n x period): > 0, the drive's clock runs ahead
-    rate: float  # the motion clock's rate (per quartz us) until the next SYNC
+    rate: float  # the motion clock's rate (per quartz us) for the period after this SYNC
 
 
 class Epos2Drive(SimulatedDrive):
@@ -203,7 +206,7 @@ class Epos2Drive(SimulatedDrive):
             self._ip_requested = False
             self._start()
 
-    def _on_sync_clock(self, instant_us: float) -> None:
+    def _on_sync_clock(self, instant_us: float, mono: float) -> None:
         """Wall clock: the start SYNC is the path's zero; every later one slews the clock toward
         start + n x period (module docstring)."""
         clock = self.motion_clock
@@ -212,7 +215,7 @@ class Epos2Drive(SimulatedDrive):
         if not self.ip_active:
             self._sync_origin = None
             if clock.rate != 1.0:
-                clock.slew(1.0, time.monotonic())
+                clock.slew(1.0, mono)
             return
         if self._sync_origin is None or self.ip_active_sync == self.sync_count:
             self._sync_origin = instant_us
@@ -222,7 +225,7 @@ class Epos2Drive(SimulatedDrive):
         n = round((instant_us - self._sync_origin) / period)
         error = instant_us - (self._sync_origin + n * period)
         rate = 1.0 - min(max(error / period, -MAX_SLEW), MAX_SLEW)
-        clock.slew(rate, time.monotonic())
+        clock.slew(rate, mono, period)  # from the SYNC's arrival: a function of the SYNC instants
         self.clock_checks.append(ClockCheck(self.sync_count, n, error, rate))
 
     def _start(self) -> None:
