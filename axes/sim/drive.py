@@ -27,8 +27,10 @@ test runs a drive exactly as fast as it sends SYNCs, deterministically.
 ``clock="wall"``: the drive keeps its own time (``axes/sim/clock.py``: its quartz, ``drift_ppm``
 fast) and samples every whole ms of it, run by the cell's ``Ticker`` (``run_to``) whatever the SYNCs
 do. A SYNC is latched at its arrival on that clock (the frame's bus time stamp when plausible, else
-the callback's instant; never before the last sample taken), and the profiles act on it there: a
-late SYNC or a burst of SYNCs is what the drive sees, as a real one would.
+the callback's instant), as a drive latches it in hardware, and the profiles act on it there
+(``sync_time_us``) even when the simulation gets to the frame after the ticker has sampled past it
+(``SyncSample.behind_us``): a late SYNC or a burst of SYNCs is what the drive sees, as a real one
+would, and the simulation's own latency is not.
 
 Threads: every bus callback runs in the simulated network's notifier thread; test code may call in
 from other threads, so all state is guarded by one lock, and ``changed`` is notified after each
@@ -166,6 +168,9 @@ class SimulatedDrive(HomingMixin):
         self.sync_count = 0
         self.halts: list[int] = []  # the SYNC count at every halt (controlword bit 8) taken in OPERATION ENABLED
         self.time_us = 0
+        # the SYNC being processed, on the motion clock: time_us in lockstep; on the wall clock its
+        # arrival, which the drive's samples may have passed already when the simulation is late
+        self.sync_time_us = 0
         self.sample_ms = 0.0  # motion time of the sample being computed (or of the last SYNC)
         self._heartbeat_silenced = False
         self.consumer = HeartbeatConsumer(str(node_id), self._on_heartbeat_lost, self._wall_clock_tick)
@@ -586,15 +591,19 @@ class SimulatedDrive(HomingMixin):
         def act() -> None:
             self.sync_count += 1
             clock = self.motion_clock
+            behind = 0
             if clock is None:  # lockstep: one SYNC period per SYNC
                 new_time = self.time_us + self.sync_period_us
-            else:  # the SYNC instant on the drive's own clock (never before what it has sampled)
+            else:  # the SYNC instant on the drive's own clock, in order
                 mono = arrival(timestamp)
                 latched = clock.at(mono)
-                new_time = max(self.time_us, math.floor(latched))
-            self._advance(new_time)
-            self.time_us = new_time
-            self.sample_ms = new_time / 1000.0
+                new_time = max(self.sync_time_us, math.floor(latched))
+                behind = max(self.time_us - new_time, 0)
+            if not behind:
+                self._advance(new_time)
+                self.time_us = new_time
+                self.sample_ms = new_time / 1000.0
+            self.sync_time_us = new_time
             if self.operational:
                 self.pdo.apply_synchronous()
             self._on_sync_validated()
@@ -602,7 +611,9 @@ class SimulatedDrive(HomingMixin):
                 self._on_sync_clock(latched, mono)
             self._refresh(events=False)
             self.history.append(
-                SyncSample(self.sync_count, new_time / 1000.0, self.demand, self.actual, self.ip_active, self.state)
+                SyncSample(
+                    self.sync_count, new_time / 1000.0, self.demand, self.actual, self.ip_active, self.state, behind
+                )
             )
             if self.operational:
                 self.pdo.transmit_on_sync()

@@ -237,7 +237,7 @@ class Epos2Drive(SimulatedDrive):
         self.ip_active_sync = self.sync_count
         self.min_level_active = self.level
         self.velocity = self.acceleration = 0.0
-        self._begin(self.time_us / 1000.0, self.demand, 0.0)
+        self._begin(self.sync_time_us / 1000.0, self.demand, 0.0)
 
     def _begin(self, start: float, p0: float, v0: float) -> bool:
         """Take the next record at ``start``: a new segment, the end (time 0) or an underflow."""

@@ -80,7 +80,7 @@ class FixedPeriodDrive(SimulatedDrive):
             self.setpoints.append((self.sync_count, target))
             if self.first_setpoint_sync is None:
                 self.first_setpoint_sync = self.sync_count
-        self._validated(self.time_us / 1000.0, target)
+        self._validated(self.sync_time_us / 1000.0, target)
 
     # --- writes -----------------------------------------------------------------------------------
     def _on_object_write(self, index: int, subindex: int, value: int) -> None:
@@ -111,7 +111,7 @@ class FixedPeriodDrive(SimulatedDrive):
         at rest on its end point once it has ended before now (a late SYNC: the drive held there)."""
         if self._segment is None:
             return self.demand, 0.0
-        t = self.time_us / 1000.0
+        t = self.sync_time_us / 1000.0
         if t > self._segment.end + 1e-9:
             return self._segment.p1, 0.0
         if t >= self._segment.end - 1e-9:

