@@ -45,7 +45,7 @@ def open_cell_bus(cell: CellConfig, real_time: bool, can_log: str | None) -> Ite
         if cell.simulated:
             from axes.sim.cell import SimulatedCell
 
-            sim = SimulatedCell(cell).start()
+            sim = SimulatedCell(cell, clock="wall" if real_time else "lockstep").start()
         bus.open()
     except (BusError, OSError) as exc:
         if sim is not None:

@@ -211,7 +211,7 @@ class MotionService:
             if self.simulate:
                 from axes.sim.cell import SimulatedCell
 
-                self.sim = SimulatedCell(self.cell).start()
+                self.sim = SimulatedCell(self.cell, clock="lockstep" if self.lockstep else "wall").start()
             self.bus.open()
             self.group = AxisGroup(
                 self.bus,

@@ -54,6 +54,12 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--config", metavar="CELL", help="cell configuration YAML (default: the arm6 demo cell)")
     p.add_argument("--interface", metavar="NAME", help="python-can interface instead of the cell's (e.g. socketcan)")
     p.add_argument("--channel", metavar="NAME", help="channel instead of the cell's (e.g. vcan0)")
+    p.add_argument(
+        "--wall-clock",
+        action="store_true",
+        help="the drives keep their own time (1 ms samples), for a master that sends SYNC on the wall clock "
+        "(default: lockstep, one SYNC period per SYNC)",
+    )
     p.set_defaults(run=run)
 
 
@@ -84,9 +90,13 @@ def banner(sim: SimulatedCell) -> str:
             f"  node {axis.node_id:3d}  {axis.joint:<10} {drive.PROFILE:<17} "
             f"0x6502=0x{drive.MODES.supported:08X}  {drive.eds_path}"
         )
+    clock = (
+        "each keeps its own time and samples every ms of it, SYNC latched at its arrival"
+        if sim.clock == "wall"
+        else f"each SYNC advances their motion clock by {cell.bus.sync_period_ms:g} ms (the cell's SYNC period)"
+    )
     lines += [
-        "  pre-operational, waiting for a master (NMT, SDO, PDOs); no SYNC of their own: each SYNC advances "
-        f"their motion clock by {cell.bus.sync_period_ms:g} ms (the cell's SYNC period)",
+        f"  pre-operational, waiting for a master (NMT, SDO, PDOs); no SYNC of their own: {clock}",
         "  they move in interpolated position mode (7) only; other supported modes are accepted and hold the position",
     ]
     if sim.interface == "virtual":
@@ -98,10 +108,17 @@ def banner(sim: SimulatedCell) -> str:
     return "\n".join(lines)
 
 
-def simulate(cell: CellConfig, interface: str, channel: str, stop: threading.Event, out: TextIO | None = None) -> int:
+def simulate(
+    cell: CellConfig,
+    interface: str,
+    channel: str,
+    stop: threading.Event,
+    out: TextIO | None = None,
+    clock: str = "lockstep",
+) -> int:
     """Run the cell's simulated drives on (interface, channel) until ``stop`` is set; the exit code."""
     out = out if out is not None else sys.stdout
-    sim = SimulatedCell(cell, interface=interface, channel=channel)
+    sim = SimulatedCell(cell, interface=interface, channel=channel, clock=clock)
     try:
         sim.start()
     except (can.CanError, OSError, ValueError, ImportError) as exc:
@@ -150,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        return simulate(cell, interface, channel, stop)
+        return simulate(cell, interface, channel, stop, clock="wall" if args.wall_clock else "lockstep")
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)

@@ -6,6 +6,11 @@ drives exactly as it would to real ones. Each drive is commissioned with its axi
 (0x607F, 0x60C5, 0x607D, 0x6081/0x6083: facts about the drive, DESIGN section 3) and runs its
 motion clock at the bus's SYNC period; everything else (modes, periods, PDOs, heartbeat) is left
 to the master to configure.
+
+``clock="lockstep"`` (default): each SYNC advances every drive by one SYNC period, for deterministic
+tests and runs faster than real time. ``clock="wall"``: each drive keeps its own time and one
+``Ticker`` thread for the whole cell samples every drive every ms of it (axes/sim/clock.py), for a
+master that runs SYNC on the wall clock.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from types import TracebackType
 import canopen
 
 from axes.config import AxisConfig, CellWiring
+from axes.sim.clock import LOCKSTEP, Ticker, check_clock
 from axes.sim.drive import SimulatedDrive
 from axes.sim.epos2 import Epos2Drive
 from axes.sim.ip_linear import IpLinearDrive
@@ -37,6 +43,7 @@ def make_drive(
     network: canopen.Network | None = None,
     eds_path: str | Path | None = None,
     history_length: int = 20_000,
+    clock: str = LOCKSTEP,
 ) -> SimulatedDrive:
     """The simulated drive for one configured axis (its profile's class, its scaling and limits)."""
     cls = DRIVE_CLASSES[axis.profile]
@@ -49,6 +56,7 @@ def make_drive(
         sync_period_ms=sync_period_ms,
         history_length=history_length,
         simulation=axis.simulation,
+        clock=clock,
     )
 
 
@@ -63,8 +71,11 @@ class SimulatedCell:
         interface: str | None = None,
         eds_paths: Mapping[int, str | Path] | None = None,
         history_length: int = 20_000,
+        clock: str = LOCKSTEP,
     ) -> None:
+        check_clock(clock)
         self.cell = cell
+        self.clock = clock
         self.interface = interface or cell.bus.interface
         self.channel = channel or cell.bus.channel
         self.network = canopen.Network()
@@ -73,9 +84,10 @@ class SimulatedCell:
         eds_paths = eds_paths or {}
         for axis in cell.axes:
             self.drives[axis.node_id] = make_drive(
-                axis, cell.bus.sync_period_ms, None, eds_paths.get(axis.node_id), history_length
+                axis, cell.bus.sync_period_ms, None, eds_paths.get(axis.node_id), history_length, clock
             )
         self._joint_to_node = {a.joint: a.node_id for a in cell.axes}
+        self.ticker = Ticker(self.drives.values(), name="sim-ticker") if clock != LOCKSTEP else None
         self.running = False
 
     def start(self) -> SimulatedCell:
@@ -89,6 +101,8 @@ class SimulatedCell:
             drive.attach(self.network)
         for drive in self.drives.values():
             drive.boot()
+        if self.ticker is not None:
+            self.ticker.start()
         self.running = True
         return self
 
@@ -96,6 +110,8 @@ class SimulatedCell:
         """Power off: heartbeats stop, the drives leave the bus."""
         if not self.running:
             return
+        if self.ticker is not None:
+            self.ticker.stop()
         for drive in self.drives.values():
             drive.detach()
         self.network.disconnect()

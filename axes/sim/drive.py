@@ -14,15 +14,23 @@ says: 3 quick stop (the ramp 0x6085, then SWITCH ON DISABLED), 2 disable voltage
 first as 0x605E says (2: on the quick stop ramp; FAULT REACTION ACTIVE until the demand is at rest,
 then FAULT), 0 nothing more. A drive whose firmware treats a heartbeat error as one of its errors
 (``HEARTBEAT_ERROR_FAULTS``: the EPOS2) takes the fault path whatever 0x6007 says (but 0).
-Its motion clock then runs on the wall clock as long as it brakes and no SYNC comes:
-without SYNC a simulated drive's clock stands still (a real drive's runs on), and a lost master
-sends no SYNC. Other faults stop the axis at once, as before (the power stage off, the demand on
-the actual position).
+In lockstep its motion clock then runs on the wall clock as long as it brakes and no SYNC comes:
+without SYNC a lockstep drive's clock stands still (a real drive's runs on), and a lost master
+sends no SYNC; on the wall clock the drive's own clock brakes it. Other faults stop the axis at
+once (the power stage off, the demand on the actual position).
 
-Motion clock: each SYNC advances the drive's motion time by the cell's SYNC period; between two
-SYNCs the drive samples its interpolation at every whole millisecond of that clock. Nothing waits on
-wall-clock time (but the reaction to a lost master, above), so a test runs a drive exactly as fast
-as it sends SYNCs.
+Motion clock, ``clock="lockstep"`` (the default): each SYNC advances the drive's motion time by the
+cell's SYNC period; between two SYNCs the drive samples its interpolation at every whole millisecond
+of that clock. Nothing waits on wall-clock time (but the reaction to a lost master, above), so a
+test runs a drive exactly as fast as it sends SYNCs, deterministically.
+
+``clock="wall"``: the drive keeps its own time (``axes/sim/clock.py``: its quartz, ``drift_ppm``
+fast) and samples every whole ms of it, run by the cell's ``Ticker`` (``run_to``) whatever the SYNCs
+do. A SYNC is latched at its arrival on that clock (the frame's bus time stamp when plausible, else
+the callback's instant), as a drive latches it in hardware, and the profiles act on it there
+(``sync_time_us``) even when the simulation gets to the frame after the ticker has sampled past it
+(``SyncSample.behind_us``): a late SYNC or a burst of SYNCs is what the drive sees, as a real one
+would, and the simulation's own latency is not.
 
 Threads: every bus callback runs in the simulated network's notifier thread; test code may call in
 from other threads, so all state is guarded by one lock, and ``changed`` is notified after each
@@ -49,6 +57,7 @@ from axes import objects as od
 from axes.cia402 import Controlword, PowerState, Statusword
 from axes.config import AxisSimulation
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
+from axes.sim.clock import LOCKSTEP, WALL, MotionClock, Quartz, arrival, check_clock
 from axes.sim.consumer import HeartbeatConsumer
 from axes.sim.device import (
     SIMULATED_MODE,
@@ -126,11 +135,18 @@ class SimulatedDrive(HomingMixin):
         sync_period_ms: float = 1.0,
         history_length: int = 20_000,
         simulation: AxisSimulation | None = None,
+        clock: str = LOCKSTEP,
+        drift_ppm: float = 0.0,
     ) -> None:
         if not 1 <= node_id <= 127:
             raise ValueError(f"node id {node_id} is outside 1..127")
         if not (math.isfinite(sync_period_ms) and sync_period_ms > 0):
             raise ValueError(f"sync_period_ms must be positive, got {sync_period_ms!r}")
+        check_clock(clock, drift_ppm)
+        self.clock = clock
+        self.quartz = Quartz(drift_ppm)  # the drive's own time on the wall clock (axes/sim/clock.py)
+        self.motion_clock: MotionClock | None = None  # wall clock: set when the drive joins a network
+        self._loss_braking = False  # wall clock: braking after a lost master, standstill not yet seen
         self.eds_path = Path(eds_path) if eds_path is not None else EDS_DIR / self.EDS
         self.node = canopen.LocalNode(node_id, str(self.eds_path))
         own = {**identity_values(self.node.object_dictionary, self.MODES), **self._own_values()}
@@ -154,6 +170,9 @@ class SimulatedDrive(HomingMixin):
         self.sync_count = 0
         self.halts: list[int] = []  # the SYNC count at every halt (controlword bit 8) taken in OPERATION ENABLED
         self.time_us = 0
+        # the SYNC being processed, on the motion clock: time_us in lockstep; on the wall clock its
+        # arrival, which the drive's samples may have passed already when the simulation is late
+        self.sync_time_us = 0
         self.sample_ms = 0.0  # motion time of the sample being computed (or of the last SYNC)
         self._heartbeat_silenced = False
         self._nmt_left = "INITIALISING"  # the NMT state the last NMT command found (0x6007 on leaving OPERATIONAL)
@@ -270,6 +289,9 @@ class SimulatedDrive(HomingMixin):
         subscribe(network, 0, self._note_nmt_state)  # before the node's own NMT handling: the state it leaves
         network.add_node(self.node)
         self.network = network
+        if self.clock == WALL:
+            with self.lock:
+                self.motion_clock = MotionClock(self.quartz, float(self.time_us), time.monotonic())
         subscribe(network, 0x80, self._on_sync)
         subscribe(network, 0, self._on_nmt)
         self.consumer.attach(network)
@@ -456,7 +478,10 @@ class SimulatedDrive(HomingMixin):
             self._refresh()
             self._tick_at, self._tick_sync = now, self.sync_count
             if self._stop_segment is not None:
-                self.consumer.tick()  # brake on the wall clock: no SYNC may come any more
+                if self.motion_clock is not None:
+                    self._loss_braking = True  # the drive's own clock brakes it (run_to)
+                else:
+                    self.consumer.tick()  # brake on the wall clock: no SYNC may come any more
             elif option != od.AbortConnectionOption.NO_ACTION or abs(self.velocity) <= 1e-12:
                 loss.standstill = now
 
@@ -464,7 +489,10 @@ class SimulatedDrive(HomingMixin):
 
     def _brake_on_own_clock(self) -> None:
         """A quick stop brakes whether or not SYNC comes (a master that lost SYNC quick stops by SDO):
-        the motion clock runs on the wall clock between SYNCs until the demand is at rest."""
+        the motion clock runs on the wall clock between SYNCs until the demand is at rest. A drive on
+        its own clock (``clock="wall"``) brakes on it already (``run_to``)."""
+        if self.motion_clock is not None:
+            return
         self._tick_at, self._tick_sync = time.monotonic(), self.sync_count
         self.consumer.tick()
 
@@ -508,6 +536,29 @@ class SimulatedDrive(HomingMixin):
 
         self._in_own_thread(act)
         return result
+
+    def run_to(self, mono: float) -> None:
+        """Wall clock (the cell's ``Ticker``): sample every whole ms of the drive's own time up to
+        ``mono`` (a ``time.monotonic()``), whatever the SYNCs do; send event TPDOs on change."""
+
+        def act() -> None:
+            clock = self.motion_clock
+            if clock is None or not self.node.has_network():
+                return
+            new_time = math.floor(clock.at(mono) / 1000.0) * 1000
+            if new_time <= self.time_us:
+                return
+            self._advance(new_time)
+            self.time_us = new_time
+            self.sample_ms = new_time / 1000.0
+            if self._loss_braking and self._stop_segment is None:
+                self._loss_braking = False
+                for loss in self.master_losses:
+                    if loss.standstill is None:
+                        loss.standstill = time.monotonic()
+            self._refresh()
+
+        self._in_own_thread(act)
 
     def _in_own_thread(self, action: Callable[[], None]) -> None:
         """Run ``action`` under the lock from a thread of the drive's own (no SDO to abort)."""
@@ -571,16 +622,30 @@ class SimulatedDrive(HomingMixin):
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         def act() -> None:
             self.sync_count += 1
-            new_time = self.time_us + self.sync_period_us
-            self._advance(new_time)
-            self.time_us = new_time
-            self.sample_ms = new_time / 1000.0
+            clock = self.motion_clock
+            behind = 0
+            if clock is None:  # lockstep: one SYNC period per SYNC
+                new_time = self.time_us + self.sync_period_us
+            else:  # the SYNC instant on the drive's own clock, in order
+                mono = arrival(timestamp)
+                latched = clock.at(mono)
+                new_time = max(self.sync_time_us, math.floor(latched))
+                behind = max(self.time_us - new_time, 0)
+            if not behind:
+                self._advance(new_time)
+                self.time_us = new_time
+                self.sample_ms = new_time / 1000.0
+            self.sync_time_us = new_time
             if self.operational:
                 self.pdo.apply_synchronous()
             self._on_sync_validated()
+            if clock is not None:
+                self._on_sync_clock(latched, mono)
             self._refresh(events=False)
             self.history.append(
-                SyncSample(self.sync_count, new_time / 1000.0, self.demand, self.actual, self.ip_active, self.state)
+                SyncSample(
+                    self.sync_count, new_time / 1000.0, self.demand, self.actual, self.ip_active, self.state, behind
+                )
             )
             if self.operational:
                 self.pdo.transmit_on_sync()
@@ -882,6 +947,10 @@ class SimulatedDrive(HomingMixin):
 
     def _on_sync_validated(self) -> None:
         """After a SYNC's synchronous RPDOs were applied: activations and setpoints take effect."""
+
+    def _on_sync_clock(self, instant_us: float, mono: float) -> None:
+        """Wall clock: a SYNC arrived at ``mono`` (a ``time.monotonic()``), ``instant_us`` on the motion
+        clock (called after ``_on_sync_validated``)."""
 
     def _motion_at(self, t: float) -> tuple[float, float, float] | None:
         """The interpolation's (position, velocity, acceleration) at motion time t; None: hold."""

@@ -24,6 +24,25 @@ decided here:
   0x20C4:03 ("level is reached", Table 13). 0x60C4:02 is the free size, 0x60C4:04 the level.
 * Halt (bit 8) stops interpolating and brakes with 0x6084; bit 4 falling does the same.
 * 0x1013 writes are kept (``time_stamps``); the motion clock is not corrected by them.
+* Wall clock (``clock="wall"``, axes/sim/clock.py): once started the records run on the drive's own
+  clock (1 ms samples by the cell's ticker), SYNC or no SYNC: a late SYNC does not stop them, a
+  missing record is a buffer underflow as above. The start SYNC's arrival is t = 0 ("setting the
+  SYNC arrival time as the 'zero' time of the path specification"); every later SYNC is latched on
+  the motion clock ("The reception time (Td1) of the SYNC message will be stored by latching the
+  device internal motion clock timer") and the drive "adjusts then its internal motion clock time in
+  relation to the time latched in the last SYNC": it compares the latched time with start + n x
+  period (n: the period boundary nearest to it, not a SYNC count, so a master that skips a period is
+  not read as a drive a period fast; the period is 0x1006 where written, else the cell's SYNC
+  period) and runs its clock at 1 - error/period for one period from that SYNC's arrival, then at 1
+  again, bounded to +-1 % (``MAX_SLEW``): the error is closed within a period when it can be and a
+  late next SYNC cannot make the correction overshoot; the clock is a function of the SYNC
+  instants, not of when the simulation got to them. The drift itself is not estimated: it adds
+  period x drift (1 us at 1 ms and 1000 ppm) to the error each period and the next SYNC removes it.
+  Why 1 %: it covers 20 times the 500 ppm the tests give the quartz (a real crystal: about
+  100 ppm), so the drift is taken out within a SYNC or two, while one SYNC that is off by a whole
+  period (late, or one of a burst) moves the path by at most 1 % of a period and changes its speed
+  by 1 %: a burst cannot make it jump. The dynamics checks judge the interpolation's own
+  velocity and acceleration, as the note's "calculated velocity from the interpolation".
 * Homing (mode 6, axes/sim/homing.py): the CiA 402 methods and maxon's hard-stop methods -1 to -4
   (current threshold 0x2080); statusword bit 15 says the position is referenced (homed since power-on).
 """
@@ -31,6 +50,7 @@ decided here:
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 
 from canopen.sdo import SdoAbortedError
 
@@ -48,6 +68,17 @@ from axes.sim.drive import (
 from axes.sim.segment import Segment
 
 EPOS2_VERSION = 0x2003  # :01 software version, :02 hardware version (maxon's EDS)
+MAX_SLEW = 0.01  # wall clock: the largest clock rate correction per SYNC (see the module docstring)
+
+
+@dataclass(frozen=True, slots=True)
+class ClockCheck:
+    """Wall clock: one SYNC's comparison of the drive's time with start + n x period (tests, benches)."""
+
+    sync: int
+    n: int  # the period boundary it was compared with
+    error_us: float  # latched time - (start + n x period): > 0, the drive's clock runs ahead
+    rate: float  # the motion clock's rate (per quartz us) for the period after this SYNC
 
 
 class Epos2Drive(SimulatedDrive):
@@ -84,6 +115,8 @@ class Epos2Drive(SimulatedDrive):
         self.max_level = 0
         self.min_level_active: int | None = None
         self.ended_by_time_zero = 0
+        self._sync_origin: float | None = None  # wall clock: the start SYNC on the motion clock (us)
+        self.clock_checks: deque[ClockCheck] = deque(maxlen=self.history.maxlen)
 
     # --- status -----------------------------------------------------------------------------------
     @property
@@ -173,6 +206,28 @@ class Epos2Drive(SimulatedDrive):
             self._ip_requested = False
             self._start()
 
+    def _on_sync_clock(self, instant_us: float, mono: float) -> None:
+        """Wall clock: the start SYNC is the path's zero; every later one slews the clock toward
+        start + n x period (module docstring)."""
+        clock = self.motion_clock
+        if clock is None:
+            return
+        if not self.ip_active:
+            self._sync_origin = None
+            if clock.rate != 1.0:
+                clock.slew(1.0, mono)
+            return
+        if self._sync_origin is None or self.ip_active_sync == self.sync_count:
+            self._sync_origin = instant_us
+            return
+        cycle = self.read_or(od.COMMUNICATION_CYCLE_PERIOD, 0, 0)
+        period = float(cycle or self.sync_period_us)
+        n = round((instant_us - self._sync_origin) / period)
+        error = instant_us - (self._sync_origin + n * period)
+        rate = 1.0 - min(max(error / period, -MAX_SLEW), MAX_SLEW)
+        clock.slew(rate, mono, period)  # from the SYNC's arrival: a function of the SYNC instants
+        self.clock_checks.append(ClockCheck(self.sync_count, n, error, rate))
+
     def _start(self) -> None:
         self.sticky &= ~(BufferStatus.VELOCITY_WARNING | BufferStatus.ACCELERATION_WARNING)
         if self.level < 2:
@@ -182,7 +237,7 @@ class Epos2Drive(SimulatedDrive):
         self.ip_active_sync = self.sync_count
         self.min_level_active = self.level
         self.velocity = self.acceleration = 0.0
-        self._begin(self.time_us / 1000.0, self.demand, 0.0)
+        self._begin(self.sync_time_us / 1000.0, self.demand, 0.0)
 
     def _begin(self, start: float, p0: float, v0: float) -> bool:
         """Take the next record at ``start``: a new segment, the end (time 0) or an underflow."""

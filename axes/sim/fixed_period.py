@@ -7,6 +7,18 @@ segment under way and holds its end point (for the Parker cubic without velocity
 
 The fixed-period drives have no interpolation limits of their own (the master limits the motion);
 as sanity checks 0x607D bounds every demand sample and 0x607F every demand velocity (fault).
+
+On the wall clock (``clock="wall"``, axes/sim/clock.py) the segment a SYNC starts runs over the
+configured period (0x60C2; the Parker's 0x1006) from that SYNC's arrival on the drive's own clock,
+not "until the next SYNC":
+
+* a late SYNC: the segment ends on time and the drive holds its end point (velocity 0) until a
+  SYNC latches the next setpoint; a segment that then starts, starts at rest.
+* an early SYNC (less than a period after the previous one), and so each SYNC of a burst, latches
+  whatever setpoint it finds; the segment it starts runs from where the demand is, so the demand
+  heads for the later setpoint in less time than planned. What that does to the velocity is judged
+  by the same checks as any program (0x607D every sample, 0x607F every whole-ms sample, each with
+  the EMCY and fault it has today); no tolerance of its own. Each profile module quotes its seed.
 """
 
 from __future__ import annotations
@@ -68,7 +80,7 @@ class FixedPeriodDrive(SimulatedDrive):
             self.setpoints.append((self.sync_count, target))
             if self.first_setpoint_sync is None:
                 self.first_setpoint_sync = self.sync_count
-        self._validated(self.time_us / 1000.0, target)
+        self._validated(self.sync_time_us / 1000.0, target)
 
     # --- writes -----------------------------------------------------------------------------------
     def _on_object_write(self, index: int, subindex: int, value: int) -> None:
@@ -95,10 +107,13 @@ class FixedPeriodDrive(SimulatedDrive):
         return self._segment is None or self.time_us / 1000.0 >= self._segment.end - 1e-9
 
     def _start_point(self) -> tuple[float, float]:
-        """Where a new segment starts: the running segment's present point (position, velocity)."""
+        """Where a new segment starts: the running segment's present point (position, velocity);
+        at rest on its end point once it has ended before now (a late SYNC: the drive held there)."""
         if self._segment is None:
             return self.demand, 0.0
-        t = self.time_us / 1000.0
+        t = self.sync_time_us / 1000.0
+        if t > self._segment.end + 1e-9:
+            return self._segment.p1, 0.0
         if t >= self._segment.end - 1e-9:
             return self._segment.p1, self._segment.v1
         p, v, _ = self._segment.at(t)

@@ -7,6 +7,13 @@ controlword enables interpolation from the next SYNC. A target validated by SYNC
 straight line from the present demand, at the end of the period that SYNC starts (one period of
 delay): with the master sending record k to be validated at program time k*T the demand is
 ``axes.interpolation.linear`` of the records.
+
+Wall clock, an early SYNC (less than a period after the previous one): the seed gives the ramp its
+time, "60C2h:01h: Time in ms between two given target positions", and its shape, "The controller
+follows a path linear interpolated between the current and the given position"; it asks the master
+"to deliver the target positions in time". So a SYNC latches whatever target it finds and the
+drive runs from the current demand to it over 0x60C2 from that SYNC, early or not; a late one
+finds the ramp ended and the drive on the given position.
 """
 
 from __future__ import annotations

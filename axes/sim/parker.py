@@ -16,6 +16,15 @@ Pr31 = 202, 0 (CiA 402's "no mode") changes nothing, any other value is refused 
 
 A missing cycle (0x1006 = 0) or an unknown submode faults the drive (EMCY 0x6320) when the mode
 starts.
+
+Wall clock, an early SYNC: from 2500 us the seed times each point from its own SYNC, "activated as
+trajectory setpoint at the end of the cycle time started with the sync signal that validated the
+target position": the cycle (0x1006 on the drive's clock) starts at that SYNC, early or not, from
+where the demand is. Below 2500 us "the position loop trajectory setpoint is immediately upgraded
+with the last received position setpoint as soon as the sync signal is received": each SYNC of a
+burst takes its setpoint at once, and the velocity judged against 0x607F is the one the seed's
+drive computes, "from the delta of position reference in the cycle time" (the delta over 0x1006,
+not over the time since the previous SYNC).
 """
 
 from __future__ import annotations

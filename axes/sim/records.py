@@ -39,3 +39,6 @@ class SyncSample:
     actual: int
     ip_active: bool
     state: str
+    # wall clock: how far (us) the drive's samples had run past this SYNC's arrival when the simulation
+    # processed it (the SYNC still acts at its arrival; ``demand`` is then the later sample's)
+    behind_us: int = 0

@@ -6,6 +6,14 @@ SYNC K, is reached by the end of the NEXT period: the drive starts a straight ra
 and gets there at SYNC K+2 (two periods of delay). Profile parameters do not limit it; only
 0x607D and the 0x607F sanity check fault it. With the master sending record k to be validated at
 program time (k - 1)*T the demand is ``axes.interpolation.linear`` of the records.
+
+Wall clock, an early SYNC: the seed says "one value needs to be sent by the master to the device
+for each sync period and the device will generate a ramp that will drive the motor to that
+position on the end of the NEXT sync period", with the period set in 0x60C2 ("allowed interpolation
+period range is 1.0ms ... 100.0ms"), and "profile parameters don't influence trajectory
+generation; the master is responsible of limiting speed/acceleration/deceleration". So every SYNC,
+early or not, starts the ramp to the setpoint the SYNC before validated, from where the demand is,
+ending 0x60C2 later on the drive's clock; only the 0x607D / 0x607F sanity checks judge it.
 """
 
 from __future__ import annotations
