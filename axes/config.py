@@ -25,6 +25,9 @@ class BusConfig:
     heartbeat_timeout_factor: float = 3.0  # a node is lost after this many missed periods (either way)
     master_node_id: int = 127  # the master's own heartbeat (0x700 + id), which every drive watches (0x1016)
     master_heartbeat_ms: int = 100  # the master's heartbeat period
+    # EPOS2 records the master may send in one SYNC period, shared by every buffered axis (None: the
+    # room the bus budget leaves, axes.budget)
+    records_per_sync: int | None = None
 
     @property
     def master_consumer_time_ms(self) -> int:

@@ -16,6 +16,7 @@ import yaml
 from can.interfaces import VALID_INTERFACES
 
 from axes import objects as od
+from axes.budget import bus_budget
 from axes.config import AxisConfig, AxisSimulation, BufferConfig, BusConfig, HomingConfig
 from axes.homing import homing_stages
 from axes.profiles import profile_class
@@ -253,7 +254,15 @@ def parse_cell_config(data: Any, file: Path) -> CellConfig:
         planning = replace(planning, max_jerk=tuple(jerk.get(j, math.inf) for j in model.joint_names))
     cell = CellConfig(name, file, urdf, bus, tuple(axes), planning, simulated, model, order, requires)
     _check_limits_consistent(file, cell)
+    _check_bus_budget(file, cell)
     return cell
+
+
+def _check_bus_budget(file: Path, cell: CellConfig) -> None:
+    """The cell's traffic per SYNC period must fit its bus (axes.budget: 70 % of the bit rate)."""
+    problem = bus_budget(cell).problem()
+    if problem is not None:
+        raise ConfigError(file, "bus", problem)
 
 
 def _parse_homing_order(top: _Fields, homing: list[str], joints: list[str]) -> tuple[tuple[str, ...], ...]:
@@ -300,6 +309,7 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
             "heartbeat_timeout_factor",
             "master_node_id",
             "master_heartbeat_ms",
+            "records_per_sync",
         ),
     )
     d = BusConfig()
@@ -327,6 +337,7 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
         heartbeat_timeout_factor=factor,
         master_node_id=f.get("master_node_id", f.integer(1, 127), d.master_node_id),
         master_heartbeat_ms=f.get("master_heartbeat_ms", f.integer(1, 65535), d.master_heartbeat_ms),
+        records_per_sync=f.get("records_per_sync", f.integer(1, 1000), d.records_per_sync),
     )
     if bus.master_consumer_time_ms > 0xFFFF:
         raise f.error(
