@@ -92,9 +92,7 @@ class BusBudget:
 
     def problem(self) -> str | None:
         """Why the cell does not fit its bus, with the figure and what to change (None: it fits)."""
-        what = (
-            f"{self.total_bits:.0f} bits per {self.sync_period_ms:g} ms SYNC period on a {self.bitrate} bit/s bus"
-        )
+        what = f"{self.total_bits:.0f} bits per {self.sync_period_ms:g} ms SYNC period on a {self.bitrate} bit/s bus"
         biggest = ", ".join(f"{i.name} {i.bits:.0f}" for i in sorted(self.items, key=lambda i: -i.bits)[:4])
         fixes = "a longer bus.sync_period_ms, a higher bus.bitrate"
         if self.buffered_axes and not self.records_derived:
@@ -118,9 +116,7 @@ class BusBudget:
         return None
 
     def describe(self) -> str:
-        lines = [
-            f"{i.name:36} {i.frames:7.2f} frames x {i.bits_per_frame:3d} bits = {i.bits:7.1f}" for i in self.items
-        ]
+        lines = [f"{i.name:36} {i.frames:7.2f} frames x {i.bits_per_frame:3d} bits = {i.bits:7.1f}" for i in self.items]
         lines.append(
             f"{'total':36} {self.total_bits:.0f} of {self.capacity_bits:.0f} bits per period: {self.fraction:.1%} "
             f"(peak {self.peak_fraction:.1%})"

@@ -202,15 +202,16 @@ class BufferFeeder(Feeder):
         )
 
     def preload(self, most: int | None = None) -> int:
-        """Send what this period's allowance permits of the preload, ``most`` records at most
-        (``preloaded`` says when it is all out); the number of records sent so far."""
+        """Send what this period's allowance permits of the preload (a feeder on its own: all of it),
+        ``most`` records at most (``preloaded`` says when it is all out); the records sent so far."""
         self.elapsed_ms = 0.0
         self._consumed = 0
         sent = 0
-        while not self.preloaded and (most is None or sent < most) and self.allowance.take():
+        while not self.preloaded and (most is None or sent < most) and (self._own or self.allowance.take()):
             self._send_next()
             sent += 1
-        self.stats.level(self.level)
+        if self.preloaded:  # the level the start begins with (not the levels on the way there)
+            self.stats.level(self.level)
         return self.next
 
     def on_sync(self, elapsed: int) -> None:

@@ -290,7 +290,11 @@ class AxisGroup:
             if silent:
                 self.configured = False
                 link = next((lk for lk in self.links if lk.node_id in silent), None)
-                return Result.LOST_SYNC, f"node(s) {silent} did not answer a SYNC before the start: nothing started", link
+                return (
+                    Result.LOST_SYNC,
+                    f"node(s) {silent} did not answer a SYNC before the start: nothing started",
+                    link,
+                )
         return None
 
     def _per_axis(self, work: Callable[[_T], _R], items: Iterable[_T]) -> Iterator[_R]:

@@ -137,8 +137,13 @@ def measure(cell: CellConfig, tour_points: int) -> dict[str, object]:
                 raise RuntimeError(f"{cell.name}: homing failed: {homing}")
         group.configure_if_needed()
         group.refresh()
-        here = np.array([cell.axis_for_joint(j).scaling.qc_to_position(lk.position) for j, lk in
-                         zip(cell.joint_names, group.links, strict=True)], dtype=float)
+        here = np.array(
+            [
+                cell.axis_for_joint(j).scaling.qc_to_position(lk.position)
+                for j, lk in zip(cell.joint_names, group.links, strict=True)
+            ],
+            dtype=float,
+        )
         here = np.clip(here, lim.lower, lim.upper)
         points = np.array(tour(lim.lower, lim.upper, tour_points))
         runs = []
@@ -153,7 +158,9 @@ def measure(cell: CellConfig, tour_points: int) -> dict[str, object]:
             if not result.ok:
                 raise RuntimeError(f"{cell.name}: {label}: {result.result}: {result.message}")
             p = periods(list(tap.frames), cell, 0)
-            levels = [a.feed.min_level for a in result.axes if a.profile == "epos2_pvt" and a.feed.min_level is not None]
+            levels = [
+                a.feed.min_level for a in result.axes if a.profile == "epos2_pvt" and a.feed.min_level is not None
+            ]
             underflows = sum(a.feed.underflows for a in result.axes)
             start = result.start_sync or 0
             # the run's first SYNC is the check SYNC (ready start) or the start SYNC (first start)
@@ -216,11 +223,15 @@ def main() -> int:
                 f"{100 * r['window']:>6.0f}% {pre:>9} {r['records_max']:>7} "
                 f"{'-' if r['min_level'] is None else r['min_level']:>7} {r['underflows']:>7}"
             )
-        print(f"{'':22} {budget_line(cell)}; first start: {res['runs'][0]['before_sync_ms']:.2f} ms of bus "  # type: ignore[index]
-              "before its start SYNC (no SYNC running)")
+        print(
+            f"{'':22} {budget_line(cell)}; first start: {res['runs'][0]['before_sync_ms']:.2f} ms of bus "  # type: ignore[index]
+            "before its start SYNC (no SYNC running)"
+        )
     print("at: the worst period's index from the start SYNC (negative: before it); pre-start: the check SYNC's period")
-    print(f"command: python3 bench/wire.py{' --cells ' + args.cells if args.cells else ''}"
-          f"{'' if args.tour_points == 4 else f' --tour-points {args.tour_points}'}")
+    print(
+        f"command: python3 bench/wire.py{' --cells ' + args.cells if args.cells else ''}"
+        f"{'' if args.tour_points == 4 else f' --tour-points {args.tour_points}'}"
+    )
     return 0
 
 
