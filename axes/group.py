@@ -23,9 +23,9 @@ from typing import TYPE_CHECKING, TypeVar
 import can
 
 from axes import objects as od
+from axes.budget import bus_budget
 from axes.bus import BusFault, CellBus, FaultKind
 from axes.cia402 import PowerState, Statusword, decode_state
-from axes.budget import bus_budget
 from axes.config import AxisConfig, Wiring
 from axes.feeder import BufferFeeder, Feeder, FeedStats, RecordAllowance, preload_shared, top_up_by_need
 from axes.objects import BUFFER_ERRORS, BufferStatus

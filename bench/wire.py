@@ -32,16 +32,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes.bus import SYNC_COB_ID, CellBus  # noqa: E402
-from axes.frame_time import frame_bits  # noqa: E402
-from axes.group import AxisGroup  # noqa: E402
-from axes.homing import CellHoming  # noqa: E402
-from axes.objects import EPOS2_RPDOS  # noqa: E402
-from axes.sim.cell import SimulatedCell  # noqa: E402
-from planner.plan import PlanInput  # noqa: E402
-from service.cell_planner import CellPlanner  # noqa: E402
-from service.config import CONFIG_DIR, CellConfig, load_cell_config  # noqa: E402
-from service.demo_cmd import tour  # noqa: E402
+from axes.bus import SYNC_COB_ID, CellBus
+from axes.frame_time import frame_bits
+from axes.group import AxisGroup
+from axes.homing import CellHoming
+from axes.objects import EPOS2_RPDOS
+from axes.sim.cell import SimulatedCell
+from planner.plan import PlanInput
+from service.cell_planner import CellPlanner
+from service.config import CONFIG_DIR, CellConfig, load_cell_config
+from service.demo_cmd import tour
 
 WINDOW = 10
 
