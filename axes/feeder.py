@@ -201,13 +201,14 @@ class BufferFeeder(Feeder):
             or (self.next > self.low + 1 and self._end[self.next - 1] >= PRELOAD_MS)
         )
 
-    def preload(self, most: int | None = None) -> int:
-        """Send what this period's allowance permits of the preload (a feeder on its own: all of it),
-        ``most`` records at most (``preloaded`` says when it is all out); the records sent so far."""
+    def preload(self, most: int | None = None, *, whole: bool = False) -> int:
+        """Send what this period's allowance permits of the preload (a feeder on its own, or
+        ``whole``: all of it, no SYNC running yet), ``most`` records at most (``preloaded`` says when
+        it is all out); the records sent so far."""
         self.elapsed_ms = 0.0
         self._consumed = 0
         sent = 0
-        while not self.preloaded and (most is None or sent < most) and (self._own or self.allowance.take()):
+        while not self.preloaded and (most is None or sent < most) and (whole or self._own or self.allowance.take()):
             self._send_next()
             sent += 1
         if self.preloaded:  # the level the start begins with (not the levels on the way there)

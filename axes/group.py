@@ -246,13 +246,11 @@ class AxisGroup:
             if self._stop_request is not None:
                 return self._finish_early(Result.STOPPED, self._stop_request)
 
-            if not any(f is not None for f in feeders):  # no check SYNC: the first period begins here
-                self.allowance.new_period()
             self._feeders = [
                 f if f is not None else p.feeder(prog, self.allowance)
                 for f, p, prog in zip(feeders, self.profiles, self._programs, strict=True)
             ]
-            refusal = self._preload_records()
+            refusal = self._preload_records(checked=any(f is not None for f in feeders))
             if refusal is not None:
                 return self._finish_early(*refusal)
             self._ip_start = [None] * len(self.links)
@@ -277,11 +275,19 @@ class AxisGroup:
             sync.start()
         return None
 
-    def _preload_records(self) -> _Refusal | None:
-        """Every buffered axis's preload, at most the cell's record allowance per SYNC period: while
-        one is not all out, one more SYNC before the start SYNC (the drives, enabled and idle, answer
-        it), the next share of the records after it. A drive that does not answer refuses the start."""
+    def _preload_records(self, checked: bool) -> _Refusal | None:
+        """Every buffered axis's preload. After a check SYNC (SYNC periods under way), at most the
+        cell's record allowance per SYNC period: while one is not all out, one more SYNC before the
+        start SYNC (the drives, enabled and idle, answer it), the next share of the records after it;
+        a drive that does not answer refuses the start. A start checked by SDO has no SYNC running
+        yet, so no period to keep to: its preload goes out whole before the start SYNC (on the wall
+        clock that delays the first SYNC by the records' bus time, a few ms, and nothing else)."""
         sync = self.bus.sync
+        if not checked:
+            for feeder in self._feeders:
+                if isinstance(feeder, BufferFeeder):
+                    feeder.preload(whole=True)
+            return None
         while not preload_shared(self._feeders, self.allowance):
             sync.keep_period()
             owed = sync.step()
