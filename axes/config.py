@@ -31,6 +31,9 @@ class BusConfig:
     sync_priority: int = 50  # SCHED_FIFO priority of the thread that sends SYNC (0: do not ask)
     tx_retry_ms: float = 2.0  # how long a frame the interface refuses (queue full) is tried again
     quick_stop_confirm_ms: float = 10.0  # the SDO quick stop's answers are waited for this long, then NMT stop
+    # EPOS2 records the master may send in one SYNC period, shared by every buffered axis (None: the
+    # room the bus budget leaves, axes.budget)
+    records_per_sync: int | None = None
 
     @property
     def master_consumer_time_ms(self) -> int:

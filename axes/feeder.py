@@ -4,16 +4,19 @@ Two kinds, both driven by events only (the SYNC answers and the status TPDO), ne
 
 - ``BufferFeeder`` (EPOS2 PVT): preloads the records of the first ``PRELOAD_MS`` of motion (at least
   two above the underflow warning level), then after every SYNC tops the FIFO up towards the
-  overflow warning mark, ``TOP_UP_PER_SYNC`` records at a time. Every frame sent before the start
-  SYNC delays the start (a full FIFO of six axes is ~45 ms of a 1 Mbit/s bus), and a burst of them
-  on one SYNC would hold the bus as long: the FIFO fills during the first SYNCs of the motion
-  instead, and stays deep from then on (depth is what rides out a stalled master). The EPOS2 does not PDO-map its
+  overflow warning mark. Every record comes out of the cell's ``RecordAllowance``: the records the
+  bus budget (``axes.budget``) leaves room for in one SYNC period, shared by every buffered axis of
+  the cell and handed out by need (``top_up_by_need``: one record at a time to the axis whose FIFO is
+  lowest), so that no SYNC period carries more records than the budget, the start included: a
+  preload larger than one period's allowance goes out over several periods before the start SYNC
+  (``axes.group``). A feeder on its own (no cell) has an allowance of its own, ``TOP_UP_PER_SYNC``.
+  Depth is what rides out a stalled master, so the FIFO is kept deep. The EPOS2 does not PDO-map its
   FIFO level (0x60C4:02), so the level is *estimated*: records sent minus records consumed, a record
   being consumed once the drive's clock (one SYNC period per SYNC since the start SYNC) has passed
   its end time. The estimate counts the segment in progress as still buffered, so it is never
   below the true level; the warning bits of 0x20C4:01 correct it (overflow warning: the level is at
-  least 0x20C4:03, stop; underflow warning: it is below 0x20C4:02, send). After the last record
-  the time-0 end record goes out.
+  least 0x20C4:03, stop; underflow warning: it is below 0x20C4:02, send what is left of this period's
+  allowance). After the last record the time-0 end record goes out.
 - ``SetpointFeeder`` (fixed-period profiles): one setpoint per SYNC, sent ahead by the profile's
   delay so that record k is reached at (k + 1) periods on the program's timeline. Its frames are
   packed before the start and go out right after each SYNC, from the thread that sends the SYNC
@@ -23,7 +26,7 @@ Two kinds, both driven by events only (the SYNC answers and the status TPDO), ne
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,7 +46,32 @@ FrameOf = Callable[[NDArray[np.int64]], tuple[int, bytes]]
 Send = Callable[[int, bytes], None]
 
 PRELOAD_MS = 50.0  # motion the records sent before the start SYNC cover (the first top-ups follow on SYNC)
-TOP_UP_PER_SYNC = 4  # records per axis per SYNC at most (more while the level is at the underflow warning)
+TOP_UP_PER_SYNC = 4  # the allowance of a feeder on its own (a cell's comes from its bus budget)
+
+
+class RecordAllowance:
+    """The records the master may still send in the present SYNC period, shared by a cell's buffered axes."""
+
+    def __init__(self, per_sync: int) -> None:
+        if per_sync < 1:
+            raise ValueError(f"a record allowance is at least one record per SYNC period, got {per_sync}")
+        self.per_sync = per_sync
+        self.left = per_sync
+        self.periods = 0  # periods begun
+        self.most = 0  # the most records sent in one period so far
+
+    def new_period(self) -> None:
+        """A SYNC went out: the next period's records."""
+        self.left = self.per_sync
+        self.periods += 1
+
+    def take(self) -> bool:
+        """One record, if this period has room for it."""
+        if self.left <= 0:
+            return False
+        self.left -= 1
+        self.most = max(self.most, self.per_sync - self.left)
+        return True
 
 
 @dataclass
@@ -119,6 +147,7 @@ class BufferFeeder(Feeder):
         period_ms: float,
         buffer: BufferConfig,
         capacity: int = EPOS2_BUFFER_SIZE,
+        allowance: RecordAllowance | None = None,
     ) -> None:
         r = np.asarray(records, dtype=np.int64)
         if r[-1, 2] != 0:  # the end record: time 0 ends interpolation without error
@@ -137,6 +166,8 @@ class BufferFeeder(Feeder):
         self.elapsed_ms = 0.0
         self._hold = False  # overflow warning seen: wait for it to clear
         self._status = 0
+        self._own = allowance is None  # a feeder on its own begins its periods itself
+        self.allowance = RecordAllowance(TOP_UP_PER_SYNC) if allowance is None else allowance
 
     def consumed(self) -> int:
         """Records whose segment the drive has finished by its clock (the running one counts as buffered)."""
@@ -148,32 +179,50 @@ class BufferFeeder(Feeder):
     def level(self) -> int:
         return self.next - self.consumed()
 
+    @property
+    def wants(self) -> bool:
+        """A record would go out now if the allowance had one: the FIFO is below its mark."""
+        return self.enabled and not self._hold and not self.all_sent and self.level < self.high
+
     def _top_up(self) -> None:
-        if not self.enabled or self._hold or self.all_sent:
+        if not self.wants:
             return
         self.stats.level(self.level)  # the low point the drive came down to, before refilling
-        budget = TOP_UP_PER_SYNC
-        while not self.all_sent and (level := self.level) < self.high and (budget > 0 or level <= self.low):
+        while self.wants and self.allowance.take():
             self._send_next()
-            budget -= 1
         self.stats.level(self.level)
 
-    def preload(self) -> int:
-        """Records for the first PRELOAD_MS of motion, and at least two above the underflow warning."""
+    @property
+    def preloaded(self) -> bool:
+        """The records of the first PRELOAD_MS of motion (at least two above the underflow warning) are out."""
+        return (
+            self.all_sent
+            or self.next >= self.high
+            or (self.next > self.low + 1 and self._end[self.next - 1] >= PRELOAD_MS)
+        )
+
+    def preload(self, most: int | None = None, *, whole: bool = False) -> int:
+        """Send what this period's allowance permits of the preload (a feeder on its own, or
+        ``whole``: all of it, no SYNC running yet), ``most`` records at most (``preloaded`` says when
+        it is all out); the records sent so far."""
         self.elapsed_ms = 0.0
         self._consumed = 0
-        while (
-            not self.all_sent
-            and self.next < self.high
-            and (self.next <= self.low + 1 or self._end[self.next - 1] < PRELOAD_MS)
-        ):
+        sent = 0
+        while not self.preloaded and (most is None or sent < most) and (whole or self._own or self.allowance.take()):
             self._send_next()
-        self.stats.level(self.level)
+            sent += 1
+        if self.preloaded:  # the level the start begins with (not the levels on the way there)
+            self.stats.level(self.level)
         return self.next
 
     def on_sync(self, elapsed: int) -> None:
+        """The drive's clock moves on; a feeder on its own tops up (a cell's: ``top_up_by_need``)."""
         self.elapsed_ms = elapsed * self.period_ms
-        self._top_up()
+        if self._own:
+            self.allowance.new_period()
+            self._top_up()
+        elif self.wants:
+            self.stats.level(self.level)
 
     def on_status(self, buffer_status: int) -> None:
         if buffer_status == self._status:
@@ -238,3 +287,25 @@ class SetpointFeeder(Feeder):
     def finished(self, elapsed: int, ip_active: bool) -> bool:
         # record N-1 is reached at N periods
         return elapsed >= len(self.records) and (self.all_sent or not self.enabled)
+
+
+def top_up_by_need(feeders: Sequence[Feeder], allowance: RecordAllowance) -> None:
+    """Hand this period's allowance out one record at a time, each to the buffered axis whose FIFO is
+    lowest (after ``on_sync`` moved every feeder's clock), until it is spent or every FIFO is at its mark."""
+    wanting = [f for f in feeders if isinstance(f, BufferFeeder) and f.wants]
+    while wanting and allowance.take():
+        feeder = min(wanting, key=lambda f: f.level)
+        feeder._send_next()
+        feeder.stats.level(feeder.level)
+        wanting = [f for f in wanting if f.wants]
+
+
+def preload_shared(feeders: Sequence[Feeder], allowance: RecordAllowance) -> bool:
+    """This period's share of every buffered axis's preload, one record each in turn while the
+    allowance lasts; True once every preload is out."""
+    pending = [f for f in feeders if isinstance(f, BufferFeeder) and not f.preloaded]
+    while pending and allowance.left > 0:
+        for feeder in pending:
+            feeder.preload(1)
+        pending = [f for f in pending if not f.preloaded]
+    return not pending

@@ -23,10 +23,11 @@ from typing import TYPE_CHECKING, TypeVar
 import can
 
 from axes import objects as od
+from axes.budget import bus_budget
 from axes.bus import BusFault, CellBus, FaultKind
 from axes.cia402 import PowerState, Statusword, decode_state
-from axes.config import AxisConfig
-from axes.feeder import Feeder, FeedStats
+from axes.config import AxisConfig, Wiring
+from axes.feeder import BufferFeeder, Feeder, FeedStats, RecordAllowance, preload_shared, top_up_by_need
 from axes.objects import BUFFER_ERRORS, BufferStatus
 from axes.outcome import (
     AxisReport,
@@ -121,11 +122,14 @@ class AxisGroup:
         self._pool = ThreadPoolExecutor(max_workers=max(1, len(self.links)), thread_name_prefix="axis-sdo")
         self._bus_faults = 0  # how many the bus has reported
         self.readiness = Readiness(self.links, self.profiles, self._pool, lambda: self._bus_faults)
-        self._preloaded: list[bool] = []  # per axis: its feeder's preload went out with the start's checks
         self._homing: CellHoming | None = None  # the homing running on the cell (axes/homing.py)
         self.last_quick_stop: QuickStop | None = None  # the last halt that did not wait for SYNC
         self._homed_boot: list[int | None] = [None] * len(self.links)  # the drive's boot count when it homed
         self._configured_boots: dict[int, int] = {}  # every drive's boot count when it was configured
+        # the records the bus has room for in one SYNC period, shared by the buffered axes; never less
+        # than one per buffered axis (a cell file whose bus has no room for that is refused at load)
+        budget = bus_budget(Wiring(bus.config, tuple(axes)))
+        self.allowance = RecordAllowance(max(1, budget.records_per_sync, budget.buffered_axes))
         for link in self.links:
             link.status_listeners.append(self._on_status)
         bus.on_fault(self._on_bus_fault)
@@ -245,10 +249,12 @@ class AxisGroup:
                 return self._finish_early(Result.STOPPED, self._stop_request)
 
             self._feeders = [
-                f if f is not None else p.feeder(prog)
+                f if f is not None else p.feeder(prog, self.allowance)
                 for f, p, prog in zip(feeders, self.profiles, self._programs, strict=True)
             ]
-            self._preloaded = [f is not None for f in feeders]
+            refusal = self._preload_records(checked=any(f is not None for f in feeders))
+            if refusal is not None:
+                return self._finish_early(*refusal)
             self._ip_start = [None] * len(self.links)
             self._end_words_sent = [False] * len(self.links)
             self._ending = None
@@ -259,8 +265,8 @@ class AxisGroup:
         with sync.lock, self._lock:
             self._done.clear()
             self._running = True
-            for feeder, preloaded in zip(self._feeders, self._preloaded, strict=True):
-                if not preloaded:
+            for feeder in self._feeders:  # the fixed-period setpoints the start SYNC validates
+                if not isinstance(feeder, BufferFeeder):
                     feeder.preload()
             self._start_sync = sync.count + 1
             if self.bus.config.max_sync_gap_periods is None:  # the profiles say (axes.bus)
@@ -272,6 +278,34 @@ class AxisGroup:
             self.bus.arm_sync_watch()
             self._event(EventKind.STARTED, f"program of {program.duration_ms} ms started on SYNC {self._start_sync}")
             sync.start()
+        return None
+
+    def _preload_records(self, checked: bool) -> _Refusal | None:
+        """Every buffered axis's preload. After a check SYNC (SYNC periods under way), at most the
+        cell's record allowance per SYNC period: while one is not all out, one more SYNC before the
+        start SYNC (the drives, enabled and idle, answer it), the next share of the records after it;
+        a drive that does not answer refuses the start. A start checked by SDO has no SYNC running
+        yet, so no period to keep to: its preload goes out whole before the start SYNC (on the wall
+        clock that delays the first SYNC by the records' bus time, a few ms, and nothing else)."""
+        sync = self.bus.sync
+        if not checked:
+            for feeder in self._feeders:
+                if isinstance(feeder, BufferFeeder):
+                    feeder.preload(whole=True)
+            return None
+        while not preload_shared(self._feeders, self.allowance):
+            sync.keep_period()
+            owed = sync.step()
+            self.allowance.new_period()
+            silent = sorted({cob & 0x7F for cob in sync.wait_answered(owed, self.bus.lost_sync_timeout_s)})
+            if silent:
+                self.configured = False
+                link = next((lk for lk in self.links if lk.node_id in silent), None)
+                return (
+                    Result.LOST_SYNC,
+                    f"node(s) {silent} did not answer a SYNC before the start: nothing started",
+                    link,
+                )
         return None
 
     def _per_axis(self, work: Callable[[_T], _R], items: Iterable[_T]) -> Iterator[_R]:
@@ -307,11 +341,11 @@ class AxisGroup:
         the motion starts two SYNC periods after the records are out."""
         sync = self.bus.sync
         check = sync.step()
+        self.allowance.new_period()
         if before_records is not None:
             before_records()
-        preloaded = [p.feeder(prog) for p, prog in zip(self.profiles, self._programs, strict=True)]
-        for feeder in preloaded:
-            feeder.preload()
+        preloaded = [p.feeder(prog, self.allowance) for p, prog in zip(self.profiles, self._programs, strict=True)]
+        preload_shared(preloaded, self.allowance)
         feeders: list[Feeder | None] = list(preloaded)
         silent = sorted({cob & 0x7F for cob in sync.wait_answered(check, self.bus.lost_sync_timeout_s)})
         if silent:
@@ -424,8 +458,10 @@ class AxisGroup:
             if self._ending is None and elapsed >= START_CHECK_SYNCS:
                 self._check_started()
             if self._ending is None:
+                self.allowance.new_period()
                 for feeder in self._feeders:
                     feeder.on_sync(elapsed)
+                top_up_by_need(self._feeders, self.allowance)
                 self._check_finished(elapsed)
             else:
                 self._check_halted(n)

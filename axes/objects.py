@@ -7,8 +7,9 @@ profile. Both sides of the bus import these; nothing else restates them.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from enum import IntEnum, IntFlag
+from enum import IntEnum, IntFlag, StrEnum
 
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 
@@ -205,16 +206,48 @@ class Record:
 
 
 # --- PDO layout (the contract between the master's configuration and the drives) ----------------
+class PdoRole(StrEnum):
+    """What a PDO carries, which says how often it is on the bus (``PdoLayout.frames_per_sync``)."""
+
+    RECORD = "record"  # EPOS2 records: as many as the cell's record allowance per SYNC (axes.budget)
+    SETPOINT = "setpoint"  # a fixed-period setpoint: the master sends one every SYNC
+    CONTROLWORD = "controlword"  # start, halt, end: at most one per axis in a SYNC period
+    STATUS = "status"  # a drive's TPDO: by its transmission type (every n SYNCs, or on event)
+    TIME_STAMP = "time_stamp"  # the master's one 0x1013 frame after every SYNC, shared by every drive
+
+
 @dataclass(frozen=True)
 class PdoLayout:
-    """One PDO as pvtflow maps it: number (1-4), transmission type, mapped (index, subindex, bits)."""
+    """One PDO as pvtflow maps it: number (1-4), transmission type, mapped (index, subindex, bits),
+    what it carries and, for an event-driven TPDO, its inhibit time (0x1800:03) in SYNC periods."""
 
     number: int
-    transmission_type: int  # 1 = synchronous (every SYNC), 255 = asynchronous / event driven
+    transmission_type: int  # 1..240 = synchronous (every n-th SYNC), 254/255 = asynchronous / event driven
     entries: tuple[tuple[int, int, int], ...]
+    role: PdoRole = PdoRole.STATUS
+    inhibit_periods: int = 0  # event TPDO: at least this many SYNC periods between two of its frames
 
     def cob_id(self, node_id: int, receive: bool) -> int:
         return (0x100 if receive else 0x080) + 0x100 * self.number + node_id
+
+    @property
+    def payload_bytes(self) -> int:
+        return sum(bits for _, _, bits in self.entries) // 8
+
+    def frames_per_sync(self) -> tuple[float, int]:
+        """(frames per SYNC period on average, most frames in one SYNC period) of one axis's PDO; the
+        records' count is the cell's (``axes.budget``), the time stamp's the bus's, not an axis's."""
+        if self.role in (PdoRole.RECORD, PdoRole.TIME_STAMP):
+            return 0.0, 0
+        if self.role in (PdoRole.SETPOINT, PdoRole.CONTROLWORD):
+            return 1.0, 1
+        if 1 <= self.transmission_type <= 240:  # every n-th SYNC
+            return 1.0 / self.transmission_type, 1
+        if self.transmission_type == 0:  # acyclic synchronous: on a change, at a SYNC
+            return 1.0, 1
+        if self.inhibit_periods <= 0:
+            raise ValueError(f"event-driven TPDO{self.number} without an inhibit time: its traffic has no bound")
+        return 1.0 / self.inhibit_periods, math.ceil(1.0 / self.inhibit_periods)
 
 
 SYNCHRONOUS = 1
@@ -224,25 +257,29 @@ ASYNCHRONOUS = 255
 # statusword through an event TPDO, the controlword through a synchronous RPDO (synchronous
 # start), and a synchronous TPDO with the position for telemetry and the SYNC-lockstep clock.
 EPOS2_RPDOS = (
-    PdoLayout(1, ASYNCHRONOUS, ((EPOS2_INTERPOLATION_DATA_RECORD, 0, 64),)),
-    PdoLayout(2, SYNCHRONOUS, ((CONTROLWORD, 0, 16),)),
+    PdoLayout(1, ASYNCHRONOUS, ((EPOS2_INTERPOLATION_DATA_RECORD, 0, 64),), PdoRole.RECORD),
+    PdoLayout(2, SYNCHRONOUS, ((CONTROLWORD, 0, 16),), PdoRole.CONTROLWORD),
 )
+# the event TPDO sends at most once per SYNC period (inhibit time 0x1800:03 = the SYNC period): the
+# feeder reacts to a buffer warning within a period, and a burst of changes cannot flood the bus
 EPOS2_TPDOS = (
-    PdoLayout(1, ASYNCHRONOUS, ((EPOS2_INTERPOLATION_BUFFER, 1, 16), (STATUSWORD, 0, 16))),
+    PdoLayout(1, ASYNCHRONOUS, ((EPOS2_INTERPOLATION_BUFFER, 1, 16), (STATUSWORD, 0, 16)), inhibit_periods=1),
     PdoLayout(2, SYNCHRONOUS, ((STATUSWORD, 0, 16), (POSITION_ACTUAL_VALUE, 0, 32))),
 )
 
 # Fixed-period drives: one setpoint per period, validated by SYNC, controlword synchronous as well.
 SETPOINT_RPDOS = (
-    PdoLayout(1, SYNCHRONOUS, ((INTERPOLATION_DATA_RECORD, 1, 32),)),
-    PdoLayout(2, SYNCHRONOUS, ((CONTROLWORD, 0, 16),)),
+    PdoLayout(1, SYNCHRONOUS, ((INTERPOLATION_DATA_RECORD, 1, 32),), PdoRole.SETPOINT),
+    PdoLayout(2, SYNCHRONOUS, ((CONTROLWORD, 0, 16),), PdoRole.CONTROLWORD),
 )
 SETPOINT_TPDOS = (PdoLayout(1, SYNCHRONOUS, ((STATUSWORD, 0, 16), (POSITION_ACTUAL_VALUE, 0, 32))),)
 
 # Parker SLVDN mode 202: position + velocity feed-forward in rpm on the synchronous PDO 4 rx.
 PARKER_RPDOS = (
-    PdoLayout(4, SYNCHRONOUS, ((INTERPOLATION_DATA_RECORD, 1, 32), (INTERPOLATION_DATA_RECORD, 3, 32))),
-    PdoLayout(2, SYNCHRONOUS, ((CONTROLWORD, 0, 16),)),
+    PdoLayout(
+        4, SYNCHRONOUS, ((INTERPOLATION_DATA_RECORD, 1, 32), (INTERPOLATION_DATA_RECORD, 3, 32)), PdoRole.SETPOINT
+    ),
+    PdoLayout(2, SYNCHRONOUS, ((CONTROLWORD, 0, 16),), PdoRole.CONTROLWORD),
 )
 PARKER_TPDOS = SETPOINT_TPDOS
 
@@ -253,4 +290,4 @@ TIME_STAMP_COB_ID = 0x400  # not in the predefined connection set (RPDO3 of "nod
 # CiA 301 NMT error control: a node's heartbeat is one byte, its NMT state, on 0x700 + node id
 HEARTBEAT_COB_ID_BASE = 0x700
 NMT_STATE_OPERATIONAL = 5
-EPOS2_TIME_STAMP_RPDO = PdoLayout(3, ASYNCHRONOUS, ((HIGH_RESOLUTION_TIME_STAMP, 0, 32),))
+EPOS2_TIME_STAMP_RPDO = PdoLayout(3, ASYNCHRONOUS, ((HIGH_RESOLUTION_TIME_STAMP, 0, 32),), PdoRole.TIME_STAMP)

@@ -16,6 +16,7 @@ import yaml
 from can.interfaces import VALID_INTERFACES
 
 from axes import objects as od
+from axes.budget import bus_budget
 from axes.config import AxisConfig, AxisSimulation, BufferConfig, BusConfig, HomingConfig
 from axes.homing import homing_stages
 from axes.profiles import profile_class
@@ -253,7 +254,15 @@ def parse_cell_config(data: Any, file: Path) -> CellConfig:
         planning = replace(planning, max_jerk=tuple(jerk.get(j, math.inf) for j in model.joint_names))
     cell = CellConfig(name, file, urdf, bus, tuple(axes), planning, simulated, model, order, requires)
     _check_limits_consistent(file, cell)
+    _check_bus_budget(file, cell)
     return cell
+
+
+def _check_bus_budget(file: Path, cell: CellConfig) -> None:
+    """The cell's traffic per SYNC period must fit its bus (axes.budget: 70 % of the bit rate)."""
+    problem = bus_budget(cell).problem()
+    if problem is not None:
+        raise ConfigError(file, "bus", problem)
 
 
 def _parse_homing_order(top: _Fields, homing: list[str], joints: list[str]) -> tuple[tuple[str, ...], ...]:
@@ -304,6 +313,7 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
             "sync_priority",
             "tx_retry_ms",
             "quick_stop_confirm_ms",
+            "records_per_sync",
         ),
     )
     d = BusConfig()
@@ -335,6 +345,7 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
         sync_priority=f.get("sync_priority", f.integer(0, 99), d.sync_priority),
         tx_retry_ms=f.get("tx_retry_ms", f.number(positive=True), d.tx_retry_ms),
         quick_stop_confirm_ms=f.get("quick_stop_confirm_ms", f.number(positive=True), d.quick_stop_confirm_ms),
+        records_per_sync=f.get("records_per_sync", f.integer(1, 1000), d.records_per_sync),
     )
     if bus.max_sync_gap_periods is not None and bus.max_sync_gap_periods < 1.5:
         raise f.error(

@@ -32,7 +32,7 @@ from axes.subscriptions import subscribe, unsubscribe
 
 if TYPE_CHECKING:
     from axes.bus import CellBus
-    from axes.feeder import Feeder
+    from axes.feeder import Feeder, RecordAllowance
     from axes.program import AxisProgram
 
 DEFAULT_MAX_FOLLOWING_ERROR_QC = 2000  # app note Table 17 default for 0x6065
@@ -140,6 +140,9 @@ class AxisLink:
             self.write(mapping, k, (index << 16) | (subindex << 8) | bits, "I")
         self.write(mapping, 0, len(layout.entries), "B")
         self.write(comm, 2, layout.transmission_type, "B")
+        if not receive and layout.inhibit_periods:  # 0x1800:03 in 100 us, while the PDO is invalid
+            inhibit = round(layout.inhibit_periods * self.bus.config.sync_period_ms * 10)
+            self.write(comm, 3, min(inhibit, 0xFFFF), "H")
         self.write(comm, 1, cob, "I")
 
     def disable_pdo(self, number: int, receive: bool) -> None:
@@ -307,7 +310,9 @@ class Profile:
         self.link.reach(PowerState.OPERATION_ENABLED, fresh=fresh)
         self.link.write_controlword(self.end_controlword())
 
-    def feeder(self, program: AxisProgram) -> Feeder:
+    def feeder(self, program: AxisProgram, allowance: RecordAllowance | None = None) -> Feeder:
+        """The axis's feeder for ``program`` (``allowance``: the cell's records per SYNC period, for
+        buffered drives)."""
         raise NotImplementedError
 
     def clear_buffer(self) -> None:

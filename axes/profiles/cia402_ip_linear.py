@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes import objects as od
-from axes.feeder import Feeder, SetpointFeeder
+from axes.feeder import Feeder, RecordAllowance, SetpointFeeder
 from axes.objects import SETPOINT_RPDOS, SETPOINT_TPDOS
 from axes.profiles import Profile
 
@@ -52,7 +52,7 @@ class FixedPeriodProfile(Profile):
     def frame(self, record: NDArray[np.int64]) -> tuple[int, bytes]:
         return self._cob, struct.pack("<i", int(record[0]))
 
-    def feeder(self, program: AxisProgram) -> Feeder:
+    def feeder(self, program: AxisProgram, allowance: RecordAllowance | None = None) -> Feeder:
         self._cob = self.rpdos[0].cob_id(self.link.node_id, receive=True)
         bus = self.link.bus
         return SetpointFeeder(program.records, self.frame, bus.network.send_message, self.period_ms, self.lead_periods)

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes import objects as od
-from axes.feeder import BufferFeeder, Feeder
+from axes.feeder import BufferFeeder, Feeder, RecordAllowance
 from axes.objects import EPOS2_RPDOS, EPOS2_TIME_STAMP_RPDO, EPOS2_TPDOS, TIME_STAMP_COB_ID, Record
 from axes.profiles import DEFAULT_MAX_FOLLOWING_ERROR_QC, Profile
 
@@ -86,9 +86,14 @@ class Epos2Pvt(Profile):
     def frame(self, record: NDArray[np.int64]) -> tuple[int, bytes]:
         return self._cob, Record(int(record[0]), int(record[1]), int(record[2])).to_bytes()
 
-    def feeder(self, program: AxisProgram) -> Feeder:
+    def feeder(self, program: AxisProgram, allowance: RecordAllowance | None = None) -> Feeder:
         self._cob = self.rpdos[0].cob_id(self.link.node_id, receive=True)
         bus = self.link.bus
         return BufferFeeder(
-            program.records, self.frame, bus.network.send_message, bus.config.sync_period_ms, self.config.buffer
+            program.records,
+            self.frame,
+            bus.network.send_message,
+            bus.config.sync_period_ms,
+            self.config.buffer,
+            allowance=allowance,
         )

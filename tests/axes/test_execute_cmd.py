@@ -37,7 +37,7 @@ def replace_axis(prog: PvtProgram, index: int, **changes) -> PvtProgram:
     return PvtProgram(prog.cell, tuple(axes))
 
 
-def test_executes_on_the_simulated_demo_cell(tmp_path, arm6_program, capsys):
+def test_executes_on_the_simulated_demo_cell(tmp_path, arm6_program, arm6, capsys):
     log = tmp_path / "traffic.log"
     code = main(["execute", str(write(tmp_path, arm6_program)), "--can-log", str(log)])
     out = capsys.readouterr().out
@@ -47,7 +47,7 @@ def test_executes_on_the_simulated_demo_cell(tmp_path, arm6_program, capsys):
     for axis in arm6_program.axes:
         assert f"({axis.records[-1, 0]} qc; program end {axis.records[-1, 0]} qc)" in out
     frames = list(can.LogReader(str(log)))
-    assert sum(1 for m in frames if m.arbitration_id == 0x80) >= arm6_program.duration_ms
+    assert sum(1 for m in frames if m.arbitration_id == 0x80) >= arm6_program.duration_ms / arm6.bus.sync_period_ms
     assert sum(1 for m in frames if m.arbitration_id == 0x201) == len(arm6_program.axes[0].records)
 
 

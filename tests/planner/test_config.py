@@ -255,7 +255,8 @@ def test_a_sync_period_the_service_cannot_hold_is_refused(tmp_path: Path, profil
     is refused, naming the profile and the shortest period (the EPOS2, buffered, is not concerned)."""
     data = arm_data()
     data["bus"]["sync_period_ms"] = 0.5
-    load_cell_config(write(tmp_path, data))  # every axis an EPOS2: fine
+    # every axis an EPOS2: not refused for the period, but for its bus (axes.budget)
+    expect_error(tmp_path, data, "bus", "no room for one record per EPOS2 axis per SYNC period")
     data["axes"][2]["profile"] = profile
     expect_error(tmp_path, data, "axes[2].profile", f"{profile} takes one setpoint per SYNC")
     expect_error(tmp_path, data, "axes[2].profile", "the shortest SYNC period pvtflow holds for it is 1 ms")
@@ -340,7 +341,7 @@ def test_a_homing_method_by_name_and_no_order(tmp_path: Path) -> None:
             "only the hard-stop methods",
         ),
         (
-            lambda d: d["axes"][0].update(profile="parker_slvdn", period_ms=1),
+            lambda d: d["axes"][0].update(profile="parker_slvdn", period_ms=int(d["bus"]["sync_period_ms"])),
             "axes[0].homing",
             "the parker_slvdn profile has no homing mode",
         ),
