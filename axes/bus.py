@@ -56,7 +56,7 @@ import canopen
 from canopen.emcy import EmcyError
 from canopen.objectdictionary import ObjectDictionary
 
-from axes.config import BusConfig
+from axes.config import BusConfig, wire_options
 from axes.heartbeat import MasterHeartbeat
 from axes.objects import CAN_EMCY_WORDS, NMT_STATE_OPERATIONAL, TIME_STAMP_COB_ID
 from axes.quick_stop import QuickStop, quick_stop_all
@@ -196,11 +196,12 @@ class RecordingNetwork(canopen.Network):
             channel=self.channel_name,
         )
         deadline: float | None = None
+        wait: float | None = None  # the first try does not wait: a retry lets the queue drain meanwhile
         while True:
             try:
                 with self.send_lock:
                     msg.timestamp = time.time()
-                    self.bus.send(msg)
+                    self.bus.send(msg, timeout=wait)
                 break
             except (can.CanOperationError, OSError) as exc:  # a full transmit queue (ENOBUFS), a refusing controller
                 now = time.monotonic()
@@ -212,6 +213,7 @@ class RecordingNetwork(canopen.Network):
                         f"frame 0x{can_id:03X} not sent within {self.tx_retry_s * 1000:.1f} ms: {exc}"
                     ) from exc
                 time.sleep(TX_RETRY_PAUSE_S)
+                wait = max(deadline - time.monotonic(), 0.0)
         if self.recorder is not None:
             self.recorder.on_message_sent(msg)
 
@@ -618,8 +620,7 @@ class CellBus:
         # close: other buses of the process may still be open).
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
         kwargs: dict[str, object] = {"interface": self.config.interface, "channel": self.config.channel}
-        if self.config.interface != "virtual":
-            kwargs["bitrate"] = self.config.bitrate
+        kwargs.update(wire_options(self.config, lockstep=self.sync.lockstep))
         try:
             bus = can.Bus(**kwargs)
         except (can.CanError, OSError, ValueError, ImportError) as exc:

@@ -13,6 +13,11 @@ from typing import Protocol
 
 from axes.scaling import AxisScaling, DriveLimits
 
+# python-can interfaces whose bus only simulated drives share: pvtflow's simulated wire (axes/sim/wire,
+# a 1 Mbit/s bus with its bit timing) and python-can's own in-process ``virtual`` (frames in no time)
+SIMULATED_WIRE = "simwire"
+SIMULATION_INTERFACES = frozenset({SIMULATED_WIRE, "virtual"})
+
 
 @dataclass(frozen=True)
 class BusConfig:
@@ -40,6 +45,18 @@ class BusConfig:
         """The drives' 0x1016 time for the master's heartbeat: the same number of missed periods as
         the master allows a drive (``heartbeat_timeout_factor``), in whole ms."""
         return math.ceil(self.master_heartbeat_ms * self.heartbeat_timeout_factor)
+
+
+def wire_options(config: BusConfig, *, lockstep: bool) -> dict[str, object]:
+    """The ``can.Bus`` keyword arguments of the cell's bus beyond interface and channel: the bit rate,
+    and on the simulated wire its clock (lockstep: bus time advances with the SYNC period)."""
+    if config.interface == "virtual":
+        return {}
+    options: dict[str, object] = {"bitrate": config.bitrate}
+    if config.interface == SIMULATED_WIRE:
+        options["clock"] = "lockstep" if lockstep else "wall"
+        options["sync_period"] = config.sync_period_ms / 1000.0
+    return options
 
 
 @dataclass(frozen=True)

@@ -329,7 +329,9 @@ class CellHoming:
                 self._halt(HomingResult.TIMEOUT, f"{', '.join(waiting)} not homed within {ms / 1000.0:g} s", None)
 
     def _on_fault(self, fault: BusFault) -> None:
-        if fault.kind.warning:
+        if fault.kind.warning or fault.kind is FaultKind.SYNC_GAP:
+            # a drive in homing mode searches on its own: SYNC only paces the master's reading of it
+            # (a SYNC that stops altogether is SYNC_STOPPED, or LOST_SYNC when nobody answers)
             return
         kind = {
             FaultKind.EMCY: HomingResult.EMCY,

@@ -17,7 +17,7 @@ from can.interfaces import VALID_INTERFACES
 
 from axes import objects as od
 from axes.budget import bus_budget
-from axes.config import AxisConfig, AxisSimulation, BufferConfig, BusConfig, HomingConfig
+from axes.config import SIMULATION_INTERFACES, AxisConfig, AxisSimulation, BufferConfig, BusConfig, HomingConfig
 from axes.homing import homing_stages
 from axes.profiles import profile_class
 from axes.program import FIXED_PERIOD_PROFILES, PROFILES, SHORTEST_PERIOD_MS
@@ -207,7 +207,13 @@ def parse_cell_config(data: Any, file: Path) -> CellConfig:
 
     bus = _parse_bus(file, top.data.get("bus", {}))
     planning = _parse_planning(file, top.data.get("planning", {}), tcp_frame, model)
-    simulated = top.get("simulated", top.boolean, bus.interface == "virtual")
+    simulated = top.get("simulated", top.boolean, bus.interface in SIMULATION_INTERFACES)
+    if simulated and bus.interface not in SIMULATION_INTERFACES:
+        raise top.error(
+            "simulated",
+            f"simulated drives on interface {bus.interface} would answer with the real drives' node ids: "
+            f"simulate on {' or '.join(sorted(SIMULATION_INTERFACES))}, or set simulated: false",
+        )
 
     axes_data = top.get("axes", lambda k, v: v)
     if not isinstance(axes_data, list) or not axes_data:

@@ -16,12 +16,13 @@ master that runs SYNC on the wall clock.
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
+from dataclasses import replace
 from pathlib import Path
 from types import TracebackType
 
 import canopen
 
-from axes.config import AxisConfig, CellWiring
+from axes.config import SIMULATED_WIRE, AxisConfig, CellWiring, wire_options
 from axes.sim.clock import LOCKSTEP, Ticker, check_clock
 from axes.sim.drive import SimulatedDrive
 from axes.sim.epos2 import Epos2Drive
@@ -78,14 +79,18 @@ class SimulatedCell:
         self.clock = clock
         self.interface = interface or cell.bus.interface
         self.channel = channel or cell.bus.channel
-        self.network = canopen.Network()
-        self.network.NOTIFIER_CYCLE = 0.05  # the notifier thread notices a stop this quickly
         self.drives: dict[int, SimulatedDrive] = {}
         eds_paths = eds_paths or {}
         for axis in cell.axes:
             self.drives[axis.node_id] = make_drive(
                 axis, cell.bus.sync_period_ms, None, eds_paths.get(axis.node_id), history_length, clock
             )
+        # one network, so one CAN controller and transmit queue, per drive, as on a machine: on the
+        # simulated wire six drives behind one controller would queue each other's answers
+        self.networks: dict[int, canopen.Network] = {}
+        for node_id in self.drives:
+            network = self.networks[node_id] = canopen.Network()
+            network.NOTIFIER_CYCLE = 0.05  # the notifier thread notices a stop this quickly
         self._joint_to_node = {a.joint: a.node_id for a in cell.axes}
         self.ticker = Ticker(self.drives.values(), name="sim-ticker") if clock != LOCKSTEP else None
         self.running = False
@@ -94,11 +99,19 @@ class SimulatedCell:
         """Connect to the bus and power the drives on (boot-up frames, then pre-operational)."""
         if self.running:
             return self
-        self.network.connect(
-            interface=self.interface, channel=self.channel, bitrate=self.cell.bus.bitrate, receive_own_messages=False
-        )
-        for drive in self.drives.values():
-            drive.attach(self.network)
+        bus = replace(self.cell.bus, interface=self.interface, channel=self.channel)
+        options = wire_options(bus, lockstep=self.clock == LOCKSTEP)
+        try:
+            for node_id, network in self.networks.items():
+                named = {"node_name": f"drive {node_id}"} if self.interface == SIMULATED_WIRE else {}
+                network.connect(
+                    interface=self.interface, channel=self.channel, receive_own_messages=False, **options, **named
+                )
+        except BaseException:
+            self._disconnect()
+            raise
+        for node_id, drive in self.drives.items():
+            drive.attach(self.networks[node_id])
         for drive in self.drives.values():
             drive.boot()
         if self.ticker is not None:
@@ -114,8 +127,18 @@ class SimulatedCell:
             self.ticker.stop()
         for drive in self.drives.values():
             drive.detach()
-        self.network.disconnect()
+        self._disconnect()
         self.running = False
+
+    def _disconnect(self) -> None:
+        for network in self.networks.values():
+            if network.bus is not None:
+                network.disconnect()
+
+    @property
+    def network(self) -> canopen.Network:
+        """A network on the cell's bus (the first drive's): what a listener of every frame needs."""
+        return next(iter(self.networks.values()))
 
     def __enter__(self) -> SimulatedCell:
         return self.start()

@@ -30,12 +30,19 @@ def with_profiles(cell: CellConfig, profiles: dict[str, dict[str, object]], sync
     return dataclasses.replace(cell, axes=tuple(axes), bus=bus)
 
 
-class BusObserver(can.Listener):
-    """A third node on a virtual bus that only listens: every frame with its arrival time."""
+def listening_bus(interface: str, channel: str) -> can.BusABC:
+    """One more node on a cell's bus that only listens (on the simulated wire it takes the medium as
+    the cell opened it: clock, bit rate and SYNC period)."""
+    named = {"node_name": f"observer {uuid.uuid4().hex[:6]}"} if interface == "simwire" else {}
+    return can.Bus(interface=interface, channel=channel, receive_own_messages=False, **named)
 
-    def __init__(self, channel: str) -> None:
+
+class BusObserver(can.Listener):
+    """A third node on a cell's bus that only listens: every frame with its arrival time."""
+
+    def __init__(self, channel: str, interface: str = "virtual") -> None:
         self.frames: list[tuple[float, int, bytes]] = []  # (time.monotonic(), COB-ID, data)
-        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        self.bus = listening_bus(interface, channel)
         self.notifier = can.Notifier(self.bus, [self], timeout=0.02)
 
     def on_message_received(self, msg: can.Message) -> None:

@@ -40,6 +40,7 @@ def make_rig() -> Iterator[Callable[..., Rig]]:
         eds_paths: dict[int, str | Path] | None = None,
         can_log: Path | None = None,
         lost_sync_timeout_s: float = 1.0,
+        lockstep: bool = True,
         **group_kwargs: object,
     ) -> Rig:
         channel = unique_channel()
@@ -48,8 +49,9 @@ def make_rig() -> Iterator[Callable[..., Rig]]:
             changes["heartbeat_ms"] = heartbeat_ms
         bus_config = dataclasses.replace(cell.bus, **changes)
         cell = dataclasses.replace(cell, bus=bus_config)
-        sim = SimulatedCell(cell, channel=channel, eds_paths=eds_paths).start()
-        bus = CellBus(bus_config, can_log=can_log, lost_sync_timeout_s=lost_sync_timeout_s).open()
+        clock = "lockstep" if lockstep else "wall"  # the drives keep the time the master keeps
+        sim = SimulatedCell(cell, channel=channel, eds_paths=eds_paths, clock=clock).start()
+        bus = CellBus(bus_config, lockstep=lockstep, can_log=can_log, lost_sync_timeout_s=lost_sync_timeout_s).open()
         group = AxisGroup(bus, cell.ordered_axes(), **group_kwargs)  # type: ignore[arg-type]
         rig = Rig(cell, sim, bus, group)
         rigs.append(rig)

@@ -10,6 +10,7 @@ import can
 import numpy as np
 import pytest
 from axes_programs import check_limits, program
+from axes_rig import listening_bus
 
 from axes.cia402 import PowerState, decode_state
 from axes.feeder import BufferFeeder
@@ -239,13 +240,10 @@ def test_real_time_sync_runs_a_program(arm6, make_rig):
     import dataclasses
 
     cell = dataclasses.replace(arm6, bus=dataclasses.replace(arm6.bus, sync_period_ms=2.0, time_stamp=False))
-    rig = make_rig(cell)
-    rig.bus.close()
-    from axes.bus import CellBus
+    rig = make_rig(cell, lockstep=False)
     from axes.group import AxisGroup
 
     rig.group.close()
-    rig.bus = CellBus(rig.cell.bus, lockstep=False).open()
     axes = rig.cell.ordered_axes()[:2]
     rig.group = AxisGroup(rig.bus, axes)
     prog = program(axes, 200, spacing_ms=10)
@@ -314,7 +312,7 @@ class _StartFrames(can.Listener):
 def _start_frames(rig, prog) -> _StartFrames:
     """The frames of the start of ``prog`` (which must then run to its end)."""
     frames = _StartFrames()
-    spy = can.Bus(interface="virtual", channel=rig.bus.config.channel, receive_own_messages=False)
+    spy = listening_bus(rig.bus.config.interface, rig.bus.config.channel)
     notifier = can.Notifier(spy, [frames], 0.05)
     try:
         frames.arm()

@@ -192,7 +192,7 @@ def test_homing_with_sync_on_the_wall_clock(gantry3: CellConfig) -> None:
     cell = with_homing(gantry3, {"x": (homing, SWITCHES)})
     bus_config = dataclasses.replace(cell.bus, channel=f"home-rt-{uuid.uuid4().hex[:8]}")
     cell = dataclasses.replace(cell, bus=bus_config)
-    with SimulatedCell(cell) as sim:
+    with SimulatedCell(cell, clock="wall") as sim:
         bus = CellBus(bus_config, lockstep=False).open()
         group = AxisGroup(bus, cell.ordered_axes())
         try:

@@ -16,8 +16,8 @@ from axes.bus import CellBus
 class Beats:
     """The master's heartbeats as another node on the bus sees them."""
 
-    def __init__(self, channel: str, cob_id: int) -> None:
-        self.observer = BusObserver(channel)
+    def __init__(self, channel: str, cob_id: int, interface: str) -> None:
+        self.observer = BusObserver(channel, interface)
         self.cob_id = cob_id
 
     def since(self, t: float) -> int:
@@ -34,7 +34,7 @@ class Beats:
 def test_the_master_beats_while_it_supervises_and_falls_silent_when_it_hangs(arm6, make_rig):
     cell = dataclasses.replace(arm6, bus=dataclasses.replace(arm6.bus, master_node_id=100, master_heartbeat_ms=20))
     rig = make_rig(cell)
-    beats = Beats(rig.cell.bus.channel, od.HEARTBEAT_COB_ID_BASE + 100)
+    beats = Beats(rig.cell.bus.channel, od.HEARTBEAT_COB_ID_BASE + 100, rig.cell.bus.interface)
     heartbeat = rig.bus.master_heartbeat
     release = threading.Event()
     try:
@@ -92,7 +92,7 @@ def test_with_sync_on_the_wall_clock_a_stuck_sync_producer_silences_the_master(a
         arm6.bus, channel=unique_channel("hb"), heartbeat_ms=20, master_heartbeat_ms=10, master_node_id=120
     )
     bus = CellBus(config, lockstep=False).open()
-    beats = Beats(config.channel, od.HEARTBEAT_COB_ID_BASE + 120)
+    beats = Beats(config.channel, od.HEARTBEAT_COB_ID_BASE + 120, config.interface)
     heartbeat = bus.master_heartbeat
     try:
         bus.sync.start()

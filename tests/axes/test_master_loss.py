@@ -88,7 +88,7 @@ def wait_standstill(drives: list[SimulatedDrive], timeout_s: float) -> None:
 def test_every_axis_stops_by_itself_when_the_master_is_lost(arm6, make_rig, profile, how):
     cell = cell_of(arm6, profile)
     rig = make_rig(cell)
-    observer = BusObserver(rig.cell.bus.channel)
+    observer = BusObserver(rig.cell.bus.channel, rig.cell.bus.interface)
     release = threading.Event()
     consumer_s = cell.bus.master_consumer_time_ms / 1000.0
     try:

@@ -1,4 +1,4 @@
-"""SimulatedCell: one simulated drive per configured axis, on the cell's virtual channel."""
+"""SimulatedCell: one simulated drive per configured axis, on the cell's own channel of its bus."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from pathlib import Path
 import canopen
 
 from axes import objects as od
+from axes.config import wire_options
 from axes.sim import Epos2Drive
 from axes.sim.cell import SimulatedCell
 from service.config import load_cell_config
@@ -24,7 +25,7 @@ def test_arm6_cell_boots_six_epos2_with_the_configured_limits() -> None:
     master.NOTIFIER_CYCLE = 0.02
     log = FrameLog()
     master.listeners.append(log)
-    master.connect(interface="virtual", channel=channel)
+    master.connect(interface=cell.bus.interface, channel=channel, **wire_options(cell.bus, lockstep=True))
     try:
         with SimulatedCell(cell, channel=channel) as sim:
             for axis in cell.axes:

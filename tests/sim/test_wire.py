@@ -205,6 +205,24 @@ def test_lockstep_burst_after_sync_gets_enobufs_on_the_eleventh_frame(buses: Bus
     master.send(frame(0x209, bytes(8)))
 
 
+def test_lockstep_send_with_a_timeout_waits_in_bus_time_for_room(buses: Buses) -> None:
+    """A sender that waits lets its FIFO drain: in lockstep the wait is bus time, so the frame goes
+    out once a slot frees, if that is within the timeout, and is refused otherwise."""
+    ch = buses.channel()
+    master = buses.open(ch, clock="lockstep", sync_period=PERIOD, node_name="master")
+    drive = buses.open(ch, node_name="drive")
+    master.send(frame(SYNC))
+    for i in range(9):
+        master.send(frame(0x200 + i, bytes(8)))
+    got = drain(drive, 10)
+    one_frame = got[1].timestamp - got[0].timestamp
+    with pytest.raises(can.CanOperationError):  # a slot frees after the SYNC, longer than this
+        master.send(frame(0x209, bytes(8)), timeout=one_frame * 0.1)
+    master.send(frame(0x209, bytes(8)), timeout=0.01)
+    (late,) = drain(drive, 1)
+    assert late.timestamp == pytest.approx(got[-1].timestamp + (got[-1].timestamp - got[-2].timestamp), abs=1e-9)
+
+
 def test_lockstep_sends_of_another_node_after_a_sync_fill_its_own_fifo(buses: Buses) -> None:
     ch = buses.channel()
     sync = buses.open(ch, clock="lockstep", sync_period=PERIOD)

@@ -42,6 +42,9 @@ CAN_ERR_CRTL_ACTIVE = 0x40
 Deliver = Callable[[can.Message], None]
 
 
+IDLE_S = 0.05  # lockstep: no SYNC for this long (wall time) and the bus is idle: bus time follows the wall clock
+
+
 class WireConfigError(ValueError):
     """A bus asked for a medium that disagrees with the channel's (clock, bit rate, SYNC period)."""
 
@@ -176,6 +179,7 @@ class Medium:
         self._syncs: deque[tuple[float, float]] = deque(maxlen=record_limit)  # (nominal or nan, start)
         self.bus_end = 0.0  # end of the last frame on the bus
         self._last_sync_nominal: float | None = None  # lockstep
+        self._idle_from = (0.0, time.monotonic())  # lockstep: (bus time, wall time) of the last SYNC
         self._on_wire: tuple[Node, _Pending, float, float] | None = None  # wall: (node, frame, start, end)
         self._seconds_per_bit = 1.0 / bitrate
         self._epoch = time.time() - time.monotonic()
@@ -259,32 +263,49 @@ class Medium:
                     raise bus_off_error(node.name)
                 try:
                     if self.clock == "lockstep":
-                        self._submit_lockstep(node, msg, bits)
+                        self._submit_lockstep(node, msg, bits, 0.0 if timeout is None else max(timeout, 0.0))
                     else:
                         self._submit_wall(node, msg, bits, self.now() if now is None else now)
                     return
                 except can.CanOperationError:
-                    if deadline is None or not self.wait_for_room(node, deadline):
+                    # lockstep waited in bus time already (``_submit_lockstep``); wall time waits here
+                    if self.clock == "lockstep" or deadline is None or not self.wait_for_room(node, deadline):
                         node.enobufs += 1
                         raise
+
+    def _lockstep_now(self) -> float:
+        """Lockstep bus time as every node sees it: the last SYNC's nominal time, or, once no SYNC
+        has come for ``IDLE_S`` of wall time, that plus the wall time since. Bus time passes between
+        SYNCs only with SYNC, except on an idle bus: heartbeats and SDO exchanges without SYNC
+        would otherwise pile up in their senders' FIFOs at one instant of a bus time that never moves."""
+        since, wall = self._idle_from
+        idle = time.monotonic() - wall
+        return since + idle if idle > IDLE_S else since
 
     def _is_sync(self, msg: can.Message) -> bool:
         return msg.arbitration_id == self.sync_id and not msg.is_extended_id and not msg.is_remote_frame
 
-    def _submit_lockstep(self, node: Node, msg: can.Message, bits: int) -> None:
+    def _submit_lockstep(self, node: Node, msg: can.Message, bits: int, wait: float = 0.0) -> None:
+        """``wait``: bus time the sender may wait for room (``send(msg, timeout)``): a sender that
+        waits lets its FIFO drain, so its local time moves on to when a slot frees, if within it."""
         sync = self._is_sync(msg)
-        last = self._last_sync_nominal
-        if sync:
-            enqueue = node.local_time if last is None else max(node.local_time, last + self.sync_period)
-        else:
-            enqueue = node.local_time if last is None else max(node.local_time, last)
+        enqueue = max(node.local_time, self._lockstep_now())
+        if sync and self._last_sync_nominal is not None:
+            enqueue = max(enqueue, self._last_sync_nominal + self.sync_period)
         ends = node.ends
         while ends and ends[0] <= enqueue:
             ends.popleft()
         if len(ends) >= node.txqueuelen:
-            raise transmit_queue_full(node.name, node.txqueuelen)
+            room = ends[len(ends) - node.txqueuelen]  # the end of the frame that frees a slot
+            if room - enqueue > wait:
+                raise transmit_queue_full(node.name, node.txqueuelen)
+            node.local_time = max(node.local_time, room)
+            enqueue = max(enqueue, room)
+            while ends and ends[0] <= enqueue:
+                ends.popleft()
         if sync:
             self._last_sync_nominal = enqueue
+            self._idle_from = (enqueue, time.monotonic())
         start = max(enqueue, node.last_end, self.bus_end)
         end = start + bits * self._seconds_per_bit
         ends.append(end)
@@ -344,8 +365,7 @@ class Medium:
     def _queued(self, node: Node) -> int:
         if self.clock == "wall":
             return len(node.fifo)
-        last = self._last_sync_nominal
-        enqueue = node.local_time if last is None else max(node.local_time, last)
+        enqueue = max(node.local_time, self._lockstep_now())
         return sum(1 for e in node.ends if e > enqueue)
 
     def received(self, node: Node, timestamp: float) -> None:
