@@ -20,8 +20,9 @@ from pathlib import Path
 from typing import Any
 
 from axes.group import AxisGroup
-from axes.outcome import Event, EventKind, Progress, RunResult
-from axes.program import PvtProgram, program_mismatch
+from axes.outcome import Event, EventKind, Progress, Result, RunResult
+from axes.program import program_mismatch
+from service.api import refusals
 from service.cell_bus import CellBusError, add_bus_options, open_cell_bus
 from service.cli import can_log_problem
 from service.config import ConfigError, load_cell_config
@@ -30,6 +31,8 @@ from service.validate_cmd import ProgramFileError, read_program
 
 EXIT_OK, EXIT_FAILED, EXIT_UNREADABLE = 0, 1, 2
 PROG = "pvtflow execute"
+# where a program that does not start where the axes stand comes from, offline
+START_HINT = "plan again from where the axes stand"
 
 
 def add_parser(subparsers: Any) -> None:
@@ -52,14 +55,6 @@ def add_parser(subparsers: Any) -> None:
 def _fail(message: str, code: int) -> int:
     print(f"{PROG}: {message}", file=sys.stderr)
     return code
-
-
-def validation_problems(program: PvtProgram, source: str) -> tuple[bool, str]:
-    """(ok, report text) from the shared validator."""
-    from planner.validate import validate_program
-
-    report = validate_program(program, source=source)
-    return report.ok, report.format_text()
 
 
 def describe(result: RunResult) -> str:
@@ -99,22 +94,22 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         return _fail(str(exc), EXIT_UNREADABLE)
 
-    ok, report = validation_problems(program, str(path))
-    if not ok:
-        print(report, file=sys.stderr)
-        return _fail(f"{path}: the program breaks its drives' rules: nothing was sent", EXIT_FAILED)
+    from planner.validate import validate_program
+
+    report = validate_program(program, source=str(path))
+    if not report.ok:
+        print(report.format_text(), file=sys.stderr)
+        refusal = refusals.validation_failed([f.format() for f in report.errors], report.to_json())
+        return _fail(f"{path}: {refusal.line()}", EXIT_FAILED)
     mismatch = program_mismatch(program, cell.ordered_axes(), cell.name)
     if mismatch:
         for line in mismatch:
             print(f"  {line}", file=sys.stderr)
-        return _fail(f"{path}: the program was not made for cell {cell.name}: nothing was sent", EXIT_FAILED)
+        return _fail(f"{path}: {refusals.wrong_cell(cell.name, mismatch, program.cell).line()}", EXIT_FAILED)
 
     if cell.requires_homing and not args.home:
-        return _fail(
-            f"not_homed: cell {cell.name} requires homing (incremental encoders): nothing was sent; "
-            "home it with --home (or plan for where its axes stand after homing)",
-            EXIT_FAILED,
-        )
+        joints = [a.joint for a in cell.ordered_axes()]
+        return _fail(refusals.not_homed(cell.name, joints, "give --home; nothing was sent").line(), EXIT_FAILED)
     quiet = bool(args.quiet)
 
     def on_event(event: Event) -> None:
@@ -152,6 +147,8 @@ def run(args: argparse.Namespace) -> int:
                 group.close()
     except CellBusError as exc:
         return _fail(str(exc), EXIT_UNREADABLE)
+    if result.result is Result.REJECTED:  # refused at the start, nothing moved: the service's words
+        return _fail(refusals.run_refused(result, hint=START_HINT).line(), EXIT_FAILED)
     print(describe(result), flush=True)
     if args.can_log:
         print(f"CAN log: {args.can_log} ({bus.recorder.frames} frames)")

@@ -55,6 +55,7 @@ from service.api import (
     StatusRequest,
     StopRequest,
     ValidateRequest,
+    refusals,
 )
 from service.cell_planner import CellPlanner
 from service.config import CellConfig
@@ -337,11 +338,7 @@ class MotionService:
             with self._planner_lock:
                 result = self.planner.plan(PlanInput(waypoints, **scales), req.tolerance_qc, {"plan_id": plan_id})
         if not result.ok or result.program is None or result.build is None:
-            raise ApiError(
-                ErrorCode.PLAN_FAILED,
-                f"cannot plan this motion on cell {self.cell.name} ({result.code}): {result.message}",
-                {"result": result.code, **_plain(result.details)},
-            )
+            raise refusals.plan_failed(self.cell.name, result.code, result.message, _plain(result.details))
         program = result.program
         timing = {k: round(v * 1000.0, 3) for k, v in result.timing.items()}
         timing["request"] = round((time.perf_counter() - t0) * 1000.0, 3)
@@ -406,19 +403,10 @@ class MotionService:
             program, plan_id, label = self._program_from_json(req.program), None, req.label
             report = validate_program(program)
             if not report.ok:
-                raise ApiError(
-                    ErrorCode.VALIDATION_FAILED,
-                    "the program breaks its drives' rules: nothing was sent: "
-                    + "; ".join(f.format() for f in report.errors[:3]),
-                    {"report": report.to_json()},
-                )
+                raise refusals.validation_failed([f.format() for f in report.errors], report.to_json())
             problems = program_mismatch(program, self.cell.ordered_axes(), self.cell.name)
             if problems:
-                raise ApiError(
-                    ErrorCode.WRONG_CELL,
-                    f"the program was not made for cell {self.cell.name}: " + "; ".join(problems[:3]),
-                    {"problems": problems},
-                )
+                raise refusals.wrong_cell(self.cell.name, problems, program.cell)
         group = self._group()
         with self._lock:
             self._refuse_if_busy(group)
@@ -486,12 +474,7 @@ class MotionService:
             return
         missing = [link.joint for link, homed in zip(group.links, group.homed, strict=True) if not homed]
         if missing:
-            raise ApiError(
-                ErrorCode.NOT_HOMED,
-                f"cell {self.cell.name} must home first: {', '.join(missing)} not homed since "
-                f"{'its drive' if len(missing) == 1 else 'their drives'} last booted: call home",
-                {"joints": missing},
-            )
+            raise refusals.not_homed(self.cell.name, missing)
 
     def _refuse_if_faulted(self, group: AxisGroup) -> None:
         if self.state == CellState.FAULT:
@@ -518,20 +501,10 @@ class MotionService:
         for link in group.links:
             start = starts.get(link.node_id)
             if start is not None and link.position is not None and abs(link.position - start) > tolerance:
-                raise ApiError(
-                    ErrorCode.START_MISMATCH,
-                    f"axis {link.joint} is at {link.position} qc, the program "
-                    f"starts at {start} qc: plan again from the current position",
-                    {"joint": link.joint, "position_qc": link.position, "start_qc": start},
-                )
+                raise refusals.start_mismatch(link.joint, link.position, start)
 
     def _start_error(self, early: RunResult, motion: Motion) -> ApiError:
-        details = {"motion_id": motion.motion_id, "outcome": early.to_json()}
-        if early.result is Result.REJECTED and early.joint is not None:
-            return ApiError(ErrorCode.START_MISMATCH, f"{early.message}: plan again from the current position", details)
-        if early.result is Result.REJECTED:
-            return ApiError(ErrorCode.WRONG_CELL, early.message, details)
-        return ApiError(ErrorCode.DRIVE_FAULT, f"the drives did not start: {early.message}", details)
+        return refusals.run_refused(early, {"motion_id": motion.motion_id})
 
     def _watch_motions(self) -> None:
         """One long-lived thread waits for each motion's end (a thread start per execute costs ms)."""

@@ -16,6 +16,7 @@ from typing import Any
 
 from planner.limits import check_max_jerk, check_scale
 from planner.plan import PlanInput
+from service.api import ApiError, ErrorCode, check_limits, refusals
 from service.cell_planner import plan_cell_program
 from service.config import ConfigError, load_cell_config
 from service.waypoints import PoseTargets, WaypointError, load_motion
@@ -105,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             check_scale(option, value)
         except ValueError as exc:
-            return _fail(EXIT_BAD_INPUT, str(exc))
+            return _fail(EXIT_BAD_INPUT, ApiError(ErrorCode.INVALID_REQUEST, str(exc)).line())
 
     max_jerk = None
     if args.max_jerk is not None:
@@ -123,11 +124,14 @@ def run(args: argparse.Namespace) -> int:
         assert motion.start is not None
         inp = PlanInput(motion.start, motion.poses, motion.motion, **scales)
     else:
+        try:
+            check_limits(motion, cell.joint_limits())
+        except ApiError as exc:
+            return _fail(EXIT_NOT_PLANNED, f"{exc.code.value}: {args.waypoints}: {exc.message}")
         inp = PlanInput(motion, **scales)
     result = plan_cell_program(cell, inp, args.tolerance)
     if not result.ok or result.program is None or result.build is None:
-        why = f"({result.code}): {result.message}"
-        return _fail(EXIT_NOT_PLANNED, f"cannot plan this motion on cell {cell.name!r} {why}")
+        return _fail(EXIT_NOT_PLANNED, refusals.plan_failed(cell.name, result.code, result.message).line())
 
     out = Path(args.output)
     try:

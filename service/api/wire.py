@@ -121,6 +121,10 @@ class ApiError(Exception):
     def to_bytes(self) -> bytes:
         return dumps(self.to_json())
 
+    def line(self) -> str:
+        """``CODE: MESSAGE``, as every command prints a refusal (``pvtflow request`` prints a reply's so)."""
+        return f"{self.code.value}: {self.message}"
+
 
 def check_cell_name(cell: str) -> str:
     """A cell name must be one key-expression chunk (no '/', '*', '$', '?', '#')."""
