@@ -107,8 +107,7 @@ class Client:
             {
                 "error": {
                     "code": "no_reply",
-                    "message": f"no reply from {key(cell, op)} within "
-                    f"{timeout:g} s: is the service running and reachable?",
+                    "message": no_reply_reason(self, cell, op, timeout),
                     "details": {},
                 }
             },
@@ -132,6 +131,21 @@ class Client:
                 if name:
                     cells.append(name)
         return sorted(cells)
+
+
+def no_reply_reason(client: Client, cell: str, op: str, timeout: float) -> str:
+    """Why nothing answered ``pvtflow/<cell>/<op>``, from the liveliness tokens of the services the
+    session reaches: another cell's service (named, with the ``--cell`` that reaches it), none at all,
+    or this cell's service up but silent."""
+    here = client.alive("*", timeout=min(2.0, timeout))
+    waited = f"no reply from {key(cell, op)} within {timeout:g} s"
+    if "*" not in cell and cell not in here and here:
+        cells = ", ".join(here)
+        hint = f"--cell {here[0]}" if len(here) == 1 else "--cell NAME"
+        return f"{waited}: no service of cell {cell} is reachable; the services reachable serve {cells} ({hint})"
+    if here:
+        return f"{waited}: the service of {', '.join(here)} is up but did not answer in time (busy? a longer timeout)"
+    return f"{waited}: no pvtflow service is reachable: is `pvtflow serve` running, reachable at the endpoint given?"
 
 
 def check_endpoint(endpoint: str) -> str:
@@ -399,11 +413,7 @@ def run(args: argparse.Namespace) -> int:
             _add_waypoints(args, client, payload)
         replies = client.replies(args.cell, args.op, payload, args.timeout)
         if not replies:
-            print(
-                f"{PROG}: no reply from {key(args.cell, args.op)} within {args.timeout:g} s: is `pvtflow serve` "
-                "running, and reachable at the endpoint given?",
-                file=sys.stderr,
-            )
+            print(f"{PROG}: {no_reply_reason(client, args.cell, args.op, args.timeout)}", file=sys.stderr)
             return EXIT_NO_ANSWER
         return _print_replies(replies, "*" in args.cell)
     except _InputError as exc:
