@@ -27,6 +27,7 @@ from service.cell_bus import CellBusError, add_bus_options, open_cell_bus
 from service.cli import can_log_problem
 from service.config import ConfigError, load_cell_config
 from service.home_cmd import describe_homing, home_cell
+from service.program_fit import mismatch_lines
 from service.validate_cmd import ProgramFileError, read_program
 
 EXIT_OK, EXIT_FAILED, EXIT_UNREADABLE = 0, 1, 2
@@ -103,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"{path}: {refusal.line()}", EXIT_FAILED)
     mismatch = program_mismatch(program, cell.ordered_axes(), cell.name)
     if mismatch:
-        for line in mismatch:
+        for line in mismatch_lines(program, cell):
             print(f"  {line}", file=sys.stderr)
         return _fail(f"{path}: {refusals.wrong_cell(cell.name, mismatch, program.cell).line()}", EXIT_FAILED)
 

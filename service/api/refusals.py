@@ -50,10 +50,13 @@ def not_homed(cell: str, joints: Sequence[str], how: str = "call home") -> ApiEr
 
 def wrong_cell(cell: str, problems: Sequence[str], program_cell: str | None = None) -> ApiError:
     """A program made for another cell, or for other drives: its own cell named, and the first problems."""
-    made_for = f" (it was made for cell {program_cell})" if program_cell and program_cell != cell else ""
+    if program_cell and program_cell != cell:  # every axis differs: the cell says it (details list them)
+        message = f"the program was not made for cell {cell}: it was made for cell {program_cell}"
+    else:
+        message = f"the program was not made for cell {cell}: " + "; ".join(problems[:3])
     return ApiError(
         ErrorCode.WRONG_CELL,
-        f"the program was not made for cell {cell}{made_for}: " + "; ".join(problems[:3]),
+        message,
         {"problems": list(problems), **({"program_cell": program_cell} if program_cell else {})},
     )
 
