@@ -72,7 +72,12 @@ def describe(result: RunResult) -> str:
         )
     for a in result.axes:
         feed = a.feed
-        levels = "" if feed.max_level is None else f", buffer {feed.min_level}..{feed.max_level}"
+        # the drive's record buffer (FIFO) during the run: records queued and not yet executed, least..most
+        levels = (
+            ""
+            if feed.max_level is None
+            else f", {feed.min_level}..{feed.max_level} records queued in the drive's buffer during the run"
+        )
         # the names of the outcome's JSON (RunResult.to_json): position in joint units, position_qc in counts
         position = "unknown" if a.joint_position is None else f"{a.joint_position:+.6g}"
         lines.append(
@@ -120,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
 
     def on_progress(p: Progress) -> None:
         levels = " ".join("-" if lv is None else str(lv) for lv in p.levels)
-        print(f"t={p.elapsed_ms / 1000:8.3f} s  SYNC {p.sync}  buffer levels {levels}", flush=True)
+        print(f"t={p.elapsed_ms / 1000:8.3f} s  SYNC {p.sync}  records queued per drive {levels}", flush=True)
 
     duration_syncs = max(1, int(program.duration_ms / cell.bus.sync_period_ms))
     try:

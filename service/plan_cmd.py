@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,10 @@ from service.config import ConfigError, load_cell_config
 from service.waypoints import PoseTargets, WaypointError, load_motion
 
 EXIT_OK, EXIT_NOT_PLANNED, EXIT_BAD_INPUT = 0, 1, 2
+# A plan still running after this long is compiling numba's kernels (a new machine, or a kernel source
+# edited): a plan with loaded kernels takes well under it (bench/RESULTS.md), so only a compile says so.
+SLOW_PLAN_NOTICE_S = 2.0
+COMPILE_S = 15  # what compiling them takes (README, "Two commands")
 
 
 def add_parser(subparsers: Any) -> None:
@@ -80,6 +85,15 @@ def _numbers(text: str) -> list[float] | str:
         return text
 
 
+def _say_compiling() -> None:
+    print(
+        f"pvtflow plan: still planning (on a new machine the first plan compiles the planner's loops first: "
+        f"numba, about {COMPILE_S} s, once; cached next to the sources afterwards)",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
 def _fail(code: int, message: str) -> int:
     print(f"pvtflow plan: {message}", file=sys.stderr)
     return code
@@ -129,7 +143,13 @@ def run(args: argparse.Namespace) -> int:
         except ApiError as exc:
             return _fail(EXIT_NOT_PLANNED, f"{exc.code.value}: {args.waypoints}: {exc.message}")
         inp = PlanInput(motion, **scales)
-    result = plan_cell_program(cell, inp, args.tolerance)
+    notice = threading.Timer(SLOW_PLAN_NOTICE_S, _say_compiling)
+    notice.daemon = True
+    notice.start()
+    try:
+        result = plan_cell_program(cell, inp, args.tolerance)
+    finally:
+        notice.cancel()
     if not result.ok or result.program is None or result.build is None:
         return _fail(EXIT_NOT_PLANNED, refusals.plan_failed(cell.name, result.code, result.message).line())
 
