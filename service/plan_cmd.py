@@ -15,12 +15,14 @@ import threading
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from planner.limits import check_max_jerk, check_scale
 from planner.plan import PlanInput
 from service.api import ApiError, ErrorCode, check_limits, refusals
 from service.cell_planner import plan_cell_program
 from service.config import ConfigError, load_cell_config
-from service.waypoints import PoseTargets, WaypointError, load_motion
+from service.waypoints import PoseTargets, WaypointError, dropped_times_warning, load_motion
 
 EXIT_OK, EXIT_NOT_PLANNED, EXIT_BAD_INPUT = 0, 1, 2
 # A plan still running after this long is compiling numba's kernels (a new machine, or a kernel source
@@ -179,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
     if isinstance(motion, PoseTargets) and result.waypoints is not None:
         summary["motion"] = motion.motion
         summary["joint_samples"] = len(result.waypoints)
+    if isinstance(motion, np.ndarray) and (warning := dropped_times_warning(args.waypoints, duration_s)):
+        print(f"pvtflow plan: {warning}", file=sys.stderr)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

@@ -31,7 +31,7 @@ from service.server import (
     zenoh_message,
 )
 from service.validate_cmd import ProgramFileError, read_program
-from service.waypoints import PoseTargets, WaypointError, load_motion
+from service.waypoints import PoseTargets, WaypointError, dropped_times_warning, load_motion
 
 EXIT_OK, EXIT_ERROR_REPLY, EXIT_NO_ANSWER = 0, 1, 2
 PROG = "pvtflow request"
@@ -359,6 +359,8 @@ def _add_waypoints(args: argparse.Namespace, client: Client, payload: dict[str, 
             payload["start"] = motion.start.tolist()
     else:
         payload["waypoints"] = motion.tolist()
+        if warning := dropped_times_warning(args.waypoints):
+            print(f"{PROG}: {warning}", file=sys.stderr)
 
 
 def _client_config(args: argparse.Namespace) -> zenoh.Config:
