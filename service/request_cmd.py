@@ -205,7 +205,11 @@ def add_parser(subparsers: Any) -> None:
         "--target", metavar="Q1,Q2,...", help="plan: one goal in joint units, comma separated (not with --waypoints)"
     )
     p.add_argument(
-        "--start", choices=("current", "first"), help="plan: start at the axes (default) or the first waypoint"
+        "--start",
+        choices=("current", "first"),
+        help="plan: where the motion starts. first: at the first waypoint (the default for a --waypoints file of "
+        "two rows or more, as pvtflow plan reads it: execute then refuses unless the axes are there); current: "
+        "at the axes, then through every waypoint (the default for --target and a one-row file)",
     )
     p.add_argument(
         "--velocity-scale",
@@ -341,8 +345,10 @@ def _max_jerk(text: str) -> list[float]:
 
 
 def _add_waypoints(args: argparse.Namespace, client: Client, payload: dict[str, Any]) -> None:
-    """plan --waypoints: the file read in the cell's joint order (asked of the service). One waypoint is a
-    motion from where the axes are, as the service takes it; a pose file becomes a poses request."""
+    """plan --waypoints: the file read in the cell's joint order (asked of the service). A file starts at
+    its first row, as ``pvtflow plan`` reads it (``start: first``): never a silent detour from where the
+    axes stand through that row; ``--start current`` asks for that motion. One row is a goal from where
+    the axes are, as ``--target``; a pose file becomes a poses request."""
     status = client.request(args.cell, "status", {"recent": 0}, args.timeout)
     if not status.ok:
         raise _InputError(f"cannot learn the joints of cell {args.cell}: {status.data['error']['message']}")
@@ -359,6 +365,8 @@ def _add_waypoints(args: argparse.Namespace, client: Client, payload: dict[str, 
             payload["start"] = motion.start.tolist()
     else:
         payload["waypoints"] = motion.tolist()
+        if args.start is None and len(motion) >= 2:  # a file starts at its first row, as in pvtflow plan
+            payload["start"] = "first"
         if warning := dropped_times_warning(args.waypoints):
             print(f"{PROG}: {warning}", file=sys.stderr)
 
