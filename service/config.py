@@ -12,8 +12,10 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
+import numpy as np
 import yaml
 from can.interfaces import VALID_INTERFACES
+from numpy.typing import NDArray
 
 from axes import objects as od
 from axes.config import AxisConfig, AxisSimulation, BufferConfig, BusConfig, HomingConfig
@@ -84,6 +86,19 @@ class CellConfig:
     def ordered_axes(self) -> tuple[AxisConfig, ...]:
         """The axes in the model's joint order."""
         return tuple(self.axis_for_joint(j) for j in self.joint_names)
+
+    def home_position(self) -> NDArray[np.float64]:
+        """Where the axes stand after homing, in joint units (the cell's joint order): each axis's home
+        position reads its 0x607C (``homing.offset_qc``). ValueError naming the axes without a homing
+        section (they have no home: an absolute encoder stands where it stood)."""
+        axes = self.ordered_axes()
+        missing = [a.joint for a in axes if a.homing is None]
+        if missing:
+            raise ValueError(
+                f"cell {self.name} has no home position: {', '.join(missing)} "
+                f"{'has' if len(missing) == 1 else 'have'} no homing section"
+            )
+        return np.array([float(a.scaling.qc_to_position(a.homing.offset_qc)) for a in axes])  # type: ignore[union-attr]
 
     def joint_limits(self) -> JointLimits:
         """Joint-space limits: the drives' (through the scaling) merged with the URDF's."""

@@ -21,11 +21,11 @@ from typing import Any
 
 from axes.group import AxisGroup
 from axes.outcome import Event, EventKind, Progress, Result, RunResult
-from axes.program import program_mismatch
+from axes.program import PvtProgram, program_mismatch
 from service.api import refusals
 from service.cell_bus import CellBusError, add_bus_options, open_cell_bus
 from service.cli import can_log_problem
-from service.config import ConfigError, load_cell_config
+from service.config import CellConfig, ConfigError, load_cell_config
 from service.home_cmd import describe_homing, home_cell
 from service.program_fit import mismatch_lines
 from service.validate_cmd import ProgramFileError, read_program
@@ -33,7 +33,7 @@ from service.validate_cmd import ProgramFileError, read_program
 EXIT_OK, EXIT_FAILED, EXIT_UNREADABLE = 0, 1, 2
 PROG = "pvtflow execute"
 # where a program that does not start where the axes stand comes from, offline
-START_HINT = "plan again from where the axes stand"
+START_HINT = "give --approach to move there first, or plan from where they stand (pvtflow plan --start home)"
 
 
 def add_parser(subparsers: Any) -> None:
@@ -49,6 +49,12 @@ def add_parser(subparsers: Any) -> None:
         "--home",
         action="store_true",
         help="home the cell's axes first when the cell requires homing (without it such a cell refuses: not_homed)",
+    )
+    p.add_argument(
+        "--approach",
+        action="store_true",
+        help="where the axes are not at the program's start (e.g. after --home): first move them there, a joint "
+        "move within the limits planned by the cell's planner; without it such a program is refused (start_mismatch)",
     )
     p.set_defaults(run=run)
 
@@ -85,6 +91,30 @@ def describe(result: RunResult) -> str:
             f"program end {a.target_position} qc), {feed.sent}/{feed.records} records{levels}"
         )
     return "\n".join(lines)
+
+
+def approach(cell: CellConfig, group: AxisGroup, program: PvtProgram, quiet: bool) -> int | None:
+    """--approach: the joint move from where the axes stand to the program's start, run to its end
+    (service/approach.py); None when the program may start (moved there, or already there), else the exit."""
+    from service.api import ApiError
+    from service.approach import away_from_start, plan_approach
+    from service.cell_planner import CellPlanner
+
+    by_joint = {s.joint: s.position for s in group.status(refresh=True).axes}
+    positions = [by_joint[a.joint] for a in cell.ordered_axes()]
+    if not away_from_start(positions, program, cell.ordered_axes(), group.start_tolerance_qc):
+        return None
+    try:
+        move = plan_approach(CellPlanner(cell), cell, positions, program)
+    except ApiError as exc:
+        return _fail(f"{exc.line()}: the program was not sent", EXIT_FAILED)
+    if not quiet:
+        print(f"approach: a {move.duration_ms / 1000:.3f} s joint move to the program's start", flush=True)
+    moved = group.run(move)
+    if not moved.ok:
+        print(describe(moved), flush=True)
+        return _fail(f"the approach ended {moved.result.value}: the program was not sent", EXIT_FAILED)
+    return None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -144,6 +174,8 @@ def run(args: argparse.Namespace) -> int:
                     if not homing.ok:
                         print(f"{PROG}: the homing failed: the program was not sent", file=sys.stderr)
                         return EXIT_FAILED
+                if args.approach and (refused := approach(cell, group, program, quiet)) is not None:
+                    return refused
                 try:
                     result = group.run(program)
                 except KeyboardInterrupt:

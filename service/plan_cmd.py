@@ -12,16 +12,18 @@ import argparse
 import json
 import sys
 import threading
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from planner.limits import check_max_jerk, check_scale
 from planner.plan import PlanInput
 from service.api import ApiError, ErrorCode, check_limits, refusals
 from service.cell_planner import plan_cell_program
-from service.config import ConfigError, load_cell_config
+from service.config import CellConfig, ConfigError, load_cell_config
 from service.waypoints import PoseTargets, WaypointError, dropped_times_warning, load_motion
 
 EXIT_OK, EXIT_NOT_PLANNED, EXIT_BAD_INPUT = 0, 1, 2
@@ -49,6 +51,13 @@ def add_parser(subparsers: Any) -> None:
         '{"poses": [[x, y, z, qx, qy, qz, qw], ...], "motion": "linear" or "joint", "start": [joint values]}',
     )
     p.add_argument("-o", "--output", metavar="PROGRAM.json", required=True, help="where to write the program")
+    p.add_argument(
+        "--start",
+        choices=("first", "home"),
+        default="first",
+        help="first (default): the motion starts at the first waypoint (a pose file: at its start); home: at the "
+        "cell's home position (where homing leaves the axes: each axis's 0x607C), then through every waypoint or pose",
+    )
     p.add_argument(
         "--tolerance",
         type=float,
@@ -87,6 +96,24 @@ def _numbers(text: str) -> list[float] | str:
         return text
 
 
+def from_home(motion: NDArray[np.float64] | PoseTargets, cell: CellConfig) -> NDArray[np.float64] | PoseTargets:
+    """The motion from the cell's home position: waypoints with it as their first row (a first row within
+    a count of it is taken as it, as the service does for ``start: home``), poses with it as their start.
+    ValueError for a cell without a home, or a pose file that names its own start."""
+    home = cell.home_position()
+    if isinstance(motion, PoseTargets):
+        if motion.start is not None:
+            raise ValueError('the pose file names its own start: leave it out (or "current") to start at home')
+        return replace(motion, start=home)
+    qc = [
+        (a.scaling.position_to_qc(x), a.scaling.position_to_qc(h))
+        for a, x, h in zip(cell.ordered_axes(), motion[0], home, strict=True)
+    ]
+    if max(abs(float(x) - float(h)) for x, h in qc) <= 1.0:
+        return np.vstack([home, motion[1:]])
+    return np.vstack([home, motion])
+
+
 def _say_compiling() -> None:
     print(
         f"pvtflow plan: still planning (on a new machine the first plan compiles the planner's loops first: "
@@ -107,9 +134,14 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         return _fail(EXIT_BAD_INPUT, str(exc))
     try:
-        motion = load_motion(args.waypoints, cell.joint_names)
+        motion = load_motion(args.waypoints, cell.joint_names, min_count=1 if args.start == "home" else 2)
     except WaypointError as exc:
         return _fail(EXIT_BAD_INPUT, str(exc))
+    if args.start == "home":
+        try:
+            motion = from_home(motion, cell)
+        except ValueError as exc:
+            return _fail(EXIT_BAD_INPUT, f"--start home: {exc}")
     if isinstance(motion, PoseTargets) and motion.start is None:
         return _fail(
             EXIT_BAD_INPUT,

@@ -206,10 +206,17 @@ def add_parser(subparsers: Any) -> None:
     )
     p.add_argument(
         "--start",
-        choices=("current", "first"),
+        choices=("current", "first", "home"),
         help="plan: where the motion starts. first: at the first waypoint (the default for a --waypoints file of "
         "two rows or more, as pvtflow plan reads it: execute then refuses unless the axes are there); current: "
-        "at the axes, then through every waypoint (the default for --target and a one-row file)",
+        "at the axes, then through every waypoint (the default for --target and a one-row file); home: at the "
+        "cell's home position, then through every waypoint or pose",
+    )
+    p.add_argument(
+        "--approach",
+        action="store_true",
+        help="execute: where the axes are not at the program's start, move them there first (a joint move within "
+        "the limits, planned by the cell's planner); without it such a program is refused (start_mismatch)",
     )
     p.add_argument(
         "--velocity-scale",
@@ -258,6 +265,7 @@ _FOR_OPS: dict[str, tuple[str, ...]] = {
     "max_jerk": ("plan",),
     "program": ("validate", "execute"),
     "wait": ("execute", "home"),
+    "approach": ("execute",),
     "joints": ("home",),
     "reason": ("stop",),
     "recent": ("status",),
@@ -318,6 +326,8 @@ def _local_payload(args: argparse.Namespace) -> Any:
             raise _InputError(f"{op} needs a PLAN_ID or --program FILE")
         if op == "execute" and args.wait:
             out["wait"] = True
+        if op == "execute" and args.approach:
+            out["approach"] = True
     elif op == "home":
         if args.joints is not None:
             joints = [j.strip() for j in args.joints.split(",")]
@@ -357,8 +367,10 @@ def _add_waypoints(args: argparse.Namespace, client: Client, payload: dict[str, 
     except WaypointError as exc:
         raise _InputError(str(exc)) from None
     if isinstance(motion, PoseTargets):
-        if args.start is not None:
-            raise _InputError("--start is for waypoints; a pose file says where it starts (its start field)")
+        if args.start not in (None, "home") or (args.start == "home" and motion.start is not None):
+            raise _InputError(
+                "a pose file says where it starts (its start field); --start home only where it names none"
+            )
         payload["poses"] = motion.poses.tolist()
         payload["motion"] = motion.motion
         if motion.start is not None:

@@ -107,13 +107,14 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
                 },
                 "start": {
                     "anyOf": [
-                        {"enum": ["current", "first"]},
+                        {"enum": ["current", "first", "home"]},
                         {"type": "array", "items": {"type": "number"}},
                     ],
                     "default": "current",
                     "description": "current: from where the axes are now; first (waypoints): the first waypoint is "
-                    "the start; a list of joint values (poses): the motion starts there (execute then checks the "
-                    "axes are there)",
+                    "the start; home: the cell's home position (where homing leaves the axes: each axis's 0x607C), "
+                    "then through every waypoint or pose; a list of joint values (poses): the motion starts there "
+                    "(execute then checks the axes are there)",
                 },
                 "tolerance_qc": {
                     "type": "number",
@@ -167,6 +168,13 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
                     "type": "boolean",
                     "default": False,
                     "description": "reply at the end of the motion (with its outcome) instead of at its start",
+                },
+                "approach": {
+                    "type": "boolean",
+                    "default": False,
+                    "description": "where the axes are not at the program's start: first move them there, a joint "
+                    "move within the limits planned by the cell's planner (a motion of its own, journaled), then "
+                    "start the program; without it such a program is refused (start_mismatch)",
                 },
             },
             oneOf=[{"required": ["plan_id"]}, {"required": ["program"]}],
@@ -316,6 +324,10 @@ def reply_schema(name: str) -> dict[str, Any]:
                 "duration_ms": {"type": "integer"},
                 "start_sync": _INT_OR_NULL,
                 "outcome": {"type": ["object", "null"]},
+                "approach": {
+                    "type": ["object", "null"],
+                    "description": "the approach motion (motion_id, duration_ms, outcome) when one ran first",
+                },
             },
         }
     elif name == "stop":
