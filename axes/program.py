@@ -287,6 +287,10 @@ def axes_of(program: PvtProgram) -> tuple[AxisConfig, ...]:
     )
 
 
+def _shown(value: float | int | None) -> str:
+    return "unset" if value is None else f"{value:g}"
+
+
 def program_mismatch(program: PvtProgram, axes: Sequence[AxisConfig], cell_name: str) -> list[str]:
     """Why ``program`` was not made for the cell whose axes are ``axes`` (empty: it was): the one
     check of a program against a cell, for the group's start, ``pvtflow execute`` and the service."""
@@ -309,10 +313,13 @@ def program_mismatch(program: PvtProgram, axes: Sequence[AxisConfig], cell_name:
                 f"{where}: interpolation submode {a.interpolation_submode}, "
                 f"the cell's drive uses {axis.interpolation_submode}"
             )
-        if a.limits.to_json() != axis.limits.to_json():
-            problems.append(
-                f"{where}: planned for drive limits {a.limits.to_json()}, the cell's drive has {axis.limits.to_json()}"
-            )
+        planned, cell_has = a.limits.to_json(), axis.limits.to_json()
+        for name in sorted(planned.keys() | cell_has.keys()):  # one line per differing limit object
+            if planned.get(name) != cell_has.get(name):
+                problems.append(
+                    f"{where}: limits.{name} {_shown(planned.get(name))} in the program, "
+                    f"{_shown(cell_has.get(name))} in cell {cell_name}"
+                )
         for name in ("qc_per_motor_rev", "motor_rev_per_joint_unit", "velocity_unit_rpm"):
             mine, theirs = getattr(a.scaling, name), getattr(axis.scaling, name)
             if not math.isclose(mine, theirs, rel_tol=1e-6):

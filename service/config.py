@@ -12,8 +12,10 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
+import numpy as np
 import yaml
 from can.interfaces import VALID_INTERFACES
+from numpy.typing import NDArray
 
 from axes import objects as od
 from axes.budget import bus_budget
@@ -27,6 +29,7 @@ from planner.model import ModelError, RobotModel
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 DEFAULT_CELL = CONFIG_DIR / "cells" / "arm6.yaml"
+ROBOTS_DIR = CONFIG_DIR / "robots"  # the shipped robots a cell file may name (robot.name)
 
 # python-can's own list of interfaces (``udp_multicast`` among them: it sends to a multicast group,
 # off this host, so the tests never name it).
@@ -85,6 +88,19 @@ class CellConfig:
     def ordered_axes(self) -> tuple[AxisConfig, ...]:
         """The axes in the model's joint order."""
         return tuple(self.axis_for_joint(j) for j in self.joint_names)
+
+    def home_position(self) -> NDArray[np.float64]:
+        """Where the axes stand after homing, in joint units (the cell's joint order): each axis's home
+        position reads its 0x607C (``homing.offset_qc``). ValueError naming the axes without a homing
+        section (they have no home: an absolute encoder stands where it stood)."""
+        axes = self.ordered_axes()
+        missing = [a.joint for a in axes if a.homing is None]
+        if missing:
+            raise ValueError(
+                f"cell {self.name} has no home position: {', '.join(missing)} "
+                f"{'has' if len(missing) == 1 else 'have'} no homing section"
+            )
+        return np.array([float(a.scaling.qc_to_position(a.homing.offset_qc)) for a in axes])  # type: ignore[union-attr]
 
     def joint_limits(self) -> JointLimits:
         """Joint-space limits: the drives' (through the scaling) merged with the URDF's."""
@@ -185,18 +201,47 @@ def _yaml_error(file: Path, exc: yaml.YAMLError) -> ConfigError:
     return ConfigError(file, "", problem)  # no field: the file is not YAML yet
 
 
+def shipped_robots() -> list[str]:
+    """The robots pvtflow ships (configs/robots/NAME.urdf), by name."""
+    return sorted(p.stem for p in ROBOTS_DIR.glob("*.urdf"))
+
+
+def _robot_urdf(robot: _Fields, file: Path) -> Path:
+    """The cell's URDF: ``robot.name`` names a shipped robot (so a copied cell file keeps working
+    wherever it goes); ``robot.urdf`` is a file, relative to the cell file. A URDF not found that
+    has a shipped robot's name says which file to copy along, or the ``name`` to give instead."""
+    if ("name" in robot.data) == ("urdf" in robot.data):
+        raise robot.error("name", "give the robot's name (a shipped robot) or its urdf (a file), one of them")
+    if "name" in robot.data:
+        name = robot.get("name", robot.string)
+        urdf = ROBOTS_DIR / f"{name}.urdf"
+        if not urdf.is_file():
+            raise robot.error("name", f"no shipped robot {name!r} (shipped: {', '.join(shipped_robots())})")
+        return urdf.resolve()
+    urdf = (file.parent / robot.get("urdf", robot.string)).resolve()
+    if urdf.is_file():
+        return urdf
+    hint = ""
+    if urdf.stem in shipped_robots():
+        hint = (
+            f"; it is a shipped robot: write `robot: {{name: {urdf.stem}}}` instead, or copy "
+            f"{ROBOTS_DIR / urdf.name} along (the path is relative to the cell file)"
+        )
+    raise robot.error("urdf", f"URDF file not found: {urdf}{hint}")
+
+
 def parse_cell_config(data: Any, file: Path) -> CellConfig:
     top = _Fields(
         file, "", data, ("name", "robot", "bus", "axes", "planning", "simulated", "homing_order", "requires_homing")
     )
     name = top.get("name", top.string)
 
-    robot = _Fields(file, "robot", top.data.get("robot"), ("urdf", "tcp_frame")) if "robot" in top.data else None
+    robot = (
+        _Fields(file, "robot", top.data.get("robot"), ("name", "urdf", "tcp_frame")) if "robot" in top.data else None
+    )
     if robot is None:
         raise top.error("robot", "missing")
-    urdf = (file.parent / robot.get("urdf", robot.string)).resolve()
-    if not urdf.is_file():
-        raise robot.error("urdf", f"URDF file not found: {urdf}")
+    urdf = _robot_urdf(robot, file)
     try:
         model = RobotModel.from_urdf(urdf)
     except ModelError as exc:

@@ -21,7 +21,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 import pinocchio as pin
@@ -104,10 +104,14 @@ class ToolTrace:
 
 
 class _Follower:
-    """Collects telemetry and events of one cell, and draws the progress bar."""
+    """Collects telemetry and events of one cell, and shows the progress: a bar redrawn in place on a
+    terminal; into a pipe or a file (no terminal to redraw on), one plain line per tenth of the motion."""
 
-    def __init__(self, width: int = 40) -> None:
+    def __init__(self, width: int = 40, stream: TextIO | None = None) -> None:
         self.width = width
+        self.stream = stream if stream is not None else sys.stdout
+        self.tty = self.stream.isatty()
+        self._tenths = -1  # the last tenth of the motion a plain line was written for
         self.telemetry: list[dict[str, Any]] = []  # of the present motion
         self.by_motion: dict[str, list[dict[str, Any]]] = {}
         self.events: list[dict[str, Any]] = []
@@ -120,6 +124,7 @@ class _Follower:
     def follow(self, motion_id: str) -> None:
         """From now on, collect the telemetry and wait for the end of ``motion_id``."""
         self.telemetry = self.by_motion.setdefault(motion_id, [])
+        self._tenths = -1
         self.outcome = None
         self.ended.clear()
         self.motion_id = motion_id
@@ -132,11 +137,21 @@ class _Follower:
         progress = d.get("progress") or 0.0
         filled = round(progress * self.width)
         levels = " ".join("-" if lv is None else f"{lv:2d}" for lv in d["buffer_levels"])
-        sys.stdout.write(
-            f"\r  [{'#' * filled}{'.' * (self.width - filled)}] {100 * progress:5.1f}%  "
-            f"t={d['elapsed_ms'] / 1000:6.3f} s  buffers {levels} "
-        )
-        sys.stdout.flush()
+        what = f"{100 * progress:5.1f}%  t={d['elapsed_ms'] / 1000:6.3f} s  buffers {levels}"
+        if self.tty:
+            self.stream.write(f"\r  [{'#' * filled}{'.' * (self.width - filled)}] {what} ")
+        elif int(10 * progress) > self._tenths:
+            self._tenths = int(10 * progress)
+            self.stream.write(f"  {what}\n")
+        else:
+            return
+        self.stream.flush()
+
+    def end_line(self) -> None:
+        """End the bar's line (a terminal only: plain lines end themselves)."""
+        if self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
 
     def on_event(self, cell: str, d: dict[str, Any]) -> None:
         del cell
@@ -213,7 +228,7 @@ def _run_motion(client: Client, name: str, request: dict[str, Any], follower: _F
         print(f"\n{PROG}: {what}: the motion did not end in time: stopping it", file=sys.stderr)
         client.request(name, "stop", {"reason": "demo timeout"})
         return None
-    print()
+    follower.end_line()
     outcome = follower.outcome or {}
     print(
         f"  {what}: plan {p['plan_id']}, {p['waypoints']} joint waypoints, {p['duration_s']:.3f} s; "
@@ -380,7 +395,7 @@ def _demo(
         print(f"\n{PROG}: the motion did not end in time: stopping it", file=sys.stderr)
         client.request(name, "stop", {"reason": "demo timeout"})
         return EXIT_FAILED
-    print()
+    follower.end_line()
     final = client.request(name, "status", {"recent": 1})
     outcome = follower.outcome or {}
     print(f"  outcome: {outcome.get('result')}: {outcome.get('message')}")

@@ -20,16 +20,20 @@ from pathlib import Path
 from typing import Any
 
 from axes.group import AxisGroup
-from axes.outcome import Event, EventKind, Progress, RunResult
+from axes.outcome import Event, EventKind, Progress, Result, RunResult
 from axes.program import PvtProgram, program_mismatch
+from service.api import refusals
 from service.cell_bus import CellBusError, add_bus_options, open_cell_bus
 from service.cli import can_log_problem
-from service.config import ConfigError, load_cell_config
+from service.config import CellConfig, ConfigError, load_cell_config
 from service.home_cmd import describe_homing, home_cell
+from service.program_fit import mismatch_lines
 from service.validate_cmd import ProgramFileError, read_program
 
 EXIT_OK, EXIT_FAILED, EXIT_UNREADABLE = 0, 1, 2
 PROG = "pvtflow execute"
+# where a program that does not start where the axes stand comes from, offline
+START_HINT = "give --approach to move there first, or plan from where they stand (pvtflow plan --start home)"
 
 
 def add_parser(subparsers: Any) -> None:
@@ -46,20 +50,18 @@ def add_parser(subparsers: Any) -> None:
         action="store_true",
         help="home the cell's axes first when the cell requires homing (without it such a cell refuses: not_homed)",
     )
+    p.add_argument(
+        "--approach",
+        action="store_true",
+        help="where the axes are not at the program's start (e.g. after --home): first move them there, a joint "
+        "move within the limits planned by the cell's planner; without it such a program is refused (start_mismatch)",
+    )
     p.set_defaults(run=run)
 
 
 def _fail(message: str, code: int) -> int:
     print(f"{PROG}: {message}", file=sys.stderr)
     return code
-
-
-def validation_problems(program: PvtProgram, source: str) -> tuple[bool, str]:
-    """(ok, report text) from the shared validator."""
-    from planner.validate import validate_program
-
-    report = validate_program(program, source=source)
-    return report.ok, report.format_text()
 
 
 def describe(result: RunResult) -> str:
@@ -76,7 +78,12 @@ def describe(result: RunResult) -> str:
         )
     for a in result.axes:
         feed = a.feed
-        levels = "" if feed.max_level is None else f", buffer {feed.min_level}..{feed.max_level}"
+        # the drive's record buffer (FIFO) during the run: records queued and not yet executed, least..most
+        levels = (
+            ""
+            if feed.max_level is None
+            else f", {feed.min_level}..{feed.max_level} records queued in the drive's buffer during the run"
+        )
         # the names of the outcome's JSON (RunResult.to_json): position in joint units, position_qc in counts
         position = "unknown" if a.joint_position is None else f"{a.joint_position:+.6g}"
         lines.append(
@@ -84,6 +91,30 @@ def describe(result: RunResult) -> str:
             f"program end {a.target_position} qc), {feed.sent}/{feed.records} records{levels}"
         )
     return "\n".join(lines)
+
+
+def approach(cell: CellConfig, group: AxisGroup, program: PvtProgram, quiet: bool) -> int | None:
+    """--approach: the joint move from where the axes stand to the program's start, run to its end
+    (service/approach.py); None when the program may start (moved there, or already there), else the exit."""
+    from service.api import ApiError
+    from service.approach import away_from_start, plan_approach
+    from service.cell_planner import CellPlanner
+
+    by_joint = {s.joint: s.position for s in group.status(refresh=True).axes}
+    positions = [by_joint[a.joint] for a in cell.ordered_axes()]
+    if not away_from_start(positions, program, cell.ordered_axes(), group.start_tolerance_qc):
+        return None
+    try:
+        move = plan_approach(CellPlanner(cell), cell, positions, program)
+    except ApiError as exc:
+        return _fail(f"{exc.line()}: the program was not sent", EXIT_FAILED)
+    if not quiet:
+        print(f"approach: a {move.duration_ms / 1000:.3f} s joint move to the program's start", flush=True)
+    moved = group.run(move)
+    if not moved.ok:
+        print(describe(moved), flush=True)
+        return _fail(f"the approach ended {moved.result.value}: the program was not sent", EXIT_FAILED)
+    return None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -99,22 +130,22 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         return _fail(str(exc), EXIT_UNREADABLE)
 
-    ok, report = validation_problems(program, str(path))
-    if not ok:
-        print(report, file=sys.stderr)
-        return _fail(f"{path}: the program breaks its drives' rules: nothing was sent", EXIT_FAILED)
+    from planner.validate import validate_program
+
+    report = validate_program(program, source=str(path))
+    if not report.ok:
+        print(report.format_text(), file=sys.stderr)
+        refusal = refusals.validation_failed([f.format() for f in report.errors], report.to_json())
+        return _fail(f"{path}: {refusal.line()}", EXIT_FAILED)
     mismatch = program_mismatch(program, cell.ordered_axes(), cell.name)
     if mismatch:
-        for line in mismatch:
+        for line in mismatch_lines(program, cell):
             print(f"  {line}", file=sys.stderr)
-        return _fail(f"{path}: the program was not made for cell {cell.name}: nothing was sent", EXIT_FAILED)
+        return _fail(f"{path}: {refusals.wrong_cell(cell.name, mismatch, program.cell).line()}", EXIT_FAILED)
 
     if cell.requires_homing and not args.home:
-        return _fail(
-            f"not_homed: cell {cell.name} requires homing (incremental encoders): nothing was sent; "
-            "home it with --home (or plan for where its axes stand after homing)",
-            EXIT_FAILED,
-        )
+        joints = [a.joint for a in cell.ordered_axes()]
+        return _fail(refusals.not_homed(cell.name, joints, "give --home; nothing was sent").line(), EXIT_FAILED)
     quiet = bool(args.quiet)
 
     def on_event(event: Event) -> None:
@@ -124,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
 
     def on_progress(p: Progress) -> None:
         levels = " ".join("-" if lv is None else str(lv) for lv in p.levels)
-        print(f"t={p.elapsed_ms / 1000:8.3f} s  SYNC {p.sync}  buffer levels {levels}", flush=True)
+        print(f"t={p.elapsed_ms / 1000:8.3f} s  SYNC {p.sync}  records queued per drive {levels}", flush=True)
 
     duration_syncs = max(1, int(program.duration_ms / cell.bus.sync_period_ms))
     try:
@@ -143,6 +174,8 @@ def run(args: argparse.Namespace) -> int:
                     if not homing.ok:
                         print(f"{PROG}: the homing failed: the program was not sent", file=sys.stderr)
                         return EXIT_FAILED
+                if args.approach and (refused := approach(cell, group, program, quiet)) is not None:
+                    return refused
                 try:
                     result = group.run(program)
                 except KeyboardInterrupt:
@@ -152,6 +185,8 @@ def run(args: argparse.Namespace) -> int:
                 group.close()
     except CellBusError as exc:
         return _fail(str(exc), EXIT_UNREADABLE)
+    if result.result is Result.REJECTED:  # refused at the start, nothing moved: the service's words
+        return _fail(refusals.run_refused(result, hint=START_HINT).line(), EXIT_FAILED)
     print(describe(result), flush=True)
     if args.can_log:
         print(f"CAN log: {args.can_log} ({bus.recorder.frames} frames)")

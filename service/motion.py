@@ -55,7 +55,9 @@ from service.api import (
     StatusRequest,
     StopRequest,
     ValidateRequest,
+    refusals,
 )
+from service.approach import away_from_start, plan_approach
 from service.cell_planner import CellPlanner
 from service.config import CellConfig
 from service.journal import Journal, JournalError, MotionEntry, default_directory
@@ -292,6 +294,13 @@ class MotionService:
             for a, p in zip(self.axes, positions_qc, strict=True)
         ]
 
+    def home_position(self) -> NDArray[np.float64]:
+        """The cell's home position (service.config.CellConfig.home_position); NOT_ALLOWED on a cell without one."""
+        try:
+            return self.cell.home_position()
+        except ValueError as exc:
+            raise ApiError(ErrorCode.NOT_ALLOWED, f"start home: {exc}", {"path": "$.start"}) from None
+
     def current_joint_positions(self) -> NDArray[np.float64]:
         qc = self.positions_qc(refresh=True)
         if any(p is None for p in qc):
@@ -309,9 +318,13 @@ class MotionService:
             "max_jerk": req.max_jerk,
         }
         if req.poses is not None:
-            if req.start_joints is None:
+            if req.start == "home":
+                q0 = self.home_position()
+            elif req.start_joints is not None:
+                q0 = req.start_joints
+            else:
                 self._refuse_unless_homed(self._group())
-            q0 = req.start_joints if req.start_joints is not None else self.current_joint_positions()
+                q0 = self.current_joint_positions()
             with self._planner_lock:
                 result = self.planner.plan(
                     PlanInput(q0, req.poses, req.motion, **scales), req.tolerance_qc, {"plan_id": plan_id}
@@ -319,9 +332,12 @@ class MotionService:
             waypoints = result.waypoints if result.waypoints is not None else q0[None, :]
         else:
             waypoints = req.waypoints
-            if req.start == "current":
-                self._refuse_unless_homed(self._group())
-                q0 = self.current_joint_positions()
+            if req.start in ("current", "home"):
+                if req.start == "home":
+                    q0 = self.home_position()
+                else:
+                    self._refuse_unless_homed(self._group())
+                    q0 = self.current_joint_positions()
                 first_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, waypoints[0], strict=True)]
                 here_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, q0, strict=True)]
                 if max(abs(x - y) for x, y in zip(first_qc, here_qc, strict=True)) <= 1.0:
@@ -331,17 +347,14 @@ class MotionService:
                 if len(waypoints) < 2:
                     raise ApiError(
                         ErrorCode.PLAN_FAILED,
-                        "the axes are already at the target: nothing to move",
+                        f"the {'axes are' if req.start == 'current' else 'home position is'} already at the target: "
+                        "nothing to move",
                         {"result": "repeated_waypoint"},
                     )
             with self._planner_lock:
                 result = self.planner.plan(PlanInput(waypoints, **scales), req.tolerance_qc, {"plan_id": plan_id})
         if not result.ok or result.program is None or result.build is None:
-            raise ApiError(
-                ErrorCode.PLAN_FAILED,
-                f"cannot plan this motion on cell {self.cell.name} ({result.code}): {result.message}",
-                {"result": result.code, **_plain(result.details)},
-            )
+            raise refusals.plan_failed(self.cell.name, result.code, result.message, _plain(result.details))
         program = result.program
         timing = {k: round(v * 1000.0, 3) for k, v in result.timing.items()}
         timing["request"] = round((time.perf_counter() - t0) * 1000.0, 3)
@@ -406,19 +419,44 @@ class MotionService:
             program, plan_id, label = self._program_from_json(req.program), None, req.label
             report = validate_program(program)
             if not report.ok:
-                raise ApiError(
-                    ErrorCode.VALIDATION_FAILED,
-                    "the program breaks its drives' rules: nothing was sent: "
-                    + "; ".join(f.format() for f in report.errors[:3]),
-                    {"report": report.to_json()},
-                )
+                raise refusals.validation_failed([f.format() for f in report.errors], report.to_json())
             problems = program_mismatch(program, self.cell.ordered_axes(), self.cell.name)
             if problems:
-                raise ApiError(
-                    ErrorCode.WRONG_CELL,
-                    f"the program was not made for cell {self.cell.name}: " + "; ".join(problems[:3]),
-                    {"problems": problems},
-                )
+                raise refusals.wrong_cell(self.cell.name, problems, program.cell)
+        approach = self._approach(program, plan_id) if req.approach else None
+        motion = self._start(program, plan_id, label)
+        if req.wait:
+            motion.done.wait()
+        return {**motion.summary(), "approach": approach}
+
+    def _approach(self, program: PvtProgram, plan_id: str | None) -> dict[str, Any] | None:
+        """Asked for (``approach: true``) and the axes are elsewhere: the approach move to the program's
+        start (service/approach.py), run to its end as a motion of its own; its summary (None: the axes
+        are at the start already). Refused like any execute, and when the approach does not finish."""
+        group = self._group()
+        with self._lock:
+            self._refuse_if_busy(group)
+            self._refuse_unless_homed(group)
+            self._refuse_if_faulted(group)
+        positions = self.positions_qc(refresh=True)
+        if not away_from_start(positions, program, self.cell.ordered_axes(), group.start_tolerance_qc):
+            return None
+        with self._planner_lock:
+            move = plan_approach(self.planner, self.cell, positions, program)
+        motion = self._start(move, None, f"approach to {plan_id or 'a program'}")
+        motion.done.wait()
+        summary = motion.summary()
+        if motion.result is None or not motion.result.ok:
+            ended = motion.result.result.value if motion.result is not None else "without an outcome"
+            raise ApiError(
+                ErrorCode.NOT_ALLOWED,
+                f"the approach to the program's start ended {ended}: the program was not started",
+                {"approach": summary},
+            )
+        return summary
+
+    def _start(self, program: PvtProgram, plan_id: str | None, label: str | None) -> Motion:
+        """Start ``program`` (journaled first) unless the cell refuses it; the motion, running."""
         group = self._group()
         with self._lock:
             self._refuse_if_busy(group)
@@ -456,9 +494,7 @@ class MotionService:
             motion.start_sync = None if elapsed is None else group.bus.sync.answered - elapsed
             self._set_state(CellState.MOVING, motion.motion_id)
             self._started.put(motion)
-        if req.wait:
-            motion.done.wait()
-        return motion.summary()
+        return motion
 
     def _refuse_if_busy(self, group: AxisGroup) -> None:
         homing = self.homing
@@ -486,12 +522,7 @@ class MotionService:
             return
         missing = [link.joint for link, homed in zip(group.links, group.homed, strict=True) if not homed]
         if missing:
-            raise ApiError(
-                ErrorCode.NOT_HOMED,
-                f"cell {self.cell.name} must home first: {', '.join(missing)} not homed since "
-                f"{'its drive' if len(missing) == 1 else 'their drives'} last booted: call home",
-                {"joints": missing},
-            )
+            raise refusals.not_homed(self.cell.name, missing)
 
     def _refuse_if_faulted(self, group: AxisGroup) -> None:
         if self.state == CellState.FAULT:
@@ -518,20 +549,10 @@ class MotionService:
         for link in group.links:
             start = starts.get(link.node_id)
             if start is not None and link.position is not None and abs(link.position - start) > tolerance:
-                raise ApiError(
-                    ErrorCode.START_MISMATCH,
-                    f"axis {link.joint} is at {link.position} qc, the program "
-                    f"starts at {start} qc: plan again from the current position",
-                    {"joint": link.joint, "position_qc": link.position, "start_qc": start},
-                )
+                raise refusals.start_mismatch(link.joint, link.position, start)
 
     def _start_error(self, early: RunResult, motion: Motion) -> ApiError:
-        details = {"motion_id": motion.motion_id, "outcome": early.to_json()}
-        if early.result is Result.REJECTED and early.joint is not None:
-            return ApiError(ErrorCode.START_MISMATCH, f"{early.message}: plan again from the current position", details)
-        if early.result is Result.REJECTED:
-            return ApiError(ErrorCode.WRONG_CELL, early.message, details)
-        return ApiError(ErrorCode.DRIVE_FAULT, f"the drives did not start: {early.message}", details)
+        return refusals.run_refused(early, {"motion_id": motion.motion_id})
 
     def _watch_motions(self) -> None:
         """One long-lived thread waits for each motion's end (a thread start per execute costs ms)."""

@@ -11,16 +11,26 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from planner.limits import check_max_jerk, check_scale
 from planner.plan import PlanInput
+from service.api import ApiError, ErrorCode, check_limits, refusals
 from service.cell_planner import plan_cell_program
-from service.config import ConfigError, load_cell_config
-from service.waypoints import PoseTargets, WaypointError, load_motion
+from service.config import CellConfig, ConfigError, load_cell_config
+from service.waypoints import PoseTargets, WaypointError, dropped_times_warning, load_motion
 
 EXIT_OK, EXIT_NOT_PLANNED, EXIT_BAD_INPUT = 0, 1, 2
+# A plan still running after this long is compiling numba's kernels (a new machine, or a kernel source
+# edited): a plan with loaded kernels takes well under it (bench/RESULTS.md), so only a compile says so.
+SLOW_PLAN_NOTICE_S = 2.0
+COMPILE_S = 15  # what compiling them takes (README, "Two commands")
 
 
 def add_parser(subparsers: Any) -> None:
@@ -41,6 +51,13 @@ def add_parser(subparsers: Any) -> None:
         '{"poses": [[x, y, z, qx, qy, qz, qw], ...], "motion": "linear" or "joint", "start": [joint values]}',
     )
     p.add_argument("-o", "--output", metavar="PROGRAM.json", required=True, help="where to write the program")
+    p.add_argument(
+        "--start",
+        choices=("first", "home"),
+        default="first",
+        help="first (default): the motion starts at the first waypoint (a pose file: at its start); home: at the "
+        "cell's home position (where homing leaves the axes: each axis's 0x607C), then through every waypoint or pose",
+    )
     p.add_argument(
         "--tolerance",
         type=float,
@@ -79,6 +96,33 @@ def _numbers(text: str) -> list[float] | str:
         return text
 
 
+def from_home(motion: NDArray[np.float64] | PoseTargets, cell: CellConfig) -> NDArray[np.float64] | PoseTargets:
+    """The motion from the cell's home position: waypoints with it as their first row (a first row within
+    a count of it is taken as it, as the service does for ``start: home``), poses with it as their start.
+    ValueError for a cell without a home, or a pose file that names its own start."""
+    home = cell.home_position()
+    if isinstance(motion, PoseTargets):
+        if motion.start is not None:
+            raise ValueError('the pose file names its own start: leave it out (or "current") to start at home')
+        return replace(motion, start=home)
+    qc = [
+        (a.scaling.position_to_qc(x), a.scaling.position_to_qc(h))
+        for a, x, h in zip(cell.ordered_axes(), motion[0], home, strict=True)
+    ]
+    if max(abs(float(x) - float(h)) for x, h in qc) <= 1.0:
+        return np.vstack([home, motion[1:]])
+    return np.vstack([home, motion])
+
+
+def _say_compiling() -> None:
+    print(
+        f"pvtflow plan: still planning (on a new machine the first plan compiles the planner's loops first: "
+        f"numba, about {COMPILE_S} s, once; cached next to the sources afterwards)",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
 def _fail(code: int, message: str) -> int:
     print(f"pvtflow plan: {message}", file=sys.stderr)
     return code
@@ -90,9 +134,14 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         return _fail(EXIT_BAD_INPUT, str(exc))
     try:
-        motion = load_motion(args.waypoints, cell.joint_names)
+        motion = load_motion(args.waypoints, cell.joint_names, min_count=1 if args.start == "home" else 2)
     except WaypointError as exc:
         return _fail(EXIT_BAD_INPUT, str(exc))
+    if args.start == "home":
+        try:
+            motion = from_home(motion, cell)
+        except ValueError as exc:
+            return _fail(EXIT_BAD_INPUT, f"--start home: {exc}")
     if isinstance(motion, PoseTargets) and motion.start is None:
         return _fail(
             EXIT_BAD_INPUT,
@@ -105,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             check_scale(option, value)
         except ValueError as exc:
-            return _fail(EXIT_BAD_INPUT, str(exc))
+            return _fail(EXIT_BAD_INPUT, ApiError(ErrorCode.INVALID_REQUEST, str(exc)).line())
 
     max_jerk = None
     if args.max_jerk is not None:
@@ -123,11 +172,20 @@ def run(args: argparse.Namespace) -> int:
         assert motion.start is not None
         inp = PlanInput(motion.start, motion.poses, motion.motion, **scales)
     else:
+        try:
+            check_limits(motion, cell.joint_limits())
+        except ApiError as exc:
+            return _fail(EXIT_NOT_PLANNED, f"{exc.code.value}: {args.waypoints}: {exc.message}")
         inp = PlanInput(motion, **scales)
-    result = plan_cell_program(cell, inp, args.tolerance)
+    notice = threading.Timer(SLOW_PLAN_NOTICE_S, _say_compiling)
+    notice.daemon = True
+    notice.start()
+    try:
+        result = plan_cell_program(cell, inp, args.tolerance)
+    finally:
+        notice.cancel()
     if not result.ok or result.program is None or result.build is None:
-        why = f"({result.code}): {result.message}"
-        return _fail(EXIT_NOT_PLANNED, f"cannot plan this motion on cell {cell.name!r} {why}")
+        return _fail(EXIT_NOT_PLANNED, refusals.plan_failed(cell.name, result.code, result.message).line())
 
     out = Path(args.output)
     try:
@@ -155,6 +213,8 @@ def run(args: argparse.Namespace) -> int:
     if isinstance(motion, PoseTargets) and result.waypoints is not None:
         summary["motion"] = motion.motion
         summary["joint_samples"] = len(result.waypoints)
+    if isinstance(motion, np.ndarray) and (warning := dropped_times_warning(args.waypoints, duration_s)):
+        print(f"pvtflow plan: {warning}", file=sys.stderr)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

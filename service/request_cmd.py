@@ -31,7 +31,7 @@ from service.server import (
     zenoh_message,
 )
 from service.validate_cmd import ProgramFileError, read_program
-from service.waypoints import PoseTargets, WaypointError, load_motion
+from service.waypoints import PoseTargets, WaypointError, dropped_times_warning, load_motion
 
 EXIT_OK, EXIT_ERROR_REPLY, EXIT_NO_ANSWER = 0, 1, 2
 PROG = "pvtflow request"
@@ -107,8 +107,7 @@ class Client:
             {
                 "error": {
                     "code": "no_reply",
-                    "message": f"no reply from {key(cell, op)} within "
-                    f"{timeout:g} s: is the service running and reachable?",
+                    "message": no_reply_reason(self, cell, op, timeout),
                     "details": {},
                 }
             },
@@ -132,6 +131,21 @@ class Client:
                 if name:
                     cells.append(name)
         return sorted(cells)
+
+
+def no_reply_reason(client: Client, cell: str, op: str, timeout: float) -> str:
+    """Why nothing answered ``pvtflow/<cell>/<op>``, from the liveliness tokens of the services the
+    session reaches: another cell's service (named, with the ``--cell`` that reaches it), none at all,
+    or this cell's service up but silent."""
+    here = client.alive("*", timeout=min(2.0, timeout))
+    waited = f"no reply from {key(cell, op)} within {timeout:g} s"
+    if "*" not in cell and cell not in here and here:
+        cells = ", ".join(here)
+        hint = f"--cell {here[0]}" if len(here) == 1 else "--cell NAME"
+        return f"{waited}: no service of cell {cell} is reachable; the services reachable serve {cells} ({hint})"
+    if here:
+        return f"{waited}: the service of {', '.join(here)} is up but did not answer in time (busy? a longer timeout)"
+    return f"{waited}: no pvtflow service is reachable: is `pvtflow serve` running, reachable at the endpoint given?"
 
 
 def check_endpoint(endpoint: str) -> str:
@@ -191,7 +205,18 @@ def add_parser(subparsers: Any) -> None:
         "--target", metavar="Q1,Q2,...", help="plan: one goal in joint units, comma separated (not with --waypoints)"
     )
     p.add_argument(
-        "--start", choices=("current", "first"), help="plan: start at the axes (default) or the first waypoint"
+        "--start",
+        choices=("current", "first", "home"),
+        help="plan: where the motion starts. first: at the first waypoint (the default for a --waypoints file of "
+        "two rows or more, as pvtflow plan reads it: execute then refuses unless the axes are there); current: "
+        "at the axes, then through every waypoint (the default for --target and a one-row file); home: at the "
+        "cell's home position, then through every waypoint or pose",
+    )
+    p.add_argument(
+        "--approach",
+        action="store_true",
+        help="execute: where the axes are not at the program's start, move them there first (a joint move within "
+        "the limits, planned by the cell's planner); without it such a program is refused (start_mismatch)",
     )
     p.add_argument(
         "--velocity-scale",
@@ -240,6 +265,7 @@ _FOR_OPS: dict[str, tuple[str, ...]] = {
     "max_jerk": ("plan",),
     "program": ("validate", "execute"),
     "wait": ("execute", "home"),
+    "approach": ("execute",),
     "joints": ("home",),
     "reason": ("stop",),
     "recent": ("status",),
@@ -300,6 +326,8 @@ def _local_payload(args: argparse.Namespace) -> Any:
             raise _InputError(f"{op} needs a PLAN_ID or --program FILE")
         if op == "execute" and args.wait:
             out["wait"] = True
+        if op == "execute" and args.approach:
+            out["approach"] = True
     elif op == "home":
         if args.joints is not None:
             joints = [j.strip() for j in args.joints.split(",")]
@@ -327,8 +355,10 @@ def _max_jerk(text: str) -> list[float]:
 
 
 def _add_waypoints(args: argparse.Namespace, client: Client, payload: dict[str, Any]) -> None:
-    """plan --waypoints: the file read in the cell's joint order (asked of the service). One waypoint is a
-    motion from where the axes are, as the service takes it; a pose file becomes a poses request."""
+    """plan --waypoints: the file read in the cell's joint order (asked of the service). A file starts at
+    its first row, as ``pvtflow plan`` reads it (``start: first``): never a silent detour from where the
+    axes stand through that row; ``--start current`` asks for that motion. One row is a goal from where
+    the axes are, as ``--target``; a pose file becomes a poses request."""
     status = client.request(args.cell, "status", {"recent": 0}, args.timeout)
     if not status.ok:
         raise _InputError(f"cannot learn the joints of cell {args.cell}: {status.data['error']['message']}")
@@ -337,14 +367,20 @@ def _add_waypoints(args: argparse.Namespace, client: Client, payload: dict[str, 
     except WaypointError as exc:
         raise _InputError(str(exc)) from None
     if isinstance(motion, PoseTargets):
-        if args.start is not None:
-            raise _InputError("--start is for waypoints; a pose file says where it starts (its start field)")
+        if args.start not in (None, "home") or (args.start == "home" and motion.start is not None):
+            raise _InputError(
+                "a pose file says where it starts (its start field); --start home only where it names none"
+            )
         payload["poses"] = motion.poses.tolist()
         payload["motion"] = motion.motion
         if motion.start is not None:
             payload["start"] = motion.start.tolist()
     else:
         payload["waypoints"] = motion.tolist()
+        if args.start is None and len(motion) >= 2:  # a file starts at its first row, as in pvtflow plan
+            payload["start"] = "first"
+        if warning := dropped_times_warning(args.waypoints):
+            print(f"{PROG}: {warning}", file=sys.stderr)
 
 
 def _client_config(args: argparse.Namespace) -> zenoh.Config:
@@ -399,11 +435,7 @@ def run(args: argparse.Namespace) -> int:
             _add_waypoints(args, client, payload)
         replies = client.replies(args.cell, args.op, payload, args.timeout)
         if not replies:
-            print(
-                f"{PROG}: no reply from {key(args.cell, args.op)} within {args.timeout:g} s: is `pvtflow serve` "
-                "running, and reachable at the endpoint given?",
-                file=sys.stderr,
-            )
+            print(f"{PROG}: {no_reply_reason(client, args.cell, args.op, args.timeout)}", file=sys.stderr)
             return EXIT_NO_ANSWER
         return _print_replies(replies, "*" in args.cell)
     except _InputError as exc:

@@ -13,8 +13,10 @@ then halts any motion and closes. It prints where it listens and how to talk to 
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import signal
+import socket
 import sys
 import threading
 from collections.abc import Sequence
@@ -59,6 +61,15 @@ def add_parser(subparsers: Any) -> None:
         help="zenoh JSON5 configuration, used as is "
         "(default: configs/zenoh/service.json5: peer on tcp/127.0.0.1:7447, no scouting)",
     )
+    where = p.add_mutually_exclusive_group()
+    where.add_argument(
+        "--listen",
+        metavar="ENDPOINT",
+        action="append",
+        help="listen on this zenoh endpoint (repeatable; e.g. tcp/127.0.0.1:7448) instead of the zenoh config's "
+        "listen endpoints; one beyond loopback needs authentication or --allow-unauthenticated, as in a config",
+    )
+    where.add_argument("--port", type=int, metavar="P", help="listen on tcp/127.0.0.1:P (the same as --listen)")
     p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
     p.add_argument(
         "--allow-unauthenticated",
@@ -159,6 +170,50 @@ def banner(service: MotionService, server: Server, allow_unauthenticated: bool =
     return "\n".join(lines)
 
 
+def listen_option(args: argparse.Namespace) -> list[str] | None:
+    """The endpoints of --listen / --port (None: the zenoh config's own); ValueError for one zenoh cannot take."""
+    from service.request_cmd import check_endpoint
+
+    if args.port is not None:
+        if not 1 <= args.port <= 65535:
+            raise ValueError(f"--port must be a TCP port 1..65535, got {args.port}")
+        return [f"tcp/127.0.0.1:{args.port}"]
+    if args.listen is None:
+        return None
+    try:
+        return [check_endpoint(e) for e in args.listen]
+    except ValueError as exc:
+        raise ValueError(f"--listen: {exc}") from None
+
+
+def endpoint_in_use(endpoints: Sequence[str]) -> str | None:
+    """Why the service could not listen on ``endpoints`` (None: the TCP/UDP ones are free), judged before
+    anything starts: the address taken (another ``pvtflow serve``?), with the way to another one."""
+    for endpoint in endpoints:
+        proto, _, address = endpoint.partition("/")
+        host, _, port = address.split("#", 1)[0].rpartition(":")
+        if proto not in ("tcp", "udp") or not port.isdigit() or int(port) == 0:
+            continue
+        kind = socket.SOCK_STREAM if proto == "tcp" else socket.SOCK_DGRAM
+        family = socket.AF_INET6 if host.startswith("[") else socket.AF_INET
+        with socket.socket(family, kind) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as zenoh binds: TIME_WAIT is no conflict
+            try:
+                s.bind((host.strip("[]"), int(port)))
+            except OSError as exc:
+                if exc.errno == errno.EADDRINUSE:
+                    return in_use_line(endpoint)
+                return f"cannot listen on {endpoint}: {exc.strerror or exc}"
+    return None
+
+
+def in_use_line(endpoint: str) -> str:
+    return (
+        f"{endpoint} is in use (another pvtflow serve? `pvtflow request status --cell '*' --connect {endpoint}` "
+        "says which cell): give this one another with --port P or --listen ENDPOINT"
+    )
+
+
 def example_target(lower: Sequence[float], upper: Sequence[float]) -> list[float]:
     """The banner's example goal: a tenth of each joint's range off its middle (alternately up and
     down), so that the printed plan command fits the cell, whatever its joints and units."""
@@ -216,8 +271,13 @@ def run(args: argparse.Namespace) -> int:
         return _fail(str(exc))
     try:
         zconfig = load_zenoh_config(args.zenoh_config)
-    except ZenohConfigError as exc:
+        listen = listen_option(args)
+    except (ZenohConfigError, ValueError) as exc:
         return _fail(str(exc))
+    if listen is not None:
+        zconfig.insert_json5("listen/endpoints", json.dumps(listen))
+    if problem := endpoint_in_use(config_endpoints(zconfig, "listen")):
+        return _fail(problem)
     exposed = exposure(zconfig)
     if exposed.open and not args.allow_unauthenticated:
         return _fail(exposed.refusal(f"zenoh config {args.zenoh_config or 'default'}"))
@@ -264,9 +324,14 @@ def run(args: argparse.Namespace) -> int:
         freeze_startup_objects()  # planner warmed up, drives configured: start-up is over
         try:
             server = Server(service, zconfig).start()
-        except Exception as exc:  # zenoh: endpoint in use, bad locator, ...
+        except Exception as exc:  # zenoh: endpoint in use (taken since the check), bad locator, ...
             service.close()
-            return _fail(f"cannot open the zenoh session: {zenoh_message(exc)}")
+            message = zenoh_message(exc)
+            if "in use" in message:
+                return _fail(
+                    endpoint_in_use(config_endpoints(zconfig, "listen")) or f"cannot open the zenoh session: {message}"
+                )
+            return _fail(f"cannot open the zenoh session: {message}")
         print(banner(service, server, args.allow_unauthenticated), flush=True)
         try:
             while not stop.wait(0.5):

@@ -35,6 +35,7 @@ from service.config import PYTHON_CAN_INTERFACES, CellConfig, ConfigError, load_
 
 EXIT_OK, EXIT_SIMULATOR_ERROR, EXIT_CANNOT_START = 0, 1, 2
 PROG = "pvtflow sim"
+HOMING_MODE = 6  # CiA 402 0x6060: homing mode
 REFUSED_INTERFACES = {"udp_multicast": "it sends to a multicast address; pvtflow only uses loopback"}
 
 
@@ -84,6 +85,7 @@ def banner(sim: SimulatedCell) -> str:
     lines = [
         f"{PROG}: cell {cell.name}: {len(sim.drives)} simulated drives on {sim.interface}:{sim.channel}",
     ]
+    homing = [a.node_id for a in cell.ordered_axes() if sim.drive(a.node_id).MODES.accepts(HOMING_MODE)]
     for axis in cell.ordered_axes():
         drive = sim.drive(axis.node_id)
         lines.append(
@@ -97,7 +99,9 @@ def banner(sim: SimulatedCell) -> str:
     )
     lines += [
         f"  pre-operational, waiting for a master (NMT, SDO, PDOs); no SYNC of their own: {clock}",
-        "  they move in interpolated position mode (7) only; other supported modes are accepted and hold the position",
+        "  they move in interpolated position mode (7)"
+        + (f", and home in homing mode (6): nodes {', '.join(map(str, homing))}" if homing else "")
+        + "; their other supported modes are accepted and hold the position",
     ]
     if sim.interface == "virtual":
         lines.append(

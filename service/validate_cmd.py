@@ -1,6 +1,9 @@
-"""``pvtflow validate PROGRAM.json... [--plot OUT.png] [--json]``: the offline validation tool.
+"""``pvtflow validate PROGRAM.json... [--config CELL] [--plot OUT.png] [--json]``: the offline validation tool.
 
-Exit codes (DESIGN.md section 8): 0 every program valid, 1 violations found, 2 unreadable input
+With ``--config`` each program must also fit the cell file (``service/program_fit.py``: the cell it was
+made for, the shipped file that fits, one line per differing field), so that a program is known to run
+on a cell before any bus opens. Exit codes: 0 every program valid (and fits), 1 violations found (or a
+program does not fit), 2 unreadable input
 (missing file, not JSON, not a PVT program). A directory stands for every ``*.json`` in it; with
 several programs a progress bar runs on stderr and a summary table closes the report.
 """
@@ -10,7 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -30,6 +33,12 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("programs", nargs="+", metavar="PROGRAM", help="program file(s) or folder(s) of *.json")
     p.add_argument("--json", action="store_true", help="print the report(s) as JSON on stdout")
     p.add_argument(
+        "--config",
+        metavar="CELL",
+        help="also check that every program fits this cell file (node ids, profiles, scaling, drive limits): "
+        "exit 0 only when each is valid and fits it",
+    )
+    p.add_argument(
         "--plot",
         metavar="OUT.png",
         help="write position, velocity and acceleration of every axis against its limits (one program only)",
@@ -45,12 +54,13 @@ class Outcome:
     report: ValidationReport | None = None
     program: PvtProgram | None = None
     problem: str | None = None
+    cell_problems: tuple[str, ...] = ()  # why it does not fit the --config cell (empty: it fits, or no --config)
 
     @property
     def exit_code(self) -> int:
         if self.report is None:
             return EXIT_UNREADABLE
-        return EXIT_VALID if self.report.ok else EXIT_VIOLATIONS
+        return EXIT_VALID if self.report.ok and not self.cell_problems else EXIT_VIOLATIONS
 
 
 class ProgramFileError(ValueError):
@@ -136,7 +146,7 @@ def summary_table(outcomes: list[Outcome]) -> str:
         rows.append(
             (
                 o.path,
-                "valid" if r.ok else "INVALID",
+                "INVALID" if not r.ok else ("NO FIT" if o.cell_problems else "valid"),
                 str(len(r.errors)),
                 str(len(r.warnings)),
                 f"{100 * v:.1f}%",
@@ -161,11 +171,25 @@ def run(args: argparse.Namespace) -> int:
     if args.plot and len(paths) != 1:
         print("pvtflow validate: --plot needs exactly one program", file=sys.stderr)
         return EXIT_UNREADABLE
+    cell = None
+    if args.config is not None:
+        from service.config import ConfigError, load_cell_config
+
+        try:
+            cell = load_cell_config(args.config)
+        except ConfigError as exc:
+            print(f"pvtflow validate: {exc}", file=sys.stderr)
+            return EXIT_UNREADABLE
     progress = Progress(len(paths), sys.stderr)
     outcomes: list[Outcome] = []
     for i, path in enumerate(paths):
         progress.update(i, str(path))
-        outcomes.append(check_file(path))
+        outcome = check_file(path)
+        if cell is not None and outcome.program is not None:
+            from service.program_fit import mismatch_lines
+
+            outcome = replace(outcome, cell_problems=tuple(mismatch_lines(outcome.program, cell)))
+        outcomes.append(outcome)
     progress.update(len(paths), "")
     progress.close()
 
@@ -174,7 +198,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"pvtflow validate: {o.path}: cannot read a PVT program: {o.problem}", file=sys.stderr)
     if args.json:
         reports = [
-            o.report.to_json() if o.report else {"source": o.path, "ok": False, "unreadable": o.problem}
+            _report_json(o, cell.name if cell is not None else None)
+            if o.report
+            else {"source": o.path, "ok": False, "unreadable": o.problem}
             for o in outcomes
         ]
         print(json.dumps(reports[0] if len(reports) == 1 else reports, indent=2))
@@ -182,6 +208,8 @@ def run(args: argparse.Namespace) -> int:
         for o in outcomes:
             if o.report is not None:
                 print(o.report.format_text())
+            if cell is not None and o.report is not None:
+                print(_fit_text(o, cell.name))
         if len(outcomes) > 1:
             print()
             print(summary_table(outcomes))
@@ -195,6 +223,20 @@ def run(args: argparse.Namespace) -> int:
         if not args.json:
             print(f"plot written to {args.plot}")
     return max(o.exit_code for o in outcomes)
+
+
+def _fit_text(o: Outcome, cell: str) -> str:
+    if not o.cell_problems:
+        return f"{o.path}: fits cell {cell}"
+    return "\n".join([f"{o.path}: does not fit cell {cell}:", *(f"  {line}" for line in o.cell_problems)])
+
+
+def _report_json(o: Outcome, cell: str | None) -> dict[str, Any]:
+    assert o.report is not None
+    out = o.report.to_json()
+    if cell is not None:
+        out["fits"] = {"cell": cell, "ok": not o.cell_problems, "problems": list(o.cell_problems)}
+    return out
 
 
 def plot_program(program: PvtProgram, report: ValidationReport, out: Path) -> None:

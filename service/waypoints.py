@@ -7,7 +7,10 @@ Accepted (JSON, or YAML for the ROS shape; the file's content decides, not its e
 - ROS JointTrajectory: ``{"joint_names": [...], "points": [{"positions": [...], ...}, ...]}``,
   also wrapped as ``{"trajectory": {...}}`` or ``{"joint_trajectory": {...}}`` (as in a
   ``rostopic echo`` / ``ros2 topic echo`` dump or a MoveIt result). Only the positions are used:
-  pvtflow computes its own timing.
+  pvtflow computes its own timing. Points' ``time_from_start`` are not lower bounds the planner could
+  hold per segment (TOPP-RA times the whole path at once, and a segment slowed alone would change the
+  velocities at its ends), so they are dropped out loud: :func:`ros_time_from_start` gives the file's
+  last one, and ``pvtflow plan`` / ``pvtflow request plan`` warn with it.
 
 - tool poses: ``{"poses": [[x, y, z, qx, qy, qz, qw], ...], "motion": "linear", "start": [q1, ..., qn]}``
   (``motion``: linear, the default, or joint; ``start``: joint values, or "current" where a service
@@ -94,6 +97,50 @@ def poses_from_data(data: dict[str, Any], joint_names: Sequence[str], source: st
     except WaypointError as exc:  # the joint values' own checks, worded for the start
         raise WaypointError(str(exc).replace("waypoints[0]", "start")) from None
     return PoseTargets(poses, motion, rows_in_order[0])
+
+
+def ros_time_from_start(path: str | Path) -> float | None:
+    """The last ``time_from_start`` (s) of a ROS JointTrajectory file whose points carry any that is not 0
+    (None: no times, or not such a file). ROS 1 ``{secs, nsecs}``, ROS 2 ``{sec, nanosec}`` or seconds."""
+    try:
+        data = _read(path)
+    except WaypointError:
+        return None
+    if isinstance(data, dict):
+        for key in ("trajectory", "joint_trajectory"):
+            if isinstance(data.get(key), dict):
+                data = data[key]
+                break
+    points = data.get("points") if isinstance(data, dict) else None
+    if not isinstance(points, list):
+        return None
+    times = [_seconds(p.get("time_from_start")) for p in points if isinstance(p, dict)]
+    known = [x for x in times if x is not None]
+    return max(known) if known and max(known) > 0 else None
+
+
+def _seconds(value: Any) -> float | None:
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(value, dict):
+        whole = value.get("secs", value.get("sec", 0))
+        frac = value.get("nsecs", value.get("nanosec", 0))
+        if all(isinstance(x, int | float) and not isinstance(x, bool) for x in (whole, frac)):
+            return float(whole) + float(frac) * 1e-9
+    return None
+
+
+def dropped_times_warning(path: str | Path, duration_s: float | None = None) -> str | None:
+    """The warning for a file whose ``time_from_start`` pvtflow does not use (None: it has none)."""
+    last = ros_time_from_start(path)
+    if last is None:
+        return None
+    planned = f" ({duration_s:.3f} s here)" if duration_s is not None else ""
+    return (
+        f"warning: {path}: the points' time_from_start (the last {last:g} s) are not used: pvtflow times the "
+        f"motion itself, time-optimal within the limits{planned}; slow it down with --velocity-scale / "
+        "--acceleration-scale"
+    )
 
 
 def load_waypoints(path: str | Path, joint_names: Sequence[str], min_count: int = 2) -> NDArray[np.float64]:

@@ -20,7 +20,7 @@ from service.api.wire import ApiError, ErrorCode
 @dataclass(frozen=True)
 class PlanRequest:
     waypoints: NDArray[np.float64]  # (N, dof) in the cell's joint order; (0, dof) for poses
-    start: str = "current"  # "current", "first" (waypoints) or "joints" (poses from start_joints)
+    start: str = "current"  # "current", "first" (waypoints), "home" or "joints" (poses from start_joints)
     tolerance_qc: float | None = None
     label: str | None = None
     include_program: bool = False
@@ -38,6 +38,7 @@ class ExecuteRequest:
     program: dict[str, Any] | None = None
     label: str | None = None
     wait: bool = False
+    approach: bool = False  # move to the program's start first (service/approach.py), never implicitly
 
 
 @dataclass(frozen=True)
@@ -93,7 +94,7 @@ def parse_plan(data: Any, joint_names: Sequence[str], limits: JointLimits | None
     if limits is not None:
         check_limits(waypoints, limits, field_name)
     start = data.get("start", "current")
-    if field_name == "target":
+    if field_name == "target" and start != "home":
         start = "current"
     if start == "first" and len(waypoints) < 2:
         raise ApiError(
@@ -229,7 +230,13 @@ def check_limits(waypoints: NDArray[np.float64], limits: JointLimits, field_name
 
 def parse_execute(data: Any) -> ExecuteRequest:
     check_schema("execute", data, None)
-    return ExecuteRequest(data.get("plan_id"), data.get("program"), data.get("label"), bool(data.get("wait", False)))
+    return ExecuteRequest(
+        data.get("plan_id"),
+        data.get("program"),
+        data.get("label"),
+        bool(data.get("wait", False)),
+        bool(data.get("approach", False)),
+    )
 
 
 def parse_validate(data: Any) -> ValidateRequest:

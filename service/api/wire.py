@@ -91,7 +91,7 @@ ERROR_DESCRIPTIONS: dict[ErrorCode, str] = {
     ErrorCode.BUSY: "A motion is running on this cell (details.motion_id). One motion at a time: stop it or "
     "wait for its end.",
     ErrorCode.START_MISMATCH: "The axes are not where the program starts (they moved since it was planned): "
-    "plan again from the current position.",
+    "plan again from the current position, or execute with approach: true.",
     ErrorCode.NOT_HOMED: "The cell requires homing and an axis has not homed since its drive last booted "
     "(power-on, NMT reset, power loss): its position means nothing yet. Call home, then plan again "
     "(details.joints are the axes not homed).",
@@ -120,6 +120,10 @@ class ApiError(Exception):
 
     def to_bytes(self) -> bytes:
         return dumps(self.to_json())
+
+    def line(self) -> str:
+        """``CODE: MESSAGE``, as every command prints a refusal (``pvtflow request`` prints a reply's so)."""
+        return f"{self.code.value}: {self.message}"
 
 
 def check_cell_name(cell: str) -> str:

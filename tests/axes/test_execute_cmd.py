@@ -91,8 +91,8 @@ def test_program_not_starting_where_the_axes_are_is_rejected(tmp_path, arm6_prog
     shifted = replace_axis(arm6_program, 0, records=r)
     assert np.all(r[:, 0] < arm6_program.axes[0].limits.max_position_qc)
     assert main(["execute", str(write(tmp_path, shifted))]) == 1
-    out = capsys.readouterr().out
-    assert "rejected: axis joint_1 is at 0 qc, the program starts at 5000 qc" in out
+    err = capsys.readouterr().err
+    assert "start_mismatch: axis joint_1 is at 0 qc, the program starts at 5000 qc" in err
 
 
 def test_record_out_of_range_is_a_violation(tmp_path, arm6_program, capsys):

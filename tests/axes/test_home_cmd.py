@@ -53,7 +53,7 @@ def test_execute_refuses_an_unhomed_gantry_and_homes_it_with_home(
 ) -> None:
     assert main(["execute", str(from_home), "--config", str(GANTRY), "--quiet"]) == 1
     err = capsys.readouterr().err
-    assert "not_homed: cell gantry3 requires homing" in err and "nothing was sent" in err
+    assert "not_homed: cell gantry3 must home first" in err and "nothing was sent" in err
     assert main(["execute", str(from_home), "--config", str(GANTRY), "--quiet", "--home"]) == 0
     out = capsys.readouterr().out
     assert "homed: homed z, x + y" in out

@@ -96,7 +96,7 @@ def test_plan_unplannable_exits_1(tmp_path: Path, capsys) -> None:
     wp = tmp_path / "far.json"
     wp.write_text(json.dumps({"waypoints": [[0.0] * 6, [50.0] + [0.0] * 5]}))  # outside joint_1's range
     assert main(["plan", "--waypoints", str(wp), "-o", str(tmp_path / "x.json")]) == 1
-    assert "cannot plan" in capsys.readouterr().err
+    assert "out_of_limits: " in capsys.readouterr().err
     assert not (tmp_path / "x.json").exists()
 
 
