@@ -9,7 +9,9 @@ bits (``axes.frame_time``), against what the bus carries in that period (bit rat
   event-driven one once per inhibit time, a fixed-period setpoint every SYNC, the controlword once
   (the period of a start, a halt or an end has one on every axis);
 - the EPOS2 records: the cell's record allowance per SYNC (``bus.records_per_sync``, or the room left
-  under the limit, shared by every buffered axis: ``axes.feeder.RecordAllowance``);
+  under the limit, shared by every buffered axis: ``axes.feeder.RecordAllowance``), and never more
+  than the master's transmit queue holds besides the SYNC, time stamp and setpoints it sends with
+  them (``bus.tx_queue_frames``: SocketCAN refuses the rest with ENOBUFS);
 - the heartbeats of every drive and of the master, per their periods;
 - room for one EMCY and one SDO exchange (request and answer) in every period.
 
@@ -69,6 +71,8 @@ class BusBudget:
     records_per_sync: int  # the cell's record allowance (0: no buffered axis)
     buffered_axes: int  # axes fed records (EPOS2)
     records_derived: bool  # the allowance is the room the limit leaves (not the cell's own figure)
+    queued_after_sync: int = 0  # the master's frames right after a SYNC besides records
+    tx_queue_frames: int = 10  # the master's transmit queue
 
     @property
     def capacity_bits(self) -> float:
@@ -102,6 +106,13 @@ class BusBudget:
                 f"no room for one record per EPOS2 axis per SYNC period: {self.records_per_sync} record(s) for "
                 f"{self.buffered_axes} axes within {LOAD_LIMIT:.0%} of the bus ({what} before records; {biggest}): "
                 f"needs {fixes}"
+            )
+        burst = self.queued_after_sync + self.records_per_sync
+        if burst > self.tx_queue_frames:
+            return (
+                f"the master sends {burst} frames right after a SYNC ({self.records_per_sync} records, "
+                f"{self.queued_after_sync} SYNC, time stamp and setpoints), more than its transmit queue holds "
+                f"(bus.tx_queue_frames {self.tx_queue_frames}): needs fewer bus.records_per_sync or a longer queue"
             )
         if self.fraction > LOAD_LIMIT:
             return (
@@ -137,6 +148,7 @@ def bus_budget(wiring: CellWiring) -> BusBudget:
     if bus.time_stamp:
         items.append(BudgetItem("time stamp 0x1013", 1, 1, worst_frame_bits(EPOS2_TIME_STAMP_RPDO.payload_bytes)))
     buffered = 0
+    queued = 1 + int(bus.time_stamp)  # the master's frames right after a SYNC: SYNC, time stamp, setpoints
     for axis in wiring.axes:
         profile = profile_class(axis.profile)
         for kind, layouts in (("RPDO", profile.rpdos), ("TPDO", profile.tpdos)):
@@ -144,6 +156,8 @@ def bus_budget(wiring: CellWiring) -> BusBudget:
                 if layout.role is PdoRole.RECORD:
                     buffered += 1
                     continue
+                if layout.role is PdoRole.SETPOINT:
+                    queued += 1
                 items.append(_pdo_item(f"node {axis.node_id} {kind}{layout.number} {layout.role}", layout))
     beats = len(wiring.axes) * period / bus.heartbeat_ms + period / bus.master_heartbeat_ms
     items.append(BudgetItem("heartbeats", beats, math.ceil(beats), HEARTBEAT_BITS))
@@ -154,6 +168,7 @@ def bus_budget(wiring: CellWiring) -> BusBudget:
         records, derived = bus.records_per_sync or 0, bus.records_per_sync is None
         if derived:
             room = LOAD_LIMIT * bus.bitrate * period / 1000.0 - sum(i.bits for i in items)
-            records = max(0, math.floor(room / RECORD_BITS))
+            # as many as the bus carries, and as the master's transmit queue holds after the SYNC
+            records = max(0, min(math.floor(room / RECORD_BITS), bus.tx_queue_frames - queued))
         items.append(BudgetItem(f"records ({buffered} EPOS2 axes)", records, records, RECORD_BITS))
-    return BusBudget(bus.bitrate, period, tuple(items), records, buffered, derived)
+    return BusBudget(bus.bitrate, period, tuple(items), records, buffered, derived, queued, bus.tx_queue_frames)

@@ -39,6 +39,7 @@ that every drive watches (0x1016) and stops on when it stops (0x6007).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -46,7 +47,7 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -182,7 +183,20 @@ class RecordingNetwork(canopen.Network):
         self.recorder = recorder
         self.channel_name: str | None = None  # written into the log with the frames we send
         self.tx_retry_s = 0.002  # a frame the interface refuses is tried again this long (BusConfig.tx_retry_ms)
+        self._patience = threading.local()  # a longer bound for this thread's frames (``patient``)
         self.tx_retries = 0  # tries that failed, all frames together
+
+    @contextlib.contextmanager
+    def patient(self, seconds: float) -> Iterator[None]:
+        """Frames this thread sends meanwhile are tried again for up to ``seconds``: for bulk frames
+        that nothing waits on in the meantime (a preload before the first SYNC), which a full
+        transmit queue only delays by the wire time of what is ahead of them."""
+        previous = getattr(self._patience, "seconds", None)
+        self._patience.seconds = seconds
+        try:
+            yield
+        finally:
+            self._patience.seconds = previous
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         if not self.bus:
@@ -206,11 +220,12 @@ class RecordingNetwork(canopen.Network):
             except (can.CanOperationError, OSError) as exc:  # a full transmit queue (ENOBUFS), a refusing controller
                 now = time.monotonic()
                 if deadline is None:
-                    deadline = now + self.tx_retry_s
+                    deadline = now + (getattr(self._patience, "seconds", None) or self.tx_retry_s)
                 self.tx_retries += 1
                 if now >= deadline:
+                    bound = getattr(self._patience, "seconds", None) or self.tx_retry_s
                     raise can.CanOperationError(
-                        f"frame 0x{can_id:03X} not sent within {self.tx_retry_s * 1000:.1f} ms: {exc}"
+                        f"frame 0x{can_id:03X} not sent within {bound * 1000:.1f} ms: {exc}"
                     ) from exc
                 time.sleep(TX_RETRY_PAUSE_S)
                 wait = max(deadline - time.monotonic(), 0.0)

@@ -39,6 +39,9 @@ class BusConfig:
     # EPOS2 records the master may send in one SYNC period, shared by every buffered axis (None: the
     # room the bus budget leaves, axes.budget)
     records_per_sync: int | None = None
+    # the master's CAN transmit queue in frames (SocketCAN's txqueuelen, 10 by default): what it sends
+    # right after one SYNC (SYNC, time stamp, setpoints, records) must fit in it (axes.budget)
+    tx_queue_frames: int = 10
 
     @property
     def master_consumer_time_ms(self) -> int:

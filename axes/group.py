@@ -65,6 +65,11 @@ NMT_START = 0x01
 _Refusal = tuple[Result, str, "AxisLink | None"]  # why a start does not go ahead, and which axis
 
 
+# a whole preload before the first SYNC waits this long at most for room in a full transmit queue
+# (nothing moves yet; its frames take their wire time, a few ms, and a bus that takes none is broken)
+PRELOAD_PATIENCE_S = 0.1
+
+
 class AxisGroup:
     """All axes of one cell on one bus.
 
@@ -289,9 +294,10 @@ class AxisGroup:
         clock that delays the first SYNC by the records' bus time, a few ms, and nothing else)."""
         sync = self.bus.sync
         if not checked:
-            for feeder in self._feeders:
-                if isinstance(feeder, BufferFeeder):
-                    feeder.preload(whole=True)
+            with self.bus.network.patient(PRELOAD_PATIENCE_S):
+                for feeder in self._feeders:
+                    if isinstance(feeder, BufferFeeder):
+                        feeder.preload(whole=True)
             return None
         while not preload_shared(self._feeders, self.allowance):
             sync.keep_period()

@@ -365,6 +365,7 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
             "tx_retry_ms",
             "quick_stop_confirm_ms",
             "records_per_sync",
+            "tx_queue_frames",
         ),
     )
     d = BusConfig()
@@ -397,6 +398,7 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
         tx_retry_ms=f.get("tx_retry_ms", f.number(positive=True), d.tx_retry_ms),
         quick_stop_confirm_ms=f.get("quick_stop_confirm_ms", f.number(positive=True), d.quick_stop_confirm_ms),
         records_per_sync=f.get("records_per_sync", f.integer(1, 1000), d.records_per_sync),
+        tx_queue_frames=f.get("tx_queue_frames", f.integer(2, 100000), d.tx_queue_frames),
     )
     if bus.max_sync_gap_periods is not None and bus.max_sync_gap_periods < 1.5:
         raise f.error(

@@ -30,10 +30,13 @@ from typing import Any, TextIO
 
 import can
 
+from axes.config import SIMULATED_WIRE, wire_options
 from axes.sim.cell import SimulatedCell
+from axes.sim.wire import serve_wire
 from service.config import PYTHON_CAN_INTERFACES, CellConfig, ConfigError, load_cell_config
 
 EXIT_OK, EXIT_SIMULATOR_ERROR, EXIT_CANNOT_START = 0, 1, 2
+WIRE_SERVED_AT = "wire served at"  # the banner line another process reads the channel from
 PROG = "pvtflow sim"
 HOMING_MODE = 6  # CiA 402 0x6060: homing mode
 REFUSED_INTERFACES = {"udp_multicast": "it sends to a multicast address; pvtflow only uses loopback"}
@@ -61,6 +64,14 @@ def add_parser(subparsers: Any) -> None:
         help="the drives keep their own time (1 ms samples), for a master that sends SYNC on the wall clock "
         "(default: lockstep, one SYNC period per SYNC)",
     )
+    p.add_argument(
+        "--wire-port",
+        metavar="PORT",
+        type=int,
+        default=0,
+        help="on the simulated wire (simwire): serve it on 127.0.0.1:PORT for masters in other processes "
+        "(default 0: a free port; the banner names the channel to open)",
+    )
     p.set_defaults(run=run)
 
 
@@ -80,11 +91,15 @@ def choose_bus(cell: CellConfig, interface: str | None, channel: str | None) -> 
     return chosen, channel or cell.bus.channel
 
 
-def banner(sim: SimulatedCell) -> str:
+def banner(sim: SimulatedCell, served_at: str | None = None) -> str:
     cell = sim.cell
     lines = [
         f"{PROG}: cell {cell.name}: {len(sim.drives)} simulated drives on {sim.interface}:{sim.channel}",
     ]
+    if served_at is not None:
+        lines.append(
+            f"  {WIRE_SERVED_AT} {served_at} (a master in another process opens interface simwire, channel {served_at})"
+        )
     homing = [a.node_id for a in cell.ordered_axes() if sim.drive(a.node_id).MODES.accepts(HOMING_MODE)]
     for axis in cell.ordered_axes():
         drive = sim.drive(axis.node_id)
@@ -119,20 +134,28 @@ def simulate(
     stop: threading.Event,
     out: TextIO | None = None,
     clock: str = "lockstep",
+    wire_port: int = 0,
 ) -> int:
-    """Run the cell's simulated drives on (interface, channel) until ``stop`` is set; the exit code."""
+    """Run the cell's simulated drives on (interface, channel) until ``stop`` is set; the exit code.
+    On the simulated wire the channel is served on 127.0.0.1:``wire_port`` (0: a free port)."""
     out = out if out is not None else sys.stdout
     sim = SimulatedCell(cell, interface=interface, channel=channel, clock=clock)
+    server = None
     try:
+        if interface == SIMULATED_WIRE:  # the wire itself lives here: served to the other processes
+            options = wire_options(cell.bus, lockstep=clock == "lockstep")
+            server = serve_wire(channel, wire_port, **options)  # type: ignore[arg-type]
         sim.start()
     except (can.CanError, OSError, ValueError, ImportError) as exc:
         sim.stop()
+        if server is not None:
+            server.close()
         print(f"{PROG}: cannot open {interface}:{channel}: {exc}", file=sys.stderr)
         return EXIT_CANNOT_START
     joints = {a.node_id: a.joint for a in cell.axes}
     seen = {node_id: 0 for node_id in sim.drives}
     try:
-        print(banner(sim), file=out, flush=True)
+        print(banner(sim, server.address if server is not None else None), file=out, flush=True)
         stopped = False
         while not stopped:
             stopped = stop.wait(0.2)  # faults up to the stop are reported too
@@ -150,6 +173,8 @@ def simulate(
     finally:
         print(f"{PROG}: stopping", file=out, flush=True)
         sim.stop()
+        if server is not None:
+            server.close()
     errors = sim.internal_errors
     for exc in errors:
         print(f"{PROG}: a simulated drive raised internally: {exc!r}", file=sys.stderr)
@@ -171,7 +196,8 @@ def run(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        return simulate(cell, interface, channel, stop, clock="wall" if args.wall_clock else "lockstep")
+        clock = "wall" if args.wall_clock else "lockstep"
+        return simulate(cell, interface, channel, stop, clock=clock, wire_port=args.wire_port)
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
