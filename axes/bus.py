@@ -74,7 +74,7 @@ NMT_PRE_OPERATIONAL = 0x80
 NMT_RESET_COMMUNICATION = 0x82
 NMT_STATE_PRE_OPERATIONAL = 127
 NMT_STATE_BOOT_UP = 0  # the boot-up message: a heartbeat frame with state 0
-SWITCH_INTERVAL_S = 0.0005  # the interpreter hands the GIL on at least this often while a bus is open
+SWITCH_INTERVAL_S = 0.0001  # the interpreter hands the GIL on at least this often while a bus is open
 TX_RETRY_PAUSE_S = 0.0002  # between two tries of a frame the interface refused
 ERROR_FRAME_REPORT_S = 1.0  # error frames are reported at most this often (with the count since the last report)
 

@@ -41,8 +41,21 @@ def test_the_derived_allowance_is_the_room_under_the_limit(arm6):
     bus = dataclasses.replace(arm6.bus, sync_period_ms=5.0, records_per_sync=None)
     budget = bus_budget(Wiring(bus, arm6.axes))
     others = budget.total_bits - budget.records_per_sync * worst_frame_bits(8)
-    assert budget.records_per_sync == math.floor((LOAD_LIMIT * 5000 - others) / worst_frame_bits(8))
+    room = math.floor((LOAD_LIMIT * 5000 - others) / worst_frame_bits(8))
+    queue_room = bus.tx_queue_frames - 2  # the SYNC and the time stamp go out with the records
+    assert budget.records_per_sync == min(room, queue_room)
     assert budget.fraction <= LOAD_LIMIT and budget.problem() is None
+    longer = dataclasses.replace(bus, tx_queue_frames=64)
+    assert bus_budget(Wiring(longer, arm6.axes)).records_per_sync == room  # then the bus is what limits
+
+
+def test_records_beyond_the_transmit_queue_are_refused(tmp_path: Path):
+    """What the master sends right after one SYNC must fit its transmit queue (SocketCAN: ENOBUFS)."""
+    file = _write(tmp_path, "arm6.yaml", {"records_per_sync": 9})  # + SYNC + time stamp = 11 > 10
+    with pytest.raises(ConfigError, match=r"the master sends 11 frames right after a SYNC .*tx_queue_frames 10"):
+        load_cell_config(file)
+    cell = load_cell_config(_write(tmp_path, "arm6.yaml", {"records_per_sync": 9, "tx_queue_frames": 16}))
+    assert bus_budget(cell).records_per_sync == 9
 
 
 @pytest.mark.parametrize("path", CELLS, ids=lambda p: p.stem)
@@ -73,7 +86,7 @@ def test_a_linear_ip_gantry_at_1_ms_on_250_kbit_is_refused_with_the_figure(tmp_p
 
 
 def test_records_per_sync_over_the_limit_is_refused_and_names_the_knob(tmp_path: Path):
-    file = _write(tmp_path, "arm6.yaml", {"records_per_sync": 30})
+    file = _write(tmp_path, "arm6.yaml", {"records_per_sync": 30, "tx_queue_frames": 64})
     with pytest.raises(ConfigError, match=r"bus: the cell's traffic takes \d+% of the bus .*bus.records_per_sync"):
         load_cell_config(file)
 

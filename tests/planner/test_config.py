@@ -46,7 +46,7 @@ def test_shipped_cells_load() -> None:
     assert arm.joint_names == tuple(f"joint_{i}" for i in range(1, 7))
     assert [a.node_id for a in arm.ordered_axes()] == [1, 2, 3, 4, 5, 6]
     assert all(a.profile == "epos2_pvt" for a in arm.axes)
-    assert arm.simulated and arm.bus.interface == "virtual"
+    assert arm.simulated and arm.bus.interface == "simwire"
     gantry = load_cell_config(GANTRY)
     assert gantry.joint_names == ("x", "y", "z")
     assert all(j.kind == "prismatic" for j in gantry.model.joints)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import queue
 import re
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import can
@@ -19,7 +20,7 @@ from can import BusState
 from can.typechecking import AutoDetectedConfig, CanFilters
 
 from axes.sim.wire.client import RemoteMedium, WireLink
-from axes.sim.wire.medium import DEFAULT_TXQUEUELEN, Medium, Node, WireConfigError
+from axes.sim.wire.medium import DEFAULT_TXQUEUELEN, Cyclic, Medium, Node, WireConfigError
 from axes.sim.wire.registry import acquire_medium, open_channels, release_medium
 from axes.sim.wire.server import require_loopback
 
@@ -130,6 +131,25 @@ class SimWireBus(can.BusABC):
         else:
             self._link.send(msg, self._local_time, timeout)
 
+    def _send_periodic_internal(
+        self,
+        msgs: Sequence[can.Message] | can.Message,
+        period: float,
+        duration: float | None = None,
+        autostart: bool = True,
+        modifier_callback: Callable[[can.Message], None] | None = None,
+    ) -> can.broadcastmanager.CyclicSendTaskABC:
+        """One frame, no end, no modifier, on an in-process wall-clock medium: timed by the medium
+        itself, as SocketCAN's broadcast manager times it in the kernel (each frame queued at its due
+        bus time, heard by this node too). Anything else: python-can's thread of its own."""
+        one = [msgs] if isinstance(msgs, can.Message) else list(msgs)
+        if self._node is None or self.clock != "wall" or len(one) != 1 or duration or modifier_callback:
+            return super()._send_periodic_internal(msgs, period, duration, autostart, modifier_callback)
+        task = WireCyclicTask(self._medium, self._node, one[0], period)
+        if autostart:
+            task.start()
+        return task
+
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         if self._closed:
             raise can.CanOperationError(f"{self.channel_info}: the bus is closed")
@@ -164,3 +184,23 @@ class SimWireBus(can.BusABC):
     @staticmethod
     def _detect_available_configs() -> list[AutoDetectedConfig]:
         return [{"interface": "simwire", "channel": name} for name in open_channels()]
+
+
+class WireCyclicTask(can.broadcastmanager.RestartableCyclicTaskABC):
+    """A cyclic send the wall-clock medium times (``Medium.add_cyclic``)."""
+
+    def __init__(self, medium: Medium, node: Node, msg: can.Message, period: float) -> None:
+        super().__init__(msg, period)
+        self._medium = medium
+        self._node = node
+        self._msg = msg
+        self._cyclic: Cyclic | None = None
+
+    def start(self) -> None:
+        if self._cyclic is None:
+            self._cyclic = self._medium.add_cyclic(self._node, self._msg, self.period)
+
+    def stop(self) -> None:
+        if self._cyclic is not None:
+            self._medium.remove_cyclic(self._cyclic)
+            self._cyclic = None

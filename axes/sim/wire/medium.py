@@ -68,6 +68,19 @@ class _Pending:
     bits: int
     enqueued: float
     priority: tuple[int, int, int]
+    cyclic: bool = False  # sent by a cyclic task: heard by its own node too, as a broadcast manager's
+
+
+@dataclass(slots=True)
+class Cyclic:
+    """A cyclic send the wall-clock medium times by itself (SocketCAN's broadcast manager): each
+    frame is queued at its due bus time, whenever the simulation gets to it."""
+
+    node: Node
+    msg: can.Message
+    bits: int
+    period: float
+    due: float
 
 
 @dataclass(slots=True)
@@ -181,6 +194,7 @@ class Medium:
         self._last_sync_nominal: float | None = None  # lockstep
         self._idle_from = (0.0, time.monotonic())  # lockstep: (bus time, wall time) of the last SYNC
         self._on_wire: tuple[Node, _Pending, float, float] | None = None  # wall: (node, frame, start, end)
+        self._cyclic: list[Cyclic] = []  # wall: cyclic sends the medium times (``add_cyclic``)
         self._seconds_per_bit = 1.0 / bitrate
         self._epoch = time.time() - time.monotonic()
         self.closed = False
@@ -234,6 +248,7 @@ class Medium:
                 enobufs, depth = self._departed.get(node.name, (0, 0))
                 self._departed[node.name] = (enobufs + node.enobufs, max(depth, node.max_depth))
             node.fifo = deque(p for p in node.fifo if self._on_wire and self._on_wire[1] is p)
+            self._cyclic = [t for t in self._cyclic if t.node is not node]
             self.cond.notify_all()
 
     def node(self, name: str) -> Node:
@@ -323,9 +338,49 @@ class Medium:
         if self._on_wire is None:
             self.cond.notify_all()  # the driver sleeps while the bus is idle
 
+    def add_cyclic(self, node: Node, msg: can.Message, period: float) -> Cyclic:
+        """Wall clock: send ``msg`` from ``node`` every ``period`` seconds of bus time from now on,
+        timed by the medium (a frame whose node's FIFO is full at its due time is dropped, as the
+        broadcast manager's is)."""
+        if self.clock != "wall":
+            raise WireConfigError("a cyclic send is timed by the wall-clock medium; lockstep has no time of its own")
+        bits = frame_bits(
+            msg.arbitration_id, bytes(msg.data), extended=msg.is_extended_id, remote=msg.is_remote_frame, dlc=msg.dlc
+        )
+        with self.cond:
+            task = Cyclic(node, msg, bits, period, self.now())
+            self._cyclic.append(task)
+            self.cond.notify_all()
+            return task
+
+    def remove_cyclic(self, task: Cyclic) -> None:
+        with self.cond:
+            if task in self._cyclic:
+                self._cyclic.remove(task)
+
+    def _queue_cyclic(self, now: float) -> float | None:
+        """Queue every cyclic frame due by ``now`` at its due time; the next due time (None: none)."""
+        for task in self._cyclic:
+            while task.due <= now:
+                node = task.node
+                if node.state != BUS_OFF and node in self.nodes and len(node.fifo) < node.txqueuelen:
+                    node.fifo.append(_Pending(task.msg, task.bits, task.due, _priority(task.msg), cyclic=True))
+                    node.max_depth = max(node.max_depth, len(node.fifo))
+                task.due += task.period
+        return min((t.due for t in self._cyclic), default=None)
+
     def step(self, now: float) -> float | None:
         """Wall clock: deliver every frame whose last bit has left the wire by ``now`` and start the
-        next by arbitration. Returns when the frame on the wire ends (None: the bus is idle)."""
+        next by arbitration. Returns when the frame on the wire ends or a cyclic frame is due (None:
+        the bus is idle)."""
+        with self.cond:
+            next_cyclic = self._queue_cyclic(now)
+            due = self._step(now)
+            if next_cyclic is None:
+                return due
+            return next_cyclic if due is None else min(due, next_cyclic)
+
+    def _step(self, now: float) -> float | None:
         with self.cond:
             while True:
                 if self._on_wire is not None:
@@ -338,7 +393,7 @@ class Medium:
                         node.on_done(1)
                     if self._is_sync(pending.msg):
                         self._syncs.append((float("nan"), start))
-                    self._transmitted(node, pending.msg, pending.bits, start, end)
+                    self._transmitted(node, pending.msg, pending.bits, start, end, heard_by_sender=pending.cyclic)
                     self.cond.notify_all()  # room in a FIFO
                 heads = [n for n in self.nodes if n.fifo]
                 if not heads:
@@ -376,8 +431,11 @@ class Medium:
                 with self.cond:
                     self.cond.notify_all()
 
-    def _transmitted(self, sender: Node, msg: can.Message, bits: int, start: float, end: float) -> None:
-        """Account for the frame and hand it to every node (under the lock: bus order)."""
+    def _transmitted(
+        self, sender: Node, msg: can.Message, bits: int, start: float, end: float, heard_by_sender: bool = False
+    ) -> None:
+        """Account for the frame and hand it to every node (under the lock: bus order); a cyclic
+        task's frame reaches its own node as a received one (``heard_by_sender``)."""
         self.bus_end = end
         sender.frames += 1
         self._frames += 1
@@ -386,7 +444,7 @@ class Medium:
         for n in self.nodes:
             if n.state == BUS_OFF:
                 continue
-            own = n is sender
+            own = n is sender and not heard_by_sender
             if own and not n.receive_own:
                 continue
             n.deliver(
