@@ -57,6 +57,7 @@ import canopen
 from canopen.emcy import EmcyError
 from canopen.objectdictionary import ObjectDictionary
 
+from axes import collector
 from axes.config import BusConfig, wire_options
 from axes.heartbeat import MasterHeartbeat
 from axes.objects import CAN_EMCY_WORDS, NMT_STATE_OPERATIONAL, TIME_STAMP_COB_ID
@@ -318,6 +319,9 @@ class SyncClock:
         self._task: can.broadcastmanager.CyclicTask | None = None  # the interface's own cyclic SYNC
         self._echo = threading.Condition(threading.Lock())
         self._echoes = 0  # SYNC frames the interface sent and the bus heard (native mode)
+        self._collector_held = False  # this clock holds the cyclic collector off (wall clock, running)
+        self._echo_stamp: float | None = None  # native mode: the last SYNC echo's time stamp (bus time)
+        self._echo_gap = 0.0  # native mode: the longest gap between SYNC echoes not yet judged
         self._t0_us = time.monotonic_ns() // 1000
         self.hold: Callable[[], None] | None = None  # benchmarks and tests: called before each wall-clock SYNC
 
@@ -415,6 +419,8 @@ class SyncClock:
                 return
             self._running = True
             self._previous = None
+            with self._echo:
+                self._echo_stamp, self._echo_gap = None, 0.0
             self.last_progress = time.monotonic()
             if self.lockstep:
                 try:
@@ -426,6 +432,9 @@ class SyncClock:
                     self._running = False
                 return
             production = self._production
+            if not self._collector_held:
+                collector.hold()  # no collection pause while SYNC runs on the wall clock (axes/collector.py)
+                self._collector_held = True
             msg = can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
             assert self.bus.network.bus is not None
             self._task = native_cyclic_task(self.bus.network.bus, msg, self.period_ms / 1000.0)
@@ -503,6 +512,9 @@ class SyncClock:
     def _on_sync_echo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self._echo:
             self._echoes += 1
+            if self._echo_stamp is not None:  # the bus's own time stamps: the gap the drives saw
+                self._echo_gap = max(self._echo_gap, timestamp - self._echo_stamp)
+            self._echo_stamp = timestamp
             self._echo.notify_all()
 
     def _follow(self, production: int) -> None:
@@ -518,7 +530,11 @@ class SyncClock:
                 self._task.start()
             while True:
                 with self._echo:
-                    self._echo.wait_for(lambda seen=seen: self._echoes > seen, self.max_gap_s)
+                    heard = self._echo.wait_for(lambda seen=seen: self._echoes > seen, self.max_gap_s)
+                if not heard:  # a held process wakes this thread first: let the receive thread catch up
+                    with self._echo:
+                        self._echo.wait_for(lambda seen=seen: self._echoes > seen, self.period_ms / 1000.0)
+                with self._echo:
                     echoes = self._echoes
                 now = time.monotonic()
                 gap = None
@@ -528,7 +544,10 @@ class SyncClock:
                     if echoes > seen:
                         self.skipped += echoes - seen - 1  # heard, but not followed one by one
                         self.count += echoes - seen - 1
-                        gap = None if self._previous is None else now - self._previous
+                        # the interface times SYNC: a gap is between the SYNCs on the bus, not in
+                        # this thread's wakes (a held process delays the time stamp, not the SYNC)
+                        with self._echo:
+                            gap, self._echo_gap = self._echo_gap, 0.0
                         self._transmit(sync_frame=False)
                         seen, silent = echoes, False
                     elif not silent:  # no SYNC heard for the whole gap the drives ride out: once
@@ -575,8 +594,11 @@ class SyncClock:
             self._running = False
             self._production += 1
             task, self._task = self._task, None
+            held, self._collector_held = self._collector_held, False
         if task is not None:
             task.stop()
+        if held:
+            collector.release()
 
     @property
     def running(self) -> bool:

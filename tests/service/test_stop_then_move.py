@@ -74,8 +74,9 @@ def start_long_motion(svc: MotionService, fraction: float = 0.85) -> None:
     """A straight move across most of every joint's range, interrupted later at STOP_AFTER_MS."""
     svc.execute(parse_execute({"plan_id": plan(svc, tour(svc.cell, [fraction]))}))
     period = svc.cell.bus.sync_period_ms
-    assert wait_until(lambda: (svc.group.elapsed_syncs() or 0) * period >= STOP_AFTER_MS, timeout=30.0)
-    assert svc.running, "the motion ended before it could be interrupted"
+    progressed = wait_until(lambda: (svc.group.elapsed_syncs() or 0) * period >= STOP_AFTER_MS, timeout=30.0)
+    assert progressed, f"the motion did not get {STOP_AFTER_MS} ms far: {svc.motion and svc.motion.outcome}"
+    assert svc.running, f"the motion ended before it could be interrupted: {svc.motion and svc.motion.outcome}"
 
 
 def assert_nothing_left(svc: MotionService) -> None:
