@@ -28,6 +28,18 @@ if TYPE_CHECKING:  # planner.jerk loads casadi: only a plan with a jerk limit do
 PlanOutcome = PlanResult | CartesianResult
 
 
+def jerk_scale(velocity_scale: float, acceleration_scale: float) -> float:
+    """The factor a speed override puts on the jerk limit: ``velocity_scale * acceleration_scale``.
+
+    Why the product: a motion slowed down in time by k has its velocity times k, its acceleration
+    times k^2 and its jerk times k^3; the override (velocity_scale = k, acceleration_scale = k^2)
+    then gives k^3, the jerk of that slowed motion. For any other pair it is at most 1 (it never
+    loosens the limit), smaller with either factor, and follows both: a slower speed alone softens
+    the jerk too, as a lower acceleration alone does.
+    """
+    return float(velocity_scale) * float(acceleration_scale)
+
+
 def _scale(name: str, value: object) -> float:
     """``check_scale``'s answer as a PlanError (INVALID_INPUT, ``details["field"]``: which one)."""
     try:
@@ -80,7 +92,8 @@ class Planner:
     request's speed override (``velocity_scale``,
     ``acceleration_scale``) plans with the joint velocity and acceleration limits scaled down: its
     constraints are built for that call (cheap: the constraints compute nothing until they see a
-    path). The TCP speed and torque limits stay as the cell sets them.
+    path), and with the jerk limit times ``jerk_scale`` (their product). The TCP speed and torque
+    limits stay as the cell sets them.
 
     With a jerk limit (``max_jerk``: the cell's, or a request's, which replaces it), the TOPP-RA
     solution is the warm start of the jerk-limited timing along the same path (planner/jerk.py,
@@ -125,10 +138,15 @@ class Planner:
         limits = self.limits.scaled(*scales)
         return limits, timing_constraints(limits, *self._cell_constraints)
 
-    def _jerk_limit(self, max_jerk: ArrayLike | None) -> NDArray[np.float64] | None:
-        """The jerk limit of one plan: the request's, else the cell's; None where no joint has one."""
+    def _jerk_limit(
+        self, max_jerk: ArrayLike | None, velocity_scale: float = 1.0, acceleration_scale: float = 1.0
+    ) -> NDArray[np.float64] | None:
+        """The jerk limit of one plan: the request's, else the cell's, times the speed override's
+        ``jerk_scale``; None where no joint has one."""
         jerk = self.max_jerk if max_jerk is None else _max_jerk(max_jerk, self.limits.dof)
-        return jerk if jerk is not None and np.any(np.isfinite(jerk)) else None
+        if jerk is None or not np.any(np.isfinite(jerk)):
+            return None
+        return jerk * jerk_scale(velocity_scale, acceleration_scale)
 
     def _timed(
         self,
@@ -183,7 +201,7 @@ class Planner:
         start = time.perf_counter()
         try:
             limits, constraints = self._scaled(velocity_scale, acceleration_scale)
-            jerk = self._jerk_limit(max_jerk)
+            jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
             path = JointPath(waypoints, limits)
             trajectory, details = self._timed(path, limits, constraints, jerk)
         except PlanError as exc:
@@ -212,7 +230,7 @@ class Planner:
             return PlanOutput(PlanResult.INVALID_INPUT, f"motion must be one of {choices}, got {motion!r}")
         try:
             limits, constraints = self._scaled(velocity_scale, acceleration_scale)
-            jerk = self._jerk_limit(max_jerk)
+            jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
             tool: ToolPath = self.poses.solve(start, poses, kind)
             t_ik = time.perf_counter() - t0
             trajectory, timed = self._timed(tool.path, limits, constraints, jerk)
