@@ -69,6 +69,7 @@ class PlanInput:
     velocity_scale: float = 1.0  # speed override in (0, 1]: the joint velocity limits planned with
     acceleration_scale: float = 1.0  # the same for the joint acceleration limits
     max_jerk: ArrayLike | None = None  # joint units / s^3, one per joint (inf: unlimited); None: the planner's
+    budget_ms: float | None = None  # the jerk-limited timing's deadline from the call's start; None: none
 
 
 @dataclass(frozen=True)
@@ -154,6 +155,7 @@ class Planner:
         limits: JointLimits,
         constraints: list[constraint.Constraint],
         max_jerk: NDArray[np.float64] | None,
+        deadline: float | None = None,
     ) -> tuple[Trajectory | JerkTrajectory, dict[str, object]]:
         """TOPP-RA along ``path``; with a jerk limit, the jerk-limited timing warm-started from it."""
         t0 = time.perf_counter()
@@ -164,7 +166,7 @@ class Planner:
 
         t1 = time.perf_counter()
         try:
-            jerky = jerk_limited(path, limits, constraints, max_jerk, trajectory)
+            jerky = jerk_limited(path, limits, constraints, max_jerk, trajectory, deadline=deadline)
         except (ValueError, RuntimeError) as exc:  # PlanError is a ValueError: passed on as it is
             if isinstance(exc, PlanError):
                 raise
@@ -176,6 +178,8 @@ class Planner:
             "iterations": jerky.iterations,
             "time_scale": jerky.time_scale,
             "max_jerk": [float(j) if np.isfinite(j) else None for j in max_jerk],  # None: that joint unlimited
+            "optimal": jerky.optimal,
+            "lower_bound_s": jerky.lower_bound,  # TOPP-RA's duration: no jerk-limited timing is shorter
         }
         return jerky, details
 
@@ -185,11 +189,17 @@ class Planner:
 
         ``velocity_scale``, ``acceleration_scale`` in (0, 1]: the joint velocity and acceleration
         limits are multiplied by them for this plan (INVALID_INPUT naming the field otherwise).
-        ``max_jerk``: this plan's jerk limit, one per joint (None: the planner's, if any)."""
+        ``max_jerk``: this plan's jerk limit, one per joint (None: the planner's, if any).
+        ``budget_ms``: the jerk-limited timing is anytime, its answer due this long after the call
+        (``details["optimal"]`` False where the deadline came first; ``lower_bound_s`` TOPP-RA's
+        duration, the gap's other end). Time alone never refuses a plan here."""
         scales = (inp.velocity_scale, inp.acceleration_scale, inp.max_jerk)
+        deadline = None
+        if inp.budget_ms is not None:
+            deadline = time.perf_counter() + max(0.0, float(inp.budget_ms)) / 1000.0
         if inp.poses is not None:
-            return self._plan_poses(inp.waypoints, inp.poses, inp.motion, *scales)
-        return self._plan_waypoints(inp.waypoints, *scales)
+            return self._plan_poses(inp.waypoints, inp.poses, inp.motion, *scales, deadline)
+        return self._plan_waypoints(inp.waypoints, *scales, deadline)
 
     def _plan_waypoints(
         self,
@@ -197,13 +207,14 @@ class Planner:
         velocity_scale: float,
         acceleration_scale: float,
         max_jerk: ArrayLike | None,
+        deadline: float | None = None,
     ) -> PlanOutput:
         start = time.perf_counter()
         try:
             limits, constraints = self._scaled(velocity_scale, acceleration_scale)
             jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
             path = JointPath(waypoints, limits)
-            trajectory, details = self._timed(path, limits, constraints, jerk)
+            trajectory, details = self._timed(path, limits, constraints, jerk, deadline)
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - start, dict(exc.details))
         return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - start, details)
@@ -216,6 +227,7 @@ class Planner:
         velocity_scale: float,
         acceleration_scale: float,
         max_jerk: ArrayLike | None,
+        deadline: float | None = None,
     ) -> PlanOutput:
         """The tool from joint positions ``start`` through ``poses`` (straight lines or joint moves:
         planner/cartesian.py). ``details["ik_s"]``: the inverse kinematics' share of the planning
@@ -233,7 +245,7 @@ class Planner:
             jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
             tool: ToolPath = self.poses.solve(start, poses, kind)
             t_ik = time.perf_counter() - t0
-            trajectory, timed = self._timed(tool.path, limits, constraints, jerk)
+            trajectory, timed = self._timed(tool.path, limits, constraints, jerk, deadline)
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))
         details: dict[str, object] = {"ik_s": t_ik, "samples": len(tool.path.points), **timed}
