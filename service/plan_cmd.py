@@ -194,8 +194,8 @@ def run(args: argparse.Namespace) -> int:
     notice.start()
     try:
         planner = CellPlanner(cell)
-        if max_jerk is not None or cell.planning.max_jerk is not None:
-            planner.warm_up(jerk=True)  # casadi and its program: a process's start, not the plan's budget
+        # the compiled loops, casadi and its program load here: the process's start, not the plan's budget
+        planner.warm_up(jerk=True if max_jerk is not None else None)
         result = planner.plan(inp, args.tolerance, None, budget_ms)
     finally:
         notice.cancel()
