@@ -665,7 +665,8 @@ def _solve(
             finally:
                 program.lock.release()
 
-    thread = threading.Thread(target=work, name="jerk-solve", daemon=True)
+    # not a daemon: an interpreter that exits waits for the solve instead of tearing casadi down under it
+    thread = threading.Thread(target=work, name="jerk-solve", daemon=False)
     thread.start()
     thread.join(max(0.0, deadline - time.perf_counter()))
     return result[0] if result else (None, "", True)

@@ -89,20 +89,21 @@ class CellPlanner:
         except ValueError as exc:  # a planning option the planner refuses: every plan says so
             self.setup_error = str(exc)
 
-    def warm_up(self, jerk: bool | None = None) -> None:
+    def warm_up(self, jerk: bool = True) -> None:
         """Plan a short move in the middle of the joint ranges and drop it.
 
         The first plan of a process loads the planner's compiled loops (numba's cache; on a new
         machine it compiles them first, some seconds, once). A service pays that at start, not
-        with its first request. ``jerk`` (default: where the cell sets a jerk limit): the same move
-        jerk-limited too, which loads casadi and builds its program for a short path (0.2-0.3 s).
+        with its first request. ``jerk``: the same move jerk-limited too, which loads casadi and builds
+        its program for paths of up to 8 waypoints (0.2-0.3 s): any request may set a jerk limit, and
+        a program built inside a plan's budget would take most of it.
         """
         if self.planner is None:
             return
         lo, hi = self.limits.lower, self.limits.upper
         a, b = lo + 0.45 * (hi - lo), lo + 0.55 * (hi - lo)
         self.plan(PlanInput(np.array([a, b])))
-        if jerk or (jerk is None and self.planner.max_jerk is not None):
+        if jerk:
             self.plan(PlanInput(np.array([a, b]), max_jerk=10.0 * self.limits.acceleration))
         if self.planner.poses is not None:  # and the inverse kinematics' compiled steps
             self.plan(PlanInput(a, [placement_pose(self.planner.poses.ik.fk(b))]))

@@ -195,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         planner = CellPlanner(cell)
         # the compiled loops, casadi and its program load here: the process's start, not the plan's budget
-        planner.warm_up(jerk=True if max_jerk is not None else None)
+        planner.warm_up(jerk=max_jerk is not None or cell.planning.max_jerk is not None)
         result = planner.plan(inp, args.tolerance, None, budget_ms)
     finally:
         notice.cancel()
