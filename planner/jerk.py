@@ -342,20 +342,26 @@ class _Program:
         if name not in self.solvers:
             options = _solver_options(name, self.equality)
             if name == "ipopt":  # ipopt asks after every iteration whether to go on; fatrop never does
-                self.stop = _Deadline(self.nlp["x"].shape[0], self.nlp["g"].shape[0])
+                self.stop = _Deadline(self.nlp["x"].shape[0], np.asarray(self.equality))
                 options["iteration_callback"] = self.stop
             self.solvers[name] = ca.nlpsol(f"jerk_{name}", name, self.nlp, options)
         return self.solvers[name]
 
 
 class _Deadline(ca.Callback):
-    """ipopt's iteration callback: stop once ``deadline`` (time.perf_counter) has passed."""
+    """ipopt's iteration callback: stop once ``deadline`` (time.perf_counter) has passed, and keep
+    the last iterate whose equalities hold (``best``: the motion is continuous along the path; its
+    inequalities the dense check and slow-down make exact)."""
 
-    def __init__(self, nx: int, ng: int) -> None:
+    def __init__(self, nx: int, equality: NDArray[np.bool_]) -> None:
         ca.Callback.__init__(self)
-        self.nx, self.ng = nx, ng
+        self.nx, self.ng, self.equality = nx, len(equality), equality
         self.deadline = float("inf")
+        self.best: NDArray[np.float64] | None = None
         self.construct("jerk_deadline", {})
+
+    def reset(self, deadline: float) -> None:
+        self.deadline, self.best = deadline, None
 
     def get_n_in(self) -> int:
         return ca.nlpsol_n_out()
@@ -380,6 +386,9 @@ class _Deadline(ca.Callback):
         return ca.Sparsity(0, 0)
 
     def eval(self, arg: list[Any]) -> list[int]:
+        g = np.asarray(arg[2]).ravel()
+        if np.max(np.abs(g[self.equality]), initial=0.0) <= _ITERATE_TOL:
+            self.best = np.asarray(arg[0]).ravel().copy()
         return [1 if time.perf_counter() >= self.deadline else 0]
 
 
@@ -387,6 +396,9 @@ _MAX_ITER = 300
 _START_JERK_SLACK = 0.3  # the start's joint jerk at most this fraction of the limit (see ``_start``)
 _TOL = 1e-6  # optimality (relative duration)
 _CONSTRAINT_TOL = 1e-9  # the residuals: positions along the path continuous to 1e-9 of an interval
+_ITERATE_TOL = 1e-8  # an unfinished ipopt iterate is a motion where its residuals are this small
+# with less time than this left, ipopt (which stops at the deadline) instead of fatrop (which does not)
+_FATROP_TIME_S = 0.06
 
 
 def _solver_options(name: str, equality: list[bool]) -> dict[str, Any]:
@@ -616,6 +628,7 @@ class _Solution:
     j: NDArray[np.float64]  # (n,)
     solver: str
     iterations: int
+    optimal: bool = True
 
 
 def _solve_now(
@@ -625,21 +638,27 @@ def _solve_now(
     ``scale``, the solution is not). The third value: whether the deadline stopped it."""
     statuses = []
     width = len(_STATE) + len(_CONTROL)
-    for name in ("fatrop", "ipopt"):
+
+    def solution(x: Any, name: str, iterations: int, optimal: bool = True) -> _Solution:
+        w = np.append(np.asarray(x).ravel(), np.zeros(len(_CONTROL))).reshape(program.n + 1, width) * scale
+        return _Solution(w[:, 0], w[:, 1], w[:-1, 2], w[:-1, 3], name, iterations, optimal)
+
+    names = ("fatrop", "ipopt") if deadline - time.perf_counter() >= _FATROP_TIME_S else ("ipopt",)
+    for name in names:
         if time.perf_counter() >= deadline:
             return None, "; ".join(statuses), True
         solver = program.solver(name)
         if program.stop is not None:
-            program.stop.deadline = deadline
+            program.stop.reset(deadline)
         out = solver(**args)
         stats = solver.stats()
         if stats["success"]:
-            w = np.append(np.asarray(out["x"]).ravel(), np.zeros(len(_CONTROL))).reshape(program.n + 1, width)
-            w = w * scale
-            return _Solution(w[:, 0], w[:, 1], w[:-1, 2], w[:-1, 3], name, int(stats.get("iter_count", 0))), "", False
+            return solution(out["x"], name, int(stats.get("iter_count", 0))), "", False
         status = stats.get("return_status", "")
-        if status == "User_Requested_Stop":  # the deadline, through ``_Deadline``
-            return None, "; ".join(statuses), True
+        if status == "User_Requested_Stop":  # the deadline, through ``_Deadline``: its best iterate, if any
+            best = program.stop.best if program.stop is not None else None
+            iterations = int(stats.get("iter_count", 0))
+            return (None if best is None else solution(best, name, iterations, False)), "; ".join(statuses), True
         statuses.append(f"{name}: {status}" if isinstance(status, str) else f"{name}: failed (return status {status})")
     return None, "; ".join(statuses), False
 
@@ -744,6 +763,7 @@ def jerk_limited(
             limits.names,
             solver=sol.solver,
             iterations=sol.iterations,
+            optimal=sol.optimal,
         )
     traj = dataclasses.replace(traj, lower_bound=warm.duration)
     return _checked(traj, limits, jmax, constraints)

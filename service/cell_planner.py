@@ -51,7 +51,7 @@ TIMEOUT = "timeout"  # CellPlan.code of a plan past its deadline for another rea
 def knots_reserve_ms(budget_ms: float) -> float:
     """What a plan's budget keeps back from the jerk-limited timing's solve: its floor when the
     solve is late (``planner.scurve``, a few ms), the dense check, knot placement and validation."""
-    return 15.0 + 0.1 * budget_ms
+    return 25.0 + 0.1 * budget_ms
 
 
 def planner_for_cell(cell: CellConfig, gridpoints: int | None = None) -> Planner:
