@@ -32,6 +32,11 @@ start is slowed down to well inside the jerk rows (``_start``): both cut the sol
 After the solve the trajectory is checked densely (``JerkTrajectory.limit_ratios``,
 ``speed_ratio``), and slowed down uniformly where a sample between the rows exceeds a limit
 (velocity / k, acceleration / k^2, jerk / k^3), as TOPP-RA's trajectory is.
+
+Anytime with a deadline (``_solve``): the solve runs in a thread waited for until then; ipopt
+stops there (``_Deadline``) with its last iterate whose equalities hold, fatrop (no time limit in
+casadi 3.8.2) only runs with ``_FATROP_TIME_S`` left; without an answer in time the motion is the
+S-curve floor of ``planner.scurve``. Either is checked and slowed down as above, ``optimal`` False.
 """
 
 from __future__ import annotations
