@@ -32,11 +32,19 @@ start is slowed down to well inside the jerk rows (``_start``): both cut the sol
 After the solve the trajectory is checked densely (``JerkTrajectory.limit_ratios``,
 ``speed_ratio``), and slowed down uniformly where a sample between the rows exceeds a limit
 (velocity / k, acceleration / k^2, jerk / k^3), as TOPP-RA's trajectory is.
+
+Anytime with a deadline (``_solve``): the solve runs in a thread waited for until then; ipopt
+stops there (``_Deadline``) with its last iterate whose equalities hold, fatrop (no time limit in
+casadi 3.8.2) only runs with ``_FATROP_TIME_S`` left; without an answer in time the motion is the
+S-curve floor of ``planner.scurve``. Either is checked and slowed down as above, ``optimal`` False.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import threading
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -48,6 +56,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from planner.limits import JointLimits
 from planner.path import JointPath, PlanError, PlanResult
+from planner.scurve import rest_to_rest
 from planner.timing import (
     IntervalJointAccelerationConstraint,
     IntervalJointVelocityConstraint,
@@ -95,8 +104,10 @@ class JerkTrajectory:
     breakpoints: NDArray[np.float64]  # t at the grid [s]
     joint_names: tuple[str, ...]
     time_scale: float = 1.0  # >1 when the dense check slowed the solution down
-    solver: str = ""  # the casadi solver that found it
+    solver: str = ""  # the casadi solver that found it ("scurve": the deadline's floor, ``planner.scurve``)
     iterations: int = 0
+    optimal: bool = True  # False: the deadline came first, this is the best timing found by then
+    lower_bound: float = 0.0  # s: no timing of this path under these limits is shorter (TOPP-RA's duration)
     coefficients: tuple[NDArray[np.float64], ...] = field(default=(), repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -130,6 +141,8 @@ class JerkTrajectory:
             self.time_scale * k,
             self.solver,
             self.iterations,
+            self.optimal,
+            self.lower_bound,
             self.coefficients,
         )
 
@@ -326,17 +339,71 @@ class _Program:
     nlp: dict[str, ca.SX]
     equality: list[bool]
     solvers: dict[str, ca.Function] = field(default_factory=dict)
+    # one solve at a time: a solve past its plan's deadline runs on in its thread (fatrop cannot be stopped)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    stop: _Deadline | None = None
 
     def solver(self, name: str) -> ca.Function:
         if name not in self.solvers:
-            self.solvers[name] = ca.nlpsol(f"jerk_{name}", name, self.nlp, _solver_options(name, self.equality))
+            options = _solver_options(name, self.equality)
+            if name == "ipopt":  # ipopt asks after every iteration whether to go on; fatrop never does
+                self.stop = _Deadline(self.nlp["x"].shape[0], np.asarray(self.equality))
+                options["iteration_callback"] = self.stop
+            self.solvers[name] = ca.nlpsol(f"jerk_{name}", name, self.nlp, options)
         return self.solvers[name]
+
+
+class _Deadline(ca.Callback):
+    """ipopt's iteration callback: stop once ``deadline`` (time.perf_counter) has passed, and keep
+    the last iterate whose equalities hold (``best``: the motion is continuous along the path; its
+    inequalities the dense check and slow-down make exact)."""
+
+    def __init__(self, nx: int, equality: NDArray[np.bool_]) -> None:
+        ca.Callback.__init__(self)
+        self.nx, self.ng, self.equality = nx, len(equality), equality
+        self.deadline = float("inf")
+        self.best: NDArray[np.float64] | None = None
+        self.construct("jerk_deadline", {})
+
+    def reset(self, deadline: float) -> None:
+        self.deadline, self.best = deadline, None
+
+    def get_n_in(self) -> int:
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i: int) -> str:
+        return "ret"
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        name = ca.nlpsol_out(i)
+        if name == "f":
+            return ca.Sparsity.scalar()
+        if name in ("x", "lam_x"):
+            return ca.Sparsity.dense(self.nx)
+        if name in ("g", "lam_g"):
+            return ca.Sparsity.dense(self.ng)
+        return ca.Sparsity(0, 0)
+
+    def eval(self, arg: list[Any]) -> list[int]:
+        g = np.asarray(arg[2]).ravel()
+        if np.max(np.abs(g[self.equality]), initial=0.0) <= _ITERATE_TOL:
+            self.best = np.asarray(arg[0]).ravel().copy()
+        return [1 if time.perf_counter() >= self.deadline else 0]
 
 
 _MAX_ITER = 300
 _START_JERK_SLACK = 0.3  # the start's joint jerk at most this fraction of the limit (see ``_start``)
 _TOL = 1e-6  # optimality (relative duration)
 _CONSTRAINT_TOL = 1e-9  # the residuals: positions along the path continuous to 1e-9 of an interval
+_ITERATE_TOL = 1e-8  # an unfinished ipopt iterate is a motion where its residuals are this small
+# with less time than this left, ipopt (which stops at the deadline) instead of fatrop (which does not)
+_FATROP_TIME_S = 0.06
 
 
 def _solver_options(name: str, equality: list[bool]) -> dict[str, Any]:
@@ -566,24 +633,82 @@ class _Solution:
     j: NDArray[np.float64]  # (n,)
     solver: str
     iterations: int
+    optimal: bool = True
 
 
-def _solve(program: _Program, args: dict[str, Any], scale: NDArray[np.float64]) -> tuple[_Solution | None, str]:
+def _solve_now(
+    program: _Program, args: dict[str, Any], scale: NDArray[np.float64], deadline: float
+) -> tuple[_Solution | None, str, bool]:
     """fatrop, then ipopt from the same start where fatrop does not converge (``args`` scaled by
-    ``scale``, the solution is not)."""
+    ``scale``, the solution is not). The third value: whether the deadline stopped it."""
     statuses = []
     width = len(_STATE) + len(_CONTROL)
-    for name in ("fatrop", "ipopt"):
+
+    def solution(x: Any, name: str, iterations: int, optimal: bool = True) -> _Solution:
+        w = np.append(np.asarray(x).ravel(), np.zeros(len(_CONTROL))).reshape(program.n + 1, width) * scale
+        return _Solution(w[:, 0], w[:, 1], w[:-1, 2], w[:-1, 3], name, iterations, optimal)
+
+    names = ("fatrop", "ipopt") if deadline - time.perf_counter() >= _FATROP_TIME_S else ("ipopt",)
+    for name in names:
+        if time.perf_counter() >= deadline:
+            return None, "; ".join(statuses), True
         solver = program.solver(name)
+        if program.stop is not None:
+            program.stop.reset(deadline)
         out = solver(**args)
         stats = solver.stats()
         if stats["success"]:
-            w = np.append(np.asarray(out["x"]).ravel(), np.zeros(len(_CONTROL))).reshape(program.n + 1, width)
-            w = w * scale
-            return _Solution(w[:, 0], w[:, 1], w[:-1, 2], w[:-1, 3], name, int(stats.get("iter_count", 0))), ""
+            return solution(out["x"], name, int(stats.get("iter_count", 0))), "", False
         status = stats.get("return_status", "")
+        if status == "User_Requested_Stop":  # the deadline, through ``_Deadline``: its best iterate, if any
+            best = program.stop.best if program.stop is not None else None
+            iterations = int(stats.get("iter_count", 0))
+            return (None if best is None else solution(best, name, iterations, False)), "; ".join(statuses), True
         statuses.append(f"{name}: {status}" if isinstance(status, str) else f"{name}: failed (return status {status})")
-    return None, "; ".join(statuses)
+    return None, "; ".join(statuses), False
+
+
+def _solve(
+    program: _Program, args: dict[str, Any], scale: NDArray[np.float64], deadline: float | None
+) -> tuple[_Solution | None, str, bool]:
+    """``_solve_now`` within ``deadline`` (time.perf_counter; None: as long as it takes).
+
+    With a deadline the solve runs in a thread (casadi releases the GIL while it solves) and is
+    waited for until the deadline: ipopt stops there itself (``_Deadline``), fatrop cannot be
+    stopped and finishes in its thread, its answer unused; the next solve of the same program
+    waits for it (``_Program.lock``), within its own deadline."""
+    if deadline is None:
+        with program.lock:
+            return _solve_now(program, args, scale, float("inf"))
+    result: list[tuple[_Solution | None, str, bool]] = []
+
+    def work() -> None:
+        if program.lock.acquire(timeout=max(0.0, deadline - time.perf_counter())):
+            try:
+                result.append(_solve_now(program, args, scale, deadline))
+            finally:
+                program.lock.release()
+
+    # not a daemon: an interpreter that exits waits for the solve instead of tearing casadi down under it
+    thread = threading.Thread(target=work, name="jerk-solve", daemon=False)
+    thread.start()
+    thread.join(max(0.0, deadline - time.perf_counter()))
+    return result[0] if result else (None, "", True)
+
+
+def _checked(
+    traj: JerkTrajectory, limits: JointLimits, jmax: NDArray[np.float64], constraints: Sequence[constraint.Constraint]
+) -> JerkTrajectory:
+    """``traj`` checked densely and slowed down uniformly until every limit holds (PlanError where
+    it is no motion along the path)."""
+    if traj.min_path_velocity() < -1e-6 * max(np.max(traj.sd), 1e-9):
+        raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing reverses along the path", solver=traj.solver)
+    rv, ra, rj = traj.limit_ratios(limits, jmax)
+    factors = (rv, np.sqrt(ra), np.cbrt(rj), traj.speed_ratio(constraints))
+    if not np.all(np.isfinite(factors)):  # a solver's "success" that is no motion: never handed on
+        raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing returned no finite motion", solver=traj.solver)
+    k = max(factors)
+    return traj.slowed(k * (1.0 + 1e-9)) if k > 1.0 else traj
 
 
 def jerk_limited(
@@ -593,12 +718,17 @@ def jerk_limited(
     max_jerk: ArrayLike,
     warm: Trajectory,
     intervals: int = DEFAULT_JERK_INTERVALS,
+    deadline: float | None = None,
 ) -> JerkTrajectory:
     """The time-optimal rest-to-rest trajectory along ``path`` with |q'''_j| <= max_jerk_j besides
     ``constraints`` (the cell's toppra constraints, held as TOPP-RA holds them), started from
     ``warm``, the TOPP-RA solution of the same path and constraints.
 
     PlanError(INFEASIBLE) where no solver converges (the message carries their statuses).
+
+    Anytime with a ``deadline`` (time.perf_counter): where the solvers have not finished by then,
+    the answer is the S-curve floor (``planner.scurve``), ``optimal`` False; time alone never makes
+    it INFEASIBLE. ``lower_bound``: TOPP-RA's duration, which no jerk-limited timing beats.
     """
     jmax = np.asarray(max_jerk, dtype=float)
     # at rest at both ends and at every waypoint where the path is C1 only (``curvature_jumps``)
@@ -617,31 +747,28 @@ def jerk_limited(
     args |= {k: v for k, v in _bounds(rows, program).items() if k in ("lbg", "ubg")}
     args["p"] = np.concatenate((_parameters(rows, limits, jmax), scale))
     args["x0"] = start / per_variable
-    sol, status = _solve(program, args, scale)
-    if sol is None:
+    sol, status, late = _solve(program, args, scale, deadline)
+    if sol is None and not late:
         raise PlanError(
             PlanResult.INFEASIBLE,
             f"the jerk-limited timing found no trajectory within the limits ({status})",
             solver_status=status,
         )
-    traj = JerkTrajectory(
-        path,
-        grid,
-        np.maximum(sol.sd, 0.0),
-        sol.sdd,
-        sol.j,
-        np.concatenate(([0.0], np.cumsum(np.maximum(sol.h, 0.0)))),
-        limits.names,
-        solver=sol.solver,
-        iterations=sol.iterations,
-    )
-    if traj.min_path_velocity() < -1e-6 * max(np.max(traj.sd), 1e-9):
-        raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing reverses along the path", solver=sol.solver)
-    rv, ra, rj = traj.limit_ratios(limits, jmax)
-    factors = (rv, np.sqrt(ra), np.cbrt(rj), traj.speed_ratio(constraints))
-    if not np.all(np.isfinite(factors)):  # a solver's "success" that is no motion: never handed on
-        raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing returned no finite motion", solver=sol.solver)
-    k = max(factors)
-    if k > 1.0:
-        traj = traj.slowed(k * (1.0 + 1e-9))
-    return traj
+    if sol is None:  # the deadline first: the floor that needs no solver (planner/scurve.py)
+        g, sd, sdd, sddd, t = rest_to_rest(path, rests, limits, jmax)
+        traj = JerkTrajectory(path, g, sd, sdd, sddd, t, limits.names, solver="scurve", optimal=False)
+    else:
+        traj = JerkTrajectory(
+            path,
+            grid,
+            np.maximum(sol.sd, 0.0),
+            sol.sdd,
+            sol.j,
+            np.concatenate(([0.0], np.cumsum(np.maximum(sol.h, 0.0)))),
+            limits.names,
+            solver=sol.solver,
+            iterations=sol.iterations,
+            optimal=sol.optimal,
+        )
+    traj = dataclasses.replace(traj, lower_bound=warm.duration)
+    return _checked(traj, limits, jmax, constraints)

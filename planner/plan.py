@@ -28,6 +28,18 @@ if TYPE_CHECKING:  # planner.jerk loads casadi: only a plan with a jerk limit do
 PlanOutcome = PlanResult | CartesianResult
 
 
+def jerk_scale(velocity_scale: float, acceleration_scale: float) -> float:
+    """The factor a speed override puts on the jerk limit: ``velocity_scale * acceleration_scale``.
+
+    Why the product: a motion slowed down in time by k has its velocity times k, its acceleration
+    times k^2 and its jerk times k^3; the override (velocity_scale = k, acceleration_scale = k^2)
+    then gives k^3, the jerk of that slowed motion. For any other pair it is at most 1 (it never
+    loosens the limit), smaller with either factor, and follows both: a slower speed alone softens
+    the jerk too, as a lower acceleration alone does.
+    """
+    return float(velocity_scale) * float(acceleration_scale)
+
+
 def _scale(name: str, value: object) -> float:
     """``check_scale``'s answer as a PlanError (INVALID_INPUT, ``details["field"]``: which one)."""
     try:
@@ -57,6 +69,7 @@ class PlanInput:
     velocity_scale: float = 1.0  # speed override in (0, 1]: the joint velocity limits planned with
     acceleration_scale: float = 1.0  # the same for the joint acceleration limits
     max_jerk: ArrayLike | None = None  # joint units / s^3, one per joint (inf: unlimited); None: the planner's
+    budget_ms: float | None = None  # the jerk-limited timing's deadline from the call's start; None: none
 
 
 @dataclass(frozen=True)
@@ -80,7 +93,8 @@ class Planner:
     request's speed override (``velocity_scale``,
     ``acceleration_scale``) plans with the joint velocity and acceleration limits scaled down: its
     constraints are built for that call (cheap: the constraints compute nothing until they see a
-    path). The TCP speed and torque limits stay as the cell sets them.
+    path), and with the jerk limit times ``jerk_scale`` (their product). The TCP speed and torque
+    limits stay as the cell sets them.
 
     With a jerk limit (``max_jerk``: the cell's, or a request's, which replaces it), the TOPP-RA
     solution is the warm start of the jerk-limited timing along the same path (planner/jerk.py,
@@ -125,10 +139,15 @@ class Planner:
         limits = self.limits.scaled(*scales)
         return limits, timing_constraints(limits, *self._cell_constraints)
 
-    def _jerk_limit(self, max_jerk: ArrayLike | None) -> NDArray[np.float64] | None:
-        """The jerk limit of one plan: the request's, else the cell's; None where no joint has one."""
+    def _jerk_limit(
+        self, max_jerk: ArrayLike | None, velocity_scale: float = 1.0, acceleration_scale: float = 1.0
+    ) -> NDArray[np.float64] | None:
+        """The jerk limit of one plan: the request's, else the cell's, times the speed override's
+        ``jerk_scale``; None where no joint has one."""
         jerk = self.max_jerk if max_jerk is None else _max_jerk(max_jerk, self.limits.dof)
-        return jerk if jerk is not None and np.any(np.isfinite(jerk)) else None
+        if jerk is None or not np.any(np.isfinite(jerk)):
+            return None
+        return jerk * jerk_scale(velocity_scale, acceleration_scale)
 
     def _timed(
         self,
@@ -136,6 +155,7 @@ class Planner:
         limits: JointLimits,
         constraints: list[constraint.Constraint],
         max_jerk: NDArray[np.float64] | None,
+        deadline: float | None = None,
     ) -> tuple[Trajectory | JerkTrajectory, dict[str, object]]:
         """TOPP-RA along ``path``; with a jerk limit, the jerk-limited timing warm-started from it."""
         t0 = time.perf_counter()
@@ -146,7 +166,7 @@ class Planner:
 
         t1 = time.perf_counter()
         try:
-            jerky = jerk_limited(path, limits, constraints, max_jerk, trajectory)
+            jerky = jerk_limited(path, limits, constraints, max_jerk, trajectory, deadline=deadline)
         except (ValueError, RuntimeError) as exc:  # PlanError is a ValueError: passed on as it is
             if isinstance(exc, PlanError):
                 raise
@@ -158,6 +178,8 @@ class Planner:
             "iterations": jerky.iterations,
             "time_scale": jerky.time_scale,
             "max_jerk": [float(j) if np.isfinite(j) else None for j in max_jerk],  # None: that joint unlimited
+            "optimal": jerky.optimal,
+            "lower_bound_s": jerky.lower_bound,  # TOPP-RA's duration: no jerk-limited timing is shorter
         }
         return jerky, details
 
@@ -167,11 +189,17 @@ class Planner:
 
         ``velocity_scale``, ``acceleration_scale`` in (0, 1]: the joint velocity and acceleration
         limits are multiplied by them for this plan (INVALID_INPUT naming the field otherwise).
-        ``max_jerk``: this plan's jerk limit, one per joint (None: the planner's, if any)."""
+        ``max_jerk``: this plan's jerk limit, one per joint (None: the planner's, if any).
+        ``budget_ms``: the jerk-limited timing is anytime, its answer due this long after the call
+        (``details["optimal"]`` False where the deadline came first; ``lower_bound_s`` TOPP-RA's
+        duration, the gap's other end). Time alone never refuses a plan here."""
         scales = (inp.velocity_scale, inp.acceleration_scale, inp.max_jerk)
+        deadline = None
+        if inp.budget_ms is not None:
+            deadline = time.perf_counter() + max(0.0, float(inp.budget_ms)) / 1000.0
         if inp.poses is not None:
-            return self._plan_poses(inp.waypoints, inp.poses, inp.motion, *scales)
-        return self._plan_waypoints(inp.waypoints, *scales)
+            return self._plan_poses(inp.waypoints, inp.poses, inp.motion, *scales, deadline)
+        return self._plan_waypoints(inp.waypoints, *scales, deadline)
 
     def _plan_waypoints(
         self,
@@ -179,13 +207,14 @@ class Planner:
         velocity_scale: float,
         acceleration_scale: float,
         max_jerk: ArrayLike | None,
+        deadline: float | None = None,
     ) -> PlanOutput:
         start = time.perf_counter()
         try:
             limits, constraints = self._scaled(velocity_scale, acceleration_scale)
-            jerk = self._jerk_limit(max_jerk)
+            jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
             path = JointPath(waypoints, limits)
-            trajectory, details = self._timed(path, limits, constraints, jerk)
+            trajectory, details = self._timed(path, limits, constraints, jerk, deadline)
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - start, dict(exc.details))
         return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - start, details)
@@ -198,6 +227,7 @@ class Planner:
         velocity_scale: float,
         acceleration_scale: float,
         max_jerk: ArrayLike | None,
+        deadline: float | None = None,
     ) -> PlanOutput:
         """The tool from joint positions ``start`` through ``poses`` (straight lines or joint moves:
         planner/cartesian.py). ``details["ik_s"]``: the inverse kinematics' share of the planning
@@ -212,10 +242,10 @@ class Planner:
             return PlanOutput(PlanResult.INVALID_INPUT, f"motion must be one of {choices}, got {motion!r}")
         try:
             limits, constraints = self._scaled(velocity_scale, acceleration_scale)
-            jerk = self._jerk_limit(max_jerk)
+            jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
             tool: ToolPath = self.poses.solve(start, poses, kind)
             t_ik = time.perf_counter() - t0
-            trajectory, timed = self._timed(tool.path, limits, constraints, jerk)
+            trajectory, timed = self._timed(tool.path, limits, constraints, jerk, deadline)
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))
         details: dict[str, object] = {"ik_s": t_ik, "samples": len(tool.path.points), **timed}

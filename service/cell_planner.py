@@ -9,7 +9,7 @@ service and the command line both import it from here.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -36,10 +36,22 @@ class CellPlan:
     timing: dict[str, float] = field(default_factory=dict)  # s: plan (ik: its inverse kinematics), knots, total
     waypoints: NDArray[np.float64] | None = None  # the joint waypoints planned through (poses: the IK samples)
     details: dict[str, Any] = field(default_factory=dict)  # where it failed (PlanError details)
+    optimal: bool = True  # False where the jerk-limited timing's deadline came first (a valid, slower motion)
+    # a jerk-limited plan's duration and the TOPP-RA duration no jerk-limited timing beats (s)
+    gap: dict[str, float] | None = None
 
     @property
     def ok(self) -> bool:
         return self.program is not None
+
+
+TIMEOUT = "timeout"  # CellPlan.code of a plan past its deadline for another reason than the timing's solve
+
+
+def knots_reserve_ms(budget_ms: float) -> float:
+    """What a plan's budget keeps back from the jerk-limited timing's solve: its floor when the
+    solve is late (``planner.scurve``, a few ms), the dense check, knot placement and validation."""
+    return 25.0 + 0.1 * budget_ms
 
 
 def planner_for_cell(cell: CellConfig, gridpoints: int | None = None) -> Planner:
@@ -77,26 +89,31 @@ class CellPlanner:
         except ValueError as exc:  # a planning option the planner refuses: every plan says so
             self.setup_error = str(exc)
 
-    def warm_up(self, jerk: bool | None = None) -> None:
+    def warm_up(self, jerk: bool = True) -> None:
         """Plan a short move in the middle of the joint ranges and drop it.
 
         The first plan of a process loads the planner's compiled loops (numba's cache; on a new
         machine it compiles them first, some seconds, once). A service pays that at start, not
-        with its first request. ``jerk`` (default: where the cell sets a jerk limit): the same move
-        jerk-limited too, which loads casadi and builds its program for a short path (0.2-0.3 s).
+        with its first request. ``jerk``: the same move jerk-limited too, which loads casadi and builds
+        its program for paths of up to 8 waypoints (0.2-0.3 s): any request may set a jerk limit, and
+        a program built inside a plan's budget would take most of it.
         """
         if self.planner is None:
             return
         lo, hi = self.limits.lower, self.limits.upper
         a, b = lo + 0.45 * (hi - lo), lo + 0.55 * (hi - lo)
         self.plan(PlanInput(np.array([a, b])))
-        if jerk or (jerk is None and self.planner.max_jerk is not None):
+        if jerk:
             self.plan(PlanInput(np.array([a, b]), max_jerk=10.0 * self.limits.acceleration))
         if self.planner.poses is not None:  # and the inverse kinematics' compiled steps
             self.plan(PlanInput(a, [placement_pose(self.planner.poses.ik.fk(b))]))
 
     def plan(
-        self, inp: PlanInput, tolerance_qc: float | None = None, metadata: dict[str, Any] | None = None
+        self,
+        inp: PlanInput,
+        tolerance_qc: float | None = None,
+        metadata: dict[str, Any] | None = None,
+        budget_ms: float | None = None,
     ) -> CellPlan:
         """A plan (waypoints in the cell's joint order, or tool poses from a start: planner.plan)
         -> a validated PVT program for the cell's drives. ``tolerance_qc``: the knots' position
@@ -110,13 +127,29 @@ class CellPlanner:
         limit, ``topp`` and ``jerk`` its two parts), ``knots`` knot placement + validation, ``total``,
         and ``cpu`` the CPU time of this thread over the whole call (``total - cpu``: time the thread
         waited for the CPU or the GIL).
+
+        ``budget_ms`` (None: no deadline; the service and ``pvtflow plan`` pass the request's or the
+        cell's ``planning.budget_ms``): the jerk-limited timing gets the budget less
+        ``knots_reserve_ms`` and answers by then (``CellPlan.optimal`` False where that was its best
+        so far); a plan that is still past the deadline at the end (inverse kinematics, TOPP-RA, a
+        casadi program built for a new shape, knots) is ``timeout``, its program dropped.
         """
         start, cpu = time.perf_counter(), time.thread_time()
         if self.planner is None:
             return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
+        if budget_ms is not None:
+            inp = replace(inp, budget_ms=max(0.0, budget_ms - knots_reserve_ms(budget_ms)))
         out = self.planner.plan(inp)
         meta = dict(metadata or {}) if inp.poses is None else {"motion": str(inp.motion), **(metadata or {})}
-        return self._build(out, start, cpu, inp, tolerance_qc, meta)
+        result = self._build(out, start, cpu, inp, tolerance_qc, meta)
+        elapsed_ms = (time.perf_counter() - start) * 1000.0
+        if budget_ms is not None and elapsed_ms > budget_ms and result.ok:
+            message = f"the plan took {elapsed_ms:.0f} ms, past its budget of {budget_ms:g} ms"
+            return CellPlan(TIMEOUT, message, None, out, None, result.timing, details={"budget_ms": budget_ms})
+        if result.ok and out.trajectory is not None and "lower_bound_s" in out.details:
+            gap = {"duration_s": out.trajectory.duration, "lower_bound_s": float(out.details["lower_bound_s"])}  # type: ignore[arg-type]
+            result = replace(result, optimal=bool(out.details["optimal"]), gap=gap)
+        return result
 
     def _build(
         self,

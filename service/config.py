@@ -53,6 +53,7 @@ class PlanningConfig:
     max_tcp_angular_speed: float | None = None  # rad/s
     torque_limits: bool = True  # only where the URDF has effort limits and masses
     position_tolerance_qc: float = 1.0
+    budget_ms: float = 200.0  # a plan's deadline when its request sets none (service/cell_planner.py)
     # joint units / s^3 per joint in the model's joint order (inf: that axis sets none); None: no axis sets one
     max_jerk: tuple[float, ...] | None = None
 
@@ -416,7 +417,10 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
 
 def _parse_planning(file: Path, data: Any, tcp_frame: str | None, model: RobotModel) -> PlanningConfig:
     f = _Fields(
-        file, "planning", data, ("max_tcp_speed", "max_tcp_angular_speed", "torque_limits", "position_tolerance_qc")
+        file,
+        "planning",
+        data,
+        ("max_tcp_speed", "max_tcp_angular_speed", "torque_limits", "position_tolerance_qc", "budget_ms"),
     )
     max_tcp = f.get("max_tcp_speed", f.number(positive=True), None)
     if max_tcp is not None and tcp_frame is None:
@@ -431,6 +435,7 @@ def _parse_planning(file: Path, data: Any, tcp_frame: str | None, model: RobotMo
         max_tcp_angular_speed=max_turn,
         torque_limits=torque and model.has_dynamics,
         position_tolerance_qc=f.get("position_tolerance_qc", f.number(positive=True), 1.0),
+        budget_ms=f.get("budget_ms", f.number(positive=True), PlanningConfig.budget_ms),
     )
 
 

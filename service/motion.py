@@ -58,7 +58,7 @@ from service.api import (
     refusals,
 )
 from service.approach import away_from_start, plan_approach
-from service.cell_planner import CellPlanner
+from service.cell_planner import TIMEOUT, CellPlanner
 from service.config import CellConfig
 from service.journal import Journal, JournalError, MotionEntry, default_directory
 from service.planning import PlanningProcess
@@ -317,6 +317,7 @@ class MotionService:
             "acceleration_scale": req.acceleration_scale,
             "max_jerk": req.max_jerk,
         }
+        budget_ms = self.cell.planning.budget_ms if req.budget_ms is None else req.budget_ms
         if req.poses is not None:
             if req.start == "home":
                 q0 = self.home_position()
@@ -327,7 +328,7 @@ class MotionService:
                 q0 = self.current_joint_positions()
             with self._planner_lock:
                 result = self.planner.plan(
-                    PlanInput(q0, req.poses, req.motion, **scales), req.tolerance_qc, {"plan_id": plan_id}
+                    PlanInput(q0, req.poses, req.motion, **scales), req.tolerance_qc, {"plan_id": plan_id}, budget_ms
                 )
             waypoints = result.waypoints if result.waypoints is not None else q0[None, :]
         else:
@@ -352,7 +353,11 @@ class MotionService:
                         {"result": "repeated_waypoint"},
                     )
             with self._planner_lock:
-                result = self.planner.plan(PlanInput(waypoints, **scales), req.tolerance_qc, {"plan_id": plan_id})
+                result = self.planner.plan(
+                    PlanInput(waypoints, **scales), req.tolerance_qc, {"plan_id": plan_id}, budget_ms
+                )
+        if result.code == TIMEOUT:
+            raise ApiError(ErrorCode.TIMEOUT, f"cell {self.cell.name}: {result.message}", {"budget_ms": budget_ms})
         if not result.ok or result.program is None or result.build is None:
             raise refusals.plan_failed(self.cell.name, result.code, result.message, _plain(result.details))
         program = result.program
@@ -370,7 +375,10 @@ class MotionService:
             "records": {a.name: len(a.records) for a in program.axes},
             "validation": {"ok": result.build.report.ok, "warnings": len(result.build.report.warnings)},
             "timing_ms": timing,
+            "optimal": result.optimal,
         }
+        if result.gap is not None:
+            reply["gap"] = result.gap
         with self._plans_lock:
             self.plans[plan_id] = StoredPlan(plan_id, program, reply, req.label)
             while len(self.plans) > self.max_plans:

@@ -3,13 +3,14 @@
 Exit codes: 0 written, 1 the waypoints cannot be planned on this cell (the message says why),
 2 unreadable input (configuration, waypoint file) or the output cannot be written.
 
-The pipeline itself (:class:`CellPlanner`, :func:`plan_cell_program`) is service/cell_planner.py's.
+The pipeline itself (:class:`CellPlanner`) is service/cell_planner.py's.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import threading
 from dataclasses import replace
@@ -22,7 +23,7 @@ from numpy.typing import NDArray
 from planner.limits import check_max_jerk, check_scale
 from planner.plan import PlanInput
 from service.api import ApiError, ErrorCode, check_limits, refusals
-from service.cell_planner import plan_cell_program
+from service.cell_planner import TIMEOUT, CellPlanner
 from service.config import CellConfig, ConfigError, load_cell_config
 from service.waypoints import PoseTargets, WaypointError, dropped_times_warning, load_motion
 
@@ -83,6 +84,14 @@ def add_parser(subparsers: Any) -> None:
         metavar="J1,...,Jn",
         help="jerk limit per joint in joint units/s^3 (rad/s^3, m/s^3), in the cell's joint order, instead of "
         "the cell's axes' max_jerk: the timing is then solved jerk-limited (casadi) instead of by TOPP-RA alone",
+    )
+    p.add_argument(
+        "--budget-ms",
+        type=float,
+        metavar="MS",
+        help="the plan's deadline in ms (default: the cell's planning.budget_ms): a jerk-limited timing answers "
+        "by then with its best so far (not optimal: said in the summary); a plan past it for another reason is "
+        "refused (timeout). A jerk-limited plan's casadi program is built before the deadline starts",
     )
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of text")
     p.set_defaults(run=run)
@@ -163,6 +172,9 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as exc:
             return _fail(EXIT_BAD_INPUT, str(exc))
 
+    budget_ms = cell.planning.budget_ms if args.budget_ms is None else args.budget_ms
+    if not (math.isfinite(budget_ms) and budget_ms > 0):
+        return _fail(EXIT_BAD_INPUT, f"--budget-ms must be a positive number of ms, got {args.budget_ms}")
     scales: dict[str, Any] = {
         "velocity_scale": args.velocity_scale,
         "acceleration_scale": args.acceleration_scale,
@@ -181,9 +193,14 @@ def run(args: argparse.Namespace) -> int:
     notice.daemon = True
     notice.start()
     try:
-        result = plan_cell_program(cell, inp, args.tolerance)
+        planner = CellPlanner(cell)
+        # the compiled loops, casadi and its program load here: the process's start, not the plan's budget
+        planner.warm_up(jerk=max_jerk is not None or cell.planning.max_jerk is not None)
+        result = planner.plan(inp, args.tolerance, None, budget_ms)
     finally:
         notice.cancel()
+    if result.code == TIMEOUT:
+        return _fail(EXIT_NOT_PLANNED, ApiError(ErrorCode.TIMEOUT, result.message).line())
     if not result.ok or result.program is None or result.build is None:
         return _fail(EXIT_NOT_PLANNED, refusals.plan_failed(cell.name, result.code, result.message).line())
 
@@ -209,7 +226,11 @@ def run(args: argparse.Namespace) -> int:
         "velocity_ratio": {a.name: round(a.velocity_ratio * args.velocity_scale, 5) for a in knots.axes},
         "acceleration_ratio": {a.name: round(a.acceleration_ratio * args.acceleration_scale, 5) for a in knots.axes},
         "timing_ms": {k: round(v * 1000.0, 2) for k, v in result.timing.items()},
+        "budget_ms": budget_ms,
+        "optimal": result.optimal,
     }
+    if result.gap is not None:
+        summary["gap"] = result.gap
     if isinstance(motion, PoseTargets) and result.waypoints is not None:
         summary["motion"] = motion.motion
         summary["joint_samples"] = len(result.waypoints)
@@ -221,6 +242,7 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"{out}: {len(knots.axes)} axes, {duration_s:.3f} s, worst deviation {knots.deviation_qc:.2f} qc, "
             f"planned in {result.timing['total'] * 1000:.1f} ms"
+            + ("" if result.optimal else f" (not optimal: the {budget_ms:g} ms budget came first)")
         )
         for a in knots.axes:
             print(

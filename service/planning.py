@@ -116,11 +116,15 @@ class PlanningProcess:
             self._wait_ready()
 
     def plan(
-        self, inp: PlanInput, tolerance_qc: float | None = None, metadata: dict[str, Any] | None = None
+        self,
+        inp: PlanInput,
+        tolerance_qc: float | None = None,
+        metadata: dict[str, Any] | None = None,
+        budget_ms: float | None = None,
     ) -> CellPlan:
         """Like CellPlanner.plan, in the child; PlanningError for a planner bug or a dead child (then
         restarted)."""
-        return self._ask((inp, tolerance_qc, metadata))
+        return self._ask((inp, tolerance_qc, metadata, budget_ms))
 
     def _ask(self, args: tuple[Any, ...]) -> CellPlan:
         with self._lock:

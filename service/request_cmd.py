@@ -235,6 +235,12 @@ def add_parser(subparsers: Any) -> None:
         metavar="J1,...,Jn",
         help="plan: jerk limit per joint in joint units/s^3, in the cell's joint order (default: the cell's)",
     )
+    p.add_argument(
+        "--budget-ms",
+        type=float,
+        metavar="MS",
+        help="plan: the plan's deadline in ms (default: the cell's planning.budget_ms)",
+    )
     p.add_argument("--program", metavar="FILE", help="validate / execute: a PVT program file instead of a plan id")
     p.add_argument(
         "--wait", action="store_true", help="execute / home: reply at the end of the motion or homing, with its outcome"
@@ -263,6 +269,7 @@ _FOR_OPS: dict[str, tuple[str, ...]] = {
     "velocity_scale": ("plan",),
     "acceleration_scale": ("plan",),
     "max_jerk": ("plan",),
+    "budget_ms": ("plan",),
     "program": ("validate", "execute"),
     "wait": ("execute", "home"),
     "approach": ("execute",),
@@ -310,6 +317,10 @@ def _local_payload(args: argparse.Namespace) -> Any:
                     raise _InputError(str(exc)) from None
         if args.max_jerk is not None:
             out["max_jerk"] = _max_jerk(args.max_jerk)
+        if args.budget_ms is not None:
+            if not (math.isfinite(args.budget_ms) and 0 < args.budget_ms <= 60000):
+                raise _InputError(f"--budget-ms must be a number of ms in (0, 60000], got {args.budget_ms:g}")
+            out["budget_ms"] = args.budget_ms
     elif op in ("validate", "execute"):
         if args.program is not None and args.plan_id is not None:
             raise _InputError(f"{op} takes a PLAN_ID or --program FILE, not both")

@@ -71,7 +71,7 @@ class DriveAxis:
 @dataclass(frozen=True)
 class KnotOptions:
     tolerance_qc: float = 1.0  # max |reconstruction - plan| at the drive's 1 kHz samples
-    fit_fraction: float = 0.6  # refinement target for the exact-sample cubic, fraction of the tolerance
+    fit_fraction: float = 0.8  # refinement target of the fits, a fraction of the tolerance (0.6: 5 % more records)
     switch_fraction: float = 0.02  # an acceleration jump above this fraction of 0x60C5 gets its own knot
     min_switch_gap_ms: int = 8  # switch knots closer than this are merged (short segments amplify rounding)
     dwell_ms: int = 1  # time of records[0]: the wait from the start SYNC to the first segment

@@ -30,6 +30,7 @@ class PlanRequest:
     motion: str = Motion.LINEAR.value
     start_joints: NDArray[np.float64] | None = None  # (dof,) in the cell's joint order
     max_jerk: NDArray[np.float64] | None = None  # (dof,) in the cell's joint order; None: the cell's
+    budget_ms: float | None = None  # the plan's deadline; None: the cell's planning.budget_ms
 
 
 @dataclass(frozen=True)
@@ -107,6 +108,7 @@ def parse_plan(data: Any, joint_names: Sequence[str], limits: JointLimits | None
         data.get("label"),
         bool(data.get("include_program", False)),
         max_jerk=_max_jerk(data, order),
+        budget_ms=data.get("budget_ms"),
         **_scales(data),
     )
 
@@ -181,6 +183,7 @@ def _parse_pose_plan(data: dict[str, Any], order: list[int], limits: JointLimits
         motion=data.get("motion", Motion.LINEAR.value),
         start_joints=start_joints,
         max_jerk=_max_jerk(data, order),
+        budget_ms=data.get("budget_ms"),
         **_scales(data),
     )
 

@@ -145,6 +145,14 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
                     ),
                     "items": {"type": "number", "exclusiveMinimum": 0},
                 },
+                "budget_ms": {
+                    "type": "number",
+                    "exclusiveMinimum": 0,
+                    "maximum": 60000,
+                    "description": "the plan's deadline in ms (default: the cell's planning.budget_ms): a "
+                    "jerk-limited timing answers by then with its best so far (optimal: false in the reply); a plan "
+                    "still not done then for another reason: timeout",
+                },
                 "label": _TEXT,
                 "include_program": {
                     "type": "boolean",
@@ -507,6 +515,8 @@ def _plain_plan(data: Any, dof: int | None) -> bool:
             ok = type(value) in _NUMBER_TYPES and 0 < value <= 1
         elif name == "max_jerk":
             ok = _numbers(value, dof) and all(v > 0 for v in value)
+        elif name == "budget_ms":
+            ok = type(value) in _NUMBER_TYPES and 0 < value <= 60000
         elif name == "label":
             ok = type(value) is str and len(value) <= MAX_TEXT
         else:  # include_program

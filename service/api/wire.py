@@ -56,6 +56,7 @@ class ErrorCode(StrEnum):
     UNKNOWN_PLAN = "unknown_plan"  # no plan with this id (never made, or forgotten)
     WRONG_CELL = "wrong_cell"  # a program made for another cell or other drives
     PLAN_FAILED = "plan_failed"  # the planner found no motion (details.result says why)
+    TIMEOUT = "timeout"  # the plan was not done within its budget_ms (for another reason than the jerk solve)
     VALIDATION_FAILED = "validation_failed"  # the program breaks its drives' rules
     BUSY = "busy"  # a motion is running on this cell: one at a time
     START_MISMATCH = "start_mismatch"  # the axes are not where the program starts
@@ -82,6 +83,10 @@ ERROR_DESCRIPTIONS: dict[ErrorCode, str] = {
     ErrorCode.UNKNOWN_PLAN: "No plan with this plan_id on this cell (plans live in memory: a restart or "
     "too many newer plans forget it).",
     ErrorCode.WRONG_CELL: "The program was made for another cell, other node ids, profiles, scaling or limits.",
+    ErrorCode.TIMEOUT: "The plan was not done within its budget_ms (the request's, else the cell's "
+    "planning.budget_ms) for another reason than the jerk-limited timing's solve, which answers in time with its "
+    "best so far (optimal: false): inverse kinematics, TOPP-RA, knots or validation took too long. Nothing was kept "
+    "(details.budget_ms).",
     ErrorCode.PLAN_FAILED: "The planner found no motion through these waypoints or poses (details.result: "
     "repeated_waypoint, path_out_of_limits, infeasible, ... or program_error; for poses also unreachable, "
     "singular or joint_limit, with details.pose, the pose the line leads to, and details.fraction, how far "

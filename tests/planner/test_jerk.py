@@ -115,6 +115,30 @@ def test_the_cells_jerk_limit_applies_and_a_requests_replaces_it() -> None:
     assert Planner(LIMITS).plan(PlanInput(WAYPOINTS)).trajectory.duration == unlimited.trajectory.duration
 
 
+def test_the_speed_override_scales_the_jerk_limit_by_the_product_of_its_factors() -> None:
+    """velocity_scale k, acceleration_scale k^2 is the motion slowed down in time by k: jerk k^3,
+    so the plan held is the unscaled one k times slower. Any other pair: the product, held densely."""
+    max_jerk = 10.0 * LIMITS.acceleration
+    planner = Planner(LIMITS)
+    full = planner.plan(PlanInput(WAYPOINTS, max_jerk=max_jerk))
+    half = planner.plan(PlanInput(WAYPOINTS, velocity_scale=0.5, acceleration_scale=0.25, max_jerk=max_jerk))
+    assert half.details["max_jerk"] == pytest.approx(list(0.125 * max_jerk))
+    assert half.trajectory.duration == pytest.approx(2.0 * full.trajectory.duration, rel=0.02)
+    for vs, acc in ((0.5, 1.0), (1.0, 0.3), (0.8, 0.6)):
+        out = planner.plan(PlanInput(WAYPOINTS, velocity_scale=vs, acceleration_scale=acc, max_jerk=max_jerk))
+        assert out.details["max_jerk"] == pytest.approx(list(vs * acc * max_jerk))
+        *_, rj = dense_ratios(out.trajectory, vs * acc * max_jerk)
+        assert rj <= 1.001 and rj > 0.9  # held, and the scaled limit is what binds
+        assert out.trajectory.duration > full.trajectory.duration
+
+
+def test_the_program_records_the_scaled_jerk_limit(cell_planner: CellPlanner) -> None:
+    max_jerk = 10.0 * LIMITS.acceleration
+    res = cell_planner.plan(PlanInput(WAYPOINTS, velocity_scale=0.5, acceleration_scale=0.5, max_jerk=max_jerk))
+    assert res.ok, res.message
+    assert res.program.metadata["max_jerk"] == pytest.approx(list(0.25 * max_jerk))
+
+
 @pytest.mark.parametrize(
     ("value", "words"),
     [

@@ -203,3 +203,26 @@ def test_waypoint_formats_and_errors() -> None:
         with pytest.raises(WaypointError) as err:
             parse_waypoints(text, NAMES, "f.json")
         assert msg in str(err.value) and str(err.value).startswith("f.json")
+
+
+def test_plan_has_a_budget_and_says_whether_the_plan_is_optimal(tmp_path: Path, capsys) -> None:
+    wp = tmp_path / "wp.json"
+    wp.write_text(json.dumps({"joint_names": list(NAMES), "waypoints": WAYPOINTS}))
+    jerk = ",".join(str(10.0 * a) for a in ARM6.joint_limits().acceleration)
+    out = tmp_path / "p.json"
+    assert (
+        main(["plan", "--waypoints", str(wp), "-o", str(out), "--max-jerk", jerk, "--budget-ms", "60000", "--json"])
+        == 0
+    )
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["budget_ms"] == 60000 and summary["optimal"] is True
+    assert summary["gap"]["lower_bound_s"] <= summary["gap"]["duration_s"]
+    assert main(["plan", "--waypoints", str(wp), "-o", str(out), "--json"]) == 0  # no jerk limit: TOPP-RA, exact
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["budget_ms"] == ARM6.planning.budget_ms and summary["optimal"] is True and "gap" not in summary
+    late = tmp_path / "late.json"
+    assert main(["plan", "--waypoints", str(wp), "-o", str(late), "--budget-ms", "0.001"]) == 1
+    err = capsys.readouterr().err
+    assert "timeout: " in err and "past its budget of 0.001 ms" in err and not late.exists()
+    assert main(["plan", "--waypoints", str(wp), "-o", str(late), "--budget-ms", "-5"]) == 2
+    assert "--budget-ms must be a positive number of ms, got -5" in capsys.readouterr().err

@@ -165,7 +165,13 @@ def test_a_plan_request_with_max_jerk_through_the_service(arm6, tmp_path: Path) 
     with served_cell(arm6, tmp_path) as s:
         plain = s.request("plan", {"target": SHORT_TARGET})
         limited = s.request("plan", {"target": SHORT_TARGET, "max_jerk": jerk, "include_program": True})
+        late = s.request("plan", {"target": SHORT_TARGET, "max_jerk": jerk, "budget_ms": 0.001})
     assert plain.ok and limited.ok, limited.data
+    assert plain.data["optimal"] is True and "gap" not in plain.data
+    assert isinstance(limited.data["optimal"], bool)  # the cell's 200 ms budget: optimal unless the VM stalls
+    assert limited.data["gap"]["lower_bound_s"] <= limited.data["gap"]["duration_s"]
+    assert not late.ok and late.data["error"]["code"] == "timeout", late.data
+    assert late.data["error"]["details"]["budget_ms"] == 0.001
     check_reply("plan", limited.data)
     assert limited.data["program"]["metadata"]["max_jerk"] == pytest.approx(jerk)
     assert {"topp", "jerk"} <= set(limited.data["timing_ms"])
@@ -183,7 +189,10 @@ def test_the_planning_process_plans_jerk_limited_like_the_service_s_own_planner(
     service = MotionService(arm6, journal_dir=tmp_path, planner_process=True)  # planning only: no bus needed
     try:
         assert isinstance(service.planner, PlanningProcess)
-        reply = service.plan(PlanRequest(waypoints, start="first", include_program=True, max_jerk=jerk))
+        reply = service.plan(
+            PlanRequest(waypoints, start="first", include_program=True, max_jerk=jerk, budget_ms=60000.0)
+        )
+        assert reply["optimal"] is True  # a budget the solve fits in: the same plan as without one
     finally:
         service.close()
     here = CellPlanner(arm6).plan(PlanInput(waypoints, max_jerk=jerk))

@@ -1,0 +1,100 @@
+"""A jerk-limited plan within its deadline (planner/jerk.py, planner/scurve.py, service/cell_planner.py).
+
+The timing is anytime: a deadline that comes before the solvers finish gives a valid, slower motion
+(``optimal`` False), never a refusal; a plan past its budget for another reason is ``timeout``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import service.cell_planner as cell_planner_module
+from planner.plan import PlanInput, Planner
+from planner.validate import validate_program
+from service.cell_planner import TIMEOUT, CellPlanner
+from service.config import CONFIG_DIR, load_cell_config
+
+ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
+GANTRY = load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml")
+
+
+def random_paths(cell, count: int, seed: int) -> list[np.ndarray]:
+    lim = cell.joint_limits()
+    rng = np.random.default_rng(seed)
+    return [lim.lower + (lim.upper - lim.lower) * (0.1 + 0.8 * rng.random((8, lim.dof))) for _ in range(count)]
+
+
+def dense_ratios(traj, limits, max_jerk) -> tuple[float, float, float]:
+    t = traj.check_times(64)
+    return (
+        float(np.max(np.abs(traj.velocity(t)) / limits.velocity)),
+        float(np.max(np.abs(traj.acceleration(t)) / limits.acceleration)),
+        float(np.max(np.abs(traj.jerk(t)) / max_jerk)),
+    )
+
+
+@pytest.mark.parametrize("cell", [ARM, GANTRY], ids=["arm6", "gantry3"])
+def test_a_deadline_before_the_solve_gives_a_valid_slower_motion_not_a_refusal(cell) -> None:
+    limits = cell.joint_limits()
+    max_jerk = 10.0 * limits.acceleration
+    planner = Planner(limits)
+    for wp in random_paths(cell, 3, seed=5):
+        late = planner.plan(PlanInput(wp, max_jerk=max_jerk, budget_ms=0.0))
+        assert late.ok, late.message
+        assert late.details["optimal"] is False and late.details["solver"] == "scurve"
+        traj = late.trajectory
+        assert max(dense_ratios(traj, limits, max_jerk)) <= 1.001
+        np.testing.assert_allclose(traj.position(traj.waypoint_times), wp, atol=1e-9)  # through every waypoint
+        best = planner.plan(PlanInput(wp, max_jerk=max_jerk))
+        assert best.details["optimal"] is True
+        assert late.details["lower_bound_s"] == pytest.approx(best.details["lower_bound_s"])
+        assert best.details["lower_bound_s"] <= best.trajectory.duration <= traj.duration
+
+
+def test_a_solve_the_deadline_interrupts_leaves_the_next_plan_whole() -> None:
+    """5 ms for a solve that takes tens: answered in time (whatever it had), and the next plan of the
+    same program waits for the interrupted solve and is optimal."""
+    limits = ARM.joint_limits()
+    max_jerk = 4.0 * limits.acceleration
+    planner = Planner(limits)
+    wp = random_paths(ARM, 1, seed=11)[0]
+    quick = planner.plan(PlanInput(wp, max_jerk=max_jerk, budget_ms=5.0))
+    assert quick.ok and isinstance(quick.details["optimal"], bool)
+    assert max(dense_ratios(quick.trajectory, limits, max_jerk)) <= 1.001
+    full = planner.plan(PlanInput(wp, max_jerk=max_jerk))
+    assert full.ok and full.details["optimal"] is True
+    assert full.trajectory.duration <= quick.trajectory.duration * (1.0 + 1e-9)
+
+
+def test_the_cell_plan_says_not_optimal_and_its_program_is_valid(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The whole budget kept back from the solve: the answer is the floor, and it is a valid program."""
+    monkeypatch.setattr(cell_planner_module, "knots_reserve_ms", lambda budget_ms: budget_ms)
+    planner = CellPlanner(ARM)
+    limits = ARM.joint_limits()
+    res = planner.plan(
+        PlanInput(random_paths(ARM, 1, seed=3)[0], max_jerk=10.0 * limits.acceleration), None, None, 60000.0
+    )
+    assert res.ok, res.message
+    assert res.optimal is False
+    assert res.gap["lower_bound_s"] < res.gap["duration_s"]
+    assert validate_program(res.program).ok
+
+
+def test_a_plan_past_its_budget_is_timeout_with_nothing_kept() -> None:
+    res = CellPlanner(ARM).plan(PlanInput(random_paths(ARM, 1, seed=4)[0]), None, None, 1e-3)
+    assert res.code == TIMEOUT and not res.ok and res.program is None
+    assert "past its budget of 0.001 ms" in res.message
+
+
+def test_a_generous_budget_is_the_optimal_plan() -> None:
+    limits = ARM.joint_limits()
+    res = CellPlanner(ARM).plan(
+        PlanInput(random_paths(ARM, 1, seed=6)[0], max_jerk=10.0 * limits.acceleration), None, None, 60000.0
+    )
+    assert res.ok and res.optimal is True
+    assert res.gap["lower_bound_s"] <= res.gap["duration_s"]
+
+
+def test_the_cells_budget_defaults_to_200_ms() -> None:
+    assert ARM.planning.budget_ms == 200.0
