@@ -178,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
                 recorder = Recorder(args.record, cell).attach(bus, group)
             try:
                 if args.home and cell.homing_stages():  # (a cell with nothing to home takes --home as a no-op)
-                    homing = home_cell(cell, group, None, quiet)
+                    homing = home_cell(cell, group, None, quiet, recorder)
                     print(describe_homing(homing), flush=True)
                     if not homing.ok:
                         print(f"{PROG}: the homing failed: the program was not sent", file=sys.stderr)

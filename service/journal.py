@@ -48,6 +48,7 @@ class MotionEntry:
     program: dict[str, Any] = field(repr=False)
     outcome: dict[str, Any] | None = None
     ended_at: float | None = None
+    recording: str | None = None  # the motion's MCAP file (pvtflow serve --record DIR)
 
     def summary(self, running: bool = False) -> dict[str, Any]:
         state = "ended" if self.outcome is not None else ("running" if running else "interrupted")
@@ -60,6 +61,7 @@ class MotionEntry:
             "ended_at": _iso(self.ended_at) if self.ended_at is not None else None,
             "duration_ms": self.duration_ms,
             "outcome": self.outcome,
+            "recording": self.recording,
         }
 
 
@@ -126,6 +128,7 @@ class Journal:
                                 line.get("label"),
                                 int(line.get("duration_ms", 0)),
                                 line.get("program", {}),
+                                recording=line.get("recording"),
                             )
                         )
                     elif kind == "outcome":
@@ -179,10 +182,11 @@ class Journal:
         label: str | None,
         duration_ms: int,
         cell: str,
+        recording: str | None = None,
     ) -> MotionEntry:
         """Write (and fsync) an accepted motion; call before anything is sent to a drive."""
         now = time.time()
-        entry = MotionEntry(motion_id, now, plan_id, label, duration_ms, program)
+        entry = MotionEntry(motion_id, now, plan_id, label, duration_ms, program, recording=recording)
         with self._lock:
             self._append(
                 {
@@ -194,6 +198,7 @@ class Journal:
                     "label": label,
                     "duration_ms": duration_ms,
                     "program": program,
+                    **({"recording": recording} if recording is not None else {}),
                 }
             )
             self._remember(entry)

@@ -563,11 +563,9 @@ def read_recording(path: str | Path) -> Recording:
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     out = Recording([], {}, {}, complete=False)
-    try:
-        handle = Path(path).open("rb")
-    except OSError as exc:
-        raise RecordingError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    with handle:
+    if not Path(path).is_file():
+        raise RecordingError(f"{path}: no such file")
+    with Path(path).open("rb") as handle:
         records: Iterator[Any] = StreamReader(handle, validate_crcs=True).records
         try:
             for record in records:

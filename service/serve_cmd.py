@@ -84,6 +84,12 @@ def add_parser(subparsers: Any) -> None:
         help="motion journal directory (default $XDG_STATE_HOME/pvtflow/<cell>, i.e. ~/.local/state/pvtflow/<cell>)",
     )
     p.add_argument(
+        "--record",
+        metavar="DIR",
+        help="record every motion and homing as DIR/<motion id>.mcap (its journal entry names the file; "
+        "pvtflow report FILE.mcap; Foxglove)",
+    )
+    p.add_argument(
         "--planner-process",
         choices=("auto", "on", "off"),
         default="auto",
@@ -147,6 +153,7 @@ def banner(service: MotionService, server: Server, allow_unauthenticated: bool =
         f"  queryables:   {key(name, '{' + ','.join(QUERYABLES) + '}')}",
         f"  publications: {key(name, '{' + ','.join(PUBLICATIONS) + '}')}   liveliness: {key(name, LIVELINESS)}",
         f"  journal:      {service.journal.path}",
+        *([f"  recordings:   {service.record_dir}/<motion id>.mcap"] if service.record_dir is not None else []),
         "  planner:      "
         + ("in a child process" if isinstance(service.planner, PlanningProcess) else "in this process"),
     ]
@@ -285,6 +292,11 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"--telemetry-ms must be positive, got {args.telemetry_ms}")
     if args.can_log and (problem := can_log_problem(args.can_log)):
         return _fail(problem)
+    if args.record:
+        try:
+            Path(args.record).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            return _fail(f"--record {args.record}: cannot create the directory: {exc.strerror or exc}")
 
     stop = threading.Event()
 
@@ -309,6 +321,7 @@ def run(args: argparse.Namespace) -> int:
                 can_log=args.can_log,
                 telemetry_period_ms=args.telemetry_ms,
                 planner_process=args.planner_process == "on" or (args.planner_process == "auto" and not lockstep),
+                record_dir=args.record,
             )
         except JournalError as exc:
             return _fail(str(exc))
