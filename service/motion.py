@@ -582,6 +582,7 @@ class MotionService:
         if self.record_dir is None or self.bus is None:
             return None
         try:
+            self.record_dir.mkdir(parents=True, exist_ok=True)
             return Recorder(self.record_dir / f"{motion_id}.mcap", self.cell, kind=kind).attach(self.bus, self.group)
         except OSError as exc:
             log.warning("no recording of %s: %s", motion_id, exc)

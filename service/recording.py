@@ -10,8 +10,9 @@ Channels (the joint's name in ``/axis/<joint>/...``):
 
 - ``/axis/<joint>/planned``: the program as the drive will execute it, every ms from the start
   SYNC: ``AxisProgram.reconstruction()`` (axes/interpolation.py, the one cubic) sampled on the
-  drive's own 1 kHz grid, in counts and joint units; written when the run's start SYNC is seen, so
-  a file cut short still holds the whole plan.
+  drive's own 1 kHz grid, in counts and joint units; written ``PLANNED_LEAD_MS`` ahead of the run
+  (a whole plan at once is tens of thousands of messages: the writer would fall seconds behind the
+  bus, and a kill -9 would lose the actual data it had not reached), the rest at the close.
 - ``/axis/<joint>/actual``: per SYNC, the position the drive answered, its statusword and power
   state, and during a run the planned position at that SYNC and the following error (planned
   minus actual, counts).
@@ -74,6 +75,7 @@ CHUNK_MS = 250.0  # bus time a chunk spans at most
 CHUNK_WALL_S = 0.25  # wall time a chunk stays open at most (a lockstep cell runs faster than the wall)
 CHUNK_BYTES = 256 * 1024
 TF_EVERY_MS = 20.0
+PLANNED_LEAD_MS = 1000.0  # the planned channel is written this far ahead of the run
 DRIVE_SAMPLE_MS = 1.0  # the planned channel's grid: the drives interpolate at 1 kHz
 
 # Foxglove's schemas (https://docs.foxglove.dev/docs/visualization/message-schemas), JSON flavour
@@ -231,6 +233,9 @@ class Recorder:
         self._sync_frames = 0
         self._run_programs: tuple[AxisProgram, ...] | None = None
         self._run_cubics: list[PiecewiseCubic] = []  # the reconstruction of each axis's program of the run
+        self._planned: list[tuple[np.ndarray, ...]] = []  # per axis: t, position, velocity, acceleration, joint units
+        self._planned_next: list[int] = []
+        self._planned_t0_s = 0.0
         self._pin_data: Any = None
         self.messages = 0
         self._write_header(kind)
@@ -305,6 +310,7 @@ class Recorder:
             except queue.Empty:
                 item = ()
             if item is None:
+                self._write_planned_until(float("inf"))
                 return
             if item:
                 try:
@@ -404,6 +410,8 @@ class Recorder:
             self._run_programs = programs
             self._write_planned(programs, stamp - (elapsed or 0) * period / 1000.0)
         elapsed_ms = None if elapsed is None else elapsed * period
+        if elapsed_ms is not None:
+            self._write_planned_until(elapsed_ms + PLANNED_LEAD_MS)
         joint_positions: list[float | None] = []
         for i, joint in enumerate(self.joints):
             qc = positions[i]
@@ -443,16 +451,28 @@ class Recorder:
             self._log("/tf", FRAME_TRANSFORMS_SCHEMA, stamp, self._transforms(joint_positions, stamp))
 
     def _write_planned(self, programs: Sequence[AxisProgram], t0_s: float) -> None:
+        """A new run: each axis's reconstruction sampled on the drive's grid, written ``PLANNED_LEAD_MS``
+        ahead of the run (``_write_planned_until``) and the rest when the recording closes, so the
+        writer never falls behind the bus with a whole plan at once."""
+        self._write_planned_until(float("inf"))  # the rest of the run before
         self._run_cubics = [prog.reconstruction() for prog in programs]
-        for joint, cubic, scaling in zip(self.joints, self._run_cubics, self._scaling, strict=True):
+        self._planned = []
+        for cubic, scaling in zip(self._run_cubics, self._scaling, strict=True):
             t = cubic.sample_times(DRIVE_SAMPLE_MS)
-            p, v, a = cubic.position(t), cubic.velocity(t), cubic.acceleration(t)
-            q = scaling.qc_to_position(p)
-            for k in range(len(t)):
+            p = cubic.position(t)
+            self._planned.append((t, p, cubic.velocity(t), cubic.acceleration(t), scaling.qc_to_position(p)))
+        self._planned_next = [0] * len(self._planned)
+        self._planned_t0_s = t0_s
+
+    def _write_planned_until(self, t_ms: float) -> None:
+        for i, (t, p, v, a, q) in enumerate(self._planned):
+            k, stop = self._planned_next[i], int(np.searchsorted(t, t_ms, side="right"))
+            topic = f"/axis/{self.joints[i]}/planned"
+            for k in range(self._planned_next[i], stop):
                 self._log(
-                    f"/axis/{joint}/planned",
+                    topic,
                     PLANNED_SCHEMA,
-                    t0_s + t[k] / 1000.0,
+                    self._planned_t0_s + t[k] / 1000.0,
                     {
                         "t_ms": float(t[k]),
                         "position_qc": float(p[k]),
@@ -461,6 +481,7 @@ class Recorder:
                         "position": float(q[k]),
                     },
                 )
+            self._planned_next[i] = max(self._planned_next[i], stop)
 
     def _transforms(self, q_by_joint: list[float | None], stamp: float) -> dict[str, Any]:
         import pinocchio as pin
