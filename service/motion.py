@@ -61,6 +61,7 @@ from service.approach import away_from_start, plan_approach
 from service.cell_planner import CellPlanner
 from service.config import CellConfig
 from service.journal import Journal, JournalError, MotionEntry, default_directory
+from service.live import LiveServer
 from service.planning import PlanningProcess
 from service.recording import Recorder
 
@@ -172,9 +173,11 @@ class MotionService:
         publish: Publish | None = None,
         planner_process: bool = False,
         record_dir: str | Path | None = None,
+        live: LiveServer | None = None,
     ) -> None:
         self.cell = cell
         self.record_dir = Path(record_dir) if record_dir is not None else None  # one MCAP file per motion
+        self.live = live  # every motion's channels served live too (service/live.py)
         self.axes = cell.ordered_axes()
         self.joint_names: tuple[str, ...] = tuple(cell.joint_names)
         self.simulate = cell.simulated if simulate is None else simulate
@@ -479,7 +482,7 @@ class MotionService:
                     label=label,
                     duration_ms=int(program.duration_ms),
                     cell=self.cell.name,
-                    recording=str(motion.recorder.path) if motion.recorder is not None else None,
+                    recording=str(motion.recorder.path) if motion.recorder and motion.recorder.path else None,
                 )
 
             previous, self.motion = self.motion, motion
@@ -579,11 +582,14 @@ class MotionService:
     def _recorder(self, motion_id: str, kind: str) -> Recorder | None:
         """The motion's recording (``record_dir``/ID.mcap), attached to the bus; None without
         ``record_dir``, or when the file cannot be written (logged: the motion does not depend on it)."""
-        if self.record_dir is None or self.bus is None:
+        if (self.record_dir is None and self.live is None) or self.bus is None:
             return None
+        path = None
         try:
-            self.record_dir.mkdir(parents=True, exist_ok=True)
-            return Recorder(self.record_dir / f"{motion_id}.mcap", self.cell, kind=kind).attach(self.bus, self.group)
+            if self.record_dir is not None:
+                self.record_dir.mkdir(parents=True, exist_ok=True)
+                path = self.record_dir / f"{motion_id}.mcap"
+            return Recorder(path, self.cell, kind=kind, live=self.live).attach(self.bus, self.group)
         except OSError as exc:
             log.warning("no recording of %s: %s", motion_id, exc)
             return None

@@ -25,7 +25,9 @@ Channels (the joint's name in ``/axis/<joint>/...``):
 - ``/faults``: every fault the bus reports (EMCY with its code, heartbeat, SYNC, bus state).
 - ``/can``: every frame: identifier, data, direction.
 
-The robot's URDF is an attachment (``robot.urdf``) and the cell's facts a metadata record.
+The robot's URDF is an attachment (``robot.urdf``) and a message on ``/robot_description``
+(``std_msgs/msg/String``'s one field, which Foxglove's URDF layer takes from a topic), the cell's
+facts a metadata record. The same messages go to a live server (service/live.py) when one is given.
 
 Time stamps are the bus's clock: a received frame's time stamp (python-can's, on the simulated wire
 the bus time its last bit left the wire). With SYNC in lockstep the bus time is virtual while the
@@ -67,6 +69,7 @@ if TYPE_CHECKING:
     from axes.group import AxisGroup
     from axes.program import AxisProgram
     from service.config import CellConfig
+    from service.live import LiveServer
 
 log = logging.getLogger("pvtflow.recording")
 
@@ -195,6 +198,13 @@ CAN_SCHEMA = {
     },
 }
 
+ROBOT_DESCRIPTION_SCHEMA = {
+    "title": "std_msgs/msg/String",
+    "description": "the robot's URDF, for a 3D panel's URDF layer (topic source)",
+    "type": "object",
+    "properties": {"data": {"type": "string"}},
+}
+
 # foxglove.Log levels
 DEBUG, INFO, WARNING, ERROR = 1, 2, 3, 4
 _FAULT_LEVEL = {k.value: (WARNING if k.warning else ERROR) for k in FaultKind}
@@ -207,22 +217,26 @@ class Recorder:
 
     def __init__(
         self,
-        path: str | Path,
+        path: str | Path | None,
         cell: CellConfig,
         *,
         chunk_ms: float = CHUNK_MS,
         chunk_bytes: int = CHUNK_BYTES,
         kind: str = "motion",
+        live: LiveServer | None = None,
     ) -> None:
-        self.path = Path(path)
+        self.path = Path(path) if path is not None else None  # None: live only (``live``), no file
+        self.live = live
         self.cell = cell
         self.chunk_ms = chunk_ms
         self.joints = tuple(a.joint for a in cell.ordered_axes())
         self._node_joint = {a.node_id: a.joint for a in cell.axes}
         self._scaling = [a.scaling for a in cell.ordered_axes()]
-        self._file = self.path.open("wb")
-        self._writer = Writer(self._file, chunk_size=chunk_bytes, compression=CompressionType.ZSTD)
-        self._writer.start(profile=PROFILE, library="pvtflow")
+        self._file = self.path.open("wb") if self.path is not None else None
+        self._writer: Writer | None = None
+        if self._file is not None:
+            self._writer = Writer(self._file, chunk_size=chunk_bytes, compression=CompressionType.ZSTD)
+            self._writer.start(profile=PROFILE, library="pvtflow")
         self._channels: dict[str, int] = {}
         self._queue: queue.SimpleQueue[tuple[Any, ...] | None] = queue.SimpleQueue()
         self._clock_s = 0.0  # the bus's clock as the master last heard it
@@ -295,6 +309,8 @@ class Recorder:
             self._queue.put(("outcome", outcome))
         self._queue.put(None)
         self._thread.join(timeout=30.0)
+        if self._writer is None or self._file is None:
+            return
         try:
             self._writer.finish()
         finally:
@@ -323,7 +339,8 @@ class Recorder:
             now = time.monotonic()
             bus_due = chunk_start_s is not None and self._clock_s - chunk_start_s >= self.chunk_ms / 1000.0
             if bus_due or (chunk_start_s is not None and now - flushed_wall >= CHUNK_WALL_S):
-                self._writer.flush()
+                if self._writer is not None:
+                    self._writer.flush()
                 chunk_start_s, flushed_wall = None, now
 
     def _write(self, item: tuple[Any, ...]) -> float | None:
@@ -374,7 +391,7 @@ class Recorder:
             _, stamp, what, message, joint, level = item
             self._log_event(stamp, what, message, joint, level)
             return stamp
-        if kind == "outcome":
+        if kind == "outcome" and self._writer is not None:
             self._writer.add_metadata("outcome", {"json": json.dumps(item[1])})
         return None
 
@@ -514,6 +531,10 @@ class Recorder:
     # --- MCAP ----------------------------------------------------------------------------------------------
     def _write_header(self, kind: str) -> None:
         cell = self.cell
+        urdf = cell.urdf.read_bytes()
+        self._log("/robot_description", ROBOT_DESCRIPTION_SCHEMA, 0.0, {"data": urdf.decode()})
+        if self._writer is None:
+            return
         self._writer.add_metadata(
             "pvtflow",
             {
@@ -524,11 +545,17 @@ class Recorder:
                 "wall_time_started": f"{time.time():.6f}",
             },
         )
-        urdf = cell.urdf.read_bytes()
         self._writer.add_attachment(time.time_ns(), 0, "robot.urdf", "application/xml", urdf)
         self._writer.flush()
 
     def _log(self, topic: str, schema: dict[str, Any], stamp_s: float, payload: dict[str, Any]) -> None:
+        ns = max(0, round(stamp_s * 1e9))
+        data = json.dumps(payload).encode()
+        self.messages += 1
+        if self.live is not None:
+            self.live.log(topic, schema, ns, data)
+        if self._writer is None:
+            return
         channel = self._channels.get(topic)
         if channel is None:
             schema_id = self._writer.register_schema(
@@ -536,9 +563,7 @@ class Recorder:
             )
             channel = self._writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
             self._channels[topic] = channel
-        ns = max(0, round(stamp_s * 1e9))
-        self._writer.add_message(channel, log_time=ns, publish_time=ns, data=json.dumps(payload).encode())
-        self.messages += 1
+        self._writer.add_message(channel, log_time=ns, publish_time=ns, data=data)
 
 
 def _time(stamp_s: float) -> dict[str, int]:

@@ -31,6 +31,8 @@ from service.cli import can_log_problem
 from service.config import ConfigError, load_cell_config
 from service.exposure import exposure
 from service.journal import JournalError
+from service.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
+from service.live import LiveError, LiveServer
 from service.motion import MotionService
 from service.planning import PlanningProcess
 from service.runtime import freeze_startup_objects
@@ -88,6 +90,15 @@ def add_parser(subparsers: Any) -> None:
         metavar="DIR",
         help="record every motion and homing as DIR/<motion id>.mcap (its journal entry names the file; "
         "pvtflow report FILE.mcap; Foxglove)",
+    )
+    p.add_argument(
+        "--live",
+        metavar="PORT",
+        nargs="?",
+        type=int,
+        const=DEFAULT_LIVE_PORT,
+        help=f"serve every motion's channels live on ws://127.0.0.1:PORT (default {DEFAULT_LIVE_PORT}; the "
+        "Foxglove WebSocket protocol: Foxglove, PlotJuggler); the channels of --record",
     )
     p.add_argument(
         "--planner-process",
@@ -154,6 +165,7 @@ def banner(service: MotionService, server: Server, allow_unauthenticated: bool =
         f"  publications: {key(name, '{' + ','.join(PUBLICATIONS) + '}')}   liveliness: {key(name, LIVELINESS)}",
         f"  journal:      {service.journal.path}",
         *([f"  recordings:   {service.record_dir}/<motion id>.mcap"] if service.record_dir is not None else []),
+        *([f"  live:         {service.live.url} (Foxglove WebSocket)"] if service.live is not None else []),
         "  planner:      "
         + ("in a child process" if isinstance(service.planner, PlanningProcess) else "in this process"),
     ]
@@ -298,6 +310,15 @@ def run(args: argparse.Namespace) -> int:
         except OSError as exc:
             return _fail(f"--record {args.record}: cannot create the directory: {exc.strerror or exc}")
 
+    live = None
+    if args.live is not None:
+        if not 0 <= args.live <= 65535:
+            return _fail(f"--live {args.live}: not a TCP port (0..65535)")
+        try:
+            live = LiveServer(args.live).start()
+        except LiveError as exc:
+            return _fail(str(exc))
+
     stop = threading.Event()
 
     def on_signal(signum: int, frame: object) -> None:
@@ -322,6 +343,7 @@ def run(args: argparse.Namespace) -> int:
                 telemetry_period_ms=args.telemetry_ms,
                 planner_process=args.planner_process == "on" or (args.planner_process == "auto" and not lockstep),
                 record_dir=args.record,
+                live=live,
             )
         except JournalError as exc:
             return _fail(str(exc))
@@ -357,5 +379,7 @@ def run(args: argparse.Namespace) -> int:
             service.close()
         return EXIT_OK
     finally:
+        if live is not None:
+            live.stop()
         for s, handler in previous.items():
             signal.signal(s, handler)
