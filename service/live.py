@@ -15,6 +15,9 @@ from typing import Any
 
 DEFAULT_PORT = 8765
 HOST = "127.0.0.1"
+# messages queued per client before the oldest are dropped: a run's start writes a quarter second of
+# plan for every axis at once (service/recording.py, PLANNED_LEAD_MS), a few thousand messages
+BACKLOG = 16384
 
 
 class LiveError(Exception):
@@ -37,7 +40,9 @@ class LiveServer:
 
         self._context = foxglove.Context()
         try:
-            self._server = foxglove.start_server(name=self.name, host=HOST, port=self.port, context=self._context)
+            self._server = foxglove.start_server(
+                name=self.name, host=HOST, port=self.port, context=self._context, message_backlog_size=BACKLOG
+            )
         except Exception as exc:  # the SDK raises its own error type for a port in use
             raise LiveError(f"--live {self.port}: cannot serve on {HOST}:{self.port}: {exc}") from None
         self.port = int(self._server.port)

@@ -78,7 +78,7 @@ CHUNK_MS = 250.0  # bus time a chunk spans at most
 CHUNK_WALL_S = 0.25  # wall time a chunk stays open at most (a lockstep cell runs faster than the wall)
 CHUNK_BYTES = 256 * 1024
 TF_EVERY_MS = 20.0
-PLANNED_LEAD_MS = 1000.0  # the planned channel is written this far ahead of the run
+PLANNED_LEAD_MS = 250.0  # the planned channel is written this far ahead of the run (a chunk's span)
 DRIVE_SAMPLE_MS = 1.0  # the planned channel's grid: the drives interpolate at 1 kHz
 
 # Foxglove's schemas (https://docs.foxglove.dev/docs/visualization/message-schemas), JSON flavour
@@ -239,7 +239,9 @@ class Recorder:
             self._writer.start(profile=PROFILE, library="pvtflow")
         self._channels: dict[str, int] = {}
         self._queue: queue.SimpleQueue[tuple[Any, ...] | None] = queue.SimpleQueue()
-        self._clock_s = 0.0  # the bus's clock as the master last heard it
+        # the bus's clock as the master last heard it; None until the first frame that tells it (what
+        # comes before is stamped with that frame's time by the writer: it happened just before)
+        self._clock_s: float | None = None
         self._lockstep = True
         self._bus: CellBus | None = None
         self._group: AxisGroup | None = None
@@ -277,7 +279,7 @@ class Recorder:
 
     def _on_frame(self, msg: can.Message) -> None:
         if msg.is_rx or not self._lockstep:
-            self._clock_s = max(self._clock_s, msg.timestamp)
+            self._clock_s = msg.timestamp if self._clock_s is None else max(self._clock_s, msg.timestamp)
         stamp = msg.timestamp if not self._lockstep or msg.is_rx else self._clock_s
         self._queue.put(("can", stamp, msg))
 
@@ -320,28 +322,44 @@ class Recorder:
     def _drain(self) -> None:
         chunk_start_s: float | None = None
         flushed_wall = time.monotonic()
+        unstamped: list[tuple[Any, ...]] = []  # queued before the bus's clock was known
+        last_s = 0.0
         while True:
             try:
                 item = self._queue.get(timeout=0.05)
             except queue.Empty:
                 item = ()
             if item is None:
+                for early in unstamped:
+                    self._write_safely((early[0], last_s, *early[2:]))
                 self._write_planned_until(float("inf"))
                 return
+            if item and len(item) > 1 and item[0] != "outcome" and item[1] is None:
+                unstamped.append(item)
+                continue
             if item:
-                try:
-                    stamp = self._write(item)
-                except Exception:  # a recording must never take the motion down
-                    log.exception("recording %s failed", item[0])
-                    stamp = None
-                if stamp is not None and chunk_start_s is None:
-                    chunk_start_s = stamp
+                if len(item) > 1 and item[0] != "outcome":
+                    for early in unstamped:
+                        self._write_safely((early[0], item[1], *early[2:]))
+                    unstamped.clear()
+                stamp = self._write_safely(item)
+                if stamp is not None:
+                    last_s = max(last_s, stamp)
+                    if chunk_start_s is None:
+                        chunk_start_s = stamp
             now = time.monotonic()
-            bus_due = chunk_start_s is not None and self._clock_s - chunk_start_s >= self.chunk_ms / 1000.0
+            bus_due = chunk_start_s is not None and last_s - chunk_start_s >= self.chunk_ms / 1000.0
             if bus_due or (chunk_start_s is not None and now - flushed_wall >= CHUNK_WALL_S):
                 if self._writer is not None:
                     self._writer.flush()
                 chunk_start_s, flushed_wall = None, now
+
+    def _write_safely(self, item: tuple[Any, ...]) -> float | None:
+        try:
+            return self._write(item)
+        except Exception:  # a recording must never take the motion down
+            log.exception("recording %s failed", item[0])
+            return None
 
     def _write(self, item: tuple[Any, ...]) -> float | None:
         kind = item[0]
