@@ -77,4 +77,11 @@ def record_problem(path: str) -> str | None:
         return f"--record {path}: is a directory"
     if not target.parent.is_dir():
         return f"--record {path}: no directory {target.parent}"
+    existed = target.exists()
+    try:
+        target.open("ab").close()  # writable (a file that exists is left as it is until the run)
+    except OSError as exc:
+        return f"--record {path}: cannot write: {exc.strerror or exc}"
+    if not existed:
+        target.unlink()
     return None

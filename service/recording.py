@@ -64,6 +64,7 @@ from mcap.writer import CompressionType, Writer
 from axes.bus import SYNC_COB_ID, BusFault, CellBus, FaultKind
 from axes.cia402 import decode_state
 from axes.interpolation import PiecewiseCubic
+from axes.outcome import Result
 
 if TYPE_CHECKING:
     from axes.group import AxisGroup
@@ -208,6 +209,9 @@ ROBOT_DESCRIPTION_SCHEMA = {
 # foxglove.Log levels
 DEBUG, INFO, WARNING, ERROR = 1, 2, 3, 4
 _FAULT_LEVEL = {k.value: (WARNING if k.warning else ERROR) for k in FaultKind}
+# how a run ended, as a log level: a fault is an error, a stop or a refusal a warning
+_FAULT_LEVEL.update({r.value: ERROR for r in Result if not r.ok})
+_FAULT_LEVEL.update({Result.STOPPED.value: WARNING, Result.REJECTED.value: WARNING, "halted": WARNING})
 
 
 class Recorder:

@@ -179,3 +179,28 @@ def test_the_service_records_one_file_per_motion_named_in_its_journal(tmp_path, 
         rec = read_recording(entry.recording)
         assert rec.complete and json.loads(rec.metadata["outcome"]["json"])["result"] == "finished"
         assert rec.topic("/axis/joint_1/planned")
+
+
+def test_a_fault_is_recorded_and_reported(tmp_path, arm6, capsys):
+    cell = dataclasses.replace(arm6, bus=dataclasses.replace(arm6.bus, channel=f"rec-{uuid.uuid4().hex[:10]}"))
+    prog = program(cell.ordered_axes(), 2000, spacing_ms=10, cell="arm6")
+    with MotionService(cell, journal_dir=tmp_path / "journal", lockstep=True, record_dir=tmp_path / "rec") as svc:
+        reply = svc.execute(ExecuteRequest(program=prog.to_json()))
+        deadline = time.monotonic() + 20.0
+        while (svc.group.elapsed_syncs() or 0) < 40 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        svc.sim.drive("joint_3").inject_emcy(0x7320)  # position sensor error: EMCY and fault
+        svc.motion.done.wait(20.0)
+        entry = svc.journal_entry(reply["motion_id"])
+    assert entry is not None and entry.outcome["result"] == "emcy"
+    rec = read_recording(entry.recording)
+    faults = rec.topic("/faults")
+    assert any(f.data["code"] == 0x7320 and f.data["joint"] == "joint_3" for f in faults)
+    errors = [m.data for m in rec.topic("/events") if m.data["level"] == 4]
+    assert any("0x7320" in e["message"] for e in errors)
+    assert any(e["name"].startswith("emcy") for e in errors)
+    assert any(f.data["id"] == 0x80 + 3 and f.data["rx"] for f in rec.topic("/can"))  # the EMCY frame itself
+    assert main(["report", entry.recording, "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["result"] == "emcy"
+    assert any(f["code"] == 0x7320 for f in report["faults"])
