@@ -8,7 +8,10 @@ cases: nothing recorded; ``--record DIR`` (one MCAP file per motion, service/rec
 subscribed to every channel. Figures per case: moves finished / faulted, the SYNC interval as the
 drives see it (bench/realtime.py's ``SyncArrivals``) p50 / p99 / max, plan latency p50 / max (a
 plan request between motions), the CPU this process (master, simulated drives, recorder) used per
-second of wall time, and the bytes recorded.
+second of wall time, the wall time per SYNC of motion, the recorder's writer thread's CPU time per
+SYNC of motion, and the bytes recorded. ``--lockstep``: SYNC in lockstep with the simulated drives
+(as ``pvtflow serve`` on a simulated cell), where a SYNC comes as soon as the previous one is
+answered, so the wall time per SYNC is what a SYNC costs the machine, load or not.
 
     python3 bench/record_cost.py [--moves 8] [--robot gantry3] [--profile epos2_pvt] [--period-ms 3] [--seed 1]
 """
@@ -57,7 +60,7 @@ CLIENT = textwrap.dedent(
 )
 
 
-def run_case(cell: CellConfig, moves: int, seed: int, record: bool, live: bool) -> dict[str, Any]:
+def run_case(cell: CellConfig, moves: int, seed: int, record: bool, live: bool, lockstep: bool) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
     out: dict[str, Any] = {"finished": 0, "faulted": [], "plan_ms": []}
     with tempfile.TemporaryDirectory() as tmp:
@@ -70,8 +73,8 @@ def run_case(cell: CellConfig, moves: int, seed: int, record: bool, live: bool) 
         svc = MotionService(
             cell,
             journal_dir=Path(tmp) / "journal",
-            lockstep=False,
-            planner_process=True,
+            lockstep=lockstep,
+            planner_process=not lockstep,
             record_dir=Path(tmp) / "rec" if record else None,
             live=server,
         ).open()
@@ -95,6 +98,11 @@ def run_case(cell: CellConfig, moves: int, seed: int, record: bool, live: bool) 
                 t1 = time.perf_counter()
                 outcome = svc.execute(parse_execute({"plan_id": plan_id, "wait": True}))["outcome"]
                 motion_s += time.perf_counter() - t1
+                if outcome.get("end_sync") is not None and outcome.get("start_sync") is not None:
+                    out["syncs"] = out.get("syncs", 0) + outcome["end_sync"] - outcome["start_sync"]
+                recorder = svc.motion.recorder if svc.motion is not None else None
+                if recorder is not None and recorder.writer_cpu_s is not None:
+                    out["writer_cpu_s"] = out.get("writer_cpu_s", 0.0) + recorder.writer_cpu_s
                 if outcome["result"] == "finished":
                     out["finished"] += 1
                 else:
@@ -123,31 +131,39 @@ def main() -> None:
     ap.add_argument("--profile", default="epos2_pvt")
     ap.add_argument("--period-ms", type=float, default=3.0)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument(
+        "--lockstep",
+        action="store_true",
+        help="SYNC in lockstep with the simulated drives: the wall time per SYNC is then what the run costs",
+    )
     args = ap.parse_args()
     print(
         f"python3 bench/record_cost.py --moves {args.moves} --robot {args.robot} --profile {args.profile} "
-        f"--period-ms {args.period_ms:g} --seed {args.seed}"
+        f"--period-ms {args.period_ms:g} --seed {args.seed}" + (" --lockstep" if args.lockstep else "")
     )
     print(
         "| case | finished | faulted | SYNC interval p50/p99/max ms | plan ms p50/max | CPU s per s "
-        "(this process) | recorded |"
+        "(this process) | wall ms per SYNC | recorder CPU ms per SYNC | recorded |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     base = load_cell_config(CONFIG_DIR / "cells" / f"{args.robot}.yaml")
     for name, record, live in (("nothing", False, False), ("--record", True, False), ("--record --live", True, True)):
         cell = variant(base, args.profile, None, args.period_ms)
-        r = run_case(cell, args.moves, args.seed, record, live)
+        r = run_case(cell, args.moves, args.seed, record, live, args.lockstep)
         sync = "-" if r["sync_ms"] is None else "{:.3f} / {:.3f} / {:.3f}".format(*r["sync_ms"])
         plan = np.asarray(r["plan_ms"])
         plans = f"{np.percentile(plan, 50):.0f} / {plan.max():.0f}" if len(plan) else "-"
         recorded = f"{r['bytes'] / 1e6:.1f} MB" if record else "-"
+        syncs = r.get("syncs", 0)
+        per_sync = f"{r['motion_s'] * 1000 / syncs:.3f}" if syncs else "-"
+        writer = f"{r['writer_cpu_s'] * 1000 / syncs:.3f}" if syncs and "writer_cpu_s" in r else "-"
         print(
             f"| {name} | {r['finished']}/{args.moves} | {len(r['faulted'])} | {sync} | {plans} "
-            f"| {r['cpu_share']:.2f} | {recorded} |",
+            f"| {r['cpu_share']:.2f} | {per_sync} | {writer} | {recorded} |",
             flush=True,
         )
         for why in r["faulted"][:2]:
-            print(f"|   | {why} | | | | | |")
+            print(f"|   | {why} | | | | | | | |")
 
 
 if __name__ == "__main__":

@@ -43,6 +43,7 @@ every ``CHUNK_WALL_S`` of wall time and at ``chunk_bytes``, whichever comes firs
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import json
 import logging
@@ -253,11 +254,13 @@ class Recorder:
         self._sync_frames = 0
         self._run_programs: tuple[AxisProgram, ...] | None = None
         self._run_cubics: list[PiecewiseCubic] = []  # the reconstruction of each axis's program of the run
-        self._planned: list[tuple[np.ndarray, ...]] = []  # per axis: t, position, velocity, acceleration, joint units
+        # per axis: t, position, velocity, acceleration, joint units (lists: the writer reads them one by one)
+        self._planned: list[tuple[list[float], ...]] = []
         self._planned_next: list[int] = []
         self._planned_t0_s = 0.0
         self._pin_data: Any = None
         self.messages = 0
+        self.writer_cpu_s: float | None = None  # the writer thread's CPU time, once closed (bench/record_cost.py)
         self._write_header(kind)
         self._thread = threading.Thread(target=self._drain, name="pvtflow-recorder", daemon=True)
         self._thread.start()
@@ -337,6 +340,7 @@ class Recorder:
                 for early in unstamped:
                     self._write_safely((early[0], last_s, *early[2:]))
                 self._write_planned_until(float("inf"))
+                self.writer_cpu_s = time.thread_time()
                 return
             if item and len(item) > 1 and item[0] != "outcome" and item[1] is None:
                 unstamped.append(item)
@@ -458,7 +462,7 @@ class Recorder:
             joint_positions.append(position)
             planned = None
             if elapsed_ms is not None and self._run_cubics:
-                planned = float(self._run_cubics[i].position(elapsed_ms))
+                planned = self._planned_at(i, elapsed_ms)
             self._log(
                 f"/axis/{joint}/actual",
                 ACTUAL_SCHEMA,
@@ -499,13 +503,23 @@ class Recorder:
         for cubic, scaling in zip(self._run_cubics, self._scaling, strict=True):
             t = cubic.sample_times(DRIVE_SAMPLE_MS)
             p = cubic.position(t)
-            self._planned.append((t, p, cubic.velocity(t), cubic.acceleration(t), scaling.qc_to_position(p)))
+            columns = (t, p, cubic.velocity(t), cubic.acceleration(t), scaling.qc_to_position(p))
+            self._planned.append(tuple(np.asarray(c, dtype=float).tolist() for c in columns))
         self._planned_next = [0] * len(self._planned)
         self._planned_t0_s = t0_s
 
+    def _planned_at(self, i: int, t_ms: float) -> float:
+        """Axis i's planned position at program time t_ms: the sample of the drive's grid where t_ms is
+        on it (a SYNC period of whole ms), else the reconstruction itself."""
+        t, p = self._planned[i][0], self._planned[i][1]
+        k = round(t_ms / DRIVE_SAMPLE_MS)
+        if abs(k * DRIVE_SAMPLE_MS - t_ms) < 1e-9 and 0 <= k < len(t):
+            return p[k]
+        return float(self._run_cubics[i].position(t_ms))
+
     def _write_planned_until(self, t_ms: float) -> None:
         for i, (t, p, v, a, q) in enumerate(self._planned):
-            k, stop = self._planned_next[i], int(np.searchsorted(t, t_ms, side="right"))
+            stop = bisect.bisect_right(t, t_ms)
             topic = f"/axis/{self.joints[i]}/planned"
             for k in range(self._planned_next[i], stop):
                 self._log(
@@ -513,11 +527,11 @@ class Recorder:
                     PLANNED_SCHEMA,
                     self._planned_t0_s + t[k] / 1000.0,
                     {
-                        "t_ms": float(t[k]),
-                        "position_qc": float(p[k]),
-                        "velocity_qc_per_ms": float(v[k]),
-                        "acceleration_qc_per_ms2": float(a[k]),
-                        "position": float(q[k]),
+                        "t_ms": t[k],
+                        "position_qc": p[k],
+                        "velocity_qc_per_ms": v[k],
+                        "acceleration_qc_per_ms2": a[k],
+                        "position": q[k],
                     },
                 )
             self._planned_next[i] = max(self._planned_next[i], stop)
