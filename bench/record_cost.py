@@ -97,14 +97,13 @@ def run_case(cell: CellConfig, moves: int, seed: int, record: bool, live: bool, 
                 out["plan_ms"].append((time.perf_counter() - t0) * 1000.0)
                 t1 = time.perf_counter()
                 outcome = svc.execute(parse_execute({"plan_id": plan_id, "wait": True}))["outcome"]
-                motion_s += time.perf_counter() - t1
-                if outcome.get("end_sync") is not None and outcome.get("start_sync") is not None:
-                    out["syncs"] = out.get("syncs", 0) + outcome["end_sync"] - outcome["start_sync"]
                 recorder = svc.motion.recorder if svc.motion is not None else None
-                if recorder is not None and recorder.writer_cpu_s is not None:
-                    out["writer_cpu_s"] = out.get("writer_cpu_s", 0.0) + recorder.writer_cpu_s
-                if outcome["result"] == "finished":
+                if outcome["result"] == "finished":  # the per-SYNC figures: runs that went to their end
                     out["finished"] += 1
+                    motion_s += time.perf_counter() - t1
+                    out["syncs"] = out.get("syncs", 0) + outcome["end_sync"] - outcome["start_sync"]
+                    if recorder is not None and recorder.writer_cpu_s is not None:
+                        out["writer_cpu_s"] = out.get("writer_cpu_s", 0.0) + recorder.writer_cpu_s
                 else:
                     out["faulted"].append(f"{outcome['result']}: {outcome['message']}"[:160])
                     break
