@@ -417,6 +417,9 @@ class Recorder:
             _, stamp, what, message, joint, level = item
             self._log_event(stamp, what, message, joint, level)
             return stamp
+        if kind == "robot":
+            self._log("/robot_description", ROBOT_DESCRIPTION_SCHEMA, item[1], {"data": item[2]})
+            return item[1]
         if kind == "outcome" and self._writer is not None:
             self._writer.add_metadata("outcome", {"json": json.dumps(item[1])})
         return None
@@ -568,7 +571,7 @@ class Recorder:
     def _write_header(self, kind: str) -> None:
         cell = self.cell
         urdf = cell.urdf.read_bytes()
-        self._log("/robot_description", ROBOT_DESCRIPTION_SCHEMA, 0.0, {"data": urdf.decode()})
+        self._queue.put(("robot", None, urdf.decode()))  # at the bus time of the first frame
         if self._writer is None:
             return
         self._writer.add_metadata(

@@ -173,12 +173,18 @@ def test_the_service_records_one_file_per_motion_named_in_its_journal(tmp_path, 
         for p in (prog, back):
             reply = svc.execute(ExecuteRequest(program=p.to_json(), wait=True))
             ids.append(reply["motion_id"])
+            time.sleep(1.5)  # the idle bus's clock follows the wall clock: the next file starts at its own motion
         entries = [svc.journal_entry(i) for i in ids]
     for motion_id, entry in zip(ids, entries, strict=True):
         assert entry is not None and entry.recording == str(tmp_path / "rec" / f"{motion_id}.mcap")
         rec = read_recording(entry.recording)
         assert rec.complete and json.loads(rec.metadata["outcome"]["json"])["result"] == "finished"
         assert rec.topic("/axis/joint_1/planned")
+        # the robot's description on a topic too, at the motion's bus time: the file spans its motion only
+        (description,) = rec.topic("/robot_description")
+        assert description.schema == "std_msgs/msg/String" and "<robot" in description.data["data"]
+        times = [m.log_time_ns for m in rec.messages]
+        assert (max(times) - min(times)) / 1e9 < 1.0  # a 200 ms motion, its start checks and its end
 
 
 def test_a_fault_is_recorded_and_reported(tmp_path, arm6, capsys):
