@@ -74,6 +74,7 @@ class HomingEntry:
     stages: list[list[str]]
     outcome: dict[str, Any] | None = None
     ended_at: float | None = None
+    recording: str | None = None  # the homing's MCAP file (pvtflow serve --record DIR)
 
     def summary(self, running: bool = False) -> dict[str, Any]:
         state = "ended" if self.outcome is not None else ("running" if running else "interrupted")
@@ -137,7 +138,11 @@ class Journal:
                             entry.outcome = line["outcome"]
                             entry.ended_at = float(line["time"])
                     elif kind == "homing":
-                        self._remember_homing(HomingEntry(line["homing_id"], float(line["time"]), line["stages"]))
+                        self._remember_homing(
+                            HomingEntry(
+                                line["homing_id"], float(line["time"]), line["stages"], recording=line.get("recording")
+                            )
+                        )
                     elif kind == "homing_outcome":
                         homing = self._homings.get(line["homing_id"])
                         if homing is not None:
@@ -213,12 +218,15 @@ class Journal:
                 entry.outcome = outcome
                 entry.ended_at = now
 
-    def record_homing(self, homing_id: str, stages: list[list[str]], *, cell: str) -> HomingEntry:
+    def record_homing(
+        self, homing_id: str, stages: list[list[str]], *, cell: str, recording: str | None = None
+    ) -> HomingEntry:
         """Write (and fsync) an accepted homing; call before any axis moves."""
         now = time.time()
-        entry = HomingEntry(homing_id, now, stages)
+        entry = HomingEntry(homing_id, now, stages, recording=recording)
+        line = {"kind": "homing", "homing_id": homing_id, "time": now, "cell": cell, "stages": stages}
         with self._lock:
-            self._append({"kind": "homing", "homing_id": homing_id, "time": now, "cell": cell, "stages": stages})
+            self._append({**line, **({"recording": recording} if recording is not None else {})})
             self._remember_homing(entry)
         return entry
 

@@ -645,7 +645,10 @@ class MotionService:
             homing = Homing(_new_id("h"), stages, time.time())
             homing.recorder = self._recorder(homing.homing_id, "homing")
             try:
-                self.journal.record_homing(homing.homing_id, stages, cell=self.cell.name)
+                recording = homing.recorder.path if homing.recorder is not None else None
+                self.journal.record_homing(
+                    homing.homing_id, stages, cell=self.cell.name, recording=str(recording) if recording else None
+                )
             except JournalError as exc:
                 if homing.recorder is not None:
                     homing.recorder.close({"result": "journal_error", "message": str(exc)})

@@ -210,3 +210,21 @@ def test_a_fault_is_recorded_and_reported(tmp_path, arm6, capsys):
     report = json.loads(capsys.readouterr().out)
     assert report["result"] == "emcy"
     assert any(f["code"] == 0x7320 for f in report["faults"])
+
+
+def test_the_service_records_a_homing_named_in_its_journal(tmp_path):
+    from service.api import HomeRequest
+    from service.config import CONFIG_DIR, load_cell_config
+
+    gantry = load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml")
+    cell = dataclasses.replace(gantry, bus=dataclasses.replace(gantry.bus, channel=f"rec-{uuid.uuid4().hex[:10]}"))
+    with MotionService(cell, journal_dir=tmp_path / "journal", lockstep=True, record_dir=tmp_path / "rec") as svc:
+        reply = svc.home(HomeRequest(wait=True))
+        entry = svc.journal.homing(reply["homing_id"])
+    assert reply["outcome"]["result"] == "homed"
+    assert entry is not None and entry.recording == str(tmp_path / "rec" / f"{reply['homing_id']}.mcap")
+    rec = read_recording(entry.recording)
+    assert rec.complete and rec.metadata["pvtflow"]["kind"] == "homing"
+    assert [m.data["name"] for m in rec.topic("/events")].count("homed") == len(cell.homing_stages())
+    z = [m.data for m in rec.topic("/axis/z/actual")]
+    assert z[-1]["position_qc"] == cell.axis_for_joint("z").homing.offset_qc
