@@ -7,7 +7,11 @@ unless ``--allow-unauthenticated`` says so, which the banner then repeats.
 Brings the cell's bus up (with simulated drives when the cell is simulated: the default arm6 demo
 cell), configures the drives, opens the zenoh session and serves the cell until Ctrl-C / SIGTERM,
 then halts any motion and closes. It prints where it listens and how to talk to it. Exit codes:
-0 stopped by a signal, 2 cannot start (configuration, bus, journal, zenoh endpoint).
+0 stopped by a signal, 2 cannot start (configuration, bus, journal, zenoh endpoint, live port).
+
+``--record DIR`` writes each motion and homing to ``DIR/<id>.mcap`` (service/recording.py) and names
+it in the journal; ``--live [PORT]`` serves the same channels on 127.0.0.1 (service/live.py), started
+before the bus so a port in use refuses the start with nothing opened.
 """
 
 from __future__ import annotations
