@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import socket
 import struct
 import threading
 import time
@@ -111,3 +112,22 @@ def test_a_websocket_client_subscribes_and_receives_a_motions_messages(arm6, tmp
     assert "/axis/joint_1/planned" in client.received and "/can" in client.received
     times = [t for t, _ in client.received["/sync"]]
     assert times == sorted(times) and times[-1] > times[0]  # on the bus's clock, in order
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_serve_refuses_a_live_port_in_use_in_one_line(capsys):
+    from service.cli import main
+
+    taken = LiveServer(0).start()
+    try:
+        assert main(["serve", "--live", str(taken.port), "--port", str(free_port())]) == 2
+    finally:
+        taken.stop()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"pvtflow serve: --live {taken.port}: cannot serve on 127.0.0.1:")
+    assert "Address already in use" in err[0]
