@@ -436,6 +436,12 @@ class AxisGroup:
         """The feeders of the present (or last) run, in axis order."""
         return tuple(self._feeders)
 
+    @property
+    def programs(self) -> tuple[AxisProgram, ...]:
+        """The axis programs of the present (or last) run, in axis order (a recording samples what
+        each drive was told from them)."""
+        return tuple(self._programs)
+
     def elapsed_syncs(self) -> int | None:
         return None if self._start_sync is None else self.bus.sync.answered - self._start_sync
 

@@ -20,9 +20,15 @@ class CellBusError(Exception):
 
 
 def add_bus_options(p: argparse.ArgumentParser) -> None:
-    """--config, --can-log, --quiet, --real-time: what every command that drives a cell alone takes."""
+    """--config, --can-log, --record, --quiet, --real-time: what every command that drives a cell alone takes."""
     p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
     p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
+    p.add_argument(
+        "--record",
+        metavar="FILE.mcap",
+        help="record the run (planned and actual per axis, buffers, SYNC, events, every frame) as MCAP "
+        "(pvtflow report FILE.mcap; Foxglove)",
+    )
     p.add_argument("--quiet", action="store_true", help="print the outcome only")
     p.add_argument(
         "--real-time",
@@ -58,3 +64,24 @@ def open_cell_bus(cell: CellConfig, real_time: bool, can_log: str | None) -> Ite
         bus.close()
         if sim is not None:
             sim.stop()
+
+
+def record_problem(path: str) -> str | None:
+    """Why ``--record FILE`` cannot be written (one line), before anything is sent; None when it can."""
+    from pathlib import Path
+
+    target = Path(path)
+    if target.suffix.lower() != ".mcap":
+        return f"--record {path}: the recording is an MCAP file: name it FILE.mcap"
+    if target.is_dir():
+        return f"--record {path}: is a directory"
+    if not target.parent.is_dir():
+        return f"--record {path}: no directory {target.parent}"
+    existed = target.exists()
+    try:
+        target.open("ab").close()  # writable (a file that exists is left as it is until the run)
+    except OSError as exc:
+        return f"--record {path}: cannot write: {exc.strerror or exc}"
+    if not existed:
+        target.unlink()
+    return None

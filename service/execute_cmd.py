@@ -23,11 +23,12 @@ from axes.group import AxisGroup
 from axes.outcome import Event, EventKind, Progress, Result, RunResult
 from axes.program import PvtProgram, program_mismatch
 from service.api import refusals
-from service.cell_bus import CellBusError, add_bus_options, open_cell_bus
+from service.cell_bus import CellBusError, add_bus_options, open_cell_bus, record_problem
 from service.cli import can_log_problem
 from service.config import CellConfig, ConfigError, load_cell_config
 from service.home_cmd import describe_homing, home_cell
 from service.program_fit import mismatch_lines
+from service.recording import Recorder
 from service.validate_cmd import ProgramFileError, read_program
 
 EXIT_OK, EXIT_FAILED, EXIT_UNREADABLE = 0, 1, 2
@@ -121,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
     path = Path(args.program)
     if args.can_log and (problem := can_log_problem(args.can_log)):
         return _fail(problem, EXIT_UNREADABLE)
+    if args.record and (problem := record_problem(args.record)):
+        return _fail(problem, EXIT_UNREADABLE)
     try:
         program = read_program(path)  # record ranges are left to the validator (a violation, exit 1)
     except ProgramFileError as exc:
@@ -147,8 +150,11 @@ def run(args: argparse.Namespace) -> int:
         joints = [a.joint for a in cell.ordered_axes()]
         return _fail(refusals.not_homed(cell.name, joints, "give --home; nothing was sent").line(), EXIT_FAILED)
     quiet = bool(args.quiet)
+    recorder: Recorder | None = None
 
     def on_event(event: Event) -> None:
+        if recorder is not None:
+            recorder.event(event.kind, event.message, event.joint)
         if not quiet and event.kind is not EventKind.FINISHED:
             where = f" [{event.joint}]" if event.joint else ""
             print(f"{event.kind}{where}: {event.message}", flush=True)
@@ -157,6 +163,7 @@ def run(args: argparse.Namespace) -> int:
         levels = " ".join("-" if lv is None else str(lv) for lv in p.levels)
         print(f"t={p.elapsed_ms / 1000:8.3f} s  SYNC {p.sync}  records queued per drive {levels}", flush=True)
 
+    result: RunResult | None = None
     duration_syncs = max(1, int(program.duration_ms / cell.bus.sync_period_ms))
     try:
         with open_cell_bus(cell, args.real_time, args.can_log) as bus:
@@ -167,9 +174,11 @@ def run(args: argparse.Namespace) -> int:
                 on_progress=None if quiet else on_progress,
                 progress_every=max(1, duration_syncs // 10),
             )
+            if args.record:
+                recorder = Recorder(args.record, cell).attach(bus, group)
             try:
                 if args.home and cell.homing_stages():  # (a cell with nothing to home takes --home as a no-op)
-                    homing = home_cell(cell, group, None, quiet)
+                    homing = home_cell(cell, group, None, quiet, recorder)
                     print(describe_homing(homing), flush=True)
                     if not homing.ok:
                         print(f"{PROG}: the homing failed: the program was not sent", file=sys.stderr)
@@ -183,11 +192,16 @@ def run(args: argparse.Namespace) -> int:
                     result = group.wait(10.0)
             finally:
                 group.close()
+                if recorder is not None:
+                    recorder.close(result.to_json() if result is not None else None)
     except CellBusError as exc:
         return _fail(str(exc), EXIT_UNREADABLE)
+    assert result is not None  # every way out of the bus without a result has returned
     if result.result is Result.REJECTED:  # refused at the start, nothing moved: the service's words
         return _fail(refusals.run_refused(result, hint=START_HINT).line(), EXIT_FAILED)
     print(describe(result), flush=True)
     if args.can_log:
         print(f"CAN log: {args.can_log} ({bus.recorder.frames} frames)")
+    if recorder is not None:
+        print(f"recording: {args.record} ({recorder.messages} messages)")
     return EXIT_OK if result.ok else EXIT_FAILED

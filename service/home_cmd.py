@@ -21,9 +21,10 @@ from typing import Any
 
 from axes.group import AxisGroup
 from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
-from service.cell_bus import CellBusError, add_bus_options, open_cell_bus
+from service.cell_bus import CellBusError, add_bus_options, open_cell_bus, record_problem
 from service.cli import can_log_problem
 from service.config import CellConfig, ConfigError, load_cell_config
+from service.recording import Recorder
 
 EXIT_OK, EXIT_FAILED, EXIT_UNREADABLE = 0, 1, 2
 PROG = "pvtflow home"
@@ -53,12 +54,16 @@ def describe_homing(outcome: HomingOutcome) -> str:
     return "\n".join(lines)
 
 
-def home_cell(cell: CellConfig, group: AxisGroup, joints: list[str] | None, quiet: bool) -> HomingOutcome:
-    """Home ``joints`` (None: all with homing) of the cell on an open group, printing what happens.
-    Raises HomingRequestError for an axis the cell does not have or that has nothing to home."""
+def home_cell(
+    cell: CellConfig, group: AxisGroup, joints: list[str] | None, quiet: bool, recorder: Recorder | None = None
+) -> HomingOutcome:
+    """Home ``joints`` (None: all with homing) of the cell on an open group, printing what happens
+    (and recording it). Raises HomingRequestError for an axis the cell does not have or that has nothing to home."""
     stages = cell.homing_stages(joints)
 
     def on_event(kind: HomingEventKind, message: str, joint: str | None) -> None:
+        if recorder is not None:
+            recorder.event(str(kind), message, joint)
         if not quiet:
             where = f" [{joint}]" if joint else ""
             print(f"{kind}{where}: {message}", flush=True)
@@ -68,6 +73,9 @@ def home_cell(cell: CellConfig, group: AxisGroup, joints: list[str] | None, quie
 
 def run(args: argparse.Namespace) -> int:
     if args.can_log and (problem := can_log_problem(args.can_log)):
+        print(f"{PROG}: {problem}", file=sys.stderr)
+        return EXIT_UNREADABLE
+    if args.record and (problem := record_problem(args.record)):
         print(f"{PROG}: {problem}", file=sys.stderr)
         return EXIT_UNREADABLE
     try:
@@ -87,14 +95,21 @@ def run(args: argparse.Namespace) -> int:
     try:
         with open_cell_bus(cell, args.real_time, args.can_log) as bus:
             group = AxisGroup(bus, cell.ordered_axes())
+            recorder = Recorder(args.record, cell, kind="homing").attach(bus, group) if args.record else None
+            outcome: HomingOutcome | None = None
             try:
-                outcome = home_cell(cell, group, joints, args.quiet)  # Ctrl-C: every axis halted, then exit 130
+                # Ctrl-C: every axis halted, then exit 130
+                outcome = home_cell(cell, group, joints, args.quiet, recorder)
             finally:
                 group.close()
+                if recorder is not None:
+                    recorder.close(outcome.to_json() if outcome is not None else None)
     except CellBusError as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return EXIT_UNREADABLE
     print(describe_homing(outcome), flush=True)
     if args.can_log:
         print(f"CAN log: {args.can_log} ({bus.recorder.frames} frames)")
+    if recorder is not None:
+        print(f"recording: {args.record} ({recorder.messages} messages)")
     return EXIT_OK if outcome.ok else EXIT_FAILED

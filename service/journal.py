@@ -48,6 +48,7 @@ class MotionEntry:
     program: dict[str, Any] = field(repr=False)
     outcome: dict[str, Any] | None = None
     ended_at: float | None = None
+    recording: str | None = None  # the motion's MCAP file (pvtflow serve --record DIR)
 
     def summary(self, running: bool = False) -> dict[str, Any]:
         state = "ended" if self.outcome is not None else ("running" if running else "interrupted")
@@ -60,6 +61,7 @@ class MotionEntry:
             "ended_at": _iso(self.ended_at) if self.ended_at is not None else None,
             "duration_ms": self.duration_ms,
             "outcome": self.outcome,
+            "recording": self.recording,
         }
 
 
@@ -72,6 +74,7 @@ class HomingEntry:
     stages: list[list[str]]
     outcome: dict[str, Any] | None = None
     ended_at: float | None = None
+    recording: str | None = None  # the homing's MCAP file (pvtflow serve --record DIR)
 
     def summary(self, running: bool = False) -> dict[str, Any]:
         state = "ended" if self.outcome is not None else ("running" if running else "interrupted")
@@ -126,6 +129,7 @@ class Journal:
                                 line.get("label"),
                                 int(line.get("duration_ms", 0)),
                                 line.get("program", {}),
+                                recording=line.get("recording"),
                             )
                         )
                     elif kind == "outcome":
@@ -134,7 +138,11 @@ class Journal:
                             entry.outcome = line["outcome"]
                             entry.ended_at = float(line["time"])
                     elif kind == "homing":
-                        self._remember_homing(HomingEntry(line["homing_id"], float(line["time"]), line["stages"]))
+                        self._remember_homing(
+                            HomingEntry(
+                                line["homing_id"], float(line["time"]), line["stages"], recording=line.get("recording")
+                            )
+                        )
                     elif kind == "homing_outcome":
                         homing = self._homings.get(line["homing_id"])
                         if homing is not None:
@@ -179,10 +187,11 @@ class Journal:
         label: str | None,
         duration_ms: int,
         cell: str,
+        recording: str | None = None,
     ) -> MotionEntry:
         """Write (and fsync) an accepted motion; call before anything is sent to a drive."""
         now = time.time()
-        entry = MotionEntry(motion_id, now, plan_id, label, duration_ms, program)
+        entry = MotionEntry(motion_id, now, plan_id, label, duration_ms, program, recording=recording)
         with self._lock:
             self._append(
                 {
@@ -194,6 +203,7 @@ class Journal:
                     "label": label,
                     "duration_ms": duration_ms,
                     "program": program,
+                    **({"recording": recording} if recording is not None else {}),
                 }
             )
             self._remember(entry)
@@ -208,12 +218,15 @@ class Journal:
                 entry.outcome = outcome
                 entry.ended_at = now
 
-    def record_homing(self, homing_id: str, stages: list[list[str]], *, cell: str) -> HomingEntry:
+    def record_homing(
+        self, homing_id: str, stages: list[list[str]], *, cell: str, recording: str | None = None
+    ) -> HomingEntry:
         """Write (and fsync) an accepted homing; call before any axis moves."""
         now = time.time()
-        entry = HomingEntry(homing_id, now, stages)
+        entry = HomingEntry(homing_id, now, stages, recording=recording)
+        line = {"kind": "homing", "homing_id": homing_id, "time": now, "cell": cell, "stages": stages}
         with self._lock:
-            self._append({"kind": "homing", "homing_id": homing_id, "time": now, "cell": cell, "stages": stages})
+            self._append({**line, **({"recording": recording} if recording is not None else {})})
             self._remember_homing(entry)
         return entry
 

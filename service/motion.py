@@ -61,7 +61,9 @@ from service.approach import away_from_start, plan_approach
 from service.cell_planner import TIMEOUT, CellPlanner
 from service.config import CellConfig
 from service.journal import Journal, JournalError, MotionEntry, default_directory
+from service.live import LiveServer
 from service.planning import PlanningProcess
+from service.recording import Recorder
 
 Publish = Callable[[str, dict[str, Any]], None]
 log = logging.getLogger("pvtflow.motion")
@@ -117,6 +119,7 @@ class Motion:
     outcome: dict[str, Any] | None = None
     result: RunResult | None = None
     done: threading.Event = field(default_factory=threading.Event)
+    recorder: Recorder | None = field(default=None, repr=False)
 
     def summary(self) -> dict[str, Any]:
         return {
@@ -139,6 +142,7 @@ class Homing:
     accepted_at: float
     outcome: HomingOutcome | None = None
     done: threading.Event = field(default_factory=threading.Event)
+    recorder: Recorder | None = field(default=None, repr=False)
 
     def summary(self) -> dict[str, Any]:
         return {
@@ -168,8 +172,12 @@ class MotionService:
         max_plans: int = 64,
         publish: Publish | None = None,
         planner_process: bool = False,
+        record_dir: str | Path | None = None,
+        live: LiveServer | None = None,
     ) -> None:
         self.cell = cell
+        self.record_dir = Path(record_dir) if record_dir is not None else None  # one MCAP file per motion
+        self.live = live  # every motion's channels served live too (service/live.py)
         self.axes = cell.ordered_axes()
         self.joint_names: tuple[str, ...] = tuple(cell.joint_names)
         self.simulate = cell.simulated if simulate is None else simulate
@@ -472,6 +480,7 @@ class MotionService:
             self._refuse_if_faulted(group)
             self._refuse_unless_at_start(group, program)
             motion = Motion(_new_id("m"), plan_id, label, program, time.time())
+            motion.recorder = self._recorder(motion.motion_id, "motion")
 
             def journaled() -> None:
                 self.journal.record_motion(
@@ -481,6 +490,7 @@ class MotionService:
                     label=label,
                     duration_ms=int(program.duration_ms),
                     cell=self.cell.name,
+                    recording=str(motion.recorder.path) if motion.recorder and motion.recorder.path else None,
                 )
 
             previous, self.motion = self.motion, motion
@@ -490,6 +500,8 @@ class MotionService:
                 early = group.start(program, before_records=journaled)
             except JournalError as exc:
                 self.motion = previous
+                if motion.recorder is not None:
+                    motion.recorder.close({"result": "journal_error", "message": str(exc)})
                 raise ApiError(ErrorCode.JOURNAL_ERROR, f"{exc}: nothing was sent") from None
             except GroupError as exc:  # cannot happen under the lock; kept as a guard
                 raise ApiError(ErrorCode.BUSY, str(exc)) from None
@@ -575,11 +587,28 @@ class MotionService:
                 self._set_state(CellState.IDLE if not self.running else self.state, motion.motion_id)
                 motion.done.set()
 
+    def _recorder(self, motion_id: str, kind: str) -> Recorder | None:
+        """The motion's recording (``record_dir``/ID.mcap), attached to the bus; None without
+        ``record_dir``, or when the file cannot be written (logged: the motion does not depend on it)."""
+        if (self.record_dir is None and self.live is None) or self.bus is None:
+            return None
+        path = None
+        try:
+            if self.record_dir is not None:
+                self.record_dir.mkdir(parents=True, exist_ok=True)
+                path = self.record_dir / f"{motion_id}.mcap"
+            return Recorder(path, self.cell, kind=kind, live=self.live).attach(self.bus, self.group)
+        except OSError as exc:
+            log.warning("no recording of %s: %s", motion_id, exc)
+            return None
+
     def _finish(self, motion: Motion, result: RunResult) -> None:
         """Journal the outcome, then state and events (the journal first: it is the record)."""
         outcome = result.to_json()
         motion.result = result
         motion.outcome = outcome
+        if motion.recorder is not None:
+            motion.recorder.close(outcome)
         try:
             self.journal.record_outcome(motion.motion_id, outcome)
         except JournalError as exc:
@@ -622,9 +651,15 @@ class MotionService:
             self._refuse_if_busy(group)
             self._refuse_if_faulted(group)
             homing = Homing(_new_id("h"), stages, time.time())
+            homing.recorder = self._recorder(homing.homing_id, "homing")
             try:
-                self.journal.record_homing(homing.homing_id, stages, cell=self.cell.name)
+                recording = homing.recorder.path if homing.recorder is not None else None
+                self.journal.record_homing(
+                    homing.homing_id, stages, cell=self.cell.name, recording=str(recording) if recording else None
+                )
             except JournalError as exc:
+                if homing.recorder is not None:
+                    homing.recorder.close({"result": "journal_error", "message": str(exc)})
                 raise ApiError(ErrorCode.JOURNAL_ERROR, f"{exc}: nothing moved") from None
             self.homing = homing
             self._homer = CellHoming(group, on_event=self._on_homing_event)
@@ -645,6 +680,8 @@ class MotionService:
             log.exception("while homing %s", homing.homing_id)
             outcome = HomingOutcome(HomingResult.CONFIGURATION_ERROR, f"homing failed: {type(exc).__name__}: {exc}")
         homing.outcome = outcome
+        if homing.recorder is not None:
+            homing.recorder.close(outcome.to_json())
         try:
             self.journal.record_homing_outcome(homing.homing_id, outcome.to_json())
         except JournalError as exc:
@@ -669,6 +706,8 @@ class MotionService:
 
     def _on_homing_event(self, kind: HomingEventKind, message: str, joint: str | None) -> None:
         homing = self.homing
+        if homing is not None and homing.recorder is not None:
+            homing.recorder.event(str(kind), message, joint)
         self.publish(
             "events",
             self.event_payload(kind, message, joint=joint, homing_id=homing.homing_id if homing else None),
@@ -845,6 +884,8 @@ class MotionService:
     def _on_event(self, event: Event) -> None:
         motion = self.motion
         motion_id = motion.motion_id if motion is not None and not motion.done.is_set() else None
+        if motion_id is not None and motion is not None and motion.recorder is not None:
+            motion.recorder.event(event.kind, event.message, event.joint)
         self.publish(
             "events",
             self.event_payload(

@@ -7,7 +7,11 @@ unless ``--allow-unauthenticated`` says so, which the banner then repeats.
 Brings the cell's bus up (with simulated drives when the cell is simulated: the default arm6 demo
 cell), configures the drives, opens the zenoh session and serves the cell until Ctrl-C / SIGTERM,
 then halts any motion and closes. It prints where it listens and how to talk to it. Exit codes:
-0 stopped by a signal, 2 cannot start (configuration, bus, journal, zenoh endpoint).
+0 stopped by a signal, 2 cannot start (configuration, bus, journal, zenoh endpoint, live port).
+
+``--record DIR`` writes each motion and homing to ``DIR/<id>.mcap`` (service/recording.py) and names
+it in the journal; ``--live [PORT]`` serves the same channels on 127.0.0.1 (service/live.py), started
+before the bus so a port in use refuses the start with nothing opened.
 """
 
 from __future__ import annotations
@@ -31,6 +35,8 @@ from service.cli import can_log_problem
 from service.config import ConfigError, load_cell_config
 from service.exposure import exposure
 from service.journal import JournalError
+from service.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
+from service.live import LiveError, LiveServer
 from service.motion import MotionService
 from service.planning import PlanningProcess
 from service.runtime import freeze_startup_objects
@@ -82,6 +88,21 @@ def add_parser(subparsers: Any) -> None:
         "--journal",
         metavar="DIR",
         help="motion journal directory (default $XDG_STATE_HOME/pvtflow/<cell>, i.e. ~/.local/state/pvtflow/<cell>)",
+    )
+    p.add_argument(
+        "--record",
+        metavar="DIR",
+        help="record every motion and homing as DIR/<motion id>.mcap (its journal entry names the file; "
+        "pvtflow report FILE.mcap; Foxglove)",
+    )
+    p.add_argument(
+        "--live",
+        metavar="PORT",
+        nargs="?",
+        type=int,
+        const=DEFAULT_LIVE_PORT,
+        help=f"serve every motion's channels live on ws://127.0.0.1:PORT (default {DEFAULT_LIVE_PORT}; the "
+        "Foxglove WebSocket protocol: Foxglove, PlotJuggler); the channels of --record",
     )
     p.add_argument(
         "--planner-process",
@@ -147,6 +168,8 @@ def banner(service: MotionService, server: Server, allow_unauthenticated: bool =
         f"  queryables:   {key(name, '{' + ','.join(QUERYABLES) + '}')}",
         f"  publications: {key(name, '{' + ','.join(PUBLICATIONS) + '}')}   liveliness: {key(name, LIVELINESS)}",
         f"  journal:      {service.journal.path}",
+        *([f"  recordings:   {service.record_dir}/<motion id>.mcap"] if service.record_dir is not None else []),
+        *([f"  live:         {service.live.url} (Foxglove WebSocket)"] if service.live is not None else []),
         "  planner:      "
         + ("in a child process" if isinstance(service.planner, PlanningProcess) else "in this process"),
     ]
@@ -285,6 +308,20 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"--telemetry-ms must be positive, got {args.telemetry_ms}")
     if args.can_log and (problem := can_log_problem(args.can_log)):
         return _fail(problem)
+    if args.record:
+        try:
+            Path(args.record).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            return _fail(f"--record {args.record}: cannot create the directory: {exc.strerror or exc}")
+
+    live = None
+    if args.live is not None:
+        if not 0 <= args.live <= 65535:
+            return _fail(f"--live {args.live}: not a TCP port (0..65535)")
+        try:
+            live = LiveServer(args.live).start()
+        except LiveError as exc:
+            return _fail(str(exc))
 
     stop = threading.Event()
 
@@ -309,6 +346,8 @@ def run(args: argparse.Namespace) -> int:
                 can_log=args.can_log,
                 telemetry_period_ms=args.telemetry_ms,
                 planner_process=args.planner_process == "on" or (args.planner_process == "auto" and not lockstep),
+                record_dir=args.record,
+                live=live,
             )
         except JournalError as exc:
             return _fail(str(exc))
@@ -344,5 +383,7 @@ def run(args: argparse.Namespace) -> int:
             service.close()
         return EXIT_OK
     finally:
+        if live is not None:
+            live.stop()
         for s, handler in previous.items():
             signal.signal(s, handler)

@@ -267,6 +267,7 @@ _MOTION = {
         "ended_at": _STR_OR_NULL,
         "duration_ms": {"type": "integer"},
         "outcome": {"type": ["object", "null"]},
+        "recording": _STR_OR_NULL,
     },
 }
 
