@@ -103,6 +103,15 @@ class AxisSimulation:
     positive_hard_stop_qc: int | None = None
     stall_current_ma: int = 2000  # the current against a hard stop
     moving_current_ma: int = 300  # the current of a free motion at homing speed
+    # The drive itself, where it differs from what the cell expects (None: as the cell says), so that a
+    # commissioning check can be shown to catch it (axes/commission.py): its real encoder (qc per motor
+    # revolution; the drive interpolates with it), its polarity 0x607E, its identity 0x1018:01/:02 and
+    # its motor's maximal speed (0x6410:04, where the drive has it)
+    qc_per_motor_rev: int | None = None
+    polarity: int | None = None
+    vendor_id: int | None = None
+    product_code: int | None = None
+    max_motor_speed_rpm: int | None = None
 
 
 @dataclass(frozen=True)

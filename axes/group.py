@@ -26,6 +26,7 @@ from axes import objects as od
 from axes.budget import bus_budget
 from axes.bus import BusFault, CellBus, FaultKind
 from axes.cia402 import PowerState, Statusword, decode_state
+from axes.commission import refuse_on_facts
 from axes.config import AxisConfig, Wiring
 from axes.feeder import BufferFeeder, Feeder, FeedStats, RecordAllowance, preload_shared, top_up_by_need
 from axes.objects import BUFFER_ERRORS, BufferStatus
@@ -143,7 +144,10 @@ class AxisGroup:
 
     # --- configuration -----------------------------------------------------------------------
     def configure(self) -> None:
-        """Every drive: PRE-OPERATIONAL, its profile's SDO sequence, then OPERATIONAL and consumers."""
+        """Every drive: what it is checked against the cell (axes/commission.py: a drive that is not
+        what the cell says is refused, DriveError, before anything is written), then PRE-OPERATIONAL,
+        its profile's SDO sequence, then OPERATIONAL and consumers."""
+        refuse_on_facts(self.links)
         for link in self.links:  # addressed, not broadcast: other nodes on the bus are not ours
             self.bus.nmt(link.node_id, NMT_PRE_OPERATIONAL)
         self._configured_boots = {link.node_id: self.bus.boot_count(link.node_id) for link in self.links}

@@ -30,6 +30,7 @@ COMMANDS: dict[str, str] = {
     "serve": "service.serve_cmd",
     "request": "service.request_cmd",
     "sim": "service.sim_cmd",
+    "commission": "service.commission_cmd",
 }
 
 

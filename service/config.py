@@ -629,6 +629,12 @@ def _parse_simulation(f: _Fields) -> AxisSimulation:
             values[key] = s.get(key, s.integer(0, 65535), default)
         elif key == "seed":
             values[key] = s.get(key, s.integer(0, 2**31 - 1), default)
+        elif key in ("qc_per_motor_rev", "max_motor_speed_rpm"):
+            values[key] = s.get(key, s.integer(1, INT32_MAX), default)
+        elif key == "polarity":
+            values[key] = s.get(key, s.integer(0, 255), default)
+        elif key in ("vendor_id", "product_code"):
+            values[key] = s.get(key, s.integer(0, 2**32 - 1), default)
         else:
             values[key] = s.get(key, qc, default)
     sim = AxisSimulation(**values)

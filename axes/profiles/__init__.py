@@ -83,6 +83,7 @@ class AxisLink:
         self.updated = threading.Condition()
         self.status_listeners: list[Callable[[AxisLink], None]] = []
         self.controlwords_sent = 0  # every controlword the master sends, by SDO or RPDO, counts
+        self.sdo_transfers = 0  # SDO requests the master made of this drive (each one round trip)
         self._subscribed: list[tuple[int, Callable[..., None]]] = []
         self._sdo = threading.Lock()  # one SDO transfer at a time: the node has one SDO server channel
 
@@ -106,6 +107,7 @@ class AxisLink:
 
     def _download(self, index: int, subindex: int, value: int, fmt: str, optional: bool) -> bool:
         where = f"0x{index:04X}:{subindex:02X}"
+        self.sdo_transfers += 1
         try:
             with self._sdo:
                 self.node.sdo.download(index, subindex, struct.pack("<" + fmt, value))
@@ -118,11 +120,26 @@ class AxisLink:
         return True
 
     def read(self, index: int, subindex: int, fmt: str) -> int:
+        self.sdo_transfers += 1
         try:
             with self._sdo:
                 data = self.node.sdo.upload(index, subindex)
             return struct.unpack_from("<" + fmt, data.ljust(struct.calcsize(fmt), b"\0"))[0]
         except (SdoAbortedError, SdoCommunicationError, struct.error) as exc:
+            raise DriveError(self.node_id, f"SDO read 0x{index:04X}:{subindex:02X} failed: {exc}") from None
+
+    def read_optional(self, index: int, subindex: int, fmt: str) -> int | None:
+        """An SDO read of an object the drive may not have (abort 0x0602xxxx / 0x0609xxxx): None then."""
+        self.sdo_transfers += 1
+        try:
+            with self._sdo:
+                data = self.node.sdo.upload(index, subindex)
+            return struct.unpack_from("<" + fmt, data.ljust(struct.calcsize(fmt), b"\0"))[0]
+        except SdoAbortedError as exc:
+            if exc.code >> 16 in (0x0602, 0x0609):
+                return None
+            raise DriveError(self.node_id, f"SDO read 0x{index:04X}:{subindex:02X} failed: {exc}") from None
+        except (SdoCommunicationError, struct.error) as exc:
             raise DriveError(self.node_id, f"SDO read 0x{index:04X}:{subindex:02X} failed: {exc}") from None
 
     def read_statusword(self) -> int:
