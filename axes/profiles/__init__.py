@@ -36,6 +36,9 @@ if TYPE_CHECKING:
     from axes.program import AxisProgram
 
 DEFAULT_MAX_FOLLOWING_ERROR_QC = 2000  # app note Table 17 default for 0x6065
+PDO_INVALID = 0x8000_0000  # COB-ID bit 31: the PDO does not exist
+PDO_RTR_BIT = 0x4000_0000  # COB-ID bit 30: no RTR allowed on this PDO
+PDO_COB_ID_BITS = 0x3FFF_FFFF  # bits 0-29: the identifier and its frame format
 
 
 class DriveError(RuntimeError):
@@ -146,30 +149,62 @@ class AxisLink:
         self._set_statusword(self.read(od.STATUSWORD, 0, "H"))
         return self.statusword
 
-    # --- PDO configuration (CiA 301: invalidate, clear the mapping, map, count, type, validate) --
+    # --- PDO configuration (CiA 301 7.5.2.35-38) ----------------------------------------------------
     def map_pdo(self, layout: PdoLayout, receive: bool, cob_id: int | None = None) -> None:
+        """Configure one PDO as CiA 301 says, in the order a strict stack accepts: invalidate it with
+        the COB-ID it has (bits 0-29 may not change while it is valid), move the COB-ID while it is
+        invalid, clear the mapping count, map, set the count, write the transmission type and, for a
+        TPDO, the inhibit time and event timer (0: none; an event TPDO sends on a change only), then
+        validate; bit 30 (RTR) stays as the drive has it. The result is read back: a drive that
+        holds anything else is refused (DriveError naming the PDO)."""
         comm = (0x1400 if receive else 0x1800) + layout.number - 1
         mapping = (0x1600 if receive else 0x1A00) + layout.number - 1
         cob = layout.cob_id(self.node_id, receive) if cob_id is None else cob_id
-        self.write(comm, 1, cob | 0x8000_0000, "I")
+        stored = self.read(comm, 1, "I")
+        rtr = stored & PDO_RTR_BIT
+        if not stored & PDO_INVALID:
+            self.write(comm, 1, stored | PDO_INVALID, "I")
+        if stored & PDO_COB_ID_BITS != cob:
+            self.write(comm, 1, rtr | PDO_INVALID | cob, "I")
         self.write(mapping, 0, 0, "B")
         for k, (index, subindex, bits) in enumerate(layout.entries, start=1):
             self.write(mapping, k, (index << 16) | (subindex << 8) | bits, "I")
         self.write(mapping, 0, len(layout.entries), "B")
         self.write(comm, 2, layout.transmission_type, "B")
-        if not receive and layout.inhibit_periods:  # 0x1800:03 in 100 us, while the PDO is invalid
+        if not receive:  # 0x1800:03 in 100 us; a drive without :03 / :05 has neither to set
             inhibit = round(layout.inhibit_periods * self.bus.config.sync_period_ms * 10)
-            self.write(comm, 3, min(inhibit, 0xFFFF), "H")
-        self.write(comm, 1, cob, "I")
+            self.write_optional(comm, 3, min(inhibit, 0xFFFF), "H")
+            self.write_optional(comm, 5, 0, "H")
+        self.write(comm, 1, rtr | cob, "I")
+        self._check_pdo(layout, receive, rtr | cob)
+
+    def _check_pdo(self, layout: PdoLayout, receive: bool, cob: int) -> None:
+        """The PDO as the drive holds it now against what was written: COB-ID, type, mapping."""
+        comm = (0x1400 if receive else 0x1800) + layout.number - 1
+        mapping = (0x1600 if receive else 0x1A00) + layout.number - 1
+        count = self.read(mapping, 0, "B")
+        found = (
+            self.read(comm, 1, "I"),
+            self.read(comm, 2, "B"),
+            tuple(self.read(mapping, k, "I") for k in range(1, count + 1)),
+        )
+        entries = tuple((index << 16) | (subindex << 8) | bits for index, subindex, bits in layout.entries)
+        wanted = (cob, layout.transmission_type, entries)
+        if found != wanted:
+            name = f"{'R' if receive else 'T'}PDO{layout.number}"
+
+            def text(v: tuple[int, int, tuple[int, ...]]) -> str:
+                return f"COB-ID 0x{v[0]:08X} type {v[1]} mapping [{', '.join(f'0x{e:08X}' for e in v[2])}]"
+
+            raise DriveError(self.node_id, f"{name} reads back {text(found)} after writing {text(wanted)}")
 
     def disable_pdo(self, number: int, receive: bool) -> None:
-        """Invalidate a PDO pvtflow does not use (silently skipped where the drive has no such PDO)."""
+        """Invalidate a PDO pvtflow does not use, with the COB-ID it has (skipped where the drive has
+        no such PDO or it is invalid already): what an earlier setup left mapped sends nothing."""
         comm = (0x1400 if receive else 0x1800) + number - 1
-        try:
-            cob = self.read(comm, 1, "I")
-            self.write(comm, 1, cob | 0x8000_0000, "I")
-        except DriveError:
-            pass
+        cob = self.read_optional(comm, 1, "I")
+        if cob is not None and not cob & PDO_INVALID:
+            self.write(comm, 1, cob | PDO_INVALID, "I")
 
     def map_pdos(
         self, rpdos: tuple[PdoLayout, ...], tpdos: tuple[PdoLayout, ...], rpdo_cob_ids: dict[int, int] | None = None
