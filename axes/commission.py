@@ -16,7 +16,7 @@ the drive holds, and whether they agree. Three kinds:
 - ``SETTING``: what pvtflow writes at configuration from the axis (``expected_settings``: 0x607F,
   0x60C5, 0x607D, 0x6065 where the drive has them). ``pvtflow commission`` shows them as the drive
   stores them (a vendor tool, an earlier setup) and counts a difference; configuration writes them
-  and reads them back (``Profile.write_settings``).
+  where the drive has them and reads them back (``Profile.write_settings``).
 - ``INFO``: heartbeat 0x1017 / 0x1016:01, the PDOs pvtflow uses as the drive maps them, the error
   history 0x1003: shown, never a mismatch.
 
@@ -34,10 +34,9 @@ from typing import TYPE_CHECKING, Any
 from canopen.profiles.p402 import OperationMode
 
 from axes import objects as od
-from axes.profiles import DEFAULT_MAX_FOLLOWING_ERROR_QC, DriveError
+from axes.profiles import DriveError, expected_settings
 
 if TYPE_CHECKING:
-    from axes.config import AxisConfig
     from axes.objects import PdoLayout
     from axes.profiles import AxisLink, Profile
 
@@ -107,35 +106,6 @@ class CommissionReport:
                 for a in self.axes
             ],
         }
-
-
-@dataclass(frozen=True)
-class Setting:
-    """One object pvtflow writes from the axis at configuration (and reads back)."""
-
-    index: int
-    subindex: int
-    fmt: str
-    value: int
-    name: str
-
-    @property
-    def where(self) -> str:
-        return f"0x{self.index:04X}:{self.subindex:02X}"
-
-
-def expected_settings(config: AxisConfig) -> list[Setting]:
-    """The drive's limit objects in its units from the axis: 0x607F (velocity units), 0x60C5 (rpm/s),
-    0x607D:01/:02 (qc), 0x6065 (qc). One list: configuration writes it, commissioning compares it."""
-    lim = config.limits
-    unit = config.scaling.velocity_unit_rpm
-    return [
-        Setting(od.MAX_PROFILE_VELOCITY, 0, "I", round(lim.max_profile_velocity_rpm / unit), "max profile velocity"),
-        Setting(od.MAX_ACCELERATION, 0, "I", round(lim.max_acceleration_rpm_s), "max acceleration"),
-        Setting(od.SOFTWARE_POSITION_LIMIT, 1, "i", lim.min_position_qc, "min position limit"),
-        Setting(od.SOFTWARE_POSITION_LIMIT, 2, "i", lim.max_position_qc, "max position limit"),
-        Setting(od.MAX_FOLLOWING_ERROR, 0, "I", DEFAULT_MAX_FOLLOWING_ERROR_QC, "max following error"),
-    ]
 
 
 # --- the checks ----------------------------------------------------------------------------------

@@ -12,6 +12,7 @@ import struct
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
 import canopen
@@ -68,6 +69,36 @@ _PDO_FORMATS: dict[tuple[int, int], str] = {
 def pdo_struct(layout: PdoLayout) -> struct.Struct:
     """The little-endian struct of one PDO's data bytes, from its layout."""
     return struct.Struct("<" + "".join(_PDO_FORMATS[(i, s)] for i, s, _ in layout.entries))
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One object pvtflow writes from the axis at configuration (and reads back)."""
+
+    index: int
+    subindex: int
+    fmt: str
+    value: int
+    name: str
+
+    @property
+    def where(self) -> str:
+        return f"0x{self.index:04X}:{self.subindex:02X}"
+
+
+def expected_settings(config: AxisConfig) -> list[Setting]:
+    """The drive's limit objects in its units from the axis: 0x607F (velocity units), 0x60C5 (rpm/s),
+    0x607D:01/:02 (qc), 0x6065 (qc: maxon's default, the cell has no setting of its own). One list:
+    configuration writes it (``Profile.write_settings``), commissioning compares it (axes/commission.py)."""
+    lim = config.limits
+    unit = config.scaling.velocity_unit_rpm
+    return [
+        Setting(od.MAX_PROFILE_VELOCITY, 0, "I", round(lim.max_profile_velocity_rpm / unit), "max profile velocity"),
+        Setting(od.MAX_ACCELERATION, 0, "I", round(lim.max_acceleration_rpm_s), "max acceleration"),
+        Setting(od.SOFTWARE_POSITION_LIMIT, 1, "i", lim.min_position_qc, "min position limit"),
+        Setting(od.SOFTWARE_POSITION_LIMIT, 2, "i", lim.max_position_qc, "max position limit"),
+        Setting(od.MAX_FOLLOWING_ERROR, 0, "I", DEFAULT_MAX_FOLLOWING_ERROR_QC, "max following error"),
+    ]
 
 
 class AxisLink:
@@ -387,17 +418,23 @@ class Profile:
         """After the end: ip mode off, operation still enabled (0x000F)."""
         return self.start_controlword() & ~int(Controlword.ENABLE_IP_MODE)
 
-    def write_limits(self, velocity_objects: bool = True) -> None:
-        """0x607D and, where the drive takes them, 0x607F/0x60C5/0x6081/0x6083/0x6084, in drive units."""
+    def write_settings(self) -> None:
+        """0x607F, 0x60C5, 0x607D and 0x6065 from the axis (``expected_settings``) on every drive that
+        has them, each read back: a drive that holds another value than the one written is refused
+        (DriveError), so the limits the planner times against are the ones the drive enforces."""
+        link = self.link
+        for s in expected_settings(self.config):
+            if not link.write_optional(s.index, s.subindex, s.value, s.fmt):
+                continue  # the drive has no such object (abort 0x0602 / 0x0609)
+            back = link.read(s.index, s.subindex, s.fmt)
+            if back != s.value:
+                raise DriveError(link.node_id, f"{s.where} ({s.name}) reads back {back} after writing {s.value}")
+
+    def write_profile_motion(self) -> None:
+        """0x6081/0x6083/0x6084 in drive units (a drive that ramps by itself: warning levels, braking)."""
         lim = self.config.limits
         unit = self.config.scaling.velocity_unit_rpm
         link = self.link
-        link.write(od.SOFTWARE_POSITION_LIMIT, 1, lim.min_position_qc, "i")
-        link.write(od.SOFTWARE_POSITION_LIMIT, 2, lim.max_position_qc, "i")
-        if not velocity_objects:
-            return
-        link.write(od.MAX_PROFILE_VELOCITY, 0, round(lim.max_profile_velocity_rpm / unit), "I")
-        link.write(od.MAX_ACCELERATION, 0, round(lim.max_acceleration_rpm_s), "I")
         profile_velocity = lim.profile_velocity_rpm or lim.max_profile_velocity_rpm
         profile_acceleration = lim.profile_acceleration_rpm_s or lim.max_acceleration_rpm_s
         link.write(od.PROFILE_VELOCITY, 0, round(profile_velocity / unit), "I")

@@ -1,7 +1,8 @@
 """CiA 402 interpolated position mode, linear, one target (seed cia402-ip-linear-single-setpoint).
 
 Configuration: mode 7, 0x60C2:01 = the axis period in ms (0x60C2:02 = -3), 0x60C4:06 = 1 to allow
-writing the target, 0x607D where the drive has it; synchronous RPDO1 with 0x60C1:01 and RPDO2 with
+writing the target, 0x607F/0x60C5/0x607D/0x6065 where the drive has them, read back
+(``Profile.write_settings``); synchronous RPDO1 with 0x60C1:01 and RPDO2 with
 the controlword, synchronous TPDO1 with statusword + position that answers every SYNC; the master's
 heartbeat watched (0x1016) with 0x6007 = 3, quick stop (``Profile.supervise_master``): without it the drive
 would hold its last target with nobody watching.
@@ -69,9 +70,7 @@ class Cia402IpLinear(FixedPeriodProfile):
         link = self.link
         link.write(od.MODES_OF_OPERATION, 0, od.INTERPOLATED_POSITION_MODE, "b")
         self.write_period()
-        lim = self.config.limits
-        link.write_optional(od.SOFTWARE_POSITION_LIMIT, 1, lim.min_position_qc, "i")
-        link.write_optional(od.SOFTWARE_POSITION_LIMIT, 2, lim.max_position_qc, "i")
+        self.write_settings()
         link.map_pdos(self.rpdos, self.tpdos)
         self.write_heartbeat()
         self.supervise_master()
