@@ -27,6 +27,7 @@ STATUSWORD = 0x6041
 MODES_OF_OPERATION = 0x6060
 MODES_OF_OPERATION_DISPLAY = 0x6061
 POSITION_DEMAND_VALUE = 0x6062
+POSITION_ACTUAL_INTERNAL_VALUE = 0x6063  # increments, before the factor group (the Parker's in IP mode)
 POSITION_ACTUAL_VALUE = 0x6064
 MAX_FOLLOWING_ERROR = 0x6065
 HOME_OFFSET = 0x607C  # qc: what the position reads at the home position once homing is attained
@@ -321,7 +322,10 @@ PARKER_RPDOS = (
     ),
     PdoLayout(2, SYNCHRONOUS, ((CONTROLWORD, 0, 16),), PdoRole.CONTROLWORD),
 )
-PARKER_TPDOS = SETPOINT_TPDOS
+# Its TPDO1 maps 0x6063, the position the seed lists for IP mode ("Position actual value*"; it lists
+# no 0x6064): in IP mode the SLVDN's factor group is not active, so 0x6063, in encoder increments,
+# is in the units of the setpoints 0x60C1:01 it follows.
+PARKER_TPDOS = (PdoLayout(1, SYNCHRONOUS, ((STATUSWORD, 0, 16), (POSITION_ACTUAL_INTERNAL_VALUE, 0, 32))),)
 
 # EPOS2 clock synchronisation (app note 2.4 and 3.7): after each SYNC the master sends its transmit
 # time (0x1013, us) once, on one COB-ID that every EPOS2 takes through its asynchronous RPDO3.

@@ -56,6 +56,7 @@ _PDO_FORMATS: dict[tuple[int, int], str] = {
     (od.STATUSWORD, 0): "H",
     (od.CONTROLWORD, 0): "H",
     (od.POSITION_ACTUAL_VALUE, 0): "i",
+    (od.POSITION_ACTUAL_INTERNAL_VALUE, 0): "i",
     (od.POSITION_DEMAND_VALUE, 0): "i",
     (od.EPOS2_INTERPOLATION_BUFFER, 1): "H",
     (od.INTERPOLATION_DATA_RECORD, 1): "i",
@@ -64,6 +65,10 @@ _PDO_FORMATS: dict[tuple[int, int], str] = {
     (od.EPOS2_INTERPOLATION_DATA_RECORD, 0): "Q",
     (od.HIGH_RESOLUTION_TIME_STAMP, 0): "I",
 }
+
+
+# a TPDO's position: 0x6064, or 0x6063 where the factor group is not active (the Parker in IP mode)
+_POSITION_KEYS = frozenset({(od.POSITION_ACTUAL_VALUE, 0), (od.POSITION_ACTUAL_INTERNAL_VALUE, 0)})
 
 
 def pdo_struct(layout: PdoLayout) -> struct.Struct:
@@ -277,7 +282,7 @@ class AxisLink:
             for key, value in zip(keys, fmt.unpack_from(data), strict=True):
                 if key == (od.STATUSWORD, 0):
                     self._set_statusword(value)
-                elif key == (od.POSITION_ACTUAL_VALUE, 0):
+                elif key in _POSITION_KEYS:
                     self.position = value
                 elif key == (od.EPOS2_INTERPOLATION_BUFFER, 1):
                     self.buffer_status = value

@@ -162,6 +162,7 @@ class SimulatedDrive(HomingMixin):
         self.changed = threading.Condition(self.lock)
         self.network: canopen.Network = canopen.network._UNINITIALIZED_NETWORK
         self.pdo = PdoEngine(self)
+        self._internal_position = self.has(od.POSITION_ACTUAL_INTERNAL_VALUE)  # 0x6063 (the Parker's)
         # what tests look at
         self.history: deque[SyncSample] = deque(maxlen=history_length)
         self.faults: list[FaultRecord] = []
@@ -881,7 +882,10 @@ class SimulatedDrive(HomingMixin):
         self.publish(od.STATUSWORD, 0, self.statusword())
         demand = min(max(round(self.demand), INT32_MIN), INT32_MAX)
         self.publish(od.POSITION_DEMAND_VALUE, 0, demand)
-        self.publish(od.POSITION_ACTUAL_VALUE, 0, min(max(self.actual, INT32_MIN), INT32_MAX))
+        actual = min(max(self.actual, INT32_MIN), INT32_MAX)
+        self.publish(od.POSITION_ACTUAL_VALUE, 0, actual)
+        if self._internal_position:  # no factor group: the same increments
+            self.publish(od.POSITION_ACTUAL_INTERNAL_VALUE, 0, actual)
         self._publish()
         if events and self.operational:
             self.pdo.transmit_events()

@@ -284,6 +284,7 @@ def parker_slvdn() -> dict[int, Entry]:
     d = _common("pvtflow simulated Parker SLVDN", device.PARKER_MODES, "parker_slvdn")
     d.update(_pdo_objects(4, 4))
     d[od.POSITION_ENCODER_RESOLUTION] = _encoder_resolution()
+    d[od.POSITION_ACTUAL_INTERNAL_VALUE] = Var("Position actual value (increments)", I32, "ro", 0, pdo=True)
     d[od.COMMUNICATION_CYCLE_PERIOD] = Var("Communication cycle period", U32, "rw", 0)
     d[od.PARKER_OPERATIVE_MODE] = Var("Pr31 operative mode", I16, "rw", 0)
     d[od.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)

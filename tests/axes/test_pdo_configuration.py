@@ -38,3 +38,18 @@ def test_every_pdo_is_configured_and_read_back_and_the_rest_invalidated(
             assert d.read(0x1800 + layout.number - 1, 5) == 0
         assert not rpdos[4].valid and not tpdos[3].valid and not tpdos[4].valid
     assert rig.group.configured
+
+
+def test_the_parker_answers_with_0x6063_as_its_seed_lists(make_rig: Callable[..., object]) -> None:
+    from service.config import CONFIG_DIR, load_cell_config
+
+    cell = load_cell_config(CONFIG_DIR / "cells" / "gantry3-parker.yaml")
+    rig = make_rig(cell)
+    rig.group.configure()
+    for link in rig.group.links:
+        drive = rig.sim.drive(link.node_id)
+        assert drive.pdo.tpdos[1].entries == ((od.STATUSWORD, 0, 16), (od.POSITION_ACTUAL_INTERNAL_VALUE, 0, 32))
+        link.position = None
+    assert rig.bus.sync.wait_answered(rig.bus.sync.step(), 2.0) == []  # their answers to one SYNC
+    for link in rig.group.links:
+        assert link.position is not None and link.position == rig.sim.drive(link.node_id).actual
