@@ -22,6 +22,7 @@ from axes import objects as od
 from axes.bus import DEFAULT_MAX_GAP_PERIODS
 from axes.cia402 import (
     CONTROLWORD_FAULT_RESET,
+    CONTROLWORD_SHUTDOWN,
     Controlword,
     PowerState,
     PowerStateMachine,
@@ -493,11 +494,14 @@ class Profile:
         )
 
     def release_master(self) -> None:
-        """A master that closes says goodbye: 0x1016:01 off, so that the drive, at rest, does not
-        take an orderly close for a lost master (which would quick stop it, and fault an EPOS2 the
-        next master would have to recover). A master that dies or hangs says nothing: the drive
-        stops. Best effort: a drive that does not answer is left watching."""
+        """A master that closes at rest says goodbye: the shutdown controlword first (0x0006: READY TO
+        SWITCH ON, power stage off, as CiA 402 leaves a drive nobody commands), then 0x1016:01 off, so
+        that the drive does not take an orderly close for a lost master (which would quick stop it,
+        and fault an EPOS2 the next master would have to recover). In that order a drive is never
+        enabled without a master watched. A master that dies or hangs says nothing: the drive
+        stops. Best effort: a drive that does not answer is left as it is, watching."""
         with contextlib.suppress(DriveError):
+            self.link.write_controlword(CONTROLWORD_SHUTDOWN)
             self.link.write(od.CONSUMER_HEARTBEAT_TIME, 1, 0, "I")
 
     def _release_other_entries(self, node_id: int) -> None:
