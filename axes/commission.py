@@ -5,10 +5,11 @@ surprise is a drive that is not what the file says: another encoder, an inverted
 product, limits a vendor tool stored. Each ``Check`` names the object, what the cell expects, what
 the drive holds, and whether they agree. Three kinds:
 
-- ``FACT``: what the drive is and the master must not change: its identity 0x1018:01/:02 (one of the
-  profile's ``objects.KNOWN_IDENTITIES``), its supported modes 0x6502 (interpolated position, and
-  homing where the axis homes), its encoder (CiA 402's 0x608F :01 increments per :02 revolutions,
-  or maxon's 0x2210:01 pulses x 4) against the cell's ``qc_per_motor_rev``, its polarity 0x607E = 0
+- ``FACT``: what the drive is and the master must not change: its identity 0x1018:01/:02 (the axis's
+  ``identity`` in the cell file, or one of the profile's ``objects.KNOWN_IDENTITIES``), its
+  supported modes 0x6502 (interpolated position, and homing where the axis homes), its encoder
+  (CiA 402's 0x608F :01 increments per :02 revolutions, or maxon's 0x2210:01 pulses x 4) against
+  the cell's ``qc_per_motor_rev``, its polarity 0x607E = 0
   (the cell's direction is the sign of its scaling; a drive that inverts as well turns the axis the
   wrong way) and, where it has maxon's 0x6410:04, the motor's maximal speed at or above the cell's
   0x607F. ``AxisGroup.configure`` reads these first and refuses the cell on any mismatch, naming it,
@@ -115,6 +116,8 @@ def drive_facts(link: AxisLink) -> list[Check]:
     config = link.config
     checks: list[Check] = []
     known = od.KNOWN_IDENTITIES.get(config.profile, ())
+    if config.identity is not None:
+        known = (od.DriveIdentity(*config.identity, "the cell's identity"), *known)
     vendor = link.read_optional(od.IDENTITY, 1, "I")
     product = link.read_optional(od.IDENTITY, 2, "I")
     expected = " or ".join(str(i) for i in known)

@@ -126,6 +126,9 @@ class AxisConfig:
     buffer: BufferConfig = field(default_factory=BufferConfig)
     homing: HomingConfig | None = None  # None: nothing to home (an absolute encoder)
     simulation: AxisSimulation | None = None  # the simulated machine around the axis (switches, stops)
+    # 0x1018:01/:02 (vendor id, product code) of the axis's drive, accepted besides the profile's known
+    # drives (axes.objects.KNOWN_IDENTITIES) by the commissioning check: a real drive pvtflow has no EDS of
+    identity: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True)

@@ -454,6 +454,7 @@ def _parse_axis(
             "max_jerk",
             "homing",
             "simulation",
+            "identity",
         ),
     )
     joint = f.get("joint", f.string)
@@ -554,8 +555,14 @@ def _parse_axis(
             raise b.error("overflow_warning", "must be at least 2 above underflow_warning")
     homing = _parse_homing(f, profile, limits) if "homing" in f.data else None
     simulation = _parse_simulation(f) if "simulation" in f.data else None
+    identity = None
+    if "identity" in f.data:  # the drive's 0x1018:01/:02 where the profile's known drives do not list it
+        i = _Fields(file, f.path("identity"), f.data["identity"], ("vendor_id", "product_code"))
+        u32 = i.integer(0, 2**32 - 1)
+        identity = (i.get("vendor_id", u32), i.get("product_code", u32))
     max_jerk = f.get("max_jerk", f.number(positive=True), None)
-    return AxisConfig(joint, node_id, profile, scaling, limits, period, submode, buffer, homing, simulation), max_jerk
+    axis = AxisConfig(joint, node_id, profile, scaling, limits, period, submode, buffer, homing, simulation, identity)
+    return axis, max_jerk
 
 
 HOMING_FIELDS = (

@@ -69,3 +69,17 @@ def test_home_refuses_a_drive_that_is_not_what_the_cell_says(
     assert "configuration_error: node 12: axis y is not the drive the cell expects: 0x1018:01-02 identity" in out
     assert "found vendor 0x00001234 product 0x00000001" in out
     assert "not homed" in out
+
+
+def test_the_cell_names_the_identity_of_a_drive_pvtflow_does_not_know(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = gantry_with_y(tmp_path, "vendor_id: 0x1234")
+    identity = "    identity: {vendor_id: 0x1234, product_code: 1}\n"
+    text = path.read_text().replace("  - joint: y\n", "  - joint: y\n" + identity)
+    path.write_text(text)
+    assert main(["commission", "--config", str(path)]) == 0
+    assert "found vendor 0x00001234 product 0x00000001 (the cell's identity)" in capsys.readouterr().out
+    path.write_text(text.replace("product_code: 1}", "product_code: -1}"))
+    assert main(["commission", "--config", str(path)]) == 2
+    assert "axes[1].identity.product_code: -1 is outside [0, 4294967295]" in capsys.readouterr().err
