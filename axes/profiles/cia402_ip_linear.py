@@ -6,7 +6,8 @@ writing the target, 0x607F/0x60C5/0x607D/0x6065 where the drive has them, read b
 the controlword, synchronous TPDO1 with statusword + position that answers every SYNC; the master's
 heartbeat watched (0x1016) with 0x6007 = 3, quick stop (``Profile.supervise_master``): without it the drive
 would hold its last target with nobody watching.
-Feed: one target position (0x60C1:01, INT32) per period. Delay: the drive moves linearly from
+Enable: 0x60C1:01 primed with the actual position (``prime``). Feed: one target position (0x60C1:01,
+INT32) per period. Delay: the drive moves linearly from
 where it is to the target over the period that follows the SYNC validating it, so the target of
 record k is validated one period before its program time (k + 1) periods. End: the last target is
 held and bit 4 of the controlword is cleared.
@@ -58,6 +59,17 @@ class FixedPeriodProfile(Profile):
         bus = self.link.bus
         return SetpointFeeder(program.records, self.frame, bus.network.send_message, self.period_ms, self.lead_periods)
 
+    def enable(self, fresh: bool = False) -> None:
+        self.enable_operation(fresh)
+        self.prime()
+
+    def prime(self) -> None:
+        """0x60C1:01 = 0x6064 before interpolation is enabled: a drive whose start SYNC brings no new
+        setpoint (the Parker below 2.5 ms, lead 0) latches the object as it stands, which holds 0
+        after power-up or the last run's end; primed, it holds where it is."""
+        position = self.link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
+        self.link.write(od.INTERPOLATION_DATA_RECORD, 1, position, "i")
+
     def write_period(self) -> None:
         self.link.write(od.INTERPOLATION_TIME_PERIOD, 1, self.period_ms, "B")
         self.link.write_optional(od.INTERPOLATION_TIME_PERIOD, 2, MS_INDEX, "b")
@@ -76,5 +88,6 @@ class Cia402IpLinear(FixedPeriodProfile):
         self.supervise_master()
 
     def enable(self, fresh: bool = False) -> None:
-        super().enable(fresh)
+        self.enable_operation(fresh)
         self.link.write(od.INTERPOLATION_DATA_CONFIGURATION, 6, 1, "B")  # allow writing 0x60C1:01
+        self.prime()
