@@ -19,7 +19,15 @@ from numpy.typing import NDArray
 
 from axes import objects as od
 from axes.budget import bus_budget
-from axes.config import SIMULATION_INTERFACES, AxisConfig, AxisSimulation, BufferConfig, BusConfig, HomingConfig
+from axes.config import (
+    SIMULATION_INTERFACES,
+    AxisConfig,
+    AxisSimulation,
+    BufferConfig,
+    BusConfig,
+    HomingConfig,
+    homing_stop_room,
+)
 from axes.homing import homing_stages
 from axes.profiles import profile_class
 from axes.program import FIXED_PERIOD_PROFILES, PROFILES, SHORTEST_PERIOD_MS
@@ -555,6 +563,8 @@ def _parse_axis(
             raise b.error("overflow_warning", "must be at least 2 above underflow_warning")
     homing = _parse_homing(f, profile, limits) if "homing" in f.data else None
     simulation = _parse_simulation(f) if "simulation" in f.data else None
+    if homing is not None and (why := homing_stop_room(homing, scaling, simulation)) is not None:
+        raise ConfigError(file, f.path("homing"), why)
     identity = None
     if "identity" in f.data:  # the drive's 0x1018:01/:02 where the profile's known drives do not list it
         i = _Fields(file, f.path("identity"), f.data["identity"], ("vendor_id", "product_code"))
@@ -573,6 +583,7 @@ HOMING_FIELDS = (
     "offset_qc",
     "current_threshold_ma",
     "timeout_s",
+    "overtravel_qc",
 )
 
 
@@ -616,6 +627,7 @@ def _parse_homing(f: _Fields, profile: str, limits: DriveLimits) -> HomingConfig
         offset_qc=h.get("offset_qc", h.integer(INT32_MIN, INT32_MAX), d.offset_qc),
         current_threshold_ma=threshold,
         timeout_s=h.get("timeout_s", h.number(positive=True), d.timeout_s),
+        overtravel_qc=h.get("overtravel_qc", h.integer(0, INT32_MAX), None),
     )
 
 
