@@ -806,9 +806,9 @@ class AxisGroup:
 
     def close(self) -> None:
         """Release the drives (at rest, each is shut down, then stops watching the master's heartbeat:
-        an orderly close is not a lost master, ``Profile.release_master``) and let go of the bus. A close during a run leaves them watching: the
-        heartbeat stops with the bus and every drive stops by itself; so does a close after the bus's
-        (nothing can be said on a closed bus)."""
+        an orderly close is not a lost master, ``Profile.release_master``) and let go of the bus. A
+        close during a run leaves them watching: the heartbeat stops with the bus and every drive
+        stops by itself; so does a close after the bus's (nothing can be said on a closed bus)."""
         if self.configured and not self._running and self.bus.is_open:
             for profile in self.profiles:
                 profile.release_master()
