@@ -492,6 +492,22 @@ class Profile:
         self.link.write_optional(
             od.QUICK_STOP_DECELERATION_CIA402, 0, round(self.config.limits.max_acceleration_rpm_s), "I"
         )
+        self.write_stop_options()
+
+    def write_stop_options(self) -> None:
+        """How the drive stops by itself, where it has the objects (each read back): 0x605A = 2, a
+        quick stop brakes on 0x6085, then SWITCH ON DISABLED (what 0x6007 = 3 relies on; a vendor tool
+        may have left 0 = power stage off, coasting), and 0x605D = 1, a halt brakes on 0x6084."""
+        for index, value, what in (
+            (od.QUICK_STOP_OPTION_CODE, od.QUICK_STOP_ON_QUICK_STOP_RAMP, "quick stop option code"),
+            (od.HALT_OPTION_CODE, od.HALT_ON_PROFILE_DECELERATION, "halt option code"),
+        ):
+            if self.link.write_optional(index, 0, value, "h"):
+                back = self.link.read(index, 0, "h")
+                if back != value:
+                    raise DriveError(
+                        self.link.node_id, f"0x{index:04X} ({what}) reads back {back} after writing {value}"
+                    )
 
     def release_master(self) -> None:
         """A master that closes at rest says goodbye: the shutdown controlword first (0x0006: READY TO

@@ -41,3 +41,13 @@ def test_every_profile_writes_and_reads_back_its_limit_objects(profile: str, mak
     assert {(s.index, s.subindex) for s in settings} == set(stored)
     for s in settings:
         assert drive.read(s.index, s.subindex) == s.value, s.where
+
+
+def test_the_quick_stop_option_the_master_loss_reaction_relies_on_is_written(make_rig: Callable[..., object]) -> None:
+    """0x6007 = 3 (quick stop on a lost master) brakes as 0x605A says: a drive a tool left on 0
+    (power stage off: the axis coasts) gets 2, the quick stop ramp, and reads it back."""
+    rig = make_rig(load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml"))
+    for drive in rig.sim:
+        drive.store(od.QUICK_STOP_OPTION_CODE, 0, 0)
+    rig.group.configure()
+    assert all(d.read(od.QUICK_STOP_OPTION_CODE) == od.QUICK_STOP_ON_QUICK_STOP_RAMP for d in rig.sim)
