@@ -82,6 +82,42 @@ class HomingConfig:
     offset_qc: int = 0  # 0x607C: what the position reads at the home position
     current_threshold_ma: int | None = None  # 0x2080 (EPOS2 methods -1 to -4)
     timeout_s: float = 60.0  # of drive time (SYNC periods): a search that finds nothing ends here
+    # qc beyond the limit switch the search runs to before the end of travel (a real machine's: the
+    # cell file says; a simulated one's: its hard stop on that side, ``AxisSimulation``)
+    overtravel_qc: int | None = None
+
+
+# the limit switch each switch-seeking method (axes.objects.HomingMethod) runs to at its switch speed
+# (-1: the negative one); home-switch and index methods stay inside the travel, hard-stop ones run into it
+LIMIT_SWITCH_SIDE = {1: -1, 17: -1, 2: 1, 18: 1}
+
+
+def homing_stop_room(homing: HomingConfig, scaling: AxisScaling, simulation: AxisSimulation | None) -> str | None:
+    """Why an axis cannot stop between the limit switch its homing seeks and the end of travel (None:
+    it can, or nothing says where the end of travel is). The stopping distance is the switch speed
+    braked at the homing acceleration, v^2 / 2a; the room is ``overtravel_qc``, else the simulated
+    machine's hard stop beyond that switch."""
+    side = LIMIT_SWITCH_SIDE.get(homing.method)
+    if side is None:
+        return None
+    room, source = homing.overtravel_qc, "homing.overtravel_qc"
+    if room is None and simulation is not None:
+        switch = simulation.negative_limit_switch_qc if side < 0 else simulation.positive_limit_switch_qc
+        stop = simulation.negative_hard_stop_qc if side < 0 else simulation.positive_hard_stop_qc
+        if switch is not None and stop is not None:
+            room, source = abs(switch - stop), "the simulated hard stop beyond the switch"
+    if room is None:
+        return None
+    v = float(scaling.rpm_to_qc_per_ms(homing.switch_speed_rpm))
+    a = float(scaling.rpm_s_to_qc_per_ms2(homing.acceleration_rpm_s))
+    distance = v * v / (2.0 * a)
+    if distance <= room:
+        return None
+    return (
+        f"at switch_speed_rpm {homing.switch_speed_rpm:g} and acceleration_rpm_s {homing.acceleration_rpm_s:g} "
+        f"the axis needs {distance:.0f} qc to stop past the {'negative' if side < 0 else 'positive'} limit "
+        f"switch; {source} leaves {room} qc: lower the switch speed or raise the acceleration"
+    )
 
 
 @dataclass(frozen=True)
@@ -103,6 +139,15 @@ class AxisSimulation:
     positive_hard_stop_qc: int | None = None
     stall_current_ma: int = 2000  # the current against a hard stop
     moving_current_ma: int = 300  # the current of a free motion at homing speed
+    # The drive itself, where it differs from what the cell expects (None: as the cell says), so that a
+    # commissioning check can be shown to catch it (axes/commission.py): its real encoder (qc per motor
+    # revolution; the drive interpolates with it), its polarity 0x607E, its identity 0x1018:01/:02 and
+    # its motor's maximal speed (0x6410:04, where the drive has it)
+    qc_per_motor_rev: int | None = None
+    polarity: int | None = None
+    vendor_id: int | None = None
+    product_code: int | None = None
+    max_motor_speed_rpm: int | None = None
 
 
 @dataclass(frozen=True)
@@ -117,6 +162,9 @@ class AxisConfig:
     buffer: BufferConfig = field(default_factory=BufferConfig)
     homing: HomingConfig | None = None  # None: nothing to home (an absolute encoder)
     simulation: AxisSimulation | None = None  # the simulated machine around the axis (switches, stops)
+    # 0x1018:01/:02 (vendor id, product code) of the axis's drive, accepted besides the profile's known
+    # drives (axes.objects.KNOWN_IDENTITIES) by the commissioning check: a real drive pvtflow has no EDS of
+    identity: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True)

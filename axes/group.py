@@ -26,6 +26,7 @@ from axes import objects as od
 from axes.budget import bus_budget
 from axes.bus import BusFault, CellBus, FaultKind
 from axes.cia402 import PowerState, Statusword, decode_state
+from axes.commission import refuse_on_facts
 from axes.config import AxisConfig, Wiring
 from axes.feeder import BufferFeeder, Feeder, FeedStats, RecordAllowance, preload_shared, top_up_by_need
 from axes.objects import BUFFER_ERRORS, BufferStatus
@@ -143,7 +144,10 @@ class AxisGroup:
 
     # --- configuration -----------------------------------------------------------------------
     def configure(self) -> None:
-        """Every drive: PRE-OPERATIONAL, its profile's SDO sequence, then OPERATIONAL and consumers."""
+        """Every drive: what it is checked against the cell (axes/commission.py: a drive that is not
+        what the cell says is refused, DriveError, before anything is written), then PRE-OPERATIONAL,
+        its profile's SDO sequence, then OPERATIONAL and consumers."""
+        refuse_on_facts(self.links)
         for link in self.links:  # addressed, not broadcast: other nodes on the bus are not ours
             self.bus.nmt(link.node_id, NMT_PRE_OPERATIONAL)
         self._configured_boots = {link.node_id: self.bus.boot_count(link.node_id) for link in self.links}
@@ -807,10 +811,10 @@ class AxisGroup:
             link.position = link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
 
     def close(self) -> None:
-        """Release the drives (at rest, each stops watching the master's heartbeat: an orderly close
-        is not a lost master) and let go of the bus. A close during a run leaves them watching: the
-        heartbeat stops with the bus and every drive stops by itself; so does a close after the bus's
-        (nothing can be said on a closed bus)."""
+        """Release the drives (at rest, each is shut down, then stops watching the master's heartbeat:
+        an orderly close is not a lost master, ``Profile.release_master``) and let go of the bus. A
+        close during a run leaves them watching: the heartbeat stops with the bus and every drive
+        stops by itself; so does a close after the bus's (nothing can be said on a closed bus)."""
         if self.configured and not self._running and self.bus.is_open:
             for profile in self.profiles:
                 profile.release_master()

@@ -14,7 +14,8 @@ done, bit 13 a homing error, a fault bit a drive fault; a stage that is not done
 ``timeout_s`` (of SYNC periods) is a timeout. A homing error, a fault, an EMCY, a lost drive or
 ``stop()`` halts every axis of the cell (bit 8, on the next SYNC) and ends the homing there: nothing
 of the later stages moves. Afterwards every axis is back in interpolated position mode (0x6060 = 7)
-and is enabled afresh by the next start. The group then counts an axis homed until its drive boots
+and is enabled afresh by the next start. An axis that attained its home must read its home offset
+there (0x6064 = 0x607C, ``_confirm``), else it is not homed. The group then counts an axis homed until its drive boots
 again (boot-up message, NMT reset, power loss) or its heartbeat is lost (``AxisGroup.homed``).
 """
 
@@ -202,6 +203,10 @@ class CellHoming:
                     outcome.result, outcome.message = ending.result, ending.message
                     outcome.joint, outcome.node_id = ending.joint, ending.node_id
                     break
+                ending = self._confirm(stage)
+                if ending is not None:
+                    outcome.result, outcome.message, outcome.joint, outcome.node_id = ending
+                    break
                 for i in stage:
                     group.mark_homed(i)
                     report[i].homed = True
@@ -213,6 +218,31 @@ class CellHoming:
             self.bus.remove_fault_callback(self._on_fault)
             group.end_homing(self)
         return outcome
+
+    def _confirm(self, stage: list[int]) -> tuple[HomingResult, str, str, int] | None:
+        """Each axis of a stage that attained its home reads its 0x6064 there: it must read the cell's
+        home offset (within the group's start tolerance), as pvtflow defines 0x607C (CiA 402: the
+        position value at the home position). A drive that defines it otherwise (maxon's EPOS2
+        firmware: 0x2081 is that value and 0x607C a move past the home) is not homed, and says why."""
+        for i in stage:
+            link = self.group.links[i]
+            homing = link.config.homing
+            if homing is None:
+                continue
+            try:
+                position = link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
+            except DriveError as exc:
+                return HomingResult.HOMING_ERROR, str(exc), link.joint, link.node_id
+            if abs(position - homing.offset_qc) > self.group.start_tolerance_qc:
+                return (
+                    HomingResult.HOMING_ERROR,
+                    f"{link.joint} reads 0x6064 = {position} qc at its home, not its home offset "
+                    f"0x607C = {homing.offset_qc} qc: the drive defines its home offset otherwise (or holds "
+                    f"another one); not homed",
+                    link.joint,
+                    link.node_id,
+                )
+        return None
 
     def _method(self, i: int) -> int:
         homing = self.group.links[i].config.homing

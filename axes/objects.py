@@ -14,21 +14,29 @@ from enum import IntEnum, IntFlag, StrEnum
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 
 # --- CiA 301 / CiA 402 objects ----------------------------------------------------------------
+ERROR_HISTORY = 0x1003  # :00 number of errors, :n the n-th latest (error code, manufacturer bits above)
 COMMUNICATION_CYCLE_PERIOD = 0x1006  # us; the Parker SLVDN takes its cycle from it
 HIGH_RESOLUTION_TIME_STAMP = 0x1013  # us, written after each SYNC (EPOS2 app note 2.4)
 CONSUMER_HEARTBEAT_TIME = 0x1016  # :n = node id << 16 | time in ms: the heartbeats this node watches
 PRODUCER_HEARTBEAT_TIME = 0x1017
+IDENTITY = 0x1018  # :01 vendor id, :02 product code, :03 revision number, :04 serial number
 ABORT_CONNECTION_OPTION_CODE = 0x6007  # what a CiA 402 drive does when it loses its master (heartbeat)
 FAULT_REACTION_OPTION_CODE = 0x605E  # how it brakes on a fault (2: on the quick stop ramp)
+QUICK_STOP_OPTION_CODE = 0x605A  # how a quick stop brakes
+QUICK_STOP_ON_QUICK_STOP_RAMP = 2  # 0x605A: on 0x6085, then SWITCH ON DISABLED
+HALT_OPTION_CODE = 0x605D  # how a halt (controlword bit 8) brakes
+HALT_ON_PROFILE_DECELERATION = 1  # 0x605D: on 0x6084
 CONTROLWORD = 0x6040
 STATUSWORD = 0x6041
 MODES_OF_OPERATION = 0x6060
 MODES_OF_OPERATION_DISPLAY = 0x6061
 POSITION_DEMAND_VALUE = 0x6062
+POSITION_ACTUAL_INTERNAL_VALUE = 0x6063  # increments, before the factor group (the Parker's in IP mode)
 POSITION_ACTUAL_VALUE = 0x6064
 MAX_FOLLOWING_ERROR = 0x6065
 HOME_OFFSET = 0x607C  # qc: what the position reads at the home position once homing is attained
 SOFTWARE_POSITION_LIMIT = 0x607D  # :01 min, :02 max
+POLARITY = 0x607E  # bit 7 position, bit 6 velocity: the drive inverts what it is given (0: it does not)
 MAX_PROFILE_VELOCITY = 0x607F
 PROFILE_VELOCITY = 0x6081
 PROFILE_ACCELERATION = 0x6083
@@ -42,6 +50,10 @@ INTERPOLATION_DATA_RECORD = 0x60C1  # :01 target position, :02 velocity (counts/
 INTERPOLATION_TIME_PERIOD = 0x60C2  # :01 value, :02 index (10^index s)
 INTERPOLATION_DATA_CONFIGURATION = 0x60C4  # :01 max size, :02 free size, ..., :06 buffer clear
 MAX_ACCELERATION = 0x60C5
+POSITION_ENCODER_RESOLUTION = 0x608F  # :01 encoder increments per :02 motor revolutions
+MOTOR_DATA = 0x6410  # maxon's motor data; :04 the motor's maximal speed (rpm)
+MOTOR_MAX_SPEED_SUB = 4
+SUPPORTED_DRIVE_MODES = 0x6502
 
 INTERPOLATED_POSITION_MODE = 7
 HOMING_MODE = 6
@@ -72,6 +84,39 @@ EPOS2_INTERPOLATION_BUFFER = 0x20C4  # :01 status, :02 underflow warning level, 
 EPOS2_BUFFER_SIZE = 64
 
 EPOS2_HOMING_CURRENT_THRESHOLD = 0x2080  # mA: the current that says "hard stop" (methods -1 to -4)
+EPOS2_SENSOR_CONFIGURATION = 0x2210  # :01 pulses per motor revolution of the incremental encoder (qc / 4)
+EPOS2_QC_PER_PULSE = 4  # quadrature: four counts per encoder pulse
+
+
+@dataclass(frozen=True)
+class DriveIdentity:
+    """0x1018:01/:02 of one kind of drive, and what it is in words."""
+
+    vendor_id: int
+    product_code: int
+    name: str
+
+    def __str__(self) -> str:
+        return f"vendor 0x{self.vendor_id:08X} product 0x{self.product_code:08X} ({self.name})"
+
+
+# pvtflow's simulated drives (configs/eds, axes/sim/edsgen.py: vendor 0, one product code per profile)
+# and the real drives whose identity a vendor EDS states (maxon's EPOS2 70/10, configs/eds/vendor)
+SIMULATED_VENDOR_ID = 0
+SIMULATED_PRODUCT_CODES = {"epos2_pvt": 1, "cia402_ip_linear": 2, "sync_setpoint": 3, "parker_slvdn": 4}
+MAXON_EPOS2_70_10 = DriveIdentity(0x000000FB, 0x64200000, "maxon EPOS2 70/10")
+_SIMULATED_NAMES = {
+    "epos2_pvt": "pvtflow simulated EPOS2",
+    "cia402_ip_linear": "pvtflow simulated CiA 402 linear IP drive",
+    "sync_setpoint": "pvtflow simulated bufferless IP servodrive",
+    "parker_slvdn": "pvtflow simulated Parker SLVDN",
+}
+# per profile, the identities a drive of that profile may have (the commissioning check, axes/commission.py)
+KNOWN_IDENTITIES: dict[str, tuple[DriveIdentity, ...]] = {
+    profile: (DriveIdentity(SIMULATED_VENDOR_ID, code, _SIMULATED_NAMES[profile]),)
+    + ((MAXON_EPOS2_70_10,) if profile == "epos2_pvt" else ())
+    for profile, code in SIMULATED_PRODUCT_CODES.items()
+}
 
 
 class HomingMethod(IntEnum):
@@ -281,7 +326,10 @@ PARKER_RPDOS = (
     ),
     PdoLayout(2, SYNCHRONOUS, ((CONTROLWORD, 0, 16),), PdoRole.CONTROLWORD),
 )
-PARKER_TPDOS = SETPOINT_TPDOS
+# Its TPDO1 maps 0x6063, the position the seed lists for IP mode ("Position actual value*"; it lists
+# no 0x6064): in IP mode the SLVDN's factor group is not active, so 0x6063, in encoder increments,
+# is in the units of the setpoints 0x60C1:01 it follows.
+PARKER_TPDOS = (PdoLayout(1, SYNCHRONOUS, ((STATUSWORD, 0, 16), (POSITION_ACTUAL_INTERNAL_VALUE, 0, 32))),)
 
 # EPOS2 clock synchronisation (app note 2.4 and 3.7): after each SYNC the master sends its transmit
 # time (0x1013, us) once, on one COB-ID that every EPOS2 takes through its asynchronous RPDO3.

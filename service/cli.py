@@ -31,6 +31,7 @@ COMMANDS: dict[str, str] = {
     "request": "service.request_cmd",
     "sim": "service.sim_cmd",
     "report": "service.report_cmd",
+    "commission": "service.commission_cmd",
 }
 
 

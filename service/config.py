@@ -19,7 +19,15 @@ from numpy.typing import NDArray
 
 from axes import objects as od
 from axes.budget import bus_budget
-from axes.config import SIMULATION_INTERFACES, AxisConfig, AxisSimulation, BufferConfig, BusConfig, HomingConfig
+from axes.config import (
+    SIMULATION_INTERFACES,
+    AxisConfig,
+    AxisSimulation,
+    BufferConfig,
+    BusConfig,
+    HomingConfig,
+    homing_stop_room,
+)
 from axes.homing import homing_stages
 from axes.profiles import profile_class
 from axes.program import FIXED_PERIOD_PROFILES, PROFILES, SHORTEST_PERIOD_MS
@@ -459,6 +467,7 @@ def _parse_axis(
             "max_jerk",
             "homing",
             "simulation",
+            "identity",
         ),
     )
     joint = f.get("joint", f.string)
@@ -559,8 +568,16 @@ def _parse_axis(
             raise b.error("overflow_warning", "must be at least 2 above underflow_warning")
     homing = _parse_homing(f, profile, limits) if "homing" in f.data else None
     simulation = _parse_simulation(f) if "simulation" in f.data else None
+    if homing is not None and (why := homing_stop_room(homing, scaling, simulation)) is not None:
+        raise ConfigError(file, f.path("homing"), why)
+    identity = None
+    if "identity" in f.data:  # the drive's 0x1018:01/:02 where the profile's known drives do not list it
+        i = _Fields(file, f.path("identity"), f.data["identity"], ("vendor_id", "product_code"))
+        u32 = i.integer(0, 2**32 - 1)
+        identity = (i.get("vendor_id", u32), i.get("product_code", u32))
     max_jerk = f.get("max_jerk", f.number(positive=True), None)
-    return AxisConfig(joint, node_id, profile, scaling, limits, period, submode, buffer, homing, simulation), max_jerk
+    axis = AxisConfig(joint, node_id, profile, scaling, limits, period, submode, buffer, homing, simulation, identity)
+    return axis, max_jerk
 
 
 HOMING_FIELDS = (
@@ -571,6 +588,7 @@ HOMING_FIELDS = (
     "offset_qc",
     "current_threshold_ma",
     "timeout_s",
+    "overtravel_qc",
 )
 
 
@@ -614,6 +632,7 @@ def _parse_homing(f: _Fields, profile: str, limits: DriveLimits) -> HomingConfig
         offset_qc=h.get("offset_qc", h.integer(INT32_MIN, INT32_MAX), d.offset_qc),
         current_threshold_ma=threshold,
         timeout_s=h.get("timeout_s", h.number(positive=True), d.timeout_s),
+        overtravel_qc=h.get("overtravel_qc", h.integer(0, INT32_MAX), None),
     )
 
 
@@ -634,6 +653,12 @@ def _parse_simulation(f: _Fields) -> AxisSimulation:
             values[key] = s.get(key, s.integer(0, 65535), default)
         elif key == "seed":
             values[key] = s.get(key, s.integer(0, 2**31 - 1), default)
+        elif key in ("qc_per_motor_rev", "max_motor_speed_rpm"):
+            values[key] = s.get(key, s.integer(1, INT32_MAX), default)
+        elif key == "polarity":
+            values[key] = s.get(key, s.integer(0, 255), default)
+        elif key in ("vendor_id", "product_code"):
+            values[key] = s.get(key, s.integer(0, 2**32 - 1), default)
         else:
             values[key] = s.get(key, qc, default)
     sim = AxisSimulation(**values)

@@ -12,6 +12,7 @@ import struct
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
 import canopen
@@ -21,6 +22,7 @@ from axes import objects as od
 from axes.bus import DEFAULT_MAX_GAP_PERIODS
 from axes.cia402 import (
     CONTROLWORD_FAULT_RESET,
+    CONTROLWORD_SHUTDOWN,
     Controlword,
     PowerState,
     PowerStateMachine,
@@ -36,6 +38,9 @@ if TYPE_CHECKING:
     from axes.program import AxisProgram
 
 DEFAULT_MAX_FOLLOWING_ERROR_QC = 2000  # app note Table 17 default for 0x6065
+PDO_INVALID = 0x8000_0000  # COB-ID bit 31: the PDO does not exist
+PDO_RTR_BIT = 0x4000_0000  # COB-ID bit 30: no RTR allowed on this PDO
+PDO_COB_ID_BITS = 0x3FFF_FFFF  # bits 0-29: the identifier and its frame format
 
 
 class DriveError(RuntimeError):
@@ -52,6 +57,7 @@ _PDO_FORMATS: dict[tuple[int, int], str] = {
     (od.STATUSWORD, 0): "H",
     (od.CONTROLWORD, 0): "H",
     (od.POSITION_ACTUAL_VALUE, 0): "i",
+    (od.POSITION_ACTUAL_INTERNAL_VALUE, 0): "i",
     (od.POSITION_DEMAND_VALUE, 0): "i",
     (od.EPOS2_INTERPOLATION_BUFFER, 1): "H",
     (od.INTERPOLATION_DATA_RECORD, 1): "i",
@@ -62,9 +68,43 @@ _PDO_FORMATS: dict[tuple[int, int], str] = {
 }
 
 
+# a TPDO's position: 0x6064, or 0x6063 where the factor group is not active (the Parker in IP mode)
+_POSITION_KEYS = frozenset({(od.POSITION_ACTUAL_VALUE, 0), (od.POSITION_ACTUAL_INTERNAL_VALUE, 0)})
+
+
 def pdo_struct(layout: PdoLayout) -> struct.Struct:
     """The little-endian struct of one PDO's data bytes, from its layout."""
     return struct.Struct("<" + "".join(_PDO_FORMATS[(i, s)] for i, s, _ in layout.entries))
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One object pvtflow writes from the axis at configuration (and reads back)."""
+
+    index: int
+    subindex: int
+    fmt: str
+    value: int
+    name: str
+
+    @property
+    def where(self) -> str:
+        return f"0x{self.index:04X}:{self.subindex:02X}"
+
+
+def expected_settings(config: AxisConfig) -> list[Setting]:
+    """The drive's limit objects in its units from the axis: 0x607F (velocity units), 0x60C5 (rpm/s),
+    0x607D:01/:02 (qc), 0x6065 (qc: maxon's default, the cell has no setting of its own). One list:
+    configuration writes it (``Profile.write_settings``), commissioning compares it (axes/commission.py)."""
+    lim = config.limits
+    unit = config.scaling.velocity_unit_rpm
+    return [
+        Setting(od.MAX_PROFILE_VELOCITY, 0, "I", round(lim.max_profile_velocity_rpm / unit), "max profile velocity"),
+        Setting(od.MAX_ACCELERATION, 0, "I", round(lim.max_acceleration_rpm_s), "max acceleration"),
+        Setting(od.SOFTWARE_POSITION_LIMIT, 1, "i", lim.min_position_qc, "min position limit"),
+        Setting(od.SOFTWARE_POSITION_LIMIT, 2, "i", lim.max_position_qc, "max position limit"),
+        Setting(od.MAX_FOLLOWING_ERROR, 0, "I", DEFAULT_MAX_FOLLOWING_ERROR_QC, "max following error"),
+    ]
 
 
 class AxisLink:
@@ -83,6 +123,7 @@ class AxisLink:
         self.updated = threading.Condition()
         self.status_listeners: list[Callable[[AxisLink], None]] = []
         self.controlwords_sent = 0  # every controlword the master sends, by SDO or RPDO, counts
+        self.sdo_transfers = 0  # SDO requests the master made of this drive (each one round trip)
         self._subscribed: list[tuple[int, Callable[..., None]]] = []
         self._sdo = threading.Lock()  # one SDO transfer at a time: the node has one SDO server channel
 
@@ -106,6 +147,7 @@ class AxisLink:
 
     def _download(self, index: int, subindex: int, value: int, fmt: str, optional: bool) -> bool:
         where = f"0x{index:04X}:{subindex:02X}"
+        self.sdo_transfers += 1
         try:
             with self._sdo:
                 self.node.sdo.download(index, subindex, struct.pack("<" + fmt, value))
@@ -118,6 +160,7 @@ class AxisLink:
         return True
 
     def read(self, index: int, subindex: int, fmt: str) -> int:
+        self.sdo_transfers += 1
         try:
             with self._sdo:
                 data = self.node.sdo.upload(index, subindex)
@@ -125,34 +168,80 @@ class AxisLink:
         except (SdoAbortedError, SdoCommunicationError, struct.error) as exc:
             raise DriveError(self.node_id, f"SDO read 0x{index:04X}:{subindex:02X} failed: {exc}") from None
 
+    def read_optional(self, index: int, subindex: int, fmt: str) -> int | None:
+        """An SDO read of an object the drive may not have (abort 0x0602xxxx / 0x0609xxxx): None then."""
+        self.sdo_transfers += 1
+        try:
+            with self._sdo:
+                data = self.node.sdo.upload(index, subindex)
+            return struct.unpack_from("<" + fmt, data.ljust(struct.calcsize(fmt), b"\0"))[0]
+        except SdoAbortedError as exc:
+            if exc.code >> 16 in (0x0602, 0x0609):
+                return None
+            raise DriveError(self.node_id, f"SDO read 0x{index:04X}:{subindex:02X} failed: {exc}") from None
+        except (SdoCommunicationError, struct.error) as exc:
+            raise DriveError(self.node_id, f"SDO read 0x{index:04X}:{subindex:02X} failed: {exc}") from None
+
     def read_statusword(self) -> int:
         self._set_statusword(self.read(od.STATUSWORD, 0, "H"))
         return self.statusword
 
-    # --- PDO configuration (CiA 301: invalidate, clear the mapping, map, count, type, validate) --
+    # --- PDO configuration (CiA 301 7.5.2.35-38) ----------------------------------------------------
     def map_pdo(self, layout: PdoLayout, receive: bool, cob_id: int | None = None) -> None:
+        """Configure one PDO as CiA 301 says, in the order a strict stack accepts: invalidate it with
+        the COB-ID it has (bits 0-29 may not change while it is valid), move the COB-ID while it is
+        invalid, clear the mapping count, map, set the count, write the transmission type and, for a
+        TPDO, the inhibit time and event timer (0: none; an event TPDO sends on a change only), then
+        validate; bit 30 (RTR) stays as the drive has it. The result is read back: a drive that
+        holds anything else is refused (DriveError naming the PDO)."""
         comm = (0x1400 if receive else 0x1800) + layout.number - 1
         mapping = (0x1600 if receive else 0x1A00) + layout.number - 1
         cob = layout.cob_id(self.node_id, receive) if cob_id is None else cob_id
-        self.write(comm, 1, cob | 0x8000_0000, "I")
+        stored = self.read(comm, 1, "I")
+        rtr = stored & PDO_RTR_BIT
+        if not stored & PDO_INVALID:
+            self.write(comm, 1, stored | PDO_INVALID, "I")
+        if stored & PDO_COB_ID_BITS != cob:
+            self.write(comm, 1, rtr | PDO_INVALID | cob, "I")
         self.write(mapping, 0, 0, "B")
         for k, (index, subindex, bits) in enumerate(layout.entries, start=1):
             self.write(mapping, k, (index << 16) | (subindex << 8) | bits, "I")
         self.write(mapping, 0, len(layout.entries), "B")
         self.write(comm, 2, layout.transmission_type, "B")
-        if not receive and layout.inhibit_periods:  # 0x1800:03 in 100 us, while the PDO is invalid
+        if not receive:  # 0x1800:03 in 100 us; a drive without :03 / :05 has neither to set
             inhibit = round(layout.inhibit_periods * self.bus.config.sync_period_ms * 10)
-            self.write(comm, 3, min(inhibit, 0xFFFF), "H")
-        self.write(comm, 1, cob, "I")
+            self.write_optional(comm, 3, min(inhibit, 0xFFFF), "H")
+            self.write_optional(comm, 5, 0, "H")
+        self.write(comm, 1, rtr | cob, "I")
+        self._check_pdo(layout, receive, rtr | cob)
+
+    def _check_pdo(self, layout: PdoLayout, receive: bool, cob: int) -> None:
+        """The PDO as the drive holds it now against what was written: COB-ID, type, mapping."""
+        comm = (0x1400 if receive else 0x1800) + layout.number - 1
+        mapping = (0x1600 if receive else 0x1A00) + layout.number - 1
+        count = self.read(mapping, 0, "B")
+        found = (
+            self.read(comm, 1, "I"),
+            self.read(comm, 2, "B"),
+            tuple(self.read(mapping, k, "I") for k in range(1, count + 1)),
+        )
+        entries = tuple((index << 16) | (subindex << 8) | bits for index, subindex, bits in layout.entries)
+        wanted = (cob, layout.transmission_type, entries)
+        if found != wanted:
+            name = f"{'R' if receive else 'T'}PDO{layout.number}"
+
+            def text(v: tuple[int, int, tuple[int, ...]]) -> str:
+                return f"COB-ID 0x{v[0]:08X} type {v[1]} mapping [{', '.join(f'0x{e:08X}' for e in v[2])}]"
+
+            raise DriveError(self.node_id, f"{name} reads back {text(found)} after writing {text(wanted)}")
 
     def disable_pdo(self, number: int, receive: bool) -> None:
-        """Invalidate a PDO pvtflow does not use (silently skipped where the drive has no such PDO)."""
+        """Invalidate a PDO pvtflow does not use, with the COB-ID it has (skipped where the drive has
+        no such PDO or it is invalid already): what an earlier setup left mapped sends nothing."""
         comm = (0x1400 if receive else 0x1800) + number - 1
-        try:
-            cob = self.read(comm, 1, "I")
-            self.write(comm, 1, cob | 0x8000_0000, "I")
-        except DriveError:
-            pass
+        cob = self.read_optional(comm, 1, "I")
+        if cob is not None and not cob & PDO_INVALID:
+            self.write(comm, 1, cob | PDO_INVALID, "I")
 
     def map_pdos(
         self, rpdos: tuple[PdoLayout, ...], tpdos: tuple[PdoLayout, ...], rpdo_cob_ids: dict[int, int] | None = None
@@ -194,7 +283,7 @@ class AxisLink:
             for key, value in zip(keys, fmt.unpack_from(data), strict=True):
                 if key == (od.STATUSWORD, 0):
                     self._set_statusword(value)
-                elif key == (od.POSITION_ACTUAL_VALUE, 0):
+                elif key in _POSITION_KEYS:
                     self.position = value
                 elif key == (od.EPOS2_INTERPOLATION_BUFFER, 1):
                     self.buffer_status = value
@@ -335,17 +424,23 @@ class Profile:
         """After the end: ip mode off, operation still enabled (0x000F)."""
         return self.start_controlword() & ~int(Controlword.ENABLE_IP_MODE)
 
-    def write_limits(self, velocity_objects: bool = True) -> None:
-        """0x607D and, where the drive takes them, 0x607F/0x60C5/0x6081/0x6083/0x6084, in drive units."""
+    def write_settings(self) -> None:
+        """0x607F, 0x60C5, 0x607D and 0x6065 from the axis (``expected_settings``) on every drive that
+        has them, each read back: a drive that holds another value than the one written is refused
+        (DriveError), so the limits the planner times against are the ones the drive enforces."""
+        link = self.link
+        for s in expected_settings(self.config):
+            if not link.write_optional(s.index, s.subindex, s.value, s.fmt):
+                continue  # the drive has no such object (abort 0x0602 / 0x0609)
+            back = link.read(s.index, s.subindex, s.fmt)
+            if back != s.value:
+                raise DriveError(link.node_id, f"{s.where} ({s.name}) reads back {back} after writing {s.value}")
+
+    def write_profile_motion(self) -> None:
+        """0x6081/0x6083/0x6084 in drive units (a drive that ramps by itself: warning levels, braking)."""
         lim = self.config.limits
         unit = self.config.scaling.velocity_unit_rpm
         link = self.link
-        link.write(od.SOFTWARE_POSITION_LIMIT, 1, lim.min_position_qc, "i")
-        link.write(od.SOFTWARE_POSITION_LIMIT, 2, lim.max_position_qc, "i")
-        if not velocity_objects:
-            return
-        link.write(od.MAX_PROFILE_VELOCITY, 0, round(lim.max_profile_velocity_rpm / unit), "I")
-        link.write(od.MAX_ACCELERATION, 0, round(lim.max_acceleration_rpm_s), "I")
         profile_velocity = lim.profile_velocity_rpm or lim.max_profile_velocity_rpm
         profile_acceleration = lim.profile_acceleration_rpm_s or lim.max_acceleration_rpm_s
         link.write(od.PROFILE_VELOCITY, 0, round(profile_velocity / unit), "I")
@@ -397,13 +492,32 @@ class Profile:
         self.link.write_optional(
             od.QUICK_STOP_DECELERATION_CIA402, 0, round(self.config.limits.max_acceleration_rpm_s), "I"
         )
+        self.write_stop_options()
+
+    def write_stop_options(self) -> None:
+        """How the drive stops by itself, where it has the objects (each read back): 0x605A = 2, a
+        quick stop brakes on 0x6085, then SWITCH ON DISABLED (what 0x6007 = 3 relies on; a vendor tool
+        may have left 0 = power stage off, coasting), and 0x605D = 1, a halt brakes on 0x6084."""
+        for index, value, what in (
+            (od.QUICK_STOP_OPTION_CODE, od.QUICK_STOP_ON_QUICK_STOP_RAMP, "quick stop option code"),
+            (od.HALT_OPTION_CODE, od.HALT_ON_PROFILE_DECELERATION, "halt option code"),
+        ):
+            if self.link.write_optional(index, 0, value, "h"):
+                back = self.link.read(index, 0, "h")
+                if back != value:
+                    raise DriveError(
+                        self.link.node_id, f"0x{index:04X} ({what}) reads back {back} after writing {value}"
+                    )
 
     def release_master(self) -> None:
-        """A master that closes says goodbye: 0x1016:01 off, so that the drive, at rest, does not
-        take an orderly close for a lost master (which would quick stop it, and fault an EPOS2 the
-        next master would have to recover). A master that dies or hangs says nothing: the drive
-        stops. Best effort: a drive that does not answer is left watching."""
+        """A master that closes at rest says goodbye: the shutdown controlword first (0x0006: READY TO
+        SWITCH ON, power stage off, as CiA 402 leaves a drive nobody commands), then 0x1016:01 off, so
+        that the drive does not take an orderly close for a lost master (which would quick stop it,
+        and fault an EPOS2 the next master would have to recover). In that order a drive is never
+        enabled without a master watched. A master that dies or hangs says nothing: the drive
+        stops. Best effort: a drive that does not answer is left as it is, watching."""
         with contextlib.suppress(DriveError):
+            self.link.write_controlword(CONTROLWORD_SHUTDOWN)
             self.link.write(od.CONSUMER_HEARTBEAT_TIME, 1, 0, "I")
 
     def _release_other_entries(self, node_id: int) -> None:

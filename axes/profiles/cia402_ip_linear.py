@@ -1,11 +1,13 @@
 """CiA 402 interpolated position mode, linear, one target (seed cia402-ip-linear-single-setpoint).
 
 Configuration: mode 7, 0x60C2:01 = the axis period in ms (0x60C2:02 = -3), 0x60C4:06 = 1 to allow
-writing the target, 0x607D where the drive has it; synchronous RPDO1 with 0x60C1:01 and RPDO2 with
+writing the target, 0x607F/0x60C5/0x607D/0x6065 where the drive has them, read back
+(``Profile.write_settings``); synchronous RPDO1 with 0x60C1:01 and RPDO2 with
 the controlword, synchronous TPDO1 with statusword + position that answers every SYNC; the master's
 heartbeat watched (0x1016) with 0x6007 = 3, quick stop (``Profile.supervise_master``): without it the drive
 would hold its last target with nobody watching.
-Feed: one target position (0x60C1:01, INT32) per period. Delay: the drive moves linearly from
+Enable: 0x60C1:01 primed with the actual position (``prime``). Feed: one target position (0x60C1:01,
+INT32) per period. Delay: the drive moves linearly from
 where it is to the target over the period that follows the SYNC validating it, so the target of
 record k is validated one period before its program time (k + 1) periods. End: the last target is
 held and bit 4 of the controlword is cleared.
@@ -57,6 +59,17 @@ class FixedPeriodProfile(Profile):
         bus = self.link.bus
         return SetpointFeeder(program.records, self.frame, bus.network.send_message, self.period_ms, self.lead_periods)
 
+    def enable(self, fresh: bool = False) -> None:
+        self.enable_operation(fresh)
+        self.prime()
+
+    def prime(self) -> None:
+        """0x60C1:01 = 0x6064 before interpolation is enabled: a drive whose start SYNC brings no new
+        setpoint (the Parker below 2.5 ms, lead 0) latches the object as it stands, which holds 0
+        after power-up or the last run's end; primed, it holds where it is."""
+        position = self.link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
+        self.link.write(od.INTERPOLATION_DATA_RECORD, 1, position, "i")
+
     def write_period(self) -> None:
         self.link.write(od.INTERPOLATION_TIME_PERIOD, 1, self.period_ms, "B")
         self.link.write_optional(od.INTERPOLATION_TIME_PERIOD, 2, MS_INDEX, "b")
@@ -69,13 +82,12 @@ class Cia402IpLinear(FixedPeriodProfile):
         link = self.link
         link.write(od.MODES_OF_OPERATION, 0, od.INTERPOLATED_POSITION_MODE, "b")
         self.write_period()
-        lim = self.config.limits
-        link.write_optional(od.SOFTWARE_POSITION_LIMIT, 1, lim.min_position_qc, "i")
-        link.write_optional(od.SOFTWARE_POSITION_LIMIT, 2, lim.max_position_qc, "i")
+        self.write_settings()
         link.map_pdos(self.rpdos, self.tpdos)
         self.write_heartbeat()
         self.supervise_master()
 
     def enable(self, fresh: bool = False) -> None:
-        super().enable(fresh)
+        self.enable_operation(fresh)
         self.link.write(od.INTERPOLATION_DATA_CONFIGURATION, 6, 1, "B")  # allow writing 0x60C1:01
+        self.prime()

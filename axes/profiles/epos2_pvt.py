@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from axes import objects as od
 from axes.feeder import BufferFeeder, Feeder, RecordAllowance
 from axes.objects import EPOS2_RPDOS, EPOS2_TIME_STAMP_RPDO, EPOS2_TPDOS, TIME_STAMP_COB_ID, Record
-from axes.profiles import DEFAULT_MAX_FOLLOWING_ERROR_QC, Profile
+from axes.profiles import Profile
 
 if TYPE_CHECKING:
     from axes.program import AxisProgram
@@ -59,8 +59,8 @@ class Epos2Pvt(Profile):
     def configure(self) -> None:
         link = self.link
         link.write(od.MODES_OF_OPERATION, 0, od.INTERPOLATED_POSITION_MODE, "b")
-        link.write(od.MAX_FOLLOWING_ERROR, 0, DEFAULT_MAX_FOLLOWING_ERROR_QC, "I")
-        self.write_limits()
+        self.write_settings()
+        self.write_profile_motion()
         if link.bus.config.time_stamp:  # the master's 0x1013 after every SYNC, on one shared COB-ID
             link.map_pdos(
                 (*self.rpdos, EPOS2_TIME_STAMP_RPDO), self.tpdos, {EPOS2_TIME_STAMP_RPDO.number: TIME_STAMP_COB_ID}

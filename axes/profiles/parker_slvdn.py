@@ -1,7 +1,8 @@
 """Parker SLVDN interpolated position mode, operative mode 202 (seed parker-slvdn-ip-mode-202).
 
 Configuration: Pr31 = 202 (0x2000 + 31), the cycle in 0x1006 (us) = the SYNC period, 0x60C0 the
-interpolation submode (0 linear, -1 cubic position + velocity, -2 cubic position only), PDO 4 rx
+interpolation submode (0 linear, -1 cubic position + velocity, -2 cubic position only),
+0x607F/0x60C5/0x607D/0x6065 where the drive has them, read back (``Profile.write_settings``), PDO 4 rx
 synchronous with the target position 0x60C1:01 and the velocity feed-forward in rpm 0x60C1:03,
 RPDO2 controlword, TPDO1 statusword + position answering every SYNC; the master's heartbeat
 watched (0x1016, 0x6007 = 3, quick stop: ``Profile.supervise_master``; the seed names neither object, so a real
@@ -55,6 +56,7 @@ class ParkerSlvdn(FixedPeriodProfile):
         link.write(od.PARKER_OPERATIVE_MODE, 0, od.PARKER_IP_MODE, "H")
         link.write(od.COMMUNICATION_CYCLE_PERIOD, 0, self.cycle_us, "I")
         link.write(od.INTERPOLATION_SUBMODE, 0, self.submode, "h")
+        self.write_settings()
         link.map_pdos(self.rpdos, self.tpdos)
         self.write_heartbeat()
         self.supervise_master()

@@ -1,6 +1,7 @@
 """A bufferless servodrive: one setpoint per SYNC (seed servodrive-ip-no-buffer).
 
-Configuration: mode 7, 0x60C2:01 = the SYNC period (1-100 ms), no 0x60C4 (the drive has no buffer);
+Configuration: mode 7, 0x60C2:01 = the SYNC period (1-100 ms), no 0x60C4 (the drive has no buffer),
+0x607F/0x60C5/0x607D/0x6065 where the drive has them, read back (``Profile.write_settings``);
 the same PDOs as the other fixed-period profiles; the master's heartbeat watched (0x1016, 0x6007 = 1:
 ``Profile.supervise_master``; the seed names neither object, so a real drive that lacks them is
 refused at configuration). Feed: one target position per SYNC; the drive
@@ -31,6 +32,7 @@ class SyncSetpoint(FixedPeriodProfile):
         link.write(od.MODES_OF_OPERATION, 0, od.INTERPOLATED_POSITION_MODE, "b")
         self.write_period()
         link.write_optional(od.COMMUNICATION_CYCLE_PERIOD, 0, self.period_ms * 1000, "I")
+        self.write_settings()
         link.map_pdos(self.rpdos, self.tpdos)
         self.write_heartbeat()
         self.supervise_master()

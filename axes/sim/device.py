@@ -44,10 +44,10 @@ from canopen import objectdictionary
 from canopen.objectdictionary import ObjectDictionary
 from canopen.profiles.p402 import OperationMode
 
-SUPPORTED_DRIVE_MODES = 0x6502
+from axes.objects import IDENTITY, SUPPORTED_DRIVE_MODES
+
 DEVICE_TYPE = 0x1000
 MANUFACTURER_DEVICE_NAME = 0x1008
-IDENTITY = 0x1018  # :01 vendor id, :02 product code, :03 revision number, :04 serial number
 CIA402_SERVO_DRIVE = 0x00020192  # 0x1000: device profile 402, servo drive (what the EPOS2 reports)
 
 NO_MODE = OperationMode.NO_MODE

@@ -45,6 +45,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -154,11 +155,14 @@ class SimulatedDrive(HomingMixin):
         self._entries: dict[tuple[int, int], tuple[objectdictionary.ODVariable, int]] = {}
         self._published: dict[tuple[int, int], tuple[int, int, bytes]] = {}  # see publish()
         self.scaling = scaling if scaling is not None else AxisScaling(2000.0, 1.0)
+        if simulation is not None and simulation.qc_per_motor_rev is not None:  # its own encoder, not the cell's
+            self.scaling = replace(self.scaling, qc_per_motor_rev=float(simulation.qc_per_motor_rev))
         self.sync_period_us = round(sync_period_ms * 1000.0)
         self.lock = threading.RLock()
         self.changed = threading.Condition(self.lock)
         self.network: canopen.Network = canopen.network._UNINITIALIZED_NETWORK
         self.pdo = PdoEngine(self)
+        self._internal_position = self.has(od.POSITION_ACTUAL_INTERNAL_VALUE)  # 0x6063 (the Parker's)
         # what tests look at
         self.history: deque[SyncSample] = deque(maxlen=history_length)
         self.faults: list[FaultRecord] = []
@@ -202,6 +206,7 @@ class SimulatedDrive(HomingMixin):
         self._reset_application()
         if limits is not None:
             self.apply_limits(limits)
+        self._apply_drive_facts(simulation or AxisSimulation())
         if network is not None:
             self.attach(network)
 
@@ -266,6 +271,30 @@ class SimulatedDrive(HomingMixin):
             values[(od.PROFILE_VELOCITY, 0)] = round(limits.profile_velocity_rpm / self.scaling.velocity_unit_rpm)
         if limits.profile_acceleration_rpm_s is not None:
             values[(od.PROFILE_ACCELERATION, 0)] = round(limits.profile_acceleration_rpm_s)
+        with self.lock:
+            self._commissioned.update(values)
+            for (index, subindex), value in values.items():
+                self.store(index, subindex, value)
+
+    def _apply_drive_facts(self, simulation: AxisSimulation) -> None:
+        """What the drive is, kept through resets as a drive's stored parameters are: its encoder
+        (0x608F, or maxon's pulse number 0x2210:01 in encoder pulses), and where ``simulation`` says
+        so its polarity 0x607E, identity 0x1018:01/:02 and motor's maximal speed 0x6410:04."""
+        qc = round(self.scaling.qc_per_motor_rev)
+        values: dict[tuple[int, int], int] = {}
+        if self.has(od.POSITION_ENCODER_RESOLUTION, 1):
+            values[(od.POSITION_ENCODER_RESOLUTION, 1)] = qc
+            values[(od.POSITION_ENCODER_RESOLUTION, 2)] = 1
+        if self.has(od.EPOS2_SENSOR_CONFIGURATION, 1):
+            values[(od.EPOS2_SENSOR_CONFIGURATION, 1)] = round(qc / od.EPOS2_QC_PER_PULSE)
+        for key, value in (
+            ((od.POLARITY, 0), simulation.polarity),
+            ((od.IDENTITY, 1), simulation.vendor_id),
+            ((od.IDENTITY, 2), simulation.product_code),
+            ((od.MOTOR_DATA, od.MOTOR_MAX_SPEED_SUB), simulation.max_motor_speed_rpm),
+        ):
+            if value is not None and self.has(*key):
+                values[key] = value
         with self.lock:
             self._commissioned.update(values)
             for (index, subindex), value in values.items():
@@ -853,7 +882,10 @@ class SimulatedDrive(HomingMixin):
         self.publish(od.STATUSWORD, 0, self.statusword())
         demand = min(max(round(self.demand), INT32_MIN), INT32_MAX)
         self.publish(od.POSITION_DEMAND_VALUE, 0, demand)
-        self.publish(od.POSITION_ACTUAL_VALUE, 0, min(max(self.actual, INT32_MIN), INT32_MAX))
+        actual = min(max(self.actual, INT32_MIN), INT32_MAX)
+        self.publish(od.POSITION_ACTUAL_VALUE, 0, actual)
+        if self._internal_position:  # no factor group: the same increments
+            self.publish(od.POSITION_ACTUAL_INTERNAL_VALUE, 0, actual)
         self._publish()
         if events and self.operational:
             self.pdo.transmit_events()

@@ -77,7 +77,7 @@ def _pdo_objects(n_rpdo: int, n_tpdo: int) -> dict[int, Entry]:
     return out
 
 
-def _common(product: str, modes: device.DriveModes) -> dict[int, Entry]:
+def _common(product: str, modes: device.DriveModes, profile: str) -> dict[int, Entry]:
     """CiA 301 communication objects and the CiA 402 objects every simulated drive has; 0x6502 says
     which modes 0x6060 accepts (axes/sim/device.py)."""
     d: dict[int, Entry] = {
@@ -103,8 +103,8 @@ def _common(product: str, modes: device.DriveModes) -> dict[int, Entry]:
         0x1018: Rec(
             "Identity object",
             (
-                Var("Vendor-ID", U32, "ro", 0x00000000),
-                Var("Product code", U32, "ro", 0x0),
+                Var("Vendor-ID", U32, "ro", od.SIMULATED_VENDOR_ID),
+                Var("Product code", U32, "ro", od.SIMULATED_PRODUCT_CODES[profile]),
                 Var("Revision number", U32, "ro", 0x00010000),
                 Var("Serial number", U32, "ro", 0),
             ),
@@ -136,9 +136,18 @@ def _common(product: str, modes: device.DriveModes) -> dict[int, Entry]:
         od.QUICK_STOP_DECELERATION: Var("Profile deceleration", U32, "rw", 10000, pdo=True),
         od.QUICK_STOP_DECELERATION_CIA402: Var("Quick stop deceleration", U32, "rw", 10000, pdo=True),
         od.MAX_ACCELERATION: Var("Max acceleration", U32, "rw", 0xFFFFFFFF),
+        od.POLARITY: Var("Polarity", U8, "rw", 0),
         device.SUPPORTED_DRIVE_MODES: Var("Supported drive modes", U32, "ro", modes.supported),
     }
     return d
+
+
+def _encoder_resolution() -> Rec:
+    """CiA 402's 0x608F; the simulated drive reports its own encoder in it (axes/sim/drive.py)."""
+    return Rec(
+        "Position encoder resolution",
+        (Var("Encoder increments", U32, "ro", 2000), Var("Motor revolutions", U32, "ro", 1)),
+    )
 
 
 def _homing(default_method: int) -> dict[int, Entry]:
@@ -159,10 +168,31 @@ def _homing(default_method: int) -> dict[int, Entry]:
 
 
 def epos2() -> dict[int, Entry]:
-    d = _common("pvtflow simulated EPOS2", device.EPOS2_MODES)
+    d = _common("pvtflow simulated EPOS2", device.EPOS2_MODES, "epos2_pvt")
     d.update(_pdo_objects(4, 4))
     d.update(_homing(od.HomingMethod.CURRENT_POSITION))  # maxon's default, 7, is a method not simulated
     d[od.EPOS2_HOMING_CURRENT_THRESHOLD] = Var("Current threshold for homing mode", U16, "rw", 500, pdo=True)
+    # maxon's sensor configuration and motor data (names, types and defaults of maxon's EDS); the
+    # simulated drive reports its own encoder in :01 (axes/sim/drive.py)
+    d[od.EPOS2_SENSOR_CONFIGURATION] = Rec(
+        "Sensor configuration",
+        (
+            Var("Pulse number incremental encoder 1", U32, "rw", 500),
+            Var("Position sensor type", U16, "rw", 1),
+            Var("Internal absolute position offset", U16, "rw", 0),
+            Var("Position sensor polarity", U16, "rw", 0),
+        ),
+    )
+    d[od.MOTOR_DATA] = Rec(
+        "Motor data",
+        (
+            Var("Continuous current limit", U16, "rw", 10000),
+            Var("Output current limit", U16, "rw", 25000),
+            Var("Pole pair number", U8, "rw", 1),
+            Var("Maximal motor speed", U32, "rw", 25000),
+            Var("Thermal time constant winding", U16, "rw", 40),
+        ),
+    )
     d[od.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode selection", I16, "rw", -1)
     d[od.INTERPOLATION_TIME_PERIOD] = Rec(
         "Interpolation time period",
@@ -219,8 +249,9 @@ def _time_period() -> Rec:
 
 
 def cia402_ip_linear() -> dict[int, Entry]:
-    d = _common("pvtflow simulated CiA 402 linear IP drive", device.IP_LINEAR_MODES)
+    d = _common("pvtflow simulated CiA 402 linear IP drive", device.IP_LINEAR_MODES, "cia402_ip_linear")
     d.update(_pdo_objects(4, 4))
+    d[od.POSITION_ENCODER_RESOLUTION] = _encoder_resolution()
     d[od.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
     d[od.INTERPOLATION_DATA_RECORD] = _setpoint_record(False)
     d[od.INTERPOLATION_TIME_PERIOD] = _time_period()
@@ -239,8 +270,9 @@ def cia402_ip_linear() -> dict[int, Entry]:
 
 
 def sync_setpoint() -> dict[int, Entry]:
-    d = _common("pvtflow simulated bufferless IP servodrive", device.SYNC_SETPOINT_MODES)
+    d = _common("pvtflow simulated bufferless IP servodrive", device.SYNC_SETPOINT_MODES, "sync_setpoint")
     d.update(_pdo_objects(4, 4))
+    d[od.POSITION_ENCODER_RESOLUTION] = _encoder_resolution()
     d.update(_homing(od.HomingMethod.CURRENT_POSITION))
     d[od.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
     d[od.INTERPOLATION_DATA_RECORD] = _setpoint_record(False)
@@ -249,8 +281,10 @@ def sync_setpoint() -> dict[int, Entry]:
 
 
 def parker_slvdn() -> dict[int, Entry]:
-    d = _common("pvtflow simulated Parker SLVDN", device.PARKER_MODES)
+    d = _common("pvtflow simulated Parker SLVDN", device.PARKER_MODES, "parker_slvdn")
     d.update(_pdo_objects(4, 4))
+    d[od.POSITION_ENCODER_RESOLUTION] = _encoder_resolution()
+    d[od.POSITION_ACTUAL_INTERNAL_VALUE] = Var("Position actual value (increments)", I32, "ro", 0, pdo=True)
     d[od.COMMUNICATION_CYCLE_PERIOD] = Var("Communication cycle period", U32, "rw", 0)
     d[od.PARKER_OPERATIVE_MODE] = Var("Pr31 operative mode", I16, "rw", 0)
     d[od.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
@@ -263,6 +297,14 @@ DRIVES = {
     "cia402_ip_linear.eds": (cia402_ip_linear, "CiA 402 linear interpolation, one target point"),
     "sync_setpoint.eds": (sync_setpoint, "servodrive IP without buffer, one setpoint per SYNC"),
     "parker_slvdn.eds": (parker_slvdn, "Parker SLVDN operative mode 202"),
+}
+
+
+PROFILES = {
+    "epos2.eds": "epos2_pvt",
+    "cia402_ip_linear.eds": "cia402_ip_linear",
+    "sync_setpoint.eds": "sync_setpoint",
+    "parker_slvdn.eds": "parker_slvdn",
 }
 
 
@@ -307,9 +349,9 @@ def render(filename: str) -> str:
         "",
         "[DeviceInfo]",
         "VendorName=pvtflow (simulated)",
-        "VendorNumber=0x00000000",
+        f"VendorNumber=0x{od.SIMULATED_VENDOR_ID:08X}",
         f"ProductName={filename[:-4]}",
-        "ProductNumber=0x0",
+        f"ProductNumber=0x{od.SIMULATED_PRODUCT_CODES[PROFILES[filename]]:X}",
         "RevisionNumber=0x00010000",
         "BaudRate_10=1",
         "BaudRate_20=1",

@@ -5,6 +5,11 @@ each profile then says when, and along what curve, the demand reaches it (``dela
 the validating SYNC). A SYNC that validates no new setpoint starts nothing: the drive finishes the
 segment under way and holds its end point (for the Parker cubic without velocity: see parker.py).
 
+The SYNC that activates interpolation with no new setpoint written since the last SYNC latches
+0x60C1:01 as the object holds it, as a real drive's position loop does (0 after power-up, the last
+run's end after a run: a master primes it with the actual position first, ``FixedPeriodProfile``);
+the Parker below 2.5 ms takes it as its target at once (parker.py).
+
 The fixed-period drives have no interpolation limits of their own (the master limits the motion);
 as sanity checks 0x607D bounds every demand sample and 0x607F every demand velocity (fault).
 
@@ -68,6 +73,7 @@ class FixedPeriodDrive(SimulatedDrive):
         if self.state != OPERATION_ENABLED:
             self._new_setpoint = None
             return
+        activated = self._ip_requested
         if self._ip_requested:
             self._ip_requested = False
             if not self._activate():
@@ -76,6 +82,9 @@ class FixedPeriodDrive(SimulatedDrive):
             self._new_setpoint = None
             return
         target, self._new_setpoint = self._new_setpoint, None
+        if target is None and activated:  # the position loop takes 0x60C1:01 as it stands, written or not
+            self._validated(self.sync_time_us / 1000.0, self.read(od.INTERPOLATION_DATA_RECORD, 1))
+            return
         if target is not None:
             self.setpoints.append((self.sync_count, target))
             if self.first_setpoint_sync is None:

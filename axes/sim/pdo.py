@@ -6,10 +6,12 @@ This module does, from the object dictionary itself: a PDO's configuration is re
 of its communication or mapping entries is written (so "disable via COB-ID bit 31, write the
 mapping, re-enable" takes effect at the re-enable) and on every NMT state change.
 
-Rules enforced on writes (SDO abort codes of CiA 301): the mapping is only changed while the PDO
-is invalid and its sub 0 is 0 (0x08000022), mapped objects must exist, be PDO-mappable, readable
-(TPDO) or writable (RPDO) and be mapped with their own length (0x06040041), at most 64 bits
-(0x06040042); a valid PDO's COB-ID is not changed in place (0x06090030).
+Rules enforced on writes, as strict stacks enforce CiA 301 (SDO abort codes): a valid PDO's
+mapping is not written (0x06010000), an entry only while sub 0 is 0 (0x08000022); mapped objects
+must exist, be PDO-mappable, readable (TPDO) or writable (RPDO) and be mapped with their own length
+(0x06040041), at most 64 bits (0x06040042); a valid PDO's COB-ID (bits 0-29) is not changed, not
+even by the write that invalidates it (0x06090030: "shall not be changed while the PDO exists"),
+nor its inhibit time (0x06090030). So a master invalidates with the COB-ID it reads, then moves it.
 Not simulated: inhibit time, event timer, SYNC start value, RTR.
 """
 
@@ -32,6 +34,8 @@ PDO_NOT_VALID = 1 << 31
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
 
 ABORT_DEVICE_STATE = 0x08000022
+ABORT_UNSUPPORTED_ACCESS = 0x06010000
+COB_ID_BITS = 0x3FFF_FFFF  # bits 0-28 the identifier, 29 the frame (CAN 2.0A/B); 30 RTR and 31 invalid not
 ABORT_NOT_MAPPABLE = 0x06040041
 ABORT_PDO_LENGTH = 0x06040042
 ABORT_VALUE_RANGE = 0x06090030
@@ -84,17 +88,19 @@ class PdoEngine:
         receive = index < TPDO_COMM
         base_comm = RPDO_COMM if receive else TPDO_COMM
         number = (index & 0x1FF) + 1
-        state = (self.rpdos if receive else self.tpdos).get(number)
+        stored = self.drive.read(base_comm + number - 1, 1)
+        valid = stored & PDO_NOT_VALID == 0
         if (index & 0x200) == 0:  # communication parameter
-            moved = state is not None and (value & 0x7FF) != state.cob_id
-            if subindex == 1 and moved and state.valid and not value & PDO_NOT_VALID:
+            moved = (value & COB_ID_BITS) != (stored & COB_ID_BITS)
+            if subindex == 1 and moved and valid:
                 raise SdoAbortedError(ABORT_VALUE_RANGE)
             if subindex == 2 and not (value <= 240 or value >= 252):
                 raise SdoAbortedError(ABORT_VALUE_RANGE)
+            if subindex == 3 and valid:
+                raise SdoAbortedError(ABORT_VALUE_RANGE)
             return
-        valid = self.drive.read(base_comm + number - 1, 1) & PDO_NOT_VALID == 0
         if valid:
-            raise SdoAbortedError(ABORT_DEVICE_STATE)
+            raise SdoAbortedError(ABORT_UNSUPPORTED_ACCESS)
         if subindex == 0:
             total = 0
             for k in range(1, value + 1):

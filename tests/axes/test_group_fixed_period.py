@@ -7,6 +7,7 @@ import pytest
 from axes_programs import check_limits, program
 from axes_rig import with_profiles
 
+from axes import objects as od
 from axes.outcome import Result
 
 
@@ -89,3 +90,21 @@ def test_fixed_period_halt_on_stop(arm6, make_rig):
     assert result.halt_latency_syncs == 1
     for drive in rig.sim:
         assert drive.halts and drive.faults == []
+
+
+def test_the_first_setpoint_is_primed_with_the_actual_position(arm6, make_rig):
+    """The Parker below 2.5 ms latches 0x60C1:01 as it stands at the start SYNC (nothing is sent
+    before it, lead 0): whatever an earlier master, a stop or a tool left there. The master primes it
+    with the actual position when it enables, so the program starts where the axis stands."""
+    cell = with_profiles(
+        arm6,
+        {"joint_1": {"profile": "parker_slvdn", "period_ms": 1, "interpolation_submode": -1}},
+        sync_period_ms=1.0,
+    )
+    rig = make_rig(cell)
+    drive = rig.sim.drive(1)
+    drive.store(od.INTERPOLATION_DATA_RECORD, 1, drive.actual + 40000)  # left by an earlier master
+    result = rig.group.run(program(cell.ordered_axes(), 300, fraction=0.1), timeout_s=30)
+    assert result.ok, result.message
+    assert drive.faults == []
+    assert drive.first_setpoint_sync is not None

@@ -231,3 +231,18 @@ def test_an_unhomed_program_is_really_wrong(gantry3: CellConfig, make_rig: Calla
     assert result.result in (Result.DRIVE_FAULT, Result.EMCY) and result.joint == "x", result.message
     assert "positive limit switch" in drive.faults[-1].check
     assert drive.machine_position < gantry3.axis_for_joint("x").simulation.positive_limit_switch_qc  # type: ignore[union-attr]
+
+
+def test_an_axis_that_does_not_read_its_offset_at_home_is_not_homed(
+    gantry3: CellConfig, make_rig: Callable[..., Any]
+) -> None:
+    """After homing the master reads 0x6064: a drive that holds another home offset than the cell's
+    (here one a vendor tool stored after configuration) reads another position at its home."""
+    homing = HomingConfig(M.NEGATIVE_LIMIT_SWITCH_INDEX, offset_qc=123, timeout_s=10.0, **FAST)  # type: ignore[arg-type]
+    rig = make_rig(with_homing(gantry3, {"x": (homing, SWITCHES)}))
+    rig.group.configure()
+    rig.sim.drive("x").store(od.HOME_OFFSET, 0, 0)
+    outcome = CellHoming(rig.group).run([["x"]])
+    assert outcome.result is HomingResult.HOMING_ERROR and outcome.joint == "x"
+    assert "x reads 0x6064 = 0 qc at its home, not its home offset 0x607C = 123 qc" in outcome.message
+    assert rig.group.homed[0] is False

@@ -25,7 +25,7 @@ from axes.bus import CellBus
 from axes.cia402 import PowerState
 from axes.group import AxisGroup
 from axes.outcome import Result
-from axes.sim.drive import MAXON_EPOS2_EDS, OPERATION_ENABLED, SimulatedDrive
+from axes.sim.drive import MAXON_EPOS2_EDS, SimulatedDrive
 
 PROGRAM_MS = 2000
 KILL_AT_MS = 400  # mid-motion: every axis moves then (the quintic is at 20 % of its duration)
@@ -238,8 +238,9 @@ def test_an_earlier_entry_for_the_master_node_is_switched_off(arm6, make_rig):
 
 
 def test_an_orderly_close_is_not_a_lost_master(arm6, make_rig):
-    """A master that closes at rest tells the drives to stop watching: after the consumer time they
-    still stand enabled, no EMCY 0x8130, no fault (the next master starts without a recover)."""
+    """A master that closes at rest shuts the drives down (READY TO SWITCH ON: nobody commands them)
+    and then tells them to stop watching: after the consumer time no EMCY 0x8130, no fault (the next
+    master starts without a recover)."""
     rig = make_rig(cell_of(arm6, "epos2_pvt"))
     prog = program(rig.cell.ordered_axes(), 300, fraction=0.2)
     assert rig.group.run(prog, timeout_s=30).ok
@@ -249,4 +250,5 @@ def test_an_orderly_close_is_not_a_lost_master(arm6, make_rig):
     time.sleep(3 * rig.cell.bus.master_consumer_time_ms / 1000.0)
     for drive in rig.sim:
         assert not drive.master_losses, f"node {drive.node_id} took the close for a lost master"
-        assert drive.state == OPERATION_ENABLED, f"node {drive.node_id}: {drive.state}"
+        assert drive.state == PowerState.READY_TO_SWITCH_ON, f"node {drive.node_id}: {drive.state}"
+        assert drive.read(od.CONSUMER_HEARTBEAT_TIME, 1) == 0

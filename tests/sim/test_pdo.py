@@ -46,10 +46,22 @@ def test_mapping_changes_are_refused_while_the_pdo_is_valid(bench: Bench) -> Non
     drive = bench.add(Epos2Drive(52))
     node = bench.remote(drive)
     configure_pdos(node, EPOS2_RPDOS, EPOS2_TPDOS)
-    with pytest.raises(SdoAbortedError) as err:
+    with pytest.raises(SdoAbortedError) as err:  # a valid PDO's mapping: unsupported access
         node.sdo[0x1600][0].raw = 0
-    assert err.value.code == 0x08000022
+    assert err.value.code == 0x06010000
+    with pytest.raises(SdoAbortedError) as err:  # its COB-ID, even by the write that invalidates it
+        node.sdo[0x1400][1].raw = 0x80000000 | 0x400
+    assert err.value.code == 0x06090030
+    with pytest.raises(SdoAbortedError) as err:
+        node.sdo[0x1400][1].raw = 0x400
+    assert err.value.code == 0x06090030
+    with pytest.raises(SdoAbortedError) as err:  # a valid TPDO's inhibit time
+        node.sdo[0x1800][3].raw = 30
+    assert err.value.code == 0x06090030
     node.sdo[0x1400][1].raw = 0x80000000 | (0x200 + 52)  # invalidate
+    with pytest.raises(SdoAbortedError) as err:  # an entry while sub 0 counts entries
+        node.sdo[0x1600][1].raw = (od.CONTROLWORD << 16) | 16
+    assert err.value.code == 0x08000022
     node.sdo[0x1600][0].raw = 0
     with pytest.raises(SdoAbortedError) as err:  # 0x60C4:02 is not PDO-mappable
         node.sdo[0x1600][1].raw = (od.INTERPOLATION_DATA_CONFIGURATION << 16) | (2 << 8) | 32

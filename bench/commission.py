@@ -1,0 +1,131 @@
+"""Commissioning: how long reading a cell's drives takes, and whether every kind of wrong drive is caught.
+
+For arm6 and gantry3 on their simulated drives (the simulated wire, lockstep), per run: the time of
+``axes.commission.commission`` (every check of every drive, nothing written) and of
+``AxisGroup.configure`` (the facts checked first, then the profile's configuration: PDOs mapped and
+read back, limit objects written and read back, heartbeat, homing settings), each with the SDO
+round trips it took (median over ``--runs``). Then every kind of drive that differs from the cell
+(``simulation:``: encoder, polarity, vendor, product, motor speed on an EPOS2; the encoder of a
+drive that reports it in 0x608F) is injected into one axis of gantry3 and counted as caught when
+the report names its object on that axis and configuration refuses the cell.
+
+    python3 bench/commission.py [--runs 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import statistics
+import sys
+import time
+import uuid
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from axes.bus import CellBus
+from axes.commission import commission
+from axes.config import AxisSimulation
+from axes.group import AxisGroup
+from axes.profiles import DriveError
+from axes.sim.cell import SimulatedCell
+from service.config import CONFIG_DIR, CellConfig, load_cell_config
+
+KINDS: list[tuple[str, str, dict[str, object], dict[str, int], str]] = [
+    # name, joint, profile change, simulation change, the object that must name it
+    ("encoder (maxon 0x2210:01)", "y", {}, {"qc_per_motor_rev": 2048}, "0x2210:01"),
+    ("polarity", "y", {}, {"polarity": 0x80}, "0x607E"),
+    ("vendor id", "y", {}, {"vendor_id": 0x1234}, "0x1018:01-02"),
+    ("product code", "y", {}, {"product_code": 0x7}, "0x1018:01-02"),
+    ("motor maximal speed", "y", {}, {"max_motor_speed_rpm": 1000}, "0x6410:04"),
+    ("encoder (0x608F)", "x", {"profile": "parker_slvdn", "homing": None}, {"qc_per_motor_rev": 1000}, "0x608F:01-02"),
+]
+
+
+def on_own_channel(cell: CellConfig) -> CellConfig:
+    return dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, channel=f"bench-{uuid.uuid4().hex[:8]}"))
+
+
+def open_cell(cell: CellConfig) -> tuple[SimulatedCell, CellBus, AxisGroup]:
+    sim = SimulatedCell(cell).start()
+    bus = CellBus(cell.bus, lockstep=True).open()
+    return sim, bus, AxisGroup(bus, cell.ordered_axes())
+
+
+def close_cell(sim: SimulatedCell, bus: CellBus, group: AxisGroup) -> None:
+    group.close()
+    bus.close()
+    sim.stop()
+
+
+def sdo_count(group: AxisGroup) -> int:
+    return sum(link.sdo_transfers for link in group.links)
+
+
+def time_cell(cell: CellConfig, runs: int) -> tuple[float, int, float, int]:
+    """Median (commission ms, its SDO transfers, configure ms, its SDO transfers) over fresh drives."""
+    c_ms, c_n, k_ms, k_n = [], [], [], []
+    for _ in range(runs):
+        sim, bus, group = open_cell(on_own_channel(cell))
+        try:
+            t0 = time.perf_counter()
+            report = commission(group.links, group.profiles)
+            c_ms.append((time.perf_counter() - t0) * 1000)
+            c_n.append(report.sdo_transfers)
+            assert report.ok, [str(c) for a in report.axes for c in a.mismatches]
+            before = sdo_count(group)
+            t0 = time.perf_counter()
+            group.configure()
+            k_ms.append((time.perf_counter() - t0) * 1000)
+            k_n.append(sdo_count(group) - before)
+        finally:
+            close_cell(sim, bus, group)
+    return statistics.median(c_ms), int(statistics.median(c_n)), statistics.median(k_ms), int(statistics.median(k_n))
+
+
+def caught(cell: CellConfig, joint: str, profile: dict[str, object], drive: dict[str, int], where: str) -> bool:
+    axes = []
+    for a in cell.axes:
+        if a.joint == joint:
+            a = dataclasses.replace(a, **profile)  # type: ignore[arg-type]
+            a = dataclasses.replace(a, simulation=dataclasses.replace(a.simulation or AxisSimulation(), **drive))
+        axes.append(a)
+    wrong = on_own_channel(dataclasses.replace(cell, axes=tuple(axes)))
+    sim, bus, group = open_cell(wrong)
+    try:
+        report = commission(group.links, group.profiles)
+        named = any(a.joint == joint and where in (c.object for c in a.mismatches) for a in report.axes)
+        try:
+            group.configure()
+            refused = False
+        except DriveError as exc:
+            refused = where in str(exc)
+        return named and refused
+    finally:
+        close_cell(sim, bus, group)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=5)
+    args = parser.parse_args()
+    print(
+        f"{'cell':10} {'axes':>4} {'commission':>11} {'SDO':>5} {'configure':>10} {'SDO':>5}   (median of {args.runs})"
+    )
+    for name in ("arm6", "gantry3"):
+        cell = load_cell_config(CONFIG_DIR / "cells" / f"{name}.yaml")
+        c_ms, c_n, k_ms, k_n = time_cell(cell, args.runs)
+        print(f"{name:10} {len(cell.axes):>4} {c_ms:>8.1f} ms {c_n:>5} {k_ms:>7.1f} ms {k_n:>5}")
+    gantry3 = load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml")
+    hits = 0
+    for name, joint, profile, drive, where in KINDS:
+        ok = caught(gantry3, joint, profile, drive, where)
+        hits += ok
+        print(f"  injected {name:28} on {joint}: {'caught' if ok else 'MISSED'} ({where})")
+    print(f"mismatch kinds caught: {hits}/{len(KINDS)}")
+    print("command: python3 bench/commission.py" + (f" --runs {args.runs}" if args.runs != 5 else ""))
+
+
+if __name__ == "__main__":
+    main()

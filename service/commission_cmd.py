@@ -1,0 +1,87 @@
+"""``pvtflow commission [--config CELL] [--json] [--can-log FILE] [--real-time]``: what each drive is.
+
+Opens the cell's bus as ``pvtflow execute`` does (its simulated drives first where the cell is
+simulated), reads every drive over SDO (axes/commission.py: identity, supported modes, encoder,
+polarity, motor speed, the limit objects as stored, heartbeat, PDO mappings, error history) and
+prints, per axis, each check with what the cell expects and what the drive holds. Nothing is
+written to any drive and nothing moves. Exit codes: 0 every drive agrees with the cell, 1 a
+mismatch (each named: object, expected, found), 2 it cannot start (cell file, log file, bus).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from axes.commission import CheckKind, CommissionReport, commission
+from axes.profiles import AxisLink, DriveError, profile_for
+from service.cell_bus import CellBusError, open_cell_bus
+from service.cli import can_log_problem
+from service.config import CellConfig, ConfigError, load_cell_config
+
+EXIT_OK, EXIT_MISMATCH, EXIT_CANNOT_START = 0, 1, 2
+PROG = "pvtflow commission"
+
+
+def add_parser(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "commission",
+        help="read what each drive is and compare it with the cell (exit 0 agree, 1 mismatch, 2 cannot start)",
+        description="Read identity, supported modes, encoder, polarity, motor speed, limit objects, heartbeat, "
+        "PDO mappings and error history from every drive of the cell over SDO and compare them with the cell "
+        "file. Nothing is written, nothing moves.",
+    )
+    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
+    p.add_argument("--real-time", action="store_true", help="a simulated cell runs on the wall clock")
+    p.set_defaults(run=run)
+
+
+def commission_cell(cell: CellConfig, real_time: bool = False, can_log: str | None = None) -> CommissionReport:
+    """The report of the cell's drives (CellBusError: the bus cannot open)."""
+    with open_cell_bus(cell, real_time, can_log) as bus:
+        links = [AxisLink(bus, axis) for axis in cell.ordered_axes()]
+        return commission(links, [profile_for(link) for link in links])
+
+
+def format_report(cell: CellConfig, report: CommissionReport) -> str:
+    bad = sum(1 for a in report.axes if not a.ok)
+    lines = [
+        f"cell {cell.name}: {len(report.axes)} drives, "
+        + ("every one as the cell expects" if report.ok else f"{bad} not as the cell expects")
+        + f" ({report.sdo_transfers} SDO round trips)"
+    ]
+    for a in report.axes:
+        state = "ok" if a.ok else f"{len(a.mismatches)} mismatch" + ("es" if len(a.mismatches) > 1 else "")
+        lines.append(f"{a.joint} (node {a.node_id}, {a.profile}): {state}")
+        for c in a.checks:
+            mark = "MISMATCH" if not c.ok else ("info" if c.kind is CheckKind.INFO else "ok")
+            lines.append(f"  {mark:8} {c.object} {c.name}: expected {c.expected}; found {c.found}")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.can_log and (problem := can_log_problem(args.can_log)):
+        print(f"{PROG}: {problem}", file=sys.stderr)
+        return EXIT_CANNOT_START
+    try:
+        cell = load_cell_config(args.config)
+    except ConfigError as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return EXIT_CANNOT_START
+    try:
+        report = commission_cell(cell, args.real_time, args.can_log)
+    except (CellBusError, DriveError) as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return EXIT_CANNOT_START
+    if args.json:
+        print(json.dumps({"cell": cell.name, **report.to_json()}, indent=2))
+    else:
+        print(format_report(cell, report))
+        for a in report.axes:
+            for c in a.mismatches:
+                print(f"{PROG}: {a.joint} (node {a.node_id}): {c}", file=sys.stderr)
+    return EXIT_OK if report.ok else EXIT_MISMATCH
