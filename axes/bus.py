@@ -522,8 +522,15 @@ class SyncClock:
         and the setpoints. SYNCs that came while it was held are counted, one time stamp and one
         setpoint follow the last (the feeder sends the setpoint due after it)."""
         network = self.bus.network
-        seen, silent = 0, False
-        subscribe(network, SYNC_COB_ID, self._on_sync_echo)
+        with self._echo:
+            seen, silent = self._echoes, False  # the SYNCs heard before this production are not its own
+
+        # this production's own subscriber: a follower of the previous production still winding
+        # down unsubscribes its own, never this one's
+        def on_echo(can_id: int, data: bytearray, timestamp: float) -> None:
+            self._on_sync_echo(can_id, data, timestamp)
+
+        subscribe(network, SYNC_COB_ID, on_echo)
         try:
             assert self._task is not None
             if isinstance(self._task, can.broadcastmanager.RestartableCyclicTaskABC):
@@ -556,7 +563,7 @@ class SyncClock:
                 if gap is not None:
                     self._gap(gap)
         finally:
-            unsubscribe(network, SYNC_COB_ID, self._on_sync_echo)
+            unsubscribe(network, SYNC_COB_ID, on_echo)
 
     def step(self) -> dict[int, int]:
         """Send one SYNC by hand, outside production (e.g. the start's check: every drive answers it
