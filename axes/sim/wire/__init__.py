@@ -35,7 +35,13 @@ medium with these semantics:
     lateness of a SYNC behind its own sender's FIFO are exact, the order among nodes is not. The
     FIFO bound is judged in virtual time: the sender's frames that end after the new frame's
     enqueue time are queued; ``txqueuelen`` of them already -> ENOBUFS. So a master that sends a
-    SYNC and then a burst gets ENOBUFS on the 11th frame (the SYNC is in its FIFO too).
+    SYNC and then a burst gets ENOBUFS on the 11th frame (the SYNC is in its FIFO too). A sender
+    that waits (``send(msg, timeout=T)``) lets its FIFO drain in bus time: its frame goes out when
+    a slot frees, if within T. An idle bus (no SYNC for ``medium.IDLE_S`` of wall time) follows the
+    wall clock, so heartbeats and SDO exchanges between motions do not pile up at one instant.
+  - A cyclic send (``send_periodic``) on an in-process wall-clock medium is timed by the medium,
+    as SocketCAN's broadcast manager times it: each frame queued at its due bus time, heard by
+    its own node too.
 * **Bus states and error frames** (test hooks on the medium, ``bus.medium``): ``set_state(node,
   state)`` with python-can's ``BusState``: ACTIVE, PASSIVE (error passive) or ERROR (bus off;
   ``medium.BUS_OFF``). The node's ``bus.state`` reports it and its reader gets the SocketCAN
@@ -51,8 +57,10 @@ medium with these semantics:
   max FIFO depth and ENOBUFS count per node; error frames injected.
 * **Other processes** (``server.serve_wire``): a process serves its medium of a channel on
   127.0.0.1:PORT; another opens ``channel="NAME@127.0.0.1:PORT"``. Only loopback is served or
-  connected to. Every send is acknowledged synchronously by the server (ENOBUFS at ``send()``,
-  exactly as in-process); frames stream back on a second connection. ``bus.medium`` is then a
+  connected to. In lockstep every send is acknowledged synchronously by the server (ENOBUFS at
+  ``send()``, exactly as in-process); on the wall clock sends are pipelined and the client counts
+  its frames in flight (frames still in the socket count as queued). Frames stream back on a
+  second connection. ``bus.medium`` is then a
   ``client.RemoteMedium`` with the same ``stats``, ``set_state`` and ``inject_error_frame``.
 """
 
