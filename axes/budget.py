@@ -32,11 +32,10 @@ from dataclasses import dataclass
 
 from axes.config import CellWiring
 from axes.frame_time import frame_bits, worst_frame_bits
-from axes.objects import EPOS2_TIME_STAMP_RPDO, PdoLayout, PdoRole
+from axes.objects import EPOS2_TIME_STAMP_RPDO, SYNC_COB_ID, PdoLayout, PdoRole
 from axes.profiles import profile_class
 
 LOAD_LIMIT = 0.70
-SYNC_COB_ID = 0x80
 RECORD_BITS = worst_frame_bits(8)  # an EPOS2 record: 8 data bytes, any content
 HEARTBEAT_BITS = worst_frame_bits(1)
 EMCY_BITS = worst_frame_bits(8)

@@ -60,11 +60,10 @@ from canopen.objectdictionary import ObjectDictionary
 from axes import collector
 from axes.config import BusConfig, wire_options
 from axes.heartbeat import MasterHeartbeat
-from axes.objects import CAN_EMCY_WORDS, NMT_STATE_OPERATIONAL, TIME_STAMP_COB_ID
+from axes.objects import CAN_EMCY_WORDS, NMT_STATE_OPERATIONAL, SYNC_COB_ID, TIME_STAMP_COB_ID
 from axes.quick_stop import QuickStop, quick_stop_all
 from axes.subscriptions import subscribe, unsubscribe
 
-SYNC_COB_ID = 0x80
 # How long the master waits for one SDO answer. python-canopen's 0.3 s is tight for a simulated cell
 # on a loaded 2-core host (a drive's thread may not run for that long); a real drive answers within
 # milliseconds, so a longer wait only delays the report of a drive that is really gone.

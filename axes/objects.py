@@ -334,6 +334,7 @@ PARKER_TPDOS = (PdoLayout(1, SYNCHRONOUS, ((STATUSWORD, 0, 16), (POSITION_ACTUAL
 # EPOS2 clock synchronisation (app note 2.4 and 3.7): after each SYNC the master sends its transmit
 # time (0x1013, us) once, on one COB-ID that every EPOS2 takes through its asynchronous RPDO3.
 TIME_STAMP_COB_ID = 0x400  # not in the predefined connection set (RPDO3 of "node 0")
+SYNC_COB_ID = 0x080  # CiA 301 default COB-ID of SYNC (0x1005), which every drive of a cell keeps
 
 # CiA 301 NMT error control: a node's heartbeat is one byte, its NMT state, on 0x700 + node id
 HEARTBEAT_COB_ID_BASE = 0x700

@@ -32,11 +32,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes.bus import SYNC_COB_ID, CellBus
+from axes.bus import CellBus
 from axes.frame_time import frame_bits
 from axes.group import AxisGroup
 from axes.homing import CellHoming
-from axes.objects import EPOS2_RPDOS
+from axes.objects import EPOS2_RPDOS, SYNC_COB_ID
 from axes.sim.cell import SimulatedCell
 from planner.plan import PlanInput
 from service.cell_planner import CellPlanner

@@ -62,9 +62,10 @@ from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from axes.bus import SYNC_COB_ID, BusFault, CellBus, FaultKind
+from axes.bus import BusFault, CellBus, FaultKind
 from axes.cia402 import decode_state
 from axes.interpolation import PiecewiseCubic
+from axes.objects import SYNC_COB_ID
 from axes.outcome import Result
 
 if TYPE_CHECKING:

@@ -321,7 +321,7 @@ class SimulatedDrive(HomingMixin):
         if self.clock == WALL:
             with self.lock:
                 self.motion_clock = MotionClock(self.quartz, float(self.time_us), time.monotonic())
-        subscribe(network, 0x80, self._on_sync)
+        subscribe(network, od.SYNC_COB_ID, self._on_sync)
         subscribe(network, 0, self._on_nmt)
         self.consumer.attach(network)
 
@@ -332,7 +332,7 @@ class SimulatedDrive(HomingMixin):
                 return
             self.node.nmt.stop_heartbeat()
             self.pdo.unsubscribe()
-            unsubscribe(self.network, 0x80, self._on_sync)
+            unsubscribe(self.network, od.SYNC_COB_ID, self._on_sync)
             unsubscribe(self.network, 0, self._on_nmt)
             unsubscribe(self.network, 0, self._note_nmt_state)
             del self.network[self.node.id]

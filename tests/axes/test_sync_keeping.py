@@ -21,9 +21,10 @@ from axes_programs import program
 from axes_rig import BusObserver, FlakyBus, unique_channel, with_profiles
 
 from axes import objects as od
-from axes.bus import SYNC_COB_ID, BusFault, CellBus, FaultKind
+from axes.bus import BusFault, CellBus, FaultKind
 from axes.config import BusConfig
 from axes.group import AxisGroup
+from axes.objects import SYNC_COB_ID
 from axes.outcome import Result
 from axes.sim.cell import SimulatedCell
 from axes.sim.drive import SWITCH_ON_DISABLED

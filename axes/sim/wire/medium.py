@@ -21,9 +21,10 @@ import can
 from can import BusState
 
 from axes.frame_time import frame_bits
+from axes.objects import SYNC_COB_ID
 
 CLOCKS = ("wall", "lockstep")
-SYNC_ID = 0x80
+SYNC_ID = SYNC_COB_ID
 DEFAULT_TXQUEUELEN = 10  # SocketCAN's default txqueuelen for a CAN interface
 DEFAULT_RECORD_LIMIT = 500_000  # frames kept for the accounting (about three minutes at 3000 frames/s)
 BUS_OFF = BusState.ERROR  # python-can's name for a controller that left the bus
