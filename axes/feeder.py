@@ -22,6 +22,8 @@ Two kinds, both driven by events only (the SYNC answers and the status TPDO), ne
   packed before the start and go out right after each SYNC, from the thread that sends the SYNC
   (``after_sync``): a drive's answers never pace them, so on the wall clock a setpoint is never
   late for its SYNC (a missed one makes the drive hold, and the next asks for twice the step).
+  A stop of a drive without a ramp of its own replaces the records not yet sent by the master's
+  braking ramp (``decelerate``, ``axes.stop_ramp``); the feeder sends them as it sent the program.
 """
 
 from __future__ import annotations
@@ -269,6 +271,21 @@ class SetpointFeeder(Feeder):
         self.send(cob, data)
         self.next += 1
         self.stats.sent = self.next
+
+    def last_commanded(self) -> tuple[int, int]:
+        """(last setpoint sent, the one before it), qc: where the drive is headed and its last step
+        (before the first one: the program's start, at rest)."""
+        last = self.records[max(self.next - 1, 0), 0]
+        previous = self.records[max(self.next - 2, 0), 0]
+        return int(last), int(previous)
+
+    def decelerate(self, rows: NDArray[np.int64]) -> None:
+        """The records not yet sent are replaced by ``rows`` (a stop ramp), sent one per SYNC as the
+        program's were; after them, nothing: the drive holds the last."""
+        rows = np.asarray(rows, dtype=np.int64).reshape(-1, 3)
+        self.records = np.concatenate((self.records[: self.next], rows))
+        self.frames = self.frames[: self.next] + [self.frame_of(r) for r in rows]
+        self.stats.records = len(self.records)
 
     def preload(self) -> int:
         """The setpoint the start SYNC validates (record lead - 1) goes out with the start word."""

@@ -4,7 +4,9 @@ The group is the only place that decides about the motion as a whole. It is even
 answers (``SyncClock`` listeners) step the feeders and check the drives, the status TPDOs feed the
 buffers, the bus reports EMCY, heartbeat loss and lost SYNC. Any fault, or ``stop()``, sends the
 halt controlword (0x011F) to every axis through the synchronous RPDO before the next SYNC, so all
-axes halt on the same SYNC, within one period of the event. The outcome is one ``RunResult`` with a
+axes halt on the same SYNC, within one period of the event; a drive without a ramp of its own
+(``Profile.ramps_by_itself``) gets the master's braking setpoints from that SYNC on instead
+(``axes.stop_ramp``), and the run ends once they are run and every axis is at rest. The outcome is one ``RunResult`` with a
 ``Result`` enum (ruckig style) that names the axis and the reason.
 
 What a run reports lives in ``axes.outcome``; the cleanup after a run that readies every axis for
@@ -28,7 +30,15 @@ from axes.bus import BusFault, CellBus, FaultKind
 from axes.cia402 import PowerState, Statusword, decode_state
 from axes.commission import refuse_on_facts
 from axes.config import AxisConfig, Wiring
-from axes.feeder import BufferFeeder, Feeder, FeedStats, RecordAllowance, preload_shared, top_up_by_need
+from axes.feeder import (
+    BufferFeeder,
+    Feeder,
+    FeedStats,
+    RecordAllowance,
+    SetpointFeeder,
+    preload_shared,
+    top_up_by_need,
+)
 from axes.objects import BUFFER_ERRORS, BufferStatus
 from axes.outcome import (
     AxisReport,
@@ -455,9 +465,9 @@ class AxisGroup:
         SYNC n + 1 go out now, unpaced by the drives' answers. No group lock: a halt disables the
         feeders under the SYNC lock, so none sends after it."""
         start = self._start_sync
-        if not self._running or start is None or n < start or self._ending is not None:
+        if not self._running or start is None or n < start:
             return
-        for feeder in self._feeders:
+        for feeder in self._feeders:  # halting: only the stop ramps of drives without a ramp (_halt)
             feeder.after_sync(n - start)
 
     def _on_sync(self, n: int) -> None:
@@ -579,10 +589,13 @@ class AxisGroup:
         t0 = time.perf_counter()
         sync = self.bus.sync
         with sync.lock:
-            for feeder in self._feeders:
-                feeder.enabled = False
             unsent = []
-            for lk, profile in zip(self.links, self.profiles, strict=True):
+            for lk, profile, feeder in zip(self.links, self.profiles, self._feeders, strict=True):
+                if not profile.ramps_by_itself and isinstance(feeder, SetpointFeeder):
+                    # no ramp of its own: braking setpoints within 0x60C5 / 0x6085 (axes.stop_ramp)
+                    feeder.decelerate(profile.stop_records(feeder, quick=result is not Result.STOPPED))
+                    continue
+                feeder.enabled = False
                 try:
                     lk.send_controlword(profile.halt_controlword())
                 except can.CanError as exc:  # the bus is gone: the drives stop on the master's heartbeat loss
@@ -640,10 +653,12 @@ class AxisGroup:
             return  # quick stopped by SDO: the quick stop ends the run (_quick_stopped)
         if n < (self._ending.halt_sync or 0):
             return
+        elapsed = n - (self._start_sync or n) - 1  # a stop ramp is over once its drive held its end one SYNC
         still = [
             lk
-            for lk in self.links
-            if decode_state(lk.statusword) == PowerState.OPERATION_ENABLED and not lk.statusword & _TARGET_REACHED
+            for lk, feeder in zip(self.links, self._feeders, strict=True)
+            if decode_state(lk.statusword) == PowerState.OPERATION_ENABLED
+            and (not lk.statusword & _TARGET_REACHED or (feeder.enabled and not feeder.finished(elapsed, False)))
         ]
         if not still or n >= self._halt_deadline:
             self.bus.sync.stop()

@@ -34,7 +34,10 @@ from axes.subscriptions import subscribe, unsubscribe
 
 if TYPE_CHECKING:
     from axes.bus import CellBus
-    from axes.feeder import Feeder, RecordAllowance
+    import numpy as np
+    from numpy.typing import NDArray
+
+    from axes.feeder import Feeder, RecordAllowance, SetpointFeeder
     from axes.program import AxisProgram
 
 DEFAULT_MAX_FOLLOWING_ERROR_QC = 2000  # app note Table 17 default for 0x6065
@@ -358,6 +361,7 @@ class Profile:
     # 0x605E, where a lost master is one of the drive's own errors (the EPOS2): its fault reaction brakes
     fault_reaction_on_master_loss: ClassVar[od.FaultReaction | None] = None
     homing_methods: ClassVar[frozenset[int]] = frozenset()  # 0x6098 values it homes with (none: no mode 6)
+    home_position_object: ClassVar[int] = od.HOME_OFFSET  # what 0x6064 reads at the home (maxon: 0x2081)
 
     def __init__(self, link: AxisLink) -> None:
         self.link = link
@@ -372,6 +376,12 @@ class Profile:
         """SYNC periods from the SYNC that validates a setpoint to the one where it is reached
         (fixed-period profiles; 0 for the buffered EPOS2, which runs on the records' own times)."""
         return 0
+
+    @property
+    def ramps_by_itself(self) -> bool:
+        """The drive brakes on its own ramp when halted (bit 8, 0x605D on 0x6084); False: it has none,
+        and the master brakes it with setpoints (``axes.stop_ramp``)."""
+        return True
 
     @property
     def lead_periods(self) -> int:
@@ -403,6 +413,11 @@ class Profile:
         """The axis's feeder for ``program`` (``allowance``: the cell's records per SYNC period, for
         buffered drives)."""
         raise NotImplementedError
+
+    def stop_records(self, feeder: SetpointFeeder, quick: bool) -> NDArray[np.int64]:
+        """The master's braking records for a drive that has no ramp of its own (``ramps_by_itself``
+        False; ``quick``: a halt on a fault, within 0x6085 as well)."""
+        raise NotImplementedError(f"{self.name} brakes on its own ramp")
 
     def clear_buffer(self) -> None:
         """Empty the drive's setpoint buffer in any power state (after a fault: nothing of the

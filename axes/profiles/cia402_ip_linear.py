@@ -25,6 +25,7 @@ from axes import objects as od
 from axes.feeder import Feeder, RecordAllowance, SetpointFeeder
 from axes.objects import SETPOINT_RPDOS, SETPOINT_TPDOS
 from axes.profiles import Profile
+from axes.stop_ramp import braking_records
 
 if TYPE_CHECKING:
     from axes.program import AxisProgram
@@ -62,6 +63,12 @@ class FixedPeriodProfile(Profile):
     def enable(self, fresh: bool = False) -> None:
         self.enable_operation(fresh)
         self.prime()
+
+    def stop_records(self, feeder: SetpointFeeder, quick: bool) -> NDArray[np.int64]:
+        """The master's stop ramp for a drive that has none (``ramps_by_itself`` False): braking
+        records from the last setpoint the feeder sent and the step before it (``axes.stop_ramp``)."""
+        last, previous = feeder.last_commanded()
+        return braking_records(last, previous, feeder.period_ms, self.config.limits, self.config.scaling, quick)
 
     def prime(self) -> None:
         """0x60C1:01 = 0x6064 before interpolation is enabled: a drive whose start SYNC brings no new

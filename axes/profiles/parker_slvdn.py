@@ -12,7 +12,9 @@ Feed: position + velocity (record velocity x velocity unit, in rpm) per cycle. D
 validated at its own program time); from 2500 us on it is reached one cycle after validation
 (submodes 0 and -1). Submode -2 lags two cycles; the second is in the planner's reconstruction
 (``interpolation.cubic_p`` starts one cycle late), so it is fed one cycle ahead like -1.
-End: hold, clear bit 4.
+End: hold, clear bit 4. Halt and stop: from 2500 us the drive interpolates and brakes on its own
+ramp (halt bit); below, its position loop takes each setpoint as it comes and has no ramp, so the
+master brakes it with setpoints within 0x60C5 (``axes.stop_ramp``).
 """
 
 from __future__ import annotations
@@ -50,6 +52,10 @@ class ParkerSlvdn(FixedPeriodProfile):
     @property
     def lead_periods(self) -> int:
         return min(self.delay_periods, 1)
+
+    @property
+    def ramps_by_itself(self) -> bool:
+        return self.cycle_us >= od.PARKER_CUBIC_THRESHOLD_US  # below: the direct loop
 
     def configure(self) -> None:
         link = self.link

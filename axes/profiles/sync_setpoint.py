@@ -10,7 +10,8 @@ validator checks the linear reconstruction). Delay: the drive ramps to a setpoin
 period after the one the validating SYNC starts: two periods from validation (DESIGN section 5,
 "two-period delay to compensate"), so record k is validated at program time (k - 1) periods and
 record 0, the start position where the axis already is, is not sent. End: the last setpoint is
-held and bit 4 cleared.
+held and bit 4 cleared. Halt and stop: the drive has no ramp of its own, so the master brakes it
+with setpoints within 0x60C5 (``axes.stop_ramp``), not with the halt bit.
 """
 
 from __future__ import annotations
@@ -26,6 +27,10 @@ class SyncSetpoint(FixedPeriodProfile):
     @property
     def delay_periods(self) -> int:
         return 2
+
+    @property
+    def ramps_by_itself(self) -> bool:
+        return False  # "the master is responsible of limiting speed/acceleration/deceleration"
 
     def configure(self) -> None:
         link = self.link

@@ -11,7 +11,10 @@ run's end after a run: a master primes it with the actual position first, ``Fixe
 the Parker below 2.5 ms takes it as its target at once (parker.py).
 
 The fixed-period drives have no interpolation limits of their own (the master limits the motion);
-as sanity checks 0x607D bounds every demand sample and 0x607F every demand velocity (fault).
+as sanity checks 0x607D bounds every demand sample and 0x607F every demand velocity (fault). The two
+without a ramp of their own (bufferless, Parker direct) also judge the setpoint stream itself, in a
+motion and in a stop alike (``_judge``, axes/sim/setpoint_judge.py): a stream that stops too
+abruptly faults them.
 
 On the wall clock (``clock="wall"``, axes/sim/clock.py) the segment a SYNC starts runs over the
 configured period (0x60C2; the Parker's 0x1006) from that SYNC's arrival on the drive's own clock,
@@ -31,8 +34,9 @@ from __future__ import annotations
 from collections import deque
 
 from axes import objects as od
-from axes.sim.drive import OPERATION_ENABLED, SimulatedDrive
+from axes.sim.drive import FAULT, OPERATION_ENABLED, SimulatedDrive
 from axes.sim.segment import Segment
+from axes.sim.setpoint_judge import SetpointStream, too_fast
 
 
 class FixedPeriodDrive(SimulatedDrive):
@@ -47,6 +51,7 @@ class FixedPeriodDrive(SimulatedDrive):
         self._new_setpoint: int | None = None  # written since the last SYNC
         self.setpoints: deque[tuple[int, int]] = deque(maxlen=self.history.maxlen)  # (validating SYNC, target)
         self.first_setpoint_sync: int | None = None  # SYNC that validated the first setpoint of a run
+        self._stream = SetpointStream()  # the setpoints as judged by a drive without a ramp (_judge)
 
     # --- activation -------------------------------------------------------------------------------
     def _on_mode_change(self, old: int, new: int) -> None:
@@ -54,6 +59,7 @@ class FixedPeriodDrive(SimulatedDrive):
             self._abort_motion()
 
     def _abort_motion(self) -> None:
+        self._stream.reset()
         self.ip_active = False
         self._ip_requested = False
         self._segment = None
@@ -66,6 +72,7 @@ class FixedPeriodDrive(SimulatedDrive):
         self.ip_active_sync = self.sync_count
         self.first_setpoint_sync = None
         self._segment = None
+        self._stream.reset()
         self._reset_stream()
         return True
 
@@ -132,6 +139,19 @@ class FixedPeriodDrive(SimulatedDrive):
         """A linear ramp from the present demand to ``target`` over ``period`` ms from ``start``."""
         p0, _ = self._start_point()
         self._segment = Segment.linear(start, p0, float(target), period)
+
+    def _judge(self, target: int | None) -> bool:
+        """A drive without a ramp takes this SYNC's setpoint (None: holds the last): the step's
+        velocity against 0x607F, its change against 0x60C5 (axes/sim/setpoint_judge.py). False: it
+        faulted."""
+        velocity, acceleration = self._stream.take(target, self.demand, self.period_ms)
+        self._check_dynamics(velocity, 0.0)
+        if self.state == FAULT:
+            return False
+        if too_fast(acceleration, self._rpm_s_per_qc_ms2, self.read_or(od.MAX_ACCELERATION, 0, 2**32 - 1)):
+            self.fault(self.EMCY_VELOCITY, "max acceleration 0x60C5")
+            return False
+        return True
 
     # --- subclass hooks ---------------------------------------------------------------------------
     def _reset_stream(self) -> None:

@@ -121,14 +121,13 @@ class ParkerDrive(FixedPeriodDrive):
     # --- setpoints ----------------------------------------------------------------------------------
     def _validated(self, now: float, target: int | None) -> None:
         mode, period = self.interpolation, self.period_ms
-        if mode == DIRECT:
-            if target is not None:
-                previous = self.demand
-                if not self._check_position(float(target)):
-                    return
-                self._segment = Segment(now, 0.0, float(target), 0.0, 0.0, 0.0, float(target), 0.0)
-                self.demand = float(target)
-                self._check_dynamics((target - previous) / period, 0.0)
+        if mode == DIRECT:  # no ramp of its own: every SYNC's setpoint judged (FixedPeriodDrive._judge)
+            if target is not None and not self._check_position(float(target)):
+                return
+            if not self._judge(target) or target is None:
+                return
+            self._segment = Segment(now, 0.0, float(target), 0.0, 0.0, 0.0, float(target), 0.0)
+            self.demand = float(target)
         elif mode == 0:
             if target is not None:
                 self._ramp(now, target, period)

@@ -14,6 +14,10 @@ period range is 1.0ms ... 100.0ms"), and "profile parameters don't influence tra
 generation; the master is responsible of limiting speed/acceleration/deceleration". So every SYNC,
 early or not, starts the ramp to the setpoint the SYNC before validated, from where the demand is,
 ending 0x60C2 later on the drive's clock; only the 0x607D / 0x607F sanity checks judge it.
+
+Having no ramp of its own, it judges each SYNC's setpoint as it validates it (a SYNC with none holds
+the last): the step against 0x607F, the change of step against 0x60C5 (``FixedPeriodDrive._judge``),
+so a master that stops it by freezing its setpoints at speed faults it.
 """
 
 from __future__ import annotations
@@ -51,6 +55,8 @@ class SyncSetpointDrive(FixedPeriodDrive):
         return super()._activate()
 
     def _validated(self, now: float, target: int | None) -> None:
+        if not self._judge(target):
+            return
         if self._pending is not None:
             self._ramp(now, self._pending, self.period_ms)
         self._pending = target

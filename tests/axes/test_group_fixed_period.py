@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import threading
 
 import numpy as np
 import pytest
@@ -80,22 +81,28 @@ def test_fixed_period_halt_on_stop(arm6, make_rig):
     cell = with_profiles(
         arm6,
         {
-            "joint_1": {"profile": "cia402_ip_linear", "period_ms": 1},
-            "joint_2": {"profile": "sync_setpoint", "period_ms": 1},
-            "joint_3": {"profile": "parker_slvdn", "period_ms": 1, "interpolation_submode": -1},
+            "joint_1": {"profile": "cia402_ip_linear", "period_ms": 2},
+            "joint_2": {"profile": "sync_setpoint", "period_ms": 2},
+            "joint_3": {"profile": "parker_slvdn", "period_ms": 2, "interpolation_submode": -1},
         },
-        sync_period_ms=1.0,
+        sync_period_ms=2.0,
     )
+    cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, time_stamp=False))
     rig = make_rig(cell)
     prog = program(cell.ordered_axes(), 2000, fraction=0.4)
+    at_speed = threading.Event()
+    rig.group.on_progress = lambda p: at_speed.set() if p.sync >= 100 else None
     assert rig.group.start(prog) is None
-    assert rig.sim.drive(1).wait_sync(rig.bus.sync.count + 100)
+    assert at_speed.wait(30)
     rig.group.stop("operator")
     result = rig.group.wait(timeout_s=30)
     assert result.result is Result.STOPPED and result.message == "operator"
     assert result.halt_latency_syncs == 1
     for drive in rig.sim:
-        assert drive.halts and drive.faults == []
+        assert drive.faults == []
+        # the drives that ramp by themselves get the halt bit; the bufferless one and the Parker in its
+        # direct loop (2 ms) have no ramp: the master brakes them with setpoints (tests/axes/test_stop_ramp.py)
+        assert bool(drive.halts) == (drive.PROFILE in ("cia402_ip_linear", "epos2_pvt"))
 
 
 def test_the_first_setpoint_is_primed_with_the_actual_position(arm6, make_rig):
