@@ -6,8 +6,8 @@ buffers, the bus reports EMCY, heartbeat loss and lost SYNC. Any fault, or ``sto
 halt controlword (0x011F) to every axis through the synchronous RPDO before the next SYNC, so all
 axes halt on the same SYNC, within one period of the event; a drive without a ramp of its own
 (``Profile.ramps_by_itself``) gets the master's braking setpoints from that SYNC on instead
-(``axes.stop_ramp``), and the run ends once they are run and every axis is at rest. The outcome is one ``RunResult`` with a
-``Result`` enum (ruckig style) that names the axis and the reason.
+(``axes.stop_ramp``), and the run ends once they are run and every axis is at rest. The outcome
+is one ``RunResult`` with a ``Result`` enum (ruckig style) that names the axis and the reason.
 
 What a run reports lives in ``axes.outcome``; the cleanup after a run that readies every axis for
 the next start, in ``axes.readiness``; homing a cell, in ``axes.homing`` (which takes the group).

@@ -33,10 +33,10 @@ from axes.objects import BufferStatus, PdoLayout
 from axes.subscriptions import subscribe, unsubscribe
 
 if TYPE_CHECKING:
-    from axes.bus import CellBus
     import numpy as np
     from numpy.typing import NDArray
 
+    from axes.bus import CellBus
     from axes.feeder import Feeder, RecordAllowance, SetpointFeeder
     from axes.program import AxisProgram
 
