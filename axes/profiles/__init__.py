@@ -215,6 +215,7 @@ class AxisLink:
             inhibit = round(layout.inhibit_periods * self.bus.config.sync_period_ms * 10)
             self.write_optional(comm, 3, min(inhibit, 0xFFFF), "H")
             self.write_optional(comm, 5, 0, "H")
+            self.write_optional(comm, 6, 0, "B")  # SYNC start value: 0, pvtflow's SYNC has no counter (SYNC_COB_ID)
         self.write(comm, 1, rtr | cob, "I")
         self._check_pdo(layout, receive, rtr | cob)
 
