@@ -15,8 +15,8 @@ done, bit 13 a homing error, a fault bit a drive fault; a stage that is not done
 ``stop()`` halts every axis of the cell (bit 8, on the next SYNC) and ends the homing there: nothing
 of the later stages moves. Afterwards every axis is back in interpolated position mode (0x6060 = 7)
 and is enabled afresh by the next start. An axis that attained its home must read its home offset
-there (0x6064 = 0x607C, ``_confirm``), else it is not homed. The group then counts an axis homed until its drive boots
-again (boot-up message, NMT reset, power loss) or its heartbeat is lost (``AxisGroup.homed``).
+there (0x6064 = 0x607C, maxon's 0x2081 on the EPOS2, ``_confirm``), else it is not homed. The
+group then counts an axis homed until its drive boots again (boot-up message, NMT reset, power loss) or its heartbeat is lost (``AxisGroup.homed``).
 """
 
 from __future__ import annotations
@@ -221,9 +221,10 @@ class CellHoming:
 
     def _confirm(self, stage: list[int]) -> tuple[HomingResult, str, str, int] | None:
         """Each axis of a stage that attained its home reads its 0x6064 there: it must read the cell's
-        home offset (within the group's start tolerance), as pvtflow defines 0x607C (CiA 402: the
-        position value at the home position). A drive that defines it otherwise (maxon's EPOS2
-        firmware: 0x2081 is that value and 0x607C a move past the home) is not homed, and says why."""
+        ``offset_qc`` (within the group's start tolerance), written where the drive defines the
+        position at home (``Profile.home_position_object``: CiA 402's 0x607C; maxon's 0x2081, its
+        0x607C being a move past the reference). A drive that reads anything else is not homed, and
+        says why."""
         for i in stage:
             link = self.group.links[i]
             homing = link.config.homing
@@ -234,11 +235,13 @@ class CellHoming:
             except DriveError as exc:
                 return HomingResult.HOMING_ERROR, str(exc), link.joint, link.node_id
             if abs(position - homing.offset_qc) > self.group.start_tolerance_qc:
+                where = self.group.profiles[i].home_position_object
+                name = "home offset" if where == od.HOME_OFFSET else "home position"
                 return (
                     HomingResult.HOMING_ERROR,
-                    f"{link.joint} reads 0x6064 = {position} qc at its home, not its home offset "
-                    f"0x607C = {homing.offset_qc} qc: the drive defines its home offset otherwise (or holds "
-                    f"another one); not homed",
+                    f"{link.joint} reads 0x6064 = {position} qc at its home, not its {name} "
+                    f"0x{where:04X} = {homing.offset_qc} qc: the drive defines it otherwise (or holds "
+                    f"another value); not homed",
                     link.joint,
                     link.node_id,
                 )

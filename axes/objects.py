@@ -84,6 +84,9 @@ EPOS2_INTERPOLATION_BUFFER = 0x20C4  # :01 status, :02 underflow warning level, 
 EPOS2_BUFFER_SIZE = 64
 
 EPOS2_HOMING_CURRENT_THRESHOLD = 0x2080  # mA: the current that says "hard stop" (methods -1 to -4)
+# maxon's Home Position (INTEGER32, qc): what 0x6064 reads at the home position once homing is attained;
+# on the EPOS2 0x607C is the move from the reference found to that home position (maxon's firmware)
+EPOS2_HOME_POSITION = 0x2081
 EPOS2_SENSOR_CONFIGURATION = 0x2210  # :01 pulses per motor revolution of the incremental encoder (qc / 4)
 EPOS2_QC_PER_PULSE = 4  # quadrature: four counts per encoder pulse
 

@@ -464,7 +464,8 @@ class Profile:
         link.write(od.QUICK_STOP_DECELERATION, 0, round(lim.max_acceleration_rpm_s), "I")
 
     def write_homing(self) -> None:
-        """The axis's homing settings (0x6098, 0x6099:01/02, 0x609A, 0x607C, maxon's 0x2080), in drive
+        """The axis's homing settings (0x6098, 0x6099:01/02, 0x609A, the home position as the drive
+        defines it: 0x607C, or maxon's 0x2081 with 0x607C = 0; maxon's 0x2080), in drive
         units; nothing for an axis without homing. A method the profile does not have is refused."""
         homing = self.config.homing
         if homing is None:
@@ -478,7 +479,11 @@ class Profile:
         link.write(od.HOMING_SPEEDS, 1, round(homing.switch_speed_rpm / unit), "I")
         link.write(od.HOMING_SPEEDS, 2, round(homing.zero_speed_rpm / unit), "I")
         link.write(od.HOMING_ACCELERATION, 0, round(homing.acceleration_rpm_s), "I")
-        link.write(od.HOME_OFFSET, 0, homing.offset_qc, "i")
+        if self.home_position_object == od.HOME_OFFSET:
+            link.write(od.HOME_OFFSET, 0, homing.offset_qc, "i")
+        else:  # maxon: 0x2081 is what the position reads at home, 0x607C a move past the reference (none)
+            link.write(self.home_position_object, 0, homing.offset_qc, "i")
+            link.write(od.HOME_OFFSET, 0, 0, "i")
         if homing.current_threshold_ma is not None:
             link.write(od.EPOS2_HOMING_CURRENT_THRESHOLD, 0, homing.current_threshold_ma, "H")
 

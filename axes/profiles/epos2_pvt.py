@@ -42,6 +42,7 @@ class Epos2Pvt(Profile):
     sync_tpdo = 2
     fault_reaction_on_master_loss = od.FaultReaction.QUICK_STOP
     homing_methods = od.EPOS2_HOMING_METHODS
+    home_position_object = od.EPOS2_HOME_POSITION  # maxon: 0x2081 is the position at home, 0x607C a move
 
     def max_sync_gap_ms(self, program: AxisProgram) -> float:
         """The EPOS2 runs its records on its own clock: a gap only holds the feed back, which tops the

@@ -172,6 +172,7 @@ def epos2() -> dict[int, Entry]:
     d.update(_pdo_objects(4, 4))
     d.update(_homing(od.HomingMethod.CURRENT_POSITION))  # maxon's default, 7, is a method not simulated
     d[od.EPOS2_HOMING_CURRENT_THRESHOLD] = Var("Current threshold for homing mode", U16, "rw", 500, pdo=True)
+    d[od.EPOS2_HOME_POSITION] = Var("Home Position", I32, "rw", 0, pdo=True)
     # maxon's sensor configuration and motor data (names, types and defaults of maxon's EDS); the
     # simulated drive reports its own encoder in :01 (axes/sim/drive.py)
     d[od.EPOS2_SENSOR_CONFIGURATION] = Rec(

@@ -135,6 +135,14 @@ class Epos2Drive(SimulatedDrive):
             status |= BufferStatus.IP_MODE_ACTIVE
         return status
 
+    def _home_found(self, home: float, m: float) -> float | None:
+        """maxon's definitions: 0x607C (Home Offset) is the move from the reference found to the home
+        position, where the position reads 0x2081 (Home Position); the axis goes there and stands."""
+        at = home + self.read_or(od.HOME_OFFSET, 0, 0)
+        self.origin = at - self.read_or(od.EPOS2_HOME_POSITION, 0, 0)
+        self.demand = m - self.origin
+        return at
+
     def _publish(self) -> None:
         self.publish(od.EPOS2_INTERPOLATION_BUFFER, 1, int(self.buffer_status()))
         self.publish(od.INTERPOLATION_DATA_CONFIGURATION, 1, od.EPOS2_BUFFER_SIZE)

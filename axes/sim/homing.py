@@ -126,7 +126,7 @@ class HomingRun:
         zero_speed: float,
         acceleration: float,
         current_threshold_ma: float,
-        on_reference: Callable[[float, float], None],
+        on_reference: Callable[[float, float], float | None],
     ) -> None:
         self.method = method
         self.machine = machine
@@ -274,9 +274,9 @@ class HomingRun:
             self._referenced(at)
 
     def _referenced(self, m_ref: float) -> None:
-        self.reference = m_ref
         self.phases = []
-        self.on_reference(m_ref, self.m)
+        moved = self.on_reference(m_ref, self.m)  # a drive may place its home past the reference
+        self.reference = m_ref = m_ref if moved is None else moved
         if self.at_rest and abs(self.m - m_ref) <= RETURN_TOLERANCE_QC:
             self.m = m_ref
             self.state = HomingState.ATTAINED
@@ -404,10 +404,12 @@ class HomingMixin:
         if run.state is HomingState.ATTAINED:
             self._homing_attained()
 
-    def _home_found(self, home: float, m: float) -> None:
-        """The home position: from now on the position reads 0x607C there."""
+    def _home_found(self, home: float, m: float) -> float | None:
+        """The home position: from now on the position reads 0x607C there (None: the axis stands on
+        the reference itself; the EPOS2 places it otherwise, epos2.py)."""
         self.origin = home - self.read_or(od.HOME_OFFSET, 0, 0)
         self.demand = m - self.origin
+        return None
 
     def _homing_attained(self) -> None:
         self.demand = float(round(self.demand))

@@ -236,13 +236,30 @@ def test_an_unhomed_program_is_really_wrong(gantry3: CellConfig, make_rig: Calla
 def test_an_axis_that_does_not_read_its_offset_at_home_is_not_homed(
     gantry3: CellConfig, make_rig: Callable[..., Any]
 ) -> None:
-    """After homing the master reads 0x6064: a drive that holds another home offset than the cell's
-    (here one a vendor tool stored after configuration) reads another position at its home."""
+    """After homing the master reads 0x6064: an EPOS2 that holds another home position 0x2081 than
+    the cell's (here one a vendor tool stored after configuration) reads another position at its home."""
     homing = HomingConfig(M.NEGATIVE_LIMIT_SWITCH_INDEX, offset_qc=123, timeout_s=10.0, **FAST)  # type: ignore[arg-type]
     rig = make_rig(with_homing(gantry3, {"x": (homing, SWITCHES)}))
     rig.group.configure()
-    rig.sim.drive("x").store(od.HOME_OFFSET, 0, 0)
+    rig.sim.drive("x").store(od.EPOS2_HOME_POSITION, 0, 0)
     outcome = CellHoming(rig.group).run([["x"]])
     assert outcome.result is HomingResult.HOMING_ERROR and outcome.joint == "x"
-    assert "x reads 0x6064 = 0 qc at its home, not its home offset 0x607C = 123 qc" in outcome.message
+    assert "x reads 0x6064 = 0 qc at its home, not its home position 0x2081 = 123 qc" in outcome.message
     assert rig.group.homed[0] is False
+
+
+def test_the_epos2_homes_by_maxons_definitions(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
+    """maxon's EPOS2: 0x2081 is what the position reads at home and 0x607C a move from the reference to
+    it. The master writes the cell's offset to 0x2081 and 0x607C = 0, and the axis reads it on the
+    reference; a 0x607C left by a vendor tool moves the home past the reference, reading 0x2081 there."""
+    homing = HomingConfig(M.NEGATIVE_LIMIT_SWITCH_INDEX, offset_qc=123, timeout_s=10.0, **FAST)  # type: ignore[arg-type]
+    rig = make_rig(with_homing(gantry3, {"x": (homing, SWITCHES)}))
+    drive = rig.sim.drive("x")
+    assert CellHoming(rig.group).run([["x"]]).result is HomingResult.HOMED
+    assert (drive.read(od.EPOS2_HOME_POSITION), drive.read(od.HOME_OFFSET)) == (123, 0)
+    on_reference = drive.machine_position
+    assert drive.actual == 123
+    drive.store(od.HOME_OFFSET, 0, 500)  # the move past the reference, as maxon defines 0x607C
+    outcome = CellHoming(rig.group).run([["x"]])
+    assert outcome.result is HomingResult.HOMED, outcome.message
+    assert drive.actual == 123 and drive.machine_position == on_reference + 500
