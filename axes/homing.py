@@ -16,7 +16,8 @@ done, bit 13 a homing error, a fault bit a drive fault; a stage that is not done
 of the later stages moves. Afterwards every axis is back in interpolated position mode (0x6060 = 7)
 and is enabled afresh by the next start. An axis that attained its home must read its home offset
 there (0x6064 = 0x607C, maxon's 0x2081 on the EPOS2, ``_confirm``), else it is not homed. The
-group then counts an axis homed until its drive boots again (boot-up message, NMT reset, power loss) or its heartbeat is lost (``AxisGroup.homed``).
+group then counts an axis homed until its drive boots again (boot-up message, NMT reset, power
+loss) or its heartbeat is lost (``AxisGroup.homed``).
 """
 
 from __future__ import annotations

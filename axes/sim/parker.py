@@ -124,10 +124,12 @@ class ParkerDrive(FixedPeriodDrive):
         if mode == DIRECT:  # no ramp of its own: every SYNC's setpoint judged (FixedPeriodDrive._judge)
             if target is not None and not self._check_position(float(target)):
                 return
+            previous = self.demand
             if not self._judge(target) or target is None:
                 return
             self._segment = Segment(now, 0.0, float(target), 0.0, 0.0, 0.0, float(target), 0.0)
             self.demand = float(target)
+            self._check_dynamics((target - previous) / period, 0.0)
         elif mode == 0:
             if target is not None:
                 self._ramp(now, target, period)

@@ -8,10 +8,10 @@ its position loop must produce in one period. Neither drive ramps by itself, so 
 setpoint stream that stops too abruptly: a stream frozen at speed (no new setpoint, or the same one
 again: the step falls to 0 in one period) or a jump asks more than the drive can. The simulated drive
 judges every SYNC of the stream, in a motion and in a stop alike, by the limits the master wrote:
-the velocity against 0x607F and the velocity change against 0x60C5, with the one allowance a
+the velocity change against 0x60C5 (the velocity, against 0x607F, where the demand runs), with the one allowance a
 program's linear reconstruction has for whole-count setpoints (``linear_step_acceleration``, the
 validator's), so a validated program and the master's stop ramp (``axes.stop_ramp``) pass and a
-stream whose step changes faster faults the drive (EMCY 0x8400, as for 0x607F).
+stream whose step changes faster faults the drive (EMCY 0x8400, as 0x607F does).
 """
 
 from __future__ import annotations
