@@ -138,7 +138,9 @@ class Epos2Drive(SimulatedDrive):
     def _home_found(self, home: float, m: float) -> float | None:
         """maxon's definitions: 0x607C (Home Offset) is the move from the reference found to the home
         position, where the position reads 0x2081 (Home Position); the axis goes there and stands."""
-        at = home + self.read_or(od.HOME_OFFSET, 0, 0)
+        method = self.read_or(od.HOMING_METHOD, 0, 0)
+        here = method in (od.HomingMethod.CURRENT_POSITION, od.HomingMethod.CURRENT_POSITION_37)
+        at = home if here else home + self.read_or(od.HOME_OFFSET, 0, 0)  # "actual position" does not move
         self.origin = at - self.read_or(od.EPOS2_HOME_POSITION, 0, 0)
         self.demand = m - self.origin
         return at

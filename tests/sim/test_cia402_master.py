@@ -189,11 +189,13 @@ HOMING_DRIVES = [
 @pytest.mark.parametrize(("cls", "eds"), HOMING_DRIVES)
 def test_base_node_402_homes_the_drive(bench: Bench, cls: type[SimulatedDrive], eds: Path | None) -> None:
     """BaseNode402.homing() (mode 6, controlword bit 4, statusword homing attained) on every drive
-    whose 0x6502 has homing: method 35 (here is home) sets the position to the home offset 0x607C."""
+    whose 0x6502 has homing: method 35 (here is home) sets the position to the home offset 0x607C
+    (maxon: to the home position 0x2081)."""
     drive = bench.add(cls(5, eds_path=eds))
     node = base_node(bench, drive)
     node.sdo[od.HOMING_METHOD].raw = od.HomingMethod.CURRENT_POSITION
-    node.sdo[od.HOME_OFFSET].raw = 1234
+    home_position = od.EPOS2_HOME_POSITION if cls is Epos2Drive else od.HOME_OFFSET  # maxon's and CiA's definitions
+    node.sdo[home_position].raw = 1234
     done: list[bool] = []
     homing = threading.Thread(target=lambda: done.append(node.homing(timeout=10)), daemon=True)
     homing.start()
