@@ -688,7 +688,7 @@ class AxisGroup:
                     joint=link.joint,
                     node_id=link.node_id,
                     profile=link.config.profile,
-                    state=decode_state(link.statusword).value,
+                    state=decode_state(link.statusword),
                     statusword=link.statusword,
                     position=link.position,
                     target_position=int(prog.records[-1, 0]) if prog is not None else None,
@@ -763,7 +763,7 @@ class AxisGroup:
             elapsed_ms=(n - (self._start_sync or n)) * self.bus.config.sync_period_ms,
             positions=tuple(lk.position for lk in self.links),
             levels=tuple(f.level for f in self._feeders),
-            states=tuple(decode_state(lk.statusword).value for lk in self.links),
+            states=tuple(decode_state(lk.statusword) for lk in self.links),
             statuswords=tuple(lk.statusword for lk in self.links),
         )
 
@@ -782,7 +782,7 @@ class AxisGroup:
                     joint=link.joint,
                     node_id=link.node_id,
                     profile=link.config.profile,
-                    state=decode_state(link.statusword).value,
+                    state=decode_state(link.statusword),
                     statusword=link.statusword,
                     position=link.position,
                     buffer_status=link.buffer_status,

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from enum import Enum, StrEnum
 
 from axes.bus import FaultKind
+from axes.cia402 import PowerState
 from axes.feeder import FeedStats
 
 
@@ -36,7 +37,7 @@ class AxisReport:
     joint: str
     node_id: int
     profile: str
-    state: str
+    state: PowerState
     statusword: int
     position: int | None  # qc (0x6064)
     target_position: int | None  # qc: the program's last record
@@ -115,7 +116,7 @@ class AxisStatus:
     joint: str
     node_id: int
     profile: str
-    state: str
+    state: PowerState
     statusword: int
     position: int | None
     buffer_status: int
@@ -143,7 +144,7 @@ class Progress:
     elapsed_ms: float
     positions: tuple[int | None, ...]
     levels: tuple[int | None, ...]
-    states: tuple[str, ...]
+    states: tuple[PowerState, ...]
     statuswords: tuple[int, ...] = ()
 
 

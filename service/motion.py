@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.bus import BusError, CellBus
+from axes.cia402 import PowerState
 from axes.group import AxisGroup
 from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError, HomingResult
 from axes.outcome import AxisStatus, Event, EventKind, GroupError, Progress, Result, RunResult
@@ -51,7 +52,9 @@ from service.api import (
     ExecuteRequest,
     HomeRequest,
     PlanRequest,
+    PlanStart,
     RecoverRequest,
+    RunState,
     StatusRequest,
     StopRequest,
     ValidateRequest,
@@ -126,7 +129,7 @@ class Motion:
             "motion_id": self.motion_id,
             "plan_id": self.plan_id,
             "label": self.label,
-            "state": "ended" if self.done.is_set() else "running",
+            "state": RunState.of(self.done.is_set()),
             "duration_ms": int(self.program.duration_ms),
             "start_sync": self.start_sync,
             "outcome": self.outcome,
@@ -147,7 +150,7 @@ class Homing:
     def summary(self) -> dict[str, Any]:
         return {
             "homing_id": self.homing_id,
-            "state": "ended" if self.done.is_set() else "running",
+            "state": RunState.of(self.done.is_set()),
             "stages": self.stages,
             "outcome": self.outcome.to_json() if self.outcome is not None else None,
         }
@@ -209,7 +212,7 @@ class MotionService:
         self._planner_lock = threading.Lock()  # the CellPlanner is not for concurrent use
         self._state_lock = threading.Lock()
         self._state_seq = 0
-        self._last_states: tuple[str, ...] = ()
+        self._last_states: tuple[PowerState, ...] = ()
         self._started: queue.Queue[Motion | None] = queue.Queue()
         self._watcher: threading.Thread | None = None
 
@@ -327,7 +330,7 @@ class MotionService:
         }
         budget_ms = self.cell.planning.budget_ms if req.budget_ms is None else req.budget_ms
         if req.poses is not None:
-            if req.start == "home":
+            if req.start is PlanStart.HOME:
                 q0 = self.home_position()
             elif req.start_joints is not None:
                 q0 = req.start_joints
@@ -341,8 +344,8 @@ class MotionService:
             waypoints = result.waypoints if result.waypoints is not None else q0[None, :]
         else:
             waypoints = req.waypoints
-            if req.start in ("current", "home"):
-                if req.start == "home":
+            if req.start in (PlanStart.CURRENT, PlanStart.HOME):
+                if req.start is PlanStart.HOME:
                     q0 = self.home_position()
                 else:
                     self._refuse_unless_homed(self._group())
@@ -356,8 +359,8 @@ class MotionService:
                 if len(waypoints) < 2:
                     raise ApiError(
                         ErrorCode.PLAN_FAILED,
-                        f"the {'axes are' if req.start == 'current' else 'home position is'} already at the target: "
-                        "nothing to move",
+                        f"the {'home position is' if req.start is PlanStart.HOME else 'axes are'} already at the "
+                        "target: nothing to move",
                         {"result": "repeated_waypoint"},
                     )
             with self._planner_lock:
@@ -551,7 +554,7 @@ class MotionService:
                 f"cell {self.cell.name} is in fault ({self.fault_reason}): call recover first",
                 {"reason": self.fault_reason},
             )
-        faulted = [s for s in group.status().axes if _is_fault(s)]
+        faulted = [s for s in group.status().axes if s.state.is_fault]
         if faulted:
             s = faulted[0]
             raise ApiError(
@@ -826,7 +829,7 @@ class MotionService:
             if s.last_emcy is None
             else {"code": s.last_emcy[0], "code_hex": f"0x{s.last_emcy[0]:04X}", "message": s.last_emcy[1]},
             "nmt_state": s.nmt_state,
-            "fault": _is_fault(s),
+            "fault": s.state.is_fault,
             "homing": axis.homing is not None,
             "homed": s.homed,
         }
@@ -941,7 +944,3 @@ class MotionService:
 def _plain(details: dict[str, Any]) -> dict[str, Any]:
     """A planner's error details as JSON values (numbers, strings)."""
     return {k: v if isinstance(v, str | int | float | bool) or v is None else str(v) for k, v in details.items()}
-
-
-def _is_fault(s: AxisStatus) -> bool:
-    return "FAULT" in s.state.upper()

@@ -23,6 +23,8 @@ from service.api.wire import (
     ApiError,
     CellState,
     ErrorCode,
+    PlanStart,
+    RunState,
     _short,
 )
 
@@ -107,10 +109,10 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
                 },
                 "start": {
                     "anyOf": [
-                        {"enum": ["current", "first", "home"]},
+                        {"enum": [PlanStart.CURRENT.value, PlanStart.FIRST.value, PlanStart.HOME.value]},
                         {"type": "array", "items": {"type": "number"}},
                     ],
-                    "default": "current",
+                    "default": PlanStart.CURRENT.value,
                     "description": "current: from where the axes are now; first (waypoints): the first waypoint is "
                     "the start; home: the cell's home position (where homing leaves the axes: each axis's 0x607C), "
                     "then through every waypoint or pose; a list of joint values (poses): the motion starts there "
@@ -262,7 +264,7 @@ _MOTION = {
         "motion_id": _MOTION_ID,
         "plan_id": _STR_OR_NULL,
         "label": _STR_OR_NULL,
-        "state": {"enum": ["running", "ended", "interrupted"]},
+        "state": {"enum": [s.value for s in RunState]},
         "accepted_at": {"type": "string"},
         "ended_at": _STR_OR_NULL,
         "duration_ms": {"type": "integer"},
@@ -280,7 +282,7 @@ _HOMING = {
     "required": ["homing_id", "state", "stages"],
     "properties": {
         "homing_id": _MOTION_ID,
-        "state": {"enum": ["running", "ended"]},
+        "state": {"enum": [RunState.RUNNING.value, RunState.ENDED.value]},
         "stages": {"type": "array", "items": {"type": "array", "items": {"type": "string"}}},
         "outcome": {
             "type": ["object", "null"],
@@ -329,7 +331,7 @@ def reply_schema(name: str) -> dict[str, Any]:
             "properties": {
                 "motion_id": _MOTION_ID,
                 "plan_id": _STR_OR_NULL,
-                "state": {"enum": ["running", "ended"]},
+                "state": {"enum": [RunState.RUNNING.value, RunState.ENDED.value]},
                 "duration_ms": {"type": "integer"},
                 "start_sync": _INT_OR_NULL,
                 "outcome": {"type": ["object", "null"]},
