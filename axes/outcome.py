@@ -13,9 +13,12 @@ from axes.feeder import FeedStats
 
 
 class Result(Enum):
-    """How a run ended (ruckig style: one enum, details in the result object)."""
+    """How a run or a homing ended (ruckig style: one enum, details in the result object). Both end
+    the same ways when a drive or the bus fails; ``FINISHED`` and ``REJECTED`` are a run's own ends,
+    ``HOMED``, ``HOMING_ERROR`` and ``TIMEOUT`` a homing's (axes.homing)."""
 
     FINISHED = "finished"  # every axis reached its end record
+    HOMED = "homed"  # every axis asked for is homed
     STOPPED = "stopped"  # stop() was called: all axes halted
     DRIVE_FAULT = "drive_fault"  # a drive reported a fault (statusword, buffer error bits)
     EMCY = "emcy"  # a drive sent an emergency
@@ -23,11 +26,24 @@ class Result(Enum):
     LOST_SYNC = "lost_sync"  # a drive stopped answering SYNC
     BUS_ERROR = "bus_error"  # the master could not keep SYNC (a gap, a dead SYNC thread, a frame not sent, bus-off)
     REJECTED = "rejected"  # the program does not fit the cell (nothing moved)
-    CONFIGURATION_ERROR = "configuration_error"  # a drive refused its configuration or enable
+    CONFIGURATION_ERROR = "configuration_error"  # a drive refused its configuration, enable or homing settings
+    HOMING_ERROR = "homing_error"  # a drive reported a homing error (statusword bit 13)
+    TIMEOUT = "timeout"  # a homing stage was not done within its timeout
 
     @property
     def ok(self) -> bool:
-        return self is Result.FINISHED
+        return self in (Result.FINISHED, Result.HOMED)
+
+    @property
+    def is_fault(self) -> bool:
+        """A drive failed or would not take its settings: the cell stays faulted until someone
+        recovers it (a stop, a refusal, a homing error or timeout leave it usable)."""
+        return self in _FAULTS
+
+
+_FAULTS = frozenset(
+    {Result.DRIVE_FAULT, Result.EMCY, Result.HEARTBEAT_LOST, Result.LOST_SYNC, Result.CONFIGURATION_ERROR}
+)
 
 
 @dataclass

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from axes.bus import BusError, CellBus
 from axes.cia402 import PowerState
 from axes.group import AxisGroup
-from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError, HomingResult
+from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
 from axes.outcome import AxisStatus, Event, EventKind, GroupError, Progress, Result, RunResult
 from axes.profiles import DriveError
 from axes.program import ProgramFormatError, PvtProgram, program_mismatch
@@ -71,10 +71,6 @@ from service.recording import Recorder
 Publish = Callable[[str, dict[str, Any]], None]
 log = logging.getLogger("pvtflow.motion")
 
-FAULT_RESULTS = frozenset(
-    {Result.DRIVE_FAULT, Result.EMCY, Result.HEARTBEAT_LOST, Result.LOST_SYNC, Result.CONFIGURATION_ERROR}
-)
-
 
 class ServiceEventKind(StrEnum):
     """The service's own ``events`` beside the axis group's (``axes.group.EventKind``)."""
@@ -83,17 +79,6 @@ class ServiceEventKind(StrEnum):
     MOTION_ENDED = "motion_ended"
     JOURNAL_ERROR = "journal_error"
     HOMING_ENDED = "homing_ended"  # with its outcome (the homing's steps: axes.homing.HomingEventKind)
-
-
-HOMING_FAULTS = frozenset(
-    {
-        HomingResult.DRIVE_FAULT,
-        HomingResult.EMCY,
-        HomingResult.HEARTBEAT_LOST,
-        HomingResult.LOST_SYNC,
-        HomingResult.CONFIGURATION_ERROR,
-    }
-)
 
 
 def _new_id(prefix: str) -> str:
@@ -618,7 +603,7 @@ class MotionService:
             self.publish(
                 "events", self.event_payload(ServiceEventKind.JOURNAL_ERROR, str(exc), motion_id=motion.motion_id)
             )
-        if result.result in FAULT_RESULTS:
+        if result.result.is_fault:
             self.fault_reason = result.message
             self._set_state(CellState.FAULT, motion.motion_id)
         else:
@@ -678,10 +663,10 @@ class MotionService:
         try:
             outcome = homer.run(homing.stages)
         except (GroupError, BusError, OSError) as exc:
-            outcome = HomingOutcome(HomingResult.CONFIGURATION_ERROR, f"homing failed: {exc}")
+            outcome = HomingOutcome(Result.CONFIGURATION_ERROR, f"homing failed: {exc}")
         except Exception as exc:  # never leave a homing without an end: the cell would stay "homing"
             log.exception("while homing %s", homing.homing_id)
-            outcome = HomingOutcome(HomingResult.CONFIGURATION_ERROR, f"homing failed: {type(exc).__name__}: {exc}")
+            outcome = HomingOutcome(Result.CONFIGURATION_ERROR, f"homing failed: {type(exc).__name__}: {exc}")
         homing.outcome = outcome
         if homing.recorder is not None:
             homing.recorder.close(outcome.to_json())
@@ -689,7 +674,7 @@ class MotionService:
             self.journal.record_homing_outcome(homing.homing_id, outcome.to_json())
         except JournalError as exc:
             self.publish("events", self.event_payload(ServiceEventKind.JOURNAL_ERROR, str(exc)))
-        if outcome.result in HOMING_FAULTS:
+        if outcome.result.is_fault:
             self.fault_reason = outcome.message
             self._set_state(CellState.FAULT, None)
         else:
