@@ -47,24 +47,6 @@ _FAULTS = frozenset(
 
 
 @dataclass
-class AxisReport:
-    """Per axis, after a run."""
-
-    joint: str
-    node_id: int
-    profile: str
-    state: PowerState
-    statusword: int
-    position: int | None  # qc (0x6064)
-    target_position: int | None  # qc: the program's last record
-    feed: FeedStats
-    start_sync: int | None  # absolute SYNC number at which the drive first reported ip mode active
-    buffer_status: int = 0
-    last_emcy: tuple[int, str] | None = None
-    joint_position: float | None = None  # ``position`` in joint units (rad or m), through the axis scaling
-
-
-@dataclass
 class RunResult:
     result: Result
     message: str
@@ -141,6 +123,16 @@ class AxisStatus:
     last_emcy: tuple[int, str] | None
     nmt_state: int | None
     homed: bool = True  # nothing to home, or homed since its drive last booted
+
+
+@dataclass(frozen=True, kw_only=True)
+class AxisReport(AxisStatus):
+    """Per axis, after a run: what its drive says then (``AxisStatus``) and what the run did."""
+
+    target_position: int | None  # qc: the program's last record
+    feed: FeedStats
+    start_sync: int | None  # absolute SYNC number at which the drive first reported ip mode active
+    joint_position: float | None = None  # ``position`` in joint units (rad or m), through the axis scaling
 
 
 @dataclass(frozen=True)
