@@ -12,6 +12,7 @@ import contextlib
 from collections.abc import Iterator
 
 from axes.bus import BusError, CellBus
+from service.cli_options import add_can_log, add_config, add_real_time
 from service.config import CellConfig
 
 
@@ -21,8 +22,8 @@ class CellBusError(Exception):
 
 def add_bus_options(p: argparse.ArgumentParser) -> None:
     """--config, --can-log, --record, --quiet, --real-time: what every command that drives a cell alone takes."""
-    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
-    p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
+    add_config(p)
+    add_can_log(p)
     p.add_argument(
         "--record",
         metavar="FILE.mcap",
@@ -30,12 +31,7 @@ def add_bus_options(p: argparse.ArgumentParser) -> None:
         "(pvtflow report FILE.mcap; Foxglove)",
     )
     p.add_argument("--quiet", action="store_true", help="print the outcome only")
-    p.add_argument(
-        "--real-time",
-        action="store_true",
-        help="a simulated cell runs SYNC on the wall clock, as a real cell does (default there: lockstep, "
-        "faster than real time)",
-    )
+    add_real_time(p)
 
 
 @contextlib.contextmanager

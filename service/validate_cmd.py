@@ -19,6 +19,7 @@ from typing import Any, TextIO
 
 from axes.program import ProgramFormatError, PvtProgram
 from planner.validate import Rule, Severity, ValidationReport, validate_program
+from service.cli_options import add_json
 
 EXIT_VALID, EXIT_VIOLATIONS, EXIT_UNREADABLE = 0, 1, 2
 
@@ -31,7 +32,7 @@ def add_parser(subparsers: Any) -> None:
         "on the drives' own reconstruction of the records.",
     )
     p.add_argument("programs", nargs="+", metavar="PROGRAM", help="program file(s) or folder(s) of *.json")
-    p.add_argument("--json", action="store_true", help="print the report(s) as JSON on stdout")
+    add_json(p)
     p.add_argument(
         "--config",
         metavar="CELL",
