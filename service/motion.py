@@ -61,6 +61,7 @@ from service.api import (
     refusals,
 )
 from service.approach import away_from_start, plan_approach
+from service.cell_bus import CellBusError, open_bus
 from service.cell_planner import TIMEOUT, CellPlanner
 from service.config import CellConfig
 from service.journal import Journal, JournalError, MotionEntry, default_directory
@@ -204,13 +205,10 @@ class MotionService:
     # --- life cycle ------------------------------------------------------------------------------
     def open(self) -> MotionService:
         """Bus up (simulated drives first when the cell is simulated), drives configured, state read."""
-        self.bus = CellBus(self.cell.bus, lockstep=self.lockstep, can_log=self.can_log)
         try:
-            if self.simulate:
-                from axes.sim.cell import SimulatedCell
-
-                self.sim = SimulatedCell(self.cell, clock="lockstep" if self.lockstep else "wall").start()
-            self.bus.open()
+            self.bus, self.sim = open_bus(
+                self.cell, simulate=self.simulate, lockstep=self.lockstep, can_log=self.can_log
+            )
             self.group = AxisGroup(
                 self.bus,
                 self.axes,
@@ -220,7 +218,7 @@ class MotionService:
             )
             self.group.configure()
             self.group.refresh()
-        except (BusError, DriveError, OSError) as exc:
+        except (CellBusError, BusError, DriveError, OSError) as exc:
             self.close()
             raise BusError(f"cell {self.cell.name}: {exc}") from None
         self._last_states = tuple(a.state for a in self.group.status().axes)
