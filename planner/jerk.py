@@ -47,7 +47,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
@@ -65,6 +65,7 @@ from planner.timing import (
     TcpSpeedConstraint,
     Trajectory,
 )
+from planner.trajectory import PathTiming
 
 DEFAULT_JERK_INTERVALS = 48
 _CHECK_SUBSAMPLES = 32
@@ -89,7 +90,7 @@ def _interval_coefficients(path: JointPath, grid: NDArray[np.float64]) -> tuple[
 
 
 @dataclass(frozen=True)
-class JerkTrajectory:
+class JerkTrajectory(PathTiming):
     """q(t) = path(s(t)) with s''' constant between gridpoints: numbers in, numbers out.
 
     Provides what knot placement takes of a trajectory (planner.knots.TimedTrajectory) and what
@@ -109,18 +110,11 @@ class JerkTrajectory:
     optimal: bool = True  # False: the deadline came first, this is the best timing found by then
     lower_bound: float = 0.0  # s: no timing of this path under these limits is shorter (TOPP-RA's duration)
     coefficients: tuple[NDArray[np.float64], ...] = field(default=(), repr=False, compare=False)
+    check_subsamples: ClassVar[int] = _CHECK_SUBSAMPLES
 
     def __post_init__(self) -> None:
         if not self.coefficients:
             object.__setattr__(self, "coefficients", _interval_coefficients(self.path, self.gridpoints))
-
-    @property
-    def duration(self) -> float:
-        return float(self.breakpoints[-1])
-
-    @property
-    def dof(self) -> int:
-        return len(self.joint_names)
 
     @property
     def waypoint_times(self) -> NDArray[np.float64]:
@@ -198,17 +192,6 @@ class JerkTrajectory:
         a_end = self.sdd[:-1] + self.sddd * h
         q_s = self.coefficients[1][1:]
         return self.breakpoints[1:-1], np.abs(q_s * (self.sdd[1:-1] - a_end[:-1])[:, None])
-
-    def check_times(self, subsamples: int = _CHECK_SUBSAMPLES) -> NDArray[np.float64]:
-        """Gridpoint times plus ``subsamples`` times inside every interval, one-sided at its ends
-        (the jerk of both intervals at a gridpoint)."""
-        f = np.arange(subsamples + 2) / (subsamples + 1)
-        bp = self.breakpoints
-        eps = 1e-9 * max(self.duration, 1.0)
-        inner = bp[:-1, None] + np.diff(bp)[:, None] * f[None, :]
-        inner[:, 0] += eps
-        inner[:, -1] -= eps
-        return inner.ravel()
 
     def limit_ratios(self, limits: JointLimits, max_jerk: ArrayLike) -> tuple[float, float, float]:
         """Worst |q'|/vmax, |q''|/amax and |q'''|/max_jerk over the check times, and for the velocity
