@@ -57,6 +57,7 @@ from numpy.typing import ArrayLike, NDArray
 from planner.limits import JointLimits
 from planner.path import JointPath, PlanError, PlanResult
 from planner.scurve import rest_to_rest
+from planner.slowdown import SLOWDOWN_MARGIN, slowdown
 from planner.timing import (
     IntervalJointAccelerationConstraint,
     IntervalJointVelocityConstraint,
@@ -687,11 +688,11 @@ def _checked(
     if traj.min_path_velocity() < -1e-6 * max(np.max(traj.sd), 1e-9):
         raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing reverses along the path", solver=traj.solver)
     rv, ra, rj = traj.limit_ratios(limits, jmax)
-    factors = (rv, np.sqrt(ra), np.cbrt(rj), traj.speed_ratio(constraints))
+    factors = (slowdown(rv, ra), np.cbrt(rj), traj.speed_ratio(constraints))
     if not np.all(np.isfinite(factors)):  # a solver's "success" that is no motion: never handed on
         raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing returned no finite motion", solver=traj.solver)
     k = max(factors)
-    return traj.slowed(k * (1.0 + 1e-9)) if k > 1.0 else traj
+    return traj.slowed(k * (1.0 + SLOWDOWN_MARGIN)) if k > 1.0 else traj
 
 
 def jerk_limited(
