@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.cartesian import Motion, check_poses
+from planner.cartesian import MoveKind, check_poses
 from planner.limits import JointLimits, check_max_jerk, check_scale
 from planner.path import PlanError
 from service.api.schemas import _PLAN_SCALES, check_schema
@@ -27,7 +27,7 @@ class PlanRequest:
     velocity_scale: float = 1.0  # speed override in (0, 1] (planner.limits.check_scale)
     acceleration_scale: float = 1.0
     poses: NDArray[np.float64] | None = None  # (N, 7), unit quaternions
-    motion: str = Motion.LINEAR.value
+    motion: MoveKind = MoveKind.LINEAR
     start_joints: NDArray[np.float64] | None = None  # (dof,) in the cell's joint order
     max_jerk: NDArray[np.float64] | None = None  # (dof,) in the cell's joint order; None: the cell's
     budget_ms: float | None = None  # the plan's deadline; None: the cell's planning.budget_ms
@@ -180,7 +180,7 @@ def _parse_pose_plan(data: dict[str, Any], order: list[int], limits: JointLimits
         data.get("label"),
         bool(data.get("include_program", False)),
         poses=poses,
-        motion=data.get("motion", Motion.LINEAR.value),
+        motion=MoveKind(data.get("motion", MoveKind.LINEAR)),
         start_joints=start_joints,
         max_jerk=_max_jerk(data, order),
         budget_ms=data.get("budget_ms"),

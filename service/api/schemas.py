@@ -11,7 +11,7 @@ from typing import Any
 from jsonschema import Draft202012Validator
 from jsonschema.exceptions import ValidationError
 
-from planner.cartesian import POSE_LENGTH, QUATERNION_TOLERANCE, Motion
+from planner.cartesian import POSE_LENGTH, QUATERNION_TOLERANCE, MoveKind
 from planner.limits import check_scale
 from service.api.wire import (
     ID_PATTERN,
@@ -102,8 +102,8 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
                     "description": "tool poses to go through (instead of waypoints or target), from the start",
                 },
                 "motion": {
-                    "enum": [m.value for m in Motion],
-                    "default": Motion.LINEAR.value,
+                    "enum": [m.value for m in MoveKind],
+                    "default": MoveKind.LINEAR.value,
                     "description": "poses only: linear, the tool on straight lines between the poses (orientation "
                     "by slerp); joint, a joint path through the inverse-kinematics solutions of the poses",
                 },
