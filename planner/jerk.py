@@ -23,8 +23,8 @@ a nonlinear program, warm-started from the TOPP-RA solution:
 - objective: the duration, sum of h_k.
 
 The program is a discrete optimal control problem (state (sd, a), control (h, j)), which is
-the structure fatrop's Riccati-based interior point exploits: about 4 times cheaper per
-iteration than ipopt with MUMPS here. Where fatrop does not converge, ipopt is tried from the
+the structure fatrop's Riccati-based interior point exploits: its iteration solves the stages in
+sequence, where ipopt's general sparse factorization (MUMPS) does not know them. Where fatrop does not converge, ipopt is tried from the
 same start; where neither does, the plan is refused with the solvers' statuses. The variables
 are scaled by their typical magnitudes (``_scales``: fatrop does not scale a program) and the
 start is slowed down to well inside the jerk rows (``_start``): both cut the solve time's tail.
@@ -571,7 +571,7 @@ def _parameters(rows: _Rows, limits: JointLimits, max_jerk: NDArray[np.float64])
 def _scales(start: NDArray[np.float64]) -> NDArray[np.float64]:
     """A typical magnitude of each of a stage's variables (the 90th percentile of its |start| over
     the stages, 1 where that is 0): fatrop, unlike ipopt, does not scale a program itself, and the
-    jerk s''' is 1e3-1e4 times the times h here."""
+    jerk s''' is orders of magnitude larger than the times h."""
     width = len(_STATE) + len(_CONTROL)
     stages = np.append(start, np.zeros(len(_CONTROL))).reshape(-1, width)[:-1]
     typical = np.percentile(np.abs(stages), 90, axis=0)
