@@ -22,12 +22,13 @@ a nonlinear program, warm-started from the TOPP-RA solution:
   with the frame's speed factor of the interval's midpoint in s, in the middle;
 - objective: the duration, sum of h_k.
 
-The program is a discrete optimal control problem (state (sd, a), control (h, j)), which is
-the structure fatrop's Riccati-based interior point exploits: its iteration solves the stages in
-sequence, where ipopt's general sparse factorization (MUMPS) does not know them. Where fatrop does not converge, ipopt is tried from the
-same start; where neither does, the plan is refused with the solvers' statuses. The variables
-are scaled by their typical magnitudes (``_scales``: fatrop does not scale a program) and the
-start is slowed down to well inside the jerk rows (``_start``): both cut the solve time's tail.
+The program is a discrete optimal control problem (state (sd, a), control (h, j)), which is the
+structure fatrop's Riccati-based interior point exploits: its iteration solves the stages in
+sequence, where ipopt's general sparse factorization (MUMPS) does not know them. Where fatrop does
+not converge, ipopt is tried from the same start; where neither does, the plan is refused with the
+solvers' statuses. The variables are scaled by their typical magnitudes (``_scales``: fatrop does
+not scale a program) and the start is slowed down to well inside the jerk rows (``_start``): both
+cut the solve time's tail.
 
 After the solve the trajectory is checked densely (``JerkTrajectory.limit_ratios``,
 ``speed_ratio``), and slowed down uniformly where a sample between the rows exceeds a limit
