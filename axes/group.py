@@ -695,22 +695,15 @@ class AxisGroup:
 
     def _reports(self) -> list[AxisReport]:
         out = []
-        for i, link in enumerate(self.links):
+        for i, (link, status) in enumerate(zip(self.links, self.status().axes, strict=True)):
             prog = self._programs[i] if i < len(self._programs) else None
             feeder = self._feeders[i] if i < len(self._feeders) else None
             out.append(
                 AxisReport(
-                    joint=link.joint,
-                    node_id=link.node_id,
-                    profile=link.config.profile,
-                    state=decode_state(link.statusword).value,
-                    statusword=link.statusword,
-                    position=link.position,
+                    **vars(status),
                     target_position=int(prog.records[-1, 0]) if prog is not None else None,
                     feed=feeder.stats if feeder is not None else FeedStats(),
                     start_sync=self._ip_start[i] if i < len(self._ip_start) else None,
-                    buffer_status=link.buffer_status,
-                    last_emcy=link.last_emcy,
                     joint_position=None
                     if link.position is None
                     else float(link.config.scaling.qc_to_position(link.position)),
@@ -778,7 +771,7 @@ class AxisGroup:
             elapsed_ms=(n - (self._start_sync or n)) * self.bus.config.sync_period_ms,
             positions=tuple(lk.position for lk in self.links),
             levels=tuple(f.level for f in self._feeders),
-            states=tuple(decode_state(lk.statusword).value for lk in self.links),
+            states=tuple(decode_state(lk.statusword) for lk in self.links),
             statuswords=tuple(lk.statusword for lk in self.links),
         )
 
@@ -797,7 +790,7 @@ class AxisGroup:
                     joint=link.joint,
                     node_id=link.node_id,
                     profile=link.config.profile,
-                    state=decode_state(link.statusword).value,
+                    state=decode_state(link.statusword),
                     statusword=link.statusword,
                     position=link.position,
                     buffer_status=link.buffer_status,

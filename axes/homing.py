@@ -26,7 +26,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from enum import Enum, StrEnum
+from enum import StrEnum
 from typing import TYPE_CHECKING
 
 import can
@@ -35,6 +35,7 @@ from axes import objects as od
 from axes.bus import BusFault, FaultKind
 from axes.cia402 import Controlword, PowerState, Statusword, decode_state
 from axes.config import AxisConfig
+from axes.outcome import Result
 from axes.profiles import AxisLink, DriveError
 
 if TYPE_CHECKING:
@@ -53,22 +54,7 @@ HALT_TIMEOUT_S = 5.0  # of drive time: how long the halted axes may take to stan
 WALL_GRACE_S = 10.0  # beyond the SYNC-counted timeout: a cell whose SYNC stalls is given up
 
 
-class HomingResult(Enum):
-    """How a homing ended (one enum, details in ``HomingOutcome``)."""
-
-    HOMED = "homed"  # every axis asked for is homed
-    STOPPED = "stopped"  # stop() was called: all axes halted
-    HOMING_ERROR = "homing_error"  # a drive reported a homing error (statusword bit 13)
-    TIMEOUT = "timeout"  # a stage was not done within its timeout
-    DRIVE_FAULT = "drive_fault"  # a drive faulted
-    EMCY = "emcy"  # a drive sent an emergency
-    HEARTBEAT_LOST = "heartbeat_lost"  # a drive's heartbeat stopped, or it left OPERATIONAL
-    LOST_SYNC = "lost_sync"  # a drive stopped answering SYNC
-    CONFIGURATION_ERROR = "configuration_error"  # a drive refused its homing settings or mode 6
-
-    @property
-    def ok(self) -> bool:
-        return self is HomingResult.HOMED
+HomingResult = Result  # a homing ends like a run when a drive or the bus fails: one enum (axes.outcome)
 
 
 class HomingEventKind(StrEnum):

@@ -8,13 +8,17 @@ from dataclasses import dataclass, field
 from enum import Enum, StrEnum
 
 from axes.bus import FaultKind
+from axes.cia402 import PowerState
 from axes.feeder import FeedStats
 
 
 class Result(Enum):
-    """How a run ended (ruckig style: one enum, details in the result object)."""
+    """How a run or a homing ended (ruckig style: one enum, details in the result object). Both end
+    the same ways when a drive or the bus fails; ``FINISHED`` and ``REJECTED`` are a run's own ends,
+    ``HOMED``, ``HOMING_ERROR`` and ``TIMEOUT`` a homing's (axes.homing)."""
 
     FINISHED = "finished"  # every axis reached its end record
+    HOMED = "homed"  # every axis asked for is homed
     STOPPED = "stopped"  # stop() was called: all axes halted
     DRIVE_FAULT = "drive_fault"  # a drive reported a fault (statusword, buffer error bits)
     EMCY = "emcy"  # a drive sent an emergency
@@ -22,29 +26,24 @@ class Result(Enum):
     LOST_SYNC = "lost_sync"  # a drive stopped answering SYNC
     BUS_ERROR = "bus_error"  # the master could not keep SYNC (a gap, a dead SYNC thread, a frame not sent, bus-off)
     REJECTED = "rejected"  # the program does not fit the cell (nothing moved)
-    CONFIGURATION_ERROR = "configuration_error"  # a drive refused its configuration or enable
+    CONFIGURATION_ERROR = "configuration_error"  # a drive refused its configuration, enable or homing settings
+    HOMING_ERROR = "homing_error"  # a drive reported a homing error (statusword bit 13)
+    TIMEOUT = "timeout"  # a homing stage was not done within its timeout
 
     @property
     def ok(self) -> bool:
-        return self is Result.FINISHED
+        return self in (Result.FINISHED, Result.HOMED)
+
+    @property
+    def is_fault(self) -> bool:
+        """A drive failed or would not take its settings: the cell stays faulted until someone
+        recovers it (a stop, a refusal, a homing error or timeout leave it usable)."""
+        return self in _FAULTS
 
 
-@dataclass
-class AxisReport:
-    """Per axis, after a run."""
-
-    joint: str
-    node_id: int
-    profile: str
-    state: str
-    statusword: int
-    position: int | None  # qc (0x6064)
-    target_position: int | None  # qc: the program's last record
-    feed: FeedStats
-    start_sync: int | None  # absolute SYNC number at which the drive first reported ip mode active
-    buffer_status: int = 0
-    last_emcy: tuple[int, str] | None = None
-    joint_position: float | None = None  # ``position`` in joint units (rad or m), through the axis scaling
+_FAULTS = frozenset(
+    {Result.DRIVE_FAULT, Result.EMCY, Result.HEARTBEAT_LOST, Result.LOST_SYNC, Result.CONFIGURATION_ERROR}
+)
 
 
 @dataclass
@@ -115,7 +114,7 @@ class AxisStatus:
     joint: str
     node_id: int
     profile: str
-    state: str
+    state: PowerState
     statusword: int
     position: int | None
     buffer_status: int
@@ -124,6 +123,16 @@ class AxisStatus:
     last_emcy: tuple[int, str] | None
     nmt_state: int | None
     homed: bool = True  # nothing to home, or homed since its drive last booted
+
+
+@dataclass(frozen=True, kw_only=True)
+class AxisReport(AxisStatus):
+    """Per axis, after a run: what its drive says then (``AxisStatus``) and what the run did."""
+
+    target_position: int | None  # qc: the program's last record
+    feed: FeedStats
+    start_sync: int | None  # absolute SYNC number at which the drive first reported ip mode active
+    joint_position: float | None = None  # ``position`` in joint units (rad or m), through the axis scaling
 
 
 @dataclass(frozen=True)
@@ -143,7 +152,7 @@ class Progress:
     elapsed_ms: float
     positions: tuple[int | None, ...]
     levels: tuple[int | None, ...]
-    states: tuple[str, ...]
+    states: tuple[PowerState, ...]
     statuswords: tuple[int, ...] = ()
 
 

@@ -68,8 +68,8 @@ class CartesianResult(Enum):
     JOINT_LIMIT = "joint_limit"  # a line that needs a joint past its position limit
 
 
-class Motion(StrEnum):
-    """How the tool goes from pose to pose."""
+class MoveKind(StrEnum):
+    """How the tool goes from pose to pose (a plan request's ``motion``)."""
 
     LINEAR = "linear"  # straight lines, orientation by slerp
     JOINT = "joint"  # a joint path through the inverse-kinematics solutions
@@ -191,7 +191,7 @@ class ToolPath:
     path: JointPath
     pose_of: NDArray[np.int64]
     fraction: NDArray[np.float64]
-    motion: Motion
+    motion: MoveKind
 
 
 class PoseSolver:
@@ -210,15 +210,15 @@ class PoseSolver:
         mid = 0.5 * (lo + hi)
         return np.vstack((mid, lo + (hi - lo) * rng.uniform(0.1, 0.9, (RESTARTS, len(lo)))))
 
-    def solve(self, start: ArrayLike, poses: ArrayLike, motion: Motion | str = Motion.LINEAR) -> ToolPath:
+    def solve(self, start: ArrayLike, poses: ArrayLike, motion: MoveKind | str = MoveKind.LINEAR) -> ToolPath:
         """The joint waypoints of the motion from joint positions ``start`` through ``poses``."""
-        motion = Motion(motion)
+        motion = MoveKind(motion)
         p = check_poses(poses)
         q0 = np.asarray(start, dtype=float)
         if q0.shape != self.ik.lower.shape or not np.all(np.isfinite(q0)):
             raise PlanError(PlanResult.INVALID_INPUT, f"start must be {len(self.ik.lower)} finite joint values")
         targets = [pose_placement(v) for v in p]
-        if motion is Motion.LINEAR:
+        if motion is MoveKind.LINEAR:
             return self._linear(q0, targets)
         return self._joint(q0, targets)
 
@@ -275,7 +275,7 @@ class PoseSolver:
                 if dp > m * tol.position or dr > m * tol.orientation:
                     bad.append((k, path(0.5 * (s[k] + s[k + 1]))))
             if not bad:
-                return ToolPath(path, np.array(pose_of), np.array(fraction), Motion.LINEAR)
+                return ToolPath(path, np.array(pose_of), np.array(fraction), MoveKind.LINEAR)
             for k, q in reversed(bad):  # from the end: the indices before k stay valid
                 pose = pose_of[k + 1]
                 u0 = fraction[k] if pose_of[k] == pose else 0.0
@@ -445,7 +445,7 @@ class PoseSolver:
             here = target
         if len(qs) < 2:
             raise PlanError(PlanResult.REPEATED_WAYPOINT, "the tool is already at every pose: nothing to move")
-        return ToolPath(JointPath(np.array(qs), self.limits), np.array(pose_of), np.ones(len(qs)), Motion.JOINT)
+        return ToolPath(JointPath(np.array(qs), self.limits), np.array(pose_of), np.ones(len(qs)), MoveKind.JOINT)
 
 
 __all__ = [
@@ -453,7 +453,7 @@ __all__ = [
     "QUATERNION_TOLERANCE",
     "CartesianResult",
     "LineTolerance",
-    "Motion",
+    "MoveKind",
     "PoseSolver",
     "ToolLine",
     "ToolPath",

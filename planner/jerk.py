@@ -22,12 +22,13 @@ a nonlinear program, warm-started from the TOPP-RA solution:
   with the frame's speed factor of the interval's midpoint in s, in the middle;
 - objective: the duration, sum of h_k.
 
-The program is a discrete optimal control problem (state (sd, a), control (h, j)), which is
-the structure fatrop's Riccati-based interior point exploits: about 4 times cheaper per
-iteration than ipopt with MUMPS here. Where fatrop does not converge, ipopt is tried from the
-same start; where neither does, the plan is refused with the solvers' statuses. The variables
-are scaled by their typical magnitudes (``_scales``: fatrop does not scale a program) and the
-start is slowed down to well inside the jerk rows (``_start``): both cut the solve time's tail.
+The program is a discrete optimal control problem (state (sd, a), control (h, j)), which is the
+structure fatrop's Riccati-based interior point exploits: its iteration solves the stages in
+sequence, where ipopt's general sparse factorization (MUMPS) does not know them. Where fatrop does
+not converge, ipopt is tried from the same start; where neither does, the plan is refused with the
+solvers' statuses. The variables are scaled by their typical magnitudes (``_scales``: fatrop does
+not scale a program) and the start is slowed down to well inside the jerk rows (``_start``): both
+cut the solve time's tail.
 
 After the solve the trajectory is checked densely (``JerkTrajectory.limit_ratios``,
 ``speed_ratio``), and slowed down uniformly where a sample between the rows exceeds a limit
@@ -47,7 +48,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
@@ -57,6 +58,7 @@ from numpy.typing import ArrayLike, NDArray
 from planner.limits import JointLimits
 from planner.path import JointPath, PlanError, PlanResult
 from planner.scurve import rest_to_rest
+from planner.slowdown import SLOWDOWN_MARGIN, slowdown
 from planner.timing import (
     IntervalJointAccelerationConstraint,
     IntervalJointVelocityConstraint,
@@ -65,6 +67,7 @@ from planner.timing import (
     TcpSpeedConstraint,
     Trajectory,
 )
+from planner.trajectory import PathTiming
 
 DEFAULT_JERK_INTERVALS = 48
 _CHECK_SUBSAMPLES = 32
@@ -89,7 +92,7 @@ def _interval_coefficients(path: JointPath, grid: NDArray[np.float64]) -> tuple[
 
 
 @dataclass(frozen=True)
-class JerkTrajectory:
+class JerkTrajectory(PathTiming):
     """q(t) = path(s(t)) with s''' constant between gridpoints: numbers in, numbers out.
 
     Provides what knot placement takes of a trajectory (planner.knots.TimedTrajectory) and what
@@ -109,18 +112,11 @@ class JerkTrajectory:
     optimal: bool = True  # False: the deadline came first, this is the best timing found by then
     lower_bound: float = 0.0  # s: no timing of this path under these limits is shorter (TOPP-RA's duration)
     coefficients: tuple[NDArray[np.float64], ...] = field(default=(), repr=False, compare=False)
+    check_subsamples: ClassVar[int] = _CHECK_SUBSAMPLES
 
     def __post_init__(self) -> None:
         if not self.coefficients:
             object.__setattr__(self, "coefficients", _interval_coefficients(self.path, self.gridpoints))
-
-    @property
-    def duration(self) -> float:
-        return float(self.breakpoints[-1])
-
-    @property
-    def dof(self) -> int:
-        return len(self.joint_names)
 
     @property
     def waypoint_times(self) -> NDArray[np.float64]:
@@ -198,17 +194,6 @@ class JerkTrajectory:
         a_end = self.sdd[:-1] + self.sddd * h
         q_s = self.coefficients[1][1:]
         return self.breakpoints[1:-1], np.abs(q_s * (self.sdd[1:-1] - a_end[:-1])[:, None])
-
-    def check_times(self, subsamples: int = _CHECK_SUBSAMPLES) -> NDArray[np.float64]:
-        """Gridpoint times plus ``subsamples`` times inside every interval, one-sided at its ends
-        (the jerk of both intervals at a gridpoint)."""
-        f = np.arange(subsamples + 2) / (subsamples + 1)
-        bp = self.breakpoints
-        eps = 1e-9 * max(self.duration, 1.0)
-        inner = bp[:-1, None] + np.diff(bp)[:, None] * f[None, :]
-        inner[:, 0] += eps
-        inner[:, -1] -= eps
-        return inner.ravel()
 
     def limit_ratios(self, limits: JointLimits, max_jerk: ArrayLike) -> tuple[float, float, float]:
         """Worst |q'|/vmax, |q''|/amax and |q'''|/max_jerk over the check times, and for the velocity
@@ -587,7 +572,7 @@ def _parameters(rows: _Rows, limits: JointLimits, max_jerk: NDArray[np.float64])
 def _scales(start: NDArray[np.float64]) -> NDArray[np.float64]:
     """A typical magnitude of each of a stage's variables (the 90th percentile of its |start| over
     the stages, 1 where that is 0): fatrop, unlike ipopt, does not scale a program itself, and the
-    jerk s''' is 1e3-1e4 times the times h here."""
+    jerk s''' is orders of magnitude larger than the times h."""
     width = len(_STATE) + len(_CONTROL)
     stages = np.append(start, np.zeros(len(_CONTROL))).reshape(-1, width)[:-1]
     typical = np.percentile(np.abs(stages), 90, axis=0)
@@ -704,11 +689,11 @@ def _checked(
     if traj.min_path_velocity() < -1e-6 * max(np.max(traj.sd), 1e-9):
         raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing reverses along the path", solver=traj.solver)
     rv, ra, rj = traj.limit_ratios(limits, jmax)
-    factors = (rv, np.sqrt(ra), np.cbrt(rj), traj.speed_ratio(constraints))
+    factors = (slowdown(rv, ra), np.cbrt(rj), traj.speed_ratio(constraints))
     if not np.all(np.isfinite(factors)):  # a solver's "success" that is no motion: never handed on
         raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing returned no finite motion", solver=traj.solver)
     k = max(factors)
-    return traj.slowed(k * (1.0 + 1e-9)) if k > 1.0 else traj
+    return traj.slowed(k * (1.0 + SLOWDOWN_MARGIN)) if k > 1.0 else traj
 
 
 def jerk_limited(

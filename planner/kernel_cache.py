@@ -29,6 +29,7 @@ KERNEL_SOURCES = (
             "knot_kernels.py",
             "lean_toppra.py",
             "path.py",
+            "slowdown.py",
             "trajectory.py",
             "validate.py",
         )

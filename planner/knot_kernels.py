@@ -28,6 +28,7 @@ from axes.interpolation import (
     linear_step_acceleration,
 )
 from axes.program import TIME_MAX_MS
+from planner.slowdown import slowdown
 
 _F = NDArray[np.float64]
 _I = NDArray[np.int64]
@@ -695,12 +696,6 @@ def _fp_judge(
 
 
 @njit(cache=True)
-def _slowdown(rv: float, ra: float) -> float:
-    """The slow-down a segment calls for: velocities scale with 1/k, accelerations with 1/k^2."""
-    return max(rv, np.sqrt(ra))
-
-
-@njit(cache=True)
 def fixed_period_ratios(
     kind: int,
     p: _F,
@@ -777,7 +772,7 @@ def track_fixed_period(
     plain = 1.0
     near = np.zeros(L, dtype=np.int64)  # per point: how far it may move off its rounding
     for w in range(len(rv)):
-        need = _slowdown(rv[w], ra[w])
+        need = slowdown(rv[w], ra[w])
         if not need <= 1.0 + LIMIT_RTOL:
             plain = max(plain, need)
             for j in range(max(w - reach, 0), min(w + W - 1 + reach, L - 1) + 1):
@@ -827,7 +822,7 @@ def track_fixed_period(
                 r_v, r_a, D[j] = _fp_judge(
                     kind, q[0], q[1], q[2], q[3], u[0], u[1], T, k0, n, plan, rv_per, ra_per, pos_lo, pos_hi
                 )
-                R[j] = _slowdown(r_v, r_a)
+                R[j] = slowdown(r_v, r_a)
                 s_next = (s % kept) * nc[i] + c
                 B_next[s_next] = min(B_next[s_next], max(B[s], R[j]))
         B = B_next

@@ -14,7 +14,7 @@ import numpy as np
 import toppra.constraint as constraint
 from numpy.typing import ArrayLike, NDArray
 
-from planner.cartesian import CartesianResult, Motion, PoseSolver, ToolPath
+from planner.cartesian import CartesianResult, MoveKind, PoseSolver, ToolPath
 from planner.ik import IkSolver
 from planner.limits import JointLimits, check_max_jerk, check_scale
 from planner.model import RobotModel
@@ -65,7 +65,7 @@ class PlanInput:
 
     waypoints: ArrayLike
     poses: ArrayLike | None = None
-    motion: str | Motion = Motion.LINEAR
+    motion: str | MoveKind = MoveKind.LINEAR
     velocity_scale: float = 1.0  # speed override in (0, 1]: the joint velocity limits planned with
     acceleration_scale: float = 1.0  # the same for the joint acceleration limits
     max_jerk: ArrayLike | None = None  # joint units / s^3, one per joint (inf: unlimited); None: the planner's
@@ -223,7 +223,7 @@ class Planner:
         self,
         start: ArrayLike,
         poses: ArrayLike,
-        motion: str | Motion,
+        motion: str | MoveKind,
         velocity_scale: float,
         acceleration_scale: float,
         max_jerk: ArrayLike | None,
@@ -236,9 +236,9 @@ class Planner:
         if self.poses is None:
             return PlanOutput(PlanResult.INVALID_INPUT, "tool poses need the robot model and its tcp_frame")
         try:
-            kind = Motion(motion)
+            kind = MoveKind(motion)
         except ValueError:
-            choices = ", ".join(m.value for m in Motion)
+            choices = ", ".join(m.value for m in MoveKind)
             return PlanOutput(PlanResult.INVALID_INPUT, f"motion must be one of {choices}, got {motion!r}")
         try:
             limits, constraints = self._scaled(velocity_scale, acceleration_scale)

@@ -36,6 +36,7 @@ from planner.constraints import (
 from planner.lean_toppra import LeanTOPPRA
 from planner.limits import JointLimits
 from planner.path import JointPath, PlanError, PlanResult
+from planner.slowdown import SLOWDOWN_MARGIN, slowdown
 from planner.trajectory import Trajectory
 
 DEFAULT_GRIDPOINTS = 140
@@ -82,9 +83,9 @@ def _solve(
         raise PlanError(PlanResult.INFEASIBLE, "no trajectory along this path satisfies the limits (TOPP-RA failed)")
     traj = Trajectory.from_path_velocities(path, grid, np.asarray(sd, dtype=float), limits.names)
     rv, ra = traj.limit_ratios(limits)
-    k = max(rv, np.sqrt(ra))
+    k = slowdown(rv, ra)
     if k > 1.0:
-        traj = traj.slowed(k * (1.0 + 1e-9))
+        traj = traj.slowed(k * (1.0 + SLOWDOWN_MARGIN))
     return traj
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from numba import njit
@@ -151,8 +152,42 @@ def _interval_peaks(
     return rv, ra
 
 
+class PathTiming:
+    """What every timing of a path shares, q(t) = path(s(t)) on a grid: TOPP-RA's (``Trajectory``,
+    s'' constant between gridpoints) and the jerk-limited one (``planner.jerk.JerkTrajectory``, the
+    third derivative of s constant). ``breakpoints`` are the gridpoints' times; the dense checks look
+    inside every interval at ``check_subsamples`` times (more where the profile is of higher degree)."""
+
+    path: JointPath
+    gridpoints: NDArray[np.float64]  # s at the grid
+    sd: NDArray[np.float64]  # s' at the grid
+    breakpoints: NDArray[np.float64]  # t at the grid [s]
+    joint_names: tuple[str, ...]
+    check_subsamples: ClassVar[int] = _CHECK_SUBSAMPLES
+
+    @property
+    def duration(self) -> float:
+        return float(self.breakpoints[-1])
+
+    @property
+    def dof(self) -> int:
+        return len(self.joint_names)
+
+    def check_times(self, subsamples: int | None = None) -> NDArray[np.float64]:
+        """Gridpoint times plus ``subsamples`` (default ``check_subsamples``) evenly spaced times inside
+        every interval, one-sided at its ends: both sides of a switch at a gridpoint are seen."""
+        n = self.check_subsamples if subsamples is None else subsamples
+        f = np.arange(n + 2) / (n + 1)
+        bp = self.breakpoints
+        eps = 1e-9 * max(self.duration, 1.0)
+        inner = bp[:-1, None] + np.diff(bp)[:, None] * f[None, :]
+        inner[:, 0] += eps
+        inner[:, -1] -= eps
+        return inner.ravel()
+
+
 @dataclass(frozen=True)
-class Trajectory:
+class Trajectory(PathTiming):
     """q(t) = path(s(t)) with s'' constant between gridpoints: numbers in, numbers out.
 
     ``breakpoints`` are the times of the gridpoints: the joint acceleration is continuous between
@@ -192,14 +227,6 @@ class Trajectory:
             self.joint_names,
             self.time_scale * k,
         )
-
-    @property
-    def duration(self) -> float:
-        return float(self.breakpoints[-1])
-
-    @property
-    def dof(self) -> int:
-        return len(self.joint_names)
 
     @property
     def waypoint_times(self) -> NDArray[np.float64]:
@@ -264,17 +291,6 @@ class Trajectory:
         q_s, q_ss = self.path.on_piece_of(start, s, 1), self.path.on_piece_of(start, s, 2)
         qdd = q_ss * (sd * sd)[:, None] + q_s * sdd[:, None]
         return qdd[0] if scalar else qdd
-
-    def check_times(self, subsamples: int = _CHECK_SUBSAMPLES) -> NDArray[np.float64]:
-        """Gridpoint times plus ``subsamples`` evenly spaced times inside every interval (one-sided
-        at the ends so that both accelerations of a switch are seen)."""
-        f = np.arange(subsamples + 2) / (subsamples + 1)
-        bp = self.breakpoints
-        eps = 1e-9 * max(self.duration, 1.0)
-        inner = bp[:-1, None] + np.diff(bp)[:, None] * f[None, :]
-        inner[:, 0] += eps
-        inner[:, -1] -= eps
-        return inner.ravel()
 
     def limit_ratios(self, limits: JointLimits) -> tuple[float, float]:
         """Worst |qd|/vmax and |qdd|/amax over the check times and at their peaks inside every grid

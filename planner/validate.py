@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -56,8 +57,28 @@ from axes.interpolation import (
 from axes.program import FIXED_PERIOD_PROFILES, TIME_MAX_MS, AxisProgram, PvtProgram
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 
-ERROR = "error"
-WARNING = "warning"
+
+class Severity(StrEnum):
+    """What a finding means for the drive: an error makes it refuse or fault, a warning only sets a bit."""
+
+    ERROR = "error"
+    WARNING = "warning"
+
+
+class Rule(StrEnum):
+    """The stable rule codes of the findings (the table in the module docstring)."""
+
+    RECORD_RANGE = "record-range"
+    TIME_RANGE = "time-range"
+    START_RECORD = "start-record"
+    END_RECORD = "end-record"
+    PERIOD = "period"
+    POSITION_LIMIT = "position-limit"
+    VELOCITY_LIMIT = "velocity-limit"
+    ACCELERATION_LIMIT = "acceleration-limit"
+    PROFILE_VELOCITY = "profile-velocity"
+    PROFILE_ACCELERATION = "profile-acceleration"
+
 
 # At most this many findings of one rule per axis are listed in the text report.
 _TEXT_FINDINGS_PER_RULE = 8
@@ -72,8 +93,8 @@ class Finding:
     much the value exceeds the limit, in ``unit``; ``value``/``limit`` are the numbers compared.
     """
 
-    severity: str
-    rule: str
+    severity: Severity
+    rule: Rule
     axis: str
     record: int | None
     message: str
@@ -201,7 +222,7 @@ def validate_program(
     for axis, r, screen in zip(program.axes, records, _screen(program.axes, records), strict=True):
         found, summary = _validate_axis(axis, r, sample_period_ms, screen)
         for f in found:
-            (errors if f.severity == ERROR else warnings).append(f)
+            (errors if f.severity == Severity.ERROR else warnings).append(f)
         summaries.append(summary)
     return ValidationReport(program.cell, tuple(errors), tuple(warnings), tuple(summaries), source)
 
@@ -332,8 +353,8 @@ def _validate_axis(
         bare = _bare_summary(axis, r)
         out.append(
             Finding(
-                ERROR,
-                "record-range",
+                Severity.ERROR,
+                Rule.RECORD_RANGE,
                 axis.name,
                 None,
                 f"needs at least 2 records [position_qc, velocity, time_ms], has {len(r)}"
@@ -364,8 +385,8 @@ def _check_ranges(name: str, r: NDArray[np.int64]) -> list[Finding]:
             over = v - hi if v > hi else lo - v
             out.append(
                 Finding(
-                    ERROR,
-                    "record-range",
+                    Severity.ERROR,
+                    Rule.RECORD_RANGE,
                     name,
                     int(k),
                     f"{what} {v} {unit} is outside {kind} [{lo}, {hi}] by {over}",
@@ -384,8 +405,8 @@ def _check_start_at_rest(name: str, r: NDArray[np.int64]) -> list[Finding]:
         return []
     return [
         Finding(
-            ERROR,
-            "start-record",
+            Severity.ERROR,
+            Rule.START_RECORD,
             name,
             0,
             f"the start record must have velocity 0 (the axis is at rest), has {int(r[0, 1])}",
@@ -406,8 +427,8 @@ def _check_epos2(name: str, r: NDArray[np.int64], bad_inner_times: list[int]) ->
     if not 1 <= r[0, 2] <= TIME_MAX_MS:
         out.append(
             Finding(
-                ERROR,
-                "time-range",
+                Severity.ERROR,
+                Rule.TIME_RANGE,
                 name,
                 0,
                 f"the start record's time (dwell before the first segment) must be in 1..255 ms, is {int(r[0, 2])}",
@@ -422,8 +443,8 @@ def _check_epos2(name: str, r: NDArray[np.int64], bad_inner_times: list[int]) ->
         if t == 0:
             out.append(
                 Finding(
-                    ERROR,
-                    "time-range",
+                    Severity.ERROR,
+                    Rule.TIME_RANGE,
                     name,
                     k,
                     f"time 0 ends interpolation here, before the last record: records {k + 1}..{n - 1} would never run",
@@ -437,8 +458,8 @@ def _check_epos2(name: str, r: NDArray[np.int64], bad_inner_times: list[int]) ->
             over = 1 - t if t < 1 else t - TIME_MAX_MS
             out.append(
                 Finding(
-                    ERROR,
-                    "time-range",
+                    Severity.ERROR,
+                    Rule.TIME_RANGE,
                     name,
                     k,
                     f"segment time {t} ms is outside 1..255 ms by {over}",
@@ -452,8 +473,8 @@ def _check_epos2(name: str, r: NDArray[np.int64], bad_inner_times: list[int]) ->
     if r[last, 2] != 0:
         out.append(
             Finding(
-                ERROR,
-                "end-record",
+                Severity.ERROR,
+                Rule.END_RECORD,
                 name,
                 last,
                 f"the last record must have time 0 (it ends interpolation; without it the drive "
@@ -465,8 +486,8 @@ def _check_epos2(name: str, r: NDArray[np.int64], bad_inner_times: list[int]) ->
             k = last if r[last, 1] != 0 else last - 1
             out.append(
                 Finding(
-                    ERROR,
-                    "end-record",
+                    Severity.ERROR,
+                    Rule.END_RECORD,
                     name,
                     k,
                     f"the motion must end at rest: record {k} has velocity {int(r[k, 1])}",
@@ -481,7 +502,7 @@ def _check_epos2(name: str, r: NDArray[np.int64], bad_inner_times: list[int]) ->
     return out
 
 
-def _repeats_final_position(name: str, r: NDArray[np.int64], rule: str) -> list[Finding]:
+def _repeats_final_position(name: str, r: NDArray[np.int64], rule: Rule) -> list[Finding]:
     """The end-record finding when the last record does not repeat the one before's position
     (``rule`` words it for the profile, ``{}`` for that position)."""
     last = len(r) - 1
@@ -490,8 +511,8 @@ def _repeats_final_position(name: str, r: NDArray[np.int64], rule: str) -> list[
     d = int(r[last, 0] - r[last - 1, 0])
     return [
         Finding(
-            ERROR,
-            "end-record",
+            Severity.ERROR,
+            Rule.END_RECORD,
             name,
             last,
             rule.format(int(r[last - 1, 0])) + f", differs by {d} qc",
@@ -511,8 +532,8 @@ def _check_fixed_period(axis: AxisProgram, r: NDArray[np.int64]) -> list[Finding
     if not 1 <= period <= TIME_MAX_MS:
         out.append(
             Finding(
-                ERROR,
-                "period",
+                Severity.ERROR,
+                Rule.PERIOD,
                 name,
                 0,
                 f"the period (time of every record) must be in 1..255 ms, is {period}",
@@ -527,8 +548,8 @@ def _check_fixed_period(axis: AxisProgram, r: NDArray[np.int64]) -> list[Finding
             d = int(r[k, 2]) - period
             out.append(
                 Finding(
-                    ERROR,
-                    "period",
+                    Severity.ERROR,
+                    Rule.PERIOD,
                     name,
                     int(k),
                     f"time {int(r[k, 2])} ms differs from the axis's period {period} ms by {d:+d} ms "
@@ -544,8 +565,8 @@ def _check_fixed_period(axis: AxisProgram, r: NDArray[np.int64]) -> list[Finding
     if r[last, 1] != 0:
         out.append(
             Finding(
-                ERROR,
-                "end-record",
+                Severity.ERROR,
+                Rule.END_RECORD,
                 name,
                 last,
                 f"the motion must end at rest: the last record has velocity {int(r[last, 1])}",
@@ -605,8 +626,8 @@ class _MotionLimit(NamedTuple):
     """A limit on |velocity| or |acceleration| along the reconstruction, and how a breach is reported."""
 
     kind: str  # "velocity" or "acceleration"
-    rule: str
-    severity: str
+    rule: Rule
+    severity: Severity
     limit: float
     obj: str
     unit: str
@@ -616,15 +637,24 @@ def _motion_limits(axis: AxisProgram) -> list[_MotionLimit]:
     """0x607F and 0x60C5 (errors), and 0x6081 and 0x6083 where the axis has them (warnings)."""
     lim = axis.limits
     out = [
-        _MotionLimit("velocity", "velocity-limit", ERROR, lim.max_profile_velocity_rpm, "0x607F", "rpm"),
-        _MotionLimit("acceleration", "acceleration-limit", ERROR, lim.max_acceleration_rpm_s, "0x60C5", "rpm/s"),
+        _MotionLimit("velocity", Rule.VELOCITY_LIMIT, Severity.ERROR, lim.max_profile_velocity_rpm, "0x607F", "rpm"),
+        _MotionLimit(
+            "acceleration", Rule.ACCELERATION_LIMIT, Severity.ERROR, lim.max_acceleration_rpm_s, "0x60C5", "rpm/s"
+        ),
     ]
     if lim.profile_velocity_rpm is not None:
-        out.append(_MotionLimit("velocity", "profile-velocity", WARNING, lim.profile_velocity_rpm, "0x6081", "rpm"))
+        out.append(
+            _MotionLimit("velocity", Rule.PROFILE_VELOCITY, Severity.WARNING, lim.profile_velocity_rpm, "0x6081", "rpm")
+        )
     if lim.profile_acceleration_rpm_s is not None:
         out.append(
             _MotionLimit(
-                "acceleration", "profile-acceleration", WARNING, lim.profile_acceleration_rpm_s, "0x6083", "rpm/s"
+                "acceleration",
+                Rule.PROFILE_ACCELERATION,
+                Severity.WARNING,
+                lim.profile_acceleration_rpm_s,
+                "0x6083",
+                "rpm/s",
             )
         )
     return out
@@ -671,8 +701,8 @@ def _linear_spans(axis: AxisProgram, recon: PiecewiseCubic) -> list[Finding]:
     limit = axis.limits.max_acceleration_rpm_s
     return [
         Finding(
-            ERROR,
-            "acceleration-limit",
+            Severity.ERROR,
+            Rule.ACCELERATION_LIMIT,
             axis.name,
             int(last),
             f"the velocity changes by {excess + allowed + rounding:.4g} qc/ms over the {last - first + 1} periods "
@@ -722,8 +752,8 @@ def _check_motion(
 
     def over_limit(
         kind: str,
-        rule: str,
-        severity: str,
+        rule: Rule,
+        severity: Severity,
         seg: NDArray[np.float64],
         sampled: NDArray[np.float64],
         limit: float,
@@ -771,8 +801,8 @@ def _check_motion(
             value, limit, side = float(lo[k]), float(lim.min_position_qc), "below 0x607D:01"
         out.append(
             Finding(
-                ERROR,
-                "position-limit",
+                Severity.ERROR,
+                Rule.POSITION_LIMIT,
                 name,
                 int(records_of_segment[k]),
                 f"position reaches {value:.1f} qc on the segment ending here ({recon.start[k]:.0f}.."

@@ -1,8 +1,10 @@
-"""The cell's bus for a command that runs without the service (``pvtflow execute``, ``pvtflow home``).
+"""The cell's bus, opened in one place for the service (``MotionService``) and for the commands that
+run without it (``pvtflow execute``, ``home``, ``commission``).
 
-Both take the same options and open the bus the same way: the simulated drives first where the
-cell is simulated, SYNC in lockstep with them unless ``--real-time``, every frame recorded with
-``--can-log``; and both close it the same way, whatever happened in between.
+Every one opens it the same way: the simulated drives first where the cell is simulated, SYNC in
+lockstep with them unless on the wall clock (``--real-time``), every frame recorded with
+``--can-log``; the commands take the same options and close it the same way, whatever happened in
+between.
 """
 
 from __future__ import annotations
@@ -10,8 +12,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
 
 from axes.bus import BusError, CellBus
+from service.cli_options import add_can_log, add_config, add_real_time
 from service.config import CellConfig
 
 
@@ -21,8 +26,8 @@ class CellBusError(Exception):
 
 def add_bus_options(p: argparse.ArgumentParser) -> None:
     """--config, --can-log, --record, --quiet, --real-time: what every command that drives a cell alone takes."""
-    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
-    p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
+    add_config(p)
+    add_can_log(p)
     p.add_argument(
         "--record",
         metavar="FILE.mcap",
@@ -30,34 +35,37 @@ def add_bus_options(p: argparse.ArgumentParser) -> None:
         "(pvtflow report FILE.mcap; Foxglove)",
     )
     p.add_argument("--quiet", action="store_true", help="print the outcome only")
-    p.add_argument(
-        "--real-time",
-        action="store_true",
-        help="a simulated cell runs SYNC on the wall clock, as a real cell does (default there: lockstep, "
-        "faster than real time)",
-    )
+    add_real_time(p)
 
 
-@contextlib.contextmanager
-def open_cell_bus(cell: CellConfig, real_time: bool, can_log: str | None) -> Iterator[CellBus]:
-    """The cell's bus, open (its simulated drives started first where the cell is simulated); on
-    exit the bus closed and the simulated drives stopped. CellBusError where it cannot open."""
+def open_bus(cell: CellConfig, *, simulate: bool, lockstep: bool, can_log: str | Path | None) -> tuple[CellBus, Any]:
+    """The cell's bus, open, and its simulated drives (None unless ``simulate``), started first: SYNC
+    in ``lockstep`` with them or on the wall clock. The service keeps both for its life, a command for
+    one run (:func:`open_cell_bus`). CellBusError where the bus cannot open; nothing is left running then."""
     try:
-        bus = CellBus(cell.bus, lockstep=cell.simulated and not real_time, can_log=can_log)
+        bus = CellBus(cell.bus, lockstep=lockstep, can_log=can_log)
     except (ValueError, OSError) as exc:
         raise CellBusError(f"cannot write the CAN log {can_log}: {exc}") from None
     sim = None
     try:
-        if cell.simulated:
+        if simulate:
             from axes.sim.cell import SimulatedCell
 
-            sim = SimulatedCell(cell, clock="wall" if real_time else "lockstep").start()
+            sim = SimulatedCell(cell, clock="lockstep" if lockstep else "wall").start()
         bus.open()
     except (BusError, OSError) as exc:
         if sim is not None:
             sim.stop()
         bus.recorder.stop()
         raise CellBusError(str(exc)) from None
+    return bus, sim
+
+
+@contextlib.contextmanager
+def open_cell_bus(cell: CellConfig, real_time: bool, can_log: str | None) -> Iterator[CellBus]:
+    """The cell's bus, open (its simulated drives started first where the cell is simulated); on
+    exit the bus closed and the simulated drives stopped. CellBusError where it cannot open."""
+    bus, sim = open_bus(cell, simulate=cell.simulated, lockstep=cell.simulated and not real_time, can_log=can_log)
     try:
         yield bus
     finally:
@@ -68,8 +76,6 @@ def open_cell_bus(cell: CellConfig, real_time: bool, can_log: str | None) -> Ite
 
 def record_problem(path: str) -> str | None:
     """Why ``--record FILE`` cannot be written (one line), before anything is sent; None when it can."""
-    from pathlib import Path
-
     target = Path(path)
     if target.suffix.lower() != ".mcap":
         return f"--record {path}: the recording is an MCAP file: name it FILE.mcap"

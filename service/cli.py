@@ -16,8 +16,8 @@ from pathlib import Path
 
 # The planner's matrices are small: a multi-threaded BLAS gains nothing on them, and its workers
 # spin on the other cores after every call, taking them from the bus, simulated drives and zenoh
-# threads of a service (on a 2-core controller, one whole core). Set before numpy is loaded; the
-# user's own setting wins.
+# threads of a service (a controller has few cores). Set before numpy is loaded; the user's own
+# setting wins.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 # sub-command name -> module implementing it

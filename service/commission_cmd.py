@@ -19,6 +19,7 @@ from axes.commission import CheckKind, CommissionReport, commission
 from axes.profiles import AxisLink, DriveError, profile_for
 from service.cell_bus import CellBusError, open_cell_bus
 from service.cli import can_log_problem
+from service.cli_options import add_can_log, add_config, add_json, add_real_time
 from service.config import CellConfig, ConfigError, load_cell_config
 
 EXIT_OK, EXIT_MISMATCH, EXIT_CANNOT_START = 0, 1, 2
@@ -33,10 +34,10 @@ def add_parser(subparsers: Any) -> None:
         "PDO mappings and error history from every drive of the cell over SDO and compare them with the cell "
         "file. Nothing is written, nothing moves.",
     )
-    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
-    p.add_argument("--json", action="store_true", help="print the report as one JSON object")
-    p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
-    p.add_argument("--real-time", action="store_true", help="a simulated cell runs on the wall clock")
+    add_config(p)
+    add_json(p)
+    add_can_log(p)
+    add_real_time(p)
     p.set_defaults(run=run)
 
 

@@ -29,6 +29,7 @@ import pinocchio as pin
 from axes.bus import BusError
 from planner.cartesian import placement_pose
 from service.api import key
+from service.cli_options import add_config, add_real_time
 from service.config import CellConfig, ConfigError, load_cell_config
 from service.journal import JournalError
 from service.motion import MotionService
@@ -47,15 +48,10 @@ def add_parser(subparsers: Any) -> None:
         description="Start the arm6 demo cell's service on simulated drives, plan a tour through waypoints and "
         "run it through zenoh with a progress bar, then write a plot of the telemetry.",
     )
-    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
+    add_config(p)
     p.add_argument("--plot", metavar="OUT.png", default="pvtflow-demo.png", help="plot file (default %(default)s)")
     p.add_argument("--port", type=int, default=0, help="loopback TCP port of the service (default: a free one)")
-    p.add_argument(
-        "--real-time",
-        action="store_true",
-        help="SYNC on the wall clock instead of in lockstep with the "
-        "simulated drives (needs a machine fast enough for 1 kHz SYNC on every simulated drive)",
-    )
+    add_real_time(p)
     p.add_argument(
         "--journal", metavar="DIR", help="motion journal directory (default: a temporary one, removed at the end)"
     )

@@ -23,6 +23,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from service.api.wire import RunState
+
 JOURNAL_FILE = "journal.jsonl"
 
 
@@ -51,12 +53,11 @@ class MotionEntry:
     recording: str | None = None  # the motion's MCAP file (pvtflow serve --record DIR)
 
     def summary(self, running: bool = False) -> dict[str, Any]:
-        state = "ended" if self.outcome is not None else ("running" if running else "interrupted")
         return {
             "motion_id": self.motion_id,
             "plan_id": self.plan_id,
             "label": self.label,
-            "state": state,
+            "state": RunState.of(self.outcome is not None, running),
             "accepted_at": _iso(self.accepted_at),
             "ended_at": _iso(self.ended_at) if self.ended_at is not None else None,
             "duration_ms": self.duration_ms,
@@ -77,10 +78,9 @@ class HomingEntry:
     recording: str | None = None  # the homing's MCAP file (pvtflow serve --record DIR)
 
     def summary(self, running: bool = False) -> dict[str, Any]:
-        state = "ended" if self.outcome is not None else ("running" if running else "interrupted")
         return {
             "homing_id": self.homing_id,
-            "state": state,
+            "state": RunState.of(self.outcome is not None, running),
             "stages": self.stages,
             "accepted_at": _iso(self.accepted_at),
             "ended_at": _iso(self.ended_at) if self.ended_at is not None else None,

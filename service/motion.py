@@ -37,8 +37,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.bus import BusError, CellBus
+from axes.cia402 import PowerState
 from axes.group import AxisGroup
-from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError, HomingResult
+from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
 from axes.outcome import AxisStatus, Event, EventKind, GroupError, Progress, Result, RunResult
 from axes.profiles import DriveError
 from axes.program import ProgramFormatError, PvtProgram, program_mismatch
@@ -51,13 +52,16 @@ from service.api import (
     ExecuteRequest,
     HomeRequest,
     PlanRequest,
+    PlanStart,
     RecoverRequest,
+    RunState,
     StatusRequest,
     StopRequest,
     ValidateRequest,
     refusals,
 )
 from service.approach import away_from_start, plan_approach
+from service.cell_bus import CellBusError, open_bus
 from service.cell_planner import TIMEOUT, CellPlanner
 from service.config import CellConfig
 from service.journal import Journal, JournalError, MotionEntry, default_directory
@@ -68,10 +72,6 @@ from service.recording import Recorder
 Publish = Callable[[str, dict[str, Any]], None]
 log = logging.getLogger("pvtflow.motion")
 
-FAULT_RESULTS = frozenset(
-    {Result.DRIVE_FAULT, Result.EMCY, Result.HEARTBEAT_LOST, Result.LOST_SYNC, Result.CONFIGURATION_ERROR}
-)
-
 
 class ServiceEventKind(StrEnum):
     """The service's own ``events`` beside the axis group's (``axes.group.EventKind``)."""
@@ -80,17 +80,6 @@ class ServiceEventKind(StrEnum):
     MOTION_ENDED = "motion_ended"
     JOURNAL_ERROR = "journal_error"
     HOMING_ENDED = "homing_ended"  # with its outcome (the homing's steps: axes.homing.HomingEventKind)
-
-
-HOMING_FAULTS = frozenset(
-    {
-        HomingResult.DRIVE_FAULT,
-        HomingResult.EMCY,
-        HomingResult.HEARTBEAT_LOST,
-        HomingResult.LOST_SYNC,
-        HomingResult.CONFIGURATION_ERROR,
-    }
-)
 
 
 def _new_id(prefix: str) -> str:
@@ -126,7 +115,7 @@ class Motion:
             "motion_id": self.motion_id,
             "plan_id": self.plan_id,
             "label": self.label,
-            "state": "ended" if self.done.is_set() else "running",
+            "state": RunState.of(self.done.is_set()),
             "duration_ms": int(self.program.duration_ms),
             "start_sync": self.start_sync,
             "outcome": self.outcome,
@@ -147,7 +136,7 @@ class Homing:
     def summary(self) -> dict[str, Any]:
         return {
             "homing_id": self.homing_id,
-            "state": "ended" if self.done.is_set() else "running",
+            "state": RunState.of(self.done.is_set()),
             "stages": self.stages,
             "outcome": self.outcome.to_json() if self.outcome is not None else None,
         }
@@ -209,20 +198,17 @@ class MotionService:
         self._planner_lock = threading.Lock()  # the CellPlanner is not for concurrent use
         self._state_lock = threading.Lock()
         self._state_seq = 0
-        self._last_states: tuple[str, ...] = ()
+        self._last_states: tuple[PowerState, ...] = ()
         self._started: queue.Queue[Motion | None] = queue.Queue()
         self._watcher: threading.Thread | None = None
 
     # --- life cycle ------------------------------------------------------------------------------
     def open(self) -> MotionService:
         """Bus up (simulated drives first when the cell is simulated), drives configured, state read."""
-        self.bus = CellBus(self.cell.bus, lockstep=self.lockstep, can_log=self.can_log)
         try:
-            if self.simulate:
-                from axes.sim.cell import SimulatedCell
-
-                self.sim = SimulatedCell(self.cell, clock="lockstep" if self.lockstep else "wall").start()
-            self.bus.open()
+            self.bus, self.sim = open_bus(
+                self.cell, simulate=self.simulate, lockstep=self.lockstep, can_log=self.can_log
+            )
             self.group = AxisGroup(
                 self.bus,
                 self.axes,
@@ -232,7 +218,7 @@ class MotionService:
             )
             self.group.configure()
             self.group.refresh()
-        except (BusError, DriveError, OSError) as exc:
+        except (CellBusError, BusError, DriveError, OSError) as exc:
             self.close()
             raise BusError(f"cell {self.cell.name}: {exc}") from None
         self._last_states = tuple(a.state for a in self.group.status().axes)
@@ -327,7 +313,7 @@ class MotionService:
         }
         budget_ms = self.cell.planning.budget_ms if req.budget_ms is None else req.budget_ms
         if req.poses is not None:
-            if req.start == "home":
+            if req.start is PlanStart.HOME:
                 q0 = self.home_position()
             elif req.start_joints is not None:
                 q0 = req.start_joints
@@ -341,8 +327,8 @@ class MotionService:
             waypoints = result.waypoints if result.waypoints is not None else q0[None, :]
         else:
             waypoints = req.waypoints
-            if req.start in ("current", "home"):
-                if req.start == "home":
+            if req.start in (PlanStart.CURRENT, PlanStart.HOME):
+                if req.start is PlanStart.HOME:
                     q0 = self.home_position()
                 else:
                     self._refuse_unless_homed(self._group())
@@ -356,8 +342,8 @@ class MotionService:
                 if len(waypoints) < 2:
                     raise ApiError(
                         ErrorCode.PLAN_FAILED,
-                        f"the {'axes are' if req.start == 'current' else 'home position is'} already at the target: "
-                        "nothing to move",
+                        f"the {'home position is' if req.start is PlanStart.HOME else 'axes are'} already at the "
+                        "target: nothing to move",
                         {"result": "repeated_waypoint"},
                     )
             with self._planner_lock:
@@ -551,7 +537,7 @@ class MotionService:
                 f"cell {self.cell.name} is in fault ({self.fault_reason}): call recover first",
                 {"reason": self.fault_reason},
             )
-        faulted = [s for s in group.status().axes if _is_fault(s)]
+        faulted = [s for s in group.status().axes if s.state.is_fault]
         if faulted:
             s = faulted[0]
             raise ApiError(
@@ -615,7 +601,7 @@ class MotionService:
             self.publish(
                 "events", self.event_payload(ServiceEventKind.JOURNAL_ERROR, str(exc), motion_id=motion.motion_id)
             )
-        if result.result in FAULT_RESULTS:
+        if result.result.is_fault:
             self.fault_reason = result.message
             self._set_state(CellState.FAULT, motion.motion_id)
         else:
@@ -675,10 +661,10 @@ class MotionService:
         try:
             outcome = homer.run(homing.stages)
         except (GroupError, BusError, OSError) as exc:
-            outcome = HomingOutcome(HomingResult.CONFIGURATION_ERROR, f"homing failed: {exc}")
+            outcome = HomingOutcome(Result.CONFIGURATION_ERROR, f"homing failed: {exc}")
         except Exception as exc:  # never leave a homing without an end: the cell would stay "homing"
             log.exception("while homing %s", homing.homing_id)
-            outcome = HomingOutcome(HomingResult.CONFIGURATION_ERROR, f"homing failed: {type(exc).__name__}: {exc}")
+            outcome = HomingOutcome(Result.CONFIGURATION_ERROR, f"homing failed: {type(exc).__name__}: {exc}")
         homing.outcome = outcome
         if homing.recorder is not None:
             homing.recorder.close(outcome.to_json())
@@ -686,7 +672,7 @@ class MotionService:
             self.journal.record_homing_outcome(homing.homing_id, outcome.to_json())
         except JournalError as exc:
             self.publish("events", self.event_payload(ServiceEventKind.JOURNAL_ERROR, str(exc)))
-        if outcome.result in HOMING_FAULTS:
+        if outcome.result.is_fault:
             self.fault_reason = outcome.message
             self._set_state(CellState.FAULT, None)
         else:
@@ -826,7 +812,7 @@ class MotionService:
             if s.last_emcy is None
             else {"code": s.last_emcy[0], "code_hex": f"0x{s.last_emcy[0]:04X}", "message": s.last_emcy[1]},
             "nmt_state": s.nmt_state,
-            "fault": _is_fault(s),
+            "fault": s.state.is_fault,
             "homing": axis.homing is not None,
             "homed": s.homed,
         }
@@ -941,7 +927,3 @@ class MotionService:
 def _plain(details: dict[str, Any]) -> dict[str, Any]:
     """A planner's error details as JSON values (numbers, strings)."""
     return {k: v if isinstance(v, str | int | float | bool) or v is None else str(v) for k, v in details.items()}
-
-
-def _is_fault(s: AxisStatus) -> bool:
-    return "FAULT" in s.state.upper()

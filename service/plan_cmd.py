@@ -24,6 +24,7 @@ from planner.limits import check_max_jerk, check_scale
 from planner.plan import PlanInput
 from service.api import ApiError, ErrorCode, check_limits, refusals
 from service.cell_planner import TIMEOUT, CellPlanner
+from service.cli_options import add_config, add_json
 from service.config import CellConfig, ConfigError, load_cell_config
 from service.waypoints import PoseTargets, WaypointError, dropped_times_warning, load_motion
 
@@ -43,7 +44,7 @@ def add_parser(subparsers: Any) -> None:
         "(validated: the drives' own reconstruction stays inside their limits). Exit 0 written, "
         "1 cannot be planned, 2 unreadable input.",
     )
-    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the demo arm cell)")
+    add_config(p)
     p.add_argument(
         "--waypoints",
         metavar="FILE",
@@ -93,7 +94,7 @@ def add_parser(subparsers: Any) -> None:
         "by then with its best so far (not optimal: said in the summary); a plan past it for another reason is "
         "refused (timeout). A jerk-limited plan's casadi program is built before the deadline starts",
     )
-    p.add_argument("--json", action="store_true", help="print a JSON summary instead of text")
+    add_json(p)
     p.set_defaults(run=run)
 
 

@@ -9,8 +9,8 @@ costs one pipe round trip of a few kB of pickles. Same ``plan()`` as CellPlanner
 ``MotionService(planner_process=True)``; ``pvtflow serve`` uses it wherever SYNC runs on the wall
 clock (a real cell, ``--real-time``: there a GIL held by a plan would delay SYNC, records and a
 bufferless drive's setpoints by up to the switch interval) and not for lockstep simulations
-(``--planner-process on|off`` overrides). It costs a second interpreter (~2 s of start-up CPU,
-~150 MB) and ~0.5-4 ms per plan, and pays off while motions run.
+(``--planner-process on|off`` overrides). It costs a second interpreter (its start-up and memory)
+and a pipe round trip per plan (bench/service_latency.py), and pays off while motions run.
 As with any spawned process, the program's main module must be importable without side effects
 (``if __name__ == "__main__":``).
 """

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from service.cli_options import add_json
 from service.recording import ERROR, Recording, RecordingError, read_recording
 
 PROG = "pvtflow report"
@@ -31,7 +32,7 @@ def add_parser(subparsers: Any) -> None:
     )
     p.add_argument("recording", metavar="RUN.mcap", help="a recording written by pvtflow")
     p.add_argument("--plot", metavar="OUT.png", help="write planned vs actual, following error and buffers per axis")
-    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    add_json(p)
     p.set_defaults(run=run)
 
 

@@ -1,11 +1,11 @@
 """What a latency-bound service process does once it has started.
 
-A full collection of CPython's cyclic garbage collector walks every tracked object. After a
-service's start-up (numpy, scipy, Pinocchio, toppra, numba's kernels, zenoh, the cell's drives and
-planner) there are about 200,000 of them, and a full collection over them takes ~90 ms on the
-project's VM: a pause that any plan request or execute could land in (it was the 60-110 ms tail of
-``bench/service_latency.py``). Start-up objects live as long as the process, so they are moved out
-of the collector's reach once start-up is over; collections then walk only what came after.
+A full collection of CPython's cyclic garbage collector walks every tracked object, and a service's
+start-up (numpy, scipy, Pinocchio, toppra, numba's kernels, zenoh, the cell's drives and planner)
+leaves hundreds of thousands of them: a full collection over them is a pause that any plan request
+or execute could land in (the tail of ``bench/service_latency.py``, bench/RESULTS.md). Start-up
+objects live as long as the process, so they are moved out of the collector's reach once start-up is
+over; collections then walk only what came after.
 
 A process-wide policy, so the processes call it, not the library: ``pvtflow serve`` and ``demo``
 once their service is open, the planning child after its warm-up, and the benchmarks that stand

@@ -32,6 +32,7 @@ import zenoh
 from axes.bus import BusError
 from service.api import LIVELINESS, PUBLICATIONS, QUERYABLES, StopRequest, key
 from service.cli import can_log_problem
+from service.cli_options import add_can_log, add_config, add_real_time
 from service.config import ConfigError, load_cell_config
 from service.exposure import exposure
 from service.journal import JournalError
@@ -60,7 +61,7 @@ def add_parser(subparsers: Any) -> None:
         description="Run the motion service of one cell. The default configuration is the arm6 demo cell on "
         "simulated drives, listening on tcp/127.0.0.1:7447 without scouting.",
     )
-    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
+    add_config(p)
     p.add_argument(
         "--zenoh-config",
         metavar="FILE",
@@ -76,7 +77,7 @@ def add_parser(subparsers: Any) -> None:
         "listen endpoints; one beyond loopback needs authentication or --allow-unauthenticated, as in a config",
     )
     where.add_argument("--port", type=int, metavar="P", help="listen on tcp/127.0.0.1:P (the same as --listen)")
-    p.add_argument("--can-log", metavar="FILE", help="record every CAN frame (.log candump, .asc or .blf)")
+    add_can_log(p)
     p.add_argument(
         "--allow-unauthenticated",
         action="store_true",
@@ -113,13 +114,7 @@ def add_parser(subparsers: Any) -> None:
         "one more Python process. auto (default): on wherever SYNC runs on the wall clock (a real cell, "
         "--real-time), off for a lockstep simulation (its SYNC waits for the drives anyway)",
     )
-    p.add_argument(
-        "--real-time",
-        action="store_true",
-        help="simulated cell: SYNC on the wall clock instead of in "
-        "lockstep with the simulated drives (the default for them: as fast as they answer, so that a busy "
-        "machine slows the simulation down instead of faulting it); a real cell always runs in real time",
-    )
+    add_real_time(p)
     p.add_argument(
         "--telemetry-ms",
         type=float,

@@ -33,6 +33,7 @@ import can
 from axes.config import SIMULATED_WIRE, wire_options
 from axes.sim.cell import SimulatedCell
 from axes.sim.wire import serve_wire
+from service.cli_options import add_config
 from service.config import PYTHON_CAN_INTERFACES, CellConfig, ConfigError, load_cell_config
 
 EXIT_OK, EXIT_SIMULATOR_ERROR, EXIT_CANNOT_START = 0, 1, 2
@@ -55,7 +56,7 @@ def add_parser(subparsers: Any) -> None:
         "The default configuration is the arm6 demo cell; the virtual interface reaches this process only, "
         "so other tools need a real interface such as a Linux vcan (socketcan).",
     )
-    p.add_argument("--config", metavar="CELL", help="cell configuration YAML (default: the arm6 demo cell)")
+    add_config(p)
     p.add_argument("--interface", metavar="NAME", help="python-can interface instead of the cell's (e.g. socketcan)")
     p.add_argument("--channel", metavar="NAME", help="channel instead of the cell's (e.g. vcan0)")
     p.add_argument(

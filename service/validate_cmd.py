@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from axes.program import ProgramFormatError, PvtProgram
-from planner.validate import ValidationReport, validate_program
+from planner.validate import Rule, Severity, ValidationReport, validate_program
+from service.cli_options import add_json
 
 EXIT_VALID, EXIT_VIOLATIONS, EXIT_UNREADABLE = 0, 1, 2
 
@@ -31,7 +32,7 @@ def add_parser(subparsers: Any) -> None:
         "on the drives' own reconstruction of the records.",
     )
     p.add_argument("programs", nargs="+", metavar="PROGRAM", help="program file(s) or folder(s) of *.json")
-    p.add_argument("--json", action="store_true", help="print the report(s) as JSON on stdout")
+    add_json(p)
     p.add_argument(
         "--config",
         metavar="CELL",
@@ -275,8 +276,12 @@ def plot_program(program: PvtProgram, report: ValidationReport, out: Path) -> No
                 lim.profile_acceleration_rpm_s,
             ),
         )
-        rules = ("position-limit", "velocity-limit", "acceleration-limit")
-        for ax, (y, label, limit, profile), rule in zip(row, curves, rules, strict=True):
+        rules = (
+            {Rule.POSITION_LIMIT},
+            {Rule.VELOCITY_LIMIT, Rule.PROFILE_VELOCITY},
+            {Rule.ACCELERATION_LIMIT, Rule.PROFILE_ACCELERATION},
+        )
+        for ax, (y, label, limit, profile), shown in zip(row, curves, rules, strict=True):
             ax.plot(t, y, lw=1.0, color="tab:blue")
             if isinstance(limit, tuple):
                 for v in limit:
@@ -290,15 +295,14 @@ def plot_program(program: PvtProgram, report: ValidationReport, out: Path) -> No
             for f in report.findings:
                 if f.axis != axis.name or f.time_ms is None or f.record is None:
                     continue
-                kind = f.rule.removeprefix("profile-").removesuffix("-limit")
-                if not rule.startswith(kind):
+                if f.rule not in shown:
                     continue
                 k = f.record
                 ax.axvspan(
                     recon.start[k],
                     recon.start[k] + recon.duration[k],
                     alpha=0.3,
-                    color="red" if f.severity == "error" else "orange",
+                    color="red" if f.severity is Severity.ERROR else "orange",
                 )
             ax.set_ylabel(label, fontsize=8)
             ax.tick_params(labelsize=7)

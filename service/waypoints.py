@@ -34,7 +34,7 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
-from planner.cartesian import Motion, check_poses
+from planner.cartesian import MoveKind, check_poses
 from planner.path import PlanError
 
 POSE_FILE_FIELDS = ("poses", "motion", "start", "joint_names")
@@ -81,8 +81,8 @@ def poses_from_data(data: dict[str, Any], joint_names: Sequence[str], source: st
         poses = check_poses(rows)
     except PlanError as exc:
         raise WaypointError(f"{source}: poses: {exc.message}") from None
-    motion = data.get("motion", Motion.LINEAR.value)
-    if motion not in [m.value for m in Motion]:
+    motion = data.get("motion", MoveKind.LINEAR.value)
+    if motion not in [m.value for m in MoveKind]:
         raise WaypointError(f"{source}: motion: must be linear or joint, got {motion!r}")
     start = data.get("start", "current")
     if start == "current":

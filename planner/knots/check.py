@@ -7,7 +7,6 @@ reconstruction (``check_records``).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +16,7 @@ from axes.interpolation import PiecewiseCubic, exceeds
 from planner import knot_kernels as kernels
 from planner.knots.flat import Flat
 from planner.knots.types import AxisKnots, DriveAxis
+from planner.slowdown import KNOT_SLOWDOWN_MARGIN, slowdown
 
 
 @dataclass(frozen=True)
@@ -82,9 +82,9 @@ def over_limit(chk: Check) -> NDArray[np.bool_]:
 
 
 def needed_scale(rv: float, ra: float) -> float:
-    """Slowing down by k divides velocities by k and accelerations by k^2."""
-    k = max(rv, math.sqrt(max(ra, 0.0)))
-    return k * (1.0 + 1e-4) if exceeds(k, 1.0) else 1.0
+    """The slow-down the worst ratios of an axis's records call for (planner.slowdown), 1 where none."""
+    k = slowdown(rv, ra)
+    return k * (1.0 + KNOT_SLOWDOWN_MARGIN) if exceeds(k, 1.0) else 1.0
 
 
 NO_INT = np.zeros(0, dtype=np.int64)

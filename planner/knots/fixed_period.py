@@ -15,6 +15,7 @@ from planner.knots.check import check_records, needed_scale
 from planner.knots.quantize import round_positions, round_velocities
 from planner.knots.samples import Samples, axis_constants
 from planner.knots.types import AxisKnots, DriveAxis, KnotError, KnotOptions
+from planner.slowdown import slowdown
 
 _FP_REACH = 3  # counts (and records) a cubic's setpoint may move off the plan around a segment over a limit
 
@@ -82,7 +83,7 @@ def drive_slowdown(axis: DriveAxis, i: int, smp: Samples) -> tuple[float, float]
     out = []
     for k in (kernels.LINEAR, kind):
         rv, ra = kernels.fixed_period_ratios(k, p, v, *args)
-        out.append(max(float(rv.max()) * lattice_v, math.sqrt(float(ra.max()) * lattice_a), 1.0))
+        out.append(max(slowdown(float(rv.max()) * lattice_v, float(ra.max()) * lattice_a), 1.0))
     return out[0], max(out)
 
 

@@ -51,7 +51,7 @@ class DriveAxis:
 
     @classmethod
     def from_config(cls, axis: Any) -> DriveAxis:
-        """From a cell's axis configuration (service.config.AxisConfig, read by attribute)."""
+        """From a cell's axis configuration (axes.config.AxisConfig, read by attribute)."""
         return cls(
             axis.joint,
             axis.node_id,

@@ -10,24 +10,24 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.cartesian import Motion, check_poses
+from planner.cartesian import MoveKind, check_poses
 from planner.limits import JointLimits, check_max_jerk, check_scale
 from planner.path import PlanError
 from service.api.schemas import _PLAN_SCALES, check_schema
-from service.api.wire import ApiError, ErrorCode
+from service.api.wire import ApiError, ErrorCode, PlanStart
 
 
 @dataclass(frozen=True)
 class PlanRequest:
     waypoints: NDArray[np.float64]  # (N, dof) in the cell's joint order; (0, dof) for poses
-    start: str = "current"  # "current", "first" (waypoints), "home" or "joints" (poses from start_joints)
+    start: PlanStart = PlanStart.CURRENT  # JOINTS: poses from start_joints
     tolerance_qc: float | None = None
     label: str | None = None
     include_program: bool = False
     velocity_scale: float = 1.0  # speed override in (0, 1] (planner.limits.check_scale)
     acceleration_scale: float = 1.0
     poses: NDArray[np.float64] | None = None  # (N, 7), unit quaternions
-    motion: str = Motion.LINEAR.value
+    motion: MoveKind = MoveKind.LINEAR
     start_joints: NDArray[np.float64] | None = None  # (dof,) in the cell's joint order
     max_jerk: NDArray[np.float64] | None = None  # (dof,) in the cell's joint order; None: the cell's
     budget_ms: float | None = None  # the plan's deadline; None: the cell's planning.budget_ms
@@ -94,10 +94,10 @@ def parse_plan(data: Any, joint_names: Sequence[str], limits: JointLimits | None
         ) from None
     if limits is not None:
         check_limits(waypoints, limits, field_name)
-    start = data.get("start", "current")
-    if field_name == "target" and start != "home":
-        start = "current"
-    if start == "first" and len(waypoints) < 2:
+    start = PlanStart(data.get("start", PlanStart.CURRENT))
+    if field_name == "target" and start is not PlanStart.HOME:
+        start = PlanStart.CURRENT
+    if start is PlanStart.FIRST and len(waypoints) < 2:
         raise ApiError(
             ErrorCode.INVALID_REQUEST, "with start=first a motion needs at least 2 waypoints", {"path": "$.waypoints"}
         )
@@ -149,9 +149,9 @@ def _parse_pose_plan(data: dict[str, Any], order: list[int], limits: JointLimits
         raise ApiError(ErrorCode.INVALID_REQUEST, f"{path}: {exc.message}", {"path": path}) from None
     except OverflowError:
         raise ApiError(ErrorCode.NOT_FINITE, "$.poses: a number too large", {"path": "$.poses"}) from None
-    start = data.get("start", "current")
+    start = data.get("start", PlanStart.CURRENT)
     start_joints = None
-    if start == "first":
+    if start == PlanStart.FIRST:
         raise ApiError(
             ErrorCode.INVALID_REQUEST,
             "with poses, start is current or a list of joint values (first is for waypoints)",
@@ -172,15 +172,15 @@ def _parse_pose_plan(data: dict[str, Any], order: list[int], limits: JointLimits
             ) from None
         if limits is not None:
             check_limits(start_joints[None, :], limits, "start")
-        start = "joints"
+        start = PlanStart.JOINTS
     return PlanRequest(
         np.empty((0, dof)),
-        start,
+        PlanStart(start),
         data.get("tolerance_qc"),
         data.get("label"),
         bool(data.get("include_program", False)),
         poses=poses,
-        motion=data.get("motion", Motion.LINEAR.value),
+        motion=MoveKind(data.get("motion", MoveKind.LINEAR)),
         start_joints=start_joints,
         max_jerk=_max_jerk(data, order),
         budget_ms=data.get("budget_ms"),

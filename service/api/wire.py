@@ -232,5 +232,26 @@ class CellState(StrEnum):
     HOMING = "homing"
 
 
+class RunState(StrEnum):
+    """Where a motion or a homing is (``state`` of their summaries and of the journal's entries)."""
+
+    RUNNING = "running"
+    ENDED = "ended"
+    INTERRUPTED = "interrupted"  # journaled without an outcome: the service stopped while it ran
+
+    @classmethod
+    def of(cls, ended: bool, running: bool = True) -> RunState:
+        return cls.ENDED if ended else (cls.RUNNING if running else cls.INTERRUPTED)
+
+
+class PlanStart(StrEnum):
+    """Where a plan request's motion starts (``start``)."""
+
+    CURRENT = "current"  # where the axes stand
+    FIRST = "first"  # the first waypoint (waypoints only)
+    HOME = "home"  # the cell's home position
+    JOINTS = "joints"  # the request's list of joint values (poses only; never on the wire as a word)
+
+
 def _short(message: str, limit: int = 160) -> str:
     return message if len(message) <= limit else message[: limit - 3] + "..."
