@@ -27,7 +27,8 @@ class WallDriver:
         cond = medium.cond
         with cond:
             while not self._stop:
-                due = medium.step(medium.now())
+                with medium.delivery_batch():
+                    due = medium.step(medium.now())
                 if due is None:
                     cond.wait()
                 else:
