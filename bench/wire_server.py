@@ -27,8 +27,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from axes.sim.wire import SimWireBus  # noqa: E402
 from wire_medium import drain_all, frames  # noqa: E402
+
+from axes.sim.wire import SimWireBus  # noqa: E402
 
 SERVER = """
 import sys
@@ -69,7 +70,8 @@ def run(clock: str, count: int, local: int, remote: int, bitrate: int) -> dict[s
         for t in threads:
             t.join()
         local_got = int(child.stdout.readline())
-        wall, cpu, server_cpu = time.perf_counter() - t0, time.process_time() - cpu0, process_cpu(child.pid) - server_cpu0
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+        server_cpu = process_cpu(child.pid) - server_cpu0
         for bus in (sender, *receivers):
             bus.shutdown()
         assert min(got, default=count) == count and local_got == count, (got, local_got)

@@ -174,8 +174,10 @@ class MotionService:
         planner_process: bool = False,
         record_dir: str | Path | None = None,
         live: LiveServer | None = None,
+        drives_process: bool = False,
     ) -> None:
         self.cell = cell
+        self.drives_process = drives_process  # simulated drives in a process of their own (axes.sim.process)
         self.record_dir = Path(record_dir) if record_dir is not None else None  # one MCAP file per motion
         self.live = live  # every motion's channels served live too (service/live.py)
         self.axes = cell.ordered_axes()
@@ -215,10 +217,27 @@ class MotionService:
 
     # --- life cycle ------------------------------------------------------------------------------
     def open(self) -> MotionService:
-        """Bus up (simulated drives first when the cell is simulated), drives configured, state read."""
-        self.bus = CellBus(self.cell.bus, lockstep=self.lockstep, can_log=self.can_log)
+        """Bus up (simulated drives first when the cell is simulated: with ``drives_process`` in a
+        process of their own on the simulated wire, as ``pvtflow serve`` runs them; else in this
+        one, for tests that read a drive directly), drives configured, state read."""
+        bus_config = self.cell.bus
+        if self.simulate and self.drives_process:
+            from axes.sim.process import DrivesProcessError, start_simulated_drives
+
+            try:
+                self.sim = start_simulated_drives(self.cell, "lockstep" if self.lockstep else "wall")
+            except DrivesProcessError as exc:
+                raise BusError(f"cell {self.cell.name}: {exc}") from None
+            bus_config = self.sim.bus
         try:
-            if self.simulate:
+            self.bus = CellBus(bus_config, lockstep=self.lockstep, can_log=self.can_log)
+        except BaseException:
+            if self.sim is not None:
+                self.sim.stop()
+                self.sim = None
+            raise
+        try:
+            if self.simulate and self.sim is None:
                 from axes.sim.cell import SimulatedCell
 
                 self.sim = SimulatedCell(self.cell, clock="lockstep" if self.lockstep else "wall").start()

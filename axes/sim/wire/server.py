@@ -371,7 +371,8 @@ class WireServer:
         conn.client = client
         self._clients.append(client)
         self._pending[client.token] = client
-        conn.outbox.put_bytes(p.pack_json(p.WELCOME, {"node": node.name, "token": client.token, **self.medium.params()}))
+        welcome = {"node": node.name, "token": client.token, **self.medium.params()}
+        conn.outbox.put_bytes(p.pack_json(p.WELCOME, welcome))
 
     def _attach_receiver(self, conn: _Conn, body: dict[str, Any]) -> None:
         client = self._pending.pop(body.get("token", ""), None)
