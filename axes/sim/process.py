@@ -33,6 +33,7 @@ import threading
 from pathlib import Path
 from typing import TextIO
 
+from axes.bus import SWITCH_INTERVAL_S
 from axes.config import SIMULATED_WIRE, BusConfig, CellWiring, Wiring, wire_options
 
 WIRE_SERVED_AT = "wire served at"  # the line the master reads the channel from
@@ -196,6 +197,9 @@ def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) ->
 
 
 def main() -> int:
+    # the drives' threads (ticker, Notifiers) hand the GIL on as often as the master's do, so the
+    # wire's threads (its driver, its server) are not held up for CPython's default 5 ms
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the master stops the drives after it halted them
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())

@@ -272,7 +272,7 @@ def test_config_is_not_modified_by_loading(tmp_path: Path) -> None:
 def test_the_master_heartbeat_settings(tmp_path: Path) -> None:
     arm = load_cell_config(ARM)
     assert arm.bus.master_node_id == 127 and arm.bus.master_heartbeat_ms == 100
-    assert arm.bus.master_consumer_time_ms == 1000  # 100 ms x the cell's heartbeat_timeout_factor 10
+    assert arm.bus.master_consumer_time_ms == 300  # 100 ms x the cell's heartbeat_timeout_factor 3
     data = arm_data()
     data["bus"].update(master_node_id=100, master_heartbeat_ms=20, heartbeat_timeout_factor=2.5)
     bus = load_cell_config(write(tmp_path, data)).bus

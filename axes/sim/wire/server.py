@@ -35,6 +35,7 @@ from can import BusState
 
 from axes.sim.wire import protocol as p
 from axes.sim.wire.medium import Medium, Node, WireConfigError
+from axes.sim.wire.priority import ask_wire_priority
 from axes.sim.wire.registry import acquire_medium, release_medium
 
 
@@ -208,6 +209,7 @@ class WireServer:
     # -- the selector thread ---------------------------------------------------------------------
 
     def _run(self) -> None:
+        ask_wire_priority()
         selector = self._selector
         try:
             while not self._closed:
