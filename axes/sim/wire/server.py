@@ -14,8 +14,8 @@ medium delivers from another thread (the wall clock's driver, a drive of this pr
 by that thread at once (non-blocking), or at the end of its delivery batch
 (``Medium.delivery_batch``: a wall driver's step that delivers several frames writes them
 together); what the socket does not take at once waits in the client's buffer for the selector
-thread. So a frame crosses no thread of the server's on its way: the GIL hand-offs per frame of a
-thread per socket were the server's cost (about 3000 frames/s; bench/RESULTS.md).
+thread. So a frame crosses no thread of the server's on its way, and a burst costs one system
+call per socket, not one per frame (figures: ``bench/wire_server.py``, bench/RESULTS.md).
 """
 
 from __future__ import annotations
