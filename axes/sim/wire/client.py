@@ -33,6 +33,7 @@ from axes.sim.wire.priority import ask_wire_priority
 CONNECT_TIMEOUT = 5.0
 WAIT_SLICE_S = 0.001  # a sender waiting for room looks again at least this often
 READ_SLICE_S = 0.1  # the reader thread notices a close at least this often
+RECV_SIZE = 262_144
 
 
 class WireLink:
@@ -70,6 +71,8 @@ class WireLink:
         welcome = json.loads(body)
         self.node: str = welcome["node"]
         self.params = {k: welcome[k] for k in ("bitrate", "clock", "sync_period")}
+        # the medium's wall-clock bus time base: CLOCK_MONOTONIC is the host's, one for every process
+        self._epoch: float = welcome.get("epoch", 0.0)
         self.pipelined = self.params["clock"] == "wall"
         self.txqueuelen: int = hello["txqueuelen"]
         self.state = BusState.ACTIVE  # followed from the controller error frames received
@@ -121,7 +124,7 @@ class WireLink:
         if refused:
             self._write(p.pack_count(p.REFUSED, 1))
             raise transmit_queue_full(self.node, self.txqueuelen)
-        self._write(p.pack_post(msg))
+        self._write(p.pack_post(msg, self._epoch + time.monotonic()))
 
     def _wait_for_room(self, deadline: float) -> None:
         """The waiting sender reads the server's DONE reports itself when no other thread is reading
@@ -192,13 +195,15 @@ class WireLink:
         buffer = self._rx_buffer
         while True:
             try:
-                chunk = self._receive.recv(262_144)
+                chunk = self._receive.recv(RECV_SIZE)
             except (BlockingIOError, InterruptedError):
                 break
             if not chunk:
                 self._ended = True
                 break
             buffer += chunk
+            if len(chunk) < RECV_SIZE:
+                break  # the socket is drained: no second call to hear so
         done = 0
         channel = self.channel
         for kind, body in p.split_messages(buffer):

@@ -199,7 +199,7 @@ class Medium:
         self._on_wire: tuple[Node, _Pending, float, float] | None = None  # wall: (node, frame, start, end)
         self._cyclic: list[Cyclic] = []  # wall: cyclic sends the medium times (``add_cyclic``)
         self._seconds_per_bit = 1.0 / bitrate
-        self._epoch = time.time() - time.monotonic()
+        self.epoch = self._epoch = time.time() - time.monotonic()  # wall: bus time = epoch + time.monotonic()
         self.closed = False
         # wraps a run of deliveries from one thread (the wall driver's step): the loopback server
         # writes a run's frames to each client's socket once, at its end

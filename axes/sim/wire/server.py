@@ -329,9 +329,10 @@ class WireServer:
             return
         medium, node = self.medium, client.node
         if kind == p.POST:
-            msg, _, _ = p.unpack_send(body)
+            msg, sent_at, _ = p.unpack_send(body)
             try:
-                medium.submit(node, msg)
+                # queued when its sender queued it: the loopback's delay is the host's, not the wire's
+                medium.submit(node, msg, now=min(sent_at, medium.now()))
             except can.CanOperationError:
                 client.frames.put_done(1)  # bus off meanwhile: the frame is lost, its place freed
         elif kind == p.SEND:
@@ -373,7 +374,7 @@ class WireServer:
         conn.client = client
         self._clients.append(client)
         self._pending[client.token] = client
-        welcome = {"node": node.name, "token": client.token, **self.medium.params()}
+        welcome = {"node": node.name, "token": client.token, "epoch": self.medium.epoch, **self.medium.params()}
         conn.outbox.put_bytes(p.pack_json(p.WELCOME, welcome))
 
     def _attach_receiver(self, conn: _Conn, body: dict[str, Any]) -> None:
