@@ -14,54 +14,65 @@ fixed form and never stuffed.
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 
 CRC15_POLY = 0x4599
 FIXED_TAIL_BITS = 1 + 2 + 7 + 3  # CRC delimiter, ACK slot + delimiter, end of frame, intermission
 
 
-def _bits(value: int, width: int) -> list[int]:
-    return [(value >> (width - 1 - i)) & 1 for i in range(width)]
+def _crc15_table() -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        crc = byte << 7
+        for _ in range(8):
+            crc = ((crc << 1) ^ CRC15_POLY) if crc & 0x4000 else crc << 1
+        table.append(crc & 0x7FFF)
+    return tuple(table)
 
 
-def _crc15(bits: list[int]) -> int:
+_CRC15_TABLE = _crc15_table()
+
+
+def _crc15(value: int, width: int) -> int:
+    """CRC-15/CAN of the ``width`` low bits of ``value``, most significant first. Zero bits in
+    front leave a CRC from 0 at 0, so the bits go through the table a byte at a time."""
     crc = 0
-    for bit in bits:
-        top = ((crc >> 14) & 1) ^ bit
-        crc = (crc << 1) & 0x7FFF
-        if top:
-            crc ^= CRC15_POLY
+    for byte in value.to_bytes((width + 7) // 8, "big"):
+        crc = ((crc << 8) & 0x7FFF) ^ _CRC15_TABLE[((crc >> 7) ^ byte) & 0xFF]
     return crc
 
 
-def _stuffed_length(bits: list[int]) -> int:
-    """Length of ``bits`` once stuffed: a complementary bit after every run of five equal bits."""
-    out = 0
-    run_bit = -1
-    run = 0
-    for bit in bits:
-        out += 1
-        if bit == run_bit:
-            run += 1
-        else:
-            run_bit, run = bit, 1
-        if run == 5:
-            out += 1  # the stuff bit, the complement, starts the next run
-            run_bit, run = 1 - bit, 1
-    return out
+_LONG_RUNS = re.compile("0{4,}|1{4,}")  # maximal runs of four or more equal bits
+
+
+def _stuffed_length(bits: str) -> int:
+    """Length of ``bits`` ('0'/'1') once stuffed: a complementary bit after every run of five equal
+    bits. That bit equals the next run's bits and counts in it, so a run of four right after a
+    stuffed run is stuffed too; shorter runs never are."""
+    stuffs = 0
+    carry_to = -1  # where the run starts that the last stuff bit counts in
+    for run in _LONG_RUNS.finditer(bits):
+        length = run.end() - run.start() + (run.start() == carry_to)
+        stuffs += length // 5
+        carry_to = run.end() if length % 5 == 0 else -1
+    return len(bits) + stuffs
 
 
 @lru_cache(maxsize=65536)
 def _frame_bits(can_id: int, extended: bool, remote: bool, dlc: int, data: bytes) -> int:
     if extended:
         base, ext = (can_id >> 18) & 0x7FF, can_id & 0x3FFFF
-        head = [0, *_bits(base, 11), 1, 1, *_bits(ext, 18), int(remote), 0, 0, *_bits(dlc, 4)]
+        # SOF 0, base, SRR 1, IDE 1, extension, RTR, r1 0, r0 0, DLC
+        head, width = (((base << 2 | 0b11) << 18 | ext) << 3 | int(remote) << 2) << 4 | dlc, 1 + 11 + 2 + 18 + 3 + 4
     else:
-        head = [0, *_bits(can_id & 0x7FF, 11), int(remote), 0, 0, *_bits(dlc, 4)]
-    payload = [] if remote else [b for byte in data[:dlc] for b in _bits(byte, 8)]
-    body = head + payload
-    body += _bits(_crc15(body), 15)
-    return _stuffed_length(body) + FIXED_TAIL_BITS
+        # SOF 0, identifier, RTR, IDE 0, r0 0, DLC
+        head, width = ((can_id & 0x7FF) << 3 | int(remote) << 2) << 4 | dlc, 1 + 11 + 3 + 4
+    payload = b"" if remote else data[:dlc]
+    body = head << (8 * len(payload)) | int.from_bytes(payload, "big")
+    width += 8 * len(payload)
+    bits = f"{body:0{width}b}{_crc15(body, width):015b}"
+    return _stuffed_length(bits) + FIXED_TAIL_BITS
 
 
 def frame_bits(

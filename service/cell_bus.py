@@ -1,16 +1,19 @@
 """The cell's bus, opened in one place for the service (``MotionService``) and for the commands that
 run without it (``pvtflow execute``, ``home``, ``commission``).
 
-Every one opens it the same way: the simulated drives first where the cell is simulated, SYNC in
-lockstep with them unless on the wall clock (``--real-time``), every frame recorded with
+Every one opens it the same way: the simulated drives first where the cell is simulated (for the
+commands and ``pvtflow serve`` in a process of their own on the simulated wire: ``axes.sim.process``),
+SYNC in lockstep with them unless on the wall clock (``--real-time``), every frame recorded with
 ``--can-log``; the commands take the same options and close it the same way, whatever happened in
-between.
+between (SIGTERM included: it counts as Ctrl-C).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import signal
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -38,20 +41,40 @@ def add_bus_options(p: argparse.ArgumentParser) -> None:
     add_real_time(p)
 
 
-def open_bus(cell: CellConfig, *, simulate: bool, lockstep: bool, can_log: str | Path | None) -> tuple[CellBus, Any]:
+def open_bus(
+    cell: CellConfig, *, simulate: bool, lockstep: bool, can_log: str | Path | None, drives_process: bool = True
+) -> tuple[CellBus, Any]:
     """The cell's bus, open, and its simulated drives (None unless ``simulate``), started first: SYNC
-    in ``lockstep`` with them or on the wall clock. The service keeps both for its life, a command for
-    one run (:func:`open_cell_bus`). CellBusError where the bus cannot open; nothing is left running then."""
-    try:
-        bus = CellBus(cell.bus, lockstep=lockstep, can_log=can_log)
-    except (ValueError, OSError) as exc:
-        raise CellBusError(f"cannot write the CAN log {can_log}: {exc}") from None
-    sim = None
-    try:
-        if simulate:
-            from axes.sim.cell import SimulatedCell
+    in ``lockstep`` with them or on the wall clock; with ``drives_process`` in a process of their own
+    (``axes.sim.process``), else in this one (tests that read a drive directly). The service keeps
+    both for its life, a command for one run (:func:`open_cell_bus`). CellBusError where the bus
+    cannot open; nothing is left running then."""
+    clock = "lockstep" if lockstep else "wall"
+    sim: Any = None
+    bus_config = cell.bus
+    if simulate:
+        try:
+            if drives_process:
+                from axes.sim.process import DrivesProcessError, start_simulated_drives
 
-            sim = SimulatedCell(cell, clock="lockstep" if lockstep else "wall").start()
+                try:
+                    sim = start_simulated_drives(cell, clock)
+                except DrivesProcessError as exc:
+                    raise CellBusError(str(exc)) from None
+                bus_config = sim.bus
+            else:
+                from axes.sim.cell import SimulatedCell
+
+                sim = SimulatedCell(cell, clock=clock).start()
+        except (OSError, ValueError) as exc:
+            raise CellBusError(str(exc)) from None
+    try:
+        bus = CellBus(bus_config, lockstep=lockstep, can_log=can_log)
+    except (ValueError, OSError) as exc:
+        if sim is not None:
+            sim.stop()
+        raise CellBusError(f"cannot write the CAN log {can_log}: {exc}") from None
+    try:
         bus.open()
     except (BusError, OSError) as exc:
         if sim is not None:
@@ -63,15 +86,36 @@ def open_bus(cell: CellConfig, *, simulate: bool, lockstep: bool, can_log: str |
 
 @contextlib.contextmanager
 def open_cell_bus(cell: CellConfig, real_time: bool, can_log: str | None) -> Iterator[CellBus]:
-    """The cell's bus, open (its simulated drives started first where the cell is simulated); on
-    exit the bus closed and the simulated drives stopped. CellBusError where it cannot open."""
-    bus, sim = open_bus(cell, simulate=cell.simulated, lockstep=cell.simulated and not real_time, can_log=can_log)
+    """The cell's bus, open (its simulated drives started first where the cell is simulated, in a
+    process of their own); on exit the bus closed and the simulated drives stopped, their process
+    reaped. CellBusError where it cannot open."""
+    with _terminate_as_interrupt():
+        bus, sim = open_bus(cell, simulate=cell.simulated, lockstep=cell.simulated and not real_time, can_log=can_log)
+        try:
+            yield bus
+        finally:
+            bus.close()
+            if sim is not None:
+                sim.stop()
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM while the bus is open counts as Ctrl-C: the motion halts, the bus closes and the
+    simulated drives' process is reaped, where the default action would end the master at once."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGTERM) != signal.SIG_DFL:
+        yield
+        return
+
+    def on_terminate(signum: int, frame: object) -> None:
+        del signum, frame
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, on_terminate)
     try:
-        yield bus
+        yield
     finally:
-        bus.close()
-        if sim is not None:
-            sim.stop()
+        signal.signal(signal.SIGTERM, previous)
 
 
 def record_problem(path: str) -> str | None:

@@ -163,8 +163,10 @@ class MotionService:
         planner_process: bool = False,
         record_dir: str | Path | None = None,
         live: LiveServer | None = None,
+        drives_process: bool = False,
     ) -> None:
         self.cell = cell
+        self.drives_process = drives_process  # simulated drives in a process of their own (axes.sim.process)
         self.record_dir = Path(record_dir) if record_dir is not None else None  # one MCAP file per motion
         self.live = live  # every motion's channels served live too (service/live.py)
         self.axes = cell.ordered_axes()
@@ -204,10 +206,16 @@ class MotionService:
 
     # --- life cycle ------------------------------------------------------------------------------
     def open(self) -> MotionService:
-        """Bus up (simulated drives first when the cell is simulated), drives configured, state read."""
+        """Bus up (simulated drives first when the cell is simulated: with ``drives_process`` in a
+        process of their own on the simulated wire, as ``pvtflow serve`` runs them; else in this
+        one, for tests that read a drive directly), drives configured, state read."""
         try:
             self.bus, self.sim = open_bus(
-                self.cell, simulate=self.simulate, lockstep=self.lockstep, can_log=self.can_log
+                self.cell,
+                simulate=self.simulate,
+                lockstep=self.lockstep,
+                can_log=self.can_log,
+                drives_process=self.drives_process,
             )
             self.group = AxisGroup(
                 self.bus,

@@ -343,6 +343,7 @@ def run(args: argparse.Namespace) -> int:
                 planner_process=args.planner_process == "on" or (args.planner_process == "auto" and not lockstep),
                 record_dir=args.record,
                 live=live,
+                drives_process=True,
             )
         except JournalError as exc:
             return _fail(str(exc))

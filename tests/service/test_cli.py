@@ -73,7 +73,7 @@ def test_serve_prints_how_to_talk_to_it_and_request_plans_and_executes(tmp_path,
 
         assert main(["request", "status", "--connect", endpoint]) == 0
         status = json.loads(capsys.readouterr().out)
-        assert status["state"] == "idle" and status["cell"] == "arm6"
+        assert status["state"] == "idle" and status["cell"] == "arm6", status
 
         assert main(["request", "plan", "--connect", endpoint, "--target", "0.3,-0.2,0.3,-0.2,0.3,-0.2"]) == 0
         plan = json.loads(capsys.readouterr().out)

@@ -59,8 +59,10 @@ medium with these semantics:
   127.0.0.1:PORT; another opens ``channel="NAME@127.0.0.1:PORT"``. Only loopback is served or
   connected to. In lockstep every send is acknowledged synchronously by the server (ENOBUFS at
   ``send()``, exactly as in-process); on the wall clock sends are pipelined and the client counts
-  its frames in flight (frames still in the socket count as queued). Frames stream back on a
-  second connection. ``bus.medium`` is then a
+  its frames in flight (frames still in the socket count as queued; a sender waiting for room reads
+  the server's reports itself). Frames stream back on a second connection. One selector thread
+  serves every socket of the server. The wire's threads ask for SCHED_FIFO (``priority``: they
+  stand in for the controller and the kernel). ``bus.medium`` is then a
   ``client.RemoteMedium`` with the same ``stats``, ``set_state`` and ``inject_error_frame``.
 """
 

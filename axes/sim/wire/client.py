@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import contextlib
 import json
+import select
 import socket
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -26,13 +28,19 @@ from axes.sim.wire.medium import (
     bus_off_error,
     transmit_queue_full,
 )
+from axes.sim.wire.priority import ask_wire_priority
 
 CONNECT_TIMEOUT = 5.0
+WAIT_SLICE_S = 0.001  # a sender waiting for room looks again at least this often
+READ_SLICE_S = 0.1  # the reader thread notices a close at least this often
+RECV_SIZE = 262_144
 
 
 class WireLink:
     """Control connection (synchronous requests, the sender's thread reads its own answer) and
-    receive connection (a reader thread hands each frame to ``deliver``)."""
+    receive connection (a reader thread hands each frame to ``deliver``; on the wall clock a sender
+    waiting for room in its FIFO reads it itself meanwhile, so the server's report that a frame left
+    reaches the sender without a hop through the reader thread)."""
 
     def __init__(
         self,
@@ -63,6 +71,8 @@ class WireLink:
         welcome = json.loads(body)
         self.node: str = welcome["node"]
         self.params = {k: welcome[k] for k in ("bitrate", "clock", "sync_period")}
+        # the medium's wall-clock bus time base: CLOCK_MONOTONIC is the host's, one for every process
+        self._epoch: float = welcome.get("epoch", 0.0)
         self.pipelined = self.params["clock"] == "wall"
         self.txqueuelen: int = hello["txqueuelen"]
         self.state = BusState.ACTIVE  # followed from the controller error frames received
@@ -71,6 +81,10 @@ class WireLink:
         self._receive = p.configure(socket.create_connection((host, port), timeout=CONNECT_TIMEOUT))
         self._receive.settimeout(None)
         self._receive.sendall(p.pack_json(p.ATTACH, {"token": welcome["token"]}))
+        self._receive.setblocking(False)
+        self._rx_lock = threading.Lock()  # one thread at a time reads the receive connection (``_pump``)
+        self._rx_buffer = bytearray()
+        self._ended = False
         self._reader = threading.Thread(target=self._read, name=f"simwire-rx-{self.node}", daemon=True)
         self._reader.start()
 
@@ -100,17 +114,39 @@ class WireLink:
         with self._room:
             if self.state == BUS_OFF:
                 raise bus_off_error(self.node)
-            if self._inflight >= self.txqueuelen and timeout is not None and timeout > 0:
-                self._room.wait_for(lambda: self._inflight < self.txqueuelen or self.closed, timeout)
-            if self._inflight >= self.txqueuelen:
-                refused = True
-            else:
-                refused = False
+            full = self._inflight >= self.txqueuelen
+        if full and timeout is not None and timeout > 0:
+            self._wait_for_room(time.monotonic() + timeout)
+        with self._room:
+            refused = self._inflight >= self.txqueuelen
+            if not refused:
                 self._inflight += 1
         if refused:
             self._write(p.pack_count(p.REFUSED, 1))
             raise transmit_queue_full(self.node, self.txqueuelen)
-        self._write(p.pack_post(msg))
+        self._write(p.pack_post(msg, self._epoch + time.monotonic()))
+
+    def _wait_for_room(self, deadline: float) -> None:
+        """The waiting sender reads the server's DONE reports itself when no other thread is reading
+        (no hand-off to the reader thread: a frame's slot is free as soon as the report is in)."""
+        while True:
+            with self._room:
+                if self._inflight < self.txqueuelen or self.closed or self._ended or self.state == BUS_OFF:
+                    return
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return
+            if self._rx_lock.acquire(blocking=False):
+                try:
+                    select.select([self._receive], [], [], min(remaining, WAIT_SLICE_S))
+                    self._pump()
+                except (OSError, ValueError):
+                    return
+                finally:
+                    self._rx_lock.release()
+            else:
+                with self._room:
+                    self._room.wait(min(remaining, WAIT_SLICE_S))
 
     def _write(self, data: bytes) -> None:
         with self._lock:
@@ -141,27 +177,47 @@ class WireLink:
         return json.loads(body)
 
     def _read(self) -> None:
-        buffer = bytearray()
-        channel = self.channel
+        """The reader thread: waits for data and reads it (unless a waiting sender is at it)."""
+        ask_wire_priority()
         try:
-            while True:
-                chunk = self._receive.recv(65536)
-                if not chunk:
-                    break
-                buffer += chunk
-                for kind, body in p.split_messages(buffer):
-                    if kind == p.FRAME:
-                        msg = p.unpack_frame(body, channel)
-                        if msg.is_error_frame:
-                            self._follow_state(msg)
-                        self._deliver(msg)
-                    elif kind == p.DONE:
-                        with self._room:
-                            self._inflight -= p.unpack_count(body)
-                            self._room.notify_all()
-        except (OSError, p.ProtocolError):
+            while not self._ended:
+                select.select([self._receive], [], [], READ_SLICE_S)
+                with self._rx_lock:
+                    self._pump()
+        except (OSError, ValueError, p.ProtocolError):
             pass
+        self._ended = True
         self._on_close()
+
+    def _pump(self) -> None:
+        """Under ``_rx_lock``: read what the receive connection holds and hand it on (frames to the
+        bus's queue, DONE reports to the in-flight count). The server's end sets ``_ended``."""
+        buffer = self._rx_buffer
+        while True:
+            try:
+                chunk = self._receive.recv(RECV_SIZE)
+            except (BlockingIOError, InterruptedError):
+                break
+            if not chunk:
+                self._ended = True
+                break
+            buffer += chunk
+            if len(chunk) < RECV_SIZE:
+                break  # the socket is drained: no second call to hear so
+        done = 0
+        channel = self.channel
+        for kind, body in p.split_messages(buffer):
+            if kind == p.FRAME:
+                msg = p.unpack_frame(body, channel)
+                if msg.is_error_frame:
+                    self._follow_state(msg)
+                self._deliver(msg)
+            elif kind == p.DONE:
+                done += p.unpack_count(body)
+        if done:
+            with self._room:
+                self._inflight -= done
+                self._room.notify_all()
 
     def close(self) -> None:
         with self._lock:

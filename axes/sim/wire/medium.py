@@ -9,12 +9,14 @@ lock, so every node sees the frames in bus order. The semantics are the package 
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import itertools
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import asdict, dataclass, field
 
 import can
@@ -197,8 +199,11 @@ class Medium:
         self._on_wire: tuple[Node, _Pending, float, float] | None = None  # wall: (node, frame, start, end)
         self._cyclic: list[Cyclic] = []  # wall: cyclic sends the medium times (``add_cyclic``)
         self._seconds_per_bit = 1.0 / bitrate
-        self._epoch = time.time() - time.monotonic()
+        self.epoch = self._epoch = time.time() - time.monotonic()  # wall: bus time = epoch + time.monotonic()
         self.closed = False
+        # wraps a run of deliveries from one thread (the wall driver's step): the loopback server
+        # writes a run's frames to each client's socket once, at its end
+        self.delivery_batch: Callable[[], AbstractContextManager[None]] = contextlib.nullcontext
 
     # -- time ----------------------------------------------------------------------------------
 

@@ -15,7 +15,10 @@ connections to the server:
   wire, so sends are pipelined: ``POST`` (a frame, no answer); the client counts its frames in
   flight (posted, not yet reported ``DONE``) and raises ENOBUFS itself when ``txqueuelen`` are,
   telling the server (``REFUSED``, no answer) so the medium's ENOBUFS count stays whole. Frames in
-  the socket count as queued: the client's FIFO is never emptier than the medium's.
+  the socket count as queued: the client's FIFO is never emptier than the medium's. Each ``POST``
+  carries the bus time its sender queued it (the medium's ``epoch`` from ``WELCOME`` +
+  CLOCK_MONOTONIC, the host's clock) and the medium queues it at that time: the loopback's delay
+  is the host's, not the wire's.
 * the **receive** connection: ``ATTACH`` (JSON: the token) and then the server streams ``FRAME``s
   (time stamp, identifier, flags, DLC, 8 data bytes), in bus order, batched when they come fast,
   and on the wall clock ``DONE`` (count) when frames of this client left its FIFO (sent, or
@@ -105,8 +108,9 @@ def unpack_send(body: bytes) -> tuple[can.Message, float, float | None]:
     return msg, local_time, None if timeout < 0 else timeout
 
 
-def pack_post(msg: can.Message) -> bytes:
-    return pack(POST, _SEND.pack(0.0, -1.0, msg.arbitration_id, _flags(msg), msg.dlc, bytes(msg.data)))
+def pack_post(msg: can.Message, sent_at: float) -> bytes:
+    """``sent_at``: the wall-clock bus time the sender queued it (the loopback's delay is not the wire's)."""
+    return pack(POST, _SEND.pack(sent_at, -1.0, msg.arbitration_id, _flags(msg), msg.dlc, bytes(msg.data)))
 
 
 def pack_count(kind: int, count: int) -> bytes:

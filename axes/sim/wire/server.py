@@ -6,6 +6,16 @@ process opens, so drives simulated here and clients elsewhere share one bus) on 
 A client opens ``channel="NAME@127.0.0.1:PORT"`` (protocol: ``axes.sim.wire.protocol``). A client
 that disconnects leaves the medium (its queued frames with it); ``WireServer.close()`` closes every
 connection and releases the medium. Only loopback addresses are served.
+
+One thread (``simwire-io-NAME``) serves every socket through a selector: it accepts, reads
+whatever each client sent (every complete message of a read, submitted to the medium in turn) and
+writes what the medium delivered to each client, one write per socket per round. A frame the
+medium delivers from another thread (the wall clock's driver, a drive of this process) is written
+by that thread at once (non-blocking), or at the end of its delivery batch
+(``Medium.delivery_batch``: a wall driver's step that delivers several frames writes them
+together); what the socket does not take at once waits in the client's buffer for the selector
+thread. So a frame crosses no thread of the server's on its way, and a burst costs one system
+call per socket, not one per frame (figures: ``bench/wire_server.py``, bench/RESULTS.md).
 """
 
 from __future__ import annotations
@@ -14,8 +24,10 @@ import contextlib
 import ipaddress
 import json
 import secrets
+import selectors
 import socket
 import threading
+from collections.abc import Iterator
 from typing import Any
 
 import can
@@ -23,6 +35,7 @@ from can import BusState
 
 from axes.sim.wire import protocol as p
 from axes.sim.wire.medium import Medium, Node, WireConfigError
+from axes.sim.wire.priority import ask_wire_priority
 from axes.sim.wire.registry import acquire_medium, release_medium
 
 
@@ -40,17 +53,16 @@ def require_loopback(host: str) -> str:
 
 
 class _Outbox:
-    """Frames for one remote node. The delivering thread writes them to the socket itself when the
-    socket takes them at once (MSG_DONTWAIT: no thread hop per frame); what it does not take waits
-    in a backlog that a thread of the outbox's own writes, so the bus never waits on a slow reader."""
+    """What goes to one socket. The thread that has it writes it at once when the socket takes it
+    (non-blocking), or at the end of its delivery batch; the rest waits here for the selector thread."""
 
-    def __init__(self, name: str) -> None:
-        self.cond = threading.Condition(threading.Lock())
-        self.backlog = bytearray()
-        self.sock: socket.socket | None = None
+    def __init__(self, server: WireServer) -> None:
+        self.server = server
+        self.lock = threading.Lock()
+        self.out = bytearray()
+        self.conn: _Conn | None = None  # None until the socket is known (a receive connection attaches)
+        self.waiting = False  # the selector thread writes the rest when the socket is writable
         self.closed = False
-        self.flushing = False  # the outbox thread writes a batch: put() must not overtake it
-        self.thread = threading.Thread(target=self._run, name=f"simwire-out-{name}", daemon=True)
 
     def put(self, msg: can.Message) -> None:
         self.put_bytes(p.pack_frame(msg))
@@ -59,77 +71,78 @@ class _Outbox:
         self.put_bytes(p.pack_count(p.DONE, count))
 
     def put_bytes(self, data: bytes) -> None:
-        with self.cond:
-            if self.backlog or self.flushing or self.sock is None:
-                self.backlog += data
+        with self.lock:
+            if self.closed:
                 return
-            try:
-                sent = self.sock.send(data, socket.MSG_DONTWAIT)
-            except BlockingIOError:
-                sent = 0
-            except OSError:
+            self.out += data
+            if self.conn is None or self.waiting:
                 return
-            if sent < len(data):
-                self.backlog += data[sent:]
-                self.cond.notify()
-
-    def attach(self, sock: socket.socket) -> None:
-        with self.cond:
-            self.sock = sock
-            self.cond.notify()
-        self.thread.start()
-
-    def _run(self) -> None:
-        while True:
-            with self.cond:
-                while not self.backlog and not self.closed:
-                    self.cond.wait()
-                if self.closed:
-                    return
-                batch = bytes(self.backlog)
-                self.backlog.clear()
-                self.flushing = True
-            try:
-                self.sock.sendall(batch)
-            except OSError:
+            batch = getattr(self.server._local, "batch", None)
+            if batch is not None:
+                batch.add(self)
                 return
-            with self.cond:
-                self.flushing = False
+            self._write()
 
-    def close(self) -> None:
-        with self.cond:
-            self.closed = True
-            self.cond.notify_all()
+    def flush(self) -> None:
+        with self.lock:
+            if not self.closed and self.conn is not None and not self.waiting and self.out:
+                self._write()
+
+    def _write(self) -> None:
+        """Under the lock: write what the socket takes; the rest to the selector thread."""
+        if self._send():
+            return
+        self.waiting = True
+        self.server._want_write(self)
+
+    def _send(self) -> bool:
+        """Under the lock: True when nothing is left to write (or the connection is gone)."""
+        try:
+            sent = self.conn.sock.send(self.out)
+        except BlockingIOError:
+            sent = 0
+        except OSError:  # the peer went away: its reader sees the end and drops the client
+            self.out.clear()
+            return True
+        del self.out[:sent]
+        return not self.out
+
+    def writable(self) -> bool:
+        """The selector thread, on a writable socket: write more; True when nothing is left."""
+        with self.lock:
+            if self.closed or self.conn is None or self._send():
+                self.waiting = False
+                return True
+            return False
+
+
+class _Conn:
+    """One accepted socket: a client's control connection, or its receive connection once attached."""
+
+    def __init__(self, server: WireServer, sock: socket.socket) -> None:
+        self.sock = sock
+        self.inbuf = bytearray()
+        self.outbox = _Outbox(server)
+        self.outbox.conn = self
+        self.client: _Client | None = None
+        self.receiving = False
+        self.closed = False
 
 
 class _Client:
     """One remote bus: its node on the medium, its control and receive connections."""
 
-    def __init__(self, server: WireServer, node: Node, outbox: _Outbox, control: socket.socket) -> None:
-        self.server = server
+    def __init__(self, node: Node, frames: _Outbox, control: _Conn) -> None:
         self.node = node
-        self.outbox = outbox
+        self.frames = frames
         self.control = control
-        self.receive: socket.socket | None = None
+        self.receive: _Conn | None = None
         self.token = secrets.token_hex(16)
-        self._closed = False
-
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        self.server.medium.detach(self.node)
-        self.outbox.close()
-        for sock in (self.control, self.receive):
-            if sock is not None:
-                with contextlib.suppress(OSError):
-                    sock.shutdown(socket.SHUT_RDWR)
-                sock.close()
-        self.server._forget(self)
+        self.closed = False
 
 
 class WireServer:
-    """The loopback server of one channel's medium (threads: one acceptor, two per client)."""
+    """The loopback server of one channel's medium: one selector thread for every socket."""
 
     def __init__(
         self,
@@ -151,13 +164,26 @@ class WireServer:
         except OSError as error:
             release_medium(channel)
             raise WireConfigError(f"simwire cannot listen on {host}:{port}: {error.strerror}") from None
+        self._listener.setblocking(False)
         self.host, self.port = self._listener.getsockname()[:2]
-        self._lock = threading.Lock()
         self._clients: list[_Client] = []
         self._pending: dict[str, _Client] = {}
+        self._conns: set[_Conn] = set()
         self._closed = False
-        self._acceptor = threading.Thread(target=self._accept, name=f"simwire-server-{channel}", daemon=True)
-        self._acceptor.start()
+        self._local = threading.local()  # .batch: the outboxes a thread's deliveries wrote to, flushed at its end
+        self._want_lock = threading.Lock()
+        self._want: list[_Outbox] = []
+        self._woken = False
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
+        self._selector = selectors.DefaultSelector()
+        self._selector.register(self._listener, selectors.EVENT_READ, "accept")
+        self._selector.register(self._wake_r, selectors.EVENT_READ, "wake")
+        if self.medium.delivery_batch is contextlib.nullcontext:
+            self.medium.delivery_batch = self._batch
+        self._thread = threading.Thread(target=self._run, name=f"simwire-io-{channel}", daemon=True)
+        self._thread.start()
 
     @property
     def address(self) -> str:
@@ -171,58 +197,158 @@ class WireServer:
         self.close()
 
     def close(self) -> None:
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-            clients = list(self._clients)
-        with contextlib.suppress(OSError):
-            self._listener.shutdown(socket.SHUT_RDWR)  # wakes the blocked accept()
-        self._listener.close()
-        for client in clients:
-            client.close()
-        self._acceptor.join(timeout=2.0)
+        if self._closed:
+            return
+        self._closed = True
+        self._wake()
+        self._thread.join(timeout=2.0)
+        if self.medium.delivery_batch == self._batch:
+            self.medium.delivery_batch = contextlib.nullcontext
         release_medium(self.channel)
 
-    def _forget(self, client: _Client) -> None:
-        with self._lock:
-            if client in self._clients:
-                self._clients.remove(client)
-            self._pending.pop(client.token, None)
+    # -- the selector thread ---------------------------------------------------------------------
+
+    def _run(self) -> None:
+        ask_wire_priority()
+        selector = self._selector
+        try:
+            while not self._closed:
+                events = selector.select()
+                with self._batch():
+                    for key, mask in events:
+                        what = key.data
+                        if what == "accept":
+                            self._accept()
+                        elif what == "wake":
+                            self._drain_wake()
+                        elif not what.closed:
+                            if mask & selectors.EVENT_WRITE and what.outbox.writable():
+                                selector.modify(what.sock, selectors.EVENT_READ, what)
+                            if mask & selectors.EVENT_READ:
+                                self._read(what)
+                self._arm_writes()
+        finally:
+            for client in list(self._clients) + list(self._pending.values()):
+                self._close_client(client)
+            for conn in list(self._conns):
+                self._close_conn(conn)
+            selector.close()
+            self._listener.close()
+            self._wake_r.close()
+            self._wake_w.close()
+
+    @contextlib.contextmanager
+    def _batch(self) -> Iterator[None]:
+        """Deliveries of this thread inside it are written once per socket, at its end."""
+        local = self._local
+        if getattr(local, "batch", None) is not None:
+            yield
+            return
+        local.batch = batch = set()
+        try:
+            yield
+        finally:
+            local.batch = None
+            for outbox in batch:
+                outbox.flush()
+
+    def _want_write(self, outbox: _Outbox) -> None:
+        with self._want_lock:
+            self._want.append(outbox)
+        if threading.current_thread() is not self._thread:
+            self._wake()
+
+    def _wake(self) -> None:
+        with self._want_lock:
+            if self._woken:
+                return
+            self._woken = True
+        with contextlib.suppress(OSError):
+            self._wake_w.send(b"w")
+
+    def _drain_wake(self) -> None:
+        with self._want_lock:
+            self._woken = False
+        with contextlib.suppress(OSError):
+            while self._wake_r.recv(4096):
+                pass
+
+    def _arm_writes(self) -> None:
+        with self._want_lock:
+            want, self._want = self._want, []
+        for outbox in want:
+            conn = outbox.conn
+            if conn is not None and not conn.closed:
+                with contextlib.suppress(KeyError, ValueError, OSError):
+                    self._selector.modify(conn.sock, selectors.EVENT_READ | selectors.EVENT_WRITE, conn)
 
     def _accept(self) -> None:
         while True:
             try:
                 sock, _ = self._listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
             except OSError:
                 return
             p.configure(sock)
-            threading.Thread(target=self._serve, args=(sock,), name="simwire-conn", daemon=True).start()
+            sock.setblocking(False)
+            conn = _Conn(self, sock)
+            self._conns.add(conn)
+            self._selector.register(sock, selectors.EVENT_READ, conn)
 
-    def _serve(self, sock: socket.socket) -> None:
-        stream = sock.makefile("rb")
-        client: _Client | None = None
-        kind = None
+    def _read(self, conn: _Conn) -> None:
         try:
-            kind, body = p.read_message(stream)
-            if kind == p.ATTACH:
-                self._attach_receiver(sock, json.loads(body))
-                return  # the outbox thread owns the socket now
-            if kind != p.HELLO:
-                raise p.ProtocolError(f"expected HELLO, got {kind!r}")
-            client = self._hello(sock, json.loads(body))
-            if client is None:
-                return
-            self._control_loop(client, stream)
-        except (p.ProtocolError, OSError, ValueError):
-            pass
-        finally:
-            if client is not None:
-                client.close()
-            elif kind != p.ATTACH:
-                sock.close()
+            data = conn.sock.recv(262_144)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self._drop(conn)
+            return
+        if conn.receiving:
+            return  # the receive connection carries nothing from the client: only its end counts
+        conn.inbuf += data
+        try:
+            for kind, body in p.split_messages(conn.inbuf):
+                self._handle(conn, kind, body)
+                if conn.closed or conn.receiving:
+                    return
+        except (p.ProtocolError, ValueError, OSError):
+            self._drop(conn)
 
-    def _hello(self, sock: socket.socket, hello: dict[str, Any]) -> _Client | None:
+    def _handle(self, conn: _Conn, kind: int, body: bytes) -> None:
+        client = conn.client
+        if client is None:
+            if kind == p.HELLO:
+                self._hello(conn, json.loads(body))
+            elif kind == p.ATTACH:
+                self._attach_receiver(conn, json.loads(body))
+            else:
+                raise p.ProtocolError(f"expected HELLO, got {kind!r}")
+            return
+        medium, node = self.medium, client.node
+        if kind == p.POST:
+            msg, sent_at, _ = p.unpack_send(body)
+            try:
+                # queued when its sender queued it: the loopback's delay is the host's, not the wire's
+                medium.submit(node, msg, now=min(sent_at, medium.now()))
+            except can.CanOperationError:
+                client.frames.put_done(1)  # bus off meanwhile: the frame is lost, its place freed
+        elif kind == p.SEND:
+            msg, local_time, timeout = p.unpack_send(body)
+            medium.received(node, local_time)
+            conn.outbox.put_bytes(self._send(node, msg, timeout))
+        elif kind == p.REFUSED:
+            with medium.cond:
+                node.enobufs += 1
+        elif kind == p.CALL:
+            conn.outbox.put_bytes(self._call(node, json.loads(body)))
+        else:
+            raise p.ProtocolError(f"unexpected message {kind!r}")
+
+    def _hello(self, conn: _Conn, hello: dict[str, Any]) -> None:
+        frames = _Outbox(self)
         try:
             if hello.get("channel") != self.channel:
                 raise WireConfigError(
@@ -231,68 +357,70 @@ class WireServer:
             self.medium.check_agrees(
                 bitrate=hello.get("bitrate"), clock=hello.get("clock"), sync_period=hello.get("sync_period")
             )
-            outbox = _Outbox(hello.get("name") or "remote")
             node = self.medium.attach(
-                outbox.put,
+                frames.put,
                 name=hello.get("name"),
                 txqueuelen=hello.get("txqueuelen", 10),
                 receive_own=hello.get("receive_own", False),
             )
         except WireConfigError as error:
-            sock.sendall(p.pack_fail(0, str(error)))
-            sock.close()
-            return None
-        if self.medium.clock == "wall":
-            node.on_done = outbox.put_done
-        client = _Client(self, node, outbox, sock)
-        with self._lock:
-            if self._closed:
-                client.close()
-                return None
-            self._clients.append(client)
-            self._pending[client.token] = client
-        sock.sendall(p.pack_json(p.WELCOME, {"node": node.name, "token": client.token, **self.medium.params()}))
-        return client
-
-    def _attach_receiver(self, sock: socket.socket, body: dict[str, Any]) -> None:
-        with self._lock:
-            client = self._pending.pop(body.get("token", ""), None)
-        if client is None:
-            sock.close()
+            with contextlib.suppress(OSError):
+                conn.sock.send(p.pack_fail(0, str(error)))
+            self._close_conn(conn)
             return
-        client.receive = sock
-        client.outbox.attach(sock)
-        threading.Thread(target=self._watch_receiver, args=(client,), daemon=True).start()
+        if self.medium.clock == "wall":
+            node.on_done = frames.put_done
+        client = _Client(node, frames, conn)
+        conn.client = client
+        self._clients.append(client)
+        self._pending[client.token] = client
+        welcome = {"node": node.name, "token": client.token, "epoch": self.medium.epoch, **self.medium.params()}
+        conn.outbox.put_bytes(p.pack_json(p.WELCOME, welcome))
 
-    @staticmethod
-    def _watch_receiver(client: _Client) -> None:
-        """The receive connection carries nothing from the client: its end is the client's end."""
+    def _attach_receiver(self, conn: _Conn, body: dict[str, Any]) -> None:
+        client = self._pending.pop(body.get("token", ""), None)
+        if client is None:
+            self._close_conn(conn)
+            return
+        conn.receiving = True
+        conn.client = client
+        conn.outbox = client.frames
+        client.receive = conn
+        with client.frames.lock:
+            client.frames.conn = conn
+        client.frames.flush()  # what the medium delivered before the client attached
+
+    def _drop(self, conn: _Conn) -> None:
+        if conn.client is not None:
+            self._close_client(conn.client)
+        self._close_conn(conn)
+
+    def _close_client(self, client: _Client) -> None:
+        if client.closed:
+            return
+        client.closed = True
+        self.medium.detach(client.node)
+        with client.frames.lock:
+            client.frames.closed = True
+        for conn in (client.control, client.receive):
+            if conn is not None:
+                self._close_conn(conn)
+        if client in self._clients:
+            self._clients.remove(client)
+        self._pending.pop(client.token, None)
+
+    def _close_conn(self, conn: _Conn) -> None:
+        if conn.closed:
+            return
+        conn.closed = True
+        with conn.outbox.lock:
+            conn.outbox.closed = True
+        self._conns.discard(conn)
+        with contextlib.suppress(KeyError, ValueError):
+            self._selector.unregister(conn.sock)
         with contextlib.suppress(OSError):
-            while client.receive.recv(4096):
-                pass
-        client.close()
-
-    def _control_loop(self, client: _Client, stream: Any) -> None:
-        medium, node, sock = self.medium, client.node, client.control
-        while True:
-            kind, body = p.read_message(stream)
-            if kind == p.SEND:
-                msg, local_time, timeout = p.unpack_send(body)
-                medium.received(node, local_time)
-                sock.sendall(self._send(node, msg, timeout))
-            elif kind == p.POST:
-                msg, _, _ = p.unpack_send(body)
-                try:
-                    medium.submit(node, msg)
-                except can.CanOperationError:
-                    client.outbox.put_done(1)  # bus off meanwhile: the frame is lost, its place freed
-            elif kind == p.REFUSED:
-                with medium.cond:
-                    node.enobufs += 1
-            elif kind == p.CALL:
-                sock.sendall(self._call(node, json.loads(body)))
-            else:
-                raise p.ProtocolError(f"unexpected message {kind!r}")
+            conn.sock.shutdown(socket.SHUT_RDWR)
+        conn.sock.close()
 
     def _send(self, node: Node, msg: can.Message, timeout: float | None) -> bytes:
         try:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import threading
 
 from axes.sim.wire.medium import Medium
+from axes.sim.wire.priority import ask_wire_priority
 
 
 class WallDriver:
@@ -23,11 +24,13 @@ class WallDriver:
         self.thread.start()
 
     def _run(self) -> None:
+        ask_wire_priority()
         medium = self.medium
         cond = medium.cond
         with cond:
             while not self._stop:
-                due = medium.step(medium.now())
+                with medium.delivery_batch():
+                    due = medium.step(medium.now())
                 if due is None:
                     cond.wait()
                 else:
