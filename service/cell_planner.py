@@ -178,7 +178,7 @@ class CellPlanner:
                 out.trajectory,
                 self.axes,
                 self.cell.name,
-                KnotOptions(tolerance_qc=tol),
+                KnotOptions(tolerance_qc=tol, max_jerk=out.details.get("max_jerk")),
                 meta,
                 float(inp.velocity_scale),
                 float(inp.acceleration_scale),

@@ -34,6 +34,7 @@ class Flat:
     pos_hi: NDArray[np.float64]
     rv_per: NDArray[np.float64]  # |v| / 0x607F per qc/ms
     ra_per: NDArray[np.float64]  # |a| / 0x60C5 per qc/ms^2
+    window_jerk: NDArray[np.float64]  # the drive's allowed 10-ms-window jerk, qc/ms^3 (inf: none)
     ids: NDArray[np.int64]  # each axis's place in the first Flat (stays when others leave: ``subset``)
 
     @classmethod
@@ -44,6 +45,7 @@ class Flat:
             smp.position[list(cols)].ravel(),
             smp.velocity[list(cols)].ravel(),
             *axis_constants(tuple(axes)),
+            smp.window_jerk[list(cols)],
             np.arange(len(axes)),
         )
 
@@ -63,6 +65,7 @@ class Flat:
             self.pos_hi[keep],
             self.rv_per[keep],
             self.ra_per[keep],
+            self.window_jerk[keep],
             self.ids[keep],
         )
 
