@@ -173,10 +173,13 @@ def axis_records(
     dev = float(chk.seg_deviation[k0 : k1 - 1].max())
     rv = float(chk.velocity_ratio[k0 : k1 - 1].max())
     ra = float(chk.acceleration_ratio[k0 : k1 - 1].max())
-    need = needed_scale(rv, ra)
     rj = 0.0
     if math.isfinite(fl.window_jerk[a]):
         rj = window_jerk(epos2_pvt(records, float(fl.f[a]))) / float(fl.window_jerk[a])
-        if exceeds(rj, 1.0):
-            need = max(need, math.cbrt(rj) * (1.0 + 1e-4))
-    return AxisKnots(fl.axes[a].name, records, dev, rv, ra, rj), need
+    return AxisKnots(fl.axes[a].name, records, dev, rv, ra, rj), max(needed_scale(rv, ra), jerk_scale(rj))
+
+
+def jerk_scale(rj: float) -> float:
+    """The slow-down for a window jerk ``rj`` times what is allowed: the motion's part of the
+    jerk falls with the cube of it (the records' own part does not: a first guess)."""
+    return math.cbrt(rj) * (1.0 + 1e-4) if exceeds(rj, 1.0) else 1.0

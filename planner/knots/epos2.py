@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 from axes.interpolation import epos2_pvt
 from planner.knots.check import Checked, axis_records, check_knots, checked_subset, knot_records, over_limit
 from planner.knots.flat import Flat
+from planner.knots.jerk_smooth import smoothed_axis
 from planner.knots.quantize import repair_rounds, round_knots, shifted_records
 from planner.knots.refine import Fitted, fit_knots, fitted_subset, lsq_fit, refine, split_segments, switch_knots
 from planner.knots.samples import Samples
@@ -172,8 +173,12 @@ def epos2_axes(
     def shifted(i: int, placed: tuple[AxisKnots, float]) -> tuple[AxisKnots, float]:
         return shifted_records(Flat.of([axes[i]], [cols[i]], smp), placed, opts)
 
+    def smoothed(i: int, placed: tuple[AxisKnots, float]) -> tuple[AxisKnots, float]:
+        return smoothed_axis(Flat.of([axes[i]], [cols[i]], smp), placed, opts)
+
     if hints is not None:
         for i, res in zip(todo, place(todo, Start.HINT, list(hints)), strict=True):
+            res = smoothed(i, res)
             if res[1] <= 1.0:
                 results[i] = res
         todo = [i for i in todo if i not in results]
@@ -181,6 +186,7 @@ def epos2_axes(
         fit = place(todo, Start.LEAST_SQUARES)
         redo = []
         for i, res in zip(todo, fit, strict=True):
+            res = smoothed(i, res)
             if res[1] > 1.0:  # knots a ms earlier or later first (cheap), then the exact samples
                 res = shifted(i, res)
             results[i] = res
@@ -188,6 +194,7 @@ def epos2_axes(
                 redo.append(i)
         if redo:
             for i, res in zip(redo, place(redo, Start.EXACT), strict=True):
+                res = smoothed(i, res)
                 if res[1] > 1.0:
                     res = shifted(i, res)
                 if res[1] < results[i][1]:
