@@ -22,15 +22,14 @@ from numpy.typing import NDArray
 
 from axes.interpolation import (
     LIMIT_RTOL,
-    exceeds,
     cubic_peak_acceleration,
     cubic_peak_speed,
     cubic_position_range,
     epos2_end,
     epos2_segment,
+    exceeds,
     hermite,
 )
-
 from planner.knots.check import check_records, jerk_scale, needed_scale
 from planner.knots.flat import Flat
 from planner.knots.types import AxisKnots, KnotOptions
@@ -71,7 +70,17 @@ def _window_max(a_left: _F, a_right: _F, lo: int, hi: int, w: int) -> float:
 
 @njit(cache=True)
 def _segment_ok(
-    rows: _I, f: float, k: int, start: _I, dwell: int, plan: _F, tol: float, vmax: float, amax: float, lo: float, hi: float
+    rows: _I,
+    f: float,
+    k: int,
+    start: _I,
+    dwell: int,
+    plan: _F,
+    tol: float,
+    vmax: float,
+    amax: float,
+    lo: float,
+    hi: float,
 ) -> bool:
     p0, v0, p1, v1, T = epos2_segment(rows, 0, k, f)
     c0, c1, c2, c3 = hermite(p0, v0, p1, v1, T)

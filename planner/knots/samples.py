@@ -85,6 +85,4 @@ def sample_trajectory(
     jerk = np.full(len(axes), np.inf)
     if max_jerk is not None:
         jerk = np.asarray(max_jerk, dtype=float) * np.abs(acc_1) * (1e-3 * window_jerk_ratio)
-    return Samples(
-        scale, n, q, qd, switch_s * 1000.0 * scale, jump_joint * (np.abs(acc_1) / (scale * scale)), jerk
-    )
+    return Samples(scale, n, q, qd, switch_s * 1000.0 * scale, jump_joint * (np.abs(acc_1) / (scale * scale)), jerk)
