@@ -29,6 +29,7 @@ KERNEL_SOURCES = (
             "knot_kernels.py",
             "lean_toppra.py",
             "path.py",
+            "smooth_kernels.py",
             "trajectory.py",
             "validate.py",
         )
