@@ -174,6 +174,8 @@ def epos2_axes(
         return shifted_records(Flat.of([axes[i]], [cols[i]], smp), placed, opts)
 
     def smoothed(i: int, placed: tuple[AxisKnots, float]) -> tuple[AxisKnots, float]:
+        if placed[0].jerk_ratio <= 1.0:  # no jerk limit, or within it
+            return placed
         return smoothed_axis(Flat.of([axes[i]], [cols[i]], smp), placed, opts)
 
     if hints is not None:

@@ -83,6 +83,6 @@ def sample_trajectory(
     qd[:, 0] = 0.0
     qd[:, -1] = 0.0
     jerk = np.full(len(axes), np.inf)
-    if max_jerk is not None:
-        jerk = np.asarray(max_jerk, dtype=float) * np.abs(acc_1) * (1e-3 * window_jerk_ratio)
+    if max_jerk is not None:  # a hair below the allowance: the same numbers in other units never read over it
+        jerk = np.asarray(max_jerk, dtype=float) * np.abs(acc_1) * (1e-3 * window_jerk_ratio * (1.0 - 1e-6))
     return Samples(scale, n, q, qd, switch_s * 1000.0 * scale, jump_joint * (np.abs(acc_1) / (scale * scale)), jerk)
