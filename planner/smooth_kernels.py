@@ -1,4 +1,5 @@
-"""The compiled loop of ``planner.knots.jerk_smooth``: records nudged for the drive's window jerk.
+"""The compiled loops of the drive's window jerk: its peaks (``planner.knots.window_jerk``) and the
+records nudged for it (``planner.knots.jerk_smooth``).
 
 Its cubics are the drive's own (``axes.interpolation.epos2_segment`` and ``hermite``), inlined:
 this file is one of ``planner.kernel_cache.KERNEL_SOURCES``.
@@ -24,6 +25,49 @@ _F = NDArray[np.float64]
 _I = NDArray[np.int64]
 
 _PASSES = 4
+
+
+@njit(cache=True)
+def _acceleration_side(start: _F, duration: _F, c2: _F, c3: _F, t: float, left: bool) -> float:
+    """A piecewise cubic's acceleration just before (``left``) or just after ``t``; 0 at rest
+    before its first segment and after its last."""
+    n = len(start)
+    end = start[n - 1] + duration[n - 1]
+    if (left and (t <= start[0] or t > end)) or (not left and (t < start[0] or t >= end)):
+        return 0.0
+    lo, hi = 0, n  # the last segment starting before t (left) or at or before t (right)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if start[mid] < t or (not left and start[mid] == t):
+            lo = mid
+        else:
+            hi = mid
+    tau = min(max(t - start[lo], 0.0), duration[lo])
+    return 2.0 * c2[lo] + 6.0 * c3[lo] * tau
+
+
+@njit(cache=True)
+def window_jerk_peaks(start: _F, duration: _F, c2: _F, c3: _F, window: float) -> tuple[_F, _F]:
+    """(t, |a(t + W) - a(t)| / W, the larger side) at every segment end and every end less W: the
+    acceleration is linear in between, so the window jerk peaks at one of them."""
+    n = len(start)
+    times = np.empty(2 * (n + 1))
+    for k in range(n):
+        times[k] = start[k]
+    times[n] = start[n - 1] + duration[n - 1]
+    for k in range(n + 1):
+        times[n + 1 + k] = times[k] - window
+    jerk = np.empty(len(times))
+    for i in range(len(times)):
+        t = times[i]
+        d_left = _acceleration_side(start, duration, c2, c3, t + window, True) - _acceleration_side(
+            start, duration, c2, c3, t, True
+        )
+        d_right = _acceleration_side(start, duration, c2, c3, t + window, False) - _acceleration_side(
+            start, duration, c2, c3, t, False
+        )
+        jerk[i] = max(abs(d_left), abs(d_right)) / window
+    return times, jerk
 
 
 @njit(cache=True)

@@ -52,3 +52,10 @@ def smoothed_axis(fl: Flat, placed: tuple[AxisKnots, float], opts: KnotOptions) 
     rj = window_jerk(recon) / allowed
     moved = AxisKnots(fl.axes[0].name, rows, chk.deviation, rv, ra, rj), max(needed_scale(rv, ra), jerk_scale(rj))
     return moved if moved[1] < placed[1] else placed
+
+
+def warm_up() -> None:
+    """Load the compiled loop (numba's cache), as a service does at start: a warm-up move rarely
+    needs a nudge, and a first real plan would pay the load inside its budget."""
+    rows = np.array([[0, 0, 1], [10, 1, 10], [20, 0, 10], [20, 0, 0]], dtype=np.int64)
+    smooth_records(rows, 0.03, np.linspace(0.0, 20.0, 21), 1.0, 1e9, 1e9, -1e9, 1e9, 0.0, int(WINDOW_MS))

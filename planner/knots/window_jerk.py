@@ -18,33 +18,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.interpolation import PiecewiseCubic
+from planner.smooth_kernels import window_jerk_peaks
 
 WINDOW_MS = 10.0  # the span over which a machine feels an acceleration change
-
-
-def _acceleration_sides(recon: PiecewiseCubic, t: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
-    """The reconstruction's acceleration just before and just after each instant ``t`` (ms)."""
-    start, T = recon.start, recon.duration
-    end = recon.end_time
-    out = []
-    for side in ("left", "right"):
-        k = np.clip(np.searchsorted(start, t, side=side) - 1, 0, len(start) - 1)  # type: ignore[call-overload]
-        tau = np.clip(t - start[k], 0.0, T[k])
-        a = 2.0 * recon.c2[k] + 6.0 * recon.c3[k] * tau
-        inside = (t > start[0]) & (t <= end) if side == "left" else (t >= start[0]) & (t < end)
-        out.append(np.where(inside, a, 0.0))
-    return tuple(out)
 
 
 def window_jerk_profile(
     recon: PiecewiseCubic, window_ms: float = WINDOW_MS
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(t, |a(t + W) - a(t)| / W) at every instant where it can peak (qc/ms^3), the larger side."""
-    ends = np.concatenate((recon.start, [recon.end_time]))
-    t = np.unique(np.concatenate((ends, ends - window_ms)))
-    a0l, a0r = _acceleration_sides(recon, t)
-    a1l, a1r = _acceleration_sides(recon, t + window_ms)
-    return t, np.maximum(np.abs(a1l - a0l), np.abs(a1r - a0r)) / window_ms
+    """(t, |a(t + W) - a(t)| / W) at every instant where it can peak (qc/ms^3), the larger side
+    (``smooth_kernels.window_jerk_peaks``, on the reconstruction's own coefficients)."""
+    return window_jerk_peaks(recon.start, recon.duration, recon.c2, recon.c3, float(window_ms))
 
 
 def window_jerk(recon: PiecewiseCubic, window_ms: float = WINDOW_MS) -> float:
