@@ -1,4 +1,4 @@
-"""Jerk-limited time-optimal timing (casadi) against TOPP-RA, on random arm6 paths.
+"""Jerk-limited time-optimal timing (casadi) against TOPP-RA, on random arm6 (and gantry3) paths.
 
 For every path (bench/pvt_quality.py's drawing) and every jerk limit (max_jerk = F x each joint's
 acceleration limit per second, for each F of --factors): plan with TOPP-RA and with the jerk
@@ -12,11 +12,15 @@ limit, place the knots of both and validate both programs. Prints, per factor:
 - records per axis per second, TOPP-RA's and jerk-limited;
 - the jerk of the drive's reconstruction per segment (the cubic's 6 c3, in joint units / s^3)
   over the jerk limit: p50 / p99 / max over all segments, TOPP-RA's programs against the
-  jerk-limited ones.
+  jerk-limited ones;
+- the drive's executed jerk: the 10-ms-window jerk of each axis's reconstruction (peak over t of
+  |a(t + 10 ms) - a(t)| / 10 ms, ``planner.knots.window_jerk``) over the jerk limit, as a maximum
+  over every axis and every path (target: <= 1.2), and its p50 over the paths.
 
 ``--plot FILE`` writes one path's acceleration and jerk, TOPP-RA against jerk-limited.
 
-Run:  python bench/jerk.py [--paths 100] [--waypoints 8] [--factors 10,4] [--seed 1] [--plot bench/jerk.png]
+Run:  python bench/jerk.py [--cells arm6,gantry3] [--paths 100] [--waypoints 8] [--factors 10,4] [--seed 1]
+      [--plot bench/jerk.png]
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from pvt_quality import random_waypoints
 
 from axes.program import PvtProgram
 from planner.jerk import JerkTrajectory
+from planner.knots.window_jerk import window_jerk
 from planner.plan import PlanInput
 from planner.validate import validate_program
 from service.cell_planner import CellPlan, CellPlanner
@@ -65,6 +70,8 @@ class PathResult:
     topp_records: float
     segment_jerk: np.ndarray  # per reconstruction segment |jerk| / limit, jerk-limited program
     topp_segment_jerk: np.ndarray
+    window_jerk: float  # the drive's 10-ms-window jerk / limit, worst axis of the jerk-limited program
+    topp_window_jerk: float
     solver: str
     iterations: int
 
@@ -77,6 +84,14 @@ def segment_jerk(program: PvtProgram, cell: CellConfig, max_jerk: np.ndarray) ->
         jerk = np.abs(6.0 * recon.c3) * 1e9 / cfg.scaling.qc_per_joint_unit  # joint units / s^3
         out.append(jerk / jmax)
     return np.concatenate(out)
+
+
+def drive_window_jerk(program: PvtProgram, cell: CellConfig, max_jerk: np.ndarray) -> float:
+    """The worst axis's 10-ms-window jerk of the drive's own reconstruction, over its limit."""
+    return max(
+        window_jerk(ap.reconstruction()) * 1e9 / cfg.scaling.qc_per_joint_unit / jmax  # joint units / s^3
+        for cfg, ap, jmax in zip(cell.ordered_axes(), program.axes, max_jerk, strict=True)
+    )
 
 
 def records_per_axis_s(program: PvtProgram) -> float:
@@ -117,6 +132,8 @@ def run_path(cp: CellPlanner, wp: np.ndarray, factor: float, topp: CellPlan) -> 
         topp_records=records_per_axis_s(topp.program),
         segment_jerk=segment_jerk(res.program, cp.cell, max_jerk),
         topp_segment_jerk=segment_jerk(topp.program, cp.cell, max_jerk),
+        window_jerk=drive_window_jerk(res.program, cp.cell, max_jerk),
+        topp_window_jerk=drive_window_jerk(topp.program, cp.cell, max_jerk),
         solver=traj.solver,
         iterations=traj.iterations,
     )
@@ -166,17 +183,10 @@ def plot(cp: CellPlanner, wp: np.ndarray, factor: float, out: Path) -> None:
     print(f"  plot written to {out}", file=sys.stderr)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--paths", type=int, default=100, help="random arm6 paths (default 100)")
-    ap.add_argument("--waypoints", type=int, default=8)
-    ap.add_argument("--factors", default="10,4", help="max_jerk = F x amax per second, for each F (default 10,4)")
-    ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--plot", metavar="FILE", help="write one path's acceleration and jerk (PNG)")
-    args = ap.parse_args()
-    factors = [float(f) for f in args.factors.split(",")]
-
-    cell = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
+def run_cell(
+    cell: CellConfig, args: argparse.Namespace, factors: list[float]
+) -> tuple[CellPlanner, list[tuple[np.ndarray, CellPlan]]]:
+    """Every figure of the module docstring on ``args.paths`` random paths of ``cell``."""
     t0 = time.perf_counter()
     cp = CellPlanner(cell)
     cp.warm_up(jerk=True)
@@ -203,7 +213,7 @@ def main() -> int:
             print(f"  {i + 1}/{len(paths)} paths", file=sys.stderr)
 
     print(
-        f"jerk: {len(paths)} arm6 paths, {args.waypoints} waypoints each, seed {args.seed} "
+        f"jerk: {len(paths)} {cell.name} paths, {args.waypoints} waypoints each, seed {args.seed} "
         f"({refused} random paths refused by the planner)"
     )
     for f in factors:
@@ -246,10 +256,34 @@ def main() -> int:
                 *(np.percentile(sj, q) for q in (50, 99)), sj.max(), *(np.percentile(tj, q) for q in (50, 99)), tj.max()
             )
         )
-    if args.plot:
-        plot(cp, paths[0][0], factors[0], Path(args.plot))
+        wj = np.array([r.window_jerk for r in rs])
+        twj = np.array([r.topp_window_jerk for r in rs])
+        print(
+            f"  drive's 10-ms-window jerk / limit, max over every axis and path: jerk-limited {wj.max():.4f} "
+            f"(p50 of the paths' worst axis {np.median(wj):.3f}, paths over 1.2: {int(np.sum(wj > 1.2))}); "
+            f"TOPP-RA's programs max {twj.max():.2f}, p50 {np.median(twj):.2f}"
+        )
+    return cp, paths
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cells", default="arm6,gantry3", help="cells (configs/cells/NAME.yaml), default arm6,gantry3")
+    ap.add_argument("--paths", type=int, default=100, help="random paths per cell (default 100)")
+    ap.add_argument("--waypoints", type=int, default=8)
+    ap.add_argument("--factors", default="10,4", help="max_jerk = F x amax per second, for each F (default 10,4)")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--plot", metavar="FILE", help="write one path's acceleration and jerk (PNG)")
+    args = ap.parse_args()
+    factors = [float(f) for f in args.factors.split(",")]
+
+    for name in args.cells.split(","):
+        cell = load_cell_config(CONFIG_DIR / "cells" / f"{name}.yaml")
+        cp, paths = run_cell(cell, args, factors)
+        if args.plot and name == "arm6":
+            plot(cp, paths[0][0], factors[0], Path(args.plot))
     print(
-        f"command: python bench/jerk.py --paths {args.paths} --waypoints {args.waypoints} "
+        f"command: python bench/jerk.py --cells {args.cells} --paths {args.paths} --waypoints {args.waypoints} "
         f"--factors {args.factors} --seed {args.seed}" + (f" --plot {args.plot}" if args.plot else "")
     )
     return 0

@@ -5,7 +5,12 @@ drawing) with the cells' own settings and hashes every axis's records (int64). R
 commits: the same digest means the same programs, bit for bit. It finds the cell planner where
 that commit keeps it (service/cell_planner.py, or service/plan_cmd.py before it moved).
 
-Run:  python bench/records_digest.py
+``--jerk``: the same for the first 10 arm6 and 5 gantry3 of those paths timed jerk-limited
+(max_jerk 10 x each joint's acceleration limit per second), the knots holding the drive's window
+jerk (``planner.knots.window_jerk``); a second digest. The digests of this tree are ``EXPECTED``:
+the script says whether they match.
+
+Run:  python bench/records_digest.py [--jerk]
 """
 
 from __future__ import annotations
@@ -24,6 +29,35 @@ sys.path.insert(0, str(ROOT))
 from service.config import CONFIG_DIR, load_cell_config  # noqa: E402
 
 CELLS = (("arm6", 40), ("gantry3", 15))
+JERK_CELLS = (("arm6", 10), ("gantry3", 5))
+EXPECTED = {
+    "topp": "0f826ea21679fc52743e6da9b16284c26e8cd5d217791dd91dca3c1e842fd193",
+    "jerk": "5770847246ccd0ef77251fa51c8d732e74947c861bed7b95e0236e3c4d723c2d",
+}
+
+
+def digest_of(plan_cell_program, takes_input: bool, cells: tuple[tuple[str, int], ...], jerk: bool) -> tuple[str, int]:
+    digest, programs = hashlib.sha256(), 0
+    if takes_input:
+        from planner.plan import PlanInput
+    for name, count in cells:
+        cell = load_cell_config(CONFIG_DIR / "cells" / f"{name}.yaml")
+        lim = cell.joint_limits()
+        rng = np.random.default_rng(1)
+        for _ in range(count):
+            waypoints = lim.lower + (lim.upper - lim.lower) * (0.1 + 0.8 * rng.random((8, lim.dof)))
+            if jerk:
+                inp = PlanInput(waypoints, max_jerk=10.0 * lim.acceleration)
+            else:
+                inp = PlanInput(waypoints) if takes_input else waypoints
+            result = plan_cell_program(cell, inp)
+            if not result.ok or result.program is None:
+                digest.update(b"refused")
+                continue
+            for axis in result.program.axes:
+                digest.update(np.ascontiguousarray(axis.records, dtype=np.int64).tobytes())
+                programs += 1
+    return digest.hexdigest(), programs
 
 
 def main() -> int:
@@ -31,24 +65,12 @@ def main() -> int:
     plan_cell_program = importlib.import_module(home).plan_cell_program
     # since the plan input became an object (planner.plan.PlanInput) it is passed as one
     takes_input = "inp" in inspect.signature(plan_cell_program).parameters
-    if takes_input:
-        from planner.plan import PlanInput
-    digest, programs = hashlib.sha256(), 0
-    for name, count in CELLS:
-        cell = load_cell_config(CONFIG_DIR / "cells" / f"{name}.yaml")
-        lim = cell.joint_limits()
-        rng = np.random.default_rng(1)
-        for _ in range(count):
-            waypoints = lim.lower + (lim.upper - lim.lower) * (0.1 + 0.8 * rng.random((8, lim.dof)))
-            result = plan_cell_program(cell, PlanInput(waypoints) if takes_input else waypoints)
-            if not result.ok or result.program is None:
-                digest.update(b"refused")
-                continue
-            for axis in result.program.axes:
-                digest.update(np.ascontiguousarray(axis.records, dtype=np.int64).tobytes())
-                programs += 1
-    print(f"{programs} axis programs, records sha256 {digest.hexdigest()}")
-    print("command: python bench/records_digest.py")
+    parts = [("topp", CELLS, False)] + ([("jerk", JERK_CELLS, True)] if "--jerk" in sys.argv[1:] else [])
+    for part, cells, jerk in parts:
+        digest, programs = digest_of(plan_cell_program, takes_input, cells, jerk)
+        same = "matches" if digest == EXPECTED[part] else "DIFFERS from"
+        print(f"{part}: {programs} axis programs, records sha256 {digest} ({same} this tree's {EXPECTED[part][:12]})")
+    print("command: python bench/records_digest.py" + (" --jerk" if len(parts) > 1 else ""))
     return 0
 
 

@@ -30,6 +30,7 @@ KERNEL_SOURCES = (
             "lean_toppra.py",
             "path.py",
             "slowdown.py",
+            "smooth_kernels.py",
             "trajectory.py",
             "validate.py",
         )

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from axes.program import PvtProgram
 from planner.build import BuildError, BuildOutput, build_program
 from planner.cartesian import placement_pose
-from planner.knots import DriveAxis, KnotOptions
+from planner.knots import DriveAxis, KnotOptions, jerk_smooth
 from planner.path import PlanResult
 from planner.plan import PlanInput, Planner, PlanOutput
 from service.config import CellConfig
@@ -105,6 +105,7 @@ class CellPlanner:
         self.plan(PlanInput(np.array([a, b])))
         if jerk:
             self.plan(PlanInput(np.array([a, b]), max_jerk=10.0 * self.limits.acceleration))
+            jerk_smooth.warm_up()
         if self.planner.poses is not None:  # and the inverse kinematics' compiled steps
             self.plan(PlanInput(a, [placement_pose(self.planner.poses.ik.fk(b))]))
 
@@ -178,7 +179,7 @@ class CellPlanner:
                 out.trajectory,
                 self.axes,
                 self.cell.name,
-                KnotOptions(tolerance_qc=tol),
+                KnotOptions(tolerance_qc=tol, max_jerk=out.details.get("max_jerk")),
                 meta,
                 float(inp.velocity_scale),
                 float(inp.acceleration_scale),

@@ -84,7 +84,7 @@ def place_knots(traj: TimedTrajectory, axes: Sequence[DriveAxis], options: KnotO
     last_n = 0
     least = drives = 1.0  # the slow-downs the fixed-period drives alone call for (``drive_slowdown``)
     if any(a.profile != "epos2_pvt" for a in axes):
-        smp = sample_trajectory(traj, axes, scale)
+        smp = sample_trajectory(traj, axes, scale, opts.max_jerk, opts.window_jerk_ratio)
         for i, axis in enumerate(axes):
             if axis.profile != "epos2_pvt":
                 k_least, k_drive = drive_slowdown(axis, i, smp)
@@ -92,7 +92,7 @@ def place_knots(traj: TimedTrajectory, axes: Sequence[DriveAxis], options: KnotO
         if least > scale:  # no integers make less: no round below it
             scale = math.ceil(duration_ms * least - 1e-6) / duration_ms
     for rounds in range(1, opts.max_rounds + 1):
-        smp = sample_trajectory(traj, axes, scale)
+        smp = sample_trajectory(traj, axes, scale, opts.max_jerk, opts.window_jerk_ratio)
         placed: dict[int, tuple[AxisKnots, float]] = {}
         epos2 = [i for i, a in enumerate(axes) if a.profile == "epos2_pvt"]
         if epos2:

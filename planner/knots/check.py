@@ -7,15 +7,17 @@ reconstruction (``check_records``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.interpolation import PiecewiseCubic, exceeds
+from axes.interpolation import PiecewiseCubic, epos2_pvt, exceeds
 from planner import knot_kernels as kernels
 from planner.knots.flat import Flat
 from planner.knots.types import AxisKnots, DriveAxis
+from planner.knots.window_jerk import window_jerk
 from planner.slowdown import KNOT_SLOWDOWN_MARGIN, slowdown
 
 
@@ -145,17 +147,40 @@ def record_knots(records: NDArray[np.int64]) -> NDArray[np.int64]:
     return np.concatenate(([0], np.cumsum(records[1:-1, 2]))).astype(np.int64)
 
 
-def axis_records(
-    fl: Flat, a: int, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64], chk: Check, dwell_ms: int
-) -> tuple[AxisKnots, float]:
-    """The records of axis ``a`` of ``fl``, what their reconstruction does, the slow-down it needs."""
+def knot_records(
+    fl: Flat, a: int, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64], dwell_ms: int
+) -> NDArray[np.int64]:
+    """The records of axis ``a`` of ``fl``: the dwell, one per knot, the end record (P, 0, 0)."""
     k0, k1 = np.searchsorted(knots, [a * fl.stride, (a + 1) * fl.stride])  # knots k0 .. k1 - 1
-    records = np.zeros((k1 - k0 + 1, 3), dtype=np.int64)  # the last: the end record (P, 0, 0)
+    records = np.zeros((k1 - k0 + 1, 3), dtype=np.int64)
     records[:-1, 0], records[:-1, 1] = P[k0:k1], V[k0:k1]
     records[-1, 0] = P[k1 - 1]
     records[0, 2] = dwell_ms
     records[1:-1, 2] = np.diff(knots[k0:k1])
+    return records
+
+
+def axis_records(
+    fl: Flat, a: int, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64], chk: Check, dwell_ms: int
+) -> tuple[AxisKnots, float]:
+    """The records of axis ``a`` of ``fl``, what their reconstruction does, the slow-down it needs.
+
+    With a jerk limit, the slow-down also brings the drive's window jerk (``window_jerk``, of its
+    own reconstruction) within what ``fl.window_jerk`` allows: the motion's part of it falls with
+    the cube of the slow-down.
+    """
+    k0, k1 = np.searchsorted(knots, [a * fl.stride, (a + 1) * fl.stride])
+    records = knot_records(fl, a, knots, P, V, dwell_ms)
     dev = float(chk.seg_deviation[k0 : k1 - 1].max())
     rv = float(chk.velocity_ratio[k0 : k1 - 1].max())
     ra = float(chk.acceleration_ratio[k0 : k1 - 1].max())
-    return AxisKnots(fl.axes[a].name, records, dev, rv, ra), needed_scale(rv, ra)
+    rj = 0.0
+    if math.isfinite(fl.window_jerk[a]):
+        rj = window_jerk(epos2_pvt(records, float(fl.f[a]))) / float(fl.window_jerk[a])
+    return AxisKnots(fl.axes[a].name, records, dev, rv, ra, rj), max(needed_scale(rv, ra), jerk_scale(rj))
+
+
+def jerk_scale(rj: float) -> float:
+    """The slow-down for a window jerk ``rj`` times what is allowed: the motion's part of the
+    jerk falls with the cube of it (the records' own part does not: a first guess)."""
+    return math.cbrt(rj) * (1.0 + KNOT_SLOWDOWN_MARGIN) if exceeds(rj, 1.0) else 1.0

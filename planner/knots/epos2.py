@@ -8,17 +8,34 @@ from enum import Enum
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.knots.check import Checked, axis_records, check_knots, checked_subset, over_limit
+from axes.interpolation import epos2_pvt
+from planner.knots.check import Checked, axis_records, check_knots, checked_subset, knot_records, over_limit
 from planner.knots.flat import Flat
+from planner.knots.jerk_smooth import smoothed_axis
 from planner.knots.quantize import repair_rounds, round_knots, shifted_records
 from planner.knots.refine import Fitted, fit_knots, fitted_subset, lsq_fit, refine, split_segments, switch_knots
 from planner.knots.samples import Samples
 from planner.knots.types import AxisKnots, DriveAxis, KnotOptions
+from planner.knots.window_jerk import segments_over
 
 _COARSE = 4.0  # first cut: exact-sample cubics to this multiple of the fit target (cheap), then least squares
 
 
 _MIN_SPLIT_MS = 12  # segments shorter than twice this are not split for a limit (rounding grows as 1/T^2)
+
+
+def jerk_segments(
+    fl: Flat, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64], dwell_ms: int
+) -> NDArray[np.int64]:
+    """The knot segments, over every axis with a jerk limit, that a 10-ms window of the drive's
+    reconstruction over the allowed jerk touches (``window_jerk.segments_over``)."""
+    out = []
+    for a in np.flatnonzero(np.isfinite(fl.window_jerk)):
+        records = knot_records(fl, int(a), knots, P, V, dwell_ms)
+        s = segments_over(epos2_pvt(records, float(fl.f[a])), float(fl.window_jerk[a]))
+        s = s[(s >= 1) & (s <= len(records) - 2)]  # not the dwell: the knot segments
+        out.append(np.searchsorted(knots, a * fl.stride) + s - 1)
+    return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
 
 
 class Start(Enum):
@@ -85,8 +102,11 @@ def place_epos2(
         T = np.diff(knots)
         bad = np.flatnonzero((chk.seg_deviation > tol) | chk.position_out)
         bad = bad[T[bad] >= 2]
-        # a segment still over a limit with a long span: another knot gives the repair room to fix it
+        # a segment still over a limit with a long span: another knot gives the repair room to fix it;
+        # where the window jerk is over, shorter cubics follow the plan's acceleration closer
         stuck = np.flatnonzero(over_limit(chk))
+        if np.isfinite(fl.window_jerk).any():  # and the drive's window jerk over what the jerk limit allows
+            stuck = np.union1d(stuck, jerk_segments(fl, knots, P, V, opts.dwell_ms))
         # splits are worth it while they help: an axis whose segments over a limit did not get
         # fewer (and that strays nowhere) stops here, as it is
         ax_stuck = fl.axis_of(knots[stuck])
@@ -153,8 +173,14 @@ def epos2_axes(
     def shifted(i: int, placed: tuple[AxisKnots, float]) -> tuple[AxisKnots, float]:
         return shifted_records(Flat.of([axes[i]], [cols[i]], smp), placed, opts)
 
+    def smoothed(i: int, placed: tuple[AxisKnots, float]) -> tuple[AxisKnots, float]:
+        if placed[0].jerk_ratio <= 1.0:  # no jerk limit, or within it
+            return placed
+        return smoothed_axis(Flat.of([axes[i]], [cols[i]], smp), placed, opts)
+
     if hints is not None:
         for i, res in zip(todo, place(todo, Start.HINT, list(hints)), strict=True):
+            res = smoothed(i, res)
             if res[1] <= 1.0:
                 results[i] = res
         todo = [i for i in todo if i not in results]
@@ -162,6 +188,7 @@ def epos2_axes(
         fit = place(todo, Start.LEAST_SQUARES)
         redo = []
         for i, res in zip(todo, fit, strict=True):
+            res = smoothed(i, res)
             if res[1] > 1.0:  # knots a ms earlier or later first (cheap), then the exact samples
                 res = shifted(i, res)
             results[i] = res
@@ -169,6 +196,7 @@ def epos2_axes(
                 redo.append(i)
         if redo:
             for i, res in zip(redo, place(redo, Start.EXACT), strict=True):
+                res = smoothed(i, res)
                 if res[1] > 1.0:
                     res = shifted(i, res)
                 if res[1] < results[i][1]:

@@ -34,6 +34,7 @@ class Flat:
     pos_hi: NDArray[np.float64]
     rv_per: NDArray[np.float64]  # |v| / 0x607F per qc/ms
     ra_per: NDArray[np.float64]  # |a| / 0x60C5 per qc/ms^2
+    window_jerk: NDArray[np.float64]  # the drive's allowed 10-ms-window jerk, qc/ms^3 (inf: none)
     ids: NDArray[np.int64]  # each axis's place in the first Flat (stays when others leave: ``subset``)
 
     @classmethod
@@ -44,6 +45,7 @@ class Flat:
             smp.position[list(cols)].ravel(),
             smp.velocity[list(cols)].ravel(),
             *axis_constants(tuple(axes)),
+            smp.window_jerk[list(cols)],
             np.arange(len(axes)),
         )
 
@@ -63,6 +65,7 @@ class Flat:
             self.pos_hi[keep],
             self.rv_per[keep],
             self.ra_per[keep],
+            self.window_jerk[keep],
             self.ids[keep],
         )
 
@@ -106,7 +109,8 @@ def within_record_time(knots: NDArray[np.int64]) -> NDArray[np.int64]:
     at = np.repeat(long, pieces - 1)  # the gap each new knot splits
     n = np.repeat(pieces, pieces - 1)
     j = np.arange(len(at)) - np.repeat(np.cumsum(pieces - 1) - (pieces - 1), pieces - 1) + 1  # 1 .. n - 1
-    return np.union1d(knots, knots[at] + (gaps[at] * j) // n)
+    # each new knot lies strictly inside its gap (gap / n >= 128 ms apart): sorting is the union
+    return np.sort(np.concatenate((knots, knots[at] + (gaps[at] * j) // n)))
 
 
 def real_segments(fl: Flat, knots: NDArray[np.int64]) -> NDArray[np.bool_]:

@@ -23,6 +23,7 @@ class Samples:
     velocity: NDArray[np.float64]  # (dof, n_ms + 1) qc/ms
     switch_ms: NDArray[np.float64]  # breakpoint times (ms)
     jump: NDArray[np.float64]  # (len(switch_ms), dof) |acceleration jump| qc/ms^2
+    window_jerk: NDArray[np.float64]  # (dof,) the drive's allowed 10-ms-window jerk, qc/ms^3 (inf: none)
 
 
 def read_only(*arrays: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
@@ -61,7 +62,16 @@ def axis_constants(axes: tuple[DriveAxis, ...]) -> tuple[NDArray[np.float64], ..
     )
 
 
-def sample_trajectory(traj: TimedTrajectory, axes: Sequence[DriveAxis], scale: float) -> Samples:
+def sample_trajectory(
+    traj: TimedTrajectory,
+    axes: Sequence[DriveAxis],
+    scale: float,
+    max_jerk: Sequence[float] | None = None,
+    window_jerk_ratio: float = 1.2,
+) -> Samples:
+    """The plan slowed down by ``scale`` at every drive ms; ``max_jerk`` (joint units/s^3 per
+    axis) times ``window_jerk_ratio``, in qc/ms^3, is what the drive's window jerk may reach (the
+    limit of the plan, not of the slowed motion: a slower one only has more room)."""
     duration_ms = traj.duration * 1000.0 * scale
     n = max(1, math.ceil(duration_ms - 1e-6))
     q, qd = traj.states(np.arange(n + 1) / (1000.0 * scale))  # trajectory time of each drive ms
@@ -72,4 +82,7 @@ def sample_trajectory(traj: TimedTrajectory, axes: Sequence[DriveAxis], scale: f
     qd *= (vel_1 / scale)[:, None]
     qd[:, 0] = 0.0
     qd[:, -1] = 0.0
-    return Samples(scale, n, q, qd, switch_s * 1000.0 * scale, jump_joint * (np.abs(acc_1) / (scale * scale)))
+    jerk = np.full(len(axes), np.inf)
+    if max_jerk is not None:  # a hair below the allowance: the same numbers in other units never read over it
+        jerk = np.asarray(max_jerk, dtype=float) * np.abs(acc_1) * (1e-3 * window_jerk_ratio * (1.0 - 1e-6))
+    return Samples(scale, n, q, qd, switch_s * 1000.0 * scale, jump_joint * (np.abs(acc_1) / (scale * scale)), jerk)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -79,10 +80,19 @@ class KnotOptions:
     max_extra_ms: int = 50  # ... unless that is less than this much time (a short move's whole ms cost more)
     max_rounds: int = 10  # slow-down rounds
     max_splits: int = 40  # refinement rounds per axis
+    # per axis (joint units/s^3; None or inf: none): the jerk limit the plan was timed with; the
+    # drive's 10-ms-window jerk (``planner.knots.window_jerk``) is held to ``window_jerk_ratio`` times it
+    max_jerk: Sequence[float | None] | None = None
+    window_jerk_ratio: float = 1.2
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.tolerance_qc) and self.tolerance_qc >= 0.5):
             raise ValueError(f"tolerance_qc must be >= 0.5 count (positions are integers), got {self.tolerance_qc}")
+        if self.max_jerk is not None:
+            jerk = tuple(math.inf if j is None else float(j) for j in self.max_jerk)
+            if not all(j > 0 for j in jerk):
+                raise ValueError(f"max_jerk must be positive (None or inf: none), got {self.max_jerk}")
+            object.__setattr__(self, "max_jerk", jerk if any(map(math.isfinite, jerk)) else None)
         if not 1 <= self.dwell_ms <= TIME_MAX_MS:
             raise ValueError(f"dwell_ms must be in 1..255, got {self.dwell_ms}")
 
@@ -96,6 +106,7 @@ class AxisKnots:
     deviation_qc: float  # worst |reconstruction - plan| at 1 kHz
     velocity_ratio: float  # exact max |v| / 0x607F of the reconstruction
     acceleration_ratio: float  # exact max |a| / 0x60C5
+    jerk_ratio: float = 0.0  # 10-ms-window jerk / what the jerk limit allows (window_jerk_ratio x it; 0: none)
 
 
 @dataclass(frozen=True)
