@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from axes.drive_profile import DriveProfile
 from axes.scaling import AxisScaling, DriveLimits
 
 # python-can interfaces whose bus only simulated drives share: pvtflow's simulated wire (axes/sim/wire,
@@ -154,7 +155,7 @@ class AxisSimulation:
 class AxisConfig:
     joint: str
     node_id: int
-    profile: str
+    profile: DriveProfile
     scaling: AxisScaling
     limits: DriveLimits
     period_ms: int | None = None  # fixed-period profiles: one record per period
@@ -163,8 +164,11 @@ class AxisConfig:
     homing: HomingConfig | None = None  # None: nothing to home (an absolute encoder)
     simulation: AxisSimulation | None = None  # the simulated machine around the axis (switches, stops)
     # 0x1018:01/:02 (vendor id, product code) of the axis's drive, accepted besides the profile's known
-    # drives (axes.objects.KNOWN_IDENTITIES) by the commissioning check: a real drive pvtflow has no EDS of
+    # drives (``DriveProfile.identities``) by the commissioning check: a real drive pvtflow has no EDS of
     identity: tuple[int, int] | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "profile", DriveProfile.parse(self.profile))
 
 
 @dataclass(frozen=True)

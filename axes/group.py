@@ -513,8 +513,8 @@ class AxisGroup:
         done = True
         for i, (link, profile, feeder) in enumerate(zip(self.links, self.profiles, self._feeders, strict=True)):
             ip_active = bool(link.statusword & _IP_MODE_ACTIVE)
-            if feeder.finished(elapsed, ip_active and profile.name == "epos2_pvt"):
-                if profile.name != "epos2_pvt" and not self._end_words_sent[i]:
+            if feeder.finished(elapsed, ip_active and profile.name.buffered):
+                if not profile.name.buffered and not self._end_words_sent[i]:
                     link.send_controlword(profile.end_controlword())  # the fixed-period end: bit 4 off
                     self._end_words_sent[i] = True
                     done = False

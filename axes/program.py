@@ -18,21 +18,12 @@ from numpy.typing import NDArray
 
 from axes import interpolation
 from axes.config import AxisConfig
+from axes.drive_profile import DriveProfile
 from axes.interpolation import PiecewiseCubic
-from axes.objects import PARKER_CUBIC_THRESHOLD_US
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 
 FORMAT = "pvtflow.pvt-program"
 VERSION = 1
-
-PROFILES = ("epos2_pvt", "cia402_ip_linear", "sync_setpoint", "parker_slvdn")
-FIXED_PERIOD_PROFILES = ("cia402_ip_linear", "sync_setpoint", "parker_slvdn")
-# The shortest SYNC period pvtflow holds for each fixed-period profile: its setpoints go out from the
-# thread that sends SYNC, one per period, and a CPython master holds a 1 ms period on the wall clock
-# (bench/realtime.py) but not less. The seeds ask no less: the linear IP drive's 0x60C2 counts whole
-# ms (1 ms recommended), the bufferless drive takes 1.0-100.0 ms, the Parker's direct loop runs at
-# any cycle below 2.5 ms.
-SHORTEST_PERIOD_MS = {"cia402_ip_linear": 1.0, "sync_setpoint": 1.0, "parker_slvdn": 1.0}
 
 TIME_MAX_MS = 255
 
@@ -59,11 +50,14 @@ class AxisProgram:
 
     name: str
     node_id: int
-    profile: str
+    profile: DriveProfile
     scaling: AxisScaling
     limits: DriveLimits
     records: NDArray[np.int64]
     interpolation_submode: int | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "profile", DriveProfile.parse(self.profile))
 
     @property
     def duration_ms(self) -> int:
@@ -72,23 +66,13 @@ class AxisProgram:
     @property
     def period_ms(self) -> int | None:
         """The fixed record period of a fixed-period profile (None for EPOS2 PVT)."""
-        return int(self.records[0, 2]) if self.profile in FIXED_PERIOD_PROFILES else None
+        return int(self.records[0, 2]) if self.profile.fixed_period else None
 
     def reconstruction(self) -> PiecewiseCubic:
         """The motion this axis's drive will execute from these records (qc, ms)."""
-        r = self.records
-        factor = self.scaling.qc_per_ms_per_velocity_unit
-        if self.profile == "epos2_pvt":
-            return interpolation.epos2_pvt(r, factor)
-        period = float(r[0, 2])
-        # Parker SLVDN interpolates only from a 2.5 ms cycle on; below, the position loop takes each
-        # setpoint as it comes, which on the program's timeline is the linear reconstruction
-        parker_interpolates = self.profile == "parker_slvdn" and period * 1000.0 >= PARKER_CUBIC_THRESHOLD_US
-        if parker_interpolates and self.interpolation_submode == -1:
-            return interpolation.cubic_pv(r, period, factor)
-        if parker_interpolates and self.interpolation_submode == -2:
-            return interpolation.cubic_p(r, period)
-        return interpolation.linear(r, period)
+        period = float(self.records[0, 2])
+        kind = self.profile.reconstruction(period, self.interpolation_submode)
+        return interpolation.reconstruct(kind, self.records, period, self.scaling.qc_per_ms_per_velocity_unit)
 
 
 @dataclass(frozen=True)
@@ -211,9 +195,10 @@ def _axis_from_json(where: str, a: Any, check_ranges: bool = True) -> AxisProgra
     if not isinstance(name, str) or not name:
         raise ProgramFormatError(f"{where}.name", "must be a non-empty string")
     node_id = _integer(f"{where}.node_id", a["node_id"], 1, 127)
-    profile = a["profile"]
-    if profile not in PROFILES:
-        raise ProgramFormatError(f"{where}.profile", f"unknown profile {profile!r} (one of {', '.join(PROFILES)})")
+    try:
+        profile = DriveProfile.parse(a["profile"])
+    except ValueError as exc:
+        raise ProgramFormatError(f"{where}.profile", str(exc)) from None
     qc_per_rev = _number(f"{where}.qc_per_motor_rev", a["qc_per_motor_rev"], positive=True)
     rev_per_unit = _number(f"{where}.motor_rev_per_joint_unit", a["motor_rev_per_joint_unit"])
     if rev_per_unit == 0:
@@ -249,9 +234,9 @@ def _axis_from_json(where: str, a: Any, check_ranges: bool = True) -> AxisProgra
 
     submode = a.get("interpolation_submode")
     if submode is not None:
-        if profile != "parker_slvdn":
-            raise ProgramFormatError(f"{where}.interpolation_submode", "only the parker_slvdn profile has submodes")
-        _integer(f"{where}.interpolation_submode", submode, -2, 0)
+        if not profile.has_submodes:
+            raise ProgramFormatError(f"{where}.interpolation_submode", f"the {profile} profile has no submodes")
+        _integer(f"{where}.interpolation_submode", submode, min(profile.spec.submodes), max(profile.spec.submodes))
 
     records = a["records"]
     rw = f"{where}.records"
@@ -307,8 +292,7 @@ def program_mismatch(program: PvtProgram, axes: Sequence[AxisConfig], cell_name:
         if a.profile != axis.profile:
             problems.append(f"{where}: profile {a.profile}, the cell's drive runs {axis.profile}")
             continue
-        submode = -1 if a.interpolation_submode is None else a.interpolation_submode
-        if a.profile == "parker_slvdn" and submode != axis.interpolation_submode:
+        if a.profile.submode(a.interpolation_submode) != a.profile.submode(axis.interpolation_submode):
             problems.append(
                 f"{where}: interpolation submode {a.interpolation_submode}, "
                 f"the cell's drive uses {axis.interpolation_submode}"

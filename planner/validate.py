@@ -53,7 +53,7 @@ from axes.interpolation import (
     hermite,
     linear_span_excess,
 )
-from axes.program import FIXED_PERIOD_PROFILES, TIME_MAX_MS, AxisProgram, PvtProgram
+from axes.program import TIME_MAX_MS, AxisProgram, PvtProgram
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 
 ERROR = "error"
@@ -272,7 +272,7 @@ def _screen(axes: tuple[AxisProgram, ...], records: list[NDArray[np.int64]]) -> 
     bad_time = np.flatnonzero(_outside_motion_time(rows[:, 2]))
     bad_time_cut = np.searchsorted(bad_time, first).tolist()
     bad_time_rows, bounds = bad_time.tolist(), first.tolist()
-    epos2 = [j for j, i in enumerate(shaped) if axes[i].profile == "epos2_pvt" and _has_motion(records[i], in_range[j])]
+    epos2 = [j for j, i in enumerate(shaped) if axes[i].profile.buffered and _has_motion(records[i], in_range[j])]
     worst: dict[int, _Worst] = {}
     if epos2:
         factor = np.array([axes[shaped[j]].scaling.qc_per_ms_per_velocity_unit for j in epos2], dtype=np.float64)
@@ -344,7 +344,7 @@ def _validate_axis(
         return out, bare
     if not screen.in_range:
         out.extend(_check_ranges(axis.name, r))
-    fixed = axis.profile in FIXED_PERIOD_PROFILES
+    fixed = axis.profile.fixed_period
     structural = _check_fixed_period(axis, r) if fixed else _check_epos2(axis.name, r, screen.bad_inner_times)
     out.extend(structural)
     if not _has_motion(r, screen.in_range):

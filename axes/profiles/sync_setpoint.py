@@ -16,12 +16,13 @@ held and bit 4 cleared.
 from __future__ import annotations
 
 from axes import objects as od
+from axes.drive_profile import DriveProfile
 from axes.profiles.cia402_ip_linear import FixedPeriodProfile
 
 
 class SyncSetpoint(FixedPeriodProfile):
-    name = "sync_setpoint"
-    homing_methods = od.CIA402_HOMING_METHODS  # mode 6 (the seed's 0x60E3: "see the servodrive manual")
+    name = DriveProfile.SYNC_SETPOINT
+    homing_methods = name.spec.homing_methods
 
     @property
     def delay_periods(self) -> int:

@@ -32,6 +32,7 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from axes import objects as od
+from axes.drive_profile import DriveProfile
 from axes.sim.device import NO_MODE, PARKER_MODES
 from axes.sim.drive import ABORT_VALUE_RANGE, CW_HALT, OPERATION_ENABLED
 from axes.sim.fixed_period import FixedPeriodDrive
@@ -41,7 +42,7 @@ DIRECT = "direct"
 
 
 class ParkerDrive(FixedPeriodDrive):
-    PROFILE = "parker_slvdn"
+    PROFILE = DriveProfile.PARKER_SLVDN
     EDS = "parker_slvdn.eds"
     MODES = PARKER_MODES
 

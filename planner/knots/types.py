@@ -9,7 +9,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.program import FIXED_PERIOD_PROFILES, PROFILES, TIME_MAX_MS, AxisProgram
+from axes.drive_profile import DriveProfile
+from axes.program import TIME_MAX_MS, AxisProgram
 from axes.scaling import AxisScaling, DriveLimits
 
 
@@ -37,16 +38,15 @@ class DriveAxis:
 
     name: str
     node_id: int
-    profile: str
+    profile: DriveProfile
     scaling: AxisScaling
     limits: DriveLimits
     period_ms: int | None = None  # fixed-period profiles
     interpolation_submode: int | None = None  # parker_slvdn 0x60C0
 
     def __post_init__(self) -> None:
-        if self.profile not in PROFILES:
-            raise ValueError(f"unknown profile {self.profile!r}")
-        if self.profile in FIXED_PERIOD_PROFILES and not (self.period_ms and 1 <= self.period_ms <= TIME_MAX_MS):
+        object.__setattr__(self, "profile", DriveProfile.parse(self.profile))
+        if self.profile.fixed_period and not (self.period_ms and 1 <= self.period_ms <= TIME_MAX_MS):
             raise ValueError(f"{self.name}: a {self.profile} axis needs a period of 1..255 ms, got {self.period_ms}")
 
     @classmethod
