@@ -10,13 +10,14 @@ import json
 import math
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from axes import interpolation
+from axes.axis import DriveAxis
 from axes.config import AxisConfig
 from axes.drive_profile import DriveProfile
 from axes.interpolation import PiecewiseCubic
@@ -41,32 +42,28 @@ class ProgramFormatError(ValueError):
 
 
 @dataclass(frozen=True)
-class AxisProgram:
-    """One axis's records and the facts needed to know what its drive will make of them.
+class AxisProgram(DriveAxis):
+    """One axis (``DriveAxis``: what its drive will make of records) and its records.
 
-    ``interpolation_submode`` is the Parker 0x60C0 value (0 linear, -1 cubic position+velocity,
-    -2 cubic position only); the other profiles have one behaviour each.
+    A fixed-period axis's ``period_ms`` is its records' time (the validator judges every record's).
     """
 
-    name: str
-    node_id: int
-    profile: DriveProfile
-    scaling: AxisScaling
-    limits: DriveLimits
-    records: NDArray[np.int64]
-    interpolation_submode: int | None = None
+    records: NDArray[np.int64] = field(kw_only=True)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "profile", DriveProfile.parse(self.profile))
+        r = self.records
+        if self.profile.fixed_period and r.ndim == 2 and r.shape[1] == 3 and len(r):
+            object.__setattr__(self, "period_ms", int(r[0, 2]))
+
+    @classmethod
+    def of(cls, axis: DriveAxis, records: NDArray[np.int64]) -> AxisProgram:
+        """``records`` for ``axis`` (a cell's axis, or a program's)."""
+        return cls(**{f.name: getattr(axis, f.name) for f in fields(DriveAxis)}, records=records)
 
     @property
     def duration_ms(self) -> int:
         return int(self.records[:, 2].sum())
-
-    @property
-    def period_ms(self) -> int | None:
-        """The fixed record period of a fixed-period profile (None for EPOS2 PVT)."""
-        return int(self.records[0, 2]) if self.profile.fixed_period else None
 
     def reconstruction(self) -> PiecewiseCubic:
         """The motion this axis's drive will execute from these records (qc, ms)."""
@@ -85,18 +82,18 @@ class PvtProgram:
     def duration_ms(self) -> int:
         return max((a.duration_ms for a in self.axes), default=0)
 
-    def axis(self, name: str) -> AxisProgram:
+    def axis(self, joint: str) -> AxisProgram:
         for a in self.axes:
-            if a.name == name:
+            if a.joint == joint:
                 return a
-        raise KeyError(name)
+        raise KeyError(joint)
 
     # --- JSON --------------------------------------------------------------------------------
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"format": FORMAT, "version": VERSION, "cell": self.cell, "axes": []}
         for a in self.axes:
             entry: dict[str, Any] = {
-                "name": a.name,
+                "name": a.joint,
                 "node_id": a.node_id,
                 "profile": a.profile,
                 "qc_per_motor_rev": a.scaling.qc_per_motor_rev,
@@ -152,7 +149,7 @@ class PvtProgram:
         if not isinstance(axes_data, list) or not axes_data:
             raise ProgramFormatError("axes", "must be a non-empty list")
         axes = tuple(_axis_from_json(f"axes[{i}]", a, check_ranges) for i, a in enumerate(axes_data))
-        _unique(axes, "name")
+        _unique(axes, "joint", "name")
         _unique(axes, "node_id")
         metadata = data.get("metadata", {})
         if not isinstance(metadata, dict):
@@ -160,12 +157,13 @@ class PvtProgram:
         return cls(cell=cell, axes=axes, metadata=metadata)
 
 
-def _unique(axes: Sequence[AxisProgram], attr: str) -> None:
+def _unique(axes: Sequence[AxisProgram], attr: str, key: str | None = None) -> None:
+    key = key or attr  # the file's name of the field
     seen: dict[Any, int] = {}
     for i, a in enumerate(axes):
         value = getattr(a, attr)
         if value in seen:
-            raise ProgramFormatError(f"axes[{i}].{attr}", f"duplicate {attr} {value!r} (also axes[{seen[value]}])")
+            raise ProgramFormatError(f"axes[{i}].{key}", f"duplicate {key} {value!r} (also axes[{seen[value]}])")
         seen[value] = i
 
 
@@ -252,24 +250,13 @@ def _axis_from_json(where: str, a: Any, check_ranges: bool = True) -> AxisProgra
             raise ProgramFormatError(f"{rw}[{k}]", f"must be [position_qc, velocity, time_ms], got {rec!r}")
         for j, what in enumerate(("position", "velocity", "time")):
             out[k, j] = _integer(f"{rw}[{k}] {what}", rec[j], *ranges[j])
-    return AxisProgram(name, node_id, profile, scaling, limits, out, submode)
+    return AxisProgram(name, node_id, profile, scaling, limits, None, submode, records=out)
 
 
 def axes_of(program: PvtProgram) -> tuple[AxisConfig, ...]:
     """The axis settings a program was made for (node, profile, scaling, limits, period): what a
     user of the axes layer without a cell file gives the bus and the group."""
-    return tuple(
-        AxisConfig(
-            joint=a.name,
-            node_id=a.node_id,
-            profile=a.profile,
-            scaling=a.scaling,
-            limits=a.limits,
-            period_ms=a.period_ms,
-            interpolation_submode=a.interpolation_submode,
-        )
-        for a in program.axes
-    )
+    return tuple(AxisConfig(**{f.name: getattr(a, f.name) for f in fields(DriveAxis)}) for a in program.axes)
 
 
 def _shown(value: float | int | None) -> str:
@@ -286,8 +273,8 @@ def program_mismatch(program: PvtProgram, axes: Sequence[AxisConfig], cell_name:
         if a is None:
             problems.append(f"the program has no axis for node {axis.node_id} ({axis.joint})")
             continue
-        where = f"axis {a.name} (node {a.node_id})"
-        if a.name != axis.joint:
+        where = f"axis {a.joint} (node {a.node_id})"
+        if a.joint != axis.joint:
             problems.append(f"{where}: node {axis.node_id} is joint {axis.joint} in cell {cell_name}")
         if a.profile != axis.profile:
             problems.append(f"{where}: profile {a.profile}, the cell's drive runs {axis.profile}")
@@ -314,5 +301,5 @@ def program_mismatch(program: PvtProgram, axes: Sequence[AxisConfig], cell_name:
         if a.records[:, 0].min() < lo or a.records[:, 0].max() > hi:
             problems.append(f"{where}: a record position is outside 0x607D [{lo}, {hi}] qc")
     for a in by_node.values():
-        problems.append(f"axis {a.name}: node {a.node_id} is not in cell {cell_name}")
+        problems.append(f"axis {a.joint}: node {a.node_id} is not in cell {cell_name}")
     return problems

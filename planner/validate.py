@@ -321,7 +321,7 @@ def _epos2_worst(
 def _bare_summary(axis: AxisProgram, r: NDArray[np.int64]) -> AxisSummary:
     """The summary of an axis without a reconstruction to check."""
     shaped = r.ndim == 2 and r.shape[1] == 3 and len(r)
-    return AxisSummary(axis.name, axis.profile, len(r), float(r[:, 2].sum()) if shaped else 0.0)
+    return AxisSummary(axis.joint, axis.profile, len(r), float(r[:, 2].sum()) if shaped else 0.0)
 
 
 def _validate_axis(
@@ -334,7 +334,7 @@ def _validate_axis(
             Finding(
                 ERROR,
                 "record-range",
-                axis.name,
+                axis.joint,
                 None,
                 f"needs at least 2 records [position_qc, velocity, time_ms], has {len(r)}"
                 if r.ndim == 2 and r.shape[1] == 3
@@ -343,9 +343,9 @@ def _validate_axis(
         )
         return out, bare
     if not screen.in_range:
-        out.extend(_check_ranges(axis.name, r))
+        out.extend(_check_ranges(axis.joint, r))
     fixed = axis.profile.fixed_period
-    structural = _check_fixed_period(axis, r) if fixed else _check_epos2(axis.name, r, screen.bad_inner_times)
+    structural = _check_fixed_period(axis, r) if fixed else _check_epos2(axis.joint, r, screen.bad_inner_times)
     out.extend(structural)
     if not _has_motion(r, screen.in_range):
         # no first segment (or negative durations): there is no reconstruction to check
@@ -506,7 +506,7 @@ def _repeats_final_position(name: str, r: NDArray[np.int64], rule: str) -> list[
 def _check_fixed_period(axis: AxisProgram, r: NDArray[np.int64]) -> list[Finding]:
     """One setpoint per period: every time equals the period; the program starts and ends at rest."""
     out = []
-    name = axis.name
+    name = axis.joint
     period = int(r[0, 2])
     if not 1 <= period <= TIME_MAX_MS:
         out.append(
@@ -586,7 +586,7 @@ def _summary(
 ) -> AxisSummary:
     lim = axis.limits
     return AxisSummary(
-        axis=axis.name,
+        axis=axis.joint,
         profile=axis.profile,
         records=len(axis.records),
         duration_ms=duration_ms,
@@ -673,7 +673,7 @@ def _linear_spans(axis: AxisProgram, recon: PiecewiseCubic) -> list[Finding]:
         Finding(
             ERROR,
             "acceleration-limit",
-            axis.name,
+            axis.joint,
             int(last),
             f"the velocity changes by {excess + allowed + rounding:.4g} qc/ms over the {last - first + 1} periods "
             f"{recon.start[first]:.0f}..{recon.start[last] + T:.0f} ms ending here: {value:.6g} rpm/s on average "
@@ -701,7 +701,7 @@ def _check_motion(
             return [], summary
     s = axis.scaling
     lim = axis.limits
-    name = axis.name
+    name = axis.joint
     out: list[Finding] = []
     recon = axis.reconstruction()
 

@@ -380,7 +380,7 @@ class MotionService:
             "waypoints": len(waypoints),
             "start": [float(x) for x in waypoints[0]],
             "end": [float(x) for x in waypoints[-1]],
-            "records": {a.name: len(a.records) for a in program.axes},
+            "records": {a.joint: len(a.records) for a in program.axes},
             "validation": {"ok": result.build.report.ok, "warnings": len(result.build.report.warnings)},
             "timing_ms": timing,
             "optimal": result.optimal,

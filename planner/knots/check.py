@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.interpolation import PiecewiseCubic, exceeds
+from axes.program import AxisProgram
 from planner import knot_kernels as kernels
 from planner.knots.flat import Flat
 from planner.knots.types import AxisKnots, DriveAxis
@@ -43,7 +44,7 @@ def check_records(
     cheap bound (the Hermite cubic stays within T (|V0| + |V1|) 4/27 of its end points) reaches
     0x607D.
     """
-    recon = axis.program(records).reconstruction()
+    recon = AxisProgram.of(axis, records).reconstruction()
     s = axis.scaling
     lim = axis.limits
     v = np.asarray(s.qc_per_ms_to_rpm(recon.max_abs_velocity())) / lim.max_profile_velocity_rpm
@@ -158,4 +159,4 @@ def axis_records(
     dev = float(chk.seg_deviation[k0 : k1 - 1].max())
     rv = float(chk.velocity_ratio[k0 : k1 - 1].max())
     ra = float(chk.acceleration_ratio[k0 : k1 - 1].max())
-    return AxisKnots(fl.axes[a].name, records, dev, rv, ra), needed_scale(rv, ra)
+    return AxisKnots(fl.axes[a].joint, records, dev, rv, ra), needed_scale(rv, ra)

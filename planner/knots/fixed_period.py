@@ -36,7 +36,7 @@ def _lattice(axis: DriveAxis, counts: float, what: str, obj: str) -> float:
     whole = math.floor(counts * (1.0 + LIMIT_RTOL))
     if not whole:
         raise KnotError(
-            f"{axis.name}: the drive's reconstruction still exceeds its limits whatever the slow-down: at a "
+            f"{axis.joint}: the drive's reconstruction still exceeds its limits whatever the slow-down: at a "
             f"{axis.period_ms} ms period a setpoint one count off moves its {what} by more than {obj} allows "
             f"({counts:.3g} counts)"
         )
@@ -98,4 +98,4 @@ def fixed_period_axis(axis: DriveAxis, i: int, smp: Samples, opts: KnotOptions) 
     chk, _ = check_records(axis, records, smp.position[i])
     ra = float(chk.acceleration_ratio.max())
     rv = float(chk.velocity_ratio.max())
-    return AxisKnots(axis.name, records, chk.deviation, rv, ra), needed_scale(rv, ra)
+    return AxisKnots(axis.joint, records, chk.deviation, rv, ra), needed_scale(rv, ra)

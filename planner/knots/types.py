@@ -1,4 +1,5 @@
-"""What knot placement takes and gives: the trajectory it samples, the axes, the options, the records."""
+"""What knot placement takes and gives: the trajectory it samples, the axes (``axes.axis.DriveAxis``), the
+options, the records."""
 
 from __future__ import annotations
 
@@ -9,9 +10,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.drive_profile import DriveProfile
-from axes.program import TIME_MAX_MS, AxisProgram
-from axes.scaling import AxisScaling, DriveLimits
+from axes.axis import DriveAxis as DriveAxis  # the axes layer's one description of an axis
+from axes.program import TIME_MAX_MS
 
 
 class TimedTrajectory(Protocol):
@@ -30,42 +30,6 @@ class TimedTrajectory(Protocol):
 
 class KnotError(ValueError):
     """No program within the options meets the drive's limits (e.g. more slow-down than allowed)."""
-
-
-@dataclass(frozen=True)
-class DriveAxis:
-    """One axis as knot placement sees it: its drive's profile, scaling and limit objects."""
-
-    name: str
-    node_id: int
-    profile: DriveProfile
-    scaling: AxisScaling
-    limits: DriveLimits
-    period_ms: int | None = None  # fixed-period profiles
-    interpolation_submode: int | None = None  # parker_slvdn 0x60C0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "profile", DriveProfile.parse(self.profile))
-        if self.profile.fixed_period and not (self.period_ms and 1 <= self.period_ms <= TIME_MAX_MS):
-            raise ValueError(f"{self.name}: a {self.profile} axis needs a period of 1..255 ms, got {self.period_ms}")
-
-    @classmethod
-    def from_config(cls, axis: Any) -> DriveAxis:
-        """From a cell's axis configuration (service.config.AxisConfig, read by attribute)."""
-        return cls(
-            axis.joint,
-            axis.node_id,
-            axis.profile,
-            axis.scaling,
-            axis.limits,
-            axis.period_ms,
-            axis.interpolation_submode,
-        )
-
-    def program(self, records: NDArray[np.int64]) -> AxisProgram:
-        return AxisProgram(
-            self.name, self.node_id, self.profile, self.scaling, self.limits, records, self.interpolation_submode
-        )
 
 
 @dataclass(frozen=True)
