@@ -540,7 +540,7 @@ class MotionService:
         """NOT_HOMED on a cell that requires homing while an axis has not homed since its drive booted."""
         if not self.cell.requires_homing:
             return
-        missing = [link.joint for link, homed in zip(group.links, group.homed, strict=True) if not homed]
+        missing = [link.joint for link, homed in zip(group.links, group.state.homed, strict=True) if not homed]
         if missing:
             raise refusals.not_homed(self.cell.name, missing)
 
