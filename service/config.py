@@ -526,7 +526,7 @@ def _parse_axis(
     )
 
     period = f.get("period_ms", f.integer(1, 255), None)
-    submode = f.get("interpolation_submode", f.integer(-2, 0), None)
+    submode = f.get("interpolation_submode", f.integer(-(2**15), 2**15 - 1), None)  # 0x60C0, an INT16
     try:
         period, submode = profile.settings(bus.sync_period_ms, period, submode)
     except ProfileError as exc:

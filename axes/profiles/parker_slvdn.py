@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from axes import objects as od
 from axes.drive_profile import DriveProfile
+from axes.interpolation import Interpolation
 from axes.profiles.cia402_ip_linear import FixedPeriodProfile
 
 
@@ -45,7 +46,7 @@ class ParkerSlvdn(FixedPeriodProfile):
     def delay_periods(self) -> int:
         if self.cycle_us < od.PARKER_CUBIC_THRESHOLD_US:
             return 0
-        return 2 if self.submode == -2 else 1
+        return 2 if self.name.spec.submodes[self.submode] is Interpolation.CUBIC_P else 1
 
     @property
     def lead_periods(self) -> int:

@@ -17,7 +17,7 @@ from axes.bus import CellBus
 from axes.config import AxisSimulation, HomingConfig
 from axes.group import AxisGroup
 from axes.homing import CellHoming, HomingRequestError, HomingResult, homing_stages
-from axes.outcome import Result
+from axes.outcome import GroupError, Result
 from axes.program import PvtProgram
 from axes.sim.cell import SimulatedCell
 from axes.sim.homing import HomingState
@@ -168,6 +168,34 @@ def test_a_stop_during_homing_halts_it(gantry3: CellConfig, make_rig: Callable[.
     thread.join(30.0)
     assert result[0].result is HomingResult.STOPPED  # type: ignore[attr-defined]
     assert x.velocity == 0.0 and rig.group.state.homed[0] is False
+
+
+def test_a_homing_holds_the_cell_until_it_ends(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
+    """One activity at a time (``CellRunState``): while a homing holds the cell no program starts and
+    no second homing begins, nothing of either sent; once it has ended the cell is free again."""
+    from axes_programs import axis_program
+
+    slow = HomingConfig(M.NEGATIVE_LIMIT_SWITCH, timeout_s=30.0, switch_speed_rpm=100.0, acceleration_rpm_s=20000.0)
+    far = dataclasses.replace(SWITCHES, power_up_qc=20000)
+    rig = make_rig(with_homing(gantry3, {"x": (slow, far)}))
+    x = rig.sim.drive("x")
+    homing = CellHoming(rig.group)
+    result: list[object] = []
+    thread = threading.Thread(target=lambda: result.append(homing.run([["x"]])))
+    thread.start()
+    assert x.wait_until(lambda: x.machine_position < 19000, 30.0)
+    assert rig.group.state.holder is homing
+    axes = gantry3.ordered_axes()
+    still = PvtProgram("gantry3", tuple(axis_program(a, 0, 0, 100, 10) for a in axes))
+    with pytest.raises(GroupError, match="the cell is homing"):
+        rig.group.start(still)
+    with pytest.raises(GroupError, match="already running"):
+        CellHoming(rig.group).run([["x"]])
+    assert len(x.homing_runs) == 1
+    rig.group.stop("operator")
+    thread.join(30.0)
+    assert result[0].result is HomingResult.STOPPED  # type: ignore[attr-defined]
+    assert rig.group.state.holder is None
 
 
 def test_a_reboot_undoes_homing(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:

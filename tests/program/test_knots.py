@@ -9,9 +9,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from axes.interpolation import LINEAR_QUANTIZATION_QC, epos2_pvt, linear, linear_span_excess
+from axes.interpolation import LINEAR_QUANTIZATION_QC, Interpolation, epos2_pvt, linear, linear_span_excess
 from axes.program import AxisProgram, PvtProgram
 from axes.scaling import AxisScaling, DriveLimits
+from planner import knot_kernels
 from planner.build import build_program
 from planner.knots import DriveAxis, KnotOptions, place_knots
 from planner.limits import joint_limits_from_drives
@@ -189,3 +190,13 @@ def test_short_moves_are_executable(arm6, step: float) -> None:
     assert built.knots.deviation_qc <= 1.0
     # the slow-down whole counts call for is small in absolute terms
     assert built.program.duration_ms <= out.trajectory.duration * 1000 * 1.05 + 50
+
+
+def test_the_kernels_take_the_reconstruction_codes() -> None:
+    codes = [k.code for k in Interpolation]
+    assert len(set(codes)) == len(codes)
+    assert (
+        Interpolation.LINEAR.code,
+        Interpolation.CUBIC_PV.code,
+        Interpolation.CUBIC_P.code,
+    ) == (knot_kernels.LINEAR, knot_kernels.CUBIC_PV, knot_kernels.CUBIC_P)
