@@ -6,7 +6,7 @@ product, limits a vendor tool stored. Each ``Check`` names the object, what the 
 the drive holds, and whether they agree. Three kinds:
 
 - ``FACT``: what the drive is and the master must not change: its identity 0x1018:01/:02 (the axis's
-  ``identity`` in the cell file, or one of the profile's ``objects.KNOWN_IDENTITIES``), its
+  ``identity`` in the cell file, or one of the profile's ``DriveProfile.identities``), its
   supported modes 0x6502 (interpolated position, and homing where the axis homes), its encoder
   (CiA 402's 0x608F :01 increments per :02 revolutions, or maxon's 0x2210:01 pulses x 4) against
   the cell's ``qc_per_motor_rev``, its polarity 0x607E = 0
@@ -115,7 +115,7 @@ def drive_facts(link: AxisLink) -> list[Check]:
     motor speed): the checks that refuse a cell."""
     config = link.config
     checks: list[Check] = []
-    known = od.KNOWN_IDENTITIES.get(config.profile, ())
+    known = config.profile.identities
     if config.identity is not None:
         known = (od.DriveIdentity(*config.identity, "the cell's identity"), *known)
     vendor = link.read_optional(od.IDENTITY, 1, "I")

@@ -11,7 +11,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from axes.scaling import AxisScaling, DriveLimits
+from axes.axis import DriveAxis
+from axes.scaling import AxisScaling
 
 # python-can interfaces whose bus only simulated drives share: pvtflow's simulated wire (axes/sim/wire,
 # a 1 Mbit/s bus with its bit timing) and python-can's own in-process ``virtual`` (frames in no time)
@@ -151,19 +152,14 @@ class AxisSimulation:
 
 
 @dataclass(frozen=True)
-class AxisConfig:
-    joint: str
-    node_id: int
-    profile: str
-    scaling: AxisScaling
-    limits: DriveLimits
-    period_ms: int | None = None  # fixed-period profiles: one record per period
-    interpolation_submode: int | None = None  # parker_slvdn 0x60C0
+class AxisConfig(DriveAxis):
+    """A cell's axis: its description (``DriveAxis``) and how its drive is set up."""
+
     buffer: BufferConfig = field(default_factory=BufferConfig)
     homing: HomingConfig | None = None  # None: nothing to home (an absolute encoder)
     simulation: AxisSimulation | None = None  # the simulated machine around the axis (switches, stops)
     # 0x1018:01/:02 (vendor id, product code) of the axis's drive, accepted besides the profile's known
-    # drives (axes.objects.KNOWN_IDENTITIES) by the commissioning check: a real drive pvtflow has no EDS of
+    # drives (``DriveProfile.identities``) by the commissioning check: a real drive pvtflow has no EDS of
     identity: tuple[int, int] | None = None
 
 

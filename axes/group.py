@@ -10,7 +10,8 @@ axes halt on the same SYNC, within one period of the event; a drive without a ra
 is one ``RunResult`` with a ``Result`` enum (ruckig style) that names the axis and the reason.
 
 What a run reports lives in ``axes.outcome``; the cleanup after a run that readies every axis for
-the next start, in ``axes.readiness``; homing a cell, in ``axes.homing`` (which takes the group).
+the next start, in ``axes.readiness``; what a run shares with a homing of the cell (the links, homed
+since boot, one activity at a time), in ``axes.run_state``; homing a cell, in ``axes.homing``.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import TYPE_CHECKING, TypeVar
+from typing import TypeVar
 
 import can
 
@@ -57,9 +58,7 @@ from axes.profiles import AxisLink, DriveError, Profile, profile_for
 from axes.program import AxisProgram, PvtProgram, program_mismatch
 from axes.quick_stop import QuickStop
 from axes.readiness import Readiness
-
-if TYPE_CHECKING:
-    from axes.homing import CellHoming
+from axes.run_state import CellRunState
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
@@ -121,7 +120,6 @@ class AxisGroup:
         self.halt_timeout_ms = halt_timeout_ms
         self.configured = False
         self.last_result: RunResult | None = None
-        self._lock = threading.RLock()
         self._done = threading.Event()
         self._done.set()
         self._feeders: list[Feeder] = []
@@ -138,9 +136,9 @@ class AxisGroup:
         self._pool = ThreadPoolExecutor(max_workers=max(1, len(self.links)), thread_name_prefix="axis-sdo")
         self._bus_faults = 0  # how many the bus has reported
         self.readiness = Readiness(self.links, self.profiles, self._pool, lambda: self._bus_faults)
-        self._homing: CellHoming | None = None  # the homing running on the cell (axes/homing.py)
+        self.state = CellRunState(bus, self.links, self.readiness)  # shared with the cell's homing
+        self._lock = self.state.lock
         self.last_quick_stop: QuickStop | None = None  # the last halt that did not wait for SYNC
-        self._homed_boot: list[int | None] = [None] * len(self.links)  # the drive's boot count when it homed
         self._configured_boots: dict[int, int] = {}  # every drive's boot count when it was configured
         # the records the bus has room for in one SYNC period, shared by the buffered axes; never less
         # than one per buffered axis (a cell file whose bus has no room for that is refused at load)
@@ -182,35 +180,6 @@ class AxisGroup:
         """A drive has booted since the group configured it."""
         return any(self.bus.boot_count(lk.node_id) != self._configured_boots.get(lk.node_id) for lk in self.links)
 
-    # --- homing (axes/homing.py) -------------------------------------------------------------------
-    @property
-    def homed(self) -> tuple[bool, ...]:
-        """Per axis: nothing to home, or homed by this group since its drive last booted (a boot-up
-        message, an NMT reset or a lost heartbeat, a power loss, undoes it)."""
-        return tuple(
-            link.config.homing is None or self._homed_boot[i] == self.bus.boot_count(link.node_id)
-            for i, link in enumerate(self.links)
-        )
-
-    def mark_homed(self, i: int) -> None:
-        self._homed_boot[i] = self.bus.boot_count(self.links[i].node_id)
-
-    def begin_homing(self, homing: CellHoming) -> None:
-        with self._lock:
-            if self._running or self._homing is not None:
-                raise GroupError("a program or a homing is already running on this cell")
-            self.readiness.wait()
-            self._homing = homing
-
-    def end_homing(self, homing: CellHoming) -> None:
-        with self._lock:
-            if self._homing is homing:
-                self._homing = None
-
-    @property
-    def homing(self) -> bool:
-        return self._homing is not None
-
     def _event(self, kind: EventKind, message: str, link: AxisLink | None = None) -> None:
         if self.on_event is not None:
             self.on_event(Event(kind, message, link.joint if link else None, link.node_id if link else None))
@@ -238,7 +207,7 @@ class AxisGroup:
         with self._lock:
             if self._running:
                 raise GroupError("a program is already running on this cell")
-            if self._homing is not None:
+            if self.state.holder is not None:
                 raise GroupError("the cell is homing: one motion at a time")
             reason = self.check_program(program)
             if reason is not None:
@@ -282,6 +251,7 @@ class AxisGroup:
         sync = self.bus.sync
         sync.keep_period()  # real time: the start SYNC one period after the check SYNC
         with sync.lock, self._lock:
+            self.state.claim(self, "the cell is homing: one motion at a time")
             self._done.clear()
             self._running = True
             for feeder in self._feeders:  # the fixed-period setpoints the start SYNC validates
@@ -523,8 +493,8 @@ class AxisGroup:
         done = True
         for i, (link, profile, feeder) in enumerate(zip(self.links, self.profiles, self._feeders, strict=True)):
             ip_active = bool(link.statusword & _IP_MODE_ACTIVE)
-            if feeder.finished(elapsed, ip_active and profile.name == "epos2_pvt"):
-                if profile.name != "epos2_pvt" and not self._end_words_sent[i]:
+            if feeder.finished(elapsed, ip_active and profile.name.buffered):
+                if not profile.name.buffered and not self._end_words_sent[i]:
                     link.send_controlword(profile.end_controlword())  # the fixed-period end: bit 4 off
                     self._end_words_sent[i] = True
                     done = False
@@ -549,8 +519,6 @@ class AxisGroup:
         self._bus_faults += 1
         if link is not None:  # whatever it was, that drive is enabled again at the next start
             self.readiness.forget(self.links.index(link))
-            if fault.kind is FaultKind.HEARTBEAT:  # it may have lost power: its position means nothing any more
-                self._homed_boot[self.links.index(link)] = None
         self._event(EventKind(fault.kind.value), fault.message, link)
         if not self._running or fault.kind.warning:
             return
@@ -669,9 +637,8 @@ class AxisGroup:
         start still configuring the drives does not start the motion."""
         if self._starting:
             self._stop_request = reason
-        homing = self._homing
-        if homing is not None:
-            homing.stop(reason)
+        if self.state.holder is not self:  # a homing holds the cell
+            self.state.stop(reason)
         sync = self.bus.sync
         with sync.lock, self._lock:
             if not self._running or self._ending is not None:
@@ -721,6 +688,7 @@ class AxisGroup:
             result.axes = self._reports()
             self.last_result = result
             self._running = False
+            self.state.release(self)
             self.readiness.prepare()
             self._event(
                 EventKind(result.result.value),
@@ -782,7 +750,7 @@ class AxisGroup:
             with contextlib.suppress(DriveError):
                 self.refresh()
         axes = []
-        homed = self.homed
+        homed = self.state.homed
         for i, link in enumerate(self.links):
             level = self._feeders[i].level if self._running and i < len(self._feeders) else None
             axes.append(

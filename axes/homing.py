@@ -16,8 +16,9 @@ done, bit 13 a homing error, a fault bit a drive fault; a stage that is not done
 of the later stages moves. Afterwards every axis is back in interpolated position mode (0x6060 = 7)
 and is enabled afresh by the next start. An axis that attained its home must read its home offset
 there (0x6064 = 0x607C, maxon's 0x2081 on the EPOS2, ``_confirm``), else it is not homed. The
-group then counts an axis homed until its drive boots again (boot-up message, NMT reset, power
-loss) or its heartbeat is lost (``AxisGroup.homed``).
+cell then counts an axis homed until its drive boots again (boot-up message, NMT reset, power loss)
+or its heartbeat is lost (``CellRunState.homed``). A homing holds the cell (``CellRunState.claim``)
+as a program run does: one activity at a time, and a stop of the cell's group reaches it there.
 """
 
 from __future__ import annotations
@@ -175,7 +176,7 @@ class CellHoming:
         }
         names = [[group.links[i].joint for i in stage] for stage in plan]
         outcome = HomingOutcome(HomingResult.HOMED, "", stages=names, axes=list(report.values()))
-        group.begin_homing(self)
+        group.state.claim(self, "a program or a homing is already running on this cell")
         self.bus.on_fault(self._on_fault)
         touched: list[int] = []
         try:
@@ -195,7 +196,7 @@ class CellHoming:
                     outcome.result, outcome.message, outcome.joint, outcome.node_id = ending
                     break
                 for i in stage:
-                    group.mark_homed(i)
+                    group.state.mark_homed(i)
                     report[i].homed = True
                 self._event(HomingEventKind.HOMED, f"{', '.join(group.links[i].joint for i in stage)} homed", None)
             else:
@@ -203,7 +204,7 @@ class CellHoming:
         finally:
             self._leave_homing_mode(touched, report)
             self.bus.remove_fault_callback(self._on_fault)
-            group.end_homing(self)
+            group.state.release(self)
         return outcome
 
     def _confirm(self, stage: list[int]) -> tuple[HomingResult, str, str, int] | None:
@@ -423,7 +424,7 @@ class CellHoming:
                 link.write(od.MODES_OF_OPERATION, 0, od.INTERPOLATED_POSITION_MODE, "b")
             except DriveError:
                 continue  # a drive that is gone is configured again before its next use
-        group.readiness.forget()  # its mode changed: every axis is enabled afresh at the next start
+        group.state.readiness.forget()  # its mode changed: every axis is enabled afresh at the next start
 
     def _event(self, kind: HomingEventKind, message: str, link: AxisLink | None) -> None:
         if self.on_event is not None:

@@ -36,11 +36,26 @@ def exceeds(value: ArrayLike, limit: ArrayLike) -> NDArray[np.bool_]:
 
 
 class Interpolation(Enum):
-    """How the drive joins its setpoints."""
+    """How a drive joins its setpoints: the reconstruction kind, one encoding for every layer (a
+    profile says which one its drive makes, ``axes.drive_profile``; the compiled kernels take ``code``)."""
 
-    CUBIC = "cubic"
-    LINEAR = "linear"
-    STEP = "step"
+    PVT = "pvt"  # EPOS2: the cubic through each record's position and velocity, over the record's time
+    LINEAR = "linear"  # one setpoint per period, joined by straight lines
+    CUBIC_PV = "cubic_pv"  # one setpoint and its velocity per period, the cubic through both (Parker -1)
+    CUBIC_P = "cubic_p"  # one setpoint per period, the cubic with central velocities (Parker -2)
+
+    @property
+    def cubic(self) -> bool:
+        """Its segments are cubics (their acceleration is continuous inside a segment)."""
+        return self is not Interpolation.LINEAR
+
+    @property
+    def code(self) -> int:
+        """The kind as the numba kernels take it (planner/knot_kernels.py)."""
+        return _KERNEL_CODES[self]
+
+
+_KERNEL_CODES = {Interpolation.LINEAR: 0, Interpolation.CUBIC_PV: 1, Interpolation.CUBIC_P: 2, Interpolation.PVT: 3}
 
 
 @dataclass(frozen=True)
@@ -57,7 +72,7 @@ class PiecewiseCubic:
     c1: NDArray[np.float64]
     c2: NDArray[np.float64]
     c3: NDArray[np.float64]
-    interpolation: Interpolation = Interpolation.CUBIC
+    interpolation: Interpolation = Interpolation.PVT
 
     @property
     def end_time(self) -> float:
@@ -101,7 +116,7 @@ class PiecewiseCubic:
         start spread over the segment, so that is what is reported (the first segment steps from
         rest).
         """
-        if self.interpolation is Interpolation.CUBIC:
+        if self.interpolation.cubic:
             shape, flat = _flat(self.c2, self.c3, self.duration)
             return _peak_accelerations(*flat).reshape(shape)
         v_prev = np.concatenate(([0.0], self.c1[:-1]))
@@ -286,7 +301,7 @@ def _segments_from_points(
     """Segments joining point k-1 to point k over durations[k-1], starting at ``first_start``."""
     p0, p1 = positions[:-1], positions[1:]
     starts = first_start + np.concatenate(([0.0], np.cumsum(durations)[:-1]))
-    if interpolation is Interpolation.CUBIC:
+    if interpolation.cubic:
         assert velocities is not None
         c0, c1, c2, c3 = hermite_coefficients(p0, velocities[:-1], p1, velocities[1:], durations)
     else:
@@ -338,7 +353,7 @@ def epos2_pvt(records: ArrayLike, qc_per_ms_per_velocity_unit: float) -> Piecewi
     r = np.ascontiguousarray(records, dtype=np.int64)
     if r.ndim != 2 or r.shape[1] != 3 or len(r) < 2:
         raise ValueError("records must be an (N >= 2, 3) array of [position_qc, velocity, time_ms]")
-    return PiecewiseCubic(*_epos2_cubics(r, float(qc_per_ms_per_velocity_unit)), Interpolation.CUBIC)
+    return PiecewiseCubic(*_epos2_cubics(r, float(qc_per_ms_per_velocity_unit)), Interpolation.PVT)
 
 
 def _fixed_period(records: ArrayLike) -> NDArray[np.int64]:
@@ -368,7 +383,7 @@ def cubic_pv(records: ArrayLike, period_ms: float, qc_per_ms_per_velocity_unit: 
     positions = np.concatenate(([r[0, 0]], r[:, 0])).astype(float)
     velocities = np.concatenate(([0.0], r[:, 1] * qc_per_ms_per_velocity_unit))
     durations = np.full(len(r), float(period_ms))
-    return _segments_from_points(positions, velocities, durations, 0.0, Interpolation.CUBIC)
+    return _segments_from_points(positions, velocities, durations, 0.0, Interpolation.CUBIC_PV)
 
 
 def cubic_p(records: ArrayLike, period_ms: float) -> PiecewiseCubic:
@@ -386,4 +401,17 @@ def cubic_p(records: ArrayLike, period_ms: float) -> PiecewiseCubic:
     velocities[1:] = _central_velocity(padded[:-2], padded[2:], period_ms)
     velocities[-1] = 0.0
     durations = np.full(len(r), float(period_ms))
-    return _segments_from_points(positions, velocities, durations, period_ms, Interpolation.CUBIC)
+    return _segments_from_points(positions, velocities, durations, period_ms, Interpolation.CUBIC_P)
+
+
+def reconstruct(
+    kind: Interpolation, records: ArrayLike, period_ms: float, qc_per_ms_per_velocity_unit: float
+) -> PiecewiseCubic:
+    """The reconstruction ``kind`` of a program's records (``period_ms``: the fixed period; unused by PVT)."""
+    if kind is Interpolation.PVT:
+        return epos2_pvt(records, qc_per_ms_per_velocity_unit)
+    if kind is Interpolation.CUBIC_PV:
+        return cubic_pv(records, period_ms, qc_per_ms_per_velocity_unit)
+    if kind is Interpolation.CUBIC_P:
+        return cubic_p(records, period_ms)
+    return linear(records, period_ms)

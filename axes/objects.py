@@ -103,23 +103,10 @@ class DriveIdentity:
         return f"vendor 0x{self.vendor_id:08X} product 0x{self.product_code:08X} ({self.name})"
 
 
-# pvtflow's simulated drives (configs/eds, axes/sim/edsgen.py: vendor 0, one product code per profile)
-# and the real drives whose identity a vendor EDS states (maxon's EPOS2 70/10, configs/eds/vendor)
+# pvtflow's simulated drives have vendor 0 and one product code per profile (axes.drive_profile); the real
+# drives whose identity a vendor EDS states: maxon's EPOS2 70/10 (configs/eds/vendor)
 SIMULATED_VENDOR_ID = 0
-SIMULATED_PRODUCT_CODES = {"epos2_pvt": 1, "cia402_ip_linear": 2, "sync_setpoint": 3, "parker_slvdn": 4}
 MAXON_EPOS2_70_10 = DriveIdentity(0x000000FB, 0x64200000, "maxon EPOS2 70/10")
-_SIMULATED_NAMES = {
-    "epos2_pvt": "pvtflow simulated EPOS2",
-    "cia402_ip_linear": "pvtflow simulated CiA 402 linear IP drive",
-    "sync_setpoint": "pvtflow simulated bufferless IP servodrive",
-    "parker_slvdn": "pvtflow simulated Parker SLVDN",
-}
-# per profile, the identities a drive of that profile may have (the commissioning check, axes/commission.py)
-KNOWN_IDENTITIES: dict[str, tuple[DriveIdentity, ...]] = {
-    profile: (DriveIdentity(SIMULATED_VENDOR_ID, code, _SIMULATED_NAMES[profile]),)
-    + ((MAXON_EPOS2_70_10,) if profile == "epos2_pvt" else ())
-    for profile, code in SIMULATED_PRODUCT_CODES.items()
-}
 
 
 class HomingMethod(IntEnum):

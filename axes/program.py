@@ -10,29 +10,21 @@ import json
 import math
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from axes import interpolation
+from axes.axis import DriveAxis
 from axes.config import AxisConfig
+from axes.drive_profile import DriveProfile
 from axes.interpolation import PiecewiseCubic
-from axes.objects import PARKER_CUBIC_THRESHOLD_US
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 
 FORMAT = "pvtflow.pvt-program"
 VERSION = 1
-
-PROFILES = ("epos2_pvt", "cia402_ip_linear", "sync_setpoint", "parker_slvdn")
-FIXED_PERIOD_PROFILES = ("cia402_ip_linear", "sync_setpoint", "parker_slvdn")
-# The shortest SYNC period pvtflow holds for each fixed-period profile: its setpoints go out from the
-# thread that sends SYNC, one per period, and a CPython master holds a 1 ms period on the wall clock
-# (bench/realtime.py) but not less. The seeds ask no less: the linear IP drive's 0x60C2 counts whole
-# ms (1 ms recommended), the bufferless drive takes 1.0-100.0 ms, the Parker's direct loop runs at
-# any cycle below 2.5 ms.
-SHORTEST_PERIOD_MS = {"cia402_ip_linear": 1.0, "sync_setpoint": 1.0, "parker_slvdn": 1.0}
 
 TIME_MAX_MS = 255
 
@@ -50,45 +42,34 @@ class ProgramFormatError(ValueError):
 
 
 @dataclass(frozen=True)
-class AxisProgram:
-    """One axis's records and the facts needed to know what its drive will make of them.
+class AxisProgram(DriveAxis):
+    """One axis (``DriveAxis``: what its drive will make of records) and its records.
 
-    ``interpolation_submode`` is the Parker 0x60C0 value (0 linear, -1 cubic position+velocity,
-    -2 cubic position only); the other profiles have one behaviour each.
+    A fixed-period axis's ``period_ms`` is its records' time (the validator judges every record's).
     """
 
-    name: str
-    node_id: int
-    profile: str
-    scaling: AxisScaling
-    limits: DriveLimits
-    records: NDArray[np.int64]
-    interpolation_submode: int | None = None
+    records: NDArray[np.int64] = field(kw_only=True)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "profile", DriveProfile.parse(self.profile))
+        r = self.records
+        if self.profile.fixed_period and r.ndim == 2 and r.shape[1] == 3 and len(r):
+            object.__setattr__(self, "period_ms", int(r[0, 2]))
+
+    @classmethod
+    def of(cls, axis: DriveAxis, records: NDArray[np.int64]) -> AxisProgram:
+        """``records`` for ``axis`` (a cell's axis, or a program's)."""
+        return cls(**{f.name: getattr(axis, f.name) for f in fields(DriveAxis)}, records=records)
 
     @property
     def duration_ms(self) -> int:
         return int(self.records[:, 2].sum())
 
-    @property
-    def period_ms(self) -> int | None:
-        """The fixed record period of a fixed-period profile (None for EPOS2 PVT)."""
-        return int(self.records[0, 2]) if self.profile in FIXED_PERIOD_PROFILES else None
-
     def reconstruction(self) -> PiecewiseCubic:
         """The motion this axis's drive will execute from these records (qc, ms)."""
-        r = self.records
-        factor = self.scaling.qc_per_ms_per_velocity_unit
-        if self.profile == "epos2_pvt":
-            return interpolation.epos2_pvt(r, factor)
-        period = float(r[0, 2])
-        # Parker SLVDN interpolates only from a 2.5 ms cycle on; below, the position loop takes each
-        # setpoint as it comes, which on the program's timeline is the linear reconstruction
-        parker_interpolates = self.profile == "parker_slvdn" and period * 1000.0 >= PARKER_CUBIC_THRESHOLD_US
-        if parker_interpolates and self.interpolation_submode == -1:
-            return interpolation.cubic_pv(r, period, factor)
-        if parker_interpolates and self.interpolation_submode == -2:
-            return interpolation.cubic_p(r, period)
-        return interpolation.linear(r, period)
+        period = float(self.records[0, 2])
+        kind = self.profile.reconstruction(period, self.interpolation_submode)
+        return interpolation.reconstruct(kind, self.records, period, self.scaling.qc_per_ms_per_velocity_unit)
 
 
 @dataclass(frozen=True)
@@ -101,18 +82,18 @@ class PvtProgram:
     def duration_ms(self) -> int:
         return max((a.duration_ms for a in self.axes), default=0)
 
-    def axis(self, name: str) -> AxisProgram:
+    def axis(self, joint: str) -> AxisProgram:
         for a in self.axes:
-            if a.name == name:
+            if a.joint == joint:
                 return a
-        raise KeyError(name)
+        raise KeyError(joint)
 
     # --- JSON --------------------------------------------------------------------------------
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"format": FORMAT, "version": VERSION, "cell": self.cell, "axes": []}
         for a in self.axes:
             entry: dict[str, Any] = {
-                "name": a.name,
+                "name": a.joint,
                 "node_id": a.node_id,
                 "profile": a.profile,
                 "qc_per_motor_rev": a.scaling.qc_per_motor_rev,
@@ -168,7 +149,7 @@ class PvtProgram:
         if not isinstance(axes_data, list) or not axes_data:
             raise ProgramFormatError("axes", "must be a non-empty list")
         axes = tuple(_axis_from_json(f"axes[{i}]", a, check_ranges) for i, a in enumerate(axes_data))
-        _unique(axes, "name")
+        _unique(axes, "joint", "name")
         _unique(axes, "node_id")
         metadata = data.get("metadata", {})
         if not isinstance(metadata, dict):
@@ -176,12 +157,13 @@ class PvtProgram:
         return cls(cell=cell, axes=axes, metadata=metadata)
 
 
-def _unique(axes: Sequence[AxisProgram], attr: str) -> None:
+def _unique(axes: Sequence[AxisProgram], attr: str, key: str | None = None) -> None:
+    key = key or attr  # the file's name of the field
     seen: dict[Any, int] = {}
     for i, a in enumerate(axes):
         value = getattr(a, attr)
         if value in seen:
-            raise ProgramFormatError(f"axes[{i}].{attr}", f"duplicate {attr} {value!r} (also axes[{seen[value]}])")
+            raise ProgramFormatError(f"axes[{i}].{key}", f"duplicate {key} {value!r} (also axes[{seen[value]}])")
         seen[value] = i
 
 
@@ -211,9 +193,10 @@ def _axis_from_json(where: str, a: Any, check_ranges: bool = True) -> AxisProgra
     if not isinstance(name, str) or not name:
         raise ProgramFormatError(f"{where}.name", "must be a non-empty string")
     node_id = _integer(f"{where}.node_id", a["node_id"], 1, 127)
-    profile = a["profile"]
-    if profile not in PROFILES:
-        raise ProgramFormatError(f"{where}.profile", f"unknown profile {profile!r} (one of {', '.join(PROFILES)})")
+    try:
+        profile = DriveProfile.parse(a["profile"])
+    except ValueError as exc:
+        raise ProgramFormatError(f"{where}.profile", str(exc)) from None
     qc_per_rev = _number(f"{where}.qc_per_motor_rev", a["qc_per_motor_rev"], positive=True)
     rev_per_unit = _number(f"{where}.motor_rev_per_joint_unit", a["motor_rev_per_joint_unit"])
     if rev_per_unit == 0:
@@ -249,9 +232,9 @@ def _axis_from_json(where: str, a: Any, check_ranges: bool = True) -> AxisProgra
 
     submode = a.get("interpolation_submode")
     if submode is not None:
-        if profile != "parker_slvdn":
-            raise ProgramFormatError(f"{where}.interpolation_submode", "only the parker_slvdn profile has submodes")
-        _integer(f"{where}.interpolation_submode", submode, -2, 0)
+        if not profile.has_submodes:
+            raise ProgramFormatError(f"{where}.interpolation_submode", f"the {profile} profile has no submodes")
+        _integer(f"{where}.interpolation_submode", submode, min(profile.spec.submodes), max(profile.spec.submodes))
 
     records = a["records"]
     rw = f"{where}.records"
@@ -267,24 +250,13 @@ def _axis_from_json(where: str, a: Any, check_ranges: bool = True) -> AxisProgra
             raise ProgramFormatError(f"{rw}[{k}]", f"must be [position_qc, velocity, time_ms], got {rec!r}")
         for j, what in enumerate(("position", "velocity", "time")):
             out[k, j] = _integer(f"{rw}[{k}] {what}", rec[j], *ranges[j])
-    return AxisProgram(name, node_id, profile, scaling, limits, out, submode)
+    return AxisProgram(name, node_id, profile, scaling, limits, None, submode, records=out)
 
 
 def axes_of(program: PvtProgram) -> tuple[AxisConfig, ...]:
     """The axis settings a program was made for (node, profile, scaling, limits, period): what a
     user of the axes layer without a cell file gives the bus and the group."""
-    return tuple(
-        AxisConfig(
-            joint=a.name,
-            node_id=a.node_id,
-            profile=a.profile,
-            scaling=a.scaling,
-            limits=a.limits,
-            period_ms=a.period_ms,
-            interpolation_submode=a.interpolation_submode,
-        )
-        for a in program.axes
-    )
+    return tuple(AxisConfig(**{f.name: getattr(a, f.name) for f in fields(DriveAxis)}) for a in program.axes)
 
 
 def _shown(value: float | int | None) -> str:
@@ -301,14 +273,13 @@ def program_mismatch(program: PvtProgram, axes: Sequence[AxisConfig], cell_name:
         if a is None:
             problems.append(f"the program has no axis for node {axis.node_id} ({axis.joint})")
             continue
-        where = f"axis {a.name} (node {a.node_id})"
-        if a.name != axis.joint:
+        where = f"axis {a.joint} (node {a.node_id})"
+        if a.joint != axis.joint:
             problems.append(f"{where}: node {axis.node_id} is joint {axis.joint} in cell {cell_name}")
         if a.profile != axis.profile:
             problems.append(f"{where}: profile {a.profile}, the cell's drive runs {axis.profile}")
             continue
-        submode = -1 if a.interpolation_submode is None else a.interpolation_submode
-        if a.profile == "parker_slvdn" and submode != axis.interpolation_submode:
+        if a.profile.submode(a.interpolation_submode) != a.profile.submode(axis.interpolation_submode):
             problems.append(
                 f"{where}: interpolation submode {a.interpolation_submode}, "
                 f"the cell's drive uses {axis.interpolation_submode}"
@@ -330,5 +301,5 @@ def program_mismatch(program: PvtProgram, axes: Sequence[AxisConfig], cell_name:
         if a.records[:, 0].min() < lo or a.records[:, 0].max() > hi:
             problems.append(f"{where}: a record position is outside 0x607D [{lo}, {hi}] qc")
     for a in by_node.values():
-        problems.append(f"axis {a.name}: node {a.node_id} is not in cell {cell_name}")
+        problems.append(f"axis {a.joint}: node {a.node_id} is not in cell {cell_name}")
     return problems

@@ -131,7 +131,7 @@ def long_program(axes: tuple[AxisConfig, ...], records_per_axis: int, record_ms:
         records[:-1, 2] = record_ms
         records[0] = [0, 0, record_ms]
         records[-1] = [records[-2, 0], 0, 0]
-        out.append(AxisProgram(axis.joint, axis.node_id, axis.profile, sc, lim, records))
+        out.append(AxisProgram.of(dataclasses.replace(axis, scaling=sc, limits=lim), records))
     return PvtProgram("bench", tuple(out))
 
 

@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from axes.program import PvtProgram
+from axes.program import AxisProgram, PvtProgram
 from planner.knots import DriveAxis, KnotError, KnotOptions, KnotResult, TimedTrajectory, place_knots
 from planner.validate import ValidationReport, validate_program
 
@@ -64,7 +64,9 @@ def build_program(
         "acceleration_scale": acceleration_scale,
     }
     meta.update(metadata or {})
-    program = PvtProgram(cell, tuple(ax.program(k.records) for ax, k in zip(axes, knots.axes, strict=True)), meta)
+    program = PvtProgram(
+        cell, tuple(AxisProgram.of(ax, k.records) for ax, k in zip(axes, knots.axes, strict=True)), meta
+    )
     report = validate_program(program, sample_period_ms=None)  # exact checks: they bound the samples
     if not report.ok:  # knot placement checks the same rules: this would be a bug, never shipped
         raise BuildError("the placed knots do not validate: " + "; ".join(f.format() for f in report.errors[:3]))

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from axes.interpolation import (
     LIMIT_RTOL,
+    Interpolation,
     central_velocity,
     cubic_peak_acceleration,
     cubic_peak_speed,
@@ -624,7 +625,8 @@ def repair_chains(
 # at both ends comes out of each segment's own rule: linear [R0, R0, R0, R1 .. RN, RN] (the velocity
 # before the first segment is 0), cubic_pv [(R0, 0), R0 .. RN, (RN, 0)], cubic_p [R0, R0, R0, R1 ..
 # RN, RN, RN] (the central velocities at both ends are 0).
-LINEAR, CUBIC_PV, CUBIC_P = 0, 1, 2
+# The kinds as ints for numba, from ``Interpolation.code``
+LINEAR, CUBIC_PV, CUBIC_P = Interpolation.LINEAR.code, Interpolation.CUBIC_PV.code, Interpolation.CUBIC_P.code
 _FP_PROBES = np.array([0.25, 0.5, 0.75])  # where inside a segment its deviation from the plan is judged
 
 

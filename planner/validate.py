@@ -54,7 +54,7 @@ from axes.interpolation import (
     hermite,
     linear_span_excess,
 )
-from axes.program import FIXED_PERIOD_PROFILES, TIME_MAX_MS, AxisProgram, PvtProgram
+from axes.program import TIME_MAX_MS, AxisProgram, PvtProgram
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 
 
@@ -293,7 +293,7 @@ def _screen(axes: tuple[AxisProgram, ...], records: list[NDArray[np.int64]]) -> 
     bad_time = np.flatnonzero(_outside_motion_time(rows[:, 2]))
     bad_time_cut = np.searchsorted(bad_time, first).tolist()
     bad_time_rows, bounds = bad_time.tolist(), first.tolist()
-    epos2 = [j for j, i in enumerate(shaped) if axes[i].profile == "epos2_pvt" and _has_motion(records[i], in_range[j])]
+    epos2 = [j for j, i in enumerate(shaped) if axes[i].profile.buffered and _has_motion(records[i], in_range[j])]
     worst: dict[int, _Worst] = {}
     if epos2:
         factor = np.array([axes[shaped[j]].scaling.qc_per_ms_per_velocity_unit for j in epos2], dtype=np.float64)
@@ -342,7 +342,7 @@ def _epos2_worst(
 def _bare_summary(axis: AxisProgram, r: NDArray[np.int64]) -> AxisSummary:
     """The summary of an axis without a reconstruction to check."""
     shaped = r.ndim == 2 and r.shape[1] == 3 and len(r)
-    return AxisSummary(axis.name, axis.profile, len(r), float(r[:, 2].sum()) if shaped else 0.0)
+    return AxisSummary(axis.joint, axis.profile, len(r), float(r[:, 2].sum()) if shaped else 0.0)
 
 
 def _validate_axis(
@@ -355,7 +355,7 @@ def _validate_axis(
             Finding(
                 Severity.ERROR,
                 Rule.RECORD_RANGE,
-                axis.name,
+                axis.joint,
                 None,
                 f"needs at least 2 records [position_qc, velocity, time_ms], has {len(r)}"
                 if r.ndim == 2 and r.shape[1] == 3
@@ -364,9 +364,9 @@ def _validate_axis(
         )
         return out, bare
     if not screen.in_range:
-        out.extend(_check_ranges(axis.name, r))
-    fixed = axis.profile in FIXED_PERIOD_PROFILES
-    structural = _check_fixed_period(axis, r) if fixed else _check_epos2(axis.name, r, screen.bad_inner_times)
+        out.extend(_check_ranges(axis.joint, r))
+    fixed = axis.profile.fixed_period
+    structural = _check_fixed_period(axis, r) if fixed else _check_epos2(axis.joint, r, screen.bad_inner_times)
     out.extend(structural)
     if not _has_motion(r, screen.in_range):
         # no first segment (or negative durations): there is no reconstruction to check
@@ -527,7 +527,7 @@ def _repeats_final_position(name: str, r: NDArray[np.int64], rule: Rule) -> list
 def _check_fixed_period(axis: AxisProgram, r: NDArray[np.int64]) -> list[Finding]:
     """One setpoint per period: every time equals the period; the program starts and ends at rest."""
     out = []
-    name = axis.name
+    name = axis.joint
     period = int(r[0, 2])
     if not 1 <= period <= TIME_MAX_MS:
         out.append(
@@ -607,7 +607,7 @@ def _summary(
 ) -> AxisSummary:
     lim = axis.limits
     return AxisSummary(
-        axis=axis.name,
+        axis=axis.joint,
         profile=axis.profile,
         records=len(axis.records),
         duration_ms=duration_ms,
@@ -703,7 +703,7 @@ def _linear_spans(axis: AxisProgram, recon: PiecewiseCubic) -> list[Finding]:
         Finding(
             Severity.ERROR,
             Rule.ACCELERATION_LIMIT,
-            axis.name,
+            axis.joint,
             int(last),
             f"the velocity changes by {excess + allowed + rounding:.4g} qc/ms over the {last - first + 1} periods "
             f"{recon.start[first]:.0f}..{recon.start[last] + T:.0f} ms ending here: {value:.6g} rpm/s on average "
@@ -731,7 +731,7 @@ def _check_motion(
             return [], summary
     s = axis.scaling
     lim = axis.limits
-    name = axis.name
+    name = axis.joint
     out: list[Finding] = []
     recon = axis.reconstruction()
 

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from axes.program import PvtProgram
 from planner.build import BuildError, BuildOutput, build_program
 from planner.cartesian import placement_pose
-from planner.knots import DriveAxis, KnotOptions, jerk_smooth
+from planner.knots import KnotOptions, jerk_smooth
 from planner.path import PlanResult
 from planner.plan import PlanInput, Planner, PlanOutput
 from service.config import CellConfig
@@ -80,7 +80,7 @@ class CellPlanner:
     def __init__(self, cell: CellConfig, gridpoints: int | None = None) -> None:
         self.cell = cell
         self.limits = cell.joint_limits()
-        self.axes = tuple(DriveAxis.from_config(a) for a in cell.ordered_axes())
+        self.axes = tuple(cell.ordered_axes())  # each an axes.axis.DriveAxis: what knot placement takes
         self.tolerance_qc = cell.planning.position_tolerance_qc
         self.planner: Planner | None = None
         self.setup_error = ""

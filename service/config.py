@@ -28,9 +28,8 @@ from axes.config import (
     HomingConfig,
     homing_stop_room,
 )
+from axes.drive_profile import DriveProfile, ProfileError
 from axes.homing import homing_stages
-from axes.profiles import profile_class
-from axes.program import FIXED_PERIOD_PROFILES, PROFILES, SHORTEST_PERIOD_MS
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 from planner.limits import JointLimits, joint_limits_from_drives
 from planner.model import ModelError, RobotModel
@@ -475,9 +474,10 @@ def _parse_axis(
         raise f.error("joint", f"unknown joint {joint!r}: the URDF has {', '.join(model.joint_names)}")
     kind = model.joints[model.index(joint)].kind
     node_id = f.get("node_id", f.integer(1, 127))
-    profile = f.get("profile", f.string)
-    if profile not in PROFILES:
-        raise f.error("profile", f"unknown drive profile {profile!r} (one of {', '.join(PROFILES)})")
+    try:
+        profile = DriveProfile.parse(f.get("profile", f.string))
+    except ValueError as exc:
+        raise f.error("profile", str(exc)) from None
 
     s = _Fields(
         file,
@@ -526,43 +526,22 @@ def _parse_axis(
     )
 
     period = f.get("period_ms", f.integer(1, 255), None)
-    submode = f.get("interpolation_submode", f.integer(-2, 0), None)
-    if profile in FIXED_PERIOD_PROFILES:
-        sync = bus.sync_period_ms
-        shortest = SHORTEST_PERIOD_MS[profile]
-        if sync < shortest:
-            raise f.error(
-                "profile",
-                f"{profile} takes one setpoint per SYNC, sent right after the SYNC before it: the shortest "
-                f"SYNC period pvtflow holds for it is {shortest:g} ms, bus.sync_period_ms is {sync:g}",
-            )
-        if period is None:
-            if sync != round(sync):
-                raise f.error("period_ms", f"missing, and the SYNC period {sync} ms is not a whole number of ms")
-            period = round(sync)
-        if profile == "sync_setpoint" and not 1 <= period <= 100:
-            raise f.error("period_ms", f"a bufferless drive takes 1 to 100 ms per setpoint, got {period}")
-        if period != sync:
-            raise f.error(
-                "period_ms",
-                f"{profile} gets one setpoint per SYNC (the Parker's cycle 0x1006 is the SYNC period): "
-                f"must equal bus.sync_period_ms ({sync:g}), got {period}",
-            )
-    elif period is not None:
-        raise f.error("period_ms", f"only fixed-period profiles ({', '.join(FIXED_PERIOD_PROFILES)}) have one")
-    if profile == "parker_slvdn":
-        submode = -1 if submode is None else submode
-    elif submode is not None:
-        raise f.error("interpolation_submode", "only the parker_slvdn profile has interpolation submodes")
+    submode = f.get("interpolation_submode", f.integer(-(2**15), 2**15 - 1), None)  # 0x60C0, an INT16
+    try:
+        period, submode = profile.settings(bus.sync_period_ms, period, submode)
+    except ProfileError as exc:
+        raise f.error(exc.field, exc.problem) from None
 
     buffer = BufferConfig()
     if "buffer" in f.data:
-        if profile != "epos2_pvt":
-            raise f.error("buffer", "only the epos2_pvt profile has a record buffer")
+        if not profile.buffered:
+            buffered = ", ".join(p for p in DriveProfile if p.buffered)
+            raise f.error("buffer", f"only buffered profiles ({buffered}) have a record buffer")
         b = _Fields(file, f.path("buffer"), f.data["buffer"], ("underflow_warning", "overflow_warning"))
+        size = profile.spec.buffer_records
         buffer = BufferConfig(
-            underflow_warning=b.get("underflow_warning", b.integer(0, 63), buffer.underflow_warning),
-            overflow_warning=b.get("overflow_warning", b.integer(1, 64), buffer.overflow_warning),
+            underflow_warning=b.get("underflow_warning", b.integer(0, size - 1), buffer.underflow_warning),
+            overflow_warning=b.get("overflow_warning", b.integer(1, size), buffer.overflow_warning),
         )
         if buffer.underflow_warning + 2 > buffer.overflow_warning:
             raise b.error("overflow_warning", "must be at least 2 above underflow_warning")
@@ -592,10 +571,10 @@ HOMING_FIELDS = (
 )
 
 
-def _parse_homing(f: _Fields, profile: str, limits: DriveLimits) -> HomingConfig:
+def _parse_homing(f: _Fields, profile: DriveProfile, limits: DriveLimits) -> HomingConfig:
     """``axes[i].homing``: the method (its 0x6098 number or its name in axes.objects.HomingMethod) the
     profile has, speeds within the drive's 0x607F, the home offset, the hard-stop current threshold."""
-    methods = profile_class(profile).homing_methods
+    methods = profile.spec.homing_methods
     if not methods:
         raise f.error("homing", f"the {profile} profile has no homing mode (0x6060 = 6)")
     h = _Fields(f.file, f.path("homing"), f.data["homing"], HOMING_FIELDS)

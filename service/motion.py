@@ -374,7 +374,7 @@ class MotionService:
             "waypoints": len(waypoints),
             "start": [float(x) for x in waypoints[0]],
             "end": [float(x) for x in waypoints[-1]],
-            "records": {a.name: len(a.records) for a in program.axes},
+            "records": {a.joint: len(a.records) for a in program.axes},
             "validation": {"ok": result.build.report.ok, "warnings": len(result.build.report.warnings)},
             "timing_ms": timing,
             "optimal": result.optimal,
@@ -534,7 +534,7 @@ class MotionService:
         """NOT_HOMED on a cell that requires homing while an axis has not homed since its drive booted."""
         if not self.cell.requires_homing:
             return
-        missing = [link.joint for link, homed in zip(group.links, group.homed, strict=True) if not homed]
+        missing = [link.joint for link, homed in zip(group.links, group.state.homed, strict=True) if not homed]
         if missing:
             raise refusals.not_homed(self.cell.name, missing)
 

@@ -255,7 +255,7 @@ def plot_program(program: PvtProgram, report: ValidationReport, out: Path) -> No
         r = axis.records
         if len(r) < 2 or r[0, 2] < 1 or (r[:, 2] < 0).any():
             row[0].text(
-                0.5, 0.5, f"{axis.name}: no reconstruction (bad record times)", ha="center", transform=row[0].transAxes
+                0.5, 0.5, f"{axis.joint}: no reconstruction (bad record times)", ha="center", transform=row[0].transAxes
             )
             continue
         recon = axis.reconstruction()
@@ -293,7 +293,7 @@ def plot_program(program: PvtProgram, report: ValidationReport, out: Path) -> No
                     ax.axhline(profile, color="orange", lw=0.8, ls=":")
                     ax.axhline(-profile, color="orange", lw=0.8, ls=":")
             for f in report.findings:
-                if f.axis != axis.name or f.time_ms is None or f.record is None:
+                if f.axis != axis.joint or f.time_ms is None or f.record is None:
                     continue
                 if f.rule not in shown:
                     continue
@@ -306,7 +306,7 @@ def plot_program(program: PvtProgram, report: ValidationReport, out: Path) -> No
                 )
             ax.set_ylabel(label, fontsize=8)
             ax.tick_params(labelsize=7)
-        row[0].set_title(f"{axis.name} ({axis.profile}, node {axis.node_id})", fontsize=9, loc="left")
+        row[0].set_title(f"{axis.joint} ({axis.profile}, node {axis.node_id})", fontsize=9, loc="left")
     for ax in grid[-1]:
         ax.set_xlabel("time from the start SYNC [ms]", fontsize=8)
     verdict = "VALID" if report.ok else f"INVALID: {len(report.errors)} error(s)"

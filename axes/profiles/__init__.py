@@ -29,6 +29,7 @@ from axes.cia402 import (
     decode_state,
 )
 from axes.config import AxisConfig
+from axes.drive_profile import DriveProfile
 from axes.objects import BufferStatus, PdoLayout
 from axes.subscriptions import subscribe, unsubscribe
 
@@ -351,11 +352,10 @@ class AxisLink:
 class Profile:
     """One drive behaviour. Subclasses set the class attributes and implement configure/feeder."""
 
-    name: ClassVar[str]
+    name: ClassVar[DriveProfile]
     rpdos: ClassVar[tuple[PdoLayout, ...]]
     tpdos: ClassVar[tuple[PdoLayout, ...]]
     sync_tpdo: ClassVar[int]  # the synchronous TPDO number that answers every SYNC
-    fixed_period: ClassVar[bool] = False  # one setpoint per SYNC, sent right after the SYNC before it
     # 0x6007 when the master's heartbeat stops: quick stop, braking on the quick stop ramp (0x6085 =
     # the drive's 0x60C5) rather than coasting (2, disable voltage); EMCY 0x8130 tells who is listening
     abort_connection_option: ClassVar[od.AbortConnectionOption] = od.AbortConnectionOption.QUICK_STOP
@@ -367,6 +367,11 @@ class Profile:
     def __init__(self, link: AxisLink) -> None:
         self.link = link
         self.config = link.config
+
+    @property
+    def fixed_period(self) -> bool:
+        """One setpoint per SYNC, sent right after the SYNC before it (``DriveProfile.fixed_period``)."""
+        return self.name.fixed_period
 
     @property
     def sync_answer_cob_id(self) -> int:
@@ -567,14 +572,14 @@ class Profile:
             )
 
 
-def profile_class(name: str) -> type[Profile]:
+def profile_class(name: DriveProfile) -> type[Profile]:
     """The profile module's class by its name (KeyError: no such profile)."""
     from axes.profiles.cia402_ip_linear import Cia402IpLinear
     from axes.profiles.epos2_pvt import Epos2Pvt
     from axes.profiles.parker_slvdn import ParkerSlvdn
     from axes.profiles.sync_setpoint import SyncSetpoint
 
-    classes: dict[str, type[Profile]] = {c.name: c for c in (Epos2Pvt, Cia402IpLinear, SyncSetpoint, ParkerSlvdn)}
+    classes = {c.name: c for c in (Epos2Pvt, Cia402IpLinear, SyncSetpoint, ParkerSlvdn)}
     return classes[name]
 
 

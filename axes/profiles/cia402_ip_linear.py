@@ -22,8 +22,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes import objects as od
+from axes.drive_profile import DriveProfile
 from axes.feeder import Feeder, RecordAllowance, SetpointFeeder
-from axes.objects import SETPOINT_RPDOS, SETPOINT_TPDOS
 from axes.profiles import Profile
 from axes.stop_ramp import braking_records
 
@@ -36,10 +36,9 @@ MS_INDEX = -3  # 0x60C2:02: the period is given in 10^-3 s
 class FixedPeriodProfile(Profile):
     """Shared by the fixed-period behaviours: a SetpointFeeder on RPDO1, TPDO1 answers SYNC."""
 
-    rpdos = SETPOINT_RPDOS
-    tpdos = SETPOINT_TPDOS
-    sync_tpdo = 1
-    fixed_period = True
+    rpdos = DriveProfile.CIA402_IP_LINEAR.spec.rpdos
+    tpdos = DriveProfile.CIA402_IP_LINEAR.spec.tpdos
+    sync_tpdo = DriveProfile.CIA402_IP_LINEAR.spec.sync_tpdo
 
     @property
     def period_ms(self) -> int:
@@ -83,7 +82,7 @@ class FixedPeriodProfile(Profile):
 
 
 class Cia402IpLinear(FixedPeriodProfile):
-    name = "cia402_ip_linear"
+    name = DriveProfile.CIA402_IP_LINEAR
 
     def configure(self) -> None:
         link = self.link

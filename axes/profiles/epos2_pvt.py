@@ -24,8 +24,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes import objects as od
+from axes.drive_profile import DriveProfile
 from axes.feeder import BufferFeeder, Feeder, RecordAllowance
-from axes.objects import EPOS2_RPDOS, EPOS2_TIME_STAMP_RPDO, EPOS2_TPDOS, TIME_STAMP_COB_ID, Record
+from axes.objects import EPOS2_TIME_STAMP_RPDO, TIME_STAMP_COB_ID, Record
 from axes.profiles import Profile
 
 if TYPE_CHECKING:
@@ -36,12 +37,12 @@ BUFFER_ENABLE = 1
 
 
 class Epos2Pvt(Profile):
-    name = "epos2_pvt"
-    rpdos = EPOS2_RPDOS
-    tpdos = EPOS2_TPDOS
-    sync_tpdo = 2
+    name = DriveProfile.EPOS2_PVT
+    rpdos = name.spec.rpdos
+    tpdos = name.spec.tpdos
+    sync_tpdo = name.spec.sync_tpdo
     fault_reaction_on_master_loss = od.FaultReaction.QUICK_STOP
-    homing_methods = od.EPOS2_HOMING_METHODS
+    homing_methods = name.spec.homing_methods
     home_position_object = od.EPOS2_HOME_POSITION  # maxon: 0x2081 is the position at home, 0x607C a move
 
     def max_sync_gap_ms(self, program: AxisProgram) -> float:

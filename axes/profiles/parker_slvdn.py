@@ -25,15 +25,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes import objects as od
-from axes.objects import PARKER_RPDOS, PARKER_TPDOS
+from axes.drive_profile import DriveProfile
+from axes.interpolation import Interpolation
 from axes.profiles.cia402_ip_linear import FixedPeriodProfile
 
 
 class ParkerSlvdn(FixedPeriodProfile):
-    name = "parker_slvdn"
-    rpdos = PARKER_RPDOS
-    tpdos = PARKER_TPDOS
-    sync_tpdo = 1
+    name = DriveProfile.PARKER_SLVDN
+    rpdos = name.spec.rpdos
+    tpdos = name.spec.tpdos
+    sync_tpdo = name.spec.sync_tpdo
 
     @property
     def cycle_us(self) -> int:
@@ -41,13 +42,13 @@ class ParkerSlvdn(FixedPeriodProfile):
 
     @property
     def submode(self) -> int:
-        return -1 if self.config.interpolation_submode is None else self.config.interpolation_submode
+        return int(self.name.submode(self.config.interpolation_submode))  # type: ignore[arg-type]
 
     @property
     def delay_periods(self) -> int:
         if self.cycle_us < od.PARKER_CUBIC_THRESHOLD_US:
             return 0
-        return 2 if self.submode == -2 else 1
+        return 2 if self.name.spec.submodes[self.submode] is Interpolation.CUBIC_P else 1
 
     @property
     def lead_periods(self) -> int:

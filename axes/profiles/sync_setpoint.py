@@ -17,12 +17,13 @@ with setpoints within 0x60C5 (``axes.stop_ramp``), not with the halt bit.
 from __future__ import annotations
 
 from axes import objects as od
+from axes.drive_profile import DriveProfile
 from axes.profiles.cia402_ip_linear import FixedPeriodProfile
 
 
 class SyncSetpoint(FixedPeriodProfile):
-    name = "sync_setpoint"
-    homing_methods = od.CIA402_HOMING_METHODS  # mode 6 (the seed's 0x60E3: "see the servodrive manual")
+    name = DriveProfile.SYNC_SETPOINT
+    homing_methods = name.spec.homing_methods
 
     @property
     def delay_periods(self) -> int:

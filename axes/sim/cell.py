@@ -31,10 +31,7 @@ from axes.sim.parker import ParkerDrive
 from axes.sim.sync_setpoint import SyncSetpointDrive
 
 DRIVE_CLASSES: dict[str, type[SimulatedDrive]] = {
-    "epos2_pvt": Epos2Drive,
-    "cia402_ip_linear": IpLinearDrive,
-    "sync_setpoint": SyncSetpointDrive,
-    "parker_slvdn": ParkerDrive,
+    cls.PROFILE: cls for cls in (Epos2Drive, IpLinearDrive, SyncSetpointDrive, ParkerDrive)
 }
 
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from axes import objects as od
+from axes.drive_profile import DriveProfile
 from axes.sim import device
 
 EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
@@ -77,7 +78,7 @@ def _pdo_objects(n_rpdo: int, n_tpdo: int) -> dict[int, Entry]:
     return out
 
 
-def _common(product: str, modes: device.DriveModes, profile: str) -> dict[int, Entry]:
+def _common(modes: device.DriveModes, profile: DriveProfile) -> dict[int, Entry]:
     """CiA 301 communication objects and the CiA 402 objects every simulated drive has; 0x6502 says
     which modes 0x6060 accepts (axes/sim/device.py)."""
     d: dict[int, Entry] = {
@@ -91,7 +92,7 @@ def _common(product: str, modes: device.DriveModes, profile: str) -> dict[int, E
             count_default=0,
         ),
         0x1005: Var("COB-ID SYNC message", U32, "rw", 0x80),
-        0x1008: Var("Manufacturer device name", 0x9, "const", product),
+        0x1008: Var("Manufacturer device name", 0x9, "const", profile.spec.simulated_name),
         0x1014: Var("COB-ID EMCY", U32, "ro", "$NODEID+0x80"),
         # two consumer entries, as maxon's EPOS2 has: pvtflow's master takes :01 for its own heartbeat
         od.CONSUMER_HEARTBEAT_TIME: Rec(
@@ -104,7 +105,7 @@ def _common(product: str, modes: device.DriveModes, profile: str) -> dict[int, E
             "Identity object",
             (
                 Var("Vendor-ID", U32, "ro", od.SIMULATED_VENDOR_ID),
-                Var("Product code", U32, "ro", od.SIMULATED_PRODUCT_CODES[profile]),
+                Var("Product code", U32, "ro", profile.spec.product_code),
                 Var("Revision number", U32, "ro", 0x00010000),
                 Var("Serial number", U32, "ro", 0),
             ),
@@ -168,7 +169,7 @@ def _homing(default_method: int) -> dict[int, Entry]:
 
 
 def epos2() -> dict[int, Entry]:
-    d = _common("pvtflow simulated EPOS2", device.EPOS2_MODES, "epos2_pvt")
+    d = _common(device.EPOS2_MODES, DriveProfile.EPOS2_PVT)
     d.update(_pdo_objects(4, 4))
     d.update(_homing(od.HomingMethod.CURRENT_POSITION))  # maxon's default, 7, is a method not simulated
     d[od.EPOS2_HOMING_CURRENT_THRESHOLD] = Var("Current threshold for homing mode", U16, "rw", 500, pdo=True)
@@ -250,7 +251,7 @@ def _time_period() -> Rec:
 
 
 def cia402_ip_linear() -> dict[int, Entry]:
-    d = _common("pvtflow simulated CiA 402 linear IP drive", device.IP_LINEAR_MODES, "cia402_ip_linear")
+    d = _common(device.IP_LINEAR_MODES, DriveProfile.CIA402_IP_LINEAR)
     d.update(_pdo_objects(4, 4))
     d[od.POSITION_ENCODER_RESOLUTION] = _encoder_resolution()
     d[od.INTERPOLATION_SUBMODE] = Var("Interpolation sub mode select", I16, "rw", 0)
@@ -271,7 +272,7 @@ def cia402_ip_linear() -> dict[int, Entry]:
 
 
 def sync_setpoint() -> dict[int, Entry]:
-    d = _common("pvtflow simulated bufferless IP servodrive", device.SYNC_SETPOINT_MODES, "sync_setpoint")
+    d = _common(device.SYNC_SETPOINT_MODES, DriveProfile.SYNC_SETPOINT)
     d.update(_pdo_objects(4, 4))
     d[od.POSITION_ENCODER_RESOLUTION] = _encoder_resolution()
     d.update(_homing(od.HomingMethod.CURRENT_POSITION))
@@ -282,7 +283,7 @@ def sync_setpoint() -> dict[int, Entry]:
 
 
 def parker_slvdn() -> dict[int, Entry]:
-    d = _common("pvtflow simulated Parker SLVDN", device.PARKER_MODES, "parker_slvdn")
+    d = _common(device.PARKER_MODES, DriveProfile.PARKER_SLVDN)
     d.update(_pdo_objects(4, 4))
     d[od.POSITION_ENCODER_RESOLUTION] = _encoder_resolution()
     d[od.POSITION_ACTUAL_INTERNAL_VALUE] = Var("Position actual value (increments)", I32, "ro", 0, pdo=True)
@@ -302,10 +303,10 @@ DRIVES = {
 
 
 PROFILES = {
-    "epos2.eds": "epos2_pvt",
-    "cia402_ip_linear.eds": "cia402_ip_linear",
-    "sync_setpoint.eds": "sync_setpoint",
-    "parker_slvdn.eds": "parker_slvdn",
+    "epos2.eds": DriveProfile.EPOS2_PVT,
+    "cia402_ip_linear.eds": DriveProfile.CIA402_IP_LINEAR,
+    "sync_setpoint.eds": DriveProfile.SYNC_SETPOINT,
+    "parker_slvdn.eds": DriveProfile.PARKER_SLVDN,
 }
 
 
@@ -352,7 +353,7 @@ def render(filename: str) -> str:
         "VendorName=pvtflow (simulated)",
         f"VendorNumber=0x{od.SIMULATED_VENDOR_ID:08X}",
         f"ProductName={filename[:-4]}",
-        f"ProductNumber=0x{od.SIMULATED_PRODUCT_CODES[PROFILES[filename]]:X}",
+        f"ProductNumber=0x{PROFILES[filename].spec.product_code:X}",
         "RevisionNumber=0x00010000",
         "BaudRate_10=1",
         "BaudRate_20=1",

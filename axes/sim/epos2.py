@@ -56,6 +56,7 @@ from canopen.sdo import SdoAbortedError
 
 from axes import objects as od
 from axes.cia402 import Statusword
+from axes.drive_profile import DriveProfile
 from axes.interpolation import exceeds
 from axes.objects import BUFFER_ERRORS, BufferStatus, Record
 from axes.sim.device import EPOS2_MODES, Value
@@ -82,7 +83,7 @@ class ClockCheck:
 
 
 class Epos2Drive(SimulatedDrive):
-    PROFILE = "epos2_pvt"
+    PROFILE = DriveProfile.EPOS2_PVT
     EDS = "epos2.eds"
     MODES = EPOS2_MODES
     # maxon's firmware: a heartbeat error (EMCY 0x8130) is a device error like any other, so the

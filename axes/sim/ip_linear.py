@@ -21,13 +21,14 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from axes import objects as od
+from axes.drive_profile import DriveProfile
 from axes.sim.device import IP_LINEAR_MODES
 from axes.sim.drive import ABORT_DEVICE_STATE, ABORT_VALUE_RANGE
 from axes.sim.fixed_period import FixedPeriodDrive
 
 
 class IpLinearDrive(FixedPeriodDrive):
-    PROFILE = "cia402_ip_linear"
+    PROFILE = DriveProfile.CIA402_IP_LINEAR
     EDS = "cia402_ip_linear.eds"
     MODES = IP_LINEAR_MODES
     delay_periods = 1

@@ -32,16 +32,19 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from axes import objects as od
+from axes.drive_profile import DriveProfile
+from axes.interpolation import Interpolation
 from axes.sim.device import NO_MODE, PARKER_MODES
 from axes.sim.drive import ABORT_VALUE_RANGE, CW_HALT, OPERATION_ENABLED
 from axes.sim.fixed_period import FixedPeriodDrive
 from axes.sim.segment import Segment
 
 DIRECT = "direct"
+SUBMODES = DriveProfile.PARKER_SLVDN.spec.submodes  # 0x60C0 -> how the drive joins its setpoints
 
 
 class ParkerDrive(FixedPeriodDrive):
-    PROFILE = "parker_slvdn"
+    PROFILE = DriveProfile.PARKER_SLVDN
     EDS = "parker_slvdn.eds"
     MODES = PARKER_MODES
 
@@ -59,22 +62,22 @@ class ParkerDrive(FixedPeriodDrive):
         return self.cycle_us / 1000.0
 
     @property
-    def interpolation(self) -> str | int:
-        """DIRECT below 2500 us, else the submode 0x60C0 (0, -1, -2)."""
+    def interpolation(self) -> str | Interpolation | None:
+        """DIRECT below 2500 us, else what the submode 0x60C0 selects (None: a value it does not have)."""
         if self.cycle_us < od.PARKER_CUBIC_THRESHOLD_US:
             return DIRECT
-        return self.read(od.INTERPOLATION_SUBMODE)
+        return SUBMODES.get(self.read(od.INTERPOLATION_SUBMODE))
 
     @property
     def delay_periods(self) -> int:  # type: ignore[override]
         mode = self.interpolation
-        return 0 if mode == DIRECT else 2 if mode == -2 else 1
+        return 0 if mode == DIRECT else 2 if mode is Interpolation.CUBIC_P else 1
 
     def _ip_mode_selected(self) -> bool:
         return self.read(od.PARKER_OPERATIVE_MODE) == od.PARKER_IP_MODE
 
     def _check_write(self, index: int, subindex: int, value: int) -> None:
-        if index == od.INTERPOLATION_SUBMODE and value not in (0, -1, -2):
+        if index == od.INTERPOLATION_SUBMODE and value not in SUBMODES:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
 
     def _on_mode_bits(self, previous: int, controlword: int) -> None:
@@ -113,8 +116,8 @@ class ParkerDrive(FixedPeriodDrive):
         if self.cycle_us <= 0:
             self.fault(od.EMCY_PARAMETER_ERROR, "communication cycle period 0x1006 not set")
             return False
-        if self.interpolation not in (DIRECT, 0, -1, -2):
-            self.fault(od.EMCY_PARAMETER_ERROR, f"interpolation submode 0x60C0 = {self.interpolation}")
+        if self.interpolation is None:
+            self.fault(od.EMCY_PARAMETER_ERROR, f"interpolation submode 0x60C0 = {self.read(od.INTERPOLATION_SUBMODE)}")
             return False
         return super()._activate()
 
@@ -130,10 +133,10 @@ class ParkerDrive(FixedPeriodDrive):
             self._segment = Segment(now, 0.0, float(target), 0.0, 0.0, 0.0, float(target), 0.0)
             self.demand = float(target)
             self._check_dynamics((target - previous) / period, 0.0)
-        elif mode == 0:
+        elif mode is Interpolation.LINEAR:
             if target is not None:
                 self._ramp(now, target, period)
-        elif mode == -1:
+        elif mode is Interpolation.CUBIC_PV:
             if target is not None:
                 p0, v0 = self._start_point()
                 rpm = self.read(od.INTERPOLATION_DATA_RECORD, 3)

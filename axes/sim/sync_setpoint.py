@@ -25,6 +25,7 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from axes import objects as od
+from axes.drive_profile import DriveProfile
 from axes.sim.device import SYNC_SETPOINT_MODES
 from axes.sim.drive import ABORT_VALUE_RANGE
 from axes.sim.fixed_period import FixedPeriodDrive
@@ -33,7 +34,7 @@ MIN_PERIOD_MS, MAX_PERIOD_MS = 1.0, 100.0
 
 
 class SyncSetpointDrive(FixedPeriodDrive):
-    PROFILE = "sync_setpoint"
+    PROFILE = DriveProfile.SYNC_SETPOINT
     EDS = "sync_setpoint.eds"
     MODES = SYNC_SETPOINT_MODES
     HOMING_METHODS = od.CIA402_HOMING_METHODS  # its 0x60E3 lists "the methods of the servodrive manual"

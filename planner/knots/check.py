@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.interpolation import PiecewiseCubic, epos2_pvt, exceeds
+from axes.program import AxisProgram
 from planner import knot_kernels as kernels
 from planner.knots.flat import Flat
 from planner.knots.types import AxisKnots, DriveAxis
@@ -45,7 +46,7 @@ def check_records(
     cheap bound (the Hermite cubic stays within T (|V0| + |V1|) 4/27 of its end points) reaches
     0x607D.
     """
-    recon = axis.program(records).reconstruction()
+    recon = AxisProgram.of(axis, records).reconstruction()
     s = axis.scaling
     lim = axis.limits
     v = np.asarray(s.qc_per_ms_to_rpm(recon.max_abs_velocity())) / lim.max_profile_velocity_rpm
@@ -177,7 +178,7 @@ def axis_records(
     rj = 0.0
     if math.isfinite(fl.window_jerk[a]):
         rj = window_jerk(epos2_pvt(records, float(fl.f[a]))) / float(fl.window_jerk[a])
-    return AxisKnots(fl.axes[a].name, records, dev, rv, ra, rj), max(needed_scale(rv, ra), jerk_scale(rj))
+    return AxisKnots(fl.axes[a].joint, records, dev, rv, ra, rj), max(needed_scale(rv, ra), jerk_scale(rj))
 
 
 def jerk_scale(rj: float) -> float:

@@ -9,7 +9,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.interpolation import LIMIT_RTOL
-from axes.objects import PARKER_CUBIC_THRESHOLD_US
 from planner import knot_kernels as kernels
 from planner.knots.check import check_records, needed_scale
 from planner.knots.quantize import round_positions, round_velocities
@@ -21,18 +20,9 @@ _FP_REACH = 3  # counts (and records) a cubic's setpoint may move off the plan a
 
 
 def reconstruction_kind(axis: DriveAxis) -> int:
-    """Which reconstruction the axis's drive makes of its setpoints (``knot_kernels.LINEAR``,
-    ``CUBIC_PV``, ``CUBIC_P``), as ``AxisProgram.reconstruction`` picks it: Parker interpolates its
-    cubic submodes only from a 2.5 ms cycle on; below, and for every other fixed-period drive, the
-    setpoints are joined linearly."""
-    parker_interpolates = (
-        axis.profile == "parker_slvdn" and int(axis.period_ms or 0) * 1000.0 >= PARKER_CUBIC_THRESHOLD_US
-    )
-    if parker_interpolates and axis.interpolation_submode == -1:
-        return kernels.CUBIC_PV
-    if parker_interpolates and axis.interpolation_submode == -2:
-        return kernels.CUBIC_P
-    return kernels.LINEAR
+    """Which reconstruction the axis's drive makes of its setpoints, as the kernels take it
+    (``DriveProfile.reconstruction``, ``Interpolation.code``)."""
+    return axis.profile.reconstruction(axis.period_ms, axis.interpolation_submode).code
 
 
 def record_times(axis: DriveAxis, smp: Samples) -> NDArray[np.int64]:
@@ -47,7 +37,7 @@ def _lattice(axis: DriveAxis, counts: float, what: str, obj: str) -> float:
     whole = math.floor(counts * (1.0 + LIMIT_RTOL))
     if not whole:
         raise KnotError(
-            f"{axis.name}: the drive's reconstruction still exceeds its limits whatever the slow-down: at a "
+            f"{axis.joint}: the drive's reconstruction still exceeds its limits whatever the slow-down: at a "
             f"{axis.period_ms} ms period a setpoint one count off moves its {what} by more than {obj} allows "
             f"({counts:.3g} counts)"
         )
@@ -94,7 +84,7 @@ def fixed_period_axis(axis: DriveAxis, i: int, smp: Samples, opts: KnotOptions) 
     period = int(axis.period_ms or 1)
     t_ms = record_times(axis, smp)
     P = round_positions(smp.position[i, t_ms], axis)
-    if axis.profile == "parker_slvdn" and axis.interpolation_submode == -1:
+    if axis.profile.carries_velocity(axis.interpolation_submode):
         V = round_velocities(smp.velocity[i, t_ms], axis)
     else:
         V = np.zeros(len(P), dtype=np.int64)
@@ -109,4 +99,4 @@ def fixed_period_axis(axis: DriveAxis, i: int, smp: Samples, opts: KnotOptions) 
     chk, _ = check_records(axis, records, smp.position[i])
     ra = float(chk.acceleration_ratio.max())
     rv = float(chk.velocity_ratio.max())
-    return AxisKnots(axis.name, records, chk.deviation, rv, ra), needed_scale(rv, ra)
+    return AxisKnots(axis.joint, records, chk.deviation, rv, ra), needed_scale(rv, ra)

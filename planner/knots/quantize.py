@@ -20,7 +20,7 @@ def round_positions(p: NDArray[np.float64], axis: DriveAxis) -> NDArray[np.int64
     lim = axis.limits
     r = np.rint(p)
     if np.any(r < INT32_MIN) or np.any(r > INT32_MAX):
-        raise KnotError(f"{axis.name}: the motion leaves the int32 position range of a record")
+        raise KnotError(f"{axis.joint}: the motion leaves the int32 position range of a record")
     return np.clip(r, lim.min_position_qc, lim.max_position_qc).astype(np.int64)
 
 
@@ -29,7 +29,7 @@ def round_velocities(v_qc_per_ms: NDArray[np.float64], axis: DriveAxis) -> NDArr
     v_max = math.floor(axis.limits.max_profile_velocity_rpm / s.velocity_unit_rpm + 1e-9)  # 0x607F in units
     v = np.clip(np.rint(v_qc_per_ms / s.qc_per_ms_per_velocity_unit), -v_max, v_max)
     if np.any(v < INT24_MIN) or np.any(v > INT24_MAX):
-        raise KnotError(f"{axis.name}: a velocity does not fit the int24 of a record (velocity unit too fine?)")
+        raise KnotError(f"{axis.joint}: a velocity does not fit the int24 of a record (velocity unit too fine?)")
     return v.astype(np.int64)
 
 
@@ -41,13 +41,13 @@ def round_knots(
     r = np.rint(p)
     out = (r < INT32_MIN) | (r > INT32_MAX)
     if out.any():
-        raise KnotError(f"{fl.axes[ax[np.argmax(out)]].name}: the motion leaves the int32 position range of a record")
+        raise KnotError(f"{fl.axes[ax[np.argmax(out)]].joint}: the motion leaves the int32 position range of a record")
     P = np.clip(r, fl.pos_lo[ax], fl.pos_hi[ax]).astype(np.int64)
     V = np.clip(np.rint(v / fl.f[ax]), -fl.v_units[ax], fl.v_units[ax])
     out = (V < INT24_MIN) | (V > INT24_MAX)
     if out.any():
         raise KnotError(
-            f"{fl.axes[ax[np.argmax(out)]].name}: a velocity does not fit the int24 of a record "
+            f"{fl.axes[ax[np.argmax(out)]].joint}: a velocity does not fit the int24 of a record "
             "(velocity unit too fine?)"
         )
     V[fl.is_end(knots)] = 0

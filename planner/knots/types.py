@@ -1,4 +1,5 @@
-"""What knot placement takes and gives: the trajectory it samples, the axes, the options, the records."""
+"""What knot placement takes and gives: the trajectory it samples, the axes (``axes.axis.DriveAxis``), the
+options, the records."""
 
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.program import FIXED_PERIOD_PROFILES, PROFILES, TIME_MAX_MS, AxisProgram
-from axes.scaling import AxisScaling, DriveLimits
+from axes.axis import DriveAxis as DriveAxis  # the axes layer's one description of an axis
+from axes.program import TIME_MAX_MS
 
 
 class TimedTrajectory(Protocol):
@@ -30,43 +31,6 @@ class TimedTrajectory(Protocol):
 
 class KnotError(ValueError):
     """No program within the options meets the drive's limits (e.g. more slow-down than allowed)."""
-
-
-@dataclass(frozen=True)
-class DriveAxis:
-    """One axis as knot placement sees it: its drive's profile, scaling and limit objects."""
-
-    name: str
-    node_id: int
-    profile: str
-    scaling: AxisScaling
-    limits: DriveLimits
-    period_ms: int | None = None  # fixed-period profiles
-    interpolation_submode: int | None = None  # parker_slvdn 0x60C0
-
-    def __post_init__(self) -> None:
-        if self.profile not in PROFILES:
-            raise ValueError(f"unknown profile {self.profile!r}")
-        if self.profile in FIXED_PERIOD_PROFILES and not (self.period_ms and 1 <= self.period_ms <= TIME_MAX_MS):
-            raise ValueError(f"{self.name}: a {self.profile} axis needs a period of 1..255 ms, got {self.period_ms}")
-
-    @classmethod
-    def from_config(cls, axis: Any) -> DriveAxis:
-        """From a cell's axis configuration (axes.config.AxisConfig, read by attribute)."""
-        return cls(
-            axis.joint,
-            axis.node_id,
-            axis.profile,
-            axis.scaling,
-            axis.limits,
-            axis.period_ms,
-            axis.interpolation_submode,
-        )
-
-    def program(self, records: NDArray[np.int64]) -> AxisProgram:
-        return AxisProgram(
-            self.name, self.node_id, self.profile, self.scaling, self.limits, records, self.interpolation_submode
-        )
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,6 @@ from collections.abc import Sequence
 import numpy as np
 
 from axes.config import AxisConfig
-from axes.interpolation import Interpolation
 from axes.program import AxisProgram, PvtProgram
 
 PEAK_VELOCITY = 1.875  # max of s'(u)
@@ -70,9 +69,7 @@ def axis_program(
         records[:, 0] = np.round(p)
         records[:, 1] = np.round(v / sc.qc_per_ms_per_velocity_unit)
         records[:, 2] = period
-    return AxisProgram(
-        axis.joint, axis.node_id, axis.profile, axis.scaling, axis.limits, records, axis.interpolation_submode
-    )
+    return AxisProgram.of(axis, records)
 
 
 def program(
@@ -104,8 +101,8 @@ def check_limits(prog: PvtProgram) -> None:
         rec = a.reconstruction()
         vmax = float(a.scaling.rpm_to_qc_per_ms(a.limits.max_profile_velocity_rpm))
         amax = float(a.scaling.rpm_s_to_qc_per_ms2(a.limits.max_acceleration_rpm_s))
-        assert rec.max_abs_velocity().max() <= vmax, a.name
-        if rec.interpolation is Interpolation.CUBIC:
-            assert rec.max_abs_acceleration().max() <= amax, a.name
+        assert rec.max_abs_velocity().max() <= vmax, a.joint
+        if rec.interpolation.cubic:
+            assert rec.max_abs_acceleration().max() <= amax, a.joint
         lo, hi = rec.position_range()
-        assert lo.min() >= a.limits.min_position_qc and hi.max() <= a.limits.max_position_qc, a.name
+        assert lo.min() >= a.limits.min_position_qc and hi.max() <= a.limits.max_position_qc, a.joint

@@ -59,7 +59,7 @@ def test_a_fixed_period_drive_reports_its_encoder_in_0x608f(
 ) -> None:
     from axes_rig import with_profiles
 
-    cell = with_profiles(gantry3, {"x": {"profile": "parker_slvdn"}}, 3.0)
+    cell = with_profiles(gantry3, {"x": {"profile": "parker_slvdn", "period_ms": 3}}, 3.0)
     rig = make_rig(with_drive(cell, "x", qc_per_motor_rev=1000))
     x = commission(rig.group.links, rig.group.profiles).axes[[a.joint for a in cell.ordered_axes()].index("x")]
     # the Parker has no homing mode (0x6502), which the gantry's x axis needs, and its own encoder

@@ -16,7 +16,7 @@ PROFILES = {
     "epos2_pvt": {},
     "cia402_ip_linear": {"profile": "cia402_ip_linear", "period_ms": 3, "homing": None},
     "sync_setpoint": {"profile": "sync_setpoint", "period_ms": 3},
-    "parker_slvdn": {"profile": "parker_slvdn", "homing": None},
+    "parker_slvdn": {"profile": "parker_slvdn", "period_ms": 3, "homing": None},
 }
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 from axes_programs import program
 
-from axes.program import AxisProgram, PvtProgram
+from axes.program import PvtProgram
 from service.cli import main
 
 
@@ -27,13 +28,8 @@ def write(tmp_path: Path, prog: PvtProgram, name: str = "program.json") -> Path:
 
 def replace_axis(prog: PvtProgram, index: int, **changes) -> PvtProgram:
     a = prog.axes[index]
-    fields = {
-        k: getattr(a, k)
-        for k in ("name", "node_id", "profile", "scaling", "limits", "records", "interpolation_submode")
-    }
-    fields.update(changes)
     axes = list(prog.axes)
-    axes[index] = AxisProgram(**fields)
+    axes[index] = dataclasses.replace(a, **changes)
     return PvtProgram(prog.cell, tuple(axes))
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -38,7 +39,7 @@ def test_six_axes_start_on_one_sync_and_end_on_their_last_records(arm6, make_rig
         np.testing.assert_array_equal(taken, axis.records)
         assert drive.ended_by_time_zero == 1
         assert report.feed.underflows == 0 and report.feed.overflows == 0
-        assert drive.max_level <= arm6.axis_for_joint(axis.name).buffer.overflow_warning
+        assert drive.max_level <= arm6.axis_for_joint(axis.joint).buffer.overflow_warning
         assert drive.max_level > 2  # filled up on SYNC after a short preload, not kept at two
     assert rig.sim.internal_errors == []
 
@@ -82,9 +83,7 @@ def test_program_breaking_a_limit_faults_and_halts(arm6, make_rig):
     records = a.records.copy()
     records[:, 0] = np.round(records[:, 0] * 2.5)
     records[:, 1] = np.round(records[:, 1] * 2.5)
-    bad = type(prog)(
-        prog.cell, (*prog.axes[:1], type(a)(a.name, a.node_id, a.profile, a.scaling, a.limits, records), *prog.axes[2:])
-    )
+    bad = type(prog)(prog.cell, (*prog.axes[:1], dataclasses.replace(a, records=records), *prog.axes[2:]))
     with pytest.raises(AssertionError):
         check_limits(bad)
     result = rig.group.run(bad, timeout_s=30)
@@ -339,7 +338,7 @@ def _assert_checked_by_sync(rig, prog) -> None:
     most the cell's record allowance per SYNC period, so as many SYNCs as that takes precede the start."""
     preload = sum(
         BufferFeeder(
-            a.records, lambda r: (0, b""), lambda c, d: None, 1.0, rig.cell.axis_for_joint(a.name).buffer
+            a.records, lambda r: (0, b""), lambda c, d: None, 1.0, rig.cell.axis_for_joint(a.joint).buffer
         ).preload()
         for a in prog.axes
     )

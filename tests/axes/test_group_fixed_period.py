@@ -32,7 +32,7 @@ def run_and_check(rig, duration_ms: int = 300):
         samples = [s for s in drive.history if s.sync >= result.start_sync]
         t = np.array([(s.sync - result.start_sync) * period for s in samples])
         demand = np.array([s.demand for s in samples])
-        np.testing.assert_allclose(demand, rec.position(t), atol=1e-6, err_msg=f"{axis.name} {axis.profile}")
+        np.testing.assert_allclose(demand, rec.position(t), atol=1e-6, err_msg=f"{axis.joint} {axis.profile}")
     assert rig.sim.internal_errors == []
     return result
 

@@ -17,7 +17,7 @@ from axes.bus import CellBus
 from axes.config import AxisSimulation, HomingConfig
 from axes.group import AxisGroup
 from axes.homing import CellHoming, HomingRequestError, HomingResult, homing_stages
-from axes.outcome import Result
+from axes.outcome import GroupError, Result
 from axes.program import PvtProgram
 from axes.sim.cell import SimulatedCell
 from axes.sim.homing import HomingState
@@ -98,7 +98,7 @@ def test_every_method_homes_on_its_home_position(
     homing = HomingConfig(method, offset_qc=home, timeout_s=10.0, **FAST)  # type: ignore[arg-type]
     rig = make_rig(with_homing(gantry3, {"x": (homing, machine)}))
     drive = rig.sim.drive("x")
-    assert rig.group.homed == (False, True, True)  # y and z have nothing to home
+    assert rig.group.state.homed == (False, True, True)  # y and z have nothing to home
     outcome = CellHoming(rig.group).run([["x"]])
     assert outcome.result is HomingResult.HOMED, outcome.message
     assert drive.homing_runs[-1].state is HomingState.ATTAINED
@@ -106,7 +106,7 @@ def test_every_method_homes_on_its_home_position(
     assert drive.machine_position == home  # ...exactly where the machine has its home: error 0 counts
     report = outcome.axes[0]
     assert report.homed and report.position_qc == home and report.time_s is not None
-    assert rig.group.homed == (True, True, True)
+    assert rig.group.state.homed == (True, True, True)
     assert drive.read(od.MODES_OF_OPERATION_DISPLAY) == od.INTERPOLATED_POSITION_MODE  # ready for programs
     assert rig.sim.internal_errors == []
 
@@ -119,7 +119,7 @@ def test_a_homing_error_halts_the_cell(gantry3: CellConfig, make_rig: Callable[.
     outcome = CellHoming(rig.group).run([["x"]])
     assert outcome.result is HomingResult.HOMING_ERROR and outcome.joint == "x"
     assert "homing error" in outcome.message
-    assert rig.group.homed[0] is False
+    assert rig.group.state.homed[0] is False
     assert "hard stop" in rig.sim.drive("x").homing_runs[-1].reason
 
 
@@ -132,7 +132,7 @@ def test_a_search_that_finds_nothing_times_out(gantry3: CellConfig, make_rig: Ca
     assert "not homed within 0.3 s" in outcome.message
     drive = rig.sim.drive("x")
     assert drive.velocity == 0.0 and drive.homing_runs[-1].state is HomingState.INTERRUPTED
-    assert rig.group.homed[0] is False
+    assert rig.group.state.homed[0] is False
 
 
 def test_a_fault_during_homing_halts_every_axis(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
@@ -152,7 +152,7 @@ def test_a_fault_during_homing_halts_every_axis(gantry3: CellConfig, make_rig: C
     assert outcome.result in (HomingResult.EMCY, HomingResult.DRIVE_FAULT) and outcome.joint == "y"  # type: ignore[attr-defined]
     assert x.homing_runs[-1].state is HomingState.INTERRUPTED and x.velocity == 0.0
     assert z.homing_runs == []  # the later stage never started
-    assert rig.group.homed == (False, False, False)
+    assert rig.group.state.homed == (False, False, False)
 
 
 def test_a_stop_during_homing_halts_it(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
@@ -167,23 +167,51 @@ def test_a_stop_during_homing_halts_it(gantry3: CellConfig, make_rig: Callable[.
     rig.group.stop("operator")
     thread.join(30.0)
     assert result[0].result is HomingResult.STOPPED  # type: ignore[attr-defined]
-    assert x.velocity == 0.0 and rig.group.homed[0] is False
+    assert x.velocity == 0.0 and rig.group.state.homed[0] is False
+
+
+def test_a_homing_holds_the_cell_until_it_ends(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
+    """One activity at a time (``CellRunState``): while a homing holds the cell no program starts and
+    no second homing begins, nothing of either sent; once it has ended the cell is free again."""
+    from axes_programs import axis_program
+
+    slow = HomingConfig(M.NEGATIVE_LIMIT_SWITCH, timeout_s=30.0, switch_speed_rpm=100.0, acceleration_rpm_s=20000.0)
+    far = dataclasses.replace(SWITCHES, power_up_qc=20000)
+    rig = make_rig(with_homing(gantry3, {"x": (slow, far)}))
+    x = rig.sim.drive("x")
+    homing = CellHoming(rig.group)
+    result: list[object] = []
+    thread = threading.Thread(target=lambda: result.append(homing.run([["x"]])))
+    thread.start()
+    assert x.wait_until(lambda: x.machine_position < 19000, 30.0)
+    assert rig.group.state.holder is homing
+    axes = gantry3.ordered_axes()
+    still = PvtProgram("gantry3", tuple(axis_program(a, 0, 0, 100, 10) for a in axes))
+    with pytest.raises(GroupError, match="the cell is homing"):
+        rig.group.start(still)
+    with pytest.raises(GroupError, match="already running"):
+        CellHoming(rig.group).run([["x"]])
+    assert len(x.homing_runs) == 1
+    rig.group.stop("operator")
+    thread.join(30.0)
+    assert result[0].result is HomingResult.STOPPED  # type: ignore[attr-defined]
+    assert rig.group.state.holder is None
 
 
 def test_a_reboot_undoes_homing(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
     homing = HomingConfig(M.CURRENT_POSITION, offset_qc=5000)
     rig = make_rig(with_homing(gantry3, {"x": (homing, SWITCHES), "y": (homing, SWITCHES)}))
     assert CellHoming(rig.group).run([["x", "y"]]).ok
-    assert rig.group.homed == (True, True, True)
+    assert rig.group.state.homed == (True, True, True)
     boots = rig.bus.boot_count(11)
     rig.bus.nmt(11, 0x81)  # NMT reset node: the drive boots again, its encoder counts from 0
     assert rig.sim.drive("x").wait_until(lambda: rig.bus.boot_count(11) > boots, 5.0)
-    assert rig.group.homed == (False, True, True)
+    assert rig.group.state.homed == (False, True, True)
     rig.sim.drive("y").power_cycle()  # a power loss: boot-up message
     assert rig.sim.drive("y").wait_until(lambda: rig.bus.boot_count(12) > boots, 5.0)
-    assert rig.group.homed == (False, False, True)
+    assert rig.group.state.homed == (False, False, True)
     assert CellHoming(rig.group).run([["x", "y"]]).ok  # configured again (it rebooted), homed again
-    assert rig.group.homed == (True, True, True)
+    assert rig.group.state.homed == (True, True, True)
 
 
 def test_homing_with_sync_on_the_wall_clock(gantry3: CellConfig) -> None:
@@ -211,7 +239,7 @@ def test_a_faulted_drive_is_not_reset_behind_the_users_back(gantry3: CellConfig,
     rig.sim.drive("x").inject_emcy(0x5530)
     outcome = CellHoming(rig.group).run([["x"]])
     assert outcome.result is HomingResult.DRIVE_FAULT and "recover first" in outcome.message
-    assert rig.sim.drive("x").homing_runs == [] and rig.group.homed[0] is False
+    assert rig.sim.drive("x").homing_runs == [] and rig.group.state.homed[0] is False
     assert rig.group.recover().ok
     assert CellHoming(rig.group).run([["x"]]).ok
 
@@ -245,7 +273,7 @@ def test_an_axis_that_does_not_read_its_offset_at_home_is_not_homed(
     outcome = CellHoming(rig.group).run([["x"]])
     assert outcome.result is HomingResult.HOMING_ERROR and outcome.joint == "x"
     assert "x reads 0x6064 = 0 qc at its home, not its home position 0x2081 = 123 qc" in outcome.message
-    assert rig.group.homed[0] is False
+    assert rig.group.state.homed[0] is False
 
 
 def test_the_epos2_homes_by_maxons_definitions(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:

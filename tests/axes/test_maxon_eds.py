@@ -23,7 +23,7 @@ def test_master_configures_a_node_with_the_maxon_eds(arm6, make_rig):
         axis = next(a for a in prog.axes if a.node_id == node_id)
         assert drive.actual == axis.records[-1, 0]
         # what the master wrote is in maxon's dictionary: mode, limits, warning levels, PDO mapping
-        config = arm6.axis_for_joint(axis.name)
+        config = arm6.axis_for_joint(axis.joint)
         assert drive.read(od.MODES_OF_OPERATION) == od.INTERPOLATED_POSITION_MODE
         assert drive.read(od.MAX_PROFILE_VELOCITY) == round(config.limits.max_profile_velocity_rpm)
         assert drive.read(od.SOFTWARE_POSITION_LIMIT, 2) == config.limits.max_position_qc

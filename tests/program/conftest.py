@@ -26,7 +26,8 @@ def axis(
     limits: DriveLimits = LIMITS,
     submode: int | None = None,
 ) -> AxisProgram:
-    return AxisProgram(name, node_id, profile, SCALING, limits, np.asarray(records, dtype=np.int64), submode)
+    records = np.asarray(records, dtype=np.int64)
+    return AxisProgram(name, node_id, profile, SCALING, limits, interpolation_submode=submode, records=records)
 
 
 def program(*axes: AxisProgram) -> PvtProgram:

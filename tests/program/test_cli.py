@@ -34,7 +34,7 @@ def planned(tmp_path_factory) -> Path:
 
 def test_plan_writes_a_valid_program(planned: Path, capsys) -> None:
     p = PvtProgram.loads(planned.read_text())
-    assert [a.name for a in p.axes] == list(NAMES) and p.cell == "arm6"
+    assert [a.joint for a in p.axes] == list(NAMES) and p.cell == "arm6"
     assert p.metadata["deviation_qc"]["joint_1"] <= 1.0
     assert main(["validate", str(planned)]) == 0
     assert "VALID (0 error(s)" in capsys.readouterr().out

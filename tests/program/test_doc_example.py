@@ -30,7 +30,7 @@ def test_the_documented_program_is_valid_and_lasts_what_its_metadata_says() -> N
     report = validate_program(program, source="docs/pvt-program.md")
     assert report.ok and not report.errors and not report.warnings, report.format_text()
     for axis in program.axes:
-        assert int(axis.records[:, 2].sum()) == program.metadata["duration_ms"], axis.name
+        assert int(axis.records[:, 2].sum()) == program.metadata["duration_ms"], axis.joint
     assert program.metadata["time_scale"] >= 1.0
     assert max(program.metadata["deviation_qc"].values()) <= program.metadata["tolerance_qc"]
 
@@ -42,5 +42,5 @@ def test_the_documented_program_fits_its_cell_and_goes_where_the_text_says() -> 
     waypoints = json.loads(re.search(r'`(\{"waypoints": .*?\})`', prose).group(1))["waypoints"]
     for axis, start, end in zip(program.axes, *np.asarray(waypoints), strict=True):
         s = axis.scaling
-        assert axis.records[0, 0] == round(start * s.motor_rev_per_joint_unit * s.qc_per_motor_rev), axis.name
-        assert axis.records[-1, 0] == round(end * s.motor_rev_per_joint_unit * s.qc_per_motor_rev), axis.name
+        assert axis.records[0, 0] == round(start * s.motor_rev_per_joint_unit * s.qc_per_motor_rev), axis.joint
+        assert axis.records[-1, 0] == round(end * s.motor_rev_per_joint_unit * s.qc_per_motor_rev), axis.joint

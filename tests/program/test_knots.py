@@ -9,9 +9,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from axes.interpolation import LINEAR_QUANTIZATION_QC, epos2_pvt, linear, linear_span_excess
+from axes.interpolation import LINEAR_QUANTIZATION_QC, Interpolation, epos2_pvt, linear, linear_span_excess
 from axes.program import AxisProgram, PvtProgram
 from axes.scaling import AxisScaling, DriveLimits
+from planner import knot_kernels
 from planner.build import build_program
 from planner.knots import DriveAxis, KnotOptions, place_knots
 from planner.limits import joint_limits_from_drives
@@ -24,7 +25,7 @@ from service.config import load_cell_config
 @pytest.fixture(scope="module")
 def arm6():
     cell = load_cell_config()
-    return cell, [DriveAxis.from_config(a) for a in cell.ordered_axes()]
+    return cell, list(cell.ordered_axes())
 
 
 def _random_waypoints(cell, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -130,7 +131,7 @@ def _fixed_period_axes() -> list[DriveAxis]:
 
 def test_fixed_period_profiles_one_record_per_period() -> None:
     axes = _fixed_period_axes()
-    limits = joint_limits_from_drives([a.name for a in axes], [a.scaling for a in axes], [a.limits for a in axes])
+    limits = joint_limits_from_drives([a.joint for a in axes], [a.scaling for a in axes], [a.limits for a in axes])
     wp = np.array([[0.01] * 5, [0.4, 0.3, 0.2, 0.25, 0.35], [0.1, 0.45, 0.05, 0.3, 0.2]])
     traj = Planner(limits).plan(PlanInput(wp)).trajectory
     built = build_program(traj, axes, "mixed")
@@ -161,7 +162,7 @@ def test_linear_drive_below_one_count_per_period_squared_plans_within_its_accele
     assert a_max < 1.0  # one count per ms^2 is more than the drive allows
     assert linear_span_excess(recon.c1, 1.0, a_max)[2] <= 1e-9
     assert np.abs(np.diff(records[:, 0], 2)).max() <= math.floor(a_max + LINEAR_QUANTIZATION_QC)
-    program = PvtProgram("t", (AxisProgram("j", 1, "cia402_ip_linear", s, lim, records),))
+    program = PvtProgram("t", (AxisProgram("j", 1, "cia402_ip_linear", s, lim, records=records),))
     assert validate_program(program).ok
     # the same records with one sustained count more per period squared break the span rule
     steps = np.diff(records[:-1, 0])
@@ -189,3 +190,13 @@ def test_short_moves_are_executable(arm6, step: float) -> None:
     assert built.knots.deviation_qc <= 1.0
     # the slow-down whole counts call for is small in absolute terms
     assert built.program.duration_ms <= out.trajectory.duration * 1000 * 1.05 + 50
+
+
+def test_the_kernels_take_the_reconstruction_codes() -> None:
+    codes = [k.code for k in Interpolation]
+    assert len(set(codes)) == len(codes)
+    assert (
+        Interpolation.LINEAR.code,
+        Interpolation.CUBIC_PV.code,
+        Interpolation.CUBIC_P.code,
+    ) == (knot_kernels.LINEAR, knot_kernels.CUBIC_PV, knot_kernels.CUBIC_P)

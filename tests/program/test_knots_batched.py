@@ -16,7 +16,7 @@ import pytest
 from axes.interpolation import PiecewiseCubic, epos2_pvt, hermite_coefficients
 from planner import knot_kernels
 from planner.build import build_program
-from planner.knots import DriveAxis, KnotOptions
+from planner.knots import KnotOptions
 from planner.knots.check import check_knots
 from planner.knots.epos2 import Start, place_epos2
 from planner.knots.flat import Flat, within_record_time
@@ -31,7 +31,7 @@ from service.config import load_cell_config
 @pytest.fixture(scope="module")
 def arm6_plan():
     cell = load_cell_config()
-    axes = [DriveAxis.from_config(a) for a in cell.ordered_axes()]
+    axes = list(cell.ordered_axes())
     lim = cell.joint_limits()
     rng = np.random.default_rng(11)
     wp = lim.lower + (lim.upper - lim.lower) * (0.15 + 0.7 * rng.random((4, lim.dof)))

@@ -275,7 +275,7 @@ def test_records_of_the_wrong_shape_are_a_finding_not_a_crash(cut: str, good_pro
     for period in (None, 1.0):
         report = validate_program(broken, sample_period_ms=period)
         assert not report.ok
-        assert [f.axis for f in report.errors] == [ax.name]
+        assert [f.axis for f in report.errors] == [ax.joint]
         assert "got an array of shape" in report.errors[0].message
 
 

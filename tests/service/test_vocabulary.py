@@ -25,7 +25,7 @@ def shifted_program(cell: CellConfig, tmp_path: Path) -> tuple[Path, PvtProgram]
     records = a.records.copy()
     records[:, 0] += 5000
     axes = list(prog.axes)
-    axes[0] = AxisProgram(a.name, a.node_id, a.profile, a.scaling, a.limits, records, a.interpolation_submode)
+    axes[0] = AxisProgram.of(a, records)
     shifted = PvtProgram(prog.cell, tuple(axes))
     path = tmp_path / "shifted.json"
     path.write_text(shifted.dumps())
