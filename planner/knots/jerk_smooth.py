@@ -50,7 +50,7 @@ def smoothed_axis(fl: Flat, placed: tuple[AxisKnots, float], opts: KnotOptions) 
         return placed
     rv, ra = float(chk.velocity_ratio.max()), float(chk.acceleration_ratio.max())
     rj = window_jerk(recon) / allowed
-    moved = AxisKnots(fl.axes[0].name, rows, chk.deviation, rv, ra, rj), max(needed_scale(rv, ra), jerk_scale(rj))
+    moved = AxisKnots(fl.axes[0].joint, rows, chk.deviation, rv, ra, rj), max(needed_scale(rv, ra), jerk_scale(rj))
     return moved if moved[1] < placed[1] else placed
 
 
