@@ -46,7 +46,7 @@ def braking_positions(last: int, previous: int, period_ms: float, deceleration: 
     stop = math.ceil(natural) if v0 > 0 else math.floor(natural)
     duration = 2.0 * abs(stop - last) / abs(v0)  # the constant deceleration that ends on ``stop``
     c0, c1, c2, c3 = (np.atleast_1d(c) for c in hermite_coefficients(last, v0, stop, 0.0, duration))
-    curve = PiecewiseCubic(np.zeros(1), np.array([duration]), c0, c1, c2, c3, Interpolation.CUBIC)
+    curve = PiecewiseCubic(np.zeros(1), np.array([duration]), c0, c1, c2, c3, Interpolation.CUBIC_PV)
     n = max(1, math.ceil(duration / period_ms - 1e-9))
     positions = np.rint(curve.position(np.arange(1, n + 1) * period_ms)).astype(np.int64)
     positions[-1] = stop
