@@ -47,7 +47,7 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -306,7 +306,9 @@ class SyncClock:
         self.realtime: bool | None = None  # None: no SYNC thread has run yet
         self.native = False
         self.last_progress = time.monotonic()
-        self._answers: dict[int, int] = {}  # cob id -> SYNCs answered
+        self._answers: dict[int, int] = {}  # cob id -> the last SYNC its answers stand for
+        self._every: dict[int, int] = {}  # cob id -> the SYNCs one answer stands for (transmission type n)
+        self._completing = False  # _complete is running (it sends the next lockstep SYNC itself)
         self._listeners: list[SyncCallback] = []
         self._senders: list[SyncCallback] = []  # run right after each SYNC goes out, by whoever sends it
         self.lock = threading.RLock()  # held while SYNC listeners run and while a SYNC goes out
@@ -325,17 +327,29 @@ class SyncClock:
         self.hold: Callable[[], None] | None = None  # benchmarks and tests: called before each wall-clock SYNC
 
     # --- answers ---------------------------------------------------------------------------------
-    def expect(self, cob_ids: Iterable[int]) -> None:
-        """The synchronous TPDOs that answer every SYNC (one per drive). Call it after the links have
-        subscribed their TPDO decoders: an answer is then decoded before it is counted, so whoever
-        waits for a SYNC's answers (``wait_answered``) reads what the drives said on it."""
+    def expect(self, answers: Iterable[int] | Mapping[int, int]) -> None:
+        """The synchronous TPDOs that answer SYNC (one per drive): COB-IDs, or COB-ID -> n for a TPDO
+        of transmission type n (``axes.tpdo_rates``), which answers once in every n SYNCs. The master
+        takes an answer as standing for the SYNC it arrived after and the n - 1 after that, and, not
+        knowing where a drive's SYNC counter stands, a new expectation as standing for the next n - 1:
+        never less than the drive's answers cover, so lockstep never waits for an answer a drive does
+        not owe (it waits at the latest on the n-th SYNC, which every drive has answered by then).
+        Call it after the links have subscribed their TPDO decoders: an answer is then decoded
+        before it is counted, so whoever waits for a SYNC's answers (``wait_answered``) reads what
+        the drives said on it."""
+        every = dict(answers) if isinstance(answers, Mapping) else dict.fromkeys(answers, 1)
         with self.lock:
             for cob in self._answers:
                 unsubscribe(self.bus.network, cob, self._on_answer)
-            self._answers = {cob: self.count for cob in cob_ids}
+            self._every = every
+            self._answers = {cob: self.count + n - 1 for cob, n in every.items()}
             self.answered = self.count
             for cob in self._answers:
                 subscribe(self.bus.network, cob, self._on_answer)
+
+    def _done(self) -> int:
+        """The last SYNC every drive has answered or owes no answer for (never past the SYNCs sent)."""
+        return min(min(v, self.count) if self._every.get(c, 1) > 1 else v for c, v in self._answers.items())
 
     def add_listener(self, callback: SyncCallback) -> None:
         self._listeners.append(callback)
@@ -363,35 +377,50 @@ class SyncClock:
             return [cob for cob, n in self._answers.items() if n < self.count]
 
     def _on_answer(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        failed: BusFault | None = None
         with self.lock:
             n = self._answers.get(can_id)
-            if n is None or (self.lockstep and n >= self.count):
+            every = self._every.get(can_id, 1)
+            if n is None or (self.lockstep and every == 1 and n >= self.count):
                 return  # an answer without a SYNC (or a duplicate): nothing to count
-            self._answers[can_id] = n + 1
+            # an answer of type n stands for the last SYNC sent and the n - 1 after it
+            self._answers[can_id] = n + 1 if every == 1 else max(n, self.count + every - 1)
             self._answered_changed.notify_all()
-            done = min(self._answers.values())
-            if done <= self.answered:
-                return
-            self.answered = done
-            self.count = max(self.count, done)
-            self.last_progress = time.monotonic()
-            try:  # a frame a listener cannot send must not end the bus's receive thread
-                for cb in list(self._listeners):
-                    cb(done)
-                if self.lockstep and self._running and self.answered == self.count:
-                    self._transmit()
-            except (can.CanError, OSError) as exc:
-                self._running = False
-                self._production += 1
-                failed = BusFault(FaultKind.TX_FAILED, None, f"after SYNC {done}: {exc}")
-            except Exception as exc:
-                log.exception("a SYNC listener failed")
-                self._running = False
-                self._production += 1
-                failed = BusFault(FaultKind.SYNC_STOPPED, None, f"SYNC ended after SYNC {done}: {exc!r}")
+            failed = self._complete()
         if failed is not None:
             self.bus.report(failed)
+
+    def _complete(self) -> BusFault | None:
+        """Advance ``answered`` to every SYNC answered or owed no answer, run the listeners on it and,
+        in lockstep, send the next SYNC (again while no drive owes an answer for it). Called with the
+        lock held; a fault to report (after the lock is released) or None."""
+        if self._completing:
+            return None
+        self._completing = True
+        done = self.answered
+        try:  # a frame a listener cannot send must not end the bus's receive thread
+            while True:
+                done = self._done()
+                if done <= self.answered:
+                    return None
+                self.answered = done
+                self.count = max(self.count, done)
+                self.last_progress = time.monotonic()
+                for cb in list(self._listeners):
+                    cb(done)
+                if not (self.lockstep and self._running and self.answered == self.count):
+                    return None
+                self._transmit()
+        except (can.CanError, OSError) as exc:
+            self._running = False
+            self._production += 1
+            return BusFault(FaultKind.TX_FAILED, None, f"after SYNC {done}: {exc}")
+        except Exception as exc:
+            log.exception("a SYNC listener failed")
+            self._running = False
+            self._production += 1
+            return BusFault(FaultKind.SYNC_STOPPED, None, f"SYNC ended after SYNC {done}: {exc!r}")
+        finally:
+            self._completing = False
 
     # --- production ------------------------------------------------------------------------------
     def _transmit(self, sync_frame: bool = True) -> None:
@@ -410,6 +439,12 @@ class SyncClock:
                 self.bus.network.send_message(self.time_stamp_cob_id, struct.pack("<I", stamp))
             for send in self._senders:
                 send(self.count)
+            if not self._completing and any(n > 1 for n in self._every.values()):
+                # drives whose status TPDO goes out every n SYNCs may owe no answer for this one: its
+                # listeners run now, in the sending thread, as no answer will bring them
+                failed = self._complete()
+                if failed is not None:
+                    self.bus.report(failed)
 
     def start(self) -> None:
         """Send the first SYNC now and keep producing (lockstep: on answers; real time: periodic)."""
@@ -569,7 +604,9 @@ class SyncClock:
         with its synchronous TPDO); what each drive's answer count will be once it has answered,
         for ``wait_answered`` (in real time ``count`` is a wall-clock estimate, not a SYNC's number)."""
         with self.lock:
-            owed = {cob: n + 1 for cob, n in self._answers.items()}
+            sent = self.count + 1
+            # a drive of type n > 1 owes an answer only on its every n-th SYNC
+            owed = {cob: n + 1 if self._every.get(cob, 1) == 1 else sent for cob, n in self._answers.items()}
             self._transmit()
             return owed
 

@@ -155,7 +155,7 @@ class AxisGroup:
             profile.configure()
             profile.write_homing()
             link.subscribe_tpdos(profile.tpdos)
-        self.bus.sync.expect(p.sync_answer_cob_id for p in self.profiles)
+        self.bus.sync.expect({p.sync_answer_cob_id: p.sync_answer_every for p in self.profiles})
         for link in self.links:
             self.bus.nmt(link.node_id, NMT_START)
         self.bus.watch_heartbeat(link.node_id for link in self.links)
@@ -567,7 +567,11 @@ class AxisGroup:
             if gone and link is not None:
                 # stop waiting for a drive that is gone, so the others still get their halt SYNC
                 sync.expect(
-                    p.sync_answer_cob_id for p, lk in zip(self.profiles, self.links, strict=True) if lk is not link
+                    {
+                        p.sync_answer_cob_id: p.sync_answer_every
+                        for p, lk in zip(self.profiles, self.links, strict=True)
+                        if lk is not link
+                    }
                 )
             self._halt(kind, fault.message, link)
             if gone and stalled and sync.lockstep:
@@ -742,7 +746,7 @@ class AxisGroup:
                 return self._finish_early(Result.CONFIGURATION_ERROR, str(exc))
             for link in self.links:
                 self.bus.nmt(link.node_id, NMT_START)
-            self.bus.sync.expect(p.sync_answer_cob_id for p in self.profiles)
+            self.bus.sync.expect({p.sync_answer_cob_id: p.sync_answer_every for p in self.profiles})
             for link, profile in zip(self.links, self.profiles, strict=True):
                 try:
                     profile.enable()

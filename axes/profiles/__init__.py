@@ -31,6 +31,7 @@ from axes.cia402 import (
 from axes.config import AxisConfig
 from axes.objects import BufferStatus, PdoLayout
 from axes.subscriptions import subscribe, unsubscribe
+from axes.tpdo_rates import answer_every, with_rates
 
 if TYPE_CHECKING:
     from axes.bus import CellBus
@@ -208,10 +209,10 @@ class AxisLink:
             self.write(mapping, k, (index << 16) | (subindex << 8) | bits, "I")
         self.write(mapping, 0, len(layout.entries), "B")
         self.write(comm, 2, layout.transmission_type, "B")
-        if not receive:  # 0x1800:03 in 100 us; a drive without :03 / :05 has neither to set
+        if not receive:  # 0x1800:03 in 100 us, :05 in ms; a drive without :03 / :05 has neither to set
             inhibit = round(layout.inhibit_periods * self.bus.config.sync_period_ms * 10)
             self.write_optional(comm, 3, min(inhibit, 0xFFFF), "H")
-            self.write_optional(comm, 5, 0, "H")
+            self.write_optional(comm, 5, layout.event_timer_ms, "H")
         self.write(comm, 1, rtr | cob, "I")
         self._check_pdo(layout, receive, rtr | cob)
 
@@ -246,7 +247,8 @@ class AxisLink:
     def map_pdos(
         self, rpdos: tuple[PdoLayout, ...], tpdos: tuple[PdoLayout, ...], rpdo_cob_ids: dict[int, int] | None = None
     ) -> None:
-        """Map pvtflow's PDOs and invalidate the others (``rpdo_cob_ids``: RPDO number -> shared COB-ID)."""
+        """Map pvtflow's PDOs and invalidate the others (``rpdo_cob_ids``: RPDO number -> shared COB-ID);
+        the status TPDOs at the cell's rates (``axes.tpdo_rates``)."""
         cobs = rpdo_cob_ids or {}
         used_r = {p.number for p in rpdos}
         used_t = {p.number for p in tpdos}
@@ -258,7 +260,7 @@ class AxisLink:
         for p in rpdos:
             self.map_pdo(p, True, cobs.get(p.number))
         for p in tpdos:
-            self.map_pdo(p, False)
+            self.map_pdo(with_rates(p, self.bus.config), False)
 
     def subscribe_tpdos(self, tpdos: tuple[PdoLayout, ...]) -> None:
         self.unsubscribe()
@@ -366,6 +368,12 @@ class Profile:
     @property
     def sync_answer_cob_id(self) -> int:
         return 0x80 + 0x100 * self.sync_tpdo + self.link.node_id
+
+    @property
+    def sync_answer_every(self) -> int:
+        """The SYNCs one answer of the synchronous status TPDO stands for (its type n at the cell's rate)."""
+        layout = next(t for t in self.tpdos if t.number == self.sync_tpdo)
+        return answer_every(with_rates(layout, self.link.bus.config))
 
     @property
     def delay_periods(self) -> int:
