@@ -14,12 +14,13 @@ bits (``axes.frame_time``), against what the bus carries in that period (bit rat
   them (``bus.tx_queue_frames``: SocketCAN refuses the rest with ENOBUFS);
 - the heartbeats of every drive and of the master, per their periods;
 - room for one EMCY and one SDO exchange (request and answer) in every window of ``WINDOW_PERIODS``
-  periods, and in the period they fall in.
+  periods. They are not scheduled, so no single period claims them: the frames they push out of a
+  full period go out in the window's idle time.
 
 Frames whose content is not known in advance are costed at their worst stuffing
 (``worst_frame_bits``). Each item counts its frames three ways: on average per period
 (``fraction``, what ``describe`` shows), at most in one period (``peak_fraction``: every synchronous
-PDO due in it, a controlword on every axis, the EMCY and the SDO exchange, a full record allowance)
+PDO due in it, a controlword on every axis, every heartbeat that can fall in it, a full record allowance)
 and at most in a window of ``WINDOW_PERIODS`` consecutive periods (``window_fraction``: a TPDO of
 type n ceil(10 / n) times, an event TPDO once per inhibit time, the controlword at most
 ``CONTROLWORDS_PER_WINDOW`` times per axis: start, halt, end).
@@ -159,8 +160,8 @@ class BusBudget:
         if self.peak_fraction > 1.0:
             return (
                 f"one SYNC period can carry {self.peak_fraction:.0%} of the bus ({self.peak_bits:.0f} bits of "
-                f"{self.capacity_bits:.0f} when every synchronous PDO, a controlword per axis, the records, an EMCY "
-                f"and an SDO exchange fall in it; {heaviest}): needs {fixes}"
+                f"{self.capacity_bits:.0f} when every synchronous PDO, a controlword per axis and the records fall in "
+                f"it; {heaviest}): needs {fixes}"
             )
         return None
 
@@ -204,8 +205,10 @@ def bus_budget(wiring: CellWiring) -> BusBudget:
                 items.append(_pdo_item(f"node {axis.node_id} {kind}{layout.number} {layout.role}", layout))
     beats = len(wiring.axes) * period / bus.heartbeat_ms + period / bus.master_heartbeat_ms
     items.append(BudgetItem("heartbeats", beats, math.ceil(beats), HEARTBEAT_BITS, math.ceil(beats * WINDOW_PERIODS)))
-    items.append(BudgetItem("EMCY (reserved)", 1 / WINDOW_PERIODS, 1, EMCY_BITS, 1))
-    items.append(BudgetItem("SDO exchange (reserved)", 1 / WINDOW_PERIODS, 1, SDO_EXCHANGE_BITS, 1))
+    # unscheduled: room in every window, none claimed in a period (what they push out of one goes in
+    # the window's idle time)
+    items.append(BudgetItem("EMCY (reserved)", 1 / WINDOW_PERIODS, 0, EMCY_BITS, 1))
+    items.append(BudgetItem("SDO exchange (reserved)", 1 / WINDOW_PERIODS, 0, SDO_EXCHANGE_BITS, 1))
     records, derived = 0, False
     if buffered:
         records, derived = bus.records_per_sync or 0, bus.records_per_sync is None

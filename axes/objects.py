@@ -299,7 +299,7 @@ class PdoLayout:
     def frames_in(self, periods: int) -> int:
         """The most frames of one axis's PDO in ``periods`` consecutive SYNC periods (setpoints and
         controlwords: one per period; a TPDO of type n: one every n-th SYNC; an event TPDO: one per
-        inhibit time, the first at the window's start)."""
+        inhibit time)."""
         if self.role in (PdoRole.RECORD, PdoRole.TIME_STAMP):
             return 0
         if self.role in (PdoRole.SETPOINT, PdoRole.CONTROLWORD) or self.transmission_type == 0:
@@ -307,7 +307,7 @@ class PdoLayout:
         if 1 <= self.transmission_type <= 240:
             return math.ceil(periods / self.transmission_type)
         self.frames_per_sync()  # an event TPDO without an inhibit time is refused there
-        return math.floor(periods / self.inhibit_periods + 1e-9) + 1
+        return math.ceil(periods / self.inhibit_periods - 1e-9)
 
 
 SYNCHRONOUS = 1
