@@ -12,7 +12,10 @@ must exist, be PDO-mappable, readable (TPDO) or writable (RPDO) and be mapped wi
 (0x06040041), at most 64 bits (0x06040042); a valid PDO's COB-ID (bits 0-29) is not changed, not
 even by the write that invalidates it (0x06090030: "shall not be changed while the PDO exists"),
 nor its inhibit time (0x06090030). So a master invalidates with the COB-ID it reads, then moves it.
-Not simulated: inhibit time, event timer, SYNC start value, RTR.
+An event-driven TPDO keeps its inhibit time and event timer (``axes.sim.tpdo_timing``); a
+synchronous TPDO of type n goes out on every n-th SYNC counted from its last reload (CANopenNode's
+reading of CiA 301: the first on the n-th SYNC after the drive entered OPERATIONAL or the PDO was
+configured). Not simulated: SYNC start value, RTR.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
 from axes.objects import EMCY_PDO_LENGTH
+from axes.sim.tpdo_timing import TpdoTiming
 from axes.subscriptions import subscribe, unsubscribe
 
 if TYPE_CHECKING:
@@ -59,6 +63,7 @@ class PdoState:
     last_sent: bytes | None = None
     pending: bytes | None = None  # synchronous RPDO data waiting for the SYNC
     received: int = 0
+    timing: TpdoTiming = field(default_factory=TpdoTiming)  # event-driven TPDO: inhibit time, event timer
 
     @property
     def bits(self) -> int:
@@ -159,7 +164,11 @@ class PdoEngine:
                 value = self.drive.read(mapping + n, k)
                 if value >> 16 and value & 0xFF:
                     entries.append((value >> 16, (value >> 8) & 0xFF, value & 0xFF))
-            out[n + 1] = PdoState(n + 1, receive, cob & 0x7FF, not cob & PDO_NOT_VALID, ttype, tuple(entries))
+            pdo = PdoState(n + 1, receive, cob & 0x7FF, not cob & PDO_NOT_VALID, ttype, tuple(entries))
+            if not receive:
+                inhibit, timer = self.drive.read_or(comm + n, 3, 0), self.drive.read_or(comm + n, 5, 0)
+                pdo.timing = TpdoTiming.from_objects(inhibit, timer)
+            out[n + 1] = pdo
         return out
 
     # --- reception -------------------------------------------------------------------------------
@@ -220,10 +229,14 @@ class PdoEngine:
                 self._send(pdo, data)
 
     def transmit_events(self) -> None:
+        """Event-driven TPDOs whose data changed (or whose event timer ran out), each once its inhibit
+        time has passed: a change within it waits for the next look after it."""
+        now = self.drive.time_us
         for pdo in self.tpdos.values():
-            if pdo.valid and pdo.entries and pdo.transmission_type >= 254:
+            if pdo.valid and pdo.entries and pdo.transmission_type >= 254 and pdo.timing.may_send(now):
                 data = self._pack(pdo)
-                if data != pdo.last_sent:
+                if data != pdo.last_sent or pdo.timing.timer_due(now):
+                    pdo.timing.sent(now)
                     self._send(pdo, data)
 
     def _send(self, pdo: PdoState, data: bytes) -> None:
