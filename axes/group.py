@@ -138,6 +138,7 @@ class AxisGroup:
         self.allowance = RecordAllowance(max(1, budget.records_per_sync, budget.buffered_axes))
         for link in self.links:
             link.status_listeners.append(self._on_status)
+        self._status_lag = max((p.sync_answer_every for p in self.profiles), default=1) - 1
         bus.on_fault(self._on_bus_fault)
         if any(p.fixed_period for p in self.profiles):
             bus.sync.add_sender(self._after_sync)
@@ -471,7 +472,8 @@ class AxisGroup:
                     self._ip_start[i] = n
             if self._ending is None:
                 self._check_drives()
-            if self._ending is None and elapsed >= START_CHECK_SYNCS:
+            # a status TPDO every n SYNCs reports ip mode up to n - 1 SYNCs later (axes.tpdo_rates)
+            if self._ending is None and elapsed >= START_CHECK_SYNCS + self._status_lag:
                 self._check_started()
             if self._ending is None:
                 self.allowance.new_period()

@@ -119,6 +119,7 @@ class AxisLink:
         self.psm = PowerStateMachine()
         self.statusword = 0
         self.position: int | None = None
+        self.status_sync = 0  # the SYNC count when the last status TPDO arrived: what its values are as of
         self.buffer_status = 0
         self.last_emcy: tuple[int, str] | None = None
         self.updated = threading.Condition()
@@ -282,6 +283,7 @@ class AxisLink:
         def on_tpdo(can_id: int, data: bytearray, timestamp: float) -> None:
             if len(data) < fmt.size:
                 return
+            self.status_sync = self.bus.sync.count
             for key, value in zip(keys, fmt.unpack_from(data), strict=True):
                 if key == (od.STATUSWORD, 0):
                     self._set_statusword(value)

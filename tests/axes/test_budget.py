@@ -108,7 +108,8 @@ def test_a_linear_ip_gantry_fits_at_the_seeds_1_ms_with_status_every_second_sync
     every = _write(tmp_path, "gantry3-ip-linear.yaml", {"sync_period_ms": 1.0})
     with pytest.raises(ConfigError, match=r"takes 80% of the bus in a window of 10 SYNC periods.*status_every_syncs"):
         load_cell_config(every)
-    cell = load_cell_config(_write(tmp_path, "gantry3-ip-linear.yaml", {"sync_period_ms": 1.0, "status_every_syncs": 2}))
+    halved = {"sync_period_ms": 1.0, "status_every_syncs": 2}
+    cell = load_cell_config(_write(tmp_path, "gantry3-ip-linear.yaml", halved))
     budget = bus_budget(cell)
     assert budget.problem() is None and budget.window_fraction <= LOAD_LIMIT < budget.peak_fraction <= 1.0
     status = [i for i in budget.items if "TPDO1 status" in i.name]
