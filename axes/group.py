@@ -28,6 +28,7 @@ from axes.bus import BusFault, CellBus, FaultKind
 from axes.cia402 import PowerState, Statusword, decode_state
 from axes.commission import refuse_on_facts
 from axes.config import AxisConfig, Wiring
+from axes.feed_check import BufferedAxis, feed_shortfall
 from axes.feeder import BufferFeeder, Feeder, FeedStats, RecordAllowance, preload_shared, top_up_by_need
 from axes.objects import BUFFER_ERRORS, BufferStatus
 from axes.outcome import (
@@ -210,7 +211,15 @@ class AxisGroup:
     def check_program(self, program: PvtProgram) -> str | None:
         """Why this program cannot run on this cell (None: it can)."""
         problems = program_mismatch(program, [link.config for link in self.links], "this cell")
-        return "; ".join(problems[:3]) if problems else None
+        if problems:
+            return "; ".join(problems[:3])
+        by_node = {a.node_id: a for a in program.axes}
+        buffered = [
+            BufferedAxis(link.joint, by_node[link.node_id].records, link.config.buffer)
+            for link, profile in zip(self.links, self.profiles, strict=True)
+            if profile.name == "epos2_pvt" and link.node_id in by_node
+        ]
+        return feed_shortfall(buffered, self.allowance.per_sync, self.bus.config.sync_period_ms)
 
     # --- running ---------------------------------------------------------------------------------
     def run(self, program: PvtProgram, timeout_s: float | None = None) -> RunResult:
