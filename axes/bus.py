@@ -12,7 +12,8 @@ SYNC has two modes (``CellBus(lockstep=...)``):
   never sent late in a burst (a fixed-period drive would take two setpoints in one period), and no
   SYNC goes out within half a period of the one before. The thread asks for SCHED_FIFO
   (``BusConfig.sync_priority``; not permitted: one warning, normal priority).
-  A gap longer than the drives ride out is reported (``FaultKind.SYNC_GAP``, the gap in ms): the
+  A gap longer than the drives ride out is reported (``FaultKind.SYNC_GAP``, the gap in ms), before
+  the thread sends the SYNC after it (the halt the report causes comes first): the
   rule is ``BusConfig.max_sync_gap_periods`` when the cell sets it, else the profiles' (``Profile.
   max_sync_gap_ms``): 2 periods for a drive that takes one setpoint per SYNC (one SYNC skipped
   makes it hold one period, more would be a jump), and for the EPOS2, which runs its records on
@@ -517,10 +518,23 @@ class SyncClock:
         """SYNC on absolute deadlines; a deadline passed by more than half a period is skipped."""
         period = self.period_ms / 1000.0
         deadline = time.monotonic()
+        judged: float | None = None  # the SYNC whose gap was reported before the next went out
         while True:
             if self.hold is not None:
                 self.hold()
             with self.lock:  # never a SYNC after stop(): it is judged under the lock stop() takes
+                if not self._producing(production):
+                    return
+                now = time.monotonic()
+                # a gap beyond what the drives ride out is reported before another SYNC goes out, so
+                # that the halt it causes comes first (a stalled master: the process was held)
+                overdue = None
+                if self._previous is not None and self._previous != judged and now - self._previous > self.max_gap_s:
+                    overdue, judged = now - self._previous, self._previous
+            if overdue is not None:
+                self._gap(overdue)
+                continue
+            with self.lock:
                 if not self._producing(production):
                     return
                 now = time.monotonic()
@@ -533,7 +547,7 @@ class SyncClock:
                 # not before its deadline, nor within half a period of the last SYNC (one sent late)
                 due = deadline if self._previous is None else max(deadline, self._previous + period / 2)
                 if now >= due:
-                    gap = None if self._previous is None else now - self._previous
+                    gap = None if self._previous is None or self._previous == judged else now - self._previous
                     self._transmit()
                     deadline += period
                     due = deadline
