@@ -138,6 +138,7 @@ def one_run(
                 "requests_ms": float("nan"),
                 "acted_ms": float("nan"),
                 "confirmed_ms": float("nan"),
+                "drained_ms": float("nan"),
                 "nmt": 0,
                 "axes": 0,
                 "other": f"{result.result.value}: {result.message[:90]}",
@@ -149,6 +150,9 @@ def one_run(
             "requests_ms": (stop.started - failed_at[0]) * 1000.0,
             "acted_ms": (every - failed_at[0]) * 1000.0,
             "confirmed_ms": (confirmed - failed_at[0]) * 1000.0,
+            "drained_ms": (confirmed - failed_at[0]) * 1000.0 - full_ms
+            if not case.startswith("dead")
+            else float("nan"),
             "nmt": int(bool(stop.nmt_stopped)),
             "axes": len(stop.node_ids),
         }
@@ -201,16 +205,27 @@ def main() -> None:
         req = np.array([r["requests_ms"] for r in runs])
         conf = np.array([r["confirmed_ms"] for r in runs])
         acted = np.array([r["acted_ms"] for r in runs])
-        within = int((acted <= 10.0).sum())
-        nmt = sum(int(r["nmt"]) for r in runs)
         others = [str(r["other"]) for r in runs if "other" in r]
+        within = int((acted <= 10.0).sum())
+        drained = np.array([r["drained_ms"] for r in runs])
+        after = (
+            ""
+            if np.isnan(drained).all()
+            else f"; {np.nanmedian(drained):.2f} / {np.nanmax(drained):.2f} after it drained"
+        )
+        drive_side = (
+            "-"
+            if process is not None
+            else f"{np.nanmedian(acted):.2f} / {np.nanmax(acted):.2f} ({within} of {len(runs) - len(others)})"
+        )
+        nmt = sum(int(r["nmt"]) for r in runs)
         late = int(np.isnan(conf).sum()) - len(others)
         for other in others:
             print(f"<!-- {case}: no quick stop, the run ended {other} -->")
         print(
             f"| {case} | {max(int(r['axes']) for r in runs)} | {np.nanmedian(req):.2f} / {np.nanmax(req):.2f} | "
-            f"{np.nanmedian(acted):.2f} / {np.nanmax(acted):.2f} ({within} of {len(runs) - len(others)}) | "
-            f"{np.nanmedian(conf):.2f} / {np.nanmax(conf):.2f} (+ {late} not within the bound) | "
+            f"{drive_side} | "
+            f"{np.nanmedian(conf):.2f} / {np.nanmax(conf):.2f}{after} (+ {late} not within the bound) | "
             f"{nmt} of {len(runs)} | {len(others)} |",
             flush=True,
         )

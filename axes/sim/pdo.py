@@ -20,6 +20,7 @@ configured). Not simulated: SYNC start value, RTR.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -64,6 +65,7 @@ class PdoState:
     pending: bytes | None = None  # synchronous RPDO data waiting for the SYNC
     received: int = 0
     timing: TpdoTiming = field(default_factory=TpdoTiming)  # event-driven TPDO: inhibit time, event timer
+    held: threading.Timer | None = None  # a change waits for its inhibit time: the look after it
 
     @property
     def bits(self) -> int:
@@ -233,11 +235,33 @@ class PdoEngine:
         time has passed: a change within it waits for the next look after it."""
         now = self.drive.time_us
         for pdo in self.tpdos.values():
-            if pdo.valid and pdo.entries and pdo.transmission_type >= 254 and pdo.timing.may_send(now):
-                data = self._pack(pdo)
-                if data != pdo.last_sent or pdo.timing.timer_due(now):
-                    pdo.timing.sent(now)
-                    self._send(pdo, data)
+            if not (pdo.valid and pdo.entries and pdo.transmission_type >= 254):
+                continue
+            data = self._pack(pdo)
+            if data == pdo.last_sent and not pdo.timing.timer_due(now):
+                continue
+            if pdo.timing.may_send(now):
+                pdo.timing.sent(now)
+                self._send(pdo, data)
+            else:
+                self._look_again(pdo)
+
+    def _look_again(self, pdo: PdoState) -> None:
+        """A change held by the inhibit time while the drive's clock stands still since the last frame
+        (lockstep, no SYNC): look at the TPDOs again once it has passed on the wall clock. A clock
+        that moves looks by itself (each SYNC, each wall-clock tick)."""
+        if pdo.held is not None or self.drive.time_us != pdo.timing.last_sent_us:
+            return
+
+        def look() -> None:
+            with self.drive.lock:
+                pdo.held = None
+                if self.drive.operational and self.tpdos.get(pdo.number) is pdo:
+                    self.transmit_events()
+
+        pdo.held = threading.Timer(max(pdo.timing.wall_left(), 0.0) + 1e-4, look)
+        pdo.held.daemon = True
+        pdo.held.start()
 
     def _send(self, pdo: PdoState, data: bytes) -> None:
         pdo.last_sent = data
