@@ -23,9 +23,10 @@ SYNC has two modes (``CellBus(lockstep=...)``):
   other error (``SYNC_STOPPED``) is reported, and the group then quick stops every axis by SDO
   (``axes.quick_stop``), which does not need SYNC.
 - lockstep (simulation): the next SYNC goes out once every drive has answered the previous one with
-  its synchronous TPDO and the SYNC listeners (the feeders) have run. Drive time advances one period
-  per SYNC, so a simulated cell runs as fast as the bus and the CPU allow, and nothing depends on a
-  sleep. The same answer counting runs in real time and gives the SYNC count there too.
+  its synchronous TPDO and the SYNC listeners (the feeders) have run (a drive whose status TPDO goes
+  out every n SYNCs is waited for on the SYNCs it owes an answer for: ``SyncClock.expect``). Drive
+  time advances one period per SYNC, so a simulated cell runs as fast as the bus and the CPU allow,
+  and nothing depends on a sleep. The same answer counting runs in real time and gives the SYNC count there too.
 
 Failures are watched by one thread: heartbeat loss (no heartbeat for ``heartbeat_ms *
 heartbeat_timeout_factor``), lost SYNC (no answered SYNC for ``lost_sync_timeout_s``), NMT state

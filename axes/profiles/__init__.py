@@ -354,7 +354,7 @@ class Profile:
     name: ClassVar[str]
     rpdos: ClassVar[tuple[PdoLayout, ...]]
     tpdos: ClassVar[tuple[PdoLayout, ...]]
-    sync_tpdo: ClassVar[int]  # the synchronous TPDO number that answers every SYNC
+    sync_tpdo: ClassVar[int]  # the synchronous TPDO that answers SYNC (every n-th: bus.status_every_syncs)
     fixed_period: ClassVar[bool] = False  # one setpoint per SYNC, sent right after the SYNC before it
     # 0x6007 when the master's heartbeat stops: quick stop, braking on the quick stop ramp (0x6085 =
     # the drive's 0x60C5) rather than coasting (2, disable voltage); EMCY 0x8130 tells who is listening
