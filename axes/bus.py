@@ -12,7 +12,8 @@ SYNC has two modes (``CellBus(lockstep=...)``):
   never sent late in a burst (a fixed-period drive would take two setpoints in one period), and no
   SYNC goes out within half a period of the one before. The thread asks for SCHED_FIFO
   (``BusConfig.sync_priority``; not permitted: one warning, normal priority).
-  A gap longer than the drives ride out is reported (``FaultKind.SYNC_GAP``, the gap in ms): the
+  A gap longer than the drives ride out is reported (``FaultKind.SYNC_GAP``, the gap in ms), before
+  the thread sends the SYNC after it (the halt the report causes comes first): the
   rule is ``BusConfig.max_sync_gap_periods`` when the cell sets it, else the profiles' (``Profile.
   max_sync_gap_ms``): 2 periods for a drive that takes one setpoint per SYNC (one SYNC skipped
   makes it hold one period, more would be a jump), and for the EPOS2, which runs its records on
@@ -22,9 +23,10 @@ SYNC has two modes (``CellBus(lockstep=...)``):
   other error (``SYNC_STOPPED``) is reported, and the group then quick stops every axis by SDO
   (``axes.quick_stop``), which does not need SYNC.
 - lockstep (simulation): the next SYNC goes out once every drive has answered the previous one with
-  its synchronous TPDO and the SYNC listeners (the feeders) have run. Drive time advances one period
-  per SYNC, so a simulated cell runs as fast as the bus and the CPU allow, and nothing depends on a
-  sleep. The same answer counting runs in real time and gives the SYNC count there too.
+  its synchronous TPDO and the SYNC listeners (the feeders) have run (a drive whose status TPDO goes
+  out every n SYNCs is waited for on the SYNCs it owes an answer for: ``SyncClock.expect``). Drive
+  time advances one period per SYNC, so a simulated cell runs as fast as the bus and the CPU allow,
+  and nothing depends on a sleep. The same answer counting runs in real time and gives the SYNC count there too.
 
 Failures are watched by one thread: heartbeat loss (no heartbeat for ``heartbeat_ms *
 heartbeat_timeout_factor``), lost SYNC (no answered SYNC for ``lost_sync_timeout_s``), NMT state
@@ -47,7 +49,7 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -306,7 +308,9 @@ class SyncClock:
         self.realtime: bool | None = None  # None: no SYNC thread has run yet
         self.native = False
         self.last_progress = time.monotonic()
-        self._answers: dict[int, int] = {}  # cob id -> SYNCs answered
+        self._answers: dict[int, int] = {}  # cob id -> the last SYNC its answers stand for
+        self._every: dict[int, int] = {}  # cob id -> the SYNCs one answer stands for (transmission type n)
+        self._completing = False  # _complete is running (it sends the next lockstep SYNC itself)
         self._listeners: list[SyncCallback] = []
         self._senders: list[SyncCallback] = []  # run right after each SYNC goes out, by whoever sends it
         self.lock = threading.RLock()  # held while SYNC listeners run and while a SYNC goes out
@@ -325,17 +329,29 @@ class SyncClock:
         self.hold: Callable[[], None] | None = None  # benchmarks and tests: called before each wall-clock SYNC
 
     # --- answers ---------------------------------------------------------------------------------
-    def expect(self, cob_ids: Iterable[int]) -> None:
-        """The synchronous TPDOs that answer every SYNC (one per drive). Call it after the links have
-        subscribed their TPDO decoders: an answer is then decoded before it is counted, so whoever
-        waits for a SYNC's answers (``wait_answered``) reads what the drives said on it."""
+    def expect(self, answers: Iterable[int] | Mapping[int, int]) -> None:
+        """The synchronous TPDOs that answer SYNC (one per drive): COB-IDs, or COB-ID -> n for a TPDO
+        of transmission type n (``axes.tpdo_rates``), which answers once in every n SYNCs. The master
+        takes an answer as standing for the SYNC it arrived after and the n - 1 after that, and, not
+        knowing where a drive's SYNC counter stands, a new expectation as standing for the next n - 1:
+        never less than the drive's answers cover, so lockstep never waits for an answer a drive does
+        not owe (it waits at the latest on the n-th SYNC, which every drive has answered by then).
+        Call it after the links have subscribed their TPDO decoders: an answer is then decoded
+        before it is counted, so whoever waits for a SYNC's answers (``wait_answered``) reads what
+        the drives said on it."""
+        every = dict(answers) if isinstance(answers, Mapping) else dict.fromkeys(answers, 1)
         with self.lock:
             for cob in self._answers:
                 unsubscribe(self.bus.network, cob, self._on_answer)
-            self._answers = {cob: self.count for cob in cob_ids}
+            self._every = every
+            self._answers = {cob: self.count + n - 1 for cob, n in every.items()}
             self.answered = self.count
             for cob in self._answers:
                 subscribe(self.bus.network, cob, self._on_answer)
+
+    def _done(self) -> int:
+        """The last SYNC every drive has answered or owes no answer for (never past the SYNCs sent)."""
+        return min(min(v, self.count) if self._every.get(c, 1) > 1 else v for c, v in self._answers.items())
 
     def add_listener(self, callback: SyncCallback) -> None:
         self._listeners.append(callback)
@@ -363,35 +379,50 @@ class SyncClock:
             return [cob for cob, n in self._answers.items() if n < self.count]
 
     def _on_answer(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        failed: BusFault | None = None
         with self.lock:
             n = self._answers.get(can_id)
-            if n is None or (self.lockstep and n >= self.count):
+            every = self._every.get(can_id, 1)
+            if n is None or (self.lockstep and every == 1 and n >= self.count):
                 return  # an answer without a SYNC (or a duplicate): nothing to count
-            self._answers[can_id] = n + 1
+            # an answer of type n stands for the last SYNC sent and the n - 1 after it
+            self._answers[can_id] = n + 1 if every == 1 else max(n, self.count + every - 1)
             self._answered_changed.notify_all()
-            done = min(self._answers.values())
-            if done <= self.answered:
-                return
-            self.answered = done
-            self.count = max(self.count, done)
-            self.last_progress = time.monotonic()
-            try:  # a frame a listener cannot send must not end the bus's receive thread
-                for cb in list(self._listeners):
-                    cb(done)
-                if self.lockstep and self._running and self.answered == self.count:
-                    self._transmit()
-            except (can.CanError, OSError) as exc:
-                self._running = False
-                self._production += 1
-                failed = BusFault(FaultKind.TX_FAILED, None, f"after SYNC {done}: {exc}")
-            except Exception as exc:
-                log.exception("a SYNC listener failed")
-                self._running = False
-                self._production += 1
-                failed = BusFault(FaultKind.SYNC_STOPPED, None, f"SYNC ended after SYNC {done}: {exc!r}")
+            failed = self._complete()
         if failed is not None:
             self.bus.report(failed)
+
+    def _complete(self) -> BusFault | None:
+        """Advance ``answered`` to every SYNC answered or owed no answer, run the listeners on it and,
+        in lockstep, send the next SYNC (again while no drive owes an answer for it). Called with the
+        lock held; a fault to report (after the lock is released) or None."""
+        if self._completing:
+            return None
+        self._completing = True
+        done = self.answered
+        try:  # a frame a listener cannot send must not end the bus's receive thread
+            while True:
+                done = self._done()
+                if done <= self.answered:
+                    return None
+                self.answered = done
+                self.count = max(self.count, done)
+                self.last_progress = time.monotonic()
+                for cb in list(self._listeners):
+                    cb(done)
+                if not (self.lockstep and self._running and self.answered == self.count):
+                    return None
+                self._transmit()
+        except (can.CanError, OSError) as exc:
+            self._running = False
+            self._production += 1
+            return BusFault(FaultKind.TX_FAILED, None, f"after SYNC {done}: {exc}")
+        except Exception as exc:
+            log.exception("a SYNC listener failed")
+            self._running = False
+            self._production += 1
+            return BusFault(FaultKind.SYNC_STOPPED, None, f"SYNC ended after SYNC {done}: {exc!r}")
+        finally:
+            self._completing = False
 
     # --- production ------------------------------------------------------------------------------
     def _transmit(self, sync_frame: bool = True) -> None:
@@ -410,6 +441,12 @@ class SyncClock:
                 self.bus.network.send_message(self.time_stamp_cob_id, struct.pack("<I", stamp))
             for send in self._senders:
                 send(self.count)
+            if not self._completing and any(n > 1 for n in self._every.values()):
+                # drives whose status TPDO goes out every n SYNCs may owe no answer for this one: its
+                # listeners run now, in the sending thread, as no answer will bring them
+                failed = self._complete()
+                if failed is not None:
+                    self.bus.report(failed)
 
     def start(self) -> None:
         """Send the first SYNC now and keep producing (lockstep: on answers; real time: periodic)."""
@@ -482,10 +519,23 @@ class SyncClock:
         """SYNC on absolute deadlines; a deadline passed by more than half a period is skipped."""
         period = self.period_ms / 1000.0
         deadline = time.monotonic()
+        judged: float | None = None  # the SYNC whose gap was reported before the next went out
         while True:
             if self.hold is not None:
                 self.hold()
             with self.lock:  # never a SYNC after stop(): it is judged under the lock stop() takes
+                if not self._producing(production):
+                    return
+                now = time.monotonic()
+                # a gap beyond what the drives ride out is reported before another SYNC goes out, so
+                # that the halt it causes comes first (a stalled master: the process was held)
+                overdue = None
+                if self._previous is not None and self._previous != judged and now - self._previous > self.max_gap_s:
+                    overdue, judged = now - self._previous, self._previous
+            if overdue is not None:
+                self._gap(overdue)
+                continue
+            with self.lock:
                 if not self._producing(production):
                     return
                 now = time.monotonic()
@@ -498,7 +548,7 @@ class SyncClock:
                 # not before its deadline, nor within half a period of the last SYNC (one sent late)
                 due = deadline if self._previous is None else max(deadline, self._previous + period / 2)
                 if now >= due:
-                    gap = None if self._previous is None else now - self._previous
+                    gap = None if self._previous is None or self._previous == judged else now - self._previous
                     self._transmit()
                     deadline += period
                     due = deadline
@@ -569,7 +619,9 @@ class SyncClock:
         with its synchronous TPDO); what each drive's answer count will be once it has answered,
         for ``wait_answered`` (in real time ``count`` is a wall-clock estimate, not a SYNC's number)."""
         with self.lock:
-            owed = {cob: n + 1 for cob, n in self._answers.items()}
+            sent = self.count + 1
+            # a drive of type n > 1 owes an answer only on its every n-th SYNC
+            owed = {cob: n + 1 if self._every.get(cob, 1) == 1 else sent for cob, n in self._answers.items()}
             self._transmit()
             return owed
 

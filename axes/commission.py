@@ -36,6 +36,7 @@ from canopen.profiles.p402 import OperationMode
 
 from axes import objects as od
 from axes.profiles import DriveError, expected_settings
+from axes.tpdo_rates import with_rates
 
 if TYPE_CHECKING:
     from axes.objects import PdoLayout
@@ -223,8 +224,8 @@ def drive_info(link: AxisLink, profile: Profile) -> list[Check]:
         )
     )
     for layouts, receive in ((profile.rpdos, True), (profile.tpdos, False)):
-        for layout in layouts:
-            checks.append(_pdo_info(link, layout, receive))
+        for layout in layouts:  # the status TPDOs at the cell's rates, as configuration writes them
+            checks.append(_pdo_info(link, layout if receive else with_rates(layout, link.bus.config), receive))
     checks.append(_error_history(link))
     return checks
 

@@ -43,6 +43,13 @@ class BusConfig:
     # the master's CAN transmit queue in frames (SocketCAN's txqueuelen, 10 by default): what it sends
     # right after one SYNC (SYNC, time stamp, setpoints, records) must fit in it (axes.budget)
     tx_queue_frames: int = 10
+    # every drive's synchronous status TPDO (statusword and position) goes out on every n-th SYNC
+    # (transmission type n, 1..240); the master counts an answer as good for n SYNCs (axes.tpdo_rates)
+    status_every_syncs: int = 1
+    # the event-driven status TPDO (the EPOS2's buffer status): inhibit time 0x1800:03 in ms (None:
+    # one SYNC period) and event timer 0x1800:05 in ms (0: sent on a change only)
+    status_inhibit_ms: float | None = None
+    status_event_timer_ms: int = 0
 
     @property
     def master_consumer_time_ms(self) -> int:

@@ -31,6 +31,7 @@ from axes.bus import BusFault, CellBus, FaultKind
 from axes.cia402 import PowerState, Statusword, decode_state
 from axes.commission import refuse_on_facts
 from axes.config import AxisConfig, Wiring
+from axes.feed_check import BufferedAxis, feed_shortfall
 from axes.feeder import (
     BufferFeeder,
     Feeder,
@@ -146,6 +147,7 @@ class AxisGroup:
         self.allowance = RecordAllowance(max(1, budget.records_per_sync, budget.buffered_axes))
         for link in self.links:
             link.status_listeners.append(self._on_status)
+        self._status_lag = max((p.sync_answer_every for p in self.profiles), default=1) - 1
         bus.on_fault(self._on_bus_fault)
         if any(p.fixed_period for p in self.profiles):
             bus.sync.add_sender(self._after_sync)
@@ -163,7 +165,7 @@ class AxisGroup:
             profile.configure()
             profile.write_homing()
             link.subscribe_tpdos(profile.tpdos)
-        self.bus.sync.expect(p.sync_answer_cob_id for p in self.profiles)
+        self.bus.sync.expect({p.sync_answer_cob_id: p.sync_answer_every for p in self.profiles})
         for link in self.links:
             self.bus.nmt(link.node_id, NMT_START)
         self.bus.watch_heartbeat(link.node_id for link in self.links)
@@ -188,7 +190,15 @@ class AxisGroup:
     def check_program(self, program: PvtProgram) -> str | None:
         """Why this program cannot run on this cell (None: it can)."""
         problems = program_mismatch(program, [link.config for link in self.links], "this cell")
-        return "; ".join(problems[:3]) if problems else None
+        if problems:
+            return "; ".join(problems[:3])
+        by_node = {a.node_id: a for a in program.axes}
+        buffered = [
+            BufferedAxis(link.joint, by_node[link.node_id].records, link.config.buffer)
+            for link, profile in zip(self.links, self.profiles, strict=True)
+            if profile.name == "epos2_pvt" and link.node_id in by_node
+        ]
+        return feed_shortfall(buffered, self.allowance.per_sync, self.bus.config.sync_period_ms)
 
     # --- running ---------------------------------------------------------------------------------
     def run(self, program: PvtProgram, timeout_s: float | None = None) -> RunResult:
@@ -451,7 +461,8 @@ class AxisGroup:
                     self._ip_start[i] = n
             if self._ending is None:
                 self._check_drives()
-            if self._ending is None and elapsed >= START_CHECK_SYNCS:
+            # a status TPDO every n SYNCs reports ip mode up to n - 1 SYNCs later (axes.tpdo_rates)
+            if self._ending is None and elapsed >= START_CHECK_SYNCS + self._status_lag:
                 self._check_started()
             if self._ending is None:
                 self.allowance.new_period()
@@ -545,7 +556,11 @@ class AxisGroup:
             if gone and link is not None:
                 # stop waiting for a drive that is gone, so the others still get their halt SYNC
                 sync.expect(
-                    p.sync_answer_cob_id for p, lk in zip(self.profiles, self.links, strict=True) if lk is not link
+                    {
+                        p.sync_answer_cob_id: p.sync_answer_every
+                        for p, lk in zip(self.profiles, self.links, strict=True)
+                        if lk is not link
+                    }
                 )
             self._halt(kind, fault.message, link)
             if gone and stalled and sync.lockstep:
@@ -718,7 +733,7 @@ class AxisGroup:
                 return self._finish_early(Result.CONFIGURATION_ERROR, str(exc))
             for link in self.links:
                 self.bus.nmt(link.node_id, NMT_START)
-            self.bus.sync.expect(p.sync_answer_cob_id for p in self.profiles)
+            self.bus.sync.expect({p.sync_answer_cob_id: p.sync_answer_every for p in self.profiles})
             for link, profile in zip(self.links, self.profiles, strict=True):
                 try:
                     profile.enable()

@@ -254,13 +254,15 @@ class PdoRole(StrEnum):
 @dataclass(frozen=True)
 class PdoLayout:
     """One PDO as pvtflow maps it: number (1-4), transmission type, mapped (index, subindex, bits),
-    what it carries and, for an event-driven TPDO, its inhibit time (0x1800:03) in SYNC periods."""
+    what it carries and, for an event-driven TPDO, its inhibit time (0x1800:03) in SYNC periods and
+    its event timer (0x1800:05, ms; 0: none)."""
 
     number: int
     transmission_type: int  # 1..240 = synchronous (every n-th SYNC), 254/255 = asynchronous / event driven
     entries: tuple[tuple[int, int, int], ...]
     role: PdoRole = PdoRole.STATUS
-    inhibit_periods: int = 0  # event TPDO: at least this many SYNC periods between two of its frames
+    inhibit_periods: float = 0  # event TPDO: at least this many SYNC periods between two of its frames
+    event_timer_ms: int = 0  # event TPDO: sent at least this often, changed or not (0: on a change only)
 
     def cob_id(self, node_id: int, receive: bool) -> int:
         return (0x100 if receive else 0x080) + 0x100 * self.number + node_id
@@ -283,6 +285,19 @@ class PdoLayout:
         if self.inhibit_periods <= 0:
             raise ValueError(f"event-driven TPDO{self.number} without an inhibit time: its traffic has no bound")
         return 1.0 / self.inhibit_periods, math.ceil(1.0 / self.inhibit_periods)
+
+    def frames_in(self, periods: int) -> int:
+        """The most frames of one axis's PDO in ``periods`` consecutive SYNC periods (setpoints and
+        controlwords: one per period; a TPDO of type n: one every n-th SYNC; an event TPDO: one per
+        inhibit time)."""
+        if self.role in (PdoRole.RECORD, PdoRole.TIME_STAMP):
+            return 0
+        if self.role in (PdoRole.SETPOINT, PdoRole.CONTROLWORD) or self.transmission_type == 0:
+            return periods
+        if 1 <= self.transmission_type <= 240:
+            return math.ceil(periods / self.transmission_type)
+        self.frames_per_sync()  # an event TPDO without an inhibit time is refused there
+        return math.ceil(periods / self.inhibit_periods - 1e-9)
 
 
 SYNCHRONOUS = 1

@@ -9,13 +9,25 @@ A simulated cell (every axis of ``--cell`` on its simulated drive, in this proce
   than the master's retries (``tx_retry_ms``, 2 ms).
 
 Figures per case over ``--runs``: time from the failure to the quick stop requests on the bus
-(detection: for the queue the retries, for the thread nothing), to the last drive's SDO
-confirmation of the quick stop (every axis; a run where a drive did not confirm within the
+(detection: for the queue the retries, for the thread nothing), to the moment the last drive took
+the quick stop (drive side: its controlword 0x0002 acted on, QUICK STOP ACTIVE; by the SDO request
+or, where that was not confirmed in time, by the NMT stop's 0x6007 reaction), to the last drive's
+SDO confirmation of the quick stop (master side; a run where a drive did not confirm within the
 ``quick_stop_confirm_ms`` bound, 10 ms, is counted apart: that drive was sent NMT stop), and how
-many runs needed NMT stop. A full queue refuses the quick stop requests too, until it drains. Target: quick stop
-confirmed on every axis within 10 ms of the failure.
+many runs needed NMT stop. A full queue refuses the quick stop requests too, until it drains
+(``--full-ms``, default one SYNC period plus the retries plus 1 ms: longer than the master retries
+a frame, shorter than what would end the motion some other way). Target: quick stop on every axis
+within 10 ms of the failure.
 
-    python3 bench/stop_paths.py [--runs 5] [--cell arm6] [--at-ms 300] [--full-ms 5]
+``--drives process``: the drives run in a process of their own (``pvtflow sim --wall-clock``
+serving the simulated wire on loopback, as a real master never shares its interpreter with its
+drives) and the master opens that wire through a test double of the interface that refuses frames
+like FlakyBus (``FlakyWire``); the cell is a copy of ``--cell`` at ``--period-ms`` with its first
+``--axes`` axes moving (the loopback wire server carries a few thousand frames/s), and the
+drive-side column is empty (their process is not instrumented).
+
+    python3 bench/stop_paths.py [--runs 10] [--cell arm6] [--at-ms 300] [--full-ms MS]
+    python3 bench/stop_paths.py --drives process [--cell gantry3-ip-linear] [--period-ms 8] [--axes 2]
 """
 
 from __future__ import annotations
@@ -24,11 +36,13 @@ import argparse
 import dataclasses
 import logging
 import sys
+import tempfile
 import threading
 import time
 import warnings
 from pathlib import Path
 
+import can
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -37,23 +51,67 @@ sys.path.insert(0, str(ROOT / "tests" / "axes"))
 
 from axes_programs import program  # noqa: E402  (the tests' programs: quintic moves inside the limits)
 from axes_rig import FlakyBus, unique_channel  # noqa: E402  (the test double of the BUS)
+from test_stall import at_period, serve, toward_the_middle  # noqa: E402  (drives in their own process)
 
 from axes.bus import CellBus  # noqa: E402
+from axes.cia402 import PowerState  # noqa: E402
 from axes.group import AxisGroup  # noqa: E402
 from axes.sim.cell import SimulatedCell  # noqa: E402
+from axes.sim.drive import SimulatedDrive  # noqa: E402
+from axes.sim.wire import SimWireBus  # noqa: E402
 from service.config import CONFIG_DIR, load_cell_config  # noqa: E402
 
 
-def one_run(cell_name: str, case: str, at_ms: float, full_ms: float) -> dict[str, float | int]:
-    cell = load_cell_config(CONFIG_DIR / "cells" / f"{cell_name}.yaml")
-    channel = unique_channel("stop")
+class FlakyWire(SimWireBus):
+    """The simulated wire's interface whose transmit path refuses frames as FlakyBus's does (ENOBUFS)."""
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if time.monotonic() < FlakyBus.failing_until.get(self.channel, 0.0):
+            raise can.CanOperationError("Failed to transmit: [Errno 105] No buffer space available")
+        super().send(msg, timeout)
+
+
+can.interfaces.BACKENDS["pvtflow_bench_flaky_wire"] = (__name__, "FlakyWire")
+can.interfaces.VALID_INTERFACES = can.util.VALID_INTERFACES = frozenset(can.interfaces.BACKENDS)
+
+
+def watch_quick_stop(drive: SimulatedDrive, acted: dict[int, float]) -> None:
+    """Note when the drive first enters QUICK STOP ACTIVE (bench instrumentation, the drive unchanged)."""
+    original = drive._on_controlword
+
+    def on_controlword(cw: int) -> None:
+        before = drive.state
+        original(cw)
+        if before != drive.state and drive.state == PowerState.QUICK_STOP_ACTIVE.value:
+            acted.setdefault(drive.node_id, time.monotonic())
+
+    drive._on_controlword = on_controlword  # type: ignore[method-assign]
+
+
+def one_run(
+    cell_name: str, case: str, at_ms: float, full_ms: float | None, process: Process | None = None
+) -> dict[str, float | int]:
+    if process is not None:
+        served = serve(at_period(CONFIG_DIR / "cells" / f"{cell_name}.yaml", process.period_ms, process.directory))
+        cell, _ = next(served)
+        channel = cell.bus.channel
+        interface = "pvtflow_bench_flaky_wire"
+    else:
+        cell = load_cell_config(CONFIG_DIR / "cells" / f"{cell_name}.yaml")
+        channel = unique_channel("stop")
+        interface = "pvtflow_test_flaky"
+    if full_ms is None:
+        full_ms = cell.bus.sync_period_ms + cell.bus.tx_retry_ms + 1.0
     bus_config = dataclasses.replace(cell.bus, channel=channel, max_sync_gap_periods=1e6)
     cell = dataclasses.replace(cell, bus=bus_config)
-    sim = SimulatedCell(cell, channel=channel, interface="virtual").start()
-    bus = CellBus(dataclasses.replace(bus_config, interface="pvtflow_test_flaky"), lockstep=False).open()
-    group = AxisGroup(bus, cell.ordered_axes())
+    sim = None if process is not None else SimulatedCell(cell, channel=channel, interface="virtual").start()
+    bus = CellBus(dataclasses.replace(bus_config, interface=interface), lockstep=False).open()
+    group = AxisGroup(bus, cell.ordered_axes()[: process.axes] if process is not None else cell.ordered_axes())
     failed_at: list[float] = []
     at_sync = round(at_ms / bus_config.sync_period_ms)
+    acted: dict[int, float] = {}  # node -> time.monotonic() when the drive took the quick stop
+    for drive in sim or ():
+        watch_quick_stop(drive, acted)
 
     def inject(n: int) -> None:
         start = group._start_sync
@@ -66,7 +124,11 @@ def one_run(cell_name: str, case: str, at_ms: float, full_ms: float) -> dict[str
 
     try:
         bus.sync.add_sender(inject)
-        prog = program(cell.ordered_axes(), 2000, fraction=0.3)
+        if process is not None:
+            group.refresh()
+            prog = toward_the_middle([lk.config for lk in group.links], [lk.position for lk in group.links], 2000)
+        else:
+            prog = program(cell.ordered_axes(), 2000, fraction=0.3)
         if group.start(prog) is not None:
             raise RuntimeError(f"not started: {group.last_result}")
         result = group.wait(30.0)
@@ -74,16 +136,23 @@ def one_run(cell_name: str, case: str, at_ms: float, full_ms: float) -> dict[str
         if stop is None or not failed_at:  # ended otherwise: counted apart, with its outcome
             return {
                 "requests_ms": float("nan"),
+                "acted_ms": float("nan"),
                 "confirmed_ms": float("nan"),
+                "drained_ms": float("nan"),
                 "nmt": 0,
                 "axes": 0,
                 "other": f"{result.result.value}: {result.message[:90]}",
             }
         stop.done.wait(2.0)
         confirmed = max(stop.confirmed.values()) if not stop.missing else float("nan")
+        every = max(acted[n] for n in stop.node_ids) if all(n in acted for n in stop.node_ids) else float("nan")
         return {
             "requests_ms": (stop.started - failed_at[0]) * 1000.0,
+            "acted_ms": (every - failed_at[0]) * 1000.0,
             "confirmed_ms": (confirmed - failed_at[0]) * 1000.0,
+            "drained_ms": (confirmed - failed_at[0]) * 1000.0 - full_ms
+            if not case.startswith("dead")
+            else float("nan"),
             "nmt": int(bool(stop.nmt_stopped)),
             "axes": len(stop.node_ids),
         }
@@ -91,36 +160,72 @@ def one_run(cell_name: str, case: str, at_ms: float, full_ms: float) -> dict[str
         FlakyBus.failing_until.pop(channel, None)
         group.close()
         bus.close()
-        sim.stop()
+        if sim is not None:
+            sim.stop()
+        else:
+            served.close()
+
+
+@dataclasses.dataclass(frozen=True)
+class Process:
+    """Drives in their own process: the cell's copy at this SYNC period, the first ``axes`` moving."""
+
+    period_ms: float
+    axes: int
+    directory: Path
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--runs", type=int, default=10)
     parser.add_argument("--cell", default="arm6")
     parser.add_argument("--at-ms", type=float, default=300.0)
-    parser.add_argument("--full-ms", type=float, default=5.0)
+    parser.add_argument("--full-ms", type=float, default=None)
+    parser.add_argument("--drives", choices=("here", "process"), default="here")
+    parser.add_argument("--period-ms", type=float, default=8.0, help="--drives process: the cell's SYNC period")
+    parser.add_argument("--axes", type=int, default=2, help="--drives process: the first N axes move")
     args = parser.parse_args()
+    process = None
+    if args.drives == "process":
+        process = Process(args.period_ms, args.axes, Path(tempfile.mkdtemp(prefix="pvtflow-stop-")))
     logging.disable(logging.ERROR)  # the injected failure's traceback, logged by the SYNC thread
     warnings.simplefilter("ignore", RuntimeWarning)  # a case where no run confirmed: nan
-    print(f"cell {args.cell}, failure {args.at_ms:g} ms into the motion, {args.runs} runs per case")
-    print(
-        "| case | axes | to the requests (p50 / max ms) | to every axis confirmed (p50 / max ms) "
-        "| NMT stop needed | runs that ended otherwise |"
+    where = (
+        "in this process" if process is None else f"in their own process, {args.period_ms:g} ms SYNC, {args.axes} axes"
     )
-    print("|---|---|---|---|---|---|")
-    for case in ("dead SYNC thread", f"queue full {args.full_ms:g} ms"):
-        runs = [one_run(args.cell, case, args.at_ms, args.full_ms) for _ in range(args.runs)]
+    print(f"cell {args.cell}, drives {where}, failure {args.at_ms:g} ms into the motion, {args.runs} runs per case")
+    print(
+        "| case | axes | to the requests (p50 / max ms) | to every drive in quick stop (p50 / max ms, runs "
+        "within 10 ms) | to every axis confirmed (p50 / max ms) | NMT stop needed | runs that ended otherwise |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    full = "one period + retries + 1 ms" if args.full_ms is None else f"{args.full_ms:g} ms"
+    for case in ("dead SYNC thread", f"queue full {full}"):
+        runs = [one_run(args.cell, case, args.at_ms, args.full_ms, process) for _ in range(args.runs)]
         req = np.array([r["requests_ms"] for r in runs])
         conf = np.array([r["confirmed_ms"] for r in runs])
-        nmt = sum(int(r["nmt"]) for r in runs)
+        acted = np.array([r["acted_ms"] for r in runs])
         others = [str(r["other"]) for r in runs if "other" in r]
+        within = int((acted <= 10.0).sum())
+        drained = np.array([r["drained_ms"] for r in runs])
+        after = (
+            ""
+            if np.isnan(drained).all()
+            else f"; {np.nanmedian(drained):.2f} / {np.nanmax(drained):.2f} after it drained"
+        )
+        drive_side = (
+            "-"
+            if process is not None
+            else f"{np.nanmedian(acted):.2f} / {np.nanmax(acted):.2f} ({within} of {len(runs) - len(others)})"
+        )
+        nmt = sum(int(r["nmt"]) for r in runs)
         late = int(np.isnan(conf).sum()) - len(others)
         for other in others:
             print(f"<!-- {case}: no quick stop, the run ended {other} -->")
         print(
             f"| {case} | {max(int(r['axes']) for r in runs)} | {np.nanmedian(req):.2f} / {np.nanmax(req):.2f} | "
-            f"{np.nanmedian(conf):.2f} / {np.nanmax(conf):.2f} (+ {late} not within the bound) | "
+            f"{drive_side} | "
+            f"{np.nanmedian(conf):.2f} / {np.nanmax(conf):.2f}{after} (+ {late} not within the bound) | "
             f"{nmt} of {len(runs)} | {len(others)} |",
             flush=True,
         )

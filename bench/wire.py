@@ -196,7 +196,10 @@ def budget_line(cell: CellConfig) -> str:
     except ImportError:
         return "budget: (axes.budget not there)"
     b = bus_budget(cell)
-    return f"budget {100 * b.fraction:.1f} % ({b.total_bits:.0f} of {b.capacity_bits:.0f} bits/period)"
+    return (
+        f"budget {100 * b.window_fraction:.1f} % of a 10-period window, {100 * b.peak_fraction:.1f} % in the worst "
+        f"period ({b.window_bits:.0f} of {10 * b.capacity_bits:.0f} bits per window)"
+    )
 
 
 def main() -> int:

@@ -374,6 +374,9 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
             "quick_stop_confirm_ms",
             "records_per_sync",
             "tx_queue_frames",
+            "status_every_syncs",
+            "status_inhibit_ms",
+            "status_event_timer_ms",
         ),
     )
     d = BusConfig()
@@ -407,7 +410,12 @@ def _parse_bus(file: Path, data: Any) -> BusConfig:
         quick_stop_confirm_ms=f.get("quick_stop_confirm_ms", f.number(positive=True), d.quick_stop_confirm_ms),
         records_per_sync=f.get("records_per_sync", f.integer(1, 1000), d.records_per_sync),
         tx_queue_frames=f.get("tx_queue_frames", f.integer(2, 100000), d.tx_queue_frames),
+        status_every_syncs=f.get("status_every_syncs", f.integer(1, 240), d.status_every_syncs),
+        status_inhibit_ms=f.get("status_inhibit_ms", f.number(positive=True), d.status_inhibit_ms),
+        status_event_timer_ms=f.get("status_event_timer_ms", f.integer(0, 65535), d.status_event_timer_ms),
     )
+    if bus.status_inhibit_ms is not None and bus.status_inhibit_ms > 6553.5:
+        raise f.error("status_inhibit_ms", f"{bus.status_inhibit_ms:g} ms: 0x1800:03 holds at most 6553.5 ms")
     if bus.max_sync_gap_periods is not None and bus.max_sync_gap_periods < 1.5:
         raise f.error(
             "max_sync_gap_periods",

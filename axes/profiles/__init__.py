@@ -32,6 +32,7 @@ from axes.config import AxisConfig
 from axes.drive_profile import DriveProfile
 from axes.objects import BufferStatus, PdoLayout
 from axes.subscriptions import subscribe, unsubscribe
+from axes.tpdo_rates import answer_every, with_rates
 
 if TYPE_CHECKING:
     import numpy as np
@@ -122,6 +123,7 @@ class AxisLink:
         self.psm = PowerStateMachine()
         self.statusword = 0
         self.position: int | None = None
+        self.status_sync = 0  # the SYNC count when the last status TPDO arrived: what its values are as of
         self.buffer_status = 0
         self.last_emcy: tuple[int, str] | None = None
         self.updated = threading.Condition()
@@ -212,10 +214,10 @@ class AxisLink:
             self.write(mapping, k, (index << 16) | (subindex << 8) | bits, "I")
         self.write(mapping, 0, len(layout.entries), "B")
         self.write(comm, 2, layout.transmission_type, "B")
-        if not receive:  # 0x1800:03 in 100 us; a drive without :03 / :05 has neither to set
+        if not receive:  # 0x1800:03 in 100 us, :05 in ms; a drive without :03 / :05 has neither to set
             inhibit = round(layout.inhibit_periods * self.bus.config.sync_period_ms * 10)
             self.write_optional(comm, 3, min(inhibit, 0xFFFF), "H")
-            self.write_optional(comm, 5, 0, "H")
+            self.write_optional(comm, 5, layout.event_timer_ms, "H")
             self.write_optional(comm, 6, 0, "B")  # SYNC start value: 0, pvtflow's SYNC has no counter (SYNC_COB_ID)
         self.write(comm, 1, rtr | cob, "I")
         self._check_pdo(layout, receive, rtr | cob)
@@ -251,7 +253,8 @@ class AxisLink:
     def map_pdos(
         self, rpdos: tuple[PdoLayout, ...], tpdos: tuple[PdoLayout, ...], rpdo_cob_ids: dict[int, int] | None = None
     ) -> None:
-        """Map pvtflow's PDOs and invalidate the others (``rpdo_cob_ids``: RPDO number -> shared COB-ID)."""
+        """Map pvtflow's PDOs and invalidate the others (``rpdo_cob_ids``: RPDO number -> shared COB-ID);
+        the status TPDOs at the cell's rates (``axes.tpdo_rates``)."""
         cobs = rpdo_cob_ids or {}
         used_r = {p.number for p in rpdos}
         used_t = {p.number for p in tpdos}
@@ -263,7 +266,7 @@ class AxisLink:
         for p in rpdos:
             self.map_pdo(p, True, cobs.get(p.number))
         for p in tpdos:
-            self.map_pdo(p, False)
+            self.map_pdo(with_rates(p, self.bus.config), False)
 
     def subscribe_tpdos(self, tpdos: tuple[PdoLayout, ...]) -> None:
         self.unsubscribe()
@@ -285,6 +288,7 @@ class AxisLink:
         def on_tpdo(can_id: int, data: bytearray, timestamp: float) -> None:
             if len(data) < fmt.size:
                 return
+            self.status_sync = self.bus.sync.count
             for key, value in zip(keys, fmt.unpack_from(data), strict=True):
                 if key == (od.STATUSWORD, 0):
                     self._set_statusword(value)
@@ -355,7 +359,7 @@ class Profile:
     name: ClassVar[DriveProfile]
     rpdos: ClassVar[tuple[PdoLayout, ...]]
     tpdos: ClassVar[tuple[PdoLayout, ...]]
-    sync_tpdo: ClassVar[int]  # the synchronous TPDO number that answers every SYNC
+    sync_tpdo: ClassVar[int]  # the synchronous TPDO that answers SYNC (every n-th: bus.status_every_syncs)
     # 0x6007 when the master's heartbeat stops: quick stop, braking on the quick stop ramp (0x6085 =
     # the drive's 0x60C5) rather than coasting (2, disable voltage); EMCY 0x8130 tells who is listening
     abort_connection_option: ClassVar[od.AbortConnectionOption] = od.AbortConnectionOption.QUICK_STOP
@@ -376,6 +380,12 @@ class Profile:
     @property
     def sync_answer_cob_id(self) -> int:
         return 0x80 + 0x100 * self.sync_tpdo + self.link.node_id
+
+    @property
+    def sync_answer_every(self) -> int:
+        """The SYNCs one answer of the synchronous status TPDO stands for (its type n at the cell's rate)."""
+        layout = next(t for t in self.tpdos if t.number == self.sync_tpdo)
+        return answer_every(with_rates(layout, self.link.bus.config))
 
     @property
     def delay_periods(self) -> int:

@@ -12,11 +12,15 @@ must exist, be PDO-mappable, readable (TPDO) or writable (RPDO) and be mapped wi
 (0x06040041), at most 64 bits (0x06040042); a valid PDO's COB-ID (bits 0-29) is not changed, not
 even by the write that invalidates it (0x06090030: "shall not be changed while the PDO exists"),
 nor its inhibit time (0x06090030). So a master invalidates with the COB-ID it reads, then moves it.
-Not simulated: inhibit time, event timer, SYNC start value, RTR.
+An event-driven TPDO keeps its inhibit time and event timer (``axes.sim.tpdo_timing``); a
+synchronous TPDO of type n goes out on every n-th SYNC counted from its last reload (CANopenNode's
+reading of CiA 301: the first on the n-th SYNC after the drive entered OPERATIONAL or the PDO was
+configured). Not simulated: SYNC start value, RTR.
 """
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -25,6 +29,7 @@ from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
 from axes.objects import EMCY_PDO_LENGTH
+from axes.sim.tpdo_timing import TpdoTiming
 from axes.subscriptions import subscribe, unsubscribe
 
 if TYPE_CHECKING:
@@ -59,6 +64,8 @@ class PdoState:
     last_sent: bytes | None = None
     pending: bytes | None = None  # synchronous RPDO data waiting for the SYNC
     received: int = 0
+    timing: TpdoTiming = field(default_factory=TpdoTiming)  # event-driven TPDO: inhibit time, event timer
+    held: threading.Timer | None = None  # a change waits for its inhibit time: the look after it
 
     @property
     def bits(self) -> int:
@@ -159,7 +166,11 @@ class PdoEngine:
                 value = self.drive.read(mapping + n, k)
                 if value >> 16 and value & 0xFF:
                     entries.append((value >> 16, (value >> 8) & 0xFF, value & 0xFF))
-            out[n + 1] = PdoState(n + 1, receive, cob & 0x7FF, not cob & PDO_NOT_VALID, ttype, tuple(entries))
+            pdo = PdoState(n + 1, receive, cob & 0x7FF, not cob & PDO_NOT_VALID, ttype, tuple(entries))
+            if not receive:
+                inhibit, timer = self.drive.read_or(comm + n, 3, 0), self.drive.read_or(comm + n, 5, 0)
+                pdo.timing = TpdoTiming.from_objects(inhibit, timer)
+            out[n + 1] = pdo
         return out
 
     # --- reception -------------------------------------------------------------------------------
@@ -220,11 +231,37 @@ class PdoEngine:
                 self._send(pdo, data)
 
     def transmit_events(self) -> None:
+        """Event-driven TPDOs whose data changed (or whose event timer ran out), each once its inhibit
+        time has passed: a change within it waits for the next look after it."""
+        now = self.drive.time_us
         for pdo in self.tpdos.values():
-            if pdo.valid and pdo.entries and pdo.transmission_type >= 254:
-                data = self._pack(pdo)
-                if data != pdo.last_sent:
-                    self._send(pdo, data)
+            if not (pdo.valid and pdo.entries and pdo.transmission_type >= 254):
+                continue
+            data = self._pack(pdo)
+            if data == pdo.last_sent and not pdo.timing.timer_due(now):
+                continue
+            if pdo.timing.may_send(now):
+                pdo.timing.sent(now)
+                self._send(pdo, data)
+            else:
+                self._look_again(pdo)
+
+    def _look_again(self, pdo: PdoState) -> None:
+        """A change held by the inhibit time while the drive's clock stands still since the last frame
+        (lockstep, no SYNC): look at the TPDOs again once it has passed on the wall clock. A clock
+        that moves looks by itself (each SYNC, each wall-clock tick)."""
+        if pdo.held is not None or self.drive.time_us != pdo.timing.last_sent_us:
+            return
+
+        def look() -> None:
+            with self.drive.lock:
+                pdo.held = None
+                if self.drive.operational and self.tpdos.get(pdo.number) is pdo:
+                    self.transmit_events()
+
+        pdo.held = threading.Timer(max(pdo.timing.wall_left(), 0.0) + 1e-4, look)
+        pdo.held.daemon = True
+        pdo.held.start()
 
     def _send(self, pdo: PdoState, data: bytes) -> None:
         pdo.last_sent = data
