@@ -82,7 +82,7 @@ def test_status_every_third_sync_runs_a_program_exactly(arm6, make_rig):
         samples = [s for s in drive.history if s.sync >= result.start_sync]
         t = np.array([(s.sync - result.start_sync) * cell.bus.sync_period_ms for s in samples])
         demand = np.array([s.demand for s in samples])
-        np.testing.assert_allclose(demand, axis.reconstruction().position(t), atol=1e-6, err_msg=axis.name)
+        np.testing.assert_allclose(demand, axis.reconstruction().position(t), atol=1e-6, err_msg=axis.joint)
     assert rig.sim.internal_errors == []
     # each drive answered one SYNC in three, on its own every third SYNC, and the master heard them all
     assert counter.syncs > 150
@@ -103,5 +103,10 @@ def test_a_stop_halts_every_axis_with_status_every_fourth_sync(arm6, make_rig):
     result = rig.group.wait(timeout_s=30)
     assert result.result is Result.STOPPED and result.message == "operator"
     assert result.halt_latency_syncs == 1
-    for drive in rig.sim:
-        assert drive.halts and drive.faults == []
+    for link, profile in zip(rig.group.links, rig.group.profiles, strict=True):
+        drive = rig.sim.drive(link.node_id)
+        assert drive.faults == []
+        if profile.ramps_by_itself:
+            assert drive.halts  # the halt bit: its own ramp
+        else:
+            assert drive.halts == [] and drive.velocity == 0.0  # the master's braking setpoints, then at rest
