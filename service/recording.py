@@ -490,20 +490,15 @@ class Recorder:
         for k, it in enumerate(items):
             stamp, n, qcs, words, levels = it[1], it[2], it[5], it[6], it[7]
             e = elapsed_ms[k]
-            head = f'{{"sync":{n},"elapsed_ms":{"null" if e is None else repr(float(e))},"position_qc":'
             for i, joint in enumerate(self.joints):
                 word = words[i]
                 state = states.get(word)
                 if state is None:
                     state = states[word] = decode_state(word).value
-                qc = qcs[i]
-                data = (
-                    f'{head}{"null" if qc is None else int(qc)},"position":{_number(position_rows[k][i])},'
-                    f'"planned_qc":{_number(planned_rows[k][i])},'
-                    f'"following_error_qc":{_number(following_rows[k][i])},'
-                    f'"statusword":{word},"state":"{state}"}}'
+                data = encode_actual(
+                    n, e, qcs[i], position_rows[k][i], planned_rows[k][i], following_rows[k][i], word, state
                 )
-                self._log_encoded(f"/axis/{joint}/actual", ACTUAL_SCHEMA, stamp, data.encode())
+                self._log_encoded(f"/axis/{joint}/actual", ACTUAL_SCHEMA, stamp, data)
             if levels:
                 text = ",".join("null" if v is None else str(int(v)) for v in levels)
                 self._log_encoded(
@@ -615,6 +610,24 @@ def _time(stamp_s: float) -> dict[str, int]:
 def _number(x: float | None) -> str:
     """A JSON number, null for None or NaN."""
     return "null" if x is None or x != x else repr(float(x))
+
+
+def encode_actual(
+    sync: int,
+    elapsed_ms: float | None,
+    qc: int | None,
+    position: float | None,
+    planned: float | None,
+    following: float | None,
+    statusword: int,
+    state: str,
+) -> bytes:
+    """/axis/<joint>/actual (ACTUAL_SCHEMA) as JSON; NaN and None are null."""
+    return (
+        f'{{"sync":{sync},"elapsed_ms":{_number(elapsed_ms)},"position_qc":{"null" if qc is None else int(qc)},'
+        f'"position":{_number(position)},"planned_qc":{_number(planned)},"following_error_qc":{_number(following)},'
+        f'"statusword":{statusword},"state":"{state}"}}'
+    ).encode()
 
 
 def encode_joint_states(stamp_s: float, joints_json: str, positions: Sequence[float | None]) -> bytes:
