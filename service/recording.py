@@ -3,8 +3,18 @@
 A ``Recorder`` is attached to an open ``CellBus`` and the cell's ``AxisGroup``; it hears the bus
 through ``FrameRecorder.taps`` (every frame, sent and received), the bus's fault callbacks and a
 SYNC listener, and the group's events through ``event()``. Those run in the bus's threads, so they
-only queue what they saw; one writer thread turns it into JSON messages (``json`` encoding, each
-channel with a JSON schema) written with the ``mcap`` library.
+only append what they saw to a deque (one tuple of the numbers and objects as they are: no
+conversion, no encoding, no lock). One writer thread takes what was appended every ``BATCH_S`` and
+turns the batch into JSON messages (``json`` encoding, each channel with a JSON schema registered
+once): the unit conversions, the planned positions and the link transforms (service/link_transforms.py)
+over all the batch's SYNCs at once, the messages formatted directly. They are written with the
+Foxglove SDK's MCAP writer (one call per message into its native code; zstd in the writing thread,
+not in worker threads that would compete with the bus's) and handed to the live server.
+
+The writer keeps its normal scheduling priority: it holds the interpreter's lock while it works, and
+a thread of lower priority that is preempted while holding it would keep the SYNC thread waiting for
+the lock (priority inversion); what keeps it off the SYNC thread's way is its small cost per SYNC
+and the switch interval (``axes.bus.SWITCH_INTERVAL_S``), which makes it hand the lock over within 0.1 ms.
 
 Channels (the joint's name in ``/axis/<joint>/...``):
 
@@ -37,7 +47,8 @@ master's local bus time, as the simulated wire defines it); on the wall clock ev
 own time stamp and the rest is logged at the latest one.
 
 A kill -9 loses at most the chunk being built: a chunk is closed every ``chunk_ms`` of bus time,
-every ``CHUNK_WALL_S`` of wall time and at ``chunk_bytes``, whichever comes first
+every ``CHUNK_WALL_S`` of wall time (checked after each batch) and at ``chunk_bytes``, whichever
+comes first
 (``read_recording`` reads a file cut anywhere up to its last complete record).
 """
 
