@@ -79,6 +79,7 @@ from axes.interpolation import PiecewiseCubic
 from axes.objects import SYNC_COB_ID
 from axes.outcome import Result
 from service.link_transforms import LinkTransforms
+from service.live import new_channel
 
 if TYPE_CHECKING:
     from axes.group import AxisGroup
@@ -260,7 +261,7 @@ class Recorder:
             self.path.open("wb").close()  # an OSError for the caller, before anything else
             self._mcap = open_mcap_file(self.path, chunk_bytes)
             self._context = self._mcap.context
-        self._channels: dict[str, Any] = {}
+        self._channels: dict[str, Any] = {}  # topic -> the native log call of its channel
         # what the bus's threads hand over: one tuple appended per frame, SYNC, fault or event (a deque's
         # append is atomic and takes no lock); the writer takes them in batches every ``BATCH_S``
         self._items: deque[tuple[Any, ...]] = deque()
@@ -607,10 +608,10 @@ class Recorder:
             self.live.log(topic, schema, ns, data)
         if self._context is None:
             return
-        channel = self._channels.get(topic)
-        if channel is None:
-            channel = self._channels[topic] = new_channel(self._context, topic, schema)
-        channel.log(data, log_time=ns)
+        log_bytes = self._channels.get(topic)
+        if log_bytes is None:
+            log_bytes = self._channels[topic] = new_channel(self._context, topic, schema).base.log
+        log_bytes(data, ns, None)
 
 
 def _time(stamp_s: float) -> dict[str, int]:
@@ -664,18 +665,6 @@ def encode_transforms(
             f'"translation":{{"x":{tx!r},"y":{ty!r},"z":{tz!r}}},"rotation":{{"x":{x!r},"y":{y!r},"z":{z!r},"w":{w!r}}}}}'
         )
     return ('{"transforms":[' + ",".join(parts) + "]}").encode()
-
-
-def new_channel(context: Any, topic: str, schema: dict[str, Any]) -> Any:
-    """A Foxglove SDK channel of ``context`` for ``topic``: JSON messages, ``schema`` as JSON schema."""
-    import foxglove
-
-    return foxglove.Channel(
-        topic,
-        schema=foxglove.Schema(name=str(schema["title"]), encoding="jsonschema", data=json.dumps(schema).encode()),
-        message_encoding="json",
-        context=context,
-    )
 
 
 class McapFile:
