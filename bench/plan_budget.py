@@ -54,15 +54,15 @@ def main() -> int:
         cpu0 = time.process_time()
         res = cp.plan(PlanInput(wp, max_jerk=jerk), None, None, args.budget_ms)
         process.append(time.process_time() - cpu0)  # every thread's: a solve left running counts too
+        if res.code == TIMEOUT or res.ok:
+            wall.append(res.timing.get("total", np.nan))
+            cpu.append(res.timing.get("cpu", np.nan))
         if res.code == TIMEOUT:
             counts[TIMEOUT] += 1
-            wall.append(res.timing.get("total", np.nan))
             continue
         if not res.ok:
             counts["other"] += 1
             continue
-        wall.append(res.timing["total"])
-        cpu.append(res.timing["cpu"])
         if res.optimal:
             counts["optimal"] += 1
             continue
@@ -77,7 +77,7 @@ def main() -> int:
         f"budget {args.budget_ms:g} ms"
     )
     print(f"  wall ms: p50 {np.nanpercentile(w, 50):.1f}  p99 {np.nanpercentile(w, 99):.1f}  max {np.nanmax(w):.1f}")
-    print(f"  cpu ms:  p50 {np.percentile(c, 50):.1f}  p99 {np.percentile(c, 99):.1f}  max {np.max(c):.1f}")
+    print(f"  cpu ms:  p50 {np.nanpercentile(c, 50):.1f}  p99 {np.nanpercentile(c, 99):.1f}  max {np.nanmax(c):.1f}")
     pc = 1000.0 * np.array(process)
     print(f"  process cpu ms (all threads): p50 {np.percentile(pc, 50):.1f}  p99 {np.percentile(pc, 99):.1f}")
     print("  " + ", ".join(f"{k}: {v}" for k, v in counts.items()))
