@@ -42,9 +42,10 @@ A solve is started only where it can finish (``_solvers_for``), because one that
 than none: casadi holds the interpreter's lock while it computes (measured: other threads stood up
 to 87 ms), fatrop has no time limit nor iteration callback in casadi 3.8.2, and the floor's own
 dense check and knots (about 25 ms of CPU, its motion being 2-4x longer) come after the deadline.
-So fatrop runs only with at least its expected time left: the 90th percentile of this program
-shape's last ``_SOLVE_HISTORY`` fatrop solves (``_FATROP_TIME_S`` until ``_MIN_HISTORY`` are
-known), a measured figure that follows the machine; ipopt (stopped at the deadline) only with at
+So fatrop runs only with at least its expected time left: the longest of this program shape's last
+``_SOLVE_HISTORY`` fatrop solves (``_FATROP_TIME_S`` until ``_MIN_HISTORY`` are known), a measured
+figure that follows the machine (a percentile let it start on a path slower than the fast ones it
+had seen, and an overrun costs the whole budget); ipopt (stopped at the deadline) only with at
 least ``_IPOPT_TIME_S`` left, below which its iterates were never usable (bench/RESULTS.md); with
 less than both, no solver, the floor at once. At a 50 ms plan budget that is the floor: the wall
 time stays within the budget instead of waiting for a solve that comes too late (bench/plan_budget.py).
@@ -357,9 +358,9 @@ class _Program:
     fatrop_s: deque[float] = field(default_factory=lambda: deque(maxlen=_SOLVE_HISTORY))  # recent solve times
 
     def expected_fatrop_s(self) -> float:
-        """fatrop's expected wall time on this program: the 90th percentile of its recent solves."""
+        """fatrop's expected wall time on this program: the longest of its recent solves."""
         times = list(self.fatrop_s)
-        return float(np.percentile(times, 90)) if len(times) >= _MIN_HISTORY else _FATROP_TIME_S
+        return max(times) if len(times) >= _MIN_HISTORY else _FATROP_TIME_S
 
     def solver(self, name: str) -> ca.Function:
         if name not in self.solvers:
@@ -420,10 +421,11 @@ _START_JERK_SLACK = 0.3  # the start's joint jerk at most this fraction of the l
 _TOL = 1e-6  # optimality (relative duration)
 _CONSTRAINT_TOL = 1e-9  # the residuals: positions along the path continuous to 1e-9 of an interval
 _ITERATE_TOL = 1e-8  # an unfinished ipopt iterate is a motion where its residuals are this small
-# fatrop's expected solve time until _MIN_HISTORY solves of a program shape were timed (``_solvers_for``)
+# fatrop's expected solve time until _MIN_HISTORY solves of a program shape were timed (``_solvers_for``):
+# twice its p50 on 8-waypoint arm6 paths, so that a fresh process (``pvtflow plan``) solves at 200 ms
 _FATROP_TIME_S = 0.06
 _SOLVE_HISTORY = 50
-_MIN_HISTORY = 5
+_MIN_HISTORY = 10
 _IPOPT_TIME_S = 0.04  # with less time left ipopt's iterates were never usable: no solve, the floor
 
 
