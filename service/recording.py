@@ -266,6 +266,8 @@ class Recorder:
         # append is atomic and takes no lock); the writer takes them in batches every ``BATCH_S``
         self._items: deque[tuple[Any, ...]] = deque()
         self._closing = threading.Event()
+        self._held: list[tuple[Any, ...]] = []  # appended before the bus's clock was known
+        self._last_s = 0.0  # the latest bus time written
         # the bus's clock as the master last heard it; None until the first frame that tells it (what
         # comes before is stamped with that frame's time by the writer: it happened just before)
         self._clock_s: float | None = None
@@ -355,8 +357,6 @@ class Recorder:
         every ``chunk_ms`` of bus time or ``CHUNK_WALL_S`` of wall time."""
         chunk_start_s: float | None = None
         flushed_wall = time.monotonic()
-        self._held: list[tuple[Any, ...]] = []  # appended before the bus's clock was known
-        self._last_s = 0.0
         items = self._items
         while True:
             closing = self._closing.wait(BATCH_S)
@@ -365,7 +365,8 @@ class Recorder:
             if first is not None and chunk_start_s is None:
                 chunk_start_s = first
             if closing:
-                self._write_batch([(h[0], self._last_s, *h[2:]) for h in self._held])
+                held, self._held = self._held, []
+                self._write_batch([(h[0], self._last_s, *h[2:]) for h in held])
                 self._safely("planned", self._write_planned_until, float("inf"))
                 self.writer_cpu_s = time.thread_time()
                 return
