@@ -6,10 +6,12 @@ bench/realtime.py's ``variant``) plans and executes ``--moves`` random single-ta
 cases: nothing recorded; ``--record DIR`` (one MCAP file per motion, service/recording.py); and
 ``--record DIR --live PORT`` with one WebSocket client (another process, the Foxglove protocol)
 subscribed to every channel. Figures per case: moves finished / faulted, the SYNC interval as the
-drives see it (bench/realtime.py's ``SyncArrivals``) p50 / p99 / max, plan latency p50 / max (a
+drives see it (bench/realtime.py's ``SyncArrivals``) p50 / p99 / max, plan latency p50 / p99 / max (a
 plan request between motions), the CPU this process (master, simulated drives, recorder) used per
 second of wall time, the wall time per SYNC of motion, the recorder's writer thread's CPU time per
-SYNC of motion, and the bytes recorded. ``--lockstep``: SYNC in lockstep with the simulated drives
+SYNC of motion, the time the recorder's callbacks took in the bus's own threads per SYNC (what
+the SYNC thread, the receive thread and the feeders pay: appending to the writer's queue), and the
+bytes recorded. ``--lockstep``: SYNC in lockstep with the simulated drives
 (as ``pvtflow serve`` on a simulated cell), where a SYNC comes as soon as the previous one is
 answered, so the wall time per SYNC is what a SYNC costs the machine, load or not.
 
@@ -35,10 +37,32 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from realtime import SyncArrivals, variant  # noqa: E402
 
+import service.motion as motion_module  # noqa: E402
 from service.api import ApiError, parse_execute, parse_plan  # noqa: E402
 from service.config import CONFIG_DIR, CellConfig, load_cell_config  # noqa: E402
 from service.live import LiveServer  # noqa: E402
 from service.motion import MotionService  # noqa: E402
+from service.recording import Recorder  # noqa: E402
+
+
+class TimedRecorder(Recorder):
+    """The recorder with its bus-thread callbacks timed: what recording costs the SYNC thread, the
+    receive thread and the feeders themselves (``hot_s``), apart from the writer thread."""
+
+    hot_s = 0.0
+
+    def _on_frame(self, msg: Any) -> None:
+        t = time.perf_counter()
+        super()._on_frame(msg)
+        TimedRecorder.hot_s += time.perf_counter() - t
+
+    def _on_sync(self, n: int) -> None:
+        t = time.perf_counter()
+        super()._on_sync(n)
+        TimedRecorder.hot_s += time.perf_counter() - t
+
+
+motion_module.Recorder = TimedRecorder  # type: ignore[misc]
 
 CLIENT = textwrap.dedent(
     """
@@ -80,6 +104,7 @@ def run_case(cell: CellConfig, moves: int, seed: int, record: bool, live: bool, 
         ).open()
         arrivals = SyncArrivals(svc.sim.network)
         cpu0, wall0, motion_s = time.process_time(), time.perf_counter(), 0.0
+        TimedRecorder.hot_s = 0.0
         try:
             lim = cell.joint_limits()
             for _ in range(moves):
@@ -110,6 +135,7 @@ def run_case(cell: CellConfig, moves: int, seed: int, record: bool, live: bool, 
         finally:
             out["cpu_share"] = (time.process_time() - cpu0) / max(time.perf_counter() - wall0, 1e-9)
             out["motion_s"] = motion_s
+            out["hot_s"] = TimedRecorder.hot_s
             svc.close()
             if client is not None:
                 client.terminate()
@@ -141,28 +167,31 @@ def main() -> None:
         f"--period-ms {args.period_ms:g} --seed {args.seed}" + (" --lockstep" if args.lockstep else "")
     )
     print(
-        "| case | finished | faulted | SYNC interval p50/p99/max ms | plan ms p50/max | CPU s per s "
-        "(this process) | wall ms per SYNC | recorder CPU ms per SYNC | recorded |"
+        "| case | finished | faulted | SYNC interval p50/p99/max ms | plan ms p50/p99/max | CPU s per s "
+        "(this process) | wall ms per SYNC | recorder CPU ms per SYNC | bus threads' share us per SYNC | recorded |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     base = load_cell_config(CONFIG_DIR / "cells" / f"{args.robot}.yaml")
     for name, record, live in (("nothing", False, False), ("--record", True, False), ("--record --live", True, True)):
         cell = variant(base, args.profile, None, args.period_ms)
         r = run_case(cell, args.moves, args.seed, record, live, args.lockstep)
         sync = "-" if r["sync_ms"] is None else "{:.3f} / {:.3f} / {:.3f}".format(*r["sync_ms"])
         plan = np.asarray(r["plan_ms"])
-        plans = f"{np.percentile(plan, 50):.0f} / {plan.max():.0f}" if len(plan) else "-"
+        plans = "-"
+        if len(plan):
+            plans = f"{np.percentile(plan, 50):.0f} / {np.percentile(plan, 99):.0f} / {plan.max():.0f}"
         recorded = f"{r['bytes'] / 1e6:.1f} MB" if record else "-"
         syncs = r.get("syncs", 0)
         per_sync = f"{r['motion_s'] * 1000 / syncs:.3f}" if syncs else "-"
         writer = f"{r['writer_cpu_s'] * 1000 / syncs:.3f}" if syncs and "writer_cpu_s" in r else "-"
+        hot = f"{r['hot_s'] * 1e6 / syncs:.1f}" if syncs and record else "-"
         print(
             f"| {name} | {r['finished']}/{args.moves} | {len(r['faulted'])} | {sync} | {plans} "
-            f"| {r['cpu_share']:.2f} | {per_sync} | {writer} | {recorded} |",
+            f"| {r['cpu_share']:.2f} | {per_sync} | {writer} | {hot} | {recorded} |",
             flush=True,
         )
         for why in r["faulted"][:2]:
-            print(f"|   | {why} | | | | | | | |")
+            print(f"|   | {why} | | | | | | | | |")
 
 
 if __name__ == "__main__":

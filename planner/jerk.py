@@ -35,9 +35,21 @@ After the solve the trajectory is checked densely (``JerkTrajectory.limit_ratios
 (velocity / k, acceleration / k^2, jerk / k^3), as TOPP-RA's trajectory is.
 
 Anytime with a deadline (``_solve``): the solve runs in a thread waited for until then; ipopt
-stops there (``_Deadline``) with its last iterate whose equalities hold, fatrop (no time limit in
-casadi 3.8.2) only runs with ``_FATROP_TIME_S`` left; without an answer in time the motion is the
-S-curve floor of ``planner.scurve``. Either is checked and slowed down as above, ``optimal`` False.
+stops there (``_Deadline``) with its last iterate whose equalities hold; without an answer in time
+the motion is the S-curve floor of ``planner.scurve``. Either is checked and slowed down as above,
+``optimal`` False.
+
+A solve is started only where it can finish (``_solvers_for``), because one that cannot is worse
+than none: casadi holds the interpreter's lock while it computes (measured: other threads stood up
+to 87 ms), fatrop has no time limit nor iteration callback in casadi 3.8.2, and the floor's own
+dense check and knots (about 25 ms of CPU, its motion being 2-4x longer) come after the deadline.
+So fatrop runs only with at least its expected time left: the longest of this program shape's last
+``_SOLVE_HISTORY`` fatrop solves (``_FATROP_TIME_S`` until ``_MIN_HISTORY`` are known), a measured
+figure that follows the machine (a percentile let it start on a path slower than the fast ones it
+had seen, and an overrun costs the whole budget); ipopt (stopped at the deadline) only with at
+least ``_IPOPT_TIME_S`` left, below which its iterates were never usable (bench/RESULTS.md); with
+less than both, no solver, the floor at once. At a 50 ms plan budget that is the floor: the wall
+time stays within the budget instead of waiting for a solve that comes too late (bench/plan_budget.py).
 """
 
 from __future__ import annotations
@@ -46,6 +58,7 @@ import dataclasses
 import functools
 import threading
 import time
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -327,6 +340,12 @@ class _Program:
     # one solve at a time: a solve past its plan's deadline runs on in its thread (fatrop cannot be stopped)
     lock: threading.Lock = field(default_factory=threading.Lock)
     stop: _Deadline | None = None
+    fatrop_s: deque[float] = field(default_factory=lambda: deque(maxlen=_SOLVE_HISTORY))  # recent solve times
+
+    def expected_fatrop_s(self) -> float:
+        """fatrop's expected wall time on this program: the longest of its recent solves."""
+        times = list(self.fatrop_s)
+        return max(times) if len(times) >= _MIN_HISTORY else _FATROP_TIME_S
 
     def solver(self, name: str) -> ca.Function:
         if name not in self.solvers:
@@ -387,8 +406,12 @@ _START_JERK_SLACK = 0.3  # the start's joint jerk at most this fraction of the l
 _TOL = 1e-6  # optimality (relative duration)
 _CONSTRAINT_TOL = 1e-9  # the residuals: positions along the path continuous to 1e-9 of an interval
 _ITERATE_TOL = 1e-8  # an unfinished ipopt iterate is a motion where its residuals are this small
-# with less time than this left, ipopt (which stops at the deadline) instead of fatrop (which does not)
+# fatrop's expected solve time until _MIN_HISTORY solves of a program shape were timed (``_solvers_for``):
+# twice its p50 on 8-waypoint arm6 paths, so that a fresh process (``pvtflow plan``) solves at 200 ms
 _FATROP_TIME_S = 0.06
+_SOLVE_HISTORY = 50
+_MIN_HISTORY = 10
+_IPOPT_TIME_S = 0.04  # with less time left ipopt's iterates were never usable: no solve, the floor
 
 
 def _solver_options(name: str, equality: list[bool]) -> dict[str, Any]:
@@ -621,11 +644,22 @@ class _Solution:
     optimal: bool = True
 
 
+def _solvers_for(program: _Program, time_left: float) -> tuple[str, ...]:
+    """The solvers worth starting with ``time_left`` (s) before the deadline (module docstring)."""
+    names = ("fatrop",) if time_left >= program.expected_fatrop_s() else ()
+    return (*names, "ipopt") if time_left >= _IPOPT_TIME_S else names
+
+
 def _solve_now(
-    program: _Program, args: dict[str, Any], scale: NDArray[np.float64], deadline: float
+    program: _Program,
+    args: dict[str, Any],
+    scale: NDArray[np.float64],
+    deadline: float,
+    names: tuple[str, ...] = ("fatrop", "ipopt"),
 ) -> tuple[_Solution | None, str, bool]:
-    """fatrop, then ipopt from the same start where fatrop does not converge (``args`` scaled by
-    ``scale``, the solution is not). The third value: whether the deadline stopped it."""
+    """``names`` in turn (fatrop, then ipopt from the same start where fatrop does not converge;
+    ``args`` scaled by ``scale``, the solution is not). The third value: whether the deadline
+    stopped it."""
     statuses = []
     width = len(_STATE) + len(_CONTROL)
 
@@ -633,14 +667,16 @@ def _solve_now(
         w = np.append(np.asarray(x).ravel(), np.zeros(len(_CONTROL))).reshape(program.n + 1, width) * scale
         return _Solution(w[:, 0], w[:, 1], w[:-1, 2], w[:-1, 3], name, iterations, optimal)
 
-    names = ("fatrop", "ipopt") if deadline - time.perf_counter() >= _FATROP_TIME_S else ("ipopt",)
     for name in names:
         if time.perf_counter() >= deadline:
             return None, "; ".join(statuses), True
         solver = program.solver(name)
         if program.stop is not None:
             program.stop.reset(deadline)
+        began = time.perf_counter()
         out = solver(**args)
+        if name == "fatrop":
+            program.fatrop_s.append(time.perf_counter() - began)
         stats = solver.stats()
         if stats["success"]:
             return solution(out["x"], name, int(stats.get("iter_count", 0))), "", False
@@ -665,12 +701,16 @@ def _solve(
     if deadline is None:
         with program.lock:
             return _solve_now(program, args, scale, float("inf"))
+    names = _solvers_for(program, deadline - time.perf_counter())
+    if not names:  # no solver can answer in time: the floor at once, no thread holding the interpreter
+        return None, "", True
     result: list[tuple[_Solution | None, str, bool]] = []
 
     def work() -> None:
         if program.lock.acquire(timeout=max(0.0, deadline - time.perf_counter())):
-            try:
-                result.append(_solve_now(program, args, scale, deadline))
+            try:  # the time left again: a solve past its own deadline may have held the lock
+                now_names = _solvers_for(program, deadline - time.perf_counter())
+                result.append(_solve_now(program, args, scale, deadline, now_names))
             finally:
                 program.lock.release()
 

@@ -32,7 +32,7 @@ class LiveServer:
         self.name = name
         self._server: Any = None
         self._context: Any = None
-        self._channels: dict[str, Any] = {}
+        self._channels: dict[str, Any] = {}  # topic -> the native log call of its channel
         self._lock = threading.Lock()
 
     def start(self) -> LiveServer:
@@ -53,25 +53,29 @@ class LiveServer:
         return f"ws://{HOST}:{self.port}"
 
     def log(self, topic: str, schema: dict[str, Any], log_time_ns: int, data: bytes) -> None:
-        channel = self._channels.get(topic)
-        if channel is None:
-            import foxglove
-
+        log_bytes = self._channels.get(topic)
+        if log_bytes is None:
             with self._lock:
-                channel = self._channels.get(topic)
-                if channel is None:
-                    channel = foxglove.Channel(
-                        topic,
-                        schema=foxglove.Schema(
-                            name=str(schema["title"]), encoding="jsonschema", data=json.dumps(schema).encode()
-                        ),
-                        message_encoding="json",
-                        context=self._context,
-                    )
-                    self._channels[topic] = channel
-        channel.log(data, log_time=log_time_ns)
+                log_bytes = self._channels.get(topic)
+                if log_bytes is None:
+                    log_bytes = self._channels[topic] = new_channel(self._context, topic, schema).base.log
+        log_bytes(data, log_time_ns, None)
 
     def stop(self) -> None:
         if self._server is not None:
             self._server.stop()
             self._server = None
+
+
+def new_channel(context: Any, topic: str, schema: dict[str, Any]) -> Any:
+    """A Foxglove SDK channel of ``context`` for ``topic``: JSON messages, ``schema`` as JSON schema.
+    Messages already encoded go to its ``base.log(data, log_time, None)``, the native call the
+    channel's own ``log`` ends in after its type checks."""
+    import foxglove
+
+    return foxglove.Channel(
+        topic,
+        schema=foxglove.Schema(name=str(schema["title"]), encoding="jsonschema", data=json.dumps(schema).encode()),
+        message_encoding="json",
+        context=context,
+    )

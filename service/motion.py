@@ -66,6 +66,7 @@ from service.cell_planner import TIMEOUT, CellPlanner
 from service.config import CellConfig
 from service.journal import Journal, JournalError, MotionEntry, default_directory
 from service.live import LiveServer
+from service.live_rest import RestView
 from service.planning import PlanningProcess
 from service.recording import Recorder
 
@@ -203,6 +204,7 @@ class MotionService:
         self._last_states: tuple[PowerState, ...] = ()
         self._started: queue.Queue[Motion | None] = queue.Queue()
         self._watcher: threading.Thread | None = None
+        self._rest_view: RestView | None = None
 
     # --- life cycle ------------------------------------------------------------------------------
     def open(self) -> MotionService:
@@ -234,8 +236,15 @@ class MotionService:
             target=self._watch_motions, name=f"pvtflow-motions-{self.cell.name}", daemon=True
         )
         self._watcher.start()
+        if self.live is not None:  # the cell between motions on the live channels too
+            self._rest_view = RestView(self.live, self.cell, self.bus, self.group, self._busy).start()
         self._publish_state()
         return self
+
+    def _busy(self) -> bool:
+        """A motion or a homing runs: its recorder publishes the live channels."""
+        homing = self.homing
+        return self.running or (homing is not None and not homing.done.is_set())
 
     def close(self) -> None:
         """Halt a running motion, then bus, drives and journal down."""
@@ -248,6 +257,9 @@ class MotionService:
             group.stop("the service is shutting down")
             if self.motion is not None:
                 self.motion.done.wait(group.halt_timeout_ms / 1000.0 + 2.0)
+        if self._rest_view is not None:
+            self._rest_view.stop()
+            self._rest_view = None
         if self._watcher is not None:
             self._started.put(None)
             self._watcher.join(timeout=2.0)

@@ -3,8 +3,18 @@
 A ``Recorder`` is attached to an open ``CellBus`` and the cell's ``AxisGroup``; it hears the bus
 through ``FrameRecorder.taps`` (every frame, sent and received), the bus's fault callbacks and a
 SYNC listener, and the group's events through ``event()``. Those run in the bus's threads, so they
-only queue what they saw; one writer thread turns it into JSON messages (``json`` encoding, each
-channel with a JSON schema) written with the ``mcap`` library.
+only append what they saw to a deque (one tuple of the numbers and objects as they are: no
+conversion, no encoding, no lock). One writer thread takes what was appended every ``BATCH_S`` and
+turns the batch into JSON messages (``json`` encoding, each channel with a JSON schema registered
+once): the unit conversions, the planned positions and the link transforms (service/link_transforms.py)
+over all the batch's SYNCs at once, the messages formatted directly. They are written with the
+Foxglove SDK's MCAP writer (one call per message into its native code; zstd in the writing thread,
+not in worker threads that would compete with the bus's) and handed to the live server.
+
+The writer keeps its normal scheduling priority: it holds the interpreter's lock while it works, and
+a thread of lower priority that is preempted while holding it would keep the SYNC thread waiting for
+the lock (priority inversion); what keeps it off the SYNC thread's way is its small cost per SYNC
+and the switch interval (``axes.bus.SWITCH_INTERVAL_S``), which makes it hand the lock over within 0.1 ms.
 
 Channels (the joint's name in ``/axis/<joint>/...``):
 
@@ -37,7 +47,8 @@ master's local bus time, as the simulated wire defines it); on the wall clock ev
 own time stamp and the rest is logged at the latest one.
 
 A kill -9 loses at most the chunk being built: a chunk is closed every ``chunk_ms`` of bus time,
-every ``CHUNK_WALL_S`` of wall time and at ``chunk_bytes``, whichever comes first
+every ``CHUNK_WALL_S`` of wall time (checked after each batch) and at ``chunk_bytes``, whichever
+comes first
 (``read_recording`` reads a file cut anywhere up to its last complete record).
 """
 
@@ -47,9 +58,9 @@ import bisect
 import contextlib
 import json
 import logging
-import queue
 import threading
 import time
+from collections import deque
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,13 +71,15 @@ import numpy as np
 from mcap.exceptions import McapError
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, Writer
+from numpy.typing import NDArray
 
 from axes.bus import BusFault, CellBus, FaultKind
 from axes.cia402 import decode_state
 from axes.interpolation import PiecewiseCubic
 from axes.objects import SYNC_COB_ID
 from axes.outcome import Result
+from service.link_transforms import LinkTransforms
+from service.live import new_channel
 
 if TYPE_CHECKING:
     from axes.group import AxisGroup
@@ -82,6 +95,7 @@ CHUNK_WALL_S = 0.25  # wall time a chunk stays open at most (a lockstep cell run
 CHUNK_BYTES = 256 * 1024
 TF_EVERY_MS = 20.0
 PLANNED_LEAD_MS = 250.0  # the planned channel is written this far ahead of the run (a chunk's span)
+BATCH_S = 0.05  # the writer takes what the bus's threads appended this often
 DRIVE_SAMPLE_MS = 1.0  # the planned channel's grid: the drives interpolate at 1 kHz
 
 # Foxglove's schemas (https://docs.foxglove.dev/docs/visualization/message-schemas), JSON flavour
@@ -238,15 +252,22 @@ class Recorder:
         self.cell = cell
         self.chunk_ms = chunk_ms
         self.joints = tuple(a.joint for a in cell.ordered_axes())
+        self._joints_json = json.dumps(list(self.joints))
         self._node_joint = {a.node_id: a.joint for a in cell.axes}
         self._scaling = [a.scaling for a in cell.ordered_axes()]
-        self._file = self.path.open("wb") if self.path is not None else None
-        self._writer: Writer | None = None
-        if self._file is not None:
-            self._writer = Writer(self._file, chunk_size=chunk_bytes, compression=CompressionType.ZSTD)
-            self._writer.start(profile=PROFILE, library="pvtflow")
-        self._channels: dict[str, int] = {}
-        self._queue: queue.SimpleQueue[tuple[Any, ...] | None] = queue.SimpleQueue()
+        self._mcap: McapFile | None = None
+        self._context: Any = None
+        if self.path is not None:
+            self.path.open("wb").close()  # an OSError for the caller, before anything else
+            self._mcap = open_mcap_file(self.path, chunk_bytes)
+            self._context = self._mcap.context
+        self._channels: dict[str, Any] = {}  # topic -> the native log call of its channel
+        # what the bus's threads hand over: one tuple appended per frame, SYNC, fault or event (a deque's
+        # append is atomic and takes no lock); the writer takes them in batches every ``BATCH_S``
+        self._items: deque[tuple[Any, ...]] = deque()
+        self._closing = threading.Event()
+        self._held: list[tuple[Any, ...]] = []  # appended before the bus's clock was known
+        self._last_s = 0.0  # the latest bus time written
         # the bus's clock as the master last heard it; None until the first frame that tells it (what
         # comes before is stamped with that frame's time by the writer: it happened just before)
         self._clock_s: float | None = None
@@ -254,21 +275,24 @@ class Recorder:
         self._bus: CellBus | None = None
         self._group: AxisGroup | None = None
         self._last_sync_s: float | None = None
+        self._last_tf_s: float | None = None
         self._sync_frames = 0
+        self._states: dict[int, str] = {}  # statusword -> its power state's name
+        self._links: LinkTransforms | None = None
         self._run_programs: tuple[AxisProgram, ...] | None = None
         self._run_cubics: list[PiecewiseCubic] = []  # the reconstruction of each axis's program of the run
         # per axis: t, position, velocity, acceleration, joint units (lists: the writer reads them one by one)
         self._planned: list[tuple[list[float], ...]] = []
+        self._planned_qc: list[NDArray[np.float64]] = []  # the positions again, for lookups by index
         self._planned_next: list[int] = []
         self._planned_t0_s = 0.0
-        self._pin_data: Any = None
         self.messages = 0
         self.writer_cpu_s: float | None = None  # the writer thread's CPU time, once closed (bench/record_cost.py)
         self._write_header(kind)
         self._thread = threading.Thread(target=self._drain, name="pvtflow-recorder", daemon=True)
         self._thread.start()
 
-    # --- the bus's threads: queue only ---------------------------------------------------------------
+    # --- the bus's threads: append only ----------------------------------------------------------------
     def attach(self, bus: CellBus, group: AxisGroup | None = None) -> Recorder:
         self._bus, self._group = bus, group
         self._lockstep = bus.sync.lockstep
@@ -289,90 +313,105 @@ class Recorder:
 
     def _on_frame(self, msg: can.Message) -> None:
         if msg.is_rx or not self._lockstep:
-            self._clock_s = msg.timestamp if self._clock_s is None else max(self._clock_s, msg.timestamp)
-        stamp = msg.timestamp if not self._lockstep or msg.is_rx else self._clock_s
-        self._queue.put(("can", stamp, msg))
+            clock = self._clock_s
+            self._clock_s = msg.timestamp if clock is None or msg.timestamp > clock else clock
+            self._items.append(("can", msg.timestamp, msg))
+        else:
+            self._items.append(("can", self._clock_s, msg))
 
     def _on_fault(self, fault: BusFault) -> None:
-        self._queue.put(("fault", self._clock_s, fault))
+        self._items.append(("fault", self._clock_s, fault))
 
     def _on_sync(self, n: int) -> None:
         group = self._group
         if group is None:
-            self._queue.put(("sync_state", self._clock_s, n, None, None, (), (), ()))
+            self._items.append(("sync_state", self._clock_s, n, None, None, (), (), ()))
             return
         links = group.links
         elapsed = group.elapsed_syncs() if group.running else None
         programs = group.programs if elapsed is not None else None
-        levels = tuple(f.level for f in group.feeders) if elapsed is not None else ()
-        positions = tuple(lk.position for lk in links)
-        words = tuple(lk.statusword for lk in links)
-        self._queue.put(("sync_state", self._clock_s, n, elapsed, programs, positions, words, levels))
+        levels = [f.level for f in group.feeders] if elapsed is not None else ()
+        positions = [lk.position for lk in links]
+        words = [lk.statusword for lk in links]
+        self._items.append(("sync_state", self._clock_s, n, elapsed, programs, positions, words, levels))
 
     def event(self, kind: str, message: str, joint: str | None = None, level: int | None = None) -> None:
         if level is None:
             level = _FAULT_LEVEL.get(str(kind), INFO)
-        self._queue.put(("event", self._clock_s, str(kind), message, joint, level))
+        self._items.append(("event", self._clock_s, str(kind), message, joint, level))
 
     def close(self, outcome: dict[str, Any] | None = None) -> None:
         """Everything queued written, the outcome as metadata, the summary; the file closed."""
         self.detach()
         if outcome is not None:
-            self._queue.put(("outcome", outcome))
-        self._queue.put(None)
+            self._items.append(("outcome", None, outcome))
+        self._closing.set()
         self._thread.join(timeout=30.0)
-        if self._writer is None or self._file is None:
-            return
-        try:
-            self._writer.finish()
-        finally:
-            self._file.close()
+        if self._mcap is not None:
+            self._mcap.close()
+            self._mcap = None
 
     # --- the writer thread -------------------------------------------------------------------------------
     def _drain(self) -> None:
+        """Every ``BATCH_S``: what the bus's threads appended since, written as one batch; a chunk closed
+        every ``chunk_ms`` of bus time or ``CHUNK_WALL_S`` of wall time."""
         chunk_start_s: float | None = None
         flushed_wall = time.monotonic()
-        unstamped: list[tuple[Any, ...]] = []  # queued before the bus's clock was known
-        last_s = 0.0
+        items = self._items
         while True:
-            try:
-                item = self._queue.get(timeout=0.05)
-            except queue.Empty:
-                item = ()
-            if item is None:
-                for early in unstamped:
-                    self._write_safely((early[0], last_s, *early[2:]))
-                self._write_planned_until(float("inf"))
+            closing = self._closing.wait(BATCH_S)
+            batch = [items.popleft() for _ in range(len(items))]
+            first = self._write_batch(batch)
+            if first is not None and chunk_start_s is None:
+                chunk_start_s = first
+            if closing:
+                held, self._held = self._held, []
+                self._write_batch([(h[0], self._last_s, *h[2:]) for h in held])
+                self._safely("planned", self._write_planned_until, float("inf"))
                 self.writer_cpu_s = time.thread_time()
                 return
-            if item and len(item) > 1 and item[0] != "outcome" and item[1] is None:
-                unstamped.append(item)
-                continue
-            if item:
-                if len(item) > 1 and item[0] != "outcome":
-                    for early in unstamped:
-                        self._write_safely((early[0], item[1], *early[2:]))
-                    unstamped.clear()
-                stamp = self._write_safely(item)
-                if stamp is not None:
-                    last_s = max(last_s, stamp)
-                    if chunk_start_s is None:
-                        chunk_start_s = stamp
             now = time.monotonic()
-            bus_due = chunk_start_s is not None and last_s - chunk_start_s >= self.chunk_ms / 1000.0
+            bus_due = chunk_start_s is not None and self._last_s - chunk_start_s >= self.chunk_ms / 1000.0
             if bus_due or (chunk_start_s is not None and now - flushed_wall >= CHUNK_WALL_S):
-                if self._writer is not None:
-                    self._writer.flush()
+                if self._mcap is not None:
+                    self._mcap.flush()
                 chunk_start_s, flushed_wall = None, now
 
-    def _write_safely(self, item: tuple[Any, ...]) -> float | None:
+    def _safely(self, what: str, write: Any, *args: Any) -> None:
         try:
-            return self._write(item)
+            write(*args)
         except Exception:  # a recording must never take the motion down
-            log.exception("recording %s failed", item[0])
-            return None
+            log.exception("recording %s failed", what)
 
-    def _write(self, item: tuple[Any, ...]) -> float | None:
+    def _write_batch(self, batch: list[tuple[Any, ...]]) -> float | None:
+        """One batch in order, the SYNC snapshots together (``_sync_states``); the first bus time in it."""
+        first: float | None = None
+        syncs: list[tuple[Any, ...]] = []
+        for item in batch:
+            stamp = item[1]
+            if item[0] == "outcome":
+                if self._mcap is not None:
+                    self._safely("outcome", self._mcap.write_metadata, "outcome", {"json": json.dumps(item[2])})
+                continue
+            if stamp is None:
+                self._held.append(item)
+                continue
+            if self._held:
+                held, self._held = self._held, []
+                self._write_batch([(h[0], stamp, *h[2:]) for h in held])
+            if first is None:
+                first = stamp
+            if stamp > self._last_s:
+                self._last_s = stamp
+            if item[0] == "sync_state":
+                syncs.append(item)
+            else:
+                self._safely(item[0], self._write, item)
+        if syncs:
+            self._safely("sync_state", self._sync_states, syncs)
+        return first
+
+    def _write(self, item: tuple[Any, ...]) -> None:
         kind = item[0]
         if kind == "can":
             _, stamp, msg = item
@@ -385,14 +424,12 @@ class Recorder:
             self._log_encoded("/can", CAN_SCHEMA, stamp, data.encode())
             if msg.arbitration_id == SYNC_COB_ID and not msg.is_error_frame:
                 self._sync_frames += 1
-                interval = None if self._last_sync_s is None else (stamp - self._last_sync_s) * 1000.0
+                interval = "null" if self._last_sync_s is None else repr((stamp - self._last_sync_s) * 1000.0)
                 self._last_sync_s = stamp
-                self._log("/sync", SYNC_SCHEMA, stamp, {"sync": self._sync_frames, "interval_ms": interval})
-            return stamp
-        if kind == "sync_state":
-            self._sync_state(*item[1:])
-            return item[1]
-        if kind == "fault":
+                self._log_encoded(
+                    "/sync", SYNC_SCHEMA, stamp, f'{{"sync":{self._sync_frames},"interval_ms":{interval}}}'.encode()
+                )
+        elif kind == "fault":
             _, stamp, fault = item
             joint = self._node_joint.get(fault.node_id) if fault.node_id is not None else None
             self._log(
@@ -408,17 +445,11 @@ class Recorder:
                 },
             )
             self._log_event(stamp, str(fault.kind), fault.message, joint, _FAULT_LEVEL.get(str(fault.kind), ERROR))
-            return stamp
-        if kind == "event":
+        elif kind == "event":
             _, stamp, what, message, joint, level = item
             self._log_event(stamp, what, message, joint, level)
-            return stamp
-        if kind == "robot":
+        elif kind == "robot":
             self._log("/robot_description", ROBOT_DESCRIPTION_SCHEMA, item[1], {"data": item[2]})
-            return item[1]
-        if kind == "outcome" and self._writer is not None:
-            self._writer.add_metadata("outcome", {"json": json.dumps(item[1])})
-        return None
 
     def _log_event(self, stamp: float, kind: str, message: str, joint: str | None, level: int) -> None:
         self._log(
@@ -435,62 +466,76 @@ class Recorder:
             },
         )
 
-    def _sync_state(
-        self,
-        stamp: float,
-        n: int,
-        elapsed: int | None,
-        programs: tuple[AxisProgram, ...] | None,
-        positions: Sequence[int | None],
-        words: Sequence[int],
-        levels: Sequence[int | None],
-    ) -> None:
-        if not positions:
+    def _sync_states(self, items: list[tuple[Any, ...]]) -> None:
+        """SYNC snapshots, each run's part at once (a new run's plan written first)."""
+        items = [it for it in items if it[5]]  # a snapshot without axes (no group) says nothing
+        begin = 0
+        for k, it in enumerate(items):
+            programs = it[4]
+            if programs is not None and programs is not self._run_programs and programs != self._run_programs:
+                self._sync_run_part(items[begin:k])
+                begin = k
+                self._run_programs = programs
+                self._write_planned(programs, it[1] - (it[3] or 0) * self.cell.bus.sync_period_ms / 1000.0)
+        self._sync_run_part(items[begin:])
+
+    def _sync_run_part(self, items: list[tuple[Any, ...]]) -> None:
+        """/axis/<joint>/actual, /buffers, /joint_states and /tf of SYNC snapshots of one run (or of
+        none), the unit conversions, planned positions and link transforms over all of them at once."""
+        if not items:
             return
         period = self.cell.bus.sync_period_ms
-        if programs is not None and programs is not self._run_programs and programs != self._run_programs:
-            self._run_programs = programs
-            self._write_planned(programs, stamp - (elapsed or 0) * period / 1000.0)
-        elapsed_ms = None if elapsed is None else elapsed * period
-        if elapsed_ms is not None:
-            self._write_planned_until(elapsed_ms + PLANNED_LEAD_MS)
-        joint_positions: list[float | None] = []
-        for i, joint in enumerate(self.joints):
-            qc = positions[i]
-            position = None if qc is None else float(self._scaling[i].qc_to_position(qc))
-            joint_positions.append(position)
-            planned = None
-            if elapsed_ms is not None and self._run_cubics:
-                planned = self._planned_at(i, elapsed_ms)
-            self._log(
-                f"/axis/{joint}/actual",
-                ACTUAL_SCHEMA,
-                stamp,
-                {
-                    "sync": n,
-                    "elapsed_ms": elapsed_ms,
-                    "position_qc": qc,
-                    "position": position,
-                    "planned_qc": planned,
-                    "following_error_qc": None if planned is None or qc is None else planned - qc,
-                    "statusword": words[i],
-                    "state": decode_state(words[i]).value,
-                },
-            )
-        if levels:
-            self._log(
-                "/buffers", BUFFERS_SCHEMA, stamp, {"sync": n, "joints": list(self.joints), "levels": list(levels)}
-            )
-        self._log(
-            "/joint_states",
-            JOINT_STATE_SCHEMA,
-            stamp,
-            {"header": {"stamp": _time(stamp), "frame_id": ""}, "name": list(self.joints), "position": joint_positions},
-        )
-        last_tf = getattr(self, "_last_tf_s", None)
-        if None not in joint_positions and (last_tf is None or stamp - last_tf >= TF_EVERY_MS / 1000.0):
-            self._last_tf_s = stamp
-            self._log("/tf", FRAME_TRANSFORMS_SCHEMA, stamp, self._transforms(joint_positions, stamp))
+        stamps = [it[1] for it in items]
+        elapsed_ms = [None if it[3] is None else it[3] * period for it in items]
+        counts = np.array([[np.nan if v is None else v for v in it[5]] for it in items], dtype=float)
+        positions = np.column_stack([s.qc_to_position(counts[:, i]) for i, s in enumerate(self._scaling)])
+        planned = np.full(counts.shape, np.nan)
+        in_run = [k for k, e in enumerate(elapsed_ms) if e is not None]
+        if in_run:
+            self._write_planned_until(max(elapsed_ms[k] for k in in_run) + PLANNED_LEAD_MS)  # type: ignore[operator]
+            if self._run_cubics:
+                t = np.array([elapsed_ms[k] for k in in_run], dtype=float)
+                for i in range(len(self.joints)):
+                    planned[in_run, i] = self._planned_at(i, t)
+        following = planned - counts
+        position_rows, planned_rows, following_rows = positions.tolist(), planned.tolist(), following.tolist()
+        states = self._states
+        for k, it in enumerate(items):
+            stamp, n, qcs, words, levels = it[1], it[2], it[5], it[6], it[7]
+            e = elapsed_ms[k]
+            for i, joint in enumerate(self.joints):
+                word = words[i]
+                state = states.get(word)
+                if state is None:
+                    state = states[word] = decode_state(word).value
+                data = encode_actual(
+                    n, e, qcs[i], position_rows[k][i], planned_rows[k][i], following_rows[k][i], word, state
+                )
+                self._log_encoded(f"/axis/{joint}/actual", ACTUAL_SCHEMA, stamp, data)
+            if levels:
+                text = ",".join("null" if v is None else str(int(v)) for v in levels)
+                self._log_encoded(
+                    "/buffers",
+                    BUFFERS_SCHEMA,
+                    stamp,
+                    f'{{"sync":{n},"joints":{self._joints_json},"levels":[{text}]}}'.encode(),
+                )
+            states_json = encode_joint_states(stamp, self._joints_json, position_rows[k])
+            self._log_encoded("/joint_states", JOINT_STATE_SCHEMA, stamp, states_json)
+        due = []
+        for k, stamp in enumerate(stamps):
+            if not np.isnan(positions[k]).any() and (
+                self._last_tf_s is None or stamp - self._last_tf_s >= TF_EVERY_MS / 1000.0
+            ):
+                self._last_tf_s = stamp
+                due.append(k)
+        if due:
+            if self._links is None:
+                self._links = LinkTransforms(self.cell.model, self.joints)
+            translations, rotations = self._links.compute(positions[due])
+            for row, k in enumerate(due):
+                data = encode_transforms(stamps[k], self._links.frames, translations[row], rotations[row])
+                self._log_encoded("/tf", FRAME_TRANSFORMS_SCHEMA, stamps[k], data)
 
     def _write_planned(self, programs: Sequence[AxisProgram], t0_s: float) -> None:
         """A new run: each axis's reconstruction sampled on the drive's grid, written ``PLANNED_LEAD_MS``
@@ -498,79 +543,48 @@ class Recorder:
         writer never falls behind the bus with a whole plan at once."""
         self._write_planned_until(float("inf"))  # the rest of the run before
         self._run_cubics = [prog.reconstruction() for prog in programs]
-        self._planned = []
+        self._planned, self._planned_qc = [], []
         for cubic, scaling in zip(self._run_cubics, self._scaling, strict=True):
             t = cubic.sample_times(DRIVE_SAMPLE_MS)
-            p = cubic.position(t)
+            p = np.asarray(cubic.position(t), dtype=float)
             columns = (t, p, cubic.velocity(t), cubic.acceleration(t), scaling.qc_to_position(p))
             self._planned.append(tuple(np.asarray(c, dtype=float).tolist() for c in columns))
+            self._planned_qc.append(p)
         self._planned_next = [0] * len(self._planned)
         self._planned_t0_s = t0_s
 
-    def _planned_at(self, i: int, t_ms: float) -> float:
-        """Axis i's planned position at program time t_ms: the sample of the drive's grid where t_ms is
-        on it (a SYNC period of whole ms), else the reconstruction itself."""
-        t, p = self._planned[i][0], self._planned[i][1]
-        k = round(t_ms / DRIVE_SAMPLE_MS)
-        if abs(k * DRIVE_SAMPLE_MS - t_ms) < 1e-9 and 0 <= k < len(t):
-            return p[k]
-        return float(self._run_cubics[i].position(t_ms))
+    def _planned_at(self, i: int, t_ms: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Axis i's planned positions at program times t_ms: the sample of the drive's grid where a time
+        is on it (a SYNC period of whole ms), else the reconstruction itself."""
+        p = self._planned_qc[i]
+        k = np.rint(t_ms / DRIVE_SAMPLE_MS)
+        on_grid = (np.abs(k * DRIVE_SAMPLE_MS - t_ms) < 1e-9) & (k >= 0) & (k < len(p))
+        if on_grid.all():
+            return p[k.astype(int)]
+        off = np.asarray(self._run_cubics[i].position(t_ms), dtype=float)
+        return np.where(on_grid, p[np.clip(k, 0, len(p) - 1).astype(int)], off)
 
     def _write_planned_until(self, t_ms: float) -> None:
         for i, (t, p, v, a, q) in enumerate(self._planned):
             stop = bisect.bisect_right(t, t_ms)
             topic = f"/axis/{self.joints[i]}/planned"
+            t0 = self._planned_t0_s
             for k in range(self._planned_next[i], stop):
-                self._log(
-                    topic,
-                    PLANNED_SCHEMA,
-                    self._planned_t0_s + t[k] / 1000.0,
-                    {
-                        "t_ms": t[k],
-                        "position_qc": p[k],
-                        "velocity_qc_per_ms": v[k],
-                        "acceleration_qc_per_ms2": a[k],
-                        "position": q[k],
-                    },
+                data = (
+                    f'{{"t_ms":{t[k]!r},"position_qc":{p[k]!r},"velocity_qc_per_ms":{v[k]!r},'
+                    f'"acceleration_qc_per_ms2":{a[k]!r},"position":{q[k]!r}}}'
                 )
+                self._log_encoded(topic, PLANNED_SCHEMA, t0 + t[k] / 1000.0, data.encode())
             self._planned_next[i] = max(self._planned_next[i], stop)
-
-    def _transforms(self, q_by_joint: list[float | None], stamp: float) -> dict[str, Any]:
-        import pinocchio as pin
-
-        model = self.cell.model
-        if self._pin_data is None:
-            self._pin_data = model.model.createData()
-        q = np.zeros(model.dof)
-        for joint, value in zip(self.joints, q_by_joint, strict=True):
-            q[model.index(joint)] = value
-        pin.framesForwardKinematics(model.model, self._pin_data, q)
-        out = []
-        for fid, frame in enumerate(model.model.frames):
-            if frame.type != pin.FrameType.BODY:
-                continue
-            placement = self._pin_data.oMf[fid]
-            x, y, z, w = pin.Quaternion(placement.rotation).coeffs()
-            tx, ty, tz = placement.translation
-            out.append(
-                {
-                    "timestamp": _time(stamp),
-                    "parent_frame_id": "world",
-                    "child_frame_id": frame.name,
-                    "translation": {"x": float(tx), "y": float(ty), "z": float(tz)},
-                    "rotation": {"x": float(x), "y": float(y), "z": float(z), "w": float(w)},
-                }
-            )
-        return {"transforms": out}
 
     # --- MCAP ----------------------------------------------------------------------------------------------
     def _write_header(self, kind: str) -> None:
         cell = self.cell
         urdf = cell.urdf.read_bytes()
-        self._queue.put(("robot", None, urdf.decode()))  # at the bus time of the first frame
-        if self._writer is None:
+        self._items.append(("robot", None, urdf.decode()))  # at the bus time of the first frame
+        if self._mcap is None:
             return
-        self._writer.add_metadata(
+        self._mcap.write_metadata(
             "pvtflow",
             {
                 "kind": kind,
@@ -580,8 +594,10 @@ class Recorder:
                 "wall_time_started": f"{time.time():.6f}",
             },
         )
-        self._writer.add_attachment(time.time_ns(), 0, "robot.urdf", "application/xml", urdf)
-        self._writer.flush()
+        self._mcap.attach(
+            log_time=time.time_ns(), create_time=0, name="robot.urdf", media_type="application/xml", data=urdf
+        )
+        self._mcap.flush()
 
     def _log(self, topic: str, schema: dict[str, Any], stamp_s: float, payload: dict[str, Any]) -> None:
         self._log_encoded(topic, schema, stamp_s, json.dumps(payload).encode())
@@ -591,21 +607,96 @@ class Recorder:
         self.messages += 1
         if self.live is not None:
             self.live.log(topic, schema, ns, data)
-        if self._writer is None:
+        if self._context is None:
             return
-        channel = self._channels.get(topic)
-        if channel is None:
-            schema_id = self._writer.register_schema(
-                name=str(schema["title"]), encoding="jsonschema", data=json.dumps(schema).encode()
-            )
-            channel = self._writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
-            self._channels[topic] = channel
-        self._writer.add_message(channel, log_time=ns, publish_time=ns, data=data)
+        log_bytes = self._channels.get(topic)
+        if log_bytes is None:
+            log_bytes = self._channels[topic] = new_channel(self._context, topic, schema).base.log
+        log_bytes(data, ns, None)
 
 
 def _time(stamp_s: float) -> dict[str, int]:
     ns = max(0, round(stamp_s * 1e9))
     return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+def _number(x: float | None) -> str:
+    """A JSON number, null for None or NaN."""
+    return "null" if x is None or x != x else repr(float(x))
+
+
+def encode_actual(
+    sync: int,
+    elapsed_ms: float | None,
+    qc: int | None,
+    position: float | None,
+    planned: float | None,
+    following: float | None,
+    statusword: int,
+    state: str,
+) -> bytes:
+    """/axis/<joint>/actual (ACTUAL_SCHEMA) as JSON; NaN and None are null."""
+    return (
+        f'{{"sync":{sync},"elapsed_ms":{_number(elapsed_ms)},"position_qc":{"null" if qc is None else int(qc)},'
+        f'"position":{_number(position)},"planned_qc":{_number(planned)},"following_error_qc":{_number(following)},'
+        f'"statusword":{statusword},"state":"{state}"}}'
+    ).encode()
+
+
+def encode_joint_states(stamp_s: float, joints_json: str, positions: Sequence[float | None]) -> bytes:
+    """/joint_states (JOINT_STATE_SCHEMA) as JSON; NaN positions are null."""
+    ns = max(0, round(stamp_s * 1e9))
+    values = ",".join(_number(v) for v in positions)
+    return (
+        f'{{"header":{{"stamp":{{"sec":{ns // 1_000_000_000},"nsec":{ns % 1_000_000_000}}},"frame_id":""}},'
+        f'"name":{joints_json},"position":[{values}]}}'
+    ).encode()
+
+
+def encode_transforms(
+    stamp_s: float, frames: Sequence[str], translations: NDArray[np.float64], rotations: NDArray[np.float64]
+) -> bytes:
+    """/tf (foxglove.FrameTransforms) as JSON: every frame's placement in ``world``."""
+    ns = max(0, round(stamp_s * 1e9))
+    stamp = f'{{"sec":{ns // 1_000_000_000},"nsec":{ns % 1_000_000_000}}}'
+    parts = []
+    for name, (tx, ty, tz), (x, y, z, w) in zip(frames, translations.tolist(), rotations.tolist(), strict=True):
+        parts.append(
+            f'{{"timestamp":{stamp},"parent_frame_id":"world","child_frame_id":"{name}",'
+            f'"translation":{{"x":{tx!r},"y":{ty!r},"z":{tz!r}}},"rotation":{{"x":{x!r},"y":{y!r},"z":{z!r},"w":{w!r}}}}}'
+        )
+    return ('{"transforms":[' + ",".join(parts) + "]}").encode()
+
+
+class McapFile:
+    """An MCAP file of the Foxglove SDK's writer and the context whose channels it records."""
+
+    def __init__(self, path: Path, chunk_bytes: int) -> None:
+        import foxglove
+        from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+
+        self.context = foxglove.Context()
+        # compression in the writing thread (0): zstd's own worker threads would compete with the bus's
+        options = MCAPWriteOptions(
+            compression=MCAPCompression.Zstd, profile=PROFILE, chunk_size=chunk_bytes, compression_threads=0
+        )
+        self.writer = foxglove.open_mcap(path, allow_overwrite=True, context=self.context, writer_options=options)
+
+    def write_metadata(self, name: str, metadata: dict[str, str]) -> None:
+        self.writer.write_metadata(name, metadata)
+
+    def attach(self, **kwargs: Any) -> None:
+        self.writer.attach(**kwargs)
+
+    def flush(self) -> None:
+        self.writer.flush()
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+def open_mcap_file(path: Path, chunk_bytes: int = CHUNK_BYTES) -> McapFile:
+    return McapFile(path, chunk_bytes)
 
 
 # --- reading -----------------------------------------------------------------------------------------------

@@ -11,6 +11,7 @@ import threading
 import time
 import uuid
 
+import pytest
 from axes_programs import program
 from websockets.sync.client import connect
 
@@ -131,3 +132,41 @@ def test_serve_refuses_a_live_port_in_use_in_one_line(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"pvtflow serve: --live {taken.port}: cannot serve on 127.0.0.1:")
     assert "Address already in use" in err[0]
+
+
+def test_a_viewer_opened_between_motions_sees_the_robot_at_rest(arm6, tmp_path):
+    import numpy as np
+    import pinocchio as pin
+
+    cell = dataclasses.replace(arm6, bus=dataclasses.replace(arm6.bus, channel=f"live-{uuid.uuid4().hex[:10]}"))
+    live = LiveServer(0).start()
+    client = None
+    topics = ("/robot_description", "/joint_states", "/tf", "/axis/joint_1/actual")
+    try:
+        with MotionService(cell, journal_dir=tmp_path / "journal", lockstep=True, live=live) as svc:
+            client = Client(live.url)  # no motion ran, none runs
+            assert wait_for(lambda: all(len(client.received.get(t, [])) >= 2 for t in topics))
+            counts = svc.positions_qc()
+            joints = svc.to_joint(counts)
+    finally:
+        if client is not None:
+            client.close()
+        live.stop()
+    names = [a.joint for a in cell.ordered_axes()]
+    actual = client.received["/axis/joint_1/actual"][-1][1]
+    assert actual["position_qc"] == counts[0] and actual["planned_qc"] is None
+    assert actual["state"] == "SWITCH ON DISABLED" or actual["state"].isupper()
+    states = client.received["/joint_states"][-1][1]
+    assert states["name"] == names and states["position"] == joints
+    assert "<robot" in client.received["/robot_description"][-1][1]["data"]
+    # the links where Pinocchio puts them for the drives' positions
+    model = cell.model
+    q = np.zeros(model.dof)
+    for joint, value in zip(names, joints, strict=True):
+        q[model.index(joint)] = value
+    data = model.model.createData()
+    pin.framesForwardKinematics(model.model, data, q)
+    transforms = {t["child_frame_id"]: t for t in client.received["/tf"][-1][1]["transforms"]}
+    tool = data.oMf[model.model.getFrameId("tool0")]
+    assert [transforms["tool0"]["translation"][k] for k in "xyz"] == pytest.approx(list(tool.translation), abs=1e-12)
+    assert client.schemas["/tf"] == "foxglove.FrameTransforms"

@@ -53,18 +53,36 @@ def test_a_deadline_before_the_solve_gives_a_valid_slower_motion_not_a_refusal(c
 
 
 def test_a_solve_the_deadline_interrupts_leaves_the_next_plan_whole() -> None:
-    """5 ms for a solve that takes tens: answered in time (whatever it had), and the next plan of the
-    same program waits for the interrupted solve and is optimal."""
+    """45 ms for a solve that takes longer (ipopt, stopped at the deadline): answered in time (whatever
+    it had), and the next plan of the same program waits for the interrupted solve and is optimal."""
     limits = ARM.joint_limits()
     max_jerk = 4.0 * limits.acceleration
     planner = Planner(limits)
     wp = random_paths(ARM, 1, seed=11)[0]
-    quick = planner.plan(PlanInput(wp, max_jerk=max_jerk, budget_ms=5.0))
+    quick = planner.plan(PlanInput(wp, max_jerk=max_jerk, budget_ms=45.0))
     assert quick.ok and isinstance(quick.details["optimal"], bool)
     assert max(dense_ratios(quick.trajectory, limits, max_jerk)) <= 1.001
     full = planner.plan(PlanInput(wp, max_jerk=max_jerk))
     assert full.ok and full.details["optimal"] is True
     assert full.trajectory.duration <= quick.trajectory.duration * (1.0 + 1e-9)
+
+
+def test_no_solve_starts_that_cannot_answer_in_time() -> None:
+    """Less time than any solver needs (planner/jerk.py, ``_solvers_for``): the floor at once, no solve
+    left running in a thread (casadi holds the interpreter's lock while it computes)."""
+    import threading
+
+    import planner.jerk as jerk_module
+
+    limits = ARM.joint_limits()
+    planner = Planner(limits)
+    wp = random_paths(ARM, 1, seed=12)[0]
+    for earlier in [t for t in threading.enumerate() if t.name == "jerk-solve"]:
+        earlier.join(60.0)  # an earlier test's solve, past its deadline
+    budget_ms = 0.5 * 1000.0 * jerk_module._IPOPT_TIME_S
+    res = planner.plan(PlanInput(wp, max_jerk=10.0 * limits.acceleration, budget_ms=budget_ms))
+    assert res.ok and res.details["optimal"] is False and res.details["solver"] == "scurve"
+    assert not any(t.name == "jerk-solve" for t in threading.enumerate())
 
 
 def test_the_cell_plan_says_not_optimal_and_its_program_is_valid(monkeypatch: pytest.MonkeyPatch) -> None:
