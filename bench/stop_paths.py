@@ -5,7 +5,7 @@ A simulated cell (every axis of ``--cell`` on its simulated drive, in this proce
 
 - ``dead SYNC thread``: the SYNC thread raises (a sender of ``SyncClock`` that fails);
 - ``queue full``: the interface refuses every frame for ``--full-ms`` (the test double of the BUS
-  of tests/axes/axes_rig.py raises ``can.CanOperationError`` as socketcan does on ENOBUFS), longer
+  of tests/axes_rig.py raises ``can.CanOperationError`` as socketcan does on ENOBUFS), longer
   than the master's retries (``tx_retry_ms``, 2 ms).
 
 Figures per case over ``--runs``: time from the failure to the quick stop requests on the bus
@@ -47,7 +47,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests" / "axes"))
+sys.path.insert(0, str(ROOT / "tests"))
 
 from axes_programs import program  # noqa: E402  (the tests' programs: quintic moves inside the limits)
 from axes_rig import FlakyBus, unique_channel  # noqa: E402  (the test double of the BUS)

@@ -1,13 +1,25 @@
-"""Session set-up shared by every test package."""
+"""Session set-up and fixtures shared by every test package (tests/axes, planner, service, e2e).
+
+Helper modules beside this file (axes_rig, axes_programs, hand_programs, svc_helpers, frame_log) are
+importable from every test package: pytest puts this directory on sys.path with this conftest."""
 
 from __future__ import annotations
 
 import os
 import sys
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 from hypothesis import settings
+
+from service.config import CellConfig, load_cell_config
+
+if TYPE_CHECKING:
+    from svc_helpers import Served
 
 # The suite is a gate: the property tests draw the same examples on every run (a new failing draw
 # would otherwise fail an unrelated change). ``--hypothesis-profile=explore`` draws new ones.
@@ -42,6 +54,30 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     if hasattr(session.config, "workerinput"):  # a pytest-xdist worker
         return
     from service.cell_planner import CellPlanner
-    from service.config import load_cell_config
 
     CellPlanner(load_cell_config()).warm_up()
+
+
+@pytest.fixture(scope="session")
+def arm6() -> CellConfig:
+    return load_cell_config(None)
+
+
+@pytest.fixture(scope="session")
+def gantry3() -> CellConfig:
+    return load_cell_config(REPO / "configs" / "cells" / "gantry3.yaml")
+
+
+@pytest.fixture
+def serve(tmp_path: Path) -> Iterator[Callable[..., Served]]:
+    """serve(cell, journal_dir=None, zconfig=None, client=None, port=None) -> Served (svc_helpers: real
+    zenoh sessions on loopback, simulated drives), closed after the test."""
+    from svc_helpers import served_cell  # zenoh and the service: loaded by the tests that serve a cell
+
+    with ExitStack() as stack:
+
+        def make(cell: CellConfig, *, journal_dir: Path | None = None, **kwargs: object) -> Served:
+            jdir = journal_dir or (tmp_path / f"journal-{cell.name}-{uuid.uuid4().hex[:6]}")
+            return stack.enter_context(served_cell(cell, jdir, **kwargs))  # type: ignore[arg-type]
+
+        yield make

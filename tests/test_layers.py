@@ -61,7 +61,7 @@ def test_the_axes_layer_loads_without_the_planning_stack() -> None:
 
 
 def test_validating_a_program_needs_no_robot_model(tmp_path: Path) -> None:
-    from program.conftest import GOOD_RECORDS, axis, program
+    from hand_programs import GOOD_RECORDS, axis, program
 
     file = tmp_path / "p.json"
     file.write_text(program(axis(GOOD_RECORDS)).dumps())

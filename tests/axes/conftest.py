@@ -13,7 +13,7 @@ from axes_rig import unique_channel
 from axes.bus import CellBus
 from axes.group import AxisGroup
 from axes.sim.cell import SimulatedCell
-from service.config import CellConfig, load_cell_config
+from service.config import CellConfig
 
 
 @dataclass
@@ -22,11 +22,6 @@ class Rig:
     sim: SimulatedCell
     bus: CellBus
     group: AxisGroup
-
-
-@pytest.fixture(scope="session")
-def arm6() -> CellConfig:
-    return load_cell_config(None)
 
 
 @pytest.fixture

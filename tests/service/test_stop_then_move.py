@@ -47,7 +47,7 @@ def tour(cell: CellConfig, fractions: list[float]) -> list[list[float]]:
 # fixed-period drive on the wall clock takes one setpoint per SYNC at its arrival, and the master,
 # the simulated wire and three simulated drives in one interpreter on a shared 2-core host miss
 # 2-3 ms setpoint deadlines by more than a period now and then (the drives then fault, as they
-# must). What fixed-period drives do on the wall clock is tested in tests/sim/test_drive_clock.py,
+# must). What fixed-period drives do on the wall clock is tested in tests/axes/sim/test_drive_clock.py,
 # measured with the master alone in bench/realtime.py (bench/RESULTS.md).
 OWN_CLOCK_CELLS = ("arm6", "gantry3")
 CASES = [(c, True) for c in CELLS] + [(c, False) for c in CELLS if c in OWN_CLOCK_CELLS]

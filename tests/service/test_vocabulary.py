@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import pytest
 from svc_helpers import CONFIGS
 
 from axes.program import AxisProgram, PvtProgram
@@ -30,11 +29,6 @@ def shifted_program(cell: CellConfig, tmp_path: Path) -> tuple[Path, PvtProgram]
     path = tmp_path / "shifted.json"
     path.write_text(shifted.dumps())
     return path, shifted
-
-
-@pytest.fixture(autouse=True)
-def _axes_helpers(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "axes"))
 
 
 def test_a_start_elsewhere_is_start_mismatch_in_both(serve, arm6, tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]

@@ -9,10 +9,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+from test_doc_program import documented
+
 from axes.program import PvtProgram
 from service.validate_cmd import Progress
-
-from .test_doc_example import documented
 
 ROOT = Path(__file__).resolve().parents[2]
 

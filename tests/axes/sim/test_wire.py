@@ -22,7 +22,7 @@ from axes.frame_time import frame_bits
 from axes.sim.wire import BUS_OFF, ERROR_PASSIVE, Medium, SimWireBus, WireConfigError
 from axes.sim.wire.medium import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_PROT
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 SYNC = 0x80
 PERIOD = 0.001
 SERVED_BITRATE = 125_000  # a frame about 1 ms: a remote burst outruns the wire

@@ -154,7 +154,7 @@ def test_epos2_on_maxon_eds_reports_maxon_identity_and_cubic_pvt(bench: Bench) -
 
 @pytest.mark.parametrize("cls", [Epos2Drive, IpLinearDrive, SyncSetpointDrive, ParkerDrive])
 def test_own_eds_states_the_drives_supported_modes(cls: type[SimulatedDrive]) -> None:
-    dictionary = canopen.import_od(str(Path(__file__).resolve().parents[2] / "configs" / "eds" / cls.EDS), 1)
+    dictionary = canopen.import_od(str(Path(__file__).resolve().parents[3] / "configs" / "eds" / cls.EDS), 1)
     assert dictionary[SUPPORTED_DRIVE_MODES].default == cls.MODES.supported
     assert dictionary[SUPPORTED_DRIVE_MODES].access_type == "ro"
 

@@ -1,4 +1,4 @@
-"""Helpers of the service tests: a cell's MotionService on simulated drives, served on a free loopback
+"""Helpers of the service and end-to-end tests: a cell's MotionService on simulated drives, served on a free loopback
 port by a real zenoh session, and a real zenoh client session connected to it.
 
 Every zenoh session here is a peer with explicit tcp/127.0.0.1 endpoints and multicast and gossip
@@ -27,7 +27,7 @@ from service.motion import MotionService
 from service.request_cmd import Client
 from service.server import Server, peer_config
 
-CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 def free_port() -> int:

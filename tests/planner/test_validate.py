@@ -7,12 +7,11 @@ import json
 
 import numpy as np
 import pytest
+from hand_programs import GOOD_RECORDS, LIMITS, SCALING, axis, program
 
 from axes.program import PvtProgram
 from axes.scaling import DriveLimits
 from planner.validate import validate_program
-
-from .conftest import GOOD_RECORDS, LIMITS, SCALING, axis, program
 
 
 def only(report, rule: str):

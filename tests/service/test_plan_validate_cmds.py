@@ -8,13 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from hand_programs import axis, program
 
 from axes.program import PvtProgram
 from service.cli import main
 from service.config import load_cell_config
 from service.waypoints import WaypointError, parse_waypoints
-
-from .conftest import axis, program
 
 ARM6 = load_cell_config()
 NAMES = ARM6.joint_names

@@ -1,9 +1,8 @@
-"""Shared pieces of the program tests: a small hand-made axis and program."""
+"""A small hand-made axis and program, for the tests of the program's rules (planner) and commands (service)."""
 
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from axes.program import AxisProgram, PvtProgram
 from axes.scaling import AxisScaling, DriveLimits
@@ -32,10 +31,3 @@ def axis(
 
 def program(*axes: AxisProgram) -> PvtProgram:
     return PvtProgram("test", tuple(axes))
-
-
-@pytest.fixture
-def good_program() -> PvtProgram:
-    return program(
-        axis(GOOD_RECORDS), axis([[500, 0, 1], [400, -60, 40], [300, 0, 40], [300, 0, 0]], name="joint_2", node_id=2)
-    )

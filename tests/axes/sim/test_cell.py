@@ -15,7 +15,7 @@ from service.config import load_cell_config
 
 from .conftest import FrameLog
 
-CELLS = Path(__file__).resolve().parents[2] / "configs" / "cells"
+CELLS = Path(__file__).resolve().parents[3] / "configs" / "cells"
 
 
 def test_arm6_cell_boots_six_epos2_with_the_configured_limits() -> None:

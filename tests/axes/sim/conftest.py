@@ -3,53 +3,17 @@ python-can virtual channel of its own (one per test), plus the simulated drive's
 
 from __future__ import annotations
 
-import threading
-import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
-import can
 import canopen
 import pytest
+from frame_log import FrameLog
 
 from axes import objects as od
 from axes.objects import PdoLayout
 from axes.sim.drive import EDS_DIR, SimulatedDrive
-
-
-class FrameLog(can.Listener):
-    """Every frame the master's bus receives, waitable."""
-
-    def __init__(self) -> None:
-        self.frames: list[can.Message] = []
-        self.cond = threading.Condition()
-
-    def on_message_received(self, msg: can.Message) -> None:
-        with self.cond:
-            self.frames.append(msg)
-            self.cond.notify_all()
-
-    def of(self, can_id: int) -> list[can.Message]:
-        with self.cond:
-            return [m for m in self.frames if m.arbitration_id == can_id]
-
-    def wait_for(
-        self, can_id: int, count: int = 1, timeout: float = 5.0, where: Callable[[can.Message], bool] | None = None
-    ) -> list[can.Message]:
-        """Wait until ``count`` frames with this id (and ``where``) arrived; returns them."""
-        deadline = time.monotonic() + timeout
-        with self.cond:
-            while True:
-                hits = [m for m in self.frames if m.arbitration_id == can_id and (where is None or where(m))]
-                remaining = deadline - time.monotonic()
-                if len(hits) >= count or remaining <= 0:
-                    return hits
-                self.cond.wait(remaining)
-
-    def clear(self) -> None:
-        with self.cond:
-            self.frames.clear()
 
 
 class Bench:
