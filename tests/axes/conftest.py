@@ -15,6 +15,12 @@ from axes.group import AxisGroup
 from axes.sim.cell import SimulatedCell
 from service.config import CellConfig
 
+# The rigs run the simulated drives in the test's own interpreter, where every pause of the master
+# (a compile, a feed replay, the host's load) is the drives' pause too: they keep the factor the
+# shipped cells had for that. The shipped cells' factor (about 3) is for drives in a process of
+# their own (axes.sim.process), as pvtflow's commands run them; tests/service runs those.
+IN_PROCESS_HEARTBEAT_FACTOR = 10.0
+
 
 @dataclass
 class Rig:
@@ -40,6 +46,8 @@ def make_rig() -> Iterator[Callable[..., Rig]]:
     ) -> Rig:
         channel = unique_channel()
         changes: dict[str, object] = {"channel": channel}
+        if cell.bus.heartbeat_timeout_factor < IN_PROCESS_HEARTBEAT_FACTOR:
+            changes["heartbeat_timeout_factor"] = IN_PROCESS_HEARTBEAT_FACTOR
         if heartbeat_ms is not None:
             changes["heartbeat_ms"] = heartbeat_ms
         bus_config = dataclasses.replace(cell.bus, **changes)

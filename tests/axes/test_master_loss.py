@@ -29,7 +29,7 @@ from axes.sim.drive import MAXON_EPOS2_EDS, SimulatedDrive
 
 PROGRAM_MS = 2000
 KILL_AT_MS = 400  # mid-motion: every axis moves then (the quintic is at 20 % of its duration)
-MASTER_HEARTBEAT_MS = 50  # x the cell's heartbeat_timeout_factor (10): the drives wait 500 ms
+MASTER_HEARTBEAT_MS = 50  # x the rig's heartbeat_timeout_factor (10, tests/axes/conftest.py): the drives wait 500 ms
 PROFILES = {
     "epos2_pvt": {"profile": "epos2_pvt"},
     # six fixed-period axes fit a 1 Mbit/s bus from 4 ms on (axes.budget; the shipped three-axis cells: 2 ms)
@@ -91,13 +91,13 @@ def test_every_axis_stops_by_itself_when_the_master_is_lost(arm6, make_rig, prof
     rig = make_rig(cell)
     observer = BusObserver(rig.cell.bus.channel, rig.cell.bus.interface)
     release = threading.Event()
-    consumer_s = cell.bus.master_consumer_time_ms / 1000.0
+    consumer_s = rig.cell.bus.master_consumer_time_ms / 1000.0
     try:
         kill_master(rig, how, release)
         drives = list(rig.sim)
         # hung: the master withholds its heartbeat once its receive thread is silent for the drives'
         # heartbeat window (heartbeat_ms x factor), then the drives wait their consumer time
-        window_s = cell.bus.heartbeat_ms * cell.bus.heartbeat_timeout_factor / 1000.0
+        window_s = rig.cell.bus.heartbeat_ms * rig.cell.bus.heartbeat_timeout_factor / 1000.0
         wait_standstill(drives, timeout_s=window_s + consumer_s + 10.0)
         for d in drives:
             loss = d.master_losses[-1]
@@ -139,8 +139,9 @@ def test_drives_watch_the_master_after_configuration(arm6, make_rig):
     )
     rig = make_rig(cell, eds_paths={5: MAXON_EPOS2_EDS})
     rig.group.configure()
-    entry = (cell.bus.master_node_id << 16) | cell.bus.master_consumer_time_ms
-    assert cell.bus.master_consumer_time_ms == round(cell.bus.master_heartbeat_ms * cell.bus.heartbeat_timeout_factor)
+    bus = rig.cell.bus
+    entry = (bus.master_node_id << 16) | bus.master_consumer_time_ms
+    assert bus.master_consumer_time_ms == round(bus.master_heartbeat_ms * bus.heartbeat_timeout_factor)
     for d in rig.sim:
         assert d.read(od.CONSUMER_HEARTBEAT_TIME, 1) == entry, d.node_id
         assert d.read(od.ABORT_CONNECTION_OPTION_CODE) == od.AbortConnectionOption.QUICK_STOP, d.node_id
@@ -228,7 +229,7 @@ def test_an_earlier_entry_for_the_master_node_is_switched_off(arm6, make_rig):
     drive = rig.sim.drive(2)
     earlier = (arm6.bus.master_node_id << 16) | 5000
     drive.store(od.CONSUMER_HEARTBEAT_TIME, 2, earlier)
-    entry = (arm6.bus.master_node_id << 16) | arm6.bus.master_consumer_time_ms
+    entry = (arm6.bus.master_node_id << 16) | rig.cell.bus.master_consumer_time_ms
     with pytest.raises(SdoAbortedError) as refused:  # the drive keeps the rule
         rig.bus.add_node(2).sdo.download(od.CONSUMER_HEARTBEAT_TIME, 1, entry.to_bytes(4, "little"))
     assert refused.value.code == 0x06040043
