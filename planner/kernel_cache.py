@@ -35,7 +35,7 @@ KERNEL_SOURCES = (
             "slowdown.py",
             "smooth_kernels.py",
             "trajectory.py",
-            "validate.py",
+            "validate/screen.py",
         )
     ),
 )
