@@ -51,7 +51,7 @@ class Interpolation(Enum):
 
     @property
     def code(self) -> int:
-        """The kind as the numba kernels take it (planner/knot_kernels.py)."""
+        """The kind as the numba kernels take it (planner/knots/fixed_period_kernels.py)."""
         return _KERNEL_CODES[self]
 
 

@@ -2,10 +2,10 @@
 
 numba caches a compiled function next to its source and recompiles it when *that* file changes,
 not when a function it calls from another file does. The planner's kernels inline the drive's
-cubic (``axes.interpolation``) into ``knot_kernels`` and ``validate``: after an edit of
-``hermite`` alone they would keep running the old formula from the cache. So every planner kernel
-is stamped with all the kernel sources (``KERNEL_SOURCES``): a change to any of them recompiles
-them all (about 15 s, once), and a stale kernel is never loaded.
+cubic (``axes.interpolation``) into the knot placement's (``planner/knots/*_kernels.py``) and the
+validator's: after an edit of ``hermite`` alone they would keep running the old formula from the
+cache. So every planner kernel is stamped with all the kernel sources (``KERNEL_SOURCES``): a
+change to any of them recompiles them all (about 15 s, once), and a stale kernel is never loaded.
 """
 
 from __future__ import annotations
@@ -26,13 +26,16 @@ KERNEL_SOURCES = (
         for n in (
             "cartesian.py",
             "ik.py",
-            "knot_kernels.py",
+            "knots/check_kernels.py",
+            "knots/fixed_period_kernels.py",
+            "knots/quantize_kernels.py",
+            "knots/refine_kernels.py",
             "lean_toppra.py",
             "path.py",
             "slowdown.py",
             "smooth_kernels.py",
             "trajectory.py",
-            "validate.py",
+            "validate/screen.py",
         )
     ),
 )
@@ -44,12 +47,13 @@ def sources_stamp(paths: tuple[Path, ...]) -> tuple[tuple[int, int], ...]:
 
 
 class PlannerCacheLocator(InTreeCacheLocator):
-    """numba's in-tree cache (``__pycache__`` next to the source), for the planner's modules only,
-    with every kernel source in the stamp that decides whether a cached kernel is still valid."""
+    """numba's in-tree cache (``__pycache__`` next to the source), for the planner's modules only (its
+    subpackages' too), with every kernel source in the stamp that decides whether a cached kernel is
+    still valid."""
 
     @classmethod
     def from_function(cls, py_func: Any, py_file: str) -> PlannerCacheLocator | None:
-        if Path(py_file).resolve().parent != HERE:
+        if HERE not in Path(py_file).resolve().parents:
             return None  # not the planner's: numba's own locators decide
         return super().from_function(py_func, py_file)
 

@@ -97,7 +97,7 @@ class Planner:
     limits stay as the cell sets them.
 
     With a jerk limit (``max_jerk``: the cell's, or a request's, which replaces it), the TOPP-RA
-    solution is the warm start of the jerk-limited timing along the same path (planner/jerk.py,
+    solution is the warm start of the jerk-limited timing along the same path (planner/jerk,
     casadi) under the same constraints; ``details``: ``topp_s`` and ``jerk_s`` (their shares of
     the planning time), ``solver``, ``iterations``, ``time_scale`` of the jerk-limited solve and
     the ``max_jerk`` it held.

@@ -1,6 +1,6 @@
 """A jerk-limited timing that needs no solver: rest to rest, one S-curve in the path parameter.
 
-The jerk-limited timing (planner/jerk.py) is anytime: where its nonlinear program has not found
+The jerk-limited timing (planner/jerk) is anytime: where its nonlinear program has not found
 a solution by the plan's deadline, the motion still has to be one that holds every limit. This
 is that floor. Between two rests (the ends and every C1 waypoint, where the jerk-limited motion
 stops anyway) s(t) follows the classic seven-phase profile (jerk +J, 0, -J, cruise, -J, 0, +J)

@@ -5,7 +5,7 @@ accelerations by k^2 (its jerks by k^3), so the least k that brings the worst ra
 ``rv`` and ``ra`` within 1 is max(rv, sqrt(ra)): :func:`slowdown`. Every slow-down of the planner
 asks it: TOPP-RA's dense check (``planner.timing``), the jerk-limited timing's (``planner.jerk``, with
 cbrt of the jerk ratio beside it), knot placement's step 5 (``planner.knots.check.needed_scale``) and
-its per-segment searches (``planner.knot_kernels``, which is why it is compiled).
+its per-segment searches (``planner.knots.fixed_period_kernels``, which is why it is compiled).
 
 Where a slow-down is applied, it is a little more than the rule, for two different reasons:
 

@@ -16,7 +16,7 @@ EPOS2 PVT (``epos2_pvt``), per axis (the axes share only the start SYNC and the 
 3. quantization: positions to counts (inside 0x607D), velocities to the drive's unit; where that
    pushes a cubic over a limit, the records around it are re-rounded together: each may move by
    a count and two velocity units, and the best combination of a whole run is found exactly (a
-   shortest path over the candidates, ``knot_kernels.repair_chains``). Integers need an integer
+   shortest path over the candidates, ``quantize_kernels.repair_chains``). Integers need an integer
    search: a continuous optimum is only as good as its rounding;
 4. the exact reconstruction of the quantized records is checked: a segment that strays more than
    the tolerance, or stays over a limit, is split and steps 3-4 are redone. Splitting for a limit
@@ -48,7 +48,8 @@ velocity units (qc/ms inside the interpolation), ms.
 Where each step lives: ``types`` (what goes in and out), ``samples`` (the plan at every drive ms),
 ``refine`` (steps 1-2), ``quantize`` (step 3), ``check`` (step 4), ``flat`` (the EPOS2 axes as one
 problem), ``epos2`` (steps 1-4 for the EPOS2 axes), ``fixed_period`` (the other profiles), and
-step 5, ``place_knots``, here.
+step 5, ``place_knots``, here. A step's per-segment loops, compiled with numba, sit beside it as
+``<step>_kernels`` (``check_kernels`` also holds the judgements of a segment the others share).
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from axes.interpolation import PiecewiseCubic, epos2_pvt, exceeds
 from axes.program import AxisProgram
-from planner import knot_kernels as kernels
+from planner.knots import check_kernels as kernels
 from planner.knots.flat import Flat
 from planner.knots.types import AxisKnots, DriveAxis
 from planner.knots.window_jerk import window_jerk
@@ -128,7 +128,7 @@ def check_knots(
 
     The drive's segment between two records is THE Hermite cubic through their integer positions
     and velocities (``hermite``, as ``epos2_pvt`` builds it), judged by its exact extrema and at
-    every ms against the plan (``knot_kernels.check_segments``). Only the segments that differ
+    every ms against the plan (``check_kernels.check_segments``). Only the segments that differ
     from ``prev`` are judged (the same two records make the same cubic, with the same extrema and
     deviation).
     """

@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.interpolation import LIMIT_RTOL
-from planner import knot_kernels as kernels
+from planner.knots import fixed_period_kernels as kernels
 from planner.knots.check import check_records, needed_scale
 from planner.knots.quantize import round_positions, round_velocities
 from planner.knots.samples import Samples, axis_constants
@@ -80,7 +80,7 @@ def drive_slowdown(axis: DriveAxis, i: int, smp: Samples) -> tuple[float, float]
 def fixed_period_axis(axis: DriveAxis, i: int, smp: Samples, opts: KnotOptions) -> tuple[AxisKnots, float]:
     """One record per period: the plan's samples rounded, then re-chosen among the integers around
     them where the drive's reconstruction of the rounding exceeds a limit
-    (``knot_kernels.track_fixed_period``: exact, over the whole motion)."""
+    (``fixed_period_kernels.track_fixed_period``: exact, over the whole motion)."""
     period = int(axis.period_ms or 1)
     t_ms = record_times(axis, smp)
     P = round_positions(smp.position[i, t_ms], axis)

@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from axes.interpolation import exceeds
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
-from planner import knot_kernels as kernels
+from planner.knots import quantize_kernels as kernels
 from planner.knots.check import Checked, axis_records, check_knots, over_limit, record_knots
 from planner.knots.flat import Flat
 from planner.knots.types import AxisKnots, DriveAxis, KnotError, KnotOptions
@@ -80,7 +80,7 @@ def repair_rounds(
     over a limit are re-rounded together, each by up to a count and two velocity units: the
     combination with the least worst limit ratio over the segments they touch, and among those
     that stay under max(that, 1), the least summed excess, then the closest to the plan, all
-    within the tolerance (``knot_kernels.repair_chains``: a shortest path over the nudges, exact,
+    within the tolerance (``quantize_kernels.repair_chains``: a shortest path over the nudges, exact,
     not greedy). With
     ``shift`` the knots may also move by up to that many ms (the integers of a cubic of another
     length make other accelerations).

@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from axes.interpolation import hermite_coefficients
 from axes.program import TIME_MAX_MS
-from planner import knot_kernels as kernels
+from planner.knots import refine_kernels as kernels
 from planner.knots.check import NO_FLOAT, NO_INT
 from planner.knots.flat import Flat
 
@@ -39,7 +39,7 @@ def refine(
 
     The fit is judged at seven whole-ms probes per segment (a cheap first cut: the exact
     reconstruction is checked at every ms afterwards and splits what this misses), by
-    ``knot_kernels.refine``. Only the segments made by the last split are judged again.
+    ``refine_kernels.refine``. Only the segments made by the last split are judged again.
     """
     return kernels.refine(knots, p, v, _FIT_PROBES, target, max_rounds, TIME_MAX_MS)
 
@@ -101,7 +101,7 @@ def lsq_fit(fl: Flat, knots: NDArray[np.int64], prev: Fitted | None = None, targ
     ``prev`` is reused.
 
     With ``target``, the worst |fit - plan| per segment is returned as well, as far as the
-    comparison with ``target`` needs it (``knot_kernels.lsq_worst``).
+    comparison with ``target`` needs it (``refine_kernels.lsq_worst``).
     """
     table = _basis_table()
     prev_knots = NO_INT if prev is None else prev.knots

@@ -1,4 +1,4 @@
-"""Jerk-limited timing (planner/jerk.py): the TOPP-RA path timed again under |q'''| <= max_jerk.
+"""Jerk-limited timing (planner/jerk): the TOPP-RA path timed again under |q'''| <= max_jerk.
 
 Checked densely (64 samples per grid interval, more than the planner's own check) against every
 limit, against TOPP-RA's duration, through the waypoints, and down to the drives' program.
@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-import planner.jerk as jerk_module
+import planner.jerk.solve as jerk_solve
 from planner.jerk import JerkTrajectory
 from planner.plan import PlanInput, Planner
 from planner.validate import validate_program
@@ -166,10 +166,10 @@ def test_a_bad_jerk_limit_is_refused_naming_the_field_and_nothing_is_planned(val
 @pytest.fixture
 def two_iterations(monkeypatch: pytest.MonkeyPatch):
     """Solvers that give up after 2 iterations: a program they cannot solve in that."""
-    jerk_module._program.cache_clear()
-    monkeypatch.setattr(jerk_module, "_MAX_ITER", 2)
+    jerk_solve.cached_program.cache_clear()
+    monkeypatch.setattr(jerk_solve, "_MAX_ITER", 2)
     yield
-    jerk_module._program.cache_clear()
+    jerk_solve.cached_program.cache_clear()
 
 
 def test_a_program_the_solvers_do_not_solve_is_infeasible_with_their_status(two_iterations: None) -> None:

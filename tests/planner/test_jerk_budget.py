@@ -1,4 +1,4 @@
-"""A jerk-limited plan within its deadline (planner/jerk.py, planner/scurve.py, service/cell_planner.py).
+"""A jerk-limited plan within its deadline (planner/jerk/solve.py, planner/scurve.py, service/cell_planner.py).
 
 The timing is anytime: a deadline that comes before the solvers finish gives a valid, slower motion
 (``optimal`` False), never a refusal; a plan past its budget for another reason is ``timeout``.
@@ -68,18 +68,18 @@ def test_a_solve_the_deadline_interrupts_leaves_the_next_plan_whole() -> None:
 
 
 def test_no_solve_starts_that_cannot_answer_in_time() -> None:
-    """Less time than any solver needs (planner/jerk.py, ``_solvers_for``): the floor at once, no solve
+    """Less time than any solver needs (planner/jerk/solve.py, ``_solvers_for``): the floor at once, no solve
     left running in a thread (casadi holds the interpreter's lock while it computes)."""
     import threading
 
-    import planner.jerk as jerk_module
+    import planner.jerk.solve as jerk_solve
 
     limits = ARM.joint_limits()
     planner = Planner(limits)
     wp = random_paths(ARM, 1, seed=12)[0]
     for earlier in [t for t in threading.enumerate() if t.name == "jerk-solve"]:
         earlier.join(60.0)  # an earlier test's solve, past its deadline
-    budget_ms = 0.5 * 1000.0 * jerk_module._IPOPT_TIME_S
+    budget_ms = 0.5 * 1000.0 * jerk_solve._IPOPT_TIME_S
     res = planner.plan(PlanInput(wp, max_jerk=10.0 * limits.acceleration, budget_ms=budget_ms))
     assert res.ok and res.details["optimal"] is False and res.details["solver"] == "scurve"
     assert not any(t.name == "jerk-solve" for t in threading.enumerate())

@@ -5,13 +5,14 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from planner import knot_kernels, validate
 from planner.kernel_cache import HERE, INTERPOLATION, KERNEL_SOURCES, PlannerCacheLocator, sources_stamp
+from planner.knots import check_kernels, quantize_kernels
+from planner.validate import screen
 
 
 def test_every_module_with_kernels_is_in_the_stamp() -> None:
     """A kernel inlines functions of other modules (the drive's cubic among them): all in the stamp."""
-    with_kernels = {p for p in HERE.glob("*.py") if "@njit" in p.read_text() or "njit(" in p.read_text()}
+    with_kernels = {p for p in HERE.rglob("*.py") if "@njit" in p.read_text() or "njit(" in p.read_text()}
     with_kernels.discard(HERE / "kernel_cache.py")
     assert with_kernels | {INTERPOLATION} == set(KERNEL_SOURCES)
 
@@ -28,7 +29,7 @@ def test_the_stamp_changes_with_any_source(tmp_path: Path) -> None:
 
 
 def test_planner_kernels_use_the_planner_locator() -> None:
-    for kernel in (knot_kernels.check_segments, knot_kernels.repair_chains, validate._epos2_worst):
+    for kernel in (check_kernels.check_segments, quantize_kernels.repair_chains, screen._epos2_worst):
         locator = kernel._cache._impl._locator
         assert isinstance(locator, PlannerCacheLocator)
         stamp = locator.get_source_stamp()

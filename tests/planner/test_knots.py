@@ -12,9 +12,8 @@ from hypothesis import strategies as st
 from axes.interpolation import LINEAR_QUANTIZATION_QC, Interpolation, epos2_pvt, linear, linear_span_excess
 from axes.program import AxisProgram, PvtProgram
 from axes.scaling import AxisScaling, DriveLimits
-from planner import knot_kernels
 from planner.build import build_program
-from planner.knots import DriveAxis, KnotOptions, place_knots
+from planner.knots import DriveAxis, KnotOptions, fixed_period_kernels, place_knots
 from planner.limits import joint_limits_from_drives
 from planner.plan import PlanInput, Planner
 from planner.validate import validate_program
@@ -199,4 +198,4 @@ def test_the_kernels_take_the_reconstruction_codes() -> None:
         Interpolation.LINEAR.code,
         Interpolation.CUBIC_PV.code,
         Interpolation.CUBIC_P.code,
-    ) == (knot_kernels.LINEAR, knot_kernels.CUBIC_PV, knot_kernels.CUBIC_P)
+    ) == (fixed_period_kernels.LINEAR, fixed_period_kernels.CUBIC_PV, fixed_period_kernels.CUBIC_P)

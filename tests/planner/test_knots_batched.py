@@ -14,9 +14,8 @@ import numpy as np
 import pytest
 
 from axes.interpolation import PiecewiseCubic, epos2_pvt, hermite_coefficients
-from planner import knot_kernels
 from planner.build import build_program
-from planner.knots import KnotOptions
+from planner.knots import KnotOptions, quantize_kernels, refine_kernels
 from planner.knots.check import check_knots
 from planner.knots.epos2 import Start, place_epos2
 from planner.knots.flat import Flat, within_record_time
@@ -199,7 +198,7 @@ def test_chain_repair_finds_the_best_combination(arm6_plan, free: int, shift: in
         best = min(r for _, r, _, _ in scores)
         a = fl.axis_of(knots[i0])
         t, p, v = knots.copy(), P.copy(), V.copy()
-        moved = knot_kernels._repair_chain(
+        moved = quantize_kernels._repair_chain(
             t,
             p,
             v,
@@ -223,11 +222,11 @@ def test_chain_repair_finds_the_best_combination(arm6_plan, free: int, shift: in
             np.testing.assert_array_equal(t, knots)
             continue
         cap = max(best, 1.0)
-        least = min(knot_kernels._EXCESS_WEIGHT * e + d for _, r, e, d in scores if r <= cap)
+        least = min(quantize_kernels.EXCESS_WEIGHT * e + d for _, r, e, d in scores if r <= cap)
         got = tuple((int(t[k]), int(p[k]), int(v[k])) for k in range(i0, i1 + 1))
         _, got_ratio, got_excess, got_dev = next(s for s in scores if s[0] == got)
         assert got_ratio <= cap * (1 + 1e-12)
-        assert knot_kernels._EXCESS_WEIGHT * got_excess + got_dev == pytest.approx(least, rel=1e-9, abs=1e-9)
+        assert quantize_kernels.EXCESS_WEIGHT * got_excess + got_dev == pytest.approx(least, rel=1e-9, abs=1e-9)
         improved += 1
     assert improved >= (2 if free + shift == 3 else 4)  # the case moves records (the test would be empty otherwise)
 
@@ -242,7 +241,7 @@ def test_repair_chains_moves_only_the_neighbourhood(arm6_plan) -> None:
     assert len(over) > 3
     reach = 2
     p, v = P.copy(), V.copy()
-    assert knot_kernels.repair_chains(
+    assert quantize_kernels.repair_chains(
         knots,
         p,
         v,
@@ -309,10 +308,10 @@ def test_block_tridiagonal_solve_equals_a_dense_solve() -> None:
     b = rng.normal(size=(n, 2))
     want = np.linalg.solve(A, b.ravel()).reshape(n, 2)
     got = b.copy()
-    assert knot_kernels._solve_block_tridiagonal(D, E, got)
+    assert refine_kernels._solve_block_tridiagonal(D, E, got)
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
     D[5, 0] = -1.0  # not positive definite: refused, not a wrong answer
-    assert not knot_kernels._solve_block_tridiagonal(D, E, b.copy())
+    assert not refine_kernels._solve_block_tridiagonal(D, E, b.copy())
 
 
 def test_long_gaps_are_split_evenly_within_a_record_time() -> None:

@@ -1,0 +1,124 @@
+"""Jerk-limited time-optimal timing along a joint path: a nonlinear program solved with casadi.
+
+TOPP-RA's profiles are bang-bang in acceleration, and toppra has no jerk constraint (its
+problem is linear in u = s'', x = s'^2; jerk is not). Here the timing along the same path is
+a nonlinear program, warm-started from the TOPP-RA solution:
+
+- on a grid along the path that contains every waypoint, the path parameter is a cubic in time
+  on each interval (constant s''') and every joint velocity, acceleration, jerk, torque and TCP
+  speed row holds exactly at its samples; the objective is the duration (``nlp``);
+- fatrop solves it, ipopt where fatrop does not converge, within the plan's deadline, and the
+  S-curve floor of ``planner.scurve`` where no solver answers in time (``solve``).
+
+After the solve the trajectory is checked densely (``JerkTrajectory.limit_ratios``,
+``speed_ratio``), and slowed down uniformly where a sample between the rows exceeds a limit
+(velocity / k, acceleration / k^2, jerk / k^3), as TOPP-RA's trajectory is.
+
+Where each part lives: ``trajectory`` (the result, ``JerkTrajectory``, and its dense check),
+``warm`` (the TOPP-RA profile, the grid, the start), ``nlp`` (the program and its numbers),
+``solve`` (the solvers, the deadline), and the whole, :func:`jerk_limited`, here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+import toppra.constraint as constraint
+from numpy.typing import ArrayLike, NDArray
+
+from planner.jerk.nlp import program_bounds, program_parameters, program_rows, variable_scales
+from planner.jerk.solve import cached_program, solve_in_time
+from planner.jerk.trajectory import JerkTrajectory
+from planner.jerk.warm import MIN_REST_TO_REST, WarmProfile, curvature_jumps, warm_start
+from planner.limits import JointLimits
+from planner.path import JointPath, PlanError, PlanResult
+from planner.scurve import rest_to_rest
+from planner.slowdown import SLOWDOWN_MARGIN, slowdown
+from planner.timing import Trajectory
+
+__all__ = ["DEFAULT_JERK_INTERVALS", "JerkTrajectory", "jerk_limited"]
+
+DEFAULT_JERK_INTERVALS = 48
+
+# a jump of the path's second derivative at a waypoint above this is a C1 joint, not round-off
+_CURVATURE_JUMP = 1e-8
+
+
+def _checked(
+    traj: JerkTrajectory, limits: JointLimits, jmax: NDArray[np.float64], constraints: Sequence[constraint.Constraint]
+) -> JerkTrajectory:
+    """``traj`` checked densely and slowed down uniformly until every limit holds (PlanError where
+    it is no motion along the path)."""
+    if traj.min_path_velocity() < -1e-6 * max(np.max(traj.sd), 1e-9):
+        raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing reverses along the path", solver=traj.solver)
+    rv, ra, rj = traj.limit_ratios(limits, jmax)
+    factors = (slowdown(rv, ra), np.cbrt(rj), traj.speed_ratio(constraints))
+    if not np.all(np.isfinite(factors)):  # a solver's "success" that is no motion: never handed on
+        raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing returned no finite motion", solver=traj.solver)
+    k = max(factors)
+    return traj.slowed(k * (1.0 + SLOWDOWN_MARGIN)) if k > 1.0 else traj
+
+
+def jerk_limited(
+    path: JointPath,
+    limits: JointLimits,
+    constraints: Sequence[constraint.Constraint],
+    max_jerk: ArrayLike,
+    warm: Trajectory,
+    intervals: int = DEFAULT_JERK_INTERVALS,
+    deadline: float | None = None,
+) -> JerkTrajectory:
+    """The time-optimal rest-to-rest trajectory along ``path`` with |q'''_j| <= max_jerk_j besides
+    ``constraints`` (the cell's toppra constraints, held as TOPP-RA holds them), started from
+    ``warm``, the TOPP-RA solution of the same path and constraints.
+
+    PlanError(INFEASIBLE) where no solver converges (the message carries their statuses).
+
+    Anytime with a ``deadline`` (time.perf_counter): where the solvers have not finished by then,
+    the answer is the S-curve floor (``planner.scurve``), ``optimal`` False; time alone never makes
+    it INFEASIBLE. ``lower_bound``: TOPP-RA's duration, which no jerk-limited timing beats.
+    """
+    jmax = np.asarray(max_jerk, dtype=float)
+    # at rest at both ends and at every waypoint where the path is C1 only (``curvature_jumps``)
+    stops = path.waypoint_s[1:-1][np.any(curvature_jumps(path) > _CURVATURE_JUMP, axis=1)]
+    rests = np.concatenate(([0.0], stops, [path.length]))
+    n = max(int(intervals), (len(path.waypoint_s) - 1) + MIN_REST_TO_REST * (len(rests) - 1))
+    profile = WarmProfile.of(warm, rests)
+    grid = profile.grid(path.waypoint_s, rests, n)
+    rows = program_rows(path, grid, limits, constraints)
+    rows.sd_max[np.searchsorted(grid, stops)] = 0.0
+    program = cached_program(n, limits.dof, rows.torque is not None)
+    start = warm_start(profile, grid, rows, jmax)
+    scale = variable_scales(start)
+    per_variable = np.tile(scale, n + 1)[: len(start)]
+    args = {k: v / per_variable for k, v in program_bounds(rows).items() if k in ("lbx", "ubx")}
+    args |= {k: v for k, v in program_bounds(rows).items() if k in ("lbg", "ubg")}
+    args["p"] = np.concatenate((program_parameters(rows, limits, jmax), scale))
+    args["x0"] = start / per_variable
+    sol, status, late = solve_in_time(program, args, scale, deadline)
+    if sol is None and not late:
+        raise PlanError(
+            PlanResult.INFEASIBLE,
+            f"the jerk-limited timing found no trajectory within the limits ({status})",
+            solver_status=status,
+        )
+    if sol is None:  # the deadline first: the floor that needs no solver (planner/scurve.py)
+        g, sd, sdd, sddd, t = rest_to_rest(path, rests, limits, jmax)
+        traj = JerkTrajectory(path, g, sd, sdd, sddd, t, limits.names, solver="scurve", optimal=False)
+    else:
+        traj = JerkTrajectory(
+            path,
+            grid,
+            np.maximum(sol.sd, 0.0),
+            sol.sdd,
+            sol.j,
+            np.concatenate(([0.0], np.cumsum(np.maximum(sol.h, 0.0)))),
+            limits.names,
+            solver=sol.solver,
+            iterations=sol.iterations,
+            optimal=sol.optimal,
+        )
+    traj = dataclasses.replace(traj, lower_bound=warm.duration)
+    return _checked(traj, limits, jmax, constraints)

@@ -1,0 +1,235 @@
+"""Solving the jerk-limited timing's program within a deadline: which solver, when, and for how long.
+
+The program is a discrete optimal control problem (state (sd, a), control (h, j)), which is the
+structure fatrop's Riccati-based interior point exploits: its iteration solves the stages in
+sequence, where ipopt's general sparse factorization (MUMPS) does not know them. Where fatrop does
+not converge, ipopt is tried from the same start; where neither does, the plan is refused with the
+solvers' statuses. The variables are scaled by their typical magnitudes (``nlp.variable_scales``:
+fatrop does not scale a program) and the start is slowed down to well inside the jerk rows
+(``warm.warm_start``): both cut the solve time's tail.
+
+Anytime with a deadline (``solve_in_time``): the solve runs in a thread waited for until then; ipopt
+stops there (``_Deadline``) with its last iterate whose equalities hold; without an answer in time
+the motion is the S-curve floor of ``planner.scurve``. Either is checked and slowed down
+(``planner.jerk``), ``optimal`` False.
+
+A solve is started only where it can finish (``_solvers_for``), because one that cannot is worse
+than none: casadi holds the interpreter's lock while it computes (measured: other threads stood up
+to 87 ms), fatrop has no time limit nor iteration callback in casadi 3.8.2, and the floor's own
+dense check and knots (about 25 ms of CPU, its motion being 2-4x longer) come after the deadline.
+So fatrop runs only with at least its expected time left: the longest of this program shape's last
+``_SOLVE_HISTORY`` fatrop solves (``_FATROP_TIME_S`` until ``_MIN_HISTORY`` are known), a measured
+figure that follows the machine (a percentile let it start on a path slower than the fast ones it
+had seen, and an overrun costs the whole budget); ipopt (stopped at the deadline) only with at
+least ``_IPOPT_TIME_S`` left, below which its iterates were never usable (bench/RESULTS.md); with
+less than both, no solver, the floor at once. At a 50 ms plan budget that is the floor: the wall
+time stays within the budget instead of waiting for a solve that comes too late (bench/plan_budget.py).
+"""
+
+from __future__ import annotations
+
+import functools
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from numpy.typing import NDArray
+
+from planner.jerk.nlp import CONTROL, STATE, build_nlp
+
+_MAX_ITER = 300
+
+_TOL = 1e-6  # optimality (relative duration)
+_CONSTRAINT_TOL = 1e-9  # the residuals: positions along the path continuous to 1e-9 of an interval
+_ITERATE_TOL = 1e-8  # an unfinished ipopt iterate is a motion where its residuals are this small
+# fatrop's expected solve time until _MIN_HISTORY solves of a program shape were timed (``_solvers_for``):
+# twice its p50 on 8-waypoint arm6 paths, so that a fresh process (``pvtflow plan``) solves at 200 ms
+_FATROP_TIME_S = 0.06
+_SOLVE_HISTORY = 50
+_MIN_HISTORY = 10
+_IPOPT_TIME_S = 0.04  # with less time left ipopt's iterates were never usable: no solve, the floor
+
+
+@dataclass
+class Program:
+    """The casadi program for n intervals and dof joints, built once and kept (``cached_program``).
+
+    Variables, stage by stage: x_k = (sd_k, a_k), u_k = (h_k, j_k, sigma_mid_k, sd_mid_k), ..., x_n.
+    Rows, stage by stage: x_(k+1) - F(x_k, u_k) (gap closing, the form fatrop's structure
+    detection wants), the distance and middle residuals, then the stage's inequality rows.
+    """
+
+    n: int
+    dof: int
+    torque: bool
+    nlp: dict[str, ca.SX]
+    equality: list[bool]
+    solvers: dict[str, ca.Function] = field(default_factory=dict)
+    # one solve at a time: a solve past its plan's deadline runs on in its thread (fatrop cannot be stopped)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    stop: _Deadline | None = None
+    fatrop_s: deque[float] = field(default_factory=lambda: deque(maxlen=_SOLVE_HISTORY))  # recent solve times
+
+    def expected_fatrop_s(self) -> float:
+        """fatrop's expected wall time on this program: the longest of its recent solves."""
+        times = list(self.fatrop_s)
+        return max(times) if len(times) >= _MIN_HISTORY else _FATROP_TIME_S
+
+    def solver(self, name: str) -> ca.Function:
+        if name not in self.solvers:
+            options = _solver_options(name, self.equality)
+            if name == "ipopt":  # ipopt asks after every iteration whether to go on; fatrop never does
+                self.stop = _Deadline(self.nlp["x"].shape[0], np.asarray(self.equality))
+                options["iteration_callback"] = self.stop
+            self.solvers[name] = ca.nlpsol(f"jerk_{name}", name, self.nlp, options)
+        return self.solvers[name]
+
+
+class _Deadline(ca.Callback):
+    """ipopt's iteration callback: stop once ``deadline`` (time.perf_counter) has passed, and keep
+    the last iterate whose equalities hold (``best``: the motion is continuous along the path; its
+    inequalities the dense check and slow-down make exact)."""
+
+    def __init__(self, nx: int, equality: NDArray[np.bool_]) -> None:
+        ca.Callback.__init__(self)
+        self.nx, self.ng, self.equality = nx, len(equality), equality
+        self.deadline = float("inf")
+        self.best: NDArray[np.float64] | None = None
+        self.construct("jerk_deadline", {})
+
+    def reset(self, deadline: float) -> None:
+        self.deadline, self.best = deadline, None
+
+    def get_n_in(self) -> int:
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i: int) -> str:
+        return "ret"
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        name = ca.nlpsol_out(i)
+        if name == "f":
+            return ca.Sparsity.scalar()
+        if name in ("x", "lam_x"):
+            return ca.Sparsity.dense(self.nx)
+        if name in ("g", "lam_g"):
+            return ca.Sparsity.dense(self.ng)
+        return ca.Sparsity(0, 0)
+
+    def eval(self, arg: list[Any]) -> list[int]:
+        g = np.asarray(arg[2]).ravel()
+        if np.max(np.abs(g[self.equality]), initial=0.0) <= _ITERATE_TOL:
+            self.best = np.asarray(arg[0]).ravel().copy()
+        return [1 if time.perf_counter() >= self.deadline else 0]
+
+
+def _solver_options(name: str, equality: list[bool]) -> dict[str, Any]:
+    base: dict[str, Any] = {"print_time": False, "error_on_fail": False}
+    common = {"print_level": 0, "tol": _TOL, "constr_viol_tol": _CONSTRAINT_TOL, "max_iter": _MAX_ITER}
+    if name == "fatrop":
+        return base | {"structure_detection": "auto", "equality": equality, "fatrop": common}
+    return base | {"ipopt": common | {"sb": "yes"}}
+
+
+@functools.lru_cache(maxsize=8)
+def cached_program(n: int, dof: int, torque: bool) -> Program:
+    """The program of this shape with its solvers, built once and kept."""
+    return Program(n, dof, torque, *build_nlp(n, dof, torque))
+
+
+@dataclass(frozen=True)
+class Solution:
+    sd: NDArray[np.float64]  # (n + 1,)
+    sdd: NDArray[np.float64]  # (n + 1,)
+    h: NDArray[np.float64]  # (n,)
+    j: NDArray[np.float64]  # (n,)
+    solver: str
+    iterations: int
+    optimal: bool = True
+
+
+def _solvers_for(program: Program, time_left: float) -> tuple[str, ...]:
+    """The solvers worth starting with ``time_left`` (s) before the deadline (module docstring)."""
+    names = ("fatrop",) if time_left >= program.expected_fatrop_s() else ()
+    return (*names, "ipopt") if time_left >= _IPOPT_TIME_S else names
+
+
+def _solve_now(
+    program: Program,
+    args: dict[str, Any],
+    scale: NDArray[np.float64],
+    deadline: float,
+    names: tuple[str, ...] = ("fatrop", "ipopt"),
+) -> tuple[Solution | None, str, bool]:
+    """``names`` in turn (fatrop, then ipopt from the same start where fatrop does not converge;
+    ``args`` scaled by ``scale``, the solution is not). The third value: whether the deadline
+    stopped it."""
+    statuses = []
+    width = len(STATE) + len(CONTROL)
+
+    def solution(x: Any, name: str, iterations: int, optimal: bool = True) -> Solution:
+        w = np.append(np.asarray(x).ravel(), np.zeros(len(CONTROL))).reshape(program.n + 1, width) * scale
+        return Solution(w[:, 0], w[:, 1], w[:-1, 2], w[:-1, 3], name, iterations, optimal)
+
+    for name in names:
+        if time.perf_counter() >= deadline:
+            return None, "; ".join(statuses), True
+        solver = program.solver(name)
+        if program.stop is not None:
+            program.stop.reset(deadline)
+        began = time.perf_counter()
+        out = solver(**args)
+        if name == "fatrop":
+            program.fatrop_s.append(time.perf_counter() - began)
+        stats = solver.stats()
+        if stats["success"]:
+            return solution(out["x"], name, int(stats.get("iter_count", 0))), "", False
+        status = stats.get("return_status", "")
+        if status == "User_Requested_Stop":  # the deadline, through ``_Deadline``: its best iterate, if any
+            best = program.stop.best if program.stop is not None else None
+            iterations = int(stats.get("iter_count", 0))
+            return (None if best is None else solution(best, name, iterations, False)), "; ".join(statuses), True
+        statuses.append(f"{name}: {status}" if isinstance(status, str) else f"{name}: failed (return status {status})")
+    return None, "; ".join(statuses), False
+
+
+def solve_in_time(
+    program: Program, args: dict[str, Any], scale: NDArray[np.float64], deadline: float | None
+) -> tuple[Solution | None, str, bool]:
+    """``_solve_now`` within ``deadline`` (time.perf_counter; None: as long as it takes).
+
+    With a deadline the solve runs in a thread (casadi releases the GIL while it solves) and is
+    waited for until the deadline: ipopt stops there itself (``_Deadline``), fatrop cannot be
+    stopped and finishes in its thread, its answer unused; the next solve of the same program
+    waits for it (``Program.lock``), within its own deadline."""
+    if deadline is None:
+        with program.lock:
+            return _solve_now(program, args, scale, float("inf"))
+    names = _solvers_for(program, deadline - time.perf_counter())
+    if not names:  # no solver can answer in time: the floor at once, no thread holding the interpreter
+        return None, "", True
+    result: list[tuple[Solution | None, str, bool]] = []
+
+    def work() -> None:
+        if program.lock.acquire(timeout=max(0.0, deadline - time.perf_counter())):
+            try:  # the time left again: a solve past its own deadline may have held the lock
+                now_names = _solvers_for(program, deadline - time.perf_counter())
+                result.append(_solve_now(program, args, scale, deadline, now_names))
+            finally:
+                program.lock.release()
+
+    # not a daemon: an interpreter that exits waits for the solve instead of tearing casadi down under it
+    thread = threading.Thread(target=work, name="jerk-solve", daemon=False)
+    thread.start()
+    thread.join(max(0.0, deadline - time.perf_counter()))
+    return result[0] if result else (None, "", True)

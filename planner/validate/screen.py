@@ -1,0 +1,122 @@
+"""One look at every axis's records at once, so that a program with nothing to report is fast.
+
+The planner validates every program it emits. Each rule is checked once over all axes' records
+together, and the EPOS2 axes' worst values come from one compiled pass over all their segments
+(``epos2_segment`` and ``hermite``, as ``epos2_pvt`` builds them, and the same closed-form extrema:
+the very same numbers the segment-by-segment check reports). Only an axis with something to
+report is then gone through segment by segment. The pass inlines the drive's cubic: this file is
+one of ``planner.kernel_cache.KERNEL_SOURCES``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from axes.interpolation import (
+    cubic_peak_acceleration,
+    cubic_peak_speed,
+    cubic_position_range,
+    epos2_end,
+    epos2_segment,
+    hermite,
+)
+from axes.program import AxisProgram
+from planner.validate.records import outside_motion_time, outside_ranges
+
+
+class Worst(NamedTuple):
+    """The worst values of an axis's EPOS2 reconstruction over all its segments (exact: closed forms)."""
+
+    speed: float  # max |v|, qc/ms
+    acceleration: float  # max |a|, qc/ms^2
+    lowest: float  # min position, qc
+    highest: float  # max position, qc
+    end_ms: float  # the reconstruction's end time
+
+
+@dataclass(frozen=True)
+class Screen:
+    """What the look at all axes' records at once found about one axis."""
+
+    in_range: bool  # every field of every record is in range: no record-range finding
+    bad_inner_times: list[int]  # records 1..N-2 whose time is outside 1..255 ms, in order
+    worst: Worst | None  # None: not EPOS2 PVT, or no reconstruction to check
+
+
+def has_motion(r: NDArray[np.int64], in_range: bool) -> bool:
+    """(N >= 2, 3) records that have a reconstruction to check (the rest gets its structural findings
+    only): a first segment, and no negative time (which records in range cannot have)."""
+    return bool(r[0, 2] >= 1) and (in_range or not np.any(r[:, 2] < 0))
+
+
+def screen_axes(axes: tuple[AxisProgram, ...], records: list[NDArray[np.int64]]) -> list[Screen]:
+    """Per axis, whether its records are all in range, which motion records have a time outside
+    1..255 ms, and the worst values of its EPOS2 reconstruction: one check of each rule over all
+    axes' records at once and one compiled pass over all EPOS2 axes' segments
+    (:func:`_epos2_worst`), instead of a dozen numpy calls per axis."""
+    shaped = [i for i, r in enumerate(records) if r.ndim == 2 and r.shape[1] == 3 and len(r) >= 2]
+    screens = [Screen(False, [], None)] * len(axes)  # the others fail the shape check before any use
+    if not shaped:
+        return screens
+    rows = np.ascontiguousarray(np.concatenate([records[i] for i in shaped]))  # C order: one compiled signature
+    first = np.cumsum([0] + [len(records[i]) for i in shaped])  # each shaped axis's first row (and the end)
+    outside = outside_ranges(rows)
+    if outside.any():
+        in_range = [not outside[first[j] : first[j + 1]].any() for j in range(len(shaped))]
+    else:
+        in_range = [True] * len(shaped)
+    # the rows with a time outside 1..255 ms (usually just the end records, whose time is 0), and
+    # where each axis's begin among them
+    bad_time = np.flatnonzero(outside_motion_time(rows[:, 2]))
+    bad_time_cut = np.searchsorted(bad_time, first).tolist()
+    bad_time_rows, bounds = bad_time.tolist(), first.tolist()
+    epos2 = [j for j, i in enumerate(shaped) if axes[i].profile.buffered and has_motion(records[i], in_range[j])]
+    worst: dict[int, Worst] = {}
+    if epos2:
+        factor = np.array([axes[shaped[j]].scaling.qc_per_ms_per_velocity_unit for j in epos2], dtype=np.float64)
+        js = np.array(epos2, dtype=np.intp)
+        found = _epos2_worst(rows, first[js], first[js + 1], factor)
+        worst = {j: Worst(*w) for j, w in zip(epos2, found.tolist(), strict=True)}
+    for j, i in enumerate(shaped):
+        begin, end = bounds[j], bounds[j + 1]
+        inner = [g - begin for g in bad_time_rows[bad_time_cut[j] : bad_time_cut[j + 1]] if begin < g < end - 1]
+        screens[i] = Screen(in_range[j], inner, worst.get(j))
+    return screens
+
+
+@njit(cache=True)
+def _epos2_worst(
+    rows: NDArray[np.int64], begin: NDArray[np.int64], end: NDArray[np.int64], factor: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Per axis (records rows[begin:end], velocity factor qc/ms per unit), the :class:`Worst` of its
+    EPOS2 reconstruction: the segments as ``epos2_pvt`` builds them (``epos2_segment`` up to
+    ``epos2_end``, ``hermite``), judged by ``cubic_peak_speed``, ``cubic_peak_acceleration``,
+    ``cubic_position_range``.
+    An axis with a value that is not finite gets NaN (it is then gone through segment by segment).
+    """
+    out = np.empty((len(begin), 5))
+    for a in range(len(begin)):
+        f = factor[a]
+        speed, accel, lowest, highest = -math.inf, -math.inf, math.inf, -math.inf
+        end_ms = 0.0
+        finite = True
+        for k in range(begin[a], epos2_end(rows, begin[a], end[a])):
+            p0, v0, p1, v1, T = epos2_segment(rows, begin[a], k, f)
+            c0, c1, c2, c3 = hermite(p0, v0, p1, v1, T)
+            s = cubic_peak_speed(c1, c2, c3, T)
+            acc = cubic_peak_acceleration(c2, c3, T)
+            lo, hi = cubic_position_range(c0, c1, c2, c3, T)
+            finite = finite and math.isfinite(s) and math.isfinite(acc) and math.isfinite(lo) and math.isfinite(hi)
+            speed, accel = max(speed, s), max(accel, acc)
+            lowest, highest = min(lowest, lo), max(highest, hi)
+            end_ms += T
+        out[a, 0], out[a, 1], out[a, 2], out[a, 3], out[a, 4] = speed, accel, lowest, highest, end_ms
+        if not finite:
+            out[a, :] = math.nan
+    return out
