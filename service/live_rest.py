@@ -1,6 +1,6 @@
 """The live view between motions: the cell at rest on the same channels as during a motion.
 
-During a motion or a homing the recorder (service/recording.py) feeds the live server per SYNC.
+During a motion or a homing the recorder (service/recording) feeds the live server per SYNC.
 Between them nothing runs on the bus that would, so a viewer opened then would see no robot.
 ``RestView`` publishes, every ``REST_PERIOD_S`` while the cell is not busy, what the drives last
 reported: ``/axis/<joint>/actual`` (position and statusword, no plan), ``/joint_states``, ``/tf``
@@ -26,7 +26,7 @@ import numpy as np
 
 from axes.cia402 import decode_state
 from service.link_transforms import LinkTransforms
-from service.recording import (
+from service.recording.channels import (
     ACTUAL_SCHEMA,
     FRAME_TRANSFORMS_SCHEMA,
     JOINT_STATE_SCHEMA,

@@ -1,4 +1,4 @@
-"""MCAP recordings (service/recording.py): every channel read back with the mcap library, a file cut by
+"""MCAP recordings (service/recording): every channel read back with the mcap library, a file cut by
 kill -9 mid-motion read up to its last chunk, ``pvtflow report`` on a recording, the service's
 one file per motion named in its journal."""
 
@@ -23,7 +23,8 @@ from axes.program import PvtProgram
 from service.api import ExecuteRequest
 from service.cli import main
 from service.motion import MotionService
-from service.recording import CHUNK_WALL_S, read_recording
+from service.recording import read_recording
+from service.recording.writer import CHUNK_WALL_S
 
 ROOT = Path(__file__).resolve().parents[2]
 
