@@ -110,13 +110,15 @@ class RestView:
         links = self.group.links
         counts = [lk.position for lk in links]
         words = [lk.statusword for lk in links]
+        statuses = [lk.status_sync for lk in links]
         sync = self.bus.sync.count
         positions: list[float | None] = []
         for i, joint in enumerate(self.joints):
             qc = counts[i]
             position = None if qc is None else float(self._scaling[i].qc_to_position(qc))
             positions.append(position)
-            data = encode_actual(sync, None, qc, position, None, None, words[i], decode_state(words[i]).value)
+            state = decode_state(words[i]).value
+            data = encode_actual(sync, None, qc, position, None, None, words[i], state, statuses[i])
             live.log(f"/axis/{joint}/actual", ACTUAL_SCHEMA, ns, data)
         live.log("/joint_states", JOINT_STATE_SCHEMA, ns, encode_joint_states(stamp, self._joints_json, positions))
         if None not in positions:

@@ -95,6 +95,7 @@ ACTUAL_SCHEMA = {
         "following_error_qc": _NUM_OR_NULL,
         "statusword": {"type": "integer"},
         "state": {"type": "string"},
+        "status_sync": {"type": "integer", "description": "the SYNC the position and statusword are as of"},
     },
 }
 BUFFERS_SCHEMA = {
@@ -201,12 +202,13 @@ def encode_actual(
     following: float | None,
     statusword: int,
     state: str,
+    status_sync: int,
 ) -> bytes:
     """/axis/<joint>/actual (ACTUAL_SCHEMA) as JSON; NaN and None are null."""
     return (
         f'{{"sync":{sync},"elapsed_ms":{_number(elapsed_ms)},"position_qc":{"null" if qc is None else int(qc)},'
         f'"position":{_number(position)},"planned_qc":{_number(planned)},"following_error_qc":{_number(following)},'
-        f'"statusword":{statusword},"state":"{state}"}}'
+        f'"statusword":{statusword},"state":"{state}","status_sync":{status_sync}}}'
     ).encode()
 
 

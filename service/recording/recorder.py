@@ -12,8 +12,10 @@ Channels (the joint's name in ``/axis/<joint>/...``):
 - ``/axis/<joint>/planned``: the program as the drive will execute it, every ms from the start
   SYNC, in counts and joint units (service/recording/planned.py).
 - ``/axis/<joint>/actual``: per SYNC, the position the drive answered, its statusword and power
-  state, and during a run the planned position at that SYNC and the following error (planned
-  minus actual, counts).
+  state, the SYNC they are as of (``status_sync``: with status TPDOs every n SYNCs, ``axes/tpdo_rates.py``,
+  an answer stands for the n - 1 SYNCs after it too), and during a run the planned position at that
+  SYNC (the status's, not the one it is still the latest on) and the following error (planned minus
+  actual, counts).
 - ``/buffers``: per SYNC, the records queued in each drive's buffer (the feeders' levels).
 - ``/sync``: per SYNC frame, its number and the interval since the one before (ms, bus clock).
 - ``/joint_states``: per SYNC, positions in joint units (sensor_msgs/JointState's field names).
@@ -132,7 +134,7 @@ class Recorder:
     def _on_sync(self, n: int) -> None:
         group = self._group
         if group is None:
-            self._items.append(("sync_state", self._clock_s, n, None, None, (), (), ()))
+            self._items.append(("sync_state", self._clock_s, n, None, None, (), (), (), ()))
             return
         links = group.links
         elapsed = group.elapsed_syncs() if group.running else None
@@ -140,7 +142,8 @@ class Recorder:
         levels = [f.level for f in group.feeders] if elapsed is not None else ()
         positions = [lk.position for lk in links]
         words = [lk.statusword for lk in links]
-        self._items.append(("sync_state", self._clock_s, n, elapsed, programs, positions, words, levels))
+        statuses = [lk.status_sync for lk in links]  # the SYNC each drive's position and statusword are as of
+        self._items.append(("sync_state", self._clock_s, n, elapsed, programs, positions, words, levels, statuses))
 
     def event(self, kind: str, message: str, joint: str | None = None, level: int | None = None) -> None:
         if level is None:

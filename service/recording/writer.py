@@ -256,14 +256,18 @@ class RecordWriter:
         in_run = [k for k, e in enumerate(elapsed_ms) if e is not None]
         if in_run and self._plan is not None:
             self._plan.write_until(max(elapsed_ms[k] for k in in_run) + PLANNED_LEAD_MS, self._log_encoded)  # type: ignore[operator]
+            # each status against the plan at the SYNC it is as of: SYNC n's elapsed less the status's age
             t = np.array([elapsed_ms[k] for k in in_run], dtype=float)
+            syncs = np.array([items[k][2] for k in in_run], dtype=float)
+            status_syncs = np.array([items[k][8] for k in in_run], dtype=float)
+            ages_ms = (syncs[:, None] - status_syncs) * period
             for i in range(len(self.joints)):
-                planned[in_run, i] = self._plan.position_at(i, t)
+                planned[in_run, i] = self._plan.position_at(i, t - ages_ms[:, i])
         following = planned - counts
         position_rows, planned_rows, following_rows = positions.tolist(), planned.tolist(), following.tolist()
         states = self._states
         for k, it in enumerate(items):
-            stamp, n, qcs, words, levels = it[1], it[2], it[5], it[6], it[7]
+            stamp, n, qcs, words, levels, status_syncs = it[1], it[2], it[5], it[6], it[7], it[8]
             e = elapsed_ms[k]
             for i, joint in enumerate(self.joints):
                 word = words[i]
@@ -271,7 +275,15 @@ class RecordWriter:
                 if state is None:
                     state = states[word] = decode_state(word).value
                 data = encode_actual(
-                    n, e, qcs[i], position_rows[k][i], planned_rows[k][i], following_rows[k][i], word, state
+                    n,
+                    e,
+                    qcs[i],
+                    position_rows[k][i],
+                    planned_rows[k][i],
+                    following_rows[k][i],
+                    word,
+                    state,
+                    status_syncs[i],
                 )
                 self._log_encoded(f"/axis/{joint}/actual", ACTUAL_SCHEMA, stamp, data)
             if levels:
