@@ -3,7 +3,7 @@
 The service as ``pvtflow serve --real-time`` runs it (MotionService, SYNC on the wall clock, plans in
 the child process) on a simulated cell (every axis on one drive behaviour, without homing:
 bench/realtime.py's ``variant``) plans and executes ``--moves`` random single-target moves, in three
-cases: nothing recorded; ``--record DIR`` (one MCAP file per motion, service/recording.py); and
+cases: nothing recorded; ``--record DIR`` (one MCAP file per motion, service/recording); and
 ``--record DIR --live PORT`` with one WebSocket client (another process, the Foxglove protocol)
 subscribed to every channel. Figures per case: moves finished / faulted, the SYNC interval as the
 drives see it (bench/realtime.py's ``SyncArrivals``) p50 / p99 / max, plan latency p50 / p99 / max (a

@@ -1,6 +1,6 @@
 """Every link of the robot in the world frame for a batch of joint positions at once.
 
-The recording's ``/tf`` and the live view at rest (service/recording.py, service/live_rest.py) need
+The recording's ``/tf`` and the live view at rest (service/recording, service/live_rest.py) need
 the links' placements for many samples; Pinocchio's ``framesForwardKinematics`` takes one
 configuration per call, and the quaternion of each frame another call each. Here the chain is
 walked once per batch with numpy: for each joint, parent placement x the joint's fixed placement

@@ -1,7 +1,7 @@
 """``pvtflow serve --live [PORT]``: the recording's channels served live (the Foxglove WebSocket protocol).
 
 The Foxglove SDK's server (``foxglove-sdk``) on 127.0.0.1 only, with a context of its own (no other
-logging of the process reaches it). The ``Recorder`` (service/recording.py) hands every message it
+logging of the process reaches it). The ``Recorder`` (service/recording) hands every message it
 writes to the server too, already encoded, so a viewer sees exactly what a recording holds, with
 the same schemas and the bus's clock; with ``--live`` and no ``--record`` the recorder writes no
 file. A message for a channel no client subscribes to costs a dictionary lookup.
@@ -16,7 +16,7 @@ from typing import Any
 DEFAULT_PORT = 8765
 HOST = "127.0.0.1"
 # messages queued per client before the oldest are dropped: a run's start writes a quarter second of
-# plan for every axis at once (service/recording.py, PLANNED_LEAD_MS), a few thousand messages
+# plan for every axis at once (service/recording/planned.py, PLANNED_LEAD_MS), a few thousand messages
 BACKLOG = 16384
 
 

@@ -1,6 +1,6 @@
 """The live view between motions: the cell at rest on the same channels as during a motion.
 
-During a motion or a homing the recorder (service/recording.py) feeds the live server per SYNC.
+During a motion or a homing the recorder (service/recording) feeds the live server per SYNC.
 Between them nothing runs on the bus that would, so a viewer opened then would see no robot.
 ``RestView`` publishes, every ``REST_PERIOD_S`` while the cell is not busy, what the drives last
 reported: ``/axis/<joint>/actual`` (position and statusword, no plan), ``/joint_states``, ``/tf``
@@ -26,7 +26,7 @@ import numpy as np
 
 from axes.cia402 import decode_state
 from service.link_transforms import LinkTransforms
-from service.recording import (
+from service.recording.channels import (
     ACTUAL_SCHEMA,
     FRAME_TRANSFORMS_SCHEMA,
     JOINT_STATE_SCHEMA,
@@ -110,13 +110,15 @@ class RestView:
         links = self.group.links
         counts = [lk.position for lk in links]
         words = [lk.statusword for lk in links]
+        statuses = [lk.status_sync for lk in links]
         sync = self.bus.sync.count
         positions: list[float | None] = []
         for i, joint in enumerate(self.joints):
             qc = counts[i]
             position = None if qc is None else float(self._scaling[i].qc_to_position(qc))
             positions.append(position)
-            data = encode_actual(sync, None, qc, position, None, None, words[i], decode_state(words[i]).value)
+            state = decode_state(words[i]).value
+            data = encode_actual(sync, None, qc, position, None, None, words[i], state, statuses[i])
             live.log(f"/axis/{joint}/actual", ACTUAL_SCHEMA, ns, data)
         live.log("/joint_states", JOINT_STATE_SCHEMA, ns, encode_joint_states(stamp, self._joints_json, positions))
         if None not in positions:

@@ -1,4 +1,4 @@
-"""``pvtflow report RUN.mcap [--plot OUT.png] [--json]``: what a recorded run did (service/recording.py).
+"""``pvtflow report RUN.mcap [--plot OUT.png] [--json]``: what a recorded run did (service/recording).
 
 The figures come from the recording alone: its duration (first to last message, bus clock), the
 worst following error per axis (planned minus actual at each SYNC of the run, counts), the SYNC
@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 
 from service.cli_options import add_json
-from service.recording import ERROR, Recording, RecordingError, read_recording
+from service.recording import Recording, RecordingError, read_recording
+from service.recording.channels import ERROR
 
 PROG = "pvtflow report"
 EXIT_OK, EXIT_UNREADABLE = 0, 2

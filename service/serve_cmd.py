@@ -9,7 +9,7 @@ cell), configures the drives, opens the zenoh session and serves the cell until 
 then halts any motion and closes. It prints where it listens and how to talk to it. Exit codes:
 0 stopped by a signal, 2 cannot start (configuration, bus, journal, zenoh endpoint, live port).
 
-``--record DIR`` writes each motion and homing to ``DIR/<id>.mcap`` (service/recording.py) and names
+``--record DIR`` writes each motion and homing to ``DIR/<id>.mcap`` (service/recording) and names
 it in the journal; ``--live [PORT]`` serves the same channels on 127.0.0.1 (service/live.py), started
 before the bus so a port in use refuses the start with nothing opened.
 """

@@ -1,4 +1,4 @@
-"""MCAP recordings (service/recording.py): every channel read back with the mcap library, a file cut by
+"""MCAP recordings (service/recording): every channel read back with the mcap library, a file cut by
 kill -9 mid-motion read up to its last chunk, ``pvtflow report`` on a recording, the service's
 one file per motion named in its journal."""
 
@@ -23,7 +23,8 @@ from axes.program import PvtProgram
 from service.api import ExecuteRequest
 from service.cli import main
 from service.motion import MotionService
-from service.recording import CHUNK_WALL_S, read_recording
+from service.recording import read_recording
+from service.recording.writer import CHUNK_WALL_S
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -228,3 +229,33 @@ def test_the_service_records_a_homing_named_in_its_journal(tmp_path):
     assert [m.data["name"] for m in rec.topic("/events")].count("homed") == len(cell.homing_stages())
     z = [m.data for m in rec.topic("/axis/z/actual")]
     assert z[-1]["position_qc"] == cell.axis_for_joint("z").homing.offset_qc
+
+
+def test_following_error_is_taken_at_the_sync_a_status_belongs_to(tmp_path, arm6):
+    """Status TPDOs every third SYNC: the position a drive answered stands for the SYNC it answered, so
+    the recorded following error is the plan at that SYNC minus that position, not the plan at a later
+    SYNC the same old position is still the latest on."""
+    every = 3
+    bus = dataclasses.replace(arm6.bus, channel=f"rec-{uuid.uuid4().hex[:10]}", status_every_syncs=every)
+    cell = dataclasses.replace(arm6, bus=bus)
+    prog = program(cell.ordered_axes(), 300, spacing_ms=10, cell="arm6")
+    with MotionService(cell, journal_dir=tmp_path / "journal", lockstep=True, record_dir=tmp_path / "rec") as svc:
+        reply = svc.execute(ExecuteRequest(program=prog.to_json(), wait=True))
+        entry = svc.journal_entry(reply["motion_id"])
+    assert reply["outcome"]["result"] == "finished"
+    rec = read_recording(entry.recording)
+    period = cell.bus.sync_period_ms
+    for axis, a in zip(prog.axes, cell.ordered_axes(), strict=True):
+        cubic = axis.reconstruction()
+        run = [m.data for m in rec.topic(f"/axis/{a.joint}/actual") if m.data["following_error_qc"] is not None]
+        assert len(run) >= prog.duration_ms / period
+        # one status in three SYNCs: most samples carry a status answered one or two SYNCs before theirs
+        ages = [s["sync"] - s["status_sync"] for s in run]
+        assert set(ages) == set(range(every)), a.joint
+        status_ms = np.array([s["elapsed_ms"] - age * period for s, age in zip(run, ages, strict=True)])
+        planned = np.array([s["planned_qc"] for s in run])
+        actual = np.array([s["position_qc"] for s in run], dtype=float)
+        np.testing.assert_allclose(planned, cubic.position(status_ms), atol=1e-6, err_msg=a.joint)
+        np.testing.assert_allclose([s["following_error_qc"] for s in run], planned - actual, atol=1e-6)
+        # the simulated drive follows its reconstruction within a count at its own SYNC
+        assert np.abs(planned - actual).max() <= 2.0, a.joint

@@ -1,0 +1,31 @@
+"""Recordings: one MCAP file per motion or homing, and the same messages served live.
+
+``Recorder`` (recorder.py) hears the bus and the group and queues what it heard; the writer thread
+(writer.py) turns it into the channels (channels.py: schemas and encodings), with the run's plan as
+the drives execute it (planned.py), into the MCAP file (mcap_file.py, which reads recordings back too).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+# public name -> the module that defines it (loaded on first use: ``pvtflow report`` reads without the writer)
+_HOMES: dict[str, str] = {
+    "Recorder": "service.recording.recorder",
+    "Recorded": "service.recording.mcap_file",
+    "Recording": "service.recording.mcap_file",
+    "RecordingError": "service.recording.mcap_file",
+    "read_recording": "service.recording.mcap_file",
+}
+__all__ = ["Recorded", "Recorder", "Recording", "RecordingError", "read_recording"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _HOMES:
+        return getattr(importlib.import_module(_HOMES[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
