@@ -27,7 +27,8 @@ import can
 
 from axes import objects as od
 from axes.budget import bus_budget
-from axes.bus import BusFault, CellBus, FaultKind
+from axes.bus import CellBus
+from axes.bus_faults import BusFault, FaultKind
 from axes.cia402 import PowerState, Statusword, decode_state
 from axes.commission import refuse_on_facts
 from axes.config import AxisConfig, Wiring
@@ -160,7 +161,7 @@ class AxisGroup:
         refuse_on_facts(self.links)
         for link in self.links:  # addressed, not broadcast: other nodes on the bus are not ours
             self.bus.nmt(link.node_id, NMT_PRE_OPERATIONAL)
-        self._configured_boots = {link.node_id: self.bus.boot_count(link.node_id) for link in self.links}
+        self._configured_boots = {link.node_id: self.bus.watch.boot_count(link.node_id) for link in self.links}
         for link, profile in zip(self.links, self.profiles, strict=True):
             profile.configure()
             profile.write_homing()
@@ -168,7 +169,7 @@ class AxisGroup:
         self.bus.sync.expect({p.sync_answer_cob_id: p.sync_answer_every for p in self.profiles})
         for link in self.links:
             self.bus.nmt(link.node_id, NMT_START)
-        self.bus.watch_heartbeat(link.node_id for link in self.links)
+        self.bus.watch.watch_heartbeat(link.node_id for link in self.links)
         self.readiness.forget()
         self.configured = True
 
@@ -180,7 +181,7 @@ class AxisGroup:
 
     def rebooted(self) -> bool:
         """A drive has booted since the group configured it."""
-        return any(self.bus.boot_count(lk.node_id) != self._configured_boots.get(lk.node_id) for lk in self.links)
+        return any(self.bus.watch.boot_count(lk.node_id) != self._configured_boots.get(lk.node_id) for lk in self.links)
 
     def _event(self, kind: EventKind, message: str, link: AxisLink | None = None) -> None:
         if self.on_event is not None:
@@ -268,13 +269,13 @@ class AxisGroup:
                 if not isinstance(feeder, BufferFeeder):
                     feeder.preload()
             self._start_sync = sync.count + 1
-            if self.bus.config.max_sync_gap_periods is None:  # the profiles say (axes.bus)
+            if self.bus.config.max_sync_gap_periods is None:  # the profiles say (axes.sync)
                 gaps = (p.max_sync_gap_ms(prog) for p, prog in zip(self.profiles, self._programs, strict=True))
                 sync.max_gap_s = min(gaps) / 1000.0
             for link, profile in zip(self.links, self.profiles, strict=True):
                 link.send_controlword(profile.start_controlword())
             sync.add_listener(self._on_sync)
-            self.bus.arm_sync_watch()
+            self.bus.watch.arm_sync_watch()
             self._event(EventKind.STARTED, f"program of {program.duration_ms} ms started on SYNC {self._start_sync}")
             sync.start()
         return None
@@ -698,7 +699,7 @@ class AxisGroup:
             if not self._running:
                 return
             self.bus.sync.remove_listener(self._on_sync)
-            self.bus.watch_sync = False
+            self.bus.watch.watch_sync = False
             result.end_sync = self.bus.sync.answered
             result.axes = self._reports()
             self.last_result = result
@@ -742,7 +743,7 @@ class AxisGroup:
                 link.last_emcy = None
                 link.buffer_status = link.buffer_status & ~int(BUFFER_ERRORS)
             self.readiness.mark_all()  # enabled just now: ready
-            self.bus.watch_heartbeat(link.node_id for link in self.links)
+            self.bus.watch.watch_heartbeat(link.node_id for link in self.links)
             self._event(EventKind.RECOVERED, "all axes fault-free and enabled")
             res = self._result(Result.FINISHED, "recovered: every axis is enabled")
             res.axes = self._reports()
@@ -780,7 +781,7 @@ class AxisGroup:
                     buffer_flags=tuple(f.name.lower() for f in BufferStatus if f & link.buffer_status and f.name),
                     buffer_level=level,
                     last_emcy=link.last_emcy,
-                    nmt_state=self.bus.heartbeat_state(link.node_id),
+                    nmt_state=self.bus.watch.heartbeat_state(link.node_id),
                     homed=homed[i],
                 )
             )

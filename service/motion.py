@@ -36,7 +36,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.bus import BusError, CellBus
+from axes.bus import CellBus
+from axes.bus_faults import BusError
 from axes.cia402 import PowerState
 from axes.group import AxisGroup
 from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError

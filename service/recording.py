@@ -73,7 +73,8 @@ from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from numpy.typing import NDArray
 
-from axes.bus import BusFault, CellBus, FaultKind
+from axes.bus import CellBus
+from axes.bus_faults import BusFault, FaultKind
 from axes.cia402 import decode_state
 from axes.interpolation import PiecewiseCubic
 from axes.objects import SYNC_COB_ID

@@ -19,7 +19,6 @@ import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from axes import objects as od
-from axes.bus import DEFAULT_MAX_GAP_PERIODS
 from axes.cia402 import (
     CONTROLWORD_FAULT_RESET,
     CONTROLWORD_SHUTDOWN,
@@ -32,6 +31,7 @@ from axes.config import AxisConfig
 from axes.drive_profile import DriveProfile
 from axes.objects import BufferStatus, PdoLayout
 from axes.subscriptions import subscribe, unsubscribe
+from axes.sync import DEFAULT_MAX_GAP_PERIODS
 from axes.tpdo_rates import answer_every, with_rates
 
 if TYPE_CHECKING:
@@ -407,7 +407,7 @@ class Profile:
 
     def max_sync_gap_ms(self, program: AxisProgram) -> float:
         """The longest time between two SYNCs this drive rides out while it runs ``program``: two
-        periods for a drive that takes a setpoint per SYNC (one SYNC skipped, ``axes.bus``: it holds one
+        periods for a drive that takes a setpoint per SYNC (one SYNC skipped, ``axes.sync``: it holds one
         period, no more)."""
         return DEFAULT_MAX_GAP_PERIODS * self.link.bus.config.sync_period_ms
 
