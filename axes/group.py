@@ -42,6 +42,7 @@ from axes.feeder import (
     preload_shared,
     top_up_by_need,
 )
+from axes.link import AxisLink, DriveError
 from axes.objects import BUFFER_ERRORS, BufferStatus
 from axes.outcome import (
     AxisReport,
@@ -56,7 +57,8 @@ from axes.outcome import (
     Result,
     RunResult,
 )
-from axes.profiles import AxisLink, DriveError, Profile, profile_for
+from axes.profiles import profile_for
+from axes.profiles.base import Profile
 from axes.program import AxisProgram, PvtProgram, program_mismatch
 from axes.quick_stop import QuickStop
 from axes.readiness import Readiness

@@ -36,8 +36,8 @@ from axes import objects as od
 from axes.bus_faults import BusFault, FaultKind
 from axes.cia402 import Controlword, PowerState, Statusword, decode_state
 from axes.config import AxisConfig
+from axes.link import AxisLink, DriveError
 from axes.outcome import Result
-from axes.profiles import AxisLink, DriveError
 
 if TYPE_CHECKING:
     from axes.group import AxisGroup

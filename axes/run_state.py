@@ -14,8 +14,8 @@ from typing import Protocol
 
 from axes.bus import CellBus
 from axes.bus_faults import BusFault, FaultKind
+from axes.link import AxisLink
 from axes.outcome import GroupError
-from axes.profiles import AxisLink
 from axes.readiness import Readiness
 
 
