@@ -26,7 +26,7 @@ _HOMES: dict[str, str] = {
     "Wiring": "axes.config",
     "AxisScaling": "axes.scaling",
     "DriveLimits": "axes.scaling",
-    "BusError": "axes.bus",
+    "BusError": "axes.bus_faults",
     "CellBus": "axes.bus",
     "AxisGroup": "axes.group",
     "GroupError": "axes.outcome",

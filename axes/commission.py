@@ -35,12 +35,14 @@ from typing import TYPE_CHECKING, Any
 from canopen.profiles.p402 import OperationMode
 
 from axes import objects as od
-from axes.profiles import DriveError, expected_settings
+from axes.link import DriveError
+from axes.profiles.base import expected_settings
 from axes.tpdo_rates import with_rates
 
 if TYPE_CHECKING:
+    from axes.link import AxisLink
     from axes.objects import PdoLayout
-    from axes.profiles import AxisLink, Profile
+    from axes.profiles.base import Profile
 
 ABSENT = "absent"
 _IP_MODE_BIT = OperationMode.SUPPORTED["INTERPOLATED POSITION"]

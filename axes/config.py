@@ -32,7 +32,7 @@ class BusConfig:
     master_node_id: int = 127  # the master's own heartbeat (0x700 + id), which every drive watches (0x1016)
     master_heartbeat_ms: int = 100  # the master's heartbeat period
     # the longest time between two SYNCs the drives ride out, in SYNC periods (None: the profiles say,
-    # axes.bus's module docstring); a longer gap halts the motion (FaultKind.SYNC_GAP)
+    # axes.sync's module docstring); a longer gap halts the motion (FaultKind.SYNC_GAP)
     max_sync_gap_periods: float | None = None
     sync_priority: int = 50  # SCHED_FIFO priority of the thread that sends SYNC (0: do not ask)
     tx_retry_ms: float = 2.0  # how long a frame the interface refuses (queue full) is tried again

@@ -93,7 +93,7 @@ class MasterHeartbeat:
 
     def stalled(self, now: float) -> str | None:
         """Why the bus machinery shows no progress (None: it does), by the two rules of the class."""
-        heard = any(self.bus.heartbeat_state(n) is not None for n in list(self.bus.nodes))
+        heard = any(self.bus.watch.heartbeat_state(n) is not None for n in list(self.bus.nodes))
         silent = now - self._received.at
         if heard and silent > self.stall_s:
             return f"the receive thread has dispatched no frame for {silent:.3f} s"

@@ -33,11 +33,11 @@ from typing import TYPE_CHECKING
 import can
 
 from axes import objects as od
-from axes.bus import BusFault, FaultKind
+from axes.bus_faults import BusFault, FaultKind
 from axes.cia402 import Controlword, PowerState, Statusword, decode_state
 from axes.config import AxisConfig
+from axes.link import AxisLink, DriveError
 from axes.outcome import Result
-from axes.profiles import AxisLink, DriveError
 
 if TYPE_CHECKING:
     from axes.group import AxisGroup
@@ -290,7 +290,7 @@ class CellHoming:
             for link in links:
                 link.send_controlword(START_WORD)  # synchronous RPDO: every axis starts on the same SYNC
             sync.add_listener(self._on_sync)
-            self.bus.arm_sync_watch()
+            self.bus.watch.arm_sync_watch()
             sync.start()
         self._event(HomingEventKind.HOMING, f"homing {names} from SYNC {self._start_sync}", None)
         deadline = time.monotonic() + timeout_s + HALT_TIMEOUT_S + WALL_GRACE_S
@@ -307,7 +307,7 @@ class CellHoming:
             sync.remove_listener(self._on_sync)
             raise
         sync.remove_listener(self._on_sync)
-        self.bus.watch_sync = False
+        self.bus.watch.watch_sync = False
         for i in stage:
             n = self._attained.get(i)
             report[i].time_s = None if n is None else (n - self._start_sync) * period_ms / 1000.0

@@ -341,7 +341,7 @@ PARKER_TPDOS = (PdoLayout(1, SYNCHRONOUS, ((STATUSWORD, 0, 16), (POSITION_ACTUAL
 TIME_STAMP_COB_ID = 0x400  # not in the predefined connection set (RPDO3 of "node 0")
 SYNC_COB_ID = 0x080  # CiA 301 default COB-ID of SYNC (0x1005), which every drive of a cell keeps
 # pvtflow's SYNC carries no counter (0x1019 = 0, no data byte): every TPDO answers from the first SYNC
-# after the start, as the master counts them (axes.bus). CiA 301 uses a TPDO's SYNC start value
+# after the start, as the master counts them (axes.sync). CiA 301 uses a TPDO's SYNC start value
 # 0x1800:06 only with a counter, so configuration writes it 0 where the drive has it, clearing a value
 # an earlier setup may have left for a SYNC with a counter; the simulated drives have no 0x1800:06.
 

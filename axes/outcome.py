@@ -7,7 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum, StrEnum
 
-from axes.bus import FaultKind
+from axes.bus_faults import FaultKind
 from axes.cia402 import PowerState
 from axes.feeder import FeedStats
 

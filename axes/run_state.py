@@ -12,9 +12,10 @@ import threading
 from collections.abc import Sequence
 from typing import Protocol
 
-from axes.bus import BusFault, CellBus, FaultKind
+from axes.bus import CellBus
+from axes.bus_faults import BusFault, FaultKind
+from axes.link import AxisLink
 from axes.outcome import GroupError
-from axes.profiles import AxisLink
 from axes.readiness import Readiness
 
 
@@ -68,12 +69,12 @@ class CellRunState:
         """Per axis: nothing to home, or homed since its drive last booted (a boot-up message, an NMT
         reset or a lost heartbeat, a power loss, undoes it)."""
         return tuple(
-            link.config.homing is None or self._homed_boot[i] == self.bus.boot_count(link.node_id)
+            link.config.homing is None or self._homed_boot[i] == self.bus.watch.boot_count(link.node_id)
             for i, link in enumerate(self.links)
         )
 
     def mark_homed(self, i: int) -> None:
-        self._homed_boot[i] = self.bus.boot_count(self.links[i].node_id)
+        self._homed_boot[i] = self.bus.watch.boot_count(self.links[i].node_id)
 
     def _on_fault(self, fault: BusFault) -> None:
         """A drive whose heartbeat was lost may have lost power: its position means nothing any more."""

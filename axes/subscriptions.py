@@ -7,7 +7,8 @@ thread doing so at that moment, shifts the list under the walk: the subscriber a
 misses the frame (a drive's SYNC, the master's count of a SYNC answer). Here the list is never
 changed in place: a new list replaces it, so a dispatch already under way walks the list it started
 with, and every subscriber it held gets the frame. One lock orders the replacements of all threads.
-Both the master (``axes.bus``, ``axes.profiles``) and the simulated drives (``axes.sim``) use these.
+Both the master (``axes.sync``, ``axes.sync_follower``, ``axes.link``) and the simulated drives
+(``axes.sim``) use these.
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ from axes.bus import CellBus
 from axes.commission import commission
 from axes.config import AxisSimulation
 from axes.group import AxisGroup
-from axes.profiles import DriveError
+from axes.link import DriveError
 from axes.sim.cell import SimulatedCell
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
 

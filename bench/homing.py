@@ -162,13 +162,13 @@ def refusals(gantry: CellConfig, reboots: int) -> bool:
                 joint = cell.joint_names[k % 3]
                 node = cell.axis_for_joint(joint).node_id
                 stored = plan({"target": there})  # planned while homed, executed after the reboot
-                boots = svc.bus.boot_count(node)  # type: ignore[union-attr]
+                boots = svc.bus.watch.boot_count(node)  # type: ignore[union-attr]
                 if k % 2 == 0:
                     svc.bus.nmt(node, 0x81)  # type: ignore[union-attr]  # NMT reset node
                 else:
                     svc.sim.drive(node).power_cycle()  # power loss: boot-up message
                 deadline = time.monotonic() + 5.0
-                while svc.bus.boot_count(node) == boots and time.monotonic() < deadline:  # type: ignore[union-attr]
+                while svc.bus.watch.boot_count(node) == boots and time.monotonic() < deadline:  # type: ignore[union-attr]
                     time.sleep(0.005)
                 tried += 1
                 refused += execute(stored) == "not_homed"

@@ -18,7 +18,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from axes.bus import BusError, CellBus
+from axes.bus import CellBus
+from axes.bus_faults import BusError
 from service.cli_options import add_can_log, add_config, add_real_time
 from service.config import CellConfig
 

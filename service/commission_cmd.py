@@ -16,7 +16,8 @@ import sys
 from typing import Any
 
 from axes.commission import CheckKind, CommissionReport, commission
-from axes.profiles import AxisLink, DriveError, profile_for
+from axes.link import AxisLink, DriveError
+from axes.profiles import profile_for
 from service.cell_bus import CellBusError, open_cell_bus
 from service.cli import can_log_problem
 from service.cli_options import add_can_log, add_config, add_json, add_real_time

@@ -26,7 +26,7 @@ from typing import Any, TextIO
 import numpy as np
 import pinocchio as pin
 
-from axes.bus import BusError
+from axes.bus_faults import BusError
 from planner.cartesian import placement_pose
 from service.api import key
 from service.cli_options import add_config, add_real_time

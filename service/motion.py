@@ -36,12 +36,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.bus import BusError, CellBus
+from axes.bus import CellBus
+from axes.bus_faults import BusError
 from axes.cia402 import PowerState
 from axes.group import AxisGroup
 from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
+from axes.link import DriveError
 from axes.outcome import AxisStatus, Event, EventKind, GroupError, Progress, Result, RunResult
-from axes.profiles import DriveError
 from axes.program import ProgramFormatError, PvtProgram, program_mismatch
 from planner.plan import PlanInput
 from planner.validate import validate_program

@@ -29,7 +29,7 @@ from typing import Any
 
 import zenoh
 
-from axes.bus import BusError
+from axes.bus_faults import BusError
 from service.api import LIVELINESS, PUBLICATIONS, QUERYABLES, StopRequest, key
 from service.cli import can_log_problem
 from service.cli_options import add_can_log, add_config, add_real_time

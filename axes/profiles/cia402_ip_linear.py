@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from axes import objects as od
 from axes.drive_profile import DriveProfile
 from axes.feeder import Feeder, RecordAllowance, SetpointFeeder
-from axes.profiles import Profile
+from axes.profiles.base import Profile
 from axes.stop_ramp import braking_records
 
 if TYPE_CHECKING:

@@ -27,7 +27,7 @@ from axes import objects as od
 from axes.drive_profile import DriveProfile
 from axes.feeder import BufferFeeder, Feeder, RecordAllowance
 from axes.objects import EPOS2_TIME_STAMP_RPDO, TIME_STAMP_COB_ID, Record
-from axes.profiles import Profile
+from axes.profiles.base import Profile
 
 if TYPE_CHECKING:
     from axes.program import AxisProgram

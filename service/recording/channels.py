@@ -16,7 +16,7 @@ import can
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.bus import FaultKind
+from axes.bus_faults import FaultKind
 from axes.outcome import Result
 
 # Foxglove's schemas (https://docs.foxglove.dev/docs/visualization/message-schemas), JSON flavour

@@ -46,7 +46,8 @@ from typing import TYPE_CHECKING, Any
 
 import can
 
-from axes.bus import BusFault, CellBus
+from axes.bus import CellBus
+from axes.bus_faults import BusFault
 from service.recording.channels import FAULT_LEVEL, INFO
 from service.recording.mcap_file import CHUNK_BYTES, McapFile, open_mcap_file
 from service.recording.writer import CHUNK_MS, RecordWriter

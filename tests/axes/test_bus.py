@@ -11,8 +11,10 @@ import can
 import pytest
 from axes_rig import unique_channel
 
-from axes.bus import NMT_PRE_OPERATIONAL, BusFault, CellBus, FaultKind, FrameRecorder
+from axes.bus import NMT_PRE_OPERATIONAL, CellBus
+from axes.bus_faults import BusFault, FaultKind
 from axes.config import BusConfig
+from axes.network import FrameRecorder
 from axes.objects import TIME_STAMP_COB_ID
 
 
@@ -186,7 +188,7 @@ def test_heartbeat_emcy_and_lost_sync_are_reported(channel):
         heartbeat8 = responder.bus.send_periodic(
             can.Message(arbitration_id=0x708, data=[5], is_extended_id=False), 0.005
         )
-        bus.watch_heartbeat([7, 8])
+        bus.watch.watch_heartbeat([7, 8])
         # EMCY 0x8612 from node 8
         responder.bus.send(can.Message(arbitration_id=0x88, data=b"\x12\x86\x01\0\0\0\0\0", is_extended_id=False))
         with got:
@@ -202,7 +204,7 @@ def test_heartbeat_emcy_and_lost_sync_are_reported(channel):
         # node 8 stops answering SYNC: lost SYNC names it
         bus.sync.expect([0x287, 0x288])
         responder.nodes = [7]
-        bus.arm_sync_watch()
+        bus.watch.arm_sync_watch()
         bus.sync.start()
         with got:
             assert got.wait_for(lambda: any(f.kind is FaultKind.LOST_SYNC for f in faults), 5)
@@ -215,7 +217,7 @@ def test_heartbeat_emcy_and_lost_sync_are_reported(channel):
 
 
 def test_unknown_interface_is_one_clear_error():
-    from axes.bus import BusError
+    from axes.bus_faults import BusError
 
     with pytest.raises(BusError, match="cannot open CAN bus"):
         CellBus(BusConfig(interface="socketcan", channel="pvtflow-does-not-exist")).open()

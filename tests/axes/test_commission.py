@@ -12,7 +12,7 @@ import pytest
 from axes import objects as od
 from axes.commission import CheckKind, commission
 from axes.config import AxisSimulation
-from axes.profiles import DriveError
+from axes.link import DriveError
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 GANTRY = CONFIG_DIR / "cells" / "gantry3.yaml"

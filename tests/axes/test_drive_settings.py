@@ -9,7 +9,7 @@ import pytest
 from axes_rig import with_profiles
 
 from axes import objects as od
-from axes.profiles import expected_settings
+from axes.profiles.base import expected_settings
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 PROFILES = {

@@ -203,12 +203,12 @@ def test_a_reboot_undoes_homing(gantry3: CellConfig, make_rig: Callable[..., Any
     rig = make_rig(with_homing(gantry3, {"x": (homing, SWITCHES), "y": (homing, SWITCHES)}))
     assert CellHoming(rig.group).run([["x", "y"]]).ok
     assert rig.group.state.homed == (True, True, True)
-    boots = rig.bus.boot_count(11)
+    boots = rig.bus.watch.boot_count(11)
     rig.bus.nmt(11, 0x81)  # NMT reset node: the drive boots again, its encoder counts from 0
-    assert rig.sim.drive("x").wait_until(lambda: rig.bus.boot_count(11) > boots, 5.0)
+    assert rig.sim.drive("x").wait_until(lambda: rig.bus.watch.boot_count(11) > boots, 5.0)
     assert rig.group.state.homed == (False, True, True)
     rig.sim.drive("y").power_cycle()  # a power loss: boot-up message
-    assert rig.sim.drive("y").wait_until(lambda: rig.bus.boot_count(12) > boots, 5.0)
+    assert rig.sim.drive("y").wait_until(lambda: rig.bus.watch.boot_count(12) > boots, 5.0)
     assert rig.group.state.homed == (False, False, True)
     assert CellHoming(rig.group).run([["x", "y"]]).ok  # configured again (it rebooted), homed again
     assert rig.group.state.homed == (True, True, True)

@@ -21,7 +21,8 @@ from axes_programs import program
 from axes_rig import BusObserver, FlakyBus, unique_channel, with_profiles
 
 from axes import objects as od
-from axes.bus import BusFault, CellBus, FaultKind
+from axes.bus import CellBus
+from axes.bus_faults import BusFault, FaultKind
 from axes.config import BusConfig
 from axes.group import AxisGroup
 from axes.objects import SYNC_COB_ID
@@ -176,7 +177,7 @@ def test_error_frames_bus_state_and_the_can_emcys_are_reported_as_what_they_are(
             other.send(can.Message(arbitration_id=0, is_error_frame=True, is_extended_id=False))
         wait_for(lambda: any("error frame" in f.message for f in faults))
         frames = next(f for f in faults if "error frame" in f.message)
-        assert frames.kind is FaultKind.BUS_WARNING and bus.errors.count == 3
+        assert frames.kind is FaultKind.BUS_WARNING and bus.watch.errors.count == 3
 
         FlakyBus.set_state(channel, can.BusState.PASSIVE)
         wait_for(lambda: any("error passive" in f.message for f in faults))

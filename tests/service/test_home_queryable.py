@@ -50,9 +50,9 @@ def test_a_gantry_homes_before_it_moves_and_again_after_a_reboot(gantry3, serve)
     assert done.ok and done.data["outcome"]["result"] == "finished", done.data
 
     # a drive reboots (NMT reset node): its axis is not homed any more, execute is refused again
-    boots = s.service.bus.boot_count(11)
+    boots = s.service.bus.watch.boot_count(11)
     s.service.bus.nmt(11, 0x81)
-    assert wait_until(lambda: s.service.bus.boot_count(11) > boots, timeout=5)
+    assert wait_until(lambda: s.service.bus.watch.boot_count(11) > boots, timeout=5)
     back = s.request("plan", {"waypoints": [GANTRY_START, GANTRY_END], "start": "first"})
     refused = s.request("execute", {"plan_id": back.data["plan_id"]})
     assert refused.data["error"]["code"] == "not_homed" and refused.data["error"]["details"]["joints"] == ["x"]
