@@ -64,8 +64,10 @@ def open_bus(
                     raise CellBusError(str(exc)) from None
                 bus_config = sim.bus
             else:
-                from axes.sim.cell import SimulatedCell
+                from axes.sim.cell import SimulatedCell, sharing_the_interpreter
 
+                cell = sharing_the_interpreter(cell)
+                bus_config = cell.bus
                 sim = SimulatedCell(cell, clock=clock).start()
         except (OSError, ValueError) as exc:
             raise CellBusError(str(exc)) from None

@@ -19,6 +19,7 @@ from collections.abc import Iterator, Mapping
 from dataclasses import replace
 from pathlib import Path
 from types import TracebackType
+from typing import TypeVar
 
 import canopen
 
@@ -29,6 +30,23 @@ from axes.sim.epos2 import Epos2Drive
 from axes.sim.ip_linear import IpLinearDrive
 from axes.sim.parker import ParkerDrive
 from axes.sim.sync_setpoint import SyncSetpointDrive
+
+# Drives in the master's own interpreter share its pauses (a compile, a long replay, the host's load),
+# so a heartbeat window of about 3 periods (the shipped cells, for drives in a process of their own:
+# axes.sim.process) would take those pauses for lost nodes. In one interpreter the window is widened.
+SHARED_INTERPRETER_HEARTBEAT_FACTOR = 10.0
+
+W = TypeVar("W", bound=CellWiring)
+
+
+def sharing_the_interpreter(wiring: W) -> W:
+    """``wiring`` as run with its simulated drives in the master's interpreter: heartbeat window at
+    least ``SHARED_INTERPRETER_HEARTBEAT_FACTOR`` periods (either way: drives and master)."""
+    if wiring.bus.heartbeat_timeout_factor >= SHARED_INTERPRETER_HEARTBEAT_FACTOR:
+        return wiring
+    bus = replace(wiring.bus, heartbeat_timeout_factor=SHARED_INTERPRETER_HEARTBEAT_FACTOR)
+    return replace(wiring, bus=bus)  # type: ignore[type-var]
+
 
 DRIVE_CLASSES: dict[str, type[SimulatedDrive]] = {
     cls.PROFILE: cls for cls in (Epos2Drive, IpLinearDrive, SyncSetpointDrive, ParkerDrive)

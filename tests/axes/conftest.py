@@ -12,14 +12,8 @@ from axes_rig import unique_channel
 
 from axes.bus import CellBus
 from axes.group import AxisGroup
-from axes.sim.cell import SimulatedCell
+from axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from service.config import CellConfig
-
-# The rigs run the simulated drives in the test's own interpreter, where every pause of the master
-# (a compile, a feed replay, the host's load) is the drives' pause too: they keep the factor the
-# shipped cells had for that. The shipped cells' factor (about 3) is for drives in a process of
-# their own (axes.sim.process), as pvtflow's commands run them; tests/service runs those.
-IN_PROCESS_HEARTBEAT_FACTOR = 10.0
 
 
 @dataclass
@@ -46,12 +40,11 @@ def make_rig() -> Iterator[Callable[..., Rig]]:
     ) -> Rig:
         channel = unique_channel()
         changes: dict[str, object] = {"channel": channel}
-        if cell.bus.heartbeat_timeout_factor < IN_PROCESS_HEARTBEAT_FACTOR:
-            changes["heartbeat_timeout_factor"] = IN_PROCESS_HEARTBEAT_FACTOR
         if heartbeat_ms is not None:
             changes["heartbeat_ms"] = heartbeat_ms
         bus_config = dataclasses.replace(cell.bus, **changes)
-        cell = dataclasses.replace(cell, bus=bus_config)
+        cell = sharing_the_interpreter(dataclasses.replace(cell, bus=bus_config))  # the drives run here
+        bus_config = cell.bus
         clock = "lockstep" if lockstep else "wall"  # the drives keep the time the master keeps
         sim = SimulatedCell(cell, channel=channel, eds_paths=eds_paths, clock=clock).start()
         bus = CellBus(bus_config, lockstep=lockstep, can_log=can_log, lost_sync_timeout_s=lost_sync_timeout_s).open()

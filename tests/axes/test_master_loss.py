@@ -29,7 +29,7 @@ from axes.sim.drive import MAXON_EPOS2_EDS, SimulatedDrive
 
 PROGRAM_MS = 2000
 KILL_AT_MS = 400  # mid-motion: every axis moves then (the quintic is at 20 % of its duration)
-MASTER_HEARTBEAT_MS = 50  # x the rig's heartbeat_timeout_factor (10, tests/axes/conftest.py): the drives wait 500 ms
+MASTER_HEARTBEAT_MS = 50  # x the rig's heartbeat_timeout_factor (10, sharing_the_interpreter): drives wait 500 ms
 PROFILES = {
     "epos2_pvt": {"profile": "epos2_pvt"},
     # six fixed-period axes fit a 1 Mbit/s bus from 4 ms on (axes.budget; the shipped three-axis cells: 2 ms)
