@@ -144,7 +144,7 @@ def _common(modes: device.DriveModes, profile: DriveProfile) -> dict[int, Entry]
 
 
 def _encoder_resolution() -> Rec:
-    """CiA 402's 0x608F; the simulated drive reports its own encoder in it (axes/sim/drive.py)."""
+    """CiA 402's 0x608F; the simulated drive reports its own encoder in it (axes/sim/dictionary.py)."""
     return Rec(
         "Position encoder resolution",
         (Var("Encoder increments", U32, "ro", 2000), Var("Motor revolutions", U32, "ro", 1)),
@@ -175,7 +175,7 @@ def epos2() -> dict[int, Entry]:
     d[od.EPOS2_HOMING_CURRENT_THRESHOLD] = Var("Current threshold for homing mode", U16, "rw", 500, pdo=True)
     d[od.EPOS2_HOME_POSITION] = Var("Home Position", I32, "rw", 0, pdo=True)
     # maxon's sensor configuration and motor data (names, types and defaults of maxon's EDS); the
-    # simulated drive reports its own encoder in :01 (axes/sim/drive.py)
+    # simulated drive reports its own encoder in :01 (axes/sim/dictionary.py)
     d[od.EPOS2_SENSOR_CONFIGURATION] = Rec(
         "Sensor configuration",
         (

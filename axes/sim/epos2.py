@@ -60,12 +60,9 @@ from axes.drive_profile import DriveProfile
 from axes.interpolation import exceeds
 from axes.objects import BUFFER_ERRORS, BufferStatus, Record
 from axes.sim.device import EPOS2_MODES, Value
-from axes.sim.drive import (
-    ABORT_DEVICE_STATE,
-    ABORT_VALUE_RANGE,
-    OPERATION_ENABLED,
-    SimulatedDrive,
-)
+from axes.sim.dictionary import ABORT_DEVICE_STATE, ABORT_VALUE_RANGE
+from axes.sim.drive import SimulatedDrive
+from axes.sim.power_states import OPERATION_ENABLED
 from axes.sim.segment import Segment
 
 EPOS2_VERSION = 0x2003  # :01 software version, :02 hardware version (maxon's EDS)

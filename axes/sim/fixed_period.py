@@ -34,7 +34,8 @@ from __future__ import annotations
 from collections import deque
 
 from axes import objects as od
-from axes.sim.drive import OPERATION_ENABLED, SimulatedDrive
+from axes.sim.drive import SimulatedDrive
+from axes.sim.power_states import OPERATION_ENABLED
 from axes.sim.segment import Segment
 from axes.sim.setpoint_judge import SetpointStream, too_fast
 

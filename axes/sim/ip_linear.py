@@ -23,7 +23,7 @@ from canopen.sdo import SdoAbortedError
 from axes import objects as od
 from axes.drive_profile import DriveProfile
 from axes.sim.device import IP_LINEAR_MODES
-from axes.sim.drive import ABORT_DEVICE_STATE, ABORT_VALUE_RANGE
+from axes.sim.dictionary import ABORT_DEVICE_STATE, ABORT_VALUE_RANGE
 from axes.sim.fixed_period import FixedPeriodDrive
 
 

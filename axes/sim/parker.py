@@ -35,8 +35,9 @@ from axes import objects as od
 from axes.drive_profile import DriveProfile
 from axes.interpolation import Interpolation
 from axes.sim.device import NO_MODE, PARKER_MODES
-from axes.sim.drive import ABORT_VALUE_RANGE, CW_HALT, OPERATION_ENABLED
+from axes.sim.dictionary import ABORT_VALUE_RANGE
 from axes.sim.fixed_period import FixedPeriodDrive
+from axes.sim.power_states import CW_HALT, OPERATION_ENABLED
 from axes.sim.segment import Segment
 
 DIRECT = "direct"

@@ -27,7 +27,7 @@ from canopen.sdo import SdoAbortedError
 from axes import objects as od
 from axes.drive_profile import DriveProfile
 from axes.sim.device import SYNC_SETPOINT_MODES
-from axes.sim.drive import ABORT_VALUE_RANGE
+from axes.sim.dictionary import ABORT_VALUE_RANGE
 from axes.sim.fixed_period import FixedPeriodDrive
 
 MIN_PERIOD_MS, MAX_PERIOD_MS = 1.0, 100.0

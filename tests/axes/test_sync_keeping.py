@@ -28,7 +28,7 @@ from axes.group import AxisGroup
 from axes.objects import SYNC_COB_ID
 from axes.outcome import Result
 from axes.sim.cell import SimulatedCell
-from axes.sim.drive import SWITCH_ON_DISABLED
+from axes.sim.power_states import SWITCH_ON_DISABLED
 from axes.subscriptions import subscribe, unsubscribe
 
 # --- subscriptions --------------------------------------------------------------------------------

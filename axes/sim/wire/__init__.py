@@ -44,7 +44,7 @@ medium with these semantics:
     its own node too.
 * **Bus states and error frames** (test hooks on the medium, ``bus.medium``): ``set_state(node,
   state)`` with python-can's ``BusState``: ACTIVE, PASSIVE (error passive) or ERROR (bus off;
-  ``medium.BUS_OFF``). The node's ``bus.state`` reports it and its reader gets the SocketCAN
+  ``bus_states.BUS_OFF``). The node's ``bus.state`` reports it and its reader gets the SocketCAN
   controller error frame (CAN_ERR_CRTL with error-passive/active bits, CAN_ERR_BUSOFF,
   CAN_ERR_RESTARTED on recovery). Bus off: ``send()`` raises CanOperationError (ENETDOWN), its
   queued frames are dropped (one on the wire aborted), it receives nothing. ``inject_error_frame()``
@@ -66,8 +66,10 @@ medium with these semantics:
   ``client.RemoteMedium`` with the same ``stats``, ``set_state`` and ``inject_error_frame``.
 """
 
+from axes.sim.wire.accounting import FrameRecord, LateSync, WireStats
+from axes.sim.wire.bus_states import BUS_OFF, ERROR_PASSIVE
 from axes.sim.wire.interface import SimWireBus, parse_channel
-from axes.sim.wire.medium import BUS_OFF, ERROR_PASSIVE, FrameRecord, LateSync, Medium, WireConfigError, WireStats
+from axes.sim.wire.medium import Medium, WireConfigError
 from axes.sim.wire.server import WireServer, serve_wire
 
 __all__ = [

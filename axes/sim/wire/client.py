@@ -15,19 +15,17 @@ import can
 from can import BusState
 
 from axes.sim.wire import protocol as p
-from axes.sim.wire.medium import (
+from axes.sim.wire.accounting import LateSync, WireStats
+from axes.sim.wire.bus_states import (
     BUS_OFF,
     CAN_ERR_BUSOFF,
     CAN_ERR_CRTL,
     CAN_ERR_CRTL_ACTIVE,
     CAN_ERR_RESTARTED,
     ERROR_PASSIVE,
-    LateSync,
-    WireConfigError,
-    WireStats,
-    bus_off_error,
-    transmit_queue_full,
 )
+from axes.sim.wire.medium import WireConfigError
+from axes.sim.wire.node import bus_off_error, transmit_queue_full
 from axes.sim.wire.priority import ask_wire_priority
 
 CONNECT_TIMEOUT = 5.0

@@ -20,7 +20,8 @@ from can import BusState
 from can.typechecking import AutoDetectedConfig, CanFilters
 
 from axes.sim.wire.client import RemoteMedium, WireLink
-from axes.sim.wire.medium import DEFAULT_TXQUEUELEN, Cyclic, Medium, Node, WireConfigError
+from axes.sim.wire.medium import Medium, WireConfigError
+from axes.sim.wire.node import DEFAULT_TXQUEUELEN, Cyclic, Node
 from axes.sim.wire.registry import acquire_medium, open_channels, release_medium
 from axes.sim.wire.server import require_loopback
 

@@ -1,50 +1,42 @@
-"""The shared bus of one simulated-wire channel: who transmits when, and what it cost.
+"""The shared bus of one simulated-wire channel: who transmits when, at what bus time.
 
 Pure scheduling logic under one lock: no thread of its own. On the ``lockstep`` clock a frame is
 scheduled and delivered inside ``submit``; on the ``wall`` clock ``submit`` queues it in its node's
 transmit FIFO and ``step(now)`` (called by ``axes.sim.wire.wall.WallDriver``, or by a test with
 the time it chooses) puts the frames whose time has come on the wire. Deliveries happen under the
-lock, so every node sees the frames in bus order. The semantics are the package docstring's.
+lock, so every node sees the frames in bus order. The semantics are the package docstring's; what
+the channel carried is counted by ``accounting.py``, bus states and error frames are ``bus_states.py``'s.
 """
 
 from __future__ import annotations
 
 import contextlib
-import errno
 import itertools
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from contextlib import AbstractContextManager
-from dataclasses import asdict, dataclass, field
 
 import can
-from can import BusState
 
 from axes.frame_time import frame_bits
 from axes.objects import SYNC_COB_ID
+from axes.sim.wire.accounting import DEFAULT_RECORD_LIMIT, Accounting, FrameRecord
+from axes.sim.wire.bus_states import BUS_OFF, BusStateHooks
+from axes.sim.wire.node import (
+    DEFAULT_TXQUEUELEN,
+    Cyclic,
+    Deliver,
+    Node,
+    Pending,
+    arbitration_priority,
+    bus_off_error,
+    transmit_queue_full,
+)
 
 CLOCKS = ("wall", "lockstep")
 SYNC_ID = SYNC_COB_ID
-DEFAULT_TXQUEUELEN = 10  # SocketCAN's default txqueuelen for a CAN interface
-DEFAULT_RECORD_LIMIT = 500_000  # frames kept for the accounting (about three minutes at 3000 frames/s)
-BUS_OFF = BusState.ERROR  # python-can's name for a controller that left the bus
-ERROR_PASSIVE = BusState.PASSIVE
-LATE_FRACTION = 0.05  # a SYNC later than its nominal time by more than this share of the period is late
-
-# SocketCAN error frames (linux/can/error.h), as python-can's socketcan hands them over.
-CAN_ERR_CRTL = 0x004
-CAN_ERR_PROT = 0x008
-CAN_ERR_BUSOFF = 0x040
-CAN_ERR_RESTARTED = 0x100
-CAN_ERR_CRTL_RX_PASSIVE = 0x10
-CAN_ERR_CRTL_TX_PASSIVE = 0x20
-CAN_ERR_CRTL_ACTIVE = 0x40
-
-Deliver = Callable[[can.Message], None]
-
-
 IDLE_S = 0.05  # lockstep: no SYNC for this long (wall time) and the bus is idle: bus time follows the wall clock
 
 
@@ -52,113 +44,7 @@ class WireConfigError(ValueError):
     """A bus asked for a medium that disagrees with the channel's (clock, bit rate, SYNC period)."""
 
 
-def transmit_queue_full(node: str, txqueuelen: int) -> can.CanOperationError:
-    """The error a full transmit FIFO raises, with ENOBUFS as python-can's socketcan carries it."""
-    return can.CanOperationError(
-        f"Failed to transmit: No buffer space available (node {node}: {txqueuelen} frames queued)", errno.ENOBUFS
-    )
-
-
-def bus_off_error(node: str) -> can.CanOperationError:
-    return can.CanOperationError(f"Failed to transmit: node {node} is bus off", errno.ENETDOWN)
-
-
-@dataclass(slots=True)
-class _Pending:
-    """A frame in a wall-clock transmit FIFO."""
-
-    msg: can.Message
-    bits: int
-    enqueued: float
-    priority: tuple[int, int, int]
-    cyclic: bool = False  # sent by a cyclic task: heard by its own node too, as a broadcast manager's
-
-
-@dataclass(slots=True)
-class Cyclic:
-    """A cyclic send the wall-clock medium times by itself (SocketCAN's broadcast manager): each
-    frame is queued at its due bus time, whenever the simulation gets to it."""
-
-    node: Node
-    msg: can.Message
-    bits: int
-    period: float
-    due: float
-
-
-@dataclass(slots=True)
-class Node:
-    """One opener of the channel: its receive callback, its transmit FIFO, its counters."""
-
-    name: str
-    deliver: Deliver
-    txqueuelen: int
-    receive_own: bool
-    state: BusState = BusState.ACTIVE
-    local_time: float = 0.0  # lockstep: the latest time stamp among frames it received
-    last_end: float = 0.0  # lockstep: end of its previous frame
-    ends: deque[float] = field(default_factory=deque)  # lockstep: end times of its frames still queued
-    fifo: deque[_Pending] = field(default_factory=deque)  # wall: queued frames, the one on the wire first
-    enobufs: int = 0
-    max_depth: int = 0
-    frames: int = 0
-    waiters: int = 0  # senders waiting for room (send with a timeout)
-    on_done: Callable[[int], None] | None = None  # wall: told how many frames left the FIFO (sent or dropped)
-
-
-@dataclass(frozen=True, slots=True)
-class FrameRecord:
-    start: float
-    end: float
-    can_id: int
-    dlc: int
-    sender: str
-
-
-@dataclass(frozen=True, slots=True)
-class LateSync:
-    nominal: float  # lockstep: when it was due; wall: the previous SYNC's start + period
-    start: float
-    lateness: float  # start - nominal, seconds
-
-
-@dataclass
-class WireStats:
-    """The medium's accounting, JSON-able (``asdict``) so a server can hand it to a client."""
-
-    channel: str
-    clock: str
-    bitrate: int
-    sync_period: float | None
-    frames: int
-    bits: int
-    first_start: float | None
-    last_end: float | None
-    mean_load: float  # busy time / (last_end - first_start)
-    period_loads: list[float]  # load of each SYNC period from the first frame on (empty without a period)
-    late_syncs: list[LateSync]
-    sync_intervals: list[float]  # between consecutive SYNC starts
-    enobufs: dict[str, int]
-    max_fifo_depth: dict[str, int]
-    error_frames: int
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict) -> WireStats:
-        return cls(**{**data, "late_syncs": [LateSync(**s) for s in data["late_syncs"]]})
-
-
-def _priority(msg: can.Message) -> tuple[int, int, int]:
-    """Arbitration order, smallest wins: the 11 base bits, then base before extended (SRR/IDE
-    recessive), then the 18 extension bits, then data before remote (RTR recessive)."""
-    if msg.is_extended_id:
-        return ((msg.arbitration_id >> 18) & 0x7FF, 1, ((msg.arbitration_id & 0x3FFFF) << 1) | msg.is_remote_frame)
-    return (msg.arbitration_id & 0x7FF, 0, int(msg.is_remote_frame))
-
-
-class Medium:
+class Medium(Accounting, BusStateHooks):
     """One channel's bus: nodes, arbitration, bus time, accounting."""
 
     def __init__(
@@ -196,7 +82,7 @@ class Medium:
         self.bus_end = 0.0  # end of the last frame on the bus
         self._last_sync_nominal: float | None = None  # lockstep
         self._idle_from = (0.0, time.monotonic())  # lockstep: (bus time, wall time) of the last SYNC
-        self._on_wire: tuple[Node, _Pending, float, float] | None = None  # wall: (node, frame, start, end)
+        self._on_wire: tuple[Node, Pending, float, float] | None = None  # wall: (node, frame, start, end)
         self._cyclic: list[Cyclic] = []  # wall: cyclic sends the medium times (``add_cyclic``)
         self._seconds_per_bit = 1.0 / bitrate
         self.epoch = self._epoch = time.time() - time.monotonic()  # wall: bus time = epoch + time.monotonic()
@@ -339,7 +225,7 @@ class Medium:
     def _submit_wall(self, node: Node, msg: can.Message, bits: int, now: float) -> None:
         if len(node.fifo) >= node.txqueuelen:
             raise transmit_queue_full(node.name, node.txqueuelen)
-        node.fifo.append(_Pending(msg, bits, now, _priority(msg)))
+        node.fifo.append(Pending(msg, bits, now, arbitration_priority(msg)))
         node.max_depth = max(node.max_depth, len(node.fifo))
         if self._on_wire is None:
             self.cond.notify_all()  # the driver sleeps while the bus is idle
@@ -370,7 +256,9 @@ class Medium:
             while task.due <= now:
                 node = task.node
                 if node.state != BUS_OFF and node in self.nodes and len(node.fifo) < node.txqueuelen:
-                    node.fifo.append(_Pending(task.msg, task.bits, task.due, _priority(task.msg), cyclic=True))
+                    node.fifo.append(
+                        Pending(task.msg, task.bits, task.due, arbitration_priority(task.msg), cyclic=True)
+                    )
                     node.max_depth = max(node.max_depth, len(node.fifo))
                 task.due += task.period
         return min((t.due for t in self._cyclic), default=None)
@@ -466,149 +354,3 @@ class Medium:
                     check=False,
                 )
             )
-
-    # -- test hooks: bus states and error frames -----------------------------------------------
-
-    def set_state(self, name: str, state: BusState) -> None:
-        """Put node ``name`` into ``state`` (ACTIVE, PASSIVE = error passive, ERROR = bus off), as
-        its controller would; it receives the SocketCAN controller error frame that says so. A node
-        going bus off loses its queued frames (one on the wire is aborted: nothing of it reaches the
-        wire)."""
-        if state not in (BusState.ACTIVE, BusState.PASSIVE, BusState.ERROR):
-            raise ValueError(f"bus state must be ACTIVE, PASSIVE or ERROR (bus off), got {state!r}")
-        with self.cond:
-            node = next((n for n in self.nodes if n.name == name), None)
-            if node is None:
-                raise KeyError(f"simwire channel {self.channel!r} has no node {name!r}")
-            before, node.state = node.state, state
-            if state == BUS_OFF:
-                node.deliver(self._error_frame(CAN_ERR_BUSOFF, bytes(8)))
-                if self._on_wire is not None and self._on_wire[0] is node:
-                    self.bus_end = max(self.bus_end, self._on_wire[2])
-                    self._on_wire = None
-                dropped = len(node.fifo)
-                node.fifo.clear()
-                node.ends.clear()
-                if dropped and node.on_done is not None:
-                    node.on_done(dropped)
-                self.cond.notify_all()
-                return  # a bus-off controller hears nothing more
-            if before == BUS_OFF:
-                can_id, data = CAN_ERR_RESTARTED, bytes(8)
-            elif state == ERROR_PASSIVE:
-                can_id, data = CAN_ERR_CRTL, bytes([0, CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE, *bytes(6)])
-            else:
-                can_id, data = CAN_ERR_CRTL, bytes([0, CAN_ERR_CRTL_ACTIVE, *bytes(6)])
-            node.deliver(self._error_frame(can_id, data))
-            self.cond.notify_all()
-
-    def inject_error_frame(self, can_id: int = CAN_ERR_PROT, data: bytes = bytes(8)) -> None:
-        """An error frame on the bus (default: a protocol violation), delivered to every node that
-        is not bus off, stamped with the bus time. It takes no bus time in the accounting."""
-        with self.cond:
-            self._error_frames += 1
-            for n in self.nodes:
-                if n.state != BUS_OFF:
-                    n.deliver(self._error_frame(can_id, data))
-
-    def _error_frame(self, can_id: int, data: bytes) -> can.Message:
-        return can.Message(
-            timestamp=self.now(),
-            arbitration_id=can_id,
-            is_extended_id=False,
-            is_error_frame=True,
-            dlc=len(data),
-            data=data,
-            channel=self.channel,
-            is_rx=True,
-            check=False,
-        )
-
-    # -- accounting ----------------------------------------------------------------------------
-
-    def records(self) -> list[FrameRecord]:
-        with self.cond:
-            return list(self._records)
-
-    def load(self, t0: float, t1: float) -> float:
-        """Share of [t0, t1) the bus was busy (frames clipped to the interval)."""
-        return _load(self.records(), t0, t1)
-
-    def period_loads(self, period: float | None = None) -> list[float]:
-        """Load of each consecutive ``period`` (default the SYNC period) from the first frame on."""
-        return _period_loads(self.records(), period or self.sync_period)
-
-    def sync_intervals(self) -> list[float]:
-        with self.cond:
-            starts = [s for _, s in self._syncs]
-        return [b - a for a, b in itertools.pairwise(starts)]
-
-    def late_syncs(self, fraction: float = LATE_FRACTION) -> list[LateSync]:
-        """Lockstep: SYNCs that started more than ``fraction`` of the period after their nominal time.
-        Wall: SYNCs that started more than that after the previous SYNC's start + period."""
-        period = self.sync_period
-        with self.cond:
-            syncs = list(self._syncs)
-        if period is None:
-            return []
-        late: list[LateSync] = []
-        for i, (nominal, start) in enumerate(syncs):
-            if self.clock == "wall":
-                if i == 0:
-                    continue
-                nominal = syncs[i - 1][1] + period
-            if start - nominal > fraction * period:
-                late.append(LateSync(nominal, start, start - nominal))
-        return late
-
-    def stats(self) -> WireStats:
-        records = self.records()
-        with self.cond:
-            frames, bits, error_frames = self._frames, self._bits, self._error_frames
-            enobufs = {name: count for name, (count, _) in self._departed.items()}
-            depth = {name: most for name, (_, most) in self._departed.items()}
-            for n in self.nodes:
-                enobufs[n.name] = enobufs.get(n.name, 0) + n.enobufs
-                depth[n.name] = max(depth.get(n.name, 0), n.max_depth)
-        first = records[0].start if records else None
-        last = records[-1].end if records else None
-        return WireStats(
-            channel=self.channel,
-            clock=self.clock,
-            bitrate=self.bitrate,
-            sync_period=self.sync_period,
-            frames=frames,
-            bits=bits,
-            first_start=first,
-            last_end=last,
-            mean_load=_load(records, first, last) if records and last > first else 0.0,
-            period_loads=_period_loads(records, self.sync_period),
-            late_syncs=self.late_syncs(),
-            sync_intervals=self.sync_intervals(),
-            enobufs=enobufs,
-            max_fifo_depth=depth,
-            error_frames=error_frames,
-        )
-
-
-def _load(records: list[FrameRecord], t0: float, t1: float) -> float:
-    if t1 <= t0:
-        raise ValueError(f"an interval needs t1 > t0, got [{t0}, {t1})")
-    busy = sum(max(0.0, min(r.end, t1) - max(r.start, t0)) for r in records)
-    return busy / (t1 - t0)
-
-
-def _period_loads(records: list[FrameRecord], period: float | None) -> list[float]:
-    if not records or period is None:
-        return []
-    origin = records[0].start
-    count = int((records[-1].end - origin) / period) + 1
-    busy = [0.0] * count
-    for r in records:
-        i = int((r.start - origin) / period)
-        t = r.start
-        while t < r.end and i < count:  # a frame may straddle a period boundary
-            edge = origin + (i + 1) * period
-            busy[i] += min(r.end, edge) - t
-            t, i = edge, i + 1
-    return [b / period for b in busy]

@@ -34,7 +34,8 @@ import can
 from can import BusState
 
 from axes.sim.wire import protocol as p
-from axes.sim.wire.medium import Medium, Node, WireConfigError
+from axes.sim.wire.medium import Medium, WireConfigError
+from axes.sim.wire.node import Node
 from axes.sim.wire.priority import ask_wire_priority
 from axes.sim.wire.registry import acquire_medium, release_medium
 

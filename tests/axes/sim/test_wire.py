@@ -20,7 +20,7 @@ from can import BusState
 
 from axes.frame_time import frame_bits
 from axes.sim.wire import BUS_OFF, ERROR_PASSIVE, Medium, SimWireBus, WireConfigError
-from axes.sim.wire.medium import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_PROT
+from axes.sim.wire.bus_states import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_PROT
 
 REPO = Path(__file__).resolve().parents[3]
 SYNC = 0x80

@@ -1,0 +1,95 @@
+"""Bus states and error frames on a simulated-wire channel, as a CAN controller signals them.
+
+Test hooks on the medium: a node goes error passive, bus off or back to error active as its
+controller would, and its reader gets the SocketCAN controller error frame that says so; an error
+frame on the bus (a protocol violation) reaches every node that is not bus off. The codes are
+linux/can/error.h's, as python-can's socketcan hands them over.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import can
+from can import BusState
+
+from axes.sim.wire.node import Node, Pending
+
+BUS_OFF = BusState.ERROR  # python-can's name for a controller that left the bus
+ERROR_PASSIVE = BusState.PASSIVE
+
+# SocketCAN error frames (linux/can/error.h), as python-can's socketcan hands them over.
+CAN_ERR_CRTL = 0x004
+CAN_ERR_PROT = 0x008
+CAN_ERR_BUSOFF = 0x040
+CAN_ERR_RESTARTED = 0x100
+CAN_ERR_CRTL_RX_PASSIVE = 0x10
+CAN_ERR_CRTL_TX_PASSIVE = 0x20
+CAN_ERR_CRTL_ACTIVE = 0x40
+
+
+class BusStateHooks:
+    """Bus states and error frames as part of a ``Medium`` (which owns the state below and gives it
+    ``now``)."""
+
+    channel: str
+    cond: threading.Condition
+    nodes: list[Node]
+    bus_end: float
+    _on_wire: tuple[Node, Pending, float, float] | None
+    _error_frames: int
+
+    def set_state(self, name: str, state: BusState) -> None:
+        """Put node ``name`` into ``state`` (ACTIVE, PASSIVE = error passive, ERROR = bus off), as
+        its controller would; it receives the SocketCAN controller error frame that says so. A node
+        going bus off loses its queued frames (one on the wire is aborted: nothing of it reaches the
+        wire)."""
+        if state not in (BusState.ACTIVE, BusState.PASSIVE, BusState.ERROR):
+            raise ValueError(f"bus state must be ACTIVE, PASSIVE or ERROR (bus off), got {state!r}")
+        with self.cond:
+            node = next((n for n in self.nodes if n.name == name), None)
+            if node is None:
+                raise KeyError(f"simwire channel {self.channel!r} has no node {name!r}")
+            before, node.state = node.state, state
+            if state == BUS_OFF:
+                node.deliver(self._error_frame(CAN_ERR_BUSOFF, bytes(8)))
+                if self._on_wire is not None and self._on_wire[0] is node:
+                    self.bus_end = max(self.bus_end, self._on_wire[2])
+                    self._on_wire = None
+                dropped = len(node.fifo)
+                node.fifo.clear()
+                node.ends.clear()
+                if dropped and node.on_done is not None:
+                    node.on_done(dropped)
+                self.cond.notify_all()
+                return  # a bus-off controller hears nothing more
+            if before == BUS_OFF:
+                can_id, data = CAN_ERR_RESTARTED, bytes(8)
+            elif state == ERROR_PASSIVE:
+                can_id, data = CAN_ERR_CRTL, bytes([0, CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE, *bytes(6)])
+            else:
+                can_id, data = CAN_ERR_CRTL, bytes([0, CAN_ERR_CRTL_ACTIVE, *bytes(6)])
+            node.deliver(self._error_frame(can_id, data))
+            self.cond.notify_all()
+
+    def inject_error_frame(self, can_id: int = CAN_ERR_PROT, data: bytes = bytes(8)) -> None:
+        """An error frame on the bus (default: a protocol violation), delivered to every node that
+        is not bus off, stamped with the bus time. It takes no bus time in the accounting."""
+        with self.cond:
+            self._error_frames += 1
+            for n in self.nodes:
+                if n.state != BUS_OFF:
+                    n.deliver(self._error_frame(can_id, data))
+
+    def _error_frame(self, can_id: int, data: bytes) -> can.Message:
+        return can.Message(
+            timestamp=self.now(),
+            arbitration_id=can_id,
+            is_extended_id=False,
+            is_error_frame=True,
+            dlc=len(data),
+            data=data,
+            channel=self.channel,
+            is_rx=True,
+            check=False,
+        )
