@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from realtime import SyncArrivals, variant  # noqa: E402
 
-import service.motion as motion_module  # noqa: E402
+import service.motion.execution as execution_module  # noqa: E402
 from service.api import ApiError, parse_execute, parse_plan  # noqa: E402
 from service.config import CONFIG_DIR, CellConfig, load_cell_config  # noqa: E402
 from service.live import LiveServer  # noqa: E402
@@ -62,7 +62,7 @@ class TimedRecorder(Recorder):
         TimedRecorder.hot_s += time.perf_counter() - t
 
 
-motion_module.Recorder = TimedRecorder  # type: ignore[misc]
+execution_module.Recorder = TimedRecorder  # type: ignore[misc]
 
 CLIENT = textwrap.dedent(
     """

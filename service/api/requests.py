@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from planner.cartesian import MoveKind, check_poses
 from planner.limits import JointLimits, check_max_jerk, check_scale
 from planner.path import PlanError
-from service.api.schemas import _PLAN_SCALES, check_schema
+from service.api.schema_check import PLAN_SCALES, check_schema
 from service.api.wire import ApiError, ErrorCode, PlanStart
 
 
@@ -117,7 +117,7 @@ def _scales(data: dict[str, Any]) -> dict[str, float]:
     """velocity_scale, acceleration_scale: the schema has refused what is not in (0, 1]; the
     planner's rule (planner.limits.check_scale), once more."""
     scales = {}
-    for name in _PLAN_SCALES:
+    for name in PLAN_SCALES:
         try:
             scales[name] = check_scale(name, data.get(name, 1.0))
         except ValueError as exc:

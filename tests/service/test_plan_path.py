@@ -19,7 +19,7 @@ from service.api import (
     parse_payload,
     parse_plan,
 )
-from service.api.schemas import _plain_plan, _validator
+from service.api.schema_check import _plain_plan, _validator
 from service.cell_planner import CellPlanner, plan_cell_program
 
 DOF = 6

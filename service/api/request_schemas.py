@@ -1,0 +1,199 @@
+"""The JSON Schema of every request: the one description of what a request may hold.
+
+The service checks every request against it (service.api.schema_check), docs/API.md prints it; the
+parts a reply shares with a request (a plan id, a program, the object every payload is) are here too.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from planner.cartesian import POSE_LENGTH, QUATERNION_TOLERANCE, MoveKind
+from service.api.wire import ID_PATTERN, MAX_RECENT, MAX_TEXT, MAX_WAYPOINTS, PlanStart
+
+SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+
+
+def _vector(dof: int | None, description: str) -> dict[str, Any]:
+    schema: dict[str, Any] = {"type": "array", "items": {"type": "number"}, "description": description}
+    if dof is not None:
+        schema["minItems"] = schema["maxItems"] = dof
+    return schema
+
+
+def object_schema(properties: dict[str, Any], required: Sequence[str] = (), **extra: Any) -> dict[str, Any]:
+    out: dict[str, Any] = {"type": "object", "properties": properties, "additionalProperties": False}
+    if required:
+        out["required"] = list(required)
+    out.update(extra)
+    return out
+
+
+PLAN_ID = {"type": "string", "pattern": ID_PATTERN, "description": "a plan id from a plan reply"}
+
+
+_TEXT = {"type": "string", "maxLength": MAX_TEXT}
+
+
+PROGRAM = {"type": "object", "description": "a PVT program (pvtflow.pvt-program JSON, docs/program-format)"}
+
+
+def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
+    """The JSON Schema of the request to queryable ``name`` on a cell of ``dof`` joints."""
+    if name == "plan":
+        body = object_schema(
+            {
+                "waypoints": {
+                    "type": "array",
+                    "minItems": 1,
+                    "maxItems": MAX_WAYPOINTS,
+                    "items": _vector(dof, "joint positions (rad / m), in joint_names order"),
+                    "description": "positions to pass through; with start=current the motion starts at the axes' "
+                    "present position and goes through all of them",
+                },
+                "target": _vector(dof, "a single goal: the same as waypoints=[target] with start=current"),
+                "joint_names": {
+                    "type": "array",
+                    "items": {"type": "string"},
+                    "minItems": 1,
+                    "description": "the order of the values (default: the cell's joint order)",
+                },
+                "poses": {
+                    "type": "array",
+                    "minItems": 1,
+                    "maxItems": MAX_WAYPOINTS,
+                    "items": {
+                        "type": "array",
+                        "items": {"type": "number"},
+                        "minItems": POSE_LENGTH,
+                        "maxItems": POSE_LENGTH,
+                        "description": "[x, y, z, qx, qy, qz, qw]: the cell's tcp_frame in the robot's base frame "
+                        f"(m; a unit quaternion, normalized within {QUATERNION_TOLERANCE:g})",
+                    },
+                    "description": "tool poses to go through (instead of waypoints or target), from the start",
+                },
+                "motion": {
+                    "enum": [m.value for m in MoveKind],
+                    "default": MoveKind.LINEAR.value,
+                    "description": "poses only: linear, the tool on straight lines between the poses (orientation "
+                    "by slerp); joint, a joint path through the inverse-kinematics solutions of the poses",
+                },
+                "start": {
+                    "anyOf": [
+                        {"enum": [PlanStart.CURRENT.value, PlanStart.FIRST.value, PlanStart.HOME.value]},
+                        {"type": "array", "items": {"type": "number"}},
+                    ],
+                    "default": PlanStart.CURRENT.value,
+                    "description": "current: from where the axes are now; first (waypoints): the first waypoint is "
+                    "the start; home: the cell's home position (where homing leaves the axes: each axis's 0x607C), "
+                    "then through every waypoint or pose; a list of joint values (poses): the motion starts there "
+                    "(execute then checks the axes are there)",
+                },
+                "tolerance_qc": {
+                    "type": "number",
+                    "minimum": 0.5,
+                    "maximum": 10000,
+                    "description": "knot placement tolerance in counts (default: the cell's)",
+                },
+                "velocity_scale": {
+                    "type": "number",
+                    "exclusiveMinimum": 0,
+                    "maximum": 1,
+                    "default": 1,
+                    "description": "speed override: plan with the joint velocity limits times this (the drives' "
+                    "0x607F in the program stays the drives' own)",
+                },
+                "acceleration_scale": {
+                    "type": "number",
+                    "exclusiveMinimum": 0,
+                    "maximum": 1,
+                    "default": 1,
+                    "description": "the same for the joint acceleration limits (0x60C5)",
+                },
+                "max_jerk": {
+                    **_vector(
+                        dof,
+                        "jerk limit per joint (rad/s^3 or m/s^3, in joint_names order) instead of the cell's "
+                        "axes' max_jerk: the timing is then solved jerk-limited (docs/planning.md)",
+                    ),
+                    "items": {"type": "number", "exclusiveMinimum": 0},
+                },
+                "budget_ms": {
+                    "type": "number",
+                    "exclusiveMinimum": 0,
+                    "maximum": 60000,
+                    "description": "the plan's deadline in ms (default: the cell's planning.budget_ms): a "
+                    "jerk-limited timing answers by then with its best so far (optimal: false in the reply); a plan "
+                    "still not done then for another reason: timeout",
+                },
+                "label": _TEXT,
+                "include_program": {
+                    "type": "boolean",
+                    "default": False,
+                    "description": "put the whole PVT program in the reply",
+                },
+            },
+            oneOf=[{"required": ["waypoints"]}, {"required": ["target"]}, {"required": ["poses"]}],
+        )
+    elif name == "validate":
+        body = object_schema(
+            {"plan_id": PLAN_ID, "program": PROGRAM}, oneOf=[{"required": ["plan_id"]}, {"required": ["program"]}]
+        )
+    elif name == "execute":
+        body = object_schema(
+            {
+                "plan_id": PLAN_ID,
+                "program": PROGRAM,
+                "label": _TEXT,
+                "wait": {
+                    "type": "boolean",
+                    "default": False,
+                    "description": "reply at the end of the motion (with its outcome) instead of at its start",
+                },
+                "approach": {
+                    "type": "boolean",
+                    "default": False,
+                    "description": "where the axes are not at the program's start: first move them there, a joint "
+                    "move within the limits planned by the cell's planner (a motion of its own, journaled), then "
+                    "start the program; without it such a program is refused (start_mismatch)",
+                },
+            },
+            oneOf=[{"required": ["plan_id"]}, {"required": ["program"]}],
+        )
+    elif name == "stop":
+        body = object_schema({"reason": _TEXT})
+    elif name == "status":
+        body = object_schema(
+            {
+                "recent": {
+                    "type": "integer",
+                    "minimum": 0,
+                    "maximum": MAX_RECENT,
+                    "default": 10,
+                    "description": "how many recent motions (from the journal) to list",
+                }
+            }
+        )
+    elif name == "recover":
+        body = object_schema({})
+    elif name == "home":
+        body = object_schema(
+            {
+                "joints": {
+                    "type": "array",
+                    "items": {"type": "string"},
+                    "minItems": 1,
+                    "uniqueItems": True,
+                    "description": "the axes to home (default: every axis with homing), in the cell's homing order",
+                },
+                "wait": {
+                    "type": "boolean",
+                    "default": False,
+                    "description": "reply at the end of the homing (with its outcome) instead of at its start",
+                },
+            }
+        )
+    else:
+        raise KeyError(name)
+    return {"$schema": SCHEMA_DIALECT, "$id": f"pvtflow:{name}.request", "title": f"{name} request", **body}

@@ -1,0 +1,76 @@
+"""Whether the cell takes a motion or a homing now: the refusals, checked before anything is journaled or sent.
+
+One activity at a time (``busy``), a faulted cell waits for ``recover``, a cell that requires homing
+waits for every axis to have homed (``not_homed``), and a program starts where the axes stand.
+"""
+
+from __future__ import annotations
+
+from axes.group import AxisGroup
+from axes.outcome import RunResult
+from axes.program import PvtProgram
+from service.api import ApiError, CellState, ErrorCode, refusals
+from service.motion.runs import Motion
+from service.motion.status import StatusReport
+
+
+class Admission(StatusReport):
+    """The checks an execute, an approach, a plan from here and a homing pass first."""
+
+    def _refuse_if_busy(self, group: AxisGroup) -> None:
+        homing = self.homing
+        if homing is not None and not homing.done.is_set():
+            raise ApiError(
+                ErrorCode.BUSY,
+                f"cell {self.cell.name} is homing ({homing.homing_id}): one motion at a time; "
+                "stop it or wait for its end",
+                {"homing_id": homing.homing_id},
+            )
+        previous = self.motion
+        if previous is not None and not previous.done.is_set() and not group.running:
+            previous.done.wait(2.0)  # it has just ended: its outcome is being journaled
+        if group.running or (previous is not None and not previous.done.is_set()):
+            moving = previous.motion_id if previous else None
+            raise ApiError(
+                ErrorCode.BUSY,
+                f"a motion is running on cell {self.cell.name} ({moving}): one at a time; stop it or wait for its end",
+                {"motion_id": moving},
+            )
+
+    def _refuse_unless_homed(self, group: AxisGroup) -> None:
+        """NOT_HOMED on a cell that requires homing while an axis has not homed since its drive booted."""
+        if not self.cell.requires_homing:
+            return
+        missing = [link.joint for link, homed in zip(group.links, group.state.homed, strict=True) if not homed]
+        if missing:
+            raise refusals.not_homed(self.cell.name, missing)
+
+    def _refuse_if_faulted(self, group: AxisGroup) -> None:
+        if self.state == CellState.FAULT:
+            raise ApiError(
+                ErrorCode.DRIVE_FAULT,
+                f"cell {self.cell.name} is in fault ({self.fault_reason}): call recover first",
+                {"reason": self.fault_reason},
+            )
+        faulted = [s for s in group.status().axes if s.state.is_fault]
+        if faulted:
+            s = faulted[0]
+            raise ApiError(
+                ErrorCode.DRIVE_FAULT,
+                f"axis {s.joint} (node {s.node_id}) is {s.state} (statusword 0x{s.statusword:04X}): call recover first",
+                {"joint": s.joint, "node_id": s.node_id},
+            )
+
+    def _refuse_unless_at_start(self, group: AxisGroup, program: PvtProgram) -> None:
+        """START_MISMATCH before anything is journaled or sent, from the positions the drives last reported
+        (the group checks again with what the drives answer at the start: this only keeps a plainly wrong
+        request out of the journal)."""
+        starts = {a.node_id: int(a.records[0, 0]) for a in program.axes}
+        tolerance = group.start_tolerance_qc
+        for link in group.links:
+            start = starts.get(link.node_id)
+            if start is not None and link.position is not None and abs(link.position - start) > tolerance:
+                raise refusals.start_mismatch(link.joint, link.position, start)
+
+    def _start_error(self, early: RunResult, motion: Motion) -> ApiError:
+        return refusals.run_refused(early, {"motion_id": motion.motion_id})

@@ -1,0 +1,104 @@
+"""``home``: the cell's axes homed in its homing order (axes.homing), as a motion of the cell.
+
+One at a time with motions, journaled, stopped by ``stop``; a fault puts the cell in ``fault``.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Any
+
+from axes.bus_faults import BusError
+from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
+from axes.outcome import GroupError, Result
+from service.api import ApiError, CellState, ErrorCode, HomeRequest
+from service.journal import JournalError
+from service.motion.execution import Execution
+from service.motion.runs import Homing, ServiceEventKind, new_id
+
+log = logging.getLogger("pvtflow.motion")
+
+
+class HomingRuns(Execution):
+    """A homing on the cell: accepted, run in a thread of its own, journaled, ended."""
+
+    def home(self, req: HomeRequest) -> dict[str, Any]:
+        """Home the cell's axes (all with homing, or those named) in the cell's homing order."""
+        group = self._group()
+        try:
+            stages = self.cell.homing_stages(list(req.joints) if req.joints is not None else None)
+        except HomingRequestError as exc:
+            unknown = "unknown axis" in str(exc)
+            code = ErrorCode.UNKNOWN_JOINT if unknown else ErrorCode.NOT_ALLOWED
+            raise ApiError(
+                code, f"cell {self.cell.name}: {exc}: nothing moved", {"joints": list(req.joints or ())}
+            ) from None
+        if not stages:
+            raise ApiError(ErrorCode.NOT_ALLOWED, f"cell {self.cell.name} has no axis to home (absolute encoders)")
+        with self._lock:
+            self._refuse_if_busy(group)
+            self._refuse_if_faulted(group)
+            homing = Homing(new_id("h"), stages, time.time())
+            homing.recorder = self._recorder(homing.homing_id, "homing")
+            try:
+                recording = homing.recorder.path if homing.recorder is not None else None
+                self.journal.record_homing(
+                    homing.homing_id, stages, cell=self.cell.name, recording=str(recording) if recording else None
+                )
+            except JournalError as exc:
+                if homing.recorder is not None:
+                    homing.recorder.close({"result": "journal_error", "message": str(exc)})
+                raise ApiError(ErrorCode.JOURNAL_ERROR, f"{exc}: nothing moved") from None
+            self.homing = homing
+            self._homer = CellHoming(group, on_event=self._on_homing_event)
+            self._set_state(CellState.HOMING, None)
+            threading.Thread(
+                target=self._run_homing, args=(homing, self._homer), name=f"pvtflow-home-{self.cell.name}", daemon=True
+            ).start()
+        if req.wait:
+            homing.done.wait()
+        return homing.summary()
+
+    def _run_homing(self, homing: Homing, homer: CellHoming) -> None:
+        try:
+            outcome = homer.run(homing.stages)
+        except (GroupError, BusError, OSError) as exc:
+            outcome = HomingOutcome(Result.CONFIGURATION_ERROR, f"homing failed: {exc}")
+        except Exception as exc:  # never leave a homing without an end: the cell would stay "homing"
+            log.exception("while homing %s", homing.homing_id)
+            outcome = HomingOutcome(Result.CONFIGURATION_ERROR, f"homing failed: {type(exc).__name__}: {exc}")
+        homing.outcome = outcome
+        if homing.recorder is not None:
+            homing.recorder.close(outcome.to_json())
+        try:
+            self.journal.record_homing_outcome(homing.homing_id, outcome.to_json())
+        except JournalError as exc:
+            self.publish("events", self.event_payload(ServiceEventKind.JOURNAL_ERROR, str(exc)))
+        if outcome.result.is_fault:
+            self.fault_reason = outcome.message
+            self._set_state(CellState.FAULT, None)
+        else:
+            self._set_state(CellState.IDLE, None)
+        self.publish(
+            "events",
+            self.event_payload(
+                ServiceEventKind.HOMING_ENDED,
+                f"{outcome.result.value}: {outcome.message}",
+                homing_id=homing.homing_id,
+                outcome=outcome.to_json(),
+                joint=outcome.joint,
+                node_id=outcome.node_id,
+            ),
+        )
+        homing.done.set()
+
+    def _on_homing_event(self, kind: HomingEventKind, message: str, joint: str | None) -> None:
+        homing = self.homing
+        if homing is not None and homing.recorder is not None:
+            homing.recorder.event(str(kind), message, joint)
+        self.publish(
+            "events",
+            self.event_payload(kind, message, joint=joint, homing_id=homing.homing_id if homing else None),
+        )

@@ -1,0 +1,137 @@
+"""``plan`` and ``validate``: waypoints or poses to a validated program, kept in memory under a plan id.
+
+The last ``max_plans`` plans are kept (oldest dropped first); a program is checked against the drives'
+rules and against this cell.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from axes.program import ProgramFormatError, PvtProgram, program_mismatch
+from planner.plan import PlanInput
+from planner.validate import validate_program
+from service.api import ApiError, ErrorCode, PlanRequest, PlanStart, ValidateRequest, refusals
+from service.cell_planner import TIMEOUT
+from service.motion.admission import Admission
+from service.motion.runs import StoredPlan, new_id
+
+
+class PlanBook(Admission):
+    """The plans of the cell, by id."""
+
+    def plan(self, req: PlanRequest) -> dict[str, Any]:
+        """Waypoints or poses -> a validated program kept under a new plan id (PLAN_FAILED when impossible)."""
+        t0 = time.perf_counter()
+        plan_id = new_id("p")
+        scales: dict[str, Any] = {
+            "velocity_scale": req.velocity_scale,
+            "acceleration_scale": req.acceleration_scale,
+            "max_jerk": req.max_jerk,
+        }
+        budget_ms = self.cell.planning.budget_ms if req.budget_ms is None else req.budget_ms
+        if req.poses is not None:
+            if req.start is PlanStart.HOME:
+                q0 = self.home_position()
+            elif req.start_joints is not None:
+                q0 = req.start_joints
+            else:
+                self._refuse_unless_homed(self._group())
+                q0 = self.current_joint_positions()
+            with self._planner_lock:
+                result = self.planner.plan(
+                    PlanInput(q0, req.poses, req.motion, **scales), req.tolerance_qc, {"plan_id": plan_id}, budget_ms
+                )
+            waypoints = result.waypoints if result.waypoints is not None else q0[None, :]
+        else:
+            waypoints = req.waypoints
+            if req.start in (PlanStart.CURRENT, PlanStart.HOME):
+                if req.start is PlanStart.HOME:
+                    q0 = self.home_position()
+                else:
+                    self._refuse_unless_homed(self._group())
+                    q0 = self.current_joint_positions()
+                first_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, waypoints[0], strict=True)]
+                here_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, q0, strict=True)]
+                if max(abs(x - y) for x, y in zip(first_qc, here_qc, strict=True)) <= 1.0:
+                    waypoints = np.vstack([q0, waypoints[1:]])  # the first waypoint is where the axes are
+                else:
+                    waypoints = np.vstack([q0, waypoints])
+                if len(waypoints) < 2:
+                    raise ApiError(
+                        ErrorCode.PLAN_FAILED,
+                        f"the {'home position is' if req.start is PlanStart.HOME else 'axes are'} already at the "
+                        "target: nothing to move",
+                        {"result": "repeated_waypoint"},
+                    )
+            with self._planner_lock:
+                result = self.planner.plan(
+                    PlanInput(waypoints, **scales), req.tolerance_qc, {"plan_id": plan_id}, budget_ms
+                )
+        if result.code == TIMEOUT:
+            raise ApiError(ErrorCode.TIMEOUT, f"cell {self.cell.name}: {result.message}", {"budget_ms": budget_ms})
+        if not result.ok or result.program is None or result.build is None:
+            raise refusals.plan_failed(self.cell.name, result.code, result.message, _plain(result.details))
+        program = result.program
+        timing = {k: round(v * 1000.0, 3) for k, v in result.timing.items()}
+        timing["request"] = round((time.perf_counter() - t0) * 1000.0, 3)
+        reply: dict[str, Any] = {
+            "plan_id": plan_id,
+            "cell": self.cell.name,
+            "label": req.label,
+            "joint_names": list(self.joint_names),
+            "duration_s": program.duration_ms / 1000.0,
+            "waypoints": len(waypoints),
+            "start": [float(x) for x in waypoints[0]],
+            "end": [float(x) for x in waypoints[-1]],
+            "records": {a.joint: len(a.records) for a in program.axes},
+            "validation": {"ok": result.build.report.ok, "warnings": len(result.build.report.warnings)},
+            "timing_ms": timing,
+            "optimal": result.optimal,
+        }
+        if result.gap is not None:
+            reply["gap"] = result.gap
+        with self._plans_lock:
+            self.plans[plan_id] = StoredPlan(plan_id, program, reply, req.label)
+            while len(self.plans) > self.max_plans:
+                self.plans.popitem(last=False)
+        if req.include_program:
+            return {**reply, "program": program.to_json()}
+        return reply
+
+    def stored_plan(self, plan_id: str) -> StoredPlan:
+        with self._plans_lock:
+            stored = self.plans.get(plan_id)
+        if stored is None:
+            raise ApiError(
+                ErrorCode.UNKNOWN_PLAN,
+                f"no plan {plan_id!r} on cell {self.cell.name} (plans are kept in memory, the last {self.max_plans})",
+                {"plan_id": plan_id},
+            )
+        return stored
+
+    def _program_from_json(self, data: dict[str, Any]) -> PvtProgram:
+        try:
+            return PvtProgram.from_json(data)
+        except ProgramFormatError as exc:
+            raise ApiError(ErrorCode.INVALID_REQUEST, f"$.program: {exc}", {"path": "$.program"}) from None
+
+    # --- validate --------------------------------------------------------------------------------
+    def validate(self, req: ValidateRequest) -> dict[str, Any]:
+        """The validator's report on a stored plan or a given program, and whether it fits this cell."""
+        if req.plan_id is not None:
+            program = self.stored_plan(req.plan_id).program
+        else:
+            assert req.program is not None
+            program = self._program_from_json(req.program)
+        report = validate_program(program)
+        problems = program_mismatch(program, self.cell.ordered_axes(), self.cell.name)
+        return {"ok": report.ok and not problems, "report": report.to_json(), "cell_problems": problems}
+
+
+def _plain(details: dict[str, Any]) -> dict[str, Any]:
+    """A planner's error details as JSON values (numbers, strings)."""
+    return {k: v if isinstance(v, str | int | float | bool) or v is None else str(v) for k, v in details.items()}

@@ -1,0 +1,89 @@
+"""What the service keeps of a plan, a motion and a homing, and the events it adds to the axis group's.
+
+Plain records, shared by every part of :class:`service.motion.MotionService` and by the server.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Any
+
+from axes.homing import HomingOutcome
+from axes.outcome import RunResult
+from axes.program import PvtProgram
+from service.api import RunState
+from service.recording import Recorder
+
+
+class ServiceEventKind(StrEnum):
+    """The service's own ``events`` beside the axis group's (``axes.group.EventKind``)."""
+
+    SERVICE_STARTED = "service_started"
+    MOTION_ENDED = "motion_ended"
+    JOURNAL_ERROR = "journal_error"
+    HOMING_ENDED = "homing_ended"  # with its outcome (the homing's steps: axes.homing.HomingEventKind)
+
+
+def new_id(prefix: str) -> str:
+    """A new id for a plan (p), a motion (m) or a homing (h)."""
+    return f"{prefix}-{uuid.uuid4().hex[:16]}"
+
+
+@dataclass
+class StoredPlan:
+    plan_id: str
+    program: PvtProgram
+    reply: dict[str, Any]
+    label: str | None
+    created: float = field(default_factory=time.time)
+
+
+@dataclass
+class Motion:
+    """The motion running (or last run) on the cell."""
+
+    motion_id: str
+    plan_id: str | None
+    label: str | None
+    program: PvtProgram
+    accepted_at: float
+    start_sync: int | None = None
+    outcome: dict[str, Any] | None = None
+    result: RunResult | None = None
+    done: threading.Event = field(default_factory=threading.Event)
+    recorder: Recorder | None = field(default=None, repr=False)
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "motion_id": self.motion_id,
+            "plan_id": self.plan_id,
+            "label": self.label,
+            "state": RunState.of(self.done.is_set()),
+            "duration_ms": int(self.program.duration_ms),
+            "start_sync": self.start_sync,
+            "outcome": self.outcome,
+        }
+
+
+@dataclass
+class Homing:
+    """The homing running on the cell (or the last one)."""
+
+    homing_id: str
+    stages: list[list[str]]
+    accepted_at: float
+    outcome: HomingOutcome | None = None
+    done: threading.Event = field(default_factory=threading.Event)
+    recorder: Recorder | None = field(default=None, repr=False)
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "homing_id": self.homing_id,
+            "state": RunState.of(self.done.is_set()),
+            "stages": self.stages,
+            "outcome": self.outcome.to_json() if self.outcome is not None else None,
+        }

@@ -1,0 +1,72 @@
+"""The ``status`` reply: what the drives say now, the motion, and the journal's recent motions.
+
+Status is what the drives say (their TPDOs while moving, read by SDO when idle), never what the service hopes.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from axes.outcome import AxisStatus
+from service.api import StatusRequest
+from service.journal import MotionEntry
+from service.motion.publications import Publications
+
+
+class StatusReport(Publications):
+    """The cell's status and one axis as the replies give it."""
+
+    def status(self, req: StatusRequest) -> dict[str, Any]:
+        """What the drives say now, the motion, and the recent motions of the journal."""
+        group = self._group()
+        if not group.running:
+            self.positions_qc(refresh=True)
+        st = group.status()
+        motion = self.motion
+        running_id = motion.motion_id if (motion and not motion.done.is_set()) else None
+        recent = [e.summary(running=e.motion_id == running_id) for e in self.journal.recent(req.recent)]
+        last = motion.outcome if motion is not None else None
+        with self._plans_lock:
+            n_plans = len(self.plans)
+        return {
+            "cell": self.cell.name,
+            "state": self.state,
+            "fault_reason": self.fault_reason,
+            "motion": motion.summary() if motion is not None else None,
+            "sync_count": st.sync_count,
+            "elapsed_ms": st.elapsed_ms,
+            "joint_names": list(self.joint_names),
+            "axes": [self._axis_json(s) for s in st.axes],
+            "recent": recent,
+            "plans": n_plans,
+            "last_result": last,
+            "requires_homing": self.cell.requires_homing,
+            "homed": all(s.homed for s in st.axes),
+            "homing": self.homing.summary() if self.homing is not None else None,
+        }
+
+    def journal_entry(self, motion_id: str) -> MotionEntry | None:
+        return self.journal.get(motion_id)
+
+    def _axis_json(self, s: AxisStatus) -> dict[str, Any]:
+        axis = self.cell.axis_for_joint(s.joint)
+        return {
+            "joint": s.joint,
+            "node_id": s.node_id,
+            "profile": s.profile,
+            "state": s.state,
+            "statusword": s.statusword,
+            "statusword_hex": f"0x{s.statusword:04X}",
+            "position_qc": s.position,
+            "position": None if s.position is None else float(axis.scaling.qc_to_position(s.position)),
+            "buffer_status": s.buffer_status,
+            "buffer_flags": list(s.buffer_flags),
+            "buffer_level": s.buffer_level,
+            "last_emcy": None
+            if s.last_emcy is None
+            else {"code": s.last_emcy[0], "code_hex": f"0x{s.last_emcy[0]:04X}", "message": s.last_emcy[1]},
+            "nmt_state": s.nmt_state,
+            "fault": s.state.is_fault,
+            "homing": axis.homing is not None,
+            "homed": s.homed,
+        }

@@ -1,0 +1,81 @@
+"""``stop`` and ``recover``: halting whatever runs, and acknowledging a fault.
+
+``stop`` always preempts: it takes the motion lock only after an execute has finished starting (so a
+stop can never slip in before the start and be lost), then halts every axis on the next SYNC. A fault
+keeps the cell in ``fault`` until ``recover``, so that a fault is always acknowledged by someone.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from axes.bus_faults import BusError
+from axes.link import DriveError
+from axes.outcome import GroupError
+from service.api import ApiError, CellState, ErrorCode, RecoverRequest, StopRequest
+from service.motion.homing import HomingRuns
+
+
+class StopRecover(HomingRuns):
+    """Stop what runs; fault reset and re-enable every axis."""
+
+    def stop(self, req: StopRequest) -> dict[str, Any]:
+        """Halt every axis now (on the next SYNC) and wait until they stand still."""
+        group = self._group()
+        homing = self.homing
+        if homing is not None and not homing.done.is_set():
+            self._set_state(CellState.STOPPING, None)
+            group.stop(req.reason)
+            homing.done.wait(60.0)
+            return {
+                "was_moving": True,
+                "motion_id": None,
+                "homing_id": homing.homing_id,
+                "outcome": homing.outcome.to_json() if homing.outcome is not None else None,
+                "axes": [self._axis_json(s) for s in group.status().axes],
+            }
+        with self._lock:  # an execute still starting has finished its start: its motion is stopped
+            motion = self.motion
+            was_moving = group.running
+            if was_moving:
+                self._set_state(CellState.STOPPING, motion.motion_id if motion else None)
+                group.stop(req.reason)
+        if was_moving and motion is not None:
+            motion.done.wait(group.halt_timeout_ms / 1000.0 + 5.0)
+            group.settle(5.0)  # the reply says what the drives say once nothing of the motion is left in them
+        return {
+            "was_moving": was_moving,
+            "motion_id": motion.motion_id if (motion and was_moving) else None,
+            "outcome": motion.outcome if (motion and was_moving) else None,
+            "axes": [self._axis_json(s) for s in group.status().axes],
+        }
+
+    # --- recover ---------------------------------------------------------------------------------
+    def recover(self, req: RecoverRequest) -> dict[str, Any]:
+        """Fault reset and re-enable every axis; the cell is idle again when every drive is."""
+        del req
+        group = self._group()
+        with self._lock:
+            homing = self.homing
+            if group.running or (homing is not None and not homing.done.is_set()):
+                raise ApiError(
+                    ErrorCode.BUSY,
+                    "cannot recover while a motion runs: stop it first",
+                    {"motion_id": self.motion.motion_id if self.motion else None},
+                )
+            try:
+                res = group.recover()
+                group.refresh()
+            except (GroupError, DriveError, BusError) as exc:
+                raise ApiError(ErrorCode.DRIVE_FAULT, f"recover failed: {exc}") from None
+            if not res.ok:
+                raise ApiError(
+                    ErrorCode.DRIVE_FAULT,
+                    f"recover failed: {res.message}",
+                    {"joint": res.joint, "node_id": res.node_id},
+                )
+            self.fault_reason = None
+            with self._state_lock:
+                self.state = CellState.IDLE
+            self._publish_state(None)  # the drives' power states changed even when the cell was idle
+            return {"ok": True, "message": res.message, "axes": [self._axis_json(s) for s in group.status().axes]}
