@@ -8,8 +8,7 @@ numpy and numba only."""
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from axes.front_door import lazy_exports
 
 # public name -> the module that defines it (loaded on first use: ``import axes.scaling`` stays light)
 _HOMES: dict[str, str] = {
@@ -69,12 +68,4 @@ __all__ = [
     "program_mismatch",
 ]
 
-
-def __getattr__(name: str) -> Any:
-    if name in _HOMES:
-        return getattr(importlib.import_module(_HOMES[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _HOMES, __all__)

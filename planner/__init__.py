@@ -6,9 +6,7 @@ axes.program); ``validate_program`` checks any program against its drives' rules
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
-
+from axes.front_door import lazy_exports
 from planner.kernel_cache import install as _install_kernel_cache
 
 _install_kernel_cache()  # before any planner module compiles a kernel
@@ -41,12 +39,4 @@ __all__ = [
     "validate_program",
 ]
 
-
-def __getattr__(name: str) -> Any:
-    if name in _HOMES:
-        return getattr(importlib.import_module(_HOMES[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _HOMES, __all__)

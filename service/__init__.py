@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from axes.front_door import lazy_exports
 
 # public name -> the module that defines it (loaded on first use: a command loads only what it runs on)
 _HOMES: dict[str, str] = {
@@ -15,12 +14,4 @@ _HOMES: dict[str, str] = {
 }
 __all__ = ["CellConfig", "ConfigError", "MotionService", "load_cell_config", "main"]
 
-
-def __getattr__(name: str) -> Any:
-    if name in _HOMES:
-        return getattr(importlib.import_module(_HOMES[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _HOMES, __all__)

@@ -7,8 +7,7 @@ the drives execute it (planned.py), into the MCAP file (mcap_file.py, which read
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from axes.front_door import lazy_exports
 
 # public name -> the module that defines it (loaded on first use: ``pvtflow report`` reads without the writer)
 _HOMES: dict[str, str] = {
@@ -20,12 +19,4 @@ _HOMES: dict[str, str] = {
 }
 __all__ = ["Recorded", "Recorder", "Recording", "RecordingError", "read_recording"]
 
-
-def __getattr__(name: str) -> Any:
-    if name in _HOMES:
-        return getattr(importlib.import_module(_HOMES[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _HOMES, __all__)
