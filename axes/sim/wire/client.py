@@ -54,6 +54,7 @@ class WireLink:
         self._on_close = on_close
         self._lock = threading.Lock()
         self.closed = False
+        self._interrupted = False  # a request whose reply was never read: the control stream is out of step
         try:
             self._control = p.configure(socket.create_connection((host, port), timeout=CONNECT_TIMEOUT))
         except OSError as error:
@@ -90,11 +91,16 @@ class WireLink:
         with self._lock:
             if self.closed:
                 raise can.CanOperationError(f"simwire channel {self.channel!r}: the bus is closed")
+            if self._interrupted:
+                raise can.CanOperationError(f"simwire channel {self.channel!r}: a request was interrupted")
             try:
                 self._control.sendall(data)
                 return p.read_message(self._stream)
             except (OSError, p.ProtocolError) as error:
                 raise can.CanOperationError(f"simwire channel {self.channel!r}: server gone ({error})") from None
+            except BaseException:  # Ctrl-C / SIGTERM between request and reply: its reply would answer the next
+                self._interrupted = True
+                raise
 
     def send(self, msg: can.Message, local_time: float, timeout: float | None) -> None:
         if self.pipelined:
@@ -172,6 +178,8 @@ class WireLink:
         kind, body = self._request(p.pack_json(p.CALL, {"call": what, **args}))
         if kind == p.FAIL:
             raise ValueError(p.unpack_fail(body)[1])
+        if kind != p.REPLY:
+            raise can.CanOperationError(f"simwire channel {self.channel!r}: {what!r} answered by {kind!r}")
         return json.loads(body)
 
     def _read(self) -> None:
