@@ -34,6 +34,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))  # the tests' shared helpers (axes_programs, axes_rig)
 sys.path.insert(0, str(ROOT / "tests" / "axes"))
 
 from test_stall import at_period, serve, stall_this_process, toward_the_middle  # noqa: E402  (the test's harness)

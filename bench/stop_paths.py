@@ -48,6 +48,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "tests" / "axes"))  # test_stall: the drives in their own process
 
 from axes_programs import program  # noqa: E402  (the tests' programs: quintic moves inside the limits)
 from axes_rig import FlakyBus, unique_channel  # noqa: E402  (the test double of the BUS)

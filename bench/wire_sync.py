@@ -26,6 +26,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))  # the tests' shared helpers (axes_programs, axes_rig)
 sys.path.insert(0, str(ROOT / "tests" / "axes"))
 
 from axes_programs import axis_program, safe_distance  # noqa: E402
