@@ -60,7 +60,7 @@ class GroupConfiguration:
         buffered = [
             BufferedAxis(link.joint, by_node[link.node_id].records, link.config.buffer)
             for link, profile in zip(self.links, self.profiles, strict=True)
-            if profile.name == "epos2_pvt" and link.node_id in by_node
+            if not profile.fixed_period and link.node_id in by_node
         ]
         return feed_shortfall(buffered, self.allowance.per_sync, self.bus.config.sync_period_ms)
 
