@@ -142,11 +142,13 @@ class DrivesProcess:
 
 class LocalDrives:
     """The drives in this process (``SimulatedCell``): on an interface that reaches one process only
-    (python-can's ``virtual``)."""
+    (python-can's ``virtual``); ``.bus`` has the heartbeat window of drives that share the master's
+    interpreter (``sharing_the_interpreter``)."""
 
     def __init__(self, wiring: CellWiring, clock: str) -> None:
-        from axes.sim.cell import SimulatedCell
+        from axes.sim.cell import SimulatedCell, sharing_the_interpreter
 
+        wiring = sharing_the_interpreter(wiring)
         self.bus = wiring.bus
         self.cell = SimulatedCell(wiring, clock=clock)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import uuid
 from pathlib import Path
 
@@ -10,7 +11,8 @@ import canopen
 from axes import objects as od
 from axes.config import wire_options
 from axes.sim import Epos2Drive
-from axes.sim.cell import SimulatedCell
+from axes.sim.cell import SHARED_INTERPRETER_HEARTBEAT_FACTOR, SimulatedCell, sharing_the_interpreter
+from axes.sim.process import LocalDrives
 from service.config import load_cell_config
 
 from .conftest import FrameLog
@@ -43,3 +45,15 @@ def test_arm6_cell_boots_six_epos2_with_the_configured_limits() -> None:
         assert not sim.running
     finally:
         master.disconnect()
+
+
+def test_drives_that_share_the_masters_interpreter_get_the_wide_heartbeat_window() -> None:
+    """In the master's interpreter the drives share its pauses: 10 periods there, the cell's 3 elsewhere."""
+    cell = load_cell_config(CELLS / "arm6.yaml")
+    assert cell.bus.heartbeat_timeout_factor < SHARED_INTERPRETER_HEARTBEAT_FACTOR
+    shared = sharing_the_interpreter(cell)
+    assert shared.bus.heartbeat_timeout_factor == SHARED_INTERPRETER_HEARTBEAT_FACTOR
+    assert shared.bus.master_consumer_time_ms > cell.bus.master_consumer_time_ms
+    bus = dataclasses.replace(cell.bus, interface="virtual", channel=uuid.uuid4().hex)
+    virtual = dataclasses.replace(cell, bus=bus)
+    assert LocalDrives(virtual, "lockstep").bus.heartbeat_timeout_factor == SHARED_INTERPRETER_HEARTBEAT_FACTOR
