@@ -32,10 +32,6 @@ from axes.sync import DEFAULT_MAX_GAP_PERIODS, SyncClock
 # on a loaded 2-core host (a drive's thread may not run for that long); a real drive answers within
 # milliseconds, so a longer wait only delays the report of a drive that is really gone.
 SDO_RESPONSE_TIMEOUT_S = 1.0
-NMT_OPERATIONAL = 0x01
-NMT_STOPPED = 0x02
-NMT_PRE_OPERATIONAL = 0x80
-NMT_RESET_COMMUNICATION = 0x82
 NMT_STATE_PRE_OPERATIONAL = 127
 SWITCH_INTERVAL_S = 0.0001  # the interpreter hands the GIL on at least this often while a bus is open
 

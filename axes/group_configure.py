@@ -11,12 +11,9 @@ from __future__ import annotations
 from axes.commission import refuse_on_facts
 from axes.feed_check import BufferedAxis, feed_shortfall
 from axes.link import DriveError
-from axes.objects import BUFFER_ERRORS
+from axes.objects import BUFFER_ERRORS, NmtCommand
 from axes.outcome import EventKind, GroupError, Result, RunResult
 from axes.program import PvtProgram, program_mismatch
-
-NMT_PRE_OPERATIONAL = 0x80
-NMT_START = 0x01
 
 
 class GroupConfiguration:
@@ -28,7 +25,7 @@ class GroupConfiguration:
         its profile's SDO sequence, then OPERATIONAL and consumers."""
         refuse_on_facts(self.links)
         for link in self.links:  # addressed, not broadcast: other nodes on the bus are not ours
-            self.bus.nmt(link.node_id, NMT_PRE_OPERATIONAL)
+            self.bus.nmt(link.node_id, NmtCommand.PRE_OPERATIONAL)
         self._configured_boots = {link.node_id: self.bus.watch.boot_count(link.node_id) for link in self.links}
         for link, profile in zip(self.links, self.profiles, strict=True):
             profile.configure()
@@ -36,7 +33,7 @@ class GroupConfiguration:
             link.subscribe_tpdos(profile.tpdos)
         self.bus.sync.expect({p.sync_answer_cob_id: p.sync_answer_every for p in self.profiles})
         for link in self.links:
-            self.bus.nmt(link.node_id, NMT_START)
+            self.bus.nmt(link.node_id, NmtCommand.START)
         self.bus.watch.watch_heartbeat(link.node_id for link in self.links)
         self.readiness.forget()
         self.configured = True
@@ -76,7 +73,7 @@ class GroupConfiguration:
             except DriveError as exc:
                 return self._finish_early(Result.CONFIGURATION_ERROR, str(exc))
             for link in self.links:
-                self.bus.nmt(link.node_id, NMT_START)
+                self.bus.nmt(link.node_id, NmtCommand.START)
             self.bus.sync.expect({p.sync_answer_cob_id: p.sync_answer_every for p in self.profiles})
             for link, profile in zip(self.links, self.profiles, strict=True):
                 try:

@@ -345,6 +345,17 @@ SYNC_COB_ID = 0x080  # CiA 301 default COB-ID of SYNC (0x1005), which every driv
 # 0x1800:06 only with a counter, so configuration writes it 0 where the drive has it, clearing a value
 # an earlier setup may have left for a SYNC with a counter; the simulated drives have no 0x1800:06.
 
+
+class NmtCommand(IntEnum):
+    """CiA 301 NMT command specifiers (the first byte of a frame on COB-ID 0)."""
+
+    START = 0x01
+    STOP = 0x02
+    PRE_OPERATIONAL = 0x80
+    RESET_NODE = 0x81
+    RESET_COMMUNICATION = 0x82
+
+
 # CiA 301 NMT error control: a node's heartbeat is one byte, its NMT state, on 0x700 + node id
 HEARTBEAT_COB_ID_BASE = 0x700
 NMT_STATE_OPERATIONAL = 5

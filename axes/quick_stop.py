@@ -42,7 +42,6 @@ SDO_RESPONSE_BASE = 0x580
 SDO_DOWNLOAD_2_BYTES = 0x2B  # expedited download, size indicated, 2 bytes
 SDO_DOWNLOAD_CONFIRMED = 0x60
 SDO_ABORT = 0x80
-NMT_STOP = 0x02
 _MULTIPLEXER = struct.pack("<HB", od.CONTROLWORD, 0)
 
 
@@ -148,7 +147,7 @@ def quick_stop_all(
                 stop.refused.setdefault(node, why)
         for node in stop.missing:
             try:
-                network.send_message(0, bytes([NMT_STOP, node]))
+                network.send_message(0, bytes([od.NmtCommand.STOP, node]))
                 stop.nmt_stopped.append(node)
             except (can.CanError, OSError, RuntimeError) as exc:
                 stop.unsent.append(f"NMT stop of node {node}: {exc}")

@@ -71,8 +71,8 @@ class NmtSlave:
     def boot(self) -> None:
         """Power on: boot-up message, then pre-operational with the heartbeat of 0x1017."""
         with self.lock:
-            self.node.nmt.send_command(0x81)  # initialising: sends the boot-up frame
-            self.node.nmt.send_command(0x80)  # pre-operational: starts the heartbeat
+            self.node.nmt.send_command(od.NmtCommand.RESET_NODE)  # initialising: sends the boot-up frame
+            self.node.nmt.send_command(od.NmtCommand.PRE_OPERATIONAL)  # pre-operational: starts the heartbeat
             if self._heartbeat_silenced:
                 self.node.nmt.stop_heartbeat()
             self.pdo.reload()
@@ -111,7 +111,7 @@ class NmtSlave:
             if self._nmt_left == "OPERATIONAL" and self.node.nmt.state == "STOPPED":
                 self._on_nmt_stopped()
             if self.node.nmt.state == "INITIALISING":  # reset node / reset communication
-                if data[0] == 0x81:
+                if data[0] == od.NmtCommand.RESET_NODE:
                     self._reset_application()
                 else:
                     self._reset_communication()

@@ -29,6 +29,7 @@ from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
 from axes.objects import EMCY_PDO_LENGTH
+from axes.sim.dictionary import ABORT_DEVICE_STATE
 from axes.sim.tpdo_timing import TpdoTiming
 from axes.subscriptions import subscribe, unsubscribe
 
@@ -38,7 +39,6 @@ if TYPE_CHECKING:
 PDO_NOT_VALID = 1 << 31
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
 
-ABORT_DEVICE_STATE = 0x08000022
 ABORT_UNSUPPORTED_ACCESS = 0x06010000
 COB_ID_BITS = 0x3FFF_FFFF  # bits 0-28 the identifier, 29 the frame (CAN 2.0A/B); 30 RTR and 31 invalid not
 ABORT_NOT_MAPPABLE = 0x06040041

@@ -11,11 +11,11 @@ import can
 import pytest
 from axes_rig import unique_channel
 
-from axes.bus import NMT_PRE_OPERATIONAL, CellBus
+from axes.bus import CellBus
 from axes.bus_faults import BusFault, FaultKind
 from axes.config import BusConfig
 from axes.network import FrameRecorder
-from axes.objects import TIME_STAMP_COB_ID
+from axes.objects import TIME_STAMP_COB_ID, NmtCommand
 
 
 class Responder(can.Listener):
@@ -97,7 +97,7 @@ def test_can_log_records_sent_and_received_frames(channel, tmp_path: Path, suffi
     path = tmp_path / f"traffic{suffix}"
     bus = CellBus(BusConfig(channel=channel, time_stamp=False), can_log=path).open()
     try:
-        bus.nmt_broadcast(NMT_PRE_OPERATIONAL)
+        bus.nmt_broadcast(NmtCommand.PRE_OPERATIONAL)
         bus.sync.expect([0x285])
         done = threading.Event()
         bus.sync.add_listener(lambda n: (bus.sync.stop(), done.set()) if n == 10 else None)
