@@ -29,7 +29,7 @@ from axes.commission import commission
 from axes.config import AxisSimulation
 from axes.group import AxisGroup
 from axes.link import DriveError
-from axes.sim.cell import SimulatedCell
+from axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 KINDS: list[tuple[str, str, dict[str, object], dict[str, int], str]] = [
@@ -48,6 +48,7 @@ def on_own_channel(cell: CellConfig) -> CellConfig:
 
 
 def open_cell(cell: CellConfig) -> tuple[SimulatedCell, CellBus, AxisGroup]:
+    cell = sharing_the_interpreter(cell)  # the drives run in this interpreter
     sim = SimulatedCell(cell).start()
     bus = CellBus(cell.bus, lockstep=True).open()
     return sim, bus, AxisGroup(bus, cell.ordered_axes())

@@ -35,7 +35,7 @@ from axes.bus import CellBus
 from axes.config import AxisSimulation, HomingConfig
 from axes.group import AxisGroup
 from axes.homing import CellHoming
-from axes.sim.cell import SimulatedCell
+from axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from service.api import ApiError, parse_execute, parse_home, parse_plan, parse_recover
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
 from service.motion import MotionService
@@ -77,6 +77,7 @@ def x_only(cell: CellConfig, homing: HomingConfig, machine: AxisSimulation) -> C
 
 
 def home_once(cell: CellConfig, lockstep: bool = True) -> tuple[object, float, SimulatedCell]:
+    cell = sharing_the_interpreter(cell)  # the drives run in this interpreter
     with SimulatedCell(cell) as sim:
         bus = CellBus(cell.bus, lockstep=lockstep).open()
         group = AxisGroup(bus, cell.ordered_axes())

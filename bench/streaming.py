@@ -30,7 +30,7 @@ from axes.config import AxisConfig
 from axes.group import AxisGroup
 from axes.outcome import Result
 from axes.program import AxisProgram, PvtProgram
-from axes.sim.cell import SimulatedCell
+from axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from service.config import CellConfig, load_cell_config
 
 
@@ -158,6 +158,7 @@ def streaming_run(args: argparse.Namespace) -> None:
             print(report.format_text())
             raise SystemExit("the benchmark program is invalid")
     total_records = sum(len(a.records) for a in prog.axes)
+    cell = sharing_the_interpreter(cell)  # the drives run in this interpreter
     sim = SimulatedCell(cell).start()
     bus = CellBus(cell.bus, lockstep=True).open()
     tap = FrameTap()
@@ -227,6 +228,7 @@ def halt_run(args: argparse.Namespace) -> None:
     """A fault inside one drive (its feeder stops: FIFO underflow) and the halt of all the others."""
     cell, axes = bench_cell(args.axes, args.sync_ms)
     prog = long_program(axes, 2000, args.record_ms)
+    cell = sharing_the_interpreter(cell)  # the drives run in this interpreter
     sim = SimulatedCell(cell).start()
     bus = CellBus(cell.bus, lockstep=True).open()
     group = AxisGroup(bus, axes)

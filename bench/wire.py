@@ -37,7 +37,7 @@ from axes.frame_time import frame_bits
 from axes.group import AxisGroup
 from axes.homing import CellHoming
 from axes.objects import EPOS2_RPDOS, SYNC_COB_ID
-from axes.sim.cell import SimulatedCell
+from axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from planner.plan import PlanInput
 from service.cell_planner import CellPlanner
 from service.config import CONFIG_DIR, CellConfig, load_cell_config
@@ -121,6 +121,7 @@ def measure(cell: CellConfig, tour_points: int) -> dict[str, object]:
     cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, channel=channel))
     planner = CellPlanner(cell)
     lim = planner.limits
+    cell = sharing_the_interpreter(cell)  # the drives run in this interpreter
     sim = SimulatedCell(cell, channel=channel).start()
     bus = CellBus(cell.bus, lockstep=True).open()
     tap = WireTap()
