@@ -33,18 +33,24 @@ from axes.sim.sync_setpoint import SyncSetpointDrive
 
 # Drives in the master's own interpreter share its pauses (a compile, a long replay, the host's load),
 # so a heartbeat window of about 3 periods (the shipped cells, for drives in a process of their own:
-# axes.sim.process) would take those pauses for lost nodes. In one interpreter the window is widened.
+# axes.sim.process) would take those pauses for lost nodes, and their answers to an SDO quick stop
+# wait for the master's threads to hand over the GIL. In one interpreter both windows are widened.
 SHARED_INTERPRETER_HEARTBEAT_FACTOR = 10.0
+SHARED_INTERPRETER_QUICK_STOP_CONFIRM_MS = 50.0
 
 W = TypeVar("W", bound=CellWiring)
 
 
 def sharing_the_interpreter(wiring: W) -> W:
     """``wiring`` as run with its simulated drives in the master's interpreter: heartbeat window at
-    least ``SHARED_INTERPRETER_HEARTBEAT_FACTOR`` periods (either way: drives and master)."""
-    if wiring.bus.heartbeat_timeout_factor >= SHARED_INTERPRETER_HEARTBEAT_FACTOR:
+    least ``SHARED_INTERPRETER_HEARTBEAT_FACTOR`` periods (either way: drives and master), SDO quick
+    stop confirmations awaited at least ``SHARED_INTERPRETER_QUICK_STOP_CONFIRM_MS``."""
+    bus = wiring.bus
+    factor = max(bus.heartbeat_timeout_factor, SHARED_INTERPRETER_HEARTBEAT_FACTOR)
+    confirm_ms = max(bus.quick_stop_confirm_ms, SHARED_INTERPRETER_QUICK_STOP_CONFIRM_MS)
+    if (factor, confirm_ms) == (bus.heartbeat_timeout_factor, bus.quick_stop_confirm_ms):
         return wiring
-    bus = replace(wiring.bus, heartbeat_timeout_factor=SHARED_INTERPRETER_HEARTBEAT_FACTOR)
+    bus = replace(bus, heartbeat_timeout_factor=factor, quick_stop_confirm_ms=confirm_ms)
     return replace(wiring, bus=bus)  # type: ignore[type-var]
 
 

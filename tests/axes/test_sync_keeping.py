@@ -27,7 +27,7 @@ from axes.config import BusConfig
 from axes.group import AxisGroup
 from axes.objects import SYNC_COB_ID
 from axes.outcome import Result
-from axes.sim.cell import SimulatedCell
+from axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from axes.sim.power_states import SWITCH_ON_DISABLED
 from axes.subscriptions import subscribe, unsubscribe
 
@@ -221,7 +221,9 @@ def test_a_send_the_interface_refuses_is_tried_again_within_the_bound():
 
 def sim_rig(cell, *, lockstep: bool, interface: str = "virtual", **bus_changes):
     channel = unique_channel()
-    bus_config = dataclasses.replace(cell.bus, channel=channel, **bus_changes)
+    cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, channel=channel))
+    cell = sharing_the_interpreter(cell)  # the drives run here
+    bus_config = dataclasses.replace(cell.bus, **bus_changes)
     cell = dataclasses.replace(cell, bus=bus_config)
     sim = SimulatedCell(cell, channel=channel, interface="virtual").start()
     master = dataclasses.replace(bus_config, interface=interface)
@@ -256,10 +258,7 @@ def assert_quick_stopped(group: AxisGroup, sim: SimulatedCell, result, kind: Res
 @pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "wall_clock"])
 def test_a_dead_sync_thread_quick_stops_every_axis_by_sdo(arm6, lockstep):
     cell = fixed_period_cell(arm6, 5)
-    # The drives answer from this interpreter, where the master's threads hold the GIL too: they
-    # confirm within 50 ms here; the 10 ms of the shipped cells is measured with the drives in a
-    # process of their own (bench/stop_paths.py --drives process).
-    cell, sim, bus, group = sim_rig(cell, lockstep=lockstep, max_sync_gap_periods=50, quick_stop_confirm_ms=50.0)
+    cell, sim, bus, group = sim_rig(cell, lockstep=lockstep, max_sync_gap_periods=50)
     try:
         prog = program(cell.ordered_axes(), 1500, fraction=0.3)
         killed = threading.Event()

@@ -11,7 +11,12 @@ import canopen
 from axes import objects as od
 from axes.config import wire_options
 from axes.sim import Epos2Drive
-from axes.sim.cell import SHARED_INTERPRETER_HEARTBEAT_FACTOR, SimulatedCell, sharing_the_interpreter
+from axes.sim.cell import (
+    SHARED_INTERPRETER_HEARTBEAT_FACTOR,
+    SHARED_INTERPRETER_QUICK_STOP_CONFIRM_MS,
+    SimulatedCell,
+    sharing_the_interpreter,
+)
 from axes.sim.process import LocalDrives
 from service.config import load_cell_config
 
@@ -54,6 +59,7 @@ def test_drives_that_share_the_masters_interpreter_get_the_wide_heartbeat_window
     shared = sharing_the_interpreter(cell)
     assert shared.bus.heartbeat_timeout_factor == SHARED_INTERPRETER_HEARTBEAT_FACTOR
     assert shared.bus.master_consumer_time_ms > cell.bus.master_consumer_time_ms
+    assert shared.bus.quick_stop_confirm_ms == SHARED_INTERPRETER_QUICK_STOP_CONFIRM_MS
     bus = dataclasses.replace(cell.bus, interface="virtual", channel=uuid.uuid4().hex)
     virtual = dataclasses.replace(cell, bus=bus)
     assert LocalDrives(virtual, "lockstep").bus.heartbeat_timeout_factor == SHARED_INTERPRETER_HEARTBEAT_FACTOR
