@@ -176,7 +176,7 @@ class Profile:
                 raise DriveError(link.node_id, f"{s.where} ({s.name}) reads back {back} after writing {s.value}")
 
     def write_profile_motion(self) -> None:
-        """0x6081/0x6083/0x6084 in drive units (a drive that ramps by itself: warning levels, braking)."""
+        """0x6081/0x6083 in drive units (the drive's warning levels; 0x6084 is a stop option)."""
         lim = self.config.limits
         unit = self.config.scaling.velocity_unit_rpm
         link = self.link
@@ -184,7 +184,6 @@ class Profile:
         profile_acceleration = lim.profile_acceleration_rpm_s or lim.max_acceleration_rpm_s
         link.write(od.PROFILE_VELOCITY, 0, round(profile_velocity / unit), "I")
         link.write(od.PROFILE_ACCELERATION, 0, round(profile_acceleration), "I")
-        link.write(od.QUICK_STOP_DECELERATION, 0, round(lim.max_acceleration_rpm_s), "I")
 
     def write_homing(self) -> None:
         """The axis's homing settings (0x6098, 0x6099:01/02, 0x609A, the home position as the drive
@@ -233,21 +232,25 @@ class Profile:
         if reaction is not None:
             what = f"fault reaction option code {reaction.name.lower()}"
             self._write_read_back(od.FAULT_REACTION_OPTION_CODE, 0, int(reaction), "h", what)
-        self.link.write_optional(
-            od.QUICK_STOP_DECELERATION_CIA402, 0, round(self.config.limits.max_acceleration_rpm_s), "I"
-        )
+        self.link.write_optional(od.QUICK_STOP_DECELERATION, 0, round(self.config.limits.max_acceleration_rpm_s), "I")
         self.write_stop_options()
 
     def write_stop_options(self) -> None:
         """How the drive stops by itself, where it has the objects (each read back): 0x605A = 2, a
         quick stop brakes on 0x6085, then SWITCH ON DISABLED (what 0x6007 = 3 relies on; a vendor tool
-        may have left 0 = power stage off, coasting), and 0x605D = 1, a halt brakes on 0x6084."""
-        for index, value, what in (
-            (od.QUICK_STOP_OPTION_CODE, od.QUICK_STOP_ON_QUICK_STOP_RAMP, "quick stop option code"),
-            (od.HALT_OPTION_CODE, od.HALT_ON_PROFILE_DECELERATION, "halt option code"),
-        ):
-            if self.link.write_optional(index, 0, value, "h"):
-                back = self.link.read(index, 0, "h")
+        may have left 0 = power stage off, coasting), 0x605D = 1, a halt brakes on 0x6084, and, on a
+        drive that ramps by itself, 0x6084 = 0x60C5: a halt brakes as hard as the axis may, never on
+        a deceleration a vendor tool left (steeper than 0x60C5, or so gentle the axis overruns)."""
+        settings = [
+            (od.QUICK_STOP_OPTION_CODE, od.QUICK_STOP_ON_QUICK_STOP_RAMP, "h", "quick stop option code"),
+            (od.HALT_OPTION_CODE, od.HALT_ON_PROFILE_DECELERATION, "h", "halt option code"),
+        ]
+        if self.ramps_by_itself:
+            braking = round(self.config.limits.max_acceleration_rpm_s)
+            settings.append((od.PROFILE_DECELERATION, braking, "I", "profile deceleration, the halt's ramp"))
+        for index, value, fmt, what in settings:
+            if self.link.write_optional(index, 0, value, fmt):
+                back = self.link.read(index, 0, fmt)
                 if back != value:
                     raise DriveError(
                         self.link.node_id, f"0x{index:04X} ({what}) reads back {back} after writing {value}"

@@ -110,8 +110,8 @@ class PowerStateMachine:
 
     def _deceleration(self, quick: bool) -> float:
         """Halt: profile deceleration 0x6084; quick stop: 0x6085 where the drive has it. In qc/ms^2."""
-        quick_stop = od.QUICK_STOP_DECELERATION_CIA402
-        index = quick_stop if quick and self.has(quick_stop) else od.QUICK_STOP_DECELERATION
+        quick_stop = od.QUICK_STOP_DECELERATION
+        index = quick_stop if quick and self.has(quick_stop) else od.PROFILE_DECELERATION
         rpm_s = max(self.read_or(index, 0, 10000), 1)
         return rpm_s / self._rpm_s_per_qc_ms2
 

@@ -138,6 +138,8 @@ def test_drives_watch_the_master_after_configuration(arm6, make_rig):
         sync_period_ms=1.0,
     )
     rig = make_rig(cell, eds_paths={5: MAXON_EPOS2_EDS})
+    for d in rig.sim:  # a deceleration a vendor tool left: a halt would brake on it
+        d.store(od.PROFILE_DECELERATION, 0, 7)
     rig.group.configure()
     bus = rig.cell.bus
     entry = (bus.master_node_id << 16) | bus.master_consumer_time_ms
@@ -148,7 +150,10 @@ def test_drives_watch_the_master_after_configuration(arm6, make_rig):
         if d.PROFILE == "epos2_pvt":  # its master-loss reaction is its fault reaction: on the quick stop ramp
             assert d.read(od.FAULT_REACTION_OPTION_CODE) == od.FaultReaction.QUICK_STOP, d.node_id
         limits = next(a.limits for a in cell.axes if a.node_id == d.node_id)
-        assert d.read(od.QUICK_STOP_DECELERATION_CIA402) == round(limits.max_acceleration_rpm_s)
+        assert d.read(od.QUICK_STOP_DECELERATION) == round(limits.max_acceleration_rpm_s)
+        # a drive that brakes by itself on halt does so on 0x60C5; the others get the master's ramp
+        halt_ramp = round(limits.max_acceleration_rpm_s) if d.PROFILE in ("epos2_pvt", "cia402_ip_linear") else 7
+        assert d.read(od.PROFILE_DECELERATION) == halt_ramp, d.node_id
     # the drives hear the master: their consumer entry is armed by its next heartbeat
     deadline = time.monotonic() + 5.0
     while time.monotonic() < deadline and not all(d.consumer.active(cell.bus.master_node_id) for d in rig.sim):

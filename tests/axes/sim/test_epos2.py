@@ -261,7 +261,7 @@ def test_software_position_limit_faults(bench: Bench) -> None:
 
 def test_halt_brakes_to_standstill(bench: Bench) -> None:
     drive, node = make(bench, 32)
-    node.sdo[od.QUICK_STOP_DECELERATION].raw = 20000  # rpm/s
+    node.sdo[od.PROFILE_DECELERATION].raw = 20000  # rpm/s
     push(node, [[0, 0, 1], [3000, 1500, 30], [6000, 1500, 30], [9000, 0, 30], [9000, 0, 0]])
     node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(35)
@@ -287,7 +287,7 @@ def test_time_stamps_are_kept(bench: Bench) -> None:
 def test_quick_stop_brakes_with_0x6085_then_switches_on_disabled(bench: Bench) -> None:
     drive, node = make(bench, 34)
     node.sdo[0x6085].raw = 50000  # quick stop deceleration, rpm/s
-    node.sdo[od.QUICK_STOP_DECELERATION].raw = 1000  # profile deceleration: not the one used
+    node.sdo[od.PROFILE_DECELERATION].raw = 1000  # profile deceleration: not the one used
     push(node, [[0, 0, 1], [3000, 1500, 30], [6000, 1500, 30], [9000, 0, 30], [9000, 0, 0]])
     node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(35)

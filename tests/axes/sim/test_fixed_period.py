@@ -223,7 +223,7 @@ def test_halt_brakes_a_fixed_period_drive(bench: Bench) -> None:
     drive = bench.add(SyncSetpointDrive(49, scaling=SCALING, limits=LIMITS))
     node = bench.remote(drive)
     enable(node)
-    node.sdo[od.QUICK_STOP_DECELERATION].raw = 100000
+    node.sdo[od.PROFILE_DECELERATION].raw = 100000
     node.sdo[od.CONTROLWORD].raw = 0x001F
     bench.sync(1)
     for k in range(1, 6):
