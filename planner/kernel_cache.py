@@ -30,6 +30,7 @@ KERNEL_SOURCES = (
             "knots/fixed_period_kernels.py",
             "knots/quantize_kernels.py",
             "knots/refine_kernels.py",
+            "knots/round_kernels.py",
             "lean_toppra.py",
             "path.py",
             "slowdown.py",

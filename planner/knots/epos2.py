@@ -9,10 +9,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.interpolation import epos2_pvt
-from planner.knots.check import Checked, axis_records, check_knots, checked_subset, knot_records, over_limit
+from planner.knots.check import Checked, axis_records, checked_subset, knot_records, over_limit
 from planner.knots.flat import Flat
 from planner.knots.jerk_smooth import smoothed_axis
-from planner.knots.quantize import repair_rounds, round_knots, shifted_records
+from planner.knots.quantize import quantize_checked, shifted_records
 from planner.knots.refine import Fitted, fit_knots, fitted_subset, lsq_fit, refine, split_segments, switch_knots
 from planner.knots.samples import Samples
 from planner.knots.types import AxisKnots, DriveAxis, KnotOptions
@@ -95,9 +95,7 @@ def place_epos2(
             else:
                 fitted = lsq_fit(fl, knots, fitted)
                 p_fit, v_fit = fitted.P, fitted.V
-        P_round, V = round_knots(fl, knots, p_fit, v_fit)
-        rounded = check_knots(fl, knots, P_round, V, checked)
-        _, P, V, checked = repair_rounds(fl, knots, P_round, V, rounded, tol)
+        P, V, checked = quantize_checked(fl, knots, p_fit, v_fit, checked, tol)
         chk = checked.chk
         T = np.diff(knots)
         bad = np.flatnonzero((chk.seg_deviation > tol) | chk.position_out)
