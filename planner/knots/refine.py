@@ -24,9 +24,7 @@ def switch_knots(
 
 def split_segments(knots: NDArray[np.int64], segments: NDArray[np.int64]) -> NDArray[np.int64]:
     """Halve the given knot segments (sorted, unique; those of 1 ms cannot be split and are left alone)."""
-    lo, hi = knots[segments], knots[segments + 1]
-    ok = hi - lo >= 2
-    return np.insert(knots, segments[ok] + 1, (lo[ok] + hi[ok]) // 2)  # each inside its segment: still sorted
+    return kernels.split_at(knots, segments)
 
 
 _FIT_PROBES = np.arange(1, 8) / 8.0  # where a candidate segment's fit is judged

@@ -126,3 +126,50 @@ def round_check_repair(
         )
         cP, cV = P, V
     return 0, 0, P, V, cP, cV, dev, rv, ra, out
+
+
+@njit(cache=True)
+def split_verdict(
+    knots: _I,
+    stride: int,
+    dev: _F,
+    out: _B,
+    rv: _F,
+    ra: _F,
+    tol: float,
+    jerk_stuck: _I,
+    last_stuck: _I,
+    min_split: int,
+) -> tuple[_I, _I, _B]:
+    """What a checked round splits (``planner.knots.epos2.place_epos2``): the segments of 2 ms or
+    more that stray from the plan or leave 0x607D, and those over a limit (or in ``jerk_stuck``,
+    the window jerk's) of at least ``min_split`` ms on an axis that has not given up. An axis gives
+    up where it strays nowhere and its segments over a limit are no fewer than ``last_stuck`` (per
+    axis). Returns the segments to split (sorted), and per axis its segments over a limit and
+    whether it strays."""
+    nseg = len(knots) - 1
+    n_axes = len(last_stuck)
+    stuck = np.zeros(nseg, dtype=np.bool_)
+    for k in range(nseg):
+        stuck[k] = ra[k] > _OVER or rv[k] > _OVER
+    for s in jerk_stuck:
+        stuck[s] = True
+    n_stuck = np.zeros(n_axes, dtype=np.int64)
+    strays = np.zeros(n_axes, dtype=np.bool_)
+    bad = np.zeros(nseg, dtype=np.bool_)
+    for k in range(nseg):
+        a = knots[k] // stride
+        if (dev[k] > tol or out[k]) and knots[k + 1] - knots[k] >= 2:
+            bad[k] = True
+            strays[a] = True
+        if stuck[k]:
+            n_stuck[a] += 1
+    n_split = 0
+    split = np.empty(nseg, dtype=np.int64)
+    for k in range(nseg):
+        a = knots[k] // stride
+        give_up = n_stuck[a] > 0 and not strays[a] and n_stuck[a] >= last_stuck[a]
+        if bad[k] or (stuck[k] and not give_up and knots[k + 1] - knots[k] >= min_split):
+            split[n_split] = k
+            n_split += 1
+    return split[:n_split], n_stuck, strays
