@@ -29,6 +29,7 @@ KERNEL_SOURCES = (
             "knots/check_kernels.py",
             "knots/fixed_period_kernels.py",
             "knots/quantize_kernels.py",
+            "knots/records_kernels.py",
             "knots/refine_kernels.py",
             "knots/round_kernels.py",
             "lean_toppra.py",
