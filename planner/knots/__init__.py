@@ -50,6 +50,11 @@ Where each step lives: ``types`` (what goes in and out), ``samples`` (the plan a
 problem), ``epos2`` (steps 1-4 for the EPOS2 axes), ``fixed_period`` (the other profiles), and
 step 5, ``place_knots``, here. A step's per-segment loops, compiled with numba, sit beside it as
 ``<step>_kernels`` (``check_kernels`` also holds the judgements of a segment the others share).
+A round of steps 2-4 is a few compiled calls, not a numpy call per array operation: the
+least-squares fits and their splits (``refine_kernels.fit_rounds``), rounding, check and repair
+(``round_kernels.round_check_repair``), what the round splits (``round_kernels.split_verdict``),
+an axis's records read back (``records_kernels``). A plan's placement makes a few tens of them;
+the Python around them only decides which axes are done.
 """
 
 from __future__ import annotations

@@ -168,10 +168,11 @@ def axis_records(
     records, dev, rv, ra = records_kernels.axis_records(
         knots, P, V, fl.stride, a, dwell_ms, chk.seg_deviation, chk.velocity_ratio, chk.acceleration_ratio
     )
-    rj = 0.0
+    rj, scale = 0.0, needed_scale(rv, ra)
     if math.isfinite(fl.window_jerk[a]):
         rj = window_jerk(epos2_pvt(records, float(fl.f[a]))) / float(fl.window_jerk[a])
-    return AxisKnots(fl.axes[a].joint, records, dev, rv, ra, rj), max(needed_scale(rv, ra), jerk_scale(rj))
+        scale = max(scale, jerk_scale(rj))
+    return AxisKnots(fl.axes[a].joint, records, dev, rv, ra, rj), scale
 
 
 def jerk_scale(rj: float) -> float:
