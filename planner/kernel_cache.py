@@ -25,6 +25,7 @@ KERNEL_SOURCES = (
         HERE / n
         for n in (
             "cartesian.py",
+            "constraints.py",
             "ik.py",
             "knots/check_kernels.py",
             "knots/fixed_period_kernels.py",

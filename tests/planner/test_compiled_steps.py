@@ -1,9 +1,10 @@
-"""The compiled rounds of knot placement give what their steps give one by one, bit for bit.
+"""The compiled steps of a plan give what their numpy statements give, bit for bit.
 
 ``fit_knots`` (``refine_kernels.fit_rounds``), ``quantize_checked`` (``round_kernels.round_check_repair``)
 and ``split_verdict`` each do in one call what ``lsq_fit`` / ``split_segments``, ``round_knots`` /
 ``check_knots`` / ``repair_rounds`` and a few numpy operations do step by step; the TOPP-RA backward
-pass skips its LPs in a compiled loop (``lean_toppra._known_stages``) where the stage's set is known.
+pass skips its LPs in a compiled loop (``lean_toppra._known_stages``) where the stage's set is known;
+the interval speed constraints build their rows in one (``constraints._interval_rows``).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 
 from axes.program import TIME_MAX_MS
+from planner.constraints import _IntervalSpeedConstraint
 from planner.knots import KnotError
 from planner.knots.check import axis_records, check_knots, knot_records, over_limit
 from planner.knots.flat import Flat
@@ -166,3 +168,31 @@ def test_backward_pass_shortcuts_match_the_lps(arm6_flat) -> None:
         x_lo = sw.solve_stagewise_optim(i, None, algo._g_min_x, np.nan, np.nan, lo, hi)[1]
         assert max(x_lo, 0.0) == pytest.approx(K[i, 0], abs=1e-6 * (1.0 + K[i, 1]))
     sw.close_solver()
+
+
+def _speed_rows_numpy(c: _IntervalSpeedConstraint, path, gridpoints: np.ndarray):
+    n, f = len(gridpoints), len(c.FRACTIONS)
+    sigma = np.append(np.diff(gridpoints), 0.0)[:, None] * c.FRACTIONS[None, :]
+    inner = c.FRACTIONS < 1.0
+    s_inner = (gridpoints[:-1, None] + sigma[:-1, inner]).ravel()
+    factors2 = c.speed_factors(path, np.concatenate((gridpoints, s_inner))) ** 2
+    with np.errstate(divide="ignore"):
+        x_max = np.minimum(np.min(c.limit**2 / factors2, axis=1), 1e8)
+    bound = np.empty((n, f))
+    bound[:-1, inner] = x_max[n:].reshape(n - 1, int(inner.sum()))
+    bound[:-1, ~inner] = x_max[1:n, None]
+    bound[-1] = x_max[n - 1]
+    return 2.0 * sigma, -bound, np.column_stack((np.zeros(n), x_max[:n]))
+
+
+@pytest.mark.parametrize("intervals", [3, 60, 140])
+def test_interval_speed_rows_are_the_numpy_rule(arm6_flat, intervals: int) -> None:
+    planner, traj, _ = arm6_flat
+    grid = make_gridpoints(traj.path, intervals)
+    speed = [c for c in planner.constraints if isinstance(c, _IntervalSpeedConstraint)]
+    assert len(speed) == 2  # arm6: the joint velocities and the TCP speed
+    for c in speed:
+        a, b, C, _, _, ubound, xbound = c.compute_constraint_params(traj.path, grid)
+        for got, want in zip((a, C, xbound), _speed_rows_numpy(c, traj.path, grid), strict=True):
+            np.testing.assert_array_equal(got, want)
+        assert b.shape == a.shape and ubound is None
