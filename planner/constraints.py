@@ -33,7 +33,7 @@ def _interval_samples(gridpoints: NDArray[np.float64], fractions: NDArray[np.flo
     return s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")  # x / 0 is inf, as numpy's: a sample where nothing moves allows any speed
 def _interval_rows(
     factors: NDArray[np.float64],
     limit: NDArray[np.float64],

@@ -196,3 +196,19 @@ def test_interval_speed_rows_are_the_numpy_rule(arm6_flat, intervals: int) -> No
         for got, want in zip((a, C, xbound), _speed_rows_numpy(c, traj.path, grid), strict=True):
             np.testing.assert_array_equal(got, want)
         assert b.shape == a.shape and ubound is None
+
+
+def test_interval_speed_rows_where_nothing_moves() -> None:
+    """A sample where the bounded quantity does not move (factor 0) allows any speed: the cap."""
+    cell = load_cell_config()
+    lim = cell.joint_limits()
+    a, b = lim.lower + 0.4 * (lim.upper - lim.lower), lim.lower + 0.6 * (lim.upper - lim.lower)
+    b[1:] = a[1:]  # joint 0 alone moves: the other joints' velocity factors are 0 everywhere
+    out = planner_for_cell(cell).plan(PlanInput(np.array([a, b])))
+    assert out.ok, out.message
+    grid = make_gridpoints(out.trajectory.path, 20)
+    c = next(c for c in planner_for_cell(cell).constraints if isinstance(c, _IntervalSpeedConstraint))
+    rows = c.compute_constraint_params(out.trajectory.path, grid)
+    want = _speed_rows_numpy(c, out.trajectory.path, grid)
+    for got, ref in zip((rows[0], rows[2], rows[6]), want, strict=True):
+        np.testing.assert_array_equal(got, ref)
