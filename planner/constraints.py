@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import toppra.constraint as constraint
+from numba import njit
 from numpy.typing import NDArray
 
 from planner.limits import JointLimits
@@ -13,6 +14,58 @@ from planner.path import JointPath
 from planner.trajectory import Trajectory
 
 _X_MAX = 1e8  # bound on s'^2 where nothing binds (the solver wants finite numbers)
+
+
+@njit(cache=True)
+def _interval_samples(gridpoints: NDArray[np.float64], fractions: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The gridpoints, then s_i + fraction * (s_i+1 - s_i) for every interval i and every fraction
+    below 1 (interval by interval): where ``_IntervalSpeedConstraint`` holds its bound."""
+    n = len(gridpoints)
+    inner = fractions[fractions < 1.0]
+    s = np.empty(n + (n - 1) * len(inner))
+    s[:n] = gridpoints
+    k = n
+    for i in range(n - 1):
+        delta = gridpoints[i + 1] - gridpoints[i]
+        for x in inner:
+            s[k] = gridpoints[i] + delta * x
+            k += 1
+    return s
+
+
+@njit(cache=True, error_model="numpy")  # x / 0 is inf, as numpy's: a sample where nothing moves allows any speed
+def _interval_rows(
+    factors: NDArray[np.float64],
+    limit: NDArray[np.float64],
+    gridpoints: NDArray[np.float64],
+    fractions: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The rows of ``_IntervalSpeedConstraint`` from the speed factors at ``_interval_samples``:
+    per stage and fraction 2 sigma (the u coefficient) and -x_max there (the largest s'^2 the
+    sample allows, min over the bounded quantities of limit^2 / factor^2, capped at ``_X_MAX``;
+    an interval's end is the next gridpoint's), and the box [0, x_max] on x at the gridpoints."""
+    n, f = len(gridpoints), len(fractions)
+    x_max = np.empty(len(factors))
+    for k in range(len(factors)):
+        m = np.inf
+        for j in range(len(limit)):
+            m = min(m, (limit[j] * limit[j]) / (factors[k, j] * factors[k, j]))
+        x_max[k] = min(m, _X_MAX)
+    two_sigma, bound, xbound = np.empty((n, f)), np.empty((n, f)), np.zeros((n, 2))
+    k = n
+    for i in range(n):
+        delta = gridpoints[i + 1] - gridpoints[i] if i < n - 1 else 0.0
+        for j in range(f):
+            two_sigma[i, j] = 2.0 * (delta * fractions[j])
+            if i == n - 1:
+                bound[i, j] = -x_max[n - 1]
+            elif fractions[j] < 1.0:
+                bound[i, j] = -x_max[k]
+                k += 1
+            else:
+                bound[i, j] = -x_max[i + 1]
+        xbound[i, 1] = x_max[i]
+    return two_sigma, bound, xbound
 
 
 class _IntervalSpeedConstraint(constraint.LinearConstraint):
@@ -41,24 +94,12 @@ class _IntervalSpeedConstraint(constraint.LinearConstraint):
         raise NotImplementedError
 
     def compute_constraint_params(self, path: JointPath, gridpoints: NDArray[np.float64]):  # type: ignore[override]
-        n, f = len(gridpoints), len(self.FRACTIONS)
-        delta = np.append(np.diff(gridpoints), 0.0)
-        sigma = delta[:, None] * self.FRACTIONS[None, :]  # (n, f)
         # the end of interval i is gridpoint i + 1: the gridpoints and the inner samples in one evaluation
-        inner = self.FRACTIONS < 1.0
-        s_inner = (gridpoints[:-1, None] + sigma[:-1, inner]).ravel()
-        factors2 = self.speed_factors(path, np.concatenate((gridpoints, s_inner))) ** 2
-        with np.errstate(divide="ignore", over="ignore"):
-            # the largest s'^2 each sample allows (inf where nothing moves: capped, the solver wants numbers)
-            x_max = np.minimum(np.min(self.limit**2 / factors2, axis=1), _X_MAX)
-        at_grid = x_max[:n]
-        bound = np.empty((n, f))
-        bound[:-1, inner] = x_max[n:].reshape(n - 1, int(inner.sum()))
-        bound[:-1, ~inner] = at_grid[1:, None]
-        bound[-1] = at_grid[-1]
+        factors = self.speed_factors(path, _interval_samples(gridpoints, self.FRACTIONS))
+        two_sigma, bound, xbound = _interval_rows(factors, self.limit, gridpoints, self.FRACTIONS)
         # rows 2 sigma u + x - bound <= 0
-        xbound = np.column_stack((np.zeros(n), at_grid))
-        return 2.0 * sigma, np.ones((n, f)), -bound, np.eye(f), np.zeros(f), None, xbound
+        f = len(self.FRACTIONS)
+        return two_sigma, np.ones((len(gridpoints), f)), bound, np.eye(f), np.zeros(f), None, xbound
 
 
 class IntervalJointVelocityConstraint(_IntervalSpeedConstraint):

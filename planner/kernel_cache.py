@@ -25,11 +25,14 @@ KERNEL_SOURCES = (
         HERE / n
         for n in (
             "cartesian.py",
+            "constraints.py",
             "ik.py",
             "knots/check_kernels.py",
             "knots/fixed_period_kernels.py",
             "knots/quantize_kernels.py",
+            "knots/records_kernels.py",
             "knots/refine_kernels.py",
+            "knots/round_kernels.py",
             "lean_toppra.py",
             "path.py",
             "slowdown.py",

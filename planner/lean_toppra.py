@@ -154,6 +154,38 @@ def _forward_pass(
     return us, xs
 
 
+@njit(cache=True)
+def _known_stages(
+    i: int,
+    lo: float,
+    hi: float,
+    x_top: NDArray[np.float64],
+    u_lo: NDArray[np.float64],
+    u_hi: NDArray[np.float64],
+    rest: NDArray[np.bool_],
+    two_delta: NDArray[np.float64],
+    K: NDArray[np.float64],
+) -> tuple[int, float, float]:
+    """The backward pass from stage ``i`` down (next set [lo, hi]) over the stages whose controllable
+    set needs no LP: its upper end is x_top (some allowed u there lands in the next set) and its
+    lower end 0 (standing still is allowed and 0 is in the next set). Writes them into ``K`` and
+    returns the first stage that needs more (-1: none left) with the set after it. The same float
+    operations as ``LeanTOPPRA.compute_controllable_sets`` (Python's max and min included)."""
+    while i >= 0:
+        x = x_top[i]
+        if x != x or not (lo == 0.0 and rest[i]):
+            return i, lo, hi
+        y = (lo - x) / two_delta[i]
+        first = y if y > u_lo[i] else u_lo[i]
+        z = (hi - x) / two_delta[i]
+        if not first + 1e-9 * (1.0 + abs(first)) <= (z if z < u_hi[i] else u_hi[i]):
+            return i, lo, hi
+        lo, hi = 0.0, x
+        K[i, 0], K[i, 1] = lo, hi
+        i -= 1
+    return i, lo, hi
+
+
 class LeanTOPPRA(algo.TOPPRA):
     """toppra's TOPPRA, with the per-stage bookkeeping of its two passes done once up front.
 
@@ -198,11 +230,17 @@ class LeanTOPPRA(algo.TOPPRA):
         g_max, g_min, nan = self._g_max_x, self._g_min_x, np.nan
         rest = self._rest.tolist()
         x_top, (u_lo, u_hi) = self._x_top.tolist(), (v.tolist() for v in self._u_top)
-        two_delta = (2.0 * self.solver_wrapper.get_deltas()).tolist()
+        two_delta_arr = 2.0 * self.solver_wrapper.get_deltas()
+        two_delta = two_delta_arr.tolist()
         self.solver_wrapper.setup_solver()
         lo, hi = float(K[n, 0]), float(K[n, 1])
-        los, his = [], []
-        for i in range(n - 1, -1, -1):
+        i = n - 1
+        while True:
+            # the stages whose both ends are known in closed form, in one compiled pass
+            i, lo, hi = _known_stages(i, lo, hi, self._x_top, *self._u_top, self._rest, two_delta_arr, K)
+            if i < 0:
+                self.solver_wrapper.close_solver()
+                break
             # a u feasible at x_top[i] that lands in [lo, hi]: x_top[i] is the LP's maximum
             x = x_top[i]
             first = max(u_lo[i], (lo - x) / two_delta[i])
@@ -219,13 +257,8 @@ class LeanTOPPRA(algo.TOPPRA):
             lo, hi = max(x_lo, 0.0), x_hi
             if lo != lo or hi != hi:  # NaN: no controllable state at this stage (K stays NaN there)
                 break
-            los.append(lo)
-            his.append(hi)
-        else:
-            self.solver_wrapper.close_solver()
-        k = len(los)
-        K[n - k : n, 0] = los[::-1]
-        K[n - k : n, 1] = his[::-1]
+            K[i, 0], K[i, 1] = lo, hi
+            i -= 1
         return K
 
     def compute_parameterization(self, sd_start: float, sd_end: float, return_data: bool = False):  # type: ignore[override]

@@ -76,19 +76,18 @@ def check_waypoints(waypoints: ArrayLike, limits: JointLimits) -> NDArray[np.flo
             waypoint=int(i),
             joint=limits.names[j],
         )
-    for i, q in enumerate(w):
-        below = q < limits.lower - POSITION_TOLERANCE
-        above = q > limits.upper + POSITION_TOLERANCE
-        if below.any() or above.any():
-            j = int(np.flatnonzero(below | above)[0])
-            raise PlanError(
-                PlanResult.WAYPOINT_OUT_OF_LIMITS,
-                f"waypoint {i}, joint {limits.names[j]}: {q[j]:.6g} is outside "
-                f"[{limits.lower[j]:.6g}, {limits.upper[j]:.6g}]",
-                waypoint=i,
-                joint=limits.names[j],
-                value=float(q[j]),
-            )
+    outside = np.argwhere((w < limits.lower - POSITION_TOLERANCE) | (w > limits.upper + POSITION_TOLERANCE))
+    if len(outside):  # the first waypoint with a joint outside, its first such joint
+        i, j = (int(v) for v in outside[0])
+        q = w[i]
+        raise PlanError(
+            PlanResult.WAYPOINT_OUT_OF_LIMITS,
+            f"waypoint {i}, joint {limits.names[j]}: {q[j]:.6g} is outside "
+            f"[{limits.lower[j]:.6g}, {limits.upper[j]:.6g}]",
+            waypoint=i,
+            joint=limits.names[j],
+            value=float(q[j]),
+        )
     steps = np.linalg.norm(np.diff(w, axis=0), axis=1)
     repeated = np.flatnonzero(steps < MIN_WAYPOINT_DISTANCE)
     if len(repeated):

@@ -50,6 +50,11 @@ Where each step lives: ``types`` (what goes in and out), ``samples`` (the plan a
 problem), ``epos2`` (steps 1-4 for the EPOS2 axes), ``fixed_period`` (the other profiles), and
 step 5, ``place_knots``, here. A step's per-segment loops, compiled with numba, sit beside it as
 ``<step>_kernels`` (``check_kernels`` also holds the judgements of a segment the others share).
+A round of steps 2-4 is a few compiled calls, not a numpy call per array operation: the
+least-squares fits and their splits (``refine_kernels.fit_rounds``), rounding, check and repair
+(``round_kernels.round_check_repair``), what the round splits (``round_kernels.split_verdict``),
+an axis's records read back (``records_kernels``). A plan's placement makes a few tens of them;
+the Python around them only decides which axes are done.
 """
 
 from __future__ import annotations
@@ -84,18 +89,18 @@ def place_knots(traj: TimedTrajectory, axes: Sequence[DriveAxis], options: KnotO
     last: tuple[AxisKnots, ...] = ()
     last_n = 0
     least = drives = 1.0  # the slow-downs the fixed-period drives alone call for (``drive_slowdown``)
-    if any(a.profile.fixed_period for a in axes):
+    fixed = [i for i, a in enumerate(axes) if a.profile.fixed_period]
+    epos2 = [i for i, a in enumerate(axes) if not a.profile.fixed_period]
+    if fixed:
         smp = sample_trajectory(traj, axes, scale, opts.max_jerk, opts.window_jerk_ratio)
-        for i, axis in enumerate(axes):
-            if axis.profile.fixed_period:
-                k_least, k_drive = drive_slowdown(axis, i, smp)
-                least, drives = max(least, scale * k_least), max(drives, scale * k_drive)
+        for i in fixed:
+            k_least, k_drive = drive_slowdown(axes[i], i, smp)
+            least, drives = max(least, scale * k_least), max(drives, scale * k_drive)
         if least > scale:  # no integers make less: no round below it
             scale = math.ceil(duration_ms * least - 1e-6) / duration_ms
     for rounds in range(1, opts.max_rounds + 1):
         smp = sample_trajectory(traj, axes, scale, opts.max_jerk, opts.window_jerk_ratio)
         placed: dict[int, tuple[AxisKnots, float]] = {}
-        epos2 = [i for i, a in enumerate(axes) if not a.profile.fixed_period]
         if epos2:
             hints = None
             if last:  # the previous round's knots, stretched with the motion
@@ -104,9 +109,8 @@ def place_knots(traj: TimedTrajectory, axes: Sequence[DriveAxis], options: KnotO
                     prev = record_knots(last[i].records)
                     hints.append(np.unique(np.rint(prev * smp.n_ms / last_n).astype(np.int64)))
             placed.update(zip(epos2, epos2_axes([axes[i] for i in epos2], epos2, smp, opts, hints), strict=True))
-        for i, axis in enumerate(axes):
-            if axis.profile.fixed_period:
-                placed[i] = fixed_period_axis(axis, i, smp, opts)
+        for i in fixed:
+            placed[i] = fixed_period_axis(axes[i], i, smp, opts)
         results = [placed[i][0] for i in range(len(axes))]
         need = max([1.0] + [placed[i][1] for i in range(len(axes))])
         last = tuple(results)

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 from axes.interpolation import PiecewiseCubic, epos2_pvt, exceeds
 from axes.program import AxisProgram
 from planner.knots import check_kernels as kernels
+from planner.knots import records_kernels
 from planner.knots.flat import Flat
 from planner.knots.types import AxisKnots, DriveAxis
 from planner.knots.window_jerk import window_jerk
@@ -152,13 +153,7 @@ def knot_records(
     fl: Flat, a: int, knots: NDArray[np.int64], P: NDArray[np.int64], V: NDArray[np.int64], dwell_ms: int
 ) -> NDArray[np.int64]:
     """The records of axis ``a`` of ``fl``: the dwell, one per knot, the end record (P, 0, 0)."""
-    k0, k1 = np.searchsorted(knots, [a * fl.stride, (a + 1) * fl.stride])  # knots k0 .. k1 - 1
-    records = np.zeros((k1 - k0 + 1, 3), dtype=np.int64)
-    records[:-1, 0], records[:-1, 1] = P[k0:k1], V[k0:k1]
-    records[-1, 0] = P[k1 - 1]
-    records[0, 2] = dwell_ms
-    records[1:-1, 2] = np.diff(knots[k0:k1])
-    return records
+    return records_kernels.knot_records(knots, P, V, fl.stride, a, dwell_ms)
 
 
 def axis_records(
@@ -170,15 +165,14 @@ def axis_records(
     own reconstruction) within what ``fl.window_jerk`` allows: the motion's part of it falls with
     the cube of the slow-down.
     """
-    k0, k1 = np.searchsorted(knots, [a * fl.stride, (a + 1) * fl.stride])
-    records = knot_records(fl, a, knots, P, V, dwell_ms)
-    dev = float(chk.seg_deviation[k0 : k1 - 1].max())
-    rv = float(chk.velocity_ratio[k0 : k1 - 1].max())
-    ra = float(chk.acceleration_ratio[k0 : k1 - 1].max())
-    rj = 0.0
+    records, dev, rv, ra = records_kernels.axis_records(
+        knots, P, V, fl.stride, a, dwell_ms, chk.seg_deviation, chk.velocity_ratio, chk.acceleration_ratio
+    )
+    rj, scale = 0.0, needed_scale(rv, ra)
     if math.isfinite(fl.window_jerk[a]):
         rj = window_jerk(epos2_pvt(records, float(fl.f[a]))) / float(fl.window_jerk[a])
-    return AxisKnots(fl.axes[a].joint, records, dev, rv, ra, rj), max(needed_scale(rv, ra), jerk_scale(rj))
+        scale = max(scale, jerk_scale(rj))
+    return AxisKnots(fl.axes[a].joint, records, dev, rv, ra, rj), scale
 
 
 def jerk_scale(rj: float) -> float:

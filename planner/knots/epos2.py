@@ -9,11 +9,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.interpolation import epos2_pvt
-from planner.knots.check import Checked, axis_records, check_knots, checked_subset, knot_records, over_limit
+from planner.knots.check import NO_INT, Checked, axis_records, checked_subset, knot_records
 from planner.knots.flat import Flat
 from planner.knots.jerk_smooth import smoothed_axis
-from planner.knots.quantize import repair_rounds, round_knots, shifted_records
+from planner.knots.quantize import quantize_checked, shifted_records
 from planner.knots.refine import Fitted, fit_knots, fitted_subset, lsq_fit, refine, split_segments, switch_knots
+from planner.knots.round_kernels import split_verdict
 from planner.knots.samples import Samples
 from planner.knots.types import AxisKnots, DriveAxis, KnotOptions
 from planner.knots.window_jerk import segments_over
@@ -95,27 +96,20 @@ def place_epos2(
             else:
                 fitted = lsq_fit(fl, knots, fitted)
                 p_fit, v_fit = fitted.P, fitted.V
-        P_round, V = round_knots(fl, knots, p_fit, v_fit)
-        rounded = check_knots(fl, knots, P_round, V, checked)
-        _, P, V, checked = repair_rounds(fl, knots, P_round, V, rounded, tol)
+        P, V, checked = quantize_checked(fl, knots, p_fit, v_fit, checked, tol)
         chk = checked.chk
-        T = np.diff(knots)
-        bad = np.flatnonzero((chk.seg_deviation > tol) | chk.position_out)
-        bad = bad[T[bad] >= 2]
         # a segment still over a limit with a long span: another knot gives the repair room to fix it;
-        # where the window jerk is over, shorter cubics follow the plan's acceleration closer
-        stuck = np.flatnonzero(over_limit(chk))
-        if np.isfinite(fl.window_jerk).any():  # and the drive's window jerk over what the jerk limit allows
-            stuck = np.union1d(stuck, jerk_segments(fl, knots, P, V, opts.dwell_ms))
-        # splits are worth it while they help: an axis whose segments over a limit did not get
-        # fewer (and that strays nowhere) stops here, as it is
-        ax_stuck = fl.axis_of(knots[stuck])
-        n_stuck = np.bincount(ax_stuck, minlength=len(fl.axes))
-        strays = np.zeros(len(fl.axes), dtype=bool)
-        strays[fl.axis_of(knots[bad])] = True
-        give_up = (n_stuck > 0) & ~strays & (n_stuck >= last_stuck[fl.ids])
+        # where the window jerk is over, shorter cubics follow the plan's acceleration closer; splits
+        # are worth it while they help: an axis whose segments over a limit did not get fewer (and
+        # that strays nowhere) stops here, as it is (``round_kernels.split_verdict``)
+        jerk = NO_INT
+        if np.isfinite(fl.window_jerk).any():  # the drive's window jerk over what the jerk limit allows
+            jerk = jerk_segments(fl, knots, P, V, opts.dwell_ms)
+        bad, n_stuck, strays = split_verdict(
+            knots, fl.stride, chk.seg_deviation, chk.position_out, chk.velocity_ratio, chk.acceleration_ratio,
+            tol, jerk, last_stuck[fl.ids], 2 * _MIN_SPLIT_MS,
+        )  # fmt: skip
         last_stuck[fl.ids] = n_stuck
-        stuck = stuck[~give_up[ax_stuck]]
         # an axis that strays nowhere has a usable program now: keep it if it is the best so far
         # (splitting for a limit can also make it worse: shorter segments feel rounding more)
         for a in np.flatnonzero(~strays & (n_stuck > 0)):
@@ -123,7 +117,6 @@ def place_epos2(
             kept = best.get(int(fl.ids[a]))
             if kept is None or cand[1] < kept[1]:
                 best[int(fl.ids[a])] = cand
-        bad = np.union1d(bad, stuck[T[stuck] >= 2 * _MIN_SPLIT_MS])
         if not len(bad):
             break
         # the axes without a bad segment are done (as each would be on its own): they leave

@@ -91,12 +91,13 @@ class Flat:
     def flat_knots(self, per_axis: Sequence[NDArray[np.int64]]) -> NDArray[np.int64]:
         """Each axis's knots (sorted, unique; both ends added, no segment over 255 ms) laid end to end."""
         n = self.stride - 1
-        parts = []
-        for a, k in enumerate(per_axis):
-            base = a * self.stride
-            parts += [[base], k[(k > 0) & (k < n)] + base, [base + n]]
+        starts = np.arange(len(per_axis), dtype=np.int64) * self.stride
+        k = np.concatenate([np.asarray(x, dtype=np.int64) for x in per_axis])
+        base = np.repeat(starts, [len(x) for x in per_axis])
+        inner = (k > 0) & (k < n)
+        # each axis's knots lie between its ends, the axes one after the other: sorted, the union;
         # the step from an axis's end to the next one's start is 1: only real segments are split
-        return within_record_time(np.concatenate(parts).astype(np.int64))
+        return within_record_time(np.sort(np.concatenate((starts, k[inner] + base[inner], starts + n))))
 
 
 def within_record_time(knots: NDArray[np.int64]) -> NDArray[np.int64]:

@@ -11,7 +11,8 @@ from numpy.typing import NDArray
 from axes.interpolation import exceeds
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 from planner.knots import quantize_kernels as kernels
-from planner.knots.check import Checked, axis_records, check_knots, over_limit, record_knots
+from planner.knots import round_kernels
+from planner.knots.check import NO_FLOAT, NO_INT, Check, Checked, axis_records, check_knots, over_limit, record_knots
 from planner.knots.flat import Flat
 from planner.knots.types import AxisKnots, DriveAxis, KnotError, KnotOptions
 
@@ -86,7 +87,7 @@ def repair_rounds(
     length make other accelerations).
     """
     per_axis = (fl.f, fl.rv_per, fl.ra_per, fl.pos_lo, fl.pos_hi, fl.v_units)
-    for _ in range(3):
+    for _ in range(_REPAIRS):
         over = over_limit(checked.chk)
         if not over.any():
             break
@@ -99,6 +100,39 @@ def repair_rounds(
             break
         checked = check_knots(fl, knots, P, V, checked)
     return knots, P, V, checked
+
+
+_REPAIRS = 3  # repair rounds of ``repair_rounds``: the repair judges deviations at probes, the check at every ms
+
+
+def quantize_checked(
+    fl: Flat,
+    knots: NDArray[np.int64],
+    p: NDArray[np.float64],
+    v: NDArray[np.float64],
+    prev: Checked | None,
+    tol: float,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], Checked]:
+    """``round_knots``, ``check_knots`` (reusing ``prev``) and ``repair_rounds`` of the knots in one
+    compiled call (``round_kernels.round_check_repair``): the records and their check."""
+    if prev is None:
+        old = (NO_INT, NO_INT, NO_INT, NO_FLOAT, NO_FLOAT, NO_FLOAT, np.zeros(0, dtype=bool))
+    else:
+        c = prev.chk
+        old = (prev.knots, prev.P, prev.V, c.seg_deviation, c.velocity_ratio, c.acceleration_ratio, c.position_out)
+    err, at, P, V, cP, cV, dev, rv, ra, out = round_kernels.round_check_repair(
+        knots, p, v, fl.stride, fl.f, fl.rv_per, fl.ra_per, fl.pos_lo, fl.pos_hi, fl.v_units, fl.p, fl.v, tol,
+        _REPAIR_REACH, _REPAIRS, *old,
+    )  # fmt: skip
+    if err == round_kernels.POSITION_RANGE:
+        joint = fl.axes[fl.axis_of(knots[at])].joint
+        raise KnotError(f"{joint}: the motion leaves the int32 position range of a record")
+    if err == round_kernels.VELOCITY_RANGE:
+        raise KnotError(
+            f"{fl.axes[fl.axis_of(knots[at])].joint}: a velocity does not fit the int24 of a record "
+            "(velocity unit too fine?)"
+        )
+    return P, V, Checked(knots, cP, cV, Check(dev, rv, ra, out))
 
 
 def shifted_records(fl: Flat, placed: tuple[AxisKnots, float], opts: KnotOptions) -> tuple[AxisKnots, float]:

@@ -24,9 +24,7 @@ def switch_knots(
 
 def split_segments(knots: NDArray[np.int64], segments: NDArray[np.int64]) -> NDArray[np.int64]:
     """Halve the given knot segments (sorted, unique; those of 1 ms cannot be split and are left alone)."""
-    lo, hi = knots[segments], knots[segments + 1]
-    ok = hi - lo >= 2
-    return np.insert(knots, segments[ok] + 1, (lo[ok] + hi[ok]) // 2)  # each inside its segment: still sorted
+    return kernels.split_at(knots, segments)
 
 
 _FIT_PROBES = np.arange(1, 8) / 8.0  # where a candidate segment's fit is judged
@@ -142,15 +140,13 @@ def fitted_subset(fl: Flat, keep: NDArray[np.int64], fitted: Fitted | None) -> F
 
 
 def fit_knots(fl: Flat, knots: NDArray[np.int64], target: float, max_rounds: int) -> tuple[NDArray[np.int64], Fitted]:
-    """Split segments until the least-squares cubics stay within ``target`` of the plan."""
-    fitted: Fitted | None = None
-    for _ in range(max_rounds):
-        fitted = lsq_fit(fl, knots, fitted, target)
-        assert fitted.worst is not None
-        T = np.diff(knots)
-        bad = np.flatnonzero(((fitted.worst > target) & (T >= 2)) | (T > TIME_MAX_MS))
-        if not len(bad):
-            break
-        knots = split_segments(knots, bad)
-    assert fitted is not None
-    return knots, fitted
+    """Split segments until the least-squares cubics stay within ``target`` of the plan: every
+    round (``lsq_fit`` with ``target``, then the splits) in one compiled call,
+    ``refine_kernels.fit_rounds``."""
+    table = _basis_table()
+    ok, knots, fit_knots, r, P, V, worst = kernels.fit_rounds(
+        knots, fl.stride, fl.p, fl.v, table.values, table.offset, table.gram, target, max_rounds, TIME_MAX_MS
+    )
+    if not ok:
+        raise np.linalg.LinAlgError("least-squares knot fit: the banded normal equations are not positive definite")
+    return knots, Fitted(fit_knots, r, P, V, worst)

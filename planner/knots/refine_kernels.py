@@ -268,3 +268,67 @@ def lsq_solve(knots: _I, stride: int, r: _F, gram: _F, p: _F, v: _F, ends: NDArr
         if ends[k]:
             P[k], V[k] = p[knots[k]], 0.0
     return P, V, ok
+
+
+@njit(cache=True)
+def split_at(knots: _I, segments: _I) -> _I:
+    """``knots`` with each of the given segments (sorted, unique) halved; those of 1 ms are left alone."""
+    n_new = 0
+    for s in segments:
+        n_new += knots[s + 1] - knots[s] >= 2
+    out = np.empty(len(knots) + n_new, dtype=np.int64)
+    j, b = 0, 0
+    for k in range(len(knots)):
+        out[j] = knots[k]
+        j += 1
+        if b < len(segments) and segments[b] == k:
+            if knots[k + 1] - knots[k] >= 2:
+                out[j] = (knots[k] + knots[k + 1]) // 2
+                j += 1
+            b += 1
+    return out
+
+
+@njit(cache=True)
+def fit_rounds(
+    knots: _I,
+    stride: int,
+    plan: _F,
+    plan_v: _F,
+    values: _F,
+    offset: _I,
+    gram: _F,
+    target: float,
+    max_rounds: int,
+    t_max: int,
+) -> tuple[bool, _I, _I, _F, _F, _F, _F]:
+    """Least-squares fits (``lsq_rhs``, ``lsq_solve``, ``lsq_worst``) and splits, round by round in
+    one call, until every segment's fit is within ``target`` (or 1 ms long) and none is longer than
+    ``t_max``. Returns (solved, the knots, the knots of the last fit, its right-hand side, P, V and
+    per-segment worst): the two knot sets differ only where ``max_rounds`` ran out."""
+    fit_knots = knots
+    r = np.zeros((4, 0))
+    P, V, worst = np.zeros(0), np.zeros(0), np.zeros(0)
+    prev_knots = np.zeros(0, dtype=np.int64)
+    for _ in range(max_rounds):
+        r, same, where = lsq_rhs(knots, stride, plan, values, offset, prev_knots, r)
+        ends = np.empty(len(knots), dtype=np.bool_)
+        for k in range(len(knots)):
+            m = knots[k] % stride
+            ends[k] = m == 0 or m == stride - 1
+        P_new, V_new, ok = lsq_solve(knots, stride, r, gram, plan, plan_v, ends)
+        if not ok:
+            return False, knots, knots, r, P_new, V_new, worst
+        worst = lsq_worst(knots, stride, plan, values, offset, P_new, V_new, target, same, where, P, V, worst)
+        P, V, fit_knots, prev_knots = P_new, V_new, knots, knots
+        n_bad = 0
+        bad = np.empty(len(knots) - 1, dtype=np.int64)
+        for k in range(len(knots) - 1):
+            span = knots[k + 1] - knots[k]
+            if (worst[k] > target and span >= 2) or span > t_max:
+                bad[n_bad] = k
+                n_bad += 1
+        if not n_bad:
+            break
+        knots = split_at(knots, bad[:n_bad])
+    return True, knots, fit_knots, r, P, V, worst

@@ -1,0 +1,214 @@
+"""The compiled steps of a plan give what their numpy statements give, bit for bit.
+
+``fit_knots`` (``refine_kernels.fit_rounds``), ``quantize_checked`` (``round_kernels.round_check_repair``)
+and ``split_verdict`` each do in one call what ``lsq_fit`` / ``split_segments``, ``round_knots`` /
+``check_knots`` / ``repair_rounds`` and a few numpy operations do step by step; the TOPP-RA backward
+pass skips its LPs in a compiled loop (``lean_toppra._known_stages``) where the stage's set is known;
+the interval speed constraints build their rows in one (``constraints._interval_rows``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from axes.program import TIME_MAX_MS
+from planner.constraints import _IntervalSpeedConstraint
+from planner.knots import KnotError
+from planner.knots.check import axis_records, check_knots, knot_records, over_limit
+from planner.knots.flat import Flat
+from planner.knots.quantize import quantize_checked, repair_rounds, round_knots
+from planner.knots.refine import fit_knots, lsq_fit, split_segments
+from planner.knots.round_kernels import split_verdict
+from planner.knots.samples import sample_trajectory
+from planner.lean_toppra import LeanTOPPRA
+from planner.plan import PlanInput
+from planner.timing import make_gridpoints
+from service.cell_planner import planner_for_cell
+from service.config import load_cell_config
+
+
+@pytest.fixture(scope="module")
+def arm6_flat():
+    cell = load_cell_config()
+    axes = list(cell.ordered_axes())
+    lim = cell.joint_limits()
+    rng = np.random.default_rng(5)
+    wp = lim.lower + (lim.upper - lim.lower) * (0.1 + 0.8 * rng.random((6, lim.dof)))
+    planner = planner_for_cell(cell)
+    out = planner.plan(PlanInput(wp))
+    assert out.ok, out.message
+    smp = sample_trajectory(out.trajectory, axes, 1.0)
+    return planner, out.trajectory, Flat.of(axes, list(range(len(axes))), smp)
+
+
+def _fit_step_by_step(fl: Flat, knots: np.ndarray, target: float, max_rounds: int):
+    fitted = None
+    for _ in range(max_rounds):
+        fitted = lsq_fit(fl, knots, fitted, target)
+        T = np.diff(knots)
+        bad = np.flatnonzero(((fitted.worst > target) & (T >= 2)) | (T > TIME_MAX_MS))
+        if not len(bad):
+            break
+        knots = split_segments(knots, bad)
+    return knots, fitted
+
+
+@pytest.mark.parametrize(("spacing", "target", "rounds"), [(120, 0.8, 40), (300, 0.3, 40), (200, 0.5, 2)])
+def test_fit_rounds_are_the_steps(arm6_flat, spacing: int, target: float, rounds: int) -> None:
+    _, _, fl = arm6_flat
+    start = fl.flat_knots([np.arange(0, fl.stride - 1, spacing) for _ in fl.axes])
+    knots, fitted = fit_knots(fl, start, target, rounds)
+    ref_knots, ref = _fit_step_by_step(fl, start, target, rounds)
+    np.testing.assert_array_equal(knots, ref_knots)
+    for got, want in ((fitted.knots, ref.knots), (fitted.rhs, ref.rhs), (fitted.P, ref.P), (fitted.V, ref.V)):
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(fitted.worst, ref.worst)
+    if rounds == 2:  # ran out of rounds: the knots were split after the last fit
+        assert len(knots) > len(fitted.knots)
+
+
+@pytest.mark.parametrize("spacing", [15, 40, 90])
+def test_quantize_checked_is_round_check_repair(arm6_flat, spacing: int) -> None:
+    _, _, fl = arm6_flat
+    knots = fl.flat_knots([np.arange(0, fl.stride - 1, spacing) for _ in fl.axes])
+    fit = lsq_fit(fl, knots)
+    prev = None
+    for p, v in ((fit.P, fit.V), (fit.P + 0.3, fit.V * 1.01)):  # the second reuses the first's check
+        P, V, checked = quantize_checked(fl, knots, p, v, prev, 1.0)
+        P0, V0 = round_knots(fl, knots, p, v)
+        _, P1, V1, ref = repair_rounds(fl, knots, P0, V0, check_knots(fl, knots, P0, V0, prev), 1.0)
+        np.testing.assert_array_equal(P, P1)
+        np.testing.assert_array_equal(V, V1)
+        np.testing.assert_array_equal(checked.P, ref.P)
+        np.testing.assert_array_equal(checked.V, ref.V)
+        for field in ("seg_deviation", "velocity_ratio", "acceleration_ratio", "position_out"):
+            np.testing.assert_array_equal(getattr(checked.chk, field), getattr(ref.chk, field))
+        prev = checked
+
+
+def test_quantize_checked_refuses_what_no_record_holds(arm6_flat) -> None:
+    _, _, fl = arm6_flat
+    knots = fl.flat_knots([np.arange(0, fl.stride - 1, 50) for _ in fl.axes])
+    fit = lsq_fit(fl, knots)
+    for p, v, what in ((fit.P + 1e12, fit.V, "int32 position"), (fit.P, fit.V * 1e12, None)):
+        if what is None:  # velocities are clipped to 0x607F first: only a unit finer than int24 fails
+            P, V, _ = quantize_checked(fl, knots, p, v, None, 1.0)
+            np.testing.assert_array_equal((P, V), round_knots(fl, knots, p, v))
+            continue
+        with pytest.raises(KnotError, match=what):
+            quantize_checked(fl, knots, p, v, None, 1.0)
+        with pytest.raises(KnotError, match=what):
+            round_knots(fl, knots, p, v)
+
+
+def test_split_verdict_is_the_numpy_rule(arm6_flat) -> None:
+    _, _, fl = arm6_flat
+    rng = np.random.default_rng(2)
+    knots = fl.flat_knots([np.arange(0, fl.stride - 1, 25) for _ in fl.axes])
+    fit = lsq_fit(fl, knots)
+    chk = quantize_checked(fl, knots, fit.P, fit.V, None, 1.0)[2].chk
+    n = len(fl.axes)
+    for tol, jerk, last in (
+        (1.0, np.zeros(0, dtype=np.int64), np.full(n, np.iinfo(np.int64).max)),
+        (0.05, rng.choice(len(knots) - 1, 9, replace=False), rng.integers(0, 4, n)),
+        (0.5, np.sort(rng.choice(len(knots) - 1, 30, replace=False)), np.zeros(n, dtype=np.int64)),
+    ):
+        bad, n_stuck, strays = split_verdict(
+            knots, fl.stride, chk.seg_deviation, chk.position_out, chk.velocity_ratio, chk.acceleration_ratio,
+            tol, jerk, last, 24,
+        )  # fmt: skip
+        T = np.diff(knots)
+        ref_bad = np.flatnonzero((chk.seg_deviation > tol) | chk.position_out)
+        ref_bad = ref_bad[T[ref_bad] >= 2]
+        stuck = np.union1d(np.flatnonzero(over_limit(chk)), jerk)
+        ax_stuck = fl.axis_of(knots[stuck])
+        ref_n = np.bincount(ax_stuck, minlength=n)
+        ref_strays = np.zeros(n, dtype=bool)
+        ref_strays[fl.axis_of(knots[ref_bad])] = True
+        give_up = (ref_n > 0) & ~ref_strays & (ref_n >= last)
+        stuck = stuck[~give_up[ax_stuck]]
+        np.testing.assert_array_equal(bad, np.union1d(ref_bad, stuck[T[stuck] >= 24]))
+        np.testing.assert_array_equal(n_stuck, ref_n)
+        np.testing.assert_array_equal(strays, ref_strays)
+
+
+def test_axis_records_read_back(arm6_flat) -> None:
+    _, _, fl = arm6_flat
+    knots = fl.flat_knots([np.arange(0, fl.stride - 1, 30) for _ in fl.axes])
+    fit = lsq_fit(fl, knots)
+    P, V, checked = quantize_checked(fl, knots, fit.P, fit.V, None, 1.0)
+    chk = checked.chk
+    for a in range(len(fl.axes)):
+        k0, k1 = np.searchsorted(knots, [a * fl.stride, (a + 1) * fl.stride])
+        records = knot_records(fl, a, knots, P, V, 3)
+        np.testing.assert_array_equal(records[:-1, :2], np.column_stack((P[k0:k1], V[k0:k1])))
+        np.testing.assert_array_equal(records[-1], [P[k1 - 1], 0, 0])
+        np.testing.assert_array_equal(records[:-1, 2], np.concatenate(([3], np.diff(knots[k0:k1]))))
+        placed, _ = axis_records(fl, a, knots, P, V, chk, 3)
+        assert placed.deviation_qc == chk.seg_deviation[k0 : k1 - 1].max()
+        assert placed.velocity_ratio == chk.velocity_ratio[k0 : k1 - 1].max()
+        assert placed.acceleration_ratio == chk.acceleration_ratio[k0 : k1 - 1].max()
+
+
+def test_backward_pass_shortcuts_match_the_lps(arm6_flat) -> None:
+    """Where ``_known_stages`` takes a stage without its LP, the seidel LPs give the same set."""
+    planner, traj, _ = arm6_flat
+    path = traj.path
+    grid = make_gridpoints(path, 140)
+    algo = LeanTOPPRA(planner.constraints, path, grid)
+    K = algo.compute_controllable_sets(0.0, 0.0)
+    assert np.isfinite(K).all()
+    sw = algo.solver_wrapper
+    sw.setup_solver()
+    for i in range(len(grid) - 1):
+        lo, hi = K[i + 1]
+        x_hi = sw.solve_stagewise_optim(i, None, algo._g_max_x, np.nan, np.nan, lo, hi)[1]
+        assert x_hi == pytest.approx(K[i, 1], rel=1e-6, abs=1e-9)
+        x_lo = sw.solve_stagewise_optim(i, None, algo._g_min_x, np.nan, np.nan, lo, hi)[1]
+        assert max(x_lo, 0.0) == pytest.approx(K[i, 0], abs=1e-6 * (1.0 + K[i, 1]))
+    sw.close_solver()
+
+
+def _speed_rows_numpy(c: _IntervalSpeedConstraint, path, gridpoints: np.ndarray):
+    n, f = len(gridpoints), len(c.FRACTIONS)
+    sigma = np.append(np.diff(gridpoints), 0.0)[:, None] * c.FRACTIONS[None, :]
+    inner = c.FRACTIONS < 1.0
+    s_inner = (gridpoints[:-1, None] + sigma[:-1, inner]).ravel()
+    factors2 = c.speed_factors(path, np.concatenate((gridpoints, s_inner))) ** 2
+    with np.errstate(divide="ignore"):
+        x_max = np.minimum(np.min(c.limit**2 / factors2, axis=1), 1e8)
+    bound = np.empty((n, f))
+    bound[:-1, inner] = x_max[n:].reshape(n - 1, int(inner.sum()))
+    bound[:-1, ~inner] = x_max[1:n, None]
+    bound[-1] = x_max[n - 1]
+    return 2.0 * sigma, -bound, np.column_stack((np.zeros(n), x_max[:n]))
+
+
+@pytest.mark.parametrize("intervals", [3, 60, 140])
+def test_interval_speed_rows_are_the_numpy_rule(arm6_flat, intervals: int) -> None:
+    planner, traj, _ = arm6_flat
+    grid = make_gridpoints(traj.path, intervals)
+    speed = [c for c in planner.constraints if isinstance(c, _IntervalSpeedConstraint)]
+    assert len(speed) == 2  # arm6: the joint velocities and the TCP speed
+    for c in speed:
+        a, b, C, _, _, ubound, xbound = c.compute_constraint_params(traj.path, grid)
+        for got, want in zip((a, C, xbound), _speed_rows_numpy(c, traj.path, grid), strict=True):
+            np.testing.assert_array_equal(got, want)
+        assert b.shape == a.shape and ubound is None
+
+
+def test_interval_speed_rows_where_nothing_moves() -> None:
+    """A sample where the bounded quantity does not move (factor 0) allows any speed: the cap."""
+    cell = load_cell_config()
+    lim = cell.joint_limits()
+    a, b = lim.lower + 0.4 * (lim.upper - lim.lower), lim.lower + 0.6 * (lim.upper - lim.lower)
+    b[1:] = a[1:]  # joint 0 alone moves: the other joints' velocity factors are 0 everywhere
+    out = planner_for_cell(cell).plan(PlanInput(np.array([a, b])))
+    assert out.ok, out.message
+    grid = make_gridpoints(out.trajectory.path, 20)
+    c = next(c for c in planner_for_cell(cell).constraints if isinstance(c, _IntervalSpeedConstraint))
+    rows = c.compute_constraint_params(out.trajectory.path, grid)
+    want = _speed_rows_numpy(c, out.trajectory.path, grid)
+    for got, ref in zip((rows[0], rows[2], rows[6]), want, strict=True):
+        np.testing.assert_array_equal(got, ref)
