@@ -26,6 +26,8 @@ The pieces, as toppra splits them: ``planner.constraints`` (the constraints),
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import toppra.constraint as constraint
 from numpy.typing import NDArray
@@ -93,8 +95,8 @@ def _solve(
     grid: NDArray[np.float64],
     limits: JointLimits,
     constraints: list[constraint.Constraint],
-    speed_band: float,
-    torque: list[RneaJointTorqueConstraint],
+    speed_band: float = 0.0,
+    torque: Sequence[RneaJointTorqueConstraint] = (),
 ) -> Trajectory:
     """TOPP-RA on ``grid``, then the between-gridpoint check against ``limits`` (slowed where
     needed), flattened within ``speed_band`` where that holds ``torque`` too."""
@@ -133,7 +135,7 @@ def parameterize(
     if not deferred:
         return _solve(path, grid, limits, constraints, speed_band, deferred)
     lean = [c for c in constraints if not isinstance(c, RneaJointTorqueConstraint)]
-    traj = _solve(path, grid, limits, lean, speed_band, [])
+    traj = _solve(path, grid, limits, lean, speed_band)
     if all(c.holds_on(traj) for c in deferred):
         return traj
     return _solve(path, grid, limits, constraints, speed_band, deferred)
