@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
             torque_limits=cell.planning.torque_limits,
         )
     planner = Planner(limits, **extra)
-    reference = Planner(limits, gridpoints=3000, **extra)
+    reference = Planner(limits, gridpoints=3000, speed_band=0.0, **extra)  # the time-optimal profile
 
     rng = np.random.default_rng(args.seed)
     warm = np.random.default_rng(args.seed + 1000)  # warm caches and clocks on paths that are not measured

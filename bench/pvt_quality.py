@@ -1,8 +1,9 @@
 """Quality of the PVT programs pvtflow emits, over random paths on the shipped robots.
 
-For every path: plan (TOPP-RA, default grid), place the knots, validate the program on the drives'
-own reconstruction, and compare with a 3000-gridpoint TOPP-RA reference of the same path and
-limits. Prints, over all paths:
+For every path: plan (TOPP-RA, default grid, flattened within the cell planner's speed band),
+place the knots, validate the program on the drives' own reconstruction, and compare with a
+3000-gridpoint TOPP-RA reference of the same path and limits (not flattened: the time-optimal
+motion, so the duration ratio includes what the speed band costs). Prints, over all paths:
 
 - limit violations after reconstruction of the quantized records (validator errors), and the worst
   |v|/0x607F and |a|/0x60C5 (exact, closed form per segment);
@@ -139,7 +140,9 @@ def run_path(cell: CellConfig, wp: np.ndarray, planner: CellPlanner) -> PathResu
         print(f"  REFUSED on {cell.name}: {result.code}: {result.message}", file=sys.stderr)
         return None  # the planner refused the waypoints: not a program
     report = validate_program(result.program)
-    ref = planner_for_cell(cell, 3000).plan(PlanInput(wp))
+    reference = planner_for_cell(cell, 3000)
+    reference.speed_band = 0.0  # the time-optimal profile itself, not flattened (planner.speed_band)
+    ref = reference.plan(PlanInput(wp))
     knots = result.build.knots
     motion_s = knots.duration_ms / 1000.0
     ref_s = ref.trajectory.duration if ref.ok and ref.trajectory is not None else math.nan

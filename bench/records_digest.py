@@ -31,7 +31,7 @@ from service.config import CONFIG_DIR, load_cell_config  # noqa: E402
 CELLS = (("arm6", 40), ("gantry3", 15))
 JERK_CELLS = (("arm6", 10), ("gantry3", 5))
 EXPECTED = {
-    "topp": "0f826ea21679fc52743e6da9b16284c26e8cd5d217791dd91dca3c1e842fd193",
+    "topp": "fe60a976ea1cfd27333ea4d9ac0222e61a86d172baaae43a0fe2d8730b2230bb",
     "jerk": "5770847246ccd0ef77251fa51c8d732e74947c861bed7b95e0236e3c4d723c2d",
 }
 

@@ -37,6 +37,7 @@ KERNEL_SOURCES = (
             "path.py",
             "slowdown.py",
             "smooth_kernels.py",
+            "speed_band.py",
             "trajectory.py",
             "validate/screen.py",
         )

@@ -19,6 +19,7 @@ from planner.ik import IkSolver
 from planner.limits import JointLimits, check_max_jerk, check_scale
 from planner.model import RobotModel
 from planner.path import JointPath, PlanError, PlanResult
+from planner.speed_band import DEFAULT_SPEED_BAND
 from planner.timing import DEFAULT_GRIDPOINTS, Trajectory, parameterize, timing_constraints
 
 if TYPE_CHECKING:  # planner.jerk loads casadi: only a plan with a jerk limit does
@@ -96,6 +97,10 @@ class Planner:
     path), and with the jerk limit times ``jerk_scale`` (their product). The TCP speed and torque
     limits stay as the cell sets them.
 
+    Without a jerk limit, TOPP-RA's profile is flattened within ``speed_band`` (the path speed at
+    most that fraction below the time-optimal one; 0: none), for fewer records on the bus
+    (``planner.speed_band``).
+
     With a jerk limit (``max_jerk``: the cell's, or a request's, which replaces it), the TOPP-RA
     solution is the warm start of the jerk-limited timing along the same path (planner/jerk,
     casadi) under the same constraints; ``details``: ``topp_s`` and ``jerk_s`` (their shares of
@@ -113,7 +118,11 @@ class Planner:
         gridpoints: int | None = None,
         max_tcp_angular_speed: float | None = None,
         max_jerk: ArrayLike | None = None,
+        speed_band: float = DEFAULT_SPEED_BAND,
     ) -> None:
+        if not 0.0 <= speed_band < 1.0:
+            raise ValueError(f"speed_band must be in [0, 1), got {speed_band}")
+        self.speed_band = float(speed_band)
         self.limits = limits
         self.max_jerk = None if max_jerk is None else check_max_jerk("max_jerk", max_jerk, limits.dof)
         self.gridpoints = DEFAULT_GRIDPOINTS if gridpoints is None else int(gridpoints)
@@ -157,11 +166,12 @@ class Planner:
         max_jerk: NDArray[np.float64] | None,
         deadline: float | None = None,
     ) -> tuple[Trajectory | JerkTrajectory, dict[str, object]]:
-        """TOPP-RA along ``path``; with a jerk limit, the jerk-limited timing warm-started from it."""
+        """TOPP-RA along ``path``, flattened within the speed band; with a jerk limit, the jerk-limited
+        timing warm-started from TOPP-RA's own profile."""
         t0 = time.perf_counter()
-        trajectory = parameterize(path, limits, constraints, self.gridpoints)
         if max_jerk is None:
-            return trajectory, {}
+            return parameterize(path, limits, constraints, self.gridpoints, self.speed_band), {}
+        trajectory = parameterize(path, limits, constraints, self.gridpoints)
         from planner.jerk import jerk_limited  # casadi: loaded by the first plan that needs it
 
         t1 = time.perf_counter()

@@ -14,12 +14,19 @@ acceleration can exceed the limits by a hair; the trajectory is checked densely 
 where needed, slowed down uniformly by the smallest factor that brings it inside (reported as
 ``time_scale``). That keeps the result honest on a coarse, fast grid.
 
+With ``speed_band``, the profile is then flattened (``planner.speed_band``: s'' constant over spans
+of several gridpoints, the path speed at most that fraction below TOPP-RA's): fewer acceleration
+switches, fewer records. It is checked the same way; where the cell has torque limits and the
+flattened profile does not hold them at the gridpoints, TOPP-RA's own is kept.
+
 The pieces, as toppra splits them: ``planner.constraints`` (the constraints),
 ``planner.lean_toppra`` (the algorithm), ``planner.trajectory`` (the trajectory and its check);
 ``parameterize`` here puts them together.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 import toppra.constraint as constraint
@@ -37,6 +44,7 @@ from planner.lean_toppra import LeanTOPPRA
 from planner.limits import JointLimits
 from planner.path import JointPath, PlanError, PlanResult
 from planner.slowdown import SLOWDOWN_MARGIN, slowdown
+from planner.speed_band import flattened
 from planner.trajectory import Trajectory
 
 DEFAULT_GRIDPOINTS = 140
@@ -73,15 +81,8 @@ def make_gridpoints(path: JointPath, n: int) -> NDArray[np.float64]:
     return grid
 
 
-def _solve(
-    path: JointPath, grid: NDArray[np.float64], limits: JointLimits, constraints: list[constraint.Constraint]
-) -> Trajectory:
-    """TOPP-RA on ``grid``, then the between-gridpoint check against ``limits`` (slowed where needed)."""
-    instance = LeanTOPPRA(constraints, path, grid)
-    _sdd, sd, _v = instance.compute_parameterization(0.0, 0.0)
-    if sd is None or np.any(~np.isfinite(sd)):
-        raise PlanError(PlanResult.INFEASIBLE, "no trajectory along this path satisfies the limits (TOPP-RA failed)")
-    traj = Trajectory.from_path_velocities(path, grid, np.asarray(sd, dtype=float), limits.names)
+def _checked(traj: Trajectory, limits: JointLimits) -> Trajectory:
+    """``traj`` slowed down where it exceeds ``limits`` between the gridpoints."""
     rv, ra = traj.limit_ratios(limits)
     k = slowdown(rv, ra)
     if k > 1.0:
@@ -89,30 +90,55 @@ def _solve(
     return traj
 
 
+def _solve(
+    path: JointPath,
+    grid: NDArray[np.float64],
+    limits: JointLimits,
+    constraints: list[constraint.Constraint],
+    speed_band: float = 0.0,
+    torque: Sequence[RneaJointTorqueConstraint] = (),
+) -> Trajectory:
+    """TOPP-RA on ``grid``, then the between-gridpoint check against ``limits`` (slowed where
+    needed), flattened within ``speed_band`` where that holds ``torque`` too."""
+    instance = LeanTOPPRA(constraints, path, grid)
+    _sdd, sd, _v = instance.compute_parameterization(0.0, 0.0)
+    if sd is None or np.any(~np.isfinite(sd)):
+        raise PlanError(PlanResult.INFEASIBLE, "no trajectory along this path satisfies the limits (TOPP-RA failed)")
+    traj = _checked(Trajectory.from_path_velocities(path, grid, np.asarray(sd, dtype=float), limits.names), limits)
+    if speed_band <= 0.0:
+        return traj
+    flat = _checked(flattened(traj, limits, speed_band), limits)
+    return flat if all(c.holds_on(flat) for c in torque) else traj
+
+
 def parameterize(
     path: JointPath,
     limits: JointLimits,
     constraints: list[constraint.Constraint],
     gridpoints: int = DEFAULT_GRIDPOINTS,
+    speed_band: float = 0.0,
 ) -> Trajectory:
     """The time-optimal rest-to-rest trajectory along ``path`` under ``constraints``.
 
     ``limits`` are the joint limits the constraints were built from: the result is checked
     against them between the gridpoints and slowed down uniformly where it exceeds them.
+    ``speed_band``: flattened within it (``planner.speed_band``; 0: TOPP-RA's profile as it is).
 
     Joint torque limits rarely bind on a well-sized robot, and their rows cost three RNEAs per
     gridpoint: the first solve leaves them out and the result is checked against them (one RNEA
     per gridpoint). Where it holds them, it is also the optimum with them (a constraint the
-    optimum already meets changes nothing); where it does not, the solve is made again with them.
+    optimum already meets changes nothing); where it does not, the solve is made again with them
+    (and its flattened profile is kept only where it holds them too).
     """
     grid = make_gridpoints(path, gridpoints)
     deferred = [c for c in constraints if isinstance(c, RneaJointTorqueConstraint)]
     if not deferred:
-        return _solve(path, grid, limits, constraints)
-    traj = _solve(path, grid, limits, [c for c in constraints if not isinstance(c, RneaJointTorqueConstraint)])
+        return _solve(path, grid, limits, constraints, speed_band, deferred)
+    lean = [c for c in constraints if not isinstance(c, RneaJointTorqueConstraint)]
+    traj = _solve(path, grid, limits, lean, speed_band)
     if all(c.holds_on(traj) for c in deferred):
         return traj
-    return _solve(path, grid, limits, constraints)
+    return _solve(path, grid, limits, constraints, speed_band, deferred)
 
 
 __all__ = [

@@ -37,7 +37,9 @@ class KnotError(ValueError):
 class KnotOptions:
     tolerance_qc: float = 1.0  # max |reconstruction - plan| at the drive's 1 kHz samples
     fit_fraction: float = 0.8  # refinement target of the fits, a fraction of the tolerance (0.6: 5 % more records)
-    switch_fraction: float = 0.02  # an acceleration jump above this fraction of 0x60C5 gets its own knot
+    # an acceleration jump above this fraction of 0x60C5 gets its own knot (with the flattened profile,
+    # planner.speed_band, 0.01 places fewer records than 0.02: bench/RESULTS.md, issue 25 item 4)
+    switch_fraction: float = 0.01
     min_switch_gap_ms: int = 8  # switch knots closer than this are merged (short segments amplify rounding)
     dwell_ms: int = 1  # time of records[0]: the wait from the start SYNC to the first segment
     max_time_scale: float = 1.05  # give up rather than slow the motion down more than this ...
