@@ -60,22 +60,23 @@ class GroupHalt:
         sync = self.bus.sync
         for feeder in self._feeders:
             feeder.enabled = False
-        sync.stop()
         res = self._result(result, message, link)
         res.fault_sync = sync.count
-        self._ending = res
+        self._ending = res  # before the requests: their confirmations end the run (_quick_stopped)
         self._halted_at = time.monotonic()
         self._halt_deadline = None
+        # the requests first (no SYNC can go out meanwhile: the SYNC lock is held), the rest after
+        self.last_quick_stop = self.bus.quick_stop([lk.node_id for lk in self.links], message, self._quick_stopped)
+        sync.stop()
         self.readiness.forget()
         self._event(EventKind.HALTED, f"all axes quick stopped by SDO (no SYNC): {message}", link)
-        self.last_quick_stop = self.bus.quick_stop([lk.node_id for lk in self.links], message, self._quick_stopped)
 
     def _quick_stop_too(self, message: str, link: AxisLink | None) -> None:
         """A halt by the synchronous RPDO is under way and SYNC fails: quick stop by SDO as well."""
-        self.bus.sync.stop()
         self._halt_deadline = None
-        self._event(EventKind.HALTED, f"all axes quick stopped by SDO (no SYNC): {message}", link)
         self.last_quick_stop = self.bus.quick_stop([lk.node_id for lk in self.links], message, self._quick_stopped)
+        self.bus.sync.stop()
+        self._event(EventKind.HALTED, f"all axes quick stopped by SDO (no SYNC): {message}", link)
 
     def _quick_stopped(self, stop: QuickStop) -> None:
         """Every drive confirmed the quick stop or was sent NMT stop (the quick stop's thread)."""

@@ -5,7 +5,8 @@ A bus does not hear its own frames, so ``RecordingNetwork`` hands each frame it 
 ``can.Logger`` (the ``--can-log`` of the commands). A frame the interface refuses (a full transmit
 queue, ENOBUFS) is tried again for ``BusConfig.tx_retry_ms``, or longer for bulk frames nothing
 waits on (``RecordingNetwork.patient``); past that it raises, and the SYNC thread reports
-``FaultKind.TX_FAILED``.
+``FaultKind.TX_FAILED``. A retry waits outside the network's send lock, so that one thread's
+refused frame does not hold another's back (a quick stop request behind a heartbeat's retries).
 """
 
 from __future__ import annotations
@@ -88,7 +89,8 @@ class RecordingNetwork(canopen.Network):
     def patient(self, seconds: float) -> Iterator[None]:
         """Frames this thread sends meanwhile are tried again for up to ``seconds``: for bulk frames
         that nothing waits on in the meantime (a preload before the first SYNC), which a full
-        transmit queue only delays by the wire time of what is ahead of them."""
+        transmit queue only delays by the wire time of what is ahead of them. ``seconds`` 0: one try
+        (the caller tries again itself, between other work: ``axes.quick_stop``)."""
         previous = getattr(self._patience, "seconds", None)
         self._patience.seconds = seconds
         try:
@@ -108,24 +110,25 @@ class RecordingNetwork(canopen.Network):
             channel=self.channel_name,
         )
         deadline: float | None = None
-        wait: float | None = None  # the first try does not wait: a retry lets the queue drain meanwhile
         while True:
             try:
+                # one try, never a wait for room inside the lock: another thread's urgent frame (a
+                # quick stop request) is not held behind this one's retries
                 with self.send_lock:
                     msg.timestamp = time.time()
-                    self.bus.send(msg, timeout=wait)
+                    self.bus.send(msg, timeout=0.0)
                 break
             except (can.CanOperationError, OSError) as exc:  # a full transmit queue (ENOBUFS), a refusing controller
                 now = time.monotonic()
+                patience = getattr(self._patience, "seconds", None)
+                bound = self.tx_retry_s if patience is None else patience
                 if deadline is None:
-                    deadline = now + (getattr(self._patience, "seconds", None) or self.tx_retry_s)
+                    deadline = now + bound
                 self.tx_retries += 1
                 if now >= deadline:
-                    bound = getattr(self._patience, "seconds", None) or self.tx_retry_s
                     raise can.CanOperationError(
                         f"frame 0x{can_id:03X} not sent within {bound * 1000:.1f} ms: {exc}"
                     ) from exc
-                time.sleep(TX_RETRY_PAUSE_S)
-                wait = max(deadline - time.monotonic(), 0.0)
+                time.sleep(TX_RETRY_PAUSE_S)  # the queue drains meanwhile
         if self.recorder is not None:
             self.recorder.on_message_sent(msg)

@@ -81,6 +81,22 @@ def ask_realtime(priority: int) -> bool:
         return False
 
 
+def lift(threads: Iterable[threading.Thread], priority: int) -> list[str]:
+    """SCHED_FIFO at ``priority`` for these threads, those this process did not start for SYNC too (the
+    notifier's reader): Linux schedules threads, not processes, by their native id. The names of the
+    threads lifted; one not permitted, or gone, is left as it is (no warning: ``ask_realtime`` gave it)."""
+    lifted = []
+    for thread in threads:
+        if priority <= 0 or not thread.is_alive() or thread.native_id is None:
+            continue
+        try:
+            os.sched_setscheduler(thread.native_id, os.SCHED_FIFO, os.sched_param(priority))
+        except (AttributeError, OSError):
+            continue
+        lifted.append(thread.name)
+    return lifted
+
+
 class SyncClock:
     """SYNC producer and counter of the drives' answers (see the module docstring for the modes).
 
@@ -128,6 +144,8 @@ class SyncClock:
         self._t0_us = time.monotonic_ns() // 1000
         self.follower = SyncFollower(self)  # where the interface sends SYNC (``native``)
         self.hold: Callable[[], None] | None = None  # benchmarks and tests: called before each wall-clock SYNC
+        self.lift_bus_threads = True  # the bus's threads follow SYNC to SCHED_FIFO (off: benchmarks compare)
+        self.lifted: list[str] = []  # the threads lifted below SYNC's priority (``CellBus.threads``)
 
     # --- answers ---------------------------------------------------------------------------------
     def expect(self, answers: Iterable[int] | Mapping[int, int]) -> None:
@@ -287,13 +305,16 @@ class SyncClock:
         """The SYNC thread never ends silently: a send that fails past its retries, or any error,
         ends the production and is reported (the motion halts without SYNC: ``axes.quick_stop``)."""
         self.realtime = ask_realtime(self.priority)
+        if self.realtime and self.lift_bus_threads:
+            self.lifted = lift(self.bus.threads(), self.priority - 1)
         try:
             target(production)
         except (can.CanError, OSError) as exc:
             self._fail(production, BusFault(FaultKind.TX_FAILED, None, f"SYNC {self.count + 1} not sent: {exc}"))
         except Exception as exc:
-            log.exception("the SYNC thread failed")
+            # reported first: the halt it causes does not wait for the traceback to be written
             self._fail(production, BusFault(FaultKind.SYNC_STOPPED, None, f"the SYNC thread ended: {exc!r}"))
+            log.exception("the SYNC thread failed")
 
     def _fail(self, production: int, fault: BusFault) -> None:
         with self.lock:

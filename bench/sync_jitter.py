@@ -22,6 +22,7 @@ time stamp after each SYNC it heard).
 from __future__ import annotations
 
 import argparse
+import math
 import multiprocessing
 import sys
 import time
@@ -34,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from axes.bus import CellBus
 from axes.config import BusConfig
+from axes.sync import ask_realtime
 
 
 def busy(stop: multiprocessing.synchronize.Event) -> None:  # type: ignore[name-defined]
@@ -59,12 +61,52 @@ def figures(intervals: np.ndarray) -> dict[str, float | int]:
     }
 
 
-def run_case(seconds: float, period_ms: float, priority: int, load: int, interface: str) -> dict[str, object]:
+def bare_timer(seconds: float, period_ms: float, priority: int, out: multiprocessing.connection.Connection) -> None:  # type: ignore[name-defined]
+    """The machine's own floor: one thread, SCHED_FIFO at ``priority`` when asked, waking at absolute
+    deadlines by ``time.sleep`` and doing nothing else, with the master's skip rule (a deadline passed
+    by more than half a period is skipped, never caught up). Sends its wake-up times through ``out``."""
+    fifo = ask_realtime(priority)
+    period = period_ms / 1000.0
+    woke: list[float] = []
+    deadline = time.monotonic()
+    end = deadline + seconds
+    while deadline < end:
+        now = time.monotonic()
+        late = now - deadline
+        if late > period / 2:
+            deadline += math.ceil((late - period / 2) / period) * period
+        due = deadline if not woke else max(deadline, woke[-1] + period / 2)
+        if now >= due:
+            woke.append(now)
+            deadline += period
+            due = deadline
+        delay = due - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+    out.send((fifo, woke))
+    out.close()
+
+
+def baseline(seconds: float, period_ms: float, priority: int) -> dict[str, object]:
+    """``bare_timer`` in a child process of its own: the floor the master's figure is set beside."""
+    receive, send = multiprocessing.Pipe(duplex=False)
+    child = multiprocessing.Process(target=bare_timer, args=(seconds, period_ms, priority, send), daemon=True)
+    child.start()
+    fifo, woke = receive.recv()
+    child.join(2.0)
+    intervals = np.diff(np.asarray(woke)) / (period_ms / 1000.0)
+    return {"syncs": len(woke), **figures(intervals), "intervals": intervals, "fifo": fifo}
+
+
+def run_case(
+    seconds: float, period_ms: float, priority: int, load: int, interface: str, lift: bool = True
+) -> dict[str, object]:
     stop = multiprocessing.Event()
     workers = [multiprocessing.Process(target=busy, args=(stop,), daemon=True) for _ in range(load)]
     for w in workers:
         w.start()
     time.sleep(0.2 if load else 0.0)
+    floor = baseline(seconds, period_ms, priority)
     config = BusConfig(
         interface=interface,
         channel=f"jitter-{uuid.uuid4().hex[:8]}",
@@ -74,6 +116,7 @@ def run_case(seconds: float, period_ms: float, priority: int, load: int, interfa
         max_sync_gap_periods=1e6,
     )
     bus = CellBus(config, lockstep=False).open()
+    bus.sync.lift_bus_threads = lift
     sent: list[float] = []
     bus.sync.add_sender(lambda n: sent.append(time.monotonic()))
     b0, t0 = cpu_times()
@@ -97,12 +140,26 @@ def run_case(seconds: float, period_ms: float, priority: int, load: int, interfa
     return {
         "syncs": len(sent) if wire is None else len(wire) + 1,
         **figures(intervals if wire is None else wire),
-        "follower": None if wire is None else {"syncs": len(sent), **figures(intervals)},
+        "intervals": intervals if wire is None else wire,
+        "follower": None if wire is None else {"syncs": len(sent), **figures(intervals), "intervals": intervals},
         "native": native,
         "skipped": skipped,
         "fifo": realtime,
         "cpu": (b1 - b0) / max(1, t1 - t0) * cores,
         "cores": cores,
+        "baseline": floor,
+    }
+
+
+def pooled(runs: list[dict[str, object]], key: str | None = None) -> dict[str, object]:
+    """Figures of several runs of one case: percentiles over every interval, each run's max."""
+    rows = [r if key is None else r[key] for r in runs]
+    intervals = np.concatenate([np.asarray(r["intervals"]) for r in rows])  # type: ignore[index]
+    return {
+        "syncs": sum(int(r["syncs"]) for r in rows),  # type: ignore[index]
+        **figures(intervals),
+        "maxes": " ".join(f"{float(r['max']):.1f}" for r in rows),  # type: ignore[index]
+        "fifo": all(bool(r["fifo"]) for r in rows),  # type: ignore[index]
     }
 
 
@@ -112,29 +169,55 @@ def main() -> None:
     parser.add_argument("--period-ms", type=float, default=1.0)
     parser.add_argument("--load", type=int, default=2, help="CPU-bound processes beside the master")
     parser.add_argument("--interface", choices=("virtual", "simwire"), default="virtual")
+    parser.add_argument("--runs", type=int, default=1, help="runs per case (max: each run's)")
+    parser.add_argument("--under-load-only", action="store_true", help="only the case under load, SCHED_FIFO asked")
+    parser.add_argument(
+        "--bus-threads-normal",
+        action="store_true",
+        help="leave the bus's other threads at normal priority (SyncClock.lift_bus_threads off): for comparison",
+    )
     args = parser.parse_args()
-    print(f"SYNC every {args.period_ms:g} ms for {args.seconds:g} s per case on {args.interface}; intervals in periods")
-    print("| case | SCHED_FIFO | SYNCs | p50 | p99 | max | bursts | skipped | CPU load (cores busy of N) |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for load in (0, args.load):
-        for priority in (50, 0):
-            r = run_case(args.seconds, args.period_ms, priority, load, args.interface)
+    print(
+        f"SYNC every {args.period_ms:g} ms for {args.seconds:g} s per run, {args.runs} run(s) per case on "
+        f"{args.interface}; intervals in periods; bus threads "
+        f"{'at normal priority' if args.bus_threads_normal else 'lifted below SYNC when SYNC has SCHED_FIFO'}"
+    )
+    print("| case | SCHED_FIFO | SYNCs | p50 | p99 | max | max per run | bursts | skipped | CPU load, cores |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    loads = (args.load,) if args.under_load_only else (0, args.load)
+    priorities = (50,) if args.under_load_only else (50, 0)
+    for load in loads:
+        for priority in priorities:
+            runs = [
+                run_case(args.seconds, args.period_ms, priority, load, args.interface, not args.bus_threads_normal)
+                for _ in range(args.runs)
+            ]
+            r = pooled(runs)
             case = "alone" if load == 0 else f"{load} busy processes"
-            if r["native"]:
+            if runs[0]["native"]:
                 case += ", SYNC on the wire (native)"
             fifo = "asked, granted" if r["fifo"] else ("asked, refused" if priority else "not asked")
+            skipped = sum(int(x["skipped"]) for x in runs)  # type: ignore[call-overload]
+            cpu = np.mean([float(x["cpu"]) for x in runs])  # type: ignore[arg-type]
             print(
                 f"| {case} | {fifo} | {r['syncs']} | {r['p50']:.3f} | {r['p99']:.3f} | {r['max']:.2f} | "
-                f"{r['bursts']} | {r['skipped']} | {r['cpu']:.2f} of {r['cores']} |",
+                f"{r['maxes']} | {r['bursts']} | {skipped} | {cpu:.2f} of {runs[0]['cores']} |",
                 flush=True,
             )
-            f = r["follower"]
-            if isinstance(f, dict):
+            if runs[0]["follower"] is not None:
+                f = pooled(runs, "follower")
                 print(
                     f"| {case}: the follower's time stamps | {fifo} | {f['syncs']} | {f['p50']:.3f} | "
-                    f"{f['p99']:.3f} | {f['max']:.2f} | {f['bursts']} | | |",
+                    f"{f['p99']:.3f} | {f['max']:.2f} | {f['maxes']} | {f['bursts']} | | |",
                     flush=True,
                 )
+            b = pooled(runs, "baseline")
+            bfifo = "asked, granted" if b["fifo"] else ("asked, refused" if priority else "not asked")
+            print(
+                f"| {case}: bare timer loop (the machine's floor) | {bfifo} | {b['syncs']} | {b['p50']:.3f} | "
+                f"{b['p99']:.3f} | {b['max']:.2f} | {b['maxes']} | {b['bursts']} | | |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":
