@@ -22,6 +22,7 @@ time stamp after each SYNC it heard).
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import multiprocessing
 import sys
@@ -87,26 +88,47 @@ def bare_timer(seconds: float, period_ms: float, priority: int, out: multiproces
     out.close()
 
 
-def baseline(seconds: float, period_ms: float, priority: int) -> dict[str, object]:
+class Floor:
     """``bare_timer`` in a child process of its own: the floor the master's figure is set beside."""
-    receive, send = multiprocessing.Pipe(duplex=False)
-    child = multiprocessing.Process(target=bare_timer, args=(seconds, period_ms, priority, send), daemon=True)
-    child.start()
-    fifo, woke = receive.recv()
-    child.join(2.0)
-    intervals = np.diff(np.asarray(woke)) / (period_ms / 1000.0)
-    return {"syncs": len(woke), **figures(intervals), "intervals": intervals, "fifo": fifo}
+
+    def __init__(self, seconds: float, period_ms: float, priority: int) -> None:
+        self.period_ms = period_ms
+        self._receive, send = multiprocessing.Pipe(duplex=False)
+        self._child = multiprocessing.Process(target=bare_timer, args=(seconds, period_ms, priority, send), daemon=True)
+        self._child.start()
+
+    def result(self) -> dict[str, object]:
+        fifo, woke = self._receive.recv()
+        self._child.join(2.0)
+        intervals = np.diff(np.asarray(woke)) / (self.period_ms / 1000.0)
+        return {"syncs": len(woke), **figures(intervals), "intervals": intervals, "fifo": fifo, "woke": woke}
+
+
+def shared_gaps(sent: list[float], woke: list[float], period_s: float) -> tuple[int, int]:
+    """The master's gaps over 2 periods, and how many of them overlap a gap of the floor's over 1.5
+    periods (the floor beside the master: a gap both saw is the machine's, not the master's)."""
+    s, w = np.asarray(sent), np.asarray(woke)
+    mine = [(a, b) for a, b in itertools.pairwise(s) if b - a > 2 * period_s]
+    theirs = [(a, b) for a, b in itertools.pairwise(w) if b - a > 1.5 * period_s]
+    both = sum(1 for a, b in mine if any(c < b and d > a for c, d in theirs))
+    return len(mine), both
 
 
 def run_case(
-    seconds: float, period_ms: float, priority: int, load: int, interface: str, lift: bool = True
+    seconds: float,
+    period_ms: float,
+    priority: int,
+    load: int,
+    interface: str,
+    lift: bool = True,
+    beside: bool = False,
 ) -> dict[str, object]:
     stop = multiprocessing.Event()
     workers = [multiprocessing.Process(target=busy, args=(stop,), daemon=True) for _ in range(load)]
     for w in workers:
         w.start()
     time.sleep(0.2 if load else 0.0)
-    floor = baseline(seconds, period_ms, priority)
+    floor = None if beside else Floor(seconds, period_ms, priority).result()
     config = BusConfig(
         interface=interface,
         channel=f"jitter-{uuid.uuid4().hex[:8]}",
@@ -120,9 +142,12 @@ def run_case(
     sent: list[float] = []
     bus.sync.add_sender(lambda n: sent.append(time.monotonic()))
     b0, t0 = cpu_times()
+    beside_floor = Floor(seconds, period_ms, priority) if beside else None
     bus.sync.start()
     time.sleep(seconds)
     bus.sync.stop()
+    if beside_floor is not None:
+        floor = beside_floor.result()
     b1, t1 = cpu_times()
     realtime = bus.sync.realtime
     skipped = bus.sync.skipped
@@ -148,6 +173,7 @@ def run_case(
         "cpu": (b1 - b0) / max(1, t1 - t0) * cores,
         "cores": cores,
         "baseline": floor,
+        "shared": shared_gaps(sent, floor["woke"], period_ms / 1000.0) if beside else None,  # type: ignore[index,arg-type]
     }
 
 
@@ -176,6 +202,13 @@ def main() -> None:
         action="store_true",
         help="leave the bus's other threads at normal priority (SyncClock.lift_bus_threads off): for comparison",
     )
+    parser.add_argument(
+        "--floor",
+        choices=("before", "beside"),
+        default="before",
+        help="the bare timer loop runs before the master (each alone with the load) or beside it (the "
+        "same moments: the master's gaps over 2 periods that the floor saw too are counted)",
+    )
     args = parser.parse_args()
     print(
         f"SYNC every {args.period_ms:g} ms for {args.seconds:g} s per run, {args.runs} run(s) per case on "
@@ -189,7 +222,15 @@ def main() -> None:
     for load in loads:
         for priority in priorities:
             runs = [
-                run_case(args.seconds, args.period_ms, priority, load, args.interface, not args.bus_threads_normal)
+                run_case(
+                    args.seconds,
+                    args.period_ms,
+                    priority,
+                    load,
+                    args.interface,
+                    not args.bus_threads_normal,
+                    args.floor == "beside",
+                )
                 for _ in range(args.runs)
             ]
             r = pooled(runs)
@@ -211,6 +252,11 @@ def main() -> None:
                     f"{f['p99']:.3f} | {f['max']:.2f} | {f['maxes']} | {f['bursts']} | | |",
                     flush=True,
                 )
+            if args.floor == "beside":
+                gaps = [r["shared"] for r in runs]
+                mine = sum(g[0] for g in gaps)  # type: ignore[index]
+                both = sum(g[1] for g in gaps)  # type: ignore[index]
+                print(f"<!-- {case}: {mine} master gaps over 2 periods, {both} of them while the floor had one -->")
             b = pooled(runs, "baseline")
             bfifo = "asked, granted" if b["fifo"] else ("asked, refused" if priority else "not asked")
             print(
