@@ -177,6 +177,7 @@ def one_run(
             "windows": len(full_at),
             "nmt": int(bool(stop.nmt_stopped)),
             "axes": len(stop.node_ids),
+            "described": stop.describe(),
         }
     finally:
         FlakyBus.failing_until.pop(channel, None)
@@ -247,6 +248,9 @@ def main() -> None:
         late = int(np.isnan(conf).sum()) - len(others)
         for other in others:
             print(f"<!-- {case}: no quick stop, the run ended {other} -->")
+        for r in runs:
+            if r["nmt"]:
+                print(f"<!-- {case}: {r['described']} -->")
         print(
             f"| {case} | {max(int(r['axes']) for r in runs)} | {np.nanmedian(req):.2f} / {np.nanmax(req):.2f} | "
             f"{drive_side} | "
