@@ -10,7 +10,10 @@ SYNC has two modes (``CellBus(lockstep=...)``):
   deadlines: a deadline passed by more than half a period is skipped and counted (``skipped``),
   never sent late in a burst (a fixed-period drive would take two setpoints in one period), and no
   SYNC goes out within half a period of the one before. The thread asks for SCHED_FIFO
-  (``BusConfig.sync_priority``; not permitted: one warning, normal priority).
+  (``BusConfig.sync_priority``; not permitted: one warning, normal priority); granted, the bus's
+  other threads (``CellBus.threads``) are lifted to SCHED_FIFO one below it (``lift``), since any of
+  them preempted by another process while it holds the GIL would hold SYNC up for a scheduler
+  slice (priority inversion through the GIL; measured in bench/sync_jitter.py).
   A gap longer than the drives ride out is reported (``FaultKind.SYNC_GAP``, the gap in ms), before
   the thread sends the SYNC after it (the halt the report causes comes first): the
   rule is ``BusConfig.max_sync_gap_periods`` when the cell sets it, else the profiles' (``Profile.

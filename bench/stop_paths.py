@@ -18,8 +18,9 @@ Figures per case over ``--runs``, from the failure: to the quick stop requests o
 moment the last drive took the quick stop (drive side: its controlword 0x0002 acted on, QUICK STOP
 ACTIVE; by the SDO request or, where that was not confirmed in time, by the NMT stop's 0x6007
 reaction), to the last drive's SDO confirmation of the quick stop (master side; a run where a drive
-did not confirm within the ``quick_stop_confirm_ms`` bound, 10 ms, is counted apart: that drive
-was sent NMT stop), and how many runs needed NMT stop. Target: quick stop confirmed on every axis
+did not confirm within the ``quick_stop_confirm_ms`` bound is counted apart: that drive was sent
+NMT stop; 10 ms, 50 ms for drives in this interpreter, ``sharing_the_interpreter``, with the runs
+confirmed within 10 ms counted), and how many runs needed NMT stop. Target: quick stop confirmed on every axis
 within 10 ms of the failure.
 
 ``--drives process``: the drives run in a process of their own (``pvtflow sim --wall-clock``
@@ -61,7 +62,7 @@ from axes.bus import CellBus  # noqa: E402
 from axes.bus_faults import BusFault, FaultKind  # noqa: E402
 from axes.cia402 import PowerState  # noqa: E402
 from axes.group import AxisGroup  # noqa: E402
-from axes.sim.cell import SimulatedCell  # noqa: E402
+from axes.sim.cell import SimulatedCell, sharing_the_interpreter  # noqa: E402
 from axes.sim.drive import SimulatedDrive  # noqa: E402
 from axes.sim.wire import SimWireBus  # noqa: E402
 from service.config import CONFIG_DIR, load_cell_config  # noqa: E402
@@ -105,7 +106,9 @@ def one_run(
         channel = cell.bus.channel
         interface = "pvtflow_bench_flaky_wire"
     else:
-        cell = load_cell_config(CONFIG_DIR / "cells" / f"{cell_name}.yaml")
+        # the drives in this interpreter answer late: their confirmations are awaited 50 ms, so that
+        # the figure says when they came (the runs within the 10 ms target are counted)
+        cell = sharing_the_interpreter(load_cell_config(CONFIG_DIR / "cells" / f"{cell_name}.yaml"))
         channel = unique_channel("stop")
         interface = "pvtflow_test_flaky"
     if full_ms is None:
@@ -254,7 +257,8 @@ def main() -> None:
         print(
             f"| {case} | {max(int(r['axes']) for r in runs)} | {np.nanmedian(req):.2f} / {np.nanmax(req):.2f} | "
             f"{drive_side} | "
-            f"{np.nanmedian(conf):.2f} / {np.nanmax(conf):.2f}{after} (+ {late} not within the bound) | "
+            f"{np.nanmedian(conf):.2f} / {np.nanmax(conf):.2f}, {int((conf <= 10.0).sum())} of {len(runs)} within "
+            f"10 ms{after} (+ {late} not within the bound) | "
             f"{nmt} of {len(runs)} | {len(others)} |",
             flush=True,
         )

@@ -28,7 +28,7 @@ from axes.bus_faults import BusFault, FaultKind
 from axes.config import BusConfig
 from axes.group import AxisGroup
 from axes.objects import SYNC_COB_ID
-from axes.outcome import EventKind, Result
+from axes.outcome import Result
 from axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from axes.sim.power_states import SWITCH_ON_DISABLED
 from axes.subscriptions import subscribe, unsubscribe
@@ -341,17 +341,19 @@ def test_a_dead_sync_thread_quick_stops_every_axis_by_sdo(arm6, lockstep):
         bus.sync.add_sender(die)
         sent: list[int] = []
         bus.recorder.taps.append(lambda msg: sent.append(msg.arbitration_id))
-        requested_before_event: list[set[int]] = []
+        requested_before_event: list[tuple[str, set[int]]] = []
 
         def on_event(event) -> None:
-            if event.kind is EventKind.HALTED:  # the requests are out before anything else of the halt
-                requested_before_event.append({cob - 0x600 for cob in sent if 0x600 < cob < 0x680})
+            if event.kind.value in ("sync_stopped", "halted"):  # the requests are out before they are told
+                requested = {cob - 0x600 for cob in sent if 0x600 < cob < 0x680}
+                requested_before_event.append((event.kind.value, requested))
 
         group.on_event = on_event
         assert group.start(prog) is None
         result = group.wait(30.0)
         assert killed.is_set(), result.message
-        assert requested_before_event == [{d.node_id for d in sim}]
+        nodes = {d.node_id for d in sim}
+        assert requested_before_event == [("sync_stopped", nodes), ("halted", nodes)]
         assert "the SYNC" in result.message and "injected" in result.message
         assert_quick_stopped(group, sim, result, Result.BUS_ERROR)
         assert any(d.halts == [] for d in sim)  # not the synchronous halt word: nothing carried it
