@@ -66,6 +66,7 @@ class CellBus:
             priority=config.sync_priority,
             max_gap_periods=gap,
         )
+        self.sync.lift_bus_threads = config.lift_bus_threads
         self.network.tx_retry_s = config.tx_retry_ms / 1000.0
         self.lost_sync_timeout_s = lost_sync_timeout_s
         self.nodes: dict[int, canopen.RemoteNode] = {}

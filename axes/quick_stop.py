@@ -162,8 +162,10 @@ def quick_stop_all(
         deadline = stop.started + confirm_s
         while (left := deadline - time.monotonic()) > 0:
             with answered:
-                # a refused request is tried again as often as a refused frame is (axes.network)
-                if answered.wait_for(answered_all, min(left, TX_RETRY_PAUSE_S if unsent else 0.001)):
+                # a refused request is tried again as often as a refused frame is (axes.network);
+                # else woken by the answers alone (no polling: in a simulation the drives share
+                # this interpreter, and every wake of this thread takes the GIL from them)
+                if answered.wait_for(answered_all, min(left, TX_RETRY_PAUSE_S) if unsent else left):
                     break
             send_requests(list(unsent), patient=False)
         for node in stop.node_ids:

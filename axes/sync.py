@@ -147,7 +147,7 @@ class SyncClock:
         self._t0_us = time.monotonic_ns() // 1000
         self.follower = SyncFollower(self)  # where the interface sends SYNC (``native``)
         self.hold: Callable[[], None] | None = None  # benchmarks and tests: called before each wall-clock SYNC
-        self.lift_bus_threads = True  # the bus's threads follow SYNC to SCHED_FIFO (off: benchmarks compare)
+        self.lift_bus_threads = True  # the bus's threads follow SYNC to SCHED_FIFO (BusConfig.lift_bus_threads)
         self.lifted: list[str] = []  # the threads lifted below SYNC's priority (``CellBus.threads``)
 
     # --- answers ---------------------------------------------------------------------------------

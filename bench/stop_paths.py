@@ -32,6 +32,7 @@ drive-side column is empty (their process is not instrumented).
 
     python3 bench/stop_paths.py [--runs 10] [--cell arm6] [--at-ms 300] [--full-ms MS]
     python3 bench/stop_paths.py --drives process [--cell gantry3-ip-linear] [--period-ms 8] [--axes 2]
+    [--bus-threads-normal]: the master's bus threads left at normal priority, for comparison
 """
 
 from __future__ import annotations
@@ -98,7 +99,12 @@ def watch_quick_stop(drive: SimulatedDrive, acted: dict[int, float]) -> None:
 
 
 def one_run(
-    cell_name: str, case: str, at_ms: float, full_ms: float | None, process: Process | None = None
+    cell_name: str,
+    case: str,
+    at_ms: float,
+    full_ms: float | None,
+    process: Process | None = None,
+    lift: bool = True,
 ) -> dict[str, float | int]:
     if process is not None:
         served = serve(at_period(CONFIG_DIR / "cells" / f"{cell_name}.yaml", process.period_ms, process.directory))
@@ -117,6 +123,7 @@ def one_run(
     cell = dataclasses.replace(cell, bus=bus_config)
     sim = None if process is not None else SimulatedCell(cell, channel=channel, interface="virtual").start()
     bus = CellBus(dataclasses.replace(bus_config, interface=interface), lockstep=False).open()
+    bus.sync.lift_bus_threads = lift and bus.sync.lift_bus_threads
     group = AxisGroup(bus, cell.ordered_axes()[: process.axes] if process is not None else cell.ordered_axes())
     failed_at: list[float] = []  # when the master failed: the SYNC thread raised, or a frame was given up
     full_at: list[float] = []  # when the transmit queue became full (the last window injected)
@@ -211,6 +218,11 @@ def main() -> None:
     parser.add_argument("--drives", choices=("here", "process"), default="here")
     parser.add_argument("--period-ms", type=float, default=8.0, help="--drives process: the cell's SYNC period")
     parser.add_argument("--axes", type=int, default=2, help="--drives process: the first N axes move")
+    parser.add_argument(
+        "--bus-threads-normal",
+        action="store_true",
+        help="leave the master's bus threads at normal priority (SyncClock.lift_bus_threads off): for comparison",
+    )
     args = parser.parse_args()
     process = None
     if args.drives == "process":
@@ -220,7 +232,11 @@ def main() -> None:
     where = (
         "in this process" if process is None else f"in their own process, {args.period_ms:g} ms SYNC, {args.axes} axes"
     )
-    print(f"cell {args.cell}, drives {where}, failure {args.at_ms:g} ms into the motion, {args.runs} runs per case")
+    lifted = "normal priority" if args.bus_threads_normal else "lifted below SYNC"
+    print(
+        f"cell {args.cell}, drives {where}, failure {args.at_ms:g} ms into the motion, {args.runs} runs per case, "
+        f"the master's bus threads at {lifted}"
+    )
     print(
         "| case | axes | to the requests (p50 / max ms) | to every drive in quick stop (p50 / max ms, runs "
         "within 10 ms) | to every axis confirmed (p50 / max ms) | NMT stop needed | runs that ended otherwise |"
@@ -228,7 +244,10 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|")
     full = "tx_retry_ms + 1 ms" if args.full_ms is None else f"{args.full_ms:g} ms"
     for case in ("dead SYNC thread", f"queue full {full}"):
-        runs = [one_run(args.cell, case, args.at_ms, args.full_ms, process) for _ in range(args.runs)]
+        runs = [
+            one_run(args.cell, case, args.at_ms, args.full_ms, process, not args.bus_threads_normal)
+            for _ in range(args.runs)
+        ]
         req = np.array([r["requests_ms"] for r in runs])
         conf = np.array([r["confirmed_ms"] for r in runs])
         acted = np.array([r["acted_ms"] for r in runs])

@@ -138,7 +138,7 @@ def run_case(
         max_sync_gap_periods=1e6,
     )
     bus = CellBus(config, lockstep=False).open()
-    bus.sync.lift_bus_threads = lift
+    bus.sync.lift_bus_threads = lift and bus.sync.lift_bus_threads
     sent: list[float] = []
     bus.sync.add_sender(lambda n: sent.append(time.monotonic()))
     b0, t0 = cpu_times()
