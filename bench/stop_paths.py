@@ -153,7 +153,15 @@ def one_run(
         if fault.kind is FaultKind.TX_FAILED and not failed_at:
             failed_at.append(time.monotonic())
 
+    answered: dict[int, float] = {}  # node -> when its first SDO confirmation after the failure came, late ones too
+
+    def tap(msg: can.Message) -> None:
+        node = msg.arbitration_id - 0x580
+        if failed_at and msg.is_rx and 0 < node < 0x80 and msg.data[:1] == b"\x60" and node not in answered:
+            answered[node] = time.monotonic()
+
     try:
+        bus.recorder.taps.append(tap)
         bus.sync.add_sender(inject)
         bus._fault_callbacks.insert(0, on_fault)  # heard before the group acts on it
         if process is not None:
@@ -187,7 +195,9 @@ def one_run(
             "windows": len(full_at),
             "nmt": int(bool(stop.nmt_stopped)),
             "axes": len(stop.node_ids),
-            "described": stop.describe(),
+            "described": stop.describe()
+            + "; the answers came "
+            + ", ".join(f"node {n} at {(t - failed_at[0]) * 1000:.1f} ms" for n, t in sorted(answered.items())),
         }
     finally:
         FlakyBus.failing_until.pop(channel, None)
@@ -232,7 +242,11 @@ def main() -> None:
     where = (
         "in this process" if process is None else f"in their own process, {args.period_ms:g} ms SYNC, {args.axes} axes"
     )
-    lifted = "normal priority" if args.bus_threads_normal else "lifted below SYNC"
+    lifted = (
+        "normal priority"
+        if args.bus_threads_normal or process is None  # drives here: BusConfig.lift_bus_threads off
+        else "SCHED_FIFO below SYNC"
+    )
     print(
         f"cell {args.cell}, drives {where}, failure {args.at_ms:g} ms into the motion, {args.runs} runs per case, "
         f"the master's bus threads at {lifted}"
