@@ -251,13 +251,15 @@ class SyncClock:
         """SYNC (unless the interface sent it: ``sync_frame`` False), the time stamp, the senders."""
         with self.lock:
             self.count += 1
+            if sync_frame:
+                self.bus.network.send_message(SYNC_COB_ID, b"")
+            # taken once the frame is out: a thread preempted between the decision and the send would
+            # otherwise let the next SYNC follow this one within half a period on the bus
             now = time.monotonic()
             self.last_sent = now
             if self.sent_at is not None:
                 self.longest_gap_s = max(self.longest_gap_s, now - self.sent_at)
             self.sent_at = now
-            if sync_frame:
-                self.bus.network.send_message(SYNC_COB_ID, b"")
             if self.time_stamp_cob_id is not None:
                 stamp = (time.monotonic_ns() // 1000 - self._t0_us) & 0xFFFFFFFF
                 self.bus.network.send_message(self.time_stamp_cob_id, struct.pack("<I", stamp))

@@ -2,21 +2,34 @@
 
 The master's real ``CellBus`` on the ``virtual`` bus (no drives: the SYNC thread is what is
 measured) sends SYNC and the 0x1013 time stamp every ``--period-ms`` for ``--seconds``. Each SYNC's
-send time is taken in the sending thread right after the frame went out (``SyncClock.add_sender``).
-Cases: alone and with ``--load`` busy-loop processes (multiprocessing, started and stopped here),
-each with SCHED_FIFO asked (``sync_priority`` 50) and not (0). Figures per case: SYNC interval
-p50 / p99 / max in periods, bursts (a SYNC less than half a period after the one before), periods
-skipped (``SyncClock.skipped``), whether SCHED_FIFO was granted, and the machine's CPU load during
-the case (/proc/stat, all cores). Target under load: p99 <= 1.1 periods, max <= 2, 0 bursts.
+send time is the master's own (``SyncClock.sent_at``: taken in the sending thread once the frame is
+out), read by a sender (``SyncClock.add_sender``). Cases: alone and with ``--load`` busy-loop
+processes (multiprocessing, started and stopped here), each with SCHED_FIFO asked
+(``sync_priority`` 50) and not (0). Figures per case: SYNC interval p50 / p99 / max in periods, each
+run's max, bursts (a SYNC less than half a period after the one before), periods skipped
+(``SyncClock.skipped``), whether SCHED_FIFO was granted, and the machine's CPU load during the case
+(/proc/stat, all cores). Target under load: p99 <= 1.1 periods, max <= 2, 0 bursts.
+
+The machine's floor, a row under each case: one thread in a child process of its own, SCHED_FIFO
+as asked, waking at absolute deadlines by ``time.sleep`` and nothing else, under the same load
+(``bare_timer``): what the master adds is what its figure shows above that. ``--floor before``: the
+floor runs alone with the load just before the master; ``--floor beside``: at the same moments, and
+the master's gaps over 2 periods that the floor also had (a gap of the machine) are counted.
+
+The master's bus threads run at SCHED_FIFO one below SYNC when SYNC has it (``axes.sync.lift``);
+``--bus-threads-normal`` leaves them at normal priority, for comparison. ``--runs N`` repeats each
+case (the rare multi-ms gaps need many runs to be seen); ``--under-load-only``: the case that
+matters, under load with SCHED_FIFO.
 
 ``--interface simwire``: the master on pvtflow's simulated wire (wall clock, 1 Mbit/s), where the
 interface sends SYNC cyclically by itself (``SyncClock.native``: the medium times each SYNC as
 SocketCAN's broadcast manager does) and the master's thread only follows it with the time stamp.
 The intervals are then those of the SYNC frames on the wire (their start times, ``Medium.
-sync_intervals``), and a second row per case gives the follower's (when the master's thread sent the
-time stamp after each SYNC it heard).
+sync_intervals``), and a second row per case gives the follower's (when the master's thread
+followed each SYNC it heard).
 
     python3 bench/sync_jitter.py [--seconds 5] [--period-ms 1] [--load 2] [--interface virtual|simwire]
+        [--runs N] [--under-load-only] [--floor before|beside] [--bus-threads-normal]
 """
 
 from __future__ import annotations
@@ -140,7 +153,7 @@ def run_case(
     bus = CellBus(config, lockstep=False).open()
     bus.sync.lift_bus_threads = lift and bus.sync.lift_bus_threads
     sent: list[float] = []
-    bus.sync.add_sender(lambda n: sent.append(time.monotonic()))
+    bus.sync.add_sender(lambda n: sent.append(bus.sync.sent_at or time.monotonic()))  # when the SYNC went out
     b0, t0 = cpu_times()
     beside_floor = Floor(seconds, period_ms, priority) if beside else None
     bus.sync.start()
