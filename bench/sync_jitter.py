@@ -117,6 +117,22 @@ class Floor:
         return {"syncs": len(woke), **figures(intervals), "intervals": intervals, "fifo": fifo, "woke": woke}
 
 
+def where_late(sent: list[float], woke: list[float], period_s: float) -> tuple[int, int]:
+    """The master's gaps over 2 periods: how many were lost before its thread ran again (the sleep's
+    wake-up and the GIL), and how many after it (the SYNC lock, the send)."""
+    w = np.asarray(woke)
+    at_wake = after_wake = 0
+    for a, b in itertools.pairwise(sent):
+        if b - a <= 2 * period_s:
+            continue
+        i = np.searchsorted(w, b, side="right") - 1  # the last wake before this SYNC went out
+        if i >= 0 and b - w[i] > period_s:
+            after_wake += 1
+        else:
+            at_wake += 1
+    return at_wake, after_wake
+
+
 def shared_gaps(sent: list[float], woke: list[float], period_s: float) -> tuple[int, int]:
     """The master's gaps over 2 periods, and how many of them overlap a gap of the floor's over 1.5
     periods (the floor beside the master: a gap both saw is the machine's, not the master's)."""
@@ -154,6 +170,8 @@ def run_case(
     bus.sync.lift_bus_threads = lift and bus.sync.lift_bus_threads
     sent: list[float] = []
     bus.sync.add_sender(lambda n: sent.append(bus.sync.sent_at or time.monotonic()))  # when the SYNC went out
+    woke: list[float] = []  # when the SYNC thread had woken from its sleep and held the GIL again
+    bus.sync.hold = lambda: woke.append(time.monotonic())
     b0, t0 = cpu_times()
     beside_floor = Floor(seconds, period_ms, priority) if beside else None
     bus.sync.start()
@@ -186,6 +204,7 @@ def run_case(
         "cpu": (b1 - b0) / max(1, t1 - t0) * cores,
         "cores": cores,
         "baseline": floor,
+        "where": where_late(sent, woke, period_ms / 1000.0),
         "shared": shared_gaps(sent, floor["woke"], period_ms / 1000.0) if beside else None,  # type: ignore[index,arg-type]
     }
 
@@ -270,6 +289,12 @@ def main() -> None:
                 mine = sum(g[0] for g in gaps)  # type: ignore[index]
                 both = sum(g[1] for g in gaps)  # type: ignore[index]
                 print(f"<!-- {case}: {mine} master gaps over 2 periods, {both} of them while the floor had one -->")
+            at_wake = sum(r["where"][0] for r in runs)  # type: ignore[index]
+            after_wake = sum(r["where"][1] for r in runs)  # type: ignore[index]
+            print(
+                f"<!-- {case}: of the master's gaps over 2 periods, {at_wake} before its thread ran again "
+                f"(the wake-up, the GIL), {after_wake} after (the SYNC lock, the send) -->"
+            )
             b = pooled(runs, "baseline")
             bfifo = "asked, granted" if b["fifo"] else ("asked, refused" if priority else "not asked")
             print(
