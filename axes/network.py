@@ -5,8 +5,7 @@ A bus does not hear its own frames, so ``RecordingNetwork`` hands each frame it 
 ``can.Logger`` (the ``--can-log`` of the commands). A frame the interface refuses (a full transmit
 queue, ENOBUFS) is tried again for ``BusConfig.tx_retry_ms``, or longer for bulk frames nothing
 waits on (``RecordingNetwork.patient``); past that it raises, and the SYNC thread reports
-``FaultKind.TX_FAILED``. A retry waits outside the network's send lock, so that one thread's
-refused frame does not hold another's back (a quick stop request behind a heartbeat's retries).
+``FaultKind.TX_FAILED``.
 """
 
 from __future__ import annotations
@@ -110,13 +109,12 @@ class RecordingNetwork(canopen.Network):
             channel=self.channel_name,
         )
         deadline: float | None = None
+        wait: float | None = None  # the first try does not wait: a retry lets the queue drain meanwhile
         while True:
             try:
-                # one try, never a wait for room inside the lock: another thread's urgent frame (a
-                # quick stop request) is not held behind this one's retries
                 with self.send_lock:
                     msg.timestamp = time.time()
-                    self.bus.send(msg, timeout=0.0)
+                    self.bus.send(msg, timeout=wait)
                 break
             except (can.CanOperationError, OSError) as exc:  # a full transmit queue (ENOBUFS), a refusing controller
                 now = time.monotonic()
@@ -129,6 +127,7 @@ class RecordingNetwork(canopen.Network):
                     raise can.CanOperationError(
                         f"frame 0x{can_id:03X} not sent within {bound * 1000:.1f} ms: {exc}"
                     ) from exc
-                time.sleep(TX_RETRY_PAUSE_S)  # the queue drains meanwhile
+                time.sleep(TX_RETRY_PAUSE_S)
+                wait = max(deadline - time.monotonic(), 0.0)
         if self.recorder is not None:
             self.recorder.on_message_sent(msg)
