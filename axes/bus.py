@@ -99,7 +99,8 @@ class CellBus:
         heartbeats, EMCY), the watchdog and the master's heartbeat. Each may take the GIL the SYNC
         thread needs, so when SYNC runs at SCHED_FIFO they run just below it (``axes.sync.lift``):
         one of them preempted by the host's other processes while holding the GIL would hold SYNC
-        up for a scheduler slice (priority inversion through the GIL)."""
+        up for a scheduler slice (priority inversion through the GIL). Lifted, they stay so for the
+        bus's life: between motions they sleep on their queues and timers."""
         notifier = self.network.notifier
         readers = [r for r in getattr(notifier, "_readers", ()) if isinstance(r, threading.Thread)]
         others = [self.watch.thread, self.master_heartbeat.thread]
