@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import threading
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -65,6 +66,7 @@ class CellBus:
             priority=config.sync_priority,
             max_gap_periods=gap,
         )
+        self.sync.lift_bus_threads = config.lift_bus_threads
         self.network.tx_retry_s = config.tx_retry_ms / 1000.0
         self.lost_sync_timeout_s = lost_sync_timeout_s
         self.nodes: dict[int, canopen.RemoteNode] = {}
@@ -91,6 +93,18 @@ class CellBus:
         self.watch.start()
         self.master_heartbeat.start()
         return self
+
+    def threads(self) -> list[threading.Thread]:
+        """The threads that serve this bus beside SYNC's: the notifier's reader (answers, feeders, SDO,
+        heartbeats, EMCY), the watchdog and the master's heartbeat. Each may take the GIL the SYNC
+        thread needs, so when SYNC runs at SCHED_FIFO they run just below it (``axes.sync.lift``):
+        one of them preempted by the host's other processes while holding the GIL would hold SYNC
+        up for a scheduler slice (priority inversion through the GIL). Lifted, they stay so for the
+        bus's life: between motions they sleep on their queues and timers."""
+        notifier = self.network.notifier
+        readers = [r for r in getattr(notifier, "_readers", ()) if isinstance(r, threading.Thread)]
+        others = [self.watch.thread, self.master_heartbeat.thread]
+        return readers + [t for t in others if t is not None]
 
     @property
     def is_open(self) -> bool:

@@ -52,6 +52,11 @@ class BusWatch:
         self._thread = threading.Thread(target=self._run, name="pvtflow-watchdog", daemon=True)
         self._thread.start()
 
+    @property
+    def thread(self) -> threading.Thread | None:
+        """The thread that runs this (None: not started); ``CellBus.threads``."""
+        return self._thread
+
     def stop(self) -> None:
         self._closing.set()
         if self._thread is not None:

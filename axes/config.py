@@ -35,6 +35,10 @@ class BusConfig:
     # axes.sync's module docstring); a longer gap halts the motion (FaultKind.SYNC_GAP)
     max_sync_gap_periods: float | None = None
     sync_priority: int = 50  # SCHED_FIFO priority of the thread that sends SYNC (0: do not ask)
+    # the bus's other threads run at SCHED_FIFO one below SYNC when SYNC has it (axes.sync.lift); off
+    # where the drives share the master's interpreter (axes.sim.cell.sharing_the_interpreter): there
+    # those threads would take the GIL from the drives, whose answers the quick stop waits for
+    lift_bus_threads: bool = True
     tx_retry_ms: float = 2.0  # how long a frame the interface refuses (queue full) is tried again
     quick_stop_confirm_ms: float = 10.0  # the SDO quick stop's answers are waited for this long, then NMT stop
     # EPOS2 records the master may send in one SYNC period, shared by every buffered axis (None: the

@@ -258,7 +258,11 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         self._bus_faults += 1
         if link is not None:  # whatever it was, that drive is enabled again at the next start
             self.readiness.forget(self.links.index(link))
-        self._event(EventKind(fault.kind.value), fault.message, link)
+        # SYNC failed mid-run: the quick stop requests go out before the event says why (an event
+        # may print or publish: ``_quick_stop``); any other fault is told first
+        told = fault.kind.sync_failed and self._running and not fault.kind.warning
+        if not told:
+            self._event(EventKind(fault.kind.value), fault.message, link)
         if not self._running or fault.kind.warning:
             return
         kind = {
@@ -270,12 +274,14 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         sync = self.bus.sync
         with sync.lock, self._lock:
             if self._ending is not None and self._running and fault.kind.sync_failed and self._halt_deadline:
-                self._quick_stop_too(fault.message, link)  # the halt word waits for a SYNC that will not come
+                self._quick_stop_too(fault.message, link, fault)  # the halt word waits for a SYNC that will not come
                 return
             if self._ending is not None or not self._running:
+                if told:
+                    self._event(EventKind(fault.kind.value), fault.message, link)
                 return
             if fault.kind.sync_failed:
-                self._quick_stop(kind, fault.message, link)
+                self._quick_stop(kind, fault.message, link, fault)
                 return
             gone = kind in (Result.HEARTBEAT_LOST, Result.LOST_SYNC)
             stalled = bool(sync.behind())

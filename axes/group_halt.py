@@ -13,6 +13,7 @@ import time
 
 import can
 
+from axes.bus_faults import BusFault
 from axes.cia402 import PowerState, Statusword, decode_state
 from axes.feeder import SetpointFeeder
 from axes.link import AxisLink
@@ -53,29 +54,34 @@ class GroupHalt:
         lost = f" (not sent to {'; '.join(unsent)}: those drives stop on the master's heartbeat loss)" if unsent else ""
         self._event(EventKind.HALTED, f"all axes halted: {message}{lost}", link)
 
-    def _quick_stop(self, result: Result, message: str, link: AxisLink | None) -> None:
+    def _quick_stop(self, result: Result, message: str, link: AxisLink | None, fault: BusFault | None = None) -> None:
         """The master cannot keep SYNC: no more SYNC, every axis quick stopped by SDO, NMT stop for
         the drives that do not confirm (``axes.quick_stop``); the run ends when that is done (called
-        with the SYNC lock and the group lock held)."""
+        with the SYNC lock and the group lock held). ``fault``: the bus's report that caused it, told
+        as its event once the requests are out."""
         sync = self.bus.sync
         for feeder in self._feeders:
             feeder.enabled = False
-        sync.stop()
         res = self._result(result, message, link)
         res.fault_sync = sync.count
-        self._ending = res
+        self._ending = res  # before the requests: their confirmations end the run (_quick_stopped)
         self._halted_at = time.monotonic()
         self._halt_deadline = None
+        # the requests first (no SYNC can go out meanwhile: the SYNC lock is held), the rest after
+        self.last_quick_stop = self.bus.quick_stop([lk.node_id for lk in self.links], message, self._quick_stopped)
+        sync.stop()
         self.readiness.forget()
+        if fault is not None:
+            self._event(EventKind(fault.kind.value), fault.message, link)
         self._event(EventKind.HALTED, f"all axes quick stopped by SDO (no SYNC): {message}", link)
-        self.last_quick_stop = self.bus.quick_stop([lk.node_id for lk in self.links], message, self._quick_stopped)
 
-    def _quick_stop_too(self, message: str, link: AxisLink | None) -> None:
+    def _quick_stop_too(self, message: str, link: AxisLink | None, fault: BusFault) -> None:
         """A halt by the synchronous RPDO is under way and SYNC fails: quick stop by SDO as well."""
-        self.bus.sync.stop()
         self._halt_deadline = None
-        self._event(EventKind.HALTED, f"all axes quick stopped by SDO (no SYNC): {message}", link)
         self.last_quick_stop = self.bus.quick_stop([lk.node_id for lk in self.links], message, self._quick_stopped)
+        self.bus.sync.stop()
+        self._event(EventKind(fault.kind.value), fault.message, link)
+        self._event(EventKind.HALTED, f"all axes quick stopped by SDO (no SYNC): {message}", link)
 
     def _quick_stopped(self, stop: QuickStop) -> None:
         """Every drive confirmed the quick stop or was sent NMT stop (the quick stop's thread)."""

@@ -77,6 +77,11 @@ class MasterHeartbeat:
         self._thread = threading.Thread(target=self._run, name="pvtflow-master-heartbeat", daemon=True)
         self._thread.start()
 
+    @property
+    def thread(self) -> threading.Thread | None:
+        """The thread that runs this (None: not started); ``CellBus.threads``."""
+        return self._thread
+
     def stop(self) -> None:
         """No beat after this returns."""
         self._stopping.set()

@@ -88,7 +88,8 @@ class RecordingNetwork(canopen.Network):
     def patient(self, seconds: float) -> Iterator[None]:
         """Frames this thread sends meanwhile are tried again for up to ``seconds``: for bulk frames
         that nothing waits on in the meantime (a preload before the first SYNC), which a full
-        transmit queue only delays by the wire time of what is ahead of them."""
+        transmit queue only delays by the wire time of what is ahead of them. ``seconds`` 0: one try
+        (the caller tries again itself, between other work: ``axes.quick_stop``)."""
         previous = getattr(self._patience, "seconds", None)
         self._patience.seconds = seconds
         try:
@@ -117,11 +118,12 @@ class RecordingNetwork(canopen.Network):
                 break
             except (can.CanOperationError, OSError) as exc:  # a full transmit queue (ENOBUFS), a refusing controller
                 now = time.monotonic()
+                patience = getattr(self._patience, "seconds", None)
+                bound = self.tx_retry_s if patience is None else patience
                 if deadline is None:
-                    deadline = now + (getattr(self._patience, "seconds", None) or self.tx_retry_s)
+                    deadline = now + bound
                 self.tx_retries += 1
                 if now >= deadline:
-                    bound = getattr(self._patience, "seconds", None) or self.tx_retry_s
                     raise can.CanOperationError(
                         f"frame 0x{can_id:03X} not sent within {bound * 1000:.1f} ms: {exc}"
                     ) from exc

@@ -17,10 +17,19 @@ nodes on the bus are not ours to stop): CiA 402 makes entering NMT STOPPED one o
 abort connection option code 0x6007, which pvtflow sets to quick stop on every drive
 (``Profile.supervise_master``). A frame that cannot be sent at all (bus-off, a dead interface) leaves
 one stop: the master's heartbeat stops with the master, and every drive stops on its loss (0x1016).
+
+Nothing avoidable lies between the failure and the requests: they are sent in the thread that saw
+the failure (the SYNC thread, at SCHED_FIFO when granted) before anything else of the halt (the
+run's event, the end of SYNC production); a refused request is tried again for ``tx_retry_ms``, and
+once one is refused the others get one try each and are tried again by the confirming thread every
+0.2 ms (the queue is full: retrying each node in turn would delay the last by N bounds); that thread
+runs just below SYNC's priority as the bus's others do (``axes.sync.lift``), and the cyclic collector
+stays off until the confirmations are in (a full collection takes longer than the bound).
 """
 
 from __future__ import annotations
 
+import contextlib
 import struct
 import threading
 import time
@@ -30,9 +39,12 @@ from typing import TYPE_CHECKING
 
 import can
 
+from axes import collector
 from axes import objects as od
 from axes.cia402 import CONTROLWORD_QUICK_STOP
+from axes.network import TX_RETRY_PAUSE_S
 from axes.subscriptions import subscribe, unsubscribe
+from axes.sync import lift
 
 if TYPE_CHECKING:
     from axes.bus import CellBus
@@ -119,27 +131,43 @@ def quick_stop_all(
     stop.started = time.monotonic()
     unsent: dict[int, str] = {}  # requests the interface refused: sent again until the deadline
 
-    def send_requests(nodes: Iterable[int]) -> None:
+    def send_requests(nodes: Iterable[int], patient: bool) -> None:
         for node in nodes:
             try:
-                network.send_message(SDO_REQUEST_BASE + node, request)
+                # once a request was refused, the others get one try each: the queue is full, and
+                # a node's own retries would hold the next node's request back by as long
+                with contextlib.nullcontext() if patient and not unsent else network.patient(0.0):
+                    network.send_message(SDO_REQUEST_BASE + node, request)
                 unsent.pop(node, None)
             except (can.CanError, OSError, RuntimeError) as exc:
                 unsent[node] = f"quick stop not sent: {exc}"
 
-    send_requests(stop.node_ids)
+    collector.hold()  # no collection pause between the requests and their confirmations (axes/collector.py)
+    send_requests(stop.node_ids, patient=True)
     confirm_s = bus.config.quick_stop_confirm_ms / 1000.0
 
     def answered_all() -> bool:
         return all(n in stop.refused for n in stop.missing)
 
     def finish() -> None:
+        sync = bus.sync
+        if sync.realtime and sync.lift_bus_threads:  # as the bus's other threads (CellBus.threads)
+            lift([threading.current_thread()], sync.priority - 1)
+        try:
+            confirm_and_stop()
+        finally:
+            collector.release()
+
+    def confirm_and_stop() -> None:
         deadline = stop.started + confirm_s
         while (left := deadline - time.monotonic()) > 0:
             with answered:
-                if answered.wait_for(answered_all, min(left, 0.001)):
+                # a refused request is tried again as often as a refused frame is (axes.network);
+                # else woken by the answers alone (no polling: in a simulation the drives share
+                # this interpreter, and every wake of this thread takes the GIL from them)
+                if answered.wait_for(answered_all, min(left, TX_RETRY_PAUSE_S) if unsent else left):
                     break
-            send_requests(list(unsent))
+            send_requests(list(unsent), patient=False)
         for node in stop.node_ids:
             unsubscribe(network, SDO_RESPONSE_BASE + node, on_response)
         with answered:

@@ -10,7 +10,10 @@ SYNC has two modes (``CellBus(lockstep=...)``):
   deadlines: a deadline passed by more than half a period is skipped and counted (``skipped``),
   never sent late in a burst (a fixed-period drive would take two setpoints in one period), and no
   SYNC goes out within half a period of the one before. The thread asks for SCHED_FIFO
-  (``BusConfig.sync_priority``; not permitted: one warning, normal priority).
+  (``BusConfig.sync_priority``; not permitted: one warning, normal priority); granted, the bus's
+  other threads (``CellBus.threads``) are lifted to SCHED_FIFO one below it (``lift``), since any of
+  them preempted by another process while it holds the GIL would hold SYNC up for a scheduler
+  slice (priority inversion through the GIL; measured in bench/sync_jitter.py).
   A gap longer than the drives ride out is reported (``FaultKind.SYNC_GAP``, the gap in ms), before
   the thread sends the SYNC after it (the halt the report causes comes first): the
   rule is ``BusConfig.max_sync_gap_periods`` when the cell sets it, else the profiles' (``Profile.
@@ -81,6 +84,22 @@ def ask_realtime(priority: int) -> bool:
         return False
 
 
+def lift(threads: Iterable[threading.Thread], priority: int) -> list[str]:
+    """SCHED_FIFO at ``priority`` for these threads, those this process did not start for SYNC too (the
+    notifier's reader): Linux schedules threads, not processes, by their native id. The names of the
+    threads lifted; one not permitted, or gone, is left as it is (no warning: ``ask_realtime`` gave it)."""
+    lifted = []
+    for thread in threads:
+        if priority <= 0 or not thread.is_alive() or thread.native_id is None:
+            continue
+        try:
+            os.sched_setscheduler(thread.native_id, os.SCHED_FIFO, os.sched_param(priority))
+        except (AttributeError, OSError):
+            continue
+        lifted.append(thread.name)
+    return lifted
+
+
 class SyncClock:
     """SYNC producer and counter of the drives' answers (see the module docstring for the modes).
 
@@ -128,6 +147,8 @@ class SyncClock:
         self._t0_us = time.monotonic_ns() // 1000
         self.follower = SyncFollower(self)  # where the interface sends SYNC (``native``)
         self.hold: Callable[[], None] | None = None  # benchmarks and tests: called before each wall-clock SYNC
+        self.lift_bus_threads = True  # the bus's threads follow SYNC to SCHED_FIFO (BusConfig.lift_bus_threads)
+        self.lifted: list[str] = []  # the threads lifted below SYNC's priority (``CellBus.threads``)
 
     # --- answers ---------------------------------------------------------------------------------
     def expect(self, answers: Iterable[int] | Mapping[int, int]) -> None:
@@ -230,13 +251,15 @@ class SyncClock:
         """SYNC (unless the interface sent it: ``sync_frame`` False), the time stamp, the senders."""
         with self.lock:
             self.count += 1
+            if sync_frame:
+                self.bus.network.send_message(SYNC_COB_ID, b"")
+            # taken once the frame is out: a thread preempted between the decision and the send would
+            # otherwise let the next SYNC follow this one within half a period on the bus
             now = time.monotonic()
             self.last_sent = now
             if self.sent_at is not None:
                 self.longest_gap_s = max(self.longest_gap_s, now - self.sent_at)
             self.sent_at = now
-            if sync_frame:
-                self.bus.network.send_message(SYNC_COB_ID, b"")
             if self.time_stamp_cob_id is not None:
                 stamp = (time.monotonic_ns() // 1000 - self._t0_us) & 0xFFFFFFFF
                 self.bus.network.send_message(self.time_stamp_cob_id, struct.pack("<I", stamp))
@@ -287,13 +310,16 @@ class SyncClock:
         """The SYNC thread never ends silently: a send that fails past its retries, or any error,
         ends the production and is reported (the motion halts without SYNC: ``axes.quick_stop``)."""
         self.realtime = ask_realtime(self.priority)
+        if self.realtime and self.lift_bus_threads:
+            self.lifted = lift(self.bus.threads(), self.priority - 1)
         try:
             target(production)
         except (can.CanError, OSError) as exc:
             self._fail(production, BusFault(FaultKind.TX_FAILED, None, f"SYNC {self.count + 1} not sent: {exc}"))
         except Exception as exc:
-            log.exception("the SYNC thread failed")
+            # reported first: the halt it causes does not wait for the traceback to be written
             self._fail(production, BusFault(FaultKind.SYNC_STOPPED, None, f"the SYNC thread ended: {exc!r}"))
+            log.exception("the SYNC thread failed")
 
     def _fail(self, production: int, fault: BusFault) -> None:
         with self.lock:

@@ -72,19 +72,28 @@ class FlakyBus(VirtualBus):
     interface ``pvtflow_test_flaky`` (registered below)."""
 
     failing_until: ClassVar[dict[str, float]] = {}
+    failing_from: ClassVar[dict[str, float]] = {}
     states: ClassVar[dict[str, can.BusState]] = {}
     refused: ClassVar[dict[str, int]] = {}
 
     @classmethod
-    def fail(cls, channel: str, seconds: float) -> None:
-        cls.failing_until[channel] = time.monotonic() + seconds
+    def fail(cls, channel: str, seconds: float, after: float = 0.0) -> None:
+        """Refuse every frame on ``channel`` for ``seconds``, from ``after`` seconds from now."""
+        now = time.monotonic()
+        cls.failing_from[channel] = now + after
+        cls.failing_until[channel] = now + after + seconds
+
+    @classmethod
+    def failing(cls, channel: str) -> bool:
+        """The transmit queue of ``channel`` is full now."""
+        return cls.failing_from.get(channel, 0.0) <= time.monotonic() < cls.failing_until.get(channel, 0.0)
 
     @classmethod
     def set_state(cls, channel: str, state: can.BusState) -> None:
         cls.states[channel] = state
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        if time.monotonic() < FlakyBus.failing_until.get(self.channel_id, 0.0):
+        if FlakyBus.failing(self.channel_id):
             FlakyBus.refused[self.channel_id] = FlakyBus.refused.get(self.channel_id, 0) + 1
             raise can.CanOperationError("Failed to transmit: [Errno 105] No buffer space available")
         super().send(msg, timeout)

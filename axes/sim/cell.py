@@ -34,7 +34,9 @@ from axes.sim.sync_setpoint import SyncSetpointDrive
 # Drives in the master's own interpreter share its pauses (a compile, a long replay, the host's load),
 # so a heartbeat window of about 3 periods (the shipped cells, for drives in a process of their own:
 # axes.sim.process) would take those pauses for lost nodes, and their answers to an SDO quick stop
-# wait for the master's threads to hand over the GIL. In one interpreter both windows are widened.
+# wait for the master's threads to hand over the GIL. In one interpreter both windows are widened,
+# and the master's bus threads stay at normal priority (BusConfig.lift_bus_threads): lifted, they take
+# the GIL from the drives, whose quick stop answers then came later (bench/stop_paths.py).
 SHARED_INTERPRETER_HEARTBEAT_FACTOR = 10.0
 SHARED_INTERPRETER_QUICK_STOP_CONFIRM_MS = 50.0
 
@@ -44,13 +46,14 @@ W = TypeVar("W", bound=CellWiring)
 def sharing_the_interpreter(wiring: W) -> W:
     """``wiring`` as run with its simulated drives in the master's interpreter: heartbeat window at
     least ``SHARED_INTERPRETER_HEARTBEAT_FACTOR`` periods (either way: drives and master), SDO quick
-    stop confirmations awaited at least ``SHARED_INTERPRETER_QUICK_STOP_CONFIRM_MS``."""
+    stop confirmations awaited at least ``SHARED_INTERPRETER_QUICK_STOP_CONFIRM_MS``, the master's bus
+    threads not lifted to SYNC's priority."""
     bus = wiring.bus
     factor = max(bus.heartbeat_timeout_factor, SHARED_INTERPRETER_HEARTBEAT_FACTOR)
     confirm_ms = max(bus.quick_stop_confirm_ms, SHARED_INTERPRETER_QUICK_STOP_CONFIRM_MS)
-    if (factor, confirm_ms) == (bus.heartbeat_timeout_factor, bus.quick_stop_confirm_ms):
+    if (factor, confirm_ms, False) == (bus.heartbeat_timeout_factor, bus.quick_stop_confirm_ms, bus.lift_bus_threads):
         return wiring
-    bus = replace(bus, heartbeat_timeout_factor=factor, quick_stop_confirm_ms=confirm_ms)
+    bus = replace(bus, heartbeat_timeout_factor=factor, quick_stop_confirm_ms=confirm_ms, lift_bus_threads=False)
     return replace(wiring, bus=bus)  # type: ignore[type-var]
 
 

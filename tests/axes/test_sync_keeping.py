@@ -9,7 +9,9 @@ master), the product code is the real one.
 from __future__ import annotations
 
 import dataclasses
+import gc
 import itertools
+import os
 import struct
 import threading
 import time
@@ -30,6 +32,7 @@ from axes.outcome import Result
 from axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from axes.sim.power_states import SWITCH_ON_DISABLED
 from axes.subscriptions import subscribe, unsubscribe
+from axes.sync import lift
 
 # --- subscriptions --------------------------------------------------------------------------------
 
@@ -70,21 +73,24 @@ def sync_times(observer: BusObserver, since: float = 0.0) -> list[float]:
 
 def test_no_catch_up_burst_after_a_stall_and_the_skipped_periods_are_counted():
     channel = unique_channel("sync")
-    observer = BusObserver(channel)
     period_ms = 2.0
     bus = CellBus(
         BusConfig(channel=channel, sync_period_ms=period_ms, time_stamp=False, max_sync_gap_periods=100),
         lockstep=False,
     ).open()
+    # when each SYNC was handed to the interface (the frame's time stamp, taken in the sending thread):
+    # a listener's arrival times would add its own thread's delays, two frames read back to back
+    sent: list[float] = []
+    bus.recorder.taps.append(lambda msg: sent.append(msg.timestamp) if msg.arbitration_id == SYNC_COB_ID else None)
     try:
         bus.sync.start()
         time.sleep(0.05)
         with bus.sync.lock:  # the SYNC thread cannot send for 20 ms (10 periods)
             time.sleep(0.02)
-            released = time.monotonic()
+            released = time.time()
         time.sleep(0.05)
         bus.sync.stop()
-        after = sync_times(observer, released)
+        after = [t for t in list(sent) if t > released]
         window = [t for t in after if t <= released + 0.010]
         # a catch-up would send the 10 missed SYNCs back to back: 10 ms after the stall carries at
         # most the 5 SYNCs of its own periods (and one at its edge)
@@ -95,7 +101,6 @@ def test_no_catch_up_burst_after_a_stall_and_the_skipped_periods_are_counted():
         assert bus.sync.longest_gap_s >= 0.02
     finally:
         bus.close()
-        observer.close()
 
 
 def test_a_sync_gap_longer_than_the_drives_ride_out_is_reported_with_the_gap():
@@ -216,6 +221,72 @@ def test_a_send_the_interface_refuses_is_tried_again_within_the_bound():
         bus.close()
 
 
+def test_a_frame_sent_with_no_patience_is_tried_once():
+    channel = unique_channel("flaky")
+    bus = CellBus(BusConfig(interface="pvtflow_test_flaky", channel=channel, tx_retry_ms=20.0)).open()
+    try:
+        FlakyBus.fail(channel, 0.5)
+        before = bus.network.tx_retries
+        with bus.network.patient(0.0), pytest.raises(can.CanOperationError, match=r"not sent within 0\.0 ms"):
+            bus.network.send_message(0x123, b"\x01")
+        assert bus.network.tx_retries == before + 1
+    finally:
+        FlakyBus.failing_until.pop(channel, None)
+        bus.close()
+
+
+def test_a_full_queue_delays_a_window_then_refuses_frames_within_it():
+    channel = unique_channel("flaky")
+    bus = CellBus(BusConfig(interface="pvtflow_test_flaky", channel=channel, tx_retry_ms=0.0)).open()
+    try:
+        FlakyBus.fail(channel, 0.5, after=1.0)
+        bus.network.send_message(0x123, b"\x01")  # before the window: sent
+        assert bus.network.tx_retries == 0
+        time.sleep(max(0.0, FlakyBus.failing_from[channel] - time.monotonic()) + 0.01)
+        with pytest.raises(can.CanOperationError):
+            bus.network.send_message(0x123, b"\x01")
+    finally:
+        FlakyBus.failing_until.pop(channel, None)
+        FlakyBus.failing_from.pop(channel, None)
+        bus.close()
+
+
+def scheduler(thread: threading.Thread) -> tuple[int, int]:
+    assert thread.native_id is not None
+    return os.sched_getscheduler(thread.native_id), os.sched_getparam(thread.native_id).sched_priority
+
+
+@pytest.mark.parametrize("lift_bus_threads", [True, False], ids=["lifted", "left"])
+def test_the_bus_threads_run_just_below_sync_when_sync_has_sched_fifo(lift_bus_threads):
+    """Priority inversion through the GIL: a bus thread preempted while holding the GIL holds SYNC."""
+    bus = CellBus(BusConfig(channel=unique_channel("rt"), sync_period_ms=2.0, sync_priority=30), lockstep=False).open()
+    bus.sync.lift_bus_threads = lift_bus_threads
+    try:
+        threads = bus.threads()
+        assert {t.name for t in threads} >= {"pvtflow-watchdog", "pvtflow-master-heartbeat"}
+        assert any(t.name.startswith("Notifier") for t in threads)  # python-can's reader: not ours to start
+        bus.sync.start()
+        deadline = time.monotonic() + 5.0
+        while bus.sync.realtime is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+        if bus.sync.realtime and lift_bus_threads:  # granted (root, CAP_SYS_NICE, an rtprio limit)
+            assert sorted(bus.sync.lifted) == sorted(t.name for t in threads)
+            assert all(scheduler(t) == (os.SCHED_FIFO, 29) for t in threads)
+        else:  # not granted (one warning), or not asked for the bus threads: they stay as they were
+            assert bus.sync.lifted == []
+            assert all(scheduler(t)[0] == os.SCHED_OTHER for t in threads)
+    finally:
+        bus.close()
+
+
+def test_lift_leaves_a_thread_that_has_ended_alone():
+    ended = threading.Thread(target=lambda: None)
+    ended.start()
+    ended.join()
+    assert lift([ended], 10) == []
+    assert lift([threading.current_thread()], 0) == []  # priority 0: not asked
+
+
 # --- halts without SYNC on a simulated cell -------------------------------------------------------
 
 
@@ -270,9 +341,21 @@ def test_a_dead_sync_thread_quick_stops_every_axis_by_sdo(arm6, lockstep):
                 raise RuntimeError("injected: the SYNC thread dies")
 
         bus.sync.add_sender(die)
+        sent: list[int] = []
+        bus.recorder.taps.append(lambda msg: sent.append(msg.arbitration_id))
+        requested_before_event: list[tuple[str, set[int]]] = []
+
+        def on_event(event) -> None:
+            if event.kind.value in ("sync_stopped", "halted"):  # the requests are out before they are told
+                requested = {cob - 0x600 for cob in sent if 0x600 < cob < 0x680}
+                requested_before_event.append((event.kind.value, requested))
+
+        group.on_event = on_event
         assert group.start(prog) is None
         result = group.wait(30.0)
         assert killed.is_set(), result.message
+        nodes = {d.node_id for d in sim}
+        assert requested_before_event == [("sync_stopped", nodes), ("halted", nodes)]
         assert "the SYNC" in result.message and "injected" in result.message
         assert_quick_stopped(group, sim, result, Result.BUS_ERROR)
         assert any(d.halts == [] for d in sim)  # not the synchronous halt word: nothing carried it
@@ -346,4 +429,25 @@ def test_an_nmt_stop_brakes_a_simulated_drive_as_its_abort_connection_option_say
         assert drive.nmt_state == "STOPPED"
         assert drive.wait_until(lambda: drive.state == SWITCH_ON_DISABLED and abs(drive.velocity) < 1e-12, 5.0)
     finally:
+        close_rig(sim, bus, group)
+
+
+def test_quick_stop_requests_a_full_queue_refused_are_sent_when_it_drains_and_the_collector_waits(arm6):
+    _, sim, bus, group = sim_rig(arm6, lockstep=True, interface="pvtflow_test_flaky", quick_stop_confirm_ms=200.0)
+    nodes = [d.node_id for d in sim]
+    enabled = gc.isenabled()
+    try:
+        FlakyBus.fail(bus.config.channel, 0.02)  # 20 ms: past the first request's 2 ms of retries
+        refused = FlakyBus.refused.get(bus.config.channel, 0)
+        stop = bus.quick_stop(nodes, "test")
+        assert not gc.isenabled()  # held from the requests to the confirmations (axes/collector.py)
+        assert sorted(stop.unsent) == [] and set(nodes) - set(stop.confirmed)  # refused so far, not given up
+        assert stop.done.wait(2.0)
+        assert sorted(stop.confirmed) == sorted(nodes), stop.describe()
+        assert stop.nmt_stopped == [] and stop.refused == {}
+        # the first request waited its 2 ms of retries, the others one try each, then again until it drained
+        assert FlakyBus.refused[bus.config.channel] - refused > len(nodes)
+        assert gc.isenabled() == enabled
+    finally:
+        FlakyBus.failing_until.pop(bus.config.channel, None)
         close_rig(sim, bus, group)

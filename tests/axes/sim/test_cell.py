@@ -60,6 +60,7 @@ def test_drives_that_share_the_masters_interpreter_get_the_wide_heartbeat_window
     assert shared.bus.heartbeat_timeout_factor == SHARED_INTERPRETER_HEARTBEAT_FACTOR
     assert shared.bus.master_consumer_time_ms > cell.bus.master_consumer_time_ms
     assert shared.bus.quick_stop_confirm_ms == SHARED_INTERPRETER_QUICK_STOP_CONFIRM_MS
+    assert cell.bus.lift_bus_threads and not shared.bus.lift_bus_threads  # they would take the drives' GIL
     bus = dataclasses.replace(cell.bus, interface="virtual", channel=uuid.uuid4().hex)
     virtual = dataclasses.replace(cell, bus=bus)
     assert LocalDrives(virtual, "lockstep").bus.heartbeat_timeout_factor == SHARED_INTERPRETER_HEARTBEAT_FACTOR
