@@ -8,7 +8,7 @@ import select
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import can
@@ -81,6 +81,7 @@ class WireLink:
         self._receive.settimeout(None)
         self._receive.sendall(p.pack_json(p.ATTACH, {"token": welcome["token"]}))
         self._receive.setblocking(False)
+        self._held = threading.local()  # a thread's posts held for one write (``coalesce``)
         self._rx_lock = threading.Lock()  # one thread at a time reads the receive connection (``_pump``)
         self._rx_buffer = bytearray()
         self._ended = False
@@ -111,6 +112,29 @@ class WireLink:
             code, text = p.unpack_fail(body)
             raise can.CanOperationError(text, code or None)
 
+    @contextlib.contextmanager
+    def coalesce(self) -> Iterator[None]:
+        """The wall-clock posts of this thread inside it go to the server in one write, at its end (a
+        run of frames sent together: SYNC, time stamp and setpoints). Each frame is still counted in
+        flight, refused when the FIFO is full and stamped with its own send time, as without it; one
+        socket write instead of one per frame is one kernel call and one GIL release, not several."""
+        if getattr(self._held, "posts", None) is not None:
+            yield
+            return
+        self._held.posts = bytearray()
+        try:
+            yield
+        finally:
+            self._flush_held()
+            self._held.posts = None
+
+    def _flush_held(self) -> None:
+        posts = getattr(self._held, "posts", None)
+        if posts:
+            data = bytes(posts)
+            posts.clear()
+            self._send_now(data)
+
     def _post(self, msg: can.Message, timeout: float | None) -> None:
         """Wall clock: count the frame in flight and post it; a full FIFO is refused here."""
         if msg.is_fd or msg.dlc > 8 or len(msg.data) > 8 or msg.is_error_frame:
@@ -119,6 +143,8 @@ class WireLink:
             if self.state == BUS_OFF:
                 raise bus_off_error(self.node)
             full = self._inflight >= self.txqueuelen
+        if full:
+            self._flush_held()  # held frames must reach the wire before any slot can free
         if full and timeout is not None and timeout > 0:
             self._wait_for_room(time.monotonic() + timeout)
         with self._room:
@@ -153,6 +179,13 @@ class WireLink:
                     self._room.wait(min(remaining, WAIT_SLICE_S))
 
     def _write(self, data: bytes) -> None:
+        posts = getattr(self._held, "posts", None)
+        if posts is not None:
+            posts += data
+            return
+        self._send_now(data)
+
+    def _send_now(self, data: bytes) -> None:
         with self._lock:
             if self.closed:
                 raise can.CanOperationError(f"simwire channel {self.channel!r}: the bus is closed")

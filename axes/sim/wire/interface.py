@@ -10,9 +10,11 @@ is one node of the medium (package docstring for the semantics).
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import re
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager
 from typing import Any
 
 import can
@@ -131,6 +133,13 @@ class SimWireBus(can.BusABC):
             self._medium.submit(self._node, msg, timeout=timeout)
         else:
             self._link.send(msg, self._local_time, timeout)
+
+    def coalesced(self) -> AbstractContextManager[None]:
+        """Frames this thread sends inside it reach a remote medium in one write (``WireLink.coalesce``);
+        each is queued, counted and refused as by ``send``. In-process (nothing to write): no effect."""
+        if self._link is None or not self._link.pipelined:
+            return contextlib.nullcontext()
+        return self._link.coalesce()
 
     def _send_periodic_internal(
         self,
