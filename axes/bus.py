@@ -11,7 +11,9 @@ callbacks of ``on_fault`` as one ``BusFault`` (``axes.bus_faults``).
 from __future__ import annotations
 
 import logging
+import os
 import sys
+import threading
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -35,7 +37,28 @@ SDO_RESPONSE_TIMEOUT_S = 1.0
 NMT_STATE_PRE_OPERATIONAL = 127
 SWITCH_INTERVAL_S = 0.0001  # the interpreter hands the GIL on at least this often while a bus is open
 
+RECEIVE_BELOW_SYNC = 10  # the receive thread's SCHED_FIFO priority is the SYNC thread's less this
+
 log = logging.getLogger("pvtflow.bus")
+
+
+def receive_at_realtime(notifier: can.Notifier, priority: int) -> bool:
+    """SCHED_FIFO at ``priority`` for the notifier's receive thread (the drives' answers, the feeders,
+    the SDO answers), below the SYNC thread. At normal priority another process's work preempts it
+    while it holds the GIL, and the SYNC thread, woken on time, then waits for the GIL for a whole
+    time slice of the host's scheduler (a late SYNC on a loaded host). Linux sets a thread's policy by
+    its id; not permitted, or ``priority`` < 1: normal priority (the SYNC thread warns)."""
+    if priority < 1:
+        return False
+    granted = False
+    for reader in getattr(notifier, "_readers", ()):
+        if isinstance(reader, threading.Thread) and reader.native_id is not None:
+            try:
+                os.sched_setscheduler(reader.native_id, os.SCHED_FIFO, os.sched_param(priority))
+                granted = True
+            except (AttributeError, OSError):
+                return False
+    return granted
 
 
 class CellBus:
@@ -88,6 +111,8 @@ class CellBus:
             raise BusError(f"cannot open CAN bus {where}: {exc}") from None
         self.network.bus = bus
         self.network.notifier = can.Notifier(bus, [*self.network.listeners, self.recorder, self.watch.errors], 0.1)
+        if not self.sync.lockstep:
+            receive_at_realtime(self.network.notifier, self.config.sync_priority - RECEIVE_BELOW_SYNC)
         self.watch.start()
         self.master_heartbeat.start()
         return self

@@ -143,9 +143,8 @@ class WireLink:
             if self.state == BUS_OFF:
                 raise bus_off_error(self.node)
             full = self._inflight >= self.txqueuelen
-        if full:
-            self._flush_held()  # held frames must reach the wire before any slot can free
         if full and timeout is not None and timeout > 0:
+            self._flush_held()  # held frames must reach the wire before a slot can free
             self._wait_for_room(time.monotonic() + timeout)
         with self._room:
             refused = self._inflight >= self.txqueuelen

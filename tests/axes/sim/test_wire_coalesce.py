@@ -1,0 +1,109 @@
+"""A remote simwire bus's frames sent together (``SimWireBus.coalesced``: one loopback write for a
+run of frames, as the SYNC thread sends SYNC, time stamp and setpoints): each frame still counted
+in its transmit FIFO, refused when it is full, and on the wire only once the run is written."""
+
+from __future__ import annotations
+
+import errno
+import os
+import subprocess
+import sys
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+import pytest
+
+from axes.network import RecordingNetwork
+from axes.sim.wire import SimWireBus
+
+REPO = Path(__file__).resolve().parents[3]
+BITRATE = 125_000  # a frame about 1 ms: ten of them outrun the wire
+
+
+@pytest.fixture
+def address() -> Iterator[str]:
+    """A wall-clock simwire server in a child process; its channel string."""
+    code = (
+        "import sys\n"
+        "from axes.sim.wire import serve_wire\n"
+        f"s = serve_wire('cell', 0, clock='wall', bitrate={BITRATE}, sync_period=0.001)\n"
+        "print(s.address, flush=True)\n"
+        "sys.stdin.read()\n"
+        "s.close()\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    child = subprocess.Popen(
+        [sys.executable, "-c", code], cwd=REPO, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        yield child.stdout.readline().strip()
+    finally:
+        child.stdin.close()
+        child.wait(timeout=10)
+
+
+@pytest.fixture
+def pair(address: str) -> Iterator[tuple[SimWireBus, SimWireBus]]:
+    master = SimWireBus(address, node_name=f"master-{uuid.uuid4().hex[:6]}")
+    drive = SimWireBus(address, node_name="drive")
+    yield master, drive
+    master.shutdown()
+    drive.shutdown()
+
+
+def frame(i: int) -> can.Message:
+    return can.Message(arbitration_id=0x200 + i, data=bytes([i] * 8), is_extended_id=False)
+
+
+def test_frames_sent_together_count_in_the_fifo_and_reach_the_wire_when_the_run_is_written(
+    pair: tuple[SimWireBus, SimWireBus],
+) -> None:
+    master, drive = pair
+    with master.coalesced():
+        for i in range(10):
+            master.send(frame(i))
+        with pytest.raises(can.CanOperationError) as raised:
+            master.send(frame(10))  # the ten held frames fill the FIFO: the eleventh is refused
+        assert raised.value.error_code == errno.ENOBUFS
+        assert drive.recv(0.05) is None  # held: not one is on the wire yet
+    got = [drive.recv(5.0) for _ in range(10)]
+    assert [m.arbitration_id for m in got if m is not None] == [0x200 + i for i in range(10)]
+    stats = master.medium.stats()
+    assert stats.enobufs[master.node_name] == 1 and stats.frames == 10
+
+
+def test_a_sender_waiting_for_room_inside_a_run_writes_the_held_frames_first(
+    pair: tuple[SimWireBus, SimWireBus],
+) -> None:
+    master, drive = pair
+    with master.coalesced():
+        for i in range(10):
+            master.send(frame(i))
+        master.send(frame(10), timeout=2.0)  # room comes only once the held frames are on the wire
+    got = [drive.recv(5.0) for _ in range(11)]
+    assert [m.arbitration_id for m in got if m is not None] == [0x200 + i for i in range(11)]
+
+
+def test_a_network_sends_together_where_the_interface_can_and_frame_by_frame_elsewhere(
+    pair: tuple[SimWireBus, SimWireBus],
+) -> None:
+    master, drive = pair
+    network = RecordingNetwork(master)
+    with network.together():
+        network.send_message(0x80, b"")
+        network.send_message(0x100, bytes(4))
+        assert drive.recv(0.05) is None
+    assert [drive.recv(5.0).arbitration_id for _ in range(2)] == [0x80, 0x100]
+    channel = f"v-{uuid.uuid4().hex[:8]}"
+    virtual = can.Bus(interface="virtual", channel=channel)
+    heard = can.Bus(interface="virtual", channel=channel)
+    try:
+        plain = RecordingNetwork(virtual)
+        with plain.together():
+            plain.send_message(0x80, b"")
+            assert heard.recv(1.0).arbitration_id == 0x80  # virtual: each frame as it is sent
+    finally:
+        virtual.shutdown()
+        heard.shutdown()
