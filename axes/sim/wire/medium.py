@@ -224,6 +224,10 @@ class Medium(Accounting, BusStateHooks):
 
     def _submit_wall(self, node: Node, msg: can.Message, bits: int, now: float) -> None:
         if len(node.fifo) >= node.txqueuelen:
+            # the FIFO is judged at ``now`` in bus time: frames whose last bit has left by then are
+            # out of it, though the driver thread (held by its process) has not woken to say so yet
+            self._step(now)
+        if len(node.fifo) >= node.txqueuelen:
             raise transmit_queue_full(node.name, node.txqueuelen)
         node.fifo.append(Pending(msg, bits, now, arbitration_priority(msg)))
         node.max_depth = max(node.max_depth, len(node.fifo))

@@ -1,6 +1,7 @@
-"""A remote simwire bus's frames sent together (``SimWireBus.coalesced``: one loopback write for a
-run of frames, as the SYNC thread sends SYNC, time stamp and setpoints): each frame still counted
-in its transmit FIFO, refused when it is full, and on the wire only once the run is written."""
+"""A wall-clock transmit FIFO judged in bus time, and a remote simwire bus's frames sent together
+(``SimWireBus.coalesced``: one loopback write for a run of frames, as the SYNC thread sends SYNC,
+time stamp and setpoints): each frame still counted in its transmit FIFO, refused when it is full,
+and on the wire only once the run is written."""
 
 from __future__ import annotations
 
@@ -15,8 +16,9 @@ from pathlib import Path
 import can
 import pytest
 
+from axes.frame_time import frame_bits
 from axes.network import RecordingNetwork
-from axes.sim.wire import SimWireBus
+from axes.sim.wire import Medium, SimWireBus
 
 REPO = Path(__file__).resolve().parents[3]
 BITRATE = 125_000  # a frame about 1 ms: ten of them outrun the wire
@@ -107,3 +109,25 @@ def test_a_network_sends_together_where_the_interface_can_and_frame_by_frame_els
     finally:
         virtual.shutdown()
         heard.shutdown()
+
+
+def test_a_wall_fifo_is_judged_in_bus_time_when_the_driver_is_late() -> None:
+    """Frames whose last bit has left by a send's bus time are out of the sender's FIFO, though no
+    driver thread woke to retire them (a held simulation process): the send finds room, and the
+    frames it retired reach the other nodes stamped with their own ends."""
+    medium = Medium("late-driver", bitrate=100_000, clock="wall")  # no driver: nothing retires on its own
+    got: list[can.Message] = []
+    sender = medium.attach(lambda m: None, name="sender")
+    medium.attach(got.append, name="receiver")
+    t0 = 1000.0
+    for i in range(10):
+        medium.submit(sender, frame(i), now=t0)
+    medium.step(t0)  # the first frame goes on the wire at t0
+    with pytest.raises(can.CanOperationError) as raised:
+        medium.submit(sender, frame(10), now=t0)  # full at t0: nothing has left yet
+    assert raised.value.error_code == errno.ENOBUFS
+    first, second = (frame_bits(0x200 + i, bytes([i] * 8)) / 100_000 for i in range(2))
+    medium.submit(sender, frame(10), now=t0 + first + second + first / 2)  # two frames have left by then
+    assert [m.arbitration_id for m in got] == [0x200, 0x201]
+    assert [m.timestamp for m in got] == pytest.approx([t0 + first, t0 + first + second], abs=1e-9)
+    assert len(sender.fifo) == 9
