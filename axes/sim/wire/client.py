@@ -26,19 +26,21 @@ from axes.sim.wire.bus_states import (
 )
 from axes.sim.wire.medium import WireConfigError
 from axes.sim.wire.node import bus_off_error, transmit_queue_full
-from axes.sim.wire.priority import ask_wire_priority
 
 CONNECT_TIMEOUT = 5.0
 WAIT_SLICE_S = 0.001  # a sender waiting for room looks again at least this often
-READ_SLICE_S = 0.1  # the reader thread notices a close at least this often
+READ_SLICE_S = 0.1  # a reading thread notices a close at least this often
 RECV_SIZE = 262_144
 
 
 class WireLink:
     """Control connection (synchronous requests, the sender's thread reads its own answer) and
-    receive connection (a reader thread hands each frame to ``deliver``; on the wall clock a sender
-    waiting for room in its FIFO reads it itself meanwhile, so the server's report that a frame left
-    reaches the sender without a hop through the reader thread)."""
+    receive connection, read by whichever thread needs what it holds (``poll``): the bus's ``recv``
+    (python-can's Notifier thread) for frames, a sender whose FIFO is full for the server's reports
+    that frames left it. No reader thread of its own: a thread in between takes the GIL once more
+    for every batch the server sends (each frame's report included) and hands every frame on
+    through a queue to the thread that reads the bus, a second wake for each; the master's SYNC
+    thread waits for both."""
 
     def __init__(
         self,
@@ -85,8 +87,7 @@ class WireLink:
         self._rx_lock = threading.Lock()  # one thread at a time reads the receive connection (``_pump``)
         self._rx_buffer = bytearray()
         self._ended = False
-        self._reader = threading.Thread(target=self._read, name=f"simwire-rx-{self.node}", daemon=True)
-        self._reader.start()
+        self._closed_told = False  # ``on_close`` called
 
     def _request(self, data: bytes) -> tuple[int, bytes]:
         with self._lock:
@@ -143,6 +144,9 @@ class WireLink:
             if self.state == BUS_OFF:
                 raise bus_off_error(self.node)
             full = self._inflight >= self.txqueuelen
+        if full and self._poll_now():  # reports that frames left may be waiting unread
+            with self._room:
+                full = self._inflight >= self.txqueuelen
         if full and timeout is not None and timeout > 0:
             self._flush_held()  # held frames must reach the wire before a slot can free
             self._wait_for_room(time.monotonic() + timeout)
@@ -214,18 +218,40 @@ class WireLink:
             raise can.CanOperationError(f"simwire channel {self.channel!r}: {what!r} answered by {kind!r}")
         return json.loads(body)
 
-    def _read(self) -> None:
-        """The reader thread: waits for data and reads it (unless a waiting sender is at it)."""
-        ask_wire_priority()
+    def poll(self, timeout: float | None) -> None:
+        """Wait up to ``timeout`` (at most ``READ_SLICE_S``) for the receive connection and read what
+        it holds: frames to ``deliver``, reports to the in-flight count (a sender reading it
+        meanwhile is waited for). The server's end, or ``close``, calls ``on_close`` once."""
+        wait = READ_SLICE_S if timeout is None else min(max(timeout, 0.0), READ_SLICE_S)
+        if not self._ended and self._rx_lock.acquire(timeout=wait):
+            try:
+                select.select([self._receive], [], [], wait)
+                self._pump()
+            except (OSError, ValueError, p.ProtocolError):
+                self._ended = True
+            finally:
+                self._rx_lock.release()
+        if self._ended or self.closed:
+            self._tell_closed()
+
+    def _poll_now(self) -> bool:
+        """A sender's look at the receive connection without waiting, when no one else is at it."""
+        if not self._rx_lock.acquire(blocking=False):
+            return False
         try:
-            while not self._ended:
-                select.select([self._receive], [], [], READ_SLICE_S)
-                with self._rx_lock:
-                    self._pump()
+            self._pump()
         except (OSError, ValueError, p.ProtocolError):
-            pass
-        self._ended = True
-        self._on_close()
+            self._ended = True
+        finally:
+            self._rx_lock.release()
+        return True
+
+    def _tell_closed(self) -> None:
+        with self._room:
+            told, self._closed_told = self._closed_told, True
+            self._room.notify_all()
+        if not told:
+            self._on_close()
 
     def _pump(self) -> None:
         """Under ``_rx_lock``: read what the receive connection holds and hand it on (frames to the
@@ -268,8 +294,7 @@ class WireLink:
             with contextlib.suppress(OSError):
                 sock.shutdown(socket.SHUT_RDWR)
             sock.close()
-        if threading.current_thread() is not self._reader:
-            self._reader.join(timeout=2.0)
+        self._tell_closed()
 
 
 class RemoteMedium:
