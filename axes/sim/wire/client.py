@@ -54,7 +54,11 @@ class WireLink:
         self.channel = name
         self._deliver = deliver
         self._on_close = on_close
+        # one lock per direction of use of the control connection: every write whole (``_lock``), and
+        # a request with its reply (``_request_lock``). A frame posted on the wall clock waits for
+        # no other thread's reply (the bus watch asks for the node's state on the same connection)
         self._lock = threading.Lock()
+        self._request_lock = threading.Lock()
         self.closed = False
         self._interrupted = False  # a request whose reply was never read: the control stream is out of step
         try:
@@ -90,14 +94,14 @@ class WireLink:
         self._closed_told = False  # ``on_close`` called
 
     def _request(self, data: bytes) -> tuple[int, bytes]:
-        with self._lock:
-            if self.closed:
-                raise can.CanOperationError(f"simwire channel {self.channel!r}: the bus is closed")
+        with self._request_lock:
             if self._interrupted:
                 raise can.CanOperationError(f"simwire channel {self.channel!r}: a request was interrupted")
             try:
-                self._control.sendall(data)
+                self._send_now(data)
                 return p.read_message(self._stream)
+            except can.CanOperationError:  # closed, or gone, before the request went out
+                raise
             except (OSError, p.ProtocolError) as error:
                 raise can.CanOperationError(f"simwire channel {self.channel!r}: server gone ({error})") from None
             except BaseException:  # Ctrl-C / SIGTERM between request and reply: its reply would answer the next

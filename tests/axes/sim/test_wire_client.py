@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import errno
 import os
+import signal
 import subprocess
 import sys
+import threading
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,8 +27,8 @@ BITRATE = 125_000  # a frame about 1 ms: ten of them outrun the wire
 
 
 @pytest.fixture
-def address() -> Iterator[str]:
-    """A wall-clock simwire server in a child process; its channel string."""
+def served() -> Iterator[tuple[str, subprocess.Popen]]:
+    """A wall-clock simwire server in a child process; its channel string and the process."""
     code = (
         "import sys\n"
         "from axes.sim.wire import serve_wire\n"
@@ -40,10 +42,16 @@ def address() -> Iterator[str]:
         [sys.executable, "-c", code], cwd=REPO, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
     )
     try:
-        yield child.stdout.readline().strip()
+        yield child.stdout.readline().strip(), child
     finally:
+        os.kill(child.pid, signal.SIGCONT)
         child.stdin.close()
         child.wait(timeout=10)
+
+
+@pytest.fixture
+def address(served: tuple[str, subprocess.Popen]) -> str:
+    return served[0]
 
 
 @pytest.fixture
@@ -131,3 +139,26 @@ def test_a_wall_fifo_is_judged_in_bus_time_when_the_driver_is_late() -> None:
     assert [m.arbitration_id for m in got] == [0x200, 0x201]
     assert [m.timestamp for m in got] == pytest.approx([t0 + first, t0 + first + second], abs=1e-9)
     assert len(sender.fifo) == 9
+
+
+def test_a_frame_posted_waits_for_no_other_threads_request(served: tuple[str, subprocess.Popen]) -> None:
+    """The bus watch asks the server for the node's state on the control connection; a SYNC posted
+    meanwhile goes out without waiting for that reply (here: a server held until the post is done)."""
+    address, child = served
+    master = SimWireBus(address, node_name="master")
+    try:
+        os.kill(child.pid, signal.SIGSTOP)
+        asked = threading.Thread(target=lambda: master.state, daemon=True)
+        asked.start()
+        asked.join(0.2)
+        assert asked.is_alive()  # its reply cannot come: the server is held
+        posted = threading.Thread(target=master.send, args=(frame(0),), daemon=True)
+        posted.start()
+        posted.join(2.0)
+        assert not posted.is_alive()
+        os.kill(child.pid, signal.SIGCONT)
+        asked.join(5.0)
+        assert not asked.is_alive()
+    finally:
+        os.kill(child.pid, signal.SIGCONT)
+        master.shutdown()
