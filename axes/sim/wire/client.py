@@ -88,7 +88,7 @@ class WireLink:
         self._receive.sendall(p.pack_json(p.ATTACH, {"token": welcome["token"]}))
         self._receive.setblocking(False)
         self._held = threading.local()  # a thread's posts held for one write (``coalesce``)
-        self._rx_lock = threading.Lock()  # one thread at a time reads the receive connection (``_pump``)
+        self._rx_lock = threading.Lock()  # one thread at a time reads the receive connection (``read_now``)
         self._rx_buffer = bytearray()
         self._ended = False
         self._closed_told = False  # ``on_close`` called
@@ -148,7 +148,8 @@ class WireLink:
             if self.state == BUS_OFF:
                 raise bus_off_error(self.node)
             full = self._inflight >= self.txqueuelen
-        if full and self._poll_now():  # reports that frames left may be waiting unread
+        if full:  # reports that frames left may be waiting unread
+            self.read_now()
             with self._room:
                 full = self._inflight >= self.txqueuelen
         if full and timeout is not None and timeout > 0:
@@ -164,8 +165,8 @@ class WireLink:
         self._write(p.pack_post(msg, self._epoch + time.monotonic()))
 
     def _wait_for_room(self, deadline: float) -> None:
-        """The waiting sender reads the server's DONE reports itself when no other thread is reading
-        (no hand-off to the reader thread: a frame's slot is free as soon as the report is in)."""
+        """The waiting sender reads the server's DONE reports itself (a frame's slot is free as soon
+        as its report is in, whichever thread reads it)."""
         while True:
             with self._room:
                 if self._inflight < self.txqueuelen or self.closed or self._ended or self.state == BUS_OFF:
@@ -173,17 +174,11 @@ class WireLink:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return
-            if self._rx_lock.acquire(blocking=False):
-                try:
-                    select.select([self._receive], [], [], min(remaining, WAIT_SLICE_S))
-                    self._pump()
-                except (OSError, ValueError):
-                    return
-                finally:
-                    self._rx_lock.release()
-            else:
-                with self._room:
-                    self._room.wait(min(remaining, WAIT_SLICE_S))
+            try:
+                select.select([self._receive], [], [], min(remaining, WAIT_SLICE_S))
+            except (OSError, ValueError):
+                return
+            self.read_now()
 
     def _write(self, data: bytes) -> None:
         posts = getattr(self._held, "posts", None)
@@ -227,28 +222,23 @@ class WireLink:
         it holds: frames to ``deliver``, reports to the in-flight count (a sender reading it
         meanwhile is waited for). The server's end, or ``close``, calls ``on_close`` once."""
         wait = READ_SLICE_S if timeout is None else min(max(timeout, 0.0), READ_SLICE_S)
-        if not self._ended and self._rx_lock.acquire(timeout=wait):
+        if not self._ended:
             try:
-                select.select([self._receive], [], [], wait)
-                self._pump()
-            except (OSError, ValueError, p.ProtocolError):
+                select.select([self._receive], [], [], wait)  # no lock held while waiting
+            except (OSError, ValueError):
                 self._ended = True
-            finally:
-                self._rx_lock.release()
+            self.read_now()
         if self._ended or self.closed:
             self._tell_closed()
 
-    def _poll_now(self) -> bool:
-        """A sender's look at the receive connection without waiting, when no one else is at it."""
-        if not self._rx_lock.acquire(blocking=False):
-            return False
-        try:
-            self._pump()
-        except (OSError, ValueError, p.ProtocolError):
-            self._ended = True
-        finally:
-            self._rx_lock.release()
-        return True
+    def read_now(self) -> None:
+        """Read what the receive connection holds now, without waiting for more (one thread at a
+        time: ``_rx_lock``, held only while reading)."""
+        with self._rx_lock:
+            try:
+                self._pump()
+            except (OSError, ValueError, p.ProtocolError):
+                self._ended = True
 
     def _tell_closed(self) -> None:
         with self._room:

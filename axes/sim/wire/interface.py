@@ -118,7 +118,10 @@ class SimWireBus(can.BusABC):
         """ACTIVE, PASSIVE (error passive) or ERROR (bus off), as the medium's test hook set it."""
         if self._node is not None:
             return self._node.state
-        return RemoteMedium(self._link).node_state()
+        # as a socketcan user knows it: from the controller error frames received (no round trip to
+        # the server, which the bus watch's polling would make every few ms while SYNC runs)
+        self._link.read_now()
+        return self._link.state
 
     @state.setter
     def state(self, new_state: BusState) -> None:

@@ -11,16 +11,18 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
 import can
 import pytest
+from can import BusState
 
 from axes.frame_time import frame_bits
 from axes.network import RecordingNetwork
-from axes.sim.wire import Medium, SimWireBus
+from axes.sim.wire import ERROR_PASSIVE, Medium, SimWireBus
 
 REPO = Path(__file__).resolve().parents[3]
 BITRATE = 125_000  # a frame about 1 ms: ten of them outrun the wire
@@ -141,14 +143,24 @@ def test_a_wall_fifo_is_judged_in_bus_time_when_the_driver_is_late() -> None:
     assert len(sender.fifo) == 9
 
 
+def held(child: subprocess.Popen) -> None:
+    """SIGSTOP the server and wait until the kernel has stopped it."""
+    os.kill(child.pid, signal.SIGSTOP)
+    deadline = time.monotonic() + 5.0
+    while Path(f"/proc/{child.pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "T":
+        assert time.monotonic() < deadline, "the server did not stop"
+        time.sleep(0.001)
+
+
 def test_a_frame_posted_waits_for_no_other_threads_request(served: tuple[str, subprocess.Popen]) -> None:
-    """The bus watch asks the server for the node's state on the control connection; a SYNC posted
-    meanwhile goes out without waiting for that reply (here: a server held until the post is done)."""
+    """A request to the server (the accounting, a test hook) waits for its reply on the control
+    connection; a SYNC posted meanwhile goes out without waiting for it (here: a server held until
+    the post is done)."""
     address, child = served
     master = SimWireBus(address, node_name="master")
     try:
-        os.kill(child.pid, signal.SIGSTOP)
-        asked = threading.Thread(target=lambda: master.state, daemon=True)
+        held(child)
+        asked = threading.Thread(target=master.medium.stats, daemon=True)
         asked.start()
         asked.join(0.2)
         assert asked.is_alive()  # its reply cannot come: the server is held
@@ -159,6 +171,26 @@ def test_a_frame_posted_waits_for_no_other_threads_request(served: tuple[str, su
         os.kill(child.pid, signal.SIGCONT)
         asked.join(5.0)
         assert not asked.is_alive()
+    finally:
+        os.kill(child.pid, signal.SIGCONT)
+        master.shutdown()
+
+
+def test_a_remote_bus_knows_its_state_from_the_error_frames_without_asking_the_server(
+    served: tuple[str, subprocess.Popen],
+) -> None:
+    """``bus.state`` as a socketcan user knows it (the controller error frames received): no round
+    trip, so the bus watch polling it costs the server nothing; exact right after ``set_state``."""
+    address, child = served
+    master = SimWireBus(address, node_name="master")
+    try:
+        master.medium.set_state("master", ERROR_PASSIVE)
+        assert master.state == ERROR_PASSIVE
+        held(child)  # no answer could come now
+        assert master.state == ERROR_PASSIVE
+        os.kill(child.pid, signal.SIGCONT)
+        master.medium.set_state("master", BusState.ACTIVE)
+        assert master.state == BusState.ACTIVE
     finally:
         os.kill(child.pid, signal.SIGCONT)
         master.shutdown()
