@@ -13,12 +13,16 @@ Figures per run: the motion's result; SYNC interval p50 / p99 / max in periods; 
 period after the previous one's start + period); the master's skipped periods.
 
     python3 bench/wire_sync.py [--cell gantry3-ip-linear] [--seconds 3] [--runs 3] [--drives process|here]
+                               [--period-ms MS]
+
+``--period-ms``: the cell at another SYNC period (a copy of its file, as ``bench/stall.py`` makes).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -30,6 +34,7 @@ sys.path.insert(0, str(ROOT / "tests"))  # the tests' shared helpers (axes_progr
 sys.path.insert(0, str(ROOT / "tests" / "axes"))
 
 from axes_programs import axis_program, safe_distance  # noqa: E402
+from test_stall import at_period  # noqa: E402  (the stall test's copy of a cell at another period)
 
 from axes.bus import CellBus  # noqa: E402
 from axes.group import AxisGroup  # noqa: E402
@@ -88,11 +93,18 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--drives", choices=("process", "here"), default="process")
+    parser.add_argument("--period-ms", type=float, default=None, help="the cell's SYNC period (a copy of its file)")
     args = parser.parse_args()
-    cell = load_cell_config(CONFIG_DIR / "cells" / f"{args.cell}.yaml")
+    cell_file = CONFIG_DIR / "cells" / f"{args.cell}.yaml"
+    with tempfile.TemporaryDirectory() as directory:
+        if args.period_ms is not None:
+            cell_file = at_period(cell_file, args.period_ms, Path(directory))
+        cell = load_cell_config(cell_file)
     print(
         f"python3 bench/wire_sync.py --cell {args.cell} --seconds {args.seconds:g} --runs {args.runs} "
-        f"--drives {args.drives}   ({cell.bus.sync_period_ms:g} ms SYNC)"
+        f"--drives {args.drives}"
+        + (f" --period-ms {args.period_ms:g}" if args.period_ms is not None else "")
+        + f"   ({cell.bus.sync_period_ms:g} ms SYNC)"
     )
     head = ("run", "result", "SYNCs", "p50", "p99", "max", "bursts", "late", "skipped")
     print("{:>3} {:10} {:>6} {:>6} {:>6} {:>6} {:>6} {:>5} {:>7}".format(*head))

@@ -40,7 +40,6 @@ WIRE_SERVED_AT = "wire served at"  # the line the master reads the channel from
 START_TIMEOUT_S = 60.0  # a loaded host imports canopen and numpy slowly
 STOP_TIMEOUT_S = 5.0
 EXIT_OK, EXIT_SIMULATOR_ERROR, EXIT_CANNOT_START = 0, 1, 2
-DRIVES_PRIORITY = 30  # SCHED_FIFO of the drives' threads on the wall clock (``ask_drives_priority``)
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -199,23 +198,6 @@ def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) ->
     return EXIT_SIMULATOR_ERROR if sim.internal_errors else EXIT_OK
 
 
-def ask_drives_priority(clock: str) -> bool:
-    """Wall clock: SCHED_FIFO at ``DRIVES_PRIORITY`` for this thread before it starts any other, so
-    every thread of the drives inherits it (Linux threads inherit their creator's policy). The drives
-    stand in for hardware with a CPU of its own: at normal priority another process's work on a
-    shared host preempts a drive's thread while it holds the GIL, and the wire's threads (above it,
-    ``WIRE_PRIORITY``) then wait for the GIL for a whole time slice: late "frame has left" reports,
-    a transmit FIFO that fills on the master's side and the drives' own. Below the master's SYNC
-    thread (``BusConfig.sync_priority``, 50). Not permitted: normal priority, as before."""
-    if clock != "wall":
-        return False
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(DRIVES_PRIORITY))
-    except (AttributeError, OSError):
-        return False
-    return True
-
-
 def main() -> int:
     # the drives' threads (ticker, Notifiers) hand the GIL on as often as the master's do, so the
     # wire's threads (its driver, its server) are not held up for CPython's default 5 ms
@@ -236,7 +218,6 @@ def main() -> int:
             pass
         stop.set()
 
-    ask_drives_priority(clock)
     threading.Thread(target=watch_stdin, name="sim-drives-stdin", daemon=True).start()
     return serve(wiring, clock, stop, sys.stdout)
 
