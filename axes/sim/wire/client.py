@@ -26,21 +26,20 @@ from axes.sim.wire.bus_states import (
 )
 from axes.sim.wire.medium import WireConfigError
 from axes.sim.wire.node import bus_off_error, transmit_queue_full
+from axes.sim.wire.priority import ask_wire_priority
 
 CONNECT_TIMEOUT = 5.0
 WAIT_SLICE_S = 0.001  # a sender waiting for room looks again at least this often
-READ_SLICE_S = 0.1  # a reading thread notices a close at least this often
+READ_SLICE_S = 0.1  # the reader thread notices a close at least this often
 RECV_SIZE = 262_144
 
 
 class WireLink:
     """Control connection (synchronous requests, the sender's thread reads its own answer) and
-    receive connection, read by whichever thread needs what it holds (``poll``): the bus's ``recv``
-    (python-can's Notifier thread) for frames, a sender whose FIFO is full for the server's reports
-    that frames left it. No reader thread of its own: a thread in between takes the GIL once more
-    for every batch the server sends (each frame's report included) and hands every frame on
-    through a queue to the thread that reads the bus, a second wake for each; the master's SYNC
-    thread waits for both."""
+    receive connection (a reader thread hands each frame to ``deliver``; on the wall clock a sender
+    waiting for room in its FIFO reads it itself meanwhile, so the server's report that a frame left
+    reaches the sender without waiting for the reader thread). Whoever reads holds ``_rx_lock``
+    only while reading, never while waiting for data."""
 
     def __init__(
         self,
@@ -92,6 +91,8 @@ class WireLink:
         self._rx_buffer = bytearray()
         self._ended = False
         self._closed_told = False  # ``on_close`` called
+        self._reader = threading.Thread(target=self._read, name=f"simwire-rx-{self.node}", daemon=True)
+        self._reader.start()
 
     def _request(self, data: bytes) -> tuple[int, bytes]:
         with self._request_lock:
@@ -217,19 +218,17 @@ class WireLink:
             raise can.CanOperationError(f"simwire channel {self.channel!r}: {what!r} answered by {kind!r}")
         return json.loads(body)
 
-    def poll(self, timeout: float | None) -> None:
-        """Wait up to ``timeout`` (at most ``READ_SLICE_S``) for the receive connection and read what
-        it holds: frames to ``deliver``, reports to the in-flight count (a sender reading it
-        meanwhile is waited for). The server's end, or ``close``, calls ``on_close`` once."""
-        wait = READ_SLICE_S if timeout is None else min(max(timeout, 0.0), READ_SLICE_S)
-        if not self._ended:
+    def _read(self) -> None:
+        """The reader thread: waits for data (no lock held) and reads it."""
+        ask_wire_priority()
+        while not self._ended and not self.closed:
             try:
-                select.select([self._receive], [], [], wait)  # no lock held while waiting
+                select.select([self._receive], [], [], READ_SLICE_S)
             except (OSError, ValueError):
                 self._ended = True
             self.read_now()
-        if self._ended or self.closed:
-            self._tell_closed()
+        self._ended = True
+        self._tell_closed()
 
     def read_now(self) -> None:
         """Read what the receive connection holds now, without waiting for more (one thread at a
@@ -288,6 +287,8 @@ class WireLink:
             with contextlib.suppress(OSError):
                 sock.shutdown(socket.SHUT_RDWR)
             sock.close()
+        if threading.current_thread() is not self._reader:
+            self._reader.join(timeout=2.0)
         self._tell_closed()
 
 

@@ -167,10 +167,7 @@ class SimWireBus(can.BusABC):
         if self._closed:
             raise can.CanOperationError(f"{self.channel_info}: the bus is closed")
         try:
-            if self._link is None:
-                msg = self._rx.get(timeout=timeout)
-            else:  # this thread reads the connection (no reader thread between: ``WireLink``)
-                msg = self._rx.get_nowait() if not self._rx.empty() else self._poll(timeout)
+            msg = self._rx.get(timeout=timeout)
         except queue.Empty:
             return None, False
         if msg is _CLOSED:
@@ -181,10 +178,6 @@ class SimWireBus(can.BusABC):
             if self._node is not None and self.clock == "lockstep":
                 self._medium.received(self._node, msg.timestamp)
         return msg, False
-
-    def _poll(self, timeout: float | None) -> Any:
-        self._link.poll(timeout)
-        return self._rx.get_nowait()
 
     def _remote_closed(self) -> None:
         self._rx.put(_CLOSED)
