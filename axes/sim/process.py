@@ -40,6 +40,7 @@ WIRE_SERVED_AT = "wire served at"  # the line the master reads the channel from
 START_TIMEOUT_S = 60.0  # a loaded host imports canopen and numpy slowly
 STOP_TIMEOUT_S = 5.0
 EXIT_OK, EXIT_SIMULATOR_ERROR, EXIT_CANNOT_START = 0, 1, 2
+DRIVES_NICE = -10  # the drives' process's share of the CPU (``raise_drives_share``)
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -198,10 +199,26 @@ def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) ->
     return EXIT_SIMULATOR_ERROR if sim.internal_errors else EXIT_OK
 
 
+def raise_drives_share() -> bool:
+    """Nice ``DRIVES_NICE`` for this thread before it starts any other, so that every thread of the
+    drives inherits it (Linux threads inherit their creator's nice value). The drives stand in for
+    hardware with a CPU of its own; at nice 0 another process's work preempts a drive's thread while
+    it holds the GIL, and the wire's threads (SCHED_FIFO, ``axes/sim/wire/priority.py``) then wait a
+    time slice for the GIL: "frame has left" reports late, the master's transmit FIFO full. Not real
+    time: the drives use about a core, and at SCHED_FIFO that much CPU kept the master's own SYNC
+    thread off the CPU for tens of ms (bench/RESULTS.md, issue 23). Not permitted: nice 0."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, DRIVES_NICE)
+    except (AttributeError, OSError):
+        return False
+    return True
+
+
 def main() -> int:
     # the drives' threads (ticker, Notifiers) hand the GIL on as often as the master's do, so the
     # wire's threads (its driver, its server) are not held up for CPython's default 5 ms
     sys.setswitchinterval(SWITCH_INTERVAL_S)
+    raise_drives_share()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the master stops the drives after it halted them
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())

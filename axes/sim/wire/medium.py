@@ -278,6 +278,22 @@ class Medium(Accounting, BusStateHooks):
                 return due
             return next_cyclic if due is None else min(due, next_cyclic)
 
+    def next_event(self) -> float | None:
+        """Wall clock: when ``step`` has something to do: the end of the frame on the wire, a cyclic
+        frame's due time, at once (-inf) for frames queued on an idle bus; None: nothing until a
+        frame is queued."""
+        with self.cond:
+            if self._on_wire is not None:
+                due: float | None = self._on_wire[3]
+            elif any(n.fifo for n in self.nodes):
+                return float("-inf")
+            else:
+                due = None
+            next_cyclic = min((t.due for t in self._cyclic), default=None)
+            if next_cyclic is None:
+                return due
+            return next_cyclic if due is None else min(due, next_cyclic)
+
     def _step(self, now: float) -> float | None:
         with self.cond:
             while True:
