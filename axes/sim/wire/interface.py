@@ -137,6 +137,17 @@ class SimWireBus(can.BusABC):
         else:
             self._link.send(msg, self._local_time, timeout)
 
+    def accept_only(self, accepts: Callable[[int], bool] | None) -> bool:
+        """A receive filter the medium applies before a frame reaches this node's queue, as a CAN
+        controller's acceptance filter or SocketCAN's CAN_RAW_FILTER does in the kernel: the frames it
+        refuses still take their time on the wire, but never wake this bus's reader. ``accepts(can_id)``
+        is asked at every frame (a live filter: what a canopen Network subscribes to now); None:
+        every frame. In-process media only (False: a remote bus receives every frame)."""
+        if self._node is None:
+            return False
+        self._node.accepts = accepts
+        return True
+
     def coalesced(self) -> AbstractContextManager[None]:
         """Frames this thread sends inside it reach a remote medium in one write (``WireLink.coalesce``);
         each is queued, counted and refused as by ``send``. In-process (nothing to write): no effect."""

@@ -361,6 +361,8 @@ class Medium(Accounting, BusStateHooks):
             own = n is sender and not heard_by_sender
             if own and not n.receive_own:
                 continue
+            if n.accepts is not None and not n.accepts(msg.arbitration_id):
+                continue  # the node's acceptance filter: its reader is not woken for it
             n.deliver(
                 can.Message(
                     timestamp=end,

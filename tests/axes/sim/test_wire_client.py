@@ -194,3 +194,25 @@ def test_a_remote_bus_knows_its_state_from_the_error_frames_without_asking_the_s
     finally:
         os.kill(child.pid, signal.SIGCONT)
         master.shutdown()
+
+
+def test_an_acceptance_filter_keeps_frames_from_a_node_not_from_the_wire() -> None:
+    """``accept_only``: the filtered node's queue gets only what it accepts; the refused frames still
+    take their bits on the wire (the next frame's end is the same for a node without the filter)."""
+    channel = f"filter-{uuid.uuid4().hex[:8]}"
+    sender = SimWireBus(channel, clock="lockstep", sync_period=0.001, bitrate=125_000)
+    drive = SimWireBus(channel)
+    monitor = SimWireBus(channel)
+    try:
+        assert drive.accept_only(lambda can_id: can_id in (0x80, 0x20B))
+        for can_id in (0x80, 0x20C, 0x20D, 0x20B):
+            data = b"" if can_id == 0x80 else bytes(8)
+            sender.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
+        got = [drive.recv(1.0) for _ in range(2)]
+        assert [m.arbitration_id for m in got] == [0x80, 0x20B]
+        assert drive.recv(0.05) is None
+        heard = [monitor.recv(1.0) for _ in range(4)]
+        assert got[1].timestamp == heard[3].timestamp  # 0x20B ends after the two frames the drive refused
+    finally:
+        for bus in (sender, drive, monitor):
+            bus.shutdown()
