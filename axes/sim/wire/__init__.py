@@ -13,6 +13,9 @@ medium with these semantics:
   seconds (exact stuffing, interframe space included). Every other node receives it with
   ``msg.timestamp`` = the bus time its last bit left the wire. The sender sees its own frame only
   with ``receive_own_messages=True`` (then ``is_rx`` False), as on socketcan. Classic frames only.
+  ``bus.accept_only(accepts)`` (in-process media): a live acceptance filter on the identifier, as
+  a controller's or SocketCAN's CAN_RAW_FILTER: refused frames take their wire time but never reach
+  the node's queue (the simulated drives pass what their canopen network subscribes to).
 * **Clocks.** Chosen by the medium's creator (``clock="wall"|"lockstep"``); every opener of the
   channel must agree or pass None, else ``WireConfigError``. Same for ``bitrate`` (default
   1 Mbit/s) and ``sync_period``.
