@@ -173,6 +173,7 @@ def start_simulated_drives(wiring: CellWiring, clock: str) -> DrivesProcess | Lo
 def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) -> int:
     """The child: the drives on the served wire until ``stop``; the exit code."""
     from axes.sim.cell import SimulatedCell
+    from axes.sim.full_collection import FullCollectionBetweenMotions
     from axes.sim.wire import serve_wire
 
     bus = wiring.bus
@@ -187,11 +188,16 @@ def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) ->
             server.close()
         print(f"cannot start the simulated drives on {bus.channel}: {exc}", file=out, flush=True)
         return EXIT_CANNOT_START
+    # wall clock: no full collection while SYNC runs (it stopped the wire and the drives 14-65 ms)
+    collection = FullCollectionBetweenMotions(sim.network) if clock == "wall" else None
     try:
         print(f"{WIRE_SERVED_AT} {server.address}", file=out, flush=True)
         while not stop.wait(0.5):  # a timed wait: SIGTERM's handler runs between waits
-            pass
+            if collection is not None:
+                collection.tick()
     finally:
+        if collection is not None:
+            collection.close()
         sim.stop()
         server.close()
     for exc in sim.internal_errors:
