@@ -97,6 +97,13 @@ class RecordingNetwork(canopen.Network):
         finally:
             self._patience.seconds = previous
 
+    def together(self) -> contextlib.AbstractContextManager[None]:
+        """Frames this thread sends inside it go to the interface together where it can take a run of
+        frames in one call (simwire's loopback client: ``SimWireBus.coalesced``); elsewhere (socketcan,
+        virtual, pcan: one frame per call) each goes as it is sent. Each is refused on its own."""
+        coalesced = getattr(self.bus, "coalesced", None)
+        return coalesced() if coalesced is not None else contextlib.nullcontext()
+
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         if not self.bus:
             raise RuntimeError("Not connected to CAN bus")

@@ -7,13 +7,15 @@ SYNC has two modes (``CellBus(lockstep=...)``):
   setpoint is on the bus a whole period before the SYNC that validates it. Where the interface sends
   SYNC cyclically by itself, it does, and a master thread follows each SYNC the bus hears
   (``axes.sync_follower``). Elsewhere (virtual, pcan) a master thread sends SYNC on absolute
-  deadlines: a deadline passed by more than half a period is skipped and counted (``skipped``),
-  never sent late in a burst (a fixed-period drive would take two setpoints in one period), and no
-  SYNC goes out within half a period of the one before. The thread asks for SCHED_FIFO
-  (``BusConfig.sync_priority``; not permitted: one warning, normal priority); granted, the bus's
-  other threads (``CellBus.threads``) are lifted to SCHED_FIFO one below it (``lift``), since any of
-  them preempted by another process while it holds the GIL would hold SYNC up for a scheduler
-  slice (priority inversion through the GIL; measured in bench/sync_jitter.py).
+  deadlines. A SYNC more than half a period late goes out at once and the deadlines after it keep the
+  period from it (the whole periods lost are counted: ``skipped``): a fixed-period drive holds
+  through the delay (a gap of one period plus the delay, not the two periods that waiting for the
+  next deadline would make), and never takes two setpoints in one period, as it would from a
+  catch-up burst. No SYNC goes out within half a period of the one before. The thread asks for
+  SCHED_FIFO (``BusConfig.sync_priority``; not permitted: one warning, normal priority); granted, the
+  bus's other threads (``CellBus.threads``) are lifted to SCHED_FIFO one below it (``lift``), since
+  any of them preempted by another process while it holds the GIL would hold SYNC up for a
+  scheduler slice (priority inversion through the GIL; measured in bench/sync_jitter.py).
   A gap longer than the drives ride out is reported (``FaultKind.SYNC_GAP``, the gap in ms), before
   the thread sends the SYNC after it (the halt the report causes comes first): the
   rule is ``BusConfig.max_sync_gap_periods`` when the cell sets it, else the profiles' (``Profile.
@@ -105,7 +107,7 @@ class SyncClock:
 
     ``count`` is the number of SYNCs sent, ``answered`` the number every expected node has answered.
     Listeners get the number of the SYNC just answered; in lockstep they run before the next SYNC.
-    On the wall clock: ``skipped`` periods whose SYNC was skipped (never sent late), ``longest_gap_s``
+    On the wall clock: ``skipped`` whole periods lost to late SYNCs (never caught up), ``longest_gap_s``
     the longest time between two SYNCs, ``max_gap_s`` the gap that is reported (``FaultKind.SYNC_GAP``),
     ``realtime`` whether the sending thread got SCHED_FIFO, ``native`` whether the interface sends SYNC.
     """
@@ -251,20 +253,21 @@ class SyncClock:
         """SYNC (unless the interface sent it: ``sync_frame`` False), the time stamp, the senders."""
         with self.lock:
             self.count += 1
-            if sync_frame:
-                self.bus.network.send_message(SYNC_COB_ID, b"")
-            # taken once the frame is out: a thread preempted between the decision and the send would
+            with self.bus.network.together():  # one write where the interface takes a run of frames
+                if sync_frame:
+                    self.bus.network.send_message(SYNC_COB_ID, b"")
+                if self.time_stamp_cob_id is not None:
+                    stamp = (time.monotonic_ns() // 1000 - self._t0_us) & 0xFFFFFFFF
+                    self.bus.network.send_message(self.time_stamp_cob_id, struct.pack("<I", stamp))
+                for send in self._senders:
+                    send(self.count)
+            # taken once the frames are out: a thread preempted between the decision and the send would
             # otherwise let the next SYNC follow this one within half a period on the bus
             now = time.monotonic()
             self.last_sent = now
             if self.sent_at is not None:
                 self.longest_gap_s = max(self.longest_gap_s, now - self.sent_at)
             self.sent_at = now
-            if self.time_stamp_cob_id is not None:
-                stamp = (time.monotonic_ns() // 1000 - self._t0_us) & 0xFFFFFFFF
-                self.bus.network.send_message(self.time_stamp_cob_id, struct.pack("<I", stamp))
-            for send in self._senders:
-                send(self.count)
             if not self._completing and any(n > 1 for n in self._every.values()):
                 # drives whose status TPDO goes out every n SYNCs may owe no answer for this one: its
                 # listeners run now, in the sending thread, as no answer will bring them
@@ -342,7 +345,7 @@ class SyncClock:
             )
 
     def _produce(self, production: int) -> None:
-        """SYNC on absolute deadlines; a deadline passed by more than half a period is skipped."""
+        """SYNC on absolute deadlines; one more than half a period late goes out at once and moves them."""
         period = self.period_ms / 1000.0
         deadline = time.monotonic()
         judged: float | None = None  # the SYNC whose gap was reported before the next went out
@@ -366,10 +369,13 @@ class SyncClock:
                     return
                 now = time.monotonic()
                 late = now - deadline
-                if late > period / 2:  # never late in a burst: on to the next deadline not yet half a period past
-                    missed = math.ceil((late - period / 2) / period)
-                    self.skipped += missed
-                    deadline += missed * period
+                if late > period / 2:
+                    # more than half a period late: this SYNC goes out now and the deadlines after it
+                    # keep the period from it (never late in a burst); the whole periods lost are
+                    # counted. Waiting for the next deadline instead would make every such delay a
+                    # gap of two periods, all a fixed-period drive rides out.
+                    self.skipped += math.floor(late / period)
+                    deadline = now
                 gap = None
                 # not before its deadline, nor within half a period of the last SYNC (one sent late)
                 due = deadline if self.sent_at is None else max(deadline, self.sent_at + period / 2)

@@ -4,21 +4,25 @@ The master (CellBus + AxisGroup, SYNC on the wall clock) in this process, the ce
 the simulated wire in a child, as ``pvtflow execute --real-time`` runs them; ``--drives here``
 puts them in this process instead (the unit-test rigs' way), for comparison. Each run moves
 every axis rest to rest (a quintic of ``--seconds``, toward the middle of its range, one record
-per drive period) to its end. A monitor node on the wire records every SYNC's time stamp (when
-its last bit left the wire), so the intervals are the wire's, not a thread's.
+per drive period) to its end. The SYNC intervals are the wire's, from the medium's own accounting
+(each SYNC's start on the wire, ``Medium.stats().sync_intervals``), not a thread's: no monitor node
+in the master's process, whose reader and listener threads would take the master's GIL at every frame.
 
 Figures per run: the motion's result; SYNC interval p50 / p99 / max in periods; bursts
 (intervals under half a period); the late SYNCs the medium counted (started more than 5 % of a
 period after the previous one's start + period); the master's skipped periods.
 
     python3 bench/wire_sync.py [--cell gantry3-ip-linear] [--seconds 3] [--runs 3] [--drives process|here]
+                               [--period-ms MS]
+
+``--period-ms``: the cell at another SYNC period (a copy of its file, as ``bench/stall.py`` makes).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-import threading
+import tempfile
 import time
 from pathlib import Path
 
@@ -30,12 +34,12 @@ sys.path.insert(0, str(ROOT / "tests"))  # the tests' shared helpers (axes_progr
 sys.path.insert(0, str(ROOT / "tests" / "axes"))
 
 from axes_programs import axis_program, safe_distance  # noqa: E402
+from test_stall import at_period  # noqa: E402  (the stall test's copy of a cell at another period)
 
 from axes.bus import CellBus  # noqa: E402
 from axes.group import AxisGroup  # noqa: E402
 from axes.program import PvtProgram  # noqa: E402
 from axes.sim.process import DrivesProcess, LocalDrives  # noqa: E402
-from axes.sim.wire import SimWireBus  # noqa: E402
 from service.config import CONFIG_DIR, CellConfig, load_cell_config  # noqa: E402
 
 
@@ -51,41 +55,29 @@ def toward_middle(cell: CellConfig, here: list[int | None], duration_ms: int) ->
 
 def run(cell: CellConfig, seconds: float, where: str) -> dict[str, object]:
     drives = DrivesProcess(cell, "wall").start() if where == "process" else LocalDrives(cell, "wall").start()
-    syncs: list[float] = []
-    monitor = SimWireBus(drives.bus.channel, node_name="sync-monitor")
-    listening = True
-
-    def listen() -> None:
-        while listening:
-            msg = monitor.recv(0.1)
-            if msg is not None and msg.arbitration_id == 0x80 and not msg.is_extended_id:
-                syncs.append(msg.timestamp)
-
-    listener = threading.Thread(target=listen, daemon=True)
-    listener.start()
     bus = CellBus(drives.bus, lockstep=False).open()
     group = AxisGroup(bus, cell.ordered_axes())
     try:
         group.refresh()
         prog = toward_middle(cell, [link.position for link in group.links], int(seconds * 1000))
-        first = len(syncs)
+        medium = bus.network.bus.medium
+        before = medium.stats()
         result = group.run(prog, timeout_s=seconds + 30)
-        late = len(bus.network.bus.medium.late_syncs())
+        after = medium.stats()
+        late = len(after.late_syncs) - len(before.late_syncs)
         skipped = bus.sync.skipped
-        motion = syncs[first:]
+        # the intervals that end in this motion's SYNCs (the first: from the start's check SYNC)
+        motion = after.sync_intervals[len(before.sync_intervals) :]
     finally:
         group.close()
         bus.close()
-        listening = False
-        listener.join()
-        monitor.shutdown()
         drives.stop()
     period = cell.bus.sync_period_ms / 1000.0
-    intervals = np.diff(motion) / period if len(motion) > 1 else np.array([np.nan])
+    intervals = np.array(motion) / period if motion else np.array([np.nan])
     return {
         "result": result.result.name,
         "message": result.message,
-        "syncs": len(motion),
+        "syncs": len(motion) + 1 if motion else 0,
         "p50": float(np.percentile(intervals, 50)),
         "p99": float(np.percentile(intervals, 99)),
         "max": float(np.max(intervals)),
@@ -101,11 +93,18 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--drives", choices=("process", "here"), default="process")
+    parser.add_argument("--period-ms", type=float, default=None, help="the cell's SYNC period (a copy of its file)")
     args = parser.parse_args()
-    cell = load_cell_config(CONFIG_DIR / "cells" / f"{args.cell}.yaml")
+    cell_file = CONFIG_DIR / "cells" / f"{args.cell}.yaml"
+    with tempfile.TemporaryDirectory() as directory:
+        if args.period_ms is not None:
+            cell_file = at_period(cell_file, args.period_ms, Path(directory))
+        cell = load_cell_config(cell_file)
     print(
         f"python3 bench/wire_sync.py --cell {args.cell} --seconds {args.seconds:g} --runs {args.runs} "
-        f"--drives {args.drives}   ({cell.bus.sync_period_ms:g} ms SYNC)"
+        f"--drives {args.drives}"
+        + (f" --period-ms {args.period_ms:g}" if args.period_ms is not None else "")
+        + f"   ({cell.bus.sync_period_ms:g} ms SYNC)"
     )
     head = ("run", "result", "SYNCs", "p50", "p99", "max", "bursts", "late", "skipped")
     print("{:>3} {:10} {:>6} {:>6} {:>6} {:>6} {:>6} {:>5} {:>7}".format(*head))

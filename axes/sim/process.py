@@ -40,6 +40,7 @@ WIRE_SERVED_AT = "wire served at"  # the line the master reads the channel from
 START_TIMEOUT_S = 60.0  # a loaded host imports canopen and numpy slowly
 STOP_TIMEOUT_S = 5.0
 EXIT_OK, EXIT_SIMULATOR_ERROR, EXIT_CANNOT_START = 0, 1, 2
+DRIVES_NICE = -10  # the drives' process's share of the CPU (``raise_drives_share``)
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -172,6 +173,7 @@ def start_simulated_drives(wiring: CellWiring, clock: str) -> DrivesProcess | Lo
 def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) -> int:
     """The child: the drives on the served wire until ``stop``; the exit code."""
     from axes.sim.cell import SimulatedCell
+    from axes.sim.full_collection import FullCollectionBetweenMotions
     from axes.sim.wire import serve_wire
 
     bus = wiring.bus
@@ -186,11 +188,16 @@ def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) ->
             server.close()
         print(f"cannot start the simulated drives on {bus.channel}: {exc}", file=out, flush=True)
         return EXIT_CANNOT_START
+    # wall clock: no full collection while SYNC runs (it stopped the wire and the drives 14-65 ms)
+    collection = FullCollectionBetweenMotions(sim.network) if clock == "wall" else None
     try:
         print(f"{WIRE_SERVED_AT} {server.address}", file=out, flush=True)
         while not stop.wait(0.5):  # a timed wait: SIGTERM's handler runs between waits
-            pass
+            if collection is not None:
+                collection.tick()
     finally:
+        if collection is not None:
+            collection.close()
         sim.stop()
         server.close()
     for exc in sim.internal_errors:
@@ -198,10 +205,26 @@ def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) ->
     return EXIT_SIMULATOR_ERROR if sim.internal_errors else EXIT_OK
 
 
+def raise_drives_share() -> bool:
+    """Nice ``DRIVES_NICE`` for this thread before it starts any other, so that every thread of the
+    drives inherits it (Linux threads inherit their creator's nice value). The drives stand in for
+    hardware with a CPU of its own; at nice 0 another process's work preempts a drive's thread while
+    it holds the GIL, and the wire's threads (SCHED_FIFO, ``axes/sim/wire/priority.py``) then wait a
+    time slice for the GIL: "frame has left" reports late, the master's transmit FIFO full. Not real
+    time: the drives use about a core, and at SCHED_FIFO that much CPU kept the master's own SYNC
+    thread off the CPU for tens of ms (bench/RESULTS.md, issue 23). Not permitted: nice 0."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, DRIVES_NICE)
+    except (AttributeError, OSError):
+        return False
+    return True
+
+
 def main() -> int:
     # the drives' threads (ticker, Notifiers) hand the GIL on as often as the master's do, so the
     # wire's threads (its driver, its server) are not held up for CPython's default 5 ms
     sys.setswitchinterval(SWITCH_INTERVAL_S)
+    raise_drives_share()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the master stops the drives after it halted them
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())

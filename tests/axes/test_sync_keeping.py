@@ -103,6 +103,41 @@ def test_no_catch_up_burst_after_a_stall_and_the_skipped_periods_are_counted():
         bus.close()
 
 
+def test_a_sync_more_than_half_a_period_late_goes_out_at_once_and_the_period_runs_from_it():
+    """Held 0.6 periods past a deadline, the SYNC thread sends that SYNC at once (a gap of 1.6
+    periods, which a fixed-period drive rides out by holding) and keeps the period from it; waiting
+    for the next deadline would make the gap two periods, all such a drive rides out."""
+    channel = unique_channel("sync")
+    observer = BusObserver(channel)
+    period_ms = 40.0
+    bus = CellBus(
+        BusConfig(channel=channel, sync_period_ms=period_ms, time_stamp=False, max_sync_gap_periods=100),
+        lockstep=False,
+    ).open()
+    wakes = itertools.count()
+
+    def hold() -> None:  # the SYNC thread's 6th wake is 0.6 periods late
+        if next(wakes) == 5:
+            time.sleep(0.6 * period_ms / 1000.0)
+
+    bus.sync.hold = hold
+    try:
+        bus.sync.start()
+        time.sleep(12 * period_ms / 1000.0)
+        bus.sync.stop()
+        syncs = sync_times(observer)
+        gaps = [(b - a) / (period_ms / 1000.0) for a, b in itertools.pairwise(syncs)]
+        assert len(gaps) >= 8, gaps
+        longest = max(gaps)
+        assert 1.5 <= longest < 1.85, [round(g, 2) for g in gaps]  # 1.6 periods, not 2
+        after = gaps[gaps.index(longest) + 1 :]
+        assert after and min(after) > 0.9, [round(g, 2) for g in gaps]  # the period runs from the late SYNC
+        assert bus.sync.skipped == 0  # no whole period was lost
+    finally:
+        bus.close()
+        observer.close()
+
+
 def test_a_sync_gap_longer_than_the_drives_ride_out_is_reported_with_the_gap():
     channel = unique_channel("sync")
     bus = CellBus(

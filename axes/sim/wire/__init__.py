@@ -13,6 +13,9 @@ medium with these semantics:
   seconds (exact stuffing, interframe space included). Every other node receives it with
   ``msg.timestamp`` = the bus time its last bit left the wire. The sender sees its own frame only
   with ``receive_own_messages=True`` (then ``is_rx`` False), as on socketcan. Classic frames only.
+  ``bus.accept_only(accepts)`` (in-process media): a live acceptance filter on the identifier, as
+  a controller's or SocketCAN's CAN_RAW_FILTER: refused frames take their wire time but never reach
+  the node's queue (the simulated drives pass what their canopen network subscribes to).
 * **Clocks.** Chosen by the medium's creator (``clock="wall"|"lockstep"``); every opener of the
   channel must agree or pass None, else ``WireConfigError``. Same for ``bitrate`` (default
   1 Mbit/s) and ``sync_period``.
@@ -39,6 +42,8 @@ medium with these semantics:
     that waits (``send(msg, timeout=T)``) lets its FIFO drain in bus time: its frame goes out when
     a slot frees, if within T. An idle bus (no SYNC for ``medium.IDLE_S`` of wall time) follows the
     wall clock, so heartbeats and SDO exchanges between motions do not pile up at one instant.
+    A wall-clock FIFO is judged in bus time: at a send, frames whose last bit has left by its time
+    are out of it, whether or not the driver thread has woken yet to deliver them.
   - A cyclic send (``send_periodic``) on an in-process wall-clock medium is timed by the medium,
     as SocketCAN's broadcast manager times it: each frame queued at its due bus time, heard by
     its own node too.
@@ -60,7 +65,10 @@ medium with these semantics:
   connected to. In lockstep every send is acknowledged synchronously by the server (ENOBUFS at
   ``send()``, exactly as in-process); on the wall clock sends are pipelined and the client counts
   its frames in flight (frames still in the socket count as queued; a sender waiting for room reads
-  the server's reports itself). Frames stream back on a second connection. One selector thread
+  the server's reports itself; ``bus.coalesced()`` sends a thread's run of frames in one write, each
+  still counted and refused on its own, and a frame posted never waits for another thread's request
+  to be answered). Frames stream back on a second connection; a remote bus's ``state`` is what the
+  controller error frames it received say (no round trip). One selector thread
   serves every socket of the server. The wire's threads ask for SCHED_FIFO (``priority``: they
   stand in for the controller and the kernel). ``bus.medium`` is then a
   ``client.RemoteMedium`` with the same ``stats``, ``set_state`` and ``inject_error_frame``.

@@ -8,7 +8,7 @@ import select
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import can
@@ -38,7 +38,8 @@ class WireLink:
     """Control connection (synchronous requests, the sender's thread reads its own answer) and
     receive connection (a reader thread hands each frame to ``deliver``; on the wall clock a sender
     waiting for room in its FIFO reads it itself meanwhile, so the server's report that a frame left
-    reaches the sender without a hop through the reader thread)."""
+    reaches the sender without waiting for the reader thread). Whoever reads holds ``_rx_lock``
+    only while reading, never while waiting for data."""
 
     def __init__(
         self,
@@ -52,7 +53,11 @@ class WireLink:
         self.channel = name
         self._deliver = deliver
         self._on_close = on_close
+        # one lock per direction of use of the control connection: every write whole (``_lock``), and
+        # a request with its reply (``_request_lock``). A frame posted on the wall clock waits for
+        # no other thread's reply (the bus watch asks for the node's state on the same connection)
         self._lock = threading.Lock()
+        self._request_lock = threading.Lock()
         self.closed = False
         self._interrupted = False  # a request whose reply was never read: the control stream is out of step
         try:
@@ -81,21 +86,23 @@ class WireLink:
         self._receive.settimeout(None)
         self._receive.sendall(p.pack_json(p.ATTACH, {"token": welcome["token"]}))
         self._receive.setblocking(False)
-        self._rx_lock = threading.Lock()  # one thread at a time reads the receive connection (``_pump``)
+        self._held = threading.local()  # a thread's posts held for one write (``coalesce``)
+        self._rx_lock = threading.Lock()  # one thread at a time reads the receive connection (``read_now``)
         self._rx_buffer = bytearray()
         self._ended = False
+        self._closed_told = False  # ``on_close`` called
         self._reader = threading.Thread(target=self._read, name=f"simwire-rx-{self.node}", daemon=True)
         self._reader.start()
 
     def _request(self, data: bytes) -> tuple[int, bytes]:
-        with self._lock:
-            if self.closed:
-                raise can.CanOperationError(f"simwire channel {self.channel!r}: the bus is closed")
+        with self._request_lock:
             if self._interrupted:
                 raise can.CanOperationError(f"simwire channel {self.channel!r}: a request was interrupted")
             try:
-                self._control.sendall(data)
+                self._send_now(data)
                 return p.read_message(self._stream)
+            except can.CanOperationError:  # closed, or gone, before the request went out
+                raise
             except (OSError, p.ProtocolError) as error:
                 raise can.CanOperationError(f"simwire channel {self.channel!r}: server gone ({error})") from None
             except BaseException:  # Ctrl-C / SIGTERM between request and reply: its reply would answer the next
@@ -111,6 +118,29 @@ class WireLink:
             code, text = p.unpack_fail(body)
             raise can.CanOperationError(text, code or None)
 
+    @contextlib.contextmanager
+    def coalesce(self) -> Iterator[None]:
+        """The wall-clock posts of this thread inside it go to the server in one write, at its end (a
+        run of frames sent together: SYNC, time stamp and setpoints). Each frame is still counted in
+        flight, refused when the FIFO is full and stamped with its own send time, as without it; one
+        socket write instead of one per frame is one kernel call and one GIL release, not several."""
+        if getattr(self._held, "posts", None) is not None:
+            yield
+            return
+        self._held.posts = bytearray()
+        try:
+            yield
+        finally:
+            self._flush_held()
+            self._held.posts = None
+
+    def _flush_held(self) -> None:
+        posts = getattr(self._held, "posts", None)
+        if posts:
+            data = bytes(posts)
+            posts.clear()
+            self._send_now(data)
+
     def _post(self, msg: can.Message, timeout: float | None) -> None:
         """Wall clock: count the frame in flight and post it; a full FIFO is refused here."""
         if msg.is_fd or msg.dlc > 8 or len(msg.data) > 8 or msg.is_error_frame:
@@ -119,7 +149,12 @@ class WireLink:
             if self.state == BUS_OFF:
                 raise bus_off_error(self.node)
             full = self._inflight >= self.txqueuelen
+        if full:  # reports that frames left may be waiting unread
+            self.read_now()
+            with self._room:
+                full = self._inflight >= self.txqueuelen
         if full and timeout is not None and timeout > 0:
+            self._flush_held()  # held frames must reach the wire before a slot can free
             self._wait_for_room(time.monotonic() + timeout)
         with self._room:
             refused = self._inflight >= self.txqueuelen
@@ -131,8 +166,8 @@ class WireLink:
         self._write(p.pack_post(msg, self._epoch + time.monotonic()))
 
     def _wait_for_room(self, deadline: float) -> None:
-        """The waiting sender reads the server's DONE reports itself when no other thread is reading
-        (no hand-off to the reader thread: a frame's slot is free as soon as the report is in)."""
+        """The waiting sender reads the server's DONE reports itself (a frame's slot is free as soon
+        as its report is in, whichever thread reads it)."""
         while True:
             with self._room:
                 if self._inflight < self.txqueuelen or self.closed or self._ended or self.state == BUS_OFF:
@@ -140,19 +175,20 @@ class WireLink:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return
-            if self._rx_lock.acquire(blocking=False):
-                try:
-                    select.select([self._receive], [], [], min(remaining, WAIT_SLICE_S))
-                    self._pump()
-                except (OSError, ValueError):
-                    return
-                finally:
-                    self._rx_lock.release()
-            else:
-                with self._room:
-                    self._room.wait(min(remaining, WAIT_SLICE_S))
+            try:
+                select.select([self._receive], [], [], min(remaining, WAIT_SLICE_S))
+            except (OSError, ValueError):
+                return
+            self.read_now()
 
     def _write(self, data: bytes) -> None:
+        posts = getattr(self._held, "posts", None)
+        if posts is not None:
+            posts += data
+            return
+        self._send_now(data)
+
+    def _send_now(self, data: bytes) -> None:
         with self._lock:
             if self.closed:
                 raise can.CanOperationError(f"simwire channel {self.channel!r}: the bus is closed")
@@ -183,17 +219,32 @@ class WireLink:
         return json.loads(body)
 
     def _read(self) -> None:
-        """The reader thread: waits for data and reads it (unless a waiting sender is at it)."""
+        """The reader thread: waits for data (no lock held) and reads it."""
         ask_wire_priority()
-        try:
-            while not self._ended:
+        while not self._ended and not self.closed:
+            try:
                 select.select([self._receive], [], [], READ_SLICE_S)
-                with self._rx_lock:
-                    self._pump()
-        except (OSError, ValueError, p.ProtocolError):
-            pass
+            except (OSError, ValueError):
+                self._ended = True
+            self.read_now()
         self._ended = True
-        self._on_close()
+        self._tell_closed()
+
+    def read_now(self) -> None:
+        """Read what the receive connection holds now, without waiting for more (one thread at a
+        time: ``_rx_lock``, held only while reading)."""
+        with self._rx_lock:
+            try:
+                self._pump()
+            except (OSError, ValueError, p.ProtocolError):
+                self._ended = True
+
+    def _tell_closed(self) -> None:
+        with self._room:
+            told, self._closed_told = self._closed_told, True
+            self._room.notify_all()
+        if not told:
+            self._on_close()
 
     def _pump(self) -> None:
         """Under ``_rx_lock``: read what the receive connection holds and hand it on (frames to the
@@ -238,6 +289,7 @@ class WireLink:
             sock.close()
         if threading.current_thread() is not self._reader:
             self._reader.join(timeout=2.0)
+        self._tell_closed()
 
 
 class RemoteMedium:

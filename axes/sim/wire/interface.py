@@ -10,9 +10,11 @@ is one node of the medium (package docstring for the semantics).
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import re
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager
 from typing import Any
 
 import can
@@ -116,7 +118,10 @@ class SimWireBus(can.BusABC):
         """ACTIVE, PASSIVE (error passive) or ERROR (bus off), as the medium's test hook set it."""
         if self._node is not None:
             return self._node.state
-        return RemoteMedium(self._link).node_state()
+        # as a socketcan user knows it: from the controller error frames received (no round trip to
+        # the server, which the bus watch's polling would make every few ms while SYNC runs)
+        self._link.read_now()
+        return self._link.state
 
     @state.setter
     def state(self, new_state: BusState) -> None:
@@ -131,6 +136,24 @@ class SimWireBus(can.BusABC):
             self._medium.submit(self._node, msg, timeout=timeout)
         else:
             self._link.send(msg, self._local_time, timeout)
+
+    def accept_only(self, accepts: Callable[[int], bool] | None) -> bool:
+        """A receive filter the medium applies before a frame reaches this node's queue, as a CAN
+        controller's acceptance filter or SocketCAN's CAN_RAW_FILTER does in the kernel: the frames it
+        refuses still take their time on the wire, but never wake this bus's reader. ``accepts(can_id)``
+        is asked at every frame (a live filter: what a canopen Network subscribes to now); None:
+        every frame. In-process media only (False: a remote bus receives every frame)."""
+        if self._node is None:
+            return False
+        self._node.accepts = accepts
+        return True
+
+    def coalesced(self) -> AbstractContextManager[None]:
+        """Frames this thread sends inside it reach a remote medium in one write (``WireLink.coalesce``);
+        each is queued, counted and refused as by ``send``. In-process (nothing to write): no effect."""
+        if self._link is None or not self._link.pipelined:
+            return contextlib.nullcontext()
+        return self._link.coalesce()
 
     def _send_periodic_internal(
         self,

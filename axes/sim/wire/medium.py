@@ -224,6 +224,10 @@ class Medium(Accounting, BusStateHooks):
 
     def _submit_wall(self, node: Node, msg: can.Message, bits: int, now: float) -> None:
         if len(node.fifo) >= node.txqueuelen:
+            # the FIFO is judged at ``now`` in bus time: frames whose last bit has left by then are
+            # out of it, though the driver thread (held by its process) has not woken to say so yet
+            self._step(now)
+        if len(node.fifo) >= node.txqueuelen:
             raise transmit_queue_full(node.name, node.txqueuelen)
         node.fifo.append(Pending(msg, bits, now, arbitration_priority(msg)))
         node.max_depth = max(node.max_depth, len(node.fifo))
@@ -270,6 +274,22 @@ class Medium(Accounting, BusStateHooks):
         with self.cond:
             next_cyclic = self._queue_cyclic(now)
             due = self._step(now)
+            if next_cyclic is None:
+                return due
+            return next_cyclic if due is None else min(due, next_cyclic)
+
+    def next_event(self) -> float | None:
+        """Wall clock: when ``step`` has something to do: the end of the frame on the wire, a cyclic
+        frame's due time, at once (-inf) for frames queued on an idle bus; None: nothing until a
+        frame is queued."""
+        with self.cond:
+            if self._on_wire is not None:
+                due: float | None = self._on_wire[3]
+            elif any(n.fifo for n in self.nodes):
+                return float("-inf")
+            else:
+                due = None
+            next_cyclic = min((t.due for t in self._cyclic), default=None)
             if next_cyclic is None:
                 return due
             return next_cyclic if due is None else min(due, next_cyclic)
@@ -341,6 +361,8 @@ class Medium(Accounting, BusStateHooks):
             own = n is sender and not heard_by_sender
             if own and not n.receive_own:
                 continue
+            if n.accepts is not None and not n.accepts(msg.arbitration_id):
+                continue  # the node's acceptance filter: its reader is not woken for it
             n.deliver(
                 can.Message(
                     timestamp=end,

@@ -74,6 +74,7 @@ class Node:
     frames: int = 0
     waiters: int = 0  # senders waiting for room (send with a timeout)
     on_done: Callable[[int], None] | None = None  # wall: told how many frames left the FIFO (sent or dropped)
+    accepts: Callable[[int], bool] | None = None  # acceptance filter on the identifier (None: every frame)
 
 
 def arbitration_priority(msg: can.Message) -> tuple[int, int, int]:

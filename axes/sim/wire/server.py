@@ -253,6 +253,15 @@ class WireServer:
             for outbox in batch:
                 outbox.flush()
 
+    def _flush_batch(self) -> None:
+        """Write what this thread's delivery batch holds so far (a client reading its own bus state
+        after a ``set_state`` reply finds the controller error frame already in its socket)."""
+        batch = getattr(self._local, "batch", None)
+        if batch:
+            for outbox in list(batch):
+                outbox.flush()
+            batch.clear()
+
     def _want_write(self, outbox: _Outbox) -> None:
         with self._want_lock:
             self._want.append(outbox)
@@ -344,7 +353,9 @@ class WireServer:
             with medium.cond:
                 node.enobufs += 1
         elif kind == p.CALL:
-            conn.outbox.put_bytes(self._call(node, json.loads(body)))
+            reply = self._call(node, json.loads(body))
+            self._flush_batch()  # what the call delivered (a state's error frames) goes before its reply
+            conn.outbox.put_bytes(reply)
         else:
             raise p.ProtocolError(f"unexpected message {kind!r}")
 

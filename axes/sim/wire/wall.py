@@ -2,7 +2,8 @@
 
 It sleeps on the medium's condition until the frame on the wire is due to end (or, on an idle
 bus, until a frame is queued), then lets ``Medium.step`` deliver every frame whose end has passed
-and start the next: a late wake delivers a batch, each frame still stamped with its exact end.
+and start the next: a late wake delivers a batch, each frame still stamped with its exact end. A
+batch's writes to other processes go out after the medium's lock is released.
 No busy wait: the sleep is a condition wait (sub-millisecond where the OS gives it).
 """
 
@@ -27,10 +28,17 @@ class WallDriver:
         ask_wire_priority()
         medium = self.medium
         cond = medium.cond
-        with cond:
-            while not self._stop:
-                with medium.delivery_batch():
-                    due = medium.step(medium.now())
+        while True:
+            # what a step delivers to another process is written once the medium's lock is released:
+            # a socket write under it held up every sender (the loopback server's POSTs, the drives)
+            with medium.delivery_batch(), cond:
+                if self._stop:
+                    return
+                medium.step(medium.now())
+            with cond:
+                if self._stop:
+                    return
+                due = medium.next_event()  # what came meanwhile counts: no notify is missed
                 if due is None:
                     cond.wait()
                 else:
