@@ -111,9 +111,14 @@ def test_stop_mid_move_halts_every_axis(arm6, serve):
         assert not drive.ip_active
         stopped_at = [h.sync for h in drive.history if h.ip_active][-1]
         assert stopped_at < drive.ip_active_sync + end_ms  # it did not run to the end of the program
-        hist = list(drive.history)
-        speed = np.abs(np.diff([h.demand for h in hist])) / np.diff([h.time_ms for h in hist])  # qc/ms
-        assert speed[-1] < 0.02 * speed.max(), (speed[-1], speed.max())  # came to rest (the halt ramp's end)
+
+        def speeds(drive=drive) -> np.ndarray:  # qc/ms between the drive's demand samples
+            hist = list(drive.history)
+            return np.abs(np.diff([h.demand for h in hist])) / np.diff([h.time_ms for h in hist])
+
+        # it comes to rest at the halt ramp's end (the drive's last sample may still be on the ramp's
+        # last step when the reply arrives: the drive samples on its own clock)
+        assert wait_until(lambda: speeds()[-1] < 0.02 * speeds().max(), timeout=2), speeds()[-5:]
     # every axis halted on the same SYNC: the same last ip-active SYNC
     assert len({[h.sync for h in d.history if h.ip_active][-1] for d in s.sim}) == 1
     assert wait_until(lambda: col.events("motion_ended", motion_id))
