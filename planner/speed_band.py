@@ -73,33 +73,6 @@ def flattened(traj: Trajectory, limits: JointLimits, band: float) -> Trajectory:
 
 
 @njit(cache=True)
-def _slope_bounds(
-    lo: float,
-    hi: float,
-    ya: float,
-    sa: float,
-    s: float,
-    q_s: NDArray[np.float64],
-    q_ss: NDArray[np.float64],
-    amax: NDArray[np.float64],
-) -> tuple[float, float]:
-    """[lo, hi] narrowed to the slopes m of s'^2 (from ya at sa) that keep every joint's
-    q'' = q_ss y + q_s m / 2 within amax at s: linear in m there."""
-    for j in range(len(amax)):
-        a0 = q_ss[j] * ya
-        b0 = q_ss[j] * (s - sa) + 0.5 * q_s[j]
-        if b0 > 0.0:
-            hi = min(hi, (amax[j] - a0) / b0)
-            lo = max(lo, (-amax[j] - a0) / b0)
-        elif b0 < 0.0:
-            hi = min(hi, (-amax[j] - a0) / b0)
-            lo = max(lo, (amax[j] - a0) / b0)
-        elif abs(a0) > amax[j]:
-            return 1.0, -1.0
-    return lo, hi
-
-
-@njit(cache=True)
 def fewest_spans(
     grid: NDArray[np.float64],
     xs: NDArray[np.float64],
@@ -139,23 +112,50 @@ def fewest_spans(
     prev = np.full((n, width, 2), -1, np.int64)
     spans[0, 0] = 0.0
     time[0, 0] = 0.0
+    lo = np.empty(width)
+    hi = np.empty(width)
+    alive = np.zeros(width, np.bool_)
+    dof = len(amax)
     for a in range(n - 1):
+        left = 0
         for ma in range(cnt[a]):
-            if spans[a, ma] == big:
-                continue
-            ya = yv[a, ma]
-            lo, hi = -math.inf, math.inf
-            for b in range(a + 1, n):
-                ds = grid[b] - grid[a]
-                for t in range(3):
-                    idx = 3 * (b - 1) + t
-                    lo, hi = _slope_bounds(lo, hi, ya, grid[a], s_at[idx], q_s[idx], q_ss[idx], amax)
-                if lo > hi:
-                    break
+            alive[ma] = spans[a, ma] < big
+            lo[ma], hi[ma] = -math.inf, math.inf
+            left += alive[ma]
+        for b in range(a + 1, n):
+            if left == 0:
+                break
+            ds = grid[b] - grid[a]
+            # the acceleration at interval b - 1's samples: q'' = q_ss ya + m (q_ss (s - s_a) + q_s / 2)
+            for t in range(3):
+                idx = 3 * (b - 1) + t
+                for j in range(dof):
+                    b0 = q_ss[idx, j] * (s_at[idx] - grid[a]) + 0.5 * q_s[idx, j]
+                    inv = 1.0 / b0 if b0 != 0.0 else 0.0
+                    for ma in range(cnt[a]):
+                        if not alive[ma]:
+                            continue
+                        a0 = q_ss[idx, j] * yv[a, ma]
+                        if b0 > 0.0:
+                            hi[ma] = min(hi[ma], (amax[j] - a0) * inv)
+                            lo[ma] = max(lo[ma], (-amax[j] - a0) * inv)
+                        elif b0 < 0.0:
+                            hi[ma] = min(hi[ma], (-amax[j] - a0) * inv)
+                            lo[ma] = max(lo[ma], (amax[j] - a0) * inv)
+                        elif abs(a0) > amax[j]:
+                            lo[ma], hi[ma] = 1.0, -1.0
+            for ma in range(cnt[a]):
+                if not alive[ma]:
+                    continue
+                if lo[ma] > hi[ma]:
+                    alive[ma] = False
+                    left -= 1
+                    continue
+                ya = yv[a, ma]
                 for mb in range(cnt[b]):
                     yb = yv[b, mb]
                     m = (yb - ya) / ds
-                    if m < lo or m > hi or ya + yb <= 0.0:
+                    if m < lo[ma] or m > hi[ma] or ya + yb <= 0.0:
                         continue
                     dt = 2.0 * ds / (math.sqrt(ya) + math.sqrt(yb))
                     sp = spans[a, ma] + 1.0 + (0.0 if yb == ya else curved)
@@ -165,10 +165,11 @@ def fewest_spans(
                         time[b, mb] = tm
                         prev[b, mb, 0] = a
                         prev[b, mb, 1] = ma
-                lo = max(lo, (low * xs[b] - ya) / ds)
-                hi = min(hi, (xs[b] - ya) / ds)
-                if lo > hi:
-                    break
+                lo[ma] = max(lo[ma], (low * xs[b] - ya) / ds)
+                hi[ma] = min(hi[ma], (xs[b] - ya) / ds)
+                if lo[ma] > hi[ma]:
+                    alive[ma] = False
+                    left -= 1
     y = xs.copy()
     if spans[n - 1, 0] == big:
         return y
