@@ -16,14 +16,15 @@ fewer breaks (spans of several grid intervals with one s'' each, the gridpoints 
 - keeps the joints' acceleration within the limits at the start, middle and end of every grid
   interval (on one span, q'' = q_ss s'^2 + q_s s'' is linear in the span's slope of s'^2: each
   sample narrows the slopes allowed, as the band does); between the samples ``planner.timing``
-  checks the result densely and slows it down uniformly where it exceeds them (by about 1e-4);
+  checks the result densely and slows it down uniformly where it exceeds them (1 of 80 pvt_quality
+  paths needed it, by 3e-5);
 - has the fewest spans, a span whose s'' is not 0 counting ``CURVED_SPAN_COST`` more (with
   s'' = 0 on one path piece q(t) is a cubic, which one record follows exactly; otherwise knot
   placement puts records inside the span), then the least time: a shortest path over the
   gridpoints, each with ``LEVELS`` geometric levels of s'^2 in the band and TOPP-RA's own value.
-  A greedy split (each span as long as possible from the start) ended spans at the band's lower
-  edge and left the next span there: a straight move cruised 5 % below TOPP-RA's speed, and it
-  placed more records.
+  A greedy split (each span as long as possible from the start) would end spans at the band's
+  lower edge and start the next span there: a straight move would cruise 5 % below TOPP-RA's
+  speed, and the plans would need more records.
 
 Torque limits are held where TOPP-RA holds them, at the gridpoints: ``planner.timing`` keeps
 TOPP-RA's own profile where the flattened one does not. Jerk-limited plans start from TOPP-RA's
