@@ -31,7 +31,7 @@ from service.config import CONFIG_DIR, load_cell_config  # noqa: E402
 CELLS = (("arm6", 40), ("gantry3", 15))
 JERK_CELLS = (("arm6", 10), ("gantry3", 5))
 EXPECTED = {
-    "topp": "fe60a976ea1cfd27333ea4d9ac0222e61a86d172baaae43a0fe2d8730b2230bb",
+    "topp": "31e15ea80eebfd2785a8cfabb0f0ce29ddbe2b1db24d855370fffc6ea163ee48",
     "jerk": "5770847246ccd0ef77251fa51c8d732e74947c861bed7b95e0236e3c4d723c2d",
 }
 

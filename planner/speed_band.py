@@ -13,14 +13,19 @@ fewer breaks (spans of several grid intervals with one s'' each, the gridpoints 
 - stays within ``[(1 - band)^2 x, x]`` of TOPP-RA's x = s'^2 at every gridpoint (the path speed
   at most ``band`` below TOPP-RA's, never above it anywhere: no velocity-type constraint, joint
   or TCP speed, can be crossed, and the motion is at most 1 / (1 - band) times longer);
-- keeps the joints' velocity and acceleration within the limits on every span, exactly (on one
-  path piece, q'' = q_ss s'^2 + q_s s'' is a quadratic in s: its peak is at an end or at its
-  vertex), and from each span's end the next grid interval as TOPP-RA has it stays possible;
-- takes s'' = 0 (constant path speed) where the band allows it: on one path piece q(t) is then a
-  cubic, which one record follows exactly; otherwise the fastest line in the band.
+- keeps the joints' acceleration within the limits at the start, middle and end of every grid
+  interval (on one span, q'' = q_ss s'^2 + q_s s'' is linear in the span's slope of s'^2: each
+  sample narrows the slopes allowed, as the band does); between the samples ``planner.timing``
+  checks the result densely and slows it down uniformly where it exceeds them (1 of 80 pvt_quality
+  paths needed it, by 3e-5);
+- has the fewest spans, a span whose s'' is not 0 counting ``CURVED_SPAN_COST`` more (with
+  s'' = 0 on one path piece q(t) is a cubic, which one record follows exactly; otherwise knot
+  placement puts records inside the span), then the least time: a shortest path over the
+  gridpoints, each with ``LEVELS`` geometric levels of s'^2 in the band and TOPP-RA's own value.
+  A greedy split (each span as long as possible from the start) would end spans at the band's
+  lower edge and start the next span there: a straight move would cruise 5 % below TOPP-RA's
+  speed, and the plans would need more records.
 
-Greedy, from the start: each span reaches as far as these rules allow, across waypoints too
-(where the path is C2, one s'' makes no jump there; the limits are checked piece by piece).
 Torque limits are held where TOPP-RA holds them, at the gridpoints: ``planner.timing`` keeps
 TOPP-RA's own profile where the flattened one does not. Jerk-limited plans start from TOPP-RA's
 own profile (their lower bound), not from this one.
@@ -35,149 +40,15 @@ from numba import njit
 from numpy.typing import NDArray
 
 from planner.limits import JointLimits
-from planner.path import spline_at, spline_piece
 from planner.trajectory import Trajectory
 
 # the path speed may drop this fraction below TOPP-RA's (bench/RESULTS.md, "Issue 25 item 4": the
 # records and the motion time of 0.01 .. 0.1)
 DEFAULT_SPEED_BAND = 0.05
-
-
-@njit(cache=True)
-def span_ratios(
-    s0: float,
-    s1: float,
-    x0: float,
-    x1: float,
-    x: NDArray[np.float64],
-    c: NDArray[np.float64],
-    vmax: NDArray[np.float64],
-    amax: NDArray[np.float64],
-) -> tuple[float, float]:
-    """max |q'| / vmax and max |q''| / amax over [s0, s1] (inside one path piece) with s'^2 linear
-    from x0 to x1, exactly: q'' is a quadratic in s there (through its values at both ends and the
-    middle), |q'| peaks at an end or where q'' = 0 (as ``trajectory._interval_peaks``)."""
-    delta = s1 - s0
-    u = (x1 - x0) / (2.0 * delta)
-    rv, ra = 0.0, 0.0
-    f = np.empty(3)
-    i = 0
-    for j in range(c.shape[2]):
-        for m in range(3):
-            i, h = spline_piece(x, s0, s0 + 0.5 * m * delta, i)
-            _, q_s, q_ss = spline_at(c, i, h, j)
-            xm = x0 + u * m * delta
-            f[m] = q_ss * xm + q_s * u
-            if m != 1:
-                rv = max(rv, abs(q_s) * math.sqrt(max(xm, 0.0)) / vmax[j])
-                ra = max(ra, abs(f[m]) / amax[j])
-        a = 2.0 * (f[0] - 2.0 * f[1] + f[2])
-        b = 4.0 * f[1] - 3.0 * f[0] - f[2]
-        r = -b / (2.0 * a) if a != 0.0 else -1.0
-        if 0.0 < r < 1.0:
-            ra = max(ra, abs(f[0] + (b + a * r) * r) / amax[j])
-        r0, r1 = math.nan, math.nan
-        if a != 0.0:
-            disc = b * b - 4.0 * a * f[0]
-            if disc >= 0.0:
-                sq = math.sqrt(disc)
-                r0, r1 = (-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a)
-        elif b != 0.0:
-            r0 = -f[0] / b
-        for rr in (r0, r1):
-            if 0.0 < rr < 1.0:
-                sigma = rr * delta
-                i, h = spline_piece(x, s0, s0 + sigma, i)
-                _, q_s, _ = spline_at(c, i, h, j)
-                rv = max(rv, abs(q_s) * math.sqrt(max(x0 + 2.0 * u * sigma, 0.0)) / vmax[j])
-    return rv, ra
-
-
-@njit(cache=True)
-def line_ratios(
-    a: int,
-    b: int,
-    ya: float,
-    yb: float,
-    grid: NDArray[np.float64],
-    joins: NDArray[np.bool_],
-    x: NDArray[np.float64],
-    c: NDArray[np.float64],
-    vmax: NDArray[np.float64],
-    amax: NDArray[np.float64],
-) -> tuple[float, float]:
-    """``span_ratios`` of s'^2 linear from ya at gridpoint a to yb at gridpoint b, piece by piece
-    (``joins``: the gridpoints where two path pieces meet, the waypoints)."""
-    slope = (yb - ya) / (grid[b] - grid[a])
-    rv, ra = 0.0, 0.0
-    start = a
-    for k in range(a + 1, b + 1):
-        if joins[k] or k == b:
-            y0 = ya + slope * (grid[start] - grid[a])
-            y1 = yb if k == b else ya + slope * (grid[k] - grid[a])
-            r_v, r_a = span_ratios(grid[start], grid[k], y0, y1, x, c, vmax, amax)
-            rv, ra = max(rv, r_v), max(ra, r_a)
-            start = k
-    return rv, ra
-
-
-@njit(cache=True)
-def _within(rv: float, ra: float, rv_max: float, ra_max: float) -> bool:
-    return rv <= rv_max and ra <= ra_max
-
-
-@njit(cache=True)
-def band_profile(
-    grid: NDArray[np.float64],
-    sd: NDArray[np.float64],
-    joins: NDArray[np.bool_],
-    x: NDArray[np.float64],
-    c: NDArray[np.float64],
-    vmax: NDArray[np.float64],
-    amax: NDArray[np.float64],
-    low: float,
-) -> NDArray[np.float64]:
-    """s' at every gridpoint of the flattened profile (module docstring): ``low`` is the least
-    fraction of TOPP-RA's s'^2 allowed, ``joins`` the gridpoints where two path pieces meet."""
-    n = len(grid)
-    xs = sd * sd
-    y = xs.copy()
-    a = 0
-    ya = xs[0]
-    while a < n - 1:
-        lo, hi = -math.inf, math.inf  # the slopes of s'^2 from (grid[a], ya) inside the band so far
-        best, best_y = -1, 0.0
-        for b in range(a + 1, n):
-            ds = grid[b] - grid[a]
-            lo = max(lo, (low * xs[b] - ya) / ds)
-            hi = min(hi, (xs[b] - ya) / ds)
-            if lo > hi or (b == n - 1 and xs[b] < ya + lo * ds):
-                break
-            found = False
-            yb = xs[b]
-            for slope in (min(max(0.0, lo), hi), hi, min(max((xs[b] - xs[a]) / ds, lo), hi), 0.5 * (lo + hi), lo):
-                yb = xs[b] if b == n - 1 else ya + slope * ds
-                rv, ra = line_ratios(a, b, ya, yb, grid, joins, x, c, vmax, amax)
-                if not _within(rv, ra, 1.0, 1.0):
-                    continue
-                if b < n - 1 and yb != xs[b]:  # TOPP-RA's next interval must stay possible from there
-                    rv1, ra1 = span_ratios(grid[b], grid[b + 1], yb, xs[b + 1], x, c, vmax, amax)
-                    rv0, ra0 = span_ratios(grid[b], grid[b + 1], xs[b], xs[b + 1], x, c, vmax, amax)
-                    if not _within(rv1, ra1, max(1.0, rv0), max(1.0, ra0)):
-                        continue
-                found = True
-                break
-            if not found:
-                break
-            best, best_y = b, yb
-        if best < 0:  # no span: the next interval as TOPP-RA has it (possible from here, see above)
-            best, best_y = a + 1, xs[a + 1]
-        slope = (best_y - ya) / (grid[best] - grid[a])
-        for k in range(a + 1, best):
-            y[k] = ya + slope * (grid[k] - grid[a])
-        y[best] = best_y
-        a, ya = best, best_y
-    return np.sqrt(np.maximum(y, 0.0))
+# levels of s'^2 per band, and the extra cost of a span whose s'' is not 0 (its joints' motion is
+# not a cubic: knot placement puts records inside it): bench/RESULTS.md, "Issue 25 items 4 and 5"
+LEVELS = 4
+CURVED_SPAN_COST = 2.0
 
 
 def flattened(traj: Trajectory, limits: JointLimits, band: float) -> Trajectory:
@@ -186,14 +57,129 @@ def flattened(traj: Trajectory, limits: JointLimits, band: float) -> Trajectory:
     if band <= 0.0:
         return traj
     grid = traj.gridpoints
-    sd = band_profile(
+    sd = np.maximum(traj.sd, 0.0)
+    anchor = np.repeat(grid[:-1], 3)  # each interval's samples on its own path piece
+    s_at = np.column_stack((grid[:-1], 0.5 * (grid[:-1] + grid[1:]), grid[1:])).ravel()
+    y = fewest_spans(
         grid,
-        np.maximum(traj.sd, 0.0),
-        np.isin(grid, traj.path.waypoint_s),
-        *traj.path.pieces,
-        np.asarray(limits.velocity, dtype=float),
+        sd * sd,
+        s_at,
+        traj.path.on_piece_of(anchor, s_at, 1),
+        traj.path.on_piece_of(anchor, s_at, 2),
         np.asarray(limits.acceleration, dtype=float),
         (1.0 - band) ** 2,
     )
-    flat = Trajectory.from_path_velocities(traj.path, grid, sd, traj.joint_names)
+    flat = Trajectory.from_path_velocities(traj.path, grid, np.sqrt(np.maximum(y, 0.0)), traj.joint_names)
     return Trajectory(flat.path, grid, flat.sd, flat.sdd, flat.breakpoints, flat.joint_names, traj.time_scale)
+
+
+@njit(cache=True)
+def fewest_spans(
+    grid: NDArray[np.float64],
+    xs: NDArray[np.float64],
+    s_at: NDArray[np.float64],
+    q_s: NDArray[np.float64],
+    q_ss: NDArray[np.float64],
+    amax: NDArray[np.float64],
+    low: float,
+    levels: int = LEVELS,
+    curved: float = CURVED_SPAN_COST,
+) -> NDArray[np.float64]:
+    """s'^2 at every gridpoint (module docstring): the shortest path from rest to rest over the
+    states (gridpoint, level of s'^2), ``levels`` geometric levels in the band and TOPP-RA's own
+    value ``xs``; a span costs 1, and ``curved`` more where its s'' is not 0; equal costs: the
+    least time. ``s_at``, ``q_s``, ``q_ss``: the path at 3 samples per grid interval (start,
+    middle, end, on the interval's own piece)."""
+    n = len(grid)
+    width = levels + 2
+    logr = -math.log(low) / (levels - 1)
+    yv = np.zeros((n, width))
+    cnt = np.zeros(n, np.int64)
+    for k in range(n):
+        if xs[k] <= 0.0 or k == 0 or k == n - 1:
+            yv[k, 0] = xs[k]
+            cnt[k] = 1
+            continue
+        g = math.ceil(math.log(low * xs[k]) / logr)
+        while cnt[k] < width - 1 and math.exp(g * logr) < xs[k]:
+            yv[k, cnt[k]] = math.exp(g * logr)
+            cnt[k] += 1
+            g += 1
+        yv[k, cnt[k]] = xs[k]
+        cnt[k] += 1
+    big = math.inf
+    spans = np.full((n, width), big)
+    time = np.full((n, width), math.inf)
+    prev = np.full((n, width, 2), -1, np.int64)
+    spans[0, 0] = 0.0
+    time[0, 0] = 0.0
+    lo = np.empty(width)
+    hi = np.empty(width)
+    alive = np.zeros(width, np.bool_)
+    dof = len(amax)
+    for a in range(n - 1):
+        left = 0
+        for ma in range(cnt[a]):
+            alive[ma] = spans[a, ma] < big
+            lo[ma], hi[ma] = -math.inf, math.inf
+            left += alive[ma]
+        for b in range(a + 1, n):
+            if left == 0:
+                break
+            ds = grid[b] - grid[a]
+            # the acceleration at interval b - 1's samples: q'' = q_ss ya + m (q_ss (s - s_a) + q_s / 2)
+            for t in range(3):
+                idx = 3 * (b - 1) + t
+                for j in range(dof):
+                    b0 = q_ss[idx, j] * (s_at[idx] - grid[a]) + 0.5 * q_s[idx, j]
+                    inv = 1.0 / b0 if b0 != 0.0 else 0.0
+                    for ma in range(cnt[a]):
+                        if not alive[ma]:
+                            continue
+                        a0 = q_ss[idx, j] * yv[a, ma]
+                        if b0 > 0.0:
+                            hi[ma] = min(hi[ma], (amax[j] - a0) * inv)
+                            lo[ma] = max(lo[ma], (-amax[j] - a0) * inv)
+                        elif b0 < 0.0:
+                            hi[ma] = min(hi[ma], (-amax[j] - a0) * inv)
+                            lo[ma] = max(lo[ma], (amax[j] - a0) * inv)
+                        elif abs(a0) > amax[j]:
+                            lo[ma], hi[ma] = 1.0, -1.0
+            for ma in range(cnt[a]):
+                if not alive[ma]:
+                    continue
+                if lo[ma] > hi[ma]:
+                    alive[ma] = False
+                    left -= 1
+                    continue
+                ya = yv[a, ma]
+                for mb in range(cnt[b]):
+                    yb = yv[b, mb]
+                    m = (yb - ya) / ds
+                    if m < lo[ma] or m > hi[ma] or ya + yb <= 0.0:
+                        continue
+                    dt = 2.0 * ds / (math.sqrt(ya) + math.sqrt(yb))
+                    sp = spans[a, ma] + 1.0 + (0.0 if yb == ya else curved)
+                    tm = time[a, ma] + dt
+                    if sp < spans[b, mb] or (sp == spans[b, mb] and tm < time[b, mb]):
+                        spans[b, mb] = sp
+                        time[b, mb] = tm
+                        prev[b, mb, 0] = a
+                        prev[b, mb, 1] = ma
+                lo[ma] = max(lo[ma], (low * xs[b] - ya) / ds)
+                hi[ma] = min(hi[ma], (xs[b] - ya) / ds)
+                if lo[ma] > hi[ma]:
+                    alive[ma] = False
+                    left -= 1
+    y = xs.copy()
+    if spans[n - 1, 0] == big:
+        return y
+    b, mb = n - 1, 0
+    while b > 0:
+        a, ma = prev[b, mb, 0], prev[b, mb, 1]
+        ya, yb = yv[a, ma], yv[b, mb]
+        for k in range(a, b + 1):
+            y[k] = ya + (yb - ya) * (grid[k] - grid[a]) / (grid[b] - grid[a])
+        y[b] = yb
+        b, mb = a, ma
+    return y

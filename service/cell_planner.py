@@ -66,6 +66,7 @@ def planner_for_cell(cell: CellConfig, gridpoints: int | None = None) -> Planner
         gridpoints,
         cell.planning.max_tcp_angular_speed,
         cell.planning.max_jerk,
+        speed_band=cell.planning.speed_band,
     )
 
 

@@ -16,6 +16,7 @@ from axes.config import AxisConfig, BusConfig
 from axes.homing import homing_stages
 from planner.limits import JointLimits, joint_limits_from_drives
 from planner.model import RobotModel
+from planner.speed_band import DEFAULT_SPEED_BAND
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent.parent / "configs"
 DEFAULT_CELL = CONFIG_DIR / "cells" / "arm6.yaml"
@@ -29,6 +30,7 @@ class PlanningConfig:
     torque_limits: bool = True  # only where the URDF has effort limits and masses
     position_tolerance_qc: float = 1.0
     budget_ms: float = 200.0  # a plan's deadline when its request sets none (service/cell_planner.py)
+    speed_band: float = DEFAULT_SPEED_BAND  # planner.speed_band: the path speed's drop allowed for fewer records
     # joint units / s^3 per joint in the model's joint order (inf: that axis sets none); None: no axis sets one
     max_jerk: tuple[float, ...] | None = None
 

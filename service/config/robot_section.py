@@ -14,6 +14,8 @@ from service.config.cell import CONFIG_DIR, PlanningConfig
 from service.config.fields import Fields
 
 ROBOTS_DIR = CONFIG_DIR / "robots"  # the shipped robots a cell file may name (robot.name)
+# planning.speed_band: a motion up to twice as long is the most a cell should trade for fewer records
+MAX_SPEED_BAND = 0.5
 
 
 def shipped_robots() -> list[str]:
@@ -50,7 +52,7 @@ def parse_planning(file: Path, data: Any, tcp_frame: str | None, model: RobotMod
         file,
         "planning",
         data,
-        ("max_tcp_speed", "max_tcp_angular_speed", "torque_limits", "position_tolerance_qc", "budget_ms"),
+        ("max_tcp_speed", "max_tcp_angular_speed", "torque_limits", "position_tolerance_qc", "budget_ms", "speed_band"),
     )
     max_tcp = f.get("max_tcp_speed", f.number(positive=True), None)
     if max_tcp is not None and tcp_frame is None:
@@ -59,6 +61,9 @@ def parse_planning(file: Path, data: Any, tcp_frame: str | None, model: RobotMod
     if max_turn is not None and tcp_frame is None:
         raise f.error("max_tcp_angular_speed", "needs robot.tcp_frame to know which frame to limit")
     torque = f.get("torque_limits", f.boolean, True)
+    band = f.get("speed_band", f.number(), PlanningConfig.speed_band)
+    if not 0.0 <= band <= MAX_SPEED_BAND:
+        raise f.error("speed_band", f"must be in [0, {MAX_SPEED_BAND}] (a fraction of the path speed), got {band!r}")
     return PlanningConfig(
         tcp_frame=tcp_frame,
         max_tcp_speed=max_tcp,
@@ -66,4 +71,5 @@ def parse_planning(file: Path, data: Any, tcp_frame: str | None, model: RobotMod
         torque_limits=torque and model.has_dynamics,
         position_tolerance_qc=f.get("position_tolerance_qc", f.number(positive=True), 1.0),
         budget_ms=f.get("budget_ms", f.number(positive=True), PlanningConfig.budget_ms),
+        speed_band=band,
     )

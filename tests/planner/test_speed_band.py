@@ -96,3 +96,26 @@ def test_planner_flattens_only_plans_without_a_jerk_limit() -> None:
 def test_planner_refuses_a_band_outside_0_1(band: float) -> None:
     with pytest.raises(ValueError, match="speed_band must be in"):
         Planner(ARM.joint_limits(), speed_band=band)
+
+
+def test_a_straight_move_keeps_its_cruise_speed() -> None:
+    """Accelerate, cruise, brake along one axis: three spans of constant s'' already, so the band
+    gains nothing and costs (almost) nothing; a greedy split cruised at the band's lower edge."""
+    limits = GANTRY.joint_limits()
+    start = limits.lower + 0.2 * (limits.upper - limits.lower)
+    goal = start.copy()
+    goal[0] = limits.lower[0] + 0.8 * (limits.upper[0] - limits.lower[0])
+    plain = Planner(limits, speed_band=0.0).plan(PlanInput([start, goal])).trajectory
+    flat = Planner(limits).plan(PlanInput([start, goal])).trajectory
+    assert flat.duration <= plain.duration * 1.005
+
+
+def test_fewer_spans_than_toppra_with_no_more_time_than_the_band() -> None:
+    """The split's own count: the flattened profile switches s'' at a fraction of the gridpoints."""
+    limits = GANTRY.joint_limits()
+    path = JointPath(waypoints(GANTRY), limits)
+    topp = parameterize(path, limits, timing_constraints(limits))
+    flat = flattened(topp, limits, DEFAULT_SPEED_BAND)
+    changes = np.count_nonzero(np.abs(np.diff(flat.sdd)) > 1e-9 * np.abs(flat.sdd).max())
+    assert changes < 0.25 * len(flat.sdd)
+    assert flat.duration <= topp.duration / (1.0 - DEFAULT_SPEED_BAND)

@@ -228,6 +228,25 @@ def test_tcp_speed_needs_a_frame(tmp_path: Path) -> None:
     expect_error(tmp_path, data, "planning.max_tcp_speed", "needs robot.tcp_frame")
 
 
+def test_the_speed_band_is_a_planning_option(tmp_path: Path) -> None:
+    from planner.speed_band import DEFAULT_SPEED_BAND
+    from service.cell_planner import planner_for_cell
+
+    assert load_cell_config(ARM).planning.speed_band == DEFAULT_SPEED_BAND == 0.05
+    data = arm_data()
+    data.setdefault("planning", {})["speed_band"] = 0
+    cell = load_cell_config(write(tmp_path, data))
+    assert cell.planning.speed_band == 0.0 and planner_for_cell(cell).speed_band == 0.0
+
+
+@pytest.mark.parametrize("value", [-0.01, 0.6, "5 %", True, math.nan])
+def test_a_bad_speed_band_is_named(tmp_path: Path, value: Any) -> None:
+    data = arm_data()
+    data.setdefault("planning", {})["speed_band"] = value
+    err = expect_error(tmp_path, data, "planning.speed_band", "must be")
+    assert "\n" not in str(err)
+
+
 def test_mixed_profiles_cell(tmp_path: Path) -> None:
     data = arm_data()
     data["bus"]["sync_period_ms"] = 4
