@@ -18,6 +18,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import CubicSpline
+from scipy.linalg.lapack import dgtsv
 from toppra.interpolator import AbstractGeometricPath
 
 from axes.interpolation import cubic_position_range, hermite_coefficients
@@ -174,6 +175,39 @@ def _hermite_pieces(
     return np.stack((c3, c2, c1, c0))
 
 
+def not_a_knot(s: NDArray[np.float64], w: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """scipy's not-a-knot ``CubicSpline(s, w)``: its coefficients ``c`` and its slope at the last
+    waypoint, bit for bit (the same arithmetic and LAPACK's tridiagonal solver, as scipy 1.17 does
+    them) without scipy's input checks and its PPoly, which cost four times the solve. Below 4
+    waypoints scipy's special cases: scipy itself."""
+    if len(s) < 4:
+        spline = CubicSpline(s, w, bc_type="not-a-knot")
+        return np.array(spline.c), spline(s[-1], 1)
+    n = len(s)
+    dx = np.diff(s)
+    dxr = dx[:, None]
+    slope = np.diff(w, axis=0) / dxr
+    band = np.zeros((3, n))  # upper, main, lower diagonal (scipy's banded layout)
+    b = np.empty(w.shape)
+    band[1, 1:-1] = 2 * (dx[:-1] + dx[1:])
+    band[0, 2:] = dx[:-1]
+    band[-1, :-2] = dx[1:]
+    b[1:-1] = 3 * (dxr[1:] * slope[:-1] + dxr[:-1] * slope[1:])
+    band[1, 0] = dx[1]
+    band[0, 1] = d = s[2] - s[0]
+    b[0] = ((dxr[0] + 2 * d) * dxr[1] * slope[0] + dxr[0] ** 2 * slope[1]) / d
+    band[1, -1] = dx[-2]
+    band[-1, -2] = d = s[-1] - s[-3]
+    b[-1] = (dxr[-1] ** 2 * slope[-2] + (2 * d + dxr[-1]) * dxr[-2] * slope[-1]) / d
+    _, _, _, m, info = dgtsv(band[2, :-1], band[1, :], band[0, 1:], b, 1, 1, 1, 1)
+    if info != 0:
+        raise np.linalg.LinAlgError("singular matrix")
+    t = (m[:-1] + m[1:] - 2 * slope) / dxr
+    c = np.stack((t / dxr, (slope - m[:-1]) / dxr - t, m[:-1], w[:-1]))
+    h = s[-1] - s[-2]  # the last piece's slope at its end, in scipy's order of evaluation
+    return c, c[2, -1] + c[1, -1] * h * 2.0 + c[0, -1] * (h * h) * 3.0
+
+
 def within_limits_pieces(
     s: NDArray[np.float64], w: NDArray[np.float64], lower: NDArray[np.float64], upper: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
@@ -191,9 +225,8 @@ def within_limits_pieces(
     the spline's own coefficients, bit for bit.
     """
     n = len(w)
-    spline = CubicSpline(s, w, bc_type="not-a-knot")
-    c = np.array(spline.c)
-    slopes = np.vstack((c[2], spline(s[-1], 1)[None, :]))
+    c, end_slope = not_a_knot(s, w)
+    slopes = np.vstack((c[2], end_slope[None, :]))
     h = np.diff(s)
     p = np.clip(w, lower, upper)  # on the limit at worst: every slope range holds 0
     clamped = np.zeros(w.shape, dtype=bool)
