@@ -68,11 +68,13 @@ def make_gridpoints(path: JointPath, n: int) -> NDArray[np.float64]:
     ends = np.concatenate((steps, length - steps))
     kinks = (path.kinks[:, None] + np.concatenate((steps, -steps))[None, :]).ravel()
     kinks = kinks[(kinks > 0.0) & (kinks < length)]
-    grid = np.union1d(np.union1d(np.linspace(0.0, length, n + 1), path.waypoint_s), np.union1d(ends, kinks))
+    grid = np.unique(np.concatenate((np.linspace(0.0, length, n + 1), path.waypoint_s, ends, kinks)))
     # drop slivers left by the union (they only cost time): the later point of the pair, unless it
     # is a waypoint (the path's pieces meet there: a waypoint is always a gridpoint), then the earlier
     sliver = np.diff(grid) <= 1e-3 * h * END_REFINEMENT[-1]
-    waypoint = np.isin(grid, path.waypoint_s)
+    # the waypoints are gridpoints (sorted, distinct): where each one sits in the grid
+    waypoint = np.zeros(len(grid), dtype=bool)
+    waypoint[np.searchsorted(grid, path.waypoint_s)] = True
     drop = np.zeros(len(grid), dtype=bool)
     drop[1:] = sliver & ~waypoint[1:]
     drop[:-1] |= sliver & waypoint[1:] & ~waypoint[:-1]
