@@ -89,14 +89,51 @@ class _StageRows:
     def u_range_at(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The exact range [lo, hi] of u that satisfies every row and box at x (one x per stage;
         lo = inf where none does)."""
-        A = self.A
-        r = self.B * x[:, None] + self.C
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            bound = -r / A
-        hi = np.minimum(self.u_hi, np.min(np.where(A > 0.0, bound, np.inf), axis=1, initial=np.inf))
-        lo = np.maximum(self.u_lo, np.max(np.where(A < 0.0, bound, -np.inf), axis=1, initial=-np.inf))
-        lo[np.any((A == 0.0) & (r > 0.0), axis=1) | (x < self.x_lo) | (x > self.x_hi)] = np.inf
-        return lo, hi
+        return _u_range(self.A, self.B, self.C, self.u_lo, self.u_hi, self.x_lo, self.x_hi, x)
+
+
+@njit(cache=True)
+def _nan_min(a: float, b: float) -> float:
+    """numpy's minimum: NaN if either is."""
+    return a if a != a or a < b else b
+
+
+@njit(cache=True)
+def _nan_max(a: float, b: float) -> float:
+    """numpy's maximum: NaN if either is."""
+    return a if a != a or a > b else b
+
+
+@njit(cache=True)
+def _u_range(
+    A: NDArray[np.float64],
+    B: NDArray[np.float64],
+    C: NDArray[np.float64],
+    u_lo: NDArray[np.float64],
+    u_hi: NDArray[np.float64],
+    x_lo: NDArray[np.float64],
+    x_hi: NDArray[np.float64],
+    x: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``_StageRows.u_range_at`` in one pass over the rows: each row's bound -(B x + C) / A on u
+    where A is not 0 (an upper bound where A > 0, a lower where A < 0); a row with A = 0 that
+    B x + C > 0 breaks, or x outside its box, leaves no u (lo = inf)."""
+    n, m = A.shape
+    lo, hi = np.empty(n), np.empty(n)
+    for i in range(n):
+        top, bottom, broken = np.inf, -np.inf, False
+        for k in range(m):
+            r = B[i, k] * x[i] + C[i, k]
+            a = A[i, k]
+            if a > 0.0:
+                top = _nan_min(top, -r / a)
+            elif a < 0.0:
+                bottom = _nan_max(bottom, -r / a)
+            elif a == 0.0 and r > 0.0:
+                broken = True
+        hi[i] = _nan_min(u_hi[i], top)
+        lo[i] = np.inf if broken or x[i] < x_lo[i] or x[i] > x_hi[i] else _nan_max(u_lo[i], bottom)
+    return lo, hi
 
 
 # rows whose u-coefficient is smaller than this are not a bound on u (toppra's seidel solver, TINY)
