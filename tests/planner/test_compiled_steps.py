@@ -4,7 +4,10 @@
 and ``split_verdict`` each do in one call what ``lsq_fit`` / ``split_segments``, ``round_knots`` /
 ``check_knots`` / ``repair_rounds`` and a few numpy operations do step by step; the TOPP-RA backward
 pass skips its LPs in a compiled loop (``lean_toppra._known_stages``) where the stage's set is known;
-the interval speed constraints build their rows in one (``constraints._interval_rows``).
+the interval speed constraints build their rows in one (``constraints._interval_rows``), and the
+stages' ranges of u at x in another (``lean_toppra._u_range``). The path's not-a-knot spline is
+scipy's ``CubicSpline`` without its wrapper (``path.not_a_knot``), the grid one ``np.unique`` of the
+candidates the unions gave.
 """
 
 from __future__ import annotations
@@ -212,3 +215,81 @@ def test_interval_speed_rows_where_nothing_moves() -> None:
     want = _speed_rows_numpy(c, out.trajectory.path, grid)
     for got, ref in zip((rows[0], rows[2], rows[6]), want, strict=True):
         np.testing.assert_array_equal(got, ref)
+
+
+def _bits(x: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(x, dtype=float).view(np.int64)
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 5, 8, 12])
+def test_not_a_knot_is_scipys_spline_bit_for_bit(n: int) -> None:
+    from scipy.interpolate import CubicSpline
+
+    from planner.path import not_a_knot
+
+    rng = np.random.default_rng(n)
+    for _ in range(200):
+        w = rng.uniform(-3.0, 3.0, (n, 6))
+        s = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(w, axis=0), axis=1))))
+        spline = CubicSpline(s, w, bc_type="not-a-knot")
+        c, end = not_a_knot(s, w)
+        assert np.array_equal(_bits(c), _bits(spline.c))
+        assert np.array_equal(_bits(end), _bits(spline(s[-1], 1)))
+
+
+def test_u_range_is_the_numpy_statements_bit_for_bit() -> None:
+    from planner.lean_toppra import _StageRows
+
+    cell = load_cell_config()
+    planner = planner_for_cell(cell)
+    rng = np.random.default_rng(11)
+    lim = cell.joint_limits()
+    wp = lim.lower + (lim.upper - lim.lower) * (0.1 + 0.8 * rng.random((8, lim.dof)))
+    path = planner.plan(PlanInput(wp)).trajectory.path
+    grid = make_gridpoints(path, 140)
+    rows = _StageRows.stack([c.compute_constraint_params(path, grid) for c in planner.constraints], len(grid))
+    xs = [rows.x_hi, np.zeros(len(grid)), rng.uniform(-1.0, 50.0, len(grid))]
+    nan_x = rng.uniform(0.0, 5.0, len(grid))
+    nan_x[::7] = np.nan
+    xs.append(nan_x)
+    for x in xs:
+        A = rows.A
+        r = rows.B * x[:, None] + rows.C
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            bound = -r / A
+        hi = np.minimum(rows.u_hi, np.min(np.where(A > 0.0, bound, np.inf), axis=1, initial=np.inf))
+        lo = np.maximum(rows.u_lo, np.max(np.where(A < 0.0, bound, -np.inf), axis=1, initial=-np.inf))
+        lo[np.any((A == 0.0) & (r > 0.0), axis=1) | (x < rows.x_lo) | (x > rows.x_hi)] = np.inf
+        for got, want in zip(rows.u_range_at(x), (lo, hi), strict=True):
+            # the same numbers, NaN where numpy's are (a NaN's sign bit is not a number)
+            num = ~np.isnan(want)
+            assert np.array_equal(np.isnan(got), ~num)
+            assert np.array_equal(_bits(got[num]), _bits(want[num]))
+    assert np.isfinite(rows.u_range_at(rows.x_hi)[1]).all()
+
+
+def test_gridpoints_are_the_unions_of_their_candidates() -> None:
+    from planner.path import JointPath
+    from planner.timing import END_REFINEMENT
+
+    lim = load_cell_config().joint_limits()
+    rng = np.random.default_rng(2)
+    for k in range(100):
+        # 90 % of the range: some paths are clamped and have kinks
+        wp = lim.lower + (lim.upper - lim.lower) * (0.05 + 0.9 * rng.random((8, lim.dof)))
+        path = JointPath(wp, lim)
+        n = 140
+        length = path.length
+        steps = length / n * END_REFINEMENT
+        ends = np.concatenate((steps, length - steps))
+        kinks = (path.kinks[:, None] + np.concatenate((steps, -steps))[None, :]).ravel()
+        kinks = kinks[(kinks > 0.0) & (kinks < length)]
+        grid = np.union1d(np.union1d(np.linspace(0.0, length, n + 1), path.waypoint_s), np.union1d(ends, kinks))
+        sliver = np.diff(grid) <= 1e-3 * (length / n) * END_REFINEMENT[-1]
+        waypoint = np.isin(grid, path.waypoint_s)
+        drop = np.zeros(len(grid), dtype=bool)
+        drop[1:] = sliver & ~waypoint[1:]
+        drop[:-1] |= sliver & waypoint[1:] & ~waypoint[:-1]
+        grid = grid[~drop]
+        grid[-1] = length
+        assert np.array_equal(_bits(make_gridpoints(path, n)), _bits(grid)), k
