@@ -92,6 +92,7 @@ class GroupStart:
                 if not isinstance(feeder, BufferFeeder):
                     feeder.preload()
             self._start_sync = sync.count + 1
+            self._start_sent = None
             if self.bus.config.max_sync_gap_periods is None:  # the profiles say (axes.sync)
                 gaps = (p.max_sync_gap_ms(prog) for p, prog in zip(self.profiles, self._programs, strict=True))
                 sync.max_gap_s = min(gaps) / 1000.0
@@ -120,7 +121,7 @@ class GroupStart:
         while not preload_shared(self._feeders, self.allowance):
             sync.keep_period()
             owed = sync.step()
-            self.allowance.new_period()
+            self.allowance.new_period(sync.count)
             silent = sorted({cob & 0x7F for cob in sync.wait_answered(owed, self.bus.lost_sync_timeout_s)})
             if silent:
                 self.configured = False
