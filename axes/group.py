@@ -21,10 +21,13 @@ cell (the links, homed since boot, one activity at a time), in ``axes.run_state`
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+
+import can
 
 from axes.budget import bus_budget
 from axes.bus import CellBus
@@ -270,7 +273,9 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         if link.buffer_status:
             feeder.on_status(link.buffer_status)
         if isinstance(feeder, BufferFeeder) and not self.bus.sync.lockstep:
-            with self._lock:
+            # one try per record: a full transmit queue keeps its room for SYNC and the setpoints, and
+            # a record refused waits for the next top-up (the FIFO's depth covers it)
+            with self._lock, self.bus.network.patient(0), contextlib.suppress(can.CanError):
                 if self._running and self._ending is None and self._start_sent is not None:
                     self._feed()
 
