@@ -6,16 +6,23 @@ Two kinds, both driven by events only (the SYNC answers and the status TPDO), ne
   two above the underflow warning level), then after every SYNC tops the FIFO up towards the
   overflow warning mark. Every record comes out of the cell's ``RecordAllowance``: the records the
   bus budget (``axes.budget``) leaves room for in one SYNC period, shared by every buffered axis of
-  the cell and handed out by need (``top_up_by_need``: one record at a time to the axis whose FIFO is
-  lowest), so that no SYNC period carries more records than the budget, the start included: a
+  the cell and handed out by need (``top_up_by_need``: one record at a time to the axis whose FIFO
+  is lowest), so that no SYNC period carries more records than the budget, the start included: a
   preload larger than one period's allowance goes out over several periods before the start SYNC
-  (``axes.group``). A feeder on its own (no cell) has an allowance of its own, ``TOP_UP_PER_SYNC``.
-  Depth is what rides out a stalled master, so the FIFO is kept deep. The EPOS2 does not PDO-map its
-  FIFO level (0x60C4:02), so the level is *estimated*: records sent minus records consumed, a record
-  being consumed once the drive's clock (one SYNC period per SYNC since the start SYNC) has passed
-  its end time. The estimate counts the segment in progress as still buffered, so it is never
-  below the true level; the warning bits of 0x20C4:01 correct it (overflow warning: the level is at
-  least 0x20C4:03, stop; underflow warning: it is below 0x20C4:02, send what is left of this period's
+  (``axes.group``). The allowance is renewed once per SYNC *sent* (``RecordAllowance.at_sync``),
+  whoever tops up first in that period. A feeder on its own (no cell) has an allowance of its own,
+  ``TOP_UP_PER_SYNC``. Depth is what rides out a stalled master, so the FIFO is kept deep. The EPOS2
+  does not PDO-map its FIFO level (0x60C4:02), so the level is *estimated*: records sent minus
+  records consumed, a record being consumed once the drive's clock has passed its end time. That
+  clock (``run_to``) is one SYNC period per SYNC since the start SYNC in lockstep; on the wall clock
+  it is the wall time since the start SYNC went out (``axes.group``): the drive runs its records on
+  its own quartz from that SYNC, whether the next SYNCs are late and whether the other drives answer
+  them, so a count of answered SYNCs would fall behind it and starve the FIFO (bench/RESULTS.md,
+  "the buffered EPOS2 on the wall clock"). The master's time runs at or ahead of the drive's (the
+  drive starts at the SYNC's arrival), which errs toward a lower estimate, never toward an
+  underflow. The estimate counts the segment in progress as still buffered, so it is never below the
+  true level; the warning bits of 0x20C4:01 correct it (overflow warning: the level is at least
+  0x20C4:03, stop; underflow warning: it is below 0x20C4:02, send what is left of this period's
   allowance). After the last record the time-0 end record goes out.
 - ``SetpointFeeder`` (fixed-period profiles): one setpoint per SYNC, sent ahead by the profile's
   delay so that record k is reached at (k + 1) periods on the program's timeline. Its frames are
@@ -62,10 +69,20 @@ class RecordAllowance:
         self.periods = 0  # periods begun
         self.most = 0  # the most records sent in one period so far
 
-    def new_period(self) -> None:
-        """A SYNC went out: the next period's records."""
+        self.sync = -1  # the SYNC whose period ``left`` is for (``at_sync``)
+
+    def new_period(self, sync: int | None = None) -> None:
+        """A SYNC went out: the next period's records (``sync``: its number, when known)."""
         self.left = self.per_sync
         self.periods += 1
+        if sync is not None:
+            self.sync = sync
+
+    def at_sync(self, sync: int) -> None:
+        """The period after SYNC ``sync`` (the last one sent): renewed once per SYNC, by whichever top-up
+        comes first in it (a SYNC's answers, or a buffered drive's own status frame)."""
+        if sync > self.sync:
+            self.new_period(sync)
 
     def take(self) -> bool:
         """One record, if this period has room for it."""
@@ -217,9 +234,13 @@ class BufferFeeder(Feeder):
             self.stats.level(self.level)
         return self.next
 
+    def run_to(self, elapsed_ms: float) -> None:
+        """The drive's clock is at ``elapsed_ms`` from the start SYNC (it never runs back)."""
+        self.elapsed_ms = max(self.elapsed_ms, elapsed_ms)
+
     def on_sync(self, elapsed: int) -> None:
         """The drive's clock moves on; a feeder on its own tops up (a cell's: ``top_up_by_need``)."""
-        self.elapsed_ms = elapsed * self.period_ms
+        self.run_to(elapsed * self.period_ms)
         if self._own:
             self.allowance.new_period()
             self._top_up()

@@ -21,17 +21,20 @@ cell (the links, homed since boot, one activity at a time), in ``axes.run_state`
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+
+import can
 
 from axes.budget import bus_budget
 from axes.bus import CellBus
 from axes.bus_faults import BusFault, FaultKind
 from axes.cia402 import Statusword, decode_state
 from axes.config import AxisConfig, Wiring
-from axes.feeder import Feeder, RecordAllowance, top_up_by_need
+from axes.feeder import BufferFeeder, Feeder, RecordAllowance, top_up_by_need
 from axes.group_configure import GroupConfiguration
 from axes.group_halt import GroupHalt
 from axes.group_start import GroupStart
@@ -97,6 +100,7 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         self._feeders: list[Feeder] = []
         self._programs: list[AxisProgram] = []
         self._start_sync: int | None = None
+        self._start_sent: float | None = None  # time.monotonic() once the start SYNC was out (wall clock)
         self._ip_start: list[int | None] = []
         self._ending: RunResult | None = None  # set once the run is halting / ending
         self._halt_deadline: int | None = None
@@ -120,8 +124,7 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
             link.status_listeners.append(self._on_status)
         self._status_lag = max((p.sync_answer_every for p in self.profiles), default=1) - 1
         bus.on_fault(self._on_bus_fault)
-        if any(p.fixed_period for p in self.profiles):
-            bus.sync.add_sender(self._after_sync)
+        bus.sync.add_sender(self._after_sync)  # the fixed-period setpoints; the start SYNC's time
 
     def _event(self, kind: EventKind, message: str, link: AxisLink | None = None) -> None:
         if self.on_event is not None:
@@ -175,6 +178,8 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         start = self._start_sync
         if not self._running or start is None or n < start:
             return
+        if n == start:
+            self._start_sent = time.monotonic()  # t = 0 of the buffered drives' records
         for feeder in self._feeders:  # halting: only the stop ramps of drives without a ramp (_halt)
             feeder.after_sync(n - start)
 
@@ -193,10 +198,9 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
             if self._ending is None and elapsed >= START_CHECK_SYNCS + self._status_lag:
                 self._check_started()
             if self._ending is None:
-                self.allowance.new_period()
                 for feeder in self._feeders:
                     feeder.on_sync(elapsed)
-                top_up_by_need(self._feeders, self.allowance)
+                self._feed()
                 self._check_finished(elapsed)
             else:
                 self._check_halted(n)
@@ -243,13 +247,37 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
             self.bus.sync.stop()
             self._end(self._result(Result.FINISHED, "every axis reached its end record"))
 
+    def _feed(self) -> None:
+        """Top the buffered axes up from the allowance of the period of the last SYNC sent (group lock
+        held). On the wall clock their drives' clock is the time since the start SYNC went out
+        (``axes.feeder``), not the SYNCs every drive has answered: one drive's late answers must not
+        stop another drive's feed while that one runs its records on its own clock."""
+        sync = self.bus.sync
+        self.allowance.at_sync(sync.count)
+        if not sync.lockstep and self._start_sent is not None:
+            elapsed_ms = (time.monotonic() - self._start_sent) * 1000.0
+            for feeder in self._feeders:
+                if isinstance(feeder, BufferFeeder):
+                    feeder.run_to(elapsed_ms)
+        top_up_by_need(self._feeders, self.allowance)
+
     def _on_status(self, link: AxisLink) -> None:
-        """A TPDO arrived (notifier thread): buffered feeders react to the buffer status at once."""
+        """A TPDO arrived (notifier thread): buffered feeders react to the buffer status at once; on
+        the wall clock a buffered drive's own answer tops it up too, whatever the others' answers do."""
         if not self._running:
             return
         i = self.links.index(link)
-        if self._feeders and link.buffer_status:
-            self._feeders[i].on_status(link.buffer_status)
+        if not self._feeders:
+            return
+        feeder = self._feeders[i]
+        if link.buffer_status:
+            feeder.on_status(link.buffer_status)
+        if isinstance(feeder, BufferFeeder) and not self.bus.sync.lockstep:
+            # one try per record: a full transmit queue keeps its room for SYNC and the setpoints, and
+            # a record refused waits for the next top-up (the FIFO's depth covers it)
+            with self._lock, self.bus.network.patient(0), contextlib.suppress(can.CanError):
+                if self._running and self._ending is None and self._start_sent is not None:
+                    self._feed()
 
     def _on_bus_fault(self, fault: BusFault) -> None:
         link = next((lk for lk in self.links if lk.node_id == fault.node_id), None)

@@ -88,15 +88,19 @@ class GroupStart:
             self.state.claim(self, "the cell is homing: one motion at a time")
             self._done.clear()
             self._running = True
-            for feeder in self._feeders:  # the fixed-period setpoints the start SYNC validates
-                if not isinstance(feeder, BufferFeeder):
-                    feeder.preload()
             self._start_sync = sync.count + 1
+            self._start_sent = None
             if self.bus.config.max_sync_gap_periods is None:  # the profiles say (axes.sync)
                 gaps = (p.max_sync_gap_ms(prog) for p, prog in zip(self.profiles, self._programs, strict=True))
                 sync.max_gap_s = min(gaps) / 1000.0
-            for link, profile in zip(self.links, self.profiles, strict=True):
-                link.send_controlword(profile.start_controlword())
+            # before the start SYNC nothing waits on these frames: a full transmit queue only delays
+            # them by the wire time of what is ahead (as the preload's)
+            with self.bus.network.patient(PRELOAD_PATIENCE_S):
+                for feeder in self._feeders:  # the fixed-period setpoints the start SYNC validates
+                    if not isinstance(feeder, BufferFeeder):
+                        feeder.preload()
+                for link, profile in zip(self.links, self.profiles, strict=True):
+                    link.send_controlword(profile.start_controlword())
             sync.add_listener(self._on_sync)
             self.bus.watch.arm_sync_watch()
             self._event(EventKind.STARTED, f"program of {program.duration_ms} ms started on SYNC {self._start_sync}")
@@ -120,7 +124,7 @@ class GroupStart:
         while not preload_shared(self._feeders, self.allowance):
             sync.keep_period()
             owed = sync.step()
-            self.allowance.new_period()
+            self.allowance.new_period(sync.count)
             silent = sorted({cob & 0x7F for cob in sync.wait_answered(owed, self.bus.lost_sync_timeout_s)})
             if silent:
                 self.configured = False

@@ -12,6 +12,12 @@ the velocity change against 0x60C5 (the velocity, against 0x607F, where the dema
 program's linear reconstruction has for whole-count setpoints (``linear_step_acceleration``, the
 validator's), so a validated program and the master's stop ramp (``axes.stop_ramp``) pass and a
 stream whose step changes faster faults the drive (EMCY 0x8400, as 0x607F does).
+
+The judge's arithmetic is compiled (numba, ``axes.interpolation``): the first compiled call in a
+process loads numba's CPU target, 0.5-1.2 s on the development host. A stream loads it when it is
+made (with its drive, before the drive answers any SYNC), so that a drive never spends that time
+inside its first SYNC of a motion holding its lock: measured, the bufferless drive of gantry3-mixed
+then answered every SYNC 0.6 s late (bench/RESULTS.md, "the buffered EPOS2 on the wall clock").
 """
 
 from __future__ import annotations
@@ -27,6 +33,9 @@ class SetpointStream:
 
     last: float | None = None
     velocity: float = 0.0
+
+    def __post_init__(self) -> None:
+        linear_step_acceleration(0.0, 0.0, 1.0)  # compiled now, not in a SYNC (module docstring)
 
     def reset(self) -> None:
         self.last = None

@@ -10,12 +10,14 @@ import time
 import can
 import numpy as np
 import pytest
-from axes_programs import check_limits, program
+from axes_programs import axis_program, check_limits, program, safe_distance
 from axes_rig import listening_bus
 
 from axes.cia402 import PowerState, decode_state
 from axes.feeder import BufferFeeder
 from axes.outcome import GroupError, Result
+from axes.program import PvtProgram
+from service.config import CONFIG_DIR, load_cell_config
 
 
 def test_six_axes_start_on_one_sync_and_end_on_their_last_records(arm6, make_rig):
@@ -439,3 +441,46 @@ def test_a_drive_silent_at_the_check_sync_refuses_the_start(arm6, make_rig):
     time.sleep(0.05)
     for drive in rig.sim:
         assert drive.ip_active_sync == started[drive.node_id] and not drive.ip_active  # never started again
+
+
+def test_a_drive_that_answers_sync_late_does_not_starve_the_epos2_beside_it(make_rig):
+    """On the wall clock the EPOS2 runs its records on its own clock from the start SYNC, whatever the
+    other drives do. Here the bufferless drive beside it (standing still) stops answering SYNC for
+    0.5 s from the start (its thread held, as a stalled drive process held it) and then answers the
+    SYNCs it owes: the EPOS2's feed follows the time since the start SYNC and the EPOS2's own
+    answers, not the SYNCs every drive has answered, so its FIFO never runs dry (it did: an underflow
+    EMCY 0xFF0C, the feed stalled at 12 records). Lockstep cannot show it: there every SYNC waits for
+    every answer, and the EPOS2's time with it."""
+    cell = load_cell_config(CONFIG_DIR / "cells" / "gantry3-mixed.yaml")
+    # what is judged is the EPOS2's feed: a SYNC late on this shared host is not this test's failure
+    cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, max_sync_gap_periods=20.0))
+    rig = make_rig(cell, lockstep=False)
+    epos2, late = rig.sim.drive(11), rig.sim.drive(13)
+    rig.group.refresh()
+    moves = []
+    for axis, link in zip(rig.cell.ordered_axes(), rig.group.links, strict=True):
+        start = int(link.position or 0)
+        toward = 1 if (axis.limits.min_position_qc + axis.limits.max_position_qc) / 2 > start else -1
+        distance = toward * safe_distance(axis, 2000) if axis.node_id == epos2.node_id else 0  # the others stand
+        moves.append(axis_program(axis, start, distance, 2000))
+    prog = PvtProgram(rig.cell.name, tuple(moves))
+    held = threading.Event()
+
+    def stall() -> None:
+        deadline = time.monotonic() + 10.0
+        while not rig.group.running and time.monotonic() < deadline:
+            time.sleep(0.0005)
+        with late.lock:  # from the start SYNC on, as the first SYNC of a motion held the measured drive
+            held.set()
+            time.sleep(0.5)
+
+    staller = threading.Thread(target=stall, daemon=True)
+    staller.start()
+    result = rig.group.run(prog, timeout_s=30)
+    staller.join(5.0)
+    assert held.is_set(), result.message
+    feed = rig.group.feeders[0]
+    assert isinstance(feed, BufferFeeder)
+    assert feed.stats.underflows == 0 and epos2.faults == [], (result.message, feed.stats)
+    assert result.ok, (result.message, late.faults)
+    assert epos2.actual == prog.axes[0].records[-1, 0]

@@ -426,6 +426,32 @@ def test_a_transmit_queue_that_stays_full_is_retried_then_halts_and_is_reported(
         close_rig(sim, bus, group)
 
 
+def test_a_transmit_queue_full_just_before_the_start_sync_delays_the_start_words_and_the_run_goes_on(arm6):
+    """The start controlwords and the first setpoints go out before the start SYNC, when nothing waits
+    on them: a queue full for longer than the 2 ms of retries a running SYNC allows delays them, as
+    it delays the preload, instead of ending the start in an error (seen with the drives in their
+    own process: ``0x30D not sent within 2.0 ms``)."""
+    cell = fixed_period_cell(arm6, 5)
+    cell, sim, bus, group = sim_rig(cell, lockstep=True, interface="pvtflow_test_flaky", max_sync_gap_periods=50)
+    try:
+        prog = program(cell.ordered_axes(), 300, fraction=0.3)
+        tries = bus.network.tx_retries
+        keep_period = bus.sync.keep_period
+
+        def full_queue_then_keep_period() -> None:  # the start's last step before its start words
+            FlakyBus.fail(bus.config.channel, 0.01)  # 10 ms: past the 2 ms of retries
+            keep_period()
+
+        bus.sync.keep_period = full_queue_then_keep_period  # type: ignore[method-assign]
+        assert group.start(prog) is None
+        result = group.wait(30.0)
+        assert bus.network.tx_retries > tries  # the queue was full while the start words went out
+        assert result.ok, result.message
+    finally:
+        FlakyBus.failing_until.pop(bus.config.channel, None)
+        close_rig(sim, bus, group)
+
+
 def test_a_sync_gap_beyond_the_limit_halts_the_motion_on_the_wall_clock(arm6):
     cell = fixed_period_cell(arm6, 10)
     cell, sim, bus, group = sim_rig(cell, lockstep=False, max_sync_gap_periods=5)
