@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from axes.program import PvtProgram
 from planner.build import BuildError, BuildOutput, build_program
 from planner.cartesian import placement_pose
-from planner.knots import KnotOptions, jerk_smooth
+from planner.knots import KnotOptions, jerk_smooth, quantize
 from planner.path import PlanResult
 from planner.plan import PlanInput, Planner, PlanOutput
 from service.config import CellConfig
@@ -107,6 +107,7 @@ class CellPlanner:
         lo, hi = self.limits.lower, self.limits.upper
         a, b = lo + 0.45 * (hi - lo), lo + 0.55 * (hi - lo)
         self.plan(PlanInput(np.array([a, b])))
+        quantize.warm_up()  # the repair that may move knots, which a short move rarely needs
         if jerk:
             ja, jb = lo + 0.4 * (hi - lo), lo + 0.6 * (hi - lo)
             self.plan(PlanInput(np.array([ja, jb]), max_jerk=10.0 * self.limits.acceleration))

@@ -44,7 +44,9 @@ class Flat:
             smp.n_ms + 1,
             smp.position[list(cols)].ravel(),
             smp.velocity[list(cols)].ravel(),
-            *axis_constants(tuple(axes)),
+            # own copies: the cached constants are read-only, and numba compiles a read-only array
+            # as another type (a plan whose axes drop out would compile again, seconds, mid-request)
+            *(c.copy() for c in axis_constants(tuple(axes))),
             smp.window_jerk[list(cols)],
             np.arange(len(axes)),
         )

@@ -153,3 +153,28 @@ def shifted_records(fl: Flat, placed: tuple[AxisKnots, float], opts: KnotOptions
         return placed
     moved = axis_records(fl, 0, knots, P, V, chk, opts.dwell_ms)
     return moved if moved[1] < placed[1] else placed
+
+
+def warm_up() -> None:
+    """Load the repair's compiled loop with the types the placement calls it with (numba's cache),
+    as a service does at start: a warm-up move rarely needs the repair that may move knots, and a
+    first real plan would pay the load (or on a new machine the compilation, seconds) in its budget."""
+    knots = np.array([0, 10, 20], dtype=np.int64)
+    P, V = np.array([0, 5, 10], dtype=np.int64), np.array([0, 1, 0], dtype=np.int64)
+    one = np.ones(1)
+    plan = np.linspace(0.0, 10.0, 21)
+    per_axis = (one, one, one, -1e9 * one, 1e9 * one, 1e3 * one)
+    for shift in (0, 1):
+        kernels.repair_chains(
+            knots.copy(),
+            P.copy(),
+            V.copy(),
+            np.array([0], dtype=np.int64),
+            _REPAIR_REACH,
+            shift,
+            21,
+            *per_axis,
+            plan,
+            np.full(21, 0.5),
+            1.0,
+        )
