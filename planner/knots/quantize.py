@@ -156,25 +156,21 @@ def shifted_records(fl: Flat, placed: tuple[AxisKnots, float], opts: KnotOptions
 
 
 def warm_up() -> None:
-    """Load the repair's compiled loop with the types the placement calls it with (numba's cache),
-    as a service does at start: a warm-up move rarely needs the repair that may move knots, and a
-    first real plan would pay the load (or on a new machine the compilation, seconds) in its budget."""
-    knots = np.array([0, 10, 20], dtype=np.int64)
-    P, V = np.array([0, 5, 10], dtype=np.int64), np.array([0, 1, 0], dtype=np.int64)
+    """Load the repair's and the check's compiled loops with the types the placement's own calls
+    pass (numba's cache), as a service does at start: a warm-up move rarely needs the repair that
+    may move knots, and a first real plan would pay the load (on a new machine the compilation,
+    seconds) inside its budget. tests/service/test_warm_up.py holds every kernel to this."""
     one = np.ones(1)
     plan = np.linspace(0.0, 10.0, 21)
-    per_axis = (one, one, one, -1e9 * one, 1e9 * one, 1e3 * one)
+    fl = Flat((), 21, plan, np.full(21, 0.5), one, one, one, 1e3 * one, -1e9 * one, 1e9 * one, one, one,
+              np.full(1, np.inf), np.arange(1))  # fmt: skip
+    knots = np.array([0, 10, 20], dtype=np.int64)
+    P, V = np.array([0, 5, 10], dtype=np.int64), np.array([0, 1, 0], dtype=np.int64)
+    checked = check_knots(fl, knots, P, V)
+    per_axis = (fl.f, fl.rv_per, fl.ra_per, fl.pos_lo, fl.pos_hi, fl.v_units)
     for shift in (0, 1):
+        segments = np.flatnonzero(np.ones(2, dtype=bool))
         kernels.repair_chains(
-            knots.copy(),
-            P.copy(),
-            V.copy(),
-            np.array([0], dtype=np.int64),
-            _REPAIR_REACH,
-            shift,
-            21,
-            *per_axis,
-            plan,
-            np.full(21, 0.5),
-            1.0,
+            knots.copy(), P.copy(), V.copy(), segments, _REPAIR_REACH, shift, fl.stride, *per_axis, fl.p, fl.v, 1.0
         )
+    check_knots(fl, knots, P, V, checked)

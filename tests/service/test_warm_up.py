@@ -1,0 +1,64 @@
+"""After a service's warm-up, no request compiles: every planner kernel a plan calls was loaded with
+the types it is called with. On a new machine a kernel compiled mid-request costs seconds (a fresh
+clone's first straight tool line took 3.9 s against its 200 ms budget), so a new numba type seen
+only after the warm-up is a bug, whatever the cache on this machine holds.
+
+The check runs in a child interpreter: this one has planned every kind of motion by now."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+CHILD = r"""
+import json, sys
+import numpy as np
+from numba.core.registry import CPUDispatcher
+
+from planner.plan import PlanInput
+from service.cell_planner import CellPlanner
+from service.config import load_cell_config
+
+
+def signatures():
+    seen = {}
+    for name, module in list(sys.modules.items()):
+        if not (name.startswith("planner") or name.startswith("axes")):
+            continue
+        for attr, value in vars(module).items():
+            if isinstance(value, CPUDispatcher):
+                seen[f"{value.py_func.__module__}.{value.py_func.__qualname__}"] = sorted(map(str, value.signatures))
+    return seen
+
+
+cell = load_cell_config(None)
+planner = CellPlanner(cell)
+planner.warm_up()
+before = signatures()
+start = np.array([0.2, 0.3, 0.4, 0.1, 0.6, 0.2])
+pose = [0.7, 0.17, -0.04, 0.07, 0.61, 0.02, 0.789]
+planner.plan(PlanInput(start, [pose, [0.7, 0.27, -0.04, 0.07, 0.61, 0.02, 0.789]], "linear"))
+planner.plan(PlanInput(start, [pose], "joint"))
+lo, hi = planner.limits.lower, planner.limits.upper
+rng = np.random.default_rng(7)
+for _ in range(4):
+    planner.plan(PlanInput(lo + (0.15 + 0.7 * rng.random((8, len(lo)))) * (hi - lo)))
+jerk = 10.0 * planner.limits.acceleration
+planner.plan(PlanInput(lo + (0.3 + 0.4 * rng.random((3, len(lo)))) * (hi - lo), max_jerk=jerk))
+after = signatures()
+new = {k: sorted(set(v) - set(before.get(k, []))) for k, v in after.items()}
+print(json.dumps({k: v for k, v in new.items() if v}))
+"""
+
+
+def test_no_plan_compiles_after_the_warm_up():
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD], cwd=ROOT, capture_output=True, text=True, timeout=600, check=False
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    compiled_mid_request = json.loads(out.stdout.strip().splitlines()[-1])
+    assert compiled_mid_request == {}
