@@ -256,18 +256,19 @@ class SyncClock:
             with self.bus.network.together():  # one write where the interface takes a run of frames
                 if sync_frame:
                     self.bus.network.send_message(SYNC_COB_ID, b"")
+                # taken once the SYNC is sent (the senders below see this SYNC's time): a thread preempted
+                # between the decision and the send would otherwise let the next SYNC follow this one
+                # within half a period on the bus
+                now = time.monotonic()
+                self.last_sent = now
+                if self.sent_at is not None:
+                    self.longest_gap_s = max(self.longest_gap_s, now - self.sent_at)
+                self.sent_at = now
                 if self.time_stamp_cob_id is not None:
                     stamp = (time.monotonic_ns() // 1000 - self._t0_us) & 0xFFFFFFFF
                     self.bus.network.send_message(self.time_stamp_cob_id, struct.pack("<I", stamp))
                 for send in self._senders:
                     send(self.count)
-            # taken once the frames are out: a thread preempted between the decision and the send would
-            # otherwise let the next SYNC follow this one within half a period on the bus
-            now = time.monotonic()
-            self.last_sent = now
-            if self.sent_at is not None:
-                self.longest_gap_s = max(self.longest_gap_s, now - self.sent_at)
-            self.sent_at = now
             if not self._completing and any(n > 1 for n in self._every.values()):
                 # drives whose status TPDO goes out every n SYNCs may owe no answer for this one: its
                 # listeners run now, in the sending thread, as no answer will bring them
