@@ -22,6 +22,8 @@ from axes.frame_time import frame_bits
 from axes.sim.wire import BUS_OFF, ERROR_PASSIVE, Medium, SimWireBus, WireConfigError
 from axes.sim.wire.bus_states import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_PROT
 
+from .wire_child import wire_in_a_child
+
 REPO = Path(__file__).resolve().parents[3]
 SYNC = 0x80
 PERIOD = 0.001
@@ -452,25 +454,9 @@ def test_sdo_upload_and_download_in_process(buses: Buses, clock: str) -> None:
 def server(request: pytest.FixtureRequest) -> Iterator[tuple[str, str]]:
     """A simwire server in a child process; yields (channel string, clock)."""
     clock = request.param
-    code = (
-        "import sys\n"
-        "from axes.sim.wire import serve_wire\n"
-        f"s = serve_wire('cell', 0, clock={clock!r}, bitrate={SERVED_BITRATE}, sync_period={PERIOD})\n"
-        "print(s.address, flush=True)\n"
-        "sys.stdin.read()\n"
-        "s.close()\n"
-    )
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    child = subprocess.Popen(
-        [sys.executable, "-c", code], cwd=REPO, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
-    )
-    try:
-        address = child.stdout.readline().strip()
+    with wire_in_a_child(clock, SERVED_BITRATE, PERIOD) as (address, _):
         assert address.startswith("cell@127.0.0.1:")
         yield address, clock
-    finally:
-        child.stdin.close()
-        child.wait(timeout=10)
 
 
 def test_two_clients_exchange_frames_through_a_server_in_another_process(buses: Buses, server: tuple[str, str]) -> None:

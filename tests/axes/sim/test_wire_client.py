@@ -9,7 +9,6 @@ import errno
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 import uuid
@@ -24,6 +23,8 @@ from axes.frame_time import frame_bits
 from axes.network import RecordingNetwork
 from axes.sim.wire import ERROR_PASSIVE, Medium, SimWireBus
 
+from .wire_child import wire_in_a_child
+
 REPO = Path(__file__).resolve().parents[3]
 BITRATE = 125_000  # a frame about 1 ms: ten of them outrun the wire
 
@@ -31,24 +32,8 @@ BITRATE = 125_000  # a frame about 1 ms: ten of them outrun the wire
 @pytest.fixture
 def served() -> Iterator[tuple[str, subprocess.Popen]]:
     """A wall-clock simwire server in a child process; its channel string and the process."""
-    code = (
-        "import sys\n"
-        "from axes.sim.wire import serve_wire\n"
-        f"s = serve_wire('cell', 0, clock='wall', bitrate={BITRATE}, sync_period=0.001)\n"
-        "print(s.address, flush=True)\n"
-        "sys.stdin.read()\n"
-        "s.close()\n"
-    )
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    child = subprocess.Popen(
-        [sys.executable, "-c", code], cwd=REPO, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
-    )
-    try:
-        yield child.stdout.readline().strip(), child
-    finally:
-        os.kill(child.pid, signal.SIGCONT)
-        child.stdin.close()
-        child.wait(timeout=10)
+    with wire_in_a_child("wall", BITRATE, 0.001) as served:
+        yield served
 
 
 @pytest.fixture
