@@ -11,6 +11,8 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Iterator
 from typing import TypeVar
 
+import can
+
 from axes import objects as od
 from axes.cia402 import PowerState, decode_state
 from axes.feeder import BufferFeeder, Feeder, preload_shared
@@ -95,12 +97,18 @@ class GroupStart:
                 sync.max_gap_s = min(gaps) / 1000.0
             # before the start SYNC nothing waits on these frames: a full transmit queue only delays
             # them by the wire time of what is ahead (as the preload's)
-            with self.bus.network.patient(PRELOAD_PATIENCE_S):
-                for feeder in self._feeders:  # the fixed-period setpoints the start SYNC validates
-                    if not isinstance(feeder, BufferFeeder):
-                        feeder.preload()
-                for link, profile in zip(self.links, self.profiles, strict=True):
-                    link.send_controlword(profile.start_controlword())
+            try:
+                with self.bus.network.patient(PRELOAD_PATIENCE_S):
+                    for feeder in self._feeders:  # the fixed-period setpoints the start SYNC validates
+                        if not isinstance(feeder, BufferFeeder):
+                            feeder.preload()
+                    for link, profile in zip(self.links, self.profiles, strict=True):
+                        link.send_controlword(profile.start_controlword())
+            except (can.CanError, OSError) as exc:
+                # the drives that got their start word would start alone at the next SYNC, whoever
+                # sends it: every axis is quick stopped by SDO instead, and that ends the run
+                self._quick_stop(Result.BUS_ERROR, f"the start could not be sent: {exc}", None)
+                return None
             sync.add_listener(self._on_sync)
             self.bus.watch.arm_sync_watch()
             self._event(EventKind.STARTED, f"program of {program.duration_ms} ms started on SYNC {self._start_sync}")

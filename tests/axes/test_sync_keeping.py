@@ -452,6 +452,38 @@ def test_a_transmit_queue_full_just_before_the_start_sync_delays_the_start_words
         close_rig(sim, bus, group)
 
 
+def test_a_start_word_that_cannot_be_sent_quick_stops_the_drives_that_got_theirs(arm6):
+    """A queue full past the start's patience after some drives got their start word: those would
+    start alone at the next SYNC, whoever sends it. Every axis is quick stopped by SDO instead (or
+    NMT stopped), the run ends as a bus error, and no drive starts on a later SYNC."""
+    cell = fixed_period_cell(arm6, 5)
+    cell, sim, bus, group = sim_rig(cell, lockstep=True, interface="pvtflow_test_flaky", max_sync_gap_periods=50)
+    try:
+        prog = program(cell.ordered_axes(), 300, fraction=0.3)
+        fourth = group.links[3]
+        send_controlword = fourth.send_controlword
+
+        def queue_full_from_the_fourth(cw: int) -> None:  # three drives hold their start word by now
+            FlakyBus.fail(bus.config.channel, 0.15)  # past the start's 0.1 s of patience
+            send_controlword(cw)
+
+        fourth.send_controlword = queue_full_from_the_fourth  # type: ignore[method-assign]
+        started = {d.node_id: d.ip_active_sync for d in sim}
+        assert group.start(prog) is None
+        fourth.send_controlword = send_controlword  # type: ignore[method-assign]
+        result = group.wait(30.0)
+        assert result.result is Result.BUS_ERROR and "the start could not be sent" in result.message
+        assert "quick stop by SDO" in result.message or "NMT stop" in result.message, result.message
+        time.sleep(0.2)  # the queue has drained
+        bus.sync.step()  # a SYNC after it, as the next start's check would send
+        time.sleep(0.05)
+        for d in sim:
+            assert not d.ip_active and d.ip_active_sync == started[d.node_id], d.node_id  # never started
+    finally:
+        FlakyBus.failing_until.pop(bus.config.channel, None)
+        close_rig(sim, bus, group)
+
+
 def test_a_sync_gap_beyond_the_limit_halts_the_motion_on_the_wall_clock(arm6):
     cell = fixed_period_cell(arm6, 10)
     cell, sim, bus, group = sim_rig(cell, lockstep=False, max_sync_gap_periods=5)
