@@ -26,6 +26,7 @@ The pieces, as toppra splits them: ``planner.constraints`` (the constraints),
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -138,9 +139,17 @@ def parameterize(
         return _solve(path, grid, limits, constraints, speed_band, deferred)
     lean = [c for c in constraints if not isinstance(c, RneaJointTorqueConstraint)]
     traj = _solve(path, grid, limits, lean, speed_band)
-    if all(c.holds_on(traj) for c in deferred):
-        return traj
-    return _solve(path, grid, limits, constraints, speed_band, deferred)
+    if not all(c.holds_on(traj) for c in deferred):
+        traj = _solve(path, grid, limits, constraints, speed_band, deferred)
+    return _torque_checked(traj, deferred)
+
+
+def _torque_checked(traj: Trajectory, torque: Sequence[RneaJointTorqueConstraint]) -> Trajectory:
+    """``traj`` slowed down where it exceeds a torque limit between the gridpoints (``slowdown``)."""
+    k = max(c.slowdown(traj) for c in torque)
+    if math.isinf(k):
+        raise PlanError(PlanResult.INFEASIBLE, "gravity alone exceeds a joint's torque limit on this path")
+    return traj.slowed(k * (1.0 + SLOWDOWN_MARGIN)) if k > 1.0 else traj
 
 
 __all__ = [

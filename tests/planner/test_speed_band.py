@@ -10,7 +10,14 @@ from planner.limits import JointLimits
 from planner.path import JointPath
 from planner.plan import PlanInput, Planner
 from planner.speed_band import DEFAULT_SPEED_BAND, flattened
-from planner.timing import RneaJointTorqueConstraint, parameterize, timing_constraints
+from planner.timing import (
+    DEFAULT_GRIDPOINTS,
+    RneaJointTorqueConstraint,
+    _solve,
+    make_gridpoints,
+    parameterize,
+    timing_constraints,
+)
 from service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
@@ -73,9 +80,12 @@ def test_flattened_profile_is_kept_only_where_it_holds_the_torque_limits() -> No
     weak = JointLimits(base.names, base.lower, base.upper, base.velocity, base.acceleration, base.effort * 0.3)
     weak_cons = timing_constraints(weak, ARM.model, torque_limits=True)
     weak_torque = next(c for c in weak_cons if isinstance(c, RneaJointTorqueConstraint))
+    raw = _solve(path, make_gridpoints(path, DEFAULT_GRIDPOINTS), weak, weak_cons)  # before the dense torque check
+    assert not weak_torque.holds_on(flattened(raw, weak, 0.05))
     own = parameterize(path, weak, weak_cons, speed_band=0.0)
-    assert not weak_torque.holds_on(flattened(own, weak, 0.05))
     np.testing.assert_array_equal(parameterize(path, weak, weak_cons, speed_band=0.05).sd, own.sd)
+    # between the gridpoints the torque is held by a slow-down of TOPP-RA's own profile
+    assert own.duration > raw.duration and np.allclose(own.sd * own.duration, raw.sd * raw.duration)
 
 
 def test_planner_flattens_only_plans_without_a_jerk_limit() -> None:
