@@ -235,13 +235,13 @@ class RneaJointTorqueConstraint(constraint.LinearConstraint):
         of every interval and at its middle. inf where gravity alone is over a limit."""
         t = traj.check_times(1)
         q, qd, qdd = traj.position(t), traj.velocity(t), traj.acceleration(t)
-        n = len(t)
-        zero = np.zeros_like(qd)
-        rows = self.model.inverse_dynamics_rows(
-            np.concatenate((q, q)), np.concatenate((qd, zero)), np.concatenate((qdd, zero))
-        )
-        gravity, dynamic = rows[n:], rows[:n] - rows[n:]
+        tau = self.model.inverse_dynamics_rows(q, qd, qdd)
         effort = self.effort
+        if np.all(np.abs(tau) <= effort):
+            return 1.0  # within every limit as it is: gravity is needed only to size a slow-down
+        zero = np.zeros_like(qd)
+        gravity = self.model.inverse_dynamics_rows(q, zero, zero)
+        dynamic = tau - gravity
         if np.any(np.abs(gravity) > effort):
             return math.inf
         with np.errstate(divide="ignore", invalid="ignore"):
