@@ -15,7 +15,7 @@ where needed, slowed down uniformly by the smallest factor that brings it inside
 ``time_scale``). That keeps the result honest on a coarse, fast grid. Joint torque the same way
 (``RneaJointTorqueConstraint.slowdown``): the collocation holds it at each gridpoint with the s'' of
 the interval after it, so the end of the interval before (a binding arm6 path: 2.6 % over) is
-checked, with each interval's middle, and the motion slowed by the exact factor (about 1.3 ms of
+checked, with each interval's middle, and the motion slowed by the exact factor (about 0.6 ms of
 Pinocchio per arm6 plan: a limit is a limit).
 
 With ``speed_band``, the profile is then flattened (``planner.speed_band``: s'' constant over spans
