@@ -197,7 +197,9 @@ def run_case(
         "syncs": len(sent) if wire is None else len(wire) + 1,
         **figures(intervals if wire is None else wire),
         "intervals": intervals if wire is None else wire,
-        "follower": None if wire is None else {"syncs": len(sent), **figures(intervals), "intervals": intervals},
+        "follower": None
+        if wire is None
+        else {"syncs": len(sent), **figures(intervals), "intervals": intervals, "fifo": realtime},
         "native": native,
         "skipped": skipped,
         "fifo": realtime,
