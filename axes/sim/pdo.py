@@ -149,9 +149,14 @@ class PdoEngine:
                 self._subscribed[pdo.cob_id] = self._on_frame
 
     def unsubscribe(self) -> None:
+        """Leave the network: no frame in, and no held TPDO out once the drive is off the bus."""
         for cob_id, callback in self._subscribed.items():
             unsubscribe(self.drive.network, cob_id, callback)
         self._subscribed.clear()
+        for pdo in self.tpdos.values():
+            if pdo.held is not None:
+                pdo.held.cancel()
+                pdo.held = None
 
     def _read_all(self, comm: int, mapping: int, receive: bool) -> dict[int, PdoState]:
         out: dict[int, PdoState] = {}
@@ -256,7 +261,7 @@ class PdoEngine:
         def look() -> None:
             with self.drive.lock:
                 pdo.held = None
-                if self.drive.operational and self.tpdos.get(pdo.number) is pdo:
+                if self.drive.node.has_network() and self.drive.operational and self.tpdos.get(pdo.number) is pdo:
                     self.transmit_events()
 
         pdo.held = threading.Timer(max(pdo.timing.wall_left(), 0.0) + 1e-4, look)

@@ -4,6 +4,8 @@ TPDO's inhibit time and event timer (axes/sim/tpdo_timing.py), as the master wri
 from __future__ import annotations
 
 import dataclasses
+import threading
+import time
 
 import canopen
 
@@ -108,3 +110,28 @@ def test_the_event_timer_sends_an_unchanged_tpdo(bench: Bench) -> None:
     start = drive.sync_count
     bench.sync(12)  # nothing changes: a frame every 4 ms of the drive's clock
     assert [n - start for n in at] == [3, 7, 11]
+
+
+def test_a_change_held_by_the_inhibit_time_is_not_sent_once_the_drive_left_the_bus(bench: Bench) -> None:
+    """A statusword change held by a 50 ms inhibit time while the drive's clock stands still (no
+    SYNC) waits on a wall-clock timer; the drive leaves the bus before it runs out: the timer is
+    cancelled, and nothing is sent by a drive that is off the network."""
+    drive = bench.add(Epos2Drive(65))
+    node = bench.remote(drive)
+    configure_pdos(node, EPOS2_RPDOS, EPOS2_TPDOS)
+    _retime_tpdo1(node, 500, 0)  # inhibit 50 ms
+    _operational(bench, drive, node)
+    bench.sync(60)  # past the inhibit time of the frame OPERATIONAL sent
+    failures: list[threading.ExceptHookArgs] = []
+    hook, threading.excepthook = threading.excepthook, failures.append
+    try:
+        for word in (0x0006, 0x0007):  # the first goes out, the second is held (no SYNC: the clock stands)
+            node.sdo[0x6040].raw = word
+        assert drive.pdo.tpdos[1].held is not None
+        bench.drives.remove(drive)
+        drive.detach()
+        assert drive.pdo.tpdos[1].held is None
+        time.sleep(0.1)  # past the inhibit time
+    finally:
+        threading.excepthook = hook
+    assert failures == []
