@@ -22,6 +22,7 @@ Where each part lives: ``trajectory`` (the result, ``JerkTrajectory``, and its d
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -36,11 +37,15 @@ from planner.limits import JointLimits
 from planner.path import JointPath, PlanError, PlanResult
 from planner.scurve import rest_to_rest
 from planner.slowdown import SLOWDOWN_MARGIN, slowdown
-from planner.timing import Trajectory
+from planner.timing import RneaJointTorqueConstraint, Trajectory
 
 __all__ = ["DEFAULT_JERK_INTERVALS", "JerkTrajectory", "jerk_limited"]
 
 DEFAULT_JERK_INTERVALS = 48
+
+# the torque check's time step (``_torque_slowdown``): on 30 %-effort arm6 paths 5 ms between its samples
+# left at most 8e-5 of a limit between them, 10 ms (8 pieces per interval) 6e-4 (bench/jerk_torque.py)
+_TORQUE_PIECE_S = 0.01
 
 # a jump of the path's second derivative at a waypoint above this is a C1 joint, not round-off
 _CURVATURE_JUMP = 1e-8
@@ -57,8 +62,27 @@ def _checked(
     factors = (slowdown(rv, ra), np.cbrt(rj), traj.speed_ratio(constraints))
     if not np.all(np.isfinite(factors)):  # a solver's "success" that is no motion: never handed on
         raise PlanError(PlanResult.INFEASIBLE, "the jerk-limited timing returned no finite motion", solver=traj.solver)
-    k = max(factors)
+    torque = _torque_slowdown(traj, constraints)
+    k = max(*factors, torque)
+    if torque > 1.0:
+        traj = dataclasses.replace(traj, torque_scale=torque)
     return traj.slowed(k * (1.0 + SLOWDOWN_MARGIN)) if k > 1.0 else traj
+
+
+def _torque_slowdown(traj: JerkTrajectory, constraints: Sequence[constraint.Constraint]) -> float:
+    """The uniform slow-down that holds the torque limits everywhere in time (1: none needed), from
+    ``RneaJointTorqueConstraint.slowdown`` on ``traj`` cut into pieces of at most
+    ``_TORQUE_PIECE_S`` (its check looks at the ends and the middle of every interval: an S-curve's
+    cruise lasts seconds, and near a stop the torque peaks within 10-20 ms)."""
+    torque = [c for c in constraints if isinstance(c, RneaJointTorqueConstraint)]
+    if not torque:
+        return 1.0
+    pieces = np.ceil(np.diff(traj.breakpoints) / _TORQUE_PIECE_S)
+    fine = traj.subdivided(pieces)
+    k = max(c.slowdown(fine) for c in torque)
+    if math.isinf(k):
+        raise PlanError(PlanResult.INFEASIBLE, "gravity alone exceeds a joint's torque limit on this path")
+    return k
 
 
 def jerk_limited(
