@@ -12,7 +12,12 @@ a nonlinear program, warm-started from the TOPP-RA solution:
 
 After the solve the trajectory is checked densely (``JerkTrajectory.limit_ratios``,
 ``speed_ratio``), and slowed down uniformly where a sample between the rows exceeds a limit
-(velocity / k, acceleration / k^2, jerk / k^3), as TOPP-RA's trajectory is.
+(velocity / k, acceleration / k^2, jerk / k^3), as TOPP-RA's trajectory is. So is joint torque,
+which the rows hold at the gridpoints only and the S-curve floor not at all: with TOPP-RA's own
+check (``RneaJointTorqueConstraint.slowdown``) on the motion cut into short pieces
+(``_torque_slowdown``). A solver's optimum slowed by more than 0.1 % for torque is reported as no
+optimum (``JerkTrajectory.torque_slowed``): the shorter motion the rows allowed was not within the
+limits, and the one within them is not known to be the shortest.
 
 Where each part lives: ``trajectory`` (the result, ``JerkTrajectory``, and its dense check),
 ``warm`` (the TOPP-RA profile, the grid, the start), ``nlp`` (the program and its numbers),
@@ -115,6 +120,7 @@ def jerk_limited(
     Anytime with a ``deadline`` (time.perf_counter): where the solvers have not finished by then,
     the answer is the S-curve floor (``planner.scurve``), ``optimal`` False; time alone never makes
     it INFEASIBLE. ``lower_bound``: TOPP-RA's duration, which no jerk-limited timing beats.
+    ``torque_scale``: the slow-down torque between the rows asked for after the solve.
     """
     jmax = np.asarray(max_jerk, dtype=float)
     # at rest at both ends and at every waypoint where the path is C1 only (``curvature_jumps``)
