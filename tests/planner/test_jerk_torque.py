@@ -63,7 +63,9 @@ def test_the_solvers_answer_on_a_binding_path_holds_torque_between_its_rows(cut:
     assert ratio <= 1.0 + 1e-5
     assert ratio > 0.99  # the limit binds: the check did not just slow everything down
     assert out.details["solver"] in ("fatrop", "ipopt") and out.details["solver_finished"] is True
-    assert 1.0 < out.details["torque_scale"] <= 1.001 and out.details["optimal"] is True  # a hair: still optimal
+    assert 1.0 < out.details["torque_scale"] < 1.01
+    # a hair (up to 0.1 %: 6.7e-4 and 9.2e-4 here) leaves the solver's optimum optimal, more does not
+    assert out.details["optimal"] is (out.details["torque_scale"] <= 1.001)
     np.testing.assert_allclose(out.trajectory.position(out.trajectory.waypoint_times), BINDING, atol=1e-9)
 
 
