@@ -48,10 +48,10 @@ __all__ = ["DEFAULT_JERK_INTERVALS", "JerkTrajectory", "jerk_limited"]
 
 DEFAULT_JERK_INTERVALS = 48
 
-# the torque check (``_torque_slowdown``, bench/jerk_torque.py): the torque between its samples, on
-# random arm6 paths at 30 % effort, was at most 1.6e-5 of a limit above theirs with 2.5 ms between
-# them (pieces of 5 ms), 1.5e-4 with 5 ms; the largest torque was missed by at most 0.18 % with
-# 25 ms between them, which the screen's 2 % margin covers
+# the torque check (``_torque_slowdown``, bench/jerk_torque.py): on 20 random arm6 paths at 30 % of
+# every effort the torque between its samples was at most 3.5e-5 of a limit above theirs with pieces
+# of 5 ms, 1.5e-4 with 10 ms, 1 % with the intervals whole; with 25 ms between samples the largest
+# torque was missed by at most 0.18 %, which the screen's 2 % margin covers
 _TORQUE_PIECE_S = 0.005
 _TORQUE_SCREEN_S = 0.05
 _TORQUE_SCREEN_MARGIN = 0.02
