@@ -188,7 +188,10 @@ class Planner:
             "iterations": jerky.iterations,
             "time_scale": jerky.time_scale,
             "max_jerk": [float(j) if np.isfinite(j) else None for j in max_jerk],  # None: that joint unlimited
-            "optimal": jerky.optimal,
+            # not the optimum where the deadline came first or torque between the solver's rows slowed it
+            "optimal": jerky.optimal and not jerky.torque_slowed,
+            "solver_finished": jerky.optimal,
+            "torque_scale": jerky.torque_scale,
             "lower_bound_s": jerky.lower_bound,  # TOPP-RA's duration: no jerk-limited timing is shorter
         }
         return jerky, details
@@ -201,8 +204,10 @@ class Planner:
         limits are multiplied by them for this plan (INVALID_INPUT naming the field otherwise).
         ``max_jerk``: this plan's jerk limit, one per joint (None: the planner's, if any).
         ``budget_ms``: the jerk-limited timing is anytime, its answer due this long after the call
-        (``details["optimal"]`` False where the deadline came first; ``lower_bound_s`` TOPP-RA's
-        duration, the gap's other end). Time alone never refuses a plan here."""
+        (``details["optimal"]`` False where the deadline came first, ``solver_finished`` False too,
+        or where the torque limits between the solver's rows slowed its answer by more than 0.1 %,
+        ``torque_scale``; ``lower_bound_s`` TOPP-RA's duration, the gap's other end). Time alone
+        never refuses a plan here."""
         scales = (inp.velocity_scale, inp.acceleration_scale, inp.max_jerk)
         deadline = None
         if inp.budget_ms is not None:

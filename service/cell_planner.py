@@ -36,7 +36,8 @@ class CellPlan:
     timing: dict[str, float] = field(default_factory=dict)  # s: plan (ik: its inverse kinematics), knots, total
     waypoints: NDArray[np.float64] | None = None  # the joint waypoints planned through (poses: the IK samples)
     details: dict[str, Any] = field(default_factory=dict)  # where it failed (PlanError details)
-    optimal: bool = True  # False where the jerk-limited timing's deadline came first (a valid, slower motion)
+    # False where the jerk-limited timing's deadline came first, or torque between its rows slowed it > 0.1 %
+    optimal: bool = True
     # a jerk-limited plan's duration and the TOPP-RA duration no jerk-limited timing beats (s)
     gap: dict[str, float] | None = None
 

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from planner.limits import check_max_jerk, check_scale
 from planner.plan import PlanInput
 from service.api import ApiError, ErrorCode, check_limits, refusals
-from service.cell_planner import TIMEOUT, CellPlanner
+from service.cell_planner import TIMEOUT, CellPlan, CellPlanner
 from service.cli_options import add_config, add_json
 from service.config import CellConfig, ConfigError, load_cell_config
 from service.waypoints import PoseTargets, WaypointError, dropped_times_warning, load_motion
@@ -131,6 +131,18 @@ def _say_compiling() -> None:
         file=sys.stderr,
         flush=True,
     )
+
+
+def _not_optimal_reason(result: CellPlan, budget_ms: float) -> str:
+    """Why a jerk-limited plan is not the optimum: its deadline, the torque between its rows, or both."""
+    details = result.plan.details if result.plan is not None else {}
+    reasons = []
+    if not details.get("solver_finished", False):
+        reasons.append(f"the {budget_ms:g} ms budget came first")
+    torque = float(details.get("torque_scale", 1.0))  # type: ignore[arg-type]
+    if details.get("solver_finished", False) and torque > 1.0:
+        reasons.append(f"slowed {100.0 * (torque - 1.0):.1f} % to hold the torque limits between the solver's rows")
+    return "; ".join(reasons)
 
 
 def _fail(code: int, message: str) -> int:
@@ -243,7 +255,7 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"{out}: {len(knots.axes)} axes, {duration_s:.3f} s, worst deviation {knots.deviation_qc:.2f} qc, "
             f"planned in {result.timing['total'] * 1000:.1f} ms"
-            + ("" if result.optimal else f" (not optimal: the {budget_ms:g} ms budget came first)")
+            + ("" if result.optimal else f" (not optimal: {_not_optimal_reason(result, budget_ms)})")
         )
         for a in knots.axes:
             print(

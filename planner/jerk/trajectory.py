@@ -6,7 +6,7 @@ against the joint and TCP limits (what ``planner.jerk`` slows it down by).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numpy as np
@@ -22,6 +22,9 @@ from planner.timing import (
 from planner.trajectory import PathTiming
 
 _CHECK_SUBSAMPLES = 32
+# a solver's optimum slowed by at most this for torque is still called optimal: about the slow-down
+# that the dense check of velocity and acceleration gives every answer (4e-4 measured)
+TORQUE_OPTIMAL_SLACK = 1e-3
 _BISECTIONS = 40  # a peak's time to 1e-12 of the samples' spacing
 
 
@@ -54,6 +57,7 @@ class JerkTrajectory(PathTiming):
     iterations: int = 0
     optimal: bool = True  # False: the deadline came first, this is the best timing found by then
     lower_bound: float = 0.0  # s: no timing of this path under these limits is shorter (TOPP-RA's duration)
+    torque_scale: float = 1.0  # the slow-down that torque between the solver's rows asked for (within time_scale)
     coefficients: tuple[NDArray[np.float64], ...] = field(default=(), repr=False, compare=False)
     check_subsamples: ClassVar[int] = _CHECK_SUBSAMPLES
 
@@ -69,20 +73,47 @@ class JerkTrajectory(PathTiming):
 
     def slowed(self, k: float) -> JerkTrajectory:
         """The same motion k times slower (s' / k, s'' / k^2, s''' / k^3)."""
-        return JerkTrajectory(
-            self.path,
-            self.gridpoints,
-            self.sd / k,
-            self.sdd / (k * k),
-            self.sddd / (k * k * k),
-            self.breakpoints * k,
-            self.joint_names,
-            self.time_scale * k,
-            self.solver,
-            self.iterations,
-            self.optimal,
-            self.lower_bound,
-            self.coefficients,
+        return replace(
+            self,
+            sd=self.sd / k,
+            sdd=self.sdd / (k * k),
+            sddd=self.sddd / (k * k * k),
+            breakpoints=self.breakpoints * k,
+            time_scale=self.time_scale * k,
+        )
+
+    @property
+    def torque_slowed(self) -> bool:
+        """Whether a solver's answer was slowed by more than ``TORQUE_OPTIMAL_SLACK`` after the solve
+        to hold the torque limits between its rows: then it is that solver's optimum no more."""
+        return self.torque_scale > 1.0 + TORQUE_OPTIMAL_SLACK
+
+    def subdivided(self, pieces: ArrayLike) -> JerkTrajectory:
+        """The same motion with interval i split into ``pieces[i]`` equal times: more gridpoints, the
+        same s(t) (each piece's Taylor coefficients shifted from its interval's), for a check that
+        looks at the ends and the middle of every interval to see inside the long ones."""
+        pieces = np.maximum(np.asarray(pieces, dtype=np.int64), 1)
+        idx = np.repeat(np.arange(len(self.sddd)), pieces)
+        first = np.repeat(np.cumsum(pieces) - pieces, pieces)
+        tau = (np.arange(len(idx)) - first) / pieces[idx] * np.diff(self.breakpoints)[idx]
+        sd, a, j = self.sd[idx], self.sdd[idx], self.sddd[idx]
+        sigma = tau * (sd + tau * (0.5 * a + tau * j / 6.0))
+        q0, q1, q2, q3 = (c[idx] for c in self.coefficients)
+        sg = sigma[:, None]
+        coefficients = (
+            q0 + sg * (q1 + sg * (0.5 * q2 + sg * q3 / 6.0)),
+            q1 + sg * (q2 + 0.5 * sg * q3),
+            q2 + sg * q3,
+            q3,
+        )
+        return replace(
+            self,
+            gridpoints=np.append(self.gridpoints[idx] + sigma, self.gridpoints[-1]),
+            sd=np.append(sd + tau * (a + 0.5 * j * tau), self.sd[-1]),
+            sdd=np.append(a + j * tau, self.sdd[-1]),
+            sddd=j,
+            breakpoints=np.append(self.breakpoints[idx] + tau, self.breakpoints[-1]),
+            coefficients=coefficients,
         )
 
     def _path_state(self, t: ArrayLike) -> tuple[NDArray[np.float64], ...]:

@@ -37,7 +37,10 @@ class WarmProfile:
         x = np.interp(s, warm.gridpoints, warm.sd**2)
         if len(stops):
             # braking into and out of each stop at a typical path acceleration of the TOPP-RA solution
+            # (of its accelerating intervals where it cruises on most: a zero would stop it everywhere)
             accel = np.percentile(np.abs(warm.sdd), 75)
+            if accel <= 0.0 and np.any(warm.sdd != 0.0):
+                accel = np.percentile(np.abs(warm.sdd[warm.sdd != 0.0]), 75)
             distance = np.min(np.abs(s[:, None] - stops[None, :]), axis=1)
             x = np.minimum(x, 2.0 * accel * distance)
         v = np.sqrt(np.maximum(x, 0.0))

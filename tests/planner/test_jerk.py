@@ -188,3 +188,24 @@ def test_a_tiny_jerk_limit_is_met_slowly_not_broken() -> None:
     assert out.ok and isinstance(out.trajectory, JerkTrajectory), out.message
     rv, ra, rj = dense_ratios(out.trajectory, max_jerk)
     assert rv <= 1.0 + 1e-9 and ra <= 1.0 + 1e-9 and rj <= 1.001
+
+
+def test_a_path_topp_ra_cruises_on_is_timed_jerk_limited() -> None:
+    """TOPP-RA at the velocity limit on most of its intervals (a 75th percentile of |s''| of 0):
+    the warm profile still moves (it was braked to rest everywhere, and the grid's share of a zero
+    duration never settled), and the plan holds every limit."""
+    from planner.jerk.warm import WarmProfile
+    from planner.timing import parameterize, timing_constraints
+
+    wp = np.array([[1.47, -1.15, 1.78, 2.12, -0.81, 0.67], [-0.65, 0.6, -1.57, -0.14, 0.28, 0.6]])
+    topp = Planner(LIMITS).plan(PlanInput(wp)).trajectory
+    assert np.percentile(np.abs(topp.sdd), 75) == 0.0  # the case: a cruise on most intervals
+    path = topp.path
+    warm = parameterize(path, LIMITS, timing_constraints(LIMITS))
+    profile = WarmProfile.of(warm, np.array([0.0, path.length]))
+    assert profile.t[-1] > 0.0
+    max_jerk = 10.0 * LIMITS.acceleration
+    out = Planner(LIMITS).plan(PlanInput(wp, max_jerk=max_jerk))
+    assert out.ok, out.message
+    assert max(dense_ratios(out.trajectory, max_jerk)) <= 1.001
+    assert out.trajectory.duration >= topp.duration

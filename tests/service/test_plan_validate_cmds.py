@@ -225,3 +225,18 @@ def test_plan_has_a_budget_and_says_whether_the_plan_is_optimal(tmp_path: Path, 
     assert "timeout: " in err and "past its budget of 0.001 ms" in err and not late.exists()
     assert main(["plan", "--waypoints", str(wp), "-o", str(late), "--budget-ms", "-5"]) == 2
     assert "--budget-ms must be a positive number of ms, got -5" in capsys.readouterr().err
+
+
+def test_plan_says_why_a_plan_is_not_optimal() -> None:
+    """The deadline, or the torque limits between the solver's rows (planner/jerk: its optimum slowed)."""
+    from planner.path import PlanResult
+    from planner.plan import PlanOutput
+    from service.cell_planner import CellPlan
+    from service.plan_cmd import _not_optimal_reason
+
+    def reason(**details: object) -> str:
+        return _not_optimal_reason(CellPlan("ok", plan=PlanOutput(PlanResult.OK, details=details)), 50.0)
+
+    assert reason(solver_finished=False, torque_scale=1.3) == "the 50 ms budget came first"
+    slowed = reason(solver_finished=True, torque_scale=1.039)
+    assert slowed == "slowed 3.9 % to hold the torque limits between the solver's rows"
