@@ -43,6 +43,7 @@ from planner.constraints import (
     RneaJointTorqueConstraint,
     TcpAngularSpeedConstraint,
     TcpSpeedConstraint,
+    TorqueCheck,
     timing_constraints,
 )
 from planner.lean_toppra import LeanTOPPRA
@@ -133,24 +134,27 @@ def parameterize(
 
     Joint torque limits rarely bind on a well-sized robot, and their rows cost three RNEAs per
     gridpoint: the first solve leaves them out and the result is checked against them (one RNEA
-    per gridpoint). Where it holds them, it is also the optimum with them (a constraint the
-    optimum already meets changes nothing); where it does not, the solve is made again with them
-    (and its flattened profile is kept only where it holds them too).
+    per gridpoint, the same that size the slow-down between them). Where it holds them, it is also
+    the optimum with them (a constraint the optimum already meets changes nothing); where it does
+    not, the solve is made again with them (and its flattened profile is kept only where it holds
+    them too).
     """
     grid = make_gridpoints(path, gridpoints)
     deferred = [c for c in constraints if isinstance(c, RneaJointTorqueConstraint)]
     if not deferred:
-        return _solve(path, grid, limits, constraints, speed_band, deferred)
+        return _solve(path, grid, limits, constraints, speed_band)
     lean = [c for c in constraints if not isinstance(c, RneaJointTorqueConstraint)]
     traj = _solve(path, grid, limits, lean, speed_band)
-    if not all(c.holds_on(traj) for c in deferred):
+    checks = [c.check(traj) for c in deferred]
+    if not all(check.holds for check in checks):
         traj = _solve(path, grid, limits, constraints, speed_band, deferred)
-    return _torque_checked(traj, deferred)
+        checks = [c.check(traj) for c in deferred]
+    return _torque_checked(traj, checks)
 
 
-def _torque_checked(traj: Trajectory, torque: Sequence[RneaJointTorqueConstraint]) -> Trajectory:
-    """``traj`` slowed down where it exceeds a torque limit between the gridpoints (``slowdown``)."""
-    k = max(c.slowdown(traj) for c in torque)
+def _torque_checked(traj: Trajectory, checks: Sequence[TorqueCheck]) -> Trajectory:
+    """``traj`` slowed down where it exceeds a torque limit between the gridpoints (``TorqueCheck.slowdown``)."""
+    k = max(check.slowdown() for check in checks)
     if math.isinf(k):
         raise PlanError(PlanResult.INFEASIBLE, "gravity alone exceeds a joint's torque limit on this path")
     return traj.slowed(k * (1.0 + SLOWDOWN_MARGIN)) if k > 1.0 else traj

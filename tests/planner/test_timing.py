@@ -8,6 +8,7 @@ import toppra
 import toppra.algorithm as algo
 import toppra.constraint as constraint
 
+from planner.constraints import TORQUE_MIDDLE_MARGIN
 from planner.limits import JointLimits
 from planner.path import JointPath, PlanError
 from planner.plan import PlanInput, Planner
@@ -143,6 +144,60 @@ def test_deferred_torque_limits_give_the_same_plan_as_solving_with_them() -> Non
     held = parameterize(path, weak, weak_cons)
     assert weak_torque.holds_on(held)
     assert held.duration > free.duration
+
+
+def test_torque_check_is_pinocchios_rnea_at_both_ends_of_every_interval() -> None:
+    """The torque check's one batched RNEA is Pinocchio's RNEA, call by call, at the exact states of
+    both ends of every interval: the start with its own s'', the end on the interval's own piece
+    with the s'' of the interval (not of the next one); and its middles where it takes them."""
+    path = JointPath(WAYPOINTS, LIMITS)
+    weak = JointLimits(
+        LIMITS.names, LIMITS.lower, LIMITS.upper, LIMITS.velocity, LIMITS.acceleration, LIMITS.effort * 0.3
+    )
+    torque = RneaJointTorqueConstraint(ARM.model, weak.effort)
+    tr = parameterize(path, weak, timing_constraints(weak), speed_band=0.05)
+    check = torque.check(tr)
+    grid, sd, sdd, m = tr.gridpoints, tr.sd, tr.sdd, len(tr.sdd)
+    start = grid[:-1]
+    q_s, q_ss = path.on_piece_of(start, start, 1), path.on_piece_of(start, start, 2)
+    e_s, e_ss = path.on_piece_of(start, grid[1:], 1), path.on_piece_of(start, grid[1:], 2)
+    states = [
+        (path.on_piece_of(start, start, 0), q_s * sd[:-1, None], q_ss * (sd[:-1] ** 2)[:, None] + q_s * sdd[:, None]),
+        (path.on_piece_of(start, grid[1:], 0), e_s * sd[1:, None], e_ss * (sd[1:] ** 2)[:, None] + e_s * sdd[:, None]),
+    ]
+    expected = np.vstack([[ARM.model.inverse_dynamics(*row) for row in zip(*s, strict=True)] for s in states])
+    np.testing.assert_allclose(check.tau, expected, rtol=1e-12, atol=1e-9)
+    # the gridpoints where the collocation holds the limits: this path is over one of them
+    assert not check.holds and check.holds == torque.holds_on(tr)
+    mid = 0.5 * (tr.breakpoints[:-1] + tr.breakpoints[1:])
+    q, qd, qdd, tau = check._middles(np.arange(m))
+    np.testing.assert_allclose(q, tr.position(mid), atol=1e-12)
+    np.testing.assert_allclose(qd, tr.velocity(mid), atol=1e-12)
+    np.testing.assert_allclose(qdd, tr.acceleration(mid), atol=1e-9)
+    np.testing.assert_allclose(tau, ARM.model.inverse_dynamics_rows(tr.position(mid), qd, qdd), atol=1e-9)
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.5, 0.3])
+def test_an_intervals_inside_adds_far_less_torque_than_the_middle_margin(scale: float) -> None:
+    """The torque check takes an interval's middle only where one of its ends is within
+    TORQUE_MIDDLE_MARGIN of a limit: on the cell's paths, binding or not, the inside of every
+    interval (19 samples) exceeds the larger of its ends by less than a third of that margin."""
+    effort = LIMITS.effort * scale
+    lim = JointLimits(LIMITS.names, LIMITS.lower, LIMITS.upper, LIMITS.velocity, LIMITS.acceleration, effort)
+    planner = Planner(lim, ARM.model, "tool0", max_tcp_speed=2.0, torque_limits=True)
+    rng = np.random.default_rng(5)
+    worst = 0.0
+    for _ in range(12):
+        w = LIMITS.lower + (LIMITS.upper - LIMITS.lower) * (0.1 + 0.8 * rng.random((8, LIMITS.dof)))
+        out = planner.plan(PlanInput(w))
+        assert out.ok, out.message
+        tr = out.trajectory
+        t = tr.check_times(19)
+        tau = ARM.model.inverse_dynamics_rows(tr.position(t), tr.velocity(t), tr.acceleration(t))
+        r = (np.abs(tau) / effort).reshape(len(tr.sdd), 21, -1)
+        assert r.max() <= 1.0 + 1e-3  # and the plan holds the limits
+        worst = max(worst, float((r[:, 1:-1].max(axis=1) - np.maximum(r[:, 0], r[:, -1])).max()))
+    assert worst < TORQUE_MIDDLE_MARGIN / 3
 
 
 def test_limit_ratios_are_the_paths_own_derivatives() -> None:
