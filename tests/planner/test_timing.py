@@ -69,6 +69,67 @@ def test_lean_toppra_equals_toppra_on_the_cell_constraints() -> None:
     np.testing.assert_allclose(sd_lean, sd_stock, rtol=1e-9, atol=1e-9)
 
 
+def _sets_by_toppras_wrapper(lean: LeanTOPPRA) -> np.ndarray:
+    """The controllable sets with every LP the compiled pass solves put to toppra's own seidel solver
+    wrapper (Cython), call by call in the same order, the same closed-form skips."""
+    n, rows, wrapper = lean._N, lean._rows, lean.solver_wrapper
+    K = np.full((n + 1, 2), np.nan)
+    K[n] = (0.0, 0.0)
+    g_max = np.zeros(wrapper.get_no_vars())
+    g_max[0], g_max[1] = 1e-9, -1.0
+    two_delta = 2.0 * wrapper.get_deltas()
+    (u_lo, u_hi), lo, hi = lean._u_top, 0.0, 0.0
+    for i in range(n - 1, -1, -1):
+        x = lean._x_top[i]
+        first = max(u_lo[i], (lo - x) / two_delta[i])
+        if first + 1e-9 * (1.0 + abs(first)) <= min(u_hi[i], (hi - x) / two_delta[i]):
+            x_hi = x
+        else:
+            x_hi = wrapper.solve_stagewise_optim(i, None, g_max, np.nan, np.nan, lo, hi)[1]
+            if x_hi != x_hi:
+                x_hi = rows.x_extreme(i, two_delta[i], lo, hi, highest=True)
+        x_lo = (
+            0.0
+            if lo == 0.0 and lean._rest[i]
+            else wrapper.solve_stagewise_optim(i, None, -g_max, np.nan, np.nan, lo, hi)[1]
+        )
+        if x_lo != x_lo and x_hi == x_hi:
+            x_lo = rows.x_extreme(i, two_delta[i], lo, hi, highest=False)
+        lo, hi = max(x_lo, 0.0), x_hi
+        if lo != lo or hi != hi:
+            break
+        K[i] = lo, hi
+    return K
+
+
+def test_compiled_backward_pass_is_toppras_seidel_solver_bit_for_bit() -> None:
+    """The backward pass's 2-D LPs, solved in the compiled loop, give what toppra's seidel solver
+    wrapper gives, bit for bit (its warm starts included), on random paths of both cells, with and
+    without binding torque limits, on coarse and fine grids."""
+    rng = np.random.default_rng(11)
+    gantry = load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml")
+    weak = JointLimits(
+        LIMITS.names, LIMITS.lower, LIMITS.upper, LIMITS.velocity, LIMITS.acceleration, LIMITS.effort * 0.3
+    )
+    cases = [
+        (LIMITS, timing_constraints(LIMITS, ARM.model, True, "tool0", 2.0)),
+        (LIMITS, timing_constraints(weak, ARM.model, True, "tool0", 2.0)),
+        (gantry.joint_limits(), timing_constraints(gantry.joint_limits(), gantry.model, False, "tool0", 1.0)),
+    ]
+    lps = 0
+    for limits, cons in cases:
+        for _ in range(6):
+            w = limits.lower + (limits.upper - limits.lower) * (
+                0.05 + 0.9 * rng.random((int(rng.integers(2, 9)), limits.dof))
+            )
+            path = JointPath(w, limits)
+            lean = LeanTOPPRA(cons, path, make_gridpoints(path, int(rng.choice([20, 60, 140]))))
+            K = lean.compute_controllable_sets(0.0, 0.0)
+            np.testing.assert_array_equal(K, _sets_by_toppras_wrapper(lean))
+            lps += int(np.sum(K[:-1, 1] != lean._x_top[:-1]))
+    assert lps > 100  # stages whose upper end the LP gave
+
+
 def test_lower_bound_lp_still_solved_where_rest_is_not_allowed() -> None:
     """Where gravity alone exceeds an effort limit, standing still is infeasible: the LP decides."""
     weak = JointLimits(LIMITS.names, LIMITS.lower, LIMITS.upper, LIMITS.velocity, LIMITS.acceleration, np.ones(6))
