@@ -11,8 +11,9 @@ import toppra.constraint as constraint
 from numba import njit
 from numpy.typing import NDArray
 from scipy.optimize import linprog
-from toppra.algorithm.algorithm import ParameterizationAlgorithm
+from toppra.algorithm.algorithm import ParameterizationData
 from toppra.constants import MAX_TRIES, SMALL, TINY
+from toppra.parametrizer import ParametrizeSpline
 from toppra.solverwrapper.cy_seidel_solverwrapper import seidelWrapper
 
 from planner.path import JointPath
@@ -464,7 +465,17 @@ class LeanTOPPRA(algo.TOPPRA):
         # toppra's ReachabilityAlgorithm.__init__ would first probe the importable solvers (a
         # file-system search on every plan) and build its solver wrapper; the LPs here are
         # toppra's seidel solver's, compiled (``_seidel_lp2d``), on the rows stacked once
-        ParameterizationAlgorithm.__init__(self, constraint_list, path, gridpoints=gridpoints)
+        # (and ParameterizationAlgorithm.__init__ checks the grid gridpoint by gridpoint in Python)
+        self.constraints = constraint_list
+        self.path = path
+        self._problem_data = ParameterizationData()
+        grid = np.array(gridpoints, dtype=float)
+        if path.path_interval[0] != grid[0] or path.path_interval[1] != grid[-1]:
+            raise ValueError("Invalid manually supplied gridpoints.")
+        if np.any(grid[1:] <= grid[:-1]):
+            raise ValueError("Bad input gridpoints.")
+        self.gridpoints, self._problem_data.gridpoints, self._N = grid, grid.copy(), len(grid) - 1
+        self.parametrizer = ParametrizeSpline
         self._params = [c.compute_constraint_params(self.path, self.gridpoints) for c in self.constraints]
         rows = self._rows = _StageRows.stack(self._params, len(self.gridpoints))
         self._rest = rows.rest_feasible()

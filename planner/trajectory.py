@@ -317,9 +317,10 @@ class Trajectory(PathTiming):
         return qdd[0] if scalar else qdd
 
     def limit_ratios(self, limits: JointLimits) -> tuple[float, float]:
-        """Worst |qd|/vmax and |qdd|/amax over the check times and at their peaks inside every grid
-        interval (exact: ``_interval_peaks``)."""
+        """Worst |qd|/vmax and |qdd|/amax at both ends of every grid interval (one-sided) and at their
+        peaks inside it (exact: ``_interval_peaks``): no time between them is worse, so the check
+        times inside the intervals add nothing."""
         vmax, amax = np.asarray(limits.velocity, dtype=float), np.asarray(limits.acceleration, dtype=float)
-        rv, ra = _worst_ratios(self.check_times(), *self._profile_and_path(), vmax, amax)
+        rv, ra = _worst_ratios(self.check_times(0), *self._profile_and_path(), vmax, amax)
         rv_in, ra_in = _interval_peaks(self.gridpoints, self.sd, self.sdd, *self.path.pieces, vmax, amax)
         return max(rv, rv_in), max(ra, ra_in)
