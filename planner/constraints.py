@@ -133,22 +133,38 @@ class IntervalJointAccelerationConstraint(constraint.LinearConstraint):
         self.dof = len(self.amax)
         self.identical = True
         self._format_string = "    Joint acceleration limit (interval-sampled)\n"
+        self._rows: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # F and g: the same every grid
 
     def compute_constraint_params(self, path: JointPath, gridpoints: NDArray[np.float64]):  # type: ignore[override]
-        n, f = len(gridpoints), len(self.FRACTIONS)
-        sigma = np.append(np.diff(gridpoints), 0.0)[:, None] * self.FRACTIONS[None, :]
-        # every sample on its interval's own piece: q_ss may jump at a waypoint (a gridpoint), and
-        # the interval that ends there is held with the q_ss of the piece that ends there
-        anchor = np.repeat(gridpoints, f)
-        s = anchor + sigma.ravel()
-        qs = path.on_piece_of(anchor, s, 1).reshape(n, f, -1)
-        qss = path.on_piece_of(anchor, s, 2).reshape(n, f, -1)
-        a = (qs + 2.0 * sigma[:, :, None] * qss).reshape(n, -1)
-        b = qss.reshape(n, -1)
-        m = a.shape[1]
-        F = np.vstack((np.eye(m), -np.eye(m)))
-        g = np.tile(self.amax, 2 * f)
+        a, b = _acceleration_rows(gridpoints, self.FRACTIONS, *path.pieces)
+        if self._rows is None or self._rows[0].shape[1] != a.shape[1]:
+            m = a.shape[1]
+            self._rows = (np.vstack((np.eye(m), -np.eye(m))), np.tile(self.amax, 2 * len(self.FRACTIONS)))
+        F, g = self._rows
         return a, b, np.zeros_like(a), F, g, None, None
+
+
+@njit(cache=True)
+def _acceleration_rows(
+    gridpoints: NDArray[np.float64], fractions: NDArray[np.float64], x: NDArray[np.float64], c: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``IntervalJointAccelerationConstraint``'s a = q' + 2 sigma q'' and b = q'' at s_i + sigma,
+    sigma = fraction * (s_i+1 - s_i) (0 at the last gridpoint), (n, fractions * dof) each, every
+    sample on its interval's own piece: q_ss may jump at a waypoint (a gridpoint), and the interval
+    that ends there is held with the q_ss of the piece that ends there."""
+    n, f, dof = len(gridpoints), len(fractions), c.shape[2]
+    a, b = np.empty((n, f * dof)), np.empty((n, f * dof))
+    p = 0
+    for i in range(n):
+        delta = gridpoints[i + 1] - gridpoints[i] if i < n - 1 else 0.0
+        for k in range(f):
+            sigma = delta * fractions[k]
+            p, h = spline_piece(x, gridpoints[i], gridpoints[i] + sigma, p)
+            for j in range(dof):
+                _, q_s, q_ss = spline_at(c, p, h, j)
+                a[i, k * dof + j] = q_s + 2.0 * sigma * q_ss
+                b[i, k * dof + j] = q_ss
+    return a, b
 
 
 class TcpSpeedConstraint(_IntervalSpeedConstraint):

@@ -35,6 +35,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import toppra.constraint as constraint
+from numba import njit
 from numpy.typing import NDArray
 
 from planner.constraints import (
@@ -69,22 +70,59 @@ def make_gridpoints(path: JointPath, n: int) -> NDArray[np.float64]:
     """n uniform intervals, every waypoint, and a geometric refinement towards both ends and both
     sides of every kink."""
     length = path.length
+    return _gridpoints(length, n, np.linspace(0.0, length, n + 1), path.waypoint_s, path.kinks, END_REFINEMENT)
+
+
+@njit(cache=True)
+def _gridpoints(
+    length: float,
+    n: int,
+    uniform: NDArray[np.float64],
+    waypoint_s: NDArray[np.float64],
+    kinks: NDArray[np.float64],
+    refinement: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """``make_gridpoints``: the union of the uniform points, the waypoints and the refinements (at
+    h * refinement from both ends and on both sides of every kink, inside the path), sorted, less
+    the slivers it leaves."""
     h = length / n
-    steps = h * END_REFINEMENT
-    ends = np.concatenate((steps, length - steps))
-    kinks = (path.kinks[:, None] + np.concatenate((steps, -steps))[None, :]).ravel()
-    kinks = kinks[(kinks > 0.0) & (kinks < length)]
-    grid = np.unique(np.concatenate((np.linspace(0.0, length, n + 1), path.waypoint_s, ends, kinks)))
+    m = len(refinement)
+    points = np.empty(len(uniform) + len(waypoint_s) + 2 * m * (1 + len(kinks)))
+    k = 0
+    for v in uniform:
+        points[k] = v
+        k += 1
+    for v in waypoint_s:
+        points[k] = v
+        k += 1
+    for r in refinement:
+        points[k] = h * r
+        k += 1
+    for r in refinement:
+        points[k] = length - h * r
+        k += 1
+    for kink in kinks:
+        for sign in (1.0, -1.0):
+            for r in refinement:
+                v = kink + sign * (h * r)
+                if 0.0 < v < length:
+                    points[k] = v
+                    k += 1
+    grid = np.unique(points[:k])
     # drop slivers left by the union (they only cost time): the later point of the pair, unless it
     # is a waypoint (the path's pieces meet there: a waypoint is always a gridpoint), then the earlier
-    sliver = np.diff(grid) <= 1e-3 * h * END_REFINEMENT[-1]
+    sliver_width = 1e-3 * h * refinement[-1]
     # the waypoints are gridpoints (sorted, distinct): where each one sits in the grid
-    waypoint = np.zeros(len(grid), dtype=bool)
-    waypoint[np.searchsorted(grid, path.waypoint_s)] = True
-    drop = np.zeros(len(grid), dtype=bool)
-    drop[1:] = sliver & ~waypoint[1:]
-    drop[:-1] |= sliver & waypoint[1:] & ~waypoint[:-1]
-    grid = grid[~drop]
+    waypoint = np.zeros(len(grid), dtype=np.bool_)
+    waypoint[np.searchsorted(grid, waypoint_s)] = True
+    keep = np.ones(len(grid), dtype=np.bool_)
+    for i in range(len(grid) - 1):
+        if grid[i + 1] - grid[i] <= sliver_width:
+            if not waypoint[i + 1]:
+                keep[i + 1] = False
+            elif not waypoint[i]:
+                keep[i] = False
+    grid = grid[keep]
     grid[-1] = length
     return grid
 
