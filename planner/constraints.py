@@ -217,6 +217,7 @@ class RneaJointTorqueConstraint(constraint.LinearConstraint):
         self.dof = len(self.effort)
         self.identical = True
         self._format_string = "    Joint torque limit (RNEA, collocation)\n"
+        self.mass_matrix_bound = model.mass_matrix_bound()
 
     def compute_constraint_params(self, path: JointPath, gridpoints: NDArray[np.float64]):  # type: ignore[override]
         n = len(gridpoints)
@@ -265,13 +266,14 @@ def _interval_states(
     c: NDArray[np.float64],
     intervals: NDArray[np.int64],
     where: NDArray[np.int64],
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
     """q, q', q'' (each (len(intervals), dof)) at the start, middle (in time) or end (``where``) of
     grid interval ``intervals[k]``, exactly: s'' constant on it, every sample on the interval's
-    own piece (the end's q_ss is of the piece that ends at a waypoint)."""
+    own piece (the end's q_ss is of the piece that ends at a waypoint), and that piece."""
     dof = c.shape[2]
     n = len(intervals)
     q, qd, qdd = np.empty((n, dof)), np.empty((n, dof)), np.empty((n, dof))
+    pieces = np.empty(n, dtype=np.int64)
     p = 0
     for k in range(n):
         g = intervals[k]
@@ -285,50 +287,165 @@ def _interval_states(
             s = min(gridpoints[g] + sd[g] * tau + 0.5 * u * tau * tau, gridpoints[g + 1])
             s_d = sd[g] + u * tau
         p, h = spline_piece(x, gridpoints[g], s, p)
+        pieces[k] = p
         for j in range(dof):
             q[k, j], q_s, q_ss = spline_at(c, p, h, j)
             qd[k, j] = q_s * s_d
             qdd[k, j] = q_ss * (s_d * s_d) + q_s * u
+    return q, qd, qdd, pieces
+
+
+@njit(cache=True)
+def _gridpoint_states(
+    gridpoints: NDArray[np.float64],
+    sd: NDArray[np.float64],
+    sdd: NDArray[np.float64],
+    x: NDArray[np.float64],
+    c: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """q, q', q'' at every gridpoint with the s'' of the interval after it (the last one: before)."""
+    m = len(sdd)
+    intervals = np.empty(m + 1, dtype=np.int64)
+    where = np.full(m + 1, _START, dtype=np.int64)
+    intervals[:m] = np.arange(m)
+    intervals[m], where[m] = m - 1, _END
+    q, qd, qdd, _ = _interval_states(gridpoints, sd, sdd, x, c, intervals, where)
     return q, qd, qdd
 
 
+@njit(cache=True)
+def _unbounded_ends(
+    gridpoints: NDArray[np.float64],
+    sd: NDArray[np.float64],
+    sdd: NDArray[np.float64],
+    x: NDArray[np.float64],
+    c: NDArray[np.float64],
+    qdd_grid: NDArray[np.float64],
+    tau_grid: NDArray[np.float64],
+    effort: NDArray[np.float64],
+    mass_bound: float,
+    clear: float,
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The ends of the intervals but the last (gridpoints 1 .. m - 1 with the s'' of the interval
+    before) that ``TorqueCheck`` cannot bound: on the next start's piece (off the waypoints), its
+    torque is within max_j |tau_j| / effort_j there plus mass_bound |q''_end - q''_start| / min
+    effort; at most ``clear`` is bounded enough. Returns those intervals, their q, q', q'', and every
+    end's bound (NaN where not bounded)."""
+    m, dof = len(sdd), c.shape[2]
+    intervals = np.arange(m - 1)
+    where = np.full(m - 1, _END, dtype=np.int64)
+    q, qd, qdd, piece = _interval_states(gridpoints, sd, sdd, x, c, intervals, where)
+    least = effort.min()
+    ratio = np.full(m - 1, np.nan)
+    keep = np.zeros(m - 1, dtype=np.bool_)
+    p = 0
+    for i in range(m - 1):
+        p, _ = spline_piece(x, gridpoints[i + 1], gridpoints[i + 1], p)
+        worst, step = 0.0, 0.0
+        for j in range(dof):
+            worst = max(worst, abs(tau_grid[i + 1, j]) / effort[j])
+            d = qdd[i, j] - qdd_grid[i + 1, j]
+            step += d * d
+        bound = worst + mass_bound * math.sqrt(step) / least
+        if piece[i] == p and bound <= clear:
+            ratio[i] = bound
+        else:
+            keep[i] = True
+    ends = np.flatnonzero(keep)
+    return ends, q[ends], qd[ends], qdd[ends], ratio
+
+
+@njit(cache=True)
+def _torque_summary(
+    tau_grid: NDArray[np.float64],
+    ends: NDArray[np.int64],
+    tau_ends: NDArray[np.float64],
+    end_ratio: NDArray[np.float64],
+    effort: NDArray[np.float64],
+    clear: float,
+) -> tuple[bool, bool, NDArray[np.int64]]:
+    """Within the limits at every gridpoint; at every gridpoint and interval end; the intervals with
+    an end above ``clear`` of a limit (bounded ends are at most ``clear``)."""
+    m, dof = len(tau_grid) - 1, len(effort)
+    start = np.zeros(m + 1)
+    for i in range(m + 1):
+        for j in range(dof):
+            start[i] = max(start[i], abs(tau_grid[i, j]) / effort[j])
+    end = np.zeros(m)
+    end[: m - 1] = end_ratio
+    end[m - 1] = start[m]
+    for k in range(len(ends)):
+        r = 0.0
+        for j in range(dof):
+            r = max(r, abs(tau_ends[k, j]) / effort[j])
+        end[ends[k]] = r
+    holds = bool(np.all(start <= 1.0))
+    within = holds and bool(np.all(end <= 1.0))
+    near = np.flatnonzero((start[:m] > clear) | (end > clear))
+    return holds, within, near
+
+
 class TorqueCheck:
-    """The joint torques of one trajectory at both ends of every grid interval (one batched RNEA),
-    what ``parameterize`` asks of them, and the slow-down that holds the limits between gridpoints.
+    """The joint torques of one trajectory at both ends of every grid interval, what
+    ``parameterize`` asks of them, and the slow-down that holds the limits between gridpoints.
 
     ``holds``: within the limits at every gridpoint with the s'' of the interval after it (where the
     collocation holds them; the last gridpoint with the last interval's). ``slowdown``: the
     collocation does not hold them at the end of the interval before a gridpoint (a binding arm6
-    path: 2.6 % over) nor inside an interval. The ends are all here; an interval's middle is checked
-    where one of its ends is within ``TORQUE_MIDDLE_MARGIN`` of a limit (the inside of an interval
-    adds far less over its ends), and everywhere as soon as any sample is over a limit.
+    path: 2.6 % over) nor inside an interval. An interval's middle is checked where one of its ends
+    is within ``TORQUE_MIDDLE_MARGIN`` of a limit (the inside of an interval adds far less over its
+    ends), and everywhere as soon as any sample is over a limit.
+
+    The gridpoints take one batched RNEA. The end of an interval is a gridpoint too, where the next
+    interval starts: off the waypoints it has the same q and q' (the same path piece), so its torque
+    differs from the next start's by M(q) (q''_end - q''_start) only, at most
+    ``RobotModel.mass_matrix_bound`` x |q''_end - q''_start| per joint. Where that leaves it outside
+    the margin, it needs no RNEA of its own (within a flattened span, where s'' barely changes, and
+    wherever the limits are far): the decisions are the same as with every end's torque computed.
     """
 
     def __init__(self, constraint: RneaJointTorqueConstraint, traj: Trajectory) -> None:
         self.constraint = constraint
         self.traj = traj
-        m = len(traj.sdd)
-        # every interval's start, then every interval's end (the last one's is the last gridpoint)
-        intervals = np.concatenate((np.arange(m), np.arange(m)))
-        where = np.concatenate((np.full(m, _START), np.full(m, _END)))
-        self._q, self._qd, self._qdd = self._states(intervals, where)
-        self.tau = constraint.model.inverse_dynamics_rows(self._q, self._qd, self._qdd)
-        ratio = np.abs(self.tau) / constraint.effort
-        self.holds = bool(np.all(ratio[:m] <= 1.0) and np.all(ratio[-1] <= 1.0))
-        self._within = bool(np.all(ratio <= 1.0))
-        # intervals with an end near a limit
-        worst = ratio.max(axis=1)
-        self._near = np.flatnonzero(np.maximum(worst[:m], worst[m:]) > 1.0 - TORQUE_MIDDLE_MARGIN)
+        t, effort = traj, constraint.effort
+        pieces = (t.gridpoints, t.sd, t.sdd, *t.path.pieces)
+        q, qd, qdd = _gridpoint_states(*pieces)
+        self._tau_grid = constraint.model.inverse_dynamics_rows(q, qd, qdd)
+        self._ends, q, qd, qdd, self._end_ratio = _unbounded_ends(
+            *pieces, qdd, self._tau_grid, effort, constraint.mass_matrix_bound, 1.0 - TORQUE_MIDDLE_MARGIN
+        )
+        self._tau_ends = constraint.model.inverse_dynamics_rows(q, qd, qdd)
+        self.holds, self._within, self._near = _torque_summary(
+            self._tau_grid, self._ends, self._tau_ends, self._end_ratio, effort, 1.0 - TORQUE_MIDDLE_MARGIN
+        )
+
+    @property
+    def bounded(self) -> NDArray[np.bool_]:
+        """Which samples (every interval's start, then every interval's end) were bounded, not computed."""
+        m = len(self.traj.sdd)
+        out = np.zeros(2 * m, dtype=bool)
+        out[m : 2 * m - 1] = True
+        out[m + self._ends] = False
+        return out
+
+    @property
+    def tau(self) -> NDArray[np.float64]:
+        """The torques computed, at every interval's start, then every interval's end (NaN: bounded)."""
+        m = len(self.traj.sdd)
+        out = np.full((2 * m, self.constraint.dof), np.nan)
+        out[:m], out[2 * m - 1] = self._tau_grid[:m], self._tau_grid[m]
+        out[m + self._ends] = self._tau_ends
+        return out
 
     def _states(
         self, intervals: NDArray[np.int64], where: NDArray[np.int64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
         t = self.traj
         return _interval_states(t.gridpoints, t.sd, t.sdd, *t.path.pieces, intervals, where)
 
     def _middles(self, intervals: NDArray[np.int64]) -> tuple[NDArray[np.float64], ...]:
         """q, q', q'' and tau at the middle of ``intervals``."""
-        q, qd, qdd = self._states(intervals, np.full(len(intervals), _MIDDLE))
+        q, qd, qdd, _ = self._states(intervals, np.full(len(intervals), _MIDDLE))
         return q, qd, qdd, self.constraint.model.inverse_dynamics_rows(q, qd, qdd)
 
     def slowdown(self) -> float:
@@ -338,13 +455,17 @@ class TorqueCheck:
         gravity alone is over a limit."""
         effort = self.constraint.effort
         if self._within:
+            if not len(self._near):
+                return 1.0
             _, _, _, tau = self._middles(self._near)
             if np.all(np.abs(tau) <= effort):
                 return 1.0  # within every limit as it is: gravity is needed only to size a slow-down
-        # over a limit somewhere: every middle, and gravity at every sample, size the slow-down
-        q_mid, _, _, tau_mid = self._middles(np.arange(len(self.traj.sdd)))
-        q = np.concatenate((self._q, q_mid))
-        tau = np.concatenate((self.tau, tau_mid))
+        # over a limit somewhere: every end and middle, and gravity at every sample, size the slow-down
+        m = len(self.traj.sdd)
+        intervals = np.tile(np.arange(m), 3)
+        where = np.repeat(np.array([_START, _END, _MIDDLE]), m)
+        q, qd, qdd, _ = self._states(intervals, where)
+        tau = self.constraint.model.inverse_dynamics_rows(q, qd, qdd)
         zero = np.zeros_like(q)
         gravity = self.constraint.model.inverse_dynamics_rows(q, zero, zero)
         dynamic = tau - gravity

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 import pytest
 import toppra
 import toppra.algorithm as algo
@@ -21,6 +22,7 @@ from planner.timing import (
     parameterize,
     timing_constraints,
 )
+from planner.trajectory import Trajectory
 from service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
@@ -207,18 +209,11 @@ def test_deferred_torque_limits_give_the_same_plan_as_solving_with_them() -> Non
     assert held.duration > free.duration
 
 
-def test_torque_check_is_pinocchios_rnea_at_both_ends_of_every_interval() -> None:
-    """The torque check's one batched RNEA is Pinocchio's RNEA, call by call, at the exact states of
-    both ends of every interval: the start with its own s'', the end on the interval's own piece
-    with the s'' of the interval (not of the next one); and its middles where it takes them."""
-    path = JointPath(WAYPOINTS, LIMITS)
-    weak = JointLimits(
-        LIMITS.names, LIMITS.lower, LIMITS.upper, LIMITS.velocity, LIMITS.acceleration, LIMITS.effort * 0.3
-    )
-    torque = RneaJointTorqueConstraint(ARM.model, weak.effort)
-    tr = parameterize(path, weak, timing_constraints(weak), speed_band=0.05)
-    check = torque.check(tr)
-    grid, sd, sdd, m = tr.gridpoints, tr.sd, tr.sdd, len(tr.sdd)
+def _end_torques(tr: Trajectory) -> np.ndarray:
+    """Pinocchio's RNEA, call by call, at the exact states of both ends of every interval: the
+    starts with their own s'', then the ends on the interval's own piece with the interval's s''
+    (not the next one's)."""
+    path, grid, sd, sdd = tr.path, tr.gridpoints, tr.sd, tr.sdd
     start = grid[:-1]
     q_s, q_ss = path.on_piece_of(start, start, 1), path.on_piece_of(start, start, 2)
     e_s, e_ss = path.on_piece_of(start, grid[1:], 1), path.on_piece_of(start, grid[1:], 2)
@@ -226,16 +221,51 @@ def test_torque_check_is_pinocchios_rnea_at_both_ends_of_every_interval() -> Non
         (path.on_piece_of(start, start, 0), q_s * sd[:-1, None], q_ss * (sd[:-1] ** 2)[:, None] + q_s * sdd[:, None]),
         (path.on_piece_of(start, grid[1:], 0), e_s * sd[1:, None], e_ss * (sd[1:] ** 2)[:, None] + e_s * sdd[:, None]),
     ]
-    expected = np.vstack([[ARM.model.inverse_dynamics(*row) for row in zip(*s, strict=True)] for s in states])
-    np.testing.assert_allclose(check.tau, expected, rtol=1e-12, atol=1e-9)
-    # the gridpoints where the collocation holds the limits: this path is over one of them
-    assert not check.holds and check.holds == torque.holds_on(tr)
+    return np.vstack([[ARM.model.inverse_dynamics(*row) for row in zip(*s, strict=True)] for s in states])
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.3])
+def test_torque_check_is_pinocchios_rnea_or_a_bound_at_both_ends_of_every_interval(scale: float) -> None:
+    """The torque check takes Pinocchio's RNEA at the exact states of every gridpoint and of the
+    interval ends it cannot bound clear of the middle margin; where it bounds one, the end's own
+    torque is within that bound, and the decisions are those of every end's torque (a plan far from
+    the limits and one over them)."""
+    effort = LIMITS.effort * scale
+    lim = JointLimits(LIMITS.names, LIMITS.lower, LIMITS.upper, LIMITS.velocity, LIMITS.acceleration, effort)
+    torque = RneaJointTorqueConstraint(ARM.model, effort)
+    tr = parameterize(JointPath(WAYPOINTS, LIMITS), lim, timing_constraints(lim), speed_band=0.05)
+    check, expected, m = torque.check(tr), _end_torques(tr), len(tr.sdd)
+    computed = ~check.bounded
+    np.testing.assert_allclose(check.tau[computed], expected[computed], rtol=1e-12, atol=1e-9)
+    ratio = np.abs(expected) / effort
+    assert np.all(ratio[check.bounded] <= 1.0 - TORQUE_MIDDLE_MARGIN)
+    assert check.holds == bool(np.all(ratio[:m] <= 1.0) and np.all(ratio[-1] <= 1.0)) == torque.holds_on(tr)
+    worst = ratio.max(axis=1)
+    np.testing.assert_array_equal(
+        check._near, np.flatnonzero(np.maximum(worst[:m], worst[m:]) > 1.0 - TORQUE_MIDDLE_MARGIN)
+    )
+    if scale == 1.0:  # far from the limits: most ends bounded, no slow-down
+        assert check.bounded.sum() > m / 2 and check.holds and check.slowdown() == 1.0
+    else:  # over a limit (the slow-down from every end and middle: tests/planner/test_plan.py)
+        assert not check.holds and check.slowdown() > 1.0
     mid = 0.5 * (tr.breakpoints[:-1] + tr.breakpoints[1:])
     q, qd, qdd, tau = check._middles(np.arange(m))
     np.testing.assert_allclose(q, tr.position(mid), atol=1e-12)
     np.testing.assert_allclose(qd, tr.velocity(mid), atol=1e-12)
     np.testing.assert_allclose(qdd, tr.acceleration(mid), atol=1e-9)
     np.testing.assert_allclose(tau, ARM.model.inverse_dynamics_rows(tr.position(mid), qd, qdd), atol=1e-9)
+
+
+def test_mass_matrix_bound_holds_over_the_joint_ranges() -> None:
+    """|M(q) v| <= mass_matrix_bound |v| at every configuration (Pinocchio's CRBA at random q in
+    the limits), and it is not so loose that it bounds nothing (within 20 x)."""
+    bound = ARM.model.mass_matrix_bound()
+    rng = np.random.default_rng(3)
+    worst = 0.0
+    for q in rng.uniform(LIMITS.lower, LIMITS.upper, (300, LIMITS.dof)):
+        M = pin.crba(ARM.model.model, ARM.model.data, q)
+        worst = max(worst, float(np.linalg.eigvalsh(np.triu(M) + np.triu(M, 1).T).max()))
+    assert worst <= bound <= 20.0 * worst
 
 
 @pytest.mark.parametrize("scale", [1.0, 0.5, 0.3])
