@@ -187,7 +187,7 @@ def not_a_knot(s: NDArray[np.float64], w: NDArray[np.float64]) -> tuple[NDArray[
     _, _, _, m, info = dgtsv(lower, main, upper, b, 1, 1, 1, 1)
     if info != 0:
         raise np.linalg.LinAlgError("singular matrix")
-    return _not_a_knot_pieces(s, w, slope, m)
+    return _not_a_knot_pieces(s, w, slope, np.ascontiguousarray(m))
 
 
 @njit(cache=True)

@@ -39,17 +39,19 @@ from numba import njit
 from numpy.typing import NDArray
 
 from planner.constraints import (
+    _MIDDLE,
     IntervalJointAccelerationConstraint,
     IntervalJointVelocityConstraint,
     RneaJointTorqueConstraint,
     TcpAngularSpeedConstraint,
     TcpSpeedConstraint,
     TorqueCheck,
+    _interval_states,
     timing_constraints,
 )
 from planner.lean_toppra import LeanTOPPRA
 from planner.limits import JointLimits
-from planner.path import JointPath, PlanError, PlanResult
+from planner.path import JointPath, PlanError, PlanResult, not_a_knot
 from planner.slowdown import SLOWDOWN_MARGIN, slowdown
 from planner.speed_band import flattened
 from planner.trajectory import Trajectory
@@ -198,6 +200,17 @@ def _torque_checked(traj: Trajectory, checks: Sequence[TorqueCheck]) -> Trajecto
     return traj.slowed(k * (1.0 + SLOWDOWN_MARGIN)) if k > 1.0 else traj
 
 
+def warm_up() -> None:
+    """Load the compiled loops a plan may call that a service's short warm-up move does not (numba's
+    cache; on a new machine their compilation, seconds, would fall inside a request's budget):
+    the not-a-knot spline's, which a path of 4 waypoints or more takes, and the torque check's
+    middles, which only a trajectory near a torque limit takes. tests/service/test_warm_up.py."""
+    s = np.arange(4.0)
+    c, _ = not_a_knot(s, np.column_stack((s, s * s)))
+    middle = np.full(1, _MIDDLE, dtype=np.int64)
+    _interval_states(s[:2], np.ones(2), np.zeros(1), s, np.ascontiguousarray(c), np.zeros(1, dtype=np.int64), middle)
+
+
 __all__ = [
     "DEFAULT_GRIDPOINTS",
     "IntervalJointAccelerationConstraint",
@@ -210,4 +223,5 @@ __all__ = [
     "make_gridpoints",
     "parameterize",
     "timing_constraints",
+    "warm_up",
 ]
