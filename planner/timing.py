@@ -10,13 +10,15 @@ a whole grid), and torque limits, which rarely bind, are checked on the result o
 them before being solved with (see ``parameterize``).
 
 TOPP-RA enforces the constraints at the gridpoints. Between them the joint velocity and
-acceleration can exceed the limits by a hair; the trajectory is checked densely afterwards and,
-where needed, slowed down uniformly by the smallest factor that brings it inside (reported as
-``time_scale``). That keeps the result honest on a coarse, fast grid. Joint torque the same way
-(``RneaJointTorqueConstraint.slowdown``): the collocation holds it at each gridpoint with the s'' of
-the interval after it, so the end of the interval before (a binding arm6 path: 2.6 % over) is
-checked, with each interval's middle, and the motion slowed by the exact factor (about 0.6 ms of
-Pinocchio per arm6 plan: a limit is a limit).
+acceleration can exceed the limits by a hair; the trajectory is checked afterwards (exactly: at
+both ends of every interval and at the peaks inside it) and, where needed, slowed down uniformly by
+the smallest factor that brings it inside (reported as ``time_scale``). That keeps the result
+honest on a coarse, fast grid. Joint torque the same way (``TorqueCheck``): the collocation holds
+it at each gridpoint with the s'' of the interval after it, so the end of the interval before (a
+binding arm6 path: 2.6 % over) is checked too, bounded from the next gridpoint's torque by the mass
+matrix's bound where that keeps it well inside (no RNEA), each interval's middle where an end is
+near a limit, and the motion slowed by the exact factor (about 0.25 ms of Pinocchio per arm6
+plan: a limit is a limit).
 
 With ``speed_band``, the profile is then flattened (``planner.speed_band``: s'' constant over spans
 of several gridpoints, the path speed at most that fraction below TOPP-RA's): fewer acceleration
