@@ -246,8 +246,9 @@ def test_torque_check_is_pinocchios_rnea_or_a_bound_at_both_ends_of_every_interv
     )
     if scale == 1.0:  # far from the limits: most ends bounded, no slow-down
         assert check.bounded.sum() > m / 2 and check.holds and check.slowdown() == 1.0
-    else:  # over a limit (the slow-down from every end and middle: tests/planner/test_plan.py)
+    else:  # over a limit: the slow-down from every end and middle, as the constraint's own check
         assert not check.holds and check.slowdown() > 1.0
+    assert check.slowdown() == pytest.approx(torque.slowdown(tr), rel=1e-6)
     mid = 0.5 * (tr.breakpoints[:-1] + tr.breakpoints[1:])
     q, qd, qdd, tau = check._middles(np.arange(m))
     np.testing.assert_allclose(q, tr.position(mid), atol=1e-12)
