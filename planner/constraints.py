@@ -181,7 +181,8 @@ class TcpSpeedConstraint(_IntervalSpeedConstraint):
         self._format_string = f"    TCP speed limit: {max_speed} m/s at {frame}\n"
 
     def speed_factors(self, path: JointPath, s: NDArray[np.float64]) -> NDArray[np.float64]:
-        return self.model.frame_speeds(path(s), path(s, 1), self.frame)[:, None]
+        q, q_s, _ = path.states_on_piece_of(s, s)
+        return self.model.frame_speeds(q, q_s, self.frame)[:, None]
 
 
 class TcpAngularSpeedConstraint(_IntervalSpeedConstraint):
@@ -198,7 +199,8 @@ class TcpAngularSpeedConstraint(_IntervalSpeedConstraint):
         self._format_string = f"    TCP angular speed limit: {max_speed} rad/s at {frame}\n"
 
     def speed_factors(self, path: JointPath, s: NDArray[np.float64]) -> NDArray[np.float64]:
-        return self.model.frame_angular_speeds(path(s), path(s, 1), self.frame)[:, None]
+        q, q_s, _ = path.states_on_piece_of(s, s)
+        return self.model.frame_angular_speeds(q, q_s, self.frame)[:, None]
 
 
 class RneaJointTorqueConstraint(constraint.LinearConstraint):

@@ -146,6 +146,20 @@ def _spline_values(
 
 
 @njit(cache=True)
+def _spline_states(
+    x: NDArray[np.float64], c: NDArray[np.float64], anchor: NDArray[np.float64], s: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """``_spline_values`` of orders 0, 1 and 2 in one pass."""
+    q, q_s, q_ss = np.empty((len(s), c.shape[2])), np.empty((len(s), c.shape[2])), np.empty((len(s), c.shape[2]))
+    i = 0
+    for k in range(len(s)):
+        i, h = spline_piece(x, anchor[k], s[k], i)
+        for j in range(c.shape[2]):
+            q[k, j], q_s[k, j], q_ss[k, j] = spline_at(c, i, h, j)
+    return q, q_s, q_ss
+
+
+@njit(cache=True)
 def _piece_ranges(x: NDArray[np.float64], c: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Exact (min, max) of every piece and joint, each (pieces, dof) (``cubic_position_range``)."""
     n, dof = c.shape[1], c.shape[2]
@@ -338,6 +352,14 @@ class JointPath(AbstractGeometricPath):
         s_arr = np.asarray(s, dtype=float).ravel()
         a_arr = np.broadcast_to(np.asarray(anchor, dtype=float).ravel(), s_arr.shape)
         return self._values(np.ascontiguousarray(a_arr), s_arr, order)
+
+    def states_on_piece_of(
+        self, anchor: NDArray[np.float64], s: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """``on_piece_of`` of orders 0, 1 and 2 at once, (n, dof) each (``anchor`` and ``s`` of the
+        same length)."""
+        s = np.ascontiguousarray(s, dtype=float).ravel()
+        return _spline_states(*self._pieces, np.ascontiguousarray(anchor, dtype=float).ravel(), s)
 
     def _values(self, anchor: NDArray[np.float64], s: NDArray[np.float64], order: int) -> NDArray[np.float64]:
         if order not in (0, 1, 2):

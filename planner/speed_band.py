@@ -60,15 +60,8 @@ def flattened(traj: Trajectory, limits: JointLimits, band: float) -> Trajectory:
     sd = np.maximum(traj.sd, 0.0)
     anchor = np.repeat(grid[:-1], 3)  # each interval's samples on its own path piece
     s_at = np.column_stack((grid[:-1], 0.5 * (grid[:-1] + grid[1:]), grid[1:])).ravel()
-    y = fewest_spans(
-        grid,
-        sd * sd,
-        s_at,
-        traj.path.on_piece_of(anchor, s_at, 1),
-        traj.path.on_piece_of(anchor, s_at, 2),
-        np.asarray(limits.acceleration, dtype=float),
-        (1.0 - band) ** 2,
-    )
+    _, q_s, q_ss = traj.path.states_on_piece_of(anchor, s_at)
+    y = fewest_spans(grid, sd * sd, s_at, q_s, q_ss, np.asarray(limits.acceleration, dtype=float), (1.0 - band) ** 2)
     flat = Trajectory.from_path_velocities(traj.path, grid, np.sqrt(np.maximum(y, 0.0)), traj.joint_names)
     return Trajectory(flat.path, grid, flat.sd, flat.sdd, flat.breakpoints, flat.joint_names, traj.time_scale)
 
