@@ -508,6 +508,13 @@ class TorqueCheck:
         return math.inf if x <= 0.0 else 1.0 / math.sqrt(x)
 
 
+def middles_warm_up(x: NDArray[np.float64], c: NDArray[np.float64]) -> None:
+    """Load ``TorqueCheck``'s middles' compiled loop with the types it takes (path pieces ``x``,
+    ``c``): only a trajectory near a torque limit calls it (``planner.timing.warm_up``)."""
+    middle = np.full(1, _MIDDLE, dtype=np.int64)
+    _interval_states(x[:2], np.ones(2), np.zeros(1), x, c, np.zeros(1, dtype=np.int64), middle)
+
+
 def timing_constraints(
     limits: JointLimits,
     model: RobotModel | None = None,

@@ -41,14 +41,13 @@ from numba import njit
 from numpy.typing import NDArray
 
 from planner.constraints import (
-    _MIDDLE,
     IntervalJointAccelerationConstraint,
     IntervalJointVelocityConstraint,
     RneaJointTorqueConstraint,
     TcpAngularSpeedConstraint,
     TcpSpeedConstraint,
     TorqueCheck,
-    _interval_states,
+    middles_warm_up,
     timing_constraints,
 )
 from planner.lean_toppra import LeanTOPPRA
@@ -209,8 +208,7 @@ def warm_up() -> None:
     middles, which only a trajectory near a torque limit takes. tests/service/test_warm_up.py."""
     s = np.arange(4.0)
     c, _ = not_a_knot(s, np.column_stack((s, s * s)))
-    middle = np.full(1, _MIDDLE, dtype=np.int64)
-    _interval_states(s[:2], np.ones(2), np.zeros(1), s, np.ascontiguousarray(c), np.zeros(1, dtype=np.int64), middle)
+    middles_warm_up(s, np.ascontiguousarray(c))
 
 
 __all__ = [
