@@ -38,6 +38,7 @@ KERNEL_SOURCES = (
             "slowdown.py",
             "smooth_kernels.py",
             "speed_band.py",
+            "timing.py",
             "trajectory.py",
             "validate/screen.py",
         )

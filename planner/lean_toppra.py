@@ -11,8 +11,9 @@ import toppra.constraint as constraint
 from numba import njit
 from numpy.typing import NDArray
 from scipy.optimize import linprog
-from toppra.algorithm.algorithm import ParameterizationAlgorithm
+from toppra.algorithm.algorithm import ParameterizationData
 from toppra.constants import MAX_TRIES, SMALL, TINY
+from toppra.parametrizer import ParametrizeSpline
 from toppra.solverwrapper.cy_seidel_solverwrapper import seidelWrapper
 
 from planner.path import JointPath
@@ -223,13 +224,230 @@ def _known_stages(
     return i, lo, hi
 
 
+# toppra's seidel solver: its tolerances and the bounds of its 1-D sub-problems
+_SEIDEL_SMALL = 1e-8
+_SEIDEL_INF = 1e10
+
+
+@njit(cache=True)
+def _seidel_lp1d(
+    v0: float, nrows: int, a: NDArray[np.float64], b: NDArray[np.float64], low: float, high: float
+) -> tuple[bool, float, int]:
+    """toppra's seidel ``cy_solve_lp1d``: max v0 x subject to a x + b <= 0 and low <= x <= high
+    (rows with |a| <= TINY skipped); feasible, x and the index of the active row (-1, -2: a bound)."""
+    cur_min, cur_max, active_min, active_max = low, high, -1, -2
+    for i in range(nrows):
+        if a[i] > _SEIDEL_TINY:
+            x = -b[i] / a[i]
+            if x < cur_max:
+                cur_max, active_max = x, i
+        elif a[i] < -_SEIDEL_TINY:
+            x = -b[i] / a[i]
+            if x > cur_min:
+                cur_min, active_min = x, i
+    if cur_min > cur_max:
+        return False, math.nan, 0
+    if abs(v0) < _SEIDEL_TINY or v0 < 0:
+        return True, cur_min, active_min
+    return True, cur_max, active_max
+
+
+@njit(cache=True)
+def _seidel_lp2d(
+    v: NDArray[np.float64],
+    a: NDArray[np.float64],
+    b: NDArray[np.float64],
+    c: NDArray[np.float64],
+    low: NDArray[np.float64],
+    high: NDArray[np.float64],
+    active: NDArray[np.int64],
+    index_map: NDArray[np.int64],
+    a_1d: NDArray[np.float64],
+    b_1d: NDArray[np.float64],
+) -> tuple[bool, float, float]:
+    """toppra's seidel ``cy_solve_lp2d`` (Seidel's incremental 2-D LP), the same operations in the
+    same order: max v . (u, x) subject to a u + b x + c <= 0 and the box [low, high], the rows
+    ``active`` (the last solve's active pair, warm start) tried first. Feasible, u, x; ``active``
+    is updated as toppra's solver wrapper updates it on success."""
+    nrows = len(a)
+    optvar = np.empty(2)
+    act0, act1 = 0, 0
+    for i in range(2):
+        if low[i] > high[i]:
+            return False, math.nan, math.nan
+        if v[i] > _SEIDEL_TINY:
+            optvar[i] = high[i]
+            if i == 0:
+                act0 = -2
+            else:
+                act1 = -4
+        else:
+            optvar[i] = low[i]
+            if i == 0:
+                act0 = -1
+            else:
+                act1 = -3
+    if 0 <= active[0] < nrows and 0 <= active[1] < nrows and active[0] != active[1]:
+        index_map[0], index_map[1] = active[1], active[0]
+        row = 2
+        for i in range(nrows):
+            if i != active[0] and i != active[1]:
+                index_map[row] = i
+                row += 1
+    else:
+        for i in range(nrows):
+            index_map[i] = i
+    for k in range(nrows):
+        i = index_map[k]
+        if a[i] * optvar[0] + b[i] * optvar[1] + c[i] < _SEIDEL_TINY:
+            continue
+        act0 = i
+        norm = a[i] * a[i] + b[i] * b[i]
+        zero0 = -a[i] * c[i] / norm
+        zero1 = -b[i] * c[i] / norm
+        tan0, tan1 = -b[i], a[i]
+        v_1d = tan0 * v[0] + tan1 * v[1]
+        for j in range(k + 4):
+            if j == k:
+                aj, bj, cj = -1.0, 0.0, low[0]
+            elif j == k + 1:
+                aj, bj, cj = 1.0, 0.0, -high[0]
+            elif j == k + 2:
+                aj, bj, cj = 0.0, -1.0, low[1]
+            elif j == k + 3:
+                aj, bj, cj = 0.0, 1.0, -high[1]
+            else:
+                aj, bj, cj = a[index_map[j]], b[index_map[j]], c[index_map[j]]
+            denom = tan0 * aj + tan1 * bj
+            if denom > _SEIDEL_TINY:
+                a_1d[j], b_1d[j] = 1.0, (cj + zero1 * bj + zero0 * aj) / denom
+            elif denom < -_SEIDEL_TINY:
+                a_1d[j], b_1d[j] = -1.0, -(cj + zero1 * bj + zero0 * aj) / denom
+            else:
+                if cj + zero1 * bj + zero0 * aj > _SEIDEL_SMALL:
+                    return False, math.nan, math.nan
+                a_1d[j], b_1d[j] = 0.0, -1.0
+        ok, t, act = _seidel_lp1d(v_1d, k + 4, a_1d, b_1d, -_SEIDEL_INF, _SEIDEL_INF)
+        if not ok:
+            return False, math.nan, math.nan
+        optvar[0] = zero0 + t * tan0
+        optvar[1] = zero1 + t * tan1
+        if 0 <= act < k:
+            act1 = index_map[act]
+        elif act == k:
+            act1 = -1
+        elif act == k + 1:
+            act1 = -2
+        elif act == k + 2:
+            act1 = -3
+        elif act == k + 3:
+            act1 = -4
+        else:  # a bound of the 1-D sub-problem: toppra's solver gives up
+            return False, math.nan, math.nan
+    active[0], active[1] = act0, act1
+    return True, optvar[0], optvar[1]
+
+
+@njit(cache=True)
+def _stage_x(
+    highest: bool,
+    rows: NDArray[np.float64],
+    i: int,
+    two_delta: float,
+    lo: float,
+    hi: float,
+    low: NDArray[np.float64],
+    high: NDArray[np.float64],
+    active: NDArray[np.int64],
+    index_map: NDArray[np.int64],
+    a_1d: NDArray[np.float64],
+    b_1d: NDArray[np.float64],
+) -> float:
+    """The largest (lowest) x at stage i from which some u lands x + two_delta u in [lo, hi]: toppra's
+    ``solve_stagewise_optim`` for g = (1e-9, -1) (its lower solver) or (-1e-9, 1) (its upper one),
+    ``rows`` (3, n, m + 2) the stage's rows after the two of the next set; NaN where it gives up."""
+    a, b, c = rows[0, i], rows[1, i], rows[2, i]
+    a[0], b[0], c[0] = -two_delta, -1.0, lo
+    a[1], b[1], c[1] = two_delta, 1.0, -hi
+    v = np.array([-1e-9, 1.0]) if highest else np.array([1e-9, -1.0])
+    ok, _u, x = _seidel_lp2d(v, a, b, c, low, high, active, index_map, a_1d, b_1d)
+    return x if ok else math.nan
+
+
+# what ``_backward_pass`` stopped for
+_DONE, _NO_STATE, _HIGHEST_LP, _LOWEST_LP = 0, 1, 2, 3
+
+
+@njit(cache=True)
+def _backward_pass(
+    rows: NDArray[np.float64],
+    boxes: NDArray[np.float64],
+    x_top: NDArray[np.float64],
+    u_lo: NDArray[np.float64],
+    u_hi: NDArray[np.float64],
+    rest: NDArray[np.bool_],
+    two_delta: NDArray[np.float64],
+    K: NDArray[np.float64],
+    i: int,
+    lo: float,
+    hi: float,
+    given_x_hi: bool,
+    x_hi: float,
+    active_up: NDArray[np.int64],
+    active_down: NDArray[np.int64],
+) -> tuple[int, float, float, int, float]:
+    """``LeanTOPPRA.compute_controllable_sets`` from stage i down (next set [lo, hi]), toppra's
+    seidel LPs where the answer is not known in closed form. Stops at the first stage whose LP the
+    seidel solver gives up on although it may be feasible (``_HIGHEST_LP``: x_hi; ``_LOWEST_LP``:
+    x_lo, returned with x_hi), for ``_StageRows.x_extreme``; ``given_x_hi``: stage i resumes with
+    that x_hi. Returns the stage, the next set, why it stopped and x_hi."""
+    m = rows.shape[2]
+    index_map = np.zeros(m, dtype=np.int64)
+    a_1d, b_1d = np.zeros(m + 4), np.zeros(m + 4)
+    low, high = np.empty(2), np.empty(2)
+    while True:
+        if not given_x_hi:
+            i, lo, hi = _known_stages(i, lo, hi, x_top, u_lo, u_hi, rest, two_delta, K)
+            if i < 0:
+                return i, lo, hi, _DONE, math.nan
+        low[0], low[1], high[0], high[1] = boxes[0, i], boxes[1, i], boxes[2, i], boxes[3, i]
+        if not given_x_hi:
+            # a u feasible at x_top[i] that lands in [lo, hi]: x_top[i] is the LP's maximum
+            x = x_top[i]
+            y = (lo - x) / two_delta[i]
+            first = y if y > u_lo[i] else u_lo[i]
+            z = (hi - x) / two_delta[i]
+            if first + 1e-9 * (1.0 + abs(first)) <= (z if z < u_hi[i] else u_hi[i]):
+                x_hi = x
+            else:
+                x_hi = _stage_x(True, rows, i, two_delta[i], lo, hi, low, high, active_down, index_map, a_1d, b_1d)
+                if x_hi != x_hi:
+                    return i, lo, hi, _HIGHEST_LP, x_hi
+        given_x_hi = False
+        # standing still is allowed here and 0 is in [lo, hi]: the minimum is 0
+        if lo == 0.0 and rest[i]:
+            x_lo = 0.0
+        else:
+            x_lo = _stage_x(False, rows, i, two_delta[i], lo, hi, low, high, active_up, index_map, a_1d, b_1d)
+        if x_lo != x_lo and x_hi == x_hi:
+            return i, lo, hi, _LOWEST_LP, x_hi
+        lo, hi = (0.0 if x_lo < 0.0 else x_lo), x_hi
+        if lo != lo or hi != hi:  # NaN: no controllable state at this stage (K stays NaN there)
+            return i, lo, hi, _NO_STATE, x_hi
+        K[i, 0], K[i, 1] = lo, hi
+        i -= 1
+
+
 class LeanTOPPRA(algo.TOPPRA):
     """toppra's TOPPRA, with the per-stage bookkeeping of its two passes done once up front.
 
-    Same algorithm, same solver wrapper, same results: the backward pass (controllable sets) calls
-    the seidel solver exactly as toppra does, but without re-allocating the objective vectors and
-    re-checking NaNs through numpy at every stage, which is where most of the time of a coarse-grid
-    solve goes. The forward pass fixes x at every stage, so its LP has one variable: it is solved
+    Same algorithm, same LPs, same results: the backward pass (controllable sets) is one compiled
+    loop (``_backward_pass``) that solves each stage's 2-D LP as toppra's seidel solver does
+    (``_seidel_lp2d``: its operations in its order, its warm starts; the same controllable sets,
+    bit for bit, as the Cython solver on 400 arm6 and gantry3 solves of 20 to 300 gridpoints,
+    tests/planner/test_timing.py), without building toppra's solver wrapper (a Python loop over
+    every stage's rows) or calling it stage by stage, which is where most of the time of a
+    coarse-grid solve goes. The forward pass fixes x at every stage, so its LP has one variable: it is solved
     in one compiled loop by the rule toppra's seidel wrapper applies to it (``_forward_pass``; the
     same u, bit for bit, on 70,000 stages of arm6 and gantry3 plans). LPs of the backward pass are
     skipped where their answer is known exactly (checked in closed form, with every stage's rows
@@ -245,57 +463,69 @@ class LeanTOPPRA(algo.TOPPRA):
         self, constraint_list: list[constraint.Constraint], path: JointPath, gridpoints: NDArray[np.float64]
     ) -> None:
         # toppra's ReachabilityAlgorithm.__init__ would first probe the importable solvers (a
-        # file-system search on every plan); the solver here is always seidel, so set it up directly
-        ParameterizationAlgorithm.__init__(self, constraint_list, path, gridpoints=gridpoints)
-        params = [c.compute_constraint_params(self.path, self.gridpoints) for c in self.constraints]
-        rows = self._rows = _StageRows.stack(params, len(self.gridpoints))
+        # file-system search on every plan) and build its solver wrapper; the LPs here are
+        # toppra's seidel solver's, compiled (``_seidel_lp2d``), on the rows stacked once
+        # (and ParameterizationAlgorithm.__init__ checks the grid gridpoint by gridpoint in Python)
+        self.constraints = constraint_list
+        self.path = path
+        self._problem_data = ParameterizationData()
+        grid = np.array(gridpoints, dtype=float)
+        if path.path_interval[0] != grid[0] or path.path_interval[1] != grid[-1]:
+            raise ValueError("Invalid manually supplied gridpoints.")
+        if np.any(grid[1:] <= grid[:-1]):
+            raise ValueError("Bad input gridpoints.")
+        self.gridpoints, self._problem_data.gridpoints, self._N = grid, grid.copy(), len(grid) - 1
+        self.parametrizer = ParametrizeSpline
+        self._params = [c.compute_constraint_params(self.path, self.gridpoints) for c in self.constraints]
+        rows = self._rows = _StageRows.stack(self._params, len(self.gridpoints))
         self._rest = rows.rest_feasible()
         self._x_top = rows.x_hi
         self._u_top = rows.u_range_at(rows.x_hi)
-        computed = [_Computed(c, p) for c, p in zip(self.constraints, params, strict=True)]
-        self.solver_wrapper = seidelWrapper(computed, self.path, self.gridpoints, solve_lp1d=True)
-        n_vars = self.solver_wrapper.get_no_vars()
-        self._g_max_x = np.zeros(n_vars)
-        self._g_max_x[0], self._g_max_x[1] = 1e-9, -1.0
-        self._g_min_x = -self._g_max_x
+        self._two_delta = 2.0 * np.diff(self.gridpoints)
+        # the seidel solver's warm starts (its upper and lower solver's last active rows)
+        self._active_up, self._active_down = np.zeros(2, dtype=np.int64), np.zeros(2, dtype=np.int64)
+        self._seidel: seidelWrapper | None = None
+
+    @property
+    def solver_wrapper(self) -> seidelWrapper:
+        """toppra's seidel solver wrapper on the same rows, for toppra's own methods (the passes
+        here do not use it)."""
+        if self._seidel is None:
+            computed = [_Computed(c, p) for c, p in zip(self.constraints, self._params, strict=True)]
+            self._seidel = seidelWrapper(computed, self.path, self.gridpoints, solve_lp1d=True)
+        return self._seidel
 
     def compute_controllable_sets(self, sdmin: float, sdmax: float) -> NDArray[np.float64]:
         n = self._N
         K = np.full((n + 1, 2), np.nan)
         K[n] = (sdmin**2, sdmax**2)
-        solve = self.solver_wrapper.solve_stagewise_optim
-        g_max, g_min, nan = self._g_max_x, self._g_min_x, np.nan
-        rest = self._rest.tolist()
-        x_top, (u_lo, u_hi) = self._x_top.tolist(), (v.tolist() for v in self._u_top)
-        two_delta_arr = 2.0 * self.solver_wrapper.get_deltas()
-        two_delta = two_delta_arr.tolist()
-        self.solver_wrapper.setup_solver()
-        lo, hi = float(K[n, 0]), float(K[n, 1])
-        i = n - 1
+        r = self._rows
+        m = r.A.shape[1]
+        stage_rows = np.zeros((3, n + 1, m + 2))
+        stage_rows[0, :, 2:], stage_rows[1, :, 2:], stage_rows[2, :, 2:] = r.A, r.B, r.C
+        boxes = np.stack((r.u_lo, r.x_lo, r.u_hi, r.x_hi))
+        two_delta = self._two_delta
+        lo, hi, i = float(K[n, 0]), float(K[n, 1]), n - 1
+        given, x_hi = False, math.nan
         while True:
-            # the stages whose both ends are known in closed form, in one compiled pass
-            i, lo, hi = _known_stages(i, lo, hi, self._x_top, *self._u_top, self._rest, two_delta_arr, K)
-            if i < 0:
-                self.solver_wrapper.close_solver()
-                break
-            # a u feasible at x_top[i] that lands in [lo, hi]: x_top[i] is the LP's maximum
-            x = x_top[i]
-            first = max(u_lo[i], (lo - x) / two_delta[i])
-            if first + 1e-9 * (1.0 + abs(first)) <= min(u_hi[i], (hi - x) / two_delta[i]):
-                x_hi = x
+            i, lo, hi, stop, x_hi = _backward_pass(
+                stage_rows, boxes, self._x_top, *self._u_top, self._rest, two_delta, K, i, lo, hi, given, x_hi,
+                self._active_up, self._active_down,
+            )  # fmt: skip
+            given = False
+            if stop == _HIGHEST_LP:
+                x_hi, given = r.x_extreme(i, float(two_delta[i]), lo, hi, highest=True), True
+            elif stop == _LOWEST_LP:
+                x_lo = r.x_extreme(i, float(two_delta[i]), lo, hi, highest=False)
+                lo, hi = max(x_lo, 0.0), x_hi
+                if lo != lo or hi != hi:
+                    break
+                K[i, 0], K[i, 1] = lo, hi
+                i -= 1
+                if i < 0:
+                    break
             else:
-                x_hi = solve(i, None, g_max, nan, nan, lo, hi)[1]
-                if x_hi != x_hi:
-                    x_hi = self._rows.x_extreme(i, two_delta[i], lo, hi, highest=True)
-            # standing still is allowed here and 0 is in [lo, hi]: the minimum is 0
-            x_lo = 0.0 if lo == 0.0 and rest[i] else solve(i, None, g_min, nan, nan, lo, hi)[1]
-            if x_lo != x_lo and x_hi == x_hi:
-                x_lo = self._rows.x_extreme(i, two_delta[i], lo, hi, highest=False)
-            lo, hi = max(x_lo, 0.0), x_hi
-            if lo != lo or hi != hi:  # NaN: no controllable state at this stage (K stays NaN there)
                 break
-            K[i, 0], K[i, 1] = lo, hi
-            i -= 1
         return K
 
     def compute_parameterization(self, sd_start: float, sd_end: float, return_data: bool = False):  # type: ignore[override]
@@ -308,7 +538,6 @@ class LeanTOPPRA(algo.TOPPRA):
         if x_start + SMALL < K[0, 0] or K[0, 1] + SMALL < x_start:
             return (None, None, None, K) if return_data else (None, None, None)
         r = self._rows
-        two_delta = 2.0 * self.solver_wrapper.get_deltas()
-        us, xs = _forward_pass(r.A, r.B, r.C, r.u_lo, r.u_hi, r.x_lo, r.x_hi, K, two_delta, x_start)
+        us, xs = _forward_pass(r.A, r.B, r.C, r.u_lo, r.u_hi, r.x_lo, r.x_hi, K, self._two_delta, x_start)
         sd = np.sqrt(xs)
         return (us, sd, None, K) if return_data else (us, sd, None)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -143,6 +144,33 @@ class RobotModel:
         q, qd = self._rows(q), self._rows(qd)
         m_qd = self._rnea_rows(self._probe_pool(self.frame_id(frame), rotation=True), q, np.zeros_like(qd), qd)
         return np.sqrt(np.maximum(np.einsum("ij,ij->i", qd, m_qd), 0.0))
+
+    def mass_matrix_bound(self) -> float:
+        """An upper bound on |M(q) v| / |v| (the largest eigenvalue of the mass matrix) at every q
+        within the position limits: what a change of the joint accelerations alone can change the
+        torques by (planner.constraints.TorqueCheck). inf where the limits leave it unbounded.
+
+        M(q) = sum over bodies l of J_l^T G_l J_l (J_l: body l's spatial Jacobian in its own frame,
+        G_l its spatial inertia there, a constant), so |M| <= sum_l max eig(G_l) |J_l|_F^2. The
+        column of J_l for joint k (k = l or an ancestor) is the joint's unit twist seen from body
+        l's origin: a revolute joint's (axis, axis x (o_l - o_k)) has |.|^2 <= 1 + |o_l - o_k|^2,
+        a prismatic joint's (0, axis) 1; and |o_l - o_k| is at most the sum, over the joints
+        between them, of each one's placement offset (plus its stroke, for a prismatic one)."""
+        model = self.model
+        reach = np.zeros(model.njoints)
+        for jid in range(1, model.njoints):
+            reach[jid] = np.linalg.norm(model.jointPlacements[jid].translation)
+            if self.joints[jid - 1].kind == "prismatic":
+                reach[jid] += max(abs(self.joints[jid - 1].lower), abs(self.joints[jid - 1].upper))
+        total = 0.0
+        for body in range(1, model.njoints):
+            columns, distance, k = 0.0, 0.0, body
+            while k > 0:
+                columns += 1.0 + distance * distance
+                distance += reach[k]
+                k = model.parents[k]
+            total += float(np.linalg.eigvalsh(model.inertias[body].matrix()).max()) * columns
+        return total if np.isfinite(total) else math.inf
 
     def inverse_dynamics(self, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike) -> NDArray[np.float64]:
         """Joint torques/forces (RNEA) needed for qdd at (q, qd), gravity included."""

@@ -68,9 +68,9 @@ def check_waypoints(waypoints: ArrayLike, limits: JointLimits) -> NDArray[np.flo
         )
     if w.shape[0] < 2:
         raise PlanError(PlanResult.INVALID_INPUT, f"a path needs at least 2 waypoints, got {w.shape[0]}")
-    bad = np.argwhere(~np.isfinite(w))
-    if len(bad):
-        i, j = bad[0]
+    finite = np.isfinite(w)
+    if not finite.all():
+        i, j = np.argwhere(~finite)[0]
         raise PlanError(
             PlanResult.INVALID_INPUT,
             f"waypoint {i}, joint {limits.names[j]}: {w[i, j]} is not a finite number",
@@ -146,6 +146,20 @@ def _spline_values(
 
 
 @njit(cache=True)
+def _spline_states(
+    x: NDArray[np.float64], c: NDArray[np.float64], anchor: NDArray[np.float64], s: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """``_spline_values`` of orders 0, 1 and 2 in one pass."""
+    q, q_s, q_ss = np.empty((len(s), c.shape[2])), np.empty((len(s), c.shape[2])), np.empty((len(s), c.shape[2]))
+    i = 0
+    for k in range(len(s)):
+        i, h = spline_piece(x, anchor[k], s[k], i)
+        for j in range(c.shape[2]):
+            q[k, j], q_s[k, j], q_ss[k, j] = spline_at(c, i, h, j)
+    return q, q_s, q_ss
+
+
+@njit(cache=True)
 def _piece_ranges(x: NDArray[np.float64], c: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Exact (min, max) of every piece and joint, each (pieces, dof) (``cubic_position_range``)."""
     n, dof = c.shape[1], c.shape[2]
@@ -183,29 +197,67 @@ def not_a_knot(s: NDArray[np.float64], w: NDArray[np.float64]) -> tuple[NDArray[
     if len(s) < 4:
         spline = CubicSpline(s, w, bc_type="not-a-knot")
         return np.array(spline.c), spline(s[-1], 1)
-    n = len(s)
-    dx = np.diff(s)
-    dxr = dx[:, None]
-    slope = np.diff(w, axis=0) / dxr
-    band = np.zeros((3, n))  # upper, main, lower diagonal (scipy's banded layout)
-    b = np.empty(w.shape)
-    band[1, 1:-1] = 2 * (dx[:-1] + dx[1:])
-    band[0, 2:] = dx[:-1]
-    band[-1, :-2] = dx[1:]
-    b[1:-1] = 3 * (dxr[1:] * slope[:-1] + dxr[:-1] * slope[1:])
-    band[1, 0] = dx[1]
-    band[0, 1] = d = s[2] - s[0]
-    b[0] = ((dxr[0] + 2 * d) * dxr[1] * slope[0] + dxr[0] ** 2 * slope[1]) / d
-    band[1, -1] = dx[-2]
-    band[-1, -2] = d = s[-1] - s[-3]
-    b[-1] = (dxr[-1] ** 2 * slope[-2] + (2 * d + dxr[-1]) * dxr[-2] * slope[-1]) / d
-    _, _, _, m, info = dgtsv(band[2, :-1], band[1, :], band[0, 1:], b, 1, 1, 1, 1)
+    lower, main, upper, b, slope = _not_a_knot_system(s, w)
+    _, _, _, m, info = dgtsv(lower, main, upper, b, 1, 1, 1, 1)
     if info != 0:
         raise np.linalg.LinAlgError("singular matrix")
-    t = (m[:-1] + m[1:] - 2 * slope) / dxr
-    c = np.stack((t / dxr, (slope - m[:-1]) / dxr - t, m[:-1], w[:-1]))
-    h = s[-1] - s[-2]  # the last piece's slope at its end, in scipy's order of evaluation
-    return c, c[2, -1] + c[1, -1] * h * 2.0 + c[0, -1] * (h * h) * 3.0
+    return _not_a_knot_pieces(s, w, slope, np.ascontiguousarray(m))
+
+
+@njit(cache=True)
+def _not_a_knot_system(
+    s: NDArray[np.float64], w: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The not-a-knot spline's tridiagonal system for its slopes (lower, main and upper diagonal,
+    right-hand sides), as scipy builds it, and the chords' slopes."""
+    n, dof = w.shape
+    dx = s[1:] - s[:-1]
+    slope = np.empty((n - 1, dof))
+    for i in range(n - 1):
+        for j in range(dof):
+            slope[i, j] = (w[i + 1, j] - w[i, j]) / dx[i]
+    lower, main, upper = np.zeros(n - 1), np.zeros(n), np.zeros(n - 1)
+    b = np.empty((n, dof))
+    for i in range(1, n - 1):
+        main[i] = 2 * (dx[i - 1] + dx[i])
+        upper[i] = dx[i - 1]
+        lower[i - 1] = dx[i]
+        for j in range(dof):
+            b[i, j] = 3 * (dx[i] * slope[i - 1, j] + dx[i - 1] * slope[i, j])
+    main[0] = dx[1]
+    upper[0] = d = s[2] - s[0]
+    for j in range(dof):
+        b[0, j] = ((dx[0] + 2 * d) * dx[1] * slope[0, j] + (dx[0] * dx[0]) * slope[1, j]) / d
+    main[n - 1] = dx[n - 3]
+    lower[n - 2] = d = s[n - 1] - s[n - 3]
+    for j in range(dof):
+        b[n - 1, j] = (
+            (dx[n - 2] * dx[n - 2]) * slope[n - 3, j] + (2 * d + dx[n - 2]) * dx[n - 3] * slope[n - 2, j]
+        ) / d
+    return lower, main, upper, b, slope
+
+
+@njit(cache=True)
+def _not_a_knot_pieces(
+    s: NDArray[np.float64], w: NDArray[np.float64], slope: NDArray[np.float64], m: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The spline's coefficients from its slopes ``m`` at the waypoints, and its slope at the last
+    waypoint, in scipy's order of evaluation."""
+    n, dof = w.shape
+    c = np.empty((4, n - 1, dof))
+    for i in range(n - 1):
+        dx = s[i + 1] - s[i]
+        for j in range(dof):
+            t = (m[i, j] + m[i + 1, j] - 2 * slope[i, j]) / dx
+            c[0, i, j] = t / dx
+            c[1, i, j] = (slope[i, j] - m[i, j]) / dx - t
+            c[2, i, j] = m[i, j]
+            c[3, i, j] = w[i, j]
+    h = s[n - 1] - s[n - 2]  # the last piece's slope at its end, in scipy's order of evaluation
+    end = np.empty(dof)
+    for j in range(dof):
+        end[j] = c[2, n - 2, j] + c[1, n - 2, j] * h * 2.0 + c[0, n - 2, j] * (h * h) * 3.0
+    return c, end
 
 
 def within_limits_pieces(
@@ -275,7 +327,8 @@ class JointPath(AbstractGeometricPath):
         # the inner waypoints next to a rebuilt (Hermite) piece: where the second derivative may jump
         rebuilt = (clamped[:-1] | clamped[1:]).any(axis=1)
         self.kinks: NDArray[np.float64] = ss[1:-1][rebuilt[:-1] | rebuilt[1:]]
-        self.check_within(limits)
+        if clamped.any():  # otherwise the spline itself, which within_limits_pieces found inside
+            self.check_within(limits)
 
     @property
     def pieces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -299,6 +352,14 @@ class JointPath(AbstractGeometricPath):
         s_arr = np.asarray(s, dtype=float).ravel()
         a_arr = np.broadcast_to(np.asarray(anchor, dtype=float).ravel(), s_arr.shape)
         return self._values(np.ascontiguousarray(a_arr), s_arr, order)
+
+    def states_on_piece_of(
+        self, anchor: NDArray[np.float64], s: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """``on_piece_of`` of orders 0, 1 and 2 at once, (n, dof) each (``anchor`` and ``s`` of the
+        same length)."""
+        s = np.ascontiguousarray(s, dtype=float).ravel()
+        return _spline_states(*self._pieces, np.ascontiguousarray(anchor, dtype=float).ravel(), s)
 
     def _values(self, anchor: NDArray[np.float64], s: NDArray[np.float64], order: int) -> NDArray[np.float64]:
         if order not in (0, 1, 2):

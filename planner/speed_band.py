@@ -60,15 +60,8 @@ def flattened(traj: Trajectory, limits: JointLimits, band: float) -> Trajectory:
     sd = np.maximum(traj.sd, 0.0)
     anchor = np.repeat(grid[:-1], 3)  # each interval's samples on its own path piece
     s_at = np.column_stack((grid[:-1], 0.5 * (grid[:-1] + grid[1:]), grid[1:])).ravel()
-    y = fewest_spans(
-        grid,
-        sd * sd,
-        s_at,
-        traj.path.on_piece_of(anchor, s_at, 1),
-        traj.path.on_piece_of(anchor, s_at, 2),
-        np.asarray(limits.acceleration, dtype=float),
-        (1.0 - band) ** 2,
-    )
+    _, q_s, q_ss = traj.path.states_on_piece_of(anchor, s_at)
+    y = fewest_spans(grid, sd * sd, s_at, q_s, q_ss, np.asarray(limits.acceleration, dtype=float), (1.0 - band) ** 2)
     flat = Trajectory.from_path_velocities(traj.path, grid, np.sqrt(np.maximum(y, 0.0)), traj.joint_names)
     return Trajectory(flat.path, grid, flat.sd, flat.sdd, flat.breakpoints, flat.joint_names, traj.time_scale)
 
@@ -107,6 +100,7 @@ def fewest_spans(
             g += 1
         yv[k, cnt[k]] = xs[k]
         cnt[k] += 1
+    root = np.sqrt(yv)
     big = math.inf
     spans = np.full((n, width), big)
     time = np.full((n, width), math.inf)
@@ -117,9 +111,12 @@ def fewest_spans(
     hi = np.empty(width)
     alive = np.zeros(width, np.bool_)
     dof = len(amax)
+    rows = 3 * dof
+    slope, inv, top = np.empty(rows), np.empty(rows), np.empty(rows)
     for a in range(n - 1):
         left = 0
-        for ma in range(cnt[a]):
+        na = cnt[a]
+        for ma in range(na):
             alive[ma] = spans[a, ma] < big
             lo[ma], hi[ma] = -math.inf, math.inf
             left += alive[ma]
@@ -128,24 +125,28 @@ def fewest_spans(
                 break
             ds = grid[b] - grid[a]
             # the acceleration at interval b - 1's samples: q'' = q_ss ya + m (q_ss (s - s_a) + q_s / 2)
+            # per sample and joint: the bound on m is (top - q_ss ya) / b0 above, (-top - q_ss ya) / b0 below
             for t in range(3):
                 idx = 3 * (b - 1) + t
                 for j in range(dof):
+                    k = t * dof + j
                     b0 = q_ss[idx, j] * (s_at[idx] - grid[a]) + 0.5 * q_s[idx, j]
-                    inv = 1.0 / b0 if b0 != 0.0 else 0.0
-                    for ma in range(cnt[a]):
-                        if not alive[ma]:
-                            continue
-                        a0 = q_ss[idx, j] * yv[a, ma]
-                        if b0 > 0.0:
-                            hi[ma] = min(hi[ma], (amax[j] - a0) * inv)
-                            lo[ma] = max(lo[ma], (-amax[j] - a0) * inv)
-                        elif b0 < 0.0:
-                            hi[ma] = min(hi[ma], (-amax[j] - a0) * inv)
-                            lo[ma] = max(lo[ma], (amax[j] - a0) * inv)
-                        elif abs(a0) > amax[j]:
-                            lo[ma], hi[ma] = 1.0, -1.0
-            for ma in range(cnt[a]):
+                    slope[k] = q_ss[idx, j]
+                    inv[k] = 1.0 / b0 if b0 != 0.0 else 0.0
+                    top[k] = amax[j] if b0 > 0.0 else -amax[j]
+            for ma in range(na):
+                if not alive[ma]:
+                    continue
+                ya, h, g = yv[a, ma], hi[ma], lo[ma]
+                for k in range(rows):
+                    a0 = slope[k] * ya
+                    if inv[k] != 0.0:
+                        h = min(h, (top[k] - a0) * inv[k])
+                        g = max(g, (-top[k] - a0) * inv[k])
+                    elif abs(a0) > amax[k % dof]:
+                        g, h = 1.0, -1.0
+                hi[ma], lo[ma] = h, g
+            for ma in range(na):
                 if not alive[ma]:
                     continue
                 if lo[ma] > hi[ma]:
@@ -158,10 +159,11 @@ def fewest_spans(
                     m = (yb - ya) / ds
                     if m < lo[ma] or m > hi[ma] or ya + yb <= 0.0:
                         continue
-                    dt = 2.0 * ds / (math.sqrt(ya) + math.sqrt(yb))
                     sp = spans[a, ma] + 1.0 + (0.0 if yb == ya else curved)
-                    tm = time[a, ma] + dt
-                    if sp < spans[b, mb] or (sp == spans[b, mb] and tm < time[b, mb]):
+                    if sp > spans[b, mb]:
+                        continue
+                    tm = time[a, ma] + 2.0 * ds / (root[a, ma] + root[b, mb])
+                    if sp < spans[b, mb] or tm < time[b, mb]:
                         spans[b, mb] = sp
                         time[b, mb] = tm
                         prev[b, mb, 0] = a

@@ -10,13 +10,15 @@ a whole grid), and torque limits, which rarely bind, are checked on the result o
 them before being solved with (see ``parameterize``).
 
 TOPP-RA enforces the constraints at the gridpoints. Between them the joint velocity and
-acceleration can exceed the limits by a hair; the trajectory is checked densely afterwards and,
-where needed, slowed down uniformly by the smallest factor that brings it inside (reported as
-``time_scale``). That keeps the result honest on a coarse, fast grid. Joint torque the same way
-(``RneaJointTorqueConstraint.slowdown``): the collocation holds it at each gridpoint with the s'' of
-the interval after it, so the end of the interval before (a binding arm6 path: 2.6 % over) is
-checked, with each interval's middle, and the motion slowed by the exact factor (about 0.6 ms of
-Pinocchio per arm6 plan: a limit is a limit).
+acceleration can exceed the limits by a hair; the trajectory is checked afterwards (exactly: at
+both ends of every interval and at the peaks inside it) and, where needed, slowed down uniformly by
+the smallest factor that brings it inside (reported as ``time_scale``). That keeps the result
+honest on a coarse, fast grid. Joint torque the same way (``TorqueCheck``): the collocation holds
+it at each gridpoint with the s'' of the interval after it, so the end of the interval before (a
+binding arm6 path: 2.6 % over) is checked too, bounded from the next gridpoint's torque by the mass
+matrix's bound where that keeps it well inside (no RNEA), each interval's middle where an end is
+near a limit, and the motion slowed by the exact factor (about 0.25 ms of Pinocchio per arm6
+plan: a limit is a limit).
 
 With ``speed_band``, the profile is then flattened (``planner.speed_band``: s'' constant over spans
 of several gridpoints, the path speed at most that fraction below TOPP-RA's): fewer acceleration
@@ -35,6 +37,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import toppra.constraint as constraint
+from numba import njit
 from numpy.typing import NDArray
 
 from planner.constraints import (
@@ -43,11 +46,13 @@ from planner.constraints import (
     RneaJointTorqueConstraint,
     TcpAngularSpeedConstraint,
     TcpSpeedConstraint,
+    TorqueCheck,
+    middles_warm_up,
     timing_constraints,
 )
 from planner.lean_toppra import LeanTOPPRA
 from planner.limits import JointLimits
-from planner.path import JointPath, PlanError, PlanResult
+from planner.path import JointPath, PlanError, PlanResult, not_a_knot
 from planner.slowdown import SLOWDOWN_MARGIN, slowdown
 from planner.speed_band import flattened
 from planner.trajectory import Trajectory
@@ -68,22 +73,59 @@ def make_gridpoints(path: JointPath, n: int) -> NDArray[np.float64]:
     """n uniform intervals, every waypoint, and a geometric refinement towards both ends and both
     sides of every kink."""
     length = path.length
+    return _gridpoints(length, n, np.linspace(0.0, length, n + 1), path.waypoint_s, path.kinks, END_REFINEMENT)
+
+
+@njit(cache=True)
+def _gridpoints(
+    length: float,
+    n: int,
+    uniform: NDArray[np.float64],
+    waypoint_s: NDArray[np.float64],
+    kinks: NDArray[np.float64],
+    refinement: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """``make_gridpoints``: the union of the uniform points, the waypoints and the refinements (at
+    h * refinement from both ends and on both sides of every kink, inside the path), sorted, less
+    the slivers it leaves."""
     h = length / n
-    steps = h * END_REFINEMENT
-    ends = np.concatenate((steps, length - steps))
-    kinks = (path.kinks[:, None] + np.concatenate((steps, -steps))[None, :]).ravel()
-    kinks = kinks[(kinks > 0.0) & (kinks < length)]
-    grid = np.unique(np.concatenate((np.linspace(0.0, length, n + 1), path.waypoint_s, ends, kinks)))
+    m = len(refinement)
+    points = np.empty(len(uniform) + len(waypoint_s) + 2 * m * (1 + len(kinks)))
+    k = 0
+    for v in uniform:
+        points[k] = v
+        k += 1
+    for v in waypoint_s:
+        points[k] = v
+        k += 1
+    for r in refinement:
+        points[k] = h * r
+        k += 1
+    for r in refinement:
+        points[k] = length - h * r
+        k += 1
+    for kink in kinks:
+        for sign in (1.0, -1.0):
+            for r in refinement:
+                v = kink + sign * (h * r)
+                if 0.0 < v < length:
+                    points[k] = v
+                    k += 1
+    grid = np.unique(points[:k])
     # drop slivers left by the union (they only cost time): the later point of the pair, unless it
     # is a waypoint (the path's pieces meet there: a waypoint is always a gridpoint), then the earlier
-    sliver = np.diff(grid) <= 1e-3 * h * END_REFINEMENT[-1]
+    sliver_width = 1e-3 * h * refinement[-1]
     # the waypoints are gridpoints (sorted, distinct): where each one sits in the grid
-    waypoint = np.zeros(len(grid), dtype=bool)
-    waypoint[np.searchsorted(grid, path.waypoint_s)] = True
-    drop = np.zeros(len(grid), dtype=bool)
-    drop[1:] = sliver & ~waypoint[1:]
-    drop[:-1] |= sliver & waypoint[1:] & ~waypoint[:-1]
-    grid = grid[~drop]
+    waypoint = np.zeros(len(grid), dtype=np.bool_)
+    waypoint[np.searchsorted(grid, waypoint_s)] = True
+    keep = np.ones(len(grid), dtype=np.bool_)
+    for i in range(len(grid) - 1):
+        if grid[i + 1] - grid[i] <= sliver_width:
+            if not waypoint[i + 1]:
+                keep[i + 1] = False
+            elif not waypoint[i]:
+                keep[i] = False
+    grid = grid[keep]
     grid[-1] = length
     return grid
 
@@ -133,27 +175,40 @@ def parameterize(
 
     Joint torque limits rarely bind on a well-sized robot, and their rows cost three RNEAs per
     gridpoint: the first solve leaves them out and the result is checked against them (one RNEA
-    per gridpoint). Where it holds them, it is also the optimum with them (a constraint the
-    optimum already meets changes nothing); where it does not, the solve is made again with them
-    (and its flattened profile is kept only where it holds them too).
+    per gridpoint, the same that size the slow-down between them). Where it holds them, it is also
+    the optimum with them (a constraint the optimum already meets changes nothing); where it does
+    not, the solve is made again with them (and its flattened profile is kept only where it holds
+    them too).
     """
     grid = make_gridpoints(path, gridpoints)
     deferred = [c for c in constraints if isinstance(c, RneaJointTorqueConstraint)]
     if not deferred:
-        return _solve(path, grid, limits, constraints, speed_band, deferred)
+        return _solve(path, grid, limits, constraints, speed_band)
     lean = [c for c in constraints if not isinstance(c, RneaJointTorqueConstraint)]
     traj = _solve(path, grid, limits, lean, speed_band)
-    if not all(c.holds_on(traj) for c in deferred):
+    checks = [c.check(traj) for c in deferred]
+    if not all(check.holds for check in checks):
         traj = _solve(path, grid, limits, constraints, speed_band, deferred)
-    return _torque_checked(traj, deferred)
+        checks = [c.check(traj) for c in deferred]
+    return _torque_checked(traj, checks)
 
 
-def _torque_checked(traj: Trajectory, torque: Sequence[RneaJointTorqueConstraint]) -> Trajectory:
-    """``traj`` slowed down where it exceeds a torque limit between the gridpoints (``slowdown``)."""
-    k = max(c.slowdown(traj) for c in torque)
+def _torque_checked(traj: Trajectory, checks: Sequence[TorqueCheck]) -> Trajectory:
+    """``traj`` slowed down where it exceeds a torque limit between the gridpoints (``TorqueCheck.slowdown``)."""
+    k = max(check.slowdown() for check in checks)
     if math.isinf(k):
         raise PlanError(PlanResult.INFEASIBLE, "gravity alone exceeds a joint's torque limit on this path")
     return traj.slowed(k * (1.0 + SLOWDOWN_MARGIN)) if k > 1.0 else traj
+
+
+def warm_up() -> None:
+    """Load the compiled loops a plan may call that a service's short warm-up move does not (numba's
+    cache; on a new machine their compilation, seconds, would fall inside a request's budget):
+    the not-a-knot spline's, which a path of 4 waypoints or more takes, and the torque check's
+    middles, which only a trajectory near a torque limit takes. tests/service/test_warm_up.py."""
+    s = np.arange(4.0)
+    c, _ = not_a_knot(s, np.column_stack((s, s * s)))
+    middles_warm_up(s, np.ascontiguousarray(c))
 
 
 __all__ = [
@@ -168,4 +223,5 @@ __all__ = [
     "make_gridpoints",
     "parameterize",
     "timing_constraints",
+    "warm_up",
 ]

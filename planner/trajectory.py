@@ -77,6 +77,21 @@ def _joint_states(
 
 
 @njit(cache=True)
+def _check_times(breakpoints: NDArray[np.float64], subsamples: int) -> NDArray[np.float64]:
+    """``PathTiming.check_times``, the same numbers in one pass."""
+    eps = 1e-9 * max(breakpoints[-1], 1.0)
+    m = subsamples + 2
+    t = np.empty((len(breakpoints) - 1) * m)
+    for i in range(len(breakpoints) - 1):
+        span = breakpoints[i + 1] - breakpoints[i]
+        for k in range(m):
+            t[i * m + k] = breakpoints[i] + span * (k / (subsamples + 1))
+        t[i * m] += eps
+        t[i * m + m - 1] -= eps
+    return t
+
+
+@njit(cache=True)
 def _worst_ratios(
     t: NDArray[np.float64],
     breakpoints: NDArray[np.float64],
@@ -152,6 +167,27 @@ def _interval_peaks(
     return rv, ra
 
 
+@njit(cache=True, error_model="numpy")  # x / 0 is inf or NaN, as numpy's: a stall is reported, not raised
+def _profile(
+    gridpoints: NDArray[np.float64], sd: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], bool]:
+    """s' (negative round-off cut to 0), the constant s'' of every interval and the gridpoints'
+    times (each interval's dt = 2 ds / (s'_i + s'_i+1), summed in order), and whether some dt is not
+    finite (the profile stops on the path)."""
+    n = len(gridpoints)
+    v = np.maximum(sd, 0.0)
+    sdd, t = np.empty(n - 1), np.empty(n)
+    t[0] = 0.0
+    stalls = False
+    for i in range(n - 1):
+        ds = gridpoints[i + 1] - gridpoints[i]
+        dt = 2.0 * ds / (v[i] + v[i + 1])
+        stalls |= not math.isfinite(dt)
+        sdd[i] = (v[i + 1] * v[i + 1] - v[i] * v[i]) / (2.0 * ds)
+        t[i + 1] = t[i] + dt
+    return v, sdd, t, stalls
+
+
 class PathTiming:
     """What every timing of a path shares, q(t) = path(s(t)) on a grid: TOPP-RA's (``Trajectory``,
     s'' constant between gridpoints) and the jerk-limited one (``planner.jerk.JerkTrajectory``, the
@@ -176,14 +212,7 @@ class PathTiming:
     def check_times(self, subsamples: int | None = None) -> NDArray[np.float64]:
         """Gridpoint times plus ``subsamples`` (default ``check_subsamples``) evenly spaced times inside
         every interval, one-sided at its ends: both sides of a switch at a gridpoint are seen."""
-        n = self.check_subsamples if subsamples is None else subsamples
-        f = np.arange(n + 2) / (n + 1)
-        bp = self.breakpoints
-        eps = 1e-9 * max(self.duration, 1.0)
-        inner = bp[:-1, None] + np.diff(bp)[:, None] * f[None, :]
-        inner[:, 0] += eps
-        inner[:, -1] -= eps
-        return inner.ravel()
+        return _check_times(self.breakpoints, self.check_subsamples if subsamples is None else subsamples)
 
 
 @dataclass(frozen=True)
@@ -206,14 +235,9 @@ class Trajectory(PathTiming):
     def from_path_velocities(
         cls, path: JointPath, gridpoints: NDArray[np.float64], sd: NDArray[np.float64], joint_names: tuple[str, ...]
     ) -> Trajectory:
-        ds = np.diff(gridpoints)
-        sd = np.maximum(sd, 0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            dt = 2.0 * ds / (sd[:-1] + sd[1:])
-        if not np.all(np.isfinite(dt)):
+        sd, sdd, t, stalls = _profile(np.asarray(gridpoints, dtype=float), np.asarray(sd, dtype=float))
+        if stalls:
             raise PlanError(PlanResult.INFEASIBLE, "the time-optimal profile stalls on the path (zero path velocity)")
-        sdd = (sd[1:] ** 2 - sd[:-1] ** 2) / (2.0 * ds)
-        t = np.concatenate(([0.0], np.cumsum(dt)))
         return cls(path, gridpoints, sd, sdd, t, joint_names)
 
     def slowed(self, k: float) -> Trajectory:
@@ -293,9 +317,10 @@ class Trajectory(PathTiming):
         return qdd[0] if scalar else qdd
 
     def limit_ratios(self, limits: JointLimits) -> tuple[float, float]:
-        """Worst |qd|/vmax and |qdd|/amax over the check times and at their peaks inside every grid
-        interval (exact: ``_interval_peaks``)."""
+        """Worst |qd|/vmax and |qdd|/amax at both ends of every grid interval (one-sided) and at their
+        peaks inside it (exact: ``_interval_peaks``): no time between them is worse, so the check
+        times inside the intervals add nothing."""
         vmax, amax = np.asarray(limits.velocity, dtype=float), np.asarray(limits.acceleration, dtype=float)
-        rv, ra = _worst_ratios(self.check_times(), *self._profile_and_path(), vmax, amax)
+        rv, ra = _worst_ratios(self.check_times(0), *self._profile_and_path(), vmax, amax)
         rv_in, ra_in = _interval_peaks(self.gridpoints, self.sd, self.sdd, *self.path.pieces, vmax, amax)
         return max(rv, rv_in), max(ra, ra_in)

@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.program import PvtProgram
+from planner import timing
 from planner.build import BuildError, BuildOutput, build_program
 from planner.cartesian import placement_pose
 from planner.knots import KnotOptions, jerk_smooth, quantize
@@ -108,6 +109,7 @@ class CellPlanner:
         lo, hi = self.limits.lower, self.limits.upper
         a, b = lo + 0.45 * (hi - lo), lo + 0.55 * (hi - lo)
         self.plan(PlanInput(np.array([a, b])))
+        timing.warm_up()  # the longer paths' spline and the torque check near a limit
         quantize.warm_up()  # the repair that may move knots, which a short move rarely needs
         if jerk:
             ja, jb = lo + 0.4 * (hi - lo), lo + 0.6 * (hi - lo)

@@ -164,11 +164,12 @@ def test_backward_pass_shortcuts_match_the_lps(arm6_flat) -> None:
     assert np.isfinite(K).all()
     sw = algo.solver_wrapper
     sw.setup_solver()
+    g_max = np.array([1e-9, -1.0])  # the highest x (toppra's objective for the controllable set's top)
     for i in range(len(grid) - 1):
         lo, hi = K[i + 1]
-        x_hi = sw.solve_stagewise_optim(i, None, algo._g_max_x, np.nan, np.nan, lo, hi)[1]
+        x_hi = sw.solve_stagewise_optim(i, None, g_max, np.nan, np.nan, lo, hi)[1]
         assert x_hi == pytest.approx(K[i, 1], rel=1e-6, abs=1e-9)
-        x_lo = sw.solve_stagewise_optim(i, None, algo._g_min_x, np.nan, np.nan, lo, hi)[1]
+        x_lo = sw.solve_stagewise_optim(i, None, -g_max, np.nan, np.nan, lo, hi)[1]
         assert max(x_lo, 0.0) == pytest.approx(K[i, 0], abs=1e-6 * (1.0 + K[i, 1]))
     sw.close_solver()
 

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 import pytest
 import toppra
 import toppra.algorithm as algo
 import toppra.constraint as constraint
 
+from planner.constraints import TORQUE_MIDDLE_MARGIN
 from planner.limits import JointLimits
 from planner.path import JointPath, PlanError
 from planner.plan import PlanInput, Planner
@@ -20,6 +22,7 @@ from planner.timing import (
     parameterize,
     timing_constraints,
 )
+from planner.trajectory import Trajectory
 from service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
@@ -66,6 +69,67 @@ def test_lean_toppra_equals_toppra_on_the_cell_constraints() -> None:
     sd_lean = lean.compute_parameterization(0.0, 0.0)[1]
     sd_stock = stock.compute_parameterization(0.0, 0.0)[1]
     np.testing.assert_allclose(sd_lean, sd_stock, rtol=1e-9, atol=1e-9)
+
+
+def _sets_by_toppras_wrapper(lean: LeanTOPPRA) -> np.ndarray:
+    """The controllable sets with every LP the compiled pass solves put to toppra's own seidel solver
+    wrapper (Cython), call by call in the same order, the same closed-form skips."""
+    n, rows, wrapper = lean._N, lean._rows, lean.solver_wrapper
+    K = np.full((n + 1, 2), np.nan)
+    K[n] = (0.0, 0.0)
+    g_max = np.zeros(wrapper.get_no_vars())
+    g_max[0], g_max[1] = 1e-9, -1.0
+    two_delta = 2.0 * wrapper.get_deltas()
+    (u_lo, u_hi), lo, hi = lean._u_top, 0.0, 0.0
+    for i in range(n - 1, -1, -1):
+        x = lean._x_top[i]
+        first = max(u_lo[i], (lo - x) / two_delta[i])
+        if first + 1e-9 * (1.0 + abs(first)) <= min(u_hi[i], (hi - x) / two_delta[i]):
+            x_hi = x
+        else:
+            x_hi = wrapper.solve_stagewise_optim(i, None, g_max, np.nan, np.nan, lo, hi)[1]
+            if x_hi != x_hi:
+                x_hi = rows.x_extreme(i, two_delta[i], lo, hi, highest=True)
+        x_lo = (
+            0.0
+            if lo == 0.0 and lean._rest[i]
+            else wrapper.solve_stagewise_optim(i, None, -g_max, np.nan, np.nan, lo, hi)[1]
+        )
+        if x_lo != x_lo and x_hi == x_hi:
+            x_lo = rows.x_extreme(i, two_delta[i], lo, hi, highest=False)
+        lo, hi = max(x_lo, 0.0), x_hi
+        if lo != lo or hi != hi:
+            break
+        K[i] = lo, hi
+    return K
+
+
+def test_compiled_backward_pass_is_toppras_seidel_solver_bit_for_bit() -> None:
+    """The backward pass's 2-D LPs, solved in the compiled loop, give what toppra's seidel solver
+    wrapper gives, bit for bit (its warm starts included), on random paths of both cells, with and
+    without binding torque limits, on coarse and fine grids."""
+    rng = np.random.default_rng(11)
+    gantry = load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml")
+    weak = JointLimits(
+        LIMITS.names, LIMITS.lower, LIMITS.upper, LIMITS.velocity, LIMITS.acceleration, LIMITS.effort * 0.3
+    )
+    cases = [
+        (LIMITS, timing_constraints(LIMITS, ARM.model, True, "tool0", 2.0)),
+        (LIMITS, timing_constraints(weak, ARM.model, True, "tool0", 2.0)),
+        (gantry.joint_limits(), timing_constraints(gantry.joint_limits(), gantry.model, False, "tool0", 1.0)),
+    ]
+    lps = 0
+    for limits, cons in cases:
+        for _ in range(6):
+            w = limits.lower + (limits.upper - limits.lower) * (
+                0.05 + 0.9 * rng.random((int(rng.integers(2, 9)), limits.dof))
+            )
+            path = JointPath(w, limits)
+            lean = LeanTOPPRA(cons, path, make_gridpoints(path, int(rng.choice([20, 60, 140]))))
+            K = lean.compute_controllable_sets(0.0, 0.0)
+            np.testing.assert_array_equal(K, _sets_by_toppras_wrapper(lean))
+            lps += int(np.sum(K[:-1, 1] != lean._x_top[:-1]))
+    assert lps > 100  # stages whose upper end the LP gave
 
 
 def test_lower_bound_lp_still_solved_where_rest_is_not_allowed() -> None:
@@ -143,6 +207,89 @@ def test_deferred_torque_limits_give_the_same_plan_as_solving_with_them() -> Non
     held = parameterize(path, weak, weak_cons)
     assert weak_torque.holds_on(held)
     assert held.duration > free.duration
+
+
+def _end_torques(tr: Trajectory) -> np.ndarray:
+    """Pinocchio's RNEA, call by call, at the exact states of both ends of every interval: the
+    starts with their own s'', then the ends on the interval's own piece with the interval's s''
+    (not the next one's)."""
+    path, grid, sd, sdd = tr.path, tr.gridpoints, tr.sd, tr.sdd
+    start = grid[:-1]
+    q_s, q_ss = path.on_piece_of(start, start, 1), path.on_piece_of(start, start, 2)
+    e_s, e_ss = path.on_piece_of(start, grid[1:], 1), path.on_piece_of(start, grid[1:], 2)
+    states = [
+        (path.on_piece_of(start, start, 0), q_s * sd[:-1, None], q_ss * (sd[:-1] ** 2)[:, None] + q_s * sdd[:, None]),
+        (path.on_piece_of(start, grid[1:], 0), e_s * sd[1:, None], e_ss * (sd[1:] ** 2)[:, None] + e_s * sdd[:, None]),
+    ]
+    return np.vstack([[ARM.model.inverse_dynamics(*row) for row in zip(*s, strict=True)] for s in states])
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.3])
+def test_torque_check_is_pinocchios_rnea_or_a_bound_at_both_ends_of_every_interval(scale: float) -> None:
+    """The torque check takes Pinocchio's RNEA at the exact states of every gridpoint and of the
+    interval ends it cannot bound clear of the middle margin; where it bounds one, the end's own
+    torque is within that bound, and the decisions are those of every end's torque (a plan far from
+    the limits and one over them)."""
+    effort = LIMITS.effort * scale
+    lim = JointLimits(LIMITS.names, LIMITS.lower, LIMITS.upper, LIMITS.velocity, LIMITS.acceleration, effort)
+    torque = RneaJointTorqueConstraint(ARM.model, effort)
+    tr = parameterize(JointPath(WAYPOINTS, LIMITS), lim, timing_constraints(lim), speed_band=0.05)
+    check, expected, m = torque.check(tr), _end_torques(tr), len(tr.sdd)
+    computed = ~check.bounded
+    np.testing.assert_allclose(check.tau[computed], expected[computed], rtol=1e-12, atol=1e-9)
+    ratio = np.abs(expected) / effort
+    assert np.all(ratio[check.bounded] <= 1.0 - TORQUE_MIDDLE_MARGIN)
+    assert check.holds == bool(np.all(ratio[:m] <= 1.0) and np.all(ratio[-1] <= 1.0)) == torque.holds_on(tr)
+    worst = ratio.max(axis=1)
+    np.testing.assert_array_equal(
+        check._near, np.flatnonzero(np.maximum(worst[:m], worst[m:]) > 1.0 - TORQUE_MIDDLE_MARGIN)
+    )
+    if scale == 1.0:  # far from the limits: most ends bounded, no slow-down
+        assert check.bounded.sum() > m / 2 and check.holds and check.slowdown() == 1.0
+    else:  # over a limit: the slow-down from every end and middle, as the constraint's own check
+        assert not check.holds and check.slowdown() > 1.0
+    assert check.slowdown() == pytest.approx(torque.slowdown(tr), rel=1e-6)
+    mid = 0.5 * (tr.breakpoints[:-1] + tr.breakpoints[1:])
+    q, qd, qdd, tau = check._middles(np.arange(m))
+    np.testing.assert_allclose(q, tr.position(mid), atol=1e-12)
+    np.testing.assert_allclose(qd, tr.velocity(mid), atol=1e-12)
+    np.testing.assert_allclose(qdd, tr.acceleration(mid), atol=1e-9)
+    np.testing.assert_allclose(tau, ARM.model.inverse_dynamics_rows(tr.position(mid), qd, qdd), atol=1e-9)
+
+
+def test_mass_matrix_bound_holds_over_the_joint_ranges() -> None:
+    """|M(q) v| <= mass_matrix_bound |v| at every configuration (Pinocchio's CRBA at random q in
+    the limits), and it is not so loose that it bounds nothing (within 20 x)."""
+    bound = ARM.model.mass_matrix_bound()
+    rng = np.random.default_rng(3)
+    worst = 0.0
+    for q in rng.uniform(LIMITS.lower, LIMITS.upper, (300, LIMITS.dof)):
+        M = pin.crba(ARM.model.model, ARM.model.data, q)
+        worst = max(worst, float(np.linalg.eigvalsh(np.triu(M) + np.triu(M, 1).T).max()))
+    assert worst <= bound <= 20.0 * worst
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.5, 0.3])
+def test_an_intervals_inside_adds_far_less_torque_than_the_middle_margin(scale: float) -> None:
+    """The torque check takes an interval's middle only where one of its ends is within
+    TORQUE_MIDDLE_MARGIN of a limit: on the cell's paths, binding or not, the inside of every
+    interval (19 samples) exceeds the larger of its ends by less than a third of that margin."""
+    effort = LIMITS.effort * scale
+    lim = JointLimits(LIMITS.names, LIMITS.lower, LIMITS.upper, LIMITS.velocity, LIMITS.acceleration, effort)
+    planner = Planner(lim, ARM.model, "tool0", max_tcp_speed=2.0, torque_limits=True)
+    rng = np.random.default_rng(5)
+    worst = 0.0
+    for _ in range(12):
+        w = LIMITS.lower + (LIMITS.upper - LIMITS.lower) * (0.1 + 0.8 * rng.random((8, LIMITS.dof)))
+        out = planner.plan(PlanInput(w))
+        assert out.ok, out.message
+        tr = out.trajectory
+        t = tr.check_times(19)
+        tau = ARM.model.inverse_dynamics_rows(tr.position(t), tr.velocity(t), tr.acceleration(t))
+        r = (np.abs(tau) / effort).reshape(len(tr.sdd), 21, -1)
+        assert r.max() <= 1.0 + 1e-3  # and the plan holds the limits
+        worst = max(worst, float((r[:, 1:-1].max(axis=1) - np.maximum(r[:, 0], r[:, -1])).max()))
+    assert worst < TORQUE_MIDDLE_MARGIN / 3
 
 
 def test_limit_ratios_are_the_paths_own_derivatives() -> None:
