@@ -35,6 +35,7 @@ followed each SYNC it heard).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
 import math
 import multiprocessing
@@ -49,7 +50,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from axes.bus import CellBus
 from axes.config import BusConfig
-from axes.sync import ask_realtime
+from axes.sync import ask_realtime, below_sync
 
 
 def busy(stop: multiprocessing.synchronize.Event) -> None:  # type: ignore[name-defined]
@@ -151,6 +152,8 @@ def run_case(
     interface: str,
     lift: bool = True,
     beside: bool = False,
+    backup: bool = True,
+    caller_waits_realtime: bool = True,
 ) -> dict[str, object]:
     stop = multiprocessing.Event()
     workers = [multiprocessing.Process(target=busy, args=(stop,), daemon=True) for _ in range(load)]
@@ -174,9 +177,11 @@ def run_case(
     bus.sync.hold = lambda: woke.append(time.monotonic())
     b0, t0 = cpu_times()
     beside_floor = Floor(seconds, period_ms, priority) if beside else None
-    bus.sync.start()
-    time.sleep(seconds)
-    bus.sync.stop()
+    bus.sync.backup = backup
+    with below_sync(bus.sync) if caller_waits_realtime else contextlib.nullcontext():
+        bus.sync.start()  # the caller starts and waits on the motion as AxisGroup.run does
+        time.sleep(seconds)
+        bus.sync.stop()
     if beside_floor is not None:
         floor = beside_floor.result()
     b1, t1 = cpu_times()
@@ -237,6 +242,16 @@ def main() -> None:
         help="leave the bus's other threads at normal priority (SyncClock.lift_bus_threads off): for comparison",
     )
     parser.add_argument(
+        "--one-sync-thread",
+        action="store_true",
+        help="one SYNC thread, unpinned (SyncClock.backup off): for comparison",
+    )
+    parser.add_argument(
+        "--caller-normal",
+        action="store_true",
+        help="the caller waits at normal priority (not under axes.sync.below_sync): for comparison",
+    )
+    parser.add_argument(
         "--floor",
         choices=("before", "beside"),
         default="before",
@@ -264,6 +279,8 @@ def main() -> None:
                     args.interface,
                     not args.bus_threads_normal,
                     args.floor == "beside",
+                    not args.one_sync_thread,
+                    not args.caller_normal,
                 )
                 for _ in range(args.runs)
             ]
