@@ -32,7 +32,7 @@ from axes.outcome import Result
 from axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from axes.sim.power_states import SWITCH_ON_DISABLED
 from axes.subscriptions import subscribe, unsubscribe
-from axes.sync import lift
+from axes.sync import below_sync, lift, producer_cpus
 
 # --- subscriptions --------------------------------------------------------------------------------
 
@@ -121,6 +121,7 @@ def test_a_sync_more_than_half_a_period_late_goes_out_at_once_and_the_period_run
             time.sleep(0.6 * period_ms / 1000.0)
 
     bus.sync.hold = hold
+    bus.sync.backup = False  # one thread held: the rule for a late SYNC (a second thread would send it)
     try:
         bus.sync.start()
         time.sleep(12 * period_ms / 1000.0)
@@ -136,6 +137,88 @@ def test_a_sync_more_than_half_a_period_late_goes_out_at_once_and_the_period_run
     finally:
         bus.close()
         observer.close()
+
+
+def test_a_second_sync_thread_on_another_cpu_sends_the_syncs_a_held_first_thread_does_not():
+    """The host stalls one CPU's wake-ups at a time (axes.sync): the first SYNC thread held for three
+    periods, the second, on the other CPU, sends each SYNC a quarter period past its deadline, and
+    the first, back, sends none twice nor within half a period of the one before."""
+    channel = unique_channel("sync")
+    observer = BusObserver(channel)
+    period_ms = 40.0
+    bus = CellBus(
+        BusConfig(channel=channel, sync_period_ms=period_ms, time_stamp=False, max_sync_gap_periods=100),
+        lockstep=False,
+    ).open()
+    wakes = itertools.count()
+    senders: list[str] = []
+
+    def hold() -> None:  # the first thread's 6th wake comes three periods late
+        if threading.current_thread().name == "pvtflow-sync" and next(wakes) == 5:
+            time.sleep(3 * period_ms / 1000.0)
+
+    bus.sync.hold = hold
+    bus.sync.add_sender(lambda n: senders.append(threading.current_thread().name))
+    cpus = producer_cpus()
+    try:
+        bus.sync.start()
+        time.sleep(14 * period_ms / 1000.0)
+        bus.sync.stop()
+        names = {t.name for t in threading.enumerate() if t.name.startswith("pvtflow-sync")}
+        syncs = sync_times(observer)
+        gaps = [(b - a) / (period_ms / 1000.0) for a, b in itertools.pairwise(syncs)]
+        assert len(gaps) >= 10, gaps
+        if len(cpus) < 2:  # one CPU: one thread, and the held thread's SYNC is late
+            assert "pvtflow-sync-backup" not in names and max(gaps) >= 1.5
+            return
+        assert max(gaps) < 1.5, [round(g, 2) for g in gaps]  # a quarter period late at most, not three
+        assert min(gaps) > 0.5, [round(g, 2) for g in gaps]  # never two SYNCs for one deadline
+        assert senders.count("pvtflow-sync-backup") >= 2  # the SYNCs of the held periods
+        assert bus.sync.skipped == 0
+    finally:
+        bus.close()
+        observer.close()
+
+
+def test_a_second_sync_thread_is_pinned_to_a_cpu_the_first_is_not_on():
+    channel = unique_channel("sync")
+    bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0, time_stamp=False), lockstep=False).open()
+    try:
+        bus.sync.start()
+        time.sleep(0.05)
+        threads = {t.name: t.native_id for t in threading.enumerate() if t.name.startswith("pvtflow-sync")}
+        cpus = producer_cpus()
+        if len(cpus) < 2:
+            assert set(threads) == {"pvtflow-sync"}
+            return
+        first, second = threads["pvtflow-sync"], threads["pvtflow-sync-backup"]
+        assert os.sched_getaffinity(first) == {cpus[0]} and os.sched_getaffinity(second) == {cpus[1]}
+        bus.sync.stop()
+        time.sleep(0.03)
+        assert not any(t.name.startswith("pvtflow-sync") for t in threading.enumerate())  # both end
+    finally:
+        bus.close()
+
+
+def test_below_sync_runs_the_caller_just_below_the_bus_threads_and_gives_its_policy_back():
+    """The thread that starts and waits on a motion (AxisGroup.run) holds no GIL from SYNC while a
+    busy process preempts it: SCHED_FIFO two below SYNC meanwhile, its own policy after."""
+    channel = unique_channel("sync")
+    bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0, sync_priority=50), lockstep=False).open()
+    try:
+        before = os.sched_getscheduler(0)
+        with below_sync(bus.sync):
+            bus.sync.start()
+            time.sleep(0.02)
+            inside = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+        bus.sync.stop()
+        assert os.sched_getscheduler(0) == before
+        if bus.sync.realtime:
+            assert inside == (os.SCHED_FIFO, 48)
+        else:  # not permitted here: nothing changed
+            assert inside[0] == before
+    finally:
+        bus.close()
 
 
 def test_a_sync_gap_longer_than_the_drives_ride_out_is_reported_with_the_gap():
