@@ -16,8 +16,7 @@ SYNC has two modes (``CellBus(lockstep=...)``):
   bus's other threads (``CellBus.threads``) are lifted to SCHED_FIFO one below it (``lift``), since
   any of them preempted by another process while it holds the GIL would hold SYNC up for a
   scheduler slice (priority inversion through the GIL; measured in bench/sync_jitter.py).
-  On a host of two or more CPUs, two threads produce SYNC (``SyncClock.backup``; two follow it where
-  the interface sends it: ``axes.sync_follower``), each pinned to a
+  On a host of two or more CPUs, two threads produce SYNC (``SyncClock.backup``), each pinned to a
   CPU of its own: the second wakes ``BACKUP_AFTER`` of a period after each deadline and sends the
   SYNC the first has not sent by then (the deadlines, the skip rule and the gap judgement are
   shared, under the SYNC lock: one SYNC per deadline whoever sends it). Measured
@@ -371,10 +370,8 @@ class SyncClock:
             self.native = self.follower.task is not None
             self._deadline, self._judged = time.monotonic(), None
         cpus = producer_cpus() if self.backup else []
-        if self.native:
-            threads = [("pvtflow-sync-follow", self.follower.follow, cpus[0] if cpus else None)]
-            if cpus:
-                threads.append(("pvtflow-sync-follow-backup", self.follower.follow_beside, cpus[1]))
+        if self.native:  # one follower: a second one, measured, only took the GIL from the first (axes.sync_follower)
+            threads = [("pvtflow-sync-follow", self.follower.follow, None)]
         else:
             threads = [("pvtflow-sync", self._produce, cpus[0] if cpus else None)]
             if cpus:

@@ -5,10 +5,10 @@ on its ``ThreadBasedCyclicSendTask``: socketcan's broadcast manager), the master
 its thread follows each SYNC the bus hears with the time stamp and the setpoints that must follow
 every SYNC (``SyncClock.transmit`` without the SYNC frame). The interface times SYNC, so a gap is
 measured between the SYNCs' own time stamps on the bus, not in this thread's wakes: a held process
-delays the time stamp, not the SYNC. On a host of two or more CPUs two threads follow, each pinned
-to a CPU of its own (``SyncClock.backup``, as the SYNC threads of ``axes.sync``): whichever wakes
-first on a SYNC heard follows it, so a CPU whose wake-up the host stalls does not stall the time
-stamp and the setpoints.
+delays the time stamp, not the SYNC. One thread follows (not two on two CPUs, as ``axes.sync``
+produces SYNC): measured on the simulated wire (bench/RESULTS.md, "Issue 23: SYNC under load"), the
+follower's multi-ms gaps are the SYNC echoes reaching the process late, in a batch (the receive
+path, the medium's delivery), not the follower waking late; a second follower only took the GIL.
 """
 
 from __future__ import annotations
@@ -52,15 +52,11 @@ class SyncFollower:
         self._echoes = 0  # SYNC frames the interface sent and the bus heard
         self._stamp: float | None = None  # the last SYNC echo's time stamp (bus time)
         self._gap_s = 0.0  # the longest gap between SYNC echoes not yet judged
-        self._seen = 0  # the SYNC echoes this production has followed (under the clock's lock)
-        self._silent = False  # the silence after the last SYNC heard is reported
 
     def reset(self) -> None:
-        """A new production: no gap is judged across the SYNCs of the one before, and the SYNCs heard
-        before it are not its own (called under the clock's lock)."""
+        """A new production: no gap is judged across the SYNCs of the one before."""
         with self._echo:
             self._stamp, self._gap_s = None, 0.0
-            self._seen, self._silent = self._echoes, False
 
     def _on_echo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self._echo:
@@ -71,10 +67,13 @@ class SyncFollower:
             self._echo.notify_all()
 
     def follow(self, production: int) -> None:
-        """The interface sends SYNC: this thread starts it and follows each one the bus hears with the
-        time stamp and the setpoints. SYNCs that came while it was held are counted, one time stamp
-        and one setpoint follow the last (the feeder sends the setpoint due after it)."""
-        network = self.clock.bus.network
+        """The interface sends SYNC: this thread follows each one the bus hears with the time stamp
+        and the setpoints. SYNCs that came while it was held are counted, one time stamp and one
+        setpoint follow the last (the feeder sends the setpoint due after it)."""
+        clock = self.clock
+        network = clock.bus.network
+        with self._echo:
+            seen, silent = self._echoes, False  # the SYNCs heard before this production are not its own
 
         # this production's own subscriber: a follower of the previous production still winding
         # down unsubscribes its own, never this one's
@@ -86,37 +85,32 @@ class SyncFollower:
             assert self.task is not None
             if isinstance(self.task, can.broadcastmanager.RestartableCyclicTaskABC):
                 self.task.start()
-            self.follow_beside(production)
+            while True:
+                with self._echo:
+                    heard = self._echo.wait_for(lambda seen=seen: self._echoes > seen, clock.max_gap_s)
+                if not heard:  # a held process wakes this thread first: let the receive thread catch up
+                    with self._echo:
+                        self._echo.wait_for(lambda seen=seen: self._echoes > seen, clock.period_ms / 1000.0)
+                with self._echo:
+                    echoes = self._echoes
+                now = time.monotonic()
+                gap = None
+                with clock.lock:
+                    if not clock.producing(production):
+                        return
+                    if echoes > seen:
+                        clock.skipped += echoes - seen - 1  # heard, but not followed one by one
+                        clock.count += echoes - seen - 1
+                        # the interface times SYNC: a gap is between the SYNCs on the bus, not in
+                        # this thread's wakes (a held process delays the time stamp, not the SYNC)
+                        with self._echo:
+                            gap, self._gap_s = self._gap_s, 0.0
+                        clock.transmit(sync_frame=False)
+                        seen, silent = echoes, False
+                    elif not silent:  # no SYNC heard for the whole gap the drives ride out: once
+                        silent = True
+                        gap = now - (clock.sent_at if clock.sent_at is not None else now)
+                if gap is not None:
+                    clock.report_gap(gap)
         finally:
             unsubscribe(network, SYNC_COB_ID, on_echo)
-
-    def follow_beside(self, production: int) -> None:
-        """Follow the SYNCs heard, beside (or as) the thread that started them (module docstring)."""
-        clock = self.clock
-        while True:
-            with self._echo:
-                heard = self._echo.wait_for(lambda: self._echoes > self._seen, clock.max_gap_s)
-            if not heard:  # a held process wakes this thread first: let the receive thread catch up
-                with self._echo:
-                    self._echo.wait_for(lambda: self._echoes > self._seen, clock.period_ms / 1000.0)
-            with self._echo:
-                echoes = self._echoes
-            now = time.monotonic()
-            gap = None
-            with clock.lock:
-                if not clock.producing(production):
-                    return
-                if echoes > self._seen:
-                    clock.skipped += echoes - self._seen - 1  # heard, but not followed one by one
-                    clock.count += echoes - self._seen - 1
-                    # the interface times SYNC: a gap is between the SYNCs on the bus, not in
-                    # this thread's wakes (a held process delays the time stamp, not the SYNC)
-                    with self._echo:
-                        gap, self._gap_s = self._gap_s, 0.0
-                    self._seen, self._silent = echoes, False
-                    clock.transmit(sync_frame=False)
-                elif not heard and not self._silent:  # no SYNC heard for the whole gap the drives ride out: once
-                    self._silent = True
-                    gap = now - (clock.sent_at if clock.sent_at is not None else now)
-            if gap is not None:
-                clock.report_gap(gap)
