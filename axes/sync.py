@@ -170,7 +170,8 @@ class SyncClock:
 
     ``count`` is the number of SYNCs sent, ``answered`` the number every expected node has answered.
     Listeners get the number of the SYNC just answered; in lockstep they run before the next SYNC.
-    On the wall clock: ``skipped`` whole periods lost to late SYNCs (never caught up), ``longest_gap_s``
+    On the wall clock: ``skipped`` whole periods lost to late SYNCs (never caught up; where the
+    interface sends SYNC, the SYNCs that went out without a setpoint: ``axes.sync_follower``), ``longest_gap_s``
     the longest time between two SYNCs, ``max_gap_s`` the gap that is reported (``FaultKind.SYNC_GAP``),
     ``realtime`` whether the sending thread got SCHED_FIFO, ``native`` whether the interface sends SYNC.
     """
@@ -407,14 +408,15 @@ class SyncClock:
             self._production += 1
         self.bus.report(fault)
 
-    def report_gap(self, gap_s: float) -> None:
-        """Report a gap the drives do not ride out (called without the lock)."""
+    def report_gap(self, gap_s: float, what: str = "no SYNC") -> None:
+        """Report a gap the drives do not ride out (called without the lock): between two SYNCs, or
+        (``what`` "no setpoint") between two setpoints, where SYNCs went out without one (``axes.sync_follower``)."""
         if gap_s > self.max_gap_s:
             self.bus.report(
                 BusFault(
                     FaultKind.SYNC_GAP,
                     None,
-                    f"no SYNC for {gap_s * 1000:.1f} ms (the drives ride out {self.max_gap_s * 1000:.1f} ms)",
+                    f"{what} for {gap_s * 1000:.1f} ms (the drives ride out {self.max_gap_s * 1000:.1f} ms)",
                     round(gap_s * 1000),
                 )
             )

@@ -5,10 +5,18 @@ on its ``ThreadBasedCyclicSendTask``: socketcan's broadcast manager), the master
 its thread follows each SYNC the bus hears with the time stamp and the setpoints that must follow
 every SYNC (``SyncClock.transmit`` without the SYNC frame). The interface times SYNC, so a gap is
 measured between the SYNCs' own time stamps on the bus, not in this thread's wakes: a held process
-delays the time stamp, not the SYNC. One thread follows (not two on two CPUs, as ``axes.sync``
-produces SYNC): measured on the simulated wire (bench/RESULTS.md, "Issue 23: SYNC under load"), the
-follower's multi-ms gaps are the SYNC echoes reaching the process late, in a batch (the receive
-path, the medium's delivery), not the follower waking late; a second follower only took the GIL.
+delays the time stamp, not the SYNC. What a held follower costs is the setpoints: a synchronous
+RPDO holds one setpoint, the last written before the SYNC that validates it, so none can be on the
+bus more than a period ahead. The SYNCs heard while it was held went out without a new setpoint
+(``SyncClock.skipped``): the drives held through them, as through a late SYNC, and the follower
+then sends the setpoint next in the program (``SetpointFeeder.after_sync``: the rest of the motion a
+period later for each, never a jump); a run of them longer than the drives ride out is reported as
+a SYNC gap is (``FaultKind.SYNC_GAP``, "no setpoint for ... ms"), and the motion halts.
+
+One thread follows (not two on two CPUs, as ``axes.sync`` produces SYNC): measured on the
+simulated wire (bench/RESULTS.md, "Issue 23: SYNC under load"), the follower's multi-ms gaps are
+the SYNC echoes reaching the process late, in a batch (the receive path, the medium's delivery),
+not the follower waking late; a second follower only took the GIL.
 """
 
 from __future__ import annotations
@@ -91,26 +99,32 @@ class SyncFollower:
                 if not heard:  # a held process wakes this thread first: let the receive thread catch up
                     with self._echo:
                         self._echo.wait_for(lambda seen=seen: self._echoes > seen, clock.period_ms / 1000.0)
-                with self._echo:
-                    echoes = self._echoes
                 now = time.monotonic()
-                gap = None
+                gap = unfed_gap = None
                 with clock.lock:
                     if not clock.producing(production):
                         return
+                    with self._echo:  # counted once the lock is held: a wait for it is a hold too
+                        echoes = self._echoes
                     if echoes > seen:
-                        clock.skipped += echoes - seen - 1  # heard, but not followed one by one
-                        clock.count += echoes - seen - 1
+                        unfed = echoes - seen - 1  # heard, but not followed one by one: no setpoint came after them
+                        clock.skipped += unfed
+                        clock.count += unfed
                         # the interface times SYNC: a gap is between the SYNCs on the bus, not in
                         # this thread's wakes (a held process delays the time stamp, not the SYNC)
                         with self._echo:
                             gap, self._gap_s = self._gap_s, 0.0
                         clock.transmit(sync_frame=False)
                         seen, silent = echoes, False
+                        # the setpoint just sent is the first since the SYNC before the unfed ones: the
+                        # drives go unfed + 1 periods between two setpoints, as through a SYNC gap
+                        unfed_gap = (unfed + 1) * clock.period_ms / 1000.0 if unfed else None
                     elif not silent:  # no SYNC heard for the whole gap the drives ride out: once
                         silent = True
                         gap = now - (clock.sent_at if clock.sent_at is not None else now)
                 if gap is not None:
                     clock.report_gap(gap)
+                if unfed_gap is not None:
+                    clock.report_gap(unfed_gap, "no setpoint")
         finally:
             unsubscribe(network, SYNC_COB_ID, on_echo)

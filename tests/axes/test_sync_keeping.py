@@ -266,6 +266,56 @@ def test_the_interface_s_own_cyclic_sync_is_followed_by_the_time_stamp():
         observer.close()
 
 
+@pytest.mark.parametrize(("held_periods", "reported"), [(2.5, False), (4.5, True)])
+def test_a_held_follower_sends_one_setpoint_after_the_syncs_it_missed_and_a_long_hold_is_reported(
+    held_periods, reported
+):
+    """The interface sends SYNC; its follower held 2.5 periods right after it followed SYNC n (its
+    setpoint is for n + 1) leaves SYNC n + 2 without a setpoint, which the drives ride out (2 periods
+    between setpoints): counted, nothing reported. Held 4.5 periods, it leaves three SYNCs without
+    one: 4 periods between setpoints, reported as a SYNC gap. Either way one setpoint follows the
+    SYNCs it missed, never one per SYNC missed."""
+    channel = unique_channel("kernel")
+    period_ms = 20.0
+    bus = CellBus(
+        BusConfig(
+            interface="pvtflow_test_kernel",
+            channel=channel,
+            sync_period_ms=period_ms,
+            time_stamp=False,
+            max_sync_gap_periods=2,
+        ),
+        lockstep=False,
+    ).open()
+    faults: list[BusFault] = []
+    bus.on_fault(faults.append)
+    followed: list[int] = []  # the SYNC each time stamp and setpoint followed
+
+    def sender(n: int) -> None:  # in the follower's thread, the SYNC lock held
+        followed.append(n)
+        if len(followed) == 5:
+            time.sleep(held_periods * period_ms / 1000.0)
+
+    bus.sync.add_sender(sender)
+    try:
+        bus.sync.start()
+        time.sleep((held_periods + 10) * period_ms / 1000.0)
+        bus.sync.stop()
+        assert bus.sync.native
+        assert bus.sync.skipped == int(held_periods) - 1  # the SYNCs that went out without a setpoint
+        steps = [b - a for a, b in itertools.pairwise(followed)]
+        # one setpoint after the SYNCs it missed (the last heard), then one per SYNC, none twice
+        assert steps[:4] == [1, 1, 1, 1] and steps[4] == int(held_periods) and set(steps[5:]) == {1}, followed
+        setpoint_gaps = [f for f in faults if f.kind is FaultKind.SYNC_GAP and "no setpoint" in f.message]
+        assert bool(setpoint_gaps) is reported, [f.message for f in faults]
+        if reported:
+            assert setpoint_gaps[0].code == int(held_periods) * period_ms
+            assert "ride out 40.0 ms" in setpoint_gaps[0].message
+        assert not [f for f in faults if "no SYNC" in f.message]  # the interface kept SYNC
+    finally:
+        bus.close()
+
+
 def test_a_virtual_bus_has_no_cyclic_send_of_its_own_so_the_sync_thread_sends():
     channel = unique_channel("sync")
     bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0), lockstep=False).open()
