@@ -17,7 +17,10 @@ floor runs alone with the load just before the master; ``--floor beside``: at th
 the master's gaps over 2 periods that the floor also had (a gap of the machine) are counted.
 
 The master's bus threads run at SCHED_FIFO one below SYNC when SYNC has it (``axes.sync.lift``);
-``--bus-threads-normal`` leaves them at normal priority, for comparison. ``--runs N`` repeats each
+``--bus-threads-normal`` leaves them at normal priority, for comparison. Two SYNC threads on two
+CPUs (``SyncClock.backup``); ``--one-sync-thread``: one, for comparison. The caller starts SYNC and
+waits under ``axes.sync.below_sync``, as ``AxisGroup.run`` does; ``--caller-normal``: at normal
+priority, for comparison. ``--runs N`` repeats each
 case (the rare multi-ms gaps need many runs to be seen); ``--under-load-only``: the case that
 matters, under load with SCHED_FIFO.
 
@@ -30,6 +33,7 @@ followed each SYNC it heard).
 
     python3 bench/sync_jitter.py [--seconds 5] [--period-ms 1] [--load 2] [--interface virtual|simwire]
         [--runs N] [--under-load-only] [--floor before|beside] [--bus-threads-normal]
+        [--one-sync-thread] [--caller-normal]
 """
 
 from __future__ import annotations
