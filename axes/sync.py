@@ -135,11 +135,14 @@ def pin(cpu: int | None) -> None:
 
 class below_sync:  # noqa: N801  (a context manager, used as ``with below_sync(clock):``)
     """The calling thread at SCHED_FIFO just below the bus's threads while it starts a motion and
-    waits on it, when SYNC has SCHED_FIFO (or may yet get it); its own policy again after. A thread
+    waits on it, when SYNC runs on the wall clock with SCHED_FIFO (or may yet get it) and the bus's
+    threads are lifted (``SyncClock.lift_bus_threads``); its own policy again after. A thread
     of normal priority of this interpreter that runs (the start, a poll, a timeout) takes the GIL,
     and preempted by another process while it holds it, holds SYNC up for a scheduler slice:
     measured 3-7 ms (bench/RESULTS.md, "Issue 23: SYNC under load"). At real time, it runs through
-    and gives the GIL back. Keep it to starting and waiting: planning at SCHED_FIFO would starve the host."""
+    and gives the GIL back. Keep it to starting and waiting: planning at SCHED_FIFO would starve the host.
+    A thread started meanwhile inherits the policy (Linux: the group's SDO pool threads, when a start
+    is the first to use them), and keeps it: they serve the bus."""
 
     def __init__(self, clock: SyncClock) -> None:
         self.clock = clock
@@ -147,7 +150,10 @@ class below_sync:  # noqa: N801  (a context manager, used as ``with below_sync(c
 
     def __enter__(self) -> below_sync:
         priority = self.clock.priority - 2
-        if self.clock.realtime is False or priority <= 0:  # None: not known yet, asked (refused: no harm)
+        clock = self.clock
+        # realtime None: not known yet, asked (refused: no harm). Lockstep has no SYNC thread to keep;
+        # where the bus's threads stay at normal priority (the drives in this interpreter), so does it
+        if clock.lockstep or not clock.lift_bus_threads or clock.realtime is False or priority <= 0:
             return self
         try:
             before = (os.sched_getscheduler(0), os.sched_getparam(0))
