@@ -218,7 +218,8 @@ class SyncClock:
         self._collector_held = False  # this clock holds the cyclic collector off (wall clock, running)
         self._t0_us = time.monotonic_ns() // 1000
         self.follower = SyncFollower(self)  # where the interface sends SYNC (``native``)
-        self.hold: Callable[[], None] | None = None  # benchmarks and tests: called before each wall-clock SYNC
+        # benchmarks and tests: called before each wall-clock SYNC, and before the follower follows
+        self.hold: Callable[[], None] | None = None
         self.lift_bus_threads = True  # the bus's threads follow SYNC to SCHED_FIFO (BusConfig.lift_bus_threads)
         self.lifted: list[str] = []  # the threads lifted below SYNC's priority (``CellBus.threads``)
         self.backup = True  # a second SYNC thread on another CPU (module docstring; one CPU: never)

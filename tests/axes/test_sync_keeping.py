@@ -266,15 +266,15 @@ def test_the_interface_s_own_cyclic_sync_is_followed_by_the_time_stamp():
         observer.close()
 
 
-@pytest.mark.parametrize(("held_periods", "reported"), [(2.5, False), (4.5, True)])
+@pytest.mark.parametrize(("held_periods", "reported"), [(1.5, False), (4.5, True)])
 def test_a_held_follower_sends_one_setpoint_after_the_syncs_it_missed_and_a_long_hold_is_reported(
     held_periods, reported
 ):
-    """The interface sends SYNC; its follower held 2.5 periods right after it followed SYNC n (its
-    setpoint is for n + 1) leaves SYNC n + 2 without a setpoint, which the drives ride out (2 periods
-    between setpoints): counted, nothing reported. Held 4.5 periods, it leaves three SYNCs without
-    one: 4 periods between setpoints, reported as a SYNC gap. Either way one setpoint follows the
-    SYNCs it missed, never one per SYNC missed."""
+    """The interface sends SYNC; its follower, woken by SYNC n + 1, held 1.5 periods before it
+    follows: SYNC n + 1 took the setpoint sent after SYNC n, SYNC n + 2 went out without one, which
+    the drives ride out (2 periods between setpoints): counted, nothing reported. Held 4.5 periods:
+    four SYNCs without one, past the ride-out at the second, reported as a SYNC gap. Either way one
+    setpoint follows the SYNCs heard meanwhile, never one per SYNC."""
     channel = unique_channel("kernel")
     period_ms = 20.0
     bus = CellBus(
@@ -290,28 +290,77 @@ def test_a_held_follower_sends_one_setpoint_after_the_syncs_it_missed_and_a_long
     faults: list[BusFault] = []
     bus.on_fault(faults.append)
     followed: list[int] = []  # the SYNC each time stamp and setpoint followed
+    bus.sync.add_sender(followed.append)
 
-    def sender(n: int) -> None:  # in the follower's thread, the SYNC lock held
-        followed.append(n)
-        if len(followed) == 5:
+    def hold() -> None:  # in the follower's thread, woken by a SYNC, before it follows it
+        if len(followed) == 5 and bus.sync.count == followed[-1]:
             time.sleep(held_periods * period_ms / 1000.0)
 
-    bus.sync.add_sender(sender)
+    bus.sync.hold = hold
     try:
         bus.sync.start()
         time.sleep((held_periods + 10) * period_ms / 1000.0)
         bus.sync.stop()
         assert bus.sync.native
-        assert bus.sync.skipped == int(held_periods) - 1  # the SYNCs that went out without a setpoint
+        assert bus.sync.skipped == int(held_periods), followed  # the SYNCs that went out without a setpoint
         steps = [b - a for a, b in itertools.pairwise(followed)]
-        # one setpoint after the SYNCs it missed (the last heard), then one per SYNC, none twice
-        assert steps[:4] == [1, 1, 1, 1] and steps[4] == int(held_periods) and set(steps[5:]) == {1}, followed
+        # one setpoint after the SYNCs heard while held (for the SYNC after the last), then one per SYNC
+        assert steps[:4] == [1, 1, 1, 1] and steps[4] == int(held_periods) + 1 and set(steps[5:]) == {1}, followed
         setpoint_gaps = [f for f in faults if f.kind is FaultKind.SYNC_GAP and "no setpoint" in f.message]
         assert bool(setpoint_gaps) is reported, [f.message for f in faults]
-        if reported:
-            assert setpoint_gaps[0].code == int(held_periods) * period_ms
+        if reported:  # reported once past the ride-out: 3 periods from the last SYNC that took one
+            assert len(setpoint_gaps) == 1 and setpoint_gaps[0].code == 3 * period_ms
             assert "ride out 40.0 ms" in setpoint_gaps[0].message
         assert not [f for f in faults if "no SYNC" in f.message]  # the interface kept SYNC
+    finally:
+        bus.close()
+
+
+def test_a_sync_heard_after_the_setpoint_sent_after_it_takes_no_second_setpoint():
+    """The echoes of SYNCs 6 and 7 reach the follower late (the receive path held): 6 only once 7 is
+    on the wire, 7 just after the follower followed 6 with a setpoint. That setpoint went out after
+    SYNC 7 (by 7's own time stamp): it waits for SYNC 8, 7 took none, and no second setpoint follows
+    7's echo (two before SYNC 8: the drive would take the later, a jump)."""
+    channel = unique_channel("kernel")
+    period_ms = 20.0
+    bus = CellBus(
+        BusConfig(
+            interface="pvtflow_test_kernel",
+            channel=channel,
+            sync_period_ms=period_ms,
+            time_stamp=False,
+            max_sync_gap_periods=100,
+        ),
+        lockstep=False,
+    ).open()
+    sends: list[float] = []
+    bus.sync.add_sender(lambda n: sends.append(time.monotonic()))
+    follower = bus.sync.follower
+    delivered = follower._on_echo
+    held: list[tuple[int, bytearray, float]] = []
+
+    def receive(can_id: int, data: bytearray, timestamp: float) -> None:  # in the bus's receive thread
+        if len(sends) == 5 and len(held) < 2:
+            held.append((can_id, data, timestamp))
+            if len(held) == 2:  # SYNC 7 is on the wire: 6 is heard now, 7 once 6 is followed
+                time.sleep(0.003)
+                delivered(*held[0])
+                deadline = time.monotonic() + 1.0
+                while len(sends) < 6 and time.monotonic() < deadline:
+                    time.sleep(0.001)
+                delivered(*held[1])
+            return
+        delivered(can_id, data, timestamp)
+
+    follower._on_echo = receive
+    try:
+        bus.sync.start()
+        time.sleep(14 * period_ms / 1000.0)
+        bus.sync.stop()
+        assert len(held) == 2 and len(sends) >= 10
+        gaps = [(b - a) / (period_ms / 1000.0) for a, b in itertools.pairwise(sends)]
+        assert min(gaps) > 0.5, [round(g, 2) for g in gaps]  # never two setpoints for one SYNC
+        assert bus.sync.skipped == 1  # SYNC 7 took none; 8 took the one sent after 6's late echo
     finally:
         bus.close()
 
@@ -458,13 +507,13 @@ def test_lift_leaves_a_thread_that_has_ended_alone():
 # --- halts without SYNC on a simulated cell -------------------------------------------------------
 
 
-def sim_rig(cell, *, lockstep: bool, interface: str = "virtual", **bus_changes):
+def sim_rig(cell, *, lockstep: bool, interface: str = "virtual", clock: str = "lockstep", **bus_changes):
     channel = unique_channel()
     cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, channel=channel))
     cell = sharing_the_interpreter(cell)  # the drives run here
     bus_config = dataclasses.replace(cell.bus, **bus_changes)
     cell = dataclasses.replace(cell, bus=bus_config)
-    sim = SimulatedCell(cell, channel=channel, interface="virtual").start()
+    sim = SimulatedCell(cell, channel=channel, interface="virtual", clock=clock).start()
     master = dataclasses.replace(bus_config, interface=interface)
     bus = CellBus(master, lockstep=lockstep).open()
     group = AxisGroup(bus, cell.ordered_axes())
@@ -633,6 +682,46 @@ def test_a_sync_gap_beyond_the_limit_halts_the_motion_on_the_wall_clock(arm6):
         assert "no SYNC for" in result.message
         assert any(e.kind.value == "sync_gap" for e in events)
         assert_quick_stopped(group, sim, result, Result.BUS_ERROR)
+    finally:
+        close_rig(sim, bus, group)
+
+
+@pytest.mark.parametrize(("held_periods", "halts"), [(1.5, False), (4.5, True)], ids=["ridden_out", "too_long"])
+def test_a_follower_held_mid_motion_costs_a_period_or_halts_with_no_setpoint(arm6, held_periods, halts):
+    """The interface sends SYNC (the kernel's cyclic send) and the linear-IP drives keep their own
+    clock. The master's follower, woken by a SYNC at the motion's fastest, held 1.5 periods before it
+    follows: one SYNC goes out without a setpoint, the drives hold one period and go on with the next
+    record at the planned speed (a jump over the missed record would ask for twice it), the motion
+    finishes where it was going, a period late. Held 4.5 periods: four SYNCs without a setpoint,
+    past the 2 periods the drives ride out: halted, reported as such."""
+    cell = fixed_period_cell(arm6, 10)
+    cell, sim, bus, group = sim_rig(
+        cell, lockstep=False, interface="pvtflow_test_kernel", clock="wall", max_sync_gap_periods=2
+    )
+    events = []
+    group.on_event = events.append
+    held: list[int] = []
+
+    def hold() -> None:  # the follower, woken by a SYNC at the motion's fastest, held before it follows
+        start = group._start_sync
+        if start is not None and bus.sync.count == start + 50 and not held:
+            held.append(bus.sync.count)
+            time.sleep(held_periods * 10 / 1000.0)
+
+    try:
+        prog = program(cell.ordered_axes(), 1000, fraction=0.6)
+        bus.sync.hold = hold
+        assert group.start(prog) is None
+        result = group.wait(30.0)
+        assert bus.sync.native and held
+        assert bus.sync.skipped >= int(held_periods)
+        if halts:
+            assert result.result is Result.BUS_ERROR and "no setpoint for 30.0 ms" in result.message, result.message
+            assert any(e.kind.value == "sync_gap" for e in events)
+        else:
+            assert result.ok, (result.message, [d.faults for d in sim])
+            for drive, axis in zip(sorted(sim, key=lambda d: d.node_id), prog.axes, strict=True):
+                assert drive.faults == [] and drive.actual == axis.records[-1, 0], (drive.node_id, drive.faults)
     finally:
         close_rig(sim, bus, group)
 
