@@ -28,7 +28,8 @@ Two kinds, both driven by events only (the SYNC answers and the status TPDO), ne
   delay so that record k is reached at (k + 1) periods on the program's timeline. Its frames are
   packed before the start and go out right after each SYNC, from the thread that sends the SYNC
   (``after_sync``): a drive's answers never pace them, so on the wall clock a setpoint is never
-  late for its SYNC (a missed one makes the drive hold, and the next asks for twice the step).
+  late for its SYNC. Where the interface sends SYNC, a held follower leaves SYNCs without a setpoint:
+  the drive holds through them and the feeder goes on with the next record (never a jump).
   A stop of a drive without a ramp of its own replaces the records not yet sent by the master's
   braking ramp (``decelerate``, ``axes.stop_ramp``); the feeder sends them as it sent the program.
 """
@@ -316,10 +317,12 @@ class SetpointFeeder(Feeder):
         return 0
 
     def after_sync(self, elapsed: int) -> None:
-        # SYNC start+elapsed is out: the next SYNC validates record elapsed + lead
-        k = elapsed + self.lead
-        if self.enabled and self.next <= k < len(self.records):
-            self.next = k  # a SYNC without a setpoint (none can be skipped here) would skip its record
+        """SYNC start + elapsed is out: the next SYNC validates record elapsed + lead, or, where SYNCs
+        went out without a setpoint (the interface sends SYNC and its follower was held:
+        ``axes.sync_follower``), the next record not sent: the drive held through those SYNCs, and
+        the record after its last would ask it for several periods' step in one (a multiple of the
+        planned speed). One record per SYNC, never ahead of its SYNC."""
+        if self.enabled and self.next <= elapsed + self.lead and self.next < len(self.records):
             self._send_next()
 
     def finished(self, elapsed: int, ip_active: bool) -> bool:

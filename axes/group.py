@@ -48,6 +48,7 @@ from axes.program import AxisProgram, PvtProgram
 from axes.quick_stop import QuickStop
 from axes.readiness import Readiness
 from axes.run_state import CellRunState
+from axes.sync import below_sync
 
 _IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
 _FAULT_BITS = int(Statusword.FAULT)  # set in FAULT and FAULT REACTION ACTIVE
@@ -133,22 +134,24 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
     # --- running ---------------------------------------------------------------------------------
     def run(self, program: PvtProgram, timeout_s: float | None = None) -> RunResult:
         """Configure (once), enable, preload, start on one SYNC, feed to the end: the outcome."""
-        early = self.start(program)
-        if early is not None:
-            return early
-        return self.wait(timeout_s)
+        with below_sync(self.bus.sync):  # SYNC starts under it: no GIL held from it meanwhile (axes.sync)
+            early = self.start(program)
+            if early is not None:
+                return early
+            return self.wait(timeout_s)
 
     def wait(self, timeout_s: float | None = None) -> RunResult:
         """Block until the run ends. The timeouts only detect a cell that stopped answering: the run
         is then halted, and if no drive answers the halt SYNCs either, ended with what is known."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         halt_grace = self.halt_timeout_ms / 1000.0 + 2.0 * self.bus.lost_sync_timeout_s
-        while not self._done.wait(0.05):
-            now = time.monotonic()
-            if deadline is not None and now > deadline and self._ending is None:
-                self.stop("timeout waiting for the program to end")
-            if self._ending is not None and self._halted_at is not None and now - self._halted_at > halt_grace:
-                self._end(self._ending)  # nobody answers the halt SYNCs any more
+        with below_sync(self.bus.sync):  # its wakes hold no GIL from SYNC (axes.sync)
+            while not self._done.wait(0.05):
+                now = time.monotonic()
+                if deadline is not None and now > deadline and self._ending is None:
+                    self.stop("timeout waiting for the program to end")
+                if self._ending is not None and self._halted_at is not None and now - self._halted_at > halt_grace:
+                    self._end(self._ending)  # nobody answers the halt SYNCs any more
         assert self.last_result is not None
         return self.last_result
 

@@ -19,6 +19,7 @@ from axes.feeder import BufferFeeder, Feeder, preload_shared
 from axes.link import AxisLink, DriveError
 from axes.outcome import EventKind, GroupError, Result, RunResult
 from axes.program import AxisProgram, PvtProgram
+from axes.sync import below_sync
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
@@ -85,34 +86,38 @@ class GroupStart:
             self._halted_at = None
             self._halt_deadline = None
         sync = self.bus.sync
-        sync.keep_period()  # real time: the start SYNC one period after the check SYNC
-        with sync.lock, self._lock:
-            self.state.claim(self, "the cell is homing: one motion at a time")
-            self._done.clear()
-            self._running = True
-            self._start_sync = sync.count + 1
-            self._start_sent = None
-            if self.bus.config.max_sync_gap_periods is None:  # the profiles say (axes.sync)
-                gaps = (p.max_sync_gap_ms(prog) for p, prog in zip(self.profiles, self._programs, strict=True))
-                sync.max_gap_s = min(gaps) / 1000.0
-            # before the start SYNC nothing waits on these frames: a full transmit queue only delays
-            # them by the wire time of what is ahead (as the preload's)
-            try:
-                with self.bus.network.patient(PRELOAD_PATIENCE_S):
-                    for feeder in self._feeders:  # the fixed-period setpoints the start SYNC validates
-                        if not isinstance(feeder, BufferFeeder):
-                            feeder.preload()
-                    for link, profile in zip(self.links, self.profiles, strict=True):
-                        link.send_controlword(profile.start_controlword())
-            except (can.CanError, OSError) as exc:
-                # the drives that got their start word would start alone at the next SYNC, whoever
-                # sends it: every axis is quick stopped by SDO instead, and that ends the run
-                self._quick_stop(Result.BUS_ERROR, f"the start could not be sent: {exc}", None)
-                return None
-            sync.add_listener(self._on_sync)
-            self.bus.watch.arm_sync_watch()
-            self._event(EventKind.STARTED, f"program of {program.duration_ms} ms started on SYNC {self._start_sync}")
-            sync.start()
+        # the caller holds the SYNC lock while SYNC starts: at normal priority, preempted there, it would
+        # hold the start SYNC up for a scheduler slice (axes.sync.below_sync)
+        with below_sync(sync):
+            sync.keep_period()  # real time: the start SYNC one period after the check SYNC
+            with sync.lock, self._lock:
+                self.state.claim(self, "the cell is homing: one motion at a time")
+                self._done.clear()
+                self._running = True
+                self._start_sync = sync.count + 1
+                self._start_sent = None
+                if self.bus.config.max_sync_gap_periods is None:  # the profiles say (axes.sync)
+                    gaps = (p.max_sync_gap_ms(prog) for p, prog in zip(self.profiles, self._programs, strict=True))
+                    sync.max_gap_s = min(gaps) / 1000.0
+                # before the start SYNC nothing waits on these frames: a full transmit queue only delays
+                # them by the wire time of what is ahead (as the preload's)
+                try:
+                    with self.bus.network.patient(PRELOAD_PATIENCE_S):
+                        for feeder in self._feeders:  # the fixed-period setpoints the start SYNC validates
+                            if not isinstance(feeder, BufferFeeder):
+                                feeder.preload()
+                        for link, profile in zip(self.links, self.profiles, strict=True):
+                            link.send_controlword(profile.start_controlword())
+                except (can.CanError, OSError) as exc:
+                    # the drives that got their start word would start alone at the next SYNC, whoever
+                    # sends it: every axis is quick stopped by SDO instead, and that ends the run
+                    self._quick_stop(Result.BUS_ERROR, f"the start could not be sent: {exc}", None)
+                    return None
+                sync.add_listener(self._on_sync)
+                self.bus.watch.arm_sync_watch()
+                started = f"program of {program.duration_ms} ms started on SYNC {self._start_sync}"
+                self._event(EventKind.STARTED, started)
+                sync.start()
         return None
 
     def _preload_records(self, checked: bool) -> _Refusal | None:

@@ -16,6 +16,17 @@ SYNC has two modes (``CellBus(lockstep=...)``):
   bus's other threads (``CellBus.threads``) are lifted to SCHED_FIFO one below it (``lift``), since
   any of them preempted by another process while it holds the GIL would hold SYNC up for a
   scheduler slice (priority inversion through the GIL; measured in bench/sync_jitter.py).
+  On a host of two or more CPUs, two threads produce SYNC (``SyncClock.backup``), each pinned to a
+  CPU of its own: the second wakes ``BACKUP_AFTER`` of a period after each deadline and sends the
+  SYNC the first has not sent by then (the deadlines, the skip rule and the gap judgement are
+  shared, under the SYNC lock: one SYNC per deadline whoever sends it). Measured
+  (bench/RESULTS.md, "Issue 23: SYNC under load"): the host stalls the timer wake-up of one
+  CPU at a time for about 4 ms (a bare SCHED_FIFO sleep loop in a process of its own shows it), and
+  a second thread on the other CPU covers it. What no thread of this process can cover is a
+  normal-priority thread of the same interpreter preempted while it holds the GIL (the SYNC thread
+  waits for it a scheduler slice): the thread that starts a motion and waits on it runs just below
+  SYNC meanwhile (``below_sync``); other Python work of this process beside a motion (planning,
+  zenoh's callbacks) is not covered: only SYNC in a process, or an interface, of its own would be.
   A gap longer than the drives ride out is reported (``FaultKind.SYNC_GAP``, the gap in ms), before
   the thread sends the SYNC after it (the halt the report causes comes first): the
   rule is ``BusConfig.max_sync_gap_periods`` when the cell sets it, else the profiles' (``Profile.
@@ -35,6 +46,7 @@ SYNC has two modes (``CellBus(lockstep=...)``):
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -56,6 +68,7 @@ if TYPE_CHECKING:
     from axes.bus import CellBus
 
 SyncCallback = Callable[[int], None]
+BACKUP_AFTER = 0.25  # the second SYNC thread sends what the first has not this far past a deadline (periods)
 DEFAULT_MAX_GAP_PERIODS = 2.0  # a fixed-period drive misses a setpoint in a longer gap (module docstring)
 
 log = logging.getLogger("pvtflow.bus")
@@ -102,12 +115,69 @@ def lift(threads: Iterable[threading.Thread], priority: int) -> list[str]:
     return lifted
 
 
+def producer_cpus() -> list[int]:
+    """The CPUs the SYNC threads are pinned to, one each: two of those this process may run on
+    (empty on a host of one CPU, or an OS without affinity: then one thread, unpinned)."""
+    try:
+        cpus = sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return []
+    return cpus[:2] if len(cpus) >= 2 else []
+
+
+def pin(cpu: int | None) -> None:
+    """The calling thread to ``cpu`` (None, or not permitted: left where it is)."""
+    if cpu is None:
+        return
+    with contextlib.suppress(AttributeError, OSError):
+        os.sched_setaffinity(0, {cpu})
+
+
+class below_sync:  # noqa: N801  (a context manager, used as ``with below_sync(clock):``)
+    """The calling thread at SCHED_FIFO just below the bus's threads while it starts a motion and
+    waits on it, when SYNC runs on the wall clock with SCHED_FIFO (or may yet get it) and the bus's
+    threads are lifted (``SyncClock.lift_bus_threads``); its own policy again after. A thread
+    of normal priority of this interpreter that runs (the start, a poll, a timeout) takes the GIL,
+    and preempted by another process while it holds it, holds SYNC up for a scheduler slice:
+    measured 3-7 ms (bench/RESULTS.md, "Issue 23: SYNC under load"). At real time, it runs through
+    and gives the GIL back. Keep it to starting and waiting: planning at SCHED_FIFO would starve the host.
+    A thread started meanwhile inherits the policy (Linux: the group's SDO pool threads, when a start
+    is the first to use them), and keeps it: they serve the bus."""
+
+    def __init__(self, clock: SyncClock) -> None:
+        self.clock = clock
+        self._before: tuple[int, os.sched_param] | None = None
+
+    def __enter__(self) -> below_sync:
+        priority = self.clock.priority - 2
+        clock = self.clock
+        # realtime None: not known yet, asked (refused: no harm). Lockstep has no SYNC thread to keep;
+        # where the bus's threads stay at normal priority (the drives in this interpreter), so does it
+        if clock.lockstep or not clock.lift_bus_threads or clock.realtime is False or priority <= 0:
+            return self
+        try:
+            before = (os.sched_getscheduler(0), os.sched_getparam(0))
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        except (AttributeError, OSError):
+            return self
+        self._before = before
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._before is not None:
+            policy, param = self._before
+            with contextlib.suppress(OSError):
+                os.sched_setscheduler(0, policy, param)
+            self._before = None
+
+
 class SyncClock:
     """SYNC producer and counter of the drives' answers (see the module docstring for the modes).
 
     ``count`` is the number of SYNCs sent, ``answered`` the number every expected node has answered.
     Listeners get the number of the SYNC just answered; in lockstep they run before the next SYNC.
-    On the wall clock: ``skipped`` whole periods lost to late SYNCs (never caught up), ``longest_gap_s``
+    On the wall clock: ``skipped`` whole periods lost to late SYNCs (never caught up; where the
+    interface sends SYNC, the SYNCs that went out without a setpoint: ``axes.sync_follower``), ``longest_gap_s``
     the longest time between two SYNCs, ``max_gap_s`` the gap that is reported (``FaultKind.SYNC_GAP``),
     ``realtime`` whether the sending thread got SCHED_FIFO, ``native`` whether the interface sends SYNC.
     """
@@ -148,9 +218,13 @@ class SyncClock:
         self._collector_held = False  # this clock holds the cyclic collector off (wall clock, running)
         self._t0_us = time.monotonic_ns() // 1000
         self.follower = SyncFollower(self)  # where the interface sends SYNC (``native``)
-        self.hold: Callable[[], None] | None = None  # benchmarks and tests: called before each wall-clock SYNC
+        # benchmarks and tests: called before each wall-clock SYNC, and before the follower follows
+        self.hold: Callable[[], None] | None = None
         self.lift_bus_threads = True  # the bus's threads follow SYNC to SCHED_FIFO (BusConfig.lift_bus_threads)
         self.lifted: list[str] = []  # the threads lifted below SYNC's priority (``CellBus.threads``)
+        self.backup = True  # a second SYNC thread on another CPU (module docstring; one CPU: never)
+        self._deadline = 0.0  # the next SYNC's deadline, shared by the producing threads
+        self._judged: float | None = None  # the SYNC whose gap was reported before the next went out
 
     # --- answers ---------------------------------------------------------------------------------
     def expect(self, answers: Iterable[int] | Mapping[int, int]) -> None:
@@ -302,17 +376,25 @@ class SyncClock:
             assert self.bus.network.bus is not None
             self.follower.task = native_cyclic_task(self.bus.network.bus, msg, self.period_ms / 1000.0)
             self.native = self.follower.task is not None
-        target = self.follower.follow if self.native else self._produce
-        name = "pvtflow-sync-follow" if self.native else "pvtflow-sync"
-        threading.Thread(target=self._guarded, args=(target, production), name=name, daemon=True).start()
+            self._deadline, self._judged = time.monotonic(), None
+        cpus = producer_cpus() if self.backup else []
+        if self.native:  # one follower: a second one, measured, only took the GIL from the first (axes.sync_follower)
+            threads = [("pvtflow-sync-follow", self.follower.follow, None)]
+        else:
+            threads = [("pvtflow-sync", self._produce, cpus[0] if cpus else None)]
+            if cpus:
+                threads.append(("pvtflow-sync-backup", self._produce_backup, cpus[1]))
+        for name, target, cpu in threads:
+            threading.Thread(target=self._guarded, args=(target, production, cpu), name=name, daemon=True).start()
 
     def producing(self, production: int) -> bool:
         """Still the production this thread was started for (called with the lock held)."""
         return self._running and self._production == production
 
-    def _guarded(self, target: Callable[[int], None], production: int) -> None:
+    def _guarded(self, target: Callable[[int], None], production: int, cpu: int | None = None) -> None:
         """The SYNC thread never ends silently: a send that fails past its retries, or any error,
         ends the production and is reported (the motion halts without SYNC: ``axes.quick_stop``)."""
+        pin(cpu)
         self.realtime = ask_realtime(self.priority)
         if self.realtime and self.lift_bus_threads:
             self.lifted = lift(self.bus.threads(), self.priority - 1)
@@ -333,23 +415,27 @@ class SyncClock:
             self._production += 1
         self.bus.report(fault)
 
-    def report_gap(self, gap_s: float) -> None:
-        """Report a gap the drives do not ride out (called without the lock)."""
+    def report_gap(self, gap_s: float, what: str = "no SYNC") -> None:
+        """Report a gap the drives do not ride out (called without the lock): between two SYNCs, or
+        (``what`` "no setpoint") between two setpoints, where SYNCs went out without one (``axes.sync_follower``)."""
         if gap_s > self.max_gap_s:
             self.bus.report(
                 BusFault(
                     FaultKind.SYNC_GAP,
                     None,
-                    f"no SYNC for {gap_s * 1000:.1f} ms (the drives ride out {self.max_gap_s * 1000:.1f} ms)",
+                    f"{what} for {gap_s * 1000:.1f} ms (the drives ride out {self.max_gap_s * 1000:.1f} ms)",
                     round(gap_s * 1000),
                 )
             )
 
-    def _produce(self, production: int) -> None:
-        """SYNC on absolute deadlines; one more than half a period late goes out at once and moves them."""
+    def _produce_backup(self, production: int) -> None:
+        """The second SYNC thread: wakes ``BACKUP_AFTER`` of a period past each deadline."""
+        self._produce(production, BACKUP_AFTER * self.period_ms / 1000.0)
+
+    def _produce(self, production: int, after_s: float = 0.0) -> None:
+        """SYNC on absolute deadlines; one more than half a period late goes out at once and moves them.
+        The deadlines are shared with the other producing thread (``after_s`` past them: the backup)."""
         period = self.period_ms / 1000.0
-        deadline = time.monotonic()
-        judged: float | None = None  # the SYNC whose gap was reported before the next went out
         while True:
             if self.hold is not None:
                 self.hold()
@@ -360,8 +446,8 @@ class SyncClock:
                 # a gap beyond what the drives ride out is reported before another SYNC goes out, so
                 # that the halt it causes comes first (a stalled master: the process was held)
                 overdue = None
-                if self.sent_at is not None and self.sent_at != judged and now - self.sent_at > self.max_gap_s:
-                    overdue, judged = now - self.sent_at, self.sent_at
+                if self.sent_at is not None and self.sent_at != self._judged and now - self.sent_at > self.max_gap_s:
+                    overdue, self._judged = now - self.sent_at, self.sent_at
             if overdue is not None:
                 self.report_gap(overdue)
                 continue
@@ -369,25 +455,27 @@ class SyncClock:
                 if not self.producing(production):
                     return
                 now = time.monotonic()
-                late = now - deadline
-                if late > period / 2:
+                late = now - self._deadline
+                if self.sent_at is None:
+                    self._deadline = now  # the first SYNC: when a producing thread first runs
+                elif late > period / 2:
                     # more than half a period late: this SYNC goes out now and the deadlines after it
                     # keep the period from it (never late in a burst); the whole periods lost are
                     # counted. Waiting for the next deadline instead would make every such delay a
                     # gap of two periods, all a fixed-period drive rides out.
                     self.skipped += math.floor(late / period)
-                    deadline = now
+                    self._deadline = now
                 gap = None
                 # not before its deadline, nor within half a period of the last SYNC (one sent late)
-                due = deadline if self.sent_at is None else max(deadline, self.sent_at + period / 2)
+                due = self._deadline if self.sent_at is None else max(self._deadline, self.sent_at + period / 2)
                 if now >= due:
-                    gap = None if self.sent_at is None or self.sent_at == judged else now - self.sent_at
+                    gap = None if self.sent_at is None or self.sent_at == self._judged else now - self.sent_at
                     self.transmit()
-                    deadline += period
-                    due = deadline
+                    self._deadline += period
+                    due = self._deadline
             if gap is not None:
                 self.report_gap(gap)
-            delay = due - time.monotonic()
+            delay = due + after_s - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
 

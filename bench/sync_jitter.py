@@ -17,7 +17,10 @@ floor runs alone with the load just before the master; ``--floor beside``: at th
 the master's gaps over 2 periods that the floor also had (a gap of the machine) are counted.
 
 The master's bus threads run at SCHED_FIFO one below SYNC when SYNC has it (``axes.sync.lift``);
-``--bus-threads-normal`` leaves them at normal priority, for comparison. ``--runs N`` repeats each
+``--bus-threads-normal`` leaves them at normal priority, for comparison. Two SYNC threads on two
+CPUs (``SyncClock.backup``); ``--one-sync-thread``: one, for comparison. The caller starts SYNC and
+waits under ``axes.sync.below_sync``, as ``AxisGroup.run`` does; ``--caller-normal``: at normal
+priority, for comparison. ``--runs N`` repeats each
 case (the rare multi-ms gaps need many runs to be seen); ``--under-load-only``: the case that
 matters, under load with SCHED_FIFO.
 
@@ -30,11 +33,13 @@ followed each SYNC it heard).
 
     python3 bench/sync_jitter.py [--seconds 5] [--period-ms 1] [--load 2] [--interface virtual|simwire]
         [--runs N] [--under-load-only] [--floor before|beside] [--bus-threads-normal]
+        [--one-sync-thread] [--caller-normal]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
 import math
 import multiprocessing
@@ -49,7 +54,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from axes.bus import CellBus
 from axes.config import BusConfig
-from axes.sync import ask_realtime
+from axes.sync import ask_realtime, below_sync
 
 
 def busy(stop: multiprocessing.synchronize.Event) -> None:  # type: ignore[name-defined]
@@ -151,6 +156,8 @@ def run_case(
     interface: str,
     lift: bool = True,
     beside: bool = False,
+    backup: bool = True,
+    caller_waits_realtime: bool = True,
 ) -> dict[str, object]:
     stop = multiprocessing.Event()
     workers = [multiprocessing.Process(target=busy, args=(stop,), daemon=True) for _ in range(load)]
@@ -174,9 +181,11 @@ def run_case(
     bus.sync.hold = lambda: woke.append(time.monotonic())
     b0, t0 = cpu_times()
     beside_floor = Floor(seconds, period_ms, priority) if beside else None
-    bus.sync.start()
-    time.sleep(seconds)
-    bus.sync.stop()
+    bus.sync.backup = backup
+    with below_sync(bus.sync) if caller_waits_realtime else contextlib.nullcontext():
+        bus.sync.start()  # the caller starts and waits on the motion as AxisGroup.run does
+        time.sleep(seconds)
+        bus.sync.stop()
     if beside_floor is not None:
         floor = beside_floor.result()
     b1, t1 = cpu_times()
@@ -237,6 +246,16 @@ def main() -> None:
         help="leave the bus's other threads at normal priority (SyncClock.lift_bus_threads off): for comparison",
     )
     parser.add_argument(
+        "--one-sync-thread",
+        action="store_true",
+        help="one SYNC thread, unpinned (SyncClock.backup off): for comparison",
+    )
+    parser.add_argument(
+        "--caller-normal",
+        action="store_true",
+        help="the caller waits at normal priority (not under axes.sync.below_sync): for comparison",
+    )
+    parser.add_argument(
         "--floor",
         choices=("before", "beside"),
         default="before",
@@ -264,6 +283,8 @@ def main() -> None:
                     args.interface,
                     not args.bus_threads_normal,
                     args.floor == "beside",
+                    not args.one_sync_thread,
+                    not args.caller_normal,
                 )
                 for _ in range(args.runs)
             ]

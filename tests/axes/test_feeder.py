@@ -139,3 +139,31 @@ def test_setpoint_feeder_validates_record_k_at_start_plus_k_plus_1_minus_lead(le
         k = int(position // 10)
         assert validating == k + 1 - lead
     assert feeder.finished(len(recs), True) and not feeder.finished(len(recs) - 1, True)
+
+
+@pytest.mark.parametrize("lead", [0, 1, 2])
+def test_setpoints_after_syncs_that_went_out_without_one_go_on_with_the_next_record_never_a_jump(lead):
+    """The interface sends SYNC and its follower was held through three SYNCs (axes.sync_follower):
+    the drive held through them; the next setpoint is the record after the last one sent, so the
+    drive's step is the program's, and one goes out per SYNC until the program's end."""
+    recs = records(12)
+    sent: list[int] = []
+    feeder = SetpointFeeder(
+        recs,
+        lambda row: (0x201, int(row[0]).to_bytes(4, "little", signed=True)),
+        lambda c, d: sent.append(d),
+        4.0,
+        lead,
+    )
+    feeder.preload()
+    for elapsed in (0, 1, 2, 6, 7, 8):  # SYNCs 3, 4 and 5 carried no setpoint
+        feeder.after_sync(elapsed)
+    positions = [int.from_bytes(d, "little", signed=True) for d in sent]
+    first = max(0, lead - 1)
+    assert positions == [10 * k for k in range(first, first + len(positions))]  # every record, in order
+    assert len(positions) == (1 if lead >= 1 else 0) + 6  # one per SYNC that was followed, none twice
+    elapsed = 8
+    while not feeder.all_sent:
+        elapsed += 1
+        feeder.after_sync(elapsed)
+    assert [int.from_bytes(d, "little", signed=True) for d in sent] == list(recs[first:, 0])

@@ -32,7 +32,7 @@ from axes.outcome import Result
 from axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from axes.sim.power_states import SWITCH_ON_DISABLED
 from axes.subscriptions import subscribe, unsubscribe
-from axes.sync import lift
+from axes.sync import below_sync, lift, producer_cpus
 
 # --- subscriptions --------------------------------------------------------------------------------
 
@@ -121,6 +121,7 @@ def test_a_sync_more_than_half_a_period_late_goes_out_at_once_and_the_period_run
             time.sleep(0.6 * period_ms / 1000.0)
 
     bus.sync.hold = hold
+    bus.sync.backup = False  # one thread held: the rule for a late SYNC (a second thread would send it)
     try:
         bus.sync.start()
         time.sleep(12 * period_ms / 1000.0)
@@ -136,6 +137,88 @@ def test_a_sync_more_than_half_a_period_late_goes_out_at_once_and_the_period_run
     finally:
         bus.close()
         observer.close()
+
+
+def test_a_second_sync_thread_on_another_cpu_sends_the_syncs_a_held_first_thread_does_not():
+    """The host stalls one CPU's wake-ups at a time (axes.sync): the first SYNC thread held for three
+    periods, the second, on the other CPU, sends each SYNC a quarter period past its deadline, and
+    the first, back, sends none twice nor within half a period of the one before."""
+    channel = unique_channel("sync")
+    observer = BusObserver(channel)
+    period_ms = 40.0
+    bus = CellBus(
+        BusConfig(channel=channel, sync_period_ms=period_ms, time_stamp=False, max_sync_gap_periods=100),
+        lockstep=False,
+    ).open()
+    wakes = itertools.count()
+    senders: list[str] = []
+
+    def hold() -> None:  # the first thread's 6th wake comes three periods late
+        if threading.current_thread().name == "pvtflow-sync" and next(wakes) == 5:
+            time.sleep(3 * period_ms / 1000.0)
+
+    bus.sync.hold = hold
+    bus.sync.add_sender(lambda n: senders.append(threading.current_thread().name))
+    cpus = producer_cpus()
+    try:
+        bus.sync.start()
+        time.sleep(14 * period_ms / 1000.0)
+        bus.sync.stop()
+        names = {t.name for t in threading.enumerate() if t.name.startswith("pvtflow-sync")}
+        syncs = sync_times(observer)
+        gaps = [(b - a) / (period_ms / 1000.0) for a, b in itertools.pairwise(syncs)]
+        assert len(gaps) >= 10, gaps
+        if len(cpus) < 2:  # one CPU: one thread, and the held thread's SYNC is late
+            assert "pvtflow-sync-backup" not in names and max(gaps) >= 1.5
+            return
+        assert max(gaps) < 1.5, [round(g, 2) for g in gaps]  # a quarter period late at most, not three
+        assert min(gaps) > 0.5, [round(g, 2) for g in gaps]  # never two SYNCs for one deadline
+        assert senders.count("pvtflow-sync-backup") >= 2  # the SYNCs of the held periods
+        assert bus.sync.skipped == 0
+    finally:
+        bus.close()
+        observer.close()
+
+
+def test_a_second_sync_thread_is_pinned_to_a_cpu_the_first_is_not_on():
+    channel = unique_channel("sync")
+    bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0, time_stamp=False), lockstep=False).open()
+    try:
+        bus.sync.start()
+        time.sleep(0.05)
+        threads = {t.name: t.native_id for t in threading.enumerate() if t.name.startswith("pvtflow-sync")}
+        cpus = producer_cpus()
+        if len(cpus) < 2:
+            assert set(threads) == {"pvtflow-sync"}
+            return
+        first, second = threads["pvtflow-sync"], threads["pvtflow-sync-backup"]
+        assert os.sched_getaffinity(first) == {cpus[0]} and os.sched_getaffinity(second) == {cpus[1]}
+        bus.sync.stop()
+        time.sleep(0.03)
+        assert not any(t.name.startswith("pvtflow-sync") for t in threading.enumerate())  # both end
+    finally:
+        bus.close()
+
+
+def test_below_sync_runs_the_caller_just_below_the_bus_threads_and_gives_its_policy_back():
+    """The thread that starts and waits on a motion (AxisGroup.run) holds no GIL from SYNC while a
+    busy process preempts it: SCHED_FIFO two below SYNC meanwhile, its own policy after."""
+    channel = unique_channel("sync")
+    bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0, sync_priority=50), lockstep=False).open()
+    try:
+        before = os.sched_getscheduler(0)
+        with below_sync(bus.sync):
+            bus.sync.start()
+            time.sleep(0.02)
+            inside = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+        bus.sync.stop()
+        assert os.sched_getscheduler(0) == before
+        if bus.sync.realtime:
+            assert inside == (os.SCHED_FIFO, 48)
+        else:  # not permitted here: nothing changed
+            assert inside[0] == before
+    finally:
+        bus.close()
 
 
 def test_a_sync_gap_longer_than_the_drives_ride_out_is_reported_with_the_gap():
@@ -181,6 +264,105 @@ def test_the_interface_s_own_cyclic_sync_is_followed_by_the_time_stamp():
     finally:
         bus.close()
         observer.close()
+
+
+@pytest.mark.parametrize(("held_periods", "reported"), [(1.5, False), (4.5, True)])
+def test_a_held_follower_sends_one_setpoint_after_the_syncs_it_missed_and_a_long_hold_is_reported(
+    held_periods, reported
+):
+    """The interface sends SYNC; its follower, woken by SYNC n + 1, held 1.5 periods before it
+    follows: SYNC n + 1 took the setpoint sent after SYNC n, SYNC n + 2 went out without one, which
+    the drives ride out (2 periods between setpoints): counted, nothing reported. Held 4.5 periods:
+    four SYNCs without one, past the ride-out at the second, reported as a SYNC gap. Either way one
+    setpoint follows the SYNCs heard meanwhile, never one per SYNC."""
+    channel = unique_channel("kernel")
+    period_ms = 20.0
+    bus = CellBus(
+        BusConfig(
+            interface="pvtflow_test_kernel",
+            channel=channel,
+            sync_period_ms=period_ms,
+            time_stamp=False,
+            max_sync_gap_periods=2,
+        ),
+        lockstep=False,
+    ).open()
+    faults: list[BusFault] = []
+    bus.on_fault(faults.append)
+    followed: list[int] = []  # the SYNC each time stamp and setpoint followed
+    bus.sync.add_sender(followed.append)
+
+    def hold() -> None:  # in the follower's thread, woken by a SYNC, before it follows it
+        if len(followed) == 5 and bus.sync.count == followed[-1]:
+            time.sleep(held_periods * period_ms / 1000.0)
+
+    bus.sync.hold = hold
+    try:
+        bus.sync.start()
+        time.sleep((held_periods + 10) * period_ms / 1000.0)
+        bus.sync.stop()
+        assert bus.sync.native
+        assert bus.sync.skipped == int(held_periods), followed  # the SYNCs that went out without a setpoint
+        steps = [b - a for a, b in itertools.pairwise(followed)]
+        # one setpoint after the SYNCs heard while held (for the SYNC after the last), then one per SYNC
+        assert steps[:4] == [1, 1, 1, 1] and steps[4] == int(held_periods) + 1 and set(steps[5:]) == {1}, followed
+        setpoint_gaps = [f for f in faults if f.kind is FaultKind.SYNC_GAP and "no setpoint" in f.message]
+        assert bool(setpoint_gaps) is reported, [f.message for f in faults]
+        if reported:  # reported once past the ride-out: 3 periods from the last SYNC that took one
+            assert len(setpoint_gaps) == 1 and setpoint_gaps[0].code == 3 * period_ms
+            assert "ride out 40.0 ms" in setpoint_gaps[0].message
+        assert not [f for f in faults if "no SYNC" in f.message]  # the interface kept SYNC
+    finally:
+        bus.close()
+
+
+def test_a_sync_heard_after_the_setpoint_sent_after_it_takes_no_second_setpoint():
+    """The echoes of SYNCs 6 and 7 reach the follower late (the receive path held): 6 only once 7 is
+    on the wire, 7 just after the follower followed 6 with a setpoint. That setpoint went out after
+    SYNC 7 (by 7's own time stamp): it waits for SYNC 8, 7 took none, and no second setpoint follows
+    7's echo (two before SYNC 8: the drive would take the later, a jump)."""
+    channel = unique_channel("kernel")
+    period_ms = 20.0
+    bus = CellBus(
+        BusConfig(
+            interface="pvtflow_test_kernel",
+            channel=channel,
+            sync_period_ms=period_ms,
+            time_stamp=False,
+            max_sync_gap_periods=100,
+        ),
+        lockstep=False,
+    ).open()
+    sends: list[float] = []
+    bus.sync.add_sender(lambda n: sends.append(time.monotonic()))
+    follower = bus.sync.follower
+    delivered = follower._on_echo
+    held: list[tuple[int, bytearray, float]] = []
+
+    def receive(can_id: int, data: bytearray, timestamp: float) -> None:  # in the bus's receive thread
+        if len(sends) == 5 and len(held) < 2:
+            held.append((can_id, data, timestamp))
+            if len(held) == 2:  # SYNC 7 is on the wire: 6 is heard now, 7 once 6 is followed
+                time.sleep(0.003)
+                delivered(*held[0])
+                deadline = time.monotonic() + 1.0
+                while len(sends) < 6 and time.monotonic() < deadline:
+                    time.sleep(0.001)
+                delivered(*held[1])
+            return
+        delivered(can_id, data, timestamp)
+
+    follower._on_echo = receive
+    try:
+        bus.sync.start()
+        time.sleep(14 * period_ms / 1000.0)
+        bus.sync.stop()
+        assert len(held) == 2 and len(sends) >= 10
+        gaps = [(b - a) / (period_ms / 1000.0) for a, b in itertools.pairwise(sends)]
+        assert min(gaps) > 0.5, [round(g, 2) for g in gaps]  # never two setpoints for one SYNC
+        assert bus.sync.skipped == 1  # SYNC 7 took none; 8 took the one sent after 6's late echo
+    finally:
+        bus.close()
 
 
 def test_a_virtual_bus_has_no_cyclic_send_of_its_own_so_the_sync_thread_sends():
@@ -325,13 +507,13 @@ def test_lift_leaves_a_thread_that_has_ended_alone():
 # --- halts without SYNC on a simulated cell -------------------------------------------------------
 
 
-def sim_rig(cell, *, lockstep: bool, interface: str = "virtual", **bus_changes):
+def sim_rig(cell, *, lockstep: bool, interface: str = "virtual", clock: str = "lockstep", **bus_changes):
     channel = unique_channel()
     cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, channel=channel))
     cell = sharing_the_interpreter(cell)  # the drives run here
     bus_config = dataclasses.replace(cell.bus, **bus_changes)
     cell = dataclasses.replace(cell, bus=bus_config)
-    sim = SimulatedCell(cell, channel=channel, interface="virtual").start()
+    sim = SimulatedCell(cell, channel=channel, interface="virtual", clock=clock).start()
     master = dataclasses.replace(bus_config, interface=interface)
     bus = CellBus(master, lockstep=lockstep).open()
     group = AxisGroup(bus, cell.ordered_axes())
@@ -500,6 +682,46 @@ def test_a_sync_gap_beyond_the_limit_halts_the_motion_on_the_wall_clock(arm6):
         assert "no SYNC for" in result.message
         assert any(e.kind.value == "sync_gap" for e in events)
         assert_quick_stopped(group, sim, result, Result.BUS_ERROR)
+    finally:
+        close_rig(sim, bus, group)
+
+
+@pytest.mark.parametrize(("held_periods", "halts"), [(1.5, False), (4.5, True)], ids=["ridden_out", "too_long"])
+def test_a_follower_held_mid_motion_costs_a_period_or_halts_with_no_setpoint(arm6, held_periods, halts):
+    """The interface sends SYNC (the kernel's cyclic send) and the linear-IP drives keep their own
+    clock. The master's follower, woken by a SYNC at the motion's fastest, held 1.5 periods before it
+    follows: one SYNC goes out without a setpoint, the drives hold one period and go on with the next
+    record at the planned speed (a jump over the missed record would ask for twice it), the motion
+    finishes where it was going, a period late. Held 4.5 periods: four SYNCs without a setpoint,
+    past the 2 periods the drives ride out: halted, reported as such."""
+    cell = fixed_period_cell(arm6, 10)
+    cell, sim, bus, group = sim_rig(
+        cell, lockstep=False, interface="pvtflow_test_kernel", clock="wall", max_sync_gap_periods=2
+    )
+    events = []
+    group.on_event = events.append
+    held: list[int] = []
+
+    def hold() -> None:  # the follower, woken by a SYNC at the motion's fastest, held before it follows
+        start = group._start_sync
+        if start is not None and bus.sync.count == start + 50 and not held:
+            held.append(bus.sync.count)
+            time.sleep(held_periods * 10 / 1000.0)
+
+    try:
+        prog = program(cell.ordered_axes(), 1000, fraction=0.6)
+        bus.sync.hold = hold
+        assert group.start(prog) is None
+        result = group.wait(30.0)
+        assert bus.sync.native and held
+        assert bus.sync.skipped >= int(held_periods)
+        if halts:
+            assert result.result is Result.BUS_ERROR and "no setpoint for 30.0 ms" in result.message, result.message
+            assert any(e.kind.value == "sync_gap" for e in events)
+        else:
+            assert result.ok, (result.message, [d.faults for d in sim])
+            for drive, axis in zip(sorted(sim, key=lambda d: d.node_id), prog.axes, strict=True):
+                assert drive.faults == [] and drive.actual == axis.records[-1, 0], (drive.node_id, drive.faults)
     finally:
         close_rig(sim, bus, group)
 
