@@ -52,13 +52,20 @@ def refine(knots: _I, p: _F, v: _F, probes: _F, target: float, max_rounds: int, 
 
 
 @njit(cache=True)
-def switch_knots(switch_ms: _F, jump: _F, threshold: float, n_ms: int, min_gap: int) -> _I:
-    """Whole ms at the acceleration switches whose jump exceeds ``threshold``, largest jumps first,
-    none within ``min_gap`` of a knot already taken or of the motion's start and end."""
-    taken = np.zeros(n_ms + 1, dtype=np.bool_)
-    for i in np.argsort(-jump):
-        if not jump[i] > threshold:
-            break
+def _take_switches(
+    switch_ms: _F, jump: _F, threshold: float, n_ms: int, min_gap: int, taken: NDArray[np.bool_]
+) -> None:
+    """Mark in ``taken`` the whole ms of the switches whose jump exceeds ``threshold``, largest jumps
+    first, none within ``min_gap`` of one already taken or of the motion's start and end (only
+    the jumps over the threshold are sorted: a few tens of the gridpoints')."""
+    over = np.empty(len(jump), dtype=np.int64)
+    n = 0
+    for i in range(len(jump)):
+        if jump[i] > threshold:
+            over[n] = i
+            n += 1
+    cand = over[:n]
+    for i in cand[np.argsort(-jump[cand])]:
         t = int(np.rint(switch_ms[i]))
         if t < min_gap or t > n_ms - min_gap:
             continue
@@ -69,7 +76,50 @@ def switch_knots(switch_ms: _F, jump: _F, threshold: float, n_ms: int, min_gap: 
                 break
         if not near:
             taken[t] = True
+
+
+@njit(cache=True)
+def switch_knots(switch_ms: _F, jump: _F, threshold: float, n_ms: int, min_gap: int) -> _I:
+    """Whole ms at the acceleration switches whose jump exceeds ``threshold``, largest jumps first,
+    none within ``min_gap`` of a knot already taken or of the motion's start and end."""
+    taken = np.zeros(n_ms + 1, dtype=np.bool_)
+    _take_switches(switch_ms, jump, threshold, n_ms, min_gap, taken)
     return np.flatnonzero(taken)
+
+
+@njit(cache=True)
+def switch_flat_knots(switch_ms: _F, jump: _F, cols: _I, thresholds: _F, n_ms: int, min_gap: int, t_max: int) -> _I:
+    """``switch_knots`` of every axis (column ``cols[a]`` of ``jump``, threshold ``thresholds[a]``)
+    laid end to end as ``Flat.flat_knots`` lays them: axis a's ms j at a * (n_ms + 1) + j, both ends
+    of every axis, and every gap longer than ``t_max`` split evenly (``flat.within_record_time``)."""
+    stride = n_ms + 1
+    taken = np.zeros(stride, dtype=np.bool_)
+    col = np.empty(len(switch_ms))
+    out = np.empty(len(cols) * stride, dtype=np.int64)
+    n = 0
+    for a in range(len(cols)):
+        taken[:] = False
+        for i in range(len(switch_ms)):
+            col[i] = jump[i, cols[a]]
+        _take_switches(switch_ms, col, thresholds[a], n_ms, min_gap, taken)
+        taken[n_ms] = True
+        base = a * stride
+        out[n] = base
+        n += 1
+        last = 0
+        for t in range(1, stride):
+            if not taken[t]:
+                continue
+            gap = t - last
+            if gap > t_max:
+                pieces = -(-gap // t_max)
+                for j in range(1, pieces):
+                    out[n] = base + last + (gap * j) // pieces
+                    n += 1
+            out[n] = base + t
+            n += 1
+            last = t
+    return out[:n]
 
 
 @njit(cache=True)
@@ -187,11 +237,18 @@ def lsq_system(knots: _I, stride: int, r: _F, gram: _F, p: _F, v: _F, ends: NDAr
         b[k + 1, 0] += r[2, k]
         b[k + 1, 1] += r[3, k]
     for k in range(nk):
-        tw = (
-            float(knots[k + 1] - knots[k])
-            if k == 0
-            else (float(knots[k] - knots[k - 1]) if k == nk - 1 else 0.5 * float(knots[k + 1] - knots[k - 1]))
-        )
+        # the time a knot stands for: half its two segments; the first and last knot of the whole,
+        # their one segment; next to another axis's knot, that one counts as 1 ms away (where the
+        # axes lie end to end it is: an axis is placed as in the layout, whichever axes left)
+        if k == 0:
+            tw = float(knots[1] - knots[0])
+        elif k == nk - 1:
+            tw = float(knots[k] - knots[k - 1])
+        else:
+            a = knots[k] // stride
+            lo = knots[k - 1] if knots[k - 1] // stride == a else knots[k] - 1
+            hi = knots[k + 1] if knots[k + 1] // stride == a else knots[k] + 1
+            tw = 0.5 * float(hi - lo)
         reg_v = 1e-3 * tw * tw
         D[k, 0] += 1e-3
         D[k, 2] += reg_v
