@@ -26,8 +26,8 @@ from axes.interpolation import (
     epos2_segment,
     hermite,
 )
-from axes.program import AxisProgram
-from planner.validate.records import outside_motion_time, outside_ranges
+from axes.program import TIME_MAX_MS, AxisProgram
+from planner.validate.records import _FIELD_HI, _FIELD_LO, outside_motion_time, outside_ranges
 
 
 class Worst(NamedTuple):
@@ -47,6 +47,7 @@ class Screen:
     in_range: bool  # every field of every record is in range: no record-range finding
     bad_inner_times: list[int]  # records 1..N-2 whose time is outside 1..255 ms, in order
     worst: Worst | None  # None: not EPOS2 PVT, or no reconstruction to check
+    clean: bool = False  # an EPOS2 axis whose records keep every rule on records (no finding of ``records``)
 
 
 def has_motion(r: NDArray[np.int64], in_range: bool) -> bool:
@@ -59,7 +60,21 @@ def screen_axes(axes: tuple[AxisProgram, ...], records: list[NDArray[np.int64]])
     """Per axis, whether its records are all in range, which motion records have a time outside
     1..255 ms, and the worst values of its EPOS2 reconstruction: one check of each rule over all
     axes' records at once and one compiled pass over all EPOS2 axes' segments
-    (:func:`_epos2_worst`), instead of a dozen numpy calls per axis."""
+    (:func:`_epos2_worst`), instead of a dozen numpy calls per axis.
+
+    A program of EPOS2 axes only (what the planner emits) is first looked at in one compiled call
+    (:func:`_epos2_screen`): where every axis keeps every rule on its records, that is all."""
+    if (
+        axes
+        and all(not a.profile.fixed_period for a in axes)
+        and all(r.ndim == 2 and r.shape[1] == 3 and len(r) >= 2 for r in records)
+    ):
+        rows = np.ascontiguousarray(np.concatenate(records))
+        first = np.cumsum([0] + [len(r) for r in records])
+        factor = np.array([a.scaling.qc_per_ms_per_velocity_unit for a in axes], dtype=np.float64)
+        found, clean = _epos2_screen(rows, first[:-1], first[1:], factor, _FIELD_LO, _FIELD_HI, TIME_MAX_MS)
+        if clean.all():
+            return [Screen(True, [], Worst(*w), True) for w in found.tolist()]
     shaped = [i for i, r in enumerate(records) if r.ndim == 2 and r.shape[1] == 3 and len(r) >= 2]
     screens = [Screen(False, [], None)] * len(axes)  # the others fail the shape check before any use
     if not shaped:
@@ -91,32 +106,93 @@ def screen_axes(axes: tuple[AxisProgram, ...], records: list[NDArray[np.int64]])
 
 
 @njit(cache=True)
+def _axis_worst(rows: NDArray[np.int64], begin: int, end: int, f: float, out: NDArray[np.float64]) -> None:
+    """The :class:`Worst` of the EPOS2 reconstruction of records rows[begin:end] (velocity factor
+    ``f``, qc/ms per unit) into ``out``: the segments as ``epos2_pvt`` builds them
+    (``epos2_segment`` up to ``epos2_end``, ``hermite``), judged by ``cubic_peak_speed``,
+    ``cubic_peak_acceleration``, ``cubic_position_range``; NaN where a value is not finite.
+
+    A segment's exact position range is solved only where it can reach past the lowest or
+    highest segment start: a Hermite cubic stays within T (|V0| + |V1|) 4/27 of its end points,
+    and every segment start is a value of the reconstruction, so a segment inside that band (with
+    room for round-off) changes neither extreme."""
+    stop = epos2_end(rows, begin, end)
+    low, high = math.inf, -math.inf  # the segment starts' (each segment's c0)
+    for k in range(begin, stop):
+        p0 = float(rows[k - 1, 0]) if k > begin else float(rows[k, 0])
+        low, high = min(low, p0), max(high, p0)
+    speed, accel, lowest, highest = -math.inf, -math.inf, math.inf, -math.inf
+    end_ms = 0.0
+    finite = True
+    for k in range(begin, stop):
+        p0, v0, p1, v1, T = epos2_segment(rows, begin, k, f)
+        c0, c1, c2, c3 = hermite(p0, v0, p1, v1, T)
+        s = cubic_peak_speed(c1, c2, c3, T)
+        acc = cubic_peak_acceleration(c2, c3, T)
+        reach = T * (abs(v0) + abs(v1)) * (4.0 / 27.0)
+        room = 1e-9 * (abs(p0) + abs(p1) + reach + 1.0)
+        if min(p0, p1) - reach - room > low and max(p0, p1) + reach + room < high:
+            lo, hi = p0, p0  # inside the band: c0 is its one value that counts
+        else:
+            lo, hi = cubic_position_range(c0, c1, c2, c3, T)
+        finite = finite and math.isfinite(s) and math.isfinite(acc) and math.isfinite(lo) and math.isfinite(hi)
+        speed, accel = max(speed, s), max(accel, acc)
+        lowest, highest = min(lowest, lo), max(highest, hi)
+        end_ms += T
+    out[0], out[1], out[2], out[3], out[4] = speed, accel, lowest, highest, end_ms
+    if not finite:
+        out[:] = math.nan
+
+
+@njit(cache=True)
 def _epos2_worst(
     rows: NDArray[np.int64], begin: NDArray[np.int64], end: NDArray[np.int64], factor: NDArray[np.float64]
 ) -> NDArray[np.float64]:
     """Per axis (records rows[begin:end], velocity factor qc/ms per unit), the :class:`Worst` of its
-    EPOS2 reconstruction: the segments as ``epos2_pvt`` builds them (``epos2_segment`` up to
-    ``epos2_end``, ``hermite``), judged by ``cubic_peak_speed``, ``cubic_peak_acceleration``,
-    ``cubic_position_range``.
-    An axis with a value that is not finite gets NaN (it is then gone through segment by segment).
+    EPOS2 reconstruction (:func:`_axis_worst`). An axis with a value that is not finite gets NaN
+    (it is then gone through segment by segment).
     """
     out = np.empty((len(begin), 5))
     for a in range(len(begin)):
-        f = factor[a]
-        speed, accel, lowest, highest = -math.inf, -math.inf, math.inf, -math.inf
-        end_ms = 0.0
-        finite = True
-        for k in range(begin[a], epos2_end(rows, begin[a], end[a])):
-            p0, v0, p1, v1, T = epos2_segment(rows, begin[a], k, f)
-            c0, c1, c2, c3 = hermite(p0, v0, p1, v1, T)
-            s = cubic_peak_speed(c1, c2, c3, T)
-            acc = cubic_peak_acceleration(c2, c3, T)
-            lo, hi = cubic_position_range(c0, c1, c2, c3, T)
-            finite = finite and math.isfinite(s) and math.isfinite(acc) and math.isfinite(lo) and math.isfinite(hi)
-            speed, accel = max(speed, s), max(accel, acc)
-            lowest, highest = min(lowest, lo), max(highest, hi)
-            end_ms += T
-        out[a, 0], out[a, 1], out[a, 2], out[a, 3], out[a, 4] = speed, accel, lowest, highest, end_ms
-        if not finite:
-            out[a, :] = math.nan
+        _axis_worst(rows, begin[a], end[a], factor[a], out[a])
     return out
+
+
+@njit(cache=True)
+def _epos2_screen(
+    rows: NDArray[np.int64],
+    begin: NDArray[np.int64],
+    end: NDArray[np.int64],
+    factor: NDArray[np.float64],
+    field_lo: NDArray[np.int64],
+    field_hi: NDArray[np.int64],
+    time_max: int,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Per EPOS2 axis (records rows[begin:end], at least 2), whether its records keep every rule on
+    records (``records.outside_ranges`` and ``records.check_epos2``: each field within
+    ``field_lo``/``field_hi``, the start record at rest with a dwell of 1..``time_max`` ms, every
+    motion record 1..``time_max`` ms, the last one time 0, at rest after a record at rest, at its
+    position), and where it does, its :class:`Worst` (:func:`_axis_worst`); NaN where not finite."""
+    n = len(begin)
+    out = np.full((n, 5), math.nan)
+    clean = np.zeros(n, dtype=np.bool_)
+    for a in range(n):
+        b, e = begin[a], end[a]
+        ok = True
+        for k in range(b, e):
+            for c in range(3):
+                if rows[k, c] < field_lo[c] or rows[k, c] > field_hi[c]:
+                    ok = False
+        for k in range(b, e - 1):  # the dwell and every motion record
+            if rows[k, 2] < 1 or rows[k, 2] > time_max:
+                ok = False
+        last = e - 1
+        if rows[b, 1] != 0 or rows[last, 2] != 0 or rows[last, 1] != 0 or rows[last - 1, 1] != 0:
+            ok = False
+        if rows[last, 0] != rows[last - 1, 0]:
+            ok = False
+        if not ok:
+            continue
+        _axis_worst(rows, b, e, factor[a], out[a])
+        clean[a] = True
+    return out, clean
