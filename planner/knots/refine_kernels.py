@@ -27,12 +27,14 @@ _I = NDArray[np.int64]
 def refine(knots: _I, p: _F, v: _F, probes: _F, target: float, max_rounds: int, t_max: int) -> _I:
     """Halve knot segments until the cubic through the exact samples stays within ``target`` of
     the plan at the whole ms ``floor(T * probes)`` (a cheap first cut), or is 1 ms long; none
-    longer than ``t_max``. Round by round: each round judges the halves the last one made."""
-    is_knot = np.zeros(len(p), dtype=np.bool_)
-    is_knot[knots] = True
+    longer than ``t_max``. Round by round: each round judges the halves the last one made. A
+    half's new knot lies strictly inside its segment: the knots are the given ones and the new
+    ones, sorted (no array over every ms)."""
     lows, highs = knots[:-1].copy(), knots[1:].copy()  # the segments to judge
+    added = [np.empty(0, dtype=np.int64)]  # the new knots of each round
     for _ in range(max_rounds):
         new_lows, new_highs = np.empty(2 * len(lows), dtype=np.int64), np.empty(2 * len(lows), dtype=np.int64)
+        made = np.empty(len(lows), dtype=np.int64)
         n_split = 0
         for i in range(len(lows)):
             lo, hi = lows[i], highs[i]
@@ -41,23 +43,32 @@ def refine(knots: _I, p: _F, v: _F, probes: _F, target: float, max_rounds: int, 
             worst = probe_deviation(c0, c1, c2, c3, T, lo, p, probes)
             if (worst > target and hi - lo >= 2) or hi - lo > t_max:
                 mid = (lo + hi) // 2
-                is_knot[mid] = True
+                made[n_split // 2] = mid
                 new_lows[n_split], new_highs[n_split] = lo, mid
                 new_lows[n_split + 1], new_highs[n_split + 1] = mid, hi
                 n_split += 2
         if not n_split:
             break
+        added.append(made[: n_split // 2])
         lows, highs = new_lows[:n_split], new_highs[:n_split]
-    return np.flatnonzero(is_knot)
+    total = len(knots)
+    for a in added:
+        total += len(a)
+    out = np.empty(total, dtype=np.int64)
+    out[: len(knots)] = knots
+    j = len(knots)
+    for a in added:
+        out[j : j + len(a)] = a
+        j += len(a)
+    return np.sort(out)
 
 
 @njit(cache=True)
-def _take_switches(
-    switch_ms: _F, jump: _F, threshold: float, n_ms: int, min_gap: int, taken: NDArray[np.bool_]
-) -> None:
-    """Mark in ``taken`` the whole ms of the switches whose jump exceeds ``threshold``, largest jumps
-    first, none within ``min_gap`` of one already taken or of the motion's start and end (only
-    the jumps over the threshold are sorted: a few tens of the gridpoints')."""
+def switch_knots(switch_ms: _F, jump: _F, threshold: float, n_ms: int, min_gap: int) -> _I:
+    """Whole ms at the acceleration switches whose jump exceeds ``threshold``, largest jumps first,
+    none within ``min_gap`` of a knot already taken or of the motion's start and end (sorted). Only
+    the jumps over the threshold are sorted (a few tens of the gridpoints'), and a candidate is
+    held against the knots taken, not against every ms."""
     over = np.empty(len(jump), dtype=np.int64)
     n = 0
     for i in range(len(jump)):
@@ -65,26 +76,21 @@ def _take_switches(
             over[n] = i
             n += 1
     cand = over[:n]
+    taken = np.empty(n, dtype=np.int64)
+    m = 0
     for i in cand[np.argsort(-jump[cand])]:
         t = int(np.rint(switch_ms[i]))
         if t < min_gap or t > n_ms - min_gap:
             continue
         near = False
-        for u in range(max(t - min_gap + 1, 0), min(t + min_gap - 1, n_ms) + 1):
-            if taken[u]:
+        for u in taken[:m]:
+            if abs(t - u) < min_gap:
                 near = True
                 break
         if not near:
-            taken[t] = True
-
-
-@njit(cache=True)
-def switch_knots(switch_ms: _F, jump: _F, threshold: float, n_ms: int, min_gap: int) -> _I:
-    """Whole ms at the acceleration switches whose jump exceeds ``threshold``, largest jumps first,
-    none within ``min_gap`` of a knot already taken or of the motion's start and end."""
-    taken = np.zeros(n_ms + 1, dtype=np.bool_)
-    _take_switches(switch_ms, jump, threshold, n_ms, min_gap, taken)
-    return np.flatnonzero(taken)
+            taken[m] = t
+            m += 1
+    return np.sort(taken[:m])
 
 
 @njit(cache=True)
@@ -93,22 +99,26 @@ def switch_flat_knots(switch_ms: _F, jump: _F, cols: _I, thresholds: _F, n_ms: i
     laid end to end as ``Flat.flat_knots`` lays them: axis a's ms j at a * (n_ms + 1) + j, both ends
     of every axis, and every gap longer than ``t_max`` split evenly (``flat.within_record_time``)."""
     stride = n_ms + 1
-    taken = np.zeros(stride, dtype=np.bool_)
     col = np.empty(len(switch_ms))
-    out = np.empty(len(cols) * stride, dtype=np.int64)
+    parts = []
     n = 0
     for a in range(len(cols)):
-        taken[:] = False
         for i in range(len(switch_ms)):
             col[i] = jump[i, cols[a]]
-        _take_switches(switch_ms, col, thresholds[a], n_ms, min_gap, taken)
-        taken[n_ms] = True
+        sw = switch_knots(switch_ms, col, thresholds[a], n_ms, min_gap)
+        parts.append(sw)
+        n += len(sw) + 2 + (n_ms + len(sw)) // t_max  # at most this many after the splits
+    out = np.empty(n, dtype=np.int64)
+    n = 0
+    for a in range(len(cols)):
         base = a * stride
         out[n] = base
         n += 1
         last = 0
-        for t in range(1, stride):
-            if not taken[t]:
+        sw = parts[a]
+        for i in range(len(sw) + 1):
+            t = sw[i] if i < len(sw) else n_ms
+            if t <= 0 or (t >= n_ms and i < len(sw)):  # the ends are the axis's own
                 continue
             gap = t - last
             if gap > t_max:
