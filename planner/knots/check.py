@@ -106,6 +106,8 @@ class Checked:
     P: NDArray[np.int64]
     V: NDArray[np.int64]
     chk: Check
+    # the chains the round's repair searched (``quantize_kernels.repair_chains_memo``): first rows, rows
+    memo: tuple[NDArray[np.int64], NDArray[np.int64]] = (np.zeros(1, dtype=np.int64), np.zeros((0, 5), dtype=np.int64))
 
 
 def checked_subset(fl: Flat, keep: NDArray[np.int64], checked: Checked | None) -> Checked | None:
@@ -119,6 +121,7 @@ def checked_subset(fl: Flat, keep: NDArray[np.int64], checked: Checked | None) -
         checked.P[sel],
         checked.V[sel],
         Check(c.seg_deviation[seg], c.velocity_ratio[seg], c.acceleration_ratio[seg], c.position_out[seg]),
+        checked.memo,  # keyed by knot times, which the axes that stay keep
     )
 
 
