@@ -17,7 +17,7 @@ from axes.interpolation import PiecewiseCubic, epos2_pvt, exceeds
 from axes.program import AxisProgram
 from planner.knots import check_kernels as kernels
 from planner.knots import records_kernels
-from planner.knots.flat import Flat
+from planner.knots.flat import Flat, Moved
 from planner.knots.types import AxisKnots, DriveAxis
 from planner.knots.window_jerk import window_jerk
 from planner.slowdown import KNOT_SLOWDOWN_MARGIN, slowdown
@@ -110,10 +110,14 @@ class Checked:
     memo: tuple[NDArray[np.int64], NDArray[np.int64]] = (np.zeros(1, dtype=np.int64), np.zeros((0, 5), dtype=np.int64))
 
 
-def checked_subset(fl: Flat, keep: NDArray[np.int64], checked: Checked | None) -> Checked | None:
+def checked_subset(
+    fl: Flat, keep: NDArray[np.int64], checked: Checked | None, moved: Moved | None = None
+) -> Checked | None:
+    """``checked`` for the axes ``keep`` alone (``moved``: ``fl.moved_knots`` of them, if already
+    taken for ``checked``'s knots)."""
     if checked is None:
         return None
-    sel, knots = fl.moved_knots(keep, checked.knots)
+    sel, knots = moved[1:] if moved is not None and moved[0] is checked.knots else fl.moved_knots(keep, checked.knots)
     seg = sel[:-1]
     c = checked.chk
     return Checked(

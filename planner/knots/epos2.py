@@ -127,8 +127,8 @@ def place_epos2(
             sel, moved_knots = fl.moved_knots(busy, knots)
             bad = np.searchsorted(sel, bad)  # every bad segment starts at a knot of a busy axis
             p_fit, v_fit = p_fit[sel], v_fit[sel]
-            fitted = fitted_subset(fl, busy, fitted)
-            checked = checked_subset(fl, busy, checked)
+            fitted = fitted_subset(fl, busy, fitted, (knots, sel, moved_knots))
+            checked = checked_subset(fl, busy, checked, (knots, sel, moved_knots))
             fl, knots = fl.subset(busy), moved_knots
         knots = split_segments(knots, bad)
     assert checked is not None

@@ -12,6 +12,9 @@ from axes.program import TIME_MAX_MS
 from planner.knots.samples import Samples, axis_constants
 from planner.knots.types import DriveAxis
 
+# knots, the indices of those on the axes that stay, those knots (``Flat.moved_knots``)
+Moved = tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]
+
 
 @dataclass(frozen=True)
 class Flat:
