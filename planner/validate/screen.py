@@ -6,6 +6,14 @@ together, and the EPOS2 axes' worst values come from one compiled pass over all 
 the very same numbers the segment-by-segment check reports). Only an axis with something to
 report is then gone through segment by segment. The pass inlines the drive's cubic: this file is
 one of ``planner.kernel_cache.KERNEL_SOURCES``.
+
+A program of EPOS2 axes only (every program the planner emits) gets one compiled call for all of
+it (``_epos2_screen``): the rules on the records (ranges, start, times, end) and the worst values
+together; the numpy rules run only where that call finds something. This is still the validator's
+own look at the records: it shares the drive's reconstruction with the knot placement, not the
+placement's verdicts. The exact position range is solved only for segments that can reach past the
+band of the segment starts (the cheap bound the placement's 0x607D check uses): every start is a
+value of the reconstruction, so the others change neither extreme.
 """
 
 from __future__ import annotations
