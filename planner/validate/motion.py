@@ -109,9 +109,11 @@ def summaries_within_limits(
     The unit conversions are monotonic, so the converted worst value is the worst converted value:
     these are the very numbers the segment-by-segment check reports.
     """
-    values, limits, converted = [], [], []
+    values: list[float] = []
+    limits: list[float] = []
+    converted = []
     for axis, worst in zip(axes, worsts, strict=True):
-        if not all(math.isfinite(x) for x in worst):
+        if not all(map(math.isfinite, worst)):
             return None  # a segment's NaN would hide behind the worst value: look at each one
         lim = axis.limits
         if worst.lowest < lim.min_position_qc or worst.highest > lim.max_position_qc:
@@ -125,13 +127,19 @@ def summaries_within_limits(
             limits.append(m.limit)
     if exceeds(np.array(values), np.array(limits)).any():
         return None
-    out = []
-    for axis, worst, (vmax, amax) in zip(axes, worsts, converted, strict=True):
-        sv = sa = np.zeros(0)
-        if sample_period_ms:
+    if sample_period_ms:
+        out = []
+        for axis, worst, (vmax, amax) in zip(axes, worsts, converted, strict=True):
             _, sv, sa = _samples(axis, axis.reconstruction(), sample_period_ms)
-        out.append(_summary(axis, worst.end_ms, vmax, amax, sv, sa, worst.lowest, worst.highest))
-    return out
+            out.append(_summary(axis, worst.end_ms, vmax, amax, sv, sa, worst.lowest, worst.highest))
+        return out
+    return [
+        _summary(axis, worst.end_ms, vmax, amax, _NO_SAMPLES, _NO_SAMPLES, worst.lowest, worst.highest)
+        for axis, worst, (vmax, amax) in zip(axes, worsts, converted, strict=True)
+    ]
+
+
+_NO_SAMPLES = np.zeros(0)  # no look at the drive's samples (read only: ``_summary`` takes its length)
 
 
 def _linear_spans(axis: AxisProgram, recon: PiecewiseCubic) -> list[Finding]:
