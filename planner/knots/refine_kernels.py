@@ -100,13 +100,15 @@ def switch_flat_knots(switch_ms: _F, jump: _F, cols: _I, thresholds: _F, n_ms: i
     of every axis, and every gap longer than ``t_max`` split evenly (``flat.within_record_time``)."""
     stride = n_ms + 1
     col = np.empty(len(switch_ms))
-    parts = []
+    switches = np.empty((len(cols), len(switch_ms)), dtype=np.int64)  # each axis's, sorted, first ``taken[a]``
+    taken = np.empty(len(cols), dtype=np.int64)
     n = 0
     for a in range(len(cols)):
         for i in range(len(switch_ms)):
             col[i] = jump[i, cols[a]]
         sw = switch_knots(switch_ms, col, thresholds[a], n_ms, min_gap)
-        parts.append(sw)
+        switches[a, : len(sw)] = sw
+        taken[a] = len(sw)
         n += len(sw) + 2 + (n_ms + len(sw)) // t_max  # at most this many after the splits
     out = np.empty(n, dtype=np.int64)
     n = 0
@@ -115,10 +117,9 @@ def switch_flat_knots(switch_ms: _F, jump: _F, cols: _I, thresholds: _F, n_ms: i
         out[n] = base
         n += 1
         last = 0
-        sw = parts[a]
-        for i in range(len(sw) + 1):
-            t = sw[i] if i < len(sw) else n_ms
-            if t <= 0 or (t >= n_ms and i < len(sw)):  # the ends are the axis's own
+        for i in range(taken[a] + 1):
+            t = switches[a, i] if i < taken[a] else n_ms
+            if t <= 0 or (t >= n_ms and i < taken[a]):  # the ends are the axis's own
                 continue
             gap = t - last
             if gap > t_max:
