@@ -88,6 +88,8 @@ def over_limit(chk: Check) -> NDArray[np.bool_]:
 def needed_scale(rv: float, ra: float) -> float:
     """The slow-down the worst ratios of an axis's records call for (planner.slowdown), 1 where none."""
     k = slowdown(rv, ra)
+    if k <= 1.0:  # within the limits (most axes): no need to ask ``exceeds`` about the round-off
+        return 1.0
     return k * (1.0 + KNOT_SLOWDOWN_MARGIN) if exceeds(k, 1.0) else 1.0
 
 
