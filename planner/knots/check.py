@@ -177,6 +177,29 @@ def axis_records(
     records, dev, rv, ra = records_kernels.axis_records(
         knots, P, V, fl.stride, a, dwell_ms, chk.seg_deviation, chk.velocity_ratio, chk.acceleration_ratio
     )
+    return _axis_knots(fl, a, records, dev, rv, ra)
+
+
+def axes_records(
+    fl: Flat,
+    axes: list[int],
+    knots: NDArray[np.int64],
+    P: NDArray[np.int64],
+    V: NDArray[np.int64],
+    chk: Check,
+    dwell_ms: int,
+) -> dict[int, tuple[AxisKnots, float]]:
+    """``axis_records`` of each of ``axes`` (one compiled call for all of them), by axis."""
+    rows, first, worst = records_kernels.axes_records(
+        knots, P, V, fl.stride, np.asarray(axes, dtype=np.int64), dwell_ms, chk.seg_deviation, chk.velocity_ratio,
+        chk.acceleration_ratio,
+    )  # fmt: skip
+    return {a: _axis_knots(fl, a, rows[first[i] : first[i + 1]], *worst[i].tolist()) for i, a in enumerate(axes)}
+
+
+def _axis_knots(
+    fl: Flat, a: int, records: NDArray[np.int64], dev: float, rv: float, ra: float
+) -> tuple[AxisKnots, float]:
     rj, scale = 0.0, needed_scale(rv, ra)
     if math.isfinite(fl.window_jerk[a]):
         rj = window_jerk(epos2_pvt(records, float(fl.f[a]))) / float(fl.window_jerk[a])

@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from axes.interpolation import epos2_pvt
 from axes.program import TIME_MAX_MS
-from planner.knots.check import NO_INT, Checked, axis_records, checked_subset, knot_records
+from planner.knots.check import NO_INT, Checked, axes_records, axis_records, checked_subset, knot_records
 from planner.knots.flat import Flat
 from planner.knots.jerk_smooth import smoothed_axis
 from planner.knots.quantize import quantize_checked, shifted_records
@@ -122,8 +122,8 @@ def place_epos2(
         # the axes without a bad segment are done (as each would be on its own): they leave
         busy = np.unique(fl.axis_of(knots[bad]))
         if len(busy) < len(fl.busy):
-            for a in set(fl.busy.tolist()).difference(busy.tolist()):
-                out[a] = axis_records(fl, a, knots, P, V, chk, opts.dwell_ms)
+            done = sorted(set(fl.busy.tolist()).difference(busy.tolist()))
+            out.update(axes_records(fl, done, knots, P, V, chk, opts.dwell_ms))
             sel, moved_knots = fl.moved_knots(busy, knots)
             bad = np.searchsorted(sel, bad)  # every bad segment starts at a knot of a busy axis
             p_fit, v_fit = p_fit[sel], v_fit[sel]
@@ -132,8 +132,7 @@ def place_epos2(
             fl, knots = fl.subset(busy), moved_knots
         knots = split_segments(knots, bad)
     assert checked is not None
-    for a in fl.busy.tolist():
-        out[a] = axis_records(fl, a, knots, P, V, checked.chk, opts.dwell_ms)
+    out.update(axes_records(fl, fl.busy.tolist(), knots, P, V, checked.chk, opts.dwell_ms))
     for i, kept in best.items():
         if kept[1] < out[i][1]:
             out[i] = kept

@@ -20,7 +20,7 @@ import pytest
 from axes.program import TIME_MAX_MS
 from planner.constraints import _IntervalSpeedConstraint
 from planner.knots import KnotError, KnotOptions, epos2
-from planner.knots.check import axis_records, check_knots, knot_records, over_limit
+from planner.knots.check import axes_records, axis_records, check_knots, knot_records, over_limit
 from planner.knots.flat import Flat
 from planner.knots.quantize import quantize_checked, repair_rounds, round_knots
 from planner.knots.refine import fit_knots, lsq_fit, split_segments
@@ -186,6 +186,15 @@ def test_axis_records_read_back(arm6_flat) -> None:
         assert placed.deviation_qc == chk.seg_deviation[k0 : k1 - 1].max()
         assert placed.velocity_ratio == chk.velocity_ratio[k0 : k1 - 1].max()
         assert placed.acceleration_ratio == chk.acceleration_ratio[k0 : k1 - 1].max()
+    # several axes in one call: each as alone
+    some = [0, 2, 3, len(fl.axes) - 1]
+    together = axes_records(fl, some, knots, P, V, chk, 3)
+    assert list(together) == some
+    for a in some:
+        alone, scale = axis_records(fl, a, knots, P, V, chk, 3)
+        np.testing.assert_array_equal(together[a][0].records, alone.records)
+        assert together[a][0] == dataclasses.replace(alone, records=together[a][0].records)
+        assert together[a][1] == scale
 
 
 def test_backward_pass_shortcuts_match_the_lps(arm6_flat) -> None:
