@@ -55,7 +55,6 @@ class Screen:
     in_range: bool  # every field of every record is in range: no record-range finding
     bad_inner_times: list[int]  # records 1..N-2 whose time is outside 1..255 ms, in order
     worst: Worst | None  # None: not EPOS2 PVT, or no reconstruction to check
-    clean: bool = False  # an EPOS2 axis whose records keep every rule on records (no finding of ``records``)
 
 
 def has_motion(r: NDArray[np.int64], in_range: bool) -> bool:
@@ -64,25 +63,29 @@ def has_motion(r: NDArray[np.int64], in_range: bool) -> bool:
     return bool(r[0, 2] >= 1) and (in_range or not np.any(r[:, 2] < 0))
 
 
+def clean_worsts(axes: tuple[AxisProgram, ...], records: list[NDArray[np.int64]]) -> list[Worst] | None:
+    """For a program of EPOS2 axes only (every program the planner emits) whose records keep every
+    rule on records, each axis's :class:`Worst`, in one compiled call (:func:`_epos2_screen`); None
+    for any other program (then :func:`screen_axes` and the rules say what is wrong)."""
+    if not axes or any(a.profile.fixed_period for a in axes):
+        return None
+    if not all(r.ndim == 2 and r.shape[1] == 3 and len(r) >= 2 for r in records):
+        return None
+    rows = np.ascontiguousarray(np.concatenate(records))
+    first = np.zeros(len(records) + 1, dtype=np.int64)
+    np.cumsum([len(r) for r in records], out=first[1:])
+    factor = np.array([a.scaling.qc_per_ms_per_velocity_unit for a in axes], dtype=np.float64)
+    found, clean = _epos2_screen(rows, first[:-1], first[1:], factor, _FIELD_LO, _FIELD_HI, TIME_MAX_MS)
+    if not clean.all():
+        return None
+    return [Worst(*w) for w in found.tolist()]
+
+
 def screen_axes(axes: tuple[AxisProgram, ...], records: list[NDArray[np.int64]]) -> list[Screen]:
     """Per axis, whether its records are all in range, which motion records have a time outside
     1..255 ms, and the worst values of its EPOS2 reconstruction: one check of each rule over all
     axes' records at once and one compiled pass over all EPOS2 axes' segments
-    (:func:`_epos2_worst`), instead of a dozen numpy calls per axis.
-
-    A program of EPOS2 axes only (what the planner emits) is first looked at in one compiled call
-    (:func:`_epos2_screen`): where every axis keeps every rule on its records, that is all."""
-    if (
-        axes
-        and all(not a.profile.fixed_period for a in axes)
-        and all(r.ndim == 2 and r.shape[1] == 3 and len(r) >= 2 for r in records)
-    ):
-        rows = np.ascontiguousarray(np.concatenate(records))
-        first = np.cumsum([0] + [len(r) for r in records])
-        factor = np.array([a.scaling.qc_per_ms_per_velocity_unit for a in axes], dtype=np.float64)
-        found, clean = _epos2_screen(rows, first[:-1], first[1:], factor, _FIELD_LO, _FIELD_HI, TIME_MAX_MS)
-        if clean.all():
-            return [Screen(True, [], Worst(*w), True) for w in found.tolist()]
+    (:func:`_epos2_worst`), instead of a dozen numpy calls per axis."""
     shaped = [i for i, r in enumerate(records) if r.ndim == 2 and r.shape[1] == 3 and len(r) >= 2]
     screens = [Screen(False, [], None)] * len(axes)  # the others fail the shape check before any use
     if not shaped:
