@@ -59,7 +59,7 @@ class AxisProgram(DriveAxis):
     @classmethod
     def of(cls, axis: DriveAxis, records: NDArray[np.int64]) -> AxisProgram:
         """``records`` for ``axis`` (a cell's axis, or a program's)."""
-        return cls(**{f.name: getattr(axis, f.name) for f in fields(DriveAxis)}, records=records)
+        return cls(**{name: getattr(axis, name) for name in _DRIVE_AXIS_FIELDS}, records=records)
 
     @property
     def duration_ms(self) -> int:
@@ -70,6 +70,9 @@ class AxisProgram(DriveAxis):
         period = float(self.records[0, 2])
         kind = self.profile.reconstruction(period, self.interpolation_submode)
         return interpolation.reconstruct(kind, self.records, period, self.scaling.qc_per_ms_per_velocity_unit)
+
+
+_DRIVE_AXIS_FIELDS = tuple(f.name for f in fields(DriveAxis))  # what ``AxisProgram.of`` copies
 
 
 @dataclass(frozen=True)

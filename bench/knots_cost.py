@@ -33,7 +33,7 @@ from service.config import CONFIG_DIR, load_cell_config
 RANGES = (0.2, 0.5, 0.8)
 STAGES = (
     "sample_trajectory",
-    "switch_knots",
+    "switch_flat_knots",
     "refine",
     "fit_knots",
     "lsq_fit",

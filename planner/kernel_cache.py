@@ -33,6 +33,7 @@ KERNEL_SOURCES = (
             "knots/records_kernels.py",
             "knots/refine_kernels.py",
             "knots/round_kernels.py",
+            "knots/samples_kernels.py",
             "lean_toppra.py",
             "path.py",
             "slowdown.py",

@@ -36,10 +36,12 @@ EPOS2 PVT (``epos2_pvt``), per axis (the axes share only the start SYNC and the 
 
 All EPOS2 axes are placed together, as one flat problem (their samples end to end), so that each
 step is one set of array operations for all of them. The axes' blocks are independent: an axis
-gets the records it would get alone, and leaves as soon as it is done. Work that repeats is not
-redone: the check evaluates only the segments whose cubic changed, the least-squares fit reuses
-the right-hand side of every unchanged segment and re-evaluates a segment's fit only where its
-verdict could change.
+gets the records it would get alone, and leaves as soon as it is done (its knots are dropped; the
+samples stay where they are, no copy). Work that repeats is not redone: the check evaluates only
+the segments whose cubic changed, the least-squares fit reuses the right-hand side of every
+unchanged segment and re-evaluates a segment's fit only where its verdict could change, and the
+repair takes a chain's records from the last round's search where the chain's records are the
+same (``quantize_kernels.repair_chains_memo``: the search reads nothing else).
 
 Fixed-period profiles take one record per period and are checked by their own reconstruction
 (linear, or Parker's cubic submodes) the same way. All numbers here are in drive units: qc,

@@ -17,7 +17,7 @@ from axes.interpolation import PiecewiseCubic, epos2_pvt, exceeds
 from axes.program import AxisProgram
 from planner.knots import check_kernels as kernels
 from planner.knots import records_kernels
-from planner.knots.flat import Flat
+from planner.knots.flat import Flat, Moved
 from planner.knots.types import AxisKnots, DriveAxis
 from planner.knots.window_jerk import window_jerk
 from planner.slowdown import KNOT_SLOWDOWN_MARGIN, slowdown
@@ -88,6 +88,8 @@ def over_limit(chk: Check) -> NDArray[np.bool_]:
 def needed_scale(rv: float, ra: float) -> float:
     """The slow-down the worst ratios of an axis's records call for (planner.slowdown), 1 where none."""
     k = slowdown(rv, ra)
+    if k <= 1.0:  # within the limits (most axes): no need to ask ``exceeds`` about the round-off
+        return 1.0
     return k * (1.0 + KNOT_SLOWDOWN_MARGIN) if exceeds(k, 1.0) else 1.0
 
 
@@ -106,12 +108,18 @@ class Checked:
     P: NDArray[np.int64]
     V: NDArray[np.int64]
     chk: Check
+    # the chains the round's repair searched (``quantize_kernels.repair_chains_memo``): first rows, rows
+    memo: tuple[NDArray[np.int64], NDArray[np.int64]] = (np.zeros(1, dtype=np.int64), np.zeros((0, 5), dtype=np.int64))
 
 
-def checked_subset(fl: Flat, keep: NDArray[np.int64], checked: Checked | None) -> Checked | None:
+def checked_subset(
+    fl: Flat, keep: NDArray[np.int64], checked: Checked | None, moved: Moved | None = None
+) -> Checked | None:
+    """``checked`` for the axes ``keep`` alone (``moved``: ``fl.moved_knots`` of them, if already
+    taken for ``checked``'s knots)."""
     if checked is None:
         return None
-    sel, knots = fl.moved_knots(keep, checked.knots)
+    sel, knots = moved[1:] if moved is not None and moved[0] is checked.knots else fl.moved_knots(keep, checked.knots)
     seg = sel[:-1]
     c = checked.chk
     return Checked(
@@ -119,6 +127,7 @@ def checked_subset(fl: Flat, keep: NDArray[np.int64], checked: Checked | None) -
         checked.P[sel],
         checked.V[sel],
         Check(c.seg_deviation[seg], c.velocity_ratio[seg], c.acceleration_ratio[seg], c.position_out[seg]),
+        checked.memo,  # keyed by knot times, which the axes that stay keep
     )
 
 
@@ -168,6 +177,29 @@ def axis_records(
     records, dev, rv, ra = records_kernels.axis_records(
         knots, P, V, fl.stride, a, dwell_ms, chk.seg_deviation, chk.velocity_ratio, chk.acceleration_ratio
     )
+    return _axis_knots(fl, a, records, dev, rv, ra)
+
+
+def axes_records(
+    fl: Flat,
+    axes: list[int],
+    knots: NDArray[np.int64],
+    P: NDArray[np.int64],
+    V: NDArray[np.int64],
+    chk: Check,
+    dwell_ms: int,
+) -> dict[int, tuple[AxisKnots, float]]:
+    """``axis_records`` of each of ``axes`` (one compiled call for all of them), by axis."""
+    rows, first, worst = records_kernels.axes_records(
+        knots, P, V, fl.stride, np.asarray(axes, dtype=np.int64), dwell_ms, chk.seg_deviation, chk.velocity_ratio,
+        chk.acceleration_ratio,
+    )  # fmt: skip
+    return {a: _axis_knots(fl, a, rows[first[i] : first[i + 1]], *worst[i].tolist()) for i, a in enumerate(axes)}
+
+
+def _axis_knots(
+    fl: Flat, a: int, records: NDArray[np.int64], dev: float, rv: float, ra: float
+) -> tuple[AxisKnots, float]:
     rj, scale = 0.0, needed_scale(rv, ra)
     if math.isfinite(fl.window_jerk[a]):
         rj = window_jerk(epos2_pvt(records, float(fl.f[a]))) / float(fl.window_jerk[a])

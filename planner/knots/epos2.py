@@ -9,11 +9,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from axes.interpolation import epos2_pvt
-from planner.knots.check import NO_INT, Checked, axis_records, checked_subset, knot_records
+from axes.program import TIME_MAX_MS
+from planner.knots.check import NO_INT, Checked, axes_records, axis_records, checked_subset, knot_records
 from planner.knots.flat import Flat
 from planner.knots.jerk_smooth import smoothed_axis
 from planner.knots.quantize import quantize_checked, shifted_records
-from planner.knots.refine import Fitted, fit_knots, fitted_subset, lsq_fit, refine, split_segments, switch_knots
+from planner.knots.refine import Fitted, fit_knots, fitted_subset, lsq_fit, refine, split_segments
+from planner.knots.refine_kernels import switch_flat_knots
 from planner.knots.round_kernels import split_verdict
 from planner.knots.samples import Samples
 from planner.knots.types import AxisKnots, DriveAxis, KnotOptions
@@ -31,7 +33,7 @@ def jerk_segments(
     """The knot segments, over every axis with a jerk limit, that a 10-ms window of the drive's
     reconstruction over the allowed jerk touches (``window_jerk.segments_over``)."""
     out = []
-    for a in np.flatnonzero(np.isfinite(fl.window_jerk)):
+    for a in fl.busy[np.isfinite(fl.window_jerk[fl.busy])]:
         records = knot_records(fl, int(a), knots, P, V, dwell_ms)
         s = segments_over(epos2_pvt(records, float(fl.f[a])), float(fl.window_jerk[a]))
         s = s[(s >= 1) & (s <= len(records) - 2)]  # not the dwell: the knot segments
@@ -70,13 +72,11 @@ def place_epos2(
         knots, fitted = fit_knots(fl, fl.flat_knots(initial), target, opts.max_splits)
         p_fit, v_fit = fitted.P, fitted.V
     else:
-        switch = [
-            switch_knots(
-                smp.switch_ms, smp.jump[:, c], abs(fl.amax[a]) * opts.switch_fraction, n, opts.min_switch_gap_ms
-            )
-            for a, c in enumerate(cols)
-        ]
-        knots = fl.flat_knots(switch)
+        thresholds = np.abs(fl.amax) * opts.switch_fraction
+        knots = switch_flat_knots(
+            smp.switch_ms, np.ascontiguousarray(smp.jump), np.asarray(cols, dtype=np.int64), thresholds, n,
+            opts.min_switch_gap_ms, TIME_MAX_MS,
+        )  # fmt: skip
         # a coarse first cut with the cheap exact-sample cubics, then least-squares fits
         if start is Start.LEAST_SQUARES:
             knots = refine(knots, fl.p, fl.v, _COARSE * target, opts.max_splits)
@@ -86,9 +86,9 @@ def place_epos2(
             knots = refine(knots, fl.p, fl.v, target, opts.max_splits)
             p_fit, v_fit = fl.p[knots], fl.v[knots]
     checked: Checked | None = None
-    last_stuck = np.full(len(fl.axes), np.iinfo(np.int64).max)  # per axis (by ``ids``): segments over a limit
+    last_stuck = np.full(len(fl.axes), np.iinfo(np.int64).max)  # per axis: segments over a limit
     out: dict[int, tuple[AxisKnots, float]] = {}
-    best: dict[int, tuple[AxisKnots, float]] = {}  # per axis (by ``ids``): its least slow-down so far
+    best: dict[int, tuple[AxisKnots, float]] = {}  # per axis: its least slow-down so far
     for _ in range(opts.max_splits):
         if len(p_fit) != len(knots):
             if start is Start.EXACT:
@@ -107,33 +107,32 @@ def place_epos2(
             jerk = jerk_segments(fl, knots, P, V, opts.dwell_ms)
         bad, n_stuck, strays = split_verdict(
             knots, fl.stride, chk.seg_deviation, chk.position_out, chk.velocity_ratio, chk.acceleration_ratio,
-            tol, jerk, last_stuck[fl.ids], 2 * _MIN_SPLIT_MS,
+            tol, jerk, last_stuck, 2 * _MIN_SPLIT_MS,
         )  # fmt: skip
-        last_stuck[fl.ids] = n_stuck
+        last_stuck = n_stuck  # the axes that left have none: they are never judged again
         # an axis that strays nowhere has a usable program now: keep it if it is the best so far
         # (splitting for a limit can also make it worse: shorter segments feel rounding more)
         for a in np.flatnonzero(~strays & (n_stuck > 0)):
             cand = axis_records(fl, int(a), knots, P, V, chk, opts.dwell_ms)
-            kept = best.get(int(fl.ids[a]))
+            kept = best.get(int(a))
             if kept is None or cand[1] < kept[1]:
-                best[int(fl.ids[a])] = cand
+                best[int(a)] = cand
         if not len(bad):
             break
         # the axes without a bad segment are done (as each would be on its own): they leave
         busy = np.unique(fl.axis_of(knots[bad]))
-        if len(busy) < len(fl.axes):
-            for a in np.setdiff1d(np.arange(len(fl.axes)), busy):
-                out[int(fl.ids[a])] = axis_records(fl, a, knots, P, V, chk, opts.dwell_ms)
+        if len(busy) < len(fl.busy):
+            done = sorted(set(fl.busy.tolist()).difference(busy.tolist()))
+            out.update(axes_records(fl, done, knots, P, V, chk, opts.dwell_ms))
             sel, moved_knots = fl.moved_knots(busy, knots)
             bad = np.searchsorted(sel, bad)  # every bad segment starts at a knot of a busy axis
             p_fit, v_fit = p_fit[sel], v_fit[sel]
-            fitted = fitted_subset(fl, busy, fitted)
-            checked = checked_subset(fl, busy, checked)
+            fitted = fitted_subset(fl, busy, fitted, (knots, sel, moved_knots))
+            checked = checked_subset(fl, busy, checked, (knots, sel, moved_knots))
             fl, knots = fl.subset(busy), moved_knots
         knots = split_segments(knots, bad)
     assert checked is not None
-    for a in range(len(fl.axes)):
-        out[int(fl.ids[a])] = axis_records(fl, a, knots, P, V, checked.chk, opts.dwell_ms)
+    out.update(axes_records(fl, fl.busy.tolist(), knots, P, V, checked.chk, opts.dwell_ms))
     for i, kept in best.items():
         if kept[1] < out[i][1]:
             out[i] = kept

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -12,6 +12,9 @@ from axes.program import TIME_MAX_MS
 from planner.knots.samples import Samples, axis_constants
 from planner.knots.types import DriveAxis
 
+# knots, the indices of those on the axes that stay, those knots (``Flat.moved_knots``)
+Moved = tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]
+
 
 @dataclass(frozen=True)
 class Flat:
@@ -19,8 +22,11 @@ class Flat:
     a * stride + j) and their knots in that index, so that every step below is one set of array
     operations for all axes (the axes are independent: numpy's fixed cost per call is paid once,
     not once per axis). Consecutive knots of one axis bound a segment; the step from an axis's last
-    knot to the next axis's first is none (``real_segments`` is False there, it is never split, fitted,
-    checked or repaired). Per-axis constants are arrays indexed by the axis number."""
+    knot to the next placed axis's first is none (``real_segments`` is False there, it is never split,
+    fitted, checked or repaired). Per-axis constants are arrays indexed by the axis number.
+
+    An axis that is done leaves (``subset``): its knots are dropped, the samples and constants stay
+    where they are (no copy), so an axis keeps its number and its knots their index."""
 
     axes: tuple[DriveAxis, ...]
     stride: int  # samples per axis: n_ms + 1
@@ -35,52 +41,36 @@ class Flat:
     rv_per: NDArray[np.float64]  # |v| / 0x607F per qc/ms
     ra_per: NDArray[np.float64]  # |a| / 0x60C5 per qc/ms^2
     window_jerk: NDArray[np.float64]  # the drive's allowed 10-ms-window jerk, qc/ms^3 (inf: none)
-    ids: NDArray[np.int64]  # each axis's place in the first Flat (stays when others leave: ``subset``)
+    busy: NDArray[np.int64]  # the axes still placed (their numbers, ascending): ``subset``
 
     @classmethod
     def of(cls, axes: Sequence[DriveAxis], cols: Sequence[int], smp: Samples) -> Flat:
+        cols = list(cols)
+        whole = cols == list(range(smp.position.shape[0]))  # every column in order: the samples as they are
         return cls(
             tuple(axes),
             smp.n_ms + 1,
-            smp.position[list(cols)].ravel(),
-            smp.velocity[list(cols)].ravel(),
+            smp.position.ravel() if whole else smp.position[cols].ravel(),
+            smp.velocity.ravel() if whole else smp.velocity[cols].ravel(),
             # own copies: the cached constants are read-only, and numba compiles a read-only array
             # as another type (a plan whose axes drop out would compile again, seconds, mid-request)
             *(c.copy() for c in axis_constants(tuple(axes))),
-            smp.window_jerk[list(cols)],
+            smp.window_jerk[cols],
             np.arange(len(axes)),
         )
 
     def subset(self, keep: NDArray[np.int64]) -> Flat:
-        """The axes ``keep`` (positions in this one) alone; ``moved_knots`` maps knots across."""
-        m = len(self.axes)
-        return Flat(
-            tuple(self.axes[a] for a in keep),
-            self.stride,
-            self.p.reshape(m, self.stride)[keep].ravel(),
-            self.v.reshape(m, self.stride)[keep].ravel(),
-            self.f[keep],
-            self.amax[keep],
-            self.vmax[keep],
-            self.v_units[keep],
-            self.pos_lo[keep],
-            self.pos_hi[keep],
-            self.rv_per[keep],
-            self.ra_per[keep],
-            self.window_jerk[keep],
-            self.ids[keep],
-        )
+        """The axes ``keep`` (axis numbers, ascending) alone; ``moved_knots`` selects their knots."""
+        return replace(self, busy=keep)
 
     def moved_knots(
         self, keep: NDArray[np.int64], knots: NDArray[np.int64]
     ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        """For knots of this one: (the indices of those on the axes ``keep``, where they are in
-        ``subset(keep)``)."""
-        new_pos = np.full(len(self.axes), -1)
-        new_pos[keep] = np.arange(len(keep))
-        ax = self.axis_of(knots)
-        sel = np.flatnonzero(new_pos[ax] >= 0)
-        return sel, knots[sel] + (new_pos[ax[sel]] - ax[sel]) * self.stride
+        """For knots of this one: (the indices of those on the axes ``keep``, those knots)."""
+        on = np.zeros(len(self.axes), dtype=bool)
+        on[keep] = True
+        sel = np.flatnonzero(on[knots // self.stride])
+        return sel, knots[sel]
 
     def axis_of(self, idx: NDArray[np.int64]) -> NDArray[np.int64]:
         return idx // self.stride

@@ -114,15 +114,19 @@ def quantize_checked(
     tol: float,
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], Checked]:
     """``round_knots``, ``check_knots`` (reusing ``prev``) and ``repair_rounds`` of the knots in one
-    compiled call (``round_kernels.round_check_repair``): the records and their check."""
+    compiled call (``round_kernels.round_check_repair``): the records and their check. A chain
+    whose records are those of a chain ``prev``'s round repaired gets that repair's records
+    without the search (``quantize_kernels.repair_chains_memo``: the same inputs, the same answer)."""
     if prev is None:
         old = (NO_INT, NO_INT, NO_INT, NO_FLOAT, NO_FLOAT, NO_FLOAT, np.zeros(0, dtype=bool))
+        memo = (kernels.NO_MEMO_AT, kernels.NO_MEMO_ROWS)
     else:
         c = prev.chk
         old = (prev.knots, prev.P, prev.V, c.seg_deviation, c.velocity_ratio, c.acceleration_ratio, c.position_out)
-    err, at, P, V, cP, cV, dev, rv, ra, out = round_kernels.round_check_repair(
+        memo = prev.memo
+    err, at, P, V, cP, cV, dev, rv, ra, out, *kept = round_kernels.round_check_repair(
         knots, p, v, fl.stride, fl.f, fl.rv_per, fl.ra_per, fl.pos_lo, fl.pos_hi, fl.v_units, fl.p, fl.v, tol,
-        _REPAIR_REACH, _REPAIRS, *old,
+        _REPAIR_REACH, _REPAIRS, *old, *memo,
     )  # fmt: skip
     if err == round_kernels.POSITION_RANGE:
         joint = fl.axes[fl.axis_of(knots[at])].joint
@@ -132,7 +136,7 @@ def quantize_checked(
             f"{fl.axes[fl.axis_of(knots[at])].joint}: a velocity does not fit the int24 of a record "
             "(velocity unit too fine?)"
         )
-    return P, V, Checked(knots, cP, cV, Check(dev, rv, ra, out))
+    return P, V, Checked(knots, cP, cV, Check(dev, rv, ra, out), (kept[0], kept[1]))
 
 
 def shifted_records(fl: Flat, placed: tuple[AxisKnots, float], opts: KnotOptions) -> tuple[AxisKnots, float]:

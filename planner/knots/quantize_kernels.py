@@ -214,6 +214,35 @@ def _repair_chain(
 
 
 @njit(cache=True)
+def free_chains(knots: _I, segments: _I, reach: int, shift: int, stride: int) -> _I:
+    """The chains ``repair_chains`` repairs, (n, 2): the first and last knot of each run of knots
+    within ``reach`` of a segment of ``segments`` on its axis, none at an axis end (never moved)
+    nor, with ``shift``, next to one."""
+    nk = len(knots)
+    free = np.zeros(nk, dtype=np.bool_)
+    for s in segments:
+        a = knots[s] // stride
+        for k in range(max(s - reach + 1, 0), min(s + reach, nk - 1) + 1):
+            r = knots[k] - a * stride
+            if shift < r < stride - 1 - shift:
+                free[k] = True
+    out = np.empty((nk, 2), dtype=np.int64)
+    n = 0
+    k = 0
+    while k < nk:
+        if not free[k]:
+            k += 1
+            continue
+        out[n, 0] = k
+        while k + 1 < nk and free[k + 1]:
+            k += 1
+        out[n, 1] = k
+        n += 1
+        k += 1
+    return out[:n]
+
+
+@njit(cache=True)
 def repair_chains(
     knots: _I,
     P: _I,
@@ -234,42 +263,98 @@ def repair_chains(
 ) -> bool:
     """Re-round the records within ``reach`` knots of every segment of ``segments`` (in place;
     with ``shift``, the knots may move by up to that many ms): each run of such knots is one
-    chain, repaired as a whole (``_repair_chain``). Whether any record moved."""
-    nk = len(knots)
-    free = np.zeros(nk, dtype=np.bool_)
-    for s in segments:
-        a = knots[s] // stride
-        for k in range(max(s - reach + 1, 0), min(s + reach, nk - 1) + 1):
-            r = knots[k] - a * stride
-            if shift < r < stride - 1 - shift:  # on the segment's axis, no axis end (never moved) nor next to one
-                free[k] = True
+    chain (``free_chains``), repaired as a whole (``_repair_chain``). Whether any record moved."""
     moved = False
-    k = 0
-    while k < nk:
-        if not free[k]:
-            k += 1
-            continue
-        i0 = k
-        while k + 1 < nk and free[k + 1]:
-            k += 1
-        a = knots[i0] // stride
+    for c in free_chains(knots, segments, reach, shift, stride):
+        a = knots[c[0]] // stride
         moved |= _repair_chain(
-            knots,
-            P,
-            V,
-            i0,
-            k,
-            shift,
-            stride,
-            f[a],
-            rv_per[a],
-            ra_per[a],
-            pos_lo[a],
-            pos_hi[a],
-            v_units[a],
-            plan,
-            plan_v,
-            tol,
-        )
-        k += 1
+            knots, P, V, c[0], c[1], shift, stride, f[a], rv_per[a], ra_per[a], pos_lo[a], pos_hi[a], v_units[a],
+            plan, plan_v, tol,
+        )  # fmt: skip
     return moved
+
+
+NO_MEMO_AT = np.zeros(1, dtype=np.int64)  # a memo of no chain (``repair_chains_memo``)
+NO_MEMO_ROWS = np.zeros((0, 5), dtype=np.int64)
+
+
+@njit(cache=True)
+def _memo_find(at: _I, rows: _I, n: int, knots: _I, P: _I, V: _I, i0: int, i1: int) -> int:
+    """The entry of the memo whose chain had the records of knots i0 - 1 .. i1 + 1 (times,
+    counts, velocity units), or -1."""
+    m = i1 - i0 + 3
+    for e in range(n):
+        if at[e + 1] - at[e] != m or rows[at[e], 0] != knots[i0 - 1]:
+            continue
+        same = True
+        for r in range(m):
+            k, row = i0 - 1 + r, at[e] + r
+            if rows[row, 0] != knots[k] or rows[row, 1] != P[k] or rows[row, 2] != V[k]:
+                same = False
+                break
+        if same:
+            return e
+    return -1
+
+
+@njit(cache=True)
+def repair_chains_memo(
+    knots: _I,
+    P: _I,
+    V: _I,
+    segments: _I,
+    reach: int,
+    stride: int,
+    f: _F,
+    rv_per: _F,
+    ra_per: _F,
+    pos_lo: _F,
+    pos_hi: _F,
+    v_units: _F,
+    plan: _F,
+    plan_v: _F,
+    tol: float,
+    memo_at: _I,
+    memo_rows: _I,
+    used: NDArray[np.bool_],
+) -> tuple[bool, _I, _I, NDArray[np.bool_]]:
+    """``repair_chains`` without ``shift``, with a memo of the chains repaired before on the same
+    plan: a chain's repair reads only the records of its knots and of the fixed knot on either
+    side (and the plan, the axis's constants, the tolerance), so a chain whose records are those
+    of a memo entry gets that entry's records, without the search. ``memo_at`` (entries + 1): each
+    entry's first row in ``memo_rows`` (time, count, velocity units before; count, velocity
+    units after); ``used``: per entry, whether this placement round used it. Returns whether any
+    record moved and the memo with this call's chains added."""
+    moved = False
+    for c in free_chains(knots, segments, reach, 0, stride):
+        i0, i1 = c[0], c[1]
+        n = len(memo_at) - 1
+        e = _memo_find(memo_at, memo_rows, n, knots, P, V, i0, i1)
+        if e < 0:
+            m = i1 - i0 + 3
+            rows = np.empty((len(memo_rows) + m, 5), dtype=np.int64)
+            rows[: len(memo_rows)] = memo_rows
+            for r in range(m):
+                k = i0 - 1 + r
+                rows[len(memo_rows) + r, 0], rows[len(memo_rows) + r, 1] = knots[k], P[k]
+                rows[len(memo_rows) + r, 2] = V[k]
+            a = knots[i0] // stride
+            _repair_chain(
+                knots, P, V, i0, i1, 0, stride, f[a], rv_per[a], ra_per[a], pos_lo[a], pos_hi[a], v_units[a],
+                plan, plan_v, tol,
+            )  # fmt: skip
+            for r in range(m):
+                rows[len(memo_rows) + r, 3], rows[len(memo_rows) + r, 4] = P[i0 - 1 + r], V[i0 - 1 + r]
+            at = np.empty(n + 2, dtype=np.int64)
+            at[: n + 1] = memo_at
+            at[n + 1] = len(rows)
+            u = np.empty(n + 1, dtype=np.bool_)
+            u[:n] = used
+            memo_at, memo_rows, used, e = at, rows, u, n
+        else:
+            for r in range(1, i1 - i0 + 2):
+                P[i0 - 1 + r], V[i0 - 1 + r] = memo_rows[memo_at[e] + r, 3], memo_rows[memo_at[e] + r, 4]
+        used[e] = True
+        for row in range(memo_at[e], memo_at[e + 1]):
+            moved |= memo_rows[row, 1] != memo_rows[row, 3] or memo_rows[row, 2] != memo_rows[row, 4]
+    return moved, memo_at, memo_rows, used

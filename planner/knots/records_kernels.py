@@ -48,3 +48,23 @@ def axis_records(
     for k in range(k0 + 1, k1 - 1):
         d, v, acc = max(d, dev[k]), max(v, rv[k]), max(acc, ra[k])
     return knot_records(knots, P, V, stride, a, dwell_ms), d, v, acc
+
+
+@njit(cache=True)
+def axes_records(
+    knots: _I, P: _I, V: _I, stride: int, axes: _I, dwell_ms: int, dev: _F, rv: _F, ra: _F
+) -> tuple[_I, _I, _F]:
+    """``axis_records`` of each of ``axes`` in one call: their records one after the other (axis
+    ``axes[i]``'s are rows ``first[i]:first[i + 1]``), ``first``, and per axis the worst deviation,
+    |v| ratio and |a| ratio of its segments."""
+    first = np.zeros(len(axes) + 1, dtype=np.int64)
+    for i in range(len(axes)):
+        k0, k1 = axis_knots(knots, stride, axes[i])
+        first[i + 1] = first[i] + k1 - k0 + 1
+    rows = np.empty((first[-1], 3), dtype=np.int64)
+    worst = np.empty((len(axes), 3))
+    for i in range(len(axes)):
+        records, d, v, acc = axis_records(knots, P, V, stride, axes[i], dwell_ms, dev, rv, ra)
+        rows[first[i] : first[i + 1]] = records
+        worst[i, 0], worst[i, 1], worst[i, 2] = d, v, acc
+    return rows, first, worst

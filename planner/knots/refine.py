@@ -12,7 +12,7 @@ from axes.interpolation import hermite_coefficients
 from axes.program import TIME_MAX_MS
 from planner.knots import refine_kernels as kernels
 from planner.knots.check import NO_FLOAT, NO_INT
-from planner.knots.flat import Flat
+from planner.knots.flat import Flat, Moved
 
 
 def switch_knots(
@@ -130,13 +130,17 @@ def lsq_fit(fl: Flat, knots: NDArray[np.int64], prev: Fitted | None = None, targ
     return Fitted(knots, r, P, V, worst)
 
 
-def fitted_subset(fl: Flat, keep: NDArray[np.int64], fitted: Fitted | None) -> Fitted | None:
+def fitted_subset(
+    fl: Flat, keep: NDArray[np.int64], fitted: Fitted | None, moved: Moved | None = None
+) -> Fitted | None:
+    """``fitted`` for the axes ``keep`` alone (``moved``: ``fl.moved_knots`` of them, if already
+    taken for ``fitted``'s knots)."""
     if fitted is None:
         return None
-    sel, knots = fl.moved_knots(keep, fitted.knots)
+    sel, knots = moved[1:] if moved is not None and moved[0] is fitted.knots else fl.moved_knots(keep, fitted.knots)
     seg = sel[:-1]  # the segment after each kept knot (the step to the next kept axis: none, as before)
     worst = None if fitted.worst is None else fitted.worst[seg]
-    return Fitted(knots, np.ascontiguousarray(fitted.rhs[:, seg]), fitted.P[sel], fitted.V[sel], worst)
+    return Fitted(knots, fitted.rhs.take(seg, axis=1), fitted.P[sel], fitted.V[sel], worst)
 
 
 def fit_knots(fl: Flat, knots: NDArray[np.int64], target: float, max_rounds: int) -> tuple[NDArray[np.int64], Fitted]:

@@ -27,12 +27,14 @@ _I = NDArray[np.int64]
 def refine(knots: _I, p: _F, v: _F, probes: _F, target: float, max_rounds: int, t_max: int) -> _I:
     """Halve knot segments until the cubic through the exact samples stays within ``target`` of
     the plan at the whole ms ``floor(T * probes)`` (a cheap first cut), or is 1 ms long; none
-    longer than ``t_max``. Round by round: each round judges the halves the last one made."""
-    is_knot = np.zeros(len(p), dtype=np.bool_)
-    is_knot[knots] = True
+    longer than ``t_max``. Round by round: each round judges the halves the last one made. A
+    half's new knot lies strictly inside its segment: the knots are the given ones and the new
+    ones, sorted (no array over every ms)."""
     lows, highs = knots[:-1].copy(), knots[1:].copy()  # the segments to judge
+    added = [np.empty(0, dtype=np.int64)]  # the new knots of each round
     for _ in range(max_rounds):
         new_lows, new_highs = np.empty(2 * len(lows), dtype=np.int64), np.empty(2 * len(lows), dtype=np.int64)
+        made = np.empty(len(lows), dtype=np.int64)
         n_split = 0
         for i in range(len(lows)):
             lo, hi = lows[i], highs[i]
@@ -41,35 +43,94 @@ def refine(knots: _I, p: _F, v: _F, probes: _F, target: float, max_rounds: int, 
             worst = probe_deviation(c0, c1, c2, c3, T, lo, p, probes)
             if (worst > target and hi - lo >= 2) or hi - lo > t_max:
                 mid = (lo + hi) // 2
-                is_knot[mid] = True
+                made[n_split // 2] = mid
                 new_lows[n_split], new_highs[n_split] = lo, mid
                 new_lows[n_split + 1], new_highs[n_split + 1] = mid, hi
                 n_split += 2
         if not n_split:
             break
+        added.append(made[: n_split // 2])
         lows, highs = new_lows[:n_split], new_highs[:n_split]
-    return np.flatnonzero(is_knot)
+    total = len(knots)
+    for a in added:
+        total += len(a)
+    out = np.empty(total, dtype=np.int64)
+    out[: len(knots)] = knots
+    j = len(knots)
+    for a in added:
+        out[j : j + len(a)] = a
+        j += len(a)
+    return np.sort(out)
 
 
 @njit(cache=True)
 def switch_knots(switch_ms: _F, jump: _F, threshold: float, n_ms: int, min_gap: int) -> _I:
     """Whole ms at the acceleration switches whose jump exceeds ``threshold``, largest jumps first,
-    none within ``min_gap`` of a knot already taken or of the motion's start and end."""
-    taken = np.zeros(n_ms + 1, dtype=np.bool_)
-    for i in np.argsort(-jump):
-        if not jump[i] > threshold:
-            break
+    none within ``min_gap`` of a knot already taken or of the motion's start and end (sorted). Only
+    the jumps over the threshold are sorted (a few tens of the gridpoints'), and a candidate is
+    held against the knots taken, not against every ms."""
+    over = np.empty(len(jump), dtype=np.int64)
+    n = 0
+    for i in range(len(jump)):
+        if jump[i] > threshold:
+            over[n] = i
+            n += 1
+    cand = over[:n]
+    taken = np.empty(n, dtype=np.int64)
+    m = 0
+    for i in cand[np.argsort(-jump[cand])]:
         t = int(np.rint(switch_ms[i]))
         if t < min_gap or t > n_ms - min_gap:
             continue
         near = False
-        for u in range(max(t - min_gap + 1, 0), min(t + min_gap - 1, n_ms) + 1):
-            if taken[u]:
+        for u in taken[:m]:
+            if abs(t - u) < min_gap:
                 near = True
                 break
         if not near:
-            taken[t] = True
-    return np.flatnonzero(taken)
+            taken[m] = t
+            m += 1
+    return np.sort(taken[:m])
+
+
+@njit(cache=True)
+def switch_flat_knots(switch_ms: _F, jump: _F, cols: _I, thresholds: _F, n_ms: int, min_gap: int, t_max: int) -> _I:
+    """``switch_knots`` of every axis (column ``cols[a]`` of ``jump``, threshold ``thresholds[a]``)
+    laid end to end as ``Flat.flat_knots`` lays them: axis a's ms j at a * (n_ms + 1) + j, both ends
+    of every axis, and every gap longer than ``t_max`` split evenly (``flat.within_record_time``)."""
+    stride = n_ms + 1
+    col = np.empty(len(switch_ms))
+    switches = np.empty((len(cols), len(switch_ms)), dtype=np.int64)  # each axis's, sorted, first ``taken[a]``
+    taken = np.empty(len(cols), dtype=np.int64)
+    n = 0
+    for a in range(len(cols)):
+        for i in range(len(switch_ms)):
+            col[i] = jump[i, cols[a]]
+        sw = switch_knots(switch_ms, col, thresholds[a], n_ms, min_gap)
+        switches[a, : len(sw)] = sw
+        taken[a] = len(sw)
+        n += len(sw) + 2 + (n_ms + len(sw)) // t_max  # at most this many after the splits
+    out = np.empty(n, dtype=np.int64)
+    n = 0
+    for a in range(len(cols)):
+        base = a * stride
+        out[n] = base
+        n += 1
+        last = 0
+        for i in range(taken[a] + 1):
+            t = switches[a, i] if i < taken[a] else n_ms
+            if t <= 0 or (t >= n_ms and i < taken[a]):  # the ends are the axis's own
+                continue
+            gap = t - last
+            if gap > t_max:
+                pieces = -(-gap // t_max)
+                for j in range(1, pieces):
+                    out[n] = base + last + (gap * j) // pieces
+                    n += 1
+            out[n] = base + t
+            n += 1
+            last = t
+    return out[:n]
 
 
 @njit(cache=True)
@@ -187,11 +248,18 @@ def lsq_system(knots: _I, stride: int, r: _F, gram: _F, p: _F, v: _F, ends: NDAr
         b[k + 1, 0] += r[2, k]
         b[k + 1, 1] += r[3, k]
     for k in range(nk):
-        tw = (
-            float(knots[k + 1] - knots[k])
-            if k == 0
-            else (float(knots[k] - knots[k - 1]) if k == nk - 1 else 0.5 * float(knots[k + 1] - knots[k - 1]))
-        )
+        # the time a knot stands for: half its two segments; the first and last knot of the whole,
+        # their one segment; next to another axis's knot, that one counts as 1 ms away (where the
+        # axes lie end to end it is: an axis is placed as in the layout, whichever axes left)
+        if k == 0:
+            tw = float(knots[1] - knots[0])
+        elif k == nk - 1:
+            tw = float(knots[k] - knots[k - 1])
+        else:
+            a = knots[k] // stride
+            lo = knots[k - 1] if knots[k - 1] // stride == a else knots[k] - 1
+            hi = knots[k + 1] if knots[k + 1] // stride == a else knots[k] + 1
+            tw = 0.5 * float(hi - lo)
         reg_v = 1e-3 * tw * tw
         D[k, 0] += 1e-3
         D[k, 2] += reg_v

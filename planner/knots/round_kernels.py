@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from axes.interpolation import LIMIT_RTOL
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 from planner.knots.check_kernels import check_segments
-from planner.knots.quantize_kernels import repair_chains
+from planner.knots.quantize_kernels import repair_chains_memo
 
 _F = NDArray[np.float64]
 _I = NDArray[np.int64]
@@ -66,7 +66,9 @@ def round_check_repair(
     prev_rv: _F,
     prev_ra: _F,
     prev_out: _B,
-) -> tuple[int, int, _I, _I, _I, _I, _F, _F, _F, _B]:
+    memo_at: _I,
+    memo_rows: _I,
+) -> tuple[int, int, _I, _I, _I, _I, _F, _F, _F, _B, _I, _I]:
     """Round (positions to counts inside 0x607D, velocities to units inside 0x607F, each axis's
     ends at rest), check (reusing the verdicts of ``prev_*``), then up to ``repairs`` times: repair
     the records within ``reach`` knots of the segments over a limit and check again.
@@ -81,7 +83,7 @@ def round_check_repair(
     for k in range(nk):
         r = np.rint(p_fit[k])
         if r < INT32_MIN or r > INT32_MAX:
-            return POSITION_RANGE, k, P, V, P, V, prev_dev, prev_rv, prev_ra, prev_out
+            return POSITION_RANGE, k, P, V, P, V, prev_dev, prev_rv, prev_ra, prev_out, memo_at, memo_rows
     for k in range(nk):
         a = knots[k] // stride
         P[k] = np.int64(min(max(np.rint(p_fit[k]), pos_lo[a]), pos_hi[a]))
@@ -89,7 +91,7 @@ def round_check_repair(
         a = knots[k] // stride
         u = min(max(np.rint(v_fit[k] / f[a]), -v_units[a]), v_units[a])
         if u < INT24_MIN or u > INT24_MAX:
-            return VELOCITY_RANGE, k, P, V, P, V, prev_dev, prev_rv, prev_ra, prev_out
+            return VELOCITY_RANGE, k, P, V, P, V, prev_dev, prev_rv, prev_ra, prev_out, memo_at, memo_rows
         m = knots[k] % stride
         V[k] = 0 if m == 0 or m == stride - 1 else np.int64(u)
     dev, rv, ra, out = check_segments(
@@ -112,20 +114,44 @@ def round_check_repair(
         prev_out,
     )
     cP, cV = P, V
+    used = np.zeros(len(memo_at) - 1, dtype=np.bool_)
     for _ in range(repairs):
         segments = _over(rv, ra)
         if not len(segments):
             break
         P, V = P.copy(), V.copy()
-        if not repair_chains(
-            knots, P, V, segments, reach, 0, stride, f, rv_per, ra_per, pos_lo, pos_hi, v_units, plan, plan_v, tol
-        ):
+        moved, memo_at, memo_rows, used = repair_chains_memo(
+            knots, P, V, segments, reach, stride, f, rv_per, ra_per, pos_lo, pos_hi, v_units, plan, plan_v, tol,
+            memo_at, memo_rows, used,
+        )  # fmt: skip
+        if not moved:
             break
         dev, rv, ra, out = check_segments(
             knots, P, V, stride, f, rv_per, ra_per, pos_lo, pos_hi, plan, knots, cP, cV, dev, rv, ra, out
         )
         cP, cV = P, V
-    return 0, 0, P, V, cP, cV, dev, rv, ra, out
+    kept_at, kept_rows = _memo_used(memo_at, memo_rows, used)
+    return 0, 0, P, V, cP, cV, dev, rv, ra, out, kept_at, kept_rows
+
+
+@njit(cache=True)
+def _memo_used(at: _I, rows: _I, used: _B) -> tuple[_I, _I]:
+    """The entries of a chain memo that ``used`` marks (the next round's memo)."""
+    n_rows = 0
+    for e in range(len(used)):
+        if used[e]:
+            n_rows += at[e + 1] - at[e]
+    kept_at = np.zeros(int(used.sum()) + 1, dtype=np.int64)
+    kept_rows = np.empty((n_rows, rows.shape[1]), dtype=np.int64)
+    n, r = 0, 0
+    for e in range(len(used)):
+        if used[e]:
+            m = at[e + 1] - at[e]
+            kept_rows[r : r + m] = rows[at[e] : at[e + 1]]
+            r += m
+            n += 1
+            kept_at[n] = r
+    return kept_at, kept_rows
 
 
 @njit(cache=True)

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from planner.knots.samples_kernels import to_drive_units
 from planner.knots.types import DriveAxis, TimedTrajectory
 
 
@@ -77,11 +78,8 @@ def sample_trajectory(
     q, qd = traj.states(np.arange(n + 1) / (1000.0 * scale))  # trajectory time of each drive ms
     switch_s, jump_joint = traj.acceleration_jumps()
     pos_0, pos_1, vel_1, acc_1 = _unit_conversions(tuple(axes))
-    q *= (pos_1 - pos_0)[:, None]
-    q += pos_0[:, None]
-    qd *= (vel_1 / scale)[:, None]
-    qd[:, 0] = 0.0
-    qd[:, -1] = 0.0
+    q, qd = np.ascontiguousarray(q), np.ascontiguousarray(qd)  # one compiled signature
+    to_drive_units(q, qd, pos_0, pos_1, vel_1 / scale)
     jerk = np.full(len(axes), np.inf)
     if max_jerk is not None:  # a hair below the allowance: the same numbers in other units never read over it
         jerk = np.asarray(max_jerk, dtype=float) * np.abs(acc_1) * (1e-3 * window_jerk_ratio * (1.0 - 1e-6))

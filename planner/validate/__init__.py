@@ -42,10 +42,10 @@ from numpy.typing import NDArray
 
 from axes.interpolation import DRIVE_SAMPLE_MS
 from axes.program import AxisProgram, PvtProgram
-from planner.validate.motion import check_motion
+from planner.validate.motion import check_motion, summaries_within_limits
 from planner.validate.records import check_epos2, check_fixed_period, check_ranges
 from planner.validate.report import AxisSummary, Finding, Rule, Severity, ValidationReport
-from planner.validate.screen import Screen, has_motion, screen_axes
+from planner.validate.screen import Screen, clean_worsts, has_motion, screen_axes
 
 __all__ = ["AxisSummary", "Finding", "Rule", "Severity", "ValidationReport", "validate_program"]
 
@@ -60,13 +60,18 @@ def validate_program(
 
     ``sample_period_ms=None`` skips the look at the drive's own samples: the exact checks alone
     decide (they bound the samples), which is what the planner's last check before output needs.
-    All axes' records are looked at once (:func:`screen_axes`); an axis is gone through segment by
-    segment only where that look finds something to report.
+    All axes' records are looked at once (:func:`clean_worsts`, else :func:`screen_axes`); an axis
+    is gone through segment by segment only where that look finds something to report.
     """
     errors: list[Finding] = []
     warnings: list[Finding] = []
     summaries: list[AxisSummary] = []
     records = [np.asarray(axis.records, dtype=np.int64) for axis in program.axes]
+    worsts = clean_worsts(program.axes, records)
+    if worsts is not None:  # no rule on records broken: the worst values alone decide
+        within = summaries_within_limits(program.axes, worsts, sample_period_ms)
+        if within is not None:
+            return ValidationReport(program.cell, (), (), tuple(within), source)
     for axis, r, screen in zip(program.axes, records, screen_axes(program.axes, records), strict=True):
         found, summary = _validate_axis(axis, r, sample_period_ms, screen)
         for f in found:

@@ -6,6 +6,7 @@ the drive's own samples, and the summary of each axis's worst values.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -99,28 +100,46 @@ def _motion_limits(axis: AxisProgram) -> list[_MotionLimit]:
     return out
 
 
-def _summary_within_limits(axis: AxisProgram, worst: Worst, sample_period_ms: float | None) -> AxisSummary | None:
-    """The axis's summary if its worst values are within every limit (then no segment has a motion
-    finding), else None.
+def summaries_within_limits(
+    axes: Sequence[AxisProgram], worsts: Sequence[Worst], sample_period_ms: float | None
+) -> list[AxisSummary] | None:
+    """The axes' summaries if each one's worst values are within every limit (then no segment has
+    a motion finding), else None: every axis's values against its limits in one comparison.
 
     The unit conversions are monotonic, so the converted worst value is the worst converted value:
     these are the very numbers the segment-by-segment check reports.
     """
-    s = axis.scaling
-    lim = axis.limits
-    vmax = float(s.qc_per_ms_to_rpm(worst.speed))
-    amax = float(s.qc_per_ms2_to_rpm_s(worst.acceleration))
-    if not all(math.isfinite(x) for x in worst):
-        return None  # a segment's NaN would hide behind the worst value: look at each one
-    value = {"velocity": vmax, "acceleration": amax}
-    if any(exceeds(value[m.kind], m.limit) for m in _motion_limits(axis)):
+    values: list[float] = []
+    limits: list[float] = []
+    converted = []
+    for axis, worst in zip(axes, worsts, strict=True):
+        if not all(map(math.isfinite, worst)):
+            return None  # a segment's NaN would hide behind the worst value: look at each one
+        lim = axis.limits
+        if worst.lowest < lim.min_position_qc or worst.highest > lim.max_position_qc:
+            return None
+        s = axis.scaling
+        vmax = float(s.qc_per_ms_to_rpm(worst.speed))
+        amax = float(s.qc_per_ms2_to_rpm_s(worst.acceleration))
+        converted.append((vmax, amax))
+        for m in _motion_limits(axis):
+            values.append(vmax if m.kind == "velocity" else amax)
+            limits.append(m.limit)
+    if exceeds(np.array(values), np.array(limits)).any():
         return None
-    if worst.lowest < lim.min_position_qc or worst.highest > lim.max_position_qc:
-        return None
-    sv = sa = np.zeros(0)
     if sample_period_ms:
-        _, sv, sa = _samples(axis, axis.reconstruction(), sample_period_ms)
-    return _summary(axis, worst.end_ms, vmax, amax, sv, sa, worst.lowest, worst.highest)
+        out = []
+        for axis, worst, (vmax, amax) in zip(axes, worsts, converted, strict=True):
+            _, sv, sa = _samples(axis, axis.reconstruction(), sample_period_ms)
+            out.append(_summary(axis, worst.end_ms, vmax, amax, sv, sa, worst.lowest, worst.highest))
+        return out
+    return [
+        _summary(axis, worst.end_ms, vmax, amax, _NO_SAMPLES, _NO_SAMPLES, worst.lowest, worst.highest)
+        for axis, worst, (vmax, amax) in zip(axes, worsts, converted, strict=True)
+    ]
+
+
+_NO_SAMPLES = np.zeros(0)  # no look at the drive's samples (read only: ``_summary`` takes its length)
 
 
 def _linear_spans(axis: AxisProgram, recon: PiecewiseCubic) -> list[Finding]:
@@ -165,9 +184,9 @@ def check_motion(
     segment by segment.
     """
     if worst is not None:
-        summary = _summary_within_limits(axis, worst, sample_period_ms)
+        summary = summaries_within_limits((axis,), (worst,), sample_period_ms)
         if summary is not None:
-            return [], summary
+            return [], summary[0]
     s = axis.scaling
     lim = axis.limits
     name = axis.joint

@@ -12,13 +12,15 @@ candidates the unions gave.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from axes.program import TIME_MAX_MS
 from planner.constraints import _IntervalSpeedConstraint
-from planner.knots import KnotError
-from planner.knots.check import axis_records, check_knots, knot_records, over_limit
+from planner.knots import KnotError, KnotOptions, epos2
+from planner.knots.check import axes_records, axis_records, check_knots, knot_records, over_limit
 from planner.knots.flat import Flat
 from planner.knots.quantize import quantize_checked, repair_rounds, round_knots
 from planner.knots.refine import fit_knots, lsq_fit, split_segments
@@ -90,6 +92,38 @@ def test_quantize_checked_is_round_check_repair(arm6_flat, spacing: int) -> None
         prev = checked
 
 
+def test_repairs_remembered_from_the_last_round_are_the_search(arm6_flat, monkeypatch) -> None:
+    """A chain whose records a previous round's repair already searched gets that repair's records
+    (``repair_chains_memo``): each round of a placement gives the records the search gives
+    (``repair_rounds``, no memo)."""
+    _, _, fl = arm6_flat
+    calls = []
+
+    def recorded(fl, knots, p, v, prev, tol):
+        out = quantize_checked(fl, knots, p, v, prev, tol)
+        calls.append((fl, knots, p, v, tol, out))
+        return out
+
+    monkeypatch.setattr(epos2, "quantize_checked", recorded)
+    # 0x60C5 a hair lower than the cell's: rounding crosses it on many segments, round after round
+    tight = dataclasses.replace(fl, ra_per=fl.ra_per * 1.003)
+    epos2.place_epos2(tight, sample_trajectory(arm6_flat[1], tight.axes, 1.0), list(range(len(fl.axes))),
+                      KnotOptions(), epos2.Start.LEAST_SQUARES)  # fmt: skip
+    remembered = 0
+    for i, (f, knots, p, v, tol, (P, V, checked)) in enumerate(calls):
+        P0, V0 = round_knots(f, knots, p, v)
+        _, P1, V1, ref = repair_rounds(f, knots, P0, V0, check_knots(f, knots, P0, V0), tol)
+        np.testing.assert_array_equal(P, P1)
+        np.testing.assert_array_equal(V, V1)
+        np.testing.assert_array_equal(checked.P, ref.P)
+        for field in ("seg_deviation", "velocity_ratio", "acceleration_ratio", "position_out"):
+            np.testing.assert_array_equal(getattr(checked.chk, field), getattr(ref.chk, field))
+        if i:  # rows of a chain this round searched or took from the last round's memo
+            last = {tuple(r) for r in calls[i - 1][5][2].memo[1].tolist()}
+            remembered += sum(tuple(r) in last for r in checked.memo[1].tolist())
+    assert len(calls) >= 2 and remembered > 0
+
+
 def test_quantize_checked_refuses_what_no_record_holds(arm6_flat) -> None:
     _, _, fl = arm6_flat
     knots = fl.flat_knots([np.arange(0, fl.stride - 1, 50) for _ in fl.axes])
@@ -152,6 +186,15 @@ def test_axis_records_read_back(arm6_flat) -> None:
         assert placed.deviation_qc == chk.seg_deviation[k0 : k1 - 1].max()
         assert placed.velocity_ratio == chk.velocity_ratio[k0 : k1 - 1].max()
         assert placed.acceleration_ratio == chk.acceleration_ratio[k0 : k1 - 1].max()
+    # several axes in one call: each as alone
+    some = [0, 2, 3, len(fl.axes) - 1]
+    together = axes_records(fl, some, knots, P, V, chk, 3)
+    assert list(together) == some
+    for a in some:
+        alone, scale = axis_records(fl, a, knots, P, V, chk, 3)
+        np.testing.assert_array_equal(together[a][0].records, alone.records)
+        assert together[a][0] == dataclasses.replace(alone, records=together[a][0].records)
+        assert together[a][1] == scale
 
 
 def test_backward_pass_shortcuts_match_the_lps(arm6_flat) -> None:

@@ -282,6 +282,27 @@ def test_switch_knots_largest_first_apart_and_inside() -> None:
     assert len(switch_knots(switch_ms, jump, 10.0, 100, 8)) == 0
 
 
+def test_switch_knots_of_all_axes_laid_out_in_one_call(arm6_plan) -> None:
+    """``switch_flat_knots`` gives what each axis's ``switch_knots`` laid out by ``Flat.flat_knots``
+    gives (ends, long gaps split), on a plan's switches and on gaps longer than a record."""
+    _, axes, _, smp = arm6_plan
+    fl = Flat.of(axes, list(range(len(axes))), smp)
+    for n_ms, fraction, t_max in ((smp.n_ms, 0.01, 255), (smp.n_ms, 0.2, 40), (smp.n_ms, 1e9, 255)):
+        thresholds = np.abs(fl.amax) * fraction
+        cols = np.arange(len(axes))
+        got = refine_kernels.switch_flat_knots(smp.switch_ms, np.ascontiguousarray(smp.jump), cols, thresholds,
+                                               n_ms, 8, t_max)  # fmt: skip
+        per_axis = [switch_knots(smp.switch_ms, smp.jump[:, c], thresholds[c], n_ms, 8) for c in cols]
+        if t_max == 255:
+            np.testing.assert_array_equal(got, fl.flat_knots(per_axis))
+        # every axis from its start to its goal, no gap over t_max, the switch knots among them
+        stride = n_ms + 1
+        for a in cols:
+            mine = got[(got >= a * stride) & (got < (a + 1) * stride)] - a * stride
+            assert mine[0] == 0 and mine[-1] == n_ms and np.diff(mine).max() <= t_max
+            assert set(per_axis[a].tolist()) <= set(mine.tolist())
+
+
 def test_build_reports_its_timing(arm6_plan) -> None:
     cell, axes, traj, _ = arm6_plan
     built = build_program(traj, axes, cell.name)

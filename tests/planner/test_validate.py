@@ -288,3 +288,79 @@ def test_linear_steps_of_one_count_cannot_accelerate_past_0x60c5_for_long() -> N
     report = validate_program(program(axis(records, profile="cia402_ip_linear", limits=lim)))
     spans = [f for f in report.errors if f.rule == "acceleration-limit"]
     assert spans and "periods" in spans[0].message and "0x60C5 15000" in spans[0].message
+
+
+def _mutations(records: np.ndarray) -> list[np.ndarray]:
+    """``records`` as they are, and once broken by each rule on records (one change each)."""
+    out = [records]
+    last = len(records) - 1
+    for row, col, value in (
+        (3, 0, 2**31),  # record-range: position
+        (4, 1, 2**23),  # record-range: velocity
+        (5, 2, 300),  # record-range and time-range
+        (6, 2, 0),  # time 0 before the end
+        (0, 1, 5),  # start not at rest
+        (0, 2, 0),  # no dwell
+        (last, 2, 7),  # no end marker
+        (last, 1, 3),  # end not at rest
+        (last - 1, 1, 3),  # the last motion record not at rest
+        (last, 0, int(records[last, 0]) + 1),  # the end record elsewhere
+    ):
+        broken = records.copy()
+        broken[row, col] = value
+        out.append(broken)
+    return out
+
+
+def test_one_look_at_all_axes_changes_no_answer(monkeypatch) -> None:
+    """The compiled look at a program of EPOS2 axes (``screen._epos2_screen``) gives the report the
+    rule-by-rule path gives, for records that keep every rule and for records that break one."""
+    from planner.validate import screen
+
+    rng = np.random.default_rng(17)
+    wide = dataclasses.replace(LIMITS, max_profile_velocity_rpm=1e7, max_acceleration_rpm_s=1e9)
+    base = [random_epos2_records(rng, 30 + 7 * k) for k in range(3)]
+    cases = []
+    for k in range(3):
+        for broken in _mutations(base[k]):
+            recs = [broken if j == k else base[j] for j in range(3)]
+            cases.append(program(*(axis(r, f"joint_{j}", j + 1, limits=wide) for j, r in enumerate(recs))))
+    cases.append(program(*(axis(r, f"joint_{j}", j + 1) for j, r in enumerate(base))))  # over 0x607F: motion findings
+    fast = [validate_program(p, sample_period_ms=period) for p in cases for period in (None, 1.0)]
+    unclean = screen._epos2_screen
+
+    def nothing_clean(*args):
+        worst, clean = unclean(*args)
+        return worst, np.zeros_like(clean)
+
+    monkeypatch.setattr(screen, "_epos2_screen", nothing_clean)
+    slow = [validate_program(p, sample_period_ms=period) for p in cases for period in (None, 1.0)]
+    assert sum(r.ok for r in fast) == 6  # the unbroken program (once per axis's list), with and without the samples
+    for f, s in zip(fast, slow, strict=True):
+        assert f.errors == s.errors and f.warnings == s.warnings and f.axes == s.axes
+
+
+def test_position_range_of_a_smooth_motion_is_exact() -> None:
+    """The worst values skip the exact position range of segments inside the band of the segment
+    starts: the lowest and highest position are still the reconstruction's, to the last bit."""
+    t = np.arange(0, 2001, 20)
+    pos = np.rint(1e5 * np.sin(t / 300.0) + 3e4 * np.sin(t / 37.0)).astype(np.int64)
+    vel = np.rint(
+        (1e5 / 300.0 * np.cos(t / 300.0) + 3e4 / 37.0 * np.cos(t / 37.0)) / SCALING.qc_per_ms_per_velocity_unit
+    )
+    vel[0] = vel[-1] = 0
+    records = np.vstack([[pos[0], 0, 1], np.column_stack([pos[1:], vel[1:], np.diff(t)]), [pos[-1], 0, 0]])
+    records[1:-1, 1][-1] = 0
+    wide = dataclasses.replace(
+        LIMITS,
+        max_profile_velocity_rpm=1e9,
+        max_acceleration_rpm_s=1e12,
+        min_position_qc=-(2**31),
+        max_position_qc=2**31 - 1,
+    )
+    a = axis(records, limits=wide)
+    report = validate_program(program(a), sample_period_ms=None)
+    assert report.ok, report.format_text()
+    lo, hi = a.reconstruction().position_range()
+    assert (report.axes[0].min_position_qc, report.axes[0].max_position_qc) == (float(lo.min()), float(hi.max()))
+    assert float(lo.min()) < float(records[:, 0].min())  # the extremes lie between records: solved, not read
