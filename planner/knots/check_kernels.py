@@ -35,6 +35,28 @@ def horner(c0: float, c1: float, c2: float, c3: float, tau: float) -> float:
     return c0 + tau * (c1 + tau * (c2 + tau * c3))
 
 
+@njit(cache=True, fastmath={"nnan", "ninf", "nsz", "reassoc"})
+def max_of(err: _F, n: int) -> float:
+    """max(0, err[:n]) for values >= 0, none NaN (|deviations|): a maximum is exact in any order, so
+    this one loop may take it in SIMD lanes (``reassoc``); the deviations themselves are computed
+    without fast-math, each as the plain loop would."""
+    w = 0.0
+    for i in range(n):
+        w = max(w, err[i])
+    return w
+
+
+@njit(cache=True)
+def whole_ms(knots: _I) -> _F:
+    """0.0, 1.0, ... up to the longest gap of ``knots``: a segment's sample times as a table. A
+    float converted from an int64 in the loop keeps it scalar (AVX2 has no such conversion); a
+    load does not, and the values are the same."""
+    longest = 1
+    for k in range(len(knots) - 1):
+        longest = max(longest, knots[k + 1] - knots[k])
+    return np.arange(longest + 1).astype(np.float64)
+
+
 @njit(cache=True)
 def probe_deviation(c0: float, c1: float, c2: float, c3: float, T: float, k0: int, plan: _F, probes: _F) -> float:
     """Worst |cubic - plan| at the whole ms ``floor(T * x)`` of a segment that starts at plan index
@@ -92,6 +114,8 @@ def check_segments(
     nseg = len(knots) - 1
     dev, rv, ra = np.zeros(nseg), np.zeros(nseg), np.zeros(nseg)
     out = np.zeros(nseg, dtype=np.bool_)
+    tau = whole_ms(knots)
+    err = np.empty(len(tau))
     j = 0
     for k in range(nseg):
         k0, k1 = knots[k], knots[k + 1]
@@ -109,9 +133,10 @@ def check_segments(
         rv[k] = cubic_peak_speed(c1, c2, c3, T) * rv_per[a]
         ra[k] = cubic_peak_acceleration(c2, c3, T) * ra_per[a]
         out[k] = leaves(c0, c1, c2, c3, T, p1, v1, pos_lo[a], pos_hi[a])
-        worst = 0.0
-        for t in range(k1 - k0):
-            worst = max(worst, abs(horner(c0, c1, c2, c3, float(t)) - plan[k0 + t]))
+        n = k1 - k0
+        for t in range(n):
+            err[t] = abs(horner(c0, c1, c2, c3, tau[t]) - plan[k0 + t])
+        worst = max_of(err, n)
         if k == nseg - 1 or knots[k + 2] // stride != a:  # the axis's goal sample belongs to its last segment
             worst = max(worst, abs(horner(c0, c1, c2, c3, T) - plan[k1]))
         dev[k] = worst
