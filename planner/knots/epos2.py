@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from axes.interpolation import epos2_pvt
 from axes.program import TIME_MAX_MS
-from planner.knots.check import NO_INT, Checked, axes_records, axis_records, checked_subset, knot_records
+from planner.knots.check import NO_INT, Checked, axes_records, checked_subset, knot_records
 from planner.knots.flat import Flat
 from planner.knots.jerk_smooth import smoothed_axis
 from planner.knots.quantize import quantize_checked, shifted_records
@@ -25,6 +25,8 @@ _COARSE = 4.0  # first cut: exact-sample cubics to this multiple of the fit targ
 
 
 _MIN_SPLIT_MS = 12  # segments shorter than twice this are not split for a limit (rounding grows as 1/T^2)
+
+_NOT_YET = np.iinfo(np.int64).max  # an axis's segments over a limit before its first check
 
 
 def jerk_segments(
@@ -86,7 +88,8 @@ def place_epos2(
             knots = refine(knots, fl.p, fl.v, target, opts.max_splits)
             p_fit, v_fit = fl.p[knots], fl.v[knots]
     checked: Checked | None = None
-    last_stuck = np.full(len(fl.axes), np.iinfo(np.int64).max)  # per axis: segments over a limit
+    last_stuck = np.full(len(fl.axes), _NOT_YET)  # per axis: segments over a limit
+    jerk_limited = bool(np.isfinite(fl.window_jerk).any())  # per axis, kept by ``Flat.subset``
     out: dict[int, tuple[AxisKnots, float]] = {}
     best: dict[int, tuple[AxisKnots, float]] = {}  # per axis: its least slow-down so far
     for _ in range(opts.max_splits):
@@ -103,7 +106,7 @@ def place_epos2(
         # are worth it while they help: an axis whose segments over a limit did not get fewer (and
         # that strays nowhere) stops here, as it is (``round_kernels.split_verdict``)
         jerk = NO_INT
-        if np.isfinite(fl.window_jerk).any():  # the drive's window jerk over what the jerk limit allows
+        if jerk_limited:  # the drive's window jerk over what the jerk limit allows
             jerk = jerk_segments(fl, knots, P, V, opts.dwell_ms)
         bad, n_stuck, strays = split_verdict(
             knots, fl.stride, chk.seg_deviation, chk.position_out, chk.velocity_ratio, chk.acceleration_ratio,
@@ -112,11 +115,12 @@ def place_epos2(
         last_stuck = n_stuck  # the axes that left have none: they are never judged again
         # an axis that strays nowhere has a usable program now: keep it if it is the best so far
         # (splitting for a limit can also make it worse: shorter segments feel rounding more)
-        for a in np.flatnonzero(~strays & (n_stuck > 0)):
-            cand = axis_records(fl, int(a), knots, P, V, chk, opts.dwell_ms)
-            kept = best.get(int(a))
-            if kept is None or cand[1] < kept[1]:
-                best[int(a)] = cand
+        usable = np.flatnonzero(~strays & (n_stuck > 0)).tolist()
+        if usable:
+            for a, cand in axes_records(fl, usable, knots, P, V, chk, opts.dwell_ms).items():
+                kept = best.get(a)
+                if kept is None or cand[1] < kept[1]:
+                    best[a] = cand
         if not len(bad):
             break
         # the axes without a bad segment are done (as each would be on its own): they leave
