@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 from axes.interpolation import exceeds
 from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 from planner.knots import quantize_kernels as kernels
-from planner.knots import round_kernels
+from planner.knots import records_kernels, round_kernels
 from planner.knots.check import NO_FLOAT, NO_INT, Check, Checked, axis_records, check_knots, over_limit, record_knots
 from planner.knots.flat import Flat
 from planner.knots.types import AxisKnots, DriveAxis, KnotError, KnotOptions
@@ -178,3 +178,9 @@ def warm_up() -> None:
             knots.copy(), P.copy(), V.copy(), segments, _REPAIR_REACH, shift, fl.stride, *per_axis, fl.p, fl.v, 1.0
         )
     check_knots(fl, knots, P, V, checked)
+    # one axis's records read back (a placement reads all axes in one call; the shifted and the
+    # jerk-smoothed records one axis at a time)
+    chk = checked.chk
+    records_kernels.axis_records(
+        knots, P, V, fl.stride, 0, 1, chk.seg_deviation, chk.velocity_ratio, chk.acceleration_ratio
+    )
