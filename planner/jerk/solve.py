@@ -158,6 +158,9 @@ class Solution:
     optimal: bool = True
 
 
+SOLVERS = ("fatrop", "ipopt")  # in turn: ipopt from the same start where fatrop does not converge
+
+
 def _solvers_for(program: Program, time_left: float) -> tuple[str, ...]:
     """The solvers worth starting with ``time_left`` (s) before the deadline (module docstring)."""
     names = ("fatrop",) if time_left >= program.expected_fatrop_s() else ()
@@ -169,11 +172,12 @@ def _solve_now(
     args: dict[str, Any],
     scale: NDArray[np.float64],
     deadline: float,
-    names: tuple[str, ...] = ("fatrop", "ipopt"),
+    names: tuple[str, ...] = SOLVERS,
 ) -> tuple[Solution | None, str, bool]:
     """``names`` in turn (fatrop, then ipopt from the same start where fatrop does not converge;
     ``args`` scaled by ``scale``, the solution is not). The third value: whether the deadline
-    stopped it."""
+    stopped it, which includes a solver left out of ``names`` for lack of time (``_solvers_for``):
+    the ones tried all failing is then no proof that none would converge."""
     statuses = []
     width = len(STATE) + len(CONTROL)
 
@@ -200,7 +204,7 @@ def _solve_now(
             iterations = int(stats.get("iter_count", 0))
             return (None if best is None else solution(best, name, iterations, False)), "; ".join(statuses), True
         statuses.append(f"{name}: {status}" if isinstance(status, str) else f"{name}: failed (return status {status})")
-    return None, "; ".join(statuses), False
+    return None, "; ".join(statuses), names != SOLVERS
 
 
 def solve_in_time(

@@ -85,6 +85,28 @@ def test_no_solve_starts_that_cannot_answer_in_time() -> None:
     assert not any(t.name == "jerk-solve" for t in threading.enumerate())
 
 
+def test_a_solver_left_out_for_lack_of_time_is_the_floor_not_a_refusal(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The time left shrinks between choosing the solvers and starting them (the program's lock, a
+    loaded host): none left, or only some of them failing, proves nothing about the path; the answer
+    is the floor, never INFEASIBLE (time alone never refuses a plan)."""
+    import planner.jerk.solve as jerk_solve
+
+    chosen = jerk_solve._solvers_for
+    calls: list[int] = []
+
+    def fewer_the_second_time(program, time_left):  # type: ignore[no-untyped-def]
+        calls.append(1)
+        return chosen(program, time_left) if len(calls) == 1 else ()
+
+    monkeypatch.setattr(jerk_solve, "_solvers_for", fewer_the_second_time)
+    limits = ARM.joint_limits()
+    wp = random_paths(ARM, 1, seed=13)[0]
+    res = Planner(limits).plan(PlanInput(wp, max_jerk=10.0 * limits.acceleration, budget_ms=5000.0))
+    assert len(calls) == 2
+    assert res.ok, res.message
+    assert res.details["optimal"] is False and res.details["solver"] == "scurve"
+
+
 def test_the_cell_plan_says_not_optimal_and_its_program_is_valid(monkeypatch: pytest.MonkeyPatch) -> None:
     """The whole budget kept back from the solve: the answer is the floor, and it is a valid program."""
     monkeypatch.setattr(cell_planner_module, "knots_reserve_ms", lambda budget_ms: budget_ms)
