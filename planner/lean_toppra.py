@@ -41,6 +41,33 @@ def _times(F: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64
     return v @ F.T if F.ndim == 2 else np.einsum("ikj,ij->ik", F, v)
 
 
+@njit(cache=True)
+def _stage_rows(
+    F: NDArray[np.float64],
+    a: NDArray[np.float64],
+    b: NDArray[np.float64],
+    c: NDArray[np.float64],
+    h: NDArray[np.float64],
+    A: NDArray[np.float64],
+    B: NDArray[np.float64],
+    C: NDArray[np.float64],
+    col: int,
+) -> None:
+    """F a, F b and F c - h at every stage into columns ``col`` on of A, B, C, the zeros of F
+    skipped: pvtflow's F are identities and [I; -I] (one product per row, not a matrix product)."""
+    k, m = F.shape
+    for i in range(a.shape[0]):
+        for j in range(k):
+            ra, rb, rc = 0.0, 0.0, 0.0
+            for p in range(m):
+                f = F[j, p]
+                if f != 0.0:
+                    ra += f * a[i, p]
+                    rb += f * b[i, p]
+                    rc += f * c[i, p]
+            A[i, col + j], B[i, col + j], C[i, col + j] = ra, rb, rc - h[j]
+
+
 @dataclass(frozen=True)
 class _StageRows:
     """Every stage's rows A u + B x + C <= 0 (all constraints stacked, as the solver wrapper does)
@@ -58,17 +85,23 @@ class _StageRows:
     def stack(cls, params: list[tuple], n: int) -> _StageRows:
         x_lo, x_hi = np.full(n, -_VAR_MAX), np.full(n, _VAR_MAX)
         u_lo, u_hi = np.full(n, -_VAR_MAX), np.full(n, _VAR_MAX)
-        A, B, C = [np.zeros((n, 0))], [np.zeros((n, 0))], [np.zeros((n, 0))]
+        m = sum(p[3].shape[-2] for p in params if p[0] is not None)
+        A, B, C = np.empty((n, m)), np.empty((n, m)), np.empty((n, m))
+        col = 0
         for a, b, c, F, h, ubound, xbound in params:
             if a is not None:
-                A.append(_times(F, a))
-                B.append(_times(F, b))
-                C.append(_times(F, c) - h)
+                k = F.shape[-2]
+                if F.ndim == 2 and np.ndim(h) == 1:  # pvtflow's constraints: one F for every stage
+                    _stage_rows(F, a, b, c, h, A, B, C, col)
+                else:
+                    A[:, col : col + k], B[:, col : col + k] = _times(F, a), _times(F, b)
+                    C[:, col : col + k] = _times(F, c) - h
+                col += k
             if xbound is not None:
                 x_lo, x_hi = np.maximum(x_lo, xbound[:, 0]), np.minimum(x_hi, xbound[:, 1])
             if ubound is not None:
                 u_lo, u_hi = np.maximum(u_lo, ubound[:, 0]), np.minimum(u_hi, ubound[:, 1])
-        return cls(np.hstack(A), np.hstack(B), np.hstack(C), x_lo, x_hi, u_lo, u_hi)
+        return cls(A, B, C, x_lo, x_hi, u_lo, u_hi)
 
     def rest_feasible(self) -> NDArray[np.bool_]:
         """Stages at which (u, x) = (0, 0), standing still, satisfies every row and box."""
