@@ -56,15 +56,21 @@ def _stage_rows(
     """F a, F b and F c - h at every stage into columns ``col`` on of A, B, C, the zeros of F
     skipped: pvtflow's F are identities and [I; -I] (one product per row, not a matrix product)."""
     k, m = F.shape
+    count, where = np.zeros(k, dtype=np.int64), np.empty((k, m), dtype=np.int64)
+    for j in range(k):
+        for p in range(m):
+            if F[j, p] != 0.0:
+                where[j, count[j]] = p
+                count[j] += 1
     for i in range(a.shape[0]):
         for j in range(k):
             ra, rb, rc = 0.0, 0.0, 0.0
-            for p in range(m):
+            for e in range(count[j]):
+                p = where[j, e]
                 f = F[j, p]
-                if f != 0.0:
-                    ra += f * a[i, p]
-                    rb += f * b[i, p]
-                    rc += f * c[i, p]
+                ra += f * a[i, p]
+                rb += f * b[i, p]
+                rc += f * c[i, p]
             A[i, col + j], B[i, col + j], C[i, col + j] = ra, rb, rc - h[j]
 
 
