@@ -278,14 +278,18 @@ def within_limits_pieces(
     """
     n = len(w)
     c, end_slope = not_a_knot(s, w)
+    clamped = np.zeros(w.shape, dtype=bool)
+    out, _, _ = _outside(s, c, lower, upper)
+    if not out.any():  # the spline itself (most paths): nothing to clamp
+        return np.ascontiguousarray(c), clamped
     slopes = np.vstack((c[2], end_slope[None, :]))
     h = np.diff(s)
     p = np.clip(w, lower, upper)  # on the limit at worst: every slope range holds 0
-    clamped = np.zeros(w.shape, dtype=bool)
-    for _ in range(2 * (n - 1)):
-        out, _, _ = _outside(s, c, lower, upper)
-        if not out.any():
-            break
+    for rounds in range(2 * (n - 1)):
+        if rounds:
+            out, _, _ = _outside(s, c, lower, upper)
+            if not out.any():
+                break
         piece, joint = np.nonzero(out)
         hk = h[piece]
         # piece k's start slope keeps p_k + m h / 3 inside, its end slope p_k+1 - m h / 3
