@@ -167,6 +167,32 @@ def _interval_peaks(
     return rv, ra
 
 
+@njit(cache=True)
+def _acceleration_jumps(
+    gridpoints: NDArray[np.float64],
+    sd: NDArray[np.float64],
+    sdd: NDArray[np.float64],
+    x: NDArray[np.float64],
+    c: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """``Trajectory.acceleration_jumps``' |q_s (s''_i - s''_i-1) + (q_ss+ - q_ss-) s'^2| at every inner
+    gridpoint, (n - 2, dof), in one pass: q_s and q_ss+ on the piece that starts there, q_ss- on the
+    piece of the interval that ends there."""
+    n, dof = len(gridpoints), c.shape[2]
+    out = np.empty((n - 2, dof))
+    after, before = 0, 0
+    for i in range(1, n - 1):
+        s = gridpoints[i]
+        after, h = spline_piece(x, s, s, after)
+        before, h_before = spline_piece(x, gridpoints[i - 1], s, before)
+        step, speed2 = sdd[i] - sdd[i - 1], sd[i] ** 2
+        for j in range(dof):
+            _, q_s, q_ss = spline_at(c, after, h, j)
+            _, _, q_ss_before = spline_at(c, before, h_before, j)
+            out[i - 1, j] = abs(q_s * step + (q_ss - q_ss_before) * speed2)
+    return out
+
+
 @njit(cache=True, error_model="numpy")  # x / 0 is inf or NaN, as numpy's: a stall is reported, not raised
 def _profile(
     gridpoints: NDArray[np.float64], sd: NDArray[np.float64]
@@ -294,11 +320,7 @@ class Trajectory(PathTiming):
         time-optimal profile switches or the path's curvature jumps (at a waypoint where it is C1
         only), and by how much. s, s' and q_s are continuous, so q'' = q_ss s'^2 + q_s s'' jumps
         by q_s (s''_i - s''_(i-1)) + (q_ss+ - q_ss-) s'^2."""
-        grid = self.gridpoints
-        qs = self.path(grid[1:-1], 1)
-        curvature = self.path(grid[1:-1], 2) - self.path.on_piece_of(grid[:-2], grid[1:-1], 2)
-        jump = qs * np.diff(self.sdd)[:, None] + curvature * (self.sd[1:-1] ** 2)[:, None]
-        return self.breakpoints[1:-1], np.abs(jump)
+        return self.breakpoints[1:-1], _acceleration_jumps(self.gridpoints, self.sd, self.sdd, *self.path.pieces)
 
     def position(self, t: ArrayLike) -> NDArray[np.float64]:
         s, _, _, start, scalar = self._state(t)
