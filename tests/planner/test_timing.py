@@ -173,6 +173,40 @@ def test_acceleration_jumps_are_the_switches_of_the_profile() -> None:
     assert jumps.max() > 0.1 * np.abs(tr.acceleration(times)).max()  # a time-optimal profile does switch
 
 
+def test_acceleration_jumps_are_the_numpy_statements_bit_for_bit() -> None:
+    """The compiled pass gives what q_s diff(s'') + (q_ss+ - q_ss-) s'^2 in numpy gives, on paths
+    with clamped waypoints (the second derivative jumps there) too."""
+    rng = np.random.default_rng(7)
+    planner = Planner(LIMITS)
+    kinked = 0
+    for _ in range(30):
+        w = LIMITS.lower + (LIMITS.upper - LIMITS.lower) * (0.02 + 0.96 * rng.random((6, LIMITS.dof)))
+        tr = planner.plan(PlanInput(w)).trajectory
+        assert tr is not None
+        kinked += len(tr.path.kinks) > 0
+        grid = tr.gridpoints
+        curvature = tr.path(grid[1:-1], 2) - tr.path.on_piece_of(grid[:-2], grid[1:-1], 2)
+        numpy = np.abs(tr.path(grid[1:-1], 1) * np.diff(tr.sdd)[:, None] + curvature * (tr.sd[1:-1] ** 2)[:, None])
+        np.testing.assert_array_equal(tr.acceleration_jumps()[1], numpy)
+    assert kinked > 0
+
+
+def test_stage_rows_are_the_matrix_products() -> None:
+    """``_StageRows.stack`` (one compiled loop per constraint, F's nonzeros only) gives the stacked
+    F a, F b, F c - h of every constraint of the cell, torque included, as numpy's products do."""
+    from planner.lean_toppra import _StageRows, _times
+
+    planner = Planner(LIMITS, ARM.model, "tool0", 2.0, torque_limits=True)
+    path = JointPath(WAYPOINTS, LIMITS)
+    grid = make_gridpoints(path, 60)
+    params = [c.compute_constraint_params(path, grid) for c in planner.constraints]
+    rows = _StageRows.stack(params, len(grid))
+    live = [p for p in params if p[0] is not None]
+    np.testing.assert_array_equal(rows.A, np.hstack([_times(p[3], p[0]) for p in live]))
+    np.testing.assert_array_equal(rows.B, np.hstack([_times(p[3], p[1]) for p in live]))
+    np.testing.assert_array_equal(rows.C, np.hstack([_times(p[3], p[2]) - p[4] for p in live]))
+
+
 @pytest.mark.parametrize("max_speed", [0.5, 2.0])
 def test_cell_plan_holds_torque_at_the_gridpoints_and_tcp_speed(max_speed: float) -> None:
     tr = Planner(LIMITS, ARM.model, "tool0", max_speed, torque_limits=True).plan(PlanInput(WAYPOINTS)).trajectory
