@@ -203,6 +203,21 @@ class TcpAngularSpeedConstraint(_IntervalSpeedConstraint):
         return self.model.frame_angular_speeds(q, q_s, self.frame)[:, None]
 
 
+def torque_slowdown(tau: NDArray[np.float64], gravity: NDArray[np.float64], effort: NDArray[np.float64]) -> float:
+    """The uniform slow-down k >= 1 that brings the torques ``tau`` (rows of samples) within ``effort``:
+    slowed by k, the torque is gravity + (tau - gravity) / k^2 (gravity does not scale with time);
+    inf where gravity alone is over a limit."""
+    dynamic = tau - gravity
+    if np.any(np.abs(gravity) > effort):
+        return math.inf
+    with np.errstate(divide="ignore", invalid="ignore"):
+        room = np.where(
+            dynamic > 0, (effort - gravity) / dynamic, np.where(dynamic < 0, (effort + gravity) / -dynamic, np.inf)
+        )
+    x = min(1.0, float(room.min()))
+    return math.inf if x <= 0.0 else 1.0 / math.sqrt(x)
+
+
 class RneaJointTorqueConstraint(constraint.LinearConstraint):
     """|tau_j| <= effort_j at every gridpoint (toppra's collocation scheme), tau from Pinocchio's RNEA.
 
@@ -265,16 +280,7 @@ class RneaJointTorqueConstraint(constraint.LinearConstraint):
         if np.all(np.abs(tau) <= effort):
             return 1.0  # within every limit as it is: gravity is needed only to size a slow-down
         zero = np.zeros_like(qd)
-        gravity = self.model.inverse_dynamics_rows(q, zero, zero)
-        dynamic = tau - gravity
-        if np.any(np.abs(gravity) > effort):
-            return math.inf
-        with np.errstate(divide="ignore", invalid="ignore"):
-            room = np.where(
-                dynamic > 0, (effort - gravity) / dynamic, np.where(dynamic < 0, (effort + gravity) / -dynamic, np.inf)
-            )
-        x = min(1.0, float(room.min()))
-        return math.inf if x <= 0.0 else 1.0 / math.sqrt(x)
+        return torque_slowdown(tau, self.model.inverse_dynamics_rows(q, zero, zero), effort)
 
 
 # where an interval's end is within this fraction of the effort limit, its middle is checked too:
@@ -496,16 +502,7 @@ class TorqueCheck:
         q, qd, qdd, _ = self._states(intervals, where)
         tau = self.constraint.model.inverse_dynamics_rows(q, qd, qdd)
         zero = np.zeros_like(q)
-        gravity = self.constraint.model.inverse_dynamics_rows(q, zero, zero)
-        dynamic = tau - gravity
-        if np.any(np.abs(gravity) > effort):
-            return math.inf
-        with np.errstate(divide="ignore", invalid="ignore"):
-            room = np.where(
-                dynamic > 0, (effort - gravity) / dynamic, np.where(dynamic < 0, (effort + gravity) / -dynamic, np.inf)
-            )
-        x = min(1.0, float(room.min()))
-        return math.inf if x <= 0.0 else 1.0 / math.sqrt(x)
+        return torque_slowdown(tau, self.constraint.model.inverse_dynamics_rows(q, zero, zero), effort)
 
 
 def middles_warm_up(x: NDArray[np.float64], c: NDArray[np.float64]) -> None:
