@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from planner.limits import JointLimits
 from planner.model import RobotModel
 from planner.path import JointPath, spline_at, spline_piece
-from planner.trajectory import Trajectory
+from planner.trajectory import Trajectory, along_interval
 
 _X_MAX = 1e8  # bound on s'^2 where nothing binds (the solver wants finite numbers)
 
@@ -319,8 +319,7 @@ def _interval_states(
             s, s_d = gridpoints[g + 1], sd[g + 1]
         else:
             tau = (gridpoints[g + 1] - gridpoints[g]) / (sd[g] + sd[g + 1])  # half the interval's time
-            s = min(gridpoints[g] + sd[g] * tau + 0.5 * u * tau * tau, gridpoints[g + 1])
-            s_d = sd[g] + u * tau
+            s, s_d = along_interval(gridpoints, sd, u, g, tau)
         p, h = spline_piece(x, gridpoints[g], s, p)
         pieces[k] = p
         for j in range(dof):

@@ -31,9 +31,18 @@ def _path_state(
     s'' is constant between two gridpoints."""
     t = min(max(t, 0.0), breakpoints[-1])
     i = interval(breakpoints, t, i, len(sdd) - 1)
-    tau = t - breakpoints[i]
-    s = min(gridpoints[i] + sd[i] * tau + 0.5 * sdd[i] * tau * tau, gridpoints[i + 1])
-    return s, sd[i] + sdd[i] * tau, sdd[i], i
+    s, s_d = along_interval(gridpoints, sd, sdd[i], i, t - breakpoints[i])
+    return s, s_d, sdd[i], i
+
+
+@njit(cache=True)
+def along_interval(
+    gridpoints: NDArray[np.float64], sd: NDArray[np.float64], u: float, i: int, tau: float
+) -> tuple[float, float]:
+    """s and s' ``tau`` into grid interval ``i`` at its constant s'' ``u`` (s kept inside the
+    interval: rounding must not carry it onto the next spline piece)."""
+    s = min(gridpoints[i] + sd[i] * tau + 0.5 * u * tau * tau, gridpoints[i + 1])
+    return s, sd[i] + u * tau
 
 
 @njit(cache=True)

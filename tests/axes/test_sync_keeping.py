@@ -266,6 +266,18 @@ def test_the_interface_s_own_cyclic_sync_is_followed_by_the_time_stamp():
         observer.close()
 
 
+def kernel_timed_bus(period_ms: float, max_sync_gap_periods: float) -> CellBus:
+    """A wall-clock bus whose interface sends SYNC itself (the test's kernel-timed one): the master follows."""
+    config = BusConfig(
+        interface="pvtflow_test_kernel",
+        channel=unique_channel("kernel"),
+        sync_period_ms=period_ms,
+        time_stamp=False,
+        max_sync_gap_periods=max_sync_gap_periods,
+    )
+    return CellBus(config, lockstep=False).open()
+
+
 @pytest.mark.parametrize(("held_periods", "reported"), [(1.5, False), (4.5, True)])
 def test_a_held_follower_sends_one_setpoint_after_the_syncs_it_missed_and_a_long_hold_is_reported(
     held_periods, reported
@@ -275,18 +287,8 @@ def test_a_held_follower_sends_one_setpoint_after_the_syncs_it_missed_and_a_long
     the drives ride out (2 periods between setpoints): counted, nothing reported. Held 4.5 periods:
     four SYNCs without one, past the ride-out at the second, reported as a SYNC gap. Either way one
     setpoint follows the SYNCs heard meanwhile, never one per SYNC."""
-    channel = unique_channel("kernel")
     period_ms = 20.0
-    bus = CellBus(
-        BusConfig(
-            interface="pvtflow_test_kernel",
-            channel=channel,
-            sync_period_ms=period_ms,
-            time_stamp=False,
-            max_sync_gap_periods=2,
-        ),
-        lockstep=False,
-    ).open()
+    bus = kernel_timed_bus(period_ms, max_sync_gap_periods=2)
     faults: list[BusFault] = []
     bus.on_fault(faults.append)
     followed: list[int] = []  # the SYNC each time stamp and setpoint followed
@@ -321,18 +323,8 @@ def test_a_sync_heard_after_the_setpoint_sent_after_it_takes_no_second_setpoint(
     on the wire, 7 just after the follower followed 6 with a setpoint. That setpoint went out after
     SYNC 7 (by 7's own time stamp): it waits for SYNC 8, 7 took none, and no second setpoint follows
     7's echo (two before SYNC 8: the drive would take the later, a jump)."""
-    channel = unique_channel("kernel")
     period_ms = 20.0
-    bus = CellBus(
-        BusConfig(
-            interface="pvtflow_test_kernel",
-            channel=channel,
-            sync_period_ms=period_ms,
-            time_stamp=False,
-            max_sync_gap_periods=100,
-        ),
-        lockstep=False,
-    ).open()
+    bus = kernel_timed_bus(period_ms, max_sync_gap_periods=100)
     sends: list[float] = []
     bus.sync.add_sender(lambda n: sends.append(time.monotonic()))
     follower = bus.sync.follower
