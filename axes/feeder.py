@@ -286,6 +286,8 @@ class SetpointFeeder(Feeder):
             raise ValueError("a fixed-period drive is fed 0, 1 or 2 periods ahead")
         self.lead = lead_periods
         self.next = max(0, lead_periods - 1)
+        self.held_syncs = 0  # SYNCs that went out without this axis's setpoint: the drive held a period each
+        self._last_elapsed = -1
         self.frames = [frame_of(r) for r in self.records]  # packed before the start: sending is all that is left
 
     def _send_next(self) -> None:
@@ -322,12 +324,15 @@ class SetpointFeeder(Feeder):
         ``axes.sync_follower``), the next record not sent: the drive held through those SYNCs, and
         the record after its last would ask it for several periods' step in one (a multiple of the
         planned speed). One record per SYNC, never ahead of its SYNC."""
+        if elapsed > self._last_elapsed + 1 and self.next < len(self.records):
+            self.held_syncs += elapsed - self._last_elapsed - 1  # the program runs that much later
+        self._last_elapsed = max(self._last_elapsed, elapsed)
         if self.enabled and self.next <= elapsed + self.lead and self.next < len(self.records):
             self._send_next()
 
     def finished(self, elapsed: int, ip_active: bool) -> bool:
-        # record N-1 is reached at N periods
-        return elapsed >= len(self.records) and (self.all_sent or not self.enabled)
+        # record N-1 is reached at N periods, plus one for each SYNC the drive held through
+        return elapsed >= len(self.records) + self.held_syncs and (self.all_sent or not self.enabled)
 
 
 def top_up_by_need(feeders: Sequence[Feeder], allowance: RecordAllowance) -> None:

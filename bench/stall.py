@@ -75,7 +75,9 @@ def one_run(
         gaps = [
             str(getattr(e, "message", "")) for e in events if getattr(e, "kind", None) and e.kind.value == "sync_gap"
         ]
-        gap = float(gaps[0].split("no SYNC for ", 1)[1].split(" ms", 1)[0]) if gaps else float("nan")
+        # "no setpoint for" where the wire sends SYNC itself (axes.sync_follower)
+        what = "no setpoint for " if bus.sync.native else "no SYNC for "
+        gap = float(gaps[0].split(what, 1)[1].split(" ms", 1)[0]) if gaps and what in gaps[0] else float("nan")
         if stop is not None:
             stop.done.wait(5.0)
         time.sleep(0.3)

@@ -167,3 +167,6 @@ def test_setpoints_after_syncs_that_went_out_without_one_go_on_with_the_next_rec
         elapsed += 1
         feeder.after_sync(elapsed)
     assert [int.from_bytes(d, "little", signed=True) for d in sent] == list(recs[first:, 0])
+    # the drive held three periods: its last record is reached three SYNCs after the program's end
+    assert feeder.held_syncs == 3
+    assert not feeder.finished(len(recs) + 2, True) and feeder.finished(len(recs) + 3, True)
