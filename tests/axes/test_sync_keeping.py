@@ -508,7 +508,7 @@ def sim_rig(cell, *, lockstep: bool, interface: str = "virtual", clock: str = "l
     sim = SimulatedCell(cell, channel=channel, interface="virtual", clock=clock).start()
     master = dataclasses.replace(bus_config, interface=interface)
     bus = CellBus(master, lockstep=lockstep).open()
-    group = AxisGroup(bus, cell.ordered_axes())
+    group = AxisGroup(bus, cell.axes if len(cell.axes) < len(cell.joint_names) else cell.ordered_axes())
     return cell, sim, bus, group
 
 
@@ -675,6 +675,60 @@ def test_a_sync_gap_beyond_the_limit_halts_the_motion_on_the_wall_clock(arm6):
         assert any(e.kind.value == "sync_gap" for e in events)
         assert_quick_stopped(group, sim, result, Result.BUS_ERROR)
     finally:
+        close_rig(sim, bus, group)
+
+
+@pytest.mark.parametrize(("held_syncs", "halts"), [(1, False), (4, True)], ids=["ridden_out", "too_long"])
+def test_a_follower_held_mid_motion_costs_a_period_or_halts_with_no_setpoint(arm6, held_syncs, halts):
+    """The interface sends SYNC (the kernel's cyclic send) and the linear-IP drives keep their own
+    clock. The master's follower, woken by a SYNC at the motion's fastest, is held until the bus has
+    carried one more SYNC: that SYNC goes out without a setpoint, the drives hold one period and go on
+    with the next record at the planned speed (a jump over the missed record would ask for twice it),
+    and the motion finishes where it was going, a period late. Held over four SYNCs, past the 2
+    periods the drives ride out: halted, reported as such. The hold is counted in SYNCs heard on the
+    bus, not in slept milliseconds, so that a slow host cannot turn one case into the other; two
+    axes, so that the drives sharing this interpreter leave the follower its GIL within a period."""
+    cell = fixed_period_cell(arm6, 10)
+    cell = dataclasses.replace(cell, axes=cell.ordered_axes()[:2])  # the others' drives are not on the bus
+    cell, sim, bus, group = sim_rig(
+        cell, lockstep=False, interface="pvtflow_test_kernel", clock="wall", max_sync_gap_periods=2
+    )
+    events = []
+    group.on_event = events.append
+    held: list[int] = []
+    on_bus = threading.Condition()
+    heard = [0]
+
+    def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
+        with on_bus:
+            heard[0] += 1
+            on_bus.notify_all()
+
+    def hold() -> None:  # the follower, woken by a SYNC at the motion's fastest, held before it follows
+        start = group._start_sync
+        if start is not None and bus.sync.count >= start + 50 and not held:
+            held.append(bus.sync.count)
+            with on_bus:
+                until = heard[0] + held_syncs
+                assert on_bus.wait_for(lambda: heard[0] >= until, 5.0)
+
+    subscribe(bus.network, SYNC_COB_ID, on_sync)
+    try:
+        prog = program(cell.axes, 1000, fraction=0.6)
+        bus.sync.hold = hold
+        assert group.start(prog) is None
+        result = group.wait(30.0)
+        assert bus.sync.native and held, result.message
+        assert bus.sync.skipped >= held_syncs
+        if halts:
+            assert result.result is Result.BUS_ERROR and "no setpoint for 30.0 ms" in result.message, result.message
+            assert any(e.kind.value == "sync_gap" for e in events)
+        else:
+            assert result.ok, (result.message, [d.faults for d in sim])
+            for drive, axis in zip(sorted(sim, key=lambda d: d.node_id), prog.axes, strict=True):
+                assert drive.faults == [] and drive.actual == axis.records[-1, 0], (drive.node_id, drive.faults)
+    finally:
+        unsubscribe(bus.network, SYNC_COB_ID, on_sync)
         close_rig(sim, bus, group)
 
 

@@ -292,38 +292,6 @@ class WireLink:
         self._tell_closed()
 
 
-class RemoteCyclicTask(can.broadcastmanager.RestartableCyclicTaskABC):
-    """A cyclic send the server's wall-clock medium times (``Medium.add_cyclic``), as SocketCAN's
-    broadcast manager times one in the kernel: the frames go on the wire at their due times whatever
-    this process does (a thread of python-can's own here stopped with it, and ended at the first
-    full queue). The sender hears each one (its echo), as in-process."""
-
-    def __init__(self, link: WireLink, msg: can.Message, period: float) -> None:
-        super().__init__(msg, period)
-        self._link = link
-        self._msg = msg
-        self._task: int | None = None
-
-    def start(self) -> None:
-        if self._task is None:
-            m = self._msg
-            self._task = self._link.call(
-                "add_cyclic",
-                can_id=m.arbitration_id,
-                data=bytes(m.data).hex(),
-                extended=m.is_extended_id,
-                remote=m.is_remote_frame,
-                dlc=m.dlc,
-                period=self.period,
-            )
-
-    def stop(self) -> None:
-        task, self._task = self._task, None
-        if task is not None and not self._link.closed:
-            with contextlib.suppress(can.CanOperationError, ValueError):
-                self._link.call("remove_cyclic", task=task)
-
-
 class RemoteMedium:
     """The medium's accounting and test hooks, reached through the server (``Medium``'s names)."""
 

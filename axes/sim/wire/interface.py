@@ -21,7 +21,7 @@ import can
 from can import BusState
 from can.typechecking import AutoDetectedConfig, CanFilters
 
-from axes.sim.wire.client import RemoteCyclicTask, RemoteMedium, WireLink
+from axes.sim.wire.client import RemoteMedium, WireLink
 from axes.sim.wire.medium import Medium, WireConfigError
 from axes.sim.wire.node import DEFAULT_TXQUEUELEN, Cyclic, Node
 from axes.sim.wire.registry import acquire_medium, open_channels, release_medium
@@ -163,19 +163,12 @@ class SimWireBus(can.BusABC):
         autostart: bool = True,
         modifier_callback: Callable[[can.Message], None] | None = None,
     ) -> can.broadcastmanager.CyclicSendTaskABC:
-        """One frame, no end, no modifier, on a wall-clock medium (this process's or a server's):
-        timed by the medium itself, as SocketCAN's broadcast manager times it in the kernel (each
-        frame queued at its due bus time, heard by this node too). Anything else: python-can's
-        thread of its own."""
+        """One frame, no end, no modifier, on an in-process wall-clock medium: timed by the medium
+        itself, as SocketCAN's broadcast manager times it in the kernel (each frame queued at its due
+        bus time, heard by this node too). Anything else: python-can's thread of its own."""
         one = [msgs] if isinstance(msgs, can.Message) else list(msgs)
-        if self.clock != "wall" or len(one) != 1 or duration or modifier_callback:
+        if self._node is None or self.clock != "wall" or len(one) != 1 or duration or modifier_callback:
             return super()._send_periodic_internal(msgs, period, duration, autostart, modifier_callback)
-        if self._node is None:
-            assert self._link is not None
-            remote = RemoteCyclicTask(self._link, one[0], period)
-            if autostart:
-                remote.start()
-            return remote
         task = WireCyclicTask(self._medium, self._node, one[0], period)
         if autostart:
             task.start()

@@ -303,7 +303,7 @@ class Medium(Accounting, BusStateHooks):
                         return end
                     self._on_wire = None
                     node.fifo.popleft()
-                    if node.on_done is not None and not pending.cyclic:  # the medium queued it, not its sender
+                    if node.on_done is not None:
                         node.on_done(1)
                     if self._is_sync(pending.msg):
                         self._syncs.append((float("nan"), start))

@@ -35,7 +35,7 @@ from can import BusState
 
 from axes.sim.wire import protocol as p
 from axes.sim.wire.medium import Medium, WireConfigError
-from axes.sim.wire.node import Cyclic, Node
+from axes.sim.wire.node import Node
 from axes.sim.wire.priority import ask_wire_priority
 from axes.sim.wire.registry import acquire_medium, release_medium
 
@@ -140,7 +140,6 @@ class _Client:
         self.receive: _Conn | None = None
         self.token = secrets.token_hex(16)
         self.closed = False
-        self.cyclic: dict[int, Cyclic] = {}  # its cyclic sends the medium times (``add_cyclic``)
 
 
 class WireServer:
@@ -412,8 +411,6 @@ class WireServer:
         if client.closed:
             return
         client.closed = True
-        for task in client.cyclic.values():
-            self.medium.remove_cyclic(task)
         self.medium.detach(client.node)
         with client.frames.lock:
             client.frames.closed = True
@@ -454,31 +451,12 @@ class WireServer:
             elif what == "set_state":
                 self.medium.set_state(call["node"], BusState[call["state"]])
                 result = None
-            elif what == "add_cyclic":
-                msg = can.Message(
-                    arbitration_id=int(call["can_id"]),
-                    data=bytes.fromhex(call["data"]),
-                    is_extended_id=bool(call["extended"]),
-                    is_remote_frame=bool(call["remote"]),
-                    dlc=int(call["dlc"]),
-                    channel=self.channel,
-                )
-                client = next(c for c in self._clients if c.node is node)
-                task = self.medium.add_cyclic(node, msg, float(call["period"]))
-                result = id(task)
-                client.cyclic[result] = task
-            elif what == "remove_cyclic":
-                client = next(c for c in self._clients if c.node is node)
-                task = client.cyclic.pop(int(call["task"]), None)
-                if task is not None:
-                    self.medium.remove_cyclic(task)
-                result = None
             elif what == "inject_error_frame":
                 self.medium.inject_error_frame(call["can_id"], bytes.fromhex(call["data"]))
                 result = None
             else:
                 raise ValueError(f"unknown simwire call {what!r}")
-        except (KeyError, ValueError, StopIteration, WireConfigError, p.ProtocolError) as error:
+        except (KeyError, ValueError) as error:
             return p.pack_fail(0, str(error))
         return p.pack_json(p.REPLY, result)
 
