@@ -5,6 +5,7 @@ importable from every test package: pytest puts this directory on sys.path with 
 
 from __future__ import annotations
 
+import gc
 import os
 import sys
 import uuid
@@ -56,6 +57,36 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     from service.cell_planner import CellPlanner
 
     CellPlanner(load_cell_config()).warm_up()
+    hold_full_collections_to_between_tests()
+
+
+# The master and the simulated drives share this process in most tests. CPython's full collection
+# over what the tests before have left (services, object dictionaries, plans) took 50-250 ms in the
+# suite (bench/RESULTS.md, "Full collections in the test process"): a pause no drive and no
+# heartbeat watch sees on a machine, where the service freezes its start-up objects
+# (``service/runtime.py``) and the drives' process collects between motions
+# (``axes/sim/full_collection.py``). This process does as the drives' process does: what the session
+# start loaded is frozen, and the full collection runs between tests, never by allocation count.
+FULL_COLLECTION_EVERY_TESTS = 10
+_tests_since_full_collection = 0
+
+
+def hold_full_collections_to_between_tests() -> None:
+    from axes.sim.full_collection import NO_AUTOMATIC_FULL
+
+    gc.collect()
+    gc.freeze()
+    young, middle, _ = gc.get_threshold()
+    gc.set_threshold(young, middle, NO_AUTOMATIC_FULL)
+
+
+def pytest_runtest_logfinish(nodeid: str, location: tuple[str, int | None, str]) -> None:
+    """After a test and its fixtures' teardown: the full collection, every few tests."""
+    global _tests_since_full_collection
+    _tests_since_full_collection += 1
+    if _tests_since_full_collection >= FULL_COLLECTION_EVERY_TESTS:
+        _tests_since_full_collection = 0
+        gc.collect()
 
 
 @pytest.fixture(scope="session")
