@@ -96,6 +96,7 @@ class GroupStart:
                 self._running = True
                 self._start_sync = sync.count + 1
                 self._start_sent = None
+                sync.setpoints_per_sync = any(not p.name.buffered for p in self.profiles)
                 if self.bus.config.max_sync_gap_periods is None:  # the profiles say (axes.sync)
                     gaps = (p.max_sync_gap_ms(prog) for p, prog in zip(self.profiles, self._programs, strict=True))
                     sync.max_gap_s = min(gaps) / 1000.0

@@ -200,6 +200,9 @@ class SyncClock:
         self.count = 0
         self.answered = 0
         self.skipped = 0
+        # some drive takes a setpoint per SYNC (a fixed-period profile): SYNCs the follower did not
+        # follow are a gap it rides out or not; buffered drives only miss a time stamp (``AxisGroup``)
+        self.setpoints_per_sync = True
         self.longest_gap_s = 0.0
         self.realtime: bool | None = None  # None: no SYNC thread has run yet
         self.native = False

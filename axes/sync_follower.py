@@ -11,7 +11,12 @@ bus more than a period ahead. The SYNCs heard while it was held went out without
 (``SyncClock.skipped``): the drives held through them, as through a late SYNC, and the follower
 then sends the setpoint next in the program (``SetpointFeeder.after_sync``: the rest of the motion a
 period later for each, never a jump); a run of them longer than the drives ride out is reported as
-a SYNC gap is (``FaultKind.SYNC_GAP``, "no setpoint for ... ms"), and the motion halts. Which SYNC
+a SYNC gap is (``FaultKind.SYNC_GAP``, "no setpoint for ... ms"), and the motion halts. Where every
+drive is buffered (``SyncClock.setpoints_per_sync`` false: the EPOS2 runs its records on its own
+clock), those SYNCs went without a time stamp, and the feed waited (its allowance is per SYNC
+followed): counted, not a gap by itself. What the drive holds decides: its FIFO is usually far
+above the reserve that bounds a gap of SYNC, and one that runs dry is the drive's own buffer
+underflow, which halts the motion as what it is. Which SYNC
 took a setpoint is judged by time: a SYNC's own time stamp (brought to this host's clock by the
 offset of the fastest echo) against when the setpoint went out, since echoes can reach this process
 late, in a batch: a SYNC stamped before the last setpoint went out took none, and no second setpoint
@@ -109,7 +114,7 @@ class SyncFollower:
             self._unfed += 1  # a SYNC that went out before the setpoint sent for it: the drives held
             clock.skipped += 1
             between = (self._unfed + 1) * period_s  # from the last SYNC that took a setpoint to the next
-            if between > clock.max_gap_s and not self._unfed_reported:
+            if between > clock.max_gap_s and not self._unfed_reported and clock.setpoints_per_sync:
                 self._unfed_reported, report = True, between
         return self._pending is None, report
 

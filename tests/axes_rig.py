@@ -3,9 +3,7 @@ this folder is not a package, so ``conftest`` itself is not imported by the test
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import os
 import threading
 import time
 import uuid
@@ -16,8 +14,6 @@ import can
 from can.interfaces.virtual import VirtualBus
 
 from service.config import CellConfig
-
-KERNEL_TIMER_PRIORITY = 90  # above the master's SYNC threads (BusConfig.sync_priority 50)
 
 
 def unique_channel(prefix: str = "axes") -> str:
@@ -123,9 +119,6 @@ class KernelTask(can.broadcastmanager.RestartableCyclicTaskABC):
         self._thread.start()
 
     def _run(self) -> None:
-        # the kernel's timer runs above every task of user space, the master's SYNC threads included
-        with contextlib.suppress(AttributeError, OSError):
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(KERNEL_TIMER_PRIORITY))
         deadline = time.monotonic()
         while not self._stop.is_set():
             for msg in self.messages:

@@ -732,6 +732,53 @@ def test_a_follower_held_mid_motion_costs_a_period_or_halts_with_no_setpoint(arm
         close_rig(sim, bus, group)
 
 
+def test_a_follower_held_past_the_reserve_of_buffered_drives_costs_only_time_stamps(arm6):
+    """EPOS2s run their records on their own clock: SYNCs without the master's follow went out
+    without a time stamp, and the feed waited. Held six SYNCs, past the reserve that bounds a gap of
+    SYNC for them (the shortest run of underflow_warning records), the FIFOs still held records: the
+    motion finishes where it was going, nothing reported. A FIFO that ran dry would be the drive's
+    own buffer underflow (``AxisGroup._check_drives``)."""
+    cell = dataclasses.replace(arm6, bus=dataclasses.replace(arm6.bus, sync_period_ms=10.0))
+    cell = dataclasses.replace(cell, axes=cell.ordered_axes()[:2])  # the others' drives are not on the bus
+    cell, sim, bus, group = sim_rig(cell, lockstep=False, interface="pvtflow_test_kernel", clock="wall")
+    events = []
+    group.on_event = events.append
+    held: list[float] = []
+    on_bus = threading.Condition()
+    heard = [0]
+
+    def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
+        with on_bus:
+            heard[0] += 1
+            on_bus.notify_all()
+
+    def hold() -> None:
+        start = group._start_sync
+        if start is not None and bus.sync.count >= start + 50 and not held:
+            held.append(bus.sync.max_gap_s)
+            with on_bus:
+                until = heard[0] + 6
+                assert on_bus.wait_for(lambda: heard[0] >= until, 5.0)
+
+    subscribe(bus.network, SYNC_COB_ID, on_sync)
+    try:
+        prog = program(cell.axes, 1500, fraction=0.6)
+        bus.sync.hold = hold
+        assert group.start(prog) is None
+        result = group.wait(30.0)
+        assert bus.sync.native and held, result.message
+        assert held[0] < 6 * 0.010, held  # past the reserve: a gap of SYNC this long would halt
+        assert bus.sync.skipped >= 6
+        assert result.ok, (result.message, [d.faults for d in sim])
+        assert not [e for e in events if e.kind.value == "sync_gap"]
+        for drive, axis in zip(sorted(sim, key=lambda d: d.node_id), prog.axes, strict=True):
+            assert drive.wait_until(lambda d=drive, a=axis: d.actual == a.records[-1, 0], 2.0), drive.node_id
+            assert drive.faults == []
+    finally:
+        unsubscribe(bus.network, SYNC_COB_ID, on_sync)
+        close_rig(sim, bus, group)
+
+
 def test_an_nmt_stop_brakes_a_simulated_drive_as_its_abort_connection_option_says(arm6):
     cell = fixed_period_cell(arm6, 5)
     cell, sim, bus, group = sim_rig(cell, lockstep=True)
