@@ -678,16 +678,54 @@ def test_a_sync_gap_beyond_the_limit_halts_the_motion_on_the_wall_clock(arm6):
         close_rig(sim, bus, group)
 
 
+class FollowerHold:
+    """Holds the master's follower once, woken by SYNC start + ``after`` of the motion, until the bus
+    has carried ``syncs`` more SYNCs: counted by a subscriber of the master's network, not in slept
+    ms, so that a slow host cannot turn a hold of one SYNC into two. ``max_gap_s``: the gap the
+    drives ride out, as the group had set it then (None: not held)."""
+
+    def __init__(self, bus: CellBus, group: AxisGroup, syncs: int, after: int = 50) -> None:
+        self.bus, self.group, self.syncs, self.after = bus, group, syncs, after
+        self.max_gap_s: float | None = None
+        self._heard = 0
+        self._on_bus = threading.Condition()
+        subscribe(bus.network, SYNC_COB_ID, self._on_sync)
+        bus.sync.hold = self._hold
+
+    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self._on_bus:
+            self._heard += 1
+            self._on_bus.notify_all()
+
+    def _hold(self) -> None:  # in the follower's thread, woken by a SYNC, before it follows it
+        start = self.group._start_sync
+        if start is None or self.bus.sync.count < start + self.after or self.max_gap_s is not None:
+            return
+        self.max_gap_s = self.bus.sync.max_gap_s
+        with self._on_bus:
+            until = self._heard + self.syncs
+            assert self._on_bus.wait_for(lambda: self._heard >= until, 5.0)
+
+    def close(self) -> None:
+        self.bus.sync.hold = None
+        unsubscribe(self.bus.network, SYNC_COB_ID, self._on_sync)
+
+
+def assert_at_their_ends(sim: SimulatedCell, prog) -> None:
+    """Once the run says finished, every drive is where its program ends (not a period short)."""
+    for drive, axis in zip(sorted(sim, key=lambda d: d.node_id), prog.axes, strict=True):
+        assert drive.faults == [] and drive.actual == axis.records[-1, 0], (drive.node_id, drive.faults)
+
+
 @pytest.mark.parametrize(("held_syncs", "halts"), [(1, False), (4, True)], ids=["ridden_out", "too_long"])
 def test_a_follower_held_mid_motion_costs_a_period_or_halts_with_no_setpoint(arm6, held_syncs, halts):
     """The interface sends SYNC (the kernel's cyclic send) and the linear-IP drives keep their own
     clock. The master's follower, woken by a SYNC at the motion's fastest, is held until the bus has
     carried one more SYNC: that SYNC goes out without a setpoint, the drives hold one period and go on
     with the next record at the planned speed (a jump over the missed record would ask for twice it),
-    and the motion finishes where it was going, a period late. Held over four SYNCs, past the 2
-    periods the drives ride out: halted, reported as such. The hold is counted in SYNCs heard on the
-    bus, not in slept milliseconds, so that a slow host cannot turn one case into the other; two
-    axes, so that the drives sharing this interpreter leave the follower its GIL within a period."""
+    and the motion finishes where it was going, a period late (``SetpointFeeder.held_syncs``). Held
+    over four SYNCs, past the 2 periods the drives ride out: halted, reported as such. Two axes, so
+    that the drives sharing this interpreter leave the follower its GIL within a period."""
     cell = fixed_period_cell(arm6, 10)
     cell = dataclasses.replace(cell, axes=cell.ordered_axes()[:2])  # the others' drives are not on the bus
     cell, sim, bus, group = sim_rig(
@@ -695,40 +733,21 @@ def test_a_follower_held_mid_motion_costs_a_period_or_halts_with_no_setpoint(arm
     )
     events = []
     group.on_event = events.append
-    held: list[int] = []
-    on_bus = threading.Condition()
-    heard = [0]
-
-    def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
-        with on_bus:
-            heard[0] += 1
-            on_bus.notify_all()
-
-    def hold() -> None:  # the follower, woken by a SYNC at the motion's fastest, held before it follows
-        start = group._start_sync
-        if start is not None and bus.sync.count >= start + 50 and not held:
-            held.append(bus.sync.count)
-            with on_bus:
-                until = heard[0] + held_syncs
-                assert on_bus.wait_for(lambda: heard[0] >= until, 5.0)
-
-    subscribe(bus.network, SYNC_COB_ID, on_sync)
+    hold = FollowerHold(bus, group, held_syncs)
     try:
         prog = program(cell.axes, 1000, fraction=0.6)
-        bus.sync.hold = hold
         assert group.start(prog) is None
         result = group.wait(30.0)
-        assert bus.sync.native and held, result.message
+        assert bus.sync.native and hold.max_gap_s is not None, result.message
         assert bus.sync.skipped >= held_syncs
         if halts:
             assert result.result is Result.BUS_ERROR and "no setpoint for 30.0 ms" in result.message, result.message
             assert any(e.kind.value == "sync_gap" for e in events)
         else:
             assert result.ok, (result.message, [d.faults for d in sim])
-            for drive, axis in zip(sorted(sim, key=lambda d: d.node_id), prog.axes, strict=True):
-                assert drive.faults == [] and drive.actual == axis.records[-1, 0], (drive.node_id, drive.faults)
+            assert_at_their_ends(sim, prog)
     finally:
-        unsubscribe(bus.network, SYNC_COB_ID, on_sync)
+        hold.close()
         close_rig(sim, bus, group)
 
 
@@ -743,39 +762,19 @@ def test_a_follower_held_past_the_reserve_of_buffered_drives_costs_only_time_sta
     cell, sim, bus, group = sim_rig(cell, lockstep=False, interface="pvtflow_test_kernel", clock="wall")
     events = []
     group.on_event = events.append
-    held: list[float] = []
-    on_bus = threading.Condition()
-    heard = [0]
-
-    def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
-        with on_bus:
-            heard[0] += 1
-            on_bus.notify_all()
-
-    def hold() -> None:
-        start = group._start_sync
-        if start is not None and bus.sync.count >= start + 50 and not held:
-            held.append(bus.sync.max_gap_s)
-            with on_bus:
-                until = heard[0] + 6
-                assert on_bus.wait_for(lambda: heard[0] >= until, 5.0)
-
-    subscribe(bus.network, SYNC_COB_ID, on_sync)
+    hold = FollowerHold(bus, group, 6)
     try:
         prog = program(cell.axes, 1500, fraction=0.6)
-        bus.sync.hold = hold
         assert group.start(prog) is None
         result = group.wait(30.0)
-        assert bus.sync.native and held, result.message
-        assert held[0] < 6 * 0.010, held  # past the reserve: a gap of SYNC this long would halt
+        assert bus.sync.native and hold.max_gap_s is not None, result.message
+        assert hold.max_gap_s < 6 * 0.010, hold.max_gap_s  # past the reserve: a gap of SYNC this long would halt
         assert bus.sync.skipped >= 6
         assert result.ok, (result.message, [d.faults for d in sim])
         assert not [e for e in events if e.kind.value == "sync_gap"]
-        for drive, axis in zip(sorted(sim, key=lambda d: d.node_id), prog.axes, strict=True):
-            assert drive.wait_until(lambda d=drive, a=axis: d.actual == a.records[-1, 0], 2.0), drive.node_id
-            assert drive.faults == []
+        assert_at_their_ends(sim, prog)
     finally:
-        unsubscribe(bus.network, SYNC_COB_ID, on_sync)
+        hold.close()
         close_rig(sim, bus, group)
 
 
