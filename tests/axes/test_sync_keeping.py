@@ -103,17 +103,21 @@ def test_no_catch_up_burst_after_a_stall_and_the_skipped_periods_are_counted():
         bus.close()
 
 
+def observed_wall_clock_bus(period_ms: float) -> tuple[CellBus, BusObserver]:
+    """A bus whose master sends SYNC on the wall clock (no time stamp, no gap it halts for), and an
+    observer of its frames."""
+    channel = unique_channel("sync")
+    observer = BusObserver(channel)
+    config = BusConfig(channel=channel, sync_period_ms=period_ms, time_stamp=False, max_sync_gap_periods=100)
+    return CellBus(config, lockstep=False).open(), observer
+
+
 def test_a_sync_more_than_half_a_period_late_goes_out_at_once_and_the_period_runs_from_it():
     """Held 0.6 periods past a deadline, the SYNC thread sends that SYNC at once (a gap of 1.6
     periods, which a fixed-period drive rides out by holding) and keeps the period from it; waiting
     for the next deadline would make the gap two periods, all such a drive rides out."""
-    channel = unique_channel("sync")
-    observer = BusObserver(channel)
     period_ms = 40.0
-    bus = CellBus(
-        BusConfig(channel=channel, sync_period_ms=period_ms, time_stamp=False, max_sync_gap_periods=100),
-        lockstep=False,
-    ).open()
+    bus, observer = observed_wall_clock_bus(period_ms)
     wakes = itertools.count()
 
     def hold() -> None:  # the SYNC thread's 6th wake is 0.6 periods late
@@ -143,13 +147,8 @@ def test_a_second_sync_thread_on_another_cpu_sends_the_syncs_a_held_first_thread
     """The host stalls one CPU's wake-ups at a time (axes.sync): the first SYNC thread held for three
     periods, the second, on the other CPU, sends each SYNC a quarter period past its deadline, and
     the first, back, sends none twice nor within half a period of the one before."""
-    channel = unique_channel("sync")
-    observer = BusObserver(channel)
     period_ms = 40.0
-    bus = CellBus(
-        BusConfig(channel=channel, sync_period_ms=period_ms, time_stamp=False, max_sync_gap_periods=100),
-        lockstep=False,
-    ).open()
+    bus, observer = observed_wall_clock_bus(period_ms)
     wakes = itertools.count()
     senders: list[str] = []
 
