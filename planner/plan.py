@@ -6,6 +6,7 @@ no input, however bad, escapes as an exception.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -20,7 +21,7 @@ from planner.limits import JointLimits, check_max_jerk, check_scale
 from planner.model import RobotModel
 from planner.path import JointPath, PlanError, PlanResult
 from planner.speed_band import DEFAULT_SPEED_BAND
-from planner.timing import DEFAULT_GRIDPOINTS, Trajectory, parameterize, timing_constraints
+from planner.timing import DEFAULT_GRIDPOINTS, Trajectory, parameterize, parameterize_banded, timing_constraints
 
 if TYPE_CHECKING:  # planner.jerk loads casadi: only a plan with a jerk limit does
     from planner.jerk import JerkTrajectory
@@ -57,6 +58,17 @@ def _max_jerk(value: object, dof: int) -> NDArray[np.float64]:
         raise PlanError(PlanResult.INVALID_INPUT, str(exc), field="max_jerk") from None
 
 
+def _speed_band(value: object) -> float:
+    """A request's speed band in [0, 1) as a float (PlanError INVALID_INPUT, ``details["field"]``: speed_band)."""
+    try:
+        band = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        band = math.nan
+    if not 0.0 <= band < 1.0:
+        raise PlanError(PlanResult.INVALID_INPUT, f"speed_band must be in [0, 1), got {value!r}", field="speed_band")
+    return band
+
+
 @dataclass(frozen=True)
 class PlanInput:
     """What changes from one plan to the next (the robot, its limits and the cell's constraints are
@@ -71,6 +83,8 @@ class PlanInput:
     acceleration_scale: float = 1.0  # the same for the joint acceleration limits
     max_jerk: ArrayLike | None = None  # joint units / s^3, one per joint (inf: unlimited); None: the planner's
     budget_ms: float | None = None  # the jerk-limited timing's deadline from the call's start; None: none
+    # this plan's speed band (planner.speed_band), None: the planner's; a plan without a jerk limit only
+    speed_band: float | None = None
 
 
 @dataclass(frozen=True)
@@ -98,8 +112,10 @@ class Planner:
     limits stay as the cell sets them.
 
     Without a jerk limit, TOPP-RA's profile is flattened within ``speed_band`` (the path speed at
-    most that fraction below the time-optimal one; 0: none), for fewer records on the bus
-    (``planner.speed_band``).
+    most that fraction below the time-optimal one; 0, the default: none), for fewer records on the
+    bus (``planner.speed_band``): motion time given for records, so only where the cell asks for it
+    or its bus needs it; ``details``: ``speed_band`` and ``speed_band_cost`` (the duration over
+    TOPP-RA's own, less 1) of a plan that was flattened.
 
     With a jerk limit (``max_jerk``: the cell's, or a request's, which replaces it), the TOPP-RA
     solution is the warm start of the jerk-limited timing along the same path (planner/jerk,
@@ -165,12 +181,15 @@ class Planner:
         constraints: list[constraint.Constraint],
         max_jerk: NDArray[np.float64] | None,
         deadline: float | None = None,
+        speed_band: float | None = None,
     ) -> tuple[Trajectory | JerkTrajectory, dict[str, object]]:
-        """TOPP-RA along ``path``, flattened within the speed band; with a jerk limit, the jerk-limited
-        timing warm-started from TOPP-RA's own profile."""
+        """TOPP-RA along ``path``, flattened within the speed band (``speed_band``, None: the
+        planner's); with a jerk limit, the jerk-limited timing warm-started from TOPP-RA's own profile."""
         t0 = time.perf_counter()
         if max_jerk is None:
-            return parameterize(path, limits, constraints, self.gridpoints, self.speed_band), {}
+            band = self.speed_band if speed_band is None else _speed_band(speed_band)
+            traj, ratio = parameterize_banded(path, limits, constraints, self.gridpoints, band)
+            return traj, ({"speed_band": band, "speed_band_cost": ratio - 1.0} if band > 0.0 else {})
         trajectory = parameterize(path, limits, constraints, self.gridpoints)
         from planner.jerk import jerk_limited  # casadi: loaded by the first plan that needs it
 
@@ -213,8 +232,8 @@ class Planner:
         if inp.budget_ms is not None:
             deadline = time.perf_counter() + max(0.0, float(inp.budget_ms)) / 1000.0
         if inp.poses is not None:
-            return self._plan_poses(inp.waypoints, inp.poses, inp.motion, *scales, deadline)
-        return self._plan_waypoints(inp.waypoints, *scales, deadline)
+            return self._plan_poses(inp.waypoints, inp.poses, inp.motion, *scales, deadline, inp.speed_band)
+        return self._plan_waypoints(inp.waypoints, *scales, deadline, inp.speed_band)
 
     def _plan_waypoints(
         self,
@@ -223,13 +242,14 @@ class Planner:
         acceleration_scale: float,
         max_jerk: ArrayLike | None,
         deadline: float | None = None,
+        speed_band: float | None = None,
     ) -> PlanOutput:
         start = time.perf_counter()
         try:
             limits, constraints = self._scaled(velocity_scale, acceleration_scale)
             jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
             path = JointPath(waypoints, limits)
-            trajectory, details = self._timed(path, limits, constraints, jerk, deadline)
+            trajectory, details = self._timed(path, limits, constraints, jerk, deadline, speed_band)
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - start, dict(exc.details))
         return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - start, details)
@@ -243,6 +263,7 @@ class Planner:
         acceleration_scale: float,
         max_jerk: ArrayLike | None,
         deadline: float | None = None,
+        speed_band: float | None = None,
     ) -> PlanOutput:
         """The tool from joint positions ``start`` through ``poses`` (straight lines or joint moves:
         planner/cartesian.py). ``details["ik_s"]``: the inverse kinematics' share of the planning
@@ -260,7 +281,7 @@ class Planner:
             jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
             tool: ToolPath = self.poses.solve(start, poses, kind)
             t_ik = time.perf_counter() - t0
-            trajectory, timed = self._timed(tool.path, limits, constraints, jerk, deadline)
+            trajectory, timed = self._timed(tool.path, limits, constraints, jerk, deadline, speed_band)
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))
         details: dict[str, object] = {"ik_s": t_ik, "samples": len(tool.path.points), **timed}

@@ -42,9 +42,10 @@ from numpy.typing import NDArray
 from planner.limits import JointLimits
 from planner.trajectory import Trajectory
 
-# the path speed may drop this fraction below TOPP-RA's (bench/RESULTS.md, "Issue 25 item 4": the
-# records and the motion time of 0.01 .. 0.1)
-DEFAULT_SPEED_BAND = 0.05
+# none by default: motion time is the product, and the records the band saves are not scarce on the
+# shipped cells (bench/RESULTS.md, "Issue 39 item 1"); a cell asks for one (planning.speed_band), or
+# its bus does (service.record_feed). The records and motion time of 0.01 .. 0.1: "Issue 25 item 4"
+DEFAULT_SPEED_BAND = 0.0
 # levels of s'^2 per band, and the extra cost of a span whose s'' is not 0 (its joints' motion is
 # not a cubic: knot placement puts records inside it): bench/RESULTS.md, "Issue 25 items 4 and 5"
 LEVELS = 4

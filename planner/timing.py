@@ -146,18 +146,19 @@ def _solve(
     constraints: list[constraint.Constraint],
     speed_band: float = 0.0,
     torque: Sequence[RneaJointTorqueConstraint] = (),
-) -> Trajectory:
+) -> tuple[Trajectory, float]:
     """TOPP-RA on ``grid``, then the between-gridpoint check against ``limits`` (slowed where
-    needed), flattened within ``speed_band`` where that holds ``torque`` too."""
+    needed), flattened within ``speed_band`` where that holds ``torque`` too; and the duration of
+    TOPP-RA's own (checked) profile, what the flattening is measured against."""
     instance = LeanTOPPRA(constraints, path, grid)
     _sdd, sd, _v = instance.compute_parameterization(0.0, 0.0)
     if sd is None or np.any(~np.isfinite(sd)):
         raise PlanError(PlanResult.INFEASIBLE, "no trajectory along this path satisfies the limits (TOPP-RA failed)")
     traj = _checked(Trajectory.from_path_velocities(path, grid, np.asarray(sd, dtype=float), limits.names), limits)
     if speed_band <= 0.0:
-        return traj
+        return traj, traj.duration
     flat = _checked(flattened(traj, limits, speed_band), limits)
-    return flat if all(c.holds_on(flat) for c in torque) else traj
+    return (flat if all(c.holds_on(flat) for c in torque) else traj), traj.duration
 
 
 def parameterize(
@@ -167,7 +168,21 @@ def parameterize(
     gridpoints: int = DEFAULT_GRIDPOINTS,
     speed_band: float = 0.0,
 ) -> Trajectory:
-    """The time-optimal rest-to-rest trajectory along ``path`` under ``constraints``.
+    """The time-optimal rest-to-rest trajectory along ``path`` under ``constraints``
+    (``parameterize_banded``'s trajectory)."""
+    return parameterize_banded(path, limits, constraints, gridpoints, speed_band)[0]
+
+
+def parameterize_banded(
+    path: JointPath,
+    limits: JointLimits,
+    constraints: list[constraint.Constraint],
+    gridpoints: int = DEFAULT_GRIDPOINTS,
+    speed_band: float = 0.0,
+) -> tuple[Trajectory, float]:
+    """The time-optimal rest-to-rest trajectory along ``path`` under ``constraints``, and what the
+    speed band cost: its duration over TOPP-RA's own (both before any torque slow-down; 1.0 without
+    a band).
 
     ``limits`` are the joint limits the constraints were built from: the result is checked
     against them between the gridpoints and slowed down uniformly where it exceeds them.
@@ -183,14 +198,16 @@ def parameterize(
     grid = make_gridpoints(path, gridpoints)
     deferred = [c for c in constraints if isinstance(c, RneaJointTorqueConstraint)]
     if not deferred:
-        return _solve(path, grid, limits, constraints, speed_band)
+        traj, optimal = _solve(path, grid, limits, constraints, speed_band)
+        return traj, traj.duration / optimal
     lean = [c for c in constraints if not isinstance(c, RneaJointTorqueConstraint)]
-    traj = _solve(path, grid, limits, lean, speed_band)
+    traj, optimal = _solve(path, grid, limits, lean, speed_band)
     checks = [c.check(traj) for c in deferred]
     if not all(check.holds for check in checks):
-        traj = _solve(path, grid, limits, constraints, speed_band, deferred)
+        traj, optimal = _solve(path, grid, limits, constraints, speed_band, deferred)
         checks = [c.check(traj) for c in deferred]
-    return _torque_checked(traj, checks)
+    ratio = traj.duration / optimal
+    return _torque_checked(traj, checks), ratio
 
 
 def _torque_checked(traj: Trajectory, checks: Sequence[TorqueCheck]) -> Trajectory:
@@ -222,6 +239,7 @@ __all__ = [
     "Trajectory",
     "make_gridpoints",
     "parameterize",
+    "parameterize_banded",
     "timing_constraints",
     "warm_up",
 ]

@@ -23,6 +23,7 @@ from planner.knots import KnotOptions, jerk_smooth, quantize
 from planner.path import PlanResult
 from planner.plan import PlanInput, Planner, PlanOutput
 from service.config import CellConfig
+from service.record_feed import RecordFeed
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,9 @@ class CellPlan:
     optimal: bool = True
     # a jerk-limited plan's duration and the TOPP-RA duration no jerk-limited timing beats (s)
     gap: dict[str, float] | None = None
+    # motion time given for fewer records (planner.speed_band), None: none; "band", "reason" (the cell
+    # file asked, or its bus needs it) and "cost_pct" (% of the time-optimal motion time)
+    speed_band: dict[str, Any] | None = None
 
     @property
     def ok(self) -> bool:
@@ -48,6 +52,12 @@ class CellPlan:
 
 
 TIMEOUT = "timeout"  # CellPlan.code of a plan past its deadline for another reason than the timing's solve
+
+# the speed bands tried, in turn, where the bus cannot feed the time-optimal plan's records (planner.speed_band;
+# bench/RESULTS.md, "Issue 25 item 4": records and motion time of 0.01 .. 0.1)
+FEED_BANDS = (0.01, 0.025, 0.05, 0.1)
+CELL_FILE_REASON = "the cell file asks for it (planning.speed_band)"
+INPUT_REASON = "the plan's input asks for it (PlanInput.speed_band)"
 
 
 def knots_reserve_ms(budget_ms: float) -> float:
@@ -85,6 +95,7 @@ class CellPlanner:
         self.limits = cell.joint_limits()
         self.axes = tuple(cell.ordered_axes())  # each an axes.axis.DriveAxis: what knot placement takes
         self.tolerance_qc = cell.planning.position_tolerance_qc
+        self.feed = RecordFeed(cell)
         self.planner: Planner | None = None
         self.setup_error = ""
         try:
@@ -151,7 +162,10 @@ class CellPlanner:
             inp = replace(inp, budget_ms=max(0.0, budget_ms - knots_reserve_ms(budget_ms)))
         out = self.planner.plan(inp)
         meta = dict(metadata or {}) if inp.poses is None else {"motion": str(inp.motion), **(metadata or {})}
-        result = self._build(out, start, cpu, inp, tolerance_qc, meta)
+        reason = CELL_FILE_REASON if inp.speed_band is None else INPUT_REASON
+        result = self._build(out, start, cpu, inp, tolerance_qc, meta, reason)
+        if result.ok and "max_jerk" not in out.details and inp.speed_band is None:
+            out, result = self._fed(out, result, start, cpu, inp, tolerance_qc, meta)
         elapsed_ms = (time.perf_counter() - start) * 1000.0
         if budget_ms is not None and elapsed_ms > budget_ms and result.ok:
             message = f"the plan took {elapsed_ms:.0f} ms, past its budget of {budget_ms:g} ms"
@@ -161,6 +175,35 @@ class CellPlanner:
             result = replace(result, optimal=bool(out.details["optimal"]), gap=gap)
         return result
 
+    def _fed(
+        self,
+        out: PlanOutput,
+        result: CellPlan,
+        start: float,
+        cpu: float,
+        inp: PlanInput,
+        tolerance_qc: float | None,
+        metadata: dict[str, Any],
+    ) -> tuple[PlanOutput, CellPlan]:
+        """``result`` where the bus feeds its records in time (``service.record_feed``); else the plan
+        flattened within the narrowest of the ``FEED_BANDS`` wider than the cell's own band whose
+        records it does feed, saying why (the shortfall) and what it cost. Where none does, ``result``
+        itself: fewer records that still run dry buy nothing, and the start refuses it with the reason."""
+        assert result.program is not None and self.planner is not None
+        shortfall = self.feed.shortfall(result.program)
+        if shortfall is None:
+            return out, result
+        reason = f"the bus cannot feed the time-optimal plan's records: {shortfall}"
+        for band in FEED_BANDS:
+            if band <= self.planner.speed_band:
+                continue
+            banded = replace(inp, speed_band=band)
+            out_b = self.planner.plan(banded)
+            built = self._build(out_b, start, cpu, banded, tolerance_qc, metadata, reason)
+            if built.ok and built.program is not None and self.feed.shortfall(built.program) is None:
+                return out_b, built
+        return out, result
+
     def _build(
         self,
         out: PlanOutput,
@@ -169,8 +212,10 @@ class CellPlanner:
         inp: PlanInput,
         tolerance_qc: float | None,
         metadata: dict[str, Any],
+        band_reason: str = CELL_FILE_REASON,
     ) -> CellPlan:
-        """The program of a planned trajectory (or the planner's refusal as a CellPlan)."""
+        """The program of a planned trajectory (or the planner's refusal as a CellPlan); a plan
+        flattened within a speed band says so in the program's metadata, with ``band_reason``."""
         t_plan = time.perf_counter() - start
         timing = {"plan": t_plan}
         for key, name in (("ik_s", "ik"), ("topp_s", "topp"), ("jerk_s", "jerk")):
@@ -183,6 +228,11 @@ class CellPlanner:
         meta = dict(metadata)
         if "max_jerk" in out.details:
             meta["max_jerk"] = out.details["max_jerk"]
+        band = None
+        if "speed_band" in out.details:
+            cost = 100.0 * float(out.details["speed_band_cost"])  # type: ignore[arg-type]
+            band = {"band": out.details["speed_band"], "reason": band_reason, "cost_pct": round(cost, 3)}
+            meta["speed_band"] = band
         try:
             built = build_program(
                 out.trajectory,
@@ -197,7 +247,7 @@ class CellPlanner:
             return CellPlan("program_error", str(exc), None, out, None, timing, points)
         total = time.perf_counter() - start
         timing.update({"knots": total - t_plan, "total": total, "cpu": time.thread_time() - cpu})
-        return CellPlan("ok", "", built.program, out, built, timing, points)
+        return CellPlan("ok", "", built.program, out, built, timing, points, speed_band=band)
 
 
 def plan_cell_program(

@@ -244,6 +244,8 @@ def run(args: argparse.Namespace) -> int:
     }
     if result.gap is not None:
         summary["gap"] = result.gap
+    if result.speed_band is not None:  # motion time given for fewer records: how much, and why
+        summary["speed_band"] = result.speed_band
     if isinstance(motion, PoseTargets) and result.waypoints is not None:
         summary["motion"] = motion.motion
         summary["joint_samples"] = len(result.waypoints)

@@ -94,6 +94,8 @@ class PlanBook(Admission):
         }
         if result.gap is not None:
             reply["gap"] = result.gap
+        if result.speed_band is not None:  # motion time given for fewer records: how much, and why
+            reply["speed_band"] = result.speed_band
         with self._plans_lock:
             self.plans[plan_id] = StoredPlan(plan_id, program, reply, req.label)
             while len(self.plans) > self.max_plans:

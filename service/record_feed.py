@@ -1,0 +1,32 @@
+"""Whether the cell's bus feeds a plan's EPOS2 records as fast as the drives run them, at plan time.
+
+The start checks it too (``axes.feed_check`` through ``AxisGroup.check_program``) and refuses a
+program whose FIFO would run dry; the planner asks first, so that where the time-optimal plan needs
+more records than the bus carries it can give motion time for fewer records (``planner.speed_band``)
+and say so, and nowhere else (``CellPlanner.plan``).
+"""
+
+from __future__ import annotations
+
+from axes.budget import bus_budget
+from axes.feed_check import BufferedAxis, feed_shortfall
+from axes.program import PvtProgram
+from service.config import CellConfig
+
+
+class RecordFeed:
+    """The cell's record allowance per SYNC period and its EPOS2 axes' FIFOs, fixed when it is built."""
+
+    def __init__(self, cell: CellConfig) -> None:
+        budget = bus_budget(cell)
+        # the allowance the run's feeders share, as axes.group.AxisGroup takes it from the budget
+        self.per_sync = max(1, budget.records_per_sync, budget.buffered_axes)
+        self.period_ms = float(cell.bus.sync_period_ms)
+        self.buffers = {a.joint: a.buffer for a in cell.axes}
+
+    def shortfall(self, program: PvtProgram) -> str | None:
+        """Where a FIFO of ``program``'s buffered axes would run dry (``axes.feed_check``), or None."""
+        buffered = [
+            BufferedAxis(a.joint, a.records, self.buffers[a.joint]) for a in program.axes if not a.profile.fixed_period
+        ]
+        return feed_shortfall(buffered, self.per_sync, self.period_ms)
