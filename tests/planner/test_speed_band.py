@@ -22,6 +22,7 @@ from service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
 GANTRY = load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml")
+BAND = 0.05  # a band a cell file may ask for (the default is none)
 
 
 def waypoints(cell, n: int = 8, seed: int = 3) -> np.ndarray:
@@ -80,7 +81,7 @@ def test_flattened_profile_is_kept_only_where_it_holds_the_torque_limits() -> No
     weak = JointLimits(base.names, base.lower, base.upper, base.velocity, base.acceleration, base.effort * 0.3)
     weak_cons = timing_constraints(weak, ARM.model, torque_limits=True)
     weak_torque = next(c for c in weak_cons if isinstance(c, RneaJointTorqueConstraint))
-    raw = _solve(path, make_gridpoints(path, DEFAULT_GRIDPOINTS), weak, weak_cons)  # before the dense torque check
+    raw, _ = _solve(path, make_gridpoints(path, DEFAULT_GRIDPOINTS), weak, weak_cons)  # before the dense torque check
     assert not weak_torque.holds_on(flattened(raw, weak, 0.05))
     own = parameterize(path, weak, weak_cons, speed_band=0.0)
     np.testing.assert_array_equal(parameterize(path, weak, weak_cons, speed_band=0.05).sd, own.sd)
@@ -88,16 +89,34 @@ def test_flattened_profile_is_kept_only_where_it_holds_the_torque_limits() -> No
     assert own.duration > raw.duration and np.allclose(own.sd * own.duration, raw.sd * raw.duration)
 
 
+def test_the_default_plan_is_time_optimal_and_a_flattened_one_says_what_it_cost() -> None:
+    """No band by default (motion time is the product); a plan flattened within one says so, with its
+    cost against TOPP-RA's own duration, whether the planner's band or the input's."""
+    limits = ARM.joint_limits()
+    w = waypoints(ARM, 3, seed=7)
+    default = Planner(limits).plan(PlanInput(w))
+    plain = Planner(limits, speed_band=0.0).plan(PlanInput(w))
+    flat = Planner(limits, speed_band=BAND).plan(PlanInput(w))
+    assert default.ok and plain.ok and flat.ok
+    assert Planner(limits).speed_band == DEFAULT_SPEED_BAND == 0.0
+    assert default.trajectory.duration == plain.trajectory.duration
+    assert "speed_band" not in default.details
+    assert plain.trajectory.duration < flat.trajectory.duration <= plain.trajectory.duration / (1 - BAND)
+    assert flat.details["speed_band"] == BAND
+    cost = flat.trajectory.duration / plain.trajectory.duration - 1.0
+    assert flat.details["speed_band_cost"] == pytest.approx(cost, rel=1e-9)
+    asked = Planner(limits).plan(PlanInput(w, speed_band=BAND))
+    assert asked.trajectory.duration == flat.trajectory.duration and asked.details == flat.details
+    refused = Planner(limits).plan(PlanInput(w, speed_band=1.0))
+    assert refused.result.value == "invalid_input" and refused.details["field"] == "speed_band"
+
+
 def test_planner_flattens_only_plans_without_a_jerk_limit() -> None:
     """A jerk-limited timing starts from TOPP-RA's own profile, whose duration is its lower bound."""
     limits = ARM.joint_limits()
     w = waypoints(ARM, 3, seed=7)
-    flat = Planner(limits).plan(PlanInput(w))
     plain = Planner(limits, speed_band=0.0).plan(PlanInput(w))
-    assert flat.ok and plain.ok
-    assert Planner(limits).speed_band == DEFAULT_SPEED_BAND
-    assert plain.trajectory.duration < flat.trajectory.duration <= plain.trajectory.duration / (1 - DEFAULT_SPEED_BAND)
-    jerky = Planner(limits).plan(PlanInput(w, max_jerk=10.0 * np.asarray(limits.acceleration)))
+    jerky = Planner(limits, speed_band=BAND).plan(PlanInput(w, max_jerk=10.0 * np.asarray(limits.acceleration)))
     assert jerky.ok
     assert jerky.details["lower_bound_s"] == pytest.approx(plain.trajectory.duration, rel=1e-12)
 
@@ -116,7 +135,7 @@ def test_a_straight_move_keeps_its_cruise_speed() -> None:
     goal = start.copy()
     goal[0] = limits.lower[0] + 0.8 * (limits.upper[0] - limits.lower[0])
     plain = Planner(limits, speed_band=0.0).plan(PlanInput([start, goal])).trajectory
-    flat = Planner(limits).plan(PlanInput([start, goal])).trajectory
+    flat = Planner(limits, speed_band=BAND).plan(PlanInput([start, goal])).trajectory
     assert flat.duration <= plain.duration * 1.005
 
 
@@ -125,7 +144,7 @@ def test_fewer_spans_than_toppra_with_no_more_time_than_the_band() -> None:
     limits = GANTRY.joint_limits()
     path = JointPath(waypoints(GANTRY), limits)
     topp = parameterize(path, limits, timing_constraints(limits))
-    flat = flattened(topp, limits, DEFAULT_SPEED_BAND)
+    flat = flattened(topp, limits, BAND)
     changes = np.count_nonzero(np.abs(np.diff(flat.sdd)) > 1e-9 * np.abs(flat.sdd).max())
     assert changes < 0.25 * len(flat.sdd)
-    assert flat.duration <= topp.duration / (1.0 - DEFAULT_SPEED_BAND)
+    assert flat.duration <= topp.duration / (1.0 - BAND)

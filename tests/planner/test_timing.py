@@ -227,7 +227,7 @@ def test_deferred_torque_limits_give_the_same_plan_as_solving_with_them() -> Non
     torque = next(c for c in cons if isinstance(c, RneaJointTorqueConstraint))
     fast = parameterize(path, LIMITS, cons)
     assert torque.holds_on(fast)
-    full = _solve(path, make_gridpoints(path, DEFAULT_GRIDPOINTS), LIMITS, cons)
+    full, _ = _solve(path, make_gridpoints(path, DEFAULT_GRIDPOINTS), LIMITS, cons)
     np.testing.assert_allclose(fast.sd, full.sd, rtol=1e-9, atol=1e-9)
     assert fast.duration == pytest.approx(full.duration, rel=1e-12)
 

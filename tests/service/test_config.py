@@ -232,11 +232,11 @@ def test_the_speed_band_is_a_planning_option(tmp_path: Path) -> None:
     from planner.speed_band import DEFAULT_SPEED_BAND
     from service.cell_planner import planner_for_cell
 
-    assert load_cell_config(ARM).planning.speed_band == DEFAULT_SPEED_BAND == 0.05
+    assert load_cell_config(ARM).planning.speed_band == DEFAULT_SPEED_BAND == 0.0  # time-optimal unless asked
     data = arm_data()
-    data.setdefault("planning", {})["speed_band"] = 0
+    data.setdefault("planning", {})["speed_band"] = 0.05
     cell = load_cell_config(write(tmp_path, data))
-    assert cell.planning.speed_band == 0.0 and planner_for_cell(cell).speed_band == 0.0
+    assert cell.planning.speed_band == 0.05 and planner_for_cell(cell).speed_band == 0.05
 
 
 @pytest.mark.parametrize("value", [-0.01, 0.6, "5 %", True, math.nan])
