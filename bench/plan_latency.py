@@ -158,7 +158,10 @@ def main(argv: list[str] | None = None) -> int:
         f"  of which (wall) trajectory {p50_p99(full[:, 2])}, knot placement {p50_p99(full[:, 3])}, "
         f"validation {p50_p99(full[:, 4])}"
     )
-    print(f"duration / 3000-gridpoint reference   min {r.min():.4f}   median {np.median(r):.4f}   max {r.max():.4f}")
+    print(
+        f"duration / 3000-gridpoint reference   min {r.min():.4f}   mean {r.mean():.4f}   median {np.median(r):.4f}   "
+        f"p95 {np.percentile(r, 95):.4f}   max {r.max():.4f}"
+    )
     print(f"paths over 1.01: {int(np.sum(r > 1.01))}")
     d, n = np.array(spline_duration), np.array(spline_length)
     for what, sel in (("the old spline accepted", kept), ("the old spline refused", ~kept)):

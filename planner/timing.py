@@ -57,7 +57,9 @@ from planner.slowdown import SLOWDOWN_MARGIN, slowdown
 from planner.speed_band import flattened
 from planner.trajectory import Trajectory
 
-DEFAULT_GRIDPOINTS = 140
+# the default plan within 1.005x (mean) and 1.01x (max) of the 3000-gridpoint optimum: 140 gave a mean
+# of 1.0052, 160 gives 1.0042 and max 1.0064 for 0.03 ms more per plan (bench/RESULTS.md, "Issue 39 item 1")
+DEFAULT_GRIDPOINTS = 160
 
 
 # Starting from and stopping at rest is where a coarse grid loses most of its time (the profile
