@@ -113,7 +113,10 @@ class CellPlanner:
         built inside a plan's budget would take most of it. That move spans 0.4-0.6 of the ranges:
         on arm6 the solvers converge on it in about 0.2 s once built, where on 0.45-0.55 ipopt iterates
         to its limit (seconds of CPU at every start). No deadline: a solve past one would run on in
-        its thread, holding the program from the first request.
+        its thread, holding the program from the first request. Both of its solvers are built (ipopt
+        where fatrop does not converge: 0.13 s inside a request otherwise, ``planner.jerk.solve.ProgramCache``),
+        and the same move is planned again with no time left, for the S-curve floor a deadline answers
+        with and its knots; the program of twice the intervals is built too (``planner.jerk.warm_up``).
         """
         if self.planner is None:
             return
@@ -123,8 +126,13 @@ class CellPlanner:
         timing.warm_up()  # the longer paths' spline and the torque check near a limit
         quantize.warm_up()  # the repair that may move knots, which a short move rarely needs
         if jerk:
+            from planner.jerk import warm_up as jerk_warm_up  # casadi: loaded where plans may be jerk-limited
+
             ja, jb = lo + 0.4 * (hi - lo), lo + 0.6 * (hi - lo)
-            self.plan(PlanInput(np.array([ja, jb]), max_jerk=10.0 * self.limits.acceleration))
+            jerky = PlanInput(np.array([ja, jb]), max_jerk=10.0 * self.limits.acceleration)
+            self.plan(jerky)
+            self.plan(jerky, budget_ms=0.0)  # the floor: no solver has time (its answer, timeout, is dropped)
+            jerk_warm_up()
             jerk_smooth.warm_up()
         if self.planner.poses is not None:  # and the inverse kinematics' compiled steps
             self.plan(PlanInput(a, [placement_pose(self.planner.poses.ik.fk(b))]))

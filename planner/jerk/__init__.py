@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from collections.abc import Sequence
 
 import numpy as np
@@ -35,7 +36,7 @@ import toppra.constraint as constraint
 from numpy.typing import ArrayLike, NDArray
 
 from planner.jerk.nlp import program_bounds, program_parameters, program_rows, variable_scales
-from planner.jerk.solve import cached_program, solve_in_time
+from planner.jerk.solve import PROGRAMS, cached_program, expected_build_s, solve_in_time
 from planner.jerk.trajectory import JerkTrajectory
 from planner.jerk.warm import MIN_REST_TO_REST, WarmProfile, curvature_jumps, warm_start
 from planner.limits import JointLimits
@@ -44,7 +45,7 @@ from planner.scurve import rest_to_rest
 from planner.slowdown import SLOWDOWN_MARGIN, slowdown
 from planner.timing import RneaJointTorqueConstraint, Trajectory
 
-__all__ = ["DEFAULT_JERK_INTERVALS", "JerkTrajectory", "jerk_limited"]
+__all__ = ["DEFAULT_JERK_INTERVALS", "JerkTrajectory", "jerk_limited", "warm_up"]
 
 DEFAULT_JERK_INTERVALS = 48
 
@@ -102,6 +103,24 @@ def _torque_slowdown(traj: JerkTrajectory, constraints: Sequence[constraint.Cons
     return k
 
 
+def warm_up() -> None:
+    """Build, for every program shape of ``DEFAULT_JERK_INTERVALS`` a plan has built, the next size up
+    too (twice the intervals: a path of more than 44 waypoints, or of 12 with a stop at each), so that
+    no plan within a deadline meets a shape that is not built (it would answer the floor)."""
+    for n, dof, torque in PROGRAMS.shapes():
+        if n == DEFAULT_JERK_INTERVALS:
+            cached_program(2 * n, dof, torque)
+
+
+def _floor(
+    path: JointPath, rests: NDArray[np.float64], limits: JointLimits, jmax: NDArray[np.float64], warm: Trajectory
+) -> JerkTrajectory:
+    """The S-curve floor that needs no solver (planner/scurve.py): the answer where none is in time."""
+    g, sd, sdd, sddd, t = rest_to_rest(path, rests, limits, jmax)
+    traj = JerkTrajectory(path, g, sd, sdd, sddd, t, limits.names, solver="scurve", optimal=False)
+    return dataclasses.replace(traj, lower_bound=warm.duration)
+
+
 def jerk_limited(
     path: JointPath,
     limits: JointLimits,
@@ -126,12 +145,21 @@ def jerk_limited(
     # at rest at both ends and at every waypoint where the path is C1 only (``curvature_jumps``)
     stops = path.waypoint_s[1:-1][np.any(curvature_jumps(path) > _CURVATURE_JUMP, axis=1)]
     rests = np.concatenate(([0.0], stops, [path.length]))
-    n = max(int(intervals), (len(path.waypoint_s) - 1) + MIN_REST_TO_REST * (len(rests) - 1))
+    needed = (len(path.waypoint_s) - 1) + MIN_REST_TO_REST * (len(rests) - 1)
+    n = int(intervals) * max(1, math.ceil(needed / int(intervals)))  # few shapes: each is a program to build
     profile = WarmProfile.of(warm, rests)
     grid = profile.grid(path.waypoint_s, rests, n)
     rows = program_rows(path, grid, limits, constraints)
     rows.sd_max[np.searchsorted(grid, stops)] = 0.0
-    program = cached_program(n, limits.dof, rows.torque is not None)
+    shape = (n, limits.dof, rows.torque is not None)
+    # a program is built within a deadline only where the time left covers it (0.3 s for 48 intervals);
+    # else the floor, and it is built for later
+    program = PROGRAMS.ready(*shape)
+    if program is None and (deadline is None or deadline - time.perf_counter() >= expected_build_s(n)):
+        program = cached_program(*shape)
+    if program is None:
+        PROGRAMS.build_later(*shape)
+        return _checked(_floor(path, rests, limits, jmax, warm), limits, jmax, constraints)
     start = warm_start(profile, grid, rows, jmax)
     scale = variable_scales(start)
     per_variable = np.tile(scale, n + 1)[: len(start)]
@@ -147,20 +175,18 @@ def jerk_limited(
             solver_status=status,
         )
     if sol is None:  # the deadline first: the floor that needs no solver (planner/scurve.py)
-        g, sd, sdd, sddd, t = rest_to_rest(path, rests, limits, jmax)
-        traj = JerkTrajectory(path, g, sd, sdd, sddd, t, limits.names, solver="scurve", optimal=False)
-    else:
-        traj = JerkTrajectory(
-            path,
-            grid,
-            np.maximum(sol.sd, 0.0),
-            sol.sdd,
-            sol.j,
-            np.concatenate(([0.0], np.cumsum(np.maximum(sol.h, 0.0)))),
-            limits.names,
-            solver=sol.solver,
-            iterations=sol.iterations,
-            optimal=sol.optimal,
-        )
+        return _checked(_floor(path, rests, limits, jmax, warm), limits, jmax, constraints)
+    traj = JerkTrajectory(
+        path,
+        grid,
+        np.maximum(sol.sd, 0.0),
+        sol.sdd,
+        sol.j,
+        np.concatenate(([0.0], np.cumsum(np.maximum(sol.h, 0.0)))),
+        limits.names,
+        solver=sol.solver,
+        iterations=sol.iterations,
+        optimal=sol.optimal,
+    )
     traj = dataclasses.replace(traj, lower_bound=warm.duration)
     return _checked(traj, limits, jmax, constraints)

@@ -28,10 +28,9 @@ time stays within the budget instead of waiting for a solve that comes too late 
 
 from __future__ import annotations
 
-import functools
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -52,6 +51,9 @@ _FATROP_TIME_S = 0.06
 _SOLVE_HISTORY = 50
 _MIN_HISTORY = 10
 _IPOPT_TIME_S = 0.04  # with less time left ipopt's iterates were never usable: no solve, the floor
+# building a program and its two solvers: 0.28 s for 48 intervals on the 2-core test host (casadi 3.8.2),
+# about in proportion to them; twice that is the time a plan must have left to build one (``expected_build_s``)
+_BUILD_S_PER_INTERVAL = 0.012
 
 
 @dataclass
@@ -141,10 +143,75 @@ def _solver_options(name: str, equality: list[bool]) -> dict[str, Any]:
     return base | {"ipopt": common | {"sb": "yes"}}
 
 
-@functools.lru_cache(maxsize=8)
+def expected_build_s(n: int) -> float:
+    """The time a plan needs left to build the program of ``n`` intervals and its solvers."""
+    return _BUILD_S_PER_INTERVAL * n
+
+
+class ProgramCache:
+    """The programs built, by shape (n, dof, torque), the last ``size`` kept, each with every solver
+    of ``SOLVERS`` built with it (0.13 s each for arm6's 48 intervals: ipopt built where fatrop did
+    not converge would take a request's whole budget).
+
+    A plan with a deadline never builds one (``ready``): where its shape is not built it answers the
+    floor and the shape is built in a thread of its own (``build_later``) for the plans after it."""
+
+    def __init__(self, size: int = 8) -> None:
+        self.size = size
+        self._programs: OrderedDict[tuple[int, int, bool], Program] = OrderedDict()
+        self._lock = threading.Lock()  # one build at a time; a plan with a deadline never waits for it
+        self._building: set[tuple[int, int, bool]] = set()
+
+    def get(self, n: int, dof: int, torque: bool) -> Program:
+        """The program of this shape, built now where it is not (and kept)."""
+        key = (n, dof, torque)
+        with self._lock:
+            program = self._programs.get(key)
+            if program is None:
+                program = Program(n, dof, torque, *build_nlp(n, dof, torque))
+                for name in SOLVERS:
+                    program.solver(name)
+                self._programs[key] = program
+                while len(self._programs) > self.size:
+                    self._programs.popitem(last=False)
+            self._programs.move_to_end(key)
+            return program
+
+    def ready(self, n: int, dof: int, torque: bool) -> Program | None:
+        """The program of this shape where it is built, else None (never waits for a build)."""
+        return self._programs.get((n, dof, torque))
+
+    def build_later(self, n: int, dof: int, torque: bool) -> None:
+        """Build this shape's program in a thread (not a daemon: casadi is not torn down under it)."""
+        key = (n, dof, torque)
+        with self._lock:
+            if key in self._programs or key in self._building:
+                return
+            self._building.add(key)
+
+        def build() -> None:
+            try:
+                self.get(n, dof, torque)
+            finally:
+                self._building.discard(key)
+
+        threading.Thread(target=build, name="jerk-build", daemon=False).start()
+
+    def shapes(self) -> list[tuple[int, int, bool]]:
+        """The shapes built, oldest first."""
+        return list(self._programs)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._programs.clear()
+
+
+PROGRAMS = ProgramCache()
+
+
 def cached_program(n: int, dof: int, torque: bool) -> Program:
-    """The program of this shape with its solvers, built once and kept."""
-    return Program(n, dof, torque, *build_nlp(n, dof, torque))
+    """The program of this shape with its solvers, built once and kept (``PROGRAMS``)."""
+    return PROGRAMS.get(n, dof, torque)
 
 
 @dataclass(frozen=True)

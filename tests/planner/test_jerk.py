@@ -166,10 +166,10 @@ def test_a_bad_jerk_limit_is_refused_naming_the_field_and_nothing_is_planned(val
 @pytest.fixture
 def two_iterations(monkeypatch: pytest.MonkeyPatch):
     """Solvers that give up after 2 iterations: a program they cannot solve in that."""
-    jerk_solve.cached_program.cache_clear()
+    jerk_solve.PROGRAMS.clear()
     monkeypatch.setattr(jerk_solve, "_MAX_ITER", 2)
     yield
-    jerk_solve.cached_program.cache_clear()
+    jerk_solve.PROGRAMS.clear()
 
 
 def test_a_program_the_solvers_do_not_solve_is_infeasible_with_their_status(two_iterations: None) -> None:

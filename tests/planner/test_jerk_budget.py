@@ -6,6 +6,8 @@ The timing is anytime: a deadline that comes before the solvers finish gives a v
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 
@@ -138,3 +140,24 @@ def test_a_generous_budget_is_the_optimal_plan() -> None:
 
 def test_the_cells_budget_defaults_to_200_ms() -> None:
     assert ARM.planning.budget_ms == 200.0
+
+
+def test_a_program_not_built_is_not_built_within_a_deadline_too_short_for_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A shape no plan built yet, asked for with 0.1 s left (a build takes 0.3 s): the floor at once,
+    and the program built in a thread for the plans after it, which solve it."""
+    from planner.jerk import solve as jerk_solve
+
+    monkeypatch.setattr(jerk_solve, "PROGRAMS", jerk_solve.ProgramCache())
+    monkeypatch.setattr("planner.jerk.PROGRAMS", jerk_solve.PROGRAMS)
+    limits = ARM.joint_limits()
+    w, jerk = random_paths(ARM, 1, seed=6)[0], 10.0 * limits.acceleration
+    floor = Planner(limits).plan(PlanInput(w, max_jerk=jerk, budget_ms=100.0))
+    assert floor.ok and floor.details["solver"] == "scurve" and floor.details["optimal"] is False
+    for thread in threading.enumerate():
+        if thread.name == "jerk-build":
+            thread.join()
+    (shape,) = jerk_solve.PROGRAMS.shapes()
+    assert sorted(jerk_solve.PROGRAMS.ready(*shape).solvers) == ["fatrop", "ipopt"]
+    solved = Planner(limits).plan(PlanInput(w, max_jerk=jerk, budget_ms=60000.0))
+    assert solved.ok and solved.details["optimal"] is True
+    assert solved.trajectory.duration < floor.trajectory.duration
