@@ -16,7 +16,7 @@ are also given apart for the sets the path before issue 13 (the not-a-knot splin
 bench/old_spline.py) accepted, where the path is that spline, and for those it refused, with the
 duration and path length against the spline timed as if it had been allowed.
 
-Run:  python bench/plan_latency.py [--paths 200] [--seed 1] [--constraints joint|cell]
+Run:  python bench/plan_latency.py [--paths 200] [--seed 1] [--constraints joint|cell] [--gridpoints N]
 """
 
 from __future__ import annotations
@@ -47,10 +47,10 @@ def p50_p99(x: np.ndarray) -> str:
     return f"p50 {np.percentile(x, 50):.2f} ms  p99 {np.percentile(x, 99):.2f} ms"
 
 
-def full_plans(cell, paths: list[np.ndarray]) -> np.ndarray:
+def full_plans(cell, paths: list[np.ndarray], gridpoints: int | None = None) -> np.ndarray:
     """(wall, CPU, trajectory, knots, validation) in ms of ``CellPlanner.plan`` on every set, after
     a warm-up (compiled loops loaded, caches filled) on other sets."""
-    cp = CellPlanner(cell)
+    cp = CellPlanner(cell, gridpoints)
     cp.warm_up()
     warm = np.random.default_rng(4242)
     lim = cp.limits
@@ -74,6 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--paths", type=int, default=200)
     parser.add_argument("--waypoints", type=int, default=8)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--gridpoints", type=int, default=None, help="the plans' TOPP-RA grid (default: the planner's)")
     parser.add_argument("--range", type=float, default=0.7, help="waypoints drawn in this fraction of each joint range")
     parser.add_argument(
         "--constraints",
@@ -96,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
             max_tcp_speed=cell.planning.max_tcp_speed,
             torque_limits=cell.planning.torque_limits,
         )
-    planner = Planner(limits, **extra)
+    planner = Planner(limits, gridpoints=args.gridpoints, **extra)
     reference = Planner(limits, gridpoints=3000, speed_band=0.0, **extra)  # the time-optimal profile
 
     rng = np.random.default_rng(args.seed)
@@ -119,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         durations.append(out.trajectory.duration)
         paths.append(waypoints)
         planned.append(out.trajectory)
-    full = full_plans(cell, paths)
+    full = full_plans(cell, paths, args.gridpoints)
     # the references afterwards, so that their big solves do not disturb the timed ones
     ratios = [d / reference.plan(PlanInput(w)).trajectory.duration for d, w in zip(durations, paths, strict=True)]
     accepted, spline_duration, spline_length = [], [], []
@@ -137,6 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"command: python bench/plan_latency.py --paths {args.paths} --seed {args.seed} "
         f"--range {args.range} --constraints {args.constraints}"
+        + ("" if args.gridpoints is None else f" --gridpoints {args.gridpoints}")
     )
     print(
         f"cell arm6, {limits.dof} axes, {args.waypoints} waypoints in {args.range:.0%} of each range, "

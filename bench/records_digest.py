@@ -31,8 +31,8 @@ from service.config import CONFIG_DIR, load_cell_config  # noqa: E402
 CELLS = (("arm6", 40), ("gantry3", 15))
 JERK_CELLS = (("arm6", 10), ("gantry3", 5))
 EXPECTED = {
-    "topp": "31e15ea80eebfd2785a8cfabb0f0ce29ddbe2b1db24d855370fffc6ea163ee48",
-    "jerk": "5770847246ccd0ef77251fa51c8d732e74947c861bed7b95e0236e3c4d723c2d",
+    "topp": "a663223b694cf38c1dae61fbafe20b7324b4d6cb6af37ba4b3c12bb90cb41148",
+    "jerk": "6cfd80d3378822e573acff8dc20f7579b563d0ad87cd67c0c31766bf5454f878",
 }
 
 
