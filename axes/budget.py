@@ -98,6 +98,11 @@ class BusBudget:
     tx_queue_frames: int = 10  # the master's transmit queue
 
     @property
+    def record_allowance(self) -> int:
+        """Records the run's feeders share per SYNC period: at least one per EPOS2 axis, never none."""
+        return max(1, self.records_per_sync, self.buffered_axes)
+
+    @property
     def capacity_bits(self) -> float:
         return self.bitrate * self.sync_period_ms / 1000.0
 

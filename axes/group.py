@@ -120,7 +120,7 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         # the records the bus has room for in one SYNC period, shared by the buffered axes; never less
         # than one per buffered axis (a cell file whose bus has no room for that is refused at load)
         budget = bus_budget(Wiring(bus.config, tuple(axes)))
-        self.allowance = RecordAllowance(max(1, budget.records_per_sync, budget.buffered_axes))
+        self.allowance = RecordAllowance(budget.record_allowance)
         for link in self.links:
             link.status_listeners.append(self._on_status)
         self._status_lag = max((p.sync_answer_every for p in self.profiles), default=1) - 1

@@ -18,9 +18,7 @@ class RecordFeed:
     """The cell's record allowance per SYNC period and its EPOS2 axes' FIFOs, fixed when it is built."""
 
     def __init__(self, cell: CellConfig) -> None:
-        budget = bus_budget(cell)
-        # the allowance the run's feeders share, as axes.group.AxisGroup takes it from the budget
-        self.per_sync = max(1, budget.records_per_sync, budget.buffered_axes)
+        self.per_sync = bus_budget(cell).record_allowance  # as the run's AxisGroup takes it
         self.period_ms = float(cell.bus.sync_period_ms)
         self.buffers = {a.joint: a.buffer for a in cell.axes}
 
