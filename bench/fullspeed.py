@@ -19,8 +19,10 @@ met more would have faulted the run); the first failure's message.
                                [--period-ms MS]
 
 ``--cpu-load N``: N CPU-bound processes beside the run (started here, ended at the end).
+``--service``: each tour through the service (``MotionService`` as ``pvtflow serve --real-time --record``
+runs it: drives in their own process, the planner in its child, an MCAP file per motion) with a plan
+request every 100 ms beside it; the worst fractions and the tour's length are then not shown.
 ``--period-ms``: every cell at another SYNC period (a copy of its file, as ``bench/stall.py`` makes).
-Not measured here: the run beside a plan request every 100 ms with recording.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import argparse
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -50,7 +53,9 @@ from service.config import CONFIG_DIR, CellConfig, load_cell_config  # noqa: E40
 CELLS = ("gantry3", "gantry3-ip-linear", "gantry3-sync-setpoint", "gantry3-parker", "gantry3-mixed", "arm6")
 
 
-def without_homing(name: str, directory: Path, period_ms: float | None, headroom: float | None) -> Path:
+def without_homing(
+    name: str, directory: Path, period_ms: float | None, headroom: float | None, status_every: int | None = None
+) -> Path:
     """A copy of the cell's file without its homing sections (at ``period_ms``, with ``headroom`` if given)."""
     source = CONFIG_DIR / "cells" / f"{name}.yaml"
     data = yaml.safe_load(source.read_text())
@@ -67,6 +72,8 @@ def without_homing(name: str, directory: Path, period_ms: float | None, headroom
                 axis["period_ms"] = int(period_ms)
     if headroom is not None:
         data["bus"]["fixed_period_headroom"] = headroom
+    if status_every is not None:
+        data["bus"]["status_every_syncs"] = status_every
     robot = data.get("robot", {})
     if "urdf" in robot:
         robot["urdf"] = str((source.parent / robot["urdf"]).resolve())
@@ -138,6 +145,70 @@ def run(cell: CellConfig, program_for) -> dict[str, object]:
     }
 
 
+def run_service(cell: CellConfig, directory: Path) -> dict[str, object]:
+    """The tour through the service as ``pvtflow serve --real-time --record DIR`` runs it (drives in
+    their own process, plans in the planner's child process, one MCAP file per motion), with a plan
+    request every 100 ms beside it (a random single-target move from the current position)."""
+    from service.api import ApiError, parse_execute, parse_plan
+    from service.motion import MotionService
+
+    svc = MotionService(
+        cell,
+        journal_dir=directory / "journal",
+        lockstep=False,
+        planner_process=True,
+        record_dir=directory / "rec",
+        drives_process=True,
+    ).open()
+    rng = np.random.default_rng(34)
+    stop = threading.Event()
+    plans = [0, 0]  # answered, refused
+
+    def plan_every_100_ms() -> None:
+        due = time.monotonic()
+        while not stop.wait(max(0.0, due - time.monotonic())):
+            due += 0.1
+            target = limits.lower + rng.uniform(0.1, 0.9, len(limits.lower)) * (limits.upper - limits.lower)
+            try:
+                svc.plan(parse_plan({"waypoints": [target.tolist()], "start": "current"}, cell.joint_names, limits))
+                plans[0] += 1
+            except ApiError:
+                plans[1] += 1
+
+    try:
+        limits = cell.joint_limits()
+        span = limits.upper - limits.lower
+        here = [
+            float(a.scaling.qc_to_position(link.position or 0))
+            for a, link in zip(cell.ordered_axes(), svc.group.links, strict=True)
+        ]
+        tour = [(limits.lower + 0.9 * span).tolist(), (limits.lower + 0.3 * span).tolist(), here]
+        plan_id = svc.plan(parse_plan({"waypoints": tour, "start": "current"}, cell.joint_names, limits))["plan_id"]
+        medium = svc.bus.network.bus.medium
+        before = medium.stats()
+        planner = threading.Thread(target=plan_every_100_ms, name="bench-plans", daemon=True)
+        planner.start()
+        try:
+            outcome = svc.execute(parse_execute({"plan_id": plan_id, "wait": True}))["outcome"]
+        finally:
+            stop.set()
+            planner.join()
+        after = medium.stats()
+    finally:
+        svc.close()
+    after_sync = []
+    for cob_id in setpoint_cob_ids(cell):
+        key = f"0x{cob_id:03X}"
+        after_sync += after.rpdo_after_sync.get(key, [])[len(before.rpdo_after_sync.get(key, [])) :]
+    return {
+        "result": "FINISHED" if outcome["result"] == "finished" else outcome["result"],
+        "message": f"{outcome['message']} ({plans[0]} plans beside it, {plans[1]} refused)",
+        "intervals": after.sync_intervals[len(before.sync_intervals) :],
+        "after_sync": after_sync,
+        "program": None,
+    }
+
+
 def setpoint_cob_ids(cell: CellConfig) -> list[int]:
     """The COB-IDs of the fixed-period axes' setpoint RPDOs (the EPOS2's records have no SYNC to keep)."""
     return [
@@ -162,14 +233,22 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=20)
     parser.add_argument("--cpu-load", type=int, default=0, help="CPU-bound processes beside the runs")
     parser.add_argument("--period-ms", type=float, default=None)
+    parser.add_argument(
+        "--service", action="store_true", help="through the service, a plan request every 100 ms, recording"
+    )
+    parser.add_argument("--status-every", type=int, default=None, help="bus.status_every_syncs (default: the file's)")
     parser.add_argument("--headroom", type=float, default=None, help="bus.fixed_period_headroom (default: the file's)")
     args = parser.parse_args()
+    kept = tempfile.TemporaryDirectory()
+    files = Path(kept.name)
     burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.cpu_load)]
     try:
         print(
             f"python3 bench/fullspeed.py --cells {args.cells} --runs {args.runs} --cpu-load {args.cpu_load}"
             + (f" --period-ms {args.period_ms:g}" if args.period_ms is not None else "")
             + (f" --headroom {args.headroom:g}" if args.headroom is not None else "")
+            + (" --service" if args.service else "")
+            + (f" --status-every {args.status_every}" if args.status_every is not None else "")
         )
         print(
             "| cell | SYNC ms | finished | SYNC interval p50 / p99 / max (periods) | setpoint after its SYNC "
@@ -177,8 +256,8 @@ def main() -> None:
         )
         print("|---|---|---|---|---|---|---|---|")
         for name in args.cells.split(","):
-            with tempfile.TemporaryDirectory() as directory:
-                cell = load_cell_config(without_homing(name, Path(directory), args.period_ms, args.headroom))
+            # the copy stays for the run: the service's planner child reads the cell's file again
+            cell = load_cell_config(without_homing(name, files, args.period_ms, args.headroom, args.status_every))
             plans: dict[bytes, PvtProgram] = {}
 
             def program_for(here: np.ndarray, cell: CellConfig = cell, plans: dict = plans) -> PvtProgram:
@@ -189,14 +268,19 @@ def main() -> None:
 
             done, intervals, after_sync, failure, worst, seconds = 0, [], [], "", (0.0, 0.0), 0.0
             for _ in range(args.runs):
-                r = run(cell, program_for)
+                if args.service:
+                    with tempfile.TemporaryDirectory() as directory:
+                        r = run_service(cell, Path(directory))
+                else:
+                    r = run(cell, program_for)
                 done += r["result"] == "FINISHED"
                 intervals += r["intervals"]
                 after_sync += r["after_sync"]
-                worst = max(worst, fractions(cell, r["program"]))
-                seconds = program_seconds(r["program"])
+                if r["program"] is not None:
+                    worst = max(worst, fractions(cell, r["program"]))
+                    seconds = program_seconds(r["program"])
                 if r["result"] != "FINISHED" and not failure:
-                    failure = f"{r['result']}: {r['message']}"
+                    failure = f"{r['result']}: {r['message']}"[:240]
                 time.sleep(0.3)
             period = cell.bus.sync_period_ms / 1000.0
             iv = np.array(intervals) / period if intervals else np.array([np.nan])
@@ -210,6 +294,7 @@ def main() -> None:
         for b in burners:
             b.kill()
             b.wait()
+        kept.cleanup()
 
 
 if __name__ == "__main__":
