@@ -162,7 +162,8 @@ def run_service(cell: CellConfig, directory: Path) -> dict[str, object]:
     ).open()
     rng = np.random.default_rng(34)
     stop = threading.Event()
-    plans = [0, 0]  # answered, refused
+    plans = [0, 0, 0]  # answered, refused, raised
+    errors: list[str] = []
 
     def plan_every_100_ms() -> None:
         due = time.monotonic()
@@ -174,6 +175,9 @@ def run_service(cell: CellConfig, directory: Path) -> dict[str, object]:
                 plans[0] += 1
             except ApiError:
                 plans[1] += 1
+            except Exception as exc:  # what the service lets through is a figure here, not the bench's end
+                plans[2] += 1
+                errors.append(f"{type(exc).__name__}: {exc}"[:160])
 
     try:
         limits = cell.joint_limits()
@@ -202,7 +206,9 @@ def run_service(cell: CellConfig, directory: Path) -> dict[str, object]:
         after_sync += after.rpdo_after_sync.get(key, [])[len(before.rpdo_after_sync.get(key, [])) :]
     return {
         "result": "FINISHED" if outcome["result"] == "finished" else outcome["result"],
-        "message": f"{outcome['message']} ({plans[0]} plans beside it, {plans[1]} refused)",
+        "message": f"{outcome['message']} ({plans[0]} plans beside it, {plans[1]} refused, {plans[2]} raised"
+        + (f": {errors[0]}" if errors else "")
+        + ")",
         "intervals": after.sync_intervals[len(before.sync_intervals) :],
         "after_sync": after_sync,
         "program": None,
