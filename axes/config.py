@@ -54,6 +54,18 @@ class BusConfig:
     # one SYNC period) and event timer 0x1800:05 in ms (0: sent on a change only)
     status_inhibit_ms: float | None = None
     status_event_timer_ms: int = 0
+    # the share of 0x607F / 0x60C5 a fixed-period drive's motion is planned below them
+    # (``planning_share``; the EPOS2 plans at its full limits, its FIFO covers timing). 0.2 %: twice the
+    # slew of a drive's cycle locked to SYNC (the simulated drives' bound, axes/sim/sync_lock.py MAX_SLEW,
+    # 0.1 %: its speed over real time above the demand it judges); the README says why no more
+    fixed_period_headroom: float = 0.002
+
+    def planning_share(self, fixed_period: bool) -> float:
+        """The factor on an axis's 0x607F and 0x60C5 its plans are made with: ``1 - fixed_period_headroom``
+        for a drive that takes one setpoint per SYNC (what is left of timing after its cycle locks to SYNC,
+        axes/sim/sync_lock.py, is whole-count rounding and a period held after a missed setpoint), 1 for a
+        buffered one."""
+        return 1.0 - self.fixed_period_headroom if fixed_period else 1.0
 
     @property
     def master_consumer_time_ms(self) -> int:

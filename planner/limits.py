@@ -101,17 +101,22 @@ def check_max_jerk(name: str, value: object, dof: int) -> NDArray[np.float64]:
 
 
 def joint_limits_from_drives(
-    names: Sequence[str], scalings: Sequence[AxisScaling], drives: Sequence[DriveLimits]
+    names: Sequence[str],
+    scalings: Sequence[AxisScaling],
+    drives: Sequence[DriveLimits],
+    shares: Sequence[float] | None = None,
 ) -> JointLimits:
-    """0x607F [rpm], 0x60C5 [rpm/s] and 0x607D [qc] of each drive, in joint units."""
-    if not (len(names) == len(scalings) == len(drives)):
-        raise ValueError("one scaling and one set of drive limits per joint")
+    """0x607F [rpm], 0x60C5 [rpm/s] and 0x607D [qc] of each drive, in joint units; ``shares``: the
+    factor on each drive's velocity and acceleration the plans are made with (``BusConfig.planning_share``)."""
+    shares = [1.0] * len(names) if shares is None else list(shares)
+    if not (len(names) == len(scalings) == len(drives) == len(shares)):
+        raise ValueError("one scaling, one set of drive limits and one share per joint")
     lower, upper, vel, acc = [], [], [], []
-    for s, d in zip(scalings, drives, strict=True):
+    for s, d, share in zip(scalings, drives, shares, strict=True):
         a, b = s.qc_to_position([d.min_position_qc, d.max_position_qc])
         lower.append(min(a, b))
         upper.append(max(a, b))
-        vel.append(abs(float(s.rpm_to_velocity(d.max_profile_velocity_rpm))))
-        acc.append(abs(float(s.rpm_s_to_acceleration(d.max_acceleration_rpm_s))))
+        vel.append(share * abs(float(s.rpm_to_velocity(d.max_profile_velocity_rpm))))
+        acc.append(share * abs(float(s.rpm_s_to_acceleration(d.max_acceleration_rpm_s))))
     n = len(names)
     return JointLimits(tuple(names), np.array(lower), np.array(upper), np.array(vel), np.array(acc), np.full(n, np.inf))

@@ -69,6 +69,7 @@ def make_drive(
     eds_path: str | Path | None = None,
     history_length: int = 20_000,
     clock: str = LOCKSTEP,
+    bitrate: int = 1_000_000,
 ) -> SimulatedDrive:
     """The simulated drive for one configured axis (its profile's class, its scaling and limits)."""
     cls = DRIVE_CLASSES[axis.profile]
@@ -82,6 +83,7 @@ def make_drive(
         history_length=history_length,
         simulation=axis.simulation,
         clock=clock,
+        bitrate=bitrate,
     )
 
 
@@ -116,7 +118,13 @@ class SimulatedCell:
         eds_paths = eds_paths or {}
         for axis in cell.axes:
             self.drives[axis.node_id] = make_drive(
-                axis, cell.bus.sync_period_ms, None, eds_paths.get(axis.node_id), history_length, clock
+                axis,
+                cell.bus.sync_period_ms,
+                None,
+                eds_paths.get(axis.node_id),
+                history_length,
+                clock,
+                cell.bus.bitrate,
             )
         # one network, so one CAN controller and transmit queue, per drive, as on a machine: on the
         # simulated wire six drives behind one controller would queue each other's answers

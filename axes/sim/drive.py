@@ -91,6 +91,7 @@ class SimulatedDrive(
         simulation: AxisSimulation | None = None,
         clock: str = LOCKSTEP,
         drift_ppm: float = 0.0,
+        bitrate: int = 1_000_000,
     ) -> None:
         if not 1 <= node_id <= 127:
             raise ValueError(f"node id {node_id} is outside 1..127")
@@ -111,6 +112,9 @@ class SimulatedDrive(
         if simulation is not None and simulation.qc_per_motor_rev is not None:  # its own encoder, not the cell's
             self.scaling = replace(self.scaling, qc_per_motor_rev=float(simulation.qc_per_motor_rev))
         self.sync_period_us = round(sync_period_ms * 1000.0)
+        if not bitrate > 0:
+            raise ValueError(f"bitrate must be positive, got {bitrate!r}")
+        self.bitrate = bitrate  # the bus's: how long a SYNC can wait for a frame on the wire
         self.lock = threading.RLock()
         self.changed = threading.Condition(self.lock)
         self.network: canopen.Network = canopen.network._UNINITIALIZED_NETWORK

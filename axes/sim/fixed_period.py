@@ -16,21 +16,27 @@ without a ramp of their own (bufferless, Parker direct) also judge the setpoint 
 motion and in a stop alike (``_judge``, axes/sim/setpoint_judge.py): a stream that stops too
 abruptly faults them.
 
-On the wall clock (``clock="wall"``, axes/sim/clock.py) the segment a SYNC starts runs over the
-configured period (0x60C2; the Parker's 0x1006) from that SYNC's arrival on the drive's own clock,
-not "until the next SYNC":
+On the wall clock (``clock="wall"``, axes/sim/clock.py) the drive's cycle is locked to the SYNCs it
+hears (axes/sim/sync_lock.py): a SYNC inside the lock's window (the 135 us a SYNC can wait for a
+frame already on the wire at 1 Mbit/s) starts its cycle on the locked period, at the instant the
+lock predicted, so the segment it starts runs over the configured period (0x60C2; the Parker's
+0x1006) from there and the demand is the one a perfectly timed SYNC gives; the drive samples no
+further than that instant while the SYNC may still come inside its window. A SYNC outside the
+window starts its cycle at its arrival on the drive's own clock, and the lock restarts from it:
 
-* a late SYNC: the segment ends on time and the drive holds its end point (velocity 0) until a
-  SYNC latches the next setpoint; a segment that then starts, starts at rest.
-* an early SYNC (less than a period after the previous one), and so each SYNC of a burst, latches
-  whatever setpoint it finds; the segment it starts runs from where the demand is, so the demand
-  heads for the later setpoint in less time than planned. What that does to the velocity is judged
-  by the same checks as any program (0x607D every sample, 0x607F every whole-ms sample, each with
-  the EMCY and fault it has today); no tolerance of its own. Each profile module quotes its seed.
+* a late SYNC (a missing one among them): the segment ends on time and the drive holds its end
+  point (velocity 0) until a SYNC latches the next setpoint; a segment that then starts, starts at
+  rest.
+* an early SYNC (before the window), and so each SYNC of a burst, latches whatever setpoint it
+  finds; the segment it starts runs from where the demand is, so the demand heads for the later
+  setpoint in less time than planned. What that does to the velocity is judged by the same checks
+  as any program (0x607D every sample, 0x607F every whole-ms sample, each with the EMCY and fault
+  it has today); no tolerance of its own. Each profile module quotes its seed.
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 from axes import objects as od
@@ -38,6 +44,7 @@ from axes.sim.drive import SimulatedDrive
 from axes.sim.power_states import OPERATION_ENABLED
 from axes.sim.segment import Segment
 from axes.sim.setpoint_judge import SetpointStream, too_fast
+from axes.sim.sync_lock import SyncLock, sync_window_us
 
 
 class FixedPeriodDrive(SimulatedDrive):
@@ -53,6 +60,7 @@ class FixedPeriodDrive(SimulatedDrive):
         self.setpoints: deque[tuple[int, int]] = deque(maxlen=self.history.maxlen)  # (validating SYNC, target)
         self.first_setpoint_sync: int | None = None  # SYNC that validated the first setpoint of a run
         self._stream = SetpointStream()  # the setpoints as judged by a drive without a ramp (_judge)
+        self.sync_lock = SyncLock(sync_window_us(self.bitrate))  # wall clock: the cycle locked to SYNC
 
     # --- activation -------------------------------------------------------------------------------
     def _on_mode_change(self, old: int, new: int) -> None:
@@ -98,6 +106,24 @@ class FixedPeriodDrive(SimulatedDrive):
             if self.first_setpoint_sync is None:
                 self.first_setpoint_sync = self.sync_count
         self._validated(self.sync_time_us / 1000.0, target)
+
+    # --- the cycle locked to SYNC (wall clock) ---------------------------------------------------------
+    @property
+    def _cycle_us(self) -> float:
+        """The period the lock expects SYNC at: the drive's interpolation period (0x60C2; 0x1006)."""
+        return float(round(self.period_ms * 1000.0))
+
+    def _sync_instant(self, latched_us: float, mono: float) -> float:
+        instant, rate = self.sync_lock.place(latched_us, self._cycle_us)
+        if rate is not None and self.motion_clock is not None:
+            self.motion_clock.slew(rate, mono)
+        return instant
+
+    def _sample_horizon(self, new_time_us: int, now_us: float) -> int:
+        held = self.sync_lock.holds_at(now_us, self._cycle_us)
+        if held is None or new_time_us <= held:
+            return new_time_us
+        return math.floor(held / 1000.0) * 1000
 
     # --- writes -----------------------------------------------------------------------------------
     def _on_object_write(self, index: int, subindex: int, value: int) -> None:

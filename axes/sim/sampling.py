@@ -78,7 +78,7 @@ class Sampling:
             else:  # the SYNC instant on the drive's own clock, in order
                 mono = arrival(timestamp)
                 latched = clock.at(mono)
-                new_time = max(self.sync_time_us, math.floor(latched))
+                new_time = max(self.sync_time_us, math.floor(self._sync_instant(latched, mono)))
                 behind = max(self.time_us - new_time, 0)
             if not behind:
                 self._advance(new_time)
@@ -111,7 +111,8 @@ class Sampling:
             clock = self.motion_clock
             if clock is None or not self.node.has_network():
                 return
-            new_time = math.floor(clock.at(mono) / 1000.0) * 1000
+            now_us = clock.at(mono)
+            new_time = self._sample_horizon(math.floor(now_us / 1000.0) * 1000, now_us)
             if new_time <= self.time_us:
                 return
             self._advance(new_time)
@@ -125,6 +126,15 @@ class Sampling:
             self._refresh()
 
         self._in_own_thread(act)
+
+    def _sync_instant(self, latched_us: float, mono: float) -> float:
+        """Wall clock: the motion time at which a SYNC latched at ``latched_us`` takes effect (the
+        fixed-period drives: their locked cycle, axes/sim/sync_lock.py)."""
+        return latched_us
+
+    def _sample_horizon(self, new_time_us: int, now_us: float) -> int:
+        """Wall clock: the sample time the ticker may advance to at motion time ``now_us``."""
+        return new_time_us
 
     def _advance(self, new_time_us: int) -> None:
         """Run the interpolation from the last SYNC to this one: every whole ms, then the SYNC instant."""

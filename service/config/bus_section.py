@@ -17,6 +17,7 @@ from service.config.fields import Fields
 # python-can's own list of interfaces (``udp_multicast`` among them: it sends to a multicast group,
 # off this host, so the tests never name it).
 PYTHON_CAN_INTERFACES: tuple[str, ...] = tuple(sorted(VALID_INTERFACES))
+MAX_FIXED_PERIOD_HEADROOM = 0.5  # past half the drive's limits a headroom is a mistake, not a margin
 
 
 def parse_bus(file: Path, data: Any) -> BusConfig:
@@ -43,6 +44,7 @@ def parse_bus(file: Path, data: Any) -> BusConfig:
             "status_every_syncs",
             "status_inhibit_ms",
             "status_event_timer_ms",
+            "fixed_period_headroom",
         ),
     )
     d = BusConfig()
@@ -79,7 +81,14 @@ def parse_bus(file: Path, data: Any) -> BusConfig:
         status_every_syncs=f.get("status_every_syncs", f.integer(1, 240), d.status_every_syncs),
         status_inhibit_ms=f.get("status_inhibit_ms", f.number(positive=True), d.status_inhibit_ms),
         status_event_timer_ms=f.get("status_event_timer_ms", f.integer(0, 65535), d.status_event_timer_ms),
+        fixed_period_headroom=f.get("fixed_period_headroom", f.number(), d.fixed_period_headroom),
     )
+    if not 0.0 <= bus.fixed_period_headroom <= MAX_FIXED_PERIOD_HEADROOM:
+        raise f.error(
+            "fixed_period_headroom",
+            f"{bus.fixed_period_headroom:g} must be within [0, {MAX_FIXED_PERIOD_HEADROOM:g}] "
+            "(the share of 0x607F / 0x60C5 kept out of the plans)",
+        )
     if bus.status_inhibit_ms is not None and bus.status_inhibit_ms > 6553.5:
         raise f.error("status_inhibit_ms", f"{bus.status_inhibit_ms:g} ms: 0x1800:03 holds at most 6553.5 ms")
     if bus.max_sync_gap_periods is not None and bus.max_sync_gap_periods < 1.5:

@@ -78,8 +78,10 @@ class CellConfig:
         return np.array([float(a.scaling.qc_to_position(a.homing.offset_qc)) for a in axes])  # type: ignore[union-attr]
 
     def joint_limits(self) -> JointLimits:
-        """Joint-space limits: the drives' (through the scaling) merged with the URDF's."""
+        """Joint-space limits: the drives' (through the scaling, a fixed-period drive's velocity and
+        acceleration times ``BusConfig.planning_share``) merged with the URDF's."""
         axes = self.ordered_axes()
+        shares = [self.bus.planning_share(a.profile.fixed_period) for a in axes]
         return joint_limits_from_drives(
-            self.joint_names, [a.scaling for a in axes], [a.limits for a in axes]
+            self.joint_names, [a.scaling for a in axes], [a.limits for a in axes], shares
         ).merged_with(JointLimits.from_model(self.model))

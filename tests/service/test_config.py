@@ -389,3 +389,40 @@ def test_requires_homing_without_anything_to_home(tmp_path: Path) -> None:
     data = arm_data()
     data["requires_homing"] = True
     expect_error(tmp_path, data, "requires_homing", "no axis has a homing section")
+
+
+def gantry_ip_linear_data(tmp_path: Path) -> dict[str, Any]:
+    data = yaml.safe_load((CONFIG_DIR / "cells" / "gantry3-mixed.yaml").read_text())
+    data["robot"]["urdf"] = str(CONFIG_DIR / "robots" / "gantry3.urdf")
+    return data
+
+
+def test_fixed_period_axes_are_planned_below_their_limits_by_the_headroom(tmp_path: Path) -> None:
+    """bus.fixed_period_headroom scales a fixed-period axis's velocity and acceleration in the plan's
+    joint limits; a buffered (EPOS2) axis keeps its full 0x607F / 0x60C5."""
+    data = gantry_ip_linear_data(tmp_path)
+    data["bus"]["fixed_period_headroom"] = 0.0
+    full = load_cell_config(write(tmp_path, data))
+    data["bus"]["fixed_period_headroom"] = 0.02
+    cell = load_cell_config(write(tmp_path, data))
+    assert cell.bus.fixed_period_headroom == 0.02
+    assert load_cell_config(CONFIG_DIR / "cells" / "gantry3-mixed.yaml").bus.fixed_period_headroom == 0.002
+    a, b = full.joint_limits(), cell.joint_limits()
+    fixed = [ax.profile.fixed_period for ax in cell.ordered_axes()]
+    assert any(fixed) and not all(fixed)  # the mixed cell has both kinds
+    for k, is_fixed in enumerate(fixed):
+        share = 0.98 if is_fixed else 1.0
+        assert b.velocity[k] == pytest.approx(share * a.velocity[k], rel=1e-12)
+        assert b.acceleration[k] == pytest.approx(share * a.acceleration[k], rel=1e-12)
+        assert (b.lower[k], b.upper[k]) == (a.lower[k], a.upper[k])
+    assert [ax.limits for ax in cell.axes] == [ax.limits for ax in full.axes]  # the drives get their full limits
+
+
+@pytest.mark.parametrize("value", [-0.01, 0.51, "2 %", math.nan])
+def test_a_bad_fixed_period_headroom_is_named(tmp_path: Path, value: Any) -> None:
+    data = gantry_ip_linear_data(tmp_path)
+    data["bus"]["fixed_period_headroom"] = value
+    path = write(tmp_path, data)
+    with pytest.raises(ConfigError) as info:
+        load_cell_config(path)
+    assert info.value.where == "bus.fixed_period_headroom"

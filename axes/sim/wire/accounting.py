@@ -13,11 +13,13 @@ from __future__ import annotations
 import itertools
 import threading
 from collections import deque
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
+from axes.objects import SYNC_COB_ID
 from axes.sim.wire.node import Node
 
 DEFAULT_RECORD_LIMIT = 500_000  # frames kept for the accounting (about three minutes at 3000 frames/s)
+RPDO_COB_IDS = (0x200, 0x57F)  # RPDO1 to RPDO4 of nodes 0-127 (CiA 301 predefined connection set)
 LATE_FRACTION = 0.05  # a SYNC later than its nominal time by more than this share of the period is late
 
 
@@ -56,6 +58,9 @@ class WireStats:
     enobufs: dict[str, int]
     max_fifo_depth: dict[str, int]
     error_frames: int
+    # per receive-PDO COB-ID (hex, RPDO1-4: 0x200-0x57F, what a master sends its drives after SYNC):
+    # each frame's end, when the drives have it, after the start of the SYNC before it, in seconds
+    rpdo_after_sync: dict[str, list[float]] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -144,7 +149,19 @@ class Accounting:
             enobufs=enobufs,
             max_fifo_depth=depth,
             error_frames=error_frames,
+            rpdo_after_sync=_rpdo_after_sync(records),
         )
+
+
+def _rpdo_after_sync(records: list[FrameRecord]) -> dict[str, list[float]]:
+    after: dict[str, list[float]] = {}
+    sync_start: float | None = None
+    for r in records:
+        if r.can_id == SYNC_COB_ID:
+            sync_start = r.start
+        elif RPDO_COB_IDS[0] <= r.can_id <= RPDO_COB_IDS[1] and sync_start is not None:
+            after.setdefault(f"0x{r.can_id:03X}", []).append(r.end - sync_start)
+    return after
 
 
 def _load(records: list[FrameRecord], t0: float, t1: float) -> float:

@@ -301,6 +301,25 @@ def test_lockstep_sync_on_time_is_not_late_and_loads_are_per_period(buses: Buses
     assert stats.period_loads == pytest.approx([busy / PERIOD] * 3)
 
 
+def test_each_rpdo_is_accounted_its_time_after_the_sync_before_it(buses: Buses) -> None:
+    """WireStats.rpdo_after_sync: a setpoint's end on the wire after its SYNC's start (lockstep: exact)."""
+    ch = buses.channel()
+    master = buses.open(ch, clock="lockstep", sync_period=PERIOD)
+    drive = buses.open(ch)
+    master.send(frame(0x20B, bytes(4)))  # before any SYNC: no SYNC to be after
+    for _ in range(2):
+        master.send(frame(SYNC))
+        master.send(frame(0x20B, bytes(4)))
+        master.send(frame(0x50C, bytes(8)))
+        master.send(frame(0x18B, bytes(6)))  # a TPDO: not a receive PDO
+    drain(drive, 7)
+    stats = master.medium.stats()
+    sync, first, second = (seconds(m, 1_000_000) for m in (frame(SYNC), frame(0x20B, bytes(4)), frame(0x50C, bytes(8))))
+    assert stats.rpdo_after_sync.keys() == {"0x20B", "0x50C"}
+    assert stats.rpdo_after_sync["0x20B"] == pytest.approx([sync + first] * 2, abs=1e-12)
+    assert stats.rpdo_after_sync["0x50C"] == pytest.approx([sync + first + second] * 2, abs=1e-12)
+
+
 # -- bus states and error frames -------------------------------------------------------------------
 
 
