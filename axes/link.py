@@ -14,6 +14,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import canopen
+from can import CanError
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from axes import objects as od
@@ -27,6 +28,9 @@ from axes.config import AxisConfig
 from axes.objects import BufferStatus, PdoLayout
 from axes.subscriptions import subscribe, unsubscribe
 from axes.tpdo_rates import with_rates
+
+# an SDO transfer that did not complete: no answer, a frame the bus refused (a full transmit queue), a short reply
+TRANSFER_FAILED = (SdoCommunicationError, CanError, struct.error)
 
 if TYPE_CHECKING:
     from axes.bus import CellBus
@@ -119,7 +123,7 @@ class AxisLink:
             if optional and exc.code >> 16 in (0x0602, 0x0609):
                 return False
             raise DriveError(self.node_id, f"SDO write {where} = {value} failed: {exc}") from None
-        except (SdoCommunicationError, struct.error) as exc:
+        except TRANSFER_FAILED as exc:
             raise DriveError(self.node_id, f"SDO write {where} = {value} failed: {exc}") from None
         return True
 
@@ -129,7 +133,7 @@ class AxisLink:
             with self._sdo:
                 data = self.node.sdo.upload(index, subindex)
             return struct.unpack_from("<" + fmt, data.ljust(struct.calcsize(fmt), b"\0"))[0]
-        except (SdoAbortedError, SdoCommunicationError, struct.error) as exc:
+        except (SdoAbortedError, *TRANSFER_FAILED) as exc:
             raise DriveError(self.node_id, f"SDO read 0x{index:04X}:{subindex:02X} failed: {exc}") from None
 
     def read_optional(self, index: int, subindex: int, fmt: str) -> int | None:
@@ -143,7 +147,7 @@ class AxisLink:
             if exc.code >> 16 in (0x0602, 0x0609):
                 return None
             raise DriveError(self.node_id, f"SDO read 0x{index:04X}:{subindex:02X} failed: {exc}") from None
-        except (SdoCommunicationError, struct.error) as exc:
+        except TRANSFER_FAILED as exc:
             raise DriveError(self.node_id, f"SDO read 0x{index:04X}:{subindex:02X} failed: {exc}") from None
 
     def read_statusword(self) -> int:
