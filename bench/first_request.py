@@ -24,11 +24,11 @@ ROOT = Path(__file__).resolve().parent.parent
 CHILD = r"""
 import json, sys, time
 import numpy as np
-from planner.jerk import solve
-from planner.plan import PlanInput
-from service.cell_planner import CellPlanner
-from service.config import load_cell_config
-from service.runtime import freeze_startup_objects
+from pvtflow.planner.jerk import solve
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.config import load_cell_config
+from pvtflow.service.runtime import freeze_startup_objects
 
 requests, budget = int(sys.argv[1]), float(sys.argv[2])
 planner = CellPlanner(load_cell_config(None))

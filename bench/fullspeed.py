@@ -41,14 +41,14 @@ import yaml
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from axes.bus import CellBus  # noqa: E402
-from axes.group import AxisGroup  # noqa: E402
-from axes.objects import PdoRole  # noqa: E402
-from axes.program import PvtProgram  # noqa: E402
-from axes.sim.process import start_simulated_drives  # noqa: E402
-from planner.plan import PlanInput  # noqa: E402
-from service.cell_planner import CellPlanner  # noqa: E402
-from service.config import CONFIG_DIR, CellConfig, load_cell_config  # noqa: E402
+from pvtflow.axes.bus import CellBus  # noqa: E402
+from pvtflow.axes.group import AxisGroup  # noqa: E402
+from pvtflow.axes.objects import PdoRole  # noqa: E402
+from pvtflow.axes.program import PvtProgram  # noqa: E402
+from pvtflow.axes.sim.process import start_simulated_drives  # noqa: E402
+from pvtflow.planner.plan import PlanInput  # noqa: E402
+from pvtflow.service.cell_planner import CellPlanner  # noqa: E402
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config  # noqa: E402
 
 CELLS = ("gantry3", "gantry3-ip-linear", "gantry3-sync-setpoint", "gantry3-parker", "gantry3-mixed", "arm6")
 
@@ -149,8 +149,8 @@ def run_service(cell: CellConfig, directory: Path) -> dict[str, object]:
     """The tour through the service as ``pvtflow serve --real-time --record DIR`` runs it (drives in
     their own process, plans in the planner's child process, one MCAP file per motion), with a plan
     request every 100 ms beside it (a random single-target move from the current position)."""
-    from service.api import ApiError, parse_execute, parse_plan
-    from service.motion import MotionService
+    from pvtflow.service.api import ApiError, parse_execute, parse_plan
+    from pvtflow.service.motion import MotionService
 
     svc = MotionService(
         cell,

@@ -39,8 +39,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from planner.limits import JointLimits
-from planner.trajectory import Trajectory
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.trajectory import Trajectory
 
 # none by default: motion time is the product, and the records the band saves are not scarce on the
 # shipped cells (bench/RESULTS.md, "Issue 39 item 1"); a cell asks for one (planning.speed_band), or

@@ -15,15 +15,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.program import PvtProgram
-from planner import timing
-from planner.build import BuildError, BuildOutput, build_program
-from planner.cartesian import placement_pose
-from planner.knots import KnotOptions, jerk_smooth, quantize
-from planner.path import PlanResult
-from planner.plan import PlanInput, Planner, PlanOutput
-from service.config import CellConfig
-from service.record_feed import RecordFeed
+from pvtflow.axes.program import PvtProgram
+from pvtflow.planner import timing
+from pvtflow.planner.build import BuildError, BuildOutput, build_program
+from pvtflow.planner.cartesian import placement_pose
+from pvtflow.planner.knots import KnotOptions, jerk_smooth, quantize
+from pvtflow.planner.path import PlanResult
+from pvtflow.planner.plan import PlanInput, Planner, PlanOutput
+from pvtflow.service.config import CellConfig
+from pvtflow.service.record_feed import RecordFeed
 
 
 @dataclass(frozen=True)
@@ -126,7 +126,7 @@ class CellPlanner:
         timing.warm_up()  # the longer paths' spline and the torque check near a limit
         quantize.warm_up()  # the repair that may move knots, which a short move rarely needs
         if jerk:
-            from planner.jerk import warm_up as jerk_warm_up  # casadi: loaded where plans may be jerk-limited
+            from pvtflow.planner.jerk import warm_up as jerk_warm_up  # casadi: loaded where plans may be jerk-limited
 
             ja, jb = lo + 0.4 * (hi - lo), lo + 0.6 * (hi - lo)
             jerky = PlanInput(np.array([ja, jb]), max_jerk=10.0 * self.limits.acceleration)

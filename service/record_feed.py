@@ -8,10 +8,10 @@ and say so, and nowhere else (``CellPlanner.plan``).
 
 from __future__ import annotations
 
-from axes.budget import bus_budget
-from axes.feed_check import BufferedAxis, feed_shortfall
-from axes.program import PvtProgram
-from service.config import CellConfig
+from pvtflow.axes.budget import bus_budget
+from pvtflow.axes.feed_check import BufferedAxis, feed_shortfall
+from pvtflow.axes.program import PvtProgram
+from pvtflow.service.config import CellConfig
 
 
 class RecordFeed:

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from axes.frame_time import worst_frame_bits
+from pvtflow.axes.frame_time import worst_frame_bits
 
 SYNC_WAIT_BITS = worst_frame_bits(8)  # the longest frame a SYNC can find on the wire (module docstring)
 MAX_SLEW = 1e-3  # the loop's bound on the motion clock rate's departure from 1

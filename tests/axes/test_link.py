@@ -5,8 +5,8 @@ from __future__ import annotations
 import can
 import pytest
 
-from axes.link import DriveError
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.axes.link import DriveError
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 
 def test_a_request_the_bus_refuses_is_a_drive_error_naming_the_object(make_rig, monkeypatch) -> None:

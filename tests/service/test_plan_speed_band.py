@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import yaml
 
-from axes.program import PvtProgram
-from planner.plan import PlanInput
-from service.cell_planner import CELL_FILE_REASON, FEED_BANDS, CellPlanner
-from service.cli import main
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.axes.program import PvtProgram
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.cell_planner import CELL_FILE_REASON, FEED_BANDS, CellPlanner
+from pvtflow.service.cli import main
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 GANTRY_FILE = CONFIG_DIR / "cells" / "gantry3.yaml"
 GANTRY = load_cell_config(GANTRY_FILE)

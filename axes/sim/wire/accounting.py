@@ -15,8 +15,8 @@ import threading
 from collections import deque
 from dataclasses import asdict, dataclass, field
 
-from axes.objects import SYNC_COB_ID
-from axes.sim.wire.node import Node
+from pvtflow.axes.objects import SYNC_COB_ID
+from pvtflow.axes.sim.wire.node import Node
 
 DEFAULT_RECORD_LIMIT = 500_000  # frames kept for the accounting (about three minutes at 3000 frames/s)
 RPDO_COB_IDS = (0x200, 0x57F)  # RPDO1 to RPDO4 of nodes 0-127 (CiA 301 predefined connection set)
