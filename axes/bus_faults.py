@@ -17,7 +17,7 @@ from enum import StrEnum
 
 import can
 
-from axes.can_errors import ErrorFrame, decode
+from pvtflow.axes.can_errors import ErrorFrame, decode
 
 
 class BusError(RuntimeError):

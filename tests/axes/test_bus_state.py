@@ -18,9 +18,9 @@ import pytest
 from axes_programs import program
 from axes_rig import unique_channel, with_profiles
 
-from axes.bus import CellBus
-from axes.bus_faults import BusFault, FaultKind
-from axes.can_errors import (
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.bus_faults import BusFault, FaultKind
+from pvtflow.axes.can_errors import (
     CAN_ERR_BUSOFF,
     CAN_ERR_CNT,
     CAN_ERR_CRTL,
@@ -35,11 +35,11 @@ from axes.can_errors import (
     ControllerState,
     decode,
 )
-from axes.config import BusConfig
-from axes.group import AxisGroup
-from axes.outcome import Result
-from axes.sim.cell import SimulatedCell, sharing_the_interpreter
-from axes.sim.wire import BUS_OFF, ERROR_PASSIVE
+from pvtflow.axes.config import BusConfig
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.outcome import Result
+from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
+from pvtflow.axes.sim.wire import BUS_OFF, ERROR_PASSIVE
 
 
 def error_frame(classes: int, crtl: int = 0, tx: int = 0, rx: int = 0) -> can.Message:

@@ -13,7 +13,7 @@ import threading
 import can
 from can import BusState
 
-from axes.can_errors import (
+from pvtflow.axes.can_errors import (
     CAN_ERR_BUSOFF,
     CAN_ERR_CRTL,
     CAN_ERR_CRTL_ACTIVE,
@@ -22,7 +22,7 @@ from axes.can_errors import (
     CAN_ERR_PROT,
     CAN_ERR_RESTARTED,
 )
-from axes.sim.wire.node import Node, Pending
+from pvtflow.axes.sim.wire.node import Node, Pending
 
 BUS_OFF = BusState.ERROR  # python-can's name for a controller that left the bus
 ERROR_PASSIVE = BusState.PASSIVE

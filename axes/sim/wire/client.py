@@ -14,13 +14,13 @@ from typing import Any
 import can
 from can import BusState
 
-from axes.can_errors import ControllerState, decode
-from axes.sim.wire import protocol as p
-from axes.sim.wire.accounting import LateSync, WireStats
-from axes.sim.wire.bus_states import BUS_OFF, ERROR_PASSIVE
-from axes.sim.wire.medium import WireConfigError
-from axes.sim.wire.node import bus_off_error, transmit_queue_full
-from axes.sim.wire.priority import ask_wire_priority
+from pvtflow.axes.can_errors import ControllerState, decode
+from pvtflow.axes.sim.wire import protocol as p
+from pvtflow.axes.sim.wire.accounting import LateSync, WireStats
+from pvtflow.axes.sim.wire.bus_states import BUS_OFF, ERROR_PASSIVE
+from pvtflow.axes.sim.wire.medium import WireConfigError
+from pvtflow.axes.sim.wire.node import bus_off_error, transmit_queue_full
+from pvtflow.axes.sim.wire.priority import ask_wire_priority
 
 CONNECT_TIMEOUT = 5.0
 WAIT_SLICE_S = 0.001  # a sender waiting for room looks again at least this often
