@@ -3,16 +3,21 @@
 The SYNC producer, the watchdog (``axes.bus_watch``) and the EMCY consumer all report a ``BusFault``
 of one ``FaultKind``; the group, the homing and the recording decide what a kind means for them
 (``warning``: the motion goes on; ``sync_failed``: a halt must not wait for SYNC). Error frames are
-counted here as they arrive and reported by the watchdog at most once a second.
+counted here as they arrive and reported by the watchdog at most once a second; the controller
+states they announce (``axes.can_errors``) are kept in order for the watchdog, every one reported.
 """
 
 from __future__ import annotations
 
+import threading
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
 import can
+
+from pvtflow.axes.can_errors import ErrorFrame, decode
 
 
 class BusError(RuntimeError):
@@ -57,16 +62,31 @@ FaultCallback = Callable[[BusFault], None]
 
 
 class ErrorFrames(can.Listener):
-    """Counts the error frames the interface delivers (``is_error_frame``)."""
+    """Counts the error frames the interface delivers (``is_error_frame``) and keeps those that
+    announce a controller state (``changes``): a bus-off and the restart after it may both come
+    between two looks of the watchdog, and each must be reported."""
 
     def __init__(self) -> None:
         self.count = 0
         self._reported = 0
         self._reported_at = 0.0
+        self._lock = threading.Lock()
+        self._states: deque[ErrorFrame] = deque()
 
     def on_message_received(self, msg: can.Message) -> None:
         if msg.is_error_frame:
             self.count += 1
+            frame = decode(msg)
+            if frame.state is not None:
+                with self._lock:
+                    self._states.append(frame)
+
+    def changes(self) -> list[ErrorFrame]:
+        """The error frames that announced a controller state since the last call, in order."""
+        with self._lock:
+            frames = list(self._states)
+            self._states.clear()
+        return frames
 
     def take(self, now: float, every_s: float) -> int:
         """Error frames since the last report, when one is due (0: none, or not yet)."""

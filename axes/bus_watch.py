@@ -2,8 +2,9 @@
 
 One thread watches (``BusWatch.start``): heartbeat loss (no heartbeat for ``heartbeat_ms *
 heartbeat_timeout_factor``), lost SYNC (no answered SYNC for ``lost_sync_timeout_s``), error frames
-(``BUS_WARNING``, at most once a second) and python-can's ``bus.state`` (error passive:
-``BUS_WARNING``; bus-off: ``BUS_OFF``, nothing can be sent). A node's NMT state change and its EMCY
+(``BUS_WARNING``, at most once a second) and the master's controller state, from the error frames
+that announce it and python-can's ``bus.state`` (error-warning, error-passive: ``BUS_WARNING``;
+bus-off: ``BUS_OFF``, nothing can be sent). A node's NMT state change and its EMCY
 frames are reported as they arrive (the CAN ones in their words: 0x8110, 0x8120, 0x8140). The
 watchdog polls: wall-clock time is used only to *detect* a failure, never to pace the motion.
 It also remembers the boot-up messages each node sent: a drive that boots again has lost what it
@@ -21,6 +22,7 @@ import can
 from canopen.emcy import EmcyError
 
 from pvtflow.axes.bus_faults import BusFault, ErrorFrames, FaultKind
+from pvtflow.axes.can_errors import FROM_BUS_STATE, ControllerState
 from pvtflow.axes.objects import CAN_EMCY_WORDS, NMT_STATE_OPERATIONAL
 
 if TYPE_CHECKING:
@@ -36,7 +38,8 @@ class BusWatch:
     def __init__(self, bus: CellBus) -> None:
         self.bus = bus
         self.errors = ErrorFrames()
-        self.state = can.BusState.ACTIVE  # the master's controller as python-can last reported it
+        self.state = ControllerState.ERROR_ACTIVE  # the master's controller as last reported
+        self._polled = ControllerState.ERROR_ACTIVE  # python-can's ``bus.state`` as last read
         self._heartbeat_seen: dict[int, float] = {}
         self._heartbeat_state: dict[int, int] = {}
         self._boots: dict[int, int] = {}  # boot-up messages seen per node (NMT reset, power-on)
@@ -140,7 +143,9 @@ class BusWatch:
 
     def _watch_wire(self, now: float) -> None:
         """Error frames (counted as they come, reported at most every ERROR_FRAME_REPORT_S) and the
-        master's controller state (python-can's ``bus.state``), reported when it changes."""
+        master's controller state, reported by name at every change: from the error frames that
+        announce it (``axes.can_errors``; socketcan's only source: its python-can ``bus.state`` stays
+        ACTIVE) and from python-can's ``bus.state`` where the interface reports one (pcan, simwire)."""
         frames = self.errors.take(now, ERROR_FRAME_REPORT_S)
         if frames:
             self.bus.report(
@@ -151,34 +156,39 @@ class BusWatch:
                     frames,
                 )
             )
+        for frame in self.errors.changes():
+            assert frame.state is not None
+            self._enter(frame.state, frame.counters())
         bus = self.bus.network.bus
         if bus is None:
             return
         try:
-            state = bus.state
+            polled = FROM_BUS_STATE.get(bus.state, ControllerState.ERROR_ACTIVE)
         except (can.CanError, NotImplementedError, OSError):
             return
+        if polled != self._polled:  # a change the interface reports (its error frame may have said so already)
+            self._polled = polled
+            self._enter(polled)
+
+    def _enter(self, state: ControllerState, counters: str = "") -> None:
+        """The master's controller is now in ``state``: reported when it changed. Bus-off halts the
+        motion (``FaultKind.BUS_OFF``); the other states are warnings: the controller still sends."""
         if state == self.state:
             return
         previous, self.state = self.state, state
-        if state == can.BusState.ERROR:
+        said = f"the master's CAN controller is {state}{counters}"
+        if state is ControllerState.BUS_OFF:
             self.bus.report(
                 BusFault(
                     FaultKind.BUS_OFF,
                     None,
-                    "the master's CAN controller is bus-off: it can send nothing (no SYNC, no quick stop); "
-                    "the drives stop on the master's heartbeat loss",
+                    f"{said}: it can send nothing (no SYNC, no quick stop); the drives stop on the master's "
+                    "heartbeat loss",
                 )
             )
-        elif state == can.BusState.PASSIVE:
-            self.bus.report(
-                BusFault(FaultKind.BUS_WARNING, None, "the master's CAN controller is error passive (many errors)")
-            )
+        elif state is ControllerState.ERROR_PASSIVE:
+            self.bus.report(BusFault(FaultKind.BUS_WARNING, None, f"{said} (an error counter at 128 or more)"))
+        elif state is ControllerState.ERROR_WARNING:
+            self.bus.report(BusFault(FaultKind.BUS_WARNING, None, f"{said} (an error counter at 96 or more)"))
         else:
-            self.bus.report(
-                BusFault(
-                    FaultKind.BUS_WARNING,
-                    None,
-                    f"the master's CAN controller is error active again (was {previous.name.lower()})",
-                )
-            )
+            self.bus.report(BusFault(FaultKind.BUS_WARNING, None, f"{said} again (was {previous})"))

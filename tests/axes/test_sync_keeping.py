@@ -393,8 +393,8 @@ def test_error_frames_bus_state_and_the_can_emcys_are_reported_as_what_they_are(
         assert frames.kind is FaultKind.BUS_WARNING and bus.watch.errors.count == 3
 
         FlakyBus.set_state(channel, can.BusState.PASSIVE)
-        wait_for(lambda: any("error passive" in f.message for f in faults))
-        assert next(f for f in faults if "error passive" in f.message).kind is FaultKind.BUS_WARNING
+        wait_for(lambda: any("error-passive" in f.message for f in faults))
+        assert next(f for f in faults if "error-passive" in f.message).kind is FaultKind.BUS_WARNING
         FlakyBus.set_state(channel, can.BusState.ERROR)
         wait_for(lambda: any(f.kind is FaultKind.BUS_OFF for f in faults))
         assert "bus-off" in next(f for f in faults if f.kind is FaultKind.BUS_OFF).message

@@ -13,19 +13,19 @@ import threading
 import can
 from can import BusState
 
+from pvtflow.axes.can_errors import (
+    CAN_ERR_BUSOFF,
+    CAN_ERR_CRTL,
+    CAN_ERR_CRTL_ACTIVE,
+    CAN_ERR_CRTL_RX_PASSIVE,
+    CAN_ERR_CRTL_TX_PASSIVE,
+    CAN_ERR_PROT,
+    CAN_ERR_RESTARTED,
+)
 from pvtflow.axes.sim.wire.node import Node, Pending
 
 BUS_OFF = BusState.ERROR  # python-can's name for a controller that left the bus
 ERROR_PASSIVE = BusState.PASSIVE
-
-# SocketCAN error frames (linux/can/error.h), as python-can's socketcan hands them over.
-CAN_ERR_CRTL = 0x004
-CAN_ERR_PROT = 0x008
-CAN_ERR_BUSOFF = 0x040
-CAN_ERR_RESTARTED = 0x100
-CAN_ERR_CRTL_RX_PASSIVE = 0x10
-CAN_ERR_CRTL_TX_PASSIVE = 0x20
-CAN_ERR_CRTL_ACTIVE = 0x40
 
 
 class BusStateHooks:

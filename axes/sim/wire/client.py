@@ -14,16 +14,10 @@ from typing import Any
 import can
 from can import BusState
 
+from pvtflow.axes.can_errors import ControllerState, decode
 from pvtflow.axes.sim.wire import protocol as p
 from pvtflow.axes.sim.wire.accounting import LateSync, WireStats
-from pvtflow.axes.sim.wire.bus_states import (
-    BUS_OFF,
-    CAN_ERR_BUSOFF,
-    CAN_ERR_CRTL,
-    CAN_ERR_CRTL_ACTIVE,
-    CAN_ERR_RESTARTED,
-    ERROR_PASSIVE,
-)
+from pvtflow.axes.sim.wire.bus_states import BUS_OFF, ERROR_PASSIVE
 from pvtflow.axes.sim.wire.medium import WireConfigError
 from pvtflow.axes.sim.wire.node import bus_off_error, transmit_queue_full
 from pvtflow.axes.sim.wire.priority import ask_wire_priority
@@ -198,14 +192,13 @@ class WireLink:
                 raise can.CanOperationError(f"simwire channel {self.channel!r}: server gone ({error})") from None
 
     def _follow_state(self, msg: can.Message) -> None:
-        if msg.arbitration_id == CAN_ERR_BUSOFF:
-            state = BUS_OFF
-        elif msg.arbitration_id == CAN_ERR_RESTARTED:
-            state = BusState.ACTIVE
-        elif msg.arbitration_id == CAN_ERR_CRTL:
-            state = BusState.ACTIVE if msg.data[1] & CAN_ERR_CRTL_ACTIVE else ERROR_PASSIVE
-        else:
+        said = decode(msg).state
+        if said is None:
             return
+        # python-can's states have no error-warning: the controller still sends and acknowledges
+        state = {ControllerState.BUS_OFF: BUS_OFF, ControllerState.ERROR_PASSIVE: ERROR_PASSIVE}.get(
+            said, BusState.ACTIVE
+        )
         with self._room:
             self.state = state
             self._room.notify_all()
