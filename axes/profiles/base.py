@@ -58,6 +58,8 @@ def expected_settings(config: AxisConfig) -> list[Setting]:
         Setting(od.SOFTWARE_POSITION_LIMIT, 1, "i", lim.min_position_qc, "min position limit"),
         Setting(od.SOFTWARE_POSITION_LIMIT, 2, "i", lim.max_position_qc, "max position limit"),
         Setting(od.MAX_FOLLOWING_ERROR, 0, "I", DEFAULT_MAX_FOLLOWING_ERROR_QC, "max following error"),
+        # the quick stop ramp (0x6007 = 3 on a lost master, 0x605A = 2) brakes as hard as the axis may
+        Setting(od.QUICK_STOP_DECELERATION, 0, "I", round(lim.max_acceleration_rpm_s), "quick stop deceleration"),
     ]
 
 
@@ -232,7 +234,6 @@ class Profile:
         if reaction is not None:
             what = f"fault reaction option code {reaction.name.lower()}"
             self._write_read_back(od.FAULT_REACTION_OPTION_CODE, 0, int(reaction), "h", what)
-        self.link.write_optional(od.QUICK_STOP_DECELERATION, 0, round(self.config.limits.max_acceleration_rpm_s), "I")
         self.write_stop_options()
 
     def write_stop_options(self) -> None:

@@ -25,7 +25,7 @@ import canopen
 
 from axes.config import SIMULATED_WIRE, AxisConfig, CellWiring, wire_options
 from axes.sim.clock import LOCKSTEP, Ticker, check_clock
-from axes.sim.drive import SimulatedDrive
+from axes.sim.drive import SimulatedDrive, eds_file
 from axes.sim.epos2 import Epos2Drive
 from axes.sim.ip_linear import IpLinearDrive
 from axes.sim.parker import ParkerDrive
@@ -72,6 +72,8 @@ def make_drive(
 ) -> SimulatedDrive:
     """The simulated drive for one configured axis (its profile's class, its scaling and limits)."""
     cls = DRIVE_CLASSES[axis.profile]
+    if eds_path is None and axis.simulation is not None and axis.simulation.eds is not None:
+        eds_path = eds_file(axis.simulation.eds)
     return cls(
         axis.node_id,
         network,
