@@ -12,8 +12,8 @@ from typing import Any
 from axes.commission import REQUIRABLE_OBJECTS
 from axes.config import AxisConfig, AxisSimulation, BufferConfig, BusConfig, homing_stop_room
 from axes.drive_profile import DriveProfile, ProfileError
-from axes.sim.drive import eds_file
 from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
+from axes.sim.drive import eds_file
 from planner.model import RobotModel
 from service.config.fields import ConfigError, Fields
 from service.config.homing_section import parse_homing
