@@ -6,13 +6,17 @@ and a drive set up wrong in its ``simulation:`` section is caught by ``commissio
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import uuid
 from pathlib import Path
 
 import pytest
 
+from axes.bus_faults import BusError
 from service.cli import main
 from service.config import CONFIG_DIR, ConfigError, load_cell_config
+from service.motion import MotionService
 
 GANTRY = CONFIG_DIR / "cells" / "gantry3.yaml"
 MAXON = "eds: vendor/maxon-epos2-70-10.eds"
@@ -98,3 +102,17 @@ def test_the_cell_file_fields_are_checked(tmp_path: Path) -> None:
     path.write_text(path.read_text().replace('["0x9999"]', '["0x2210:02"]').replace("maxon-epos2-70-10", "nope"))
     with pytest.raises(ConfigError, match=r"axes\[0\].simulation.eds: no EDS 'vendor/nope.eds'"):
         load_cell_config(path)
+
+
+def test_serve_refuses_a_maxon_epos2_set_up_wrong_with_nothing_left_running(tmp_path: Path) -> None:
+    """``pvtflow serve`` opens its cell with ``MotionService.open`` (service/serve_cmd.py): a drive
+    that is not what the cell says is one BusError naming it, and the bus and drives are closed."""
+    cell = load_cell_config(maxon_gantry(tmp_path, "velocity_notation_index: -1"))
+    cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, channel=f"maxon-{uuid.uuid4().hex[:8]}"))
+    service = MotionService(cell, journal_dir=tmp_path / "journal", lockstep=True)
+    with pytest.raises(BusError) as refused:
+        service.open()
+    message = str(refused.value)
+    assert message.startswith("cell gantry3: node 12: axis y is not the drive the cell expects: ")
+    assert "0x608B velocity notation index: expected 0 (10^index rpm = the cell's 1 rpm), found -1" in message
+    assert service.bus is None and service.sim is None
