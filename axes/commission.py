@@ -11,11 +11,13 @@ the drive holds, and whether they agree. Three kinds:
   (CiA 402's 0x608F :01 increments per :02 revolutions, or maxon's 0x2210:01 pulses x 4) against
   the cell's ``qc_per_motor_rev``, its polarity 0x607E = 0
   (the cell's direction is the sign of its scaling; a drive that inverts as well turns the axis the
-  wrong way) and, where it has maxon's 0x6410:04, the motor's maximal speed at or above the cell's
-  0x607F. ``AxisGroup.configure`` reads these first and refuses the cell on any mismatch, naming it,
+  wrong way), maxon's position sensor type 0x2210:02 (an incremental encoder) and polarity
+  0x2210:04 = 0, the velocity unit (maxon's 0x608B notation index and 0x608C dimension: 10^index rpm
+  = the cell's ``velocity_unit_rpm``) and maxon's 0x6410:04, the motor's maximal speed at or above
+  the cell's 0x607F. ``AxisGroup.configure`` reads these first and refuses the cell on any mismatch, naming it,
   before it writes anything: nothing moves.
 - ``SETTING``: what pvtflow writes at configuration from the axis (``expected_settings``: 0x607F,
-  0x60C5, 0x607D, 0x6065 where the drive has them). ``pvtflow commission`` shows them as the drive
+  0x60C5, 0x607D, 0x6065, 0x6085 where the drive has them). ``pvtflow commission`` shows them as the drive
   stores them (a vendor tool, an earlier setup) and counts a difference; configuration writes them
   where the drive has them and reads them back (``Profile.write_settings``).
 - ``INFO``: heartbeat 0x1017 / 0x1016:01, the PDOs pvtflow uses as the drive maps them, the error

@@ -48,7 +48,8 @@ class Setting:
 
 def expected_settings(config: AxisConfig) -> list[Setting]:
     """The drive's limit objects in its units from the axis: 0x607F (velocity units), 0x60C5 (rpm/s),
-    0x607D:01/:02 (qc), 0x6065 (qc: maxon's default, the cell has no setting of its own). One list:
+    0x607D:01/:02 (qc), 0x6065 (qc: maxon's default, the cell has no setting of its own), 0x6085
+    (rpm/s, the quick stop ramp = 0x60C5). One list:
     configuration writes it (``Profile.write_settings``), commissioning compares it (axes/commission.py)."""
     lim = config.limits
     unit = config.scaling.velocity_unit_rpm
@@ -166,7 +167,7 @@ class Profile:
         return self.start_controlword() & ~int(Controlword.ENABLE_IP_MODE)
 
     def write_settings(self) -> None:
-        """0x607F, 0x60C5, 0x607D and 0x6065 from the axis (``expected_settings``) on every drive that
+        """0x607F, 0x60C5, 0x607D, 0x6065 and 0x6085 from the axis (``expected_settings``) on every drive that
         has them, each read back: a drive that holds another value than the one written is refused
         (DriveError), so the limits the planner times against are the ones the drive enforces."""
         link = self.link
