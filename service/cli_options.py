@@ -11,8 +11,13 @@ import argparse
 
 
 def add_config(p: argparse.ArgumentParser) -> None:
-    """``--config FILE``: the cell to work on."""
-    p.add_argument("--config", metavar="FILE", help="cell configuration YAML (default: the arm6 demo cell)")
+    """``--config FILE``: the cell to work on, a file or a shipped cell's name (service.config.reader.cell_file)."""
+    p.add_argument(
+        "--config",
+        metavar="FILE",
+        help="cell configuration YAML, or a shipped cell's name (arm6, gantry3, ...: configs/cells) "
+        "(default: the arm6 demo cell)",
+    )
 
 
 def add_can_log(p: argparse.ArgumentParser) -> None:

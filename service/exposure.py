@@ -22,11 +22,13 @@ from dataclasses import dataclass
 
 import zenoh
 
+from pvtflow.configs import ZENOH_DIR
+from service.program_fit import shown_path
 from service.server import config_endpoints, config_mode
 
 LOCAL_PROTOCOLS = frozenset({"unixsock-stream", "unixpipe"})  # not reachable from another host
 DEFAULT_SCOUTING_ADDRESS = "224.0.0.224:7446"  # zenoh's multicast scouting group
-ACCESS_CONTROL_EXAMPLE = "configs/zenoh/access-control.json5"
+ACCESS_CONTROL_EXAMPLE = ZENOH_DIR / "access-control.json5"
 
 
 @dataclass(frozen=True)
@@ -58,8 +60,8 @@ class Exposure:
         ]
         return (
             f"{source} reaches beyond this host ({', '.join(self.reachable)}) without {' and '.join(missing)}: "
-            "anyone who reaches it could execute motions. Enable both as "
-            f"{ACCESS_CONTROL_EXAMPLE} does, keep the endpoints on loopback, or pass --allow-unauthenticated"
+            f"anyone who reaches it could execute motions. Enable both as {shown_path(ACCESS_CONTROL_EXAMPLE)} "
+            "does, keep the endpoints on loopback, or pass --allow-unauthenticated"
         )
 
 

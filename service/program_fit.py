@@ -11,7 +11,8 @@ from pathlib import Path
 import yaml
 
 from axes.program import PvtProgram, program_mismatch
-from service.config import CONFIG_DIR, CellConfig, ConfigError, load_cell_config
+from pvtflow.configs import CELLS_DIR
+from service.config import CellConfig, ConfigError, load_cell_config
 
 SHOWN_PROBLEMS = 3  # a program for another cell differs on every axis: the first few say enough
 
@@ -24,7 +25,7 @@ def shown_path(path: Path) -> str:
         return str(path.resolve())
 
 
-def fitting_cell_files(program: PvtProgram, cells_dir: Path = CONFIG_DIR / "cells") -> list[Path]:
+def fitting_cell_files(program: PvtProgram, cells_dir: Path = CELLS_DIR) -> list[Path]:
     """The shipped cell files named like the program's cell that it fits (node ids, profiles, scaling, limits)."""
     out = []
     for file in sorted(cells_dir.glob("*.yaml")):

@@ -27,6 +27,7 @@ from typing import Any
 
 import zenoh
 
+from pvtflow.configs import ZENOH_DIR as ZENOH_CONFIG_DIR
 from service.api import (
     LIVELINESS,
     PUBLICATIONS,
@@ -45,12 +46,10 @@ from service.api import (
     parse_stop,
     parse_validate,
 )
-from service.config import CONFIG_DIR
 from service.motion import MotionService, ServiceEventKind
 
 log = logging.getLogger("pvtflow.server")
 
-ZENOH_CONFIG_DIR = CONFIG_DIR / "zenoh"
 DEFAULT_SERVICE_CONFIG = ZENOH_CONFIG_DIR / "service.json5"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 JSON = zenoh.Encoding.APPLICATION_JSON

@@ -36,8 +36,8 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument(
         "--config",
         metavar="CELL",
-        help="also check that every program fits this cell file (node ids, profiles, scaling, drive limits): "
-        "exit 0 only when each is valid and fits it",
+        help="also check that every program fits this cell file, or shipped cell by name (node ids, profiles, "
+        "scaling, drive limits): exit 0 only when each is valid and fits it",
     )
     p.add_argument(
         "--plot",

@@ -56,8 +56,8 @@ from axes.sim.power_states import CW_ENABLE_IP, CW_HALT, CW_HOMING_START, SWITCH
 from axes.sim.records import FaultRecord, MasterLoss, SyncSample
 from axes.sim.sampling import Sampling
 from axes.sim.segment import Segment
+from pvtflow.configs import EDS_DIR
 
-EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
 # maxon's own published EPOS2 70/10 EDS, kept unchanged as a vendor data file (configs/eds/vendor/README.md)
 MAXON_EPOS2_EDS = EDS_DIR / "vendor" / "maxon-epos2-70-10.eds"
 

@@ -9,13 +9,11 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 from axes import objects as od
 from axes.drive_profile import DriveProfile
 from axes.sim import device
-
-EDS_DIR = Path(__file__).resolve().parent.parent.parent / "configs" / "eds"
+from pvtflow.configs import EDS_DIR
 
 # CiA 301 data types
 BOOLEAN, I8, I16, I32, U8, U16, U32, U64 = 0x1, 0x2, 0x3, 0x4, 0x5, 0x6, 0x7, 0x1B

@@ -41,7 +41,8 @@ START_TIMEOUT_S = 60.0  # a loaded host imports canopen and numpy slowly
 STOP_TIMEOUT_S = 5.0
 EXIT_OK, EXIT_SIMULATOR_ERROR, EXIT_CANNOT_START = 0, 1, 2
 DRIVES_NICE = -10  # the drives' process's share of the CPU (``raise_drives_share``)
-ROOT = Path(__file__).resolve().parents[2]
+# where this code's top-level package is imported from (a clone, or site-packages): the child imports the same code
+ROOT = Path(sys.modules[__name__.partition(".")[0]].__file__ or "").resolve().parent.parent
 
 
 class DrivesProcessError(RuntimeError):

@@ -6,8 +6,9 @@ cell.py, the reading reader.py (one module per section of the file: robot and pl
 homing), the field reader and the error fields.py.
 """
 
+from pvtflow.configs import CONFIG_DIR
 from service.config.bus_section import PYTHON_CAN_INTERFACES
-from service.config.cell import CONFIG_DIR, CellConfig, PlanningConfig
+from service.config.cell import CellConfig, PlanningConfig
 from service.config.fields import ConfigError
 from service.config.reader import load_cell_config, parse_cell_config
 from service.config.robot_section import shipped_robots

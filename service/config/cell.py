@@ -18,9 +18,6 @@ from planner.limits import JointLimits, joint_limits_from_drives
 from planner.model import RobotModel
 from planner.speed_band import DEFAULT_SPEED_BAND
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent.parent / "configs"
-DEFAULT_CELL = CONFIG_DIR / "cells" / "arm6.yaml"
-
 
 @dataclass(frozen=True)
 class PlanningConfig:

@@ -17,19 +17,22 @@ import yaml
 from axes.budget import bus_budget
 from axes.config import SIMULATION_INTERFACES, AxisConfig
 from planner.model import ModelError, RobotModel
+from pvtflow.configs import DEFAULT_CELL, shipped_cell, shipped_cells
 from service.config.axis_section import parse_axis
 from service.config.bus_section import parse_bus
-from service.config.cell import DEFAULT_CELL, CellConfig
+from service.config.cell import CellConfig
 from service.config.fields import ConfigError, Fields
 from service.config.homing_section import parse_homing_order
 from service.config.robot_section import parse_planning, robot_urdf
 
 
 def load_cell_config(path: str | Path | None = None) -> CellConfig:
-    """Read and check a cell YAML file (the demo arm cell when no path is given)."""
-    file = Path(path) if path is not None else DEFAULT_CELL
+    """Read and check a cell YAML file, or the shipped cell ``path`` names (``arm6``), or the demo arm cell
+    when no path is given."""
+    file = cell_file(path)
     if not file.is_file():
-        raise ConfigError(file, "", "file not found")
+        hint = f" (nor a shipped cell: {', '.join(shipped_cells())})" if file.parent == Path() else ""
+        raise ConfigError(file, "", f"file not found{hint}")
     try:
         data = yaml.safe_load(file.read_text(encoding="utf-8"))
     except UnicodeDecodeError as exc:
@@ -37,6 +40,16 @@ def load_cell_config(path: str | Path | None = None) -> CellConfig:
     except yaml.YAMLError as exc:
         raise _yaml_error(file, exc) from None
     return parse_cell_config(data, file)
+
+
+def cell_file(path: str | Path | None) -> Path:
+    """The file ``--config`` names: a file where there is one, else the shipped cell of that name (a bare name such
+    as ``arm6``, so that a regular install needs no path into its site-packages), the demo arm cell when none."""
+    if path is None:
+        return DEFAULT_CELL
+    file = Path(path)
+    shipped = shipped_cell(file.name) if file.parent == Path() and not file.exists() else None
+    return shipped if shipped is not None else file
 
 
 def _yaml_error(file: Path, exc: yaml.YAMLError) -> ConfigError:

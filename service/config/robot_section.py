@@ -10,10 +10,10 @@ from pathlib import Path
 from typing import Any
 
 from planner.model import RobotModel
-from service.config.cell import CONFIG_DIR, PlanningConfig
+from pvtflow.configs import ROBOTS_DIR
+from service.config.cell import PlanningConfig
 from service.config.fields import Fields
 
-ROBOTS_DIR = CONFIG_DIR / "robots"  # the shipped robots a cell file may name (robot.name)
 # planning.speed_band: a motion up to twice as long is the most a cell should trade for fewer records
 MAX_SPEED_BAND = 0.5
 
