@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from axes.drive_profile import PERIOD_RANGE_MS, DriveProfile
-from axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive_profile import PERIOD_RANGE_MS, DriveProfile
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
 
 
 @dataclass(frozen=True)

@@ -40,11 +40,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from axes.config import CellWiring
-from axes.frame_time import frame_bits, worst_frame_bits
-from axes.objects import EPOS2_TIME_STAMP_RPDO, SYNC_COB_ID, PdoLayout, PdoRole
-from axes.profiles import profile_class
-from axes.tpdo_rates import with_rates
+from pvtflow.axes.config import CellWiring
+from pvtflow.axes.frame_time import frame_bits, worst_frame_bits
+from pvtflow.axes.objects import EPOS2_TIME_STAMP_RPDO, SYNC_COB_ID, PdoLayout, PdoRole
+from pvtflow.axes.profiles import profile_class
+from pvtflow.axes.tpdo_rates import with_rates
 
 LOAD_LIMIT = 0.70
 RECORD_BITS = worst_frame_bits(8)  # an EPOS2 record: 8 data bytes, any content

@@ -20,14 +20,14 @@ import can
 import canopen
 from canopen.objectdictionary import ObjectDictionary
 
-from axes.bus_faults import BusError, BusFault, FaultCallback
-from axes.bus_watch import BusWatch
-from axes.config import BusConfig, wire_options
-from axes.heartbeat import MasterHeartbeat
-from axes.network import FrameRecorder, RecordingNetwork
-from axes.objects import TIME_STAMP_COB_ID
-from axes.quick_stop import QuickStop, quick_stop_all
-from axes.sync import DEFAULT_MAX_GAP_PERIODS, SyncClock
+from pvtflow.axes.bus_faults import BusError, BusFault, FaultCallback
+from pvtflow.axes.bus_watch import BusWatch
+from pvtflow.axes.config import BusConfig, wire_options
+from pvtflow.axes.heartbeat import MasterHeartbeat
+from pvtflow.axes.network import FrameRecorder, RecordingNetwork
+from pvtflow.axes.objects import TIME_STAMP_COB_ID
+from pvtflow.axes.quick_stop import QuickStop, quick_stop_all
+from pvtflow.axes.sync import DEFAULT_MAX_GAP_PERIODS, SyncClock
 
 # How long the master waits for one SDO answer. python-canopen's 0.3 s is tight for a simulated cell
 # on a loaded 2-core host (a drive's thread may not run for that long); a real drive answers within

@@ -20,11 +20,11 @@ from typing import TYPE_CHECKING
 import can
 from canopen.emcy import EmcyError
 
-from axes.bus_faults import BusFault, ErrorFrames, FaultKind
-from axes.objects import CAN_EMCY_WORDS, NMT_STATE_OPERATIONAL
+from pvtflow.axes.bus_faults import BusFault, ErrorFrames, FaultKind
+from pvtflow.axes.objects import CAN_EMCY_WORDS, NMT_STATE_OPERATIONAL
 
 if TYPE_CHECKING:
-    from axes.bus import CellBus
+    from pvtflow.axes.bus import CellBus
 
 NMT_STATE_BOOT_UP = 0  # the boot-up message: a heartbeat frame with state 0
 ERROR_FRAME_REPORT_S = 1.0  # error frames are reported at most this often (with the count since the last report)

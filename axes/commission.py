@@ -40,15 +40,15 @@ from typing import TYPE_CHECKING, Any
 
 from canopen.profiles.p402 import OperationMode
 
-from axes import objects as od
-from axes.link import DriveError
-from axes.profiles.base import expected_settings
-from axes.tpdo_rates import with_rates
+from pvtflow.axes import objects as od
+from pvtflow.axes.link import DriveError
+from pvtflow.axes.profiles.base import expected_settings
+from pvtflow.axes.tpdo_rates import with_rates
 
 if TYPE_CHECKING:
-    from axes.link import AxisLink
-    from axes.objects import PdoLayout
-    from axes.profiles.base import Profile
+    from pvtflow.axes.link import AxisLink
+    from pvtflow.axes.objects import PdoLayout
+    from pvtflow.axes.profiles.base import Profile
 
 ABSENT = "absent"
 # maxon's 0x2210:02 position sensor types the cell's qc scaling describes (EPOS2 firmware specification):

@@ -11,8 +11,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from axes.axis import DriveAxis
-from axes.scaling import AxisScaling
+from pvtflow.axes.axis import DriveAxis
+from pvtflow.axes.scaling import AxisScaling
 
 # python-can interfaces whose bus only simulated drives share: pvtflow's simulated wire (axes/sim/wire,
 # a 1 Mbit/s bus with its bit timing) and python-can's own in-process ``virtual`` (frames in no time)

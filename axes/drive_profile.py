@@ -14,9 +14,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-from axes import objects as od
-from axes.interpolation import Interpolation
-from axes.objects import DriveIdentity, PdoLayout
+from pvtflow.axes import objects as od
+from pvtflow.axes.interpolation import Interpolation
+from pvtflow.axes.objects import DriveIdentity, PdoLayout
 
 PERIOD_RANGE_MS = (1, 255)  # a record's time is a u8 of ms
 

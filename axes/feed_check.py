@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.config import BufferConfig
-from axes.feeder import PRELOAD_MS, BufferFeeder, RecordAllowance, top_up_by_need
+from pvtflow.axes.config import BufferConfig
+from pvtflow.axes.feeder import PRELOAD_MS, BufferFeeder, RecordAllowance, top_up_by_need
 
 LOOK_BACK_MS = 100.0  # the stretch of records before a shortfall the message averages
 

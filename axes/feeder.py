@@ -42,8 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.config import BufferConfig
-from axes.objects import EPOS2_BUFFER_SIZE, BufferStatus
+from pvtflow.axes.config import BufferConfig
+from pvtflow.axes.objects import EPOS2_BUFFER_SIZE, BufferStatus
 
 # plain ints: these are tested on every status frame
 _UNDERFLOW_WARNING = int(BufferStatus.UNDERFLOW_WARNING)

@@ -29,26 +29,26 @@ from concurrent.futures import ThreadPoolExecutor
 
 import can
 
-from axes.budget import bus_budget
-from axes.bus import CellBus
-from axes.bus_faults import BusFault, FaultKind
-from axes.cia402 import Statusword, decode_state
-from axes.config import AxisConfig, Wiring
-from axes.feeder import BufferFeeder, Feeder, RecordAllowance, top_up_by_need
-from axes.group_configure import GroupConfiguration
-from axes.group_halt import GroupHalt
-from axes.group_start import GroupStart
-from axes.group_status import GroupReports
-from axes.link import AxisLink
-from axes.objects import BUFFER_ERRORS
-from axes.outcome import Event, EventCallback, EventKind, ProgressCallback, Result, RunResult
-from axes.profiles import profile_for
-from axes.profiles.base import Profile
-from axes.program import AxisProgram, PvtProgram
-from axes.quick_stop import QuickStop
-from axes.readiness import Readiness
-from axes.run_state import CellRunState
-from axes.sync import below_sync
+from pvtflow.axes.budget import bus_budget
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.bus_faults import BusFault, FaultKind
+from pvtflow.axes.cia402 import Statusword, decode_state
+from pvtflow.axes.config import AxisConfig, Wiring
+from pvtflow.axes.feeder import BufferFeeder, Feeder, RecordAllowance, top_up_by_need
+from pvtflow.axes.group_configure import GroupConfiguration
+from pvtflow.axes.group_halt import GroupHalt
+from pvtflow.axes.group_start import GroupStart
+from pvtflow.axes.group_status import GroupReports
+from pvtflow.axes.link import AxisLink
+from pvtflow.axes.objects import BUFFER_ERRORS
+from pvtflow.axes.outcome import Event, EventCallback, EventKind, ProgressCallback, Result, RunResult
+from pvtflow.axes.profiles import profile_for
+from pvtflow.axes.profiles.base import Profile
+from pvtflow.axes.program import AxisProgram, PvtProgram
+from pvtflow.axes.quick_stop import QuickStop
+from pvtflow.axes.readiness import Readiness
+from pvtflow.axes.run_state import CellRunState
+from pvtflow.axes.sync import below_sync
 
 _IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
 _FAULT_BITS = int(Statusword.FAULT)  # set in FAULT and FAULT REACTION ACTIVE

@@ -8,12 +8,12 @@ faults and enables every axis again. The methods work on ``AxisGroup``'s state (
 
 from __future__ import annotations
 
-from axes.commission import refuse_on_facts
-from axes.feed_check import BufferedAxis, feed_shortfall
-from axes.link import DriveError
-from axes.objects import BUFFER_ERRORS, NmtCommand
-from axes.outcome import EventKind, GroupError, Result, RunResult
-from axes.program import PvtProgram, program_mismatch
+from pvtflow.axes.commission import refuse_on_facts
+from pvtflow.axes.feed_check import BufferedAxis, feed_shortfall
+from pvtflow.axes.link import DriveError
+from pvtflow.axes.objects import BUFFER_ERRORS, NmtCommand
+from pvtflow.axes.outcome import EventKind, GroupError, Result, RunResult
+from pvtflow.axes.program import PvtProgram, program_mismatch
 
 
 class GroupConfiguration:

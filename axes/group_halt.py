@@ -13,12 +13,12 @@ import time
 
 import can
 
-from axes.bus_faults import BusFault
-from axes.cia402 import PowerState, Statusword, decode_state
-from axes.feeder import SetpointFeeder
-from axes.link import AxisLink
-from axes.outcome import EventKind, Result
-from axes.quick_stop import QuickStop
+from pvtflow.axes.bus_faults import BusFault
+from pvtflow.axes.cia402 import PowerState, Statusword, decode_state
+from pvtflow.axes.feeder import SetpointFeeder
+from pvtflow.axes.link import AxisLink
+from pvtflow.axes.outcome import EventKind, Result
+from pvtflow.axes.quick_stop import QuickStop
 
 _TARGET_REACHED = int(Statusword.TARGET_REACHED)
 

@@ -13,13 +13,13 @@ from typing import TypeVar
 
 import can
 
-from axes import objects as od
-from axes.cia402 import PowerState, decode_state
-from axes.feeder import BufferFeeder, Feeder, preload_shared
-from axes.link import AxisLink, DriveError
-from axes.outcome import EventKind, GroupError, Result, RunResult
-from axes.program import AxisProgram, PvtProgram
-from axes.sync import below_sync
+from pvtflow.axes import objects as od
+from pvtflow.axes.cia402 import PowerState, decode_state
+from pvtflow.axes.feeder import BufferFeeder, Feeder, preload_shared
+from pvtflow.axes.link import AxisLink, DriveError
+from pvtflow.axes.outcome import EventKind, GroupError, Result, RunResult
+from pvtflow.axes.program import AxisProgram, PvtProgram
+from pvtflow.axes.sync import below_sync
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")

@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import contextlib
 
-from axes import objects as od
-from axes.cia402 import decode_state
-from axes.feeder import FeedStats
-from axes.link import AxisLink, DriveError
-from axes.objects import BufferStatus
-from axes.outcome import AxisReport, AxisStatus, GroupStatus, Progress, Result, RunResult
+from pvtflow.axes import objects as od
+from pvtflow.axes.cia402 import decode_state
+from pvtflow.axes.feeder import FeedStats
+from pvtflow.axes.link import AxisLink, DriveError
+from pvtflow.axes.objects import BufferStatus
+from pvtflow.axes.outcome import AxisReport, AxisStatus, GroupStatus, Progress, Result, RunResult
 
 
 class GroupReports:

@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING
 
 import can
 
-from axes import objects as od
+from pvtflow.axes import objects as od
 
 if TYPE_CHECKING:
-    from axes.bus import CellBus
+    from pvtflow.axes.bus import CellBus
 
 log = logging.getLogger("pvtflow.bus")
 

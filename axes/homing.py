@@ -32,15 +32,15 @@ from typing import TYPE_CHECKING
 
 import can
 
-from axes import objects as od
-from axes.bus_faults import BusFault, FaultKind
-from axes.cia402 import Controlword, PowerState, Statusword, decode_state
-from axes.config import AxisConfig
-from axes.link import AxisLink, DriveError
-from axes.outcome import Result
+from pvtflow.axes import objects as od
+from pvtflow.axes.bus_faults import BusFault, FaultKind
+from pvtflow.axes.cia402 import Controlword, PowerState, Statusword, decode_state
+from pvtflow.axes.config import AxisConfig
+from pvtflow.axes.link import AxisLink, DriveError
+from pvtflow.axes.outcome import Result
 
 if TYPE_CHECKING:
-    from axes.group import AxisGroup
+    from pvtflow.axes.group import AxisGroup
 
 _ATTAINED = int(Statusword.HOMING_ATTAINED)
 _HOMING_ERROR = int(Statusword.HOMING_ERROR)

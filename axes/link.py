@@ -16,20 +16,20 @@ from typing import TYPE_CHECKING
 import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from axes import objects as od
-from axes.cia402 import (
+from pvtflow.axes import objects as od
+from pvtflow.axes.cia402 import (
     CONTROLWORD_FAULT_RESET,
     PowerState,
     PowerStateMachine,
     decode_state,
 )
-from axes.config import AxisConfig
-from axes.objects import BufferStatus, PdoLayout
-from axes.subscriptions import subscribe, unsubscribe
-from axes.tpdo_rates import with_rates
+from pvtflow.axes.config import AxisConfig
+from pvtflow.axes.objects import BufferStatus, PdoLayout
+from pvtflow.axes.subscriptions import subscribe, unsubscribe
+from pvtflow.axes.tpdo_rates import with_rates
 
 if TYPE_CHECKING:
-    from axes.bus import CellBus
+    from pvtflow.axes.bus import CellBus
 
 PDO_INVALID = 0x8000_0000  # COB-ID bit 31: the PDO does not exist
 PDO_RTR_BIT = 0x4000_0000  # COB-ID bit 30: no RTR allowed on this PDO

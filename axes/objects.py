@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 from enum import IntEnum, IntFlag, StrEnum
 
-from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
+from pvtflow.axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 
 # --- CiA 301 / CiA 402 objects ----------------------------------------------------------------
 ERROR_HISTORY = 0x1003  # :00 number of errors, :n the n-th latest (error code, manufacturer bits above)

@@ -7,9 +7,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum, StrEnum
 
-from axes.bus_faults import FaultKind
-from axes.cia402 import PowerState
-from axes.feeder import FeedStats
+from pvtflow.axes.bus_faults import FaultKind
+from pvtflow.axes.cia402 import PowerState
+from pvtflow.axes.feeder import FeedStats
 
 
 class Result(Enum):

@@ -16,12 +16,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from axes import interpolation
-from axes.axis import DriveAxis
-from axes.config import AxisConfig
-from axes.drive_profile import DriveProfile
-from axes.interpolation import PiecewiseCubic
-from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
+from pvtflow.axes import interpolation
+from pvtflow.axes.axis import DriveAxis
+from pvtflow.axes.config import AxisConfig
+from pvtflow.axes.drive_profile import DriveProfile
+from pvtflow.axes.interpolation import PiecewiseCubic
+from pvtflow.axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 
 FORMAT = "pvtflow.pvt-program"
 VERSION = 1

@@ -39,15 +39,15 @@ from typing import TYPE_CHECKING
 
 import can
 
-from axes import collector
-from axes import objects as od
-from axes.cia402 import CONTROLWORD_QUICK_STOP
-from axes.network import TX_RETRY_PAUSE_S
-from axes.subscriptions import subscribe, unsubscribe
-from axes.sync import lift
+from pvtflow.axes import collector
+from pvtflow.axes import objects as od
+from pvtflow.axes.cia402 import CONTROLWORD_QUICK_STOP
+from pvtflow.axes.network import TX_RETRY_PAUSE_S
+from pvtflow.axes.subscriptions import subscribe, unsubscribe
+from pvtflow.axes.sync import lift
 
 if TYPE_CHECKING:
-    from axes.bus import CellBus
+    from pvtflow.axes.bus import CellBus
 
 SDO_REQUEST_BASE = 0x600
 SDO_RESPONSE_BASE = 0x580

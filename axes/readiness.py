@@ -19,9 +19,9 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import wait as wait_futures
 
-from axes.cia402 import PowerState, decode_state
-from axes.link import AxisLink, DriveError
-from axes.profiles.base import Profile
+from pvtflow.axes.cia402 import PowerState, decode_state
+from pvtflow.axes.link import AxisLink, DriveError
+from pvtflow.axes.profiles.base import Profile
 
 SETTLE_TIMEOUT_S = 3.0  # how long a drive is asked to empty its buffer after a run (the start enables it otherwise)
 

@@ -12,11 +12,11 @@ import threading
 from collections.abc import Sequence
 from typing import Protocol
 
-from axes.bus import CellBus
-from axes.bus_faults import BusFault, FaultKind
-from axes.link import AxisLink
-from axes.outcome import GroupError
-from axes.readiness import Readiness
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.bus_faults import BusFault, FaultKind
+from pvtflow.axes.link import AxisLink
+from pvtflow.axes.outcome import GroupError
+from pvtflow.axes.readiness import Readiness
 
 
 class Activity(Protocol):

@@ -24,8 +24,8 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.interpolation import Interpolation, PiecewiseCubic, hermite_coefficients
-from axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.interpolation import Interpolation, PiecewiseCubic, hermite_coefficients
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
 
 
 def stop_deceleration_rpm_s(limits: DriveLimits, quick: bool) -> float:

@@ -58,14 +58,14 @@ from typing import TYPE_CHECKING
 
 import can
 
-from axes import collector
-from axes.bus_faults import BusFault, FaultKind
-from axes.objects import SYNC_COB_ID
-from axes.subscriptions import subscribe, unsubscribe
-from axes.sync_follower import SyncFollower, native_cyclic_task
+from pvtflow.axes import collector
+from pvtflow.axes.bus_faults import BusFault, FaultKind
+from pvtflow.axes.objects import SYNC_COB_ID
+from pvtflow.axes.subscriptions import subscribe, unsubscribe
+from pvtflow.axes.sync_follower import SyncFollower, native_cyclic_task
 
 if TYPE_CHECKING:
-    from axes.bus import CellBus
+    from pvtflow.axes.bus import CellBus
 
 SyncCallback = Callable[[int], None]
 BACKUP_AFTER = 0.25  # the second SYNC thread sends what the first has not this far past a deadline (periods)

@@ -38,13 +38,13 @@ from typing import TYPE_CHECKING
 
 import can
 
-from axes.objects import SYNC_COB_ID
-from axes.subscriptions import subscribe, unsubscribe
+from pvtflow.axes.objects import SYNC_COB_ID
+from pvtflow.axes.subscriptions import subscribe, unsubscribe
 
 OFFSET_CREEP_S = 10e-6  # how fast the time stamps' offset may drift up, per SYNC heard (``_on_echo``)
 
 if TYPE_CHECKING:
-    from axes.sync import SyncClock
+    from pvtflow.axes.sync import SyncClock
 
 
 def native_cyclic_task(bus: can.BusABC, msg: can.Message, period_s: float) -> can.broadcastmanager.CyclicTask | None:

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from axes.config import BusConfig
-from axes.objects import ASYNCHRONOUS, PdoLayout, PdoRole
+from pvtflow.axes.config import BusConfig
+from pvtflow.axes.objects import ASYNCHRONOUS, PdoLayout, PdoRole
 
 MAX_EVERY_SYNCS = 240  # CiA 301: transmission types 1..240 are synchronous, every n-th SYNC
 

@@ -25,11 +25,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from planner.build import build_program
-from planner.knots import KnotOptions
-from planner.plan import PlanInput
-from service.cell_planner import CellPlanner
-from service.config import load_cell_config
+from pvtflow.planner.build import build_program
+from pvtflow.planner.knots import KnotOptions
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.config import load_cell_config
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -32,11 +32,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes.program import PvtProgram
-from planner.cartesian import LineTolerance, ToolLine, placement_pose
-from planner.plan import PlanInput
-from service.cell_planner import CellPlanner
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.axes.program import PvtProgram
+from pvtflow.planner.cartesian import LineTolerance, ToolLine, placement_pose
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 
 def reconstructed(program: PvtProgram, joint_names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:

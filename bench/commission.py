@@ -28,13 +28,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes.bus import CellBus
-from axes.commission import commission
-from axes.config import AxisSimulation
-from axes.group import AxisGroup
-from axes.link import DriveError
-from axes.sim.cell import SimulatedCell, sharing_the_interpreter
-from service.config import CONFIG_DIR, CellConfig, load_cell_config
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.commission import commission
+from pvtflow.axes.config import AxisSimulation
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.link import DriveError
+from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 KINDS: list[tuple[str, str, dict[str, object], dict[str, int], str]] = [
     # name, joint, profile change, simulation change, the object that must name it

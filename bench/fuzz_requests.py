@@ -32,14 +32,14 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from planner.plan import PlanInput
-from service.api import MAX_REQUEST_BYTES, MAX_WAYPOINTS
-from service.config import load_cell_config
-from service.demo_cmd import free_port
-from service.motion import MotionService
-from service.request_cmd import Client
-from service.runtime import freeze_startup_objects
-from service.server import Server, peer_config
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.api import MAX_REQUEST_BYTES, MAX_WAYPOINTS
+from pvtflow.service.config import load_cell_config
+from pvtflow.service.demo_cmd import free_port
+from pvtflow.service.motion import MotionService
+from pvtflow.service.request_cmd import Client
+from pvtflow.service.runtime import freeze_startup_objects
+from pvtflow.service.server import Server, peer_config
 
 Request = tuple[str, bytes]
 
@@ -337,7 +337,7 @@ def main(argv: list[str] | None = None) -> int:
     not_errors: list[tuple[str, str, bytes, Any]] = []
     no_reply = 0
     try:
-        from service.cell_planner import plan_cell_program
+        from pvtflow.service.cell_planner import plan_cell_program
 
         program = plan_cell_program(cell, PlanInput([[0.0] * 6, [0.2, -0.1, 0.2, -0.1, 0.2, -0.1]])).program
         other = plan_cell_program(gantry, PlanInput([[0.0, 0.0, 0.0], [0.1, 0.1, -0.05]])).program

@@ -30,15 +30,15 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes import objects as od
-from axes.bus import CellBus
-from axes.config import AxisSimulation, HomingConfig
-from axes.group import AxisGroup
-from axes.homing import CellHoming
-from axes.sim.cell import SimulatedCell, sharing_the_interpreter
-from service.api import ApiError, parse_execute, parse_home, parse_plan, parse_recover
-from service.config import CONFIG_DIR, CellConfig, load_cell_config
-from service.motion import MotionService
+from pvtflow.axes import objects as od
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.config import AxisSimulation, HomingConfig
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.homing import CellHoming
+from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
+from pvtflow.service.api import ApiError, parse_execute, parse_home, parse_plan, parse_recover
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
+from pvtflow.service.motion import MotionService
 
 M = od.HomingMethod
 INDEX = 4096

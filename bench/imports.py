@@ -65,9 +65,9 @@ def main() -> None:
         program = Path(tmp) / "p.json"
         program.write_text(json.dumps(PROGRAM))
         cases = {
-            "import axes.group": "import axes.group",
-            "import axes (group, bus, sim cell)": "import axes.group, axes.bus, axes.sim.cell",
-            "pvtflow validate PROGRAM": f"from service.cli import main; main(['validate', {str(program)!r}])",
+            "import axes.group": "import pvtflow.axes.group",
+            "import axes (group, bus, sim cell)": "import pvtflow.axes.group, pvtflow.axes.bus, pvtflow.axes.sim.cell",
+            "pvtflow validate PROGRAM": f"from pvtflow.service.cli import main; main(['validate', {str(program)!r}])",
         }
         print(f"python3 bench/imports.py --runs {args.runs}")
         print("| case | median s | loads |")

@@ -43,13 +43,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from pvt_quality import random_waypoints
 
-from axes.program import PvtProgram
-from planner.jerk import JerkTrajectory
-from planner.knots.window_jerk import window_jerk
-from planner.plan import PlanInput
-from planner.validate import validate_program
-from service.cell_planner import CellPlan, CellPlanner
-from service.config import CONFIG_DIR, CellConfig, load_cell_config
+from pvtflow.axes.program import PvtProgram
+from pvtflow.planner.jerk import JerkTrajectory
+from pvtflow.planner.knots.window_jerk import window_jerk
+from pvtflow.planner.plan import PlanInput
+from pvtflow.planner.validate import validate_program
+from pvtflow.service.cell_planner import CellPlan, CellPlanner
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 DENSE = 64  # samples per grid interval for the planned jerk / velocity / acceleration
 

@@ -30,9 +30,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from planner.limits import JointLimits
-from planner.plan import PlanInput, Planner
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.plan import PlanInput, Planner
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
 LIMITS = ARM.joint_limits()
@@ -99,7 +99,7 @@ def random_paths(count: int, seed: int) -> None:
 
 
 def check_cost(count: int) -> None:
-    import planner.jerk as jerk
+    import pvtflow.planner.jerk as jerk
 
     if not hasattr(jerk, "_torque_slowdown"):
         print("\n3. this tree has no torque check in the jerk-limited timing")

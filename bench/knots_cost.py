@@ -24,11 +24,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import planner.knots
-from planner.knots import check, epos2, fixed_period, place_knots, quantize, refine, samples
-from planner.plan import PlanInput
-from service.cell_planner import CellPlanner
-from service.config import CONFIG_DIR, load_cell_config
+import pvtflow.planner.knots
+from pvtflow.planner.knots import check, epos2, fixed_period, place_knots, quantize, refine, samples
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 RANGES = (0.2, 0.5, 0.8)
 STAGES = (
@@ -43,7 +43,7 @@ STAGES = (
     "fixed_period_axis",
 )
 # every module of the package that calls a step holds its own name for it
-MODULES = (planner.knots, check, epos2, fixed_period, quantize, refine, samples)
+MODULES = (pvtflow.planner.knots, check, epos2, fixed_period, quantize, refine, samples)
 
 
 def time_stages() -> dict[str, float]:

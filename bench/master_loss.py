@@ -33,9 +33,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from service.api import parse_execute, parse_plan
-from service.config import CellConfig, load_cell_config
-from service.motion import MotionService
+from pvtflow.service.api import parse_execute, parse_plan
+from pvtflow.service.config import CellConfig, load_cell_config
+from pvtflow.service.motion import MotionService
 
 # 4 ms: the planner refuses arm6 at 1 ms on a linear drive (one count of rounding is more than 0x60C5
 # allows), and the Parker interpolates between SYNCs from 2.5 ms on (the direct loop below stands at

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from planner.limits import JointLimits
-from planner.path import JointPath, PlanError
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.path import JointPath, PlanError
 
 
 def spline_path(waypoints: ArrayLike, limits: JointLimits) -> tuple[JointPath, bool]:

@@ -16,9 +16,9 @@ import statistics
 
 import numpy as np
 
-from planner.plan import PlanInput
-from service.cell_planner import CellPlanner
-from service.config import CONFIG_DIR, CellConfig, load_cell_config
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 SUBMODES = (0, -1, -2)
 

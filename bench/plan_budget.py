@@ -29,9 +29,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from pvt_quality import random_waypoints
 
-from planner.plan import PlanInput
-from service.cell_planner import TIMEOUT, CellPlanner
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.cell_planner import TIMEOUT, CellPlanner
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 
 def main() -> int:

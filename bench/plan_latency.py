@@ -37,10 +37,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # this tree's p
 
 from old_spline import arc_length, spline_path
 
-from planner.plan import PlanInput, Planner
-from planner.timing import parameterize
-from service.cell_planner import CellPlanner
-from service.config import load_cell_config
+from pvtflow.planner.plan import PlanInput, Planner
+from pvtflow.planner.timing import parameterize
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.config import load_cell_config
 
 
 def p50_p99(x: np.ndarray) -> str:

@@ -41,11 +41,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from old_spline import arc_length, spline_path
 
-from planner.plan import PlanInput
-from planner.timing import parameterize
-from planner.validate import validate_program
-from service.cell_planner import CellPlanner, plan_cell_program, planner_for_cell
-from service.config import CONFIG_DIR, CellConfig, load_cell_config
+from pvtflow.planner.plan import PlanInput
+from pvtflow.planner.timing import parameterize
+from pvtflow.planner.validate import validate_program
+from pvtflow.service.cell_planner import CellPlanner, plan_cell_program, planner_for_cell
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 
 # CAN 2.0A data frame: 47 bits of overhead + 8 per data byte, plus at most one stuff bit per 4 of

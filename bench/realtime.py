@@ -34,10 +34,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes.sim.fixed_period import FixedPeriodDrive
-from service.api import ApiError, parse_execute, parse_plan, parse_recover
-from service.config import CONFIG_DIR, CellConfig, load_cell_config
-from service.motion import MotionService
+from pvtflow.axes.sim.fixed_period import FixedPeriodDrive
+from pvtflow.service.api import ApiError, parse_execute, parse_plan, parse_recover
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
+from pvtflow.service.motion import MotionService
 
 PROFILES = "epos2_pvt,cia402_ip_linear,sync_setpoint,parker_slvdn:0,parker_slvdn:-1,parker_slvdn:-2"
 

@@ -37,12 +37,12 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from realtime import SyncArrivals, variant  # noqa: E402
 
-import service.motion.execution as execution_module  # noqa: E402
-from service.api import ApiError, parse_execute, parse_plan  # noqa: E402
-from service.config import CONFIG_DIR, CellConfig, load_cell_config  # noqa: E402
-from service.live import LiveServer  # noqa: E402
-from service.motion import MotionService  # noqa: E402
-from service.recording import Recorder  # noqa: E402
+import pvtflow.service.motion.execution as execution_module  # noqa: E402
+from pvtflow.service.api import ApiError, parse_execute, parse_plan  # noqa: E402
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config  # noqa: E402
+from pvtflow.service.live import LiveServer  # noqa: E402
+from pvtflow.service.motion import MotionService  # noqa: E402
+from pvtflow.service.recording import Recorder  # noqa: E402
 
 
 class TimedRecorder(Recorder):

@@ -26,7 +26,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from service.config import CONFIG_DIR, load_cell_config  # noqa: E402
+from pvtflow.service.config import CONFIG_DIR, load_cell_config  # noqa: E402
 
 CELLS = (("arm6", 40), ("gantry3", 15))
 JERK_CELLS = (("arm6", 10), ("gantry3", 5))
@@ -39,7 +39,7 @@ EXPECTED = {
 def digest_of(plan_cell_program, takes_input: bool, cells: tuple[tuple[str, int], ...], jerk: bool) -> tuple[str, int]:
     digest, programs = hashlib.sha256(), 0
     if takes_input:
-        from planner.plan import PlanInput
+        from pvtflow.planner.plan import PlanInput
     for name, count in cells:
         cell = load_cell_config(CONFIG_DIR / "cells" / f"{name}.yaml")
         lim = cell.joint_limits()
@@ -61,7 +61,11 @@ def digest_of(plan_cell_program, takes_input: bool, cells: tuple[tuple[str, int]
 
 
 def main() -> int:
-    home = "service.cell_planner" if (ROOT / "service" / "cell_planner.py").exists() else "service.plan_cmd"
+    home = (
+        "pvtflow.service.cell_planner"
+        if (ROOT / "service" / "cell_planner.py").exists()
+        else "pvtflow.service.plan_cmd"
+    )
     plan_cell_program = importlib.import_module(home).plan_cell_program
     # since the plan input became an object (planner.plan.PlanInput) it is passed as one
     takes_input = "inp" in inspect.signature(plan_cell_program).parameters

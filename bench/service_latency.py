@@ -49,12 +49,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import can
 import numpy as np
 
-from service.config import load_cell_config
-from service.demo_cmd import free_port, tour
-from service.motion import MotionService
-from service.request_cmd import Client
-from service.runtime import freeze_startup_objects
-from service.server import Server, peer_config
+from pvtflow.service.config import load_cell_config
+from pvtflow.service.demo_cmd import free_port, tour
+from pvtflow.service.motion import MotionService
+from pvtflow.service.request_cmd import Client
+from pvtflow.service.runtime import freeze_startup_objects
+from pvtflow.service.server import Server, peer_config
 
 IP_MODE_ACTIVE = 0x1000
 TARGETS = ([0.3, -0.2, 0.3, -0.2, 0.3, -0.2], [0.0] * 6)

@@ -20,11 +20,11 @@ import canopen
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes import objects as od
-from axes.objects import Record
-from axes.sim.cell import SimulatedCell
-from axes.sim.epos2 import Epos2Drive
-from service.config import load_cell_config
+from pvtflow.axes import objects as od
+from pvtflow.axes.objects import Record
+from pvtflow.axes.sim.cell import SimulatedCell
+from pvtflow.axes.sim.epos2 import Epos2Drive
+from pvtflow.service.config import load_cell_config
 
 
 def prepare(drive: Epos2Drive) -> None:

@@ -26,11 +26,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import service.cell_planner as cell_planner
-from planner.knots import KnotOptions
-from planner.plan import PlanInput
-from planner.speed_band import DEFAULT_SPEED_BAND
-from service.config import CONFIG_DIR, CellConfig, load_cell_config
+import pvtflow.service.cell_planner as cell_planner
+from pvtflow.planner.knots import KnotOptions
+from pvtflow.planner.plan import PlanInput
+from pvtflow.planner.speed_band import DEFAULT_SPEED_BAND
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 CELLS = (("arm6.yaml", 200), ("gantry3.yaml", 50))  # pvt_quality's drawing: its arm6 sets, then gantry3's
 

@@ -39,10 +39,10 @@ sys.path.insert(0, str(ROOT / "tests" / "axes"))
 
 from test_stall import at_period, serve, stall_this_process, toward_the_middle  # noqa: E402  (the test's harness)
 
-from axes.bus import CellBus  # noqa: E402
-from axes.group import AxisGroup  # noqa: E402
-from axes.outcome import Event  # noqa: E402
-from service.config import CONFIG_DIR  # noqa: E402
+from pvtflow.axes.bus import CellBus  # noqa: E402
+from pvtflow.axes.group import AxisGroup  # noqa: E402
+from pvtflow.axes.outcome import Event  # noqa: E402
+from pvtflow.service.config import CONFIG_DIR  # noqa: E402
 
 
 def one_run(

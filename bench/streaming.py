@@ -25,13 +25,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes.bus import CellBus
-from axes.config import AxisConfig
-from axes.group import AxisGroup
-from axes.outcome import Result
-from axes.program import AxisProgram, PvtProgram
-from axes.sim.cell import SimulatedCell, sharing_the_interpreter
-from service.config import CellConfig, load_cell_config
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.config import AxisConfig
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.outcome import Result
+from pvtflow.axes.program import AxisProgram, PvtProgram
+from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
+from pvtflow.service.config import CellConfig, load_cell_config
 
 
 # --- CAN frame length ---------------------------------------------------------------------------------
@@ -151,7 +151,7 @@ def streaming_run(args: argparse.Namespace) -> None:
     per_axis = -(-args.records // args.axes)
     prog = long_program(axes, per_axis, args.record_ms)
     if not args.no_validate:
-        from planner.validate import validate_program
+        from pvtflow.planner.validate import validate_program
 
         report = validate_program(prog)
         if not report.ok:

@@ -52,9 +52,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes.bus import CellBus
-from axes.config import BusConfig
-from axes.sync import ask_realtime, below_sync
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.config import BusConfig
+from pvtflow.axes.sync import ask_realtime, below_sync
 
 
 def busy(stop: multiprocessing.synchronize.Event) -> None:  # type: ignore[name-defined]

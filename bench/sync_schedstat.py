@@ -31,9 +31,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from sync_jitter import busy
 
-from axes.bus import CellBus
-from axes.config import BusConfig
-from axes.sync import below_sync
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.config import BusConfig
+from pvtflow.axes.sync import below_sync
 
 POLICIES = {os.SCHED_OTHER: "SCHED_OTHER", os.SCHED_FIFO: "SCHED_FIFO"}
 

@@ -32,16 +32,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes.bus import CellBus
-from axes.frame_time import frame_bits
-from axes.group import AxisGroup
-from axes.homing import CellHoming
-from axes.objects import EPOS2_RPDOS, SYNC_COB_ID
-from axes.sim.cell import SimulatedCell, sharing_the_interpreter
-from planner.plan import PlanInput
-from service.cell_planner import CellPlanner
-from service.config import CONFIG_DIR, CellConfig, load_cell_config
-from service.demo_cmd import tour
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.frame_time import frame_bits
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.homing import CellHoming
+from pvtflow.axes.objects import EPOS2_RPDOS, SYNC_COB_ID
+from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
+from pvtflow.service.demo_cmd import tour
 
 WINDOW = 10
 
@@ -193,7 +193,7 @@ def measure(cell: CellConfig, tour_points: int) -> dict[str, object]:
 
 def budget_line(cell: CellConfig) -> str:
     try:
-        from axes.budget import bus_budget
+        from pvtflow.axes.budget import bus_budget
     except ImportError:
         return "budget: (axes.budget not there)"
     b = bus_budget(cell)

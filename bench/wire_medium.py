@@ -29,8 +29,8 @@ import can
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from axes.frame_time import frame_bits  # noqa: E402
-from axes.sim.wire import SimWireBus  # noqa: E402
+from pvtflow.axes.frame_time import frame_bits  # noqa: E402
+from pvtflow.axes.sim.wire import SimWireBus  # noqa: E402
 
 BITRATE = 1_000_000
 
@@ -90,7 +90,7 @@ def run(channel: str, count: int, receivers: int, clock: str) -> dict[str, float
 SERVER = """
 import sys, threading
 sys.path.insert(0, {root!r})
-from axes.sim.wire import SimWireBus, serve_wire
+from pvtflow.axes.sim.wire import SimWireBus, serve_wire
 sys.path.insert(0, {bench!r})
 from wire_medium import drain_all
 server = serve_wire("bench", 0, clock={clock!r}, bitrate={bitrate}, sync_period=0.001)

@@ -29,13 +29,13 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from wire_medium import drain_all, frames  # noqa: E402
 
-from axes.sim.wire import SimWireBus  # noqa: E402
+from pvtflow.axes.sim.wire import SimWireBus  # noqa: E402
 
 SERVER = """
 import sys
 sys.path.insert(0, {root!r})
 sys.path.insert(0, {bench!r})
-from axes.sim.wire import SimWireBus, serve_wire
+from pvtflow.axes.sim.wire import SimWireBus, serve_wire
 from wire_medium import drain_all
 server = serve_wire("bench", 0, clock={clock!r}, bitrate={bitrate}, sync_period=0.001)
 buses = [SimWireBus("bench") for _ in range({local})]

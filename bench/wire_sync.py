@@ -36,11 +36,11 @@ sys.path.insert(0, str(ROOT / "tests" / "axes"))
 from axes_programs import axis_program, safe_distance  # noqa: E402
 from test_stall import at_period  # noqa: E402  (the stall test's copy of a cell at another period)
 
-from axes.bus import CellBus  # noqa: E402
-from axes.group import AxisGroup  # noqa: E402
-from axes.program import PvtProgram  # noqa: E402
-from axes.sim.process import DrivesProcess, LocalDrives  # noqa: E402
-from service.config import CONFIG_DIR, CellConfig, load_cell_config  # noqa: E402
+from pvtflow.axes.bus import CellBus  # noqa: E402
+from pvtflow.axes.group import AxisGroup  # noqa: E402
+from pvtflow.axes.program import PvtProgram  # noqa: E402
+from pvtflow.axes.sim.process import DrivesProcess, LocalDrives  # noqa: E402
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config  # noqa: E402
 
 
 def toward_middle(cell: CellConfig, here: list[int | None], duration_ms: int) -> PvtProgram:

@@ -6,24 +6,24 @@ axes.program); ``validate_program`` checks any program against its drives' rules
 
 from __future__ import annotations
 
-from axes.front_door import lazy_exports
-from planner.kernel_cache import install as _install_kernel_cache
+from pvtflow.axes.front_door import lazy_exports
+from pvtflow.planner.kernel_cache import install as _install_kernel_cache
 
 _install_kernel_cache()  # before any planner module compiles a kernel
 
 # public name -> the module that defines it (loaded on first use: ``import planner.validate`` loads no robot model)
 _HOMES: dict[str, str] = {
-    "PlanInput": "planner.plan",
-    "PlanOutput": "planner.plan",
-    "Planner": "planner.plan",
-    "PlanError": "planner.path",
-    "PlanResult": "planner.path",
-    "BuildError": "planner.build",
-    "build_program": "planner.build",
-    "ValidationReport": "planner.validate",
-    "validate_program": "planner.validate",
-    "RobotModel": "planner.model",
-    "JointLimits": "planner.limits",
+    "PlanInput": "pvtflow.planner.plan",
+    "PlanOutput": "pvtflow.planner.plan",
+    "Planner": "pvtflow.planner.plan",
+    "PlanError": "pvtflow.planner.path",
+    "PlanResult": "pvtflow.planner.path",
+    "BuildError": "pvtflow.planner.build",
+    "build_program": "pvtflow.planner.build",
+    "ValidationReport": "pvtflow.planner.validate",
+    "validate_program": "pvtflow.planner.validate",
+    "RobotModel": "pvtflow.planner.model",
+    "JointLimits": "pvtflow.planner.limits",
 }
 __all__ = [
     "BuildError",

@@ -11,9 +11,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from axes.program import AxisProgram, PvtProgram
-from planner.knots import DriveAxis, KnotError, KnotOptions, KnotResult, TimedTrajectory, place_knots
-from planner.validate import ValidationReport, validate_program
+from pvtflow.axes.program import AxisProgram, PvtProgram
+from pvtflow.planner.knots import DriveAxis, KnotError, KnotOptions, KnotResult, TimedTrajectory, place_knots
+from pvtflow.planner.validate import ValidationReport, validate_program
 
 
 class BuildError(ValueError):

@@ -29,9 +29,9 @@ import pinocchio as pin
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
-from planner.ik import IkSolution, IkSolver, IkStatus, joint_rates
-from planner.limits import JointLimits
-from planner.path import JointPath, PlanError, PlanResult
+from pvtflow.planner.ik import IkSolution, IkSolver, IkStatus, joint_rates
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.path import JointPath, PlanError, PlanResult
 
 POSE_LENGTH = 7  # x, y, z, qx, qy, qz, qw
 # A quaternion whose norm is this close to 1 is normalized; further off, it is refused (a typo, or

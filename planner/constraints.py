@@ -10,10 +10,10 @@ import toppra.constraint as constraint
 from numba import njit
 from numpy.typing import NDArray
 
-from planner.limits import JointLimits
-from planner.model import RobotModel
-from planner.path import JointPath, spline_at, spline_piece
-from planner.trajectory import Trajectory, along_interval
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.model import RobotModel
+from pvtflow.planner.path import JointPath, spline_at, spline_piece
+from pvtflow.planner.trajectory import Trajectory, along_interval
 
 _X_MAX = 1e8  # bound on s'^2 where nothing binds (the solver wants finite numbers)
 

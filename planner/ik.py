@@ -19,7 +19,7 @@ import pinocchio as pin
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
-from planner.model import RobotModel
+from pvtflow.planner.model import RobotModel
 
 
 class IkStatus(Enum):

@@ -16,7 +16,7 @@ from toppra.constants import MAX_TRIES, SMALL, TINY
 from toppra.parametrizer import ParametrizeSpline
 from toppra.solverwrapper.cy_seidel_solverwrapper import seidelWrapper
 
-from planner.path import JointPath
+from pvtflow.planner.path import JointPath
 
 
 class _Computed(constraint.LinearConstraint):

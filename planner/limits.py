@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.scaling import AxisScaling, DriveLimits
-from planner.model import RobotModel
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.planner.model import RobotModel
 
 
 @dataclass(frozen=True)

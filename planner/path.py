@@ -21,8 +21,8 @@ from scipy.interpolate import CubicSpline
 from scipy.linalg.lapack import dgtsv
 from toppra.interpolator import AbstractGeometricPath
 
-from axes.interpolation import cubic_position_range, hermite_coefficients
-from planner.limits import JointLimits
+from pvtflow.axes.interpolation import cubic_position_range, hermite_coefficients
+from pvtflow.planner.limits import JointLimits
 
 # Two waypoints closer than this (joint units, Euclidean) are the same point.
 MIN_WAYPOINT_DISTANCE = 1e-6

@@ -14,16 +14,16 @@ import numpy as np
 import toppra.constraint as constraint
 from numpy.typing import ArrayLike, NDArray
 
-from planner.cartesian import CartesianResult, MoveKind, PoseSolver, ToolPath
-from planner.ik import IkSolver
-from planner.limits import JointLimits, check_max_jerk, check_scale
-from planner.model import RobotModel
-from planner.path import JointPath, PlanError, PlanResult
-from planner.speed_band import DEFAULT_SPEED_BAND
-from planner.timing import DEFAULT_GRIDPOINTS, Trajectory, parameterize, timing_constraints
+from pvtflow.planner.cartesian import CartesianResult, MoveKind, PoseSolver, ToolPath
+from pvtflow.planner.ik import IkSolver
+from pvtflow.planner.limits import JointLimits, check_max_jerk, check_scale
+from pvtflow.planner.model import RobotModel
+from pvtflow.planner.path import JointPath, PlanError, PlanResult
+from pvtflow.planner.speed_band import DEFAULT_SPEED_BAND
+from pvtflow.planner.timing import DEFAULT_GRIDPOINTS, Trajectory, parameterize, timing_constraints
 
 if TYPE_CHECKING:  # planner.jerk loads casadi: only a plan with a jerk limit does
-    from planner.jerk import JerkTrajectory
+    from pvtflow.planner.jerk import JerkTrajectory
 
 # What a plan can end with: the joint-space outcomes, and the refusals of tool poses.
 PlanOutcome = PlanResult | CartesianResult
@@ -172,7 +172,7 @@ class Planner:
         if max_jerk is None:
             return parameterize(path, limits, constraints, self.gridpoints, self.speed_band), {}
         trajectory = parameterize(path, limits, constraints, self.gridpoints)
-        from planner.jerk import jerk_limited  # casadi: loaded by the first plan that needs it
+        from pvtflow.planner.jerk import jerk_limited  # casadi: loaded by the first plan that needs it
 
         t1 = time.perf_counter()
         try:

@@ -24,8 +24,8 @@ import itertools
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.limits import JointLimits
-from planner.path import JointPath
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.path import JointPath
 
 _SAMPLES = 64  # per waypoint segment, for the path's derivative maxima
 _SHARE_A = 0.5  # of a joint's acceleration limit: the centripetal term q_ss V^2, the rest q_s A

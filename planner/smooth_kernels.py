@@ -11,7 +11,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from axes.interpolation import (
+from pvtflow.axes.interpolation import (
     LIMIT_RTOL,
     cubic_peak_acceleration,
     cubic_peak_speed,

@@ -39,8 +39,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from planner.limits import JointLimits
-from planner.trajectory import Trajectory
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.trajectory import Trajectory
 
 # the path speed may drop this fraction below TOPP-RA's (bench/RESULTS.md, "Issue 25 item 4": the
 # records and the motion time of 0.01 .. 0.1)

@@ -40,7 +40,7 @@ import toppra.constraint as constraint
 from numba import njit
 from numpy.typing import NDArray
 
-from planner.constraints import (
+from pvtflow.planner.constraints import (
     IntervalJointAccelerationConstraint,
     IntervalJointVelocityConstraint,
     RneaJointTorqueConstraint,
@@ -50,12 +50,12 @@ from planner.constraints import (
     middles_warm_up,
     timing_constraints,
 )
-from planner.lean_toppra import LeanTOPPRA
-from planner.limits import JointLimits
-from planner.path import JointPath, PlanError, PlanResult, not_a_knot
-from planner.slowdown import SLOWDOWN_MARGIN, slowdown
-from planner.speed_band import flattened
-from planner.trajectory import Trajectory
+from pvtflow.planner.lean_toppra import LeanTOPPRA
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.path import JointPath, PlanError, PlanResult, not_a_knot
+from pvtflow.planner.slowdown import SLOWDOWN_MARGIN, slowdown
+from pvtflow.planner.speed_band import flattened
+from pvtflow.planner.trajectory import Trajectory
 
 DEFAULT_GRIDPOINTS = 140
 

@@ -11,8 +11,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
-from planner.limits import JointLimits
-from planner.path import JointPath, PlanError, PlanResult, interval, spline_at, spline_piece
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.path import JointPath, PlanError, PlanResult, interval, spline_at, spline_piece
 
 # sub-samples per grid interval for the post-check
 _CHECK_SUBSAMPLES = 8

@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-from axes.front_door import lazy_exports
+from pvtflow.axes.front_door import lazy_exports
 
 # public name -> the module that defines it (loaded on first use: a command loads only what it runs on)
 _HOMES: dict[str, str] = {
-    "CellConfig": "service.config",
-    "ConfigError": "service.config",
-    "load_cell_config": "service.config",
-    "MotionService": "service.motion",
-    "main": "service.cli",
+    "CellConfig": "pvtflow.service.config",
+    "ConfigError": "pvtflow.service.config",
+    "load_cell_config": "pvtflow.service.config",
+    "MotionService": "pvtflow.service.motion",
+    "main": "pvtflow.service.cli",
 }
 __all__ = ["CellConfig", "ConfigError", "MotionService", "load_cell_config", "main"]
 

@@ -15,13 +15,13 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.config import AxisConfig
-from axes.program import PvtProgram
-from planner.plan import PlanInput
-from service.api import ApiError, ErrorCode, check_limits, refusals
-from service.cell_planner import CellPlanner
-from service.config import CellConfig
-from service.planning import PlanningProcess
+from pvtflow.axes.config import AxisConfig
+from pvtflow.axes.program import PvtProgram
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.api import ApiError, ErrorCode, check_limits, refusals
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.config import CellConfig
+from pvtflow.service.planning import PlanningProcess
 
 
 def program_start(program: PvtProgram, axes: Sequence[AxisConfig]) -> NDArray[np.float64]:

@@ -18,10 +18,10 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from axes.bus import CellBus
-from axes.bus_faults import BusError
-from service.cli_options import add_can_log, add_config, add_real_time
-from service.config import CellConfig
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.bus_faults import BusError
+from pvtflow.service.cli_options import add_can_log, add_config, add_real_time
+from pvtflow.service.config import CellConfig
 
 
 class CellBusError(Exception):
@@ -56,7 +56,7 @@ def open_bus(
     if simulate:
         try:
             if drives_process:
-                from axes.sim.process import DrivesProcessError, start_simulated_drives
+                from pvtflow.axes.sim.process import DrivesProcessError, start_simulated_drives
 
                 try:
                     sim = start_simulated_drives(cell, clock)
@@ -64,7 +64,7 @@ def open_bus(
                     raise CellBusError(str(exc)) from None
                 bus_config = sim.bus
             else:
-                from axes.sim.cell import SimulatedCell, sharing_the_interpreter
+                from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
 
                 cell = sharing_the_interpreter(cell)
                 bus_config = cell.bus

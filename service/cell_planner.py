@@ -15,14 +15,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.program import PvtProgram
-from planner import timing
-from planner.build import BuildError, BuildOutput, build_program
-from planner.cartesian import placement_pose
-from planner.knots import KnotOptions, jerk_smooth, quantize
-from planner.path import PlanResult
-from planner.plan import PlanInput, Planner, PlanOutput
-from service.config import CellConfig
+from pvtflow.axes.program import PvtProgram
+from pvtflow.planner import timing
+from pvtflow.planner.build import BuildError, BuildOutput, build_program
+from pvtflow.planner.cartesian import placement_pose
+from pvtflow.planner.knots import KnotOptions, jerk_smooth, quantize
+from pvtflow.planner.path import PlanResult
+from pvtflow.planner.plan import PlanInput, Planner, PlanOutput
+from pvtflow.service.config import CellConfig
 
 
 @dataclass(frozen=True)

@@ -22,16 +22,16 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 # sub-command name -> module implementing it
 COMMANDS: dict[str, str] = {
-    "plan": "service.plan_cmd",
-    "validate": "service.validate_cmd",
-    "execute": "service.execute_cmd",
-    "home": "service.home_cmd",
-    "demo": "service.demo_cmd",
-    "serve": "service.serve_cmd",
-    "request": "service.request_cmd",
-    "sim": "service.sim_cmd",
-    "report": "service.report_cmd",
-    "commission": "service.commission_cmd",
+    "plan": "pvtflow.service.plan_cmd",
+    "validate": "pvtflow.service.validate_cmd",
+    "execute": "pvtflow.service.execute_cmd",
+    "home": "pvtflow.service.home_cmd",
+    "demo": "pvtflow.service.demo_cmd",
+    "serve": "pvtflow.service.serve_cmd",
+    "request": "pvtflow.service.request_cmd",
+    "sim": "pvtflow.service.sim_cmd",
+    "report": "pvtflow.service.report_cmd",
+    "commission": "pvtflow.service.commission_cmd",
 }
 
 

@@ -18,13 +18,13 @@ import json
 import sys
 from typing import Any
 
-from axes.commission import Check, CheckKind, CommissionReport, Status, commission
-from axes.link import AxisLink, DriveError
-from axes.profiles import profile_for
-from service.cell_bus import CellBusError, open_cell_bus
-from service.cli import can_log_problem
-from service.cli_options import add_can_log, add_config, add_json, add_real_time
-from service.config import CellConfig, ConfigError, load_cell_config
+from pvtflow.axes.commission import Check, CheckKind, CommissionReport, Status, commission
+from pvtflow.axes.link import AxisLink, DriveError
+from pvtflow.axes.profiles import profile_for
+from pvtflow.service.cell_bus import CellBusError, open_cell_bus
+from pvtflow.service.cli import can_log_problem
+from pvtflow.service.cli_options import add_can_log, add_config, add_json, add_real_time
+from pvtflow.service.config import CellConfig, ConfigError, load_cell_config
 
 EXIT_OK, EXIT_MISMATCH, EXIT_CANNOT_START = 0, 1, 2
 PROG = "pvtflow commission"

@@ -26,16 +26,16 @@ from typing import Any, TextIO
 import numpy as np
 import pinocchio as pin
 
-from axes.bus_faults import BusError
-from planner.cartesian import placement_pose
-from service.api import key
-from service.cli_options import add_config, add_real_time
-from service.config import CellConfig, ConfigError, load_cell_config
-from service.journal import JournalError
-from service.motion import MotionService
-from service.request_cmd import Client
-from service.runtime import freeze_startup_objects
-from service.server import Server, peer_config, zenoh_message
+from pvtflow.axes.bus_faults import BusError
+from pvtflow.planner.cartesian import placement_pose
+from pvtflow.service.api import key
+from pvtflow.service.cli_options import add_config, add_real_time
+from pvtflow.service.config import CellConfig, ConfigError, load_cell_config
+from pvtflow.service.journal import JournalError
+from pvtflow.service.motion import MotionService
+from pvtflow.service.request_cmd import Client
+from pvtflow.service.runtime import freeze_startup_objects
+from pvtflow.service.server import Server, peer_config, zenoh_message
 
 EXIT_OK, EXIT_FAILED, EXIT_CANNOT_START = 0, 1, 2
 PROG = "pvtflow demo"

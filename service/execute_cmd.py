@@ -19,17 +19,17 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from axes.group import AxisGroup
-from axes.outcome import Event, EventKind, Progress, Result, RunResult
-from axes.program import PvtProgram, program_mismatch
-from service.api import refusals
-from service.cell_bus import CellBusError, add_bus_options, open_cell_bus, record_problem
-from service.cli import can_log_problem
-from service.config import CellConfig, ConfigError, load_cell_config
-from service.home_cmd import describe_homing, home_cell
-from service.program_fit import mismatch_lines
-from service.recording import Recorder
-from service.validate_cmd import ProgramFileError, read_program
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.outcome import Event, EventKind, Progress, Result, RunResult
+from pvtflow.axes.program import PvtProgram, program_mismatch
+from pvtflow.service.api import refusals
+from pvtflow.service.cell_bus import CellBusError, add_bus_options, open_cell_bus, record_problem
+from pvtflow.service.cli import can_log_problem
+from pvtflow.service.config import CellConfig, ConfigError, load_cell_config
+from pvtflow.service.home_cmd import describe_homing, home_cell
+from pvtflow.service.program_fit import mismatch_lines
+from pvtflow.service.recording import Recorder
+from pvtflow.service.validate_cmd import ProgramFileError, read_program
 
 EXIT_OK, EXIT_FAILED, EXIT_UNREADABLE = 0, 1, 2
 PROG = "pvtflow execute"
@@ -97,9 +97,9 @@ def describe(result: RunResult) -> str:
 def approach(cell: CellConfig, group: AxisGroup, program: PvtProgram, quiet: bool) -> int | None:
     """--approach: the joint move from where the axes stand to the program's start, run to its end
     (service/approach.py); None when the program may start (moved there, or already there), else the exit."""
-    from service.api import ApiError
-    from service.approach import away_from_start, plan_approach
-    from service.cell_planner import CellPlanner
+    from pvtflow.service.api import ApiError
+    from pvtflow.service.approach import away_from_start, plan_approach
+    from pvtflow.service.cell_planner import CellPlanner
 
     by_joint = {s.joint: s.position for s in group.status(refresh=True).axes}
     positions = [by_joint[a.joint] for a in cell.ordered_axes()]
@@ -133,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         return _fail(str(exc), EXIT_UNREADABLE)
 
-    from planner.validate import validate_program
+    from pvtflow.planner.validate import validate_program
 
     report = validate_program(program, source=str(path))
     if not report.ok:

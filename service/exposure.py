@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import zenoh
 
 from pvtflow.configs import ZENOH_DIR
-from service.program_fit import shown_path
-from service.server import config_endpoints, config_mode
+from pvtflow.service.program_fit import shown_path
+from pvtflow.service.server import config_endpoints, config_mode
 
 LOCAL_PROTOCOLS = frozenset({"unixsock-stream", "unixpipe"})  # not reachable from another host
 DEFAULT_SCOUTING_ADDRESS = "224.0.0.224:7446"  # zenoh's multicast scouting group

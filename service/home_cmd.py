@@ -19,12 +19,12 @@ import argparse
 import sys
 from typing import Any
 
-from axes.group import AxisGroup
-from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
-from service.cell_bus import CellBusError, add_bus_options, open_cell_bus, record_problem
-from service.cli import can_log_problem
-from service.config import CellConfig, ConfigError, load_cell_config
-from service.recording import Recorder
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
+from pvtflow.service.cell_bus import CellBusError, add_bus_options, open_cell_bus, record_problem
+from pvtflow.service.cli import can_log_problem
+from pvtflow.service.config import CellConfig, ConfigError, load_cell_config
+from pvtflow.service.recording import Recorder
 
 EXIT_OK, EXIT_FAILED, EXIT_UNREADABLE = 0, 1, 2
 PROG = "pvtflow home"

@@ -23,7 +23,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from service.api.wire import RunState
+from pvtflow.service.api.wire import RunState
 
 JOURNAL_FILE = "journal.jsonl"
 

@@ -24,9 +24,9 @@ from typing import TYPE_CHECKING
 import can
 import numpy as np
 
-from axes.cia402 import decode_state
-from service.link_transforms import LinkTransforms
-from service.recording.channels import (
+from pvtflow.axes.cia402 import decode_state
+from pvtflow.service.link_transforms import LinkTransforms
+from pvtflow.service.recording.channels import (
     ACTUAL_SCHEMA,
     FRAME_TRANSFORMS_SCHEMA,
     JOINT_STATE_SCHEMA,
@@ -37,10 +37,10 @@ from service.recording.channels import (
 )
 
 if TYPE_CHECKING:
-    from axes.bus import CellBus
-    from axes.group import AxisGroup
-    from service.config import CellConfig
-    from service.live import LiveServer
+    from pvtflow.axes.bus import CellBus
+    from pvtflow.axes.group import AxisGroup
+    from pvtflow.service.config import CellConfig
+    from pvtflow.service.live import LiveServer
 
 log = logging.getLogger("pvtflow.live")
 

@@ -20,13 +20,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.limits import check_max_jerk, check_scale
-from planner.plan import PlanInput
-from service.api import ApiError, ErrorCode, check_limits, refusals
-from service.cell_planner import TIMEOUT, CellPlan, CellPlanner
-from service.cli_options import add_config, add_json
-from service.config import CellConfig, ConfigError, load_cell_config
-from service.waypoints import PoseTargets, WaypointError, dropped_times_warning, load_motion
+from pvtflow.planner.limits import check_max_jerk, check_scale
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.api import ApiError, ErrorCode, check_limits, refusals
+from pvtflow.service.cell_planner import TIMEOUT, CellPlan, CellPlanner
+from pvtflow.service.cli_options import add_config, add_json
+from pvtflow.service.config import CellConfig, ConfigError, load_cell_config
+from pvtflow.service.waypoints import PoseTargets, WaypointError, dropped_times_warning, load_motion
 
 EXIT_OK, EXIT_NOT_PLANNED, EXIT_BAD_INPUT = 0, 1, 2
 # A plan still running after this long is compiling numba's kernels (a new machine, or a kernel source

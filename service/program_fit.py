@@ -10,9 +10,9 @@ from pathlib import Path
 
 import yaml
 
-from axes.program import PvtProgram, program_mismatch
+from pvtflow.axes.program import PvtProgram, program_mismatch
 from pvtflow.configs import CELLS_DIR
-from service.config import CellConfig, ConfigError, load_cell_config
+from pvtflow.service.config import CellConfig, ConfigError, load_cell_config
 
 SHOWN_PROBLEMS = 3  # a program for another cell differs on every axis: the first few say enough
 

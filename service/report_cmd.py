@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from service.cli_options import add_json
-from service.recording import Recording, RecordingError, read_recording
-from service.recording.channels import ERROR
+from pvtflow.service.cli_options import add_json
+from pvtflow.service.recording import Recording, RecordingError, read_recording
+from pvtflow.service.recording.channels import ERROR
 
 PROG = "pvtflow report"
 EXIT_OK, EXIT_UNREADABLE = 0, 2

@@ -20,9 +20,9 @@ from typing import Any
 
 import zenoh
 
-from planner.limits import check_scale
-from service.api import QUERYABLES, key
-from service.server import (
+from pvtflow.planner.limits import check_scale
+from pvtflow.service.api import QUERYABLES, key
+from pvtflow.service.server import (
     DEFAULT_ENDPOINT,
     ZenohConfigError,
     client_config,
@@ -30,8 +30,8 @@ from service.server import (
     load_zenoh_config,
     zenoh_message,
 )
-from service.validate_cmd import ProgramFileError, read_program
-from service.waypoints import PoseTargets, WaypointError, dropped_times_warning, load_motion
+from pvtflow.service.validate_cmd import ProgramFileError, read_program
+from pvtflow.service.waypoints import PoseTargets, WaypointError, dropped_times_warning, load_motion
 
 EXIT_OK, EXIT_ERROR_REPLY, EXIT_NO_ANSWER = 0, 1, 2
 PROG = "pvtflow request"

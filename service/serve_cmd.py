@@ -29,19 +29,19 @@ from typing import Any
 
 import zenoh
 
-from axes.bus_faults import BusError
-from service.api import LIVELINESS, PUBLICATIONS, QUERYABLES, StopRequest, key
-from service.cli import can_log_problem
-from service.cli_options import add_can_log, add_config, add_real_time
-from service.config import ConfigError, load_cell_config
-from service.exposure import exposure
-from service.journal import JournalError
-from service.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
-from service.live import LiveError, LiveServer
-from service.motion import MotionService
-from service.planning import PlanningProcess
-from service.runtime import freeze_startup_objects
-from service.server import (
+from pvtflow.axes.bus_faults import BusError
+from pvtflow.service.api import LIVELINESS, PUBLICATIONS, QUERYABLES, StopRequest, key
+from pvtflow.service.cli import can_log_problem
+from pvtflow.service.cli_options import add_can_log, add_config, add_real_time
+from pvtflow.service.config import ConfigError, load_cell_config
+from pvtflow.service.exposure import exposure
+from pvtflow.service.journal import JournalError
+from pvtflow.service.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
+from pvtflow.service.live import LiveError, LiveServer
+from pvtflow.service.motion import MotionService
+from pvtflow.service.planning import PlanningProcess
+from pvtflow.service.runtime import freeze_startup_objects
+from pvtflow.service.server import (
     ZENOH_CONFIG_DIR,
     Server,
     ZenohConfigError,
@@ -190,7 +190,7 @@ def banner(service: MotionService, server: Server, allow_unauthenticated: bool =
 
 def listen_option(args: argparse.Namespace) -> list[str] | None:
     """The endpoints of --listen / --port (None: the zenoh config's own); ValueError for one zenoh cannot take."""
-    from service.request_cmd import check_endpoint
+    from pvtflow.service.request_cmd import check_endpoint
 
     if args.port is not None:
         if not 1 <= args.port <= 65535:

@@ -28,7 +28,7 @@ from typing import Any
 import zenoh
 
 from pvtflow.configs import ZENOH_DIR as ZENOH_CONFIG_DIR
-from service.api import (
+from pvtflow.service.api import (
     LIVELINESS,
     PUBLICATIONS,
     QUERYABLES,
@@ -46,7 +46,7 @@ from service.api import (
     parse_stop,
     parse_validate,
 )
-from service.motion import MotionService, ServiceEventKind
+from pvtflow.service.motion import MotionService, ServiceEventKind
 
 log = logging.getLogger("pvtflow.server")
 

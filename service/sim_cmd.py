@@ -30,11 +30,11 @@ from typing import Any, TextIO
 
 import can
 
-from axes.config import SIMULATED_WIRE, wire_options
-from axes.sim.cell import SimulatedCell
-from axes.sim.wire import serve_wire
-from service.cli_options import add_config
-from service.config import PYTHON_CAN_INTERFACES, CellConfig, ConfigError, load_cell_config
+from pvtflow.axes.config import SIMULATED_WIRE, wire_options
+from pvtflow.axes.sim.cell import SimulatedCell
+from pvtflow.axes.sim.wire import serve_wire
+from pvtflow.service.cli_options import add_config
+from pvtflow.service.config import PYTHON_CAN_INTERFACES, CellConfig, ConfigError, load_cell_config
 
 EXIT_OK, EXIT_SIMULATOR_ERROR, EXIT_CANNOT_START = 0, 1, 2
 WIRE_SERVED_AT = "wire served at"  # the banner line another process reads the channel from

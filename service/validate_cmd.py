@@ -17,9 +17,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TextIO
 
-from axes.program import ProgramFormatError, PvtProgram
-from planner.validate import Rule, Severity, ValidationReport, validate_program
-from service.cli_options import add_json
+from pvtflow.axes.program import ProgramFormatError, PvtProgram
+from pvtflow.planner.validate import Rule, Severity, ValidationReport, validate_program
+from pvtflow.service.cli_options import add_json
 
 EXIT_VALID, EXIT_VIOLATIONS, EXIT_UNREADABLE = 0, 1, 2
 
@@ -174,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_UNREADABLE
     cell = None
     if args.config is not None:
-        from service.config import ConfigError, load_cell_config
+        from pvtflow.service.config import ConfigError, load_cell_config
 
         try:
             cell = load_cell_config(args.config)
@@ -187,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
         progress.update(i, str(path))
         outcome = check_file(path)
         if cell is not None and outcome.program is not None:
-            from service.program_fit import mismatch_lines
+            from pvtflow.service.program_fit import mismatch_lines
 
             outcome = replace(outcome, cell_problems=tuple(mismatch_lines(outcome.program, cell)))
         outcomes.append(outcome)

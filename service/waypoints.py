@@ -34,8 +34,8 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
-from planner.cartesian import MoveKind, check_poses
-from planner.path import PlanError
+from pvtflow.planner.cartesian import MoveKind, check_poses
+from pvtflow.planner.path import PlanError
 
 POSE_FILE_FIELDS = ("poses", "motion", "start", "joint_names")
 

@@ -13,7 +13,7 @@ from typing import ClassVar
 import can
 from can.interfaces.virtual import VirtualBus
 
-from service.config import CellConfig
+from pvtflow.service.config import CellConfig
 
 
 def unique_channel(prefix: str = "axes") -> str:

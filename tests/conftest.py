@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import pytest
 from hypothesis import settings
 
-from service.config import CellConfig, load_cell_config
+from pvtflow.service.config import CellConfig, load_cell_config
 
 if TYPE_CHECKING:
     from svc_helpers import Served
@@ -54,7 +54,7 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     compiling them, and no test's timeout includes a compilation."""
     if hasattr(session.config, "workerinput"):  # a pytest-xdist worker
         return
-    from service.cell_planner import CellPlanner
+    from pvtflow.service.cell_planner import CellPlanner
 
     CellPlanner(load_cell_config()).warm_up()
     hold_full_collections_to_between_tests()
@@ -72,7 +72,7 @@ _tests_since_full_collection = 0
 
 
 def hold_full_collections_to_between_tests() -> None:
-    from axes.sim.full_collection import NO_AUTOMATIC_FULL
+    from pvtflow.axes.sim.full_collection import NO_AUTOMATIC_FULL
 
     gc.collect()
     gc.freeze()

@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 from jsonschema import Draft202012Validator
 
-from service.api import reply_schema
-from service.config import CellConfig
-from service.motion import MotionService
-from service.request_cmd import Client
-from service.server import Server, peer_config
+from pvtflow.service.api import reply_schema
+from pvtflow.service.config import CellConfig
+from pvtflow.service.motion import MotionService
+from pvtflow.service.request_cmd import Client
+from pvtflow.service.server import Server, peer_config
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -157,7 +157,7 @@ SHORT_TARGET = [0.3, -0.2, 0.3, -0.2, 0.3, -0.2]
 
 def long_tour(cell: CellConfig) -> list[list[float]]:
     """About 2 s of motion through 5 waypoints (the demo's tour): long enough to stop in the middle."""
-    from service.demo_cmd import tour
+    from pvtflow.service.demo_cmd import tour
 
     lim = cell.joint_limits()
     return tour(np.asarray(lim.lower), np.asarray(lim.upper), 4)

@@ -94,7 +94,7 @@ def test_the_wheel_plans_and_validates_from_outside_the_clone(
 
     # where pvtflow's modules and data came from: the wheel in the virtualenv, never the clone
     probe = (
-        "import json, sys\nfrom service.cli import main\nfrom axes.sim.drive import EDS_DIR\n"
+        "import json, sys\nfrom pvtflow.service.cli import main\nfrom pvtflow.axes.sim.drive import EDS_DIR\n"
         "ours = [m for n, m in list(sys.modules.items()) if n.split('.')[0] in OURS]\n"
         "print(json.dumps([str(EDS_DIR), *(m.__file__ or '' for m in ours)]))"
     ).replace("OURS", repr(OURS))

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from axes.sim.drive import MAXON_EPOS2_EDS
+from pvtflow.axes.sim.drive import MAXON_EPOS2_EDS
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -9,20 +9,20 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from axes.link import DriveError
+from pvtflow.axes.link import DriveError
 
 if TYPE_CHECKING:
-    from axes.drive_profile import DriveProfile
-    from axes.link import AxisLink
-    from axes.profiles.base import Profile
+    from pvtflow.axes.drive_profile import DriveProfile
+    from pvtflow.axes.link import AxisLink
+    from pvtflow.axes.profiles.base import Profile
 
 
 def profile_class(name: DriveProfile) -> type[Profile]:
     """The profile module's class by its name (KeyError: no such profile)."""
-    from axes.profiles.cia402_ip_linear import Cia402IpLinear
-    from axes.profiles.epos2_pvt import Epos2Pvt
-    from axes.profiles.parker_slvdn import ParkerSlvdn
-    from axes.profiles.sync_setpoint import SyncSetpoint
+    from pvtflow.axes.profiles.cia402_ip_linear import Cia402IpLinear
+    from pvtflow.axes.profiles.epos2_pvt import Epos2Pvt
+    from pvtflow.axes.profiles.parker_slvdn import ParkerSlvdn
+    from pvtflow.axes.profiles.sync_setpoint import SyncSetpoint
 
     classes = {c.name: c for c in (Epos2Pvt, Cia402IpLinear, SyncSetpoint, ParkerSlvdn)}
     return classes[name]

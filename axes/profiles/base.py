@@ -11,22 +11,22 @@ import contextlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
-from axes import objects as od
-from axes.cia402 import CONTROLWORD_SHUTDOWN, Controlword, PowerState
-from axes.config import AxisConfig
-from axes.drive_profile import DriveProfile
-from axes.link import DriveError
-from axes.objects import PdoLayout
-from axes.sync import DEFAULT_MAX_GAP_PERIODS
-from axes.tpdo_rates import answer_every, with_rates
+from pvtflow.axes import objects as od
+from pvtflow.axes.cia402 import CONTROLWORD_SHUTDOWN, Controlword, PowerState
+from pvtflow.axes.config import AxisConfig
+from pvtflow.axes.drive_profile import DriveProfile
+from pvtflow.axes.link import DriveError
+from pvtflow.axes.objects import PdoLayout
+from pvtflow.axes.sync import DEFAULT_MAX_GAP_PERIODS
+from pvtflow.axes.tpdo_rates import answer_every, with_rates
 
 if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import NDArray
 
-    from axes.feeder import Feeder, RecordAllowance, SetpointFeeder
-    from axes.link import AxisLink
-    from axes.program import AxisProgram
+    from pvtflow.axes.feeder import Feeder, RecordAllowance, SetpointFeeder
+    from pvtflow.axes.link import AxisLink
+    from pvtflow.axes.program import AxisProgram
 
 DEFAULT_MAX_FOLLOWING_ERROR_QC = 2000  # app note Table 17 default for 0x6065
 

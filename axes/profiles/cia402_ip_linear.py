@@ -21,14 +21,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from axes import objects as od
-from axes.drive_profile import DriveProfile
-from axes.feeder import Feeder, RecordAllowance, SetpointFeeder
-from axes.profiles.base import Profile
-from axes.stop_ramp import braking_records
+from pvtflow.axes import objects as od
+from pvtflow.axes.drive_profile import DriveProfile
+from pvtflow.axes.feeder import Feeder, RecordAllowance, SetpointFeeder
+from pvtflow.axes.profiles.base import Profile
+from pvtflow.axes.stop_ramp import braking_records
 
 if TYPE_CHECKING:
-    from axes.program import AxisProgram
+    from pvtflow.axes.program import AxisProgram
 
 MS_INDEX = -3  # 0x60C2:02: the period is given in 10^-3 s
 

@@ -23,14 +23,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from axes import objects as od
-from axes.drive_profile import DriveProfile
-from axes.feeder import BufferFeeder, Feeder, RecordAllowance
-from axes.objects import EPOS2_TIME_STAMP_RPDO, TIME_STAMP_COB_ID, Record
-from axes.profiles.base import Profile
+from pvtflow.axes import objects as od
+from pvtflow.axes.drive_profile import DriveProfile
+from pvtflow.axes.feeder import BufferFeeder, Feeder, RecordAllowance
+from pvtflow.axes.objects import EPOS2_TIME_STAMP_RPDO, TIME_STAMP_COB_ID, Record
+from pvtflow.axes.profiles.base import Profile
 
 if TYPE_CHECKING:
-    from axes.program import AxisProgram
+    from pvtflow.axes.program import AxisProgram
 
 BUFFER_CLEAR = 0
 BUFFER_ENABLE = 1

@@ -24,10 +24,10 @@ import struct
 import numpy as np
 from numpy.typing import NDArray
 
-from axes import objects as od
-from axes.drive_profile import DriveProfile
-from axes.interpolation import Interpolation
-from axes.profiles.cia402_ip_linear import FixedPeriodProfile
+from pvtflow.axes import objects as od
+from pvtflow.axes.drive_profile import DriveProfile
+from pvtflow.axes.interpolation import Interpolation
+from pvtflow.axes.profiles.cia402_ip_linear import FixedPeriodProfile
 
 
 class ParkerSlvdn(FixedPeriodProfile):

@@ -16,9 +16,9 @@ with setpoints within 0x60C5 (``axes.stop_ramp``), not with the halt bit.
 
 from __future__ import annotations
 
-from axes import objects as od
-from axes.drive_profile import DriveProfile
-from axes.profiles.cia402_ip_linear import FixedPeriodProfile
+from pvtflow.axes import objects as od
+from pvtflow.axes.drive_profile import DriveProfile
+from pvtflow.axes.profiles.cia402_ip_linear import FixedPeriodProfile
 
 
 class SyncSetpoint(FixedPeriodProfile):

@@ -20,8 +20,8 @@ from collections.abc import Callable, Mapping
 
 import canopen
 
-from axes import objects as od
-from axes.subscriptions import subscribe, unsubscribe
+from pvtflow.axes import objects as od
+from pvtflow.axes.subscriptions import subscribe, unsubscribe
 
 TICK_S = 0.001  # the motion clock's step while it runs on the wall clock (the drives sample every ms)
 

@@ -44,7 +44,7 @@ from canopen import objectdictionary
 from canopen.objectdictionary import ObjectDictionary
 from canopen.profiles.p402 import OperationMode
 
-from axes.objects import IDENTITY, SUPPORTED_DRIVE_MODES
+from pvtflow.axes.objects import IDENTITY, SUPPORTED_DRIVE_MODES
 
 DEVICE_TYPE = 0x1000
 MANUFACTURER_DEVICE_NAME = 0x1008

@@ -15,9 +15,9 @@ import threading
 import canopen
 from canopen import objectdictionary
 
-from axes import objects as od
-from axes.config import AxisSimulation
-from axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes import objects as od
+from pvtflow.axes.config import AxisSimulation
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
 
 ABORT_VALUE_RANGE = 0x06090030
 ABORT_DEVICE_STATE = 0x08000022

@@ -33,12 +33,12 @@ import canopen
 from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as od
-from axes.config import AxisSimulation
-from axes.scaling import AxisScaling, DriveLimits
-from axes.sim.clock import LOCKSTEP, MotionClock, Quartz, check_clock
-from axes.sim.consumer import HeartbeatConsumer
-from axes.sim.device import (
+from pvtflow.axes import objects as od
+from pvtflow.axes.config import AxisSimulation
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.sim.clock import LOCKSTEP, MotionClock, Quartz, check_clock
+from pvtflow.axes.sim.consumer import HeartbeatConsumer
+from pvtflow.axes.sim.device import (
     SIMULATED_MODE,
     SUPPORTED_DRIVE_MODES,
     DriveModes,
@@ -46,16 +46,16 @@ from axes.sim.device import (
     complete_object_dictionary,
     identity_values,
 )
-from axes.sim.dictionary import ABORT_GENERAL, ABORT_VALUE_RANGE, DictionaryAccess
-from axes.sim.faults import ERROR_REGISTER, FaultHandling
-from axes.sim.homing import HomingMixin, HomingState, Machine
-from axes.sim.master_loss import MasterLossReaction
-from axes.sim.nmt import NmtSlave
-from axes.sim.pdo import PdoEngine, is_pdo_object
-from axes.sim.power_states import CW_ENABLE_IP, CW_HALT, CW_HOMING_START, SWITCH_ON_DISABLED, PowerStateMachine
-from axes.sim.records import FaultRecord, MasterLoss, SyncSample
-from axes.sim.sampling import Sampling
-from axes.sim.segment import Segment
+from pvtflow.axes.sim.dictionary import ABORT_GENERAL, ABORT_VALUE_RANGE, DictionaryAccess
+from pvtflow.axes.sim.faults import ERROR_REGISTER, FaultHandling
+from pvtflow.axes.sim.homing import HomingMixin, HomingState, Machine
+from pvtflow.axes.sim.master_loss import MasterLossReaction
+from pvtflow.axes.sim.nmt import NmtSlave
+from pvtflow.axes.sim.pdo import PdoEngine, is_pdo_object
+from pvtflow.axes.sim.power_states import CW_ENABLE_IP, CW_HALT, CW_HOMING_START, SWITCH_ON_DISABLED, PowerStateMachine
+from pvtflow.axes.sim.records import FaultRecord, MasterLoss, SyncSample
+from pvtflow.axes.sim.sampling import Sampling
+from pvtflow.axes.sim.segment import Segment
 from pvtflow.configs import EDS_DIR
 
 # maxon's own published EPOS2 70/10 EDS, kept unchanged as a vendor data file (configs/eds/vendor/README.md)

@@ -2,7 +2,7 @@
 
 The EDS files are the artefacts (a master or a commissioning tool reads them); this module is how
 they are made, so that the four dictionaries share their CiA 301 / CiA 402 part and stay
-consistent. Regenerate with ``python -m axes.sim.edsgen``; tests check the files are up to date.
+consistent. Regenerate with ``python -m pvtflow.axes.sim.edsgen``; tests check the files are up to date.
 """
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-from axes import objects as od
-from axes.drive_profile import DriveProfile
-from axes.sim import device
+from pvtflow.axes import objects as od
+from pvtflow.axes.drive_profile import DriveProfile
+from pvtflow.axes.sim import device
 from pvtflow.configs import EDS_DIR
 
 # CiA 301 data types

@@ -54,16 +54,16 @@ from dataclasses import dataclass
 
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as od
-from axes.cia402 import Statusword
-from axes.drive_profile import DriveProfile
-from axes.interpolation import exceeds
-from axes.objects import BUFFER_ERRORS, BufferStatus, Record
-from axes.sim.device import EPOS2_MODES, Value
-from axes.sim.dictionary import ABORT_DEVICE_STATE, ABORT_VALUE_RANGE
-from axes.sim.drive import SimulatedDrive
-from axes.sim.power_states import OPERATION_ENABLED
-from axes.sim.segment import Segment
+from pvtflow.axes import objects as od
+from pvtflow.axes.cia402 import Statusword
+from pvtflow.axes.drive_profile import DriveProfile
+from pvtflow.axes.interpolation import exceeds
+from pvtflow.axes.objects import BUFFER_ERRORS, BufferStatus, Record
+from pvtflow.axes.sim.device import EPOS2_MODES, Value
+from pvtflow.axes.sim.dictionary import ABORT_DEVICE_STATE, ABORT_VALUE_RANGE
+from pvtflow.axes.sim.drive import SimulatedDrive
+from pvtflow.axes.sim.power_states import OPERATION_ENABLED
+from pvtflow.axes.sim.segment import Segment
 
 EPOS2_VERSION = 0x2003  # :01 software version, :02 hardware version (maxon's EDS)
 MAX_SLEW = 0.01  # wall clock: the largest clock rate correction per SYNC (see the module docstring)

@@ -12,11 +12,17 @@ import threading
 
 import canopen
 
-from axes import objects as od
-from axes.cia402 import PowerState
-from axes.sim.power_states import FAULT, FAULT_REACTION_ACTIVE, OPERATION_ENABLED, QUICK_STOP_ACTIVE, SWITCH_ON_DISABLED
-from axes.sim.records import FaultRecord
-from axes.sim.segment import Segment
+from pvtflow.axes import objects as od
+from pvtflow.axes.cia402 import PowerState
+from pvtflow.axes.sim.power_states import (
+    FAULT,
+    FAULT_REACTION_ACTIVE,
+    OPERATION_ENABLED,
+    QUICK_STOP_ACTIVE,
+    SWITCH_ON_DISABLED,
+)
+from pvtflow.axes.sim.records import FaultRecord
+from pvtflow.axes.sim.segment import Segment
 
 ERROR_CODE = 0x603F
 EMCY_COMMUNICATION = 0x8100  # CiA 301: communication, generic

@@ -33,11 +33,11 @@ from __future__ import annotations
 
 from collections import deque
 
-from axes import objects as od
-from axes.sim.drive import SimulatedDrive
-from axes.sim.power_states import OPERATION_ENABLED
-from axes.sim.segment import Segment
-from axes.sim.setpoint_judge import SetpointStream, too_fast
+from pvtflow.axes import objects as od
+from pvtflow.axes.sim.drive import SimulatedDrive
+from pvtflow.axes.sim.power_states import OPERATION_ENABLED
+from pvtflow.axes.sim.segment import Segment
+from pvtflow.axes.sim.setpoint_judge import SetpointStream, too_fast
 
 
 class FixedPeriodDrive(SimulatedDrive):

@@ -17,8 +17,8 @@ import time
 
 import canopen
 
-from axes.objects import SYNC_COB_ID
-from axes.subscriptions import subscribe, unsubscribe
+from pvtflow.axes.objects import SYNC_COB_ID
+from pvtflow.axes.subscriptions import subscribe, unsubscribe
 
 QUIET_S = 1.0  # no SYNC for this long: no motion runs, a full collection stalls nothing that counts
 NO_AUTOMATIC_FULL = 2**31 - 1  # generation 2's threshold: never by allocation count

@@ -26,13 +26,13 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import TYPE_CHECKING, ClassVar
 
-from axes import objects as od
-from axes.cia402 import PowerState, Statusword
-from axes.config import AxisSimulation
-from axes.scaling import DriveLimits
+from pvtflow.axes import objects as od
+from pvtflow.axes.cia402 import PowerState, Statusword
+from pvtflow.axes.config import AxisSimulation
+from pvtflow.axes.scaling import DriveLimits
 
 if TYPE_CHECKING:
-    from axes.sim.segment import Segment
+    from pvtflow.axes.sim.segment import Segment
 
 M = od.HomingMethod
 RETURN_TOLERANCE_QC = 1e-6

@@ -22,13 +22,13 @@ from typing import ClassVar
 
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as od
-from axes.sim.clock import MotionClock
-from axes.sim.consumer import HeartbeatConsumer
-from axes.sim.dictionary import ABORT_PARAMETER_INCOMPATIBLE
-from axes.sim.faults import EMCY_COMMUNICATION, REGISTER_COMMUNICATION, REGISTER_GENERIC
-from axes.sim.records import MasterLoss
-from axes.sim.segment import Segment
+from pvtflow.axes import objects as od
+from pvtflow.axes.sim.clock import MotionClock
+from pvtflow.axes.sim.consumer import HeartbeatConsumer
+from pvtflow.axes.sim.dictionary import ABORT_PARAMETER_INCOMPATIBLE
+from pvtflow.axes.sim.faults import EMCY_COMMUNICATION, REGISTER_COMMUNICATION, REGISTER_GENERIC
+from pvtflow.axes.sim.records import MasterLoss
+from pvtflow.axes.sim.segment import Segment
 
 
 class MasterLossReaction:

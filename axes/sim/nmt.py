@@ -16,11 +16,11 @@ import time
 import canopen
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as od
-from axes.sim.clock import WALL, MotionClock, Quartz
-from axes.sim.consumer import HeartbeatConsumer
-from axes.sim.pdo import PdoEngine
-from axes.subscriptions import subscribe, unsubscribe
+from pvtflow.axes import objects as od
+from pvtflow.axes.sim.clock import WALL, MotionClock, Quartz
+from pvtflow.axes.sim.consumer import HeartbeatConsumer
+from pvtflow.axes.sim.pdo import PdoEngine
+from pvtflow.axes.subscriptions import subscribe, unsubscribe
 
 
 class NmtSlave:

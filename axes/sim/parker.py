@@ -31,14 +31,14 @@ from __future__ import annotations
 
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as od
-from axes.drive_profile import DriveProfile
-from axes.interpolation import Interpolation
-from axes.sim.device import NO_MODE, PARKER_MODES
-from axes.sim.dictionary import ABORT_VALUE_RANGE
-from axes.sim.fixed_period import FixedPeriodDrive
-from axes.sim.power_states import CW_HALT, OPERATION_ENABLED
-from axes.sim.segment import Segment
+from pvtflow.axes import objects as od
+from pvtflow.axes.drive_profile import DriveProfile
+from pvtflow.axes.interpolation import Interpolation
+from pvtflow.axes.sim.device import NO_MODE, PARKER_MODES
+from pvtflow.axes.sim.dictionary import ABORT_VALUE_RANGE
+from pvtflow.axes.sim.fixed_period import FixedPeriodDrive
+from pvtflow.axes.sim.power_states import CW_HALT, OPERATION_ENABLED
+from pvtflow.axes.sim.segment import Segment
 
 DIRECT = "direct"
 SUBMODES = DriveProfile.PARKER_SLVDN.spec.submodes  # 0x60C0 -> how the drive joins its setpoints

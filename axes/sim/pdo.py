@@ -28,13 +28,13 @@ from typing import TYPE_CHECKING
 from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
-from axes.objects import EMCY_PDO_LENGTH
-from axes.sim.dictionary import ABORT_DEVICE_STATE
-from axes.sim.tpdo_timing import TpdoTiming
-from axes.subscriptions import subscribe, unsubscribe
+from pvtflow.axes.objects import EMCY_PDO_LENGTH
+from pvtflow.axes.sim.dictionary import ABORT_DEVICE_STATE
+from pvtflow.axes.sim.tpdo_timing import TpdoTiming
+from pvtflow.axes.subscriptions import subscribe, unsubscribe
 
 if TYPE_CHECKING:
-    from axes.sim.drive import SimulatedDrive
+    from pvtflow.axes.sim.drive import SimulatedDrive
 
 PDO_NOT_VALID = 1 << 31
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00

@@ -13,9 +13,9 @@ from typing import ClassVar
 
 from canopen.profiles.p402 import State402
 
-from axes import objects as od
-from axes.cia402 import Controlword, PowerState, Statusword
-from axes.sim.segment import Segment
+from pvtflow.axes import objects as od
+from pvtflow.axes.cia402 import Controlword, PowerState, Statusword
+from pvtflow.axes.sim.segment import Segment
 
 # DS402 power states and statusword/controlword bits: the master's definitions (axes/cia402.py),
 # short names for the drive side

@@ -8,7 +8,7 @@ clocks and heartbeats. So a drive's heartbeat consumer can watch the master at t
 3 periods, and the master sees the drives as it sees real ones: frames on a bus, nothing shared.
 The in-process ``SimulatedCell`` stays for unit-test rigs that read a drive's state directly.
 
-``DrivesProcess(wiring, clock).start()`` runs ``python -m axes.sim.process``: the child reads the
+``DrivesProcess(wiring, clock).start()`` runs ``python -m pvtflow.axes.sim.process``: the child reads the
 cell's wiring (``axes.config.Wiring``, pickled, one base64 line on its stdin), starts its
 ``SimulatedCell`` on the wire's channel, serves the wire on 127.0.0.1 (a free port) and prints
 ``wire served at NAME@127.0.0.1:PORT``; the master opens that channel (``DrivesProcess.bus``: the
@@ -33,8 +33,8 @@ import threading
 from pathlib import Path
 from typing import TextIO
 
-from axes.bus import SWITCH_INTERVAL_S
-from axes.config import SIMULATED_WIRE, BusConfig, CellWiring, Wiring, wire_options
+from pvtflow.axes.bus import SWITCH_INTERVAL_S
+from pvtflow.axes.config import SIMULATED_WIRE, BusConfig, CellWiring, Wiring, wire_options
 
 WIRE_SERVED_AT = "wire served at"  # the line the master reads the channel from
 START_TIMEOUT_S = 60.0  # a loaded host imports canopen and numpy slowly
@@ -74,7 +74,7 @@ class DrivesProcess:
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "axes.sim.process", self.clock],
+            [sys.executable, "-m", "pvtflow.axes.sim.process", self.clock],
             cwd=ROOT,
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
@@ -148,7 +148,7 @@ class LocalDrives:
     interpreter (``sharing_the_interpreter``)."""
 
     def __init__(self, wiring: CellWiring, clock: str) -> None:
-        from axes.sim.cell import SimulatedCell, sharing_the_interpreter
+        from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
 
         wiring = sharing_the_interpreter(wiring)
         self.bus = wiring.bus
@@ -173,9 +173,9 @@ def start_simulated_drives(wiring: CellWiring, clock: str) -> DrivesProcess | Lo
 
 def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) -> int:
     """The child: the drives on the served wire until ``stop``; the exit code."""
-    from axes.sim.cell import SimulatedCell
-    from axes.sim.full_collection import FullCollectionBetweenMotions
-    from axes.sim.wire import serve_wire
+    from pvtflow.axes.sim.cell import SimulatedCell
+    from pvtflow.axes.sim.full_collection import FullCollectionBetweenMotions
+    from pvtflow.axes.sim.wire import serve_wire
 
     bus = wiring.bus
     sim = SimulatedCell(wiring, clock=clock)

@@ -30,14 +30,20 @@ from typing import ClassVar
 import canopen
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as od
-from axes.cia402 import PowerState
-from axes.scaling import INT32_MAX, INT32_MIN
-from axes.sim.clock import MotionClock, arrival
-from axes.sim.pdo import PdoEngine
-from axes.sim.power_states import FAULT, FAULT_REACTION_ACTIVE, OPERATION_ENABLED, QUICK_STOP_ACTIVE, SWITCH_ON_DISABLED
-from axes.sim.records import MasterLoss, SyncSample
-from axes.sim.segment import Segment
+from pvtflow.axes import objects as od
+from pvtflow.axes.cia402 import PowerState
+from pvtflow.axes.scaling import INT32_MAX, INT32_MIN
+from pvtflow.axes.sim.clock import MotionClock, arrival
+from pvtflow.axes.sim.pdo import PdoEngine
+from pvtflow.axes.sim.power_states import (
+    FAULT,
+    FAULT_REACTION_ACTIVE,
+    OPERATION_ENABLED,
+    QUICK_STOP_ACTIVE,
+    SWITCH_ON_DISABLED,
+)
+from pvtflow.axes.sim.records import MasterLoss, SyncSample
+from pvtflow.axes.sim.segment import Segment
 
 
 class Sampling:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from axes.interpolation import hermite_coefficients
+from pvtflow.axes.interpolation import hermite_coefficients
 
 
 @dataclass

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from axes.interpolation import exceeds, linear_step_acceleration
+from pvtflow.axes.interpolation import exceeds, linear_step_acceleration
 
 
 @dataclass

@@ -24,11 +24,11 @@ from __future__ import annotations
 
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as od
-from axes.drive_profile import DriveProfile
-from axes.sim.device import SYNC_SETPOINT_MODES
-from axes.sim.dictionary import ABORT_VALUE_RANGE
-from axes.sim.fixed_period import FixedPeriodDrive
+from pvtflow.axes import objects as od
+from pvtflow.axes.drive_profile import DriveProfile
+from pvtflow.axes.sim.device import SYNC_SETPOINT_MODES
+from pvtflow.axes.sim.dictionary import ABORT_VALUE_RANGE
+from pvtflow.axes.sim.fixed_period import FixedPeriodDrive
 
 MIN_PERIOD_MS, MAX_PERIOD_MS = 1.0, 100.0
 

@@ -34,15 +34,15 @@ import numpy as np
 import toppra.constraint as constraint
 from numpy.typing import ArrayLike, NDArray
 
-from planner.jerk.nlp import program_bounds, program_parameters, program_rows, variable_scales
-from planner.jerk.solve import cached_program, solve_in_time
-from planner.jerk.trajectory import JerkTrajectory
-from planner.jerk.warm import MIN_REST_TO_REST, WarmProfile, curvature_jumps, warm_start
-from planner.limits import JointLimits
-from planner.path import JointPath, PlanError, PlanResult
-from planner.scurve import rest_to_rest
-from planner.slowdown import SLOWDOWN_MARGIN, slowdown
-from planner.timing import RneaJointTorqueConstraint, Trajectory
+from pvtflow.planner.jerk.nlp import program_bounds, program_parameters, program_rows, variable_scales
+from pvtflow.planner.jerk.solve import cached_program, solve_in_time
+from pvtflow.planner.jerk.trajectory import JerkTrajectory
+from pvtflow.planner.jerk.warm import MIN_REST_TO_REST, WarmProfile, curvature_jumps, warm_start
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.path import JointPath, PlanError, PlanResult
+from pvtflow.planner.scurve import rest_to_rest
+from pvtflow.planner.slowdown import SLOWDOWN_MARGIN, slowdown
+from pvtflow.planner.timing import RneaJointTorqueConstraint, Trajectory
 
 __all__ = ["DEFAULT_JERK_INTERVALS", "JerkTrajectory", "jerk_limited"]
 

@@ -33,10 +33,10 @@ import numpy as np
 import toppra.constraint as constraint
 from numpy.typing import NDArray
 
-from planner.jerk.trajectory import interval_coefficients
-from planner.limits import JointLimits
-from planner.path import JointPath
-from planner.timing import (
+from pvtflow.planner.jerk.trajectory import interval_coefficients
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.path import JointPath
+from pvtflow.planner.timing import (
     IntervalJointAccelerationConstraint,
     IntervalJointVelocityConstraint,
     RneaJointTorqueConstraint,

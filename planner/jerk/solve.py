@@ -39,7 +39,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.jerk.nlp import CONTROL, STATE, build_nlp
+from pvtflow.planner.jerk.nlp import CONTROL, STATE, build_nlp
 
 _MAX_ITER = 300
 

@@ -13,13 +13,13 @@ import numpy as np
 import toppra.constraint as constraint
 from numpy.typing import ArrayLike, NDArray
 
-from planner.limits import JointLimits
-from planner.path import JointPath
-from planner.timing import (
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.path import JointPath
+from pvtflow.planner.timing import (
     TcpAngularSpeedConstraint,
     TcpSpeedConstraint,
 )
-from planner.trajectory import PathTiming
+from pvtflow.planner.trajectory import PathTiming
 
 _CHECK_SUBSAMPLES = 32
 # a solver's optimum slowed by at most this for torque is still called optimal: about the slow-down

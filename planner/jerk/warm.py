@@ -10,9 +10,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.jerk.nlp import FRACTIONS, Rows
-from planner.path import JointPath
-from planner.timing import Trajectory
+from pvtflow.planner.jerk.nlp import FRACTIONS, Rows
+from pvtflow.planner.path import JointPath
+from pvtflow.planner.timing import Trajectory
 
 # intervals between two rests at least: one constant jerk per interval needs 3 to stop again (+, -, +)
 MIN_REST_TO_REST = 4

@@ -66,11 +66,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from planner.knots.check import record_knots
-from planner.knots.epos2 import epos2_axes
-from planner.knots.fixed_period import drive_slowdown, fixed_period_axis
-from planner.knots.samples import sample_trajectory
-from planner.knots.types import AxisKnots, DriveAxis, KnotError, KnotOptions, KnotResult, TimedTrajectory
+from pvtflow.planner.knots.check import record_knots
+from pvtflow.planner.knots.epos2 import epos2_axes
+from pvtflow.planner.knots.fixed_period import drive_slowdown, fixed_period_axis
+from pvtflow.planner.knots.samples import sample_trajectory
+from pvtflow.planner.knots.types import AxisKnots, DriveAxis, KnotError, KnotOptions, KnotResult, TimedTrajectory
 
 __all__ = ["AxisKnots", "DriveAxis", "KnotError", "KnotOptions", "KnotResult", "TimedTrajectory", "place_knots"]
 

@@ -13,14 +13,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.interpolation import PiecewiseCubic, epos2_pvt, exceeds
-from axes.program import AxisProgram
-from planner.knots import check_kernels as kernels
-from planner.knots import records_kernels
-from planner.knots.flat import Flat, Moved
-from planner.knots.types import AxisKnots, DriveAxis
-from planner.knots.window_jerk import window_jerk
-from planner.slowdown import KNOT_SLOWDOWN_MARGIN, slowdown
+from pvtflow.axes.interpolation import PiecewiseCubic, epos2_pvt, exceeds
+from pvtflow.axes.program import AxisProgram
+from pvtflow.planner.knots import check_kernels as kernels
+from pvtflow.planner.knots import records_kernels
+from pvtflow.planner.knots.flat import Flat, Moved
+from pvtflow.planner.knots.types import AxisKnots, DriveAxis
+from pvtflow.planner.knots.window_jerk import window_jerk
+from pvtflow.planner.slowdown import KNOT_SLOWDOWN_MARGIN, slowdown
 
 
 @dataclass(frozen=True)

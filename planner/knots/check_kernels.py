@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from axes.interpolation import (
+from pvtflow.axes.interpolation import (
     cubic_peak_acceleration,
     cubic_peak_speed,
     cubic_position_range,

@@ -8,18 +8,18 @@ from enum import Enum
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.interpolation import epos2_pvt
-from axes.program import TIME_MAX_MS
-from planner.knots.check import NO_INT, Checked, axes_records, checked_subset, knot_records
-from planner.knots.flat import Flat
-from planner.knots.jerk_smooth import smoothed_axis
-from planner.knots.quantize import quantize_checked, shifted_records
-from planner.knots.refine import Fitted, fit_knots, fitted_subset, lsq_fit, refine, split_segments
-from planner.knots.refine_kernels import switch_flat_knots
-from planner.knots.round_kernels import split_verdict
-from planner.knots.samples import Samples
-from planner.knots.types import AxisKnots, DriveAxis, KnotOptions
-from planner.knots.window_jerk import segments_over
+from pvtflow.axes.interpolation import epos2_pvt
+from pvtflow.axes.program import TIME_MAX_MS
+from pvtflow.planner.knots.check import NO_INT, Checked, axes_records, checked_subset, knot_records
+from pvtflow.planner.knots.flat import Flat
+from pvtflow.planner.knots.jerk_smooth import smoothed_axis
+from pvtflow.planner.knots.quantize import quantize_checked, shifted_records
+from pvtflow.planner.knots.refine import Fitted, fit_knots, fitted_subset, lsq_fit, refine, split_segments
+from pvtflow.planner.knots.refine_kernels import switch_flat_knots
+from pvtflow.planner.knots.round_kernels import split_verdict
+from pvtflow.planner.knots.samples import Samples
+from pvtflow.planner.knots.types import AxisKnots, DriveAxis, KnotOptions
+from pvtflow.planner.knots.window_jerk import segments_over
 
 _COARSE = 4.0  # first cut: exact-sample cubics to this multiple of the fit target (cheap), then least squares
 

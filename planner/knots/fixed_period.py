@@ -8,13 +8,13 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.interpolation import LIMIT_RTOL
-from planner.knots import fixed_period_kernels as kernels
-from planner.knots.check import check_records, needed_scale
-from planner.knots.quantize import round_positions, round_velocities
-from planner.knots.samples import Samples, axis_constants
-from planner.knots.types import AxisKnots, DriveAxis, KnotError, KnotOptions
-from planner.slowdown import slowdown
+from pvtflow.axes.interpolation import LIMIT_RTOL
+from pvtflow.planner.knots import fixed_period_kernels as kernels
+from pvtflow.planner.knots.check import check_records, needed_scale
+from pvtflow.planner.knots.quantize import round_positions, round_velocities
+from pvtflow.planner.knots.samples import Samples, axis_constants
+from pvtflow.planner.knots.types import AxisKnots, DriveAxis, KnotError, KnotOptions
+from pvtflow.planner.slowdown import slowdown
 
 _FP_REACH = 3  # counts (and records) a cubic's setpoint may move off the plan around a segment over a limit
 

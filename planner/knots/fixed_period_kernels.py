@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from axes.interpolation import (
+from pvtflow.axes.interpolation import (
     LIMIT_RTOL,
     Interpolation,
     central_velocity,
@@ -22,9 +22,9 @@ from axes.interpolation import (
     linear_segment,
     linear_step_acceleration,
 )
-from planner.knots.check_kernels import horner, leaves
-from planner.knots.quantize_kernels import EXCESS_WEIGHT, N_NUDGES, nudge_dp, nudge_dv
-from planner.slowdown import slowdown
+from pvtflow.planner.knots.check_kernels import horner, leaves
+from pvtflow.planner.knots.quantize_kernels import EXCESS_WEIGHT, N_NUDGES, nudge_dp, nudge_dv
+from pvtflow.planner.slowdown import slowdown
 
 _F = NDArray[np.float64]
 _I = NDArray[np.int64]

@@ -8,9 +8,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.program import TIME_MAX_MS
-from planner.knots.samples import Samples, axis_constants
-from planner.knots.types import DriveAxis
+from pvtflow.axes.program import TIME_MAX_MS
+from pvtflow.planner.knots.samples import Samples, axis_constants
+from pvtflow.planner.knots.types import DriveAxis
 
 # knots, the indices of those on the axes that stay, those knots (``Flat.moved_knots``)
 Moved = tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]

@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from axes.interpolation import exceeds
-from planner.knots.check import check_records, jerk_scale, needed_scale
-from planner.knots.flat import Flat
-from planner.knots.types import AxisKnots, KnotOptions
-from planner.knots.window_jerk import WINDOW_MS, window_jerk
-from planner.smooth_kernels import smooth_records
+from pvtflow.axes.interpolation import exceeds
+from pvtflow.planner.knots.check import check_records, jerk_scale, needed_scale
+from pvtflow.planner.knots.flat import Flat
+from pvtflow.planner.knots.types import AxisKnots, KnotOptions
+from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk
+from pvtflow.planner.smooth_kernels import smooth_records
 
 
 def smoothed_axis(fl: Flat, placed: tuple[AxisKnots, float], opts: KnotOptions) -> tuple[AxisKnots, float]:

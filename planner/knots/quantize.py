@@ -8,13 +8,22 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.interpolation import exceeds
-from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
-from planner.knots import quantize_kernels as kernels
-from planner.knots import records_kernels, round_kernels
-from planner.knots.check import NO_FLOAT, NO_INT, Check, Checked, axis_records, check_knots, over_limit, record_knots
-from planner.knots.flat import Flat
-from planner.knots.types import AxisKnots, DriveAxis, KnotError, KnotOptions
+from pvtflow.axes.interpolation import exceeds
+from pvtflow.axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
+from pvtflow.planner.knots import quantize_kernels as kernels
+from pvtflow.planner.knots import records_kernels, round_kernels
+from pvtflow.planner.knots.check import (
+    NO_FLOAT,
+    NO_INT,
+    Check,
+    Checked,
+    axis_records,
+    check_knots,
+    over_limit,
+    record_knots,
+)
+from pvtflow.planner.knots.flat import Flat
+from pvtflow.planner.knots.types import AxisKnots, DriveAxis, KnotError, KnotOptions
 
 
 def round_positions(p: NDArray[np.float64], axis: DriveAxis) -> NDArray[np.int64]:

@@ -16,13 +16,13 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from axes.interpolation import (
+from pvtflow.axes.interpolation import (
     cubic_peak_acceleration,
     cubic_peak_speed,
     hermite,
 )
-from axes.program import TIME_MAX_MS
-from planner.knots.check_kernels import leaves, probe_deviation
+from pvtflow.axes.program import TIME_MAX_MS
+from pvtflow.planner.knots.check_kernels import leaves, probe_deviation
 
 _F = NDArray[np.float64]
 _I = NDArray[np.int64]

@@ -14,10 +14,10 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from axes.interpolation import (
+from pvtflow.axes.interpolation import (
     hermite,
 )
-from planner.knots.check_kernels import prev_segment, probe_deviation
+from pvtflow.planner.knots.check_kernels import prev_segment, probe_deviation
 
 _F = NDArray[np.float64]
 _I = NDArray[np.int64]

@@ -17,10 +17,10 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from axes.interpolation import LIMIT_RTOL
-from axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
-from planner.knots.check_kernels import check_segments
-from planner.knots.quantize_kernels import repair_chains_memo
+from pvtflow.axes.interpolation import LIMIT_RTOL
+from pvtflow.axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
+from pvtflow.planner.knots.check_kernels import check_segments
+from pvtflow.planner.knots.quantize_kernels import repair_chains_memo
 
 _F = NDArray[np.float64]
 _I = NDArray[np.int64]

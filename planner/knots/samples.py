@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.knots.samples_kernels import to_drive_units
-from planner.knots.types import DriveAxis, TimedTrajectory
+from pvtflow.planner.knots.samples_kernels import to_drive_units
+from pvtflow.planner.knots.types import DriveAxis, TimedTrajectory
 
 
 @dataclass(frozen=True)

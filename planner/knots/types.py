@@ -11,8 +11,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.axis import DriveAxis as DriveAxis  # the axes layer's one description of an axis
-from axes.program import TIME_MAX_MS
+from pvtflow.axes.axis import DriveAxis as DriveAxis  # the axes layer's one description of an axis
+from pvtflow.axes.program import TIME_MAX_MS
 
 
 class TimedTrajectory(Protocol):

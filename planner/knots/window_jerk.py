@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.interpolation import PiecewiseCubic
-from planner.smooth_kernels import window_jerk_peaks
+from pvtflow.axes.interpolation import PiecewiseCubic
+from pvtflow.planner.smooth_kernels import window_jerk_peaks
 
 WINDOW_MS = 10.0  # the span over which a machine feels an acceleration change
 

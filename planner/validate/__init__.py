@@ -40,12 +40,12 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.interpolation import DRIVE_SAMPLE_MS
-from axes.program import AxisProgram, PvtProgram
-from planner.validate.motion import check_motion, summaries_within_limits
-from planner.validate.records import check_epos2, check_fixed_period, check_ranges
-from planner.validate.report import AxisSummary, Finding, Rule, Severity, ValidationReport
-from planner.validate.screen import Screen, clean_worsts, has_motion, screen_axes
+from pvtflow.axes.interpolation import DRIVE_SAMPLE_MS
+from pvtflow.axes.program import AxisProgram, PvtProgram
+from pvtflow.planner.validate.motion import check_motion, summaries_within_limits
+from pvtflow.planner.validate.records import check_epos2, check_fixed_period, check_ranges
+from pvtflow.planner.validate.report import AxisSummary, Finding, Rule, Severity, ValidationReport
+from pvtflow.planner.validate.screen import Screen, clean_worsts, has_motion, screen_axes
 
 __all__ = ["AxisSummary", "Finding", "Rule", "Severity", "ValidationReport", "validate_program"]
 

@@ -12,16 +12,16 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.interpolation import (
+from pvtflow.axes.interpolation import (
     LINEAR_QUANTIZATION_QC,
     Interpolation,
     PiecewiseCubic,
     exceeds,
     linear_span_excess,
 )
-from axes.program import AxisProgram
-from planner.validate.report import AxisSummary, Finding, Rule, Severity
-from planner.validate.screen import Worst
+from pvtflow.axes.program import AxisProgram
+from pvtflow.planner.validate.report import AxisSummary, Finding, Rule, Severity
+from pvtflow.planner.validate.screen import Worst
 
 
 def _samples(

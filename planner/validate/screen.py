@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from axes.interpolation import (
+from pvtflow.axes.interpolation import (
     cubic_peak_acceleration,
     cubic_peak_speed,
     cubic_position_range,
@@ -34,8 +34,8 @@ from axes.interpolation import (
     epos2_segment,
     hermite,
 )
-from axes.program import TIME_MAX_MS, AxisProgram
-from planner.validate.records import _FIELD_HI, _FIELD_LO, outside_motion_time, outside_ranges
+from pvtflow.axes.program import TIME_MAX_MS, AxisProgram
+from pvtflow.planner.validate.records import _FIELD_HI, _FIELD_LO, outside_motion_time, outside_ranges
 
 
 class Worst(NamedTuple):

@@ -11,16 +11,16 @@ docs/API.md prints them, and the tests check every reply against them.
 
 Where each part lives: ``wire`` (key expressions, error codes, JSON, limits, cell states),
 ``request_schemas`` and ``reply_schemas`` (the JSON Schemas), ``schema_check`` (a request checked
-against its schema), ``schema_doc`` (docs/API.md's schema section: ``python -m service.api``),
+against its schema), ``schema_doc`` (docs/API.md's schema section: ``python -m pvtflow.service.api``),
 ``requests`` (each request checked and parsed). The names below are the API's
 public surface.
 """
 
 from __future__ import annotations
 
-from service.api.reply_schemas import reply_schema
-from service.api.request_schemas import SCHEMA_DIALECT, request_schema
-from service.api.requests import (
+from pvtflow.service.api.reply_schemas import reply_schema
+from pvtflow.service.api.request_schemas import SCHEMA_DIALECT, request_schema
+from pvtflow.service.api.requests import (
     ExecuteRequest,
     HomeRequest,
     PlanRequest,
@@ -37,9 +37,9 @@ from service.api.requests import (
     parse_stop,
     parse_validate,
 )
-from service.api.schema_check import check_schema
-from service.api.schema_doc import SCHEMA_DOC_BEGIN, SCHEMA_DOC_END, schema_document
-from service.api.wire import (
+from pvtflow.service.api.schema_check import check_schema
+from pvtflow.service.api.schema_doc import SCHEMA_DOC_BEGIN, SCHEMA_DOC_END, schema_document
+from pvtflow.service.api.wire import (
     API_VERSION,
     ERROR_DESCRIPTIONS,
     ID_PATTERN,

@@ -1,5 +1,5 @@
-"""``python -m service.api``: the schemas section of docs/API.md."""
+"""``python -m pvtflow.service.api``: the schemas section of docs/API.md."""
 
-from service.api.schema_doc import schema_document
+from pvtflow.service.api.schema_doc import schema_document
 
 print(schema_document())

@@ -10,8 +10,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from axes.outcome import Result, RunResult
-from service.api.wire import ApiError, ErrorCode
+from pvtflow.axes.outcome import Result, RunResult
+from pvtflow.service.api.wire import ApiError, ErrorCode
 
 PLAN_AGAIN = "plan again from the current position"
 

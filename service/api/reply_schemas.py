@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from service.api.request_schemas import PLAN_ID, PROGRAM, SCHEMA_DIALECT, object_schema
-from service.api.wire import ID_PATTERN, CellState, ErrorCode, RunState
+from pvtflow.service.api.request_schemas import PLAN_ID, PROGRAM, SCHEMA_DIALECT, object_schema
+from pvtflow.service.api.wire import ID_PATTERN, CellState, ErrorCode, RunState
 
 _MOTION_ID = {"type": "string", "pattern": ID_PATTERN}
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from planner.cartesian import POSE_LENGTH, QUATERNION_TOLERANCE, MoveKind
-from service.api.wire import ID_PATTERN, MAX_RECENT, MAX_TEXT, MAX_WAYPOINTS, PlanStart
+from pvtflow.planner.cartesian import POSE_LENGTH, QUATERNION_TOLERANCE, MoveKind
+from pvtflow.service.api.wire import ID_PATTERN, MAX_RECENT, MAX_TEXT, MAX_WAYPOINTS, PlanStart
 
 SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 

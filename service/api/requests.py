@@ -10,11 +10,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.cartesian import MoveKind, check_poses
-from planner.limits import JointLimits, check_max_jerk, check_scale
-from planner.path import PlanError
-from service.api.schema_check import PLAN_SCALES, check_schema
-from service.api.wire import ApiError, ErrorCode, PlanStart
+from pvtflow.planner.cartesian import MoveKind, check_poses
+from pvtflow.planner.limits import JointLimits, check_max_jerk, check_scale
+from pvtflow.planner.path import PlanError
+from pvtflow.service.api.schema_check import PLAN_SCALES, check_schema
+from pvtflow.service.api.wire import ApiError, ErrorCode, PlanStart
 
 
 @dataclass(frozen=True)

@@ -13,10 +13,10 @@ from typing import Any
 from jsonschema import Draft202012Validator
 from jsonschema.exceptions import ValidationError
 
-from planner.cartesian import POSE_LENGTH
-from planner.limits import check_scale
-from service.api.request_schemas import request_schema
-from service.api.wire import MAX_TEXT, MAX_WAYPOINTS, ApiError, ErrorCode, _short
+from pvtflow.planner.cartesian import POSE_LENGTH
+from pvtflow.planner.limits import check_scale
+from pvtflow.service.api.request_schemas import request_schema
+from pvtflow.service.api.wire import MAX_TEXT, MAX_WAYPOINTS, ApiError, ErrorCode, _short
 
 
 @cache

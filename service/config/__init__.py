@@ -7,11 +7,11 @@ homing), the field reader and the error fields.py.
 """
 
 from pvtflow.configs import CONFIG_DIR
-from service.config.bus_section import PYTHON_CAN_INTERFACES
-from service.config.cell import CellConfig, PlanningConfig
-from service.config.fields import ConfigError
-from service.config.reader import load_cell_config, parse_cell_config
-from service.config.robot_section import shipped_robots
+from pvtflow.service.config.bus_section import PYTHON_CAN_INTERFACES
+from pvtflow.service.config.cell import CellConfig, PlanningConfig
+from pvtflow.service.config.fields import ConfigError
+from pvtflow.service.config.reader import load_cell_config, parse_cell_config
+from pvtflow.service.config.robot_section import shipped_robots
 
 __all__ = [
     "CONFIG_DIR",

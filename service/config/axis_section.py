@@ -9,14 +9,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from axes.commission import REQUIRABLE_OBJECTS
-from axes.config import AxisConfig, AxisSimulation, BufferConfig, BusConfig, homing_stop_room
-from axes.drive_profile import DriveProfile, ProfileError
-from axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
-from axes.sim.drive import eds_file
-from planner.model import RobotModel
-from service.config.fields import ConfigError, Fields
-from service.config.homing_section import parse_homing
+from pvtflow.axes.commission import REQUIRABLE_OBJECTS
+from pvtflow.axes.config import AxisConfig, AxisSimulation, BufferConfig, BusConfig, homing_stop_room
+from pvtflow.axes.drive_profile import DriveProfile, ProfileError
+from pvtflow.axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
+from pvtflow.axes.sim.drive import eds_file
+from pvtflow.planner.model import RobotModel
+from pvtflow.service.config.fields import ConfigError, Fields
+from pvtflow.service.config.homing_section import parse_homing
 
 
 def parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusConfig) -> tuple[AxisConfig, float | None]:

@@ -11,8 +11,8 @@ from typing import Any
 
 from can.interfaces import VALID_INTERFACES
 
-from axes.config import BusConfig
-from service.config.fields import Fields
+from pvtflow.axes.config import BusConfig
+from pvtflow.service.config.fields import Fields
 
 # python-can's own list of interfaces (``udp_multicast`` among them: it sends to a multicast group,
 # off this host, so the tests never name it).

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.config import AxisConfig, BusConfig
-from axes.homing import homing_stages
-from planner.limits import JointLimits, joint_limits_from_drives
-from planner.model import RobotModel
-from planner.speed_band import DEFAULT_SPEED_BAND
+from pvtflow.axes.config import AxisConfig, BusConfig
+from pvtflow.axes.homing import homing_stages
+from pvtflow.planner.limits import JointLimits, joint_limits_from_drives
+from pvtflow.planner.model import RobotModel
+from pvtflow.planner.speed_band import DEFAULT_SPEED_BAND
 
 
 @dataclass(frozen=True)

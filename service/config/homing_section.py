@@ -8,11 +8,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from axes import objects as od
-from axes.config import HomingConfig
-from axes.drive_profile import DriveProfile
-from axes.scaling import INT32_MAX, INT32_MIN, DriveLimits
-from service.config.fields import Fields
+from pvtflow.axes import objects as od
+from pvtflow.axes.config import HomingConfig
+from pvtflow.axes.drive_profile import DriveProfile
+from pvtflow.axes.scaling import INT32_MAX, INT32_MIN, DriveLimits
+from pvtflow.service.config.fields import Fields
 
 HOMING_FIELDS = (
     "method",

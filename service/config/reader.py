@@ -14,16 +14,16 @@ from typing import Any
 
 import yaml
 
-from axes.budget import bus_budget
-from axes.config import SIMULATION_INTERFACES, AxisConfig
-from planner.model import ModelError, RobotModel
+from pvtflow.axes.budget import bus_budget
+from pvtflow.axes.config import SIMULATION_INTERFACES, AxisConfig
 from pvtflow.configs import DEFAULT_CELL, shipped_cell, shipped_cells
-from service.config.axis_section import parse_axis
-from service.config.bus_section import parse_bus
-from service.config.cell import CellConfig
-from service.config.fields import ConfigError, Fields
-from service.config.homing_section import parse_homing_order
-from service.config.robot_section import parse_planning, robot_urdf
+from pvtflow.planner.model import ModelError, RobotModel
+from pvtflow.service.config.axis_section import parse_axis
+from pvtflow.service.config.bus_section import parse_bus
+from pvtflow.service.config.cell import CellConfig
+from pvtflow.service.config.fields import ConfigError, Fields
+from pvtflow.service.config.homing_section import parse_homing_order
+from pvtflow.service.config.robot_section import parse_planning, robot_urdf
 
 
 def load_cell_config(path: str | Path | None = None) -> CellConfig:

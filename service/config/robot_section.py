@@ -9,10 +9,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from planner.model import RobotModel
 from pvtflow.configs import ROBOTS_DIR
-from service.config.cell import PlanningConfig
-from service.config.fields import Fields
+from pvtflow.planner.model import RobotModel
+from pvtflow.service.config.cell import PlanningConfig
+from pvtflow.service.config.fields import Fields
 
 # planning.speed_band: a motion up to twice as long is the most a cell should trade for fewer records
 MAX_SPEED_BAND = 0.5

@@ -6,7 +6,7 @@ stop and recover; service.py adds the life cycle. What it keeps of a plan, a mot
 runs.py.
 """
 
-from service.motion.runs import Homing, Motion, ServiceEventKind, StoredPlan
-from service.motion.service import MotionService
+from pvtflow.service.motion.runs import Homing, Motion, ServiceEventKind, StoredPlan
+from pvtflow.service.motion.service import MotionService
 
 __all__ = ["Homing", "Motion", "MotionService", "ServiceEventKind", "StoredPlan"]

@@ -6,12 +6,12 @@ waits for every axis to have homed (``not_homed``), and a program starts where t
 
 from __future__ import annotations
 
-from axes.group import AxisGroup
-from axes.outcome import RunResult
-from axes.program import PvtProgram
-from service.api import ApiError, CellState, ErrorCode, refusals
-from service.motion.runs import Motion
-from service.motion.status import StatusReport
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.outcome import RunResult
+from pvtflow.axes.program import PvtProgram
+from pvtflow.service.api import ApiError, CellState, ErrorCode, refusals
+from pvtflow.service.motion.runs import Motion
+from pvtflow.service.motion.status import StatusReport
 
 
 class Admission(StatusReport):

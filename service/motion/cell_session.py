@@ -16,19 +16,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.bus import CellBus
-from axes.cia402 import PowerState
-from axes.group import AxisGroup
-from axes.homing import CellHoming
-from axes.link import DriveError
-from service.api import ApiError, CellState, ErrorCode
-from service.cell_planner import CellPlanner
-from service.config import CellConfig
-from service.journal import Journal, default_directory
-from service.live import LiveServer
-from service.live_rest import RestView
-from service.motion.runs import Homing, Motion, StoredPlan
-from service.planning import PlanningProcess
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.cia402 import PowerState
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.homing import CellHoming
+from pvtflow.axes.link import DriveError
+from pvtflow.service.api import ApiError, CellState, ErrorCode
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.config import CellConfig
+from pvtflow.service.journal import Journal, default_directory
+from pvtflow.service.live import LiveServer
+from pvtflow.service.live_rest import RestView
+from pvtflow.service.motion.runs import Homing, Motion, StoredPlan
+from pvtflow.service.planning import PlanningProcess
 
 Publish = Callable[[str, dict[str, Any]], None]
 

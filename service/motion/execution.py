@@ -11,17 +11,17 @@ import logging
 import time
 from typing import Any
 
-from axes.bus_faults import BusError
-from axes.link import DriveError
-from axes.outcome import GroupError, Result, RunResult
-from axes.program import PvtProgram, program_mismatch
-from planner.validate import validate_program
-from service.api import ApiError, CellState, ErrorCode, ExecuteRequest, refusals
-from service.approach import away_from_start, plan_approach
-from service.journal import JournalError
-from service.motion.plans import PlanBook
-from service.motion.runs import Motion, ServiceEventKind, new_id
-from service.recording import Recorder
+from pvtflow.axes.bus_faults import BusError
+from pvtflow.axes.link import DriveError
+from pvtflow.axes.outcome import GroupError, Result, RunResult
+from pvtflow.axes.program import PvtProgram, program_mismatch
+from pvtflow.planner.validate import validate_program
+from pvtflow.service.api import ApiError, CellState, ErrorCode, ExecuteRequest, refusals
+from pvtflow.service.approach import away_from_start, plan_approach
+from pvtflow.service.journal import JournalError
+from pvtflow.service.motion.plans import PlanBook
+from pvtflow.service.motion.runs import Motion, ServiceEventKind, new_id
+from pvtflow.service.recording import Recorder
 
 log = logging.getLogger("pvtflow.motion")
 

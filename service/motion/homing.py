@@ -10,13 +10,13 @@ import threading
 import time
 from typing import Any
 
-from axes.bus_faults import BusError
-from axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
-from axes.outcome import GroupError, Result
-from service.api import ApiError, CellState, ErrorCode, HomeRequest
-from service.journal import JournalError
-from service.motion.execution import Execution
-from service.motion.runs import Homing, ServiceEventKind, new_id
+from pvtflow.axes.bus_faults import BusError
+from pvtflow.axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
+from pvtflow.axes.outcome import GroupError, Result
+from pvtflow.service.api import ApiError, CellState, ErrorCode, HomeRequest
+from pvtflow.service.journal import JournalError
+from pvtflow.service.motion.execution import Execution
+from pvtflow.service.motion.runs import Homing, ServiceEventKind, new_id
 
 log = logging.getLogger("pvtflow.motion")
 

@@ -11,13 +11,13 @@ from typing import Any
 
 import numpy as np
 
-from axes.program import ProgramFormatError, PvtProgram, program_mismatch
-from planner.plan import PlanInput
-from planner.validate import validate_program
-from service.api import ApiError, ErrorCode, PlanRequest, PlanStart, ValidateRequest, refusals
-from service.cell_planner import TIMEOUT
-from service.motion.admission import Admission
-from service.motion.runs import StoredPlan, new_id
+from pvtflow.axes.program import ProgramFormatError, PvtProgram, program_mismatch
+from pvtflow.planner.plan import PlanInput
+from pvtflow.planner.validate import validate_program
+from pvtflow.service.api import ApiError, ErrorCode, PlanRequest, PlanStart, ValidateRequest, refusals
+from pvtflow.service.cell_planner import TIMEOUT
+from pvtflow.service.motion.admission import Admission
+from pvtflow.service.motion.runs import StoredPlan, new_id
 
 
 class PlanBook(Admission):

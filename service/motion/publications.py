@@ -9,11 +9,11 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from axes.homing import HomingEventKind
-from axes.outcome import Event, EventKind, Progress
-from service.api import CellState
-from service.motion.cell_session import CellSession
-from service.motion.runs import ServiceEventKind
+from pvtflow.axes.homing import HomingEventKind
+from pvtflow.axes.outcome import Event, EventKind, Progress
+from pvtflow.service.api import CellState
+from pvtflow.service.motion.cell_session import CellSession
+from pvtflow.service.motion.runs import ServiceEventKind
 
 
 class Publications(CellSession):

@@ -12,11 +12,11 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
 
-from axes.homing import HomingOutcome
-from axes.outcome import RunResult
-from axes.program import PvtProgram
-from service.api import RunState
-from service.recording import Recorder
+from pvtflow.axes.homing import HomingOutcome
+from pvtflow.axes.outcome import RunResult
+from pvtflow.axes.program import PvtProgram
+from pvtflow.service.api import RunState
+from pvtflow.service.recording import Recorder
 
 
 class ServiceEventKind(StrEnum):

@@ -23,13 +23,13 @@ from __future__ import annotations
 
 import threading
 
-from axes.bus_faults import BusError
-from axes.group import AxisGroup
-from axes.link import DriveError
-from service.cell_bus import CellBusError, open_bus
-from service.live_rest import RestView
-from service.motion.stop_recover import StopRecover
-from service.planning import PlanningProcess
+from pvtflow.axes.bus_faults import BusError
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.link import DriveError
+from pvtflow.service.cell_bus import CellBusError, open_bus
+from pvtflow.service.live_rest import RestView
+from pvtflow.service.motion.stop_recover import StopRecover
+from pvtflow.service.planning import PlanningProcess
 
 
 class MotionService(StopRecover):

@@ -7,10 +7,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from axes.outcome import AxisStatus
-from service.api import StatusRequest
-from service.journal import MotionEntry
-from service.motion.publications import Publications
+from pvtflow.axes.outcome import AxisStatus
+from pvtflow.service.api import StatusRequest
+from pvtflow.service.journal import MotionEntry
+from pvtflow.service.motion.publications import Publications
 
 
 class StatusReport(Publications):

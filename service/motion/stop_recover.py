@@ -9,11 +9,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from axes.bus_faults import BusError
-from axes.link import DriveError
-from axes.outcome import GroupError
-from service.api import ApiError, CellState, ErrorCode, RecoverRequest, StopRequest
-from service.motion.homing import HomingRuns
+from pvtflow.axes.bus_faults import BusError
+from pvtflow.axes.link import DriveError
+from pvtflow.axes.outcome import GroupError
+from pvtflow.service.api import ApiError, CellState, ErrorCode, RecoverRequest, StopRequest
+from pvtflow.service.motion.homing import HomingRuns
 
 
 class StopRecover(HomingRuns):

@@ -7,15 +7,15 @@ the drives execute it (planned.py), into the MCAP file (mcap_file.py, which read
 
 from __future__ import annotations
 
-from axes.front_door import lazy_exports
+from pvtflow.axes.front_door import lazy_exports
 
 # public name -> the module that defines it (loaded on first use: ``pvtflow report`` reads without the writer)
 _HOMES: dict[str, str] = {
-    "Recorder": "service.recording.recorder",
-    "Recorded": "service.recording.mcap_file",
-    "Recording": "service.recording.mcap_file",
-    "RecordingError": "service.recording.mcap_file",
-    "read_recording": "service.recording.mcap_file",
+    "Recorder": "pvtflow.service.recording.recorder",
+    "Recorded": "pvtflow.service.recording.mcap_file",
+    "Recording": "pvtflow.service.recording.mcap_file",
+    "RecordingError": "pvtflow.service.recording.mcap_file",
+    "read_recording": "pvtflow.service.recording.mcap_file",
 }
 __all__ = ["Recorded", "Recorder", "Recording", "RecordingError", "read_recording"]
 

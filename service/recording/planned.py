@@ -17,12 +17,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from axes.interpolation import DRIVE_SAMPLE_MS
-from service.recording.channels import PLANNED_SCHEMA, encode_planned
+from pvtflow.axes.interpolation import DRIVE_SAMPLE_MS
+from pvtflow.service.recording.channels import PLANNED_SCHEMA, encode_planned
 
 if TYPE_CHECKING:
-    from axes.program import AxisProgram
-    from axes.scaling import AxisScaling
+    from pvtflow.axes.program import AxisProgram
+    from pvtflow.axes.scaling import AxisScaling
 
 PLANNED_LEAD_MS = 250.0  # the planned channel is written this far ahead of the run (a chunk's span)
 

@@ -46,16 +46,16 @@ from typing import TYPE_CHECKING, Any
 
 import can
 
-from axes.bus import CellBus
-from axes.bus_faults import BusFault
-from service.recording.channels import FAULT_LEVEL, INFO
-from service.recording.mcap_file import CHUNK_BYTES, McapFile, open_mcap_file
-from service.recording.writer import CHUNK_MS, RecordWriter
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.bus_faults import BusFault
+from pvtflow.service.recording.channels import FAULT_LEVEL, INFO
+from pvtflow.service.recording.mcap_file import CHUNK_BYTES, McapFile, open_mcap_file
+from pvtflow.service.recording.writer import CHUNK_MS, RecordWriter
 
 if TYPE_CHECKING:
-    from axes.group import AxisGroup
-    from service.config import CellConfig
-    from service.live import LiveServer
+    from pvtflow.axes.group import AxisGroup
+    from pvtflow.service.config import CellConfig
+    from pvtflow.service.live import LiveServer
 
 
 class Recorder:

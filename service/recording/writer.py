@@ -26,11 +26,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from axes.cia402 import decode_state
-from axes.objects import SYNC_COB_ID
-from service.link_transforms import LinkTransforms
-from service.live import new_channel
-from service.recording.channels import (
+from pvtflow.axes.cia402 import decode_state
+from pvtflow.axes.objects import SYNC_COB_ID
+from pvtflow.service.link_transforms import LinkTransforms
+from pvtflow.service.live import new_channel
+from pvtflow.service.recording.channels import (
     ACTUAL_SCHEMA,
     BUFFERS_SCHEMA,
     CAN_SCHEMA,
@@ -50,12 +50,12 @@ from service.recording.channels import (
     encode_transforms,
     log_time,
 )
-from service.recording.planned import PLANNED_LEAD_MS, PlannedRun
+from pvtflow.service.recording.planned import PLANNED_LEAD_MS, PlannedRun
 
 if TYPE_CHECKING:
-    from service.config import CellConfig
-    from service.live import LiveServer
-    from service.recording.mcap_file import McapFile
+    from pvtflow.service.config import CellConfig
+    from pvtflow.service.live import LiveServer
+    from pvtflow.service.recording.mcap_file import McapFile
 
 log = logging.getLogger("pvtflow.recording")
 

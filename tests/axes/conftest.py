@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 from axes_rig import unique_channel
 
-from axes.bus import CellBus
-from axes.group import AxisGroup
-from axes.sim.cell import SimulatedCell, sharing_the_interpreter
-from service.config import CellConfig
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
+from pvtflow.service.config import CellConfig
 
 
 @dataclass

@@ -11,10 +11,10 @@ import pytest
 import yaml
 from axes_programs import program
 
-from axes.budget import LOAD_LIMIT, bus_budget
-from axes.config import AxisConfig, BusConfig, Wiring
-from axes.frame_time import frame_bits, worst_frame_bits
-from service.config import CONFIG_DIR, ConfigError, load_cell_config
+from pvtflow.axes.budget import LOAD_LIMIT, bus_budget
+from pvtflow.axes.config import AxisConfig, BusConfig, Wiring
+from pvtflow.axes.frame_time import frame_bits, worst_frame_bits
+from pvtflow.service.config import CONFIG_DIR, ConfigError, load_cell_config
 
 CELLS = sorted((CONFIG_DIR / "cells").glob("*.yaml"))
 

@@ -11,11 +11,11 @@ import can
 import pytest
 from axes_rig import unique_channel
 
-from axes.bus import CellBus
-from axes.bus_faults import BusFault, FaultKind
-from axes.config import BusConfig
-from axes.network import FrameRecorder
-from axes.objects import TIME_STAMP_COB_ID, NmtCommand
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.bus_faults import BusFault, FaultKind
+from pvtflow.axes.config import BusConfig
+from pvtflow.axes.network import FrameRecorder
+from pvtflow.axes.objects import TIME_STAMP_COB_ID, NmtCommand
 
 
 class Responder(can.Listener):
@@ -217,7 +217,7 @@ def test_heartbeat_emcy_and_lost_sync_are_reported(channel):
 
 
 def test_unknown_interface_is_one_clear_error():
-    from axes.bus_faults import BusError
+    from pvtflow.axes.bus_faults import BusError
 
     with pytest.raises(BusError, match="cannot open CAN bus"):
         CellBus(BusConfig(interface="socketcan", channel="pvtflow-does-not-exist")).open()

@@ -9,11 +9,11 @@ from collections.abc import Callable
 
 import pytest
 
-from axes import objects as od
-from axes.commission import CheckKind, Status, commission
-from axes.config import AxisSimulation
-from axes.link import DriveError
-from service.config import CONFIG_DIR, CellConfig, load_cell_config
+from pvtflow.axes import objects as od
+from pvtflow.axes.commission import CheckKind, Status, commission
+from pvtflow.axes.config import AxisSimulation
+from pvtflow.axes.link import DriveError
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 GANTRY = CONFIG_DIR / "cells" / "gantry3.yaml"
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from axes.drive_profile import DriveProfile, ProfileError
-from axes.interpolation import Interpolation
-from axes.objects import EPOS2_BUFFER_SIZE, MAXON_EPOS2_70_10, SIMULATED_VENDOR_ID
-from axes.program import AxisProgram
-from axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive_profile import DriveProfile, ProfileError
+from pvtflow.axes.interpolation import Interpolation
+from pvtflow.axes.objects import EPOS2_BUFFER_SIZE, MAXON_EPOS2_70_10, SIMULATED_VENDOR_ID
+from pvtflow.axes.program import AxisProgram
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
 
 E, L, S, P = (
     DriveProfile.EPOS2_PVT,

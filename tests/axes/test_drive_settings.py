@@ -8,9 +8,9 @@ from collections.abc import Callable
 import pytest
 from axes_rig import with_profiles
 
-from axes import objects as od
-from axes.profiles.base import expected_settings
-from service.config import CONFIG_DIR, CellConfig, load_cell_config
+from pvtflow.axes import objects as od
+from pvtflow.axes.profiles.base import expected_settings
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 PROFILES = {
     "epos2_pvt": {},

@@ -7,10 +7,10 @@ import dataclasses
 
 from axes_programs import axis_program, program
 
-from axes.config import BufferConfig
-from axes.feed_check import BufferedAxis, feed_shortfall
-from axes.outcome import Result
-from axes.program import PvtProgram
+from pvtflow.axes.config import BufferConfig
+from pvtflow.axes.feed_check import BufferedAxis, feed_shortfall
+from pvtflow.axes.outcome import Result
+from pvtflow.axes.program import PvtProgram
 
 
 def _axis(arm6, spacing_ms: int, duration_ms: int = 2000) -> BufferedAxis:

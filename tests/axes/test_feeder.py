@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from axes.config import BufferConfig
-from axes.feeder import PRELOAD_MS, TOP_UP_PER_SYNC, BufferFeeder, SetpointFeeder
-from axes.objects import BufferStatus, Record
+from pvtflow.axes.config import BufferConfig
+from pvtflow.axes.feeder import PRELOAD_MS, TOP_UP_PER_SYNC, BufferFeeder, SetpointFeeder
+from pvtflow.axes.objects import BufferStatus, Record
 
 
 def records(n: int, dt: int = 2, end: bool = False) -> np.ndarray:

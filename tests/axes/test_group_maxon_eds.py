@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from axes_programs import check_limits, program
 
-from axes import objects as od
-from axes.outcome import Result
-from axes.sim.drive import MAXON_EPOS2_EDS as MAXON_EDS  # configs/eds/vendor: maxon's file, unchanged
+from pvtflow.axes import objects as od
+from pvtflow.axes.outcome import Result
+from pvtflow.axes.sim.drive import MAXON_EPOS2_EDS as MAXON_EDS  # configs/eds/vendor: maxon's file, unchanged
 
 
 def test_master_configures_a_node_with_the_maxon_eds(arm6, make_rig):

@@ -12,16 +12,16 @@ from typing import Any
 
 import pytest
 
-from axes import objects as od
-from axes.bus import CellBus
-from axes.config import AxisSimulation, HomingConfig
-from axes.group import AxisGroup
-from axes.homing import CellHoming, HomingRequestError, HomingResult, homing_stages
-from axes.outcome import GroupError, Result
-from axes.program import PvtProgram
-from axes.sim.cell import SimulatedCell
-from axes.sim.homing import HomingState
-from service.config import CONFIG_DIR, CellConfig, load_cell_config
+from pvtflow.axes import objects as od
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.config import AxisSimulation, HomingConfig
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.homing import CellHoming, HomingRequestError, HomingResult, homing_stages
+from pvtflow.axes.outcome import GroupError, Result
+from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.sim.cell import SimulatedCell
+from pvtflow.axes.sim.homing import HomingState
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 M = od.HomingMethod
 INDEX = 4096

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from axes.interpolation import (
+from pvtflow.axes.interpolation import (
     Interpolation,
     PiecewiseCubic,
     cubic_p,
@@ -14,7 +14,7 @@ from axes.interpolation import (
     hermite_coefficients,
     linear,
 )
-from axes.scaling import AxisScaling
+from pvtflow.axes.scaling import AxisScaling
 
 
 def _segment(c: tuple[np.ndarray, ...], T: float) -> PiecewiseCubic:

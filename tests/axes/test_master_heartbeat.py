@@ -9,8 +9,8 @@ import time
 import can
 from axes_rig import BusObserver, unique_channel
 
-from axes import objects as od
-from axes.bus import CellBus
+from pvtflow.axes import objects as od
+from pvtflow.axes.bus import CellBus
 
 
 class Beats:

@@ -20,12 +20,12 @@ from axes_programs import check_limits, program
 from axes_rig import BusObserver, with_profiles
 from canopen.sdo.exceptions import SdoAbortedError
 
-from axes import objects as od
-from axes.bus import CellBus
-from axes.cia402 import PowerState
-from axes.group import AxisGroup
-from axes.outcome import Result
-from axes.sim.drive import MAXON_EPOS2_EDS, SimulatedDrive
+from pvtflow.axes import objects as od
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.cia402 import PowerState
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.outcome import Result
+from pvtflow.axes.sim.drive import MAXON_EPOS2_EDS, SimulatedDrive
 
 PROGRAM_MS = 2000
 KILL_AT_MS = 400  # mid-motion: every axis moves then (the quintic is at 20 % of its duration)

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from axes import objects as od
-from axes.objects import EPOS2_RPDOS, EPOS2_TIME_STAMP_RPDO, EPOS2_TPDOS, TIME_STAMP_COB_ID
-from service.config import CellConfig
+from pvtflow.axes import objects as od
+from pvtflow.axes.objects import EPOS2_RPDOS, EPOS2_TIME_STAMP_RPDO, EPOS2_TPDOS, TIME_STAMP_COB_ID
+from pvtflow.service.config import CellConfig
 
 
 def test_every_pdo_is_configured_and_read_back_and_the_rest_invalidated(
@@ -41,7 +41,7 @@ def test_every_pdo_is_configured_and_read_back_and_the_rest_invalidated(
 
 
 def test_the_parker_answers_with_0x6063_as_its_seed_lists(make_rig: Callable[..., object]) -> None:
-    from service.config import CONFIG_DIR, load_cell_config
+    from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
     cell = load_cell_config(CONFIG_DIR / "cells" / "gantry3-parker.yaml")
     rig = make_rig(cell)

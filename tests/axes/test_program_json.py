@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from axes.objects import Record
-from axes.program import FORMAT, ProgramFormatError, PvtProgram
+from pvtflow.axes.objects import Record
+from pvtflow.axes.program import FORMAT, ProgramFormatError, PvtProgram
 
 DESIGN_EXAMPLE = {
     "format": "pvtflow.pvt-program",

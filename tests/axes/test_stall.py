@@ -18,12 +18,12 @@ import pytest
 import yaml
 from axes_programs import axis_program, safe_distance
 
-from axes.bus import CellBus
-from axes.config import AxisConfig
-from axes.group import AxisGroup, Result
-from axes.program import PvtProgram
-from service.config import CellConfig, load_cell_config
-from service.sim_cmd import WIRE_SERVED_AT
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.config import AxisConfig
+from pvtflow.axes.group import AxisGroup, Result
+from pvtflow.axes.program import PvtProgram
+from pvtflow.service.config import CellConfig, load_cell_config
+from pvtflow.service.sim_cmd import WIRE_SERVED_AT
 
 REPO = Path(__file__).resolve().parents[2]
 GANTRY = REPO / "configs" / "cells" / "gantry3-ip-linear.yaml"  # fixed-period drives: they ride out 2 periods
@@ -45,7 +45,7 @@ def serve(cell_file: Path) -> Iterator[tuple[CellConfig, subprocess.Popen[str]]]
     """``pvtflow sim --wall-clock`` on a channel of its own; the cell as a master in this process sees it."""
     cell = load_cell_config(cell_file)
     channel = f"stall-{uuid.uuid4().hex[:8]}"
-    args = [sys.executable, "-m", "service.cli", "sim", "--config", str(cell_file), "--channel", channel]
+    args = [sys.executable, "-m", "pvtflow.service.cli", "sim", "--config", str(cell_file), "--channel", channel]
     process = subprocess.Popen(
         [*args, "--wall-clock"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )

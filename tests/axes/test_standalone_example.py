@@ -11,7 +11,7 @@ from pathlib import Path
 
 from axes_programs import program
 
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "pvt-program.md"
 

@@ -10,8 +10,8 @@ import numpy as np
 from axes_programs import check_limits, program
 from axes_rig import with_profiles
 
-from axes.objects import SYNC_COB_ID
-from axes.outcome import Result
+from pvtflow.axes.objects import SYNC_COB_ID
+from pvtflow.axes.outcome import Result
 
 
 class StatusCounter:

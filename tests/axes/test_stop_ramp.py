@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from axes_programs import axis_program, safe_distance
 
-from axes import objects as od
-from axes.cia402 import Statusword
-from axes.outcome import Result
-from axes.program import PvtProgram
-from axes.stop_ramp import braking_positions
-from service.config import load_cell_config
+from pvtflow.axes import objects as od
+from pvtflow.axes.cia402 import Statusword
+from pvtflow.axes.outcome import Result
+from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.stop_ramp import braking_positions
+from pvtflow.service.config import load_cell_config
 
 CELLS = Path(__file__).resolve().parents[2] / "configs" / "cells"
 HALT_AT_SYNC = 150  # SYNCs after the start: the axes are at speed (program of 400 ms)

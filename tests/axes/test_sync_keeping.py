@@ -22,17 +22,17 @@ import pytest
 from axes_programs import program
 from axes_rig import BusObserver, FlakyBus, unique_channel, with_profiles
 
-from axes import objects as od
-from axes.bus import CellBus
-from axes.bus_faults import BusFault, FaultKind
-from axes.config import BusConfig
-from axes.group import AxisGroup
-from axes.objects import SYNC_COB_ID
-from axes.outcome import Result
-from axes.sim.cell import SimulatedCell, sharing_the_interpreter
-from axes.sim.power_states import SWITCH_ON_DISABLED
-from axes.subscriptions import subscribe, unsubscribe
-from axes.sync import below_sync, lift, producer_cpus
+from pvtflow.axes import objects as od
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.bus_faults import BusFault, FaultKind
+from pvtflow.axes.config import BusConfig
+from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.objects import SYNC_COB_ID
+from pvtflow.axes.outcome import Result
+from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
+from pvtflow.axes.sim.power_states import SWITCH_ON_DISABLED
+from pvtflow.axes.subscriptions import subscribe, unsubscribe
+from pvtflow.axes.sync import below_sync, lift, producer_cpus
 
 # --- subscriptions --------------------------------------------------------------------------------
 

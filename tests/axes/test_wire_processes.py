@@ -14,10 +14,10 @@ from pathlib import Path
 import pytest
 from axes_programs import check_limits, program
 
-from axes.bus import CellBus
-from axes.group import AxisGroup, Result
-from service.config import CellConfig, load_cell_config
-from service.sim_cmd import WIRE_SERVED_AT
+from pvtflow.axes.bus import CellBus
+from pvtflow.axes.group import AxisGroup, Result
+from pvtflow.service.config import CellConfig, load_cell_config
+from pvtflow.service.sim_cmd import WIRE_SERVED_AT
 
 REPO = Path(__file__).resolve().parents[2]
 ARM6 = REPO / "configs" / "cells" / "arm6.yaml"
@@ -32,7 +32,7 @@ class Served:
 def serve_drives(clock: str) -> Iterator[Served]:
     cell = load_cell_config(ARM6)
     channel = f"procs-{uuid.uuid4().hex[:8]}"
-    args = [sys.executable, "-m", "service.cli", "sim", "--config", str(ARM6), "--channel", channel]
+    args = [sys.executable, "-m", "pvtflow.service.cli", "sim", "--config", str(ARM6), "--channel", channel]
     if clock == "wall":
         args.append("--wall-clock")
     process = subprocess.Popen(args, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from service.cli import build_parser, main
+from pvtflow.service.cli import build_parser, main
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -51,7 +51,7 @@ def blocks() -> list[Block]:
 
 def request_examples() -> list[tuple[str, str, dict[str, object]]]:
     """(where, request, payload) of every runnable one-line request example."""
-    from service.api import QUERYABLES
+    from pvtflow.service.api import QUERYABLES
 
     out = []
     for b in blocks():

@@ -8,7 +8,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from planner.cartesian import (
+from pvtflow.planner.cartesian import (
     MAX_JOINT_STEP,
     CartesianResult,
     LineTolerance,
@@ -18,10 +18,10 @@ from planner.cartesian import (
     placement_pose,
     pose_placement,
 )
-from planner.ik import IkSolver, IkStatus
-from planner.path import PlanError, PlanResult
-from planner.plan import PlanInput, Planner
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.planner.ik import IkSolver, IkStatus
+from pvtflow.planner.path import PlanError, PlanResult
+from pvtflow.planner.plan import PlanInput, Planner
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
 LIMITS = ARM.joint_limits()
@@ -206,7 +206,7 @@ def test_the_tool_already_at_the_pose_is_nothing_to_move() -> None:
 
 
 def test_the_cell_validates_the_angular_speed_limit(tmp_path) -> None:
-    from service.config import ConfigError
+    from pvtflow.service.config import ConfigError
 
     text = (CONFIG_DIR / "cells" / "arm6.yaml").read_text()
     text = text.replace("urdf: ../robots/arm6.urdf", f"urdf: {CONFIG_DIR / 'robots' / 'arm6.urdf'}")

@@ -17,20 +17,20 @@ import dataclasses
 import numpy as np
 import pytest
 
-from axes.program import TIME_MAX_MS
-from planner.constraints import _IntervalSpeedConstraint
-from planner.knots import KnotError, KnotOptions, epos2
-from planner.knots.check import axes_records, axis_records, check_knots, knot_records, over_limit
-from planner.knots.flat import Flat
-from planner.knots.quantize import quantize_checked, repair_rounds, round_knots
-from planner.knots.refine import fit_knots, lsq_fit, split_segments
-from planner.knots.round_kernels import split_verdict
-from planner.knots.samples import sample_trajectory
-from planner.lean_toppra import LeanTOPPRA
-from planner.plan import PlanInput
-from planner.timing import make_gridpoints
-from service.cell_planner import planner_for_cell
-from service.config import load_cell_config
+from pvtflow.axes.program import TIME_MAX_MS
+from pvtflow.planner.constraints import _IntervalSpeedConstraint
+from pvtflow.planner.knots import KnotError, KnotOptions, epos2
+from pvtflow.planner.knots.check import axes_records, axis_records, check_knots, knot_records, over_limit
+from pvtflow.planner.knots.flat import Flat
+from pvtflow.planner.knots.quantize import quantize_checked, repair_rounds, round_knots
+from pvtflow.planner.knots.refine import fit_knots, lsq_fit, split_segments
+from pvtflow.planner.knots.round_kernels import split_verdict
+from pvtflow.planner.knots.samples import sample_trajectory
+from pvtflow.planner.lean_toppra import LeanTOPPRA
+from pvtflow.planner.plan import PlanInput
+from pvtflow.planner.timing import make_gridpoints
+from pvtflow.service.cell_planner import planner_for_cell
+from pvtflow.service.config import load_cell_config
 
 
 @pytest.fixture(scope="module")
@@ -269,7 +269,7 @@ def _bits(x: np.ndarray) -> np.ndarray:
 def test_not_a_knot_is_scipys_spline_bit_for_bit(n: int) -> None:
     from scipy.interpolate import CubicSpline
 
-    from planner.path import not_a_knot
+    from pvtflow.planner.path import not_a_knot
 
     rng = np.random.default_rng(n)
     for _ in range(200):
@@ -282,7 +282,7 @@ def test_not_a_knot_is_scipys_spline_bit_for_bit(n: int) -> None:
 
 
 def test_u_range_is_the_numpy_statements_bit_for_bit() -> None:
-    from planner.lean_toppra import _StageRows
+    from pvtflow.planner.lean_toppra import _StageRows
 
     cell = load_cell_config()
     planner = planner_for_cell(cell)
@@ -313,8 +313,8 @@ def test_u_range_is_the_numpy_statements_bit_for_bit() -> None:
 
 
 def test_gridpoints_are_the_unions_of_their_candidates() -> None:
-    from planner.path import JointPath
-    from planner.timing import END_REFINEMENT
+    from pvtflow.planner.path import JointPath
+    from pvtflow.planner.timing import END_REFINEMENT
 
     lim = load_cell_config().joint_limits()
     rng = np.random.default_rng(2)

@@ -11,12 +11,12 @@ import math
 import numpy as np
 import pytest
 
-import planner.jerk.solve as jerk_solve
-from planner.jerk import JerkTrajectory
-from planner.plan import PlanInput, Planner
-from planner.validate import validate_program
-from service.cell_planner import CellPlanner
-from service.config import CONFIG_DIR, load_cell_config
+import pvtflow.planner.jerk.solve as jerk_solve
+from pvtflow.planner.jerk import JerkTrajectory
+from pvtflow.planner.plan import PlanInput, Planner
+from pvtflow.planner.validate import validate_program
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
 LIMITS = ARM.joint_limits()
@@ -194,8 +194,8 @@ def test_a_path_topp_ra_cruises_on_is_timed_jerk_limited() -> None:
     """TOPP-RA at the velocity limit on most of its intervals (a 75th percentile of |s''| of 0):
     the warm profile still moves (it was braked to rest everywhere, and the grid's share of a zero
     duration never settled), and the plan holds every limit."""
-    from planner.jerk.warm import WarmProfile
-    from planner.timing import parameterize, timing_constraints
+    from pvtflow.planner.jerk.warm import WarmProfile
+    from pvtflow.planner.timing import parameterize, timing_constraints
 
     wp = np.array([[1.47, -1.15, 1.78, 2.12, -0.81, 0.67], [-0.65, 0.6, -1.57, -0.14, 0.28, 0.6]])
     topp = Planner(LIMITS).plan(PlanInput(wp)).trajectory

@@ -9,11 +9,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import service.cell_planner as cell_planner_module
-from planner.plan import PlanInput, Planner
-from planner.validate import validate_program
-from service.cell_planner import TIMEOUT, CellPlanner
-from service.config import CONFIG_DIR, load_cell_config
+import pvtflow.service.cell_planner as cell_planner_module
+from pvtflow.planner.plan import PlanInput, Planner
+from pvtflow.planner.validate import validate_program
+from pvtflow.service.cell_planner import TIMEOUT, CellPlanner
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
 GANTRY = load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml")
@@ -72,7 +72,7 @@ def test_no_solve_starts_that_cannot_answer_in_time() -> None:
     left running in a thread (casadi holds the interpreter's lock while it computes)."""
     import threading
 
-    import planner.jerk.solve as jerk_solve
+    import pvtflow.planner.jerk.solve as jerk_solve
 
     limits = ARM.joint_limits()
     planner = Planner(limits)
@@ -89,7 +89,7 @@ def test_a_solver_left_out_for_lack_of_time_is_the_floor_not_a_refusal(monkeypat
     """The time left shrinks between choosing the solvers and starting them (the program's lock, a
     loaded host): none left, or only some of them failing, proves nothing about the path; the answer
     is the floor, never INFEASIBLE (time alone never refuses a plan)."""
-    import planner.jerk.solve as jerk_solve
+    import pvtflow.planner.jerk.solve as jerk_solve
 
     chosen = jerk_solve._solvers_for
     calls: list[int] = []

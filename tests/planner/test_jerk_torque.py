@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.jerk import JerkTrajectory
-from planner.limits import JointLimits
-from planner.plan import PlanInput, Planner
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.planner.jerk import JerkTrajectory
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.plan import PlanInput, Planner
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
 ARM_LIMITS = ARM.joint_limits()

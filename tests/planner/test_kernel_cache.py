@@ -5,9 +5,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from planner.kernel_cache import HERE, INTERPOLATION, KERNEL_SOURCES, PlannerCacheLocator, sources_stamp
-from planner.knots import check_kernels, quantize_kernels
-from planner.validate import screen
+from pvtflow.planner.kernel_cache import HERE, INTERPOLATION, KERNEL_SOURCES, PlannerCacheLocator, sources_stamp
+from pvtflow.planner.knots import check_kernels, quantize_kernels
+from pvtflow.planner.validate import screen
 
 
 def test_every_module_with_kernels_is_in_the_stamp() -> None:

@@ -9,16 +9,16 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from axes.interpolation import LINEAR_QUANTIZATION_QC, Interpolation, epos2_pvt, linear, linear_span_excess
-from axes.program import AxisProgram, PvtProgram
-from axes.scaling import AxisScaling, DriveLimits
-from planner.build import build_program
-from planner.knots import DriveAxis, KnotOptions, fixed_period_kernels, place_knots
-from planner.limits import joint_limits_from_drives
-from planner.plan import PlanInput, Planner
-from planner.validate import validate_program
-from service.cell_planner import planner_for_cell
-from service.config import load_cell_config
+from pvtflow.axes.interpolation import LINEAR_QUANTIZATION_QC, Interpolation, epos2_pvt, linear, linear_span_excess
+from pvtflow.axes.program import AxisProgram, PvtProgram
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.planner.build import build_program
+from pvtflow.planner.knots import DriveAxis, KnotOptions, fixed_period_kernels, place_knots
+from pvtflow.planner.limits import joint_limits_from_drives
+from pvtflow.planner.plan import PlanInput, Planner
+from pvtflow.planner.validate import validate_program
+from pvtflow.service.cell_planner import planner_for_cell
+from pvtflow.service.config import load_cell_config
 
 
 @pytest.fixture(scope="module")

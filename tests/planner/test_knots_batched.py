@@ -13,18 +13,18 @@ import itertools
 import numpy as np
 import pytest
 
-from axes.interpolation import PiecewiseCubic, epos2_pvt, hermite_coefficients
-from planner.build import build_program
-from planner.knots import KnotOptions, quantize_kernels, refine_kernels
-from planner.knots.check import check_knots
-from planner.knots.epos2 import Start, place_epos2
-from planner.knots.flat import Flat, within_record_time
-from planner.knots.quantize import round_knots
-from planner.knots.refine import lsq_fit, switch_knots
-from planner.knots.samples import sample_trajectory
-from planner.plan import PlanInput
-from service.cell_planner import planner_for_cell
-from service.config import load_cell_config
+from pvtflow.axes.interpolation import PiecewiseCubic, epos2_pvt, hermite_coefficients
+from pvtflow.planner.build import build_program
+from pvtflow.planner.knots import KnotOptions, quantize_kernels, refine_kernels
+from pvtflow.planner.knots.check import check_knots
+from pvtflow.planner.knots.epos2 import Start, place_epos2
+from pvtflow.planner.knots.flat import Flat, within_record_time
+from pvtflow.planner.knots.quantize import round_knots
+from pvtflow.planner.knots.refine import lsq_fit, switch_knots
+from pvtflow.planner.knots.samples import sample_trajectory
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.cell_planner import planner_for_cell
+from pvtflow.service.config import load_cell_config
 
 
 @pytest.fixture(scope="module")

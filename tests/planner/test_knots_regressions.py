@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from axes.program import TIME_MAX_MS
-from planner.knots.flat import within_record_time
-from planner.plan import PlanInput
-from planner.validate import validate_program
-from service.cell_planner import plan_cell_program
-from service.config import load_cell_config
+from pvtflow.axes.program import TIME_MAX_MS
+from pvtflow.planner.knots.flat import within_record_time
+from pvtflow.planner.plan import PlanInput
+from pvtflow.planner.validate import validate_program
+from pvtflow.service.cell_planner import plan_cell_program
+from pvtflow.service.config import load_cell_config
 
 # an arm6 path whose knot hints once held a segment longer than 255 ms (IndexError in the fit)
 LONG_SEGMENT_PATH = [

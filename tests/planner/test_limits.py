@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from axes.scaling import AxisScaling, DriveLimits
-from planner.limits import JointLimits, joint_limits_from_drives
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.planner.limits import JointLimits, joint_limits_from_drives
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 
 def test_revolute_scaling_by_hand() -> None:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.model import ModelError, RobotModel
-from service.config import CONFIG_DIR
+from pvtflow.planner.model import ModelError, RobotModel
+from pvtflow.service.config import CONFIG_DIR
 
 ARM = CONFIG_DIR / "robots" / "arm6.urdf"
 GANTRY = CONFIG_DIR / "robots" / "gantry3.urdf"

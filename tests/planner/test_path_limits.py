@@ -12,10 +12,10 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from planner.limits import JointLimits
-from planner.path import MIN_WAYPOINT_DISTANCE, JointPath, PlanResult
-from planner.plan import PlanInput, Planner
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.path import MIN_WAYPOINT_DISTANCE, JointPath, PlanResult
+from pvtflow.planner.plan import PlanInput, Planner
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 CELLS = {name: load_cell_config(CONFIG_DIR / "cells" / f"{name}.yaml").joint_limits() for name in ("arm6", "gantry3")}
 PLANNERS = {name: Planner(limits) for name, limits in CELLS.items()}

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from planner.limits import JointLimits
-from planner.path import PlanResult
-from planner.plan import PlanInput, Planner
-from planner.speed_band import DEFAULT_SPEED_BAND
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.path import PlanResult
+from pvtflow.planner.plan import PlanInput, Planner
+from pvtflow.planner.speed_band import DEFAULT_SPEED_BAND
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
 GANTRY = load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml")

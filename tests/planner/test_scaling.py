@@ -12,11 +12,11 @@ import math
 import numpy as np
 import pytest
 
-from axes.interpolation import exceeds
-from planner.plan import PlanInput, Planner
-from planner.validate import validate_program
-from service.cell_planner import CellPlanner
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.axes.interpolation import exceeds
+from pvtflow.planner.plan import PlanInput, Planner
+from pvtflow.planner.validate import validate_program
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
 GANTRY = load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml")

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.limits import JointLimits
-from planner.path import JointPath
-from planner.plan import PlanInput, Planner
-from planner.speed_band import DEFAULT_SPEED_BAND, flattened
-from planner.timing import (
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.path import JointPath
+from pvtflow.planner.plan import PlanInput, Planner
+from pvtflow.planner.speed_band import DEFAULT_SPEED_BAND, flattened
+from pvtflow.planner.timing import (
     DEFAULT_GRIDPOINTS,
     RneaJointTorqueConstraint,
     _solve,
@@ -18,7 +18,7 @@ from planner.timing import (
     parameterize,
     timing_constraints,
 )
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
 GANTRY = load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml")

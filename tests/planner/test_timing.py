@@ -9,11 +9,11 @@ import toppra
 import toppra.algorithm as algo
 import toppra.constraint as constraint
 
-from planner.constraints import TORQUE_MIDDLE_MARGIN
-from planner.limits import JointLimits
-from planner.path import JointPath, PlanError
-from planner.plan import PlanInput, Planner
-from planner.timing import (
+from pvtflow.planner.constraints import TORQUE_MIDDLE_MARGIN
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.path import JointPath, PlanError
+from pvtflow.planner.plan import PlanInput, Planner
+from pvtflow.planner.timing import (
     DEFAULT_GRIDPOINTS,
     LeanTOPPRA,
     RneaJointTorqueConstraint,
@@ -22,8 +22,8 @@ from planner.timing import (
     parameterize,
     timing_constraints,
 )
-from planner.trajectory import Trajectory
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.planner.trajectory import Trajectory
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
 LIMITS = ARM.joint_limits()
@@ -194,7 +194,7 @@ def test_acceleration_jumps_are_the_numpy_statements_bit_for_bit() -> None:
 def test_stage_rows_are_the_matrix_products() -> None:
     """``_StageRows.stack`` (one compiled loop per constraint, F's nonzeros only) gives the stacked
     F a, F b, F c - h of every constraint of the cell, torque included, as numpy's products do."""
-    from planner.lean_toppra import _StageRows, _times
+    from pvtflow.planner.lean_toppra import _StageRows, _times
 
     planner = Planner(LIMITS, ARM.model, "tool0", 2.0, torque_limits=True)
     path = JointPath(WAYPOINTS, LIMITS)

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from hand_programs import GOOD_RECORDS, LIMITS, SCALING, axis, program
 
-from axes.program import PvtProgram
-from axes.scaling import DriveLimits
-from planner.validate import validate_program
+from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.scaling import DriveLimits
+from pvtflow.planner.validate import validate_program
 
 
 def only(report, rule: str):
@@ -315,7 +315,7 @@ def _mutations(records: np.ndarray) -> list[np.ndarray]:
 def test_one_look_at_all_axes_changes_no_answer(monkeypatch) -> None:
     """The compiled look at a program of EPOS2 axes (``screen._epos2_screen``) gives the report the
     rule-by-rule path gives, for records that keep every rule and for records that break one."""
-    from planner.validate import screen
+    from pvtflow.planner.validate import screen
 
     rng = np.random.default_rng(17)
     wide = dataclasses.replace(LIMITS, max_profile_velocity_rpm=1e7, max_acceleration_rpm_s=1e9)

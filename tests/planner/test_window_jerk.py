@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from axes.interpolation import epos2_pvt
-from planner.knots.window_jerk import WINDOW_MS, window_jerk
-from planner.plan import PlanInput
-from planner.validate import validate_program
-from service.cell_planner import CellPlanner
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.axes.interpolation import epos2_pvt
+from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk
+from pvtflow.planner.plan import PlanInput
+from pvtflow.planner.validate import validate_program
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 
 def test_window_jerk_is_the_peak_of_the_acceleration_change_over_10_ms() -> None:

@@ -8,8 +8,8 @@ import pytest
 import zenoh
 from svc_helpers import CONFIGS, SHORT_TARGET, free_port, nothing_moved, wait_until
 
-from service.request_cmd import Client
-from service.server import load_zenoh_config
+from pvtflow.service.request_cmd import Client
+from pvtflow.service.server import load_zenoh_config
 
 ZENOH = CONFIGS / "zenoh"
 

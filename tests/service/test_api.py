@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from jsonschema import Draft202012Validator
 
-from service.api import (
+from pvtflow.service.api import (
     ERROR_DESCRIPTIONS,
     QUERYABLES,
     ApiError,
@@ -107,11 +107,11 @@ def test_key_expressions_and_cell_names():
 def test_docs_api_md_has_the_current_schemas_and_every_error_code():
     from pathlib import Path
 
-    from service.api import SCHEMA_DOC_BEGIN, SCHEMA_DOC_END, schema_document
+    from pvtflow.service.api import SCHEMA_DOC_BEGIN, SCHEMA_DOC_END, schema_document
 
     doc = (Path(__file__).resolve().parents[2] / "docs" / "API.md").read_text(encoding="utf-8")
     start, end = doc.index(SCHEMA_DOC_BEGIN), doc.index(SCHEMA_DOC_END) + len(SCHEMA_DOC_END)
-    assert doc[start:end] == schema_document(), "docs/API.md is stale: regenerate with python -m service.api"
+    assert doc[start:end] == schema_document(), "docs/API.md is stale: regenerate with python -m pvtflow.service.api"
     for code in ErrorCode:
         assert f"| `{code.value}` |" in doc, code
 

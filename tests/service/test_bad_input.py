@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from svc_helpers import SHORT_TARGET, check_reply, nothing_moved, served_cell
 
-from service.api import MAX_REQUEST_BYTES, MAX_WAYPOINTS
+from pvtflow.service.api import MAX_REQUEST_BYTES, MAX_WAYPOINTS
 
 GOOD = [0.1, 0.1, 0.1, 0.1, 0.1, 0.1]
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from service.cli import main
-from service.config import CONFIG_DIR, ConfigError, load_cell_config
+from pvtflow.service.cli import main
+from pvtflow.service.config import CONFIG_DIR, ConfigError, load_cell_config
 
 SHIPPED = (CONFIG_DIR / "cells" / "gantry3.yaml").read_text()
 

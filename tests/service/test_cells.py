@@ -7,8 +7,8 @@ import json
 import zenoh
 from svc_helpers import check_reply, free_port, wait_until
 
-from service.request_cmd import Client
-from service.server import client_config, peer_config
+from pvtflow.service.request_cmd import Client
+from pvtflow.service.server import client_config, peer_config
 
 
 def router(port: int) -> zenoh.Session:

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from svc_helpers import CONFIGS, free_port
 
-from service.cli import main
+from pvtflow.service.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -36,7 +36,7 @@ def test_serve_prints_how_to_talk_to_it_and_request_plans_and_executes(tmp_path,
         [
             sys.executable,
             "-m",
-            "service.cli",
+            "pvtflow.service.cli",
             "serve",
             "--config",
             str(channel_cell),

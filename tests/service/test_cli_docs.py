@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from service.cli import build_parser, subcommand_parsers
+from pvtflow.service.cli import build_parser, subcommand_parsers
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = (ROOT / "README.md", ROOT / "docs" / "API.md")

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from svc_helpers import CONFIGS, free_port, served_cell
 
-from service.cli import build_parser, join_negative_values, main, one_value_options, subcommand_parsers
-from service.serve_cmd import banner, example_target
-from service.server import load_zenoh_config
+from pvtflow.service.cli import build_parser, join_negative_values, main, one_value_options, subcommand_parsers
+from pvtflow.service.serve_cmd import banner, example_target
+from pvtflow.service.server import load_zenoh_config
 
 ZENOH = CONFIGS / "zenoh"
 ARM6_TARGET = [-0.3, 0.2, -0.3, 0.2, -0.3, 0.2]  # its first value negative

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from service.cli import main
-from service.config import CONFIG_DIR
+from pvtflow.service.cli import main
+from pvtflow.service.config import CONFIG_DIR
 
 GANTRY = CONFIG_DIR / "cells" / "gantry3.yaml"
 Y_SIMULATION = "index_spacing_qc: 4096, index_offset_qc: 900}"

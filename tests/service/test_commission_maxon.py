@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from axes.bus_faults import BusError
-from service.cli import main
-from service.config import CONFIG_DIR, ConfigError, load_cell_config
-from service.motion import MotionService
+from pvtflow.axes.bus_faults import BusError
+from pvtflow.service.cli import main
+from pvtflow.service.config import CONFIG_DIR, ConfigError, load_cell_config
+from pvtflow.service.motion import MotionService
 
 GANTRY = CONFIG_DIR / "cells" / "gantry3.yaml"
 MAXON = "eds: vendor/maxon-epos2-70-10.eds"

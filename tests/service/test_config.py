@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 import yaml
 
-from service.config import CONFIG_DIR, ConfigError, load_cell_config
+from pvtflow.service.config import CONFIG_DIR, ConfigError, load_cell_config
 
 ARM = CONFIG_DIR / "cells" / "arm6.yaml"
 GANTRY = CONFIG_DIR / "cells" / "gantry3.yaml"
@@ -229,8 +229,8 @@ def test_tcp_speed_needs_a_frame(tmp_path: Path) -> None:
 
 
 def test_the_speed_band_is_a_planning_option(tmp_path: Path) -> None:
-    from planner.speed_band import DEFAULT_SPEED_BAND
-    from service.cell_planner import planner_for_cell
+    from pvtflow.planner.speed_band import DEFAULT_SPEED_BAND
+    from pvtflow.service.cell_planner import planner_for_cell
 
     assert load_cell_config(ARM).planning.speed_band == DEFAULT_SPEED_BAND == 0.05
     data = arm_data()

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from axes.program import PvtProgram, program_mismatch
-from planner.validate import validate_program
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.axes.program import PvtProgram, program_mismatch
+from pvtflow.planner.validate import validate_program
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "pvt-program.md"
 

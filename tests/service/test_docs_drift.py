@@ -24,18 +24,18 @@ def text(path: Path) -> str:
 
 @pytest.mark.parametrize("package", PACKAGES)
 def test_the_readme_table_lists_the_public_names_of_each_package(package: str) -> None:
-    row = re.search(rf"^\| `{package}` \| (.*) \|$", text(ROOT / "README.md"), re.M)
+    row = re.search(rf"^\| `pvtflow.{package}` \| (.*) \|$", text(ROOT / "README.md"), re.M)
     assert row, f"README.md: no row for {package}"
     listed = set(re.findall(r"`(\w+)`", re.sub(r"\([^)]*\)", "", row.group(1))))  # (remarks) left out
-    public = set(importlib.import_module(package).__all__)
+    public = set(importlib.import_module(f"pvtflow.{package}").__all__)
     assert listed == public, f"README.md lists {sorted(listed - public)} extra, {sorted(public - listed)} missing"
 
 
 def test_the_docs_python_imports_only_public_names() -> None:
     for doc in DOCS:
         for block in re.findall(r"```python\n(.*?)```", text(doc), re.S):
-            for package, names in re.findall(r"^from (axes|planner|service) import (.+)$", block, re.M):
-                public = set(importlib.import_module(package).__all__)
+            for package, names in re.findall(r"^from pvtflow\.(axes|planner|service) import (.+)$", block, re.M):
+                public = set(importlib.import_module(f"pvtflow.{package}").__all__)
                 missing = {n.strip() for n in names.strip("()").split(",")} - public
                 assert not missing, f"{doc.name}: from {package} import {sorted(missing)}: not in {package}.__all__"
 

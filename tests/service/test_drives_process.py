@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 from axes_programs import program
 
-from axes.sim.process import DrivesProcess
-from service.config import load_cell_config
+from pvtflow.axes.sim.process import DrivesProcess
+from pvtflow.service.config import load_cell_config
 
 REPO = Path(__file__).resolve().parents[2]
 ARM6 = REPO / "configs" / "cells" / "arm6.yaml"
@@ -69,7 +69,7 @@ def long_program(tmp_path: Path) -> Path:
 def start_execute(program_path: Path) -> tuple[subprocess.Popen[str], int]:
     """``pvtflow execute`` (lockstep), its motion under way; (the master, its drives' pid)."""
     master = subprocess.Popen(
-        [sys.executable, "-m", "service.cli", "execute", str(program_path), "--config", str(ARM6)],
+        [sys.executable, "-m", "pvtflow.service.cli", "execute", str(program_path), "--config", str(ARM6)],
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from axes_programs import program
 
-from axes.program import PvtProgram
-from service.cli import main
+from pvtflow.axes.program import PvtProgram
+from pvtflow.service.cli import main
 
 
 @pytest.fixture

@@ -9,11 +9,11 @@ import pytest
 import zenoh
 from svc_helpers import CONFIGS, free_port, served_cell
 
-import service.serve_cmd
-from service.cli import main
-from service.exposure import exposure, is_local_endpoint
-from service.serve_cmd import banner
-from service.server import load_zenoh_config
+import pvtflow.service.serve_cmd
+from pvtflow.service.cli import main
+from pvtflow.service.exposure import exposure, is_local_endpoint
+from pvtflow.service.serve_cmd import banner
+from pvtflow.service.server import load_zenoh_config
 
 ZENOH = CONFIGS / "zenoh"
 NO_SCOUTING = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
@@ -112,8 +112,8 @@ def nothing_opens(monkeypatch):
     def opened(*args: object, **kwargs: object) -> None:
         raise AssertionError("serve opened the cell or zenoh despite an open zenoh config")
 
-    monkeypatch.setattr(service.serve_cmd, "MotionService", opened)
-    monkeypatch.setattr(service.serve_cmd, "Server", opened)
+    monkeypatch.setattr(pvtflow.service.serve_cmd, "MotionService", opened)
+    monkeypatch.setattr(pvtflow.service.serve_cmd, "Server", opened)
 
 
 def test_serve_refuses_an_open_config_before_opening_anything(tmp_path, capsys, nothing_opens):
@@ -135,7 +135,7 @@ def test_allow_unauthenticated_gets_past_the_check_and_the_banner_says_so(arm6, 
         reached.append("service")
         raise ValueError("stopped by the test before the bus opens")
 
-    monkeypatch.setattr(service.serve_cmd, "MotionService", stop_here)
+    monkeypatch.setattr(pvtflow.service.serve_cmd, "MotionService", stop_here)
     assert main(["serve", "--zenoh-config", str(file), "--allow-unauthenticated"]) == 2
     assert reached == ["service"]  # the exposure check let it through
     assert "stopped by the test" in capsys.readouterr().err

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from service.cli import main
+from pvtflow.service.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from planner.plan import PlanInput
-from service.cell_planner import plan_cell_program
-from service.cli import main
-from service.config import CONFIG_DIR, CellConfig, load_cell_config
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.cell_planner import plan_cell_program
+from pvtflow.service.cli import main
+from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 GANTRY = CONFIG_DIR / "cells" / "gantry3.yaml"
 

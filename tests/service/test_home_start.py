@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from axes.program import PvtProgram
-from service.cli import main
+from pvtflow.axes.program import PvtProgram
+from pvtflow.service.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 GANTRY = ROOT / "configs" / "cells" / "gantry3.yaml"

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from axes.config import homing_stop_room
-from service.config import CONFIG_DIR, ConfigError, load_cell_config
+from pvtflow.axes.config import homing_stop_room
+from pvtflow.service.config import CONFIG_DIR, ConfigError, load_cell_config
 
 GANTRY = CONFIG_DIR / "cells" / "gantry3.yaml"
 X_HOMING = "acceleration_rpm_s: 20000, offset_qc: 1500, timeout_s: 10"

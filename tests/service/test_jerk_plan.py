@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 import yaml
 
-from axes.program import PvtProgram
-from planner.cartesian import placement_pose
-from planner.ik import IkSolver
-from planner.jerk import JerkTrajectory
-from planner.plan import PlanInput, Planner
-from planner.validate import validate_program
-from service.api import ApiError, ErrorCode, parse_plan
-from service.cell_planner import CellPlanner
-from service.cli import main
-from service.config import CONFIG_DIR, ConfigError, load_cell_config
+from pvtflow.axes.program import PvtProgram
+from pvtflow.planner.cartesian import placement_pose
+from pvtflow.planner.ik import IkSolver
+from pvtflow.planner.jerk import JerkTrajectory
+from pvtflow.planner.plan import PlanInput, Planner
+from pvtflow.planner.validate import validate_program
+from pvtflow.service.api import ApiError, ErrorCode, parse_plan
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.cli import main
+from pvtflow.service.config import CONFIG_DIR, ConfigError, load_cell_config
 
 ARM = CONFIG_DIR / "cells" / "arm6.yaml"
 CELL = load_cell_config(ARM)
@@ -182,9 +182,9 @@ def test_a_plan_request_with_max_jerk_through_the_service(arm6, tmp_path: Path) 
 
 def test_the_planning_process_plans_jerk_limited_like_the_service_s_own_planner(arm6, tmp_path: Path) -> None:
     """A request's max_jerk crosses to the planning child (real cells plan there) and back."""
-    from service.api import PlanRequest
-    from service.motion import MotionService
-    from service.planning import PlanningProcess
+    from pvtflow.service.api import PlanRequest
+    from pvtflow.service.motion import MotionService
+    from pvtflow.service.planning import PlanningProcess
 
     waypoints = np.array([[0.0] * 6, [0.3, -0.2, 0.3, -0.2, 0.3, -0.2]])
     jerk = 4.0 * LIMITS.acceleration

@@ -7,7 +7,7 @@ import time
 
 from svc_helpers import SHORT_TARGET, nothing_moved
 
-from service.journal import JOURNAL_FILE, Journal, JournalError
+from pvtflow.service.journal import JOURNAL_FILE, Journal, JournalError
 
 PROGRAM = {"format": "pvtflow.pvt-program", "version": 1, "cell": "c", "axes": []}
 

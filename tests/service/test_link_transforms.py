@@ -7,8 +7,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from service.config import CONFIG_DIR, load_cell_config
-from service.link_transforms import LinkTransforms
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
+from pvtflow.service.link_transforms import LinkTransforms
 
 
 @pytest.mark.parametrize("name", ["arm6", "gantry3"])

@@ -15,9 +15,9 @@ import pytest
 from axes_programs import program
 from websockets.sync.client import connect
 
-from service.api import ExecuteRequest
-from service.live import LiveServer
-from service.motion import MotionService
+from pvtflow.service.api import ExecuteRequest
+from pvtflow.service.live import LiveServer
+from pvtflow.service.motion import MotionService
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # binary opcode: subscription id (u32), log time (u64), payload
@@ -122,7 +122,7 @@ def free_port() -> int:
 
 
 def test_serve_refuses_a_live_port_in_use_in_one_line(capsys):
-    from service.cli import main
+    from pvtflow.service.cli import main
 
     taken = LiveServer(0).start()
     try:

@@ -10,12 +10,12 @@ from pathlib import Path
 
 import pytest
 
-import service.plan_cmd
-from axes.sim.cell import SimulatedCell
-from service.cli import main
-from service.config import CONFIG_DIR, load_cell_config
-from service.demo_cmd import _Follower
-from service.sim_cmd import banner
+import pvtflow.service.plan_cmd
+from pvtflow.axes.sim.cell import SimulatedCell
+from pvtflow.service.cli import main
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
+from pvtflow.service.demo_cmd import _Follower
+from pvtflow.service.sim_cmd import banner
 
 
 def waypoints(tmp_path: Path) -> Path:
@@ -29,7 +29,7 @@ def test_a_plan_that_takes_long_says_it_is_compiling(
 ) -> None:
     assert main(["plan", "--waypoints", str(waypoints(tmp_path)), "-o", str(tmp_path / "a.json")]) == 0
     assert "compiles" not in capsys.readouterr().err  # kernels loaded: no notice
-    monkeypatch.setattr(service.plan_cmd, "SLOW_PLAN_NOTICE_S", 0.0)  # every plan is "slow" now
+    monkeypatch.setattr(pvtflow.service.plan_cmd, "SLOW_PLAN_NOTICE_S", 0.0)  # every plan is "slow" now
     assert main(["plan", "--waypoints", str(waypoints(tmp_path)), "-o", str(tmp_path / "b.json")]) == 0
     err = capsys.readouterr().err
     assert "still planning (on a new machine the first plan compiles the planner's loops first" in err, err

@@ -3,7 +3,7 @@ reaches it), none is, or the cell's own service did not answer in time (service/
 
 from __future__ import annotations
 
-from service.cli import main
+from pvtflow.service.cli import main
 
 
 def test_a_request_to_a_cell_nobody_serves_names_the_cells_that_are_there(serve, gantry3, capsys) -> None:  # type: ignore[no-untyped-def]

@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 from svc_helpers import SHORT_TARGET
 
-from planner.plan import PlanInput
-from service.api import (
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.api import (
     MAX_TEXT,
     MAX_WAYPOINTS,
     ApiError,
     parse_payload,
     parse_plan,
 )
-from service.api.schema_check import _plain_plan, _validator
-from service.cell_planner import CellPlanner, plan_cell_program
+from pvtflow.service.api.schema_check import _plain_plan, _validator
+from pvtflow.service.cell_planner import CellPlanner, plan_cell_program
 
 DOF = 6
 ROW = [0.1, -0.2, 0.3, -0.1, 0.2, 0.0]
@@ -177,9 +177,9 @@ def test_the_planning_process_plans_like_the_service_s_own_planner_and_survives_
     import os
     import signal
 
-    from service.api import PlanRequest
-    from service.motion import MotionService
-    from service.planning import PlanningError, PlanningProcess
+    from pvtflow.service.api import PlanRequest
+    from pvtflow.service.motion import MotionService
+    from pvtflow.service.planning import PlanningError, PlanningProcess
 
     waypoints = np.array([[0.0] * DOF, SHORT_TARGET])
     service = MotionService(arm6, journal_dir=tmp_path, planner_process=True)  # planning only: no bus needed

@@ -10,10 +10,10 @@ import pytest
 import yaml
 from hand_programs import axis, program
 
-from axes.program import PvtProgram
-from service.cli import main
-from service.config import load_cell_config
-from service.waypoints import WaypointError, parse_waypoints
+from pvtflow.axes.program import PvtProgram
+from pvtflow.service.cli import main
+from pvtflow.service.config import load_cell_config
+from pvtflow.service.waypoints import WaypointError, parse_waypoints
 
 ARM6 = load_cell_config()
 NAMES = ARM6.joint_names
@@ -229,10 +229,10 @@ def test_plan_has_a_budget_and_says_whether_the_plan_is_optimal(tmp_path: Path, 
 
 def test_plan_says_why_a_plan_is_not_optimal() -> None:
     """The deadline, or the torque limits between the solver's rows (planner/jerk: its optimum slowed)."""
-    from planner.path import PlanResult
-    from planner.plan import PlanOutput
-    from service.cell_planner import CellPlan
-    from service.plan_cmd import _not_optimal_reason
+    from pvtflow.planner.path import PlanResult
+    from pvtflow.planner.plan import PlanOutput
+    from pvtflow.service.cell_planner import CellPlan
+    from pvtflow.service.plan_cmd import _not_optimal_reason
 
     def reason(**details: object) -> str:
         return _not_optimal_reason(CellPlan("ok", plan=PlanOutput(PlanResult.OK, details=details)), 50.0)

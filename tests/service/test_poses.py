@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from svc_helpers import check_reply, wait_until
 
-from planner.cartesian import LineTolerance, ToolLine, placement_pose, pose_placement
-from planner.ik import IkSolver
-from planner.plan import PlanInput
-from service.api import ApiError, parse_plan
-from service.cli import main
-from service.config import CONFIG_DIR, load_cell_config
+from pvtflow.planner.cartesian import LineTolerance, ToolLine, placement_pose, pose_placement
+from pvtflow.planner.ik import IkSolver
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.api import ApiError, parse_plan
+from pvtflow.service.cli import main
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
 NAMES = ARM.joint_names
@@ -67,7 +67,7 @@ def test_a_pose_request_is_parsed_with_its_motion_and_start() -> None:
 def test_bad_pose_requests_are_refused_saying_which_field(change: dict, code: str, words: str) -> None:
     data = {"poses": [POSE], **change}
     if code == "not_finite":  # NaN is refused where the payload is read, before the schema
-        from service.api import parse_payload
+        from pvtflow.service.api import parse_payload
 
         with pytest.raises(ApiError) as err:
             parse_payload(json.dumps(data).encode())
@@ -145,10 +145,10 @@ def test_a_linear_move_runs_on_the_simulated_arm_and_ends_on_the_pose(arm6, serv
 
 
 def test_the_planning_process_plans_poses_like_the_service_s_own_planner(arm6, tmp_path) -> None:
-    from service.api import PlanRequest
-    from service.cell_planner import CellPlanner
-    from service.motion import MotionService
-    from service.planning import PlanningProcess
+    from pvtflow.service.api import PlanRequest
+    from pvtflow.service.cell_planner import CellPlanner
+    from pvtflow.service.motion import MotionService
+    from pvtflow.service.planning import PlanningProcess
 
     req = parse_plan({"poses": [POSE], "start": Q1, "include_program": True}, NAMES, LIMITS)
     assert isinstance(req, PlanRequest)

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from service.cli import main
+from pvtflow.service.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 GANTRY = ROOT / "configs" / "cells" / "gantry3.yaml"

@@ -19,12 +19,12 @@ import pytest
 from axes_programs import program
 from mcap.reader import make_reader
 
-from axes.program import PvtProgram
-from service.api import ExecuteRequest
-from service.cli import main
-from service.motion import MotionService
-from service.recording import read_recording
-from service.recording.writer import CHUNK_WALL_S
+from pvtflow.axes.program import PvtProgram
+from pvtflow.service.api import ExecuteRequest
+from pvtflow.service.cli import main
+from pvtflow.service.motion import MotionService
+from pvtflow.service.recording import read_recording
+from pvtflow.service.recording.writer import CHUNK_WALL_S
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -137,7 +137,7 @@ def test_a_recording_cut_by_kill_9_reads_up_to_its_last_chunk(tmp_path, arm6):
     out = tmp_path / "cut.mcap"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     child = subprocess.Popen(
-        [sys.executable, "-m", "service.cli", "execute", str(path), "--record", str(out)],
+        [sys.executable, "-m", "pvtflow.service.cli", "execute", str(path), "--record", str(out)],
         env=env,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -214,8 +214,8 @@ def test_a_fault_is_recorded_and_reported(tmp_path, arm6, capsys):
 
 
 def test_the_service_records_a_homing_named_in_its_journal(tmp_path):
-    from service.api import HomeRequest
-    from service.config import CONFIG_DIR, load_cell_config
+    from pvtflow.service.api import HomeRequest
+    from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
     gantry = load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml")
     cell = dataclasses.replace(gantry, bus=dataclasses.replace(gantry.bus, channel=f"rec-{uuid.uuid4().hex[:10]}"))

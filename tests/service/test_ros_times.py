@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from service.cli import main
-from service.waypoints import ros_time_from_start
+from pvtflow.service.cli import main
+from pvtflow.service.waypoints import ros_time_from_start
 
 NAMES = [f"joint_{i}" for i in range(1, 7)]
 A, B = [0.1, 0.0, 0.1, 0.0, 0.1, 0.0], [0.2, -0.1, 0.2, -0.1, 0.2, -0.1]

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from svc_helpers import free_port
 
-from service.cli import main
+from pvtflow.service.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -53,7 +53,7 @@ def test_a_bad_listen_option_is_refused(args: list[str], words: str, capsys: pyt
 def test_serve_listens_on_the_port_given_and_a_second_one_is_told_it_is_taken(tmp_path: Path) -> None:
     port = free_port()
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    cmd = [sys.executable, "-m", "service.cli", "serve", "--port", str(port)]
+    cmd = [sys.executable, "-m", "pvtflow.service.cli", "serve", "--port", str(port)]
     first = subprocess.Popen(
         [*cmd, "--journal", str(tmp_path / "a")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
     )

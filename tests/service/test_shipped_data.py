@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from pvtflow.configs import CELLS_DIR, CONFIG_DIR, shipped_cell, shipped_cells
-from service.config import ConfigError, load_cell_config
+from pvtflow.service.config import ConfigError, load_cell_config
 
 ROOT = Path(__file__).resolve().parents[2]
 CODE = ("axes", "planner", "service")

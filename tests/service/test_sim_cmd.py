@@ -21,11 +21,11 @@ import yaml
 from canopen.profiles.p402 import BaseNode402
 from frame_log import FrameLog
 
-from axes import objects as od
-from axes.sim.device import SUPPORTED_DRIVE_MODES, SYNC_SETPOINT_MODES
-from axes.sim.drive import EDS_DIR
-from service import sim_cmd
-from service.cli import main
+from pvtflow.axes import objects as od
+from pvtflow.axes.sim.device import SUPPORTED_DRIVE_MODES, SYNC_SETPOINT_MODES
+from pvtflow.axes.sim.drive import EDS_DIR
+from pvtflow.service import sim_cmd
+from pvtflow.service.cli import main
 
 CELLS = Path(__file__).resolve().parents[2] / "configs" / "cells"
 MIXED = CELLS / "gantry3-mixed.yaml"  # x: EPOS2 node 11, y: linear IP node 12, z: bufferless node 13

@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 from svc_helpers import CONFIGS, on_own_channel, wait_until
 
-from axes.sim.epos2 import Epos2Drive
-from service.api import parse_execute, parse_home, parse_plan, parse_recover, parse_stop
-from service.config import CellConfig, load_cell_config
-from service.motion import MotionService
+from pvtflow.axes.sim.epos2 import Epos2Drive
+from pvtflow.service.api import parse_execute, parse_home, parse_plan, parse_recover, parse_stop
+from pvtflow.service.config import CellConfig, load_cell_config
+from pvtflow.service.motion import MotionService
 
 CELLS = sorted(p.stem for p in (CONFIGS / "cells").glob("*.yaml"))  # every cell the project ships
 STOP_AFTER_MS = 300.0  # program time at which the motion is interrupted (every tour lasts longer)

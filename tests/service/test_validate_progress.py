@@ -11,8 +11,8 @@ from pathlib import Path
 
 from test_doc_program import documented
 
-from axes.program import PvtProgram
-from service.validate_cmd import Progress
+from pvtflow.axes.program import PvtProgram
+from pvtflow.service.validate_cmd import Progress
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -32,7 +32,7 @@ def folder_of_programs(tmp_path: Path) -> Path:
 def test_validate_of_a_folder_writes_no_progress_bar_into_a_pipe(tmp_path: Path) -> None:
     folder = folder_of_programs(tmp_path)
     done = subprocess.run(
-        [sys.executable, "-m", "service.cli", "validate", str(folder)],
+        [sys.executable, "-m", "pvtflow.service.cli", "validate", str(folder)],
         cwd=ROOT,
         capture_output=True,
         text=True,

@@ -8,9 +8,9 @@ from pathlib import Path
 
 from svc_helpers import CONFIGS
 
-from axes.program import AxisProgram, PvtProgram
-from service.cli import main
-from service.config import CellConfig
+from pvtflow.axes.program import AxisProgram, PvtProgram
+from pvtflow.service.cli import main
+from pvtflow.service.config import CellConfig
 
 GANTRY = CONFIGS / "cells" / "gantry3.yaml"
 
@@ -67,7 +67,7 @@ def test_a_speed_override_of_zero_has_the_same_words_in_both(serve, arm6, tmp_pa
 
 
 def test_an_unhomed_cell_is_not_homed_in_both(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
-    from service.api import refusals
+    from pvtflow.service.api import refusals
 
     program = tmp_path / "g.json"
     wp = tmp_path / "wp.json"

@@ -19,15 +19,15 @@ import json, sys
 import numpy as np
 from numba.core.registry import CPUDispatcher
 
-from planner.plan import PlanInput
-from service.cell_planner import CellPlanner
-from service.config import load_cell_config
+from pvtflow.planner.plan import PlanInput
+from pvtflow.service.cell_planner import CellPlanner
+from pvtflow.service.config import load_cell_config
 
 
 def signatures():
     seen = {}
     for name, module in list(sys.modules.items()):
-        if not (name.startswith("planner") or name.startswith("axes")):
+        if not (name.startswith("pvtflow.planner") or name.startswith("pvtflow.axes")):
             continue
         for attr, value in vars(module).items():
             if isinstance(value, CPUDispatcher):

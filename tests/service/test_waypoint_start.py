@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from service.cli import main
+from pvtflow.service.cli import main
 
 ROWS = [[0.1, 0.0, 0.1, 0.0, 0.1, 0.0], [0.2, -0.1, 0.2, -0.1, 0.2, -0.1]]
 

@@ -74,11 +74,11 @@ medium with these semantics:
   ``client.RemoteMedium`` with the same ``stats``, ``set_state`` and ``inject_error_frame``.
 """
 
-from axes.sim.wire.accounting import FrameRecord, LateSync, WireStats
-from axes.sim.wire.bus_states import BUS_OFF, ERROR_PASSIVE
-from axes.sim.wire.interface import SimWireBus, parse_channel
-from axes.sim.wire.medium import Medium, WireConfigError
-from axes.sim.wire.server import WireServer, serve_wire
+from pvtflow.axes.sim.wire.accounting import FrameRecord, LateSync, WireStats
+from pvtflow.axes.sim.wire.bus_states import BUS_OFF, ERROR_PASSIVE
+from pvtflow.axes.sim.wire.interface import SimWireBus, parse_channel
+from pvtflow.axes.sim.wire.medium import Medium, WireConfigError
+from pvtflow.axes.sim.wire.server import WireServer, serve_wire
 
 __all__ = [
     "BUS_OFF",

@@ -15,7 +15,7 @@ import threading
 from collections import deque
 from dataclasses import asdict, dataclass
 
-from axes.sim.wire.node import Node
+from pvtflow.axes.sim.wire.node import Node
 
 DEFAULT_RECORD_LIMIT = 500_000  # frames kept for the accounting (about three minutes at 3000 frames/s)
 LATE_FRACTION = 0.05  # a SYNC later than its nominal time by more than this share of the period is late

@@ -13,7 +13,7 @@ import threading
 import can
 from can import BusState
 
-from axes.sim.wire.node import Node, Pending
+from pvtflow.axes.sim.wire.node import Node, Pending
 
 BUS_OFF = BusState.ERROR  # python-can's name for a controller that left the bus
 ERROR_PASSIVE = BusState.PASSIVE

@@ -14,9 +14,9 @@ from typing import Any
 import can
 from can import BusState
 
-from axes.sim.wire import protocol as p
-from axes.sim.wire.accounting import LateSync, WireStats
-from axes.sim.wire.bus_states import (
+from pvtflow.axes.sim.wire import protocol as p
+from pvtflow.axes.sim.wire.accounting import LateSync, WireStats
+from pvtflow.axes.sim.wire.bus_states import (
     BUS_OFF,
     CAN_ERR_BUSOFF,
     CAN_ERR_CRTL,
@@ -24,9 +24,9 @@ from axes.sim.wire.bus_states import (
     CAN_ERR_RESTARTED,
     ERROR_PASSIVE,
 )
-from axes.sim.wire.medium import WireConfigError
-from axes.sim.wire.node import bus_off_error, transmit_queue_full
-from axes.sim.wire.priority import ask_wire_priority
+from pvtflow.axes.sim.wire.medium import WireConfigError
+from pvtflow.axes.sim.wire.node import bus_off_error, transmit_queue_full
+from pvtflow.axes.sim.wire.priority import ask_wire_priority
 
 CONNECT_TIMEOUT = 5.0
 WAIT_SLICE_S = 0.001  # a sender waiting for room looks again at least this often

@@ -21,11 +21,11 @@ import can
 from can import BusState
 from can.typechecking import AutoDetectedConfig, CanFilters
 
-from axes.sim.wire.client import RemoteMedium, WireLink
-from axes.sim.wire.medium import Medium, WireConfigError
-from axes.sim.wire.node import DEFAULT_TXQUEUELEN, Cyclic, Node
-from axes.sim.wire.registry import acquire_medium, open_channels, release_medium
-from axes.sim.wire.server import require_loopback
+from pvtflow.axes.sim.wire.client import RemoteMedium, WireLink
+from pvtflow.axes.sim.wire.medium import Medium, WireConfigError
+from pvtflow.axes.sim.wire.node import DEFAULT_TXQUEUELEN, Cyclic, Node
+from pvtflow.axes.sim.wire.registry import acquire_medium, open_channels, release_medium
+from pvtflow.axes.sim.wire.server import require_loopback
 
 _REMOTE = re.compile(r"^(?P<name>[^@]+)@(?P<host>[^:@]+):(?P<port>\d{1,5})$")
 _CLOSED = object()

@@ -20,11 +20,11 @@ from contextlib import AbstractContextManager
 
 import can
 
-from axes.frame_time import frame_bits
-from axes.objects import SYNC_COB_ID
-from axes.sim.wire.accounting import DEFAULT_RECORD_LIMIT, Accounting, FrameRecord
-from axes.sim.wire.bus_states import BUS_OFF, BusStateHooks
-from axes.sim.wire.node import (
+from pvtflow.axes.frame_time import frame_bits
+from pvtflow.axes.objects import SYNC_COB_ID
+from pvtflow.axes.sim.wire.accounting import DEFAULT_RECORD_LIMIT, Accounting, FrameRecord
+from pvtflow.axes.sim.wire.bus_states import BUS_OFF, BusStateHooks
+from pvtflow.axes.sim.wire.node import (
     DEFAULT_TXQUEUELEN,
     Cyclic,
     Deliver,

@@ -6,8 +6,8 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 
-from axes.sim.wire.medium import Medium
-from axes.sim.wire.wall import WallDriver
+from pvtflow.axes.sim.wire.medium import Medium
+from pvtflow.axes.sim.wire.wall import WallDriver
 
 DEFAULT_BITRATE = 1_000_000
 DEFAULT_CLOCK = "wall"

@@ -33,11 +33,11 @@ from typing import Any
 import can
 from can import BusState
 
-from axes.sim.wire import protocol as p
-from axes.sim.wire.medium import Medium, WireConfigError
-from axes.sim.wire.node import Node
-from axes.sim.wire.priority import ask_wire_priority
-from axes.sim.wire.registry import acquire_medium, release_medium
+from pvtflow.axes.sim.wire import protocol as p
+from pvtflow.axes.sim.wire.medium import Medium, WireConfigError
+from pvtflow.axes.sim.wire.node import Node
+from pvtflow.axes.sim.wire.priority import ask_wire_priority
+from pvtflow.axes.sim.wire.registry import acquire_medium, release_medium
 
 
 def require_loopback(host: str) -> str:

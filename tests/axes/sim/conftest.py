@@ -11,9 +11,9 @@ import canopen
 import pytest
 from frame_log import FrameLog
 
-from axes import objects as od
-from axes.objects import PdoLayout
-from axes.sim.drive import EDS_DIR, SimulatedDrive
+from pvtflow.axes import objects as od
+from pvtflow.axes.objects import PdoLayout
+from pvtflow.axes.sim.drive import EDS_DIR, SimulatedDrive
 
 
 class Bench:

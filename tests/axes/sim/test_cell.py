@@ -8,17 +8,17 @@ from pathlib import Path
 
 import canopen
 
-from axes import objects as od
-from axes.config import wire_options
-from axes.sim import Epos2Drive
-from axes.sim.cell import (
+from pvtflow.axes import objects as od
+from pvtflow.axes.config import wire_options
+from pvtflow.axes.sim import Epos2Drive
+from pvtflow.axes.sim.cell import (
     SHARED_INTERPRETER_HEARTBEAT_FACTOR,
     SHARED_INTERPRETER_QUICK_STOP_CONFIRM_MS,
     SimulatedCell,
     sharing_the_interpreter,
 )
-from axes.sim.process import LocalDrives
-from service.config import load_cell_config
+from pvtflow.axes.sim.process import LocalDrives
+from pvtflow.service.config import load_cell_config
 
 from .conftest import FrameLog
 

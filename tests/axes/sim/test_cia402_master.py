@@ -16,10 +16,10 @@ from canopen import objectdictionary
 from canopen.profiles.p402 import BaseNode402, OperationMode
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as od
-from axes.sim import Epos2Drive, IpLinearDrive, ParkerDrive, SimulatedDrive, SyncSetpointDrive
-from axes.sim.device import EPOS2_MODES, SUPPORTED_DRIVE_MODES
-from axes.sim.drive import MAXON_EPOS2_EDS
+from pvtflow.axes import objects as od
+from pvtflow.axes.sim import Epos2Drive, IpLinearDrive, ParkerDrive, SimulatedDrive, SyncSetpointDrive
+from pvtflow.axes.sim.device import EPOS2_MODES, SUPPORTED_DRIVE_MODES
+from pvtflow.axes.sim.drive import MAXON_EPOS2_EDS
 
 from .conftest import Bench
 

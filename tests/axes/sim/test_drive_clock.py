@@ -15,14 +15,22 @@ from collections.abc import Callable, Iterator
 import can
 import pytest
 
-from axes import objects as od
-from axes.objects import EPOS2_RPDOS, EPOS2_TPDOS, PARKER_RPDOS, PARKER_TPDOS, SETPOINT_RPDOS, SETPOINT_TPDOS, Record
-from axes.scaling import AxisScaling, DriveLimits
-from axes.sim import Epos2Drive, IpLinearDrive, ParkerDrive, SyncSetpointDrive
-from axes.sim.clock import Ticker
-from axes.sim.drive import SimulatedDrive
-from axes.sim.epos2 import MAX_SLEW
-from axes.sim.fixed_period import FixedPeriodDrive
+from pvtflow.axes import objects as od
+from pvtflow.axes.objects import (
+    EPOS2_RPDOS,
+    EPOS2_TPDOS,
+    PARKER_RPDOS,
+    PARKER_TPDOS,
+    SETPOINT_RPDOS,
+    SETPOINT_TPDOS,
+    Record,
+)
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.sim import Epos2Drive, IpLinearDrive, ParkerDrive, SyncSetpointDrive
+from pvtflow.axes.sim.clock import Ticker
+from pvtflow.axes.sim.drive import SimulatedDrive
+from pvtflow.axes.sim.epos2 import MAX_SLEW
+from pvtflow.axes.sim.fixed_period import FixedPeriodDrive
 
 from .conftest import Bench, configure_pdos, enable
 

@@ -5,15 +5,15 @@ from __future__ import annotations
 import canopen
 import pytest
 
-from axes import objects as od
-from axes.sim.drive import EDS_DIR
-from axes.sim.edsgen import DRIVES, render
+from pvtflow.axes import objects as od
+from pvtflow.axes.sim.drive import EDS_DIR
+from pvtflow.axes.sim.edsgen import DRIVES, render
 
 
 @pytest.mark.parametrize("filename", sorted(DRIVES))
 def test_eds_file_is_up_to_date_and_loads(filename: str) -> None:
     path = EDS_DIR / filename
-    assert path.read_text(encoding="ascii") == render(filename), "run python -m axes.sim.edsgen"
+    assert path.read_text(encoding="ascii") == render(filename), "run python -m pvtflow.axes.sim.edsgen"
     dictionary = canopen.import_od(str(path), 5)
     assert dictionary[0x1400][1].default == 0x205 and dictionary[0x1800][1].default == 0x80000185
     for index in (od.CONTROLWORD, od.STATUSWORD, od.POSITION_ACTUAL_VALUE):

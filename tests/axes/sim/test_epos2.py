@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as od
-from axes.interpolation import epos2_pvt
-from axes.objects import EPOS2_RPDOS, EPOS2_TPDOS, BufferStatus, Record
-from axes.scaling import AxisScaling, DriveLimits
-from axes.sim import Epos2Drive
+from pvtflow.axes import objects as od
+from pvtflow.axes.interpolation import epos2_pvt
+from pvtflow.axes.objects import EPOS2_RPDOS, EPOS2_TPDOS, BufferStatus, Record
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.sim import Epos2Drive
 
 from .conftest import Bench, configure_pdos, enable
 

@@ -5,12 +5,12 @@ from __future__ import annotations
 import canopen
 import numpy as np
 
-from axes import objects as od
-from axes.interpolation import epos2_pvt
-from axes.objects import EPOS2_RPDOS, EPOS2_TPDOS, BufferStatus, Record
-from axes.scaling import AxisScaling, DriveLimits
-from axes.sim import Epos2Drive
-from axes.sim.drive import MAXON_EPOS2_EDS
+from pvtflow.axes import objects as od
+from pvtflow.axes.interpolation import epos2_pvt
+from pvtflow.axes.objects import EPOS2_RPDOS, EPOS2_TPDOS, BufferStatus, Record
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.sim import Epos2Drive
+from pvtflow.axes.sim.drive import MAXON_EPOS2_EDS
 
 from .conftest import Bench, configure_pdos, enable
 

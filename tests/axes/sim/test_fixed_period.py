@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as od
-from axes.interpolation import PiecewiseCubic, cubic_p, cubic_pv, linear
-from axes.objects import PARKER_RPDOS, PARKER_TPDOS, SETPOINT_RPDOS, SETPOINT_TPDOS
-from axes.scaling import AxisScaling, DriveLimits
-from axes.sim import IpLinearDrive, ParkerDrive, SyncSetpointDrive
-from axes.sim.drive import SimulatedDrive
+from pvtflow.axes import objects as od
+from pvtflow.axes.interpolation import PiecewiseCubic, cubic_p, cubic_pv, linear
+from pvtflow.axes.objects import PARKER_RPDOS, PARKER_TPDOS, SETPOINT_RPDOS, SETPOINT_TPDOS
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.sim import IpLinearDrive, ParkerDrive, SyncSetpointDrive
+from pvtflow.axes.sim.drive import SimulatedDrive
 
 from .conftest import Bench, configure_pdos, enable
 

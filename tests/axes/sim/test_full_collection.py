@@ -7,8 +7,8 @@ import time
 
 import canopen
 
-from axes.objects import SYNC_COB_ID
-from axes.sim.full_collection import QUIET_S, FullCollectionBetweenMotions
+from pvtflow.axes.objects import SYNC_COB_ID
+from pvtflow.axes.sim.full_collection import QUIET_S, FullCollectionBetweenMotions
 
 
 def test_a_full_collection_runs_only_once_the_bus_is_without_sync() -> None:

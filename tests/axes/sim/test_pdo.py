@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from axes import objects as od
-from axes.objects import EPOS2_RPDOS, EPOS2_TPDOS
-from axes.sim import Epos2Drive
+from pvtflow.axes import objects as od
+from pvtflow.axes.objects import EPOS2_RPDOS, EPOS2_TPDOS
+from pvtflow.axes.sim import Epos2Drive
 
 from .conftest import Bench, configure_pdos, enable
 

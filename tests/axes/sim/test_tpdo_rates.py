@@ -9,9 +9,9 @@ import time
 
 import canopen
 
-from axes.objects import EPOS2_RPDOS, EPOS2_TPDOS
-from axes.sim import Epos2Drive
-from axes.sim.pdo import PdoState
+from pvtflow.axes.objects import EPOS2_RPDOS, EPOS2_TPDOS
+from pvtflow.axes.sim import Epos2Drive
+from pvtflow.axes.sim.pdo import PdoState
 
 from .conftest import Bench, configure_pdos
 

@@ -18,9 +18,9 @@ import canopen
 import pytest
 from can import BusState
 
-from axes.frame_time import frame_bits
-from axes.sim.wire import BUS_OFF, ERROR_PASSIVE, Medium, SimWireBus, WireConfigError
-from axes.sim.wire.bus_states import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_PROT
+from pvtflow.axes.frame_time import frame_bits
+from pvtflow.axes.sim.wire import BUS_OFF, ERROR_PASSIVE, Medium, SimWireBus, WireConfigError
+from pvtflow.axes.sim.wire.bus_states import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_PROT
 
 from .wire_child import wire_in_a_child
 
@@ -377,7 +377,7 @@ def test_the_entry_point_is_declared_and_python_can_finds_it(tmp_path: Path) -> 
     """python-can and canopen find ``simwire`` through the ``can.interface`` entry point the
     project declares (a dist-info on the path carries it, as an install would)."""
     declared = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["entry-points"]["can.interface"]
-    assert declared == {"simwire": "axes.sim.wire.interface:SimWireBus"}
+    assert declared == {"simwire": "pvtflow.axes.sim.wire.interface:SimWireBus"}
     dist = tmp_path / "pvtflow_simwire_probe-0.dist-info"
     dist.mkdir()
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: pvtflow-simwire-probe\nVersion: 0\n")

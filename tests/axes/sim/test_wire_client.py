@@ -19,9 +19,9 @@ import can
 import pytest
 from can import BusState
 
-from axes.frame_time import frame_bits
-from axes.network import RecordingNetwork
-from axes.sim.wire import ERROR_PASSIVE, Medium, SimWireBus
+from pvtflow.axes.frame_time import frame_bits
+from pvtflow.axes.network import RecordingNetwork
+from pvtflow.axes.sim.wire import ERROR_PASSIVE, Medium, SimWireBus
 
 from .wire_child import wire_in_a_child
 

@@ -20,7 +20,7 @@ def wire_in_a_child(clock: str, bitrate: int, sync_period: float) -> Iterator[tu
     a test stopped with SIGSTOP is continued first)."""
     code = (
         "import sys\n"
-        "from axes.sim.wire import serve_wire\n"
+        "from pvtflow.axes.sim.wire import serve_wire\n"
         f"s = serve_wire('cell', 0, clock={clock!r}, bitrate={bitrate}, sync_period={sync_period})\n"
         "print(s.address, flush=True)\n"
         "sys.stdin.read()\n"
