@@ -11,24 +11,30 @@ the drive holds, and whether they agree. Three kinds:
   (CiA 402's 0x608F :01 increments per :02 revolutions, or maxon's 0x2210:01 pulses x 4) against
   the cell's ``qc_per_motor_rev``, its polarity 0x607E = 0
   (the cell's direction is the sign of its scaling; a drive that inverts as well turns the axis the
-  wrong way) and, where it has maxon's 0x6410:04, the motor's maximal speed at or above the cell's
-  0x607F. ``AxisGroup.configure`` reads these first and refuses the cell on any mismatch, naming it,
+  wrong way), maxon's position sensor type 0x2210:02 (an incremental encoder) and polarity
+  0x2210:04 = 0, the velocity unit (maxon's 0x608B notation index and 0x608C dimension: 10^index rpm
+  = the cell's ``velocity_unit_rpm``) and maxon's 0x6410:04, the motor's maximal speed at or above
+  the cell's 0x607F. ``AxisGroup.configure`` reads these first and refuses the cell on any mismatch, naming it,
   before it writes anything: nothing moves.
 - ``SETTING``: what pvtflow writes at configuration from the axis (``expected_settings``: 0x607F,
-  0x60C5, 0x607D, 0x6065 where the drive has them). ``pvtflow commission`` shows them as the drive
+  0x60C5, 0x607D, 0x6065, 0x6085 where the drive has them). ``pvtflow commission`` shows them as the drive
   stores them (a vendor tool, an earlier setup) and counts a difference; configuration writes them
   where the drive has them and reads them back (``Profile.write_settings``).
 - ``INFO``: heartbeat 0x1017 / 0x1016:01, the PDOs pvtflow uses as the drive maps them, the error
   history 0x1003: shown, never a mismatch.
 
-A drive without an object a check needs is reported so (``absent``): a FACT that cannot be read is
-not a mismatch (the drive does not say), a SETTING without its object is not written either.
+Each check's ``status`` is ``ok``, ``mismatch`` or ``not_checked``: the drive lacks the object (named
+in ``found``), so nothing was compared. ``not_checked`` is never ``ok``: it is shown as such, and a
+check the cell requires (the axis's ``commission_requires``, by object, e.g. maxon's 0x2210:02 on a
+real EPOS2) that cannot be made fails the report as a mismatch does. A cell setting whose object the
+drive lacks (the status TPDOs' event timer without 0x1800:05) is required: it is refused, not dropped.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any
 
@@ -45,8 +51,31 @@ if TYPE_CHECKING:
     from pvtflow.axes.profiles.base import Profile
 
 ABSENT = "absent"
+# maxon's 0x2210:02 position sensor types the cell's qc scaling describes (EPOS2 firmware specification):
+# 1 incremental encoder 1 with index (3-channel), 2 without index (2-channel)
+EPOS2_INCREMENTAL_SENSOR_TYPES = (1, 2)
+# the FACT checks' objects a cell can require (``AxisConfig.commission_requires``)
+REQUIRABLE_OBJECTS = (
+    "0x1018:01-02",
+    "0x6502",
+    "0x608F",
+    "0x2210:01",
+    "0x2210:02",
+    "0x2210:04",
+    "0x607E",
+    "0x6410:04",
+    "0x608B",
+    "0x608C",
+)
+EPOS2_VELOCITY_DIMENSION_RPM = 0xA4  # 0x608C: CiA 402's dimension index of rpm (maxon's EDS default)
 _IP_MODE_BIT = OperationMode.SUPPORTED["INTERPOLATED POSITION"]
 _HOMING_MODE_BIT = OperationMode.SUPPORTED["HOMING"]
+
+
+class Status(StrEnum):
+    OK = "ok"
+    MISMATCH = "mismatch"
+    NOT_CHECKED = "not_checked"  # the drive lacks the object: nothing was compared
 
 
 class CheckKind(StrEnum):
@@ -60,12 +89,36 @@ class Check:
     object: str  # "0x1018:01-02"
     name: str  # what it is, in words
     expected: str
-    found: str
-    ok: bool
+    found: str  # ABSENT: the drive has no such object
+    agrees: bool  # what was found agrees with what was expected (meaningless when not checked)
     kind: CheckKind
+    required: bool = False  # the cell requires the check to be made (not_checked fails it)
+
+    @property
+    def status(self) -> Status:
+        if self.found == ABSENT:
+            return Status.NOT_CHECKED
+        return Status.OK if self.agrees else Status.MISMATCH
+
+    @property
+    def ok(self) -> bool:
+        return self.status is Status.OK
+
+    @property
+    def fails(self) -> bool:
+        """A mismatch of a FACT or SETTING, or a required check that could not be made."""
+        if self.status is Status.NOT_CHECKED:
+            return self.required
+        return self.status is Status.MISMATCH and self.kind is not CheckKind.INFO
 
     def __str__(self) -> str:
+        if self.status is Status.NOT_CHECKED:
+            need = " (required by the cell)" if self.required else ""
+            return f"{self.object} {self.name}: not checked, the drive has no {self.object}{need}"
         return f"{self.object} {self.name}: expected {self.expected}, found {self.found}"
+
+    def to_json(self) -> dict[str, Any]:
+        return {**asdict(self), "kind": str(self.kind), "status": str(self.status)}
 
 
 @dataclass
@@ -77,7 +130,12 @@ class AxisCommission:
 
     @property
     def mismatches(self) -> list[Check]:
-        return [c for c in self.checks if not c.ok]
+        """The checks that fail the axis (``Check.fails``)."""
+        return [c for c in self.checks if c.fails]
+
+    @property
+    def not_checked(self) -> list[Check]:
+        return [c for c in self.checks if c.status is Status.NOT_CHECKED]
 
     @property
     def ok(self) -> bool:
@@ -105,7 +163,8 @@ class CommissionReport:
                     "node_id": a.node_id,
                     "profile": a.profile,
                     "ok": a.ok,
-                    "checks": [{**asdict(c), "kind": str(c.kind)} for c in a.checks],
+                    "not_checked": len(a.not_checked),
+                    "checks": [c.to_json() for c in a.checks],
                 }
                 for a in self.axes
             ],
@@ -125,7 +184,7 @@ def drive_facts(link: AxisLink) -> list[Check]:
     product = link.read_optional(od.IDENTITY, 2, "I")
     expected = " or ".join(str(i) for i in known)
     if vendor is None or product is None:
-        checks.append(Check("0x1018:01-02", "identity", expected, ABSENT, True, CheckKind.FACT))
+        checks.append(Check("0x1018:01-02", "identity", expected, ABSENT, False, CheckKind.FACT))
     else:
         found = next((i for i in known if (i.vendor_id, i.product_code) == (vendor, product)), None)
         text = str(found) if found else f"vendor 0x{vendor:08X} product 0x{product:08X}"
@@ -135,13 +194,14 @@ def drive_facts(link: AxisLink) -> list[Check]:
     words = "interpolated position (7)" + (" and homing (6)" if config.homing is not None else "")
     modes = link.read_optional(od.SUPPORTED_DRIVE_MODES, 0, "I")
     if modes is None:
-        checks.append(Check("0x6502", "supported drive modes", words, ABSENT, True, CheckKind.FACT))
+        checks.append(Check("0x6502", "supported drive modes", words, ABSENT, False, CheckKind.FACT))
     else:
         checks.append(
             Check("0x6502", "supported drive modes", words, f"0x{modes:08X}", modes & want == want, CheckKind.FACT)
         )
 
     checks.append(_encoder_check(link))
+    checks.extend(_epos2_sensor_checks(link))
 
     polarity = link.read_optional(od.POLARITY, 0, "B")
     found_polarity = ABSENT if polarity is None else f"0x{polarity:02X}"
@@ -150,19 +210,79 @@ def drive_facts(link: AxisLink) -> list[Check]:
     )
 
     speed = link.read_optional(od.MOTOR_DATA, od.MOTOR_MAX_SPEED_SUB, "I")
-    if speed is not None:
-        cell_rpm = config.limits.max_profile_velocity_rpm
-        checks.append(
-            Check(
-                "0x6410:04",
-                "motor maximal speed",
-                f">= {cell_rpm:g} rpm (the cell's 0x607F)",
-                f"{speed} rpm",
-                speed >= cell_rpm,
-                CheckKind.FACT,
-            )
+    cell_rpm = config.limits.max_profile_velocity_rpm
+    checks.append(
+        Check(
+            "0x6410:04",
+            "motor maximal speed",
+            f">= {cell_rpm:g} rpm (the cell's 0x607F)",
+            ABSENT if speed is None else f"{speed} rpm",
+            speed is not None and speed >= cell_rpm,
+            CheckKind.FACT,
         )
-    return checks
+    )
+    checks.extend(_velocity_unit_checks(link))
+    return [_required(c, config.commission_requires) for c in checks]
+
+
+def _required(check: Check, requires: Sequence[str]) -> Check:
+    """The check as the cell requires it (``commission_requires`` names its object)."""
+    if any(r in check.object.split(" or ") for r in requires):
+        return replace(check, required=True)
+    return check
+
+
+def _epos2_sensor_checks(link: AxisLink) -> list[Check]:
+    """maxon's 0x2210:02 position sensor type (an incremental encoder: what the cell's qc scaling counts)
+    and 0x2210:04 position sensor polarity (0: not inverted; an inverted sensor turns the axis the wrong
+    way as 0x607E would, and the EPOS2 has no 0x607E)."""
+    kinds = " or ".join(str(k) for k in EPOS2_INCREMENTAL_SENSOR_TYPES)
+    sensor = link.read_optional(od.EPOS2_SENSOR_CONFIGURATION, od.EPOS2_SENSOR_TYPE_SUB, "H")
+    polarity = link.read_optional(od.EPOS2_SENSOR_CONFIGURATION, od.EPOS2_SENSOR_POLARITY_SUB, "H")
+    return [
+        Check(
+            "0x2210:02",
+            "position sensor type",
+            f"{kinds} (incremental encoder)",
+            ABSENT if sensor is None else str(sensor),
+            sensor in EPOS2_INCREMENTAL_SENSOR_TYPES,
+            CheckKind.FACT,
+        ),
+        Check(
+            "0x2210:04",
+            "position sensor polarity",
+            "0x0000 (not inverted)",
+            ABSENT if polarity is None else f"0x{polarity:04X}",
+            polarity == 0,
+            CheckKind.FACT,
+        ),
+    ]
+
+
+def _velocity_unit_checks(link: AxisLink) -> list[Check]:
+    """The drive's velocity unit (0x608B notation index: 10^index of 0x608C's dimension, rpm) against
+    the cell's ``velocity_unit_rpm``: 0x607F and every PVT velocity are written in it."""
+    unit = link.config.scaling.velocity_unit_rpm
+    notation = link.read_optional(od.VELOCITY_NOTATION_INDEX, 0, "b")
+    dimension = link.read_optional(od.VELOCITY_DIMENSION_INDEX, 0, "B")
+    return [
+        Check(
+            "0x608B",
+            "velocity notation index",
+            f"{math.log10(unit):g} (10^index rpm = the cell's {unit:g} rpm)",
+            ABSENT if notation is None else str(notation),
+            notation is not None and math.isclose(10.0**notation, unit, rel_tol=1e-9),
+            CheckKind.FACT,
+        ),
+        Check(
+            "0x608C",
+            "velocity dimension index",
+            f"0x{EPOS2_VELOCITY_DIMENSION_RPM:02X} (rpm)",
+            ABSENT if dimension is None else f"0x{dimension:02X}",
+            dimension == EPOS2_VELOCITY_DIMENSION_RPM,
+            CheckKind.FACT,
+        ),
+    ]
 
 
 def _encoder_check(link: AxisLink) -> Check:
@@ -176,7 +296,7 @@ def _encoder_check(link: AxisLink) -> Check:
     else:
         pulses = link.read_optional(od.EPOS2_SENSOR_CONFIGURATION, 1, "I")
         if pulses is None:
-            return Check("0x608F", "encoder resolution", expected, ABSENT, True, CheckKind.FACT)
+            return Check("0x608F or 0x2210:01", "encoder resolution", expected, ABSENT, False, CheckKind.FACT)
         qc = pulses * od.EPOS2_QC_PER_PULSE
         found = f"{qc:g} qc/rev ({pulses} pulses)"
         where = "0x2210:01"
@@ -190,7 +310,31 @@ def drive_settings(link: AxisLink) -> list[Check]:
     for s in expected_settings(link.config):
         value = link.read_optional(s.index, s.subindex, s.fmt)
         found = ABSENT if value is None else str(value)
-        checks.append(Check(s.where, s.name, str(s.value), found, value in (None, s.value), CheckKind.SETTING))
+        checks.append(Check(s.where, s.name, str(s.value), found, value == s.value, CheckKind.SETTING))
+    return checks
+
+
+def cell_settings_supported(link: AxisLink, profile: Profile) -> list[Check]:
+    """The cell's settings that need an object not every drive has, each required: a drive without it
+    cannot take the setting, and the cell is refused rather than the setting dropped. The status
+    TPDOs' event timer (``bus.status_event_timer_ms``) is 0x1800+n:05 (maxon's EDS has no :05)."""
+    checks = []
+    timer = link.bus.config.status_event_timer_ms
+    for layout in profile.tpdos:
+        if with_rates(layout, link.bus.config).event_timer_ms:
+            comm = 0x1800 + layout.number - 1
+            value = link.read_optional(comm, 5, "H")
+            checks.append(
+                Check(
+                    f"0x{comm:04X}:05",
+                    f"TPDO{layout.number} event timer (the cell's status_event_timer_ms)",
+                    f"{timer} ms can be written",
+                    ABSENT if value is None else f"present ({value} ms)",
+                    True,
+                    CheckKind.SETTING,
+                    required=True,
+                )
+            )
     return checks
 
 
@@ -273,7 +417,12 @@ def commission_axis(link: AxisLink, profile: Profile) -> AxisCommission:
     """Every check of one drive; a drive that does not answer is one mismatch that says so."""
     report = AxisCommission(link.joint, link.node_id, link.config.profile)
     try:
-        report.checks = drive_facts(link) + drive_settings(link) + drive_info(link, profile)
+        report.checks = (
+            drive_facts(link)
+            + cell_settings_supported(link, profile)
+            + drive_settings(link)
+            + drive_info(link, profile)
+        )
     except DriveError as exc:
         report.checks.append(Check("SDO", "answer", "an SDO answer", exc.detail, False, CheckKind.FACT))
     return report
@@ -286,11 +435,12 @@ def commission(links: Sequence[AxisLink], profiles: Sequence[Profile]) -> Commis
     return CommissionReport(axes, sum(link.sdo_transfers for link in links) - before)
 
 
-def refuse_on_facts(links: Sequence[AxisLink]) -> None:
-    """Configuration's first step: every drive's FACT checks; DriveError naming the first drive that
-    is not what the cell expects, with each of its mismatches (nothing written to any drive)."""
-    for link in links:
-        wrong = [c for c in drive_facts(link) if not c.ok]
+def refuse_on_facts(links: Sequence[AxisLink], profiles: Sequence[Profile]) -> None:
+    """Configuration's first step: every drive's FACT checks and the cell settings it must be able to
+    take; DriveError naming the first drive that is not what the cell expects, with each of its
+    mismatches and each required check it cannot answer (nothing written to any drive)."""
+    for link, profile in zip(links, profiles, strict=True):
+        wrong = [c for c in drive_facts(link) + cell_settings_supported(link, profile) if c.fails]
         if wrong:
             raise DriveError(
                 link.node_id,

@@ -172,6 +172,14 @@ class AxisSimulation:
     vendor_id: int | None = None
     product_code: int | None = None
     max_motor_speed_rpm: int | None = None
+    # maxon's 0x2210:02 position sensor type, 0x2210:04 position sensor polarity, 0x608B velocity
+    # notation index, where the drive has them (None: as the cell expects: 1, 0, the cell's unit)
+    sensor_type: int | None = None
+    sensor_polarity: int | None = None
+    velocity_notation_index: int | None = None
+    # the simulated drive's dictionary, an EDS under configs/eds (None: its profile's generated one),
+    # e.g. ``vendor/maxon-epos2-70-10.eds``: maxon's own EPOS2 70/10 file, objects as a real EPOS2 has
+    eds: str | None = None
 
 
 @dataclass(frozen=True)
@@ -184,6 +192,9 @@ class AxisConfig(DriveAxis):
     # 0x1018:01/:02 (vendor id, product code) of the axis's drive, accepted besides the profile's known
     # drives (``DriveProfile.identities``) by the commissioning check: a real drive pvtflow has no EDS of
     identity: tuple[int, int] | None = None
+    # objects whose commissioning check must be made (axes/commission.py): a drive without one is
+    # refused (``not_checked`` fails), e.g. a real EPOS2's 0x2210:02, 0x2210:04, 0x608B, 0x608C
+    commission_requires: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

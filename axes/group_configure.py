@@ -23,7 +23,7 @@ class GroupConfiguration:
         """Every drive: what it is checked against the cell (axes/commission.py: a drive that is not
         what the cell says is refused, DriveError, before anything is written), then PRE-OPERATIONAL,
         its profile's SDO sequence, then OPERATIONAL and consumers."""
-        refuse_on_facts(self.links)
+        refuse_on_facts(self.links, self.profiles)
         for link in self.links:  # addressed, not broadcast: other nodes on the bus are not ours
             self.bus.nmt(link.node_id, NmtCommand.PRE_OPERATIONAL)
         self._configured_boots = {link.node_id: self.bus.watch.boot_count(link.node_id) for link in self.links}

@@ -88,6 +88,10 @@ EPOS2_HOMING_CURRENT_THRESHOLD = 0x2080  # mA: the current that says "hard stop"
 # on the EPOS2 0x607C is the move from the reference found to that home position (maxon's firmware)
 EPOS2_HOME_POSITION = 0x2081
 EPOS2_SENSOR_CONFIGURATION = 0x2210  # :01 pulses per motor revolution of the incremental encoder (qc / 4)
+EPOS2_SENSOR_TYPE_SUB = 2  # 0x2210:02 position sensor type (1, 2: incremental encoder with / without index)
+EPOS2_SENSOR_POLARITY_SUB = 4  # 0x2210:04 position sensor polarity (0: not inverted)
+VELOCITY_NOTATION_INDEX = 0x608B  # the velocity unit is 10^index of 0x608C's dimension (maxon's EPOS2)
+VELOCITY_DIMENSION_INDEX = 0x608C  # 0xA4: rpm
 EPOS2_QC_PER_PULSE = 4  # quadrature: four counts per encoder pulse
 
 

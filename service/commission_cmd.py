@@ -4,8 +4,11 @@ Opens the cell's bus as ``pvtflow execute`` does (its simulated drives first whe
 simulated), reads every drive over SDO (axes/commission.py: identity, supported modes, encoder,
 polarity, motor speed, the limit objects as stored, heartbeat, PDO mappings, error history) and
 prints, per axis, each check with what the cell expects and what the drive holds. Nothing is
-written to any drive and nothing moves. Exit codes: 0 every drive agrees with the cell, 1 a
-mismatch (each named: object, expected, found), 2 it cannot start (cell file, log file, bus).
+written to any drive and nothing moves. Each check is ok, mismatch or not checked (the drive lacks
+the object, named; never counted as ok). Exit codes: 0 every drive agrees with the cell, 1 a
+mismatch or a check the cell requires (``commission_requires``, a setting such as the TPDO event
+timer) that cannot be made (each named: object, expected, found), 2 it cannot start (cell file, log
+file, bus).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ import json
 import sys
 from typing import Any
 
-from pvtflow.axes.commission import CheckKind, CommissionReport, commission
+from pvtflow.axes.commission import Check, CheckKind, CommissionReport, Status, commission
 from pvtflow.axes.link import AxisLink, DriveError
 from pvtflow.axes.profiles import profile_for
 from pvtflow.service.cell_bus import CellBusError, open_cell_bus
@@ -57,12 +60,25 @@ def format_report(cell: CellConfig, report: CommissionReport) -> str:
         + f" ({report.sdo_transfers} SDO round trips)"
     ]
     for a in report.axes:
-        state = "ok" if a.ok else f"{len(a.mismatches)} mismatch" + ("es" if len(a.mismatches) > 1 else "")
+        wrong = sum(1 for c in a.mismatches if c.status is Status.MISMATCH)
+        parts = [f"{wrong} mismatch" + ("es" if wrong > 1 else "")] if wrong else []
+        if a.not_checked:
+            required = sum(1 for c in a.not_checked if c.required)
+            parts.append(f"{len(a.not_checked)} not checked" + (f" ({required} required)" if required else ""))
+        state = ("ok" if a.ok else "FAILED") + (": " + ", ".join(parts) if parts else "")
         lines.append(f"{a.joint} (node {a.node_id}, {a.profile}): {state}")
         for c in a.checks:
-            mark = "MISMATCH" if not c.ok else ("info" if c.kind is CheckKind.INFO else "ok")
-            lines.append(f"  {mark:8} {c.object} {c.name}: expected {c.expected}; found {c.found}")
+            lines.append(f"  {_mark(c):11} {c.object} {c.name}: expected {c.expected}; found {c.found}")
     return "\n".join(lines)
+
+
+def _mark(c: Check) -> str:
+    """MISMATCH / NOT CHECKED (the drive lacks the object; upper case where the cell requires it) / ok / info."""
+    if c.status is Status.NOT_CHECKED:
+        return "NOT CHECKED" if c.required else "not checked"
+    if c.status is Status.MISMATCH and c.kind is not CheckKind.INFO:
+        return "MISMATCH"
+    return "info" if c.kind is CheckKind.INFO else "ok"
 
 
 def run(args: argparse.Namespace) -> int:

@@ -48,7 +48,8 @@ class Setting:
 
 def expected_settings(config: AxisConfig) -> list[Setting]:
     """The drive's limit objects in its units from the axis: 0x607F (velocity units), 0x60C5 (rpm/s),
-    0x607D:01/:02 (qc), 0x6065 (qc: maxon's default, the cell has no setting of its own). One list:
+    0x607D:01/:02 (qc), 0x6065 (qc: maxon's default, the cell has no setting of its own), 0x6085
+    (rpm/s, the quick stop ramp = 0x60C5). One list:
     configuration writes it (``Profile.write_settings``), commissioning compares it (axes/commission.py)."""
     lim = config.limits
     unit = config.scaling.velocity_unit_rpm
@@ -58,6 +59,8 @@ def expected_settings(config: AxisConfig) -> list[Setting]:
         Setting(od.SOFTWARE_POSITION_LIMIT, 1, "i", lim.min_position_qc, "min position limit"),
         Setting(od.SOFTWARE_POSITION_LIMIT, 2, "i", lim.max_position_qc, "max position limit"),
         Setting(od.MAX_FOLLOWING_ERROR, 0, "I", DEFAULT_MAX_FOLLOWING_ERROR_QC, "max following error"),
+        # the quick stop ramp (0x6007 = 3 on a lost master, 0x605A = 2) brakes as hard as the axis may
+        Setting(od.QUICK_STOP_DECELERATION, 0, "I", round(lim.max_acceleration_rpm_s), "quick stop deceleration"),
     ]
 
 
@@ -164,7 +167,7 @@ class Profile:
         return self.start_controlword() & ~int(Controlword.ENABLE_IP_MODE)
 
     def write_settings(self) -> None:
-        """0x607F, 0x60C5, 0x607D and 0x6065 from the axis (``expected_settings``) on every drive that
+        """0x607F, 0x60C5, 0x607D, 0x6065 and 0x6085 from the axis (``expected_settings``) on every drive that
         has them, each read back: a drive that holds another value than the one written is refused
         (DriveError), so the limits the planner times against are the ones the drive enforces."""
         link = self.link
@@ -232,7 +235,6 @@ class Profile:
         if reaction is not None:
             what = f"fault reaction option code {reaction.name.lower()}"
             self._write_read_back(od.FAULT_REACTION_OPTION_CODE, 0, int(reaction), "h", what)
-        self.link.write_optional(od.QUICK_STOP_DECELERATION, 0, round(self.config.limits.max_acceleration_rpm_s), "I")
         self.write_stop_options()
 
     def write_stop_options(self) -> None:

@@ -25,7 +25,7 @@ import canopen
 
 from pvtflow.axes.config import SIMULATED_WIRE, AxisConfig, CellWiring, wire_options
 from pvtflow.axes.sim.clock import LOCKSTEP, Ticker, check_clock
-from pvtflow.axes.sim.drive import SimulatedDrive
+from pvtflow.axes.sim.drive import SimulatedDrive, eds_file
 from pvtflow.axes.sim.epos2 import Epos2Drive
 from pvtflow.axes.sim.ip_linear import IpLinearDrive
 from pvtflow.axes.sim.parker import ParkerDrive
@@ -73,6 +73,8 @@ def make_drive(
 ) -> SimulatedDrive:
     """The simulated drive for one configured axis (its profile's class, its scaling and limits)."""
     cls = DRIVE_CLASSES[axis.profile]
+    if eds_path is None and axis.simulation is not None and axis.simulation.eds is not None:
+        eds_path = eds_file(axis.simulation.eds)
     return cls(
         axis.node_id,
         network,

@@ -92,6 +92,8 @@ class DictionaryAccess:
             (od.SOFTWARE_POSITION_LIMIT, 1): limits.min_position_qc,
             (od.SOFTWARE_POSITION_LIMIT, 2): limits.max_position_qc,
         }
+        if self.has(od.QUICK_STOP_DECELERATION):  # the quick stop ramp as configuration writes it
+            values[(od.QUICK_STOP_DECELERATION, 0)] = round(limits.max_acceleration_rpm_s)
         if limits.profile_velocity_rpm is not None:
             values[(od.PROFILE_VELOCITY, 0)] = round(limits.profile_velocity_rpm / self.scaling.velocity_unit_rpm)
         if limits.profile_acceleration_rpm_s is not None:
@@ -104,7 +106,8 @@ class DictionaryAccess:
     def _apply_drive_facts(self, simulation: AxisSimulation) -> None:
         """What the drive is, kept through resets as a drive's stored parameters are: its encoder
         (0x608F, or maxon's pulse number 0x2210:01 in encoder pulses), and where ``simulation`` says
-        so its polarity 0x607E, identity 0x1018:01/:02 and motor's maximal speed 0x6410:04."""
+        so its polarity 0x607E, identity 0x1018:01/:02, motor's maximal speed 0x6410:04 and maxon's sensor
+        type 0x2210:02, sensor polarity 0x2210:04 and velocity notation 0x608B."""
         qc = round(self.scaling.qc_per_motor_rev)
         values: dict[tuple[int, int], int] = {}
         if self.has(od.POSITION_ENCODER_RESOLUTION, 1):
@@ -117,6 +120,9 @@ class DictionaryAccess:
             ((od.IDENTITY, 1), simulation.vendor_id),
             ((od.IDENTITY, 2), simulation.product_code),
             ((od.MOTOR_DATA, od.MOTOR_MAX_SPEED_SUB), simulation.max_motor_speed_rpm),
+            ((od.EPOS2_SENSOR_CONFIGURATION, od.EPOS2_SENSOR_TYPE_SUB), simulation.sensor_type),
+            ((od.EPOS2_SENSOR_CONFIGURATION, od.EPOS2_SENSOR_POLARITY_SUB), simulation.sensor_polarity),
+            ((od.VELOCITY_NOTATION_INDEX, 0), simulation.velocity_notation_index),
         ):
             if value is not None and self.has(*key):
                 values[key] = value

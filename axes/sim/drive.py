@@ -62,6 +62,15 @@ from pvtflow.configs import EDS_DIR
 MAXON_EPOS2_EDS = EDS_DIR / "vendor" / "maxon-epos2-70-10.eds"
 
 
+def eds_file(name: str) -> Path:
+    """An EDS the project ships, by its name under configs/eds (``vendor/maxon-epos2-70-10.eds``):
+    the dictionary a cell's ``simulation.eds`` gives its simulated drive (ValueError: none such)."""
+    path = (EDS_DIR / name).resolve()
+    if EDS_DIR.resolve() not in path.parents or path.suffix.lower() != ".eds" or not path.is_file():
+        raise ValueError(f"no EDS {name!r} among the shipped ones (configs/eds)")
+    return path
+
+
 class SimulatedDrive(
     DictionaryAccess, NmtSlave, FaultHandling, MasterLossReaction, PowerStateMachine, Sampling, HomingMixin
 ):

@@ -183,6 +183,9 @@ def epos2() -> dict[int, Entry]:
             Var("Position sensor polarity", U16, "rw", 0),
         ),
     )
+    # maxon's velocity unit: 10^notation x the dimension (0xA4 rpm), defaults as in maxon's EDS
+    d[od.VELOCITY_NOTATION_INDEX] = Var("Velocity notation index", I8, "rw", 0)
+    d[od.VELOCITY_DIMENSION_INDEX] = Var("Velocity dimension index", U8, "rw", 0xA4)
     d[od.MOTOR_DATA] = Rec(
         "Motor data",
         (

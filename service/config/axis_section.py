@@ -9,9 +9,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from pvtflow.axes.commission import REQUIRABLE_OBJECTS
 from pvtflow.axes.config import AxisConfig, AxisSimulation, BufferConfig, BusConfig, homing_stop_room
 from pvtflow.axes.drive_profile import DriveProfile, ProfileError
 from pvtflow.axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
+from pvtflow.axes.sim.drive import eds_file
 from pvtflow.planner.model import RobotModel
 from pvtflow.service.config.fields import ConfigError, Fields
 from pvtflow.service.config.homing_section import parse_homing
@@ -36,6 +38,7 @@ def parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusCon
             "homing",
             "simulation",
             "identity",
+            "commission_requires",
         ),
     )
     joint = f.get("joint", f.string)
@@ -124,8 +127,33 @@ def parse_axis(file: Path, where: str, data: Any, model: RobotModel, bus: BusCon
         u32 = i.integer(0, 2**32 - 1)
         identity = (i.get("vendor_id", u32), i.get("product_code", u32))
     max_jerk = f.get("max_jerk", f.number(positive=True), None)
-    axis = AxisConfig(joint, node_id, profile, scaling, limits, period, submode, buffer, homing, simulation, identity)
+    requires = f.get("commission_requires", lambda k, v: _requirable_objects(f, k, v), ())
+    axis = AxisConfig(
+        joint, node_id, profile, scaling, limits, period, submode, buffer, homing, simulation, identity, requires
+    )
     return axis, max_jerk
+
+
+def _requirable_objects(f: Fields, key: str, v: Any) -> tuple[str, ...]:
+    """``commission_requires``: a list of the objects of commissioning's FACT checks."""
+    known = ", ".join(REQUIRABLE_OBJECTS)
+    if not isinstance(v, list) or not all(isinstance(o, str) for o in v):
+        raise f.error(key, f"must be a list of objects, each one of {known}")
+    unknown = [o for o in v if o not in REQUIRABLE_OBJECTS]
+    if unknown:
+        raise f.error(key, f"{', '.join(unknown)}: not a commissioning check; one of {known}")
+    return tuple(v)
+
+
+def _shipped_eds(f: Fields, key: str, v: Any) -> str:
+    """``simulation.eds``: the name of an EDS the project ships (configs/eds)."""
+    if not isinstance(v, str):
+        raise f.error(key, f"must be the name of an EDS under configs/eds, got {v!r}")
+    try:
+        eds_file(v)
+    except ValueError as exc:
+        raise f.error(key, str(exc)) from None
+    return v
 
 
 def _parse_simulation(f: Fields) -> AxisSimulation:
@@ -149,6 +177,12 @@ def _parse_simulation(f: Fields) -> AxisSimulation:
             values[key] = s.get(key, s.integer(1, INT32_MAX), default)
         elif key == "polarity":
             values[key] = s.get(key, s.integer(0, 255), default)
+        elif key in ("sensor_type", "sensor_polarity"):  # maxon's 0x2210:02 / :04 (UNSIGNED16)
+            values[key] = s.get(key, s.integer(0, 65535), default)
+        elif key == "eds":
+            values[key] = s.get(key, lambda k, v: _shipped_eds(s, k, v), default)
+        elif key == "velocity_notation_index":  # 0x608B (INTEGER8)
+            values[key] = s.get(key, s.integer(-128, 127), default)
         elif key in ("vendor_id", "product_code"):
             values[key] = s.get(key, s.integer(0, 2**32 - 1), default)
         else:

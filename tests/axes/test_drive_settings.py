@@ -1,4 +1,4 @@
-"""Every profile writes the drive's limit objects from the axis (0x607F, 0x60C5, 0x607D, 0x6065)
+"""Every profile writes the drive's limit objects from the axis (0x607F, 0x60C5, 0x607D, 0x6065, 0x6085)
 where the drive has them and reads them back: what a vendor tool stored does not stay."""
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ def test_every_profile_writes_and_reads_back_its_limit_objects(profile: str, mak
         (od.SOFTWARE_POSITION_LIMIT, 1): -5,
         (od.SOFTWARE_POSITION_LIMIT, 2): 5,
         (od.MAX_FOLLOWING_ERROR, 0): 77,
+        (od.QUICK_STOP_DECELERATION, 0): 4242,
     }
     for (index, sub), value in stored.items():
         drive.store(index, sub, value)

@@ -35,7 +35,7 @@ def test_a_cell_that_agrees_exits_0(capsys: pytest.CaptureFixture[str]) -> None:
 def test_a_mismatch_exits_1_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["commission", "--config", str(gantry_with_y(tmp_path, "polarity: 128"))]) == 1
     captured = capsys.readouterr()
-    assert "y (node 12, epos2_pvt): 1 mismatch" in captured.out
+    assert "y (node 12, epos2_pvt): FAILED: 1 mismatch" in captured.out
     assert "y (node 12): 0x607E polarity: expected 0x00 (not inverted), found 0x80" in captured.err
 
 
@@ -46,12 +46,13 @@ def test_json_is_one_object_with_a_list_of_checks_per_axis(tmp_path: Path, capsy
     assert report["cell"] == "gantry3" and report["ok"] is False and report["sdo_transfers"] > 0
     assert [a["joint"] for a in report["axes"]] == ["x", "y", "z"]
     for axis in report["axes"]:
-        assert set(axis) == {"joint", "node_id", "profile", "ok", "checks"}
+        assert set(axis) == {"joint", "node_id", "profile", "ok", "not_checked", "checks"}
         for check in axis["checks"]:
-            assert set(check) == {"object", "name", "expected", "found", "ok", "kind"}
+            assert set(check) == {"object", "name", "expected", "found", "agrees", "kind", "required", "status"}
             assert check["kind"] in ("fact", "setting", "info")
+            assert check["status"] in ("ok", "mismatch", "not_checked")
     checks = [(a["joint"], c) for a in report["axes"] for c in a["checks"]]
-    wrong = [(joint, c["object"], c["expected"], c["found"]) for joint, c in checks if not c["ok"]]
+    wrong = [(joint, c["object"], c["expected"], c["found"]) for joint, c in checks if c["status"] != "ok"]
     assert wrong == [("y", "0x2210:01", "4096 qc/rev", "2048 qc/rev (512 pulses)")]
 
 
