@@ -112,13 +112,10 @@ def test_stop_mid_move_halts_every_axis(arm6, serve):
         stopped_at = [h.sync for h in drive.history if h.ip_active][-1]
         assert stopped_at < drive.ip_active_sync + end_ms  # it did not run to the end of the program
 
-        def speeds(drive=drive) -> np.ndarray:  # qc/ms between the drive's demand samples
-            hist = list(drive.history)
-            return np.abs(np.diff([h.demand for h in hist])) / np.diff([h.time_ms for h in hist])
-
-        # it comes to rest at the halt ramp's end (the drive's last sample may still be on the ramp's
-        # last step when the reply arrives: the drive samples on its own clock)
-        assert wait_until(lambda: speeds()[-1] < 0.02 * speeds().max(), timeout=2), speeds()[-5:]
+        # it comes to rest at the halt ramp's end: its demand velocity, sampled every ms on its own clock,
+        # reaches 0 (its per-SYNC history need not: the run ends, and SYNC with it, on the SYNC whose
+        # status reports every axis standing still, which may be the first SYNC after the ramp's end)
+        assert wait_until(lambda drive=drive: drive.velocity == 0.0, timeout=2), drive.velocity
     # every axis halted on the same SYNC: the same last ip-active SYNC
     assert len({[h.sync for h in d.history if h.ip_active][-1] for d in s.sim}) == 1
     assert wait_until(lambda: col.events("motion_ended", motion_id))
