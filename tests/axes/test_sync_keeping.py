@@ -688,7 +688,6 @@ class FollowerHold:
         self.max_gap_s: float | None = None
         self._heard = 0
         self._on_bus = threading.Condition()
-        subscribe(bus.network, SYNC_COB_ID, self._on_sync)
         bus.sync.hold = self._hold
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
@@ -701,9 +700,11 @@ class FollowerHold:
         if start is None or self.bus.sync.count < start + self.after or self.max_gap_s is not None:
             return
         self.max_gap_s = self.bus.sync.max_gap_s
+        # subscribed now, after the follower's own subscriber (this production's): the network calls
+        # them in that order, so every SYNC counted here is one the follower has heard when it wakes
+        subscribe(self.bus.network, SYNC_COB_ID, self._on_sync)
         with self._on_bus:
-            until = self._heard + self.syncs
-            assert self._on_bus.wait_for(lambda: self._heard >= until, 5.0)
+            assert self._on_bus.wait_for(lambda: self._heard >= self.syncs, 5.0)
 
     def close(self) -> None:
         self.bus.sync.hold = None
