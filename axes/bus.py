@@ -90,6 +90,14 @@ class CellBus:
             raise BusError(f"cannot open CAN bus {where}: {exc}") from None
         self.network.bus = bus
         self.network.notifier = can.Notifier(bus, [*self.network.listeners, self.recorder, self.watch.errors], 0.1)
+        if self.config.cyclic_process and not self.sync.lockstep:
+            from pvtflow.axes.cyclic_process import CyclicProcess  # a child process: only where asked for
+
+            try:
+                self.sync.cyclic = CyclicProcess(self).open()
+            except BusError:
+                self.network.disconnect()
+                raise
         self.watch.start()
         self.master_heartbeat.start()
         return self
@@ -112,6 +120,9 @@ class CellBus:
 
     def close(self) -> None:
         self.sync.stop()
+        if self.sync.cyclic is not None:
+            self.sync.cyclic.close()
+            self.sync.cyclic = None
         self.master_heartbeat.stop()
         self.watch.stop()
         if self.network.bus is not None:
@@ -165,5 +176,9 @@ class CellBus:
     def quick_stop(
         self, node_ids: Iterable[int], reason: str, on_done: Callable[[QuickStop], None] | None = None
     ) -> QuickStop:
-        """Quick stop these drives by SDO now, NMT stop for those that do not confirm (``axes.quick_stop``)."""
-        return quick_stop_all(self, node_ids, reason, on_done)
+        """Quick stop these drives by SDO now, NMT stop for those that do not confirm (``axes.quick_stop``);
+        with a cyclic process, from its transmit queue too (``axes.cyclic_process``)."""
+        nodes = list(node_ids)
+        if self.sync.cyclic is not None:
+            self.sync.cyclic.quick_stop(reason, nodes)
+        return quick_stop_all(self, nodes, reason, on_done)

@@ -59,6 +59,9 @@ class BusConfig:
     # slew of a drive's cycle locked to SYNC (the simulated drives' bound, axes/sim/sync_lock.py MAX_SLEW,
     # 0.1 %: its speed over real time above the demand it judges); the README says why no more
     fixed_period_headroom: float = 0.002
+    # wall clock: SYNC, the time stamp, setpoints, records and the quick stop from a process of their own
+    # (``axes.cyclic_process``), where nothing else of the master runs
+    cyclic_process: bool = False
 
     def planning_share(self, fixed_period: bool) -> float:
         """The factor on an axis's 0x607F and 0x60C5 its plans are made with: ``1 - fixed_period_headroom``

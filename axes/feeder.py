@@ -335,15 +335,27 @@ class SetpointFeeder(Feeder):
         return elapsed >= len(self.records) + self.held_syncs and (self.all_sent or not self.enabled)
 
 
-def top_up_by_need(feeders: Sequence[Feeder], allowance: RecordAllowance) -> None:
+class RecordRefusedError(Exception):
+    """A ``send`` that offers a record once: the transmit queue has no room for it now."""
+
+
+def top_up_by_need(feeders: Sequence[Feeder], allowance: RecordAllowance) -> BufferFeeder | None:
     """Hand this period's allowance out one record at a time, each to the buffered axis whose FIFO is
-    lowest (after ``on_sync`` moved every feeder's clock), until it is spent or every FIFO is at its mark."""
+    lowest (after ``on_sync`` moved every feeder's clock), until it is spent or every FIFO is at its mark.
+    A record its ``send`` refuses (``RecordRefusedError``: offered once, the queue full) stays the next one
+    and its allowance is given back: it goes at a later top-up; the feeder it belongs to is returned
+    (None: nothing refused), so that the caller judges its FIFO against the reserve."""
     wanting = [f for f in feeders if isinstance(f, BufferFeeder) and f.wants]
     while wanting and allowance.take():
         feeder = min(wanting, key=lambda f: f.level)
-        feeder._send_next()
+        try:
+            feeder._send_next()
+        except RecordRefusedError:
+            allowance.left += 1
+            return feeder
         feeder.stats.level(feeder.level)
         wanting = [f for f in wanting if f.wants]
+    return None
 
 
 def preload_shared(feeders: Sequence[Feeder], allowance: RecordAllowance) -> bool:

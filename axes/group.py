@@ -183,6 +183,8 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
             return
         if n == start:
             self._start_sent = time.monotonic()  # t = 0 of the buffered drives' records
+        if self.bus.sync.cyclic_producing:
+            return  # the cyclic process sent them (axes.cyclic_process)
         for feeder in self._feeders:  # halting: only the stop ramps of drives without a ramp (_halt)
             feeder.after_sync(n - start)
 
@@ -256,6 +258,8 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         (``axes.feeder``), not the SYNCs every drive has answered: one drive's late answers must not
         stop another drive's feed while that one runs its records on its own clock."""
         sync = self.bus.sync
+        if sync.cyclic_producing:
+            return  # the cyclic process tops up; the feeders here mirror it (axes.cyclic_process)
         self.allowance.at_sync(sync.count)
         if not sync.lockstep and self._start_sent is not None:
             elapsed_ms = (time.monotonic() - self._start_sent) * 1000.0

@@ -31,6 +31,8 @@ class GroupHalt:
         t0 = time.perf_counter()
         sync = self.bus.sync
         with sync.lock:
+            if sync.cyclic_producing:
+                sync.cyclic.halt(quick=result is not Result.STOPPED)  # its feeders as these below
             unsent = []
             for lk, profile, feeder in zip(self.links, self.profiles, self._feeders, strict=True):
                 if not profile.ramps_by_itself and isinstance(feeder, SetpointFeeder):

@@ -114,6 +114,8 @@ class GroupStart:
                     # sends it: every axis is quick stopped by SDO instead, and that ends the run
                     self._quick_stop(Result.BUS_ERROR, f"the start could not be sent: {exc}", None)
                     return None
+                if sync.cyclic is not None:  # the run's feeders go on in the cyclic process from here
+                    sync.cyclic.hand_over(self._feeders, self.profiles, self.allowance, sync.max_gap_s)
                 sync.add_listener(self._on_sync)
                 self.bus.watch.arm_sync_watch()
                 started = f"program of {program.duration_ms} ms started on SYNC {self._start_sync}"

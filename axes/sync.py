@@ -66,6 +66,7 @@ from pvtflow.axes.sync_follower import SyncFollower, native_cyclic_task
 
 if TYPE_CHECKING:
     from pvtflow.axes.bus import CellBus
+    from pvtflow.axes.cyclic_process import CyclicProcess
 
 SyncCallback = Callable[[int], None]
 BACKUP_AFTER = 0.25  # the second SYNC thread sends what the first has not this far past a deadline (periods)
@@ -228,6 +229,8 @@ class SyncClock:
         self.backup = True  # a second SYNC thread on another CPU (module docstring; one CPU: never)
         self._deadline = 0.0  # the next SYNC's deadline, shared by the producing threads
         self._judged: float | None = None  # the SYNC whose gap was reported before the next went out
+        # the wall clock's cyclic path in a process of its own (``axes.cyclic_process``; None: this one's threads)
+        self.cyclic: CyclicProcess | None = None
 
     # --- answers ---------------------------------------------------------------------------------
     def expect(self, answers: Iterable[int] | Mapping[int, int]) -> None:
@@ -353,6 +356,31 @@ class SyncClock:
                 if failed is not None:
                     self.bus.report(failed)
 
+    def heard(self, production: int) -> None:
+        """A SYNC the cyclic process sent, heard on the bus (``axes.cyclic_process``): counted as
+        ``transmit`` counts one, and the senders told (they send nothing then: the child did)."""
+        failed = None
+        with self.lock:
+            if not self.producing(production):
+                return
+            self.count += 1
+            now = time.monotonic()
+            self.last_sent = now
+            if self.sent_at is not None:
+                self.longest_gap_s = max(self.longest_gap_s, now - self.sent_at)
+            self.sent_at = now
+            for send in self._senders:
+                send(self.count)
+            if not self._completing and any(n > 1 for n in self._every.values()):
+                failed = self._complete()
+        if failed is not None:
+            self.bus.report(failed)
+
+    @property
+    def cyclic_producing(self) -> bool:
+        """SYNC and what follows it come from the cyclic process (the master's feeders only mirror it)."""
+        return self.cyclic is not None and self.cyclic.producing
+
     def start(self) -> None:
         """Send the first SYNC now and keep producing (lockstep: on answers; real time: periodic)."""
         with self.lock:
@@ -372,6 +400,10 @@ class SyncClock:
                     self._running = False
                 return
             production = self._production
+            if self.cyclic is not None and self.cyclic.handed_over:
+                self.native = False
+                self.cyclic.produce(self, production)  # the child sends SYNC; each one heard: ``heard``
+                return
             if not self._collector_held:
                 collector.hold()  # no collection pause while SYNC runs on the wall clock (axes/collector.py)
                 self._collector_held = True
@@ -521,6 +553,8 @@ class SyncClock:
             self._production += 1
             task, self.follower.task = self.follower.task, None
             held, self._collector_held = self._collector_held, False
+            if self.cyclic is not None:
+                self.cyclic.stop()
         if task is not None:
             task.stop()
         if held:

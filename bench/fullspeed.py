@@ -54,7 +54,12 @@ CELLS = ("gantry3", "gantry3-ip-linear", "gantry3-sync-setpoint", "gantry3-parke
 
 
 def without_homing(
-    name: str, directory: Path, period_ms: float | None, headroom: float | None, status_every: int | None = None
+    name: str,
+    directory: Path,
+    period_ms: float | None,
+    headroom: float | None,
+    status_every: int | None = None,
+    cyclic: bool = False,
 ) -> Path:
     """A copy of the cell's file without its homing sections (at ``period_ms``, with ``headroom`` if given)."""
     source = CONFIG_DIR / "cells" / f"{name}.yaml"
@@ -74,6 +79,8 @@ def without_homing(
         data["bus"]["fixed_period_headroom"] = headroom
     if status_every is not None:
         data["bus"]["status_every_syncs"] = status_every
+    if cyclic:
+        data["bus"]["cyclic_process"] = True
     robot = data.get("robot", {})
     if "urdf" in robot:
         robot["urdf"] = str((source.parent / robot["urdf"]).resolve())
@@ -244,6 +251,9 @@ def main() -> None:
     )
     parser.add_argument("--status-every", type=int, default=None, help="bus.status_every_syncs (default: the file's)")
     parser.add_argument("--headroom", type=float, default=None, help="bus.fixed_period_headroom (default: the file's)")
+    parser.add_argument(
+        "--cyclic", action="store_true", help="bus.cyclic_process: SYNC and the feed in a process of their own"
+    )
     args = parser.parse_args()
     kept = tempfile.TemporaryDirectory()
     files = Path(kept.name)
@@ -255,6 +265,7 @@ def main() -> None:
             + (f" --headroom {args.headroom:g}" if args.headroom is not None else "")
             + (" --service" if args.service else "")
             + (f" --status-every {args.status_every}" if args.status_every is not None else "")
+            + (" --cyclic" if args.cyclic else "")
         )
         print(
             "| cell | SYNC ms | finished | SYNC interval p50 / p99 / max (periods) | setpoint after its SYNC "
@@ -263,7 +274,9 @@ def main() -> None:
         print("|---|---|---|---|---|---|---|---|")
         for name in args.cells.split(","):
             # the copy stays for the run: the service's planner child reads the cell's file again
-            cell = load_cell_config(without_homing(name, files, args.period_ms, args.headroom, args.status_every))
+            cell = load_cell_config(
+                without_homing(name, files, args.period_ms, args.headroom, args.status_every, args.cyclic)
+            )
             plans: dict[bytes, PvtProgram] = {}
 
             def program_for(here: np.ndarray, cell: CellConfig = cell, plans: dict = plans) -> PvtProgram:

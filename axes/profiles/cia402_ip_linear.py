@@ -16,6 +16,7 @@ held and bit 4 of the controlword is cleared.
 from __future__ import annotations
 
 import struct
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -28,9 +29,16 @@ from pvtflow.axes.profiles.base import Profile
 from pvtflow.axes.stop_ramp import braking_records
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from pvtflow.axes.program import AxisProgram
 
 MS_INDEX = -3  # 0x60C2:02: the period is given in 10^-3 s
+
+
+def target_frame(cob_id: int, record: NDArray[np.int64]) -> tuple[int, bytes]:
+    """The setpoint RPDO of one record: 0x60C1:01, the target position (INT32)."""
+    return cob_id, struct.pack("<i", int(record[0]))
 
 
 class FixedPeriodProfile(Profile):
@@ -52,7 +60,12 @@ class FixedPeriodProfile(Profile):
         return 1
 
     def frame(self, record: NDArray[np.int64]) -> tuple[int, bytes]:
-        return self._cob, struct.pack("<i", int(record[0]))
+        return self.frame_packer(self._cob)(record)
+
+    def frame_packer(self, cob_id: int) -> Callable[[NDArray[np.int64]], tuple[int, bytes]]:
+        """``frame`` as a function another process can take (picklable: the cyclic process packs a stop
+        ramp's setpoints with it, ``axes.cyclic_process``)."""
+        return partial(target_frame, cob_id)
 
     def feeder(self, program: AxisProgram, allowance: RecordAllowance | None = None) -> Feeder:
         self._cob = self.rpdos[0].cob_id(self.link.node_id, receive=True)

@@ -18,6 +18,8 @@ SYNC. End: the time-0 record (interpolation inactive without error).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -34,6 +36,11 @@ if TYPE_CHECKING:
 
 BUFFER_CLEAR = 0
 BUFFER_ENABLE = 1
+
+
+def record_frame(cob_id: int, record: NDArray[np.int64]) -> tuple[int, bytes]:
+    """The asynchronous RPDO of one record: 0x20C1, the PVT record (``objects.Record``)."""
+    return cob_id, Record(int(record[0]), int(record[1]), int(record[2])).to_bytes()
 
 
 class Epos2Pvt(Profile):
@@ -86,7 +93,11 @@ class Epos2Pvt(Profile):
         self.link.write(od.INTERPOLATION_DATA_CONFIGURATION, 6, BUFFER_CLEAR, "B")
 
     def frame(self, record: NDArray[np.int64]) -> tuple[int, bytes]:
-        return self._cob, Record(int(record[0]), int(record[1]), int(record[2])).to_bytes()
+        return record_frame(self._cob, record)
+
+    def frame_packer(self, cob_id: int) -> Callable[[NDArray[np.int64]], tuple[int, bytes]]:
+        """``frame`` as a function another process can take (``axes.cyclic_process``)."""
+        return partial(record_frame, cob_id)
 
     def feeder(self, program: AxisProgram, allowance: RecordAllowance | None = None) -> Feeder:
         self._cob = self.rpdos[0].cob_id(self.link.node_id, receive=True)

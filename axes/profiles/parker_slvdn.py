@@ -20,6 +20,8 @@ master brakes it with setpoints within 0x60C5 (``axes.stop_ramp``).
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
+from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +30,12 @@ from pvtflow.axes import objects as od
 from pvtflow.axes.drive_profile import DriveProfile
 from pvtflow.axes.interpolation import Interpolation
 from pvtflow.axes.profiles.cia402_ip_linear import FixedPeriodProfile
+
+
+def parker_frame(cob_id: int, velocity_unit_rpm: float, record: NDArray[np.int64]) -> tuple[int, bytes]:
+    """PDO 4 rx of one record: the target position 0x60C1:01 and the velocity feed-forward 0x60C1:03 in rpm."""
+    rpm = round(float(record[1]) * velocity_unit_rpm)
+    return cob_id, struct.pack("<ii", int(record[0]), rpm)
 
 
 class ParkerSlvdn(FixedPeriodProfile):
@@ -68,6 +76,5 @@ class ParkerSlvdn(FixedPeriodProfile):
         self.write_heartbeat()
         self.supervise_master()
 
-    def frame(self, record: NDArray[np.int64]) -> tuple[int, bytes]:
-        rpm = round(float(record[1]) * self.config.scaling.velocity_unit_rpm)
-        return self._cob, struct.pack("<ii", int(record[0]), rpm)
+    def frame_packer(self, cob_id: int) -> Callable[[NDArray[np.int64]], tuple[int, bytes]]:
+        return partial(parker_frame, cob_id, self.config.scaling.velocity_unit_rpm)

@@ -1,0 +1,373 @@
+"""The cyclic path's own process: SYNC, the 0x1013 time stamp, the setpoints, the records, the quick stop.
+
+On the wall clock the master's interpreter also plans, serves zenoh, records and answers SDO: any of
+it holding the GIL when a SYNC is due delays the SYNC and the setpoints that must follow it (measured
+in bench/RESULTS.md, "Full-speed tours": 1-2 % of SYNCs 210-350 us late at 2 ms, frames refused by a
+transmit queue the master's other traffic filled). This process does nothing else: it opens the cell's
+interface as a second node (socketcan: a second socket on the channel; simwire: a second client of
+the served wire), each with a transmit queue of its own, and runs what the master hands it
+(``axes.cyclic_process``): the feeders of one run, built from the same classes the master uses
+(``axes.feeder``), so the rules of what goes out after which SYNC have one home.
+
+Per SYNC, in this order: SYNC, the fixed-period setpoints (what must be on the wire before the next
+SYNC), the time stamp, then the EPOS2 records from the period's allowance, each offered once
+(``RecordRefusedError``: a full queue delays a record to a later top-up, never the SYNC after it); the run
+ends on a refused record only where that drive's FIFO, as estimated, is below its reserve (the
+underflow warning level 0x20C4:02), and then every drive is quick stopped from here.
+
+The SYNC deadlines follow ``axes.sync``'s rule (absolute deadlines; a SYNC more than half a period late
+goes out at once and the deadlines after it keep the period from it; never two within half a period).
+A SYNC or a setpoint this process cannot send within ``tx_retry_s``, or a lost master (its pipe
+closes), quick stops every drive from here: the SDO requests at once, NMT stop to those that do not
+confirm within ``quick_stop_confirm_s`` (``axes.quick_stop`` for the master's side of the same rule),
+whatever the master process is doing.
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from typing import Any
+
+import can
+import numpy as np
+from numpy.typing import NDArray
+
+from pvtflow.axes.bus_faults import FaultKind
+from pvtflow.axes.config import BufferConfig
+from pvtflow.axes.feeder import (
+    BufferFeeder,
+    Feeder,
+    FrameOf,
+    RecordAllowance,
+    RecordRefusedError,
+    SetpointFeeder,
+    top_up_by_need,
+)
+from pvtflow.axes.network import TX_RETRY_PAUSE_S
+from pvtflow.axes.objects import SYNC_COB_ID, NmtCommand
+from pvtflow.axes.quick_stop import SDO_DOWNLOAD_CONFIRMED, SDO_REQUEST_BASE, SDO_RESPONSE_BASE, quick_stop_request
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.stop_ramp import braking_records
+from pvtflow.axes.sync import ask_realtime
+
+# the shared progress array: [SYNCs sent in this run, the run's number, feeders' next record ...]
+PROGRESS_COUNT, PROGRESS_RUN, PROGRESS_FEEDERS = 0, 1, 2
+MAX_FEEDS = 64
+
+
+@dataclass
+class FeedSpec:
+    """One axis's feeder as the master hands it over (picklable): its records and where it stands."""
+
+    node_id: int
+    records: NDArray[np.int64]
+    packer: FrameOf  # the profile's frame of a record (``Profile.frame_packer``)
+    next: int
+    enabled: bool = True
+    lead: int | None = None  # a fixed-period axis: its lead in periods (None: a buffered EPOS2)
+    braking: tuple[DriveLimits, AxisScaling] | None = None  # no ramp of its own: the master's stop ramp
+    buffer: BufferConfig | None = None
+    capacity: int = 64
+
+
+@dataclass
+class CycleSpec:
+    """One run's cyclic path: the SYNC period, the start SYNC's number, the feeders."""
+
+    run: int
+    period_ms: float
+    start_count: int  # the number the start SYNC gets (the master's count of SYNCs)
+    stamp_cob_id: int | None
+    max_gap_s: float
+    records_per_sync: int
+    feeds: list[FeedSpec] = field(default_factory=list)
+
+
+class CyclicLoop:
+    """The child's state: its bus, the present run's feeders, the SYNC production."""
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        conn: Connection,
+        progress: Any,
+        priority: int,
+        tx_retry_s: float,
+        quick_stop_confirm_s: float,
+    ) -> None:
+        self.bus = bus
+        self.conn = conn
+        self.progress = progress
+        self.priority = priority
+        self.tx_retry_s = tx_retry_s
+        self.quick_stop_confirm_s = quick_stop_confirm_s
+        self.lock = threading.RLock()  # the run's feeders: the SYNC thread and the commands
+        self._conn_lock = threading.Lock()
+        self.spec: CycleSpec | None = None
+        self.feeders: list[Feeder] = []
+        self.braking: list[tuple[DriveLimits, AxisScaling] | None] = []
+        self.allowance = RecordAllowance(1)
+        self.count = 0
+        self.start_sent: float | None = None
+        self.sent_at: float | None = None
+        self._judged: float | None = None
+        self.running = False
+        self._production = 0
+        self._confirmed: set[int] = set()
+        self._confirm = threading.Condition(threading.Lock())
+        self.realtime: bool | None = None
+
+    # --- to the master ---------------------------------------------------------------------------
+    def tell(self, *message: object) -> None:
+        try:
+            with self._conn_lock:
+                self.conn.send(message)
+        except (OSError, EOFError, BrokenPipeError):
+            pass  # the master is gone: the loop on the pipe sees it too
+
+    def fault(self, kind: FaultKind, message: str, node_id: int | None = None, code: int | None = None) -> None:
+        self.tell("fault", kind.value, node_id, message, code)
+
+    # --- frames ----------------------------------------------------------------------------------
+    def send_now(self, cob_id: int, data: bytes) -> None:
+        """A frame that must go before the next SYNC: a refused one is tried again for ``tx_retry_s``."""
+        msg = can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
+        deadline = time.monotonic() + self.tx_retry_s
+        while True:
+            try:
+                self.bus.send(msg, timeout=0.0)
+                return
+            except can.CanOperationError:
+                if time.monotonic() >= deadline:
+                    raise
+                time.sleep(TX_RETRY_PAUSE_S)
+
+    def offer(self, cob_id: int, data: bytes) -> None:
+        """A record: one try; refused, it stays next for a later top-up (``top_up_by_need``)."""
+        try:
+            self.bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False), timeout=0.0)
+        except can.CanOperationError as exc:
+            raise RecordRefusedError(str(exc)) from None
+
+    # --- a run -----------------------------------------------------------------------------------
+    def begin(self, spec: CycleSpec) -> None:
+        """The master handed a run over: build its feeders where the master's stand, start SYNC."""
+        with self.lock:
+            self.spec = spec
+            self.allowance = RecordAllowance(spec.records_per_sync)
+            self.feeders, self.braking = [], []
+            for f in spec.feeds:
+                feeder: Feeder
+                if f.lead is not None:
+                    feeder = SetpointFeeder(f.records, f.packer, self.send_now, spec.period_ms, f.lead)
+                else:
+                    assert f.buffer is not None
+                    feeder = BufferFeeder(
+                        f.records, f.packer, self.offer, spec.period_ms, f.buffer, f.capacity, self.allowance
+                    )
+                feeder.next = f.next
+                feeder.enabled = f.enabled
+                self.feeders.append(feeder)
+                self.braking.append(f.braking)
+            self.count = spec.start_count - 1
+            self.start_sent = self.sent_at = self._judged = None
+            self.progress[PROGRESS_RUN] = spec.run
+            self._write_progress()
+            self.running = True
+            self._production += 1
+            production = self._production
+        threading.Thread(target=self._produce, args=(production,), name="pvtflow-cyclic-sync", daemon=True).start()
+
+    def halt(self, quick: bool) -> None:
+        """The master halts the run (its halt controlwords go out from it): an axis without a ramp of its
+        own brakes on the master's stop ramp from the last setpoint sent here (``axes.stop_ramp``, as
+        ``Profile.stop_records``), every other feeder stops."""
+        with self.lock:
+            for feeder, braking in zip(self.feeders, self.braking, strict=True):
+                if braking is not None and isinstance(feeder, SetpointFeeder):
+                    last, previous = feeder.last_commanded()
+                    feeder.decelerate(braking_records(last, previous, feeder.period_ms, *braking, quick))
+                else:
+                    feeder.enabled = False
+
+    def stop(self) -> None:
+        with self.lock:
+            self.running = False
+            self._production += 1
+
+    # --- SYNC ------------------------------------------------------------------------------------
+    def _produce(self, production: int) -> None:
+        self.realtime = ask_realtime(self.priority)
+        spec = self.spec
+        assert spec is not None
+        period = spec.period_ms / 1000.0
+        deadline = time.monotonic()
+        try:
+            while True:
+                with self.lock:
+                    if not (self.running and self._production == production):
+                        return
+                    now = time.monotonic()
+                    if (
+                        self.sent_at is not None
+                        and self.sent_at != self._judged
+                        and now - self.sent_at > spec.max_gap_s
+                    ):
+                        self._judged = self.sent_at
+                        gap = now - self.sent_at
+                        self.fault(
+                            FaultKind.SYNC_GAP,
+                            f"no SYNC for {gap * 1000:.1f} ms (the drives ride out {spec.max_gap_s * 1000:.1f} ms)",
+                            None,
+                            round(gap * 1000),
+                        )
+                    late = now - deadline
+                    if self.sent_at is None or late > period / 2:
+                        deadline = now
+                    due = deadline if self.sent_at is None else max(deadline, self.sent_at + period / 2)
+                    if now >= due:
+                        self._transmit()
+                        deadline += period
+                        due = deadline
+                delay = due - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+        except (can.CanError, OSError) as exc:
+            self.stop()
+            self.quick_stop_all(f"SYNC {self.count + 1} or its setpoints not sent: {exc}")
+            self.fault(FaultKind.TX_FAILED, f"SYNC {self.count + 1} or its setpoints not sent: {exc}")
+        except Exception as exc:  # never silent: the master halts on it
+            self.stop()
+            self.quick_stop_all(f"the cyclic process's SYNC thread ended: {exc!r}")
+            self.fault(FaultKind.SYNC_STOPPED, f"the cyclic process's SYNC thread ended: {exc!r}")
+
+    def _transmit(self) -> None:
+        """One SYNC and what follows it (lock held)."""
+        spec = self.spec
+        assert spec is not None
+        self.send_now(SYNC_COB_ID, b"")
+        now = time.monotonic()
+        self.sent_at = now
+        self.count += 1
+        elapsed = self.count - spec.start_count
+        if elapsed == 0:
+            self.start_sent = now  # t = 0 of the buffered drives' records
+        for feeder in self.feeders:
+            feeder.after_sync(elapsed)  # the fixed-period setpoints: before the next SYNC, whatever else
+        if spec.stamp_cob_id is not None:
+            stamp = (time.monotonic_ns() // 1000) & 0xFFFFFFFF
+            self.send_now(spec.stamp_cob_id, struct.pack("<I", stamp))
+        if self.start_sent is not None:
+            elapsed_ms = (now - self.start_sent) * 1000.0
+            for feeder in self.feeders:
+                if isinstance(feeder, BufferFeeder):
+                    feeder.run_to(elapsed_ms)
+            self.allowance.at_sync(self.count)
+            refused = top_up_by_need(self.feeders, self.allowance)
+            if refused is not None and refused.level < refused.low:
+                node = spec.feeds[self.feeders.index(refused)].node_id
+                why = (
+                    f"records refused by the transmit queue while node {node}'s FIFO is at {refused.level}, "
+                    f"below its reserve {refused.low}"
+                )
+                self.stop()
+                self.quick_stop_all(why)
+                self.fault(FaultKind.TX_FAILED, why, node)
+        self._write_progress()
+
+    def _write_progress(self) -> None:
+        p = self.progress
+        p[PROGRESS_COUNT] = self.count
+        for i, feeder in enumerate(self.feeders[:MAX_FEEDS]):
+            p[PROGRESS_FEEDERS + i] = feeder.next
+
+    # --- the quick stop that needs no SYNC and no master ----------------------------------------
+    def quick_stop_all(self, reason: str, node_ids: list[int] | None = None) -> None:
+        """The SDO quick stop requests to every drive now, NMT stop to those that do not confirm within
+        ``quick_stop_confirm_s`` (``axes.quick_stop``'s rule), from this process alone."""
+        nodes = node_ids if node_ids is not None else [f.node_id for f in (self.spec.feeds if self.spec else [])]
+        with self._confirm:
+            self._confirmed.clear()
+        request = quick_stop_request()
+        for node in nodes:
+            try:
+                self.send_now(SDO_REQUEST_BASE + node, request)
+            except (can.CanError, OSError):
+                pass  # not sent: NMT stop below, or the master's heartbeat loss
+        deadline = time.monotonic() + self.quick_stop_confirm_s
+        with self._confirm:
+            self._confirm.wait_for(
+                lambda: all(n in self._confirmed for n in nodes), max(0.0, deadline - time.monotonic())
+            )
+            missing = [n for n in nodes if n not in self._confirmed]
+        for node in missing:
+            try:
+                self.send_now(0, bytes([NmtCommand.STOP, node]))
+            except (can.CanError, OSError):
+                pass
+        self.tell("quick_stopped", reason, sorted(set(nodes) - set(missing)), missing)
+
+    def receive(self) -> None:
+        """The SDO answers of a quick stop (this process's bus receives every frame)."""
+        while True:
+            try:
+                msg = self.bus.recv(0.5)
+            except (can.CanError, OSError, ValueError):
+                return
+            if msg is None:
+                continue
+            if SDO_RESPONSE_BASE < msg.arbitration_id <= SDO_RESPONSE_BASE + 0x7F and msg.data[:1] == bytes(
+                [SDO_DOWNLOAD_CONFIRMED]
+            ):
+                with self._confirm:
+                    self._confirmed.add(msg.arbitration_id - SDO_RESPONSE_BASE)
+                    self._confirm.notify_all()
+
+
+def serve_cyclic(
+    conn: Connection,
+    bus_kwargs: dict[str, object],
+    progress: Any,
+    priority: int,
+    tx_retry_s: float,
+    quick_stop_confirm_s: float,
+) -> None:
+    """The child process's main: open the bus, say ready, obey the master's commands until it closes."""
+    import gc
+
+    try:
+        bus = can.Bus(**bus_kwargs)
+    except Exception as exc:  # told to the master, which refuses to open the bus
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        return
+    loop = CyclicLoop(bus, conn, progress, priority, tx_retry_s, quick_stop_confirm_s)
+    threading.Thread(target=loop.receive, name="pvtflow-cyclic-rx", daemon=True).start()
+    gc.freeze()  # what the start loaded is never collected; a run's objects are few (no long pauses)
+    loop.tell("ready")
+    try:
+        while True:
+            try:
+                command, *args = conn.recv()
+            except (EOFError, OSError):  # the master is gone: nobody halts the drives but this process
+                if loop.running:
+                    loop.stop()
+                    loop.quick_stop_all("the master process is gone")
+                return
+            if command == "start":
+                loop.begin(args[0])
+            elif command == "halt":
+                loop.halt(bool(args[0]))
+            elif command == "stop":
+                loop.stop()
+            elif command == "quick_stop":
+                loop.stop()
+                threading.Thread(target=loop.quick_stop_all, args=(args[0], list(args[1])), daemon=True).start()
+            elif command == "close":
+                loop.stop()
+                return
+    finally:
+        bus.shutdown()
