@@ -25,6 +25,8 @@ whatever the master process is doing.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import struct
 import threading
 import time
@@ -52,11 +54,16 @@ from pvtflow.axes.objects import SYNC_COB_ID, NmtCommand
 from pvtflow.axes.quick_stop import SDO_DOWNLOAD_CONFIRMED, SDO_REQUEST_BASE, SDO_RESPONSE_BASE, quick_stop_request
 from pvtflow.axes.scaling import AxisScaling, DriveLimits
 from pvtflow.axes.stop_ramp import braking_records
-from pvtflow.axes.sync import ask_realtime
+from pvtflow.axes.sync import ask_realtime, lift
 
 # the shared progress array: [SYNCs sent in this run, the run's number, feeders' next record ...]
 PROGRESS_COUNT, PROGRESS_RUN, PROGRESS_FEEDERS = 0, 1, 2
 MAX_FEEDS = 64
+# the SYNC thread wakes this long before a deadline and waits for it awake: on this project's VM a
+# SCHED_FIFO sleep woke p50 47 us, p99 120-160 us, max 600-780 us late (awake for the last 0.3 ms: p50 4 us;
+# bench/RESULTS.md), and a SYNC more than 135 us off its period is outside the drives' lock
+# (axes/sim/sync_lock.py). It costs 0.3 ms of a CPU per period.
+SPIN_BEFORE_S = 0.0003
 
 
 @dataclass
@@ -87,6 +94,18 @@ class CycleSpec:
     feeds: list[FeedSpec] = field(default_factory=list)
 
 
+ECHO_POLL_S = 0.00005  # how often the SYNC thread looks for its SYNC's echo
+
+
+@dataclass
+class CycleTiming:
+    """One run's timing as this process saw it (told to the master when the run's SYNC stops)."""
+
+    late_us: list[float] = field(default_factory=list)  # each SYNC's send after its deadline
+    echo_us: list[float] = field(default_factory=list)  # each SYNC's echo, heard here, after its send
+    unstamped: int = 0  # SYNCs whose echo did not come within half a period (no time stamp for them)
+
+
 class CyclicLoop:
     """The child's state: its bus, the present run's feeders, the SYNC production."""
 
@@ -105,8 +124,9 @@ class CyclicLoop:
         self.priority = priority
         self.tx_retry_s = tx_retry_s
         self.quick_stop_confirm_s = quick_stop_confirm_s
-        self.lock = threading.RLock()  # the run's feeders: the SYNC thread and the commands
+        self.lock = threading.RLock()  # the run's feeders and the bus's sends: the SYNC thread and the commands
         self._conn_lock = threading.Lock()
+        self._reading = threading.Lock()  # one reader of the bus at a time (``drain``)
         self.spec: CycleSpec | None = None
         self.feeders: list[Feeder] = []
         self.braking: list[tuple[DriveLimits, AxisScaling] | None] = []
@@ -118,7 +138,10 @@ class CyclicLoop:
         self.running = False
         self._production = 0
         self._confirmed: set[int] = set()
-        self._confirm = threading.Condition(threading.Lock())
+        # this node's SYNC echoes: the last one's (SYNC number, its time stamp on the wire, when heard here)
+        self._echo_of: tuple[int, float, float] | None = None
+        self._echoes = 0
+        self.timing = CycleTiming()
         self.realtime: bool | None = None
 
     # --- to the master ---------------------------------------------------------------------------
@@ -153,6 +176,25 @@ class CyclicLoop:
         except can.CanOperationError as exc:
             raise RecordRefusedError(str(exc)) from None
 
+    def drain(self) -> None:
+        """What the bus brought since the last look (this node receives every frame): the SDO answers
+        of a quick stop, and this process's own SYNC echoes. Read by the SYNC thread between SYNCs,
+        not by a reader thread of its own, which would take the GIL from the SYNC thread at any instant."""
+        with self._reading:
+            while True:
+                try:
+                    msg = self.bus.recv(0.0)
+                except (can.CanError, OSError, ValueError):
+                    return
+                if msg is None:
+                    return
+                can_id = msg.arbitration_id
+                if can_id == SYNC_COB_ID and not msg.is_rx:  # our own SYNC, as it left the wire
+                    self._echoes += 1
+                    self._echo_of = (self._echoes, msg.timestamp, time.monotonic())
+                elif SDO_RESPONSE_BASE < can_id <= SDO_RESPONSE_BASE + 0x7F and msg.data[:1] == _CONFIRMED:
+                    self._confirmed.add(can_id - SDO_RESPONSE_BASE)
+
     # --- a run -----------------------------------------------------------------------------------
     def begin(self, spec: CycleSpec) -> None:
         """The master handed a run over: build its feeders where the master's stand, start SYNC."""
@@ -175,6 +217,9 @@ class CyclicLoop:
                 self.braking.append(f.braking)
             self.count = spec.start_count - 1
             self.start_sent = self.sent_at = self._judged = None
+            self.drain()  # the echoes of SYNCs before this run are not this run's
+            self._echoes, self._echo_of = 0, None
+            self.timing = CycleTiming()
             self.progress[PROGRESS_RUN] = spec.run
             self._write_progress()
             self.running = True
@@ -196,18 +241,28 @@ class CyclicLoop:
 
     def stop(self) -> None:
         with self.lock:
-            self.running = False
+            was, self.running = self.running, False
             self._production += 1
+        if was:
+            t = self.timing
+            self.tell("timing", t.late_us, t.echo_us, t.unstamped)
 
     # --- SYNC ------------------------------------------------------------------------------------
     def _produce(self, production: int) -> None:
         self.realtime = ask_realtime(self.priority)
+        if self.realtime:  # the interface's reader (its transmit slots free on its reports): at least just below
+            lift(
+                [t for t in threading.enumerate() if t is not threading.current_thread() and not _fifo(t)],
+                self.priority - 1,
+            )
         spec = self.spec
         assert spec is not None
         period = spec.period_ms / 1000.0
+        spin = min(SPIN_BEFORE_S, period / 4)
         deadline = time.monotonic()
         try:
             while True:
+                sent = None
                 with self.lock:
                     if not (self.running and self._production == production):
                         return
@@ -226,27 +281,37 @@ class CyclicLoop:
                             round(gap * 1000),
                         )
                     late = now - deadline
-                    if self.sent_at is None or late > period / 2:
+                    if self.sent_at is None or late > period / 2:  # axes.sync's rule: now, the period kept from it
                         deadline = now
                     due = deadline if self.sent_at is None else max(deadline, self.sent_at + period / 2)
                     if now >= due:
+                        self.timing.late_us.append((now - deadline) * 1e6)
                         self._transmit()
+                        sent = self.count
                         deadline += period
                         due = deadline
-                delay = due - time.monotonic()
+                if sent is not None:
+                    self._follow_up(sent, min(due - spin, (self.sent_at or 0.0) + period / 2))
+                delay = due - time.monotonic() - spin
                 if delay > 0:
                     time.sleep(delay)
+                while time.monotonic() < due:  # the last stretch awake: a timer's wake is that late
+                    pass
+        except _ReserveError as exc:
+            self._failed(FaultKind.TX_FAILED, str(exc), exc.node_id)
         except (can.CanError, OSError) as exc:
-            self.stop()
-            self.quick_stop_all(f"SYNC {self.count + 1} or its setpoints not sent: {exc}")
-            self.fault(FaultKind.TX_FAILED, f"SYNC {self.count + 1} or its setpoints not sent: {exc}")
+            self._failed(FaultKind.TX_FAILED, f"SYNC {self.count + 1} or what follows it not sent: {exc}")
         except Exception as exc:  # never silent: the master halts on it
-            self.stop()
-            self.quick_stop_all(f"the cyclic process's SYNC thread ended: {exc!r}")
-            self.fault(FaultKind.SYNC_STOPPED, f"the cyclic process's SYNC thread ended: {exc!r}")
+            self._failed(FaultKind.SYNC_STOPPED, f"the cyclic process's SYNC thread ended: {exc!r}")
+
+    def _failed(self, kind: FaultKind, why: str, node_id: int | None = None) -> None:
+        """This process cannot go on: no more SYNC, every drive quick stopped from here, the master told."""
+        self.stop()
+        self.quick_stop_all(why)
+        self.fault(kind, why, node_id)
 
     def _transmit(self) -> None:
-        """One SYNC and what follows it (lock held)."""
+        """One SYNC and what follows it (lock held): the setpoints first, then the records."""
         spec = self.spec
         assert spec is not None
         self.send_now(SYNC_COB_ID, b"")
@@ -258,9 +323,6 @@ class CyclicLoop:
             self.start_sent = now  # t = 0 of the buffered drives' records
         for feeder in self.feeders:
             feeder.after_sync(elapsed)  # the fixed-period setpoints: before the next SYNC, whatever else
-        if spec.stamp_cob_id is not None:
-            stamp = (time.monotonic_ns() // 1000) & 0xFFFFFFFF
-            self.send_now(spec.stamp_cob_id, struct.pack("<I", stamp))
         if self.start_sent is not None:
             elapsed_ms = (now - self.start_sent) * 1000.0
             for feeder in self.feeders:
@@ -270,14 +332,35 @@ class CyclicLoop:
             refused = top_up_by_need(self.feeders, self.allowance)
             if refused is not None and refused.level < refused.low:
                 node = spec.feeds[self.feeders.index(refused)].node_id
-                why = (
-                    f"records refused by the transmit queue while node {node}'s FIFO is at {refused.level}, "
-                    f"below its reserve {refused.low}"
+                raise _ReserveError(
+                    node,
+                    f"records refused by the transmit queue while node {node}'s FIFO is at {refused.level} "
+                    f"records, below its reserve {refused.low} (0x20C4:02)",
                 )
-                self.stop()
-                self.quick_stop_all(why)
-                self.fault(FaultKind.TX_FAILED, why, node)
         self._write_progress()
+
+    def _follow_up(self, number: int, until: float) -> None:
+        """After SYNC ``number`` and its frames: its echo, then the time stamp (0x1013) that says when it
+        left the wire (the echo's time stamp: the end of its frame, where the EPOS2 latches its clock,
+        app note "Clock synchronization"), before the next SYNC. No echo by ``until``: no stamp for it
+        (the drive keeps its clock's rate; counted)."""
+        spec = self.spec
+        assert spec is not None
+        while True:
+            self.drain()
+            echo = self._echo_of
+            if echo is not None and echo[0] >= number - spec.start_count + 1:
+                break
+            if time.monotonic() >= until:
+                self.timing.unstamped += 1
+                return
+            time.sleep(ECHO_POLL_S)
+        _, left_wire, heard_at = echo
+        self.timing.echo_us.append((heard_at - (self.sent_at or heard_at)) * 1e6)
+        if spec.stamp_cob_id is not None:
+            with self.lock:
+                if self.running:
+                    self.send_now(spec.stamp_cob_id, struct.pack("<I", round(left_wire * 1e6) & 0xFFFFFFFF))
 
     def _write_progress(self) -> None:
         p = self.progress
@@ -290,42 +373,40 @@ class CyclicLoop:
         """The SDO quick stop requests to every drive now, NMT stop to those that do not confirm within
         ``quick_stop_confirm_s`` (``axes.quick_stop``'s rule), from this process alone."""
         nodes = node_ids if node_ids is not None else [f.node_id for f in (self.spec.feeds if self.spec else [])]
-        with self._confirm:
-            self._confirmed.clear()
+        self.drain()  # what came before the requests
+        self._confirmed.clear()
         request = quick_stop_request()
         for node in nodes:
-            try:
+            with contextlib.suppress(can.CanError, OSError):  # not sent: NMT stop below, or the heartbeat's loss
                 self.send_now(SDO_REQUEST_BASE + node, request)
-            except (can.CanError, OSError):
-                pass  # not sent: NMT stop below, or the master's heartbeat loss
         deadline = time.monotonic() + self.quick_stop_confirm_s
-        with self._confirm:
-            self._confirm.wait_for(
-                lambda: all(n in self._confirmed for n in nodes), max(0.0, deadline - time.monotonic())
-            )
-            missing = [n for n in nodes if n not in self._confirmed]
+        while not all(n in self._confirmed for n in nodes) and time.monotonic() < deadline:
+            time.sleep(TX_RETRY_PAUSE_S)
+            self.drain()
+        missing = [n for n in nodes if n not in self._confirmed]
         for node in missing:
-            try:
+            with contextlib.suppress(can.CanError, OSError):
                 self.send_now(0, bytes([NmtCommand.STOP, node]))
-            except (can.CanError, OSError):
-                pass
         self.tell("quick_stopped", reason, sorted(set(nodes) - set(missing)), missing)
 
-    def receive(self) -> None:
-        """The SDO answers of a quick stop (this process's bus receives every frame)."""
-        while True:
-            try:
-                msg = self.bus.recv(0.5)
-            except (can.CanError, OSError, ValueError):
-                return
-            if msg is None:
-                continue
-            if SDO_RESPONSE_BASE < msg.arbitration_id <= SDO_RESPONSE_BASE + 0x7F and msg.data[:1] == bytes(
-                [SDO_DOWNLOAD_CONFIRMED]
-            ):
-                with self._confirm:
-                    self._confirmed.add(msg.arbitration_id - SDO_RESPONSE_BASE)
-                    self._confirm.notify_all()
+
+class _ReserveError(Exception):
+    """A record refused while its drive's FIFO is below the reserve: the run cannot go on."""
+
+    def __init__(self, node_id: int, why: str) -> None:
+        super().__init__(why)
+        self.node_id = node_id
+
+
+_CONFIRMED = bytes([SDO_DOWNLOAD_CONFIRMED])
+
+
+def _fifo(thread: threading.Thread) -> bool:
+    """Already real time (simwire's reader asks for a priority above SYNC's: axes/sim/wire/priority.py)."""
+    try:
+        return thread.native_id is not None and os.sched_getscheduler(thread.native_id) == os.SCHED_FIFO
+    except (AttributeError, OSError):
+        return False
 
 
 def serve_cyclic(
@@ -338,15 +419,16 @@ def serve_cyclic(
 ) -> None:
     """The child process's main: open the bus, say ready, obey the master's commands until it closes."""
     import gc
+    import sys
 
+    sys.setswitchinterval(1e-4)  # a waiting thread gets the GIL within 0.1 ms, not CPython's 5 ms (CellBus.open)
     try:
         bus = can.Bus(**bus_kwargs)
     except Exception as exc:  # told to the master, which refuses to open the bus
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
     loop = CyclicLoop(bus, conn, progress, priority, tx_retry_s, quick_stop_confirm_s)
-    threading.Thread(target=loop.receive, name="pvtflow-cyclic-rx", daemon=True).start()
-    gc.freeze()  # what the start loaded is never collected; a run's objects are few (no long pauses)
+    gc.freeze()  # what the start loaded is never collected: no long collection while SYNC runs
     loop.tell("ready")
     try:
         while True:

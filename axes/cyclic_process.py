@@ -33,7 +33,15 @@ from typing import TYPE_CHECKING
 
 from pvtflow.axes.bus_faults import BusError, BusFault, FaultKind
 from pvtflow.axes.config import wire_options
-from pvtflow.axes.cyclic_loop import MAX_FEEDS, PROGRESS_COUNT, PROGRESS_FEEDERS, CycleSpec, FeedSpec, serve_cyclic
+from pvtflow.axes.cyclic_loop import (
+    MAX_FEEDS,
+    PROGRESS_COUNT,
+    PROGRESS_FEEDERS,
+    CycleSpec,
+    CycleTiming,
+    FeedSpec,
+    serve_cyclic,
+)
 from pvtflow.axes.feeder import BufferFeeder, Feeder, RecordAllowance, SetpointFeeder
 from pvtflow.axes.objects import SYNC_COB_ID
 from pvtflow.axes.subscriptions import subscribe, unsubscribe
@@ -59,6 +67,7 @@ class CyclicProcess:
         self._conn, child = context.Pipe()
         kwargs: dict[str, object] = {"interface": config.interface, "channel": config.channel}
         kwargs.update(wire_options(config, lockstep=False))
+        kwargs["receive_own_messages"] = True
         self.process = context.Process(
             target=serve_cyclic,
             args=(
@@ -80,6 +89,7 @@ class CyclicProcess:
         self.producing = False
         self._on_echo = None
         self._reader: threading.Thread | None = None
+        self.last_timing: CycleTiming | None = None  # the last run's, as the child measured it
 
     def open(self) -> CyclicProcess:
         self.process.start()
@@ -87,7 +97,10 @@ class CyclicProcess:
         if not self._conn.poll(START_TIMEOUT_S):
             self.close()
             raise BusError(f"the cyclic process did not start within {START_TIMEOUT_S:g} s")
-        first = self._conn.recv()
+        try:
+            first = self._conn.recv()
+        except (EOFError, OSError):
+            first = ("error", f"it ended before it was ready (exit code {self.process.exitcode})")
         if first[0] != "ready":
             self.close()
             raise BusError(f"the cyclic process cannot open the bus: {first[1]}")
@@ -111,6 +124,9 @@ class CyclicProcess:
             if message[0] == "fault":
                 _, kind, node_id, text, code = message
                 self.bus.report(BusFault(FaultKind(kind), node_id, text, code))
+            elif message[0] == "timing":
+                _, late_us, echo_us, unstamped = message
+                self.last_timing = CycleTiming(late_us, echo_us, unstamped)
             elif message[0] == "quick_stopped":
                 _, reason, confirmed, nmt = message
                 log.warning("cyclic process quick stop (%s): confirmed by %s, NMT stop to %s", reason, confirmed, nmt)

@@ -134,6 +134,7 @@ def run(cell: CellConfig, program_for) -> dict[str, object]:
         before = medium.stats()
         result = group.run(program, timeout_s=program_seconds(program) + 30)
         after = medium.stats()
+        late = cyclic_late(bus)
         motion = after.sync_intervals[len(before.sync_intervals) :]
         after_sync = []
         for cob_id in setpoint_cob_ids(cell):
@@ -149,7 +150,20 @@ def run(cell: CellConfig, program_for) -> dict[str, object]:
         "intervals": motion,
         "after_sync": after_sync,
         "program": program,
+        "late": late,
     }
+
+
+def cyclic_late(bus: CellBus) -> list[float]:
+    """Each SYNC's send after its deadline in the cyclic process, us (empty: SYNC sent in this process)."""
+    cyclic = bus.sync.cyclic
+    if cyclic is None:
+        return []
+    deadline = time.monotonic() + 1.0
+    while cyclic.last_timing is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    timing, cyclic.last_timing = cyclic.last_timing, None
+    return [] if timing is None else list(timing.late_us)
 
 
 def run_service(cell: CellConfig, directory: Path) -> dict[str, object]:
@@ -205,6 +219,7 @@ def run_service(cell: CellConfig, directory: Path) -> dict[str, object]:
             stop.set()
             planner.join()
         after = medium.stats()
+        late = cyclic_late(svc.bus)
     finally:
         svc.close()
     after_sync = []
@@ -219,6 +234,7 @@ def run_service(cell: CellConfig, directory: Path) -> dict[str, object]:
         "intervals": after.sync_intervals[len(before.sync_intervals) :],
         "after_sync": after_sync,
         "program": None,
+        "late": late,
     }
 
 
@@ -269,9 +285,10 @@ def main() -> None:
         )
         print(
             "| cell | SYNC ms | finished | SYNC interval p50 / p99 / max (periods) | setpoint after its SYNC "
-            "p50 / p99 / max (periods) | worst v / 0x607F, a / 0x60C5 | tour s | first failure |"
+            "p50 / p99 / max (periods) | worst v / 0x607F, a / 0x60C5 | tour s | SYNC late in the cyclic process "
+            "p50 / p99 / max (us) | first failure |"
         )
-        print("|---|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|")
         for name in args.cells.split(","):
             # the copy stays for the run: the service's planner child reads the cell's file again
             cell = load_cell_config(
@@ -285,7 +302,7 @@ def main() -> None:
                     plans[key] = tour(cell, here)
                 return plans[key]
 
-            done, intervals, after_sync, failure, worst, seconds = 0, [], [], "", (0.0, 0.0), 0.0
+            done, intervals, after_sync, failure, worst, seconds, late = 0, [], [], "", (0.0, 0.0), 0.0, []
             for _ in range(args.runs):
                 if args.service:
                     with tempfile.TemporaryDirectory() as directory:
@@ -295,6 +312,7 @@ def main() -> None:
                 done += r["result"] == "FINISHED"
                 intervals += r["intervals"]
                 after_sync += r["after_sync"]
+                late += r["late"]
                 if r["program"] is not None:
                     worst = max(worst, fractions(cell, r["program"]))
                     seconds = program_seconds(r["program"])
@@ -306,7 +324,8 @@ def main() -> None:
             sp = np.array(after_sync) / period if after_sync else np.array([np.nan])
             print(
                 f"| {name} | {cell.bus.sync_period_ms:g} | {done}/{args.runs} | {figures(iv)} | {figures(sp)} "
-                f"| {worst[0]:.3f} / {worst[1]:.3f} | {seconds:.2f} | {failure} |",
+                f"| {worst[0]:.3f} / {worst[1]:.3f} | {seconds:.2f} "
+                f"| {figures(np.array(late)) if late else '-'} | {failure} |",
                 flush=True,
             )
     finally:
