@@ -25,7 +25,7 @@ from pvtflow.axes.bus_watch import BusWatch
 from pvtflow.axes.config import BusConfig, wire_options
 from pvtflow.axes.heartbeat import MasterHeartbeat
 from pvtflow.axes.network import FrameRecorder, RecordingNetwork
-from pvtflow.axes.objects import TIME_STAMP_COB_ID
+from pvtflow.axes.objects import time_stamp_cob_id
 from pvtflow.axes.quick_stop import QuickStop, quick_stop_all
 from pvtflow.axes.sync import DEFAULT_MAX_GAP_PERIODS, SyncClock
 
@@ -62,7 +62,7 @@ class CellBus:
             self,
             config.sync_period_ms,
             lockstep,
-            TIME_STAMP_COB_ID if stamp else None,
+            time_stamp_cob_id(config.master_node_id) if stamp else None,
             priority=config.sync_priority,
             max_gap_periods=gap,
         )

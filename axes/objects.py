@@ -340,9 +340,25 @@ PARKER_RPDOS = (
 # is in the units of the setpoints 0x60C1:01 it follows.
 PARKER_TPDOS = (PdoLayout(1, SYNCHRONOUS, ((STATUSWORD, 0, 16), (POSITION_ACTUAL_INTERNAL_VALUE, 0, 32))),)
 
-# EPOS2 clock synchronisation (app note 2.4 and 3.7): after each SYNC the master sends its transmit
-# time (0x1013, us) once, on one COB-ID that every EPOS2 takes through its asynchronous RPDO3.
-TIME_STAMP_COB_ID = 0x400  # not in the predefined connection set (RPDO3 of "node 0")
+# EPOS2 clock synchronisation (app note 2.4 and 3.7): after each SYNC the master sends the time that
+# SYNC left the wire (0x1013, us) once, on one COB-ID that every EPOS2 takes through its asynchronous RPDO3.
+EMCY_COB_ID_BASE = 0x080
+
+
+def time_stamp_cob_id(master_node_id: int) -> int:
+    """The COB-ID of the master's 0x1013 frame: 0x80 + the master's own node id, the EMCY identifier of
+    the predefined connection set that belongs to the master, which sends no EMCY (it has no error to
+    signal on the bus; its faults are its own reports). Why there: the time stamp must reach the drive
+    before the next SYNC, and a lower identifier wins arbitration. 0x081-0x0FF lie above SYNC (0x080)
+    and below every PDO (0x180-0x57F) and SDO (0x580-0x67F), so no PDO or SDO traffic can hold it back;
+    it yields only to NMT, SYNC and the drives' own EMCYs (0x080 + their ids: rare, and a fault then
+    halts the motion anyway). TIME (0x100, CiA 301's own time object) is not an option: on an EPOS2 it
+    resets the motion clock to zero (app note 2.4). The old choice, 0x400, lost arbitration to every
+    PDO below it: a loaded bus delayed it past the next SYNC."""
+    return EMCY_COB_ID_BASE + master_node_id
+
+
+TIME_STAMP_COB_ID = time_stamp_cob_id(127)  # with the default master node id (BusConfig.master_node_id)
 SYNC_COB_ID = 0x080  # CiA 301 default COB-ID of SYNC (0x1005), which every drive of a cell keeps
 # pvtflow's SYNC carries no counter (0x1019 = 0, no data byte): every TPDO answers from the first SYNC
 # after the start, as the master counts them (axes.sync). CiA 301 uses a TPDO's SYNC start value

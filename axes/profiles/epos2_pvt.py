@@ -5,7 +5,7 @@ the warning levels 0x20C4:02/03, the PDO layout of axes.objects (records on an a
 controlword on the synchronous RPDO2, buffer status + statusword on an event TPDO1, statusword +
 position on the synchronous TPDO2 that answers every SYNC), heartbeat 0x1017; with the bus's
 ``time_stamp`` the asynchronous RPDO3 takes 0x1013 from the master's one time-stamp frame after
-each SYNC (app note 2.4, on TIME_STAMP_COB_ID for all drives). Master loss (``supervise_master``):
+each SYNC (app note 2.4, on ``objects.time_stamp_cob_id`` for all drives). Master loss (``supervise_master``):
 maxon's EDS has both CiA objects, 0x1016 (two consumer entries: pvtflow takes :01) and 0x6007
 (INTEGER16, no default given), and pvtflow writes 0x6007 = 3 (quick stop) as for every profile; but
 maxon's firmware takes a heartbeat error as one of its device errors (EMCY 0x8130), so what stops
@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from pvtflow.axes import objects as od
 from pvtflow.axes.drive_profile import DriveProfile
 from pvtflow.axes.feeder import BufferFeeder, Feeder, RecordAllowance
-from pvtflow.axes.objects import EPOS2_TIME_STAMP_RPDO, TIME_STAMP_COB_ID, Record
+from pvtflow.axes.objects import EPOS2_TIME_STAMP_RPDO, Record, time_stamp_cob_id
 from pvtflow.axes.profiles.base import Profile
 
 if TYPE_CHECKING:
@@ -72,7 +72,9 @@ class Epos2Pvt(Profile):
         self.write_profile_motion()
         if link.bus.config.time_stamp:  # the master's 0x1013 after every SYNC, on one shared COB-ID
             link.map_pdos(
-                (*self.rpdos, EPOS2_TIME_STAMP_RPDO), self.tpdos, {EPOS2_TIME_STAMP_RPDO.number: TIME_STAMP_COB_ID}
+                (*self.rpdos, EPOS2_TIME_STAMP_RPDO),
+                self.tpdos,
+                {EPOS2_TIME_STAMP_RPDO.number: time_stamp_cob_id(link.bus.config.master_node_id)},
             )
         else:
             link.map_pdos(self.rpdos, self.tpdos)

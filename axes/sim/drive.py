@@ -135,7 +135,7 @@ class SimulatedDrive(
         self.emcy_sent: list[tuple[int, int, bytes]] = []
         self.rejected_writes: list[tuple[int, int, int]] = []
         self.internal_errors: list[BaseException] = []
-        self.time_stamps: deque[int] = deque(maxlen=history_length)  # 0x1013 values (us); no clock correction
+        self.time_stamps: deque[int] = deque(maxlen=history_length)  # 0x1013 values (us): ``_on_time_stamp``
         self.ip_active_sync: int | None = None  # SYNC count at which interpolation last became active
         self.sync_count = 0
         self.halts: list[int] = []  # the SYNC count at every halt (controlword bit 8) taken in OPERATION ENABLED
@@ -251,6 +251,7 @@ class SimulatedDrive(
                     self.node.nmt.start_heartbeat(value)
             elif index == od.HIGH_RESOLUTION_TIME_STAMP:
                 self.time_stamps.append(value)
+                self._on_time_stamp(value)
             elif index == od.CONTROLWORD:
                 self._on_controlword(value)
             elif index == od.MODES_OF_OPERATION:
@@ -348,6 +349,9 @@ class SimulatedDrive(
 
     def _on_fault_reset(self) -> None:
         """A fault was reset."""
+
+    def _on_time_stamp(self, stamp_us: int) -> None:
+        """The master's 0x1013 (us) arrived: a drive that synchronizes its clock by it does so (the EPOS2)."""
 
     def _on_sync_validated(self) -> None:
         """After a SYNC's synchronous RPDOs were applied: activations and setpoints take effect."""

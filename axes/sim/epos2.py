@@ -23,7 +23,7 @@ decided here:
 * 0x20C4:01 warnings: underflow when the level is at or below 0x20C4:02, overflow at or above
   0x20C4:03 ("level is reached", Table 13). 0x60C4:02 is the free size, 0x60C4:04 the level.
 * Halt (bit 8) stops interpolating and brakes with 0x6084; bit 4 falling does the same.
-* 0x1013 writes are kept (``time_stamps``); the motion clock is not corrected by them.
+* 0x1013 writes are kept (``time_stamps``); on the wall clock they correct the motion clock (below).
 * Wall clock (``clock="wall"``, axes/sim/clock.py): once started the records run on the drive's own
   clock (1 ms samples by the cell's ticker), SYNC or no SYNC: a late SYNC does not stop them, a
   missing record is a buffer underflow as above. The start SYNC's arrival is t = 0 ("setting the
@@ -41,7 +41,11 @@ decided here:
   Why 1 %: it covers 20 times the 500 ppm the tests give the quartz (a real crystal: about
   100 ppm), so the drift is taken out within a SYNC or two, while one SYNC that is off by a whole
   period (late, or one of a burst) moves the path by at most 1 % of a period and changes its speed
-  by 1 %: a burst cannot make it jump. The dynamics checks judge the interpolation's own
+  by 1 %: a burst cannot make it jump. Once the master's time stamps come (0x1013 after a SYNC:
+  the time that SYNC left the wire on the master's clock, Tm1), the latch is compared with the
+  master's time instead (``_on_time_stamp``): start + (Tm1 - Tm0), the same slew; a SYNC's jitter
+  moves both and is no error, a stamp that is not the SYNC's time is followed and shows as drift.
+  The dynamics checks judge the interpolation's own
   velocity and acceleration, as the note's "calculated velocity from the interpolation".
 * Homing (mode 6, axes/sim/homing.py): the CiA 402 methods and maxon's hard-stop methods -1 to -4
   (current threshold 0x2080); statusword bit 15 says the position is referenced (homed since power-on).
@@ -49,6 +53,7 @@ decided here:
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from dataclasses import dataclass
 
@@ -114,6 +119,8 @@ class Epos2Drive(SimulatedDrive):
         self.min_level_active: int | None = None
         self.ended_by_time_zero = 0
         self._sync_origin: float | None = None  # wall clock: the start SYNC on the motion clock (us)
+        self._latched: tuple[int, float] | None = None  # the last SYNC: its count and its latch (us)
+        self._stamp_origin: tuple[float, int] | None = None  # the run's first (latch, 0x1013) pair
         self.clock_checks: deque[ClockCheck] = deque(maxlen=self.history.maxlen)
 
     # --- status -----------------------------------------------------------------------------------
@@ -225,16 +232,47 @@ class Epos2Drive(SimulatedDrive):
             if clock.rate != 1.0:
                 clock.slew(1.0, mono)
             return
+        self._latched = (self.sync_count, instant_us)
         if self._sync_origin is None or self.ip_active_sync == self.sync_count:
             self._sync_origin = instant_us
+            self._stamp_origin = None
             return
-        cycle = self.read_or(od.COMMUNICATION_CYCLE_PERIOD, 0, 0)
-        period = float(cycle or self.sync_period_us)
+        if self._stamp_origin is not None:
+            return  # the master's time stamps say when this SYNC left: its 0x1013 corrects the clock
+        period = self._clock_period_us
         n = round((instant_us - self._sync_origin) / period)
         error = instant_us - (self._sync_origin + n * period)
         rate = 1.0 - min(max(error / period, -MAX_SLEW), MAX_SLEW)
         clock.slew(rate, mono, period)  # from the SYNC's arrival: a function of the SYNC instants
         self.clock_checks.append(ClockCheck(self.sync_count, n, error, rate))
+
+    @property
+    def _clock_period_us(self) -> float:
+        cycle = self.read_or(od.COMMUNICATION_CYCLE_PERIOD, 0, 0)
+        return float(cycle or self.sync_period_us)
+
+    def _on_time_stamp(self, stamp_us: int) -> None:
+        """Wall clock: the master's time (0x1013, us) of the last SYNC, Tm1, against the motion clock's
+        latch of that SYNC's reception, Td1 (app note "Clock synchronization"): from the first pair of
+        a run on, the clock is slewed as for a SYNC (``_on_sync_clock``), toward Td0 + (Tm1 - Tm0), so it
+        follows the master's clock, not the SYNCs' arrival: a SYNC's jitter on the wire moves Td1 and Tm1
+        alike, and is not read as a drift. A stamp that is not the SYNC's time (its send time, another
+        clock) is followed all the same: the path then drifts with it."""
+        clock = self.motion_clock
+        latched = self._latched
+        if clock is None or not self.ip_active or latched is None or self._sync_origin is None:
+            return
+        sync, td = latched
+        if self._stamp_origin is None:
+            self._stamp_origin = (td, stamp_us)
+            return
+        td0, tm0 = self._stamp_origin
+        master_us = (stamp_us - tm0) & 0xFFFFFFFF  # UNSIGNED32 us: wraps every 71.6 minutes
+        period = self._clock_period_us
+        error = td - (td0 + master_us)
+        rate = 1.0 - min(max(error / period, -MAX_SLEW), MAX_SLEW)
+        clock.slew(rate, time.monotonic(), period)  # from the stamp's arrival, for one period
+        self.clock_checks.append(ClockCheck(sync, round(master_us / period), error, rate))
 
     def _start(self) -> None:
         self.sticky &= ~(BufferStatus.VELOCITY_WARNING | BufferStatus.ACCELERATION_WARNING)

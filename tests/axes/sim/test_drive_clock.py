@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import statistics
+import struct
 import time
 from collections.abc import Callable, Iterator
 
@@ -18,6 +19,7 @@ import pytest
 from pvtflow.axes import objects as od
 from pvtflow.axes.objects import (
     EPOS2_RPDOS,
+    EPOS2_TIME_STAMP_RPDO,
     EPOS2_TPDOS,
     PARKER_RPDOS,
     PARKER_TPDOS,
@@ -336,6 +338,89 @@ def test_epos2_clock_correction_holds_a_drifting_quartz_to_the_sync_schedule(ben
     assert statistics.median(c.rate for c in checks) == pytest.approx(1.0 - drift_ppm * 1e-6, abs=200e-6)
     uncorrected_us = drift_ppm * 1e-6 * (checks[-1].n * period_s * 1e6)
     assert uncorrected_us > 500.0  # what the quartz alone would have drifted by the end
+
+
+def stamped_run(bench: Bench, ticker: Ticker, node_id: int, stamp_clock_ppm: float) -> list[tuple[float, float]]:
+    """An EPOS2 on a 500 ppm fast quartz runs a cruise while the test, as master, sends SYNC at 2 ms
+    with a jitter of up to 300 us on the wire (alternate SYNCs late), each followed by its 0x1013
+    (RPDO3): the SYNC's own time on the wire, read on a master clock ``stamp_clock_ppm`` fast (0: the
+    right stamp). Per SYNC of the run: (its true time since the start SYNC, the drive's time of it), us."""
+    drift_ppm, period_s, jitter_s = 500.0, 0.002, 0.0003
+    records = cruise(30)
+    drive = add(
+        bench,
+        ticker,
+        Epos2Drive(
+            node_id,
+            scaling=EPOS2_SCALING,
+            limits=EPOS2_LIMITS,
+            clock="wall",
+            sync_period_ms=period_s * 1000,
+            drift_ppm=drift_ppm,
+        ),
+    )
+    node = operational(bench, drive, (*EPOS2_RPDOS, EPOS2_TIME_STAMP_RPDO), EPOS2_TPDOS)
+    enable(node)
+    node.sdo[od.INTERPOLATION_DATA_CONFIGURATION][6].raw = 1
+    for p, v, t in records:
+        bench.send(0x200 + node_id, Record(p, v, t).to_bytes())
+    assert drive.wait_until(lambda: drive.level == len(records))
+    node.sdo[od.CONTROLWORD].raw = 0x001F
+    stamped = can.Bus(interface="virtual", channel=bench.channel, preserve_timestamps=True)
+    true_at: dict[int, float] = {}  # the drive's SYNC count -> the SYNC's true time (s, wall)
+    try:
+        wall0 = time.time()
+        mono0 = time.monotonic()
+        n = 0
+        syncs = drive.sync_count
+        while drive.ended_by_time_zero == 0 and n < 3000 and not drive.faults:
+            now = time.monotonic()
+            n = max(n + 1, int((now - mono0) / period_s))
+            time.sleep(max(mono0 + n * period_s - now, 0.0))
+            at = wall0 + n * period_s + (jitter_s if n % 2 else 0.0)  # the wire's time of this SYNC
+            stamped.send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False, timestamp=at))
+            syncs += 1
+            true_at[syncs] = at
+            stamp = round(at * (1.0 + stamp_clock_ppm * 1e-6) * 1e6) & 0xFFFFFFFF
+            stamped.send(
+                can.Message(arbitration_id=0x400 + node_id, data=struct.pack("<I", stamp), is_extended_id=False)
+            )
+    finally:
+        stamped.shutdown()
+    assert drive.faults == [] and drive.ended_by_time_zero == 1
+    assert drive.wait_until(lambda: drive.sync_count >= syncs)
+    start = drive.ip_active_sync
+    samples = {s.sync: s.time_ms * 1000.0 for s in drive.history}
+    assert start in samples and start in true_at
+    return [
+        ((true_at[k] - true_at[start]) * 1e6, samples[k] - samples[start])
+        for k in sorted(samples)
+        if k > start and k in true_at
+    ]
+
+
+@pytest.mark.parametrize("stamp_clock_ppm", [0.0, 2000.0], ids=["right-stamp", "stamp-2000ppm-off"])
+def test_epos2_follows_the_masters_time_stamps(bench: Bench, ticker: Ticker, stamp_clock_ppm: float) -> None:
+    """App note "Clock synchronization": the drive adjusts its motion clock to the master's time of
+    each SYNC (0x1013), not to the SYNC's arrival. With the right stamp its time of every SYNC is the
+    SYNC's true time, jitter or no jitter, its quartz's 500 ppm taken out; a stamp read on a clock
+    2000 ppm fast is followed too: the path's time then drifts from the true time by that rate."""
+    pairs = stamped_run(bench, ticker, 65 if stamp_clock_ppm == 0 else 66, stamp_clock_ppm)
+    late = [(t, d) for t, d in pairs if t > 500_000.0]  # past the first 0.5 s: the clock has settled
+    assert len(late) > 200
+    drift = [d - t for t, d in late]
+    if stamp_clock_ppm == 0:
+        # each SYNC's time on the drive's clock is its true time: not its jitter (300 us every other
+        # SYNC), nor the quartz (500 ppm: 500 us over the run)
+        assert statistics.median(abs(x) for x in drift) < 30.0, drift[:20]
+        assert max(abs(x) for x in drift) < 100.0
+    else:
+        # the drive's time runs ahead of the true time at the stamp clock's rate
+        t0, d0 = late[0]
+        t1, d1 = late[-1]
+        rate_ppm = ((d1 - d0) / (t1 - t0) - 1.0) * 1e6
+        assert rate_ppm == pytest.approx(stamp_clock_ppm, abs=300.0)
+        assert drift[-1] > 1000.0  # over a millisecond off the true time by the end
 
 
 def test_epos2_lockstep_has_no_clock_of_its_own(bench: Bench) -> None:
