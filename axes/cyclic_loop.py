@@ -91,6 +91,7 @@ class CycleSpec:
     stamp_cob_id: int | None
     max_gap_s: float
     records_per_sync: int
+    tx_queue_frames: int = 10  # this node's transmit queue (BusConfig.tx_queue_frames: socketcan's txqueuelen)
     feeds: list[FeedSpec] = field(default_factory=list)
 
 
@@ -143,6 +144,9 @@ class CyclicLoop:
         self._echoes = 0
         self.timing = CycleTiming()
         self.realtime: bool | None = None
+        self._sent_frames = 0  # frames this node sent (``queued``)
+        self._own_echoes = 0  # of them, those whose echo came back
+        self._reserved = 2  # the queue's room kept for a SYNC and what must follow it (``prepare``)
 
     # --- to the master ---------------------------------------------------------------------------
     def tell(self, *message: object) -> None:
@@ -163,18 +167,32 @@ class CyclicLoop:
         while True:
             try:
                 self.bus.send(msg, timeout=0.0)
+                self._sent_frames += 1
                 return
             except can.CanOperationError:
                 if time.monotonic() >= deadline:
                     raise
                 time.sleep(TX_RETRY_PAUSE_S)
 
-    def offer(self, cob_id: int, data: bytes) -> None:
-        """A record: one try; refused, it stays next for a later top-up (``top_up_by_need``)."""
+    @property
+    def queued(self) -> int:
+        """Frames of this node not yet on the wire as far as this process knows: sent less those whose
+        echo came back (socketcan's and simwire's echo is the frame as it left the wire); never less."""
+        return self._sent_frames - self._own_echoes
+
+    def offer(self, cob_id: int, data: bytes, keep: int | None = None) -> None:
+        """A record: one try, and only where it leaves the queue room for the next SYNC and what must
+        follow it (a FIFO queue: a SYNC cannot overtake the records before it). Refused either way, it
+        stays next for a later top-up (``top_up_by_need``)."""
+        spec = self.spec
+        assert spec is not None
+        if self.queued >= spec.tx_queue_frames - (self._reserved if keep is None else keep):
+            raise RecordRefusedError(f"{self.queued} frames queued: the room left is the next SYNC's")
         try:
             self.bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False), timeout=0.0)
         except can.CanOperationError as exc:
             raise RecordRefusedError(str(exc)) from None
+        self._sent_frames += 1
 
     def drain(self) -> None:
         """What the bus brought since the last look (this node receives every frame): the SDO answers
@@ -189,6 +207,8 @@ class CyclicLoop:
                 if msg is None:
                     return
                 can_id = msg.arbitration_id
+                if not msg.is_rx:
+                    self._own_echoes += 1
                 if can_id == SYNC_COB_ID and not msg.is_rx:  # our own SYNC, as it left the wire
                     self._echoes += 1
                     self._echo_of = (self._echoes, msg.timestamp, time.monotonic())
@@ -197,7 +217,12 @@ class CyclicLoop:
 
     # --- a run -----------------------------------------------------------------------------------
     def begin(self, spec: CycleSpec) -> None:
-        """The master handed a run over: build its feeders where the master's stand, start SYNC."""
+        """The master handed a run over: its feeders where the master's stand, and SYNC from now on."""
+        production = self.prepare(spec)
+        threading.Thread(target=self._produce, args=(production,), name="pvtflow-cyclic-sync", daemon=True).start()
+
+    def prepare(self, spec: CycleSpec) -> int:
+        """Build the run's feeders where the master's stand; the production's number."""
         with self.lock:
             self.spec = spec
             self.allowance = RecordAllowance(spec.records_per_sync)
@@ -215,6 +240,8 @@ class CyclicLoop:
                 feeder.enabled = f.enabled
                 self.feeders.append(feeder)
                 self.braking.append(f.braking)
+            # a SYNC, one setpoint per fixed-period axis, the time stamp
+            self._reserved = 1 + sum(1 for f in spec.feeds if f.lead is not None) + int(spec.stamp_cob_id is not None)
             self.count = spec.start_count - 1
             self.start_sent = self.sent_at = self._judged = None
             self.drain()  # the echoes of SYNCs before this run are not this run's
@@ -224,8 +251,7 @@ class CyclicLoop:
             self._write_progress()
             self.running = True
             self._production += 1
-            production = self._production
-        threading.Thread(target=self._produce, args=(production,), name="pvtflow-cyclic-sync", daemon=True).start()
+            return self._production
 
     def halt(self, quick: bool) -> None:
         """The master halts the run (its halt controlwords go out from it): an axis without a ramp of its
@@ -323,7 +349,8 @@ class CyclicLoop:
             self.start_sent = now  # t = 0 of the buffered drives' records
         for feeder in self.feeders:
             feeder.after_sync(elapsed)  # the fixed-period setpoints: before the next SYNC, whatever else
-        if self.start_sent is not None:
+        if self.start_sent is not None and any(isinstance(f, BufferFeeder) for f in self.feeders):
+            self.drain()  # the echoes so far: how much of the queue is free for records
             elapsed_ms = (now - self.start_sent) * 1000.0
             for feeder in self.feeders:
                 if isinstance(feeder, BufferFeeder):
@@ -359,8 +386,12 @@ class CyclicLoop:
         self.timing.echo_us.append((heard_at - (self.sent_at or heard_at)) * 1e6)
         if spec.stamp_cob_id is not None:
             with self.lock:
-                if self.running:
-                    self.send_now(spec.stamp_cob_id, struct.pack("<I", round(left_wire * 1e6) & 0xFFFFFFFF))
+                if self.running:  # offered once: a stamp missed leaves the drive's clock rate as it is
+                    try:
+                        stamp = struct.pack("<I", round(left_wire * 1e6) & 0xFFFFFFFF)
+                        self.offer(spec.stamp_cob_id, stamp, keep=self._reserved - 1)  # its own place kept
+                    except RecordRefusedError:
+                        self.timing.unstamped += 1
 
     def _write_progress(self) -> None:
         p = self.progress

@@ -166,6 +166,7 @@ class CyclicProcess:
             stamp_cob_id=clock.time_stamp_cob_id,
             max_gap_s=max_gap_s,
             records_per_sync=allowance.per_sync,
+            tx_queue_frames=self.bus.config.tx_queue_frames,
             feeds=specs,
         )
 

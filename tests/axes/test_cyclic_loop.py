@@ -1,0 +1,200 @@
+"""The cyclic process's loop (``axes.cyclic_loop``) in this process, on a virtual bus that can refuse frames:
+what goes out after a SYNC, in which order, and what a full transmit queue does to the records.
+
+No timing is asserted: each SYNC is sent by hand (``_transmit``), and the drive's clock is moved by
+setting the start SYNC's time back.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import uuid
+
+import can
+import numpy as np
+
+from pvtflow.axes.config import BufferConfig
+from pvtflow.axes.cyclic_loop import PROGRESS_COUNT, PROGRESS_FEEDERS, CycleSpec, CyclicLoop, FeedSpec
+from pvtflow.axes.feeder import BufferFeeder, RecordAllowance, RecordRefusedError, top_up_by_need
+from pvtflow.axes.objects import SYNC_COB_ID, Record
+from pvtflow.axes.profiles.cia402_ip_linear import target_frame
+from pvtflow.axes.profiles.epos2_pvt import record_frame
+from pvtflow.axes.scaling import AxisScaling, DriveLimits
+
+PERIOD_MS = 10.0
+STAMP = 0x0FF
+
+
+class RefusingBus(can.BusABC):
+    """A virtual bus whose transmit queue refuses what ``refuse(cob_id)`` says (ENOBUFS, as socketcan)."""
+
+    def __init__(self, channel: str) -> None:
+        self.inner = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
+        self.refuse = lambda cob_id: False
+        self.sent: list[can.Message] = []
+        super().__init__(channel=channel)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self.refuse(msg.arbitration_id):
+            raise can.CanOperationError("No buffer space available", 105)
+        self.sent.append(msg)
+        self.inner.send(msg, timeout)
+
+    def _recv_internal(self, timeout: float | None):
+        return self.inner.recv(timeout), False
+
+    def shutdown(self) -> None:
+        self.inner.shutdown()
+        super().shutdown()
+
+
+def loop_on(bus: RefusingBus) -> tuple[CyclicLoop, object]:
+    ours, theirs = multiprocessing.Pipe()
+    return CyclicLoop(bus, theirs, [0] * 8, 0, 0.002, 0.01), ours
+
+
+def epos2_feed(node_id: int, n: int, next_record: int) -> FeedSpec:
+    rec = np.array([[100 * k, 10, 10] for k in range(n)] + [[100 * (n - 1), 0, 0]], dtype=np.int64)
+    return FeedSpec(
+        node_id,
+        rec,
+        lambda r, cob=0x200 + node_id: record_frame(cob, r),
+        next_record,
+        buffer=BufferConfig(underflow_warning=4, overflow_warning=12),
+        capacity=64,
+    )
+
+
+def test_after_each_sync_the_setpoints_go_first_and_the_records_after() -> None:
+    bus = RefusingBus(f"cyc-{uuid.uuid4().hex[:8]}")
+    try:
+        loop, _ = loop_on(bus)
+        setpoints = np.array([[1000 * k, 0, 10] for k in range(6)], dtype=np.int64)
+        spec = CycleSpec(
+            1,
+            PERIOD_MS,
+            start_count=5,
+            stamp_cob_id=STAMP,
+            max_gap_s=0.02,
+            records_per_sync=3,
+            feeds=[
+                FeedSpec(12, setpoints, lambda r: target_frame(0x20C, r), next=1, lead=1),
+                epos2_feed(11, 40, next_record=6),
+            ],
+        )
+        loop.prepare(spec)
+        loop._transmit()  # the start SYNC
+        ids = [m.arbitration_id for m in bus.sent]
+        assert ids[0] == SYNC_COB_ID and ids[1] == 0x20C  # setpoint 1 for the SYNC after the start
+        assert ids[2:] == [0x20B] * 3  # then the records, this period's allowance of them
+        assert Record.from_bytes(bytes(bus.sent[2].data)).position == 600  # going on where the master stood
+        assert loop.count == 5 and loop.progress[PROGRESS_COUNT] == 5
+        assert loop.progress[PROGRESS_FEEDERS : PROGRESS_FEEDERS + 2] == [2, 9]
+    finally:
+        bus.shutdown()
+
+
+def test_a_full_queue_delays_a_record_and_the_run_goes_on() -> None:
+    bus = RefusingBus(f"cyc-{uuid.uuid4().hex[:8]}")
+    try:
+        loop, conn = loop_on(bus)
+        loop.prepare(CycleSpec(1, PERIOD_MS, 1, None, 0.05, 2, feeds=[epos2_feed(11, 60, 8)]))
+        loop._transmit()
+        bus.refuse = lambda cob: cob == 0x20B  # records refused for two periods, the FIFO above its reserve
+        for _ in range(2):
+            loop.start_sent -= PERIOD_MS / 1000.0
+            loop._transmit()
+        feeder = loop.feeders[0]
+        assert isinstance(feeder, BufferFeeder)
+        waiting = feeder.next
+        bus.refuse = lambda cob: False
+        loop.start_sent -= PERIOD_MS / 1000.0
+        loop._transmit()
+        assert feeder.next > waiting  # the refused record went at the next top-up, none lost
+        positions = [Record.from_bytes(bytes(m.data)).position for m in bus.sent if m.arbitration_id == 0x20B]
+        assert positions == sorted(set(positions)) and positions[0] == 800  # in order, none twice
+        assert not conn.poll()  # no fault told to the master
+    finally:
+        bus.shutdown()
+
+
+def test_records_refused_below_the_reserve_end_the_run_with_every_drive_quick_stopped() -> None:
+    bus = RefusingBus(f"cyc-{uuid.uuid4().hex[:8]}")
+    try:
+        loop, conn = loop_on(bus)
+        loop.prepare(CycleSpec(1, PERIOD_MS, 1, None, 0.05, 2, feeds=[epos2_feed(11, 60, 8)]))
+        loop._transmit()
+        bus.refuse = lambda cob: cob == 0x20B
+        feeder = loop.feeders[0]
+        failed = None
+        for _ in range(20):
+            loop.start_sent -= PERIOD_MS / 1000.0
+            try:
+                loop._transmit()
+            except Exception as exc:  # what ends the SYNC thread (``_produce``)
+                failed = exc
+                break
+        assert failed is not None and "below its reserve 4" in str(failed)
+        assert feeder.level < feeder.low  # judged by the estimate, before the drive could run dry
+        assert feeder.level >= 1
+        loop._failed(*(_fault(failed)))
+        kinds = []
+        while conn.poll(0.5):
+            kinds.append(conn.recv())
+        assert kinds[-1][:3] == ("fault", "tx_failed", 11)
+        quick = [m for m in bus.sent if m.arbitration_id == 0x600 + 11]
+        assert quick and bytes(quick[0].data[:3]) == bytes([0x2B, 0x40, 0x60])  # 0x6040 = quick stop, by SDO
+    finally:
+        bus.shutdown()
+
+
+def _fault(exc: Exception):
+    from pvtflow.axes.bus_faults import FaultKind
+
+    return FaultKind.TX_FAILED, str(exc), getattr(exc, "node_id", None)
+
+
+def test_top_up_gives_a_refused_record_back_to_the_allowance() -> None:
+    sent: list[bytes] = []
+    refuse = [True]
+
+    def offer(cob: int, data: bytes) -> None:
+        if refuse[0]:
+            raise RecordRefusedError("full")
+        sent.append(data)
+
+    allowance = RecordAllowance(3)
+    feed = epos2_feed(11, 30, 0)
+    feeder = BufferFeeder(feed.records, feed.packer, offer, PERIOD_MS, feed.buffer, allowance=allowance)
+    assert top_up_by_need([feeder], allowance) is feeder
+    assert feeder.next == 0 and allowance.left == 3  # nothing lost, nothing spent
+    refuse[0] = False
+    assert top_up_by_need([feeder], allowance) is None
+    assert feeder.next == 3 and len(sent) == 3
+
+
+def test_a_halt_brakes_a_drive_without_a_ramp_from_its_last_setpoint() -> None:
+    bus = RefusingBus(f"cyc-{uuid.uuid4().hex[:8]}")
+    try:
+        loop, _ = loop_on(bus)
+        scaling = AxisScaling(4096.0, 1.0)
+        limits = DriveLimits(6000, 5_000, -(10**9), 10**9)
+        setpoints = np.array([[400 * k, 0, 10] for k in range(50)], dtype=np.int64)  # 40 qc/ms
+        ramp = FeedSpec(12, setpoints, lambda r: target_frame(0x20C, r), next=1, lead=1, braking=(limits, scaling))
+        held = FeedSpec(13, setpoints, lambda r: target_frame(0x20D, r), next=1, lead=1)
+        loop.prepare(CycleSpec(1, PERIOD_MS, 1, None, 0.05, 1, feeds=[ramp, held]))
+        for _ in range(5):
+            loop._transmit()
+        loop.halt(quick=False)
+        before = len(bus.sent)
+        for _ in range(40):
+            loop._transmit()
+        braking = [
+            int.from_bytes(m.data, "little", signed=True) for m in bus.sent[before:] if m.arbitration_id == 0x20C
+        ]
+        steps = np.diff([2000, *braking])
+        assert len(braking) > 1 and np.all(steps >= 0) and np.all(np.diff(steps) <= 0)  # slowing, never back
+        assert steps[-1] < steps[0] and braking[-1] > 2000
+        assert not [m for m in bus.sent[before:] if m.arbitration_id == 0x20D]  # a drive with a ramp: nothing more
+    finally:
+        bus.shutdown()
