@@ -90,6 +90,8 @@ class CyclicProcess:
         self._on_echo = None
         self._reader: threading.Thread | None = None
         self.last_timing: CycleTiming | None = None  # the last run's, as the child measured it
+        # the child's last quick stop of its own: (why, nodes that confirmed, nodes sent NMT stop)
+        self.last_quick_stop: tuple[str, list[int], list[int]] | None = None
 
     def open(self) -> CyclicProcess:
         self.process.start()
@@ -117,7 +119,7 @@ class CyclicProcess:
         while True:
             try:
                 message = self._conn.recv()
-            except (EOFError, OSError):
+            except (EOFError, OSError, TypeError):  # TypeError: the handle closed under the read (close)
                 if self.producing:
                     self.bus.report(BusFault(FaultKind.SYNC_STOPPED, None, "the cyclic process ended"))
                 return
@@ -129,6 +131,7 @@ class CyclicProcess:
                 self.last_timing = CycleTiming(late_us, echo_us, unstamped)
             elif message[0] == "quick_stopped":
                 _, reason, confirmed, nmt = message
+                self.last_quick_stop = (reason, confirmed, nmt)
                 log.warning("cyclic process quick stop (%s): confirmed by %s, NMT stop to %s", reason, confirmed, nmt)
 
     # --- a run -----------------------------------------------------------------------------------
