@@ -56,6 +56,14 @@ log = logging.getLogger("pvtflow.bus")
 START_TIMEOUT_S = 30.0  # a fresh interpreter importing numpy and python-can on a loaded host
 
 
+def shared_interface(interface: str, channel: str) -> bool:
+    """Whether another process can open this bus as a node of its own: socketcan (a second socket on
+    the channel) and a simulated wire served to other processes (``NAME@127.0.0.1:PORT``). python-can's
+    virtual bus and an in-process simwire channel reach this process only; PCAN-Basic gives a channel
+    to one client."""
+    return interface == "socketcan" or (interface == "simwire" and "@" in channel)
+
+
 class CyclicProcess:
     """The child that runs the cyclic path of one ``CellBus`` (module docstring)."""
 
@@ -94,6 +102,14 @@ class CyclicProcess:
         self.last_quick_stop: tuple[str, list[int], list[int]] | None = None
 
     def open(self) -> CyclicProcess:
+        config = self.bus.config
+        if not shared_interface(config.interface, config.channel):
+            self._conn.close()
+            self._child_conn.close()
+            raise BusError(
+                f"bus.cyclic_process needs an interface another process can open as a node of its own "
+                f"(socketcan, or a simwire channel served by `pvtflow sim`), not {config.interface}:{config.channel}"
+            )
         self.process.start()
         self._child_conn.close()
         if not self._conn.poll(START_TIMEOUT_S):

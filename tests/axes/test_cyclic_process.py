@@ -9,10 +9,13 @@ import socket
 import time
 from pathlib import Path
 
+import pytest
 import yaml
 from axes_programs import axis_program, safe_distance
 
 from pvtflow.axes.bus import CellBus
+from pvtflow.axes.bus_faults import BusError
+from pvtflow.axes.config import BusConfig
 from pvtflow.axes.group import AxisGroup, Result
 from pvtflow.axes.program import PvtProgram
 from pvtflow.axes.sim.process import start_simulated_drives
@@ -123,3 +126,10 @@ def test_the_cyclic_process_quick_stops_every_drive_when_the_master_is_gone(tmp_
         group.close()
         bus.close()
         drives.stop()
+
+
+def test_a_bus_only_this_process_reaches_is_refused_for_the_cyclic_process() -> None:
+    config = BusConfig(interface="virtual", channel=f"cyc-{time.monotonic_ns()}", cyclic_process=True)
+    with pytest.raises(BusError, match=r"bus\.cyclic_process needs an interface another process can open"):
+        CellBus(config, lockstep=False).open()
+    CellBus(config, lockstep=True).open().close()  # lockstep never uses it
