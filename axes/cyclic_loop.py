@@ -246,6 +246,7 @@ class CyclicLoop:
             self.start_sent = self.sent_at = self._judged = None
             self.drain()  # the echoes of SYNCs before this run are not this run's
             self._echoes, self._echo_of = 0, None
+            self._sent_frames = self._own_echoes  # between runs the queue has long emptied: none lost is counted on
             self.timing = CycleTiming()
             self.progress[PROGRESS_RUN] = spec.run
             self._write_progress()
