@@ -17,10 +17,11 @@ underflow warning level 0x20C4:02), and then every drive is quick stopped from h
 
 The SYNC deadlines follow ``axes.sync``'s rule (absolute deadlines; a SYNC more than half a period late
 goes out at once and the deadlines after it keep the period from it; never two within half a period).
-A SYNC or a setpoint this process cannot send within ``tx_retry_s``, or a lost master (its pipe
-closes), quick stops every drive from here: the SDO requests at once, NMT stop to those that do not
-confirm within ``quick_stop_confirm_s`` (``axes.quick_stop`` for the master's side of the same rule),
-whatever the master process is doing.
+A SYNC the transmit queue has no room for is tried again every 0.2 ms, a late SYNC by the same rule (a
+gap longer than the drives ride out is reported, and the master halts on it); a setpoint this process
+cannot send within ``tx_retry_s``, or a lost master (its pipe closes), quick stops every drive from
+here: the SDO requests at once, NMT stop to those that do not confirm within ``quick_stop_confirm_s``
+(``axes.quick_stop`` for the master's side of the same rule), whatever the master process is doing.
 """
 
 from __future__ import annotations
@@ -105,6 +106,7 @@ class CycleTiming:
     late_us: list[float] = field(default_factory=list)  # each SYNC's send after its deadline
     echo_us: list[float] = field(default_factory=list)  # each SYNC's echo, heard here, after its send
     unstamped: int = 0  # SYNCs whose echo did not come within half a period (no time stamp for them)
+    refused: int = 0  # tries of a SYNC the transmit queue had no room for (each tried again 0.2 ms later)
 
 
 class CyclicLoop:
@@ -272,7 +274,7 @@ class CyclicLoop:
             self._production += 1
         if was:
             t = self.timing
-            self.tell("timing", t.late_us, t.echo_us, t.unstamped)
+            self.tell("timing", t.late_us, t.echo_us, t.unstamped, t.refused)
 
     # --- SYNC ------------------------------------------------------------------------------------
     def _produce(self, production: int) -> None:
@@ -312,11 +314,20 @@ class CyclicLoop:
                         deadline = now
                     due = deadline if self.sent_at is None else max(deadline, self.sent_at + period / 2)
                     if now >= due:
-                        self.timing.late_us.append((now - deadline) * 1e6)
-                        self._transmit()
-                        sent = self.count
-                        deadline += period
-                        due = deadline
+                        try:
+                            self._transmit()
+                        except _SyncRefusedError:
+                            # the queue has no room for the SYNC now (the wire has not taken what is
+                            # queued): it goes at the next try, a late SYNC, by the same rule as one
+                            # whose thread woke late; a gap past what the drives ride out is reported
+                            # above, and the master halts on it
+                            self.timing.refused += 1
+                            due = now + TX_RETRY_PAUSE_S
+                        else:
+                            self.timing.late_us.append((now - deadline) * 1e6)
+                            sent = self.count
+                            deadline += period
+                            due = deadline
                 if sent is not None:
                     self._follow_up(sent, min(due - spin, (self.sent_at or 0.0) + period / 2))
                 delay = due - time.monotonic() - spin
@@ -341,7 +352,11 @@ class CyclicLoop:
         """One SYNC and what follows it (lock held): the setpoints first, then the records."""
         spec = self.spec
         assert spec is not None
-        self.send_now(SYNC_COB_ID, b"")
+        try:
+            self.bus.send(can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False), timeout=0.0)
+        except can.CanOperationError as exc:
+            raise _SyncRefusedError(str(exc)) from None
+        self._sent_frames += 1
         now = time.monotonic()
         self.sent_at = now
         self.count += 1
@@ -420,6 +435,10 @@ class CyclicLoop:
             with contextlib.suppress(can.CanError, OSError):
                 self.send_now(0, bytes([NmtCommand.STOP, node]))
         self.tell("quick_stopped", reason, sorted(set(nodes) - set(missing)), missing)
+
+
+class _SyncRefusedError(Exception):
+    """The transmit queue has no room for a SYNC now."""
 
 
 class _ReserveError(Exception):

@@ -143,8 +143,8 @@ class CyclicProcess:
                 _, kind, node_id, text, code = message
                 self.bus.report(BusFault(FaultKind(kind), node_id, text, code))
             elif message[0] == "timing":
-                _, late_us, echo_us, unstamped = message
-                self.last_timing = CycleTiming(late_us, echo_us, unstamped)
+                _, late_us, echo_us, unstamped, refused = message
+                self.last_timing = CycleTiming(late_us, echo_us, unstamped, refused)
             elif message[0] == "quick_stopped":
                 _, reason, confirmed, nmt = message
                 self.last_quick_stop = (reason, confirmed, nmt)

@@ -12,6 +12,7 @@ import uuid
 
 import can
 import numpy as np
+import pytest
 
 from pvtflow.axes.config import BufferConfig
 from pvtflow.axes.cyclic_loop import PROGRESS_COUNT, PROGRESS_FEEDERS, CycleSpec, CyclicLoop, FeedSpec
@@ -196,5 +197,34 @@ def test_a_halt_brakes_a_drive_without_a_ramp_from_its_last_setpoint() -> None:
         assert len(braking) > 1 and np.all(steps >= 0) and np.all(np.diff(steps) <= 0)  # slowing, never back
         assert steps[-1] < steps[0] and braking[-1] > 2000
         assert not [m for m in bus.sent[before:] if m.arbitration_id == 0x20D]  # a drive with a ramp: nothing more
+    finally:
+        bus.shutdown()
+
+
+def test_a_sync_the_queue_refuses_sends_nothing_after_it_and_is_tried_again() -> None:
+    from pvtflow.axes.cyclic_loop import _SyncRefusedError
+
+    bus = RefusingBus(f"cyc-{uuid.uuid4().hex[:8]}")
+    try:
+        loop, conn = loop_on(bus)
+        setpoints = np.array([[1000 * k, 0, 10] for k in range(6)], dtype=np.int64)
+        spec = CycleSpec(
+            1,
+            PERIOD_MS,
+            1,
+            STAMP,
+            0.02,
+            2,
+            feeds=[FeedSpec(12, setpoints, lambda r: target_frame(0x20C, r), 1, lead=1)],
+        )
+        loop.prepare(spec)
+        bus.refuse = lambda cob: cob == SYNC_COB_ID
+        with pytest.raises(_SyncRefusedError):
+            loop._transmit()
+        assert bus.sent == [] and loop.count == 0  # no setpoint without its SYNC, no SYNC counted
+        bus.refuse = lambda cob: False
+        loop._transmit()
+        assert [m.arbitration_id for m in bus.sent] == [SYNC_COB_ID, 0x20C] and loop.count == 1
+        assert not conn.poll()
     finally:
         bus.shutdown()
