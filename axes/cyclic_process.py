@@ -178,6 +178,8 @@ class CyclicProcess:
         self._runs += 1
         clock = self.bus.sync
         self._feeders = list(feeders)
+        for feeder in self._feeders:  # from the start SYNC on, the child sends; these only mirror it
+            feeder.mirrored = True
         self._spec = CycleSpec(
             run=self._runs,
             period_ms=clock.period_ms,

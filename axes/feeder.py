@@ -124,6 +124,8 @@ class Feeder:
         self.period_ms = period_ms
         self.next = 0  # index of the next record to send
         self.enabled = True
+        # another process sends this feeder's frames (axes.cyclic_process): this one only mirrors it
+        self.mirrored = False
         self.stats = FeedStats(records=len(self.records))
 
     @property
@@ -205,7 +207,7 @@ class BufferFeeder(Feeder):
         return self.enabled and not self._hold and not self.all_sent and self.level < self.high
 
     def _top_up(self) -> None:
-        if not self.wants:
+        if not self.wants or self.mirrored:
             return
         self.stats.level(self.level)  # the low point the drive came down to, before refilling
         while self.wants and self.allowance.take():
@@ -327,7 +329,7 @@ class SetpointFeeder(Feeder):
         if elapsed > self._last_elapsed + 1 and self.next < len(self.records):
             self.held_syncs += elapsed - self._last_elapsed - 1  # the program runs that much later
         self._last_elapsed = max(self._last_elapsed, elapsed)
-        if self.enabled and self.next <= elapsed + self.lead and self.next < len(self.records):
+        if self.enabled and not self.mirrored and self.next <= elapsed + self.lead and self.next < len(self.records):
             self._send_next()
 
     def finished(self, elapsed: int, ip_active: bool) -> bool:
@@ -345,7 +347,7 @@ def top_up_by_need(feeders: Sequence[Feeder], allowance: RecordAllowance) -> Buf
     A record its ``send`` refuses (``RecordRefusedError``: offered once, the queue full) stays the next one
     and its allowance is given back: it goes at a later top-up; the feeder it belongs to is returned
     (None: nothing refused), so that the caller judges its FIFO against the reserve."""
-    wanting = [f for f in feeders if isinstance(f, BufferFeeder) and f.wants]
+    wanting = [f for f in feeders if isinstance(f, BufferFeeder) and f.wants and not f.mirrored]
     while wanting and allowance.take():
         feeder = min(wanting, key=lambda f: f.level)
         try:
