@@ -228,3 +228,29 @@ def test_a_sync_the_queue_refuses_sends_nothing_after_it_and_is_tried_again() ->
         assert not conn.poll()
     finally:
         bus.shutdown()
+
+
+def test_a_mirrored_feeder_sends_nothing_whatever_its_drive_says() -> None:
+    """Once handed to the cyclic process, the master's feeders mirror the child's: an underflow warning,
+    a top-up or a SYNC makes them send nothing (the child sends; two senders would duplicate records)."""
+    from pvtflow.axes.feeder import SetpointFeeder
+    from pvtflow.axes.objects import BufferStatus
+
+    sent: list[bytes] = []
+    feed = epos2_feed(11, 30, 0)
+    allowance = RecordAllowance(4)
+    buffered = BufferFeeder(
+        feed.records, feed.packer, lambda c, d: sent.append(d), PERIOD_MS, feed.buffer, allowance=allowance
+    )
+    setpoints = SetpointFeeder(
+        np.array([[k, 0, 10] for k in range(5)]),
+        lambda r: target_frame(0x20C, r),
+        lambda c, d: sent.append(d),
+        PERIOD_MS,
+        1,
+    )
+    buffered.mirrored = setpoints.mirrored = True
+    buffered.on_status(int(BufferStatus.UNDERFLOW_WARNING | BufferStatus.IP_MODE_ACTIVE))
+    top_up_by_need([buffered, setpoints], allowance)
+    setpoints.after_sync(0)
+    assert sent == [] and buffered.next == 0 and setpoints.next == 0
