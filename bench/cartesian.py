@@ -32,7 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.planner.cartesian import LineTolerance, ToolLine, placement_pose
 from pvtflow.planner.plan import PlanInput
 from pvtflow.service.cell_planner import CellPlanner

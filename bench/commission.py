@@ -1,7 +1,7 @@
 """Commissioning: how long reading a cell's drives takes, and whether every kind of wrong drive is caught.
 
 For arm6 and gantry3 on their simulated drives (the simulated wire, lockstep), per run: the time of
-``axes.commission.commission`` (every check of every drive, nothing written) and of
+``axes.master.commission.commission`` (every check of every drive, nothing written) and of
 ``AxisGroup.configure`` (the facts checked first, then the profile's configuration: PDOs mapped and
 read back, limit objects written and read back, heartbeat, homing settings), each with the SDO
 round trips it took (median over ``--runs``). Then every kind of drive that differs from the cell
@@ -28,11 +28,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.commission import commission
-from pvtflow.axes.config import AxisSimulation
-from pvtflow.axes.group import AxisGroup
-from pvtflow.axes.link import DriveError
+from pvtflow.axes.drive.config import AxisSimulation
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.commission import commission
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.link import DriveError
 from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 

@@ -41,10 +41,10 @@ import yaml
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from pvtflow.axes.bus import CellBus  # noqa: E402
-from pvtflow.axes.group import AxisGroup  # noqa: E402
-from pvtflow.axes.objects import PdoRole  # noqa: E402
-from pvtflow.axes.program import PvtProgram  # noqa: E402
+from pvtflow.axes.drive.objects import PdoRole  # noqa: E402
+from pvtflow.axes.drive.program import PvtProgram  # noqa: E402
+from pvtflow.axes.master.bus.cell_bus import CellBus  # noqa: E402
+from pvtflow.axes.master.group.axis_group import AxisGroup  # noqa: E402
 from pvtflow.axes.sim.process import start_simulated_drives  # noqa: E402
 from pvtflow.planner.plan import PlanInput  # noqa: E402
 from pvtflow.service.cell_planner import CellPlanner  # noqa: E402

@@ -1,6 +1,6 @@
 """Homing (CiA 402 mode 6) in simulation: every simulated method, and the not_homed refusals.
 
-1. Every method the simulated drives run (axes.objects.HomingMethod), on axis x of gantry3 (its
+1. Every method the simulated drives run (axes.drive.objects.HomingMethod), on axis x of gantry3 (its
    other axes have nothing to home), ``--runs`` times from seeded random power-up positions of the
    machine (``AxisSimulation.seed``): time to homed (drive time, from the start SYNC to the SYNC
    that reported homing attained at rest; and the wall time in SYNC lockstep), position error after
@@ -30,11 +30,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.config import AxisSimulation, HomingConfig
-from pvtflow.axes.group import AxisGroup
-from pvtflow.axes.homing import CellHoming
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.config import AxisSimulation, HomingConfig
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.homing import CellHoming
 from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from pvtflow.service.api import ApiError, parse_execute, parse_home, parse_plan, parse_recover
 from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config

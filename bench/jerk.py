@@ -43,7 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from pvt_quality import random_waypoints
 
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.planner.jerk import JerkTrajectory
 from pvtflow.planner.knots.window_jerk import window_jerk
 from pvtflow.planner.plan import PlanInput

@@ -34,7 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from pvtflow.axes.sim.fixed_period import FixedPeriodDrive
+from pvtflow.axes.sim.profiles.fixed_period import FixedPeriodDrive
 from pvtflow.service.api import ApiError, parse_execute, parse_plan, parse_recover
 from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 from pvtflow.service.motion import MotionService

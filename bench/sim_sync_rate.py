@@ -20,10 +20,10 @@ import canopen
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.objects import Record
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.objects import Record
 from pvtflow.axes.sim.cell import SimulatedCell
-from pvtflow.axes.sim.epos2 import Epos2Drive
+from pvtflow.axes.sim.profiles.epos2 import Epos2Drive
 from pvtflow.service.config import load_cell_config
 
 

@@ -39,9 +39,9 @@ sys.path.insert(0, str(ROOT / "tests" / "axes"))
 
 from test_stall import at_period, serve, stall_this_process, toward_the_middle  # noqa: E402  (the test's harness)
 
-from pvtflow.axes.bus import CellBus  # noqa: E402
-from pvtflow.axes.group import AxisGroup  # noqa: E402
-from pvtflow.axes.outcome import Event  # noqa: E402
+from pvtflow.axes.master.bus.cell_bus import CellBus  # noqa: E402
+from pvtflow.axes.master.group.axis_group import AxisGroup  # noqa: E402
+from pvtflow.axes.master.group.outcome import Event  # noqa: E402
 from pvtflow.service.config import CONFIG_DIR  # noqa: E402
 
 
@@ -75,7 +75,7 @@ def one_run(
         gaps = [
             str(getattr(e, "message", "")) for e in events if getattr(e, "kind", None) and e.kind.value == "sync_gap"
         ]
-        # "no setpoint for" where the wire sends SYNC itself (axes.sync_follower)
+        # "no setpoint for" where the wire sends SYNC itself (axes.master.bus.sync_follower)
         what = "no setpoint for " if bus.sync.native else "no SYNC for "
         gap = float(gaps[0].split(what, 1)[1].split(" ms", 1)[0]) if gaps and what in gaps[0] else float("nan")
         if stop is not None:

@@ -59,10 +59,10 @@ from axes_programs import program  # noqa: E402  (the tests' programs: quintic m
 from axes_rig import FlakyBus, unique_channel  # noqa: E402  (the test double of the BUS)
 from test_stall import at_period, serve, toward_the_middle  # noqa: E402  (drives in their own process)
 
-from pvtflow.axes.bus import CellBus  # noqa: E402
-from pvtflow.axes.bus_faults import BusFault, FaultKind  # noqa: E402
-from pvtflow.axes.cia402 import PowerState  # noqa: E402
-from pvtflow.axes.group import AxisGroup  # noqa: E402
+from pvtflow.axes.drive.cia402 import PowerState  # noqa: E402
+from pvtflow.axes.master.bus.cell_bus import CellBus  # noqa: E402
+from pvtflow.axes.master.bus.faults import BusFault, FaultKind  # noqa: E402
+from pvtflow.axes.master.group.axis_group import AxisGroup  # noqa: E402
 from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter  # noqa: E402
 from pvtflow.axes.sim.drive import SimulatedDrive  # noqa: E402
 from pvtflow.axes.sim.wire import SimWireBus  # noqa: E402

@@ -25,11 +25,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.config import AxisConfig
-from pvtflow.axes.group import AxisGroup
-from pvtflow.axes.outcome import Result
-from pvtflow.axes.program import AxisProgram, PvtProgram
+from pvtflow.axes.drive.config import AxisConfig
+from pvtflow.axes.drive.program import AxisProgram, PvtProgram
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.group.outcome import Result
 from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from pvtflow.service.config import CellConfig, load_cell_config
 

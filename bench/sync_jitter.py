@@ -16,10 +16,10 @@ as asked, waking at absolute deadlines by ``time.sleep`` and nothing else, under
 floor runs alone with the load just before the master; ``--floor beside``: at the same moments, and
 the master's gaps over 2 periods that the floor also had (a gap of the machine) are counted.
 
-The master's bus threads run at SCHED_FIFO one below SYNC when SYNC has it (``axes.sync.lift``);
+The master's bus threads run at SCHED_FIFO one below SYNC when SYNC has it (``axes.master.bus.sync.lift``);
 ``--bus-threads-normal`` leaves them at normal priority, for comparison. Two SYNC threads on two
 CPUs (``SyncClock.backup``); ``--one-sync-thread``: one, for comparison. The caller starts SYNC and
-waits under ``axes.sync.below_sync``, as ``AxisGroup.run`` does; ``--caller-normal``: at normal
+waits under ``axes.master.bus.sync.below_sync``, as ``AxisGroup.run`` does; ``--caller-normal``: at normal
 priority, for comparison. ``--runs N`` repeats each
 case (the rare multi-ms gaps need many runs to be seen); ``--under-load-only``: the case that
 matters, under load with SCHED_FIFO.
@@ -52,9 +52,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.config import BusConfig
-from pvtflow.axes.sync import ask_realtime, below_sync
+from pvtflow.axes.drive.config import BusConfig
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.bus.sync import ask_realtime, below_sync
 
 
 def busy(stop: multiprocessing.synchronize.Event) -> None:  # type: ignore[name-defined]
@@ -253,7 +253,7 @@ def main() -> None:
     parser.add_argument(
         "--caller-normal",
         action="store_true",
-        help="the caller waits at normal priority (not under axes.sync.below_sync): for comparison",
+        help="the caller waits at normal priority (not under axes.master.bus.sync.below_sync): for comparison",
     )
     parser.add_argument(
         "--floor",

@@ -31,9 +31,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from sync_jitter import busy
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.config import BusConfig
-from pvtflow.axes.sync import below_sync
+from pvtflow.axes.drive.config import BusConfig
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.bus.sync import below_sync
 
 POLICIES = {os.SCHED_OTHER: "SCHED_OTHER", os.SCHED_FIFO: "SCHED_FIFO"}
 
@@ -110,7 +110,9 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--load", type=int, default=2)
     parser.add_argument("--one-sync-thread", action="store_true", help="SyncClock.backup off")
-    parser.add_argument("--caller-normal", action="store_true", help="the caller not under axes.sync.below_sync")
+    parser.add_argument(
+        "--caller-normal", action="store_true", help="the caller not under axes.master.bus.sync.below_sync"
+    )
     args = parser.parse_args()
     for i in range(args.runs):
         run(args.seconds, args.load, not args.one_sync_thread, not args.caller_normal, i == 0)

@@ -4,7 +4,7 @@ Each cell (configs/cells/*.yaml) runs a planned tour on its simulated drives, SY
 the first start (drives enabled by SDO, the records sent before the start SYNC with no SYNC running)
 and the start of a ready cell (one check SYNC, the records out in its period, the start SYNC one
 period later: README, "The start of a ready cell"). Cells that require homing home first, unmeasured.
-Every frame of the runs is costed with ``axes.frame_time.frame_bits`` (exact stuffing) and assigned
+Every frame of the runs is costed with ``axes.canbus.frame_time.frame_bits`` (exact stuffing) and assigned
 to a SYNC period by the SYNC frames in order: everything between SYNC n and SYNC n + 1 is period n,
 which in lockstep is exact whatever the wall clock did. Frames the master sends are taken as it sends
 them, frames the drives send as they arrive, before the master acts on them (so an answer is never
@@ -13,7 +13,7 @@ counted after the SYNC it made the master send).
 Per cell, as % of the bus (bit rate x SYNC period): mean load over the motion, the worst single period,
 the worst 10-period window, the periods before the start SYNC (the check SYNC's), the most EPOS2
 records sent in one period, the lowest FIFO level the feeders kept (and underflows), and the cell's
-budget (``axes.budget``). Target: every period <= 100 %, every 10-period window <= 70 %.
+budget (``axes.master.budget``). Target: every period <= 100 %, every 10-period window <= 70 %.
 
     python3 bench/wire.py [--cells arm6,gantry3] [--tour-points 4]
 """
@@ -32,11 +32,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.frame_time import frame_bits
-from pvtflow.axes.group import AxisGroup
-from pvtflow.axes.homing import CellHoming
-from pvtflow.axes.objects import EPOS2_RPDOS, SYNC_COB_ID
+from pvtflow.axes.canbus.frame_time import frame_bits
+from pvtflow.axes.drive.objects import EPOS2_RPDOS, SYNC_COB_ID
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.homing import CellHoming
 from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from pvtflow.planner.plan import PlanInput
 from pvtflow.service.cell_planner import CellPlanner
@@ -193,9 +193,9 @@ def measure(cell: CellConfig, tour_points: int) -> dict[str, object]:
 
 def budget_line(cell: CellConfig) -> str:
     try:
-        from pvtflow.axes.budget import bus_budget
+        from pvtflow.axes.master.budget import bus_budget
     except ImportError:
-        return "budget: (axes.budget not there)"
+        return "budget: (axes.master.budget not there)"
     b = bus_budget(cell)
     return (
         f"budget {100 * b.window_fraction:.1f} % of a 10-period window, {100 * b.peak_fraction:.1f} % in the worst "

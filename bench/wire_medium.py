@@ -29,7 +29,7 @@ import can
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from pvtflow.axes.frame_time import frame_bits  # noqa: E402
+from pvtflow.axes.canbus.frame_time import frame_bits  # noqa: E402
 from pvtflow.axes.sim.wire import SimWireBus  # noqa: E402
 
 BITRATE = 1_000_000

@@ -36,9 +36,9 @@ sys.path.insert(0, str(ROOT / "tests" / "axes"))
 from axes_programs import axis_program, safe_distance  # noqa: E402
 from test_stall import at_period  # noqa: E402  (the stall test's copy of a cell at another period)
 
-from pvtflow.axes.bus import CellBus  # noqa: E402
-from pvtflow.axes.group import AxisGroup  # noqa: E402
-from pvtflow.axes.program import PvtProgram  # noqa: E402
+from pvtflow.axes.drive.program import PvtProgram  # noqa: E402
+from pvtflow.axes.master.bus.cell_bus import CellBus  # noqa: E402
+from pvtflow.axes.master.group.axis_group import AxisGroup  # noqa: E402
 from pvtflow.axes.sim.process import DrivesProcess, LocalDrives  # noqa: E402
 from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config  # noqa: E402
 

@@ -2,7 +2,7 @@
 
 ``Planner`` (settings once) plans ``PlanInput`` waypoints into a time-optimal trajectory
 (``PlanOutput``, ``PlanResult``); ``build_program`` places the drives' records (a ``PvtProgram`` of
-axes.program); ``validate_program`` checks any program against its drives' rules."""
+axes.drive.program); ``validate_program`` checks any program against its drives' rules."""
 
 from __future__ import annotations
 

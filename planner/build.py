@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from pvtflow.axes.program import AxisProgram, PvtProgram
+from pvtflow.axes.drive.program import AxisProgram, PvtProgram
 from pvtflow.planner.knots import DriveAxis, KnotError, KnotOptions, KnotResult, TimedTrajectory, place_knots
 from pvtflow.planner.validate import ValidationReport, validate_program
 

@@ -2,7 +2,7 @@
 
 numba caches a compiled function next to its source and recompiles it when *that* file changes,
 not when a function it calls from another file does. The planner's kernels inline the drive's
-cubic (``axes.interpolation``) into the knot placement's (``planner/knots/*_kernels.py``) and the
+cubic (``axes.drive.interpolation``) into the knot placement's (``planner/knots/*_kernels.py``) and the
 validator's: after an edit of ``hermite`` alone they would keep running the old formula from the
 cache. So every planner kernel is stamped with all the kernel sources (``KERNEL_SOURCES``): a
 change to any of them recompiles them all (about 15 s, once), and a stale kernel is never loaded.
@@ -18,7 +18,7 @@ from numba.core import config
 from numba.core.caching import InTreeCacheLocator
 
 HERE = Path(__file__).resolve().parent
-INTERPOLATION = HERE.parent / "axes" / "interpolation.py"  # the drive's cubic, inlined by the kernels
+INTERPOLATION = HERE.parent / "axes" / "drive" / "interpolation.py"  # the drive's cubic, inlined by the kernels
 KERNEL_SOURCES = (
     INTERPOLATION,
     *(

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.planner.model import RobotModel
 
 

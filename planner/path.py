@@ -21,7 +21,7 @@ from scipy.interpolate import CubicSpline
 from scipy.linalg.lapack import dgtsv
 from toppra.interpolator import AbstractGeometricPath
 
-from pvtflow.axes.interpolation import cubic_position_range, hermite_coefficients
+from pvtflow.axes.drive.interpolation import cubic_position_range, hermite_coefficients
 from pvtflow.planner.limits import JointLimits
 
 # Two waypoints closer than this (joint units, Euclidean) are the same point.

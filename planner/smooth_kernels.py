@@ -1,7 +1,7 @@
 """The compiled loops of the drive's window jerk: its peaks (``planner.knots.window_jerk``) and the
 records nudged for it (``planner.knots.jerk_smooth``).
 
-Its cubics are the drive's own (``axes.interpolation.epos2_segment`` and ``hermite``), inlined:
+Its cubics are the drive's own (``axes.drive.interpolation.epos2_segment`` and ``hermite``), inlined:
 this file is one of ``planner.kernel_cache.KERNEL_SOURCES``.
 """
 
@@ -11,7 +11,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import (
+from pvtflow.axes.drive.interpolation import (
     LIMIT_RTOL,
     cubic_peak_acceleration,
     cubic_peak_speed,

@@ -15,8 +15,8 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.config import AxisConfig
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.config import AxisConfig
+from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.planner.plan import PlanInput
 from pvtflow.service.api import ApiError, ErrorCode, check_limits, refusals
 from pvtflow.service.cell_planner import CellPlanner

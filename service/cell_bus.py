@@ -18,8 +18,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.bus_faults import BusError
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.service.cli_options import add_can_log, add_config, add_real_time
 from pvtflow.service.config import CellConfig
 

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.planner import timing
 from pvtflow.planner.build import BuildError, BuildOutput, build_program
 from pvtflow.planner.cartesian import placement_pose
@@ -93,7 +93,7 @@ class CellPlanner:
     def __init__(self, cell: CellConfig, gridpoints: int | None = None) -> None:
         self.cell = cell
         self.limits = cell.joint_limits()
-        self.axes = tuple(cell.ordered_axes())  # each an axes.axis.DriveAxis: what knot placement takes
+        self.axes = tuple(cell.ordered_axes())  # each an axes.drive.axis.DriveAxis: what knot placement takes
         self.tolerance_qc = cell.planning.position_tolerance_qc
         self.feed = RecordFeed(cell)
         self.planner: Planner | None = None

@@ -1,7 +1,7 @@
 """``pvtflow commission [--config CELL] [--json] [--can-log FILE] [--real-time]``: what each drive is.
 
 Opens the cell's bus as ``pvtflow execute`` does (its simulated drives first where the cell is
-simulated), reads every drive over SDO (axes/commission.py: identity, supported modes, encoder,
+simulated), reads every drive over SDO (axes/master/commission.py: identity, supported modes, encoder,
 polarity, motor speed, the limit objects as stored, heartbeat, PDO mappings, error history) and
 prints, per axis, each check with what the cell expects and what the drive holds. Nothing is
 written to any drive and nothing moves. Each check is ok, mismatch or not checked (the drive lacks
@@ -18,9 +18,9 @@ import json
 import sys
 from typing import Any
 
-from pvtflow.axes.commission import Check, CheckKind, CommissionReport, Status, commission
-from pvtflow.axes.link import AxisLink, DriveError
-from pvtflow.axes.profiles import profile_for
+from pvtflow.axes.master.commission import Check, CheckKind, CommissionReport, Status, commission
+from pvtflow.axes.master.link import AxisLink, DriveError
+from pvtflow.axes.master.profiles import profile_for
 from pvtflow.service.cell_bus import CellBusError, open_cell_bus
 from pvtflow.service.cli import can_log_problem
 from pvtflow.service.cli_options import add_can_log, add_config, add_json, add_real_time

@@ -26,7 +26,7 @@ from typing import Any, TextIO
 import numpy as np
 import pinocchio as pin
 
-from pvtflow.axes.bus_faults import BusError
+from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.planner.cartesian import placement_pose
 from pvtflow.service.api import key
 from pvtflow.service.cli_options import add_config, add_real_time

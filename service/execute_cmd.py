@@ -5,7 +5,7 @@ The program is read, validated (planner.validate, the one validator) and matched
 sent. A simulated cell (the default arm6 demo: ``simulated: true``) gets its simulated drives on
 the virtual bus first and runs in SYNC lockstep, faster than real time (``--real-time``: on the
 wall clock, as a real cell always does). A cell that requires homing is refused (``not_homed``,
-nothing sent) unless ``--home``: then its axes home first (axes/homing.py), and the program runs
+nothing sent) unless ``--home``: then its axes home first (axes/master/homing.py), and the program runs
 only when every axis homed; a new master process cannot know whether a drive rebooted since an
 earlier homing, so it homes itself. Exit codes: 0 the program ran to its end, 1 refused
 (violations, wrong cell, not homed) or ended by a fault / stop / failed homing, 2 unreadable input
@@ -19,9 +19,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pvtflow.axes.group import AxisGroup
-from pvtflow.axes.outcome import Event, EventKind, Progress, Result, RunResult
-from pvtflow.axes.program import PvtProgram, program_mismatch
+from pvtflow.axes.drive.program import PvtProgram, program_mismatch
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.group.outcome import Event, EventKind, Progress, Result, RunResult
 from pvtflow.service.api import refusals
 from pvtflow.service.cell_bus import CellBusError, add_bus_options, open_cell_bus, record_problem
 from pvtflow.service.cli import can_log_problem

@@ -2,7 +2,7 @@
 
 Without the service, as ``pvtflow execute`` runs a program: the cell's drives are configured (their
 homing settings written), then the axes home in CiA 402 homing mode 6 in the cell's ``homing_order``
-(axes/homing.py). A simulated cell gets its simulated drives first (each axis powered up somewhere
+(axes/master/homing.py). A simulated cell gets its simulated drives first (each axis powered up somewhere
 on its machine, seeded) and runs in SYNC lockstep (``--real-time``: on the wall clock). Exit codes:
 0 every axis asked for is homed, 1 refused (nothing to home) or the homing failed (homing error,
 timeout, fault: every axis halted), 2 unreadable input (configuration, an axis the cell does not
@@ -19,8 +19,8 @@ import argparse
 import sys
 from typing import Any
 
-from pvtflow.axes.group import AxisGroup
-from pvtflow.axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
 from pvtflow.service.cell_bus import CellBusError, add_bus_options, open_cell_bus, record_problem
 from pvtflow.service.cli import can_log_problem
 from pvtflow.service.config import CellConfig, ConfigError, load_cell_config

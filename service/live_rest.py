@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import can
 import numpy as np
 
-from pvtflow.axes.cia402 import decode_state
+from pvtflow.axes.drive.cia402 import decode_state
 from pvtflow.service.link_transforms import LinkTransforms
 from pvtflow.service.recording.channels import (
     ACTUAL_SCHEMA,
@@ -37,8 +37,8 @@ from pvtflow.service.recording.channels import (
 )
 
 if TYPE_CHECKING:
-    from pvtflow.axes.bus import CellBus
-    from pvtflow.axes.group import AxisGroup
+    from pvtflow.axes.master.bus.cell_bus import CellBus
+    from pvtflow.axes.master.group.axis_group import AxisGroup
     from pvtflow.service.config import CellConfig
     from pvtflow.service.live import LiveServer
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import yaml
 
-from pvtflow.axes.program import PvtProgram, program_mismatch
+from pvtflow.axes.drive.program import PvtProgram, program_mismatch
 from pvtflow.configs import CELLS_DIR
 from pvtflow.service.config import CellConfig, ConfigError, load_cell_config
 

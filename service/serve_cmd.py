@@ -29,7 +29,7 @@ from typing import Any
 
 import zenoh
 
-from pvtflow.axes.bus_faults import BusError
+from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.service.api import LIVELINESS, PUBLICATIONS, QUERYABLES, StopRequest, key
 from pvtflow.service.cli import can_log_problem
 from pvtflow.service.cli_options import add_can_log, add_config, add_real_time

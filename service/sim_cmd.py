@@ -30,7 +30,7 @@ from typing import Any, TextIO
 
 import can
 
-from pvtflow.axes.config import SIMULATED_WIRE, wire_options
+from pvtflow.axes.drive.config import SIMULATED_WIRE, wire_options
 from pvtflow.axes.sim.cell import SimulatedCell
 from pvtflow.axes.sim.wire import serve_wire
 from pvtflow.service.cli_options import add_config

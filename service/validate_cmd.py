@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TextIO
 
-from pvtflow.axes.program import ProgramFormatError, PvtProgram
+from pvtflow.axes.drive.program import ProgramFormatError, PvtProgram
 from pvtflow.planner.validate import Rule, Severity, ValidationReport, validate_program
 from pvtflow.service.cli_options import add_json
 

@@ -11,8 +11,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from pvtflow.axes.config import AxisConfig
-from pvtflow.axes.program import AxisProgram, PvtProgram
+from pvtflow.axes.drive.config import AxisConfig
+from pvtflow.axes.drive.program import AxisProgram, PvtProgram
 
 PEAK_VELOCITY = 1.875  # max of s'(u)
 PEAK_ACCELERATION = 5.7735  # max of |s''(u)|

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pvtflow.axes.program import AxisProgram, PvtProgram
-from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive.program import AxisProgram, PvtProgram
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 
 # 2000 qc per motor revolution: 1 rpm = 1/30 qc/ms, 1 qc/ms^2 = 30000 rpm/s
 SCALING = AxisScaling(2000, 160 / (2 * np.pi))

@@ -23,13 +23,13 @@ from typing import TypeVar
 
 import canopen
 
-from pvtflow.axes.config import SIMULATED_WIRE, AxisConfig, CellWiring, wire_options
+from pvtflow.axes.drive.config import SIMULATED_WIRE, AxisConfig, CellWiring, wire_options
 from pvtflow.axes.sim.clock import LOCKSTEP, Ticker, check_clock
 from pvtflow.axes.sim.drive import SimulatedDrive, eds_file
-from pvtflow.axes.sim.epos2 import Epos2Drive
-from pvtflow.axes.sim.ip_linear import IpLinearDrive
-from pvtflow.axes.sim.parker import ParkerDrive
-from pvtflow.axes.sim.sync_setpoint import SyncSetpointDrive
+from pvtflow.axes.sim.profiles.epos2 import Epos2Drive
+from pvtflow.axes.sim.profiles.ip_linear import IpLinearDrive
+from pvtflow.axes.sim.profiles.parker import ParkerDrive
+from pvtflow.axes.sim.profiles.sync_setpoint import SyncSetpointDrive
 
 # Drives in the master's own interpreter share its pauses (a compile, a long replay, the host's load),
 # so a heartbeat window of about 3 periods (the shipped cells, for drives in a process of their own:

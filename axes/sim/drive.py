@@ -1,16 +1,16 @@
 """What every simulated drive shares: a canopen ``LocalNode`` that behaves as a CiA 402 drive.
 
 ``SimulatedDrive`` puts together the concepts of a drive, one module each: its object dictionary as
-the drive reads and writes it (``axes/sim/dictionary.py``), NMT, boot-up and the heartbeat producer
-(``axes/sim/nmt.py``), EMCY and faults (``axes/sim/faults.py``), the reaction to a lost master
-(``axes/sim/master_loss.py``: the heartbeat consumer per 0x1016, then 0x6007; the heartbeats are
+the drive reads and writes it (``axes/sim/node/dictionary.py``), NMT, boot-up and the heartbeat producer
+(``axes/sim/node/nmt.py``), EMCY and faults (``axes/sim/cia402/faults.py``), the reaction to a lost master
+(``axes/sim/node/master_loss.py``: the heartbeat consumer per 0x1016, then 0x6007; the heartbeats are
 the only wall-clock parts in lockstep), the DS402 power state machine driven by the controlword and the
-statusword (``axes/sim/power_states.py``), and the SYNC-driven motion clock with 1 kHz
-interpolation samples, 0x607D on every demand sample (``axes/sim/sampling.py``). Here: the drive's
+statusword (``axes/sim/cia402/power_states.py``), and the SYNC-driven motion clock with 1 kHz
+interpolation samples, 0x607D on every demand sample (``axes/sim/cia402/sampling.py``). Here: the drive's
 state, the SDO writes it dispatches, its resets, and the hooks through which the profile modules
 (epos2, ip_linear, sync_setpoint, parker) add their interpolation on top. The machine around the
 axis (power-up anywhere, limit switches, hard stops) and homing mode 6 on it come from
-``axes/sim/homing.py`` (``HomingMixin``), for drives whose 0x6502 has mode 6.
+``axes/sim/cia402/homing.py`` (``HomingMixin``), for drives whose 0x6502 has mode 6.
 
 Threads: every bus callback runs in the simulated network's notifier thread; test code may call in
 from other threads, so all state is guarded by one lock, and ``changed`` is notified after each
@@ -33,12 +33,24 @@ import canopen
 from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.config import AxisSimulation
-from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.config import AxisSimulation
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.sim.cia402.faults import ERROR_REGISTER, FaultHandling
+from pvtflow.axes.sim.cia402.homing import HomingMixin, HomingState, Machine
+from pvtflow.axes.sim.cia402.power_states import (
+    CW_ENABLE_IP,
+    CW_HALT,
+    CW_HOMING_START,
+    SWITCH_ON_DISABLED,
+    PowerStateMachine,
+)
+from pvtflow.axes.sim.cia402.records import FaultRecord, MasterLoss, SyncSample
+from pvtflow.axes.sim.cia402.sampling import Sampling
+from pvtflow.axes.sim.cia402.segment import Segment
 from pvtflow.axes.sim.clock import LOCKSTEP, MotionClock, Quartz, check_clock
-from pvtflow.axes.sim.consumer import HeartbeatConsumer
-from pvtflow.axes.sim.device import (
+from pvtflow.axes.sim.node.consumer import HeartbeatConsumer
+from pvtflow.axes.sim.node.device import (
     SIMULATED_MODE,
     SUPPORTED_DRIVE_MODES,
     DriveModes,
@@ -46,16 +58,10 @@ from pvtflow.axes.sim.device import (
     complete_object_dictionary,
     identity_values,
 )
-from pvtflow.axes.sim.dictionary import ABORT_GENERAL, ABORT_VALUE_RANGE, DictionaryAccess
-from pvtflow.axes.sim.faults import ERROR_REGISTER, FaultHandling
-from pvtflow.axes.sim.homing import HomingMixin, HomingState, Machine
-from pvtflow.axes.sim.master_loss import MasterLossReaction
-from pvtflow.axes.sim.nmt import NmtSlave
-from pvtflow.axes.sim.pdo import PdoEngine, is_pdo_object
-from pvtflow.axes.sim.power_states import CW_ENABLE_IP, CW_HALT, CW_HOMING_START, SWITCH_ON_DISABLED, PowerStateMachine
-from pvtflow.axes.sim.records import FaultRecord, MasterLoss, SyncSample
-from pvtflow.axes.sim.sampling import Sampling
-from pvtflow.axes.sim.segment import Segment
+from pvtflow.axes.sim.node.dictionary import ABORT_GENERAL, ABORT_VALUE_RANGE, DictionaryAccess
+from pvtflow.axes.sim.node.master_loss import MasterLossReaction
+from pvtflow.axes.sim.node.nmt import NmtSlave
+from pvtflow.axes.sim.node.pdo import PdoEngine, is_pdo_object
 from pvtflow.configs import EDS_DIR
 
 # maxon's own published EPOS2 70/10 EDS, kept unchanged as a vendor data file (configs/eds/vendor/README.md)
@@ -80,10 +86,12 @@ class SimulatedDrive(
     EDS: ClassVar[str] = ""
     EMCY_POSITION_LIMIT: ClassVar[int] = od.EMCY_SOFTWARE_POSITION_LIMIT
     EMCY_VELOCITY: ClassVar[int] = od.EMCY_VELOCITY_LIMIT
-    MODES: ClassVar[DriveModes] = DriveModes((SIMULATED_MODE,))  # 0x6502 / 0x6060 (axes/sim/device.py)
+    MODES: ClassVar[DriveModes] = DriveModes((SIMULATED_MODE,))  # 0x6502 / 0x6060 (axes/sim/node/device.py)
     # a lost master's heartbeat is one of the drive's own errors: its fault reaction (0x605E), then FAULT
     HEARTBEAT_ERROR_FAULTS: ClassVar[bool] = False
-    HOMING_METHODS: ClassVar[frozenset[int]] = frozenset()  # 0x6098 values it runs in mode 6 (axes/sim/homing.py)
+    HOMING_METHODS: ClassVar[frozenset[int]] = (
+        frozenset()
+    )  # 0x6098 values it runs in mode 6 (axes/sim/cia402/homing.py)
     REFERENCED_BIT: ClassVar[int] = 0  # a manufacturer statusword bit that says "homed since power-on"
     _ip_requested: bool = False  # bit 4 rose: ip mode starts on the next SYNC (profiles reset it)
 
@@ -160,14 +168,14 @@ class SimulatedDrive(
         self.homing_runs = []  # every homing started (tests, benches)
         self._homing = None
         self._homing_t = 0.0
-        # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.scaling
+        # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.drive.scaling
         self.velocity_factor = self.scaling.qc_per_ms_per_velocity_unit  # record velocity unit -> qc/ms
         self._rpm_per_qc_ms = float(self.scaling.qc_per_ms_to_rpm(1.0))
         # velocity objects (0x607F, 0x6081, 0x6099) in the drive's velocity unit, as the master writes them
         self._units_per_qc_ms = self._rpm_per_qc_ms / self.scaling.velocity_unit_rpm
         self._rpm_s_per_qc_ms2 = float(self.scaling.qc_per_ms2_to_rpm_s(1.0))
         self.node._write_callbacks.remove(self.node.nmt.on_write)  # 0x1017 is handled here
-        # canopen passes the written entry as the keyword ``od``, which is this module's name for axes.objects
+        # canopen passes the written entry as the keyword ``od``, which is this module's name for axes.drive.objects
         self.node.add_write_callback(lambda index, subindex, od, data: self._on_write(index, subindex, od, data))
         self._reset_application()
         if limits is not None:
@@ -297,7 +305,7 @@ class SimulatedDrive(
         self._refresh(events=False)
 
     def _own_values(self) -> dict[tuple[int, int], Value]:
-        """The drive's own values of objects its EDS may leave without a default (axes/sim/device.py)."""
+        """The drive's own values of objects its EDS may leave without a default (axes/sim/node/device.py)."""
         return {}
 
     def _reset_profile(self) -> None:

@@ -10,9 +10,9 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.drive_profile import DriveProfile
-from pvtflow.axes.sim import device
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.drive_profile import DriveProfile
+from pvtflow.axes.sim.node import device
 from pvtflow.configs import EDS_DIR
 
 # CiA 301 data types
@@ -78,7 +78,7 @@ def _pdo_objects(n_rpdo: int, n_tpdo: int) -> dict[int, Entry]:
 
 def _common(modes: device.DriveModes, profile: DriveProfile) -> dict[int, Entry]:
     """CiA 301 communication objects and the CiA 402 objects every simulated drive has; 0x6502 says
-    which modes 0x6060 accepts (axes/sim/device.py)."""
+    which modes 0x6060 accepts (axes/sim/node/device.py)."""
     d: dict[int, Entry] = {
         0x1000: Var("Device type", U32, "ro", device.CIA402_SERVO_DRIVE),
         0x1001: Var("Error register", U8, "ro", 0),
@@ -142,7 +142,7 @@ def _common(modes: device.DriveModes, profile: DriveProfile) -> dict[int, Entry]
 
 
 def _encoder_resolution() -> Rec:
-    """CiA 402's 0x608F; the simulated drive reports its own encoder in it (axes/sim/dictionary.py)."""
+    """CiA 402's 0x608F; the simulated drive reports its own encoder in it (axes/sim/node/dictionary.py)."""
     return Rec(
         "Position encoder resolution",
         (Var("Encoder increments", U32, "ro", 2000), Var("Motor revolutions", U32, "ro", 1)),
@@ -173,7 +173,7 @@ def epos2() -> dict[int, Entry]:
     d[od.EPOS2_HOMING_CURRENT_THRESHOLD] = Var("Current threshold for homing mode", U16, "rw", 500, pdo=True)
     d[od.EPOS2_HOME_POSITION] = Var("Home Position", I32, "rw", 0, pdo=True)
     # maxon's sensor configuration and motor data (names, types and defaults of maxon's EDS); the
-    # simulated drive reports its own encoder in :01 (axes/sim/dictionary.py)
+    # simulated drive reports its own encoder in :01 (axes/sim/node/dictionary.py)
     d[od.EPOS2_SENSOR_CONFIGURATION] = Rec(
         "Sensor configuration",
         (

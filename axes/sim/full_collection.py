@@ -4,7 +4,7 @@ A full (generation 2) collection stops every thread of the process: in the drive
 wall clock that took 14-65 ms here, and meanwhile the simulated wire (its driver and its loopback
 server), every drive's clock and heartbeat stood still, the master's transmit FIFO filled waiting
 for the reports of frames gone (ENOBUFS) and a drive's records ran late. As the master holds its
-collector off while SYNC runs (``axes/collector.py``), the drives' process keeps the young
+collector off while SYNC runs (``axes/master/bus/collector.py``), the drives' process keeps the young
 collections (about 1 ms each: most cyclic garbage dies young) and runs the full one once the bus
 has been without SYNC for ``QUIET_S``: between motions. What the start built is frozen out of the
 collections' reach (``gc.freeze``) so that those walk only what the running drives make.
@@ -17,8 +17,8 @@ import time
 
 import canopen
 
-from pvtflow.axes.objects import SYNC_COB_ID
-from pvtflow.axes.subscriptions import subscribe, unsubscribe
+from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
+from pvtflow.axes.drive.objects import SYNC_COB_ID
 
 QUIET_S = 1.0  # no SYNC for this long: no motion runs, a full collection stalls nothing that counts
 NO_AUTOMATIC_FULL = 2**31 - 1  # generation 2's threshold: never by allocation count

@@ -9,7 +9,7 @@ clocks and heartbeats. So a drive's heartbeat consumer can watch the master at t
 The in-process ``SimulatedCell`` stays for unit-test rigs that read a drive's state directly.
 
 ``DrivesProcess(wiring, clock).start()`` runs ``python -m pvtflow.axes.sim.process``: the child reads the
-cell's wiring (``axes.config.Wiring``, pickled, one base64 line on its stdin), starts its
+cell's wiring (``axes.drive.config.Wiring``, pickled, one base64 line on its stdin), starts its
 ``SimulatedCell`` on the wire's channel, serves the wire on 127.0.0.1 (a free port) and prints
 ``wire served at NAME@127.0.0.1:PORT``; the master opens that channel (``DrivesProcess.bus``: the
 cell's bus with the served channel). The child ends when its stdin closes: ``stop()`` closes it
@@ -33,8 +33,8 @@ import threading
 from pathlib import Path
 from typing import TextIO
 
-from pvtflow.axes.bus import SWITCH_INTERVAL_S
-from pvtflow.axes.config import SIMULATED_WIRE, BusConfig, CellWiring, Wiring, wire_options
+from pvtflow.axes.canbus.threads import hand_the_gil_on_often
+from pvtflow.axes.drive.config import SIMULATED_WIRE, BusConfig, CellWiring, Wiring, wire_options
 
 WIRE_SERVED_AT = "wire served at"  # the line the master reads the channel from
 START_TIMEOUT_S = 60.0  # a loaded host imports canopen and numpy slowly
@@ -224,7 +224,7 @@ def raise_drives_share() -> bool:
 def main() -> int:
     # the drives' threads (ticker, Notifiers) hand the GIL on as often as the master's do, so the
     # wire's threads (its driver, its server) are not held up for CPython's default 5 ms
-    sys.setswitchinterval(SWITCH_INTERVAL_S)
+    hand_the_gil_on_often()
     raise_drives_share()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the master stops the drives after it halted them
     stop = threading.Event()

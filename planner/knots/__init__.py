@@ -1,7 +1,7 @@
 """PVT knot placement: from a timed trajectory to integer records the drive executes as they are.
 
 The drive does not execute the planner's curve: it rebuilds the motion from the records with its
-own interpolation (axes.interpolation), from integer ms, integer velocity units and integer
+own interpolation (axes.drive.interpolation), from integer ms, integer velocity units and integer
 counts, and faults where that rebuild exceeds 0x607F or 0x60C5. So every candidate program is
 judged here by that very reconstruction of its *quantized* records, exactly (closed-form extrema
 per segment), never by the planned curve.

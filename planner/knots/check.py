@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import PiecewiseCubic, epos2_pvt, exceeds
-from pvtflow.axes.program import AxisProgram
+from pvtflow.axes.drive.interpolation import PiecewiseCubic, epos2_pvt, exceeds
+from pvtflow.axes.drive.program import AxisProgram
 from pvtflow.planner.knots import check_kernels as kernels
 from pvtflow.planner.knots import records_kernels
 from pvtflow.planner.knots.flat import Flat, Moved

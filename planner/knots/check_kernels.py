@@ -4,7 +4,7 @@ probes, whether it leaves 0x607D).
 
 Knot placement judges hundreds of short cubics many times over: each judgement is a handful of
 flops, whose cost in numpy would be the fixed price of the calls, not the arithmetic. These loops
-hold no formula of their own: the cubic and its extrema are ``axes.interpolation``'s (``hermite``,
+hold no formula of their own: the cubic and its extrema are ``axes.drive.interpolation``'s (``hermite``,
 ``cubic_peak_speed``, ...), inlined, so this file is one of ``planner.kernel_cache.KERNEL_SOURCES``.
 
 Layout (as in ``planner.knots.flat.Flat``): all EPOS2 axes' plan samples end to end, axis
@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import (
+from pvtflow.axes.drive.interpolation import (
     cubic_peak_acceleration,
     cubic_peak_speed,
     cubic_position_range,

@@ -8,8 +8,8 @@ from enum import Enum
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import epos2_pvt
-from pvtflow.axes.program import TIME_MAX_MS
+from pvtflow.axes.drive.interpolation import epos2_pvt
+from pvtflow.axes.drive.program import TIME_MAX_MS
 from pvtflow.planner.knots.check import NO_INT, Checked, axes_records, checked_subset, knot_records
 from pvtflow.planner.knots.flat import Flat
 from pvtflow.planner.knots.jerk_smooth import smoothed_axis

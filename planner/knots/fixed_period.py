@@ -8,7 +8,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import LIMIT_RTOL
+from pvtflow.axes.drive.interpolation import LIMIT_RTOL
 from pvtflow.planner.knots import fixed_period_kernels as kernels
 from pvtflow.planner.knots.check import check_records, needed_scale
 from pvtflow.planner.knots.quantize import round_positions, round_velocities

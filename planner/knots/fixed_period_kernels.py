@@ -1,7 +1,7 @@
 """The fixed-period profiles' knots compiled with numba (``planner.knots.fixed_period``): the ratios
 of their reconstructions and the exact integer search over their setpoints.
 
-One record per period: the drive's reconstruction (``axes.interpolation``'s ``linear``,
+One record per period: the drive's reconstruction (``axes.drive.interpolation``'s ``linear``,
 ``cubic_pv``, ``cubic_p``) is judged window by window, and the setpoints are chosen by a shortest
 path over their nudges, the least slow-down first, then the closest to the plan.
 """
@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import (
+from pvtflow.axes.drive.interpolation import (
     LIMIT_RTOL,
     Interpolation,
     central_velocity,
@@ -30,7 +30,7 @@ _F = NDArray[np.float64]
 _I = NDArray[np.int64]
 
 
-# The reconstructions a fixed-period drive applies to its setpoints (axes.interpolation's
+# The reconstructions a fixed-period drive applies to its setpoints (axes.drive.interpolation's
 # ``linear``, ``cubic_pv``, ``cubic_p``). Each judges a segment on a window of consecutive points of
 # the records padded with copies of their first and last point (velocity 0 there), so that the rest
 # at both ends comes out of each segment's own rule: linear [R0, R0, R0, R1 .. RN, RN] (the velocity

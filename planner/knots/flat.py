@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.program import TIME_MAX_MS
+from pvtflow.axes.drive.program import TIME_MAX_MS
 from pvtflow.planner.knots.samples import Samples, axis_constants
 from pvtflow.planner.knots.types import DriveAxis
 

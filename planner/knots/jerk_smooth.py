@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pvtflow.axes.interpolation import exceeds
+from pvtflow.axes.drive.interpolation import exceeds
 from pvtflow.planner.knots.check import check_records, jerk_scale, needed_scale
 from pvtflow.planner.knots.flat import Flat
 from pvtflow.planner.knots.types import AxisKnots, KnotOptions

@@ -8,8 +8,8 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import exceeds
-from pvtflow.axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
+from pvtflow.axes.drive.interpolation import exceeds
+from pvtflow.axes.drive.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 from pvtflow.planner.knots import quantize_kernels as kernels
 from pvtflow.planner.knots import records_kernels, round_kernels
 from pvtflow.planner.knots.check import (

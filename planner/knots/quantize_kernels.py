@@ -16,12 +16,12 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import (
+from pvtflow.axes.drive.interpolation import (
     cubic_peak_acceleration,
     cubic_peak_speed,
     hermite,
 )
-from pvtflow.axes.program import TIME_MAX_MS
+from pvtflow.axes.drive.program import TIME_MAX_MS
 from pvtflow.planner.knots.check_kernels import leaves, probe_deviation
 
 _F = NDArray[np.float64]

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import hermite_coefficients
-from pvtflow.axes.program import TIME_MAX_MS
+from pvtflow.axes.drive.interpolation import hermite_coefficients
+from pvtflow.axes.drive.program import TIME_MAX_MS
 from pvtflow.planner.knots import refine_kernels as kernels
 from pvtflow.planner.knots.check import NO_FLOAT, NO_INT
 from pvtflow.planner.knots.flat import Flat, Moved

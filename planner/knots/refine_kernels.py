@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import (
+from pvtflow.axes.drive.interpolation import (
     hermite,
 )
 from pvtflow.planner.knots.check_kernels import prev_segment, probe_deviation

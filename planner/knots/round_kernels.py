@@ -17,8 +17,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import LIMIT_RTOL
-from pvtflow.axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
+from pvtflow.axes.drive.interpolation import LIMIT_RTOL
+from pvtflow.axes.drive.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 from pvtflow.planner.knots.check_kernels import check_segments
 from pvtflow.planner.knots.quantize_kernels import repair_chains_memo
 
@@ -27,7 +27,7 @@ _I = NDArray[np.int64]
 _B = NDArray[np.bool_]
 
 POSITION_RANGE, VELOCITY_RANGE = 1, 2  # what ``round_check_repair`` could not round (its first return)
-_OVER = 1.0 * (1.0 + LIMIT_RTOL)  # axes.interpolation.exceeds(ratio, 1.0)
+_OVER = 1.0 * (1.0 + LIMIT_RTOL)  # axes.drive.interpolation.exceeds(ratio, 1.0)
 
 
 @njit(cache=True)

@@ -1,4 +1,4 @@
-"""What knot placement takes and gives: the trajectory it samples, the axes (``axes.axis.DriveAxis``), the
+"""What knot placement takes and gives: the trajectory it samples, the axes (``axes.drive.axis.DriveAxis``), the
 options, the records."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.axis import DriveAxis as DriveAxis  # the axes layer's one description of an axis
-from pvtflow.axes.program import TIME_MAX_MS
+from pvtflow.axes.drive.axis import DriveAxis as DriveAxis  # the axes layer's one description of an axis
+from pvtflow.axes.drive.program import TIME_MAX_MS
 
 
 class TimedTrajectory(Protocol):

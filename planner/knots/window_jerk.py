@@ -4,7 +4,7 @@ A drive's cubic PVT is C1: its acceleration is linear inside a segment and jumps
 (a cubic's c3 over a few ms, from integer counts, can be tens of times a jerk limit). What a
 machine feels is the acceleration's change over a short span, so the jerk limit is judged on the
 window jerk ``max_t |a(t + W) - a(t)| / W`` (W = 10 ms) of the reconstruction the drive builds from
-the records (``AxisProgram.reconstruction``, ``axes.interpolation``), not on single segments.
+the records (``AxisProgram.reconstruction``, ``axes.drive.interpolation``), not on single segments.
 
 ``a`` is piecewise linear between the segments' ends, so ``a(t + W) - a(t)`` is piecewise linear
 between the ends and the ends less W: its peak is at one of those instants, one-sided (the
@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import PiecewiseCubic
+from pvtflow.axes.drive.interpolation import PiecewiseCubic
 from pvtflow.planner.smooth_kernels import window_jerk_peaks
 
 WINDOW_MS = 10.0  # the span over which a machine feels an acceleration change

@@ -1,7 +1,7 @@
 """Checks of a PVT program against the rules its drives enforce: the one validator.
 
 The CLI, the service and the tests all call :func:`validate_program`. Every motion check runs on
-what the drive itself will execute, ``AxisProgram.reconstruction()`` (axes.interpolation),
+what the drive itself will execute, ``AxisProgram.reconstruction()`` (axes.drive.interpolation),
 never on a formula of its own: exactly (closed-form extrema per segment) and at the drive's 1 kHz
 samples. Errors are what makes a drive refuse or fault (0x607F, 0x60C5, 0x607D, record ranges,
 the start and end rules); warnings are what only sets a warning bit (0x6081, 0x6083).
@@ -40,8 +40,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import DRIVE_SAMPLE_MS
-from pvtflow.axes.program import AxisProgram, PvtProgram
+from pvtflow.axes.drive.interpolation import DRIVE_SAMPLE_MS
+from pvtflow.axes.drive.program import AxisProgram, PvtProgram
 from pvtflow.planner.validate.motion import check_motion, summaries_within_limits
 from pvtflow.planner.validate.records import check_epos2, check_fixed_period, check_ranges
 from pvtflow.planner.validate.report import AxisSummary, Finding, Rule, Severity, ValidationReport

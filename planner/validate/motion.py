@@ -12,14 +12,14 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import (
+from pvtflow.axes.drive.interpolation import (
     LINEAR_QUANTIZATION_QC,
     Interpolation,
     PiecewiseCubic,
     exceeds,
     linear_span_excess,
 )
-from pvtflow.axes.program import AxisProgram
+from pvtflow.axes.drive.program import AxisProgram
 from pvtflow.planner.validate.report import AxisSummary, Finding, Rule, Severity
 from pvtflow.planner.validate.screen import Worst
 

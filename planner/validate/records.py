@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.program import TIME_MAX_MS, AxisProgram
-from pvtflow.axes.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
+from pvtflow.axes.drive.program import TIME_MAX_MS, AxisProgram
+from pvtflow.axes.drive.scaling import INT24_MAX, INT24_MIN, INT32_MAX, INT32_MIN
 from pvtflow.planner.validate.report import Finding, Rule, Severity
 
 # The fields of a record and their ranges: (column, what, lowest, highest, unit, kind).

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import (
+from pvtflow.axes.drive.interpolation import (
     cubic_peak_acceleration,
     cubic_peak_speed,
     cubic_position_range,
@@ -34,7 +34,7 @@ from pvtflow.axes.interpolation import (
     epos2_segment,
     hermite,
 )
-from pvtflow.axes.program import TIME_MAX_MS, AxisProgram
+from pvtflow.axes.drive.program import TIME_MAX_MS, AxisProgram
 from pvtflow.planner.validate.records import _FIELD_HI, _FIELD_LO, outside_motion_time, outside_ranges
 
 

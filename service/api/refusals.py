@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from pvtflow.axes.outcome import Result, RunResult
+from pvtflow.axes.master.group.outcome import Result, RunResult
 from pvtflow.service.api.wire import ApiError, ErrorCode
 
 PLAN_AGAIN = "plan again from the current position"

@@ -9,10 +9,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from pvtflow.axes.commission import REQUIRABLE_OBJECTS
-from pvtflow.axes.config import AxisConfig, AxisSimulation, BufferConfig, BusConfig, homing_stop_room
-from pvtflow.axes.drive_profile import DriveProfile, ProfileError
-from pvtflow.axes.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
+from pvtflow.axes.drive.config import AxisConfig, AxisSimulation, BufferConfig, BusConfig, homing_stop_room
+from pvtflow.axes.drive.drive_profile import DriveProfile, ProfileError
+from pvtflow.axes.drive.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
+from pvtflow.axes.master.commission import REQUIRABLE_OBJECTS
 from pvtflow.axes.sim.drive import eds_file
 from pvtflow.planner.model import RobotModel
 from pvtflow.service.config.fields import ConfigError, Fields

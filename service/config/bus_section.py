@@ -11,7 +11,7 @@ from typing import Any
 
 from can.interfaces import VALID_INTERFACES
 
-from pvtflow.axes.config import BusConfig
+from pvtflow.axes.drive.config import BusConfig
 from pvtflow.service.config.fields import Fields
 
 # python-can's own list of interfaces (``udp_multicast`` among them: it sends to a multicast group,

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.config import AxisConfig, BusConfig
-from pvtflow.axes.homing import homing_stages
+from pvtflow.axes.drive.config import AxisConfig, BusConfig
+from pvtflow.axes.master.homing import homing_stages
 from pvtflow.planner.limits import JointLimits, joint_limits_from_drives
 from pvtflow.planner.model import RobotModel
 from pvtflow.planner.speed_band import DEFAULT_SPEED_BAND
@@ -46,7 +46,7 @@ class CellConfig:
     requires_homing: bool = False  # motion is refused (not_homed) until every axis has homed since it booted
 
     def homing_stages(self, joints: list[str] | None = None) -> list[list[str]]:
-        """The stages to home ``joints`` (None: every axis with homing) in (axes.homing.homing_stages)."""
+        """The stages to home ``joints`` (None: every axis with homing) in (axes.master.homing.homing_stages)."""
         return homing_stages(self.ordered_axes(), self.homing_order, joints)
 
     @property

@@ -8,10 +8,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.config import HomingConfig
-from pvtflow.axes.drive_profile import DriveProfile
-from pvtflow.axes.scaling import INT32_MAX, INT32_MIN, DriveLimits
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.config import HomingConfig
+from pvtflow.axes.drive.drive_profile import DriveProfile
+from pvtflow.axes.drive.scaling import INT32_MAX, INT32_MIN, DriveLimits
 from pvtflow.service.config.fields import Fields
 
 HOMING_FIELDS = (
@@ -27,7 +27,7 @@ HOMING_FIELDS = (
 
 
 def parse_homing(f: Fields, profile: DriveProfile, limits: DriveLimits) -> HomingConfig:
-    """``axes[i].homing``: the method (its 0x6098 number or its name in axes.objects.HomingMethod) the
+    """``axes[i].homing``: the method (its 0x6098 number or its name in axes.drive.objects.HomingMethod) the
     profile has, speeds within the drive's 0x607F, the home offset, the hard-stop current threshold."""
     methods = profile.spec.homing_methods
     if not methods:

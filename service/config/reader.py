@@ -2,7 +2,7 @@
 
 The sections have a module each (robot, bus, axis, homing); here they are put together, every joint
 of the URDF given one axis, node ids unique, the drives' limits overlapping the URDF's, and the
-cell's traffic within its bus (axes.budget).
+cell's traffic within its bus (axes.master.budget).
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from typing import Any
 
 import yaml
 
-from pvtflow.axes.budget import bus_budget
-from pvtflow.axes.config import SIMULATION_INTERFACES, AxisConfig
+from pvtflow.axes.drive.config import SIMULATION_INTERFACES, AxisConfig
+from pvtflow.axes.master.budget import bus_budget
 from pvtflow.configs import DEFAULT_CELL, shipped_cell, shipped_cells
 from pvtflow.planner.model import ModelError, RobotModel
 from pvtflow.service.config.axis_section import parse_axis
@@ -145,7 +145,7 @@ def parse_cell_config(data: Any, file: Path) -> CellConfig:
 
 
 def _check_bus_budget(file: Path, cell: CellConfig) -> None:
-    """The cell's traffic per SYNC period must fit its bus (axes.budget: 70 % of the bit rate)."""
+    """The cell's traffic per SYNC period must fit its bus (axes.master.budget: 70 % of the bit rate)."""
     problem = bus_budget(cell).problem()
     if problem is not None:
         raise ConfigError(file, "bus", problem)

@@ -6,9 +6,9 @@ waits for every axis to have homed (``not_homed``), and a program starts where t
 
 from __future__ import annotations
 
-from pvtflow.axes.group import AxisGroup
-from pvtflow.axes.outcome import RunResult
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.group.outcome import RunResult
 from pvtflow.service.api import ApiError, CellState, ErrorCode, refusals
 from pvtflow.service.motion.runs import Motion
 from pvtflow.service.motion.status import StatusReport

@@ -16,11 +16,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.cia402 import PowerState
-from pvtflow.axes.group import AxisGroup
-from pvtflow.axes.homing import CellHoming
-from pvtflow.axes.link import DriveError
+from pvtflow.axes.drive.cia402 import PowerState
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.homing import CellHoming
+from pvtflow.axes.master.link import DriveError
 from pvtflow.service.api import ApiError, CellState, ErrorCode
 from pvtflow.service.cell_planner import CellPlanner
 from pvtflow.service.config import CellConfig

@@ -11,10 +11,10 @@ import logging
 import time
 from typing import Any
 
-from pvtflow.axes.bus_faults import BusError
-from pvtflow.axes.link import DriveError
-from pvtflow.axes.outcome import GroupError, Result, RunResult
-from pvtflow.axes.program import PvtProgram, program_mismatch
+from pvtflow.axes.drive.program import PvtProgram, program_mismatch
+from pvtflow.axes.master.bus.faults import BusError
+from pvtflow.axes.master.group.outcome import GroupError, Result, RunResult
+from pvtflow.axes.master.link import DriveError
 from pvtflow.planner.validate import validate_program
 from pvtflow.service.api import ApiError, CellState, ErrorCode, ExecuteRequest, refusals
 from pvtflow.service.approach import away_from_start, plan_approach

@@ -1,4 +1,4 @@
-"""``home``: the cell's axes homed in its homing order (axes.homing), as a motion of the cell.
+"""``home``: the cell's axes homed in its homing order (axes.master.homing), as a motion of the cell.
 
 One at a time with motions, journaled, stopped by ``stop``; a fault puts the cell in ``fault``.
 """
@@ -10,9 +10,9 @@ import threading
 import time
 from typing import Any
 
-from pvtflow.axes.bus_faults import BusError
-from pvtflow.axes.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
-from pvtflow.axes.outcome import GroupError, Result
+from pvtflow.axes.master.bus.faults import BusError
+from pvtflow.axes.master.group.outcome import GroupError, Result
+from pvtflow.axes.master.homing import CellHoming, HomingEventKind, HomingOutcome, HomingRequestError
 from pvtflow.service.api import ApiError, CellState, ErrorCode, HomeRequest
 from pvtflow.service.journal import JournalError
 from pvtflow.service.motion.execution import Execution

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from pvtflow.axes.program import ProgramFormatError, PvtProgram, program_mismatch
+from pvtflow.axes.drive.program import ProgramFormatError, PvtProgram, program_mismatch
 from pvtflow.planner.plan import PlanInput
 from pvtflow.planner.validate import validate_program
 from pvtflow.service.api import ApiError, ErrorCode, PlanRequest, PlanStart, ValidateRequest, refusals

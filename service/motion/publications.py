@@ -9,8 +9,8 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from pvtflow.axes.homing import HomingEventKind
-from pvtflow.axes.outcome import Event, EventKind, Progress
+from pvtflow.axes.master.group.outcome import Event, EventKind, Progress
+from pvtflow.axes.master.homing import HomingEventKind
 from pvtflow.service.api import CellState
 from pvtflow.service.motion.cell_session import CellSession
 from pvtflow.service.motion.runs import ServiceEventKind

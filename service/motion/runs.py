@@ -12,20 +12,20 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
 
-from pvtflow.axes.homing import HomingOutcome
-from pvtflow.axes.outcome import RunResult
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram
+from pvtflow.axes.master.group.outcome import RunResult
+from pvtflow.axes.master.homing import HomingOutcome
 from pvtflow.service.api import RunState
 from pvtflow.service.recording import Recorder
 
 
 class ServiceEventKind(StrEnum):
-    """The service's own ``events`` beside the axis group's (``axes.group.EventKind``)."""
+    """The service's own ``events`` beside the axis group's (``axes.master.group.axis_group.EventKind``)."""
 
     SERVICE_STARTED = "service_started"
     MOTION_ENDED = "motion_ended"
     JOURNAL_ERROR = "journal_error"
-    HOMING_ENDED = "homing_ended"  # with its outcome (the homing's steps: axes.homing.HomingEventKind)
+    HOMING_ENDED = "homing_ended"  # with its outcome (the homing's steps: axes.master.homing.HomingEventKind)
 
 
 def new_id(prefix: str) -> str:

@@ -11,7 +11,7 @@ is simulated), one AxisGroup, the plans (by id, in memory) and the journal (on d
 - Every accepted motion is journaled (fsync) before its first record is sent, its outcome after.
 - Homing (``home``) is a motion too: one at a time, journaled, stopped by ``stop``, a fault puts the
   cell in ``fault``. A cell that ``requires_homing`` refuses ``execute`` and plans from the current
-  position (``not_homed``) until every axis has homed since its drive last booted (axes.homing).
+  position (``not_homed``) until every axis has homed since its drive last booted (axes.master.homing).
 - Status is what the drives say: their statuswords, positions and buffer status (from their TPDOs
   while moving, read by SDO when idle), never what the service hopes.
 
@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import threading
 
-from pvtflow.axes.bus_faults import BusError
-from pvtflow.axes.group import AxisGroup
-from pvtflow.axes.link import DriveError
+from pvtflow.axes.master.bus.faults import BusError
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.link import DriveError
 from pvtflow.service.cell_bus import CellBusError, open_bus
 from pvtflow.service.live_rest import RestView
 from pvtflow.service.motion.stop_recover import StopRecover

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pvtflow.axes.outcome import AxisStatus
+from pvtflow.axes.master.group.outcome import AxisStatus
 from pvtflow.service.api import StatusRequest
 from pvtflow.service.journal import MotionEntry
 from pvtflow.service.motion.publications import Publications

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from pvtflow.axes.bus_faults import BusError
-from pvtflow.axes.link import DriveError
-from pvtflow.axes.outcome import GroupError
+from pvtflow.axes.master.bus.faults import BusError
+from pvtflow.axes.master.group.outcome import GroupError
+from pvtflow.axes.master.link import DriveError
 from pvtflow.service.api import ApiError, CellState, ErrorCode, RecoverRequest, StopRequest
 from pvtflow.service.motion.homing import HomingRuns
 

@@ -16,8 +16,8 @@ import can
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.bus_faults import FaultKind
-from pvtflow.axes.outcome import Result
+from pvtflow.axes.master.bus.faults import FaultKind
+from pvtflow.axes.master.group.outcome import Result
 
 # Foxglove's schemas (https://docs.foxglove.dev/docs/visualization/message-schemas), JSON flavour
 _TIME = {

@@ -1,7 +1,7 @@
 """A run's plan as the drives execute it: the ``/axis/<joint>/planned`` channel and the following error's reference.
 
 Each axis's program is sampled as its drive interpolates it: ``AxisProgram.reconstruction()``
-(axes/interpolation.py, the one cubic) on the drive's own 1 kHz grid from the start SYNC, in counts
+(axes/drive/interpolation.py, the one cubic) on the drive's own 1 kHz grid from the start SYNC, in counts
 and joint units. The samples are written ``PLANNED_LEAD_MS`` ahead of the run and the rest when the
 run is over or the recording closes: a whole plan at once is tens of thousands of messages, the
 writer would fall seconds behind the bus, and a kill -9 would lose the actual data it had not
@@ -17,12 +17,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from pvtflow.axes.interpolation import DRIVE_SAMPLE_MS
+from pvtflow.axes.drive.interpolation import DRIVE_SAMPLE_MS
 from pvtflow.service.recording.channels import PLANNED_SCHEMA, encode_planned
 
 if TYPE_CHECKING:
-    from pvtflow.axes.program import AxisProgram
-    from pvtflow.axes.scaling import AxisScaling
+    from pvtflow.axes.drive.program import AxisProgram
+    from pvtflow.axes.drive.scaling import AxisScaling
 
 PLANNED_LEAD_MS = 250.0  # the planned channel is written this far ahead of the run (a chunk's span)
 

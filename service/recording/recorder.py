@@ -12,7 +12,7 @@ Channels (the joint's name in ``/axis/<joint>/...``):
 - ``/axis/<joint>/planned``: the program as the drive will execute it, every ms from the start
   SYNC, in counts and joint units (service/recording/planned.py).
 - ``/axis/<joint>/actual``: per SYNC, the position the drive answered, its statusword and power
-  state, the SYNC they are as of (``status_sync``: with status TPDOs every n SYNCs, ``axes/tpdo_rates.py``,
+  state, the SYNC they are as of (``status_sync``: with status TPDOs every n SYNCs, ``axes/master/tpdo_rates.py``,
   an answer stands for the n - 1 SYNCs after it too), and during a run the planned position at that
   SYNC (the status's, not the one it is still the latest on) and the following error (planned minus
   actual, counts).
@@ -46,14 +46,14 @@ from typing import TYPE_CHECKING, Any
 
 import can
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.bus_faults import BusFault
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.bus.faults import BusFault
 from pvtflow.service.recording.channels import FAULT_LEVEL, INFO
 from pvtflow.service.recording.mcap_file import CHUNK_BYTES, McapFile, open_mcap_file
 from pvtflow.service.recording.writer import CHUNK_MS, RecordWriter
 
 if TYPE_CHECKING:
-    from pvtflow.axes.group import AxisGroup
+    from pvtflow.axes.master.group.axis_group import AxisGroup
     from pvtflow.service.config import CellConfig
     from pvtflow.service.live import LiveServer
 

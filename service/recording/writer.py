@@ -8,7 +8,7 @@ encoded once (service/recording/channels.py), written to the MCAP file and hande
 It keeps its normal scheduling priority: it holds the interpreter's lock while it works, and a thread
 of lower priority that is preempted while holding it would keep the SYNC thread waiting for the lock
 (priority inversion); what keeps it off the SYNC thread's way is its small cost per SYNC and the
-switch interval (``axes.bus.SWITCH_INTERVAL_S``), which makes it hand the lock over within 0.1 ms.
+switch interval (``axes.canbus.threads.SWITCH_INTERVAL_S``), which makes it hand the lock over within 0.1 ms.
 
 A kill -9 loses at most the chunk being built: a chunk is closed every ``chunk_ms`` of bus time,
 every ``CHUNK_WALL_S`` of wall time (checked after each batch) and at the file's chunk size,
@@ -26,8 +26,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pvtflow.axes.cia402 import decode_state
-from pvtflow.axes.objects import SYNC_COB_ID
+from pvtflow.axes.drive.cia402 import decode_state
+from pvtflow.axes.drive.objects import SYNC_COB_ID
 from pvtflow.service.link_transforms import LinkTransforms
 from pvtflow.service.live import new_channel
 from pvtflow.service.recording.channels import (

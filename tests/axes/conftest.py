@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 from axes_rig import unique_channel
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.group import AxisGroup
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.group.axis_group import AxisGroup
 from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from pvtflow.service.config import CellConfig
 

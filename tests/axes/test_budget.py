@@ -1,4 +1,4 @@
-"""The bus budget of a cell (axes/budget.py) and the record allowance the feeders keep to."""
+"""The bus budget of a cell (axes/master/budget.py) and the record allowance the feeders keep to."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import pytest
 import yaml
 from axes_programs import program
 
-from pvtflow.axes.budget import LOAD_LIMIT, bus_budget
-from pvtflow.axes.config import AxisConfig, BusConfig, Wiring
-from pvtflow.axes.frame_time import frame_bits, worst_frame_bits
+from pvtflow.axes.canbus.frame_time import frame_bits, worst_frame_bits
+from pvtflow.axes.drive.config import AxisConfig, BusConfig, Wiring
+from pvtflow.axes.master.budget import LOAD_LIMIT, bus_budget
 from pvtflow.service.config import CONFIG_DIR, ConfigError, load_cell_config
 
 CELLS = sorted((CONFIG_DIR / "cells").glob("*.yaml"))

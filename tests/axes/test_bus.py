@@ -11,11 +11,11 @@ import can
 import pytest
 from axes_rig import unique_channel
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.bus_faults import BusFault, FaultKind
-from pvtflow.axes.config import BusConfig
-from pvtflow.axes.network import FrameRecorder
-from pvtflow.axes.objects import TIME_STAMP_COB_ID, NmtCommand
+from pvtflow.axes.drive.config import BusConfig
+from pvtflow.axes.drive.objects import TIME_STAMP_COB_ID, NmtCommand
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.bus.faults import BusFault, FaultKind
+from pvtflow.axes.master.bus.network import FrameRecorder
 
 
 class Responder(can.Listener):
@@ -217,7 +217,7 @@ def test_heartbeat_emcy_and_lost_sync_are_reported(channel):
 
 
 def test_unknown_interface_is_one_clear_error():
-    from pvtflow.axes.bus_faults import BusError
+    from pvtflow.axes.master.bus.faults import BusError
 
     with pytest.raises(BusError, match="cannot open CAN bus"):
         CellBus(BusConfig(interface="socketcan", channel="pvtflow-does-not-exist")).open()

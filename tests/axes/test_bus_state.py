@@ -18,9 +18,7 @@ import pytest
 from axes_programs import program
 from axes_rig import unique_channel, with_profiles
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.bus_faults import BusFault, FaultKind
-from pvtflow.axes.can_errors import (
+from pvtflow.axes.canbus.can_errors import (
     CAN_ERR_BUSOFF,
     CAN_ERR_CNT,
     CAN_ERR_CRTL,
@@ -35,9 +33,11 @@ from pvtflow.axes.can_errors import (
     ControllerState,
     decode,
 )
-from pvtflow.axes.config import BusConfig
-from pvtflow.axes.group import AxisGroup
-from pvtflow.axes.outcome import Result
+from pvtflow.axes.drive.config import BusConfig
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.bus.faults import BusFault, FaultKind
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.group.outcome import Result
 from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
 from pvtflow.axes.sim.wire import BUS_OFF, ERROR_PASSIVE
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from canopen.profiles.p402 import State402
 
-from pvtflow.axes.cia402 import (
+from pvtflow.axes.drive.cia402 import (
     CONTROLWORD_ENABLE_OPERATION,
     CONTROLWORD_HALT,
     CONTROLWORD_SHUTDOWN,

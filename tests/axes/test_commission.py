@@ -1,4 +1,4 @@
-"""Commissioning (axes/commission.py): a simulated drive that is not what the cell expects (its
+"""Commissioning (axes/master/commission.py): a simulated drive that is not what the cell expects (its
 ``simulation:`` section: encoder, polarity, identity, motor speed) is caught, named, and refused by
 configuration before anything is written; a cell whose drives agree passes."""
 
@@ -9,10 +9,10 @@ from collections.abc import Callable
 
 import pytest
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.commission import CheckKind, Status, commission
-from pvtflow.axes.config import AxisSimulation
-from pvtflow.axes.link import DriveError
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.config import AxisSimulation
+from pvtflow.axes.master.commission import CheckKind, Status, commission
+from pvtflow.axes.master.link import DriveError
 from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 GANTRY = CONFIG_DIR / "cells" / "gantry3.yaml"

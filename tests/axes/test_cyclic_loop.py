@@ -1,4 +1,4 @@
-"""The cyclic process's loop (``axes.cyclic_loop``) in this process, on a virtual bus that can refuse frames:
+"""The cyclic process's loop (``axes.master.cyclic.loop``) in this process, on a virtual bus that can refuse frames:
 what goes out after a SYNC, in which order, and what a full transmit queue does to the records.
 
 No timing is asserted: each SYNC is sent by hand (``_transmit``), and the drive's clock is moved by
@@ -14,13 +14,13 @@ import can
 import numpy as np
 import pytest
 
-from pvtflow.axes.config import BufferConfig
-from pvtflow.axes.cyclic_loop import PROGRESS_COUNT, PROGRESS_FEEDERS, CycleSpec, CyclicLoop, FeedSpec
-from pvtflow.axes.feeder import BufferFeeder, RecordAllowance, RecordRefusedError, top_up_by_need
-from pvtflow.axes.objects import SYNC_COB_ID, Record
-from pvtflow.axes.profiles.cia402_ip_linear import target_frame
-from pvtflow.axes.profiles.epos2_pvt import record_frame
-from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive.config import BufferConfig
+from pvtflow.axes.drive.objects import SYNC_COB_ID, Record
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.master.cyclic.loop import PROGRESS_COUNT, PROGRESS_FEEDERS, CycleSpec, CyclicLoop, FeedSpec
+from pvtflow.axes.master.group.feeder import BufferFeeder, RecordAllowance, RecordRefusedError, top_up_by_need
+from pvtflow.axes.master.profiles.cia402_ip_linear import target_frame
+from pvtflow.axes.master.profiles.epos2_pvt import record_frame
 
 PERIOD_MS = 10.0
 STAMP = 0x0FF
@@ -150,7 +150,7 @@ def test_records_refused_below_the_reserve_end_the_run_with_every_drive_quick_st
 
 
 def _fault(exc: Exception):
-    from pvtflow.axes.bus_faults import FaultKind
+    from pvtflow.axes.master.bus.faults import FaultKind
 
     return FaultKind.TX_FAILED, str(exc), getattr(exc, "node_id", None)
 
@@ -202,7 +202,7 @@ def test_a_halt_brakes_a_drive_without_a_ramp_from_its_last_setpoint() -> None:
 
 
 def test_a_sync_the_queue_refuses_sends_nothing_after_it_and_is_tried_again() -> None:
-    from pvtflow.axes.cyclic_loop import _SyncRefusedError
+    from pvtflow.axes.master.cyclic.loop import _SyncRefusedError
 
     bus = RefusingBus(f"cyc-{uuid.uuid4().hex[:8]}")
     try:
@@ -233,8 +233,8 @@ def test_a_sync_the_queue_refuses_sends_nothing_after_it_and_is_tried_again() ->
 def test_a_mirrored_feeder_sends_nothing_whatever_its_drive_says() -> None:
     """Once handed to the cyclic process, the master's feeders mirror the child's: an underflow warning,
     a top-up or a SYNC makes them send nothing (the child sends; two senders would duplicate records)."""
-    from pvtflow.axes.feeder import SetpointFeeder
-    from pvtflow.axes.objects import BufferStatus
+    from pvtflow.axes.drive.objects import BufferStatus
+    from pvtflow.axes.master.group.feeder import SetpointFeeder
 
     sent: list[bytes] = []
     feed = epos2_feed(11, 30, 0)

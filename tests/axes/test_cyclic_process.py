@@ -13,11 +13,11 @@ import pytest
 import yaml
 from axes_programs import axis_program, safe_distance
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.bus_faults import BusError
-from pvtflow.axes.config import BusConfig
-from pvtflow.axes.group import AxisGroup, Result
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.config import BusConfig
+from pvtflow.axes.drive.program import PvtProgram
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.bus.faults import BusError
+from pvtflow.axes.master.group.axis_group import AxisGroup, Result
 from pvtflow.axes.sim.process import start_simulated_drives
 from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
@@ -120,7 +120,7 @@ def test_the_cyclic_process_quick_stops_every_drive_when_the_master_is_gone(tmp_
         # every drive is quick stopped by the cyclic process (SDO, or NMT stop for one that does not
         # confirm within 10 ms), though this process's heartbeat goes on: QUICK STOP ACTIVE, or through
         # it to SWITCH ON DISABLED, long before the drives' watch of the master's heartbeat could have
-        # stopped them (withheld 0.4 s after the last SYNC, axes.heartbeat, then 0.3 s of their 0x1016)
+        # stopped them (withheld 0.4 s after the last SYNC, axes.master.bus.heartbeat, then 0.3 s of their 0x1016)
         time.sleep(0.2)
         words = {link.node_id: link.read_statusword() for link in group.links}
         assert time.monotonic() - gone < 0.6

@@ -1,15 +1,15 @@
-"""One description per drive profile (axes/drive_profile.py), asked by every layer."""
+"""One description per drive profile (axes/drive/drive_profile.py), asked by every layer."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from pvtflow.axes.drive_profile import DriveProfile, ProfileError
-from pvtflow.axes.interpolation import Interpolation
-from pvtflow.axes.objects import EPOS2_BUFFER_SIZE, MAXON_EPOS2_70_10, SIMULATED_VENDOR_ID
-from pvtflow.axes.program import AxisProgram
-from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive.drive_profile import DriveProfile, ProfileError
+from pvtflow.axes.drive.interpolation import Interpolation
+from pvtflow.axes.drive.objects import EPOS2_BUFFER_SIZE, MAXON_EPOS2_70_10, SIMULATED_VENDOR_ID
+from pvtflow.axes.drive.program import AxisProgram
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 
 E, L, S, P = (
     DriveProfile.EPOS2_PVT,

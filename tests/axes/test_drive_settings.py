@@ -8,8 +8,8 @@ from collections.abc import Callable
 import pytest
 from axes_rig import with_profiles
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.profiles.base import expected_settings
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.master.profiles.base import expected_settings
 from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 PROFILES = {

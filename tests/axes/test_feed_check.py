@@ -1,5 +1,5 @@
 """A program whose records the bus cannot feed as fast as the drives run them is refused before
-anything moves (axes/feed_check.py), naming the axis, its records' time and the bus's allowance."""
+anything moves (axes/master/group/feed_check.py), naming the axis, its records' time and the bus's allowance."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import dataclasses
 
 from axes_programs import axis_program, program
 
-from pvtflow.axes.config import BufferConfig
-from pvtflow.axes.feed_check import BufferedAxis, feed_shortfall
-from pvtflow.axes.outcome import Result
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.config import BufferConfig
+from pvtflow.axes.drive.program import PvtProgram
+from pvtflow.axes.master.group.feed_check import BufferedAxis, feed_shortfall
+from pvtflow.axes.master.group.outcome import Result
 
 
 def _axis(arm6, spacing_ms: int, duration_ms: int = 2000) -> BufferedAxis:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pvtflow.axes.config import BufferConfig
-from pvtflow.axes.feeder import PRELOAD_MS, TOP_UP_PER_SYNC, BufferFeeder, SetpointFeeder
-from pvtflow.axes.objects import BufferStatus, Record
+from pvtflow.axes.drive.config import BufferConfig
+from pvtflow.axes.drive.objects import BufferStatus, Record
+from pvtflow.axes.master.group.feeder import PRELOAD_MS, TOP_UP_PER_SYNC, BufferFeeder, SetpointFeeder
 
 
 def records(n: int, dt: int = 2, end: bool = False) -> np.ndarray:
@@ -143,7 +143,7 @@ def test_setpoint_feeder_validates_record_k_at_start_plus_k_plus_1_minus_lead(le
 
 @pytest.mark.parametrize("lead", [0, 1, 2])
 def test_setpoints_after_syncs_that_went_out_without_one_go_on_with_the_next_record_never_a_jump(lead):
-    """The interface sends SYNC and its follower was held through three SYNCs (axes.sync_follower):
+    """The interface sends SYNC and its follower was held through three SYNCs (axes.master.bus.sync_follower):
     the drive held through them; the next setpoint is the record after the last one sent, so the
     drive's step is the program's, and one goes out per SYNC until the program's end."""
     recs = records(12)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from pvtflow.axes.frame_time import frame_bits, frame_seconds, worst_frame_bits
+from pvtflow.axes.canbus.frame_time import frame_bits, frame_seconds, worst_frame_bits
 
 
 def _crc15(bits: list[int]) -> int:

@@ -13,10 +13,10 @@ import pytest
 from axes_programs import axis_program, check_limits, program, safe_distance
 from axes_rig import listening_bus
 
-from pvtflow.axes.cia402 import PowerState, decode_state
-from pvtflow.axes.feeder import BufferFeeder
-from pvtflow.axes.outcome import GroupError, Result
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.cia402 import PowerState, decode_state
+from pvtflow.axes.drive.program import PvtProgram
+from pvtflow.axes.master.group.feeder import BufferFeeder
+from pvtflow.axes.master.group.outcome import GroupError, Result
 from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 
@@ -242,7 +242,7 @@ def test_real_time_sync_runs_a_program(arm6, make_rig):
 
     cell = dataclasses.replace(arm6, bus=dataclasses.replace(arm6.bus, sync_period_ms=2.0, time_stamp=False))
     rig = make_rig(cell, lockstep=False)
-    from pvtflow.axes.group import AxisGroup
+    from pvtflow.axes.master.group.axis_group import AxisGroup
 
     rig.group.close()
     axes = rig.cell.ordered_axes()[:2]

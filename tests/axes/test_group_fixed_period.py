@@ -10,8 +10,8 @@ import pytest
 from axes_programs import check_limits, program
 from axes_rig import with_profiles
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.outcome import Result
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.master.group.outcome import Result
 
 
 def run_and_check(rig, duration_ms: int = 300):

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from axes_programs import check_limits, program
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.outcome import Result
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.master.group.outcome import Result
 from pvtflow.axes.sim.drive import MAXON_EPOS2_EDS as MAXON_EDS  # configs/eds/vendor: maxon's file, unchanged
 
 

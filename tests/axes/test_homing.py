@@ -12,15 +12,15 @@ from typing import Any
 
 import pytest
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.config import AxisSimulation, HomingConfig
-from pvtflow.axes.group import AxisGroup
-from pvtflow.axes.homing import CellHoming, HomingRequestError, HomingResult, homing_stages
-from pvtflow.axes.outcome import GroupError, Result
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.config import AxisSimulation, HomingConfig
+from pvtflow.axes.drive.program import PvtProgram
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.group.outcome import GroupError, Result
+from pvtflow.axes.master.homing import CellHoming, HomingRequestError, HomingResult, homing_stages
 from pvtflow.axes.sim.cell import SimulatedCell
-from pvtflow.axes.sim.homing import HomingState
+from pvtflow.axes.sim.cia402.homing import HomingState
 from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 M = od.HomingMethod

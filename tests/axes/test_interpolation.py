@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pvtflow.axes.interpolation import (
+from pvtflow.axes.drive.interpolation import (
     Interpolation,
     PiecewiseCubic,
     cubic_p,
@@ -14,7 +14,7 @@ from pvtflow.axes.interpolation import (
     hermite_coefficients,
     linear,
 )
-from pvtflow.axes.scaling import AxisScaling
+from pvtflow.axes.drive.scaling import AxisScaling
 
 
 def _segment(c: tuple[np.ndarray, ...], T: float) -> PiecewiseCubic:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import can
 import pytest
 
-from pvtflow.axes.link import DriveError
+from pvtflow.axes.master.link import DriveError
 from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 

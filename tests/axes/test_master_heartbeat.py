@@ -9,8 +9,8 @@ import time
 import can
 from axes_rig import BusObserver, unique_channel
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.bus import CellBus
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.master.bus.cell_bus import CellBus
 
 
 class Beats:

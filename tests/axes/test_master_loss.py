@@ -20,11 +20,11 @@ from axes_programs import check_limits, program
 from axes_rig import BusObserver, with_profiles
 from canopen.sdo.exceptions import SdoAbortedError
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.cia402 import PowerState
-from pvtflow.axes.group import AxisGroup
-from pvtflow.axes.outcome import Result
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.cia402 import PowerState
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.group.outcome import Result
 from pvtflow.axes.sim.drive import MAXON_EPOS2_EDS, SimulatedDrive
 
 PROGRAM_MS = 2000
@@ -32,7 +32,7 @@ KILL_AT_MS = 400  # mid-motion: every axis moves then (the quintic is at 20 % of
 MASTER_HEARTBEAT_MS = 50  # x the rig's heartbeat_timeout_factor (10, sharing_the_interpreter): drives wait 500 ms
 PROFILES = {
     "epos2_pvt": {"profile": "epos2_pvt"},
-    # six fixed-period axes fit a 1 Mbit/s bus from 4 ms on (axes.budget; the shipped three-axis cells: 2 ms)
+    # six fixed-period axes fit a 1 Mbit/s bus from 4 ms on (axes.master.budget; the shipped three-axis cells: 2 ms)
     "cia402_ip_linear": {"profile": "cia402_ip_linear", "period_ms": 4},
     "sync_setpoint": {"profile": "sync_setpoint", "period_ms": 4},
     # 4 ms: interpolated (cubic, position + velocity); below 2.5 ms the direct position loop takes each

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.objects import EPOS2_RPDOS, EPOS2_TIME_STAMP_RPDO, EPOS2_TPDOS, TIME_STAMP_COB_ID
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.objects import EPOS2_RPDOS, EPOS2_TIME_STAMP_RPDO, EPOS2_TPDOS, TIME_STAMP_COB_ID
 from pvtflow.service.config import CellConfig
 
 

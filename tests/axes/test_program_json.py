@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from pvtflow.axes.objects import Record
-from pvtflow.axes.program import FORMAT, ProgramFormatError, PvtProgram
+from pvtflow.axes.drive.objects import Record
+from pvtflow.axes.drive.program import FORMAT, ProgramFormatError, PvtProgram
 
 DESIGN_EXAMPLE = {
     "format": "pvtflow.pvt-program",

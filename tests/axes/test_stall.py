@@ -18,10 +18,10 @@ import pytest
 import yaml
 from axes_programs import axis_program, safe_distance
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.config import AxisConfig
-from pvtflow.axes.group import AxisGroup, Result
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.config import AxisConfig
+from pvtflow.axes.drive.program import PvtProgram
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.group.axis_group import AxisGroup, Result
 from pvtflow.service.config import CellConfig, load_cell_config
 from pvtflow.service.sim_cmd import WIRE_SERVED_AT
 
@@ -123,7 +123,7 @@ def test_a_50_ms_stall_of_the_master_halts_every_axis_and_says_sync_gap(served) 
         stall_this_process(STALL_S)
         result = group.wait(timeout_s=30)
         assert result.result is Result.BUS_ERROR, result.message
-        # the wire sends SYNC itself (its broadcast manager, axes.sync_follower): SYNCs went on
+        # the wire sends SYNC itself (its broadcast manager, axes.master.bus.sync_follower): SYNCs went on
         # through the stall without setpoints; a master that sends SYNC itself sent none
         what = "no setpoint for" if bus.sync.native else "no SYNC for"
         assert what in result.message

@@ -10,8 +10,8 @@ import numpy as np
 from axes_programs import check_limits, program
 from axes_rig import with_profiles
 
-from pvtflow.axes.objects import SYNC_COB_ID
-from pvtflow.axes.outcome import Result
+from pvtflow.axes.drive.objects import SYNC_COB_ID
+from pvtflow.axes.master.group.outcome import Result
 
 
 class StatusCounter:

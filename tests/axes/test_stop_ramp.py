@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from axes_programs import axis_program, safe_distance
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.cia402 import Statusword
-from pvtflow.axes.outcome import Result
-from pvtflow.axes.program import PvtProgram
-from pvtflow.axes.stop_ramp import braking_positions
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.cia402 import Statusword
+from pvtflow.axes.drive.program import PvtProgram
+from pvtflow.axes.drive.stop_ramp import braking_positions
+from pvtflow.axes.master.group.outcome import Result
 from pvtflow.service.config import load_cell_config
 
 CELLS = Path(__file__).resolve().parents[2] / "configs" / "cells"

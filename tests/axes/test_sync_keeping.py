@@ -22,17 +22,17 @@ import pytest
 from axes_programs import program
 from axes_rig import BusObserver, FlakyBus, unique_channel, with_profiles
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.bus_faults import BusFault, FaultKind
-from pvtflow.axes.config import BusConfig
-from pvtflow.axes.group import AxisGroup
-from pvtflow.axes.objects import SYNC_COB_ID
-from pvtflow.axes.outcome import Result
+from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.config import BusConfig
+from pvtflow.axes.drive.objects import SYNC_COB_ID
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.bus.faults import BusFault, FaultKind
+from pvtflow.axes.master.bus.sync import below_sync, lift, producer_cpus
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.group.outcome import Result
 from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
-from pvtflow.axes.sim.power_states import SWITCH_ON_DISABLED
-from pvtflow.axes.subscriptions import subscribe, unsubscribe
-from pvtflow.axes.sync import below_sync, lift, producer_cpus
+from pvtflow.axes.sim.cia402.power_states import SWITCH_ON_DISABLED
 
 # --- subscriptions --------------------------------------------------------------------------------
 
@@ -144,7 +144,7 @@ def test_a_sync_more_than_half_a_period_late_goes_out_at_once_and_the_period_run
 
 
 def test_a_second_sync_thread_on_another_cpu_sends_the_syncs_a_held_first_thread_does_not():
-    """The host stalls one CPU's wake-ups at a time (axes.sync): the first SYNC thread held for three
+    """The host stalls one CPU's wake-ups at a time (axes.master.bus.sync): the first SYNC thread held for three
     periods, the second, on the other CPU, sends each SYNC a quarter period past its deadline, and
     the first, back, sends none twice nor within half a period of the one before."""
     period_ms = 40.0
@@ -807,7 +807,7 @@ def test_quick_stop_requests_a_full_queue_refused_are_sent_when_it_drains_and_th
         FlakyBus.fail(bus.config.channel, 0.02)  # 20 ms: past the first request's 2 ms of retries
         refused = FlakyBus.refused.get(bus.config.channel, 0)
         stop = bus.quick_stop(nodes, "test")
-        assert not gc.isenabled()  # held from the requests to the confirmations (axes/collector.py)
+        assert not gc.isenabled()  # held from the requests to the confirmations (axes/master/bus/collector.py)
         assert sorted(stop.unsent) == [] and set(nodes) - set(stop.confirmed)  # refused so far, not given up
         assert stop.done.wait(2.0)
         assert sorted(stop.confirmed) == sorted(nodes), stop.describe()

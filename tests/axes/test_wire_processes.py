@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 from axes_programs import check_limits, program
 
-from pvtflow.axes.bus import CellBus
-from pvtflow.axes.group import AxisGroup, Result
+from pvtflow.axes.master.bus.cell_bus import CellBus
+from pvtflow.axes.master.group.axis_group import AxisGroup, Result
 from pvtflow.service.config import CellConfig, load_cell_config
 from pvtflow.service.sim_cmd import WIRE_SERVED_AT
 

@@ -7,7 +7,7 @@ import json
 import numpy as np
 from svc_helpers import SHORT_TARGET, check_reply, long_tour, wait_until
 
-from pvtflow.axes.cia402 import Statusword
+from pvtflow.axes.drive.cia402 import Statusword
 
 
 def test_plan_and_execute_six_axes_following_state_and_telemetry_to_the_end(arm6, serve):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from hand_programs import GOOD_RECORDS, axis, program
 
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram
 
 
 @pytest.fixture

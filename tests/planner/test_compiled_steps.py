@@ -17,7 +17,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pvtflow.axes.program import TIME_MAX_MS
+from pvtflow.axes.drive.program import TIME_MAX_MS
 from pvtflow.planner.constraints import _IntervalSpeedConstraint
 from pvtflow.planner.knots import KnotError, KnotOptions, epos2
 from pvtflow.planner.knots.check import axes_records, axis_records, check_knots, knot_records, over_limit

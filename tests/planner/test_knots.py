@@ -9,9 +9,15 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pvtflow.axes.interpolation import LINEAR_QUANTIZATION_QC, Interpolation, epos2_pvt, linear, linear_span_excess
-from pvtflow.axes.program import AxisProgram, PvtProgram
-from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive.interpolation import (
+    LINEAR_QUANTIZATION_QC,
+    Interpolation,
+    epos2_pvt,
+    linear,
+    linear_span_excess,
+)
+from pvtflow.axes.drive.program import AxisProgram, PvtProgram
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.planner.build import build_program
 from pvtflow.planner.knots import DriveAxis, KnotOptions, fixed_period_kernels, place_knots
 from pvtflow.planner.limits import joint_limits_from_drives

@@ -13,7 +13,7 @@ import itertools
 import numpy as np
 import pytest
 
-from pvtflow.axes.interpolation import PiecewiseCubic, epos2_pvt, hermite_coefficients
+from pvtflow.axes.drive.interpolation import PiecewiseCubic, epos2_pvt, hermite_coefficients
 from pvtflow.planner.build import build_program
 from pvtflow.planner.knots import KnotOptions, quantize_kernels, refine_kernels
 from pvtflow.planner.knots.check import check_knots

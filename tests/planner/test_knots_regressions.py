@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pvtflow.axes.program import TIME_MAX_MS
+from pvtflow.axes.drive.program import TIME_MAX_MS
 from pvtflow.planner.knots.flat import within_record_time
 from pvtflow.planner.plan import PlanInput
 from pvtflow.planner.validate import validate_program

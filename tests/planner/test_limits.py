@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.planner.limits import JointLimits, joint_limits_from_drives
 from pvtflow.service.config import CONFIG_DIR, load_cell_config
 

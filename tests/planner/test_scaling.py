@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from pvtflow.axes.interpolation import exceeds
+from pvtflow.axes.drive.interpolation import exceeds
 from pvtflow.planner.plan import PlanInput, Planner
 from pvtflow.planner.validate import validate_program
 from pvtflow.service.cell_planner import CellPlanner

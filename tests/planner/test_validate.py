@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from hand_programs import GOOD_RECORDS, LIMITS, SCALING, axis, program
 
-from pvtflow.axes.program import PvtProgram
-from pvtflow.axes.scaling import DriveLimits
+from pvtflow.axes.drive.program import PvtProgram
+from pvtflow.axes.drive.scaling import DriveLimits
 from pvtflow.planner.validate import validate_program
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pvtflow.axes.interpolation import epos2_pvt
+from pvtflow.axes.drive.interpolation import epos2_pvt
 from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk
 from pvtflow.planner.plan import PlanInput
 from pvtflow.planner.validate import validate_program

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from pvtflow.axes.bus_faults import BusError
+from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.service.cli import main
 from pvtflow.service.config import CONFIG_DIR, ConfigError, load_cell_config
 from pvtflow.service.motion import MotionService

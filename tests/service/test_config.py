@@ -274,7 +274,7 @@ def test_a_sync_period_the_service_cannot_hold_is_refused(tmp_path: Path, profil
     is refused, naming the profile and the shortest period (the EPOS2, buffered, is not concerned)."""
     data = arm_data()
     data["bus"]["sync_period_ms"] = 0.5
-    # every axis an EPOS2: not refused for the period, but for its bus (axes.budget)
+    # every axis an EPOS2: not refused for the period, but for its bus (axes.master.budget)
     expect_error(tmp_path, data, "bus", "no room for one record per EPOS2 axis per SYNC period")
     data["axes"][2]["profile"] = profile
     expect_error(tmp_path, data, "axes[2].profile", f"{profile} takes one setpoint per SYNC")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pvtflow.axes.program import PvtProgram, program_mismatch
+from pvtflow.axes.drive.program import PvtProgram, program_mismatch
 from pvtflow.planner.validate import validate_program
 from pvtflow.service.config import CONFIG_DIR, load_cell_config
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from axes_programs import program
 
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.service.cli import main
 
 

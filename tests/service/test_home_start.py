@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.service.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]

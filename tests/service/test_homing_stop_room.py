@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from pvtflow.axes.config import homing_stop_room
+from pvtflow.axes.drive.config import homing_stop_room
 from pvtflow.service.config import CONFIG_DIR, ConfigError, load_cell_config
 
 GANTRY = CONFIG_DIR / "cells" / "gantry3.yaml"

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.planner.cartesian import placement_pose
 from pvtflow.planner.ik import IkSolver
 from pvtflow.planner.jerk import JerkTrajectory

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.planner.plan import PlanInput
 from pvtflow.service.cell_planner import CELL_FILE_REASON, FEED_BANDS, CellPlanner
 from pvtflow.service.cli import main

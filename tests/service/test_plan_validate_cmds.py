@@ -10,7 +10,7 @@ import pytest
 import yaml
 from hand_programs import axis, program
 
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.service.cli import main
 from pvtflow.service.config import load_cell_config
 from pvtflow.service.waypoints import WaypointError, parse_waypoints

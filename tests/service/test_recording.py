@@ -19,7 +19,7 @@ import pytest
 from axes_programs import program
 from mcap.reader import make_reader
 
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.service.api import ExecuteRequest
 from pvtflow.service.cli import main
 from pvtflow.service.motion import MotionService

@@ -21,9 +21,9 @@ import yaml
 from canopen.profiles.p402 import BaseNode402
 from frame_log import FrameLog
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.sim.device import SUPPORTED_DRIVE_MODES, SYNC_SETPOINT_MODES
+from pvtflow.axes.drive import objects as od
 from pvtflow.axes.sim.drive import EDS_DIR
+from pvtflow.axes.sim.node.device import SUPPORTED_DRIVE_MODES, SYNC_SETPOINT_MODES
 from pvtflow.service import sim_cmd
 from pvtflow.service.cli import main
 

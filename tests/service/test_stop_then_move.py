@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from svc_helpers import CONFIGS, on_own_channel, wait_until
 
-from pvtflow.axes.sim.epos2 import Epos2Drive
+from pvtflow.axes.sim.profiles.epos2 import Epos2Drive
 from pvtflow.service.api import parse_execute, parse_home, parse_plan, parse_recover, parse_stop
 from pvtflow.service.config import CellConfig, load_cell_config
 from pvtflow.service.motion import MotionService

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from test_doc_program import documented
 
-from pvtflow.axes.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.service.validate_cmd import Progress
 
 ROOT = Path(__file__).resolve().parents[2]

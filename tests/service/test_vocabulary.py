@@ -8,7 +8,7 @@ from pathlib import Path
 
 from svc_helpers import CONFIGS
 
-from pvtflow.axes.program import AxisProgram, PvtProgram
+from pvtflow.axes.drive.program import AxisProgram, PvtProgram
 from pvtflow.service.cli import main
 from pvtflow.service.config import CellConfig
 

@@ -9,7 +9,7 @@ medium with these semantics:
   frames (default 10, SocketCAN's; the frame on the wire counts until its last bit). ``send()`` on
   a full FIFO raises ``can.CanOperationError`` with ``error_code`` ENOBUFS, as python-can's
   socketcan does; ``send(msg, timeout=T)`` with T > 0 first waits up to T for room.
-* **Bit timing.** A frame occupies the bus for ``axes.frame_time.frame_bits(...) / bitrate``
+* **Bit timing.** A frame occupies the bus for ``axes.canbus.frame_time.frame_bits(...) / bitrate``
   seconds (exact stuffing, interframe space included). Every other node receives it with
   ``msg.timestamp`` = the bus time its last bit left the wire. The sender sees its own frame only
   with ``receive_own_messages=True`` (then ``is_rx`` False), as on socketcan. Classic frames only.

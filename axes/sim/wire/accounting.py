@@ -15,7 +15,7 @@ import threading
 from collections import deque
 from dataclasses import asdict, dataclass, field
 
-from pvtflow.axes.objects import SYNC_COB_ID
+from pvtflow.axes.drive.objects import SYNC_COB_ID
 from pvtflow.axes.sim.wire.node import Node
 
 DEFAULT_RECORD_LIMIT = 500_000  # frames kept for the accounting (about three minutes at 3000 frames/s)

@@ -13,7 +13,7 @@ import threading
 import can
 from can import BusState
 
-from pvtflow.axes.can_errors import (
+from pvtflow.axes.canbus.can_errors import (
     CAN_ERR_BUSOFF,
     CAN_ERR_CRTL,
     CAN_ERR_CRTL_ACTIVE,

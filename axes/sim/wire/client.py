@@ -14,7 +14,7 @@ from typing import Any
 import can
 from can import BusState
 
-from pvtflow.axes.can_errors import ControllerState, decode
+from pvtflow.axes.canbus.can_errors import ControllerState, decode
 from pvtflow.axes.sim.wire import protocol as p
 from pvtflow.axes.sim.wire.accounting import LateSync, WireStats
 from pvtflow.axes.sim.wire.bus_states import BUS_OFF, ERROR_PASSIVE

@@ -20,8 +20,8 @@ from contextlib import AbstractContextManager
 
 import can
 
-from pvtflow.axes.frame_time import frame_bits
-from pvtflow.axes.objects import SYNC_COB_ID
+from pvtflow.axes.canbus.frame_time import frame_bits
+from pvtflow.axes.drive.objects import SYNC_COB_ID
 from pvtflow.axes.sim.wire.accounting import DEFAULT_RECORD_LIMIT, Accounting, FrameRecord
 from pvtflow.axes.sim.wire.bus_states import BUS_OFF, BusStateHooks
 from pvtflow.axes.sim.wire.node import (

@@ -11,8 +11,8 @@ import canopen
 import pytest
 from frame_log import FrameLog
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.objects import PdoLayout
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.objects import PdoLayout
 from pvtflow.axes.sim.drive import EDS_DIR, SimulatedDrive
 
 

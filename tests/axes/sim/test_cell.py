@@ -8,8 +8,8 @@ from pathlib import Path
 
 import canopen
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.config import wire_options
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.config import wire_options
 from pvtflow.axes.sim import Epos2Drive
 from pvtflow.axes.sim.cell import (
     SHARED_INTERPRETER_HEARTBEAT_FACTOR,

@@ -16,10 +16,10 @@ from canopen import objectdictionary
 from canopen.profiles.p402 import BaseNode402, OperationMode
 from canopen.sdo import SdoAbortedError
 
-from pvtflow.axes import objects as od
+from pvtflow.axes.drive import objects as od
 from pvtflow.axes.sim import Epos2Drive, IpLinearDrive, ParkerDrive, SimulatedDrive, SyncSetpointDrive
-from pvtflow.axes.sim.device import EPOS2_MODES, SUPPORTED_DRIVE_MODES
 from pvtflow.axes.sim.drive import MAXON_EPOS2_EDS
+from pvtflow.axes.sim.node.device import EPOS2_MODES, SUPPORTED_DRIVE_MODES
 
 from .conftest import Bench
 
@@ -97,7 +97,7 @@ def test_modes_of_operation_refuses_a_mode_the_drive_does_not_support(
 
 def test_epos2_accepts_its_other_modes_and_shows_the_mode_in_force(bench: Bench) -> None:
     """Profile position is the EPOS2's power-on mode on maxon's EDS; the simulation moves in mode 7
-    only, but accepts every mode of the real drive and reports it (axes/sim/device.py)."""
+    only, but accepts every mode of the real drive and reports it (axes/sim/node/device.py)."""
     drive = bench.add(Epos2Drive(7, eds_path=MAXON_EPOS2_EDS))
     node = bench.remote(drive)
     assert node.sdo[od.MODES_OF_OPERATION_DISPLAY].raw == OperationMode.PROFILED_POSITION

@@ -16,8 +16,8 @@ from collections.abc import Callable, Iterator
 import can
 import pytest
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.objects import (
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.objects import (
     EPOS2_RPDOS,
     EPOS2_TIME_STAMP_RPDO,
     EPOS2_TPDOS,
@@ -27,12 +27,12 @@ from pvtflow.axes.objects import (
     SETPOINT_TPDOS,
     Record,
 )
-from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.axes.sim import Epos2Drive, IpLinearDrive, ParkerDrive, SyncSetpointDrive
 from pvtflow.axes.sim.clock import Ticker
 from pvtflow.axes.sim.drive import SimulatedDrive
-from pvtflow.axes.sim.epos2 import MAX_SLEW
-from pvtflow.axes.sim.fixed_period import FixedPeriodDrive
+from pvtflow.axes.sim.profiles.epos2 import MAX_SLEW
+from pvtflow.axes.sim.profiles.fixed_period import FixedPeriodDrive
 
 from .conftest import Bench, configure_pdos, enable
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import canopen
 import pytest
 
-from pvtflow.axes import objects as od
+from pvtflow.axes.drive import objects as od
 from pvtflow.axes.sim.drive import EDS_DIR
 from pvtflow.axes.sim.edsgen import DRIVES, render
 

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.interpolation import epos2_pvt
-from pvtflow.axes.objects import EPOS2_RPDOS, EPOS2_TPDOS, BufferStatus, Record
-from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.interpolation import epos2_pvt
+from pvtflow.axes.drive.objects import EPOS2_RPDOS, EPOS2_TPDOS, BufferStatus, Record
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.axes.sim import Epos2Drive
 
 from .conftest import Bench, configure_pdos, enable

@@ -5,10 +5,10 @@ from __future__ import annotations
 import canopen
 import numpy as np
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.interpolation import epos2_pvt
-from pvtflow.axes.objects import EPOS2_RPDOS, EPOS2_TPDOS, BufferStatus, Record
-from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.interpolation import epos2_pvt
+from pvtflow.axes.drive.objects import EPOS2_RPDOS, EPOS2_TPDOS, BufferStatus, Record
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.axes.sim import Epos2Drive
 from pvtflow.axes.sim.drive import MAXON_EPOS2_EDS
 

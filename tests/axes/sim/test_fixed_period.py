@@ -1,4 +1,4 @@
-"""The fixed-period simulated drives: delays and interpolation against axes/interpolation.py."""
+"""The fixed-period simulated drives: delays and interpolation against axes/drive/interpolation.py."""
 
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.interpolation import PiecewiseCubic, cubic_p, cubic_pv, linear
-from pvtflow.axes.objects import PARKER_RPDOS, PARKER_TPDOS, SETPOINT_RPDOS, SETPOINT_TPDOS
-from pvtflow.axes.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.interpolation import PiecewiseCubic, cubic_p, cubic_pv, linear
+from pvtflow.axes.drive.objects import PARKER_RPDOS, PARKER_TPDOS, SETPOINT_RPDOS, SETPOINT_TPDOS
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.axes.sim import IpLinearDrive, ParkerDrive, SyncSetpointDrive
 from pvtflow.axes.sim.drive import SimulatedDrive
 

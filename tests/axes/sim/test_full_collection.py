@@ -7,7 +7,7 @@ import time
 
 import canopen
 
-from pvtflow.axes.objects import SYNC_COB_ID
+from pvtflow.axes.drive.objects import SYNC_COB_ID
 from pvtflow.axes.sim.full_collection import QUIET_S, FullCollectionBetweenMotions
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from pvtflow.axes import objects as od
-from pvtflow.axes.objects import EPOS2_RPDOS, EPOS2_TPDOS
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.objects import EPOS2_RPDOS, EPOS2_TPDOS
 from pvtflow.axes.sim import Epos2Drive
 
 from .conftest import Bench, configure_pdos, enable

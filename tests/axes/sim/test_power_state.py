@@ -5,7 +5,7 @@ from __future__ import annotations
 import canopen
 import pytest
 
-from pvtflow.axes import objects as od
+from pvtflow.axes.drive import objects as od
 from pvtflow.axes.sim import Epos2Drive
 
 from .conftest import Bench
@@ -101,7 +101,7 @@ def test_fault_emcy_and_reset_on_rising_edge_only(bench: Bench) -> None:
 
 
 def test_nmt_reset_node_boots_again_with_commissioned_limits(bench: Bench) -> None:
-    from pvtflow.axes.scaling import DriveLimits
+    from pvtflow.axes.drive.scaling import DriveLimits
 
     limits = DriveLimits(3000, 20000, -5000, 5000)
     drive = bench.add(Epos2Drive(11, limits=limits))

@@ -1,4 +1,4 @@
-"""Fixed-period drives on the wall clock lock their cycle to SYNC (axes/sim/sync_lock.py).
+"""Fixed-period drives on the wall clock lock their cycle to SYNC (axes/sim/profiles/sync_lock.py).
 
 The test is the drive's bus and its clock: it hands each SYNC to the drive with the instant it
 arrived and runs the drive's 1 ms sampling itself (what the cell's ``Ticker`` does), on a timeline
@@ -15,13 +15,13 @@ from collections.abc import Callable
 
 import pytest
 
-import pvtflow.axes.sim.sampling
-from pvtflow.axes import objects as od
-from pvtflow.axes.scaling import AxisScaling, DriveLimits
+import pvtflow.axes.sim.cia402.sampling
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.axes.sim import IpLinearDrive, ParkerDrive, SyncSetpointDrive
 from pvtflow.axes.sim.clock import MotionClock
-from pvtflow.axes.sim.fixed_period import FixedPeriodDrive
-from pvtflow.axes.sim.sync_lock import SYNC_WAIT_BITS, sync_window_us
+from pvtflow.axes.sim.profiles.fixed_period import FixedPeriodDrive
+from pvtflow.axes.sim.profiles.sync_lock import SYNC_WAIT_BITS, sync_window_us
 
 from .conftest import Bench, enable
 
@@ -87,7 +87,9 @@ def full_speed_setpoints(period_ms: float, n_ramp: int = 20, n_cruise: int = 120
 def run(bench: Bench, make, monkeypatch, offsets_us: dict[int, float], missing: frozenset[int] = frozenset()):
     """Stream the full-speed setpoints, SYNC k at its ideal instant + ``offsets_us[k]`` (``missing``:
     not sent); the drive's demand at every whole ms of its clock, its faults, its lock."""
-    monkeypatch.setattr(pvtflow.axes.sim.sampling, "arrival", lambda stamp: stamp)  # the stamps are the drive's clock
+    monkeypatch.setattr(
+        pvtflow.axes.sim.cia402.sampling, "arrival", lambda stamp: stamp
+    )  # the stamps are the drive's clock
     drive = make(bench, 0.0)
     start = time.monotonic() + 1.0  # the test's timeline; SYNC 0 0.3 ms off the drive's whole ms
     with drive.lock:
@@ -184,7 +186,7 @@ def test_a_missing_sync_is_punished_as_before(make, monkeypatch) -> None:
 
 def test_the_lock_follows_a_drifting_quartz(monkeypatch) -> None:
     """100 ppm: 0.2 us a period, out of a 135 us window within 700 periods if nothing followed."""
-    monkeypatch.setattr(pvtflow.axes.sim.sampling, "arrival", lambda stamp: stamp)
+    monkeypatch.setattr(pvtflow.axes.sim.cia402.sampling, "arrival", lambda stamp: stamp)
     bench = Bench()
     try:
         drive = ip_linear(bench, 100.0)

@@ -1,5 +1,5 @@
 """TPDO rates of the simulated drives: a synchronous TPDO of type n on every n-th SYNC, an event
-TPDO's inhibit time and event timer (axes/sim/tpdo_timing.py), as the master writes them over SDO."""
+TPDO's inhibit time and event timer (axes/sim/node/tpdo_timing.py), as the master writes them over SDO."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import time
 
 import canopen
 
-from pvtflow.axes.objects import EPOS2_RPDOS, EPOS2_TPDOS
+from pvtflow.axes.drive.objects import EPOS2_RPDOS, EPOS2_TPDOS
 from pvtflow.axes.sim import Epos2Drive
-from pvtflow.axes.sim.pdo import PdoState
+from pvtflow.axes.sim.node.pdo import PdoState
 
 from .conftest import Bench, configure_pdos
 

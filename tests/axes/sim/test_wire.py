@@ -18,7 +18,7 @@ import canopen
 import pytest
 from can import BusState
 
-from pvtflow.axes.frame_time import frame_bits
+from pvtflow.axes.canbus.frame_time import frame_bits
 from pvtflow.axes.sim.wire import BUS_OFF, ERROR_PASSIVE, Medium, SimWireBus, WireConfigError
 from pvtflow.axes.sim.wire.bus_states import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_PROT
 

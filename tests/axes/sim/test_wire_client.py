@@ -19,8 +19,8 @@ import can
 import pytest
 from can import BusState
 
-from pvtflow.axes.frame_time import frame_bits
-from pvtflow.axes.network import RecordingNetwork
+from pvtflow.axes.canbus.frame_time import frame_bits
+from pvtflow.axes.master.bus.network import RecordingNetwork
 from pvtflow.axes.sim.wire import ERROR_PASSIVE, Medium, SimWireBus
 
 from .wire_child import wire_in_a_child

@@ -1,0 +1,1 @@
+"""The CANopen master: the cell's bus and SYNC, the axis group that runs programs, drive profiles, homing."""

@@ -1,0 +1,511 @@
+"""The cyclic path's own process: SYNC, the 0x1013 time stamp, the setpoints, the records, the quick stop.
+
+On the wall clock the master's interpreter also plans, serves zenoh, records and answers SDO: any of
+it holding the GIL when a SYNC is due delays the SYNC and the setpoints that must follow it (measured
+in bench/RESULTS.md, "Full-speed tours": 1-2 % of SYNCs 210-350 us late at 2 ms, frames refused by a
+transmit queue the master's other traffic filled). This process does nothing else: it opens the cell's
+interface as a second node (socketcan: a second socket on the channel; simwire: a second client of
+the served wire), each with a transmit queue of its own, and runs what the master hands it
+(``axes.master.cyclic.process``): the feeders of one run, built from the same classes the master uses
+(``axes.master.group.feeder``), so the rules of what goes out after which SYNC have one home.
+
+Per SYNC, in this order: SYNC, the fixed-period setpoints (what must be on the wire before the next
+SYNC), the time stamp, then the EPOS2 records from the period's allowance, each offered once
+(``RecordRefusedError``: a full queue delays a record to a later top-up, never the SYNC after it); the run
+ends on a refused record only where that drive's FIFO, as estimated, is below its reserve (the
+underflow warning level 0x20C4:02), and then every drive is quick stopped from here.
+
+The SYNC deadlines follow ``axes.master.bus.sync``'s rule (absolute deadlines; a SYNC more than half a period late
+goes out at once and the deadlines after it keep the period from it; never two within half a period).
+A SYNC the transmit queue has no room for is tried again every 0.2 ms, a late SYNC by the same rule (a
+gap longer than the drives ride out is reported, and the master halts on it); a setpoint this process
+cannot send within ``tx_retry_s``, or a lost master (its pipe closes), quick stops every drive from
+here: the SDO requests at once, NMT stop to those that do not confirm within ``quick_stop_confirm_s``
+(``axes.master.bus.quick_stop`` for the master's side of the same rule), whatever the master process is doing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import struct
+import threading
+import time
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from typing import Any
+
+import can
+import numpy as np
+from numpy.typing import NDArray
+
+from pvtflow.axes.drive.config import BufferConfig
+from pvtflow.axes.drive.objects import SYNC_COB_ID, NmtCommand
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive.stop_ramp import braking_records
+from pvtflow.axes.master.bus.faults import FaultKind
+from pvtflow.axes.master.bus.network import TX_RETRY_PAUSE_S
+from pvtflow.axes.master.bus.quick_stop import (
+    SDO_DOWNLOAD_CONFIRMED,
+    SDO_REQUEST_BASE,
+    SDO_RESPONSE_BASE,
+    quick_stop_request,
+)
+from pvtflow.axes.master.bus.sync import ask_realtime, lift
+from pvtflow.axes.master.group.feeder import (
+    BufferFeeder,
+    Feeder,
+    FrameOf,
+    RecordAllowance,
+    RecordRefusedError,
+    SetpointFeeder,
+    top_up_by_need,
+)
+
+# the shared progress array: [SYNCs sent in this run, the run's number, feeders' next record ...]
+PROGRESS_COUNT, PROGRESS_RUN, PROGRESS_FEEDERS = 0, 1, 2
+MAX_FEEDS = 64
+# the SYNC thread wakes this long before a deadline and waits for it awake: on this project's VM a
+# SCHED_FIFO sleep woke p50 47 us, p99 120-160 us, max 600-780 us late (awake for the last 0.3 ms: p50 4 us;
+# bench/RESULTS.md), and a SYNC more than 135 us off its period is outside the drives' lock
+# (axes/sim/profiles/sync_lock.py). It costs 0.3 ms of a CPU per period.
+SPIN_BEFORE_S = 0.0003
+
+
+@dataclass
+class FeedSpec:
+    """One axis's feeder as the master hands it over (picklable): its records and where it stands."""
+
+    node_id: int
+    records: NDArray[np.int64]
+    packer: FrameOf  # the profile's frame of a record (``Profile.frame_packer``)
+    next: int
+    enabled: bool = True
+    lead: int | None = None  # a fixed-period axis: its lead in periods (None: a buffered EPOS2)
+    braking: tuple[DriveLimits, AxisScaling] | None = None  # no ramp of its own: the master's stop ramp
+    buffer: BufferConfig | None = None
+    capacity: int = 64
+
+
+@dataclass
+class CycleSpec:
+    """One run's cyclic path: the SYNC period, the start SYNC's number, the feeders."""
+
+    run: int
+    period_ms: float
+    start_count: int  # the number the start SYNC gets (the master's count of SYNCs)
+    stamp_cob_id: int | None
+    max_gap_s: float
+    records_per_sync: int
+    tx_queue_frames: int = 10  # this node's transmit queue (BusConfig.tx_queue_frames: socketcan's txqueuelen)
+    feeds: list[FeedSpec] = field(default_factory=list)
+
+
+ECHO_POLL_S = 0.00005  # how often the SYNC thread looks for its SYNC's echo
+
+
+@dataclass
+class CycleTiming:
+    """One run's timing as this process saw it (told to the master when the run's SYNC stops)."""
+
+    late_us: list[float] = field(default_factory=list)  # each SYNC's send after its deadline
+    echo_us: list[float] = field(default_factory=list)  # each SYNC's echo, heard here, after its send
+    unstamped: int = 0  # SYNCs whose echo did not come within half a period (no time stamp for them)
+    refused: int = 0  # tries of a SYNC the transmit queue had no room for (each tried again 0.2 ms later)
+
+
+class CyclicLoop:
+    """The child's state: its bus, the present run's feeders, the SYNC production."""
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        conn: Connection,
+        progress: Any,
+        priority: int,
+        tx_retry_s: float,
+        quick_stop_confirm_s: float,
+    ) -> None:
+        self.bus = bus
+        self.conn = conn
+        self.progress = progress
+        self.priority = priority
+        self.tx_retry_s = tx_retry_s
+        self.quick_stop_confirm_s = quick_stop_confirm_s
+        self.lock = threading.RLock()  # the run's feeders and the bus's sends: the SYNC thread and the commands
+        self._conn_lock = threading.Lock()
+        self._reading = threading.Lock()  # one reader of the bus at a time (``drain``)
+        self.spec: CycleSpec | None = None
+        self.feeders: list[Feeder] = []
+        self.braking: list[tuple[DriveLimits, AxisScaling] | None] = []
+        self.allowance = RecordAllowance(1)
+        self.count = 0
+        self.start_sent: float | None = None
+        self.sent_at: float | None = None
+        self._judged: float | None = None
+        self.running = False
+        self._production = 0
+        self._confirmed: set[int] = set()
+        # this node's SYNC echoes: the last one's (SYNC number, its time stamp on the wire, when heard here)
+        self._echo_of: tuple[int, float, float] | None = None
+        self._echoes = 0
+        self.timing = CycleTiming()
+        self.realtime: bool | None = None
+        self._sent_frames = 0  # frames this node sent (``queued``)
+        self._own_echoes = 0  # of them, those whose echo came back
+        self._reserved = 2  # the queue's room kept for a SYNC and what must follow it (``prepare``)
+
+    # --- to the master ---------------------------------------------------------------------------
+    def tell(self, *message: object) -> None:
+        try:
+            with self._conn_lock:
+                self.conn.send(message)
+        except (OSError, EOFError, BrokenPipeError):
+            pass  # the master is gone: the loop on the pipe sees it too
+
+    def fault(self, kind: FaultKind, message: str, node_id: int | None = None, code: int | None = None) -> None:
+        self.tell("fault", kind.value, node_id, message, code)
+
+    # --- frames ----------------------------------------------------------------------------------
+    def send_now(self, cob_id: int, data: bytes) -> None:
+        """A frame that must go before the next SYNC: a refused one is tried again for ``tx_retry_s``."""
+        msg = can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
+        deadline = time.monotonic() + self.tx_retry_s
+        while True:
+            try:
+                self.bus.send(msg, timeout=0.0)
+                self._sent_frames += 1
+                return
+            except can.CanOperationError:
+                if time.monotonic() >= deadline:
+                    raise
+                time.sleep(TX_RETRY_PAUSE_S)
+
+    @property
+    def queued(self) -> int:
+        """Frames of this node not yet on the wire as far as this process knows: sent less those whose
+        echo came back (socketcan's and simwire's echo is the frame as it left the wire); never less."""
+        return self._sent_frames - self._own_echoes
+
+    def offer(self, cob_id: int, data: bytes, keep: int | None = None) -> None:
+        """A record: one try, and only where it leaves the queue room for the next SYNC and what must
+        follow it (a FIFO queue: a SYNC cannot overtake the records before it). Refused either way, it
+        stays next for a later top-up (``top_up_by_need``)."""
+        spec = self.spec
+        assert spec is not None
+        if self.queued >= spec.tx_queue_frames - (self._reserved if keep is None else keep):
+            raise RecordRefusedError(f"{self.queued} frames queued: the room left is the next SYNC's")
+        try:
+            self.bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False), timeout=0.0)
+        except can.CanOperationError as exc:
+            raise RecordRefusedError(str(exc)) from None
+        self._sent_frames += 1
+
+    def drain(self) -> None:
+        """What the bus brought since the last look (this node receives every frame): the SDO answers
+        of a quick stop, and this process's own SYNC echoes. Read by the SYNC thread between SYNCs,
+        not by a reader thread of its own, which would take the GIL from the SYNC thread at any instant."""
+        with self._reading:
+            while True:
+                try:
+                    msg = self.bus.recv(0.0)
+                except (can.CanError, OSError, ValueError):
+                    return
+                if msg is None:
+                    return
+                can_id = msg.arbitration_id
+                if not msg.is_rx:
+                    self._own_echoes += 1
+                if can_id == SYNC_COB_ID and not msg.is_rx:  # our own SYNC, as it left the wire
+                    self._echoes += 1
+                    self._echo_of = (self._echoes, msg.timestamp, time.monotonic())
+                elif SDO_RESPONSE_BASE < can_id <= SDO_RESPONSE_BASE + 0x7F and msg.data[:1] == _CONFIRMED:
+                    self._confirmed.add(can_id - SDO_RESPONSE_BASE)
+
+    # --- a run -----------------------------------------------------------------------------------
+    def begin(self, spec: CycleSpec) -> None:
+        """The master handed a run over: its feeders where the master's stand, and SYNC from now on."""
+        production = self.prepare(spec)
+        threading.Thread(target=self._produce, args=(production,), name="pvtflow-cyclic-sync", daemon=True).start()
+
+    def prepare(self, spec: CycleSpec) -> int:
+        """Build the run's feeders where the master's stand; the production's number."""
+        with self.lock:
+            self.spec = spec
+            self.allowance = RecordAllowance(spec.records_per_sync)
+            self.feeders, self.braking = [], []
+            for f in spec.feeds:
+                feeder: Feeder
+                if f.lead is not None:
+                    feeder = SetpointFeeder(f.records, f.packer, self.send_now, spec.period_ms, f.lead)
+                else:
+                    assert f.buffer is not None
+                    feeder = BufferFeeder(
+                        f.records, f.packer, self.offer, spec.period_ms, f.buffer, f.capacity, self.allowance
+                    )
+                feeder.next = f.next
+                feeder.enabled = f.enabled
+                self.feeders.append(feeder)
+                self.braking.append(f.braking)
+            # a SYNC, one setpoint per fixed-period axis, the time stamp
+            self._reserved = 1 + sum(1 for f in spec.feeds if f.lead is not None) + int(spec.stamp_cob_id is not None)
+            self.count = spec.start_count - 1
+            self.start_sent = self.sent_at = self._judged = None
+            self.drain()  # the echoes of SYNCs before this run are not this run's
+            self._echoes, self._echo_of = 0, None
+            self._sent_frames = self._own_echoes  # between runs the queue has long emptied: none lost is counted on
+            self.timing = CycleTiming()
+            self.progress[PROGRESS_RUN] = spec.run
+            self._write_progress()
+            self.running = True
+            self._production += 1
+            return self._production
+
+    def halt(self, quick: bool) -> None:
+        """The master halts the run (its halt controlwords go out from it): an axis without a ramp of its
+        own brakes on the master's stop ramp from the last setpoint sent here (``axes.drive.stop_ramp``, as
+        ``Profile.stop_records``), every other feeder stops."""
+        with self.lock:
+            for feeder, braking in zip(self.feeders, self.braking, strict=True):
+                if braking is not None and isinstance(feeder, SetpointFeeder):
+                    last, previous = feeder.last_commanded()
+                    feeder.decelerate(braking_records(last, previous, feeder.period_ms, *braking, quick))
+                else:
+                    feeder.enabled = False
+
+    def stop(self) -> None:
+        with self.lock:
+            was, self.running = self.running, False
+            self._production += 1
+        if was:
+            t = self.timing
+            self.tell("timing", t.late_us, t.echo_us, t.unstamped, t.refused)
+
+    # --- SYNC ------------------------------------------------------------------------------------
+    def _produce(self, production: int) -> None:
+        self.realtime = ask_realtime(self.priority)
+        if self.realtime:  # the interface's reader (its transmit slots free on its reports): at least just below
+            lift(
+                [t for t in threading.enumerate() if t is not threading.current_thread() and not _fifo(t)],
+                self.priority - 1,
+            )
+        spec = self.spec
+        assert spec is not None
+        period = spec.period_ms / 1000.0
+        spin = min(SPIN_BEFORE_S, period / 4)
+        deadline = time.monotonic()
+        try:
+            while True:
+                sent = None
+                with self.lock:
+                    if not (self.running and self._production == production):
+                        return
+                    now = time.monotonic()
+                    if (
+                        self.sent_at is not None
+                        and self.sent_at != self._judged
+                        and now - self.sent_at > spec.max_gap_s
+                    ):
+                        self._judged = self.sent_at
+                        gap = now - self.sent_at
+                        self.fault(
+                            FaultKind.SYNC_GAP,
+                            f"no SYNC for {gap * 1000:.1f} ms (the drives ride out {spec.max_gap_s * 1000:.1f} ms)",
+                            None,
+                            round(gap * 1000),
+                        )
+                    late = now - deadline
+                    if self.sent_at is None or late > period / 2:  # axes.master.bus.sync's rule: now, the period kept from it
+                        deadline = now
+                    due = deadline if self.sent_at is None else max(deadline, self.sent_at + period / 2)
+                    if now >= due:
+                        try:
+                            self._transmit()
+                        except _SyncRefusedError:
+                            # the queue has no room for the SYNC now (the wire has not taken what is
+                            # queued): it goes at the next try, a late SYNC, by the same rule as one
+                            # whose thread woke late; a gap past what the drives ride out is reported
+                            # above, and the master halts on it
+                            self.timing.refused += 1
+                            due = now + TX_RETRY_PAUSE_S
+                        else:
+                            self.timing.late_us.append((now - deadline) * 1e6)
+                            sent = self.count
+                            deadline += period
+                            due = deadline
+                if sent is not None:
+                    self._follow_up(sent, min(due - spin, (self.sent_at or 0.0) + period / 2))
+                delay = due - time.monotonic() - spin
+                if delay > 0:
+                    time.sleep(delay)
+                while time.monotonic() < due:  # the last stretch awake: a timer's wake is that late
+                    pass
+        except _ReserveError as exc:
+            self._failed(FaultKind.TX_FAILED, str(exc), exc.node_id)
+        except (can.CanError, OSError) as exc:
+            self._failed(FaultKind.TX_FAILED, f"SYNC {self.count + 1} or what follows it not sent: {exc}")
+        except Exception as exc:  # never silent: the master halts on it
+            self._failed(FaultKind.SYNC_STOPPED, f"the cyclic process's SYNC thread ended: {exc!r}")
+
+    def _failed(self, kind: FaultKind, why: str, node_id: int | None = None) -> None:
+        """This process cannot go on: no more SYNC, every drive quick stopped from here, the master told."""
+        self.stop()
+        self.quick_stop_all(why)
+        self.fault(kind, why, node_id)
+
+    def _transmit(self) -> None:
+        """One SYNC and what follows it (lock held): the setpoints first, then the records."""
+        spec = self.spec
+        assert spec is not None
+        try:
+            self.bus.send(can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False), timeout=0.0)
+        except can.CanOperationError as exc:
+            raise _SyncRefusedError(str(exc)) from None
+        self._sent_frames += 1
+        now = time.monotonic()
+        self.sent_at = now
+        self.count += 1
+        elapsed = self.count - spec.start_count
+        if elapsed == 0:
+            self.start_sent = now  # t = 0 of the buffered drives' records
+        for feeder in self.feeders:
+            feeder.after_sync(elapsed)  # the fixed-period setpoints: before the next SYNC, whatever else
+        if self.start_sent is not None and any(isinstance(f, BufferFeeder) for f in self.feeders):
+            self.drain()  # the echoes so far: how much of the queue is free for records
+            elapsed_ms = (now - self.start_sent) * 1000.0
+            for feeder in self.feeders:
+                if isinstance(feeder, BufferFeeder):
+                    feeder.run_to(elapsed_ms)
+            self.allowance.at_sync(self.count)
+            refused = top_up_by_need(self.feeders, self.allowance)
+            if refused is not None and refused.level < refused.low:
+                node = spec.feeds[self.feeders.index(refused)].node_id
+                raise _ReserveError(
+                    node,
+                    f"records refused by the transmit queue while node {node}'s FIFO is at {refused.level} "
+                    f"records, below its reserve {refused.low} (0x20C4:02)",
+                )
+        self._write_progress()
+
+    def _follow_up(self, number: int, until: float) -> None:
+        """After SYNC ``number`` and its frames: its echo, then the time stamp (0x1013) that says when it
+        left the wire (the echo's time stamp: the end of its frame, where the EPOS2 latches its clock,
+        app note "Clock synchronization"), before the next SYNC. No echo by ``until``: no stamp for it
+        (the drive keeps its clock's rate; counted)."""
+        spec = self.spec
+        assert spec is not None
+        while True:
+            self.drain()
+            echo = self._echo_of
+            if echo is not None and echo[0] >= number - spec.start_count + 1:
+                break
+            if time.monotonic() >= until:
+                self.timing.unstamped += 1
+                return
+            time.sleep(ECHO_POLL_S)
+        _, left_wire, heard_at = echo
+        self.timing.echo_us.append((heard_at - (self.sent_at or heard_at)) * 1e6)
+        if spec.stamp_cob_id is not None:
+            with self.lock:
+                if self.running:  # offered once: a stamp missed leaves the drive's clock rate as it is
+                    try:
+                        stamp = struct.pack("<I", round(left_wire * 1e6) & 0xFFFFFFFF)
+                        self.offer(spec.stamp_cob_id, stamp, keep=self._reserved - 1)  # its own place kept
+                    except RecordRefusedError:
+                        self.timing.unstamped += 1
+
+    def _write_progress(self) -> None:
+        p = self.progress
+        p[PROGRESS_COUNT] = self.count
+        for i, feeder in enumerate(self.feeders[:MAX_FEEDS]):
+            p[PROGRESS_FEEDERS + i] = feeder.next
+
+    # --- the quick stop that needs no SYNC and no master ----------------------------------------
+    def quick_stop_all(self, reason: str, node_ids: list[int] | None = None) -> None:
+        """The SDO quick stop requests to every drive now, NMT stop to those that do not confirm within
+        ``quick_stop_confirm_s`` (``axes.master.bus.quick_stop``'s rule), from this process alone."""
+        nodes = node_ids if node_ids is not None else [f.node_id for f in (self.spec.feeds if self.spec else [])]
+        self.drain()  # what came before the requests
+        self._confirmed.clear()
+        request = quick_stop_request()
+        for node in nodes:
+            with contextlib.suppress(can.CanError, OSError):  # not sent: NMT stop below, or the heartbeat's loss
+                self.send_now(SDO_REQUEST_BASE + node, request)
+        deadline = time.monotonic() + self.quick_stop_confirm_s
+        while not all(n in self._confirmed for n in nodes) and time.monotonic() < deadline:
+            time.sleep(TX_RETRY_PAUSE_S)
+            self.drain()
+        missing = [n for n in nodes if n not in self._confirmed]
+        for node in missing:
+            with contextlib.suppress(can.CanError, OSError):
+                self.send_now(0, bytes([NmtCommand.STOP, node]))
+        self.tell("quick_stopped", reason, sorted(set(nodes) - set(missing)), missing)
+
+
+class _SyncRefusedError(Exception):
+    """The transmit queue has no room for a SYNC now."""
+
+
+class _ReserveError(Exception):
+    """A record refused while its drive's FIFO is below the reserve: the run cannot go on."""
+
+    def __init__(self, node_id: int, why: str) -> None:
+        super().__init__(why)
+        self.node_id = node_id
+
+
+_CONFIRMED = bytes([SDO_DOWNLOAD_CONFIRMED])
+
+
+def _fifo(thread: threading.Thread) -> bool:
+    """Already real time (simwire's reader asks for a priority above SYNC's: axes/sim/wire/priority.py)."""
+    try:
+        return thread.native_id is not None and os.sched_getscheduler(thread.native_id) == os.SCHED_FIFO
+    except (AttributeError, OSError):
+        return False
+
+
+def serve_cyclic(
+    conn: Connection,
+    bus_kwargs: dict[str, object],
+    progress: Any,
+    priority: int,
+    tx_retry_s: float,
+    quick_stop_confirm_s: float,
+) -> None:
+    """The child process's main: open the bus, say ready, obey the master's commands until it closes."""
+    import gc
+    import sys
+
+    sys.setswitchinterval(1e-4)  # a waiting thread gets the GIL within 0.1 ms, not CPython's 5 ms (CellBus.open)
+    try:
+        bus = can.Bus(**bus_kwargs)
+    except Exception as exc:  # told to the master, which refuses to open the bus
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        return
+    loop = CyclicLoop(bus, conn, progress, priority, tx_retry_s, quick_stop_confirm_s)
+    gc.freeze()  # what the start loaded is never collected: no long collection while SYNC runs
+    loop.tell("ready")
+    try:
+        while True:
+            try:
+                command, *args = conn.recv()
+            except (EOFError, OSError):  # the master is gone: nobody halts the drives but this process
+                if loop.running:
+                    loop.stop()
+                    loop.quick_stop_all("the master process is gone")
+                return
+            if command == "start":
+                loop.begin(args[0])
+            elif command == "halt":
+                loop.halt(bool(args[0]))
+            elif command == "stop":
+                loop.stop()
+            elif command == "quick_stop":
+                loop.stop()
+                threading.Thread(target=loop.quick_stop_all, args=(args[0], list(args[1])), daemon=True).start()
+            elif command == "close":
+                loop.stop()
+                return
+    finally:
+        bus.shutdown()

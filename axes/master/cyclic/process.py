@@ -1,0 +1,253 @@
+"""The master's side of the cyclic process (``axes.master.cyclic.loop``): start it, hand a run over, follow it.
+
+With ``bus.cyclic_process`` on the wall clock, ``CellBus`` starts a child process that opens the cell's
+interface as a node of its own and, during a run, sends SYNC, the time stamp, the fixed-period
+setpoints and the EPOS2 records, and quick stops every drive where it cannot go on. The master's
+process keeps everything else: configuration, the start (checks, enables, preload, start words), the
+decisions (halt, stop, end), the watch over answers, EMCY and heartbeats. The interface between the two
+is narrow:
+
+- ``hand_over(feeders, profiles, allowance)`` just before the start SYNC: each feeder's records, where
+  it stands, how its frames are packed (``Profile.frame_packer``) and, for an axis without a ramp of its
+  own, its stop ramp's limits; the child builds the same feeder classes from them (``axes.master.group.feeder``).
+- ``produce(clock, production)``: the child sends the start SYNC and those after it; the master counts
+  each SYNC it hears (``SyncClock.heard``), so the drives' answers are counted as before, and the
+  master's feeders mirror the child's (their ``next`` from the shared progress array: ``mirror``).
+- ``halt(quick)``, ``stop()``, ``quick_stop(nodes)``: one pipe message each, no wait.
+- faults the child sees (a SYNC or setpoint not sent, a gap, a record refused below the FIFO's
+  reserve) come back through the pipe and are reported on the bus as any other (``CellBus.report``).
+
+The master's own frames (SDO, controlwords, heartbeat) keep its transmit queue; a full queue there
+cannot hold SYNC up. Lockstep (the simulation's virtual clock) never uses it: there SYNC waits for the
+answers, and nothing depends on the wall clock.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import multiprocessing
+import threading
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
+from pvtflow.axes.drive.config import wire_options
+from pvtflow.axes.drive.objects import SYNC_COB_ID
+from pvtflow.axes.master.bus.faults import BusError, BusFault, FaultKind
+from pvtflow.axes.master.cyclic.loop import (
+    MAX_FEEDS,
+    PROGRESS_COUNT,
+    PROGRESS_FEEDERS,
+    CycleSpec,
+    CycleTiming,
+    FeedSpec,
+    serve_cyclic,
+)
+from pvtflow.axes.master.group.feeder import BufferFeeder, Feeder, RecordAllowance, SetpointFeeder
+
+if TYPE_CHECKING:
+    from pvtflow.axes.master.bus.cell_bus import CellBus
+    from pvtflow.axes.master.bus.sync import SyncClock
+    from pvtflow.axes.master.profiles.base import Profile
+
+log = logging.getLogger("pvtflow.bus")
+
+START_TIMEOUT_S = 30.0  # a fresh interpreter importing numpy and python-can on a loaded host
+
+
+def shared_interface(interface: str, channel: str) -> bool:
+    """Whether another process can open this bus as a node of its own: socketcan (a second socket on
+    the channel) and a simulated wire served to other processes (``NAME@127.0.0.1:PORT``). python-can's
+    virtual bus and an in-process simwire channel reach this process only; PCAN-Basic gives a channel
+    to one client."""
+    return interface == "socketcan" or (interface == "simwire" and "@" in channel)
+
+
+class CyclicProcess:
+    """The child that runs the cyclic path of one ``CellBus`` (module docstring)."""
+
+    def __init__(self, bus: CellBus) -> None:
+        self.bus = bus
+        config = bus.config
+        context = multiprocessing.get_context("spawn")  # never fork a process with threads running
+        self.progress = context.RawArray("q", 2 + MAX_FEEDS)
+        self._conn, child = context.Pipe()
+        kwargs: dict[str, object] = {"interface": config.interface, "channel": config.channel}
+        kwargs.update(wire_options(config, lockstep=False))
+        kwargs["receive_own_messages"] = True
+        self.process = context.Process(
+            target=serve_cyclic,
+            args=(
+                child,
+                kwargs,
+                self.progress,
+                config.sync_priority,
+                config.tx_retry_ms / 1000.0,
+                config.quick_stop_confirm_ms / 1000.0,
+            ),
+            name="pvtflow-cyclic",
+            daemon=True,
+        )
+        self._child_conn = child
+        self._send_lock = threading.Lock()
+        self._feeders: list[Feeder] = []
+        self._spec: CycleSpec | None = None
+        self._runs = 0
+        self.producing = False
+        self._on_echo = None
+        self._reader: threading.Thread | None = None
+        self.last_timing: CycleTiming | None = None  # the last run's, as the child measured it
+        # the child's last quick stop of its own: (why, nodes that confirmed, nodes sent NMT stop)
+        self.last_quick_stop: tuple[str, list[int], list[int]] | None = None
+
+    def open(self) -> CyclicProcess:
+        config = self.bus.config
+        if not shared_interface(config.interface, config.channel):
+            self._conn.close()
+            self._child_conn.close()
+            raise BusError(
+                f"bus.cyclic_process needs an interface another process can open as a node of its own "
+                f"(socketcan, or a simwire channel served by `pvtflow sim`), not {config.interface}:{config.channel}"
+            )
+        self.process.start()
+        self._child_conn.close()
+        if not self._conn.poll(START_TIMEOUT_S):
+            self.close()
+            raise BusError(f"the cyclic process did not start within {START_TIMEOUT_S:g} s")
+        try:
+            first = self._conn.recv()
+        except (EOFError, OSError):
+            first = ("error", f"it ended before it was ready (exit code {self.process.exitcode})")
+        if first[0] != "ready":
+            self.close()
+            raise BusError(f"the cyclic process cannot open the bus: {first[1]}")
+        self._reader = threading.Thread(target=self._read, name="pvtflow-cyclic-reports", daemon=True)
+        self._reader.start()
+        return self
+
+    def _tell(self, *message: object) -> None:
+        with self._send_lock, contextlib.suppress(OSError, ValueError):
+            self._conn.send(message)
+
+    def _read(self) -> None:
+        """The child's reports: faults become the bus's (the group halts or quick stops on them)."""
+        while True:
+            try:
+                message = self._conn.recv()
+            except (EOFError, OSError, TypeError):  # TypeError: the handle closed under the read (close)
+                if self.producing:
+                    self.bus.report(BusFault(FaultKind.SYNC_STOPPED, None, "the cyclic process ended"))
+                return
+            if message[0] == "fault":
+                _, kind, node_id, text, code = message
+                self.bus.report(BusFault(FaultKind(kind), node_id, text, code))
+            elif message[0] == "timing":
+                _, late_us, echo_us, unstamped, refused = message
+                self.last_timing = CycleTiming(late_us, echo_us, unstamped, refused)
+            elif message[0] == "quick_stopped":
+                _, reason, confirmed, nmt = message
+                self.last_quick_stop = (reason, confirmed, nmt)
+                log.warning("cyclic process quick stop (%s): confirmed by %s, NMT stop to %s", reason, confirmed, nmt)
+
+    # --- a run -----------------------------------------------------------------------------------
+    def hand_over(
+        self, feeders: Sequence[Feeder], profiles: Sequence[Profile], allowance: RecordAllowance, max_gap_s: float
+    ) -> None:
+        """The run's feeders as they stand before the start SYNC (after the preload and the start
+        setpoints): the child goes on from there."""
+        if len(feeders) > MAX_FEEDS:
+            raise BusError(f"the cyclic process follows at most {MAX_FEEDS} axes")
+        specs = []
+        for feeder, profile in zip(feeders, profiles, strict=True):
+            cob = profile.rpdos[0].cob_id(profile.link.node_id, receive=True)
+            spec = FeedSpec(
+                node_id=profile.link.node_id,
+                records=feeder.records,
+                packer=profile.frame_packer(cob),  # type: ignore[attr-defined]
+                next=feeder.next,
+                enabled=feeder.enabled,
+            )
+            if isinstance(feeder, SetpointFeeder):
+                spec.lead = feeder.lead
+                if not profile.ramps_by_itself:
+                    spec.braking = (profile.config.limits, profile.config.scaling)
+            elif isinstance(feeder, BufferFeeder):
+                spec.buffer, spec.capacity = feeder.buffer, feeder.capacity
+            specs.append(spec)
+        self._runs += 1
+        clock = self.bus.sync
+        self._feeders = list(feeders)
+        for feeder in self._feeders:  # from the start SYNC on, the child sends; these only mirror it
+            feeder.mirrored = True
+        self._spec = CycleSpec(
+            run=self._runs,
+            period_ms=clock.period_ms,
+            start_count=clock.count + 1,
+            stamp_cob_id=clock.time_stamp_cob_id,
+            max_gap_s=max_gap_s,
+            records_per_sync=allowance.per_sync,
+            tx_queue_frames=self.bus.config.tx_queue_frames,
+            feeds=specs,
+        )
+
+    @property
+    def handed_over(self) -> bool:
+        return self._spec is not None
+
+    def produce(self, clock: SyncClock, production: int) -> None:
+        """The child starts SYNC with the run handed over; each SYNC heard is counted here."""
+        spec, self._spec = self._spec, None
+        assert spec is not None
+        spec.start_count = clock.count + 1
+
+        def on_echo(can_id: int, data: bytearray, timestamp: float) -> None:
+            self.mirror()
+            clock.heard(production)
+
+        self._unsubscribe()
+        self._on_echo = on_echo
+        subscribe(clock.bus.network, SYNC_COB_ID, on_echo)
+        self.producing = True
+        self._tell("start", spec)
+
+    def mirror(self) -> None:
+        """The master's feeders where the child's stand (records sent)."""
+        progress = self.progress
+        for i, feeder in enumerate(self._feeders):
+            sent = progress[PROGRESS_FEEDERS + i]
+            if sent > feeder.next:
+                feeder.next = sent
+                feeder.stats.sent = sent
+
+    @property
+    def syncs_sent(self) -> int:
+        return int(self.progress[PROGRESS_COUNT])
+
+    def halt(self, quick: bool) -> None:
+        self._tell("halt", quick)
+
+    def quick_stop(self, reason: str, node_ids: Sequence[int]) -> None:
+        """The SDO quick stop requests from the child's queue too (never behind the master's frames)."""
+        self._tell("quick_stop", reason, list(node_ids))
+
+    def stop(self) -> None:
+        if self.producing:
+            self.producing = False
+            self._tell("stop")
+        self._unsubscribe()
+
+    def _unsubscribe(self) -> None:
+        if self._on_echo is not None:
+            unsubscribe(self.bus.network, SYNC_COB_ID, self._on_echo)
+            self._on_echo = None
+
+    def close(self) -> None:
+        self.stop()
+        self._tell("close")
+        self.process.join(2.0)
+        if self.process.is_alive():
+            self.process.terminate()
+            self.process.join(2.0)
+        with contextlib.suppress(OSError):
+            self._conn.close()

@@ -1,0 +1,90 @@
+"""Configuring the cell's drives for a run, and recovering them after one: a part of ``AxisGroup``.
+
+Configuration checks every drive against the cell (``axes.master.commission``), then writes its profile's
+SDO sequence in PRE-OPERATIONAL, and arms the consumers; a drive that booted since (a reset, a power
+loss) has its EDS defaults again and is configured again before the next start. Recovery resets the
+faults and enables every axis again. The methods work on ``AxisGroup``'s state (``axes.master.group.axis_group``).
+"""
+
+from __future__ import annotations
+
+from pvtflow.axes.drive.objects import BUFFER_ERRORS, NmtCommand
+from pvtflow.axes.drive.program import PvtProgram, program_mismatch
+from pvtflow.axes.master.commission import refuse_on_facts
+from pvtflow.axes.master.group.feed_check import BufferedAxis, feed_shortfall
+from pvtflow.axes.master.group.outcome import EventKind, GroupError, Result, RunResult
+from pvtflow.axes.master.link import DriveError
+
+
+class GroupConfiguration:
+    """AxisGroup's configuration, program check and recovery (mixed into ``AxisGroup``)."""
+
+    def configure(self) -> None:
+        """Every drive: what it is checked against the cell (axes/master/commission.py: a drive that is not
+        what the cell says is refused, DriveError, before anything is written), then PRE-OPERATIONAL,
+        its profile's SDO sequence, then OPERATIONAL and consumers."""
+        refuse_on_facts(self.links, self.profiles)
+        for link in self.links:  # addressed, not broadcast: other nodes on the bus are not ours
+            self.bus.nmt(link.node_id, NmtCommand.PRE_OPERATIONAL)
+        self._configured_boots = {link.node_id: self.bus.watch.boot_count(link.node_id) for link in self.links}
+        for link, profile in zip(self.links, self.profiles, strict=True):
+            profile.configure()
+            profile.write_homing()
+            link.subscribe_tpdos(profile.tpdos)
+        self.bus.sync.expect({p.sync_answer_cob_id: p.sync_answer_every for p in self.profiles})
+        for link in self.links:
+            self.bus.nmt(link.node_id, NmtCommand.START)
+        self.bus.watch.watch_heartbeat(link.node_id for link in self.links)
+        self.readiness.forget()
+        self.configured = True
+
+    def configure_if_needed(self) -> None:
+        """Configure unless configured since every drive last booted (a rebooted drive has its EDS
+        defaults again: no PDOs, no mode, no homing settings)."""
+        if not self.configured or self.rebooted():
+            self.configure()
+
+    def rebooted(self) -> bool:
+        """A drive has booted since the group configured it."""
+        return any(self.bus.watch.boot_count(lk.node_id) != self._configured_boots.get(lk.node_id) for lk in self.links)
+
+    def check_program(self, program: PvtProgram) -> str | None:
+        """Why this program cannot run on this cell (None: it can)."""
+        problems = program_mismatch(program, [link.config for link in self.links], "this cell")
+        if problems:
+            return "; ".join(problems[:3])
+        by_node = {a.node_id: a for a in program.axes}
+        buffered = [
+            BufferedAxis(link.joint, by_node[link.node_id].records, link.config.buffer)
+            for link, profile in zip(self.links, self.profiles, strict=True)
+            if not profile.fixed_period and link.node_id in by_node
+        ]
+        return feed_shortfall(buffered, self.allowance.per_sync, self.bus.config.sync_period_ms)
+
+    def recover(self) -> RunResult:
+        """Fault reset and re-enable every axis (by SDO), and put lost nodes back to OPERATIONAL."""
+        with self._lock:
+            if self._running:
+                raise GroupError("cannot recover while a program is running: stop it first")
+            self.readiness.wait()  # not two enables of one drive at once
+            self.bus.sync.stop()
+            try:
+                self.configure_if_needed()
+            except DriveError as exc:
+                return self._finish_early(Result.CONFIGURATION_ERROR, str(exc))
+            for link in self.links:
+                self.bus.nmt(link.node_id, NmtCommand.START)
+            self.bus.sync.expect({p.sync_answer_cob_id: p.sync_answer_every for p in self.profiles})
+            for link, profile in zip(self.links, self.profiles, strict=True):
+                try:
+                    profile.enable()
+                except DriveError as exc:
+                    return self._finish_early(Result.CONFIGURATION_ERROR, f"recover failed: {exc}", link)
+                link.last_emcy = None
+                link.buffer_status = link.buffer_status & ~int(BUFFER_ERRORS)
+            self.readiness.mark_all()  # enabled just now: ready
+            self.bus.watch.watch_heartbeat(link.node_id for link in self.links)
+            self._event(EventKind.RECOVERED, "all axes fault-free and enabled")
+            res = self._result(Result.FINISHED, "recovered: every axis is enabled")
+            res.axes = self._reports()
+            return res

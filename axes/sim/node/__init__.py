@@ -1,0 +1,1 @@
+"""A simulated drive's CANopen node: object dictionary, NMT, PDOs, heartbeat consumer."""

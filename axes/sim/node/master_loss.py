@@ -1,0 +1,168 @@
+"""What a simulated drive does when its master is lost: the heartbeat consumer (0x1016) and 0x6007.
+
+When a heartbeat 0x1016 watches stops (``axes/sim/node/consumer.py``), the drive sends
+EMCY 0x8130 (CiA 301 heartbeat error, error register generic + communication) and does what 0x6007
+says: 3 quick stop (the ramp 0x6085, then SWITCH ON DISABLED), 2 disable voltage, 1 fault, braking
+first as 0x605E says (2: on the quick stop ramp; FAULT REACTION ACTIVE until the demand is at rest,
+then FAULT), 0 nothing more. A drive whose firmware treats a heartbeat error as one of its errors
+(``HEARTBEAT_ERROR_FAULTS``: the EPOS2) takes the fault path whatever 0x6007 says (but 0).
+In lockstep its motion clock then runs on the wall clock as long as it brakes and no SYNC comes:
+without SYNC a lockstep drive's clock stands still (a real drive's runs on), and a lost master
+sends no SYNC; on the wall clock the drive's own clock brakes it.
+
+An NMT STOPPED while OPERATIONAL is an abort connection event too (CiA 402), with EMCY 0x8100 where
+0x6007 says fault.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import ClassVar
+
+from canopen.sdo import SdoAbortedError
+
+from pvtflow.axes.drive import objects as od
+from pvtflow.axes.sim.cia402.faults import EMCY_COMMUNICATION, REGISTER_COMMUNICATION, REGISTER_GENERIC
+from pvtflow.axes.sim.cia402.records import MasterLoss
+from pvtflow.axes.sim.cia402.segment import Segment
+from pvtflow.axes.sim.clock import MotionClock
+from pvtflow.axes.sim.node.consumer import HeartbeatConsumer
+from pvtflow.axes.sim.node.dictionary import ABORT_PARAMETER_INCOMPATIBLE
+
+
+class MasterLossReaction:
+    """The heartbeat consumer's configuration and the reaction to a lost master, as part of a
+    ``SimulatedDrive`` (which owns the state below and gives it the object dictionary access, the
+    power state machine, the faults and the motion clock)."""
+
+    HEARTBEAT_ERROR_FAULTS: ClassVar[bool]
+    consumer: HeartbeatConsumer
+    master_losses: list[MasterLoss]
+    motion_clock: MotionClock | None
+    _loss_braking: bool
+    _tick_at: float
+    _tick_sync: int
+    sync_count: int
+    time_us: int
+    sample_ms: float
+    velocity: float
+    _rpm_per_qc_ms: float
+    _stop_segment: Segment | None
+    _in_own_thread: Callable[[Callable[[], None]], None]
+
+    def _configure_consumer(self) -> None:
+        """0x1016 as it now is, to the consumer (after a write, and after every reset)."""
+        entries: dict[int, int] = {}
+        sub = 1
+        while self.has(od.CONSUMER_HEARTBEAT_TIME, sub):
+            value = self.read(od.CONSUMER_HEARTBEAT_TIME, sub)
+            node, ms = (value >> od.CONSUMER_NODE_SHIFT) & 0xFF, value & 0xFFFF
+            if node and ms:
+                entries[node] = ms
+            sub += 1
+        self.consumer.configure(entries)
+
+    def _check_consumer_entry(self, subindex: int, value: int) -> None:
+        """CiA 301: one entry per watched node (another entry for the same node: abort 0x06040043)."""
+        node = (value >> od.CONSUMER_NODE_SHIFT) & 0xFF
+        if subindex == 0 or not node or not value & 0xFFFF:
+            return
+        sub = 1
+        while self.has(od.CONSUMER_HEARTBEAT_TIME, sub):
+            other = self.read(od.CONSUMER_HEARTBEAT_TIME, sub)
+            if sub != subindex and (other >> od.CONSUMER_NODE_SHIFT) & 0xFF == node and other & 0xFFFF:
+                raise SdoAbortedError(ABORT_PARAMETER_INCOMPATIBLE)
+            sub += 1
+
+    def _on_heartbeat_lost(self, node_id: int, silent_s: float) -> None:
+        """The consumer's thread: a watched heartbeat stopped. EMCY 0x8130, then 0x6007's action."""
+
+        def act() -> None:
+            if not self.node.has_network():
+                return
+            now = time.monotonic()
+            option = self.read_or(od.ABORT_CONNECTION_OPTION_CODE, 0, od.AbortConnectionOption.NO_ACTION)
+            loss = MasterLoss(
+                node_id,
+                silent_s,
+                now,
+                self.consumer.last_heard.get(node_id),
+                option,
+                self.state.value,
+                self.velocity * self._rpm_per_qc_ms,
+            )
+            self.master_losses.append(loss)
+            register = REGISTER_GENERIC | REGISTER_COMMUNICATION
+            check = f"heartbeat of node {node_id} lost ({silent_s * 1000:.0f} ms silent)"
+            if option == od.AbortConnectionOption.FAULT_SIGNAL or (
+                self.HEARTBEAT_ERROR_FAULTS and option != od.AbortConnectionOption.NO_ACTION
+            ):
+                self.fault_braking(od.EMCY_HEARTBEAT_ERROR, check, register=register)
+            else:
+                self.send_emcy(od.EMCY_HEARTBEAT_ERROR, register)
+                if option == od.AbortConnectionOption.DISABLE_VOLTAGE:
+                    self._on_controlword(0x0000)  # CiA 402: the disable voltage command
+                elif option == od.AbortConnectionOption.QUICK_STOP:
+                    self._on_controlword(0x0002)  # the quick stop command
+            self._refresh()
+            self._tick_at, self._tick_sync = now, self.sync_count
+            if self._stop_segment is not None:
+                if self.motion_clock is not None:
+                    self._loss_braking = True  # the drive's own clock brakes it (run_to)
+                else:
+                    self.consumer.tick()  # brake on the wall clock: no SYNC may come any more
+            elif option != od.AbortConnectionOption.NO_ACTION or abs(self.velocity) <= 1e-12:
+                loss.standstill = now
+
+        self._in_own_thread(act)
+
+    def _brake_on_own_clock(self) -> None:
+        """A quick stop brakes whether or not SYNC comes (a master that lost SYNC quick stops by SDO):
+        the motion clock runs on the wall clock between SYNCs until the demand is at rest. A drive on
+        its own clock (``clock="wall"``) brakes on it already (``run_to``)."""
+        if self.motion_clock is not None:
+            return
+        self._tick_at, self._tick_sync = time.monotonic(), self.sync_count
+        self.consumer.tick()
+
+    def _on_nmt_stopped(self) -> None:
+        """CiA 402: entering NMT STOPPED from OPERATIONAL is an abort connection event (0x6007)."""
+        option = self.read_or(od.ABORT_CONNECTION_OPTION_CODE, 0, od.AbortConnectionOption.NO_ACTION)
+        if option == od.AbortConnectionOption.FAULT_SIGNAL:
+            self.fault_braking(EMCY_COMMUNICATION, "NMT stopped while operational")
+            if self._stop_segment is not None:
+                self._brake_on_own_clock()
+        elif option == od.AbortConnectionOption.DISABLE_VOLTAGE:
+            self._on_controlword(0x0000)  # CiA 402: the disable voltage command
+        elif option == od.AbortConnectionOption.QUICK_STOP:
+            self._on_controlword(0x0002)  # the quick stop command
+
+    def _wall_clock_tick(self) -> bool:
+        """The consumer's thread, every ms while the drive brakes after a lost master: the motion
+        clock runs by the wall clock's elapsed time unless a SYNC came since the last tick (then
+        SYNC runs it). False once the demand is at rest."""
+        result = False
+
+        def act() -> None:
+            nonlocal result
+            now = time.monotonic()
+            if self._stop_segment is not None:
+                if self.sync_count != self._tick_sync:
+                    self._tick_sync = self.sync_count
+                elif (elapsed_us := round((now - self._tick_at) * 1e6)) > 0:
+                    new_time = self.time_us + elapsed_us
+                    self._advance(new_time)
+                    self.time_us = new_time
+                    self.sample_ms = new_time / 1000.0
+                    self._refresh()
+            self._tick_at = now
+            if self._stop_segment is None:
+                for loss in self.master_losses:
+                    if loss.standstill is None:
+                        loss.standstill = now
+                return
+            result = True
+
+        self._in_own_thread(act)
+        return result
