@@ -19,6 +19,7 @@ import can
 import canopen
 from canopen.objectdictionary import ObjectDictionary
 
+from pvtflow.axes.canbus.threads import hand_the_gil_on_often
 from pvtflow.axes.drive.config import BusConfig, wire_options
 from pvtflow.axes.drive.objects import time_stamp_cob_id
 from pvtflow.axes.master.bus.faults import BusError, BusFault, FaultCallback

@@ -230,7 +230,8 @@ class SyncClock:
         self.backup = True  # a second SYNC thread on another CPU (module docstring; one CPU: never)
         self._deadline = 0.0  # the next SYNC's deadline, shared by the producing threads
         self._judged: float | None = None  # the SYNC whose gap was reported before the next went out
-        # the wall clock's cyclic path in a process of its own (``axes.master.cyclic.process``; None: this one's threads)
+        # the wall clock's cyclic path in a process of its own (``axes.master.cyclic.process``;
+        # None: this one's threads)
         self.cyclic: CyclicProcess | None = None
 
     # --- answers ---------------------------------------------------------------------------------

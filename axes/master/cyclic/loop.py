@@ -315,7 +315,7 @@ class CyclicLoop:
                             round(gap * 1000),
                         )
                     late = now - deadline
-                    if self.sent_at is None or late > period / 2:  # axes.master.bus.sync's rule: now, the period kept from it
+                    if self.sent_at is None or late > period / 2:  # axes.master.bus.sync's rule
                         deadline = now
                     due = deadline if self.sent_at is None else max(deadline, self.sent_at + period / 2)
                     if now >= due:
