@@ -50,11 +50,11 @@ from pvtflow.planner.constraints import (
     middles_warm_up,
     timing_constraints,
 )
-from pvtflow.planner.topp.lean import LeanTOPPRA
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.path import JointPath, PlanError, PlanResult, not_a_knot
 from pvtflow.planner.slowdown import SLOWDOWN_MARGIN, slowdown
 from pvtflow.planner.speed_band import flattened
+from pvtflow.planner.topp.lean import LeanTOPPRA
 from pvtflow.planner.trajectory import Trajectory
 
 # the default plan within 1.005x (mean) and 1.01x (max) of the 3000-gridpoint optimum: 140 gave a mean

@@ -58,8 +58,9 @@ def loaded_after(code: str) -> list[str]:
 
 def test_the_axes_layer_loads_without_the_planning_stack() -> None:
     modules = loaded_after(
-        "import pvtflow.axes, pvtflow.axes.master.group.axis_group, pvtflow.axes.master.bus.cell_bus, pvtflow.axes.master.group.feeder, pvtflow.axes.drive.program, "
-        "pvtflow.axes.master.profiles, pvtflow.axes.sim, pvtflow.axes.sim.cell"
+        "import pvtflow.axes, pvtflow.axes.master.group.axis_group, pvtflow.axes.master.bus.cell_bus, "
+        "pvtflow.axes.master.group.feeder, pvtflow.axes.drive.program, pvtflow.axes.master.profiles, "
+        "pvtflow.axes.sim, pvtflow.axes.sim.cell"
     )
     top = {layer(m) for m in modules}
     assert sorted(top & set(PLANNING_STACK)) == []

@@ -26,9 +26,9 @@ from pvtflow.planner.knots.quantize import quantize_checked, repair_rounds, roun
 from pvtflow.planner.knots.refine import fit_knots, lsq_fit, split_segments
 from pvtflow.planner.knots.round_kernels import split_verdict
 from pvtflow.planner.knots.samples import sample_trajectory
-from pvtflow.planner.topp.lean import LeanTOPPRA
 from pvtflow.planner.plan import PlanInput
 from pvtflow.planner.timing import make_gridpoints
+from pvtflow.planner.topp.lean import LeanTOPPRA
 from pvtflow.service.cell_planner import planner_for_cell
 from pvtflow.service.config import load_cell_config
 
