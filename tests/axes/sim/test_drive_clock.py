@@ -167,6 +167,7 @@ def test_fixed_period_well_timed_stream_follows_the_setpoints(bench: Bench, tick
     assert all(b >= a - 1e-9 for a, b in itertools.pairwise(demands))  # a monotone path stays so
 
 
+@pytest.mark.wall
 @pytest.mark.parametrize("make", FIXED, ids=lambda f: f.__name__)
 def test_fixed_period_late_sync_holds_the_last_setpoint(bench: Bench, ticker: Ticker, make) -> None:
     drive, frame, cob_id = make(bench, ticker, 52)
@@ -213,6 +214,7 @@ def test_fixed_period_burst_of_syncs_faults_as_a_too_fast_program(bench: Bench, 
     assert int.from_bytes(emcy[0].data[:2], "little") == od.EMCY_VELOCITY_LIMIT
 
 
+@pytest.mark.wall
 def test_fixed_period_lockstep_is_unmoved_by_wall_time(bench: Bench) -> None:
     """The default clock: the demand moves with SYNCs only, however long the test waits."""
     drive = bench.add(IpLinearDrive(54, scaling=SCALING, limits=LIMITS, sync_period_ms=PERIOD_MS))
@@ -338,6 +340,7 @@ def test_epos2_clock_correction_holds_a_drifting_quartz_to_the_sync_schedule(ben
     assert uncorrected_us > 500.0  # what the quartz alone would have drifted by the end
 
 
+@pytest.mark.wall
 def test_epos2_lockstep_has_no_clock_of_its_own(bench: Bench) -> None:
     drive = bench.add(Epos2Drive(64, scaling=EPOS2_SCALING, limits=EPOS2_LIMITS))
     node = bench.remote(drive)
