@@ -32,7 +32,7 @@ EXIT_OK, EXIT_NOT_PLANNED, EXIT_BAD_INPUT = 0, 1, 2
 # A plan still running after this long is compiling numba's kernels (a new machine, or a kernel source
 # edited): a plan with loaded kernels takes well under it (bench/RESULTS.md), so only a compile says so.
 SLOW_PLAN_NOTICE_S = 2.0
-COMPILE_S = 15  # what compiling them takes (README, "Two commands")
+COMPILE_S = 15  # what compiling them takes (docs/installing.md)
 
 
 def add_parser(subparsers: Any) -> None:
