@@ -23,8 +23,9 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
+import canopen
 from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
@@ -32,9 +33,6 @@ from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive.objects import EMCY_PDO_LENGTH
 from pvtflow.axes.sim.node.dictionary import ABORT_DEVICE_STATE
 from pvtflow.axes.sim.node.tpdo_timing import TpdoTiming
-
-if TYPE_CHECKING:
-    from pvtflow.axes.sim.drive import SimulatedDrive
 
 PDO_NOT_VALID = 1 << 31
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
@@ -76,9 +74,31 @@ class PdoState:
         return self.transmission_type <= 240
 
 
+class PdoHost(Protocol):
+    """What the PDO engine needs of its drive: its node and dictionary, its network and time, where an
+    RPDO's data goes and how an EMCY leaves (a ``SimulatedDrive``: the engine does not know the class)."""
+
+    node: canopen.LocalNode
+    network: canopen.Network
+    lock: threading.RLock
+    rejected_writes: list[tuple[int, int, int]]
+    time_us: int
+
+    @property
+    def operational(self) -> bool: ...
+
+    def read(self, index: int, subindex: int = 0) -> int: ...
+
+    def read_or(self, index: int, subindex: int, default: int) -> int: ...
+
+    def on_rpdo_frame(self, can_id: int, data: bytes) -> None: ...
+
+    def send_emcy(self, code: int, register: int | None = None, data: bytes = b"") -> None: ...
+
+
 @dataclass
 class PdoEngine:
-    drive: SimulatedDrive
+    drive: PdoHost
     rpdos: dict[int, PdoState] = field(default_factory=dict)
     tpdos: dict[int, PdoState] = field(default_factory=dict)
     _subscribed: dict[int, Callable[[int, bytearray, float], None]] = field(default_factory=dict)
