@@ -30,11 +30,10 @@ from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
-from pvtflow.axes.drive.objects import EMCY_PDO_LENGTH
+from pvtflow.axes.drive.objects import EMCY_PDO_LENGTH, PDO_INVALID
 from pvtflow.axes.sim.node.dictionary import ABORT_DEVICE_STATE
 from pvtflow.axes.sim.node.tpdo_timing import TpdoTiming
 
-PDO_NOT_VALID = 1 << 31
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
 
 ABORT_UNSUPPORTED_ACCESS = 0x06010000
@@ -116,7 +115,7 @@ class PdoEngine:
         base_comm = RPDO_COMM if receive else TPDO_COMM
         number = (index & 0x1FF) + 1
         stored = self.drive.read(base_comm + number - 1, 1)
-        valid = stored & PDO_NOT_VALID == 0
+        valid = stored & PDO_INVALID == 0
         if (index & 0x200) == 0:  # communication parameter
             moved = (value & COB_ID_BITS) != (stored & COB_ID_BITS)
             if subindex == 1 and moved and valid:
@@ -191,7 +190,7 @@ class PdoEngine:
                 value = self.drive.read(mapping + n, k)
                 if value >> 16 and value & 0xFF:
                     entries.append((value >> 16, (value >> 8) & 0xFF, value & 0xFF))
-            pdo = PdoState(n + 1, receive, cob & 0x7FF, not cob & PDO_NOT_VALID, ttype, tuple(entries))
+            pdo = PdoState(n + 1, receive, cob & 0x7FF, not cob & PDO_INVALID, ttype, tuple(entries))
             if not receive:
                 inhibit, timer = self.drive.read_or(comm + n, 3, 0), self.drive.read_or(comm + n, 5, 0)
                 pdo.timing = TpdoTiming.from_objects(inhibit, timer)
