@@ -9,7 +9,8 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import toppra.constraint as constraint
@@ -20,6 +21,7 @@ from pvtflow.planner.ik import IkSolver
 from pvtflow.planner.limits import JointLimits, check_max_jerk, check_scale
 from pvtflow.planner.model import RobotModel
 from pvtflow.planner.path import JointPath, PlanError, PlanResult
+from pvtflow.planner.sequence import SequenceSolver
 from pvtflow.planner.speed_band import DEFAULT_SPEED_BAND
 from pvtflow.planner.timing import DEFAULT_GRIDPOINTS, Trajectory, parameterize, parameterize_banded, timing_constraints
 
@@ -85,6 +87,9 @@ class PlanInput:
     budget_ms: float | None = None  # the jerk-limited timing's deadline from the call's start; None: none
     # this plan's speed band (planner.speed_band), None: the planner's; a plan without a jerk limit only
     speed_band: float | None = None
+    # a motion sequence (planner/sequence.py: ptp, lin and circ items with blend radii) from the one
+    # joint position in ``waypoints``; instead of poses
+    sequence: Sequence[Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -155,6 +160,7 @@ class Planner:
         self.poses: PoseSolver | None = None
         if model is not None and tcp_frame is not None:
             self.poses = PoseSolver(IkSolver(model, tcp_frame, limits.lower, limits.upper), limits)
+        self.sequences = SequenceSolver(self.poses) if self.poses is not None else None
 
     def _scaled(self, velocity_scale: float, acceleration_scale: float) -> tuple[JointLimits, list[object]]:
         """The joint limits and TOPP-RA constraints of one plan under the speed override."""
@@ -231,6 +237,8 @@ class Planner:
         deadline = None
         if inp.budget_ms is not None:
             deadline = time.perf_counter() + max(0.0, float(inp.budget_ms)) / 1000.0
+        if inp.sequence is not None:
+            return self._plan_sequence(inp.waypoints, inp.sequence, *scales, deadline, inp.speed_band)
         if inp.poses is not None:
             return self._plan_poses(inp.waypoints, inp.poses, inp.motion, *scales, deadline, inp.speed_band)
         return self._plan_waypoints(inp.waypoints, *scales, deadline, inp.speed_band)
@@ -285,4 +293,38 @@ class Planner:
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))
         details: dict[str, object] = {"ik_s": t_ik, "samples": len(tool.path.points), **timed}
+        return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - t0, details)
+
+    def _plan_sequence(
+        self,
+        start: ArrayLike,
+        items: Sequence[Any],
+        velocity_scale: float,
+        acceleration_scale: float,
+        max_jerk: ArrayLike | None,
+        deadline: float | None = None,
+        speed_band: float | None = None,
+    ) -> PlanOutput:
+        """A motion sequence from joint positions ``start`` (planner/sequence.py), timed once as a
+        whole. ``details["items"]``: per item its index, label and start and end time [s] on the
+        trajectory (an item ends at its goal, or halfway through its blend)."""
+        t0 = time.perf_counter()
+        if self.sequences is None:
+            return PlanOutput(PlanResult.INVALID_INPUT, "a sequence needs the robot model and its tcp_frame")
+        try:
+            limits, constraints = self._scaled(velocity_scale, acceleration_scale)
+            jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
+            solved = self.sequences.solve(start, items)
+            t_ik = time.perf_counter() - t0
+            trajectory, timed = self._timed(solved.tool.path, limits, constraints, jerk, deadline, speed_band)
+        except PlanError as exc:
+            return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))
+        times = np.asarray(trajectory.waypoint_times, dtype=float)
+        spans, begin = [], 0.0
+        for i, end in enumerate(solved.item_end):
+            label = items[i].get("label") if isinstance(items[i], dict) else None
+            spans.append({"index": i, "label": label, "start_s": begin, "end_s": float(times[end])})
+            begin = float(times[end])
+        spans[-1]["end_s"] = float(trajectory.duration)
+        details: dict[str, object] = {"ik_s": t_ik, "samples": len(solved.tool.path.points), "items": spans, **timed}
         return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - t0, details)
