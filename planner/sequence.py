@@ -168,12 +168,15 @@ class ToolArc:
             r0, r1 = float(np.linalg.norm(p0 - c)), float(np.linalg.norm(p1 - c))
             if abs(r0 - r1) > ARC_TOLERANCE:
                 raise _refuse(
-                    i, f"the start and the pose are {r0:.4f} m and {r1:.4f} m from the center: not one circle",
+                    i,
+                    f"the start and the pose are {r0:.4f} m and {r1:.4f} m from the center: not one circle",
                     field="center",
                 )
             n = np.cross(p0 - c, p1 - c)
             if float(np.linalg.norm(n)) < 1e-9 * max(r0 * r1, 1e-12):
-                raise _refuse(i, "with a center, the arc's ends must not be opposite (or equal): use via", field="center")
+                raise _refuse(
+                    i, "with a center, the arc's ends must not be opposite (or equal): use via", field="center"
+                )
             axis = n / float(np.linalg.norm(n))
         ra, rc = p0 - c, p1 - c
         sweep = math.atan2(float(np.cross(ra, rc) @ axis), float(ra @ rc))
@@ -304,7 +307,7 @@ class SequenceSolver:
         """Overlapping blend spheres are refused naming both items (never shrunk)."""
         lengths = []
         here = start.translation
-        for item, goal in zip(items, goals, strict=True):
+        for _item, goal in zip(items, goals, strict=True):
             lengths.append(float(np.linalg.norm(goal.translation - here)))
             here = goal.translation
         for i in range(len(items) - 1):
@@ -405,10 +408,7 @@ class SequenceSolver:
         if item.motion == "ptp":
             return self._ptp(i, item, goal, q_here, r_in, r_out, here)
         curve: ToolLine | ToolArc
-        if item.motion == "lin":
-            curve = ToolLine(here, goal)
-        else:
-            curve = ToolArc.through(i, here, goal, item.via, item.center)
+        curve = ToolLine(here, goal) if item.motion == "lin" else ToolArc.through(i, here, goal, item.via, item.center)
         p0, p1 = here.translation, goal.translation
         u_in = _crossing(lambda u: float(np.linalg.norm(curve.at(u).translation - p0)), r_in, False) if r_in else 0.0
         # the march goes on to the goal: its end is where the next item starts from (the same branch)
@@ -463,8 +463,11 @@ class SequenceSolver:
             found = self.poses._solve_anywhere(goal, q_here)
             if found is None:
                 xyz = ", ".join(f"{x:.4g}" for x in goal.translation)
-                raise _refuse(i, f"the pose is out of the arm's reach within its joint limits (at [{xyz}] m)",
-                              CartesianResult.UNREACHABLE)
+                raise _refuse(
+                    i,
+                    f"the pose is out of the arm's reach within its joint limits (at [{xyz}] m)",
+                    CartesianResult.UNREACHABLE,
+                )
             q_goal = found
         step = q_goal - q_here
 
