@@ -326,5 +326,10 @@ class Planner:
             spans.append({"index": i, "label": label, "start_s": begin, "end_s": float(times[end])})
             begin = float(times[end])
         spans[-1]["end_s"] = float(trajectory.duration)
-        details: dict[str, object] = {"ik_s": t_ik, "samples": len(solved.tool.path.points), "items": spans, **timed}
+        details: dict[str, object] = {
+            "ik_s": t_ik,
+            "samples": len(solved.tool.path.points),
+            "items": spans,
+            **timed,
+        }
         return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - t0, details)

@@ -50,6 +50,8 @@ ARC_TOLERANCE = 1e-4
 PTP_STEP = 0.1
 BLEND_STEP = 0.05
 MIN_BLEND_SAMPLES = 8
+# A ptp item's tool path is measured on its joint line sampled this finely (rad or m).
+PTP_CHECK_STEP = 0.002
 # Where a path crosses a sphere is found on this many samples, then by bisection.
 CROSSING_SAMPLES = 64
 CROSSING_ITERATIONS = 40
@@ -252,6 +254,9 @@ class SequencePath:
     tool: ToolPath
     item_end: list[int]
     goals: list[pin.SE3]
+    # per item: its tool path (a ToolLine or ToolArc) or, for ptp, its joint line (from, to)
+    paths: list[Any]
+    radii: list[float]
 
 
 def _crossing(f: Callable[[float], float], r: float, from_end: bool) -> float:
@@ -350,6 +355,7 @@ class SequenceSolver:
         fraction: list[float] = [0.0]
         segments: dict[int, Any] = {}
         seg_item: dict[int, int] = {}
+        paths: list[Any] = []
         q_goal = q0
         pending: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # (q, joint tangent) blend start
         r_prev = 0.0
@@ -374,6 +380,7 @@ class SequenceSolver:
             seg_of.extend([seg] * (len(piece_qs) - 1))
             fraction.extend(piece_us[1:])
             pending = (piece_qs[-1], tangents[1]) if r > 0.0 else None
+            paths.append((q_goal, q_goal_i) if item.motion == "ptp" else curve.curve)
             q_goal, r_prev, here = q_goal_i, r, goal
         # drop repeated samples (a piece of no length)
         keep = [0] + [k for k in range(1, len(qs)) if float(np.max(np.abs(qs[k] - qs[k - 1]))) > 1e-9]
@@ -391,7 +398,50 @@ class SequenceSolver:
             raise PlanError(exc.result, f"sequence item {i}: {exc.message}", item=i, **details) from None
         item_of = np.array([seg_item.get(int(s), 0) for s in tool.pose_of])
         item_end = [int(np.flatnonzero(item_of <= i)[-1]) for i in range(len(items))]
-        return SequencePath(ToolPath(tool.path, item_of, tool.fraction, MoveKind.LINEAR), item_end, goals)
+        radii = [item.blend_radius for item in items]
+        return SequencePath(ToolPath(tool.path, item_of, tool.fraction, MoveKind.LINEAR), item_end, goals, paths, radii)
+
+    def deviations(
+        self, sequence: SequencePath, qs: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+        """For joint positions ``qs`` (M, dof) along a sequence's motion: the tool's distance to the
+        nearest item path [m], its orientation's distance from that path's (lines and arcs; 0 on a
+        ptp item's joint line) [rad], and whether it is outside every blend sphere (where it must be
+        on the paths). A ptp item's tool path is its joint line's, sampled every PTP_CHECK_STEP."""
+        tol = self.poses.tolerance
+        polylines = []
+        for path in sequence.paths:
+            if isinstance(path, tuple):
+                qa, qb = path
+                n = max(2, math.ceil(float(np.max(np.abs(qb - qa))) / PTP_CHECK_STEP))
+                polylines.append(np.array([self._position(qa + u * (qb - qa)) for u in np.linspace(0, 1, n + 1)]))
+            else:
+                polylines.append(None)
+        centers = [g.translation for g, r in zip(sequence.goals, sequence.radii, strict=True) if r > 0.0]
+        radii = [r for r in sequence.radii if r > 0.0]
+        dp_out, dr_out, outside = [], [], []
+        for q in np.asarray(qs, dtype=float):
+            placement = self.ik.fk(q)
+            p = placement.translation
+            best = (math.inf, 0.0)
+            for path, poly in zip(sequence.paths, polylines, strict=True):
+                if poly is None:
+                    dp, dr, _ = path.deviation(placement, tol)
+                else:
+                    dp, dr = _polyline_distance(p, poly), 0.0
+                if dp < best[0]:
+                    best = (dp, dr)
+            dp_out.append(best[0])
+            dr_out.append(best[1])
+            outside.append(all(float(np.linalg.norm(p - c)) > r for c, r in zip(centers, radii, strict=True)))
+        return np.array(dp_out), np.array(dr_out), np.array(outside)
+
+
+def _polyline_distance(p: NDArray[np.float64], poly: NDArray[np.float64]) -> float:
+    a, b = poly[:-1], poly[1:]
+    ab = b - a
+    t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-30), 0.0, 1.0)
+    return float(np.min(np.linalg.norm(a + t[:, None] * ab - p, axis=1)))
 
     def _item(
         self,
