@@ -50,6 +50,8 @@ ARC_TOLERANCE = 1e-4
 PTP_STEP = 0.1
 BLEND_STEP = 0.05
 MIN_BLEND_SAMPLES = 8
+# The tool's distances from an exact stop (m) where samples are added on both sides of it.
+STOP_SAMPLES = (0.0002, 0.001, 0.004)
 # A ptp item's tool path is measured on its joint line sampled this finely (rad or m).
 PTP_CHECK_STEP = 0.002
 # Where a path crosses a sphere is found on this many samples, then by bisection.
@@ -239,6 +241,39 @@ class Piece:
         return dp, dr, min(max((u - self.u0) / self.span, 0.0), 1.0)
 
 
+class JointLine:
+    """A ptp item's stretch [u0, u1] of its joint line, as the tool goes along it: the same
+    interface as ToolLine, so that the joint path through its samples is checked against the tool's
+    path there (the spline through the samples bends off the joint line next to a blend, else)."""
+
+    def __init__(self, fk: Callable[[NDArray[np.float64]], pin.SE3], qa: NDArray, qb: NDArray, u0: float, u1: float):
+        self.fk, self.qa, self.step = fk, qa, qb - qa
+        self.u0, self.span = u0, u1 - u0
+        n = max(2, math.ceil(float(np.max(np.abs(self.step))) * max(self.span, 1e-9) / PTP_CHECK_STEP))
+        self.grid = np.linspace(0.0, 1.0, n + 1)
+        self.placements = [self.at(float(u)) for u in self.grid]
+        self.points = np.array([m.translation for m in self.placements])
+        self.a, self.b = self.placements[0], self.placements[-1]
+        self.length = float(np.sum(np.linalg.norm(np.diff(self.points, axis=0), axis=1)))
+        self.angle = 0.0
+
+    def joints(self, u: float) -> NDArray[np.float64]:
+        return self.qa + (self.u0 + u * self.span) * self.step
+
+    def at(self, u: float) -> pin.SE3:
+        return self.fk(self.joints(u))
+
+    def deviation(self, placement: pin.SE3, tolerance: LineTolerance) -> tuple[float, float, float]:
+        p = placement.translation
+        a, ab = self.points[:-1], np.diff(self.points, axis=0)
+        t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-30), 0.0, 1.0)
+        d = np.linalg.norm(a + t[:, None] * ab - p, axis=1)
+        k = int(np.argmin(d))
+        u = float(self.grid[k] + t[k] * (self.grid[k + 1] - self.grid[k]))
+        dr = float(np.linalg.norm(pin.log3(self.at(u).rotation.T @ placement.rotation)))
+        return float(d[k]), dr, u
+
+
 class Unchecked:
     """A joint-space stretch (a PTP line, a blend): the tool's distance to it is not a tool path's."""
 
@@ -254,7 +289,7 @@ class SequencePath:
     tool: ToolPath
     item_end: list[int]
     goals: list[pin.SE3]
-    # per item: its tool path (a ToolLine or ToolArc) or, for ptp, its joint line (from, to)
+    # per item: its tool path (a ToolLine, ToolArc or, for ptp, JointLine)
     paths: list[Any]
     radii: list[float]
 
@@ -368,6 +403,7 @@ class SequenceSolver:
                 if "item" in exc.details:
                     raise
                 raise PlanError(exc.result, f"sequence item {i}: {exc.message}", item=i, **exc.details) from None
+            piece_qs, piece_us = self._near_stops(i, curve, piece_qs, piece_us, i > 0 and r_prev == 0.0, r == 0.0)
             if pending is not None:  # the blend from the previous item's piece into this one's
                 self._blend(pending, (piece_qs[0], tangents[0]), i - 1, i, qs, seg_of, fraction, segments, seg_item)
                 qs.append(piece_qs[0])
@@ -380,7 +416,7 @@ class SequenceSolver:
             seg_of.extend([seg] * (len(piece_qs) - 1))
             fraction.extend(piece_us[1:])
             pending = (piece_qs[-1], tangents[1]) if r > 0.0 else None
-            paths.append((q_goal, q_goal_i) if item.motion == "ptp" else curve.curve)
+            paths.append(JointLine(self.ik.fk, q_goal, q_goal_i, 0.0, 1.0) if item.motion == "ptp" else curve.curve)
             q_goal, r_prev, here = q_goal_i, r, goal
         # drop repeated samples (a piece of no length)
         keep = [0] + [k for k in range(1, len(qs)) if float(np.max(np.abs(qs[k] - qs[k - 1]))) > 1e-9]
@@ -405,18 +441,10 @@ class SequenceSolver:
         self, sequence: SequencePath, qs: NDArray[np.float64]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
         """For joint positions ``qs`` (M, dof) along a sequence's motion: the tool's distance to the
-        nearest item path [m], its orientation's distance from that path's (lines and arcs; 0 on a
-        ptp item's joint line) [rad], and whether it is outside every blend sphere (where it must be
-        on the paths). A ptp item's tool path is its joint line's, sampled every PTP_CHECK_STEP."""
+        nearest item path [m], its orientation's distance from that path's [rad], and whether it is
+        outside every blend sphere (where it must be on the paths). A ptp item's tool path is its
+        joint line's, sampled every PTP_CHECK_STEP."""
         tol = self.poses.tolerance
-        polylines = []
-        for path in sequence.paths:
-            if isinstance(path, tuple):
-                qa, qb = path
-                n = max(2, math.ceil(float(np.max(np.abs(qb - qa))) / PTP_CHECK_STEP))
-                polylines.append(np.array([self._position(qa + u * (qb - qa)) for u in np.linspace(0, 1, n + 1)]))
-            else:
-                polylines.append(None)
         centers = [g.translation for g, r in zip(sequence.goals, sequence.radii, strict=True) if r > 0.0]
         radii = [r for r in sequence.radii if r > 0.0]
         dp_out, dr_out, outside = [], [], []
@@ -424,24 +452,14 @@ class SequenceSolver:
             placement = self.ik.fk(q)
             p = placement.translation
             best = (math.inf, 0.0)
-            for path, poly in zip(sequence.paths, polylines, strict=True):
-                if poly is None:
-                    dp, dr, _ = path.deviation(placement, tol)
-                else:
-                    dp, dr = _polyline_distance(p, poly), 0.0
+            for path in sequence.paths:
+                dp, dr, _ = path.deviation(placement, tol)
                 if dp < best[0]:
                     best = (dp, dr)
             dp_out.append(best[0])
             dr_out.append(best[1])
             outside.append(all(float(np.linalg.norm(p - c)) > r for c, r in zip(centers, radii, strict=True)))
         return np.array(dp_out), np.array(dr_out), np.array(outside)
-
-
-def _polyline_distance(p: NDArray[np.float64], poly: NDArray[np.float64]) -> float:
-    a, b = poly[:-1], poly[1:]
-    ab = b - a
-    t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-30), 0.0, 1.0)
-    return float(np.min(np.linalg.norm(a + t[:, None] * ab - p, axis=1)))
 
     def _item(
         self,
@@ -483,6 +501,36 @@ def _polyline_distance(p: NDArray[np.float64], poly: NDArray[np.float64]) -> flo
         t0 = self._rate(piece, 0.0, piece_qs[0])
         t1 = self._rate(piece, 1.0, piece_qs[-1])
         return piece_qs, piece_us, piece, q_goal, (t0, t1)
+
+    def _near_stops(
+        self, i: int, piece: Any, qs: list[NDArray[np.float64]], us: list[float], at_start: bool, at_end: bool
+    ) -> tuple[list[NDArray[np.float64]], list[float]]:
+        """Samples added close to an exact stop (a corner of the path): the joint path's spline
+        through a corner overshoots it by a share of the neighbouring samples' distance, so the
+        samples next to it are STOP_SAMPLES away (a reversal, LIN down then up, would otherwise
+        overshoot the goal by more than the tolerance)."""
+        if piece.length <= 0.0:
+            return qs, us
+        extra = []
+        for d in STOP_SAMPLES:
+            f = d / piece.length
+            if f >= 0.25:
+                continue
+            if at_start:
+                extra.append(f)
+            if at_end:
+                extra.append(1.0 - f)
+        if not extra:
+            return qs, us
+        pairs = list(zip(us, qs, strict=True))
+        for u in extra:
+            k = int(np.argmin([abs(u - x) for x in us]))
+            if abs(us[k] - u) < 0.25 * min(STOP_SAMPLES) / piece.length:
+                continue
+            q = piece.joints(u) if isinstance(piece, JointLine) else self._solve(i, piece.at(u), qs[k])
+            pairs.append((u, q))
+        pairs.sort(key=lambda x: x[0])
+        return [q for _, q in pairs], [u for u, _ in pairs]
 
     def _rate(self, piece: Piece, u: float, q: NDArray[np.float64]) -> NDArray[np.float64]:
         from pvtflow.planner.ik import joint_rates
@@ -531,7 +579,7 @@ def _polyline_distance(p: NDArray[np.float64], poly: NDArray[np.float64]) -> flo
         n = max(1, math.ceil(float(np.max(np.abs(step))) * span / PTP_STEP))
         us = list(np.linspace(0.0, 1.0, n + 1))
         qs = [q_at(u_in + u * span) for u in us]
-        return qs, us, Unchecked(), q_goal, (step * span, step * span)
+        return qs, us, JointLine(self.ik.fk, q_here, q_goal, u_in, u_in + span), q_goal, (step * span, step * span)
 
     def _blend(
         self,
