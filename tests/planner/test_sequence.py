@@ -4,6 +4,7 @@ drives' own reconstruction (every ms of the program, the tool by forward kinemat
 from __future__ import annotations
 
 import copy
+import itertools
 
 import numpy as np
 import pytest
@@ -53,7 +54,7 @@ def test_the_shipped_pick_and_place_blends_and_keeps_the_tool_on_the_paths_outsi
     assert validate_program(program, sample_period_ms=None).ok  # every drive limit, blends included
     items = program.metadata["items"]
     assert [i["label"] for i in items] == [i.get("label") for i in EXAMPLE["sequence"]]
-    assert all(a["end_s"] == pytest.approx(b["start_s"]) for a, b in zip(items, items[1:], strict=False))
+    assert all(a["end_s"] == pytest.approx(b["start_s"]) for a, b in itertools.pairwise(items))
     assert all(i["end_s"] > i["start_s"] for i in items)
     solver = planner.planner.sequences
     solved = solver.solve(start, EXAMPLE["sequence"])
