@@ -188,15 +188,17 @@ class Planner:
         max_jerk: NDArray[np.float64] | None,
         deadline: float | None = None,
         speed_band: float | None = None,
+        gridpoints: int | None = None,
     ) -> tuple[Trajectory | JerkTrajectory, dict[str, object]]:
         """TOPP-RA along ``path``, flattened within the speed band (``speed_band``, None: the
         planner's); with a jerk limit, the jerk-limited timing warm-started from TOPP-RA's own profile."""
         t0 = time.perf_counter()
+        grid = self.gridpoints if gridpoints is None else gridpoints
         if max_jerk is None:
             band = self.speed_band if speed_band is None else _speed_band(speed_band)
-            traj, ratio = parameterize_banded(path, limits, constraints, self.gridpoints, band)
+            traj, ratio = parameterize_banded(path, limits, constraints, grid, band)
             return traj, ({"speed_band": band, "speed_band_cost": ratio - 1.0} if band > 0.0 else {})
-        trajectory = parameterize(path, limits, constraints, self.gridpoints)
+        trajectory = parameterize(path, limits, constraints, grid)
         from pvtflow.planner.jerk import jerk_limited  # casadi: loaded by the first plan that needs it
 
         t1 = time.perf_counter()
@@ -316,7 +318,15 @@ class Planner:
             jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
             solved = self.sequences.solve(start, items)
             t_ik = time.perf_counter() - t0
-            trajectory, timed = self._timed(solved.tool.path, limits, constraints, jerk, deadline, speed_band)
+            # every item gets the grid a plan of its own gets (one grid for the whole sequence
+            # coarsens every item's timing: bench/sequence.py)
+            grid = self.gridpoints * len(solved.item_end)
+            # the grid refines on both sides of an exact stop as of a kink (there the path turns
+            # within the samples next to the goal: a coarse grid there slows the whole motion down)
+            path = solved.tool.path
+            stops = [path.waypoint_s[k] for k, r in zip(solved.item_end, solved.radii, strict=True) if r == 0.0]
+            path.kinks = np.union1d(path.kinks, np.array(stops[:-1], dtype=float))
+            trajectory, timed = self._timed(solved.tool.path, limits, constraints, jerk, deadline, speed_band, grid)
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))
         times = np.asarray(trajectory.waypoint_times, dtype=float)
