@@ -155,3 +155,30 @@ def test_a_jerk_limited_sequence_holds_its_limits(planner) -> None:
     assert result.ok, result.message
     assert result.program.metadata.get("max_jerk") is not None
     assert validate_program(result.program, sample_period_ms=None).ok
+
+
+def test_a_circ_about_a_center_and_a_blend_between_a_line_and_an_arc(planner) -> None:
+    q0 = np.array([0.5, -0.4, 0.9, 0.3, 0.8, 0.0])
+    ik = planner.planner.poses.ik
+    here = placement_pose(ik.fk(q0))
+    corner = here.copy()
+    corner[:3] += (0.0, -0.1, 0.0)
+    end = corner.copy()
+    end[:3] += (0.0, -0.06, 0.06)  # a quarter circle about corner + (0, 0, 0.06)
+    center = (corner[:3] + np.array([0.0, 0.0, 0.06])).tolist()
+    items = [
+        {"motion": "lin", "pose": corner.tolist(), "blend_radius": 0.02},
+        {"motion": "circ", "pose": end.tolist(), "center": center},
+    ]
+    result = planner.plan(PlanInput(q0, sequence=items))
+    assert result.ok, result.message
+    assert validate_program(result.program, sample_period_ms=None).ok
+    solver = planner.planner.sequences
+    solved = solver.solve(q0, items)
+    assert solved.paths[1].radius == pytest.approx(0.06, abs=1e-9)
+    dp, _, outside = solver.deviations(solved, reconstructed_joints(result.program))
+    assert (~outside).sum() > 5 and float(dp[outside].max()) <= PATH_TOLERANCE
+    off = copy.deepcopy(items)
+    off[1]["center"] = np.add(center, (0.0, 0.0, 0.01)).tolist()  # not equidistant from both ends
+    out = planner.planner.plan(PlanInput(q0, sequence=off))
+    assert out.result is PlanResult.INVALID_INPUT and out.details["item"] == 1 and out.details["field"] == "center"
