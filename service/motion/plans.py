@@ -78,7 +78,7 @@ class PlanBook:
             "max_jerk": req.max_jerk,
         }
         budget_ms = self.cell.planning.budget_ms if req.budget_ms is None else req.budget_ms
-        if req.poses is not None:
+        if req.poses is not None or req.sequence is not None:
             if req.start is PlanStart.HOME:
                 q0 = self._home_position()
             elif req.start_joints is not None:
@@ -87,7 +87,7 @@ class PlanBook:
                 q0 = self._here()
             with self._planner_lock:
                 result = self.planner.plan(
-                    PlanInput(q0, req.poses, req.motion, **scales), req.tolerance_qc, {"plan_id": plan_id}, budget_ms
+                    req.plan_input(q0, **scales), req.tolerance_qc, {"plan_id": plan_id}, budget_ms
                 )
             waypoints = result.waypoints if result.waypoints is not None else q0[None, :]
         else:

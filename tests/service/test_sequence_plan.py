@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from pvtflow.service.api import ApiError
 from pvtflow.service.api.requests import parse_plan
@@ -66,3 +67,18 @@ def test_pvtflow_plan_sequence_refuses_overlapping_blends_naming_both_items(tmp_
     err = capsys.readouterr().err
     assert "items 0 and 1" in err and "Traceback" not in err
     assert not (tmp_path / "x.json").exists()
+
+
+@pytest.mark.wall
+def test_a_sequence_request_plans_and_runs_on_the_served_arm(arm6, serve) -> None:  # type: ignore[no-untyped-def]
+    """Over zenoh: the shipped pick and place, planned from where the axes stand, runs to its end on the
+    simulated drives (their own checks of every record included) as one motion."""
+    items = yaml.safe_load(EXAMPLE.read_text())["sequence"]
+    s = serve(arm6)
+    plan = s.request("plan", {"sequence": items, "start": "current"})
+    assert plan.ok, plan.data
+    done = s.request("execute", {"plan_id": plan.data["plan_id"], "wait": True}, timeout=120)
+    assert done.ok, done.data
+    assert done.data["outcome"]["result"] == "finished", done.data
+    for drive in s.sim:
+        assert drive.faults == []
