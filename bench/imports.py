@@ -66,10 +66,8 @@ def main() -> None:
         program.write_text(json.dumps(PROGRAM))
         cases = {
             "import axes.master.group.axis_group": "import pvtflow.axes.master.group.axis_group",
-            "import axes (group, bus, sim cell)": (
-                "import pvtflow.axes.master.group.axis_group, pvtflow.axes.master.bus.cell_bus, "
-                "pvtflow.axes.sim.cell"
-            ),
+            "import axes (group, bus, sim cell)": "import pvtflow.axes.master.group.axis_group, "
+            "pvtflow.axes.master.bus.cell_bus, pvtflow.axes.sim.cell",
             "pvtflow validate PROGRAM": f"from pvtflow.service.cli import main; main(['validate', {str(program)!r}])",
         }
         print(f"python3 bench/imports.py --runs {args.runs}")

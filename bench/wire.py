@@ -3,7 +3,7 @@
 Each cell (configs/cells/*.yaml) runs a planned tour on its simulated drives, SYNC in lockstep, twice:
 the first start (drives enabled by SDO, the records sent before the start SYNC with no SYNC running)
 and the start of a ready cell (one check SYNC, the records out in its period, the start SYNC one
-period later: README, "The start of a ready cell"). Cells that require homing home first, unmeasured.
+period later: docs/development.md, "The start of a ready cell"). Cells that require homing home first, unmeasured.
 Every frame of the runs is costed with ``axes.canbus.frame_time.frame_bits`` (exact stuffing) and assigned
 to a SYNC period by the SYNC frames in order: everything between SYNC n and SYNC n + 1 is period n,
 which in lockstep is exact whatever the wall clock did. Frames the master sends are taken as it sends

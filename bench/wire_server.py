@@ -10,7 +10,7 @@ real bus) and the lockstep case has no bit time in wall time at all.
 
     python bench/wire_server.py [--frames N] [--local L] [--remote R] [--bitrate B]
 
-What the busiest shipped cell needs on the wall clock: about 3000 frames/s (README, "Sizing a
+What the busiest shipped cell needs on the wall clock: about 3000 frames/s (docs/cells.md, "Sizing a
 cell": six EPOS2 at 5 ms, or three fixed-period axes at 2 ms).
 """
 

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import toppra.constraint as constraint
@@ -20,6 +21,7 @@ from pvtflow.planner.ik import IkSolver
 from pvtflow.planner.limits import JointLimits, check_max_jerk, check_scale
 from pvtflow.planner.model import RobotModel
 from pvtflow.planner.path import JointPath, PlanError, PlanResult
+from pvtflow.planner.sequence import SequenceSolver
 from pvtflow.planner.speed_band import DEFAULT_SPEED_BAND
 from pvtflow.planner.timing import DEFAULT_GRIDPOINTS, Trajectory, parameterize, parameterize_banded, timing_constraints
 
@@ -85,6 +87,9 @@ class PlanInput:
     budget_ms: float | None = None  # the jerk-limited timing's deadline from the call's start; None: none
     # this plan's speed band (planner.speed_band), None: the planner's; a plan without a jerk limit only
     speed_band: float | None = None
+    # a motion sequence (planner/sequence.py: ptp, lin and circ items with blend radii) from the one
+    # joint position in ``waypoints``; instead of poses
+    sequence: Sequence[Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -155,6 +160,7 @@ class Planner:
         self.poses: PoseSolver | None = None
         if model is not None and tcp_frame is not None:
             self.poses = PoseSolver(IkSolver(model, tcp_frame, limits.lower, limits.upper), limits)
+        self.sequences = SequenceSolver(self.poses) if self.poses is not None else None
 
     def _scaled(self, velocity_scale: float, acceleration_scale: float) -> tuple[JointLimits, list[object]]:
         """The joint limits and TOPP-RA constraints of one plan under the speed override."""
@@ -182,15 +188,17 @@ class Planner:
         max_jerk: NDArray[np.float64] | None,
         deadline: float | None = None,
         speed_band: float | None = None,
+        gridpoints: int | None = None,
     ) -> tuple[Trajectory | JerkTrajectory, dict[str, object]]:
         """TOPP-RA along ``path``, flattened within the speed band (``speed_band``, None: the
         planner's); with a jerk limit, the jerk-limited timing warm-started from TOPP-RA's own profile."""
         t0 = time.perf_counter()
+        grid = self.gridpoints if gridpoints is None else gridpoints
         if max_jerk is None:
             band = self.speed_band if speed_band is None else _speed_band(speed_band)
-            traj, ratio = parameterize_banded(path, limits, constraints, self.gridpoints, band)
+            traj, ratio = parameterize_banded(path, limits, constraints, grid, band)
             return traj, ({"speed_band": band, "speed_band_cost": ratio - 1.0} if band > 0.0 else {})
-        trajectory = parameterize(path, limits, constraints, self.gridpoints)
+        trajectory = parameterize(path, limits, constraints, grid)
         from pvtflow.planner.jerk import jerk_limited  # casadi: loaded by the first plan that needs it
 
         t1 = time.perf_counter()
@@ -231,6 +239,8 @@ class Planner:
         deadline = None
         if inp.budget_ms is not None:
             deadline = time.perf_counter() + max(0.0, float(inp.budget_ms)) / 1000.0
+        if inp.sequence is not None:
+            return self._plan_sequence(inp.waypoints, inp.sequence, *scales, deadline, inp.speed_band)
         if inp.poses is not None:
             return self._plan_poses(inp.waypoints, inp.poses, inp.motion, *scales, deadline, inp.speed_band)
         return self._plan_waypoints(inp.waypoints, *scales, deadline, inp.speed_band)
@@ -285,4 +295,51 @@ class Planner:
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))
         details: dict[str, object] = {"ik_s": t_ik, "samples": len(tool.path.points), **timed}
+        return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - t0, details)
+
+    def _plan_sequence(
+        self,
+        start: ArrayLike,
+        items: Sequence[Any],
+        velocity_scale: float,
+        acceleration_scale: float,
+        max_jerk: ArrayLike | None,
+        deadline: float | None = None,
+        speed_band: float | None = None,
+    ) -> PlanOutput:
+        """A motion sequence from joint positions ``start`` (planner/sequence.py), timed once as a
+        whole. ``details["items"]``: per item its index, label and start and end time [s] on the
+        trajectory (an item ends at its goal, or halfway through its blend)."""
+        t0 = time.perf_counter()
+        if self.sequences is None:
+            return PlanOutput(PlanResult.INVALID_INPUT, "a sequence needs the robot model and its tcp_frame")
+        try:
+            limits, constraints = self._scaled(velocity_scale, acceleration_scale)
+            jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
+            solved = self.sequences.solve(start, items)
+            t_ik = time.perf_counter() - t0
+            # every item gets the grid a plan of its own gets (one grid for the whole sequence
+            # coarsens every item's timing: bench/sequence.py)
+            grid = self.gridpoints * len(solved.item_end)
+            # the grid refines on both sides of an exact stop as of a kink (there the path turns
+            # within the samples next to the goal: a coarse grid there slows the whole motion down)
+            path = solved.tool.path
+            stops = [path.waypoint_s[k] for k, r in zip(solved.item_end, solved.radii, strict=True) if r == 0.0]
+            path.kinks = np.union1d(path.kinks, np.array(stops[:-1], dtype=float))
+            trajectory, timed = self._timed(solved.tool.path, limits, constraints, jerk, deadline, speed_band, grid)
+        except PlanError as exc:
+            return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))
+        times = np.asarray(trajectory.waypoint_times, dtype=float)
+        spans, begin = [], 0.0
+        for i, end in enumerate(solved.item_end):
+            label = items[i].get("label") if isinstance(items[i], dict) else None
+            spans.append({"index": i, "label": label, "start_s": begin, "end_s": float(times[end])})
+            begin = float(times[end])
+        spans[-1]["end_s"] = float(trajectory.duration)
+        details: dict[str, object] = {
+            "ik_s": t_ik,
+            "samples": len(solved.tool.path.points),
+            "items": spans,
+            **timed,
+        }
         return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - t0, details)

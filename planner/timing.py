@@ -26,7 +26,7 @@ switches, fewer records. It is checked the same way; where the cell has torque l
 flattened profile does not hold them at the gridpoints, TOPP-RA's own is kept.
 
 The pieces, as toppra splits them: ``planner.constraints`` (the constraints),
-``planner.lean_toppra`` (the algorithm), ``planner.trajectory`` (the trajectory and its check);
+``planner.topp`` (the algorithm), ``planner.trajectory`` (the trajectory and its check);
 ``parameterize`` here puts them together.
 """
 
@@ -50,11 +50,11 @@ from pvtflow.planner.constraints import (
     middles_warm_up,
     timing_constraints,
 )
-from pvtflow.planner.lean_toppra import LeanTOPPRA
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.path import JointPath, PlanError, PlanResult, not_a_knot
 from pvtflow.planner.slowdown import SLOWDOWN_MARGIN, slowdown
 from pvtflow.planner.speed_band import flattened
+from pvtflow.planner.topp.lean import LeanTOPPRA
 from pvtflow.planner.trajectory import Trajectory
 
 # the default plan within 1.005x (mean) and 1.01x (max) of the 3000-gridpoint optimum: 140 gave a mean

@@ -169,7 +169,11 @@ class CellPlanner:
         if budget_ms is not None:
             inp = replace(inp, budget_ms=max(0.0, budget_ms - knots_reserve_ms(budget_ms)))
         out = self.planner.plan(inp)
-        meta = dict(metadata or {}) if inp.poses is None else {"motion": str(inp.motion), **(metadata or {})}
+        meta = dict(metadata or {})
+        if inp.sequence is not None:
+            meta = {"motion": "sequence", **meta}
+        elif inp.poses is not None:
+            meta = {"motion": str(inp.motion), **meta}
         reason = CELL_FILE_REASON if inp.speed_band is None else INPUT_REASON
         result = self._build(out, start, cpu, inp, tolerance_qc, meta, reason)
         if result.ok and "max_jerk" not in out.details and inp.speed_band is None:
@@ -236,6 +240,8 @@ class CellPlanner:
         meta = dict(metadata)
         if "max_jerk" in out.details:
             meta["max_jerk"] = out.details["max_jerk"]
+        if "items" in out.details:  # a sequence: its items' time spans (which item runs when)
+            meta["items"] = out.details["items"]
         band = None
         if "speed_band" in out.details:
             cost = 100.0 * float(out.details["speed_band_cost"])  # type: ignore[arg-type]

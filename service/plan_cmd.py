@@ -26,13 +26,20 @@ from pvtflow.service.api import ApiError, ErrorCode, check_limits, refusals
 from pvtflow.service.cell_planner import TIMEOUT, CellPlan, CellPlanner
 from pvtflow.service.cli_options import add_config, add_json
 from pvtflow.service.config import CellConfig, ConfigError, load_cell_config
-from pvtflow.service.waypoints import PoseTargets, WaypointError, dropped_times_warning, load_motion
+from pvtflow.service.waypoints import (
+    PoseTargets,
+    SequenceTargets,
+    WaypointError,
+    dropped_times_warning,
+    load_motion,
+    load_sequence,
+)
 
 EXIT_OK, EXIT_NOT_PLANNED, EXIT_BAD_INPUT = 0, 1, 2
 # A plan still running after this long is compiling numba's kernels (a new machine, or a kernel source
 # edited): a plan with loaded kernels takes well under it (bench/RESULTS.md), so only a compile says so.
 SLOW_PLAN_NOTICE_S = 2.0
-COMPILE_S = 15  # what compiling them takes (README, "Two commands")
+COMPILE_S = 15  # what compiling them takes (docs/installing.md)
 
 
 def add_parser(subparsers: Any) -> None:
@@ -45,10 +52,17 @@ def add_parser(subparsers: Any) -> None:
         "1 cannot be planned, 2 unreadable input.",
     )
     add_config(p)
-    p.add_argument(
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument(
+        "--sequence",
+        metavar="FILE",
+        help='a motion sequence (JSON or YAML, the plan request\'s object): {"start": [joint values], '
+        '"sequence": [{"motion": "ptp" | "lin" | "circ", "target" | "pose" | "via" | "center": ..., '
+        '"blend_radius": m, "label": text}, ...]} (docs/planning.md, "Motion sequences")',
+    )
+    what.add_argument(
         "--waypoints",
         metavar="FILE",
-        required=True,
         help="waypoints: pvtflow JSON, or a ROS JointTrajectory as JSON or YAML; or tool poses: "
         '{"poses": [[x, y, z, qx, qy, qz, qw], ...], "motion": "linear" or "joint", "start": [joint values]}',
     )
@@ -106,14 +120,16 @@ def _numbers(text: str) -> list[float] | str:
         return text
 
 
-def from_home(motion: NDArray[np.float64] | PoseTargets, cell: CellConfig) -> NDArray[np.float64] | PoseTargets:
+def from_home(
+    motion: NDArray[np.float64] | PoseTargets | SequenceTargets, cell: CellConfig
+) -> NDArray[np.float64] | PoseTargets | SequenceTargets:
     """The motion from the cell's home position: waypoints with it as their first row (a first row within
     a count of it is taken as it, as the service does for ``start: home``), poses with it as their start.
     ValueError for a cell without a home, or a pose file that names its own start."""
     home = cell.home_position()
-    if isinstance(motion, PoseTargets):
+    if isinstance(motion, PoseTargets | SequenceTargets):
         if motion.start is not None:
-            raise ValueError('the pose file names its own start: leave it out (or "current") to start at home')
+            raise ValueError('the file names its own start: leave it out (or "current") to start at home')
         return replace(motion, start=home)
     qc = [
         (a.scaling.position_to_qc(x), a.scaling.position_to_qc(h))
@@ -155,8 +171,12 @@ def run(args: argparse.Namespace) -> int:
         cell = load_cell_config(args.config)
     except ConfigError as exc:
         return _fail(EXIT_BAD_INPUT, str(exc))
+    source = args.sequence if args.sequence is not None else args.waypoints
     try:
-        motion = load_motion(args.waypoints, cell.joint_names, min_count=1 if args.start == "home" else 2)
+        if args.sequence is not None:
+            motion: NDArray[np.float64] | PoseTargets | SequenceTargets = load_sequence(args.sequence, cell.joint_names)
+        else:
+            motion = load_motion(args.waypoints, cell.joint_names, min_count=1 if args.start == "home" else 2)
     except WaypointError as exc:
         return _fail(EXIT_BAD_INPUT, str(exc))
     if args.start == "home":
@@ -164,10 +184,10 @@ def run(args: argparse.Namespace) -> int:
             motion = from_home(motion, cell)
         except ValueError as exc:
             return _fail(EXIT_BAD_INPUT, f"--start home: {exc}")
-    if isinstance(motion, PoseTargets) and motion.start is None:
+    if isinstance(motion, PoseTargets | SequenceTargets) and motion.start is None:
         return _fail(
             EXIT_BAD_INPUT,
-            f"{args.waypoints}: start: planning offline needs the joint positions the motion starts from "
+            f"{source}: start: planning offline needs the joint positions the motion starts from "
             '(a list of joint values; "current" is for a running service)',
         )
     if args.tolerance is not None and not args.tolerance >= 0.5:
@@ -193,7 +213,10 @@ def run(args: argparse.Namespace) -> int:
         "acceleration_scale": args.acceleration_scale,
         "max_jerk": max_jerk,
     }
-    if isinstance(motion, PoseTargets):
+    if isinstance(motion, SequenceTargets):
+        assert motion.start is not None
+        inp = PlanInput(motion.start, sequence=motion.items, **scales)
+    elif isinstance(motion, PoseTargets):
         assert motion.start is not None
         inp = PlanInput(motion.start, motion.poses, motion.motion, **scales)
     else:
@@ -246,6 +269,8 @@ def run(args: argparse.Namespace) -> int:
         summary["gap"] = result.gap
     if result.speed_band is not None:  # motion time given for fewer records: how much, and why
         summary["speed_band"] = result.speed_band
+    if isinstance(motion, SequenceTargets) and result.plan is not None:
+        summary["items"] = result.plan.details.get("items")
     if isinstance(motion, PoseTargets) and result.waypoints is not None:
         summary["motion"] = motion.motion
         summary["joint_samples"] = len(result.waypoints)

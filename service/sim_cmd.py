@@ -5,7 +5,7 @@ the axis's limits and scaling, on its EDS from configs/eds) go on the bus the ce
 one the flags name, and answer there until Ctrl-C / SIGTERM, with no master of pvtflow's beside them:
 so that other tools (candump, a PLC's CANopen master, python-canopen scripts, or ``pvtflow serve`` /
 ``execute`` in another process with a cell file whose drives they are) run against them, e.g. on a
-Linux vcan interface (README, "Simulated drives on their own").
+Linux vcan interface (docs/simulator.md).
 
 The drives boot (boot-up frame, pre-operational) and then do what a master asks: NMT, SDO, PDOs,
 SYNC. They send no SYNC: each SYNC a master sends advances their motion clock by the cell's SYNC

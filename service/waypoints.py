@@ -143,6 +143,41 @@ def dropped_times_warning(path: str | Path, duration_s: float | None = None) -> 
     )
 
 
+@dataclass(frozen=True)
+class SequenceTargets:
+    """A sequence file (``{"start": "current" | [joints], "sequence": [items]}``, the plan request's
+    object): the items as written (planner/sequence.py checks them) and the start (None: current)."""
+
+    items: list[Any]
+    start: NDArray[np.float64] | None
+
+
+def load_sequence(path: str | Path, joint_names: Sequence[str]) -> SequenceTargets:
+    """A motion sequence file, JSON or YAML (WaypointError saying what is wrong with its shape)."""
+    data, source = _read(path), str(path)
+    if not isinstance(data, dict) or "sequence" not in data:
+        raise WaypointError(f'{source}: a sequence file is {{"start": ..., "sequence": [items]}}')
+    unknown = sorted(set(data) - {"sequence", "start", "joint_names"})
+    if unknown:
+        raise WaypointError(f"{source}: unknown field {unknown[0]!r}")
+    items = data["sequence"]
+    if not isinstance(items, list) or not items:
+        raise WaypointError(f"{source}: sequence: must be a non-empty list of items")
+    start = data.get("start", "current")
+    if start == "current":
+        return SequenceTargets(items, None)
+    if not isinstance(start, list):
+        raise WaypointError(f'{source}: start: must be a list of joint values or "current", got {start!r}')
+    names = data.get("joint_names")
+    try:
+        rows = waypoints_from_data(
+            {"waypoints": [start], **({"joint_names": names} if names is not None else {})}, joint_names, source, 1
+        )
+    except WaypointError as exc:
+        raise WaypointError(str(exc).replace("waypoints[0]", "start")) from None
+    return SequenceTargets(items, rows[0])
+
+
 def load_waypoints(path: str | Path, joint_names: Sequence[str], min_count: int = 2) -> NDArray[np.float64]:
     """(N, dof) waypoints from ``path`` in the order of ``joint_names``; at least ``min_count`` of them
     (2 for a motion planned on its own; 1 for the service, which starts from where the axes are)."""

@@ -58,8 +58,9 @@ def loaded_after(code: str) -> list[str]:
 
 def test_the_axes_layer_loads_without_the_planning_stack() -> None:
     modules = loaded_after(
-        "import pvtflow.axes, pvtflow.axes.master.group.axis_group, pvtflow.axes.master.bus.cell_bus, pvtflow.axes.master.group.feeder, pvtflow.axes.drive.program, "
-        "pvtflow.axes.master.profiles, pvtflow.axes.sim, pvtflow.axes.sim.cell"
+        "import pvtflow.axes, pvtflow.axes.master.group.axis_group, pvtflow.axes.master.bus.cell_bus, "
+        "pvtflow.axes.master.group.feeder, pvtflow.axes.drive.program, pvtflow.axes.master.profiles, "
+        "pvtflow.axes.sim, pvtflow.axes.sim.cell"
     )
     top = {layer(m) for m in modules}
     assert sorted(top & set(PLANNING_STACK)) == []
@@ -87,3 +88,60 @@ def test_each_package_front_door_names_what_it_exports(package: str) -> None:
     assert module.__all__, f"{package} has no public surface"
     for name in module.__all__:
         assert getattr(module, name) is not None, name
+
+
+# --- the rooms of axes: the facts, the master, the simulator -------------------------------------
+AXES = ROOT / "axes"
+FACTS = ("drive", "canbus")  # and the package's front door (axes/__init__.py, axes/front_door.py)
+MAX_FLAT_MODULES = 10
+
+
+def axes_module(path: Path) -> str:
+    """pvtflow.axes.master.bus.sync for axes/master/bus/sync.py (a package: its __init__'s name)."""
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return "pvtflow." + ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def axes_imports() -> dict[str, set[str]]:
+    """Every axes module and the axes modules it imports, wherever the import statement is (under
+    TYPE_CHECKING, in a function); ``from package import module`` imports that module."""
+    paths = {axes_module(p): p for p in sorted(AXES.rglob("*.py"))}
+    graph: dict[str, set[str]] = {}
+    for name, path in paths.items():
+        found: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.Import):
+                found.update(a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                submodules = {f"{node.module}.{a.name}" for a in node.names} & paths.keys()
+                found.update(submodules or {node.module})
+        graph[name] = {m for m in found if m in paths and m != name}
+    return graph
+
+
+def room(module: str) -> str:
+    """facts, master or sim."""
+    part = module.removeprefix("pvtflow.axes").lstrip(".").split(".")[0]
+    return "facts" if part in (*FACTS, "", "front_door") else part
+
+
+@pytest.mark.parametrize(
+    ("importer", "forbidden"), [("facts", {"master", "sim"}), ("master", {"sim"}), ("sim", {"master"})]
+)
+def test_the_rooms_of_axes_import_only_the_facts(importer: str, forbidden: set[str]) -> None:
+    """The master and the simulator meet on the wire, never in an import; the facts need neither."""
+    offenders = {
+        module: sorted(m for m in imported if room(m) in forbidden)
+        for module, imported in axes_imports().items()
+        if room(module) == importer and any(room(m) in forbidden for m in imported)
+    }
+    assert offenders == {}
+
+
+def test_no_axes_folder_holds_more_than_ten_modules_flat() -> None:
+    crowded = {
+        str(folder.relative_to(ROOT)): n
+        for folder in [AXES, *(p for p in AXES.rglob("*") if p.is_dir() and (p / "__init__.py").is_file())]
+        if (n := len([p for p in folder.glob("*.py") if p.name != "__init__.py"])) > MAX_FLAT_MODULES
+    }
+    assert crowded == {}

@@ -1,12 +1,23 @@
-"""How often a process that serves a bus hands the GIL from thread to thread.
+"""How the threads that serve a bus run: how often they hand the GIL on, and at which priority.
 
 A bus is served by threads (SYNC answers, feeders, heartbeat consumers; in the drives' process the
 drives' clocks and the wire's driver) that must get the GIL within a fraction of a SYNC period, not
 after CPython's 5 ms switch interval. The master and the drives' process both keep it here.
+
+The simulated wire's own threads stand in for what a real bus does outside any process: the
+controller that puts a queued frame on the wire when the bus is free, and the kernel that hands a
+received frame to its socket. Neither waits for a busy host's scheduler on a machine, so the wall
+driver (``axes.sim.wire.wall.WallDriver``), the loopback server's selector thread and a remote bus's
+reader thread ask for SCHED_FIFO at ``WIRE_PRIORITY``, above the master's SYNC thread
+(``BusConfig.sync_priority``, 50): the wire carries what that thread sends. Each of them blocks
+between frames, so it takes no CPU from anyone while the bus is quiet. Not permitted (no
+CAP_SYS_NICE or rtprio limit): the thread stays at normal priority, silently (the master warns for
+its own SYNC thread; ``bench/wire_sync.py`` shows what the priority buys).
 """
 
 from __future__ import annotations
 
+import os
 import sys
 
 SWITCH_INTERVAL_S = 0.0001  # the interpreter hands the GIL on at least this often while a bus is open
@@ -16,3 +27,15 @@ def hand_the_gil_on_often() -> None:
     """Shorten the process's switch interval to SWITCH_INTERVAL_S (never lengthen it; not restored:
     other buses of the process may still be open)."""
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+
+
+WIRE_PRIORITY = 60
+
+
+def ask_wire_priority() -> bool:
+    """SCHED_FIFO at ``WIRE_PRIORITY`` for the calling thread; False where not permitted."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(WIRE_PRIORITY))
+    except (AttributeError, OSError):
+        return False
+    return True

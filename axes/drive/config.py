@@ -57,7 +57,7 @@ class BusConfig:
     # the share of 0x607F / 0x60C5 a fixed-period drive's motion is planned below them
     # (``planning_share``; the EPOS2 plans at its full limits, its FIFO covers timing). 0.2 %: twice the
     # slew of a drive's cycle locked to SYNC (the simulated drives' bound, axes/sim/profiles/sync_lock.py MAX_SLEW,
-    # 0.1 %: its speed over real time above the demand it judges); the README says why no more
+    # 0.1 %: its speed over real time above the demand it judges); docs/cells.md says why no more
     fixed_period_headroom: float = 0.002
     # wall clock: SYNC, the time stamp, setpoints, records and the quick stop from a process of their own
     # (``axes.master.cyclic.process``), where nothing else of the master runs

@@ -255,6 +255,16 @@ class PdoRole(StrEnum):
     TIME_STAMP = "time_stamp"  # the master's one 0x1013 frame after every SYNC, shared by every drive
 
 
+PDO_INVALID = 0x8000_0000  # a PDO COB-ID's bit 31 (CiA 301 7.5.2.35): the PDO does not exist
+
+
+def pdo_cob_id(number: int, node_id: int, receive: bool) -> int:
+    """The COB-ID of PDO ``number`` (1..4) of ``node_id`` in CiA 301's predefined connection set (7.3.5):
+    TPDO n on 0x080 + 0x100 n + id (0x180, 0x280, ...), RPDO n on 0x100 + 0x100 n + id (0x200, 0x300, ...).
+    Node 0 gives the base, as an EDS writes it ($NODEID+0x200)."""
+    return (0x100 if receive else 0x080) + 0x100 * number + node_id
+
+
 @dataclass(frozen=True)
 class PdoLayout:
     """One PDO as pvtflow maps it: number (1-4), transmission type, mapped (index, subindex, bits),
@@ -269,7 +279,7 @@ class PdoLayout:
     event_timer_ms: int = 0  # event TPDO: sent at least this often, changed or not (0: on a change only)
 
     def cob_id(self, node_id: int, receive: bool) -> int:
-        return (0x100 if receive else 0x080) + 0x100 * self.number + node_id
+        return pdo_cob_id(self.number, node_id, receive)
 
     @property
     def payload_bytes(self) -> int:

@@ -387,7 +387,7 @@ def describe_pdo(link: AxisLink, number: int, receive: bool) -> str:
     count = link.read_optional(mapping, 0, "B") or 0
     entries = [link.read(mapping, k, "I") for k in range(1, count + 1)]
     mapped = ", ".join(f"0x{e >> 16:04X}:{e >> 8 & 0xFF:02X}/{e & 0xFF}" for e in entries) or "nothing"
-    valid = "invalid" if cob & 0x8000_0000 else "valid"
+    valid = "invalid" if cob & od.PDO_INVALID else "valid"
     return f"0x{cob & 0x7FF:03X} {valid}, type {ttype}: {mapped}"
 
 

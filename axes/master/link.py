@@ -35,7 +35,6 @@ TRANSFER_FAILED = (SdoCommunicationError, CanError, struct.error)
 if TYPE_CHECKING:
     from pvtflow.axes.master.bus.cell_bus import CellBus
 
-PDO_INVALID = 0x8000_0000  # COB-ID bit 31: the PDO does not exist
 PDO_RTR_BIT = 0x4000_0000  # COB-ID bit 30: no RTR allowed on this PDO
 PDO_COB_ID_BITS = 0x3FFF_FFFF  # bits 0-29: the identifier and its frame format
 
@@ -167,10 +166,10 @@ class AxisLink:
         cob = layout.cob_id(self.node_id, receive) if cob_id is None else cob_id
         stored = self.read(comm, 1, "I")
         rtr = stored & PDO_RTR_BIT
-        if not stored & PDO_INVALID:
-            self.write(comm, 1, stored | PDO_INVALID, "I")
+        if not stored & od.PDO_INVALID:
+            self.write(comm, 1, stored | od.PDO_INVALID, "I")
         if stored & PDO_COB_ID_BITS != cob:
-            self.write(comm, 1, rtr | PDO_INVALID | cob, "I")
+            self.write(comm, 1, rtr | od.PDO_INVALID | cob, "I")
         self.write(mapping, 0, 0, "B")
         for k, (index, subindex, bits) in enumerate(layout.entries, start=1):
             self.write(mapping, k, (index << 16) | (subindex << 8) | bits, "I")
@@ -209,8 +208,8 @@ class AxisLink:
         no such PDO or it is invalid already): what an earlier setup left mapped sends nothing."""
         comm = (0x1400 if receive else 0x1800) + number - 1
         cob = self.read_optional(comm, 1, "I")
-        if cob is not None and not cob & PDO_INVALID:
-            self.write(comm, 1, cob | PDO_INVALID, "I")
+        if cob is not None and not cob & od.PDO_INVALID:
+            self.write(comm, 1, cob | od.PDO_INVALID, "I")
 
     def map_pdos(
         self, rpdos: tuple[PdoLayout, ...], tpdos: tuple[PdoLayout, ...], rpdo_cob_ids: dict[int, int] | None = None
@@ -270,7 +269,7 @@ class AxisLink:
     # --- controlword -----------------------------------------------------------------------------
     def controlword_cob_id(self) -> int:
         """The synchronous RPDO that carries the controlword (RPDO2 in every pvtflow layout)."""
-        return 0x300 + self.node_id
+        return od.pdo_cob_id(2, self.node_id, receive=True)
 
     def send_controlword(self, controlword: int) -> None:
         """Through the synchronous RPDO: takes effect at the next SYNC."""

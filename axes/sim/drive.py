@@ -34,14 +34,12 @@ from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
 from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.cia402 import Controlword
 from pvtflow.axes.drive.config import AxisSimulation
 from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.axes.sim.cia402.faults import ERROR_REGISTER, FaultHandling
 from pvtflow.axes.sim.cia402.homing import HomingMixin, HomingState, Machine
 from pvtflow.axes.sim.cia402.power_states import (
-    CW_ENABLE_IP,
-    CW_HALT,
-    CW_HOMING_START,
     SWITCH_ON_DISABLED,
     PowerStateMachine,
 )
@@ -330,19 +328,23 @@ class SimulatedDrive(
         homing mode a rising bit 4 starts homing; halt or bit 4 low interrupts it."""
         if self.mode_display == od.HOMING_MODE and self.MODES.accepts(od.HOMING_MODE):
             running = self._homing is not None and self._homing.state is HomingState.RUNNING
-            if controlword & CW_HALT or not controlword & CW_HOMING_START:
+            if controlword & Controlword.HALT or not controlword & Controlword.HOMING_START:
                 if running:
                     self._interrupt_homing()
-                    if not controlword & CW_HALT:  # bit 4 low: brake as a halt would (halt already does)
+                    if not controlword & Controlword.HALT:  # bit 4 low: brake as a halt would (halt already does)
                         self._begin_stop(self._deceleration(quick=False))
-            elif not previous & CW_HOMING_START:
+            elif not previous & Controlword.HOMING_START:
                 self._start_homing()
             return
-        if not self._ip_mode_selected() or controlword & CW_HALT:
+        if not self._ip_mode_selected() or controlword & Controlword.HALT:
             return
-        if controlword & CW_ENABLE_IP and not previous & CW_ENABLE_IP:
+        if controlword & Controlword.ENABLE_IP_MODE and not previous & Controlword.ENABLE_IP_MODE:
             self._ip_requested = True
-        elif previous & CW_ENABLE_IP and not controlword & CW_ENABLE_IP and (self.ip_active or self._ip_requested):
+        elif (
+            previous & Controlword.ENABLE_IP_MODE
+            and not controlword & Controlword.ENABLE_IP_MODE
+            and (self.ip_active or self._ip_requested)
+        ):
             self._begin_stop(self._deceleration(quick=False))
 
     def _enter_operation(self) -> None:

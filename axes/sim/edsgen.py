@@ -46,7 +46,7 @@ def _pdo_objects(n_rpdo: int, n_tpdo: int) -> dict[int, Entry]:
         out[0x1400 + i] = Rec(
             f"Receive PDO {i + 1} parameter",
             (
-                Var(f"COB-ID used by RPDO {i + 1}", U32, "rw", f"$NODEID+0x{0x200 + 0x100 * i:X}"),
+                Var(f"COB-ID used by RPDO {i + 1}", U32, "rw", f"$NODEID+0x{od.pdo_cob_id(i + 1, 0, receive=True):X}"),
                 Var("Transmission type", U8, "rw", 255),
             ),
         )
@@ -60,7 +60,12 @@ def _pdo_objects(n_rpdo: int, n_tpdo: int) -> dict[int, Entry]:
         out[0x1800 + i] = Rec(
             f"Transmit PDO {i + 1} parameter",
             (
-                Var(f"COB-ID used by TPDO {i + 1}", U32, "rw", f"$NODEID+0x{0x80000180 + 0x100 * i:X}"),
+                Var(
+                    f"COB-ID used by TPDO {i + 1}",
+                    U32,
+                    "rw",
+                    f"$NODEID+0x{od.PDO_INVALID | od.pdo_cob_id(i + 1, 0, receive=False):X}",
+                ),
                 Var("Transmission type", U8, "rw", 255),
                 Var("Inhibit time", U16, "rw", 0),
                 Var("Reserved", U8, "rw", 0),

@@ -210,7 +210,7 @@ def raise_drives_share() -> bool:
     """Nice ``DRIVES_NICE`` for this thread before it starts any other, so that every thread of the
     drives inherits it (Linux threads inherit their creator's nice value). The drives stand in for
     hardware with a CPU of its own; at nice 0 another process's work preempts a drive's thread while
-    it holds the GIL, and the wire's threads (SCHED_FIFO, ``axes/sim/wire/priority.py``) then wait a
+    it holds the GIL, and the wire's threads (SCHED_FIFO, ``axes/canbus/threads.py``) then wait a
     time slice for the GIL: "frame has left" reports late, the master's transmit FIFO full. Not real
     time: the drives use about a core, and at SCHED_FIFO that much CPU kept the master's own SYNC
     thread off the CPU for tens of ms (bench/RESULTS.md, issue 23). Not permitted: nice 0."""

@@ -39,6 +39,40 @@ _TEXT = {"type": "string", "maxLength": MAX_TEXT}
 PROGRAM = {"type": "object", "description": "a PVT program (pvtflow.pvt-program JSON, docs/program-format)"}
 
 
+_POSE = {
+    "type": "array",
+    "items": {"type": "number"},
+    "minItems": POSE_LENGTH,
+    "maxItems": POSE_LENGTH,
+    "description": "[x, y, z, qx, qy, qz, qw]: the cell's tcp_frame in the robot's base frame (m; a unit quaternion)",
+}
+_POINT = {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}
+_SEQUENCE_ITEM = object_schema(
+    {
+        "motion": {
+            "enum": ["ptp", "lin", "circ"],
+            "description": "ptp: a straight line in joint space to target (or to pose's inverse kinematics); lin: the "
+            "tool on a straight line to pose (orientation by slerp); circ: the tool on the arc through via (or about "
+            "center) to pose",
+        },
+        "target": {"type": "array", "items": {"type": "number"}, "description": "ptp: the goal's joint values"},
+        "pose": _POSE,
+        "via": {**_POINT, "description": "circ: a point on the arc [x, y, z] (m)"},
+        "center": {**_POINT, "description": "circ: the arc's center [x, y, z] (m)"},
+        "blend_radius": {
+            "type": "number",
+            "minimum": 0,
+            "default": 0,
+            "description": "m: inside this sphere about the goal the tool leaves this item's path for the next "
+            "one's without stopping; 0: it stops exactly at the goal; the last item's is ignored. Neighbouring "
+            "spheres must not overlap (refused, never shrunk)",
+        },
+        "label": _TEXT,
+    },
+    required=["motion"],
+)
+
+
 def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
     """The JSON Schema of the request to queryable ``name`` on a cell of ``dof`` joints."""
     if name == "plan":
@@ -72,6 +106,15 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
                         f"(m; a unit quaternion, normalized within {QUATERNION_TOLERANCE:g})",
                     },
                     "description": "tool poses to go through (instead of waypoints or target), from the start",
+                },
+                "sequence": {
+                    "type": "array",
+                    "minItems": 1,
+                    "maxItems": MAX_WAYPOINTS,
+                    "items": _SEQUENCE_ITEM,
+                    "description": "a motion sequence (instead of waypoints, target or poses), from the start: "
+                    "ptp, lin and circ items, each blended into the next inside its blend_radius sphere; one "
+                    "plan, one program (docs/planning.md, Motion sequences)",
                 },
                 "motion": {
                     "enum": [m.value for m in MoveKind],
@@ -134,7 +177,12 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
                     "description": "put the whole PVT program in the reply",
                 },
             },
-            oneOf=[{"required": ["waypoints"]}, {"required": ["target"]}, {"required": ["poses"]}],
+            oneOf=[
+                {"required": ["waypoints"]},
+                {"required": ["target"]},
+                {"required": ["poses"]},
+                {"required": ["sequence"]},
+            ],
         )
     elif name == "validate":
         body = object_schema(

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from pvtflow.planner.cartesian import MoveKind, check_poses
 from pvtflow.planner.limits import JointLimits, check_max_jerk, check_scale
 from pvtflow.planner.path import PlanError
+from pvtflow.planner.plan import PlanInput
 from pvtflow.service.api.schema_check import PLAN_SCALES, check_schema
 from pvtflow.service.api.wire import ApiError, ErrorCode, PlanStart
 
@@ -31,6 +32,15 @@ class PlanRequest:
     start_joints: NDArray[np.float64] | None = None  # (dof,) in the cell's joint order
     max_jerk: NDArray[np.float64] | None = None  # (dof,) in the cell's joint order; None: the cell's
     budget_ms: float | None = None  # the plan's deadline; None: the cell's planning.budget_ms
+    # a motion sequence's items as the request has them (planner/sequence.py checks them), from
+    # start_joints or the start; targets in the cell's joint order
+    sequence: list[dict[str, Any]] | None = None
+
+    def plan_input(self, start: NDArray[np.float64], **scales: Any) -> PlanInput:
+        """The planner's input of a poses or sequence request from joint positions ``start``."""
+        if self.sequence is not None:
+            return PlanInput(start, sequence=self.sequence, **scales)
+        return PlanInput(start, self.poses, self.motion, **scales)
 
 
 @dataclass(frozen=True)
@@ -74,7 +84,7 @@ def parse_plan(data: Any, joint_names: Sequence[str], limits: JointLimits | None
     dof = len(joint_names)
     check_schema("plan", data, dof)
     order = _joint_order(data.get("joint_names"), joint_names)
-    if "poses" in data:
+    if "poses" in data or "sequence" in data:
         return _parse_pose_plan(data, order, limits)
     if "motion" in data:
         raise ApiError(ErrorCode.INVALID_REQUEST, "motion is for poses, not waypoints or target", {"path": "$.motion"})
@@ -141,8 +151,27 @@ def _parse_pose_plan(data: dict[str, Any], order: list[int], limits: JointLimits
     """A plan request with poses: the poses checked (planner.cartesian's rules: 7 numbers, a unit
     quaternion), the start current or joint values inside the limits."""
     dof = len(order)
+    if "motion" in data and "sequence" in data:
+        raise ApiError(
+            ErrorCode.INVALID_REQUEST, "motion is for poses; a sequence's items name their own", {"path": "$.motion"}
+        )
+    sequence = None
+    if "sequence" in data:
+        sequence = [dict(item) for item in data["sequence"]]
+        for i, item in enumerate(sequence):
+            if "target" in item:
+                target = item["target"]
+                if len(target) != dof:
+                    raise ApiError(
+                        ErrorCode.WRONG_JOINT_COUNT,
+                        f"$.sequence[{i}].target has {len(target)} values, the cell has {dof} joints",
+                        {"path": f"$.sequence[{i}].target", "expected": dof, "got": len(target)},
+                    )
+                item["target"] = [float(target[k]) for k in order]
+        poses = None
     try:
-        poses = check_poses(data["poses"])
+        if sequence is None:
+            poses = check_poses(data["poses"])
     except PlanError as exc:
         i = exc.details.get("pose")
         path = f"$.poses[{i}]" if i is not None else "$.poses"
@@ -154,7 +183,7 @@ def _parse_pose_plan(data: dict[str, Any], order: list[int], limits: JointLimits
     if start == PlanStart.FIRST:
         raise ApiError(
             ErrorCode.INVALID_REQUEST,
-            "with poses, start is current or a list of joint values (first is for waypoints)",
+            "with poses or a sequence, start is current or a list of joint values (first is for waypoints)",
             {"path": "$.start"},
         )
     if isinstance(start, list):
@@ -181,6 +210,7 @@ def _parse_pose_plan(data: dict[str, Any], order: list[int], limits: JointLimits
         bool(data.get("include_program", False)),
         poses=poses,
         motion=MoveKind(data.get("motion", MoveKind.LINEAR)),
+        sequence=sequence,
         start_joints=start_joints,
         max_jerk=_max_jerk(data, order),
         budget_ms=data.get("budget_ms"),

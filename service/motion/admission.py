@@ -8,17 +8,22 @@ from __future__ import annotations
 
 from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.axes.master.group.axis_group import AxisGroup
-from pvtflow.axes.master.group.outcome import RunResult
 from pvtflow.service.api import ApiError, CellState, ErrorCode, refusals
-from pvtflow.service.motion.runs import Motion
-from pvtflow.service.motion.status import StatusReport
+from pvtflow.service.config import CellConfig
+from pvtflow.service.motion.activity import CellActivity
+from pvtflow.service.motion.board import CellBoard
 
 
-class Admission(StatusReport):
+class Admission:
     """The checks an execute, an approach, a plan from here and a homing pass first."""
 
-    def _refuse_if_busy(self, group: AxisGroup) -> None:
-        homing = self.homing
+    def __init__(self, cell: CellConfig, board: CellBoard, activity: CellActivity) -> None:
+        self.cell = cell
+        self.board = board
+        self.activity = activity
+
+    def refuse_if_busy(self, group: AxisGroup) -> None:
+        homing = self.activity.homing
         if homing is not None and not homing.done.is_set():
             raise ApiError(
                 ErrorCode.BUSY,
@@ -26,7 +31,7 @@ class Admission(StatusReport):
                 "stop it or wait for its end",
                 {"homing_id": homing.homing_id},
             )
-        previous = self.motion
+        previous = self.activity.motion
         if previous is not None and not previous.done.is_set() and not group.running:
             previous.done.wait(2.0)  # it has just ended: its outcome is being journaled
         if group.running or (previous is not None and not previous.done.is_set()):
@@ -37,7 +42,7 @@ class Admission(StatusReport):
                 {"motion_id": moving},
             )
 
-    def _refuse_unless_homed(self, group: AxisGroup) -> None:
+    def refuse_unless_homed(self, group: AxisGroup) -> None:
         """NOT_HOMED on a cell that requires homing while an axis has not homed since its drive booted."""
         if not self.cell.requires_homing:
             return
@@ -45,12 +50,13 @@ class Admission(StatusReport):
         if missing:
             raise refusals.not_homed(self.cell.name, missing)
 
-    def _refuse_if_faulted(self, group: AxisGroup) -> None:
-        if self.state == CellState.FAULT:
+    def refuse_if_faulted(self, group: AxisGroup) -> None:
+        if self.board.state == CellState.FAULT:
+            reason = self.board.fault_reason
             raise ApiError(
                 ErrorCode.DRIVE_FAULT,
-                f"cell {self.cell.name} is in fault ({self.fault_reason}): call recover first",
-                {"reason": self.fault_reason},
+                f"cell {self.cell.name} is in fault ({reason}): call recover first",
+                {"reason": reason},
             )
         faulted = [s for s in group.status().axes if s.state.is_fault]
         if faulted:
@@ -61,7 +67,7 @@ class Admission(StatusReport):
                 {"joint": s.joint, "node_id": s.node_id},
             )
 
-    def _refuse_unless_at_start(self, group: AxisGroup, program: PvtProgram) -> None:
+    def refuse_unless_at_start(self, group: AxisGroup, program: PvtProgram) -> None:
         """START_MISMATCH before anything is journaled or sent, from the positions the drives last reported
         (the group checks again with what the drives answer at the start: this only keeps a plainly wrong
         request out of the journal)."""
@@ -72,5 +78,10 @@ class Admission(StatusReport):
             if start is not None and link.position is not None and abs(link.position - start) > tolerance:
                 raise refusals.start_mismatch(link.joint, link.position, start)
 
-    def _start_error(self, early: RunResult, motion: Motion) -> ApiError:
-        return refusals.run_refused(early, {"motion_id": motion.motion_id})
+    def refuse_a_motion(self, group: AxisGroup, program: PvtProgram | None = None) -> None:
+        """Every check a motion passes (an approach: all but the start, which it moves to)."""
+        self.refuse_if_busy(group)
+        self.refuse_unless_homed(group)
+        self.refuse_if_faulted(group)
+        if program is not None:
+            self.refuse_unless_at_start(group, program)

@@ -6,22 +6,67 @@ rules and against this cell.
 
 from __future__ import annotations
 
+import threading
 import time
+from collections import OrderedDict
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from pvtflow.axes.drive.program import ProgramFormatError, PvtProgram, program_mismatch
 from pvtflow.planner.plan import PlanInput
 from pvtflow.planner.validate import validate_program
 from pvtflow.service.api import ApiError, ErrorCode, PlanRequest, PlanStart, ValidateRequest, refusals
-from pvtflow.service.cell_planner import TIMEOUT
+from pvtflow.service.approach import plan_approach
+from pvtflow.service.cell_planner import TIMEOUT, CellPlanner
+from pvtflow.service.config import CellConfig
 from pvtflow.service.motion.admission import Admission
+from pvtflow.service.motion.drives import CellDrives
 from pvtflow.service.motion.runs import StoredPlan, new_id
+from pvtflow.service.planning import PlanningProcess
 
 
-class PlanBook(Admission):
-    """The plans of the cell, by id."""
+class PlanBook:
+    """The plans of the cell, by id, and the planner that makes them (one plan at a time)."""
+
+    def __init__(
+        self,
+        cell: CellConfig,
+        planner: CellPlanner | PlanningProcess,
+        drives: CellDrives,
+        admission: Admission,
+        max_plans: int,
+    ) -> None:
+        self.cell = cell
+        self.planner = planner
+        self.drives = drives
+        self.admission = admission
+        self.max_plans = max_plans
+        self.plans: OrderedDict[str, StoredPlan] = OrderedDict()
+        self._lock = threading.Lock()
+        self._planner_lock = threading.Lock()  # the CellPlanner is not for concurrent use
+
+    def count(self) -> int:
+        with self._lock:
+            return len(self.plans)
+
+    def approach(self, positions_qc: list[int | None], program: PvtProgram) -> PvtProgram:
+        """The joint move from where the axes stand to ``program``'s start (service/approach.py)."""
+        with self._planner_lock:
+            return plan_approach(self.planner, self.cell, positions_qc, program)
+
+    def _home_position(self) -> NDArray[np.float64]:
+        """The cell's home position (service.config.CellConfig.home_position); NOT_ALLOWED on a cell without one."""
+        try:
+            return self.cell.home_position()
+        except ValueError as exc:
+            raise ApiError(ErrorCode.NOT_ALLOWED, f"start home: {exc}", {"path": "$.start"}) from None
+
+    def _here(self) -> NDArray[np.float64]:
+        """Where the axes stand, for a plan from here: NOT_HOMED first on a cell that requires homing."""
+        self.admission.refuse_unless_homed(self.drives.connected())
+        return self.drives.current_joint_positions()
 
     def plan(self, req: PlanRequest) -> dict[str, Any]:
         """Waypoints or poses -> a validated program kept under a new plan id (PLAN_FAILED when impossible)."""
@@ -33,29 +78,25 @@ class PlanBook(Admission):
             "max_jerk": req.max_jerk,
         }
         budget_ms = self.cell.planning.budget_ms if req.budget_ms is None else req.budget_ms
-        if req.poses is not None:
+        if req.poses is not None or req.sequence is not None:
             if req.start is PlanStart.HOME:
-                q0 = self.home_position()
+                q0 = self._home_position()
             elif req.start_joints is not None:
                 q0 = req.start_joints
             else:
-                self._refuse_unless_homed(self._group())
-                q0 = self.current_joint_positions()
+                q0 = self._here()
             with self._planner_lock:
                 result = self.planner.plan(
-                    PlanInput(q0, req.poses, req.motion, **scales), req.tolerance_qc, {"plan_id": plan_id}, budget_ms
+                    req.plan_input(q0, **scales), req.tolerance_qc, {"plan_id": plan_id}, budget_ms
                 )
             waypoints = result.waypoints if result.waypoints is not None else q0[None, :]
         else:
             waypoints = req.waypoints
             if req.start in (PlanStart.CURRENT, PlanStart.HOME):
-                if req.start is PlanStart.HOME:
-                    q0 = self.home_position()
-                else:
-                    self._refuse_unless_homed(self._group())
-                    q0 = self.current_joint_positions()
-                first_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, waypoints[0], strict=True)]
-                here_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(self.axes, q0, strict=True)]
+                q0 = self._home_position() if req.start is PlanStart.HOME else self._here()
+                axes = self.drives.axes
+                first_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(axes, waypoints[0], strict=True)]
+                here_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(axes, q0, strict=True)]
                 if max(abs(x - y) for x, y in zip(first_qc, here_qc, strict=True)) <= 1.0:
                     waypoints = np.vstack([q0, waypoints[1:]])  # the first waypoint is where the axes are
                 else:
@@ -82,7 +123,7 @@ class PlanBook(Admission):
             "plan_id": plan_id,
             "cell": self.cell.name,
             "label": req.label,
-            "joint_names": list(self.joint_names),
+            "joint_names": list(self.cell.joint_names),
             "duration_s": program.duration_ms / 1000.0,
             "waypoints": len(waypoints),
             "start": [float(x) for x in waypoints[0]],
@@ -96,7 +137,7 @@ class PlanBook(Admission):
             reply["gap"] = result.gap
         if result.speed_band is not None:  # motion time given for fewer records: how much, and why
             reply["speed_band"] = result.speed_band
-        with self._plans_lock:
+        with self._lock:
             self.plans[plan_id] = StoredPlan(plan_id, program, reply, req.label)
             while len(self.plans) > self.max_plans:
                 self.plans.popitem(last=False)
@@ -105,7 +146,7 @@ class PlanBook(Admission):
         return reply
 
     def stored_plan(self, plan_id: str) -> StoredPlan:
-        with self._plans_lock:
+        with self._lock:
             stored = self.plans.get(plan_id)
         if stored is None:
             raise ApiError(
@@ -115,7 +156,7 @@ class PlanBook(Admission):
             )
         return stored
 
-    def _program_from_json(self, data: dict[str, Any]) -> PvtProgram:
+    def program_from_json(self, data: dict[str, Any]) -> PvtProgram:
         try:
             return PvtProgram.from_json(data)
         except ProgramFormatError as exc:
@@ -128,7 +169,7 @@ class PlanBook(Admission):
             program = self.stored_plan(req.plan_id).program
         else:
             assert req.program is not None
-            program = self._program_from_json(req.program)
+            program = self.program_from_json(req.program)
         report = validate_program(program)
         problems = program_mismatch(program, self.cell.ordered_axes(), self.cell.name)
         return {"ok": report.ok and not problems, "report": report.to_json(), "cell_problems": problems}

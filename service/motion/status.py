@@ -9,46 +9,69 @@ from typing import Any
 
 from pvtflow.axes.master.group.outcome import AxisStatus
 from pvtflow.service.api import StatusRequest
-from pvtflow.service.journal import MotionEntry
-from pvtflow.service.motion.publications import Publications
+from pvtflow.service.config import CellConfig
+from pvtflow.service.journal import Journal, MotionEntry
+from pvtflow.service.motion.activity import CellActivity
+from pvtflow.service.motion.board import CellBoard
+from pvtflow.service.motion.drives import CellDrives
+from pvtflow.service.motion.plans import PlanBook
 
 
-class StatusReport(Publications):
+class StatusReport:
     """The cell's status and one axis as the replies give it."""
+
+    def __init__(
+        self,
+        cell: CellConfig,
+        drives: CellDrives,
+        board: CellBoard,
+        activity: CellActivity,
+        plans: PlanBook,
+        journal: Journal,
+    ) -> None:
+        self.cell = cell
+        self.drives = drives
+        self.board = board
+        self.activity = activity
+        self.plans = plans
+        self.journal = journal
 
     def status(self, req: StatusRequest) -> dict[str, Any]:
         """What the drives say now, the motion, and the recent motions of the journal."""
-        group = self._group()
+        group = self.drives.connected()
         if not group.running:
-            self.positions_qc(refresh=True)
+            self.drives.positions_qc(refresh=True)
         st = group.status()
-        motion = self.motion
+        motion = self.activity.motion
+        homing = self.activity.homing
         running_id = motion.motion_id if (motion and not motion.done.is_set()) else None
         recent = [e.summary(running=e.motion_id == running_id) for e in self.journal.recent(req.recent)]
         last = motion.outcome if motion is not None else None
-        with self._plans_lock:
-            n_plans = len(self.plans)
         return {
             "cell": self.cell.name,
-            "state": self.state,
-            "fault_reason": self.fault_reason,
+            "state": self.board.state,
+            "fault_reason": self.board.fault_reason,
             "motion": motion.summary() if motion is not None else None,
             "sync_count": st.sync_count,
             "elapsed_ms": st.elapsed_ms,
-            "joint_names": list(self.joint_names),
-            "axes": [self._axis_json(s) for s in st.axes],
+            "joint_names": list(self.cell.joint_names),
+            "axes": [self.axis_json(s) for s in st.axes],
             "recent": recent,
-            "plans": n_plans,
+            "plans": self.plans.count(),
             "last_result": last,
             "requires_homing": self.cell.requires_homing,
             "homed": all(s.homed for s in st.axes),
-            "homing": self.homing.summary() if self.homing is not None else None,
+            "homing": homing.summary() if homing is not None else None,
         }
 
     def journal_entry(self, motion_id: str) -> MotionEntry | None:
         return self.journal.get(motion_id)
 
-    def _axis_json(self, s: AxisStatus) -> dict[str, Any]:
+    def axes_json(self) -> list[dict[str, Any]]:
+        """Every axis as the replies give it, from what the group holds now."""
+        return [self.axis_json(s) for s in self.drives.connected().status().axes]
+
+    def axis_json(self, s: AxisStatus) -> dict[str, Any]:
         axis = self.cell.axis_for_joint(s.joint)
         return {
             "joint": s.joint,

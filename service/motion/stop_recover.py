@@ -1,6 +1,6 @@
 """``stop`` and ``recover``: halting whatever runs, and acknowledging a fault.
 
-``stop`` always preempts: it takes the motion lock only after an execute has finished starting (so a
+``stop`` always preempts: it takes the drives' lock only after an execute has finished starting (so a
 stop can never slip in before the start and be lost), then halts every axis on the next SYNC. A fault
 keeps the cell in ``fault`` until ``recover``, so that a fault is always acknowledged by someone.
 """
@@ -13,32 +13,43 @@ from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.axes.master.group.outcome import GroupError
 from pvtflow.axes.master.link import DriveError
 from pvtflow.service.api import ApiError, CellState, ErrorCode, RecoverRequest, StopRequest
-from pvtflow.service.motion.homing import HomingRuns
+from pvtflow.service.motion.activity import CellActivity
+from pvtflow.service.motion.board import CellBoard
+from pvtflow.service.motion.drives import CellDrives
+from pvtflow.service.motion.status import StatusReport
+
+HOMING_STOP_WAIT_S = 60.0  # a stopped homing ends within its drives' halt; past this the reply goes anyway
 
 
-class StopRecover(HomingRuns):
+class StopRecover:
     """Stop what runs; fault reset and re-enable every axis."""
+
+    def __init__(self, drives: CellDrives, board: CellBoard, activity: CellActivity, status: StatusReport) -> None:
+        self.drives = drives
+        self.board = board
+        self.activity = activity
+        self.status = status
 
     def stop(self, req: StopRequest) -> dict[str, Any]:
         """Halt every axis now (on the next SYNC) and wait until they stand still."""
-        group = self._group()
-        homing = self.homing
+        group = self.drives.connected()
+        homing = self.activity.homing
         if homing is not None and not homing.done.is_set():
-            self._set_state(CellState.STOPPING, None)
+            self.board.set(CellState.STOPPING, None)
             group.stop(req.reason)
-            homing.done.wait(60.0)
+            homing.done.wait(HOMING_STOP_WAIT_S)
             return {
                 "was_moving": True,
                 "motion_id": None,
                 "homing_id": homing.homing_id,
                 "outcome": homing.outcome.to_json() if homing.outcome is not None else None,
-                "axes": [self._axis_json(s) for s in group.status().axes],
+                "axes": self.status.axes_json(),
             }
-        with self._lock:  # an execute still starting has finished its start: its motion is stopped
-            motion = self.motion
+        with self.drives.lock:  # an execute still starting has finished its start: its motion is stopped
+            motion = self.activity.motion
             was_moving = group.running
             if was_moving:
-                self._set_state(CellState.STOPPING, motion.motion_id if motion else None)
+                self.board.set(CellState.STOPPING, motion.motion_id if motion else None)
                 group.stop(req.reason)
         if was_moving and motion is not None:
             motion.done.wait(group.halt_timeout_ms / 1000.0 + 5.0)
@@ -47,21 +58,20 @@ class StopRecover(HomingRuns):
             "was_moving": was_moving,
             "motion_id": motion.motion_id if (motion and was_moving) else None,
             "outcome": motion.outcome if (motion and was_moving) else None,
-            "axes": [self._axis_json(s) for s in group.status().axes],
+            "axes": self.status.axes_json(),
         }
 
-    # --- recover ---------------------------------------------------------------------------------
     def recover(self, req: RecoverRequest) -> dict[str, Any]:
         """Fault reset and re-enable every axis; the cell is idle again when every drive is."""
         del req
-        group = self._group()
-        with self._lock:
-            homing = self.homing
-            if group.running or (homing is not None and not homing.done.is_set()):
+        group = self.drives.connected()
+        with self.drives.lock:
+            if group.running or self.activity.homing_runs():
+                motion = self.activity.motion
                 raise ApiError(
                     ErrorCode.BUSY,
                     "cannot recover while a motion runs: stop it first",
-                    {"motion_id": self.motion.motion_id if self.motion else None},
+                    {"motion_id": motion.motion_id if motion else None},
                 )
             try:
                 res = group.recover()
@@ -74,8 +84,5 @@ class StopRecover(HomingRuns):
                     f"recover failed: {res.message}",
                     {"joint": res.joint, "node_id": res.node_id},
                 )
-            self.fault_reason = None
-            with self._state_lock:
-                self.state = CellState.IDLE
-            self._publish_state(None)  # the drives' power states changed even when the cell was idle
-            return {"ok": True, "message": res.message, "axes": [self._axis_json(s) for s in group.status().axes]}
+            self.board.recovered()
+            return {"ok": True, "message": res.message, "axes": self.status.axes_json()}

@@ -114,6 +114,7 @@ def test_can_log_records_sent_and_received_frames(channel, tmp_path: Path, suffi
     assert bus.recorder.frames == len(logged)
 
 
+@pytest.mark.wall
 def test_real_time_sync_is_produced_periodically(channel):
     responder = Responder(channel, nodes=(3,))
     for can_log in (None, "x"):

@@ -132,6 +132,7 @@ def test_a_bus_whose_state_stays_active_reports_every_state_its_error_frames_ann
         kernel.shutdown()
 
 
+@pytest.mark.wall
 def test_the_simulated_wire_s_bus_states_are_reported_once_each_by_name() -> None:
     """simwire says a state twice (its ``bus.state`` and the error frame): one report per change."""
     channel = f"simwire-{unique_channel('state')}"

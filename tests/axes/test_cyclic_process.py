@@ -58,6 +58,7 @@ def inward(cell: CellConfig, starts: list[int | None], duration_ms: int, back: b
     return PvtProgram(cell.name, tuple(out))
 
 
+@pytest.mark.wall
 def test_a_cell_runs_to_its_end_with_sync_from_the_cyclic_process_and_a_stop_halts_it(tmp_path: Path) -> None:
     cell = cyclic_cell("gantry3", tmp_path)  # EPOS2s: their FIFO rides out what the host does to SYNC
     drives = start_simulated_drives(cell, "wall")
@@ -96,6 +97,7 @@ def test_a_cell_runs_to_its_end_with_sync_from_the_cyclic_process_and_a_stop_hal
     assert not bus.sync.cyclic
 
 
+@pytest.mark.wall
 def test_the_cyclic_process_quick_stops_every_drive_when_the_master_is_gone(tmp_path: Path) -> None:
     cell = cyclic_cell("gantry3", tmp_path)
     drives = start_simulated_drives(cell, "wall")
@@ -134,6 +136,7 @@ def test_the_cyclic_process_quick_stops_every_drive_when_the_master_is_gone(tmp_
         drives.stop()
 
 
+@pytest.mark.wall
 def test_a_bus_only_this_process_reaches_is_refused_for_the_cyclic_process() -> None:
     config = BusConfig(interface="virtual", channel=f"cyc-{time.monotonic_ns()}", cyclic_process=True)
     with pytest.raises(BusError, match=r"bus\.cyclic_process needs an interface another process can open"):

@@ -236,6 +236,7 @@ def test_time_stamp_follows_every_sync(arm6, make_rig):
         assert stamps == sorted(stamps)
 
 
+@pytest.mark.wall
 def test_real_time_sync_runs_a_program(arm6, make_rig):
     """The same group with SYNC produced on the wall clock (canopen's periodic SYNC), two axes."""
     import dataclasses
@@ -350,6 +351,7 @@ def _assert_checked_by_sync(rig, prog) -> None:
     assert frames.records_before_check == 0
 
 
+@pytest.mark.wall
 def test_a_start_after_a_finished_run_is_checked_by_one_sync(arm6, make_rig):
     """After a run finishes, every axis is made ready for the next start in the background (end
     controlword, FIFO cleared and opened): that start's check is the drives' answers to one SYNC
@@ -388,6 +390,7 @@ def test_a_start_after_a_finished_run_is_checked_by_one_sync(arm6, make_rig):
     assert rig.sim.internal_errors == []
 
 
+@pytest.mark.wall
 def test_a_recovered_cell_starts_with_its_checks_and_a_fault_undoes_the_readiness(arm6, make_rig):
     rig = make_rig(arm6)
     axes = arm6.ordered_axes()
@@ -403,6 +406,7 @@ def test_a_recovered_cell_starts_with_its_checks_and_a_fault_undoes_the_readines
     _assert_checked_by_sync(rig, program(axes, 200, starts=here, spacing_ms=20))
 
 
+@pytest.mark.wall
 def test_the_check_sync_reads_where_the_axes_are_now(arm6, make_rig):
     """The check of a start whose axes were ready is what the drives answer to its SYNC, not what
     the master last heard: an axis moved behind its back between runs (no TPDO flows while idle) is
@@ -424,6 +428,7 @@ def test_the_check_sync_reads_where_the_axes_are_now(arm6, make_rig):
         assert drive.ip_active_sync == started[drive.node_id] and not drive.ip_active and drive.faults == []
 
 
+@pytest.mark.wall
 def test_a_drive_silent_at_the_check_sync_refuses_the_start(arm6, make_rig):
     """A drive that does not answer the check SYNC (gone from the bus before its heartbeat is
     missed) refuses the start with LOST_SYNC, naming it: the others never get a start word."""
@@ -443,6 +448,7 @@ def test_a_drive_silent_at_the_check_sync_refuses_the_start(arm6, make_rig):
         assert drive.ip_active_sync == started[drive.node_id] and not drive.ip_active  # never started again
 
 
+@pytest.mark.wall
 def test_a_drive_that_answers_sync_late_does_not_starve_the_epos2_beside_it(make_rig):
     """On the wall clock the EPOS2 runs its records on its own clock from the start SYNC, whatever the
     other drives do. Here the bufferless drive beside it (standing still) stops answering SYNC for

@@ -214,6 +214,7 @@ def test_a_reboot_undoes_homing(gantry3: CellConfig, make_rig: Callable[..., Any
     assert rig.group.state.homed == (True, True, True)
 
 
+@pytest.mark.wall
 def test_homing_with_sync_on_the_wall_clock(gantry3: CellConfig) -> None:
     """The same homing with SYNC every 1 ms of wall-clock time, as on a real cell."""
     homing = HomingConfig(M.INDEX_POSITIVE, offset_qc=123 + 2 * INDEX, timeout_s=10.0, **FAST)  # type: ignore[arg-type]

@@ -7,6 +7,7 @@ import threading
 import time
 
 import can
+import pytest
 from axes_rig import BusObserver, unique_channel
 
 from pvtflow.axes.drive import objects as od
@@ -31,6 +32,7 @@ class Beats:
         self.observer.close()
 
 
+@pytest.mark.wall
 def test_the_master_beats_while_it_supervises_and_falls_silent_when_it_hangs(arm6, make_rig):
     cell = dataclasses.replace(arm6, bus=dataclasses.replace(arm6.bus, master_node_id=100, master_heartbeat_ms=20))
     rig = make_rig(cell)
@@ -85,6 +87,7 @@ def test_the_master_beats_while_it_supervises_and_falls_silent_when_it_hangs(arm
         beats.close()
 
 
+@pytest.mark.wall
 def test_with_sync_on_the_wall_clock_a_stuck_sync_producer_silences_the_master(arm6):
     """Real time: the SYNC count must move. Its lock held (here by the test) blocks the producer;
     no drive is on this bus, so only this rule can withhold the beats."""

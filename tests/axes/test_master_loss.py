@@ -84,6 +84,7 @@ def wait_standstill(drives: list[SimulatedDrive], timeout_s: float) -> None:
     raise AssertionError(f"drives {pending} still moving {timeout_s} s after the master was lost")
 
 
+@pytest.mark.wall
 @pytest.mark.parametrize("how", ["dead", "hung"])
 @pytest.mark.parametrize("profile", list(PROFILES))
 def test_every_axis_stops_by_itself_when_the_master_is_lost(arm6, make_rig, profile, how):
@@ -243,6 +244,7 @@ def test_an_earlier_entry_for_the_master_node_is_switched_off(arm6, make_rig):
     assert drive.read(od.CONSUMER_HEARTBEAT_TIME, 1) == entry
 
 
+@pytest.mark.wall
 def test_an_orderly_close_is_not_a_lost_master(arm6, make_rig):
     """A master that closes at rest shuts the drives down (READY TO SWITCH ON: nobody commands them)
     and then tells them to stop watching: after the consumer time no EMCY 0x8130, no fault (the next

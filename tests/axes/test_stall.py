@@ -98,6 +98,7 @@ def served(tmp_path: Path) -> Iterator[tuple[CellConfig, subprocess.Popen[str]]]
     yield from serve(at_period(GANTRY, PERIOD_MS, tmp_path))
 
 
+@pytest.mark.wall
 def test_a_50_ms_stall_of_the_master_halts_every_axis_and_says_sync_gap(served) -> None:
     cell, drives = served
     # the master reports a gap past 40 ms (5 periods) rather than the drives' 16, and retries a

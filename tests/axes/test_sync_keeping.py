@@ -71,6 +71,7 @@ def sync_times(observer: BusObserver, since: float = 0.0) -> list[float]:
     return [t for t, cob, _ in list(observer.frames) if cob == SYNC_COB_ID and t > since]
 
 
+@pytest.mark.wall
 def test_no_catch_up_burst_after_a_stall_and_the_skipped_periods_are_counted():
     channel = unique_channel("sync")
     period_ms = 2.0
@@ -112,6 +113,7 @@ def observed_wall_clock_bus(period_ms: float) -> tuple[CellBus, BusObserver]:
     return CellBus(config, lockstep=False).open(), observer
 
 
+@pytest.mark.wall
 def test_a_sync_more_than_half_a_period_late_goes_out_at_once_and_the_period_runs_from_it():
     """Held 0.6 periods past a deadline, the SYNC thread sends that SYNC at once (a gap of 1.6
     periods, which a fixed-period drive rides out by holding) and keeps the period from it; waiting
@@ -143,6 +145,7 @@ def test_a_sync_more_than_half_a_period_late_goes_out_at_once_and_the_period_run
         observer.close()
 
 
+@pytest.mark.wall
 def test_a_second_sync_thread_on_another_cpu_sends_the_syncs_a_held_first_thread_does_not():
     """The host stalls one CPU's wake-ups at a time (axes.master.bus.sync): the first SYNC thread held for three
     periods, the second, on the other CPU, sends each SYNC a quarter period past its deadline, and
@@ -179,6 +182,7 @@ def test_a_second_sync_thread_on_another_cpu_sends_the_syncs_a_held_first_thread
         observer.close()
 
 
+@pytest.mark.wall
 def test_a_second_sync_thread_is_pinned_to_a_cpu_the_first_is_not_on():
     channel = unique_channel("sync")
     bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0, time_stamp=False), lockstep=False).open()
@@ -199,6 +203,7 @@ def test_a_second_sync_thread_is_pinned_to_a_cpu_the_first_is_not_on():
         bus.close()
 
 
+@pytest.mark.wall
 def test_below_sync_runs_the_caller_just_below_the_bus_threads_and_gives_its_policy_back():
     """The thread that starts and waits on a motion (AxisGroup.run) holds no GIL from SYNC while a
     busy process preempts it: SCHED_FIFO two below SYNC meanwhile, its own policy after."""
@@ -220,6 +225,7 @@ def test_below_sync_runs_the_caller_just_below_the_bus_threads_and_gives_its_pol
         bus.close()
 
 
+@pytest.mark.wall
 def test_a_sync_gap_longer_than_the_drives_ride_out_is_reported_with_the_gap():
     channel = unique_channel("sync")
     bus = CellBus(
@@ -242,6 +248,7 @@ def test_a_sync_gap_longer_than_the_drives_ride_out_is_reported_with_the_gap():
         bus.close()
 
 
+@pytest.mark.wall
 def test_the_interface_s_own_cyclic_sync_is_followed_by_the_time_stamp():
     channel = unique_channel("kernel")
     observer = BusObserver(channel)
@@ -277,6 +284,7 @@ def kernel_timed_bus(period_ms: float, max_sync_gap_periods: float) -> CellBus:
     return CellBus(config, lockstep=False).open()
 
 
+@pytest.mark.wall
 @pytest.mark.parametrize(("held_periods", "reported"), [(1.5, False), (4.5, True)])
 def test_a_held_follower_sends_one_setpoint_after_the_syncs_it_missed_and_a_long_hold_is_reported(
     held_periods, reported
@@ -317,6 +325,7 @@ def test_a_held_follower_sends_one_setpoint_after_the_syncs_it_missed_and_a_long
         bus.close()
 
 
+@pytest.mark.wall
 def test_a_sync_heard_after_the_setpoint_sent_after_it_takes_no_second_setpoint():
     """The echoes of SYNCs 6 and 7 reach the follower late (the receive path held): 6 only once 7 is
     on the wire, 7 just after the follower followed 6 with a setpoint. That setpoint went out after
@@ -356,6 +365,7 @@ def test_a_sync_heard_after_the_setpoint_sent_after_it_takes_no_second_setpoint(
         bus.close()
 
 
+@pytest.mark.wall
 def test_a_virtual_bus_has_no_cyclic_send_of_its_own_so_the_sync_thread_sends():
     channel = unique_channel("sync")
     bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0), lockstep=False).open()
@@ -443,6 +453,7 @@ def test_a_frame_sent_with_no_patience_is_tried_once():
         bus.close()
 
 
+@pytest.mark.wall
 def test_a_full_queue_delays_a_window_then_refuses_frames_within_it():
     channel = unique_channel("flaky")
     bus = CellBus(BusConfig(interface="pvtflow_test_flaky", channel=channel, tx_retry_ms=0.0)).open()
@@ -464,6 +475,7 @@ def scheduler(thread: threading.Thread) -> tuple[int, int]:
     return os.sched_getscheduler(thread.native_id), os.sched_getparam(thread.native_id).sched_priority
 
 
+@pytest.mark.wall
 @pytest.mark.parametrize("lift_bus_threads", [True, False], ids=["lifted", "left"])
 def test_the_bus_threads_run_just_below_sync_when_sync_has_sched_fifo(lift_bus_threads):
     """Priority inversion through the GIL: a bus thread preempted while holding the GIL holds SYNC."""
@@ -625,6 +637,7 @@ def test_a_transmit_queue_full_just_before_the_start_sync_delays_the_start_words
         close_rig(sim, bus, group)
 
 
+@pytest.mark.wall
 def test_a_start_word_that_cannot_be_sent_quick_stops_the_drives_that_got_theirs(arm6):
     """A queue full past the start's patience after some drives got their start word: those would
     start alone at the next SYNC, whoever sends it. Every axis is quick stopped by SDO instead (or
@@ -657,6 +670,7 @@ def test_a_start_word_that_cannot_be_sent_quick_stops_the_drives_that_got_theirs
         close_rig(sim, bus, group)
 
 
+@pytest.mark.wall
 def test_a_sync_gap_beyond_the_limit_halts_the_motion_on_the_wall_clock(arm6):
     cell = fixed_period_cell(arm6, 10)
     cell, sim, bus, group = sim_rig(cell, lockstep=False, max_sync_gap_periods=5)
@@ -717,6 +731,7 @@ def assert_at_their_ends(sim: SimulatedCell, prog) -> None:
         assert drive.faults == [] and drive.actual == axis.records[-1, 0], (drive.node_id, drive.faults)
 
 
+@pytest.mark.wall
 @pytest.mark.parametrize(("held_syncs", "halts"), [(1, False), (4, True)], ids=["ridden_out", "too_long"])
 def test_a_follower_held_mid_motion_costs_a_period_or_halts_with_no_setpoint(arm6, held_syncs, halts):
     """The interface sends SYNC (the kernel's cyclic send) and the linear-IP drives keep their own
@@ -751,6 +766,7 @@ def test_a_follower_held_mid_motion_costs_a_period_or_halts_with_no_setpoint(arm
         close_rig(sim, bus, group)
 
 
+@pytest.mark.wall
 def test_a_follower_held_past_the_reserve_of_buffered_drives_costs_only_time_stamps(arm6):
     """EPOS2s run their records on their own clock: SYNCs without the master's follow went out
     without a time stamp, and the feed waited. Held six SYNCs, past the reserve that bounds a gap of

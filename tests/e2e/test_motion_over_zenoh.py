@@ -5,11 +5,13 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from svc_helpers import SHORT_TARGET, check_reply, long_tour, wait_until
 
 from pvtflow.axes.drive.cia402 import Statusword
 
 
+@pytest.mark.wall
 def test_plan_and_execute_six_axes_following_state_and_telemetry_to_the_end(arm6, serve):
     s = serve(arm6)
     col = s.follow()
@@ -77,6 +79,7 @@ def test_plan_and_execute_six_axes_following_state_and_telemetry_to_the_end(arm6
     assert after.data["recent"][0]["label"] == "e2e"
 
 
+@pytest.mark.wall
 def test_stop_mid_move_halts_every_axis(arm6, serve):
     s = serve(arm6)
     col = s.follow()
@@ -125,6 +128,7 @@ def test_stop_mid_move_halts_every_axis(arm6, serve):
     assert again.ok and again.data["was_moving"] is False
 
 
+@pytest.mark.wall
 def test_second_execute_while_busy_is_refused_and_changes_nothing(arm6, serve):
     s = serve(arm6)
     col = s.follow()
@@ -168,6 +172,7 @@ def test_execute_wait_replies_with_the_outcome_and_a_program_can_be_sent_instead
     np.testing.assert_allclose(home.data["start"], SHORT_TARGET, atol=1e-3)
 
 
+@pytest.mark.wall
 def test_a_fault_mid_move_halts_every_axis_and_the_cell_stays_in_fault(arm6, serve):
     s = serve(arm6)
     col = s.follow()
@@ -194,6 +199,7 @@ def test_a_fault_mid_move_halts_every_axis_and_the_cell_stays_in_fault(arm6, ser
     assert s.request("status").data["state"] == "idle"
 
 
+@pytest.mark.wall
 def test_a_fault_while_idle_needs_recover_before_the_next_motion(arm6, serve):
     s = serve(arm6)
     col = s.follow()

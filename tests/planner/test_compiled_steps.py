@@ -3,9 +3,9 @@
 ``fit_knots`` (``refine_kernels.fit_rounds``), ``quantize_checked`` (``round_kernels.round_check_repair``)
 and ``split_verdict`` each do in one call what ``lsq_fit`` / ``split_segments``, ``round_knots`` /
 ``check_knots`` / ``repair_rounds`` and a few numpy operations do step by step; the TOPP-RA backward
-pass skips its LPs in a compiled loop (``lean_toppra._known_stages``) where the stage's set is known;
+pass skips its LPs in a compiled loop (``topp.passes.known_stages``) where the stage's set is known;
 the interval speed constraints build their rows in one (``constraints._interval_rows``), and the
-stages' ranges of u at x in another (``lean_toppra._u_range``). The path's not-a-knot spline is
+stages' ranges of u at x in another (``topp.rows.u_range``). The path's not-a-knot spline is
 scipy's ``CubicSpline`` without its wrapper (``path.not_a_knot``), the grid one ``np.unique`` of the
 candidates the unions gave.
 """
@@ -26,9 +26,9 @@ from pvtflow.planner.knots.quantize import quantize_checked, repair_rounds, roun
 from pvtflow.planner.knots.refine import fit_knots, lsq_fit, split_segments
 from pvtflow.planner.knots.round_kernels import split_verdict
 from pvtflow.planner.knots.samples import sample_trajectory
-from pvtflow.planner.lean_toppra import LeanTOPPRA
 from pvtflow.planner.plan import PlanInput
 from pvtflow.planner.timing import make_gridpoints
+from pvtflow.planner.topp.lean import LeanTOPPRA
 from pvtflow.service.cell_planner import planner_for_cell
 from pvtflow.service.config import load_cell_config
 
@@ -282,7 +282,7 @@ def test_not_a_knot_is_scipys_spline_bit_for_bit(n: int) -> None:
 
 
 def test_u_range_is_the_numpy_statements_bit_for_bit() -> None:
-    from pvtflow.planner.lean_toppra import _StageRows
+    from pvtflow.planner.topp.rows import StageRows
 
     cell = load_cell_config()
     planner = planner_for_cell(cell)
@@ -291,7 +291,7 @@ def test_u_range_is_the_numpy_statements_bit_for_bit() -> None:
     wp = lim.lower + (lim.upper - lim.lower) * (0.1 + 0.8 * rng.random((8, lim.dof)))
     path = planner.plan(PlanInput(wp)).trajectory.path
     grid = make_gridpoints(path, 140)
-    rows = _StageRows.stack([c.compute_constraint_params(path, grid) for c in planner.constraints], len(grid))
+    rows = StageRows.stack([c.compute_constraint_params(path, grid) for c in planner.constraints], len(grid))
     xs = [rows.x_hi, np.zeros(len(grid)), rng.uniform(-1.0, 50.0, len(grid))]
     nan_x = rng.uniform(0.0, 5.0, len(grid))
     nan_x[::7] = np.nan

@@ -192,19 +192,19 @@ def test_acceleration_jumps_are_the_numpy_statements_bit_for_bit() -> None:
 
 
 def test_stage_rows_are_the_matrix_products() -> None:
-    """``_StageRows.stack`` (one compiled loop per constraint, F's nonzeros only) gives the stacked
+    """``StageRows.stack`` (one compiled loop per constraint, F's nonzeros only) gives the stacked
     F a, F b, F c - h of every constraint of the cell, torque included, as numpy's products do."""
-    from pvtflow.planner.lean_toppra import _StageRows, _times
+    from pvtflow.planner.topp.rows import StageRows, times
 
     planner = Planner(LIMITS, ARM.model, "tool0", 2.0, torque_limits=True)
     path = JointPath(WAYPOINTS, LIMITS)
     grid = make_gridpoints(path, 60)
     params = [c.compute_constraint_params(path, grid) for c in planner.constraints]
-    rows = _StageRows.stack(params, len(grid))
+    rows = StageRows.stack(params, len(grid))
     live = [p for p in params if p[0] is not None]
-    np.testing.assert_array_equal(rows.A, np.hstack([_times(p[3], p[0]) for p in live]))
-    np.testing.assert_array_equal(rows.B, np.hstack([_times(p[3], p[1]) for p in live]))
-    np.testing.assert_array_equal(rows.C, np.hstack([_times(p[3], p[2]) - p[4] for p in live]))
+    np.testing.assert_array_equal(rows.A, np.hstack([times(p[3], p[0]) for p in live]))
+    np.testing.assert_array_equal(rows.B, np.hstack([times(p[3], p[1]) for p in live]))
+    np.testing.assert_array_equal(rows.C, np.hstack([times(p[3], p[2]) - p[4] for p in live]))
 
 
 @pytest.mark.parametrize("max_speed", [0.5, 2.0])

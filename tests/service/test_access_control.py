@@ -24,6 +24,7 @@ def shipped(name: str, **endpoints: list[str]) -> zenoh.Config:
     return config
 
 
+@pytest.mark.wall
 def test_only_the_operator_may_command_and_a_denied_caller_gets_nothing(arm6, serve):
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"

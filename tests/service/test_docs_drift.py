@@ -23,12 +23,13 @@ def text(path: Path) -> str:
 
 
 @pytest.mark.parametrize("package", PACKAGES)
-def test_the_readme_table_lists_the_public_names_of_each_package(package: str) -> None:
-    row = re.search(rf"^\| `pvtflow.{package}` \| (.*) \|$", text(ROOT / "README.md"), re.M)
-    assert row, f"README.md: no row for {package}"
+def test_the_development_guide_lists_the_public_names_of_each_package(package: str) -> None:
+    row = re.search(rf"^\| `pvtflow.{package}` \| (.*) \|$", text(ROOT / "docs" / "development.md"), re.M)
+    assert row, f"docs/development.md: no row for {package}"
     listed = set(re.findall(r"`(\w+)`", re.sub(r"\([^)]*\)", "", row.group(1))))  # (remarks) left out
     public = set(importlib.import_module(f"pvtflow.{package}").__all__)
-    assert listed == public, f"README.md lists {sorted(listed - public)} extra, {sorted(public - listed)} missing"
+    extra, missing = sorted(listed - public), sorted(public - listed)
+    assert listed == public, f"docs/development.md lists {extra} extra, {missing} missing"
 
 
 def test_the_docs_python_imports_only_public_names() -> None:

@@ -1,4 +1,4 @@
-"""The CLI's simulated drives are new in each process (README.md says so next to pvtflow execute): the
+"""The CLI's simulated drives are new in each process (docs/commands.md says so next to pvtflow execute): the
 same program runs twice from the command line, while a service, one set of drives for its life,
 refuses the second run (start_mismatch)."""
 
@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_each_execute_starts_fresh_drives_and_the_service_keeps_its_own(  # type: ignore[no-untyped-def]
     serve, arm6, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    readme = " ".join((ROOT / "docs" / "commands.md").read_text(encoding="utf-8").split())
     assert "A simulated cell's drives are new in each `pvtflow execute`" in readme
     wp = tmp_path / "wp.json"
     wp.write_text(json.dumps({"waypoints": [[0.0] * 6, [0.2, -0.1, 0.2, -0.1, 0.2, -0.1]]}))

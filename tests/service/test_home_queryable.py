@@ -3,12 +3,14 @@ drive reboots, status ``homed`` per axis, the journal's homing lines; a cell wit
 
 from __future__ import annotations
 
+import pytest
 from svc_helpers import check_reply, nothing_moved, wait_until
 
 GANTRY_START = [0.05, 0.05, -0.05]
 GANTRY_END = [0.10, 0.08, -0.08]
 
 
+@pytest.mark.wall
 def test_a_gantry_homes_before_it_moves_and_again_after_a_reboot(gantry3, serve) -> None:
     s = serve(gantry3)
     events = s.follow()

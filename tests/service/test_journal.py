@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import time
 
+import pytest
 from svc_helpers import SHORT_TARGET, nothing_moved
 
 from pvtflow.service.journal import JOURNAL_FILE, Journal, JournalError
@@ -77,6 +78,7 @@ def test_an_unwritable_journal_is_a_clear_error(tmp_path):
         raise AssertionError("a journal under a file must not open")
 
 
+@pytest.mark.wall
 def test_a_motion_the_journal_cannot_take_is_refused_with_nothing_sent(arm6, serve):
     """The motion is journaled while the drives answer the start's checks; when that write fails,
     no record has gone out, the execute answers journal_error and the service stays usable."""

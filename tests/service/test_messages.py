@@ -52,6 +52,7 @@ def test_the_sim_banner_says_which_drives_home_in_mode_6(cell: str, homes: str |
         assert "homing mode" not in text, text
 
 
+@pytest.mark.wall
 def test_progress_into_a_pipe_is_plain_lines() -> None:
     out = io.StringIO()  # not a terminal
     follower = _Follower(stream=out)

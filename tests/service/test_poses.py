@@ -107,6 +107,7 @@ def test_pvtflow_plan_writes_a_program_from_a_pose_file(tmp_path, capsys) -> Non
     assert "(unreachable)" in err and "pose 1" in err
 
 
+@pytest.mark.wall
 def test_a_linear_move_runs_on_the_simulated_arm_and_ends_on_the_pose(arm6, serve) -> None:
     """Over zenoh: move off the wrist singularity of the home position (a joint move), then a
     linear move from where the axes are through two poses; the drives end on the last pose."""

@@ -130,6 +130,7 @@ def test_record_refuses_a_file_that_is_not_mcap_before_anything(tmp_path, capsys
     ]
 
 
+@pytest.mark.wall
 def test_a_recording_cut_by_kill_9_reads_up_to_its_last_chunk(tmp_path, arm6):
     prog = program(arm6.ordered_axes(), 10000, spacing_ms=10, cell="arm6")
     path = tmp_path / "program.json"

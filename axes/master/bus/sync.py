@@ -93,7 +93,7 @@ def ask_realtime(priority: int) -> bool:
             _realtime_warned = True
             log.warning(
                 "SYNC runs at normal priority: SCHED_FIFO %d not granted (%s); permit it with root, "
-                "CAP_SYS_NICE or an rtprio limit (README, the wall clock), or set sync_priority: 0",
+                "CAP_SYS_NICE or an rtprio limit (docs/wall-clock.md), or set sync_priority: 0",
                 priority,
                 exc,
             )

@@ -90,7 +90,7 @@ class Profile:
 
     @property
     def sync_answer_cob_id(self) -> int:
-        return 0x80 + 0x100 * self.sync_tpdo + self.link.node_id
+        return od.pdo_cob_id(self.sync_tpdo, self.link.node_id, receive=False)
 
     @property
     def sync_answer_every(self) -> int:

@@ -32,10 +32,6 @@ VOLTAGE_ENABLED = int(Statusword.VOLTAGE_ENABLED)
 WARNING = int(Statusword.WARNING)
 TARGET_REACHED = int(Statusword.TARGET_REACHED)
 IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
-CW_HOMING_START = int(Controlword.HOMING_START)
-CW_ENABLE_IP = int(Controlword.ENABLE_IP_MODE)
-CW_FAULT_RESET = int(Controlword.FAULT_RESET)
-CW_HALT = int(Controlword.HALT)
 
 
 class PowerStateMachine:
@@ -61,7 +57,7 @@ class PowerStateMachine:
         previous, self._controlword = self._controlword, cw
         state = self.state
         if state == FAULT:
-            if cw & CW_FAULT_RESET and not previous & CW_FAULT_RESET:
+            if cw & Controlword.FAULT_RESET and not previous & Controlword.FAULT_RESET:
                 self._fault_reset()
             return
         if state == FAULT_REACTION_ACTIVE:
@@ -103,7 +99,7 @@ class PowerStateMachine:
             if new == OPERATION_ENABLED:
                 self._enter_operation()
         if self.state == OPERATION_ENABLED:
-            if cw & CW_HALT and not previous & CW_HALT:
+            if cw & Controlword.HALT and not previous & Controlword.HALT:
                 self.halts.append(self.sync_count)
                 self._begin_stop(self._deceleration(quick=False))
             self._on_mode_bits(previous, cw)
@@ -129,7 +125,7 @@ class PowerStateMachine:
     def halted(self) -> bool:
         """Halt is set now (the master clears it again when it readies the drive for the next run:
         ``halts`` tells whether a run was halted)."""
-        return bool(self._controlword & CW_HALT)
+        return bool(self._controlword & Controlword.HALT)
 
     def statusword(self) -> int:
         _mask, value = State402.SW_MASK[self.state]

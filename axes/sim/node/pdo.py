@@ -23,20 +23,17 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
+import canopen
 from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
-from pvtflow.axes.drive.objects import EMCY_PDO_LENGTH
+from pvtflow.axes.drive.objects import EMCY_PDO_LENGTH, PDO_INVALID
 from pvtflow.axes.sim.node.dictionary import ABORT_DEVICE_STATE
 from pvtflow.axes.sim.node.tpdo_timing import TpdoTiming
 
-if TYPE_CHECKING:
-    from pvtflow.axes.sim.drive import SimulatedDrive
-
-PDO_NOT_VALID = 1 << 31
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
 
 ABORT_UNSUPPORTED_ACCESS = 0x06010000
@@ -76,9 +73,31 @@ class PdoState:
         return self.transmission_type <= 240
 
 
+class PdoHost(Protocol):
+    """What the PDO engine needs of its drive: its node and dictionary, its network and time, where an
+    RPDO's data goes and how an EMCY leaves (a ``SimulatedDrive``: the engine does not know the class)."""
+
+    node: canopen.LocalNode
+    network: canopen.Network
+    lock: threading.RLock
+    rejected_writes: list[tuple[int, int, int]]
+    time_us: int
+
+    @property
+    def operational(self) -> bool: ...
+
+    def read(self, index: int, subindex: int = 0) -> int: ...
+
+    def read_or(self, index: int, subindex: int, default: int) -> int: ...
+
+    def on_rpdo_frame(self, can_id: int, data: bytes) -> None: ...
+
+    def send_emcy(self, code: int, register: int | None = None, data: bytes = b"") -> None: ...
+
+
 @dataclass
 class PdoEngine:
-    drive: SimulatedDrive
+    drive: PdoHost
     rpdos: dict[int, PdoState] = field(default_factory=dict)
     tpdos: dict[int, PdoState] = field(default_factory=dict)
     _subscribed: dict[int, Callable[[int, bytearray, float], None]] = field(default_factory=dict)
@@ -96,7 +115,7 @@ class PdoEngine:
         base_comm = RPDO_COMM if receive else TPDO_COMM
         number = (index & 0x1FF) + 1
         stored = self.drive.read(base_comm + number - 1, 1)
-        valid = stored & PDO_NOT_VALID == 0
+        valid = stored & PDO_INVALID == 0
         if (index & 0x200) == 0:  # communication parameter
             moved = (value & COB_ID_BITS) != (stored & COB_ID_BITS)
             if subindex == 1 and moved and valid:
@@ -171,7 +190,7 @@ class PdoEngine:
                 value = self.drive.read(mapping + n, k)
                 if value >> 16 and value & 0xFF:
                     entries.append((value >> 16, (value >> 8) & 0xFF, value & 0xFF))
-            pdo = PdoState(n + 1, receive, cob & 0x7FF, not cob & PDO_NOT_VALID, ttype, tuple(entries))
+            pdo = PdoState(n + 1, receive, cob & 0x7FF, not cob & PDO_INVALID, ttype, tuple(entries))
             if not receive:
                 inhibit, timer = self.drive.read_or(comm + n, 3, 0), self.drive.read_or(comm + n, 5, 0)
                 pdo.timing = TpdoTiming.from_objects(inhibit, timer)

@@ -32,9 +32,10 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from pvtflow.axes.drive import objects as od
+from pvtflow.axes.drive.cia402 import Controlword
 from pvtflow.axes.drive.drive_profile import DriveProfile
 from pvtflow.axes.drive.interpolation import Interpolation
-from pvtflow.axes.sim.cia402.power_states import CW_HALT, OPERATION_ENABLED
+from pvtflow.axes.sim.cia402.power_states import OPERATION_ENABLED
 from pvtflow.axes.sim.cia402.segment import Segment
 from pvtflow.axes.sim.node.device import NO_MODE, PARKER_MODES
 from pvtflow.axes.sim.node.dictionary import ABORT_VALUE_RANGE
@@ -107,7 +108,7 @@ class ParkerDrive(FixedPeriodDrive):
             self.state == OPERATION_ENABLED
             and not self.ip_active
             and self._ip_mode_selected()
-            and not self._controlword & CW_HALT
+            and not self._controlword & Controlword.HALT
             and self._stop_segment is None
         ):
             self._ip_requested = True

@@ -15,12 +15,12 @@ import can
 from can import BusState
 
 from pvtflow.axes.canbus.can_errors import ControllerState, decode
+from pvtflow.axes.canbus.threads import ask_wire_priority
 from pvtflow.axes.sim.wire import protocol as p
 from pvtflow.axes.sim.wire.accounting import LateSync, WireStats
 from pvtflow.axes.sim.wire.bus_states import BUS_OFF, ERROR_PASSIVE
 from pvtflow.axes.sim.wire.medium import WireConfigError
 from pvtflow.axes.sim.wire.node import bus_off_error, transmit_queue_full
-from pvtflow.axes.sim.wire.priority import ask_wire_priority
 
 CONNECT_TIMEOUT = 5.0
 WAIT_SLICE_S = 0.001  # a sender waiting for room looks again at least this often

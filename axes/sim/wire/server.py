@@ -33,10 +33,10 @@ from typing import Any
 import can
 from can import BusState
 
+from pvtflow.axes.canbus.threads import ask_wire_priority
 from pvtflow.axes.sim.wire import protocol as p
 from pvtflow.axes.sim.wire.medium import Medium, WireConfigError
 from pvtflow.axes.sim.wire.node import Node
-from pvtflow.axes.sim.wire.priority import ask_wire_priority
 from pvtflow.axes.sim.wire.registry import acquire_medium, release_medium
 
 

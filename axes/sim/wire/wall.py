@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import threading
 
+from pvtflow.axes.canbus.threads import ask_wire_priority
 from pvtflow.axes.sim.wire.medium import Medium
-from pvtflow.axes.sim.wire.priority import ask_wire_priority
 
 
 class WallDriver:

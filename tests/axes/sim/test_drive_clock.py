@@ -169,6 +169,7 @@ def test_fixed_period_well_timed_stream_follows_the_setpoints(bench: Bench, tick
     assert all(b >= a - 1e-9 for a, b in itertools.pairwise(demands))  # a monotone path stays so
 
 
+@pytest.mark.wall
 @pytest.mark.parametrize("make", FIXED, ids=lambda f: f.__name__)
 def test_fixed_period_late_sync_holds_the_last_setpoint(bench: Bench, ticker: Ticker, make) -> None:
     drive, frame, cob_id = make(bench, ticker, 52)
@@ -215,6 +216,7 @@ def test_fixed_period_burst_of_syncs_faults_as_a_too_fast_program(bench: Bench, 
     assert int.from_bytes(emcy[0].data[:2], "little") == od.EMCY_VELOCITY_LIMIT
 
 
+@pytest.mark.wall
 def test_fixed_period_lockstep_is_unmoved_by_wall_time(bench: Bench) -> None:
     """The default clock: the demand moves with SYNCs only, however long the test waits."""
     drive = bench.add(IpLinearDrive(54, scaling=SCALING, limits=LIMITS, sync_period_ms=PERIOD_MS))
@@ -423,6 +425,7 @@ def test_epos2_follows_the_masters_time_stamps(bench: Bench, ticker: Ticker, sta
         assert drift[-1] > 1000.0  # over a millisecond off the true time by the end
 
 
+@pytest.mark.wall
 def test_epos2_lockstep_has_no_clock_of_its_own(bench: Bench) -> None:
     drive = bench.add(Epos2Drive(64, scaling=EPOS2_SCALING, limits=EPOS2_LIMITS))
     node = bench.remote(drive)

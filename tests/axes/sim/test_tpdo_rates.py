@@ -8,6 +8,7 @@ import threading
 import time
 
 import canopen
+import pytest
 
 from pvtflow.axes.drive.objects import EPOS2_RPDOS, EPOS2_TPDOS
 from pvtflow.axes.sim import Epos2Drive
@@ -112,6 +113,7 @@ def test_the_event_timer_sends_an_unchanged_tpdo(bench: Bench) -> None:
     assert [n - start for n in at] == [3, 7, 11]
 
 
+@pytest.mark.wall
 def test_a_change_held_by_the_inhibit_time_is_not_sent_once_the_drive_left_the_bus(bench: Bench) -> None:
     """A statusword change held by a 50 ms inhibit time while the drive's clock stands still (no
     SYNC) waits on a wall-clock timer; the drive leaves the bus before it runs out: the timer is

@@ -1,0 +1,102 @@
+"""Every test that depends on the wall clock says so with the ``wall`` marker.
+
+A test depends on the wall clock when it runs SYNC on the wall clock (``real_time=True``,
+``lockstep=False``, ``--real-time``) or lets time pass (a ``time.sleep`` outside a loop: a sleep inside
+one polls a condition until a deadline and depends on the clock only for how long it may wait), itself
+or through a helper or fixture that does: its outcome can then depend on the host's load, and
+``pytest -m wall`` / ``-m "not wall"`` must find it. The marker only labels: the README's test command
+runs these tests too.
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+TESTS = Path(__file__).resolve().parent
+WALL_CLOCK_SYNC = re.compile(r"real_time\s*=\s*True|lockstep\s*=\s*False|--real-time")
+Function = ast.FunctionDef | ast.AsyncFunctionDef
+
+
+def _functions(tree: ast.Module) -> dict[str, Function]:
+    """Module-level functions and methods of module-level classes, by name."""
+    found: dict[str, Function] = {}
+    for node in tree.body:
+        if isinstance(node, Function):
+            found[node.name] = node
+        elif isinstance(node, ast.ClassDef):
+            found.update({f.name: f for f in node.body if isinstance(f, Function) and not f.name.startswith("test_")})
+    return found
+
+
+def _lets_time_pass(f: Function) -> bool:
+    """A ``time.sleep`` call that is not inside a loop of ``f``."""
+    looped = {id(n) for loop in ast.walk(f) if isinstance(loop, ast.For | ast.While) for n in ast.walk(loop)}
+    return any(
+        isinstance(n, ast.Call) and ast.unparse(n.func) == "time.sleep" and id(n) not in looped for n in ast.walk(f)
+    )
+
+
+def _on_the_wall_clock(src: str, f: Function) -> bool:
+    return bool(WALL_CLOCK_SYNC.search(ast.get_source_segment(src, f) or "")) or _lets_time_pass(f)
+
+
+def _uses(node: ast.AST, names: set[str]) -> bool:
+    """The node names one of ``names`` (a call, an attribute, a fixture argument)."""
+    for sub in ast.walk(node):
+        if (isinstance(sub, ast.Name) and sub.id in names) or (isinstance(sub, ast.Attribute) and sub.attr in names):
+            return True
+        if isinstance(sub, ast.arg) and sub.arg in names:
+            return True
+    return False
+
+
+def _wall_names(trees: list[tuple[str, ast.Module]]) -> set[str]:
+    """Helpers and fixtures (not tests) that use the wall clock, directly or through one another."""
+    defs = {
+        name: (src, f) for src, tree in trees for name, f in _functions(tree).items() if not name.startswith("test_")
+    }
+    wall = {name for name, (src, f) in defs.items() if _on_the_wall_clock(src, f)}
+    while True:
+        more = {name for name, (_src, f) in defs.items() if name not in wall and _uses(f, wall)}
+        if not more:
+            return wall
+        wall |= more
+
+
+def _marked(decorators: list[ast.expr]) -> bool:
+    return any("mark.wall" in ast.unparse(d) for d in decorators)
+
+
+def _module_marked(tree: ast.Module) -> bool:
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "pytestmark" for t in node.targets):
+            return "mark.wall" in ast.unparse(node.value)
+    return False
+
+
+def unmarked_wall_tests() -> list[str]:
+    parsed = {p: (p.read_text(), ast.parse(p.read_text())) for p in sorted(TESTS.rglob("*.py"))}
+    shared = [(src, tree) for p, (src, tree) in parsed.items() if not p.name.startswith("test_")]
+    offenders = []
+    for path, (src, tree) in parsed.items():
+        if not path.name.startswith("test_") or path == Path(__file__).resolve() or _module_marked(tree):
+            continue
+        wall = _wall_names([*shared, (src, tree)])
+        scopes: list[tuple[Function, bool]] = []
+        for node in tree.body:
+            if isinstance(node, Function):
+                scopes.append((node, False))
+            elif isinstance(node, ast.ClassDef):
+                scopes += [(f, _marked(node.decorator_list)) for f in node.body if isinstance(f, Function)]
+        for f, class_marked in scopes:
+            if not f.name.startswith("test_") or class_marked or _marked(f.decorator_list):
+                continue
+            if _on_the_wall_clock(src, f) or _uses(f, wall):
+                offenders.append(f"{path.relative_to(TESTS)}::{f.name}")
+    return offenders
+
+
+def test_every_wall_clock_test_carries_the_wall_marker() -> None:
+    assert unmarked_wall_tests() == []
