@@ -47,7 +47,8 @@ from pvtflow.axes.master.bus.network import TX_RETRY_PAUSE_S
 from pvtflow.axes.master.bus.sync import lift
 
 if TYPE_CHECKING:
-    from pvtflow.axes.master.bus.cell_bus import CellBus
+    from pvtflow.axes.master.bus.network import RecordingNetwork
+    from pvtflow.axes.master.bus.sync import SyncClock
 
 SDO_REQUEST_BASE = 0x600
 SDO_RESPONSE_BASE = 0x580
@@ -101,13 +102,19 @@ class QuickStop:
 
 
 def quick_stop_all(
-    bus: CellBus, node_ids: Iterable[int], reason: str, on_done: Callable[[QuickStop], None] | None = None
+    network: RecordingNetwork,
+    sync: SyncClock,
+    confirm_ms: float,
+    fall_silent: Callable[[], None],
+    node_ids: Iterable[int],
+    reason: str,
+    on_done: Callable[[QuickStop], None] | None = None,
 ) -> QuickStop:
     """Send the quick stop request to every drive now (the calling thread: a few frames, no wait);
-    a thread of its own waits for the answers, sends NMT stop to the drives that did not confirm,
-    then calls ``on_done``. Never raises: what could not be sent is in ``QuickStop.unsent``."""
+    a thread of its own waits for the answers (``confirm_ms``), sends NMT stop to the drives that did
+    not confirm, then calls ``on_done``; when even that could not be sent, ``fall_silent`` stops the
+    master's heartbeat. Never raises: what could not be sent is in ``QuickStop.unsent``."""
     stop = QuickStop(tuple(node_ids), reason)
-    network = bus.network
     lock = threading.Lock()
     answered = threading.Condition(lock)
 
@@ -144,13 +151,12 @@ def quick_stop_all(
 
     collector.hold()  # no collection pause between the requests and their confirmations (axes/master/bus/collector.py)
     send_requests(stop.node_ids, patient=True)
-    confirm_s = bus.config.quick_stop_confirm_ms / 1000.0
+    confirm_s = confirm_ms / 1000.0
 
     def answered_all() -> bool:
         return all(n in stop.refused for n in stop.missing)
 
     def finish() -> None:
-        sync = bus.sync
         if sync.realtime and sync.lift_bus_threads:  # as the bus's other threads (CellBus.threads)
             lift([threading.current_thread()], sync.priority - 1)
         try:
@@ -180,7 +186,7 @@ def quick_stop_all(
             except (can.CanError, OSError, RuntimeError) as exc:
                 stop.unsent.append(f"NMT stop of node {node}: {exc}")
         if stop.unsent:  # nothing reaches them: the master falls silent, and they stop on its heartbeat's loss
-            bus.master_heartbeat.stop()
+            fall_silent()
         stop.done.set()
         if on_done is not None:
             on_done(stop)
