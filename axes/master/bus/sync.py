@@ -202,7 +202,9 @@ class SyncClock:
         self.lockstep = lockstep
         self.time_stamp_cob_id = time_stamp_cob_id
         self.priority = priority
-        self.max_gap_s = max_gap_periods * period_ms / 1000.0
+        self.bus_max_gap_s = max_gap_periods * period_ms / 1000.0  # the bus's own (BusConfig.max_sync_gap_periods)
+        # this production's: each ``start`` sets it (a gap judged as a production stops keeps the threshold it ran on)
+        self.max_gap_s = self.bus_max_gap_s
         self.count = 0
         self.answered = 0
         self.skipped = 0
@@ -359,9 +361,12 @@ class SyncClock:
                 if failed is not None:
                     self.report(failed)
 
-    def start(self) -> None:
-        """Send the first SYNC now and keep producing (lockstep: on answers; real time: periodic)."""
+    def start(self, max_gap_s: float | None = None) -> None:
+        """Send the first SYNC now and keep producing (lockstep: on answers; real time: periodic).
+        ``max_gap_s``: the gap this production reports (a run's profiles ride out less than the bus's
+        default, ``Profile.max_sync_gap_ms``); None: the bus's own (homing, a run on a bus that sets one)."""
         with self.lock:
+            self.max_gap_s = self.bus_max_gap_s if max_gap_s is None else max_gap_s
             if self._running:
                 return
             self._running = True

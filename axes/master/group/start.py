@@ -97,9 +97,10 @@ class GroupStart:
                 self._start_sync = sync.count + 1
                 self._start_sent = None
                 sync.setpoints_per_sync = any(not p.name.buffered for p in self.profiles)
+                run_gap_s = None  # the bus's own, set in its config
                 if self.bus.config.max_sync_gap_periods is None:  # the profiles say (axes.master.bus.sync)
                     gaps = (p.max_sync_gap_ms(prog) for p, prog in zip(self.profiles, self._programs, strict=True))
-                    sync.max_gap_s = min(gaps) / 1000.0
+                    run_gap_s = min(gaps) / 1000.0
                 # before the start SYNC nothing waits on these frames: a full transmit queue only delays
                 # them by the wire time of what is ahead (as the preload's)
                 try:
@@ -118,7 +119,7 @@ class GroupStart:
                 self.bus.watch.arm_sync_watch()
                 started = f"program of {program.duration_ms} ms started on SYNC {self._start_sync}"
                 self._event(EventKind.STARTED, started)
-                sync.start()
+                sync.start(max_gap_s=run_gap_s)
         return None
 
     def _preload_records(self, checked: bool) -> _Refusal | None:
