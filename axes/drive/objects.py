@@ -244,6 +244,32 @@ class Record:
         return cls.unpack(int.from_bytes(data[:8], "little"))
 
 
+# --- COB-IDs and PDO parameters (CiA 301 predefined connection set: function code + node id) ---------------
+NODE_ID_BITS = 0x7F  # the node id in a predefined COB-ID (bits 0-6)
+SDO_REQUEST_COB_ID_BASE = 0x600  # client -> server SDO (the master's requests)
+SDO_RESPONSE_COB_ID_BASE = 0x580  # server -> client SDO (the drives' answers)
+
+
+def pdo_cob_id(number: int, node_id: int, receive: bool) -> int:
+    """PDO ``number`` (1-4) of a node: TPDO1 0x180 + node, RPDO1 0x200 + node, and 0x100 up for each next."""
+    return (0x100 if receive else 0x080) + 0x100 * number + node_id
+
+
+def pdo_communication_index(number: int, receive: bool) -> int:
+    """The communication parameter object of PDO ``number``: 0x1400 + n - 1 (RPDO), 0x1800 + n - 1 (TPDO)."""
+    return (0x1400 if receive else 0x1800) + number - 1
+
+
+def pdo_mapping_index(number: int, receive: bool) -> int:
+    """The mapping object of PDO ``number``: 0x1600 + n - 1 (RPDO), 0x1A00 + n - 1 (TPDO)."""
+    return (0x1600 if receive else 0x1A00) + number - 1
+
+
+def node_of_cob_id(cob_id: int) -> int:
+    """The node a predefined COB-ID belongs to."""
+    return cob_id & NODE_ID_BITS
+
+
 # --- PDO layout (the contract between the master's configuration and the drives) ----------------
 class PdoRole(StrEnum):
     """What a PDO carries, which says how often it is on the bus (``PdoLayout.frames_per_sync``)."""
@@ -269,7 +295,7 @@ class PdoLayout:
     event_timer_ms: int = 0  # event TPDO: sent at least this often, changed or not (0: on a change only)
 
     def cob_id(self, node_id: int, receive: bool) -> int:
-        return (0x100 if receive else 0x080) + 0x100 * self.number + node_id
+        return pdo_cob_id(self.number, node_id, receive)
 
     @property
     def payload_bytes(self) -> int:

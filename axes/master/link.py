@@ -162,8 +162,8 @@ class AxisLink:
         TPDO, the inhibit time and event timer (0: none; an event TPDO sends on a change only), then
         validate; bit 30 (RTR) stays as the drive has it. The result is read back: a drive that
         holds anything else is refused (DriveError naming the PDO)."""
-        comm = (0x1400 if receive else 0x1800) + layout.number - 1
-        mapping = (0x1600 if receive else 0x1A00) + layout.number - 1
+        comm = od.pdo_communication_index(layout.number, receive)
+        mapping = od.pdo_mapping_index(layout.number, receive)
         cob = layout.cob_id(self.node_id, receive) if cob_id is None else cob_id
         stored = self.read(comm, 1, "I")
         rtr = stored & PDO_RTR_BIT
@@ -186,8 +186,8 @@ class AxisLink:
 
     def _check_pdo(self, layout: PdoLayout, receive: bool, cob: int) -> None:
         """The PDO as the drive holds it now against what was written: COB-ID, type, mapping."""
-        comm = (0x1400 if receive else 0x1800) + layout.number - 1
-        mapping = (0x1600 if receive else 0x1A00) + layout.number - 1
+        comm = od.pdo_communication_index(layout.number, receive)
+        mapping = od.pdo_mapping_index(layout.number, receive)
         count = self.read(mapping, 0, "B")
         found = (
             self.read(comm, 1, "I"),
@@ -207,7 +207,7 @@ class AxisLink:
     def disable_pdo(self, number: int, receive: bool) -> None:
         """Invalidate a PDO pvtflow does not use, with the COB-ID it has (skipped where the drive has
         no such PDO or it is invalid already): what an earlier setup left mapped sends nothing."""
-        comm = (0x1400 if receive else 0x1800) + number - 1
+        comm = od.pdo_communication_index(number, receive)
         cob = self.read_optional(comm, 1, "I")
         if cob is not None and not cob & PDO_INVALID:
             self.write(comm, 1, cob | PDO_INVALID, "I")
@@ -270,7 +270,7 @@ class AxisLink:
     # --- controlword -----------------------------------------------------------------------------
     def controlword_cob_id(self) -> int:
         """The synchronous RPDO that carries the controlword (RPDO2 in every pvtflow layout)."""
-        return 0x300 + self.node_id
+        return od.pdo_cob_id(2, self.node_id, receive=True)
 
     def send_controlword(self, controlword: int) -> None:
         """Through the synchronous RPDO: takes effect at the next SYNC."""

@@ -50,8 +50,6 @@ if TYPE_CHECKING:
     from pvtflow.axes.master.bus.network import RecordingNetwork
     from pvtflow.axes.master.bus.sync import SyncClock
 
-SDO_REQUEST_BASE = 0x600
-SDO_RESPONSE_BASE = 0x580
 SDO_DOWNLOAD_2_BYTES = 0x2B  # expedited download, size indicated, 2 bytes
 SDO_DOWNLOAD_CONFIRMED = 0x60
 SDO_ABORT = 0x80
@@ -119,7 +117,7 @@ def quick_stop_all(
     answered = threading.Condition(lock)
 
     def on_response(can_id: int, data: bytearray, timestamp: float) -> None:
-        node = can_id - SDO_RESPONSE_BASE
+        node = can_id - od.SDO_RESPONSE_COB_ID_BASE
         if len(data) < 4 or bytes(data[1:4]) != _MULTIPLEXER:
             return
         with answered:
@@ -133,7 +131,7 @@ def quick_stop_all(
             answered.notify_all()
 
     for node in stop.node_ids:
-        subscribe(network, SDO_RESPONSE_BASE + node, on_response)
+        subscribe(network, od.SDO_RESPONSE_COB_ID_BASE + node, on_response)
     request = quick_stop_request()
     stop.started = time.monotonic()
     unsent: dict[int, str] = {}  # requests the interface refused: sent again until the deadline
@@ -144,7 +142,7 @@ def quick_stop_all(
                 # once a request was refused, the others get one try each: the queue is full, and
                 # a node's own retries would hold the next node's request back by as long
                 with contextlib.nullcontext() if patient and not unsent else network.patient(0.0):
-                    network.send_message(SDO_REQUEST_BASE + node, request)
+                    network.send_message(od.SDO_REQUEST_COB_ID_BASE + node, request)
                 unsent.pop(node, None)
             except (can.CanError, OSError, RuntimeError) as exc:
                 unsent[node] = f"quick stop not sent: {exc}"
@@ -175,7 +173,7 @@ def quick_stop_all(
                     break
             send_requests(list(unsent), patient=False)
         for node in stop.node_ids:
-            unsubscribe(network, SDO_RESPONSE_BASE + node, on_response)
+            unsubscribe(network, od.SDO_RESPONSE_COB_ID_BASE + node, on_response)
         with answered:
             for node, why in unsent.items():
                 stop.refused.setdefault(node, why)

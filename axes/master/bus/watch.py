@@ -22,7 +22,7 @@ import can
 from canopen.emcy import EmcyError
 
 from pvtflow.axes.canbus.can_errors import FROM_BUS_STATE, ControllerState
-from pvtflow.axes.drive.objects import CAN_EMCY_WORDS, NMT_STATE_OPERATIONAL
+from pvtflow.axes.drive.objects import CAN_EMCY_WORDS, NMT_STATE_OPERATIONAL, node_of_cob_id
 from pvtflow.axes.master.bus.faults import BusFault, ErrorFrames, FaultCallback, FaultKind
 
 if TYPE_CHECKING:
@@ -139,7 +139,7 @@ class BusWatch:
             self._watch_wire(now)
             stalled = now - self.sync.last_progress > self.lost_sync_timeout_s
             if self.watch_sync and self.sync.running and not self._sync_reported and stalled:
-                nodes = sorted({cob & 0x7F for cob in self.sync.behind()})
+                nodes = sorted({node_of_cob_id(cob) for cob in self.sync.behind()})
                 self._sync_reported = True
                 self.report(
                     BusFault(

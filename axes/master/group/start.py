@@ -140,7 +140,7 @@ class GroupStart:
             sync.keep_period()
             owed = sync.step()
             self.allowance.new_period(sync.count)
-            silent = sorted({cob & 0x7F for cob in sync.wait_answered(owed, self.bus.lost_sync_timeout_s)})
+            silent = sorted({od.node_of_cob_id(cob) for cob in sync.wait_answered(owed, self.bus.lost_sync_timeout_s)})
             if silent:
                 self.configured = False
                 link = next((lk for lk in self.links if lk.node_id in silent), None)
@@ -190,7 +190,7 @@ class GroupStart:
         preloaded = [p.feeder(prog, self.allowance) for p, prog in zip(self.profiles, self._programs, strict=True)]
         preload_shared(preloaded, self.allowance)
         feeders: list[Feeder | None] = list(preloaded)
-        silent = sorted({cob & 0x7F for cob in sync.wait_answered(check, self.bus.lost_sync_timeout_s)})
+        silent = sorted({od.node_of_cob_id(cob) for cob in sync.wait_answered(check, self.bus.lost_sync_timeout_s)})
         if silent:
             link = next((lk for lk in self.links if lk.node_id in silent), None)
             self.configured = False  # it may come back reset: the next start configures again

@@ -12,7 +12,13 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
 from pvtflow.axes.drive import objects as od
-from pvtflow.axes.drive.cia402 import CONTROLWORD_SHUTDOWN, Controlword, PowerState
+from pvtflow.axes.drive.cia402 import (
+    CONTROLWORD_ENABLE_OPERATION,
+    CONTROLWORD_HALT,
+    CONTROLWORD_SHUTDOWN,
+    CONTROLWORD_START_IP,
+    PowerState,
+)
 from pvtflow.axes.drive.config import AxisConfig
 from pvtflow.axes.drive.drive_profile import DriveProfile
 from pvtflow.axes.drive.objects import PdoLayout
@@ -90,7 +96,7 @@ class Profile:
 
     @property
     def sync_answer_cob_id(self) -> int:
-        return 0x80 + 0x100 * self.sync_tpdo + self.link.node_id
+        return od.pdo_cob_id(self.sync_tpdo, self.link.node_id, receive=False)
 
     @property
     def sync_answer_every(self) -> int:
@@ -151,20 +157,14 @@ class Profile:
         interrupted run may be left for the next one). Bufferless drives have nothing to clear."""
 
     def start_controlword(self) -> int:
-        return int(
-            Controlword.ENABLE_OPERATION
-            | Controlword.ENABLE_IP_MODE
-            | Controlword.ENABLE_VOLTAGE
-            | Controlword.QUICK_STOP
-            | Controlword.SWITCH_ON
-        )
+        return CONTROLWORD_START_IP
 
     def halt_controlword(self) -> int:
-        return self.start_controlword() | int(Controlword.HALT)
+        return CONTROLWORD_HALT
 
     def end_controlword(self) -> int:
         """After the end: ip mode off, operation still enabled (0x000F)."""
-        return self.start_controlword() & ~int(Controlword.ENABLE_IP_MODE)
+        return int(CONTROLWORD_ENABLE_OPERATION)
 
     def write_settings(self) -> None:
         """0x607F, 0x60C5, 0x607D, 0x6065 and 0x6085 from the axis (``expected_settings``) on every drive that
