@@ -30,7 +30,7 @@ __all__ = [
     "Controlword",
     "OperationMode",
     "PowerState",
-    "PowerStateMachine",
+    "PowerStateSteering",
     "State402",
     "Statusword",
     "decode_state",
@@ -126,7 +126,7 @@ def next_controlword(current: PowerState, target: PowerState) -> int | None:
 
     Direct transitions come from State402.TRANSITIONTABLE, the path otherwise from
     State402.next_state_indirect (which heads for OPERATION ENABLED, through SWITCH ON DISABLED
-    out of a fault). The fault reset word 0x0080 only acts on a rising bit 7: see PowerStateMachine.
+    out of a fault). The fault reset word 0x0080 only acts on a rising bit 7: see PowerStateSteering.
     """
     if current == target:
         return None
@@ -139,8 +139,9 @@ def next_controlword(current: PowerState, target: PowerState) -> int | None:
     return State402.TRANSITIONTABLE.get((current.value, step))
 
 
-class PowerStateMachine:
-    """Master-side bookkeeping for one drive: the last controlword sent, the last statusword seen.
+class PowerStateSteering:
+    """How the master steers one drive's power state by controlword (not the drive's own state machine,
+    which the simulator plays): the last controlword sent, the last statusword seen.
 
     ``step(statusword, target)`` returns the controlword(s) to send now to progress towards the
     target power state. The fault reset is returned as two words (bit 7 low, then high) so that the

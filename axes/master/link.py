@@ -22,7 +22,7 @@ from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import (
     CONTROLWORD_FAULT_RESET,
     PowerState,
-    PowerStateMachine,
+    PowerStateSteering,
     decode_state,
 )
 from pvtflow.axes.drive.config import AxisConfig
@@ -82,7 +82,7 @@ class AxisLink:
         self.config = config
         self.node_id = config.node_id
         self.node: canopen.RemoteNode = bus.add_node(config.node_id)
-        self.psm = PowerStateMachine()
+        self.psm = PowerStateSteering()
         self.statusword = 0
         self.position: int | None = None
         self.status_sync = 0  # the SYNC count when the last status TPDO arrived: what its values are as of
