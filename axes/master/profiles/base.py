@@ -61,12 +61,12 @@ def expected_settings(config: AxisConfig) -> list[Setting]:
     unit = config.scaling.velocity_unit_rpm
     return [
         Setting(od.MAX_PROFILE_VELOCITY, 0, "I", round(lim.max_profile_velocity_rpm / unit), "max profile velocity"),
-        Setting(od.MAX_ACCELERATION, 0, "I", round(lim.max_acceleration_rpm_s), "max acceleration"),
+        Setting(od.MAX_ACCELERATION, 0, "I", lim.braking_rpm_s, "max acceleration"),
         Setting(od.SOFTWARE_POSITION_LIMIT, 1, "i", lim.min_position_qc, "min position limit"),
         Setting(od.SOFTWARE_POSITION_LIMIT, 2, "i", lim.max_position_qc, "max position limit"),
         Setting(od.MAX_FOLLOWING_ERROR, 0, "I", DEFAULT_MAX_FOLLOWING_ERROR_QC, "max following error"),
         # the quick stop ramp (0x6007 = 3 on a lost master, 0x605A = 2) brakes as hard as the axis may
-        Setting(od.QUICK_STOP_DECELERATION, 0, "I", round(lim.max_acceleration_rpm_s), "quick stop deceleration"),
+        Setting(od.QUICK_STOP_DECELERATION, 0, "I", lim.braking_rpm_s, "quick stop deceleration"),
     ]
 
 
@@ -248,7 +248,7 @@ class Profile:
             (od.HALT_OPTION_CODE, od.HALT_ON_PROFILE_DECELERATION, "h", "halt option code"),
         ]
         if self.ramps_by_itself:
-            braking = round(self.config.limits.max_acceleration_rpm_s)
+            braking = self.config.limits.braking_rpm_s
             settings.append((od.PROFILE_DECELERATION, braking, "I", "profile deceleration, the halt's ramp"))
         for index, value, fmt, what in settings:
             if self.link.write_optional(index, 0, value, fmt):
