@@ -142,7 +142,7 @@ class GroupStart:
             self.allowance.new_period(sync.count)
             silent = sorted({od.node_of_cob_id(cob) for cob in sync.wait_answered(owed, self.bus.lost_sync_timeout_s)})
             if silent:
-                self.configured = False
+                self.configuration.forget()
                 link = next((lk for lk in self.links if lk.node_id in silent), None)
                 return (
                     Result.LOST_SYNC,
@@ -193,7 +193,7 @@ class GroupStart:
         silent = sorted({od.node_of_cob_id(cob) for cob in sync.wait_answered(check, self.bus.lost_sync_timeout_s)})
         if silent:
             link = next((lk for lk in self.links if lk.node_id in silent), None)
-            self.configured = False  # it may come back reset: the next start configures again
+            self.configuration.forget()  # it may come back reset: the next start configures again
             return feeders, (
                 Result.LOST_SYNC,
                 f"node(s) {silent} did not answer the start's check SYNC within "
