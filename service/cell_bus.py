@@ -18,6 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.service.cli_options import add_can_log, add_config, add_real_time
@@ -50,7 +51,7 @@ def open_bus(
     (``axes.sim.process``), else in this one (tests that read a drive directly). The service keeps
     both for its life, a command for one run (:func:`open_cell_bus`). CellBusError where the bus
     cannot open; nothing is left running then."""
-    clock = "lockstep" if lockstep else "wall"
+    clock = Clock.of(lockstep)
     sim: Any = None
     bus_config = cell.bus
     if simulate:

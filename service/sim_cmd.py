@@ -30,6 +30,7 @@ from typing import Any, TextIO
 
 import can
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.config import SIMULATED_WIRE, wire_options
 from pvtflow.axes.sim.cell import SimulatedCell
 from pvtflow.axes.sim.wire import serve_wire
@@ -110,7 +111,7 @@ def banner(sim: SimulatedCell, served_at: str | None = None) -> str:
         )
     clock = (
         "each keeps its own time and samples every ms of it, SYNC latched at its arrival"
-        if sim.clock == "wall"
+        if sim.clock == Clock.WALL
         else f"each SYNC advances their motion clock by {cell.bus.sync_period_ms:g} ms (the cell's SYNC period)"
     )
     lines += [
@@ -134,7 +135,7 @@ def simulate(
     channel: str,
     stop: threading.Event,
     out: TextIO | None = None,
-    clock: str = "lockstep",
+    clock: Clock = Clock.LOCKSTEP,
     wire_port: int = 0,
 ) -> int:
     """Run the cell's simulated drives on (interface, channel) until ``stop`` is set; the exit code.
@@ -144,7 +145,7 @@ def simulate(
     server = None
     try:
         if interface == SIMULATED_WIRE:  # the wire itself lives here: served to the other processes
-            options = wire_options(cell.bus, lockstep=clock == "lockstep")
+            options = wire_options(cell.bus, lockstep=clock == Clock.LOCKSTEP)
             server = serve_wire(channel, wire_port, **options)  # type: ignore[arg-type]
         sim.start()
     except (can.CanError, OSError, ValueError, ImportError) as exc:
@@ -197,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        clock = "wall" if args.wall_clock else "lockstep"
+        clock = Clock.WALL if args.wall_clock else Clock.LOCKSTEP
         return simulate(cell, interface, channel, stop, clock=clock, wire_port=args.wire_port)
     finally:
         for s, handler in previous.items():

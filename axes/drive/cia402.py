@@ -21,14 +21,16 @@ __all__ = [
     "CONTROLWORD_ENABLE_OPERATION",
     "CONTROLWORD_FAULT_RESET",
     "CONTROLWORD_HALT",
+    "CONTROLWORD_HALT_HOMING",
     "CONTROLWORD_QUICK_STOP",
     "CONTROLWORD_SHUTDOWN",
+    "CONTROLWORD_START_HOMING",
     "CONTROLWORD_START_IP",
     "CONTROLWORD_SWITCH_ON",
     "Controlword",
     "OperationMode",
     "PowerState",
-    "PowerStateMachine",
+    "PowerStateSteering",
     "State402",
     "Statusword",
     "decode_state",
@@ -80,8 +82,11 @@ CONTROLWORD_ENABLE_OPERATION = State402.CW_OPERATION_ENABLED  # 0x000F
 CONTROLWORD_DISABLE_VOLTAGE = State402.CW_DISABLE_VOLTAGE  # 0x0000
 CONTROLWORD_QUICK_STOP = State402.CW_QUICK_STOP  # 0x0002
 CONTROLWORD_FAULT_RESET = State402.CW_SWITCH_ON_DISABLED  # 0x0080 (after a word with bit 7 clear)
-CONTROLWORD_START_IP = CONTROLWORD_ENABLE_OPERATION | Controlword.ENABLE_IP_MODE  # 0x001F
-CONTROLWORD_HALT = CONTROLWORD_START_IP | Controlword.HALT  # 0x011F: stop with profile deceleration
+CONTROLWORD_START_IP = int(CONTROLWORD_ENABLE_OPERATION | Controlword.ENABLE_IP_MODE)  # 0x001F
+CONTROLWORD_HALT = int(CONTROLWORD_START_IP | Controlword.HALT)  # 0x011F: stop with profile deceleration
+# homing mode (6): the same bit 4 starts homing on its rising edge
+CONTROLWORD_START_HOMING = int(CONTROLWORD_ENABLE_OPERATION | Controlword.HOMING_START)  # 0x001F
+CONTROLWORD_HALT_HOMING = int(CONTROLWORD_START_HOMING | Controlword.HALT)  # 0x011F
 
 
 class PowerState(StrEnum):
@@ -121,7 +126,7 @@ def next_controlword(current: PowerState, target: PowerState) -> int | None:
 
     Direct transitions come from State402.TRANSITIONTABLE, the path otherwise from
     State402.next_state_indirect (which heads for OPERATION ENABLED, through SWITCH ON DISABLED
-    out of a fault). The fault reset word 0x0080 only acts on a rising bit 7: see PowerStateMachine.
+    out of a fault). The fault reset word 0x0080 only acts on a rising bit 7: see PowerStateSteering.
     """
     if current == target:
         return None
@@ -134,8 +139,9 @@ def next_controlword(current: PowerState, target: PowerState) -> int | None:
     return State402.TRANSITIONTABLE.get((current.value, step))
 
 
-class PowerStateMachine:
-    """Master-side bookkeeping for one drive: the last controlword sent, the last statusword seen.
+class PowerStateSteering:
+    """How the master steers one drive's power state by controlword (not the drive's own state machine,
+    which the simulator plays): the last controlword sent, the last statusword seen.
 
     ``step(statusword, target)`` returns the controlword(s) to send now to progress towards the
     target power state. The fault reset is returned as two words (bit 7 low, then high) so that the

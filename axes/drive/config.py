@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.axis import DriveAxis
 from pvtflow.axes.drive.scaling import AxisScaling
 
@@ -84,7 +85,7 @@ def wire_options(config: BusConfig, *, lockstep: bool) -> dict[str, object]:
         return {}
     options: dict[str, object] = {"bitrate": config.bitrate}
     if config.interface == SIMULATED_WIRE:
-        options["clock"] = "lockstep" if lockstep else "wall"
+        options["clock"] = Clock.of(lockstep)
         options["sync_period"] = config.sync_period_ms / 1000.0
     return options
 

@@ -244,6 +244,33 @@ class Record:
         return cls.unpack(int.from_bytes(data[:8], "little"))
 
 
+# --- COB-IDs and PDO parameters (CiA 301 predefined connection set: function code + node id) ---------------
+NODE_ID_BITS = 0x7F  # the node id in a predefined COB-ID (bits 0-6)
+SDO_REQUEST_COB_ID_BASE = 0x600  # client -> server SDO (the master's requests)
+SDO_RESPONSE_COB_ID_BASE = 0x580  # server -> client SDO (the drives' answers)
+PDO_INVALID = 0x8000_0000  # a PDO COB-ID's bit 31 (CiA 301 7.5.2.35): the PDO does not exist
+
+
+def pdo_cob_id(number: int, node_id: int, receive: bool) -> int:
+    """PDO ``number`` (1-4) of a node: TPDO1 0x180 + node, RPDO1 0x200 + node, and 0x100 up for each next."""
+    return (0x100 if receive else 0x080) + 0x100 * number + node_id
+
+
+def pdo_communication_index(number: int, receive: bool) -> int:
+    """The communication parameter object of PDO ``number``: 0x1400 + n - 1 (RPDO), 0x1800 + n - 1 (TPDO)."""
+    return (0x1400 if receive else 0x1800) + number - 1
+
+
+def pdo_mapping_index(number: int, receive: bool) -> int:
+    """The mapping object of PDO ``number``: 0x1600 + n - 1 (RPDO), 0x1A00 + n - 1 (TPDO)."""
+    return (0x1600 if receive else 0x1A00) + number - 1
+
+
+def node_of_cob_id(cob_id: int) -> int:
+    """The node a predefined COB-ID belongs to."""
+    return cob_id & NODE_ID_BITS
+
+
 # --- PDO layout (the contract between the master's configuration and the drives) ----------------
 class PdoRole(StrEnum):
     """What a PDO carries, which says how often it is on the bus (``PdoLayout.frames_per_sync``)."""
@@ -253,16 +280,6 @@ class PdoRole(StrEnum):
     CONTROLWORD = "controlword"  # start, halt, end: at most one per axis in a SYNC period
     STATUS = "status"  # a drive's TPDO: by its transmission type (every n SYNCs, or on event)
     TIME_STAMP = "time_stamp"  # the master's one 0x1013 frame after every SYNC, shared by every drive
-
-
-PDO_INVALID = 0x8000_0000  # a PDO COB-ID's bit 31 (CiA 301 7.5.2.35): the PDO does not exist
-
-
-def pdo_cob_id(number: int, node_id: int, receive: bool) -> int:
-    """The COB-ID of PDO ``number`` (1..4) of ``node_id`` in CiA 301's predefined connection set (7.3.5):
-    TPDO n on 0x080 + 0x100 n + id (0x180, 0x280, ...), RPDO n on 0x100 + 0x100 n + id (0x200, 0x300, ...).
-    Node 0 gives the base, as an EDS writes it ($NODEID+0x200)."""
-    return (0x100 if receive else 0x080) + 0x100 * number + node_id
 
 
 @dataclass(frozen=True)

@@ -154,6 +154,12 @@ class DriveLimits:
                 f"got [{self.min_position_qc}, {self.max_position_qc}]"
             )
 
+    @property
+    def braking_rpm_s(self) -> int:
+        """The deceleration the drive brakes on, in the whole rpm/s its objects hold: 0x60C5 as written,
+        and the ramps pvtflow sets to it (quick stop 0x6085, the halt's 0x6084)."""
+        return round(self.max_acceleration_rpm_s)
+
     def scaled(self, velocity: float, acceleration: float) -> DriveLimits:
         """0x607F and 0x60C5 multiplied by a speed override: what a scaled plan's records are held
         to. The drive keeps its own objects (a program carries those)."""

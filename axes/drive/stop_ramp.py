@@ -31,7 +31,7 @@ from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 def stop_deceleration_rpm_s(limits: DriveLimits, quick: bool) -> float:
     """The deceleration (rpm/s) of the master's stop ramp: 0x60C5; a quick stop: min(0x60C5, 0x6085)
     (0x6085 is written as 0x60C5, so they agree)."""
-    written_quick_stop = float(round(limits.max_acceleration_rpm_s))  # 0x6085 as supervise_master writes it
+    written_quick_stop = float(limits.braking_rpm_s)  # 0x6085 as supervise_master writes it
     return min(limits.max_acceleration_rpm_s, written_quick_stop) if quick else limits.max_acceleration_rpm_s
 
 

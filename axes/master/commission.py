@@ -322,7 +322,7 @@ def cell_settings_supported(link: AxisLink, profile: Profile) -> list[Check]:
     timer = link.bus.config.status_event_timer_ms
     for layout in profile.tpdos:
         if with_rates(layout, link.bus.config).event_timer_ms:
-            comm = 0x1800 + layout.number - 1
+            comm = od.pdo_communication_index(layout.number, receive=False)
             value = link.read_optional(comm, 5, "H")
             checks.append(
                 Check(
@@ -378,8 +378,8 @@ def drive_info(link: AxisLink, profile: Profile) -> list[Check]:
 
 def describe_pdo(link: AxisLink, number: int, receive: bool) -> str:
     """One PDO as the drive maps it: COB-ID, valid, transmission type, mapped objects."""
-    comm = (0x1400 if receive else 0x1800) + number - 1
-    mapping = (0x1600 if receive else 0x1A00) + number - 1
+    comm = od.pdo_communication_index(number, receive)
+    mapping = od.pdo_mapping_index(number, receive)
     cob = link.read_optional(comm, 1, "I")
     if cob is None:
         return ABSENT
@@ -396,7 +396,7 @@ def _pdo_info(link: AxisLink, layout: PdoLayout, receive: bool) -> Check:
     entries = ", ".join(f"0x{i:04X}:{s:02X}/{b}" for i, s, b in layout.entries)
     cob = layout.cob_id(link.node_id, receive)
     expected = f"0x{cob:03X} valid, type {layout.transmission_type}: {entries} (mapped at configuration)"
-    comm = (0x1400 if receive else 0x1800) + layout.number - 1
+    comm = od.pdo_communication_index(layout.number, receive)
     found = describe_pdo(link, layout.number, receive)
     return Check(f"0x{comm:04X}", f"{kind}{layout.number}", expected, found, True, CheckKind.INFO)
 

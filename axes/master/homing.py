@@ -33,7 +33,14 @@ from typing import TYPE_CHECKING
 import can
 
 from pvtflow.axes.drive import objects as od
-from pvtflow.axes.drive.cia402 import Controlword, PowerState, Statusword, decode_state
+from pvtflow.axes.drive.cia402 import (
+    CONTROLWORD_ENABLE_OPERATION,
+    CONTROLWORD_HALT_HOMING,
+    CONTROLWORD_START_HOMING,
+    PowerState,
+    Statusword,
+    decode_state,
+)
 from pvtflow.axes.drive.config import AxisConfig
 from pvtflow.axes.master.bus.faults import BusFault, FaultKind
 from pvtflow.axes.master.group.outcome import Result
@@ -46,11 +53,9 @@ _ATTAINED = int(Statusword.HOMING_ATTAINED)
 _HOMING_ERROR = int(Statusword.HOMING_ERROR)
 _TARGET_REACHED = int(Statusword.TARGET_REACHED)
 _FAULT = int(Statusword.FAULT)
-ENABLED_WORD = int(
-    Controlword.SWITCH_ON | Controlword.ENABLE_VOLTAGE | Controlword.QUICK_STOP | Controlword.ENABLE_OPERATION
-)  # 0x000F
-START_WORD = ENABLED_WORD | int(Controlword.HOMING_START)  # 0x001F: a rising bit 4 starts homing
-HALT_WORD = START_WORD | int(Controlword.HALT)  # 0x011F
+ENABLED_WORD = int(CONTROLWORD_ENABLE_OPERATION)  # 0x000F
+START_WORD = CONTROLWORD_START_HOMING  # 0x001F: a rising bit 4 starts homing
+HALT_WORD = CONTROLWORD_HALT_HOMING  # 0x011F
 HALT_TIMEOUT_S = 5.0  # of drive time: how long the halted axes may take to stand still
 WALL_GRACE_S = 10.0  # beyond the SYNC-counted timeout: a cell whose SYNC stalls is given up
 

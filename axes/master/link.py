@@ -22,7 +22,7 @@ from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import (
     CONTROLWORD_FAULT_RESET,
     PowerState,
-    PowerStateMachine,
+    PowerStateSteering,
     decode_state,
 )
 from pvtflow.axes.drive.config import AxisConfig
@@ -81,7 +81,7 @@ class AxisLink:
         self.config = config
         self.node_id = config.node_id
         self.node: canopen.RemoteNode = bus.add_node(config.node_id)
-        self.psm = PowerStateMachine()
+        self.psm = PowerStateSteering()
         self.statusword = 0
         self.position: int | None = None
         self.status_sync = 0  # the SYNC count when the last status TPDO arrived: what its values are as of
@@ -161,8 +161,8 @@ class AxisLink:
         TPDO, the inhibit time and event timer (0: none; an event TPDO sends on a change only), then
         validate; bit 30 (RTR) stays as the drive has it. The result is read back: a drive that
         holds anything else is refused (DriveError naming the PDO)."""
-        comm = (0x1400 if receive else 0x1800) + layout.number - 1
-        mapping = (0x1600 if receive else 0x1A00) + layout.number - 1
+        comm = od.pdo_communication_index(layout.number, receive)
+        mapping = od.pdo_mapping_index(layout.number, receive)
         cob = layout.cob_id(self.node_id, receive) if cob_id is None else cob_id
         stored = self.read(comm, 1, "I")
         rtr = stored & PDO_RTR_BIT
@@ -185,8 +185,8 @@ class AxisLink:
 
     def _check_pdo(self, layout: PdoLayout, receive: bool, cob: int) -> None:
         """The PDO as the drive holds it now against what was written: COB-ID, type, mapping."""
-        comm = (0x1400 if receive else 0x1800) + layout.number - 1
-        mapping = (0x1600 if receive else 0x1A00) + layout.number - 1
+        comm = od.pdo_communication_index(layout.number, receive)
+        mapping = od.pdo_mapping_index(layout.number, receive)
         count = self.read(mapping, 0, "B")
         found = (
             self.read(comm, 1, "I"),
@@ -206,7 +206,7 @@ class AxisLink:
     def disable_pdo(self, number: int, receive: bool) -> None:
         """Invalidate a PDO pvtflow does not use, with the COB-ID it has (skipped where the drive has
         no such PDO or it is invalid already): what an earlier setup left mapped sends nothing."""
-        comm = (0x1400 if receive else 0x1800) + number - 1
+        comm = od.pdo_communication_index(number, receive)
         cob = self.read_optional(comm, 1, "I")
         if cob is not None and not cob & od.PDO_INVALID:
             self.write(comm, 1, cob | od.PDO_INVALID, "I")

@@ -13,7 +13,7 @@ from pvtflow.axes.drive.cia402 import (
     CONTROLWORD_SWITCH_ON,
     Controlword,
     PowerState,
-    PowerStateMachine,
+    PowerStateSteering,
     Statusword,
     decode_state,
     next_controlword,
@@ -87,17 +87,17 @@ def test_walk_to_operation_enabled_from_every_state():
 
 
 def test_fault_reset_is_a_rising_edge():
-    psm = PowerStateMachine()
+    psm = PowerStateSteering()
     psm.sent(0x0080)  # a previous reset attempt left bit 7 high
     words = psm.step(0x0108)
     assert words == [0x0000, 0x0080]
     assert psm.step(0x0108) == [0x0000, 0x0080]  # again: still needs an edge
-    fresh = PowerStateMachine()
+    fresh = PowerStateSteering()
     assert fresh.step(0x0108) == [0x0080]
 
 
 def test_sequence_from_switch_on_disabled():
-    psm = PowerStateMachine()
+    psm = PowerStateSteering()
     assert psm.step(0x0140) == [0x0006]
     assert psm.step(0x0121) == [0x0007]
     assert psm.step(0x0123) == [0x000F]

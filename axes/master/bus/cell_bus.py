@@ -58,20 +58,22 @@ class CellBus:
         stamp = config.time_stamp if time_stamp is None else time_stamp
         gap = config.max_sync_gap_periods if config.max_sync_gap_periods is not None else DEFAULT_MAX_GAP_PERIODS
         self.sync = SyncClock(
-            self,
+            self.network,
+            self.report,
             config.sync_period_ms,
             lockstep,
             time_stamp_cob_id(config.master_node_id) if stamp else None,
             priority=config.sync_priority,
             max_gap_periods=gap,
+            threads=self.threads,
         )
         self.sync.lift_bus_threads = config.lift_bus_threads
         self.network.tx_retry_s = config.tx_retry_ms / 1000.0
         self.lost_sync_timeout_s = lost_sync_timeout_s
         self.nodes: dict[int, canopen.RemoteNode] = {}
         self._fault_callbacks: list[FaultCallback] = []
-        self.watch = BusWatch(self)
-        self.master_heartbeat = MasterHeartbeat(self)
+        self.watch = BusWatch(config, self.network, self.report, self.sync, lost_sync_timeout_s)
+        self.master_heartbeat = MasterHeartbeat(config, self.network, self.watch, self.nodes, self.sync)
 
     # --- life cycle ------------------------------------------------------------------------------
     def open(self) -> CellBus:
@@ -89,7 +91,7 @@ class CellBus:
             from pvtflow.axes.master.cyclic.process import CyclicProcess  # a child process: only where asked for
 
             try:
-                self.sync.cyclic = CyclicProcess(self).open()
+                self.sync.cyclic = CyclicProcess(self.config, self.network, self.report, self.sync).open()
             except BusError:
                 self.network.disconnect()
                 raise
@@ -171,9 +173,18 @@ class CellBus:
     def quick_stop(
         self, node_ids: Iterable[int], reason: str, on_done: Callable[[QuickStop], None] | None = None
     ) -> QuickStop:
-        """Quick stop these drives by SDO now, NMT stop for those that do not confirm (``axes.master.bus.quick_stop``);
-        with a cyclic process, from its transmit queue too (``axes.master.cyclic.process``)."""
+        """Quick stop these drives by SDO now, NMT stop for those that do not confirm
+        (``axes.master.bus.quick_stop``); with a cyclic process, from its transmit queue too
+        (``axes.master.cyclic.process``)."""
         nodes = list(node_ids)
         if self.sync.cyclic is not None:
             self.sync.cyclic.quick_stop(reason, nodes)
-        return quick_stop_all(self, nodes, reason, on_done)
+        return quick_stop_all(
+            self.network,
+            self.sync,
+            self.config.quick_stop_confirm_ms,
+            self.master_heartbeat.stop,
+            nodes,
+            reason,
+            on_done,
+        )

@@ -17,7 +17,12 @@ import can
 from pvtflow.axes.drive import objects as od
 
 if TYPE_CHECKING:
-    from pvtflow.axes.master.bus.cell_bus import CellBus
+    import canopen
+
+    from pvtflow.axes.drive.config import BusConfig
+    from pvtflow.axes.master.bus.network import RecordingNetwork
+    from pvtflow.axes.master.bus.sync import SyncClock
+    from pvtflow.axes.master.bus.watch import BusWatch
 
 log = logging.getLogger("pvtflow.bus")
 
@@ -49,9 +54,19 @@ class MasterHeartbeat:
     held for good) stops this thread too.
     """
 
-    def __init__(self, bus: CellBus) -> None:
-        config = bus.config
-        self.bus = bus
+    def __init__(
+        self,
+        config: BusConfig,
+        network: RecordingNetwork,
+        watch: BusWatch,
+        nodes: dict[int, canopen.RemoteNode],
+        sync: SyncClock,
+    ) -> None:
+        # what the beat needs of the bus, handed in: ``nodes`` is the bus's own map (nodes added later count)
+        self.network = network
+        self.watch = watch
+        self.nodes = nodes
+        self.sync = sync
         self.node_id = config.master_node_id
         self.cob_id = od.HEARTBEAT_COB_ID_BASE + config.master_node_id
         self.period_s = config.master_heartbeat_ms / 1000.0
@@ -70,7 +85,7 @@ class MasterHeartbeat:
         if self._thread is not None:
             return
         self._received.at = time.monotonic()
-        notifier = self.bus.network.notifier
+        notifier = self.network.notifier
         if notifier is not None:
             notifier.add_listener(self._received)
         self._stopping.clear()
@@ -88,7 +103,7 @@ class MasterHeartbeat:
         if self._thread is not None:
             self._thread.join(timeout=self.period_s + 1.0)
             self._thread = None
-        notifier = self.bus.network.notifier
+        notifier = self.network.notifier
         if notifier is not None and self._received in notifier.listeners:
             notifier.remove_listener(self._received)
 
@@ -98,11 +113,11 @@ class MasterHeartbeat:
 
     def stalled(self, now: float) -> str | None:
         """Why the bus machinery shows no progress (None: it does), by the two rules of the class."""
-        heard = any(self.bus.watch.heartbeat_state(n) is not None for n in list(self.bus.nodes))
+        heard = any(self.watch.heartbeat_state(n) is not None for n in list(self.nodes))
         silent = now - self._received.at
         if heard and silent > self.stall_s:
             return f"the receive thread has dispatched no frame for {silent:.3f} s"
-        sync = self.bus.sync
+        sync = self.sync
         if sync.lockstep or not sync.running:
             self._sync_count = -1
             return None
@@ -121,7 +136,7 @@ class MasterHeartbeat:
             why = self.stalled(now)
             if why is None:
                 try:
-                    self.bus.network.send_message(self.cob_id, bytes([od.NMT_STATE_OPERATIONAL]))
+                    self.network.send_message(self.cob_id, bytes([od.NMT_STATE_OPERATIONAL]))
                 except (can.CanError, OSError, RuntimeError) as exc:
                     why = f"the heartbeat cannot be sent: {exc}"
                 else:

@@ -47,10 +47,9 @@ from pvtflow.axes.master.bus.network import TX_RETRY_PAUSE_S
 from pvtflow.axes.master.bus.sync import lift
 
 if TYPE_CHECKING:
-    from pvtflow.axes.master.bus.cell_bus import CellBus
+    from pvtflow.axes.master.bus.network import RecordingNetwork
+    from pvtflow.axes.master.bus.sync import SyncClock
 
-SDO_REQUEST_BASE = 0x600
-SDO_RESPONSE_BASE = 0x580
 SDO_DOWNLOAD_2_BYTES = 0x2B  # expedited download, size indicated, 2 bytes
 SDO_DOWNLOAD_CONFIRMED = 0x60
 SDO_ABORT = 0x80
@@ -101,18 +100,24 @@ class QuickStop:
 
 
 def quick_stop_all(
-    bus: CellBus, node_ids: Iterable[int], reason: str, on_done: Callable[[QuickStop], None] | None = None
+    network: RecordingNetwork,
+    sync: SyncClock,
+    confirm_ms: float,
+    fall_silent: Callable[[], None],
+    node_ids: Iterable[int],
+    reason: str,
+    on_done: Callable[[QuickStop], None] | None = None,
 ) -> QuickStop:
     """Send the quick stop request to every drive now (the calling thread: a few frames, no wait);
-    a thread of its own waits for the answers, sends NMT stop to the drives that did not confirm,
-    then calls ``on_done``. Never raises: what could not be sent is in ``QuickStop.unsent``."""
+    a thread of its own waits for the answers (``confirm_ms``), sends NMT stop to the drives that did
+    not confirm, then calls ``on_done``; when even that could not be sent, ``fall_silent`` stops the
+    master's heartbeat. Never raises: what could not be sent is in ``QuickStop.unsent``."""
     stop = QuickStop(tuple(node_ids), reason)
-    network = bus.network
     lock = threading.Lock()
     answered = threading.Condition(lock)
 
     def on_response(can_id: int, data: bytearray, timestamp: float) -> None:
-        node = can_id - SDO_RESPONSE_BASE
+        node = can_id - od.SDO_RESPONSE_COB_ID_BASE
         if len(data) < 4 or bytes(data[1:4]) != _MULTIPLEXER:
             return
         with answered:
@@ -126,7 +131,7 @@ def quick_stop_all(
             answered.notify_all()
 
     for node in stop.node_ids:
-        subscribe(network, SDO_RESPONSE_BASE + node, on_response)
+        subscribe(network, od.SDO_RESPONSE_COB_ID_BASE + node, on_response)
     request = quick_stop_request()
     stop.started = time.monotonic()
     unsent: dict[int, str] = {}  # requests the interface refused: sent again until the deadline
@@ -137,20 +142,19 @@ def quick_stop_all(
                 # once a request was refused, the others get one try each: the queue is full, and
                 # a node's own retries would hold the next node's request back by as long
                 with contextlib.nullcontext() if patient and not unsent else network.patient(0.0):
-                    network.send_message(SDO_REQUEST_BASE + node, request)
+                    network.send_message(od.SDO_REQUEST_COB_ID_BASE + node, request)
                 unsent.pop(node, None)
             except (can.CanError, OSError, RuntimeError) as exc:
                 unsent[node] = f"quick stop not sent: {exc}"
 
     collector.hold()  # no collection pause between the requests and their confirmations (axes/master/bus/collector.py)
     send_requests(stop.node_ids, patient=True)
-    confirm_s = bus.config.quick_stop_confirm_ms / 1000.0
+    confirm_s = confirm_ms / 1000.0
 
     def answered_all() -> bool:
         return all(n in stop.refused for n in stop.missing)
 
     def finish() -> None:
-        sync = bus.sync
         if sync.realtime and sync.lift_bus_threads:  # as the bus's other threads (CellBus.threads)
             lift([threading.current_thread()], sync.priority - 1)
         try:
@@ -169,7 +173,7 @@ def quick_stop_all(
                     break
             send_requests(list(unsent), patient=False)
         for node in stop.node_ids:
-            unsubscribe(network, SDO_RESPONSE_BASE + node, on_response)
+            unsubscribe(network, od.SDO_RESPONSE_COB_ID_BASE + node, on_response)
         with answered:
             for node, why in unsent.items():
                 stop.refused.setdefault(node, why)
@@ -180,7 +184,7 @@ def quick_stop_all(
             except (can.CanError, OSError, RuntimeError) as exc:
                 stop.unsent.append(f"NMT stop of node {node}: {exc}")
         if stop.unsent:  # nothing reaches them: the master falls silent, and they stop on its heartbeat's loss
-            bus.master_heartbeat.stop()
+            fall_silent()
         stop.done.set()
         if on_done is not None:
             on_done(stop)

@@ -54,21 +54,39 @@ import struct
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import can
 
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive.objects import SYNC_COB_ID
 from pvtflow.axes.master.bus import collector
-from pvtflow.axes.master.bus.faults import BusFault, FaultKind
+from pvtflow.axes.master.bus.faults import BusFault, FaultCallback, FaultKind
 from pvtflow.axes.master.bus.sync_follower import SyncFollower, native_cyclic_task
 
 if TYPE_CHECKING:
-    from pvtflow.axes.master.bus.cell_bus import CellBus
-    from pvtflow.axes.master.cyclic.process import CyclicProcess
+    from pvtflow.axes.master.bus.network import RecordingNetwork
 
 SyncCallback = Callable[[int], None]
+
+
+class CyclicPath(Protocol):
+    """The cyclic path in a process of its own as the clock drives it (``axes.master.cyclic.process``)."""
+
+    producing: bool
+
+    @property
+    def handed_over(self) -> bool: ...
+
+    def produce(self, clock: SyncClock, production: int) -> None: ...
+
+    def quick_stop(self, reason: str, node_ids: Sequence[int]) -> None: ...
+
+    def stop(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
 BACKUP_AFTER = 0.25  # the second SYNC thread sends what the first has not this far past a deadline (periods)
 DEFAULT_MAX_GAP_PERIODS = 2.0  # a fixed-period drive misses a setpoint in a longer gap (module docstring)
 
@@ -186,19 +204,26 @@ class SyncClock:
 
     def __init__(
         self,
-        bus: CellBus,
+        network: RecordingNetwork,
+        report: FaultCallback,
         period_ms: float,
         lockstep: bool,
         time_stamp_cob_id: int | None = None,
         priority: int = 0,
         max_gap_periods: float = DEFAULT_MAX_GAP_PERIODS,
+        threads: Callable[[], list[threading.Thread]] = list,
     ):
-        self.bus = bus
+        # what the clock needs of the bus, handed in (python-canopen's parts hold the network, not the node)
+        self.network = network
+        self.report = report
+        self.bus_threads = threads  # the bus's other threads, lifted below SYNC (``CellBus.threads``)
         self.period_ms = period_ms
         self.lockstep = lockstep
         self.time_stamp_cob_id = time_stamp_cob_id
         self.priority = priority
-        self.max_gap_s = max_gap_periods * period_ms / 1000.0
+        self.bus_max_gap_s = max_gap_periods * period_ms / 1000.0  # the bus's own (BusConfig.max_sync_gap_periods)
+        # this production's: each ``start`` sets it (a gap judged as a production stops keeps the threshold it ran on)
+        self.max_gap_s = self.bus_max_gap_s
         self.count = 0
         self.answered = 0
         self.skipped = 0
@@ -232,7 +257,7 @@ class SyncClock:
         self._judged: float | None = None  # the SYNC whose gap was reported before the next went out
         # the wall clock's cyclic path in a process of its own (``axes.master.cyclic.process``;
         # None: this one's threads)
-        self.cyclic: CyclicProcess | None = None
+        self.cyclic: CyclicPath | None = None
 
     # --- answers ---------------------------------------------------------------------------------
     def expect(self, answers: Iterable[int] | Mapping[int, int]) -> None:
@@ -248,12 +273,12 @@ class SyncClock:
         every = dict(answers) if isinstance(answers, Mapping) else dict.fromkeys(answers, 1)
         with self.lock:
             for cob in self._answers:
-                unsubscribe(self.bus.network, cob, self._on_answer)
+                unsubscribe(self.network, cob, self._on_answer)
             self._every = every
             self._answers = {cob: self.count + n - 1 for cob, n in every.items()}
             self.answered = self.count
             for cob in self._answers:
-                subscribe(self.bus.network, cob, self._on_answer)
+                subscribe(self.network, cob, self._on_answer)
 
     def _done(self) -> int:
         """The last SYNC every drive has answered or owes no answer for (never past the SYNCs sent)."""
@@ -295,7 +320,7 @@ class SyncClock:
             self._answered_changed.notify_all()
             failed = self._complete()
         if failed is not None:
-            self.bus.report(failed)
+            self.report(failed)
 
     def _complete(self) -> BusFault | None:
         """Advance ``answered`` to every SYNC answered or owed no answer, run the listeners on it and,
@@ -335,9 +360,9 @@ class SyncClock:
         """SYNC (unless the interface sent it: ``sync_frame`` False), the time stamp, the senders."""
         with self.lock:
             self.count += 1
-            with self.bus.network.together():  # one write where the interface takes a run of frames
+            with self.network.together():  # one write where the interface takes a run of frames
                 if sync_frame:
-                    self.bus.network.send_message(SYNC_COB_ID, b"")
+                    self.network.send_message(SYNC_COB_ID, b"")
                 # taken once the SYNC is sent (the senders below see this SYNC's time): a thread preempted
                 # between the decision and the send would otherwise let the next SYNC follow this one
                 # within half a period on the bus
@@ -348,7 +373,7 @@ class SyncClock:
                 self.sent_at = now
                 if self.time_stamp_cob_id is not None:
                     stamp = (time.monotonic_ns() // 1000 - self._t0_us) & 0xFFFFFFFF
-                    self.bus.network.send_message(self.time_stamp_cob_id, struct.pack("<I", stamp))
+                    self.network.send_message(self.time_stamp_cob_id, struct.pack("<I", stamp))
                 for send in self._senders:
                     send(self.count)
             if not self._completing and any(n > 1 for n in self._every.values()):
@@ -356,7 +381,7 @@ class SyncClock:
                 # listeners run now, in the sending thread, as no answer will bring them
                 failed = self._complete()
                 if failed is not None:
-                    self.bus.report(failed)
+                    self.report(failed)
 
     def heard(self, production: int) -> None:
         """A SYNC the cyclic process sent, heard on the bus (``axes.master.cyclic.process``): counted as
@@ -376,16 +401,19 @@ class SyncClock:
             if not self._completing and any(n > 1 for n in self._every.values()):
                 failed = self._complete()
         if failed is not None:
-            self.bus.report(failed)
+            self.report(failed)
 
     @property
     def cyclic_producing(self) -> bool:
         """SYNC and what follows it come from the cyclic process (the master's feeders only mirror it)."""
         return self.cyclic is not None and self.cyclic.producing
 
-    def start(self) -> None:
-        """Send the first SYNC now and keep producing (lockstep: on answers; real time: periodic)."""
+    def start(self, max_gap_s: float | None = None) -> None:
+        """Send the first SYNC now and keep producing (lockstep: on answers; real time: periodic).
+        ``max_gap_s``: the gap this production reports (a run's profiles ride out less than the bus's
+        default, ``Profile.max_sync_gap_ms``); None: the bus's own (homing, a run on a bus that sets one)."""
         with self.lock:
+            self.max_gap_s = self.bus_max_gap_s if max_gap_s is None else max_gap_s
             if self._running:
                 return
             self._running = True
@@ -410,8 +438,8 @@ class SyncClock:
                 collector.hold()  # no collection pause while SYNC runs on the wall clock (axes/master/bus/collector.py)
                 self._collector_held = True
             msg = can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
-            assert self.bus.network.bus is not None
-            self.follower.task = native_cyclic_task(self.bus.network.bus, msg, self.period_ms / 1000.0)
+            assert self.network.bus is not None
+            self.follower.task = native_cyclic_task(self.network.bus, msg, self.period_ms / 1000.0)
             self.native = self.follower.task is not None
             self._deadline, self._judged = time.monotonic(), None
         cpus = producer_cpus() if self.backup else []
@@ -436,7 +464,7 @@ class SyncClock:
         pin(cpu)
         self.realtime = ask_realtime(self.priority)
         if self.realtime and self.lift_bus_threads:
-            self.lifted = lift(self.bus.threads(), self.priority - 1)
+            self.lifted = lift(self.bus_threads(), self.priority - 1)
         try:
             target(production)
         except (can.CanError, OSError) as exc:
@@ -452,14 +480,14 @@ class SyncClock:
                 return  # stopped meanwhile: nothing of this production is wanted any more
             self._running = False
             self._production += 1
-        self.bus.report(fault)
+        self.report(fault)
 
     def report_gap(self, gap_s: float, what: str = "no SYNC") -> None:
         """Report a gap the drives do not ride out (called without the lock): between two SYNCs, or
         (``what`` "no setpoint") between two setpoints, where SYNCs went out without one
         (``axes.master.bus.sync_follower``)."""
         if gap_s > self.max_gap_s:
-            self.bus.report(
+            self.report(
                 BusFault(
                     FaultKind.SYNC_GAP,
                     None,

@@ -34,17 +34,41 @@ import math
 import threading
 import time
 from collections import deque
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from typing import Protocol
 
 import can
+import canopen
 
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive.objects import SYNC_COB_ID
 
 OFFSET_CREEP_S = 10e-6  # how fast the time stamps' offset may drift up, per SYNC heard (``_on_echo``)
 
-if TYPE_CHECKING:
-    from pvtflow.axes.master.bus.sync import SyncClock
+
+class FollowedClock(Protocol):
+    """What the follower needs of the SYNC clock it follows for (``axes.master.bus.sync.SyncClock``):
+    named here so that the follower does not import the clock that holds it."""
+
+    count: int
+    skipped: int
+    max_gap_s: float
+    setpoints_per_sync: bool
+    period_ms: float
+    sent_at: float | None
+    hold: Callable[[], None] | None
+
+    @property
+    def network(self) -> canopen.Network: ...
+
+    @property
+    def lock(self) -> threading.RLock: ...
+
+    def producing(self, production: int) -> bool: ...
+
+    def transmit(self, sync_frame: bool = True) -> None: ...
+
+    def report_gap(self, gap_s: float, what: str = "no SYNC") -> None: ...
 
 
 def native_cyclic_task(bus: can.BusABC, msg: can.Message, period_s: float) -> can.broadcastmanager.CyclicTask | None:
@@ -66,7 +90,7 @@ def native_cyclic_task(bus: can.BusABC, msg: can.Message, period_s: float) -> ca
 class SyncFollower:
     """Follows the SYNCs the interface sends (``SyncClock.native``) for one ``SyncClock``."""
 
-    def __init__(self, clock: SyncClock) -> None:
+    def __init__(self, clock: FollowedClock) -> None:
         self.clock = clock
         self.task: can.broadcastmanager.CyclicTask | None = None  # the interface's own cyclic SYNC
         self._echo = threading.Condition(threading.Lock())
@@ -123,7 +147,7 @@ class SyncFollower:
         and the setpoints, one for the SYNC after the last heard, none while the one it sent has not
         been taken (module docstring)."""
         clock = self.clock
-        network = clock.bus.network
+        network = clock.network
         period_s = clock.period_ms / 1000.0
         silent = False
 

@@ -22,11 +22,13 @@ import can
 from canopen.emcy import EmcyError
 
 from pvtflow.axes.canbus.can_errors import FROM_BUS_STATE, ControllerState
-from pvtflow.axes.drive.objects import CAN_EMCY_WORDS, NMT_STATE_OPERATIONAL
-from pvtflow.axes.master.bus.faults import BusFault, ErrorFrames, FaultKind
+from pvtflow.axes.drive.objects import CAN_EMCY_WORDS, NMT_STATE_OPERATIONAL, node_of_cob_id
+from pvtflow.axes.master.bus.faults import BusFault, ErrorFrames, FaultCallback, FaultKind
 
 if TYPE_CHECKING:
-    from pvtflow.axes.master.bus.cell_bus import CellBus
+    from pvtflow.axes.drive.config import BusConfig
+    from pvtflow.axes.master.bus.network import RecordingNetwork
+    from pvtflow.axes.master.bus.sync import SyncClock
 
 NMT_STATE_BOOT_UP = 0  # the boot-up message: a heartbeat frame with state 0
 ERROR_FRAME_REPORT_S = 1.0  # error frames are reported at most this often (with the count since the last report)
@@ -35,8 +37,20 @@ ERROR_FRAME_REPORT_S = 1.0  # error frames are reported at most this often (with
 class BusWatch:
     """The heartbeat, NMT and EMCY consumers of one ``CellBus`` and the thread that watches it."""
 
-    def __init__(self, bus: CellBus) -> None:
-        self.bus = bus
+    def __init__(
+        self,
+        config: BusConfig,
+        network: RecordingNetwork,
+        report: FaultCallback,
+        sync: SyncClock,
+        lost_sync_timeout_s: float,
+    ) -> None:
+        # what the watch needs of the bus, handed in: it reports through ``report`` (``CellBus.report``)
+        self.config = config
+        self.network = network
+        self.report = report
+        self.sync = sync
+        self.lost_sync_timeout_s = lost_sync_timeout_s
         self.errors = ErrorFrames()
         self.state = ControllerState.ERROR_ACTIVE  # the master's controller as last reported
         self._polled = ControllerState.ERROR_ACTIVE  # python-can's ``bus.state`` as last read
@@ -93,18 +107,18 @@ class BusWatch:
         self._heartbeat_seen[node_id] = time.monotonic()
         self._heartbeat_state[node_id] = state
         if node_id in self._watched and previous == NMT_STATE_OPERATIONAL and state != NMT_STATE_OPERATIONAL:
-            self.bus.report(BusFault(FaultKind.NMT, node_id, f"node {node_id} left OPERATIONAL (NMT state {state})"))
+            self.report(BusFault(FaultKind.NMT, node_id, f"node {node_id} left OPERATIONAL (NMT state {state})"))
 
     def on_emcy(self, node_id: int, err: EmcyError) -> None:
         if err.code == 0:
             return  # error reset / no error
         words = CAN_EMCY_WORDS.get(err.code) or err.get_desc()
         text = f"EMCY 0x{err.code:04X} from node {node_id}: {words}".rstrip(": ")
-        self.bus.report(BusFault(FaultKind.EMCY, node_id, text, err.code))
+        self.report(BusFault(FaultKind.EMCY, node_id, text, err.code))
 
     def _run(self) -> None:
-        timeout = self.bus.config.heartbeat_ms * self.bus.config.heartbeat_timeout_factor / 1000.0
-        poll = max(0.005, min(self.bus.config.heartbeat_ms / 4000.0, self.bus.lost_sync_timeout_s / 4))
+        timeout = self.config.heartbeat_ms * self.config.heartbeat_timeout_factor / 1000.0
+        poll = max(0.005, min(self.config.heartbeat_ms / 4000.0, self.lost_sync_timeout_s / 4))
         while not self._closing.wait(poll):
             now = time.monotonic()
             lost = []
@@ -114,7 +128,7 @@ class BusWatch:
                         lost.append(nid)
                         self._watched.discard(nid)
             for nid in lost:
-                self.bus.report(
+                self.report(
                     BusFault(
                         FaultKind.HEARTBEAT,
                         nid,
@@ -123,22 +137,22 @@ class BusWatch:
                     )
                 )
             self._watch_wire(now)
-            stalled = now - self.bus.sync.last_progress > self.bus.lost_sync_timeout_s
-            if self.watch_sync and self.bus.sync.running and not self._sync_reported and stalled:
-                nodes = sorted({cob & 0x7F for cob in self.bus.sync.behind()})
+            stalled = now - self.sync.last_progress > self.lost_sync_timeout_s
+            if self.watch_sync and self.sync.running and not self._sync_reported and stalled:
+                nodes = sorted({node_of_cob_id(cob) for cob in self.sync.behind()})
                 self._sync_reported = True
-                self.bus.report(
+                self.report(
                     BusFault(
                         FaultKind.LOST_SYNC,
                         nodes[0] if nodes else None,
-                        f"SYNC {self.bus.sync.count} not answered by node(s) {nodes} within "
-                        f"{self.bus.lost_sync_timeout_s:.3f} s",
+                        f"SYNC {self.sync.count} not answered by node(s) {nodes} within "
+                        f"{self.lost_sync_timeout_s:.3f} s",
                     )
                 )
 
     def arm_sync_watch(self) -> None:
         self._sync_reported = False
-        self.bus.sync.last_progress = time.monotonic()
+        self.sync.last_progress = time.monotonic()
         self.watch_sync = True
 
     def _watch_wire(self, now: float) -> None:
@@ -148,7 +162,7 @@ class BusWatch:
         ACTIVE) and from python-can's ``bus.state`` where the interface reports one (pcan, simwire)."""
         frames = self.errors.take(now, ERROR_FRAME_REPORT_S)
         if frames:
-            self.bus.report(
+            self.report(
                 BusFault(
                     FaultKind.BUS_WARNING,
                     None,
@@ -159,7 +173,7 @@ class BusWatch:
         for frame in self.errors.changes():
             assert frame.state is not None
             self._enter(frame.state, frame.counters())
-        bus = self.bus.network.bus
+        bus = self.network.bus
         if bus is None:
             return
         try:
@@ -178,7 +192,7 @@ class BusWatch:
         previous, self.state = self.state, state
         said = f"the master's CAN controller is {state}{counters}"
         if state is ControllerState.BUS_OFF:
-            self.bus.report(
+            self.report(
                 BusFault(
                     FaultKind.BUS_OFF,
                     None,
@@ -187,8 +201,8 @@ class BusWatch:
                 )
             )
         elif state is ControllerState.ERROR_PASSIVE:
-            self.bus.report(BusFault(FaultKind.BUS_WARNING, None, f"{said} (an error counter at 128 or more)"))
+            self.report(BusFault(FaultKind.BUS_WARNING, None, f"{said} (an error counter at 128 or more)"))
         elif state is ControllerState.ERROR_WARNING:
-            self.bus.report(BusFault(FaultKind.BUS_WARNING, None, f"{said} (an error counter at 96 or more)"))
+            self.report(BusFault(FaultKind.BUS_WARNING, None, f"{said} (an error counter at 96 or more)"))
         else:
-            self.bus.report(BusFault(FaultKind.BUS_WARNING, None, f"{said} again (was {previous})"))
+            self.report(BusFault(FaultKind.BUS_WARNING, None, f"{said} again (was {previous})"))

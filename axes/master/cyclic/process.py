@@ -29,7 +29,7 @@ import logging
 import multiprocessing
 import threading
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Protocol
 
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive.config import wire_options
@@ -47,9 +47,30 @@ from pvtflow.axes.master.cyclic.loop import (
 from pvtflow.axes.master.group.feeder import BufferFeeder, Feeder, RecordAllowance, SetpointFeeder
 
 if TYPE_CHECKING:
-    from pvtflow.axes.master.bus.cell_bus import CellBus
+    from pvtflow.axes.drive.config import AxisConfig, BusConfig
+    from pvtflow.axes.drive.objects import PdoLayout
+    from pvtflow.axes.master.bus.faults import FaultCallback
+    from pvtflow.axes.master.bus.network import RecordingNetwork
     from pvtflow.axes.master.bus.sync import SyncClock
-    from pvtflow.axes.master.profiles.base import Profile
+
+
+class HandedLink(Protocol):
+    node_id: int
+
+
+class HandedProfile(Protocol):
+    """What the hand-over reads of a drive profile (``axes.master.profiles.base.Profile``): its RPDOs, its
+    node, how its frames are packed, whether it ramps by itself, its axis."""
+
+    rpdos: Sequence[PdoLayout]
+    link: HandedLink
+    config: AxisConfig
+
+    @property
+    def ramps_by_itself(self) -> bool: ...
+
+    def frame_packer(self, cob_id: int) -> Any: ...
+
 
 log = logging.getLogger("pvtflow.bus")
 
@@ -65,11 +86,14 @@ def shared_interface(interface: str, channel: str) -> bool:
 
 
 class CyclicProcess:
-    """The child that runs the cyclic path of one ``CellBus`` (module docstring)."""
+    """The child that runs the cyclic path of one cell's bus (module docstring): its config, network, the
+    report of its faults and its SYNC clock."""
 
-    def __init__(self, bus: CellBus) -> None:
-        self.bus = bus
-        config = bus.config
+    def __init__(self, config: BusConfig, network: RecordingNetwork, report: FaultCallback, sync: SyncClock) -> None:
+        self.config = config
+        self.network = network
+        self.report = report
+        self.sync = sync
         context = multiprocessing.get_context("spawn")  # never fork a process with threads running
         self.progress = context.RawArray("q", 2 + MAX_FEEDS)
         self._conn, child = context.Pipe()
@@ -102,7 +126,7 @@ class CyclicProcess:
         self.last_quick_stop: tuple[str, list[int], list[int]] | None = None
 
     def open(self) -> CyclicProcess:
-        config = self.bus.config
+        config = self.config
         if not shared_interface(config.interface, config.channel):
             self._conn.close()
             self._child_conn.close()
@@ -137,11 +161,11 @@ class CyclicProcess:
                 message = self._conn.recv()
             except (EOFError, OSError, TypeError):  # TypeError: the handle closed under the read (close)
                 if self.producing:
-                    self.bus.report(BusFault(FaultKind.SYNC_STOPPED, None, "the cyclic process ended"))
+                    self.report(BusFault(FaultKind.SYNC_STOPPED, None, "the cyclic process ended"))
                 return
             if message[0] == "fault":
                 _, kind, node_id, text, code = message
-                self.bus.report(BusFault(FaultKind(kind), node_id, text, code))
+                self.report(BusFault(FaultKind(kind), node_id, text, code))
             elif message[0] == "timing":
                 _, late_us, echo_us, unstamped, refused = message
                 self.last_timing = CycleTiming(late_us, echo_us, unstamped, refused)
@@ -152,7 +176,7 @@ class CyclicProcess:
 
     # --- a run -----------------------------------------------------------------------------------
     def hand_over(
-        self, feeders: Sequence[Feeder], profiles: Sequence[Profile], allowance: RecordAllowance, max_gap_s: float
+        self, feeders: Sequence[Feeder], profiles: Sequence[HandedProfile], allowance: RecordAllowance, max_gap_s: float
     ) -> None:
         """The run's feeders as they stand before the start SYNC (after the preload and the start
         setpoints): the child goes on from there."""
@@ -164,7 +188,7 @@ class CyclicProcess:
             spec = FeedSpec(
                 node_id=profile.link.node_id,
                 records=feeder.records,
-                packer=profile.frame_packer(cob),  # type: ignore[attr-defined]
+                packer=profile.frame_packer(cob),
                 next=feeder.next,
                 enabled=feeder.enabled,
             )
@@ -176,7 +200,7 @@ class CyclicProcess:
                 spec.buffer, spec.capacity = feeder.buffer, feeder.capacity
             specs.append(spec)
         self._runs += 1
-        clock = self.bus.sync
+        clock = self.sync
         self._feeders = list(feeders)
         for feeder in self._feeders:  # from the start SYNC on, the child sends; these only mirror it
             feeder.mirrored = True
@@ -187,7 +211,7 @@ class CyclicProcess:
             stamp_cob_id=clock.time_stamp_cob_id,
             max_gap_s=max_gap_s,
             records_per_sync=allowance.per_sync,
-            tx_queue_frames=self.bus.config.tx_queue_frames,
+            tx_queue_frames=self.config.tx_queue_frames,
             feeds=specs,
         )
 
@@ -239,7 +263,7 @@ class CyclicProcess:
 
     def _unsubscribe(self) -> None:
         if self._on_echo is not None:
-            unsubscribe(self.bus.network, SYNC_COB_ID, self._on_echo)
+            unsubscribe(self.network, SYNC_COB_ID, self._on_echo)
             self._on_echo = None
 
     def close(self) -> None:

@@ -38,7 +38,7 @@ from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.bus.faults import BusFault, FaultKind
 from pvtflow.axes.master.bus.quick_stop import QuickStop
 from pvtflow.axes.master.bus.sync import below_sync
-from pvtflow.axes.master.group.configure import GroupConfiguration
+from pvtflow.axes.master.group.configure import Configured, GroupConfiguration
 from pvtflow.axes.master.group.feeder import BufferFeeder, Feeder, RecordAllowance, top_up_by_need
 from pvtflow.axes.master.group.halt import GroupHalt
 from pvtflow.axes.master.group.outcome import Event, EventCallback, EventKind, ProgressCallback, Result, RunResult
@@ -94,7 +94,7 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         self.progress_every = max(1, progress_every)
         self.start_tolerance_qc = start_tolerance_qc
         self.halt_timeout_ms = halt_timeout_ms
-        self.configured = False
+        self.configuration = Configured()
         self.last_result: RunResult | None = None
         self._done = threading.Event()
         self._done.set()
@@ -116,7 +116,6 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         self.state = CellRunState(bus, self.links, self.readiness)  # shared with the cell's homing
         self._lock = self.state.lock
         self.last_quick_stop: QuickStop | None = None  # the last halt that did not wait for SYNC
-        self._configured_boots: dict[int, int] = {}  # every drive's boot count when it was configured
         # the records the bus has room for in one SYNC period, shared by the buffered axes; never less
         # than one per buffered axis (a cell file whose bus has no room for that is refused at load)
         budget = bus_budget(Wiring(bus.config, tuple(axes)))
@@ -321,7 +320,7 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
             gone = kind in (Result.HEARTBEAT_LOST, Result.LOST_SYNC)
             stalled = bool(sync.behind())
             if gone:
-                self.configured = False  # the node may come back reset: recover() configures again
+                self.configuration.forget()  # the node may come back reset: recover() configures again
             if gone and link is not None:
                 # stop waiting for a drive that is gone, so the others still get their halt SYNC
                 sync.expect(
@@ -369,7 +368,7 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         if self.configured and not self._running and self.bus.is_open:
             for profile in self.profiles:
                 profile.release_master()
-            self.configured = False  # a group used again arms the consumers again
+            self.configuration.forget()  # a group used again arms the consumers again
         self.bus.sync.remove_sender(self._after_sync)
         self._pool.shutdown(wait=True)
         for link in self.links:

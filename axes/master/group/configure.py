@@ -16,8 +16,35 @@ from pvtflow.axes.master.group.outcome import EventKind, GroupError, Result, Run
 from pvtflow.axes.master.link import DriveError
 
 
+class Configured:
+    """Whether the group's drives hold its configuration, and every drive's boot count when it was
+    written: a drive that booted since has its EDS defaults again. The one writer of both."""
+
+    def __init__(self) -> None:
+        self.done = False
+        self.boots: dict[int, int] = {}
+
+    def writing(self, boots: dict[int, int]) -> None:
+        """Configuration starts on drives that have booted this often (``rebooted`` compares)."""
+        self.boots = boots
+
+    def written(self) -> None:
+        self.done = True
+
+    def forget(self) -> None:
+        """The next start configures again (a drive may come back reset, or sits in NMT STOPPED)."""
+        self.done = False
+
+
 class GroupConfiguration:
     """AxisGroup's configuration, program check and recovery (mixed into ``AxisGroup``)."""
+
+    configuration: Configured
+
+    @property
+    def configured(self) -> bool:
+        """Configured since every drive last booted, as far as the group knows (``rebooted`` checks)."""
+        return self.configuration.done
 
     def configure(self) -> None:
         """Every drive: what it is checked against the cell (axes/master/commission.py: a drive that is not
@@ -26,7 +53,7 @@ class GroupConfiguration:
         refuse_on_facts(self.links, self.profiles)
         for link in self.links:  # addressed, not broadcast: other nodes on the bus are not ours
             self.bus.nmt(link.node_id, NmtCommand.PRE_OPERATIONAL)
-        self._configured_boots = {link.node_id: self.bus.watch.boot_count(link.node_id) for link in self.links}
+        self.configuration.writing({link.node_id: self.bus.watch.boot_count(link.node_id) for link in self.links})
         for link, profile in zip(self.links, self.profiles, strict=True):
             profile.configure()
             profile.write_homing()
@@ -36,7 +63,7 @@ class GroupConfiguration:
             self.bus.nmt(link.node_id, NmtCommand.START)
         self.bus.watch.watch_heartbeat(link.node_id for link in self.links)
         self.readiness.forget()
-        self.configured = True
+        self.configuration.written()
 
     def configure_if_needed(self) -> None:
         """Configure unless configured since every drive last booted (a rebooted drive has its EDS
@@ -46,7 +73,8 @@ class GroupConfiguration:
 
     def rebooted(self) -> bool:
         """A drive has booted since the group configured it."""
-        return any(self.bus.watch.boot_count(lk.node_id) != self._configured_boots.get(lk.node_id) for lk in self.links)
+        boots = self.configuration.boots
+        return any(self.bus.watch.boot_count(lk.node_id) != boots.get(lk.node_id) for lk in self.links)
 
     def check_program(self, program: PvtProgram) -> str | None:
         """Why this program cannot run on this cell (None: it can)."""

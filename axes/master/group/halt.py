@@ -93,7 +93,7 @@ class GroupHalt:
         ending.halt_latency_s = stop.latency_s
         ending.message = f"{ending.message}; {stop.describe()}"
         if stop.nmt_stopped or stop.unsent:
-            self.configured = False  # NMT STOPPED: the next start configures again
+            self.configuration.forget()  # NMT STOPPED: the next start configures again
         self._end(ending)
 
     def _check_halted(self, n: int) -> None:

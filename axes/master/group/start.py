@@ -97,9 +97,10 @@ class GroupStart:
                 self._start_sync = sync.count + 1
                 self._start_sent = None
                 sync.setpoints_per_sync = any(not p.name.buffered for p in self.profiles)
+                run_gap_s = None  # the bus's own, set in its config
                 if self.bus.config.max_sync_gap_periods is None:  # the profiles say (axes.master.bus.sync)
                     gaps = (p.max_sync_gap_ms(prog) for p, prog in zip(self.profiles, self._programs, strict=True))
-                    sync.max_gap_s = min(gaps) / 1000.0
+                    run_gap_s = min(gaps) / 1000.0
                 # before the start SYNC nothing waits on these frames: a full transmit queue only delays
                 # them by the wire time of what is ahead (as the preload's)
                 try:
@@ -120,7 +121,7 @@ class GroupStart:
                 self.bus.watch.arm_sync_watch()
                 started = f"program of {program.duration_ms} ms started on SYNC {self._start_sync}"
                 self._event(EventKind.STARTED, started)
-                sync.start()
+                sync.start(max_gap_s=run_gap_s)
         return None
 
     def _preload_records(self, checked: bool) -> _Refusal | None:
@@ -141,9 +142,9 @@ class GroupStart:
             sync.keep_period()
             owed = sync.step()
             self.allowance.new_period(sync.count)
-            silent = sorted({cob & 0x7F for cob in sync.wait_answered(owed, self.bus.lost_sync_timeout_s)})
+            silent = sorted({od.node_of_cob_id(cob) for cob in sync.wait_answered(owed, self.bus.lost_sync_timeout_s)})
             if silent:
-                self.configured = False
+                self.configuration.forget()
                 link = next((lk for lk in self.links if lk.node_id in silent), None)
                 return (
                     Result.LOST_SYNC,
@@ -191,10 +192,10 @@ class GroupStart:
         preloaded = [p.feeder(prog, self.allowance) for p, prog in zip(self.profiles, self._programs, strict=True)]
         preload_shared(preloaded, self.allowance)
         feeders: list[Feeder | None] = list(preloaded)
-        silent = sorted({cob & 0x7F for cob in sync.wait_answered(check, self.bus.lost_sync_timeout_s)})
+        silent = sorted({od.node_of_cob_id(cob) for cob in sync.wait_answered(check, self.bus.lost_sync_timeout_s)})
         if silent:
             link = next((lk for lk in self.links if lk.node_id in silent), None)
-            self.configured = False  # it may come back reset: the next start configures again
+            self.configuration.forget()  # it may come back reset: the next start configures again
             return feeders, (
                 Result.LOST_SYNC,
                 f"node(s) {silent} did not answer the start's check SYNC within "

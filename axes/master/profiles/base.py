@@ -12,7 +12,13 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
 from pvtflow.axes.drive import objects as od
-from pvtflow.axes.drive.cia402 import CONTROLWORD_SHUTDOWN, Controlword, PowerState
+from pvtflow.axes.drive.cia402 import (
+    CONTROLWORD_ENABLE_OPERATION,
+    CONTROLWORD_HALT,
+    CONTROLWORD_SHUTDOWN,
+    CONTROLWORD_START_IP,
+    PowerState,
+)
 from pvtflow.axes.drive.config import AxisConfig
 from pvtflow.axes.drive.drive_profile import DriveProfile
 from pvtflow.axes.drive.objects import PdoLayout
@@ -55,12 +61,12 @@ def expected_settings(config: AxisConfig) -> list[Setting]:
     unit = config.scaling.velocity_unit_rpm
     return [
         Setting(od.MAX_PROFILE_VELOCITY, 0, "I", round(lim.max_profile_velocity_rpm / unit), "max profile velocity"),
-        Setting(od.MAX_ACCELERATION, 0, "I", round(lim.max_acceleration_rpm_s), "max acceleration"),
+        Setting(od.MAX_ACCELERATION, 0, "I", lim.braking_rpm_s, "max acceleration"),
         Setting(od.SOFTWARE_POSITION_LIMIT, 1, "i", lim.min_position_qc, "min position limit"),
         Setting(od.SOFTWARE_POSITION_LIMIT, 2, "i", lim.max_position_qc, "max position limit"),
         Setting(od.MAX_FOLLOWING_ERROR, 0, "I", DEFAULT_MAX_FOLLOWING_ERROR_QC, "max following error"),
         # the quick stop ramp (0x6007 = 3 on a lost master, 0x605A = 2) brakes as hard as the axis may
-        Setting(od.QUICK_STOP_DECELERATION, 0, "I", round(lim.max_acceleration_rpm_s), "quick stop deceleration"),
+        Setting(od.QUICK_STOP_DECELERATION, 0, "I", lim.braking_rpm_s, "quick stop deceleration"),
     ]
 
 
@@ -151,20 +157,14 @@ class Profile:
         interrupted run may be left for the next one). Bufferless drives have nothing to clear."""
 
     def start_controlword(self) -> int:
-        return int(
-            Controlword.ENABLE_OPERATION
-            | Controlword.ENABLE_IP_MODE
-            | Controlword.ENABLE_VOLTAGE
-            | Controlword.QUICK_STOP
-            | Controlword.SWITCH_ON
-        )
+        return CONTROLWORD_START_IP
 
     def halt_controlword(self) -> int:
-        return self.start_controlword() | int(Controlword.HALT)
+        return CONTROLWORD_HALT
 
     def end_controlword(self) -> int:
         """After the end: ip mode off, operation still enabled (0x000F)."""
-        return self.start_controlword() & ~int(Controlword.ENABLE_IP_MODE)
+        return int(CONTROLWORD_ENABLE_OPERATION)
 
     def write_settings(self) -> None:
         """0x607F, 0x60C5, 0x607D, 0x6065 and 0x6085 from the axis (``expected_settings``) on every drive that
@@ -248,7 +248,7 @@ class Profile:
             (od.HALT_OPTION_CODE, od.HALT_ON_PROFILE_DECELERATION, "h", "halt option code"),
         ]
         if self.ramps_by_itself:
-            braking = round(self.config.limits.max_acceleration_rpm_s)
+            braking = self.config.limits.braking_rpm_s
             settings.append((od.PROFILE_DECELERATION, braking, "I", "profile deceleration, the halt's ramp"))
         for index, value, fmt, what in settings:
             if self.link.write_optional(index, 0, value, fmt):
