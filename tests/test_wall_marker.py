@@ -1,8 +1,9 @@
 """Every test that depends on the wall clock says so with the ``wall`` marker.
 
-A test depends on the wall clock when it runs SYNC on the wall clock (``real_time=True``,
-``lockstep=False``, ``--real-time``) or lets time pass (a ``time.sleep`` outside a loop: a sleep inside
-one polls a condition until a deadline and depends on the clock only for how long it may wait), itself
+A test depends on the wall clock when it runs SYNC or a drive on the wall clock (``real_time=True``,
+``lockstep=False``, ``--real-time``, ``clock="wall"``) or lets time pass (a ``time.sleep`` outside a
+loop: a sleep inside one polls a condition until a deadline and depends on the clock only for how
+long it may wait), itself
 or through a helper or fixture that does: its outcome can then depend on the host's load, and
 ``pytest -m wall`` / ``-m "not wall"`` must find it. The marker only labels: the README's test command
 runs these tests too.
@@ -12,10 +13,13 @@ from __future__ import annotations
 
 import ast
 import re
+import sys
 from pathlib import Path
 
 TESTS = Path(__file__).resolve().parent
-WALL_CLOCK_SYNC = re.compile(r"real_time\s*=\s*True|lockstep\s*=\s*False|--real-time")
+WALL_CLOCK_SYNC = re.compile(
+    r"real_time\s*=\s*True|lockstep\s*=\s*False|--real-time|clock\s*=\s*[\"']wall[\"']|Clock\.WALL"
+)
 Function = ast.FunctionDef | ast.AsyncFunctionDef
 
 
@@ -100,3 +104,18 @@ def unmarked_wall_tests() -> list[str]:
 
 def test_every_wall_clock_test_carries_the_wall_marker() -> None:
     assert unmarked_wall_tests() == []
+
+
+def test_the_scan_finds_an_unmarked_wall_clock_test(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """The rule itself can fail: a test that sleeps, one that runs a drive on the wall clock through a
+    helper, none marked, are found; the marked one and one that polls are not."""
+    (tmp_path / "test_made_up.py").write_text(
+        "import time\nimport pytest\n\n"
+        "def drive():\n    return Drive(clock='wall')\n\n"
+        "def test_sleeps():\n    time.sleep(0.1)\n\n"
+        "def test_through_a_helper():\n    drive()\n\n"
+        "@pytest.mark.wall\ndef test_marked():\n    time.sleep(0.1)\n\n"
+        "def test_polls():\n    while not done():\n        time.sleep(0.01)\n"
+    )
+    monkeypatch.setattr(sys.modules[__name__], "TESTS", tmp_path)
+    assert unmarked_wall_tests() == ["test_made_up.py::test_sleeps", "test_made_up.py::test_through_a_helper"]

@@ -39,6 +39,7 @@ import can
 import numpy as np
 from numpy.typing import NDArray
 
+from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.config import BufferConfig
 from pvtflow.axes.drive.objects import SYNC_COB_ID, NmtCommand
 from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
@@ -47,8 +48,6 @@ from pvtflow.axes.master.bus.faults import FaultKind
 from pvtflow.axes.master.bus.network import TX_RETRY_PAUSE_S
 from pvtflow.axes.master.bus.quick_stop import (
     SDO_DOWNLOAD_CONFIRMED,
-    SDO_REQUEST_BASE,
-    SDO_RESPONSE_BASE,
     quick_stop_request,
 )
 from pvtflow.axes.master.bus.sync import ask_realtime, lift
@@ -219,8 +218,11 @@ class CyclicLoop:
                 if can_id == SYNC_COB_ID and not msg.is_rx:  # our own SYNC, as it left the wire
                     self._echoes += 1
                     self._echo_of = (self._echoes, msg.timestamp, time.monotonic())
-                elif SDO_RESPONSE_BASE < can_id <= SDO_RESPONSE_BASE + 0x7F and msg.data[:1] == _CONFIRMED:
-                    self._confirmed.add(can_id - SDO_RESPONSE_BASE)
+                elif (
+                    od.SDO_RESPONSE_COB_ID_BASE < can_id <= od.SDO_RESPONSE_COB_ID_BASE + 0x7F
+                    and msg.data[:1] == _CONFIRMED
+                ):
+                    self._confirmed.add(can_id - od.SDO_RESPONSE_COB_ID_BASE)
 
     # --- a run -----------------------------------------------------------------------------------
     def begin(self, spec: CycleSpec) -> None:
@@ -430,7 +432,7 @@ class CyclicLoop:
         request = quick_stop_request()
         for node in nodes:
             with contextlib.suppress(can.CanError, OSError):  # not sent: NMT stop below, or the heartbeat's loss
-                self.send_now(SDO_REQUEST_BASE + node, request)
+                self.send_now(od.SDO_REQUEST_COB_ID_BASE + node, request)
         deadline = time.monotonic() + self.quick_stop_confirm_s
         while not all(n in self._confirmed for n in nodes) and time.monotonic() < deadline:
             time.sleep(TX_RETRY_PAUSE_S)

@@ -235,6 +235,7 @@ def test_fixed_period_lockstep_is_unmoved_by_wall_time(bench: Bench) -> None:
     assert drive.demand == 1000.0
 
 
+@pytest.mark.wall
 def test_clock_arguments_are_checked() -> None:
     with pytest.raises(ValueError, match="clock must be one of lockstep, wall"):
         IpLinearDrive(55, clock="sometimes")
@@ -270,6 +271,7 @@ def epos2(bench: Bench, ticker: Ticker, node_id: int, records, **kw) -> tuple[Ep
     return drive, node
 
 
+@pytest.mark.wall
 def test_epos2_runs_its_records_on_its_own_clock_through_a_sync_gap_and_a_burst(bench: Bench, ticker: Ticker) -> None:
     records = cruise(10)
     drive, node = epos2(bench, ticker, 61, records, sync_period_ms=2.0)
@@ -293,6 +295,7 @@ def test_epos2_runs_its_records_on_its_own_clock_through_a_sync_gap_and_a_burst(
     assert checks and all(1.0 - MAX_SLEW - 1e-12 <= c.rate <= 1.0 + MAX_SLEW + 1e-12 for c in checks)
 
 
+@pytest.mark.wall
 def test_epos2_without_the_next_record_underflows_on_its_own_clock(bench: Bench, ticker: Ticker) -> None:
     records = cruise(2)[:-2]  # no way down, no end marker
     drive, node = epos2(bench, ticker, 62, records)
@@ -304,6 +307,7 @@ def test_epos2_without_the_next_record_underflows_on_its_own_clock(bench: Bench,
     assert int.from_bytes(emcy[0].data[:2], "little") == od.EMCY_EPOS2_IPM_ERROR
 
 
+@pytest.mark.wall
 def test_epos2_clock_correction_holds_a_drifting_quartz_to_the_sync_schedule(bench: Bench, ticker: Ticker) -> None:
     """A 500 ppm fast quartz; SYNC stamped on the bus at exact 2 ms instants (a master with hardware
     time stamps): the drive slews its clock onto start + n x period and stays there."""
@@ -401,6 +405,7 @@ def stamped_run(bench: Bench, ticker: Ticker, node_id: int, stamp_clock_ppm: flo
     ]
 
 
+@pytest.mark.wall
 @pytest.mark.parametrize("stamp_clock_ppm", [0.0, 2000.0], ids=["right-stamp", "stamp-2000ppm-off"])
 def test_epos2_follows_the_masters_time_stamps(bench: Bench, ticker: Ticker, stamp_clock_ppm: float) -> None:
     """App note "Clock synchronization": the drive adjusts its motion clock to the master's time of

@@ -184,6 +184,7 @@ def test_a_missing_sync_is_punished_as_before(make, monkeypatch) -> None:
     assert drive.faults and drive.faults[0].code == od.EMCY_VELOCITY_LIMIT
 
 
+@pytest.mark.wall
 def test_the_lock_follows_a_drifting_quartz(monkeypatch) -> None:
     """100 ppm: 0.2 us a period, out of a 135 us window within 700 periods if nothing followed."""
     monkeypatch.setattr(pvtflow.axes.sim.cia402.sampling, "arrival", lambda stamp: stamp)

@@ -118,6 +118,7 @@ def test_own_frames_come_back_only_when_asked_and_not_as_received(buses: Buses) 
 # -- arbitration -----------------------------------------------------------------------------------
 
 
+@pytest.mark.wall
 def test_wall_arbitration_when_the_bus_goes_idle_lowest_identifier_first() -> None:
     """Medium.step with chosen times: what is queued while a frame is on the wire competes when it ends."""
     medium = Medium("arb", bitrate=100_000, clock="wall")
@@ -145,6 +146,7 @@ def test_wall_arbitration_when_the_bus_goes_idle_lowest_identifier_first() -> No
     assert ends[0] == pytest.approx(seconds(frame(0x500, bytes(8)), 100_000))
 
 
+@pytest.mark.wall
 def test_wall_arbitration_base_before_extended_and_data_before_remote() -> None:
     medium = Medium("arb2", bitrate=100_000, clock="wall")
     heard: list[can.Message] = []
@@ -343,6 +345,7 @@ def test_bus_off_node_cannot_send_and_hears_nothing(buses: Buses, clock: str) ->
     assert b.recv(1).arbitration_id == 0x181
 
 
+@pytest.mark.wall
 def test_bus_off_drops_the_queued_frames_of_the_node() -> None:
     medium = Medium("off", bitrate=100_000, clock="wall")
     heard: list[can.Message] = []
@@ -376,6 +379,7 @@ def test_error_passive_is_reported_and_error_frames_reach_every_node(buses: Buse
 # -- configuration ---------------------------------------------------------------------------------
 
 
+@pytest.mark.wall
 def test_openers_of_a_channel_must_agree(buses: Buses) -> None:
     ch = buses.channel()
     buses.open(ch, clock="lockstep", sync_period=PERIOD, bitrate=500_000)

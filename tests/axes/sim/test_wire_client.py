@@ -106,6 +106,7 @@ def test_a_network_sends_together_where_the_interface_can_and_frame_by_frame_els
         heard.shutdown()
 
 
+@pytest.mark.wall
 def test_a_wall_fifo_is_judged_in_bus_time_when_the_driver_is_late() -> None:
     """Frames whose last bit has left by a send's bus time are out of the sender's FIFO, though no
     driver thread woke to retire them (a held simulation process): the send finds room, and the
