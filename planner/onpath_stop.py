@@ -96,7 +96,7 @@ def _brake(motion: Trajectory, t0: float, limits: JointLimits, share: float) -> 
             grid.append(float(s_next))
             xs.append(x_next)
         else:  # the path ends before the brake would: the motion's own remainder is its fastest stop
-            grid, xs = [s0, *map(float, later)], [sd0 * sd0, *map(float, motion.sd[-len(later):] ** 2)]
+            grid, xs = [s0, *map(float, later)], [sd0 * sd0, *map(float, motion.sd[-len(later) :] ** 2)]
     gridpoints = np.asarray(grid, dtype=float)
     if len(gridpoints) < 2:
         raise PlanError(PlanResult.INFEASIBLE, "the motion is already at its end")
@@ -123,3 +123,61 @@ def quick_stop_time(motion: Trajectory, t0: float, limits: JointLimits) -> float
     decides."""
     qd = motion.velocity(np.array([t0]))[0]
     return float(np.max(np.abs(qd) / np.asarray(limits.acceleration, dtype=float)))
+
+
+def _bounds(
+    qs: NDArray[np.float64], qss: NDArray[np.float64], x: float, amax: NDArray[np.float64]
+) -> tuple[float, float]:
+    lo, hi = -np.inf, np.inf
+    for d, c, a in zip(qs, qss, amax, strict=True):
+        if abs(d) < 1e-12:
+            continue
+        b1, b2 = (-a - c * x) / d, (a - c * x) / d
+        lo, hi = max(lo, min(b1, b2)), min(hi, max(b1, b2))
+    return lo, hi
+
+
+def override(
+    planned: Trajectory, running: Trajectory, t0: float, scale: float, limits: JointLimits, tries: int = 4
+) -> Trajectory:
+    """The rest of ``running`` from ``t0`` re-timed to ``scale`` (0.05..1) of ``planned``'s path speed.
+
+    The path velocity at ``t0`` is the running one; from there it moves towards scale * planned s'(s) at
+    the largest path acceleration or deceleration the joints allow, then follows it (a slowed-down feasible
+    profile: velocities times scale, accelerations times scale^2). Time 0 of the result is ``t0``."""
+    if not 0.05 <= scale <= 1.0:
+        raise PlanError(PlanResult.INVALID_INPUT, f"scale must be in [0.05, 1.0], got {scale!r}", field="scale")
+    share = BRAKE_ACCELERATION_SHARE
+    for _ in range(tries):
+        retimed = _override(planned, running, t0, scale, limits, share)
+        _, ra = retimed.limit_ratios(limits)
+        if ra <= 1.0:
+            break
+        share *= 0.97 / ra
+    return retimed
+
+
+def _override(
+    planned: Trajectory, running: Trajectory, t0: float, scale: float, limits: JointLimits, share: float
+) -> Trajectory:
+    amax = np.asarray(limits.acceleration, dtype=float) * share
+    t0 = float(np.clip(t0, 0.0, running.duration))
+    s0, sd0 = _s_at(running, t0), _sd_at(running, t0)
+    later = planned.gridpoints[planned.gridpoints > s0 + 1e-12]
+    target = (scale * planned.sd[-len(later) :]) ** 2
+    grid, xs = [s0, *map(float, later)], [sd0 * sd0]
+    # s'^2 is linear in s between gridpoints (s'' constant): the scaled plan at s0 and at every later gridpoint
+    here = [scale * scale * float(np.interp(s0, planned.gridpoints, planned.sd**2)), *map(float, target)]
+    for i, s_next in enumerate(later):
+        s, x = grid[i], xs[-1]
+        lo, hi = _bounds(running.path(s, 1), running.path(s, 2), x, amax)
+        step = 2.0 * (s_next - s)
+        if abs(x - here[i]) <= 1e-9 * max(1.0, x):
+            xs.append(float(target[i]))  # on the scaled plan: follow it (a feasible profile)
+        elif x > target[i]:
+            xs.append(max(x + step * min(lo, 0.0), target[i]))
+        else:
+            xs.append(min(x + step * max(hi, 0.0), target[i]))
+    xs[-1] = 0.0
+    sd = np.sqrt(np.maximum(np.asarray(xs), 0.0))
+    return Trajectory.from_path_velocities(running.path, np.asarray(grid, dtype=float), sd, running.joint_names)
