@@ -181,3 +181,12 @@ def _override(
     xs[-1] = 0.0
     sd = np.sqrt(np.maximum(np.asarray(xs), 0.0))
     return Trajectory.from_path_velocities(running.path, np.asarray(grid, dtype=float), sd, running.joint_names)
+
+
+def stopped_motion(motion: Trajectory, stop: OnPathStop) -> Trajectory:
+    """The whole motion as the drives run it with the stop: ``motion`` until ``stop.t_start``, then the
+    braking (one trajectory from rest to rest, what the knot placement samples into every profile's records)."""
+    before = motion.gridpoints < stop.s_start - 1e-12
+    grid = np.concatenate([motion.gridpoints[before], stop.trajectory.gridpoints])
+    sd = np.concatenate([motion.sd[before], stop.trajectory.sd])
+    return Trajectory.from_path_velocities(motion.path, grid, sd, motion.joint_names)

@@ -5,10 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pvtflow.planner.limits import JointLimits
-from pvtflow.planner.onpath_stop import brake_on_path, override, quick_stop_time
+from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
+from pvtflow.planner.build import build_program
+from pvtflow.planner.knots import DriveAxis
+from pvtflow.planner.limits import JointLimits, joint_limits_from_drives
+from pvtflow.planner.onpath_stop import brake_on_path, override, quick_stop_time, stopped_motion
 from pvtflow.planner.path import JointPath, PlanError
+from pvtflow.planner.plan import PlanInput, Planner
 from pvtflow.planner.timing import parameterize, timing_constraints
+from pvtflow.planner.validate import validate_program
+from pvtflow.service.cell_planner import planner_for_cell
 from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
 ARM = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
@@ -57,3 +63,55 @@ def test_override_retimes_the_rest_within_the_limits(fraction: float, scale: flo
 def test_override_refuses_a_scale_out_of_range() -> None:
     with pytest.raises(PlanError):
         override(MOTION, MOTION, 0.1, 1.5, LIMITS)
+
+
+def _mixed_axes() -> list[DriveAxis]:
+    s = AxisScaling.prismatic(4096, 0.02)
+    lim = DriveLimits(3000, 30000, 0, 245000)
+    return [
+        DriveAxis("x", 1, "cia402_ip_linear", s, lim, period_ms=2),
+        DriveAxis("y", 2, "sync_setpoint", s, lim, period_ms=1),
+        DriveAxis("z", 3, "parker_slvdn", s, lim, period_ms=4, interpolation_submode=-1),
+        DriveAxis("w", 4, "parker_slvdn", s, lim, period_ms=4, interpolation_submode=-2),
+        DriveAxis("v", 5, "epos2_pvt", s, lim),
+    ]
+
+
+@pytest.mark.parametrize("fraction", [0.3, 0.6])
+def test_stopped_motion_validates_on_every_profile(fraction: float) -> None:
+    cell = load_cell_config()
+    arm_axes = list(cell.ordered_axes())
+    mixed = _mixed_axes()
+    mixed_limits = joint_limits_from_drives(
+        [a.joint for a in mixed], [a.scaling for a in mixed], [a.limits for a in mixed]
+    )
+    mixed_wp = np.array([[0.01] * 5, [0.4, 0.3, 0.2, 0.25, 0.35], [0.1, 0.45, 0.05, 0.3, 0.2]])
+    cases = [
+        (planner_for_cell(cell).plan(PlanInput(WAYPOINTS)).trajectory, cell.joint_limits(), arm_axes),
+        (Planner(mixed_limits).plan(PlanInput(mixed_wp)).trajectory, mixed_limits, mixed),
+    ]
+    for motion, limits, axes in cases:
+        t0 = fraction * motion.duration
+        stop = brake_on_path(motion, t0, limits)
+        whole = stopped_motion(motion, stop)
+        assert whole.duration == pytest.approx(stop.t_end, abs=1e-9)
+        built = build_program(whole, axes, "stop")
+        report = validate_program(built.program)
+        assert report.ok, report.format_text()
+        # the drives' reconstruction as close to the braking path as the uninterrupted plan's is to the plan
+        planned = build_program(motion, axes, "plan")
+        assert built.knots.deviation_qc <= max(1.0, planned.knots.deviation_qc), (
+            built.knots.deviation_qc,
+            planned.knots.deviation_qc,
+        )
+
+        # every axis at rest together: the programs end as closely as the uninterrupted plan's (one period of
+        # the slowest fixed-period drive apart at most, what each drive's own period rounds to)
+        def spread(program) -> float:
+            ends = [float(a.records[:, 2].sum()) for a in program.axes]
+            return max(ends) - min(ends)
+
+        longest_period = max((a.period_ms or 1) for a in axes)  # the braking's end moves each axis's rounding
+        assert spread(built.program) <= spread(planned.program) + longest_period
+        for a in built.program.axes:
+            assert a.records[-1, 1] == 0
