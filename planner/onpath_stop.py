@@ -190,3 +190,10 @@ def stopped_motion(motion: Trajectory, stop: OnPathStop) -> Trajectory:
     grid = np.concatenate([motion.gridpoints[before], stop.trajectory.gridpoints])
     sd = np.concatenate([motion.sd[before], stop.trajectory.sd])
     return Trajectory.from_path_velocities(motion.path, grid, sd, motion.joint_names)
+
+
+def resume(motion: Trajectory, paused: OnPathStop, limits: JointLimits) -> Trajectory:
+    """From rest where ``paused`` ended to ``motion``'s end: the largest path acceleration the joints allow
+    until the planned profile is reached, then the planned profile (under it, every constraint the plan held
+    holds; the ramp itself is held to the joint limits). Time 0 of the result is the moment of resuming."""
+    return override(motion, paused.trajectory, paused.trajectory.duration, 1.0, limits)

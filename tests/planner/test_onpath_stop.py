@@ -9,7 +9,7 @@ from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.planner.build import build_program
 from pvtflow.planner.knots import DriveAxis
 from pvtflow.planner.limits import JointLimits, joint_limits_from_drives
-from pvtflow.planner.onpath_stop import brake_on_path, override, quick_stop_time, stopped_motion
+from pvtflow.planner.onpath_stop import brake_on_path, override, quick_stop_time, resume, stopped_motion
 from pvtflow.planner.path import JointPath, PlanError
 from pvtflow.planner.plan import PlanInput, Planner
 from pvtflow.planner.timing import parameterize, timing_constraints
@@ -115,3 +115,17 @@ def test_stopped_motion_validates_on_every_profile(fraction: float) -> None:
         assert spread(built.program) <= spread(planned.program) + longest_period
         for a in built.program.axes:
             assert a.records[-1, 1] == 0
+
+
+@pytest.mark.parametrize("fraction", [0.2, 0.6])
+def test_resume_after_pause_reaches_the_end_from_rest_within_the_limits(fraction: float) -> None:
+    stop = brake_on_path(MOTION, fraction * MOTION.duration, LIMITS)
+    rest = resume(MOTION, stop, LIMITS)
+    np.testing.assert_allclose(rest.position(0.0), stop.trajectory.position(stop.trajectory.duration), atol=1e-9)
+    assert np.max(np.abs(rest.velocity(0.0))) < 1e-9 and np.max(np.abs(rest.velocity(rest.duration))) < 1e-9
+    np.testing.assert_allclose(rest.position(rest.duration), WAYPOINTS[-1], atol=1e-9)
+    rv, ra = rest.limit_ratios(LIMITS)
+    assert rv <= 1.0 + 1e-9 and ra <= 1.0 + 1e-9
+    # pause + resume costs time against the uninterrupted motion, but not more than a stop and a restart
+    total = stop.t_end + rest.duration
+    assert MOTION.duration < total < MOTION.duration + 4.0 * stop.duration
