@@ -22,8 +22,7 @@ import canopen
 
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive import objects as od
-
-TICK_S = 0.001  # the motion clock's step while it runs on the wall clock (the drives sample every ms)
+from pvtflow.axes.sim.clock import TICK_S  # one home: the drives' sampling step is the motion clock's step
 
 LostCallback = Callable[[int, float], None]  # (node id, seconds since its last heartbeat)
 TickCallback = Callable[[], bool]  # True: keep ticking
