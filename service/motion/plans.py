@@ -56,6 +56,11 @@ class PlanBook:
         with self._planner_lock:
             return plan_approach(self.planner, self.cell, positions_qc, program)
 
+    def _start(self, start: PlanStart) -> NDArray[np.float64]:
+        """Where a plan from ``home`` or from here starts: the cell's home position, or where the axes
+        stand (NOT_HOMED first on a cell that requires homing)."""
+        return self._home_position() if start is PlanStart.HOME else self._here()
+
     def _home_position(self) -> NDArray[np.float64]:
         """The cell's home position (service.config.CellConfig.home_position); NOT_ALLOWED on a cell without one."""
         try:
@@ -79,12 +84,8 @@ class PlanBook:
         }
         budget_ms = self.cell.planning.budget_ms if req.budget_ms is None else req.budget_ms
         if req.poses is not None or req.sequence is not None:
-            if req.start is PlanStart.HOME:
-                q0 = self._home_position()
-            elif req.start_joints is not None:
-                q0 = req.start_joints
-            else:
-                q0 = self._here()
+            q0 = req.start_joints if req.start_joints is not None and req.start is not PlanStart.HOME else None
+            q0 = self._start(req.start) if q0 is None else q0
             with self._planner_lock:
                 result = self.planner.plan(
                     req.plan_input(q0, **scales), req.tolerance_qc, {"plan_id": plan_id}, budget_ms
@@ -93,7 +94,7 @@ class PlanBook:
         else:
             waypoints = req.waypoints
             if req.start in (PlanStart.CURRENT, PlanStart.HOME):
-                q0 = self._home_position() if req.start is PlanStart.HOME else self._here()
+                q0 = self._start(req.start)
                 axes = self.drives.axes
                 first_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(axes, waypoints[0], strict=True)]
                 here_qc = [float(a.scaling.position_to_qc(q)) for a, q in zip(axes, q0, strict=True)]

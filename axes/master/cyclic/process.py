@@ -231,7 +231,7 @@ class CyclicProcess:
 
         self._unsubscribe()
         self._on_echo = on_echo
-        subscribe(clock.bus.network, SYNC_COB_ID, on_echo)
+        subscribe(self.network, SYNC_COB_ID, on_echo)
         self.producing = True
         self._tell("start", spec)
 
