@@ -159,7 +159,7 @@ EMCY_PARAMETER_ERROR = 0x6320  # a configuration the drive cannot run (e.g. inte
 EMCY_PDO_LENGTH = 0x8210  # PDO not processed due to length error
 EMCY_VELOCITY_LIMIT = 0x8400  # velocity beyond 0x607F (sanity check of the fixed-period drives)
 EMCY_SOFTWARE_POSITION_LIMIT = 0x8612  # position demand outside 0x607D
-# The simulated machine (axes/sim/cia402/homing.py) outside homing: a limit switch reached is CiA 402's
+# The simulated machine (axes/sim/cia402/homing_mode.py) outside homing: a limit switch reached is CiA 402's
 # "reference limit" too (the seeds give no code of maxon's own for it), a hard stop run into the
 # drive's following error.
 EMCY_LIMIT_SWITCH = EMCY_SOFTWARE_POSITION_LIMIT

@@ -10,7 +10,7 @@ interpolation samples, 0x607D on every demand sample (``axes/sim/cia402/sampling
 state, the SDO writes it dispatches, its resets, and the hooks through which the profile modules
 (epos2, ip_linear, sync_setpoint, parker) add their interpolation on top. The machine around the
 axis (power-up anywhere, limit switches, hard stops) and homing mode 6 on it come from
-``axes/sim/cia402/homing.py`` (``HomingMixin``), for drives whose 0x6502 has mode 6.
+``axes/sim/cia402/homing_mode.py`` (``HomingMixin``), for drives whose 0x6502 has mode 6.
 
 Threads: every bus callback runs in the simulated network's notifier thread; test code may call in
 from other threads, so all state is guarded by one lock, and ``changed`` is notified after each
@@ -38,10 +38,10 @@ from pvtflow.axes.drive.cia402 import Controlword
 from pvtflow.axes.drive.config import AxisSimulation
 from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.axes.sim.cia402.faults import ERROR_REGISTER, FaultHandling
-from pvtflow.axes.sim.cia402.homing import HomingMixin, HomingState, Machine
+from pvtflow.axes.sim.cia402.homing_mode import HomingMixin, HomingState, Machine
 from pvtflow.axes.sim.cia402.power_states import (
     SWITCH_ON_DISABLED,
-    PowerStateMachine,
+    DeviceControl,
 )
 from pvtflow.axes.sim.cia402.records import FaultRecord, MasterLoss, SyncSample
 from pvtflow.axes.sim.cia402.sampling import Sampling
@@ -58,7 +58,7 @@ from pvtflow.axes.sim.node.device import (
 )
 from pvtflow.axes.sim.node.dictionary import ABORT_GENERAL, ABORT_VALUE_RANGE, DictionaryAccess
 from pvtflow.axes.sim.node.master_loss import MasterLossReaction
-from pvtflow.axes.sim.node.nmt import NmtSlave
+from pvtflow.axes.sim.node.nmt import NmtNode
 from pvtflow.axes.sim.node.pdo import PdoEngine, is_pdo_object
 from pvtflow.configs import EDS_DIR
 
@@ -76,7 +76,7 @@ def eds_file(name: str) -> Path:
 
 
 class SimulatedDrive(
-    DictionaryAccess, NmtSlave, FaultHandling, MasterLossReaction, PowerStateMachine, Sampling, HomingMixin
+    DictionaryAccess, NmtNode, FaultHandling, MasterLossReaction, DeviceControl, Sampling, HomingMixin
 ):
     """A CiA 402 drive on a canopen network, simulated. Subclasses add one interpolation behaviour."""
 
@@ -89,7 +89,7 @@ class SimulatedDrive(
     HEARTBEAT_ERROR_FAULTS: ClassVar[bool] = False
     HOMING_METHODS: ClassVar[frozenset[int]] = (
         frozenset()
-    )  # 0x6098 values it runs in mode 6 (axes/sim/cia402/homing.py)
+    )  # 0x6098 values it runs in mode 6 (axes/sim/cia402/homing_mode.py)
     REFERENCED_BIT: ClassVar[int] = 0  # a manufacturer statusword bit that says "homed since power-on"
     _ip_requested: bool = False  # bit 4 rose: ip mode starts on the next SYNC (profiles reset it)
 

@@ -52,7 +52,7 @@ from pvtflow.service.motion.admission import Admission
 from pvtflow.service.motion.board import CellBoard
 from pvtflow.service.motion.drives import CellDrives
 from pvtflow.service.motion.execution import MotionRuns
-from pvtflow.service.motion.homing import HomingRuns
+from pvtflow.service.motion.homing_runs import HomingRuns
 from pvtflow.service.motion.outbox import Outbox, Publish
 from pvtflow.service.motion.plans import PlanBook
 from pvtflow.service.motion.publications import Publications

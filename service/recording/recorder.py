@@ -1,7 +1,7 @@
 """One MCAP file per motion: what each axis was told, what it did, and every frame on the bus.
 
 A ``Recorder`` is attached to an open ``CellBus`` and the cell's ``AxisGroup``; it hears the bus
-through ``FrameRecorder.taps`` (every frame, sent and received), the bus's fault callbacks and a
+through ``FrameLog.taps`` (every frame, sent and received), the bus's fault callbacks and a
 SYNC listener, and the group's events through ``event()``. Those run in the bus's threads, so they
 only append what they saw to a deque (one tuple of the numbers and objects as they are: no
 conversion, no encoding, no lock); the writer thread (service/recording/writer.py) takes them in

@@ -15,7 +15,7 @@ from pvtflow.axes.drive.config import BusConfig
 from pvtflow.axes.drive.objects import TIME_STAMP_COB_ID, NmtCommand
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.bus.faults import BusFault, FaultKind
-from pvtflow.axes.master.bus.network import FrameRecorder
+from pvtflow.axes.master.bus.network import FrameLog
 
 
 class Responder(can.Listener):
@@ -228,7 +228,7 @@ def test_unknown_interface_is_one_clear_error():
 def test_can_log_with_a_channel_name_that_is_no_channel_number(tmp_path: Path, suffix):
     """BLF and ASC keep a channel number; a name ending in many digits must not break the log."""
     path = tmp_path / f"traffic{suffix}"
-    recorder = FrameRecorder(path)
+    recorder = FrameLog(path)
     recorder.on_message_received(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False, channel="t-98765432"))
     recorder.on_message_received(can.Message(arbitration_id=0x185, data=b"\x01", is_extended_id=False, channel="can1"))
     recorder.stop()

@@ -20,7 +20,7 @@ from pvtflow.axes.master.group.axis_group import AxisGroup
 from pvtflow.axes.master.group.outcome import GroupError, Result
 from pvtflow.axes.master.homing import CellHoming, HomingRequestError, HomingResult, homing_stages
 from pvtflow.axes.sim.cell import SimulatedCell
-from pvtflow.axes.sim.cia402.homing import HomingState
+from pvtflow.axes.sim.cia402.homing_mode import HomingState
 from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 M = od.HomingMethod

@@ -24,7 +24,7 @@ from pvtflow.axes.drive.config import BusConfig, wire_options
 from pvtflow.axes.drive.objects import time_stamp_cob_id
 from pvtflow.axes.master.bus.faults import BusError, BusFault, FaultCallback
 from pvtflow.axes.master.bus.heartbeat import MasterHeartbeat
-from pvtflow.axes.master.bus.network import FrameRecorder, RecordingNetwork
+from pvtflow.axes.master.bus.network import FrameLog, LoggingNetwork
 from pvtflow.axes.master.bus.quick_stop import QuickStop, quick_stop_all
 from pvtflow.axes.master.bus.sync import DEFAULT_MAX_GAP_PERIODS, SyncClock
 from pvtflow.axes.master.bus.watch import BusWatch
@@ -52,8 +52,8 @@ class CellBus:
     ) -> None:
         self.config = config
         self.can_log = can_log
-        self.recorder = FrameRecorder(can_log)
-        self.network = RecordingNetwork(recorder=self.recorder)
+        self.recorder = FrameLog(can_log)
+        self.network = LoggingNetwork(recorder=self.recorder)
         self.network.channel_name = config.channel
         stamp = config.time_stamp if time_stamp is None else time_stamp
         gap = config.max_sync_gap_periods if config.max_sync_gap_periods is not None else DEFAULT_MAX_GAP_PERIODS

@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     import canopen
 
     from pvtflow.axes.drive.config import BusConfig
-    from pvtflow.axes.master.bus.network import RecordingNetwork
+    from pvtflow.axes.master.bus.network import LoggingNetwork
     from pvtflow.axes.master.bus.sync import SyncClock
     from pvtflow.axes.master.bus.watch import BusWatch
 
@@ -57,7 +57,7 @@ class MasterHeartbeat:
     def __init__(
         self,
         config: BusConfig,
-        network: RecordingNetwork,
+        network: LoggingNetwork,
         watch: BusWatch,
         nodes: dict[int, canopen.RemoteNode],
         sync: SyncClock,

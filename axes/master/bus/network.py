@@ -1,10 +1,10 @@
 """The canopen Network the master sends through: every frame recorded, a refused frame tried again.
 
-A bus does not hear its own frames, so ``RecordingNetwork`` hands each frame it sends to the
-``FrameRecorder`` too, which counts every frame and, with a log file, writes it through
+A bus does not hear its own frames, so ``LoggingNetwork`` hands each frame it sends to the
+``FrameLog`` too, which counts every frame and, with a log file, writes it through
 ``can.Logger`` (the ``--can-log`` of the commands). A frame the interface refuses (a full transmit
 queue, ENOBUFS) is tried again for ``BusConfig.tx_retry_ms``, or longer for bulk frames nothing
-waits on (``RecordingNetwork.patient``); past that it raises, and the SYNC thread reports
+waits on (``LoggingNetwork.patient``); past that it raises, and the SYNC thread reports
 ``FaultKind.TX_FAILED``.
 """
 
@@ -22,7 +22,7 @@ import canopen
 TX_RETRY_PAUSE_S = 0.0002  # between two tries of a frame the interface refused
 
 
-class FrameRecorder(can.Listener):
+class FrameLog(can.Listener):
     """Counts every frame (sent and received) and, with a log file, writes it through can.Logger."""
 
     def __init__(self, path: str | Path | None = None) -> None:
@@ -73,10 +73,10 @@ class FrameRecorder(can.Listener):
                 self._logger = None
 
 
-class RecordingNetwork(canopen.Network):
+class LoggingNetwork(canopen.Network):
     """A canopen Network whose own frames go to the recorder too (a bus does not hear itself)."""
 
-    def __init__(self, bus: can.BusABC | None = None, recorder: FrameRecorder | None = None) -> None:
+    def __init__(self, bus: can.BusABC | None = None, recorder: FrameLog | None = None) -> None:
         super().__init__(bus)
         self.recorder = recorder
         self.channel_name: str | None = None  # written into the log with the frames we send

@@ -47,7 +47,7 @@ from pvtflow.axes.master.bus.network import TX_RETRY_PAUSE_S
 from pvtflow.axes.master.bus.sync import lift
 
 if TYPE_CHECKING:
-    from pvtflow.axes.master.bus.network import RecordingNetwork
+    from pvtflow.axes.master.bus.network import LoggingNetwork
     from pvtflow.axes.master.bus.sync import SyncClock
 
 SDO_DOWNLOAD_2_BYTES = 0x2B  # expedited download, size indicated, 2 bytes
@@ -100,7 +100,7 @@ class QuickStop:
 
 
 def quick_stop_all(
-    network: RecordingNetwork,
+    network: LoggingNetwork,
     sync: SyncClock,
     confirm_ms: float,
     fall_silent: Callable[[], None],

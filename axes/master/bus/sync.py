@@ -65,7 +65,7 @@ from pvtflow.axes.master.bus.faults import BusFault, FaultCallback, FaultKind
 from pvtflow.axes.master.bus.sync_follower import SyncFollower, native_cyclic_task
 
 if TYPE_CHECKING:
-    from pvtflow.axes.master.bus.network import RecordingNetwork
+    from pvtflow.axes.master.bus.network import LoggingNetwork
 
 SyncCallback = Callable[[int], None]
 
@@ -204,7 +204,7 @@ class SyncClock:
 
     def __init__(
         self,
-        network: RecordingNetwork,
+        network: LoggingNetwork,
         report: FaultCallback,
         period_ms: float,
         lockstep: bool,

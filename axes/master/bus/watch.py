@@ -27,7 +27,7 @@ from pvtflow.axes.master.bus.faults import BusFault, ErrorFrames, FaultCallback,
 
 if TYPE_CHECKING:
     from pvtflow.axes.drive.config import BusConfig
-    from pvtflow.axes.master.bus.network import RecordingNetwork
+    from pvtflow.axes.master.bus.network import LoggingNetwork
     from pvtflow.axes.master.bus.sync import SyncClock
 
 NMT_STATE_BOOT_UP = 0  # the boot-up message: a heartbeat frame with state 0
@@ -40,7 +40,7 @@ class BusWatch:
     def __init__(
         self,
         config: BusConfig,
-        network: RecordingNetwork,
+        network: LoggingNetwork,
         report: FaultCallback,
         sync: SyncClock,
         lost_sync_timeout_s: float,

@@ -50,7 +50,7 @@ if TYPE_CHECKING:
     from pvtflow.axes.drive.config import AxisConfig, BusConfig
     from pvtflow.axes.drive.objects import PdoLayout
     from pvtflow.axes.master.bus.faults import FaultCallback
-    from pvtflow.axes.master.bus.network import RecordingNetwork
+    from pvtflow.axes.master.bus.network import LoggingNetwork
     from pvtflow.axes.master.bus.sync import SyncClock
 
 
@@ -89,7 +89,7 @@ class CyclicProcess:
     """The child that runs the cyclic path of one cell's bus (module docstring): its config, network, the
     report of its faults and its SYNC clock."""
 
-    def __init__(self, config: BusConfig, network: RecordingNetwork, report: FaultCallback, sync: SyncClock) -> None:
+    def __init__(self, config: BusConfig, network: LoggingNetwork, report: FaultCallback, sync: SyncClock) -> None:
         self.config = config
         self.network = network
         self.report = report

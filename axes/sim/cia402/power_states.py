@@ -34,7 +34,7 @@ TARGET_REACHED = int(Statusword.TARGET_REACHED)
 IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
 
 
-class PowerStateMachine:
+class DeviceControl:
     """The power state machine as part of a ``SimulatedDrive`` (which owns the state below and gives
     it ``read_or``, the homing and fault calls and the profiles' hooks)."""
 

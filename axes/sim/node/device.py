@@ -10,7 +10,7 @@ gives each such object the drive's own value as its default, in the drive's priv
 dictionary, so a reset restores it as a power cycle would.
 
 Modes (decided here, from the seeds and maxon's EDS; the simulation moves the axis in mode 7,
-interpolated position, and homes it in mode 6 where the drive has it (axes/sim/cia402/homing.py): in any
+interpolated position, and homes it in mode 6 where the drive has it (axes/sim/cia402/homing_mode.py): in any
 other mode it accepts, the drive holds its position, as a drive does that was given no target in
 that mode):
 

@@ -23,7 +23,7 @@ from pvtflow.axes.sim.node.consumer import HeartbeatConsumer
 from pvtflow.axes.sim.node.pdo import PdoEngine
 
 
-class NmtSlave:
+class NmtNode:
     """The NMT slave and heartbeat producer as part of a ``SimulatedDrive`` (which owns the state
     below and gives it the object dictionary access, the resets and its SYNC callback)."""
 

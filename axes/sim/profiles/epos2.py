@@ -47,7 +47,7 @@ decided here:
   moves both and is no error, a stamp that is not the SYNC's time is followed and shows as drift.
   The dynamics checks judge the interpolation's own
   velocity and acceleration, as the note's "calculated velocity from the interpolation".
-* Homing (mode 6, axes/sim/cia402/homing.py): the CiA 402 methods and maxon's hard-stop methods -1 to -4
+* Homing (mode 6, axes/sim/cia402/homing_mode.py): the CiA 402 methods and maxon's hard-stop methods -1 to -4
   (current threshold 0x2080); statusword bit 15 says the position is referenced (homed since power-on).
 """
 
@@ -167,7 +167,8 @@ class Epos2Drive(SimulatedDrive):
         if index == od.EPOS2_INTERPOLATION_DATA_RECORD and not self.buffer_enabled:
             raise SdoAbortedError(ABORT_DEVICE_STATE)
         if index == od.EPOS2_INTERPOLATION_BUFFER and (
-            (subindex == 2 and not 0 <= value <= 63) or (subindex == 3 and not 1 <= value <= 64)
+            (subindex == 2 and not 0 <= value < od.EPOS2_BUFFER_SIZE)
+            or (subindex == 3 and not 1 <= value <= od.EPOS2_BUFFER_SIZE)
         ):
             raise SdoAbortedError(ABORT_VALUE_RANGE)
         if index == od.INTERPOLATION_DATA_CONFIGURATION and subindex == 6 and value not in (0, 1):

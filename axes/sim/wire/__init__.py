@@ -74,7 +74,7 @@ medium with these semantics:
   ``client.RemoteMedium`` with the same ``stats``, ``set_state`` and ``inject_error_frame``.
 """
 
-from pvtflow.axes.sim.wire.accounting import FrameRecord, LateSync, WireStats
+from pvtflow.axes.sim.wire.accounting import LateSync, WireFrame, WireStats
 from pvtflow.axes.sim.wire.bus_states import BUS_OFF, ERROR_PASSIVE
 from pvtflow.axes.sim.wire.interface import SimWireBus, parse_channel
 from pvtflow.axes.sim.wire.medium import Medium, WireConfigError
@@ -83,11 +83,11 @@ from pvtflow.axes.sim.wire.server import WireServer, serve_wire
 __all__ = [
     "BUS_OFF",
     "ERROR_PASSIVE",
-    "FrameRecord",
     "LateSync",
     "Medium",
     "SimWireBus",
     "WireConfigError",
+    "WireFrame",
     "WireServer",
     "WireStats",
     "parse_channel",

@@ -24,7 +24,7 @@ LATE_FRACTION = 0.05  # a SYNC later than its nominal time by more than this sha
 
 
 @dataclass(frozen=True, slots=True)
-class FrameRecord:
+class WireFrame:
     start: float
     end: float
     can_id: int
@@ -80,14 +80,14 @@ class Accounting:
     sync_period: float | None
     cond: threading.Condition
     nodes: list[Node]
-    _records: deque[FrameRecord]
+    _records: deque[WireFrame]
     _syncs: deque[tuple[float, float]]
     _frames: int
     _bits: int
     _error_frames: int
     _departed: dict[str, tuple[int, int]]
 
-    def records(self) -> list[FrameRecord]:
+    def records(self) -> list[WireFrame]:
         with self.cond:
             return list(self._records)
 
@@ -153,7 +153,7 @@ class Accounting:
         )
 
 
-def _rpdo_after_sync(records: list[FrameRecord]) -> dict[str, list[float]]:
+def _rpdo_after_sync(records: list[WireFrame]) -> dict[str, list[float]]:
     after: dict[str, list[float]] = {}
     sync_start: float | None = None
     for r in records:
@@ -164,14 +164,14 @@ def _rpdo_after_sync(records: list[FrameRecord]) -> dict[str, list[float]]:
     return after
 
 
-def _load(records: list[FrameRecord], t0: float, t1: float) -> float:
+def _load(records: list[WireFrame], t0: float, t1: float) -> float:
     if t1 <= t0:
         raise ValueError(f"an interval needs t1 > t0, got [{t0}, {t1})")
     busy = sum(max(0.0, min(r.end, t1) - max(r.start, t0)) for r in records)
     return busy / (t1 - t0)
 
 
-def _period_loads(records: list[FrameRecord], period: float | None) -> list[float]:
+def _period_loads(records: list[WireFrame], period: float | None) -> list[float]:
     if not records or period is None:
         return []
     origin = records[0].start

@@ -22,7 +22,7 @@ import can
 
 from pvtflow.axes.canbus.frame_time import frame_bits
 from pvtflow.axes.drive.objects import SYNC_COB_ID
-from pvtflow.axes.sim.wire.accounting import DEFAULT_RECORD_LIMIT, Accounting, FrameRecord
+from pvtflow.axes.sim.wire.accounting import DEFAULT_RECORD_LIMIT, Accounting, WireFrame
 from pvtflow.axes.sim.wire.bus_states import BUS_OFF, BusStateHooks
 from pvtflow.axes.sim.wire.node import (
     DEFAULT_TXQUEUELEN,
@@ -73,7 +73,7 @@ class Medium(Accounting, BusStateHooks):
         self.cond = threading.Condition(threading.RLock())
         self.nodes: list[Node] = []
         self._names = itertools.count(1)
-        self._records: deque[FrameRecord] = deque(maxlen=record_limit)
+        self._records: deque[WireFrame] = deque(maxlen=record_limit)
         self._frames = 0
         self._bits = 0
         self._error_frames = 0
@@ -354,7 +354,7 @@ class Medium(Accounting, BusStateHooks):
         sender.frames += 1
         self._frames += 1
         self._bits += bits
-        self._records.append(FrameRecord(start, end, msg.arbitration_id, msg.dlc, sender.name))
+        self._records.append(WireFrame(start, end, msg.arbitration_id, msg.dlc, sender.name))
         for n in self.nodes:
             if n.state == BUS_OFF:
                 continue

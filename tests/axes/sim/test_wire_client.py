@@ -20,7 +20,7 @@ import pytest
 from can import BusState
 
 from pvtflow.axes.canbus.frame_time import frame_bits
-from pvtflow.axes.master.bus.network import RecordingNetwork
+from pvtflow.axes.master.bus.network import LoggingNetwork
 from pvtflow.axes.sim.wire import ERROR_PASSIVE, Medium, SimWireBus
 
 from .wire_child import wire_in_a_child
@@ -87,7 +87,7 @@ def test_a_network_sends_together_where_the_interface_can_and_frame_by_frame_els
     pair: tuple[SimWireBus, SimWireBus],
 ) -> None:
     master, drive = pair
-    network = RecordingNetwork(master)
+    network = LoggingNetwork(master)
     with network.together():
         network.send_message(0x80, b"")
         network.send_message(0x100, bytes(4))
@@ -97,7 +97,7 @@ def test_a_network_sends_together_where_the_interface_can_and_frame_by_frame_els
     virtual = can.Bus(interface="virtual", channel=channel)
     heard = can.Bus(interface="virtual", channel=channel)
     try:
-        plain = RecordingNetwork(virtual)
+        plain = LoggingNetwork(virtual)
         with plain.together():
             plain.send_message(0x80, b"")
             assert heard.recv(1.0).arbitration_id == 0x80  # virtual: each frame as it is sent
