@@ -28,7 +28,7 @@ from pvtflow.planner.jerk import solve
 from pvtflow.planner.plan import PlanInput
 from pvtflow.service.cell_planner import CellPlanner
 from pvtflow.service.config import load_cell_config
-from pvtflow.service.runtime import freeze_startup_objects
+from pvtflow.axes.canbus.collector import freeze_startup_objects
 
 requests, budget = int(sys.argv[1]), float(sys.argv[2])
 planner = CellPlanner(load_cell_config(None))

@@ -32,13 +32,13 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from pvtflow.axes.canbus.collector import freeze_startup_objects
 from pvtflow.planner.plan import PlanInput
 from pvtflow.service.api import MAX_REQUEST_BYTES, MAX_WAYPOINTS
 from pvtflow.service.config import load_cell_config
 from pvtflow.service.demo_cmd import free_port
 from pvtflow.service.motion import MotionService
 from pvtflow.service.request_cmd import Client
-from pvtflow.service.runtime import freeze_startup_objects
 from pvtflow.service.server import Server, peer_config
 
 Request = tuple[str, bytes]

@@ -49,11 +49,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import can
 import numpy as np
 
+from pvtflow.axes.canbus.collector import freeze_startup_objects
 from pvtflow.service.config import load_cell_config
 from pvtflow.service.demo_cmd import free_port, tour
 from pvtflow.service.motion import MotionService
 from pvtflow.service.request_cmd import Client
-from pvtflow.service.runtime import freeze_startup_objects
 from pvtflow.service.server import Server, peer_config
 
 IP_MODE_ACTIVE = 0x1000

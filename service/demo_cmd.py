@@ -26,6 +26,7 @@ from typing import Any, TextIO
 import numpy as np
 import pinocchio as pin
 
+from pvtflow.axes.canbus.collector import freeze_startup_objects
 from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.planner.cartesian import placement_pose
 from pvtflow.service.api import key
@@ -34,7 +35,6 @@ from pvtflow.service.config import CellConfig, ConfigError, load_cell_config
 from pvtflow.service.journal import JournalError
 from pvtflow.service.motion import MotionService
 from pvtflow.service.request_cmd import Client
-from pvtflow.service.runtime import freeze_startup_objects
 from pvtflow.service.server import Server, peer_config, zenoh_message
 
 EXIT_OK, EXIT_FAILED, EXIT_CANNOT_START = 0, 1, 2

@@ -27,11 +27,11 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+from pvtflow.axes.canbus.collector import freeze_startup_objects
 from pvtflow.axes.drive.config import AxisConfig
 from pvtflow.planner.plan import PlanInput
 from pvtflow.service.cell_planner import CellPlan, CellPlanner
 from pvtflow.service.config import CellConfig, PlanningConfig, load_cell_config
-from pvtflow.service.runtime import freeze_startup_objects
 
 READY = "ready"
 

@@ -29,6 +29,7 @@ from typing import Any
 
 import zenoh
 
+from pvtflow.axes.canbus.collector import freeze_startup_objects
 from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.service.api import LIVELINESS, PUBLICATIONS, QUERYABLES, StopRequest, key
 from pvtflow.service.cli import can_log_problem
@@ -40,7 +41,6 @@ from pvtflow.service.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
 from pvtflow.service.live import LiveError, LiveServer
 from pvtflow.service.motion import MotionService
 from pvtflow.service.planning import PlanningProcess
-from pvtflow.service.runtime import freeze_startup_objects
 from pvtflow.service.server import (
     ZENOH_CONFIG_DIR,
     Server,

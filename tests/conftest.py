@@ -64,15 +64,15 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 # over what the tests before have left (services, object dictionaries, plans) took 50-250 ms in the
 # suite (bench/RESULTS.md, "Full collections in the test process"): a pause no drive and no
 # heartbeat watch sees on a machine, where the service freezes its start-up objects
-# (``service/runtime.py``) and the drives' process collects between motions
-# (``axes/sim/full_collection.py``). This process does as the drives' process does: what the session
+# (``axes/canbus/collector.py``) and the drives' process collects between motions
+# (``axes/canbus/collector.py``). This process does as the drives' process does: what the session
 # start loaded is frozen, and the full collection runs between tests, never by allocation count.
 FULL_COLLECTION_EVERY_TESTS = 10
 _tests_since_full_collection = 0
 
 
 def hold_full_collections_to_between_tests() -> None:
-    from pvtflow.axes.sim.full_collection import NO_AUTOMATIC_FULL
+    from pvtflow.axes.canbus.collector import NO_AUTOMATIC_FULL
 
     gc.collect()
     gc.freeze()

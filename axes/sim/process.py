@@ -173,8 +173,8 @@ def start_simulated_drives(wiring: CellWiring, clock: str) -> DrivesProcess | Lo
 
 def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) -> int:
     """The child: the drives on the served wire until ``stop``; the exit code."""
+    from pvtflow.axes.canbus.collector import FullCollectionBetweenMotions
     from pvtflow.axes.sim.cell import SimulatedCell
-    from pvtflow.axes.sim.full_collection import FullCollectionBetweenMotions
     from pvtflow.axes.sim.wire import serve_wire
 
     bus = wiring.bus

@@ -59,7 +59,7 @@ from pvtflow.service.motion.publications import Publications
 from pvtflow.service.motion.recordings import RunRecordings
 from pvtflow.service.motion.runs import Homing, Motion, StoredPlan
 from pvtflow.service.motion.status import StatusReport
-from pvtflow.service.motion.stop_recover import HOMING_STOP_WAIT_S, StopRecover
+from pvtflow.service.motion.stop_recover import HOMING_STOP_WAIT_S, RUN_END_S, StopRecover
 from pvtflow.service.planning import PlanningProcess
 
 
@@ -150,7 +150,7 @@ class MotionService:
             group.stop("the service is shutting down")
             motion = self.activity.motion
             if motion is not None:
-                motion.done.wait(group.halt_timeout_ms / 1000.0 + 2.0)
+                motion.done.wait(group.halt_budget_s + RUN_END_S)
         if self._rest_view is not None:
             self._rest_view.stop()
             self._rest_view = None

@@ -19,6 +19,7 @@ from pvtflow.service.motion.drives import CellDrives
 from pvtflow.service.motion.status import StatusReport
 
 HOMING_STOP_WAIT_S = 60.0  # a stopped homing ends within its drives' halt; past this the reply goes anyway
+RUN_END_S = 5.0  # after the group's halt budget: the motion's outcome journaled and published
 
 
 class StopRecover:
@@ -52,7 +53,7 @@ class StopRecover:
                 self.board.set(CellState.STOPPING, motion.motion_id if motion else None)
                 group.stop(req.reason)
         if was_moving and motion is not None:
-            motion.done.wait(group.halt_timeout_ms / 1000.0 + 5.0)
+            motion.done.wait(group.halt_budget_s + RUN_END_S)
             group.settle(5.0)  # the reply says what the drives say once nothing of the motion is left in them
         return {
             "was_moving": was_moving,

@@ -823,7 +823,7 @@ def test_quick_stop_requests_a_full_queue_refused_are_sent_when_it_drains_and_th
         FlakyBus.fail(bus.config.channel, 0.02)  # 20 ms: past the first request's 2 ms of retries
         refused = FlakyBus.refused.get(bus.config.channel, 0)
         stop = bus.quick_stop(nodes, "test")
-        assert not gc.isenabled()  # held from the requests to the confirmations (axes/master/bus/collector.py)
+        assert not gc.isenabled()  # held from the requests to the confirmations (axes/canbus/collector.py)
         assert sorted(stop.unsent) == [] and set(nodes) - set(stop.confirmed)  # refused so far, not given up
         assert stop.done.wait(2.0)
         assert sorted(stop.confirmed) == sorted(nodes), stop.describe()

@@ -39,10 +39,10 @@ from typing import TYPE_CHECKING
 
 import can
 
+from pvtflow.axes.canbus import collector
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import CONTROLWORD_QUICK_STOP
-from pvtflow.axes.master.bus import collector
 from pvtflow.axes.master.bus.network import TX_RETRY_PAUSE_S
 from pvtflow.axes.master.bus.sync import lift
 
@@ -147,7 +147,7 @@ def quick_stop_all(
             except (can.CanError, OSError, RuntimeError) as exc:
                 unsent[node] = f"quick stop not sent: {exc}"
 
-    collector.hold()  # no collection pause between the requests and their confirmations (axes/master/bus/collector.py)
+    collector.hold()  # no collection pause between the requests and their confirmations (axes/canbus/collector.py)
     send_requests(stop.node_ids, patient=True)
     confirm_s = confirm_ms / 1000.0
 

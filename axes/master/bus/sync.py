@@ -58,9 +58,9 @@ from typing import TYPE_CHECKING, Protocol
 
 import can
 
+from pvtflow.axes.canbus import collector
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive.objects import SYNC_COB_ID
-from pvtflow.axes.master.bus import collector
 from pvtflow.axes.master.bus.faults import BusFault, FaultCallback, FaultKind
 from pvtflow.axes.master.bus.sync_follower import SyncFollower, native_cyclic_task
 
@@ -435,7 +435,7 @@ class SyncClock:
                 self.cyclic.produce(self, production)  # the child sends SYNC; each one heard: ``heard``
                 return
             if not self._collector_held:
-                collector.hold()  # no collection pause while SYNC runs on the wall clock (axes/master/bus/collector.py)
+                collector.hold()  # no collection pause while SYNC runs on the wall clock (axes/canbus/collector.py)
                 self._collector_held = True
             msg = can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
             assert self.network.bus is not None

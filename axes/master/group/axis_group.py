@@ -139,11 +139,17 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
                 return early
             return self.wait(timeout_s)
 
+    @property
+    def halt_budget_s(self) -> float:
+        """How long a halt may take to end the run: the drives' braking (``halt_timeout_ms``) and a
+        silence of the drives as long as lost SYNC allows, twice (the one home of the halt's time)."""
+        return self.halt_timeout_ms / 1000.0 + 2.0 * self.bus.lost_sync_timeout_s
+
     def wait(self, timeout_s: float | None = None) -> RunResult:
         """Block until the run ends. The timeouts only detect a cell that stopped answering: the run
         is then halted, and if no drive answers the halt SYNCs either, ended with what is known."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
-        halt_grace = self.halt_timeout_ms / 1000.0 + 2.0 * self.bus.lost_sync_timeout_s
+        halt_grace = self.halt_budget_s
         with below_sync(self.bus.sync):  # its wakes hold no GIL from SYNC (axes.master.bus.sync)
             while not self._done.wait(0.05):
                 now = time.monotonic()

@@ -7,8 +7,8 @@ import time
 
 import canopen
 
+from pvtflow.axes.canbus.collector import QUIET_S, FullCollectionBetweenMotions
 from pvtflow.axes.drive.objects import SYNC_COB_ID
-from pvtflow.axes.sim.full_collection import QUIET_S, FullCollectionBetweenMotions
 
 
 def test_a_full_collection_runs_only_once_the_bus_is_without_sync() -> None:
