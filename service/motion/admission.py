@@ -6,6 +6,8 @@ waits for every axis to have homed (``not_homed``), and a program starts where t
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.axes.master.group.axis_group import AxisGroup
 from pvtflow.service.api import ApiError, CellState, ErrorCode, refusals
@@ -14,13 +16,13 @@ from pvtflow.service.motion.activity import CellActivity
 from pvtflow.service.motion.board import CellBoard
 
 
+@dataclass(eq=False)
 class Admission:
     """The checks an execute, an approach, a plan from here and a homing pass first."""
 
-    def __init__(self, cell: CellConfig, board: CellBoard, activity: CellActivity) -> None:
-        self.cell = cell
-        self.board = board
-        self.activity = activity
+    cell: CellConfig
+    board: CellBoard
+    activity: CellActivity
 
     def refuse_if_busy(self, group: AxisGroup) -> None:
         homing = self.activity.homing

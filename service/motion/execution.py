@@ -11,6 +11,7 @@ import logging
 import queue
 import threading
 import time
+from dataclasses import dataclass
 from typing import Any
 
 from pvtflow.axes.drive.program import PvtProgram, program_mismatch
@@ -34,30 +35,21 @@ from pvtflow.service.motion.runs import Motion, ServiceEventKind, new_id
 log = logging.getLogger("pvtflow.motion")
 
 
+@dataclass(eq=False)
 class MotionRuns:
     """Motions: started, recorded, journaled, ended (one thread waits for each end)."""
 
-    def __init__(
-        self,
-        cell: CellConfig,
-        drives: CellDrives,
-        board: CellBoard,
-        activity: CellActivity,
-        admission: Admission,
-        plans: PlanBook,
-        journal: Journal,
-        outbox: Outbox,
-        recordings: RunRecordings,
-    ) -> None:
-        self.cell = cell
-        self.drives = drives
-        self.board = board
-        self.activity = activity
-        self.admission = admission
-        self.plans = plans
-        self.journal = journal
-        self.outbox = outbox
-        self.recordings = recordings
+    cell: CellConfig
+    drives: CellDrives
+    board: CellBoard
+    activity: CellActivity
+    admission: Admission
+    plans: PlanBook
+    journal: Journal
+    outbox: Outbox
+    recordings: RunRecordings
+
+    def __post_init__(self) -> None:
         self._started: queue.Queue[Motion | None] = queue.Queue()
         self._watcher: threading.Thread | None = None
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from dataclasses import dataclass
 from typing import Any
 
 from pvtflow.axes.master.bus.faults import BusError
@@ -27,28 +28,18 @@ from pvtflow.service.motion.runs import Homing, ServiceEventKind, new_id
 log = logging.getLogger("pvtflow.motion")
 
 
+@dataclass(eq=False)
 class HomingRuns:
     """A homing on the cell: accepted, run in a thread of its own, journaled, ended."""
 
-    def __init__(
-        self,
-        cell: CellConfig,
-        drives: CellDrives,
-        board: CellBoard,
-        activity: CellActivity,
-        admission: Admission,
-        journal: Journal,
-        outbox: Outbox,
-        recordings: RunRecordings,
-    ) -> None:
-        self.cell = cell
-        self.drives = drives
-        self.board = board
-        self.activity = activity
-        self.admission = admission
-        self.journal = journal
-        self.outbox = outbox
-        self.recordings = recordings
+    cell: CellConfig
+    drives: CellDrives
+    board: CellBoard
+    activity: CellActivity
+    admission: Admission
+    journal: Journal
+    outbox: Outbox
+    recordings: RunRecordings
 
     def home(self, req: HomeRequest) -> dict[str, Any]:
         """Home the cell's axes (all with homing, or those named) in the cell's homing order."""

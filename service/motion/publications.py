@@ -7,6 +7,7 @@ never block.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Any
 
 from pvtflow.axes.master.group.outcome import Event, Progress
@@ -16,14 +17,14 @@ from pvtflow.service.motion.drives import CellDrives
 from pvtflow.service.motion.outbox import Outbox
 
 
+@dataclass(eq=False)
 class Publications:
     """The group's events and progress, as the cell's ``events`` and ``telemetry``."""
 
-    def __init__(self, outbox: Outbox, board: CellBoard, drives: CellDrives, activity: CellActivity) -> None:
-        self.outbox = outbox
-        self.board = board
-        self.drives = drives
-        self.activity = activity
+    outbox: Outbox
+    board: CellBoard
+    drives: CellDrives
+    activity: CellActivity
 
     def on_event(self, event: Event) -> None:
         motion = self.activity.motion

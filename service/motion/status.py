@@ -5,6 +5,7 @@ Status is what the drives say (their TPDOs while moving, read by SDO when idle),
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 from pvtflow.axes.master.group.outcome import AxisStatus
@@ -17,24 +18,16 @@ from pvtflow.service.motion.drives import CellDrives
 from pvtflow.service.motion.plans import PlanBook
 
 
+@dataclass(eq=False)
 class StatusReport:
     """The cell's status and one axis as the replies give it."""
 
-    def __init__(
-        self,
-        cell: CellConfig,
-        drives: CellDrives,
-        board: CellBoard,
-        activity: CellActivity,
-        plans: PlanBook,
-        journal: Journal,
-    ) -> None:
-        self.cell = cell
-        self.drives = drives
-        self.board = board
-        self.activity = activity
-        self.plans = plans
-        self.journal = journal
+    cell: CellConfig
+    drives: CellDrives
+    board: CellBoard
+    activity: CellActivity
+    plans: PlanBook
+    journal: Journal
 
     def status(self, req: StatusRequest) -> dict[str, Any]:
         """What the drives say now, the motion, and the recent motions of the journal."""

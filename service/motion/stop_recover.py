@@ -7,6 +7,7 @@ keeps the cell in ``fault`` until ``recover``, so that a fault is always acknowl
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 from pvtflow.axes.master.bus.faults import BusError
@@ -22,14 +23,14 @@ HOMING_STOP_WAIT_S = 60.0  # a stopped homing ends within its drives' halt; past
 RUN_END_S = 5.0  # after the group's halt budget: the motion's outcome journaled and published
 
 
+@dataclass(eq=False)
 class StopRecover:
     """Stop what runs; fault reset and re-enable every axis."""
 
-    def __init__(self, drives: CellDrives, board: CellBoard, activity: CellActivity, status: StatusReport) -> None:
-        self.drives = drives
-        self.board = board
-        self.activity = activity
-        self.status = status
+    drives: CellDrives
+    board: CellBoard
+    activity: CellActivity
+    status: StatusReport
 
     def stop(self, req: StopRequest) -> dict[str, Any]:
         """Halt every axis now (on the next SYNC) and wait until they stand still."""
