@@ -156,6 +156,10 @@ def reply_schema(name: str) -> dict[str, Any]:
                 "cell": {"type": "string"},
                 "state": {"enum": list(SERVICE_STATES)},
                 "motion": {"type": ["object", "null"]},
+                "item": {
+                    "type": ["object", "null"],
+                    "description": "the item of a motion sequence running now (index, label); null otherwise",
+                },
                 "sync_count": {"type": "integer"},
                 "elapsed_ms": _NUM_OR_NULL,
                 "joint_names": {"type": "array", "items": {"type": "string"}},

@@ -7,7 +7,7 @@ never block.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from pvtflow.axes.master.group.outcome import Event, Progress
@@ -15,6 +15,7 @@ from pvtflow.service.motion.activity import CellActivity
 from pvtflow.service.motion.board import CellBoard
 from pvtflow.service.motion.drives import CellDrives
 from pvtflow.service.motion.outbox import Outbox
+from pvtflow.service.motion.runs import Motion, ServiceEventKind
 
 
 @dataclass(eq=False)
@@ -25,6 +26,7 @@ class Publications:
     board: CellBoard
     drives: CellDrives
     activity: CellActivity
+    _item: tuple[str, int] | None = field(default=None, init=False)  # the motion and item last announced
 
     def on_event(self, event: Event) -> None:
         motion = self.activity.motion
@@ -39,6 +41,8 @@ class Publications:
         """Every ``telemetry_every`` SYNCs during a motion (SYNC thread: hand over, never block)."""
         motion = self.activity.motion
         duration = motion.program.duration_ms if motion is not None else 0
+        if motion is not None:
+            self._announce_item(motion, p.elapsed_ms)
         self.outbox.publish(
             "telemetry",
             {
@@ -55,6 +59,20 @@ class Publications:
             },
         )
         self.board.drive_states(p.states, motion.motion_id if motion else None)
+
+    def _announce_item(self, motion: Motion, elapsed_ms: float) -> None:
+        """``item_started`` when a motion sequence's next item runs (as ros2_control's sequence action
+        reports its current primitive)."""
+        item = motion.item_at(elapsed_ms)
+        if item is None or self._item == (motion.motion_id, item["index"]):
+            return
+        self._item = (motion.motion_id, item["index"])
+        self.outbox.event(
+            ServiceEventKind.ITEM_STARTED,
+            f"item {item['index']}" + (f" ({item['label']})" if item["label"] else ""),
+            motion_id=motion.motion_id,
+            item=item,
+        )
 
     def telemetry_snapshot(self) -> dict[str, Any]:
         """Idle telemetry: the last positions the drives reported (no bus traffic)."""

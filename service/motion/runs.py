@@ -26,6 +26,7 @@ class ServiceEventKind(StrEnum):
     MOTION_ENDED = "motion_ended"
     JOURNAL_ERROR = "journal_error"
     HOMING_ENDED = "homing_ended"  # with its outcome (the homing's steps: axes.master.homing.HomingEventKind)
+    ITEM_STARTED = "item_started"  # a motion sequence's next item runs (its index and label)
 
 
 def new_id(prefix: str) -> str:
@@ -56,6 +57,17 @@ class Motion:
     result: RunResult | None = None
     done: threading.Event = field(default_factory=threading.Event)
     recorder: Recorder | None = field(default=None, repr=False)
+
+    def item_at(self, elapsed_ms: float | None) -> dict[str, Any] | None:
+        """The item of a motion sequence that runs ``elapsed_ms`` after the start (its ``index`` and
+        ``label``); None for a motion that is not a sequence or before its start. The items' spans are
+        on the trajectory's timeline, which the program runs slowed by its ``time_scale``."""
+        items = self.program.metadata.get("items")
+        if not items or elapsed_ms is None or elapsed_ms < 0:
+            return None
+        t = elapsed_ms / 1000.0 / float(self.program.metadata.get("time_scale", 1.0))
+        current = next((it for it in items if t < it["end_s"]), items[-1])
+        return {"index": current["index"], "label": current["label"]}
 
     def summary(self) -> dict[str, Any]:
         return {

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from svc_helpers import wait_until
 
 from pvtflow.service.api import ApiError
 from pvtflow.service.api.requests import parse_plan
@@ -72,9 +73,11 @@ def test_pvtflow_plan_sequence_refuses_overlapping_blends_naming_both_items(tmp_
 @pytest.mark.wall
 def test_a_sequence_request_plans_and_runs_on_the_served_arm(arm6, serve) -> None:  # type: ignore[no-untyped-def]
     """Over zenoh: the shipped pick and place, planned from where the axes stand, runs to its end on the
-    simulated drives (their own checks of every record included) as one motion."""
+    simulated drives (their own checks of every record included) as one motion, and the events say
+    which item runs, each item once and in order, with its label (issue 38 item 6)."""
     items = yaml.safe_load(EXAMPLE.read_text())["sequence"]
     s = serve(arm6)
+    col = s.follow()
     plan = s.request("plan", {"sequence": items, "start": "current"})
     assert plan.ok, plan.data
     done = s.request("execute", {"plan_id": plan.data["plan_id"], "wait": True}, timeout=120)
@@ -82,3 +85,28 @@ def test_a_sequence_request_plans_and_runs_on_the_served_arm(arm6, serve) -> Non
     assert done.data["outcome"]["result"] == "finished", done.data
     for drive in s.sim:
         assert drive.faults == []
+    motion_id = done.data["motion_id"]
+    assert wait_until(lambda: bool(col.events("motion_ended", motion_id)), timeout=30)
+    started = [e["item"] for e in col.events("item_started", motion_id)]
+    assert started == [{"index": i, "label": item.get("label")} for i, item in enumerate(items)]
+
+
+def test_the_item_running_follows_the_programs_time_scale() -> None:
+    """``Motion.item_at``: the items' spans are on the trajectory's timeline; the program runs them
+    slowed by its time scale, so a moment just past an item's end on the trajectory is still that
+    item in the program when the program is slower."""
+    from pvtflow.axes.drive.program import PvtProgram
+    from pvtflow.service.motion.runs import Motion
+
+    items = [
+        {"index": 0, "label": "a", "start_s": 0.0, "end_s": 1.0},
+        {"index": 1, "label": None, "start_s": 1.0, "end_s": 2.0},
+    ]
+    motion = Motion("m-1", None, None, PvtProgram(cell="c", axes=(), metadata={"items": items, "time_scale": 1.1}), 0.0)
+    assert motion.item_at(None) is None and motion.item_at(-1.0) is None
+    assert motion.item_at(0.0) == {"index": 0, "label": "a"}
+    assert motion.item_at(1050.0) == {"index": 0, "label": "a"}  # 1050 ms of program: 0.955 s of trajectory
+    assert motion.item_at(1150.0) == {"index": 1, "label": None}
+    assert motion.item_at(9999.0) == {"index": 1, "label": None}
+    plain = Motion("m-2", None, None, PvtProgram(cell="c", axes=(), metadata={}), 0.0)
+    assert plain.item_at(500.0) is None
