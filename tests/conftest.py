@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import pytest
 from hypothesis import settings
 
+from pvtflow.axes.canbus.collector import full_collections_by_hand
 from pvtflow.service.config import CellConfig, load_cell_config
 
 if TYPE_CHECKING:
@@ -57,7 +58,7 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     from pvtflow.service.cell_planner import CellPlanner
 
     CellPlanner(load_cell_config()).warm_up()
-    hold_full_collections_to_between_tests()
+    full_collections_by_hand()
 
 
 # The master and the simulated drives share this process in most tests. CPython's full collection
@@ -69,15 +70,6 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 # start loaded is frozen, and the full collection runs between tests, never by allocation count.
 FULL_COLLECTION_EVERY_TESTS = 10
 _tests_since_full_collection = 0
-
-
-def hold_full_collections_to_between_tests() -> None:
-    from pvtflow.axes.canbus.collector import NO_AUTOMATIC_FULL
-
-    gc.collect()
-    gc.freeze()
-    young, middle, _ = gc.get_threshold()
-    gc.set_threshold(young, middle, NO_AUTOMATIC_FULL)
 
 
 def pytest_runtest_logfinish(nodeid: str, location: tuple[str, int | None, str]) -> None:

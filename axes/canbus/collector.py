@@ -62,6 +62,15 @@ QUIET_S = 1.0  # no SYNC for this long: no motion runs, a full collection stalls
 NO_AUTOMATIC_FULL = 2**31 - 1  # generation 2's threshold: never by allocation count
 
 
+def full_collections_by_hand() -> tuple[int, int, int]:
+    """Freeze what lives now, keep the young collections, and run full ones only when asked
+    (``gc.collect()``), never by allocation count; the thresholds before, to restore."""
+    thresholds = gc.get_threshold()
+    freeze_startup_objects()
+    gc.set_threshold(thresholds[0], thresholds[1], NO_AUTOMATIC_FULL)
+    return thresholds
+
+
 class FullCollectionBetweenMotions:
     """``tick()`` from a thread that wakes now and then (the process's main loop); ``close()`` restores."""
 
@@ -69,10 +78,7 @@ class FullCollectionBetweenMotions:
         self.network = network
         self.last_sync = time.monotonic()
         self._collected_for: float | None = None  # the last SYNC before the latest full collection
-        self._thresholds = gc.get_threshold()
-        gc.collect()
-        gc.freeze()
-        gc.set_threshold(self._thresholds[0], self._thresholds[1], NO_AUTOMATIC_FULL)
+        self._thresholds = full_collections_by_hand()
         subscribe(network, SYNC_COB_ID, self._on_sync)
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:

@@ -84,8 +84,8 @@ class PlanBook:
         }
         budget_ms = self.cell.planning.budget_ms if req.budget_ms is None else req.budget_ms
         if req.poses is not None or req.sequence is not None:
-            q0 = req.start_joints if req.start_joints is not None and req.start is not PlanStart.HOME else None
-            q0 = self._start(req.start) if q0 is None else q0
+            given = req.start_joints is not None and req.start is not PlanStart.HOME
+            q0 = req.start_joints if given else self._start(req.start)
             with self._planner_lock:
                 result = self.planner.plan(
                     req.plan_input(q0, **scales), req.tolerance_qc, {"plan_id": plan_id}, budget_ms

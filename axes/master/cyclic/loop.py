@@ -219,7 +219,7 @@ class CyclicLoop:
                     self._echoes += 1
                     self._echo_of = (self._echoes, msg.timestamp, time.monotonic())
                 elif (
-                    od.SDO_RESPONSE_COB_ID_BASE < can_id <= od.SDO_RESPONSE_COB_ID_BASE + 0x7F
+                    od.SDO_RESPONSE_COB_ID_BASE < can_id <= od.SDO_RESPONSE_COB_ID_BASE + od.NODE_ID_BITS
                     and msg.data[:1] == _CONFIRMED
                 ):
                     self._confirmed.add(can_id - od.SDO_RESPONSE_COB_ID_BASE)
