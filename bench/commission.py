@@ -28,6 +28,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.config import AxisSimulation
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.commission import commission
@@ -89,7 +90,7 @@ def on_own_channel(cell: CellConfig) -> CellConfig:
 def open_cell(cell: CellConfig) -> tuple[SimulatedCell, CellBus, AxisGroup]:
     cell = sharing_the_interpreter(cell)  # the drives run in this interpreter
     sim = SimulatedCell(cell).start()
-    bus = CellBus(cell.bus, lockstep=True).open()
+    bus = CellBus(cell.bus, clock=Clock.LOCKSTEP).open()
     return sim, bus, AxisGroup(bus, cell.ordered_axes())
 
 

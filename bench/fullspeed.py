@@ -41,6 +41,7 @@ import yaml
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from pvtflow.axes.canbus.clock import Clock  # noqa: E402
 from pvtflow.axes.drive.objects import PdoRole  # noqa: E402
 from pvtflow.axes.drive.program import PvtProgram  # noqa: E402
 from pvtflow.axes.master.bus.cell_bus import CellBus  # noqa: E402
@@ -119,7 +120,7 @@ def fractions(cell: CellConfig, program: PvtProgram) -> tuple[float, float]:
 
 def run(cell: CellConfig, program_for) -> dict[str, object]:
     drives = start_simulated_drives(cell, "wall")
-    bus = CellBus(drives.bus, lockstep=False).open()
+    bus = CellBus(drives.bus, clock=Clock.WALL).open()
     group = AxisGroup(bus, cell.ordered_axes())
     try:
         group.refresh()
@@ -176,7 +177,7 @@ def run_service(cell: CellConfig, directory: Path) -> dict[str, object]:
     svc = MotionService(
         cell,
         journal_dir=directory / "journal",
-        lockstep=False,
+        clock=Clock.WALL,
         planner_process=True,
         record_dir=directory / "rec",
         drives_process=True,

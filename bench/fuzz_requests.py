@@ -32,6 +32,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.collector import freeze_startup_objects
 from pvtflow.planner.plan import PlanInput
 from pvtflow.service.api import MAX_REQUEST_BYTES, MAX_WAYPOINTS
@@ -328,7 +329,7 @@ def main(argv: list[str] | None = None) -> int:
     cell = load_cell_config(None)
     gantry = load_cell_config(Path(__file__).resolve().parent.parent / "configs" / "cells" / "gantry3.yaml")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    service = MotionService(cell, journal_dir=tempfile.mkdtemp(prefix="pvtflow-fuzz-"), lockstep=True).open()
+    service = MotionService(cell, journal_dir=tempfile.mkdtemp(prefix="pvtflow-fuzz-"), clock=Clock.LOCKSTEP).open()
     freeze_startup_objects()  # as pvtflow serve does once its service is open
     server = Server(service, peer_config(listen=[endpoint])).start()
     client = Client(connect=endpoint)

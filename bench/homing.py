@@ -30,6 +30,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.config import AxisSimulation, HomingConfig
 from pvtflow.axes.master.bus.cell_bus import CellBus
@@ -79,7 +80,7 @@ def x_only(cell: CellConfig, homing: HomingConfig, machine: AxisSimulation) -> C
 def home_once(cell: CellConfig, lockstep: bool = True) -> tuple[object, float, SimulatedCell]:
     cell = sharing_the_interpreter(cell)  # the drives run in this interpreter
     with SimulatedCell(cell) as sim:
-        bus = CellBus(cell.bus, lockstep=lockstep).open()
+        bus = CellBus(cell.bus, clock=Clock.of(lockstep)).open()
         group = AxisGroup(bus, cell.ordered_axes())
         try:
             t0 = time.perf_counter()
@@ -136,7 +137,7 @@ def refusals(gantry: CellConfig, reboots: int) -> bool:
     )
     refused = tried = finished = plans_refused = 0
     with tempfile.TemporaryDirectory() as journal:
-        svc = MotionService(cell, journal_dir=journal, lockstep=True).open()
+        svc = MotionService(cell, journal_dir=journal, clock=Clock.LOCKSTEP).open()
         try:
             home_q = [float(a.scaling.qc_to_position(a.homing.offset_qc)) for a in cell.ordered_axes()]  # type: ignore[union-attr]
             away = [home_q[0] + 0.05, home_q[1] + 0.04, home_q[2] - 0.03]
@@ -191,7 +192,7 @@ def real_time(gantry: CellConfig) -> bool:
     cell = dataclasses.replace(
         gantry, bus=dataclasses.replace(gantry.bus, channel=f"bench-home-{uuid.uuid4().hex[:8]}")
     )
-    outcome, wall, sim = home_once(cell, lockstep=False)
+    outcome, wall, sim = home_once(cell, clock=Clock.WALL)
     for a in outcome.axes:  # type: ignore[attr-defined]
         drive = sim.drive(a.joint)
         error = drive.actual - round(drive.machine_position)

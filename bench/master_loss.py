@@ -33,6 +33,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.service.api import parse_execute, parse_plan
 from pvtflow.service.config import CellConfig, load_cell_config
 from pvtflow.service.motion import MotionService
@@ -63,7 +64,7 @@ def cell_for(profile: str, master_heartbeat_ms: int, factor: float | None) -> Ce
 
 def run_once(cell: CellConfig, how: str, kill_at_ms: float, real_time: bool) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as journal:
-        svc = MotionService(cell, journal_dir=journal, lockstep=not real_time, planner_process=False).open()
+        svc = MotionService(cell, journal_dir=journal, clock=Clock.of(not real_time), planner_process=False).open()
         release = threading.Event()
         killed = threading.Event()
         hang_at: list[float] = []

@@ -2,7 +2,7 @@
 
 For each drive behaviour (epos2_pvt, cia402_ip_linear, sync_setpoint, parker_slvdn with submodes
 0, -1, -2) at each SYNC period, on the gantry3 and arm6 robots (every axis on that behaviour), a
-MotionService with SYNC on the wall clock (``lockstep=False``, plans in the child process as
+MotionService with SYNC on the wall clock (``clock=Clock.WALL``, plans in the child process as
 ``pvtflow serve --real-time`` does) plans random single-target moves from where the axes stand and
 executes them to their end; a second run does the same while another thread asks for a plan every
 100 ms. Figures per case:
@@ -34,6 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.sim.profiles.fixed_period import FixedPeriodDrive
 from pvtflow.service.api import ApiError, parse_execute, parse_plan, parse_recover
 from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
@@ -91,7 +92,7 @@ def run_case(cell: CellConfig, moves: int, rng: np.random.Generator, planning_lo
     min_level: int | None = None
     underflows = 0
     with tempfile.TemporaryDirectory() as journal:
-        svc = MotionService(cell, journal_dir=journal, lockstep=False, planner_process=True).open()
+        svc = MotionService(cell, journal_dir=journal, clock=Clock.WALL, planner_process=True).open()
         arrivals = SyncArrivals(svc.sim.network)
         stop_load = threading.Event()
         load_plans = [0]

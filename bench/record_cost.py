@@ -38,6 +38,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 from realtime import SyncArrivals, variant  # noqa: E402
 
 import pvtflow.service.motion.execution as execution_module  # noqa: E402
+from pvtflow.axes.canbus.clock import Clock  # noqa: E402
 from pvtflow.service.api import ApiError, parse_execute, parse_plan  # noqa: E402
 from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config  # noqa: E402
 from pvtflow.service.live import LiveServer  # noqa: E402
@@ -97,7 +98,7 @@ def run_case(cell: CellConfig, moves: int, seed: int, record: bool, live: bool, 
         svc = MotionService(
             cell,
             journal_dir=Path(tmp) / "journal",
-            lockstep=lockstep,
+            clock=Clock.of(lockstep),
             planner_process=not lockstep,
             record_dir=Path(tmp) / "rec" if record else None,
             live=server,

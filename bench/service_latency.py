@@ -49,6 +49,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import can
 import numpy as np
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.collector import freeze_startup_objects
 from pvtflow.service.config import load_cell_config
 from pvtflow.service.demo_cmd import free_port, tour
@@ -192,7 +193,9 @@ def main(argv: list[str] | None = None) -> int:
     cell = load_cell_config(None)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     journal = tempfile.mkdtemp(prefix="pvtflow-bench-")
-    service = MotionService(cell, journal_dir=journal, lockstep=True, planner_process=args.planner_process).open()
+    service = MotionService(
+        cell, journal_dir=journal, clock=Clock.LOCKSTEP, planner_process=args.planner_process
+    ).open()
     freeze_startup_objects()  # as pvtflow serve does once its service is open
     server = Server(service, peer_config(listen=[endpoint])).start()
     client = Client(connect=endpoint)

@@ -39,6 +39,7 @@ sys.path.insert(0, str(ROOT / "tests" / "axes"))
 
 from test_stall import at_period, serve, stall_this_process, toward_the_middle  # noqa: E402  (the test's harness)
 
+from pvtflow.axes.canbus.clock import Clock  # noqa: E402
 from pvtflow.axes.master.bus.cell_bus import CellBus  # noqa: E402
 from pvtflow.axes.master.group.axis_group import AxisGroup  # noqa: E402
 from pvtflow.axes.master.group.outcome import Event  # noqa: E402
@@ -54,7 +55,7 @@ def one_run(
     if retry_ms is not None:
         bus_config = dataclasses.replace(bus_config, tx_retry_ms=retry_ms)
     cell = dataclasses.replace(cell, bus=bus_config)
-    bus = CellBus(cell.bus, lockstep=False).open()
+    bus = CellBus(cell.bus, clock=Clock.WALL).open()
     group = AxisGroup(bus, cell.ordered_axes()[:axes])
     events: list[Event] = []
     group.on_event = events.append

@@ -59,6 +59,7 @@ from axes_programs import program  # noqa: E402  (the tests' programs: quintic m
 from axes_rig import FlakyBus, unique_channel  # noqa: E402  (the test double of the BUS)
 from test_stall import at_period, serve, toward_the_middle  # noqa: E402  (drives in their own process)
 
+from pvtflow.axes.canbus.clock import Clock  # noqa: E402
 from pvtflow.axes.drive.cia402 import PowerState  # noqa: E402
 from pvtflow.axes.master.bus.cell_bus import CellBus  # noqa: E402
 from pvtflow.axes.master.bus.faults import BusFault, FaultKind  # noqa: E402
@@ -122,7 +123,7 @@ def one_run(
     bus_config = dataclasses.replace(cell.bus, channel=channel, max_sync_gap_periods=1e6)
     cell = dataclasses.replace(cell, bus=bus_config)
     sim = None if process is not None else SimulatedCell(cell, channel=channel, interface="virtual").start()
-    bus = CellBus(dataclasses.replace(bus_config, interface=interface), lockstep=False).open()
+    bus = CellBus(dataclasses.replace(bus_config, interface=interface), clock=Clock.WALL).open()
     bus.sync.lift_bus_threads = lift and bus.sync.lift_bus_threads
     group = AxisGroup(bus, cell.ordered_axes()[: process.axes] if process is not None else cell.ordered_axes())
     failed_at: list[float] = []  # when the master failed: the SYNC thread raised, or a frame was given up
@@ -134,7 +135,7 @@ def one_run(
     period_s = bus_config.sync_period_ms / 1000.0
 
     def inject(n: int) -> None:
-        start = group._start_sync
+        start = group.start_sync
         if start is None or n < start + at_sync or failed_at:
             return
         if case.startswith("dead"):

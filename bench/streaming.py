@@ -25,6 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.config import AxisConfig
 from pvtflow.axes.drive.program import AxisProgram, PvtProgram
 from pvtflow.axes.master.bus.cell_bus import CellBus
@@ -160,7 +161,7 @@ def streaming_run(args: argparse.Namespace) -> None:
     total_records = sum(len(a.records) for a in prog.axes)
     cell = sharing_the_interpreter(cell)  # the drives run in this interpreter
     sim = SimulatedCell(cell).start()
-    bus = CellBus(cell.bus, lockstep=True).open()
+    bus = CellBus(cell.bus, clock=Clock.LOCKSTEP).open()
     tap = FrameTap()
     bus.recorder.taps.append(tap)
     group = AxisGroup(bus, axes)
@@ -230,7 +231,7 @@ def halt_run(args: argparse.Namespace) -> None:
     prog = long_program(axes, 2000, args.record_ms)
     cell = sharing_the_interpreter(cell)  # the drives run in this interpreter
     sim = SimulatedCell(cell).start()
-    bus = CellBus(cell.bus, lockstep=True).open()
+    bus = CellBus(cell.bus, clock=Clock.LOCKSTEP).open()
     group = AxisGroup(bus, axes)
     index = len(axes) // 2
     faulty = sim.drive(axes[index].node_id)

@@ -52,6 +52,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.config import BusConfig
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.bus.sync import ask_realtime, below_sync
@@ -173,7 +174,7 @@ def run_case(
         sync_priority=priority,
         max_sync_gap_periods=1e6,
     )
-    bus = CellBus(config, lockstep=False).open()
+    bus = CellBus(config, clock=Clock.WALL).open()
     bus.sync.lift_bus_threads = lift and bus.sync.lift_bus_threads
     sent: list[float] = []
     bus.sync.add_sender(lambda n: sent.append(bus.sync.sent_at or time.monotonic()))  # when the SYNC went out

@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from sync_jitter import busy
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.config import BusConfig
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.bus.sync import below_sync
@@ -57,7 +58,7 @@ def run(seconds: float, load: int, backup: bool, caller_rt: bool, show_threads: 
     config = BusConfig(
         channel=f"schedstat-{uuid.uuid4().hex[:8]}", sync_period_ms=1.0, sync_priority=50, max_sync_gap_periods=1e6
     )
-    bus = CellBus(config, lockstep=False).open()
+    bus = CellBus(config, clock=Clock.WALL).open()
     bus.sync.backup = backup
     files: dict[int, int] = {}
     rows: list[tuple[float, dict[int, tuple[int, ...]]]] = []

@@ -32,6 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.frame_time import frame_bits
 from pvtflow.axes.drive.objects import EPOS2_RPDOS, SYNC_COB_ID
 from pvtflow.axes.master.bus.cell_bus import CellBus
@@ -123,7 +124,7 @@ def measure(cell: CellConfig, tour_points: int) -> dict[str, object]:
     lim = planner.limits
     cell = sharing_the_interpreter(cell)  # the drives run in this interpreter
     sim = SimulatedCell(cell, channel=channel).start()
-    bus = CellBus(cell.bus, lockstep=True).open()
+    bus = CellBus(cell.bus, clock=Clock.LOCKSTEP).open()
     tap = WireTap()
     bus.recorder.taps.append(tap.sent)
     assert bus.network.notifier is not None

@@ -36,6 +36,7 @@ sys.path.insert(0, str(ROOT / "tests" / "axes"))
 from axes_programs import axis_program, safe_distance  # noqa: E402
 from test_stall import at_period  # noqa: E402  (the stall test's copy of a cell at another period)
 
+from pvtflow.axes.canbus.clock import Clock  # noqa: E402
 from pvtflow.axes.drive.program import PvtProgram  # noqa: E402
 from pvtflow.axes.master.bus.cell_bus import CellBus  # noqa: E402
 from pvtflow.axes.master.group.axis_group import AxisGroup  # noqa: E402
@@ -55,7 +56,7 @@ def toward_middle(cell: CellConfig, here: list[int | None], duration_ms: int) ->
 
 def run(cell: CellConfig, seconds: float, where: str) -> dict[str, object]:
     drives = DrivesProcess(cell, "wall").start() if where == "process" else LocalDrives(cell, "wall").start()
-    bus = CellBus(drives.bus, lockstep=False).open()
+    bus = CellBus(drives.bus, clock=Clock.WALL).open()
     group = AxisGroup(bus, cell.ordered_axes())
     try:
         group.refresh()

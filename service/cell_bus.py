@@ -44,14 +44,13 @@ def add_bus_options(p: argparse.ArgumentParser) -> None:
 
 
 def open_bus(
-    cell: CellConfig, *, simulate: bool, lockstep: bool, can_log: str | Path | None, drives_process: bool = True
+    cell: CellConfig, *, simulate: bool, clock: Clock, can_log: str | Path | None, drives_process: bool = True
 ) -> tuple[CellBus, Any]:
     """The cell's bus, open, and its simulated drives (None unless ``simulate``), started first: SYNC
-    in ``lockstep`` with them or on the wall clock; with ``drives_process`` in a process of their own
+    on ``clock``, in lockstep with them or on the wall clock; with ``drives_process`` in a process of their own
     (``axes.sim.process``), else in this one (tests that read a drive directly). The service keeps
     both for its life, a command for one run (:func:`open_cell_bus`). CellBusError where the bus
     cannot open; nothing is left running then."""
-    clock = Clock.of(lockstep)
     sim: Any = None
     bus_config = cell.bus
     if simulate:
@@ -73,7 +72,7 @@ def open_bus(
         except (OSError, ValueError) as exc:
             raise CellBusError(str(exc)) from None
     try:
-        bus = CellBus(bus_config, lockstep=lockstep, can_log=can_log)
+        bus = CellBus(bus_config, clock=clock, can_log=can_log)
     except (ValueError, OSError) as exc:
         if sim is not None:
             sim.stop()
@@ -94,7 +93,8 @@ def open_cell_bus(cell: CellConfig, real_time: bool, can_log: str | None) -> Ite
     process of their own); on exit the bus closed and the simulated drives stopped, their process
     reaped. CellBusError where it cannot open."""
     with _terminate_as_interrupt():
-        bus, sim = open_bus(cell, simulate=cell.simulated, lockstep=cell.simulated and not real_time, can_log=can_log)
+        clock = Clock.of(cell.simulated and not real_time)
+        bus, sim = open_bus(cell, simulate=cell.simulated, clock=clock, can_log=can_log)
         try:
             yield bus
         finally:

@@ -26,6 +26,7 @@ from typing import Any, TextIO
 import numpy as np
 import pinocchio as pin
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.collector import freeze_startup_objects
 from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.planner.cartesian import placement_pose
@@ -294,7 +295,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _serve_and_demo(args: argparse.Namespace, cell: CellConfig, plot: Path, endpoint: str, journal_dir: str) -> int:
     try:
-        service = MotionService(cell, journal_dir=journal_dir, lockstep=not args.real_time).open()
+        service = MotionService(cell, journal_dir=journal_dir, clock=Clock.of(not args.real_time)).open()
         freeze_startup_objects()
     except (BusError, JournalError, OSError) as exc:
         print(f"{PROG}: cannot start the cell: {exc}", file=sys.stderr)
@@ -341,7 +342,7 @@ def _demo(
 ) -> int:
     print(
         f"{PROG}: service for cell {name} on simulated drives, zenoh peer on {endpoint} "
-        f"(SYNC {'lockstep' if service.lockstep else 'real time'}); journal in {journal_dir}"
+        f"(SYNC {'lockstep' if service.clock is Clock.LOCKSTEP else 'real time'}); journal in {journal_dir}"
     )
     follower = _Follower()
     subs = [

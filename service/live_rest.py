@@ -85,7 +85,7 @@ class RestView:
         heard = self._heard
         if heard is None:
             return 0.0
-        return heard[0] if self.bus.sync.lockstep else heard[0] + time.monotonic() - heard[1]
+        return heard[0] if self.bus.sync.clock.lockstep else heard[0] + time.monotonic() - heard[1]
 
     def _run(self) -> None:
         next_description = 0.0

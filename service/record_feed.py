@@ -1,6 +1,6 @@
 """Whether the cell's bus feeds a plan's EPOS2 records as fast as the drives run them, at plan time.
 
-The start checks it too (``axes.master.group.feed_check`` through ``AxisGroup.check_program``) and refuses a
+The start checks it too (``axes.master.feed_check`` through ``AxisGroup.check_program``) and refuses a
 program whose FIFO would run dry; the planner asks first, so that where the time-optimal plan needs
 more records than the bus carries it can give motion time for fewer records (``planner.speed_band``)
 and say so, and nowhere else (``CellPlanner.plan``).
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.axes.master.budget import bus_budget
-from pvtflow.axes.master.group.feed_check import BufferedAxis, feed_shortfall
+from pvtflow.axes.master.feed_check import BufferedAxis, feed_shortfall
 from pvtflow.service.config import CellConfig
 
 
@@ -23,7 +23,7 @@ class RecordFeed:
         self.buffers = {a.joint: a.buffer for a in cell.axes}
 
     def shortfall(self, program: PvtProgram) -> str | None:
-        """Where a FIFO of ``program``'s buffered axes would run dry (``axes.master.group.feed_check``), or None."""
+        """Where a FIFO of ``program``'s buffered axes would run dry (``axes.master.feed_check``), or None."""
         buffered = [
             BufferedAxis(a.joint, a.records, self.buffers[a.joint]) for a in program.axes if not a.profile.fixed_period
         ]

@@ -29,6 +29,7 @@ from typing import Any
 
 import zenoh
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.collector import freeze_startup_objects
 from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.service.api import LIVELINESS, PUBLICATIONS, QUERYABLES, StopRequest, key
@@ -137,7 +138,7 @@ def banner(service: MotionService, server: Server, allow_unauthenticated: bool =
     connect = config_endpoints(server.config, "connect")
     drives = "simulated " if service.simulate else ""
     profiles = sorted({a.profile for a in cell.axes})
-    sync = "in lockstep with the simulated drives" if service.lockstep else "real time"
+    sync = "in lockstep with the simulated drives" if service.clock is Clock.LOCKSTEP else "real time"
     lines = [
         f"{PROG}: cell {name}: {len(cell.axes)} axes ({', '.join(service.joint_names)}), {drives}drives "
         f"{'/'.join(profiles)} on {cell.bus.interface}:{cell.bus.channel}, SYNC {cell.bus.sync_period_ms:g} ms "
@@ -327,7 +328,7 @@ def run(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         try:
-            lockstep = cell.simulated and not args.real_time
+            clock = Clock.of(cell.simulated and not args.real_time)
             print(
                 f"{PROG}: starting cell {cell.name}; the planner loads its compiled loops (on a new machine numba "
                 "compiles them first: ~15 s, once)",
@@ -337,10 +338,11 @@ def run(args: argparse.Namespace) -> int:
             service = MotionService(
                 cell,
                 journal_dir=args.journal,
-                lockstep=lockstep,
+                clock=clock,
                 can_log=args.can_log,
                 telemetry_period_ms=args.telemetry_ms,
-                planner_process=args.planner_process == "on" or (args.planner_process == "auto" and not lockstep),
+                planner_process=args.planner_process == "on"
+                or (args.planner_process == "auto" and clock is Clock.WALL),
                 record_dir=args.record,
                 live=live,
                 drives_process=True,

@@ -145,7 +145,7 @@ def simulate(
     server = None
     try:
         if interface == SIMULATED_WIRE:  # the wire itself lives here: served to the other processes
-            options = wire_options(cell.bus, lockstep=clock == Clock.LOCKSTEP)
+            options = wire_options(cell.bus, clock=clock)
             server = serve_wire(channel, wire_port, **options)  # type: ignore[arg-type]
         sim.start()
     except (can.CanError, OSError, ValueError, ImportError) as exc:

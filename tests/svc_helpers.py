@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from jsonschema import Draft202012Validator
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.service.api import reply_schema
 from pvtflow.service.config import CellConfig
 from pvtflow.service.motion import MotionService
@@ -122,7 +123,7 @@ def served_cell(
     (``client``, or a new one: a client of the endpoint, or one made from ``client_zconfig``)."""
     cell = on_own_channel(cell)
     endpoint = f"tcp/127.0.0.1:{port or free_port()}"
-    service = MotionService(cell, journal_dir=journal_dir, lockstep=True).open()
+    service = MotionService(cell, journal_dir=journal_dir, clock=Clock.LOCKSTEP).open()
     server = None
     own_client = client is None
     try:

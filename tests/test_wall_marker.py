@@ -1,9 +1,9 @@
 """Every test that depends on the wall clock says so with the ``wall`` marker.
 
 A test depends on the wall clock when it runs SYNC or a drive on the wall clock (``real_time=True``,
-``lockstep=False``, ``--real-time``, ``clock="wall"``) or lets time pass (a ``time.sleep`` outside a
-loop: a sleep inside one polls a condition until a deadline and depends on the clock only for how
-long it may wait), itself
+``clock=Clock.WALL``, ``lockstep=False``, ``--real-time``, ``clock="wall"``) or lets time pass (a
+``time.sleep`` outside a loop: a sleep inside one polls a condition until a deadline and depends on the clock only
+for how long it may wait), itself
 or through a helper or fixture that does: its outcome can then depend on the host's load, and
 ``pytest -m wall`` / ``-m "not wall"`` must find it. The marker only labels: the README's test command
 runs these tests too.

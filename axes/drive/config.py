@@ -78,14 +78,14 @@ class BusConfig:
         return math.ceil(self.master_heartbeat_ms * self.heartbeat_timeout_factor)
 
 
-def wire_options(config: BusConfig, *, lockstep: bool) -> dict[str, object]:
+def wire_options(config: BusConfig, *, clock: Clock) -> dict[str, object]:
     """The ``can.Bus`` keyword arguments of the cell's bus beyond interface and channel: the bit rate,
-    and on the simulated wire its clock (lockstep: bus time advances with the SYNC period)."""
+    and on the simulated wire its clock (``Clock.LOCKSTEP``: bus time advances with the SYNC period)."""
     if config.interface == "virtual":
         return {}
     options: dict[str, object] = {"bitrate": config.bitrate}
     if config.interface == SIMULATED_WIRE:
-        options["clock"] = Clock.of(lockstep)
+        options["clock"] = clock
         options["sync_period"] = config.sync_period_ms / 1000.0
     return options
 

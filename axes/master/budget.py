@@ -32,7 +32,7 @@ preload and top-up keep to the record allowance in every period, ``axes.master.g
 room for at least one record per buffered axis per period. The 70 % is a window's and not every
 period's: a reserve for an SDO exchange in every period would by itself take 40 % of a 1 Mbit/s bus
 at 1 ms. Whether a program's records are fed as fast as it runs is the program's question
-(``axes.master.group.feed_check``).
+(``axes.master.feed_check``).
 """
 
 from __future__ import annotations

@@ -312,7 +312,7 @@ class CellHoming:
             sync.remove_listener(self._on_sync)
             raise
         sync.remove_listener(self._on_sync)
-        self.bus.watch.watch_sync = False
+        self.bus.watch.disarm_sync_watch()
         for i in stage:
             n = self._attained.get(i)
             report[i].time_s = None if n is None else (n - self._start_sync) * period_ms / 1000.0
@@ -422,8 +422,7 @@ class CellHoming:
             try:
                 sw = link.read_statusword()
                 report[i].statusword = sw
-                report[i].position_qc = link.read(od.POSITION_ACTUAL_VALUE, 0, "i")
-                link.position = report[i].position_qc
+                report[i].position_qc = link.read_position()
                 if decode_state(sw) is PowerState.OPERATION_ENABLED:
                     link.write_controlword(ENABLED_WORD)
                 link.write(od.MODES_OF_OPERATION, 0, od.INTERPOLATED_POSITION_MODE, "b")

@@ -153,6 +153,20 @@ class AxisLink:
         self._set_statusword(self.read(od.STATUSWORD, 0, "H"))
         return self.statusword
 
+    def note_emcy(self, code: int, message: str) -> None:
+        """The drive's last EMCY (the bus reports it), told with its fault."""
+        self.last_emcy = (code, message)
+
+    def forget_faults(self) -> None:
+        """The drive was reset and enabled again: its last EMCY and buffer errors are history."""
+        self.last_emcy = None
+        self.buffer_status &= ~int(od.BUFFER_ERRORS)
+
+    def read_position(self) -> int:
+        """0x6064 by SDO (between runs no TPDO reports it)."""
+        self.position = self.read(od.POSITION_ACTUAL_VALUE, 0, "i")
+        return self.position
+
     # --- PDO configuration (CiA 301 7.5.2.35-38) ----------------------------------------------------
     def map_pdo(self, layout: PdoLayout, receive: bool, cob_id: int | None = None) -> None:
         """Configure one PDO as CiA 301 says, in the order a strict stack accepts: invalidate it with

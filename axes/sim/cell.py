@@ -23,6 +23,7 @@ from typing import TypeVar
 
 import canopen
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.config import SIMULATED_WIRE, AxisConfig, CellWiring, wire_options
 from pvtflow.axes.sim.clock import LOCKSTEP, Ticker, check_clock
 from pvtflow.axes.sim.drive import SimulatedDrive, eds_file
@@ -143,7 +144,7 @@ class SimulatedCell:
         if self.running:
             return self
         bus = replace(self.cell.bus, interface=self.interface, channel=self.channel)
-        options = wire_options(bus, lockstep=self.clock == LOCKSTEP)
+        options = wire_options(bus, clock=Clock(self.clock))
         try:
             for node_id, network in self.networks.items():
                 named = {"node_name": f"drive {node_id}"} if self.interface == SIMULATED_WIRE else {}

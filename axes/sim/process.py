@@ -33,6 +33,7 @@ import threading
 from pathlib import Path
 from typing import TextIO
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.threads import hand_the_gil_on_often
 from pvtflow.axes.drive.config import SIMULATED_WIRE, BusConfig, CellWiring, Wiring, wire_options
 
@@ -181,7 +182,7 @@ def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) ->
     sim = SimulatedCell(wiring, clock=clock)
     server = None
     try:
-        server = serve_wire(bus.channel, 0, **wire_options(bus, lockstep=clock == "lockstep"))  # type: ignore[arg-type]
+        server = serve_wire(bus.channel, 0, **wire_options(bus, clock=Clock(clock)))  # type: ignore[arg-type]
         sim.start()
     except (OSError, ValueError, ImportError) as exc:
         sim.stop()

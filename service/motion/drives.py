@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.axes.master.group.axis_group import AxisGroup
@@ -32,14 +33,14 @@ class CellDrives:
         cell: CellConfig,
         *,
         simulate: bool,
-        lockstep: bool,
+        clock: Clock,
         can_log: str | Path | None,
         drives_process: bool,
     ) -> None:
         self.cell = cell
         self.axes = cell.ordered_axes()
         self.simulate = simulate
-        self.lockstep = lockstep
+        self.clock = clock
         self.can_log = can_log
         self.drives_process = drives_process  # simulated drives in a process of their own (axes.sim.process)
         self.bus: CellBus | None = None
@@ -57,7 +58,7 @@ class CellDrives:
             self.bus, self.sim = open_bus(
                 self.cell,
                 simulate=self.simulate,
-                lockstep=self.lockstep,
+                clock=self.clock,
                 can_log=self.can_log,
                 drives_process=self.drives_process,
             )

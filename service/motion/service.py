@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.group.axis_group import AxisGroup
 from pvtflow.service.api import (
@@ -71,7 +72,7 @@ class MotionService:
         cell: CellConfig,
         *,
         journal_dir: str | Path | None = None,
-        lockstep: bool | None = None,
+        clock: Clock | None = None,
         can_log: str | Path | None = None,
         simulate: bool | None = None,
         telemetry_period_ms: float = 20.0,
@@ -88,7 +89,7 @@ class MotionService:
         self.drives = CellDrives(
             cell,
             simulate=simulate,
-            lockstep=simulate if lockstep is None else lockstep,
+            clock=Clock.of(simulate) if clock is None else clock,
             can_log=can_log,
             drives_process=drives_process,
         )
@@ -263,8 +264,9 @@ class MotionService:
         return self.drives.simulate
 
     @property
-    def lockstep(self) -> bool:
-        return self.drives.lockstep
+    def clock(self) -> Clock:
+        """The SYNC's clock: lockstep with simulated drives (the default for a simulated cell) or the wall."""
+        return self.drives.clock
 
     @property
     def record_dir(self) -> Path | None:

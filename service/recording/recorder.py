@@ -46,6 +46,7 @@ from typing import TYPE_CHECKING, Any
 
 import can
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.bus.faults import BusFault
 from pvtflow.service.recording.channels import FAULT_LEVEL, INFO
@@ -86,7 +87,7 @@ class Recorder:
         # the bus's clock as the master last heard it; None until the first frame that tells it (what
         # comes before is stamped with that frame's time by the writer: it happened just before)
         self._clock_s: float | None = None
-        self._lockstep = True
+        self._clock = Clock.LOCKSTEP
         self._bus: CellBus | None = None
         self._group: AxisGroup | None = None
         self._writer = RecordWriter(cell, self._items, mcap, live, chunk_ms)
@@ -104,7 +105,7 @@ class Recorder:
 
     def attach(self, bus: CellBus, group: AxisGroup | None = None) -> Recorder:
         self._bus, self._group = bus, group
-        self._lockstep = bus.sync.lockstep
+        self._clock = bus.sync.clock
         bus.recorder.taps.append(self._on_frame)
         bus.on_fault(self._on_fault)
         bus.sync.add_listener(self._on_sync)
@@ -122,7 +123,7 @@ class Recorder:
 
     # --- the bus's threads: append only ----------------------------------------------------------------
     def _on_frame(self, msg: can.Message) -> None:
-        if msg.is_rx or not self._lockstep:
+        if msg.is_rx or self._clock is Clock.WALL:
             clock = self._clock_s
             self._clock_s = msg.timestamp if clock is None or msg.timestamp > clock else clock
             self._items.append(("can", msg.timestamp, msg))

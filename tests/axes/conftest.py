@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from axes_rig import unique_channel
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.group.axis_group import AxisGroup
 from pvtflow.axes.sim.cell import SimulatedCell, sharing_the_interpreter
@@ -35,7 +36,7 @@ def make_rig() -> Iterator[Callable[..., Rig]]:
         eds_paths: dict[int, str | Path] | None = None,
         can_log: Path | None = None,
         lost_sync_timeout_s: float = 1.0,
-        lockstep: bool = True,
+        clock: Clock = Clock.LOCKSTEP,
         **group_kwargs: object,
     ) -> Rig:
         channel = unique_channel()
@@ -45,9 +46,9 @@ def make_rig() -> Iterator[Callable[..., Rig]]:
         bus_config = dataclasses.replace(cell.bus, **changes)
         cell = sharing_the_interpreter(dataclasses.replace(cell, bus=bus_config))  # the drives run here
         bus_config = cell.bus
-        clock = "lockstep" if lockstep else "wall"  # the drives keep the time the master keeps
+        # the drives keep the time the master keeps
         sim = SimulatedCell(cell, channel=channel, eds_paths=eds_paths, clock=clock).start()
-        bus = CellBus(bus_config, lockstep=lockstep, can_log=can_log, lost_sync_timeout_s=lost_sync_timeout_s).open()
+        bus = CellBus(bus_config, clock=clock, can_log=can_log, lost_sync_timeout_s=lost_sync_timeout_s).open()
         group = AxisGroup(bus, cell.ordered_axes(), **group_kwargs)  # type: ignore[arg-type]
         rig = Rig(cell, sim, bus, group)
         rigs.append(rig)

@@ -11,6 +11,7 @@ import can
 import pytest
 from axes_rig import unique_channel
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.config import BusConfig
 from pvtflow.axes.drive.objects import TIME_STAMP_COB_ID, NmtCommand
 from pvtflow.axes.master.bus.cell_bus import CellBus
@@ -60,7 +61,7 @@ def channel() -> str:
 
 def test_lockstep_sync_waits_for_every_answer_and_runs_listeners_in_between(channel):
     responder = Responder(channel)
-    bus = CellBus(BusConfig(channel=channel, time_stamp=True), lockstep=True).open()
+    bus = CellBus(BusConfig(channel=channel, time_stamp=True), clock=Clock.LOCKSTEP).open()
     try:
         seen: list[tuple[int, int]] = []
         done = threading.Event()
@@ -118,7 +119,7 @@ def test_can_log_records_sent_and_received_frames(channel, tmp_path: Path, suffi
 def test_real_time_sync_is_produced_periodically(channel):
     responder = Responder(channel, nodes=(3,))
     for can_log in (None, "x"):
-        bus = CellBus(BusConfig(channel=channel, sync_period_ms=2.0, time_stamp=False), lockstep=False).open()
+        bus = CellBus(BusConfig(channel=channel, sync_period_ms=2.0, time_stamp=False), clock=Clock.WALL).open()
         if can_log:
             bus.recorder.taps.append(lambda msg: None)  # a tap selects the master's own SYNC thread
         try:
@@ -146,7 +147,7 @@ def test_a_sync_sent_by_hand_is_waited_for_and_the_next_keeps_the_period(channel
         responder.frames.clear()
         responder.syncs = 0
         config = BusConfig(channel=channel, sync_period_ms=20.0, time_stamp=False)
-        bus = CellBus(config, lockstep=lockstep).open()
+        bus = CellBus(config, clock=Clock.of(lockstep)).open()
         try:
             bus.sync.expect([0x283, 0x284])
             assert bus.sync.wait_answered(bus.sync.step(), 5.0) == []

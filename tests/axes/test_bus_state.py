@@ -33,6 +33,7 @@ from pvtflow.axes.canbus.can_errors import (
     ControllerState,
     decode,
 )
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.config import BusConfig
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.bus.faults import BusFault, FaultKind
@@ -97,7 +98,7 @@ def wait_for(predicate: Callable[[], bool], timeout_s: float = 3.0) -> bool:
 def test_a_bus_whose_state_stays_active_reports_every_state_its_error_frames_announce_by_name() -> None:
     channel = unique_channel("errframes")
     kernel = can.Bus(interface="virtual", channel=channel)  # delivers the frames as the kernel would
-    bus = CellBus(BusConfig(channel=channel, time_stamp=False), lockstep=True).open()
+    bus = CellBus(BusConfig(channel=channel, time_stamp=False), clock=Clock.LOCKSTEP).open()
     faults: list[BusFault] = []
     bus.on_fault(faults.append)
 
@@ -136,7 +137,7 @@ def test_a_bus_whose_state_stays_active_reports_every_state_its_error_frames_ann
 def test_the_simulated_wire_s_bus_states_are_reported_once_each_by_name() -> None:
     """simwire says a state twice (its ``bus.state`` and the error frame): one report per change."""
     channel = f"simwire-{unique_channel('state')}"
-    bus = CellBus(BusConfig(interface="simwire", channel=channel, time_stamp=False), lockstep=True).open()
+    bus = CellBus(BusConfig(interface="simwire", channel=channel, time_stamp=False), clock=Clock.LOCKSTEP).open()
     faults: list[BusFault] = []
     bus.on_fault(faults.append)
     medium, name = bus.network.bus.medium, bus.network.bus.node_name
@@ -164,14 +165,14 @@ def test_a_bus_off_error_frame_halts_the_motion_as_a_bus_off_does(arm6) -> None:
     channel = unique_channel()
     cell = sharing_the_interpreter(dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, channel=channel)))
     sim = SimulatedCell(cell, channel=channel, interface="virtual").start()
-    bus = CellBus(dataclasses.replace(cell.bus, interface="virtual"), lockstep=True).open()
+    bus = CellBus(dataclasses.replace(cell.bus, interface="virtual"), clock=Clock.LOCKSTEP).open()
     group = AxisGroup(bus, cell.ordered_axes())
     kernel = can.Bus(interface="virtual", channel=channel)
     try:
         prog = program(cell.ordered_axes(), 1500, fraction=0.3)
 
         def bus_off(n: int) -> None:
-            start = group._start_sync
+            start = group.start_sync
             if start is not None and n == start + 40:
                 kernel.send(error_frame(CAN_ERR_BUSOFF))
 

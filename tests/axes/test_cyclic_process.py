@@ -13,6 +13,7 @@ import pytest
 import yaml
 from axes_programs import axis_program, safe_distance
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.config import BusConfig
 from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.axes.master.bus.cell_bus import CellBus
@@ -62,7 +63,7 @@ def inward(cell: CellConfig, starts: list[int | None], duration_ms: int, back: b
 def test_a_cell_runs_to_its_end_with_sync_from_the_cyclic_process_and_a_stop_halts_it(tmp_path: Path) -> None:
     cell = cyclic_cell("gantry3", tmp_path)  # EPOS2s: their FIFO rides out what the host does to SYNC
     drives = start_simulated_drives(cell, "wall")
-    bus = CellBus(drives.bus, lockstep=False).open()
+    bus = CellBus(drives.bus, clock=Clock.WALL).open()
     group = AxisGroup(bus, cell.ordered_axes())
     try:
         assert bus.sync.cyclic is not None and bus.sync.cyclic.process.is_alive()
@@ -101,7 +102,7 @@ def test_a_cell_runs_to_its_end_with_sync_from_the_cyclic_process_and_a_stop_hal
 def test_the_cyclic_process_quick_stops_every_drive_when_the_master_is_gone(tmp_path: Path) -> None:
     cell = cyclic_cell("gantry3", tmp_path)
     drives = start_simulated_drives(cell, "wall")
-    bus = CellBus(drives.bus, lockstep=False).open()
+    bus = CellBus(drives.bus, clock=Clock.WALL).open()
     group = AxisGroup(bus, cell.ordered_axes())
     try:
         group.refresh()
@@ -140,5 +141,5 @@ def test_the_cyclic_process_quick_stops_every_drive_when_the_master_is_gone(tmp_
 def test_a_bus_only_this_process_reaches_is_refused_for_the_cyclic_process() -> None:
     config = BusConfig(interface="virtual", channel=f"cyc-{time.monotonic_ns()}", cyclic_process=True)
     with pytest.raises(BusError, match=r"bus\.cyclic_process needs an interface another process can open"):
-        CellBus(config, lockstep=False).open()
-    CellBus(config, lockstep=True).open().close()  # lockstep never uses it
+        CellBus(config, clock=Clock.WALL).open()
+    CellBus(config, clock=Clock.LOCKSTEP).open().close()  # lockstep never uses it

@@ -1,5 +1,5 @@
 """A program whose records the bus cannot feed as fast as the drives run them is refused before
-anything moves (axes/master/group/feed_check.py), naming the axis, its records' time and the bus's allowance."""
+anything moves (axes/master/feed_check.py), naming the axis, its records' time and the bus's allowance."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from axes_programs import axis_program, program
 
 from pvtflow.axes.drive.config import BufferConfig
 from pvtflow.axes.drive.program import PvtProgram
-from pvtflow.axes.master.group.feed_check import BufferedAxis, feed_shortfall
+from pvtflow.axes.master.feed_check import BufferedAxis, feed_shortfall
 from pvtflow.axes.master.group.outcome import Result
 
 

@@ -13,6 +13,7 @@ import pytest
 from axes_programs import axis_program, check_limits, program, safe_distance
 from axes_rig import listening_bus
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.cia402 import PowerState, decode_state
 from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.axes.master.group.feeder import BufferFeeder
@@ -242,7 +243,7 @@ def test_real_time_sync_runs_a_program(arm6, make_rig):
     import dataclasses
 
     cell = dataclasses.replace(arm6, bus=dataclasses.replace(arm6.bus, sync_period_ms=2.0, time_stamp=False))
-    rig = make_rig(cell, lockstep=False)
+    rig = make_rig(cell, clock=Clock.WALL)
     from pvtflow.axes.master.group.axis_group import AxisGroup
 
     rig.group.close()
@@ -460,7 +461,7 @@ def test_a_drive_that_answers_sync_late_does_not_starve_the_epos2_beside_it(make
     cell = load_cell_config(CONFIG_DIR / "cells" / "gantry3-mixed.yaml")
     # what is judged is the EPOS2's feed: a SYNC late on this shared host is not this test's failure
     cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, max_sync_gap_periods=20.0))
-    rig = make_rig(cell, lockstep=False)
+    rig = make_rig(cell, clock=Clock.WALL)
     epos2, late = rig.sim.drive(11), rig.sim.drive(13)
     rig.group.refresh()
     moves = []

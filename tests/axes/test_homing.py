@@ -12,6 +12,7 @@ from typing import Any
 
 import pytest
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.config import AxisSimulation, HomingConfig
 from pvtflow.axes.drive.program import PvtProgram
@@ -222,7 +223,7 @@ def test_homing_with_sync_on_the_wall_clock(gantry3: CellConfig) -> None:
     bus_config = dataclasses.replace(cell.bus, channel=f"home-rt-{uuid.uuid4().hex[:8]}")
     cell = dataclasses.replace(cell, bus=bus_config)
     with SimulatedCell(cell, clock="wall") as sim:
-        bus = CellBus(bus_config, lockstep=False).open()
+        bus = CellBus(bus_config, clock=Clock.WALL).open()
         group = AxisGroup(bus, cell.ordered_axes())
         try:
             outcome = CellHoming(group).run([["x"]])

@@ -10,6 +10,7 @@ import can
 import pytest
 from axes_rig import BusObserver, unique_channel
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.master.bus.cell_bus import CellBus
 
@@ -94,7 +95,7 @@ def test_with_sync_on_the_wall_clock_a_stuck_sync_producer_silences_the_master(a
     config = dataclasses.replace(
         arm6.bus, channel=unique_channel("hb"), heartbeat_ms=20, master_heartbeat_ms=10, master_node_id=120
     )
-    bus = CellBus(config, lockstep=False).open()
+    bus = CellBus(config, clock=Clock.WALL).open()
     beats = Beats(config.channel, od.HEARTBEAT_COB_ID_BASE + 120, config.interface)
     heartbeat = bus.master_heartbeat
     try:

@@ -18,6 +18,7 @@ import pytest
 import yaml
 from axes_programs import axis_program, safe_distance
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.config import AxisConfig
 from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.axes.master.bus.cell_bus import CellBus
@@ -106,7 +107,7 @@ def test_a_50_ms_stall_of_the_master_halts_every_axis_and_says_sync_gap(served) 
     # then by itself, and the loopback wire client's queue with it; the 50 ms stall must be what halts
     bus_config = dataclasses.replace(cell.bus, max_sync_gap_periods=5, tx_retry_ms=20.0)
     cell = dataclasses.replace(cell, bus=bus_config)
-    bus = CellBus(cell.bus, lockstep=False).open()
+    bus = CellBus(cell.bus, clock=Clock.WALL).open()
     # two of the three axes: the loopback wire server (Python) carries their frames on a loaded host
     group = AxisGroup(bus, cell.ordered_axes()[:2])
     events = []

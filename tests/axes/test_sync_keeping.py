@@ -22,6 +22,7 @@ import pytest
 from axes_programs import program
 from axes_rig import BusObserver, FlakyBus, unique_channel, with_profiles
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.config import BusConfig
@@ -77,7 +78,7 @@ def test_no_catch_up_burst_after_a_stall_and_the_skipped_periods_are_counted():
     period_ms = 2.0
     bus = CellBus(
         BusConfig(channel=channel, sync_period_ms=period_ms, time_stamp=False, max_sync_gap_periods=100),
-        lockstep=False,
+        clock=Clock.WALL,
     ).open()
     # when each SYNC was handed to the interface (the frame's time stamp, taken in the sending thread):
     # a listener's arrival times would add its own thread's delays, two frames read back to back
@@ -110,7 +111,7 @@ def observed_wall_clock_bus(period_ms: float) -> tuple[CellBus, BusObserver]:
     channel = unique_channel("sync")
     observer = BusObserver(channel)
     config = BusConfig(channel=channel, sync_period_ms=period_ms, time_stamp=False, max_sync_gap_periods=100)
-    return CellBus(config, lockstep=False).open(), observer
+    return CellBus(config, clock=Clock.WALL).open(), observer
 
 
 @pytest.mark.wall
@@ -185,7 +186,7 @@ def test_a_second_sync_thread_on_another_cpu_sends_the_syncs_a_held_first_thread
 @pytest.mark.wall
 def test_a_second_sync_thread_is_pinned_to_a_cpu_the_first_is_not_on():
     channel = unique_channel("sync")
-    bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0, time_stamp=False), lockstep=False).open()
+    bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0, time_stamp=False), clock=Clock.WALL).open()
     try:
         bus.sync.start()
         time.sleep(0.05)
@@ -208,7 +209,7 @@ def test_below_sync_runs_the_caller_just_below_the_bus_threads_and_gives_its_pol
     """The thread that starts and waits on a motion (AxisGroup.run) holds no GIL from SYNC while a
     busy process preempts it: SCHED_FIFO two below SYNC meanwhile, its own policy after."""
     channel = unique_channel("sync")
-    bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0, sync_priority=50), lockstep=False).open()
+    bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0, sync_priority=50), clock=Clock.WALL).open()
     try:
         before = os.sched_getscheduler(0)
         with below_sync(bus.sync):
@@ -229,7 +230,7 @@ def test_below_sync_runs_the_caller_just_below_the_bus_threads_and_gives_its_pol
 def test_a_sync_gap_longer_than_the_drives_ride_out_is_reported_with_the_gap():
     channel = unique_channel("sync")
     bus = CellBus(
-        BusConfig(channel=channel, sync_period_ms=5.0, time_stamp=False, max_sync_gap_periods=4), lockstep=False
+        BusConfig(channel=channel, sync_period_ms=5.0, time_stamp=False, max_sync_gap_periods=4), clock=Clock.WALL
     ).open()
     faults: list[BusFault] = []
     bus.on_fault(faults.append)
@@ -254,7 +255,7 @@ def test_the_interface_s_own_cyclic_sync_is_followed_by_the_time_stamp():
     observer = BusObserver(channel)
     bus = CellBus(
         BusConfig(interface="pvtflow_test_kernel", channel=channel, sync_period_ms=5.0, time_stamp=True),
-        lockstep=False,
+        clock=Clock.WALL,
     ).open()
     try:
         bus.sync.start()
@@ -281,7 +282,7 @@ def kernel_timed_bus(period_ms: float, max_sync_gap_periods: float) -> CellBus:
         time_stamp=False,
         max_sync_gap_periods=max_sync_gap_periods,
     )
-    return CellBus(config, lockstep=False).open()
+    return CellBus(config, clock=Clock.WALL).open()
 
 
 @pytest.mark.wall
@@ -368,7 +369,7 @@ def test_a_sync_heard_after_the_setpoint_sent_after_it_takes_no_second_setpoint(
 @pytest.mark.wall
 def test_a_virtual_bus_has_no_cyclic_send_of_its_own_so_the_sync_thread_sends():
     channel = unique_channel("sync")
-    bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0), lockstep=False).open()
+    bus = CellBus(BusConfig(channel=channel, sync_period_ms=5.0), clock=Clock.WALL).open()
     try:
         bus.sync.start()
         time.sleep(0.05)
@@ -385,7 +386,7 @@ def test_a_virtual_bus_has_no_cyclic_send_of_its_own_so_the_sync_thread_sends():
 def test_error_frames_bus_state_and_the_can_emcys_are_reported_as_what_they_are():
     channel = unique_channel("flaky")
     other = can.Bus(interface="virtual", channel=channel)
-    bus = CellBus(BusConfig(interface="pvtflow_test_flaky", channel=channel), lockstep=True).open()
+    bus = CellBus(BusConfig(interface="pvtflow_test_flaky", channel=channel), clock=Clock.LOCKSTEP).open()
     faults: list[BusFault] = []
     bus.on_fault(faults.append)
     bus.add_node(3)
@@ -479,7 +480,9 @@ def scheduler(thread: threading.Thread) -> tuple[int, int]:
 @pytest.mark.parametrize("lift_bus_threads", [True, False], ids=["lifted", "left"])
 def test_the_bus_threads_run_just_below_sync_when_sync_has_sched_fifo(lift_bus_threads):
     """Priority inversion through the GIL: a bus thread preempted while holding the GIL holds SYNC."""
-    bus = CellBus(BusConfig(channel=unique_channel("rt"), sync_period_ms=2.0, sync_priority=30), lockstep=False).open()
+    bus = CellBus(
+        BusConfig(channel=unique_channel("rt"), sync_period_ms=2.0, sync_priority=30), clock=Clock.WALL
+    ).open()
     bus.sync.lift_bus_threads = lift_bus_threads
     try:
         threads = bus.threads()
@@ -510,15 +513,15 @@ def test_lift_leaves_a_thread_that_has_ended_alone():
 # --- halts without SYNC on a simulated cell -------------------------------------------------------
 
 
-def sim_rig(cell, *, lockstep: bool, interface: str = "virtual", clock: str = "lockstep", **bus_changes):
+def sim_rig(cell, *, clock: Clock, interface: str = "virtual", drive_clock: Clock = Clock.LOCKSTEP, **bus_changes):
     channel = unique_channel()
     cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, channel=channel))
     cell = sharing_the_interpreter(cell)  # the drives run here
     bus_config = dataclasses.replace(cell.bus, **bus_changes)
     cell = dataclasses.replace(cell, bus=bus_config)
-    sim = SimulatedCell(cell, channel=channel, interface="virtual", clock=clock).start()
+    sim = SimulatedCell(cell, channel=channel, interface="virtual", clock=drive_clock).start()
     master = dataclasses.replace(bus_config, interface=interface)
-    bus = CellBus(master, lockstep=lockstep).open()
+    bus = CellBus(master, clock=clock).open()
     group = AxisGroup(bus, cell.axes if len(cell.axes) < len(cell.joint_names) else cell.ordered_axes())
     return cell, sim, bus, group
 
@@ -549,13 +552,13 @@ def assert_quick_stopped(group: AxisGroup, sim: SimulatedCell, result, kind: Res
 @pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "wall_clock"])
 def test_a_dead_sync_thread_quick_stops_every_axis_by_sdo(arm6, lockstep):
     cell = fixed_period_cell(arm6, 5)
-    cell, sim, bus, group = sim_rig(cell, lockstep=lockstep, max_sync_gap_periods=50)
+    cell, sim, bus, group = sim_rig(cell, clock=Clock.of(lockstep), max_sync_gap_periods=50)
     try:
         prog = program(cell.ordered_axes(), 1500, fraction=0.3)
         killed = threading.Event()
 
         def die(n: int) -> None:
-            start = group._start_sync
+            start = group.start_sync
             if start is not None and n >= start + 60 and not killed.is_set():
                 killed.set()
                 raise RuntimeError("injected: the SYNC thread dies")
@@ -587,14 +590,18 @@ def test_a_dead_sync_thread_quick_stops_every_axis_by_sdo(arm6, lockstep):
 def test_a_transmit_queue_that_stays_full_is_retried_then_halts_and_is_reported(arm6, lockstep):
     cell = fixed_period_cell(arm6, 5)
     cell, sim, bus, group = sim_rig(
-        cell, lockstep=lockstep, interface="pvtflow_test_flaky", max_sync_gap_periods=50, quick_stop_confirm_ms=50.0
+        cell,
+        clock=Clock.of(lockstep),
+        interface="pvtflow_test_flaky",
+        max_sync_gap_periods=50,
+        quick_stop_confirm_ms=50.0,
     )
     try:
         prog = program(cell.ordered_axes(), 1500, fraction=0.3)
         failed = threading.Event()
 
         def fill_queue(n: int) -> None:
-            start = group._start_sync
+            start = group.start_sync
             if start is not None and n >= start + 60 and not failed.is_set():
                 failed.set()
                 FlakyBus.fail(bus.config.channel, 0.01)  # 10 ms: past the 2 ms of retries
@@ -617,7 +624,7 @@ def test_a_transmit_queue_full_just_before_the_start_sync_delays_the_start_words
     it delays the preload, instead of ending the start in an error (seen with the drives in their
     own process: ``0x30D not sent within 2.0 ms``)."""
     cell = fixed_period_cell(arm6, 5)
-    cell, sim, bus, group = sim_rig(cell, lockstep=True, interface="pvtflow_test_flaky", max_sync_gap_periods=50)
+    cell, sim, bus, group = sim_rig(cell, clock=Clock.LOCKSTEP, interface="pvtflow_test_flaky", max_sync_gap_periods=50)
     try:
         prog = program(cell.ordered_axes(), 300, fraction=0.3)
         tries = bus.network.tx_retries
@@ -643,7 +650,7 @@ def test_a_start_word_that_cannot_be_sent_quick_stops_the_drives_that_got_theirs
     start alone at the next SYNC, whoever sends it. Every axis is quick stopped by SDO instead (or
     NMT stopped), the run ends as a bus error, and no drive starts on a later SYNC."""
     cell = fixed_period_cell(arm6, 5)
-    cell, sim, bus, group = sim_rig(cell, lockstep=True, interface="pvtflow_test_flaky", max_sync_gap_periods=50)
+    cell, sim, bus, group = sim_rig(cell, clock=Clock.LOCKSTEP, interface="pvtflow_test_flaky", max_sync_gap_periods=50)
     try:
         prog = program(cell.ordered_axes(), 300, fraction=0.3)
         fourth = group.links[3]
@@ -673,7 +680,7 @@ def test_a_start_word_that_cannot_be_sent_quick_stops_the_drives_that_got_theirs
 @pytest.mark.wall
 def test_a_sync_gap_beyond_the_limit_halts_the_motion_on_the_wall_clock(arm6):
     cell = fixed_period_cell(arm6, 10)
-    cell, sim, bus, group = sim_rig(cell, lockstep=False, max_sync_gap_periods=5)
+    cell, sim, bus, group = sim_rig(cell, clock=Clock.WALL, max_sync_gap_periods=5)
     events = []
     group.on_event = events.append
     try:
@@ -710,7 +717,7 @@ class FollowerHold:
             self._on_bus.notify_all()
 
     def _hold(self) -> None:  # in the follower's thread, woken by a SYNC, before it follows it
-        start = self.group._start_sync
+        start = self.group.start_sync
         if start is None or self.bus.sync.count < start + self.after or self.max_gap_s is not None:
             return
         self.max_gap_s = self.bus.sync.max_gap_s
@@ -744,7 +751,7 @@ def test_a_follower_held_mid_motion_costs_a_period_or_halts_with_no_setpoint(arm
     cell = fixed_period_cell(arm6, 10)
     cell = dataclasses.replace(cell, axes=cell.ordered_axes()[:2])  # the others' drives are not on the bus
     cell, sim, bus, group = sim_rig(
-        cell, lockstep=False, interface="pvtflow_test_kernel", clock="wall", max_sync_gap_periods=2
+        cell, clock=Clock.WALL, interface="pvtflow_test_kernel", drive_clock=Clock.WALL, max_sync_gap_periods=2
     )
     events = []
     group.on_event = events.append
@@ -775,7 +782,7 @@ def test_a_follower_held_past_the_reserve_of_buffered_drives_costs_only_time_sta
     own buffer underflow (``AxisGroup._check_drives``)."""
     cell = dataclasses.replace(arm6, bus=dataclasses.replace(arm6.bus, sync_period_ms=10.0))
     cell = dataclasses.replace(cell, axes=cell.ordered_axes()[:2])  # the others' drives are not on the bus
-    cell, sim, bus, group = sim_rig(cell, lockstep=False, interface="pvtflow_test_kernel", clock="wall")
+    cell, sim, bus, group = sim_rig(cell, clock=Clock.WALL, interface="pvtflow_test_kernel", drive_clock=Clock.WALL)
     events = []
     group.on_event = events.append
     hold = FollowerHold(bus, group, 6)
@@ -796,13 +803,13 @@ def test_a_follower_held_past_the_reserve_of_buffered_drives_costs_only_time_sta
 
 def test_an_nmt_stop_brakes_a_simulated_drive_as_its_abort_connection_option_says(arm6):
     cell = fixed_period_cell(arm6, 5)
-    cell, sim, bus, group = sim_rig(cell, lockstep=True)
+    cell, sim, bus, group = sim_rig(cell, clock=Clock.LOCKSTEP)
     try:
         prog = program(cell.ordered_axes(), 1500, fraction=0.3)
         drive = next(iter(sim))
 
         def nmt_stop(n: int) -> None:
-            start = group._start_sync
+            start = group.start_sync
             if start is not None and n == start + 60:
                 bus.nmt(drive.node_id, 0x02)
 
@@ -816,7 +823,9 @@ def test_an_nmt_stop_brakes_a_simulated_drive_as_its_abort_connection_option_say
 
 
 def test_quick_stop_requests_a_full_queue_refused_are_sent_when_it_drains_and_the_collector_waits(arm6):
-    _, sim, bus, group = sim_rig(arm6, lockstep=True, interface="pvtflow_test_flaky", quick_stop_confirm_ms=200.0)
+    _, sim, bus, group = sim_rig(
+        arm6, clock=Clock.LOCKSTEP, interface="pvtflow_test_flaky", quick_stop_confirm_ms=200.0
+    )
     nodes = [d.node_id for d in sim]
     enabled = gc.isenabled()
     try:

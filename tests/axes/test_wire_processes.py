@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 from axes_programs import check_limits, program
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.group.axis_group import AxisGroup, Result
 from pvtflow.service.config import CellConfig, load_cell_config
@@ -71,7 +72,7 @@ def clock(served: Served, request: pytest.FixtureRequest) -> str:
 
 def test_a_move_finishes_and_the_next_is_stopped_with_the_drives_in_another_process(served: Served, clock: str) -> None:
     cell = served.cell
-    bus = CellBus(cell.bus, lockstep=clock == "lockstep").open()
+    bus = CellBus(cell.bus, clock=Clock(clock)).open()
     # two of the six axes move: the wire's loopback server carries a few thousand frames/s (Python),
     # what six axes at full rate on the wall clock need; in lockstep all six
     axes = cell.ordered_axes() if clock == "lockstep" else cell.ordered_axes()[:2]

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.service.cli import main
 from pvtflow.service.config import CONFIG_DIR, ConfigError, load_cell_config
@@ -109,7 +110,7 @@ def test_serve_refuses_a_maxon_epos2_set_up_wrong_with_nothing_left_running(tmp_
     that is not what the cell says is one BusError naming it, and the bus and drives are closed."""
     cell = load_cell_config(maxon_gantry(tmp_path, "velocity_notation_index: -1"))
     cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, channel=f"maxon-{uuid.uuid4().hex[:8]}"))
-    service = MotionService(cell, journal_dir=tmp_path / "journal", lockstep=True)
+    service = MotionService(cell, journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP)
     with pytest.raises(BusError) as refused:
         service.open()
     message = str(refused.value)

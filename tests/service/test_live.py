@@ -15,6 +15,7 @@ import pytest
 from axes_programs import program
 from websockets.sync.client import connect
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.service.api import ExecuteRequest
 from pvtflow.service.live import LiveServer
 from pvtflow.service.motion import MotionService
@@ -87,7 +88,7 @@ def test_a_websocket_client_subscribes_and_receives_a_motions_messages(arm6, tmp
     assert live.url.startswith("ws://127.0.0.1:")
     client = Client(live.url)
     try:
-        with MotionService(cell, journal_dir=tmp_path / "journal", lockstep=True, live=live) as svc:
+        with MotionService(cell, journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP, live=live) as svc:
             assert wait_for(lambda: client.server_info is not None)
             # the first motion advertises the channels; the client subscribes to them as they come
             svc.execute(ExecuteRequest(program=first.to_json(), wait=True))
@@ -143,7 +144,7 @@ def test_a_viewer_opened_between_motions_sees_the_robot_at_rest(arm6, tmp_path):
     client = None
     topics = ("/robot_description", "/joint_states", "/tf", "/axis/joint_1/actual")
     try:
-        with MotionService(cell, journal_dir=tmp_path / "journal", lockstep=True, live=live) as svc:
+        with MotionService(cell, journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP, live=live) as svc:
             client = Client(live.url)  # no motion ran, none runs
             assert wait_for(lambda: all(len(client.received.get(t, [])) >= 2 for t in topics))
             counts = svc.positions_qc()

@@ -19,6 +19,7 @@ import pytest
 from axes_programs import program
 from mcap.reader import make_reader
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.service.api import ExecuteRequest
 from pvtflow.service.cli import main
@@ -170,7 +171,9 @@ def test_the_service_records_one_file_per_motion_named_in_its_journal(tmp_path, 
     prog = program(cell.ordered_axes(), 200, spacing_ms=10, cell="arm6")
     ends = [int(a.records[-1, 0]) for a in prog.axes]
     back = program(cell.ordered_axes(), 200, spacing_ms=10, cell="arm6", starts=ends, sign=-1)
-    with MotionService(cell, journal_dir=tmp_path / "journal", lockstep=True, record_dir=tmp_path / "rec") as svc:
+    with MotionService(
+        cell, journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP, record_dir=tmp_path / "rec"
+    ) as svc:
         ids = []
         for p in (prog, back):
             reply = svc.execute(ExecuteRequest(program=p.to_json(), wait=True))
@@ -192,7 +195,9 @@ def test_the_service_records_one_file_per_motion_named_in_its_journal(tmp_path, 
 def test_a_fault_is_recorded_and_reported(tmp_path, arm6, capsys):
     cell = dataclasses.replace(arm6, bus=dataclasses.replace(arm6.bus, channel=f"rec-{uuid.uuid4().hex[:10]}"))
     prog = program(cell.ordered_axes(), 2000, spacing_ms=10, cell="arm6")
-    with MotionService(cell, journal_dir=tmp_path / "journal", lockstep=True, record_dir=tmp_path / "rec") as svc:
+    with MotionService(
+        cell, journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP, record_dir=tmp_path / "rec"
+    ) as svc:
         reply = svc.execute(ExecuteRequest(program=prog.to_json()))
         deadline = time.monotonic() + 20.0
         while (svc.group.elapsed_syncs() or 0) < 40 and time.monotonic() < deadline:
@@ -220,7 +225,9 @@ def test_the_service_records_a_homing_named_in_its_journal(tmp_path):
 
     gantry = load_cell_config(CONFIG_DIR / "cells" / "gantry3.yaml")
     cell = dataclasses.replace(gantry, bus=dataclasses.replace(gantry.bus, channel=f"rec-{uuid.uuid4().hex[:10]}"))
-    with MotionService(cell, journal_dir=tmp_path / "journal", lockstep=True, record_dir=tmp_path / "rec") as svc:
+    with MotionService(
+        cell, journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP, record_dir=tmp_path / "rec"
+    ) as svc:
         reply = svc.home(HomeRequest(wait=True))
         entry = svc.journal.homing(reply["homing_id"])
     assert reply["outcome"]["result"] == "homed"
@@ -240,7 +247,9 @@ def test_following_error_is_taken_at_the_sync_a_status_belongs_to(tmp_path, arm6
     bus = dataclasses.replace(arm6.bus, channel=f"rec-{uuid.uuid4().hex[:10]}", status_every_syncs=every)
     cell = dataclasses.replace(arm6, bus=bus)
     prog = program(cell.ordered_axes(), 300, spacing_ms=10, cell="arm6")
-    with MotionService(cell, journal_dir=tmp_path / "journal", lockstep=True, record_dir=tmp_path / "rec") as svc:
+    with MotionService(
+        cell, journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP, record_dir=tmp_path / "rec"
+    ) as svc:
         reply = svc.execute(ExecuteRequest(program=prog.to_json(), wait=True))
         entry = svc.journal_entry(reply["motion_id"])
     assert reply["outcome"]["result"] == "finished"

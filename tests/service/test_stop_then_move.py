@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 from svc_helpers import CONFIGS, on_own_channel, wait_until
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.sim.profiles.epos2 import Epos2Drive
 from pvtflow.service.api import parse_execute, parse_home, parse_plan, parse_recover, parse_stop
 from pvtflow.service.config import CellConfig, load_cell_config
@@ -62,7 +63,7 @@ def service(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[MotionSe
         # clock: their heartbeats and the master's wait 10 periods, as the shipped cells did while
         # their drives ran in the master's interpreter (the commands run them in a process of their own)
         cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, heartbeat_timeout_factor=10))
-    svc = MotionService(cell, journal_dir=tmp_path / "journal", lockstep=lockstep).open()
+    svc = MotionService(cell, journal_dir=tmp_path / "journal", clock=Clock.of(lockstep)).open()
     try:
         if svc.cell.requires_homing:  # incremental encoders: nothing moves before the cell has homed
             assert svc.home(parse_home({"wait": True}))["outcome"]["result"] == "homed"

@@ -19,6 +19,7 @@ import can
 import canopen
 from canopen.objectdictionary import ObjectDictionary
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.threads import hand_the_gil_on_often
 from pvtflow.axes.drive.config import BusConfig, wire_options
 from pvtflow.axes.drive.objects import time_stamp_cob_id
@@ -45,7 +46,7 @@ class CellBus:
         self,
         config: BusConfig,
         *,
-        lockstep: bool = True,
+        clock: Clock = Clock.LOCKSTEP,
         can_log: str | Path | None = None,
         lost_sync_timeout_s: float = 1.0,
         time_stamp: bool | None = None,
@@ -61,7 +62,7 @@ class CellBus:
             self.network,
             self.report,
             config.sync_period_ms,
-            lockstep,
+            clock,
             time_stamp_cob_id(config.master_node_id) if stamp else None,
             priority=config.sync_priority,
             max_gap_periods=gap,
@@ -79,7 +80,7 @@ class CellBus:
     def open(self) -> CellBus:
         hand_the_gil_on_often()
         kwargs: dict[str, object] = {"interface": self.config.interface, "channel": self.config.channel}
-        kwargs.update(wire_options(self.config, lockstep=self.sync.lockstep))
+        kwargs.update(wire_options(self.config, clock=self.sync.clock))
         try:
             bus = can.Bus(**kwargs)
         except (can.CanError, OSError, ValueError, ImportError) as exc:
@@ -87,7 +88,7 @@ class CellBus:
             raise BusError(f"cannot open CAN bus {where}: {exc}") from None
         self.network.bus = bus
         self.network.notifier = can.Notifier(bus, [*self.network.listeners, self.recorder, self.watch.errors], 0.1)
-        if self.config.cyclic_process and not self.sync.lockstep:
+        if self.config.cyclic_process and self.sync.clock is Clock.WALL:
             from pvtflow.axes.master.cyclic.process import CyclicProcess  # a child process: only where asked for
 
             try:

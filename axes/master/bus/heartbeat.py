@@ -118,7 +118,7 @@ class MasterHeartbeat:
         if heard and silent > self.stall_s:
             return f"the receive thread has dispatched no frame for {silent:.3f} s"
         sync = self.sync
-        if sync.lockstep or not sync.running:
+        if sync.clock.lockstep or not sync.running:
             self._sync_count = -1
             return None
         count = sync.count  # read without the lock: a held lock is what this looks for

@@ -1,6 +1,6 @@
 """SYNC: the master's production of it and its count of the drives' answers.
 
-SYNC has two modes (``CellBus(lockstep=...)``):
+SYNC has two modes (``CellBus(clock=Clock.LOCKSTEP | Clock.WALL)``, ``axes.canbus.clock``):
 
 - real time: SYNC every ``sync_period_ms`` of wall-clock time, followed by the 0x1013 time stamp and
   the frames that must follow every SYNC (a fixed-period drive's setpoints: ``add_sender``), so a
@@ -59,6 +59,7 @@ from typing import TYPE_CHECKING, Protocol
 import can
 
 from pvtflow.axes.canbus import collector
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive.objects import SYNC_COB_ID
 from pvtflow.axes.master.bus.faults import BusFault, FaultCallback, FaultKind
@@ -163,16 +164,16 @@ class below_sync:  # noqa: N801  (a context manager, used as ``with below_sync(c
     A thread started meanwhile inherits the policy (Linux: the group's SDO pool threads, when a start
     is the first to use them), and keeps it: they serve the bus."""
 
-    def __init__(self, clock: SyncClock) -> None:
-        self.clock = clock
+    def __init__(self, sync: SyncClock) -> None:
+        self.sync = sync
         self._before: tuple[int, os.sched_param] | None = None
 
     def __enter__(self) -> below_sync:
-        priority = self.clock.priority - 2
-        clock = self.clock
+        sync = self.sync
+        priority = sync.priority - 2
         # realtime None: not known yet, asked (refused: no harm). Lockstep has no SYNC thread to keep;
         # where the bus's threads stay at normal priority (the drives in this interpreter), so does it
-        if clock.lockstep or not clock.lift_bus_threads or clock.realtime is False or priority <= 0:
+        if sync.clock.lockstep or not sync.lift_bus_threads or sync.realtime is False or priority <= 0:
             return self
         try:
             before = (os.sched_getscheduler(0), os.sched_getparam(0))
@@ -207,7 +208,7 @@ class SyncClock:
         network: LoggingNetwork,
         report: FaultCallback,
         period_ms: float,
-        lockstep: bool,
+        clock: Clock,
         time_stamp_cob_id: int | None = None,
         priority: int = 0,
         max_gap_periods: float = DEFAULT_MAX_GAP_PERIODS,
@@ -218,7 +219,7 @@ class SyncClock:
         self.report = report
         self.bus_threads = threads  # the bus's other threads, lifted below SYNC (``CellBus.threads``)
         self.period_ms = period_ms
-        self.lockstep = lockstep
+        self.clock = clock
         self.time_stamp_cob_id = time_stamp_cob_id
         self.priority = priority
         self.bus_max_gap_s = max_gap_periods * period_ms / 1000.0  # the bus's own (BusConfig.max_sync_gap_periods)
@@ -313,7 +314,7 @@ class SyncClock:
         with self.lock:
             n = self._answers.get(can_id)
             every = self._every.get(can_id, 1)
-            if n is None or (self.lockstep and every == 1 and n >= self.count):
+            if n is None or (self.clock.lockstep and every == 1 and n >= self.count):
                 return  # an answer without a SYNC (or a duplicate): nothing to count
             # an answer of type n stands for the last SYNC sent and the n - 1 after it
             self._answers[can_id] = n + 1 if every == 1 else max(n, self.count + every - 1)
@@ -340,7 +341,7 @@ class SyncClock:
                 self.last_progress = time.monotonic()
                 for cb in list(self._listeners):
                     cb(done)
-                if not (self.lockstep and self._running and self.answered == self.count):
+                if not (self.clock.lockstep and self._running and self.answered == self.count):
                     return None
                 self.transmit()
         except (can.CanError, OSError) as exc:
@@ -408,11 +409,19 @@ class SyncClock:
         """SYNC and what follows it come from the cyclic process (the master's feeders only mirror it)."""
         return self.cyclic is not None and self.cyclic.producing
 
-    def start(self, max_gap_s: float | None = None) -> None:
+    def progressed(self) -> None:
+        """The drives' answers count as progress from now (``BusWatch`` arms its watch on it)."""
+        self.last_progress = time.monotonic()
+
+    def start(self, max_gap_s: float | None = None, *, setpoints_per_sync: bool | None = None) -> None:
         """Send the first SYNC now and keep producing (lockstep: on answers; real time: periodic).
         ``max_gap_s``: the gap this production reports (a run's profiles ride out less than the bus's
-        default, ``Profile.max_sync_gap_ms``); None: the bus's own (homing, a run on a bus that sets one)."""
+        default, ``Profile.max_sync_gap_ms``); None: the bus's own (homing, a run on a bus that sets one).
+        ``setpoints_per_sync``: whether some drive of this production takes a setpoint per SYNC (None: as
+        the last production said)."""
         with self.lock:
+            if setpoints_per_sync is not None:
+                self.setpoints_per_sync = setpoints_per_sync
             self.max_gap_s = self.bus_max_gap_s if max_gap_s is None else max_gap_s
             if self._running:
                 return
@@ -420,7 +429,7 @@ class SyncClock:
             self.sent_at = None
             self.follower.reset()
             self.last_progress = time.monotonic()
-            if self.lockstep:
+            if self.clock.lockstep:
                 try:
                     self.transmit()
                 except (can.CanError, OSError):
@@ -572,7 +581,7 @@ class SyncClock:
     def keep_period(self) -> None:
         """Real time: wait until one period after the last SYNC sent, so that the next one (``start``)
         keeps the cell's SYNC period after a SYNC sent by hand. Lockstep: nothing to wait for."""
-        if not self.lockstep:
+        if not self.clock.lockstep:
             delay = self.last_sent + self.period_ms / 1000.0 - time.monotonic()
             if delay > 0:
                 time.sleep(delay)

@@ -152,8 +152,12 @@ class BusWatch:
 
     def arm_sync_watch(self) -> None:
         self._sync_reported = False
-        self.sync.last_progress = time.monotonic()
+        self.sync.progressed()
         self.watch_sync = True
+
+    def disarm_sync_watch(self) -> None:
+        """SYNC stops on purpose (a run or a homing ended): its silence is no fault."""
+        self.watch_sync = False
 
     def _watch_wire(self, now: float) -> None:
         """Error frames (counted as they come, reported at most every ERROR_FRAME_REPORT_S) and the

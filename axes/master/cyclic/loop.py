@@ -245,8 +245,9 @@ class CyclicLoop:
                     feeder = BufferFeeder(
                         f.records, f.packer, self.offer, spec.period_ms, f.buffer, f.capacity, self.allowance
                     )
-                feeder.next = f.next
-                feeder.enabled = f.enabled
+                feeder.resume_at(f.next)
+                if not f.enabled:
+                    feeder.disable()
                 self.feeders.append(feeder)
                 self.braking.append(f.braking)
             # a SYNC, one setpoint per fixed-period axis, the time stamp
@@ -273,7 +274,7 @@ class CyclicLoop:
                     last, previous = feeder.last_commanded()
                     feeder.decelerate(braking_records(last, previous, feeder.period_ms, *braking, quick))
                 else:
-                    feeder.enabled = False
+                    feeder.disable()
 
     def stop(self) -> None:
         with self.lock:

@@ -31,6 +31,7 @@ import threading
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive.config import wire_options
 from pvtflow.axes.drive.objects import SYNC_COB_ID
@@ -98,7 +99,7 @@ class CyclicProcess:
         self.progress = context.RawArray("q", 2 + MAX_FEEDS)
         self._conn, child = context.Pipe()
         kwargs: dict[str, object] = {"interface": config.interface, "channel": config.channel}
-        kwargs.update(wire_options(config, lockstep=False))
+        kwargs.update(wire_options(config, clock=Clock.WALL))
         kwargs["receive_own_messages"] = True
         self.process = context.Process(
             target=serve_cyclic,
@@ -203,7 +204,7 @@ class CyclicProcess:
         clock = self.sync
         self._feeders = list(feeders)
         for feeder in self._feeders:  # from the start SYNC on, the child sends; these only mirror it
-            feeder.mirrored = True
+            feeder.hand_over()
         self._spec = CycleSpec(
             run=self._runs,
             period_ms=clock.period_ms,
@@ -239,10 +240,7 @@ class CyclicProcess:
         """The master's feeders where the child's stand (records sent)."""
         progress = self.progress
         for i, feeder in enumerate(self._feeders):
-            sent = progress[PROGRESS_FEEDERS + i]
-            if sent > feeder.next:
-                feeder.next = sent
-                feeder.stats.sent = sent
+            feeder.sent_elsewhere(int(progress[PROGRESS_FEEDERS + i]))
 
     @property
     def syncs_sent(self) -> int:

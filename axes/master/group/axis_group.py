@@ -9,54 +9,56 @@ axes halt on the same SYNC, within one period of the event; a drive without a ra
 (``axes.drive.stop_ramp``), and the run ends once they are run and every axis is at rest. The outcome
 is one ``RunResult`` with a ``Result`` enum (ruckig style) that names the axis and the reason.
 
-``AxisGroup`` is one object with one lock and one run's state; its parts are written by concept
-and mixed into it: configuration and recovery (``axes.master.group.configure``), the start
-(``axes.master.group.start``), halting (``axes.master.group.halt``), results and status (``axes.master.group.status``);
-this module keeps the run itself: the SYNC events that feed the drives and watch them, the bus's
-fault reports, the end. What a run reports lives in ``axes.master.group.outcome``; the cleanup after a run that
-readies every axis for the next start, in ``axes.master.group.readiness``; what a run shares with a homing of the
-cell (the links, homed since boot, one activity at a time), in ``axes.master.group.run_state``; homing a cell, in
-``axes.master.homing``.
+``AxisGroup`` holds the cell's lasting parts, each owning its state: the links and profiles, the
+configuration and program check (``CellSetup``, axes.master.group.configure), the start's checks and
+preload (``StartChecks``, axes.master.group.start), the reports (``GroupReports``, axes.master.group.status),
+the cleanup that readies every axis for the next start (``Readiness``), what a run shares with a homing
+of the cell (``CellRunState``, axes.master.group.run_state: the links, homed since boot, one activity
+at a time, the cell's lock). Every start makes a ``Run`` (axes.master.group.run) that owns that start's
+feeders, SYNC numbers and SYNC-time work, and its ``Halting`` (axes.master.group.halt); homing a cell
+is ``axes.master.homing``.
 """
 
 from __future__ import annotations
 
-import contextlib
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import can
 
-from pvtflow.axes.drive.cia402 import Statusword, decode_state
 from pvtflow.axes.drive.config import AxisConfig, Wiring
-from pvtflow.axes.drive.objects import BUFFER_ERRORS
+from pvtflow.axes.drive.objects import NmtCommand
 from pvtflow.axes.drive.program import AxisProgram, PvtProgram
 from pvtflow.axes.master.budget import bus_budget
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.bus.faults import BusFault, FaultKind
 from pvtflow.axes.master.bus.quick_stop import QuickStop
 from pvtflow.axes.master.bus.sync import below_sync
-from pvtflow.axes.master.group.configure import Configured, GroupConfiguration
-from pvtflow.axes.master.group.feeder import BufferFeeder, Feeder, RecordAllowance, top_up_by_need
-from pvtflow.axes.master.group.halt import GroupHalt
-from pvtflow.axes.master.group.outcome import Event, EventCallback, EventKind, ProgressCallback, Result, RunResult
+from pvtflow.axes.master.group.configure import CellSetup, Configured
+from pvtflow.axes.master.group.feeder import BufferFeeder, Feeder, RecordAllowance
+from pvtflow.axes.master.group.outcome import (
+    Event,
+    EventCallback,
+    EventKind,
+    GroupError,
+    GroupStatus,
+    ProgressCallback,
+    Result,
+    RunResult,
+)
 from pvtflow.axes.master.group.readiness import Readiness
-from pvtflow.axes.master.group.run_state import CellRunState
-from pvtflow.axes.master.group.start import GroupStart
-from pvtflow.axes.master.group.status import GroupReports
-from pvtflow.axes.master.link import AxisLink
+from pvtflow.axes.master.group.run import Run
+from pvtflow.axes.master.group.run_state import CellRunState, RunParts
+from pvtflow.axes.master.group.start import PRELOAD_PATIENCE_S, StartChecks
+from pvtflow.axes.master.group.status import GroupReports, RunView
+from pvtflow.axes.master.link import AxisLink, DriveError
 from pvtflow.axes.master.profiles import profile_for
 from pvtflow.axes.master.profiles.base import Profile
 
-_IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
-_FAULT_BITS = int(Statusword.FAULT)  # set in FAULT and FAULT REACTION ACTIVE
-_BUFFER_ERRORS = int(BUFFER_ERRORS)
-START_CHECK_SYNCS = 2  # SYNCs after the start SYNC by which every axis must report ip mode active
 
-
-class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
+class AxisGroup:
     """All axes of one cell on one bus.
 
     ``AxisGroup(bus, axes, on_progress=..., on_event=..., progress_every=10)``: ``bus`` is an open
@@ -89,25 +91,14 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         self.bus = bus
         self.links = [AxisLink(bus, a) for a in axes]
         self.profiles: list[Profile] = [profile_for(link) for link in self.links]
-        self.on_progress = on_progress
         self.on_event = on_event
+        self.on_progress = on_progress
         self.progress_every = max(1, progress_every)
-        self.start_tolerance_qc = start_tolerance_qc
         self.halt_timeout_ms = halt_timeout_ms
-        self.configuration = Configured()
         self.last_result: RunResult | None = None
         self._done = threading.Event()
         self._done.set()
-        self._feeders: list[Feeder] = []
-        self._programs: list[AxisProgram] = []
-        self._start_sync: int | None = None
-        self._start_sent: float | None = None  # time.monotonic() once the start SYNC was out (wall clock)
-        self._ip_start: list[int | None] = []
-        self._ending: RunResult | None = None  # set once the run is halting / ending
-        self._halt_deadline: int | None = None
-        self._end_words_sent = [False] * len(self.links)
-        self._running = False
-        self._halted_at: float | None = None
+        self._run: Run | None = None  # the present run, or the last
         self._starting = False
         self._stop_request: str | None = None
         self._pool = ThreadPoolExecutor(max_workers=max(1, len(self.links)), thread_name_prefix="axis-sdo")
@@ -115,20 +106,112 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         self.readiness = Readiness(self.links, self.profiles, self._pool, lambda: self._bus_faults)
         self.state = CellRunState(bus, self.links, self.readiness)  # shared with the cell's homing
         self._lock = self.state.lock
-        self.last_quick_stop: QuickStop | None = None  # the last halt that did not wait for SYNC
         # the records the bus has room for in one SYNC period, shared by the buffered axes; never less
         # than one per buffered axis (a cell file whose bus has no room for that is refused at load)
         budget = bus_budget(Wiring(bus.config, tuple(axes)))
         self.allowance = RecordAllowance(budget.record_allowance)
+        self.setup = CellSetup(bus, self.links, self.profiles, self.readiness, self.allowance)
+        self.checks = StartChecks(
+            bus, self.links, self.profiles, self._pool, self.allowance, self.setup.configuration, start_tolerance_qc
+        )
+        self.reports = GroupReports(bus, self.links, lambda: self.state.homed)
+        self._parts = RunParts(
+            bus=bus,
+            links=self.links,
+            profiles=self.profiles,
+            allowance=self.allowance,
+            reports=self.reports,
+            readiness=self.readiness,
+            configuration=self.setup.configuration,
+            lock=self._lock,
+            event=self._event,
+            progress=self._progress,
+            halt_timeout_ms=halt_timeout_ms,
+        )
         for link in self.links:
             link.status_listeners.append(self._on_status)
-        self._status_lag = max((p.sync_answer_every for p in self.profiles), default=1) - 1
         bus.on_fault(self._on_bus_fault)
         bus.sync.add_sender(self._after_sync)  # the fixed-period setpoints; the start SYNC's time
 
     def _event(self, kind: EventKind, message: str, link: AxisLink | None = None) -> None:
         if self.on_event is not None:
             self.on_event(Event(kind, message, link.joint if link else None, link.node_id if link else None))
+
+    def _progress(self, n: int, run: RunView) -> None:
+        if self.on_progress is not None and n % self.progress_every == 0:
+            self.on_progress(self.reports.progress(run, n))
+
+    # --- what the group is and holds ------------------------------------------------------------------
+    @property
+    def configuration(self) -> Configured:
+        return self.setup.configuration
+
+    @property
+    def configured(self) -> bool:
+        return self.setup.configured
+
+    def configure(self) -> None:
+        self.setup.configure()
+
+    def configure_if_needed(self) -> None:
+        self.setup.configure_if_needed()
+
+    def check_program(self, program: PvtProgram) -> str | None:
+        """Why this program cannot run on this cell (None: it can)."""
+        return self.setup.check_program(program)
+
+    @property
+    def start_tolerance_qc(self) -> int:
+        return self.checks.tolerance_qc
+
+    @property
+    def running(self) -> bool:
+        return self._run is not None and self._run.live
+
+    @property
+    def feeders(self) -> tuple[Feeder, ...]:
+        """The feeders of the present (or last) run, in axis order."""
+        return self._run.feeders if self._run is not None else ()
+
+    @property
+    def programs(self) -> tuple[AxisProgram, ...]:
+        """The axis programs of the present (or last) run, in axis order (a recording samples what
+        each drive was told from them)."""
+        return self._run.programs if self._run is not None else ()
+
+    @property
+    def start_sync(self) -> int | None:
+        """The SYNC the present (or last) run started on."""
+        return self._run.start_sync if self._run is not None else None
+
+    @property
+    def last_quick_stop(self) -> QuickStop | None:
+        """The quick stop by SDO of the present (or last) run, if it needed one."""
+        return self._run.halting.quick_stop if self._run is not None else None
+
+    def elapsed_syncs(self) -> int | None:
+        start = self.start_sync
+        return None if start is None else self.bus.sync.answered - start
+
+    @property
+    def halt_budget_s(self) -> float:
+        """How long a halt may take to end the run: the drives' braking (``halt_timeout_ms``) and a
+        silence of the drives as long as lost SYNC allows, twice (the one home of the halt's time)."""
+        return self.halt_timeout_ms / 1000.0 + 2.0 * self.bus.lost_sync_timeout_s
+
+    def status(self, refresh: bool = False) -> GroupStatus:
+        """What the drives say: from their TPDOs while running; ``refresh`` reads statusword and
+        position by SDO first when idle (no SYNC, so no TPDO, flows between runs in lockstep)."""
+        return self.reports.status(self._run, self.last_result.result if self.last_result else None, refresh)
+
+    def refresh(self) -> None:
+        """Read every statusword and position by SDO (when no TPDO flows, e.g. between runs)."""
+        self.reports.refresh()
+
+    def settle(self, timeout_s: float | None = None) -> bool:
+        """Wait until the end of the last run has been cleaned up in every drive (buffers empty,
+        interpolation ended: ``axes.master.group.readiness``). False: not within ``timeout_s``."""
+        return self.readiness.settle(timeout_s)
 
     # --- running ---------------------------------------------------------------------------------
     def run(self, program: PvtProgram, timeout_s: float | None = None) -> RunResult:
@@ -139,11 +222,83 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
                 return early
             return self.wait(timeout_s)
 
-    @property
-    def halt_budget_s(self) -> float:
-        """How long a halt may take to end the run: the drives' braking (``halt_timeout_ms``) and a
-        silence of the drives as long as lost SYNC allows, twice (the one home of the halt's time)."""
-        return self.halt_timeout_ms / 1000.0 + 2.0 * self.bus.lost_sync_timeout_s
+    def start(self, program: PvtProgram, before_records: Callable[[], object] | None = None) -> RunResult | None:
+        """Start a run; returns a result at once only when the program is refused or a drive fails.
+
+        ``before_records``: called once the start's checks are asked, before the first record goes
+        out (a service journals the motion there, while the drives answer); what it raises ends
+        the start with nothing sent, and is raised from here."""
+        with self._lock:
+            if self.running:
+                raise GroupError("a program is already running on this cell")
+            if self.state.holder is not None:
+                raise GroupError("the cell is homing: one motion at a time")
+            reason = self.check_program(program)
+            if reason is not None:
+                return self._finish_early(Result.REJECTED, reason)
+            feeders: list[Feeder | None] = [None] * len(self.links)
+            try:
+                self.setup.configure_if_needed()
+                by_node = {a.node_id: a for a in program.axes}
+                run = self._run = Run(self._parts, [by_node[link.node_id] for link in self.links], self._ended)
+                self._stop_request = None
+                self._starting = True
+                self.readiness.wait()  # the last run's cleanup, if still going
+                ready = self.readiness.take()
+                if all(ready):
+                    feeders, refusal = self.checks.by_sync(run.programs, before_records)
+                else:
+                    refusal = self.checks.by_sdo(run.programs, ready, before_records)
+                if refusal is not None:
+                    return self._finish_early(*refusal)
+            except DriveError as exc:
+                link = next((lk for lk in self.links if lk.node_id == exc.node_id), None)
+                return self._finish_early(Result.CONFIGURATION_ERROR, str(exc), link)
+            finally:
+                self._starting = False
+            if self._stop_request is not None:
+                return self._finish_early(Result.STOPPED, self._stop_request)
+            run.take_feeders(
+                f if f is not None else p.feeder(prog, self.allowance)
+                for f, p, prog in zip(feeders, self.profiles, run.programs, strict=True)
+            )
+            refusal = self.checks.preload(run.feeders, checked=any(f is not None for f in feeders))
+            if refusal is not None:
+                return self._finish_early(*refusal)
+        sync = self.bus.sync
+        # the caller holds the SYNC lock while SYNC starts: at normal priority, preempted there, it would
+        # hold the start SYNC up for a scheduler slice (axes.master.bus.sync.below_sync)
+        with below_sync(sync):
+            sync.keep_period()  # real time: the start SYNC one period after the check SYNC
+            with sync.lock, self._lock:
+                self.state.claim(self, "the cell is homing: one motion at a time")
+                self._done.clear()
+                run.begin(sync.count + 1)
+                run_gap_s = None  # the bus's own, set in its config
+                if self.bus.config.max_sync_gap_periods is None:  # the profiles say (axes.master.bus.sync)
+                    gaps = (p.max_sync_gap_ms(prog) for p, prog in zip(self.profiles, run.programs, strict=True))
+                    run_gap_s = min(gaps) / 1000.0
+                # before the start SYNC nothing waits on these frames: a full transmit queue only delays
+                # them by the wire time of what is ahead (as the preload's)
+                try:
+                    with self.bus.network.patient(PRELOAD_PATIENCE_S):
+                        for feeder in run.feeders:  # the fixed-period setpoints the start SYNC validates
+                            if not isinstance(feeder, BufferFeeder):
+                                feeder.preload()
+                        for link, profile in zip(self.links, self.profiles, strict=True):
+                            link.send_controlword(profile.start_controlword())
+                except (can.CanError, OSError) as exc:
+                    # the drives that got their start word would start alone at the next SYNC, whoever
+                    # sends it: every axis is quick stopped by SDO instead, and that ends the run
+                    run.halting.quick(Result.BUS_ERROR, f"the start could not be sent: {exc}", None)
+                    return None
+                if sync.cyclic is not None:  # the run's feeders go on in the cyclic process from here
+                    sync.cyclic.hand_over(list(run.feeders), self.profiles, self.allowance, sync.max_gap_s)
+                sync.add_listener(run.on_sync)
+                self.bus.watch.arm_sync_watch()
+                self._event(EventKind.STARTED, f"program of {program.duration_ms} ms started on SYNC {run.start_sync}")
+                sync.start(max_gap_s=run_gap_s, setpoints_per_sync=any(not p.name.buffered for p in self.profiles))
+        return None
 
     def wait(self, timeout_s: float | None = None) -> RunResult:
         """Block until the run ends. The timeouts only detect a cell that stopped answering: the run
@@ -153,157 +308,90 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         with below_sync(self.bus.sync):  # its wakes hold no GIL from SYNC (axes.master.bus.sync)
             while not self._done.wait(0.05):
                 now = time.monotonic()
-                if deadline is not None and now > deadline and self._ending is None:
+                run = self._run
+                if run is None:
+                    continue
+                halting = run.halting
+                if deadline is not None and now > deadline and halting.ending is None:
                     self.stop("timeout waiting for the program to end")
-                if self._ending is not None and self._halted_at is not None and now - self._halted_at > halt_grace:
-                    self._end(self._ending)  # nobody answers the halt SYNCs any more
+                if (
+                    halting.ending is not None
+                    and halting.halted_at is not None
+                    and now - halting.halted_at > halt_grace
+                ):
+                    run.end(halting.ending)  # nobody answers the halt SYNCs any more
         assert self.last_result is not None
         return self.last_result
 
-    @property
-    def running(self) -> bool:
-        return self._running
+    def stop(self, reason: str = "stop requested") -> None:
+        """Halt all axes on the next SYNC (any thread). The run then ends with Result.STOPPED; a
+        start still configuring the drives does not start the motion."""
+        if self._starting:
+            self._stop_request = reason
+        if self.state.holder is not self:  # a homing holds the cell
+            self.state.stop(reason)
+        sync = self.bus.sync
+        with sync.lock, self._lock:
+            run = self._run
+            if run is None or not run.live or run.ending is not None:
+                return
+            if not sync.running and not sync.clock.lockstep:  # no SYNC to carry the halt word
+                run.halting.quick(Result.STOPPED, reason, None)
+            else:
+                run.halting.halt(Result.STOPPED, reason, None)
 
-    @property
-    def feeders(self) -> tuple[Feeder, ...]:
-        """The feeders of the present (or last) run, in axis order."""
-        return tuple(self._feeders)
-
-    @property
-    def programs(self) -> tuple[AxisProgram, ...]:
-        """The axis programs of the present (or last) run, in axis order (a recording samples what
-        each drive was told from them)."""
-        return tuple(self._programs)
-
-    def elapsed_syncs(self) -> int | None:
-        return None if self._start_sync is None else self.bus.sync.answered - self._start_sync
+    def recover(self) -> RunResult:
+        """Fault reset and re-enable every axis (by SDO), and put lost nodes back to OPERATIONAL."""
+        with self._lock:
+            if self.running:
+                raise GroupError("cannot recover while a program is running: stop it first")
+            self.readiness.wait()  # not two enables of one drive at once
+            self.bus.sync.stop()
+            try:
+                self.setup.configure_if_needed()
+            except DriveError as exc:
+                return self._finish_early(Result.CONFIGURATION_ERROR, str(exc))
+            for link in self.links:
+                self.bus.nmt(link.node_id, NmtCommand.START)
+            self.setup.expect_answers()
+            for link, profile in zip(self.links, self.profiles, strict=True):
+                try:
+                    profile.enable()
+                except DriveError as exc:
+                    return self._finish_early(Result.CONFIGURATION_ERROR, f"recover failed: {exc}", link)
+                link.forget_faults()
+            self.readiness.mark_all()  # enabled just now: ready
+            self.bus.watch.watch_heartbeat(link.node_id for link in self.links)
+            self._event(EventKind.RECOVERED, "all axes fault-free and enabled")
+            res = self.reports.result(self._run, Result.FINISHED, "recovered: every axis is enabled")
+            res.axes = self.reports.axis_reports(self._run)
+            return res
 
     # --- events ----------------------------------------------------------------------------------
     def _after_sync(self, n: int) -> None:
-        """SYNC ``n`` is on the bus (the sending thread, SYNC lock held): the frames that must precede
-        SYNC n + 1 go out now, unpaced by the drives' answers. No group lock: a halt disables the
-        feeders under the SYNC lock, so none sends after it."""
-        start = self._start_sync
-        if not self._running or start is None or n < start:
-            return
-        if n == start:
-            self._start_sent = time.monotonic()  # t = 0 of the buffered drives' records
-        if self.bus.sync.cyclic_producing:
-            return  # the cyclic process sent them (axes.master.cyclic.process)
-        for feeder in self._feeders:  # halting: only the stop ramps of drives without a ramp (_halt)
-            feeder.after_sync(n - start)
-
-    def _on_sync(self, n: int) -> None:
-        """After every answered SYNC (notifier thread; before the next SYNC in lockstep)."""
-        with self._lock:
-            if not self._running or self._start_sync is None:
-                return
-            elapsed = n - self._start_sync
-            for i, link in enumerate(self.links):
-                if self._ip_start[i] is None and link.statusword & _IP_MODE_ACTIVE:
-                    self._ip_start[i] = n
-            if self._ending is None:
-                self._check_drives()
-            # a status TPDO every n SYNCs reports ip mode up to n - 1 SYNCs later (axes.master.tpdo_rates)
-            if self._ending is None and elapsed >= START_CHECK_SYNCS + self._status_lag:
-                self._check_started()
-            if self._ending is None:
-                for feeder in self._feeders:
-                    feeder.on_sync(elapsed)
-                self._feed()
-                self._check_finished(elapsed)
-            else:
-                self._check_halted(n)
-            if self.on_progress is not None and n % self.progress_every == 0:
-                self.on_progress(self._progress(n))
-
-    def _check_drives(self) -> None:
-        for link in self.links:
-            if not (link.statusword & _FAULT_BITS or link.buffer_status & _BUFFER_ERRORS):
-                continue
-            state = decode_state(link.statusword)
-            if state.is_fault or link.buffer_status & _BUFFER_ERRORS:
-                why = f"statusword 0x{link.statusword:04X} ({state.value})"
-                if link.buffer_status & BUFFER_ERRORS:
-                    why += f", buffer: {link.describe_buffer()}"
-                if link.last_emcy is not None:
-                    why += f", last EMCY 0x{link.last_emcy[0]:04X} {link.last_emcy[1]}"
-                self._halt(Result.DRIVE_FAULT, f"axis {link.joint} (node {link.node_id}) faulted: {why}", link)
-                return
-
-    def _check_started(self) -> None:
-        for i, link in enumerate(self.links):
-            if self._ip_start[i] is None:
-                self._halt(
-                    Result.DRIVE_FAULT,
-                    f"axis {link.joint} (node {link.node_id}) did not enter ip mode "
-                    f"(statusword 0x{link.statusword:04X})",
-                    link,
-                )
-                return
-
-    def _check_finished(self, elapsed: int) -> None:
-        done = True
-        for i, (link, profile, feeder) in enumerate(zip(self.links, self.profiles, self._feeders, strict=True)):
-            ip_active = bool(link.statusword & _IP_MODE_ACTIVE)
-            if feeder.finished(elapsed, ip_active and profile.name.buffered):
-                if not profile.name.buffered and not self._end_words_sent[i]:
-                    link.send_controlword(profile.end_controlword())  # the fixed-period end: bit 4 off
-                    self._end_words_sent[i] = True
-                    done = False
-            else:
-                done = False
-        if done:
-            self.bus.sync.stop()
-            self._end(self._result(Result.FINISHED, "every axis reached its end record"))
-
-    def _feed(self) -> None:
-        """Top the buffered axes up from the allowance of the period of the last SYNC sent (group lock
-        held). On the wall clock their drives' clock is the time since the start SYNC went out
-        (``axes.master.group.feeder``), not the SYNCs every drive has answered: one drive's late answers must not
-        stop another drive's feed while that one runs its records on its own clock."""
-        sync = self.bus.sync
-        if sync.cyclic_producing:
-            return  # the cyclic process tops up; the feeders here mirror it (axes.master.cyclic.process)
-        self.allowance.at_sync(sync.count)
-        if not sync.lockstep and self._start_sent is not None:
-            elapsed_ms = (time.monotonic() - self._start_sent) * 1000.0
-            for feeder in self._feeders:
-                if isinstance(feeder, BufferFeeder):
-                    feeder.run_to(elapsed_ms)
-        top_up_by_need(self._feeders, self.allowance)
+        run = self._run
+        if run is not None:
+            run.after_sync(n)
 
     def _on_status(self, link: AxisLink) -> None:
-        """A TPDO arrived (notifier thread): buffered feeders react to the buffer status at once; on
-        the wall clock a buffered drive's own answer tops it up too, whatever the others' answers do."""
-        if not self._running:
-            return
-        i = self.links.index(link)
-        if not self._feeders:
-            return
-        feeder = self._feeders[i]
-        if link.buffer_status:
-            feeder.on_status(link.buffer_status)
-        if isinstance(feeder, BufferFeeder) and not self.bus.sync.lockstep:
-            # one try per record: a full transmit queue keeps its room for SYNC and the setpoints, and
-            # a record refused waits for the next top-up (the FIFO's depth covers it)
-            with self._lock, self.bus.network.patient(0), contextlib.suppress(can.CanError):
-                if self._running and self._ending is None and self._start_sent is not None:
-                    self._feed()
+        run = self._run
+        if run is not None:
+            run.on_status(link)
 
     def _on_bus_fault(self, fault: BusFault) -> None:
         link = next((lk for lk in self.links if lk.node_id == fault.node_id), None)
         if link is not None and fault.kind is FaultKind.EMCY:
-            link.last_emcy = (fault.code, fault.message)
+            link.note_emcy(fault.code, fault.message)
         self._bus_faults += 1
         if link is not None:  # whatever it was, that drive is enabled again at the next start
             self.readiness.forget(self.links.index(link))
         # SYNC failed mid-run: the quick stop requests go out before the event says why (an event
-        # may print or publish: ``_quick_stop``); any other fault is told first
-        told = fault.kind.sync_failed and self._running and not fault.kind.warning
+        # may print or publish: ``Halting.quick``); any other fault is told first
+        running = self.running
+        told = fault.kind.sync_failed and running and not fault.kind.warning
         if not told:
             self._event(EventKind(fault.kind.value), fault.message, link)
-        if not self._running or fault.kind.warning:
+        if not running or fault.kind.warning:
             return
         kind = {
             FaultKind.EMCY: Result.EMCY,
@@ -313,20 +401,24 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         }.get(fault.kind, Result.BUS_ERROR)
         sync = self.bus.sync
         with sync.lock, self._lock:
-            if self._ending is not None and self._running and fault.kind.sync_failed and self._halt_deadline:
-                self._quick_stop_too(fault.message, link, fault)  # the halt word waits for a SYNC that will not come
+            run = self._run
+            if run is None:
                 return
-            if self._ending is not None or not self._running:
+            halting = run.halting
+            if halting.ending is not None and run.live and fault.kind.sync_failed and halting.deadline:
+                halting.quick_too(fault.message, link, fault)  # the halt word waits for a SYNC that will not come
+                return
+            if halting.ending is not None or not run.live:
                 if told:
                     self._event(EventKind(fault.kind.value), fault.message, link)
                 return
             if fault.kind.sync_failed:
-                self._quick_stop(kind, fault.message, link, fault)
+                halting.quick(kind, fault.message, link, fault)
                 return
             gone = kind in (Result.HEARTBEAT_LOST, Result.LOST_SYNC)
             stalled = bool(sync.behind())
             if gone:
-                self.configuration.forget()  # the node may come back reset: recover() configures again
+                self.setup.configuration.forget()  # the node may come back reset: recover() configures again
             if gone and link is not None:
                 # stop waiting for a drive that is gone, so the others still get their halt SYNC
                 sync.expect(
@@ -336,32 +428,25 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
                         if lk is not link
                     }
                 )
-            self._halt(kind, fault.message, link)
-            if gone and stalled and sync.lockstep:
+            halting.halt(kind, fault.message, link)
+            if gone and stalled and sync.clock.lockstep:
                 sync.step()
 
-    def _end(self, result: RunResult) -> None:
-        with self.bus.sync.lock, self._lock:
-            if not self._running:
-                return
-            self.bus.sync.remove_listener(self._on_sync)
-            self.bus.watch.watch_sync = False
-            result.end_sync = self.bus.sync.answered
-            result.axes = self._reports()
-            self.last_result = result
-            self._running = False
-            self.state.release(self)
-            self.readiness.prepare()
-            self._event(
-                EventKind(result.result.value),
-                result.message,
-                next((lk for lk in self.links if lk.node_id == result.node_id), None),
-            )
-            self._done.set()
+    def _ended(self, result: RunResult) -> None:
+        """The present run ended (``Run.end``: SYNC lock and group lock held)."""
+        self.last_result = result
+        self.state.release(self)
+        self.readiness.prepare()
+        self._event(
+            EventKind(result.result.value),
+            result.message,
+            next((lk for lk in self.links if lk.node_id == result.node_id), None),
+        )
+        self._done.set()
 
     def _finish_early(self, result: Result, message: str, link: AxisLink | None = None) -> RunResult:
-        res = self._result(result, message, link)
-        res.axes = self._reports()
+        res = self.reports.result(self._run, result, message, link)
+        res.axes = self.reports.axis_reports(self._run)
         self.last_result = res
         self._event(EventKind(result.value), message, link)
         return res
@@ -371,10 +456,10 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         an orderly close is not a lost master, ``Profile.release_master``) and let go of the bus. A
         close during a run leaves them watching: the heartbeat stops with the bus and every drive
         stops by itself; so does a close after the bus's (nothing can be said on a closed bus)."""
-        if self.configured and not self._running and self.bus.is_open:
+        if self.configured and not self.running and self.bus.is_open:
             for profile in self.profiles:
                 profile.release_master()
-            self.configuration.forget()  # a group used again arms the consumers again
+            self.setup.configuration.forget()  # a group used again arms the consumers again
         self.bus.sync.remove_sender(self._after_sync)
         self._pool.shutdown(wait=True)
         for link in self.links:

@@ -1,19 +1,23 @@
-"""Configuring the cell's drives for a run, and recovering them after one: a part of ``AxisGroup``.
+"""Configuring the cell's drives for a run, and checking a program against the cell: a part of ``AxisGroup``.
 
 Configuration checks every drive against the cell (``axes.master.commission``), then writes its profile's
 SDO sequence in PRE-OPERATIONAL, and arms the consumers; a drive that booted since (a reset, a power
-loss) has its EDS defaults again and is configured again before the next start. Recovery resets the
-faults and enables every axis again. The methods work on ``AxisGroup``'s state (``axes.master.group.axis_group``).
+loss) has its EDS defaults again and is configured again before the next start.
 """
 
 from __future__ import annotations
 
-from pvtflow.axes.drive.objects import BUFFER_ERRORS, NmtCommand
+from collections.abc import Sequence
+
+from pvtflow.axes.drive.objects import NmtCommand
 from pvtflow.axes.drive.program import PvtProgram, program_mismatch
+from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.commission import refuse_on_facts
-from pvtflow.axes.master.group.feed_check import BufferedAxis, feed_shortfall
-from pvtflow.axes.master.group.outcome import EventKind, GroupError, Result, RunResult
-from pvtflow.axes.master.link import DriveError
+from pvtflow.axes.master.feed_check import BufferedAxis, feed_shortfall
+from pvtflow.axes.master.group.feeder import RecordAllowance
+from pvtflow.axes.master.group.readiness import Readiness
+from pvtflow.axes.master.link import AxisLink
+from pvtflow.axes.master.profiles.base import Profile
 
 
 class Configured:
@@ -36,10 +40,23 @@ class Configured:
         self.done = False
 
 
-class GroupConfiguration:
-    """AxisGroup's configuration, program check and recovery (mixed into ``AxisGroup``)."""
+class CellSetup:
+    """Configures a group's drives and checks its programs against the cell (a part of ``AxisGroup``)."""
 
-    configuration: Configured
+    def __init__(
+        self,
+        bus: CellBus,
+        links: Sequence[AxisLink],
+        profiles: Sequence[Profile],
+        readiness: Readiness,
+        allowance: RecordAllowance,
+    ) -> None:
+        self.bus = bus
+        self.links = links
+        self.profiles = profiles
+        self.readiness = readiness
+        self.allowance = allowance
+        self.configuration = Configured()
 
     @property
     def configured(self) -> bool:
@@ -58,12 +75,16 @@ class GroupConfiguration:
             profile.configure()
             profile.write_homing()
             link.subscribe_tpdos(profile.tpdos)
-        self.bus.sync.expect({p.sync_answer_cob_id: p.sync_answer_every for p in self.profiles})
+        self.expect_answers()
         for link in self.links:
             self.bus.nmt(link.node_id, NmtCommand.START)
         self.bus.watch.watch_heartbeat(link.node_id for link in self.links)
         self.readiness.forget()
         self.configuration.written()
+
+    def expect_answers(self) -> None:
+        """SYNC waits for (lockstep) and watches every drive's answer on its profile's TPDO."""
+        self.bus.sync.expect({p.sync_answer_cob_id: p.sync_answer_every for p in self.profiles})
 
     def configure_if_needed(self) -> None:
         """Configure unless configured since every drive last booted (a rebooted drive has its EDS
@@ -88,31 +109,3 @@ class GroupConfiguration:
             if not profile.fixed_period and link.node_id in by_node
         ]
         return feed_shortfall(buffered, self.allowance.per_sync, self.bus.config.sync_period_ms)
-
-    def recover(self) -> RunResult:
-        """Fault reset and re-enable every axis (by SDO), and put lost nodes back to OPERATIONAL."""
-        with self._lock:
-            if self._running:
-                raise GroupError("cannot recover while a program is running: stop it first")
-            self.readiness.wait()  # not two enables of one drive at once
-            self.bus.sync.stop()
-            try:
-                self.configure_if_needed()
-            except DriveError as exc:
-                return self._finish_early(Result.CONFIGURATION_ERROR, str(exc))
-            for link in self.links:
-                self.bus.nmt(link.node_id, NmtCommand.START)
-            self.bus.sync.expect({p.sync_answer_cob_id: p.sync_answer_every for p in self.profiles})
-            for link, profile in zip(self.links, self.profiles, strict=True):
-                try:
-                    profile.enable()
-                except DriveError as exc:
-                    return self._finish_early(Result.CONFIGURATION_ERROR, f"recover failed: {exc}", link)
-                link.last_emcy = None
-                link.buffer_status = link.buffer_status & ~int(BUFFER_ERRORS)
-            self.readiness.mark_all()  # enabled just now: ready
-            self.bus.watch.watch_heartbeat(link.node_id for link in self.links)
-            self._event(EventKind.RECOVERED, "all axes fault-free and enabled")
-            res = self._result(Result.FINISHED, "recovered: every axis is enabled")
-            res.axes = self._reports()
-            return res

@@ -132,6 +132,25 @@ class Feeder:
     def all_sent(self) -> bool:
         return self.next >= len(self.records)
 
+    def disable(self) -> None:
+        """Send nothing more (a halt: the drive brakes on its own ramp)."""
+        self.enabled = False
+
+    def hand_over(self) -> None:
+        """Another process sends this feeder's frames from now on (``axes.master.cyclic.process``)."""
+        self.mirrored = True
+
+    def resume_at(self, next_record: int) -> None:
+        """This feeder goes on where another left off (the cyclic process takes a run over)."""
+        self.next = next_record
+
+    def sent_elsewhere(self, sent: int) -> None:
+        """Another process has sent the first ``sent`` records (the one this feeder hands over to, or
+        the one it mirrors)."""
+        if sent > self.next:
+            self.next = sent
+            self.stats.sent = sent
+
     def _send_next(self) -> None:
         cob, data = self.frame_of(self.records[self.next])
         self.send(cob, data)

@@ -1,5 +1,6 @@
 """What a cell's program runs and its homing share: the links to its drives, which axes have homed
-since their drive last booted, the cleanup every activity waits for, and the one activity at a time.
+since their drive last booted, the cleanup every activity waits for, and the one activity at a time;
+and what every run of a program works with (``RunParts``).
 
 ``AxisGroup`` (axes/master/group/axis_group.py) makes it and runs programs in it; ``CellHoming`` (axes/master/homing.py)
 homes in it. Neither works the other's internals: an activity claims the cell and releases it, a
@@ -9,14 +10,21 @@ homing marks what it homed, and a stop reaches whichever activity holds the cell
 from __future__ import annotations
 
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Protocol
 
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.bus.faults import BusFault, FaultKind
-from pvtflow.axes.master.group.outcome import GroupError
+from pvtflow.axes.master.group.configure import Configured
+from pvtflow.axes.master.group.feeder import RecordAllowance
+from pvtflow.axes.master.group.outcome import EventKind, GroupError
 from pvtflow.axes.master.group.readiness import Readiness
+from pvtflow.axes.master.group.status import GroupReports, RunView
 from pvtflow.axes.master.link import AxisLink
+from pvtflow.axes.master.profiles.base import Profile
+
+EventSink = Callable[[EventKind, str, "AxisLink | None"], None]
 
 
 class Activity(Protocol):
@@ -82,3 +90,26 @@ class CellRunState:
             for i, link in enumerate(self.links):
                 if link.node_id == fault.node_id:
                     self._homed_boot[i] = None
+
+
+@dataclass(frozen=True)
+class RunParts:
+    """What every run of a group works with (``axes.master.group.run``); the group owns all of it,
+    ``lock`` is its cell's (``CellRunState.lock``)."""
+
+    bus: CellBus
+    links: Sequence[AxisLink]
+    profiles: Sequence[Profile]
+    allowance: RecordAllowance
+    reports: GroupReports
+    readiness: Readiness
+    configuration: Configured
+    lock: threading.RLock
+    event: EventSink
+    progress: Callable[[int, RunView], None]  # after every answered SYNC: the group's progress report
+    halt_timeout_ms: float
+
+    @property
+    def status_lag(self) -> int:
+        """SYNCs by which a status TPDO sent every n SYNCs may report late (axes.master.tpdo_rates)."""
+        return max((p.sync_answer_every for p in self.profiles), default=1) - 1

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import canopen
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.config import wire_options
 from pvtflow.axes.sim import Epos2Drive
@@ -32,7 +33,7 @@ def test_arm6_cell_boots_six_epos2_with_the_configured_limits() -> None:
     master.NOTIFIER_CYCLE = 0.02
     log = FrameLog()
     master.listeners.append(log)
-    master.connect(interface=cell.bus.interface, channel=channel, **wire_options(cell.bus, lockstep=True))
+    master.connect(interface=cell.bus.interface, channel=channel, **wire_options(cell.bus, clock=Clock.LOCKSTEP))
     try:
         with SimulatedCell(cell, channel=channel) as sim:
             for axis in cell.axes:
