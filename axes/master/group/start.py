@@ -98,22 +98,6 @@ class StartChecks:
         for _ in self._per_axis(lambda i: self.profiles[i].enable(fresh=True), axes):
             pass
 
-    def _per_axis(self, work: Callable[[_T], _R], items: Iterable[_T]) -> Iterator[_R]:
-        """``work`` on every axis concurrently (the drives answer SDO in parallel); results in axis
-        order; the first DriveError in axis order is raised."""
-        futures = [self._pool.submit(work, item) for item in items]
-        return (f.result() for f in futures)
-
-    def _needs_enable(self, i: int, ready: bool) -> bool:
-        """Axis i is enabled at the start (its buffer cleared) unless it was ready and its check just
-        found it OPERATION ENABLED."""
-        return not (ready and self.links[i].state is PowerState.OPERATION_ENABLED)
-
-    def _enable(self, axes: list[int]) -> None:
-        """Enable these axes for the start, all at once, from the statusword their check just read."""
-        for _ in self._per_axis(lambda i: self.profiles[i].enable(fresh=True), axes):
-            pass
-
     def by_sync(
         self, programs: Sequence[AxisProgram], before_records: Callable[[], object] | None
     ) -> tuple[list[Feeder | None], Refusal | None]:
