@@ -122,7 +122,9 @@ def sampled_ratios(
     )
 
 
-def drive_ratios(res: CellPlan, cell: CellConfig, limits: JointLimits, jmax: NDArray[np.float64]) -> tuple[float, float]:
+def drive_ratios(
+    res: CellPlan, cell: CellConfig, limits: JointLimits, jmax: NDArray[np.float64]
+) -> tuple[float, float]:
     """Worst max(|v| / vmax, |a| / amax) of the drives' reconstruction at every ms, and the worst
     10-ms-window jerk / limit (``planner.knots.window_jerk``)."""
     assert res.program is not None
@@ -200,7 +202,8 @@ def main() -> int:
         ref_duration.append(runs[reference].duration[-1])
         ref_slowed.append(runs[reference].slowed[-1])
     print(
-        f"arm6, {args.paths} paths of {args.waypoints} waypoints (seed {args.seed}), max_jerk {args.factor:g} x amax/s, "
+        f"arm6, {args.paths} paths of {args.waypoints} waypoints (seed {args.seed}), "
+        f"max_jerk {args.factor:g} x amax/s, "
         f"{'the cell TCP speed and torque for pvtflow' if args.cell_constraints else 'joint limits only'}"
     )
     print(
@@ -228,7 +231,10 @@ def main() -> int:
         if name.startswith("pvtflow") and len(runs[name].duration) == len(ref_slowed):
             r = np.array(runs[name].duration) / np.array(ref_slowed)
             within = float(np.mean(r <= 1.03))
-            print(f"{name}: / {reference} slowed to 1 ms: p50 {np.median(r):.4f} max {r.max():.4f}, within 1.03x: {within:.0%}")
+            print(
+                f"{name}: / {reference} slowed to 1 ms: p50 {np.median(r):.4f} max {r.max():.4f}, "
+                f"within 1.03x: {within:.0%}"
+            )
     print(
         f"command: python bench/jerk_vs_copp.py --paths {args.paths} --waypoints {args.waypoints} --factor "
         f"{args.factor:g} --seed {args.seed} --budgets {args.budgets} --stations {args.stations}"
