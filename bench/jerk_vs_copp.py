@@ -8,7 +8,9 @@ joint's acceleration limit per second:
 - copp-py's TOPP3 (second-order cone program, Clarabel, started from its own TOPP2-RA) at every station
   count of ``--stations``, on pvtflow's own path (the same polynomial pieces, read through
   ``JointPath.pieces``: q, q_s, q_ss at every station and q_sss of its piece; a station just before
-  each inner waypoint, where q_sss jumps), rest to rest, the same joint limits.
+  each inner waypoint, where q_sss jumps), the same joint limits, rest to rest between the rests of
+  pvtflow's motion: its ends and every C1 waypoint (where q_ss jumps, a finite jerk passes at rest;
+  TOPP3 holds jerk at its stations only and would run through it).
 
 Both get the joint velocity, acceleration and jerk limits only: the cell's TCP speed and torque rows
 are switched off for pvtflow here (``--cell-constraints`` keeps them, pvtflow only), since TOPP3 has
@@ -31,6 +33,7 @@ Run:  python bench/jerk_vs_copp.py [--paths 20] [--waypoints 8] [--factor 10] [-
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import sys
 import time
@@ -48,6 +51,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from pvt_quality import random_waypoints
 
+from pvtflow.planner.jerk.warm import rests_of
 from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.path import JointPath
@@ -81,28 +85,36 @@ def third_derivative(path: JointPath, s: NDArray[np.float64]) -> NDArray[np.floa
 def copp_plan(
     path: JointPath, limits: JointLimits, jmax: NDArray[np.float64], stations: int
 ) -> tuple[float, NDArray[np.float64], float]:
-    """copp-py's TOPP3-SOCP along ``path``: (duration s, s(t) every ms, wall s)."""
+    """copp-py's TOPP3-SOCP along ``path``, rest to rest between pvtflow's rests (``rests_of``), with
+    ``stations`` stations over the whole path shared out by length: (duration s, s(t) every ms, wall s)."""
     import copp_py as copp
 
     began = time.perf_counter()
     length = path.length
-    s = np.union1d(np.linspace(0.0, length, stations), path.waypoint_s[1:-1] - 1e-7 * length)
-    n = len(s)
-    robot = copp.Robot(limits.dof)
-    robot.append_s(s)
-    robot.set_q(path(s), path(s, 1), path(s, 2), 0, dddq=third_derivative(path, s))
-    robot.add_velocity_limits(limits.velocity, -limits.velocity, start_idx_s=0, length=n)
-    robot.add_acceleration_limits(limits.acceleration, -limits.acceleration, start_idx_s=0, length=n)
-    robot.add_jerk_limits(jmax, -jmax, start_idx_s=0, length=n)
-    a2 = copp.solver.topp2_ra.solve(copp.solver.topp2_ra.Problem(robot.constraints, (0, n - 1), (0.0, 0.0)))
-    problem = copp.solver.topp3_socp.Problem(
-        robot.constraints, a2, a_boundary=(0.0, 0.0), b_boundary=(0.0, 0.0), num_stationary_max=1
-    )
-    profile = copp.solver.topp3_socp.solve(problem)
-    duration, t_s = copp.interpolation.s_to_t_topp3(s, profile)
-    wall = time.perf_counter() - began
-    s_t = copp.interpolation.t_to_s_topp3_uniform(s, profile, t_s, DT)
-    return float(duration), np.clip(s_t, 0.0, length), wall
+    rests = rests_of(path)
+    duration, samples = 0.0, []
+    for lo, hi in itertools.pairwise(rests):
+        count = max(50, round(stations * (hi - lo) / length))
+        inner = path.waypoint_s[(path.waypoint_s > lo) & (path.waypoint_s < hi)]
+        s = np.union1d(np.linspace(lo, hi, count), inner - 1e-7 * length)
+        at = s.copy()
+        at[-1] -= 1e-9 * length  # the path's derivatives at a rest: of the piece that ends there
+        n = len(s)
+        robot = copp.Robot(limits.dof)
+        robot.append_s(s)
+        robot.set_q(path(at), path(at, 1), path(at, 2), 0, dddq=third_derivative(path, at))
+        robot.add_velocity_limits(limits.velocity, -limits.velocity, start_idx_s=0, length=n)
+        robot.add_acceleration_limits(limits.acceleration, -limits.acceleration, start_idx_s=0, length=n)
+        robot.add_jerk_limits(jmax, -jmax, start_idx_s=0, length=n)
+        a2 = copp.solver.topp2_ra.solve(copp.solver.topp2_ra.Problem(robot.constraints, (0, n - 1), (0.0, 0.0)))
+        problem = copp.solver.topp3_socp.Problem(
+            robot.constraints, a2, a_boundary=(0.0, 0.0), b_boundary=(0.0, 0.0), num_stationary_max=1
+        )
+        profile = copp.solver.topp3_socp.solve(problem)
+        part, t_s = copp.interpolation.s_to_t_topp3(s, profile)
+        duration += float(part)
+        samples.append(np.clip(copp.interpolation.t_to_s_topp3_uniform(s, profile, t_s, DT), lo, hi))
+    return duration, np.concatenate(samples), time.perf_counter() - began
 
 
 def sampled_ratios(

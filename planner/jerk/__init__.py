@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from pvtflow.planner.jerk.nlp import program_bounds, program_parameters, program_rows, variable_scales
 from pvtflow.planner.jerk.solve import PROGRAMS, cached_program, expected_build_s, solve_in_time
 from pvtflow.planner.jerk.trajectory import JerkTrajectory
-from pvtflow.planner.jerk.warm import MIN_REST_TO_REST, WarmProfile, curvature_jumps, warm_start
+from pvtflow.planner.jerk.warm import MIN_REST_TO_REST, WarmProfile, rests_of, warm_start
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.path import JointPath, PlanError, PlanResult
 from pvtflow.planner.scurve import rest_to_rest
@@ -56,9 +56,6 @@ DEFAULT_JERK_INTERVALS = 48
 _TORQUE_PIECE_S = 0.005
 _TORQUE_SCREEN_S = 0.05
 _TORQUE_SCREEN_MARGIN = 0.02
-
-# a jump of the path's second derivative at a waypoint above this is a C1 joint, not round-off
-_CURVATURE_JUMP = 1e-8
 
 
 def _checked(
@@ -142,9 +139,8 @@ def jerk_limited(
     ``torque_scale``: the slow-down torque between the rows asked for after the solve.
     """
     jmax = np.asarray(max_jerk, dtype=float)
-    # at rest at both ends and at every waypoint where the path is C1 only (``curvature_jumps``)
-    stops = path.waypoint_s[1:-1][np.any(curvature_jumps(path) > _CURVATURE_JUMP, axis=1)]
-    rests = np.concatenate(([0.0], stops, [path.length]))
+    rests = rests_of(path)
+    stops = rests[1:-1]
     needed = (len(path.waypoint_s) - 1) + MIN_REST_TO_REST * (len(rests) - 1)
     n = int(intervals) * max(1, math.ceil(needed / int(intervals)))  # few shapes: each is a program to build
     profile = WarmProfile.of(warm, rests)
