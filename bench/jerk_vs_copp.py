@@ -173,6 +173,10 @@ def main() -> int:
     cp.warm_up(jerk=True)
     limits = cp.limits
     jmax = args.factor * limits.acceleration
+    # the finest grid, which a plan without a deadline builds on first use (the warm-up builds the ones a
+    # deadline may use): built here, not inside the first timed plan
+    lo, hi = limits.lower, limits.upper
+    cp.plan(PlanInput(np.array([lo + 0.4 * (hi - lo), lo + 0.6 * (hi - lo)]), max_jerk=jmax))
     budgets = [None if b.strip() == "none" else float(b) for b in args.budgets.split(",")]
     stations = [int(n) for n in args.stations.split(",")]
     names = [f"pvtflow {'none' if b is None else f'{b:g} ms'}" for b in budgets] + [f"copp {n}" for n in stations]

@@ -126,10 +126,13 @@ class CellPlanner:
         timing.warm_up()  # the longer paths' spline and the torque check near a limit
         quantize.warm_up()  # the repair that may move knots, which a short move rarely needs
         if jerk:
-            from pvtflow.planner.jerk import warm_up as jerk_warm_up  # casadi: loaded where plans may be jerk-limited
+            from pvtflow.planner.jerk import WARM_INTERVALS  # casadi: loaded where plans may be jerk-limited
+            from pvtflow.planner.jerk import warm_up as jerk_warm_up
 
             ja, jb = lo + 0.4 * (hi - lo), lo + 0.6 * (hi - lo)
-            jerky = PlanInput(np.array([ja, jb]), max_jerk=10.0 * self.limits.acceleration)
+            jerky = PlanInput(
+                np.array([ja, jb]), max_jerk=10.0 * self.limits.acceleration, jerk_intervals=WARM_INTERVALS
+            )
             self.plan(jerky)
             self.plan(jerky, budget_ms=0.0)  # the floor: no solver has time (its answer, timeout, is dropped)
             jerk_warm_up()

@@ -41,7 +41,6 @@ from pvtflow.planner.jerk.solve import (
     Program,
     cached_program,
     expected_build_s,
-    expected_solve_s,
     solve_in_time,
 )
 from pvtflow.planner.jerk.trajectory import JerkTrajectory
@@ -52,7 +51,15 @@ from pvtflow.planner.scurve import rest_to_rest
 from pvtflow.planner.slowdown import SLOWDOWN_MARGIN, slowdown
 from pvtflow.planner.timing import RneaJointTorqueConstraint, Trajectory
 
-__all__ = ["DEFAULT_JERK_INTERVALS", "GRID_UNIT", "JerkTrajectory", "grid_sizes", "jerk_limited", "warm_up"]
+__all__ = [
+    "DEFAULT_JERK_INTERVALS",
+    "GRID_UNIT",
+    "WARM_INTERVALS",
+    "JerkTrajectory",
+    "grid_sizes",
+    "jerk_limited",
+    "warm_up",
+]
 
 # the program's grid: as fine as the time allows, up to DEFAULT_JERK_INTERVALS; its sizes are GRID_UNIT
 # times a power of two (each size is a program to build, seconds at start). On 20 arm6 8-waypoint
@@ -60,6 +67,10 @@ __all__ = ["DEFAULT_JERK_INTERVALS", "GRID_UNIT", "JerkTrajectory", "grid_sizes"
 # item 2"): 48 intervals 1.084x at the median, 96 1.017x, 192 1.001x; fatrop's time grows with them
 GRID_UNIT = 48
 DEFAULT_JERK_INTERVALS = 192
+# the sizes a warm-up builds: building a program holds the interpreter's lock in one piece (192
+# intervals: 0.76 s for fatrop's solver, past the 300 ms a drive waits for the master's heartbeat);
+# 192 is built by the first plan without a deadline (a deadline never waits for a build)
+WARM_INTERVALS = 96
 
 # the torque check (``_torque_slowdown``, bench/jerk_torque.py): on 20 random arm6 paths at 30 % of
 # every effort the torque between its samples was at most 3.5e-5 of a limit above theirs with pieces
@@ -122,27 +133,30 @@ def grid_sizes(needed: int, intervals: int = DEFAULT_JERK_INTERVALS) -> list[int
 
 
 def warm_up() -> None:
-    """Build, for every joint count a plan has built a program for, every size a path of up to 44
-    waypoints (or 12 with a stop at each) and one of up to twice that may be solved on
-    (``grid_sizes``), so that no plan within a deadline meets a shape that is not built (it would
-    answer on a coarser grid, or the floor)."""
+    """Build, for every joint count a plan has built a program for, every size up to
+    ``WARM_INTERVALS`` a path of up to 44 waypoints (or 12 with a stop at each) and one of up to
+    twice that may be solved on (``grid_sizes``), so that no plan within a deadline meets a
+    shape that is not built (it would answer on a coarser grid, or the floor)."""
     for _, dof, torque in PROGRAMS.shapes():
-        for n in {*grid_sizes(GRID_UNIT), *grid_sizes(2 * GRID_UNIT)}:
+        for n in {*grid_sizes(GRID_UNIT, WARM_INTERVALS), *grid_sizes(2 * GRID_UNIT, WARM_INTERVALS)}:
             cached_program(n, dof, torque)
 
 
 def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | None) -> tuple[Program | None, int]:
-    """The finest program of ``sizes`` whose solve fits the time left (``Program.expected_fatrop_s``;
-    a size not built is built where the time left covers the build too), else the coarsest where it
-    is built (its solvers then decide, ``solve.solve_in_time``), else None (build it later)."""
+    """Without a deadline the finest of ``sizes`` (built now where it is not). Within one the finest
+    that is built and whose solve fits the time left (``Program.expected_fatrop_s``), else the
+    coarsest, built now only where the time left covers the build (its solvers then decide,
+    ``solve.solve_in_time``), else None (the floor; build it later)."""
+    if deadline is None:
+        return cached_program(sizes[-1], dof, torque), sizes[-1]
     for n in reversed(sizes):
         program = PROGRAMS.ready(n, dof, torque)
-        left = math.inf if deadline is None else deadline - time.perf_counter()
-        if program is None and left >= expected_build_s(n) + expected_solve_s(n):
-            program = cached_program(n, dof, torque)
-        if program is not None and left >= program.expected_fatrop_s():
+        if program is not None and deadline - time.perf_counter() >= program.expected_fatrop_s():
             return program, n
-    return PROGRAMS.ready(sizes[0], dof, torque), sizes[0]
+    program = PROGRAMS.ready(sizes[0], dof, torque)
+    if program is None and deadline - time.perf_counter() >= expected_build_s(sizes[0]):
+        program = cached_program(sizes[0], dof, torque)
+    return program, sizes[0]
 
 
 def _floor(
