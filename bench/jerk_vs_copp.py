@@ -27,7 +27,7 @@ duration slowed down uniformly to hold velocity and acceleration at every ms is 
 copp-py (MIT, 0.2.3 measured) is a benchmark reference, not a dependency of pvtflow.
 
 Run:  python bench/jerk_vs_copp.py [--paths 20] [--waypoints 8] [--factor 10] [--seed 1]
-      [--budgets 20,50,100,none] [--stations 500,1000] [--cell-constraints]
+      [--budgets 20,50,100,none] [--stations 500,1000] [--intervals N] [--cell-constraints]
 """
 
 from __future__ import annotations
@@ -164,6 +164,7 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--budgets", default="20,50,100,none")
     ap.add_argument("--stations", default="500,1000")
+    ap.add_argument("--intervals", type=int, default=None, help="pvtflow grid at most (jerk_intervals)")
     ap.add_argument("--cell-constraints", action="store_true", help="pvtflow keeps the cell's TCP speed and torque")
     args = ap.parse_args()
     cell = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
@@ -176,7 +177,8 @@ def main() -> int:
     # the finest grid, which a plan without a deadline builds on first use (the warm-up builds the ones a
     # deadline may use): built here, not inside the first timed plan
     lo, hi = limits.lower, limits.upper
-    cp.plan(PlanInput(np.array([lo + 0.4 * (hi - lo), lo + 0.6 * (hi - lo)]), max_jerk=jmax))
+    warm = np.array([lo + 0.4 * (hi - lo), lo + 0.6 * (hi - lo)])
+    cp.plan(PlanInput(warm, max_jerk=jmax, jerk_intervals=args.intervals))
     budgets = [None if b.strip() == "none" else float(b) for b in args.budgets.split(",")]
     stations = [int(n) for n in args.stations.split(",")]
     names = [f"pvtflow {'none' if b is None else f'{b:g} ms'}" for b in budgets] + [f"copp {n}" for n in stations]
@@ -190,7 +192,7 @@ def main() -> int:
         path = None
         for b, name in zip(budgets, names, strict=False):
             began = time.perf_counter()
-            res = cp.plan(PlanInput(wp, max_jerk=jmax), budget_ms=b)
+            res = cp.plan(PlanInput(wp, max_jerk=jmax, jerk_intervals=args.intervals), budget_ms=b)
             wall = time.perf_counter() - began
             run = runs[name]
             run.answers.append(res.code)
@@ -253,6 +255,7 @@ def main() -> int:
     print(
         f"command: python bench/jerk_vs_copp.py --paths {args.paths} --waypoints {args.waypoints} --factor "
         f"{args.factor:g} --seed {args.seed} --budgets {args.budgets} --stations {args.stations}"
+        + (f" --intervals {args.intervals}" if args.intervals else "")
         + (" --cell-constraints" if args.cell_constraints else "")
     )
     return 0
