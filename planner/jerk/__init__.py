@@ -136,24 +136,41 @@ def warm_up() -> None:
     """Build, for every joint count a plan has built a program for, every size up to
     ``WARM_INTERVALS`` a path of up to 44 waypoints (or 12 with a stop at each) and one of up to
     twice that may be solved on (``grid_sizes``), so that no plan within a deadline meets a
-    shape that is not built (it would answer on a coarser grid, or the floor)."""
+    shape that is not built (it would answer on a coarser grid, or the floor); the warm-up's own
+    solve times are forgotten."""
     for _, dof, torque in PROGRAMS.shapes():
         for n in {*grid_sizes(GRID_UNIT, WARM_INTERVALS), *grid_sizes(2 * GRID_UNIT, WARM_INTERVALS)}:
             cached_program(n, dof, torque)
+    for shape in PROGRAMS.shapes():  # the warm-up's move is no request's (96 intervals: 151 ms, requests' 50)
+        program = PROGRAMS.ready(*shape)
+        if program is not None:
+            program.fatrop_s.clear()
 
 
 def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | None) -> tuple[Program | None, int]:
     """Without a deadline the finest of ``sizes`` (built now where it is not). Within one the finest
-    that is built and whose solve fits the time left (``Program.expected_fatrop_s``), else the
-    coarsest, built now only where the time left covers the build (its solvers then decide,
-    ``solve.solve_in_time``), else None (the floor; build it later)."""
+    that is built and whose solve fits the time left, else the coarsest, built now only where the
+    time left covers the build (its solvers then decide, ``solve.solve_in_time``), else None (the
+    floor; build it later).
+
+    A finer size's solve time is its own measured one (``Program.measured_fatrop_s``), else the
+    coarsest's measured one times the ratio of their intervals; before either is measured only the
+    coarsest is tried, with its expected time: a first request after the start solves what the
+    warm-up has timed least at most (a late solve costs the whole budget: the floor comes after it)."""
     if deadline is None:
         return cached_program(sizes[-1], dof, torque), sizes[-1]
-    for n in reversed(sizes):
+    coarsest = PROGRAMS.ready(sizes[0], dof, torque)
+    per_interval = None if coarsest is None else coarsest.measured_fatrop_s()
+    for n in reversed(sizes[1:]):
         program = PROGRAMS.ready(n, dof, torque)
-        if program is not None and deadline - time.perf_counter() >= program.expected_fatrop_s():
+        if program is None:
+            continue
+        measured = program.measured_fatrop_s()
+        if measured is None and per_interval is not None:
+            measured = per_interval * n / sizes[0]
+        if measured is not None and deadline - time.perf_counter() >= measured:
             return program, n
-    program = PROGRAMS.ready(sizes[0], dof, torque)
+    program = coarsest
     if program is None and deadline - time.perf_counter() >= expected_build_s(sizes[0]):
         program = cached_program(sizes[0], dof, torque)
     return program, sizes[0]

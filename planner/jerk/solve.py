@@ -80,8 +80,13 @@ class Program:
 
     def expected_fatrop_s(self) -> float:
         """fatrop's expected wall time on this program: the longest of its recent solves."""
+        measured = self.measured_fatrop_s()
+        return expected_solve_s(self.n) if measured is None else measured
+
+    def measured_fatrop_s(self) -> float | None:
+        """The longest of fatrop's recent solves of this program, None until ``_MIN_HISTORY`` are known."""
         times = list(self.fatrop_s)
-        return max(times) if len(times) >= _MIN_HISTORY else expected_solve_s(self.n)
+        return max(times) if len(times) >= _MIN_HISTORY else None
 
     def solver(self, name: str) -> ca.Function:
         if name not in self.solvers:
