@@ -41,6 +41,7 @@ from pvtflow.planner.jerk.solve import (
     Program,
     cached_program,
     expected_build_s,
+    expected_solve_s,
     solve_in_time,
 )
 from pvtflow.planner.jerk.trajectory import JerkTrajectory
@@ -149,26 +150,28 @@ def warm_up() -> None:
 
 def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | None) -> tuple[Program | None, int]:
     """Without a deadline the finest of ``sizes`` (built now where it is not). Within one the finest
-    that is built and whose solve fits the time left, else the coarsest, built now only where the
-    time left covers the build (its solvers then decide, ``solve.solve_in_time``), else None (the
-    floor; build it later).
+    whose solve fits the time left (a size not built is built where the time left covers the build
+    and twice its expected solve), else the coarsest, built now only where the time left covers the
+    build (its solvers then decide, ``solve.solve_in_time``), else None (the floor; build it later).
 
     A finer size's solve time is its own measured one (``Program.measured_fatrop_s``), else the
-    coarsest's measured one times the ratio of their intervals; before either is measured only the
-    coarsest is tried, with its expected time: a first request after the start solves what the
-    warm-up has timed least at most (a late solve costs the whole budget: the floor comes after it)."""
+    coarsest's measured one times the ratio of their intervals, else twice its expected one: a first
+    request after the start at the cell's 200 ms solves the coarsest (a late solve costs the whole
+    budget: the floor comes after it), one with seconds to spare the finest."""
     if deadline is None:
         return cached_program(sizes[-1], dof, torque), sizes[-1]
     coarsest = PROGRAMS.ready(sizes[0], dof, torque)
     per_interval = None if coarsest is None else coarsest.measured_fatrop_s()
     for n in reversed(sizes[1:]):
         program = PROGRAMS.ready(n, dof, torque)
+        if program is None and deadline - time.perf_counter() >= expected_build_s(n) + 2.0 * expected_solve_s(n):
+            program = cached_program(n, dof, torque)
         if program is None:
             continue
         measured = program.measured_fatrop_s()
-        if measured is None and per_interval is not None:
-            measured = per_interval * n / sizes[0]
-        if measured is not None and deadline - time.perf_counter() >= measured:
+        if measured is None:
+            measured = 2.0 * expected_solve_s(n) if per_interval is None else per_interval * n / sizes[0]
+        if deadline - time.perf_counter() >= measured:
             return program, n
     program = coarsest
     if program is None and deadline - time.perf_counter() >= expected_build_s(sizes[0]):
