@@ -32,7 +32,7 @@ CELLS = (("arm6", 40), ("gantry3", 15))
 JERK_CELLS = (("arm6", 10), ("gantry3", 5))
 EXPECTED = {
     "topp": "a663223b694cf38c1dae61fbafe20b7324b4d6cb6af37ba4b3c12bb90cb41148",
-    "jerk": "6cfd80d3378822e573acff8dc20f7579b563d0ad87cd67c0c31766bf5454f878",
+    "jerk": "35ae3652f43e2a9d3b449262fa082b9dd9fb256b7c83cf89b2fc747d35ff1315",
 }
 
 

@@ -87,6 +87,8 @@ class PlanInput:
     budget_ms: float | None = None  # the jerk-limited timing's deadline from the call's start; None: none
     # this plan's speed band (planner.speed_band), None: the planner's; a plan without a jerk limit only
     speed_band: float | None = None
+    # the jerk-limited timing's grid at most this many intervals (None: planner.jerk.DEFAULT_JERK_INTERVALS)
+    jerk_intervals: int | None = None
     # a motion sequence (planner/sequence.py: ptp, lin and circ items with blend radii) from the one
     # joint position in ``waypoints``; instead of poses
     sequence: Sequence[Any] | None = None
@@ -189,6 +191,7 @@ class Planner:
         deadline: float | None = None,
         speed_band: float | None = None,
         gridpoints: int | None = None,
+        jerk_intervals: int | None = None,
     ) -> tuple[Trajectory | JerkTrajectory, dict[str, object]]:
         """TOPP-RA along ``path``, flattened within the speed band (``speed_band``, None: the
         planner's); with a jerk limit, the jerk-limited timing warm-started from TOPP-RA's own profile."""
@@ -203,7 +206,7 @@ class Planner:
 
         t1 = time.perf_counter()
         try:
-            jerky = jerk_limited(path, limits, constraints, max_jerk, trajectory, deadline=deadline)
+            jerky = jerk_limited(path, limits, constraints, max_jerk, trajectory, jerk_intervals, deadline)
         except (ValueError, RuntimeError) as exc:  # PlanError is a ValueError: passed on as it is
             if isinstance(exc, PlanError):
                 raise
@@ -220,6 +223,8 @@ class Planner:
             "solver_finished": jerky.optimal,
             "torque_scale": jerky.torque_scale,
             "lower_bound_s": jerky.lower_bound,  # TOPP-RA's duration: no jerk-limited timing is shorter
+            # the solver's grid (0: the S-curve floor, no solver's)
+            "jerk_intervals": 0 if jerky.solver == "scurve" else len(jerky.gridpoints) - 1,
         }
         return jerky, details
 
@@ -236,14 +241,15 @@ class Planner:
         ``torque_scale``; ``lower_bound_s`` TOPP-RA's duration, the gap's other end). Time alone
         never refuses a plan here."""
         scales = (inp.velocity_scale, inp.acceleration_scale, inp.max_jerk)
+        options = (inp.speed_band, inp.jerk_intervals)
         deadline = None
         if inp.budget_ms is not None:
             deadline = time.perf_counter() + max(0.0, float(inp.budget_ms)) / 1000.0
         if inp.sequence is not None:
-            return self._plan_sequence(inp.waypoints, inp.sequence, *scales, deadline, inp.speed_band)
+            return self._plan_sequence(inp.waypoints, inp.sequence, *scales, deadline, *options)
         if inp.poses is not None:
-            return self._plan_poses(inp.waypoints, inp.poses, inp.motion, *scales, deadline, inp.speed_band)
-        return self._plan_waypoints(inp.waypoints, *scales, deadline, inp.speed_band)
+            return self._plan_poses(inp.waypoints, inp.poses, inp.motion, *scales, deadline, *options)
+        return self._plan_waypoints(inp.waypoints, *scales, deadline, *options)
 
     def _plan_waypoints(
         self,
@@ -253,13 +259,16 @@ class Planner:
         max_jerk: ArrayLike | None,
         deadline: float | None = None,
         speed_band: float | None = None,
+        jerk_intervals: int | None = None,
     ) -> PlanOutput:
         start = time.perf_counter()
         try:
             limits, constraints = self._scaled(velocity_scale, acceleration_scale)
             jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
             path = JointPath(waypoints, limits)
-            trajectory, details = self._timed(path, limits, constraints, jerk, deadline, speed_band)
+            trajectory, details = self._timed(
+                path, limits, constraints, jerk, deadline, speed_band, None, jerk_intervals
+            )
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - start, dict(exc.details))
         return PlanOutput(PlanResult.OK, "", trajectory, time.perf_counter() - start, details)
@@ -274,6 +283,7 @@ class Planner:
         max_jerk: ArrayLike | None,
         deadline: float | None = None,
         speed_band: float | None = None,
+        jerk_intervals: int | None = None,
     ) -> PlanOutput:
         """The tool from joint positions ``start`` through ``poses`` (straight lines or joint moves:
         planner/cartesian.py). ``details["ik_s"]``: the inverse kinematics' share of the planning
@@ -291,7 +301,9 @@ class Planner:
             jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
             tool: ToolPath = self.poses.solve(start, poses, kind)
             t_ik = time.perf_counter() - t0
-            trajectory, timed = self._timed(tool.path, limits, constraints, jerk, deadline, speed_band)
+            trajectory, timed = self._timed(
+                tool.path, limits, constraints, jerk, deadline, speed_band, None, jerk_intervals
+            )
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))
         details: dict[str, object] = {"ik_s": t_ik, "samples": len(tool.path.points), **timed}
@@ -306,6 +318,7 @@ class Planner:
         max_jerk: ArrayLike | None,
         deadline: float | None = None,
         speed_band: float | None = None,
+        jerk_intervals: int | None = None,
     ) -> PlanOutput:
         """A motion sequence from joint positions ``start`` (planner/sequence.py), timed once as a
         whole. ``details["items"]``: per item its index, label and start and end time [s] on the
@@ -326,7 +339,9 @@ class Planner:
             path = solved.tool.path
             stops = [path.waypoint_s[k] for k, r in zip(solved.item_end, solved.radii, strict=True) if r == 0.0]
             path.kinks = np.union1d(path.kinks, np.array(stops[:-1], dtype=float))
-            trajectory, timed = self._timed(solved.tool.path, limits, constraints, jerk, deadline, speed_band, grid)
+            trajectory, timed = self._timed(
+                solved.tool.path, limits, constraints, jerk, deadline, speed_band, grid, jerk_intervals
+            )
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))
         times = np.asarray(trajectory.waypoint_times, dtype=float)

@@ -126,10 +126,13 @@ class CellPlanner:
         timing.warm_up()  # the longer paths' spline and the torque check near a limit
         quantize.warm_up()  # the repair that may move knots, which a short move rarely needs
         if jerk:
-            from pvtflow.planner.jerk import warm_up as jerk_warm_up  # casadi: loaded where plans may be jerk-limited
+            from pvtflow.planner.jerk import WARM_INTERVALS  # casadi: loaded where plans may be jerk-limited
+            from pvtflow.planner.jerk import warm_up as jerk_warm_up
 
             ja, jb = lo + 0.4 * (hi - lo), lo + 0.6 * (hi - lo)
-            jerky = PlanInput(np.array([ja, jb]), max_jerk=10.0 * self.limits.acceleration)
+            jerky = PlanInput(
+                np.array([ja, jb]), max_jerk=10.0 * self.limits.acceleration, jerk_intervals=WARM_INTERVALS
+            )
             self.plan(jerky)
             self.plan(jerky, budget_ms=0.0)  # the floor: no solver has time (its answer, timeout, is dropped)
             jerk_warm_up()
@@ -176,6 +179,16 @@ class CellPlanner:
             meta = {"motion": str(inp.motion), **meta}
         reason = CELL_FILE_REASON if inp.speed_band is None else INPUT_REASON
         result = self._build(out, start, cpu, inp, tolerance_qc, meta, reason)
+        if not result.ok and out.ok and out.details.get("jerk_intervals", 0):
+            from pvtflow.planner.jerk import GRID_UNIT  # casadi: loaded by the jerk-limited plan already
+
+            if int(out.details["jerk_intervals"]) > GRID_UNIT:  # type: ignore[call-overload]
+                # the drives' cubics did not follow the fine grid's motion within the limits and the
+                # window-jerk allowance (its jerk switching within a few ms under a scaled-down jerk
+                # limit): the coarsest grid's motion (planner.jerk.grid_sizes; bench/RESULTS.md, "Issue 39
+                # item 2, the solver")
+                out = self.planner.plan(replace(inp, jerk_intervals=GRID_UNIT))
+                result = self._build(out, start, cpu, inp, tolerance_qc, meta, reason)
         if result.ok and "max_jerk" not in out.details and inp.speed_band is None:
             out, result = self._fed(out, result, start, cpu, inp, tolerance_qc, meta)
         elapsed_ms = (time.perf_counter() - start) * 1000.0

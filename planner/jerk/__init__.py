@@ -36,18 +36,42 @@ import toppra.constraint as constraint
 from numpy.typing import ArrayLike, NDArray
 
 from pvtflow.planner.jerk.nlp import program_bounds, program_parameters, program_rows, variable_scales
-from pvtflow.planner.jerk.solve import PROGRAMS, cached_program, expected_build_s, solve_in_time
+from pvtflow.planner.jerk.solve import (
+    PROGRAMS,
+    Program,
+    cached_program,
+    expected_build_s,
+    expected_solve_s,
+    solve_in_time,
+)
 from pvtflow.planner.jerk.trajectory import JerkTrajectory
-from pvtflow.planner.jerk.warm import MIN_REST_TO_REST, WarmProfile, curvature_jumps, warm_start
+from pvtflow.planner.jerk.warm import MIN_REST_TO_REST, WarmProfile, rests_of, warm_start
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.path import JointPath, PlanError, PlanResult
 from pvtflow.planner.scurve import rest_to_rest
 from pvtflow.planner.slowdown import SLOWDOWN_MARGIN, slowdown
 from pvtflow.planner.timing import RneaJointTorqueConstraint, Trajectory
 
-__all__ = ["DEFAULT_JERK_INTERVALS", "JerkTrajectory", "jerk_limited", "warm_up"]
+__all__ = [
+    "DEFAULT_JERK_INTERVALS",
+    "GRID_UNIT",
+    "WARM_INTERVALS",
+    "JerkTrajectory",
+    "grid_sizes",
+    "jerk_limited",
+    "warm_up",
+]
 
-DEFAULT_JERK_INTERVALS = 48
+# the program's grid: as fine as the time allows, up to DEFAULT_JERK_INTERVALS; its sizes are GRID_UNIT
+# times a power of two (each size is a program to build, seconds at start). On 20 arm6 8-waypoint
+# paths against copp-py's TOPP3 at 1000 stations (bench/jerk_vs_copp.py, bench/RESULTS.md "Issue 39
+# item 2"): 48 intervals 1.084x at the median, 96 1.017x, 192 1.001x; fatrop's time grows with them
+GRID_UNIT = 48
+DEFAULT_JERK_INTERVALS = 192
+# the sizes a warm-up builds: building a program holds the interpreter's lock in one piece (192
+# intervals: 0.76 s for fatrop's solver, past the 300 ms a drive waits for the master's heartbeat);
+# 192 is built by the first plan without a deadline (a deadline never waits for a build)
+WARM_INTERVALS = 96
 
 # the torque check (``_torque_slowdown``, bench/jerk_torque.py): on 20 random arm6 paths at 30 % of
 # every effort the torque between its samples was at most 3.5e-5 of a limit above theirs with pieces
@@ -56,9 +80,6 @@ DEFAULT_JERK_INTERVALS = 48
 _TORQUE_PIECE_S = 0.005
 _TORQUE_SCREEN_S = 0.05
 _TORQUE_SCREEN_MARGIN = 0.02
-
-# a jump of the path's second derivative at a waypoint above this is a C1 joint, not round-off
-_CURVATURE_JUMP = 1e-8
 
 
 def _checked(
@@ -103,13 +124,59 @@ def _torque_slowdown(traj: JerkTrajectory, constraints: Sequence[constraint.Cons
     return k
 
 
+def grid_sizes(needed: int, intervals: int = DEFAULT_JERK_INTERVALS) -> list[int]:
+    """The program sizes a path needing ``needed`` intervals may be solved on, smallest first: the
+    least multiple of ``GRID_UNIT`` that holds it, doubled while within ``intervals``."""
+    sizes = [GRID_UNIT * max(1, math.ceil(needed / GRID_UNIT))]
+    while 2 * sizes[-1] <= intervals:
+        sizes.append(2 * sizes[-1])
+    return sizes
+
+
 def warm_up() -> None:
-    """Build, for every program shape of ``DEFAULT_JERK_INTERVALS`` a plan has built, the next size up
-    too (twice the intervals: a path of more than 44 waypoints, or of 12 with a stop at each), so that
-    no plan within a deadline meets a shape that is not built (it would answer the floor)."""
-    for n, dof, torque in PROGRAMS.shapes():
-        if n == DEFAULT_JERK_INTERVALS:
-            cached_program(2 * n, dof, torque)
+    """Build, for every joint count a plan has built a program for, every size up to
+    ``WARM_INTERVALS`` a path of up to 44 waypoints (or 12 with a stop at each) and one of up to
+    twice that may be solved on (``grid_sizes``), so that no plan within a deadline meets a
+    shape that is not built (it would answer on a coarser grid, or the floor); the warm-up's own
+    solve times are forgotten."""
+    for _, dof, torque in PROGRAMS.shapes():
+        for n in {*grid_sizes(GRID_UNIT, WARM_INTERVALS), *grid_sizes(2 * GRID_UNIT, WARM_INTERVALS)}:
+            cached_program(n, dof, torque)
+    for shape in PROGRAMS.shapes():  # the warm-up's move is no request's (96 intervals: 151 ms, requests' 50)
+        program = PROGRAMS.ready(*shape)
+        if program is not None:
+            program.fatrop_s.clear()
+
+
+def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | None) -> tuple[Program | None, int]:
+    """Without a deadline the finest of ``sizes`` (built now where it is not). Within one the finest
+    whose solve fits the time left (a size not built is built where the time left covers the build
+    and twice its expected solve), else the coarsest, built now only where the time left covers the
+    build (its solvers then decide, ``solve.solve_in_time``), else None (the floor; build it later).
+
+    A finer size's solve time is its own measured one (``Program.measured_fatrop_s``), else the
+    coarsest's measured one times the ratio of their intervals, else twice its expected one: a first
+    request after the start at the cell's 200 ms solves the coarsest (a late solve costs the whole
+    budget: the floor comes after it), one with seconds to spare the finest."""
+    if deadline is None:
+        return cached_program(sizes[-1], dof, torque), sizes[-1]
+    coarsest = PROGRAMS.ready(sizes[0], dof, torque)
+    per_interval = None if coarsest is None else coarsest.measured_fatrop_s()
+    for n in reversed(sizes[1:]):
+        program = PROGRAMS.ready(n, dof, torque)
+        if program is None and deadline - time.perf_counter() >= expected_build_s(n) + 2.0 * expected_solve_s(n):
+            program = cached_program(n, dof, torque)
+        if program is None:
+            continue
+        measured = program.measured_fatrop_s()
+        if measured is None:
+            measured = 2.0 * expected_solve_s(n) if per_interval is None else per_interval * n / sizes[0]
+        if deadline - time.perf_counter() >= measured:
+            return program, n
+    program = coarsest
+    if program is None and deadline - time.perf_counter() >= expected_build_s(sizes[0]):
+        program = cached_program(sizes[0], dof, torque)
+    return program, sizes[0]
 
 
 def _floor(
@@ -127,7 +194,7 @@ def jerk_limited(
     constraints: Sequence[constraint.Constraint],
     max_jerk: ArrayLike,
     warm: Trajectory,
-    intervals: int = DEFAULT_JERK_INTERVALS,
+    intervals: int | None = None,
     deadline: float | None = None,
 ) -> JerkTrajectory:
     """The time-optimal rest-to-rest trajectory along ``path`` with |q'''_j| <= max_jerk_j besides
@@ -140,26 +207,24 @@ def jerk_limited(
     the answer is the S-curve floor (``planner.scurve``), ``optimal`` False; time alone never makes
     it INFEASIBLE. ``lower_bound``: TOPP-RA's duration, which no jerk-limited timing beats.
     ``torque_scale``: the slow-down torque between the rows asked for after the solve.
+    ``intervals``: the grid's size at most (None: ``DEFAULT_JERK_INTERVALS``; ``grid_sizes``).
     """
     jmax = np.asarray(max_jerk, dtype=float)
-    # at rest at both ends and at every waypoint where the path is C1 only (``curvature_jumps``)
-    stops = path.waypoint_s[1:-1][np.any(curvature_jumps(path) > _CURVATURE_JUMP, axis=1)]
-    rests = np.concatenate(([0.0], stops, [path.length]))
+    rests = rests_of(path)
+    stops = rests[1:-1]
     needed = (len(path.waypoint_s) - 1) + MIN_REST_TO_REST * (len(rests) - 1)
-    n = int(intervals) * max(1, math.ceil(needed / int(intervals)))  # few shapes: each is a program to build
+    torque = any(isinstance(c, RneaJointTorqueConstraint) for c in constraints)
+    # a program is built within a deadline only where the time left covers it (0.6 s for 48 intervals);
+    # else the floor, and the smallest is built for later
+    sizes = grid_sizes(needed, DEFAULT_JERK_INTERVALS if intervals is None else int(intervals))
+    program, n = _program_for(sizes, limits.dof, torque, deadline)
+    if program is None:
+        PROGRAMS.build_later(n, limits.dof, torque)
+        return _checked(_floor(path, rests, limits, jmax, warm), limits, jmax, constraints)
     profile = WarmProfile.of(warm, rests)
     grid = profile.grid(path.waypoint_s, rests, n)
     rows = program_rows(path, grid, limits, constraints)
     rows.sd_max[np.searchsorted(grid, stops)] = 0.0
-    shape = (n, limits.dof, rows.torque is not None)
-    # a program is built within a deadline only where the time left covers it (0.3 s for 48 intervals);
-    # else the floor, and it is built for later
-    program = PROGRAMS.ready(*shape)
-    if program is None and (deadline is None or deadline - time.perf_counter() >= expected_build_s(n)):
-        program = cached_program(*shape)
-    if program is None:
-        PROGRAMS.build_later(*shape)
-        return _checked(_floor(path, rests, limits, jmax, warm), limits, jmax, constraints)
     start = warm_start(profile, grid, rows, jmax)
     scale = variable_scales(start)
     per_variable = np.tile(scale, n + 1)[: len(start)]

@@ -45,9 +45,11 @@ _MAX_ITER = 300
 _TOL = 1e-6  # optimality (relative duration)
 _CONSTRAINT_TOL = 1e-9  # the residuals: positions along the path continuous to 1e-9 of an interval
 _ITERATE_TOL = 1e-8  # an unfinished ipopt iterate is a motion where its residuals are this small
-# fatrop's expected solve time until _MIN_HISTORY solves of a program shape were timed (``_solvers_for``):
-# twice its p50 on 8-waypoint arm6 paths, so that a fresh process (``pvtflow plan``) solves at 200 ms
+# fatrop's expected solve time per 48 intervals until _MIN_HISTORY solves of a program shape were timed
+# (``_solvers_for``): twice its p50 on 8-waypoint arm6 paths, so that a fresh process (``pvtflow plan``)
+# solves at 200 ms; its time grows with the intervals (bench/RESULTS.md, "Issue 39 item 2")
 _FATROP_TIME_S = 0.06
+_FATROP_INTERVALS = 48
 _SOLVE_HISTORY = 50
 _MIN_HISTORY = 10
 _IPOPT_TIME_S = 0.04  # with less time left ipopt's iterates were never usable: no solve, the floor
@@ -78,8 +80,13 @@ class Program:
 
     def expected_fatrop_s(self) -> float:
         """fatrop's expected wall time on this program: the longest of its recent solves."""
+        measured = self.measured_fatrop_s()
+        return expected_solve_s(self.n) if measured is None else measured
+
+    def measured_fatrop_s(self) -> float | None:
+        """The longest of fatrop's recent solves of this program, None until ``_MIN_HISTORY`` are known."""
         times = list(self.fatrop_s)
-        return max(times) if len(times) >= _MIN_HISTORY else _FATROP_TIME_S
+        return max(times) if len(times) >= _MIN_HISTORY else None
 
     def solver(self, name: str) -> ca.Function:
         if name not in self.solvers:
@@ -141,6 +148,11 @@ def _solver_options(name: str, equality: list[bool]) -> dict[str, Any]:
     if name == "fatrop":
         return base | {"structure_detection": "auto", "equality": equality, "fatrop": common}
     return base | {"ipopt": common | {"sb": "yes"}}
+
+
+def expected_solve_s(n: int) -> float:
+    """fatrop's expected time on a program of ``n`` intervals before its own solves are known."""
+    return _FATROP_TIME_S * n / _FATROP_INTERVALS
 
 
 def expected_build_s(n: int) -> float:

@@ -18,6 +18,8 @@ from pvtflow.planner.timing import Trajectory
 MIN_REST_TO_REST = 4
 
 _START_JERK_SLACK = 0.3  # the start's joint jerk at most this fraction of the limit (see ``warm_start``)
+# a jump of the path's second derivative at a waypoint above this is a C1 joint, not round-off
+CURVATURE_JUMP = 1e-8
 
 
 @dataclass(frozen=True)
@@ -87,6 +89,13 @@ def curvature_jumps(path: JointPath) -> NDArray[np.float64]:
     h = np.diff(x)[:-1, None]
     end = 6.0 * c[0, :-1] * h + 2.0 * c[1, :-1]  # q_ss at the end of each piece but the last
     return np.abs(2.0 * c[1, 1:] - end)
+
+
+def rests_of(path: JointPath) -> NDArray[np.float64]:
+    """Where the jerk-limited motion is at rest, in s: both ends and every waypoint where the path
+    is C1 only (``curvature_jumps`` above ``CURVATURE_JUMP``)."""
+    stops = path.waypoint_s[1:-1][np.any(curvature_jumps(path) > CURVATURE_JUMP, axis=1)]
+    return np.concatenate(([0.0], stops, [path.length]))
 
 
 def warm_start(

@@ -129,9 +129,16 @@ def place_knots(traj: TimedTrajectory, axes: Sequence[DriveAxis], options: KnotO
             scale = least
         scale = math.ceil(duration_ms * scale - 1e-6) / duration_ms  # and end on a whole ms again
         # the limit on the slow-down is on what the integers cost, on top of what the drives' own
-        # interpolation of this plan calls for (a plan that asks more than they can take)
+        # interpolation of this plan calls for (a plan that asks more than they can take); a round
+        # that would pass it tries the limit itself first (the growth per round can step over all of
+        # the room left: a jerk-limited plan's window jerk fell within its allowance at 1.05, where
+        # the rounds went 1.03 -> 1.07)
         if scale > opts.max_time_scale * drives and duration_ms * (scale - drives) > opts.max_extra_ms:
-            break
+            most = max(opts.max_time_scale * drives, drives + opts.max_extra_ms / duration_ms)
+            most = math.floor(duration_ms * most + 1e-6) / duration_ms
+            if most <= smp.scale + 1e-12:
+                break
+            scale = most
     worst = max(last, key=lambda a: max(a.velocity_ratio, a.acceleration_ratio))
     beyond = f" beyond the {drives:.4f} the drives' interpolation of this plan calls for" if drives > 1.0 else ""
     raise KnotError(
