@@ -63,6 +63,12 @@ class BusConfig:
     # wall clock: SYNC, the time stamp, setpoints, records and the quick stop from a process of their own
     # (``axes.master.cyclic.process``), where nothing else of the master runs
     cyclic_process: bool = False
+    # the EPOS2 FIFO holds records at most this far beyond the drive's clock (and never fewer than its
+    # underflow warning level): what the drives hold is what a change of the motion (on-path stop,
+    # pause, override: axes.master.group.splice) cannot take back. 50 ms covers the change's computation
+    # (path braking p50 0.2 ms, override 1-1.5 ms, records and their check a few ms) and the records'
+    # transfer at the bus budget's allowance (docs/onpath-stop-integration.md)
+    max_lookahead_ms: float = 50.0
 
     def planning_share(self, fixed_period: bool) -> float:
         """The factor on an axis's 0x607F and 0x60C5 its plans are made with: ``1 - fixed_period_headroom``

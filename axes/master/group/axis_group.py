@@ -116,6 +116,8 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         self.state = CellRunState(bus, self.links, self.readiness)  # shared with the cell's homing
         self._lock = self.state.lock
         self.last_quick_stop: QuickStop | None = None  # the last halt that did not wait for SYNC
+        # how a run whose program was changed to end early ends (axes.master.splice: an on-path stop)
+        self.end_as: tuple[Result, str] | None = None
         # the records the bus has room for in one SYNC period, shared by the buffered axes; never less
         # than one per buffered axis (a cell file whose bus has no room for that is refused at load)
         budget = bus_budget(Wiring(bus.config, tuple(axes)))
@@ -255,7 +257,7 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
                 done = False
         if done:
             self.bus.sync.stop()
-            self._end(self._result(Result.FINISHED, "every axis reached its end record"))
+            self._end(self._result(*(self.end_as or (Result.FINISHED, "every axis reached its end record"))))
 
     def _feed(self) -> None:
         """Top the buffered axes up from the allowance of the period of the last SYNC sent (group lock
@@ -347,6 +349,7 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
             self.bus.sync.remove_listener(self._on_sync)
             self.bus.watch.watch_sync = False
             result.end_sync = self.bus.sync.answered
+            self.end_as = None
             result.axes = self._reports()
             self.last_result = result
             self._running = False

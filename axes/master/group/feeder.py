@@ -170,11 +170,9 @@ class BufferFeeder(Feeder):
         buffer: BufferConfig,
         capacity: int = EPOS2_BUFFER_SIZE,
         allowance: RecordAllowance | None = None,
+        lookahead_ms: float | None = None,
     ) -> None:
-        r = np.asarray(records, dtype=np.int64)
-        if r[-1, 2] != 0:  # the end record: time 0 ends interpolation without error
-            r = np.vstack([r, [[r[-1, 0], 0, 0]]])
-        super().__init__(r, frame_of, send, period_ms)
+        super().__init__(_with_end_record(records), frame_of, send, period_ms)
         self.buffer = buffer
         self.capacity = capacity
         # the mark the level is topped up to: just below the overflow warning, inside the FIFO
@@ -190,6 +188,10 @@ class BufferFeeder(Feeder):
         self._status = 0
         self._own = allowance is None  # a feeder on its own begins its periods itself
         self.allowance = RecordAllowance(TOP_UP_PER_SYNC) if allowance is None else allowance
+        # the records held reach at most this far beyond the drive's clock (axes.master.group.splice), and
+        # none ends after ``horizon_ms`` while a splice is prepared (None: no bound)
+        self.lookahead_ms = lookahead_ms
+        self.horizon_ms: float | None = None
 
     def consumed(self) -> int:
         """Records whose segment the drive has finished by its clock (the running one counts as buffered)."""
@@ -204,7 +206,23 @@ class BufferFeeder(Feeder):
     @property
     def wants(self) -> bool:
         """A record would go out now if the allowance had one: the FIFO is below its mark."""
-        return self.enabled and not self._hold and not self.all_sent and self.level < self.high
+        return (
+            self.enabled
+            and not self._hold
+            and not self.all_sent
+            and self.level < self.high
+            and (self.lookahead_ms is None or within_lookahead(self))
+        )
+
+    def replace_from(self, first: int, rows: NDArray[np.int64]) -> None:
+        """Records ``first`` on (none of them sent) become ``rows`` (axes.master.group.splice), then the end record."""
+        assert first >= self.next, "a record the drive holds cannot be replaced"
+        self.records = _with_end_record(np.concatenate((self.records[:first], np.asarray(rows, dtype=np.int64))))
+        self.end_ms = np.cumsum(self.records[:, 2])
+        self._end = self.end_ms.tolist()
+        self.duration_ms = int(self.end_ms[-1])
+        self.stats.records = len(self.records)
+        self.horizon_ms = None
 
     def _top_up(self) -> None:
         if not self.wants or self.mirrored:
@@ -271,6 +289,24 @@ class BufferFeeder(Feeder):
         return self.all_sent and elapsed * self.period_ms >= self.duration_ms and not ip_active
 
 
+def _with_end_record(records: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The records and the end record (time 0 ends interpolation without error)."""
+    r = np.asarray(records, dtype=np.int64)
+    return r if r[-1, 2] == 0 else np.vstack([r, [[r[-1, 0], 0, 0]]])
+
+
+def within_lookahead(feeder: BufferFeeder) -> bool:
+    """The next record may go out: the records held end short of the look-ahead bound beyond the drive's
+    clock, or the FIFO would fall to its underflow warning level (a record is never held back from
+    a drive that needs it; the bound on a splice's ``t0`` is the later of the two), and no record ends
+    after a splice's horizon."""
+    end = feeder._end[feeder.next]
+    if feeder.horizon_ms is not None and end > feeder.horizon_ms:
+        return False
+    held = feeder._end[feeder.next - 1] if feeder.next else 0.0
+    return held < feeder.elapsed_ms + feeder.lookahead_ms or feeder.level <= feeder.low
+
+
 class SetpointFeeder(Feeder):
     """One setpoint per SYNC: record k is validated by SYNC (start + k + 1 - lead).
 
@@ -291,6 +327,7 @@ class SetpointFeeder(Feeder):
         self.held_syncs = 0  # SYNCs that went out without this axis's setpoint: the drive held a period each
         self._last_elapsed = -1
         self.frames = [frame_of(r) for r in self.records]  # packed before the start: sending is all that is left
+        self.horizon_ms: float | None = None  # no record ending after it goes out (axes.master.group.splice)
 
     def _send_next(self) -> None:
         cob, data = self.frames[self.next]
@@ -330,7 +367,14 @@ class SetpointFeeder(Feeder):
             self.held_syncs += elapsed - self._last_elapsed - 1  # the program runs that much later
         self._last_elapsed = max(self._last_elapsed, elapsed)
         if self.enabled and not self.mirrored and self.next <= elapsed + self.lead and self.next < len(self.records):
-            self._send_next()
+            if self.horizon_ms is None or self.records[: self.next + 1, 2].sum() <= self.horizon_ms:
+                self._send_next()
+
+    def replace_from(self, first: int, rows: NDArray[np.int64]) -> None:
+        """Records ``first`` on (none of them sent) become ``rows`` (axes.master.group.splice)."""
+        assert first >= self.next, "a setpoint the drive holds cannot be replaced"
+        self.decelerate(np.concatenate((self.records[self.next : first], np.asarray(rows, dtype=np.int64).reshape(-1, 3))))
+        self.horizon_ms = None
 
     def finished(self, elapsed: int, ip_active: bool) -> bool:
         # record N-1 is reached at N periods, plus one for each SYNC the drive held through

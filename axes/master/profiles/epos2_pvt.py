@@ -111,4 +111,5 @@ class Epos2Pvt(Profile):
             bus.config.sync_period_ms,
             self.config.buffer,
             allowance=allowance,
+            lookahead_ms=bus.config.max_lookahead_ms,
         )

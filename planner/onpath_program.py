@@ -1,0 +1,166 @@
+"""The on-path stop, pause, resume and override as records: the running program's change from ``t0`` on
+(issue 37; planner side of ``axes.master.splice``).
+
+Everything is in program time (``planner.program_motion``: s = the program's time, seconds). A change keeps
+each axis's records up to the end of its last one the drive holds (``join_ms``) and appends records sampled
+from the new motion from there: the knot at the join is the record the drive already has (the records join
+with the same position and velocity), the next knots at ``t0`` (where the new motion leaves the old one),
+where the new motion's acceleration jumps, at most ``MAX_SEGMENT_MS`` apart, and at its end. A fixed-period
+axis's setpoints are the new motion's at its own period. The new motion's braking is made to end on the
+records' common grid (a share of 0x60C5 a little lower, found by bisection), so that every axis is at rest
+from the same SYNC and no cubic straddles the end of the braking (a cubic across an acceleration switch
+overshoots it). The whole program, kept records and new, is then judged by the validator, like any program.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pvtflow.axes.drive.program import AxisProgram, PvtProgram
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.onpath_stop import OnPathStop, brake_on_path
+from pvtflow.planner.path import PlanError, PlanResult
+from pvtflow.planner.trajectory import Trajectory
+from pvtflow.planner.validate import validate_program
+
+# EPOS2 knots of a change: segments of 8-12 ms keep a count's rounding (6 * 0.5 qc / T^2) near 1 % of a
+# typical 0x60C5 and the cubic's fit to the braking within a fraction of a count
+MIN_SEGMENT_MS = 8
+MAX_SEGMENT_MS = 12
+# the share of the joint accelerations the braking plans with: room for the records' rounding (the knot
+# placement's repair of integers is not run on a change: it must be made within the look-ahead)
+BRAKING_SHARE = 0.9
+JUMP_SHARE = 0.02  # an acceleration jump of this share of 0x60C5 gets a knot of its own
+
+
+class ChangeError(ValueError):
+    """The change cannot be made into records that the drives take (the caller stops the quick way)."""
+
+
+def scaled_limits(limits: JointLimits, share: float) -> JointLimits:
+    return dataclasses.replace(limits, acceleration=np.asarray(limits.acceleration) * share)
+
+
+def brake_on_grid(motion: Trajectory, t0_s: float, limits: JointLimits, grid_s: float) -> OnPathStop:
+    """``brake_on_path`` from ``t0_s`` that comes to rest on the grid: at most ``BRAKING_SHARE`` of the
+    joint accelerations, lowered until the rest falls on the next grid time (bisection on the share)."""
+    hi = BRAKING_SHARE
+    stop = brake_on_path(motion, t0_s, scaled_limits(limits, hi))
+    target = math.ceil(stop.t_end / grid_s - 1e-9) * grid_s
+    if abs(stop.t_end - target) < 1e-7:
+        return stop
+    lo = hi * 0.5
+    best = None
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        trial = brake_on_path(motion, t0_s, scaled_limits(limits, mid), tries=1)
+        if trial.t_end > target:
+            lo = mid
+        else:
+            hi, best = mid, trial
+        if best is not None and target - best.t_end < 2e-6:
+            break
+    if best is None:
+        raise ChangeError("no braking on this path comes to rest on the SYNC grid")
+    return best
+
+
+def tail_records(
+    axis: AxisProgram, join_ms: float, t0_ms: float, motion: Trajectory, end_ms: float, jumps_ms: NDArray[np.float64]
+) -> NDArray[np.int64]:
+    """The records of ``axis`` from ``join_ms`` (the end of its last kept record) to ``end_ms``, sampled from
+    ``motion`` (program time), ending at rest; ``jumps_ms``: where ``motion``'s acceleration jumps."""
+    j = [i for i, n in enumerate(motion.joint_names) if n == axis.joint][0]
+    sc = axis.scaling
+    if axis.profile.fixed_period:
+        period = float(axis.records[0, 2])
+        n = round((end_ms - join_ms) / period)
+        if n < 1:
+            raise ChangeError(f"{axis.joint}: the change ends before its next setpoint")
+        t = join_ms + period * np.arange(1, n + 1)
+        q, qd = _states(motion, t, j)
+        p = np.rint(sc.position_to_qc(q)).astype(np.int64)
+        v = np.zeros(n, dtype=np.int64)
+        if axis.profile.carries_velocity(axis.interpolation_submode):
+            v = np.rint(sc.velocity_to_drive(qd)).astype(np.int64)
+        v[-1] = 0
+        rows = np.column_stack((p, v, np.full(n, int(period))))
+        return np.vstack([rows, [[p[-1], 0, int(period)]]]).astype(np.int64)  # held at rest one more period
+    knots = _knot_times(join_ms, t0_ms, end_ms, jumps_ms)
+    q, qd = _states(motion, knots[1:], j)
+    p = np.rint(sc.position_to_qc(q)).astype(np.int64)
+    v = np.rint(sc.velocity_to_drive(qd)).astype(np.int64)
+    v[-1] = 0
+    rows = np.column_stack((p, v, np.diff(knots).astype(np.int64)))
+    return np.vstack([rows, [[p[-1], 0, 0]]]).astype(np.int64)  # the end record: interpolation ends
+
+
+def _states(motion: Trajectory, t_ms: NDArray[np.float64], j: int) -> tuple[NDArray[np.float64], ...]:
+    t = np.clip(np.asarray(t_ms, dtype=float) / 1000.0, 0.0, motion.duration)
+    return motion.position(t)[:, j], motion.velocity(t)[:, j]
+
+
+def _knot_times(join_ms: float, t0_ms: float, end_ms: float, jumps_ms: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Whole-ms knots from the join to the end: t0, the acceleration jumps, at most MAX_SEGMENT_MS apart,
+    none closer than MIN_SEGMENT_MS (the end kept, the knot before it dropped where they would be)."""
+    join, end = int(round(join_ms)), int(round(end_ms))
+    wanted = sorted({int(round(t0_ms)), *(int(round(t)) for t in jumps_ms if join_ms < t < end_ms)})
+    knots = [join]
+    for t in [*wanted, end]:
+        while t - knots[-1] > MAX_SEGMENT_MS:
+            gap = t - knots[-1]
+            knots.append(knots[-1] + math.ceil(gap / math.ceil(gap / MAX_SEGMENT_MS)))
+        if t - knots[-1] >= MIN_SEGMENT_MS:
+            knots.append(t)
+    if knots[-1] != end:
+        if len(knots) > 1 and end - knots[-2] <= 255:
+            knots[-1] = end
+        else:
+            knots.append(end)
+    return np.asarray(knots, dtype=np.int64)
+
+
+def changed_program(
+    program: PvtProgram,
+    first: Sequence[int],
+    join_ms: Sequence[float],
+    t0_ms: float,
+    motion: Trajectory,
+    end_ms: float,
+    limits: JointLimits,
+) -> tuple[PvtProgram, list[NDArray[np.int64]]]:
+    """``program`` with each axis's records from ``first[i]`` on replaced by ``motion``'s from ``join_ms[i]``
+    to ``end_ms``, validated; (the new program, the new records per axis). ChangeError where the drives
+    would not take it."""
+    times, jumps = motion.acceleration_jumps()
+    amax = np.asarray(limits.acceleration, dtype=float)
+    big = np.any(np.abs(jumps) > JUMP_SHARE * amax, axis=1) if len(jumps) else np.zeros(0, dtype=bool)
+    jumps_ms = np.asarray(times, dtype=float)[big] * 1000.0
+    rows: list[NDArray[np.int64]] = []
+    axes = []
+    for a, k, jm in zip(program.axes, first, join_ms, strict=True):
+        r = tail_records(a, jm, t0_ms, motion, end_ms, jumps_ms)
+        rows.append(r)
+        axes.append(AxisProgram.of(a, np.concatenate((a.records[:k], r))))
+    changed = PvtProgram(program.cell, tuple(axes), {**program.metadata, "duration_ms": int(round(end_ms))})
+    report = validate_program(changed, sample_period_ms=None)
+    if not report.ok:
+        raise ChangeError("the changed records do not validate: " + "; ".join(f.format() for f in report.errors[:3]))
+    return changed, rows
+
+
+def joined(running: Trajectory, change: Trajectory) -> Trajectory:
+    """``running`` until where ``change`` begins on the path, then ``change``: one trajectory, the motion as
+    the drives run it after an override."""
+    s0 = float(change.gridpoints[0])
+    before = running.gridpoints < s0 - 1e-12
+    grid = np.concatenate([running.gridpoints[before], change.gridpoints])
+    sd = np.concatenate([running.sd[before], change.sd])
+    if sd[-1] != 0.0 and grid[-1] < running.gridpoints[-1]:
+        raise PlanError(PlanResult.INFEASIBLE, "the change does not reach the motion's end")
+    return Trajectory.from_path_velocities(running.path, grid, sd, running.joint_names)
