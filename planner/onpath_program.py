@@ -75,7 +75,7 @@ def tail_records(
 ) -> NDArray[np.int64]:
     """The records of ``axis`` from ``join_ms`` (the end of its last kept record) to ``end_ms``, sampled from
     ``motion`` (program time), ending at rest; ``jumps_ms``: where ``motion``'s acceleration jumps."""
-    j = [i for i, n in enumerate(motion.joint_names) if n == axis.joint][0]
+    j = next(i for i, n in enumerate(motion.joint_names) if n == axis.joint)
     sc = axis.scaling
     if axis.profile.fixed_period:
         period = float(axis.records[0, 2])
@@ -108,8 +108,8 @@ def _states(motion: Trajectory, t_ms: NDArray[np.float64], j: int) -> tuple[NDAr
 def _knot_times(join_ms: float, t0_ms: float, end_ms: float, jumps_ms: NDArray[np.float64]) -> NDArray[np.int64]:
     """Whole-ms knots from the join to the end: t0, the acceleration jumps, at most MAX_SEGMENT_MS apart,
     none closer than MIN_SEGMENT_MS (the end kept, the knot before it dropped where they would be)."""
-    join, end = int(round(join_ms)), int(round(end_ms))
-    wanted = sorted({int(round(t0_ms)), *(int(round(t)) for t in jumps_ms if join_ms < t < end_ms)})
+    join, end = round(join_ms), round(end_ms)
+    wanted = sorted({round(t0_ms), *(round(t) for t in jumps_ms if join_ms < t < end_ms)})
     knots = [join]
     for t in [*wanted, end]:
         while t - knots[-1] > MAX_SEGMENT_MS:
@@ -147,7 +147,7 @@ def changed_program(
         r = tail_records(a, jm, t0_ms, motion, end_ms, jumps_ms)
         rows.append(r)
         axes.append(AxisProgram.of(a, np.concatenate((a.records[:k], r))))
-    changed = PvtProgram(program.cell, tuple(axes), {**program.metadata, "duration_ms": int(round(end_ms))})
+    changed = PvtProgram(program.cell, tuple(axes), {**program.metadata, "duration_ms": round(end_ms)})
     report = validate_program(changed, sample_period_ms=None)
     if not report.ok:
         raise ChangeError("the changed records do not validate: " + "; ".join(f.format() for f in report.errors[:3]))

@@ -32,9 +32,9 @@ class ProgramPath(JointPath):
         t_ms = np.arange(0.0, end_ms + 0.5 * SAMPLE_MS, SAMPLE_MS)
         if t_ms[-1] < end_ms:
             t_ms = np.append(t_ms, end_ms)
-        q = np.column_stack(
-            [a.scaling.qc_to_position(a.reconstruction().position(t_ms)) for a in program.axes]
-        ).astype(float)
+        q = np.column_stack([a.scaling.qc_to_position(a.reconstruction().position(t_ms)) for a in program.axes]).astype(
+            float
+        )
         s = t_ms / 1000.0
         spline = CubicSpline(s, q, axis=0, bc_type="clamped")  # at rest at both ends
         self.points: NDArray[np.float64] = q

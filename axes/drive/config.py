@@ -65,7 +65,7 @@ class BusConfig:
     cyclic_process: bool = False
     # the EPOS2 FIFO holds records at most this far beyond the drive's clock (and never fewer than its
     # underflow warning level): what the drives hold is what a change of the motion (on-path stop,
-    # pause, override: axes.master.group.splice) cannot take back. 50 ms covers the change's computation
+    # pause, override: axes.master.splice) cannot take back. 50 ms covers the change's computation
     # (path braking p50 0.2 ms, override 1-1.5 ms, records and their check a few ms) and the records'
     # transfer at the bus budget's allowance (docs/onpath-stop-integration.md)
     max_lookahead_ms: float = 50.0

@@ -11,7 +11,7 @@ switches its source there. The feeders keep what the drives hold within the cell
 
 The group's lock is held while the new records are made: in lockstep the drives' clock waits for them; on
 the wall clock the drives run on, and a change whose records come too late for a drive is refused
-(``SpliceLate``) before anything is replaced, the caller then stops the motion the quick way.
+(``SpliceLateError``) before anything is replaced, the caller then stops the motion the quick way.
 """
 
 from __future__ import annotations
@@ -28,11 +28,11 @@ from pvtflow.axes.drive.program import AxisProgram
 from pvtflow.axes.master.group.feeder import BufferFeeder, SetpointFeeder
 
 
-class SpliceRefused(Exception):
+class SpliceRefusedError(Exception):
     """The running program cannot be changed (nothing runs, it is ending, or its feeders are elsewhere)."""
 
 
-class SpliceLate(SpliceRefused):
+class SpliceLateError(SpliceRefusedError):
     """The new records were made too late for a drive: nothing was replaced."""
 
 
@@ -88,9 +88,9 @@ def splice_run(group: object, make: Make, lead_ms: float | None = None) -> Splic
         try:
             feeders = group._feeders  # type: ignore[attr-defined]
             if not group._running or group._ending is not None or group._start_sync is None:  # type: ignore[attr-defined]
-                raise SpliceRefused("no motion runs")
+                raise SpliceRefusedError("no motion runs")
             if sync.cyclic_producing or any(f.mirrored for f in feeders):
-                raise SpliceRefused("the records are sent by the cyclic process: its feeders cannot be changed")
+                raise SpliceRefusedError("the records are sent by the cyclic process: its feeders cannot be changed")
             programs = tuple(group._programs)  # type: ignore[attr-defined]
             now = _drive_clock_ms(group, period)
             grid = record_grid_ms(programs, period)
@@ -124,7 +124,7 @@ def splice_run(group: object, make: Make, lead_ms: float | None = None) -> Splic
         if late is not None:
             for f in feeders:
                 f.horizon_ms = None
-            raise SpliceLate(late)
+            raise SpliceLateError(late)
         for i, (f, r) in enumerate(zip(feeders, rows, strict=True)):
             f.replace_from(at.first[i], r)
             kept = programs[i].records[: at.first[i]]

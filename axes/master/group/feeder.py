@@ -188,7 +188,7 @@ class BufferFeeder(Feeder):
         self._status = 0
         self._own = allowance is None  # a feeder on its own begins its periods itself
         self.allowance = RecordAllowance(TOP_UP_PER_SYNC) if allowance is None else allowance
-        # the records held reach at most this far beyond the drive's clock (axes.master.group.splice), and
+        # the records held reach at most this far beyond the drive's clock (axes.master.splice), and
         # none ends after ``horizon_ms`` while a splice is prepared (None: no bound)
         self.lookahead_ms = lookahead_ms
         self.horizon_ms: float | None = None
@@ -215,7 +215,7 @@ class BufferFeeder(Feeder):
         )
 
     def replace_from(self, first: int, rows: NDArray[np.int64]) -> None:
-        """Records ``first`` on (none of them sent) become ``rows`` (axes.master.group.splice), then the end record."""
+        """Records ``first`` on (none of them sent) become ``rows`` (axes.master.splice), then the end record."""
         assert first >= self.next, "a record the drive holds cannot be replaced"
         self.records = _with_end_record(np.concatenate((self.records[:first], np.asarray(rows, dtype=np.int64))))
         self.end_ms = np.cumsum(self.records[:, 2])
@@ -327,7 +327,7 @@ class SetpointFeeder(Feeder):
         self.held_syncs = 0  # SYNCs that went out without this axis's setpoint: the drive held a period each
         self._last_elapsed = -1
         self.frames = [frame_of(r) for r in self.records]  # packed before the start: sending is all that is left
-        self.horizon_ms: float | None = None  # no record ending after it goes out (axes.master.group.splice)
+        self.horizon_ms: float | None = None  # no record ending after it goes out (axes.master.splice)
 
     def _send_next(self) -> None:
         cob, data = self.frames[self.next]
@@ -366,14 +366,20 @@ class SetpointFeeder(Feeder):
         if elapsed > self._last_elapsed + 1 and self.next < len(self.records):
             self.held_syncs += elapsed - self._last_elapsed - 1  # the program runs that much later
         self._last_elapsed = max(self._last_elapsed, elapsed)
-        if self.enabled and not self.mirrored and self.next <= elapsed + self.lead and self.next < len(self.records):
-            if self.horizon_ms is None or self.records[: self.next + 1, 2].sum() <= self.horizon_ms:
-                self._send_next()
+        if (
+            self.enabled
+            and not self.mirrored
+            and self.next <= elapsed + self.lead
+            and self.next < len(self.records)
+            and (self.horizon_ms is None or self.records[: self.next + 1, 2].sum() <= self.horizon_ms)
+        ):
+            self._send_next()
 
     def replace_from(self, first: int, rows: NDArray[np.int64]) -> None:
-        """Records ``first`` on (none of them sent) become ``rows`` (axes.master.group.splice)."""
+        """Records ``first`` on (none of them sent) become ``rows`` (axes.master.splice)."""
         assert first >= self.next, "a setpoint the drive holds cannot be replaced"
-        self.decelerate(np.concatenate((self.records[self.next : first], np.asarray(rows, dtype=np.int64).reshape(-1, 3))))
+        kept = self.records[self.next : first]
+        self.decelerate(np.concatenate((kept, np.asarray(rows, dtype=np.int64).reshape(-1, 3))))
         self.horizon_ms = None
 
     def finished(self, elapsed: int, ip_active: bool) -> bool:
