@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from pvtflow.axes.drive.program import AxisProgram, PvtProgram
 from pvtflow.planner.limits import JointLimits
-from pvtflow.planner.onpath_stop import OnPathStop, brake_on_path
+from pvtflow.planner.onpath_stop import OnPathStop, brake_on_path, override
 from pvtflow.planner.path import PlanError, PlanResult
 from pvtflow.planner.trajectory import Trajectory
 from pvtflow.planner.validate import validate_program
@@ -35,6 +35,10 @@ MAX_SEGMENT_MS = 12
 # the share of the joint accelerations the braking plans with: room for the records' rounding (the knot
 # placement's repair of integers is not run on a change: it must be made within the look-ahead)
 BRAKING_SHARE = 0.9
+# the fastest a change re-times a motion to, of its planned speed: at the planned speed itself a time-optimal
+# program's records sit at 0x60C5, where only the knot placement's integer repair finds records inside it
+# (accelerations scale with its square: 0.95 leaves 10 %)
+MAX_SCALE = 0.95
 JUMP_SHARE = 0.02  # an acceleration jump of this share of 0x60C5 gets a knot of its own
 
 
@@ -71,10 +75,17 @@ def brake_on_grid(motion: Trajectory, t0_s: float, limits: JointLimits, grid_s: 
 
 
 def tail_records(
-    axis: AxisProgram, join_ms: float, t0_ms: float, motion: Trajectory, end_ms: float, jumps_ms: NDArray[np.float64]
+    axis: AxisProgram,
+    join_ms: float,
+    t0_ms: float,
+    motion: Trajectory,
+    end_ms: float,
+    jumps_ms: NDArray[np.float64],
+    offset_ms: float = 0.0,
 ) -> NDArray[np.int64]:
     """The records of ``axis`` from ``join_ms`` (the end of its last kept record) to ``end_ms``, sampled from
-    ``motion`` (program time), ending at rest; ``jumps_ms``: where ``motion``'s acceleration jumps."""
+    ``motion`` (its time 0 at program time ``offset_ms``), ending at rest; ``jumps_ms``: where ``motion``'s
+    acceleration jumps (program time)."""
     j = next(i for i, n in enumerate(motion.joint_names) if n == axis.joint)
     sc = axis.scaling
     if axis.profile.fixed_period:
@@ -83,7 +94,7 @@ def tail_records(
         if n < 1:
             raise ChangeError(f"{axis.joint}: the change ends before its next setpoint")
         t = join_ms + period * np.arange(1, n + 1)
-        q, qd = _states(motion, t, j)
+        q, qd = _states(motion, t - offset_ms, j)
         p = np.rint(sc.position_to_qc(q)).astype(np.int64)
         v = np.zeros(n, dtype=np.int64)
         if axis.profile.carries_velocity(axis.interpolation_submode):
@@ -92,7 +103,7 @@ def tail_records(
         rows = np.column_stack((p, v, np.full(n, int(period))))
         return np.vstack([rows, [[p[-1], 0, int(period)]]]).astype(np.int64)  # held at rest one more period
     knots = _knot_times(join_ms, t0_ms, end_ms, jumps_ms)
-    q, qd = _states(motion, knots[1:], j)
+    q, qd = _states(motion, knots[1:] - offset_ms, j)
     p = np.rint(sc.position_to_qc(q)).astype(np.int64)
     v = np.rint(sc.velocity_to_drive(qd)).astype(np.int64)
     v[-1] = 0
@@ -133,18 +144,19 @@ def changed_program(
     motion: Trajectory,
     end_ms: float,
     limits: JointLimits,
+    offset_ms: float = 0.0,
 ) -> tuple[PvtProgram, list[NDArray[np.int64]]]:
-    """``program`` with each axis's records from ``first[i]`` on replaced by ``motion``'s from ``join_ms[i]``
-    to ``end_ms``, validated; (the new program, the new records per axis). ChangeError where the drives
-    would not take it."""
+    """``program`` with each axis's records from ``first[i]`` on replaced by ``motion``'s (its time 0 at
+    program time ``offset_ms``) from ``join_ms[i]`` to ``end_ms``, validated; (the new program, the new
+    records per axis). ChangeError where the drives would not take it."""
     times, jumps = motion.acceleration_jumps()
     amax = np.asarray(limits.acceleration, dtype=float)
     big = np.any(np.abs(jumps) > JUMP_SHARE * amax, axis=1) if len(jumps) else np.zeros(0, dtype=bool)
-    jumps_ms = np.asarray(times, dtype=float)[big] * 1000.0
+    jumps_ms = np.asarray(times, dtype=float)[big] * 1000.0 + offset_ms
     rows: list[NDArray[np.int64]] = []
     axes = []
     for a, k, jm in zip(program.axes, first, join_ms, strict=True):
-        r = tail_records(a, jm, t0_ms, motion, end_ms, jumps_ms)
+        r = tail_records(a, jm, t0_ms, motion, end_ms, jumps_ms, offset_ms)
         rows.append(r)
         axes.append(AxisProgram.of(a, np.concatenate((a.records[:k], r))))
     changed = PvtProgram(program.cell, tuple(axes), {**program.metadata, "duration_ms": round(end_ms)})
@@ -164,3 +176,67 @@ def joined(running: Trajectory, change: Trajectory) -> Trajectory:
     if sd[-1] != 0.0 and grid[-1] < running.gridpoints[-1]:
         raise PlanError(PlanResult.INFEASIBLE, "the change does not reach the motion's end")
     return Trajectory.from_path_velocities(running.path, grid, sd, running.joint_names)
+
+
+def on_grid(duration_s: float, grid_s: float) -> float:
+    """The grid time at or after ``duration_s``."""
+    return math.ceil(duration_s / grid_s - 1e-9) * grid_s
+
+
+def override_on_grid(
+    planned: Trajectory, running: Trajectory, t0_s: float, scale: float, limits: JointLimits, grid_s: float
+) -> tuple[Trajectory, float]:
+    """``override`` at ``scale`` joined to ``running`` at ``t0_s``, with the scale lowered by at most 3 % so
+    that the motion ends on the grid (no cubic straddles its last deceleration); (the motion, the scale).
+    The scale is at most ``MAX_SCALE`` and the ramps to it take ``BRAKING_SHARE`` of the joint accelerations:
+    the records' rounding needs that room."""
+    scale = min(scale, MAX_SCALE)
+    limits = scaled_limits(limits, BRAKING_SHARE)
+    whole = joined(running, override(planned, running, t0_s, scale, limits))
+    target = on_grid(whole.duration, grid_s)
+    if target - whole.duration < 2e-6:
+        return whole, scale
+    lo, hi, best = max(0.05, scale * 0.97), scale, None
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        trial = joined(running, override(planned, running, t0_s, mid, limits))
+        if trial.duration > target:
+            lo = mid
+        else:
+            hi, best = mid, (trial, mid)
+            if target - trial.duration < 2e-6:
+                break
+    if best is None:
+        raise ChangeError(f"no scale near {scale:g} ends the motion on the SYNC grid")
+    return best
+
+
+def resume_motion(planned: Trajectory, paused: OnPathStop, limits: JointLimits) -> Trajectory:
+    """From rest where ``paused`` ended to the end of ``planned`` (``onpath_stop.resume``) at ``MAX_SCALE``
+    of the planned speed, the ramp at ``BRAKING_SHARE`` of the joint accelerations; time 0 = the resume."""
+    share = scaled_limits(limits, BRAKING_SHARE)
+    return override(planned, paused.trajectory, paused.trajectory.duration, MAX_SCALE, share)
+
+
+def resume_program(paused: PvtProgram, rest: Trajectory, limits: JointLimits, grid_ms: int) -> PvtProgram:
+    """The program that continues a paused motion: from where ``paused`` left the axes at rest, ``rest``
+    (``resume_motion``, time 0 = the resume) slowed by the least that ends it on the grid, after a dwell
+    of one grid step (every axis's first motion on the same SYNC)."""
+    end_s = on_grid(rest.duration, grid_ms / 1000.0)
+    motion = rest.slowed(end_s / rest.duration) if end_s > rest.duration else rest
+    offset = float(grid_ms)
+    axes = []
+    first, joins = [], []
+    for a in paused.axes:
+        p = int(a.records[-1, 0])
+        if a.profile.fixed_period:
+            period = int(a.records[0, 2])
+            head = np.array([[p, 0, period]] * max(1, round(offset / period)), dtype=np.int64)
+        else:
+            head = np.array([[p, 0, int(offset)]], dtype=np.int64)
+        axes.append(AxisProgram.of(a, head))
+        first.append(len(head))
+        joins.append(float(head[:, 2].sum()))
+    start = PvtProgram(paused.cell, tuple(axes), dict(paused.metadata))
+    program, _ = changed_program(start, first, joins, offset, motion, offset + end_s * 1000.0, limits, offset)
+    return program
