@@ -11,6 +11,8 @@ count), in joint units.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import CubicSpline
@@ -81,9 +83,6 @@ def program_motion(program: PvtProgram, max_step_ms: float = 10.0) -> Trajectory
     gridpoints and check between them)."""
     path = ProgramPath(program)
     breaks_ms = np.round(path.waypoint_s * 1000.0)
-    fill = [
-        np.linspace(a, b, int(np.ceil((b - a) / max_step_ms)) + 1)[:-1]
-        for a, b in zip(breaks_ms[:-1], breaks_ms[1:], strict=True)
-    ]
+    fill = [np.linspace(a, b, int(np.ceil((b - a) / max_step_ms)) + 1)[:-1] for a, b in itertools.pairwise(breaks_ms)]
     grid = np.append(np.concatenate(fill), breaks_ms[-1]) / 1000.0
     return Trajectory.from_path_velocities(path, grid, np.ones(len(grid)), tuple(a.joint for a in program.axes))

@@ -157,6 +157,7 @@ def reply_schema(name: str) -> dict[str, Any]:
                     "type": ["string", "null"],
                     "description": "why a path stop was made the quick way (its braking could not be made in time)",
                 },
+                "ended_pause": {"type": "string", "description": "the paused motion this stop ended"},
             },
         }
     elif name == "pause":
