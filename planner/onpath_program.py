@@ -32,6 +32,9 @@ from pvtflow.planner.validate import validate_program
 # typical 0x60C5 and the cubic's fit to the braking within a fraction of a count
 MIN_SEGMENT_MS = 8
 MAX_SEGMENT_MS = 12
+# the EPOS2 knot spacings tried in turn (min, max ms) until an axis's records validate: shorter segments
+# follow an acceleration switch closer, longer ones feel the rounding less
+SPACINGS = ((MIN_SEGMENT_MS, MAX_SEGMENT_MS), (5, 8), (12, 24), (4, 6))
 # the share of the joint accelerations the braking plans with: room for the records' rounding (the knot
 # placement's repair of integers is not run on a change: it must be made within the look-ahead)
 BRAKING_SHARE = 0.9
@@ -44,6 +47,16 @@ JUMP_SHARE = 0.02  # an acceleration jump of this share of 0x60C5 gets a knot of
 
 class ChangeError(ValueError):
     """The change cannot be made into records that the drives take (the caller stops the quick way)."""
+
+
+def change_start_ms(t0_ms: float, join_ms: Sequence[float], axes: Sequence[AxisProgram]) -> float:
+    """Where the new motion leaves the old one: ``t0``, or later where an EPOS2 axis's held records end
+    less than ``MIN_SEGMENT_MS`` before it (the records from its join to the change would be a segment too
+    short for its rounding: the change waits until the first knot after the join can be one)."""
+    close = [
+        j for j, a in zip(join_ms, axes, strict=True) if not a.profile.fixed_period and 0 < t0_ms - j < MIN_SEGMENT_MS
+    ]
+    return max([t0_ms, *(j + MIN_SEGMENT_MS for j in close)])
 
 
 def scaled_limits(limits: JointLimits, share: float) -> JointLimits:
@@ -82,6 +95,7 @@ def tail_records(
     end_ms: float,
     jumps_ms: NDArray[np.float64],
     offset_ms: float = 0.0,
+    spacing: tuple[int, int] = (MIN_SEGMENT_MS, MAX_SEGMENT_MS),
 ) -> NDArray[np.int64]:
     """The records of ``axis`` from ``join_ms`` (the end of its last kept record) to ``end_ms``, sampled from
     ``motion`` (its time 0 at program time ``offset_ms``), ending at rest; ``jumps_ms``: where ``motion``'s
@@ -102,7 +116,7 @@ def tail_records(
         v[-1] = 0
         rows = np.column_stack((p, v, np.full(n, int(period))))
         return np.vstack([rows, [[p[-1], 0, int(period)]]]).astype(np.int64)  # held at rest one more period
-    knots = _knot_times(join_ms, t0_ms, end_ms, jumps_ms)
+    knots = _knot_times(join_ms, t0_ms, end_ms, jumps_ms, spacing)
     q, qd = _states(motion, knots[1:] - offset_ms, j)
     p = np.rint(sc.position_to_qc(q)).astype(np.int64)
     v = np.rint(sc.velocity_to_drive(qd)).astype(np.int64)
@@ -116,17 +130,23 @@ def _states(motion: Trajectory, t_ms: NDArray[np.float64], j: int) -> tuple[NDAr
     return motion.position(t)[:, j], motion.velocity(t)[:, j]
 
 
-def _knot_times(join_ms: float, t0_ms: float, end_ms: float, jumps_ms: NDArray[np.float64]) -> NDArray[np.int64]:
+def _knot_times(
+    join_ms: float,
+    t0_ms: float,
+    end_ms: float,
+    jumps_ms: NDArray[np.float64],
+    spacing: tuple[int, int] = (MIN_SEGMENT_MS, MAX_SEGMENT_MS),
+) -> NDArray[np.int64]:
     """Whole-ms knots from the join to the end: t0, the acceleration jumps, at most MAX_SEGMENT_MS apart,
     none closer than MIN_SEGMENT_MS (the end kept, the knot before it dropped where they would be)."""
     join, end = round(join_ms), round(end_ms)
     wanted = sorted({round(t0_ms), *(round(t) for t in jumps_ms if join_ms < t < end_ms)})
     knots = [join]
     for t in [*wanted, end]:
-        while t - knots[-1] > MAX_SEGMENT_MS:
+        while t - knots[-1] > spacing[1]:
             gap = t - knots[-1]
-            knots.append(knots[-1] + math.ceil(gap / math.ceil(gap / MAX_SEGMENT_MS)))
-        if t - knots[-1] >= MIN_SEGMENT_MS:
+            knots.append(knots[-1] + math.ceil(gap / math.ceil(gap / spacing[1])))
+        if t - knots[-1] >= spacing[0]:
             knots.append(t)
     if knots[-1] != end:
         if len(knots) > 1 and end - knots[-2] <= 255:
@@ -156,9 +176,13 @@ def changed_program(
     rows: list[NDArray[np.int64]] = []
     axes = []
     for a, k, jm in zip(program.axes, first, join_ms, strict=True):
-        r = tail_records(a, jm, t0_ms, motion, end_ms, jumps_ms, offset_ms)
+        for spacing in SPACINGS if not a.profile.fixed_period else SPACINGS[:1]:
+            r = tail_records(a, jm, t0_ms, motion, end_ms, jumps_ms, offset_ms, spacing)
+            axis = AxisProgram.of(a, np.concatenate((a.records[:k], r)))
+            if validate_program(PvtProgram(program.cell, (axis,)), sample_period_ms=None).ok:
+                break
         rows.append(r)
-        axes.append(AxisProgram.of(a, np.concatenate((a.records[:k], r))))
+        axes.append(axis)
     changed = PvtProgram(program.cell, tuple(axes), {**program.metadata, "duration_ms": round(end_ms)})
     report = validate_program(changed, sample_period_ms=None)
     if not report.ok:

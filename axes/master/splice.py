@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from pvtflow.axes.drive.interpolation import cubic_peak_acceleration, cubic_peak_speed, exceeds, hermite
 from pvtflow.axes.drive.program import AxisProgram
 from pvtflow.axes.master.group.feeder import BufferFeeder, SetpointFeeder
 
@@ -91,7 +92,10 @@ def splice_run(group: object, make: Make, lead_ms: float | None = None) -> Splic
                 raise SpliceRefusedError("no motion runs")
             if sync.cyclic_producing or any(f.mirrored for f in feeders):
                 raise SpliceRefusedError("the records are sent by the cyclic process: its feeders cannot be changed")
-            programs = tuple(group._programs)  # type: ignore[attr-defined]
+            programs = tuple(
+                AxisProgram.of(p, f.records[: len(f.records) - 1] if isinstance(f, BufferFeeder) else f.records)
+                for p, f in zip(group._programs, feeders, strict=True)  # type: ignore[attr-defined]
+            )  # as the feeders hold them (an EPOS2's long segments cut: ``split_long_records``)
             now = _drive_clock_ms(group, period)
             grid = record_grid_ms(programs, period)
             held = max(_held_end_ms(f) for f in feeders)
@@ -160,3 +164,43 @@ def _too_late(group: object, at: SpliceAt, feeders: Sequence[object], period: fl
                 f"(t0 {at.t0_ms:.0f} ms)"
             )
     return None
+
+
+def split_long_records(program: AxisProgram, max_ms: int) -> NDArray[np.int64]:
+    """An EPOS2 axis's records with every segment longer than ``max_ms`` cut into equal whole-ms parts on
+    its own cubic (positions and velocities rounded), so that the FIFO can be held within the look-ahead
+    bound (a held record is what a change cannot take back; a time-optimal program cruises in segments of
+    hundreds of ms). A segment whose parts' reconstruction would leave 0x607F or 0x60C5 (the rounding) is
+    kept whole. The motion is the program's to a count: the program itself is unchanged."""
+    r = np.asarray(program.records, dtype=np.int64)
+    if len(r) < 2 or int(r[1:, 2].max()) <= max_ms:
+        return r
+    sc, lim = program.scaling, program.limits
+    f = sc.qc_per_ms_per_velocity_unit
+    amax = float(sc.rpm_s_to_qc_per_ms2(lim.max_acceleration_rpm_s))
+    vmax = float(sc.rpm_to_qc_per_ms(lim.max_profile_velocity_rpm))
+    out = [r[0]]
+    for k in range(1, len(r)):
+        T = int(r[k, 2])
+        if max_ms >= T:
+            out.append(r[k])
+            continue
+        c0, c1, c2, c3 = hermite(float(r[k - 1, 0]), float(r[k - 1, 1]) * f, float(r[k, 0]), float(r[k, 1]) * f, T)
+        n = math.ceil(T / max_ms)
+        cuts = [round(T * i / n) for i in range(1, n)]
+        parts, prev_p, prev_v, prev_t = [], int(r[k - 1, 0]), int(r[k - 1, 1]), 0
+        for t in [*cuts, T]:
+            if t == T:
+                p, v = int(r[k, 0]), int(r[k, 1])
+            else:
+                p = round(c0 + t * (c1 + t * (c2 + t * c3)))
+                v = round((c1 + t * (2.0 * c2 + 3.0 * c3 * t)) / f)
+            d = t - prev_t
+            _, b, cc, dd = hermite(float(prev_p), prev_v * f, float(p), v * f, float(d))
+            if exceeds(cubic_peak_acceleration(cc, dd, d), amax) or exceeds(cubic_peak_speed(b, cc, dd, d), vmax):
+                parts = [r[k]]
+                break
+            parts.append(np.array([p, v, d], dtype=np.int64))
+            prev_p, prev_v, prev_t = p, v, t
+        out.extend(parts)
+    return np.asarray(out, dtype=np.int64)

@@ -168,6 +168,7 @@ def reply_schema(name: str) -> dict[str, Any]:
                 "paused": {"type": "boolean", "description": "false: a fault or the end came first (see outcome)"},
                 "motion_id": {"type": "string"},
                 "braking": _BRAKING,
+                "fallback": {"type": ["string", "null"], "description": "why it was stopped the quick way instead"},
                 "remaining": {
                     "type": ["number", "null"],
                     "description": "the share of the motion's path (in program time) still to go",

@@ -26,6 +26,7 @@ from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.onpath_program import (
     ChangeError,
     brake_on_grid,
+    change_start_ms,
     changed_program,
     override_on_grid,
 )
@@ -103,12 +104,11 @@ class PathChanges:
         made: dict[str, Any] = {}
 
         def make(at: SpliceAt) -> list[Any]:
-            stop = brake_on_grid(path.running, at.t0_ms / 1000.0, self.limits, grid_ms / 1000.0)
+            begin = change_start_ms(at.t0_ms, at.join_ms, at.programs)
+            stop = brake_on_grid(path.running, begin / 1000.0, self.limits, grid_ms / 1000.0)
             whole = stopped_motion(path.running, stop)
             program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
-            new, rows = changed_program(
-                program, at.first, at.join_ms, at.t0_ms, whole, stop.t_end * 1000.0, self.limits
-            )
+            new, rows = changed_program(program, at.first, at.join_ms, begin, whole, stop.t_end * 1000.0, self.limits)
             made.update(stop=stop, whole=whole, program=new)
             group.end_as = (Result.STOPPED, f"stopped on the path: {reason}")
             return rows
@@ -121,12 +121,12 @@ class PathChanges:
             return None, str(exc)
         stop: OnPathStop = made["stop"]
         path.running, path.program, path.stop = made["whole"], made["program"], stop
-        ended = stop.t_end * 1000.0
+        begun, ended = stop.t_start * 1000.0, stop.t_end * 1000.0
         return {
             "requested_ms": round(at.now_ms, 3),
-            "begun_ms": at.t0_ms,
+            "begun_ms": round(begun, 3),
             "ended_ms": round(ended, 3),
-            "begun_sync": at.sync_at(at.t0_ms),
+            "begun_sync": at.sync_at(begun),
             "ended_sync": at.sync_at(ended),
         }, None
 
@@ -186,13 +186,14 @@ class PathChanges:
         made: dict[str, Any] = {}
 
         def make(at: SpliceAt) -> list[Any]:
+            begin = change_start_ms(at.t0_ms, at.join_ms, at.programs)
             whole, applied = override_on_grid(
-                path.planned, path.running, at.t0_ms / 1000.0, scale, self.limits, grid_ms / 1000.0
+                path.planned, path.running, begin / 1000.0, scale, self.limits, grid_ms / 1000.0
             )
             program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
             end_ms = float(np.round(whole.duration * 1000.0))
-            new, rows = changed_program(program, at.first, at.join_ms, at.t0_ms, whole, end_ms, self.limits)
-            made.update(whole=whole, program=new, scale=applied)
+            new, rows = changed_program(program, at.first, at.join_ms, begin, whole, end_ms, self.limits)
+            made.update(whole=whole, program=new, scale=applied, begin=begin)
             return rows
 
         try:
@@ -206,7 +207,7 @@ class PathChanges:
             "motion_id": motion.motion_id,
             "scale": round(path.scale, 4),
             "requested_ms": round(at.now_ms, 3),
-            "from_ms": at.t0_ms,
-            "from_sync": at.sync_at(at.t0_ms),
+            "from_ms": made["begin"],
+            "from_sync": at.sync_at(made["begin"]),
             "duration_ms": int(path.program.duration_ms),
         }

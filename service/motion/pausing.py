@@ -60,6 +60,7 @@ class PauseResume:
             "braking": reply["braking"],
             "remaining": round(paused.remaining, 6) if paused is not None else None,
             "outcome": reply["outcome"],
+            "fallback": reply["fallback"],
             "axes": reply["axes"],
         }
 

@@ -57,6 +57,7 @@ Send = Callable[[int, bytes], None]
 
 PRELOAD_MS = 50.0  # motion the records sent before the start SYNC cover (the first top-ups follow on SYNC)
 TOP_UP_PER_SYNC = 4  # the allowance of a feeder on its own (a cell's comes from its bus budget)
+MIN_HELD = 3  # records a look-ahead-bound FIFO holds at least (its level counts the segment running)
 
 
 class RecordAllowance:
@@ -297,14 +298,16 @@ def _with_end_record(records: NDArray[np.int64]) -> NDArray[np.int64]:
 
 def within_lookahead(feeder: BufferFeeder) -> bool:
     """The next record may go out: the records held end short of the look-ahead bound beyond the drive's
-    clock, or the FIFO would fall to its underflow warning level (a record is never held back from
-    a drive that needs it; the bound on a splice's ``t0`` is the later of the two), and no record ends
-    after a splice's horizon."""
+    clock, or the FIFO would hold less than the segment running and two more (``MIN_HELD``: the drive
+    interpolates towards the next record; a record is never held back from a drive that needs it, so a
+    splice's ``t0`` is the later of the two), and no record ends after a splice's horizon. Below its
+    underflow warning level the drive only warns (0x20C4:02): the bound is what a change of the motion
+    cannot take back, and the FIFO's depth is given up for it."""
     end = feeder._end[feeder.next]
     if feeder.horizon_ms is not None and end > feeder.horizon_ms:
         return False
     held = feeder._end[feeder.next - 1] if feeder.next else 0.0
-    return held < feeder.elapsed_ms + feeder.lookahead_ms or feeder.level <= feeder.low
+    return held < feeder.elapsed_ms + feeder.lookahead_ms or feeder.level < MIN_HELD
 
 
 class SetpointFeeder(Feeder):
