@@ -90,7 +90,7 @@ class PathChanges:
 
     def scale_of(self, motion: Motion | None) -> float | None:
         path = self.paths.get(motion.motion_id) if motion is not None else None
-        return None if motion is None or motion.done.is_set() else (path.scale if path is not None else 1.0)
+        return None if motion is None or motion.done.is_set() else (round(path.scale, 4) if path is not None else 1.0)
 
     # --- stop and pause on the path -----------------------------------------------------------------
     def brake(self, group: AxisGroup, motion: Motion, reason: str) -> tuple[dict[str, Any] | None, str | None]:
@@ -159,7 +159,8 @@ class PathChanges:
         try:
             rest = resume(path.planned, path.stop, self.limits)
             opts = KnotOptions(dwell_ms=max(1, record_grid_ms(path.program.axes, self.cell.bus.sync_period_ms)))
-            built = build_program(rest, path.program.axes, self.cell.name, opts)
+            axes = {a.joint: a for a in self.cell.ordered_axes()}  # what knot placement takes (hashable)
+            built = build_program(rest, [axes[a.joint] for a in path.program.axes], self.cell.name, opts)
         except _CHANGE_ERRORS as exc:
             raise ApiError(
                 ErrorCode.PLAN_FAILED, f"the rest of the paused motion could not be planned: {exc}"
