@@ -21,7 +21,11 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from pvtflow.axes.drive.axis import DriveAxis
 from pvtflow.axes.drive.program import AxisProgram, PvtProgram
+from pvtflow.planner.knots import fixed_period_kernels as fp_kernels
+from pvtflow.planner.knots.fixed_period import _FP_REACH, reconstruction_kind
+from pvtflow.planner.knots.samples import axis_constants
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.onpath_stop import OnPathStop, brake_on_path, override
 from pvtflow.planner.path import PlanError, PlanResult
@@ -114,6 +118,7 @@ def tail_records(
         if axis.profile.carries_velocity(axis.interpolation_submode):
             v = np.rint(sc.velocity_to_drive(qd)).astype(np.int64)
         v[-1] = 0
+        p, v = _tracked(axis, join_ms, p, v, motion, offset_ms, j)
         rows = np.column_stack((p, v, np.full(n, int(period))))
         return np.vstack([rows, [[p[-1], 0, int(period)]]]).astype(np.int64)  # held at rest one more period
     knots = _knot_times(join_ms, t0_ms, end_ms, jumps_ms, spacing)
@@ -123,6 +128,34 @@ def tail_records(
     v[-1] = 0
     rows = np.column_stack((p, v, np.diff(knots).astype(np.int64)))
     return np.vstack([rows, [[p[-1], 0, 0]]]).astype(np.int64)  # the end record: interpolation ends
+
+
+def _tracked(
+    axis: AxisProgram,
+    join_ms: float,
+    p: NDArray[np.int64],
+    v: NDArray[np.int64],
+    motion: Trajectory,
+    offset_ms: float,
+    j: int,
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """A fixed-period axis's new setpoints re-chosen among the integers around them where the drive's
+    reconstruction of their rounding leaves a limit (the knot placement's ``track_fixed_period``, from the
+    last kept setpoint, which stays), as a plan's are."""
+    drive = DriveAxis(**{f.name: getattr(axis, f.name) for f in dataclasses.fields(DriveAxis)})
+    period = int(axis.records[0, 2])
+    k = round(join_ms / period) - 1  # the last kept setpoint
+    if k < 0 or k >= len(axis.records):
+        return p, v
+    P = np.concatenate(([int(axis.records[k, 0])], p)).astype(np.int64)
+    V = np.concatenate(([int(axis.records[k, 1])], v)).astype(np.int64)
+    t_ms = np.arange(0.0, period * (len(P) - 1) + 1.0) + join_ms
+    plan = np.ascontiguousarray(drive.scaling.position_to_qc(_states(motion, t_ms - offset_ms, j)[0]), dtype=float)
+    f, _, _, v_units, pos_lo, pos_hi, rv_per, ra_per = (float(x[0]) for x in axis_constants((drive,)))
+    kind = reconstruction_kind(drive)
+    reach = _FP_REACH if kind == fp_kernels.CUBIC_P else 1
+    P, V, _ = fp_kernels.track_fixed_period(kind, P, V, plan, period, f, rv_per, ra_per, pos_lo, pos_hi, v_units, reach)
+    return P[1:], V[1:]
 
 
 def _states(motion: Trajectory, t_ms: NDArray[np.float64], j: int) -> tuple[NDArray[np.float64], ...]:

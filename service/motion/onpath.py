@@ -28,9 +28,11 @@ from pvtflow.planner.onpath_program import (
     brake_on_grid,
     change_start_ms,
     changed_program,
+    on_grid,
     override_on_grid,
+    resume_motion,
 )
-from pvtflow.planner.onpath_stop import OnPathStop, resume, stopped_motion
+from pvtflow.planner.onpath_stop import OnPathStop, stopped_motion
 from pvtflow.planner.path import PlanError
 from pvtflow.planner.program_motion import program_motion
 from pvtflow.planner.trajectory import Trajectory
@@ -121,7 +123,8 @@ class PathChanges:
             return None, str(exc)
         stop: OnPathStop = made["stop"]
         path.running, path.program, path.stop = made["whole"], made["program"], stop
-        begun, ended = stop.t_start * 1000.0, stop.t_end * 1000.0
+        begun = stop.t_start * 1000.0
+        ended = on_grid(stop.t_end, grid_ms / 1000.0) * 1000.0  # the SYNC from which every axis stands
         return {
             "requested_ms": round(at.now_ms, 3),
             "begun_ms": round(begun, 3),
@@ -157,7 +160,7 @@ class PathChanges:
         path = paused.path
         assert path.stop is not None
         try:
-            rest = resume(path.planned, path.stop, self.limits)
+            rest = resume_motion(path.planned, path.stop, self.limits)
             opts = KnotOptions(dwell_ms=max(1, record_grid_ms(path.program.axes, self.cell.bus.sync_period_ms)))
             axes = {a.joint: a for a in self.cell.ordered_axes()}  # what knot placement takes (hashable)
             built = build_program(rest, [axes[a.joint] for a in path.program.axes], self.cell.name, opts)
