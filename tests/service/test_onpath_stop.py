@@ -99,8 +99,9 @@ def assert_at_rest_together(program: PvtProgram, ended_ms: float, period_ms: flo
         t = np.arange(ended_ms, max(ended_ms, rec.end_time) + 1.0)
         assert np.abs(rec.velocity(t)).max() < 1e-9, a.joint
         assert np.ptp(rec.position(t)) < 1e-9, a.joint
-    moving = [a for a in program.axes if np.abs(a.reconstruction().velocity(np.array([ended_ms - 1.0]))).max() > 0]
-    assert moving, "nothing moved in the braking's last ms"
+    last = np.arange(ended_ms - 2.0 * period_ms, ended_ms, 0.25)  # the braking's last SYNC periods
+    moving = [a for a in program.axes if np.abs(a.reconstruction().velocity(last)).max() > 0]
+    assert moving, "nothing moved in the braking's last periods: it ended earlier than it says"
 
 
 def no_faults(svc: MotionService) -> None:
