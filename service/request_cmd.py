@@ -273,7 +273,7 @@ class _InputError(ValueError):
 
 # option (argparse dest) -> the requests it belongs to: given to another one, it would be silently ignored
 _FOR_OPS: dict[str, tuple[str, ...]] = {
-    "plan_id": ("validate", "execute", "override"),
+    "plan_id": ("validate", "execute"),
     "waypoints": ("plan",),
     "target": ("plan",),
     "start": ("plan",),
@@ -301,10 +301,21 @@ def _local_payload(args: argparse.Namespace) -> Any:
     if args.raw is not None:
         return args.raw.encode()
     op = args.op
+    out: dict[str, Any] = {}
+    if op == "override":  # its one positional is the scale
+        try:
+            scale = float(args.plan_id) if args.plan_id is not None else math.nan
+        except ValueError:
+            scale = math.nan
+        if not (math.isfinite(scale) and 0.05 <= scale <= 1.0):
+            raise _InputError(
+                f"override takes a SCALE in [0.05, 1.0] (the share of the planned speed), got {args.plan_id!r}"
+            )
+        out["scale"] = scale
+        args.plan_id = None
     for dest, ops in _FOR_OPS.items():
         if getattr(args, dest, None) not in (None, False) and op not in ops:
             raise _InputError(f"{_option_name(dest)} is for {' / '.join(ops)}, not {op}")
-    out: dict[str, Any] = {}
     if op == "plan":
         if args.target is not None and args.waypoints is not None:
             raise _InputError("plan takes --target Q1,Q2,... or --waypoints FILE, not both")
@@ -366,16 +377,6 @@ def _local_payload(args: argparse.Namespace) -> Any:
             out["mode"] = args.mode
     elif op == "resume" and args.wait:
         out["wait"] = True
-    elif op == "override":
-        try:
-            scale = float(args.plan_id) if args.plan_id is not None else math.nan
-        except ValueError:
-            scale = math.nan
-        if not (math.isfinite(scale) and 0.05 <= scale <= 1.0):
-            raise _InputError(
-                f"override takes a SCALE in [0.05, 1.0] (the share of the planned speed), got {args.plan_id!r}"
-            )
-        out["scale"] = scale
     elif op == "status" and args.recent is not None:
         out["recent"] = args.recent
     return out
