@@ -127,6 +127,7 @@ def test_stop_stays_on_the_path_and_rests_on_one_sync(service: MotionService) ->
             assert d.level == 0 and not d.ip_active, d.node_id
     no_faults(service)
     assert service.state == "idle"
+    move_again(service)  # a new motion from where the axes stand runs to its end
 
 
 def test_quick_stop_is_the_old_stop(service: MotionService) -> None:
