@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from svc_helpers import wait_until
-from test_stop_then_move import assert_nothing_left, cell_file, plan, tour
+from test_stop_then_move import assert_nothing_left, cell_file, move_again, plan, tour
 
 from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.axes.sim.profiles.epos2 import Epos2Drive
