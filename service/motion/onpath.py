@@ -112,7 +112,7 @@ class PathChanges:
             program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
             new, rows = changed_program(program, at.first, at.join_ms, begin, whole, stop.t_end * 1000.0, self.limits)
             made.update(stop=stop, whole=whole, program=new)
-            group.end_as = (Result.STOPPED, f"stopped on the path: {reason}")
+            group.end_as = (Result.STOPPED, reason)  # the stop's outcome as the quick one's: the reason
             return rows
 
         try:
