@@ -235,7 +235,11 @@ class BufferFeeder(Feeder):
 
     @property
     def preloaded(self) -> bool:
-        """The records of the first PRELOAD_MS of motion (at least two above the underflow warning) are out."""
+        """The records of the first PRELOAD_MS of motion (at least two above the underflow warning; under a
+        look-ahead bound, MIN_HELD and the bound's time at most) are out."""
+        if self.lookahead_ms is not None:
+            covered = self.next >= MIN_HELD and self._end[self.next - 1] >= min(PRELOAD_MS, self.lookahead_ms)
+            return self.all_sent or self.next >= self.high or covered
         return (
             self.all_sent
             or self.next >= self.high
