@@ -66,7 +66,9 @@ def at(cell, fraction: float) -> list[float]:
 
 def move(svc: MotionService, fraction: float, wait: bool) -> None:
     req = parse_plan(
-        {"waypoints": [at(svc.cell, fraction)], "start": "current"}, svc.cell.joint_names, svc.cell.joint_limits()
+        {"waypoints": [at(svc.cell, fraction)], "start": "current", "budget_ms": 10000},
+        svc.cell.joint_names,
+        svc.cell.joint_limits(),
     )
     svc.execute(parse_execute({"plan_id": svc.plan(req)["plan_id"], "wait": wait}))
 
@@ -144,6 +146,7 @@ def main() -> None:
             computed.append((time.perf_counter() - t) * 1000.0)
 
     onpath.splice_run = timed
+    why: list[str] = []
     print(
         "cell                  | path mm | quick mm | begun p50/p99 ms | rest p50/p99 ms | |v| |a| % "
         "| compute p50/p99 ms | override from ms | pause+resume / plan ms | fallbacks"
@@ -163,6 +166,7 @@ def main() -> None:
                     b = reply["braking"]
                     if b is None:
                         fallbacks += 1
+                        why.append(f"{name} at {fraction:g}: {reply['fallback'][:160]}")
                         continue
                     after = PvtProgram(svc.cell.name, svc.group.programs)
                     line = joints(before, np.arange(0.0, before.duration_ms + 0.05, 0.05))
@@ -191,6 +195,8 @@ def main() -> None:
             )
         finally:
             svc.close()
+    for line in why:
+        print("fallback:", line)
     print("command: python bench/onpath_stop.py")
 
 

@@ -8,6 +8,7 @@ path of the program as it was started; the drives' faults; where they stand at t
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -92,7 +93,11 @@ def assert_on_path(before: PvtProgram, after: PvtProgram, from_ms: float) -> Non
 
 def assert_at_rest_together(program: PvtProgram, ended_ms: float, period_ms: float) -> None:
     """Every axis at rest from the end of the braking on, which is a SYNC (the same one for all)."""
-    ended_ms = round(ended_ms / period_ms) * period_ms if abs(ended_ms / period_ms - round(ended_ms / period_ms)) < 1e-3 else ended_ms
+    ended_ms = (
+        round(ended_ms / period_ms) * period_ms
+        if abs(ended_ms / period_ms - round(ended_ms / period_ms)) < 1e-3
+        else ended_ms
+    )
     assert ended_ms % period_ms == 0, ended_ms
     for a in program.axes:
         rec = a.reconstruction()
@@ -121,7 +126,8 @@ def test_stop_stays_on_the_path_and_rests_on_one_sync(service: MotionService) ->
     assert_on_path(before, after, braking["begun_ms"])
     assert_at_rest_together(after, braking["ended_ms"], service.cell.bus.sync_period_ms)
     assert braking["ended_ms"] < before.duration_ms
-    for d, a in zip(sorted(service.sim, key=lambda d: d.node_id), sorted(after.axes, key=lambda a: a.node_id)):
+    drives = sorted(service.sim, key=lambda d: d.node_id)
+    for d, a in zip(drives, sorted(after.axes, key=lambda a: a.node_id), strict=True):
         assert abs(d.demand - int(a.records[-1, 0])) <= 1, (d.node_id, d.demand, a.records[-1])
         if isinstance(d, Epos2Drive):  # the program ran to its end record: nothing left in the FIFO
             assert d.level == 0 and not d.ip_active, d.node_id
@@ -208,3 +214,27 @@ def test_bad_requests_change_nothing(cell: str, tmp_path: Path) -> None:
         with pytest.raises(ApiError):
             parse_stop({"mode": "gentle"})
         assert svc.state == "idle"
+
+
+@pytest.mark.wall
+def test_stop_on_the_path_on_the_wall_clock(tmp_path: Path) -> None:
+    """On the wall clock the EPOS2s run their records on their own clocks while the braking is made (the
+    group's lock held): it is made in time, or the stop is the quick one and says why; either way the
+    motion is stopped and nothing faults. A path stop made stays on the path (0.1 mm)."""
+    cell = cell_file("gantry3")
+    cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, heartbeat_timeout_factor=10))
+    with MotionService(cell, journal_dir=tmp_path / "journal", lockstep=False) as svc:
+        assert svc.home(parse_home({"wait": True}))["outcome"]["result"] == "homed"
+        made = 0
+        for fraction in (0.3, 0.5):
+            before = start(svc, fraction)
+            reply = svc.stop(parse_stop({}))
+            assert reply["outcome"]["result"] == "stopped", reply["outcome"]
+            if reply["mode"] == "path":
+                made += 1
+                assert_on_path(before, ran(svc), reply["braking"]["begun_ms"])
+            else:
+                assert reply["fallback"], reply
+            no_faults(svc)
+            move_again(svc)
+        assert made >= 1, "no path stop was made in time on the wall clock"
