@@ -168,6 +168,9 @@ def main() -> None:
                         fallbacks += 1
                         why.append(f"{name} at {fraction:g}: {reply['fallback'][:160]}")
                         continue
+                    if b["begun_ms"] is None:  # braking would end where the motion does: it runs to its end
+                        why.append(f"{name} at {fraction:g}: ran to its own end (the path ends before a braking would)")
+                        continue
                     after = PvtProgram(svc.cell.name, svc.group.programs)
                     line = joints(before, np.arange(0.0, before.duration_ms + 0.05, 0.05))
                     path_mm.append(

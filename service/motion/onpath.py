@@ -44,6 +44,11 @@ from pvtflow.service.motion.runs import Motion
 
 log = logging.getLogger("pvtflow.motion")
 
+
+class _RunsToItsEnd(Exception):  # noqa: N818 (not an error: the motion's own end is its stop)
+    """The motion's own end is where a braking from t0 would take it, as fast: it runs to its end."""
+
+
 _CHANGE_ERRORS = (SpliceRefusedError, ChangeError, PlanError, BuildError, ValueError)
 
 
@@ -107,7 +112,14 @@ class PathChanges:
 
         def make(at: SpliceAt) -> list[Any]:
             begin = change_start_ms(at.t0_ms, at.join_ms, at.programs)
-            stop = brake_on_grid(path.running, begin / 1000.0, self.limits, grid_ms / 1000.0)
+            try:
+                stop = brake_on_grid(path.running, begin / 1000.0, self.limits, grid_ms / 1000.0)
+            except PlanError:
+                if begin < 0.5 * path.running.duration * 1000.0:
+                    raise
+                raise _RunsToItsEnd from None  # at rest on the path's end already, or nearly
+            if stop.s_end >= float(path.running.gridpoints[-1]) - 1e-9:
+                raise _RunsToItsEnd  # the path ends before a braking would: its own end is the fastest stop
             whole = stopped_motion(path.running, stop)
             program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
             new, rows = changed_program(program, at.first, at.join_ms, begin, whole, stop.t_end * 1000.0, self.limits)
@@ -117,6 +129,16 @@ class PathChanges:
 
         try:
             at = splice_run(group, make)
+        except _RunsToItsEnd:  # nothing replaced: the motion ends as planned, on its path
+            group.end_as = (Result.STOPPED, reason)
+            end = float(path.program.duration_ms)
+            return {
+                "requested_ms": None,
+                "begun_ms": None,
+                "ended_ms": end,
+                "begun_sync": None,
+                "ended_sync": None,
+            }, None
         except _CHANGE_ERRORS as exc:
             group.end_as = None
             log.info("path stop of %s made the quick way: %s", motion.motion_id, exc)
