@@ -104,7 +104,7 @@ def move_again(svc: MotionService) -> None:
 
 
 def test_stop_then_move(service: MotionService) -> None:
-    """The quick stop (every axis halted at once, off the path); the path stop: tests/service/test_path_stop_served.py."""
+    """The quick stop (every axis halted at once, off the path); the path stop: test_path_stop_served.py."""
     start_long_motion(service)
     reply = service.stop(parse_stop({"mode": "quick"}))
     assert reply["was_moving"] and reply["outcome"]["result"] == "stopped"
