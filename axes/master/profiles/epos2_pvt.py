@@ -66,6 +66,9 @@ class Epos2Pvt(Profile):
             return max(floor, float(times.sum()))
         window = float(np.convolve(times, np.ones(keep), mode="valid").min())
         ahead = self.link.bus.config.max_lookahead_ms - self.link.bus.config.sync_period_ms
+        deep = max(keep, self.config.buffer.overflow_warning - 2)  # the most the FIFO holds beyond the running one
+        if len(times) >= deep:  # a bound deeper than the FIFO: the FIFO's own time
+            ahead = min(ahead, float(np.convolve(times, np.ones(deep), mode="valid").min()))
         return max(floor, window, ahead)
 
     def configure(self) -> None:
