@@ -177,11 +177,14 @@ def _cell_of(key_expr: str) -> str | None:
 def add_parser(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "request",
-        help="send a request to a pvtflow service over zenoh (plan, validate, execute, stop, status, recover, home)",
+        help="send a request to a pvtflow service over zenoh (plan, validate, execute, stop, status, recover, home, "
+        "pause, resume, override)",
         description="Talk to `pvtflow serve` over zenoh. Exit 0 answered, 1 error reply, 2 no answer or bad input.",
     )
     p.add_argument("op", choices=QUERYABLES, help="the request")
-    p.add_argument("plan_id", nargs="?", help="validate / execute: the plan id from a plan reply")
+    p.add_argument(
+        "plan_id", nargs="?", help="validate / execute: the plan id from a plan reply; override: the SCALE (0.05..1)"
+    )
     p.add_argument("--cell", default="arm6", help="the cell (default arm6; '*' asks every cell: status)")
     p.add_argument(
         "--connect",
@@ -243,14 +246,22 @@ def add_parser(subparsers: Any) -> None:
     )
     p.add_argument("--program", metavar="FILE", help="validate / execute: a PVT program file instead of a plan id")
     p.add_argument(
-        "--wait", action="store_true", help="execute / home: reply at the end of the motion or homing, with its outcome"
+        "--wait",
+        action="store_true",
+        help="execute / home / resume: reply at the end of the motion or homing, with its outcome",
     )
     p.add_argument(
         "--joints",
         metavar="J1,J2,...",
         help="home: the axes to home, comma separated (default: every axis with homing)",
     )
-    p.add_argument("--reason", help="stop: why (journaled with the outcome)")
+    p.add_argument("--reason", help="stop / pause: why (journaled with the outcome)")
+    p.add_argument(
+        "--mode",
+        choices=("path", "quick"),
+        help="stop: path (default: every axis at rest on the planned path, on the same SYNC) or quick (the "
+        "fastest, off the path)",
+    )
     p.add_argument("--recent", type=int, help="status: how many recent motions to list")
     p.add_argument("--json", dest="raw", metavar="PAYLOAD", help="send this JSON payload as is (overrides the rest)")
     p.set_defaults(run=run)
@@ -271,10 +282,11 @@ _FOR_OPS: dict[str, tuple[str, ...]] = {
     "max_jerk": ("plan",),
     "budget_ms": ("plan",),
     "program": ("validate", "execute"),
-    "wait": ("execute", "home"),
+    "wait": ("execute", "home", "resume"),
     "approach": ("execute",),
     "joints": ("home",),
-    "reason": ("stop",),
+    "reason": ("stop", "pause"),
+    "mode": ("stop",),
     "recent": ("status",),
 }
 
@@ -289,10 +301,21 @@ def _local_payload(args: argparse.Namespace) -> Any:
     if args.raw is not None:
         return args.raw.encode()
     op = args.op
+    out: dict[str, Any] = {}
+    if op == "override":  # its one positional is the scale
+        try:
+            scale = float(args.plan_id) if args.plan_id is not None else math.nan
+        except ValueError:
+            scale = math.nan
+        if not (math.isfinite(scale) and 0.05 <= scale <= 1.0):
+            raise _InputError(
+                f"override takes a SCALE in [0.05, 1.0] (the share of the planned speed), got {args.plan_id!r}"
+            )
+        out["scale"] = scale
+        args.plan_id = None
     for dest, ops in _FOR_OPS.items():
         if getattr(args, dest, None) not in (None, False) and op not in ops:
             raise _InputError(f"{_option_name(dest)} is for {' / '.join(ops)}, not {op}")
-    out: dict[str, Any] = {}
     if op == "plan":
         if args.target is not None and args.waypoints is not None:
             raise _InputError("plan takes --target Q1,Q2,... or --waypoints FILE, not both")
@@ -347,8 +370,13 @@ def _local_payload(args: argparse.Namespace) -> Any:
             out["joints"] = joints
         if args.wait:
             out["wait"] = True
-    elif op == "stop" and args.reason:
-        out["reason"] = args.reason
+    elif op in ("stop", "pause"):
+        if args.reason:
+            out["reason"] = args.reason
+        if args.mode:
+            out["mode"] = args.mode
+    elif op == "resume" and args.wait:
+        out["wait"] = True
     elif op == "status" and args.recent is not None:
         out["recent"] = args.recent
     return out

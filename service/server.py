@@ -39,9 +39,12 @@ from pvtflow.service.api import (
     key,
     parse_execute,
     parse_home,
+    parse_override,
+    parse_pause,
     parse_payload,
     parse_plan,
     parse_recover,
+    parse_resume,
     parse_status,
     parse_stop,
     parse_validate,
@@ -159,6 +162,9 @@ class Server:
             "status": lambda d: service.status(parse_status(d)),
             "recover": lambda d: service.recover(parse_recover(d)),
             "home": lambda d: service.home(parse_home(d)),
+            "pause": lambda d: service.pause(parse_pause(d)),
+            "resume": lambda d: service.resume(parse_resume(d)),
+            "override": lambda d: service.override(parse_override(d)),
         }
 
     # --- the pure part: payload in, (ok, JSON bytes) out -------------------------------------------

@@ -63,6 +63,14 @@ class BusConfig:
     # wall clock: SYNC, the time stamp, setpoints, records and the quick stop from a process of their own
     # (``axes.master.cyclic.process``), where nothing else of the master runs
     cyclic_process: bool = False
+    # the EPOS2 FIFO holds records at most this far beyond the drive's clock (and never fewer than
+    # MIN_HELD, axes.master.group.feeder): what the drives hold is what a change of the motion (on-path
+    # stop, pause, override: axes.master.splice) cannot take back, and also what rides out a stalled
+    # master (the EPOS2's SYNC-gap ride-out is this less a period). 100 ms: the change's computation
+    # (3-60 ms in the service, bench/onpath_stop.py) and the records' transfer fit in it, and a master on
+    # a loaded 2-core host (SYNC gaps of 50-65 ms seen by the wall-clock tests) is ridden out; 50 ms (the
+    # design note's) halts such a master's motions
+    max_lookahead_ms: float = 100.0
 
     def planning_share(self, fixed_period: bool) -> float:
         """The factor on an axis's 0x607F and 0x60C5 its plans are made with: ``1 - fixed_period_headroom``

@@ -306,3 +306,48 @@ def program_mismatch(program: PvtProgram, axes: Sequence[AxisConfig], cell_name:
     for a in by_node.values():
         problems.append(f"axis {a.joint}: node {a.node_id} is not in cell {cell_name}")
     return problems
+
+
+
+def split_long_records(program: AxisProgram, max_ms: int) -> NDArray[np.int64]:
+    """An EPOS2 axis's records with every segment longer than ``max_ms`` cut into equal whole-ms parts on
+    its own cubic (positions and velocities rounded), so that the FIFO can be held within the look-ahead
+    bound (a held record is what a change cannot take back; a time-optimal program cruises in segments of
+    hundreds of ms). A segment whose parts' reconstruction would leave 0x607F or 0x60C5 (the rounding) is
+    kept whole. The motion is the program's to a count: the program itself is unchanged."""
+    r = np.asarray(program.records, dtype=np.int64)
+    if len(r) < 2 or int(r[1:, 2].max()) <= max_ms:
+        return r
+    sc, lim = program.scaling, program.limits
+    f = sc.qc_per_ms_per_velocity_unit
+    amax = float(sc.rpm_s_to_qc_per_ms2(lim.max_acceleration_rpm_s))
+    vmax = float(sc.rpm_to_qc_per_ms(lim.max_profile_velocity_rpm))
+    out = [r[0]]
+    for k in range(1, len(r)):
+        T = int(r[k, 2])
+        if max_ms >= T:
+            out.append(r[k])
+            continue
+        c0, c1, c2, c3 = interpolation.hermite(
+            float(r[k - 1, 0]), float(r[k - 1, 1]) * f, float(r[k, 0]), float(r[k, 1]) * f, T
+        )
+        n = math.ceil(T / max_ms)
+        cuts = [round(T * i / n) for i in range(1, n)]
+        parts, prev_p, prev_v, prev_t = [], int(r[k - 1, 0]), int(r[k - 1, 1]), 0
+        for t in [*cuts, T]:
+            if t == T:
+                p, v = int(r[k, 0]), int(r[k, 1])
+            else:
+                p = round(c0 + t * (c1 + t * (c2 + t * c3)))
+                v = round((c1 + t * (2.0 * c2 + 3.0 * c3 * t)) / f)
+            d = t - prev_t
+            _, b, cc, dd = interpolation.hermite(float(prev_p), prev_v * f, float(p), v * f, float(d))
+            peak_a = interpolation.cubic_peak_acceleration(cc, dd, d)
+            peak_v = interpolation.cubic_peak_speed(b, cc, dd, d)
+            if interpolation.exceeds(peak_a, amax) or interpolation.exceeds(peak_v, vmax):
+                parts = [r[k]]
+                break
+            parts.append(np.array([p, v, d], dtype=np.int64))
+            prev_p, prev_v, prev_t = p, v, t
+        out.extend(parts)
+    return np.asarray(out, dtype=np.int64)

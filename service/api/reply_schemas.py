@@ -69,6 +69,11 @@ _MOTION = {
 }
 
 
+_BRAKING = {
+    "type": ["object", "null"],
+    "description": "the on-path braking: begun_ms / ended_ms in program time (ms from the start SYNC), begun_sync / "
+    "ended_sync the SYNCs; null for a quick stop",
+}
 SERVICE_STATES = tuple(s.value for s in CellState)
 
 
@@ -146,6 +151,57 @@ def reply_schema(name: str) -> dict[str, Any]:
                 "homing_id": {"type": ["string", "null"], "description": "the homing it stopped, if one ran"},
                 "outcome": {"type": ["object", "null"]},
                 "axes": {"type": "array", "items": _AXIS_STATUS},
+                "mode": {"enum": ["path", "quick"], "description": "how the motion was stopped"},
+                "braking": _BRAKING,
+                "fallback": {
+                    "type": ["string", "null"],
+                    "description": "why a path stop was made the quick way (its braking could not be made in time)",
+                },
+                "ended_pause": {"type": "string", "description": "the paused motion this stop ended"},
+            },
+        }
+    elif name == "pause":
+        body = {
+            "type": "object",
+            "required": ["paused", "motion_id", "braking", "remaining", "axes"],
+            "properties": {
+                "paused": {"type": "boolean", "description": "false: a fault or the end came first (see outcome)"},
+                "motion_id": {"type": "string"},
+                "braking": _BRAKING,
+                "fallback": {"type": ["string", "null"], "description": "why it was stopped the quick way instead"},
+                "remaining": {
+                    "type": ["number", "null"],
+                    "description": "the share of the motion's path (in program time) still to go",
+                },
+                "outcome": {"type": ["object", "null"]},
+                "axes": {"type": "array", "items": _AXIS_STATUS},
+            },
+        }
+    elif name == "resume":
+        body = {
+            "type": "object",
+            "required": ["motion_id", "resumed", "state", "duration_ms"],
+            "properties": {
+                "motion_id": _MOTION_ID,
+                "resumed": {"type": "string", "description": "the paused motion it continues"},
+                "plan_id": _STR_OR_NULL,
+                "label": _STR_OR_NULL,
+                "state": {"enum": [RunState.RUNNING.value, RunState.ENDED.value]},
+                "duration_ms": {"type": "integer"},
+                "start_sync": _INT_OR_NULL,
+                "outcome": {"type": ["object", "null"]},
+            },
+        }
+    elif name == "override":
+        body = {
+            "type": "object",
+            "required": ["motion_id", "scale", "from_ms", "duration_ms"],
+            "properties": {
+                "motion_id": _MOTION_ID,
+                "scale": {"type": "number", "description": "the scale the rest of the motion now runs at"},
+                "from_ms": {"type": "number", "description": "program time (ms) from which the new speed applies"},
+                "from_sync": {"type": "integer", "description": "the SYNC from which it applies"},
+                "duration_ms": {"type": "integer", "description": "the motion's program time to its end, now"},
             },
         }
     elif name == "status":
@@ -170,6 +226,15 @@ def reply_schema(name: str) -> dict[str, Any]:
                 "requires_homing": {"type": "boolean"},
                 "homed": {"type": "boolean", "description": "every axis homed since its drive last booted"},
                 "homing": {"type": ["object", "null"], "description": "the last homing (as the home reply)"},
+                "override": {
+                    "type": ["number", "null"],
+                    "description": "the speed override the running motion runs at (1.0: as planned); null: none runs",
+                },
+                "paused": {
+                    "type": ["object", "null"],
+                    "description": "state paused: the paused motion (motion_id) and the share of its path left "
+                    "(remaining)",
+                },
             },
         }
     elif name == "recover":

@@ -210,7 +210,45 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
             oneOf=[{"required": ["plan_id"]}, {"required": ["program"]}],
         )
     elif name == "stop":
+        body = object_schema(
+            {
+                "reason": _TEXT,
+                "mode": {
+                    "enum": ["path", "quick"],
+                    "default": "path",
+                    "description": "path: the rest of the path re-timed to rest within every limit, every axis at "
+                    "rest on the same SYNC, the tool on the planned path (braking begins where the records the "
+                    "drives hold end, within the cell's max_lookahead_ms); quick: every axis brakes on its own "
+                    "deceleration at once, off the path (what faults and a lost SYNC use; also what a path stop "
+                    "falls back to when its braking cannot be made in time)",
+                },
+            }
+        )
+    elif name == "pause":
         body = object_schema({"reason": _TEXT})
+    elif name == "resume":
+        body = object_schema(
+            {
+                "wait": {
+                    "type": "boolean",
+                    "default": False,
+                    "description": "reply at the end of the motion (with its outcome) instead of at its start",
+                }
+            }
+        )
+    elif name == "override":
+        body = object_schema(
+            {
+                "scale": {
+                    "type": "number",
+                    "minimum": 0.05,
+                    "maximum": 1.0,
+                    "description": "the fraction of the planned path speed the rest of the running motion runs at "
+                    "(1.0: the planned timing again); effective within the cell's max_lookahead_ms",
+                }
+            },
+            required=["scale"],
+        )
     elif name == "status":
         body = object_schema(
             {

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -58,9 +59,32 @@ class ValidateRequest:
     program: dict[str, Any] | None = None
 
 
+class StopMode(StrEnum):
+    """``stop``'s mode: on the planned path (every axis at rest on the same SYNC), or the fastest, off it."""
+
+    PATH = "path"
+    QUICK = "quick"
+
+
 @dataclass(frozen=True)
 class StopRequest:
     reason: str = "stop requested"
+    mode: StopMode = StopMode.PATH
+
+
+@dataclass(frozen=True)
+class PauseRequest:
+    reason: str = "pause requested"
+
+
+@dataclass(frozen=True)
+class ResumeRequest:
+    wait: bool = False
+
+
+@dataclass(frozen=True)
+class OverrideRequest:
+    scale: float
 
 
 @dataclass(frozen=True)
@@ -279,7 +303,22 @@ def parse_validate(data: Any) -> ValidateRequest:
 
 def parse_stop(data: Any) -> StopRequest:
     check_schema("stop", data, None)
-    return StopRequest(data.get("reason") or "stop requested")
+    return StopRequest(data.get("reason") or "stop requested", StopMode(data.get("mode", StopMode.PATH.value)))
+
+
+def parse_pause(data: Any) -> PauseRequest:
+    check_schema("pause", data, None)
+    return PauseRequest(data.get("reason") or "pause requested")
+
+
+def parse_resume(data: Any) -> ResumeRequest:
+    check_schema("resume", data, None)
+    return ResumeRequest(bool(data.get("wait", False)))
+
+
+def parse_override(data: Any) -> OverrideRequest:
+    check_schema("override", data, None)
+    return OverrideRequest(float(data["scale"]))
 
 
 def parse_status(data: Any) -> StatusRequest:

@@ -16,7 +16,7 @@ API_VERSION = 1
 PREFIX = "pvtflow"
 
 
-QUERYABLES = ("plan", "validate", "execute", "stop", "status", "recover", "home")
+QUERYABLES = ("plan", "validate", "execute", "stop", "status", "recover", "home", "pause", "resume", "override")
 
 
 PUBLICATIONS = ("state", "telemetry", "events")
@@ -230,6 +230,7 @@ class CellState(StrEnum):
     STOPPING = "stopping"
     FAULT = "fault"
     HOMING = "homing"
+    PAUSED = "paused"  # a motion stopped on its path by ``pause``: ``resume`` continues it, ``stop`` ends it
 
 
 class RunState(StrEnum):

@@ -46,6 +46,7 @@ def parse_bus(file: Path, data: Any) -> BusConfig:
             "status_event_timer_ms",
             "fixed_period_headroom",
             "cyclic_process",
+            "max_lookahead_ms",
         ),
     )
     d = BusConfig()
@@ -84,12 +85,19 @@ def parse_bus(file: Path, data: Any) -> BusConfig:
         status_event_timer_ms=f.get("status_event_timer_ms", f.integer(0, 65535), d.status_event_timer_ms),
         fixed_period_headroom=f.get("fixed_period_headroom", f.number(), d.fixed_period_headroom),
         cyclic_process=f.get("cyclic_process", f.boolean, d.cyclic_process),
+        max_lookahead_ms=f.get("max_lookahead_ms", f.number(positive=True), d.max_lookahead_ms),
     )
     if not 0.0 <= bus.fixed_period_headroom <= MAX_FIXED_PERIOD_HEADROOM:
         raise f.error(
             "fixed_period_headroom",
             f"{bus.fixed_period_headroom:g} must be within [0, {MAX_FIXED_PERIOD_HEADROOM:g}] "
             "(the share of 0x607F / 0x60C5 kept out of the plans)",
+        )
+    if not 2.0 * bus.sync_period_ms <= bus.max_lookahead_ms <= 10_000.0:
+        raise f.error(
+            "max_lookahead_ms",
+            f"{bus.max_lookahead_ms:g} ms: at least two SYNC periods ({2.0 * bus.sync_period_ms:g} ms: the feeder tops "
+            "up once per period) and at most 10000 ms",
         )
     if bus.status_inhibit_ms is not None and bus.status_inhibit_ms > 6553.5:
         raise f.error("status_inhibit_ms", f"{bus.status_inhibit_ms:g} ms: 0x1800:03 holds at most 6553.5 ms")

@@ -80,8 +80,16 @@ class Admission:
             if start is not None and link.position is not None and abs(link.position - start) > tolerance:
                 raise refusals.start_mismatch(link.joint, link.position, start)
 
-    def refuse_a_motion(self, group: AxisGroup, program: PvtProgram | None = None) -> None:
-        """Every check a motion passes (an approach: all but the start, which it moves to)."""
+    def refuse_a_motion(self, group: AxisGroup, program: PvtProgram | None = None, resuming: bool = False) -> None:
+        """Every check a motion passes (an approach: all but the start, which it moves to); while a motion
+        is paused only its continuation (``resuming``)."""
+        if self.board.state == CellState.PAUSED and not resuming:
+            paused = self.activity.motion.motion_id if self.activity.motion is not None else None
+            raise ApiError(
+                ErrorCode.BUSY,
+                f"a motion is paused on cell {self.cell.name} ({paused}): resume it or stop it first",
+                {"motion_id": paused},
+            )
         self.refuse_if_busy(group)
         self.refuse_unless_homed(group)
         self.refuse_if_faulted(group)

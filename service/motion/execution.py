@@ -11,6 +11,7 @@ import logging
 import queue
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -48,6 +49,9 @@ class MotionRuns:
     journal: Journal
     outbox: Outbox
     recordings: RunRecordings
+
+    # a motion that ends stopped on its path by a pause: kept for resume (True), or not (service.motion.onpath)
+    paused: Callable[[Motion], bool] | None = None
 
     def __post_init__(self) -> None:
         self._started: queue.Queue[Motion | None] = queue.Queue()
@@ -110,11 +114,12 @@ class MotionRuns:
             )
         return summary
 
-    def _start(self, program: PvtProgram, plan_id: str | None, label: str | None) -> Motion:
-        """Start ``program`` (journaled first) unless the cell refuses it; the motion, running."""
+    def _start(self, program: PvtProgram, plan_id: str | None, label: str | None, resuming: bool = False) -> Motion:
+        """Start ``program`` (journaled first) unless the cell refuses it; the motion, running (``resuming``:
+        the continuation of the paused motion, which the refusals let through)."""
         group = self.drives.connected()
         with self.drives.lock:
-            self.admission.refuse_a_motion(group, program)
+            self.admission.refuse_a_motion(group, program, resuming=resuming)
             motion = Motion(new_id("m"), plan_id, label, program, time.time())
             motion.recorder = self.recordings.open(motion.motion_id, "motion")
 
@@ -169,6 +174,8 @@ class MotionRuns:
     def _finish(self, motion: Motion, result: RunResult) -> None:
         """Journal the outcome, then state and events (the journal first: it is the record)."""
         outcome = result.to_json()
+        if motion.pausing and result.result is Result.STOPPED:
+            outcome["paused"] = True  # the journal's record of the pause: resume continues it as a motion of its own
         motion.result = result
         motion.outcome = outcome
         if motion.recorder is not None:
@@ -179,6 +186,8 @@ class MotionRuns:
             self.outbox.event(ServiceEventKind.JOURNAL_ERROR, str(exc), motion_id=motion.motion_id)
         if result.result.is_fault:
             self.board.fault(result.message, motion.motion_id)
+        elif motion.pausing and result.result is Result.STOPPED and self.paused is not None and self.paused(motion):
+            self.board.set(CellState.PAUSED, motion.motion_id)
         else:
             self.board.set(CellState.IDLE, motion.motion_id)
         self.outbox.event(

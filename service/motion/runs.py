@@ -57,6 +57,7 @@ class Motion:
     result: RunResult | None = None
     done: threading.Event = field(default_factory=threading.Event)
     recorder: Recorder | None = field(default=None, repr=False)
+    pausing: bool = False  # stopped on its path by ``pause``: the cell is paused at its end, not idle
 
     def item_at(self, elapsed_ms: float | None) -> dict[str, Any] | None:
         """The item of a motion sequence that runs ``elapsed_ms`` after the start (its ``index`` and

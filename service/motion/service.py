@@ -37,8 +37,11 @@ from pvtflow.service.api import (
     CellState,
     ExecuteRequest,
     HomeRequest,
+    OverrideRequest,
+    PauseRequest,
     PlanRequest,
     RecoverRequest,
+    ResumeRequest,
     StatusRequest,
     StopRequest,
     ValidateRequest,
@@ -54,7 +57,9 @@ from pvtflow.service.motion.board import CellBoard
 from pvtflow.service.motion.drives import CellDrives
 from pvtflow.service.motion.execution import MotionRuns
 from pvtflow.service.motion.homing_runs import HomingRuns
+from pvtflow.service.motion.onpath import PathChanges
 from pvtflow.service.motion.outbox import Outbox, Publish
+from pvtflow.service.motion.pausing import PauseResume
 from pvtflow.service.motion.plans import PlanBook
 from pvtflow.service.motion.publications import Publications
 from pvtflow.service.motion.recordings import RunRecordings
@@ -109,15 +114,21 @@ class MotionService:
         self.admission = Admission(cell, self.board, self.activity)
         self.plan_book = PlanBook(cell, self.planner, self.drives, self.admission, max_plans)
         self.recordings = RunRecordings(cell, self.drives, Path(record_dir) if record_dir is not None else None, live)
+        self.changes = PathChanges(cell, self.drives, self.board, self.limits)
         self.motions = MotionRuns(
             cell, self.drives, self.board, self.activity, self.admission, self.plan_book, self.journal,
-            self.outbox, self.recordings,
+            self.outbox, self.recordings, lambda m: self.changes.pause_kept(m) is not None,
         )  # fmt: skip
         self.homings = HomingRuns(
             cell, self.drives, self.board, self.activity, self.admission, self.journal, self.outbox, self.recordings
         )
-        self.status_report = StatusReport(cell, self.drives, self.board, self.activity, self.plan_book, self.journal)
-        self.stopping = StopRecover(self.drives, self.board, self.activity, self.status_report)
+        self.status_report = StatusReport(
+            cell, self.drives, self.board, self.activity, self.plan_book, self.journal, self.changes
+        )
+        self.stopping = StopRecover(self.drives, self.board, self.activity, self.status_report, self.changes)
+        self.pausing = PauseResume(
+            self.drives, self.board, self.activity, self.motions, self.stopping, self.changes, self.status_report
+        )
         self.publications = Publications(self.outbox, self.board, self.drives, self.activity)
         self._rest_view: RestView | None = None
 
@@ -188,6 +199,15 @@ class MotionService:
 
     def recover(self, req: RecoverRequest) -> dict[str, Any]:
         return self.stopping.recover(req)
+
+    def pause(self, req: PauseRequest) -> dict[str, Any]:
+        return self.pausing.pause(req)
+
+    def resume(self, req: ResumeRequest) -> dict[str, Any]:
+        return self.pausing.resume(req)
+
+    def override(self, req: OverrideRequest) -> dict[str, Any]:
+        return self.pausing.override(req)
 
     def status(self, req: StatusRequest) -> dict[str, Any]:
         return self.status_report.status(req)

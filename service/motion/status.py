@@ -9,12 +9,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from pvtflow.axes.master.group.outcome import AxisStatus
-from pvtflow.service.api import StatusRequest
+from pvtflow.service.api import CellState, StatusRequest
 from pvtflow.service.config import CellConfig
 from pvtflow.service.journal import Journal, MotionEntry
 from pvtflow.service.motion.activity import CellActivity
 from pvtflow.service.motion.board import CellBoard
 from pvtflow.service.motion.drives import CellDrives
+from pvtflow.service.motion.onpath import PathChanges
 from pvtflow.service.motion.plans import PlanBook
 
 
@@ -28,6 +29,7 @@ class StatusReport:
     activity: CellActivity
     plans: PlanBook
     journal: Journal
+    changes: PathChanges | None = None  # the running motion's override, the paused motion
 
     def status(self, req: StatusRequest) -> dict[str, Any]:
         """What the drives say now, the motion, and the recent motions of the journal."""
@@ -56,6 +58,20 @@ class StatusReport:
             "requires_homing": self.cell.requires_homing,
             "homed": all(s.homed for s in st.axes),
             "homing": homing.summary() if homing is not None else None,
+            **self._path_status(motion),
+        }
+
+    def _path_status(self, motion: Any) -> dict[str, Any]:
+        """The running motion's speed override; the paused motion and the share of its path left."""
+        changes = self.changes
+        if changes is None:
+            return {}
+        paused = changes.paused if self.board.state == CellState.PAUSED else None
+        return {
+            "override": changes.scale_of(motion),
+            "paused": {"motion_id": paused.motion.motion_id, "remaining": round(paused.remaining, 6)}
+            if paused is not None
+            else None,
         }
 
     def journal_entry(self, motion_id: str) -> MotionEntry | None:

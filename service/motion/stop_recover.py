@@ -13,10 +13,11 @@ from typing import Any
 from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.axes.master.group.outcome import GroupError
 from pvtflow.axes.master.link import DriveError
-from pvtflow.service.api import ApiError, CellState, ErrorCode, RecoverRequest, StopRequest
+from pvtflow.service.api import ApiError, CellState, ErrorCode, RecoverRequest, StopMode, StopRequest
 from pvtflow.service.motion.activity import CellActivity
 from pvtflow.service.motion.board import CellBoard
 from pvtflow.service.motion.drives import CellDrives
+from pvtflow.service.motion.onpath import PathChanges
 from pvtflow.service.motion.status import StatusReport
 
 HOMING_STOP_WAIT_S = 60.0  # a stopped homing ends within its drives' halt; past this the reply goes anyway
@@ -31,9 +32,13 @@ class StopRecover:
     board: CellBoard
     activity: CellActivity
     status: StatusReport
+    changes: PathChanges
 
-    def stop(self, req: StopRequest) -> dict[str, Any]:
-        """Halt every axis now (on the next SYNC) and wait until they stand still."""
+    def stop(self, req: StopRequest, pausing: bool = False) -> dict[str, Any]:
+        """Stop every axis: on the path (the default: braking from where the drives' records end, every axis
+        at rest on the same SYNC) or the quick way (every axis halts on the next SYNC, off the path; also
+        where a path stop cannot be made in time); wait until they stand still. A stop while paused ends
+        the paused motion. ``pausing``: a ``pause`` (the motion is kept for ``resume``)."""
         group = self.drives.connected()
         homing = self.activity.homing
         if homing is not None and not homing.done.is_set():
@@ -47,21 +52,41 @@ class StopRecover:
                 "outcome": homing.outcome.to_json() if homing.outcome is not None else None,
                 "axes": self.status.axes_json(),
             }
+        braking: dict[str, Any] | None = None
+        fallback: str | None = None
+        ended_pause = None
         with self.drives.lock:  # an execute still starting has finished its start: its motion is stopped
             motion = self.activity.motion
             was_moving = group.running
+            if not was_moving and self.board.state == CellState.PAUSED:
+                ended_pause = self.changes.end_pause()
+                self.board.set(CellState.IDLE, ended_pause.motion.motion_id if ended_pause else None)
             if was_moving:
                 self.board.set(CellState.STOPPING, motion.motion_id if motion else None)
-                group.stop(req.reason)
+                if req.mode is StopMode.PATH and motion is not None:
+                    motion.pausing = pausing
+                    braking, fallback = self.changes.brake(group, motion, req.reason)
+                if braking is None:
+                    if motion is not None:
+                        motion.pausing = False
+                    group.stop(req.reason)
         if was_moving and motion is not None:
-            motion.done.wait(group.halt_budget_s + RUN_END_S)
+            motion.done.wait(group.halt_budget_s + RUN_END_S + (braking or {}).get("ended_ms", 0.0) / 1000.0)
             group.settle(5.0)  # the reply says what the drives say once nothing of the motion is left in them
-        return {
+        reply: dict[str, Any] = {
             "was_moving": was_moving,
             "motion_id": motion.motion_id if (motion and was_moving) else None,
             "outcome": motion.outcome if (motion and was_moving) else None,
             "axes": self.status.axes_json(),
+            "mode": StopMode.PATH.value
+            if braking is not None
+            else (StopMode.QUICK.value if was_moving else req.mode.value),
+            "braking": braking,
+            "fallback": fallback,
         }
+        if ended_pause is not None:
+            reply["ended_pause"] = ended_pause.motion.motion_id
+        return reply
 
     def recover(self, req: RecoverRequest) -> dict[str, Any]:
         """Fault reset and re-enable every axis; the cell is idle again when every drive is."""

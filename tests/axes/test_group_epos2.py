@@ -15,7 +15,7 @@ from axes_rig import listening_bus
 
 from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.cia402 import PowerState, decode_state
-from pvtflow.axes.drive.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram, split_long_records
 from pvtflow.axes.master.group.feeder import BufferFeeder
 from pvtflow.axes.master.group.outcome import GroupError, Result
 from pvtflow.service.config import CONFIG_DIR, load_cell_config
@@ -340,9 +340,15 @@ def _assert_checked_by_sync(rig, prog) -> None:
     """A start whose axes were all ready: no SDO, one check SYNC before the start word (the drives'
     answers to it are the check), and no record before that SYNC; the preload goes out after it, at
     most the cell's record allowance per SYNC period, so as many SYNCs as that takes precede the start."""
+    lookahead = rig.cell.bus.max_lookahead_ms  # as the EPOS2 profile makes its feeder
     preload = sum(
         BufferFeeder(
-            a.records, lambda r: (0, b""), lambda c, d: None, 1.0, rig.cell.axis_for_joint(a.joint).buffer
+            split_long_records(a, int(lookahead / 2)),
+            lambda r: (0, b""),
+            lambda c, d: None,
+            1.0,
+            rig.cell.axis_for_joint(a.joint).buffer,
+            lookahead_ms=lookahead,
         ).preload()
         for a in prog.axes
     )

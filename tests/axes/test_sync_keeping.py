@@ -780,7 +780,10 @@ def test_a_follower_held_past_the_reserve_of_buffered_drives_costs_only_time_sta
     SYNC for them (the shortest run of underflow_warning records), the FIFOs still held records: the
     motion finishes where it was going, nothing reported. A FIFO that ran dry would be the drive's
     own buffer underflow (``AxisGroup._check_drives``)."""
-    cell = dataclasses.replace(arm6, bus=dataclasses.replace(arm6.bus, sync_period_ms=10.0))
+    # the reserve is the look-ahead bound less a period (axes.master.profiles.epos2_pvt.max_sync_gap_ms): 65 ms
+    # puts it (55 ms) under the six periods held while the FIFOs hold at least 65 ms
+    bus_config = dataclasses.replace(arm6.bus, sync_period_ms=10.0, max_lookahead_ms=65.0)
+    cell = dataclasses.replace(arm6, bus=bus_config)
     cell = dataclasses.replace(cell, axes=cell.ordered_axes()[:2])  # the others' drives are not on the bus
     cell, sim, bus, group = sim_rig(cell, clock=Clock.WALL, interface="pvtflow_test_kernel", drive_clock=Clock.WALL)
     events = []

@@ -65,7 +65,7 @@ def test_serve_prints_how_to_talk_to_it_and_request_plans_and_executes(tmp_path,
                 break
         text = "".join(banner)
         assert f"listening on {endpoint}" in text, text + proc.stderr.read()
-        assert "pvtflow/arm6/{plan,validate,execute,stop,status,recover,home}" in text
+        assert "pvtflow/arm6/{plan,validate,execute,stop,status,recover,home,pause,resume,override}" in text
         assert "pvtflow/arm6/alive" in text
         # a lockstep simulation plans in the service's process unless told otherwise
         assert ("planner:      in a child process" if planner == "on" else "planner:      in this process") in text

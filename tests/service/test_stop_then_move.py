@@ -105,8 +105,9 @@ def move_again(svc: MotionService) -> None:
 
 
 def test_stop_then_move(service: MotionService) -> None:
+    """The quick stop (every axis halted at once, off the path); the path stop: test_path_stop_served.py."""
     start_long_motion(service)
-    reply = service.stop(parse_stop({}))
+    reply = service.stop(parse_stop({"mode": "quick"}))
     assert reply["was_moving"] and reply["outcome"]["result"] == "stopped"
     assert_nothing_left(service)
     move_again(service)
@@ -117,7 +118,7 @@ def test_stop_twice_then_move(service: MotionService) -> None:
     """Stops in a row (the second motion stopped too) leave nothing behind either."""
     for fraction in (0.85, 0.1):
         start_long_motion(service, fraction)
-        assert service.stop(parse_stop({}))["outcome"]["result"] == "stopped"
+        assert service.stop(parse_stop({"mode": "quick"}))["outcome"]["result"] == "stopped"
         assert_nothing_left(service)
     move_again(service)
 

@@ -56,6 +56,7 @@ from pvtflow.axes.master.group.status import GroupReports, RunView
 from pvtflow.axes.master.link import AxisLink, DriveError
 from pvtflow.axes.master.profiles import profile_for
 from pvtflow.axes.master.profiles.base import Profile
+from pvtflow.axes.master.splice import Make, SpliceAt, SpliceRefusedError, splice_run
 
 
 class AxisGroup:
@@ -299,6 +300,19 @@ class AxisGroup:
                 self._event(EventKind.STARTED, f"program of {program.duration_ms} ms started on SYNC {run.start_sync}")
                 sync.start(max_gap_s=run_gap_s, setpoints_per_sync=any(not p.name.buffered for p in self.profiles))
         return None
+
+    def splice(self, make: Make, lead_ms: float | None = None) -> SpliceAt:
+        """Change the running program from a moment on (``axes.master.splice``: the records not yet sent
+        replaced by ``make(at)``); SpliceRefusedError, nothing changed, when no motion runs."""
+        run = self._run
+        if run is None:
+            raise SpliceRefusedError("no motion runs")
+        return splice_run(run, make, lead_ms)
+
+    def ends_as(self, outcome: tuple[Result, str] | None) -> None:
+        """The running program, changed to end early (an on-path stop), ends with ``outcome`` (None: FINISHED)."""
+        if self._run is not None:
+            self._run.ends_as(outcome)
 
     def wait(self, timeout_s: float | None = None) -> RunResult:
         """Block until the run ends. The timeouts only detect a cell that stopped answering: the run

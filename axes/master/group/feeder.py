@@ -57,6 +57,7 @@ Send = Callable[[int, bytes], None]
 
 PRELOAD_MS = 50.0  # motion the records sent before the start SYNC cover (the first top-ups follow on SYNC)
 TOP_UP_PER_SYNC = 4  # the allowance of a feeder on its own (a cell's comes from its bus budget)
+MIN_HELD = 3  # records a look-ahead-bound FIFO holds at least (its level counts the segment running)
 
 
 class RecordAllowance:
@@ -126,11 +127,17 @@ class Feeder:
         self.enabled = True
         # another process sends this feeder's frames (axes.master.cyclic.process): this one only mirrors it
         self.mirrored = False
+        self.horizon_ms: float | None = None  # no record ending after it goes out (axes.master.splice)
         self.stats = FeedStats(records=len(self.records))
 
     @property
     def all_sent(self) -> bool:
         return self.next >= len(self.records)
+
+    def hold_to(self, horizon_ms: float | None) -> None:
+        """No record ending after ``horizon_ms`` goes out while a change from there is made
+        (``axes.master.splice``); None: no bound."""
+        self.horizon_ms = horizon_ms
 
     def disable(self) -> None:
         """Send nothing more (a halt: the drive brakes on its own ramp)."""
@@ -189,11 +196,9 @@ class BufferFeeder(Feeder):
         buffer: BufferConfig,
         capacity: int = EPOS2_BUFFER_SIZE,
         allowance: RecordAllowance | None = None,
+        lookahead_ms: float | None = None,
     ) -> None:
-        r = np.asarray(records, dtype=np.int64)
-        if r[-1, 2] != 0:  # the end record: time 0 ends interpolation without error
-            r = np.vstack([r, [[r[-1, 0], 0, 0]]])
-        super().__init__(r, frame_of, send, period_ms)
+        super().__init__(_with_end_record(records), frame_of, send, period_ms)
         self.buffer = buffer
         self.capacity = capacity
         # the mark the level is topped up to: just below the overflow warning, inside the FIFO
@@ -209,6 +214,9 @@ class BufferFeeder(Feeder):
         self._status = 0
         self._own = allowance is None  # a feeder on its own begins its periods itself
         self.allowance = RecordAllowance(TOP_UP_PER_SYNC) if allowance is None else allowance
+        # the records held reach at most this far beyond the drive's clock (axes.master.splice), and
+        # none ends after ``horizon_ms`` while a splice is prepared (``Feeder.hold_to``)
+        self.lookahead_ms = lookahead_ms
 
     def consumed(self) -> int:
         """Records whose segment the drive has finished by its clock (the running one counts as buffered)."""
@@ -223,7 +231,23 @@ class BufferFeeder(Feeder):
     @property
     def wants(self) -> bool:
         """A record would go out now if the allowance had one: the FIFO is below its mark."""
-        return self.enabled and not self._hold and not self.all_sent and self.level < self.high
+        return (
+            self.enabled
+            and not self._hold
+            and not self.all_sent
+            and self.level < self.high
+            and (self.lookahead_ms is None or within_lookahead(self))
+        )
+
+    def replace_from(self, first: int, rows: NDArray[np.int64]) -> None:
+        """Records ``first`` on (none of them sent) become ``rows`` (axes.master.splice), then the end record."""
+        assert first >= self.next, "a record the drive holds cannot be replaced"
+        self.records = _with_end_record(np.concatenate((self.records[:first], np.asarray(rows, dtype=np.int64))))
+        self.end_ms = np.cumsum(self.records[:, 2])
+        self._end = self.end_ms.tolist()
+        self.duration_ms = int(self.end_ms[-1])
+        self.stats.records = len(self.records)
+        self.horizon_ms = None
 
     def _top_up(self) -> None:
         if not self.wants or self.mirrored:
@@ -235,7 +259,11 @@ class BufferFeeder(Feeder):
 
     @property
     def preloaded(self) -> bool:
-        """The records of the first PRELOAD_MS of motion (at least two above the underflow warning) are out."""
+        """The records of the first PRELOAD_MS of motion (at least two above the underflow warning; under a
+        look-ahead bound, MIN_HELD and the bound's time at most) are out."""
+        if self.lookahead_ms is not None:
+            covered = self.next >= MIN_HELD and self._end[self.next - 1] >= min(PRELOAD_MS, self.lookahead_ms)
+            return self.all_sent or self.next >= self.high or covered
         return (
             self.all_sent
             or self.next >= self.high
@@ -288,6 +316,26 @@ class BufferFeeder(Feeder):
 
     def finished(self, elapsed: int, ip_active: bool) -> bool:
         return self.all_sent and elapsed * self.period_ms >= self.duration_ms and not ip_active
+
+
+def _with_end_record(records: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The records and the end record (time 0 ends interpolation without error)."""
+    r = np.asarray(records, dtype=np.int64)
+    return r if r[-1, 2] == 0 else np.vstack([r, [[r[-1, 0], 0, 0]]])
+
+
+def within_lookahead(feeder: BufferFeeder) -> bool:
+    """The next record may go out: the records held end short of the look-ahead bound beyond the drive's
+    clock, or the FIFO would hold less than the segment running and two more (``MIN_HELD``: the drive
+    interpolates towards the next record; a record is never held back from a drive that needs it, so a
+    splice's ``t0`` is the later of the two), and no record ends after a splice's horizon. Below its
+    underflow warning level the drive only warns (0x20C4:02): the bound is what a change of the motion
+    cannot take back, and the FIFO's depth is given up for it."""
+    end = feeder._end[feeder.next]
+    if feeder.horizon_ms is not None and end > feeder.horizon_ms:
+        return False
+    held = feeder._end[feeder.next - 1] if feeder.next else 0.0
+    return held < feeder.elapsed_ms + feeder.lookahead_ms or feeder.level < MIN_HELD
 
 
 class SetpointFeeder(Feeder):
@@ -348,8 +396,21 @@ class SetpointFeeder(Feeder):
         if elapsed > self._last_elapsed + 1 and self.next < len(self.records):
             self.held_syncs += elapsed - self._last_elapsed - 1  # the program runs that much later
         self._last_elapsed = max(self._last_elapsed, elapsed)
-        if self.enabled and not self.mirrored and self.next <= elapsed + self.lead and self.next < len(self.records):
+        if (
+            self.enabled
+            and not self.mirrored
+            and self.next <= elapsed + self.lead
+            and self.next < len(self.records)
+            and (self.horizon_ms is None or self.records[: self.next + 1, 2].sum() <= self.horizon_ms)
+        ):
             self._send_next()
+
+    def replace_from(self, first: int, rows: NDArray[np.int64]) -> None:
+        """Records ``first`` on (none of them sent) become ``rows`` (axes.master.splice)."""
+        assert first >= self.next, "a setpoint the drive holds cannot be replaced"
+        kept = self.records[self.next : first]
+        self.decelerate(np.concatenate((kept, np.asarray(rows, dtype=np.int64).reshape(-1, 3))))
+        self.horizon_ms = None
 
     def finished(self, elapsed: int, ip_active: bool) -> bool:
         # record N-1 is reached at N periods, plus one for each SYNC the drive held through

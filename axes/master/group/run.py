@@ -48,6 +48,7 @@ class Run:
         self.ip_start: list[int | None] = [None] * len(parts.links)  # the SYNC each axis reported ip mode
         self.end_words_sent = [False] * len(parts.links)
         self.live = False
+        self.end_as: tuple[Result, str] | None = None  # how the run ends at its end, if changed (ends_as)
         self.halting = Halting(parts, self)
         self._on_end = on_end
 
@@ -59,6 +60,25 @@ class Run:
         """The run is live from now on; its motion starts on SYNC ``start_sync`` (SYNC lock held)."""
         self.start_sync = start_sync
         self.live = True
+
+    def take_program(self, i: int, program: AxisProgram) -> None:
+        """Axis ``i`` runs ``program`` from now on (a change of the records not yet sent: axes.master.splice)."""
+        programs = list(self.programs)
+        programs[i] = program
+        self.programs = tuple(programs)
+
+    def ends_as(self, outcome: tuple[Result, str] | None) -> None:
+        """The run, changed to end early (an on-path stop), ends with ``outcome`` at its end (None: FINISHED)."""
+        self.end_as = outcome
+
+    def drive_clock_ms(self) -> float:
+        """The drives' clock (program time): SYNC periods since the start SYNC; on the wall clock the time
+        since the start SYNC went out, which the EPOS2 runs its records by (``axes.master.group.feeder``)."""
+        sync = self.parts.bus.sync
+        now = (sync.answered - (self.start_sync or sync.answered)) * self.parts.bus.config.sync_period_ms
+        if not sync.clock.lockstep and self.start_sent is not None:
+            now = max(now, (time.monotonic() - self.start_sent) * 1000.0)
+        return now
 
     def result(self, result: Result, message: str, link: AxisLink | None = None) -> RunResult:
         return self.parts.reports.result(self, result, message, link)
@@ -176,7 +196,7 @@ class Run:
                 done = False
         if done:
             parts.bus.sync.stop()
-            self.end(self.result(Result.FINISHED, "every axis reached its end record"))
+            self.end(self.result(*(self.end_as or (Result.FINISHED, "every axis reached its end record"))))
 
     def _feed(self) -> None:
         """Top the buffered axes up from the allowance of the period of the last SYNC sent (group lock

@@ -28,7 +28,8 @@ from numpy.typing import NDArray
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.drive_profile import DriveProfile
 from pvtflow.axes.drive.objects import EPOS2_TIME_STAMP_RPDO, Record, time_stamp_cob_id
-from pvtflow.axes.master.group.feeder import BufferFeeder, Feeder, RecordAllowance
+from pvtflow.axes.drive.program import split_long_records
+from pvtflow.axes.master.group.feeder import MIN_HELD, BufferFeeder, Feeder, RecordAllowance
 from pvtflow.axes.master.profiles.base import Profile
 
 if TYPE_CHECKING:
@@ -54,16 +55,21 @@ class Epos2Pvt(Profile):
 
     def max_sync_gap_ms(self, program: AxisProgram) -> float:
         """The EPOS2 runs its records on its own clock: a gap only holds the feed back, which tops the
-        FIFO up on the SYNC answers, and the feeder never lets it fall below the underflow warning
-        level (``BufferFeeder.low``). So it rides out the time of its shortest run of that many
-        records in this program (at least the fixed-period drives' two periods)."""
+        FIFO up on the SYNC answers. The feeder keeps records up to the cell's look-ahead bound ahead
+        of the drive, and never fewer than ``MIN_HELD`` (``axes.master.group.feeder.within_lookahead``):
+        so it rides out the later of the two, less a SYNC period, in the shortest stretch of this
+        program (at least the fixed-period drives' two periods)."""
         times = np.asarray(program.records[:, 2], dtype=np.float64)
-        keep = max(1, self.config.buffer.underflow_warning)
+        keep = MIN_HELD - 1  # beyond the segment running
         floor = super().max_sync_gap_ms(program)
         if len(times) < keep:
             return max(floor, float(times.sum()))
-        window = np.convolve(times, np.ones(keep), mode="valid")
-        return max(floor, float(window.min()))
+        window = float(np.convolve(times, np.ones(keep), mode="valid").min())
+        ahead = self.link.bus.config.max_lookahead_ms - self.link.bus.config.sync_period_ms
+        deep = max(keep, self.config.buffer.overflow_warning - 2)  # the most the FIFO holds beyond the running one
+        if len(times) >= deep:  # a bound deeper than the FIFO: the FIFO's own time
+            ahead = min(ahead, float(np.convolve(times, np.ones(deep), mode="valid").min()))
+        return max(floor, window, ahead)
 
     def configure(self) -> None:
         link = self.link
@@ -104,11 +110,13 @@ class Epos2Pvt(Profile):
     def feeder(self, program: AxisProgram, allowance: RecordAllowance | None = None) -> Feeder:
         self._cob = self.rpdos[0].cob_id(self.link.node_id, receive=True)
         bus = self.link.bus
+        lookahead = bus.config.max_lookahead_ms
         return BufferFeeder(
-            program.records,
+            split_long_records(program, max(1, int(lookahead / 2))),
             self.frame,
             bus.network.send_message,
             bus.config.sync_period_ms,
             self.config.buffer,
             allowance=allowance,
+            lookahead_ms=lookahead,
         )

@@ -1,0 +1,299 @@
+"""The on-path stop, pause, resume and override as records: the running program's change from ``t0`` on
+(issue 37; planner side of ``axes.master.splice``).
+
+Everything is in program time (``planner.program_motion``: s = the program's time, seconds). A change keeps
+each axis's records up to the end of its last one the drive holds (``join_ms``) and appends records sampled
+from the new motion from there: the knot at the join is the record the drive already has (the records join
+with the same position and velocity), the next knots at ``t0`` (where the new motion leaves the old one),
+where the new motion's acceleration jumps, at most ``MAX_SEGMENT_MS`` apart, and at its end. A fixed-period
+axis's setpoints are the new motion's at its own period. The new motion's braking is made to end on the
+records' common grid (a share of 0x60C5 a little lower, found by bisection), so that every axis is at rest
+from the same SYNC and no cubic straddles the end of the braking (a cubic across an acceleration switch
+overshoots it). The whole program, kept records and new, is then judged by the validator, like any program.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pvtflow.axes.drive.axis import DriveAxis
+from pvtflow.axes.drive.program import AxisProgram, PvtProgram
+from pvtflow.planner.knots import fixed_period_kernels as fp_kernels
+from pvtflow.planner.knots.fixed_period import _FP_REACH, reconstruction_kind
+from pvtflow.planner.knots.samples import axis_constants
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.onpath_stop import OnPathStop, brake_on_path, override
+from pvtflow.planner.path import PlanError, PlanResult
+from pvtflow.planner.trajectory import Trajectory
+from pvtflow.planner.validate import validate_program
+
+# EPOS2 knots of a change: segments of 8-12 ms keep a count's rounding (6 * 0.5 qc / T^2) near 1 % of a
+# typical 0x60C5 and the cubic's fit to the braking within a fraction of a count
+MIN_SEGMENT_MS = 8
+MAX_SEGMENT_MS = 12
+# the EPOS2 knot spacings tried in turn (min, max ms) until an axis's records validate: shorter segments
+# follow an acceleration switch closer, longer ones feel the rounding less
+SPACINGS = ((MIN_SEGMENT_MS, MAX_SEGMENT_MS), (5, 8), (12, 24), (4, 6))
+# the share of the joint accelerations the braking plans with: room for the records' rounding (the knot
+# placement's repair of integers is not run on a change: it must be made within the look-ahead)
+BRAKING_SHARE = 0.9
+# the fastest a change re-times a motion to, of its planned speed: at the planned speed itself a time-optimal
+# program's records sit at 0x60C5, where only the knot placement's integer repair finds records inside it
+# (accelerations scale with its square: 0.95 leaves 10 %)
+MAX_SCALE = 0.95
+JUMP_SHARE = 0.02  # an acceleration jump of this share of 0x60C5 gets a knot of its own
+
+
+class ChangeError(ValueError):
+    """The change cannot be made into records that the drives take (the caller stops the quick way)."""
+
+
+def change_start_ms(t0_ms: float, join_ms: Sequence[float], axes: Sequence[AxisProgram]) -> float:
+    """Where the new motion leaves the old one: ``t0``, or later where an EPOS2 axis's held records end
+    less than ``MIN_SEGMENT_MS`` before it (the records from its join to the change would be a segment too
+    short for its rounding: the change waits until the first knot after the join can be one)."""
+    close = [
+        j for j, a in zip(join_ms, axes, strict=True) if not a.profile.fixed_period and 0 < t0_ms - j < MIN_SEGMENT_MS
+    ]
+    return max([t0_ms, *(j + MIN_SEGMENT_MS for j in close)])
+
+
+def scaled_limits(limits: JointLimits, share: float) -> JointLimits:
+    return dataclasses.replace(limits, acceleration=np.asarray(limits.acceleration) * share)
+
+
+def brake_on_grid(motion: Trajectory, t0_s: float, limits: JointLimits, grid_s: float) -> OnPathStop:
+    """``brake_on_path`` from ``t0_s`` that comes to rest on the grid: at most ``BRAKING_SHARE`` of the
+    joint accelerations, lowered until the rest falls on the next grid time (bisection on the share)."""
+    hi = BRAKING_SHARE
+    stop = brake_on_path(motion, t0_s, scaled_limits(limits, hi))
+    target = math.ceil(stop.t_end / grid_s - 1e-9) * grid_s
+    if abs(stop.t_end - target) < 1e-7:
+        return stop
+    lo = hi * 0.5
+    best = None
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        trial = brake_on_path(motion, t0_s, scaled_limits(limits, mid), tries=1)
+        if trial.t_end > target:
+            lo = mid
+        else:
+            hi, best = mid, trial
+        if best is not None and target - best.t_end < 2e-6:
+            break
+    if best is None:
+        raise ChangeError("no braking on this path comes to rest on the SYNC grid")
+    return best
+
+
+def tail_records(
+    axis: AxisProgram,
+    join_ms: float,
+    t0_ms: float,
+    motion: Trajectory,
+    end_ms: float,
+    jumps_ms: NDArray[np.float64],
+    offset_ms: float = 0.0,
+    spacing: tuple[int, int] = (MIN_SEGMENT_MS, MAX_SEGMENT_MS),
+) -> NDArray[np.int64]:
+    """The records of ``axis`` from ``join_ms`` (the end of its last kept record) to ``end_ms``, sampled from
+    ``motion`` (its time 0 at program time ``offset_ms``), ending at rest; ``jumps_ms``: where ``motion``'s
+    acceleration jumps (program time)."""
+    j = next(i for i, n in enumerate(motion.joint_names) if n == axis.joint)
+    sc = axis.scaling
+    if axis.profile.fixed_period:
+        period = float(axis.records[0, 2])
+        n = round((end_ms - join_ms) / period)
+        if n < 1:
+            raise ChangeError(f"{axis.joint}: the change ends before its next setpoint")
+        t = join_ms + period * np.arange(1, n + 1)
+        q, qd = _states(motion, t - offset_ms, j)
+        p = np.rint(sc.position_to_qc(q)).astype(np.int64)
+        v = np.zeros(n, dtype=np.int64)
+        if axis.profile.carries_velocity(axis.interpolation_submode):
+            v = np.rint(sc.velocity_to_drive(qd)).astype(np.int64)
+        v[-1] = 0
+        p, v = _tracked(axis, join_ms, p, v, motion, offset_ms, j)
+        rows = np.column_stack((p, v, np.full(n, int(period))))
+        return np.vstack([rows, [[p[-1], 0, int(period)]]]).astype(np.int64)  # held at rest one more period
+    knots = _knot_times(join_ms, t0_ms, end_ms, jumps_ms, spacing)
+    q, qd = _states(motion, knots[1:] - offset_ms, j)
+    p = np.rint(sc.position_to_qc(q)).astype(np.int64)
+    v = np.rint(sc.velocity_to_drive(qd)).astype(np.int64)
+    v[-1] = 0
+    rows = np.column_stack((p, v, np.diff(knots).astype(np.int64)))
+    return np.vstack([rows, [[p[-1], 0, 0]]]).astype(np.int64)  # the end record: interpolation ends
+
+
+def _tracked(
+    axis: AxisProgram,
+    join_ms: float,
+    p: NDArray[np.int64],
+    v: NDArray[np.int64],
+    motion: Trajectory,
+    offset_ms: float,
+    j: int,
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """A fixed-period axis's new setpoints re-chosen among the integers around them where the drive's
+    reconstruction of their rounding leaves a limit (the knot placement's ``track_fixed_period``, from the
+    last kept setpoint, which stays), as a plan's are."""
+    drive = DriveAxis(**{f.name: getattr(axis, f.name) for f in dataclasses.fields(DriveAxis)})
+    period = int(axis.records[0, 2])
+    k = round(join_ms / period) - 1  # the last kept setpoint
+    if k < 0 or k >= len(axis.records):
+        return p, v
+    P = np.concatenate(([int(axis.records[k, 0])], p)).astype(np.int64)
+    V = np.concatenate(([int(axis.records[k, 1])], v)).astype(np.int64)
+    t_ms = np.arange(0.0, period * (len(P) - 1) + 1.0) + join_ms
+    plan = np.ascontiguousarray(drive.scaling.position_to_qc(_states(motion, t_ms - offset_ms, j)[0]), dtype=float)
+    f, _, _, v_units, pos_lo, pos_hi, rv_per, ra_per = (float(x[0]) for x in axis_constants((drive,)))
+    kind = reconstruction_kind(drive)
+    reach = _FP_REACH if kind == fp_kernels.CUBIC_P else 1
+    P, V, _ = fp_kernels.track_fixed_period(kind, P, V, plan, period, f, rv_per, ra_per, pos_lo, pos_hi, v_units, reach)
+    return P[1:], V[1:]
+
+
+def _states(motion: Trajectory, t_ms: NDArray[np.float64], j: int) -> tuple[NDArray[np.float64], ...]:
+    t = np.clip(np.asarray(t_ms, dtype=float) / 1000.0, 0.0, motion.duration)
+    return motion.position(t)[:, j], motion.velocity(t)[:, j]
+
+
+def _knot_times(
+    join_ms: float,
+    t0_ms: float,
+    end_ms: float,
+    jumps_ms: NDArray[np.float64],
+    spacing: tuple[int, int] = (MIN_SEGMENT_MS, MAX_SEGMENT_MS),
+) -> NDArray[np.int64]:
+    """Whole-ms knots from the join to the end: t0, the acceleration jumps, at most MAX_SEGMENT_MS apart,
+    none closer than MIN_SEGMENT_MS (the end kept, the knot before it dropped where they would be)."""
+    join, end = round(join_ms), round(end_ms)
+    wanted = sorted({round(t0_ms), *(round(t) for t in jumps_ms if join_ms < t < end_ms)})
+    knots = [join]
+    for t in [*wanted, end]:
+        while t - knots[-1] > spacing[1]:
+            gap = t - knots[-1]
+            knots.append(knots[-1] + math.ceil(gap / math.ceil(gap / spacing[1])))
+        if t - knots[-1] >= spacing[0]:
+            knots.append(t)
+    if knots[-1] != end:
+        if len(knots) > 1 and end - knots[-2] <= 255:
+            knots[-1] = end
+        else:
+            knots.append(end)
+    return np.asarray(knots, dtype=np.int64)
+
+
+def changed_program(
+    program: PvtProgram,
+    first: Sequence[int],
+    join_ms: Sequence[float],
+    t0_ms: float,
+    motion: Trajectory,
+    end_ms: float,
+    limits: JointLimits,
+    offset_ms: float = 0.0,
+) -> tuple[PvtProgram, list[NDArray[np.int64]]]:
+    """``program`` with each axis's records from ``first[i]`` on replaced by ``motion``'s (its time 0 at
+    program time ``offset_ms``) from ``join_ms[i]`` to ``end_ms``, validated; (the new program, the new
+    records per axis). ChangeError where the drives would not take it."""
+    times, jumps = motion.acceleration_jumps()
+    amax = np.asarray(limits.acceleration, dtype=float)
+    big = np.any(np.abs(jumps) > JUMP_SHARE * amax, axis=1) if len(jumps) else np.zeros(0, dtype=bool)
+    jumps_ms = np.asarray(times, dtype=float)[big] * 1000.0 + offset_ms
+    rows: list[NDArray[np.int64]] = []
+    axes = []
+    for a, k, jm in zip(program.axes, first, join_ms, strict=True):
+        for spacing in SPACINGS if not a.profile.fixed_period else SPACINGS[:1]:
+            r = tail_records(a, jm, t0_ms, motion, end_ms, jumps_ms, offset_ms, spacing)
+            axis = AxisProgram.of(a, np.concatenate((a.records[:k], r)))
+            if validate_program(PvtProgram(program.cell, (axis,)), sample_period_ms=None).ok:
+                break
+        rows.append(r)
+        axes.append(axis)
+    changed = PvtProgram(program.cell, tuple(axes), {**program.metadata, "duration_ms": round(end_ms)})
+    report = validate_program(changed, sample_period_ms=None)
+    if not report.ok:
+        raise ChangeError("the changed records do not validate: " + "; ".join(f.format() for f in report.errors[:3]))
+    return changed, rows
+
+
+def joined(running: Trajectory, change: Trajectory) -> Trajectory:
+    """``running`` until where ``change`` begins on the path, then ``change``: one trajectory, the motion as
+    the drives run it after an override."""
+    s0 = float(change.gridpoints[0])
+    before = running.gridpoints < s0 - 1e-12
+    grid = np.concatenate([running.gridpoints[before], change.gridpoints])
+    sd = np.concatenate([running.sd[before], change.sd])
+    if sd[-1] != 0.0 and grid[-1] < running.gridpoints[-1]:
+        raise PlanError(PlanResult.INFEASIBLE, "the change does not reach the motion's end")
+    return Trajectory.from_path_velocities(running.path, grid, sd, running.joint_names)
+
+
+def on_grid(duration_s: float, grid_s: float) -> float:
+    """The grid time at or after ``duration_s``."""
+    return math.ceil(duration_s / grid_s - 1e-9) * grid_s
+
+
+def override_on_grid(
+    planned: Trajectory, running: Trajectory, t0_s: float, scale: float, limits: JointLimits, grid_s: float
+) -> tuple[Trajectory, float]:
+    """``override`` at ``scale`` joined to ``running`` at ``t0_s``, with the scale lowered by at most 3 % so
+    that the motion ends on the grid (no cubic straddles its last deceleration); (the motion, the scale).
+    The scale is at most ``MAX_SCALE`` and the ramps to it take ``BRAKING_SHARE`` of the joint accelerations:
+    the records' rounding needs that room."""
+    scale = min(scale, MAX_SCALE)
+    limits = scaled_limits(limits, BRAKING_SHARE)
+    whole = joined(running, override(planned, running, t0_s, scale, limits))
+    target = on_grid(whole.duration, grid_s)
+    if target - whole.duration < 2e-6:
+        return whole, scale
+    lo, hi, best = max(0.05, scale * 0.97), scale, None
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        trial = joined(running, override(planned, running, t0_s, mid, limits))
+        if trial.duration > target:
+            lo = mid
+        else:
+            hi, best = mid, (trial, mid)
+            if target - trial.duration < 2e-6:
+                break
+    if best is None:
+        raise ChangeError(f"no scale near {scale:g} ends the motion on the SYNC grid")
+    return best
+
+
+def resume_motion(planned: Trajectory, paused: OnPathStop, limits: JointLimits) -> Trajectory:
+    """From rest where ``paused`` ended to the end of ``planned`` (``onpath_stop.resume``) at ``MAX_SCALE``
+    of the planned speed, the ramp at ``BRAKING_SHARE`` of the joint accelerations; time 0 = the resume."""
+    share = scaled_limits(limits, BRAKING_SHARE)
+    return override(planned, paused.trajectory, paused.trajectory.duration, MAX_SCALE, share)
+
+
+def resume_program(paused: PvtProgram, rest: Trajectory, limits: JointLimits, grid_ms: int) -> PvtProgram:
+    """The program that continues a paused motion: from where ``paused`` left the axes at rest, ``rest``
+    (``resume_motion``, time 0 = the resume) slowed by the least that ends it on the grid, after a dwell
+    of one grid step (every axis's first motion on the same SYNC)."""
+    end_s = on_grid(rest.duration, grid_ms / 1000.0)
+    motion = rest.slowed(end_s / rest.duration) if end_s > rest.duration else rest
+    offset = float(grid_ms)
+    axes = []
+    first, joins = [], []
+    for a in paused.axes:
+        p = int(a.records[-1, 0])
+        if a.profile.fixed_period:
+            period = int(a.records[0, 2])
+            head = np.array([[p, 0, period]] * max(1, round(offset / period)), dtype=np.int64)
+        else:
+            head = np.array([[p, 0, int(offset)]], dtype=np.int64)
+        axes.append(AxisProgram.of(a, head))
+        first.append(len(head))
+        joins.append(float(head[:, 2].sum()))
+    start = PvtProgram(paused.cell, tuple(axes), dict(paused.metadata))
+    program, _ = changed_program(start, first, joins, offset, motion, offset + end_s * 1000.0, limits, offset)
+    return program

@@ -1,0 +1,239 @@
+"""The on-path stop, ``pause``, ``resume`` and ``override``: the running motion changed from ``t0`` on (issue 37).
+
+The motion's path is what the drives make of its program (``planner.program_motion``); a change re-times the
+rest of it (``planner.onpath_stop``), turns that into records from where each drive's held records end
+(``planner.onpath_program``) and replaces the feeders' records not yet sent (``axes.master.splice``), all
+while the group's lock is held. What cannot be made in time, or would not validate, is a quick stop instead
+(stop, pause) or refused with nothing changed (override). Faults and lost SYNC never come here: the axis
+group halts them the quick way.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from pvtflow.axes.drive.program import PvtProgram
+from pvtflow.axes.master.group.axis_group import AxisGroup
+from pvtflow.axes.master.group.outcome import Result
+from pvtflow.axes.master.splice import SpliceAt, SpliceRefusedError, record_grid_ms
+from pvtflow.planner.build import BuildError, build_program
+from pvtflow.planner.knots import KnotOptions
+from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.onpath_program import (
+    ChangeError,
+    brake_on_grid,
+    change_start_ms,
+    changed_program,
+    on_grid,
+    override_on_grid,
+    resume_motion,
+)
+from pvtflow.planner.onpath_stop import OnPathStop, stopped_motion
+from pvtflow.planner.path import PlanError
+from pvtflow.planner.program_motion import program_motion
+from pvtflow.planner.trajectory import Trajectory
+from pvtflow.service.api import ApiError, CellState, ErrorCode
+from pvtflow.service.config import CellConfig
+from pvtflow.service.motion.board import CellBoard
+from pvtflow.service.motion.drives import CellDrives
+from pvtflow.service.motion.runs import Motion
+
+log = logging.getLogger("pvtflow.motion")
+
+
+class _RunsToItsEnd(Exception):  # noqa: N818 (not an error: the motion's own end is its stop)
+    """The motion's own end is where a braking from t0 would take it, as fast: it runs to its end."""
+
+
+_CHANGE_ERRORS = (SpliceRefusedError, ChangeError, PlanError, BuildError, ValueError)
+
+
+@dataclass
+class MotionPath:
+    """A motion's path and timing as the drives run it (program time)."""
+
+    motion_id: str
+    planned: Trajectory  # the program as it was started, at s' = 1
+    running: Trajectory  # as it runs now (after overrides, a braking)
+    program: PvtProgram  # the records as they run now, in the group's axis order
+    scale: float = 1.0
+    stop: OnPathStop | None = None  # the braking, once stopped or paused on the path
+
+
+@dataclass
+class Paused:
+    """A motion paused on its path: what ``resume`` continues."""
+
+    motion: Motion
+    path: MotionPath
+    remaining: float  # the share of the motion's path (program time) still to go
+
+
+@dataclass(eq=False)
+class PathChanges:
+    """Changes of the running motion along its path, and the paused motion."""
+
+    cell: CellConfig
+    drives: CellDrives
+    board: CellBoard
+    limits: JointLimits
+    paths: dict[str, MotionPath] = field(default_factory=dict)
+    paused: Paused | None = None
+
+    # --- the motion's path -------------------------------------------------------------------------
+    def path_of(self, motion: Motion, group: AxisGroup) -> MotionPath:
+        """The motion's path (made at its first change: a few ms)."""
+        path = self.paths.get(motion.motion_id)
+        if path is None:
+            program = PvtProgram(self.cell.name, group.programs, dict(motion.program.metadata))
+            timing = program_motion(program)
+            path = MotionPath(motion.motion_id, timing, timing, program)
+            self.paths = {motion.motion_id: path}  # the running motion's only
+        return path
+
+    def scale_of(self, motion: Motion | None) -> float | None:
+        path = self.paths.get(motion.motion_id) if motion is not None else None
+        return None if motion is None or motion.done.is_set() else (round(path.scale, 4) if path is not None else 1.0)
+
+    # --- stop and pause on the path -----------------------------------------------------------------
+    def brake(self, group: AxisGroup, motion: Motion, reason: str) -> tuple[dict[str, Any] | None, str | None]:
+        """Brake the running motion on its path (called with the drives' lock held): (the braking's times,
+        None), or (None, why not: the caller stops the quick way)."""
+        try:
+            path = self.path_of(motion, group)
+        except _CHANGE_ERRORS as exc:
+            return None, f"the motion's path: {exc}"
+        grid_ms = record_grid_ms(group.programs, self.cell.bus.sync_period_ms)
+        made: dict[str, Any] = {}
+
+        def make(at: SpliceAt) -> list[Any]:
+            begin = change_start_ms(at.t0_ms, at.join_ms, at.programs)
+            try:
+                stop = brake_on_grid(path.running, begin / 1000.0, self.limits, grid_ms / 1000.0)
+            except PlanError:
+                if begin < 0.5 * path.running.duration * 1000.0:
+                    raise
+                raise _RunsToItsEnd from None  # at rest on the path's end already, or nearly
+            if stop.s_end >= float(path.running.gridpoints[-1]) - 1e-9:
+                raise _RunsToItsEnd  # the path ends before a braking would: its own end is the fastest stop
+            whole = stopped_motion(path.running, stop)
+            program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
+            new, rows = changed_program(program, at.first, at.join_ms, begin, whole, stop.t_end * 1000.0, self.limits)
+            made.update(stop=stop, whole=whole, program=new)
+            group.ends_as((Result.STOPPED, reason))  # the stop's outcome as the quick one's: the reason
+            return rows
+
+        try:
+            at = group.splice(make)
+        except _RunsToItsEnd:  # nothing replaced: the motion ends as planned, on its path
+            group.ends_as((Result.STOPPED, reason))
+            end = float(path.program.duration_ms)
+            return {
+                "requested_ms": None,
+                "begun_ms": None,
+                "ended_ms": end,
+                "begun_sync": None,
+                "ended_sync": None,
+            }, None
+        except _CHANGE_ERRORS as exc:
+            group.ends_as(None)
+            log.info("path stop of %s made the quick way: %s", motion.motion_id, exc)
+            return None, str(exc)
+        stop: OnPathStop = made["stop"]
+        path.running, path.program, path.stop = made["whole"], made["program"], stop
+        begun = stop.t_start * 1000.0
+        ended = on_grid(stop.t_end, grid_ms / 1000.0) * 1000.0  # the SYNC from which every axis stands
+        return {
+            "requested_ms": round(at.now_ms, 3),
+            "begun_ms": round(begun, 3),
+            "ended_ms": round(ended, 3),
+            "begun_sync": at.sync_at(begun),
+            "ended_sync": at.sync_at(ended),
+        }, None
+
+    def pause_kept(self, motion: Motion) -> Paused | None:
+        """The motion stopped on its path by a pause: kept for ``resume`` (None: it ended otherwise)."""
+        path = self.paths.get(motion.motion_id)
+        result = motion.result
+        if path is None or path.stop is None or result is None or result.result is not Result.STOPPED:
+            return None
+        total = float(path.planned.gridpoints[-1])
+        remaining = max(0.0, (total - path.stop.s_end) / total) if total > 0 else 0.0
+        self.paused = Paused(motion, path, remaining)
+        return self.paused
+
+    def end_pause(self) -> Paused | None:
+        """A stop (or a fault) while paused: the paused motion is over."""
+        paused, self.paused = self.paused, None
+        return paused
+
+    # --- resume ------------------------------------------------------------------------------------
+    def resume_program(self) -> tuple[Paused, PvtProgram]:
+        """The program that continues the paused motion from where its axes stand, at rest, to its end:
+        ``onpath_stop.resume`` placed into records like any plan (``build_program``). NOT_ALLOWED when
+        nothing is paused."""
+        paused = self.paused
+        if paused is None or self.board.state != CellState.PAUSED:
+            raise ApiError(ErrorCode.NOT_ALLOWED, "nothing is paused on this cell: resume continues a paused motion")
+        path = paused.path
+        assert path.stop is not None
+        try:
+            rest = resume_motion(path.planned, path.stop, self.limits)
+            opts = KnotOptions(dwell_ms=max(1, record_grid_ms(path.program.axes, self.cell.bus.sync_period_ms)))
+            axes = {a.joint: a for a in self.cell.ordered_axes()}  # what knot placement takes (hashable)
+            built = build_program(rest, [axes[a.joint] for a in path.program.axes], self.cell.name, opts)
+        except _CHANGE_ERRORS as exc:
+            raise ApiError(
+                ErrorCode.PLAN_FAILED, f"the rest of the paused motion could not be planned: {exc}"
+            ) from None
+        meta = {**built.program.metadata, "resumes": paused.motion.motion_id}
+        program = PvtProgram(built.program.cell, built.program.axes, meta)
+        here = [int(a.records[-1, 0]) for a in path.program.axes]
+        start = [int(a.records[0, 0]) for a in program.axes]
+        if any(abs(h - s) > 1 for h, s in zip(here, start, strict=True)):  # the same path point, rounded alike
+            raise ApiError(
+                ErrorCode.PLAN_FAILED, f"the resumed motion would start at {start} qc, the axes are at {here}"
+            )
+        return paused, program
+
+    # --- override ----------------------------------------------------------------------------------
+    def override(self, group: AxisGroup, motion: Motion, scale: float) -> dict[str, Any]:
+        """Re-time the rest of the running motion to ``scale`` of its planned speed (drives' lock held);
+        NOT_ALLOWED with nothing changed where it cannot be made in time or within the drives' limits."""
+        try:
+            path = self.path_of(motion, group)
+        except _CHANGE_ERRORS as exc:
+            raise ApiError(ErrorCode.NOT_ALLOWED, f"override: the motion's path: {exc}") from None
+        grid_ms = record_grid_ms(group.programs, self.cell.bus.sync_period_ms)
+        made: dict[str, Any] = {}
+
+        def make(at: SpliceAt) -> list[Any]:
+            begin = change_start_ms(at.t0_ms, at.join_ms, at.programs)
+            whole, applied = override_on_grid(
+                path.planned, path.running, begin / 1000.0, scale, self.limits, grid_ms / 1000.0
+            )
+            program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
+            end_ms = float(np.round(whole.duration * 1000.0))
+            new, rows = changed_program(program, at.first, at.join_ms, begin, whole, end_ms, self.limits)
+            made.update(whole=whole, program=new, scale=applied, begin=begin)
+            return rows
+
+        try:
+            at = group.splice(make)
+        except _CHANGE_ERRORS as exc:
+            raise ApiError(
+                ErrorCode.NOT_ALLOWED, f"override {scale:g} could not be made: {exc}; nothing changed"
+            ) from None
+        path.running, path.program, path.scale = made["whole"], made["program"], made["scale"]
+        return {
+            "motion_id": motion.motion_id,
+            "scale": round(path.scale, 4),
+            "requested_ms": round(at.now_ms, 3),
+            "from_ms": made["begin"],
+            "from_sync": at.sync_at(made["begin"]),
+            "duration_ms": int(path.program.duration_ms),
+        }

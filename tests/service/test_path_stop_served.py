@@ -1,0 +1,240 @@
+"""Stop on the path, pause and resume, and the live speed override, on every shipped gantry profile (issue 37).
+
+The service is driven directly (MotionService, no zenoh), in lockstep, on simulated drives that judge every
+record as they judge any program. What is checked is what the drives were given and did: the records every
+axis ran (the group's programs after the change), reconstructed as each drive reconstructs them, against the
+path of the program as it was started; the drives' faults; where they stand at the end.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from svc_helpers import wait_until
+from test_stop_then_move import assert_nothing_left, cell_file, move_again, plan, tour
+
+from pvtflow.axes.drive.program import PvtProgram
+from pvtflow.axes.sim.profiles.epos2 import Epos2Drive
+from pvtflow.service.api import (
+    ApiError,
+    parse_execute,
+    parse_home,
+    parse_override,
+    parse_pause,
+    parse_resume,
+    parse_status,
+    parse_stop,
+)
+from pvtflow.service.motion import MotionService
+
+# the gantry's profiles: EPOS2 buffered PVT, CiA 402 linear IP, bufferless setpoint, Parker, and a mixed cell
+CELLS = ("gantry3", "gantry3-ip-linear", "gantry3-sync-setpoint", "gantry3-parker", "gantry3-mixed")
+PATH_TOLERANCE_M = 1e-4  # 0.1 mm: the gantry's joints are its tool's x, y, z
+
+
+@pytest.fixture(params=CELLS)
+def service(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[MotionService]:
+    svc = MotionService(cell_file(request.param), journal_dir=tmp_path / "journal", lockstep=True).open()
+    try:
+        if svc.cell.requires_homing:
+            assert svc.home(parse_home({"wait": True}))["outcome"]["result"] == "homed"
+        yield svc
+    finally:
+        svc.close()
+
+
+def start(svc: MotionService, at_fraction: float) -> PvtProgram:
+    """A straight move across most of every joint's range, run until ``at_fraction`` of its duration; the
+    program as it was started, in the group's axis order."""
+    svc.execute(parse_execute({"plan_id": plan(svc, tour(svc.cell, [0.85]))}))
+    group = svc.group
+    assert group is not None
+    program = PvtProgram(svc.cell.name, group.programs)
+    period = svc.cell.bus.sync_period_ms
+    at_ms = at_fraction * program.duration_ms
+    assert wait_until(lambda: (group.elapsed_syncs() or 0) * period >= at_ms, timeout=30.0)
+    assert svc.running
+    return program
+
+
+def joints(program: PvtProgram, t_ms: np.ndarray) -> np.ndarray:
+    """Every axis's position as its drive reconstructs the records, in joint units, (len(t), axes)."""
+    return np.column_stack([a.scaling.qc_to_position(a.reconstruction().position(t_ms)) for a in program.axes])
+
+
+def distance_to_path(points: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """Each point's distance to the polyline ``line`` (exact, segment by segment)."""
+    a, ab = line[:-1], np.diff(line, axis=0)
+    length2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-30)
+    out = np.empty(len(points))
+    for k, p in enumerate(points):
+        t = np.clip(np.einsum("ij,ij->i", p - a, ab) / length2, 0.0, 1.0)
+        out[k] = np.min(np.linalg.norm(a + t[:, None] * ab - p, axis=1))
+    return out
+
+
+def ran(svc: MotionService) -> PvtProgram:
+    group = svc.group
+    assert group is not None
+    return PvtProgram(svc.cell.name, group.programs)
+
+
+def assert_on_path(before: PvtProgram, after: PvtProgram, from_ms: float) -> None:
+    """The records the axes ran keep the joints on the path of the program as started (0.1 mm)."""
+    path = joints(before, np.arange(0.0, before.duration_ms + 0.05, 0.05))
+    t = np.arange(max(0.0, from_ms - 50.0), after.duration_ms + 1.0)
+    worst = float(distance_to_path(joints(after, t), path).max())
+    assert worst <= PATH_TOLERANCE_M, f"{worst * 1000:.4f} mm off the path"
+
+
+def assert_at_rest_together(program: PvtProgram, ended_ms: float, period_ms: float) -> None:
+    """Every axis at rest from the end of the braking on, which is a SYNC (the same one for all)."""
+    ended_ms = (
+        round(ended_ms / period_ms) * period_ms
+        if abs(ended_ms / period_ms - round(ended_ms / period_ms)) < 1e-3
+        else ended_ms
+    )
+    assert ended_ms % period_ms == 0, ended_ms
+    for a in program.axes:
+        rec = a.reconstruction()
+        t = np.arange(ended_ms, max(ended_ms, rec.end_time) + 1.0)
+        assert np.abs(rec.velocity(t)).max() < 1e-9, a.joint
+        assert np.ptp(rec.position(t)) < 1e-9, a.joint
+    last = np.arange(ended_ms - 2.0 * period_ms, ended_ms, 0.25)  # the braking's last SYNC periods
+    moving = [a for a in program.axes if np.abs(a.reconstruction().velocity(last)).max() > 0]
+    assert moving, "nothing moved in the braking's last periods: it ended earlier than it says"
+
+
+def no_faults(svc: MotionService) -> None:
+    assert all(not d.faults for d in svc.sim), {d.node_id: d.faults for d in svc.sim}
+    assert svc.sim.internal_errors == []
+
+
+def test_stop_stays_on_the_path_and_rests_on_one_sync(service: MotionService) -> None:
+    before = start(service, 0.4)
+    reply = service.stop(parse_stop({}))
+    assert reply["mode"] == "path" and reply["fallback"] is None, reply["fallback"]
+    assert reply["outcome"]["result"] == "stopped"
+    braking = reply["braking"]
+    lookahead = service.cell.bus.max_lookahead_ms
+    assert braking["begun_ms"] - braking["requested_ms"] <= lookahead + 2 * service.cell.bus.sync_period_ms + 255
+    after = ran(service)
+    assert_on_path(before, after, braking["begun_ms"])
+    assert_at_rest_together(after, braking["ended_ms"], service.cell.bus.sync_period_ms)
+    assert braking["ended_ms"] < before.duration_ms
+    drives = sorted(service.sim, key=lambda d: d.node_id)
+    for d, a in zip(drives, sorted(after.axes, key=lambda a: a.node_id), strict=True):
+        assert abs(d.demand - int(a.records[-1, 0])) <= 1, (d.node_id, d.demand, a.records[-1])
+        if isinstance(d, Epos2Drive):  # the program ran to its end record: nothing left in the FIFO
+            assert d.level == 0 and not d.ip_active, d.node_id
+    no_faults(service)
+    assert service.state == "idle"
+    move_again(service)  # a new motion from where the axes stand runs to its end
+
+
+def test_quick_stop_is_the_old_stop(service: MotionService) -> None:
+    start(service, 0.4)
+    reply = service.stop(parse_stop({"mode": "quick"}))
+    assert reply["mode"] == "quick" and reply["braking"] is None
+    assert reply["outcome"]["result"] == "stopped"
+    assert_nothing_left(service)
+    no_faults(service)
+
+
+def test_pause_then_resume_reaches_the_original_end(service: MotionService) -> None:
+    before = start(service, 0.35)
+    paused = service.pause(parse_pause({}))
+    assert paused["paused"], (paused["fallback"], paused["outcome"])
+    assert service.state == "paused"
+    status = service.status(parse_status({}))
+    assert status["paused"]["motion_id"] == paused["motion_id"]
+    assert 0.1 < status["paused"]["remaining"] < 0.9 and status["paused"]["remaining"] == paused["remaining"]
+    assert_on_path(before, ran(service), paused["braking"]["begun_ms"])
+    with pytest.raises(ApiError) as refused:  # nothing else starts while paused
+        service.execute(parse_execute({"plan_id": plan(service, tour(service.cell, [0.5]))}))
+    assert refused.value.code == "busy"
+    out = service.resume(parse_resume({"wait": True}))
+    assert out["resumed"] == paused["motion_id"] and out["outcome"]["result"] == "finished", out["outcome"]
+    after = ran(service)
+    assert [int(a.records[-1, 0]) for a in after.axes] == [int(a.records[-1, 0]) for a in before.axes]
+    assert_on_path(before, after, 0.0)
+    no_faults(service)
+    assert service.state == "idle"
+    entry = service.journal_entry(paused["motion_id"])
+    assert entry is not None and entry.outcome is not None and entry.outcome.get("paused") is True
+    assert service.journal_entry(out["motion_id"]) is not None
+
+
+def test_stop_while_paused_ends_it(service: MotionService) -> None:
+    start(service, 0.3)
+    assert service.pause(parse_pause({}))["paused"]
+    reply = service.stop(parse_stop({}))
+    assert reply["ended_pause"] and service.state == "idle"
+    with pytest.raises(ApiError) as refused:
+        service.resume(parse_resume({}))
+    assert refused.value.code == "not_allowed"
+
+
+def test_override_slows_the_rest_of_the_motion(service: MotionService) -> None:
+    before = start(service, 0.3)
+    reply = service.override(parse_override({"scale": 0.3}))
+    assert reply["scale"] == pytest.approx(0.3, abs=0.01)
+    lookahead = service.cell.bus.max_lookahead_ms
+    assert reply["from_ms"] - reply["requested_ms"] <= lookahead + 2 * service.cell.bus.sync_period_ms + 255
+    assert service.status(parse_status({}))["override"] == reply["scale"]
+    motion = service.motion
+    assert motion is not None and motion.done.wait(60.0)
+    assert motion.outcome is not None and motion.outcome["result"] == "finished", motion.outcome
+    after = ran(service)
+    assert after.duration_ms > before.duration_ms
+    assert_on_path(before, after, reply["from_ms"])
+    assert [int(a.records[-1, 0]) for a in after.axes] == [int(a.records[-1, 0]) for a in before.axes]
+    no_faults(service)
+
+
+@pytest.mark.parametrize("cell", ["gantry3"])
+def test_bad_requests_change_nothing(cell: str, tmp_path: Path) -> None:
+    with MotionService(cell_file(cell), journal_dir=tmp_path / "journal", lockstep=True) as svc:
+        for call in (
+            lambda: svc.override(parse_override({"scale": 0.5})),
+            lambda: svc.pause(parse_pause({})),
+            lambda: svc.resume(parse_resume({})),
+        ):
+            with pytest.raises(ApiError) as refused:
+                call()
+            assert refused.value.code == "not_allowed"
+        for bad in ({"scale": 1.5}, {"scale": 0.0}, {"scale": "fast"}, {}):
+            with pytest.raises(ApiError) as refused:
+                parse_override(bad)
+            assert refused.value.code == "invalid_request"
+        with pytest.raises(ApiError):
+            parse_stop({"mode": "gentle"})
+        assert svc.state == "idle"
+
+
+@pytest.mark.wall
+def test_stop_on_the_path_on_the_wall_clock(tmp_path: Path) -> None:
+    """On the wall clock the EPOS2s run their records on their own clocks while the braking is made (the
+    group's lock held): it is made in time, or the stop is the quick one and says why; either way the
+    motion is stopped and nothing faults. A path stop made stays on the path (0.1 mm)."""
+    cell = cell_file("gantry3")
+    cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, heartbeat_timeout_factor=10))
+    with MotionService(cell, journal_dir=tmp_path / "journal", lockstep=False) as svc:
+        assert svc.home(parse_home({"wait": True}))["outcome"]["result"] == "homed"
+        made = 0
+        for fraction in (0.3, 0.5):
+            before = start(svc, fraction)
+            reply = svc.stop(parse_stop({}))
+            assert reply["outcome"]["result"] == "stopped", reply["outcome"]
+            if reply["mode"] == "path":
+                made += 1
+                assert_on_path(before, ran(svc), reply["braking"]["begun_ms"])
+            else:
+                assert reply["fallback"], reply
+            no_faults(svc)
+            move_again(svc)
+        assert made >= 1, "no path stop was made in time on the wall clock"
