@@ -30,6 +30,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from pvtflow.axes.canbus.clock import Clock  # noqa: E402
 from pvtflow.axes.drive.program import PvtProgram  # noqa: E402
 from pvtflow.service.api import (  # noqa: E402
     parse_execute,
@@ -153,7 +154,7 @@ def main() -> None:
     )
     for name in CELLS:
         computed.clear()
-        svc = MotionService(cell_file(name), journal_dir=tempfile.mkdtemp(), lockstep=True).open()
+        svc = MotionService(cell_file(name), journal_dir=tempfile.mkdtemp(), clock=Clock.LOCKSTEP).open()
         try:
             if svc.cell.requires_homing:
                 svc.home(parse_home({"wait": True}))

@@ -17,6 +17,7 @@ import pytest
 from svc_helpers import wait_until
 from test_stop_then_move import assert_nothing_left, cell_file, move_again, plan, tour
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.axes.sim.profiles.epos2 import Epos2Drive
 from pvtflow.service.api import (
@@ -38,7 +39,7 @@ PATH_TOLERANCE_M = 1e-4  # 0.1 mm: the gantry's joints are its tool's x, y, z
 
 @pytest.fixture(params=CELLS)
 def service(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[MotionService]:
-    svc = MotionService(cell_file(request.param), journal_dir=tmp_path / "journal", lockstep=True).open()
+    svc = MotionService(cell_file(request.param), journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP).open()
     try:
         if svc.cell.requires_homing:
             assert svc.home(parse_home({"wait": True}))["outcome"]["result"] == "homed"
@@ -198,7 +199,7 @@ def test_override_slows_the_rest_of_the_motion(service: MotionService) -> None:
 
 @pytest.mark.parametrize("cell", ["gantry3"])
 def test_bad_requests_change_nothing(cell: str, tmp_path: Path) -> None:
-    with MotionService(cell_file(cell), journal_dir=tmp_path / "journal", lockstep=True) as svc:
+    with MotionService(cell_file(cell), journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP) as svc:
         for call in (
             lambda: svc.override(parse_override({"scale": 0.5})),
             lambda: svc.pause(parse_pause({})),
@@ -223,7 +224,7 @@ def test_stop_on_the_path_on_the_wall_clock(tmp_path: Path) -> None:
     motion is stopped and nothing faults. A path stop made stays on the path (0.1 mm)."""
     cell = cell_file("gantry3")
     cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, heartbeat_timeout_factor=10))
-    with MotionService(cell, journal_dir=tmp_path / "journal", lockstep=False) as svc:
+    with MotionService(cell, journal_dir=tmp_path / "journal", clock=Clock.WALL) as svc:
         assert svc.home(parse_home({"wait": True}))["outcome"]["result"] == "homed"
         made = 0
         for fraction in (0.3, 0.5):
