@@ -41,7 +41,15 @@ from pvtflow.axes.master.bus.sync import below_sync
 from pvtflow.axes.master.group.configure import Configured, GroupConfiguration
 from pvtflow.axes.master.group.feeder import BufferFeeder, Feeder, RecordAllowance, top_up_by_need
 from pvtflow.axes.master.group.halt import GroupHalt
-from pvtflow.axes.master.group.outcome import Event, EventCallback, EventKind, ProgressCallback, Result, RunResult
+from pvtflow.axes.master.group.outcome import (
+    Event,
+    EventCallback,
+    EventKind,
+    GroupError,
+    ProgressCallback,
+    Result,
+    RunResult,
+)
 from pvtflow.axes.master.group.readiness import Readiness
 from pvtflow.axes.master.group.run_state import CellRunState
 from pvtflow.axes.master.group.start import GroupStart
@@ -49,6 +57,7 @@ from pvtflow.axes.master.group.status import GroupReports
 from pvtflow.axes.master.link import AxisLink
 from pvtflow.axes.master.profiles import profile_for
 from pvtflow.axes.master.profiles.base import Profile
+from pvtflow.axes.master.run_queue import OnStart, QueuedProgram, RunQueue
 
 _IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
 _FAULT_BITS = int(Statusword.FAULT)  # set in FAULT and FAULT REACTION ACTIVE
@@ -123,6 +132,7 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         for link in self.links:
             link.status_listeners.append(self._on_status)
         self._status_lag = max((p.sync_answer_every for p in self.profiles), default=1) - 1
+        self.queue = RunQueue(bus.config)  # the programs queued after the running one
         bus.on_fault(self._on_bus_fault)
         bus.sync.add_sender(self._after_sync)  # the fixed-period setpoints; the start SYNC's time
 
@@ -138,6 +148,25 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
             if early is not None:
                 return early
             return self.wait(timeout_s)
+
+    def append(self, program: PvtProgram, on_start: OnStart | None = None) -> QueuedProgram:
+        """Queue ``program`` after the running one, on the same time line (``axes.master.run_queue``);
+        ``on_start`` is told when its t = 0 is passed. GroupError, nothing changed, when it cannot follow."""
+        sync = self.bus.sync
+        with sync.lock, self._lock:
+            if not self._running or self._ending is not None or self._start_sync is None:
+                raise GroupError("no program runs on this cell to queue after")
+            if sync.cyclic_producing:
+                raise GroupError("a cell whose SYNC comes from its cyclic process takes no queued program")
+            reason = self.check_program(program)
+            if reason is not None:
+                raise GroupError(f"the queued program does not fit the cell: {reason}")
+            by_node = {a.node_id: a for a in program.axes}
+            programs = [by_node[link.node_id] for link in self.links]
+            elapsed_ms = (sync.count - self._start_sync) * self.bus.config.sync_period_ms
+            if self._start_sent is not None and not sync.lockstep:  # the buffered drives' own clock
+                elapsed_ms = max(elapsed_ms, (time.monotonic() - self._start_sent) * 1000.0)
+            return self.queue.append(programs, program, self._feeders, elapsed_ms, on_start)
 
     @property
     def halt_budget_s(self) -> float:
@@ -211,6 +240,7 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
                 for feeder in self._feeders:
                     feeder.on_sync(elapsed)
                 self._feed()
+                self.queue.at_sync(elapsed)
                 self._check_finished(elapsed)
             else:
                 self._check_halted(n)

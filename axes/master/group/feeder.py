@@ -153,6 +153,11 @@ class Feeder:
     def finished(self, elapsed: int, ip_active: bool) -> bool:
         raise NotImplementedError
 
+    def extend(self, records: NDArray[np.int64]) -> None:
+        """The next program's records continue this run where the last ends, on the same time line
+        (``axes.master.run_queue``); only while records are left to send."""
+        raise NotImplementedError
+
     @property
     def level(self) -> int | None:
         return None
@@ -190,6 +195,9 @@ class BufferFeeder(Feeder):
         self._status = 0
         self._own = allowance is None  # a feeder on its own begins its periods itself
         self.allowance = RecordAllowance(TOP_UP_PER_SYNC) if allowance is None else allowance
+        # the end record waits until the drive's clock is this close to the end (None: it goes with the
+        # others), so that a queued program can still take its place (axes.master.run_queue)
+        self.hold_end_ms: float | None = None
 
     def consumed(self) -> int:
         """Records whose segment the drive has finished by its clock (the running one counts as buffered)."""
@@ -204,7 +212,28 @@ class BufferFeeder(Feeder):
     @property
     def wants(self) -> bool:
         """A record would go out now if the allowance had one: the FIFO is below its mark."""
-        return self.enabled and not self._hold and not self.all_sent and self.level < self.high
+        return self.enabled and not self._hold and not self.all_sent and self.level < self.high and not self.end_held
+
+    @property
+    def end_held(self) -> bool:
+        """The end record is next and the drive's clock is not yet within ``hold_end_ms`` of the end."""
+        hold = self.hold_end_ms
+        return hold is not None and self.next == len(self.records) - 1 and self.elapsed_ms < self.duration_ms - hold
+
+    def extend(self, records: NDArray[np.int64]) -> None:
+        """The next program's records take the end record's place (it follows them): the drive runs on
+        from one program into the next in its FIFO, on its own clock. Its first record, the dwell at
+        its start, begins where the last record of this one ends."""
+        if self.all_sent:
+            raise ValueError("the end record is out: the drive ends interpolation there")
+        r = np.asarray(records, dtype=np.int64)
+        if r[-1, 2] != 0:
+            r = np.vstack([r, [[r[-1, 0], 0, 0]]])
+        self.records = np.concatenate((self.records[:-1], r))
+        self.end_ms = np.cumsum(self.records[:, 2])
+        self._end = self.end_ms.tolist()
+        self.duration_ms = int(self.end_ms[-1])
+        self.stats.records = len(self.records)
 
     def _top_up(self) -> None:
         if not self.wants or self.mirrored:
@@ -311,6 +340,16 @@ class SetpointFeeder(Feeder):
         rows = np.asarray(rows, dtype=np.int64).reshape(-1, 3)
         self.records = np.concatenate((self.records[: self.next], rows))
         self.frames = self.frames[: self.next] + [self.frame_of(r) for r in rows]
+        self.stats.records = len(self.records)
+
+    def extend(self, records: NDArray[np.int64]) -> None:
+        """The next program's setpoints follow this one's, one per SYNC: its record k is reached
+        (k + 1) periods after this program's last."""
+        if self.all_sent:
+            raise ValueError("the last setpoint is out: the drive holds it")
+        rows = np.asarray(records, dtype=np.int64).reshape(-1, 3)
+        self.records = np.concatenate((self.records, rows))
+        self.frames = self.frames + [self.frame_of(r) for r in rows]
         self.stats.records = len(self.records)
 
     def preload(self) -> int:

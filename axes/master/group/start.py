@@ -77,6 +77,7 @@ class GroupStart:
                 f if f is not None else p.feeder(prog, self.allowance)
                 for f, p, prog in zip(feeders, self.profiles, self._programs, strict=True)
             ]
+            self.queue.begin(self._programs, self._feeders)
             refusal = self._preload_records(checked=any(f is not None for f in feeders))
             if refusal is not None:
                 return self._finish_early(*refusal)
