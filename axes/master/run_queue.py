@@ -94,7 +94,7 @@ class RunQueue:
         on_start: OnStart | None,
     ) -> QueuedProgram:
         """Every feeder goes on with ``programs`` (axis order) after what it has; GroupError (nothing
-        changed) when they cannot follow now."""
+        changed) when they cannot follow now (``refusal``)."""
         why = self.refusal(programs, feeders, elapsed_ms)
         if why is not None:
             raise GroupError(why)

@@ -7,7 +7,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from axes_programs import program
+from axes_programs import joined, program, standstill_syncs
 from axes_rig import with_profiles
 
 from pvtflow.axes.drive.program import AxisProgram, PvtProgram
@@ -32,15 +32,6 @@ def mixed_cell(arm6):
     return dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, time_stamp=False))
 
 
-def joined(first: PvtProgram, then: PvtProgram) -> PvtProgram:
-    """The two programs as one: what the drives are told when ``then`` is queued after ``first``."""
-    axes = []
-    for a, b in zip(first.axes, then.axes, strict=True):
-        head = a.records[:-1] if a.profile == "epos2_pvt" else a.records  # the EPOS2's end record goes last
-        axes.append(AxisProgram.of(a, np.concatenate((head, b.records))))
-    return PvtProgram(first.cell, tuple(axes))
-
-
 def two_programs(rig, duration_ms: int = 1500) -> tuple[PvtProgram, PvtProgram]:
     axes = rig.cell.ordered_axes()
     rig.group.refresh()
@@ -49,13 +40,6 @@ def two_programs(rig, duration_ms: int = 1500) -> tuple[PvtProgram, PvtProgram]:
     ends = [int(a.records[-1, 0]) for a in first.axes]
     then = program(axes, duration_ms, starts=ends, fraction=0.4, spacing_ms=rig.cell.bus.sync_period_ms, sign=-1)
     return first, then
-
-
-def standstill_syncs(demands: np.ndarray) -> int:
-    """SYNC periods inside the motion (after its first move, before its last) in which no axis moved."""
-    moved = np.any(np.abs(np.diff(demands, axis=0)) > 1e-9, axis=1)
-    inside = np.flatnonzero(moved)
-    return int(np.count_nonzero(~moved[inside[0] : inside[-1] + 1]))
 
 
 def demands(rig, start_sync: int, end_sync: int) -> np.ndarray:

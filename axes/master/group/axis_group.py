@@ -24,7 +24,7 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import can
@@ -149,24 +149,43 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
                 return early
             return self.wait(timeout_s)
 
-    def append(self, program: PvtProgram, on_start: OnStart | None = None) -> QueuedProgram:
+    def append(
+        self,
+        program: PvtProgram,
+        on_start: OnStart | None = None,
+        before_records: Callable[[], object] | None = None,
+    ) -> QueuedProgram:
         """Queue ``program`` after the running one, on the same time line (``axes.master.run_queue``);
-        ``on_start`` is told when its t = 0 is passed. GroupError, nothing changed, when it cannot follow."""
-        sync = self.bus.sync
-        with sync.lock, self._lock:
-            if not self._running or self._ending is not None or self._start_sync is None:
-                raise GroupError("no program runs on this cell to queue after")
-            if sync.cyclic_producing:
-                raise GroupError("a cell whose SYNC comes from its cyclic process takes no queued program")
-            reason = self.check_program(program)
-            if reason is not None:
-                raise GroupError(f"the queued program does not fit the cell: {reason}")
-            by_node = {a.node_id: a for a in program.axes}
-            programs = [by_node[link.node_id] for link in self.links]
-            elapsed_ms = (sync.count - self._start_sync) * self.bus.config.sync_period_ms
-            if self._start_sent is not None and not sync.lockstep:  # the buffered drives' own clock
-                elapsed_ms = max(elapsed_ms, (time.monotonic() - self._start_sent) * 1000.0)
+        ``on_start`` is told when its t = 0 is passed. GroupError, nothing changed, when it cannot follow.
+        ``before_records``: called once the checks passed, before any record changes (a service journals
+        the motion there); what it raises ends the append with nothing changed, and is raised from here."""
+        with self._lock:
+            self._queue_checked(program)
+            if before_records is not None:
+                before_records()
+        with self.bus.sync.lock, self._lock:  # the setpoints go out under the SYNC lock: none while they grow
+            programs, elapsed_ms = self._queue_checked(program)
             return self.queue.append(programs, program, self._feeders, elapsed_ms, on_start)
+
+    def _queue_checked(self, program: PvtProgram) -> tuple[list[AxisProgram], float]:
+        """``program``'s axes in axis order and the run's time now, if it can be queued (else GroupError)."""
+        sync = self.bus.sync
+        if not self._running or self._ending is not None or self._start_sync is None:
+            raise GroupError("no program runs on this cell to queue after")
+        if sync.cyclic_producing:
+            raise GroupError("a cell whose SYNC comes from its cyclic process takes no queued program")
+        reason = self.check_program(program)
+        if reason is not None:
+            raise GroupError(f"the queued program does not fit the cell: {reason}")
+        by_node = {a.node_id: a for a in program.axes}
+        programs = [by_node[link.node_id] for link in self.links]
+        elapsed_ms = (sync.count - self._start_sync) * self.bus.config.sync_period_ms
+        if self._start_sent is not None and not sync.lockstep:  # the buffered drives' own clock
+            elapsed_ms = max(elapsed_ms, (time.monotonic() - self._start_sent) * 1000.0)
+        why = self.queue.refusal(programs, self._feeders, elapsed_ms)
+        if why is not None:
+            raise GroupError(why)
+        return programs, elapsed_ms
 
     @property
     def halt_budget_s(self) -> float:
