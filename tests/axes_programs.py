@@ -108,15 +108,6 @@ def check_limits(prog: PvtProgram) -> None:
         assert lo.min() >= a.limits.min_position_qc and hi.max() <= a.limits.max_position_qc, a.joint
 
 
-def joined(first: PvtProgram, then: PvtProgram) -> PvtProgram:
-    """The two programs as one: what the drives are told when ``then`` is queued after ``first``."""
-    axes = []
-    for a, b in zip(first.axes, then.axes, strict=True):
-        head = a.records[:-1] if a.profile == "epos2_pvt" else a.records  # the EPOS2's end record goes last
-        axes.append(AxisProgram.of(a, np.concatenate((head, b.records))))
-    return PvtProgram(first.cell, tuple(axes))
-
-
 def standstill_syncs(demands: np.ndarray) -> int:
     """SYNC periods inside the motion (after its first move, before its last) in which no axis moved."""
     moved = np.any(np.abs(np.diff(demands, axis=0)) > 1e-9, axis=1)

@@ -7,10 +7,10 @@ import dataclasses
 
 import numpy as np
 import pytest
-from axes_programs import joined, program, standstill_syncs
+from axes_programs import program, standstill_syncs
 from axes_rig import with_profiles
 
-from pvtflow.axes.drive.program import AxisProgram, PvtProgram
+from pvtflow.axes.drive.program import AxisProgram, PvtProgram, joined
 from pvtflow.axes.master.group.outcome import GroupError, Result
 from pvtflow.axes.master.run_queue import end_hold_ms
 
@@ -69,7 +69,7 @@ def test_a_queued_program_runs_on_from_the_end_of_the_running_one(arm6, make_rig
     period = cell.bus.sync_period_ms
     assert entry.start_ms == first.duration_ms
     assert started == [entry.start_syncs] and entry.start_syncs * period >= first.duration_ms
-    whole = joined(first, then)
+    whole = joined([first, then])
     for axis in whole.axes:
         drive = rig.sim.drive(axis.node_id)
         assert drive.faults == [], drive.faults

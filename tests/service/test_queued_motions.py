@@ -9,9 +9,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from axes_programs import joined, standstill_syncs
+from axes_programs import standstill_syncs
 from svc_helpers import wait_until
 
+from pvtflow.axes.drive.program import joined
 from pvtflow.planner.validate import validate_program
 from pvtflow.service.api import ApiError, parse_execute, parse_home, parse_plan, parse_status, parse_stop
 from pvtflow.service.motion import MotionService
@@ -76,7 +77,7 @@ def test_a_queued_motion_runs_on_without_a_stop(service: MotionService) -> None:
     assert service.state == "idle" and service.activity.queued() == []
 
     programs = [service.stored_plan(p).program for p in (first_plan, then_plan)]
-    whole = joined(*programs)
+    whole = joined(programs)
     assert validate_program(whole).ok  # the planner's validator judges the pair as one program
     period = service.cell.bus.sync_period_ms
     start = first["start_sync"]
