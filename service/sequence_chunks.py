@@ -82,8 +82,8 @@ def plan_in_chunks(
     here = np.asarray(inp.waypoints, dtype=float)
     parts: list[tuple[int, list[Any], CellPlan]] = []
     for first, chunk in chunks(items):
-        share = None if budget_ms is None else budget_ms * len(chunk) / len(items)
-        part = planner.plan(replace(inp, waypoints=here, sequence=chunk), tolerance_qc, metadata, share)
+        left = None if budget_ms is None else budget_ms - 1000.0 * (time.perf_counter() - t0)  # one budget for all
+        part = planner.plan(replace(inp, waypoints=here, sequence=chunk), tolerance_qc, metadata, left)
         if part.code == PlanResult.REPEATED_WAYPOINT.value:  # a chunk that does not move: its items take no time
             parts.append((first, chunk, part))
             continue
