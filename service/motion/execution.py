@@ -85,7 +85,7 @@ class MotionRuns:
             if problems:
                 raise refusals.wrong_cell(self.cell.name, problems, program.cell)
         if req.queue:
-            queued = self._queue(program, plan_id, label)
+            queued = self._queue(program, plan_id, label, req.approach)
             if queued is not None:
                 if req.wait:
                     queued.done.wait()
@@ -96,13 +96,19 @@ class MotionRuns:
             motion.done.wait()
         return {**motion.summary(), "approach": approach}
 
-    def _queue(self, program: PvtProgram, plan_id: str | None, label: str | None) -> Motion | None:
+    def _queue(self, program: PvtProgram, plan_id: str | None, label: str | None, approach: bool) -> Motion | None:
         """``queue``: after the running motion and those queued before it (None: nothing runs, it starts)."""
         group = self.drives.connected()
         with self.drives.lock:
             after = self.queued.follows(group)
             if after is None:
                 return None
+            if approach:
+                raise ApiError(
+                    ErrorCode.NOT_ALLOWED,
+                    f"approach and queue: a queued motion starts where {after.motion_id} ends, with no move before it",
+                    {"queued_after": after.motion_id},
+                )
             return self.queued.enqueue(group, after, program, plan_id, label)
 
     def _approach(self, program: PvtProgram, plan_id: str | None) -> dict[str, Any] | None:

@@ -137,3 +137,22 @@ def test_queue_with_nothing_running_starts_the_motion(service: MotionService) ->
     assert out["state"] == "running" and out["queued_after"] is None
     assert wait_until(lambda: service.motion is not None and service.motion.done.is_set(), timeout=60.0)
     assert service.motion.outcome["result"] == "finished"
+
+
+def test_motions_queued_in_a_row_run_in_order(service: MotionService) -> None:
+    """A third motion queued after the second (still queued) runs on from it; approach with queue is refused."""
+    first_plan, then_plan = two_plans(service)
+    last_plan = plan(service, [at(service, 0.4), at(service, 0.7)], "first")
+    first = service.execute(parse_execute({"plan_id": first_plan}))
+    second = service.execute(parse_execute({"plan_id": then_plan, "queue": True}))
+    with pytest.raises(ApiError, match="approach and queue"):
+        service.execute(parse_execute({"plan_id": last_plan, "queue": True, "approach": True}))
+    third = service.execute(parse_execute({"plan_id": last_plan, "queue": True}))
+    assert third["queued_after"] == second["motion_id"]
+    assert [m.motion_id for m in service.activity.queued()] == [second["motion_id"], third["motion_id"]]
+    assert motion(service, third["motion_id"]).done.wait(90.0)
+    ids = [first["motion_id"], second["motion_id"], third["motion_id"]]
+    assert [service.journal.get(m).outcome["result"] for m in ids] == ["finished"] * 3
+    assert service.motion is not None and service.motion.motion_id == ids[2]
+    for drive in service.sim:
+        assert drive.faults == [] and drive.ip_active_sync == first["start_sync"]
