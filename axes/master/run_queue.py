@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 from pvtflow.axes.drive.config import BusConfig
 from pvtflow.axes.drive.program import AxisProgram, PvtProgram
-from pvtflow.axes.master.group.feeder import BufferFeeder, Feeder
+from pvtflow.axes.master.group.feeder import BufferFeeder, Extension, Feeder
 from pvtflow.axes.master.group.outcome import GroupError
 
 OnStart = Callable[[int], None]  # called with the run's elapsed SYNCs when the queued program's t = 0 is passed
@@ -90,16 +90,19 @@ class RunQueue:
         programs: Sequence[AxisProgram],
         program: PvtProgram,
         feeders: Sequence[Feeder],
+        extensions: Sequence[Extension],
         elapsed_ms: float,
         on_start: OnStart | None,
     ) -> QueuedProgram:
-        """Every feeder goes on with ``programs`` (axis order) after what it has; GroupError (nothing
-        changed) when they cannot follow now (``refusal``)."""
+        """Every feeder goes on with ``programs`` (axis order) after what it has, by its ``extensions``
+        (made from these programs); GroupError (nothing changed) when they cannot follow now (``refusal``)."""
         why = self.refusal(programs, feeders, elapsed_ms)
+        if why is None and not all(e.ready() for e in extensions):
+            why = "the run changed while the queued program was being joined to it (a halt, another queue)"
         if why is not None:
             raise GroupError(why)
-        for feeder, prog in zip(feeders, programs, strict=True):
-            feeder.extend(prog.records)
+        for extension in extensions:
+            extension.apply()
         period = self.bus.sync_period_ms
         entry = QueuedProgram(program, self.end_ms, math.ceil(self.end_ms / period - 1e-9), on_start)
         self.entries.append(entry)

@@ -159,33 +159,36 @@ class AxisGroup(GroupConfiguration, GroupStart, GroupHalt, GroupReports):
         ``on_start`` is told when its t = 0 is passed. GroupError, nothing changed, when it cannot follow.
         ``before_records``: called once the checks passed, before any record changes (a service journals
         the motion there); what it raises ends the append with nothing changed, and is raised from here."""
-        with self._lock:
-            self._queue_checked(program)
-            if before_records is not None:
-                before_records()
-        with self.bus.sync.lock, self._lock:  # the setpoints go out under the SYNC lock: none while they grow
-            programs, elapsed_ms = self._queue_checked(program)
-            return self.queue.append(programs, program, self._feeders, elapsed_ms, on_start)
-
-    def _queue_checked(self, program: PvtProgram) -> tuple[list[AxisProgram], float]:
-        """``program``'s axes in axis order and the run's time now, if it can be queued (else GroupError)."""
-        sync = self.bus.sync
-        if not self._running or self._ending is not None or self._start_sync is None:
-            raise GroupError("no program runs on this cell to queue after")
-        if sync.cyclic_producing:
-            raise GroupError("a cell whose SYNC comes from its cyclic process takes no queued program")
         reason = self.check_program(program)
         if reason is not None:
             raise GroupError(f"the queued program does not fit the cell: {reason}")
         by_node = {a.node_id: a for a in program.axes}
         programs = [by_node[link.node_id] for link in self.links]
+        with self._lock:
+            self._queue_refusal(programs)
+            feeders = list(self._feeders)
+        if before_records is not None:
+            before_records()
+        # joined and packed here, so that the SYNC lock is held only to put them in place
+        extensions = [f.extension(p.records) for f, p in zip(feeders, programs, strict=True)]
+        with self.bus.sync.lock, self._lock:  # the setpoints go out under the SYNC lock: none while they grow
+            elapsed_ms = self._queue_refusal(programs)
+            return self.queue.append(programs, program, self._feeders, extensions, elapsed_ms, on_start)
+
+    def _queue_refusal(self, programs: list[AxisProgram]) -> float:
+        """The run's time now (ms), if ``programs`` (axis order) can be queued now (else GroupError)."""
+        sync = self.bus.sync
+        if not self._running or self._ending is not None or self._start_sync is None:
+            raise GroupError("no program runs on this cell to queue after")
+        if sync.cyclic_producing:
+            raise GroupError("a cell whose SYNC comes from its cyclic process takes no queued program")
         elapsed_ms = (sync.count - self._start_sync) * self.bus.config.sync_period_ms
         if self._start_sent is not None and not sync.lockstep:  # the buffered drives' own clock
             elapsed_ms = max(elapsed_ms, (time.monotonic() - self._start_sent) * 1000.0)
         why = self.queue.refusal(programs, self._feeders, elapsed_ms)
         if why is not None:
             raise GroupError(why)
-        return programs, elapsed_ms
+        return elapsed_ms
 
     @property
     def halt_budget_s(self) -> float:

@@ -112,6 +112,16 @@ class FeedStats:
         self.max_level = value if self.max_level is None else max(self.max_level, value)
 
 
+@dataclass(frozen=True)
+class Extension:
+    """A feeder's records continued by another program's (``Feeder.extension``): ``ready()`` while the
+    feeder is as it was when the extension was made and has records left to send; ``apply()`` puts it
+    in place."""
+
+    ready: Callable[[], bool]
+    apply: Callable[[], None]
+
+
 class Feeder:
     """Common interface: ``preload`` before the start, ``after_sync(elapsed)`` right after each SYNC
     is sent and ``on_sync(elapsed)`` once the drives have answered it (``elapsed`` = SYNCs since the
@@ -153,9 +163,10 @@ class Feeder:
     def finished(self, elapsed: int, ip_active: bool) -> bool:
         raise NotImplementedError
 
-    def extend(self, records: NDArray[np.int64]) -> None:
-        """The next program's records continue this run where the last ends, on the same time line
-        (``axes.master.run_queue``); only while records are left to send."""
+    def extension(self, records: NDArray[np.int64]) -> Extension:
+        """The next program's records continuing this run where the last ends, on the same time line
+        (``axes.master.run_queue``): made now, without a lock (arrays joined, frames packed), put in
+        place by ``Extension.apply`` under the SYNC lock, while records are left to send."""
         raise NotImplementedError
 
     @property
@@ -220,20 +231,24 @@ class BufferFeeder(Feeder):
         hold = self.hold_end_ms
         return hold is not None and self.next == len(self.records) - 1 and self.elapsed_ms < self.duration_ms - hold
 
-    def extend(self, records: NDArray[np.int64]) -> None:
+    def extension(self, records: NDArray[np.int64]) -> Extension:
         """The next program's records take the end record's place (it follows them): the drive runs on
         from one program into the next in its FIFO, on its own clock. Its first record, the dwell at
-        its start, begins where the last record of this one ends."""
-        if self.all_sent:
-            raise ValueError("the end record is out: the drive ends interpolation there")
+        its start, begins where the last record of this one ends. Possible until the end record is out."""
+        base = self.records
         r = np.asarray(records, dtype=np.int64)
         if r[-1, 2] != 0:
             r = np.vstack([r, [[r[-1, 0], 0, 0]]])
-        self.records = np.concatenate((self.records[:-1], r))
-        self.end_ms = np.cumsum(self.records[:, 2])
-        self._end = self.end_ms.tolist()
-        self.duration_ms = int(self.end_ms[-1])
-        self.stats.records = len(self.records)
+        joined = np.concatenate((base[:-1], r))
+        end_ms = np.cumsum(joined[:, 2])
+        end = end_ms.tolist()
+
+        def apply() -> None:
+            self.records, self.end_ms, self._end = joined, end_ms, end
+            self.duration_ms = int(end_ms[-1])
+            self.stats.records = len(joined)
+
+        return Extension(lambda: self.records is base and not self.all_sent, apply)
 
     def _top_up(self) -> None:
         if not self.wants or self.mirrored:
@@ -342,15 +357,20 @@ class SetpointFeeder(Feeder):
         self.frames = self.frames[: self.next] + [self.frame_of(r) for r in rows]
         self.stats.records = len(self.records)
 
-    def extend(self, records: NDArray[np.int64]) -> None:
+    def extension(self, records: NDArray[np.int64]) -> Extension:
         """The next program's setpoints follow this one's, one per SYNC: its record k is reached
-        (k + 1) periods after this program's last."""
-        if self.all_sent:
-            raise ValueError("the last setpoint is out: the drive holds it")
+        (k + 1) periods after this program's last. Possible until the last setpoint is out (the drive
+        holds it: a setpoint after that would come a SYNC late)."""
+        base = self.records
         rows = np.asarray(records, dtype=np.int64).reshape(-1, 3)
-        self.records = np.concatenate((self.records, rows))
-        self.frames = self.frames + [self.frame_of(r) for r in rows]
-        self.stats.records = len(self.records)
+        joined = np.concatenate((base, rows))
+        frames = [self.frame_of(r) for r in rows]  # packed here, not under the SYNC lock
+
+        def apply() -> None:
+            self.records, self.frames = joined, self.frames + frames
+            self.stats.records = len(joined)
+
+        return Extension(lambda: self.records is base and not self.all_sent, apply)
 
     def preload(self) -> int:
         """The setpoint the start SYNC validates (record lead - 1) goes out with the start word."""
