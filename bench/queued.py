@@ -159,8 +159,8 @@ def main() -> None:
             p50, worst = float(np.median(gaps)), max(gaps)
             stop_go = f"{p50:.1f} / {worst:.1f} ({p50 / period:.0f} / {worst / period:.0f})"
         print(
-            f"| {name} | {'lockstep' if lockstep else 'wall clock'} | {len(done)} of {args.pairs} | {measured} / {own} / "
-            f"{added} at most | {late} | {stop_go} |"
+            f"| {name} | {'lockstep' if lockstep else 'wall clock'} | {len(done)} of {args.pairs} | "
+            f"{measured} / {own} / {added} at most | {late} | {stop_go} |"
         )
     print(f"command: PYTHONPATH=. python3 bench/queued.py --pairs {args.pairs}")
 
