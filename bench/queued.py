@@ -83,8 +83,7 @@ def queued_pair(svc: MotionService, a: np.ndarray, b: np.ndarray) -> tuple[int, 
     second = next(m for m in svc.activity.queued() if m.motion_id == queued["motion_id"])
     assert second.done.wait(120.0) and second.outcome is not None, "the queued motion did not end"
     if second.outcome["result"] != "finished":
-        if svc.state == "fault":
-            svc.recover(parse_recover({}))
+        settle(svc)
         return f"{second.outcome['result']}: {second.outcome['message'][:90]}"
     programs = [svc.stored_plan(p).program for p in (first_plan, then_plan)]
     whole = joined(programs)
@@ -102,7 +101,17 @@ def queued_pair(svc: MotionService, a: np.ndarray, b: np.ndarray) -> tuple[int, 
     return measured, standstill_syncs(planned), int(second.start_sync or -1) - after
 
 
-def separate_pair(svc: MotionService, a: np.ndarray, b: np.ndarray) -> float:
+def settle(svc: MotionService) -> None:
+    """After a run that did not finish: recovered, at rest, positions read again."""
+    if svc.state == "fault":
+        svc.recover(parse_recover({}))
+    assert svc.group is not None
+    svc.group.settle(5.0)
+    time.sleep(0.5)
+    svc.positions_qc(refresh=True)
+
+
+def separate_pair(svc: MotionService, a: np.ndarray, b: np.ndarray) -> float | None:
     """Stop and go on the wall clock: the same pair planned first, the second executed once the first has
     ended; the wall time (ms) from the first's start to the second's start less the first's duration (execute
     replies just after its start SYNC): the end's detection, journaling, cleanup, check and start."""
@@ -112,10 +121,15 @@ def separate_pair(svc: MotionService, a: np.ndarray, b: np.ndarray) -> float:
     t_first = time.perf_counter()
     first = svc.motion
     assert first is not None and first.done.wait(120.0)
+    if first.outcome is None or first.outcome["result"] != "finished":
+        settle(svc)
+        return None
     svc.execute(parse_execute({"plan_id": then_plan}))
     t_then = time.perf_counter()
     second = svc.motion
     assert second is not None and second.done.wait(120.0)
+    if second.outcome is None or second.outcome["result"] != "finished":
+        settle(svc)
     return 1000.0 * (t_then - t_first) - svc.stored_plan(first_plan).program.duration_ms
 
 
@@ -142,7 +156,9 @@ def main() -> None:
                     rows.append(queued_pair(svc, a, b))
                 for _ in range(args.pairs if not lockstep else 0):  # lockstep: no wall time to speak of
                     a, b = 0.15 + 0.7 * rng.random(dof), 0.15 + 0.7 * rng.random(dof)
-                    gaps.append(separate_pair(svc, a, b))
+                    gap = separate_pair(svc, a, b)
+                    if gap is not None:
+                        gaps.append(gap)
             finally:
                 svc.close()
         failed = [r for r in rows if isinstance(r, str)]
