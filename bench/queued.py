@@ -34,7 +34,7 @@ from axes_programs import standstill_syncs  # noqa: E402
 from svc_helpers import on_own_channel  # noqa: E402
 
 from pvtflow.axes.drive.program import joined  # noqa: E402
-from pvtflow.service.api import parse_execute, parse_home, parse_plan, parse_recover  # noqa: E402
+from pvtflow.service.api import ApiError, parse_execute, parse_home, parse_plan, parse_recover  # noqa: E402
 from pvtflow.service.config import CONFIG_DIR, load_cell_config  # noqa: E402
 from pvtflow.service.motion import MotionService  # noqa: E402
 
@@ -79,7 +79,12 @@ def queued_pair(svc: MotionService, a: np.ndarray, b: np.ndarray) -> tuple[int, 
     first_plan = plan(svc, [at(svc, 1.0 - a), at(svc, a)], "current")
     then_plan = plan(svc, [at(svc, a), at(svc, b)], "first")
     first = svc.execute(parse_execute({"plan_id": first_plan}))
-    queued = svc.execute(parse_execute({"plan_id": then_plan, "queue": True}))
+    try:
+        queued = svc.execute(parse_execute({"plan_id": then_plan, "queue": True}))
+    except ApiError as exc:  # the first motion shorter than the end record's hold: refused, as it must be
+        running = svc.motion
+        assert running is not None and running.done.wait(120.0)
+        return f"refused: {exc.message[:100]}"
     second = next(m for m in svc.activity.queued() if m.motion_id == queued["motion_id"])
     assert second.done.wait(120.0) and second.outcome is not None, "the queued motion did not end"
     if second.outcome["result"] != "finished":
