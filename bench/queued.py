@@ -6,7 +6,7 @@ A MotionService on simulated drives (in this process, so that the drives' per-SY
 per cell: ``--pairs`` pairs of full-speed plans drawn at random (seed 1) between 15 % and 85 % of every
 joint's range, the second from where the first ends; the first executed, the second executed with
 ``queue`` at once. From every drive's demand at every SYNC of the run: the SYNC periods in which no axis
-moved, against the same count on the two programs joined (their own: ends at rest, the EPOS2's start
+moved within 40 periods of the junction, against the same count on the two programs joined (their own: ends at rest, the EPOS2's start
 dwell); the difference is the standstill the queue added. Also the queued motion's start SYNC against the
 SYNC after the first one's last record. Lockstep for EPOS2 and fixed-period cells; the wall clock for
 the EPOS2 cells (a fixed-period drive in the master's interpreter on a shared host misses setpoint
@@ -38,6 +38,7 @@ from pvtflow.service.api import ApiError, parse_execute, parse_home, parse_plan,
 from pvtflow.service.config import CONFIG_DIR, load_cell_config  # noqa: E402
 from pvtflow.service.motion import MotionService  # noqa: E402
 
+JUNCTION_PERIODS = 40  # SYNC periods either side of the junction in which the standstill between the two is counted
 CASES = [
     ("arm6", True),
     ("gantry3", True),
@@ -101,9 +102,13 @@ def queued_pair(svc: MotionService, a: np.ndarray, b: np.ndarray) -> tuple[int, 
     for ax in whole.axes:
         history = {s.sync: s.demand for s in svc.sim.drive(ax.node_id).history}
         demand.append([history[n] for n in range(start, end + 1)])
-    measured = standstill_syncs(np.array(demand).T)
     after = start + int(np.ceil(programs[0].duration_ms / period))
-    return measured, standstill_syncs(planned), int(second.start_sync or -1) - after
+    # between the two: the periods from the last move of the first to the first move of the second, within a
+    # window about the junction (on the wall clock a drive's sample now and then repeats one mid-motion: a
+    # SYNC processed late, not a standstill of the queue's)
+    near = slice(max(0, after - start - JUNCTION_PERIODS), after - start + JUNCTION_PERIODS)
+    measured = standstill_syncs(np.array(demand).T[near])
+    return measured, standstill_syncs(planned[near]), int(second.start_sync or -1) - after
 
 
 def settle(svc: MotionService) -> None:
