@@ -6,13 +6,13 @@ A MotionService on simulated drives (in this process, so that the drives' per-SY
 per cell: ``--pairs`` pairs of full-speed plans drawn at random (seed 1) between 15 % and 85 % of every
 joint's range, the second from where the first ends; the first executed, the second executed with
 ``queue`` at once. From every drive's demand at every SYNC of the run: the SYNC periods in which no axis
-moved within 40 periods of the junction, against the same count on the two programs joined (their own: ends at rest, the EPOS2's start
-dwell); the difference is the standstill the queue added. Also the queued motion's start SYNC against the
-SYNC after the first one's last record. Lockstep for EPOS2 and fixed-period cells; the wall clock for
-the EPOS2 cells (a fixed-period drive in the master's interpreter on a shared host misses setpoint
-deadlines: tests/service/test_stop_then_move.py says why). On the wall clock, other pairs executed one
-after the other (the second once the first has ended) are the stop-and-go line: the dead time between
-them (``separate_pair``).
+moved within 40 periods of the junction, against the same count on the two programs joined (their own:
+ends at rest, the EPOS2's start dwell); the difference is the standstill the queue added. Also the queued
+motion's start SYNC against the SYNC after the first one's last record. Lockstep for EPOS2 and fixed-
+period cells; the wall clock for the EPOS2 cells (a fixed-period drive in the master's interpreter on a
+shared host misses setpoint deadlines: tests/service/test_stop_then_move.py says why). On the wall clock,
+other pairs executed one after the other (the second once the first has ended) are the stop-and-go line:
+the dead time between them (``separate_pair``).
 """
 
 from __future__ import annotations
