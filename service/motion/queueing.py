@@ -52,7 +52,8 @@ class QueuedRuns:
         self, group: AxisGroup, after: Motion, program: PvtProgram, plan_id: str | None, label: str | None
     ) -> Motion:
         """Queue ``program`` after ``after`` (the drives' lock held): journaled, then appended to the run;
-        refused (ApiError, nothing journaled or sent) when it cannot follow."""
+        refused (ApiError, nothing sent) when it cannot follow: before the journal as a rule; after it only
+        when the run passed the end record's hold in between, the motion then journaled ``rejected``."""
         self.admission.refuse_if_faulted(group)
         motion = Motion(new_id("m"), plan_id, label, program, time.time(), queued_after=after.motion_id, queued=True)
 
@@ -97,8 +98,8 @@ class QueuedRuns:
         self.finish(previous, done, motion)
 
     def run_ended(self, result: RunResult) -> tuple[Motion | None, list[Motion]]:
-        """The run ended: the hand-overs before the end are done; the motion that ran last (it ends with
-        ``result``) and the queued motions that never began, each with its outcome."""
+        """The run ended: once the hand-overs before the end are done, the motion that ran last (it ends
+        with the run's result) and the queued motions that never began (``never_began``)."""
         self._handover.submit(lambda: None).result()
         return self.activity.motion, self.activity.drop_queue()
 
