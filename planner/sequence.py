@@ -375,15 +375,21 @@ class SequenceSolver:
                         field="blend_radius",
                     )
 
-    def solve(self, start: object, raw_items: object) -> SequencePath:
-        """The joint path of the sequence from joint positions ``start``."""
+    def check(self, start: object, raw_items: object) -> tuple[NDArray[np.float64], list[SequenceItem], list[pin.SE3]]:
+        """The start, the items and their goals, checked as a whole (PlanError naming the item at fault):
+        every field, every goal's inverse kinematics, the blend spheres."""
         q0 = np.asarray(start, dtype=float)
         if q0.shape != self.ik.lower.shape or not np.all(np.isfinite(q0)):
             raise PlanError(PlanResult.INVALID_INPUT, f"start must be {len(self.ik.lower)} finite joint values")
         items = check_items(raw_items, len(q0))
         goals = self._goals(q0, items)
+        self._check_radii(self.ik.fk(q0), items, goals)
+        return q0, items, goals
+
+    def solve(self, start: object, raw_items: object) -> SequencePath:
+        """The joint path of the sequence from joint positions ``start``."""
+        q0, items, goals = self.check(start, raw_items)
         here = self.ik.fk(q0)
-        self._check_radii(here, items, goals)
 
         qs: list[NDArray[np.float64]] = [q0]
         seg_of: list[int] = [-1]

@@ -169,6 +169,11 @@ class CellPlanner:
         start, cpu = time.perf_counter(), time.thread_time()
         if self.planner is None:
             return CellPlan(PlanResult.INVALID_INPUT.value, self.setup_error, None, None, None, {"plan": 0.0})
+        if inp.sequence is not None and self.planner.sequences is not None:
+            from pvtflow.service.sequence_chunks import chunks, plan_in_chunks  # it builds on this module
+
+            if len(chunks(inp.sequence)) > 1:  # exact stops: planned rest to rest, joined
+                return plan_in_chunks(self, inp, tolerance_qc, metadata, budget_ms)
         if budget_ms is not None:
             inp = replace(inp, budget_ms=max(0.0, budget_ms - knots_reserve_ms(budget_ms)))
         out = self.planner.plan(inp)

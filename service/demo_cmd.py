@@ -33,6 +33,7 @@ from pvtflow.planner.cartesian import placement_pose
 from pvtflow.service.api import key
 from pvtflow.service.cli_options import add_config, add_real_time
 from pvtflow.service.config import CellConfig, ConfigError, load_cell_config
+from pvtflow.service.demo_sequence import PICK_AND_PLACE, run_sequence
 from pvtflow.service.journal import JournalError
 from pvtflow.service.motion import MotionService
 from pvtflow.service.request_cmd import Client
@@ -62,6 +63,14 @@ def add_parser(subparsers: Any) -> None:
         default=4,
         metavar="N",
         help="how many waypoints the tour goes through after its start, 1..20 (default 4)",
+    )
+    p.add_argument(
+        "--sequence",
+        nargs="?",
+        const=str(PICK_AND_PLACE),
+        metavar="FILE",
+        help="run a motion sequence instead of the tour (default: the shipped arm6 pick and place): planned as "
+        "the file says, run twice, the second cycle queued while the first runs (no stop in between)",
     )
     # the option's first name, kept working: it is a count, not a waypoint file as in plan and request
     p.add_argument("--waypoints", type=int, dest="tour_points", help=argparse.SUPPRESS)
@@ -309,7 +318,8 @@ def _serve_and_demo(args: argparse.Namespace, cell: CellConfig, plot: Path, endp
     client = None
     try:
         client = Client(connect=endpoint)
-        return _demo(client, cell.name, plot, endpoint, service, journal_dir, args.tour_points)
+        sequence = Path(args.sequence) if args.sequence is not None else None
+        return _demo(client, cell.name, plot, endpoint, service, journal_dir, args.tour_points, sequence)
     finally:
         if client is not None:
             client.close()
@@ -338,7 +348,14 @@ def _home(client: Client, name: str) -> bool:
 
 
 def _demo(
-    client: Client, name: str, plot: Path, endpoint: str, service: MotionService, journal_dir: str, n_waypoints: int
+    client: Client,
+    name: str,
+    plot: Path,
+    endpoint: str,
+    service: MotionService,
+    journal_dir: str,
+    n_waypoints: int,
+    sequence: Path | None = None,
 ) -> int:
     print(
         f"{PROG}: service for cell {name} on simulated drives, zenoh peer on {endpoint} "
@@ -366,6 +383,11 @@ def _demo(
     )
     if status.data.get("requires_homing") and not status.data.get("homed") and not _home(client, name):
         return EXIT_FAILED
+    if sequence is not None:  # the sequence instead of the tour (service/demo_sequence.py)
+        period_ms = service.cell.bus.sync_period_ms
+        ok = run_sequence(client, name, joints, sequence, follower, plot, period_ms)
+        del subs
+        return EXIT_OK if ok else EXIT_FAILED
     limits = service.limits
     waypoints = tour(limits.lower, limits.upper, n_waypoints)
     t0 = time.perf_counter()

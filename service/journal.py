@@ -51,6 +51,7 @@ class MotionEntry:
     outcome: dict[str, Any] | None = None
     ended_at: float | None = None
     recording: str | None = None  # the motion's MCAP file (pvtflow serve --record DIR)
+    queued_after: str | None = None  # queued (execute with queue): the motion it runs on from
 
     def summary(self, running: bool = False) -> dict[str, Any]:
         return {
@@ -63,6 +64,7 @@ class MotionEntry:
             "duration_ms": self.duration_ms,
             "outcome": self.outcome,
             "recording": self.recording,
+            "queued_after": self.queued_after,
         }
 
 
@@ -130,6 +132,7 @@ class Journal:
                                 int(line.get("duration_ms", 0)),
                                 line.get("program", {}),
                                 recording=line.get("recording"),
+                                queued_after=line.get("queued_after"),
                             )
                         )
                     elif kind == "outcome":
@@ -188,10 +191,14 @@ class Journal:
         duration_ms: int,
         cell: str,
         recording: str | None = None,
+        queued_after: str | None = None,
     ) -> MotionEntry:
-        """Write (and fsync) an accepted motion; call before anything is sent to a drive."""
+        """Write (and fsync) an accepted motion; call before anything is sent to a drive (``queued_after``:
+        the motion it is queued after, execute with queue)."""
         now = time.time()
-        entry = MotionEntry(motion_id, now, plan_id, label, duration_ms, program, recording=recording)
+        entry = MotionEntry(
+            motion_id, now, plan_id, label, duration_ms, program, recording=recording, queued_after=queued_after
+        )
         with self._lock:
             self._append(
                 {
@@ -204,6 +211,7 @@ class Journal:
                     "duration_ms": duration_ms,
                     "program": program,
                     **({"recording": recording} if recording is not None else {}),
+                    **({"queued_after": queued_after} if queued_after is not None else {}),
                 }
             )
             self._remember(entry)

@@ -222,6 +222,12 @@ def add_parser(subparsers: Any) -> None:
         "the limits, planned by the cell's planner); without it such a program is refused (start_mismatch)",
     )
     p.add_argument(
+        "--queue",
+        action="store_true",
+        help="execute: while a motion runs, run this one after it with no stop in between (it must start where "
+        "that one ends); with nothing running it starts at once",
+    )
+    p.add_argument(
         "--velocity-scale",
         type=float,
         metavar="F",
@@ -284,6 +290,7 @@ _FOR_OPS: dict[str, tuple[str, ...]] = {
     "program": ("validate", "execute"),
     "wait": ("execute", "home", "resume"),
     "approach": ("execute",),
+    "queue": ("execute",),
     "joints": ("home",),
     "reason": ("stop", "pause"),
     "mode": ("stop",),
@@ -362,6 +369,8 @@ def _local_payload(args: argparse.Namespace) -> Any:
             out["wait"] = True
         if op == "execute" and args.approach:
             out["approach"] = True
+        if op == "execute" and args.queue:
+            out["queue"] = True
     elif op == "home":
         if args.joints is not None:
             joints = [j.strip() for j in args.joints.split(",")]

@@ -106,3 +106,10 @@ def check_limits(prog: PvtProgram) -> None:
             assert rec.max_abs_acceleration().max() <= amax, a.joint
         lo, hi = rec.position_range()
         assert lo.min() >= a.limits.min_position_qc and hi.max() <= a.limits.max_position_qc, a.joint
+
+
+def standstill_syncs(demands: np.ndarray) -> int:
+    """SYNC periods inside the motion (after its first move, before its last) in which no axis moved."""
+    moved = np.any(np.abs(np.diff(demands, axis=0)) > 1e-9, axis=1)
+    inside = np.flatnonzero(moved)
+    return int(np.count_nonzero(~moved[inside[0] : inside[-1] + 1]))

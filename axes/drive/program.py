@@ -256,6 +256,20 @@ def _axis_from_json(where: str, a: Any, check_ranges: bool = True) -> AxisProgra
     return AxisProgram(name, node_id, profile, scaling, limits, None, submode, records=out)
 
 
+def joined(programs: Sequence[PvtProgram], metadata: Mapping[str, Any] | None = None) -> PvtProgram:
+    """The programs one after the other on one time line, as one program: each one's first record
+    follows the last record of the one before (they meet at rest where it ends), and a time-0 end record
+    (the EPOS2's: interpolation ends there) goes out only after the last. ``metadata``: the joined
+    program's (None: the first's)."""
+    first = programs[0]
+    axes = []
+    for i, axis in enumerate(first.axes):
+        parts = [p.axes[i].records for p in programs]
+        parts[:-1] = [r[:-1] if r[-1, 2] == 0 else r for r in parts[:-1]]
+        axes.append(AxisProgram.of(axis, np.concatenate(parts)))
+    return PvtProgram(first.cell, tuple(axes), dict(first.metadata if metadata is None else metadata))
+
+
 def axes_of(program: PvtProgram) -> tuple[AxisConfig, ...]:
     """The axis settings a program was made for (node, profile, scaling, limits, period): what a
     user of the axes layer without a cell file gives the bus and the group."""
@@ -306,7 +320,6 @@ def program_mismatch(program: PvtProgram, axes: Sequence[AxisConfig], cell_name:
     for a in by_node.values():
         problems.append(f"axis {a.joint}: node {a.node_id} is not in cell {cell_name}")
     return problems
-
 
 
 def split_long_records(program: AxisProgram, max_ms: int) -> NDArray[np.int64]:

@@ -65,6 +65,7 @@ _MOTION = {
         "duration_ms": {"type": "integer"},
         "outcome": {"type": ["object", "null"]},
         "recording": _STR_OR_NULL,
+        "queued_after": {"type": ["string", "null"], "description": "queued: the motion it ran on from"},
     },
 }
 
@@ -131,10 +132,14 @@ def reply_schema(name: str) -> dict[str, Any]:
             "properties": {
                 "motion_id": _MOTION_ID,
                 "plan_id": _STR_OR_NULL,
-                "state": {"enum": [RunState.RUNNING.value, RunState.ENDED.value]},
+                "state": {"enum": [RunState.RUNNING.value, RunState.ENDED.value, RunState.QUEUED.value]},
                 "duration_ms": {"type": "integer"},
                 "start_sync": _INT_OR_NULL,
                 "outcome": {"type": ["object", "null"]},
+                "queued_after": {
+                    "type": ["string", "null"],
+                    "description": "a queued motion: the motion it runs on from (execute with queue)",
+                },
                 "approach": {
                     "type": ["object", "null"],
                     "description": "the approach motion (motion_id, duration_ms, outcome) when one ran first",
@@ -150,6 +155,11 @@ def reply_schema(name: str) -> dict[str, Any]:
                 "motion_id": {"type": ["string", "null"]},
                 "homing_id": {"type": ["string", "null"], "description": "the homing it stopped, if one ran"},
                 "outcome": {"type": ["object", "null"]},
+                "queued": {
+                    "type": "array",
+                    "items": _MOTION_ID,
+                    "description": "the queued motions it ended before they began",
+                },
                 "axes": {"type": "array", "items": _AXIS_STATUS},
                 "mode": {"enum": ["path", "quick"], "description": "how the motion was stopped"},
                 "braking": _BRAKING,
@@ -215,6 +225,11 @@ def reply_schema(name: str) -> dict[str, Any]:
                 "item": {
                     "type": ["object", "null"],
                     "description": "the item of a motion sequence running now (index, label); null otherwise",
+                },
+                "queue": {
+                    "type": "array",
+                    "items": {"type": "object"},
+                    "description": "the motions queued after the running one, in order (as the execute reply)",
                 },
                 "sync_count": {"type": "integer"},
                 "elapsed_ms": _NUM_OR_NULL,

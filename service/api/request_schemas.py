@@ -206,6 +206,15 @@ def request_schema(name: str, dof: int | None = None) -> dict[str, Any]:
                     "move within the limits planned by the cell's planner (a motion of its own, journaled), then "
                     "start the program; without it such a program is refused (start_mismatch)",
                 },
+                "queue": {
+                    "type": "boolean",
+                    "default": False,
+                    "description": "while a motion runs: run this one after it (and after the motions queued "
+                    "before it) with no stop in between, from the SYNC after its last record; it must start "
+                    "where that motion ends and be given before the drives' end record goes out (the drives' "
+                    "master heartbeat watch before the end), else it is refused and nothing changes; with "
+                    "nothing running it starts as without it. stop ends the running and every queued motion",
+                },
             },
             oneOf=[{"required": ["plan_id"]}, {"required": ["program"]}],
         )

@@ -51,6 +51,7 @@ class ExecuteRequest:
     label: str | None = None
     wait: bool = False
     approach: bool = False  # move to the program's start first (service/approach.py), never implicitly
+    queue: bool = False  # while a motion runs: start where it ends, with no stop in between (axes.master.run_queue)
 
 
 @dataclass(frozen=True)
@@ -293,6 +294,7 @@ def parse_execute(data: Any) -> ExecuteRequest:
         data.get("label"),
         bool(data.get("wait", False)),
         bool(data.get("approach", False)),
+        bool(data.get("queue", False)),
     )
 
 

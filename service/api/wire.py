@@ -239,6 +239,7 @@ class RunState(StrEnum):
     RUNNING = "running"
     ENDED = "ended"
     INTERRUPTED = "interrupted"  # journaled without an outcome: the service stopped while it ran
+    QUEUED = "queued"  # accepted after the running motion (execute with queue), its start not reached yet
 
     @classmethod
     def of(cls, ended: bool, running: bool = True) -> RunState:

@@ -30,6 +30,7 @@ from pvtflow.service.motion.board import CellBoard
 from pvtflow.service.motion.drives import CellDrives
 from pvtflow.service.motion.outbox import Outbox
 from pvtflow.service.motion.plans import PlanBook
+from pvtflow.service.motion.queueing import QueuedRuns
 from pvtflow.service.motion.recordings import RunRecordings
 from pvtflow.service.motion.runs import Motion, ServiceEventKind, new_id
 
@@ -56,6 +57,7 @@ class MotionRuns:
     def __post_init__(self) -> None:
         self._started: queue.Queue[Motion | None] = queue.Queue()
         self._watcher: threading.Thread | None = None
+        self.queued = QueuedRuns(self.cell.name, self.activity, self.admission, self.journal, self._finish)
 
     # --- life cycle ------------------------------------------------------------------------------
     def start_watching(self) -> None:
@@ -69,6 +71,7 @@ class MotionRuns:
             self._started.put(None)
             self._watcher.join(timeout=2.0)
             self._watcher = None
+        self.queued.close()
 
     # --- execute ---------------------------------------------------------------------------------
     def execute(self, req: ExecuteRequest) -> dict[str, Any]:
@@ -85,11 +88,32 @@ class MotionRuns:
             problems = program_mismatch(program, self.cell.ordered_axes(), self.cell.name)
             if problems:
                 raise refusals.wrong_cell(self.cell.name, problems, program.cell)
+        if req.queue:
+            queued = self._queue(program, plan_id, label, req.approach)
+            if queued is not None:
+                if req.wait:
+                    queued.done.wait()
+                return {**queued.summary(), "approach": None}
         approach = self._approach(program, plan_id) if req.approach else None
         motion = self._start(program, plan_id, label)
         if req.wait:
             motion.done.wait()
         return {**motion.summary(), "approach": approach}
+
+    def _queue(self, program: PvtProgram, plan_id: str | None, label: str | None, approach: bool) -> Motion | None:
+        """``queue``: after the running motion and those queued before it (None: nothing runs, it starts)."""
+        group = self.drives.connected()
+        with self.drives.lock:
+            after = self.queued.follows(group)
+            if after is None:
+                return None
+            if approach:
+                raise ApiError(
+                    ErrorCode.NOT_ALLOWED,
+                    f"approach and queue: a queued motion starts where {after.motion_id} ends, with no move before it",
+                    {"queued_after": after.motion_id},
+                )
+            return self.queued.enqueue(group, after, program, plan_id, label)
 
     def _approach(self, program: PvtProgram, plan_id: str | None) -> dict[str, Any] | None:
         """Asked for (``approach: true``) and the axes are elsewhere: the approach move to the program's
@@ -165,14 +189,19 @@ class MotionRuns:
             if motion is None or group is None:
                 return
             try:
-                self._finish(motion, group.wait())
+                result = group.wait()
+                last, never_began = self.queued.run_ended(result)  # a queued motion may have run last
+                self._finish(last if last is not None and not last.done.is_set() else motion, result)
+                for queued in never_began:
+                    self._finish(queued, self.queued.never_began(result))
             except Exception:  # never leave a motion without an end: the cell would stay "moving"
                 log.exception("while ending motion %s", motion.motion_id)
                 self.board.set(CellState.IDLE if not self.drives.running else self.board.state, motion.motion_id)
                 motion.done.set()
 
-    def _finish(self, motion: Motion, result: RunResult) -> None:
-        """Journal the outcome, then state and events (the journal first: it is the record)."""
+    def _finish(self, motion: Motion, result: RunResult, runs_on: Motion | None = None) -> None:
+        """Journal the outcome, then state and events (the journal first: it is the record); ``runs_on``:
+        the queued motion that runs on from this one (the cell stays moving)."""
         outcome = result.to_json()
         if motion.pausing and result.result is Result.STOPPED:
             outcome["paused"] = True  # the journal's record of the pause: resume continues it as a motion of its own
@@ -184,7 +213,9 @@ class MotionRuns:
             self.journal.record_outcome(motion.motion_id, outcome)
         except JournalError as exc:
             self.outbox.event(ServiceEventKind.JOURNAL_ERROR, str(exc), motion_id=motion.motion_id)
-        if result.result.is_fault:
+        if runs_on is not None:
+            self.board.set(CellState.MOVING, runs_on.motion_id)
+        elif result.result.is_fault:
             self.board.fault(result.message, motion.motion_id)
         elif motion.pausing and result.result is Result.STOPPED and self.paused is not None and self.paused(motion):
             self.board.set(CellState.PAUSED, motion.motion_id)

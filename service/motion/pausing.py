@@ -47,6 +47,13 @@ class PauseResume:
         motion = self.activity.motion
         if motion is None or motion.done.is_set() or not group.running:
             raise ApiError(ErrorCode.NOT_ALLOWED, "no motion runs on this cell")
+        if motion.queued_after or self.activity.queued():
+            # queued motions run on one time line, which a change of one motion's timing would break
+            raise ApiError(
+                ErrorCode.NOT_ALLOWED,
+                "queued motions run: pause and override act on a single motion (stop ends the queue)",
+                {"motion_id": motion.motion_id},
+            )
         return group, motion
 
     def pause(self, req: PauseRequest) -> dict[str, Any]:

@@ -41,6 +41,7 @@ class Publications:
         """Every ``telemetry_every`` SYNCs during a motion (SYNC thread: hand over, never block)."""
         motion = self.activity.motion
         duration = motion.program.duration_ms if motion is not None else 0
+        elapsed_ms = p.elapsed_ms - (motion.run_offset_ms if motion is not None else 0.0)  # a queued motion's own
         if motion is not None:
             self._announce_item(motion, p.elapsed_ms)
         self.outbox.publish(
@@ -49,8 +50,8 @@ class Publications:
                 "cell": self.outbox.cell,
                 "motion_id": motion.motion_id if motion else None,
                 "sync": p.sync,
-                "elapsed_ms": p.elapsed_ms,
-                "progress": min(1.0, p.elapsed_ms / duration) if duration else None,
+                "elapsed_ms": elapsed_ms,
+                "progress": min(1.0, elapsed_ms / duration) if duration else None,
                 "positions_qc": list(p.positions),
                 "positions": self.drives.to_joint(p.positions),
                 "buffer_levels": list(p.levels),

@@ -58,12 +58,20 @@ class Motion:
     done: threading.Event = field(default_factory=threading.Event)
     recorder: Recorder | None = field(default=None, repr=False)
     pausing: bool = False  # stopped on its path by ``pause``: the cell is paused at its end, not idle
+    # execute with queue: the motion it runs on from, whether its start is still ahead, where its t = 0 is
+    # on the run's time line (ms from the run's start SYNC)
+    queued_after: str | None = None
+    queued: bool = False
+    run_offset_ms: float = 0.0
 
     def item_at(self, elapsed_ms: float | None) -> dict[str, Any] | None:
         """The item of a motion sequence that runs ``elapsed_ms`` after the start (its ``index`` and
         ``label``); None for a motion that is not a sequence or before its start. The items' spans are
-        on the trajectory's timeline, which the program runs slowed by its ``time_scale``."""
+        on the trajectory's timeline, which the program runs slowed by its ``time_scale``; ``elapsed_ms``
+        is on the run's, where a queued motion begins at ``run_offset_ms``."""
         items = self.program.metadata.get("items")
+        if elapsed_ms is not None:
+            elapsed_ms -= self.run_offset_ms
         if not items or elapsed_ms is None or elapsed_ms < 0:
             return None
         t = elapsed_ms / 1000.0 / float(self.program.metadata.get("time_scale", 1.0))
@@ -75,10 +83,11 @@ class Motion:
             "motion_id": self.motion_id,
             "plan_id": self.plan_id,
             "label": self.label,
-            "state": RunState.of(self.done.is_set()),
+            "state": RunState.QUEUED if self.queued and not self.done.is_set() else RunState.of(self.done.is_set()),
             "duration_ms": int(self.program.duration_ms),
             "start_sync": self.start_sync,
             "outcome": self.outcome,
+            "queued_after": self.queued_after,
         }
 
 

@@ -48,6 +48,7 @@ class StatusReport:
             "fault_reason": self.board.fault_reason,
             "motion": motion.summary() if motion is not None else None,
             "item": motion.item_at(st.elapsed_ms) if running_id is not None and motion is not None else None,
+            "queue": [m.summary() for m in self.activity.queued()],
             "sync_count": st.sync_count,
             "elapsed_ms": st.elapsed_ms,
             "joint_names": list(self.cell.joint_names),

@@ -7,6 +7,7 @@ keeps the cell in ``fault`` until ``recover``, so that a fault is always acknowl
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -57,13 +58,17 @@ class StopRecover:
         ended_pause = None
         with self.drives.lock:  # an execute still starting has finished its start: its motion is stopped
             motion = self.activity.motion
+            queued = self.activity.queued()  # they end with the run
             was_moving = group.running
             if not was_moving and self.board.state == CellState.PAUSED:
                 ended_pause = self.changes.end_pause()
                 self.board.set(CellState.IDLE, ended_pause.motion.motion_id if ended_pause else None)
             if was_moving:
                 self.board.set(CellState.STOPPING, motion.motion_id if motion else None)
-                if req.mode is StopMode.PATH and motion is not None:
+                if req.mode is StopMode.PATH and motion is not None and (queued or motion.queued_after):
+                    # a queue runs the motions on one time line the path stop does not re-time: quick
+                    fallback = "queued motions are stopped the quick way"
+                elif req.mode is StopMode.PATH and motion is not None:
                     motion.pausing = pausing
                     braking, fallback = self.changes.brake(group, motion, req.reason)
                 if braking is None:
@@ -71,12 +76,17 @@ class StopRecover:
                         motion.pausing = False
                     group.stop(req.reason)
         if was_moving and motion is not None:
-            motion.done.wait(group.halt_budget_s + RUN_END_S + (braking or {}).get("ended_ms", 0.0) / 1000.0)
+            braking_s = (braking or {}).get("ended_ms", 0.0) / 1000.0
+            deadline = time.monotonic() + group.halt_budget_s + RUN_END_S + braking_s
+            for ending in [*queued, motion]:  # the last queued one ends last
+                ending.done.wait(max(0.0, deadline - time.monotonic()))
             group.settle(5.0)  # the reply says what the drives say once nothing of the motion is left in them
+        stopped = self.activity.motion if queued and was_moving else motion  # a queued one may have begun
         reply: dict[str, Any] = {
             "was_moving": was_moving,
-            "motion_id": motion.motion_id if (motion and was_moving) else None,
-            "outcome": motion.outcome if (motion and was_moving) else None,
+            "motion_id": stopped.motion_id if (stopped and was_moving) else None,
+            "outcome": stopped.outcome if (stopped and was_moving) else None,
+            "queued": [q.motion_id for q in queued if q.queued],
             "axes": self.status.axes_json(),
             "mode": StopMode.PATH.value
             if braking is not None

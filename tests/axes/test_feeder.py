@@ -170,3 +170,32 @@ def test_setpoints_after_syncs_that_went_out_without_one_go_on_with_the_next_rec
     # the drive held three periods: its last record is reached three SYNCs after the program's end
     assert feeder.held_syncs == 3
     assert not feeder.finished(len(recs) + 2, True) and feeder.finished(len(recs) + 3, True)
+
+
+def test_the_end_record_waits_for_its_hold_and_a_program_can_take_its_place_until_then():
+    """A buffered feeder holding its end record (axes.master.run_queue) sends every other record as before;
+    the end record goes once the drive's clock is ``hold_end_ms`` from the end. Until then another program's
+    records can take its place (the end record then follows them); after it, not."""
+    model = FifoModel()
+    feeder = BufferFeeder(records(20, 10), frame, model.send, 1.0, BufferConfig(4, 60))
+    feeder.hold_end(50.0)
+    feeder.preload()
+    elapsed = 0
+    while feeder.next < len(feeder.records) - 1 or not feeder.end_held:
+        elapsed += 1
+        feeder.on_sync(elapsed)
+        if elapsed > 1000:
+            break
+    assert feeder.next == 20 and feeder.end_held and elapsed < 200 - 50  # every record but the end one is out
+    later = records(5, 10) + np.array([190, 0, 0])
+    extension = feeder.extension(later)
+    assert extension.ready()
+    extension.apply()
+    assert len(feeder.records) == 20 + 5 + 1 and feeder.duration_ms == 250
+    np.testing.assert_array_equal(feeder.records[-1], [later[-1, 0], 0, 0])
+    while not feeder.all_sent:
+        elapsed += 1
+        feeder.on_sync(elapsed)
+    assert elapsed >= 250 - 50  # the end record only once the clock was within the hold of the new end
+    assert [r.time for r in model.received][-1] == 0 and sum(r.time == 0 for r in model.received) == 1
+    assert not feeder.extension(later).ready()  # the end record is out: nothing can follow any more

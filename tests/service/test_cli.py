@@ -150,3 +150,13 @@ def test_demo_plans_and_runs_a_move_through_zenoh_and_writes_a_plot(tmp_path, ca
     assert worst_mm <= 0.1  # the telemetry's positions on the line, by forward kinematics
     assert plot.stat().st_size > 10_000
     assert (tmp_path / "j" / "journal.jsonl").exists()
+
+
+def test_demo_sequence_runs_the_shipped_pick_and_place_twice_the_second_queued(tmp_path, capsys):
+    plot = tmp_path / "seq.png"
+    assert main(["demo", "--sequence", "--plot", str(plot)]) == 0
+    out = capsys.readouterr().out
+    labels = "0 above pick, 1 pick, 2 retreat from pick, 3 above place, 4 place, 5 retreat from place"
+    assert out.count(f"items {labels}; finished") == 2, out
+    assert "runs on from it" in out and "0 SYNC periods of standstill" in out
+    assert plot.stat().st_size > 10_000

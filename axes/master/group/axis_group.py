@@ -56,6 +56,7 @@ from pvtflow.axes.master.group.status import GroupReports, RunView
 from pvtflow.axes.master.link import AxisLink, DriveError
 from pvtflow.axes.master.profiles import profile_for
 from pvtflow.axes.master.profiles.base import Profile
+from pvtflow.axes.master.run_queue import OnStart, QueuedProgram, RunQueue
 from pvtflow.axes.master.splice import Make, SpliceAt, SpliceRefusedError, splice_run
 
 
@@ -300,6 +301,40 @@ class AxisGroup:
                 self._event(EventKind.STARTED, f"program of {program.duration_ms} ms started on SYNC {run.start_sync}")
                 sync.start(max_gap_s=run_gap_s, setpoints_per_sync=any(not p.name.buffered for p in self.profiles))
         return None
+
+    def append(
+        self,
+        program: PvtProgram,
+        on_start: OnStart | None = None,
+        before_records: Callable[[], object] | None = None,
+    ) -> QueuedProgram:
+        """Queue ``program`` after the running one, on the same time line (``axes.master.run_queue``);
+        ``on_start`` is told when its t = 0 is passed. GroupError, nothing changed, when it cannot follow.
+        ``before_records``: called once the checks passed, before any record changes (a service journals
+        the motion there); what it raises ends the append with nothing changed, and is raised from here."""
+        reason = self.check_program(program)
+        if reason is not None:
+            raise GroupError(f"the queued program does not fit the cell: {reason}")
+        by_node = {a.node_id: a for a in program.axes}
+        programs = [by_node[link.node_id] for link in self.links]
+        with self._lock:
+            run = self._run
+            if run is None:
+                raise GroupError("no program runs on this cell to queue after")
+            run.queue_refusal(programs)
+            feeders = run.feeders
+        if before_records is not None:
+            before_records()
+        # joined and packed here, so that the SYNC lock is held only to put them in place
+        extensions = [f.extension(p.records) for f, p in zip(feeders, programs, strict=True)]
+        with self.bus.sync.lock, self._lock:  # the setpoints go out under the SYNC lock: none while they grow
+            elapsed_ms = run.queue_refusal(programs)
+            return run.queue.append(programs, program, run.feeders, extensions, elapsed_ms, on_start)
+
+    @property
+    def queue(self) -> RunQueue | None:
+        """The programs queued on the present (or last) run."""
+        return self._run.queue if self._run is not None else None
 
     def splice(self, make: Make, lead_ms: float | None = None) -> SpliceAt:
         """Change the running program from a moment on (``axes.master.splice``: the records not yet sent

@@ -113,6 +113,16 @@ class FeedStats:
         self.max_level = value if self.max_level is None else max(self.max_level, value)
 
 
+@dataclass(frozen=True)
+class Extension:
+    """A feeder's records continued by another program's (``Feeder.extension``): ``ready()`` while the
+    feeder is as it was when the extension was made and has records left to send; ``apply()`` puts it
+    in place."""
+
+    ready: Callable[[], bool]
+    apply: Callable[[], None]
+
+
 class Feeder:
     """Common interface: ``preload`` before the start, ``after_sync(elapsed)`` right after each SYNC
     is sent and ``on_sync(elapsed)`` once the drives have answered it (``elapsed`` = SYNCs since the
@@ -179,6 +189,12 @@ class Feeder:
     def finished(self, elapsed: int, ip_active: bool) -> bool:
         raise NotImplementedError
 
+    def extension(self, records: NDArray[np.int64]) -> Extension:
+        """The next program's records continuing this run where the last ends, on the same time line
+        (``axes.master.run_queue``): made now, without a lock (arrays joined, frames packed), put in
+        place by ``Extension.apply`` under the SYNC lock, while records are left to send."""
+        raise NotImplementedError
+
     @property
     def level(self) -> int | None:
         return None
@@ -217,6 +233,9 @@ class BufferFeeder(Feeder):
         # the records held reach at most this far beyond the drive's clock (axes.master.splice), and
         # none ends after ``horizon_ms`` while a splice is prepared (``Feeder.hold_to``)
         self.lookahead_ms = lookahead_ms
+        # the end record waits until the drive's clock is this close to the end (None: it goes with the
+        # others), so that a queued program can still take its place (axes.master.run_queue)
+        self.hold_end_ms: float | None = None
 
     def consumed(self) -> int:
         """Records whose segment the drive has finished by its clock (the running one counts as buffered)."""
@@ -236,6 +255,7 @@ class BufferFeeder(Feeder):
             and not self._hold
             and not self.all_sent
             and self.level < self.high
+            and not self.end_held
             and (self.lookahead_ms is None or within_lookahead(self))
         )
 
@@ -248,6 +268,35 @@ class BufferFeeder(Feeder):
         self.duration_ms = int(self.end_ms[-1])
         self.stats.records = len(self.records)
         self.horizon_ms = None
+
+    def hold_end(self, hold_ms: float | None) -> None:
+        """The end record waits until the drive's clock is ``hold_ms`` from the end (axes.master.run_queue)."""
+        self.hold_end_ms = hold_ms
+
+    @property
+    def end_held(self) -> bool:
+        """The end record is next and the drive's clock is not yet within ``hold_end_ms`` of the end."""
+        hold = self.hold_end_ms
+        return hold is not None and self.next == len(self.records) - 1 and self.elapsed_ms < self.duration_ms - hold
+
+    def extension(self, records: NDArray[np.int64]) -> Extension:
+        """The next program's records take the end record's place (it follows them): the drive runs on
+        from one program into the next in its FIFO, on its own clock. Its first record, the dwell at
+        its start, begins where the last record of this one ends. Possible until the end record is out."""
+        base = self.records
+        r = np.asarray(records, dtype=np.int64)
+        if r[-1, 2] != 0:
+            r = np.vstack([r, [[r[-1, 0], 0, 0]]])
+        joined = np.concatenate((base[:-1], r))
+        end_ms = np.cumsum(joined[:, 2])
+        end = end_ms.tolist()
+
+        def apply() -> None:
+            self.records, self.end_ms, self._end = joined, end_ms, end
+            self.duration_ms = int(end_ms[-1])
+            self.stats.records = len(joined)
+
+        return Extension(lambda: self.records is base and not self.all_sent, apply)
 
     def _top_up(self) -> None:
         if not self.wants or self.mirrored:
@@ -379,6 +428,21 @@ class SetpointFeeder(Feeder):
         self.records = np.concatenate((self.records[: self.next], rows))
         self.frames = self.frames[: self.next] + [self.frame_of(r) for r in rows]
         self.stats.records = len(self.records)
+
+    def extension(self, records: NDArray[np.int64]) -> Extension:
+        """The next program's setpoints follow this one's, one per SYNC: its record k is reached
+        (k + 1) periods after this program's last. Possible until the last setpoint is out (the drive
+        holds it: a setpoint after that would come a SYNC late)."""
+        base = self.records
+        rows = np.asarray(records, dtype=np.int64).reshape(-1, 3)
+        joined = np.concatenate((base, rows))
+        frames = [self.frame_of(r) for r in rows]  # packed here, not under the SYNC lock
+
+        def apply() -> None:
+            self.records, self.frames = joined, self.frames + frames
+            self.stats.records = len(joined)
+
+        return Extension(lambda: self.records is base and not self.all_sent, apply)
 
     def preload(self) -> int:
         """The setpoint the start SYNC validates (record lead - 1) goes out with the start word."""

@@ -25,9 +25,10 @@ from pvtflow.axes.drive.objects import BUFFER_ERRORS
 from pvtflow.axes.drive.program import AxisProgram
 from pvtflow.axes.master.group.feeder import BufferFeeder, Feeder, top_up_by_need
 from pvtflow.axes.master.group.halt import Halting
-from pvtflow.axes.master.group.outcome import Result, RunResult
+from pvtflow.axes.master.group.outcome import GroupError, Result, RunResult
 from pvtflow.axes.master.group.run_state import RunParts
 from pvtflow.axes.master.link import AxisLink
+from pvtflow.axes.master.run_queue import RunQueue
 
 _IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
 _FAULT_BITS = int(Statusword.FAULT)  # set in FAULT and FAULT REACTION ACTIVE
@@ -50,11 +51,13 @@ class Run:
         self.live = False
         self.end_as: tuple[Result, str] | None = None  # how the run ends at its end, if changed (ends_as)
         self.halting = Halting(parts, self)
+        self.queue = RunQueue(parts.bus.config)  # the programs queued after this run's first
         self._on_end = on_end
 
     # --- the run's life ------------------------------------------------------------------------------
     def take_feeders(self, feeders: Sequence[Feeder]) -> None:
         self.feeders = tuple(feeders)
+        self.queue.begin(self.programs, self.feeders)
 
     def begin(self, start_sync: int) -> None:
         """The run is live from now on; its motion starts on SYNC ``start_sync`` (SYNC lock held)."""
@@ -70,6 +73,22 @@ class Run:
     def ends_as(self, outcome: tuple[Result, str] | None) -> None:
         """The run, changed to end early (an on-path stop), ends with ``outcome`` at its end (None: FINISHED)."""
         self.end_as = outcome
+
+    def queue_refusal(self, programs: Sequence[AxisProgram]) -> float:
+        """The run's time now (ms), if ``programs`` (axis order) can be queued after it now (else
+        GroupError, nothing changed; axes.master.run_queue). Group lock held."""
+        sync = self.parts.bus.sync
+        if not self.live or self.ending is not None or self.start_sync is None:
+            raise GroupError("no program runs on this cell to queue after")
+        if sync.cyclic_producing:
+            raise GroupError("a cell whose SYNC comes from its cyclic process takes no queued program")
+        # the SYNCs sent, not answered: a program queued now must not be late for the one going out
+        elapsed_ms = (sync.count - self.start_sync) * self.parts.bus.config.sync_period_ms
+        elapsed_ms = max(elapsed_ms, self.drive_clock_ms())
+        why = self.queue.refusal(programs, self.feeders, elapsed_ms)
+        if why is not None:
+            raise GroupError(why)
+        return elapsed_ms
 
     def drive_clock_ms(self) -> float:
         """The drives' clock (program time): SYNC periods since the start SYNC; on the wall clock the time
@@ -135,6 +154,7 @@ class Run:
                 for feeder in self.feeders:
                     feeder.on_sync(elapsed)
                 self._feed()
+                self.queue.at_sync(elapsed)
                 self._check_finished(elapsed)
             else:
                 self.halting.check(n)
