@@ -33,6 +33,7 @@ import canopen
 from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import Controlword
 from pvtflow.axes.drive.config import AxisSimulation
@@ -46,7 +47,7 @@ from pvtflow.axes.sim.cia402.power_states import (
 from pvtflow.axes.sim.cia402.records import FaultRecord, MasterLoss, SyncSample
 from pvtflow.axes.sim.cia402.sampling import Sampling
 from pvtflow.axes.sim.cia402.segment import Segment
-from pvtflow.axes.sim.clock import LOCKSTEP, MotionClock, Quartz, check_clock
+from pvtflow.axes.sim.clock import MotionClock, Quartz, check_clock
 from pvtflow.axes.sim.node.consumer import HeartbeatConsumer
 from pvtflow.axes.sim.node.device import (
     SIMULATED_MODE,
@@ -104,7 +105,7 @@ class SimulatedDrive(
         sync_period_ms: float = 1.0,
         history_length: int = 20_000,
         simulation: AxisSimulation | None = None,
-        clock: str = LOCKSTEP,
+        clock: Clock | str = Clock.LOCKSTEP,
         drift_ppm: float = 0.0,
         bitrate: int = 1_000_000,
     ) -> None:
@@ -112,8 +113,7 @@ class SimulatedDrive(
             raise ValueError(f"node id {node_id} is outside 1..127")
         if not (math.isfinite(sync_period_ms) and sync_period_ms > 0):
             raise ValueError(f"sync_period_ms must be positive, got {sync_period_ms!r}")
-        check_clock(clock, drift_ppm)
-        self.clock = clock
+        self.clock = check_clock(clock, drift_ppm)
         self.quartz = Quartz(drift_ppm)  # the drive's own time on the wall clock (axes/sim/clock.py)
         self.motion_clock: MotionClock | None = None  # wall clock: set when the drive joins a network
         self._loss_braking = False  # wall clock: braking after a lost master, standstill not yet seen

@@ -16,9 +16,10 @@ import time
 import canopen
 from canopen.sdo import SdoAbortedError
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive import objects as od
-from pvtflow.axes.sim.clock import WALL, MotionClock, Quartz
+from pvtflow.axes.sim.clock import MotionClock, Quartz
 from pvtflow.axes.sim.node.consumer import HeartbeatConsumer
 from pvtflow.axes.sim.node.pdo import PdoEngine
 
@@ -30,7 +31,7 @@ class NmtNode:
     node: canopen.LocalNode
     network: canopen.Network
     lock: threading.RLock
-    clock: str
+    clock: Clock
     quartz: Quartz
     motion_clock: MotionClock | None
     time_us: int
@@ -48,7 +49,7 @@ class NmtNode:
         subscribe(network, 0, self._note_nmt_state)  # before the node's own NMT handling: the state it leaves
         network.add_node(self.node)
         self.network = network
-        if self.clock == WALL:
+        if self.clock is Clock.WALL:
             with self.lock:
                 self.motion_clock = MotionClock(self.quartz, float(self.time_us), time.monotonic())
         subscribe(network, od.SYNC_COB_ID, self._on_sync)
