@@ -57,7 +57,7 @@ from pvtflow.axes.sim.node.device import (
     complete_object_dictionary,
     identity_values,
 )
-from pvtflow.axes.sim.node.dictionary import ABORT_GENERAL, ABORT_VALUE_RANGE, DictionaryAccess
+from pvtflow.axes.sim.node.dictionary import ABORT_GENERAL, ABORT_VALUE_RANGE, DriveDictionary
 from pvtflow.axes.sim.node.master_loss import MasterLossReaction
 from pvtflow.axes.sim.node.nmt import NmtNode
 from pvtflow.axes.sim.node.pdo import PdoEngine, is_pdo_object
@@ -77,7 +77,7 @@ def eds_file(name: str) -> Path:
 
 
 class SimulatedDrive(
-    DictionaryAccess, NmtNode, FaultHandling, MasterLossReaction, DeviceControl, Sampling, HomingMixin
+    NmtNode, FaultHandling, MasterLossReaction, DeviceControl, Sampling, HomingMixin
 ):
     """A CiA 402 drive on a canopen network, simulated. Subclasses add one interpolation behaviour."""
 
@@ -121,8 +121,9 @@ class SimulatedDrive(
         self.node = canopen.LocalNode(node_id, str(self.eds_path))
         own = {**identity_values(self.node.object_dictionary, self.MODES), **self._own_values()}
         complete_object_dictionary(self.node.object_dictionary, own, frozenset({(SUPPORTED_DRIVE_MODES, 0)}))
-        self._entries: dict[tuple[int, int], tuple[objectdictionary.ODVariable, int]] = {}
-        self._published: dict[tuple[int, int], tuple[int, int, bytes]] = {}  # see publish()
+        self.lock = threading.RLock()
+        self.changed = threading.Condition(self.lock)
+        self.dictionary = DriveDictionary(self.node, self.lock)
         self.scaling = scaling if scaling is not None else AxisScaling(2000.0, 1.0)
         if simulation is not None and simulation.qc_per_motor_rev is not None:  # its own encoder, not the cell's
             self.scaling = replace(self.scaling, qc_per_motor_rev=float(simulation.qc_per_motor_rev))
@@ -130,8 +131,6 @@ class SimulatedDrive(
         if not bitrate > 0:
             raise ValueError(f"bitrate must be positive, got {bitrate!r}")
         self.bitrate = bitrate  # the bus's: how long a SYNC can wait for a frame on the wire
-        self.lock = threading.RLock()
-        self.changed = threading.Condition(self.lock)
         self.network: canopen.Network = canopen.network._UNINITIALIZED_NETWORK
         self.pdo = PdoEngine(self)
         self._internal_position = self.has(od.POSITION_ACTUAL_INTERNAL_VALUE)  # 0x6063 (the Parker's)
@@ -156,7 +155,6 @@ class SimulatedDrive(
         self.master_losses: list[MasterLoss] = []
         self._tick_at = 0.0  # wall clock (time.monotonic()) up to which the motion clock has run on its own
         self._tick_sync = 0  # sync_count at the last wall-clock tick: a SYNC since then runs the clock itself
-        self._commissioned: dict[tuple[int, int], int] = {}  # kept through an NMT reset (stored parameters)
         # the machine: where the encoder's 0 is (the machine position = demand + origin; an incremental
         # encoder counts from 0 wherever the axis stands at power-on), switches, index pulse, hard stops
         self.simulation = simulation
@@ -178,9 +176,29 @@ class SimulatedDrive(
         self._reset_application()
         if limits is not None:
             self.apply_limits(limits)
-        self._apply_drive_facts(simulation or AxisSimulation())
+        self.dictionary.commission(self.dictionary.drive_fact_values(simulation or AxisSimulation(), self.scaling))
         if network is not None:
             self.attach(network)
+
+    # --- the object dictionary, as the drive itself reads and writes it (``dictionary``) ------------
+    def has(self, index: int, subindex: int = 0) -> bool:
+        return self.dictionary.has(index, subindex)
+
+    def read(self, index: int, subindex: int = 0) -> int:
+        return self.dictionary.read(index, subindex)
+
+    def read_or(self, index: int, subindex: int, default: int) -> int:
+        return self.dictionary.read_or(index, subindex, default)
+
+    def store(self, index: int, subindex: int, value: int) -> None:
+        self.dictionary.store(index, subindex, value)
+
+    def publish(self, index: int, subindex: int, value: int) -> None:
+        self.dictionary.publish(index, subindex, value)
+
+    def apply_limits(self, limits: DriveLimits) -> None:
+        """Commission the drive's own limit objects (facts about the drive, DESIGN section 3)."""
+        self.dictionary.commission(self.dictionary.limit_values(limits, self.scaling))
 
     def power_cycle(self) -> None:
         """Power off and on: the encoder counts from 0 again where the axis stands, not homed, boot-up."""
@@ -281,9 +299,7 @@ class SimulatedDrive(
         self.origin += getattr(self, "demand", 0.0)
         self.referenced = False
         self._homing = None
-        self.node.data_store.clear()
-        for (index, subindex), value in getattr(self, "_commissioned", {}).items():
-            self.store(index, subindex, value)
+        self.dictionary.power_on()
         self.state = SWITCH_ON_DISABLED
         self._controlword = 0
         self._stop_segment: Segment | None = None
