@@ -9,8 +9,8 @@ statusword (``axes/sim/cia402/power_states.py``), and the SYNC-driven motion clo
 interpolation samples, 0x607D on every demand sample (``axes/sim/cia402/sampling.py``). Here: the drive's
 state, the SDO writes it dispatches, its resets, and the hooks through which the profile modules
 (epos2, ip_linear, sync_setpoint, parker) add their interpolation on top. The machine around the
-axis (power-up anywhere, limit switches, hard stops) and homing mode 6 on it come from
-``axes/sim/cia402/homing_mode.py`` (``HomingMixin``), for drives whose 0x6502 has mode 6.
+axis (power-up anywhere, limit switches, hard stops) and homing mode 6 on it are the drive's
+``homing`` part (``axes/sim/cia402/homing_mode.py``), for drives whose 0x6502 has mode 6.
 
 Threads: every bus callback runs in the simulated network's notifier thread; test code may call in
 from other threads, so all state is guarded by one lock, and ``changed`` is notified after each
@@ -39,7 +39,7 @@ from pvtflow.axes.drive.cia402 import Controlword
 from pvtflow.axes.drive.config import AxisSimulation
 from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.axes.sim.cia402.faults import ERROR_REGISTER, FaultHandling
-from pvtflow.axes.sim.cia402.homing_mode import HomingMixin, HomingState, Machine
+from pvtflow.axes.sim.cia402.homing_mode import Homing
 from pvtflow.axes.sim.cia402.power_states import (
     SWITCH_ON_DISABLED,
     DeviceControl,
@@ -77,7 +77,7 @@ def eds_file(name: str) -> Path:
 
 
 class SimulatedDrive(
-    NmtNode, FaultHandling, MasterLossReaction, DeviceControl, Sampling, HomingMixin
+    NmtNode, FaultHandling, MasterLossReaction, DeviceControl, Sampling
 ):
     """A CiA 402 drive on a canopen network, simulated. Subclasses add one interpolation behaviour."""
 
@@ -92,6 +92,7 @@ class SimulatedDrive(
         frozenset()
     )  # 0x6098 values it runs in mode 6 (axes/sim/cia402/homing_mode.py)
     REFERENCED_BIT: ClassVar[int] = 0  # a manufacturer statusword bit that says "homed since power-on"
+    HOMING: ClassVar[type[Homing]] = Homing  # where the drive places home (the EPOS2's own: epos2.py)
     _ip_requested: bool = False  # bit 4 rose: ip mode starts on the next SYNC (profiles reset it)
 
     def __init__(
@@ -155,21 +156,22 @@ class SimulatedDrive(
         self.master_losses: list[MasterLoss] = []
         self._tick_at = 0.0  # wall clock (time.monotonic()) up to which the motion clock has run on its own
         self._tick_sync = 0  # sync_count at the last wall-clock tick: a SYNC since then runs the clock itself
-        # the machine: where the encoder's 0 is (the machine position = demand + origin; an incremental
-        # encoder counts from 0 wherever the axis stands at power-on), switches, index pulse, hard stops
-        self.simulation = simulation
-        self.machine = Machine(simulation or AxisSimulation())
-        self.origin = self._power_up_position(node_id, simulation, limits)
-        self.referenced = False  # homed since the last power-on / reset
-        self.homing_runs = []  # every homing started (tests, benches)
-        self._homing = None
-        self._homing_t = 0.0
         # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.drive.scaling
         self.velocity_factor = self.scaling.qc_per_ms_per_velocity_unit  # record velocity unit -> qc/ms
         self._rpm_per_qc_ms = float(self.scaling.qc_per_ms_to_rpm(1.0))
         # velocity objects (0x607F, 0x6081, 0x6099) in the drive's velocity unit, as the master writes them
         self._units_per_qc_ms = self._rpm_per_qc_ms / self.scaling.velocity_unit_rpm
         self._rpm_s_per_qc_ms2 = float(self.scaling.qc_per_ms2_to_rpm_s(1.0))
+        # the machine: where the encoder's 0 is (the machine position = demand + origin; an incremental
+        # encoder counts from 0 wherever the axis stands at power-on), switches, index pulse, hard stops
+        self.homing = self.HOMING(
+            node_id,
+            simulation,
+            limits,
+            self.dictionary,
+            units_per_qc_ms=self._units_per_qc_ms,
+            rpm_s_per_qc_ms2=self._rpm_s_per_qc_ms2,
+        )
         self.node._write_callbacks.remove(self.node.nmt.on_write)  # 0x1017 is handled here
         # canopen passes the written entry as the keyword ``od``, which is this module's name for axes.drive.objects
         self.node.add_write_callback(lambda index, subindex, od, data: self._on_write(index, subindex, od, data))
@@ -283,8 +285,8 @@ class SimulatedDrive(
                 self.store(od.MODES_OF_OPERATION_DISPLAY, 0, value)
                 self.mode_display = value
                 if old != value:
-                    if old == od.HOMING_MODE and self._homing is not None:
-                        self._interrupt_homing()
+                    if old == od.HOMING_MODE and self.homing.run is not None:
+                        self.homing.interrupt()
                         self._begin_stop(self._deceleration(quick=False))
                     self._on_mode_change(old, value)
             else:
@@ -296,9 +298,7 @@ class SimulatedDrive(
     def _reset_application(self) -> None:
         """Power-on state: defaults from the EDS, switch on disabled (transition 1 is automatic); the
         encoder counts from 0 where the axis stands, not homed."""
-        self.origin += getattr(self, "demand", 0.0)
-        self.referenced = False
-        self._homing = None
+        self.homing.power_on(getattr(self, "demand", 0.0))
         self.dictionary.power_on()
         self.state = SWITCH_ON_DISABLED
         self._controlword = 0
@@ -343,10 +343,10 @@ class SimulatedDrive(
         SYNC, a falling one brings a running interpolation to a stop; halt (bit 8) holds both. In
         homing mode a rising bit 4 starts homing; halt or bit 4 low interrupts it."""
         if self.mode_display == od.HOMING_MODE and self.MODES.accepts(od.HOMING_MODE):
-            running = self._homing is not None and self._homing.state is HomingState.RUNNING
+            running = self.homing.running
             if controlword & Controlword.HALT or not controlword & Controlword.HOMING_START:
                 if running:
-                    self._interrupt_homing()
+                    self.homing.interrupt()
                     if not controlword & Controlword.HALT:  # bit 4 low: brake as a halt would (halt already does)
                         self._begin_stop(self._deceleration(quick=False))
             elif not previous & Controlword.HOMING_START:
@@ -362,6 +362,18 @@ class SimulatedDrive(
             and (self.ip_active or self._ip_requested)
         ):
             self._begin_stop(self._deceleration(quick=False))
+
+    def _start_homing(self) -> None:
+        """Controlword bit 4 rose in mode 6 (``homing``); a run that attained home at once stands there."""
+        attained = self.homing.start(self.demand, self.time_us / 1000.0)
+        if attained is not None:
+            self.demand = attained
+            self.velocity = self.acceleration = 0.0
+
+    @property
+    def machine_position(self) -> float:
+        """Where the axis really is (qc of the machine): what its position reads once correctly homed."""
+        return self.homing.machine_position(self.demand)
 
     def _enter_operation(self) -> None:
         """Operation enabled was entered: hold the present position (the demand takes the actual

@@ -14,6 +14,7 @@ import canopen
 
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import PowerState
+from pvtflow.axes.sim.cia402.homing_mode import Homing
 from pvtflow.axes.sim.cia402.power_states import (
     FAULT,
     FAULT_REACTION_ACTIVE,
@@ -48,6 +49,7 @@ class FaultHandling:
     velocity: float
     acceleration: float
     _stop_segment: Segment | None
+    homing: Homing
 
     def send_emcy(self, code: int, register: int | None = None, data: bytes = b"") -> None:
         if register is None:
@@ -63,7 +65,7 @@ class FaultHandling:
             return
         self.faults.append(FaultRecord(self.sync_count, self.sample_ms, code, check))
         self._abort_motion()
-        self._interrupt_homing()
+        self.homing.interrupt()
         self._stop_segment = None
         self.velocity = self.acceleration = 0.0
         self.demand = float(self.actual)  # the power stage is off: the demand follows the actual position
@@ -85,7 +87,7 @@ class FaultHandling:
         deceleration = self._deceleration(quick=reaction == od.FaultReaction.QUICK_STOP)
         self.state = FAULT_REACTION_ACTIVE  # before the abort: an EPOS2 empties its FIFO (app note 3.8)
         self._abort_motion()
-        self._interrupt_homing()
+        self.homing.interrupt()
         self._stop_segment = Segment.braking(self.time_us / 1000.0, self.demand, v, deceleration)
         self._signal_fault(code, data, register)
 

@@ -9,13 +9,16 @@ statusword is the power state's bits plus voltage enabled, warning, target reach
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 from canopen.profiles.p402 import State402
 
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import Controlword, PowerState, Statusword
 from pvtflow.axes.sim.cia402.segment import Segment
+
+if TYPE_CHECKING:
+    from pvtflow.axes.sim.cia402.homing_mode import Homing
 
 # DS402 power states and statusword/controlword bits: the master's definitions (axes/drive/cia402.py),
 # short names for the drive side
@@ -50,7 +53,7 @@ class DeviceControl:
     halts: list[int]
     mode_display: int
     ip_active: bool
-    referenced: bool
+    homing: Homing
     _rpm_s_per_qc_ms2: float
 
     def _on_controlword(self, cw: int) -> None:
@@ -81,7 +84,7 @@ class DeviceControl:
             new = OPERATION_ENABLED  # 4, 16 (and 3 + 4 at once, as the EPOS2 accepts)
         if new != state:
             if state == OPERATION_ENABLED:
-                self._interrupt_homing()
+                self.homing.interrupt()
                 if new == QUICK_STOP_ACTIVE:
                     self._begin_stop(self._deceleration(quick=True))
                 else:
@@ -135,12 +138,13 @@ class DeviceControl:
         if self._warning():
             word |= WARNING
         if self.mode_display == od.HOMING_MODE:
-            word |= self._homing_status()
+            rest = self.state == OPERATION_ENABLED and self._stop_segment is None and abs(self.velocity) <= 1e-12
+            word |= self.homing.status(rest)
         else:
             if self.state == OPERATION_ENABLED and self._stop_segment is None and self._target_reached():
                 word |= TARGET_REACHED
             if self.ip_active:
                 word |= IP_MODE_ACTIVE
-        if self.referenced:
+        if self.homing.referenced:
             word |= self.REFERENCED_BIT
         return word

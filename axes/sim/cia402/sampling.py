@@ -33,6 +33,7 @@ from canopen.sdo import SdoAbortedError
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import PowerState
 from pvtflow.axes.drive.scaling import INT32_MAX, INT32_MIN
+from pvtflow.axes.sim.cia402.homing_mode import Homing
 from pvtflow.axes.sim.cia402.power_states import (
     FAULT,
     FAULT_REACTION_ACTIVE,
@@ -67,6 +68,8 @@ class Sampling:
     velocity: float
     acceleration: float
     ip_active: bool
+    mode_display: int
+    homing: Homing
     _stop_segment: Segment | None
     _loss_braking: bool
     _internal_position: bool
@@ -167,8 +170,8 @@ class Sampling:
                 elif self.state == FAULT_REACTION_ACTIVE:
                     self.state = FAULT  # braked to rest: the power stage goes off
             return
-        if self._homing_moves():
-            self._homing_sample(t)
+        if self.state == OPERATION_ENABLED and self.mode_display == od.HOMING_MODE and self.homing.moves():
+            self.demand, self.velocity, self.acceleration = self.homing.sample(t)
             return
         pva = self._motion_at(t) if self.state == OPERATION_ENABLED else None
         if pva is None or self.state != OPERATION_ENABLED:
@@ -187,6 +190,16 @@ class Sampling:
         if lo <= round(p) <= hi:
             return True
         self.fault(self.EMCY_POSITION_LIMIT, "software position limit 0x607D")
+        return False
+
+    def _check_machine(self, p: float) -> bool:
+        """The simulated machine bounds every motion outside homing (``Homing.machine_stop``): what it
+        meets stops the axis there and faults the drive."""
+        met = self.homing.machine_stop(self.demand, p)
+        if met is None:
+            return True
+        self.demand, code, why = met
+        self.fault(code, why)
         return False
 
     def _check_dynamics(self, v: float, a: float) -> None:
