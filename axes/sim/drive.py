@@ -38,7 +38,7 @@ from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import Controlword
 from pvtflow.axes.drive.config import AxisSimulation
 from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
-from pvtflow.axes.sim.cia402.faults import ERROR_REGISTER, FaultHandling
+from pvtflow.axes.sim.cia402.faults import FaultHandling
 from pvtflow.axes.sim.cia402.homing_mode import Homing
 from pvtflow.axes.sim.cia402.power_states import (
     SWITCH_ON_DISABLED,
@@ -58,6 +58,7 @@ from pvtflow.axes.sim.node.device import (
     identity_values,
 )
 from pvtflow.axes.sim.node.dictionary import ABORT_GENERAL, ABORT_VALUE_RANGE, DriveDictionary
+from pvtflow.axes.sim.node.emcy import ERROR_REGISTER, Emcy
 from pvtflow.axes.sim.node.master_loss import MasterLossReaction
 from pvtflow.axes.sim.node.nmt import NmtNode
 from pvtflow.axes.sim.node.pdo import PdoEngine, is_pdo_object
@@ -76,9 +77,7 @@ def eds_file(name: str) -> Path:
     return path
 
 
-class SimulatedDrive(
-    NmtNode, FaultHandling, MasterLossReaction, DeviceControl, Sampling
-):
+class SimulatedDrive(NmtNode, FaultHandling, MasterLossReaction, DeviceControl, Sampling):
     """A CiA 402 drive on a canopen network, simulated. Subclasses add one interpolation behaviour."""
 
     PROFILE: ClassVar[str] = ""
@@ -125,6 +124,7 @@ class SimulatedDrive(
         self.lock = threading.RLock()
         self.changed = threading.Condition(self.lock)
         self.dictionary = DriveDictionary(self.node, self.lock)
+        self.emcy = Emcy(self.node, self.dictionary)
         self.scaling = scaling if scaling is not None else AxisScaling(2000.0, 1.0)
         if simulation is not None and simulation.qc_per_motor_rev is not None:  # its own encoder, not the cell's
             self.scaling = replace(self.scaling, qc_per_motor_rev=float(simulation.qc_per_motor_rev))
@@ -138,7 +138,6 @@ class SimulatedDrive(
         # what tests look at
         self.history: deque[SyncSample] = deque(maxlen=history_length)
         self.faults: list[FaultRecord] = []
-        self.emcy_sent: list[tuple[int, int, bytes]] = []
         self.rejected_writes: list[tuple[int, int, int]] = []
         self.internal_errors: list[BaseException] = []
         self.time_stamps: deque[int] = deque(maxlen=history_length)  # 0x1013 values (us): ``_on_time_stamp``
@@ -197,6 +196,9 @@ class SimulatedDrive(
 
     def publish(self, index: int, subindex: int, value: int) -> None:
         self.dictionary.publish(index, subindex, value)
+
+    def send_emcy(self, code: int, register: int | None = None, data: bytes = b"") -> None:
+        self.emcy.send(code, register, data)
 
     def apply_limits(self, limits: DriveLimits) -> None:
         """Commission the drive's own limit objects (facts about the drive, DESIGN section 3)."""

@@ -1,16 +1,15 @@
-"""EMCY and faults of a simulated drive: the error objects, the EMCY producer, the fault reaction.
+"""Faults of a simulated drive: the fault reaction (the error objects and the EMCY: ``axes/sim/node/emcy.py``).
 
 A fault stops the axis at once (the power stage off, the demand on the actual position), or, where
 its reaction brakes first as 0x605E says, in FAULT REACTION ACTIVE until the demand is at rest. It
-sets 0x603F, 0x1001 and 0x1003 and sends its EMCY; a fault reset (controlword bit 7) clears them and
-sends EMCY 0x0000. Tests inject errors as the drive would raise them (``inject_emcy``).
+sets 0x603F, 0x1001 and 0x1003 and sends its EMCY (the drive's ``emcy`` part); a fault reset
+(controlword bit 7) clears them and sends EMCY 0x0000. Tests inject errors as the drive would raise
+them (``inject_emcy``).
 """
 
 from __future__ import annotations
 
 import threading
-
-import canopen
 
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import PowerState
@@ -24,24 +23,17 @@ from pvtflow.axes.sim.cia402.power_states import (
 )
 from pvtflow.axes.sim.cia402.records import FaultRecord
 from pvtflow.axes.sim.cia402.segment import Segment
-
-ERROR_CODE = 0x603F
-EMCY_COMMUNICATION = 0x8100  # CiA 301: communication, generic
-ERROR_REGISTER = 0x1001
-ERROR_HISTORY = 0x1003
-REGISTER_GENERIC = 0x01  # 0x1001 bits
-REGISTER_COMMUNICATION = 0x10
+from pvtflow.axes.sim.node.emcy import REGISTER_GENERIC, Emcy
 
 
 class FaultHandling:
-    """EMCY and faults as part of a ``SimulatedDrive`` (which owns the state below and gives it the
-    object dictionary access, ``_deceleration``, the homing and the profiles' hooks)."""
+    """The fault reaction as part of a ``SimulatedDrive`` (which owns the state below and gives it the
+    object dictionary access, its EMCY, ``_deceleration``, the homing and the profiles' hooks)."""
 
-    node: canopen.LocalNode
     lock: threading.RLock
     state: PowerState
     faults: list[FaultRecord]
-    emcy_sent: list[tuple[int, int, bytes]]
+    emcy: Emcy
     sync_count: int
     sample_ms: float
     time_us: int
@@ -50,14 +42,6 @@ class FaultHandling:
     acceleration: float
     _stop_segment: Segment | None
     homing: Homing
-
-    def send_emcy(self, code: int, register: int | None = None, data: bytes = b"") -> None:
-        if register is None:
-            register = self.read_or(ERROR_REGISTER, 0, 0) | (0x01 if code else 0)
-        payload = bytes(data[:5]).ljust(5, b"\0")
-        self.emcy_sent.append((code, register, payload))
-        if self.node.has_network() and self.node.nmt.state != "STOPPED":
-            self.node.emcy.send(code, register, payload)
 
     def fault(self, code: int, check: str, data: bytes = b"", register: int = REGISTER_GENERIC) -> None:
         """Fault reaction: the drive stops its interpolation, sends EMCY and waits in FAULT for a reset."""
@@ -70,7 +54,7 @@ class FaultHandling:
         self.velocity = self.acceleration = 0.0
         self.demand = float(self.actual)  # the power stage is off: the demand follows the actual position
         self.state = FAULT
-        self._signal_fault(code, data, register)
+        self.emcy.signal_fault(code, data, register)
 
     def fault_braking(self, code: int, check: str, data: bytes = b"", register: int = REGISTER_GENERIC) -> None:
         """A fault whose reaction brakes first, as 0x605E says (1: profile deceleration, 2: quick stop
@@ -89,28 +73,13 @@ class FaultHandling:
         self._abort_motion()
         self.homing.interrupt()
         self._stop_segment = Segment.braking(self.time_us / 1000.0, self.demand, v, deceleration)
-        self._signal_fault(code, data, register)
-
-    def _signal_fault(self, code: int, data: bytes, register: int) -> None:
-        """0x603F, 0x1001, 0x1003 and the EMCY of a fault."""
-        if self.has(ERROR_CODE):
-            self.store(ERROR_CODE, 0, code)
-        self.store(ERROR_REGISTER, 0, register)
-        if self.has(ERROR_HISTORY, 1):
-            n = min(self.read(ERROR_HISTORY, 0) + 1, 4) if self.has(ERROR_HISTORY, 4) else 1
-            for k in range(n, 1, -1):
-                self.store(ERROR_HISTORY, k, self.read(ERROR_HISTORY, k - 1))
-            self.store(ERROR_HISTORY, 1, code)
-            self.store(ERROR_HISTORY, 0, n)
-        self.send_emcy(code, register, data)
+        self.emcy.signal_fault(code, data, register)
 
     def _fault_reset(self) -> None:
         self.state = SWITCH_ON_DISABLED
-        self.store(ERROR_REGISTER, 0, 0)
-        if self.has(ERROR_CODE):
-            self.store(ERROR_CODE, 0, 0)
+        self.emcy.clear_errors()
         self._on_fault_reset()
-        self.send_emcy(od.EMCY_NO_ERROR, 0)
+        self.emcy.send(od.EMCY_NO_ERROR, 0)
 
     def inject_emcy(self, code: int, *, fault: bool = True, data: bytes = b"") -> None:
         """Raise an error as the drive would: EMCY with ``code`` and, by default, the fault state."""
@@ -118,5 +87,5 @@ class FaultHandling:
             if fault:
                 self.fault(code, "injected", data)
             else:
-                self.send_emcy(code, data=data)
+                self.emcy.send(code, data=data)
             self._refresh()

@@ -23,12 +23,12 @@ from typing import ClassVar
 from canopen.sdo import SdoAbortedError
 
 from pvtflow.axes.drive import objects as od
-from pvtflow.axes.sim.cia402.faults import EMCY_COMMUNICATION, REGISTER_COMMUNICATION, REGISTER_GENERIC
 from pvtflow.axes.sim.cia402.records import MasterLoss
 from pvtflow.axes.sim.cia402.segment import Segment
 from pvtflow.axes.sim.clock import MotionClock
 from pvtflow.axes.sim.node.consumer import HeartbeatConsumer
 from pvtflow.axes.sim.node.dictionary import ABORT_PARAMETER_INCOMPATIBLE
+from pvtflow.axes.sim.node.emcy import EMCY_COMMUNICATION, REGISTER_COMMUNICATION, REGISTER_GENERIC, Emcy
 
 
 class MasterLossReaction:
@@ -38,6 +38,7 @@ class MasterLossReaction:
 
     HEARTBEAT_ERROR_FAULTS: ClassVar[bool]
     consumer: HeartbeatConsumer
+    emcy: Emcy
     master_losses: list[MasterLoss]
     motion_clock: MotionClock | None
     _loss_braking: bool
@@ -100,7 +101,7 @@ class MasterLossReaction:
             ):
                 self.fault_braking(od.EMCY_HEARTBEAT_ERROR, check, register=register)
             else:
-                self.send_emcy(od.EMCY_HEARTBEAT_ERROR, register)
+                self.emcy.send(od.EMCY_HEARTBEAT_ERROR, register)
                 if option == od.AbortConnectionOption.DISABLE_VOLTAGE:
                     self._on_controlword(0x0000)  # CiA 402: the disable voltage command
                 elif option == od.AbortConnectionOption.QUICK_STOP:
