@@ -44,11 +44,10 @@ from pvtflow.axes.sim.cia402.power_states import (
     SWITCH_ON_DISABLED,
     DeviceControl,
 )
-from pvtflow.axes.sim.cia402.records import FaultRecord, MasterLoss, SyncSample
+from pvtflow.axes.sim.cia402.records import FaultRecord, SyncSample
 from pvtflow.axes.sim.cia402.sampling import Sampling
 from pvtflow.axes.sim.cia402.segment import Segment
 from pvtflow.axes.sim.clock import MotionClock, Quartz, check_clock
-from pvtflow.axes.sim.node.consumer import HeartbeatConsumer
 from pvtflow.axes.sim.node.device import (
     SIMULATED_MODE,
     SUPPORTED_DRIVE_MODES,
@@ -77,7 +76,7 @@ def eds_file(name: str) -> Path:
     return path
 
 
-class SimulatedDrive(NmtNode, FaultHandling, MasterLossReaction, DeviceControl, Sampling):
+class SimulatedDrive(NmtNode, FaultHandling, DeviceControl, Sampling):
     """A CiA 402 drive on a canopen network, simulated. Subclasses add one interpolation behaviour."""
 
     PROFILE: ClassVar[str] = ""
@@ -116,7 +115,6 @@ class SimulatedDrive(NmtNode, FaultHandling, MasterLossReaction, DeviceControl, 
         self.clock = check_clock(clock, drift_ppm)
         self.quartz = Quartz(drift_ppm)  # the drive's own time on the wall clock (axes/sim/clock.py)
         self.motion_clock: MotionClock | None = None  # wall clock: set when the drive joins a network
-        self._loss_braking = False  # wall clock: braking after a lost master, standstill not yet seen
         self.eds_path = Path(eds_path) if eds_path is not None else EDS_DIR / self.EDS
         self.node = canopen.LocalNode(node_id, str(self.eds_path))
         own = {**identity_values(self.node.object_dictionary, self.MODES), **self._own_values()}
@@ -151,10 +149,6 @@ class SimulatedDrive(NmtNode, FaultHandling, MasterLossReaction, DeviceControl, 
         self.sample_ms = 0.0  # motion time of the sample being computed (or of the last SYNC)
         self._heartbeat_silenced = False
         self._nmt_left = "INITIALISING"  # the NMT state the last NMT command found (0x6007 on leaving OPERATIONAL)
-        self.consumer = HeartbeatConsumer(str(node_id), self._on_heartbeat_lost, self._wall_clock_tick)
-        self.master_losses: list[MasterLoss] = []
-        self._tick_at = 0.0  # wall clock (time.monotonic()) up to which the motion clock has run on its own
-        self._tick_sync = 0  # sync_count at the last wall-clock tick: a SYNC since then runs the clock itself
         # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.drive.scaling
         self.velocity_factor = self.scaling.qc_per_ms_per_velocity_unit  # record velocity unit -> qc/ms
         self._rpm_per_qc_ms = float(self.scaling.qc_per_ms_to_rpm(1.0))
@@ -163,6 +157,9 @@ class SimulatedDrive(NmtNode, FaultHandling, MasterLossReaction, DeviceControl, 
         self._rpm_s_per_qc_ms2 = float(self.scaling.qc_per_ms2_to_rpm_s(1.0))
         # the machine: where the encoder's 0 is (the machine position = demand + origin; an incremental
         # encoder counts from 0 wherever the axis stands at power-on), switches, index pulse, hard stops
+        self.master_loss = MasterLossReaction(
+            self, heartbeat_error_faults=self.HEARTBEAT_ERROR_FAULTS, rpm_per_qc_ms=self._rpm_per_qc_ms
+        )
         self.homing = self.HOMING(
             node_id,
             simulation,
@@ -259,7 +256,7 @@ class SimulatedDrive(NmtNode, FaultHandling, MasterLossReaction, DeviceControl, 
             if is_pdo_object(index):
                 self.pdo.check_write(index, subindex, value)
             if index == od.CONSUMER_HEARTBEAT_TIME:
-                self._check_consumer_entry(subindex, value)
+                self.master_loss.check_consumer_entry(subindex, value)
             if index == od.ABORT_CONNECTION_OPTION_CODE and value not in set(od.AbortConnectionOption):
                 raise SdoAbortedError(ABORT_VALUE_RANGE)  # no manufacturer-specific options here
             if index == od.HOMING_METHOD and value not in self.HOMING_METHODS:
@@ -271,7 +268,7 @@ class SimulatedDrive(NmtNode, FaultHandling, MasterLossReaction, DeviceControl, 
             if is_pdo_object(index):
                 self.pdo.reload()
             elif index == od.CONSUMER_HEARTBEAT_TIME:
-                self._configure_consumer()
+                self.master_loss.configure_consumer()
             elif index == od.PRODUCER_HEARTBEAT_TIME:
                 if value == 0 or self._heartbeat_silenced:
                     self.node.nmt.stop_heartbeat()

@@ -19,6 +19,7 @@ from pvtflow.axes.sim.cia402.segment import Segment
 
 if TYPE_CHECKING:
     from pvtflow.axes.sim.cia402.homing_mode import Homing
+    from pvtflow.axes.sim.node.master_loss import MasterLossReaction
 
 # DS402 power states and statusword/controlword bits: the master's definitions (axes/drive/cia402.py),
 # short names for the drive side
@@ -54,6 +55,7 @@ class DeviceControl:
     mode_display: int
     ip_active: bool
     homing: Homing
+    master_loss: MasterLossReaction
     _rpm_s_per_qc_ms2: float
 
     def _on_controlword(self, cw: int) -> None:
@@ -98,7 +100,7 @@ class DeviceControl:
             if new == QUICK_STOP_ACTIVE and self._stop_segment is None:
                 self.state = SWITCH_ON_DISABLED  # already at rest: quick stop option code 2
             elif new == QUICK_STOP_ACTIVE:
-                self._brake_on_own_clock()
+                self.master_loss.brake_on_own_clock()
             if new == OPERATION_ENABLED:
                 self._enter_operation()
         if self.state == OPERATION_ENABLED:
@@ -123,6 +125,11 @@ class DeviceControl:
             self._stop_segment = None
             self.velocity = self.acceleration = 0.0
             self.demand = float(round(self.demand))
+
+    @property
+    def braking(self) -> bool:
+        """The drive brakes on its own (a halt, a quick stop, a fault reaction): until the demand is at rest."""
+        return self._stop_segment is not None
 
     @property
     def halted(self) -> bool:

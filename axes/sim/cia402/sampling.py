@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import time
 from collections import deque
 from collections.abc import Callable
 from typing import ClassVar
@@ -41,9 +40,10 @@ from pvtflow.axes.sim.cia402.power_states import (
     QUICK_STOP_ACTIVE,
     SWITCH_ON_DISABLED,
 )
-from pvtflow.axes.sim.cia402.records import MasterLoss, SyncSample
+from pvtflow.axes.sim.cia402.records import SyncSample
 from pvtflow.axes.sim.cia402.segment import Segment
 from pvtflow.axes.sim.clock import MotionClock, arrival
+from pvtflow.axes.sim.node.master_loss import MasterLossReaction
 from pvtflow.axes.sim.node.pdo import PdoEngine
 
 
@@ -58,7 +58,7 @@ class Sampling:
     motion_clock: MotionClock | None
     state: PowerState
     history: deque[SyncSample]
-    master_losses: list[MasterLoss]
+    master_loss: MasterLossReaction
     sync_count: int
     sync_period_us: int
     time_us: int
@@ -71,7 +71,6 @@ class Sampling:
     mode_display: int
     homing: Homing
     _stop_segment: Segment | None
-    _loss_braking: bool
     _internal_position: bool
     _units_per_qc_ms: float
     _in_own_thread: Callable[[Callable[[], None]], None]
@@ -90,9 +89,7 @@ class Sampling:
                 new_time = max(self.sync_time_us, math.floor(self._sync_instant(latched, mono)))
                 behind = max(self.time_us - new_time, 0)
             if not behind:
-                self._advance(new_time)
-                self.time_us = new_time
-                self.sample_ms = new_time / 1000.0
+                self._run_clock_to(new_time)
             self.sync_time_us = new_time
             if self.operational:
                 self.pdo.apply_synchronous()
@@ -124,14 +121,9 @@ class Sampling:
             new_time = self._sample_horizon(math.floor(now_us / 1000.0) * 1000, now_us)
             if new_time <= self.time_us:
                 return
-            self._advance(new_time)
-            self.time_us = new_time
-            self.sample_ms = new_time / 1000.0
-            if self._loss_braking and self._stop_segment is None:
-                self._loss_braking = False
-                for loss in self.master_losses:
-                    if loss.standstill is None:
-                        loss.standstill = time.monotonic()
+            self._run_clock_to(new_time)
+            if self._stop_segment is None:
+                self.master_loss.at_rest()
             self._refresh()
 
         self._in_own_thread(act)
@@ -144,6 +136,12 @@ class Sampling:
     def _sample_horizon(self, new_time_us: int, now_us: float) -> int:
         """Wall clock: the sample time the ticker may advance to at motion time ``now_us``."""
         return new_time_us
+
+    def _run_clock_to(self, new_time_us: int) -> None:
+        """The motion time is ``new_time_us`` now (a SYNC, the ticker, a drive braking without SYNC)."""
+        self._advance(new_time_us)
+        self.time_us = new_time_us
+        self.sample_ms = new_time_us / 1000.0
 
     def _advance(self, new_time_us: int) -> None:
         """Run the interpolation from the last SYNC to this one: every whole ms, then the SYNC instant."""

@@ -20,7 +20,7 @@ from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.sim.clock import MotionClock, Quartz
-from pvtflow.axes.sim.node.consumer import HeartbeatConsumer
+from pvtflow.axes.sim.node.master_loss import MasterLossReaction
 from pvtflow.axes.sim.node.pdo import PdoEngine
 
 
@@ -36,7 +36,7 @@ class NmtNode:
     motion_clock: MotionClock | None
     time_us: int
     pdo: PdoEngine
-    consumer: HeartbeatConsumer
+    master_loss: MasterLossReaction
     _heartbeat_silenced: bool
     _nmt_left: str
 
@@ -54,10 +54,10 @@ class NmtNode:
                 self.motion_clock = MotionClock(self.quartz, float(self.time_us), time.monotonic())
         subscribe(network, od.SYNC_COB_ID, self._on_sync)
         subscribe(network, 0, self._on_nmt)
-        self.consumer.attach(network)
+        self.master_loss.consumer.attach(network)
 
     def detach(self) -> None:
-        self.consumer.detach()  # joins its thread, which takes the lock: before taking it
+        self.master_loss.consumer.detach()  # joins its thread, which takes the lock: before taking it
         with self.lock:
             if not self.node.has_network():
                 return
@@ -77,7 +77,7 @@ class NmtNode:
             if self._heartbeat_silenced:
                 self.node.nmt.stop_heartbeat()
             self.pdo.reload()
-            self._configure_consumer()
+            self.master_loss.configure_consumer()
 
     @property
     def nmt_state(self) -> str:
@@ -110,7 +110,7 @@ class NmtNode:
 
         def act() -> None:
             if self._nmt_left == "OPERATIONAL" and self.node.nmt.state == "STOPPED":
-                self._on_nmt_stopped()
+                self.master_loss.on_nmt_stopped()
             if self.node.nmt.state == "INITIALISING":  # reset node / reset communication
                 if data[0] == od.NmtCommand.RESET_NODE:
                     self._reset_application()
