@@ -34,6 +34,7 @@ from canopen import objectdictionary
 from canopen.sdo import SdoAbortedError
 
 from pvtflow.axes.canbus.clock import Clock
+from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import Controlword
 from pvtflow.axes.drive.config import AxisSimulation
@@ -59,7 +60,7 @@ from pvtflow.axes.sim.node.device import (
 from pvtflow.axes.sim.node.dictionary import ABORT_GENERAL, ABORT_VALUE_RANGE, DriveDictionary
 from pvtflow.axes.sim.node.emcy import ERROR_REGISTER, Emcy
 from pvtflow.axes.sim.node.master_loss import MasterLossReaction
-from pvtflow.axes.sim.node.nmt import NmtNode
+from pvtflow.axes.sim.node.nmt import Nmt
 from pvtflow.axes.sim.node.pdo import PdoEngine, is_pdo_object
 from pvtflow.configs import EDS_DIR
 
@@ -76,7 +77,7 @@ def eds_file(name: str) -> Path:
     return path
 
 
-class SimulatedDrive(NmtNode, FaultHandling, DeviceControl, Sampling):
+class SimulatedDrive(FaultHandling, DeviceControl, Sampling):
     """A CiA 402 drive on a canopen network, simulated. Subclasses add one interpolation behaviour."""
 
     PROFILE: ClassVar[str] = ""
@@ -130,7 +131,6 @@ class SimulatedDrive(NmtNode, FaultHandling, DeviceControl, Sampling):
         if not bitrate > 0:
             raise ValueError(f"bitrate must be positive, got {bitrate!r}")
         self.bitrate = bitrate  # the bus's: how long a SYNC can wait for a frame on the wire
-        self.network: canopen.Network = canopen.network._UNINITIALIZED_NETWORK
         self.pdo = PdoEngine(self)
         self._internal_position = self.has(od.POSITION_ACTUAL_INTERNAL_VALUE)  # 0x6063 (the Parker's)
         # what tests look at
@@ -147,8 +147,6 @@ class SimulatedDrive(NmtNode, FaultHandling, DeviceControl, Sampling):
         # arrival, which the drive's samples may have passed already when the simulation is late
         self.sync_time_us = 0
         self.sample_ms = 0.0  # motion time of the sample being computed (or of the last SYNC)
-        self._heartbeat_silenced = False
-        self._nmt_left = "INITIALISING"  # the NMT state the last NMT command found (0x6007 on leaving OPERATIONAL)
         # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.drive.scaling
         self.velocity_factor = self.scaling.qc_per_ms_per_velocity_unit  # record velocity unit -> qc/ms
         self._rpm_per_qc_ms = float(self.scaling.qc_per_ms_to_rpm(1.0))
@@ -160,6 +158,7 @@ class SimulatedDrive(NmtNode, FaultHandling, DeviceControl, Sampling):
         self.master_loss = MasterLossReaction(
             self, heartbeat_error_faults=self.HEARTBEAT_ERROR_FAULTS, rpm_per_qc_ms=self._rpm_per_qc_ms
         )
+        self.nmt = Nmt(self)
         self.homing = self.HOMING(
             node_id,
             simulation,
@@ -200,6 +199,46 @@ class SimulatedDrive(NmtNode, FaultHandling, DeviceControl, Sampling):
     def apply_limits(self, limits: DriveLimits) -> None:
         """Commission the drive's own limit objects (facts about the drive, DESIGN section 3)."""
         self.dictionary.commission(self.dictionary.limit_values(limits, self.scaling))
+
+    # --- on a network (NMT: ``nmt``) ---------------------------------------------------------------
+    @property
+    def node_id(self) -> int:
+        return self.node.id
+
+    @property
+    def network(self) -> canopen.Network:
+        return self.nmt.network
+
+    def attach(self, network: canopen.Network) -> None:
+        """Join a network (not yet booted: call ``boot`` once the network is connected)."""
+        self.nmt.join(network)
+        if self.clock is Clock.WALL:
+            with self.lock:
+                self.motion_clock = MotionClock(self.quartz, float(self.time_us), time.monotonic())
+        subscribe(network, od.SYNC_COB_ID, self._on_sync)
+        self.master_loss.consumer.attach(network)
+
+    def detach(self) -> None:
+        self.master_loss.consumer.detach()  # joins its thread, which takes the lock: before taking it
+        with self.lock:
+            if not self.node.has_network():
+                return
+            self.node.nmt.stop_heartbeat()
+            self.pdo.unsubscribe()
+            unsubscribe(self.network, od.SYNC_COB_ID, self._on_sync)
+            self.nmt.leave()
+
+    def boot(self) -> None:
+        """Power on: boot-up message, then pre-operational with the heartbeat of 0x1017."""
+        self.nmt.boot()
+
+    @property
+    def nmt_state(self) -> str:
+        return self.nmt.state
+
+    @property
+    def operational(self) -> bool:
+        return self.nmt.operational
 
     def power_cycle(self) -> None:
         """Power off and on: the encoder counts from 0 again where the axis stands, not homed, boot-up."""
@@ -270,10 +309,7 @@ class SimulatedDrive(NmtNode, FaultHandling, DeviceControl, Sampling):
             elif index == od.CONSUMER_HEARTBEAT_TIME:
                 self.master_loss.configure_consumer()
             elif index == od.PRODUCER_HEARTBEAT_TIME:
-                if value == 0 or self._heartbeat_silenced:
-                    self.node.nmt.stop_heartbeat()
-                else:
-                    self.node.nmt.start_heartbeat(value)
+                self.nmt.heartbeat_time_written(value)
             elif index == od.HIGH_RESOLUTION_TIME_STAMP:
                 self.time_stamps.append(value)
                 self._on_time_stamp(value)
