@@ -1,20 +1,31 @@
 """What every simulated drive shares: a canopen ``LocalNode`` that behaves as a CiA 402 drive.
 
-``SimulatedDrive`` puts together the concepts of a drive, one module each: its object dictionary as
-the drive reads and writes it (``axes/sim/node/dictionary.py``), NMT, boot-up and the heartbeat producer
-(``axes/sim/node/nmt.py``), EMCY and faults (``axes/sim/cia402/faults.py``), the reaction to a lost master
-(``axes/sim/node/master_loss.py``: the heartbeat consumer per 0x1016, then 0x6007; the heartbeats are
-the only wall-clock parts in lockstep), the DS402 power state machine driven by the controlword and the
-statusword (``axes/sim/cia402/power_states.py``), and the SYNC-driven motion clock with 1 kHz
-interpolation samples, 0x607D on every demand sample (``axes/sim/cia402/sampling.py``). Here: the drive's
-state, the SDO writes it dispatches, its resets, and the hooks through which the profile modules
-(epos2, ip_linear, sync_setpoint, parker) add their interpolation on top. The machine around the
-axis (power-up anywhere, limit switches, hard stops) and homing mode 6 on it are the drive's
-``homing`` part (``axes/sim/cia402/homing_mode.py``), for drives whose 0x6502 has mode 6.
+``SimulatedDrive`` is a node holding its parts, as python-canopen's nodes hold ``.sdo``, ``.nmt`` and
+``.pdo``; each owns its state and gets what it needs from the drive in its constructor (the drive's
+one lock among them):
+
+* ``dictionary``: its object dictionary as the drive reads and writes it, the commissioned values
+  (``axes/sim/node/dictionary.py``);
+* ``emcy``: the error objects and the EMCY producer (``axes/sim/node/emcy.py``);
+* ``nmt``: the network it is on, boot-up, the NMT commands and the heartbeat producer
+  (``axes/sim/node/nmt.py``);
+* ``pdo``: its PDOs (``axes/sim/node/pdo.py``);
+* ``master_loss``: the heartbeat consumer per 0x1016 and the reaction to a lost master per 0x6007
+  (``axes/sim/node/master_loss.py``; the heartbeats are the only wall-clock parts in lockstep);
+* ``homing``: the machine around the axis (power-up anywhere, limit switches, hard stops) and homing
+  mode 6 on it (``axes/sim/cia402/homing_mode.py``), for drives whose 0x6502 has mode 6.
+
+The CiA 402 device itself is the drive's own behaviour, one home per piece of its state: the DS402
+power state machine driven by the controlword, the statusword and the fault reaction
+(``axes/sim/cia402/power_states.py``: the power state, the faults, the halts) and the motion, the
+SYNC-driven motion clock with 1 kHz interpolation samples, 0x607D on every demand sample
+(``axes/sim/cia402/sampling.py``: the demand, its velocity and acceleration, the braking segment, the
+motion time). Here: the SDO writes the drive dispatches, its resets, and the hooks through which the
+profile modules (epos2, ip_linear, sync_setpoint, parker) add their interpolation on top.
 
 Threads: every bus callback runs in the simulated network's notifier thread; test code may call in
-from other threads, so all state is guarded by one lock, and ``changed`` is notified after each
-SYNC, write or frame (``wait_until`` waits on it).
+from other threads, so all state is guarded by one lock (the drive's), and ``changed`` is notified
+after each SYNC, write or frame (``wait_until`` waits on it).
 """
 
 from __future__ import annotations
@@ -39,15 +50,12 @@ from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import Controlword
 from pvtflow.axes.drive.config import AxisSimulation
 from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
-from pvtflow.axes.sim.cia402.faults import FaultHandling
 from pvtflow.axes.sim.cia402.homing_mode import Homing
 from pvtflow.axes.sim.cia402.power_states import (
-    SWITCH_ON_DISABLED,
     DeviceControl,
 )
-from pvtflow.axes.sim.cia402.records import FaultRecord, SyncSample
+from pvtflow.axes.sim.cia402.records import FaultRecord
 from pvtflow.axes.sim.cia402.sampling import Sampling
-from pvtflow.axes.sim.cia402.segment import Segment
 from pvtflow.axes.sim.clock import MotionClock, Quartz, check_clock
 from pvtflow.axes.sim.node.device import (
     SIMULATED_MODE,
@@ -77,7 +85,7 @@ def eds_file(name: str) -> Path:
     return path
 
 
-class SimulatedDrive(FaultHandling, DeviceControl, Sampling):
+class SimulatedDrive(DeviceControl, Sampling):
     """A CiA 402 drive on a canopen network, simulated. Subclasses add one interpolation behaviour."""
 
     PROFILE: ClassVar[str] = ""
@@ -92,7 +100,10 @@ class SimulatedDrive(FaultHandling, DeviceControl, Sampling):
     )  # 0x6098 values it runs in mode 6 (axes/sim/cia402/homing_mode.py)
     REFERENCED_BIT: ClassVar[int] = 0  # a manufacturer statusword bit that says "homed since power-on"
     HOMING: ClassVar[type[Homing]] = Homing  # where the drive places home (the EPOS2's own: epos2.py)
-    _ip_requested: bool = False  # bit 4 rose: ip mode starts on the next SYNC (profiles reset it)
+    # the profiles' (epos2.py, fixed_period.py), read here: ip mode active, asked for, since which SYNC
+    ip_active: bool = False
+    _ip_requested: bool = False
+    ip_active_sync: int | None = None
 
     def __init__(
         self,
@@ -134,19 +145,12 @@ class SimulatedDrive(FaultHandling, DeviceControl, Sampling):
         self.pdo = PdoEngine(self)
         self._internal_position = self.has(od.POSITION_ACTUAL_INTERNAL_VALUE)  # 0x6063 (the Parker's)
         # what tests look at
-        self.history: deque[SyncSample] = deque(maxlen=history_length)
         self.faults: list[FaultRecord] = []
         self.rejected_writes: list[tuple[int, int, int]] = []
         self.internal_errors: list[BaseException] = []
         self.time_stamps: deque[int] = deque(maxlen=history_length)  # 0x1013 values (us): ``_on_time_stamp``
-        self.ip_active_sync: int | None = None  # SYNC count at which interpolation last became active
-        self.sync_count = 0
         self.halts: list[int] = []  # the SYNC count at every halt (controlword bit 8) taken in OPERATION ENABLED
-        self.time_us = 0
-        # the SYNC being processed, on the motion clock: time_us in lockstep; on the wall clock its
-        # arrival, which the drive's samples may have passed already when the simulation is late
-        self.sync_time_us = 0
-        self.sample_ms = 0.0  # motion time of the sample being computed (or of the last SYNC)
+        self._power_on_motion(history_length)
         # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.drive.scaling
         self.velocity_factor = self.scaling.qc_per_ms_per_velocity_unit  # record velocity unit -> qc/ms
         self._rpm_per_qc_ms = float(self.scaling.qc_per_ms_to_rpm(1.0))
@@ -335,13 +339,8 @@ class SimulatedDrive(FaultHandling, DeviceControl, Sampling):
         encoder counts from 0 where the axis stands, not homed."""
         self.homing.power_on(getattr(self, "demand", 0.0))
         self.dictionary.power_on()
-        self.state = SWITCH_ON_DISABLED
-        self._controlword = 0
-        self._stop_segment: Segment | None = None
-        self.demand = 0.0
-        self.velocity = 0.0
-        self.acceleration = 0.0
-        self.ip_active = False
+        self._power_on_state()
+        self._reset_motion()
         self._reset_profile()
         for index, value in (
             (od.CONTROLWORD, 0),
@@ -390,7 +389,7 @@ class SimulatedDrive(FaultHandling, DeviceControl, Sampling):
         if not self._ip_mode_selected() or controlword & Controlword.HALT:
             return
         if controlword & Controlword.ENABLE_IP_MODE and not previous & Controlword.ENABLE_IP_MODE:
-            self._ip_requested = True
+            self._request_ip()
         elif (
             previous & Controlword.ENABLE_IP_MODE
             and not controlword & Controlword.ENABLE_IP_MODE
@@ -402,8 +401,7 @@ class SimulatedDrive(FaultHandling, DeviceControl, Sampling):
         """Controlword bit 4 rose in mode 6 (``homing``); a run that attained home at once stands there."""
         attained = self.homing.start(self.demand, self.time_us / 1000.0)
         if attained is not None:
-            self.demand = attained
-            self.velocity = self.acceleration = 0.0
+            self._stand_at(attained)
 
     @property
     def machine_position(self) -> float:
@@ -413,12 +411,13 @@ class SimulatedDrive(FaultHandling, DeviceControl, Sampling):
     def _enter_operation(self) -> None:
         """Operation enabled was entered: hold the present position (the demand takes the actual
         position, a whole count, as a drive's position loop does when it is enabled)."""
-        self.demand = float(self.actual)
-        self.velocity = self.acceleration = 0.0
+        self._hold_actual()
 
     def _abort_motion(self) -> None:
-        """Stop interpolating at once (fault, disable, halt, quick stop): ip mode inactive."""
-        self.ip_active = False
+        """Stop interpolating at once (fault, disable, halt, quick stop): ip mode inactive (the profiles')."""
+
+    def _request_ip(self) -> None:
+        """Bit 4 rose: ip mode starts on the next SYNC (the profiles')."""
 
     def _on_fault_reset(self) -> None:
         """A fault was reset."""

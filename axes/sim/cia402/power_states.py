@@ -1,21 +1,32 @@
-"""The DS402 power state machine of a simulated drive, driven by the controlword, and its statusword.
+"""The DS402 power state machine of a simulated drive, driven by the controlword, its statusword and
+its fault reaction.
 
 The transitions are CiA 402's (the numbers in the comments), with the EPOS2's shortcut of switch on
 and enable operation in one controlword. Leaving OPERATION ENABLED stops the motion: a quick stop
 brakes on 0x6085 (then SWITCH ON DISABLED), a halt (bit 8) on 0x6084, anything else at once. The
 statusword is the power state's bits plus voltage enabled, warning, target reached, ip mode active
 (or the homing bits in homing mode) and a manufacturer's "referenced" bit.
+
+A fault stops the axis at once (the power stage off, the demand on the actual position), or, where
+its reaction brakes first as 0x605E says, in FAULT REACTION ACTIVE until the demand is at rest. It
+sets 0x603F, 0x1001 and 0x1003 and sends its EMCY (the drive's ``emcy`` part); a fault reset
+(controlword bit 7) clears them and sends EMCY 0x0000. Tests inject errors as the drive would raise
+them (``inject_emcy``). This module is the only writer of the power state, the controlword seen, the
+halts and the faults; the motion it stops is ``sampling.py``'s.
 """
 
 from __future__ import annotations
 
+import threading
 from typing import TYPE_CHECKING, ClassVar
 
 from canopen.profiles.p402 import State402
 
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import Controlword, PowerState, Statusword
+from pvtflow.axes.sim.cia402.records import FaultRecord
 from pvtflow.axes.sim.cia402.segment import Segment
+from pvtflow.axes.sim.node.emcy import REGISTER_GENERIC, Emcy
 
 if TYPE_CHECKING:
     from pvtflow.axes.sim.cia402.homing_mode import Homing
@@ -39,12 +50,16 @@ IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
 
 
 class DeviceControl:
-    """The power state machine as part of a ``SimulatedDrive`` (which owns the state below and gives
-    it ``read_or``, the homing and fault calls and the profiles' hooks)."""
+    """The power state machine and the fault reaction as part of a ``SimulatedDrive`` (which owns the
+    state below and gives it ``read_or``, its EMCY, its homing, its motion and the profiles' hooks)."""
 
     REFERENCED_BIT: ClassVar[int]
+    lock: threading.RLock
     state: PowerState
     _controlword: int
+    faults: list[FaultRecord]
+    emcy: Emcy
+    sample_ms: float
     _stop_segment: Segment | None
     demand: float
     velocity: float
@@ -57,6 +72,18 @@ class DeviceControl:
     homing: Homing
     master_loss: MasterLossReaction
     _rpm_s_per_qc_ms2: float
+
+    def _power_on_state(self) -> None:
+        """Power-on: switch on disabled (transition 1 is automatic), no controlword yet."""
+        self.state = SWITCH_ON_DISABLED
+        self._controlword = 0
+
+    def _braked(self) -> None:
+        """The braking segment ended at rest: a quick stop disables, a fault reaction ends in FAULT."""
+        if self.state == QUICK_STOP_ACTIVE:
+            self.state = SWITCH_ON_DISABLED
+        elif self.state == FAULT_REACTION_ACTIVE:
+            self.state = FAULT  # braked to rest: the power stage goes off
 
     def _on_controlword(self, cw: int) -> None:
         previous, self._controlword = self._controlword, cw
@@ -91,11 +118,9 @@ class DeviceControl:
                     self._begin_stop(self._deceleration(quick=True))
                 else:
                     self._abort_motion()
-                    self._stop_segment = None
-                    self.velocity = self.acceleration = 0.0
+                    self._rest()
             if state == QUICK_STOP_ACTIVE:
-                self._stop_segment = None
-                self.velocity = self.acceleration = 0.0
+                self._rest()
             self.state = new
             if new == QUICK_STOP_ACTIVE and self._stop_segment is None:
                 self.state = SWITCH_ON_DISABLED  # already at rest: quick stop option code 2
@@ -115,16 +140,6 @@ class DeviceControl:
         index = quick_stop if quick and self.has(quick_stop) else od.PROFILE_DECELERATION
         rpm_s = max(self.read_or(index, 0, 10000), 1)
         return rpm_s / self._rpm_s_per_qc_ms2
-
-    def _begin_stop(self, deceleration: float) -> None:
-        v = self.velocity
-        self._abort_motion()
-        if abs(v) > 1e-12:
-            self._stop_segment = Segment.braking(self.time_us / 1000.0, self.demand, v, deceleration)
-        else:  # at rest: the demand settles on its whole count (see Segment.braking)
-            self._stop_segment = None
-            self.velocity = self.acceleration = 0.0
-            self.demand = float(round(self.demand))
 
     @property
     def braking(self) -> bool:
@@ -155,3 +170,49 @@ class DeviceControl:
         if self.homing.referenced:
             word |= self.REFERENCED_BIT
         return word
+
+    # --- the fault reaction --------------------------------------------------------------------------
+    def fault(self, code: int, check: str, data: bytes = b"", register: int = REGISTER_GENERIC) -> None:
+        """Fault reaction: the drive stops its interpolation, sends EMCY and waits in FAULT for a reset."""
+        if self.state == FAULT:
+            return
+        self.faults.append(FaultRecord(self.sync_count, self.sample_ms, code, check))
+        self._abort_motion()
+        self.homing.interrupt()
+        self._stop_at_once()  # the power stage is off: the demand follows the actual position
+        self.state = FAULT
+        self.emcy.signal_fault(code, data, register)
+
+    def fault_braking(self, code: int, check: str, data: bytes = b"", register: int = REGISTER_GENERIC) -> None:
+        """A fault whose reaction brakes first, as 0x605E says (1: profile deceleration, 2: quick stop
+        ramp; 0, or at rest: at once, as ``fault``): FAULT REACTION ACTIVE while braking, then FAULT."""
+        if self.state in (FAULT, FAULT_REACTION_ACTIVE):
+            return
+        reaction = self.read_or(od.FAULT_REACTION_OPTION_CODE, 0, od.FaultReaction.QUICK_STOP)
+        v = self.velocity
+        moving = self.state in (OPERATION_ENABLED, QUICK_STOP_ACTIVE) and abs(v) > 1e-12
+        if reaction not in (od.FaultReaction.SLOW_DOWN, od.FaultReaction.QUICK_STOP) or not moving:
+            self.fault(code, check, data, register)
+            return
+        self.faults.append(FaultRecord(self.sync_count, self.sample_ms, code, check))
+        deceleration = self._deceleration(quick=reaction == od.FaultReaction.QUICK_STOP)
+        self.state = FAULT_REACTION_ACTIVE  # before the abort: an EPOS2 empties its FIFO (app note 3.8)
+        self._abort_motion()
+        self.homing.interrupt()
+        self._brake(v, deceleration)
+        self.emcy.signal_fault(code, data, register)
+
+    def _fault_reset(self) -> None:
+        self.state = SWITCH_ON_DISABLED
+        self.emcy.clear_errors()
+        self._on_fault_reset()
+        self.emcy.send(od.EMCY_NO_ERROR, 0)
+
+    def inject_emcy(self, code: int, *, fault: bool = True, data: bytes = b"") -> None:
+        """Raise an error as the drive would: EMCY with ``code`` and, by default, the fault state."""
+        with self.lock:
+            if fault:
+                self.fault(code, "injected", data)
+            else:
+                self.emcy.send(code, data=data)
+            self._refresh()

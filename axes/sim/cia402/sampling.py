@@ -34,11 +34,7 @@ from pvtflow.axes.drive.cia402 import PowerState
 from pvtflow.axes.drive.scaling import INT32_MAX, INT32_MIN
 from pvtflow.axes.sim.cia402.homing_mode import Homing
 from pvtflow.axes.sim.cia402.power_states import (
-    FAULT,
-    FAULT_REACTION_ACTIVE,
     OPERATION_ENABLED,
-    QUICK_STOP_ACTIVE,
-    SWITCH_ON_DISABLED,
 )
 from pvtflow.axes.sim.cia402.records import SyncSample
 from pvtflow.axes.sim.cia402.segment import Segment
@@ -137,6 +133,65 @@ class Sampling:
         """Wall clock: the sample time the ticker may advance to at motion time ``now_us``."""
         return new_time_us
 
+    # --- the motion: this module alone writes the demand, its velocity and acceleration, the braking
+    # segment and the motion time; the power state machine, the homing and the profiles ask it to ---------
+    def _power_on_motion(self, history_length: int) -> None:
+        """At construction: motion time 0, no SYNC yet, the demand at 0 at rest."""
+        self.history: deque[SyncSample] = deque(maxlen=history_length)
+        self.sync_count = 0
+        self.time_us = 0
+        # the SYNC being processed, on the motion clock: time_us in lockstep; on the wall clock its
+        # arrival, which the drive's samples may have passed already when the simulation is late
+        self.sync_time_us = 0
+        self.sample_ms = 0.0  # motion time of the sample being computed (or of the last SYNC)
+        self._reset_motion()
+
+    def _reset_motion(self) -> None:
+        """Power-on (and every reset): the demand at 0 (the encoder counts from where the axis stands), at rest."""
+        self._stop_segment: Segment | None = None
+        self.demand = 0.0
+        self.velocity = 0.0
+        self.acceleration = 0.0
+
+    def _rest(self) -> None:
+        """At rest where the demand is: no braking segment, no velocity."""
+        self._stop_segment = None
+        self.velocity = self.acceleration = 0.0
+
+    def _stop_at_once(self) -> None:
+        """The power stage went off: at rest, the demand on the actual position."""
+        self._rest()
+        self.demand = float(self.actual)
+
+    def _hold_actual(self) -> None:
+        """Hold the present position: the demand takes the actual position (a whole count), at rest."""
+        self.demand = float(self.actual)
+        self.velocity = self.acceleration = 0.0
+
+    def _stand_at(self, demand: float) -> None:
+        self.demand = demand
+        self.velocity = self.acceleration = 0.0
+
+    def _jump_to(self, demand: float) -> None:
+        """The demand takes ``demand`` at once (a drive without a ramp, below its cubic threshold)."""
+        self.demand = demand
+
+    def _zero_rates(self) -> None:
+        self.velocity = self.acceleration = 0.0
+
+    def _brake(self, velocity: float, deceleration: float) -> None:
+        """Brake from ``velocity`` at ``deceleration`` (qc/ms^2) from now on (``Segment.braking``)."""
+        self._stop_segment = Segment.braking(self.time_us / 1000.0, self.demand, velocity, deceleration)
+
+    def _begin_stop(self, deceleration: float) -> None:
+        v = self.velocity
+        self._abort_motion()
+        if abs(v) > 1e-12:
+            self._brake(v, deceleration)
+        else:  # at rest: the demand settles on its whole count (see Segment.braking)
+            self._rest()
+            self.demand = float(round(self.demand))
+
     def _run_clock_to(self, new_time_us: int) -> None:
         """The motion time is ``new_time_us`` now (a SYNC, the ticker, a drive braking without SYNC)."""
         self._advance(new_time_us)
@@ -161,12 +216,8 @@ class Sampling:
                 return
             self.demand, self.velocity, self.acceleration = p, v, a
             if t >= seg.end:
-                self._stop_segment = None
-                self.velocity = self.acceleration = 0.0
-                if self.state == QUICK_STOP_ACTIVE:
-                    self.state = SWITCH_ON_DISABLED
-                elif self.state == FAULT_REACTION_ACTIVE:
-                    self.state = FAULT  # braked to rest: the power stage goes off
+                self._rest()
+                self._braked()
             return
         if self.state == OPERATION_ENABLED and self.mode_display == od.HOMING_MODE and self.homing.moves():
             self.demand, self.velocity, self.acceleration = self.homing.sample(t)

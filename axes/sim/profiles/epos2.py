@@ -217,6 +217,9 @@ class Epos2Drive(SimulatedDrive):
         if self.state != OPERATION_ENABLED or self.sticky & BUFFER_ERRORS:
             self.fifo.clear()  # app note 3.8: restart only after re-synchronisation
 
+    def _request_ip(self) -> None:
+        self._ip_requested = True
+
     def _on_fault_reset(self) -> None:
         self.sticky = BufferStatus(0)
 
@@ -287,7 +290,7 @@ class Epos2Drive(SimulatedDrive):
         self.ip_active = True
         self.ip_active_sync = self.sync_count
         self.min_level_active = self.level
-        self.velocity = self.acceleration = 0.0
+        self._zero_rates()
         self._begin(self.sync_time_us / 1000.0, self.demand, 0.0)
 
     def _begin(self, start: float, p0: float, v0: float) -> bool:

@@ -75,6 +75,9 @@ class FixedPeriodDrive(SimulatedDrive):
         self._new_setpoint = None
         self._reset_stream()
 
+    def _request_ip(self) -> None:
+        self._ip_requested = True
+
     def _activate(self) -> bool:
         """Interpolation becomes active at this SYNC (False: the configuration is refused)."""
         self.ip_active = True

@@ -111,7 +111,7 @@ class ParkerDrive(FixedPeriodDrive):
             and not self._controlword & Controlword.HALT
             and self._stop_segment is None
         ):
-            self._ip_requested = True
+            self._request_ip()
         super()._on_sync_validated()
 
     def _activate(self) -> bool:
@@ -133,7 +133,7 @@ class ParkerDrive(FixedPeriodDrive):
             if not self._judge(target) or target is None:
                 return
             self._segment = Segment(now, 0.0, float(target), 0.0, 0.0, 0.0, float(target), 0.0)
-            self.demand = float(target)
+            self._jump_to(float(target))
             self._check_dynamics((target - previous) / period, 0.0)
         elif mode is Interpolation.LINEAR:
             if target is not None:
