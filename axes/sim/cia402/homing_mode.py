@@ -399,10 +399,15 @@ class Homing:
         return None
 
     def home_found(self, home: float, m: float) -> float | None:
-        """The home position: from now on the position reads 0x607C there (None: the axis stands on
-        the reference itself; the EPOS2 places it otherwise, epos2.py)."""
-        self.origin = home - self._dictionary.read_or(od.HOME_OFFSET, 0, 0)
-        return None
+        """The reference is found at ``home`` (``m``: where the axis is): the origin moves so that the
+        home position reads as the drive defines it; where the axis goes to stand (None: on the reference)."""
+        self.origin, stand_at = self.placement(home)
+        return stand_at
+
+    def placement(self, home: float) -> tuple[float, float | None]:
+        """The origin and where the axis stands once the reference is found at ``home``: CiA 402's, the
+        position reads 0x607C on the reference itself (the EPOS2 places it otherwise, epos2.py)."""
+        return home - self._dictionary.read_or(od.HOME_OFFSET, 0, 0), None
 
     def sample(self, t: float) -> tuple[float, float, float]:
         """One step of the run at motion time ``t`` (ms): the drive's demand, velocity, acceleration."""

@@ -86,15 +86,14 @@ class ClockCheck:
 
 
 class Epos2Homing(Homing):
-    def home_found(self, home: float, m: float) -> float | None:
+    def placement(self, home: float) -> tuple[float, float | None]:
         """maxon's definitions: 0x607C (Home Offset) is the move from the reference found to the home
         position, where the position reads 0x2081 (Home Position); the axis goes there and stands."""
         read_or = self._dictionary.read_or
         method = read_or(od.HOMING_METHOD, 0, 0)
         here = method in (od.HomingMethod.CURRENT_POSITION, od.HomingMethod.CURRENT_POSITION_37)
         at = home if here else home + read_or(od.HOME_OFFSET, 0, 0)  # "actual position" does not move
-        self.origin = at - read_or(od.EPOS2_HOME_POSITION, 0, 0)
-        return at
+        return at - read_or(od.EPOS2_HOME_POSITION, 0, 0), at
 
 
 class Epos2Drive(SimulatedDrive):

@@ -170,6 +170,14 @@ class FixedPeriodDrive(SimulatedDrive):
         p0, _ = self._start_point()
         self._segment = Segment.linear(start, p0, float(target), period)
 
+    def _follow(self, segment: Segment) -> None:
+        """The demand follows ``segment`` from its start (a profile's own curve to a setpoint)."""
+        self._segment = segment
+
+    def _forget_setpoint(self) -> None:
+        """A setpoint written since the last SYNC is dropped (the drive no longer takes one)."""
+        self._new_setpoint = None
+
     def _judge(self, target: int | None) -> bool:
         """A drive without a ramp takes this SYNC's setpoint (None: holds the last): the change of its
         step against 0x60C5 (axes/sim/profiles/setpoint_judge.py; the velocity is judged where the demand

@@ -132,7 +132,7 @@ class ParkerDrive(FixedPeriodDrive):
             previous = self.demand
             if not self._judge(target) or target is None:
                 return
-            self._segment = Segment(now, 0.0, float(target), 0.0, 0.0, 0.0, float(target), 0.0)
+            self._follow(Segment(now, 0.0, float(target), 0.0, 0.0, 0.0, float(target), 0.0))
             self._jump_to(float(target))
             self._check_dynamics((target - previous) / period, 0.0)
         elif mode is Interpolation.LINEAR:
@@ -143,7 +143,7 @@ class ParkerDrive(FixedPeriodDrive):
                 p0, v0 = self._start_point()
                 rpm = self.read(od.INTERPOLATION_DATA_RECORD, 3)
                 v1 = float(self.scaling.rpm_to_qc_per_ms(rpm))
-                self._segment = Segment.cubic(now, p0, v0, float(target), v1, period)
+                self._follow(Segment.cubic(now, p0, v0, float(target), v1, period))
         else:
             self._cubic_positions(now, target, period)
 
@@ -157,10 +157,10 @@ class ParkerDrive(FixedPeriodDrive):
             del points[:-3]
             if len(points) == 3:
                 v_next = (points[2] - points[0]) / (2.0 * period)
-                self._segment = Segment.cubic(now, points[0], self._v_last, points[1], v_next, period)
+                self._follow(Segment.cubic(now, points[0], self._v_last, points[1], v_next, period))
                 self._v_last = v_next
         elif points is not None:
             if len(points) >= 2:
-                self._segment = Segment.cubic(now, points[-2], self._v_last, points[-1], 0.0, period)
+                self._follow(Segment.cubic(now, points[-2], self._v_last, points[-1], 0.0, period))
             self._points = None
             self._v_last = 0.0
