@@ -47,13 +47,11 @@ from canopen.sdo import SdoAbortedError
 from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive import objects as od
-from pvtflow.axes.drive.cia402 import Controlword
+from pvtflow.axes.drive.cia402 import Controlword, PowerState
 from pvtflow.axes.drive.config import AxisSimulation
 from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.axes.sim.cia402.homing_mode import Homing
-from pvtflow.axes.sim.cia402.power_states import (
-    DeviceControl,
-)
+from pvtflow.axes.sim.cia402.power_states import PowerStateMachine
 from pvtflow.axes.sim.cia402.records import FaultRecord
 from pvtflow.axes.sim.cia402.sampling import Sampling
 from pvtflow.axes.sim.clock import MotionClock, Quartz, check_clock
@@ -66,7 +64,7 @@ from pvtflow.axes.sim.node.device import (
     identity_values,
 )
 from pvtflow.axes.sim.node.dictionary import ABORT_GENERAL, ABORT_VALUE_RANGE, DriveDictionary
-from pvtflow.axes.sim.node.emcy import ERROR_REGISTER, Emcy
+from pvtflow.axes.sim.node.emcy import ERROR_REGISTER, REGISTER_GENERIC, Emcy
 from pvtflow.axes.sim.node.master_loss import MasterLossReaction
 from pvtflow.axes.sim.node.nmt import Nmt
 from pvtflow.axes.sim.node.pdo import PdoEngine, is_pdo_object
@@ -85,7 +83,7 @@ def eds_file(name: str) -> Path:
     return path
 
 
-class SimulatedDrive(DeviceControl, Sampling):
+class SimulatedDrive(Sampling):
     """A CiA 402 drive on a canopen network, simulated. Subclasses add one interpolation behaviour."""
 
     PROFILE: ClassVar[str] = ""
@@ -145,11 +143,9 @@ class SimulatedDrive(DeviceControl, Sampling):
         self.pdo = PdoEngine(self)
         self._internal_position = self.has(od.POSITION_ACTUAL_INTERNAL_VALUE)  # 0x6063 (the Parker's)
         # what tests look at
-        self.faults: list[FaultRecord] = []
         self.rejected_writes: list[tuple[int, int, int]] = []
         self.internal_errors: list[BaseException] = []
         self.time_stamps: deque[int] = deque(maxlen=history_length)  # 0x1013 values (us): ``_on_time_stamp``
-        self.halts: list[int] = []  # the SYNC count at every halt (controlword bit 8) taken in OPERATION ENABLED
         self._power_on_motion(history_length)
         # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.drive.scaling
         self.velocity_factor = self.scaling.qc_per_ms_per_velocity_unit  # record velocity unit -> qc/ms
@@ -159,6 +155,7 @@ class SimulatedDrive(DeviceControl, Sampling):
         self._rpm_s_per_qc_ms2 = float(self.scaling.qc_per_ms2_to_rpm_s(1.0))
         # the machine: where the encoder's 0 is (the machine position = demand + origin; an incremental
         # encoder counts from 0 wherever the axis stands at power-on), switches, index pulse, hard stops
+        self.power = PowerStateMachine(self, rpm_s_per_qc_ms2=self._rpm_s_per_qc_ms2)
         self.master_loss = MasterLossReaction(
             self, heartbeat_error_faults=self.HEARTBEAT_ERROR_FAULTS, rpm_per_qc_ms=self._rpm_per_qc_ms
         )
@@ -244,6 +241,44 @@ class SimulatedDrive(DeviceControl, Sampling):
     def operational(self) -> bool:
         return self.nmt.operational
 
+    # --- the power state machine and the fault reaction (``power``) ---------------------------------
+    @property
+    def state(self) -> PowerState:
+        return self.power.state
+
+    @property
+    def faults(self) -> list[FaultRecord]:
+        return self.power.faults
+
+    @property
+    def halts(self) -> list[int]:
+        return self.power.halts
+
+    @property
+    def halted(self) -> bool:
+        return self.power.halted
+
+    def statusword(self) -> int:
+        return self.power.statusword()
+
+    def fault(self, code: int, check: str, data: bytes = b"", register: int = REGISTER_GENERIC) -> None:
+        self.power.fault(code, check, data, register)
+
+    def fault_braking(self, code: int, check: str, data: bytes = b"", register: int = REGISTER_GENERIC) -> None:
+        self.power.fault_braking(code, check, data, register)
+
+    def _on_controlword(self, cw: int) -> None:
+        self.power.on_controlword(cw)
+
+    def inject_emcy(self, code: int, *, fault: bool = True, data: bytes = b"") -> None:
+        """Raise an error as the drive would: EMCY with ``code`` and, by default, the fault state."""
+        with self.lock:
+            if fault:
+                self.power.fault(code, "injected", data)
+            else:
+                self.emcy.send(code, data=data)
+            self._refresh()
+
     def power_cycle(self) -> None:
         """Power off and on: the encoder counts from 0 again where the axis stands, not homed, boot-up."""
         with self.lock:
@@ -318,7 +353,7 @@ class SimulatedDrive(DeviceControl, Sampling):
                 self.time_stamps.append(value)
                 self._on_time_stamp(value)
             elif index == od.CONTROLWORD:
-                self._on_controlword(value)
+                self.power.on_controlword(value)
             elif index == od.MODES_OF_OPERATION:
                 old = self.read(od.MODES_OF_OPERATION_DISPLAY)
                 self.store(od.MODES_OF_OPERATION_DISPLAY, 0, value)
@@ -326,7 +361,7 @@ class SimulatedDrive(DeviceControl, Sampling):
                 if old != value:
                     if old == od.HOMING_MODE and self.homing.run is not None:
                         self.homing.interrupt()
-                        self._begin_stop(self._deceleration(quick=False))
+                        self._begin_stop(self.power.deceleration(quick=False))
                     self._on_mode_change(old, value)
             else:
                 self._on_object_write(index, subindex, value)
@@ -339,7 +374,7 @@ class SimulatedDrive(DeviceControl, Sampling):
         encoder counts from 0 where the axis stands, not homed."""
         self.homing.power_on(getattr(self, "demand", 0.0))
         self.dictionary.power_on()
-        self._power_on_state()
+        self.power.power_on()
         self._reset_motion()
         self._reset_profile()
         for index, value in (
@@ -382,7 +417,7 @@ class SimulatedDrive(DeviceControl, Sampling):
                 if running:
                     self.homing.interrupt()
                     if not controlword & Controlword.HALT:  # bit 4 low: brake as a halt would (halt already does)
-                        self._begin_stop(self._deceleration(quick=False))
+                        self._begin_stop(self.power.deceleration(quick=False))
             elif not previous & Controlword.HOMING_START:
                 self._start_homing()
             return
@@ -395,7 +430,7 @@ class SimulatedDrive(DeviceControl, Sampling):
             and not controlword & Controlword.ENABLE_IP_MODE
             and (self.ip_active or self._ip_requested)
         ):
-            self._begin_stop(self._deceleration(quick=False))
+            self._begin_stop(self.power.deceleration(quick=False))
 
     def _start_homing(self) -> None:
         """Controlword bit 4 rose in mode 6 (``homing``); a run that attained home at once stands there."""

@@ -17,15 +17,14 @@ halts and the faults; the motion it stops is ``sampling.py``'s.
 
 from __future__ import annotations
 
-import threading
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Protocol
 
 from canopen.profiles.p402 import State402
 
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import Controlword, PowerState, Statusword
 from pvtflow.axes.sim.cia402.records import FaultRecord
-from pvtflow.axes.sim.cia402.segment import Segment
+from pvtflow.axes.sim.node.dictionary import DriveDictionary
 from pvtflow.axes.sim.node.emcy import REGISTER_GENERIC, Emcy
 
 if TYPE_CHECKING:
@@ -49,44 +48,74 @@ TARGET_REACHED = int(Statusword.TARGET_REACHED)
 IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
 
 
-class DeviceControl:
-    """The power state machine and the fault reaction as part of a ``SimulatedDrive`` (which owns the
-    state below and gives it ``read_or``, its EMCY, its homing, its motion and the profiles' hooks)."""
+class PowerHost(Protocol):
+    """What the power state machine needs of its drive (a ``SimulatedDrive``): its dictionary, EMCY,
+    homing and lost-master reaction, what its statusword shows, and its motion and profile hooks,
+    which it asks to stop, brake or hold (the motion is ``sampling.py``'s)."""
 
-    REFERENCED_BIT: ClassVar[int]
-    lock: threading.RLock
-    state: PowerState
-    _controlword: int
-    faults: list[FaultRecord]
+    REFERENCED_BIT: int
+    dictionary: DriveDictionary
     emcy: Emcy
-    sample_ms: float
-    _stop_segment: Segment | None
-    demand: float
-    velocity: float
-    acceleration: float
-    time_us: int
-    sync_count: int
-    halts: list[int]
-    mode_display: int
-    ip_active: bool
     homing: Homing
     master_loss: MasterLossReaction
-    _rpm_s_per_qc_ms2: float
+    mode_display: int
+    ip_active: bool
+    velocity: float
+    sync_count: int
+    sample_ms: float
 
-    def _power_on_state(self) -> None:
+    @property
+    def braking(self) -> bool: ...
+
+    def _abort_motion(self) -> None: ...
+
+    def _rest(self) -> None: ...
+
+    def _stop_at_once(self) -> None: ...
+
+    def _brake(self, velocity: float, deceleration: float) -> None: ...
+
+    def _begin_stop(self, deceleration: float) -> None: ...
+
+    def _enter_operation(self) -> None: ...
+
+    def _on_mode_bits(self, previous: int, controlword: int) -> None: ...
+
+    def _on_fault_reset(self) -> None: ...
+
+    def _warning(self) -> bool: ...
+
+    def _target_reached(self) -> bool: ...
+
+
+class PowerStateMachine:
+    """The power state machine, its statusword and the fault reaction, a part of a ``SimulatedDrive``
+    (given as ``drive``; called under the drive's lock). It owns the power state, the controlword it
+    was last given, the halts and the faults."""
+
+    def __init__(self, drive: PowerHost, *, rpm_s_per_qc_ms2: float) -> None:
+        self._drive = drive
+        self._rpm_s_per_qc_ms2 = rpm_s_per_qc_ms2
+        self.state = SWITCH_ON_DISABLED
+        self.controlword = 0
+        self.halts: list[int] = []  # the SYNC count at every halt (controlword bit 8) taken in OPERATION ENABLED
+        self.faults: list[FaultRecord] = []
+
+    def power_on(self) -> None:
         """Power-on: switch on disabled (transition 1 is automatic), no controlword yet."""
         self.state = SWITCH_ON_DISABLED
-        self._controlword = 0
+        self.controlword = 0
 
-    def _braked(self) -> None:
+    def braked(self) -> None:
         """The braking segment ended at rest: a quick stop disables, a fault reaction ends in FAULT."""
         if self.state == QUICK_STOP_ACTIVE:
             self.state = SWITCH_ON_DISABLED
         elif self.state == FAULT_REACTION_ACTIVE:
             self.state = FAULT  # braked to rest: the power stage goes off
 
-    def _on_controlword(self, cw: int) -> None:
-        previous, self._controlword = self._controlword, cw
+    def on_controlword(self, cw: int) -> None:
+        d = self._drive
+        previous, self.controlword = self.controlword, cw
         state = self.state
         if state == FAULT:
             if cw & Controlword.FAULT_RESET and not previous & Controlword.FAULT_RESET:
@@ -113,62 +142,59 @@ class DeviceControl:
             new = OPERATION_ENABLED  # 4, 16 (and 3 + 4 at once, as the EPOS2 accepts)
         if new != state:
             if state == OPERATION_ENABLED:
-                self.homing.interrupt()
+                d.homing.interrupt()
                 if new == QUICK_STOP_ACTIVE:
-                    self._begin_stop(self._deceleration(quick=True))
+                    d._begin_stop(self.deceleration(quick=True))
                 else:
-                    self._abort_motion()
-                    self._rest()
+                    d._abort_motion()
+                    d._rest()
             if state == QUICK_STOP_ACTIVE:
-                self._rest()
+                d._rest()
             self.state = new
-            if new == QUICK_STOP_ACTIVE and self._stop_segment is None:
+            if new == QUICK_STOP_ACTIVE and not d.braking:
                 self.state = SWITCH_ON_DISABLED  # already at rest: quick stop option code 2
             elif new == QUICK_STOP_ACTIVE:
-                self.master_loss.brake_on_own_clock()
+                d.master_loss.brake_on_own_clock()
             if new == OPERATION_ENABLED:
-                self._enter_operation()
+                d._enter_operation()
         if self.state == OPERATION_ENABLED:
             if cw & Controlword.HALT and not previous & Controlword.HALT:
-                self.halts.append(self.sync_count)
-                self._begin_stop(self._deceleration(quick=False))
-            self._on_mode_bits(previous, cw)
+                self.halts.append(d.sync_count)
+                d._begin_stop(self.deceleration(quick=False))
+            d._on_mode_bits(previous, cw)
 
-    def _deceleration(self, quick: bool) -> float:
+    def deceleration(self, quick: bool) -> float:
         """Halt: profile deceleration 0x6084; quick stop: 0x6085 where the drive has it. In qc/ms^2."""
+        dictionary = self._drive.dictionary
         quick_stop = od.QUICK_STOP_DECELERATION
-        index = quick_stop if quick and self.has(quick_stop) else od.PROFILE_DECELERATION
-        rpm_s = max(self.read_or(index, 0, 10000), 1)
+        index = quick_stop if quick and dictionary.has(quick_stop) else od.PROFILE_DECELERATION
+        rpm_s = max(dictionary.read_or(index, 0, 10000), 1)
         return rpm_s / self._rpm_s_per_qc_ms2
-
-    @property
-    def braking(self) -> bool:
-        """The drive brakes on its own (a halt, a quick stop, a fault reaction): until the demand is at rest."""
-        return self._stop_segment is not None
 
     @property
     def halted(self) -> bool:
         """Halt is set now (the master clears it again when it readies the drive for the next run:
         ``halts`` tells whether a run was halted)."""
-        return bool(self._controlword & Controlword.HALT)
+        return bool(self.controlword & Controlword.HALT)
 
     def statusword(self) -> int:
+        d = self._drive
         _mask, value = State402.SW_MASK[self.state]
         word = value
         if self.state in (READY_TO_SWITCH_ON, SWITCHED_ON, OPERATION_ENABLED, QUICK_STOP_ACTIVE):
             word |= VOLTAGE_ENABLED
-        if self._warning():
+        if d._warning():
             word |= WARNING
-        if self.mode_display == od.HOMING_MODE:
-            rest = self.state == OPERATION_ENABLED and self._stop_segment is None and abs(self.velocity) <= 1e-12
-            word |= self.homing.status(rest)
+        if d.mode_display == od.HOMING_MODE:
+            rest = self.state == OPERATION_ENABLED and not d.braking and abs(d.velocity) <= 1e-12
+            word |= d.homing.status(rest)
         else:
-            if self.state == OPERATION_ENABLED and self._stop_segment is None and self._target_reached():
+            if self.state == OPERATION_ENABLED and not d.braking and d._target_reached():
                 word |= TARGET_REACHED
-            if self.ip_active:
+            if d.ip_active:
                 word |= IP_MODE_ACTIVE
-        if self.homing.referenced:
-            word |= self.REFERENCED_BIT
+        if d.homing.referenced:
+            word |= d.REFERENCED_BIT
         return word
 
     # --- the fault reaction --------------------------------------------------------------------------
@@ -176,43 +202,36 @@ class DeviceControl:
         """Fault reaction: the drive stops its interpolation, sends EMCY and waits in FAULT for a reset."""
         if self.state == FAULT:
             return
-        self.faults.append(FaultRecord(self.sync_count, self.sample_ms, code, check))
-        self._abort_motion()
-        self.homing.interrupt()
-        self._stop_at_once()  # the power stage is off: the demand follows the actual position
+        d = self._drive
+        self.faults.append(FaultRecord(d.sync_count, d.sample_ms, code, check))
+        d._abort_motion()
+        d.homing.interrupt()
+        d._stop_at_once()  # the power stage is off: the demand follows the actual position
         self.state = FAULT
-        self.emcy.signal_fault(code, data, register)
+        d.emcy.signal_fault(code, data, register)
 
     def fault_braking(self, code: int, check: str, data: bytes = b"", register: int = REGISTER_GENERIC) -> None:
         """A fault whose reaction brakes first, as 0x605E says (1: profile deceleration, 2: quick stop
         ramp; 0, or at rest: at once, as ``fault``): FAULT REACTION ACTIVE while braking, then FAULT."""
         if self.state in (FAULT, FAULT_REACTION_ACTIVE):
             return
-        reaction = self.read_or(od.FAULT_REACTION_OPTION_CODE, 0, od.FaultReaction.QUICK_STOP)
-        v = self.velocity
+        d = self._drive
+        reaction = d.dictionary.read_or(od.FAULT_REACTION_OPTION_CODE, 0, od.FaultReaction.QUICK_STOP)
+        v = d.velocity
         moving = self.state in (OPERATION_ENABLED, QUICK_STOP_ACTIVE) and abs(v) > 1e-12
         if reaction not in (od.FaultReaction.SLOW_DOWN, od.FaultReaction.QUICK_STOP) or not moving:
             self.fault(code, check, data, register)
             return
-        self.faults.append(FaultRecord(self.sync_count, self.sample_ms, code, check))
-        deceleration = self._deceleration(quick=reaction == od.FaultReaction.QUICK_STOP)
+        self.faults.append(FaultRecord(d.sync_count, d.sample_ms, code, check))
+        deceleration = self.deceleration(quick=reaction == od.FaultReaction.QUICK_STOP)
         self.state = FAULT_REACTION_ACTIVE  # before the abort: an EPOS2 empties its FIFO (app note 3.8)
-        self._abort_motion()
-        self.homing.interrupt()
-        self._brake(v, deceleration)
-        self.emcy.signal_fault(code, data, register)
+        d._abort_motion()
+        d.homing.interrupt()
+        d._brake(v, deceleration)
+        d.emcy.signal_fault(code, data, register)
 
     def _fault_reset(self) -> None:
         self.state = SWITCH_ON_DISABLED
-        self.emcy.clear_errors()
-        self._on_fault_reset()
-        self.emcy.send(od.EMCY_NO_ERROR, 0)
-
-    def inject_emcy(self, code: int, *, fault: bool = True, data: bytes = b"") -> None:
-        """Raise an error as the drive would: EMCY with ``code`` and, by default, the fault state."""
-        with self.lock:
-            if fault:
-                self.fault(code, "injected", data)
-            else:
-                self.emcy.send(code, data=data)
-            self._refresh()
+        self._drive.emcy.clear_errors()
+        self._drive._on_fault_reset()
+        self._drive.emcy.send(od.EMCY_NO_ERROR, 0)

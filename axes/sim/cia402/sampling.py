@@ -153,6 +153,11 @@ class Sampling:
         self.velocity = 0.0
         self.acceleration = 0.0
 
+    @property
+    def braking(self) -> bool:
+        """The drive brakes on its own (a halt, a quick stop, a fault reaction): until the demand is at rest."""
+        return self._stop_segment is not None
+
     def _rest(self) -> None:
         """At rest where the demand is: no braking segment, no velocity."""
         self._stop_segment = None
@@ -217,7 +222,7 @@ class Sampling:
             self.demand, self.velocity, self.acceleration = p, v, a
             if t >= seg.end:
                 self._rest()
-                self._braked()
+                self.power.braked()
             return
         if self.state == OPERATION_ENABLED and self.mode_display == od.HOMING_MODE and self.homing.moves():
             self.demand, self.velocity, self.acceleration = self.homing.sample(t)

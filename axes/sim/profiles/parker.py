@@ -32,7 +32,6 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from pvtflow.axes.drive import objects as od
-from pvtflow.axes.drive.cia402 import Controlword
 from pvtflow.axes.drive.drive_profile import DriveProfile
 from pvtflow.axes.drive.interpolation import Interpolation
 from pvtflow.axes.sim.cia402.power_states import OPERATION_ENABLED
@@ -108,7 +107,7 @@ class ParkerDrive(FixedPeriodDrive):
             self.state == OPERATION_ENABLED
             and not self.ip_active
             and self._ip_mode_selected()
-            and not self._controlword & Controlword.HALT
+            and not self.power.halted
             and self._stop_segment is None
         ):
             self._request_ip()
