@@ -49,11 +49,11 @@ from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive import objects as od
 from pvtflow.axes.drive.cia402 import Controlword, PowerState
 from pvtflow.axes.drive.config import AxisSimulation
-from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
+from pvtflow.axes.drive.scaling import INT32_MAX, INT32_MIN, AxisScaling, DriveLimits
 from pvtflow.axes.sim.cia402.homing_mode import Homing
 from pvtflow.axes.sim.cia402.power_states import PowerStateMachine
-from pvtflow.axes.sim.cia402.records import FaultRecord
-from pvtflow.axes.sim.cia402.sampling import Sampling
+from pvtflow.axes.sim.cia402.records import FaultRecord, SyncSample
+from pvtflow.axes.sim.cia402.sampling import Motion
 from pvtflow.axes.sim.clock import MotionClock, Quartz, check_clock
 from pvtflow.axes.sim.node.device import (
     SIMULATED_MODE,
@@ -83,7 +83,7 @@ def eds_file(name: str) -> Path:
     return path
 
 
-class SimulatedDrive(Sampling):
+class SimulatedDrive:
     """A CiA 402 drive on a canopen network, simulated. Subclasses add one interpolation behaviour."""
 
     PROFILE: ClassVar[str] = ""
@@ -146,7 +146,7 @@ class SimulatedDrive(Sampling):
         self.rejected_writes: list[tuple[int, int, int]] = []
         self.internal_errors: list[BaseException] = []
         self.time_stamps: deque[int] = deque(maxlen=history_length)  # 0x1013 values (us): ``_on_time_stamp``
-        self._power_on_motion(history_length)
+        self.motion = Motion(self, sync_period_us=self.sync_period_us, history_length=history_length)
         # the factor of DESIGN section 4 and the rpm / rpm/s conversions, from axes.drive.scaling
         self.velocity_factor = self.scaling.qc_per_ms_per_velocity_unit  # record velocity unit -> qc/ms
         self._rpm_per_qc_ms = float(self.scaling.qc_per_ms_to_rpm(1.0))
@@ -216,7 +216,7 @@ class SimulatedDrive(Sampling):
         if self.clock is Clock.WALL:
             with self.lock:
                 self.motion_clock = MotionClock(self.quartz, float(self.time_us), time.monotonic())
-        subscribe(network, od.SYNC_COB_ID, self._on_sync)
+        subscribe(network, od.SYNC_COB_ID, self.motion.on_sync)
         self.master_loss.consumer.attach(network)
 
     def detach(self) -> None:
@@ -226,7 +226,7 @@ class SimulatedDrive(Sampling):
                 return
             self.node.nmt.stop_heartbeat()
             self.pdo.unsubscribe()
-            unsubscribe(self.network, od.SYNC_COB_ID, self._on_sync)
+            unsubscribe(self.network, od.SYNC_COB_ID, self.motion.on_sync)
             self.nmt.leave()
 
     def boot(self) -> None:
@@ -240,6 +240,65 @@ class SimulatedDrive(Sampling):
     @property
     def operational(self) -> bool:
         return self.nmt.operational
+
+    # --- the motion (``motion``) ----------------------------------------------------------------------
+    @property
+    def demand(self) -> float:
+        return self.motion.demand
+
+    @demand.setter
+    def demand(self, value: float) -> None:
+        """The axis moved by hand (a test pushes it): the demand takes ``value`` at once."""
+        self.motion.jump_to(value)
+
+    @property
+    def velocity(self) -> float:
+        return self.motion.velocity
+
+    @property
+    def acceleration(self) -> float:
+        return self.motion.acceleration
+
+    @property
+    def actual(self) -> int:
+        return self.motion.actual
+
+    @property
+    def time_us(self) -> int:
+        return self.motion.time_us
+
+    @property
+    def sync_time_us(self) -> int:
+        return self.motion.sync_time_us
+
+    @property
+    def sample_ms(self) -> float:
+        return self.motion.sample_ms
+
+    @property
+    def sync_count(self) -> int:
+        return self.motion.sync_count
+
+    @property
+    def history(self) -> deque[SyncSample]:
+        return self.motion.history
+
+    def run_to(self, mono: float) -> None:
+        """Wall clock (the cell's ``Ticker``): sample the drive's own time up to ``mono`` (``Motion.run_to``)."""
+        self.motion.run_to(mono)
+
+    def _refresh(self, events: bool = True) -> None:
+        """Publish the drive's state in its object dictionary (and send event TPDOs on change)."""
+        self.publish(od.STATUSWORD, 0, self.power.statusword())
+        demand = min(max(round(self.motion.demand), INT32_MIN), INT32_MAX)
+        self.publish(od.POSITION_DEMAND_VALUE, 0, demand)
+        actual = min(max(self.motion.actual, INT32_MIN), INT32_MAX)
+        self.publish(od.POSITION_ACTUAL_VALUE, 0, actual)
+        if self._internal_position:  # no factor group: the same increments
+            self.publish(od.POSITION_ACTUAL_INTERNAL_VALUE, 0, actual)
+        self._publish()
+        if events and self.operational:
+            self.pdo.transmit_events()
 
     # --- the power state machine and the fault reaction (``power``) ---------------------------------
     @property
@@ -361,7 +420,7 @@ class SimulatedDrive(Sampling):
                 if old != value:
                     if old == od.HOMING_MODE and self.homing.run is not None:
                         self.homing.interrupt()
-                        self._begin_stop(self.power.deceleration(quick=False))
+                        self.motion.begin_stop(self.power.deceleration(quick=False))
                     self._on_mode_change(old, value)
             else:
                 self._on_object_write(index, subindex, value)
@@ -375,7 +434,7 @@ class SimulatedDrive(Sampling):
         self.homing.power_on(getattr(self, "demand", 0.0))
         self.dictionary.power_on()
         self.power.power_on()
-        self._reset_motion()
+        self.motion.reset()
         self._reset_profile()
         for index, value in (
             (od.CONTROLWORD, 0),
@@ -417,7 +476,7 @@ class SimulatedDrive(Sampling):
                 if running:
                     self.homing.interrupt()
                     if not controlword & Controlword.HALT:  # bit 4 low: brake as a halt would (halt already does)
-                        self._begin_stop(self.power.deceleration(quick=False))
+                        self.motion.begin_stop(self.power.deceleration(quick=False))
             elif not previous & Controlword.HOMING_START:
                 self._start_homing()
             return
@@ -430,13 +489,13 @@ class SimulatedDrive(Sampling):
             and not controlword & Controlword.ENABLE_IP_MODE
             and (self.ip_active or self._ip_requested)
         ):
-            self._begin_stop(self.power.deceleration(quick=False))
+            self.motion.begin_stop(self.power.deceleration(quick=False))
 
     def _start_homing(self) -> None:
         """Controlword bit 4 rose in mode 6 (``homing``); a run that attained home at once stands there."""
         attained = self.homing.start(self.demand, self.time_us / 1000.0)
         if attained is not None:
-            self._stand_at(attained)
+            self.motion.stand_at(attained)
 
     @property
     def machine_position(self) -> float:
@@ -446,7 +505,7 @@ class SimulatedDrive(Sampling):
     def _enter_operation(self) -> None:
         """Operation enabled was entered: hold the present position (the demand takes the actual
         position, a whole count, as a drive's position loop does when it is enabled)."""
-        self._hold_actual()
+        self.motion.hold_actual()
 
     def _abort_motion(self) -> None:
         """Stop interpolating at once (fault, disable, halt, quick stop): ip mode inactive (the profiles')."""
@@ -466,6 +525,20 @@ class SimulatedDrive(Sampling):
     def _on_sync_clock(self, instant_us: float, mono: float) -> None:
         """Wall clock: a SYNC arrived at ``mono`` (a ``time.monotonic()``), ``instant_us`` on the motion
         clock (called after ``_on_sync_validated``)."""
+
+    def _sync_instant(self, latched_us: float, mono: float) -> float:
+        """Wall clock: the motion time at which a SYNC latched at ``latched_us`` takes effect (the
+        fixed-period drives: their locked cycle, axes/sim/profiles/sync_lock.py)."""
+        return latched_us
+
+    def _sample_horizon(self, new_time_us: int, now_us: float) -> int:
+        """Wall clock: the sample time the ticker may advance to at motion time ``now_us``."""
+        return new_time_us
+
+    def _check_dynamics(self, v: float, a: float) -> None:
+        """Default sanity check on every whole-ms sample: 0x607F bounds the demand velocity (fault)."""
+        if abs(v) * self._units_per_qc_ms > self.read_or(od.MAX_PROFILE_VELOCITY, 0, 2**32 - 1):
+            self.power.fault(self.EMCY_VELOCITY, "max profile velocity 0x607F")
 
     def _motion_at(self, t: float) -> tuple[float, float, float] | None:
         """The interpolation's (position, velocity, acceleration) at motion time t; None: hold."""

@@ -48,6 +48,25 @@ TARGET_REACHED = int(Statusword.TARGET_REACHED)
 IP_MODE_ACTIVE = int(Statusword.IP_MODE_ACTIVE)
 
 
+class MotionControl(Protocol):
+    """What the power state machine asks of the drive's motion (``sampling.Motion``)."""
+
+    velocity: float
+    sync_count: int
+    sample_ms: float
+
+    @property
+    def braking(self) -> bool: ...
+
+    def rest(self) -> None: ...
+
+    def stop_at_once(self) -> None: ...
+
+    def brake(self, velocity: float, deceleration: float) -> None: ...
+
+    def begin_stop(self, deceleration: float) -> None: ...
+
+
 class PowerHost(Protocol):
     """What the power state machine needs of its drive (a ``SimulatedDrive``): its dictionary, EMCY,
     homing and lost-master reaction, what its statusword shows, and its motion and profile hooks,
@@ -58,24 +77,11 @@ class PowerHost(Protocol):
     emcy: Emcy
     homing: Homing
     master_loss: MasterLossReaction
+    motion: MotionControl
     mode_display: int
     ip_active: bool
-    velocity: float
-    sync_count: int
-    sample_ms: float
-
-    @property
-    def braking(self) -> bool: ...
 
     def _abort_motion(self) -> None: ...
-
-    def _rest(self) -> None: ...
-
-    def _stop_at_once(self) -> None: ...
-
-    def _brake(self, velocity: float, deceleration: float) -> None: ...
-
-    def _begin_stop(self, deceleration: float) -> None: ...
 
     def _enter_operation(self) -> None: ...
 
@@ -144,14 +150,14 @@ class PowerStateMachine:
             if state == OPERATION_ENABLED:
                 d.homing.interrupt()
                 if new == QUICK_STOP_ACTIVE:
-                    d._begin_stop(self.deceleration(quick=True))
+                    d.motion.begin_stop(self.deceleration(quick=True))
                 else:
                     d._abort_motion()
-                    d._rest()
+                    d.motion.rest()
             if state == QUICK_STOP_ACTIVE:
-                d._rest()
+                d.motion.rest()
             self.state = new
-            if new == QUICK_STOP_ACTIVE and not d.braking:
+            if new == QUICK_STOP_ACTIVE and not d.motion.braking:
                 self.state = SWITCH_ON_DISABLED  # already at rest: quick stop option code 2
             elif new == QUICK_STOP_ACTIVE:
                 d.master_loss.brake_on_own_clock()
@@ -159,8 +165,8 @@ class PowerStateMachine:
                 d._enter_operation()
         if self.state == OPERATION_ENABLED:
             if cw & Controlword.HALT and not previous & Controlword.HALT:
-                self.halts.append(d.sync_count)
-                d._begin_stop(self.deceleration(quick=False))
+                self.halts.append(d.motion.sync_count)
+                d.motion.begin_stop(self.deceleration(quick=False))
             d._on_mode_bits(previous, cw)
 
     def deceleration(self, quick: bool) -> float:
@@ -186,10 +192,10 @@ class PowerStateMachine:
         if d._warning():
             word |= WARNING
         if d.mode_display == od.HOMING_MODE:
-            rest = self.state == OPERATION_ENABLED and not d.braking and abs(d.velocity) <= 1e-12
+            rest = self.state == OPERATION_ENABLED and not d.motion.braking and abs(d.motion.velocity) <= 1e-12
             word |= d.homing.status(rest)
         else:
-            if self.state == OPERATION_ENABLED and not d.braking and d._target_reached():
+            if self.state == OPERATION_ENABLED and not d.motion.braking and d._target_reached():
                 word |= TARGET_REACHED
             if d.ip_active:
                 word |= IP_MODE_ACTIVE
@@ -203,10 +209,10 @@ class PowerStateMachine:
         if self.state == FAULT:
             return
         d = self._drive
-        self.faults.append(FaultRecord(d.sync_count, d.sample_ms, code, check))
+        self.faults.append(FaultRecord(d.motion.sync_count, d.motion.sample_ms, code, check))
         d._abort_motion()
         d.homing.interrupt()
-        d._stop_at_once()  # the power stage is off: the demand follows the actual position
+        d.motion.stop_at_once()  # the power stage is off: the demand follows the actual position
         self.state = FAULT
         d.emcy.signal_fault(code, data, register)
 
@@ -217,17 +223,17 @@ class PowerStateMachine:
             return
         d = self._drive
         reaction = d.dictionary.read_or(od.FAULT_REACTION_OPTION_CODE, 0, od.FaultReaction.QUICK_STOP)
-        v = d.velocity
+        v = d.motion.velocity
         moving = self.state in (OPERATION_ENABLED, QUICK_STOP_ACTIVE) and abs(v) > 1e-12
         if reaction not in (od.FaultReaction.SLOW_DOWN, od.FaultReaction.QUICK_STOP) or not moving:
             self.fault(code, check, data, register)
             return
-        self.faults.append(FaultRecord(d.sync_count, d.sample_ms, code, check))
+        self.faults.append(FaultRecord(d.motion.sync_count, d.motion.sample_ms, code, check))
         deceleration = self.deceleration(quick=reaction == od.FaultReaction.QUICK_STOP)
         self.state = FAULT_REACTION_ACTIVE  # before the abort: an EPOS2 empties its FIFO (app note 3.8)
         d._abort_motion()
         d.homing.interrupt()
-        d._brake(v, deceleration)
+        d.motion.brake(v, deceleration)
         d.emcy.signal_fault(code, data, register)
 
     def _fault_reset(self) -> None:

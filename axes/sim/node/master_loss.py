@@ -32,6 +32,19 @@ from pvtflow.axes.sim.node.dictionary import ABORT_PARAMETER_INCOMPATIBLE, Drive
 from pvtflow.axes.sim.node.emcy import EMCY_COMMUNICATION, REGISTER_COMMUNICATION, REGISTER_GENERIC, Emcy
 
 
+class MotionClockRun(Protocol):
+    """What the reaction asks of the drive's motion (``sampling.Motion``): where it is, and to run on."""
+
+    velocity: float
+    sync_count: int
+    time_us: int
+
+    @property
+    def braking(self) -> bool: ...
+
+    def run_clock_to(self, new_time_us: int) -> None: ...
+
+
 class MasterLossHost(Protocol):
     """What the reaction needs of its drive (a ``SimulatedDrive``: the reaction does not know the class):
     its node, dictionary and EMCY, its power state and motion, the fault and controlword paths, and
@@ -41,21 +54,14 @@ class MasterLossHost(Protocol):
     dictionary: DriveDictionary
     emcy: Emcy
     state: PowerState
-    velocity: float
-    sync_count: int
-    time_us: int
+    motion: MotionClockRun
     motion_clock: MotionClock | None
-
-    @property
-    def braking(self) -> bool: ...
 
     def fault_braking(self, code: int, check: str, data: bytes = b"", register: int = REGISTER_GENERIC) -> None: ...
 
     def _on_controlword(self, cw: int) -> None: ...
 
     def _refresh(self, events: bool = True) -> None: ...
-
-    def _run_clock_to(self, new_time_us: int) -> None: ...
 
     def _in_own_thread(self, action: Callable[[], None]) -> None: ...
 
@@ -118,7 +124,7 @@ class MasterLossReaction:
                 self.consumer.last_heard.get(node_id),
                 option,
                 d.state.value,
-                d.velocity * self._rpm_per_qc_ms,
+                d.motion.velocity * self._rpm_per_qc_ms,
             )
             self.losses.append(loss)
             register = REGISTER_GENERIC | REGISTER_COMMUNICATION
@@ -134,13 +140,13 @@ class MasterLossReaction:
                 elif option == od.AbortConnectionOption.QUICK_STOP:
                     d._on_controlword(0x0002)  # the quick stop command
             d._refresh()
-            self._tick_at, self._tick_sync = now, d.sync_count
-            if d.braking:
+            self._tick_at, self._tick_sync = now, d.motion.sync_count
+            if d.motion.braking:
                 if d.motion_clock is not None:
                     self._braking_on_own_clock = True  # the drive's own clock brakes it (run_to)
                 else:
                     self.consumer.tick()  # brake on the wall clock: no SYNC may come any more
-            elif option != od.AbortConnectionOption.NO_ACTION or abs(d.velocity) <= 1e-12:
+            elif option != od.AbortConnectionOption.NO_ACTION or abs(d.motion.velocity) <= 1e-12:
                 loss.standstill = now
 
         self._drive._in_own_thread(act)
@@ -151,7 +157,7 @@ class MasterLossReaction:
         its own clock (``clock="wall"``) brakes on it already (``run_to``)."""
         if self._drive.motion_clock is not None:
             return
-        self._tick_at, self._tick_sync = time.monotonic(), self._drive.sync_count
+        self._tick_at, self._tick_sync = time.monotonic(), self._drive.motion.sync_count
         self.consumer.tick()
 
     def on_nmt_stopped(self) -> None:
@@ -159,7 +165,7 @@ class MasterLossReaction:
         option = self._drive.dictionary.read_or(od.ABORT_CONNECTION_OPTION_CODE, 0, od.AbortConnectionOption.NO_ACTION)
         if option == od.AbortConnectionOption.FAULT_SIGNAL:
             self._drive.fault_braking(EMCY_COMMUNICATION, "NMT stopped while operational")
-            if self._drive.braking:
+            if self._drive.motion.braking:
                 self.brake_on_own_clock()
         elif option == od.AbortConnectionOption.DISABLE_VOLTAGE:
             self._drive._on_controlword(0x0000)  # CiA 402: the disable voltage command
@@ -176,14 +182,14 @@ class MasterLossReaction:
             nonlocal result
             d = self._drive
             now = time.monotonic()
-            if d.braking:
-                if d.sync_count != self._tick_sync:
-                    self._tick_sync = d.sync_count
+            if d.motion.braking:
+                if d.motion.sync_count != self._tick_sync:
+                    self._tick_sync = d.motion.sync_count
                 elif (elapsed_us := round((now - self._tick_at) * 1e6)) > 0:
-                    d._run_clock_to(d.time_us + elapsed_us)
+                    d.motion.run_clock_to(d.motion.time_us + elapsed_us)
                     d._refresh()
             self._tick_at = now
-            if not d.braking:
+            if not d.motion.braking:
                 self._standstill(now)
                 return
             result = True

@@ -289,7 +289,7 @@ class Epos2Drive(SimulatedDrive):
         self.ip_active = True
         self.ip_active_sync = self.sync_count
         self.min_level_active = self.level
-        self._zero_rates()
+        self.motion.zero_rates()
         self._begin(self.sync_time_us / 1000.0, self.demand, 0.0)
 
     def _begin(self, start: float, p0: float, v0: float) -> bool:

@@ -108,7 +108,7 @@ class ParkerDrive(FixedPeriodDrive):
             and not self.ip_active
             and self._ip_mode_selected()
             and not self.power.halted
-            and self._stop_segment is None
+            and not self.motion.braking
         ):
             self._request_ip()
         super()._on_sync_validated()
@@ -126,13 +126,13 @@ class ParkerDrive(FixedPeriodDrive):
     def _validated(self, now: float, target: int | None) -> None:
         mode, period = self.interpolation, self.period_ms
         if mode == DIRECT:  # no ramp of its own: every SYNC's setpoint judged (FixedPeriodDrive._judge)
-            if target is not None and not self._check_position(float(target)):
+            if target is not None and not self.motion.check_position(float(target)):
                 return
             previous = self.demand
             if not self._judge(target) or target is None:
                 return
             self._follow(Segment(now, 0.0, float(target), 0.0, 0.0, 0.0, float(target), 0.0))
-            self._jump_to(float(target))
+            self.motion.jump_to(float(target))
             self._check_dynamics((target - previous) / period, 0.0)
         elif mode is Interpolation.LINEAR:
             if target is not None:
