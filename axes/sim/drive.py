@@ -13,15 +13,16 @@ one lock among them):
 * ``master_loss``: the heartbeat consumer per 0x1016 and the reaction to a lost master per 0x6007
   (``axes/sim/node/master_loss.py``; the heartbeats are the only wall-clock parts in lockstep);
 * ``homing``: the machine around the axis (power-up anywhere, limit switches, hard stops) and homing
-  mode 6 on it (``axes/sim/cia402/homing_mode.py``), for drives whose 0x6502 has mode 6.
+  mode 6 on it (``axes/sim/cia402/homing_mode.py``), for drives whose 0x6502 has mode 6;
+* ``power``: the DS402 power state machine driven by the controlword, the statusword and the fault
+  reaction (``axes/sim/cia402/power_states.py``: the power state, the faults, the halts);
+* ``motion``: the SYNC-driven motion clock with 1 kHz interpolation samples, 0x607D on every demand
+  sample (``axes/sim/cia402/sampling.py``: the demand, its velocity and acceleration, the braking
+  segment, the motion time, the SYNC history).
 
-The CiA 402 device itself is the drive's own behaviour, one home per piece of its state: the DS402
-power state machine driven by the controlword, the statusword and the fault reaction
-(``axes/sim/cia402/power_states.py``: the power state, the faults, the halts) and the motion, the
-SYNC-driven motion clock with 1 kHz interpolation samples, 0x607D on every demand sample
-(``axes/sim/cia402/sampling.py``: the demand, its velocity and acceleration, the braking segment, the
-motion time). Here: the SDO writes the drive dispatches, its resets, and the hooks through which the
-profile modules (epos2, ip_linear, sync_setpoint, parker) add their interpolation on top.
+Here: the SDO writes the drive dispatches, its resets, its face for tests and the master-side code
+(``state``, ``demand``, ``faults``, ``read``, ... read through the parts), and the hooks through
+which the profile modules (epos2, ip_linear, sync_setpoint, parker) add their interpolation on top.
 
 Threads: every bus callback runs in the simulated network's notifier thread; test code may call in
 from other threads, so all state is guarded by one lock (the drive's), and ``changed`` is notified
