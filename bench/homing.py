@@ -109,7 +109,7 @@ def methods(gantry: CellConfig, runs: int) -> bool:
             cell = x_only(gantry, homing, dataclasses.replace(machine, seed=seed))
             outcome, wall, sim = home_once(cell)
             drive = sim.drive("x")
-            run = drive.homing_runs[-1]
+            run = drive.homing.runs[-1]
             if outcome.ok and run.reference is not None:  # type: ignore[attr-defined]
                 homed += 1
                 times.append(outcome.axes[0].time_s)  # type: ignore[attr-defined]

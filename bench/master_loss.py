@@ -101,10 +101,10 @@ def run_once(cell: CellConfig, how: str, kill_at_ms: float, real_time: bool) -> 
             drives = list(svc.sim)
             deadline = time.monotonic() + 30
             while time.monotonic() < deadline and not all(
-                d.master_losses and d.master_losses[-1].standstill is not None for d in drives
+                d.master_loss.losses and d.master_loss.losses[-1].standstill is not None for d in drives
             ):
                 time.sleep(0.005)
-            losses = [d.master_losses[-1] if d.master_losses else None for d in drives]
+            losses = [d.master_loss.losses[-1] if d.master_loss.losses else None for d in drives]
             if any(x is None or x.standstill is None for x in losses):
                 raise RuntimeError("an axis did not stop within 30 s")
             last_beat = bus.master_heartbeat.last_beat

@@ -71,7 +71,7 @@ def main() -> int:
         one = drives[0]
         t0 = time.perf_counter()
         for _ in range(args.syncs):
-            one._on_sync(0x80, bytearray(), 0.0)
+            one.motion.on_sync(0x80, bytearray(), 0.0)
         per = (time.perf_counter() - t0) / args.syncs
         print(f"one EPOS2 drive, SYNC processing without the bus: {per * 1e6:.1f} us per SYNC")
         errors = sim.internal_errors

@@ -25,7 +25,7 @@ import canopen
 
 from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.config import SIMULATED_WIRE, AxisConfig, CellWiring, wire_options
-from pvtflow.axes.sim.clock import LOCKSTEP, Ticker, check_clock
+from pvtflow.axes.sim.clock import Ticker, check_clock
 from pvtflow.axes.sim.drive import SimulatedDrive, eds_file
 from pvtflow.axes.sim.profiles.epos2 import Epos2Drive
 from pvtflow.axes.sim.profiles.ip_linear import IpLinearDrive
@@ -69,7 +69,7 @@ def make_drive(
     network: canopen.Network | None = None,
     eds_path: str | Path | None = None,
     history_length: int = 20_000,
-    clock: str = LOCKSTEP,
+    clock: Clock | str = Clock.LOCKSTEP,
     bitrate: int = 1_000_000,
 ) -> SimulatedDrive:
     """The simulated drive for one configured axis (its profile's class, its scaling and limits)."""
@@ -110,11 +110,10 @@ class SimulatedCell:
         interface: str | None = None,
         eds_paths: Mapping[int, str | Path] | None = None,
         history_length: int = 20_000,
-        clock: str = LOCKSTEP,
+        clock: Clock | str = Clock.LOCKSTEP,
     ) -> None:
-        check_clock(clock)
         self.cell = cell
-        self.clock = clock
+        self.clock = check_clock(clock)
         self.interface = interface or cell.bus.interface
         self.channel = channel or cell.bus.channel
         self.drives: dict[int, SimulatedDrive] = {}
@@ -126,7 +125,7 @@ class SimulatedCell:
                 None,
                 eds_paths.get(axis.node_id),
                 history_length,
-                clock,
+                self.clock,
                 cell.bus.bitrate,
             )
         # one network, so one CAN controller and transmit queue, per drive, as on a machine: on the
@@ -136,7 +135,7 @@ class SimulatedCell:
             network = self.networks[node_id] = canopen.Network()
             network.NOTIFIER_CYCLE = 0.05  # the notifier thread notices a stop this quickly
         self._joint_to_node = {a.joint: a.node_id for a in cell.axes}
-        self.ticker = Ticker(self.drives.values(), name="sim-ticker") if clock != LOCKSTEP else None
+        self.ticker = None if self.clock.lockstep else Ticker(self.drives.values(), name="sim-ticker")
         self.running = False
 
     def start(self) -> SimulatedCell:
@@ -144,7 +143,7 @@ class SimulatedCell:
         if self.running:
             return self
         bus = replace(self.cell.bus, interface=self.interface, channel=self.channel)
-        options = wire_options(bus, clock=Clock(self.clock))
+        options = wire_options(bus, clock=self.clock)
         try:
             for node_id, network in self.networks.items():
                 named = {"node_name": f"drive {node_id}"} if self.interface == SIMULATED_WIRE else {}

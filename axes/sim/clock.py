@@ -25,20 +25,21 @@ import time
 from collections.abc import Iterable
 from typing import Protocol
 
-LOCKSTEP = "lockstep"
-WALL = "wall"
-CLOCKS = (LOCKSTEP, WALL)
+from pvtflow.axes.canbus.clock import Clock
+
 TICK_S = 0.001  # the drives sample their interpolation every ms of their own time
 MAX_STAMP_AGE_S = 1.0  # a frame time stamp older than this (or in the future) is not this frame's arrival
 MAX_DRIFT_PPM = 100_000.0
 
 
-def check_clock(clock: str, drift_ppm: float = 0.0) -> None:
-    """ValueError (one line) for a clock that is neither lockstep nor wall, or a drift out of range."""
-    if clock not in CLOCKS:
-        raise ValueError(f"clock must be one of {', '.join(CLOCKS)}, got {clock!r}")
+def check_clock(clock: Clock | str, drift_ppm: float = 0.0) -> Clock:
+    """The ``Clock`` a drive or a cell is asked to run on (its value, ``"wall"``, will do); ValueError (one
+    line) for a clock that is neither lockstep nor wall, or a drift out of range."""
+    if clock not in list(Clock):
+        raise ValueError(f"clock must be one of {', '.join(Clock)}, got {clock!r}")
     if not (math.isfinite(drift_ppm) and abs(drift_ppm) <= MAX_DRIFT_PPM):
         raise ValueError(f"drift_ppm must be within +-{MAX_DRIFT_PPM:g}, got {drift_ppm!r}")
+    return Clock(clock)
 
 
 def arrival(timestamp: float) -> float:

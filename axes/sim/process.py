@@ -182,7 +182,7 @@ def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) ->
     sim = SimulatedCell(wiring, clock=clock)
     server = None
     try:
-        server = serve_wire(bus.channel, 0, **wire_options(bus, clock=Clock(clock)))  # type: ignore[arg-type]
+        server = serve_wire(bus.channel, 0, **wire_options(bus, clock=sim.clock))  # type: ignore[arg-type]
         sim.start()
     except (OSError, ValueError, ImportError) as exc:
         sim.stop()
@@ -191,7 +191,7 @@ def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) ->
         print(f"cannot start the simulated drives on {bus.channel}: {exc}", file=out, flush=True)
         return EXIT_CANNOT_START
     # wall clock: no full collection while SYNC runs (it stopped the wire and the drives 14-65 ms)
-    collection = FullCollectionBetweenMotions(sim.network) if clock == "wall" else None
+    collection = None if sim.clock.lockstep else FullCollectionBetweenMotions(sim.network)
     try:
         print(f"{WIRE_SERVED_AT} {server.address}", file=out, flush=True)
         while not stop.wait(0.5):  # a timed wait: SIGTERM's handler runs between waits
@@ -230,7 +230,7 @@ def main() -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the master stops the drives after it halted them
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
-    clock = sys.argv[1] if len(sys.argv) > 1 else "lockstep"
+    clock = sys.argv[1] if len(sys.argv) > 1 else Clock.LOCKSTEP
     try:
         wiring = pickle.loads(base64.b64decode(sys.stdin.readline()))
     except (ValueError, pickle.UnpicklingError, EOFError) as exc:

@@ -156,7 +156,7 @@ def test_lost_heartbeat_halts_every_axis(arm6, make_rig):
     assert rig.group.start(prog) is None
     drive5 = rig.sim.drive(5)
     assert drive5.wait_sync(rig.group.bus.sync.count + 20)
-    drive5.stop_heartbeat()
+    drive5.nmt.stop_heartbeat()
     result = rig.group.wait(timeout_s=30)
     assert result.result is Result.HEARTBEAT_LOST, result.message
     assert result.node_id == 5 and "heartbeat" in result.message

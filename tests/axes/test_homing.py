@@ -102,7 +102,7 @@ def test_every_method_homes_on_its_home_position(
     assert rig.group.state.homed == (False, True, True)  # y and z have nothing to home
     outcome = CellHoming(rig.group).run([["x"]])
     assert outcome.result is HomingResult.HOMED, outcome.message
-    assert drive.homing_runs[-1].state is HomingState.ATTAINED
+    assert drive.homing.runs[-1].state is HomingState.ATTAINED
     assert drive.actual == home  # the position reads the home offset...
     assert drive.machine_position == home  # ...exactly where the machine has its home: error 0 counts
     report = outcome.axes[0]
@@ -121,7 +121,7 @@ def test_a_homing_error_halts_the_cell(gantry3: CellConfig, make_rig: Callable[.
     assert outcome.result is HomingResult.HOMING_ERROR and outcome.joint == "x"
     assert "homing error" in outcome.message
     assert rig.group.state.homed[0] is False
-    assert "hard stop" in rig.sim.drive("x").homing_runs[-1].reason
+    assert "hard stop" in rig.sim.drive("x").homing.runs[-1].reason
 
 
 def test_a_search_that_finds_nothing_times_out(gantry3: CellConfig, make_rig: Callable[..., Any]) -> None:
@@ -132,7 +132,7 @@ def test_a_search_that_finds_nothing_times_out(gantry3: CellConfig, make_rig: Ca
     assert outcome.result is HomingResult.TIMEOUT, outcome.message
     assert "not homed within 0.3 s" in outcome.message
     drive = rig.sim.drive("x")
-    assert drive.velocity == 0.0 and drive.homing_runs[-1].state is HomingState.INTERRUPTED
+    assert drive.velocity == 0.0 and drive.homing.runs[-1].state is HomingState.INTERRUPTED
     assert rig.group.state.homed[0] is False
 
 
@@ -151,8 +151,8 @@ def test_a_fault_during_homing_halts_every_axis(gantry3: CellConfig, make_rig: C
     thread.join(30.0)
     outcome = result[0]
     assert outcome.result in (HomingResult.EMCY, HomingResult.DRIVE_FAULT) and outcome.joint == "y"  # type: ignore[attr-defined]
-    assert x.homing_runs[-1].state is HomingState.INTERRUPTED and x.velocity == 0.0
-    assert z.homing_runs == []  # the later stage never started
+    assert x.homing.runs[-1].state is HomingState.INTERRUPTED and x.velocity == 0.0
+    assert z.homing.runs == []  # the later stage never started
     assert rig.group.state.homed == (False, False, False)
 
 
@@ -192,7 +192,7 @@ def test_a_homing_holds_the_cell_until_it_ends(gantry3: CellConfig, make_rig: Ca
         rig.group.start(still)
     with pytest.raises(GroupError, match="already running"):
         CellHoming(rig.group).run([["x"]])
-    assert len(x.homing_runs) == 1
+    assert len(x.homing.runs) == 1
     rig.group.stop("operator")
     thread.join(30.0)
     assert result[0].result is HomingResult.STOPPED  # type: ignore[attr-defined]
@@ -241,7 +241,7 @@ def test_a_faulted_drive_is_not_reset_behind_the_users_back(gantry3: CellConfig,
     rig.sim.drive("x").inject_emcy(0x5530)
     outcome = CellHoming(rig.group).run([["x"]])
     assert outcome.result is HomingResult.DRIVE_FAULT and "recover first" in outcome.message
-    assert rig.sim.drive("x").homing_runs == [] and rig.group.state.homed[0] is False
+    assert rig.sim.drive("x").homing.runs == [] and rig.group.state.homed[0] is False
     assert rig.group.recover().ok
     assert CellHoming(rig.group).run([["x"]]).ok
 

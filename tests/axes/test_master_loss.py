@@ -77,10 +77,10 @@ def kill_master(rig, how: str, release: threading.Event) -> None:
 def wait_standstill(drives: list[SimulatedDrive], timeout_s: float) -> None:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        if all(d.master_losses and d.master_losses[-1].standstill is not None for d in drives):
+        if all(d.master_loss.losses and d.master_loss.losses[-1].standstill is not None for d in drives):
             return
         time.sleep(0.02)
-    pending = [d.node_id for d in drives if not d.master_losses or d.master_losses[-1].standstill is None]
+    pending = [d.node_id for d in drives if not d.master_loss.losses or d.master_loss.losses[-1].standstill is None]
     raise AssertionError(f"drives {pending} still moving {timeout_s} s after the master was lost")
 
 
@@ -101,7 +101,7 @@ def test_every_axis_stops_by_itself_when_the_master_is_lost(arm6, make_rig, prof
         window_s = rig.cell.bus.heartbeat_ms * rig.cell.bus.heartbeat_timeout_factor / 1000.0
         wait_standstill(drives, timeout_s=window_s + consumer_s + 10.0)
         for d in drives:
-            loss = d.master_losses[-1]
+            loss = d.master_loss.losses[-1]
             assert loss.node_id == cell.bus.master_node_id
             assert loss.state == "OPERATION ENABLED" and abs(loss.velocity_rpm) > 1.0, (d.node_id, loss)
             assert loss.silent_s >= consumer_s  # never before its consumer time
@@ -157,9 +157,11 @@ def test_drives_watch_the_master_after_configuration(arm6, make_rig):
         assert d.read(od.PROFILE_DECELERATION) == halt_ramp, d.node_id
     # the drives hear the master: their consumer entry is armed by its next heartbeat
     deadline = time.monotonic() + 5.0
-    while time.monotonic() < deadline and not all(d.consumer.active(cell.bus.master_node_id) for d in rig.sim):
+    while time.monotonic() < deadline and not all(
+        d.master_loss.consumer.active(cell.bus.master_node_id) for d in rig.sim
+    ):
         time.sleep(0.01)
-    assert [d.node_id for d in rig.sim if not d.consumer.active(cell.bus.master_node_id)] == []
+    assert [d.node_id for d in rig.sim if not d.master_loss.consumer.active(cell.bus.master_node_id)] == []
 
 
 def without_object(eds: Path, index: int, out: Path) -> Path:
@@ -222,7 +224,7 @@ def test_a_new_master_recovers_the_cell_the_dead_one_left(arm6, make_rig, profil
         for axis in prog.axes:
             assert rig.sim.drive(axis.node_id).actual == axis.records[-1, 0]
         # and the drives watch the new master: it is their consumer's node, armed again
-        assert all(d.consumer.active(rig.cell.bus.master_node_id) for d in drives)
+        assert all(d.master_loss.consumer.active(rig.cell.bus.master_node_id) for d in drives)
     finally:
         group.close()
         bus.close()
@@ -257,6 +259,6 @@ def test_an_orderly_close_is_not_a_lost_master(arm6, make_rig):
     rig.bus.close()  # the master's heartbeat stops with its bus
     time.sleep(3 * rig.cell.bus.master_consumer_time_ms / 1000.0)
     for drive in rig.sim:
-        assert not drive.master_losses, f"node {drive.node_id} took the close for a lost master"
+        assert not drive.master_loss.losses, f"node {drive.node_id} took the close for a lost master"
         assert drive.state == PowerState.READY_TO_SWITCH_ON, f"node {drive.node_id}: {drive.state}"
         assert drive.read(od.CONSUMER_HEARTBEAT_TIME, 1) == 0

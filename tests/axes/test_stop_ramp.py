@@ -99,7 +99,7 @@ def test_setpoints_frozen_at_speed_fault_the_drive(make_rig, name):
     assert result.result in (Result.EMCY, Result.DRIVE_FAULT) and result.node_id == cell.ordered_axes()[0].node_id
     drive = rig.sim.drive(node)
     assert [f.check for f in drive.faults] == ["max acceleration 0x60C5"]
-    assert drive.emcy_sent[-1][0] == od.EMCY_VELOCITY_LIMIT
+    assert drive.emcy.sent[-1][0] == od.EMCY_VELOCITY_LIMIT
 
 
 @pytest.mark.parametrize("name", ["gantry3-sync-setpoint", "gantry3-parker"])

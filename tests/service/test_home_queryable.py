@@ -73,7 +73,7 @@ def test_home_refuses_what_the_cell_does_not_have(gantry3, arm6, serve) -> None:
     assert reply.data["error"]["code"] == "unknown_joint" and "unknown axis 'w'" in reply.data["error"]["message"]
     bad = g.request("home", {"joints": "x"})
     assert bad.data["error"]["code"] == "invalid_request"
-    assert all(d.homing_runs == [] for d in g.sim)
+    assert all(d.homing.runs == [] for d in g.sim)
     a = serve(arm6)  # absolute encoders: nothing to home, nothing required
     reply = a.request("home", {})
     assert reply.data["error"]["code"] == "not_allowed", reply.data

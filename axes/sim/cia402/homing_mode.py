@@ -24,19 +24,15 @@ import random
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
-from typing import TYPE_CHECKING, ClassVar
 
 from pvtflow.axes.drive import objects as od
-from pvtflow.axes.drive.cia402 import PowerState, Statusword
+from pvtflow.axes.drive.cia402 import Statusword
 from pvtflow.axes.drive.config import AxisSimulation
 from pvtflow.axes.drive.scaling import DriveLimits
-
-if TYPE_CHECKING:
-    from pvtflow.axes.sim.cia402.segment import Segment
+from pvtflow.axes.sim.node.dictionary import DriveDictionary
 
 M = od.HomingMethod
 RETURN_TOLERANCE_QC = 1e-6
-OPERATION_ENABLED = PowerState.OPERATION_ENABLED
 TARGET_REACHED = int(Statusword.TARGET_REACHED)
 HOMING_ATTAINED = int(Statusword.HOMING_ATTAINED)
 HOMING_ERROR = int(Statusword.HOMING_ERROR)
@@ -308,59 +304,53 @@ class HomingRun:
         self.reason = reason
 
 
-class HomingMixin:
-    """The simulated machine around an axis and homing mode 6 on it, as part of a ``SimulatedDrive``
-    (which calls these from its controlword, sample and statusword code, owns the state below and
-    gives them ``read_or`` and ``fault``).
+class Homing:
+    """The simulated machine around an axis and homing mode 6 on it, a part of its ``SimulatedDrive``
+    (which asks it from its controlword, sample and statusword code and moves its demand as it says;
+    the drive's dictionary gives it the homing objects).
 
     The machine position is the drive's demand plus ``origin``: at power-on the encoder counts from 0
     wherever the axis stands; homing moves ``origin`` so that the home position reads 0x607C."""
 
-    REFERENCED_BIT: ClassVar[int]
-    simulation: AxisSimulation | None
-    machine: Machine
-    origin: float
-    referenced: bool
-    homing_runs: list[HomingRun]
-    _homing: HomingRun | None
-    _homing_t: float
-    demand: float
-    velocity: float
-    acceleration: float
-    state: PowerState
-    mode_display: int
-    time_us: int
-    _stop_segment: Segment | None
-    _units_per_qc_ms: float
-    _rpm_s_per_qc_ms2: float
+    def __init__(
+        self,
+        node_id: int,
+        simulation: AxisSimulation | None,
+        limits: DriveLimits | None,
+        dictionary: DriveDictionary,
+        *,
+        units_per_qc_ms: float,
+        rpm_s_per_qc_ms2: float,
+    ) -> None:
+        self.simulation = simulation
+        self.machine = Machine(simulation or AxisSimulation())
+        self.origin = power_up_position(node_id, simulation, limits)
+        self.referenced = False  # homed since the last power-on / reset
+        self.runs: list[HomingRun] = []  # every homing started (tests, benches)
+        self.run: HomingRun | None = None
+        self._t = 0.0  # the motion time (ms) of the run's last step
+        self._dictionary = dictionary
+        self._units_per_qc_ms = units_per_qc_ms  # 0x6099 in the drive's velocity unit
+        self._rpm_s_per_qc_ms2 = rpm_s_per_qc_ms2
 
-    @staticmethod
-    def _power_up_position(node_id: int, sim: AxisSimulation | None, limits: DriveLimits | None) -> float:
-        """Where the machine stands at power-on: nowhere in particular for an axis with a simulated
-        machine (seeded: between its limit switches or hard stops, else in its 0x607D range), at its
-        encoder's 0 otherwise (an absolute encoder: nothing to home)."""
-        if sim is None:
-            return 0.0
-        if sim.power_up_qc is not None:
-            return float(sim.power_up_qc)
-        lows = [x for x in (sim.negative_limit_switch_qc, sim.negative_hard_stop_qc) if x is not None]
-        highs = [x for x in (sim.positive_limit_switch_qc, sim.positive_hard_stop_qc) if x is not None]
-        lo = max(lows) if lows else (limits.min_position_qc if limits is not None else -100_000)
-        hi = min(highs) if highs else (limits.max_position_qc if limits is not None else 100_000)
-        margin = 0.05 * (hi - lo)
-        return float(round(random.Random(sim.seed * 1000 + node_id).uniform(lo + margin, hi - margin)))
+    def power_on(self, demand: float) -> None:
+        """Power-on: the encoder counts from 0 where the axis stands (``demand`` before), not homed."""
+        self.origin += demand
+        self.referenced = False
+        self.run = None
+
+    def machine_position(self, demand: float) -> float:
+        """Where the axis really is (qc of the machine) at ``demand``: what its position reads once homed."""
+        return demand + self.origin
 
     @property
-    def machine_position(self) -> float:
-        """Where the axis really is (qc of the machine): what its position reads once correctly homed."""
-        return self.demand + self.origin
+    def running(self) -> bool:
+        return self.run is not None and self.run.state is HomingState.RUNNING
 
-    # --- homing (mode 6) -------------------------------------------------------------------------
-    def _homing_status(self) -> int:
+    def status(self, rest: bool) -> int:
         """Statusword bits 13, 12, 10 in homing mode (CiA 402): in progress 000, interrupted or not
-        started 001, attained 01x, completed 011, error 10x (bit 10: the axis is at rest)."""
-        rest = self.state == OPERATION_ENABLED and self._stop_segment is None and abs(self.velocity) <= 1e-12
-        run = self._homing
+        started 001, attained 01x, completed 011, error 10x (bit 10: the axis is at rest, ``rest``)."""
+        run = self.run
         word = TARGET_REACHED if rest else 0
         if run is None or run.state is HomingState.INTERRUPTED:
             return word
@@ -370,27 +360,29 @@ class HomingMixin:
             return HOMING_ATTAINED | word
         return HOMING_ERROR | word
 
-    def _start_homing(self) -> None:
-        """Controlword bit 4 rose in mode 6: the method of 0x6098 at the speeds of 0x6099 and 0x609A."""
+    def start(self, demand: float, t_ms: float) -> float | None:
+        """Controlword bit 4 rose in mode 6 at motion time ``t_ms``: the method of 0x6098 at the speeds of
+        0x6099 and 0x609A. The demand the drive then stands on when the run attained home at once (the
+        current-position methods), else None."""
         self.referenced = False
-        method = self.read_or(od.HOMING_METHOD, 0, 0)
-        units_per_qc_ms = self._units_per_qc_ms  # 0x6099 in the drive's velocity unit
+        read_or = self._dictionary.read_or
+        method = read_or(od.HOMING_METHOD, 0, 0)
         try:
             run = HomingRun(
                 method,
                 self.machine,
-                self.machine_position,
-                switch_speed=self.read_or(od.HOMING_SPEEDS, 1, 0) / units_per_qc_ms,
-                zero_speed=self.read_or(od.HOMING_SPEEDS, 2, 0) / units_per_qc_ms,
-                acceleration=self.read_or(od.HOMING_ACCELERATION, 0, 0) / self._rpm_s_per_qc_ms2,
-                current_threshold_ma=self.read_or(od.EPOS2_HOMING_CURRENT_THRESHOLD, 0, 500),
-                on_reference=self._home_found,
+                self.machine_position(demand),
+                switch_speed=read_or(od.HOMING_SPEEDS, 1, 0) / self._units_per_qc_ms,
+                zero_speed=read_or(od.HOMING_SPEEDS, 2, 0) / self._units_per_qc_ms,
+                acceleration=read_or(od.HOMING_ACCELERATION, 0, 0) / self._rpm_s_per_qc_ms2,
+                current_threshold_ma=read_or(od.EPOS2_HOMING_CURRENT_THRESHOLD, 0, 500),
+                on_reference=self.home_found,
             )
         except ValueError as exc:  # a method 0x6098 holds but this drive does not run
             run = HomingRun(
                 od.HomingMethod.CURRENT_POSITION,
                 self.machine,
-                self.machine_position,
+                self.machine_position(demand),
                 switch_speed=1.0,
                 zero_speed=1.0,
                 acceleration=1.0,
@@ -398,62 +390,78 @@ class HomingMixin:
                 on_reference=lambda home, m: None,
             )
             run.state, run.reason = HomingState.ERROR, str(exc)
-        self._homing = run
-        self._homing_t = self.time_us / 1000.0
-        self.homing_runs.append(run)
+        self.run = run
+        self._t = t_ms
+        self.runs.append(run)
         if run.state is HomingState.ATTAINED:
-            self._homing_attained()
-
-    def _home_found(self, home: float, m: float) -> float | None:
-        """The home position: from now on the position reads 0x607C there (None: the axis stands on
-        the reference itself; the EPOS2 places it otherwise, epos2.py)."""
-        self.origin = home - self.read_or(od.HOME_OFFSET, 0, 0)
-        self.demand = m - self.origin
+            self.referenced = True
+            return float(round(run.m - self.origin))
         return None
 
-    def _homing_attained(self) -> None:
-        self.demand = float(round(self.demand))
-        self.velocity = self.acceleration = 0.0
-        self.referenced = True
+    def home_found(self, home: float, m: float) -> float | None:
+        """The reference is found at ``home`` (``m``: where the axis is): the origin moves so that the
+        home position reads as the drive defines it; where the axis goes to stand (None: on the reference)."""
+        self.origin, stand_at = self.placement(home)
+        return stand_at
 
-    def _homing_sample(self, t: float) -> None:
-        run = self._homing
+    def placement(self, home: float) -> tuple[float, float | None]:
+        """The origin and where the axis stands once the reference is found at ``home``: CiA 402's, the
+        position reads 0x607C on the reference itself (the EPOS2 places it otherwise, epos2.py)."""
+        return home - self._dictionary.read_or(od.HOME_OFFSET, 0, 0), None
+
+    def sample(self, t: float) -> tuple[float, float, float]:
+        """One step of the run at motion time ``t`` (ms): the drive's demand, velocity, acceleration."""
+        run = self.run
         assert run is not None
-        run.step(t - self._homing_t)
-        self._homing_t = t
-        self.demand = run.m - self.origin
-        self.velocity, self.acceleration = run.v, run.a
+        run.step(t - self._t)
+        self._t = t
         if run.state is HomingState.ATTAINED:
-            self._homing_attained()
+            self.referenced = True
+            return float(round(run.m - self.origin)), 0.0, 0.0
+        return run.m - self.origin, run.v, run.a
 
-    def _homing_moves(self) -> bool:
-        run = self._homing
-        return (
-            run is not None
-            and self.state == OPERATION_ENABLED
-            and self.mode_display == od.HOMING_MODE
-            and (run.state is HomingState.RUNNING or (run.state is HomingState.ERROR and not run.at_rest))
+    def moves(self) -> bool:
+        """The run moves the axis (running, or braking after a homing error); the drive asks it only in
+        OPERATION ENABLED and homing mode."""
+        run = self.run
+        return run is not None and (
+            run.state is HomingState.RUNNING or (run.state is HomingState.ERROR and not run.at_rest)
         )
 
-    def _interrupt_homing(self) -> None:
-        if self._homing is not None:
-            self._homing.interrupt()
+    def interrupt(self) -> None:
+        if self.run is not None:
+            self.run.interrupt()
 
-    def _check_machine(self, p: float) -> bool:
+    def machine_stop(self, demand: float, p: float) -> tuple[float, int, str] | None:
         """The simulated machine bounds every motion outside homing: a limit switch that becomes active
         faults the drive (EMCY 0x8612), a hard stop stops the axis where it stands and faults it with a
         following error (0x8611). So an axis that did not home, whose encoder's 0 is anywhere, really
-        runs into them where the program thought it had room."""
+        runs into them where the program thought it had room. None: the motion from ``demand`` to ``p``
+        meets nothing; else the demand the axis stops at, the EMCY code and why."""
         if self.simulation is None:
-            return True
-        m0, m1 = self.demand + self.origin, p + self.origin
+            return None
+        m0, m1 = demand + self.origin, p + self.origin
         stop = self.machine.stop_between(m0, m1)
         if stop is not None:
-            self.demand = stop - self.origin
-            self.fault(od.EMCY_FOLLOWING_ERROR, f"ran into the hard stop at {stop:.0f} qc of the machine")
-            return False
+            why = f"ran into the hard stop at {stop:.0f} qc of the machine"
+            return stop - self.origin, od.EMCY_FOLLOWING_ERROR, why
         for name, switch in (("negative", self.machine.negative_limit), ("positive", self.machine.positive_limit)):
             if switch(m1) and not switch(m0):
-                self.fault(od.EMCY_LIMIT_SWITCH, f"{name} limit switch at {m1:.0f} qc of the machine")
-                return False
-        return True
+                return demand, od.EMCY_LIMIT_SWITCH, f"{name} limit switch at {m1:.0f} qc of the machine"
+        return None
+
+
+def power_up_position(node_id: int, sim: AxisSimulation | None, limits: DriveLimits | None) -> float:
+    """Where the machine stands at power-on: nowhere in particular for an axis with a simulated
+    machine (seeded: between its limit switches or hard stops, else in its 0x607D range), at its
+    encoder's 0 otherwise (an absolute encoder: nothing to home)."""
+    if sim is None:
+        return 0.0
+    if sim.power_up_qc is not None:
+        return float(sim.power_up_qc)
+    lows = [x for x in (sim.negative_limit_switch_qc, sim.negative_hard_stop_qc) if x is not None]
+    highs = [x for x in (sim.positive_limit_switch_qc, sim.positive_hard_stop_qc) if x is not None]
+    lo = max(lows) if lows else (limits.min_position_qc if limits is not None else -100_000)
+    hi = min(highs) if highs else (limits.max_position_qc if limits is not None else 100_000)
+    margin = 0.05 * (hi - lo)
+    return float(round(random.Random(sim.seed * 1000 + node_id).uniform(lo + margin, hi - margin)))

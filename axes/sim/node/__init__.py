@@ -1,1 +1,1 @@
-"""A simulated drive's CANopen node: object dictionary, NMT, PDOs, heartbeat consumer."""
+"""A simulated drive's CANopen node: object dictionary, EMCY, NMT, PDOs, heartbeat consumer, the lost master."""

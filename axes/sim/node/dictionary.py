@@ -11,6 +11,7 @@ the drive refuses a write are named here.
 from __future__ import annotations
 
 import threading
+from collections.abc import Mapping
 
 import canopen
 from canopen import objectdictionary
@@ -25,16 +26,17 @@ ABORT_GENERAL = 0x08000000
 ABORT_PARAMETER_INCOMPATIBLE = 0x06040043  # CiA 301: a 0x1016 entry for a node another entry watches
 
 
-class DictionaryAccess:
-    """Object dictionary access from the drive's side, as part of a ``SimulatedDrive`` (which owns
-    the node, the lock and the caches below)."""
+class DriveDictionary:
+    """A drive's object dictionary from the drive's own side, a part of its ``SimulatedDrive`` (which
+    owns the node and the lock and gives them): the entry cache, the refresh cache of ``publish`` and
+    the commissioned values kept through resets."""
 
-    node: canopen.LocalNode
-    lock: threading.RLock
-    scaling: AxisScaling
-    _entries: dict[tuple[int, int], tuple[objectdictionary.ODVariable, int]]
-    _published: dict[tuple[int, int], tuple[int, int, bytes]]
-    _commissioned: dict[tuple[int, int], int]
+    def __init__(self, node: canopen.LocalNode, lock: threading.RLock) -> None:
+        self.node = node
+        self._lock = lock
+        self._entries: dict[tuple[int, int], tuple[objectdictionary.ODVariable, int]] = {}
+        self._published: dict[tuple[int, int], tuple[int, int, bytes]] = {}  # see publish()
+        self._commissioned: dict[tuple[int, int], int] = {}  # kept through an NMT reset (stored parameters)
 
     def _entry(self, index: int, subindex: int) -> tuple[objectdictionary.ODVariable, int]:
         """The OD variable and the sub-index its value is stored under (0 for a plain variable)."""
@@ -46,9 +48,6 @@ class DictionaryAccess:
             hit = (entry, 0) if plain else (entry[subindex], subindex)
             self._entries[key] = hit
         return hit
-
-    def _var(self, index: int, subindex: int = 0) -> objectdictionary.ODVariable:
-        return self._entry(index, subindex)[0]
 
     def has(self, index: int, subindex: int = 0) -> bool:
         try:
@@ -84,10 +83,23 @@ class DictionaryAccess:
     def read_or(self, index: int, subindex: int, default: int) -> int:
         return self.read(index, subindex) if self.has(index, subindex) else default
 
-    def apply_limits(self, limits: DriveLimits) -> None:
-        """Commission the drive's own limit objects (facts about the drive, DESIGN section 3)."""
+    def commission(self, values: Mapping[tuple[int, int], int]) -> None:
+        """Store ``values`` as stored parameters: they come back after every reset (``restore``)."""
+        with self._lock:
+            self._commissioned.update(values)
+            for (index, subindex), value in values.items():
+                self.store(index, subindex, value)
+
+    def power_on(self) -> None:
+        """Power-on (or a reset node): the EDS defaults, then the commissioned values."""
+        self.node.data_store.clear()
+        for (index, subindex), value in self._commissioned.items():
+            self.store(index, subindex, value)
+
+    def limit_values(self, limits: DriveLimits, scaling: AxisScaling) -> dict[tuple[int, int], int]:
+        """The drive's own limit objects (facts about the drive, DESIGN section 3)."""
         values = {
-            (od.MAX_PROFILE_VELOCITY, 0): round(limits.max_profile_velocity_rpm / self.scaling.velocity_unit_rpm),
+            (od.MAX_PROFILE_VELOCITY, 0): round(limits.max_profile_velocity_rpm / scaling.velocity_unit_rpm),
             (od.MAX_ACCELERATION, 0): round(limits.max_acceleration_rpm_s),
             (od.SOFTWARE_POSITION_LIMIT, 1): limits.min_position_qc,
             (od.SOFTWARE_POSITION_LIMIT, 2): limits.max_position_qc,
@@ -95,20 +107,17 @@ class DictionaryAccess:
         if self.has(od.QUICK_STOP_DECELERATION):  # the quick stop ramp as configuration writes it
             values[(od.QUICK_STOP_DECELERATION, 0)] = round(limits.max_acceleration_rpm_s)
         if limits.profile_velocity_rpm is not None:
-            values[(od.PROFILE_VELOCITY, 0)] = round(limits.profile_velocity_rpm / self.scaling.velocity_unit_rpm)
+            values[(od.PROFILE_VELOCITY, 0)] = round(limits.profile_velocity_rpm / scaling.velocity_unit_rpm)
         if limits.profile_acceleration_rpm_s is not None:
             values[(od.PROFILE_ACCELERATION, 0)] = round(limits.profile_acceleration_rpm_s)
-        with self.lock:
-            self._commissioned.update(values)
-            for (index, subindex), value in values.items():
-                self.store(index, subindex, value)
+        return values
 
-    def _apply_drive_facts(self, simulation: AxisSimulation) -> None:
+    def drive_fact_values(self, simulation: AxisSimulation, scaling: AxisScaling) -> dict[tuple[int, int], int]:
         """What the drive is, kept through resets as a drive's stored parameters are: its encoder
         (0x608F, or maxon's pulse number 0x2210:01 in encoder pulses), and where ``simulation`` says
         so its polarity 0x607E, identity 0x1018:01/:02, motor's maximal speed 0x6410:04 and maxon's sensor
         type 0x2210:02, sensor polarity 0x2210:04 and velocity notation 0x608B."""
-        qc = round(self.scaling.qc_per_motor_rev)
+        qc = round(scaling.qc_per_motor_rev)
         values: dict[tuple[int, int], int] = {}
         if self.has(od.POSITION_ENCODER_RESOLUTION, 1):
             values[(od.POSITION_ENCODER_RESOLUTION, 1)] = qc
@@ -126,7 +135,4 @@ class DictionaryAccess:
         ):
             if value is not None and self.has(*key):
                 values[key] = value
-        with self.lock:
-            self._commissioned.update(values)
-            for (index, subindex), value in values.items():
-                self.store(index, subindex, value)
+        return values

@@ -18,59 +18,90 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import ClassVar
+from typing import Protocol
 
+import canopen
 from canopen.sdo import SdoAbortedError
 
 from pvtflow.axes.drive import objects as od
-from pvtflow.axes.sim.cia402.faults import EMCY_COMMUNICATION, REGISTER_COMMUNICATION, REGISTER_GENERIC
+from pvtflow.axes.drive.cia402 import PowerState
 from pvtflow.axes.sim.cia402.records import MasterLoss
-from pvtflow.axes.sim.cia402.segment import Segment
 from pvtflow.axes.sim.clock import MotionClock
 from pvtflow.axes.sim.node.consumer import HeartbeatConsumer
-from pvtflow.axes.sim.node.dictionary import ABORT_PARAMETER_INCOMPATIBLE
+from pvtflow.axes.sim.node.dictionary import ABORT_PARAMETER_INCOMPATIBLE, DriveDictionary
+from pvtflow.axes.sim.node.emcy import EMCY_COMMUNICATION, REGISTER_COMMUNICATION, REGISTER_GENERIC, Emcy
+
+
+class MotionClockRun(Protocol):
+    """What the reaction asks of the drive's motion (``sampling.Motion``): where it is, and to run on."""
+
+    velocity: float
+    sync_count: int
+    time_us: int
+
+    @property
+    def braking(self) -> bool: ...
+
+    def run_clock_to(self, new_time_us: int) -> None: ...
+
+
+class MasterLossHost(Protocol):
+    """What the reaction needs of its drive (a ``SimulatedDrive``: the reaction does not know the class):
+    its node, dictionary and EMCY, its power state and motion, the fault and controlword paths, and
+    how to run its motion clock (under the drive's lock, ``_in_own_thread``)."""
+
+    node: canopen.LocalNode
+    dictionary: DriveDictionary
+    emcy: Emcy
+    state: PowerState
+    motion: MotionClockRun
+    motion_clock: MotionClock | None
+
+    def fault_braking(self, code: int, check: str, data: bytes = b"", register: int = REGISTER_GENERIC) -> None: ...
+
+    def _on_controlword(self, cw: int) -> None: ...
+
+    def _refresh(self, events: bool = True) -> None: ...
+
+    def _in_own_thread(self, action: Callable[[], None]) -> None: ...
 
 
 class MasterLossReaction:
-    """The heartbeat consumer's configuration and the reaction to a lost master, as part of a
-    ``SimulatedDrive`` (which owns the state below and gives it the object dictionary access, the
-    power state machine, the faults and the motion clock)."""
+    """The heartbeat consumer's configuration and the reaction to a lost master, a part of a
+    ``SimulatedDrive`` (given as ``drive``; the consumer's thread calls in, and every action runs under
+    the drive's lock). It owns the consumer, the losses it saw and the wall-clock ticking of a drive
+    that brakes without SYNC."""
 
-    HEARTBEAT_ERROR_FAULTS: ClassVar[bool]
-    consumer: HeartbeatConsumer
-    master_losses: list[MasterLoss]
-    motion_clock: MotionClock | None
-    _loss_braking: bool
-    _tick_at: float
-    _tick_sync: int
-    sync_count: int
-    time_us: int
-    sample_ms: float
-    velocity: float
-    _rpm_per_qc_ms: float
-    _stop_segment: Segment | None
-    _in_own_thread: Callable[[Callable[[], None]], None]
+    def __init__(self, drive: MasterLossHost, *, heartbeat_error_faults: bool, rpm_per_qc_ms: float) -> None:
+        self._drive = drive
+        self._heartbeat_error_faults = heartbeat_error_faults  # the drive's firmware: a heartbeat error faults
+        self._rpm_per_qc_ms = rpm_per_qc_ms
+        self.consumer = HeartbeatConsumer(str(drive.node.id), self._on_heartbeat_lost, self._wall_clock_tick)
+        self.losses: list[MasterLoss] = []
+        self._tick_at = 0.0  # wall clock (time.monotonic()) up to which the motion clock has run on its own
+        self._tick_sync = 0  # sync_count at the last wall-clock tick: a SYNC since then runs the clock itself
+        self._braking_on_own_clock = False  # clock="wall": braking after a lost master, standstill not yet seen
 
-    def _configure_consumer(self) -> None:
+    def configure_consumer(self) -> None:
         """0x1016 as it now is, to the consumer (after a write, and after every reset)."""
         entries: dict[int, int] = {}
         sub = 1
-        while self.has(od.CONSUMER_HEARTBEAT_TIME, sub):
-            value = self.read(od.CONSUMER_HEARTBEAT_TIME, sub)
+        while self._drive.dictionary.has(od.CONSUMER_HEARTBEAT_TIME, sub):
+            value = self._drive.dictionary.read(od.CONSUMER_HEARTBEAT_TIME, sub)
             node, ms = (value >> od.CONSUMER_NODE_SHIFT) & 0xFF, value & 0xFFFF
             if node and ms:
                 entries[node] = ms
             sub += 1
         self.consumer.configure(entries)
 
-    def _check_consumer_entry(self, subindex: int, value: int) -> None:
+    def check_consumer_entry(self, subindex: int, value: int) -> None:
         """CiA 301: one entry per watched node (another entry for the same node: abort 0x06040043)."""
         node = (value >> od.CONSUMER_NODE_SHIFT) & 0xFF
         if subindex == 0 or not node or not value & 0xFFFF:
             return
         sub = 1
-        while self.has(od.CONSUMER_HEARTBEAT_TIME, sub):
-            other = self.read(od.CONSUMER_HEARTBEAT_TIME, sub)
+        while self._drive.dictionary.has(od.CONSUMER_HEARTBEAT_TIME, sub):
+            other = self._drive.dictionary.read(od.CONSUMER_HEARTBEAT_TIME, sub)
             if sub != subindex and (other >> od.CONSUMER_NODE_SHIFT) & 0xFF == node and other & 0xFFFF:
                 raise SdoAbortedError(ABORT_PARAMETER_INCOMPATIBLE)
             sub += 1
@@ -79,64 +110,67 @@ class MasterLossReaction:
         """The consumer's thread: a watched heartbeat stopped. EMCY 0x8130, then 0x6007's action."""
 
         def act() -> None:
-            if not self.node.has_network():
+            d = self._drive
+            if not d.node.has_network():
                 return
             now = time.monotonic()
-            option = self.read_or(od.ABORT_CONNECTION_OPTION_CODE, 0, od.AbortConnectionOption.NO_ACTION)
+            option = self._drive.dictionary.read_or(
+                od.ABORT_CONNECTION_OPTION_CODE, 0, od.AbortConnectionOption.NO_ACTION
+            )
             loss = MasterLoss(
                 node_id,
                 silent_s,
                 now,
                 self.consumer.last_heard.get(node_id),
                 option,
-                self.state.value,
-                self.velocity * self._rpm_per_qc_ms,
+                d.state.value,
+                d.motion.velocity * self._rpm_per_qc_ms,
             )
-            self.master_losses.append(loss)
+            self.losses.append(loss)
             register = REGISTER_GENERIC | REGISTER_COMMUNICATION
             check = f"heartbeat of node {node_id} lost ({silent_s * 1000:.0f} ms silent)"
             if option == od.AbortConnectionOption.FAULT_SIGNAL or (
-                self.HEARTBEAT_ERROR_FAULTS and option != od.AbortConnectionOption.NO_ACTION
+                self._heartbeat_error_faults and option != od.AbortConnectionOption.NO_ACTION
             ):
-                self.fault_braking(od.EMCY_HEARTBEAT_ERROR, check, register=register)
+                d.fault_braking(od.EMCY_HEARTBEAT_ERROR, check, register=register)
             else:
-                self.send_emcy(od.EMCY_HEARTBEAT_ERROR, register)
+                d.emcy.send(od.EMCY_HEARTBEAT_ERROR, register)
                 if option == od.AbortConnectionOption.DISABLE_VOLTAGE:
-                    self._on_controlword(0x0000)  # CiA 402: the disable voltage command
+                    d._on_controlword(0x0000)  # CiA 402: the disable voltage command
                 elif option == od.AbortConnectionOption.QUICK_STOP:
-                    self._on_controlword(0x0002)  # the quick stop command
-            self._refresh()
-            self._tick_at, self._tick_sync = now, self.sync_count
-            if self._stop_segment is not None:
-                if self.motion_clock is not None:
-                    self._loss_braking = True  # the drive's own clock brakes it (run_to)
+                    d._on_controlword(0x0002)  # the quick stop command
+            d._refresh()
+            self._tick_at, self._tick_sync = now, d.motion.sync_count
+            if d.motion.braking:
+                if d.motion_clock is not None:
+                    self._braking_on_own_clock = True  # the drive's own clock brakes it (run_to)
                 else:
                     self.consumer.tick()  # brake on the wall clock: no SYNC may come any more
-            elif option != od.AbortConnectionOption.NO_ACTION or abs(self.velocity) <= 1e-12:
+            elif option != od.AbortConnectionOption.NO_ACTION or abs(d.motion.velocity) <= 1e-12:
                 loss.standstill = now
 
-        self._in_own_thread(act)
+        self._drive._in_own_thread(act)
 
-    def _brake_on_own_clock(self) -> None:
+    def brake_on_own_clock(self) -> None:
         """A quick stop brakes whether or not SYNC comes (a master that lost SYNC quick stops by SDO):
         the motion clock runs on the wall clock between SYNCs until the demand is at rest. A drive on
         its own clock (``clock="wall"``) brakes on it already (``run_to``)."""
-        if self.motion_clock is not None:
+        if self._drive.motion_clock is not None:
             return
-        self._tick_at, self._tick_sync = time.monotonic(), self.sync_count
+        self._tick_at, self._tick_sync = time.monotonic(), self._drive.motion.sync_count
         self.consumer.tick()
 
-    def _on_nmt_stopped(self) -> None:
+    def on_nmt_stopped(self) -> None:
         """CiA 402: entering NMT STOPPED from OPERATIONAL is an abort connection event (0x6007)."""
-        option = self.read_or(od.ABORT_CONNECTION_OPTION_CODE, 0, od.AbortConnectionOption.NO_ACTION)
+        option = self._drive.dictionary.read_or(od.ABORT_CONNECTION_OPTION_CODE, 0, od.AbortConnectionOption.NO_ACTION)
         if option == od.AbortConnectionOption.FAULT_SIGNAL:
-            self.fault_braking(EMCY_COMMUNICATION, "NMT stopped while operational")
-            if self._stop_segment is not None:
-                self._brake_on_own_clock()
+            self._drive.fault_braking(EMCY_COMMUNICATION, "NMT stopped while operational")
+            if self._drive.motion.braking:
+                self.brake_on_own_clock()
         elif option == od.AbortConnectionOption.DISABLE_VOLTAGE:
-            self._on_controlword(0x0000)  # CiA 402: the disable voltage command
+            self._drive._on_controlword(0x0000)  # CiA 402: the disable voltage command
         elif option == od.AbortConnectionOption.QUICK_STOP:
-            self._on_controlword(0x0002)  # the quick stop command
+            self._drive._on_controlword(0x0002)  # the quick stop command
 
     def _wall_clock_tick(self) -> bool:
         """The consumer's thread, every ms while the drive brakes after a lost master: the motion
@@ -146,23 +180,31 @@ class MasterLossReaction:
 
         def act() -> None:
             nonlocal result
+            d = self._drive
             now = time.monotonic()
-            if self._stop_segment is not None:
-                if self.sync_count != self._tick_sync:
-                    self._tick_sync = self.sync_count
+            if d.motion.braking:
+                if d.motion.sync_count != self._tick_sync:
+                    self._tick_sync = d.motion.sync_count
                 elif (elapsed_us := round((now - self._tick_at) * 1e6)) > 0:
-                    new_time = self.time_us + elapsed_us
-                    self._advance(new_time)
-                    self.time_us = new_time
-                    self.sample_ms = new_time / 1000.0
-                    self._refresh()
+                    d.motion.run_clock_to(d.motion.time_us + elapsed_us)
+                    d._refresh()
             self._tick_at = now
-            if self._stop_segment is None:
-                for loss in self.master_losses:
-                    if loss.standstill is None:
-                        loss.standstill = now
+            if not d.motion.braking:
+                self._standstill(now)
                 return
             result = True
 
-        self._in_own_thread(act)
+        self._drive._in_own_thread(act)
         return result
+
+    def at_rest(self) -> None:
+        """clock="wall": the drive's own clock braked it to rest (``run_to``): the standstill of a loss it
+        braked for."""
+        if self._braking_on_own_clock:
+            self._braking_on_own_clock = False
+            self._standstill(time.monotonic())
+
+    def _standstill(self, now: float) -> None:
+        for loss in self.losses:
+            if loss.standstill is None:
+                loss.standstill = now

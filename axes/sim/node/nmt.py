@@ -11,118 +11,125 @@ from __future__ import annotations
 
 import contextlib
 import threading
-import time
+from collections.abc import Callable
+from typing import Protocol
 
 import canopen
 from canopen.sdo import SdoAbortedError
 
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
 from pvtflow.axes.drive import objects as od
-from pvtflow.axes.sim.clock import WALL, MotionClock, Quartz
-from pvtflow.axes.sim.node.consumer import HeartbeatConsumer
+from pvtflow.axes.sim.node.dictionary import DriveDictionary
+from pvtflow.axes.sim.node.master_loss import MasterLossReaction
 from pvtflow.axes.sim.node.pdo import PdoEngine
 
 
-class NmtNode:
-    """The NMT slave and heartbeat producer as part of a ``SimulatedDrive`` (which owns the state
-    below and gives it the object dictionary access, the resets and its SYNC callback)."""
+class NmtHost(Protocol):
+    """What NMT needs of its drive (a ``SimulatedDrive``): its node, lock and dictionary, its PDOs, its
+    reaction to a lost master, and its reset and guard (an action under its lock)."""
 
     node: canopen.LocalNode
-    network: canopen.Network
     lock: threading.RLock
-    clock: str
-    quartz: Quartz
-    motion_clock: MotionClock | None
-    time_us: int
+    dictionary: DriveDictionary
     pdo: PdoEngine
-    consumer: HeartbeatConsumer
-    _heartbeat_silenced: bool
-    _nmt_left: str
+    master_loss: MasterLossReaction
 
-    @property
-    def node_id(self) -> int:
-        return self.node.id
+    def _reset_application(self) -> None: ...
 
-    def attach(self, network: canopen.Network) -> None:
-        """Join a network (not yet booted: call ``boot`` once the network is connected)."""
-        subscribe(network, 0, self._note_nmt_state)  # before the node's own NMT handling: the state it leaves
-        network.add_node(self.node)
+    def _guard(self, action: Callable[[], None]) -> None: ...
+
+
+class Nmt:
+    """The NMT slave and heartbeat producer around a drive's ``LocalNode``, a part of its
+    ``SimulatedDrive`` (given as ``drive``): it owns the network the drive is on, whether the heartbeat
+    is silenced and the NMT state the last NMT command found."""
+
+    def __init__(self, drive: NmtHost) -> None:
+        self._drive = drive
+        self.network: canopen.Network = canopen.network._UNINITIALIZED_NETWORK
+        self._heartbeat_silenced = False
+        self._left = "INITIALISING"  # the NMT state the last NMT command found (0x6007 on leaving OPERATIONAL)
+
+    def join(self, network: canopen.Network) -> None:
+        """Join a network: the node and its NMT commands (the drive subscribes its SYNC)."""
+        node = self._drive.node
+        subscribe(network, 0, self._note_state)  # before the node's own NMT handling: the state it leaves
+        network.add_node(node)
         self.network = network
-        if self.clock == WALL:
-            with self.lock:
-                self.motion_clock = MotionClock(self.quartz, float(self.time_us), time.monotonic())
-        subscribe(network, od.SYNC_COB_ID, self._on_sync)
         subscribe(network, 0, self._on_nmt)
-        self.consumer.attach(network)
 
-    def detach(self) -> None:
-        self.consumer.detach()  # joins its thread, which takes the lock: before taking it
-        with self.lock:
-            if not self.node.has_network():
-                return
-            self.node.nmt.stop_heartbeat()
-            self.pdo.unsubscribe()
-            unsubscribe(self.network, od.SYNC_COB_ID, self._on_sync)
-            unsubscribe(self.network, 0, self._on_nmt)
-            unsubscribe(self.network, 0, self._note_nmt_state)
-            del self.network[self.node.id]
-            self.network = canopen.network._UNINITIALIZED_NETWORK
+    def leave(self) -> None:
+        """Leave the network (under the drive's lock)."""
+        unsubscribe(self.network, 0, self._on_nmt)
+        unsubscribe(self.network, 0, self._note_state)
+        del self.network[self._drive.node.id]
+        self.network = canopen.network._UNINITIALIZED_NETWORK
 
     def boot(self) -> None:
         """Power on: boot-up message, then pre-operational with the heartbeat of 0x1017."""
-        with self.lock:
-            self.node.nmt.send_command(od.NmtCommand.RESET_NODE)  # initialising: sends the boot-up frame
-            self.node.nmt.send_command(od.NmtCommand.PRE_OPERATIONAL)  # pre-operational: starts the heartbeat
+        drive = self._drive
+        with drive.lock:
+            drive.node.nmt.send_command(od.NmtCommand.RESET_NODE)  # initialising: sends the boot-up frame
+            drive.node.nmt.send_command(od.NmtCommand.PRE_OPERATIONAL)  # pre-operational: starts the heartbeat
             if self._heartbeat_silenced:
-                self.node.nmt.stop_heartbeat()
-            self.pdo.reload()
-            self._configure_consumer()
+                drive.node.nmt.stop_heartbeat()
+            drive.pdo.reload()
+            drive.master_loss.configure_consumer()
 
     @property
-    def nmt_state(self) -> str:
-        return self.node.nmt.state
+    def state(self) -> str:
+        return self._drive.node.nmt.state
 
     @property
     def operational(self) -> bool:
-        return self.node.nmt.state == "OPERATIONAL"
+        return self._drive.node.nmt.state == "OPERATIONAL"
 
     def stop_heartbeat(self) -> None:
         """The node goes quiet on 0x700 (as a node that lost power would); SDO/PDO still answer."""
-        with self.lock:
+        with self._drive.lock:
             self._heartbeat_silenced = True
-            self.node.nmt.stop_heartbeat()
+            self._drive.node.nmt.stop_heartbeat()
 
     def resume_heartbeat(self) -> None:
-        with self.lock:
+        with self._drive.lock:
             self._heartbeat_silenced = False
-            period = self.read(od.PRODUCER_HEARTBEAT_TIME)
+            period = self._drive.dictionary.read(od.PRODUCER_HEARTBEAT_TIME)
             if period:
-                self.node.nmt.start_heartbeat(period)
+                self._drive.node.nmt.start_heartbeat(period)
 
-    def _note_nmt_state(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if len(data) >= 2 and data[1] in (0, self.node.id):
-            self._nmt_left = self.node.nmt.state
+    def heartbeat_time_written(self, period_ms: int) -> None:
+        """0x1017 was written: the producer at the new period (0: none), unless silenced."""
+        if period_ms == 0 or self._heartbeat_silenced:
+            self._drive.node.nmt.stop_heartbeat()
+        else:
+            self._drive.node.nmt.start_heartbeat(period_ms)
+
+    def _note_state(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if len(data) >= 2 and data[1] in (0, self._drive.node.id):
+            self._left = self._drive.node.nmt.state
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if len(data) < 2 or data[1] not in (0, self.node.id):
+        drive = self._drive
+        if len(data) < 2 or data[1] not in (0, drive.node.id):
             return
 
         def act() -> None:
-            if self._nmt_left == "OPERATIONAL" and self.node.nmt.state == "STOPPED":
-                self._on_nmt_stopped()
-            if self.node.nmt.state == "INITIALISING":  # reset node / reset communication
+            if self._left == "OPERATIONAL" and drive.node.nmt.state == "STOPPED":
+                drive.master_loss.on_nmt_stopped()
+            if drive.node.nmt.state == "INITIALISING":  # reset node / reset communication
                 if data[0] == od.NmtCommand.RESET_NODE:
-                    self._reset_application()
+                    drive._reset_application()
                 else:
                     self._reset_communication()
                 self.boot()
-            self.pdo.reload()
+            drive.pdo.reload()
             if self.operational:
-                self.pdo.transmit_events()
+                drive.pdo.transmit_events()
 
         with contextlib.suppress(SdoAbortedError):
-            self._guard(act)
+            drive._guard(act)
 
     def _reset_communication(self) -> None:
-        for index in [i for i in self.node.data_store if 0x1000 <= i <= 0x1FFF]:
-            del self.node.data_store[index]
+        data_store = self._drive.node.data_store
+        for index in [i for i in data_store if 0x1000 <= i <= 0x1FFF]:
+            del data_store[index]

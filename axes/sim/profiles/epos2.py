@@ -64,6 +64,7 @@ from pvtflow.axes.drive.cia402 import Statusword
 from pvtflow.axes.drive.drive_profile import DriveProfile
 from pvtflow.axes.drive.interpolation import exceeds
 from pvtflow.axes.drive.objects import BUFFER_ERRORS, BufferStatus, Record
+from pvtflow.axes.sim.cia402.homing_mode import Homing
 from pvtflow.axes.sim.cia402.power_states import OPERATION_ENABLED
 from pvtflow.axes.sim.cia402.segment import Segment
 from pvtflow.axes.sim.drive import SimulatedDrive
@@ -84,6 +85,17 @@ class ClockCheck:
     rate: float  # the motion clock's rate (per quartz us) for the period after this SYNC
 
 
+class Epos2Homing(Homing):
+    def placement(self, home: float) -> tuple[float, float | None]:
+        """maxon's definitions: 0x607C (Home Offset) is the move from the reference found to the home
+        position, where the position reads 0x2081 (Home Position); the axis goes there and stands."""
+        read_or = self._dictionary.read_or
+        method = read_or(od.HOMING_METHOD, 0, 0)
+        here = method in (od.HomingMethod.CURRENT_POSITION, od.HomingMethod.CURRENT_POSITION_37)
+        at = home if here else home + read_or(od.HOME_OFFSET, 0, 0)  # "actual position" does not move
+        return at - read_or(od.EPOS2_HOME_POSITION, 0, 0), at
+
+
 class Epos2Drive(SimulatedDrive):
     PROFILE = DriveProfile.EPOS2_PVT
     EDS = "epos2.eds"
@@ -93,6 +105,7 @@ class Epos2Drive(SimulatedDrive):
     HEARTBEAT_ERROR_FAULTS = True
     HOMING_METHODS = od.EPOS2_HOMING_METHODS
     REFERENCED_BIT = int(Statusword.MANUFACTURER_15)  # maxon: "position referenced to home position"
+    HOMING = Epos2Homing
 
     def _own_values(self) -> dict[tuple[int, int], Value]:
         """Where maxon's EDS gives no default: cubic PVT (0x60C0 = -1, app note 3.6.5), the buffer
@@ -139,16 +152,6 @@ class Epos2Drive(SimulatedDrive):
         if self.ip_active:
             status |= BufferStatus.IP_MODE_ACTIVE
         return status
-
-    def _home_found(self, home: float, m: float) -> float | None:
-        """maxon's definitions: 0x607C (Home Offset) is the move from the reference found to the home
-        position, where the position reads 0x2081 (Home Position); the axis goes there and stands."""
-        method = self.read_or(od.HOMING_METHOD, 0, 0)
-        here = method in (od.HomingMethod.CURRENT_POSITION, od.HomingMethod.CURRENT_POSITION_37)
-        at = home if here else home + self.read_or(od.HOME_OFFSET, 0, 0)  # "actual position" does not move
-        self.origin = at - self.read_or(od.EPOS2_HOME_POSITION, 0, 0)
-        self.demand = m - self.origin
-        return at
 
     def _publish(self) -> None:
         self.publish(od.EPOS2_INTERPOLATION_BUFFER, 1, int(self.buffer_status()))
@@ -212,6 +215,9 @@ class Epos2Drive(SimulatedDrive):
         self._segment = None
         if self.state != OPERATION_ENABLED or self.sticky & BUFFER_ERRORS:
             self.fifo.clear()  # app note 3.8: restart only after re-synchronisation
+
+    def _request_ip(self) -> None:
+        self._ip_requested = True
 
     def _on_fault_reset(self) -> None:
         self.sticky = BufferStatus(0)
@@ -283,7 +289,7 @@ class Epos2Drive(SimulatedDrive):
         self.ip_active = True
         self.ip_active_sync = self.sync_count
         self.min_level_active = self.level
-        self.velocity = self.acceleration = 0.0
+        self.motion.zero_rates()
         self._begin(self.sync_time_us / 1000.0, self.demand, 0.0)
 
     def _begin(self, start: float, p0: float, v0: float) -> bool:

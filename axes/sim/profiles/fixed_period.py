@@ -75,6 +75,9 @@ class FixedPeriodDrive(SimulatedDrive):
         self._new_setpoint = None
         self._reset_stream()
 
+    def _request_ip(self) -> None:
+        self._ip_requested = True
+
     def _activate(self) -> bool:
         """Interpolation becomes active at this SYNC (False: the configuration is refused)."""
         self.ip_active = True
@@ -166,6 +169,14 @@ class FixedPeriodDrive(SimulatedDrive):
         """A linear ramp from the present demand to ``target`` over ``period`` ms from ``start``."""
         p0, _ = self._start_point()
         self._segment = Segment.linear(start, p0, float(target), period)
+
+    def _follow(self, segment: Segment) -> None:
+        """The demand follows ``segment`` from its start (a profile's own curve to a setpoint)."""
+        self._segment = segment
+
+    def _forget_setpoint(self) -> None:
+        """A setpoint written since the last SYNC is dropped (the drive no longer takes one)."""
+        self._new_setpoint = None
 
     def _judge(self, target: int | None) -> bool:
         """A drive without a ramp takes this SYNC's setpoint (None: holds the last): the change of its

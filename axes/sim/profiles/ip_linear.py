@@ -51,7 +51,7 @@ class IpLinearDrive(FixedPeriodDrive):
         if index == od.INTERPOLATION_DATA_CONFIGURATION and subindex == 6:
             self.buffer_enabled = value == 1
             if not self.buffer_enabled:
-                self._new_setpoint = None
+                self._forget_setpoint()
         super()._on_object_write(index, subindex, value)
 
     def _validated(self, now: float, target: int | None) -> None:

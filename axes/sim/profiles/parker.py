@@ -32,7 +32,6 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from pvtflow.axes.drive import objects as od
-from pvtflow.axes.drive.cia402 import Controlword
 from pvtflow.axes.drive.drive_profile import DriveProfile
 from pvtflow.axes.drive.interpolation import Interpolation
 from pvtflow.axes.sim.cia402.power_states import OPERATION_ENABLED
@@ -108,10 +107,10 @@ class ParkerDrive(FixedPeriodDrive):
             self.state == OPERATION_ENABLED
             and not self.ip_active
             and self._ip_mode_selected()
-            and not self._controlword & Controlword.HALT
-            and self._stop_segment is None
+            and not self.power.halted
+            and not self.motion.braking
         ):
-            self._ip_requested = True
+            self._request_ip()
         super()._on_sync_validated()
 
     def _activate(self) -> bool:
@@ -127,13 +126,13 @@ class ParkerDrive(FixedPeriodDrive):
     def _validated(self, now: float, target: int | None) -> None:
         mode, period = self.interpolation, self.period_ms
         if mode == DIRECT:  # no ramp of its own: every SYNC's setpoint judged (FixedPeriodDrive._judge)
-            if target is not None and not self._check_position(float(target)):
+            if target is not None and not self.motion.check_position(float(target)):
                 return
             previous = self.demand
             if not self._judge(target) or target is None:
                 return
-            self._segment = Segment(now, 0.0, float(target), 0.0, 0.0, 0.0, float(target), 0.0)
-            self.demand = float(target)
+            self._follow(Segment(now, 0.0, float(target), 0.0, 0.0, 0.0, float(target), 0.0))
+            self.motion.jump_to(float(target))
             self._check_dynamics((target - previous) / period, 0.0)
         elif mode is Interpolation.LINEAR:
             if target is not None:
@@ -143,7 +142,7 @@ class ParkerDrive(FixedPeriodDrive):
                 p0, v0 = self._start_point()
                 rpm = self.read(od.INTERPOLATION_DATA_RECORD, 3)
                 v1 = float(self.scaling.rpm_to_qc_per_ms(rpm))
-                self._segment = Segment.cubic(now, p0, v0, float(target), v1, period)
+                self._follow(Segment.cubic(now, p0, v0, float(target), v1, period))
         else:
             self._cubic_positions(now, target, period)
 
@@ -157,10 +156,10 @@ class ParkerDrive(FixedPeriodDrive):
             del points[:-3]
             if len(points) == 3:
                 v_next = (points[2] - points[0]) / (2.0 * period)
-                self._segment = Segment.cubic(now, points[0], self._v_last, points[1], v_next, period)
+                self._follow(Segment.cubic(now, points[0], self._v_last, points[1], v_next, period))
                 self._v_last = v_next
         elif points is not None:
             if len(points) >= 2:
-                self._segment = Segment.cubic(now, points[-2], self._v_last, points[-1], 0.0, period)
+                self._follow(Segment.cubic(now, points[-2], self._v_last, points[-1], 0.0, period))
             self._points = None
             self._v_last = 0.0

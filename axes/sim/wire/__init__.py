@@ -55,8 +55,8 @@ medium with these semantics:
   queued frames are dropped (one on the wire aborted), it receives nothing. ``inject_error_frame()``
   delivers an error frame (``is_error_frame``, default CAN_ERR_PROT) to every node not bus off; it
   takes no bus time in the accounting.
-* **Accounting** (``Medium.stats()`` -> ``WireStats``; ``records()``, ``load(t0, t1)``,
-  ``period_loads()``, ``late_syncs()``, ``sync_intervals()``): per frame start, end, identifier,
+* **Accounting** (``Medium.stats()`` -> ``WireStats``; ``Medium.accounting``: ``records()``,
+  ``load(t0, t1)``, ``period_loads()``, ``late_syncs()``, ``sync_intervals()``): per frame start, end, identifier,
   DLC and sender; bus load per SYNC period; late SYNCs (lockstep: started more than 5 % of the
   period after their nominal time; wall: more than that after the previous SYNC's start + period);
   max FIFO depth and ENOBUFS count per node; error frames injected.

@@ -15,6 +15,7 @@ import threading
 from collections import deque
 from dataclasses import asdict, dataclass, field
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.objects import SYNC_COB_ID
 from pvtflow.axes.sim.wire.node import Node
 
@@ -71,24 +72,57 @@ class WireStats:
 
 
 class Accounting:
-    """The accounting as part of a ``Medium`` (which owns the state below, records each frame as it
-    leaves the wire and each SYNC as it starts)."""
+    """What one channel carried, owned by its ``Medium``: the medium tells it each frame as it leaves
+    the wire (``frame``), each SYNC as it starts (``sync``), each error frame and each node that
+    leaves; it keeps the records and counts, under the medium's lock (``cond``, given)."""
 
-    channel: str
-    clock: str
-    bitrate: int
-    sync_period: float | None
-    cond: threading.Condition
-    nodes: list[Node]
-    _records: deque[WireFrame]
-    _syncs: deque[tuple[float, float]]
-    _frames: int
-    _bits: int
-    _error_frames: int
-    _departed: dict[str, tuple[int, int]]
+    def __init__(
+        self,
+        *,
+        channel: str,
+        clock: Clock,
+        bitrate: int,
+        sync_period: float | None,
+        cond: threading.Condition,
+        nodes: list[Node],
+        record_limit: int = DEFAULT_RECORD_LIMIT,
+    ) -> None:
+        self.channel = channel
+        self.clock = clock
+        self.bitrate = bitrate
+        self.sync_period = sync_period
+        self._cond = cond
+        self._nodes = nodes  # the medium's own list: the nodes on the channel now
+        self._records: deque[WireFrame] = deque(maxlen=record_limit)
+        self._syncs: deque[tuple[float, float]] = deque(maxlen=record_limit)  # (nominal or nan, start)
+        self._frames = 0
+        self._bits = 0
+        self._error_frames = 0
+        self._departed: dict[str, tuple[int, int]] = {}  # name: (ENOBUFS, max FIFO depth) of nodes that left
+
+    # -- what the medium tells it (under its lock) ------------------------------------------------
+
+    def frame(self, sender: str, can_id: int, dlc: int, bits: int, start: float, end: float) -> None:
+        self._frames += 1
+        self._bits += bits
+        self._records.append(WireFrame(start, end, can_id, dlc, sender))
+
+    def sync(self, nominal: float, start: float) -> None:
+        """A SYNC started at ``start``; ``nominal``: when it was due (lockstep), nan on the wall clock."""
+        self._syncs.append((nominal, start))
+
+    def error_frame(self) -> None:
+        self._error_frames += 1
+
+    def departed(self, node: Node) -> None:
+        """``node`` left the channel: its FIFO figures stay in the accounting."""
+        enobufs, depth = self._departed.get(node.name, (0, 0))
+        self._departed[node.name] = (enobufs + node.enobufs, max(depth, node.max_depth))
+
+    # -- what it tells ------------------------------------------------------------------------------
 
     def records(self) -> list[WireFrame]:
-        with self.cond:
+        with self._cond:
             return list(self._records)
 
     def load(self, t0: float, t1: float) -> float:
@@ -100,7 +134,7 @@ class Accounting:
         return _period_loads(self.records(), period or self.sync_period)
 
     def sync_intervals(self) -> list[float]:
-        with self.cond:
+        with self._cond:
             starts = [s for _, s in self._syncs]
         return [b - a for a, b in itertools.pairwise(starts)]
 
@@ -108,13 +142,13 @@ class Accounting:
         """Lockstep: SYNCs that started more than ``fraction`` of the period after their nominal time.
         Wall: SYNCs that started more than that after the previous SYNC's start + period."""
         period = self.sync_period
-        with self.cond:
+        with self._cond:
             syncs = list(self._syncs)
         if period is None:
             return []
         late: list[LateSync] = []
         for i, (nominal, start) in enumerate(syncs):
-            if self.clock == "wall":
+            if self.clock is Clock.WALL:
                 if i == 0:
                     continue
                 nominal = syncs[i - 1][1] + period
@@ -124,18 +158,18 @@ class Accounting:
 
     def stats(self) -> WireStats:
         records = self.records()
-        with self.cond:
+        with self._cond:
             frames, bits, error_frames = self._frames, self._bits, self._error_frames
             enobufs = {name: count for name, (count, _) in self._departed.items()}
             depth = {name: most for name, (_, most) in self._departed.items()}
-            for n in self.nodes:
+            for n in self._nodes:
                 enobufs[n.name] = enobufs.get(n.name, 0) + n.enobufs
                 depth[n.name] = max(depth.get(n.name, 0), n.max_depth)
         first = records[0].start if records else None
         last = records[-1].end if records else None
         return WireStats(
             channel=self.channel,
-            clock=self.clock,
+            clock=self.clock.value,
             bitrate=self.bitrate,
             sync_period=self.sync_period,
             frames=frames,

@@ -9,6 +9,7 @@ linux/can/error.h's, as python-can's socketcan hands them over.
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 
 import can
 from can import BusState
@@ -22,22 +23,34 @@ from pvtflow.axes.canbus.can_errors import (
     CAN_ERR_PROT,
     CAN_ERR_RESTARTED,
 )
-from pvtflow.axes.sim.wire.node import Node, Pending
+from pvtflow.axes.sim.wire.accounting import Accounting
+from pvtflow.axes.sim.wire.node import Node
 
 BUS_OFF = BusState.ERROR  # python-can's name for a controller that left the bus
 ERROR_PASSIVE = BusState.PASSIVE
 
 
-class BusStateHooks:
-    """Bus states and error frames as part of a ``Medium`` (which owns the state below and gives it
-    ``now``)."""
+class BusStates:
+    """Bus states and error frames of one channel, a part of its ``Medium``: it hands the nodes their
+    controller error frames and sets their state; the medium keeps the wire (``go_bus_off`` drops
+    what a node going bus off had queued) and the time, under its lock (``cond``, given)."""
 
-    channel: str
-    cond: threading.Condition
-    nodes: list[Node]
-    bus_end: float
-    _on_wire: tuple[Node, Pending, float, float] | None
-    _error_frames: int
+    def __init__(
+        self,
+        *,
+        channel: str,
+        cond: threading.Condition,
+        nodes: list[Node],
+        now: Callable[[], float],
+        go_bus_off: Callable[[Node], None],
+        accounting: Accounting,
+    ) -> None:
+        self.channel = channel
+        self._cond = cond
+        self._nodes = nodes  # the medium's own list: the nodes on the channel now
+        self._now = now
+        self._go_bus_off = go_bus_off
+        self._accounting = accounting
 
     def set_state(self, name: str, state: BusState) -> None:
         """Put node ``name`` into ``state`` (ACTIVE, PASSIVE = error passive, ERROR = bus off), as
@@ -46,22 +59,14 @@ class BusStateHooks:
         wire)."""
         if state not in (BusState.ACTIVE, BusState.PASSIVE, BusState.ERROR):
             raise ValueError(f"bus state must be ACTIVE, PASSIVE or ERROR (bus off), got {state!r}")
-        with self.cond:
-            node = next((n for n in self.nodes if n.name == name), None)
+        with self._cond:
+            node = next((n for n in self._nodes if n.name == name), None)
             if node is None:
                 raise KeyError(f"simwire channel {self.channel!r} has no node {name!r}")
             before, node.state = node.state, state
             if state == BUS_OFF:
                 node.deliver(self._error_frame(CAN_ERR_BUSOFF, bytes(8)))
-                if self._on_wire is not None and self._on_wire[0] is node:
-                    self.bus_end = max(self.bus_end, self._on_wire[2])
-                    self._on_wire = None
-                dropped = len(node.fifo)
-                node.fifo.clear()
-                node.ends.clear()
-                if dropped and node.on_done is not None:
-                    node.on_done(dropped)
-                self.cond.notify_all()
+                self._go_bus_off(node)
                 return  # a bus-off controller hears nothing more
             if before == BUS_OFF:
                 can_id, data = CAN_ERR_RESTARTED, bytes(8)
@@ -70,20 +75,20 @@ class BusStateHooks:
             else:
                 can_id, data = CAN_ERR_CRTL, bytes([0, CAN_ERR_CRTL_ACTIVE, *bytes(6)])
             node.deliver(self._error_frame(can_id, data))
-            self.cond.notify_all()
+            self._cond.notify_all()
 
     def inject_error_frame(self, can_id: int = CAN_ERR_PROT, data: bytes = bytes(8)) -> None:
         """An error frame on the bus (default: a protocol violation), delivered to every node that
         is not bus off, stamped with the bus time. It takes no bus time in the accounting."""
-        with self.cond:
-            self._error_frames += 1
-            for n in self.nodes:
+        with self._cond:
+            self._accounting.error_frame()
+            for n in self._nodes:
                 if n.state != BUS_OFF:
                     n.deliver(self._error_frame(can_id, data))
 
     def _error_frame(self, can_id: int, data: bytes) -> can.Message:
         return can.Message(
-            timestamp=self.now(),
+            timestamp=self._now(),
             arbitration_id=can_id,
             is_extended_id=False,
             is_error_frame=True,

@@ -15,6 +15,7 @@ import can
 from can import BusState
 
 from pvtflow.axes.canbus.can_errors import ControllerState, decode
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.threads import ask_wire_priority
 from pvtflow.axes.sim.wire import protocol as p
 from pvtflow.axes.sim.wire.accounting import LateSync, WireStats
@@ -71,7 +72,7 @@ class WireLink:
         self.params = {k: welcome[k] for k in ("bitrate", "clock", "sync_period")}
         # the medium's wall-clock bus time base: CLOCK_MONOTONIC is the host's, one for every process
         self._epoch: float = welcome.get("epoch", 0.0)
-        self.pipelined = self.params["clock"] == "wall"
+        self.pipelined = self.params["clock"] == Clock.WALL
         self.txqueuelen: int = hello["txqueuelen"]
         self.state = BusState.ACTIVE  # followed from the controller error frames received
         self._inflight = 0

@@ -21,6 +21,7 @@ import can
 from can import BusState
 from can.typechecking import AutoDetectedConfig, CanFilters
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.sim.wire.client import RemoteMedium, WireLink
 from pvtflow.axes.sim.wire.medium import Medium, WireConfigError
 from pvtflow.axes.sim.wire.node import DEFAULT_TXQUEUELEN, Cyclic, Node
@@ -104,7 +105,7 @@ class SimWireBus(can.BusABC):
                 "name": node_name,
             }
             self._link = WireLink(name, host, port, hello, self._rx.put, self._remote_closed)
-            self.clock = self._link.params["clock"]
+            self.clock = Clock(self._link.params["clock"])
             self.node_name = self._link.node
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
 
@@ -167,7 +168,7 @@ class SimWireBus(can.BusABC):
         itself, as SocketCAN's broadcast manager times it in the kernel (each frame queued at its due
         bus time, heard by this node too). Anything else: python-can's thread of its own."""
         one = [msgs] if isinstance(msgs, can.Message) else list(msgs)
-        if self._node is None or self.clock != "wall" or len(one) != 1 or duration or modifier_callback:
+        if self._node is None or self.clock is not Clock.WALL or len(one) != 1 or duration or modifier_callback:
             return super()._send_periodic_internal(msgs, period, duration, autostart, modifier_callback)
         task = WireCyclicTask(self._medium, self._node, one[0], period)
         if autostart:
@@ -186,7 +187,7 @@ class SimWireBus(can.BusABC):
             raise can.CanOperationError(f"{self.channel_info}: the bus is closed")
         if msg.is_rx and msg.timestamp > self._local_time:
             self._local_time = msg.timestamp
-            if self._node is not None and self.clock == "lockstep":
+            if self._node is not None and self.clock is Clock.LOCKSTEP:
                 self._medium.received(self._node, msg.timestamp)
         return msg, False
 

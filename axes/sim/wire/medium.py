@@ -4,8 +4,9 @@ Pure scheduling logic under one lock: no thread of its own. On the ``lockstep`` 
 scheduled and delivered inside ``submit``; on the ``wall`` clock ``submit`` queues it in its node's
 transmit FIFO and ``step(now)`` (called by ``axes.sim.wire.wall.WallDriver``, or by a test with
 the time it chooses) puts the frames whose time has come on the wire. Deliveries happen under the
-lock, so every node sees the frames in bus order. The semantics are the package docstring's; what
-the channel carried is counted by ``accounting.py``, bus states and error frames are ``bus_states.py``'s.
+lock, so every node sees the frames in bus order. The semantics are the package docstring's. The
+medium holds two parts under its lock: ``accounting`` (``accounting.py``: what the channel carried) and
+``bus_states`` (``bus_states.py``: bus states and error frames, the test hooks).
 """
 
 from __future__ import annotations
@@ -19,11 +20,14 @@ from collections.abc import Callable
 from contextlib import AbstractContextManager
 
 import can
+from can import BusState
 
+from pvtflow.axes.canbus.can_errors import CAN_ERR_PROT
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.frame_time import frame_bits
 from pvtflow.axes.drive.objects import SYNC_COB_ID
-from pvtflow.axes.sim.wire.accounting import DEFAULT_RECORD_LIMIT, Accounting, WireFrame
-from pvtflow.axes.sim.wire.bus_states import BUS_OFF, BusStateHooks
+from pvtflow.axes.sim.wire.accounting import DEFAULT_RECORD_LIMIT, Accounting, LateSync, WireStats
+from pvtflow.axes.sim.wire.bus_states import BUS_OFF, BusStates
 from pvtflow.axes.sim.wire.node import (
     DEFAULT_TXQUEUELEN,
     Cyclic,
@@ -35,7 +39,6 @@ from pvtflow.axes.sim.wire.node import (
     transmit_queue_full,
 )
 
-CLOCKS = ("wall", "lockstep")
 SYNC_ID = SYNC_COB_ID
 IDLE_S = 0.05  # lockstep: no SYNC for this long (wall time) and the bus is idle: bus time follows the wall clock
 
@@ -44,41 +47,44 @@ class WireConfigError(ValueError):
     """A bus asked for a medium that disagrees with the channel's (clock, bit rate, SYNC period)."""
 
 
-class Medium(Accounting, BusStateHooks):
-    """One channel's bus: nodes, arbitration, bus time, accounting."""
+class Medium:
+    """One channel's bus: nodes, arbitration, bus time; its accounting and bus states as parts."""
 
     def __init__(
         self,
         channel: str = "simwire",
         *,
         bitrate: int = 1_000_000,
-        clock: str = "wall",
+        clock: str = Clock.WALL,
         sync_period: float | None = None,
         sync_id: int = SYNC_ID,
         record_limit: int = DEFAULT_RECORD_LIMIT,
     ) -> None:
-        if clock not in CLOCKS:
-            raise WireConfigError(f"simwire clock must be one of {', '.join(CLOCKS)}, got {clock!r}")
+        if clock not in list(Clock):
+            raise WireConfigError(f"simwire clock must be one of {', '.join(Clock)}, got {clock!r}")
         if not isinstance(bitrate, int) or bitrate <= 0:
             raise WireConfigError(f"simwire bitrate must be a positive integer (bit/s), got {bitrate!r}")
         if sync_period is not None and not sync_period > 0:
             raise WireConfigError(f"simwire sync_period must be positive seconds, got {sync_period!r}")
-        if clock == "lockstep" and sync_period is None:
+        if clock == Clock.LOCKSTEP and sync_period is None:
             raise WireConfigError("simwire clock lockstep needs sync_period (seconds): bus time advances with it")
         self.channel = channel
         self.bitrate = bitrate
-        self.clock = clock
+        self.clock = Clock(clock)
         self.sync_period = sync_period
         self.sync_id = sync_id
         self.cond = threading.Condition(threading.RLock())
         self.nodes: list[Node] = []
         self._names = itertools.count(1)
-        self._records: deque[WireFrame] = deque(maxlen=record_limit)
-        self._frames = 0
-        self._bits = 0
-        self._error_frames = 0
-        self._departed: dict[str, tuple[int, int]] = {}  # name: (ENOBUFS, max FIFO depth) of nodes that left
-        self._syncs: deque[tuple[float, float]] = deque(maxlen=record_limit)  # (nominal or nan, start)
+        self.accounting = Accounting(
+            channel=channel,
+            clock=self.clock,
+            bitrate=bitrate,
+            sync_period=sync_period,
+            cond=self.cond,
+            nodes=self.nodes,
+            record_limit=record_limit,
+        )
         self.bus_end = 0.0  # end of the last frame on the bus
         self._last_sync_nominal: float | None = None  # lockstep
         self._idle_from = (0.0, time.monotonic())  # lockstep: (bus time, wall time) of the last SYNC
@@ -90,12 +96,20 @@ class Medium(Accounting, BusStateHooks):
         # wraps a run of deliveries from one thread (the wall driver's step): the loopback server
         # writes a run's frames to each client's socket once, at its end
         self.delivery_batch: Callable[[], AbstractContextManager[None]] = contextlib.nullcontext
+        self.bus_states = BusStates(
+            channel=channel,
+            cond=self.cond,
+            nodes=self.nodes,
+            now=self.now,
+            go_bus_off=self._go_bus_off,
+            accounting=self.accounting,
+        )
 
     # -- time ----------------------------------------------------------------------------------
 
     def now(self) -> float:
         """Bus time: wall clock as epoch seconds (monotonic-based); lockstep: the end of the last frame."""
-        if self.clock == "wall":
+        if self.clock is Clock.WALL:
             return self._epoch + time.monotonic()
         return self.bus_end
 
@@ -114,6 +128,23 @@ class Medium(Accounting, BusStateHooks):
                     f"simwire channel {self.channel!r} runs with {name}={have!r}; this bus asked for {asked!r}"
                 )
 
+    # -- the parts' faces: the names a ``RemoteMedium`` answers to as well --------------------------
+
+    def stats(self) -> WireStats:
+        return self.accounting.stats()
+
+    def late_syncs(self) -> list[LateSync]:
+        return self.accounting.late_syncs()
+
+    def sync_intervals(self) -> list[float]:
+        return self.accounting.sync_intervals()
+
+    def set_state(self, name: str, state: BusState) -> None:
+        self.bus_states.set_state(name, state)
+
+    def inject_error_frame(self, can_id: int = CAN_ERR_PROT, data: bytes = bytes(8)) -> None:
+        self.bus_states.inject_error_frame(can_id, data)
+
     # -- nodes ---------------------------------------------------------------------------------
 
     def attach(
@@ -127,7 +158,7 @@ class Medium(Accounting, BusStateHooks):
             if any(n.name == name for n in self.nodes):
                 raise WireConfigError(f"simwire channel {self.channel!r} already has a node named {name!r}")
             node = Node(name=name, deliver=deliver, txqueuelen=txqueuelen, receive_own=bool(receive_own))
-            if self.clock == "lockstep":
+            if self.clock is Clock.LOCKSTEP:
                 node.local_time = self.bus_end
             self.nodes.append(node)
             return node
@@ -137,8 +168,7 @@ class Medium(Accounting, BusStateHooks):
         with self.cond:
             if node in self.nodes:
                 self.nodes.remove(node)
-                enobufs, depth = self._departed.get(node.name, (0, 0))
-                self._departed[node.name] = (enobufs + node.enobufs, max(depth, node.max_depth))
+                self.accounting.departed(node)
             node.fifo = deque(p for p in node.fifo if self._on_wire and self._on_wire[1] is p)
             self._cyclic = [t for t in self._cyclic if t.node is not node]
             self.cond.notify_all()
@@ -169,14 +199,14 @@ class Medium(Accounting, BusStateHooks):
                 if node.state == BUS_OFF:
                     raise bus_off_error(node.name)
                 try:
-                    if self.clock == "lockstep":
+                    if self.clock is Clock.LOCKSTEP:
                         self._submit_lockstep(node, msg, bits, 0.0 if timeout is None else max(timeout, 0.0))
                     else:
                         self._submit_wall(node, msg, bits, self.now() if now is None else now)
                     return
                 except can.CanOperationError:
                     # lockstep waited in bus time already (``_submit_lockstep``); wall time waits here
-                    if self.clock == "lockstep" or deadline is None or not self.wait_for_room(node, deadline):
+                    if self.clock is Clock.LOCKSTEP or deadline is None or not self.wait_for_room(node, deadline):
                         node.enobufs += 1
                         raise
 
@@ -219,7 +249,7 @@ class Medium(Accounting, BusStateHooks):
         node.last_end = end
         node.max_depth = max(node.max_depth, len(ends))
         if sync:
-            self._syncs.append((enqueue, start))
+            self.accounting.sync(enqueue, start)
         self._transmitted(node, msg, bits, start, end)
 
     def _submit_wall(self, node: Node, msg: can.Message, bits: int, now: float) -> None:
@@ -238,7 +268,7 @@ class Medium(Accounting, BusStateHooks):
         """Wall clock: send ``msg`` from ``node`` every ``period`` seconds of bus time from now on,
         timed by the medium (a frame whose node's FIFO is full at its due time is dropped, as the
         broadcast manager's is)."""
-        if self.clock != "wall":
+        if self.clock is not Clock.WALL:
             raise WireConfigError("a cyclic send is timed by the wall-clock medium; lockstep has no time of its own")
         bits = frame_bits(
             msg.arbitration_id, bytes(msg.data), extended=msg.is_extended_id, remote=msg.is_remote_frame, dlc=msg.dlc
@@ -306,7 +336,7 @@ class Medium(Accounting, BusStateHooks):
                     if node.on_done is not None:
                         node.on_done(1)
                     if self._is_sync(pending.msg):
-                        self._syncs.append((float("nan"), start))
+                        self.accounting.sync(float("nan"), start)
                     self._transmitted(node, pending.msg, pending.bits, start, end, heard_by_sender=pending.cyclic)
                     self.cond.notify_all()  # room in a FIFO
                 heads = [n for n in self.nodes if n.fifo]
@@ -316,6 +346,20 @@ class Medium(Accounting, BusStateHooks):
                 winner = min((n for n in heads if n.fifo[0].enqueued <= start), key=lambda n: n.fifo[0].priority)
                 pending = winner.fifo[0]
                 self._on_wire = (winner, pending, start, start + pending.bits * self._seconds_per_bit)
+
+    def _go_bus_off(self, node: Node) -> None:
+        """``node`` went bus off (``bus_states``): its queued frames are lost, one on the wire is aborted
+        (nothing of it reaches the wire)."""
+        with self.cond:
+            if self._on_wire is not None and self._on_wire[0] is node:
+                self.bus_end = max(self.bus_end, self._on_wire[2])
+                self._on_wire = None
+            dropped = len(node.fifo)
+            node.fifo.clear()
+            node.ends.clear()
+            if dropped and node.on_done is not None:
+                node.on_done(dropped)
+            self.cond.notify_all()
 
     def wait_for_room(self, node: Node, deadline: float) -> bool:
         """Block (wall time) until ``node``'s FIFO has room or ``deadline`` (time.monotonic) passes."""
@@ -332,7 +376,7 @@ class Medium(Accounting, BusStateHooks):
                 node.waiters -= 1
 
     def _queued(self, node: Node) -> int:
-        if self.clock == "wall":
+        if self.clock is Clock.WALL:
             return len(node.fifo)
         enqueue = max(node.local_time, self._lockstep_now())
         return sum(1 for e in node.ends if e > enqueue)
@@ -352,9 +396,7 @@ class Medium(Accounting, BusStateHooks):
         task's frame reaches its own node as a received one (``heard_by_sender``)."""
         self.bus_end = end
         sender.frames += 1
-        self._frames += 1
-        self._bits += bits
-        self._records.append(WireFrame(start, end, msg.arbitration_id, msg.dlc, sender.name))
+        self.accounting.frame(sender.name, msg.arbitration_id, msg.dlc, bits, start, end)
         for n in self.nodes:
             if n.state == BUS_OFF:
                 continue

@@ -6,11 +6,12 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.sim.wire.medium import Medium
 from pvtflow.axes.sim.wire.wall import WallDriver
 
 DEFAULT_BITRATE = 1_000_000
-DEFAULT_CLOCK = "wall"
+DEFAULT_CLOCK = Clock.WALL
 
 
 @dataclass
@@ -38,7 +39,7 @@ def acquire_medium(
                 clock=DEFAULT_CLOCK if clock is None else clock,
                 sync_period=sync_period,
             )
-            entry = _media[channel] = _Open(medium, WallDriver(medium) if medium.clock == "wall" else None, 0)
+            entry = _media[channel] = _Open(medium, WallDriver(medium) if medium.clock is Clock.WALL else None, 0)
         else:
             entry.medium.check_agrees(bitrate=bitrate, clock=clock, sync_period=sync_period)
         entry.users += 1

@@ -33,6 +33,7 @@ from typing import Any
 import can
 from can import BusState
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.threads import ask_wire_priority
 from pvtflow.axes.sim.wire import protocol as p
 from pvtflow.axes.sim.wire.medium import Medium, WireConfigError
@@ -150,7 +151,7 @@ class WireServer:
         channel: str,
         port: int = 0,
         *,
-        clock: str = "wall",
+        clock: Clock | str = Clock.WALL,
         bitrate: int = 1_000_000,
         sync_period: float | None = None,
         host: str = "127.0.0.1",
@@ -380,7 +381,7 @@ class WireServer:
                 conn.sock.send(p.pack_fail(0, str(error)))
             self._close_conn(conn)
             return
-        if self.medium.clock == "wall":
+        if self.medium.clock is Clock.WALL:
             node.on_done = frames.put_done
         client = _Client(node, frames, conn)
         conn.client = client
@@ -465,7 +466,7 @@ def serve_wire(
     channel: str,
     port: int = 0,
     *,
-    clock: str = "wall",
+    clock: Clock | str = Clock.WALL,
     bitrate: int = 1_000_000,
     sync_period: float | None = None,
     host: str = "127.0.0.1",

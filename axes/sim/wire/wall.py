@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import threading
 
+from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.threads import ask_wire_priority
 from pvtflow.axes.sim.wire.medium import Medium
 
 
 class WallDriver:
     def __init__(self, medium: Medium) -> None:
-        if medium.clock != "wall":
+        if medium.clock is not Clock.WALL:
             raise ValueError(f"a wall driver runs a wall-clock medium, not {medium.clock}")
         self.medium = medium
         self._stop = False

@@ -37,14 +37,14 @@ def test_heartbeat_stops_on_injection(bench: Bench) -> None:
     node = bench.remote(drive)
     node.sdo[od.PRODUCER_HEARTBEAT_TIME].raw = 5
     assert len(bench.log.wait_for(0x708, 3, where=lambda m: m.data[0] == 0x7F)) >= 3
-    drive.stop_heartbeat()
+    drive.nmt.stop_heartbeat()
     bench.log.clear()
     # 20 heartbeat periods of silence: waiting for a frame that must not come
     assert bench.log.wait_for(0x708, 1, timeout=0.1) == []
     # a master rewriting 0x1017 does not revive a dead node; resuming does
     node.sdo[od.PRODUCER_HEARTBEAT_TIME].raw = 5
     assert bench.log.wait_for(0x708, 1, timeout=0.05) == []
-    drive.resume_heartbeat()
+    drive.nmt.resume_heartbeat()
     assert bench.log.wait_for(0x708, 2)
 
 

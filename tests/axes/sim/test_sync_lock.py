@@ -96,14 +96,14 @@ def run(bench: Bench, make, monkeypatch, offsets_us: dict[int, float], missing: 
         assert drive.time_us == 0 and drive.sync_count == 0
         drive.motion_clock = MotionClock(drive.quartz, 0.0, start)
     samples: list[tuple[float, float, float]] = []
-    sample = drive._sample
+    sample = drive.motion.sample
 
     def recorded(t: float, full: bool) -> None:
         sample(t, full)
         if full:
             samples.append((t, drive.demand, drive.velocity))
 
-    drive._sample = recorded  # type: ignore[method-assign]
+    drive.motion.sample = recorded  # type: ignore[method-assign]
     period_ms = drive.period_ms  # SYNC every interpolation period
     setpoints = full_speed_setpoints(period_ms)
     tail = 4
@@ -120,7 +120,7 @@ def run(bench: Bench, make, monkeypatch, offsets_us: dict[int, float], missing: 
             continue
         if 1 <= k <= len(setpoints):  # SYNC 0 activates; SYNC k validates setpoint k
             drive.node.sdo[od.INTERPOLATION_DATA_RECORD][1].raw = setpoints[k - 1]
-        drive._on_sync(0x80, bytearray(), instant)
+        drive.motion.on_sync(0x80, bytearray(), instant)
     return drive, samples
 
 
@@ -197,7 +197,7 @@ def test_the_lock_follows_a_drifting_quartz(monkeypatch) -> None:
         for k in range(3000):
             instant = start + k * PERIOD_MS * 1e-3
             drive.run_to(instant)
-            drive._on_sync(0x80, bytearray(), instant)
+            drive.motion.on_sync(0x80, bytearray(), instant)
     finally:
         bench.close()
     lock = drive.sync_lock
