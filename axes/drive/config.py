@@ -66,11 +66,14 @@ class BusConfig:
     # the EPOS2 FIFO holds records at most this far beyond the drive's clock (and never fewer than
     # MIN_HELD, axes.master.group.feeder): what the drives hold is what a change of the motion (on-path
     # stop, pause, override: axes.master.splice) cannot take back, and also what rides out a stalled
-    # master (the EPOS2's SYNC-gap ride-out is this less a period). 100 ms: the change's computation
-    # (3-60 ms in the service, bench/onpath_stop.py) and the records' transfer fit in it, and a master on
-    # a loaded 2-core host (SYNC gaps of 50-65 ms seen by the wall-clock tests) is ridden out; 50 ms (the
-    # design note's) halts such a master's motions
-    max_lookahead_ms: float = 100.0
+    # master (the EPOS2's SYNC-gap ride-out is this less a period). 200 ms: the change's computation
+    # (3-60 ms in the service, bench/onpath_stop.py) and the records' transfer fit in it, and a master
+    # stalled by its host is ridden out as the full FIFO did before the bound (134 ms and more): at 100 ms
+    # a master sharing a 2-core host with two CPU-bound processes (and its interpreter with the drives)
+    # let every EPOS2 run dry (buffer underflow, EMCY 0xFF0C) in 2 of 12 wall-clock stops; at 50 ms its
+    # SYNC gaps of 50-65 ms halted motions. A cell whose master never stalls that long may ask for less:
+    # a path stop, a pause and an override begin that much sooner (bench/RESULTS.md, issue 37)
+    max_lookahead_ms: float = 200.0
 
     def planning_share(self, fixed_period: bool) -> float:
         """The factor on an axis's 0x607F and 0x60C5 its plans are made with: ``1 - fixed_period_headroom``

@@ -846,3 +846,28 @@ def test_quick_stop_requests_a_full_queue_refused_are_sent_when_it_drains_and_th
     finally:
         FlakyBus.failing_until.pop(bus.config.channel, None)
         close_rig(sim, bus, group)
+
+
+@pytest.mark.wall
+def test_a_transmit_queue_full_at_the_start_check_refuses_the_start_with_nothing_moving(arm6):
+    """A check SYNC (or a preload) that cannot be sent ends the start with BUS_ERROR, said by name, not
+    an exception: no start word went out, so no drive moves, and the next start runs."""
+    cell, sim, bus, group = sim_rig(arm6, clock=Clock.LOCKSTEP, interface="pvtflow_test_flaky")
+    try:
+        there = program(cell.ordered_axes(), 300, fraction=0.3)
+        assert group.run(there, timeout_s=30.0).ok  # every axis ready: the next start checks by SYNC
+        group.settle(5.0)
+        ends = [int(a.records[-1, 0]) for a in there.axes]
+        back = program(cell.ordered_axes(), 300, fraction=0.3, starts=ends, sign=-1)
+        at_rest = {d.node_id: d.demand for d in sim}
+        FlakyBus.fail(bus.config.channel, 0.05)  # 50 ms: past the 2 ms of retries a SYNC gets
+        refused = group.start(back)
+        assert refused is not None and refused.result is Result.BUS_ERROR, refused
+        assert "could not be sent" in refused.message
+        time.sleep(0.06)  # the queue has room again
+        assert not group.running and {d.node_id: d.demand for d in sim} == at_rest
+        assert all(d.faults == [] for d in sim)
+        assert group.run(back, timeout_s=30.0).ok
+    finally:
+        FlakyBus.failing_until.pop(bus.config.channel, None)
+        close_rig(sim, bus, group)

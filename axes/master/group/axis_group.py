@@ -256,6 +256,11 @@ class AxisGroup:
             except DriveError as exc:
                 link = next((lk for lk in self.links if lk.node_id == exc.node_id), None)
                 return self._finish_early(Result.CONFIGURATION_ERROR, str(exc), link)
+            except (can.CanError, OSError) as exc:  # no start word went out: nothing moves
+                # the SYNC count and the drives' answers agree again from here (a check SYNC not sent
+                # was counted); the next start asks every drive by SDO (its readiness was taken)
+                self.setup.expect_answers()
+                return self._finish_early(Result.BUS_ERROR, f"the start's check could not be sent: {exc}")
             finally:
                 self._starting = False
             if self._stop_request is not None:
@@ -264,7 +269,11 @@ class AxisGroup:
                 f if f is not None else p.feeder(prog, self.allowance)
                 for f, p, prog in zip(feeders, self.profiles, run.programs, strict=True)
             )
-            refusal = self.checks.preload(run.feeders, checked=any(f is not None for f in feeders))
+            try:
+                refusal = self.checks.preload(run.feeders, checked=any(f is not None for f in feeders))
+            except (can.CanError, OSError) as exc:  # records without a start word move nothing
+                self.setup.expect_answers()
+                return self._finish_early(Result.BUS_ERROR, f"the records could not be sent before the start: {exc}")
             if refusal is not None:
                 return self._finish_early(*refusal)
         sync = self.bus.sync
