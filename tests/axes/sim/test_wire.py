@@ -15,6 +15,7 @@ from pathlib import Path
 
 import can
 import canopen
+import numpy as np
 import pytest
 from can import BusState
 
@@ -581,3 +582,28 @@ def test_canopen_sdo_over_the_loopback_server(buses: Buses, server: tuple[str, s
     finally:
         master_net.disconnect()
         drive_net.disconnect()
+
+
+@pytest.mark.wall
+def test_a_served_medium_times_a_clients_cyclic_send_when_asked(buses: Buses) -> None:
+    """``cyclic_by_medium``: ``send_periodic`` of a client is timed by the medium in the server's process
+    (SocketCAN's broadcast manager in the kernel): each SYNC queued at its due bus time, heard by the
+    sender too; stopped, none follows. Without it, python-can's thread of the client's process sends."""
+    with wire_in_a_child("wall", 1_000_000, PERIOD) as (address, _):
+        plain = buses.open(address, node_name="plain")
+        task = plain.send_periodic(frame(SYNC), 0.005, autostart=False)
+        assert isinstance(task, can.broadcastmanager.ThreadBasedCyclicSendTask)
+        task.stop()
+        master = buses.open(address, node_name="master", cyclic_by_medium=True)
+        listener = buses.open(address, node_name="listener")
+        task = master.send_periodic(frame(SYNC), 0.005)
+        assert not isinstance(task, can.broadcastmanager.ThreadBasedCyclicSendTask)
+        own = drain(master, 4)
+        task.stop()
+        heard = drain(listener, 4)
+        assert [m.arbitration_id for m in heard] == [SYNC] * 4 and all(m.is_rx for m in own)
+        # timed in bus time by the medium (nothing else on the wire): the period exactly, whatever the host did
+        assert np.diff([m.timestamp for m in heard]) == pytest.approx([0.005] * 3, abs=1e-6)
+        while listener.recv(0.05) is not None:  # what was queued as it stopped
+            pass
+        assert listener.recv(0.05) is None
