@@ -7,6 +7,7 @@ setting the start SYNC's time back.
 
 from __future__ import annotations
 
+import itertools
 import multiprocessing
 import uuid
 
@@ -254,3 +255,54 @@ def test_a_mirrored_feeder_sends_nothing_whatever_its_drive_says() -> None:
     top_up_by_need([buffered, setpoints], allowance)
     setpoints.after_sync(0)
     assert sent == [] and buffered.next == 0 and setpoints.next == 0
+
+
+@pytest.mark.wall
+def test_following_the_interfaces_sync_each_sync_gets_the_next_setpoint_and_its_wire_time_stamp() -> None:
+    """``interface_sync``: the interface (here the wall-clock medium, as socketcan's broadcast manager)
+    sends SYNC; the loop follows each SYNC it hears with the next setpoint and the time stamp of that
+    SYNC's wire time, never two setpoints before one SYNC, and after ``stop`` no SYNC comes any more."""
+    from pvtflow.axes.sim.wire import SimWireBus
+
+    channel = f"cycw-{uuid.uuid4().hex[:8]}"
+    bus = SimWireBus(channel, clock="wall", receive_own_messages=True, node_name="cyclic")
+    listener = SimWireBus(channel, node_name="listener")
+    try:
+        loop, _ = loop_on(bus)
+        setpoints = np.array([[1000 * k, 0, 10] for k in range(40)], dtype=np.int64)
+        spec = CycleSpec(
+            1,
+            PERIOD_MS,
+            start_count=1,
+            stamp_cob_id=STAMP,
+            max_gap_s=0.5,
+            records_per_sync=1,
+            interface_sync=True,
+            feeds=[FeedSpec(12, setpoints, lambda r: target_frame(0x20C, r), next=1, lead=1)],
+        )
+        loop.begin(spec)
+        heard: list[can.Message] = []
+        while sum(m.arbitration_id == SYNC_COB_ID for m in heard) < 8:
+            msg = listener.recv(2.0)
+            assert msg is not None, "the interface stopped sending SYNC"
+            heard.append(msg)
+        loop.stop()
+        while (msg := listener.recv(0.1)) is not None:  # what was on its way as it stopped
+            heard.append(msg)
+        assert listener.recv(3 * PERIOD_MS / 1000.0) is None  # stopped: no SYNC any more
+
+        syncs = [i for i, m in enumerate(heard) if m.arbitration_id == SYNC_COB_ID]
+        assert loop.timing.late_us == [] and loop.timing.followed_us  # the loop timed no SYNC: it followed
+        targets = [int.from_bytes(m.data, "little", signed=True) for m in heard if m.arbitration_id == 0x20C]
+        assert targets == [1000 * k for k in range(1, len(targets) + 1)]  # the next in the program, no jump
+        for before, after in itertools.pairwise(syncs):
+            between = heard[before + 1 : after]
+            assert sum(m.arbitration_id == 0x20C for m in between) <= 1  # never two before one SYNC
+            stamps = [m for m in between if m.arbitration_id == STAMP]
+            for stamp in stamps:  # the time stamp says when that SYNC left the wire
+                assert int.from_bytes(stamp.data, "little") == round(heard[before].timestamp * 1e6) & 0xFFFFFFFF
+        assert len(targets) >= 5 and len(targets) <= loop.count <= len(syncs)  # one per SYNC followed
+        assert loop.progress[PROGRESS_COUNT] == loop.count
+    finally:
+        bus.shutdown()
+        listener.shutdown()

@@ -51,6 +51,7 @@ from pvtflow.axes.master.bus.quick_stop import (
     quick_stop_request,
 )
 from pvtflow.axes.master.bus.sync import ask_realtime, lift
+from pvtflow.axes.master.bus.sync_follower import native_cyclic_task
 from pvtflow.axes.master.group.feeder import (
     BufferFeeder,
     Feeder,
@@ -97,10 +98,16 @@ class CycleSpec:
     max_gap_s: float
     records_per_sync: int
     tx_queue_frames: int = 10  # this node's transmit queue (BusConfig.tx_queue_frames: socketcan's txqueuelen)
+    interface_sync: bool = False  # the interface sends SYNC and this process follows it (BusConfig.interface_sync)
     feeds: list[FeedSpec] = field(default_factory=list)
 
 
 ECHO_POLL_S = 0.00005  # how often the SYNC thread looks for its SYNC's echo
+FOLLOW_WAIT_S = 0.001  # following the interface's SYNC: the longest wait for a frame before a gap is judged
+# following the interface's SYNC, the gaps the drives saw are judged on the SYNCs' wire times when they are
+# heard; hearing none at all for this much longer than they ride out means the interface stopped sending
+# (hearing them late is the host's delay: measured up to 2-4 ms on this VM, bench/RESULTS.md)
+SILENCE_GRACE_S = 0.02
 
 
 @dataclass
@@ -111,6 +118,9 @@ class CycleTiming:
     echo_us: list[float] = field(default_factory=list)  # each SYNC's echo, heard here, after its send
     unstamped: int = 0  # SYNCs whose echo did not come within half a period (no time stamp for them)
     refused: int = 0  # tries of a SYNC the transmit queue had no room for (each tried again 0.2 ms later)
+    # following the interface's SYNC: each SYNC's setpoints sent here after the SYNC left the wire
+    followed_us: list[float] = field(default_factory=list)
+    held: int = 0  # SYNCs heard before this process's setpoints for them were on the wire (the drives held)
 
 
 class CyclicLoop:
@@ -153,6 +163,11 @@ class CyclicLoop:
         self._sent_frames = 0  # frames this node sent (``queued``)
         self._own_echoes = 0  # of them, those whose echo came back
         self._reserved = 2  # the queue's room kept for a SYNC and what must follow it (``prepare``)
+        # following the interface's SYNC (``_follow``): the SYNCs heard, each (its wire time, whether the
+        # setpoints sent for it were on the wire before it), and the frames sent up to those setpoints
+        self._heard: list[tuple[float, bool]] = []
+        self._setpoints_mark = 0
+        self._task: can.broadcastmanager.CyclicTask | None = None
 
     # --- to the master ---------------------------------------------------------------------------
     def tell(self, *message: object) -> None:
@@ -212,17 +227,34 @@ class CyclicLoop:
                     return
                 if msg is None:
                     return
-                can_id = msg.arbitration_id
-                if not msg.is_rx:
-                    self._own_echoes += 1
-                if can_id == SYNC_COB_ID and not msg.is_rx:  # our own SYNC, as it left the wire
-                    self._echoes += 1
-                    self._echo_of = (self._echoes, msg.timestamp, time.monotonic())
-                elif (
-                    od.SDO_RESPONSE_COB_ID_BASE < can_id <= od.SDO_RESPONSE_COB_ID_BASE + od.NODE_ID_BITS
-                    and msg.data[:1] == _CONFIRMED
-                ):
-                    self._confirmed.add(can_id - od.SDO_RESPONSE_COB_ID_BASE)
+                self._take(msg)
+
+    def wait_and_drain(self, timeout: float) -> None:
+        """Wait up to ``timeout`` for a frame (any: the bus brings several per period), then ``drain``."""
+        with self._reading:
+            try:
+                msg = self.bus.recv(timeout)
+            except (can.CanError, OSError, ValueError):
+                msg = None
+            if msg is not None:
+                self._take(msg)
+        self.drain()
+
+    def _take(self, msg: can.Message) -> None:
+        """One frame the bus brought (``drain``)."""
+        can_id = msg.arbitration_id
+        if not msg.is_rx:
+            self._own_echoes += 1
+        elif can_id == SYNC_COB_ID:  # a SYNC the interface sent: in bus order after what went before it
+            self._heard.append((msg.timestamp, self._own_echoes >= self._setpoints_mark))
+        if can_id == SYNC_COB_ID and not msg.is_rx:  # our own SYNC, as it left the wire
+            self._echoes += 1
+            self._echo_of = (self._echoes, msg.timestamp, time.monotonic())
+        elif (
+            od.SDO_RESPONSE_COB_ID_BASE < can_id <= od.SDO_RESPONSE_COB_ID_BASE + od.NODE_ID_BITS
+            and msg.data[:1] == _CONFIRMED
+        ):
+            self._confirmed.add(can_id - od.SDO_RESPONSE_COB_ID_BASE)
 
     # --- a run -----------------------------------------------------------------------------------
     def begin(self, spec: CycleSpec) -> None:
@@ -256,6 +288,7 @@ class CyclicLoop:
             self.start_sent = self.sent_at = self._judged = None
             self.drain()  # the echoes of SYNCs before this run are not this run's
             self._echoes, self._echo_of = 0, None
+            self._heard, self._setpoints_mark = [], self._own_echoes  # the start's setpoints: the master's
             self._sent_frames = self._own_echoes  # between runs the queue has long emptied: none lost is counted on
             self.timing = CycleTiming()
             self.progress[PROGRESS_RUN] = spec.run
@@ -280,9 +313,12 @@ class CyclicLoop:
         with self.lock:
             was, self.running = self.running, False
             self._production += 1
+            task, self._task = self._task, None
+        if task is not None:  # no SYNC from the interface after this returns
+            task.stop()
         if was:
             t = self.timing
-            self.tell("timing", t.late_us, t.echo_us, t.unstamped, t.refused)
+            self.tell("timing", t.late_us, t.echo_us, t.unstamped, t.refused, t.followed_us, t.held)
 
     # --- SYNC ------------------------------------------------------------------------------------
     def _produce(self, production: int) -> None:
@@ -295,6 +331,13 @@ class CyclicLoop:
         spec = self.spec
         assert spec is not None
         period = spec.period_ms / 1000.0
+        if spec.interface_sync:
+            sync = can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
+            task = native_cyclic_task(self.bus, sync, period)
+            if task is not None:
+                self._follow(production, task)
+                return
+            self.tell("note", "the interface cannot send SYNC by itself: this process times it")
         spin = min(SPIN_BEFORE_S, period / 4)
         deadline = time.monotonic()
         try:
@@ -349,6 +392,118 @@ class CyclicLoop:
             self._failed(FaultKind.TX_FAILED, f"SYNC {self.count + 1} or what follows it not sent: {exc}")
         except Exception as exc:  # never silent: the master halts on it
             self._failed(FaultKind.SYNC_STOPPED, f"the cyclic process's SYNC thread ended: {exc!r}")
+
+    def _follow(self, production: int, task: can.broadcastmanager.CyclicTask) -> None:
+        """The interface sends SYNC (socketcan's broadcast manager on a kernel timer; simwire: its medium,
+        ``Medium.add_cyclic``): this thread follows each SYNC it hears with what ``_transmit`` sends after
+        its own SYNC (the setpoints, the records, then the time stamp: that SYNC's wire time). Its own wake
+        no longer times SYNC; what it costs now is the setpoints, which must be on the wire before the
+        next SYNC: a period less the time to hear a SYNC, not the drives' 135 us lock window.
+
+        A SYNC heard before the setpoints sent for it were on the wire (this node's own echoes, in bus
+        order before the SYNC or not) took none: the drives held (``CycleTiming.held``), no second setpoint
+        goes before one SYNC (the drive would take the later: a jump), and the next one sent is the next in
+        the program (``SetpointFeeder.after_sync``); held SYNCs in a row longer than the drives ride out are
+        a gap ("no setpoint"), as are SYNCs more than ``max_gap_s`` apart on the wire ("no SYNC")."""
+        spec = self.spec
+        assert spec is not None
+        period = spec.period_ms / 1000.0
+        fixed = any(isinstance(f, SetpointFeeder) for f in self.feeders)
+        with self.lock:
+            if not (self.running and self._production == production):
+                return
+            self._task = task
+        heard_at = time.monotonic()  # the last SYNC heard here (a silent interface is a gap too)
+        last_wire: float | None = None
+        pending, unfed, silent = True, 0, False  # the start's setpoints, sent by the master, wait for the start SYNC
+        try:
+            if isinstance(task, can.broadcastmanager.RestartableCyclicTaskABC):
+                task.start()
+            while True:
+                self.wait_and_drain(FOLLOW_WAIT_S)  # any frame wakes it: the bus brings several per period
+                with self.lock:
+                    if not (self.running and self._production == production):
+                        return
+                    heard, self._heard = self._heard, []
+                    now = time.monotonic()
+                    if not heard:
+                        if not silent and now - heard_at > spec.max_gap_s + SILENCE_GRACE_S:
+                            silent = True
+                            self._gap("no SYNC heard", now - heard_at)
+                        continue
+                    silent, heard_at = False, now
+                    for wire, took in heard:
+                        self.count += 1
+                        if last_wire is not None and wire - last_wire > spec.max_gap_s:
+                            self._gap("no SYNC", wire - last_wire)
+                        last_wire = wire
+                        if pending and took:
+                            pending, unfed = False, 0
+                        elif fixed:
+                            unfed += 1
+                            self.timing.held += 1
+                            if (unfed + 1) * period > spec.max_gap_s >= unfed * period:
+                                self._gap("no setpoint", (unfed + 1) * period)
+                    if not pending or not fixed:
+                        self._after_heard(last_wire)
+                        pending = fixed
+        except _ReserveError as exc:
+            self._failed(FaultKind.TX_FAILED, str(exc), exc.node_id)
+        except (can.CanError, OSError) as exc:
+            self._failed(FaultKind.TX_FAILED, f"what follows SYNC {self.count} not sent: {exc}")
+        except Exception as exc:  # never silent: the master halts on it
+            self._failed(FaultKind.SYNC_STOPPED, f"the cyclic process's SYNC follower ended: {exc!r}")
+        finally:
+            with self.lock:
+                mine = self._task is task
+                if mine:
+                    self._task = None
+            if mine:
+                task.stop()
+
+    def _gap(self, what: str, gap_s: float) -> None:
+        spec = self.spec
+        assert spec is not None
+        ride_ms = spec.max_gap_s * 1000
+        self.fault(
+            FaultKind.SYNC_GAP,
+            f"{what} for {gap_s * 1000:.1f} ms (the drives ride out {ride_ms:.1f} ms)",
+            None,
+            round(gap_s * 1000),
+        )
+
+    def _after_heard(self, wire: float | None) -> None:
+        """After the last SYNC heard (lock held): its setpoints, its records, its time stamp."""
+        spec = self.spec
+        assert spec is not None and wire is not None
+        now = time.monotonic()
+        self.sent_at = now
+        elapsed = self.count - spec.start_count
+        if self.start_sent is None:
+            self.start_sent = wire  # t = 0 of the buffered drives' records: the start SYNC's wire time
+        for feeder in self.feeders:
+            feeder.after_sync(elapsed)
+        self._setpoints_mark = self._sent_frames  # the setpoints on the wire before the next SYNC, or not
+        self.timing.followed_us.append((time.time() - wire) * 1e6)
+        if any(isinstance(f, BufferFeeder) for f in self.feeders):
+            for feeder in self.feeders:
+                if isinstance(feeder, BufferFeeder):
+                    feeder.run_to((wire - self.start_sent) * 1000.0)
+            self.allowance.at_sync(self.count)
+            refused = top_up_by_need(self.feeders, self.allowance)
+            if refused is not None and refused.level < refused.low:
+                node = spec.feeds[self.feeders.index(refused)].node_id
+                raise _ReserveError(
+                    node,
+                    f"records refused by the transmit queue while node {node}'s FIFO is at {refused.level} "
+                    f"records, below its reserve {refused.low} (0x20C4:02)",
+                )
+        if spec.stamp_cob_id is not None:
+            try:  # the SYNC's own wire time (socketcan and simwire stamp the frame as it left the wire)
+                self.offer(spec.stamp_cob_id, struct.pack("<I", round(wire * 1e6) & 0xFFFFFFFF), keep=0)
+            except RecordRefusedError:
+                self.timing.unstamped += 1
+        self._write_progress()
 
     def _failed(self, kind: FaultKind, why: str, node_id: int | None = None) -> None:
         """This process cannot go on: no more SYNC, every drive quick stopped from here, the master told."""

@@ -101,6 +101,8 @@ class CyclicProcess:
         kwargs: dict[str, object] = {"interface": config.interface, "channel": config.channel}
         kwargs.update(wire_options(config, clock=Clock.WALL))
         kwargs["receive_own_messages"] = True
+        if config.interface_sync and config.interface == "simwire":  # the served medium times SYNC, as the kernel would
+            kwargs["cyclic_by_medium"] = True
         self.process = context.Process(
             target=serve_cyclic,
             args=(
@@ -168,8 +170,10 @@ class CyclicProcess:
                 _, kind, node_id, text, code = message
                 self.report(BusFault(FaultKind(kind), node_id, text, code))
             elif message[0] == "timing":
-                _, late_us, echo_us, unstamped, refused = message
-                self.last_timing = CycleTiming(late_us, echo_us, unstamped, refused)
+                _, late_us, echo_us, unstamped, refused, followed_us, held = message
+                self.last_timing = CycleTiming(late_us, echo_us, unstamped, refused, followed_us, held)
+            elif message[0] == "note":
+                log.warning("cyclic process: %s", message[1])
             elif message[0] == "quick_stopped":
                 _, reason, confirmed, nmt = message
                 self.last_quick_stop = (reason, confirmed, nmt)
@@ -213,6 +217,7 @@ class CyclicProcess:
             max_gap_s=max_gap_s,
             records_per_sync=allowance.per_sync,
             tx_queue_frames=self.config.tx_queue_frames,
+            interface_sync=self.config.interface_sync,
             feeds=specs,
         )
 

@@ -25,7 +25,9 @@ medium with these semantics:
     (``wall.WallDriver``) delivers each frame when its last bit is due, in batches when it woke
     late (time stamps stay exact). Arbitration is exact: whenever the bus goes idle, among the
     FIFO heads queued by then the lowest identifier wins (base before extended for equal 11 bits,
-    data before remote).
+    data before remote). A frame that reaches the medium late (a post from another process) but
+    was queued no later than the start of the frame on the wire, not yet delivered, takes part in
+    that frame's arbitration (``Medium._rearbitrate``); frames already delivered stay where they were.
   - ``lockstep``: bus time is virtual (seconds from 0) and advances with the SYNC (identifier
     0x80) period ``sync_period``. Frames are delivered inside ``send()``, stamped with their virtual
     end. Each node keeps a local time, the latest time stamp among the frames of other nodes its
@@ -46,7 +48,7 @@ medium with these semantics:
     are out of it, whether or not the driver thread has woken yet to deliver them.
   - A cyclic send (``send_periodic``) on an in-process wall-clock medium is timed by the medium,
     as SocketCAN's broadcast manager times it: each frame queued at its due bus time, heard by
-    its own node too.
+    its own node too; a client of a served medium asks for the same with ``cyclic_by_medium=True``.
 * **Bus states and error frames** (test hooks on the medium, ``bus.medium``): ``set_state(node,
   state)`` with python-can's ``BusState``: ACTIVE, PASSIVE (error passive) or ERROR (bus off;
   ``bus_states.BUS_OFF``). The node's ``bus.state`` reports it and its reader gets the SocketCAN

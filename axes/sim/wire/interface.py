@@ -56,6 +56,10 @@ class SimWireBus(can.BusABC):
     :param txqueuelen: this node's transmit FIFO bound (default 10, SocketCAN's)
     :param receive_own_messages: the node receives its own frames (is_rx False), as on socketcan
     :param node_name: the node's name in the medium's accounting and test hooks (default nodeN)
+    :param cyclic_by_medium: a served channel: ``send_periodic`` of one frame is timed by the medium in the
+        server's process, as SocketCAN's broadcast manager times it in the kernel (default False: python-can's
+        thread here; a master that follows a SYNC timed there needs its echo well within a period,
+        docs/wall-clock.md). In-process media always time it themselves.
     """
 
     def __init__(
@@ -69,6 +73,7 @@ class SimWireBus(can.BusABC):
         txqueuelen: int = DEFAULT_TXQUEUELEN,
         receive_own_messages: bool = False,
         node_name: str | None = None,
+        cyclic_by_medium: bool = False,
         fd: bool = False,
         **kwargs: Any,
     ) -> None:
@@ -83,6 +88,7 @@ class SimWireBus(can.BusABC):
         self._node: Node | None = None
         self._link: WireLink | None = None
         self._closed = False
+        self._cyclic_by_medium = bool(cyclic_by_medium)
         if host is None:
             self._medium = acquire_medium(name, bitrate=bitrate, clock=clock, sync_period=sync_period)
             try:
@@ -168,9 +174,14 @@ class SimWireBus(can.BusABC):
         itself, as SocketCAN's broadcast manager times it in the kernel (each frame queued at its due
         bus time, heard by this node too). Anything else: python-can's thread of its own."""
         one = [msgs] if isinstance(msgs, can.Message) else list(msgs)
-        if self._node is None or self.clock is not Clock.WALL or len(one) != 1 or duration or modifier_callback:
+        timed_there = self._node is not None or (self._link is not None and self._cyclic_by_medium)
+        if not timed_there or self.clock is not Clock.WALL or len(one) != 1 or duration or modifier_callback:
             return super()._send_periodic_internal(msgs, period, duration, autostart, modifier_callback)
-        task = WireCyclicTask(self._medium, self._node, one[0], period)
+        task: can.broadcastmanager.RestartableCyclicTaskABC
+        if self._node is not None:
+            task = WireCyclicTask(self._medium, self._node, one[0], period)
+        else:
+            task = RemoteCyclicTask(self._link, one[0], period)
         if autostart:
             task.start()
         return task
@@ -229,3 +240,31 @@ class WireCyclicTask(can.broadcastmanager.RestartableCyclicTaskABC):
         if self._cyclic is not None:
             self._medium.remove_cyclic(self._cyclic)
             self._cyclic = None
+
+
+class RemoteCyclicTask(can.broadcastmanager.RestartableCyclicTaskABC):
+    """A cyclic send the served wall-clock medium times in its own process (``Medium.add_cyclic``
+    through the server), as SocketCAN's broadcast manager times it in the kernel, not in this process."""
+
+    def __init__(self, link: WireLink, msg: can.Message, period: float) -> None:
+        super().__init__(msg, period)
+        self._link = link
+        self._msg = msg
+        self._task: int | None = None
+
+    def start(self) -> None:
+        if self._task is None:
+            m = self._msg
+            self._task = self._link.call(
+                "add_cyclic",
+                can_id=m.arbitration_id,
+                data=bytes(m.data).hex(),
+                extended=m.is_extended_id,
+                period=self.period,
+            )
+
+    def stop(self) -> None:
+        task, self._task = self._task, None
+        if task is not None:
+            with contextlib.suppress(can.CanError, ValueError):  # a closed link: the node left, its sends with it
+                self._link.call("remove_cyclic", task=task)

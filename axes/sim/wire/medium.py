@@ -261,8 +261,28 @@ class Medium:
             raise transmit_queue_full(node.name, node.txqueuelen)
         node.fifo.append(Pending(msg, bits, now, arbitration_priority(msg)))
         node.max_depth = max(node.max_depth, len(node.fifo))
+        self._rearbitrate(now)
         if self._on_wire is None:
-            self.cond.notify_all()  # the driver sleeps while the bus is idle
+            self.cond.notify_all()  # the driver sleeps while the bus is idle (or arbitrates again)
+
+    def _rearbitrate(self, enqueued: float) -> None:
+        """A frame queued at ``enqueued`` (bus time), no later than the start of the frame the medium has
+        put on the wire but not delivered: that frame's arbitration is undone and run again with it.
+
+        The medium learns of a frame when its post reaches it (the loopback and this process's
+        scheduling delay it), but the frame was in its sender's controller from ``enqueued`` on. On a
+        real bus every controller with a frame pending when the bus goes idle takes part in that
+        arbitration (ISO 11898-1: bus access at the end of the interframe space, the lowest identifier
+        wins bit by bit), so a frame pending before another's start either started first (the bus
+        idle) or won or lost against it by identifier; it never waits behind a frame that started after
+        it was pending. Nothing of the frame on the wire has reached a node (deliveries happen at a
+        frame's end, ``_step``), so choosing again is exactly what the bus would have done. A frame
+        already delivered cannot be taken back: a post that reaches the medium after frames that
+        started later than its time were delivered still queues behind them (that part of the host's
+        latency stays)."""
+        on_wire = self._on_wire
+        if on_wire is not None and enqueued <= on_wire[2]:  # pending at its start: in its arbitration
+            self._on_wire = None  # its frame stays at its node's FIFO head; ``_step`` chooses again
 
     def add_cyclic(self, node: Node, msg: can.Message, period: float) -> Cyclic:
         """Wall clock: send ``msg`` from ``node`` every ``period`` seconds of bus time from now on,
@@ -294,6 +314,7 @@ class Medium:
                         Pending(task.msg, task.bits, task.due, arbitration_priority(task.msg), cyclic=True)
                     )
                     node.max_depth = max(node.max_depth, len(node.fifo))
+                    self._rearbitrate(task.due)  # queued late by this process: timed by the medium all the same
                 task.due += task.period
         return min((t.due for t in self._cyclic), default=None)
 

@@ -7,7 +7,8 @@ connections to the server:
   (JSON: channel, bitrate, clock, sync_period, txqueuelen, receive_own, name) -> ``WELCOME`` (JSON:
   node, token, the medium's parameters) or ``FAIL``; ``SEND`` (a frame, the sender's lockstep local
   time and its send timeout) -> ``OK`` or ``FAIL`` (errno + text: ENOBUFS, bus off); ``CALL``
-  (JSON: a medium hook: stats, set_state, inject_error_frame, state) -> ``REPLY`` (JSON) or ``FAIL``.
+  (JSON: a medium hook: stats, set_state, inject_error_frame, state; on the wall clock add_cyclic /
+  remove_cyclic, a cyclic send the medium times) -> ``REPLY`` (JSON) or ``FAIL``.
   On the lockstep clock a send is acknowledged synchronously (the FIFO bound is judged in
   virtual time, which only the medium knows), so a full transmit FIFO is the sender's error at
   its ``send()``, as on SocketCAN, and the sending thread reads its own answer (no thread hop).

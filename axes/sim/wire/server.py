@@ -37,7 +37,7 @@ from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.threads import ask_wire_priority
 from pvtflow.axes.sim.wire import protocol as p
 from pvtflow.axes.sim.wire.medium import Medium, WireConfigError
-from pvtflow.axes.sim.wire.node import Node
+from pvtflow.axes.sim.wire.node import Cyclic, Node
 from pvtflow.axes.sim.wire.registry import acquire_medium, release_medium
 
 
@@ -175,6 +175,7 @@ class WireServer:
         self._local = threading.local()  # .batch: the outboxes a thread's deliveries wrote to, flushed at its end
         self._want_lock = threading.Lock()
         self._want: list[_Outbox] = []
+        self._cyclic: dict[int, Cyclic] = {}  # the clients' cyclic sends (a node that leaves takes its own)
         self._woken = False
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
@@ -455,9 +456,21 @@ class WireServer:
             elif what == "inject_error_frame":
                 self.medium.inject_error_frame(call["can_id"], bytes.fromhex(call["data"]))
                 result = None
+            elif what == "add_cyclic":  # the client's broadcast manager: the medium times it (``Medium.add_cyclic``)
+                msg = can.Message(
+                    arbitration_id=call["can_id"], data=bytes.fromhex(call["data"]), is_extended_id=call["extended"]
+                )
+                task = self.medium.add_cyclic(node, msg, float(call["period"]))
+                self._cyclic[id(task)] = task
+                result = id(task)
+            elif what == "remove_cyclic":
+                task = self._cyclic.pop(call["task"], None)
+                if task is not None:
+                    self.medium.remove_cyclic(task)
+                result = None
             else:
                 raise ValueError(f"unknown simwire call {what!r}")
-        except (KeyError, ValueError) as error:
+        except (KeyError, ValueError, TypeError, WireConfigError) as error:
             return p.pack_fail(0, str(error))
         return p.pack_json(p.REPLY, result)
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import can
 import canopen
+import numpy as np
 import pytest
 from can import BusState
 
@@ -144,6 +145,44 @@ def test_wall_arbitration_when_the_bus_goes_idle_lowest_identifier_first() -> No
     ends = [m.timestamp for m in heard]
     assert ends == sorted(ends)
     assert ends[0] == pytest.approx(seconds(frame(0x500, bytes(8)), 100_000))
+
+
+@pytest.mark.wall
+def test_wall_a_frame_posted_before_the_undelivered_frame_on_the_wire_started_is_arbitrated_as_of_its_post() -> None:
+    """A post that reaches the medium late (the loopback, the drives' process) carries its sender's
+    time: a SYNC posted before the frame the medium has put on the wire started, that frame not yet
+    delivered, goes first, as on a real bus; a frame already delivered is not taken back."""
+    medium = Medium("rearb", bitrate=100_000, clock="wall")
+    heard: list[can.Message] = []
+    medium.attach(heard.append)
+    master, drive = medium.attach(lambda m: None), medium.attach(lambda m: None)
+    pdo = frame(0x181, bytes(8))
+    medium.submit(drive, pdo, now=1e-3)
+    assert medium.step(1.1e-3) is not None  # the TPDO on the wire from 1.0 ms, not delivered
+    medium.submit(master, frame(SYNC), now=0.5e-3)  # posted at 0.5 ms, reaches the medium now
+    medium.step(1.0)
+    assert [m.arbitration_id for m in heard] == [SYNC, 0x181]
+    sync_ends = 0.5e-3 + seconds(frame(SYNC), 100_000)
+    assert heard[0].timestamp == pytest.approx(sync_ends)
+    assert heard[1].timestamp == pytest.approx(max(1e-3, sync_ends) + seconds(pdo, 100_000))
+
+    # a SYNC posted while the TPDO was pending but not yet started wins arbitration against it
+    heard.clear()
+    medium.submit(drive, pdo, now=2.0)
+    medium.step(2.0)  # the TPDO starts at 2.0 s
+    medium.submit(master, frame(SYNC), now=2.0)  # pending at the same instant: the lower identifier wins
+    medium.step(3.0)
+    assert [m.arbitration_id for m in heard] == [SYNC, 0x181]
+
+    # delivered frames stay: a SYNC posted before a frame that has already reached the nodes follows it
+    heard.clear()
+    medium.submit(drive, pdo, now=4.0)
+    medium.step(4.0)
+    medium.step(4.5)  # the TPDO ended and was delivered
+    medium.submit(master, frame(SYNC), now=3.9)
+    medium.step(5.0)
+    assert [m.arbitration_id for m in heard] == [0x181, SYNC]
+    assert heard[1].timestamp == pytest.approx(heard[0].timestamp + seconds(frame(SYNC), 100_000))
 
 
 @pytest.mark.wall
@@ -543,3 +582,28 @@ def test_canopen_sdo_over_the_loopback_server(buses: Buses, server: tuple[str, s
     finally:
         master_net.disconnect()
         drive_net.disconnect()
+
+
+@pytest.mark.wall
+def test_a_served_medium_times_a_clients_cyclic_send_when_asked(buses: Buses) -> None:
+    """``cyclic_by_medium``: ``send_periodic`` of a client is timed by the medium in the server's process
+    (SocketCAN's broadcast manager in the kernel): each SYNC queued at its due bus time, heard by the
+    sender too; stopped, none follows. Without it, python-can's thread of the client's process sends."""
+    with wire_in_a_child("wall", 1_000_000, PERIOD) as (address, _):
+        plain = buses.open(address, node_name="plain")
+        task = plain.send_periodic(frame(SYNC), 0.005, autostart=False)
+        assert isinstance(task, can.broadcastmanager.ThreadBasedCyclicSendTask)
+        task.stop()
+        master = buses.open(address, node_name="master", cyclic_by_medium=True)
+        listener = buses.open(address, node_name="listener")
+        task = master.send_periodic(frame(SYNC), 0.005)
+        assert not isinstance(task, can.broadcastmanager.ThreadBasedCyclicSendTask)
+        own = drain(master, 4)
+        task.stop()
+        heard = drain(listener, 4)
+        assert [m.arbitration_id for m in heard] == [SYNC] * 4 and all(m.is_rx for m in own)
+        # timed in bus time by the medium (nothing else on the wire): the period exactly, whatever the host did
+        assert np.diff([m.timestamp for m in heard]) == pytest.approx([0.005] * 3, abs=1e-6)
+        while listener.recv(0.05) is not None:  # what was queued as it stopped
+            pass
+        assert listener.recv(0.05) is None
