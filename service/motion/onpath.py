@@ -25,11 +25,13 @@ from pvtflow.planner.knots import KnotOptions
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.onpath_program import (
     ChangeError,
+    back_to_plan_on_grid,
     brake_on_grid,
     change_start_ms,
     changed_program,
     on_grid,
     override_on_grid,
+    rejoined_program,
     resume_motion,
 )
 from pvtflow.planner.onpath_stop import OnPathStop, stopped_motion
@@ -50,6 +52,13 @@ class _RunsToItsEnd(Exception):  # noqa: N818 (not an error: the motion's own en
 
 
 _CHANGE_ERRORS = (SpliceRefusedError, ChangeError, PlanError, BuildError, ValueError)
+# the scales an override falls back to, in turn, where the records of a faster one do not validate (at the
+# plan's own 0x60C5 the records' rounding may need room the knot placement's integer repair would find)
+FALLBACK_SCALES = (0.97, 0.95, 0.9)
+
+
+def _scales(scale: float) -> list[float]:
+    return [scale, *(s for s in FALLBACK_SCALES if s < scale)]
 
 
 @dataclass
@@ -62,6 +71,7 @@ class MotionPath:
     program: PvtProgram  # the records as they run now, in the group's axis order
     scale: float = 1.0
     stop: OnPathStop | None = None  # the braking, once stopped or paused on the path
+    original: PvtProgram | None = None  # the records as the feeders held them at the first change
 
 
 @dataclass
@@ -208,19 +218,47 @@ class PathChanges:
             path = self.path_of(motion, group)
         except _CHANGE_ERRORS as exc:
             raise ApiError(ErrorCode.NOT_ALLOWED, f"override: the motion's path: {exc}") from None
+        if scale >= 1.0 and path.scale == 1.0 and path.stop is None:  # on the planned timing already
+            now = float((group.elapsed_syncs() or 0) * self.cell.bus.sync_period_ms)
+            return {
+                "motion_id": motion.motion_id,
+                "scale": 1.0,
+                "requested_ms": now,
+                "from_ms": now,
+                "duration_ms": int(path.program.duration_ms),
+            }
         grid_ms = record_grid_ms(group.programs, self.cell.bus.sync_period_ms)
         made: dict[str, Any] = {}
 
         def make(at: SpliceAt) -> list[Any]:
             begin = change_start_ms(at.t0_ms, at.join_ms, at.programs)
-            whole, applied = override_on_grid(
-                path.planned, path.running, begin / 1000.0, scale, self.limits, grid_ms / 1000.0
-            )
             program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
-            end_ms = float(np.round(whole.duration * 1000.0))
-            new, rows = changed_program(program, at.first, at.join_ms, begin, whole, end_ms, self.limits)
-            made.update(whole=whole, program=new, scale=applied, begin=begin)
-            return rows
+            if path.original is None:
+                path.original = program  # nothing changed yet: the records as started
+            failed: Exception | None = None
+            for wanted in _scales(scale):
+                try:
+                    if wanted >= 1.0:  # the planned timing, late by a whole number of grid steps
+                        back = back_to_plan_on_grid(
+                            path.planned, path.running, begin / 1000.0, self.limits, grid_ms / 1000.0
+                        )
+                        new, rows = rejoined_program(
+                            program, at.first, at.join_ms, begin, back, path.original, self.limits
+                        )
+                        whole, applied = back.motion, 1.0
+                    else:
+                        whole, applied = override_on_grid(
+                            path.planned, path.running, begin / 1000.0, wanted, self.limits, grid_ms / 1000.0
+                        )
+                        end_ms = float(np.round(whole.duration * 1000.0))
+                        new, rows = changed_program(program, at.first, at.join_ms, begin, whole, end_ms, self.limits)
+                except (ChangeError, PlanError) as exc:
+                    failed = exc
+                    continue
+                made.update(whole=whole, program=new, scale=applied, begin=begin)
+                return rows
+            assert failed is not None
+            raise failed
 
         try:
             at = group.splice(make)
