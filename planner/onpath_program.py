@@ -27,8 +27,16 @@ from pvtflow.axes.drive.program import AxisProgram, PvtProgram
 from pvtflow.planner.knots import fixed_period_kernels as fp_kernels
 from pvtflow.planner.knots.fixed_period import _FP_REACH, reconstruction_kind
 from pvtflow.planner.knots.samples import axis_constants
+from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk_profile
 from pvtflow.planner.limits import JointLimits
-from pvtflow.planner.onpath_stop import OnPathStop, _s_at, brake_on_path, override
+from pvtflow.planner.onpath_stop import (
+    OnPathStop,
+    _s_at,
+    brake_on_path,
+    jerk_braking,
+    jerk_braking_rates,
+    override,
+)
 from pvtflow.planner.path import PlanError, PlanResult
 from pvtflow.planner.trajectory import Trajectory
 from pvtflow.planner.validate import validate_program
@@ -90,6 +98,62 @@ def brake_on_grid(motion: Trajectory, t0_s: float, limits: JointLimits, grid_s: 
     if best is None:
         raise ChangeError("no braking on this path comes to rest on the SYNC grid")
     return best
+
+
+# the drives' window jerk a change's records may reach, of the plan's jerk limit (the knot placement's
+# ``KnotOptions.window_jerk_ratio``: the records' jumps in acceleration at every knot)
+WINDOW_JERK_RATIO = 1.2
+
+
+# the shares of the planned jerk limit a jerk-limited braking is tried with, in turn, until its records hold
+# ``WINDOW_JERK_RATIO`` (the records' acceleration jumps at the knots add to the motion's own jerk)
+JERK_SHARES = (0.9, 0.7, 0.5)
+
+
+def brake_with_jerk_on_grid(
+    motion: Trajectory,
+    t0_s: float,
+    limits: JointLimits,
+    max_jerk: NDArray[np.float64],
+    grid_s: float,
+    jerk_share: float = JERK_SHARES[0],
+) -> OnPathStop:
+    """The jerk-limited on-path braking (``onpath_stop.jerk_braking_rates``: ``BRAKING_SHARE`` of 0x60C5,
+    ``jerk_share`` of the jerk limit) that comes to rest on the grid: its deceleration and jerk lowered
+    together (bisection) until the rest is a grid time."""
+    decel, jerk = jerk_braking_rates(motion, t0_s, limits, max_jerk, BRAKING_SHARE, jerk_share)
+    stop = jerk_braking(motion, t0_s, decel, jerk)
+    target = t0_s + on_grid(stop.t_end - t0_s, grid_s)
+    if target - stop.t_end < 2e-6:
+        return stop
+    lo, hi, best = 0.3, 1.0, None
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        trial = jerk_braking(motion, t0_s, decel * mid, jerk * mid)
+        if trial.t_end > target:
+            lo = mid
+        else:
+            hi, best = mid, trial
+            if target - trial.t_end < 2e-6:
+                break
+    if best is None or target - best.t_end >= 2e-6:
+        raise ChangeError("no jerk-limited braking on this path comes to rest on the SYNC grid")
+    return best
+
+
+def records_jerk_ratio(program: PvtProgram, max_jerk: NDArray[np.float64], from_ms: float) -> float:
+    """The drives' 10-ms-window jerk of ``program``'s records from ``from_ms`` on, of ``max_jerk`` (joint
+    units/s^3 per axis), at most: what the knot placement holds a jerk-limited plan's records to."""
+    worst = 0.0
+    for a, jmax in zip(program.axes, max_jerk, strict=True):
+        if not np.isfinite(jmax):
+            continue
+        t, jerk = window_jerk_profile(a.reconstruction())
+        jerk = jerk[t >= from_ms - WINDOW_MS]
+        allowed = float(jmax) * abs(float(a.scaling.qc_per_joint_unit)) * 1e-9  # qc/ms^3
+        if len(jerk):
+            worst = max(worst, float(jerk.max()) / allowed)
+    return worst
 
 
 def tail_records(

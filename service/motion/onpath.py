@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.axes.master.group.axis_group import AxisGroup
@@ -24,13 +25,17 @@ from pvtflow.planner.build import BuildError, build_program
 from pvtflow.planner.knots import KnotOptions
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.onpath_program import (
+    JERK_SHARES,
+    WINDOW_JERK_RATIO,
     ChangeError,
     back_to_plan_on_grid,
     brake_on_grid,
+    brake_with_jerk_on_grid,
     change_start_ms,
     changed_program,
     on_grid,
     override_on_grid,
+    records_jerk_ratio,
     rejoined_program,
     resume_motion,
 )
@@ -55,6 +60,15 @@ _CHANGE_ERRORS = (SpliceRefusedError, ChangeError, PlanError, BuildError, ValueE
 # the scales an override falls back to, in turn, where the records of a faster one do not validate (at the
 # plan's own 0x60C5 the records' rounding may need room the knot placement's integer repair would find)
 FALLBACK_SCALES = (0.97, 0.95, 0.9)
+
+
+def planned_jerk(metadata: dict[str, Any]) -> NDArray[np.float64] | None:
+    """The jerk limit the motion was planned with (joint units/s^3, inf: none for that joint), None: none."""
+    jerk = metadata.get("max_jerk")
+    if jerk is None:
+        return None
+    out = np.array([np.inf if j is None else float(j) for j in jerk], dtype=float)
+    return out if np.any(np.isfinite(out)) else None
 
 
 def _scales(scale: float) -> list[float]:
@@ -118,21 +132,33 @@ class PathChanges:
         except _CHANGE_ERRORS as exc:
             return None, f"the motion's path: {exc}"
         grid_ms = record_grid_ms(group.programs, self.cell.bus.sync_period_ms)
+        jerk = planned_jerk(path.program.metadata)
         made: dict[str, Any] = {}
 
         def make(at: SpliceAt) -> list[Any]:
             begin = change_start_ms(at.t0_ms, at.join_ms, at.programs)
-            try:
-                stop = brake_on_grid(path.running, begin / 1000.0, self.limits, grid_ms / 1000.0)
-            except PlanError:
-                if begin < 0.5 * path.running.duration * 1000.0:
-                    raise
-                raise _RunsToItsEnd from None  # at rest on the path's end already, or nearly
-            if stop.s_end >= float(path.running.gridpoints[-1]) - 1e-9:
-                raise _RunsToItsEnd  # the path ends before a braking would: its own end is the fastest stop
-            whole = stopped_motion(path.running, stop)
             program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
-            new, rows = changed_program(program, at.first, at.join_ms, begin, whole, stop.t_end * 1000.0, self.limits)
+            for jerk_share in JERK_SHARES if jerk is not None else (None,):
+                try:
+                    if jerk is None:
+                        stop = brake_on_grid(path.running, begin / 1000.0, self.limits, grid_ms / 1000.0)
+                    else:  # a motion planned with a jerk limit brakes within it too
+                        stop = brake_with_jerk_on_grid(
+                            path.running, begin / 1000.0, self.limits, jerk, grid_ms / 1000.0, jerk_share
+                        )
+                except PlanError:
+                    if begin < 0.5 * path.running.duration * 1000.0:
+                        raise
+                    raise _RunsToItsEnd from None  # at rest on the path's end already, or nearly
+                if stop.s_end >= float(path.running.gridpoints[-1]) - 1e-9:
+                    raise _RunsToItsEnd  # the path ends before a braking would: its own end is the fastest stop
+                whole = stopped_motion(path.running, stop)
+                end_ms = stop.t_end * 1000.0
+                new, rows = changed_program(program, at.first, at.join_ms, begin, whole, end_ms, self.limits)
+                if jerk is None or (ratio := records_jerk_ratio(new, jerk, begin)) <= WINDOW_JERK_RATIO:
+                    break
+            else:
+                raise ChangeError(f"the braking's records reach {ratio:.2f} x the planned jerk limit (window jerk)")
             made.update(stop=stop, whole=whole, program=new)
             group.ends_as((Result.STOPPED, reason))  # the stop's outcome as the quick one's: the reason
             return rows

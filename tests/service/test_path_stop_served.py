@@ -20,12 +20,14 @@ from test_stop_then_move import assert_nothing_left, cell_file, move_again, plan
 from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.drive.program import PvtProgram, split_long_records
 from pvtflow.axes.sim.profiles.epos2 import Epos2Drive
+from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk_profile
 from pvtflow.service.api import (
     ApiError,
     parse_execute,
     parse_home,
     parse_override,
     parse_pause,
+    parse_plan,
     parse_resume,
     parse_status,
     parse_stop,
@@ -289,3 +291,39 @@ def test_override_one_on_the_planned_timing_changes_nothing(service: MotionServi
     for a, b in zip(after.axes, before.axes, strict=True):
         np.testing.assert_array_equal(a.records, b.records, err_msg=a.joint)
     no_faults(svc)
+
+
+def window_jerk_ratio(program: PvtProgram, max_jerk: list[float], from_ms: float) -> float:
+    """The drives' 10-ms-window jerk (the knot placement's measure) of every axis's records from ``from_ms``
+    on, of the jerk limit in the axis's counts, at most."""
+    worst = 0.0
+    for a, jmax in zip(program.axes, max_jerk, strict=True):
+        t, jerk = window_jerk_profile(a.reconstruction())
+        allowed = jmax * abs(a.scaling.qc_per_joint_unit) * 1e-9  # joint units/s^3 -> qc/ms^3
+        worst = max(worst, float(jerk[t >= from_ms - WINDOW_MS].max()) / allowed)
+    return worst
+
+
+@pytest.mark.parametrize("fraction", [0.3, 0.6])
+def test_stop_of_a_jerk_limited_motion_holds_the_jerk_limit(fraction: float, tmp_path: Path) -> None:
+    """A motion planned with a jerk limit brakes on its path within it: the drives' window jerk of the
+    braking's records within the knot placement's 1.2 x, at 0x60C5 (the validator), on the path, at rest
+    together."""
+    with MotionService(cell_file("gantry3"), journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP) as svc:
+        assert svc.home(parse_home({"wait": True}))["outcome"]["result"] == "homed"
+        limits = svc.cell.joint_limits()
+        max_jerk = [float(j) for j in 10.0 * np.asarray(limits.acceleration)]
+        req = {"waypoints": tour(svc.cell, [0.85]), "start": "current", "max_jerk": max_jerk}
+        svc.execute(parse_execute({"plan_id": svc.plan(parse_plan(req, svc.cell.joint_names, limits))["plan_id"]}))
+        group = svc.group
+        assert group is not None
+        before = PvtProgram(svc.cell.name, group.programs)
+        assert wait_until(lambda: _elapsed_ms(svc) >= fraction * before.duration_ms, timeout=30.0)
+        reply = svc.stop(parse_stop({}))
+        assert reply["mode"] == "path" and reply["fallback"] is None, reply["fallback"]
+        braking = reply["braking"]
+        after = ran(svc)
+        assert window_jerk_ratio(after, max_jerk, braking["begun_ms"]) <= 1.2
+        assert_on_path(before, after, braking["begun_ms"])
+        assert_at_rest_together(after, braking["ended_ms"], svc.cell.bus.sync_period_ms)
+        no_faults(svc)
