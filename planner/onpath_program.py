@@ -391,19 +391,29 @@ def _delay(whole: Trajectory, planned: Trajectory, s0: float) -> tuple[float, fl
     return s1, float(whole.time_at(np.array([s1]))[0]) - s1
 
 
+# the shares of 0x60C5 the ramp back to the planned speed is tried with, in turn: where it reaches the plan, the
+# joints' acceleration jumps by the ramp's part of it, which a record's cubic across it overshoots
+RAMP_SHARES = (BRAKING_SHARE, 0.6, 0.35)
+
+
 def back_to_plan_on_grid(
-    planned: Trajectory, running: Trajectory, t0_s: float, limits: JointLimits, grid_s: float
+    planned: Trajectory,
+    running: Trajectory,
+    t0_s: float,
+    limits: JointLimits,
+    grid_s: float,
+    share: float = BRAKING_SHARE,
 ) -> BackToPlan:
-    """``override`` at 1.0 from ``t0_s``: the largest path acceleration (``BRAKING_SHARE`` of the joints',
-    lowered by bisection) up to the planned speed, reached where the motion is late on the plan by a whole
-    number of grid steps, so that from there the planned records run unchanged, that much later."""
+    """``override`` at 1.0 from ``t0_s``: the largest path acceleration (``share`` of the joints', lowered by
+    bisection) up to the planned speed, reached where the motion is late on the plan by a whole number of grid
+    steps, so that from there the planned records run unchanged, that much later."""
     s0 = _s_at(running, t0_s)
 
     def at(share: float) -> tuple[Trajectory, tuple[float, float] | None]:
         whole = joined(running, override(planned, running, t0_s, 1.0, scaled_limits(limits, share), tries=1))
         return whole, _delay(whole, planned, s0)
 
-    hi = BRAKING_SHARE
+    hi = share
     whole, d = at(hi)
     if d is None:
         raise ChangeError("the motion does not reach its planned speed again before its end")

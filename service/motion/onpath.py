@@ -26,6 +26,7 @@ from pvtflow.planner.knots import KnotOptions
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.onpath_program import (
     JERK_SHARES,
+    RAMP_SHARES,
     WINDOW_JERK_RATIO,
     ChangeError,
     back_to_plan_on_grid,
@@ -237,6 +238,25 @@ class PathChanges:
         return paused, program
 
     # --- override ----------------------------------------------------------------------------------
+    def _back_to_plan(
+        self, path: MotionPath, program: PvtProgram, at: SpliceAt, begin: float, grid_ms: int
+    ) -> tuple[PvtProgram, list[NDArray[np.int64]], Trajectory]:
+        """The records that bring the motion back to its planned timing (the original records joined after a
+        ramp, ``RAMP_SHARES`` tried in turn); ChangeError where none validates."""
+        assert path.original is not None
+        failed: Exception | None = None
+        for share in RAMP_SHARES:
+            try:
+                back = back_to_plan_on_grid(
+                    path.planned, path.running, begin / 1000.0, self.limits, grid_ms / 1000.0, share
+                )
+                new, rows = rejoined_program(program, at.first, at.join_ms, begin, back, path.original, self.limits)
+            except ChangeError as exc:
+                failed = exc
+                continue
+            return new, rows, back.motion
+        raise ChangeError(f"back to the planned timing: {failed}")
+
     def override(self, group: AxisGroup, motion: Motion, scale: float) -> dict[str, Any]:
         """Re-time the rest of the running motion to ``scale`` of its planned speed (drives' lock held);
         NOT_ALLOWED with nothing changed where it cannot be made in time or within the drives' limits."""
@@ -265,13 +285,8 @@ class PathChanges:
             for wanted in _scales(scale):
                 try:
                     if wanted >= 1.0:  # the planned timing, late by a whole number of grid steps
-                        back = back_to_plan_on_grid(
-                            path.planned, path.running, begin / 1000.0, self.limits, grid_ms / 1000.0
-                        )
-                        new, rows = rejoined_program(
-                            program, at.first, at.join_ms, begin, back, path.original, self.limits
-                        )
-                        whole, applied = back.motion, 1.0
+                        new, rows, whole = self._back_to_plan(path, program, at, begin, grid_ms)
+                        applied = 1.0
                     else:
                         whole, applied = override_on_grid(
                             path.planned, path.running, begin / 1000.0, wanted, self.limits, grid_ms / 1000.0
