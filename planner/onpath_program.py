@@ -313,14 +313,14 @@ def override_on_grid(
     The ramps to it take ``BRAKING_SHARE`` of the joint accelerations: the records' rounding needs that room
     (scale 1.0 itself: ``back_to_plan_on_grid``, which joins the planned records)."""
     limits = scaled_limits(limits, BRAKING_SHARE)
-    whole = joined(running, override(planned, running, t0_s, scale, limits))
+    whole = joined(running, override(planned, running, t0_s, scale, limits, rest_at_end=False))
     target = on_grid(whole.duration, grid_s)
     if target - whole.duration < 2e-6:
         return whole, scale
     lo, hi, best = max(0.05, scale * 0.97), scale, None
     for _ in range(30):
         mid = 0.5 * (lo + hi)
-        trial = joined(running, override(planned, running, t0_s, mid, limits))
+        trial = joined(running, override(planned, running, t0_s, mid, limits, rest_at_end=False))
         if trial.duration > target:
             lo = mid
         else:

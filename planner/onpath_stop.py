@@ -138,18 +138,26 @@ def _bounds(
 
 
 def override(
-    planned: Trajectory, running: Trajectory, t0: float, scale: float, limits: JointLimits, tries: int = 4
+    planned: Trajectory,
+    running: Trajectory,
+    t0: float,
+    scale: float,
+    limits: JointLimits,
+    tries: int = 4,
+    rest_at_end: bool = True,
 ) -> Trajectory:
     """The rest of ``running`` from ``t0`` re-timed to ``scale`` (0.05..1) of ``planned``'s path speed.
 
     The path velocity at ``t0`` is the running one; from there it moves towards scale * planned s'(s) at
     the largest path acceleration or deceleration the joints allow, then follows it (a slowed-down feasible
-    profile: velocities times scale, accelerations times scale^2). Time 0 of the result is ``t0``."""
+    profile: velocities times scale, accelerations times scale^2). Time 0 of the result is ``t0``.
+    ``rest_at_end``: s' = 0 at the path's end; a program's path (``planner.program_motion``, s = program time)
+    is at rest there at any s' (q'(s) = 0), and a forced s' = 0 would brake its last interval hard."""
     if not 0.05 <= scale <= 1.0:
         raise PlanError(PlanResult.INVALID_INPUT, f"scale must be in [0.05, 1.0], got {scale!r}", field="scale")
     share = BRAKE_ACCELERATION_SHARE
     for _ in range(tries):
-        retimed = _override(planned, running, t0, scale, limits, share)
+        retimed = _override(planned, running, t0, scale, limits, share, rest_at_end)
         _, ra = retimed.limit_ratios(limits)
         if ra <= 1.0:
             break
@@ -158,7 +166,13 @@ def override(
 
 
 def _override(
-    planned: Trajectory, running: Trajectory, t0: float, scale: float, limits: JointLimits, share: float
+    planned: Trajectory,
+    running: Trajectory,
+    t0: float,
+    scale: float,
+    limits: JointLimits,
+    share: float,
+    rest_at_end: bool = True,
 ) -> Trajectory:
     amax = np.asarray(limits.acceleration, dtype=float) * share
     t0 = float(np.clip(t0, 0.0, running.duration))
@@ -178,7 +192,8 @@ def _override(
             xs.append(max(x + step * min(lo, 0.0), target[i]))
         else:
             xs.append(min(x + step * max(hi, 0.0), target[i]))
-    xs[-1] = 0.0
+    if rest_at_end:
+        xs[-1] = 0.0
     sd = np.sqrt(np.maximum(np.asarray(xs), 0.0))
     return Trajectory.from_path_velocities(running.path, np.asarray(grid, dtype=float), sd, running.joint_names)
 

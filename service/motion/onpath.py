@@ -60,7 +60,7 @@ class _RunsToItsEnd(Exception):  # noqa: N818 (not an error: the motion's own en
 _CHANGE_ERRORS = (SpliceRefusedError, ChangeError, PlanError, BuildError, ValueError)
 # the scales an override falls back to, in turn, where the records of a faster one do not validate (at the
 # plan's own 0x60C5 the records' rounding may need room the knot placement's integer repair would find)
-FALLBACK_SCALES = (0.97, 0.95, 0.9)
+FALLBACK_SCALES = (0.97, 0.95, 0.9, 0.85, 0.8, 0.7)
 
 
 def planned_jerk(metadata: dict[str, Any]) -> NDArray[np.float64] | None:

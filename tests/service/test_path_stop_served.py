@@ -327,3 +327,18 @@ def test_stop_of_a_jerk_limited_motion_holds_the_jerk_limit(fraction: float, tmp
         assert_on_path(before, after, braking["begun_ms"])
         assert_at_rest_together(after, braking["ended_ms"], svc.cell.bus.sync_period_ms)
         no_faults(svc)
+
+
+def test_override_just_below_the_planned_speed(service: MotionService) -> None:
+    """0.99: as close to it as the limits and the SYNC grid allow (the scale lowered by at most 3 % so that the
+    motion ends on the grid), within every limit."""
+    before = start(service, 0.3)
+    reply = service.override(parse_override({"scale": 0.99}))
+    assert 0.96 <= reply["scale"] <= 0.99
+    motion = service.motion
+    assert motion is not None and motion.done.wait(60.0)
+    assert motion.outcome is not None and motion.outcome["result"] == "finished", motion.outcome
+    after = ran(service)
+    assert after.duration_ms > before.duration_ms
+    assert_on_path(before, after, reply["from_ms"])
+    no_faults(service)
