@@ -12,8 +12,15 @@ of its duration.
   |v| / 0x607F and |a| / 0x60C5 of the braking records; the change's computation (wall ms, p50 / p99).
 - ``override 0.3`` at 30 %: request -> the new speed applies (``from_ms``, program ms).
 - ``pause`` at 40 % + ``resume``: the two motions' time against the uninterrupted program.
+- ``override 0.5`` at 20 %, then ``override 1.0`` 150 ms after it applied: request -> the program's own records
+  run again (program ms, the first record from which every axis's records are the program's, that much later),
+  how much later the motion ends, the drives' violations.
+- a jerk-limited plan (``max_jerk`` 10 x each joint's acceleration limit /s) on gantry3, ``stop`` (path) at 20-80 %:
+  the drives' 10-ms-window jerk of the braking's records against the limit (the knot placement holds 1.2 x), the
+  braking's time, and the same with the braking not jerk-limited (as before: the greedy deceleration).
 
-Run:  PYTHONPATH=. python3 bench/onpath_service.py [--runs N]  (the planner alone: bench/onpath_stop.py)
+Run:  PYTHONPATH=. python3 bench/onpath_service.py [--runs N] [--part all|stops|back|jerk]
+(the planner alone: bench/onpath_stop.py)
 """
 
 from __future__ import annotations
@@ -31,7 +38,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from pvtflow.axes.canbus.clock import Clock  # noqa: E402
-from pvtflow.axes.drive.program import PvtProgram  # noqa: E402
+from pvtflow.axes.drive.program import PvtProgram, split_long_records  # noqa: E402
+from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk_profile  # noqa: E402
 from pvtflow.service.api import (  # noqa: E402
     parse_execute,
     parse_home,
@@ -132,10 +140,123 @@ def pct(xs: list[float], q: float) -> float:
     return float(np.percentile(np.asarray(xs), q)) if xs else float("nan")
 
 
+def open_cell(name: str) -> MotionService:
+    svc = MotionService(cell_file(name), journal_dir=tempfile.mkdtemp(), clock=Clock.LOCKSTEP).open()
+    if svc.cell.requires_homing:
+        svc.home(parse_home({"wait": True}))
+    return svc
+
+
+def wait_ms(svc: MotionService, t_ms: float) -> None:
+    while (svc.group.elapsed_syncs() or 0) * svc.cell.bus.sync_period_ms < t_ms and not svc.motion.done.is_set():
+        time.sleep(0.0005)
+
+
+def back_to_plan() -> None:
+    """override 0.5 at 20 %, 1.0 150 ms after it applied: when the program's own records run again."""
+    print(
+        "cell                  | 0.5 from ms | 1.0 from ms (scale) | own records from ms (request ->) | later ms "
+        "| 0.99 applied | faults"
+    )
+    for name in CELLS:
+        svc = open_cell(name)
+        try:
+            before = running(svc, 0.2)
+            slow = svc.override(parse_override({"scale": 0.5}))
+            wait_ms(svc, slow["from_ms"] + 150.0)
+            back = svc.override(parse_override({"scale": 1.0}))
+            svc.motion.done.wait(60.0)
+            after = PvtProgram(svc.cell.name, svc.group.programs)
+            half = max(1, int(svc.cell.bus.max_lookahead_ms / 2))
+            own = 0.0
+            for a, b in zip(after.axes, before.axes, strict=True):
+                fed = split_long_records(b, half)
+                n = 0  # the records at the end that are the program's own
+                while n < min(len(fed), len(a.records)) and (a.records[-1 - n] == fed[-1 - n]).all():
+                    n += 1
+                own = max(own, float(np.sum(a.records[: len(a.records) - n, 2])))
+            running(svc, 0.3)
+            near = svc.override(parse_override({"scale": 0.99}))  # the limits' room below the plan's speed
+            svc.motion.done.wait(60.0)
+            faults = sum(len(d.faults) for d in svc.sim)
+            print(
+                f"{name:21s} | {slow['from_ms']:11.1f} | {back['from_ms']:11.1f} ({back['scale']:.4g}) "
+                f"| {own:7.1f} ({own - back['requested_ms']:6.1f}) "
+                f"| {after.duration_ms - before.duration_ms:8d} | {near['scale']:.4g} "
+                f"| {faults} ({svc.motion.outcome['result']})"
+            )
+        finally:
+            svc.close()
+
+
+def jerk_ratio(program: PvtProgram, max_jerk: list[float], from_ms: float) -> float:
+    worst = 0.0
+    for a, jmax in zip(program.axes, max_jerk, strict=True):
+        t, jerk = window_jerk_profile(a.reconstruction())
+        worst = max(
+            worst, float(jerk[t >= from_ms - WINDOW_MS].max()) / (jmax * abs(a.scaling.qc_per_joint_unit) * 1e-9)
+        )
+    return worst
+
+
+def jerk_limited_stops(runs: int) -> None:
+    """A jerk-limited plan stopped on its path: the records' window jerk, jerk-limited braking against greedy."""
+    real = onpath.planned_jerk
+    print("gantry3, jerk-limited plan | braking    | window jerk / limit max | begun -> rest p50 / max ms | path mm")
+    for braking in ("jerk-limited", "greedy"):
+        onpath.planned_jerk = real if braking == "jerk-limited" else (lambda metadata: None)
+        svc = open_cell("gantry3")
+        ratios_, rest, path_mm, quick, to_end = [], [], [], [], 0
+        try:
+            limits = svc.cell.joint_limits()
+            max_jerk = [float(j) for j in 10.0 * np.asarray(limits.acceleration)]
+            for _ in range(runs):
+                for fraction in FRACTIONS:
+                    for to in (0.15, 0.85):
+                        req = {"waypoints": [at(svc.cell, to)], "start": "current", "max_jerk": max_jerk}
+                        plan = svc.plan(parse_plan(req, svc.cell.joint_names, limits))
+                        svc.execute(parse_execute({"plan_id": plan["plan_id"], "wait": to == 0.15}))
+                    before = PvtProgram(svc.cell.name, svc.group.programs)
+                    wait_ms(svc, fraction * before.duration_ms)
+                    reply = svc.stop(parse_stop({}))
+                    b = reply["braking"]
+                    if b is None:
+                        quick.append(f"{fraction:g}: {reply['fallback'][:120]}")
+                        continue
+                    if b["begun_ms"] is None:  # the path ends before the braking would: the motion's own end
+                        to_end += 1
+                        continue
+                    after = PvtProgram(svc.cell.name, svc.group.programs)
+                    ratios_.append(jerk_ratio(after, max_jerk, b["begun_ms"]))
+                    rest.append(b["ended_ms"] - b["begun_ms"])
+                    line = joints(before, np.arange(0.0, before.duration_ms + 0.05, 0.05))
+                    pts = joints(after, np.arange(b["begun_ms"] - 20.0, after.duration_ms + 1.0))
+                    path_mm.append(1000.0 * distance(pts, line))
+        finally:
+            svc.close()
+            onpath.planned_jerk = real
+        print(
+            f"{'':26s} | {braking:10s} | {max(ratios_):23.2f} | {pct(rest, 50):9.1f} / {max(rest):6.1f} "
+            f"| {max(path_mm):.4f} ({len(rest)} stops, {to_end} ran to their end, {len(quick)} quick)"
+        )
+        for why in quick:
+            print(f"{'':26s} | quick at {why}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=1, help="passes over the stop fractions (default 1)")
+    ap.add_argument("--part", choices=("all", "stops", "back", "jerk"), default="all")
     args = ap.parse_args()
+    if args.part in ("all", "back"):
+        back_to_plan()
+    if args.part in ("all", "jerk"):
+        jerk_limited_stops(args.runs)
+    if args.part in ("all", "stops"):
+        stops(args)
+
+
+def stops(args: argparse.Namespace) -> None:
     computed: list[float] = []
     real_splice = onpath.splice_run
 
@@ -201,7 +322,7 @@ def main() -> None:
             svc.close()
     for line in why:
         print("fallback:", line)
-    print("command: PYTHONPATH=. python3 bench/onpath_service.py")
+    print("command: PYTHONPATH=. python3 bench/onpath_service.py --part stops")
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,8 +27,16 @@ from pvtflow.axes.drive.program import AxisProgram, PvtProgram
 from pvtflow.planner.knots import fixed_period_kernels as fp_kernels
 from pvtflow.planner.knots.fixed_period import _FP_REACH, reconstruction_kind
 from pvtflow.planner.knots.samples import axis_constants
+from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk_profile
 from pvtflow.planner.limits import JointLimits
-from pvtflow.planner.onpath_stop import OnPathStop, brake_on_path, override
+from pvtflow.planner.onpath_stop import (
+    OnPathStop,
+    _s_at,
+    brake_on_path,
+    jerk_braking,
+    jerk_braking_rates,
+    override,
+)
 from pvtflow.planner.path import PlanError, PlanResult
 from pvtflow.planner.trajectory import Trajectory
 from pvtflow.planner.validate import validate_program
@@ -42,7 +51,7 @@ SPACINGS = ((MIN_SEGMENT_MS, MAX_SEGMENT_MS), (5, 8), (12, 24), (4, 6))
 # the share of the joint accelerations the braking plans with: room for the records' rounding (the knot
 # placement's repair of integers is not run on a change: it must be made within the look-ahead)
 BRAKING_SHARE = 0.9
-# the fastest a change re-times a motion to, of its planned speed: at the planned speed itself a time-optimal
+# the speed a resume re-times the rest to, of its planned speed: at the planned speed itself a time-optimal
 # program's records sit at 0x60C5, where only the knot placement's integer repair finds records inside it
 # (accelerations scale with its square: 0.95 leaves 10 %)
 MAX_SCALE = 0.95
@@ -89,6 +98,62 @@ def brake_on_grid(motion: Trajectory, t0_s: float, limits: JointLimits, grid_s: 
     if best is None:
         raise ChangeError("no braking on this path comes to rest on the SYNC grid")
     return best
+
+
+# the drives' window jerk a change's records may reach, of the plan's jerk limit (the knot placement's
+# ``KnotOptions.window_jerk_ratio``: the records' jumps in acceleration at every knot)
+WINDOW_JERK_RATIO = 1.2
+
+
+# the shares of the planned jerk limit a jerk-limited braking is tried with, in turn, until its records hold
+# ``WINDOW_JERK_RATIO`` (the records' acceleration jumps at the knots add to the motion's own jerk)
+JERK_SHARES = (0.9, 0.7, 0.5)
+
+
+def brake_with_jerk_on_grid(
+    motion: Trajectory,
+    t0_s: float,
+    limits: JointLimits,
+    max_jerk: NDArray[np.float64],
+    grid_s: float,
+    jerk_share: float = JERK_SHARES[0],
+) -> OnPathStop:
+    """The jerk-limited on-path braking (``onpath_stop.jerk_braking_rates``: ``BRAKING_SHARE`` of 0x60C5,
+    ``jerk_share`` of the jerk limit) that comes to rest on the grid: its deceleration and jerk lowered
+    together (bisection) until the rest is a grid time."""
+    decel, jerk = jerk_braking_rates(motion, t0_s, limits, max_jerk, BRAKING_SHARE, jerk_share)
+    stop = jerk_braking(motion, t0_s, decel, jerk)
+    target = t0_s + on_grid(stop.t_end - t0_s, grid_s)
+    if target - stop.t_end < 2e-6:
+        return stop
+    lo, hi, best = 0.3, 1.0, None
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        trial = jerk_braking(motion, t0_s, decel * mid, jerk * mid)
+        if trial.t_end > target:
+            lo = mid
+        else:
+            hi, best = mid, trial
+            if target - trial.t_end < 2e-6:
+                break
+    if best is None or target - best.t_end >= 2e-6:
+        raise ChangeError("no jerk-limited braking on this path comes to rest on the SYNC grid")
+    return best
+
+
+def records_jerk_ratio(program: PvtProgram, max_jerk: NDArray[np.float64], from_ms: float) -> float:
+    """The drives' 10-ms-window jerk of ``program``'s records from ``from_ms`` on, of ``max_jerk`` (joint
+    units/s^3 per axis), at most: what the knot placement holds a jerk-limited plan's records to."""
+    worst = 0.0
+    for a, jmax in zip(program.axes, max_jerk, strict=True):
+        if not np.isfinite(jmax):
+            continue
+        t, jerk = window_jerk_profile(a.reconstruction())
+        jerk = jerk[t >= from_ms - WINDOW_MS]
+        allowed = float(jmax) * abs(float(a.scaling.qc_per_joint_unit)) * 1e-9  # qc/ms^3
+        if len(jerk):
+            worst = max(worst, float(jerk.max()) / allowed)
+    return worst
 
 
 def tail_records(
@@ -245,18 +310,17 @@ def override_on_grid(
 ) -> tuple[Trajectory, float]:
     """``override`` at ``scale`` joined to ``running`` at ``t0_s``, with the scale lowered by at most 3 % so
     that the motion ends on the grid (no cubic straddles its last deceleration); (the motion, the scale).
-    The scale is at most ``MAX_SCALE`` and the ramps to it take ``BRAKING_SHARE`` of the joint accelerations:
-    the records' rounding needs that room."""
-    scale = min(scale, MAX_SCALE)
+    The ramps to it take ``BRAKING_SHARE`` of the joint accelerations: the records' rounding needs that room
+    (scale 1.0 itself: ``back_to_plan_on_grid``, which joins the planned records)."""
     limits = scaled_limits(limits, BRAKING_SHARE)
-    whole = joined(running, override(planned, running, t0_s, scale, limits))
+    whole = joined(running, override(planned, running, t0_s, scale, limits, rest_at_end=False))
     target = on_grid(whole.duration, grid_s)
     if target - whole.duration < 2e-6:
         return whole, scale
     lo, hi, best = max(0.05, scale * 0.97), scale, None
     for _ in range(30):
         mid = 0.5 * (lo + hi)
-        trial = joined(running, override(planned, running, t0_s, mid, limits))
+        trial = joined(running, override(planned, running, t0_s, mid, limits, rest_at_end=False))
         if trial.duration > target:
             lo = mid
         else:
@@ -297,3 +361,128 @@ def resume_program(paused: PvtProgram, rest: Trajectory, limits: JointLimits, gr
     start = PvtProgram(paused.cell, tuple(axes), dict(paused.metadata))
     program, _ = changed_program(start, first, joins, offset, motion, offset + end_s * 1000.0, limits, offset)
     return program
+
+
+# --- back to the planned timing (override 1.0) ------------------------------------------------------------
+# the original records a change joins, tried in turn per axis: the first that ends after the ramp, and later ones
+JOIN_TRIES = 4
+
+
+@dataclass(frozen=True)
+class BackToPlan:
+    """The running motion brought back to the planned timing: ``motion`` (program time) is the planned one
+    delayed by ``delay_ms`` (whole ms, on the grid) from path position ``s_ms`` (program ms of the plan) on."""
+
+    motion: Trajectory
+    s_ms: float
+    delay_ms: int
+
+
+def _delay(whole: Trajectory, planned: Trajectory, s0: float) -> tuple[float, float] | None:
+    """(where the re-timed motion is on the planned timing again, its delay there), seconds; None where it
+    does not reach the planned speed before the end."""
+    grid, sd = whole.gridpoints, whole.sd
+    off = np.abs(sd[:-1] - 1.0) > 1e-9
+    after = np.nonzero(off & (grid[:-1] >= s0 - 1e-12))[0]
+    i = int(after[-1]) + 1 if len(after) else int(np.searchsorted(grid, s0 - 1e-12))
+    if i >= len(grid) - 2:
+        return None
+    s1 = float(grid[i])
+    return s1, float(whole.time_at(np.array([s1]))[0]) - s1
+
+
+# the shares of 0x60C5 the ramp back to the planned speed is tried with, in turn: where it reaches the plan, the
+# joints' acceleration jumps by the ramp's part of it, which a record's cubic across it overshoots
+RAMP_SHARES = (BRAKING_SHARE, 0.6, 0.35)
+
+
+def back_to_plan_on_grid(
+    planned: Trajectory,
+    running: Trajectory,
+    t0_s: float,
+    limits: JointLimits,
+    grid_s: float,
+    share: float = BRAKING_SHARE,
+) -> BackToPlan:
+    """``override`` at 1.0 from ``t0_s``: the largest path acceleration (``share`` of the joints', lowered by
+    bisection) up to the planned speed, reached where the motion is late on the plan by a whole number of grid
+    steps, so that from there the planned records run unchanged, that much later."""
+    s0 = _s_at(running, t0_s)
+
+    def at(share: float) -> tuple[Trajectory, tuple[float, float] | None]:
+        whole = joined(running, override(planned, running, t0_s, 1.0, scaled_limits(limits, share), tries=1))
+        return whole, _delay(whole, planned, s0)
+
+    hi = share
+    whole, d = at(hi)
+    if d is None:
+        raise ChangeError("the motion does not reach its planned speed again before its end")
+    target = on_grid(d[1], grid_s)
+    if target - d[1] >= 2e-6:
+        lo, best = hi * 0.3, None
+        for _ in range(40):
+            mid = 0.5 * (lo + hi)
+            trial, dt = at(mid)
+            if dt is None or dt[1] > target:
+                lo = mid
+            else:
+                hi, best = mid, (trial, dt)
+                if target - dt[1] < 2e-6:
+                    break
+        if best is None or target - best[1][1] >= 2e-6:
+            raise ChangeError("no ramp back to the planned speed ends on the SYNC grid")
+        whole, d = best
+    return BackToPlan(whole, d[0] * 1000.0, round(target * 1000.0))
+
+
+def rejoined_program(
+    program: PvtProgram,
+    first: Sequence[int],
+    join_ms: Sequence[float],
+    t0_ms: float,
+    back: BackToPlan,
+    original: PvtProgram,
+    limits: JointLimits,
+) -> tuple[PvtProgram, list[NDArray[np.int64]]]:
+    """``program`` with each axis's records from ``first[i]`` on replaced by ``back.motion``'s ramp from
+    ``join_ms[i]`` to the end of one of ``original``'s records after the ramp (that record's own position
+    and velocity, ``back.delay_ms`` later), then ``original``'s records from there on, unchanged; validated."""
+    times, jumps = back.motion.acceleration_jumps()
+    amax = np.asarray(limits.acceleration, dtype=float)
+    big = np.any(np.abs(jumps) > JUMP_SHARE * amax, axis=1) if len(jumps) else np.zeros(0, dtype=bool)
+    jumps_ms = np.asarray(times, dtype=float)[big] * 1000.0
+    rows: list[NDArray[np.int64]] = []
+    axes = []
+    for a, k, jm, o in zip(program.axes, first, join_ms, original.axes, strict=True):
+        recs = o.records[:-1] if not o.profile.fixed_period and o.records[-1, 2] == 0 else o.records
+        ends = np.cumsum(recs[:, 2]).astype(float)
+        fixed = o.profile.fixed_period
+        least = max(back.s_ms, jm - back.delay_ms + (0 if fixed else MIN_SEGMENT_MS))
+        start = int(np.searchsorted(ends, least - 1e-9))  # the first original record ending after the ramp
+        made = None
+        for m in range(start, min(start + JOIN_TRIES, len(recs))):
+            end = float(ends[m]) + back.delay_ms
+            for spacing in SPACINGS if not fixed else SPACINGS[:1]:
+                try:
+                    r = tail_records(a, jm, t0_ms, back.motion, end, jumps_ms[jumps_ms < end], 0.0, spacing)
+                except ChangeError:
+                    continue
+                r = r[:-1].copy()  # without the rest it would end with
+                r[-1, :2] = recs[m, :2]
+                r = np.vstack((r, recs[m + 1 :], *([[[recs[-1, 0], 0, 0]]] if not fixed else [])))
+                axis = AxisProgram.of(a, np.concatenate((a.records[:k], r)))
+                if validate_program(PvtProgram(program.cell, (axis,)), sample_period_ms=None).ok:
+                    made = (r, axis)
+                    break
+            if made is not None:
+                break
+        if made is None:
+            raise ChangeError(f"{a.joint}: no join to the planned records validates")
+        rows.append(made[0])
+        axes.append(made[1])
+    duration = max(float(np.sum(x.records[:, 2])) for x in axes)
+    changed = PvtProgram(program.cell, tuple(axes), {**program.metadata, "duration_ms": round(duration)})
+    report = validate_program(changed, sample_period_ms=None)
+    if not report.ok:
+        raise ChangeError("the changed records do not validate: " + "; ".join(f.format() for f in report.errors[:3]))
+    return changed, rows

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.path import PlanError, PlanResult
@@ -138,18 +138,26 @@ def _bounds(
 
 
 def override(
-    planned: Trajectory, running: Trajectory, t0: float, scale: float, limits: JointLimits, tries: int = 4
+    planned: Trajectory,
+    running: Trajectory,
+    t0: float,
+    scale: float,
+    limits: JointLimits,
+    tries: int = 4,
+    rest_at_end: bool = True,
 ) -> Trajectory:
     """The rest of ``running`` from ``t0`` re-timed to ``scale`` (0.05..1) of ``planned``'s path speed.
 
     The path velocity at ``t0`` is the running one; from there it moves towards scale * planned s'(s) at
     the largest path acceleration or deceleration the joints allow, then follows it (a slowed-down feasible
-    profile: velocities times scale, accelerations times scale^2). Time 0 of the result is ``t0``."""
+    profile: velocities times scale, accelerations times scale^2). Time 0 of the result is ``t0``.
+    ``rest_at_end``: s' = 0 at the path's end; a program's path (``planner.program_motion``, s = program time)
+    is at rest there at any s' (q'(s) = 0), and a forced s' = 0 would brake its last interval hard."""
     if not 0.05 <= scale <= 1.0:
         raise PlanError(PlanResult.INVALID_INPUT, f"scale must be in [0.05, 1.0], got {scale!r}", field="scale")
     share = BRAKE_ACCELERATION_SHARE
     for _ in range(tries):
-        retimed = _override(planned, running, t0, scale, limits, share)
+        retimed = _override(planned, running, t0, scale, limits, share, rest_at_end)
         _, ra = retimed.limit_ratios(limits)
         if ra <= 1.0:
             break
@@ -158,7 +166,13 @@ def override(
 
 
 def _override(
-    planned: Trajectory, running: Trajectory, t0: float, scale: float, limits: JointLimits, share: float
+    planned: Trajectory,
+    running: Trajectory,
+    t0: float,
+    scale: float,
+    limits: JointLimits,
+    share: float,
+    rest_at_end: bool = True,
 ) -> Trajectory:
     amax = np.asarray(limits.acceleration, dtype=float) * share
     t0 = float(np.clip(t0, 0.0, running.duration))
@@ -178,7 +192,8 @@ def _override(
             xs.append(max(x + step * min(lo, 0.0), target[i]))
         else:
             xs.append(min(x + step * max(hi, 0.0), target[i]))
-    xs[-1] = 0.0
+    if rest_at_end:
+        xs[-1] = 0.0
     sd = np.sqrt(np.maximum(np.asarray(xs), 0.0))
     return Trajectory.from_path_velocities(running.path, np.asarray(grid, dtype=float), sd, running.joint_names)
 
@@ -197,3 +212,100 @@ def resume(motion: Trajectory, paused: OnPathStop, limits: JointLimits) -> Traje
     until the planned profile is reached, then the planned profile (under it, every constraint the plan held
     holds; the ramp itself is held to the joint limits). Time 0 of the result is the moment of resuming."""
     return override(motion, paused.trajectory, paused.trajectory.duration, 1.0, limits)
+
+
+# --- jerk-limited braking (a motion planned with a jerk limit) -----------------------------------------------
+SCURVE_STEP_S = 1e-4  # the S-curve's integration step (its end found between two steps)
+WINDOW_S = 0.01  # the span a drive's window jerk is judged over (planner.knots.window_jerk)
+
+
+def _scurve(v0: float, a0: float, decel: float, jerk: float) -> tuple[NDArray[np.float64], ...]:
+    """Path velocity to rest with s'' ramped at ``jerk`` to ``-decel`` and back to 0 as s' reaches 0: (t, s - s0,
+    s', s'') at every integration step, the last at rest."""
+    n = int(10.0 / SCURVE_STEP_S)
+    dt = SCURVE_STEP_S
+    ts, ss, vs, acc = [0.0], [0.0], [v0], [a0]
+    s, v, a = 0.0, v0, a0
+    for k in range(1, n):
+        if a < 0.0 and v <= a * a / (2.0 * jerk) + 1e-12:
+            a_next = min(a + jerk * dt, 0.0)  # the ramp out: s'' back to 0 as s' reaches 0
+        elif a > -decel:
+            a_next = max(a - jerk * dt, -decel)
+        else:
+            a_next = min(a + jerk * dt, -decel)
+        v_next = v + 0.5 * (a + a_next) * dt
+        if v_next <= 0.0:  # rest between two steps: where s' crosses 0
+            f = v / max(v - v_next, 1e-300)
+            ts.append((k - 1 + f) * dt)
+            ss.append(s + 0.5 * v * f * dt)
+            vs.append(0.0)
+            acc.append(0.0)
+            break
+        s += 0.5 * (v + v_next) * dt
+        v, a = v_next, a_next
+        ts.append(k * dt)
+        ss.append(s)
+        vs.append(v)
+        acc.append(a)
+    return np.asarray(ts), np.asarray(ss), np.asarray(vs), np.asarray(acc)
+
+
+def window_jerk_ratio(motion: Trajectory, stop: OnPathStop, max_jerk: NDArray[np.float64]) -> float:
+    """The 10-ms-window joint jerk / ``max_jerk`` at most of the braking, with the motion's last window before
+    it and the rest after it, at every ms."""
+    braking = stop.trajectory
+    before = motion.acceleration(np.clip(stop.t_start - WINDOW_S + np.arange(10) * 1e-3, 0.0, motion.duration))
+    during = braking.acceleration(np.linspace(0.0, braking.duration, max(2, int(braking.duration * 1000.0) + 1)))
+    acc = np.vstack((before, during, np.zeros((10, during.shape[1]))))
+    window = np.abs(acc[10:] - acc[:-10]) / WINDOW_S
+    return float(np.max(window / np.asarray(max_jerk, dtype=float)[None, :]))
+
+
+def jerk_braking(motion: Trajectory, t0: float, decel: float, jerk: float) -> OnPathStop:
+    """The S-curve braking from ``t0``: path jerk ``jerk`` (1/s^2), path deceleration ``decel`` (1/s) at most."""
+    s0, sd0 = _s_at(motion, t0), _sd_at(motion, t0)
+    i = int(np.clip(np.searchsorted(motion.breakpoints, t0, side="right") - 1, 0, len(motion.sdd) - 1))
+    _, s, v, _ = _scurve(sd0, float(motion.sdd[i]) if sd0 > 0.0 else 0.0, decel, jerk)
+    keep = np.concatenate(([True], np.diff(s) > 1e-12))
+    grid = s0 + s[keep]
+    if grid[-1] > float(motion.gridpoints[-1]) or len(grid) < 2:
+        raise PlanError(PlanResult.INFEASIBLE, "the path ends before a jerk-limited braking would")
+    braking = Trajectory.from_path_velocities(motion.path, grid, v[keep], motion.joint_names)
+    return OnPathStop(braking, t0, t0 + braking.duration, s0, float(grid[-1]))
+
+
+def jerk_braking_rates(
+    motion: Trajectory,
+    t0: float,
+    limits: JointLimits,
+    max_jerk: ArrayLike,
+    share: float = 0.9,
+    jerk_share: float | None = None,
+    tries: int = 8,
+) -> tuple[float, float]:
+    """(path deceleration, path jerk) of the on-path braking of a motion planned with a jerk limit: an S-curve
+    in path time (``jerk_braking``) from the running state to rest, both lowered until the joints hold
+    ``share`` of 0x60C5 and ``jerk_share`` (default ``share``) of ``max_jerk`` (joint units/s^3, judged as the
+    drives' window jerk over 10 ms).
+    The last try is returned as is: the caller checks the records."""
+    jmax = np.asarray(max_jerk, dtype=float)
+    t0 = float(np.clip(t0, 0.0, motion.duration))
+    qs = np.abs(motion.path(_s_at(motion, t0), 1))
+    amax = np.asarray(limits.acceleration, dtype=float)
+    moving = qs > 1e-12
+    if not np.any(moving):
+        raise PlanError(PlanResult.INFEASIBLE, "the path has no tangent where braking begins")
+    js = share if jerk_share is None else jerk_share
+    decel = share * float(np.min(amax[moving] / qs[moving]))
+    jerk = js * float(np.min(jmax[moving] / qs[moving]))
+    for _ in range(tries):
+        stop = jerk_braking(motion, t0, decel, jerk)
+        _, ra = stop.trajectory.limit_ratios(limits)
+        rj = window_jerk_ratio(motion, stop, jmax)
+        if ra <= share and rj <= js:
+            break
+        if ra > share:
+            decel *= 0.97 * share / ra
+        if rj > js:
+            jerk *= 0.97 * js / rj
+    return decel, jerk

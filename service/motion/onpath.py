@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.axes.master.group.axis_group import AxisGroup
@@ -24,12 +25,19 @@ from pvtflow.planner.build import BuildError, build_program
 from pvtflow.planner.knots import KnotOptions
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.onpath_program import (
+    JERK_SHARES,
+    RAMP_SHARES,
+    WINDOW_JERK_RATIO,
     ChangeError,
+    back_to_plan_on_grid,
     brake_on_grid,
+    brake_with_jerk_on_grid,
     change_start_ms,
     changed_program,
     on_grid,
     override_on_grid,
+    records_jerk_ratio,
+    rejoined_program,
     resume_motion,
 )
 from pvtflow.planner.onpath_stop import OnPathStop, stopped_motion
@@ -50,6 +58,22 @@ class _RunsToItsEnd(Exception):  # noqa: N818 (not an error: the motion's own en
 
 
 _CHANGE_ERRORS = (SpliceRefusedError, ChangeError, PlanError, BuildError, ValueError)
+# the scales an override falls back to, in turn, where the records of a faster one do not validate (at the
+# plan's own 0x60C5 the records' rounding may need room the knot placement's integer repair would find)
+FALLBACK_SCALES = (0.97, 0.95, 0.9, 0.85, 0.8, 0.7)
+
+
+def planned_jerk(metadata: dict[str, Any]) -> NDArray[np.float64] | None:
+    """The jerk limit the motion was planned with (joint units/s^3, inf: none for that joint), None: none."""
+    jerk = metadata.get("max_jerk")
+    if jerk is None:
+        return None
+    out = np.array([np.inf if j is None else float(j) for j in jerk], dtype=float)
+    return out if np.any(np.isfinite(out)) else None
+
+
+def _scales(scale: float) -> list[float]:
+    return [scale, *(s for s in FALLBACK_SCALES if s < scale)]
 
 
 @dataclass
@@ -62,6 +86,7 @@ class MotionPath:
     program: PvtProgram  # the records as they run now, in the group's axis order
     scale: float = 1.0
     stop: OnPathStop | None = None  # the braking, once stopped or paused on the path
+    original: PvtProgram | None = None  # the records as the feeders held them at the first change
 
 
 @dataclass
@@ -108,21 +133,33 @@ class PathChanges:
         except _CHANGE_ERRORS as exc:
             return None, f"the motion's path: {exc}"
         grid_ms = record_grid_ms(group.programs, self.cell.bus.sync_period_ms)
+        jerk = planned_jerk(path.program.metadata)
         made: dict[str, Any] = {}
 
         def make(at: SpliceAt) -> list[Any]:
             begin = change_start_ms(at.t0_ms, at.join_ms, at.programs)
-            try:
-                stop = brake_on_grid(path.running, begin / 1000.0, self.limits, grid_ms / 1000.0)
-            except PlanError:
-                if begin < 0.5 * path.running.duration * 1000.0:
-                    raise
-                raise _RunsToItsEnd from None  # at rest on the path's end already, or nearly
-            if stop.s_end >= float(path.running.gridpoints[-1]) - 1e-9:
-                raise _RunsToItsEnd  # the path ends before a braking would: its own end is the fastest stop
-            whole = stopped_motion(path.running, stop)
             program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
-            new, rows = changed_program(program, at.first, at.join_ms, begin, whole, stop.t_end * 1000.0, self.limits)
+            for jerk_share in JERK_SHARES if jerk is not None else (None,):
+                try:
+                    if jerk is None:
+                        stop = brake_on_grid(path.running, begin / 1000.0, self.limits, grid_ms / 1000.0)
+                    else:  # a motion planned with a jerk limit brakes within it too
+                        stop = brake_with_jerk_on_grid(
+                            path.running, begin / 1000.0, self.limits, jerk, grid_ms / 1000.0, jerk_share
+                        )
+                except PlanError:
+                    if begin < 0.5 * path.running.duration * 1000.0:
+                        raise
+                    raise _RunsToItsEnd from None  # at rest on the path's end already, or nearly
+                if stop.s_end >= float(path.running.gridpoints[-1]) - 1e-9:
+                    raise _RunsToItsEnd  # the path ends before a braking would: its own end is the fastest stop
+                whole = stopped_motion(path.running, stop)
+                end_ms = stop.t_end * 1000.0
+                new, rows = changed_program(program, at.first, at.join_ms, begin, whole, end_ms, self.limits)
+                if jerk is None or (ratio := records_jerk_ratio(new, jerk, begin)) <= WINDOW_JERK_RATIO:
+                    break
+            else:
+                raise ChangeError(f"the braking's records reach {ratio:.2f} x the planned jerk limit (window jerk)")
             made.update(stop=stop, whole=whole, program=new)
             group.ends_as((Result.STOPPED, reason))  # the stop's outcome as the quick one's: the reason
             return rows
@@ -201,6 +238,25 @@ class PathChanges:
         return paused, program
 
     # --- override ----------------------------------------------------------------------------------
+    def _back_to_plan(
+        self, path: MotionPath, program: PvtProgram, at: SpliceAt, begin: float, grid_ms: int
+    ) -> tuple[PvtProgram, list[NDArray[np.int64]], Trajectory]:
+        """The records that bring the motion back to its planned timing (the original records joined after a
+        ramp, ``RAMP_SHARES`` tried in turn); ChangeError where none validates."""
+        assert path.original is not None
+        failed: Exception | None = None
+        for share in RAMP_SHARES:
+            try:
+                back = back_to_plan_on_grid(
+                    path.planned, path.running, begin / 1000.0, self.limits, grid_ms / 1000.0, share
+                )
+                new, rows = rejoined_program(program, at.first, at.join_ms, begin, back, path.original, self.limits)
+            except ChangeError as exc:
+                failed = exc
+                continue
+            return new, rows, back.motion
+        raise ChangeError(f"back to the planned timing: {failed}")
+
     def override(self, group: AxisGroup, motion: Motion, scale: float) -> dict[str, Any]:
         """Re-time the rest of the running motion to ``scale`` of its planned speed (drives' lock held);
         NOT_ALLOWED with nothing changed where it cannot be made in time or within the drives' limits."""
@@ -208,19 +264,42 @@ class PathChanges:
             path = self.path_of(motion, group)
         except _CHANGE_ERRORS as exc:
             raise ApiError(ErrorCode.NOT_ALLOWED, f"override: the motion's path: {exc}") from None
+        if scale >= 1.0 and path.scale == 1.0 and path.stop is None:  # on the planned timing already
+            now = float((group.elapsed_syncs() or 0) * self.cell.bus.sync_period_ms)
+            return {
+                "motion_id": motion.motion_id,
+                "scale": 1.0,
+                "requested_ms": now,
+                "from_ms": now,
+                "duration_ms": int(path.program.duration_ms),
+            }
         grid_ms = record_grid_ms(group.programs, self.cell.bus.sync_period_ms)
         made: dict[str, Any] = {}
 
         def make(at: SpliceAt) -> list[Any]:
             begin = change_start_ms(at.t0_ms, at.join_ms, at.programs)
-            whole, applied = override_on_grid(
-                path.planned, path.running, begin / 1000.0, scale, self.limits, grid_ms / 1000.0
-            )
             program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
-            end_ms = float(np.round(whole.duration * 1000.0))
-            new, rows = changed_program(program, at.first, at.join_ms, begin, whole, end_ms, self.limits)
-            made.update(whole=whole, program=new, scale=applied, begin=begin)
-            return rows
+            if path.original is None:
+                path.original = program  # nothing changed yet: the records as started
+            failed: Exception | None = None
+            for wanted in _scales(scale):
+                try:
+                    if wanted >= 1.0:  # the planned timing, late by a whole number of grid steps
+                        new, rows, whole = self._back_to_plan(path, program, at, begin, grid_ms)
+                        applied = 1.0
+                    else:
+                        whole, applied = override_on_grid(
+                            path.planned, path.running, begin / 1000.0, wanted, self.limits, grid_ms / 1000.0
+                        )
+                        end_ms = float(np.round(whole.duration * 1000.0))
+                        new, rows = changed_program(program, at.first, at.join_ms, begin, whole, end_ms, self.limits)
+                except (ChangeError, PlanError) as exc:
+                    failed = exc
+                    continue
+                made.update(whole=whole, program=new, scale=applied, begin=begin)
+                return rows
+            assert failed is not None
+            raise failed
 
         try:
             at = group.splice(make)

@@ -18,14 +18,16 @@ from svc_helpers import wait_until
 from test_stop_then_move import assert_nothing_left, cell_file, move_again, plan, tour
 
 from pvtflow.axes.canbus.clock import Clock
-from pvtflow.axes.drive.program import PvtProgram
+from pvtflow.axes.drive.program import PvtProgram, split_long_records
 from pvtflow.axes.sim.profiles.epos2 import Epos2Drive
+from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk_profile
 from pvtflow.service.api import (
     ApiError,
     parse_execute,
     parse_home,
     parse_override,
     parse_pause,
+    parse_plan,
     parse_resume,
     parse_status,
     parse_stop,
@@ -239,3 +241,104 @@ def test_stop_on_the_path_on_the_wall_clock(tmp_path: Path) -> None:
             no_faults(svc)
             move_again(svc)
         assert made >= 1, "no path stop was made in time on the wall clock"
+
+
+def _elapsed_ms(svc: MotionService) -> float:
+    group = svc.group
+    assert group is not None
+    return float((group.elapsed_syncs() or 0) * svc.cell.bus.sync_period_ms)
+
+
+def test_override_back_to_one_runs_the_planned_records(service: MotionService) -> None:
+    """0.5, then 1.0: from where the second change joins them, every axis runs the program's own records
+    (later by the time the slower stretch cost), to the program's own end."""
+    svc = service
+    before = start(svc, 0.2)
+    slow = svc.override(parse_override({"scale": 0.5}))
+    assert slow["scale"] == pytest.approx(0.5, abs=0.02)
+    assert wait_until(lambda: _elapsed_ms(svc) >= slow["from_ms"] + 150.0, timeout=30.0)
+    back = svc.override(parse_override({"scale": 1.0}))
+    assert back["scale"] == 1.0
+    assert svc.status(parse_status({}))["override"] == 1.0
+    motion = svc.motion
+    assert motion is not None and motion.done.wait(60.0)
+    assert motion.outcome is not None and motion.outcome["result"] == "finished", motion.outcome
+    after = ran(svc)
+    delay = after.duration_ms - before.duration_ms
+    assert delay > 0
+    half = max(1, int(svc.cell.bus.max_lookahead_ms / 2))
+    for a, b in zip(after.axes, before.axes, strict=True):
+        fed = split_long_records(b, half)  # the program's records as its feeder holds them
+        ends = np.cumsum(a.records[:, 2])
+        tail = int(np.searchsorted(ends, back["from_ms"] + 200.0))  # the change joins within 200 ms
+        kept = fed[len(fed) - (len(a.records) - tail) :]
+        assert len(kept) >= 3, a.joint  # the rest of the motion, not just its end
+        np.testing.assert_array_equal(a.records[tail:], kept, err_msg=a.joint)
+        assert float(np.cumsum(fed[:, 2])[len(fed) - len(kept) - 1]) + delay == float(ends[tail - 1]), a.joint
+    assert_on_path(before, after, slow["from_ms"])
+    no_faults(svc)
+
+
+def test_override_one_on_the_planned_timing_changes_nothing(service: MotionService) -> None:
+    svc = service
+    before = start(svc, 0.3)
+    reply = svc.override(parse_override({"scale": 1.0}))
+    assert reply["scale"] == 1.0 and reply["duration_ms"] == before.duration_ms
+    motion = svc.motion
+    assert motion is not None and motion.done.wait(60.0)
+    assert motion.outcome is not None and motion.outcome["result"] == "finished", motion.outcome
+    after = ran(svc)
+    for a, b in zip(after.axes, before.axes, strict=True):
+        np.testing.assert_array_equal(a.records, b.records, err_msg=a.joint)
+    no_faults(svc)
+
+
+def window_jerk_ratio(program: PvtProgram, max_jerk: list[float], from_ms: float) -> float:
+    """The drives' 10-ms-window jerk (the knot placement's measure) of every axis's records from ``from_ms``
+    on, of the jerk limit in the axis's counts, at most."""
+    worst = 0.0
+    for a, jmax in zip(program.axes, max_jerk, strict=True):
+        t, jerk = window_jerk_profile(a.reconstruction())
+        allowed = jmax * abs(a.scaling.qc_per_joint_unit) * 1e-9  # joint units/s^3 -> qc/ms^3
+        worst = max(worst, float(jerk[t >= from_ms - WINDOW_MS].max()) / allowed)
+    return worst
+
+
+@pytest.mark.parametrize("fraction", [0.3, 0.6])
+def test_stop_of_a_jerk_limited_motion_holds_the_jerk_limit(fraction: float, tmp_path: Path) -> None:
+    """A motion planned with a jerk limit brakes on its path within it: the drives' window jerk of the
+    braking's records within the knot placement's 1.2 x, at 0x60C5 (the validator), on the path, at rest
+    together."""
+    with MotionService(cell_file("gantry3"), journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP) as svc:
+        assert svc.home(parse_home({"wait": True}))["outcome"]["result"] == "homed"
+        limits = svc.cell.joint_limits()
+        max_jerk = [float(j) for j in 10.0 * np.asarray(limits.acceleration)]
+        req = {"waypoints": tour(svc.cell, [0.85]), "start": "current", "max_jerk": max_jerk}
+        svc.execute(parse_execute({"plan_id": svc.plan(parse_plan(req, svc.cell.joint_names, limits))["plan_id"]}))
+        group = svc.group
+        assert group is not None
+        before = PvtProgram(svc.cell.name, group.programs)
+        assert wait_until(lambda: _elapsed_ms(svc) >= fraction * before.duration_ms, timeout=30.0)
+        reply = svc.stop(parse_stop({}))
+        assert reply["mode"] == "path" and reply["fallback"] is None, reply["fallback"]
+        braking = reply["braking"]
+        after = ran(svc)
+        assert window_jerk_ratio(after, max_jerk, braking["begun_ms"]) <= 1.2
+        assert_on_path(before, after, braking["begun_ms"])
+        assert_at_rest_together(after, braking["ended_ms"], svc.cell.bus.sync_period_ms)
+        no_faults(svc)
+
+
+def test_override_just_below_the_planned_speed(service: MotionService) -> None:
+    """0.99: as close to it as the limits and the SYNC grid allow (the scale lowered by at most 3 % so that the
+    motion ends on the grid), within every limit."""
+    before = start(service, 0.3)
+    reply = service.override(parse_override({"scale": 0.99}))
+    assert 0.96 <= reply["scale"] <= 0.99
+    motion = service.motion
+    assert motion is not None and motion.done.wait(60.0)
+    assert motion.outcome is not None and motion.outcome["result"] == "finished", motion.outcome
+    after = ran(service)
+    assert after.duration_ms > before.duration_ms
+    assert_on_path(before, after, reply["from_ms"])
+    no_faults(service)
