@@ -486,18 +486,7 @@ class CyclicLoop:
         self._setpoints_mark = self._sent_frames  # the setpoints on the wire before the next SYNC, or not
         self.timing.followed_us.append((time.time() - wire) * 1e6)
         if any(isinstance(f, BufferFeeder) for f in self.feeders):
-            for feeder in self.feeders:
-                if isinstance(feeder, BufferFeeder):
-                    feeder.run_to((wire - self.start_sent) * 1000.0)
-            self.allowance.at_sync(self.count)
-            refused = top_up_by_need(self.feeders, self.allowance)
-            if refused is not None and refused.level < refused.low:
-                node = spec.feeds[self.feeders.index(refused)].node_id
-                raise _ReserveError(
-                    node,
-                    f"records refused by the transmit queue while node {node}'s FIFO is at {refused.level} "
-                    f"records, below its reserve {refused.low} (0x20C4:02)",
-                )
+            self._top_up((wire - self.start_sent) * 1000.0)
         if spec.stamp_cob_id is not None:
             try:  # the SYNC's own wire time (socketcan and simwire stamp the frame as it left the wire)
                 self.offer(spec.stamp_cob_id, struct.pack("<I", round(wire * 1e6) & 0xFFFFFFFF), keep=0)
@@ -530,20 +519,26 @@ class CyclicLoop:
             feeder.after_sync(elapsed)  # the fixed-period setpoints: before the next SYNC, whatever else
         if self.start_sent is not None and any(isinstance(f, BufferFeeder) for f in self.feeders):
             self.drain()  # the echoes so far: how much of the queue is free for records
-            elapsed_ms = (now - self.start_sent) * 1000.0
-            for feeder in self.feeders:
-                if isinstance(feeder, BufferFeeder):
-                    feeder.run_to(elapsed_ms)
-            self.allowance.at_sync(self.count)
-            refused = top_up_by_need(self.feeders, self.allowance)
-            if refused is not None and refused.level < refused.low:
-                node = spec.feeds[self.feeders.index(refused)].node_id
-                raise _ReserveError(
-                    node,
-                    f"records refused by the transmit queue while node {node}'s FIFO is at {refused.level} "
-                    f"records, below its reserve {refused.low} (0x20C4:02)",
-                )
+            self._top_up((now - self.start_sent) * 1000.0)
         self._write_progress()
+
+    def _top_up(self, elapsed_ms: float) -> None:
+        """The buffered drives' records for their clock at ``elapsed_ms`` from the start SYNC, as much as
+        this period's allowance has room for; _ReserveError where the queue refuses a drive below its reserve."""
+        spec = self.spec
+        assert spec is not None
+        for feeder in self.feeders:
+            if isinstance(feeder, BufferFeeder):
+                feeder.run_to(elapsed_ms)
+        self.allowance.at_sync(self.count)
+        refused = top_up_by_need(self.feeders, self.allowance)
+        if refused is not None and refused.level < refused.low:
+            node = spec.feeds[self.feeders.index(refused)].node_id
+            raise _ReserveError(
+                node,
+                f"records refused by the transmit queue while node {node}'s FIFO is at {refused.level} "
+                f"records, below its reserve {refused.low} (0x20C4:02)",
+            )
 
     def _follow_up(self, number: int, until: float) -> None:
         """After SYNC ``number`` and its frames: its echo, then the time stamp (0x1013) that says when it
