@@ -11,7 +11,8 @@ programs' durations, without the dead time between motions). Both on the program
 drives' time, with the knots' slow-down and the start dwell (a sequence with exact stops is planned
 as rest-to-rest chunks joined into one program: service/sequence_chunks.py). On each blended
 program, on the drives' reconstruction every ms: the worst fraction of 0x607F, 0x60C5 and the TCP
-speed limit inside the blend spheres, and the tool's worst distance to the items' paths outside them.
+speed limit and of each joint's effort limit (RNEA, the URDF's effort: arm6 plans with torque limits) inside
+the blend spheres, and the tool's worst distance to the items' paths outside them.
 Then the plan latency (CellPlanner.plan: IK, TOPP-RA, knots, validation) of a 10-item sequence, p50 / p99.
 """
 
@@ -63,6 +64,8 @@ def main() -> None:
     planner.warm_up()
     solver = planner.planner.sequences
     limits = ARM.joint_limits()
+    model = ARM.model
+    effort = np.array([j.effort for j in model.joints])
     start = np.array(EXAMPLE["start"], dtype=float)
 
     # stop and go: each item of the second cycle from the previous item's goal, alone
@@ -76,7 +79,7 @@ def main() -> None:
         separate += out.program.duration_ms / 1000.0  # what the drives run (knots' slow-down, start dwell)
     print(f"stop-and-go, 6 separate programs: {separate:.3f} s per cycle (without the dead time between them)")
     print(
-        "| blend | cycle time | vs stop-and-go | worst inside blends: v/0x607F, a/0x60C5, TCP/limit | "
+        "| blend | cycle time | vs stop-and-go | worst inside blends: v/0x607F, a/0x60C5, TCP/limit, torque/effort | "
         "tool to path outside spheres |"
     )
     for r in (0.0, 0.02, 0.05):
@@ -95,7 +98,9 @@ def main() -> None:
             fv = float(np.max(np.abs(v[inside]) / limits.velocity))
             fa = float(np.max(np.abs(a[inside]) / limits.acceleration))
             ft = float(np.max(tcp[inside]) / ARM.planning.max_tcp_speed)
-            worst = f"{fv:.3f}, {fa:.3f}, {ft:.3f}"
+            tau = model.inverse_dynamics_rows(q[inside], v[inside], a[inside])
+            fe = float(np.max(np.abs(tau) / effort))
+            worst = f"{fv:.3f}, {fa:.3f}, {ft:.3f}, {fe:.3f}"
         else:
             worst = "(no blends)"
         print(
