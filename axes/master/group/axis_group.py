@@ -256,7 +256,7 @@ class AxisGroup:
             except DriveError as exc:
                 link = next((lk for lk in self.links if lk.node_id == exc.node_id), None)
                 return self._finish_early(Result.CONFIGURATION_ERROR, str(exc), link)
-            except (can.CanError, OSError) as exc:  # no start word went out: nothing moves
+            except can.CanError as exc:  # no start word went out: nothing moves (before_records' errors are raised)
                 # the SYNC count and the drives' answers agree again from here (a check SYNC not sent
                 # was counted); the next start asks every drive by SDO (its readiness was taken)
                 self.setup.expect_answers()
@@ -271,7 +271,7 @@ class AxisGroup:
             )
             try:
                 refusal = self.checks.preload(run.feeders, checked=any(f is not None for f in feeders))
-            except (can.CanError, OSError) as exc:  # records without a start word move nothing
+            except can.CanError as exc:  # records without a start word move nothing
                 self.setup.expect_answers()
                 return self._finish_early(Result.BUS_ERROR, f"the records could not be sent before the start: {exc}")
             if refusal is not None:
@@ -308,7 +308,10 @@ class AxisGroup:
                 sync.add_listener(run.on_sync)
                 self.bus.watch.arm_sync_watch()
                 self._event(EventKind.STARTED, f"program of {program.duration_ms} ms started on SYNC {run.start_sync}")
-                sync.start(max_gap_s=run_gap_s, setpoints_per_sync=any(not p.name.buffered for p in self.profiles))
+                # the start SYNC (and its time stamp) wait for room as the start words do: nothing runs
+                # before it, so a full queue only delays the start by the wire time of what is ahead
+                with self.bus.network.patient(PRELOAD_PATIENCE_S):
+                    sync.start(max_gap_s=run_gap_s, setpoints_per_sync=any(not p.name.buffered for p in self.profiles))
         return None
 
     def append(
