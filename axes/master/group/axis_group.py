@@ -36,7 +36,7 @@ from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.bus.faults import BusFault, FaultKind
 from pvtflow.axes.master.bus.quick_stop import QuickStop
 from pvtflow.axes.master.bus.sync import below_sync
-from pvtflow.axes.master.group.configure import CellSetup, Configured
+from pvtflow.axes.master.group.configure import SETUP_PATIENCE_S, CellSetup, Configured
 from pvtflow.axes.master.group.feeder import BufferFeeder, Feeder, RecordAllowance
 from pvtflow.axes.master.group.outcome import (
     Event,
@@ -403,7 +403,7 @@ class AxisGroup:
 
     def recover(self) -> RunResult:
         """Fault reset and re-enable every axis (by SDO), and put lost nodes back to OPERATIONAL."""
-        with self._lock:
+        with self._lock, self.bus.network.patient(SETUP_PATIENCE_S):  # nothing moves: frames may wait for room
             if self.running:
                 raise GroupError("cannot recover while a program is running: stop it first")
             self.readiness.wait()  # not two enables of one drive at once

@@ -19,6 +19,11 @@ from pvtflow.axes.master.group.readiness import Readiness
 from pvtflow.axes.master.link import AxisLink
 from pvtflow.axes.master.profiles.base import Profile
 
+# frames sent while nothing moves (configuration, recovery) wait this long at most for room in a full
+# transmit queue: its frames take their wire time, a few ms, and a bus that takes none is broken (as the
+# preload's, axes.master.group.start)
+SETUP_PATIENCE_S = 0.1
+
 
 class Configured:
     """Whether the group's drives hold its configuration, and every drive's boot count when it was
@@ -67,6 +72,10 @@ class CellSetup:
         """Every drive: what it is checked against the cell (axes/master/commission.py: a drive that is not
         what the cell says is refused, DriveError, before anything is written), then PRE-OPERATIONAL,
         its profile's SDO sequence, then OPERATIONAL and consumers."""
+        with self.bus.network.patient(SETUP_PATIENCE_S):
+            self._configure()
+
+    def _configure(self) -> None:
         refuse_on_facts(self.links, self.profiles)
         for link in self.links:  # addressed, not broadcast: other nodes on the bus are not ours
             self.bus.nmt(link.node_id, NmtCommand.PRE_OPERATIONAL)
