@@ -367,11 +367,7 @@ class SyncClock:
                 # taken once the SYNC is sent (the senders below see this SYNC's time): a thread preempted
                 # between the decision and the send would otherwise let the next SYNC follow this one
                 # within half a period on the bus
-                now = time.monotonic()
-                self.last_sent = now
-                if self.sent_at is not None:
-                    self.longest_gap_s = max(self.longest_gap_s, now - self.sent_at)
-                self.sent_at = now
+                self._went_out(time.monotonic())
                 if self.time_stamp_cob_id is not None:
                     stamp = (time.monotonic_ns() // 1000 - self._t0_us) & 0xFFFFFFFF
                     self.network.send_message(self.time_stamp_cob_id, struct.pack("<I", stamp))
@@ -384,6 +380,13 @@ class SyncClock:
                 if failed is not None:
                     self.report(failed)
 
+    def _went_out(self, now: float) -> None:
+        """A SYNC left at ``now``: the gap since the last one counts (lock held)."""
+        self.last_sent = now
+        if self.sent_at is not None:
+            self.longest_gap_s = max(self.longest_gap_s, now - self.sent_at)
+        self.sent_at = now
+
     def heard(self, production: int) -> None:
         """A SYNC the cyclic process sent, heard on the bus (``axes.master.cyclic.process``): counted as
         ``transmit`` counts one, and the senders told (they send nothing then: the child did)."""
@@ -392,11 +395,7 @@ class SyncClock:
             if not self.producing(production):
                 return
             self.count += 1
-            now = time.monotonic()
-            self.last_sent = now
-            if self.sent_at is not None:
-                self.longest_gap_s = max(self.longest_gap_s, now - self.sent_at)
-            self.sent_at = now
+            self._went_out(time.monotonic())
             for send in self._senders:
                 send(self.count)
             if not self._completing and any(n > 1 for n in self._every.values()):
