@@ -103,7 +103,11 @@ class CycleSpec:
 
 
 ECHO_POLL_S = 0.00005  # how often the SYNC thread looks for its SYNC's echo
-FOLLOW_WAIT_S = 0.001  # following the interface's SYNC: the longest wait for a frame before a gap is judged
+# following the interface's SYNC: the setpoints go this long after their SYNC was due, at least (a frame
+# queued after the SYNC is pending goes on the wire after it; the margin is for this host's clock against
+# the interface's timer), and at least this fraction of the period
+PACE_AFTER_S = 0.0001
+PACE_AFTER_PERIODS = 0.05
 # following the interface's SYNC, the gaps the drives saw are judged on the SYNCs' wire times when they are
 # heard; hearing none at all for this much longer than they ride out means the interface stopped sending
 # (hearing them late is the host's delay: measured up to 2-4 ms on this VM, bench/RESULTS.md)
@@ -165,8 +169,7 @@ class CyclicLoop:
         self._reserved = 2  # the queue's room kept for a SYNC and what must follow it (``prepare``)
         # following the interface's SYNC (``_follow``): the SYNCs heard, each (its wire time, whether the
         # setpoints sent for it were on the wire before it), and the frames sent up to those setpoints
-        self._heard: list[tuple[float, bool]] = []
-        self._setpoints_mark = 0
+        self._heard: list[tuple[float, float, int]] = []  # (wire time, heard here, own echoes before it)
         self._task: can.broadcastmanager.CyclicTask | None = None
 
     # --- to the master ---------------------------------------------------------------------------
@@ -229,24 +232,13 @@ class CyclicLoop:
                     return
                 self._take(msg)
 
-    def wait_and_drain(self, timeout: float) -> None:
-        """Wait up to ``timeout`` for a frame (any: the bus brings several per period), then ``drain``."""
-        with self._reading:
-            try:
-                msg = self.bus.recv(timeout)
-            except (can.CanError, OSError, ValueError):
-                msg = None
-            if msg is not None:
-                self._take(msg)
-        self.drain()
-
     def _take(self, msg: can.Message) -> None:
         """One frame the bus brought (``drain``)."""
         can_id = msg.arbitration_id
         if not msg.is_rx:
             self._own_echoes += 1
         elif can_id == SYNC_COB_ID:  # a SYNC the interface sent: in bus order after what went before it
-            self._heard.append((msg.timestamp, self._own_echoes >= self._setpoints_mark))
+            self._heard.append((msg.timestamp, time.monotonic(), self._own_echoes))
         if can_id == SYNC_COB_ID and not msg.is_rx:  # our own SYNC, as it left the wire
             self._echoes += 1
             self._echo_of = (self._echoes, msg.timestamp, time.monotonic())
@@ -288,7 +280,7 @@ class CyclicLoop:
             self.start_sent = self.sent_at = self._judged = None
             self.drain()  # the echoes of SYNCs before this run are not this run's
             self._echoes, self._echo_of = 0, None
-            self._heard, self._setpoints_mark = [], self._own_echoes  # the start's setpoints: the master's
+            self._heard = []
             self._sent_frames = self._own_echoes  # between runs the queue has long emptied: none lost is counted on
             self.timing = CycleTiming()
             self.progress[PROGRESS_RUN] = spec.run
@@ -395,58 +387,64 @@ class CyclicLoop:
 
     def _follow(self, production: int, task: can.broadcastmanager.CyclicTask) -> None:
         """The interface sends SYNC (socketcan's broadcast manager on a kernel timer; simwire: its medium,
-        ``Medium.add_cyclic``): this thread follows each SYNC it hears with what ``_transmit`` sends after
-        its own SYNC (the setpoints, the records, then the time stamp: that SYNC's wire time). Its own wake
-        no longer times SYNC; what it costs now is the setpoints, which must be on the wire before the
-        next SYNC: a period less the time to hear a SYNC, not the drives' 135 us lock window.
+        ``Medium.add_cyclic``), and this thread paces what follows each SYNC on the interface's own
+        schedule, not on hearing it: SYNC n is due ``n`` periods after the timer started (the interface
+        starts it when asked, ``task.start``), and ``PACE_AFTER_S`` after that due instant this thread
+        sends the setpoints SYNC n + 1 validates, then the records. Hearing a SYNC crosses the host's
+        receive path (on the served simulated wire: the drives' process and the loopback, p99 1-1.5 ms;
+        bench/RESULTS.md), which a setpoint need not wait for: a frame queued after the SYNC is due goes on
+        the wire after it (the SYNC's identifier wins every arbitration it is pending in, and the node's
+        queue is a FIFO), so it can only be validated by the next SYNC. The SYNCs heard still serve what
+        needs them: the schedule's phase follows them (the earliest any was heard, less nothing: never
+        early), the time stamp (that SYNC's wire time, sent once it is heard and before the next is due),
+        and the gaps.
 
-        A SYNC heard before the setpoints sent for it were on the wire (this node's own echoes, in bus
-        order before the SYNC or not) took none: the drives held (``CycleTiming.held``), no second setpoint
-        goes before one SYNC (the drive would take the later: a jump), and the next one sent is the next in
-        the program (``SetpointFeeder.after_sync``); held SYNCs in a row longer than the drives ride out are
-        a gap ("no setpoint"), as are SYNCs more than ``max_gap_s`` apart on the wire ("no SYNC")."""
+        A period this thread wakes too late for (the next SYNC is due) sends nothing: the drives hold
+        through that SYNC (``CycleTiming.held``), no second setpoint goes before one SYNC (the drive would
+        take the later: a jump), and the next one sent is the next in the program
+        (``SetpointFeeder.after_sync``); a SYNC heard before the setpoints sent for it were on the wire
+        (this node's own echoes, in bus order before it or not) held too. Held SYNCs in a row longer than
+        the drives ride out are a gap ("no setpoint"), as are SYNCs more than ``max_gap_s`` apart on the
+        wire ("no SYNC")."""
         spec = self.spec
         assert spec is not None
         period = spec.period_ms / 1000.0
-        fixed = any(isinstance(f, SetpointFeeder) for f in self.feeders)
+        after = max(PACE_AFTER_S, PACE_AFTER_PERIODS * period)
+        spin = min(SPIN_BEFORE_S, period / 4)
+        buffered = any(isinstance(f, BufferFeeder) for f in self.feeders)
         with self.lock:
             if not (self.running and self._production == production):
                 return
             self._task = task
-        heard_at = time.monotonic()  # the last SYNC heard here (a silent interface is a gap too)
-        last_wire: float | None = None
-        pending, unfed, silent = True, 0, False  # the start's setpoints, sent by the master, wait for the start SYNC
+        pace = _Pace(time.monotonic(), any(isinstance(f, SetpointFeeder) for f in self.feeders))
+        if isinstance(task, can.broadcastmanager.RestartableCyclicTaskABC):
+            task.start()  # the interface's timer starts when asked: the start SYNC is due then
+        self.start_sent = pace.phase  # t = 0 of the buffered drives' records
         try:
-            if isinstance(task, can.broadcastmanager.RestartableCyclicTaskABC):
-                task.start()
             while True:
-                self.wait_and_drain(FOLLOW_WAIT_S)  # any frame wakes it: the bus brings several per period
+                self._sleep_until(pace.phase + pace.number * period + after, spin)
                 with self.lock:
                     if not (self.running and self._production == production):
                         return
-                    heard, self._heard = self._heard, []
+                    self._hear(pace)
                     now = time.monotonic()
-                    if not heard:
-                        if not silent and now - heard_at > spec.max_gap_s + SILENCE_GRACE_S:
-                            silent = True
-                            self._gap("no SYNC heard", now - heard_at)
+                    behind = int((now - pace.phase) // period) - pace.number
+                    if behind > 0:  # the next SYNC is due already: its setpoints would come with the one after
+                        pace.number += behind
                         continue
-                    silent, heard_at = False, now
-                    for wire, took in heard:
-                        self.count += 1
-                        if last_wire is not None and wire - last_wire > spec.max_gap_s:
-                            self._gap("no SYNC", wire - last_wire)
-                        last_wire = wire
-                        if pending and took:
-                            pending, unfed = False, 0
-                        elif fixed:
-                            unfed += 1
-                            self.timing.held += 1
-                            if (unfed + 1) * period > spec.max_gap_s >= unfed * period:
-                                self._gap("no setpoint", (unfed + 1) * period)
-                    if not pending or not fixed:
-                        self._after_heard(last_wire)
-                        pending = fixed
+                    number = pace.number
+                    self.count = spec.start_count + number
+                    self.sent_at = now
+                    for feeder in self.feeders:
+                        feeder.after_sync(number)
+                    pace.marks[number + 1] = self._sent_frames
+                    self.timing.followed_us.append((now - (pace.phase + number * period)) * 1e6)
+                    if buffered:
+                        self._top_up(number * spec.period_ms)
+                    self._write_progress()
+                    pace.number += 1
+                if spec.stamp_cob_id is not None:
+                    self._stamp(pace, number, pace.phase + (number + 1) * period - spin)
         except _ReserveError as exc:
             self._failed(FaultKind.TX_FAILED, str(exc), exc.node_id)
         except (can.CanError, OSError) as exc:
@@ -461,6 +459,74 @@ class CyclicLoop:
             if mine:
                 task.stop()
 
+    def _hear(self, pace: _Pace) -> None:
+        """The SYNCs the bus brought since the last look, in bus order (lock held): the schedule's phase,
+        which SYNCs held, the gaps."""
+        spec = self.spec
+        assert spec is not None
+        period = spec.period_ms / 1000.0
+        self.drain()
+        heard, self._heard = self._heard, []
+        now = time.monotonic()
+        for wire, arrived, echoes in heard:
+            n = pace.heard
+            # never early: a SYNC is heard after it was due (the timer runs on this host's clock: the
+            # kernel's, the medium's), so no SYNC was due later than its arrival says
+            pace.phase = min(pace.phase, arrived - n * period)
+            if n:
+                if pace.last_wire is not None and wire - pace.last_wire > spec.max_gap_s:
+                    self._gap("no SYNC", wire - pace.last_wire)
+                if pace.fixed and echoes < pace.marks.pop(n, _NEVER):  # its setpoints were not on the wire
+                    pace.unfed += 1
+                    self.timing.held += 1
+                    if (pace.unfed + 1) * period > spec.max_gap_s >= pace.unfed * period:
+                        self._gap("no setpoint", (pace.unfed + 1) * period)
+                else:
+                    pace.unfed = 0
+            pace.last_wire = wire
+            pace.heard += 1
+        if heard:
+            pace.silent, pace.heard_at = False, now
+        elif not pace.silent and now - pace.heard_at > spec.max_gap_s + SILENCE_GRACE_S:
+            pace.silent = True
+            self._gap("no SYNC heard", now - pace.heard_at)
+
+    @staticmethod
+    def _sleep_until(due: float, spin: float) -> None:
+        """Asleep until ``spin`` before ``due``, then awake up to it (a timer's wake is that late)."""
+        delay = due - time.monotonic() - spin
+        if delay > 0:
+            time.sleep(delay)
+        while time.monotonic() < due:
+            pass
+
+    def _stamp(self, pace: _Pace, number: int, until: float) -> None:
+        """The time stamp of SYNC ``number`` (0x1013: its wire time), once it is heard and before ``until``
+        (the next SYNC's due instant less the wake's margin): the drive latches its clock at each SYNC and
+        corrects it by the stamp that follows (app note "Clock synchronization"), so a stamp after the
+        next SYNC would be read as that one's. Not heard by then: no stamp for it (counted)."""
+        spec = self.spec
+        assert spec is not None and spec.stamp_cob_id is not None
+        while True:
+            with self.lock:
+                if not self.running:
+                    return
+                self._hear(pace)
+                if pace.heard > number:
+                    if pace.heard == number + 1 and pace.last_wire is not None:
+                        stamp = struct.pack("<I", round(pace.last_wire * 1e6) & 0xFFFFFFFF)
+                        try:
+                            self.offer(spec.stamp_cob_id, stamp, keep=0)
+                            return
+                        except RecordRefusedError:
+                            pass
+                    self.timing.unstamped += 1
+                    return
+            if time.monotonic() >= until:
+                self.timing.unstamped += 1
+                return
+            time.sleep(ECHO_POLL_S)
+
     def _gap(self, what: str, gap_s: float) -> None:
         spec = self.spec
         assert spec is not None
@@ -471,28 +537,6 @@ class CyclicLoop:
             None,
             round(gap_s * 1000),
         )
-
-    def _after_heard(self, wire: float | None) -> None:
-        """After the last SYNC heard (lock held): its setpoints, its records, its time stamp."""
-        spec = self.spec
-        assert spec is not None and wire is not None
-        now = time.monotonic()
-        self.sent_at = now
-        elapsed = self.count - spec.start_count
-        if self.start_sent is None:
-            self.start_sent = wire  # t = 0 of the buffered drives' records: the start SYNC's wire time
-        for feeder in self.feeders:
-            feeder.after_sync(elapsed)
-        self._setpoints_mark = self._sent_frames  # the setpoints on the wire before the next SYNC, or not
-        self.timing.followed_us.append((time.time() - wire) * 1e6)
-        if any(isinstance(f, BufferFeeder) for f in self.feeders):
-            self._top_up((wire - self.start_sent) * 1000.0)
-        if spec.stamp_cob_id is not None:
-            try:  # the SYNC's own wire time (socketcan and simwire stamp the frame as it left the wire)
-                self.offer(spec.stamp_cob_id, struct.pack("<I", round(wire * 1e6) & 0xFFFFFFFF), keep=0)
-            except RecordRefusedError:
-                self.timing.unstamped += 1
-        self._write_progress()
 
     def _failed(self, kind: FaultKind, why: str, node_id: int | None = None) -> None:
         """This process cannot go on: no more SYNC, every drive quick stopped from here, the master told."""
@@ -593,6 +637,28 @@ class CyclicLoop:
             with contextlib.suppress(can.CanError, OSError):
                 self.send_now(0, bytes([NmtCommand.STOP, node]))
         self.tell("quick_stopped", reason, sorted(set(nodes) - set(missing)), missing)
+
+
+@dataclass
+class _Pace:
+    """What the follower of the interface's SYNC knows of its schedule (``CyclicLoop._follow``)."""
+
+    started: float  # when the interface's timer was started (``time.monotonic``)
+    fixed: bool  # the run has fixed-period axes (setpoints every SYNC)
+    phase: float = 0.0  # SYNC 0's due instant on this host's clock, never earlier than the truth
+    number: int = 0  # the SYNC whose setpoints (those validated by the SYNC after it) go next
+    heard: int = 0  # SYNCs heard so far
+    last_wire: float | None = None  # the last heard SYNC's wire time
+    heard_at: float = 0.0  # when the last SYNCs were heard here
+    silent: bool = False  # a silence of the interface was reported
+    unfed: int = 0  # SYNCs in a row heard before their setpoints were on the wire
+    marks: dict[int, int] = field(default_factory=dict)  # SYNC n -> frames sent up to the setpoints it validates
+
+    def __post_init__(self) -> None:
+        self.phase = self.heard_at = self.started
+
+
+_NEVER = 1 << 62  # no setpoints were sent for that SYNC
 
 
 class _SyncRefusedError(Exception):

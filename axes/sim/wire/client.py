@@ -158,7 +158,7 @@ class WireLink:
         if refused:
             self._write(p.pack_count(p.REFUSED, 1))
             raise transmit_queue_full(self.node, self.txqueuelen)
-        self._write(p.pack_post(msg, self._epoch + time.monotonic()))
+        self._write(p.pack_post(msg, self.bus_time()))
 
     def _wait_for_room(self, deadline: float) -> None:
         """The waiting sender reads the server's DONE reports itself (a frame's slot is free as soon
@@ -203,6 +203,10 @@ class WireLink:
         with self._room:
             self.state = state
             self._room.notify_all()
+
+    def bus_time(self) -> float:
+        """Now, on the medium's wall-clock bus time (CLOCK_MONOTONIC shifted by the server's epoch)."""
+        return self._epoch + time.monotonic()
 
     def call(self, what: str, **args: Any) -> Any:
         kind, body = self._request(p.pack_json(p.CALL, {"call": what, **args}))

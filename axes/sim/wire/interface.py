@@ -261,6 +261,7 @@ class RemoteCyclicTask(can.broadcastmanager.RestartableCyclicTaskABC):
                 data=bytes(m.data).hex(),
                 extended=m.is_extended_id,
                 period=self.period,
+                start=self._link.bus_time(),  # when asked, as the kernel's timer starts at the syscall
             )
 
     def stop(self) -> None:

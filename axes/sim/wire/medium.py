@@ -284,17 +284,20 @@ class Medium:
         if on_wire is not None and enqueued <= on_wire[2]:  # pending at its start: in its arbitration
             self._on_wire = None  # its frame stays at its node's FIFO head; ``_step`` chooses again
 
-    def add_cyclic(self, node: Node, msg: can.Message, period: float) -> Cyclic:
-        """Wall clock: send ``msg`` from ``node`` every ``period`` seconds of bus time from now on,
-        timed by the medium (a frame whose node's FIFO is full at its due time is dropped, as the
-        broadcast manager's is)."""
+    def add_cyclic(self, node: Node, msg: can.Message, period: float, start: float | None = None) -> Cyclic:
+        """Wall clock: send ``msg`` from ``node`` every ``period`` seconds of bus time from ``start`` (bus
+        time; None: now) on, timed by the medium (a frame whose node's FIFO is full at its due time is
+        dropped, as the broadcast manager's is). A client's broadcast manager starts its timer when it is
+        asked, as the kernel's does at the syscall; the medium hears of it through the loopback later,
+        so the client's own time of asking is the start, as a post's is its time in the queue."""
         if self.clock is not Clock.WALL:
             raise WireConfigError("a cyclic send is timed by the wall-clock medium; lockstep has no time of its own")
         bits = frame_bits(
             msg.arbitration_id, bytes(msg.data), extended=msg.is_extended_id, remote=msg.is_remote_frame, dlc=msg.dlc
         )
         with self.cond:
-            task = Cyclic(node, msg, bits, period, self.now())
+            now = self.now()
+            task = Cyclic(node, msg, bits, period, now if start is None else min(start, now))
             self._cyclic.append(task)
             self.cond.notify_all()
             return task
@@ -310,8 +313,14 @@ class Medium:
             while task.due <= now:
                 node = task.node
                 if node.state != BUS_OFF and node in self.nodes and len(node.fifo) < node.txqueuelen:
-                    node.fifo.append(
-                        Pending(task.msg, task.bits, task.due, arbitration_priority(task.msg), cyclic=True)
+                    # in the queue where its due time puts it: the kernel's timer queued it then, before
+                    # the frames its node posted later that this process happened to take in first
+                    place = len(node.fifo)
+                    first = 0 if self._on_wire is None or self._on_wire[0] is not node else 1
+                    while place > first and node.fifo[place - 1].enqueued > task.due:
+                        place -= 1
+                    node.fifo.insert(
+                        place, Pending(task.msg, task.bits, task.due, arbitration_priority(task.msg), cyclic=True)
                     )
                     node.max_depth = max(node.max_depth, len(node.fifo))
                     self._rearbitrate(task.due)  # queued late by this process: timed by the medium all the same

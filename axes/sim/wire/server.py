@@ -460,7 +460,8 @@ class WireServer:
                 msg = can.Message(
                     arbitration_id=call["can_id"], data=bytes.fromhex(call["data"]), is_extended_id=call["extended"]
                 )
-                task = self.medium.add_cyclic(node, msg, float(call["period"]))
+                start = call.get("start")
+                task = self.medium.add_cyclic(node, msg, float(call["period"]), None if start is None else float(start))
                 self._cyclic[id(task)] = task
                 result = id(task)
             elif what == "remove_cyclic":
