@@ -171,7 +171,11 @@ def cyclic_late(bus: CellBus) -> list[float]:
     if timing is None:
         return []
     if timing.held:
-        print(f"  (the cyclic process heard {timing.held} SYNC(s) before their setpoints were on the wire)")
+        late = sum(1 for us in timing.followed_us if us > 0.75 * 1000 * bus.sync.period_ms)
+        print(
+            f"  (the cyclic process heard {timing.held} SYNC(s) before their setpoints were on the wire; "
+            f"it sent {late} period(s) of setpoints later than 3/4 of a period after their SYNC was due)"
+        )
     return list(timing.late_us) or list(timing.followed_us)
 
 

@@ -15,7 +15,7 @@ master that runs SYNC on the wall clock.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import replace
 from pathlib import Path
 from types import TracebackType
@@ -31,6 +31,7 @@ from pvtflow.axes.sim.profiles.epos2 import Epos2Drive
 from pvtflow.axes.sim.profiles.ip_linear import IpLinearDrive
 from pvtflow.axes.sim.profiles.parker import ParkerDrive
 from pvtflow.axes.sim.profiles.sync_setpoint import SyncSetpointDrive
+from pvtflow.axes.sim.wire import Medium, SimWireBus
 
 # Drives in the master's own interpreter share its pauses (a compile, a long replay, the host's load),
 # so a heartbeat window of about 3 periods (the shipped cells, for drives in a process of their own:
@@ -158,12 +159,32 @@ class SimulatedCell:
         if self.interface == SIMULATED_WIRE:
             for network in self.networks.values():
                 accept_subscribed(network)
+            if self.ticker is not None:
+                self.ticker.horizon = self._heard_until()
         for drive in self.drives.values():
             drive.boot()
         if self.ticker is not None:
             self.ticker.start()
         self.running = True
         return self
+
+    def _heard_until(self) -> Callable[[], float] | None:
+        """The ``time.monotonic()`` up to which every drive has heard the wire (``Ticker``'s horizon): the
+        in-process medium's deliveries, less what a drive's reader has not handled yet; None: a medium
+        elsewhere (its frames reach the drives as a real bus's would, stamped on arrival)."""
+        buses = [network.bus for network in self.networks.values()]
+        if not buses or not all(isinstance(bus, SimWireBus) and isinstance(bus.medium, Medium) for bus in buses):
+            return None
+        media = {id(bus.medium): bus.medium for bus in buses}
+        if len(media) != 1:
+            return None
+        (medium,) = media.values()
+
+        def heard_until() -> float:
+            delivered = medium.delivered_until()
+            return min(bus.taken_until(delivered) for bus in buses) - medium.epoch
+
+        return heard_until
 
     def stop(self) -> None:
         """Power off: heartbeats stop, the drives leave the bus."""

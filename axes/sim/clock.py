@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Protocol
 
 from pvtflow.axes.canbus.clock import Clock
@@ -110,11 +110,20 @@ class Ticking(Protocol):
 
 
 class Ticker:
-    """One thread that advances every drive it holds to the present, every ``TICK_S``."""
+    """One thread that advances every drive it holds to the present, every ``TICK_S``.
 
-    def __init__(self, drives: Iterable[Ticking] = (), name: str = "sim-ticker") -> None:
+    ``horizon``: the ``time.monotonic()`` up to which the drives have taken in every frame the wire
+    delivered (``SimulatedCell.heard_until``): they sample no further. A real drive latches a frame in
+    hardware as its last bit leaves the wire; a simulated one learns of it when its process gets to
+    it, and a sample taken past a SYNC it has not yet seen would show the axis holding at the last
+    setpoint, then jumping: the simulation's own latency judged as the master's."""
+
+    def __init__(
+        self, drives: Iterable[Ticking] = (), name: str = "sim-ticker", horizon: Callable[[], float] | None = None
+    ) -> None:
         self.drives: list[Ticking] = list(drives)
         self.name = name
+        self.horizon = horizon
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.late_ticks = 0  # wakes more than a tick late (the drives then caught up sample by sample)
@@ -136,8 +145,9 @@ class Ticker:
         due = time.monotonic()
         while not self._stop.wait(max(due - time.monotonic(), 0.0)):
             now = time.monotonic()
+            upto = now if self.horizon is None else min(now, self.horizon())
             for drive in self.drives:
-                drive.run_to(now)
+                drive.run_to(upto)
             due += TICK_S
             if due < now:  # held back: the next wake is one tick from now, not a burst of wakes
                 self.late_ticks += 1

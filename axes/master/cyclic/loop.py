@@ -416,9 +416,15 @@ class CyclicLoop:
             if not (self.running and self._production == production):
                 return
             self._task = task
-        pace = _Pace(time.monotonic(), any(isinstance(f, SetpointFeeder) for f in self.feeders))
+        with self.lock:  # a SYNC heard before the interface's timer starts is not one of its
+            self.drain()
+            self._heard = []
+        asked = time.monotonic()
         if isinstance(task, can.broadcastmanager.RestartableCyclicTaskABC):
             task.start()  # the interface's timer starts when asked: the start SYNC is due then
+        # the start SYNC's due time: where the interface says (the served medium's task), else when asked
+        started = getattr(task, "started", None)
+        pace = _Pace(asked if started is None else started, any(isinstance(f, SetpointFeeder) for f in self.feeders))
         self.start_sent = pace.phase  # t = 0 of the buffered drives' records
         try:
             while True:
@@ -469,13 +475,15 @@ class CyclicLoop:
         heard, self._heard = self._heard, []
         now = time.monotonic()
         for wire, arrived, echoes in heard:
-            n = pace.heard
+            # its number from its wire time: a SYNC the interface dropped (its queue full) has none
+            last = pace.last_wire
+            n = 0 if last is None else pace.heard - 1 + max(1, round((wire - last) / period))
             # never early: a SYNC is heard after it was due (the timer runs on this host's clock: the
             # kernel's, the medium's), so no SYNC was due later than its arrival says
             pace.phase = min(pace.phase, arrived - n * period)
             if n:
-                if pace.last_wire is not None and wire - pace.last_wire > spec.max_gap_s:
-                    self._gap("no SYNC", wire - pace.last_wire)
+                if last is not None and wire - last > spec.max_gap_s:
+                    self._gap("no SYNC", wire - last)
                 if pace.fixed and echoes < pace.marks.pop(n, _NEVER):  # its setpoints were not on the wire
                     pace.unfed += 1
                     self.timing.held += 1
@@ -483,8 +491,10 @@ class CyclicLoop:
                         self._gap("no setpoint", (pace.unfed + 1) * period)
                 else:
                     pace.unfed = 0
+            for skipped in range(pace.heard, n):  # no SYNC came for them
+                pace.marks.pop(skipped, None)
             pace.last_wire = wire
-            pace.heard += 1
+            pace.heard = n + 1
         if heard:
             pace.silent, pace.heard_at = False, now
         elif not pace.silent and now - pace.heard_at > spec.max_gap_s + SILENCE_GRACE_S:
@@ -647,7 +657,7 @@ class _Pace:
     fixed: bool  # the run has fixed-period axes (setpoints every SYNC)
     phase: float = 0.0  # SYNC 0's due instant on this host's clock, never earlier than the truth
     number: int = 0  # the SYNC whose setpoints (those validated by the SYNC after it) go next
-    heard: int = 0  # SYNCs heard so far
+    heard: int = 0  # the number of the last SYNC heard, plus 1 (0: none yet)
     last_wire: float | None = None  # the last heard SYNC's wire time
     heard_at: float = 0.0  # when the last SYNCs were heard here
     silent: bool = False  # a silence of the interface was reported

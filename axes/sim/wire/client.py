@@ -71,7 +71,7 @@ class WireLink:
         self.node: str = welcome["node"]
         self.params = {k: welcome[k] for k in ("bitrate", "clock", "sync_period")}
         # the medium's wall-clock bus time base: CLOCK_MONOTONIC is the host's, one for every process
-        self._epoch: float = welcome.get("epoch", 0.0)
+        self.epoch: float = welcome.get("epoch", 0.0)
         self.pipelined = self.params["clock"] == Clock.WALL
         self.txqueuelen: int = hello["txqueuelen"]
         self.state = BusState.ACTIVE  # followed from the controller error frames received
@@ -206,7 +206,7 @@ class WireLink:
 
     def bus_time(self) -> float:
         """Now, on the medium's wall-clock bus time (CLOCK_MONOTONIC shifted by the server's epoch)."""
-        return self._epoch + time.monotonic()
+        return self.epoch + time.monotonic()
 
     def call(self, what: str, **args: Any) -> Any:
         kind, body = self._request(p.pack_json(p.CALL, {"call": what, **args}))

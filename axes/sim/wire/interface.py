@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import queue
 import re
+from collections import deque
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
 from typing import Any
@@ -30,6 +31,7 @@ from pvtflow.axes.sim.wire.server import require_loopback
 
 _REMOTE = re.compile(r"^(?P<name>[^@]+)@(?P<host>[^:@]+):(?P<port>\d{1,5})$")
 _CLOSED = object()
+END_MARGIN_S = 1e-6  # a frame not yet handled: its node has heard the wire up to just before its end
 
 
 def parse_channel(channel: str) -> tuple[str, str | None, int | None]:
@@ -83,6 +85,8 @@ class SimWireBus(can.BusABC):
         self.channel_info = f"simwire channel {channel}"
         self.channel = channel
         self._rx: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._waiting: deque[float] = deque()  # in-process: the ends of the frames in ``_rx`` (``taken_until``)
+        self._in_hand: float | None = None  # the end of the frame its reader took last, until it comes back
         self._local_time = 0.0
         self._medium: Medium | None = None
         self._node: Node | None = None
@@ -93,7 +97,7 @@ class SimWireBus(can.BusABC):
             self._medium = acquire_medium(name, bitrate=bitrate, clock=clock, sync_period=sync_period)
             try:
                 self._node = self._medium.attach(
-                    self._rx.put, name=node_name, txqueuelen=txqueuelen, receive_own=receive_own_messages
+                    self._arrive, name=node_name, txqueuelen=txqueuelen, receive_own=receive_own_messages
                 )
             except WireConfigError:
                 release_medium(name)
@@ -186,9 +190,27 @@ class SimWireBus(can.BusABC):
             task.start()
         return task
 
+    def taken_until(self, delivered: float) -> float:
+        """The bus time up to which this bus's reader has taken in (and its listeners handled) every
+        frame delivered to it by ``delivered``: before the end of the frame in its reader's hands, or
+        of the oldest one waiting in its queue (a canopen Notifier handles a frame between two reads)."""
+        until = delivered
+        in_hand = self._in_hand
+        if in_hand is not None:
+            until = min(until, in_hand)
+        with contextlib.suppress(IndexError):
+            until = min(until, self._waiting[0] - END_MARGIN_S)
+        return until
+
+    def _arrive(self, msg: can.Message) -> None:
+        """The in-process medium delivers a frame to this node (under its lock: in bus order)."""
+        self._waiting.append(msg.timestamp)
+        self._rx.put(msg)
+
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         if self._closed:
             raise can.CanOperationError(f"{self.channel_info}: the bus is closed")
+        self._in_hand = None  # the reader came back: what it took last is handled
         try:
             msg = self._rx.get(timeout=timeout)
         except queue.Empty:
@@ -196,10 +218,14 @@ class SimWireBus(can.BusABC):
         if msg is _CLOSED:
             self._rx.put(_CLOSED)
             raise can.CanOperationError(f"{self.channel_info}: the bus is closed")
+        if self._node is not None:
+            with contextlib.suppress(IndexError):
+                self._waiting.popleft()
         if msg.is_rx and msg.timestamp > self._local_time:
             self._local_time = msg.timestamp
             if self._node is not None and self.clock is Clock.LOCKSTEP:
                 self._medium.received(self._node, msg.timestamp)
+        self._in_hand = msg.timestamp - END_MARGIN_S
         return msg, False
 
     def _remote_closed(self) -> None:
@@ -251,17 +277,20 @@ class RemoteCyclicTask(can.broadcastmanager.RestartableCyclicTaskABC):
         self._link = link
         self._msg = msg
         self._task: int | None = None
+        self.started: float | None = None  # the first frame's due time, on ``time.monotonic()``
 
     def start(self) -> None:
         if self._task is None:
             m = self._msg
+            start = self._link.bus_time()  # when asked, as the kernel's timer starts at the syscall
+            self.started = start - self._link.epoch
             self._task = self._link.call(
                 "add_cyclic",
                 can_id=m.arbitration_id,
                 data=bytes(m.data).hex(),
                 extended=m.is_extended_id,
                 period=self.period,
-                start=self._link.bus_time(),  # when asked, as the kernel's timer starts at the syscall
+                start=start,
             )
 
     def stop(self) -> None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import math
 import threading
 import time
 from collections import deque
@@ -89,6 +90,7 @@ class Medium:
         self._last_sync_nominal: float | None = None  # lockstep
         self._idle_from = (0.0, time.monotonic())  # lockstep: (bus time, wall time) of the last SYNC
         self._on_wire: tuple[Node, Pending, float, float] | None = None  # wall: (node, frame, start, end)
+        self._stepped = -math.inf  # wall: the bus time of the last step (every frame ending by then delivered)
         self._cyclic: list[Cyclic] = []  # wall: cyclic sends the medium times (``add_cyclic``)
         self._seconds_per_bit = 1.0 / bitrate
         self.epoch = self._epoch = time.time() - time.monotonic()  # wall: bus time = epoch + time.monotonic()
@@ -96,6 +98,9 @@ class Medium:
         # wraps a run of deliveries from one thread (the wall driver's step): the loopback server
         # writes a run's frames to each client's socket once, at its end
         self.delivery_batch: Callable[[], AbstractContextManager[None]] = contextlib.nullcontext
+        # called (the medium's lock not held) before the wall driver delivers what ended by a time taken
+        # before it: the frames other processes posted by then, taken in first (``WireServer.catch_up``)
+        self.catch_up: Callable[[], None] = no_catch_up
         self.bus_states = BusStates(
             channel=channel,
             cond=self.cond,
@@ -311,20 +316,23 @@ class Medium:
         """Queue every cyclic frame due by ``now`` at its due time; the next due time (None: none)."""
         for task in self._cyclic:
             while task.due <= now:
-                node = task.node
-                if node.state != BUS_OFF and node in self.nodes and len(node.fifo) < node.txqueuelen:
+                due, node = task.due, task.node
+                task.due += task.period
+                # pending from its due time: in the arbitration of a frame placed to start after it
+                self._rearbitrate(due)
+                # its node's FIFO as it was at the due time: the frames posted after it were not in it yet
+                queued = sum(1 for q in node.fifo if q.enqueued <= due)
+                if node.state != BUS_OFF and node in self.nodes and queued < node.txqueuelen:
                     # in the queue where its due time puts it: the kernel's timer queued it then, before
                     # the frames its node posted later that this process happened to take in first
                     place = len(node.fifo)
                     first = 0 if self._on_wire is None or self._on_wire[0] is not node else 1
-                    while place > first and node.fifo[place - 1].enqueued > task.due:
+                    while place > first and node.fifo[place - 1].enqueued > due:
                         place -= 1
                     node.fifo.insert(
-                        place, Pending(task.msg, task.bits, task.due, arbitration_priority(task.msg), cyclic=True)
+                        place, Pending(task.msg, task.bits, due, arbitration_priority(task.msg), cyclic=True)
                     )
                     node.max_depth = max(node.max_depth, len(node.fifo))
-                    self._rearbitrate(task.due)  # queued late by this process: timed by the medium all the same
-                task.due += task.period
         return min((t.due for t in self._cyclic), default=None)
 
     def step(self, now: float) -> float | None:
@@ -332,11 +340,25 @@ class Medium:
         next by arbitration. Returns when the frame on the wire ends or a cyclic frame is due (None:
         the bus is idle)."""
         with self.cond:
+            # the wire up to now first: a cyclic frame due meanwhile is queued when the wire gets to its
+            # due time (``_step``), so its node's FIFO is judged then; those due on a bus idle since, after
+            self._step(now)
             next_cyclic = self._queue_cyclic(now)
             due = self._step(now)
+            self._stepped = max(self._stepped, now)
             if next_cyclic is None:
                 return due
             return next_cyclic if due is None else min(due, next_cyclic)
+
+    def delivered_until(self) -> float:
+        """Wall clock: the bus time up to which every frame has been delivered to the nodes: the last
+        step's, or now on a bus with nothing on it, queued or due (nothing was left to deliver)."""
+        with self.cond:
+            now = self.now()
+            idle = self._on_wire is None and not any(n.fifo for n in self.nodes)
+            if idle and not any(t.due <= now for t in self._cyclic):
+                return now
+            return self._stepped
 
     def next_event(self) -> float | None:
         """Wall clock: when ``step`` has something to do: the end of the frame on the wire, a cyclic
@@ -373,6 +395,9 @@ class Medium:
                 if not heads:
                     return None
                 start = max(self.bus_end, min(n.fifo[0].enqueued for n in heads))
+                if self._cyclic and min(t.due for t in self._cyclic) <= start:
+                    self._queue_cyclic(start)  # a cyclic frame due before it takes part (the kernel's timer)
+                    continue
                 winner = min((n for n in heads if n.fifo[0].enqueued <= start), key=lambda n: n.fifo[0].priority)
                 pending = winner.fifo[0]
                 self._on_wire = (winner, pending, start, start + pending.bits * self._seconds_per_bit)
@@ -448,3 +473,7 @@ class Medium:
                     check=False,
                 )
             )
+
+
+def no_catch_up() -> None:
+    """No frames reach this medium from other processes (``Medium.catch_up``)."""

@@ -24,6 +24,7 @@ import contextlib
 import ipaddress
 import json
 import secrets
+import select
 import selectors
 import socket
 import threading
@@ -36,7 +37,7 @@ from can import BusState
 from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.threads import ask_wire_priority
 from pvtflow.axes.sim.wire import protocol as p
-from pvtflow.axes.sim.wire.medium import Medium, WireConfigError
+from pvtflow.axes.sim.wire.medium import Medium, WireConfigError, no_catch_up
 from pvtflow.axes.sim.wire.node import Cyclic, Node
 from pvtflow.axes.sim.wire.registry import acquire_medium, release_medium
 
@@ -52,6 +53,11 @@ def require_loopback(host: str) -> str:
     if not address.is_loopback or address.version != 4:
         raise WireConfigError(f"simwire serves and connects on loopback only (127.0.0.1), not {host!r}")
     return host
+
+
+# the longest the wall driver waits for the selector thread to take in what the clients posted before
+# it delivers (``WireServer.catch_up``): past it the bus goes on without it
+CATCH_UP_WAIT_S = 0.002
 
 
 class _Outbox:
@@ -185,6 +191,9 @@ class WireServer:
         self._selector.register(self._wake_r, selectors.EVENT_READ, "wake")
         if self.medium.delivery_batch is contextlib.nullcontext:
             self.medium.delivery_batch = self._batch
+        self._passed = threading.Condition(threading.Lock())  # the selector thread's passes (``catch_up``)
+        self._passes = 0
+        self.medium.catch_up = self.catch_up
         self._thread = threading.Thread(target=self._run, name=f"simwire-io-{channel}", daemon=True)
         self._thread.start()
 
@@ -207,6 +216,8 @@ class WireServer:
         self._thread.join(timeout=2.0)
         if self.medium.delivery_batch == self._batch:
             self.medium.delivery_batch = contextlib.nullcontext
+        if self.medium.catch_up == self.catch_up:
+            self.medium.catch_up = no_catch_up
         release_medium(self.channel)
 
     # -- the selector thread ---------------------------------------------------------------------
@@ -230,6 +241,9 @@ class WireServer:
                             if mask & selectors.EVENT_READ:
                                 self._read(what)
                 self._arm_writes()
+                with self._passed:
+                    self._passes += 1
+                    self._passed.notify_all()
         finally:
             for client in list(self._clients) + list(self._pending.values()):
                 self._close_client(client)
@@ -307,6 +321,29 @@ class WireServer:
             conn = _Conn(self, sock)
             self._conns.add(conn)
             self._selector.register(sock, selectors.EVENT_READ, conn)
+
+    def catch_up(self) -> None:
+        """What the clients have written to their control connections by now, taken in before the wall
+        driver delivers (``Medium.catch_up``; the medium's lock not held): a post waiting in a socket
+        while the selector thread was held (this process's other threads had the interpreter) would
+        otherwise meet a bus that went on without it, a SYNC delivered ahead of a setpoint posted 2 ms
+        before it (measured: bench/RESULTS.md). The selector thread alone reads the sockets: this waits
+        for its next pass, at most ``CATCH_UP_WAIT_S``."""
+        if threading.current_thread() is self._thread or self._closed:
+            return
+        socks = [c.sock for c in list(self._conns) if c.client is not None and not c.receiving and not c.closed]
+        if not socks:
+            return
+        try:
+            readable, _, _ = select.select(socks, [], [], 0)
+        except (OSError, ValueError):
+            return
+        if not readable:
+            return
+        with self._passed:
+            seen = self._passes
+            self._wake()
+            self._passed.wait_for(lambda: self._passes != seen or self._closed, CATCH_UP_WAIT_S)
 
     def _read(self, conn: _Conn) -> None:
         try:

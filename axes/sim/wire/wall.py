@@ -32,10 +32,15 @@ class WallDriver:
         while True:
             # what a step delivers to another process is written once the medium's lock is released:
             # a socket write under it held up every sender (the loopback server's POSTs, the drives)
+            # what ended by ``now`` is delivered only once every frame posted elsewhere by ``now`` is in:
+            # a delivered frame cannot be taken back, and a post stamped before it would have been
+            # arbitrated with it on a real bus (``Medium._rearbitrate``)
+            now = medium.now()
+            medium.catch_up()
             with medium.delivery_batch(), cond:
                 if self._stop:
                     return
-                medium.step(medium.now())
+                medium.step(now)
             with cond:
                 if self._stop:
                     return

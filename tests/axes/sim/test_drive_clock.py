@@ -443,3 +443,51 @@ def test_epos2_lockstep_has_no_clock_of_its_own(bench: Bench) -> None:
     time.sleep(0.05)
     assert drive.time_us == 1000 and len(drive.records_consumed) == 1  # the start point only
     assert not drive.clock_checks
+
+
+@pytest.mark.wall
+def test_the_ticker_samples_no_further_than_the_wire_is_heard() -> None:
+    """A ``Ticker`` with a horizon (``SimulatedCell`` on an in-process medium: what every drive has heard
+    of the wire) moves its drives up to the horizon, never to the present past it: a drive does not
+    sample past a SYNC its process has not got to yet."""
+    seen: list[float] = []
+
+    class Drive:
+        def run_to(self, mono: float) -> None:
+            seen.append(mono)
+
+    held = time.monotonic() - 0.05
+    ticker = Ticker([Drive()], horizon=lambda: held).start()
+    try:
+        deadline = time.monotonic() + 2.0
+        while len(seen) < 3 and time.monotonic() < deadline:
+            time.sleep(0.005)
+    finally:
+        ticker.stop()
+    assert len(seen) >= 3 and max(seen) == held
+
+
+@pytest.mark.wall
+def test_a_bus_has_heard_the_wire_up_to_the_first_frame_its_reader_has_not_handled() -> None:
+    """``SimWireBus.taken_until``: delivered but not read, a frame holds its node's hearing before its end;
+    read, until its reader comes back for the next (a canopen Notifier handles it in between)."""
+    import uuid
+
+    from pvtflow.axes.sim.wire import SimWireBus
+
+    channel = f"heard-{uuid.uuid4().hex[:8]}"
+    sender = SimWireBus(channel, clock="wall", node_name="sender")
+    drive = SimWireBus(channel, clock="wall", node_name="drive")
+    try:
+        sender.send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))
+        deadline = time.monotonic() + 2.0
+        while drive.medium.delivered_until() < drive.medium.now() and time.monotonic() < deadline:
+            time.sleep(0.001)  # the medium's driver delivers it at its end
+        delivered = drive.medium.delivered_until()
+        assert drive.taken_until(delivered) < delivered  # in its queue, not read
+        msg = drive.recv(1.0)
+        assert msg is not None and drive.taken_until(delivered) < msg.timestamp  # in its reader's hands
+        assert drive.recv(0.0) is None and drive.taken_until(delivered) == delivered  # handled
+    finally:
+        sender.shutdown()
+        drive.shutdown()

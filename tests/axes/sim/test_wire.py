@@ -607,3 +607,33 @@ def test_a_served_medium_times_a_clients_cyclic_send_when_asked(buses: Buses) ->
         while listener.recv(0.05) is not None:  # what was queued as it stopped
             pass
         assert listener.recv(0.05) is None
+
+
+@pytest.mark.wall
+def test_a_cyclic_frame_takes_its_place_by_its_due_time_whenever_the_medium_gets_to_it() -> None:
+    """The wall-clock medium, held (no driver runs here: it steps when told): a client's cyclic SYNC
+    started at the client's time of asking, and frames its node posted after a SYNC was due but that
+    reached the medium first, go on the wire in the order of their times, as the kernel's timer and the
+    sender's posts meet in one queue: the SYNC due first goes first (never behind a later post), a post
+    stamped between two dues goes between them, and a full FIFO is judged at the due time (what left
+    the wire by then is out of it: no SYNC dropped for a medium that was late)."""
+    medium = Medium(f"cyc-{uuid.uuid4().hex[:8]}", clock="wall")
+    heard: list[tuple[int, float]] = []
+    child = medium.attach(lambda m: heard.append((m.arbitration_id, m.timestamp)), name="child", receive_own=True)
+    medium.attach(lambda m: None, name="drive")
+    period = 0.002
+    t0 = medium.now() - 0.05  # asked 50 ms ago: the medium hears of it only now
+    medium.add_cyclic(child, frame(SYNC), period, start=t0)
+    medium.submit(child, frame(0x20C, bytes(8)), now=t0 + period + 0.0001)  # after SYNC 1 was due
+    for k in range(10):  # ten setpoints a period after SYNC 2: more than the FIFO holds at once
+        medium.submit(child, frame(0x20D, bytes(8)), now=t0 + 2 * period + 0.0001 + k * 1e-6)
+    medium.step(t0 + 5 * period)
+    order = [cob for cob, _ in heard]
+    assert order[:3] == [SYNC, SYNC, 0x20C] and order[3] == SYNC and order[4:14] == [0x20D] * 10
+    syncs = [t for cob, t in heard if cob == SYNC]
+    assert len(syncs) >= 5  # none dropped: the ten had left the FIFO by SYNC 3's due
+    # every SYNC on its due time (bus time in epoch seconds: to a microsecond): no frame ahead of it was
+    # pending when it was due, whenever this process got to it
+    bits = frame_bits(SYNC, b"")
+    assert np.diff(syncs) == pytest.approx([period] * (len(syncs) - 1), abs=1e-6)
+    assert syncs[0] == pytest.approx(t0 + bits * 1e-6, abs=1e-6)
