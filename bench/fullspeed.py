@@ -160,7 +160,7 @@ def run(cell: CellConfig, program_for) -> dict[str, object]:
 
 def cyclic_late(bus: CellBus) -> list[float]:
     """Each SYNC's send after its deadline in the cyclic process, us (empty: SYNC sent in this process);
-    where the interface sends SYNC (``--interface-sync``), each SYNC's setpoints sent after its wire time."""
+    where the interface sends SYNC (``--interface-sync``), each SYNC's setpoints sent after it was due."""
     cyclic = bus.sync.cyclic
     if cyclic is None:
         return []
@@ -306,7 +306,7 @@ def main() -> None:
             "| cell | SYNC ms | finished | SYNC interval p50 / p99 / max (periods) | setpoint after its SYNC "
             "p50 / p99 / max (periods) | worst v / 0x607F, a / 0x60C5 | tour s | "
             + (
-                "setpoints sent after their SYNC's wire time"
+                "setpoints sent after their SYNC was due"
                 if args.interface_sync
                 else "SYNC late in the cyclic process"
             )

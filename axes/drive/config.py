@@ -64,8 +64,8 @@ class BusConfig:
     # (``axes.master.cyclic.process``), where nothing else of the master runs
     cyclic_process: bool = False
     # with ``cyclic_process``: the interface sends SYNC (socketcan's broadcast manager on a kernel timer; a
-    # served simwire: its medium) and the cyclic process follows it with the setpoints, records and time
-    # stamp, so that no process's wake times SYNC (axes.master.cyclic.loop, ``CyclicLoop._follow``)
+    # served simwire: its medium) and the cyclic process paces the setpoints, records and time stamp on its
+    # schedule, so that no process's wake times SYNC (axes.master.cyclic.loop, ``CyclicLoop._follow``)
     interface_sync: bool = False
     # the EPOS2 FIFO holds records at most this far beyond the drive's clock (and never fewer than
     # MIN_HELD, axes.master.group.feeder): what the drives hold is what a change of the motion (on-path

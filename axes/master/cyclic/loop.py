@@ -122,7 +122,7 @@ class CycleTiming:
     echo_us: list[float] = field(default_factory=list)  # each SYNC's echo, heard here, after its send
     unstamped: int = 0  # SYNCs whose echo did not come within half a period (no time stamp for them)
     refused: int = 0  # tries of a SYNC the transmit queue had no room for (each tried again 0.2 ms later)
-    # following the interface's SYNC: each SYNC's setpoints sent here after the SYNC left the wire
+    # following the interface's SYNC: each SYNC's setpoints sent here after that SYNC was due (its schedule)
     followed_us: list[float] = field(default_factory=list)
     held: int = 0  # SYNCs heard before this process's setpoints for them were on the wire (the drives held)
 
