@@ -305,11 +305,7 @@ def main() -> None:
         print(
             "| cell | SYNC ms | finished | SYNC interval p50 / p99 / max (periods) | setpoint after its SYNC "
             "p50 / p99 / max (periods) | worst v / 0x607F, a / 0x60C5 | tour s | "
-            + (
-                "setpoints sent after their SYNC was due"
-                if args.interface_sync
-                else "SYNC late in the cyclic process"
-            )
+            + ("setpoints sent after their SYNC was due" if args.interface_sync else "SYNC late in the cyclic process")
             + " p50 / p99 / max (us) | first failure |"
         )
         print("|---|---|---|---|---|---|---|---|---|")
