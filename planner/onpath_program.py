@@ -51,10 +51,6 @@ SPACINGS = ((MIN_SEGMENT_MS, MAX_SEGMENT_MS), (5, 8), (12, 24), (4, 6))
 # the share of the joint accelerations the braking plans with: room for the records' rounding (the knot
 # placement's repair of integers is not run on a change: it must be made within the look-ahead)
 BRAKING_SHARE = 0.9
-# the speed a resume re-times the rest to, of its planned speed: at the planned speed itself a time-optimal
-# program's records sit at 0x60C5, where only the knot placement's integer repair finds records inside it
-# (accelerations scale with its square: 0.95 leaves 10 %)
-MAX_SCALE = 0.95
 JUMP_SHARE = 0.02  # an acceleration jump of this share of 0x60C5 gets a knot of its own
 
 
@@ -332,37 +328,6 @@ def override_on_grid(
     return best
 
 
-def resume_motion(planned: Trajectory, paused: OnPathStop, limits: JointLimits) -> Trajectory:
-    """From rest where ``paused`` ended to the end of ``planned`` (``onpath_stop.resume``) at ``MAX_SCALE``
-    of the planned speed, the ramp at ``BRAKING_SHARE`` of the joint accelerations; time 0 = the resume."""
-    share = scaled_limits(limits, BRAKING_SHARE)
-    return override(planned, paused.trajectory, paused.trajectory.duration, MAX_SCALE, share)
-
-
-def resume_program(paused: PvtProgram, rest: Trajectory, limits: JointLimits, grid_ms: int) -> PvtProgram:
-    """The program that continues a paused motion: from where ``paused`` left the axes at rest, ``rest``
-    (``resume_motion``, time 0 = the resume) slowed by the least that ends it on the grid, after a dwell
-    of one grid step (every axis's first motion on the same SYNC)."""
-    end_s = on_grid(rest.duration, grid_ms / 1000.0)
-    motion = rest.slowed(end_s / rest.duration) if end_s > rest.duration else rest
-    offset = float(grid_ms)
-    axes = []
-    first, joins = [], []
-    for a in paused.axes:
-        p = int(a.records[-1, 0])
-        if a.profile.fixed_period:
-            period = int(a.records[0, 2])
-            head = np.array([[p, 0, period]] * max(1, round(offset / period)), dtype=np.int64)
-        else:
-            head = np.array([[p, 0, int(offset)]], dtype=np.int64)
-        axes.append(AxisProgram.of(a, head))
-        first.append(len(head))
-        joins.append(float(head[:, 2].sum()))
-    start = PvtProgram(paused.cell, tuple(axes), dict(paused.metadata))
-    program, _ = changed_program(start, first, joins, offset, motion, offset + end_s * 1000.0, limits, offset)
-    return program
-
-
 # --- back to the planned timing (override 1.0) ------------------------------------------------------------
 # the original records a change joins, tried in turn per axis: the first that ends after the ramp, and later ones
 JOIN_TRIES = 4
@@ -371,11 +336,12 @@ JOIN_TRIES = 4
 @dataclass(frozen=True)
 class BackToPlan:
     """The running motion brought back to the planned timing: ``motion`` (program time) is the planned one
-    delayed by ``delay_ms`` (whole ms, on the grid) from path position ``s_ms`` (program ms of the plan) on."""
+    delayed by ``delay_ms`` (on the grid, plus the phase asked for) from path position ``s_ms`` (program ms of
+    the plan) on."""
 
     motion: Trajectory
     s_ms: float
-    delay_ms: int
+    delay_ms: float
 
 
 def _delay(whole: Trajectory, planned: Trajectory, s0: float) -> tuple[float, float] | None:
@@ -403,10 +369,12 @@ def back_to_plan_on_grid(
     limits: JointLimits,
     grid_s: float,
     share: float = BRAKING_SHARE,
+    phase_s: float = 0.0,
 ) -> BackToPlan:
     """``override`` at 1.0 from ``t0_s``: the largest path acceleration (``share`` of the joints', lowered by
     bisection) up to the planned speed, reached where the motion is late on the plan by a whole number of grid
-    steps, so that from there the planned records run unchanged, that much later."""
+    steps (plus ``phase_s``: a resume's rest, which need not be a grid time), so that from there the planned
+    records run unchanged, that much later."""
     s0 = _s_at(running, t0_s)
 
     def at(share: float) -> tuple[Trajectory, tuple[float, float] | None]:
@@ -417,7 +385,7 @@ def back_to_plan_on_grid(
     whole, d = at(hi)
     if d is None:
         raise ChangeError("the motion does not reach its planned speed again before its end")
-    target = on_grid(d[1], grid_s)
+    target = on_grid(d[1] - phase_s, grid_s) + phase_s
     if target - d[1] >= 2e-6:
         lo, best = hi * 0.3, None
         for _ in range(40):
@@ -432,7 +400,7 @@ def back_to_plan_on_grid(
         if best is None or target - best[1][1] >= 2e-6:
             raise ChangeError("no ramp back to the planned speed ends on the SYNC grid")
         whole, d = best
-    return BackToPlan(whole, d[0] * 1000.0, round(target * 1000.0))
+    return BackToPlan(whole, d[0] * 1000.0, float(round(target * 1000.0)) if phase_s == 0.0 else target * 1000.0)
 
 
 def rejoined_program(
@@ -443,28 +411,31 @@ def rejoined_program(
     back: BackToPlan,
     original: PvtProgram,
     limits: JointLimits,
+    offset_ms: float = 0.0,
 ) -> tuple[PvtProgram, list[NDArray[np.int64]]]:
     """``program`` with each axis's records from ``first[i]`` on replaced by ``back.motion``'s ramp from
     ``join_ms[i]`` to the end of one of ``original``'s records after the ramp (that record's own position
-    and velocity, ``back.delay_ms`` later), then ``original``'s records from there on, unchanged; validated."""
+    and velocity, ``back.delay_ms`` later), then ``original``'s records from there on, unchanged; validated.
+    ``offset_ms``: the program time of ``back.motion``'s time 0 (a resumed motion's program begins later)."""
     times, jumps = back.motion.acceleration_jumps()
     amax = np.asarray(limits.acceleration, dtype=float)
     big = np.any(np.abs(jumps) > JUMP_SHARE * amax, axis=1) if len(jumps) else np.zeros(0, dtype=bool)
-    jumps_ms = np.asarray(times, dtype=float)[big] * 1000.0
+    jumps_ms = np.asarray(times, dtype=float)[big] * 1000.0 + offset_ms
+    shift = float(round(back.delay_ms + offset_ms))  # an original record's end, plan ms -> this program's ms
     rows: list[NDArray[np.int64]] = []
     axes = []
     for a, k, jm, o in zip(program.axes, first, join_ms, original.axes, strict=True):
         recs = o.records[:-1] if not o.profile.fixed_period and o.records[-1, 2] == 0 else o.records
         ends = np.cumsum(recs[:, 2]).astype(float)
         fixed = o.profile.fixed_period
-        least = max(back.s_ms, jm - back.delay_ms + (0 if fixed else MIN_SEGMENT_MS))
+        least = max(back.s_ms, jm - shift + (0 if fixed else MIN_SEGMENT_MS))
         start = int(np.searchsorted(ends, least - 1e-9))  # the first original record ending after the ramp
         made = None
         for m in range(start, min(start + JOIN_TRIES, len(recs))):
-            end = float(ends[m]) + back.delay_ms
+            end = float(ends[m]) + shift
             for spacing in SPACINGS if not fixed else SPACINGS[:1]:
                 try:
-                    r = tail_records(a, jm, t0_ms, back.motion, end, jumps_ms[jumps_ms < end], 0.0, spacing)
+                    r = tail_records(a, jm, t0_ms, back.motion, end, jumps_ms[jumps_ms < end], offset_ms, spacing)
                 except ChangeError:
                     continue
                 r = r[:-1].copy()  # without the rest it would end with
@@ -486,3 +457,28 @@ def rejoined_program(
     if not report.ok:
         raise ChangeError("the changed records do not validate: " + "; ".join(f.format() for f in report.errors[:3]))
     return changed, rows
+
+
+def resumed_program(
+    paused: PvtProgram, back: BackToPlan, original: PvtProgram, rest_ms: float, limits: JointLimits, grid_ms: int
+) -> PvtProgram:
+    """The program that continues a paused motion at its planned timing: from where ``paused`` left the axes
+    at rest (``back.motion``'s rest at program time ``rest_ms``), after a dwell of one grid step (every axis's
+    first motion on the same SYNC), ``back``'s ramp up to the planned speed (``back_to_plan_on_grid`` from the
+    rest, its delay on the grid plus the rest's phase on it), then ``original``'s own records to the motion's
+    end. Its time 0 is the resume; ChangeError where it does not validate."""
+    dwell = float(grid_ms)
+    axes, first, joins = [], [], []
+    for a in paused.axes:
+        p = int(a.records[-1, 0])
+        if a.profile.fixed_period:
+            period = int(a.records[0, 2])
+            head = np.array([[p, 0, period]] * max(1, round(dwell / period)), dtype=np.int64)
+        else:
+            head = np.array([[p, 0, int(dwell)]], dtype=np.int64)
+        axes.append(AxisProgram.of(a, head))
+        first.append(len(head))
+        joins.append(float(head[:, 2].sum()))
+    start = PvtProgram(paused.cell, tuple(axes), dict(paused.metadata))
+    program, _ = rejoined_program(start, first, joins, dwell, back, original, limits, dwell - rest_ms)
+    return program

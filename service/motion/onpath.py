@@ -21,8 +21,7 @@ from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.axes.master.group.axis_group import AxisGroup
 from pvtflow.axes.master.group.outcome import Result
 from pvtflow.axes.master.splice import SpliceAt, SpliceRefusedError, record_grid_ms
-from pvtflow.planner.build import BuildError, build_program
-from pvtflow.planner.knots import KnotOptions
+from pvtflow.planner.build import BuildError
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.onpath_program import (
     JERK_SHARES,
@@ -38,7 +37,7 @@ from pvtflow.planner.onpath_program import (
     override_on_grid,
     records_jerk_ratio,
     rejoined_program,
-    resume_motion,
+    resumed_program,
 )
 from pvtflow.planner.onpath_stop import OnPathStop, stopped_motion
 from pvtflow.planner.path import PlanError
@@ -160,7 +159,7 @@ class PathChanges:
                     break
             else:
                 raise ChangeError(f"the braking's records reach {ratio:.2f} x the planned jerk limit (window jerk)")
-            made.update(stop=stop, whole=whole, program=new)
+            made.update(stop=stop, whole=whole, program=new, original=program)
             group.ends_as((Result.STOPPED, reason))  # the stop's outcome as the quick one's: the reason
             return rows
 
@@ -182,6 +181,8 @@ class PathChanges:
             return None, str(exc)
         stop: OnPathStop = made["stop"]
         path.running, path.program, path.stop = made["whole"], made["program"], stop
+        if path.original is None:
+            path.original = made["original"]  # the records as started: what a resume joins
         begun = stop.t_start * 1000.0
         ended = on_grid(stop.t_end, grid_ms / 1000.0) * 1000.0  # the SYNC from which every axis stands
         return {
@@ -210,28 +211,37 @@ class PathChanges:
 
     # --- resume ------------------------------------------------------------------------------------
     def resume_program(self) -> tuple[Paused, PvtProgram]:
-        """The program that continues the paused motion from where its axes stand, at rest, to its end:
-        ``onpath_stop.resume`` placed into records like any plan (``build_program``). NOT_ALLOWED when
+        """The program that continues the paused motion from where its axes stand, at rest, at its planned
+        timing: a ramp up to the planned speed (``RAMP_SHARES`` of 0x60C5 tried in turn), then the motion's own
+        records to its end (``onpath_program.resumed_program``, validated as every program). NOT_ALLOWED when
         nothing is paused."""
         paused = self.paused
         if paused is None or self.board.state != CellState.PAUSED:
             raise ApiError(ErrorCode.NOT_ALLOWED, "nothing is paused on this cell: resume continues a paused motion")
         path = paused.path
-        assert path.stop is not None
-        try:
-            rest = resume_motion(path.planned, path.stop, self.limits)
-            opts = KnotOptions(dwell_ms=max(1, record_grid_ms(path.program.axes, self.cell.bus.sync_period_ms)))
-            axes = {a.joint: a for a in self.cell.ordered_axes()}  # what knot placement takes (hashable)
-            built = build_program(rest, [axes[a.joint] for a in path.program.axes], self.cell.name, opts)
-        except _CHANGE_ERRORS as exc:
+        assert path.stop is not None and path.original is not None
+        grid_ms = record_grid_ms(path.program.axes, self.cell.bus.sync_period_ms)
+        rest = path.stop.t_end  # the braking's rest, near a grid time: the records hold it to the next one
+        phase = rest - on_grid(rest, grid_ms / 1000.0)  # an original record's end lands on the resumed grid
+        failed: Exception | None = None
+        program = None
+        for share in RAMP_SHARES:
+            try:
+                back = back_to_plan_on_grid(
+                    path.planned, path.running, rest, self.limits, grid_ms / 1000.0, share, phase
+                )
+                program = resumed_program(path.program, back, path.original, rest * 1000.0, self.limits, grid_ms)
+                break
+            except _CHANGE_ERRORS as exc:
+                failed = exc
+        if program is None:
             raise ApiError(
-                ErrorCode.PLAN_FAILED, f"the rest of the paused motion could not be planned: {exc}"
+                ErrorCode.PLAN_FAILED, f"the rest of the paused motion could not be planned: {failed}"
             ) from None
-        meta = {**built.program.metadata, "resumes": paused.motion.motion_id}
-        program = PvtProgram(built.program.cell, built.program.axes, meta)
+        program = PvtProgram(program.cell, program.axes, {**program.metadata, "resumes": paused.motion.motion_id})
         here = [int(a.records[-1, 0]) for a in path.program.axes]
         start = [int(a.records[0, 0]) for a in program.axes]
-        if any(abs(h - s) > 1 for h, s in zip(here, start, strict=True)):  # the same path point, rounded alike
+        if here != start:
             raise ApiError(
                 ErrorCode.PLAN_FAILED, f"the resumed motion would start at {start} qc, the axes are at {here}"
             )

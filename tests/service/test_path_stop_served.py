@@ -164,6 +164,16 @@ def test_pause_then_resume_reaches_the_original_end(service: MotionService) -> N
     assert out["resumed"] == paused["motion_id"] and out["outcome"]["result"] == "finished", out["outcome"]
     after = ran(service)
     assert [int(a.records[-1, 0]) for a in after.axes] == [int(a.records[-1, 0]) for a in before.axes]
+    # at the planned timing: after the ramp up from rest, every axis runs the program's own records to its end
+    half = max(1, int(service.cell.bus.max_lookahead_ms / 2))
+    for a, b in zip(after.axes, before.axes, strict=True):
+        fed = split_long_records(b, half)  # the program's records as its feeder held them
+        n = 0
+        while n < min(len(fed), len(a.records)) and (a.records[-1 - n] == fed[-1 - n]).all():
+            n += 1
+        own_ms = float(np.sum(a.records[len(a.records) - n :, 2]))
+        ramp_ms = out["duration_ms"] - own_ms
+        assert n >= 3 and ramp_ms <= 300.0, (a.joint, n, ramp_ms)
     assert_on_path(before, after, 0.0)
     no_faults(service)
     assert service.state == "idle"
