@@ -35,9 +35,11 @@ from pvtflow.planner.onpath_stop import (
     brake_on_path,
     jerk_braking,
     jerk_braking_rates,
+    jerk_override,
+    jerk_override_rates,
+    joined,
     override,
 )
-from pvtflow.planner.path import PlanError, PlanResult
 from pvtflow.planner.trajectory import Trajectory
 from pvtflow.planner.validate import validate_program
 
@@ -284,39 +286,45 @@ def changed_program(
     return changed, rows
 
 
-def joined(running: Trajectory, change: Trajectory) -> Trajectory:
-    """``running`` until where ``change`` begins on the path, then ``change``: one trajectory, the motion as
-    the drives run it after an override."""
-    s0 = float(change.gridpoints[0])
-    before = running.gridpoints < s0 - 1e-12
-    grid = np.concatenate([running.gridpoints[before], change.gridpoints])
-    sd = np.concatenate([running.sd[before], change.sd])
-    if sd[-1] != 0.0 and grid[-1] < running.gridpoints[-1]:
-        raise PlanError(PlanResult.INFEASIBLE, "the change does not reach the motion's end")
-    return Trajectory.from_path_velocities(running.path, grid, sd, running.joint_names)
-
-
 def on_grid(duration_s: float, grid_s: float) -> float:
     """The grid time at or after ``duration_s``."""
     return math.ceil(duration_s / grid_s - 1e-9) * grid_s
 
 
 def override_on_grid(
-    planned: Trajectory, running: Trajectory, t0_s: float, scale: float, limits: JointLimits, grid_s: float
+    planned: Trajectory,
+    running: Trajectory,
+    t0_s: float,
+    scale: float,
+    limits: JointLimits,
+    grid_s: float,
+    max_jerk: NDArray[np.float64] | None = None,
+    jerk_share: float = JERK_SHARES[0],
 ) -> tuple[Trajectory, float]:
     """``override`` at ``scale`` joined to ``running`` at ``t0_s``, with the scale lowered by at most 3 % so
     that the motion ends on the grid (no cubic straddles its last deceleration); (the motion, the scale).
     The ramps to it take ``BRAKING_SHARE`` of the joint accelerations: the records' rounding needs that room
-    (scale 1.0 itself: ``back_to_plan_on_grid``, which joins the planned records)."""
-    limits = scaled_limits(limits, BRAKING_SHARE)
-    whole = joined(running, override(planned, running, t0_s, scale, limits, rest_at_end=False))
+    (scale 1.0 itself: ``back_to_plan_on_grid``, which joins the planned records). ``max_jerk`` (a motion
+    planned with a jerk limit): the ramp is the S-curve of ``jerk_override`` at ``jerk_share`` of it."""
+    if max_jerk is None:
+        limits = scaled_limits(limits, BRAKING_SHARE)
+
+        def retimed(k: float) -> Trajectory:
+            return joined(running, override(planned, running, t0_s, k, limits, rest_at_end=False))
+    else:
+        accel, jerk = jerk_override_rates(planned, running, t0_s, scale, limits, max_jerk, BRAKING_SHARE, jerk_share)
+
+        def retimed(k: float) -> Trajectory:
+            return joined(running, jerk_override(planned, running, t0_s, k, accel, jerk))
+
+    whole = retimed(scale)
     target = on_grid(whole.duration, grid_s)
     if target - whole.duration < 2e-6:
         return whole, scale
     lo, hi, best = max(0.05, scale * 0.97), scale, None
     for _ in range(30):
         mid = 0.5 * (lo + hi)
-        trial = joined(running, override(planned, running, t0_s, mid, limits, rest_at_end=False))
+        trial = retimed(mid)
         if trial.duration > target:
             lo = mid
         else:
@@ -370,15 +378,24 @@ def back_to_plan_on_grid(
     grid_s: float,
     share: float = BRAKING_SHARE,
     phase_s: float = 0.0,
+    max_jerk: NDArray[np.float64] | None = None,
+    jerk_share: float = JERK_SHARES[0],
 ) -> BackToPlan:
     """``override`` at 1.0 from ``t0_s``: the largest path acceleration (``share`` of the joints', lowered by
     bisection) up to the planned speed, reached where the motion is late on the plan by a whole number of grid
     steps (plus ``phase_s``: a resume's rest, which need not be a grid time), so that from there the planned
-    records run unchanged, that much later."""
+    records run unchanged, that much later. ``max_jerk`` (a motion planned with a jerk limit): the ramp is the
+    S-curve of ``jerk_override`` at ``jerk_share`` of it, its acceleration and jerk lowered together."""
     s0 = _s_at(running, t0_s)
+    if max_jerk is not None:
+        accel, jerk = jerk_override_rates(planned, running, t0_s, 1.0, limits, max_jerk, share, jerk_share)
 
-    def at(share: float) -> tuple[Trajectory, tuple[float, float] | None]:
-        whole = joined(running, override(planned, running, t0_s, 1.0, scaled_limits(limits, share), tries=1))
+    def at(f: float) -> tuple[Trajectory, tuple[float, float] | None]:
+        if max_jerk is None:
+            change = override(planned, running, t0_s, 1.0, scaled_limits(limits, f), tries=1)
+        else:
+            change = jerk_override(planned, running, t0_s, 1.0, accel * f / share, jerk * f / share)
+        whole = joined(running, change)
         return whole, _delay(whole, planned, s0)
 
     hi = share

@@ -217,6 +217,7 @@ def resume(motion: Trajectory, paused: OnPathStop, limits: JointLimits) -> Traje
 # --- jerk-limited braking (a motion planned with a jerk limit) -----------------------------------------------
 SCURVE_STEP_S = 1e-4  # the S-curve's integration step (its end found between two steps)
 WINDOW_S = 0.01  # the span a drive's window jerk is judged over (planner.knots.window_jerk)
+REST_SD = 1e-9  # a path velocity this small is rest (a braking ends at s' = 0 to rounding)
 
 
 def _scurve(v0: float, a0: float, decel: float, jerk: float) -> tuple[NDArray[np.float64], ...]:
@@ -309,3 +310,149 @@ def jerk_braking_rates(
         if rj > js:
             jerk *= 0.97 * js / rj
     return decel, jerk
+
+
+# --- jerk-limited changes of speed (override and resume of a motion planned with a jerk limit) ----------------
+def _speed_change(v0: float, a0: float, v1: float, accel: float, jerk: float) -> tuple[NDArray[np.float64], ...]:
+    """Path velocity from ``v0`` (s'' ``a0``) to ``v1`` with s'' ramped at ``jerk`` towards +-``accel`` and back to 0
+    as s' reaches ``v1``: (t, s - s0, s', s'') at every integration step, the last at ``v1``."""
+    dt = SCURVE_STEP_S
+    d = 1.0 if v1 >= v0 else -1.0
+    ts, ss, vs, acc = [0.0], [0.0], [v0], [a0]
+    s, v, a = 0.0, v0, a0
+    for k in range(1, int(10.0 / dt)):
+        left = d * (v1 - v)
+        if left <= 1e-9 * max(1.0, abs(v1)):
+            break
+        if d * a > 0.0 and left <= a * a / (2.0 * jerk) + 1e-12:
+            a_next = a - d * jerk * dt  # the ramp out: s'' back to 0 as s' reaches v1
+            if d * a_next < 0.0:
+                a_next = 0.0
+        else:
+            a_next = a + d * jerk * dt
+            if d * a_next > accel:
+                a_next = d * max(accel, d * a - jerk * dt)
+        v_next = v + 0.5 * (a + a_next) * dt
+        if d * (v_next - v1) >= 0.0:  # v1 between two steps
+            f = (v1 - v) / (v_next - v) if v_next != v else 1.0
+            s += 0.5 * (v + v1) * f * dt
+            ts.append((k - 1 + f) * dt)
+            ss.append(s)
+            vs.append(v1)
+            acc.append(0.0)
+            return np.asarray(ts), np.asarray(ss), np.asarray(vs), np.asarray(acc)
+        s += 0.5 * (v + v_next) * dt
+        v, a = v_next, a_next
+        ts.append(k * dt)
+        ss.append(s)
+        vs.append(v)
+        acc.append(a)
+    vs[-1] = v1  # within 1e-9 of it
+    return np.asarray(ts), np.asarray(ss), np.asarray(vs), np.asarray(acc)
+
+
+def jerk_override(
+    planned: Trajectory, running: Trajectory, t0: float, scale: float, accel: float, jerk: float
+) -> Trajectory:
+    """The rest of ``running`` from ``t0`` re-timed to ``scale`` of ``planned``'s path speed with the change of
+    speed an S-curve in path time (``_speed_change``: path acceleration ``accel`` 1/s, path jerk ``jerk`` 1/s^2),
+    then on it to the path's end. For a program's path (``planner.program_motion``: the plan's s' = 1, so the
+    scaled plan is one path speed); time 0 of the result is ``t0``."""
+    if not 0.05 <= scale <= 1.0:
+        raise PlanError(PlanResult.INVALID_INPUT, f"scale must be in [0.05, 1.0], got {scale!r}", field="scale")
+    if np.ptp(planned.sd) > 1e-9:
+        raise PlanError(PlanResult.INVALID_INPUT, "a jerk-limited change of speed needs a plan at one path speed")
+    t0 = float(np.clip(t0, 0.0, running.duration))
+    s0, sd0 = _s_at(running, t0), _sd_at(running, t0)
+    i = int(np.clip(np.searchsorted(running.breakpoints, t0, side="right") - 1, 0, len(running.sdd) - 1))
+    v1 = scale * float(planned.sd[0])
+    if sd0 < REST_SD:  # at rest (a braking's end, to rounding): from rest, whatever its last deceleration
+        sd0, a0 = 0.0, 0.0
+    else:
+        a0 = float(running.sdd[i])
+    _, s, v, _ = _speed_change(sd0, a0, v1, accel, jerk)
+    keep = np.concatenate(([True], np.diff(s) > 1e-12))
+    grid, sd = s0 + s[keep], v[keep]
+    sd[-1] = v1
+    end = float(planned.gridpoints[-1])
+    if grid[-1] >= end:
+        raise PlanError(PlanResult.INFEASIBLE, "the path ends before the jerk-limited change of speed would")
+    later = planned.gridpoints[planned.gridpoints > grid[-1] + 1e-9]
+    grid = np.concatenate((grid, later))
+    sd = np.concatenate((sd, np.full(len(later), v1)))
+    return Trajectory.from_path_velocities(running.path, grid, sd, running.joint_names)
+
+
+def ramp_window_jerk_ratio(whole: Trajectory, t0: float, t1: float, max_jerk: NDArray[np.float64]) -> float:
+    """The 10-ms-window joint jerk / ``max_jerk`` at most of ``whole`` from ``t0`` to ``t1`` (a change of speed),
+    with the window before and after it, at every ms."""
+    t = np.clip(np.arange(t0 - WINDOW_S, t1 + WINDOW_S + 1e-9, 1e-3), 0.0, whole.duration)
+    acc = whole.acceleration(t)
+    window = np.abs(acc[10:] - acc[:-10]) / WINDOW_S
+    return float(np.max(window / np.asarray(max_jerk, dtype=float)[None, :])) if len(window) else 0.0
+
+
+def jerk_override_rates(
+    planned: Trajectory,
+    running: Trajectory,
+    t0: float,
+    scale: float,
+    limits: JointLimits,
+    max_jerk: ArrayLike,
+    share: float = 0.9,
+    jerk_share: float = 0.9,
+    tries: int = 8,
+) -> tuple[float, float]:
+    """(path acceleration, path jerk) of the jerk-limited change of speed (``jerk_override``) from ``t0`` to
+    ``scale``: both lowered until the joints hold ``share`` of 0x60C5 and ``jerk_share`` of ``max_jerk`` (the
+    10-ms window) during the change (after it the scaled plan holds what the plan held). The last try is
+    returned as is: the caller checks the records."""
+    jmax = np.asarray(max_jerk, dtype=float)
+    t0 = float(np.clip(t0, 0.0, running.duration))
+    s0 = _s_at(running, t0)
+    qs = np.abs(running.path(s0, 1))
+    amax = np.asarray(limits.acceleration, dtype=float)
+    moving = qs > 1e-12
+    if not np.any(moving):
+        raise PlanError(PlanResult.INFEASIBLE, "the path has no tangent where the change begins")
+    accel = share * float(np.min(amax[moving] / qs[moving]))
+    jerk = jerk_share * float(np.min(jmax[moving] / qs[moving]))
+    for _ in range(tries):
+        change = jerk_override(planned, running, t0, scale, accel, jerk)
+        t_ramp = float(change.time_at(np.array([_ramp_end(change)]))[0])
+        part = _head(change, t_ramp)
+        _, ra = part.limit_ratios(limits)
+        whole = joined(running, change)
+        rj = ramp_window_jerk_ratio(whole, t0, t0 + t_ramp, jmax)
+        if ra <= share and rj <= jerk_share:
+            break
+        if ra > share:
+            accel *= 0.97 * share / ra
+        if rj > jerk_share:
+            jerk *= 0.97 * jerk_share / rj
+    return accel, jerk
+
+
+def _ramp_end(change: Trajectory) -> float:
+    """Where a ``jerk_override`` change reaches its path speed (s)."""
+    off = np.nonzero(np.abs(change.sd - change.sd[-1]) > 1e-12)[0]
+    return float(change.gridpoints[min(int(off[-1]) + 1, len(change.gridpoints) - 1)]) if len(off) else 0.0
+
+
+def _head(change: Trajectory, t: float) -> Trajectory:
+    """``change`` up to its gridpoint at or after time ``t``."""
+    n = int(np.searchsorted(change.breakpoints, t - 1e-12)) + 1
+    n = max(2, min(n, len(change.gridpoints)))
+    return Trajectory.from_path_velocities(change.path, change.gridpoints[:n], change.sd[:n], change.joint_names)
+
+
+def joined(running: Trajectory, change: Trajectory) -> Trajectory:
+    """``running`` until where ``change`` begins on the path, then ``change``: one trajectory, the motion as
+    the drives run it after an override."""
+    s0 = float(change.gridpoints[0])
+    before = running.gridpoints < s0 - 1e-12
+    grid = np.concatenate([running.gridpoints[before], change.gridpoints])
+    sd = np.concatenate([running.sd[before], change.sd])
+    if sd[-1] != 0.0 and grid[-1] < running.gridpoints[-1]:
+        raise PlanError(PlanResult.INFEASIBLE, "the change does not reach the motion's end")
+    return Trajectory.from_path_velocities(running.path, grid, sd, running.joint_names)

@@ -223,14 +223,24 @@ class PathChanges:
         grid_ms = record_grid_ms(path.program.axes, self.cell.bus.sync_period_ms)
         rest = path.stop.t_end  # the braking's rest, near a grid time: the records hold it to the next one
         phase = rest - on_grid(rest, grid_ms / 1000.0)  # an original record's end lands on the resumed grid
+        jerk = planned_jerk(path.program.metadata)
         failed: Exception | None = None
         program = None
-        for share in RAMP_SHARES:
+        for share, jerk_share in self._ramps(jerk):
             try:
                 back = back_to_plan_on_grid(
-                    path.planned, path.running, rest, self.limits, grid_ms / 1000.0, share, phase
+                    path.planned,
+                    path.running,
+                    rest,
+                    self.limits,
+                    grid_ms / 1000.0,
+                    share,
+                    phase,
+                    jerk if jerk_share is not None else None,
+                    jerk_share or JERK_SHARES[0],
                 )
                 program = resumed_program(path.program, back, path.original, rest * 1000.0, self.limits, grid_ms)
+                self._hold_jerk(program, jerk if jerk_share is not None else None, 0.0)
                 break
             except _CHANGE_ERRORS as exc:
                 failed = exc
@@ -248,20 +258,51 @@ class PathChanges:
         return paused, program
 
     # --- override ----------------------------------------------------------------------------------
+    @staticmethod
+    def _ramps(jerk: NDArray[np.float64] | None, plain: bool = True) -> list[tuple[float, float | None]]:
+        """The ramps up to a speed tried in turn: (share of 0x60C5, share of the jerk limit or None). A motion
+        planned with a jerk limit tries S-curves within it first, then (``plain``; the records' jerk above
+        1.2 x the limit in each) the acceleration-limited ramps as a motion without one."""
+        ramps: list[tuple[float, float | None]] = [(share, None) for share in RAMP_SHARES] if plain else []
+        if jerk is None:
+            return ramps
+        return [(share, js) for share in RAMP_SHARES for js in JERK_SHARES] + ramps
+
+    @staticmethod
+    def _hold_jerk(program: PvtProgram, jerk: NDArray[np.float64] | None, from_ms: float) -> None:
+        """ChangeError where the records' window jerk from ``from_ms`` on passes 1.2 x ``jerk`` (None: no check)."""
+        if jerk is not None and (ratio := records_jerk_ratio(program, jerk, from_ms)) > WINDOW_JERK_RATIO:
+            raise ChangeError(f"the change's records reach {ratio:.2f} x the planned jerk limit (window jerk)")
+
     def _back_to_plan(
-        self, path: MotionPath, program: PvtProgram, at: SpliceAt, begin: float, grid_ms: int
+        self,
+        path: MotionPath,
+        program: PvtProgram,
+        at: SpliceAt,
+        begin: float,
+        grid_ms: int,
+        jerk: NDArray[np.float64] | None,
     ) -> tuple[PvtProgram, list[NDArray[np.int64]], Trajectory]:
         """The records that bring the motion back to its planned timing (the original records joined after a
-        ramp, ``RAMP_SHARES`` tried in turn); ChangeError where none validates."""
+        ramp, ``_ramps`` tried in turn: within ``jerk`` only, or None: limited by acceleration); ChangeError
+        where none validates."""
         assert path.original is not None
         failed: Exception | None = None
-        for share in RAMP_SHARES:
+        for share, jerk_share in self._ramps(jerk, plain=jerk is None):
             try:
                 back = back_to_plan_on_grid(
-                    path.planned, path.running, begin / 1000.0, self.limits, grid_ms / 1000.0, share
+                    path.planned,
+                    path.running,
+                    begin / 1000.0,
+                    self.limits,
+                    grid_ms / 1000.0,
+                    share,
+                    max_jerk=jerk if jerk_share is not None else None,
+                    jerk_share=jerk_share or JERK_SHARES[0],
                 )
                 new, rows = rejoined_program(program, at.first, at.join_ms, begin, back, path.original, self.limits)
-            except ChangeError as exc:
+                self._hold_jerk(new, jerk if jerk_share is not None else None, begin)
+            except _CHANGE_ERRORS as exc:
                 failed = exc
                 continue
             return new, rows, back.motion
@@ -284,6 +325,7 @@ class PathChanges:
                 "duration_ms": int(path.program.duration_ms),
             }
         grid_ms = record_grid_ms(group.programs, self.cell.bus.sync_period_ms)
+        jerk = planned_jerk(path.program.metadata)
         made: dict[str, Any] = {}
 
         def make(at: SpliceAt) -> list[Any]:
@@ -292,17 +334,31 @@ class PathChanges:
             if path.original is None:
                 path.original = program  # nothing changed yet: the records as started
             failed: Exception | None = None
-            for wanted in _scales(scale):
+            # a motion planned with a jerk limit: the S-curves within it at every scale first, then the
+            # acceleration-limited ramps (the records' jerk above 1.2 x the limit in each)
+            tries: list[tuple[float, float | None]] = [(w, None) for w in _scales(scale)]
+            if jerk is not None:
+                tries = [(w, js) for w in _scales(scale) for js in (JERK_SHARES if w < 1.0 else (0.0,))] + tries
+            for wanted, jerk_share in tries:
                 try:
                     if wanted >= 1.0:  # the planned timing, late by a whole number of grid steps
-                        new, rows, whole = self._back_to_plan(path, program, at, begin, grid_ms)
+                        within = jerk if jerk_share is not None else None  # (0.0: the jerk-limited ramps)
+                        new, rows, whole = self._back_to_plan(path, program, at, begin, grid_ms, within)
                         applied = 1.0
                     else:
                         whole, applied = override_on_grid(
-                            path.planned, path.running, begin / 1000.0, wanted, self.limits, grid_ms / 1000.0
+                            path.planned,
+                            path.running,
+                            begin / 1000.0,
+                            wanted,
+                            self.limits,
+                            grid_ms / 1000.0,
+                            jerk if jerk_share is not None else None,
+                            jerk_share or JERK_SHARES[0],
                         )
                         end_ms = float(np.round(whole.duration * 1000.0))
                         new, rows = changed_program(program, at.first, at.join_ms, begin, whole, end_ms, self.limits)
+                        self._hold_jerk(new, jerk if jerk_share is not None else None, begin)
                 except (ChangeError, PlanError) as exc:
                     failed = exc
                     continue

@@ -352,3 +352,46 @@ def test_override_just_below_the_planned_speed(service: MotionService) -> None:
     assert after.duration_ms > before.duration_ms
     assert_on_path(before, after, reply["from_ms"])
     no_faults(service)
+
+
+def test_override_and_resume_of_a_jerk_limited_motion_hold_the_jerk_limit(tmp_path: Path) -> None:
+    """A motion planned with a jerk limit changes speed within it: override 0.5, back to 1.0 (the program's own
+    records again), and a pause + resume at the planned timing, the drives' window jerk of every change's records
+    within the knot placement's 1.2 x, on the path, no drive faults."""
+    with MotionService(cell_file("gantry3"), journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP) as svc:
+        assert svc.home(parse_home({"wait": True}))["outcome"]["result"] == "homed"
+        limits = svc.cell.joint_limits()
+        max_jerk = [float(j) for j in 10.0 * np.asarray(limits.acceleration)]
+
+        def go(fraction: float) -> PvtProgram:
+            req = {"waypoints": tour(svc.cell, [0.85]), "start": "current", "max_jerk": max_jerk}
+            plan_id = svc.plan(parse_plan(req, svc.cell.joint_names, limits))["plan_id"]
+            svc.execute(parse_execute({"plan_id": plan_id}))
+            before = ran(svc)
+            assert wait_until(lambda: _elapsed_ms(svc) >= fraction * before.duration_ms, timeout=30.0)
+            return before
+
+        before = go(0.3)
+        slow = svc.override(parse_override({"scale": 0.5}))
+        assert slow["scale"] == pytest.approx(0.5, abs=0.02)
+        assert window_jerk_ratio(ran(svc), max_jerk, slow["from_ms"]) <= 1.2
+        assert wait_until(lambda: _elapsed_ms(svc) >= slow["from_ms"] + 150.0, timeout=30.0)
+        back = svc.override(parse_override({"scale": 1.0}))
+        assert back["scale"] == 1.0
+        assert window_jerk_ratio(ran(svc), max_jerk, back["from_ms"]) <= 1.2
+        motion = svc.motion
+        assert motion is not None and motion.done.wait(60.0) and motion.outcome["result"] == "finished"
+        assert_on_path(before, ran(svc), slow["from_ms"])
+        home = svc.execute(parse_execute({"plan_id": plan(svc, tour(svc.cell, [0.15])), "wait": True}))
+        assert home["outcome"]["result"] == "finished"
+
+        before = go(0.4)
+        paused = svc.pause(parse_pause({}))
+        assert paused["paused"], paused["fallback"]
+        out = svc.resume(parse_resume({"wait": True}))
+        assert out["outcome"]["result"] == "finished", out["outcome"]
+        after = ran(svc)
+        assert window_jerk_ratio(after, max_jerk, 0.0) <= 1.2
+        assert_on_path(before, after, 0.0)
+        assert [int(a.records[-1, 0]) for a in after.axes] == [int(a.records[-1, 0]) for a in before.axes]
+        no_faults(svc)
