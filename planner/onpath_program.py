@@ -40,6 +40,7 @@ from pvtflow.planner.onpath_stop import (
     joined,
     override,
 )
+from pvtflow.planner.path import PlanError
 from pvtflow.planner.trajectory import Trajectory
 from pvtflow.planner.validate import validate_program
 
@@ -252,6 +253,15 @@ def _knot_times(
     return np.asarray(knots, dtype=np.int64)
 
 
+def _fits(cell: str, axis: AxisProgram, max_jerk: NDArray[np.float64] | None, i: int, from_ms: float) -> bool | None:
+    """None: the axis's records do not validate; True: they do and hold ``WINDOW_JERK_RATIO`` of its planned jerk
+    limit from ``from_ms`` on (or it has none); False: they validate only."""
+    one = PvtProgram(cell, (axis,))
+    if not validate_program(one, sample_period_ms=None).ok:
+        return None
+    return max_jerk is None or records_jerk_ratio(one, max_jerk[i : i + 1], from_ms) <= WINDOW_JERK_RATIO
+
+
 def changed_program(
     program: PvtProgram,
     first: Sequence[int],
@@ -261,22 +271,30 @@ def changed_program(
     end_ms: float,
     limits: JointLimits,
     offset_ms: float = 0.0,
+    max_jerk: NDArray[np.float64] | None = None,
 ) -> tuple[PvtProgram, list[NDArray[np.int64]]]:
     """``program`` with each axis's records from ``first[i]`` on replaced by ``motion``'s (its time 0 at
     program time ``offset_ms``) from ``join_ms[i]`` to ``end_ms``, validated; (the new program, the new
-    records per axis). ChangeError where the drives would not take it."""
+    records per axis). ChangeError where the drives would not take it. ``max_jerk``: an axis's knot spacing is
+    the first whose records also hold ``WINDOW_JERK_RATIO`` of it (else the first that validates)."""
     times, jumps = motion.acceleration_jumps()
     amax = np.asarray(limits.acceleration, dtype=float)
     big = np.any(np.abs(jumps) > JUMP_SHARE * amax, axis=1) if len(jumps) else np.zeros(0, dtype=bool)
     jumps_ms = np.asarray(times, dtype=float)[big] * 1000.0 + offset_ms
     rows: list[NDArray[np.int64]] = []
     axes = []
-    for a, k, jm in zip(program.axes, first, join_ms, strict=True):
+    for i, (a, k, jm) in enumerate(zip(program.axes, first, join_ms, strict=True)):
+        taken = None
         for spacing in SPACINGS if not a.profile.fixed_period else SPACINGS[:1]:
             r = tail_records(a, jm, t0_ms, motion, end_ms, jumps_ms, offset_ms, spacing)
             axis = AxisProgram.of(a, np.concatenate((a.records[:k], r)))
-            if validate_program(PvtProgram(program.cell, (axis,)), sample_period_ms=None).ok:
-                break
+            fit = _fits(program.cell, axis, max_jerk, i, t0_ms)
+            if fit is not None:
+                taken = taken or (r, axis)
+                if fit:
+                    taken = (r, axis)
+                    break
+        r, axis = taken or (r, axis)
         rows.append(r)
         axes.append(axis)
     changed = PvtProgram(program.cell, tuple(axes), {**program.metadata, "duration_ms": round(end_ms)})
@@ -394,7 +412,10 @@ def back_to_plan_on_grid(
         if max_jerk is None:
             change = override(planned, running, t0_s, 1.0, scaled_limits(limits, f), tries=1)
         else:
-            change = jerk_override(planned, running, t0_s, 1.0, accel * f / share, jerk * f / share)
+            try:
+                change = jerk_override(planned, running, t0_s, 1.0, accel * f / share, jerk * f / share)
+            except PlanError:  # too slow to reach the planned speed before the end
+                return running, None
         whole = joined(running, change)
         return whole, _delay(whole, planned, s0)
 
@@ -429,11 +450,14 @@ def rejoined_program(
     original: PvtProgram,
     limits: JointLimits,
     offset_ms: float = 0.0,
+    max_jerk: NDArray[np.float64] | None = None,
 ) -> tuple[PvtProgram, list[NDArray[np.int64]]]:
     """``program`` with each axis's records from ``first[i]`` on replaced by ``back.motion``'s ramp from
     ``join_ms[i]`` to the end of one of ``original``'s records after the ramp (that record's own position
     and velocity, ``back.delay_ms`` later), then ``original``'s records from there on, unchanged; validated.
-    ``offset_ms``: the program time of ``back.motion``'s time 0 (a resumed motion's program begins later)."""
+    ``offset_ms``: the program time of ``back.motion``'s time 0 (a resumed motion's program begins later);
+    ``max_jerk``: the first join and spacing whose records hold ``WINDOW_JERK_RATIO`` of it (else the first that
+    validates)."""
     times, jumps = back.motion.acceleration_jumps()
     amax = np.asarray(limits.acceleration, dtype=float)
     big = np.any(np.abs(jumps) > JUMP_SHARE * amax, axis=1) if len(jumps) else np.zeros(0, dtype=bool)
@@ -441,13 +465,13 @@ def rejoined_program(
     shift = float(round(back.delay_ms + offset_ms))  # an original record's end, plan ms -> this program's ms
     rows: list[NDArray[np.int64]] = []
     axes = []
-    for a, k, jm, o in zip(program.axes, first, join_ms, original.axes, strict=True):
+    for i, (a, k, jm, o) in enumerate(zip(program.axes, first, join_ms, original.axes, strict=True)):
         recs = o.records[:-1] if not o.profile.fixed_period and o.records[-1, 2] == 0 else o.records
         ends = np.cumsum(recs[:, 2]).astype(float)
         fixed = o.profile.fixed_period
         least = max(back.s_ms, jm - shift + (0 if fixed else MIN_SEGMENT_MS))
         start = int(np.searchsorted(ends, least - 1e-9))  # the first original record ending after the ramp
-        made = None
+        made, held = None, False
         for m in range(start, min(start + JOIN_TRIES, len(recs))):
             end = float(ends[m]) + shift
             for spacing in SPACINGS if not fixed else SPACINGS[:1]:
@@ -459,10 +483,13 @@ def rejoined_program(
                 r[-1, :2] = recs[m, :2]
                 r = np.vstack((r, recs[m + 1 :], *([[[recs[-1, 0], 0, 0]]] if not fixed else [])))
                 axis = AxisProgram.of(a, np.concatenate((a.records[:k], r)))
-                if validate_program(PvtProgram(program.cell, (axis,)), sample_period_ms=None).ok:
-                    made = (r, axis)
-                    break
-            if made is not None:
+                fit = _fits(program.cell, axis, max_jerk, i, t0_ms)
+                if fit is not None:
+                    made = made or (r, axis)
+                    if fit:
+                        made, held = (r, axis), True
+                        break
+            if held:
                 break
         if made is None:
             raise ChangeError(f"{a.joint}: no join to the planned records validates")
@@ -476,8 +503,29 @@ def rejoined_program(
     return changed, rows
 
 
+# the speed a resume that cannot reach the planned speed before the motion's end re-times the rest to, of the
+# planned speed (``resume_from_rest``): at the planned speed itself a time-optimal program's records sit at
+# 0x60C5, where only the knot placement's integer repair finds records inside it (accelerations scale with its
+# square: 0.95 leaves 10 %)
+SHORT_RESUME_SCALE = 0.95
+
+
+def resume_from_rest(planned: Trajectory, paused: OnPathStop, limits: JointLimits) -> Trajectory:
+    """From rest where ``paused`` ended to the end of ``planned`` at ``SHORT_RESUME_SCALE`` of the planned speed,
+    the ramp at ``BRAKING_SHARE`` of the joint accelerations; time 0 = the resume: for the knot placement
+    (``build_program``) where the rest of the path is too short to reach the planned speed again."""
+    share = scaled_limits(limits, BRAKING_SHARE)
+    return override(planned, paused.trajectory, paused.trajectory.duration, SHORT_RESUME_SCALE, share)
+
+
 def resumed_program(
-    paused: PvtProgram, back: BackToPlan, original: PvtProgram, rest_ms: float, limits: JointLimits, grid_ms: int
+    paused: PvtProgram,
+    back: BackToPlan,
+    original: PvtProgram,
+    rest_ms: float,
+    limits: JointLimits,
+    grid_ms: int,
+    max_jerk: NDArray[np.float64] | None = None,
 ) -> PvtProgram:
     """The program that continues a paused motion at its planned timing: from where ``paused`` left the axes
     at rest (``back.motion``'s rest at program time ``rest_ms``), after a dwell of one grid step (every axis's
@@ -497,5 +545,5 @@ def resumed_program(
         first.append(len(head))
         joins.append(float(head[:, 2].sum()))
     start = PvtProgram(paused.cell, tuple(axes), dict(paused.metadata))
-    program, _ = rejoined_program(start, first, joins, dwell, back, original, limits, dwell - rest_ms)
+    program, _ = rejoined_program(start, first, joins, dwell, back, original, limits, dwell - rest_ms, max_jerk)
     return program

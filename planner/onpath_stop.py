@@ -10,6 +10,7 @@ records are sampled from it as from any plan. Pure: numbers in, numbers out.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -217,7 +218,7 @@ def resume(motion: Trajectory, paused: OnPathStop, limits: JointLimits) -> Traje
 # --- jerk-limited braking (a motion planned with a jerk limit) -----------------------------------------------
 SCURVE_STEP_S = 1e-4  # the S-curve's integration step (its end found between two steps)
 WINDOW_S = 0.01  # the span a drive's window jerk is judged over (planner.knots.window_jerk)
-REST_SD = 1e-9  # a path velocity this small is rest (a braking ends at s' = 0 to rounding)
+REST_SD = 1e-6  # a path velocity this small is rest (a braking ends at s' = 0 to rounding; the plan's s' = 1)
 
 
 def _scurve(v0: float, a0: float, decel: float, jerk: float) -> tuple[NDArray[np.float64], ...]:
@@ -314,40 +315,34 @@ def jerk_braking_rates(
 
 # --- jerk-limited changes of speed (override and resume of a motion planned with a jerk limit) ----------------
 def _speed_change(v0: float, a0: float, v1: float, accel: float, jerk: float) -> tuple[NDArray[np.float64], ...]:
-    """Path velocity from ``v0`` (s'' ``a0``) to ``v1`` with s'' ramped at ``jerk`` towards +-``accel`` and back to 0
-    as s' reaches ``v1``: (t, s - s0, s', s'') at every integration step, the last at ``v1``."""
-    dt = SCURVE_STEP_S
+    """Path velocity from ``v0`` (s'' ``a0``) to ``v1``: s'' ramped at ``jerk`` to at most ``accel`` (towards
+    ``v1``), held, and ramped back to 0 as s' reaches ``v1``, the phases' lengths solved exactly (so that the
+    change's length moves continuously with its rates: ``back_to_plan_on_grid`` bisects on them); (t, s - s0,
+    s', s'') every ``SCURVE_STEP_S`` and at the phases' ends, the last at ``v1``."""
     d = 1.0 if v1 >= v0 else -1.0
+    dv, b0 = d * (v1 - v0), d * a0  # in the direction of the change
+    if b0 > 0.0 and b0 * b0 / (2.0 * jerk) > dv:
+        raise PlanError(PlanResult.INFEASIBLE, "the path acceleration overshoots the new path speed")
+    peak = math.sqrt((2.0 * jerk * dv + b0 * b0) / 2.0)
+    hold = 0.0
+    if peak > accel:
+        peak = max(accel, b0)
+        hold = (dv - (peak * peak - b0 * b0) / (2.0 * jerk) - peak * peak / (2.0 * jerk)) / peak
+    if peak < b0 or hold < 0.0:
+        raise PlanError(PlanResult.INFEASIBLE, "the path acceleration is above the change's")
+    phases = ((peak - b0) / jerk, d * jerk), (hold, 0.0), (peak / jerk, -d * jerk)
     ts, ss, vs, acc = [0.0], [0.0], [v0], [a0]
-    s, v, a = 0.0, v0, a0
-    for k in range(1, int(10.0 / dt)):
-        left = d * (v1 - v)
-        if left <= 1e-9 * max(1.0, abs(v1)):
-            break
-        if d * a > 0.0 and left <= a * a / (2.0 * jerk) + 1e-12:
-            a_next = a - d * jerk * dt  # the ramp out: s'' back to 0 as s' reaches v1
-            if d * a_next < 0.0:
-                a_next = 0.0
-        else:
-            a_next = a + d * jerk * dt
-            if d * a_next > accel:
-                a_next = d * max(accel, d * a - jerk * dt)
-        v_next = v + 0.5 * (a + a_next) * dt
-        if d * (v_next - v1) >= 0.0:  # v1 between two steps
-            f = (v1 - v) / (v_next - v) if v_next != v else 1.0
-            s += 0.5 * (v + v1) * f * dt
-            ts.append((k - 1 + f) * dt)
-            ss.append(s)
-            vs.append(v1)
-            acc.append(0.0)
-            return np.asarray(ts), np.asarray(ss), np.asarray(vs), np.asarray(acc)
-        s += 0.5 * (v + v_next) * dt
-        v, a = v_next, a_next
-        ts.append(k * dt)
-        ss.append(s)
-        vs.append(v)
-        acc.append(a)
-    vs[-1] = v1  # within 1e-9 of it
+    t, s, v, a = 0.0, 0.0, v0, a0
+    for length, j in phases:
+        if length <= 0.0:
+            continue
+        tau = np.append(np.arange(SCURVE_STEP_S, length, SCURVE_STEP_S), length)
+        ts.extend(t + tau)
+        ss.extend(s + v * tau + a * tau**2 / 2.0 + j * tau**3 / 6.0)
+        vs.extend(v + a * tau + j * tau**2 / 2.0)
+        acc.extend(a + j * tau)
+        t, s, v, a = ts[-1], ss[-1], vs[-1], acc[-1]
+    vs[-1], acc[-1] = v1, 0.0  # to rounding
     return np.asarray(ts), np.asarray(ss), np.asarray(vs), np.asarray(acc)
 
 
@@ -366,7 +361,7 @@ def jerk_override(
     s0, sd0 = _s_at(running, t0), _sd_at(running, t0)
     i = int(np.clip(np.searchsorted(running.breakpoints, t0, side="right") - 1, 0, len(running.sdd) - 1))
     v1 = scale * float(planned.sd[0])
-    if sd0 < REST_SD:  # at rest (a braking's end, to rounding): from rest, whatever its last deceleration
+    if sd0 < REST_SD or t0 >= running.duration - 1e-9:  # at rest (a braking's end, to rounding): from rest
         sd0, a0 = 0.0, 0.0
     else:
         a0 = float(running.sdd[i])
@@ -417,17 +412,29 @@ def jerk_override_rates(
         raise PlanError(PlanResult.INFEASIBLE, "the path has no tangent where the change begins")
     accel = share * float(np.min(amax[moving] / qs[moving]))
     jerk = jerk_share * float(np.min(jmax[moving] / qs[moving]))
-    for _ in range(tries):
-        change = jerk_override(planned, running, t0, scale, accel, jerk)
+    v1 = scale * float(planned.sd[0])
+    last = (accel, jerk)
+    for k in range(tries):
+        try:
+            change = jerk_override(planned, running, t0, scale, accel, jerk)
+        except PlanError:
+            if k == 0:
+                raise
+            return last  # lowered until the change no longer fits the path: the last that did
+        last = (accel, jerk)
         t_ramp = float(change.time_at(np.array([_ramp_end(change)]))[0])
         part = _head(change, t_ramp)
         _, ra = part.limit_ratios(limits)
-        whole = joined(running, change)
-        rj = ramp_window_jerk_ratio(whole, t0, t0 + t_ramp, jmax)
-        if ra <= share and rj <= jerk_share:
+        # where the change ends near the plan's own acceleration (q''(s) s'^2), what the plan holds is the bound
+        _, ra_plan = Trajectory.from_path_velocities(
+            part.path, part.gridpoints, np.full(len(part.gridpoints), v1), part.joint_names
+        ).limit_ratios(limits)
+        allowed = max(share, min(ra_plan, 1.0))
+        rj = ramp_window_jerk_ratio(joined(running, change), t0, t0 + t_ramp, jmax)
+        if ra <= allowed and rj <= jerk_share:
             break
-        if ra > share:
-            accel *= 0.97 * share / ra
+        if ra > allowed:
+            accel *= 0.97 * allowed / ra
         if rj > jerk_share:
             jerk *= 0.97 * jerk_share / rj
     return accel, jerk

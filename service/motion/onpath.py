@@ -21,7 +21,8 @@ from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.axes.master.group.axis_group import AxisGroup
 from pvtflow.axes.master.group.outcome import Result
 from pvtflow.axes.master.splice import SpliceAt, SpliceRefusedError, record_grid_ms
-from pvtflow.planner.build import BuildError
+from pvtflow.planner.build import BuildError, build_program
+from pvtflow.planner.knots import KnotOptions
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.onpath_program import (
     JERK_SHARES,
@@ -37,6 +38,7 @@ from pvtflow.planner.onpath_program import (
     override_on_grid,
     records_jerk_ratio,
     rejoined_program,
+    resume_from_rest,
     resumed_program,
 )
 from pvtflow.planner.onpath_stop import OnPathStop, stopped_motion
@@ -239,19 +241,31 @@ class PathChanges:
                     jerk if jerk_share is not None else None,
                     jerk_share or JERK_SHARES[0],
                 )
-                program = resumed_program(path.program, back, path.original, rest * 1000.0, self.limits, grid_ms)
+                within = jerk if jerk_share is not None else None
+                program = resumed_program(
+                    path.program, back, path.original, rest * 1000.0, self.limits, grid_ms, within
+                )
                 self._hold_jerk(program, jerk if jerk_share is not None else None, 0.0)
                 break
             except _CHANGE_ERRORS as exc:
                 failed = exc
-        if program is None:
-            raise ApiError(
-                ErrorCode.PLAN_FAILED, f"the rest of the paused motion could not be planned: {failed}"
-            ) from None
+        if program is None:  # the rest of the path too short to reach the planned speed: placed as a plan
+            log.info("resume of %s from rest to its end as a plan: %s", paused.motion.motion_id, failed)
+            try:
+                rest_motion = resume_from_rest(path.planned, path.stop, self.limits)
+                opts = KnotOptions(dwell_ms=max(1, grid_ms))
+                axes = {a.joint: a for a in self.cell.ordered_axes()}  # what knot placement takes (hashable)
+                built = build_program(rest_motion, [axes[a.joint] for a in path.program.axes], self.cell.name, opts)
+                meta = {**path.program.metadata, **built.program.metadata}
+                program = PvtProgram(built.program.cell, built.program.axes, meta)
+            except _CHANGE_ERRORS as exc:
+                raise ApiError(
+                    ErrorCode.PLAN_FAILED, f"the rest of the paused motion could not be planned: {exc}"
+                ) from None
         program = PvtProgram(program.cell, program.axes, {**program.metadata, "resumes": paused.motion.motion_id})
         here = [int(a.records[-1, 0]) for a in path.program.axes]
         start = [int(a.records[0, 0]) for a in program.axes]
-        if here != start:
+        if any(abs(h - s) > 1 for h, s in zip(here, start, strict=True)):  # the same path point, rounded alike
             raise ApiError(
                 ErrorCode.PLAN_FAILED, f"the resumed motion would start at {start} qc, the axes are at {here}"
             )
@@ -300,7 +314,10 @@ class PathChanges:
                     max_jerk=jerk if jerk_share is not None else None,
                     jerk_share=jerk_share or JERK_SHARES[0],
                 )
-                new, rows = rejoined_program(program, at.first, at.join_ms, begin, back, path.original, self.limits)
+                within = jerk if jerk_share is not None else None
+                new, rows = rejoined_program(
+                    program, at.first, at.join_ms, begin, back, path.original, self.limits, max_jerk=within
+                )
                 self._hold_jerk(new, jerk if jerk_share is not None else None, begin)
             except _CHANGE_ERRORS as exc:
                 failed = exc
@@ -357,8 +374,11 @@ class PathChanges:
                             jerk_share or JERK_SHARES[0],
                         )
                         end_ms = float(np.round(whole.duration * 1000.0))
-                        new, rows = changed_program(program, at.first, at.join_ms, begin, whole, end_ms, self.limits)
-                        self._hold_jerk(new, jerk if jerk_share is not None else None, begin)
+                        within = jerk if jerk_share is not None else None
+                        new, rows = changed_program(
+                            program, at.first, at.join_ms, begin, whole, end_ms, self.limits, max_jerk=within
+                        )
+                        self._hold_jerk(new, within, begin)
                 except (ChangeError, PlanError) as exc:
                     failed = exc
                     continue
