@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from svc_helpers import wait_until
 from test_stop_then_move import assert_nothing_left, cell_file, move_again, plan, tour
 
@@ -32,6 +33,7 @@ from pvtflow.service.api import (
     parse_status,
     parse_stop,
 )
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 from pvtflow.service.motion import MotionService
 
 # the gantry's profiles: EPOS2 buffered PVT, CiA 402 linear IP, bufferless setpoint, Parker, and a mixed cell
@@ -395,3 +397,75 @@ def test_override_and_resume_of_a_jerk_limited_motion_hold_the_jerk_limit(tmp_pa
         assert_on_path(before, after, 0.0)
         assert [int(a.records[-1, 0]) for a in after.axes] == [int(a.records[-1, 0]) for a in before.axes]
         no_faults(svc)
+
+
+@pytest.mark.wall
+def test_path_stop_pause_resume_and_override_from_the_cyclic_process(tmp_path: Path) -> None:
+    """With ``bus.cyclic_process`` (the records sent by a process of its own, the drives in theirs, on the wall
+    clock) a change reaches that process's feeders: a path stop stays on the path, pause + resume reaches the
+    original end, an override runs to its end, nothing faults. Made in time or refused with the reason (a loaded
+    host), never half made: at least one change of each kind is made."""
+    source = CONFIG_DIR / "cells" / "gantry3.yaml"
+    data = yaml.safe_load(source.read_text())
+    for axis in data["axes"]:
+        axis.pop("homing", None)
+        axis.setdefault("simulation", {})["power_up_qc"] = 0  # not homed: the machine at its encoder's 0
+    data.pop("homing_order", None)
+    data.pop("requires_homing", None)
+    data["bus"].update(cyclic_process=True, sync_period_ms=10, heartbeat_timeout_factor=10)
+    if "urdf" in data.get("robot", {}):
+        data["robot"]["urdf"] = str((source.parent / data["robot"]["urdf"]).resolve())
+    copy = tmp_path / "gantry3.yaml"
+    copy.write_text(yaml.safe_dump(data, sort_keys=False))
+    cell = load_cell_config(copy)
+    with MotionService(cell, journal_dir=tmp_path / "journal", clock=Clock.WALL, drives_process=True) as svc:
+        assert svc.drives.bus is not None and svc.drives.bus.sync.cyclic is not None
+        made = {"stop": 0, "pause": 0, "override": 0}
+
+        def again(svc: MotionService) -> None:  # the drives are in a process of their own: their outcome says
+            out = svc.execute(parse_execute({"plan_id": plan(svc, tour(svc.cell, [0.45])), "wait": True}))
+            assert out["outcome"]["result"] == "finished", out["outcome"]
+
+        for _ in range(2):
+            before = start(svc, 0.3)
+            reply = svc.stop(parse_stop({}))
+            assert reply["outcome"]["result"] == "stopped", reply["outcome"]
+            if reply["mode"] == "path":
+                made["stop"] += 1
+                assert_on_path(before, ran(svc), reply["braking"]["begun_ms"])
+                # the drives ran the braking the cyclic process sent: they stand where it ends, short of the end
+                stood = [int(a.records[-1, 0]) for a in ran(svc).axes]
+                assert svc.drives.positions_qc(refresh=True) == stood
+                assert stood != [int(a.records[-1, 0]) for a in before.axes]
+            else:
+                assert reply["fallback"], reply
+            again(svc)
+
+            before = start(svc, 0.3)
+            paused = svc.pause(parse_pause({}))
+            if paused["paused"]:
+                made["pause"] += 1
+                assert svc.drives.positions_qc(refresh=True) == [int(a.records[-1, 0]) for a in ran(svc).axes]
+                out = svc.resume(parse_resume({"wait": True}))
+                assert out["outcome"]["result"] == "finished", out["outcome"]
+                after = ran(svc)
+                assert_on_path(before, after, 0.0)
+                ends = [int(a.records[-1, 0]) for a in before.axes]
+                assert [int(a.records[-1, 0]) for a in after.axes] == ends
+                assert svc.drives.positions_qc(refresh=True) == ends
+            again(svc)
+
+            before = start(svc, 0.3)
+            try:
+                over = svc.override(parse_override({"scale": 0.5}))
+            except ApiError as refused:
+                assert refused.code == "not_allowed", refused
+            else:
+                made["override"] += 1
+                assert over["scale"] == pytest.approx(0.5, abs=0.02)
+            motion = svc.motion
+            assert motion is not None and motion.done.wait(60.0)
+            assert motion.outcome is not None and motion.outcome["result"] == "finished", motion.outcome
+            assert_on_path(before, ran(svc), 0.0)
+            again(svc)
+        assert all(made.values()), made
