@@ -46,6 +46,7 @@ from pvtflow.axes.canbus.clock import Clock  # noqa: E402
 from pvtflow.axes.drive.program import PvtProgram, split_long_records  # noqa: E402
 from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk_profile  # noqa: E402
 from pvtflow.service.api import (  # noqa: E402
+    ApiError,
     parse_execute,
     parse_home,
     parse_override,
@@ -270,6 +271,7 @@ def transitions(runs: int) -> None:
         "cell                  | override 0.3: request->speed p50/p99 ms, |v| |a| % | pause+resume: extra ms "
         "p50/max (plan ms), braking |v| |a| %, ramp ms p50/max, ramp |v| |a| %, own records from | resumes"
     )
+    refused: list[str] = []
     for name in CELLS:
         svc = open_cell(name)
         to_speed, extra, ramp, plans = [], [], [], []
@@ -280,15 +282,20 @@ def transitions(runs: int) -> None:
             for _ in range(runs):
                 for fraction in FRACTIONS:
                     running(svc, fraction)
-                    over = svc.override(parse_override({"scale": 0.3}))
-                    to_speed.append(over["from_ms"] - over["requested_ms"])
-                    after = PvtProgram(svc.cell.name, svc.group.programs)
-                    v, a = ratios(after, over["from_ms"], over["from_ms"] + 300.0)
-                    orv, ora = max(orv, v), max(ora, a)
+                    try:
+                        over = svc.override(parse_override({"scale": 0.3}))
+                    except ApiError as exc:  # too close to the end: refused, nothing changed
+                        refused.append(f"{name} at {fraction:g}: {exc}")
+                    else:
+                        to_speed.append(over["from_ms"] - over["requested_ms"])
+                        after = PvtProgram(svc.cell.name, svc.group.programs)
+                        v, a = ratios(after, over["from_ms"], over["from_ms"] + 300.0)
+                        orv, ora = max(orv, v), max(ora, a)
                     svc.motion.done.wait(60.0)
                     before = running(svc, fraction)
                     paused = svc.pause(parse_pause({}))
                     if not paused["paused"]:
+                        refused.append(f"{name} at {fraction:g}: pause ran to the motion's end")
                         continue  # ran to its end (the path ends before a braking would) or quick
                     b = paused["braking"]
                     v, a = ratios(PvtProgram(svc.cell.name, svc.group.programs), b["begun_ms"], b["ended_ms"])
@@ -314,6 +321,8 @@ def transitions(runs: int) -> None:
             )
         finally:
             svc.close()
+    for why in refused:
+        print("not made:", why)
     print("command: PYTHONPATH=. python3 bench/onpath_service.py --part transitions")
 
 

@@ -186,6 +186,8 @@ def tail_records(
         rows = np.column_stack((p, v, np.full(n, int(period))))
         return np.vstack([rows, [[p[-1], 0, int(period)]]]).astype(np.int64)  # held at rest one more period
     knots = _knot_times(join_ms, t0_ms, end_ms, jumps_ms, spacing)
+    if len(knots) < 2 or np.any(np.diff(knots) <= 0):
+        raise ChangeError(f"{axis.joint}: the change ends before its next record could")
     q, qd = _states(motion, knots[1:] - offset_ms, j)
     p = np.rint(sc.position_to_qc(q)).astype(np.int64)
     v = np.rint(sc.velocity_to_drive(qd)).astype(np.int64)
