@@ -44,6 +44,7 @@ sys.path.insert(0, str(ROOT))
 
 from pvtflow.axes.canbus.clock import Clock  # noqa: E402
 from pvtflow.axes.drive.program import PvtProgram, split_long_records  # noqa: E402
+from pvtflow.axes.master.group import axis_group  # noqa: E402
 from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk_profile  # noqa: E402
 from pvtflow.service.api import (  # noqa: E402
     ApiError,
@@ -390,7 +391,7 @@ def main() -> None:
 
 def stops(args: argparse.Namespace) -> None:
     computed: list[float] = []
-    real_splice = onpath.splice_run
+    real_splice = axis_group.splice_run  # the change's computation: what AxisGroup.splice runs, lock held
 
     def timed(*a, **k):
         t = time.perf_counter()
@@ -399,7 +400,7 @@ def stops(args: argparse.Namespace) -> None:
         finally:
             computed.append((time.perf_counter() - t) * 1000.0)
 
-    onpath.splice_run = timed
+    axis_group.splice_run = timed
     why: list[str] = []
     print(
         "cell                  | path mm | quick mm | begun p50/p99 ms | rest p50/p99 ms | |v| |a| % "

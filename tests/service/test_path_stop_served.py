@@ -468,4 +468,6 @@ def test_path_stop_pause_resume_and_override_from_the_cyclic_process(tmp_path: P
             assert motion.outcome is not None and motion.outcome["result"] == "finished", motion.outcome
             assert_on_path(before, ran(svc), 0.0)
             again(svc)
+            if all(made.values()):
+                break  # a second round only where a loaded host refused one in the first
         assert all(made.values()), made
