@@ -23,6 +23,8 @@ of its duration.
   after it applies) and pause + resume (the total motion time against the uninterrupted plan, the braking's and the
   resume ramp's peaks, the ramp's length before every axis runs the program's own records again).
 - ``--part jerk-changes``: the jerk-limited plan's override 0.5 -> 1.0 and pause + resume: the records' window jerk.
+- ``--part cyclic``: gantry3 with ``bus.cyclic_process`` on the wall clock (SYNC 3 and 10 ms, the drives in their
+  own process): path stop, override, pause + resume through the cyclic process's feeders.
 
 Run:  PYTHONPATH=. python3 bench/onpath_service.py [--runs N] [--part all|stops|back|jerk|transitions|jerk-changes]
 (the planner alone: bench/onpath_stop.py)
@@ -372,15 +374,86 @@ def jerk_changes() -> None:
     print("command: PYTHONPATH=. python3 bench/onpath_service.py --part jerk-changes")
 
 
+def cyclic_cell(period_ms: float):
+    """gantry3 with ``bus.cyclic_process`` (the drives served in a process of their own), not homed."""
+    import yaml
+
+    source = CONFIG_DIR / "cells" / "gantry3.yaml"
+    data = yaml.safe_load(source.read_text())
+    for axis in data["axes"]:
+        axis.pop("homing", None)
+        axis.setdefault("simulation", {})["power_up_qc"] = 0
+    data.pop("homing_order", None)
+    data.pop("requires_homing", None)
+    data["bus"].update(cyclic_process=True, sync_period_ms=period_ms)
+    if "urdf" in data.get("robot", {}):
+        data["robot"]["urdf"] = str((source.parent / data["robot"]["urdf"]).resolve())
+    copy = Path(tempfile.mkdtemp()) / "gantry3.yaml"
+    copy.write_text(yaml.safe_dump(data, sort_keys=False))
+    return load_cell_config(copy)
+
+
+def cyclic(runs: int) -> None:
+    """gantry3 (EPOS2) with ``bus.cyclic_process`` on the wall clock, the drives in their own process: path stop
+    at 20-60 %, override 0.3 at 30 %, pause + resume at 40 %: request -> braking begun / rest and -> new speed
+    (program ms on the drives' clock), what was made or refused, the resumed motion's end against the plan."""
+    from pvtflow.axes.canbus.clock import Clock as _Clock
+
+    for period in (3.0, 10.0):  # the cell's own period, and the tests' 10 ms
+        cell = cyclic_cell(period)
+        svc = MotionService(cell, journal_dir=tempfile.mkdtemp(), clock=_Clock.WALL, drives_process=True).open()
+        begun, rest, over, extra, quick = [], [], [], [], []
+        try:
+            for _ in range(runs):
+                for fraction in (0.2, 0.3, 0.4, 0.5, 0.6):
+                    running(svc, fraction)
+                    reply = svc.stop(parse_stop({}))
+                    b = reply["braking"]
+                    if b is None:
+                        quick.append(f"stop at {fraction:g}: {reply['fallback'][:100]}")
+                    elif b["begun_ms"] is not None:
+                        begun.append(b["begun_ms"] - b["requested_ms"])
+                        rest.append(b["ended_ms"] - b["requested_ms"])
+                running(svc, 0.3)
+                try:
+                    o = svc.override(parse_override({"scale": 0.3}))
+                    over.append(o["from_ms"] - o["requested_ms"])
+                except ApiError as exc:
+                    quick.append(f"override: {exc}")
+                svc.motion.done.wait(60.0)
+                before = running(svc, 0.4)
+                paused = svc.pause(parse_pause({}))
+                if paused["paused"]:
+                    out = svc.resume(parse_resume({"wait": True}))
+                    if out["outcome"]["result"] == "finished":
+                        extra.append(paused["braking"]["ended_ms"] + out["duration_ms"] - before.duration_ms)
+                else:
+                    quick.append(f"pause: {paused['fallback']}")
+        finally:
+            svc.close()
+        print(
+            f"SYNC {period:g} ms | stop begun p50/max {pct(begun, 50):.1f} / {max(begun, default=float('nan')):.1f} "
+            f"| rest p50/max {pct(rest, 50):.1f} / {max(rest, default=float('nan')):.1f} "
+            f"| override from {pct(over, 50):.1f} | pause+resume extra {pct(extra, 50):.0f} ms "
+            f"| {len(begun)} path stops, {len(quick)} not made (look-ahead {cell.bus.max_lookahead_ms:g} ms)"
+        )
+        for why in quick:
+            print("  not made:", why)
+    print("command: PYTHONPATH=. python3 bench/onpath_service.py --part cyclic")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=1, help="passes over the stop fractions (default 1)")
-    ap.add_argument("--part", choices=("all", "stops", "back", "jerk", "transitions", "jerk-changes"), default="all")
+    parts = ("all", "stops", "back", "jerk", "transitions", "jerk-changes", "cyclic")
+    ap.add_argument("--part", choices=parts, default="all")
     args = ap.parse_args()
     if args.part in ("all", "transitions"):
         transitions(args.runs)
     if args.part in ("all", "jerk-changes"):
         jerk_changes()
+    if args.part in ("all", "cyclic"):
+        cyclic(args.runs)
     if args.part in ("all", "back"):
         back_to_plan()
     if args.part in ("all", "jerk"):
