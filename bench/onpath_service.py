@@ -19,7 +19,14 @@ of its duration.
   the drives' 10-ms-window jerk of the braking's records against the limit (the knot placement holds 1.2 x), the
   braking's time, and the same with the braking not jerk-limited (as before: the greedy deceleration).
 
-Run:  PYTHONPATH=. python3 bench/onpath_service.py [--runs N] [--part all|stops|back|jerk]
+- ``--part transitions``: per cell at 20-80 %, override 0.3 (request -> new speed, |v| |a| peaks in the 300 ms
+  after it applies) and pause + resume (the total motion time against the uninterrupted plan, the braking's and the
+  resume ramp's peaks, the ramp's length before every axis runs the program's own records again).
+- ``--part jerk-changes``: the jerk-limited plan's override 0.5 -> 1.0 and pause + resume: the records' window jerk.
+- ``--part cyclic``: gantry3 with ``bus.cyclic_process`` on the wall clock (SYNC 3 and 10 ms, the drives in their
+  own process): path stop, override, pause + resume through the cyclic process's feeders.
+
+Run:  PYTHONPATH=. python3 bench/onpath_service.py [--runs N] [--part all|stops|back|jerk|transitions|jerk-changes]
 (the planner alone: bench/onpath_stop.py)
 """
 
@@ -39,8 +46,10 @@ sys.path.insert(0, str(ROOT))
 
 from pvtflow.axes.canbus.clock import Clock  # noqa: E402
 from pvtflow.axes.drive.program import PvtProgram, split_long_records  # noqa: E402
+from pvtflow.axes.master.group import axis_group  # noqa: E402
 from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk_profile  # noqa: E402
 from pvtflow.service.api import (  # noqa: E402
+    ApiError,
     parse_execute,
     parse_home,
     parse_override,
@@ -243,11 +252,208 @@ def jerk_limited_stops(runs: int) -> None:
             print(f"{'':26s} | quick at {why}")
 
 
+def own_tail(after, before, half: int) -> tuple[int, float]:
+    """(how many records at the end of ``after`` are the program's own, as its feeder held them, at least over
+    the axes; the time before them, ms, at most): where a resumed or re-joined motion runs the planned records."""
+    n_min, lead = 10**9, 0.0
+    for a, b in zip(after.axes, before.axes, strict=True):
+        fed = split_long_records(b, half)
+        n = 0
+        while n < min(len(fed), len(a.records)) and (a.records[-1 - n] == fed[-1 - n]).all():
+            n += 1
+        n_min = min(n_min, n)
+        lead = max(lead, float(np.sum(a.records[: len(a.records) - n, 2])))
+    return n_min, lead
+
+
+def transitions(runs: int) -> None:
+    """Per cell, at 20-80 % of the move: ``override 0.3`` (request -> new speed, the peaks in the 300 ms after it
+    applies), and ``pause`` + ``resume`` (the total motion time against the uninterrupted plan, the braking's
+    and the resume ramp's peaks, how long the ramp takes before the planned records run again)."""
+    print(
+        "cell                  | override 0.3: request->speed p50/p99 ms, |v| |a| % | pause+resume: extra ms "
+        "p50/max (plan ms), braking |v| |a| %, ramp ms p50/max, ramp |v| |a| %, own records from | resumes"
+    )
+    refused: list[str] = []
+    for name in CELLS:
+        svc = open_cell(name)
+        to_speed, extra, ramp, plans = [], [], [], []
+        orv = ora = brv = bra = rrv = rra = 0.0
+        done, own_min = 0, 10**9
+        half = max(1, int(svc.cell.bus.max_lookahead_ms / 2))
+        try:
+            for _ in range(runs):
+                for fraction in FRACTIONS:
+                    running(svc, fraction)
+                    try:
+                        over = svc.override(parse_override({"scale": 0.3}))
+                    except ApiError as exc:  # too close to the end: refused, nothing changed
+                        refused.append(f"{name} at {fraction:g}: {exc}")
+                    else:
+                        to_speed.append(over["from_ms"] - over["requested_ms"])
+                        after = PvtProgram(svc.cell.name, svc.group.programs)
+                        v, a = ratios(after, over["from_ms"], over["from_ms"] + 300.0)
+                        orv, ora = max(orv, v), max(ora, a)
+                    svc.motion.done.wait(60.0)
+                    before = running(svc, fraction)
+                    paused = svc.pause(parse_pause({}))
+                    if not paused["paused"]:
+                        refused.append(f"{name} at {fraction:g}: pause ran to the motion's end")
+                        continue  # ran to its end (the path ends before a braking would) or quick
+                    b = paused["braking"]
+                    v, a = ratios(PvtProgram(svc.cell.name, svc.group.programs), b["begun_ms"], b["ended_ms"])
+                    brv, bra = max(brv, v), max(bra, a)
+                    resumed = svc.resume(parse_resume({"wait": True}))
+                    after = PvtProgram(svc.cell.name, svc.group.programs)
+                    n, lead = own_tail(after, before, half)
+                    own_min = min(own_min, n)
+                    ramp.append(lead)
+                    v, a = ratios(after, 0.0, lead)
+                    rrv, rra = max(rrv, v), max(rra, a)
+                    extra.append(b["ended_ms"] + resumed["duration_ms"] - before.duration_ms)
+                    plans.append(before.duration_ms)
+                    done += resumed["outcome"]["result"] == "finished"
+            faults = sum(len(d.faults) for d in svc.sim)
+            lookahead = svc.cell.bus.max_lookahead_ms
+            print(
+                f"{name:21s} | {pct(to_speed, 50):6.1f} / {pct(to_speed, 99):6.1f}, {100 * orv:4.1f} {100 * ora:4.1f} "
+                f"| {pct(extra, 50):6.1f} / {max(extra):6.1f} ({int(np.median(plans))}), "
+                f"{100 * brv:4.1f} {100 * bra:4.1f}, "
+                f"{pct(ramp, 50):6.1f} / {max(ramp):6.1f}, {100 * rrv:4.1f} {100 * rra:4.1f}, >= {own_min} records "
+                f"| {done}/{len(extra)} finished, {faults} drive faults (look-ahead {lookahead:g} ms)"
+            )
+        finally:
+            svc.close()
+    for why in refused:
+        print("not made:", why)
+    print("command: PYTHONPATH=. python3 bench/onpath_service.py --part transitions")
+
+
+def jerk_changes() -> None:
+    """A jerk-limited plan on gantry3: override 0.5 then 1.0, pause + resume at 20-80 %: the records' window jerk."""
+    print("gantry3, jerk-limited plan | override 0.5 / 1.0 window jerk / limit max | resume: window jerk max, extra ms")
+    svc = open_cell("gantry3")
+    try:
+        limits = svc.cell.joint_limits()
+        max_jerk = [float(j) for j in 10.0 * np.asarray(limits.acceleration)]
+
+        def go(fraction: float) -> PvtProgram:
+            for to in (0.15, 0.85):
+                req = {"waypoints": [at(svc.cell, to)], "start": "current", "max_jerk": max_jerk}
+                plan = svc.plan(parse_plan(req, svc.cell.joint_names, limits))
+                svc.execute(parse_execute({"plan_id": plan["plan_id"], "wait": to == 0.15}))
+            before = PvtProgram(svc.cell.name, svc.group.programs)
+            wait_ms(svc, fraction * before.duration_ms)
+            return before
+
+        slow_j, back_j, res_j, extra, scales = [], [], [], [], []
+        for fraction in FRACTIONS[:4]:
+            go(fraction)
+            slow = svc.override(parse_override({"scale": 0.5}))
+            slow_j.append(jerk_ratio(PvtProgram(svc.cell.name, svc.group.programs), max_jerk, slow["from_ms"]))
+            wait_ms(svc, slow["from_ms"] + 150.0)
+            back = svc.override(parse_override({"scale": 1.0}))
+            scales.append(back["scale"])
+            back_j.append(jerk_ratio(PvtProgram(svc.cell.name, svc.group.programs), max_jerk, back["from_ms"]))
+            svc.motion.done.wait(60.0)
+        for fraction in FRACTIONS:
+            before = go(fraction)
+            paused = svc.pause(parse_pause({}))
+            if not paused["paused"]:
+                continue
+            out = svc.resume(parse_resume({"wait": True}))
+            res_j.append(jerk_ratio(PvtProgram(svc.cell.name, svc.group.programs), max_jerk, 0.0))
+            extra.append(paused["braking"]["ended_ms"] + out["duration_ms"] - before.duration_ms)
+        faults = sum(len(d.faults) for d in svc.sim)
+        print(
+            f"{'':26s} | {max(slow_j):.2f} / {max(back_j):.2f} (1.0 applied as {min(scales):g}) "
+            f"| {max(res_j):.2f}, {pct(extra, 50):.0f} / {max(extra):.0f} ({len(res_j)} resumes, {faults} faults)"
+        )
+    finally:
+        svc.close()
+    print("command: PYTHONPATH=. python3 bench/onpath_service.py --part jerk-changes")
+
+
+def cyclic_cell(period_ms: float):
+    """gantry3 with ``bus.cyclic_process`` (the drives served in a process of their own), not homed."""
+    import yaml
+
+    source = CONFIG_DIR / "cells" / "gantry3.yaml"
+    data = yaml.safe_load(source.read_text())
+    for axis in data["axes"]:
+        axis.pop("homing", None)
+        axis.setdefault("simulation", {})["power_up_qc"] = 0
+    data.pop("homing_order", None)
+    data.pop("requires_homing", None)
+    data["bus"].update(cyclic_process=True, sync_period_ms=period_ms)
+    if "urdf" in data.get("robot", {}):
+        data["robot"]["urdf"] = str((source.parent / data["robot"]["urdf"]).resolve())
+    copy = Path(tempfile.mkdtemp()) / "gantry3.yaml"
+    copy.write_text(yaml.safe_dump(data, sort_keys=False))
+    return load_cell_config(copy)
+
+
+def cyclic(runs: int) -> None:
+    """gantry3 (EPOS2) with ``bus.cyclic_process`` on the wall clock, the drives in their own process: path stop
+    at 20-60 %, override 0.3 at 30 %, pause + resume at 40 %: request -> braking begun / rest and -> new speed
+    (program ms on the drives' clock), what was made or refused, the resumed motion's end against the plan."""
+    from pvtflow.axes.canbus.clock import Clock as _Clock
+
+    for period in (3.0, 10.0):  # the cell's own period, and the tests' 10 ms
+        cell = cyclic_cell(period)
+        svc = MotionService(cell, journal_dir=tempfile.mkdtemp(), clock=_Clock.WALL, drives_process=True).open()
+        begun, rest, over, extra, quick = [], [], [], [], []
+        try:
+            for _ in range(runs):
+                for fraction in (0.2, 0.3, 0.4, 0.5, 0.6):
+                    running(svc, fraction)
+                    reply = svc.stop(parse_stop({}))
+                    b = reply["braking"]
+                    if b is None:
+                        quick.append(f"stop at {fraction:g}: {reply['fallback'][:100]}")
+                    elif b["begun_ms"] is not None:
+                        begun.append(b["begun_ms"] - b["requested_ms"])
+                        rest.append(b["ended_ms"] - b["requested_ms"])
+                running(svc, 0.3)
+                try:
+                    o = svc.override(parse_override({"scale": 0.3}))
+                    over.append(o["from_ms"] - o["requested_ms"])
+                except ApiError as exc:
+                    quick.append(f"override: {exc}")
+                svc.motion.done.wait(60.0)
+                before = running(svc, 0.4)
+                paused = svc.pause(parse_pause({}))
+                if paused["paused"]:
+                    out = svc.resume(parse_resume({"wait": True}))
+                    if out["outcome"]["result"] == "finished":
+                        extra.append(paused["braking"]["ended_ms"] + out["duration_ms"] - before.duration_ms)
+                else:
+                    quick.append(f"pause: {paused['fallback']}")
+        finally:
+            svc.close()
+        print(
+            f"SYNC {period:g} ms | stop begun p50/max {pct(begun, 50):.1f} / {max(begun, default=float('nan')):.1f} "
+            f"| rest p50/max {pct(rest, 50):.1f} / {max(rest, default=float('nan')):.1f} "
+            f"| override from {pct(over, 50):.1f} | pause+resume extra {pct(extra, 50):.0f} ms "
+            f"| {len(begun)} path stops, {len(quick)} not made (look-ahead {cell.bus.max_lookahead_ms:g} ms)"
+        )
+        for why in quick:
+            print("  not made:", why)
+    print("command: PYTHONPATH=. python3 bench/onpath_service.py --part cyclic")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=1, help="passes over the stop fractions (default 1)")
-    ap.add_argument("--part", choices=("all", "stops", "back", "jerk"), default="all")
+    parts = ("all", "stops", "back", "jerk", "transitions", "jerk-changes", "cyclic")
+    ap.add_argument("--part", choices=parts, default="all")
     args = ap.parse_args()
+    if args.part in ("all", "transitions"):
+        transitions(args.runs)
+    if args.part in ("all", "jerk-changes"):
+        jerk_changes()
+    if args.part in ("all", "cyclic"):
+        cyclic(args.runs)
     if args.part in ("all", "back"):
         back_to_plan()
     if args.part in ("all", "jerk"):
@@ -258,7 +464,7 @@ def main() -> None:
 
 def stops(args: argparse.Namespace) -> None:
     computed: list[float] = []
-    real_splice = onpath.splice_run
+    real_splice = axis_group.splice_run  # the change's computation: what AxisGroup.splice runs, lock held
 
     def timed(*a, **k):
         t = time.perf_counter()
@@ -267,7 +473,7 @@ def stops(args: argparse.Namespace) -> None:
         finally:
             computed.append((time.perf_counter() - t) * 1000.0)
 
-    onpath.splice_run = timed
+    axis_group.splice_run = timed
     why: list[str] = []
     print(
         "cell                  | path mm | quick mm | begun p50/p99 ms | rest p50/p99 ms | |v| |a| % "

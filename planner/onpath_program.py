@@ -35,9 +35,12 @@ from pvtflow.planner.onpath_stop import (
     brake_on_path,
     jerk_braking,
     jerk_braking_rates,
+    jerk_override,
+    jerk_override_rates,
+    joined,
     override,
 )
-from pvtflow.planner.path import PlanError, PlanResult
+from pvtflow.planner.path import PlanError
 from pvtflow.planner.trajectory import Trajectory
 from pvtflow.planner.validate import validate_program
 
@@ -51,10 +54,6 @@ SPACINGS = ((MIN_SEGMENT_MS, MAX_SEGMENT_MS), (5, 8), (12, 24), (4, 6))
 # the share of the joint accelerations the braking plans with: room for the records' rounding (the knot
 # placement's repair of integers is not run on a change: it must be made within the look-ahead)
 BRAKING_SHARE = 0.9
-# the speed a resume re-times the rest to, of its planned speed: at the planned speed itself a time-optimal
-# program's records sit at 0x60C5, where only the knot placement's integer repair finds records inside it
-# (accelerations scale with its square: 0.95 leaves 10 %)
-MAX_SCALE = 0.95
 JUMP_SHARE = 0.02  # an acceleration jump of this share of 0x60C5 gets a knot of its own
 
 
@@ -187,6 +186,8 @@ def tail_records(
         rows = np.column_stack((p, v, np.full(n, int(period))))
         return np.vstack([rows, [[p[-1], 0, int(period)]]]).astype(np.int64)  # held at rest one more period
     knots = _knot_times(join_ms, t0_ms, end_ms, jumps_ms, spacing)
+    if len(knots) < 2 or np.any(np.diff(knots) <= 0):
+        raise ChangeError(f"{axis.joint}: the change ends before its next record could")
     q, qd = _states(motion, knots[1:] - offset_ms, j)
     p = np.rint(sc.position_to_qc(q)).astype(np.int64)
     v = np.rint(sc.velocity_to_drive(qd)).astype(np.int64)
@@ -254,6 +255,15 @@ def _knot_times(
     return np.asarray(knots, dtype=np.int64)
 
 
+def _fits(cell: str, axis: AxisProgram, max_jerk: NDArray[np.float64] | None, i: int, from_ms: float) -> bool | None:
+    """None: the axis's records do not validate; True: they do and hold ``WINDOW_JERK_RATIO`` of its planned jerk
+    limit from ``from_ms`` on (or it has none); False: they validate only."""
+    one = PvtProgram(cell, (axis,))
+    if not validate_program(one, sample_period_ms=None).ok:
+        return None
+    return max_jerk is None or records_jerk_ratio(one, max_jerk[i : i + 1], from_ms) <= WINDOW_JERK_RATIO
+
+
 def changed_program(
     program: PvtProgram,
     first: Sequence[int],
@@ -263,22 +273,30 @@ def changed_program(
     end_ms: float,
     limits: JointLimits,
     offset_ms: float = 0.0,
+    max_jerk: NDArray[np.float64] | None = None,
 ) -> tuple[PvtProgram, list[NDArray[np.int64]]]:
     """``program`` with each axis's records from ``first[i]`` on replaced by ``motion``'s (its time 0 at
     program time ``offset_ms``) from ``join_ms[i]`` to ``end_ms``, validated; (the new program, the new
-    records per axis). ChangeError where the drives would not take it."""
+    records per axis). ChangeError where the drives would not take it. ``max_jerk``: an axis's knot spacing is
+    the first whose records also hold ``WINDOW_JERK_RATIO`` of it (else the first that validates)."""
     times, jumps = motion.acceleration_jumps()
     amax = np.asarray(limits.acceleration, dtype=float)
     big = np.any(np.abs(jumps) > JUMP_SHARE * amax, axis=1) if len(jumps) else np.zeros(0, dtype=bool)
     jumps_ms = np.asarray(times, dtype=float)[big] * 1000.0 + offset_ms
     rows: list[NDArray[np.int64]] = []
     axes = []
-    for a, k, jm in zip(program.axes, first, join_ms, strict=True):
+    for i, (a, k, jm) in enumerate(zip(program.axes, first, join_ms, strict=True)):
+        taken = None
         for spacing in SPACINGS if not a.profile.fixed_period else SPACINGS[:1]:
             r = tail_records(a, jm, t0_ms, motion, end_ms, jumps_ms, offset_ms, spacing)
             axis = AxisProgram.of(a, np.concatenate((a.records[:k], r)))
-            if validate_program(PvtProgram(program.cell, (axis,)), sample_period_ms=None).ok:
-                break
+            fit = _fits(program.cell, axis, max_jerk, i, t0_ms)
+            if fit is not None:
+                taken = taken or (r, axis)
+                if fit:
+                    taken = (r, axis)
+                    break
+        r, axis = taken or (r, axis)
         rows.append(r)
         axes.append(axis)
     changed = PvtProgram(program.cell, tuple(axes), {**program.metadata, "duration_ms": round(end_ms)})
@@ -288,39 +306,45 @@ def changed_program(
     return changed, rows
 
 
-def joined(running: Trajectory, change: Trajectory) -> Trajectory:
-    """``running`` until where ``change`` begins on the path, then ``change``: one trajectory, the motion as
-    the drives run it after an override."""
-    s0 = float(change.gridpoints[0])
-    before = running.gridpoints < s0 - 1e-12
-    grid = np.concatenate([running.gridpoints[before], change.gridpoints])
-    sd = np.concatenate([running.sd[before], change.sd])
-    if sd[-1] != 0.0 and grid[-1] < running.gridpoints[-1]:
-        raise PlanError(PlanResult.INFEASIBLE, "the change does not reach the motion's end")
-    return Trajectory.from_path_velocities(running.path, grid, sd, running.joint_names)
-
-
 def on_grid(duration_s: float, grid_s: float) -> float:
     """The grid time at or after ``duration_s``."""
     return math.ceil(duration_s / grid_s - 1e-9) * grid_s
 
 
 def override_on_grid(
-    planned: Trajectory, running: Trajectory, t0_s: float, scale: float, limits: JointLimits, grid_s: float
+    planned: Trajectory,
+    running: Trajectory,
+    t0_s: float,
+    scale: float,
+    limits: JointLimits,
+    grid_s: float,
+    max_jerk: NDArray[np.float64] | None = None,
+    jerk_share: float = JERK_SHARES[0],
 ) -> tuple[Trajectory, float]:
     """``override`` at ``scale`` joined to ``running`` at ``t0_s``, with the scale lowered by at most 3 % so
     that the motion ends on the grid (no cubic straddles its last deceleration); (the motion, the scale).
     The ramps to it take ``BRAKING_SHARE`` of the joint accelerations: the records' rounding needs that room
-    (scale 1.0 itself: ``back_to_plan_on_grid``, which joins the planned records)."""
-    limits = scaled_limits(limits, BRAKING_SHARE)
-    whole = joined(running, override(planned, running, t0_s, scale, limits, rest_at_end=False))
+    (scale 1.0 itself: ``back_to_plan_on_grid``, which joins the planned records). ``max_jerk`` (a motion
+    planned with a jerk limit): the ramp is the S-curve of ``jerk_override`` at ``jerk_share`` of it."""
+    if max_jerk is None:
+        limits = scaled_limits(limits, BRAKING_SHARE)
+
+        def retimed(k: float) -> Trajectory:
+            return joined(running, override(planned, running, t0_s, k, limits, rest_at_end=False))
+    else:
+        accel, jerk = jerk_override_rates(planned, running, t0_s, scale, limits, max_jerk, BRAKING_SHARE, jerk_share)
+
+        def retimed(k: float) -> Trajectory:
+            return joined(running, jerk_override(planned, running, t0_s, k, accel, jerk))
+
+    whole = retimed(scale)
     target = on_grid(whole.duration, grid_s)
     if target - whole.duration < 2e-6:
         return whole, scale
     lo, hi, best = max(0.05, scale * 0.97), scale, None
     for _ in range(30):
         mid = 0.5 * (lo + hi)
-        trial = joined(running, override(planned, running, t0_s, mid, limits, rest_at_end=False))
+        trial = retimed(mid)
         if trial.duration > target:
             lo = mid
         else:
@@ -332,37 +356,6 @@ def override_on_grid(
     return best
 
 
-def resume_motion(planned: Trajectory, paused: OnPathStop, limits: JointLimits) -> Trajectory:
-    """From rest where ``paused`` ended to the end of ``planned`` (``onpath_stop.resume``) at ``MAX_SCALE``
-    of the planned speed, the ramp at ``BRAKING_SHARE`` of the joint accelerations; time 0 = the resume."""
-    share = scaled_limits(limits, BRAKING_SHARE)
-    return override(planned, paused.trajectory, paused.trajectory.duration, MAX_SCALE, share)
-
-
-def resume_program(paused: PvtProgram, rest: Trajectory, limits: JointLimits, grid_ms: int) -> PvtProgram:
-    """The program that continues a paused motion: from where ``paused`` left the axes at rest, ``rest``
-    (``resume_motion``, time 0 = the resume) slowed by the least that ends it on the grid, after a dwell
-    of one grid step (every axis's first motion on the same SYNC)."""
-    end_s = on_grid(rest.duration, grid_ms / 1000.0)
-    motion = rest.slowed(end_s / rest.duration) if end_s > rest.duration else rest
-    offset = float(grid_ms)
-    axes = []
-    first, joins = [], []
-    for a in paused.axes:
-        p = int(a.records[-1, 0])
-        if a.profile.fixed_period:
-            period = int(a.records[0, 2])
-            head = np.array([[p, 0, period]] * max(1, round(offset / period)), dtype=np.int64)
-        else:
-            head = np.array([[p, 0, int(offset)]], dtype=np.int64)
-        axes.append(AxisProgram.of(a, head))
-        first.append(len(head))
-        joins.append(float(head[:, 2].sum()))
-    start = PvtProgram(paused.cell, tuple(axes), dict(paused.metadata))
-    program, _ = changed_program(start, first, joins, offset, motion, offset + end_s * 1000.0, limits, offset)
-    return program
-
-
 # --- back to the planned timing (override 1.0) ------------------------------------------------------------
 # the original records a change joins, tried in turn per axis: the first that ends after the ramp, and later ones
 JOIN_TRIES = 4
@@ -371,11 +364,12 @@ JOIN_TRIES = 4
 @dataclass(frozen=True)
 class BackToPlan:
     """The running motion brought back to the planned timing: ``motion`` (program time) is the planned one
-    delayed by ``delay_ms`` (whole ms, on the grid) from path position ``s_ms`` (program ms of the plan) on."""
+    delayed by ``delay_ms`` (on the grid, plus the phase asked for) from path position ``s_ms`` (program ms of
+    the plan) on."""
 
     motion: Trajectory
     s_ms: float
-    delay_ms: int
+    delay_ms: float
 
 
 def _delay(whole: Trajectory, planned: Trajectory, s0: float) -> tuple[float, float] | None:
@@ -403,21 +397,35 @@ def back_to_plan_on_grid(
     limits: JointLimits,
     grid_s: float,
     share: float = BRAKING_SHARE,
+    phase_s: float = 0.0,
+    max_jerk: NDArray[np.float64] | None = None,
+    jerk_share: float = JERK_SHARES[0],
 ) -> BackToPlan:
     """``override`` at 1.0 from ``t0_s``: the largest path acceleration (``share`` of the joints', lowered by
     bisection) up to the planned speed, reached where the motion is late on the plan by a whole number of grid
-    steps, so that from there the planned records run unchanged, that much later."""
+    steps (plus ``phase_s``: a resume's rest, which need not be a grid time), so that from there the planned
+    records run unchanged, that much later. ``max_jerk`` (a motion planned with a jerk limit): the ramp is the
+    S-curve of ``jerk_override`` at ``jerk_share`` of it, its acceleration and jerk lowered together."""
     s0 = _s_at(running, t0_s)
+    if max_jerk is not None:
+        accel, jerk = jerk_override_rates(planned, running, t0_s, 1.0, limits, max_jerk, share, jerk_share)
 
-    def at(share: float) -> tuple[Trajectory, tuple[float, float] | None]:
-        whole = joined(running, override(planned, running, t0_s, 1.0, scaled_limits(limits, share), tries=1))
+    def at(f: float) -> tuple[Trajectory, tuple[float, float] | None]:
+        if max_jerk is None:
+            change = override(planned, running, t0_s, 1.0, scaled_limits(limits, f), tries=1)
+        else:
+            try:
+                change = jerk_override(planned, running, t0_s, 1.0, accel * f / share, jerk * f / share)
+            except PlanError:  # too slow to reach the planned speed before the end
+                return running, None
+        whole = joined(running, change)
         return whole, _delay(whole, planned, s0)
 
     hi = share
     whole, d = at(hi)
     if d is None:
         raise ChangeError("the motion does not reach its planned speed again before its end")
-    target = on_grid(d[1], grid_s)
+    target = on_grid(d[1] - phase_s, grid_s) + phase_s
     if target - d[1] >= 2e-6:
         lo, best = hi * 0.3, None
         for _ in range(40):
@@ -432,7 +440,7 @@ def back_to_plan_on_grid(
         if best is None or target - best[1][1] >= 2e-6:
             raise ChangeError("no ramp back to the planned speed ends on the SYNC grid")
         whole, d = best
-    return BackToPlan(whole, d[0] * 1000.0, round(target * 1000.0))
+    return BackToPlan(whole, d[0] * 1000.0, float(round(target * 1000.0)) if phase_s == 0.0 else target * 1000.0)
 
 
 def rejoined_program(
@@ -443,38 +451,47 @@ def rejoined_program(
     back: BackToPlan,
     original: PvtProgram,
     limits: JointLimits,
+    offset_ms: float = 0.0,
+    max_jerk: NDArray[np.float64] | None = None,
 ) -> tuple[PvtProgram, list[NDArray[np.int64]]]:
     """``program`` with each axis's records from ``first[i]`` on replaced by ``back.motion``'s ramp from
     ``join_ms[i]`` to the end of one of ``original``'s records after the ramp (that record's own position
-    and velocity, ``back.delay_ms`` later), then ``original``'s records from there on, unchanged; validated."""
+    and velocity, ``back.delay_ms`` later), then ``original``'s records from there on, unchanged; validated.
+    ``offset_ms``: the program time of ``back.motion``'s time 0 (a resumed motion's program begins later);
+    ``max_jerk``: the first join and spacing whose records hold ``WINDOW_JERK_RATIO`` of it (else the first that
+    validates)."""
     times, jumps = back.motion.acceleration_jumps()
     amax = np.asarray(limits.acceleration, dtype=float)
     big = np.any(np.abs(jumps) > JUMP_SHARE * amax, axis=1) if len(jumps) else np.zeros(0, dtype=bool)
-    jumps_ms = np.asarray(times, dtype=float)[big] * 1000.0
+    jumps_ms = np.asarray(times, dtype=float)[big] * 1000.0 + offset_ms
+    shift = float(round(back.delay_ms + offset_ms))  # an original record's end, plan ms -> this program's ms
     rows: list[NDArray[np.int64]] = []
     axes = []
-    for a, k, jm, o in zip(program.axes, first, join_ms, original.axes, strict=True):
+    for i, (a, k, jm, o) in enumerate(zip(program.axes, first, join_ms, original.axes, strict=True)):
         recs = o.records[:-1] if not o.profile.fixed_period and o.records[-1, 2] == 0 else o.records
         ends = np.cumsum(recs[:, 2]).astype(float)
         fixed = o.profile.fixed_period
-        least = max(back.s_ms, jm - back.delay_ms + (0 if fixed else MIN_SEGMENT_MS))
+        least = max(back.s_ms, jm - shift + (0 if fixed else MIN_SEGMENT_MS))
         start = int(np.searchsorted(ends, least - 1e-9))  # the first original record ending after the ramp
-        made = None
+        made, held = None, False
         for m in range(start, min(start + JOIN_TRIES, len(recs))):
-            end = float(ends[m]) + back.delay_ms
+            end = float(ends[m]) + shift
             for spacing in SPACINGS if not fixed else SPACINGS[:1]:
                 try:
-                    r = tail_records(a, jm, t0_ms, back.motion, end, jumps_ms[jumps_ms < end], 0.0, spacing)
+                    r = tail_records(a, jm, t0_ms, back.motion, end, jumps_ms[jumps_ms < end], offset_ms, spacing)
                 except ChangeError:
                     continue
                 r = r[:-1].copy()  # without the rest it would end with
                 r[-1, :2] = recs[m, :2]
                 r = np.vstack((r, recs[m + 1 :], *([[[recs[-1, 0], 0, 0]]] if not fixed else [])))
                 axis = AxisProgram.of(a, np.concatenate((a.records[:k], r)))
-                if validate_program(PvtProgram(program.cell, (axis,)), sample_period_ms=None).ok:
-                    made = (r, axis)
-                    break
-            if made is not None:
+                fit = _fits(program.cell, axis, max_jerk, i, t0_ms)
+                if fit is not None:
+                    made = made or (r, axis)
+                    if fit:
+                        made, held = (r, axis), True
+                        break
+            if held:
                 break
         if made is None:
             raise ChangeError(f"{a.joint}: no join to the planned records validates")
@@ -486,3 +503,49 @@ def rejoined_program(
     if not report.ok:
         raise ChangeError("the changed records do not validate: " + "; ".join(f.format() for f in report.errors[:3]))
     return changed, rows
+
+
+# the speed a resume that cannot reach the planned speed before the motion's end re-times the rest to, of the
+# planned speed (``resume_from_rest``): at the planned speed itself a time-optimal program's records sit at
+# 0x60C5, where only the knot placement's integer repair finds records inside it (accelerations scale with its
+# square: 0.95 leaves 10 %)
+SHORT_RESUME_SCALE = 0.95
+
+
+def resume_from_rest(planned: Trajectory, paused: OnPathStop, limits: JointLimits) -> Trajectory:
+    """From rest where ``paused`` ended to the end of ``planned`` at ``SHORT_RESUME_SCALE`` of the planned speed,
+    the ramp at ``BRAKING_SHARE`` of the joint accelerations; time 0 = the resume: for the knot placement
+    (``build_program``) where the rest of the path is too short to reach the planned speed again."""
+    share = scaled_limits(limits, BRAKING_SHARE)
+    return override(planned, paused.trajectory, paused.trajectory.duration, SHORT_RESUME_SCALE, share)
+
+
+def resumed_program(
+    paused: PvtProgram,
+    back: BackToPlan,
+    original: PvtProgram,
+    rest_ms: float,
+    limits: JointLimits,
+    grid_ms: int,
+    max_jerk: NDArray[np.float64] | None = None,
+) -> PvtProgram:
+    """The program that continues a paused motion at its planned timing: from where ``paused`` left the axes
+    at rest (``back.motion``'s rest at program time ``rest_ms``), after a dwell of one grid step (every axis's
+    first motion on the same SYNC), ``back``'s ramp up to the planned speed (``back_to_plan_on_grid`` from the
+    rest, its delay on the grid plus the rest's phase on it), then ``original``'s own records to the motion's
+    end. Its time 0 is the resume; ChangeError where it does not validate."""
+    dwell = float(grid_ms)
+    axes, first, joins = [], [], []
+    for a in paused.axes:
+        p = int(a.records[-1, 0])
+        if a.profile.fixed_period:
+            period = int(a.records[0, 2])
+            head = np.array([[p, 0, period]] * max(1, round(dwell / period)), dtype=np.int64)
+        else:
+            head = np.array([[p, 0, int(dwell)]], dtype=np.int64)
+        axes.append(AxisProgram.of(a, head))
+        first.append(len(head))
+        joins.append(float(head[:, 2].sum()))
+    start = PvtProgram(paused.cell, tuple(axes), dict(paused.metadata))
+    program, _ = rejoined_program(start, first, joins, dwell, back, original, limits, dwell - rest_ms, max_jerk)
+    return program

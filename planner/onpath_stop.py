@@ -10,6 +10,7 @@ records are sampled from it as from any plan. Pure: numbers in, numbers out.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -217,6 +218,7 @@ def resume(motion: Trajectory, paused: OnPathStop, limits: JointLimits) -> Traje
 # --- jerk-limited braking (a motion planned with a jerk limit) -----------------------------------------------
 SCURVE_STEP_S = 1e-4  # the S-curve's integration step (its end found between two steps)
 WINDOW_S = 0.01  # the span a drive's window jerk is judged over (planner.knots.window_jerk)
+REST_SD = 1e-6  # a path velocity this small is rest (a braking ends at s' = 0 to rounding; the plan's s' = 1)
 
 
 def _scurve(v0: float, a0: float, decel: float, jerk: float) -> tuple[NDArray[np.float64], ...]:
@@ -309,3 +311,155 @@ def jerk_braking_rates(
         if rj > js:
             jerk *= 0.97 * js / rj
     return decel, jerk
+
+
+# --- jerk-limited changes of speed (override and resume of a motion planned with a jerk limit) ----------------
+def _speed_change(v0: float, a0: float, v1: float, accel: float, jerk: float) -> tuple[NDArray[np.float64], ...]:
+    """Path velocity from ``v0`` (s'' ``a0``) to ``v1``: s'' ramped at ``jerk`` to at most ``accel`` (towards
+    ``v1``), held, and ramped back to 0 as s' reaches ``v1``, the phases' lengths solved exactly (so that the
+    change's length moves continuously with its rates: ``back_to_plan_on_grid`` bisects on them); (t, s - s0,
+    s', s'') every ``SCURVE_STEP_S`` and at the phases' ends, the last at ``v1``."""
+    d = 1.0 if v1 >= v0 else -1.0
+    dv, b0 = d * (v1 - v0), d * a0  # in the direction of the change
+    if b0 > 0.0 and b0 * b0 / (2.0 * jerk) > dv:
+        raise PlanError(PlanResult.INFEASIBLE, "the path acceleration overshoots the new path speed")
+    peak = math.sqrt((2.0 * jerk * dv + b0 * b0) / 2.0)
+    hold = 0.0
+    if peak > accel:
+        peak = max(accel, b0)
+        hold = (dv - (peak * peak - b0 * b0) / (2.0 * jerk) - peak * peak / (2.0 * jerk)) / peak
+    if peak < b0 or hold < 0.0:
+        raise PlanError(PlanResult.INFEASIBLE, "the path acceleration is above the change's")
+    phases = ((peak - b0) / jerk, d * jerk), (hold, 0.0), (peak / jerk, -d * jerk)
+    ts, ss, vs, acc = [0.0], [0.0], [v0], [a0]
+    t, s, v, a = 0.0, 0.0, v0, a0
+    for length, j in phases:
+        if length <= 0.0:
+            continue
+        tau = np.append(np.arange(SCURVE_STEP_S, length, SCURVE_STEP_S), length)
+        ts.extend(t + tau)
+        ss.extend(s + v * tau + a * tau**2 / 2.0 + j * tau**3 / 6.0)
+        vs.extend(v + a * tau + j * tau**2 / 2.0)
+        acc.extend(a + j * tau)
+        t, s, v, a = ts[-1], ss[-1], vs[-1], acc[-1]
+    vs[-1], acc[-1] = v1, 0.0  # to rounding
+    return np.asarray(ts), np.asarray(ss), np.asarray(vs), np.asarray(acc)
+
+
+def jerk_override(
+    planned: Trajectory, running: Trajectory, t0: float, scale: float, accel: float, jerk: float
+) -> Trajectory:
+    """The rest of ``running`` from ``t0`` re-timed to ``scale`` of ``planned``'s path speed with the change of
+    speed an S-curve in path time (``_speed_change``: path acceleration ``accel`` 1/s, path jerk ``jerk`` 1/s^2),
+    then on it to the path's end. For a program's path (``planner.program_motion``: the plan's s' = 1, so the
+    scaled plan is one path speed); time 0 of the result is ``t0``."""
+    if not 0.05 <= scale <= 1.0:
+        raise PlanError(PlanResult.INVALID_INPUT, f"scale must be in [0.05, 1.0], got {scale!r}", field="scale")
+    if np.ptp(planned.sd) > 1e-9:
+        raise PlanError(PlanResult.INVALID_INPUT, "a jerk-limited change of speed needs a plan at one path speed")
+    t0 = float(np.clip(t0, 0.0, running.duration))
+    s0, sd0 = _s_at(running, t0), _sd_at(running, t0)
+    i = int(np.clip(np.searchsorted(running.breakpoints, t0, side="right") - 1, 0, len(running.sdd) - 1))
+    v1 = scale * float(planned.sd[0])
+    if sd0 < REST_SD or t0 >= running.duration - 1e-9:  # at rest (a braking's end, to rounding): from rest
+        sd0, a0 = 0.0, 0.0
+    else:
+        a0 = float(running.sdd[i])
+    _, s, v, _ = _speed_change(sd0, a0, v1, accel, jerk)
+    keep = np.concatenate(([True], np.diff(s) > 1e-12))
+    grid, sd = s0 + s[keep], v[keep]
+    sd[-1] = v1
+    end = float(planned.gridpoints[-1])
+    if grid[-1] >= end:
+        raise PlanError(PlanResult.INFEASIBLE, "the path ends before the jerk-limited change of speed would")
+    later = planned.gridpoints[planned.gridpoints > grid[-1] + 1e-9]
+    grid = np.concatenate((grid, later))
+    sd = np.concatenate((sd, np.full(len(later), v1)))
+    return Trajectory.from_path_velocities(running.path, grid, sd, running.joint_names)
+
+
+def ramp_window_jerk_ratio(whole: Trajectory, t0: float, t1: float, max_jerk: NDArray[np.float64]) -> float:
+    """The 10-ms-window joint jerk / ``max_jerk`` at most of ``whole`` from ``t0`` to ``t1`` (a change of speed),
+    with the window before and after it, at every ms."""
+    t = np.clip(np.arange(t0 - WINDOW_S, t1 + WINDOW_S + 1e-9, 1e-3), 0.0, whole.duration)
+    acc = whole.acceleration(t)
+    window = np.abs(acc[10:] - acc[:-10]) / WINDOW_S
+    return float(np.max(window / np.asarray(max_jerk, dtype=float)[None, :])) if len(window) else 0.0
+
+
+def jerk_override_rates(
+    planned: Trajectory,
+    running: Trajectory,
+    t0: float,
+    scale: float,
+    limits: JointLimits,
+    max_jerk: ArrayLike,
+    share: float = 0.9,
+    jerk_share: float = 0.9,
+    tries: int = 8,
+) -> tuple[float, float]:
+    """(path acceleration, path jerk) of the jerk-limited change of speed (``jerk_override``) from ``t0`` to
+    ``scale``: both lowered until the joints hold ``share`` of 0x60C5 and ``jerk_share`` of ``max_jerk`` (the
+    10-ms window) during the change (after it the scaled plan holds what the plan held). The last try is
+    returned as is: the caller checks the records."""
+    jmax = np.asarray(max_jerk, dtype=float)
+    t0 = float(np.clip(t0, 0.0, running.duration))
+    s0 = _s_at(running, t0)
+    qs = np.abs(running.path(s0, 1))
+    amax = np.asarray(limits.acceleration, dtype=float)
+    moving = qs > 1e-12
+    if not np.any(moving):
+        raise PlanError(PlanResult.INFEASIBLE, "the path has no tangent where the change begins")
+    accel = share * float(np.min(amax[moving] / qs[moving]))
+    jerk = jerk_share * float(np.min(jmax[moving] / qs[moving]))
+    v1 = scale * float(planned.sd[0])
+    last = (accel, jerk)
+    for k in range(tries):
+        try:
+            change = jerk_override(planned, running, t0, scale, accel, jerk)
+        except PlanError:
+            if k == 0:
+                raise
+            return last  # lowered until the change no longer fits the path: the last that did
+        last = (accel, jerk)
+        t_ramp = float(change.time_at(np.array([_ramp_end(change)]))[0])
+        part = _head(change, t_ramp)
+        _, ra = part.limit_ratios(limits)
+        # where the change ends near the plan's own acceleration (q''(s) s'^2), what the plan holds is the bound
+        _, ra_plan = Trajectory.from_path_velocities(
+            part.path, part.gridpoints, np.full(len(part.gridpoints), v1), part.joint_names
+        ).limit_ratios(limits)
+        allowed = max(share, min(ra_plan, 1.0))
+        rj = ramp_window_jerk_ratio(joined(running, change), t0, t0 + t_ramp, jmax)
+        if ra <= allowed and rj <= jerk_share:
+            break
+        if ra > allowed:
+            accel *= 0.97 * allowed / ra
+        if rj > jerk_share:
+            jerk *= 0.97 * jerk_share / rj
+    return accel, jerk
+
+
+def _ramp_end(change: Trajectory) -> float:
+    """Where a ``jerk_override`` change reaches its path speed (s)."""
+    off = np.nonzero(np.abs(change.sd - change.sd[-1]) > 1e-12)[0]
+    return float(change.gridpoints[min(int(off[-1]) + 1, len(change.gridpoints) - 1)]) if len(off) else 0.0
+
+
+def _head(change: Trajectory, t: float) -> Trajectory:
+    """``change`` up to its gridpoint at or after time ``t``."""
+    n = int(np.searchsorted(change.breakpoints, t - 1e-12)) + 1
+    n = max(2, min(n, len(change.gridpoints)))
+    return Trajectory.from_path_velocities(change.path, change.gridpoints[:n], change.sd[:n], change.joint_names)
+
+
+def joined(running: Trajectory, change: Trajectory) -> Trajectory:
+    """``running`` until where ``change`` begins on the path, then ``change``: one trajectory, the motion as
+    the drives run it after an override."""
+    s0 = float(change.gridpoints[0])
+    before = running.gridpoints < s0 - 1e-12
+    grid = np.concatenate([running.gridpoints[before], change.gridpoints])
+    sd = np.concatenate([running.sd[before], change.sd])
+    if sd[-1] != 0.0 and grid[-1] < running.gridpoints[-1]:
+        raise PlanError(PlanResult.INFEASIBLE, "the change does not reach the motion's end")
+    return Trajectory.from_path_velocities(running.path, grid, sd, running.joint_names)

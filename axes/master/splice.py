@@ -11,7 +11,9 @@ switches its source there. The feeders keep what the drives hold within the cell
 
 The group's lock is held while the new records are made: in lockstep the drives' clock waits for them; on
 the wall clock the drives run on, and a change whose records come too late for a drive is refused
-(``SpliceLateError``) before anything is replaced, the caller then stops the motion the quick way.
+(``SpliceLateError``) before anything is replaced, the caller then stops the motion the quick way. With
+``bus.cyclic_process`` the records go out from the cyclic process: it holds its feeders at t0 and says where
+they stand (``CyclicProcess.hold``), and gets the new records as the master's mirrors of its feeders do.
 """
 
 from __future__ import annotations
@@ -24,8 +26,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pvtflow.axes.drive.program import AxisProgram
+from pvtflow.axes.master.bus.sync import CyclicPath
 from pvtflow.axes.master.group.feeder import BufferFeeder, Feeder, SetpointFeeder
 from pvtflow.axes.master.group.run import Run
+
+# how long a change waits for the cyclic process to say where its feeders stand (``CyclicProcess.hold``): a pipe
+# message each way and a few arithmetic steps; on a host so loaded that it takes longer the change is refused
+HOLD_ANSWER_S = 0.05
 
 
 class SpliceRefusedError(Exception):
@@ -84,14 +91,15 @@ def splice_run(run: Run, make: Make, lead_ms: float | None = None) -> SpliceAt:
     period = float(bus.config.sync_period_ms)
     lead = float(bus.config.max_lookahead_ms if lead_ms is None else lead_ms)
     lock = run.parts.lock
+    cyclic = sync.cyclic if sync.cyclic_producing else None  # the records go out from the cyclic process
     with sync.lock:
         lock.acquire()
         try:
             feeders = run.feeders
             if not run.live or run.ending is not None or run.start_sync is None:
                 raise SpliceRefusedError("no motion runs")
-            if sync.cyclic_producing or any(f.mirrored for f in feeders):
-                raise SpliceRefusedError("the records are sent by the cyclic process: its feeders cannot be changed")
+            if cyclic is None and any(f.mirrored for f in feeders):
+                raise SpliceRefusedError("the records are sent by a cyclic process that no longer runs")
             programs = tuple(
                 AxisProgram.of(p, f.records[: len(f.records) - 1] if isinstance(f, BufferFeeder) else f.records)
                 for p, f in zip(run.programs, feeders, strict=True)
@@ -100,11 +108,21 @@ def splice_run(run: Run, make: Make, lead_ms: float | None = None) -> SpliceAt:
             grid = record_grid_ms(programs, period)
             held = max(_held_end_ms(f) for f in feeders)
             t0 = math.ceil(max(held, now + lead) / grid - 1e-9) * grid
-            for f in feeders:
-                f.hold_to(float(t0))
         except BaseException:
             lock.release()
             raise
+    try:
+        if cyclic is not None:  # its feeders hold from t0 (later where it has sent more), the mirrors follow
+            try:
+                t0, _ = cyclic.hold(float(t0), grid, HOLD_ANSWER_S)
+            except TimeoutError as exc:
+                cyclic.splice(None)
+                raise SpliceRefusedError(str(exc)) from None
+        for f in feeders:
+            f.hold_to(float(t0))
+    except BaseException:
+        lock.release()
+        raise
     try:
         first: list[int] = []
         joins: list[float] = []
@@ -120,14 +138,14 @@ def splice_run(run: Run, make: Make, lead_ms: float | None = None) -> SpliceAt:
         try:
             rows = list(make(at))
         except BaseException:
-            for f in feeders:
-                f.hold_to(None)
+            _release(feeders, cyclic)
             raise
         late = _too_late(run, at, feeders, period)
         if late is not None:
-            for f in feeders:
-                f.hold_to(None)
+            _release(feeders, cyclic)
             raise SpliceLateError(late)
+        if cyclic is not None:
+            cyclic.splice(list(zip(at.first, rows, strict=True)))
         for i, (f, r) in enumerate(zip(feeders, rows, strict=True)):
             f.replace_from(at.first[i], r)
             kept = programs[i].records[: at.first[i]]
@@ -135,6 +153,14 @@ def splice_run(run: Run, make: Make, lead_ms: float | None = None) -> SpliceAt:
         return at
     finally:
         lock.release()
+
+
+def _release(feeders: Sequence[Feeder], cyclic: CyclicPath | None) -> None:
+    """The change was not made: the held records go out as they were."""
+    for f in feeders:
+        f.hold_to(None)
+    if cyclic is not None:
+        cyclic.splice(None)
 
 
 def _too_late(run: Run, at: SpliceAt, feeders: Sequence[Feeder], period: float) -> str | None:

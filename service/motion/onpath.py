@@ -38,7 +38,8 @@ from pvtflow.planner.onpath_program import (
     override_on_grid,
     records_jerk_ratio,
     rejoined_program,
-    resume_motion,
+    resume_from_rest,
+    resumed_program,
 )
 from pvtflow.planner.onpath_stop import OnPathStop, stopped_motion
 from pvtflow.planner.path import PlanError
@@ -160,7 +161,7 @@ class PathChanges:
                     break
             else:
                 raise ChangeError(f"the braking's records reach {ratio:.2f} x the planned jerk limit (window jerk)")
-            made.update(stop=stop, whole=whole, program=new)
+            made.update(stop=stop, whole=whole, program=new, original=program)
             group.ends_as((Result.STOPPED, reason))  # the stop's outcome as the quick one's: the reason
             return rows
 
@@ -182,6 +183,8 @@ class PathChanges:
             return None, str(exc)
         stop: OnPathStop = made["stop"]
         path.running, path.program, path.stop = made["whole"], made["program"], stop
+        if path.original is None:
+            path.original = made["original"]  # the records as started: what a resume joins
         begun = stop.t_start * 1000.0
         ended = on_grid(stop.t_end, grid_ms / 1000.0) * 1000.0  # the SYNC from which every axis stands
         return {
@@ -210,25 +213,56 @@ class PathChanges:
 
     # --- resume ------------------------------------------------------------------------------------
     def resume_program(self) -> tuple[Paused, PvtProgram]:
-        """The program that continues the paused motion from where its axes stand, at rest, to its end:
-        ``onpath_stop.resume`` placed into records like any plan (``build_program``). NOT_ALLOWED when
+        """The program that continues the paused motion from where its axes stand, at rest, at its planned
+        timing: a ramp up to the planned speed (``RAMP_SHARES`` of 0x60C5 tried in turn), then the motion's own
+        records to its end (``onpath_program.resumed_program``, validated as every program). NOT_ALLOWED when
         nothing is paused."""
         paused = self.paused
         if paused is None or self.board.state != CellState.PAUSED:
             raise ApiError(ErrorCode.NOT_ALLOWED, "nothing is paused on this cell: resume continues a paused motion")
         path = paused.path
-        assert path.stop is not None
-        try:
-            rest = resume_motion(path.planned, path.stop, self.limits)
-            opts = KnotOptions(dwell_ms=max(1, record_grid_ms(path.program.axes, self.cell.bus.sync_period_ms)))
-            axes = {a.joint: a for a in self.cell.ordered_axes()}  # what knot placement takes (hashable)
-            built = build_program(rest, [axes[a.joint] for a in path.program.axes], self.cell.name, opts)
-        except _CHANGE_ERRORS as exc:
-            raise ApiError(
-                ErrorCode.PLAN_FAILED, f"the rest of the paused motion could not be planned: {exc}"
-            ) from None
-        meta = {**built.program.metadata, "resumes": paused.motion.motion_id}
-        program = PvtProgram(built.program.cell, built.program.axes, meta)
+        assert path.stop is not None and path.original is not None
+        grid_ms = record_grid_ms(path.program.axes, self.cell.bus.sync_period_ms)
+        rest = path.stop.t_end  # the braking's rest, near a grid time: the records hold it to the next one
+        phase = rest - on_grid(rest, grid_ms / 1000.0)  # an original record's end lands on the resumed grid
+        jerk = planned_jerk(path.program.metadata)
+        failed: Exception | None = None
+        program = None
+        for share, jerk_share in self._ramps(jerk):
+            try:
+                back = back_to_plan_on_grid(
+                    path.planned,
+                    path.running,
+                    rest,
+                    self.limits,
+                    grid_ms / 1000.0,
+                    share,
+                    phase,
+                    jerk if jerk_share is not None else None,
+                    jerk_share or JERK_SHARES[0],
+                )
+                within = jerk if jerk_share is not None else None
+                program = resumed_program(
+                    path.program, back, path.original, rest * 1000.0, self.limits, grid_ms, within
+                )
+                self._hold_jerk(program, jerk if jerk_share is not None else None, 0.0)
+                break
+            except _CHANGE_ERRORS as exc:
+                failed = exc
+        if program is None:  # the rest of the path too short to reach the planned speed: placed as a plan
+            log.info("resume of %s from rest to its end as a plan: %s", paused.motion.motion_id, failed)
+            try:
+                rest_motion = resume_from_rest(path.planned, path.stop, self.limits)
+                opts = KnotOptions(dwell_ms=max(1, grid_ms))
+                axes = {a.joint: a for a in self.cell.ordered_axes()}  # what knot placement takes (hashable)
+                built = build_program(rest_motion, [axes[a.joint] for a in path.program.axes], self.cell.name, opts)
+                meta = {**path.program.metadata, **built.program.metadata}
+                program = PvtProgram(built.program.cell, built.program.axes, meta)
+            except _CHANGE_ERRORS as exc:
+                raise ApiError(
+                    ErrorCode.PLAN_FAILED, f"the rest of the paused motion could not be planned: {exc}"
+                ) from None
+        program = PvtProgram(program.cell, program.axes, {**program.metadata, "resumes": paused.motion.motion_id})
         here = [int(a.records[-1, 0]) for a in path.program.axes]
         start = [int(a.records[0, 0]) for a in program.axes]
         if any(abs(h - s) > 1 for h, s in zip(here, start, strict=True)):  # the same path point, rounded alike
@@ -238,20 +272,54 @@ class PathChanges:
         return paused, program
 
     # --- override ----------------------------------------------------------------------------------
+    @staticmethod
+    def _ramps(jerk: NDArray[np.float64] | None, plain: bool = True) -> list[tuple[float, float | None]]:
+        """The ramps up to a speed tried in turn: (share of 0x60C5, share of the jerk limit or None). A motion
+        planned with a jerk limit tries S-curves within it first, then (``plain``; the records' jerk above
+        1.2 x the limit in each) the acceleration-limited ramps as a motion without one."""
+        ramps: list[tuple[float, float | None]] = [(share, None) for share in RAMP_SHARES] if plain else []
+        if jerk is None:
+            return ramps
+        return [(share, js) for share in RAMP_SHARES for js in JERK_SHARES] + ramps
+
+    @staticmethod
+    def _hold_jerk(program: PvtProgram, jerk: NDArray[np.float64] | None, from_ms: float) -> None:
+        """ChangeError where the records' window jerk from ``from_ms`` on passes 1.2 x ``jerk`` (None: no check)."""
+        if jerk is not None and (ratio := records_jerk_ratio(program, jerk, from_ms)) > WINDOW_JERK_RATIO:
+            raise ChangeError(f"the change's records reach {ratio:.2f} x the planned jerk limit (window jerk)")
+
     def _back_to_plan(
-        self, path: MotionPath, program: PvtProgram, at: SpliceAt, begin: float, grid_ms: int
+        self,
+        path: MotionPath,
+        program: PvtProgram,
+        at: SpliceAt,
+        begin: float,
+        grid_ms: int,
+        jerk: NDArray[np.float64] | None,
     ) -> tuple[PvtProgram, list[NDArray[np.int64]], Trajectory]:
         """The records that bring the motion back to its planned timing (the original records joined after a
-        ramp, ``RAMP_SHARES`` tried in turn); ChangeError where none validates."""
+        ramp, ``_ramps`` tried in turn: within ``jerk`` only, or None: limited by acceleration); ChangeError
+        where none validates."""
         assert path.original is not None
         failed: Exception | None = None
-        for share in RAMP_SHARES:
+        for share, jerk_share in self._ramps(jerk, plain=jerk is None):
             try:
                 back = back_to_plan_on_grid(
-                    path.planned, path.running, begin / 1000.0, self.limits, grid_ms / 1000.0, share
+                    path.planned,
+                    path.running,
+                    begin / 1000.0,
+                    self.limits,
+                    grid_ms / 1000.0,
+                    share,
+                    max_jerk=jerk if jerk_share is not None else None,
+                    jerk_share=jerk_share or JERK_SHARES[0],
                 )
-                new, rows = rejoined_program(program, at.first, at.join_ms, begin, back, path.original, self.limits)
-            except ChangeError as exc:
+                within = jerk if jerk_share is not None else None
+                new, rows = rejoined_program(
+                    program, at.first, at.join_ms, begin, back, path.original, self.limits, max_jerk=within
+                )
+                self._hold_jerk(new, jerk if jerk_share is not None else None, begin)
+            except _CHANGE_ERRORS as exc:
                 failed = exc
                 continue
             return new, rows, back.motion
@@ -274,6 +342,7 @@ class PathChanges:
                 "duration_ms": int(path.program.duration_ms),
             }
         grid_ms = record_grid_ms(group.programs, self.cell.bus.sync_period_ms)
+        jerk = planned_jerk(path.program.metadata)
         made: dict[str, Any] = {}
 
         def make(at: SpliceAt) -> list[Any]:
@@ -282,17 +351,34 @@ class PathChanges:
             if path.original is None:
                 path.original = program  # nothing changed yet: the records as started
             failed: Exception | None = None
-            for wanted in _scales(scale):
+            # a motion planned with a jerk limit: the S-curves within it at every scale first, then the
+            # acceleration-limited ramps (the records' jerk above 1.2 x the limit in each)
+            tries: list[tuple[float, float | None]] = [(w, None) for w in _scales(scale)]
+            if jerk is not None:
+                tries = [(w, js) for w in _scales(scale) for js in (JERK_SHARES if w < 1.0 else (0.0,))] + tries
+            for wanted, jerk_share in tries:
                 try:
                     if wanted >= 1.0:  # the planned timing, late by a whole number of grid steps
-                        new, rows, whole = self._back_to_plan(path, program, at, begin, grid_ms)
+                        within = jerk if jerk_share is not None else None  # (0.0: the jerk-limited ramps)
+                        new, rows, whole = self._back_to_plan(path, program, at, begin, grid_ms, within)
                         applied = 1.0
                     else:
                         whole, applied = override_on_grid(
-                            path.planned, path.running, begin / 1000.0, wanted, self.limits, grid_ms / 1000.0
+                            path.planned,
+                            path.running,
+                            begin / 1000.0,
+                            wanted,
+                            self.limits,
+                            grid_ms / 1000.0,
+                            jerk if jerk_share is not None else None,
+                            jerk_share or JERK_SHARES[0],
                         )
                         end_ms = float(np.round(whole.duration * 1000.0))
-                        new, rows = changed_program(program, at.first, at.join_ms, begin, whole, end_ms, self.limits)
+                        within = jerk if jerk_share is not None else None
+                        new, rows = changed_program(
+                            program, at.first, at.join_ms, begin, whole, end_ms, self.limits, max_jerk=within
+                        )
+                        self._hold_jerk(new, within, begin)
                 except (ChangeError, PlanError) as exc:
                     failed = exc
                     continue

@@ -9,10 +9,18 @@ from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.planner.build import build_program
 from pvtflow.planner.knots import DriveAxis
 from pvtflow.planner.limits import JointLimits, joint_limits_from_drives
-from pvtflow.planner.onpath_stop import brake_on_path, override, quick_stop_time, resume, stopped_motion
+from pvtflow.planner.onpath_stop import (
+    brake_on_path,
+    jerk_override,
+    override,
+    quick_stop_time,
+    resume,
+    stopped_motion,
+)
 from pvtflow.planner.path import JointPath, PlanError
 from pvtflow.planner.plan import PlanInput, Planner
 from pvtflow.planner.timing import parameterize, timing_constraints
+from pvtflow.planner.trajectory import Trajectory
 from pvtflow.planner.validate import validate_program
 from pvtflow.service.cell_planner import planner_for_cell
 from pvtflow.service.config import CONFIG_DIR, load_cell_config
@@ -129,3 +137,27 @@ def test_resume_after_pause_reaches_the_end_from_rest_within_the_limits(fraction
     # pause + resume costs time against the uninterrupted motion, but not more than a stop and a restart
     total = stop.t_end + rest.duration
     assert MOTION.duration < total < MOTION.duration + 4.0 * stop.duration
+
+
+@pytest.mark.parametrize(("v0", "v1"), [(1.0, 0.3), (0.3, 1.0), (0.0, 1.0)])
+def test_jerk_override_changes_path_speed_within_its_acceleration_and_jerk(v0: float, v1: float) -> None:
+    """The S-curve of a jerk-limited change of speed (a program's path: the plan at one path speed): from the
+    running path speed to ``v1``, |s''| within its acceleration, its jerk within the given one, then on ``v1``."""
+    ones = np.ones(len(MOTION.sd))
+    planned = Trajectory.from_path_velocities(MOTION.path, MOTION.gridpoints, ones, MOTION.joint_names)
+    if v0 > 0.0:
+        running = planned.slowed(1.0 / v0) if v0 != 1.0 else planned
+        t0 = 0.2 * running.duration
+    else:  # at rest: a pause's end
+        running = stopped_motion(planned, brake_on_path(planned, 0.3 * planned.duration, LIMITS))
+        t0 = running.duration
+    accel, jerk = 2.0, 40.0  # path units (program seconds) per s^2, s^3
+    change = jerk_override(planned, running, t0, v1, accel, jerk)
+    t = np.arange(0.0, change.duration, 1e-4)
+    sd = np.interp(t, change.breakpoints, change.sd)  # the S-curve's steps are 0.1 ms: s'' per step
+    sdd = np.diff(sd) / 1e-4
+    assert abs(sd[0] - v0) < 1e-6 and change.sd[-1] == v1
+    assert np.max(np.abs(sdd)) <= accel * 1.01
+    assert np.max(np.abs(np.diff(sdd)) / 1e-4) <= jerk * 1.05
+    ramp = t < (abs(v1 - v0) / accel + accel / jerk) * 1.05 + 1e-3  # the S-curve's length at most
+    assert np.all(np.abs(sd[~ramp] - v1) < 1e-9)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from svc_helpers import wait_until
 from test_stop_then_move import assert_nothing_left, cell_file, move_again, plan, tour
 
@@ -32,6 +33,7 @@ from pvtflow.service.api import (
     parse_status,
     parse_stop,
 )
+from pvtflow.service.config import CONFIG_DIR, load_cell_config
 from pvtflow.service.motion import MotionService
 
 # the gantry's profiles: EPOS2 buffered PVT, CiA 402 linear IP, bufferless setpoint, Parker, and a mixed cell
@@ -164,6 +166,16 @@ def test_pause_then_resume_reaches_the_original_end(service: MotionService) -> N
     assert out["resumed"] == paused["motion_id"] and out["outcome"]["result"] == "finished", out["outcome"]
     after = ran(service)
     assert [int(a.records[-1, 0]) for a in after.axes] == [int(a.records[-1, 0]) for a in before.axes]
+    # at the planned timing: after the ramp up from rest, every axis runs the program's own records to its end
+    half = max(1, int(service.cell.bus.max_lookahead_ms / 2))
+    for a, b in zip(after.axes, before.axes, strict=True):
+        fed = split_long_records(b, half)  # the program's records as its feeder held them
+        n = 0
+        while n < min(len(fed), len(a.records)) and (a.records[-1 - n] == fed[-1 - n]).all():
+            n += 1
+        own_ms = float(np.sum(a.records[len(a.records) - n :, 2]))
+        ramp_ms = out["duration_ms"] - own_ms
+        assert n >= 3 and ramp_ms <= 300.0, (a.joint, n, ramp_ms)
     assert_on_path(before, after, 0.0)
     no_faults(service)
     assert service.state == "idle"
@@ -342,3 +354,120 @@ def test_override_just_below_the_planned_speed(service: MotionService) -> None:
     assert after.duration_ms > before.duration_ms
     assert_on_path(before, after, reply["from_ms"])
     no_faults(service)
+
+
+def test_override_and_resume_of_a_jerk_limited_motion_hold_the_jerk_limit(tmp_path: Path) -> None:
+    """A motion planned with a jerk limit changes speed within it: override 0.5, back to 1.0 (the program's own
+    records again), and a pause + resume at the planned timing, the drives' window jerk of every change's records
+    within the knot placement's 1.2 x, on the path, no drive faults."""
+    with MotionService(cell_file("gantry3"), journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP) as svc:
+        assert svc.home(parse_home({"wait": True}))["outcome"]["result"] == "homed"
+        limits = svc.cell.joint_limits()
+        max_jerk = [float(j) for j in 10.0 * np.asarray(limits.acceleration)]
+
+        def go(fraction: float) -> PvtProgram:
+            req = {"waypoints": tour(svc.cell, [0.85]), "start": "current", "max_jerk": max_jerk}
+            plan_id = svc.plan(parse_plan(req, svc.cell.joint_names, limits))["plan_id"]
+            svc.execute(parse_execute({"plan_id": plan_id}))
+            before = ran(svc)
+            assert wait_until(lambda: _elapsed_ms(svc) >= fraction * before.duration_ms, timeout=30.0)
+            return before
+
+        before = go(0.3)
+        slow = svc.override(parse_override({"scale": 0.5}))
+        assert slow["scale"] == pytest.approx(0.5, abs=0.02)
+        assert window_jerk_ratio(ran(svc), max_jerk, slow["from_ms"]) <= 1.2
+        assert wait_until(lambda: _elapsed_ms(svc) >= slow["from_ms"] + 150.0, timeout=30.0)
+        back = svc.override(parse_override({"scale": 1.0}))
+        assert back["scale"] == 1.0
+        assert window_jerk_ratio(ran(svc), max_jerk, back["from_ms"]) <= 1.2
+        motion = svc.motion
+        assert motion is not None and motion.done.wait(60.0) and motion.outcome["result"] == "finished"
+        assert_on_path(before, ran(svc), slow["from_ms"])
+        home = svc.execute(parse_execute({"plan_id": plan(svc, tour(svc.cell, [0.15])), "wait": True}))
+        assert home["outcome"]["result"] == "finished"
+
+        before = go(0.4)
+        paused = svc.pause(parse_pause({}))
+        assert paused["paused"], paused["fallback"]
+        out = svc.resume(parse_resume({"wait": True}))
+        assert out["outcome"]["result"] == "finished", out["outcome"]
+        after = ran(svc)
+        assert window_jerk_ratio(after, max_jerk, 0.0) <= 1.2
+        assert_on_path(before, after, 0.0)
+        assert [int(a.records[-1, 0]) for a in after.axes] == [int(a.records[-1, 0]) for a in before.axes]
+        no_faults(svc)
+
+
+@pytest.mark.wall
+def test_path_stop_pause_resume_and_override_from_the_cyclic_process(tmp_path: Path) -> None:
+    """With ``bus.cyclic_process`` (the records sent by a process of its own, the drives in theirs, on the wall
+    clock) a change reaches that process's feeders: a path stop stays on the path, pause + resume reaches the
+    original end, an override runs to its end, nothing faults. Made in time or refused with the reason (a loaded
+    host), never half made: at least one change of each kind is made."""
+    source = CONFIG_DIR / "cells" / "gantry3.yaml"
+    data = yaml.safe_load(source.read_text())
+    for axis in data["axes"]:
+        axis.pop("homing", None)
+        axis.setdefault("simulation", {})["power_up_qc"] = 0  # not homed: the machine at its encoder's 0
+    data.pop("homing_order", None)
+    data.pop("requires_homing", None)
+    data["bus"].update(cyclic_process=True, sync_period_ms=10, heartbeat_timeout_factor=10)
+    if "urdf" in data.get("robot", {}):
+        data["robot"]["urdf"] = str((source.parent / data["robot"]["urdf"]).resolve())
+    copy = tmp_path / "gantry3.yaml"
+    copy.write_text(yaml.safe_dump(data, sort_keys=False))
+    cell = load_cell_config(copy)
+    with MotionService(cell, journal_dir=tmp_path / "journal", clock=Clock.WALL, drives_process=True) as svc:
+        assert svc.drives.bus is not None and svc.drives.bus.sync.cyclic is not None
+        made = {"stop": 0, "pause": 0, "override": 0}
+
+        def again(svc: MotionService) -> None:  # the drives are in a process of their own: their outcome says
+            out = svc.execute(parse_execute({"plan_id": plan(svc, tour(svc.cell, [0.45])), "wait": True}))
+            assert out["outcome"]["result"] == "finished", out["outcome"]
+
+        for _ in range(2):
+            before = start(svc, 0.3)
+            reply = svc.stop(parse_stop({}))
+            assert reply["outcome"]["result"] == "stopped", reply["outcome"]
+            if reply["mode"] == "path":
+                made["stop"] += 1
+                assert_on_path(before, ran(svc), reply["braking"]["begun_ms"])
+                # the drives ran the braking the cyclic process sent: they stand where it ends, short of the end
+                stood = [int(a.records[-1, 0]) for a in ran(svc).axes]
+                assert svc.drives.positions_qc(refresh=True) == stood
+                assert stood != [int(a.records[-1, 0]) for a in before.axes]
+            else:
+                assert reply["fallback"], reply
+            again(svc)
+
+            before = start(svc, 0.3)
+            paused = svc.pause(parse_pause({}))
+            if paused["paused"]:
+                made["pause"] += 1
+                assert svc.drives.positions_qc(refresh=True) == [int(a.records[-1, 0]) for a in ran(svc).axes]
+                out = svc.resume(parse_resume({"wait": True}))
+                assert out["outcome"]["result"] == "finished", out["outcome"]
+                after = ran(svc)
+                assert_on_path(before, after, 0.0)
+                ends = [int(a.records[-1, 0]) for a in before.axes]
+                assert [int(a.records[-1, 0]) for a in after.axes] == ends
+                assert svc.drives.positions_qc(refresh=True) == ends
+            again(svc)
+
+            before = start(svc, 0.3)
+            try:
+                over = svc.override(parse_override({"scale": 0.5}))
+            except ApiError as refused:
+                assert refused.code == "not_allowed", refused
+            else:
+                made["override"] += 1
+                assert over["scale"] == pytest.approx(0.5, abs=0.02)
+            motion = svc.motion
+            assert motion is not None and motion.done.wait(60.0)
+            assert motion.outcome is not None and motion.outcome["result"] == "finished", motion.outcome
+            assert_on_path(before, ran(svc), 0.0)
+            again(svc)
+            if all(made.values()):
+                break  # a second round only where a loaded host refused one in the first
+        assert all(made.values()), made

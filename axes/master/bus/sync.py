@@ -54,7 +54,7 @@ import struct
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import can
 
@@ -82,6 +82,10 @@ class CyclicPath(Protocol):
     def produce(self, clock: SyncClock, production: int) -> None: ...
 
     def quick_stop(self, reason: str, node_ids: Sequence[int]) -> None: ...
+
+    def hold(self, t0_ms: float, grid_ms: int, timeout_s: float) -> tuple[float, list[int]]: ...
+
+    def splice(self, changes: Sequence[tuple[int, Any]] | None) -> None: ...
 
     def stop(self) -> None: ...
 

@@ -27,6 +27,7 @@ here: the SDO requests at once, NMT stop to those that do not confirm within ``q
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import struct
 import threading
@@ -85,6 +86,7 @@ class FeedSpec:
     braking: tuple[DriveLimits, AxisScaling] | None = None  # no ramp of its own: the master's stop ramp
     buffer: BufferConfig | None = None
     capacity: int = 64
+    lookahead_ms: float | None = None  # a buffered axis: the records held at most this far ahead (``BufferFeeder``)
 
 
 @dataclass
@@ -267,8 +269,9 @@ class CyclicLoop:
                 else:
                     assert f.buffer is not None
                     feeder = BufferFeeder(
-                        f.records, f.packer, self.offer, spec.period_ms, f.buffer, f.capacity, self.allowance
-                    )
+                        f.records, f.packer, self.offer, spec.period_ms, f.buffer, f.capacity, self.allowance,
+                        f.lookahead_ms,
+                    )  # fmt: skip
                 feeder.resume_at(f.next)
                 if not f.enabled:
                     feeder.disable()
@@ -300,6 +303,28 @@ class CyclicLoop:
                     feeder.decelerate(braking_records(last, previous, feeder.period_ms, *braking, quick))
                 else:
                     feeder.disable()
+
+    def hold(self, t0_ms: float, grid_ms: int) -> tuple[float, list[int]]:
+        """The master changes the run from ``t0_ms`` on (``axes.master.splice``): no record ending after it goes out
+        from here until ``splice``; (``t0_ms``, moved past what the drives already hold onto the grid, each
+        feeder's next record)."""
+        with self.lock:
+            held = max((float(f.records[: f.next, 2].sum()) for f in self.feeders), default=0.0)
+            t0 = math.ceil(max(t0_ms, held) / grid_ms - 1e-9) * grid_ms
+            for feeder in self.feeders:
+                feeder.hold_to(float(t0))
+            return float(t0), [f.next for f in self.feeders]
+
+    def splice(self, changes: list[tuple[int, NDArray[np.int64]]] | None) -> None:
+        """The master's new records for each feeder from its record ``first`` on (as the master's mirrors get
+        them); None: the change was not made, the held records go out as they were."""
+        with self.lock:
+            for i, feeder in enumerate(self.feeders):
+                if changes is None:
+                    feeder.hold_to(None)
+                else:
+                    feeder.replace_from(*changes[i])
+                    feeder.hold_to(None)
 
     def stop(self) -> None:
         with self.lock:
@@ -728,6 +753,10 @@ def serve_cyclic(
                 loop.begin(args[0])
             elif command == "halt":
                 loop.halt(bool(args[0]))
+            elif command == "hold":  # a change of the run (axes.master.splice): answered at once
+                loop.tell("held", args[0], *loop.hold(args[1], args[2]))
+            elif command == "splice":
+                loop.splice(args[0])
             elif command == "stop":
                 loop.stop()
             elif command == "quick_stop":

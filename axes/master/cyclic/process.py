@@ -14,6 +14,9 @@ is narrow:
   each SYNC it hears (``SyncClock.heard``), so the drives' answers are counted as before, and the
   master's feeders mirror the child's (their ``next`` from the shared progress array: ``mirror``).
 - ``halt(quick)``, ``stop()``, ``quick_stop(nodes)``: one pipe message each, no wait.
+- ``hold(t0, grid)`` then ``splice(changes)``: a change of the running program (``axes.master.splice``: an on-path
+  stop, a pause, an override); the child holds back every record ending after t0 and answers where its feeders
+  stand (the one message the master waits for), then replaces the records from there as the master's mirrors do.
 - faults the child sees (a SYNC or setpoint not sent, a gap, a record refused below the FIFO's
   reserve) come back through the pipe and are reported on the bus as any other (``CellBus.report``).
 
@@ -27,7 +30,9 @@ from __future__ import annotations
 import contextlib
 import logging
 import multiprocessing
+import queue
 import threading
+import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -127,6 +132,8 @@ class CyclicProcess:
         self.last_timing: CycleTiming | None = None  # the last run's, as the child measured it
         # the child's last quick stop of its own: (why, nodes that confirmed, nodes sent NMT stop)
         self.last_quick_stop: tuple[str, list[int], list[int]] | None = None
+        self._held: queue.Queue[tuple[Any, ...]] = queue.Queue()  # the child's answers to ``hold``
+        self._holds = 0
 
     def open(self) -> CyclicProcess:
         config = self.config
@@ -172,6 +179,8 @@ class CyclicProcess:
             elif message[0] == "timing":
                 _, late_us, echo_us, unstamped, refused, followed_us, held = message
                 self.last_timing = CycleTiming(late_us, echo_us, unstamped, refused, followed_us, held)
+            elif message[0] == "held":
+                self._held.put(message[1:])
             elif message[0] == "note":
                 log.warning("cyclic process: %s", message[1])
             elif message[0] == "quick_stopped":
@@ -202,7 +211,7 @@ class CyclicProcess:
                 if not profile.ramps_by_itself:
                     spec.braking = (profile.config.limits, profile.config.scaling)
             elif isinstance(feeder, BufferFeeder):
-                spec.buffer, spec.capacity = feeder.buffer, feeder.capacity
+                spec.buffer, spec.capacity, spec.lookahead_ms = feeder.buffer, feeder.capacity, feeder.lookahead_ms
             specs.append(spec)
         self._runs += 1
         clock = self.sync
@@ -250,6 +259,30 @@ class CyclicProcess:
     @property
     def syncs_sent(self) -> int:
         return int(self.progress[PROGRESS_COUNT])
+
+    def hold(self, t0_ms: float, grid_ms: int, timeout_s: float) -> tuple[float, list[int]]:
+        """A change of the running program (``axes.master.splice``): the child sends no record ending after
+        ``t0_ms`` (moved past what it has sent, on the grid ``grid_ms``) until ``splice``; (that t0, each feeder's
+        next record there). TimeoutError where it does not answer within ``timeout_s`` (then ``splice(None)``)."""
+        self._holds += 1
+        number = self._holds
+        self._tell("hold", number, float(t0_ms), int(grid_ms))
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                answer = self._held.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                why = f"the cyclic process did not answer a hold within {timeout_s * 1000:.0f} ms"
+                raise TimeoutError(why) from None
+            if answer[0] == number:  # an answer to an earlier hold that timed out is dropped
+                for feeder, sent in zip(self._feeders, answer[2], strict=True):
+                    feeder.sent_elsewhere(int(sent))
+                return float(answer[1]), [int(n) for n in answer[2]]
+
+    def splice(self, changes: Sequence[tuple[int, Any]] | None) -> None:
+        """Each feeder's new records from its record ``first`` on, ``(first, rows)`` in axis order, to the child
+        (its feeders held by ``hold``); None: none, the held records go out as they were."""
+        self._tell("splice", None if changes is None else [(int(f), r) for f, r in changes])
 
     def halt(self, quick: bool) -> None:
         self._tell("halt", quick)
