@@ -102,21 +102,25 @@ def main() -> int:
         for _ in range(args.paths):
             wp = random_waypoints(cell, rng, 8)
             inp = PlanInput(wp, max_jerk=jerk, jerk_intervals=args.intervals)
-            wall, gap = ticker.measure(lambda: cp.plan(inp))
+            wall, gap = ticker.measure(lambda inp=inp: cp.plan(inp))
             rows["plan, no deadline"].append((wall, gap))
-            rows["idle"].append(ticker.measure(lambda: time.sleep(wall / 1000.0)))
-            rows["plan, budget"].append(ticker.measure(lambda: cp.plan(inp, None, None, args.budget_ms)))
+            rows["idle"].append(ticker.measure(lambda wall=wall: time.sleep(wall / 1000.0)))
+            rows["plan, budget"].append(ticker.measure(lambda inp=inp: cp.plan(inp, None, None, args.budget_ms)))
     finally:
         ticker.close()
-    print(f"arm6, {args.paths} paths, {args.intervals} intervals, budget {args.budget_ms:g} ms; "
-          f"load average {os.getloadavg()[0]:.1f}; switch interval {1000 * sys.getswitchinterval():.0f} ms")
+    print(
+        f"arm6, {args.paths} paths, {args.intervals} intervals, budget {args.budget_ms:g} ms; "
+        f"load average {os.getloadavg()[0]:.1f}; switch interval {1000 * sys.getswitchinterval():.0f} ms"
+    )
     for name, values in rows.items():
         if not values:
             print(f"  {name:18s} (not measured)")
             continue
         v = np.array(values)
-        print(f"  {name:18s} wall p50 {np.median(v[:, 0]):6.1f} ms   longest 1-ms tick gap p50 {np.median(v[:, 1]):6.1f}"
-              f"  max {np.max(v[:, 1]):6.1f} ms")
+        print(
+            f"  {name:18s} wall p50 {np.median(v[:, 0]):6.1f} ms   longest 1-ms tick gap p50 {np.median(v[:, 1]):6.1f}"
+            f"  max {np.max(v[:, 1]):6.1f} ms"
+        )
     return 0
 
 

@@ -50,7 +50,6 @@ from pvtflow.planner.plan import PlanInput
 from pvtflow.service.cell_planner import CellPlanner
 from pvtflow.service.config import CONFIG_DIR, load_cell_config
 
-
 LP_ONLY: list[float] = []  # linprog's own wall (HiGHS and scipy's wrapper), per LP
 
 
@@ -76,7 +75,10 @@ def _clarabel(w, A_ub, b_ub, eq, bounds):  # type: ignore[no-untyped-def]
     b = np.concatenate((np.zeros(eq.shape[0]), lo[fixed], b_ub, hi[up], -lo[down]))
     settings = clarabel.DefaultSettings()
     settings.verbose = False
-    cones = [clarabel.ZeroConeT(eq.shape[0] + int(fixed.sum())), clarabel.NonnegativeConeT(A.shape[0] - eq.shape[0] - int(fixed.sum()))]
+    cones = [
+        clarabel.ZeroConeT(eq.shape[0] + int(fixed.sum())),
+        clarabel.NonnegativeConeT(A.shape[0] - eq.shape[0] - int(fixed.sum())),
+    ]
     sol = clarabel.DefaultSolver(sp.csc_matrix((nv, nv)), w, A, b, cones, settings).solve()
     ok = str(sol.status) in ("Solved", "AlmostSolved")
     return _Answer(0 if ok else 2, np.asarray(sol.x))
@@ -109,7 +111,11 @@ def scp(path, limits, constraints, jmax, warm, n: int, iterations: int):  # type
     st = np.arange(n + 1)
     acc_rows = []
     for k in range(dof):
-        acc_rows.append(sp.csr_matrix((np.concatenate((q2[:, k], q1[:, k])), (np.tile(st, 2), np.concatenate((ix, iu)))), shape=(n + 1, nv)))
+        acc_rows.append(
+            sp.csr_matrix(
+                (np.concatenate((q2[:, k], q1[:, k])), (np.tile(st, 2), np.concatenate((ix, iu)))), shape=(n + 1, nv)
+            )
+        )
     A_acc = sp.vstack(acc_rows)
     b_acc = np.repeat(amax, n + 1)
     rest = rows.sd_max == 0.0
@@ -204,9 +210,14 @@ def main() -> int:
         for n in sizes:
             its = scp(path, limits, constraints, jm, warm, n, args.iterations)
             table[n].append((ref.duration, its))
-    print(f"arm6, {args.paths} paths of 8 waypoints, jerk {args.factor:g} x amax/s, joint limits only; "
-          f"load average {os.getloadavg()[0]:.1f}")
-    print(f"  {SOLVER} alone per LP (all sizes): p50 {1000 * np.median(LP_ONLY):.1f} ms, max {1000 * np.max(LP_ONLY):.1f} ms")
+    print(
+        f"arm6, {args.paths} paths of 8 waypoints, jerk {args.factor:g} x amax/s, joint limits only; "
+        f"load average {os.getloadavg()[0]:.1f}"
+    )
+    print(
+        f"  {SOLVER} alone per LP (all sizes): p50 {1000 * np.median(LP_ONLY):.1f} ms,"
+        f" max {1000 * np.max(LP_ONLY):.1f} ms"
+    )
     for n, runs in table.items():
         print(f"  {n} intervals:")
         for it in range(args.iterations):
@@ -221,7 +232,8 @@ def main() -> int:
             if not ratio:
                 continue
             print(
-                f"    after {it + 1}: {len(ratio)}/{len(runs)} answered; duration / pvtflow-192 p50 {np.median(ratio):.4f}"
+                f"    after {it + 1}: {len(ratio)}/{len(runs)} answered;"
+                f" duration / pvtflow-192 p50 {np.median(ratio):.4f}"
                 f" max {np.max(ratio):.4f}; worst jerk at stations p50 {np.median(worst):.3f} max {np.max(worst):.3f};"
                 f" slowed to hold it p50 {np.median(slowed):.4f} max {np.max(slowed):.4f};"
                 f" LP wall so far p50 {np.median(walls):.1f} max {np.max(walls):.1f} ms"
