@@ -5,8 +5,9 @@ while the main thread plans: arm6 8-waypoint paths, max_jerk F x amax per second
 ``CellPlanner.plan`` (TOPP-RA, the casadi/fatrop solve, knots) without a deadline on ``--intervals``,
 and with ``--budget-ms``. Prints the ticker's longest gap (ms) during each kind of plan and during
 an idle stretch of the same length, and the gaps during the casadi solve alone (``jerk_limited``
-called directly, no knots), which tells whether casadi releases the interpreter's lock while it
-solves (a gap near the solve's length: it does not).
+as the plan calls it, no knots), which tells whether casadi releases the interpreter's lock while it
+solves (a gap near the solve's length: it does not); and during builds of the program and both
+solvers of 48 and 192 intervals (a cache of the bench's own: built, not found).
 
 Run:  python bench/gil_stall.py [--paths 10] [--intervals 96] [--budget-ms 50]
 """
@@ -74,6 +75,7 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args()
     import pvtflow.planner.jerk as jerk_module
+    from pvtflow.planner.jerk.solve import ProgramCache
 
     cell = load_cell_config(CONFIG_DIR / "cells" / "arm6.yaml")
     cp = CellPlanner(cell)
@@ -98,6 +100,9 @@ def main() -> int:
         return out[0]
 
     jerk_module.jerk_limited = timed_solve  # planner.plan imports it at the call: the solve alone, timed
+    builds = ProgramCache()
+    for n in (48, 192):
+        rows[f"build {n}"] = [ticker.measure(lambda n=n: builds.get(n, cp.limits.dof, True))]
     try:
         for _ in range(args.paths):
             wp = random_waypoints(cell, rng, 8)
