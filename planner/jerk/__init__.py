@@ -234,12 +234,12 @@ def jerk_limited(
     args["p"] = np.concatenate((program_parameters(rows, limits, jmax), scale))
     args["x0"] = start / per_variable
     # within a deadline the floor is computed while the solver runs (solve.solve_in_time), ready when it is late
-    floor: list[JerkTrajectory | PlanError] = []
+    floor: list[JerkTrajectory | Exception] = []
 
     def floor_meanwhile() -> None:
         try:
             floor.append(_checked(_floor(path, rests, limits, jmax, warm), limits, jmax, constraints))
-        except PlanError as exc:  # raised only where the floor is the answer
+        except Exception as exc:  # raised only where the floor is the answer, as it was computed after the solve
             floor.append(exc)
 
     meanwhile = None if deadline is None else floor_meanwhile
@@ -253,7 +253,7 @@ def jerk_limited(
     if sol is None:  # the deadline first: the floor that needs no solver (planner/scurve.py)
         if not floor:  # no solver started: the floor computed now
             floor_meanwhile()
-        if isinstance(floor[0], PlanError):
+        if isinstance(floor[0], Exception):
             raise floor[0]
         return floor[0]
     traj = JerkTrajectory(
