@@ -6,7 +6,9 @@ limit per second), two plans of each path through ``CellPlanner.plan``:
 - the S-curve floor (``budget_ms`` 0: no solver has time): ``floor`` its timing (the S-curve and its
   dense check, ``timing["jerk"]``), ``floor knots`` its knot placement and validation;
 - the solver's answer on ``--intervals`` (no deadline): ``topp`` TOPP-RA, ``solve`` the jerk-limited
-  timing (fatrop and the dense check), ``knots`` knot placement and validation of that motion; and
+  timing (fatrop and the dense check), ``check`` the dense check and slow-down of the solver's answer
+  alone (what follows a solve that finishes at the deadline, before its knots), ``knots`` knot
+  placement and validation of that motion; and
   from fatrop's own statistics its iterations and the share of its wall time spent evaluating the
   program's functions (what casadi's generated C code could speed up; the rest is fatrop's own
   linear algebra).
@@ -58,15 +60,32 @@ def main() -> int:
     rng = np.random.default_rng(args.seed)
     jerk = args.factor * cp.limits.acceleration
     parts: dict[str, list[float]] = {
-        k: [] for k in ("floor", "floor knots", "topp", "solve", "knots", "fatrop", "fatrop evaluations")
+        k: [] for k in ("floor", "floor knots", "topp", "solve", "check", "knots", "fatrop", "fatrop evaluations")
     }
+    import time
+
+    import pvtflow.planner.jerk as jerk_module
+
+    checked = jerk_module._checked
+    checks: list[float] = []
+
+    def timed_check(*a, **k):  # type: ignore[no-untyped-def]
+        began = time.perf_counter()
+        try:
+            return checked(*a, **k)
+        finally:
+            checks.append(time.perf_counter() - began)
+
+    jerk_module._checked = timed_check  # jerk_limited looks it up at the call
     iterations: list[int] = []
     for _ in range(args.paths):
         wp = random_waypoints(cell, rng, args.waypoints)
         floor = cp.plan(PlanInput(wp, max_jerk=jerk), None, None, 0.0)
         parts["floor"].append(floor.timing.get("jerk", np.nan))
         parts["floor knots"].append(floor.timing.get("knots", np.nan))
+        checks.clear()
         best = cp.plan(PlanInput(wp, max_jerk=jerk, jerk_intervals=args.intervals))
+        parts["check"].append(checks[-1] if checks else np.nan)
         for key, name in (("topp", "topp"), ("solve", "jerk"), ("knots", "knots")):
             parts[key].append(best.timing.get(name, np.nan))
         program = next(PROGRAMS.ready(*s) for s in PROGRAMS.shapes() if s[0] == args.intervals)

@@ -13,8 +13,14 @@ share each joint's limit out (acceleration: half to each term; jerk: a third). T
 taken on samples, so the result is only nearly inside: the caller's dense check and uniform
 slow-down (``JerkTrajectory.slowed``) make it exact, as for the solver's answers.
 
-Far from time-optimal (one speed per section: 1.3-3x the optimum's duration), but found in about
-a millisecond and always: no iteration, no convergence.
+Each waypoint segment of a section gets its own V, A, J (its own maxima): a cruise at a speed
+c_k <= V_k, and between two segments a jerk-limited change of speed inside the faster one (with its
+A and J: the speeds of the change are within its V), at rest with s'' = 0 at the section's ends. A
+segment too short for its changes gets a lower c_k (bisection), until every segment holds its changes
+(the speeds only fall, so this ends; ``_MAX_PASSES``, else one speed for the section as a whole).
+
+Far from time-optimal (the shares of A and J, cruises between the changes), but found in about a
+millisecond and always: no solver, no convergence.
 """
 
 from __future__ import annotations
@@ -57,6 +63,72 @@ def _phases(length: float, v: float, a: float, j: float) -> list[tuple[float, fl
     return [(t, jk) for t, jk in out if t > 0.0]
 
 
+def _change(u: float, w: float, a: float, j: float) -> tuple[float, float, float]:
+    """Jerk time, constant-acceleration time and distance of a jerk-limited change of speed from
+    ``u`` to ``w`` (s'' = 0 at both ends, |s''| <= a, |s'''| <= j)."""
+    dv = abs(w - u)
+    if dv == 0.0:
+        return 0.0, 0.0, 0.0
+    tj, ta = (a / j, dv / a - a / j) if dv * j >= a * a else (float(np.sqrt(dv / j)), 0.0)
+    return tj, ta, 0.5 * (u + w) * (2.0 * tj + ta)
+
+
+_MAX_PASSES = 200  # over a section's segments, lowering the speeds that do not fit (see the module docstring)
+
+
+def _segment_phases(lengths: list[float], bounds: list[tuple[float, ...]]) -> list[tuple[float, float]] | None:
+    """(duration, jerk) of a section whose waypoint segments have these lengths and (V, A, J), at rest
+    at both ends: a cruise per segment, the changes of speed inside the faster segment of each pair;
+    None where the speeds did not settle within ``_MAX_PASSES``."""
+    m = len(lengths)
+    c = [b[0] for b in bounds]
+
+    def needed(k: int, ck: float) -> float:
+        _, a, j = bounds[k]
+        before, after = (c[k - 1] if k > 0 else 0.0), (c[k + 1] if k < m - 1 else 0.0)
+        up = _change(before, ck, a, j)[2] if before < ck else 0.0
+        return up + (_change(ck, after, a, j)[2] if after < ck else 0.0)
+
+    for _ in range(_MAX_PASSES):
+        lowered = False
+        for k in range(m):
+            if needed(k, c[k]) > lengths[k]:
+                lo, hi = 0.0, c[k]
+                for _ in range(60):
+                    mid = 0.5 * (lo + hi)
+                    lo, hi = (mid, hi) if needed(k, mid) <= lengths[k] else (lo, mid)
+                c[k], lowered = lo, True
+        if not lowered:
+            break
+    else:
+        return None
+    phases: list[tuple[float, float]] = []
+    for k in range(m):
+        _, a, j = bounds[k]
+        before, after = (c[k - 1] if k > 0 else 0.0), (c[k + 1] if k < m - 1 else 0.0)
+        up = _change(before, c[k], a, j) if before < c[k] else (0.0, 0.0, 0.0)
+        down = _change(c[k], after, a, j) if after < c[k] else (0.0, 0.0, 0.0)
+        cruise = max(0.0, lengths[k] - up[2] - down[2]) / c[k] if c[k] > 0.0 else 0.0
+        phases += [(up[0], j), (up[1], 0.0), (up[0], -j), (cruise, 0.0), (down[0], -j), (down[1], 0.0), (down[0], j)]
+    return [(t, jk) for t, jk in phases if t > 0.0]
+
+
+def _section_phases(
+    path: JointPath, lo: float, hi: float, limits: JointLimits, jmax: NDArray[np.float64]
+) -> list[tuple[float, float]]:
+    """(duration, jerk) of the section [lo, hi] between two rests (see the module docstring): the
+    shorter of a speed per waypoint segment and one for the whole section (a segment's own A can be
+    lower than the section's: its higher V takes more of the jerk's share, ``_bounds``)."""
+    inner = path.waypoint_s[(path.waypoint_s > lo + 1e-12) & (path.waypoint_s < hi - 1e-12)]
+    edges = np.concatenate(([lo], inner, [hi]))
+    bounds = [_bounds(path, a, b, limits, jmax) for a, b in itertools.pairwise(edges)]
+    per_segment = _segment_phases([float(d) for d in np.diff(edges)], bounds)
+    whole = _phases(hi - lo, *_bounds(path, lo, hi, limits, jmax))
+    if per_segment is None or sum(t for t, _ in whole) <= sum(t for t, _ in per_segment):
+        return whole
+    return per_segment
+
+
 def _bounds(path: JointPath, lo: float, hi: float, limits: JointLimits, jmax: NDArray[np.float64]) -> tuple[float, ...]:
     """V, A, J of the path parameter on [lo, hi] (see the module docstring)."""
     inner = path.waypoint_s[(path.waypoint_s > lo) & (path.waypoint_s < hi)]
@@ -84,9 +156,9 @@ def rest_to_rest(
     and the gridpoints' times."""
     knots_s, knots_t, sd, sdd, jerks = [0.0], [0.0], [0.0], [0.0], []
     for lo, hi in itertools.pairwise(rests):
-        v, a, j = _bounds(path, lo, hi, limits, max_jerk)
         waypoints = path.waypoint_s[(path.waypoint_s > lo + 1e-12) & (path.waypoint_s < hi - 1e-12)]
-        phases = _phases(hi - lo, v, a, j)
+        phases = _section_phases(path, lo, hi, limits, max_jerk)
+        snap = 1e-9 * (hi - lo)  # a phase that ends at a waypoint (a segment's end) ends there exactly
         s0, v0, a0 = lo, 0.0, 0.0
         for n, (dt, jk) in enumerate(phases):
             t0 = knots_t[-1]
@@ -97,7 +169,10 @@ def rest_to_rest(
 
             last = n == len(phases) - 1
             end = hi if last else s0 + at(dt)[0]
-            for w in waypoints[(waypoints > s0) & (waypoints < end)]:  # a waypoint inside: its time, by bisection
+            near = waypoints[np.abs(waypoints - end) <= snap]
+            end = float(near[0]) if len(near) and not last else end
+            inside = waypoints[(waypoints > s0 + snap) & (waypoints < end - snap)]
+            for w in inside:  # a waypoint inside: its time, by bisection
                 t_lo, t_hi = 0.0, dt
                 for _ in range(60):
                     mid = 0.5 * (t_lo + t_hi)

@@ -111,6 +111,11 @@ class PlanningProcess:
             raise PlanningError(f"the planning process cannot start: {answer}")
         self._ready = True
 
+    @property
+    def ready(self) -> bool:
+        """Whether the child has said it is warmed up (``wait_ready``)."""
+        return self._ready
+
     def wait_ready(self) -> None:
         with self._lock:
             self._wait_ready()

@@ -41,7 +41,7 @@ from pvtflow.service.journal import JournalError
 from pvtflow.service.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
 from pvtflow.service.live import LiveError, LiveServer
 from pvtflow.service.motion import MotionService
-from pvtflow.service.planning import PlanningProcess
+from pvtflow.service.planning import PlanningError, PlanningProcess
 from pvtflow.service.server import (
     ZENOH_CONFIG_DIR,
     Server,
@@ -355,6 +355,9 @@ def run(args: argparse.Namespace) -> int:
             service.open()
         except BusError as exc:
             return _fail(str(exc))
+        except PlanningError as exc:  # the planning process did not start
+            service.close()
+            return _fail(f"cannot start cell {cell.name}: {exc}")
         except (ValueError, OSError) as exc:  # the CAN log cannot be opened after all (its checks passed)
             service.close()
             return _fail(f"cannot start cell {cell.name}: {exc}")

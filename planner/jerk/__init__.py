@@ -204,8 +204,9 @@ def jerk_limited(
     PlanError(INFEASIBLE) where no solver converges (the message carries their statuses).
 
     Anytime with a ``deadline`` (time.perf_counter): where the solvers have not finished by then,
-    the answer is the S-curve floor (``planner.scurve``), ``optimal`` False; time alone never makes
-    it INFEASIBLE. ``lower_bound``: TOPP-RA's duration, which no jerk-limited timing beats.
+    the answer is the S-curve floor (``planner.scurve``), ``optimal`` False, computed while the
+    solver runs; time alone never makes it INFEASIBLE. ``lower_bound``: TOPP-RA's duration, which
+    no jerk-limited timing beats.
     ``torque_scale``: the slow-down torque between the rows asked for after the solve.
     ``intervals``: the grid's size at most (None: ``DEFAULT_JERK_INTERVALS``; ``grid_sizes``).
     """
@@ -232,7 +233,17 @@ def jerk_limited(
     args |= {k: v for k, v in program_bounds(rows).items() if k in ("lbg", "ubg")}
     args["p"] = np.concatenate((program_parameters(rows, limits, jmax), scale))
     args["x0"] = start / per_variable
-    sol, status, late = solve_in_time(program, args, scale, deadline)
+    # within a deadline the floor is computed while the solver runs (solve.solve_in_time), ready when it is late
+    floor: list[JerkTrajectory | Exception] = []
+
+    def floor_meanwhile() -> None:
+        try:
+            floor.append(_checked(_floor(path, rests, limits, jmax, warm), limits, jmax, constraints))
+        except Exception as exc:  # raised only where the floor is the answer, as it was computed after the solve
+            floor.append(exc)
+
+    meanwhile = None if deadline is None else floor_meanwhile
+    sol, status, late = solve_in_time(program, args, scale, deadline, meanwhile)
     if sol is None and not late:
         raise PlanError(
             PlanResult.INFEASIBLE,
@@ -240,7 +251,11 @@ def jerk_limited(
             solver_status=status,
         )
     if sol is None:  # the deadline first: the floor that needs no solver (planner/scurve.py)
-        return _checked(_floor(path, rests, limits, jmax, warm), limits, jmax, constraints)
+        if not floor:  # no solver started: the floor computed now
+            floor_meanwhile()
+        if isinstance(floor[0], Exception):
+            raise floor[0]
+        return floor[0]
     traj = JerkTrajectory(
         path,
         grid,

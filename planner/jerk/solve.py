@@ -13,17 +13,21 @@ stops there (``_Deadline``) with its last iterate whose equalities hold; without
 the motion is the S-curve floor of ``planner.scurve``. Either is checked and slowed down
 (``planner.jerk``), ``optimal`` False.
 
-A solve is started only where it can finish (``_solvers_for``), because one that cannot is worse
-than none: casadi holds the interpreter's lock while it computes (measured: other threads stood up
-to 87 ms), fatrop has no time limit nor iteration callback in casadi 3.8.2, and the floor's own
-dense check and knots (about 25 ms of CPU, its motion being 2-4x longer) come after the deadline.
-So fatrop runs only with at least its expected time left: the longest of this program shape's last
-``_SOLVE_HISTORY`` fatrop solves (``_FATROP_TIME_S`` until ``_MIN_HISTORY`` are known), a measured
-figure that follows the machine (a percentile let it start on a path slower than the fast ones it
-had seen, and an overrun costs the whole budget); ipopt (stopped at the deadline) only with at
+The caller's thread meanwhile computes what it answers where the solve is late (``meanwhile``: the
+S-curve floor and its dense check, ``planner.jerk``): fatrop's solve leaves the interpreter's lock
+to other threads (bench/gil_stall.py: during a 130 ms solve another thread's longest wait was the
+switch interval), so the floor is ready at the deadline instead of starting there, and a late solve
+costs its CPU only, not the floor's time after the budget.
+
+A solve is started only where it has a chance to finish (``_solvers_for``): fatrop has no time
+limit nor iteration callback in casadi 3.8.2, and a late one runs on in its thread, its program
+held (``Program.lock``). So fatrop runs only with at least its typical time left: the median of this
+program shape's last ``_SOLVE_HISTORY`` fatrop solves (``_FATROP_TIME_S`` until ``_MIN_HISTORY`` are
+known), a measured figure that follows the machine; ipopt (stopped at the deadline) only with at
 least ``_IPOPT_TIME_S`` left, below which its iterates were never usable (bench/RESULTS.md); with
-less than both, no solver, the floor at once. At a 50 ms plan budget that is the floor: the wall
-time stays within the budget instead of waiting for a solve that comes too late (bench/plan_budget.py).
+less than both, no solver, the floor at once. Which grid a deadline gets (``planner.jerk``) is judged
+on the longest of the recent solves instead: there a late finer solve is the floor where a coarser
+one would have answered.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import OrderedDict, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -78,10 +83,11 @@ class Program:
     stop: _Deadline | None = None
     fatrop_s: deque[float] = field(default_factory=lambda: deque(maxlen=_SOLVE_HISTORY))  # recent solve times
 
-    def expected_fatrop_s(self) -> float:
-        """fatrop's expected wall time on this program: the longest of its recent solves."""
-        measured = self.measured_fatrop_s()
-        return expected_solve_s(self.n) if measured is None else measured
+    def typical_fatrop_s(self) -> float:
+        """fatrop's typical wall time on this program: the median of its recent solves (before
+        ``_MIN_HISTORY`` are known: ``expected_solve_s``)."""
+        times = list(self.fatrop_s)
+        return float(np.median(times)) if len(times) >= _MIN_HISTORY else expected_solve_s(self.n)
 
     def measured_fatrop_s(self) -> float | None:
         """The longest of fatrop's recent solves of this program, None until ``_MIN_HISTORY`` are known."""
@@ -242,7 +248,7 @@ SOLVERS = ("fatrop", "ipopt")  # in turn: ipopt from the same start where fatrop
 
 def _solvers_for(program: Program, time_left: float) -> tuple[str, ...]:
     """The solvers worth starting with ``time_left`` (s) before the deadline (module docstring)."""
-    names = ("fatrop",) if time_left >= program.expected_fatrop_s() else ()
+    names = ("fatrop",) if time_left >= program.typical_fatrop_s() else ()
     return (*names, "ipopt") if time_left >= _IPOPT_TIME_S else names
 
 
@@ -287,14 +293,19 @@ def _solve_now(
 
 
 def solve_in_time(
-    program: Program, args: dict[str, Any], scale: NDArray[np.float64], deadline: float | None
+    program: Program,
+    args: dict[str, Any],
+    scale: NDArray[np.float64],
+    deadline: float | None,
+    meanwhile: Callable[[], None] | None = None,
 ) -> tuple[Solution | None, str, bool]:
     """``_solve_now`` within ``deadline`` (time.perf_counter; None: as long as it takes).
 
     With a deadline the solve runs in a thread (casadi releases the GIL while it solves) and is
-    waited for until the deadline: ipopt stops there itself (``_Deadline``), fatrop cannot be
-    stopped and finishes in its thread, its answer unused; the next solve of the same program
-    waits for it (``Program.lock``), within its own deadline."""
+    waited for until the deadline, ``meanwhile`` run in the caller's thread first (where a solve
+    started): ipopt stops there itself (``_Deadline``), fatrop cannot be stopped and finishes in
+    its thread, its answer unused; the next solve of the same program waits for it
+    (``Program.lock``), within its own deadline."""
     if deadline is None:
         with program.lock:
             return _solve_now(program, args, scale, float("inf"))
@@ -314,5 +325,7 @@ def solve_in_time(
     # not a daemon: an interpreter that exits waits for the solve instead of tearing casadi down under it
     thread = threading.Thread(target=work, name="jerk-solve", daemon=False)
     thread.start()
+    if meanwhile is not None:
+        meanwhile()
     thread.join(max(0.0, deadline - time.perf_counter()))
     return result[0] if result else (None, "", True)

@@ -136,7 +136,9 @@ class MotionService:
     def open(self) -> MotionService:
         """Bus up (simulated drives first when the cell is simulated: with ``drives_process`` in a
         process of their own on the simulated wire, as ``pvtflow serve`` runs them; else in this
-        one, for tests that read a drive directly), drives configured, state read."""
+        one, for tests that read a drive directly), drives configured, state read, and the planning
+        process (``planner_process``) warmed up: the first plan request after start does not wait
+        for it (PlanningError where it cannot start)."""
         group = self.drives.open(self.publications.on_progress, self.publications.on_event, self.telemetry_every)
         self.board.drive_states_read()
         self.motions.start_watching()
@@ -144,6 +146,8 @@ class MotionService:
         if live is not None and self.drives.bus is not None:  # the cell between motions on the live channels too
             self._rest_view = RestView(live, self.cell, self.drives.bus, group, self._busy).start()
         self.board.publish()
+        if isinstance(self.planner, PlanningProcess):  # it warmed up meanwhile, in its own process
+            self.planner.wait_ready()
         return self
 
     def _busy(self) -> bool:

@@ -7,6 +7,7 @@ The timing is anytime: a deadline that comes before the solvers finish gives a v
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -161,3 +162,47 @@ def test_a_program_not_built_is_not_built_within_a_deadline_too_short_for_it(mon
     solved = Planner(limits).plan(PlanInput(w, max_jerk=jerk, budget_ms=60000.0))
     assert solved.ok and solved.details["optimal"] is True
     assert solved.trajectory.duration < floor.trajectory.duration
+
+
+def test_a_late_solve_answers_the_floor_computed_while_it_ran(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A solve started within its deadline that finishes past it: the answer is the S-curve floor,
+    computed in the plan's thread while the solve ran in its own (planner/jerk/solve.py,
+    ``solve_in_time``'s ``meanwhile``), the same motion as the floor with no time for any solver."""
+    import pvtflow.planner.jerk as jerk_module
+    import pvtflow.planner.jerk.solve as jerk_solve
+
+    limits = ARM.joint_limits()
+    max_jerk = 10.0 * limits.acceleration
+    planner = Planner(limits)
+    wp = random_paths(ARM, 1, seed=14)[0]
+    assert planner.plan(PlanInput(wp, max_jerk=max_jerk, jerk_intervals=48)).ok  # the program built
+    for earlier in [t for t in threading.enumerate() if t.name == "jerk-solve"]:
+        earlier.join(60.0)
+    solve_now = jerk_solve._solve_now
+    floor = jerk_module._floor
+    solving: list[bool] = []
+    deadlines: list[float] = []
+
+    def late(program, args, scale, deadline, names=jerk_solve.SOLVERS):  # type: ignore[no-untyped-def]
+        deadlines.append(deadline)
+        while time.perf_counter() < deadline:  # the solve itself finishes past the deadline
+            time.sleep(0.001)
+        return solve_now(program, args, scale, deadline + 60.0, names)
+
+    def floor_seen(*args, **kwargs):  # type: ignore[no-untyped-def]
+        solving.append(bool(deadlines) and time.perf_counter() < deadlines[0])
+        return floor(*args, **kwargs)
+
+    monkeypatch.setattr(jerk_solve, "_solve_now", late)
+    monkeypatch.setattr(jerk_solve, "_FATROP_TIME_S", 0.0)  # fatrop starts with any time left
+    monkeypatch.setattr(jerk_module, "_floor", floor_seen)
+    res = planner.plan(PlanInput(wp, max_jerk=max_jerk, jerk_intervals=48, budget_ms=30.0))
+    for thread in [t for t in threading.enumerate() if t.name == "jerk-solve"]:
+        thread.join(60.0)
+    assert res.ok, res.message
+    assert res.details["solver"] == "scurve" and res.details["optimal"] is False
+    assert solving == [True]  # computed once, while the solve ran (before its deadline)
+    alone = planner.plan(PlanInput(wp, max_jerk=max_jerk, jerk_intervals=48, budget_ms=0.0))
+    assert alone.details["solver"] == "scurve"
+    assert res.trajectory.duration == pytest.approx(alone.trajectory.duration, rel=1e-12)
+    assert max(dense_ratios(res.trajectory, limits, max_jerk)) <= 1.001

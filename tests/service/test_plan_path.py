@@ -200,3 +200,21 @@ def test_the_planning_process_plans_like_the_service_s_own_planner_and_survives_
     finally:
         service.close()
     assert service.planner._process is None
+
+
+def test_a_service_planning_in_a_process_is_open_once_that_process_is_warmed_up(tmp_path) -> None:
+    """``MotionService.open`` returns (and ``pvtflow serve`` says it is up) only once the planning
+    process has warmed up: the first plan request after start does not wait for its start-up."""
+    from test_stop_then_move import cell_file
+
+    from pvtflow.axes.canbus.clock import Clock
+    from pvtflow.service.motion import MotionService
+
+    service = MotionService(
+        cell_file("gantry3"), journal_dir=tmp_path / "journal", clock=Clock.LOCKSTEP, planner_process=True
+    )
+    try:
+        service.open()
+        assert service.planner.ready
+    finally:
+        service.close()
