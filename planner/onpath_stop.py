@@ -306,11 +306,14 @@ def jerk_braking_rates(
         rj = window_jerk_ratio(motion, stop, jmax)
         if ra <= share and rj <= js:
             break
-        if ra > share:
-            decel *= 0.97 * share / ra
-        if rj > js:
-            jerk *= 0.97 * js / rj
+        decel, jerk = _lowered(decel, ra, share), _lowered(jerk, rj, js)
     return decel, jerk
+
+
+def _lowered(value: float, ratio: float, bound: float) -> float:
+    """A ramp's acceleration or jerk lowered where its measured ratio passed ``bound`` (3 % under it: the
+    ratio of the records, rounded to whole counts, follows the parameter only nearly)."""
+    return value * 0.97 * bound / ratio if ratio > bound else value
 
 
 # --- jerk-limited changes of speed (override and resume of a motion planned with a jerk limit) ----------------
@@ -433,10 +436,7 @@ def jerk_override_rates(
         rj = ramp_window_jerk_ratio(joined(running, change), t0, t0 + t_ramp, jmax)
         if ra <= allowed and rj <= jerk_share:
             break
-        if ra > allowed:
-            accel *= 0.97 * allowed / ra
-        if rj > jerk_share:
-            jerk *= 0.97 * jerk_share / rj
+        accel, jerk = _lowered(accel, ra, allowed), _lowered(jerk, rj, jerk_share)
     return accel, jerk
 
 
