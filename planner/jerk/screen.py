@@ -26,8 +26,8 @@ from numpy.typing import NDArray
 from pvtflow.planner.jerk.nlp import CONTROL, FRACTIONS, STATE, Rows, stage_function
 from pvtflow.planner.limits import JointLimits
 
-ROW_JOINTS = 3  # rows per stage for this many joints (arm6, 10 paths: 2 lost the optimum on 4 of them)
-NEIGHBOURS = 2  # the ranks over this many stages on either side (0 or 1 lost it on 1 path of 10)
+ROW_JOINTS = 4  # rows per stage for this many joints (arm6: 3 lost the optimum on 2 paths of 22, 4 on none)
+NEIGHBOURS = 2  # the ranks over this many stages on either side (0 or 1 lost it on more paths with 3 joints)
 # a row left out that exceeds its limit by more than this at its samples: the answer is no optimum
 ROW_TOL = 1e-6
 
