@@ -4,11 +4,11 @@ Within a deadline each stage of the program holds the rows of ``planner.jerk.scr
 joints (ranked by the start), every joint's rows checked after the solve. For N random arm6 paths
 of W waypoints (bench/pvt_quality.py's drawing, seeded; jerk F x amax/s, joint limits only, as
 bench/jerk_vs_copp.py), on ``--intervals`` intervals, alternated on every path: the whole program
-(``ROW_JOINTS`` = every joint) and the screened one with every count of ``--row-joints`` (all with a deadline far
-off: the solver finishes, the floor is computed beside it as within any deadline). Prints fatrop's time (p50, max) and per iteration, and the checked
-duration over the whole program's (p50, max), the answers the check marked not optimal, and the
-same durations over the whole program's on 192 intervals (1.001x copp-py's TOPP3 at 1000 stations,
-bench/RESULTS.md).
+(``ROW_JOINTS`` = every joint) and the screened one with every count of ``--row-joints``, all with a
+deadline far off (the solver finishes; the floor is computed beside it, as within any deadline).
+Prints fatrop's time (p50, max) and per iteration, the checked duration over the whole program's
+(p50, max), the answers the check marked not optimal, and the durations over the whole program's
+on 192 intervals (1.001x copp-py's TOPP3 at 1000 stations, bench/RESULTS.md).
 
 Run:  python bench/jerk_rows.py [--paths 20] [--waypoints 8] [--factor 10] [--seed 1]
       [--intervals 96] [--row-joints 3,4]
