@@ -152,8 +152,8 @@ def warm_up() -> None:
 
 def _row_dof(dof: int, torque: bool, deadline: float | None) -> int:
     """The joints whose rows each stage of the program holds: every one without a deadline (the
-    reference) or with torque rows (not screened), else ``screen.ROW_JOINTS``."""
-    return dof if deadline is None or torque else min(dof, ROW_JOINTS)
+    reference), else ``screen.ROW_JOINTS`` (one more with torque rows: a fourth kind that may bind)."""
+    return dof if deadline is None else min(dof, ROW_JOINTS + int(torque))
 
 
 def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | None) -> tuple[Program | None, int]:
