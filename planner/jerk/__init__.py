@@ -163,13 +163,13 @@ def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | Non
     build (its solvers then decide, ``solve.solve_in_time``), else None (the floor; build it later).
 
     A finer size's solve time is its own measured one (``Program.measured_fatrop_s``), else the
-    coarsest's measured one times the ratio of their intervals, else twice its expected one: a first
+    coarsest's measured one times the square of the ratio of their intervals, else twice its expected one: a first
     request after the start at the cell's 200 ms solves the coarsest (a late solve costs the whole
     budget: the floor comes after it), one with seconds to spare the finest."""
     if deadline is None:
         return cached_program(sizes[-1], dof, torque), sizes[-1]
     coarsest = PROGRAMS.ready(sizes[0], dof, torque)
-    per_interval = None if coarsest is None else coarsest.measured_fatrop_s()
+    coarsest_s = None if coarsest is None else coarsest.measured_fatrop_s()
     for n in reversed(sizes[1:]):
         program = PROGRAMS.ready(n, dof, torque)
         if program is None and deadline - time.perf_counter() >= expected_build_s(n) + 2.0 * expected_solve_s(n):
@@ -178,7 +178,9 @@ def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | Non
             continue
         measured = program.measured_fatrop_s()
         if measured is None:
-            measured = 2.0 * expected_solve_s(n) if per_interval is None else per_interval * n / sizes[0]
+            # fatrop's time grows about as the square of the intervals (more iterations, each longer): 96
+            # intervals took 3.8-4.1x 48's at the median (bench/jerk_rows.py, bench/RESULTS.md)
+            measured = 2.0 * expected_solve_s(n) if coarsest_s is None else coarsest_s * (n / sizes[0]) ** 2
         if deadline - time.perf_counter() >= measured:
             return program, n
     program = coarsest
