@@ -3,13 +3,14 @@ highest there, checked after the solve.
 
 fatrop's time per iteration grows with the inequality rows per stage (arm6, 96 intervals, alternated on
 10 paths: 36 rows, every joint's, 1.7 ms per iteration; 18 rows 1.05 ms; 12 rows 0.8 ms; bench/RESULTS.md
-"Issue 39 item 2, fewer rows per stage"), and on a stage of the path few joints bind: the joint nearest
-its velocity limit, the one nearest its acceleration limit, the one nearest its jerk limit. So within a
-deadline each stage holds the rows of ``ROW_JOINTS`` joints (one more with torque rows): per stage the
-highest ranked by the start's velocity, acceleration, jerk (and torque) each over the stage's largest of
-its kind (the leader of each kind ranks 1), the ranks the largest within ``NEIGHBOURS`` stages on either
-side (a binding joint moves along the path as the solve speeds up). The box on s' at the gridpoints keeps
-every joint's velocity (a bound, not a row), and the TCP speed's rows are the path's, not a joint's.
+"Issue 39 item 2 at `budget_ms: 50`: sections at the rests, fewer rows per stage"), and on a stage of
+the path few joints bind: the joint nearest its velocity limit, the one nearest its acceleration limit,
+the one nearest its jerk limit. So within a deadline each stage holds the rows of ``ROW_JOINTS`` joints
+(one more with torque rows): per stage the highest ranked by the start's velocity, acceleration, jerk
+(and torque) each over the stage's largest of its kind (the leader of each kind ranks 1), the ranks the
+largest within ``NEIGHBOURS`` stages on either side (a binding joint moves along the path as the solve
+speeds up). The box on s' at the gridpoints keeps every joint's velocity (a bound, not a row), and the
+TCP speed's rows are the path's, not a joint's.
 
 After the solve every joint's rows are evaluated at their samples (``largest_row``): where a joint
 left out exceeds its limit there the answer is no optimum of the whole program (``optimal`` False);
