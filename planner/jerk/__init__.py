@@ -36,6 +36,7 @@ import toppra.constraint as constraint
 from numpy.typing import ArrayLike, NDArray
 
 from pvtflow.planner.jerk.nlp import program_bounds, program_parameters, program_rows, variable_scales
+from pvtflow.planner.jerk.screen import ROW_JOINTS, ROW_TOL, largest_row, row_joints, screened
 from pvtflow.planner.jerk.solve import (
     PROGRAMS,
     Program,
@@ -142,10 +143,17 @@ def warm_up() -> None:
     for _, dof, torque in PROGRAMS.shapes():
         for n in {*grid_sizes(GRID_UNIT, WARM_INTERVALS), *grid_sizes(2 * GRID_UNIT, WARM_INTERVALS)}:
             cached_program(n, dof, torque)
+            cached_program(n, _row_dof(dof, torque, 0.0), torque)  # the screened program a deadline solves
     for shape in PROGRAMS.shapes():  # the warm-up's move is no request's (96 intervals: 151 ms, requests' 50)
         program = PROGRAMS.ready(*shape)
         if program is not None:
             program.fatrop_s.clear()
+
+
+def _row_dof(dof: int, torque: bool, deadline: float | None) -> int:
+    """The joints whose rows each stage of the program holds: every one without a deadline (the
+    reference), else ``screen.ROW_JOINTS`` (one more with torque rows: a fourth kind that may bind)."""
+    return dof if deadline is None else min(dof, ROW_JOINTS + int(torque))
 
 
 def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | None) -> tuple[Program | None, int]:
@@ -155,13 +163,13 @@ def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | Non
     build (its solvers then decide, ``solve.solve_in_time``), else None (the floor; build it later).
 
     A finer size's solve time is its own measured one (``Program.measured_fatrop_s``), else the
-    coarsest's measured one times the ratio of their intervals, else twice its expected one: a first
+    coarsest's measured one times the square of the ratio of their intervals, else twice its expected one: a first
     request after the start at the cell's 200 ms solves the coarsest (a late solve costs the whole
     budget: the floor comes after it), one with seconds to spare the finest."""
     if deadline is None:
         return cached_program(sizes[-1], dof, torque), sizes[-1]
     coarsest = PROGRAMS.ready(sizes[0], dof, torque)
-    per_interval = None if coarsest is None else coarsest.measured_fatrop_s()
+    coarsest_s = None if coarsest is None else coarsest.measured_fatrop_s()
     for n in reversed(sizes[1:]):
         program = PROGRAMS.ready(n, dof, torque)
         if program is None and deadline - time.perf_counter() >= expected_build_s(n) + 2.0 * expected_solve_s(n):
@@ -170,7 +178,9 @@ def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | Non
             continue
         measured = program.measured_fatrop_s()
         if measured is None:
-            measured = 2.0 * expected_solve_s(n) if per_interval is None else per_interval * n / sizes[0]
+            # fatrop's time grows about as the square of the intervals (more iterations, each longer): 96
+            # intervals took 3.8-4.1x 48's at the median (bench/jerk_rows.py, bench/RESULTS.md)
+            measured = 2.0 * expected_solve_s(n) if coarsest_s is None else coarsest_s * (n / sizes[0]) ** 2
         if deadline - time.perf_counter() >= measured:
             return program, n
     program = coarsest
@@ -215,23 +225,28 @@ def jerk_limited(
     stops = rests[1:-1]
     needed = (len(path.waypoint_s) - 1) + MIN_REST_TO_REST * (len(rests) - 1)
     torque = any(isinstance(c, RneaJointTorqueConstraint) for c in constraints)
+    # within a deadline each stage holds the rows of the joints that may bind there (``screen``)
+    row_dof = _row_dof(limits.dof, torque, deadline)
     # a program is built within a deadline only where the time left covers it (0.6 s for 48 intervals);
     # else the floor, and the smallest is built for later
     sizes = grid_sizes(needed, DEFAULT_JERK_INTERVALS if intervals is None else int(intervals))
-    program, n = _program_for(sizes, limits.dof, torque, deadline)
+    program, n = _program_for(sizes, row_dof, torque, deadline)
     if program is None:
-        PROGRAMS.build_later(n, limits.dof, torque)
+        PROGRAMS.build_later(n, row_dof, torque)
         return _checked(_floor(path, rests, limits, jmax, warm), limits, jmax, constraints)
     profile = WarmProfile.of(warm, rests)
     grid = profile.grid(path.waypoint_s, rests, n)
     rows = program_rows(path, grid, limits, constraints)
     rows.sd_max[np.searchsorted(grid, stops)] = 0.0
     start = warm_start(profile, grid, rows, jmax)
+    joints = None if row_dof == limits.dof else row_joints(rows, start, limits, jmax, row_dof)
+    held = rows if joints is None else screened(rows, joints)
     scale = variable_scales(start)
     per_variable = np.tile(scale, n + 1)[: len(start)]
-    args = {k: v / per_variable for k, v in program_bounds(rows).items() if k in ("lbx", "ubx")}
-    args |= {k: v for k, v in program_bounds(rows).items() if k in ("lbg", "ubg")}
-    args["p"] = np.concatenate((program_parameters(rows, limits, jmax), scale))
+    bounds = program_bounds(held)
+    args = {k: v / per_variable for k, v in bounds.items() if k in ("lbx", "ubx")}
+    args |= {k: v for k, v in bounds.items() if k in ("lbg", "ubg")}
+    args["p"] = np.concatenate((program_parameters(held, limits, jmax, joints), scale))
     args["x0"] = start / per_variable
     # within a deadline the floor is computed while the solver runs (solve.solve_in_time), ready when it is late
     floor: list[JerkTrajectory | Exception] = []
@@ -268,5 +283,7 @@ def jerk_limited(
         iterations=sol.iterations,
         optimal=sol.optimal,
     )
+    if joints is not None and largest_row(rows, sol.sd, sol.sdd, sol.h, sol.j, limits, jmax) > 1.0 + ROW_TOL:
+        traj = dataclasses.replace(traj, optimal=False)  # a joint left out bound: no optimum of the whole program
     traj = dataclasses.replace(traj, lower_bound=warm.duration)
     return _checked(traj, limits, jmax, constraints)

@@ -74,7 +74,7 @@ _EQUALITIES = 3 + 2 * len(FRACTIONS)  # per stage: the next state (2), the dista
 _JERK_ROWS = 3  # per joint: start, middle, end
 
 
-def _stage_function(dof: int, torque: bool) -> ca.Function:
+def stage_function(dof: int, torque: bool) -> ca.Function:
     """The rows of one interval: (its variables and numbers) -> the state at its end, then the
     distance and lifted residuals and its inequality rows (normalised to [-1, 1] but torque's)."""
     m = len(FRACTIONS)
@@ -112,10 +112,11 @@ def _stage_function(dof: int, torque: bool) -> ca.Function:
 
 def build_nlp(n: int, dof: int, torque: bool) -> tuple[dict[str, ca.SX], list[bool]]:
     """The program for n intervals and dof joints (x, p, f, g) and which of its rows are equalities."""
-    stage = _stage_function(dof, torque)
+    stage = stage_function(dof, torque)
     D = ca.SX.sym("D", n)
     per_stage = [ca.SX.sym(name, n, dof) for name in ("q1", "q2", "q3", "e1", "e2", "ta", "tb")]
-    inv = ca.SX.sym("inv", 3 * dof)
+    # the limits per stage: a screened program (``planner.jerk.screen``) holds other joints' rows on each
+    inv = ca.SX.sym("inv", n, 3 * dof)
     # the variables are the program's own divided by a typical magnitude of each (``variable_scales``)
     scale = ca.SX.sym("scale", len(STATE) + len(CONTROL))
     x_scale, u_scale = scale[: len(STATE)], scale[len(STATE) :]
@@ -131,13 +132,14 @@ def build_nlp(n: int, dof: int, torque: bool) -> tuple[dict[str, ca.SX], list[bo
         q1, q2, q3, e1, e2, ta, tb = (mat[k, :].T for mat in per_stage)
         xs, us = x[k] * x_scale, u[k] * u_scale
         controls = (us[i] for i in range(len(CONTROL)))
-        limits = (inv[:dof], inv[dof : 2 * dof], inv[2 * dof :])
+        inv_k = inv[k, :].T
+        limits = (inv_k[:dof], inv_k[dof : 2 * dof], inv_k[2 * dof :])
         x1, residual, rows = stage(xs[0], xs[1], *controls, D[k], q1, q2, q3, e1, e2, *limits, ta, tb)
         w += [x[k], u[k]]
         g += [x[k + 1] - x1 / x_scale, residual / residual_scale, rows]
         equality += [True] * _EQUALITIES + [False] * rows.shape[0]
     w.append(x[n])
-    p = ca.vertcat(D, *(ca.vec(mat) for mat in per_stage), inv, scale)
+    p = ca.vertcat(D, *(ca.vec(mat) for mat in per_stage), ca.vec(inv), scale)
     objective = ca.sum1(ca.vertcat(*(uk[0] for uk in u)))
     return {"x": ca.vertcat(*w), "p": p, "f": objective, "g": ca.vertcat(*g)}, equality
 
@@ -205,12 +207,20 @@ def program_bounds(rows: Rows) -> dict[str, NDArray[np.float64]]:
     }
 
 
-def program_parameters(rows: Rows, limits: JointLimits, max_jerk: NDArray[np.float64]) -> NDArray[np.float64]:
+def program_parameters(
+    rows: Rows, limits: JointLimits, max_jerk: NDArray[np.float64], joints: NDArray[np.intp] | None = None
+) -> NDArray[np.float64]:
+    """The program's parameters for ``rows``; ``joints`` (n, k): the joints whose rows each stage
+    holds where they are screened (``planner.jerk.screen``), None: every joint."""
     zero = np.zeros_like(rows.q1)
     ta, tb = (rows.torque[0], rows.torque[1]) if rows.torque is not None else (zero, zero)
     per_stage = (rows.q1, rows.q2, rows.q3, rows.e1, rows.e2, ta, tb)
     inv = np.concatenate((1.0 / limits.velocity, 1.0 / limits.acceleration, 1.0 / max_jerk))
-    return np.concatenate((rows.D, *(m.ravel("F") for m in per_stage), inv))
+    if joints is None:
+        joints = np.broadcast_to(np.arange(limits.dof), (len(rows.D), limits.dof))
+    dof = limits.dof
+    per_joint = np.concatenate((inv[joints], inv[joints + dof], inv[joints + 2 * dof]), axis=1)
+    return np.concatenate((rows.D, *(m.ravel("F") for m in per_stage), per_joint.ravel("F")))
 
 
 def variable_scales(start: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -174,7 +174,8 @@ class ProgramCache:
     A plan with a deadline never builds one (``ready``): where its shape is not built it answers the
     floor and the shape is built in a thread of its own (``build_later``) for the plans after it."""
 
-    def __init__(self, size: int = 8) -> None:
+    # 5 shapes per cell and joint count (48, 96, 192 with every joint's rows; 48, 96 screened, planner/jerk/screen.py)
+    def __init__(self, size: int = 12) -> None:
         self.size = size
         self._programs: OrderedDict[tuple[int, int, bool], Program] = OrderedDict()
         self._lock = threading.Lock()  # one build at a time; a plan with a deadline never waits for it

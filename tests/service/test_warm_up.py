@@ -7,6 +7,7 @@ The check runs in a child interpreter: this one has planned every kind of motion
 
 from __future__ import annotations
 
+import ast
 import json
 import subprocess
 import sys
@@ -107,10 +108,14 @@ def test_after_the_warm_up_no_jerk_limited_plan_builds_a_solver():
     seen = json.loads(out.stdout.strip().splitlines()[-1])
     assert seen["after"] == seen["before"]
     assert all(solvers == ["fatrop", "ipopt"] for solvers in seen["before"].values())
-    # every grid a path of up to 44 waypoints may be solved on within a deadline: 48, 96
-    assert sorted(int(shape.strip("()").split(",")[0]) for shape in seen["before"]) == [48, 96]
+    # every grid a path of up to 44 waypoints may be solved on within a deadline: 48, 96, each with every
+    # joint's rows and with the fewer a deadline solves (planner/jerk/screen.py)
+    shapes = [ast.literal_eval(shape) for shape in seen["before"]]
+    assert sorted(n for n, _, _ in shapes) == [48, 48, 96, 96]
+    assert all(sorted(d for m, d, _ in shapes if m == n)[-1] == 6 for n in (48, 96))  # the cell's 6 joints
+    assert all(sorted(d for m, d, _ in shapes if m == n)[0] < 6 for n in (48, 96))
     # without a deadline the finest grid (planner.jerk.DEFAULT_JERK_INTERVALS), built by the first such plan
-    assert sorted(int(shape.strip("()").split(",")[0]) for shape in seen["last"]) == [48, 96, 192]
+    assert sorted(ast.literal_eval(shape)[0] for shape in seen["last"]) == [48, 48, 96, 96, 192]
     assert seen["answers"][-1][2] == "ok", seen["answers"][-1]
     # the first request after the start, at the cell's default budget: never a timeout
     assert seen["answers"][0][2] == "ok", seen["answers"][0]
