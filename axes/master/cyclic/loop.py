@@ -398,11 +398,7 @@ class CyclicLoop:
                             due = deadline
                 if sent is not None:
                     self._follow_up(sent, min(due - spin, (self.sent_at or 0.0) + period / 2))
-                delay = due - time.monotonic() - spin
-                if delay > 0:
-                    time.sleep(delay)
-                while time.monotonic() < due:  # the last stretch awake: a timer's wake is that late
-                    pass
+                self._sleep_until(due, spin)
         except _ReserveError as exc:
             self._failed(FaultKind.TX_FAILED, str(exc), exc.node_id)
         except (can.CanError, OSError) as exc:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import queue
 import re
+import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
@@ -282,8 +283,8 @@ class RemoteCyclicTask(can.broadcastmanager.RestartableCyclicTaskABC):
     def start(self) -> None:
         if self._task is None:
             m = self._msg
-            start = self._link.bus_time()  # when asked, as the kernel's timer starts at the syscall
-            self.started = start - self._link.epoch
+            self.started = time.monotonic()  # when asked, as the kernel's timer starts at the syscall
+            start = self._link.epoch + self.started  # the same instant on the medium's bus time
             self._task = self._link.call(
                 "add_cyclic",
                 can_id=m.arbitration_id,
