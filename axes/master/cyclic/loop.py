@@ -200,6 +200,14 @@ class CyclicLoop:
                     raise
                 time.sleep(TX_RETRY_PAUSE_S)
 
+    def _together(self) -> contextlib.AbstractContextManager[None]:
+        """A period's setpoints reach the interface in one call where it takes a run of frames (simwire's
+        loopback: one write, ``SimWireBus.coalesced``), each still stamped and refused on its own: three
+        writes leave three chances for this process to be held between them with a setpoint stamped
+        before its SYNC but not yet written (measured: bench/RESULTS.md). Elsewhere one frame per call."""
+        coalesced = getattr(self.bus, "coalesced", None)
+        return coalesced() if coalesced is not None else contextlib.nullcontext()
+
     @property
     def queued(self) -> int:
         """Frames of this node not yet on the wire as far as this process knows: sent less those whose
@@ -462,8 +470,9 @@ class CyclicLoop:
                     number = pace.number
                     self.count = spec.start_count + number
                     self.sent_at = now
-                    for feeder in self.feeders:
-                        feeder.after_sync(number)
+                    with self._together():
+                        for feeder in self.feeders:
+                            feeder.after_sync(number)
                     pace.marks[number + 1] = self._sent_frames
                     self.timing.followed_us.append((now - (pace.phase + number * period)) * 1e6)
                     if buffered:

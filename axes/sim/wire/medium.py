@@ -317,7 +317,7 @@ class Medium:
         for task in self._cyclic:
             while task.due <= now:
                 due, node = task.due, task.node
-                task.due += task.period
+                task.sent += 1
                 # pending from its due time: in the arbitration of a frame placed to start after it
                 self._rearbitrate(due)
                 # its node's FIFO as it was at the due time: the frames posted after it were not in it yet

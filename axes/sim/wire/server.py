@@ -9,7 +9,9 @@ connection and releases the medium. Only loopback addresses are served.
 
 One thread (``simwire-io-NAME``) serves every socket through a selector: it accepts, reads
 whatever each client sent (every complete message of a read, submitted to the medium in turn) and
-writes what the medium delivered to each client, one write per socket per round. A frame the
+writes what the medium delivered to each client, one write per socket per round. The wall driver
+reads the clients' posts itself before it delivers (``WireServer.catch_up``), under the same read lock,
+so a frame posted before a delivery is in the medium whichever of this process's threads had the CPU. A frame the
 medium delivers from another thread (the wall clock's driver, a drive of this process) is written
 by that thread at once (non-blocking), or at the end of its delivery batch
 (``Medium.delivery_batch``: a wall driver's step that delivers several frames writes them
@@ -55,9 +57,9 @@ def require_loopback(host: str) -> str:
     return host
 
 
-# the longest the wall driver waits for the selector thread to take in what the clients posted before
-# it delivers (``WireServer.catch_up``): past it the bus goes on without it
-CATCH_UP_WAIT_S = 0.002
+# what the wall driver takes in itself before it delivers (``WireServer.catch_up``): frames, and the
+# refusals that count against a node; anything else (a call, a blocking send) is left to the selector thread
+CAUGHT_UP_KINDS = frozenset({p.POST, p.REFUSED})
 
 
 class _Outbox:
@@ -191,8 +193,10 @@ class WireServer:
         self._selector.register(self._wake_r, selectors.EVENT_READ, "wake")
         if self.medium.delivery_batch is contextlib.nullcontext:
             self.medium.delivery_batch = self._batch
-        self._passed = threading.Condition(threading.Lock())  # the selector thread's passes (``catch_up``)
-        self._passes = 0
+        # one reader of the clients' sockets at a time (the selector thread, or the wall driver in ``catch_up``),
+        # so each connection's messages reach the medium in the order they were written
+        self._read_lock = threading.Lock()
+        self._backlog: list[_Conn] = []  # connections whose buffered messages the selector thread handles next
         self.medium.catch_up = self.catch_up
         self._thread = threading.Thread(target=self._run, name=f"simwire-io-{channel}", daemon=True)
         self._thread.start()
@@ -235,15 +239,14 @@ class WireServer:
                             self._accept()
                         elif what == "wake":
                             self._drain_wake()
+                            self._handle_backlog()
                         elif not what.closed:
                             if mask & selectors.EVENT_WRITE and what.outbox.writable():
                                 selector.modify(what.sock, selectors.EVENT_READ, what)
                             if mask & selectors.EVENT_READ:
-                                self._read(what)
+                                with self._read_lock:
+                                    self._read(what)
                 self._arm_writes()
-                with self._passed:
-                    self._passes += 1
-                    self._passed.notify_all()
         finally:
             for client in list(self._clients) + list(self._pending.values()):
                 self._close_client(client)
@@ -325,27 +328,37 @@ class WireServer:
     def catch_up(self) -> None:
         """What the clients have written to their control connections by now, taken in before the wall
         driver delivers (``Medium.catch_up``; the medium's lock not held): a post waiting in a socket
-        while the selector thread was held (this process's other threads had the interpreter) would
-        otherwise meet a bus that went on without it, a SYNC delivered ahead of a setpoint posted 2 ms
-        before it (measured: bench/RESULTS.md). The selector thread alone reads the sockets: this waits
-        for its next pass, at most ``CATCH_UP_WAIT_S``."""
+        while this process's other threads had the CPU would otherwise meet a bus that went on without
+        it, a SYNC delivered ahead of a setpoint posted 2 ms before it (measured: bench/RESULTS.md). The
+        calling thread reads the sockets itself: waiting for the selector thread to be scheduled was
+        itself the delay (the drives' process held 2-4 ms). It takes in posts and refusals only; from
+        the first other message on, a connection's messages are the selector thread's (order kept)."""
         if threading.current_thread() is self._thread or self._closed:
             return
-        socks = [c.sock for c in list(self._conns) if c.client is not None and not c.receiving and not c.closed]
-        if not socks:
-            return
-        try:
-            readable, _, _ = select.select(socks, [], [], 0)
-        except (OSError, ValueError):
-            return
-        if not readable:
-            return
-        with self._passed:
-            seen = self._passes
-            self._wake()
-            self._passed.wait_for(lambda: self._passes != seen or self._closed, CATCH_UP_WAIT_S)
+        # the lock first: what the selector thread has read but not yet handed to the medium is in too
+        with self._read_lock:
+            conns = [c for c in list(self._conns) if c.client is not None and not c.receiving and not c.closed]
+            if not conns:
+                return
+            try:
+                readable, _, _ = select.select([c.sock for c in conns], [], [], 0)
+            except (OSError, ValueError):
+                return
+            ready = set(readable)
+            for conn in conns:
+                if conn.sock in ready and not conn.closed:
+                    self._read(conn, only=CAUGHT_UP_KINDS)
 
-    def _read(self, conn: _Conn) -> None:
+    def _handle_backlog(self) -> None:
+        """The selector thread: the messages ``catch_up`` left in connections' buffers."""
+        with self._read_lock:
+            backlog, self._backlog = self._backlog, []
+            for conn in backlog:
+                if not conn.closed:
+                    self._consume(conn)
+
+    def _read(self, conn: _Conn, only: frozenset[int] | None = None) -> None:
+        """Under the read lock: what ``conn`` sent, handled (``only``: see ``_consume``)."""
         try:
             data = conn.sock.recv(262_144)
         except (BlockingIOError, InterruptedError):
@@ -358,8 +371,19 @@ class WireServer:
         if conn.receiving:
             return  # the receive connection carries nothing from the client: only its end counts
         conn.inbuf += data
+        self._consume(conn, only)
+
+    def _consume(self, conn: _Conn, only: frozenset[int] | None = None) -> None:
+        """Under the read lock: the complete messages in ``conn``'s buffer, in order; with ``only``, up
+        to the first of another kind, which stays buffered for the selector thread (woken for it)."""
         try:
-            for kind, body in p.split_messages(conn.inbuf):
+            messages = p.split_messages(conn.inbuf)
+            for at, (kind, body) in enumerate(messages):
+                if only is not None and kind not in only:
+                    conn.inbuf[:0] = b"".join(p.pack(k, b) for k, b in messages[at:])
+                    self._backlog.append(conn)
+                    self._wake()
+                    return
                 self._handle(conn, kind, body)
                 if conn.closed or conn.receiving:
                     return
