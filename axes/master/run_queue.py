@@ -93,11 +93,14 @@ class RunQueue:
         extensions: Sequence[Extension],
         elapsed_ms: float,
         on_start: OnStart | None,
+        joined_elsewhere: bool = False,
     ) -> QueuedProgram:
         """Every feeder goes on with ``programs`` (axis order) after what it has, by its ``extensions``
-        (made from these programs); GroupError (nothing changed) when they cannot follow now (``refusal``)."""
-        why = self.refusal(programs, feeders, elapsed_ms)
-        if why is None and not all(e.ready() for e in extensions):
+        (made from these programs); GroupError (nothing changed) when they cannot follow now (``refusal``).
+        ``joined_elsewhere``: the cyclic process that sends the records has joined them to its feeders (it
+        judged them, ``refusal`` passed before it was asked): these feeders only mirror it and follow."""
+        why = None if joined_elsewhere else self.refusal(programs, feeders, elapsed_ms)
+        if why is None and not joined_elsewhere and not all(e.ready() for e in extensions):
             why = "the run changed while the queued program was being joined to it (a halt, another queue)"
         if why is not None:
             raise GroupError(why)

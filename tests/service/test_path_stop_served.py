@@ -404,7 +404,7 @@ def test_path_stop_pause_resume_and_override_from_the_cyclic_process(tmp_path: P
     """With ``bus.cyclic_process`` (the records sent by a process of its own, the drives in theirs, on the wall
     clock) a change reaches that process's feeders: a path stop stays on the path, pause + resume reaches the
     original end, an override runs to its end, nothing faults. Made in time or refused with the reason (a loaded
-    host), never half made: at least one change of each kind is made."""
+    host), never half made: at least one change of each kind is made. A queued motion runs on after the first."""
     source = CONFIG_DIR / "cells" / "gantry3.yaml"
     data = yaml.safe_load(source.read_text())
     for axis in data["axes"]:
@@ -420,6 +420,7 @@ def test_path_stop_pause_resume_and_override_from_the_cyclic_process(tmp_path: P
     cell = load_cell_config(copy)
     with MotionService(cell, journal_dir=tmp_path / "journal", clock=Clock.WALL, drives_process=True) as svc:
         assert svc.drives.bus is not None and svc.drives.bus.sync.cyclic is not None
+        lim = svc.cell.joint_limits()
         made = {"stop": 0, "pause": 0, "override": 0}
 
         def again(svc: MotionService) -> None:  # the drives are in a process of their own: their outcome says
@@ -471,3 +472,16 @@ def test_path_stop_pause_resume_and_override_from_the_cyclic_process(tmp_path: P
             if all(made.values()):
                 break  # a second round only where a loaded host refused one in the first
         assert all(made.values()), made
+
+        # a queued motion reaches the cyclic process's feeders too: it runs on from the first's end
+        first_plan = plan(svc, tour(svc.cell, [0.05, 0.95]))  # long enough to queue on (the end hold: 1 s here)
+        req = parse_plan({"waypoints": tour(svc.cell, [0.95, 0.2]), "start": "first"}, svc.cell.joint_names, lim)
+        then_plan = str(svc.plan(req)["plan_id"])
+        first = svc.execute(parse_execute({"plan_id": first_plan}))
+        queued = svc.execute(parse_execute({"plan_id": then_plan, "queue": True}))
+        assert queued["state"] == "queued" and queued["queued_after"] == first["motion_id"], queued
+        assert wait_until(lambda: svc.state == "idle" and not svc.activity.queued(), timeout=60.0)
+        results = {m: svc.journal.get(m).outcome["result"] for m in (first["motion_id"], queued["motion_id"])}
+        assert set(results.values()) == {"finished"}, results
+        ends = [int(a.records[-1, 0]) for a in svc.stored_plan(then_plan).program.axes]
+        assert svc.drives.positions_qc(refresh=True) == ends

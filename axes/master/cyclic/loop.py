@@ -87,6 +87,7 @@ class FeedSpec:
     buffer: BufferConfig | None = None
     capacity: int = 64
     lookahead_ms: float | None = None  # a buffered axis: the records held at most this far ahead (``BufferFeeder``)
+    hold_end_ms: float | None = None  # a buffered axis: its end record held until then (``axes.master.run_queue``)
 
 
 @dataclass
@@ -280,6 +281,7 @@ class CyclicLoop:
                         f.records, f.packer, self.offer, spec.period_ms, f.buffer, f.capacity, self.allowance,
                         f.lookahead_ms,
                     )  # fmt: skip
+                    feeder.hold_end(f.hold_end_ms)
                 feeder.resume_at(f.next)
                 if not f.enabled:
                     feeder.disable()
@@ -333,6 +335,17 @@ class CyclicLoop:
                 else:
                     feeder.replace_from(*changes[i])
                     feeder.hold_to(None)
+
+    def extend(self, records: list[NDArray[np.int64]]) -> bool:
+        """A queued program's records (axis order) after each feeder's (``Feeder.extension``): joined to every
+        feeder, or to none where one can no longer take them (its last setpoint or the EPOS2's end record out)."""
+        extensions = [feeder.extension(r) for feeder, r in zip(self.feeders, records, strict=True)]
+        with self.lock:
+            if not self.running or not all(e.ready() for e in extensions):
+                return False
+            for extension in extensions:
+                extension.apply()
+            return True
 
     def stop(self) -> None:
         with self.lock:
@@ -762,6 +775,8 @@ def serve_cyclic(
                 loop.tell("held", args[0], *loop.hold(args[1], args[2]))
             elif command == "splice":
                 loop.splice(args[0])
+            elif command == "extend":  # a queued program (axes.master.run_queue): answered at once
+                loop.tell("extended", args[0], loop.extend(args[1]))
             elif command == "stop":
                 loop.stop()
             elif command == "quick_stop":

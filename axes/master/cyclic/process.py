@@ -134,6 +134,8 @@ class CyclicProcess:
         self.last_quick_stop: tuple[str, list[int], list[int]] | None = None
         self._held: queue.Queue[tuple[Any, ...]] = queue.Queue()  # the child's answers to ``hold``
         self._holds = 0
+        self._extended: queue.Queue[tuple[int, bool]] = queue.Queue()  # the child's answers to ``extend``
+        self._extends = 0
 
     def open(self) -> CyclicProcess:
         config = self.config
@@ -181,6 +183,8 @@ class CyclicProcess:
                 self.last_timing = CycleTiming(late_us, echo_us, unstamped, refused, followed_us, held)
             elif message[0] == "held":
                 self._held.put(message[1:])
+            elif message[0] == "extended":
+                self._extended.put((int(message[1]), bool(message[2])))
             elif message[0] == "note":
                 log.warning("cyclic process: %s", message[1])
             elif message[0] == "quick_stopped":
@@ -212,6 +216,7 @@ class CyclicProcess:
                     spec.braking = (profile.config.limits, profile.config.scaling)
             elif isinstance(feeder, BufferFeeder):
                 spec.buffer, spec.capacity, spec.lookahead_ms = feeder.buffer, feeder.capacity, feeder.lookahead_ms
+                spec.hold_end_ms = feeder.hold_end_ms
             specs.append(spec)
         self._runs += 1
         clock = self.sync
@@ -283,6 +288,24 @@ class CyclicProcess:
         """Each feeder's new records from its record ``first`` on, ``(first, rows)`` in axis order, to the child
         (its feeders held by ``hold``); None: none, the held records go out as they were."""
         self._tell("splice", None if changes is None else [(int(f), r) for f, r in changes])
+
+    def extend(self, records: Sequence[Any], timeout_s: float) -> bool:
+        """A queued program (``axes.master.run_queue``): each feeder's next records, in axis order, joined to the
+        child's feeders where every one can still take them (True), else nothing changed there (False).
+        TimeoutError where it does not answer within ``timeout_s`` (its answer, when it comes, is dropped)."""
+        self._extends += 1
+        number = self._extends
+        self._tell("extend", number, list(records))
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                answer, joined = self._extended.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                raise TimeoutError(
+                    f"the cyclic process did not answer a queued program within {timeout_s * 1000:.0f} ms"
+                ) from None
+            if answer == number:
+                return joined
 
     def halt(self, quick: bool) -> None:
         self._tell("halt", quick)

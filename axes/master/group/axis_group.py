@@ -25,6 +25,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING
 
 import can
 
@@ -37,7 +38,7 @@ from pvtflow.axes.master.bus.faults import BusFault, FaultKind
 from pvtflow.axes.master.bus.quick_stop import QuickStop
 from pvtflow.axes.master.bus.sync import below_sync
 from pvtflow.axes.master.group.configure import SETUP_PATIENCE_S, CellSetup, Configured
-from pvtflow.axes.master.group.feeder import BufferFeeder, Feeder, RecordAllowance
+from pvtflow.axes.master.group.feeder import BufferFeeder, Extension, Feeder, RecordAllowance
 from pvtflow.axes.master.group.outcome import (
     Event,
     EventCallback,
@@ -57,7 +58,10 @@ from pvtflow.axes.master.link import AxisLink, DriveError
 from pvtflow.axes.master.profiles import profile_for
 from pvtflow.axes.master.profiles.base import Profile
 from pvtflow.axes.master.run_queue import OnStart, QueuedProgram, RunQueue
-from pvtflow.axes.master.splice import Make, SpliceAt, SpliceRefusedError, splice_run
+from pvtflow.axes.master.splice import HOLD_ANSWER_S, Make, SpliceAt, SpliceRefusedError, splice_run
+
+if TYPE_CHECKING:
+    from pvtflow.axes.master.cyclic.process import CyclicProcess
 
 
 class AxisGroup:
@@ -339,9 +343,41 @@ class AxisGroup:
             before_records()
         # joined and packed here, so that the SYNC lock is held only to put them in place
         extensions = [f.extension(p.records) for f, p in zip(feeders, programs, strict=True)]
-        with self.bus.sync.lock, self._lock:  # the setpoints go out under the SYNC lock: none while they grow
+        sync = self.bus.sync
+        cyclic = sync.cyclic if sync.cyclic_producing else None
+        if cyclic is not None:
+            return self._append_through(cyclic, run, programs, program, extensions, on_start)
+        with sync.lock, self._lock:  # the setpoints go out under the SYNC lock: none while they grow
             elapsed_ms = run.queue_refusal(programs)
             return run.queue.append(programs, program, run.feeders, extensions, elapsed_ms, on_start)
+
+    def _append_through(
+        self,
+        cyclic: CyclicProcess,
+        run: Run,
+        programs: list[AxisProgram],
+        program: PvtProgram,
+        extensions: list[Extension],
+        on_start: OnStart | None,
+    ) -> QueuedProgram:
+        """``append`` where the cyclic process sends the records: it joins them to its feeders first (one pipe
+        message each way, at most ``HOLD_ANSWER_S`` as a change's hold), then this process's mirrors follow.
+        The group lock is held throughout (taken under the SYNC lock, as everywhere), the SYNC lock not while
+        the child answers."""
+        with self.bus.sync.lock:
+            self._lock.acquire()
+        try:
+            elapsed_ms = run.queue_refusal(programs)
+            try:
+                joined = cyclic.extend([p.records for p in programs], HOLD_ANSWER_S)
+            except TimeoutError as exc:
+                raise GroupError(str(exc)) from None
+            if not joined:
+                raise GroupError("the run ends before the queued program could be joined: its last records are out")
+            queue = run.queue
+            return queue.append(programs, program, run.feeders, extensions, elapsed_ms, on_start, joined_elsewhere=True)
+        finally:
+            self._lock.release()
 
     @property
     def queue(self) -> RunQueue | None:

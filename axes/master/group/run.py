@@ -80,8 +80,6 @@ class Run:
         sync = self.parts.bus.sync
         if not self.live or self.ending is not None or self.start_sync is None:
             raise GroupError("no program runs on this cell to queue after")
-        if sync.cyclic_producing:
-            raise GroupError("a cell whose SYNC comes from its cyclic process takes no queued program")
         # the SYNCs sent, not answered: a program queued now must not be late for the one going out
         elapsed_ms = (sync.count - self.start_sync) * self.parts.bus.config.sync_period_ms
         elapsed_ms = max(elapsed_ms, self.drive_clock_ms())
