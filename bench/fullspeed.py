@@ -62,6 +62,7 @@ def without_homing(
     status_every: int | None = None,
     cyclic: bool = False,
     interface_sync: bool = False,
+    in_master: bool = False,
 ) -> Path:
     """A copy of the cell's file without its homing sections (at ``period_ms``, with ``headroom`` if given)."""
     source = CONFIG_DIR / "cells" / f"{name}.yaml"
@@ -85,6 +86,8 @@ def without_homing(
         data["bus"]["cyclic_process"] = True
     if interface_sync:
         data["bus"]["interface_sync"] = True
+    if in_master:
+        data["bus"]["cyclic_process"] = False
     robot = data.get("robot", {})
     if "urdf" in robot:
         robot["urdf"] = str((source.parent / robot["urdf"]).resolve())
@@ -288,6 +291,12 @@ def main() -> None:
         action="store_true",
         help="with --cyclic: bus.interface_sync, the interface (the served medium) sends SYNC, the process follows",
     )
+    parser.add_argument(
+        "--in-master",
+        action="store_true",
+        help="bus.cyclic_process false: SYNC and the feed from the master's process (by default, auto: the drives "
+        "served in their own process, the cyclic process runs and the interface sends SYNC)",
+    )
     args = parser.parse_args()
     kept = tempfile.TemporaryDirectory()
     files = Path(kept.name)
@@ -301,11 +310,12 @@ def main() -> None:
             + (f" --status-every {args.status_every}" if args.status_every is not None else "")
             + (" --cyclic" if args.cyclic else "")
             + (" --interface-sync" if args.interface_sync else "")
+            + (" --in-master" if args.in_master else "")
         )
         print(
             "| cell | SYNC ms | finished | SYNC interval p50 / p99 / max (periods) | setpoint after its SYNC "
             "p50 / p99 / max (periods) | worst v / 0x607F, a / 0x60C5 | tour s | "
-            + ("setpoints sent after their SYNC was due" if args.interface_sync else "SYNC late in the cyclic process")
+            + ("SYNC late in the master" if args.in_master else "setpoints sent after their SYNC was due")
             + " p50 / p99 / max (us) | first failure |"
         )
         print("|---|---|---|---|---|---|---|---|---|")
@@ -313,7 +323,14 @@ def main() -> None:
             # the copy stays for the run: the service's planner child reads the cell's file again
             cell = load_cell_config(
                 without_homing(
-                    name, files, args.period_ms, args.headroom, args.status_every, args.cyclic, args.interface_sync
+                    name,
+                    files,
+                    args.period_ms,
+                    args.headroom,
+                    args.status_every,
+                    args.cyclic,
+                    args.interface_sync,
+                    args.in_master,
                 )
             )
             plans: dict[bytes, PvtProgram] = {}

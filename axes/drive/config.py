@@ -61,12 +61,15 @@ class BusConfig:
     # 0.1 %: its speed over real time above the demand it judges); docs/cells.md says why no more
     fixed_period_headroom: float = 0.002
     # wall clock: SYNC, the time stamp, setpoints, records and the quick stop from a process of their own
-    # (``axes.master.cyclic.process``), where nothing else of the master runs
-    cyclic_process: bool = False
+    # (``axes.master.cyclic.process``), where nothing else of the master runs. None (``auto``): wherever the
+    # interface can be opened by another process (socketcan, a served simwire channel) on the wall clock
+    # (``axes.master.cyclic.process.runs_cyclic``); True there only (refused elsewhere); False: never
+    cyclic_process: bool | None = None
     # with ``cyclic_process``: the interface sends SYNC (socketcan's broadcast manager on a kernel timer; a
     # served simwire: its medium) and the cyclic process paces the setpoints, records and time stamp on its
-    # schedule, so that no process's wake times SYNC (axes.master.cyclic.loop, ``CyclicLoop._follow``)
-    interface_sync: bool = False
+    # schedule, so that no process's wake times SYNC (axes.master.cyclic.loop, ``CyclicLoop._follow``).
+    # None (``auto``): on socketcan and simwire, whose cyclic sends a kernel timer (a medium) times
+    interface_sync: bool | None = None
     # the EPOS2 FIFO holds records at most this far beyond the drive's clock (and never fewer than
     # MIN_HELD, axes.master.group.feeder): what the drives hold is what a change of the motion (on-path
     # stop, pause, override: axes.master.splice) cannot take back, and also what rides out a stalled
@@ -91,6 +94,33 @@ class BusConfig:
         """The drives' 0x1016 time for the master's heartbeat: the same number of missed periods as
         the master allows a drive (``heartbeat_timeout_factor``), in whole ms."""
         return math.ceil(self.master_heartbeat_ms * self.heartbeat_timeout_factor)
+
+
+def shared_interface(interface: str, channel: str) -> bool:
+    """Whether another process can open this bus as a node of its own: socketcan (a second socket on
+    the channel) and a simulated wire served to other processes (``NAME@127.0.0.1:PORT``). python-can's
+    virtual bus and an in-process simwire channel reach this process only; PCAN-Basic gives a channel
+    to one client."""
+    return interface == "socketcan" or (interface == SIMULATED_WIRE and "@" in channel)
+
+
+def runs_cyclic(config: BusConfig, clock: Clock) -> bool:
+    """Whether the cyclic path runs in a process of its own (``BusConfig.cyclic_process``): never in
+    lockstep; ``auto`` wherever another process can open the interface; True is refused elsewhere (by
+    ``axes.master.cyclic.process``, with the reason)."""
+    if clock is not Clock.WALL:
+        return False
+    if config.cyclic_process is None:
+        return shared_interface(config.interface, config.channel)
+    return config.cyclic_process
+
+
+def interface_times_sync(config: BusConfig) -> bool:
+    """Whether the cyclic process has the interface send SYNC (``BusConfig.interface_sync``); ``auto``:
+    where a timer outside any Python process times it (socketcan's broadcast manager, a served medium)."""
+    if config.interface_sync is None:
+        return config.interface in ("socketcan", SIMULATED_WIRE)
+    return config.interface_sync
 
 
 def wire_options(config: BusConfig, *, clock: Clock) -> dict[str, object]:

@@ -85,8 +85,8 @@ def parse_bus(file: Path, data: Any) -> BusConfig:
         status_inhibit_ms=f.get("status_inhibit_ms", f.number(positive=True), d.status_inhibit_ms),
         status_event_timer_ms=f.get("status_event_timer_ms", f.integer(0, 65535), d.status_event_timer_ms),
         fixed_period_headroom=f.get("fixed_period_headroom", f.number(), d.fixed_period_headroom),
-        cyclic_process=f.get("cyclic_process", f.boolean, d.cyclic_process),
-        interface_sync=f.get("interface_sync", f.boolean, d.interface_sync),
+        cyclic_process=f.get("cyclic_process", f.boolean_or_auto, d.cyclic_process),
+        interface_sync=f.get("interface_sync", f.boolean_or_auto, d.interface_sync),
         max_lookahead_ms=f.get("max_lookahead_ms", f.number(positive=True), d.max_lookahead_ms),
     )
     if not 0.0 <= bus.fixed_period_headroom <= MAX_FIXED_PERIOD_HEADROOM:

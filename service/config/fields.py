@@ -81,3 +81,11 @@ class Fields:
         if not isinstance(v, bool):
             raise self.error(key, f"must be true or false, got {v!r}")
         return v
+
+    def boolean_or_auto(self, key: str, v: Any) -> bool | None:
+        """true, false, or ``auto`` (None: the program decides, the field's comment says how)."""
+        if v == "auto":
+            return None
+        if not isinstance(v, bool):
+            raise self.error(key, f"must be true, false or auto, got {v!r}")
+        return v

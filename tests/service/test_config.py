@@ -426,3 +426,33 @@ def test_a_bad_fixed_period_headroom_is_named(tmp_path: Path, value: Any) -> Non
     with pytest.raises(ConfigError) as info:
         load_cell_config(path)
     assert info.value.where == "bus.fixed_period_headroom"
+
+
+def test_the_cyclic_process_is_auto_unless_the_cell_says(tmp_path: Path) -> None:
+    """``bus.cyclic_process`` / ``interface_sync``: true, false or auto (the default). Auto runs the cyclic path
+    in a process of its own on the wall clock wherever another process can open the interface (socketcan, a
+    served simwire channel), never in lockstep or on a bus only this process reaches; the interface times SYNC
+    where a kernel timer or the served medium does (socketcan, simwire)."""
+    import dataclasses
+
+    from pvtflow.axes.canbus.clock import Clock
+    from pvtflow.axes.drive.config import interface_times_sync, runs_cyclic
+
+    bus = load_cell_config(ARM).bus
+    assert bus.cyclic_process is None and bus.interface_sync is None
+    served = dataclasses.replace(bus, channel="pvtflow-arm6@127.0.0.1:40000")
+    assert runs_cyclic(served, Clock.WALL) and not runs_cyclic(served, Clock.LOCKSTEP)
+    assert not runs_cyclic(bus, Clock.WALL)  # an in-process simwire channel: only this process reaches it
+    assert runs_cyclic(dataclasses.replace(bus, interface="socketcan", channel="can0"), Clock.WALL)
+    assert not runs_cyclic(dataclasses.replace(bus, interface="virtual"), Clock.WALL)
+    assert not runs_cyclic(dataclasses.replace(served, cyclic_process=False), Clock.WALL)
+    assert interface_times_sync(served) and not interface_times_sync(dataclasses.replace(bus, interface="virtual"))
+    assert not interface_times_sync(dataclasses.replace(served, interface_sync=False))
+    for said, means in ((True, True), (False, False), ("auto", None)):
+        data = arm_data()
+        data["bus"]["cyclic_process"] = data["bus"]["interface_sync"] = said
+        cell = load_cell_config(write(tmp_path, data))
+        assert (cell.bus.cyclic_process, cell.bus.interface_sync) == (means, means)
+    data = arm_data()
+    data["bus"]["cyclic_process"] = "yes"
+    expect_error(tmp_path, data, "bus.cyclic_process", "must be true, false or auto, got 'yes'")

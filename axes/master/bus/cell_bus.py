@@ -21,7 +21,7 @@ from canopen.objectdictionary import ObjectDictionary
 
 from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.threads import hand_the_gil_on_often
-from pvtflow.axes.drive.config import BusConfig, wire_options
+from pvtflow.axes.drive.config import BusConfig, runs_cyclic, wire_options
 from pvtflow.axes.drive.objects import time_stamp_cob_id
 from pvtflow.axes.master.bus.faults import BusError, BusFault, FaultCallback
 from pvtflow.axes.master.bus.heartbeat import MasterHeartbeat
@@ -88,7 +88,7 @@ class CellBus:
             raise BusError(f"cannot open CAN bus {where}: {exc}") from None
         self.network.bus = bus
         self.network.notifier = can.Notifier(bus, [*self.network.listeners, self.recorder, self.watch.errors], 0.1)
-        if self.config.cyclic_process and self.sync.clock is Clock.WALL:
+        if runs_cyclic(self.config, self.sync.clock):
             from pvtflow.axes.master.cyclic.process import CyclicProcess  # a child process: only where asked for
 
             try:

@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.canbus.subscriptions import subscribe, unsubscribe
-from pvtflow.axes.drive.config import wire_options
+from pvtflow.axes.drive.config import interface_times_sync, shared_interface, wire_options
 from pvtflow.axes.drive.objects import SYNC_COB_ID
 from pvtflow.axes.master.bus.faults import BusError, BusFault, FaultKind
 from pvtflow.axes.master.cyclic.loop import (
@@ -83,14 +83,6 @@ log = logging.getLogger("pvtflow.bus")
 START_TIMEOUT_S = 30.0  # a fresh interpreter importing numpy and python-can on a loaded host
 
 
-def shared_interface(interface: str, channel: str) -> bool:
-    """Whether another process can open this bus as a node of its own: socketcan (a second socket on
-    the channel) and a simulated wire served to other processes (``NAME@127.0.0.1:PORT``). python-can's
-    virtual bus and an in-process simwire channel reach this process only; PCAN-Basic gives a channel
-    to one client."""
-    return interface == "socketcan" or (interface == "simwire" and "@" in channel)
-
-
 class CyclicProcess:
     """The child that runs the cyclic path of one cell's bus (module docstring): its config, network, the
     report of its faults and its SYNC clock."""
@@ -106,7 +98,7 @@ class CyclicProcess:
         kwargs: dict[str, object] = {"interface": config.interface, "channel": config.channel}
         kwargs.update(wire_options(config, clock=Clock.WALL))
         kwargs["receive_own_messages"] = True
-        if config.interface_sync and config.interface == "simwire":  # the served medium times SYNC, as the kernel would
+        if interface_times_sync(config) and config.interface == "simwire":  # the served medium times SYNC, as a kernel
             kwargs["cyclic_by_medium"] = True
         self.process = context.Process(
             target=serve_cyclic,
@@ -231,7 +223,7 @@ class CyclicProcess:
             max_gap_s=max_gap_s,
             records_per_sync=allowance.per_sync,
             tx_queue_frames=self.config.tx_queue_frames,
-            interface_sync=self.config.interface_sync,
+            interface_sync=interface_times_sync(self.config),
             feeds=specs,
         )
 
