@@ -442,13 +442,17 @@ class SyncClock:
                     self._running = False
                 return
             production = self._production
-            if self.cyclic is not None and self.cyclic.handed_over:
-                self.native = False
-                self.cyclic.produce(self, production)  # the child sends SYNC; each one heard: ``heard``
-                return
             if not self._collector_held:
                 collector.hold()  # no collection pause while SYNC runs on the wall clock (axes/canbus/collector.py)
                 self._collector_held = True
+            if self.cyclic is not None and self.cyclic.handed_over:
+                self.native = False
+                # the child sends SYNC; this process still answers the drives, watches their heartbeats, sends
+                # its own and mirrors the feeders: its bus threads run as they do below a SYNC thread of its own
+                if self.lift_bus_threads and self.priority > 0:
+                    self.lifted = lift(self.bus_threads(), self.priority - 1)
+                self.cyclic.produce(self, production)  # each SYNC heard: ``heard``
+                return
             msg = can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
             assert self.network.bus is not None
             self.follower.task = native_cyclic_task(self.network.bus, msg, self.period_ms / 1000.0)
