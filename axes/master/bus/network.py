@@ -22,6 +22,15 @@ import canopen
 TX_RETRY_PAUSE_S = 0.0002  # between two tries of a frame the interface refused
 
 
+def sent_together(bus: can.BusABC | None) -> contextlib.AbstractContextManager[None]:
+    """Frames the calling thread sends on ``bus`` inside it go to the interface together where it can take a
+    run of frames in one call (simwire's loopback client: ``SimWireBus.coalesced``, one write: a process held
+    between two writes would leave a frame stamped but not yet sent); elsewhere (socketcan, virtual, pcan: one
+    frame per call) each goes as it is sent. Each is refused on its own."""
+    coalesced = getattr(bus, "coalesced", None)
+    return coalesced() if coalesced is not None else contextlib.nullcontext()
+
+
 class FrameLog(can.Listener):
     """Counts every frame (sent and received) and, with a log file, writes it through can.Logger."""
 
@@ -98,11 +107,8 @@ class LoggingNetwork(canopen.Network):
             self._patience.seconds = previous
 
     def together(self) -> contextlib.AbstractContextManager[None]:
-        """Frames this thread sends inside it go to the interface together where it can take a run of
-        frames in one call (simwire's loopback client: ``SimWireBus.coalesced``); elsewhere (socketcan,
-        virtual, pcan: one frame per call) each goes as it is sent. Each is refused on its own."""
-        coalesced = getattr(self.bus, "coalesced", None)
-        return coalesced() if coalesced is not None else contextlib.nullcontext()
+        """Frames this thread sends inside it go to the interface together (``sent_together``)."""
+        return sent_together(self.bus)
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         if not self.bus:

@@ -46,7 +46,7 @@ from pvtflow.axes.drive.objects import SYNC_COB_ID, NmtCommand
 from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.axes.drive.stop_ramp import braking_records
 from pvtflow.axes.master.bus.faults import FaultKind
-from pvtflow.axes.master.bus.network import TX_RETRY_PAUSE_S
+from pvtflow.axes.master.bus.network import TX_RETRY_PAUSE_S, sent_together
 from pvtflow.axes.master.bus.quick_stop import (
     SDO_DOWNLOAD_CONFIRMED,
     quick_stop_request,
@@ -200,14 +200,6 @@ class CyclicLoop:
                 if time.monotonic() >= deadline:
                     raise
                 time.sleep(TX_RETRY_PAUSE_S)
-
-    def _together(self) -> contextlib.AbstractContextManager[None]:
-        """A period's setpoints reach the interface in one call where it takes a run of frames (simwire's
-        loopback: one write, ``SimWireBus.coalesced``), each still stamped and refused on its own: three
-        writes leave three chances for this process to be held between them with a setpoint stamped
-        before its SYNC but not yet written (measured: bench/RESULTS.md). Elsewhere one frame per call."""
-        coalesced = getattr(self.bus, "coalesced", None)
-        return coalesced() if coalesced is not None else contextlib.nullcontext()
 
     @property
     def queued(self) -> int:
@@ -483,7 +475,7 @@ class CyclicLoop:
                     number = pace.number
                     self.count = spec.start_count + number
                     self.sent_at = now
-                    with self._together():
+                    with sent_together(self.bus):  # one write: none stamped but unsent if held between
                         for feeder in self.feeders:
                             feeder.after_sync(number)
                     pace.marks[number + 1] = self._sent_frames
