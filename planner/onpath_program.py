@@ -62,6 +62,12 @@ class ChangeError(ValueError):
     """The change cannot be made into records that the drives take (the caller stops the quick way)."""
 
 
+class NoRampError(ChangeError):
+    """No jerk-limited ramp back to the planned speed holds the limits before the motion's end: none will at a
+    lower share of them either (``jerk_change_rates`` tries lower rates already, down to a fifth; a lower share
+    judges about the same rates harder)."""
+
+
 def change_start_ms(t0_ms: float, join_ms: Sequence[float], axes: Sequence[AxisProgram]) -> float:
     """Where the new motion leaves the old one: ``t0``, or later where an EPOS2 axis's held records end
     less than ``MIN_SEGMENT_MS`` before it (the records from its join to the change would be a segment too
@@ -412,7 +418,7 @@ def back_to_plan_on_grid(
         return _back_on_grid(planned, running, t0_s, limits, grid_s, share, phase_s, s0, None)
     rates = jerk_change_rates(planned, running, t0_s, 1.0, limits, max_jerk, share, jerk_share)
     if not rates:
-        raise ChangeError("no jerk-limited ramp back to the planned speed holds the limits before the motion's end")
+        raise NoRampError("no jerk-limited ramp back to the planned speed holds the limits before the motion's end")
     failed = ChangeError("no ramp back to the planned speed ends on the SYNC grid")
     for accel, jerk in rates[:RATE_TRIES]:
         try:

@@ -29,6 +29,7 @@ from pvtflow.planner.onpath_program import (
     RAMP_SHARES,
     WINDOW_JERK_RATIO,
     ChangeError,
+    NoRampError,
     back_to_plan_on_grid,
     brake_on_grid,
     brake_with_jerk_on_grid,
@@ -248,6 +249,9 @@ class PathChanges:
                 )
                 self._hold_jerk(program, within, 0.0)
                 break
+            except NoRampError as exc:
+                failed = exc
+                break  # nor at any lower share
             except _CHANGE_ERRORS as exc:
                 failed = exc
         if program is None:  # no ramp joins the planned records: the rest of the path from rest, placed as a plan
@@ -339,6 +343,9 @@ class PathChanges:
                     program, at.first, at.join_ms, begin, back, path.original, self.limits, max_jerk=within
                 )
                 self._hold_jerk(new, jerk if jerk_share is not None else None, begin)
+            except NoRampError as exc:
+                failed = exc
+                break  # nor at any lower share
             except _CHANGE_ERRORS as exc:
                 failed = exc
                 continue
