@@ -395,6 +395,9 @@ def _delay(whole: Trajectory, planned: Trajectory, s0: float) -> tuple[float, fl
 # the shares of 0x60C5 the ramp back to the planned speed is tried with, in turn: where it reaches the plan, the
 # joints' acceleration jumps by the ramp's part of it, which a record's cubic across it overshoots
 RAMP_SHARES = (BRAKING_SHARE, 0.6, 0.35)
+# a resume's ramp from rest: all of 0x60C5 first (no share of it given away where the records take it: the axes
+# stand, so the tries cost no look-ahead)
+RESUME_RAMP_SHARES = (1.0, *RAMP_SHARES)
 
 
 def back_to_plan_on_grid(

@@ -27,6 +27,7 @@ from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.onpath_program import (
     JERK_SHARES,
     RAMP_SHARES,
+    RESUME_RAMP_SHARES,
     WINDOW_JERK_RATIO,
     ChangeError,
     NoRampError,
@@ -216,7 +217,7 @@ class PathChanges:
     # --- resume ------------------------------------------------------------------------------------
     def resume_program(self) -> tuple[Paused, PvtProgram]:
         """The program that continues the paused motion from where its axes stand, at rest, at its planned
-        timing: a ramp up to the planned speed (``RAMP_SHARES`` of 0x60C5 tried in turn), then the motion's own
+        timing: a ramp up to the planned speed (``RESUME_RAMP_SHARES`` of 0x60C5 tried in turn), then the motion's own
         records to its end (``onpath_program.resumed_program``, validated as every program). NOT_ALLOWED when
         nothing is paused."""
         paused = self.paused
@@ -230,7 +231,8 @@ class PathChanges:
         jerk = planned_jerk(path.program.metadata)
         failed: Exception | None = None
         program = None
-        for share, jerk_share in self._ramps(jerk, plain=jerk is None):  # within the jerk limit, where planned with
+        joined = True  # the program's own records after the ramp, or (False) the rest placed from rest
+        for share, jerk_share in self._ramps(jerk, RESUME_RAMP_SHARES if jerk is None else RAMP_SHARES):
             try:
                 back = back_to_plan_on_grid(
                     path.planned,
@@ -256,13 +258,15 @@ class PathChanges:
                 failed = exc
         if program is None:  # no ramp joins the planned records: the rest of the path from rest, placed as a plan
             log.info("resume of %s from rest to its end as a plan: %s", paused.motion.motion_id, failed)
+            joined = False
             try:
                 program = self._from_rest(path, grid_ms, jerk)
             except _CHANGE_ERRORS as exc:
                 raise ApiError(
                     ErrorCode.PLAN_FAILED, f"the rest of the paused motion could not be planned: {exc}"
                 ) from None
-        program = PvtProgram(program.cell, program.axes, {**program.metadata, "resumes": paused.motion.motion_id})
+        meta = {**program.metadata, "resumes": paused.motion.motion_id, "resumed_on_planned_records": joined}
+        program = PvtProgram(program.cell, program.axes, meta)
         here = [int(a.records[-1, 0]) for a in path.program.axes]
         start = [int(a.records[0, 0]) for a in program.axes]
         if any(abs(h - s) > 1 for h, s in zip(here, start, strict=True)):  # the same path point, rounded alike
@@ -297,14 +301,15 @@ class PathChanges:
 
     # --- override ----------------------------------------------------------------------------------
     @staticmethod
-    def _ramps(jerk: NDArray[np.float64] | None, plain: bool = True) -> list[tuple[float, float | None]]:
+    def _ramps(
+        jerk: NDArray[np.float64] | None, shares: tuple[float, ...] = RAMP_SHARES
+    ) -> list[tuple[float, float | None]]:
         """The ramps up to a speed tried in turn: (share of 0x60C5, share of the jerk limit or None). A motion
-        planned with a jerk limit tries S-curves within it first, then (``plain``; the records' jerk above
-        1.2 x the limit in each) the acceleration-limited ramps as a motion without one."""
-        ramps: list[tuple[float, float | None]] = [(share, None) for share in RAMP_SHARES] if plain else []
+        planned with a jerk limit tries S-curves within it only (an acceleration-limited ramp passes it many
+        times over)."""
         if jerk is None:
-            return ramps
-        return [(share, js) for share in RAMP_SHARES for js in JERK_SHARES] + ramps
+            return [(share, None) for share in shares]
+        return [(share, js) for share in shares for js in JERK_SHARES]
 
     @staticmethod
     def _hold_jerk(program: PvtProgram, jerk: NDArray[np.float64] | None, from_ms: float) -> None:
@@ -326,7 +331,7 @@ class PathChanges:
         where none validates."""
         assert path.original is not None
         failed: Exception | None = None
-        for share, jerk_share in self._ramps(jerk, plain=jerk is None):
+        for share, jerk_share in self._ramps(jerk):
             try:
                 back = back_to_plan_on_grid(
                     path.planned,
