@@ -401,19 +401,30 @@ def quick_stop_joints(program: PvtProgram, t_ms: float) -> np.ndarray:
     return np.column_stack(pts)
 
 
+def speed_reached_ms(svc: MotionService, over: dict) -> float:
+    """Program ms at which the overridden motion runs at its new speed (its path speed the scale's, the motion's
+    path and timing as the service re-timed it)."""
+    path = svc.changes.paths[over["motion_id"]]
+    running, scale = path.running, path.scale
+    s_from = float(running.gridpoints[np.searchsorted(running.breakpoints, over["from_ms"] / 1000.0)])
+    at = np.nonzero((running.gridpoints >= s_from) & (np.abs(running.sd - scale) < 1e-6))[0]
+    return float(running.breakpoints[at[0]]) * 1000.0 if len(at) else float("nan")
+
+
 def per_cell(runs: int) -> None:
     """Every figure the issue asks, per cell (the five gantry profiles and arm6), lockstep: at each of 20-80 % of
     the move a path stop, an ``override 0.3`` and a ``pause`` + ``resume``, each on a motion of its own."""
     print(
         "cell                  | tool mm path / quick | stop begun p50/p99 ms | rest p50/p99 ms | look-ahead ms "
-        "| braking |v| |a| % | override 0.3 to speed p50/p99 ms, |v| |a| % | pause+resume extra p50/max ms (plan), "
-        "ramp |v| |a| %, placed from rest | not made | faults"
+        "| braking |v| |a| % | override 0.3 begins -> at speed p50/p99 ms, |v| |a| % "
+        "| pause+resume extra p50/max ms (plan), ramp |v| |a| %, placed from rest | not made | faults"
     )
     notes: list[str] = []
     for name in ALL_CELLS:
         svc = open_cell(name)
         cell = svc.cell
         path_mm, quick_mm, begun, rest, to_speed, extra, plans = [], [], [], [], [], [], []
+        reached: list[float] = []
         brv = bra = orv = ora = rrv = rra = 0.0
         placed = not_made = svc_faults = 0
         half = max(1, int(cell.bus.max_lookahead_ms / 2))
@@ -450,6 +461,7 @@ def per_cell(runs: int) -> None:
                             notes.append(f"{name} override at {fraction:g}: {str(exc)[:140]}")
                         else:
                             to_speed.append(over["from_ms"] - over["requested_ms"])
+                            reached.append(speed_reached_ms(svc, over) - over["requested_ms"])
                             v, a = ratios(
                                 PvtProgram(cell.name, svc.group.programs), over["from_ms"], over["from_ms"] + 300.0
                             )
@@ -489,7 +501,9 @@ def per_cell(runs: int) -> None:
                 f"| {pct(begun, 50):6.1f} / {pct(begun, 99):6.1f} | {pct(rest, 50):6.1f} / {pct(rest, 99):6.1f} "
                 f"| {cell.bus.max_lookahead_ms:5.0f} (SYNC {cell.bus.sync_period_ms:g}) "
                 f"| {100 * brv:5.1f} {100 * bra:5.1f} "
-                f"| {pct(to_speed, 50):6.1f} / {pct(to_speed, 99):6.1f}, {100 * orv:5.1f} {100 * ora:5.1f} "
+                f"| {pct(to_speed, 50):6.1f} / {pct(to_speed, 99):6.1f} "
+                f"-> {pct(reached, 50):6.1f} / {pct(reached, 99):6.1f}, "
+                f"{100 * orv:5.1f} {100 * ora:5.1f} "
                 f"| {pct(extra, 50):6.1f} / {max(extra):6.1f} ({int(np.median(plans))}), "
                 f"{100 * rrv:5.1f} {100 * rra:5.1f}, {placed}/{len(extra)} "
                 f"| {not_made} | {faults} ({svc_faults} runs lost to a stalled host)"
