@@ -347,7 +347,8 @@ def jerk_changes() -> None:
             wait_ms(svc, fraction * before.duration_ms)
             return before
 
-        slow_j, back_j, res_j, extra, scales = [], [], [], [], []
+        slow_j, back_j, res_j, extra, scales, limited = [], [], [], [], [], []
+        placed = 0
         for fraction in FRACTIONS[:4]:
             go(fraction)
             slow = svc.override(parse_override({"scale": 0.5}))
@@ -355,6 +356,8 @@ def jerk_changes() -> None:
             wait_ms(svc, slow["from_ms"] + 150.0)
             back = svc.override(parse_override({"scale": 1.0}))
             scales.append(back["scale"])
+            if back["limited"]:
+                limited.append(f"at {fraction:g}: {back['limited']}")
             back_j.append(jerk_ratio(PvtProgram(svc.cell.name, svc.group.programs), max_jerk, back["from_ms"]))
             svc.motion.done.wait(60.0)
         for fraction in FRACTIONS:
@@ -365,11 +368,15 @@ def jerk_changes() -> None:
             out = svc.resume(parse_resume({"wait": True}))
             res_j.append(jerk_ratio(PvtProgram(svc.cell.name, svc.group.programs), max_jerk, 0.0))
             extra.append(paused["braking"]["ended_ms"] + out["duration_ms"] - before.duration_ms)
+            placed += not svc.motion.program.metadata["resumed_on_planned_records"]
         faults = sum(len(d.faults) for d in svc.sim)
         print(
             f"{'':26s} | {max(slow_j):.2f} / {max(back_j):.2f} (1.0 applied as {min(scales):g}) "
-            f"| {max(res_j):.2f}, {pct(extra, 50):.0f} / {max(extra):.0f} ({len(res_j)} resumes, {faults} faults)"
+            f"| {max(res_j):.2f}, {pct(extra, 50):.0f} / {max(extra):.0f} ({len(res_j)} resumes, {placed} placed from "
+            f"rest, {faults} faults)"
         )
+        for why in limited:
+            print(f"{'':26s} | override 1.0 {why}")
     finally:
         svc.close()
     print("command: PYTHONPATH=. python3 bench/onpath_service.py --part jerk-changes")
@@ -496,13 +503,14 @@ def per_cell(runs: int) -> None:
                         if svc.cell.requires_homing:
                             svc.home(parse_home({"wait": True}))
             faults = sum(len(d.faults) for d in svc.sim)
+            reached_ = [r for r in reached if np.isfinite(r)]  # nan: the motion ended before the new speed
             print(
                 f"{name:21s} | {max(path_mm):7.4f} / {max(quick_mm):6.2f} "
                 f"| {pct(begun, 50):6.1f} / {pct(begun, 99):6.1f} | {pct(rest, 50):6.1f} / {pct(rest, 99):6.1f} "
                 f"| {cell.bus.max_lookahead_ms:5.0f} (SYNC {cell.bus.sync_period_ms:g}) "
                 f"| {100 * brv:5.1f} {100 * bra:5.1f} "
                 f"| {pct(to_speed, 50):6.1f} / {pct(to_speed, 99):6.1f} "
-                f"-> {pct(reached, 50):6.1f} / {pct(reached, 99):6.1f}, "
+                f"-> {pct(reached_, 50):6.1f} / {pct(reached_, 99):6.1f} ({len(reached) - len(reached_)} ended first), "
                 f"{100 * orv:5.1f} {100 * ora:5.1f} "
                 f"| {pct(extra, 50):6.1f} / {max(extra):6.1f} ({int(np.median(plans))}), "
                 f"{100 * rrv:5.1f} {100 * rra:5.1f}, {placed}/{len(extra)} "
