@@ -413,7 +413,10 @@ def speed_reached_ms(svc: MotionService, over: dict) -> float:
     path and timing as the service re-timed it)."""
     path = svc.changes.paths[over["motion_id"]]
     running, scale = path.running, path.scale
-    s_from = float(running.gridpoints[np.searchsorted(running.breakpoints, over["from_ms"] / 1000.0)])
+    i = int(np.searchsorted(running.breakpoints, over["from_ms"] / 1000.0))
+    if i >= len(running.gridpoints) - 1:
+        return float("nan")  # the motion ends where the change would begin
+    s_from = float(running.gridpoints[i])
     at = np.nonzero((running.gridpoints >= s_from) & (np.abs(running.sd - scale) < 1e-6))[0]
     return float(running.breakpoints[at[0]]) * 1000.0 if len(at) else float("nan")
 
@@ -433,11 +436,12 @@ def per_cell(runs: int) -> None:
         path_mm, quick_mm, begun, rest, to_speed, extra, plans = [], [], [], [], [], [], []
         reached: list[float] = []
         brv = bra = orv = ora = rrv = rra = 0.0
-        placed = not_made = svc_faults = 0
+        placed = not_made = svc_faults = lost_faults = 0
         half = max(1, int(cell.bus.max_lookahead_ms / 2))
         try:
             for _ in range(runs):
                 for fraction in FRACTIONS:
+                    faulted = sum(len(d.faults) for d in svc.sim)
                     try:
                         before = running(svc, fraction)
                         b = svc.stop(parse_stop({}))["braking"]
@@ -499,6 +503,7 @@ def per_cell(runs: int) -> None:
                     except ApiError as exc:  # the host stalled the lockstep bus past a heartbeat (load): noted
                         notes.append(f"{name} at {fraction:g}: {str(exc)[:160]}")
                         svc_faults += 1
+                        lost_faults += sum(len(d.faults) for d in svc.sim) - faulted
                         svc.recover(parse_recover({}))
                         if svc.cell.requires_homing:
                             svc.home(parse_home({"wait": True}))
@@ -514,7 +519,8 @@ def per_cell(runs: int) -> None:
                 f"{100 * orv:5.1f} {100 * ora:5.1f} "
                 f"| {pct(extra, 50):6.1f} / {max(extra):6.1f} ({int(np.median(plans))}), "
                 f"{100 * rrv:5.1f} {100 * rra:5.1f}, {placed}/{len(extra)} "
-                f"| {not_made} | {faults} ({svc_faults} runs lost to a stalled host)"
+                f"| {not_made} | {faults - lost_faults} "
+                f"({svc_faults} runs lost to a stalled host, {lost_faults} faults in them)"
             )
         finally:
             svc.close()
