@@ -217,8 +217,9 @@ class PathChanges:
     # --- resume ------------------------------------------------------------------------------------
     def resume_program(self) -> tuple[Paused, PvtProgram]:
         """The program that continues the paused motion from where its axes stand, at rest, at its planned
-        timing: a ramp up to the planned speed (``RESUME_RAMP_SHARES`` of 0x60C5 tried in turn), then the motion's own
-        records to its end (``onpath_program.resumed_program``, validated as every program). NOT_ALLOWED when
+        timing: a ramp up to the planned speed (``RESUME_RAMP_SHARES`` of 0x60C5 tried in turn), then the
+        motion's own records to its end (``onpath_program.resumed_program``, validated as every program); where
+        no ramp joins them, the rest of the path placed from rest as a plan (``_from_rest``). NOT_ALLOWED when
         nothing is paused."""
         paused = self.paused
         if paused is None or self.board.state != CellState.PAUSED:
