@@ -245,9 +245,11 @@ def test_stop_on_the_path_on_the_wall_clock(tmp_path: Path) -> None:
             before = start(svc, fraction)
             reply = svc.stop(parse_stop({}))
             assert reply["outcome"]["result"] == "stopped", reply["outcome"]
-            if reply["mode"] == "path":
+            if reply["mode"] == "path" and reply["braking"]["begun_ms"] is not None:
                 made += 1
                 assert_on_path(before, ran(svc), reply["braking"]["begun_ms"])
+            elif reply["mode"] == "path":  # asked so late (a loaded host) that the motion's own end came first
+                assert reply["braking"]["ended_ms"] == before.duration_ms, reply
             else:
                 assert reply["fallback"], reply
             no_faults(svc)
