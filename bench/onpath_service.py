@@ -55,6 +55,7 @@ from pvtflow.service.api import (  # noqa: E402
     parse_override,
     parse_pause,
     parse_plan,
+    parse_recover,
     parse_resume,
     parse_stop,
 )
@@ -339,14 +340,15 @@ def jerk_changes() -> None:
 
         def go(fraction: float) -> PvtProgram:
             for to in (0.15, 0.85):
-                req = {"waypoints": [at(svc.cell, to)], "start": "current", "max_jerk": max_jerk}
+                req = {"waypoints": [at(svc.cell, to)], "start": "current", "max_jerk": max_jerk, "budget_ms": 10000}
                 plan = svc.plan(parse_plan(req, svc.cell.joint_names, limits))
                 svc.execute(parse_execute({"plan_id": plan["plan_id"], "wait": to == 0.15}))
             before = PvtProgram(svc.cell.name, svc.group.programs)
             wait_ms(svc, fraction * before.duration_ms)
             return before
 
-        slow_j, back_j, res_j, extra, scales = [], [], [], [], []
+        slow_j, back_j, res_j, extra, scales, limited = [], [], [], [], [], []
+        placed = 0
         for fraction in FRACTIONS[:4]:
             go(fraction)
             slow = svc.override(parse_override({"scale": 0.5}))
@@ -354,6 +356,8 @@ def jerk_changes() -> None:
             wait_ms(svc, slow["from_ms"] + 150.0)
             back = svc.override(parse_override({"scale": 1.0}))
             scales.append(back["scale"])
+            if back["limited"]:
+                limited.append(f"at {fraction:g}: {back['limited']}")
             back_j.append(jerk_ratio(PvtProgram(svc.cell.name, svc.group.programs), max_jerk, back["from_ms"]))
             svc.motion.done.wait(60.0)
         for fraction in FRACTIONS:
@@ -364,14 +368,165 @@ def jerk_changes() -> None:
             out = svc.resume(parse_resume({"wait": True}))
             res_j.append(jerk_ratio(PvtProgram(svc.cell.name, svc.group.programs), max_jerk, 0.0))
             extra.append(paused["braking"]["ended_ms"] + out["duration_ms"] - before.duration_ms)
+            placed += not svc.motion.program.metadata["resumed_on_planned_records"]
         faults = sum(len(d.faults) for d in svc.sim)
         print(
             f"{'':26s} | {max(slow_j):.2f} / {max(back_j):.2f} (1.0 applied as {min(scales):g}) "
-            f"| {max(res_j):.2f}, {pct(extra, 50):.0f} / {max(extra):.0f} ({len(res_j)} resumes, {faults} faults)"
+            f"| {max(res_j):.2f}, {pct(extra, 50):.0f} / {max(extra):.0f} ({len(res_j)} resumes, {placed} placed from "
+            f"rest, {faults} faults)"
         )
+        for why in limited:
+            print(f"{'':26s} | override 1.0 {why}")
     finally:
         svc.close()
     print("command: PYTHONPATH=. python3 bench/onpath_service.py --part jerk-changes")
+
+
+ALL_CELLS = (*CELLS, "arm6")
+
+
+def tool_points(cell, program: PvtProgram, q: np.ndarray) -> np.ndarray:
+    """The tool's position (m, the cell's TCP frame) at each row of ``q`` (joint units, in ``program``'s axis
+    order): the gantry's joints are its tool's x, y, z, the arm's through its kinematics."""
+    model, frame = cell.model, cell.planning.tcp_frame
+    order = np.array([model.index(a.joint) for a in program.axes])
+    full = np.zeros((len(q), len(order)))
+    full[:, order] = q
+    return np.array([model.frame_placement(row, frame)[:3, 3] for row in full])
+
+
+def quick_stop_joints(program: PvtProgram, t_ms: float) -> np.ndarray:
+    """Each axis from its state at ``t_ms`` braking on its own 0x60C5 to rest (the halt), joint units."""
+    pts = []
+    tau = np.linspace(0.0, 1.0, 60)
+    for a in program.axes:
+        rec = a.reconstruction()
+        p0, v0 = float(rec.position(np.array([t_ms]))[0]), float(rec.velocity(np.array([t_ms]))[0])
+        amax = float(a.scaling.rpm_s_to_qc_per_ms2(a.limits.max_acceleration_rpm_s))
+        tt = tau * abs(v0) / amax
+        pts.append(a.scaling.qc_to_position(p0 + v0 * tt - 0.5 * np.sign(v0) * amax * tt * tt))
+    return np.column_stack(pts)
+
+
+def speed_reached_ms(svc: MotionService, over: dict) -> float:
+    """Program ms at which the overridden motion runs at its new speed (its path speed the scale's, the motion's
+    path and timing as the service re-timed it)."""
+    path = svc.changes.paths[over["motion_id"]]
+    running, scale = path.running, path.scale
+    i = int(np.searchsorted(running.breakpoints, over["from_ms"] / 1000.0))
+    if i >= len(running.gridpoints) - 1:
+        return float("nan")  # the motion ends where the change would begin
+    s_from = float(running.gridpoints[i])
+    at = np.nonzero((running.gridpoints >= s_from) & (np.abs(running.sd - scale) < 1e-6))[0]
+    return float(running.breakpoints[at[0]]) * 1000.0 if len(at) else float("nan")
+
+
+def per_cell(runs: int) -> None:
+    """Every figure the issue asks, per cell (the five gantry profiles and arm6), lockstep: at each of 20-80 % of
+    the move a path stop, an ``override 0.3`` and a ``pause`` + ``resume``, each on a motion of its own."""
+    print(
+        "cell                  | tool mm path / quick | stop begun p50/p99 ms | rest p50/p99 ms | look-ahead ms "
+        "| braking |v| |a| % | override 0.3 begins -> at speed p50/p99 ms, |v| |a| % "
+        "| pause+resume extra p50/max ms (plan), ramp |v| |a| %, placed from rest | not made | faults"
+    )
+    notes: list[str] = []
+    for name in ALL_CELLS:
+        svc = open_cell(name)
+        cell = svc.cell
+        path_mm, quick_mm, begun, rest, to_speed, extra, plans = [], [], [], [], [], [], []
+        reached: list[float] = []
+        brv = bra = orv = ora = rrv = rra = 0.0
+        placed = not_made = svc_faults = lost_faults = 0
+        half = max(1, int(cell.bus.max_lookahead_ms / 2))
+        try:
+            for _ in range(runs):
+                for fraction in FRACTIONS:
+                    faulted = sum(len(d.faults) for d in svc.sim)
+                    try:
+                        before = running(svc, fraction)
+                        b = svc.stop(parse_stop({}))["braking"]
+                        if b is None or b["begun_ms"] is None:
+                            not_made += 1
+                            notes.append(
+                                f"{name} stop at {fraction:g}: " + ("quick" if b is None else "ran to its end")
+                            )
+                        else:
+                            after = PvtProgram(cell.name, svc.group.programs)
+                            line = tool_points(
+                                cell, before, joints(before, np.arange(0.0, before.duration_ms + 0.1, 0.1))
+                            )
+                            t = np.arange(b["begun_ms"] - 20.0, after.duration_ms + 1.0)
+                            path_mm.append(1000.0 * distance(tool_points(cell, after, joints(after, t)), line))
+                            quick = tool_points(cell, before, quick_stop_joints(before, b["requested_ms"]))
+                            quick_mm.append(1000.0 * distance(quick, line))
+                            begun.append(b["begun_ms"] - b["requested_ms"])
+                            rest.append(b["ended_ms"] - b["requested_ms"])
+                            v, a = ratios(after, b["begun_ms"], b["ended_ms"])
+                            brv, bra = max(brv, v), max(bra, a)
+                        svc.motion.done.wait(60.0)
+                        running(svc, fraction)
+                        try:
+                            over = svc.override(parse_override({"scale": 0.3}))
+                        except ApiError as exc:
+                            not_made += 1
+                            notes.append(f"{name} override at {fraction:g}: {str(exc)[:140]}")
+                        else:
+                            to_speed.append(over["from_ms"] - over["requested_ms"])
+                            reached.append(speed_reached_ms(svc, over) - over["requested_ms"])
+                            v, a = ratios(
+                                PvtProgram(cell.name, svc.group.programs), over["from_ms"], over["from_ms"] + 300.0
+                            )
+                            orv, ora = max(orv, v), max(ora, a)
+                        svc.motion.done.wait(60.0)
+                        before = running(svc, fraction)
+                        paused = svc.pause(parse_pause({}))
+                        if not paused["paused"]:
+                            not_made += 1
+                            notes.append(f"{name} pause at {fraction:g}: ran to its end")
+                            svc.motion.done.wait(60.0)
+                            continue
+                        pb = paused["braking"]
+                        v, a = ratios(PvtProgram(cell.name, svc.group.programs), pb["begun_ms"], pb["ended_ms"])
+                        brv, bra = max(brv, v), max(bra, a)
+                        resumed = svc.resume(parse_resume({"wait": True}))
+                        after = PvtProgram(cell.name, svc.group.programs)
+                        _, lead = own_tail(after, before, half)
+                        if not svc.motion.program.metadata["resumed_on_planned_records"]:  # placed from rest
+                            placed += 1
+                            lead = float(after.duration_ms)
+                        v, a = ratios(after, 0.0, lead)
+                        rrv, rra = max(rrv, v), max(rra, a)
+                        extra.append(pb["ended_ms"] + resumed["duration_ms"] - before.duration_ms)
+                        plans.append(before.duration_ms)
+                        if resumed["outcome"]["result"] != "finished":
+                            notes.append(f"{name} resume at {fraction:g}: {resumed['outcome']}")
+                    except ApiError as exc:  # the host stalled the lockstep bus past a heartbeat (load): noted
+                        notes.append(f"{name} at {fraction:g}: {str(exc)[:160]}")
+                        svc_faults += 1
+                        lost_faults += sum(len(d.faults) for d in svc.sim) - faulted
+                        svc.recover(parse_recover({}))
+                        if svc.cell.requires_homing:
+                            svc.home(parse_home({"wait": True}))
+            faults = sum(len(d.faults) for d in svc.sim)
+            reached_ = [r for r in reached if np.isfinite(r)]  # nan: the motion ended before the new speed
+            print(
+                f"{name:21s} | {max(path_mm):7.4f} / {max(quick_mm):6.2f} "
+                f"| {pct(begun, 50):6.1f} / {pct(begun, 99):6.1f} | {pct(rest, 50):6.1f} / {pct(rest, 99):6.1f} "
+                f"| {cell.bus.max_lookahead_ms:5.0f} (SYNC {cell.bus.sync_period_ms:g}) "
+                f"| {100 * brv:5.1f} {100 * bra:5.1f} "
+                f"| {pct(to_speed, 50):6.1f} / {pct(to_speed, 99):6.1f} "
+                f"-> {pct(reached_, 50):6.1f} / {pct(reached_, 99):6.1f} ({len(reached) - len(reached_)} ended first), "
+                f"{100 * orv:5.1f} {100 * ora:5.1f} "
+                f"| {pct(extra, 50):6.1f} / {max(extra):6.1f} ({int(np.median(plans))}), "
+                f"{100 * rrv:5.1f} {100 * rra:5.1f}, {placed}/{len(extra)} "
+                f"| {not_made} | {faults - lost_faults} "
+                f"({svc_faults} runs lost to a stalled host, {lost_faults} faults in them)"
+            )
+        finally:
+            svc.close()
+    for line in notes:
+        print("note:", line)
+    print(f"command: PYTHONPATH=. python3 bench/onpath_service.py --part cells --runs {runs}")
 
 
 def cyclic_cell(period_ms: float):
@@ -445,9 +600,11 @@ def cyclic(runs: int) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=1, help="passes over the stop fractions (default 1)")
-    parts = ("all", "stops", "back", "jerk", "transitions", "jerk-changes", "cyclic")
+    parts = ("all", "cells", "stops", "back", "jerk", "transitions", "jerk-changes", "cyclic")
     ap.add_argument("--part", choices=parts, default="all")
     args = ap.parse_args()
+    if args.part in ("all", "cells"):
+        per_cell(args.runs)
     if args.part in ("all", "transitions"):
         transitions(args.runs)
     if args.part in ("all", "jerk-changes"):

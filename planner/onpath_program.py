@@ -35,6 +35,7 @@ from pvtflow.planner.onpath_stop import (
     brake_on_path,
     jerk_braking,
     jerk_braking_rates,
+    jerk_change_rates,
     jerk_override,
     jerk_override_rates,
     joined,
@@ -59,6 +60,12 @@ JUMP_SHARE = 0.02  # an acceleration jump of this share of 0x60C5 gets a knot of
 
 class ChangeError(ValueError):
     """The change cannot be made into records that the drives take (the caller stops the quick way)."""
+
+
+class NoRampError(ChangeError):
+    """No jerk-limited ramp back to the planned speed holds the limits before the motion's end: none will at a
+    lower share of them either (``jerk_change_rates`` tries lower rates already, down to a fifth; a lower share
+    judges about the same rates harder)."""
 
 
 def change_start_ms(t0_ms: float, join_ms: Sequence[float], axes: Sequence[AxisProgram]) -> float:
@@ -388,6 +395,9 @@ def _delay(whole: Trajectory, planned: Trajectory, s0: float) -> tuple[float, fl
 # the shares of 0x60C5 the ramp back to the planned speed is tried with, in turn: where it reaches the plan, the
 # joints' acceleration jumps by the ramp's part of it, which a record's cubic across it overshoots
 RAMP_SHARES = (BRAKING_SHARE, 0.6, 0.35)
+# a resume's ramp from rest: all of 0x60C5 first (no share of it given away where the records take it: the axes
+# stand, so the tries cost no look-ahead)
+RESUME_RAMP_SHARES = (1.0, *RAMP_SHARES)
 
 
 def back_to_plan_on_grid(
@@ -407,15 +417,45 @@ def back_to_plan_on_grid(
     records run unchanged, that much later. ``max_jerk`` (a motion planned with a jerk limit): the ramp is the
     S-curve of ``jerk_override`` at ``jerk_share`` of it, its acceleration and jerk lowered together."""
     s0 = _s_at(running, t0_s)
-    if max_jerk is not None:
-        accel, jerk = jerk_override_rates(planned, running, t0_s, 1.0, limits, max_jerk, share, jerk_share)
+    if max_jerk is None:
+        return _back_on_grid(planned, running, t0_s, limits, grid_s, share, phase_s, s0, None)
+    rates = jerk_change_rates(planned, running, t0_s, 1.0, limits, max_jerk, share, jerk_share)
+    if not rates:
+        raise NoRampError("no jerk-limited ramp back to the planned speed holds the limits before the motion's end")
+    failed = ChangeError("no ramp back to the planned speed ends on the SYNC grid")
+    for accel, jerk in rates[:RATE_TRIES]:
+        try:
+            return _back_on_grid(planned, running, t0_s, limits, grid_s, share, phase_s, s0, (accel, jerk))
+        except ChangeError as exc:
+            failed = exc
+    raise failed
+
+
+# the jerk-limited ramps back to the planned speed (``jerk_change_rates``, the soonest first) tried in turn to end
+# on the SYNC grid
+RATE_TRIES = 3
+
+
+def _back_on_grid(
+    planned: Trajectory,
+    running: Trajectory,
+    t0_s: float,
+    limits: JointLimits,
+    grid_s: float,
+    share: float,
+    phase_s: float,
+    s0: float,
+    rates: tuple[float, float] | None,
+) -> BackToPlan:
+    """``back_to_plan_on_grid`` with the jerk-limited ramp's ``rates`` (None: limited by acceleration only): the
+    ramp's rates lowered together (bisection) until its delay is on the grid."""
 
     def at(f: float) -> tuple[Trajectory, tuple[float, float] | None]:
-        if max_jerk is None:
+        if rates is None:
             change = override(planned, running, t0_s, 1.0, scaled_limits(limits, f), tries=1)
         else:
             try:
-                change = jerk_override(planned, running, t0_s, 1.0, accel * f / share, jerk * f / share)
+                change = jerk_override(planned, running, t0_s, 1.0, rates[0] * f / share, rates[1] * f / share)
             except PlanError:  # too slow to reach the planned speed before the end
                 return running, None
         whole = joined(running, change)
@@ -505,19 +545,54 @@ def rejoined_program(
     return changed, rows
 
 
-# the speed a resume that cannot reach the planned speed before the motion's end re-times the rest to, of the
-# planned speed (``resume_from_rest``): at the planned speed itself a time-optimal program's records sit at
-# 0x60C5, where only the knot placement's integer repair finds records inside it (accelerations scale with its
-# square: 0.95 leaves 10 %)
-SHORT_RESUME_SCALE = 0.95
-
-
 def resume_from_rest(planned: Trajectory, paused: OnPathStop, limits: JointLimits) -> Trajectory:
-    """From rest where ``paused`` ended to the end of ``planned`` at ``SHORT_RESUME_SCALE`` of the planned speed,
-    the ramp at ``BRAKING_SHARE`` of the joint accelerations; time 0 = the resume: for the knot placement
-    (``build_program``) where the rest of the path is too short to reach the planned speed again."""
-    share = scaled_limits(limits, BRAKING_SHARE)
-    return override(planned, paused.trajectory, paused.trajectory.duration, SHORT_RESUME_SCALE, share)
+    """The fastest motion from rest where ``paused`` ended to the end of ``planned`` along its path, within its
+    timing: the largest path acceleration the joints allow (all of 0x60C5, lowered only where the dense check
+    between gridpoints needs it) until the planned path speed, then the plan's own (``onpath_stop.resume`` with
+    none of 0x60C5 kept back). Under the plan's speed every constraint the plan held holds, and s'' = 0 is always
+    feasible there (|q''(s)| s'^2 <= what the plan held at s' = 1), so the greedy pass is the time-optimal timing
+    of the rest of the path with the plan's speed as its bound. For the knot placement (``build_program``, whose
+    integer repair holds 0x60C5 as for any plan) where the rest of the path is too short to reach the planned
+    speed again and join its records; time 0 = the resume."""
+    running = paused.trajectory
+    return override(planned, running, running.duration, 1.0, limits, rest_at_end=False, share=1.0)
+
+
+# the shares of the planned path speed a jerk-limited resume from rest (``jerk_resume_from_rest``) is tried at
+RESUME_SCALES = (1.0, 0.95, 0.9, 0.85, 0.8, 0.75, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1, 0.05)
+
+
+def jerk_resume_from_rest(
+    planned: Trajectory,
+    paused: OnPathStop,
+    limits: JointLimits,
+    max_jerk: NDArray[np.float64],
+    share: float = BRAKING_SHARE,
+    jerk_share: float = JERK_SHARES[0],
+) -> tuple[Trajectory, float]:
+    """A motion planned with a jerk limit resumed from rest where ``paused`` ended to the end of ``planned``
+    where the ramp back to the planned speed cannot join its records within the limit (the rest begins near or
+    in the plan's own deceleration, which the ramp's path acceleration would add jerk to): the S-curve from rest
+    to a share of the planned speed whose change holds ``share`` of 0x60C5 and ``jerk_share`` of the jerk limit
+    (``jerk_change_rates``, its fastest), then that speed to the end (its joint jerk is the plan's times the
+    share cubed). The share is the one of ``RESUME_SCALES`` that ends soonest (a higher one needs a gentler
+    change: not always sooner), looked for until two in turn end later; (the motion, time 0 = the resume; the
+    share). ChangeError where none holds."""
+    running, t0 = paused.trajectory, paused.trajectory.duration
+    best: tuple[Trajectory, float] | None = None
+    later = 0
+    for scale in RESUME_SCALES:
+        rates = jerk_change_rates(planned, running, t0, scale, limits, max_jerk, share, jerk_share)
+        if not rates:
+            continue
+        motion = jerk_override(planned, running, t0, scale, *rates[0])
+        if best is None or motion.duration < best[0].duration:
+            best, later = (motion, scale), 0
+        elif (later := later + 1) >= 2:
+            break
+    if best is None:
+        raise ChangeError("no jerk-limited motion from rest reaches the end of the paused motion within the limits")
+    return best
 
 
 def resumed_program(

@@ -146,6 +146,7 @@ def override(
     limits: JointLimits,
     tries: int = 4,
     rest_at_end: bool = True,
+    share: float = BRAKE_ACCELERATION_SHARE,
 ) -> Trajectory:
     """The rest of ``running`` from ``t0`` re-timed to ``scale`` (0.05..1) of ``planned``'s path speed.
 
@@ -153,10 +154,10 @@ def override(
     the largest path acceleration or deceleration the joints allow, then follows it (a slowed-down feasible
     profile: velocities times scale, accelerations times scale^2). Time 0 of the result is ``t0``.
     ``rest_at_end``: s' = 0 at the path's end; a program's path (``planner.program_motion``, s = program time)
-    is at rest there at any s' (q'(s) = 0), and a forced s' = 0 would brake its last interval hard."""
+    is at rest there at any s' (q'(s) = 0), and a forced s' = 0 would brake its last interval hard. ``share``: of
+    0x60C5 at the gridpoints to begin with, lowered until the dense check between them holds."""
     if not 0.05 <= scale <= 1.0:
         raise PlanError(PlanResult.INVALID_INPUT, f"scale must be in [0.05, 1.0], got {scale!r}", field="scale")
-    share = BRAKE_ACCELERATION_SHARE
     for _ in range(tries):
         retimed = _override(planned, running, t0, scale, limits, share, rest_at_end)
         _, ra = retimed.limit_ratios(limits)
@@ -390,6 +391,16 @@ def ramp_window_jerk_ratio(whole: Trajectory, t0: float, t1: float, max_jerk: ND
     return float(np.max(window / np.asarray(max_jerk, dtype=float)[None, :])) if len(window) else 0.0
 
 
+def change_window_jerk(
+    running: Trajectory, change: Trajectory, t0: float, t_ramp: float, max_jerk: NDArray[np.float64]
+) -> float:
+    """``ramp_window_jerk_ratio`` of a change of speed from ``t0`` that reaches its speed ``t_ramp`` later. From rest
+    (a resume: a motion of its own, after a dwell) the window before it is rest, not the braking that ended there."""
+    if _sd_at(running, t0) < REST_SD or t0 >= running.duration - 1e-9:
+        return ramp_window_jerk_ratio(change, 0.0, t_ramp, max_jerk)
+    return ramp_window_jerk_ratio(joined(running, change), t0, t0 + t_ramp, max_jerk)
+
+
 def jerk_override_rates(
     planned: Trajectory,
     running: Trajectory,
@@ -433,11 +444,83 @@ def jerk_override_rates(
             part.path, part.gridpoints, np.full(len(part.gridpoints), v1), part.joint_names
         ).limit_ratios(limits)
         allowed = max(share, min(ra_plan, 1.0))
-        rj = ramp_window_jerk_ratio(joined(running, change), t0, t0 + t_ramp, jmax)
+        rj = change_window_jerk(running, change, t0, t_ramp, jmax)
         if ra <= allowed and rj <= jerk_share:
             break
         accel, jerk = _lowered(accel, ra, allowed), _lowered(jerk, rj, jerk_share)
     return accel, jerk
+
+
+# the factors of the first rates (``jerk_override_rates``) a jerk-limited change of speed is tried with where those
+# do not hold the limits: late in the motion the change meets the plan's own deceleration, where the joints' jerk
+# has a term 3 q''(s) s' s'' of the change's path acceleration, and lowering both rates together stretches the
+# change further into it; a lower jerk at the same acceleration, or the reverse, may hold
+RATE_FACTORS = (1.0, 0.75, 0.55, 0.4, 0.3, 0.2)
+
+
+def _change_held(
+    planned: Trajectory,
+    running: Trajectory,
+    t0: float,
+    scale: float,
+    accel: float,
+    jerk: float,
+    limits: JointLimits,
+    jmax: NDArray[np.float64],
+    share: float,
+    jerk_share: float,
+) -> float | None:
+    """The motion's end (s) with the jerk-limited change at these rates, None where the change does not fit
+    before the path's end or passes ``share`` of 0x60C5 (or what the plan holds where it ends, as in
+    ``jerk_override_rates``) or ``jerk_share`` of the jerk limit (the 10-ms window) while it changes speed."""
+    try:
+        change = jerk_override(planned, running, t0, scale, accel, jerk)
+        whole = joined(running, change)
+    except PlanError:
+        return None
+    t_ramp = float(change.time_at(np.array([_ramp_end(change)]))[0])
+    part = _head(change, t_ramp)
+    _, ra = part.limit_ratios(limits)
+    v1 = scale * float(planned.sd[0])
+    _, ra_plan = Trajectory.from_path_velocities(
+        part.path, part.gridpoints, np.full(len(part.gridpoints), v1), part.joint_names
+    ).limit_ratios(limits)
+    if ra > max(share, min(ra_plan, 1.0)) or change_window_jerk(running, change, t0, t_ramp, jmax) > jerk_share:
+        return None
+    return whole.duration
+
+
+def jerk_change_rates(
+    planned: Trajectory,
+    running: Trajectory,
+    t0: float,
+    scale: float,
+    limits: JointLimits,
+    max_jerk: ArrayLike,
+    share: float = 0.9,
+    jerk_share: float = 0.9,
+) -> list[tuple[float, float]]:
+    """The (path acceleration, path jerk) pairs of a jerk-limited change of speed to ``scale`` from ``t0`` that
+    hold ``share`` of 0x60C5 and ``jerk_share`` of ``max_jerk`` while the speed changes, the soonest end of the
+    motion first: ``jerk_override_rates``' answer where it holds, else ``RATE_FACTORS`` of its first rates,
+    each independently. Empty where none holds."""
+    jmax = np.asarray(max_jerk, dtype=float)
+    t0 = float(np.clip(t0, 0.0, running.duration))
+    first = jerk_override_rates(planned, running, t0, scale, limits, jmax, share, jerk_share)
+    if _change_held(planned, running, t0, scale, *first, limits, jmax, share, jerk_share) is not None:
+        return [first]
+    qs = np.abs(running.path(_s_at(running, t0), 1))
+    moving = qs > 1e-12
+    amax = np.asarray(limits.acceleration, dtype=float)
+    accel = share * float(np.min(amax[moving] / qs[moving]))
+    jerk = jerk_share * float(np.min(jmax[moving] / qs[moving]))
+    held = []
+    for fa in RATE_FACTORS:
+        for fj in RATE_FACTORS:
+            end = _change_held(planned, running, t0, scale, accel * fa, jerk * fj, limits, jmax, share, jerk_share)
+            if end is not None:
+                held.append((end, accel * fa, jerk * fj))
+    return [(a, j) for _, a, j in sorted(held)]
 
 
 def _ramp_end(change: Trajectory) -> float:

@@ -209,6 +209,11 @@ def reply_schema(name: str) -> dict[str, Any]:
             "properties": {
                 "motion_id": _MOTION_ID,
                 "scale": {"type": "number", "description": "the scale the rest of the motion now runs at"},
+                "limited": {
+                    "type": ["string", "null"],
+                    "description": "why the scale asked for could not be made and the lower one runs instead "
+                    "(e.g. 1.0 late in a jerk-limited motion); null: made as asked",
+                },
                 "from_ms": {"type": "number", "description": "program time (ms) from which the new speed applies"},
                 "from_sync": {"type": "integer", "description": "the SYNC from which it applies"},
                 "duration_ms": {"type": "integer", "description": "the motion's program time to its end, now"},

@@ -27,13 +27,16 @@ from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.onpath_program import (
     JERK_SHARES,
     RAMP_SHARES,
+    RESUME_RAMP_SHARES,
     WINDOW_JERK_RATIO,
     ChangeError,
+    NoRampError,
     back_to_plan_on_grid,
     brake_on_grid,
     brake_with_jerk_on_grid,
     change_start_ms,
     changed_program,
+    jerk_resume_from_rest,
     on_grid,
     override_on_grid,
     records_jerk_ratio,
@@ -214,8 +217,9 @@ class PathChanges:
     # --- resume ------------------------------------------------------------------------------------
     def resume_program(self) -> tuple[Paused, PvtProgram]:
         """The program that continues the paused motion from where its axes stand, at rest, at its planned
-        timing: a ramp up to the planned speed (``RAMP_SHARES`` of 0x60C5 tried in turn), then the motion's own
-        records to its end (``onpath_program.resumed_program``, validated as every program). NOT_ALLOWED when
+        timing: a ramp up to the planned speed (``RESUME_RAMP_SHARES`` of 0x60C5 tried in turn), then the
+        motion's own records to its end (``onpath_program.resumed_program``, validated as every program); where
+        no ramp joins them, the rest of the path placed from rest as a plan (``_from_rest``). NOT_ALLOWED when
         nothing is paused."""
         paused = self.paused
         if paused is None or self.board.state != CellState.PAUSED:
@@ -228,7 +232,8 @@ class PathChanges:
         jerk = planned_jerk(path.program.metadata)
         failed: Exception | None = None
         program = None
-        for share, jerk_share in self._ramps(jerk):
+        joined = True  # the program's own records after the ramp, or (False) the rest placed from rest
+        for share, jerk_share in self._ramps(jerk, RESUME_RAMP_SHARES if jerk is None else RAMP_SHARES):
             try:
                 back = back_to_plan_on_grid(
                     path.planned,
@@ -245,24 +250,24 @@ class PathChanges:
                 program = resumed_program(
                     path.program, back, path.original, rest * 1000.0, self.limits, grid_ms, within
                 )
-                self._hold_jerk(program, jerk if jerk_share is not None else None, 0.0)
+                self._hold_jerk(program, within, 0.0)
                 break
+            except NoRampError as exc:
+                failed = exc
+                break  # nor at any lower share
             except _CHANGE_ERRORS as exc:
                 failed = exc
-        if program is None:  # the rest of the path too short to reach the planned speed: placed as a plan
+        if program is None:  # no ramp joins the planned records: the rest of the path from rest, placed as a plan
             log.info("resume of %s from rest to its end as a plan: %s", paused.motion.motion_id, failed)
+            joined = False
             try:
-                rest_motion = resume_from_rest(path.planned, path.stop, self.limits)
-                opts = KnotOptions(dwell_ms=max(1, grid_ms))
-                axes = {a.joint: a for a in self.cell.ordered_axes()}  # what knot placement takes (hashable)
-                built = build_program(rest_motion, [axes[a.joint] for a in path.program.axes], self.cell.name, opts)
-                meta = {**path.program.metadata, **built.program.metadata}
-                program = PvtProgram(built.program.cell, built.program.axes, meta)
+                program = self._from_rest(path, grid_ms, jerk)
             except _CHANGE_ERRORS as exc:
                 raise ApiError(
                     ErrorCode.PLAN_FAILED, f"the rest of the paused motion could not be planned: {exc}"
                 ) from None
-        program = PvtProgram(program.cell, program.axes, {**program.metadata, "resumes": paused.motion.motion_id})
+        meta = {**program.metadata, "resumes": paused.motion.motion_id, "resumed_on_planned_records": joined}
+        program = PvtProgram(program.cell, program.axes, meta)
         here = [int(a.records[-1, 0]) for a in path.program.axes]
         start = [int(a.records[0, 0]) for a in program.axes]
         if any(abs(h - s) > 1 for h, s in zip(here, start, strict=True)):  # the same path point, rounded alike
@@ -271,16 +276,41 @@ class PathChanges:
             )
         return paused, program
 
+    def _from_rest(self, path: MotionPath, grid_ms: int, jerk: NDArray[np.float64] | None) -> PvtProgram:
+        """The rest of a paused motion's path from rest, as fast as its limits allow under its planned speed
+        (``resume_from_rest``; planned with a jerk limit: ``jerk_resume_from_rest``, within it), its records
+        placed as a plan's (``build_program``: the knot placement's integer repair holds 0x60C5 at full speed,
+        and the window jerk where there is a limit). ChangeError where its records pass the jerk limit."""
+        assert path.stop is not None
+        if jerk is None:
+            rest_motion = resume_from_rest(path.planned, path.stop, self.limits)
+        else:
+            rest_motion, scale = jerk_resume_from_rest(path.planned, path.stop, self.limits, jerk)
+            log.info("resume from rest within the jerk limit at %.2f of the planned speed", scale)
+        opts = KnotOptions(
+            dwell_ms=max(1, grid_ms),
+            tolerance_qc=self.cell.planning.position_tolerance_qc,
+            max_jerk=path.program.metadata.get("max_jerk") if jerk is not None else None,
+        )
+        axes = {a.joint: a for a in self.cell.ordered_axes()}  # what knot placement takes (hashable)
+        built = build_program(rest_motion, [axes[a.joint] for a in path.program.axes], self.cell.name, opts)
+        program = PvtProgram(
+            built.program.cell, built.program.axes, {**path.program.metadata, **built.program.metadata}
+        )
+        self._hold_jerk(program, jerk, 0.0)
+        return program
+
     # --- override ----------------------------------------------------------------------------------
     @staticmethod
-    def _ramps(jerk: NDArray[np.float64] | None, plain: bool = True) -> list[tuple[float, float | None]]:
+    def _ramps(
+        jerk: NDArray[np.float64] | None, shares: tuple[float, ...] = RAMP_SHARES
+    ) -> list[tuple[float, float | None]]:
         """The ramps up to a speed tried in turn: (share of 0x60C5, share of the jerk limit or None). A motion
-        planned with a jerk limit tries S-curves within it first, then (``plain``; the records' jerk above
-        1.2 x the limit in each) the acceleration-limited ramps as a motion without one."""
-        ramps: list[tuple[float, float | None]] = [(share, None) for share in RAMP_SHARES] if plain else []
+        planned with a jerk limit tries S-curves within it only (an acceleration-limited ramp passes it many
+        times over)."""
         if jerk is None:
-            return ramps
-        return [(share, js) for share in RAMP_SHARES for js in JERK_SHARES] + ramps
+            return [(share, None) for share in shares]
+        return [(share, js) for share in shares for js in JERK_SHARES]
 
     @staticmethod
     def _hold_jerk(program: PvtProgram, jerk: NDArray[np.float64] | None, from_ms: float) -> None:
@@ -302,7 +332,7 @@ class PathChanges:
         where none validates."""
         assert path.original is not None
         failed: Exception | None = None
-        for share, jerk_share in self._ramps(jerk, plain=jerk is None):
+        for share, jerk_share in self._ramps(jerk):
             try:
                 back = back_to_plan_on_grid(
                     path.planned,
@@ -319,6 +349,9 @@ class PathChanges:
                     program, at.first, at.join_ms, begin, back, path.original, self.limits, max_jerk=within
                 )
                 self._hold_jerk(new, jerk if jerk_share is not None else None, begin)
+            except NoRampError as exc:
+                failed = exc
+                break  # nor at any lower share
             except _CHANGE_ERRORS as exc:
                 failed = exc
                 continue
@@ -337,6 +370,7 @@ class PathChanges:
             return {
                 "motion_id": motion.motion_id,
                 "scale": 1.0,
+                "limited": None,
                 "requested_ms": now,
                 "from_ms": now,
                 "duration_ms": int(path.program.duration_ms),
@@ -351,11 +385,11 @@ class PathChanges:
             if path.original is None:
                 path.original = program  # nothing changed yet: the records as started
             failed: Exception | None = None
-            # a motion planned with a jerk limit: the S-curves within it at every scale first, then the
-            # acceleration-limited ramps (the records' jerk above 1.2 x the limit in each)
+            # a motion planned with a jerk limit: the S-curves within it at every scale, and no other (an
+            # acceleration-limited ramp passes the limit many times: the motion is better left as it runs)
             tries: list[tuple[float, float | None]] = [(w, None) for w in _scales(scale)]
             if jerk is not None:
-                tries = [(w, js) for w in _scales(scale) for js in (JERK_SHARES if w < 1.0 else (0.0,))] + tries
+                tries = [(w, js) for w in _scales(scale) for js in (JERK_SHARES if w < 1.0 else (0.0,))]
             for wanted, jerk_share in tries:
                 try:
                     if wanted >= 1.0:  # the planned timing, late by a whole number of grid steps
@@ -381,8 +415,10 @@ class PathChanges:
                         self._hold_jerk(new, within, begin)
                 except (ChangeError, PlanError) as exc:
                     failed = exc
+                    if wanted == scale and "why" not in made:
+                        made["why"] = str(exc)  # what kept the scale asked for from being made
                     continue
-                made.update(whole=whole, program=new, scale=applied, begin=begin)
+                made.update(whole=whole, program=new, scale=applied, begin=begin, wanted=wanted)
                 return rows
             assert failed is not None
             raise failed
@@ -394,9 +430,14 @@ class PathChanges:
                 ErrorCode.NOT_ALLOWED, f"override {scale:g} could not be made: {exc}; nothing changed"
             ) from None
         path.running, path.program, path.scale = made["whole"], made["program"], made["scale"]
+        limited = None
+        if made["wanted"] < scale:  # the scale asked for could not be made: why, and what runs instead
+            limited = f"{scale:g} not reached ({made.get('why')}): runs at {path.scale:.4g}"
+            log.info("override of %s: %s", motion.motion_id, limited)
         return {
             "motion_id": motion.motion_id,
             "scale": round(path.scale, 4),
+            "limited": limited,
             "requested_ms": round(at.now_ms, 3),
             "from_ms": made["begin"],
             "from_sync": at.sync_at(made["begin"]),

@@ -9,6 +9,7 @@ from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.planner.build import build_program
 from pvtflow.planner.knots import DriveAxis
 from pvtflow.planner.limits import JointLimits, joint_limits_from_drives
+from pvtflow.planner.onpath_program import resume_from_rest
 from pvtflow.planner.onpath_stop import (
     brake_on_path,
     jerk_override,
@@ -137,6 +138,14 @@ def test_resume_after_pause_reaches_the_end_from_rest_within_the_limits(fraction
     # pause + resume costs time against the uninterrupted motion, but not more than a stop and a restart
     total = stop.t_end + rest.duration
     assert MOTION.duration < total < MOTION.duration + 4.0 * stop.duration
+    # placed from rest as a plan (a resume no ramp joins to the planned records): all of 0x60C5 until the planned
+    # speed, no share of the speed given away (before: 0.95 of it)
+    fastest = resume_from_rest(MOTION, stop, LIMITS)
+    np.testing.assert_allclose(fastest.position(fastest.duration), WAYPOINTS[-1], atol=1e-9)
+    rv, ra = fastest.limit_ratios(LIMITS)
+    assert rv <= 1.0 + 1e-9 and 0.99 <= ra <= 1.0 + 1e-9
+    at_95 = override(MOTION, stop.trajectory, stop.trajectory.duration, 0.95, LIMITS, rest_at_end=False)
+    assert fastest.duration <= rest.duration + 1e-9 and fastest.duration < at_95.duration
 
 
 @pytest.mark.parametrize(("v0", "v1"), [(1.0, 0.3), (0.3, 1.0), (0.0, 1.0)])
