@@ -69,9 +69,9 @@ __all__ = [
 # item 2"): 48 intervals 1.084x at the median, 96 1.017x, 192 1.001x; fatrop's time grows with them
 GRID_UNIT = 48
 DEFAULT_JERK_INTERVALS = 192
-# the sizes a warm-up builds: building a program holds the interpreter's lock in one piece (192
-# intervals: 0.76 s for fatrop's solver, past the 300 ms a drive waits for the master's heartbeat);
-# 192 is built by the first plan without a deadline (a deadline never waits for a build)
+# the sizes a warm-up builds: those a budget of some 100 ms can be solved on; 192 (1.35 s of CPU to build
+# with its solvers, at every start, where casadi 3.8.2 leaves the interpreter's lock while it builds:
+# bench/gil_stall.py) is built by the first plan without a deadline (a deadline never waits for a build)
 WARM_INTERVALS = 96
 
 # the torque check (``_torque_slowdown``, bench/jerk_torque.py): on 20 random arm6 paths at 30 % of
