@@ -29,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import toppra.constraint as constraint
@@ -58,6 +58,7 @@ __all__ = [
     "GRID_UNIT",
     "WARM_INTERVALS",
     "JerkTrajectory",
+    "forget_solve_times",
     "grid_sizes",
     "jerk_limited",
     "warm_up",
@@ -139,12 +140,18 @@ def warm_up() -> None:
     ``WARM_INTERVALS`` a path of up to 44 waypoints (or 12 with a stop at each) and one of up to
     twice that may be solved on (``grid_sizes``), so that no plan within a deadline meets a
     shape that is not built (it would answer on a coarser grid, or the floor); the warm-up's own
-    solve times are forgotten."""
+    solve times are forgotten (``forget_solve_times``)."""
     for _, dof, torque in PROGRAMS.shapes():
         for n in {*grid_sizes(GRID_UNIT, WARM_INTERVALS), *grid_sizes(2 * GRID_UNIT, WARM_INTERVALS)}:
             cached_program(n, dof, torque)
             cached_program(n, _row_dof(dof, torque, 0.0), torque)  # the screened program a deadline solves
-    for shape in PROGRAMS.shapes():  # the warm-up's move is no request's (96 intervals: 151 ms, requests' 50)
+    forget_solve_times()
+
+
+def forget_solve_times() -> None:
+    """Forget every program's solve times but its times per iteration: a warm-up's moves are no
+    request's (its short move took 151 ms on 96 intervals, requests 50; ``solve.Program.iteration_s``)."""
+    for shape in PROGRAMS.shapes():
         program = PROGRAMS.ready(*shape)
         if program is not None:
             program.fatrop_s.clear()
@@ -180,7 +187,7 @@ def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | Non
         if measured is None:
             # fatrop's time grows about as the square of the intervals (more iterations, each longer): 96
             # intervals took 3.8-4.1x 48's at the median (bench/jerk_rows.py, bench/RESULTS.md)
-            measured = 2.0 * expected_solve_s(n) if coarsest_s is None else coarsest_s * (n / sizes[0]) ** 2
+            measured = 2.0 * program.expected_fatrop_s() if coarsest_s is None else coarsest_s * (n / sizes[0]) ** 2
         if deadline - time.perf_counter() >= measured:
             return program, n
     program = coarsest
@@ -206,6 +213,7 @@ def jerk_limited(
     warm: Trajectory,
     intervals: int | None = None,
     deadline: float | None = None,
+    on_floor: Callable[[JerkTrajectory], None] | None = None,
 ) -> JerkTrajectory:
     """The time-optimal rest-to-rest trajectory along ``path`` with |q'''_j| <= max_jerk_j besides
     ``constraints`` (the cell's toppra constraints, held as TOPP-RA holds them), started from
@@ -219,6 +227,9 @@ def jerk_limited(
     no jerk-limited timing beats.
     ``torque_scale``: the slow-down torque between the rows asked for after the solve.
     ``intervals``: the grid's size at most (None: ``DEFAULT_JERK_INTERVALS``; ``grid_sizes``).
+    ``on_floor``: called with the checked floor where it is computed while a solver runs (in this
+    thread, before the solver's answer is taken), for what the caller makes of it meanwhile (its knots:
+    ``service.cell_planner``); the floor answered is that same object.
     """
     jmax = np.asarray(max_jerk, dtype=float)
     rests = rests_of(path)
@@ -256,6 +267,9 @@ def jerk_limited(
             floor.append(_checked(_floor(path, rests, limits, jmax, warm), limits, jmax, constraints))
         except Exception as exc:  # raised only where the floor is the answer, as it was computed after the solve
             floor.append(exc)
+            return
+        if on_floor is not None:
+            on_floor(floor[0])
 
     meanwhile = None if deadline is None else floor_meanwhile
     sol, status, late = solve_in_time(program, args, scale, deadline, meanwhile)
@@ -266,7 +280,8 @@ def jerk_limited(
             solver_status=status,
         )
     if sol is None:  # the deadline first: the floor that needs no solver (planner/scurve.py)
-        if not floor:  # no solver started: the floor computed now
+        if not floor:  # no solver started: the floor computed now (nothing to do beside a solve)
+            on_floor = None
             floor_meanwhile()
         if isinstance(floor[0], Exception):
             raise floor[0]
