@@ -179,11 +179,11 @@ class CellPlanner:
             self.plan(jerky, budget_ms=0.0)  # the floor: no solver has time (its answer, timeout, is dropped)
             jerk_warm_up()
             # the programs a deadline solves, for their time per iteration, once every build is done: on a path
-            # like a request's (on the short move above fatrop's iterations took twice theirs), twice (a
-            # solver's first solve is slower)
+            # like a request's (on the short move above fatrop's iterations took twice theirs), three times (a
+            # solver's first solve is slower, and other processes' load makes some slower)
             rng = np.random.default_rng(0)
             path = lo + (0.2 + 0.6 * rng.random((8, len(lo)))) * (hi - lo)
-            for n in (GRID_UNIT, GRID_UNIT, WARM_INTERVALS, WARM_INTERVALS):
+            for n in (GRID_UNIT, GRID_UNIT, GRID_UNIT, WARM_INTERVALS, WARM_INTERVALS, WARM_INTERVALS):
                 self.plan(replace(jerky, waypoints=path, jerk_intervals=n), budget_ms=_WARM_BUDGET_MS)
             forget_solve_times()
             jerk_smooth.warm_up()

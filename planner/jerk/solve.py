@@ -22,7 +22,7 @@ costs its CPU only, not the floor's time after the budget.
 A solve is started only where it has a chance to finish (``_solvers_for``): fatrop has no time
 limit nor iteration callback in casadi 3.8.2, and a late one runs on in its thread, its program
 held (``Program.lock``). So fatrop runs only with at least its typical time left: the median of this
-program shape's last ``_SOLVE_HISTORY`` fatrop solves (until ``_MIN_HISTORY`` are known, its time per
+program shape's last ``_SOLVE_HISTORY`` fatrop solves (until ``_MIN_HISTORY`` are known, its least time per
 iteration, the warm-up's included, times ``_FATROP_ITERATIONS``; ``_FATROP_TIME_S`` per 48 intervals
 before any solve), a measured figure that follows the machine; ipopt (stopped at the deadline) only with at
 least ``_IPOPT_TIME_S`` left, below which its iterates were never usable (bench/RESULTS.md); with
@@ -99,11 +99,14 @@ class Program:
         return float(np.median(times)) if len(times) >= _MIN_HISTORY else self.expected_fatrop_s()
 
     def expected_fatrop_s(self) -> float:
-        """fatrop's expected time on this program before its solves are known: the median of its times
-        per iteration times ``_FATROP_ITERATIONS``, else ``expected_solve_s``."""
+        """fatrop's expected time on this program before its solves are known: the least of its times
+        per iteration times ``_FATROP_ITERATIONS``, else ``expected_solve_s``. The least: the
+        machine's own speed (a warm-up on a host loaded by others took twice a request's time per
+        iteration on it), where a solve that turns out late costs its CPU only, the floor being
+        ready (``planner.jerk``); after ``_MIN_HISTORY`` solves their median decides."""
         if not self.iteration_s:
             return expected_solve_s(self.n)
-        return float(np.median(list(self.iteration_s))) * _FATROP_ITERATIONS
+        return min(self.iteration_s) * _FATROP_ITERATIONS
 
     def measured_fatrop_s(self) -> float | None:
         """The longest of fatrop's recent solves of this program, None until ``_MIN_HISTORY`` are known."""
