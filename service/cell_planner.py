@@ -213,8 +213,9 @@ class CellPlanner:
         ``budget_ms`` (None: no deadline; the service and ``pvtflow plan`` pass the request's or the
         cell's ``planning.budget_ms``): the jerk-limited timing gets the budget less
         ``knots_reserve_ms`` and answers by then (``CellPlan.optimal`` False where that was its best
-        so far); a plan that is still past the deadline at the end (inverse kinematics, TOPP-RA, a
-        casadi program built for a new shape, knots) is ``timeout``, its program dropped.
+        so far), the floor's knots placed while it solves (``FloorKnots``; not for a sequence); a plan
+        that is still past the deadline at the end (inverse kinematics, TOPP-RA, a casadi program
+        built for a new shape, knots) is ``timeout``, its program dropped.
         """
         start, cpu = time.perf_counter(), time.thread_time()
         if self.planner is None:
