@@ -153,8 +153,9 @@ class CellPlanner:
         and the same move is planned again with no time left, for the S-curve floor a deadline answers
         with and its knots; the program of twice the intervals is built too (``planner.jerk.warm_up``).
         Then on each grid a deadline solves, within a deadline far off: the programs it solves (fewer rows
-        per stage, ``planner.jerk.screen``) learn their time per iteration, which decides whether the
-        first requests' solves start (``planner.jerk.solve``; the warm-up's solve times are forgotten).
+        per stage, ``planner.jerk.screen``) learn their time per iteration (once per process), which decides
+        whether the first requests' solves start (``planner.jerk.solve``; the warm-up's solve times are
+        forgotten).
         """
         if self.planner is None:
             return
@@ -165,9 +166,9 @@ class CellPlanner:
         quantize.warm_up()  # the repair that may move knots, which a short move rarely needs
         if jerk:
             from pvtflow.planner.jerk import (  # casadi: loaded where plans may be jerk-limited
-                GRID_UNIT,
                 WARM_INTERVALS,
                 forget_solve_times,
+                untimed_grids,
             )
             from pvtflow.planner.jerk import warm_up as jerk_warm_up
 
@@ -178,13 +179,14 @@ class CellPlanner:
             self.plan(jerky)
             self.plan(jerky, budget_ms=0.0)  # the floor: no solver has time (its answer, timeout, is dropped)
             jerk_warm_up()
-            # the programs a deadline solves, for their time per iteration, once every build is done: on a path
-            # like a request's (on the short move above fatrop's iterations took twice theirs), three times (a
-            # solver's first solve is slower, and other processes' load makes some slower)
+            # the programs a deadline solves, for their time per iteration where it is not known yet, once every
+            # build is done: on a path like a request's (on the short move above fatrop's iterations took twice
+            # theirs), three times (a solver's first solve is slower, and other processes' load makes some slower)
             rng = np.random.default_rng(0)
             path = lo + (0.2 + 0.6 * rng.random((8, len(lo)))) * (hi - lo)
-            for n in (GRID_UNIT, GRID_UNIT, GRID_UNIT, WARM_INTERVALS, WARM_INTERVALS, WARM_INTERVALS):
-                self.plan(replace(jerky, waypoints=path, jerk_intervals=n), budget_ms=_WARM_BUDGET_MS)
+            for n in untimed_grids():
+                for _ in range(3):
+                    self.plan(replace(jerky, waypoints=path, jerk_intervals=n), budget_ms=_WARM_BUDGET_MS)
             forget_solve_times()
             jerk_smooth.warm_up()
         if self.planner.poses is not None:  # and the inverse kinematics' compiled steps

@@ -61,6 +61,7 @@ __all__ = [
     "forget_solve_times",
     "grid_sizes",
     "jerk_limited",
+    "untimed_grids",
     "warm_up",
 ]
 
@@ -146,6 +147,17 @@ def warm_up() -> None:
             cached_program(n, dof, torque)
             cached_program(n, _row_dof(dof, torque, 0.0), torque)  # the screened program a deadline solves
     forget_solve_times()
+
+
+def untimed_grids() -> list[int]:
+    """The grid sizes a warm-up builds (``warm_up``) whose program a deadline solves has no time per
+    iteration yet (``solve.Program.iteration_s``): kept per process, so a cell's later warm-ups skip them."""
+    sizes = set()
+    for n, dof, torque in PROGRAMS.shapes():
+        program = PROGRAMS.ready(n, _row_dof(dof, torque, 0.0), torque)
+        if n <= WARM_INTERVALS and program is not None and not program.iteration_s:
+            sizes.add(n)
+    return sorted(sizes)
 
 
 def forget_solve_times() -> None:
