@@ -199,7 +199,9 @@ def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | Non
         if measured is None:
             # fatrop's time grows about as the square of the intervals (more iterations, each longer): 96
             # intervals took 3.8-4.1x 48's at the median (bench/jerk_rows.py, bench/RESULTS.md)
-            measured = 2.0 * program.expected_fatrop_s() if coarsest_s is None else coarsest_s * (n / sizes[0]) ** 2
+            # (not its time per iteration from the warm-up: a late finer solve is the floor where a coarser one
+            # answers, and under load 96 intervals took 4x 48's; bench/RESULTS.md)
+            measured = 2.0 * expected_solve_s(n) if coarsest_s is None else coarsest_s * (n / sizes[0]) ** 2
         if deadline - time.perf_counter() >= measured:
             return program, n
     program = coarsest
