@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -30,6 +30,9 @@ if TYPE_CHECKING:  # planner.jerk loads casadi: only a plan with a jerk limit do
 
 # What a plan can end with: the joint-space outcomes, and the refusals of tool poses.
 PlanOutcome = PlanResult | CartesianResult
+# what a caller does with the S-curve floor while the jerk-limited solve runs (``Planner.plan``): the
+# floor and its details (``max_jerk``)
+FloorHook = Callable[["JerkTrajectory", dict[str, object]], None]
 
 
 def jerk_scale(velocity_scale: float, acceleration_scale: float) -> float:
@@ -50,6 +53,22 @@ def _scale(name: str, value: object) -> float:
         return check_scale(name, value)
     except ValueError as exc:
         raise PlanError(PlanResult.INVALID_INPUT, str(exc), field=name) from None
+
+
+def jerk_details(jerky: JerkTrajectory) -> dict[str, object]:
+    """A jerk-limited plan's details that its trajectory decides (``Planner.plan``)."""
+    return {
+        "solver": jerky.solver,
+        "iterations": jerky.iterations,
+        "time_scale": jerky.time_scale,
+        # not the optimum where the deadline came first or torque between the solver's rows slowed it
+        "optimal": jerky.optimal and not jerky.torque_slowed,
+        "solver_finished": jerky.optimal,
+        "torque_scale": jerky.torque_scale,
+        "lower_bound_s": jerky.lower_bound,  # TOPP-RA's duration: no jerk-limited timing is shorter
+        # the solver's grid (0: the S-curve floor, no solver's)
+        "jerk_intervals": 0 if jerky.solver == "scurve" else len(jerky.gridpoints) - 1,
+    }
 
 
 def _max_jerk(value: object, dof: int) -> NDArray[np.float64]:
@@ -192,6 +211,7 @@ class Planner:
         speed_band: float | None = None,
         gridpoints: int | None = None,
         jerk_intervals: int | None = None,
+        on_floor: FloorHook | None = None,
     ) -> tuple[Trajectory | JerkTrajectory, dict[str, object]]:
         """TOPP-RA along ``path``, flattened within the speed band (``speed_band``, None: the
         planner's); with a jerk limit, the jerk-limited timing warm-started from TOPP-RA's own profile."""
@@ -205,8 +225,10 @@ class Planner:
         from pvtflow.planner.jerk import jerk_limited  # casadi: loaded by the first plan that needs it
 
         t1 = time.perf_counter()
+        jerk_detail = [float(j) if np.isfinite(j) else None for j in max_jerk]  # None: that joint unlimited
+        floor_hook = None if on_floor is None else lambda floor: on_floor(floor, {"max_jerk": jerk_detail})
         try:
-            jerky = jerk_limited(path, limits, constraints, max_jerk, trajectory, jerk_intervals, deadline)
+            jerky = jerk_limited(path, limits, constraints, max_jerk, trajectory, jerk_intervals, deadline, floor_hook)
         except (ValueError, RuntimeError) as exc:  # PlanError is a ValueError: passed on as it is
             if isinstance(exc, PlanError):
                 raise
@@ -214,21 +236,12 @@ class Planner:
         details: dict[str, object] = {
             "topp_s": t1 - t0,
             "jerk_s": time.perf_counter() - t1,
-            "solver": jerky.solver,
-            "iterations": jerky.iterations,
-            "time_scale": jerky.time_scale,
-            "max_jerk": [float(j) if np.isfinite(j) else None for j in max_jerk],  # None: that joint unlimited
-            # not the optimum where the deadline came first or torque between the solver's rows slowed it
-            "optimal": jerky.optimal and not jerky.torque_slowed,
-            "solver_finished": jerky.optimal,
-            "torque_scale": jerky.torque_scale,
-            "lower_bound_s": jerky.lower_bound,  # TOPP-RA's duration: no jerk-limited timing is shorter
-            # the solver's grid (0: the S-curve floor, no solver's)
-            "jerk_intervals": 0 if jerky.solver == "scurve" else len(jerky.gridpoints) - 1,
+            "max_jerk": jerk_detail,
+            **jerk_details(jerky),
         }
         return jerky, details
 
-    def plan(self, inp: PlanInput) -> PlanOutput:
+    def plan(self, inp: PlanInput, on_floor: FloorHook | None = None) -> PlanOutput:
         """Time-optimal rest-to-rest trajectory through the waypoints (or of the tool through the
         poses), or the reason there is none.
 
@@ -239,7 +252,11 @@ class Planner:
         (``details["optimal"]`` False where the deadline came first, ``solver_finished`` False too,
         or where the torque limits between the solver's rows slowed its answer by more than 0.1 %,
         ``torque_scale``; ``lower_bound_s`` TOPP-RA's duration, the gap's other end). Time alone
-        never refuses a plan here."""
+        never refuses a plan here.
+
+        ``on_floor(trajectory, details)``: with a jerk limit and a deadline, called with the S-curve floor
+        and the ``max_jerk`` detail where the floor is computed while a solver runs (``planner.jerk``), so
+        that the caller's work on it is done by the time the answer is; not for a sequence."""
         scales = (inp.velocity_scale, inp.acceleration_scale, inp.max_jerk)
         options = (inp.speed_band, inp.jerk_intervals)
         deadline = None
@@ -248,8 +265,8 @@ class Planner:
         if inp.sequence is not None:
             return self._plan_sequence(inp.waypoints, inp.sequence, *scales, deadline, *options)
         if inp.poses is not None:
-            return self._plan_poses(inp.waypoints, inp.poses, inp.motion, *scales, deadline, *options)
-        return self._plan_waypoints(inp.waypoints, *scales, deadline, *options)
+            return self._plan_poses(inp.waypoints, inp.poses, inp.motion, *scales, deadline, *options, on_floor)
+        return self._plan_waypoints(inp.waypoints, *scales, deadline, *options, on_floor)
 
     def _plan_waypoints(
         self,
@@ -260,6 +277,7 @@ class Planner:
         deadline: float | None = None,
         speed_band: float | None = None,
         jerk_intervals: int | None = None,
+        on_floor: FloorHook | None = None,
     ) -> PlanOutput:
         start = time.perf_counter()
         try:
@@ -267,7 +285,7 @@ class Planner:
             jerk = self._jerk_limit(max_jerk, velocity_scale, acceleration_scale)
             path = JointPath(waypoints, limits)
             trajectory, details = self._timed(
-                path, limits, constraints, jerk, deadline, speed_band, None, jerk_intervals
+                path, limits, constraints, jerk, deadline, speed_band, None, jerk_intervals, on_floor
             )
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - start, dict(exc.details))
@@ -284,6 +302,7 @@ class Planner:
         deadline: float | None = None,
         speed_band: float | None = None,
         jerk_intervals: int | None = None,
+        on_floor: FloorHook | None = None,
     ) -> PlanOutput:
         """The tool from joint positions ``start`` through ``poses`` (straight lines or joint moves:
         planner/cartesian.py). ``details["ik_s"]``: the inverse kinematics' share of the planning
@@ -302,7 +321,7 @@ class Planner:
             tool: ToolPath = self.poses.solve(start, poses, kind)
             t_ik = time.perf_counter() - t0
             trajectory, timed = self._timed(
-                tool.path, limits, constraints, jerk, deadline, speed_band, None, jerk_intervals
+                tool.path, limits, constraints, jerk, deadline, speed_band, None, jerk_intervals, on_floor
             )
         except PlanError as exc:
             return PlanOutput(exc.result, exc.message, None, time.perf_counter() - t0, dict(exc.details))

@@ -9,8 +9,9 @@ service and the command line both import it from here.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,9 +22,12 @@ from pvtflow.planner.build import BuildError, BuildOutput, build_program
 from pvtflow.planner.cartesian import placement_pose
 from pvtflow.planner.knots import KnotOptions, jerk_smooth, quantize
 from pvtflow.planner.path import PlanResult
-from pvtflow.planner.plan import PlanInput, Planner, PlanOutput
+from pvtflow.planner.plan import PlanInput, Planner, PlanOutput, jerk_details
 from pvtflow.service.config import CellConfig
 from pvtflow.service.record_feed import RecordFeed
+
+if TYPE_CHECKING:  # planner.jerk loads casadi: only a plan with a jerk limit does
+    from pvtflow.planner.jerk import JerkTrajectory
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,9 @@ class CellPlan:
         return self.program is not None
 
 
+# the warm-up's plans within a deadline: far off, so that they are solved (the floor's knots placed beside)
+_WARM_BUDGET_MS = 10_000.0
+
 TIMEOUT = "timeout"  # CellPlan.code of a plan past its deadline for another reason than the timing's solve
 
 # the speed bands tried, in turn, where the bus cannot feed the time-optimal plan's records (planner.speed_band;
@@ -60,10 +67,38 @@ CELL_FILE_REASON = "the cell file asks for it (planning.speed_band)"
 INPUT_REASON = "the plan's input asks for it (PlanInput.speed_band)"
 
 
-def knots_reserve_ms(budget_ms: float) -> float:
-    """What a plan's budget keeps back from the jerk-limited timing's solve: its floor when the
-    solve is late (``planner.scurve``, a few ms), the dense check, knot placement and validation."""
-    return 25.0 + 0.1 * budget_ms
+def knots_reserve_ms(budget_ms: float, floor_beside: bool = False) -> float:
+    """What a plan's budget keeps back from the jerk-limited timing's solve: the answer's dense check,
+    knot placement and validation, and where the floor's knots are not placed while the solver runs
+    (``floor_beside`` False: a sequence), the floor's knots after a late solve too (they took 10-22 ms
+    at p50-p99 on the 2-core host, the answer's 6-10: bench/budget_split.py, bench/RESULTS.md)."""
+    return (10.0 if floor_beside else 25.0) + 0.1 * budget_ms
+
+
+class FloorKnots:
+    """The S-curve floor's program, placed while the jerk-limited solve runs (``Planner.plan``'s
+    ``on_floor``, in the plan's thread: casadi leaves the interpreter's lock while it solves), so that a
+    late solve's answer is ready at the deadline and the budget keeps back only the answer's knots."""
+
+    def __init__(self, place: Callable[[JerkTrajectory, dict[str, object]], BuildOutput]) -> None:
+        self._place = place
+        self.trajectory: JerkTrajectory | None = None
+        self.built: BuildOutput | None = None
+        self.error: Exception | None = None
+        self.seconds = 0.0  # the knots' time
+
+    def __call__(self, trajectory: JerkTrajectory, details: dict[str, object]) -> None:
+        began = time.perf_counter()
+        self.trajectory = trajectory
+        try:
+            self.built = self._place(trajectory, details)
+        except (BuildError, ValueError) as exc:  # the answer's error where the floor is the answer, as before
+            self.error = exc
+        self.seconds = time.perf_counter() - began
+
+    def of(self, trajectory: object) -> bool:
+        """Whether this is the floor placed here (the planner answers with that same object)."""
+        return self.trajectory is not None and trajectory is self.trajectory
 
 
 def planner_for_cell(cell: CellConfig, gridpoints: int | None = None) -> Planner:
@@ -117,6 +152,10 @@ class CellPlanner:
         where fatrop does not converge: 0.13 s inside a request otherwise, ``planner.jerk.solve.ProgramCache``),
         and the same move is planned again with no time left, for the S-curve floor a deadline answers
         with and its knots; the program of twice the intervals is built too (``planner.jerk.warm_up``).
+        Then on each grid a deadline solves, within a deadline far off: the programs it solves (fewer rows
+        per stage, ``planner.jerk.screen``) learn their time per iteration (once per process), which decides
+        whether the first requests' solves start (``planner.jerk.solve``; the warm-up's solve times are
+        forgotten).
         """
         if self.planner is None:
             return
@@ -126,7 +165,11 @@ class CellPlanner:
         timing.warm_up()  # the longer paths' spline and the torque check near a limit
         quantize.warm_up()  # the repair that may move knots, which a short move rarely needs
         if jerk:
-            from pvtflow.planner.jerk import WARM_INTERVALS  # casadi: loaded where plans may be jerk-limited
+            from pvtflow.planner.jerk import (  # casadi: loaded where plans may be jerk-limited
+                WARM_INTERVALS,
+                forget_solve_times,
+                untimed_grids,
+            )
             from pvtflow.planner.jerk import warm_up as jerk_warm_up
 
             ja, jb = lo + 0.4 * (hi - lo), lo + 0.6 * (hi - lo)
@@ -136,6 +179,15 @@ class CellPlanner:
             self.plan(jerky)
             self.plan(jerky, budget_ms=0.0)  # the floor: no solver has time (its answer, timeout, is dropped)
             jerk_warm_up()
+            # the programs a deadline solves, for their time per iteration where it is not known yet, once every
+            # build is done: on a path like a request's (on the short move above fatrop's iterations took twice
+            # theirs), three times (a solver's first solve is slower, and other processes' load makes some slower)
+            rng = np.random.default_rng(0)
+            path = lo + (0.2 + 0.6 * rng.random((8, len(lo)))) * (hi - lo)
+            for n in untimed_grids():
+                for _ in range(3):
+                    self.plan(replace(jerky, waypoints=path, jerk_intervals=n), budget_ms=_WARM_BUDGET_MS)
+            forget_solve_times()
             jerk_smooth.warm_up()
         if self.planner.poses is not None:  # and the inverse kinematics' compiled steps
             self.plan(PlanInput(a, [placement_pose(self.planner.poses.ik.fk(b))]))
@@ -163,8 +215,9 @@ class CellPlanner:
         ``budget_ms`` (None: no deadline; the service and ``pvtflow plan`` pass the request's or the
         cell's ``planning.budget_ms``): the jerk-limited timing gets the budget less
         ``knots_reserve_ms`` and answers by then (``CellPlan.optimal`` False where that was its best
-        so far); a plan that is still past the deadline at the end (inverse kinematics, TOPP-RA, a
-        casadi program built for a new shape, knots) is ``timeout``, its program dropped.
+        so far), the floor's knots placed while it solves (``FloorKnots``; not for a sequence); a plan
+        that is still past the deadline at the end (inverse kinematics, TOPP-RA, a casadi program
+        built for a new shape, knots) is ``timeout``, its program dropped.
         """
         start, cpu = time.perf_counter(), time.thread_time()
         if self.planner is None:
@@ -174,17 +227,32 @@ class CellPlanner:
 
             if len(chunks(inp.sequence)) > 1:  # exact stops: planned rest to rest, joined
                 return plan_in_chunks(self, inp, tolerance_qc, metadata, budget_ms)
-        if budget_ms is not None:
-            inp = replace(inp, budget_ms=max(0.0, budget_ms - knots_reserve_ms(budget_ms)))
-        out = self.planner.plan(inp)
         meta = dict(metadata or {})
         if inp.sequence is not None:
             meta = {"motion": "sequence", **meta}
         elif inp.poses is not None:
             meta = {"motion": str(inp.motion), **meta}
+        # the floor's knots placed while the solve runs, but a sequence's (its items' times are the plan's)
+        floor = None
+        if budget_ms is not None and inp.sequence is None:
+            floor = FloorKnots(lambda traj, details: self._knots(traj, details, inp, tolerance_qc, meta))
+        if budget_ms is not None:
+            inp = replace(inp, budget_ms=max(0.0, budget_ms - knots_reserve_ms(budget_ms, floor is not None)))
+        out = self.planner.plan(inp, floor)
         reason = CELL_FILE_REASON if inp.speed_band is None else INPUT_REASON
-        result = self._build(out, start, cpu, inp, tolerance_qc, meta, reason)
-        if not result.ok and out.ok and out.details.get("jerk_intervals", 0):
+        if floor is not None and floor.built is not None and out.ok and not floor.of(out.trajectory):
+            # the solver's answer, where its knots would not end within the budget (they take about the
+            # floor's: a shorter motion on more intervals): the floor's program, placed already
+            left = budget_ms - 1000.0 * (time.perf_counter() - start)  # type: ignore[operator]
+            if left < 1000.0 * floor.seconds:
+                out = replace(out, trajectory=floor.trajectory, details=out.details | jerk_details(floor.trajectory))
+        result = self._build(out, start, cpu, inp, tolerance_qc, meta, reason, floor)
+        if not result.ok and floor is not None and floor.built is not None and out.ok and not floor.of(out.trajectory):
+            # the drives' cubics did not follow the solver's motion (below): within a deadline the floor's
+            # program, placed already, where planning again would not end in time
+            out = replace(out, trajectory=floor.trajectory, details=out.details | jerk_details(floor.trajectory))
+            result = self._build(out, start, cpu, inp, tolerance_qc, meta, reason, floor)
+        elif not result.ok and out.ok and out.details.get("jerk_intervals", 0):
             from pvtflow.planner.jerk import GRID_UNIT  # casadi: loaded by the jerk-limited plan already
 
             if int(out.details["jerk_intervals"]) > GRID_UNIT:  # type: ignore[call-overload]
@@ -243,9 +311,12 @@ class CellPlanner:
         tolerance_qc: float | None,
         metadata: dict[str, Any],
         band_reason: str = CELL_FILE_REASON,
+        floor: FloorKnots | None = None,
     ) -> CellPlan:
         """The program of a planned trajectory (or the planner's refusal as a CellPlan); a plan
-        flattened within a speed band says so in the program's metadata, with ``band_reason``."""
+        flattened within a speed band says so in the program's metadata, with ``band_reason``.
+        ``floor``: the S-curve floor's program placed while the solver ran, this plan's where its
+        trajectory is that floor (``timing["knots"]`` then the time they took there)."""
         t_plan = time.perf_counter() - start
         timing = {"plan": t_plan}
         for key, name in (("ik_s", "ik"), ("topp_s", "topp"), ("jerk_s", "jerk")):
@@ -254,32 +325,54 @@ class CellPlanner:
         if not out.ok or out.trajectory is None:
             return CellPlan(out.result.value, out.message, None, out, None, timing, details=dict(out.details))
         points = out.trajectory.path.points
-        tol = self.tolerance_qc if tolerance_qc is None else tolerance_qc
-        meta = dict(metadata)
-        if "max_jerk" in out.details:
-            meta["max_jerk"] = out.details["max_jerk"]
-        if "items" in out.details:  # a sequence: its items' time spans (which item runs when)
-            meta["items"] = out.details["items"]
         band = None
         if "speed_band" in out.details:
             cost = 100.0 * float(out.details["speed_band_cost"])  # type: ignore[arg-type]
             band = {"band": out.details["speed_band"], "reason": band_reason, "cost_pct": round(cost, 3)}
-            meta["speed_band"] = band
+        knots_s = None
         try:
-            built = build_program(
-                out.trajectory,
-                self.axes,
-                self.cell.name,
-                KnotOptions(tolerance_qc=tol, max_jerk=out.details.get("max_jerk")),
-                meta,
-                float(inp.velocity_scale),
-                float(inp.acceleration_scale),
-            )
+            if floor is not None and floor.of(out.trajectory):
+                if floor.error is not None:
+                    raise floor.error
+                assert floor.built is not None
+                built, knots_s = floor.built, floor.seconds
+            else:
+                built = self._knots(out.trajectory, out.details, inp, tolerance_qc, metadata, band)
         except (BuildError, ValueError) as exc:
             return CellPlan("program_error", str(exc), None, out, None, timing, points)
         total = time.perf_counter() - start
-        timing.update({"knots": total - t_plan, "total": total, "cpu": time.thread_time() - cpu})
+        knots = total - t_plan if knots_s is None else knots_s
+        timing.update({"knots": knots, "total": total, "cpu": time.thread_time() - cpu})
         return CellPlan("ok", "", built.program, out, built, timing, points, speed_band=band)
+
+    def _knots(
+        self,
+        trajectory: Any,
+        details: dict[str, object],
+        inp: PlanInput,
+        tolerance_qc: float | None,
+        metadata: dict[str, Any],
+        band: dict[str, Any] | None = None,
+    ) -> BuildOutput:
+        """Knots, program and validation of ``trajectory`` (BuildError, ValueError where they fail);
+        the program's metadata: ``metadata``, the jerk limit held, a sequence's items, the speed band."""
+        tol = self.tolerance_qc if tolerance_qc is None else tolerance_qc
+        meta = dict(metadata)
+        if "max_jerk" in details:
+            meta["max_jerk"] = details["max_jerk"]
+        if "items" in details:  # a sequence: its items' time spans (which item runs when)
+            meta["items"] = details["items"]
+        if band is not None:
+            meta["speed_band"] = band
+        return build_program(
+            trajectory,
+            self.axes,
+            self.cell.name,
+            KnotOptions(tolerance_qc=tol, max_jerk=details.get("max_jerk")),  # type: ignore[arg-type]
+            meta,
+            float(inp.velocity_scale),
+            float(inp.acceleration_scale),
+        )
 
 
 def plan_cell_program(

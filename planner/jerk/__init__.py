@@ -29,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import toppra.constraint as constraint
@@ -58,8 +58,10 @@ __all__ = [
     "GRID_UNIT",
     "WARM_INTERVALS",
     "JerkTrajectory",
+    "forget_solve_times",
     "grid_sizes",
     "jerk_limited",
+    "untimed_grids",
     "warm_up",
 ]
 
@@ -69,9 +71,9 @@ __all__ = [
 # item 2"): 48 intervals 1.084x at the median, 96 1.017x, 192 1.001x; fatrop's time grows with them
 GRID_UNIT = 48
 DEFAULT_JERK_INTERVALS = 192
-# the sizes a warm-up builds: building a program holds the interpreter's lock in one piece (192
-# intervals: 0.76 s for fatrop's solver, past the 300 ms a drive waits for the master's heartbeat);
-# 192 is built by the first plan without a deadline (a deadline never waits for a build)
+# the sizes a warm-up builds: those a budget of some 100 ms can be solved on; 192 (1.35 s of CPU to build
+# with its solvers, at every start, where casadi 3.8.2 leaves the interpreter's lock while it builds:
+# bench/gil_stall.py) is built by the first plan without a deadline (a deadline never waits for a build)
 WARM_INTERVALS = 96
 
 # the torque check (``_torque_slowdown``, bench/jerk_torque.py): on 20 random arm6 paths at 30 % of
@@ -139,12 +141,29 @@ def warm_up() -> None:
     ``WARM_INTERVALS`` a path of up to 44 waypoints (or 12 with a stop at each) and one of up to
     twice that may be solved on (``grid_sizes``), so that no plan within a deadline meets a
     shape that is not built (it would answer on a coarser grid, or the floor); the warm-up's own
-    solve times are forgotten."""
+    solve times are forgotten (``forget_solve_times``)."""
     for _, dof, torque in PROGRAMS.shapes():
         for n in {*grid_sizes(GRID_UNIT, WARM_INTERVALS), *grid_sizes(2 * GRID_UNIT, WARM_INTERVALS)}:
             cached_program(n, dof, torque)
             cached_program(n, _row_dof(dof, torque, 0.0), torque)  # the screened program a deadline solves
-    for shape in PROGRAMS.shapes():  # the warm-up's move is no request's (96 intervals: 151 ms, requests' 50)
+    forget_solve_times()
+
+
+def untimed_grids() -> list[int]:
+    """The grid sizes a warm-up builds (``warm_up``) whose program a deadline solves has no time per
+    iteration yet (``solve.Program.iteration_s``): kept per process, so a cell's later warm-ups skip them."""
+    sizes = set()
+    for n, dof, torque in PROGRAMS.shapes():
+        program = PROGRAMS.ready(n, _row_dof(dof, torque, 0.0), torque)
+        if n <= WARM_INTERVALS and program is not None and not program.iteration_s:
+            sizes.add(n)
+    return sorted(sizes)
+
+
+def forget_solve_times() -> None:
+    """Forget every program's solve times but its times per iteration: a warm-up's moves are no
+    request's (its short move took 151 ms on 96 intervals, requests 50; ``solve.Program.iteration_s``)."""
+    for shape in PROGRAMS.shapes():
         program = PROGRAMS.ready(*shape)
         if program is not None:
             program.fatrop_s.clear()
@@ -180,6 +199,8 @@ def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | Non
         if measured is None:
             # fatrop's time grows about as the square of the intervals (more iterations, each longer): 96
             # intervals took 3.8-4.1x 48's at the median (bench/jerk_rows.py, bench/RESULTS.md)
+            # (not its time per iteration from the warm-up: a late finer solve is the floor where a coarser one
+            # answers, and under load 96 intervals took 4x 48's; bench/RESULTS.md)
             measured = 2.0 * expected_solve_s(n) if coarsest_s is None else coarsest_s * (n / sizes[0]) ** 2
         if deadline - time.perf_counter() >= measured:
             return program, n
@@ -206,6 +227,7 @@ def jerk_limited(
     warm: Trajectory,
     intervals: int | None = None,
     deadline: float | None = None,
+    on_floor: Callable[[JerkTrajectory], None] | None = None,
 ) -> JerkTrajectory:
     """The time-optimal rest-to-rest trajectory along ``path`` with |q'''_j| <= max_jerk_j besides
     ``constraints`` (the cell's toppra constraints, held as TOPP-RA holds them), started from
@@ -219,6 +241,9 @@ def jerk_limited(
     no jerk-limited timing beats.
     ``torque_scale``: the slow-down torque between the rows asked for after the solve.
     ``intervals``: the grid's size at most (None: ``DEFAULT_JERK_INTERVALS``; ``grid_sizes``).
+    ``on_floor``: called with the checked floor where it is computed while a solver runs (in this
+    thread, before the solver's answer is taken), for what the caller makes of it meanwhile (its knots:
+    ``service.cell_planner``); the floor answered is that same object.
     """
     jmax = np.asarray(max_jerk, dtype=float)
     rests = rests_of(path)
@@ -256,6 +281,9 @@ def jerk_limited(
             floor.append(_checked(_floor(path, rests, limits, jmax, warm), limits, jmax, constraints))
         except Exception as exc:  # raised only where the floor is the answer, as it was computed after the solve
             floor.append(exc)
+            return
+        if on_floor is not None:
+            on_floor(floor[0])
 
     meanwhile = None if deadline is None else floor_meanwhile
     sol, status, late = solve_in_time(program, args, scale, deadline, meanwhile)
@@ -266,7 +294,8 @@ def jerk_limited(
             solver_status=status,
         )
     if sol is None:  # the deadline first: the floor that needs no solver (planner/scurve.py)
-        if not floor:  # no solver started: the floor computed now
+        if not floor:  # no solver started: the floor computed now (nothing to do beside a solve)
+            on_floor = None
             floor_meanwhile()
         if isinstance(floor[0], Exception):
             raise floor[0]

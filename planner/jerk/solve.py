@@ -22,8 +22,9 @@ costs its CPU only, not the floor's time after the budget.
 A solve is started only where it has a chance to finish (``_solvers_for``): fatrop has no time
 limit nor iteration callback in casadi 3.8.2, and a late one runs on in its thread, its program
 held (``Program.lock``). So fatrop runs only with at least its typical time left: the median of this
-program shape's last ``_SOLVE_HISTORY`` fatrop solves (``_FATROP_TIME_S`` until ``_MIN_HISTORY`` are
-known), a measured figure that follows the machine; ipopt (stopped at the deadline) only with at
+program shape's last ``_SOLVE_HISTORY`` fatrop solves (until ``_MIN_HISTORY`` are known, its least time per
+iteration, the warm-up's included, times ``_FATROP_ITERATIONS``; ``_FATROP_TIME_S`` per 48 intervals
+before any solve), a measured figure that follows the machine; ipopt (stopped at the deadline) only with at
 least ``_IPOPT_TIME_S`` left, below which its iterates were never usable (bench/RESULTS.md); with
 less than both, no solver, the floor at once. Which grid a deadline gets (``planner.jerk``) is judged
 on the longest of the recent solves instead: there a late finer solve is the floor where a coarser
@@ -57,6 +58,11 @@ _FATROP_TIME_S = 0.06
 _FATROP_INTERVALS = 48
 _SOLVE_HISTORY = 50
 _MIN_HISTORY = 10
+# until then, where the program's time per iteration is known (the warm-up's solves: a program's
+# iterations cost about the same on any path, their count is the path's): that times this many iterations,
+# fatrop's p50 on arm6 8-waypoint paths on the screened programs being 18-21 at 48 intervals and 22 at 96
+# (bench/RESULTS.md, "Issue 39 item 2 at `budget_ms: 50`: the floor's knots beside the solve")
+_FATROP_ITERATIONS = 24
 _IPOPT_TIME_S = 0.04  # with less time left ipopt's iterates were never usable: no solve, the floor
 # building a program and its two solvers: 0.28 s for 48 intervals on the 2-core test host (casadi 3.8.2),
 # about in proportion to them; twice that is the time a plan must have left to build one (``expected_build_s``)
@@ -82,12 +88,25 @@ class Program:
     lock: threading.Lock = field(default_factory=threading.Lock)
     stop: _Deadline | None = None
     fatrop_s: deque[float] = field(default_factory=lambda: deque(maxlen=_SOLVE_HISTORY))  # recent solve times
+    # recent times per iteration, the warm-up's kept (``planner.jerk.warm_up`` forgets its ``fatrop_s``)
+    iteration_s: deque[float] = field(default_factory=lambda: deque(maxlen=_SOLVE_HISTORY))
+    solved: bool = False  # whether fatrop has solved this program once (``iteration_s`` from its second solve)
 
     def typical_fatrop_s(self) -> float:
         """fatrop's typical wall time on this program: the median of its recent solves (before
-        ``_MIN_HISTORY`` are known: ``expected_solve_s``)."""
+        ``_MIN_HISTORY`` are known: ``expected_fatrop_s``)."""
         times = list(self.fatrop_s)
-        return float(np.median(times)) if len(times) >= _MIN_HISTORY else expected_solve_s(self.n)
+        return float(np.median(times)) if len(times) >= _MIN_HISTORY else self.expected_fatrop_s()
+
+    def expected_fatrop_s(self) -> float:
+        """fatrop's expected time on this program before its solves are known: the least of its times
+        per iteration times ``_FATROP_ITERATIONS``, else ``expected_solve_s``. The least: the
+        machine's own speed (a warm-up on a host loaded by others took twice a request's time per
+        iteration on it), where a solve that turns out late costs its CPU only, the floor being
+        ready (``planner.jerk``); after ``_MIN_HISTORY`` solves their median decides."""
+        if not self.iteration_s:
+            return expected_solve_s(self.n)
+        return min(self.iteration_s) * _FATROP_ITERATIONS
 
     def measured_fatrop_s(self) -> float | None:
         """The longest of fatrop's recent solves of this program, None until ``_MIN_HISTORY`` are known."""
@@ -279,9 +298,13 @@ def _solve_now(
             program.stop.reset(deadline)
         began = time.perf_counter()
         out = solver(**args)
-        if name == "fatrop":
-            program.fatrop_s.append(time.perf_counter() - began)
         stats = solver.stats()
+        if name == "fatrop":
+            took = time.perf_counter() - began
+            program.fatrop_s.append(took)
+            if program.solved:  # a solver's first solve sets up its memory: twice the time per iteration
+                program.iteration_s.append(took / max(1, int(stats.get("iter_count", 0))))
+            program.solved = True
         if stats["success"]:
             return solution(out["x"], name, int(stats.get("iter_count", 0))), "", False
         status = stats.get("return_status", "")

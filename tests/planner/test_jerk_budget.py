@@ -72,7 +72,7 @@ def test_a_solve_the_deadline_interrupts_leaves_the_next_plan_whole() -> None:
 
 def test_no_solve_starts_that_cannot_answer_in_time() -> None:
     """Less time than any solver needs (planner/jerk/solve.py, ``_solvers_for``): the floor at once, no solve
-    left running in a thread (casadi holds the interpreter's lock while it computes)."""
+    left running in a thread (it would take CPU from the plan and the next solve of its program)."""
     import threading
 
     import pvtflow.planner.jerk.solve as jerk_solve
@@ -112,7 +112,7 @@ def test_a_solver_left_out_for_lack_of_time_is_the_floor_not_a_refusal(monkeypat
 
 def test_the_cell_plan_says_not_optimal_and_its_program_is_valid(monkeypatch: pytest.MonkeyPatch) -> None:
     """The whole budget kept back from the solve: the answer is the floor, and it is a valid program."""
-    monkeypatch.setattr(cell_planner_module, "knots_reserve_ms", lambda budget_ms: budget_ms)
+    monkeypatch.setattr(cell_planner_module, "knots_reserve_ms", lambda budget_ms, floor_beside=False: budget_ms)
     planner = CellPlanner(ARM)
     limits = ARM.joint_limits()
     res = planner.plan(
@@ -175,7 +175,8 @@ def test_a_late_solve_answers_the_floor_computed_while_it_ran(monkeypatch: pytes
     max_jerk = 10.0 * limits.acceleration
     planner = Planner(limits)
     wp = random_paths(ARM, 1, seed=14)[0]
-    assert planner.plan(PlanInput(wp, max_jerk=max_jerk, jerk_intervals=48)).ok  # the program built
+    # the program a deadline solves built (planner/jerk/screen.py), in this test alone too
+    assert planner.plan(PlanInput(wp, max_jerk=max_jerk, jerk_intervals=48, budget_ms=60000.0)).ok
     for earlier in [t for t in threading.enumerate() if t.name == "jerk-solve"]:
         earlier.join(60.0)
     solve_now = jerk_solve._solve_now
@@ -195,6 +196,7 @@ def test_a_late_solve_answers_the_floor_computed_while_it_ran(monkeypatch: pytes
 
     monkeypatch.setattr(jerk_solve, "_solve_now", late)
     monkeypatch.setattr(jerk_solve, "_FATROP_TIME_S", 0.0)  # fatrop starts with any time left
+    monkeypatch.setattr(jerk_solve, "_FATROP_ITERATIONS", 0)  # (an earlier test's times per iteration)
     monkeypatch.setattr(jerk_module, "_floor", floor_seen)
     res = planner.plan(PlanInput(wp, max_jerk=max_jerk, jerk_intervals=48, budget_ms=30.0))
     for thread in [t for t in threading.enumerate() if t.name == "jerk-solve"]:
@@ -206,3 +208,48 @@ def test_a_late_solve_answers_the_floor_computed_while_it_ran(monkeypatch: pytes
     assert alone.details["solver"] == "scurve"
     assert res.trajectory.duration == pytest.approx(alone.trajectory.duration, rel=1e-12)
     assert max(dense_ratios(res.trajectory, limits, max_jerk)) <= 1.001
+
+
+def test_a_late_solve_answers_the_floors_program_placed_while_it_ran(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Through the cell's planner: the floor's knots are placed (and validated) while the solve runs too
+    (service/cell_planner.py, ``FloorKnots``), so a late solve's answer is that program, with no knots
+    after the deadline; the budget keeps back only the answer's knots (``knots_reserve_ms``)."""
+    import pvtflow.planner.jerk.solve as jerk_solve
+
+    planner = CellPlanner(ARM)
+    max_jerk = 10.0 * ARM.joint_limits().acceleration
+    wp = random_paths(ARM, 1, seed=15)[0]
+    assert planner.plan(PlanInput(wp, max_jerk=max_jerk, jerk_intervals=48), None, None, 60000.0).ok  # built
+    for earlier in [t for t in threading.enumerate() if t.name == "jerk-solve"]:
+        earlier.join(60.0)
+    solve_now = jerk_solve._solve_now
+    build = cell_planner_module.build_program
+    deadlines: list[float] = []
+    placed: list[bool] = []
+
+    def late(program, args, scale, deadline, names=jerk_solve.SOLVERS):  # type: ignore[no-untyped-def]
+        deadlines.append(deadline)
+        while time.perf_counter() < deadline:  # the solve itself finishes past the deadline
+            time.sleep(0.001)
+        return solve_now(program, args, scale, deadline + 60.0, names)
+
+    def build_seen(*args, **kwargs):  # type: ignore[no-untyped-def]
+        placed.append(bool(deadlines) and time.perf_counter() < deadlines[0])
+        return build(*args, **kwargs)
+
+    monkeypatch.setattr(jerk_solve, "_solve_now", late)
+    monkeypatch.setattr(jerk_solve, "_FATROP_TIME_S", 0.0)  # fatrop starts with any time left
+    monkeypatch.setattr(jerk_solve, "_FATROP_ITERATIONS", 0)
+    monkeypatch.setattr(cell_planner_module, "build_program", build_seen)
+    budget_ms = 400.0
+    began = time.perf_counter()
+    res = planner.plan(PlanInput(wp, max_jerk=max_jerk, jerk_intervals=48), None, None, budget_ms)
+    for thread in [t for t in threading.enumerate() if t.name == "jerk-solve"]:
+        thread.join(60.0)
+    assert res.ok, res.message
+    assert res.optimal is False and res.plan.details["solver"] == "scurve"
+    assert placed == [True]  # placed once, while the solve ran, and not again after it
+    assert deadlines[0] - began == pytest.approx(
+        1e-3 * (budget_ms - cell_planner_module.knots_reserve_ms(budget_ms, True)), abs=0.02
+    )
+    assert validate_program(res.program).ok

@@ -42,7 +42,9 @@ def test_within_a_deadline_the_screened_program_gives_the_whole_programs_answer(
     screened = planner.plan(PlanInput(path(seed), max_jerk=MAX_JERK, jerk_intervals=INTERVALS, budget_ms=60000.0))
     assert len(PROGRAMS.ready(INTERVALS, row_dof, False).fatrop_s) == solves + 1  # the screened program solved it
     assert whole.details["optimal"] is True and screened.details["optimal"] is True
-    assert screened.trajectory.duration == pytest.approx(whole.trajectory.duration, rel=1e-6)
+    # each solved to fatrop's tolerance (1e-6 of the duration); a program's answer also moves by about that with
+    # the solve before it (casadi's fatrop keeps state: path 5 after path 14 on the same program, 1.3e-6)
+    assert screened.trajectory.duration == pytest.approx(whole.trajectory.duration, rel=5e-6)
     assert dense_ratio(screened.trajectory) <= 1.001
 
 

@@ -82,6 +82,8 @@ def built():
 planner = CellPlanner(load_cell_config(None))
 planner.warm_up()
 before = built()
+times = {str(s): [len(solve.PROGRAMS.ready(*s).iteration_s), len(solve.PROGRAMS.ready(*s).fatrop_s)]
+         for s in solve.PROGRAMS.shapes()}
 lo, hi = planner.limits.lower, planner.limits.upper
 rng = np.random.default_rng(5)
 jerk = 10.0 * planner.limits.acceleration
@@ -92,7 +94,7 @@ for count, budget in ((8, 200.0), (8, 50.0), (8, 100.0), (60, 50.0), (3, None)):
     answers.append([count, budget, result.code, result.message])
     if budget is not None:
         after = built()
-print(json.dumps({"before": before, "after": after, "last": built(), "answers": answers}))
+print(json.dumps({"before": before, "after": after, "last": built(), "answers": answers, "times": times}))
 """
 
 
@@ -119,3 +121,8 @@ def test_after_the_warm_up_no_jerk_limited_plan_builds_a_solver():
     assert seen["answers"][-1][2] == "ok", seen["answers"][-1]
     # the first request after the start, at the cell's default budget: never a timeout
     assert seen["answers"][0][2] == "ok", seen["answers"][0]
+    # the programs a deadline solves know their time per iteration from the warm-up (whether a first
+    # request's solve starts: planner/jerk/solve.py), none of the warm-up's solve times
+    screened = [shape for shape in seen["times"] if ast.literal_eval(shape)[1] < 6]
+    assert screened and all(seen["times"][shape][0] >= 1 for shape in screened)
+    assert all(fatrop == 0 for _, fatrop in seen["times"].values())
