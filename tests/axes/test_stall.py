@@ -105,7 +105,9 @@ def test_a_50_ms_stall_of_the_master_halts_every_axis_and_says_sync_gap(served) 
     # the master reports a gap past 40 ms (5 periods) rather than the drives' 16, and retries a
     # frame for 20 ms rather than 2: a loaded test host holds the master's process for 30 ms now and
     # then by itself, and the loopback wire client's queue with it; the 50 ms stall must be what halts
-    bus_config = dataclasses.replace(cell.bus, max_sync_gap_periods=5, tx_retry_ms=20.0)
+    # SYNC from this process (``cyclic_process`` false): with the cyclic process (``auto`` on this served wire) a
+    # stall of the master's process holds neither SYNC nor the setpoints, and the motion runs on
+    bus_config = dataclasses.replace(cell.bus, max_sync_gap_periods=5, tx_retry_ms=20.0, cyclic_process=False)
     cell = dataclasses.replace(cell, bus=bus_config)
     bus = CellBus(cell.bus, clock=Clock.WALL).open()
     # two of the three axes: the loopback wire server (Python) carries their frames on a loaded host

@@ -428,6 +428,7 @@ def test_a_bad_fixed_period_headroom_is_named(tmp_path: Path, value: Any) -> Non
     assert info.value.where == "bus.fixed_period_headroom"
 
 
+@pytest.mark.wall  # names the wall clock; no time passes
 def test_the_cyclic_process_is_auto_unless_the_cell_says(tmp_path: Path) -> None:
     """``bus.cyclic_process`` / ``interface_sync``: true, false or auto (the default). Auto runs the cyclic path
     in a process of its own on the wall clock wherever another process can open the interface (socketcan, a
