@@ -120,16 +120,7 @@ def distance(points: np.ndarray, line: np.ndarray) -> float:
 
 def quick_stop_distance(program: PvtProgram, t_ms: float, line: np.ndarray) -> float:
     """Each axis from its state at ``t_ms`` braking on its own 0x60C5 to rest (the halt), off the path."""
-    pts = []
-    tau = np.linspace(0.0, 1.0, 60)
-    for a in program.axes:
-        rec = a.reconstruction()
-        p0, v0 = float(rec.position(np.array([t_ms]))[0]), float(rec.velocity(np.array([t_ms]))[0])
-        amax = float(a.scaling.rpm_s_to_qc_per_ms2(a.limits.max_acceleration_rpm_s))
-        tb = abs(v0) / amax
-        tt = tau * tb
-        pts.append(a.scaling.qc_to_position(p0 + v0 * tt - 0.5 * np.sign(v0) * amax * tt * tt))
-    return distance(np.column_stack(pts), line)
+    return distance(quick_stop_joints(program, t_ms), line)
 
 
 def ratios(program: PvtProgram, t0: float, t1: float) -> tuple[float, float]:

@@ -164,24 +164,18 @@ def test_a_program_not_built_is_not_built_within_a_deadline_too_short_for_it(mon
     assert solved.trajectory.duration < floor.trajectory.duration
 
 
-def test_a_late_solve_answers_the_floor_computed_while_it_ran(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A solve started within its deadline that finishes past it: the answer is the S-curve floor,
-    computed in the plan's thread while the solve ran in its own (planner/jerk/solve.py,
-    ``solve_in_time``'s ``meanwhile``), the same motion as the floor with no time for any solver."""
-    import pvtflow.planner.jerk as jerk_module
+def join_solves() -> None:
+    """Wait for the solves earlier plans left running in their own threads (a late one finishes after its answer)."""
+    for thread in [t for t in threading.enumerate() if t.name == "jerk-solve"]:
+        thread.join(60.0)
+
+
+def solves_late(monkeypatch: pytest.MonkeyPatch) -> list[float]:
+    """Every jerk-limited solve from here finishes past its deadline (fatrop starts with any time left, whatever
+    an earlier test's times per iteration say); the deadlines they were given, in order."""
     import pvtflow.planner.jerk.solve as jerk_solve
 
-    limits = ARM.joint_limits()
-    max_jerk = 10.0 * limits.acceleration
-    planner = Planner(limits)
-    wp = random_paths(ARM, 1, seed=14)[0]
-    # the program a deadline solves built (planner/jerk/screen.py), in this test alone too
-    assert planner.plan(PlanInput(wp, max_jerk=max_jerk, jerk_intervals=48, budget_ms=60000.0)).ok
-    for earlier in [t for t in threading.enumerate() if t.name == "jerk-solve"]:
-        earlier.join(60.0)
     solve_now = jerk_solve._solve_now
-    floor = jerk_module._floor
-    solving: list[bool] = []
     deadlines: list[float] = []
 
     def late(program, args, scale, deadline, names=jerk_solve.SOLVERS):  # type: ignore[no-untyped-def]
@@ -190,17 +184,36 @@ def test_a_late_solve_answers_the_floor_computed_while_it_ran(monkeypatch: pytes
             time.sleep(0.001)
         return solve_now(program, args, scale, deadline + 60.0, names)
 
+    monkeypatch.setattr(jerk_solve, "_solve_now", late)
+    monkeypatch.setattr(jerk_solve, "_FATROP_TIME_S", 0.0)
+    monkeypatch.setattr(jerk_solve, "_FATROP_ITERATIONS", 0)
+    return deadlines
+
+
+def test_a_late_solve_answers_the_floor_computed_while_it_ran(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A solve started within its deadline that finishes past it: the answer is the S-curve floor,
+    computed in the plan's thread while the solve ran in its own (planner/jerk/solve.py,
+    ``solve_in_time``'s ``meanwhile``), the same motion as the floor with no time for any solver."""
+    import pvtflow.planner.jerk as jerk_module
+
+    limits = ARM.joint_limits()
+    max_jerk = 10.0 * limits.acceleration
+    planner = Planner(limits)
+    wp = random_paths(ARM, 1, seed=14)[0]
+    # the program a deadline solves built (planner/jerk/screen.py), in this test alone too
+    assert planner.plan(PlanInput(wp, max_jerk=max_jerk, jerk_intervals=48, budget_ms=60000.0)).ok
+    join_solves()
+    floor = jerk_module._floor
+    solving: list[bool] = []
+    deadlines = solves_late(monkeypatch)
+
     def floor_seen(*args, **kwargs):  # type: ignore[no-untyped-def]
         solving.append(bool(deadlines) and time.perf_counter() < deadlines[0])
         return floor(*args, **kwargs)
 
-    monkeypatch.setattr(jerk_solve, "_solve_now", late)
-    monkeypatch.setattr(jerk_solve, "_FATROP_TIME_S", 0.0)  # fatrop starts with any time left
-    monkeypatch.setattr(jerk_solve, "_FATROP_ITERATIONS", 0)  # (an earlier test's times per iteration)
     monkeypatch.setattr(jerk_module, "_floor", floor_seen)
     res = planner.plan(PlanInput(wp, max_jerk=max_jerk, jerk_intervals=48, budget_ms=30.0))
-    for thread in [t for t in threading.enumerate() if t.name == "jerk-solve"]:
-        thread.join(60.0)
+    join_solves()
     assert res.ok, res.message
     assert res.details["solver"] == "scurve" and res.details["optimal"] is False
     assert solving == [True]  # computed once, while the solve ran (before its deadline)
@@ -214,38 +227,25 @@ def test_a_late_solve_answers_the_floors_program_placed_while_it_ran(monkeypatch
     """Through the cell's planner: the floor's knots are placed (and validated) while the solve runs too
     (service/cell_planner.py, ``FloorKnots``), so a late solve's answer is that program, with no knots
     after the deadline; the budget keeps back only the answer's knots (``knots_reserve_ms``)."""
-    import pvtflow.planner.jerk.solve as jerk_solve
 
     planner = CellPlanner(ARM)
     max_jerk = 10.0 * ARM.joint_limits().acceleration
     wp = random_paths(ARM, 1, seed=15)[0]
     assert planner.plan(PlanInput(wp, max_jerk=max_jerk, jerk_intervals=48), None, None, 60000.0).ok  # built
-    for earlier in [t for t in threading.enumerate() if t.name == "jerk-solve"]:
-        earlier.join(60.0)
-    solve_now = jerk_solve._solve_now
+    join_solves()
     build = cell_planner_module.build_program
-    deadlines: list[float] = []
+    deadlines = solves_late(monkeypatch)
     placed: list[bool] = []
-
-    def late(program, args, scale, deadline, names=jerk_solve.SOLVERS):  # type: ignore[no-untyped-def]
-        deadlines.append(deadline)
-        while time.perf_counter() < deadline:  # the solve itself finishes past the deadline
-            time.sleep(0.001)
-        return solve_now(program, args, scale, deadline + 60.0, names)
 
     def build_seen(*args, **kwargs):  # type: ignore[no-untyped-def]
         placed.append(bool(deadlines) and time.perf_counter() < deadlines[0])
         return build(*args, **kwargs)
 
-    monkeypatch.setattr(jerk_solve, "_solve_now", late)
-    monkeypatch.setattr(jerk_solve, "_FATROP_TIME_S", 0.0)  # fatrop starts with any time left
-    monkeypatch.setattr(jerk_solve, "_FATROP_ITERATIONS", 0)
     monkeypatch.setattr(cell_planner_module, "build_program", build_seen)
     budget_ms = 400.0
     began = time.perf_counter()
     res = planner.plan(PlanInput(wp, max_jerk=max_jerk, jerk_intervals=48), None, None, budget_ms)
-    for thread in [t for t in threading.enumerate() if t.name == "jerk-solve"]:
-        thread.join(60.0)
+    join_solves()
     assert res.ok, res.message
     assert res.optimal is False and res.plan.details["solver"] == "scurve"
     assert placed == [True]  # placed once, while the solve ran, and not again after it
