@@ -100,6 +100,13 @@ class FloorKnots:
         """Whether this is the floor placed here (the planner answers with that same object)."""
         return self.trajectory is not None and trajectory is self.trajectory
 
+    def instead_of(self, out: PlanOutput) -> PlanOutput | None:
+        """The floor's plan in place of ``out``, another answer than the floor, where the floor's program is
+        placed already (None: ``out`` failed, is the floor, or the floor has no program)."""
+        if self.built is None or not out.ok or self.of(out.trajectory):
+            return None
+        return replace(out, trajectory=self.trajectory, details=out.details | jerk_details(self.trajectory))
+
 
 def planner_for_cell(cell: CellConfig, gridpoints: int | None = None) -> Planner:
     """The cell's Planner: its joint limits, robot model and planning options (ValueError where the
@@ -240,17 +247,18 @@ class CellPlanner:
             inp = replace(inp, budget_ms=max(0.0, budget_ms - knots_reserve_ms(budget_ms, floor is not None)))
         out = self.planner.plan(inp, floor)
         reason = CELL_FILE_REASON if inp.speed_band is None else INPUT_REASON
-        if floor is not None and floor.built is not None and out.ok and not floor.of(out.trajectory):
+        fallback = floor.instead_of(out) if floor is not None else None
+        if fallback is not None:
             # the solver's answer, where its knots would not end within the budget (they take about the
             # floor's: a shorter motion on more intervals): the floor's program, placed already
             left = budget_ms - 1000.0 * (time.perf_counter() - start)  # type: ignore[operator]
-            if left < 1000.0 * floor.seconds:
-                out = replace(out, trajectory=floor.trajectory, details=out.details | jerk_details(floor.trajectory))
+            if left < 1000.0 * floor.seconds:  # type: ignore[union-attr]
+                out = fallback
         result = self._build(out, start, cpu, inp, tolerance_qc, meta, reason, floor)
-        if not result.ok and floor is not None and floor.built is not None and out.ok and not floor.of(out.trajectory):
+        if not result.ok and floor is not None and (fallback := floor.instead_of(out)) is not None:
             # the drives' cubics did not follow the solver's motion (below): within a deadline the floor's
             # program, placed already, where planning again would not end in time
-            out = replace(out, trajectory=floor.trajectory, details=out.details | jerk_details(floor.trajectory))
+            out = fallback
             result = self._build(out, start, cpu, inp, tolerance_qc, meta, reason, floor)
         elif not result.ok and out.ok and out.details.get("jerk_intervals", 0):
             from pvtflow.planner.jerk import GRID_UNIT  # casadi: loaded by the jerk-limited plan already
