@@ -30,12 +30,26 @@ def hand_the_gil_on_often() -> None:
 
 
 WIRE_PRIORITY = 60
+# the simulated drives' threads (``axes.sim.process``, wall clock): hardware with a CPU of its own, so above
+# every thread of normal priority; below the master's cyclic path (SYNC and the setpoints after it,
+# ``BusConfig.sync_priority`` 50, its other bus threads one below), which must never wait for a drive's
+# thread, and below the wire's threads
+DRIVES_PRIORITY = 40
 
 
 def ask_wire_priority() -> bool:
     """SCHED_FIFO at ``WIRE_PRIORITY`` for the calling thread; False where not permitted."""
+    return _ask_fifo(WIRE_PRIORITY)
+
+
+def ask_drives_priority() -> bool:
+    """SCHED_FIFO at ``DRIVES_PRIORITY`` for the calling thread; False where not permitted."""
+    return _ask_fifo(DRIVES_PRIORITY)
+
+
+def _ask_fifo(priority: int) -> bool:
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(WIRE_PRIORITY))
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except (AttributeError, OSError):
         return False
     return True

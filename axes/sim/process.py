@@ -34,14 +34,14 @@ from pathlib import Path
 from typing import TextIO
 
 from pvtflow.axes.canbus.clock import Clock
-from pvtflow.axes.canbus.threads import hand_the_gil_on_often
+from pvtflow.axes.canbus.threads import ask_drives_priority, hand_the_gil_on_often
 from pvtflow.axes.drive.config import SIMULATED_WIRE, BusConfig, CellWiring, Wiring, wire_options
 
 WIRE_SERVED_AT = "wire served at"  # the line the master reads the channel from
 START_TIMEOUT_S = 60.0  # a loaded host imports canopen and numpy slowly
 STOP_TIMEOUT_S = 5.0
 EXIT_OK, EXIT_SIMULATOR_ERROR, EXIT_CANNOT_START = 0, 1, 2
-DRIVES_NICE = -10  # the drives' process's share of the CPU (``raise_drives_share``)
+DRIVES_NICE = -10  # the drives' process's share of the CPU where SCHED_FIFO is not theirs (``raise_drives_share``)
 # where this code's top-level package is imported from (a clone, or site-packages): the child imports the same code
 ROOT = Path(sys.modules[__name__.partition(".")[0]].__file__ or "").resolve().parent.parent
 
@@ -207,14 +207,18 @@ def serve(wiring: CellWiring, clock: str, stop: threading.Event, out: TextIO) ->
     return EXIT_SIMULATOR_ERROR if sim.internal_errors else EXIT_OK
 
 
-def raise_drives_share() -> bool:
-    """Nice ``DRIVES_NICE`` for this thread before it starts any other, so that every thread of the
-    drives inherits it (Linux threads inherit their creator's nice value). The drives stand in for
-    hardware with a CPU of its own; at nice 0 another process's work preempts a drive's thread while
-    it holds the GIL, and the wire's threads (SCHED_FIFO, ``axes/canbus/threads.py``) then wait a
-    time slice for the GIL: "frame has left" reports late, the master's transmit FIFO full. Not real
-    time: the drives use about a core, and at SCHED_FIFO that much CPU kept the master's own SYNC
-    thread off the CPU for tens of ms (bench/RESULTS.md, issue 23). Not permitted: nice 0."""
+def raise_drives_share(clock: str) -> bool:
+    """The drives' share of the CPU, for this thread before it starts any other, so that every thread of
+    the drives inherits it (Linux threads inherit their creator's policy and nice value). The drives
+    stand in for hardware with a CPU of its own, which no other work on the host ever delays: on the
+    wall clock they run at SCHED_FIFO ``DRIVES_PRIORITY`` (``axes.canbus.threads``: below the master's
+    SYNC and cyclic threads, above every thread of normal priority). At nice -10 (``DRIVES_NICE``,
+    what they get where SCHED_FIFO is not permitted, and in lockstep, where no one waits for them) two
+    CPU-bound processes still held them 20 ms and more now and then, and the medium they serve with
+    them: the master heard no SYNC, and echoes came late enough to count its transmit queue full
+    (bench/RESULTS.md, issue 34). False: neither was permitted."""
+    if clock == Clock.WALL and ask_drives_priority():
+        return True
     try:
         os.setpriority(os.PRIO_PROCESS, 0, DRIVES_NICE)
     except (AttributeError, OSError):
@@ -226,11 +230,11 @@ def main() -> int:
     # the drives' threads (ticker, Notifiers) hand the GIL on as often as the master's do, so the
     # wire's threads (its driver, its server) are not held up for CPython's default 5 ms
     hand_the_gil_on_often()
-    raise_drives_share()
+    clock = sys.argv[1] if len(sys.argv) > 1 else Clock.LOCKSTEP
+    raise_drives_share(clock)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the master stops the drives after it halted them
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
-    clock = sys.argv[1] if len(sys.argv) > 1 else Clock.LOCKSTEP
     try:
         wiring = pickle.loads(base64.b64decode(sys.stdin.readline()))
     except (ValueError, pickle.UnpicklingError, EOFError) as exc:

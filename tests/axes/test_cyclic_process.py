@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import socket
+import threading
 import time
 from pathlib import Path
 
@@ -14,12 +15,13 @@ import yaml
 from axes_programs import axis_program, safe_distance
 
 from pvtflow.axes.canbus.clock import Clock
+from pvtflow.axes.canbus.threads import DRIVES_PRIORITY, ask_drives_priority
 from pvtflow.axes.drive.config import BusConfig
 from pvtflow.axes.drive.program import PvtProgram
 from pvtflow.axes.master.bus.cell_bus import CellBus
 from pvtflow.axes.master.bus.faults import BusError
 from pvtflow.axes.master.group.axis_group import AxisGroup, Result
-from pvtflow.axes.sim.process import start_simulated_drives
+from pvtflow.axes.sim.process import DRIVES_NICE, DrivesProcess, start_simulated_drives
 from pvtflow.service.config import CONFIG_DIR, CellConfig, load_cell_config
 
 
@@ -48,6 +50,15 @@ def cyclic_cell(name: str, directory: Path) -> CellConfig:
     return load_cell_config(copy)
 
 
+def can_ask_fifo() -> bool:
+    """Whether this host grants SCHED_FIFO at the drives' priority (asked by a thread that then ends)."""
+    granted: list[bool] = []
+    thread = threading.Thread(target=lambda: granted.append(ask_drives_priority()))
+    thread.start()
+    thread.join()
+    return granted[0]
+
+
 def inward(cell: CellConfig, starts: list[int | None], duration_ms: int, back: bool = False) -> PvtProgram:
     """Every axis from where it stands into its 0x607D range (its range's middle side), or ``back``."""
     axes = cell.ordered_axes()
@@ -67,6 +78,14 @@ def test_a_cell_runs_to_its_end_with_sync_from_the_cyclic_process_and_a_stop_hal
     group = AxisGroup(bus, cell.ordered_axes())
     try:
         assert bus.sync.cyclic is not None and bus.sync.cyclic.process.is_alive()
+        # the drives stand in for hardware: no thread of normal priority delays them where the host permits
+        assert isinstance(drives, DrivesProcess) and drives.process is not None
+        pid = drives.process.pid
+        if can_ask_fifo():
+            assert os.sched_getscheduler(pid) == os.SCHED_FIFO
+            assert os.sched_getparam(pid).sched_priority == DRIVES_PRIORITY
+        else:
+            assert os.getpriority(os.PRIO_PROCESS, pid) == DRIVES_NICE
         group.refresh()
         here = [lk.position for lk in group.links]
         prog = inward(cell, here, 400)
