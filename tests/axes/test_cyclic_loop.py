@@ -19,7 +19,13 @@ from pvtflow.axes.drive.config import BufferConfig
 from pvtflow.axes.drive.objects import SYNC_COB_ID, Record
 from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
 from pvtflow.axes.master.cyclic.loop import PROGRESS_COUNT, PROGRESS_FEEDERS, CycleSpec, CyclicLoop, FeedSpec
-from pvtflow.axes.master.group.feeder import BufferFeeder, RecordAllowance, RecordRefusedError, top_up_by_need
+from pvtflow.axes.master.group.feeder import (
+    MIN_HELD,
+    BufferFeeder,
+    RecordAllowance,
+    RecordRefusedError,
+    top_up_by_need,
+)
 from pvtflow.axes.master.profiles.cia402_ip_linear import target_frame
 from pvtflow.axes.master.profiles.epos2_pvt import record_frame
 
@@ -146,6 +152,39 @@ def test_records_refused_below_the_reserve_end_the_run_with_every_drive_quick_st
         assert kinds[-1][:3] == ("fault", "tx_failed", 11)
         quick = [m for m in bus.sent if m.arbitration_id == 0x600 + 11]
         assert quick and bytes(quick[0].data[:3]) == bytes([0x2B, 0x40, 0x60])  # 0x6040 = quick stop, by SDO
+    finally:
+        bus.shutdown()
+
+
+def test_under_a_look_ahead_bound_the_fifo_at_its_least_is_not_below_the_reserve() -> None:
+    """The look-ahead bound gives the FIFO's depth below the underflow warning up: at MIN_HELD records a
+    refused record waits for a later top-up; one fewer, and the drive would soon run dry: the run ends."""
+    bus = RefusingBus(f"cyc-{uuid.uuid4().hex[:8]}")
+    try:
+        loop, conn = loop_on(bus)
+        feed = epos2_feed(11, 60, 8)
+        feed.records[:, 2] = 100  # 100 ms records: 3 of them reach 200-300 ms ahead, short of the bound
+        feed.lookahead_ms = 250.0
+        loop.prepare(CycleSpec(1, PERIOD_MS, 1, None, 0.05, 2, feeds=[feed]))
+        loop._transmit()
+        feeder = loop.feeders[0]
+        assert isinstance(feeder, BufferFeeder)
+        assert feeder.reserve == MIN_HELD < feeder.low
+        refused_at: list[int] = []
+        bus.refuse = lambda cob: cob == 0x20B and not refused_at.append(feeder.level)
+        failed = None
+        for _ in range(100):  # 10 ms periods: 100 ms records, 8 of them held
+            loop.start_sent -= PERIOD_MS / 1000.0
+            try:
+                loop._transmit()
+            except Exception as exc:  # what ends the SYNC thread (``_produce``)
+                failed = exc
+                break
+            assert feeder.level >= MIN_HELD  # refused at its least: no fault, and the run went on
+        assert MIN_HELD in refused_at  # refused at the least the bound keeps, and the run went on
+        assert failed is not None and f"below its reserve {MIN_HELD}" in str(failed)
+        assert feeder.level == MIN_HELD - 1
+        assert not conn.poll()
     finally:
         bus.shutdown()
 

@@ -12,8 +12,8 @@ the served wire), each with a transmit queue of its own, and runs what the maste
 Per SYNC, in this order: SYNC, the fixed-period setpoints (what must be on the wire before the next
 SYNC), the time stamp, then the EPOS2 records from the period's allowance, each offered once
 (``RecordRefusedError``: a full queue delays a record to a later top-up, never the SYNC after it); the run
-ends on a refused record only where that drive's FIFO, as estimated, is below its reserve (the
-underflow warning level 0x20C4:02), and then every drive is quick stopped from here.
+ends on a refused record only where that drive's FIFO, as estimated, is below its reserve
+(``BufferFeeder.reserve``), and then every drive is quick stopped from here.
 
 The SYNC deadlines follow ``axes.master.bus.sync``'s rule (absolute deadlines; a SYNC more than half a period late
 goes out at once and the deadlines after it keep the period from it; never two within half a period).
@@ -169,6 +169,7 @@ class CyclicLoop:
         self.realtime: bool | None = None
         self._sent_frames = 0  # frames this node sent (``queued``)
         self._own_echoes = 0  # of them, those whose echo came back
+        self._own_echo_at: float | None = None  # when the last of them was heard here
         self._reserved = 2  # the queue's room kept for a SYNC and what must follow it (``prepare``)
         # following the interface's SYNC (``_follow``): the SYNCs heard, each (its wire time, whether the
         # setpoints sent for it were on the wire before it), and the frames sent up to those setpoints
@@ -221,6 +222,13 @@ class CyclicLoop:
             raise RecordRefusedError(str(exc)) from None
         self._sent_frames += 1
 
+    def _queue_said(self) -> str:
+        """The transmit queue as this process counts it, for a refusal's message."""
+        said = f"{self.queued} frames of this node not yet on the wire"
+        if self._own_echo_at is not None:
+            said += f", the last echo {(time.monotonic() - self._own_echo_at) * 1000.0:.1f} ms ago"
+        return said
+
     def drain(self) -> None:
         """What the bus brought since the last look (this node receives every frame): the SDO answers
         of a quick stop, and this process's own SYNC echoes. Read by the SYNC thread between SYNCs,
@@ -240,6 +248,7 @@ class CyclicLoop:
         can_id = msg.arbitration_id
         if not msg.is_rx:
             self._own_echoes += 1
+            self._own_echo_at = time.monotonic()
         elif can_id == SYNC_COB_ID:  # a SYNC the interface sent: in bus order after what went before it
             self._heard.append((msg.timestamp, time.monotonic(), self._own_echoes))
         if can_id == SYNC_COB_ID and not msg.is_rx:  # our own SYNC, as it left the wire
@@ -621,12 +630,12 @@ class CyclicLoop:
                 feeder.run_to(elapsed_ms)
         self.allowance.at_sync(self.count)
         refused = top_up_by_need(self.feeders, self.allowance)
-        if refused is not None and refused.level < refused.low:
+        if refused is not None and refused.level < refused.reserve:
             node = spec.feeds[self.feeders.index(refused)].node_id
             raise _ReserveError(
                 node,
                 f"records refused by the transmit queue while node {node}'s FIFO is at {refused.level} "
-                f"records, below its reserve {refused.low} (0x20C4:02)",
+                f"records, below its reserve {refused.reserve} ({self._queue_said()})",
             )
 
     def _follow_up(self, number: int, until: float) -> None:

@@ -248,6 +248,15 @@ class BufferFeeder(Feeder):
         return self.next - self.consumed()
 
     @property
+    def reserve(self) -> int:
+        """The level below which a record that cannot go out now ends the run (the drive would soon run
+        dry): the underflow warning level (0x20C4:02), or under a look-ahead bound ``MIN_HELD``, the least
+        the bound keeps (``within_lookahead``: it gives the FIFO's depth below the warning level up for
+        what a change of the motion cannot take back, so a FIFO at ``MIN_HELD`` stands where the bound
+        keeps it, not short of records)."""
+        return self.low if self.lookahead_ms is None else min(self.low, MIN_HELD)
+
+    @property
     def wants(self) -> bool:
         """A record would go out now if the allowance had one: the FIFO is below its mark."""
         return (
