@@ -488,6 +488,7 @@ class CyclicLoop:
                         for feeder in self.feeders:
                             feeder.after_sync(number)
                     pace.marks[number + 1] = self._sent_frames
+                    pace.sent_after[number + 1] = now - (pace.phase + number * period)
                     self.timing.followed_us.append((now - (pace.phase + number * period)) * 1e6)
                     if buffered:
                         self._top_up(number * spec.period_ms)
@@ -528,15 +529,19 @@ class CyclicLoop:
             if n:
                 if last is not None and wire - last > spec.max_gap_s:
                     self._gap("no SYNC", wire - last)
+                after = pace.sent_after.pop(n, None)
                 if pace.fixed and echoes < pace.marks.pop(n, _NEVER):  # its setpoints were not on the wire
                     pace.unfed += 1
+                    pace.unfed_after.append(after)
                     self.timing.held += 1
                     if (pace.unfed + 1) * period > spec.max_gap_s >= pace.unfed * period:
-                        self._gap("no setpoint", (pace.unfed + 1) * period)
+                        self._gap("no setpoint", (pace.unfed + 1) * period, _sent_after(pace.unfed_after))
                 else:
                     pace.unfed = 0
+                    pace.unfed_after.clear()
             for skipped in range(pace.heard, n):  # no SYNC came for them
                 pace.marks.pop(skipped, None)
+                pace.sent_after.pop(skipped, None)
             pace.last_wire = wire
             pace.heard = n + 1
         if heard:
@@ -581,13 +586,13 @@ class CyclicLoop:
                 return
             time.sleep(ECHO_POLL_S)
 
-    def _gap(self, what: str, gap_s: float) -> None:
+    def _gap(self, what: str, gap_s: float, detail: str = "") -> None:
         spec = self.spec
         assert spec is not None
         ride_ms = spec.max_gap_s * 1000
         self.fault(
             FaultKind.SYNC_GAP,
-            f"{what} for {gap_s * 1000:.1f} ms (the drives ride out {ride_ms:.1f} ms)",
+            f"{what} for {gap_s * 1000:.1f} ms (the drives ride out {ride_ms:.1f} ms{'; ' + detail if detail else ''})",
             None,
             round(gap_s * 1000),
         )
@@ -707,12 +712,21 @@ class _Pace:
     silent: bool = False  # a silence of the interface was reported
     unfed: int = 0  # SYNCs in a row heard before their setpoints were on the wire
     marks: dict[int, int] = field(default_factory=dict)  # SYNC n -> frames sent up to the setpoints it validates
+    # SYNC n -> how long after SYNC n - 1 was due its setpoints were sent (s); and those of the unfed SYNCs
+    sent_after: dict[int, float] = field(default_factory=dict)
+    unfed_after: list[float | None] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.phase = self.heard_at = self.started
 
 
 _NEVER = 1 << 62  # no setpoints were sent for that SYNC
+
+
+def _sent_after(after: list[float | None]) -> str:
+    """When the setpoints of the SYNCs that held were sent, after the SYNC before each was due."""
+    said = ", ".join("not sent" if a is None else f"{a * 1000:.2f}" for a in after)
+    return f"the setpoints for those SYNCs sent {said} ms after the SYNC before was due"
 
 
 class _SyncRefusedError(Exception):
