@@ -12,7 +12,10 @@ reader thread ask for SCHED_FIFO at ``WIRE_PRIORITY``, above the master's SYNC t
 (``BusConfig.sync_priority``, 50): the wire carries what that thread sends. Each of them blocks
 between frames, so it takes no CPU from anyone while the bus is quiet. Not permitted (no
 CAP_SYS_NICE or rtprio limit): the thread stays at normal priority, silently (the master warns for
-its own SYNC thread; ``bench/wire_sync.py`` shows what the priority buys).
+its own SYNC thread; ``bench/wire_sync.py`` shows what the priority buys). Only on the wall clock: in
+lockstep no one waits on the wire's threads, and at SCHED_FIFO they would only take the CPU from a wall
+clock's SYNC elsewhere on the host. The simulated drives on the wall clock run just below the master's
+cyclic path (``DRIVES_PRIORITY``).
 """
 
 from __future__ import annotations

@@ -218,7 +218,8 @@ class WireLink:
 
     def _read(self) -> None:
         """The reader thread: waits for data (no lock held) and reads it."""
-        ask_wire_priority()
+        if self.pipelined:  # the wall clock's wire (``axes.canbus.threads``); in lockstep no one waits on it
+            ask_wire_priority()
         while not self._ended and not self.closed:
             try:
                 select.select([self._receive], [], [], READ_SLICE_S)

@@ -227,7 +227,8 @@ class WireServer:
     # -- the selector thread ---------------------------------------------------------------------
 
     def _run(self) -> None:
-        ask_wire_priority()
+        if self.medium.clock is Clock.WALL:  # the wall clock's wire (``axes.canbus.threads``); lockstep waits on none
+            ask_wire_priority()
         selector = self._selector
         try:
             while not self._closed:
