@@ -11,6 +11,7 @@ import itertools
 import multiprocessing
 import threading
 import uuid
+from collections.abc import Callable
 
 import can
 import numpy as np
@@ -135,14 +136,7 @@ def test_records_refused_below_the_reserve_end_the_run_with_every_drive_quick_st
         loop._transmit()
         bus.refuse = lambda cob: cob == 0x20B
         feeder = loop.feeders[0]
-        failed = None
-        for _ in range(20):
-            loop.start_sent -= PERIOD_MS / 1000.0
-            try:
-                loop._transmit()
-            except Exception as exc:  # what ends the SYNC thread (``_produce``)
-                failed = exc
-                break
+        failed = periods_until_failed(loop, 20)
         assert failed is not None and "below its reserve 4" in str(failed)
         assert feeder.level < feeder.low  # judged by the estimate, before the drive could run dry
         assert feeder.level >= 1
@@ -173,21 +167,28 @@ def test_under_a_look_ahead_bound_the_fifo_at_its_least_is_not_below_the_reserve
         assert feeder.reserve == MIN_HELD < feeder.low
         refused_at: list[int] = []
         bus.refuse = lambda cob: cob == 0x20B and not refused_at.append(feeder.level)
-        failed = None
-        for _ in range(100):  # 10 ms periods: 100 ms records, 8 of them held
-            loop.start_sent -= PERIOD_MS / 1000.0
-            try:
-                loop._transmit()
-            except Exception as exc:  # what ends the SYNC thread (``_produce``)
-                failed = exc
-                break
-            assert feeder.level >= MIN_HELD  # refused at its least: no fault, and the run went on
+        levels: list[int] = []
+        failed = periods_until_failed(loop, 100, lambda: levels.append(feeder.level))  # 8 records of 100 ms held
+        assert min(levels) == MIN_HELD  # no fault while the FIFO stood at its least
         assert MIN_HELD in refused_at  # refused at the least the bound keeps, and the run went on
         assert failed is not None and f"below its reserve {MIN_HELD}" in str(failed)
         assert feeder.level == MIN_HELD - 1
         assert not conn.poll()
     finally:
         bus.shutdown()
+
+
+def periods_until_failed(loop: CyclicLoop, most: int, each: Callable[[], None] = lambda: None) -> Exception | None:
+    """One period at a time on the loop's clock, ``most`` of them, until one raises what ends the SYNC thread
+    (``_produce``); ``each`` after every period that did not."""
+    for _ in range(most):
+        loop.start_sent -= PERIOD_MS / 1000.0
+        try:
+            loop._transmit()
+        except Exception as exc:
+            return exc
+        each()
+    return None
 
 
 def _fault(exc: Exception):
@@ -297,6 +298,21 @@ def test_a_mirrored_feeder_sends_nothing_whatever_its_drive_says() -> None:
     assert sent == [] and buffered.next == 0 and setpoints.next == 0
 
 
+def follow_for(loop: CyclicLoop, listener: can.BusABC, stamp: int | None, syncs: int) -> list[can.Message]:
+    """One fixed-period axis (setpoint k = 1000 k) following the interface's SYNC for ``syncs`` SYNCs: what
+    the listener heard until the loop stopped."""
+    setpoints = np.array([[1000 * k, 0, 10] for k in range(40)], dtype=np.int64)
+    feeds = [FeedSpec(12, setpoints, lambda r: target_frame(0x20C, r), next=1, lead=1)]
+    loop.begin(CycleSpec(1, PERIOD_MS, 1, stamp, 0.5, 1, interface_sync=True, feeds=feeds))
+    heard: list[can.Message] = []
+    while sum(m.arbitration_id == SYNC_COB_ID for m in heard) < syncs:
+        msg = listener.recv(2.0)
+        assert msg is not None, "the interface stopped sending SYNC"
+        heard.append(msg)
+    loop.stop()
+    return heard
+
+
 @pytest.mark.wall
 def test_following_the_interfaces_sync_each_sync_gets_the_next_setpoint_and_its_wire_time_stamp() -> None:
     """``interface_sync``: the interface (here the wall-clock medium, as socketcan's broadcast manager)
@@ -309,24 +325,7 @@ def test_following_the_interfaces_sync_each_sync_gets_the_next_setpoint_and_its_
     listener = SimWireBus(channel, node_name="listener")
     try:
         loop, _ = loop_on(bus)
-        setpoints = np.array([[1000 * k, 0, 10] for k in range(40)], dtype=np.int64)
-        spec = CycleSpec(
-            1,
-            PERIOD_MS,
-            start_count=1,
-            stamp_cob_id=STAMP,
-            max_gap_s=0.5,
-            records_per_sync=1,
-            interface_sync=True,
-            feeds=[FeedSpec(12, setpoints, lambda r: target_frame(0x20C, r), next=1, lead=1)],
-        )
-        loop.begin(spec)
-        heard: list[can.Message] = []
-        while sum(m.arbitration_id == SYNC_COB_ID for m in heard) < 8:
-            msg = listener.recv(2.0)
-            assert msg is not None, "the interface stopped sending SYNC"
-            heard.append(msg)
-        loop.stop()
+        heard = follow_for(loop, listener, STAMP, 8)
         while (msg := listener.recv(0.1)) is not None:  # what was on its way as it stopped
             heard.append(msg)
         assert listener.recv(3 * PERIOD_MS / 1000.0) is None  # stopped: no SYNC any more
@@ -371,24 +370,7 @@ def test_a_follower_held_past_its_sync_is_covered_by_the_one_on_the_other_cpu() 
             sleep_until(due, spin)
 
         loop._sleep_until = held_once  # type: ignore[method-assign]
-        setpoints = np.array([[1000 * k, 0, 10] for k in range(40)], dtype=np.int64)
-        spec = CycleSpec(
-            1,
-            PERIOD_MS,
-            start_count=1,
-            stamp_cob_id=None,
-            max_gap_s=0.5,
-            records_per_sync=1,
-            interface_sync=True,
-            feeds=[FeedSpec(12, setpoints, lambda r: target_frame(0x20C, r), next=1, lead=1)],
-        )
-        loop.begin(spec)
-        heard: list[can.Message] = []
-        while sum(m.arbitration_id == SYNC_COB_ID for m in heard) < 10:
-            msg = listener.recv(2.0)
-            assert msg is not None, "the interface stopped sending SYNC"
-            heard.append(msg)
-        loop.stop()
+        heard = follow_for(loop, listener, None, 10)
         assert wakes[0] > 4  # the first follower was held, and went on after
         targets = [int.from_bytes(m.data, "little", signed=True) for m in heard if m.arbitration_id == 0x20C]
         assert targets == [1000 * k for k in range(1, len(targets) + 1)]  # the next in the program, no jump
