@@ -185,8 +185,8 @@ def compiled_fatrop(
     """fatrop on the compiled library of this shape (``interpreted``: fatrop on the expanded program, for its
     sparsities), compiled first where it is not on disk and ``build``; None where it cannot be had (a
     warning the first time the compiler fails: the interpreted program then solves)."""
-    target = library_path(n, dof, torque)
     try:
+        target = library_path(n, dof, torque)
         if not target.exists():
             if not build:
                 return None
