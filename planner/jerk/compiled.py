@@ -195,6 +195,10 @@ def compiled_fatrop(
             jacobian = interpreted.get_function("nlp_jac_g").sparsity_out(1)
             hessian = interpreted.get_function("nlp_hess_l").sparsity_out(1)
             compile_library(library_functions(n, dof, torque, jacobian, hessian), target)
+            # a library of an older code is never loaded again
+            for stale in target.parent.glob(f"jerk_{n}_{dof}_{int(torque)}_*.so"):
+                if stale != target:
+                    stale.unlink(missing_ok=True)
         return ca.nlpsol(name, "fatrop", str(target), options)
     except (OSError, RuntimeError, ValueError, subprocess.SubprocessError) as exc:
         if not _warned.is_set():

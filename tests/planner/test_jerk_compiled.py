@@ -61,6 +61,8 @@ def test_the_compiled_program_gives_the_interpreted_programs_answer_and_is_built
     assert fast.compiled and not interpreted.compiled
     library = compiled.library_path(*SHAPE)
     assert library.is_file() and not library.is_relative_to(REPO)  # the user's cache folder, never the repository
+    n, dof, torque = SHAPE
+    assert list(library.parent.glob(f"jerk_{n}_{dof}_{int(torque)}_*.so")) == [library]  # no older code's kept
     a, b = solve(interpreted, request_args), solve(fast, request_args)
     assert abs(np.sum(b.h) / np.sum(a.h) - 1.0) < 1e-9  # the same duration
     for x, y in ((a.sd, b.sd), (a.sdd, b.sdd), (a.h, b.h)):
