@@ -205,5 +205,5 @@ def compiled_fatrop(
             _warned.set()
             failed = isinstance(exc, subprocess.CalledProcessError)
             detail = exc.stderr.decode(errors="replace")[-500:] if failed else exc
-            log.warning("the jerk-limited program is not compiled (%s): its solves take about 1.5x the time", detail)
+            log.warning("the jerk-limited program is not compiled (%s): its solves take about 1.4x the time", detail)
         return None
