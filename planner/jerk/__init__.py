@@ -140,12 +140,15 @@ def warm_up() -> None:
     """Build, for every joint count a plan has built a program for, every size up to
     ``WARM_INTERVALS`` a path of up to 44 waypoints (or 12 with a stop at each) and one of up to
     twice that may be solved on (``grid_sizes``), so that no plan within a deadline meets a
-    shape that is not built (it would answer on a coarser grid, or the floor); the warm-up's own
-    solve times are forgotten (``forget_solve_times``)."""
+    shape that is not built (it would answer on a coarser grid, or the floor), the programs a deadline
+    solves compiled (``solve.Program.use_compiled``); the warm-up's own solve times are forgotten
+    (``forget_solve_times``)."""
     for _, dof, torque in PROGRAMS.shapes():
         for n in {*grid_sizes(GRID_UNIT, WARM_INTERVALS), *grid_sizes(2 * GRID_UNIT, WARM_INTERVALS)}:
             cached_program(n, dof, torque)
-            cached_program(n, _row_dof(dof, torque, 0.0), torque)  # the screened program a deadline solves
+            # the screened program a deadline solves, its functions compiled (a second of gcc per shape, once per
+            # machine: ``compiled``) before its time per iteration is taken (``service.cell_planner``)
+            cached_program(n, _row_dof(dof, torque, 0.0), torque).use_compiled()
     forget_solve_times()
 
 

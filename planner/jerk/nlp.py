@@ -72,6 +72,7 @@ STATE = ("sd", "a")
 CONTROL = ("h", "j", *(f"sigma_{i}" for i in range(len(FRACTIONS))), *(f"sd_{i}" for i in range(len(FRACTIONS))))
 _EQUALITIES = 3 + 2 * len(FRACTIONS)  # per stage: the next state (2), the distance, sigma and s' at the fractions
 _JERK_ROWS = 3  # per joint: start, middle, end
+PER_STAGE = ("q1", "q2", "q3", "e1", "e2", "ta", "tb")  # the path's numbers per stage, dof each (``Rows``)
 
 
 def stage_function(dof: int, torque: bool) -> ca.Function:
@@ -110,34 +111,51 @@ def stage_function(dof: int, torque: bool) -> ca.Function:
     return ca.Function("stage", inputs, [ca.vertcat(sd1, a1), ca.vertcat(*residual), ca.vertcat(*rows)])
 
 
-def build_nlp(n: int, dof: int, torque: bool) -> tuple[dict[str, ca.SX], list[bool]]:
-    """The program for n intervals and dof joints (x, p, f, g) and which of its rows are equalities."""
-    stage = stage_function(dof, torque)
-    D = ca.SX.sym("D", n)
-    per_stage = [ca.SX.sym(name, n, dof) for name in ("q1", "q2", "q3", "e1", "e2", "ta", "tb")]
-    # the limits per stage: a screened program (``planner.jerk.screen``) holds other joints' rows on each
-    inv = ca.SX.sym("inv", n, 3 * dof)
+def stage_rows(
+    stage: ca.Function,
+    x: ca.SX,
+    u: ca.SX,
+    x_next: ca.SX,
+    D: ca.SX,
+    per_stage: Sequence[ca.SX],
+    inv: ca.SX,
+    scale: ca.SX,
+) -> ca.SX:
+    """The program's rows of one stage (``stage``: ``stage_function``) in its scaled variables: the
+    gap to the next state, the distance and lifted residuals, then the inequality rows. ``per_stage``:
+    its q1, q2, q3, e1, e2, ta, tb (dof each), ``inv``: its inverse velocity, acceleration and jerk limits."""
+    dof = per_stage[0].shape[0]
     # the variables are the program's own divided by a typical magnitude of each (``variable_scales``)
-    scale = ca.SX.sym("scale", len(STATE) + len(CONTROL))
     x_scale, u_scale = scale[: len(STATE)], scale[len(STATE) :]
     m = len(FRACTIONS)
     sigma_scale, sd_scale = u_scale[2], u_scale[2 + m]
     residual_scale = ca.vertcat(1.0, *([sigma_scale, sd_scale] * m))
+    q1, q2, q3, e1, e2, ta, tb = per_stage
+    xs, us = x * x_scale, u * u_scale
+    controls = (us[i] for i in range(len(CONTROL)))
+    limits = (inv[:dof], inv[dof : 2 * dof], inv[2 * dof :])
+    x1, residual, rows = stage(xs[0], xs[1], *controls, D, q1, q2, q3, e1, e2, *limits, ta, tb)
+    return ca.vertcat(x_next - x1 / x_scale, residual / residual_scale, rows)
+
+
+def build_nlp(n: int, dof: int, torque: bool) -> tuple[dict[str, ca.SX], list[bool]]:
+    """The program for n intervals and dof joints (x, p, f, g) and which of its rows are equalities."""
+    stage = stage_function(dof, torque)
+    D = ca.SX.sym("D", n)
+    per_stage = [ca.SX.sym(name, n, dof) for name in PER_STAGE]
+    # the limits per stage: a screened program (``planner.jerk.screen``) holds other joints' rows on each
+    inv = ca.SX.sym("inv", n, 3 * dof)
+    scale = ca.SX.sym("scale", len(STATE) + len(CONTROL))
     x = [ca.SX.sym(f"x{k}", len(STATE)) for k in range(n + 1)]
     u = [ca.SX.sym(f"u{k}", len(CONTROL)) for k in range(n)]
     w: list[ca.SX] = []
     g: list[ca.SX] = []
     equality: list[bool] = []
     for k in range(n):
-        q1, q2, q3, e1, e2, ta, tb = (mat[k, :].T for mat in per_stage)
-        xs, us = x[k] * x_scale, u[k] * u_scale
-        controls = (us[i] for i in range(len(CONTROL)))
-        inv_k = inv[k, :].T
-        limits = (inv_k[:dof], inv_k[dof : 2 * dof], inv_k[2 * dof :])
-        x1, residual, rows = stage(xs[0], xs[1], *controls, D[k], q1, q2, q3, e1, e2, *limits, ta, tb)
+        rows = stage_rows(stage, x[k], u[k], x[k + 1], D[k], [mat[k, :].T for mat in per_stage], inv[k, :].T, scale)
         w += [x[k], u[k]]
-        g += [x[k + 1] - x1 / x_scale, residual / residual_scale, rows]
-        equality += [True] * _EQUALITIES + [False] * rows.shape[0]
+        g.append(rows)
+        equality += [True] * _EQUALITIES + [False] * (rows.shape[0] - _EQUALITIES)
     w.append(x[n])
     p = ca.vertcat(D, *(ca.vec(mat) for mat in per_stage), ca.vec(inv), scale)
     objective = ca.sum1(ca.vertcat(*(uk[0] for uk in u)))

@@ -44,6 +44,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
+from pvtflow.planner.jerk.compiled import compiled_fatrop
 from pvtflow.planner.jerk.nlp import CONTROL, STATE, build_nlp
 
 _MAX_ITER = 300
@@ -91,6 +92,7 @@ class Program:
     # recent times per iteration, the warm-up's kept (``planner.jerk.warm_up`` forgets its ``fatrop_s``)
     iteration_s: deque[float] = field(default_factory=lambda: deque(maxlen=_SOLVE_HISTORY))
     solved: bool = False  # whether fatrop has solved this program once (``iteration_s`` from its second solve)
+    compiled: bool = False  # whether fatrop evaluates the program's compiled functions (``use_compiled``)
 
     def typical_fatrop_s(self) -> float:
         """fatrop's typical wall time on this program: the median of its recent solves (before
@@ -112,6 +114,24 @@ class Program:
         """The longest of fatrop's recent solves of this program, None until ``_MIN_HISTORY`` are known."""
         times = list(self.fatrop_s)
         return max(times) if len(times) >= _MIN_HISTORY else None
+
+    def use_compiled(self, build: bool = True) -> bool:
+        """fatrop on the program's functions compiled (``planner.jerk.compiled``: the same iterates, in about
+        0.7x the time) from now on, where they are on disk or ``build`` and the C compiler builds them; the
+        times measured on the interpreted program forgotten. Whether fatrop now solves the compiled program."""
+        if self.compiled:
+            return True
+        interpreted = self.solver("fatrop")
+        options = _solver_options("fatrop", self.equality)
+        solver = compiled_fatrop("jerk_fatrop_c", self.n, self.dof, self.torque, interpreted, options, build)
+        if solver is None:
+            return False
+        with self.lock:  # not in the middle of a solve's bookkeeping
+            self.solvers["fatrop"] = solver
+            self.compiled, self.solved = True, False
+            self.fatrop_s.clear()
+            self.iteration_s.clear()
+        return True
 
     def solver(self, name: str) -> ca.Function:
         if name not in self.solvers:
@@ -209,6 +229,7 @@ class ProgramCache:
                 program = Program(n, dof, torque, *build_nlp(n, dof, torque))
                 for name in SOLVERS:
                     program.solver(name)
+                program.use_compiled(build=False)  # where a warm-up compiled this shape (``jerk.warm_up``)
                 self._programs[key] = program
                 while len(self._programs) > self.size:
                     self._programs.popitem(last=False)
