@@ -29,6 +29,10 @@ settings.register_profile("default", derandomize=True, database=None)
 settings.register_profile("explore", derandomize=False)
 settings.load_profile("default")
 
+# the jerk-limited programs stay interpreted (the same answers): a fresh CI machine would otherwise spend 15-25 s
+# of gcc on the program shapes the services' warm-ups meet; tests/planner/test_jerk_compiled.py compiles
+os.environ.setdefault("PVTFLOW_JERK_COMPILE", "off")
+
 REPO = Path(__file__).resolve().parents[1]
 _OUTSIDE = str(REPO.parent / "shared")  # the team's folder beside a checkout: a user's clone has none
 

@@ -54,6 +54,13 @@ def cache_folder() -> Path:
     return Path(base) / "pvtflow" / "jerk"
 
 
+def wanted() -> bool:
+    """Whether the programs are compiled at all: ``PVTFLOW_JERK_COMPILE=off`` keeps every program interpreted
+    (the same answers, 1.4x fatrop's time), e.g. a test suite on a fresh machine, where every program shape its
+    services warm up would cost a second or two of gcc."""
+    return os.environ.get("PVTFLOW_JERK_COMPILE", "on").strip().lower() not in ("off", "0", "false", "no")
+
+
 def compiler() -> str:
     """The C compiler: ``CC`` as make has it, else gcc."""
     return os.environ.get("CC") or "gcc"
@@ -185,6 +192,8 @@ def compiled_fatrop(
     """fatrop on the compiled library of this shape (``interpreted``: fatrop on the expanded program, for its
     sparsities), compiled first where it is not on disk and ``build``; None where it cannot be had (a
     warning the first time the compiler fails: the interpreted program then solves)."""
+    if not wanted():
+        return None
     try:
         target = library_path(n, dof, torque)
         if not target.exists():

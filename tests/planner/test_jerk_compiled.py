@@ -27,6 +27,19 @@ SHAPE = (INTERVALS, jerk_module.ROW_JOINTS, False)  # the screened program a dea
 REPO = Path(__file__).resolve().parents[2]
 
 
+@pytest.fixture(autouse=True)
+def compiling(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The suite keeps programs interpreted (tests/conftest.py); these tests compile."""
+    monkeypatch.setenv("PVTFLOW_JERK_COMPILE", "on")
+
+
+def test_compiling_can_be_turned_off(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PVTFLOW_JERK_COMPILE", "off")
+    monkeypatch.setattr(compiled, "compile_library", lambda *_: pytest.fail("compiled although off"))
+    program = Program(*SHAPE, *build_nlp(*SHAPE))
+    assert not program.use_compiled() and not program.compiled
+
+
 @pytest.fixture(scope="module")
 def request_args() -> tuple[dict[str, Any], np.ndarray]:
     """The screened program's arguments for a plan with a deadline (8 waypoints, as a request's)."""
