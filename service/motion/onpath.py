@@ -27,6 +27,7 @@ from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.onpath_program import (
     JERK_SHARES,
     RAMP_SHARES,
+    REJOIN_JERK_SHARES,
     RESUME_RAMP_SHARES,
     WINDOW_JERK_RATIO,
     ChangeError,
@@ -40,6 +41,7 @@ from pvtflow.planner.onpath_program import (
     on_grid,
     override_on_grid,
     records_jerk_ratio,
+    rejoin_on_grid,
     rejoined_program,
     resume_from_rest,
     resumed_program,
@@ -356,7 +358,35 @@ class PathChanges:
                 failed = exc
                 continue
             return new, rows, back.motion
+        if jerk is not None:  # no S-curve in path speed holds the limit: a re-timing that joins the plan later
+            try:
+                return self._rejoin(path, program, at, begin, grid_ms, jerk)
+            except _CHANGE_ERRORS as exc:
+                failed = exc
         raise ChangeError(f"back to the planned timing: {failed}")
+
+    def _rejoin(
+        self, path: MotionPath, program: PvtProgram, at: SpliceAt, begin: float, grid_ms: int, jerk: NDArray[np.float64]
+    ) -> tuple[PvtProgram, list[NDArray[np.int64]], Trajectory]:
+        """The records that bring a jerk-limited motion back to its planned timing by a re-timing of the rest of its
+        path that joins the plan later (``onpath_program.rejoin_on_grid``, ``REJOIN_JERK_SHARES`` of the limit tried
+        in turn), then the original records; ChangeError where none holds the window jerk."""
+        assert path.original is not None
+        failed: Exception = ChangeError("no jerk share tried")
+        for jerk_share in REJOIN_JERK_SHARES:
+            try:
+                back = rejoin_on_grid(
+                    path.planned, path.running, begin / 1000.0, self.limits, jerk, grid_ms, jerk_share
+                )
+                new, rows = rejoined_program(
+                    program, at.first, at.join_ms, begin, back, path.original, self.limits, max_jerk=jerk
+                )
+                self._hold_jerk(new, jerk, begin)
+            except _CHANGE_ERRORS as exc:
+                failed = exc
+                continue
+            return new, rows, back.motion
+        raise failed
 
     def override(self, group: AxisGroup, motion: Motion, scale: float) -> dict[str, Any]:
         """Re-time the rest of the running motion to ``scale`` of its planned speed (drives' lock held);
