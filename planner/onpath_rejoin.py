@@ -1,21 +1,23 @@
-"""Back to the planned timing within the jerk limit where an S-curve in path speed cannot (issue 37, override 1.0).
+"""Back to the planned timing within the jerk limit where no S-curve in path speed can (issue 37, override 1.0).
 
-Why not an S-curve: along a program's path (s = the plan's time) the joints' jerk is q'''(s) s'^3 + 3 q''(s) s' s''
-+ q'(s) s'''. Where the plan itself is at its jerk limit (q''' = J: its own decelerations, jerk-limited and
-time-optimal, are at J from their start to rest), s' -> 1 with s'' != 0 adds the other two terms to J: every
-S-curve in s that ends on s' = 1 there passes the limit (1.4-2 x on the 10-ms window, bench/RESULTS.md). A motion
-that runs slower than the plan meets it there only the way a time-optimal braking from a lower speed meets the
-braking from a higher one: on the same jerk-limited curve to rest, with the jerk of both the same. So the return is
-a re-timing of the rest of the path that converges onto the plan, delayed by ``delay`` (whole grid steps), found as
-a linear program in the joints' own motion.
+Why no S-curve can: along a program's path (s = the plan's time) the joints' jerk is q'''(s) s'^3 + 3 q''(s) s' s''
++ q'(s) s'''. A jerk-limited time-optimal plan decelerates at its jerk limit from its cruise to rest (gantry3's move
+in bench/onpath_service.py: q''' = J for all of its last 0.2 s, the acceleration 0 -> 0.89 x 0x60C5 -> 0, no
+stretch at constant deceleration). An S-curve in s that reaches s' = 1 inside that stretch adds its s'' and s'''
+terms to q''' = J (1.36-2.06 x the limit on the 10-ms window, bench/RESULTS.md), and late in the motion no S-curve
+from the running speed ends before the stretch begins. So the planned timing can only be joined there on the plan's
+own curve to rest, as a time-optimal braking from a lower speed meets the one from a higher speed, both at the jerk
+limit: the rest of the path is re-timed, not its speed scaled, and joins the plan delayed by whole grid steps.
 
-For a path along one line in joint space (a joint move; the gantry's straight moves), every joint is
-q_j(s) = q_j(0) + c_j (u(s) - u(0)) of one reference joint's motion u (the joint with the largest travel against its
-jerk limit), so the joints' limits are bounds on u's: the program is on u(t) sampled every ``STEP_S``, jerk
-piecewise constant, from the running state, never ahead of the delayed plan (u(t) <= u_plan(t - delay)) and as far
-along as it can be at every step (maximise the sum of u), at rest at the delayed plan's end. Where it stays on the
-delayed plan from a step on, the plan runs from there: the path positions s(t) = u^-1(u(t)) until then, the plan
-after. The smallest grid delay whose program is feasible is found by bisection. Pure: numbers in, numbers out.
+How: for a path along one line in joint space (a joint move, the gantry's straight moves), every joint is
+q_j = q_j(s0) + c_j (u - u(s0)) of one reference joint's position u (the joint with the largest travel against its
+jerk limit), so the joints' limits are bounds on u's derivatives (the share of 0x60C5 and of the jerk limit asked,
+0x607F). A linear program on u(t), jerk constant on each ``STEP_S``, from the running state (u, u', u'') to the
+delayed plan's state where it joins: the fewest grid steps of delay for which it joins at all (by bisection, joining
+``MIN_TAIL_S`` before the plan's end: any later join holds with the same delay), then the soonest join with that
+delay (bisection), the least summed jerk. The path positions are s(t) = u^-1(u(t)) until the join, the plan's after,
+so the tool stays on the path. Other paths: NoRejoinError (the caller's fallback: the highest scale whose S-curve
+holds). Pure: numbers in, numbers out.
 """
 
 from __future__ import annotations
@@ -34,12 +36,8 @@ from pvtflow.planner.trajectory import Trajectory
 
 STEP_S = 0.004  # the program's step: the drives judge jerk over 10 ms windows (planner.knots.window_jerk)
 LINE_TOLERANCE = 1e-3  # a joint's largest distance from the line, of its travel: farther, the path is not a line
-JOIN_TOLERANCE = 2e-6  # of the reference joint's travel: on the delayed plan (u within this of it) from here on
-MAX_DELAY_STEPS = 400  # the bisection's upper end, grid steps past the lag at the change
-JOIN_TRIES = 4  # the delays tried from the fewest, in grid steps, for a re-timing on the delayed plan in time
-WINDOW_S = 0.01  # the drives' jerk window (planner.knots.window_jerk)
-PLAN_JERK_CAP = 1.2  # of the jerk limit: the most of the plan's own jerk a step may follow (what its records hold)
-MIN_TAIL_S = 0.02  # on the delayed plan at least this long before its end (the planned records to join)
+MAX_DELAY_STEPS = 400  # the most grid steps of delay looked at past the lag at the change
+MIN_TAIL_S = 0.02  # the latest join, before the plan's end: planned records left to join
 
 
 class NoRejoinError(ValueError):
@@ -136,11 +134,11 @@ def _program(
     )
 
 
-def _least(feasible: Callable[[int], bool], lo: int, hi: int) -> int | None:
+def _least(feasible: Callable[[int], bool], lo: int, hi: int, hi_holds: bool = False) -> int | None:
     """The least integer in [lo, hi] at which ``feasible`` (false below it, true from it on) holds, None: none;
-    from ``lo`` upwards in doubling steps, then bisection."""
+    from ``lo`` upwards in doubling steps, then bisection (``hi_holds``: known to hold at ``hi``, bisection only)."""
     step, below = 1, lo - 1
-    k = lo
+    k = hi if hi_holds else lo
     while not feasible(k):
         below = k
         if k >= hi:
@@ -206,7 +204,7 @@ def rejoin_plan(
         raise NoRejoinError("no re-timing of the rest of the path joins the planned timing within the limits")
     delay = delay_steps * grid_s
     first = steps_to(s0, delay) + 1
-    n = _least(lambda k: joins(delay_steps, k) is not None, first, steps_to(last, delay))
+    n = _least(lambda k: joins(delay_steps, k) is not None, first, steps_to(last, delay), hi_holds=True)
     out = joins(delay_steps, n, smooth=True) if n is not None else None
     if out is None:
         raise NoRejoinError("no re-timing of the rest of the path joins the planned timing within the limits")
