@@ -396,9 +396,10 @@ def _delay(whole: Trajectory, planned: Trajectory, s0: float) -> tuple[float, fl
 # the shares of 0x60C5 the ramp back to the planned speed is tried with, in turn: where it reaches the plan, the
 # joints' acceleration jumps by the ramp's part of it, which a record's cubic across it overshoots
 RAMP_SHARES = (BRAKING_SHARE, 0.6, 0.35)
-# a resume's ramp from rest: all of 0x60C5 first (no share of it given away where the records take it: the axes
-# stand, so the tries cost no look-ahead)
-RESUME_RAMP_SHARES = (1.0, *RAMP_SHARES)
+# the ramp limited by acceleration only (override 1.0 and resume of a motion planned without a jerk limit): all of
+# 0x60C5 first, no share of it given away where the records take it (on every gantry cell they validate at 1.0
+# wherever at 0.9, bench/RESULTS.md); a lower share where they do not, each try a few ms of the look-ahead
+BACK_RAMP_SHARES = (1.0, *RAMP_SHARES)
 
 
 def back_to_plan_on_grid(

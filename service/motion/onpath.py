@@ -25,10 +25,10 @@ from pvtflow.planner.build import BuildError, build_program
 from pvtflow.planner.knots import KnotOptions
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.onpath_program import (
+    BACK_RAMP_SHARES,
     JERK_SHARES,
     RAMP_SHARES,
     REJOIN_JERK_SHARES,
-    RESUME_RAMP_SHARES,
     WINDOW_JERK_RATIO,
     ChangeError,
     NoRampError,
@@ -219,7 +219,7 @@ class PathChanges:
     # --- resume ------------------------------------------------------------------------------------
     def resume_program(self) -> tuple[Paused, PvtProgram]:
         """The program that continues the paused motion from where its axes stand, at rest, at its planned
-        timing: a ramp up to the planned speed (``RESUME_RAMP_SHARES`` of 0x60C5 tried in turn), then the
+        timing: a ramp up to the planned speed (``BACK_RAMP_SHARES`` of 0x60C5 tried in turn), then the
         motion's own records to its end (``onpath_program.resumed_program``, validated as every program); where
         no ramp joins them, the rest of the path placed from rest as a plan (``_from_rest``). NOT_ALLOWED when
         nothing is paused."""
@@ -235,7 +235,7 @@ class PathChanges:
         failed: Exception | None = None
         program = None
         joined = True  # the program's own records after the ramp, or (False) the rest placed from rest
-        for share, jerk_share in self._ramps(jerk, RESUME_RAMP_SHARES if jerk is None else RAMP_SHARES):
+        for share, jerk_share in self._ramps(jerk, BACK_RAMP_SHARES if jerk is None else RAMP_SHARES):
             try:
                 back = back_to_plan_on_grid(
                     path.planned,
@@ -330,11 +330,11 @@ class PathChanges:
         jerk: NDArray[np.float64] | None,
     ) -> tuple[PvtProgram, list[NDArray[np.int64]], Trajectory]:
         """The records that bring the motion back to its planned timing (the original records joined after a
-        ramp, ``_ramps`` tried in turn: within ``jerk`` only, or None: limited by acceleration); ChangeError
-        where none validates."""
+        ramp, ``_ramps`` tried in turn: within ``jerk`` only, or None: limited by acceleration, all of 0x60C5
+        first; for ``jerk`` where no S-curve holds it, ``_rejoin``); ChangeError where none validates."""
         assert path.original is not None
         failed: Exception | None = None
-        for share, jerk_share in self._ramps(jerk):
+        for share, jerk_share in self._ramps(jerk, BACK_RAMP_SHARES if jerk is None else RAMP_SHARES):
             try:
                 back = back_to_plan_on_grid(
                     path.planned,
