@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -498,14 +498,15 @@ def rejoin_on_grid(
     max_jerk: NDArray[np.float64],
     grid_ms: int,
     jerk_share: float = REJOIN_JERK_SHARES[0],
+    in_time: Callable[[], bool] | None = None,
 ) -> BackToPlan:
     """``override`` at 1.0 from ``t0_s`` for a motion planned with a jerk limit where no S-curve in path speed holds
     it (``back_to_plan_on_grid`` found none): the rest of the path re-timed to join the plan delayed by the fewest grid
     steps (``onpath_rejoin.rejoin_plan``, ``BRAKING_SHARE`` of 0x60C5, ``jerk_share`` of the jerk limit), from where
-    the planned records run unchanged. ChangeError where none joins it before its end."""
+    the planned records run unchanged. ChangeError where none joins it before its end (or not ``in_time``)."""
     try:
         whole, s_join, delay = rejoin_plan(
-            planned, running, t0_s, limits, max_jerk, grid_ms / 1000.0, BRAKING_SHARE, jerk_share
+            planned, running, t0_s, limits, max_jerk, grid_ms / 1000.0, BRAKING_SHARE, jerk_share, in_time
         )
     except NoRejoinError as exc:
         raise ChangeError(f"re-timed to join the plan: {exc}") from None

@@ -163,11 +163,13 @@ def rejoin_plan(
     grid_s: float,
     share: float,
     jerk_share: float,
+    in_time: Callable[[], bool] | None = None,
 ) -> tuple[Trajectory, float, float]:
     """The rest of ``running`` from ``t0_s`` re-timed to join ``planned`` delayed by the fewest whole grid steps, as
     early as that delay allows, within ``share`` of 0x60C5, ``jerk_share`` of ``max_jerk`` (joint units/s^3) and
     0x607F until it joins; (the whole motion, program time; the plan's s where it joins; the delay, s).
-    NoRejoinError where none joins it ``MIN_TAIL_S`` before its end."""
+    NoRejoinError where none joins it ``MIN_TAIL_S`` before its end, or where ``in_time`` (asked before each linear
+    program) says the change's records would come too late (on the wall clock the drives run on meanwhile)."""
     jmax_j = np.asarray(max_jerk, dtype=float)
     t0 = float(np.clip(t0_s, 0.0, running.duration))
     s0, sd0 = _s_at(running, t0), _sd_at(running, t0)
@@ -196,6 +198,8 @@ def rejoin_plan(
         s_join = t0 + n * STEP_S - delay
         if n < 2 or s_join <= s0 or s_join > last + 1e-9:
             return None
+        if in_time is not None and not in_time():
+            raise NoRejoinError("the drives would need the change's records before it is made")
         return _program(start, n, state(s_join), vmax, amax, jmax, smooth)
 
     lag = max(0, math.ceil((t0 - s0) / grid_s - 1e-9))  # the plan delayed by at least the lag it has now

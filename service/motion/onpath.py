@@ -11,6 +11,7 @@ group halts them the quick way.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -328,6 +329,7 @@ class PathChanges:
         begin: float,
         grid_ms: int,
         jerk: NDArray[np.float64] | None,
+        in_time: Callable[[], bool] | None = None,
     ) -> tuple[PvtProgram, list[NDArray[np.int64]], Trajectory]:
         """The records that bring the motion back to its planned timing (the original records joined after a
         ramp, ``_ramps`` tried in turn: within ``jerk`` only, or None: limited by acceleration, all of 0x60C5
@@ -360,23 +362,32 @@ class PathChanges:
             return new, rows, back.motion
         if jerk is not None:  # no S-curve in path speed holds the limit: a re-timing that joins the plan later
             try:
-                return self._rejoin(path, program, at, begin, grid_ms, jerk)
+                return self._rejoin(path, program, at, begin, grid_ms, jerk, in_time)
             except _CHANGE_ERRORS as exc:
                 failed = exc
         raise ChangeError(f"back to the planned timing: {failed}")
 
     def _rejoin(
-        self, path: MotionPath, program: PvtProgram, at: SpliceAt, begin: float, grid_ms: int, jerk: NDArray[np.float64]
+        self,
+        path: MotionPath,
+        program: PvtProgram,
+        at: SpliceAt,
+        begin: float,
+        grid_ms: int,
+        jerk: NDArray[np.float64],
+        in_time: Callable[[], bool] | None,
     ) -> tuple[PvtProgram, list[NDArray[np.int64]], Trajectory]:
         """The records that bring a jerk-limited motion back to its planned timing by a re-timing of the rest of its
         path that joins the plan later (``onpath_program.rejoin_on_grid``, ``REJOIN_JERK_SHARES`` of the limit tried
-        in turn), then the original records; ChangeError where none holds the window jerk."""
+        in turn), then the original records; ChangeError where none holds the window jerk, or where ``in_time`` says
+        the drives would need the records before they are made (its linear programs are the longest computation of
+        a change: on the wall clock the drives run on meanwhile)."""
         assert path.original is not None
         failed: Exception = ChangeError("no jerk share tried")
         for jerk_share in REJOIN_JERK_SHARES:
             try:
                 back = rejoin_on_grid(
-                    path.planned, path.running, begin / 1000.0, self.limits, jerk, grid_ms, jerk_share
+                    path.planned, path.running, begin / 1000.0, self.limits, jerk, grid_ms, jerk_share, in_time
                 )
                 new, rows = rejoined_program(
                     program, at.first, at.join_ms, begin, back, path.original, self.limits, max_jerk=jerk
@@ -406,12 +417,18 @@ class PathChanges:
                 "duration_ms": int(path.program.duration_ms),
             }
         grid_ms = record_grid_ms(group.programs, self.cell.bus.sync_period_ms)
+        period = float(self.cell.bus.sync_period_ms)
         jerk = planned_jerk(path.program.metadata)
         made: dict[str, Any] = {}
 
         def make(at: SpliceAt) -> list[Any]:
             begin = change_start_ms(at.t0_ms, at.join_ms, at.programs)
             program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
+            need_ms = min(at.join_ms) - 2.0 * period  # an axis's new records are due a SYNC before its held ones end
+
+            def in_time() -> bool:  # the drives' clock (on the wall clock it runs on while the change is made)
+                return (group.elapsed_syncs() or 0) * period < need_ms
+
             if path.original is None:
                 path.original = program  # nothing changed yet: the records as started
             failed: Exception | None = None
@@ -424,7 +441,7 @@ class PathChanges:
                 try:
                     if wanted >= 1.0:  # the planned timing, late by a whole number of grid steps
                         within = jerk if jerk_share is not None else None  # (0.0: the jerk-limited ramps)
-                        new, rows, whole = self._back_to_plan(path, program, at, begin, grid_ms, within)
+                        new, rows, whole = self._back_to_plan(path, program, at, begin, grid_ms, within, in_time)
                         applied = 1.0
                     else:
                         whole, applied = override_on_grid(

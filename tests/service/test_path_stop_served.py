@@ -235,7 +235,8 @@ def test_bad_requests_change_nothing(cell: str, tmp_path: Path) -> None:
 def test_stop_on_the_path_on_the_wall_clock(tmp_path: Path) -> None:
     """On the wall clock the EPOS2s run their records on their own clocks while the braking is made (the
     group's lock held): it is made in time, or the stop is the quick one and says why; either way the
-    motion is stopped and nothing faults. A path stop made stays on the path (0.1 mm)."""
+    motion is stopped and nothing faults. A path stop made stays on the path (0.1 mm). So does a jerk-limited
+    motion's override, within its jerk limit."""
     cell = cell_file("gantry3")
     cell = dataclasses.replace(cell, bus=dataclasses.replace(cell.bus, heartbeat_timeout_factor=10))
     with MotionService(cell, journal_dir=tmp_path / "journal", clock=Clock.WALL) as svc:
@@ -255,6 +256,34 @@ def test_stop_on_the_path_on_the_wall_clock(tmp_path: Path) -> None:
             no_faults(svc)
             move_again(svc)
         assert made >= 1, "no path stop was made in time on the wall clock"
+
+        # a motion planned with a jerk limit, overridden on the wall clock: 0.5 at 30 %, then 1.0 150 ms on (an
+        # S-curve back to the planned records), made in time or refused with nothing changed (a loaded host); the
+        # drives judge what ran, the records within the jerk limit from the first change on
+        limits = svc.cell.joint_limits()
+        max_jerk = [float(j) for j in 10.0 * np.asarray(limits.acceleration)]
+        home = svc.execute(parse_execute({"plan_id": plan(svc, tour(svc.cell, [0.15])), "wait": True}))
+        assert home["outcome"]["result"] == "finished", home["outcome"]
+        req = {"waypoints": tour(svc.cell, [0.85]), "start": "current", "max_jerk": max_jerk}
+        svc.execute(parse_execute({"plan_id": svc.plan(parse_plan(req, svc.cell.joint_names, limits))["plan_id"]}))
+        before = ran(svc)
+        assert wait_until(lambda: _elapsed_ms(svc) >= 0.3 * before.duration_ms, timeout=30.0)
+        slow = svc.override(parse_override({"scale": 0.5}))
+        assert slow["scale"] == pytest.approx(0.5, abs=0.02)
+        assert wait_until(lambda: _elapsed_ms(svc) >= slow["from_ms"] + 150.0, timeout=30.0)
+        try:
+            back = svc.override(parse_override({"scale": 1.0}))
+        except ApiError as refused:
+            assert refused.code == "not_allowed" and "nothing changed" in refused.message, refused
+        else:
+            assert back["scale"] == 1.0 and back["limited"] is None, back
+        motion = svc.motion
+        assert motion is not None and motion.done.wait(60.0)
+        assert motion.outcome is not None and motion.outcome["result"] == "finished", motion.outcome
+        after = ran(svc)
+        assert window_jerk_ratio(after, max_jerk, slow["from_ms"]) <= 1.2
+        assert_on_path(before, after, slow["from_ms"])
+        no_faults(svc)
 
 
 def _elapsed_ms(svc: MotionService) -> float:
