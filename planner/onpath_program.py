@@ -499,18 +499,20 @@ def rejoin_on_grid(
     grid_ms: int,
     jerk_share: float = REJOIN_JERK_SHARES[0],
     in_time: Callable[[], bool] | None = None,
+    phase_s: float = 0.0,
 ) -> BackToPlan:
     """``override`` at 1.0 from ``t0_s`` for a motion planned with a jerk limit where no S-curve in path speed holds
     it (``back_to_plan_on_grid`` found none): the rest of the path re-timed to join the plan delayed by the fewest grid
     steps (``onpath_rejoin.rejoin_plan``, ``BRAKING_SHARE`` of 0x60C5, ``jerk_share`` of the jerk limit), from where
-    the planned records run unchanged. ChangeError where none joins it before its end (or not ``in_time``)."""
+    the planned records run unchanged (``phase_s``: a resume's, as ``back_to_plan_on_grid``). ChangeError where none
+    joins it before its end (or not ``in_time``)."""
     try:
         whole, s_join, delay = rejoin_plan(
-            planned, running, t0_s, limits, max_jerk, grid_ms / 1000.0, BRAKING_SHARE, jerk_share, in_time
+            planned, running, t0_s, limits, max_jerk, grid_ms / 1000.0, BRAKING_SHARE, jerk_share, in_time, phase_s
         )
     except NoRejoinError as exc:
         raise ChangeError(f"re-timed to join the plan: {exc}") from None
-    return BackToPlan(whole, s_join * 1000.0, float(round(delay * 1000.0)))
+    return BackToPlan(whole, s_join * 1000.0, float(round(delay * 1000.0)) if phase_s == 0.0 else delay * 1000.0)
 
 
 def rejoined_program(

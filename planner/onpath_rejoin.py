@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from scipy.optimize import linprog
 
 from pvtflow.planner.limits import JointLimits
-from pvtflow.planner.onpath_stop import _s_at, _sd_at
+from pvtflow.planner.onpath_stop import REST_SD, _s_at, _sd_at
 from pvtflow.planner.trajectory import Trajectory
 
 STEP_S = 0.004  # the program's step: the drives judge jerk over 10 ms windows (planner.knots.window_jerk)
@@ -164,8 +164,10 @@ def rejoin_plan(
     share: float,
     jerk_share: float,
     in_time: Callable[[], bool] | None = None,
+    phase_s: float = 0.0,
 ) -> tuple[Trajectory, float, float]:
-    """The rest of ``running`` from ``t0_s`` re-timed to join ``planned`` delayed by the fewest whole grid steps, as
+    """The rest of ``running`` from ``t0_s`` re-timed to join ``planned`` delayed by the fewest whole grid steps (plus
+    ``phase_s``: a resume's rest, which need not be a grid time), as
     early as that delay allows, within ``share`` of 0x60C5, ``jerk_share`` of ``max_jerk`` (joint units/s^3) and
     0x607F until it joins; (the whole motion, program time; the plan's s where it joins; the delay, s).
     NoRejoinError where none joins it ``MIN_TAIL_S`` before its end, or where ``in_time`` (asked before each linear
@@ -174,7 +176,9 @@ def rejoin_plan(
     t0 = float(np.clip(t0_s, 0.0, running.duration))
     s0, sd0 = _s_at(running, t0), _sd_at(running, t0)
     i = int(np.clip(np.searchsorted(running.breakpoints, t0, side="right") - 1, 0, len(running.sdd) - 1))
-    sdd0 = float(running.sdd[i]) if sd0 > 0.0 else 0.0
+    sdd0 = float(running.sdd[i])
+    if sd0 < REST_SD or t0 >= running.duration - 1e-9:  # at rest (a braking's end, to rounding): a resume's start
+        sd0, sdd0 = 0.0, 0.0
     ref, c, sign = reference_of(planned, s0, jmax_j)
     end = planned.duration
 
@@ -194,7 +198,7 @@ def rejoin_plan(
         return math.floor((s_join + delay - t0) / STEP_S + 1e-9)
 
     def joins(delay_steps: int, n: int, smooth: bool = False) -> NDArray[np.float64] | None:
-        delay = delay_steps * grid_s
+        delay = delay_steps * grid_s + phase_s
         s_join = t0 + n * STEP_S - delay
         if n < 2 or s_join <= s0 or s_join > last + 1e-9:
             return None
@@ -202,11 +206,13 @@ def rejoin_plan(
             raise NoRejoinError("the drives would need the change's records before it is made")
         return _program(start, n, state(s_join), vmax, amax, jmax, smooth)
 
-    lag = max(0, math.ceil((t0 - s0) / grid_s - 1e-9))  # the plan delayed by at least the lag it has now
-    delay_steps = _least(lambda k: joins(k, steps_to(last, k * grid_s)) is not None, lag, lag + MAX_DELAY_STEPS)
+    lag = max(0, math.ceil((t0 - s0 - phase_s) / grid_s - 1e-9))  # delayed by at least the lag it has now
+    delay_steps = _least(
+        lambda k: joins(k, steps_to(last, k * grid_s + phase_s)) is not None, lag, lag + MAX_DELAY_STEPS
+    )
     if delay_steps is None:
         raise NoRejoinError("no re-timing of the rest of the path joins the planned timing within the limits")
-    delay = delay_steps * grid_s
+    delay = delay_steps * grid_s + phase_s
     first = steps_to(s0, delay) + 1
     n = _least(lambda k: joins(delay_steps, k) is not None, first, steps_to(last, delay), hi_holds=True)
     out = joins(delay_steps, n, smooth=True) if n is not None else None

@@ -222,8 +222,9 @@ class PathChanges:
         """The program that continues the paused motion from where its axes stand, at rest, at its planned
         timing: a ramp up to the planned speed (``BACK_RAMP_SHARES`` of 0x60C5 tried in turn), then the
         motion's own records to its end (``onpath_program.resumed_program``, validated as every program); where
-        no ramp joins them, the rest of the path placed from rest as a plan (``_from_rest``). NOT_ALLOWED when
-        nothing is paused."""
+        no ramp joins them, for a motion planned with a jerk limit the re-timing from rest that joins them
+        (``_resume_rejoined``), else the rest of the path placed from rest as a plan (``_from_rest``). NOT_ALLOWED
+        when nothing is paused."""
         paused = self.paused
         if paused is None or self.board.state != CellState.PAUSED:
             raise ApiError(ErrorCode.NOT_ALLOWED, "nothing is paused on this cell: resume continues a paused motion")
@@ -260,6 +261,11 @@ class PathChanges:
                 break  # nor at any lower share
             except _CHANGE_ERRORS as exc:
                 failed = exc
+        if program is None and jerk is not None:  # no S-curve joins: the re-timing from rest that joins the plan
+            try:
+                program = self._resume_rejoined(path, rest, phase, grid_ms, jerk)
+            except _CHANGE_ERRORS as exc:
+                failed = exc
         if program is None:  # no ramp joins the planned records: the rest of the path from rest, placed as a plan
             log.info("resume of %s from rest to its end as a plan: %s", paused.motion.motion_id, failed)
             joined = False
@@ -278,6 +284,27 @@ class PathChanges:
                 ErrorCode.PLAN_FAILED, f"the resumed motion would start at {start} qc, the axes are at {here}"
             )
         return paused, program
+
+    def _resume_rejoined(
+        self, path: MotionPath, rest: float, phase: float, grid_ms: int, jerk: NDArray[np.float64]
+    ) -> PvtProgram:
+        """A jerk-limited motion's resume as the re-timing of the rest of its path from rest that joins the plan
+        delayed by the fewest grid steps (``onpath_program.rejoin_on_grid``, ``REJOIN_JERK_SHARES`` in turn), then
+        its own records; ChangeError where none holds the window jerk."""
+        assert path.original is not None
+        failed: Exception = ChangeError("no jerk share tried")
+        for jerk_share in REJOIN_JERK_SHARES:
+            try:
+                back = rejoin_on_grid(
+                    path.planned, path.running, rest, self.limits, jerk, grid_ms, jerk_share, phase_s=phase
+                )
+                program = resumed_program(path.program, back, path.original, rest * 1000.0, self.limits, grid_ms, jerk)
+                self._hold_jerk(program, jerk, 0.0)
+            except _CHANGE_ERRORS as exc:
+                failed = exc
+                continue
+            return program
+        raise failed
 
     def _from_rest(self, path: MotionPath, grid_ms: int, jerk: NDArray[np.float64] | None) -> PvtProgram:
         """The rest of a paused motion's path from rest, as fast as its limits allow under its planned speed
