@@ -167,11 +167,11 @@ def rejoin_plan(
     phase_s: float = 0.0,
 ) -> tuple[Trajectory, float, float]:
     """The rest of ``running`` from ``t0_s`` re-timed to join ``planned`` delayed by the fewest whole grid steps (plus
-    ``phase_s``: a resume's rest, which need not be a grid time), as
-    early as that delay allows, within ``share`` of 0x60C5, ``jerk_share`` of ``max_jerk`` (joint units/s^3) and
-    0x607F until it joins; (the whole motion, program time; the plan's s where it joins; the delay, s).
-    NoRejoinError where none joins it ``MIN_TAIL_S`` before its end, or where ``in_time`` (asked before each linear
-    program) says the change's records would come too late (on the wall clock the drives run on meanwhile)."""
+    ``phase_s``: a resume's rest, which need not be a grid time), as early as that delay allows, within ``share`` of
+    0x60C5, ``jerk_share`` of ``max_jerk`` (joint units/s^3) and 0x607F until it joins; (the whole motion, program
+    time; the plan's s where it joins; the delay, s). NoRejoinError where none joins it ``MIN_TAIL_S`` before its end,
+    or where ``in_time`` (asked before each linear program) says the change's records would come too late (on the
+    wall clock the drives run on meanwhile)."""
     jmax_j = np.asarray(max_jerk, dtype=float)
     t0 = float(np.clip(t0_s, 0.0, running.duration))
     s0, sd0 = _s_at(running, t0), _sd_at(running, t0)
