@@ -338,19 +338,25 @@ def jerk_changes() -> None:
             wait_ms(svc, fraction * before.duration_ms)
             return before
 
-        slow_j, back_j, res_j, extra, scales, limited = [], [], [], [], [], []
+        slow_j, back_j, res_j, extra, scales, limited, later = [], [], [], [], [], [], []
         placed = 0
         for fraction in FRACTIONS[:4]:
-            go(fraction)
+            before = go(fraction)
             slow = svc.override(parse_override({"scale": 0.5}))
             slow_j.append(jerk_ratio(PvtProgram(svc.cell.name, svc.group.programs), max_jerk, slow["from_ms"]))
             wait_ms(svc, slow["from_ms"] + 150.0)
+            began = time.perf_counter()
             back = svc.override(parse_override({"scale": 1.0}))
+            call_ms = (time.perf_counter() - began) * 1000.0
             scales.append(back["scale"])
             if back["limited"]:
                 limited.append(f"at {fraction:g}: {back['limited']}")
             back_j.append(jerk_ratio(PvtProgram(svc.cell.name, svc.group.programs), max_jerk, back["from_ms"]))
             svc.motion.done.wait(60.0)
+            later.append(
+                f"at {fraction:g}: 1.0 from {back['from_ms']:.0f} ms, scale {back['scale']:.4g}, ends "
+                f"{back['duration_ms'] - before.duration_ms} ms after the plan, the call {call_ms:.0f} ms (wall)"
+            )
         for fraction in FRACTIONS:
             before = go(fraction)
             paused = svc.pause(parse_pause({}))
@@ -368,6 +374,8 @@ def jerk_changes() -> None:
         )
         for why in limited:
             print(f"{'':26s} | override 1.0 {why}")
+        for line in later:
+            print(f"{'':26s} | override 0.5 then {line}")
     finally:
         svc.close()
     print("command: PYTHONPATH=. python3 bench/onpath_service.py --part jerk-changes")

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +29,7 @@ from pvtflow.planner.knots.fixed_period import _FP_REACH, reconstruction_kind
 from pvtflow.planner.knots.samples import axis_constants
 from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk_profile
 from pvtflow.planner.limits import JointLimits
+from pvtflow.planner.onpath_rejoin import NoRejoinError, rejoin_plan
 from pvtflow.planner.onpath_stop import (
     OnPathStop,
     _s_at,
@@ -395,9 +396,10 @@ def _delay(whole: Trajectory, planned: Trajectory, s0: float) -> tuple[float, fl
 # the shares of 0x60C5 the ramp back to the planned speed is tried with, in turn: where it reaches the plan, the
 # joints' acceleration jumps by the ramp's part of it, which a record's cubic across it overshoots
 RAMP_SHARES = (BRAKING_SHARE, 0.6, 0.35)
-# a resume's ramp from rest: all of 0x60C5 first (no share of it given away where the records take it: the axes
-# stand, so the tries cost no look-ahead)
-RESUME_RAMP_SHARES = (1.0, *RAMP_SHARES)
+# the ramp limited by acceleration only (override 1.0 and resume of a motion planned without a jerk limit): all of
+# 0x60C5 first, no share of it given away where the records take it (on every gantry cell they validate at 1.0
+# wherever at 0.9, bench/RESULTS.md); a lower share where they do not, each try a few ms of the look-ahead
+BACK_RAMP_SHARES = (1.0, *RAMP_SHARES)
 
 
 def back_to_plan_on_grid(
@@ -481,6 +483,36 @@ def _back_on_grid(
             raise ChangeError("no ramp back to the planned speed ends on the SYNC grid")
         whole, d = best
     return BackToPlan(whole, d[0] * 1000.0, float(round(target * 1000.0)) if phase_s == 0.0 else target * 1000.0)
+
+
+# the shares of the jerk limit a re-timing that joins the plan later (``rejoin_on_grid``) is tried with, in turn: the
+# records sampled from it add the rounding of their integers to its jerk (up to some 0.45 x the limit on gantry3's z)
+REJOIN_JERK_SHARES = (0.7, 0.5)
+
+
+def rejoin_on_grid(
+    planned: Trajectory,
+    running: Trajectory,
+    t0_s: float,
+    limits: JointLimits,
+    max_jerk: NDArray[np.float64],
+    grid_ms: int,
+    jerk_share: float = REJOIN_JERK_SHARES[0],
+    in_time: Callable[[], bool] | None = None,
+    phase_s: float = 0.0,
+) -> BackToPlan:
+    """``override`` at 1.0 from ``t0_s`` for a motion planned with a jerk limit where no S-curve in path speed holds
+    it (``back_to_plan_on_grid`` found none): the rest of the path re-timed to join the plan delayed by the fewest grid
+    steps (``onpath_rejoin.rejoin_plan``, ``BRAKING_SHARE`` of 0x60C5, ``jerk_share`` of the jerk limit), from where
+    the planned records run unchanged (``phase_s``: a resume's, as ``back_to_plan_on_grid``). ChangeError where none
+    joins it before its end (or not ``in_time``)."""
+    try:
+        whole, s_join, delay = rejoin_plan(
+            planned, running, t0_s, limits, max_jerk, grid_ms / 1000.0, BRAKING_SHARE, jerk_share, in_time, phase_s
+        )
+    except NoRejoinError as exc:
+        raise ChangeError(f"re-timed to join the plan: {exc}") from None
+    return BackToPlan(whole, s_join * 1000.0, float(round(delay * 1000.0)) if phase_s == 0.0 else delay * 1000.0)
 
 
 def rejoined_program(

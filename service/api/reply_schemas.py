@@ -212,7 +212,7 @@ def reply_schema(name: str) -> dict[str, Any]:
                 "limited": {
                     "type": ["string", "null"],
                     "description": "why the scale asked for could not be made and the lower one runs instead "
-                    "(e.g. 1.0 late in a jerk-limited motion); null: made as asked",
+                    "(e.g. its records would leave 0x60C5 or the jerk limit); null: made as asked",
                 },
                 "from_ms": {"type": "number", "description": "program time (ms) from which the new speed applies"},
                 "from_sync": {"type": "integer", "description": "the SYNC from which it applies"},

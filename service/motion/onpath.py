@@ -11,6 +11,7 @@ group halts them the quick way.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -25,9 +26,10 @@ from pvtflow.planner.build import BuildError, build_program
 from pvtflow.planner.knots import KnotOptions
 from pvtflow.planner.limits import JointLimits
 from pvtflow.planner.onpath_program import (
+    BACK_RAMP_SHARES,
     JERK_SHARES,
     RAMP_SHARES,
-    RESUME_RAMP_SHARES,
+    REJOIN_JERK_SHARES,
     WINDOW_JERK_RATIO,
     ChangeError,
     NoRampError,
@@ -40,6 +42,7 @@ from pvtflow.planner.onpath_program import (
     on_grid,
     override_on_grid,
     records_jerk_ratio,
+    rejoin_on_grid,
     rejoined_program,
     resume_from_rest,
     resumed_program,
@@ -217,10 +220,11 @@ class PathChanges:
     # --- resume ------------------------------------------------------------------------------------
     def resume_program(self) -> tuple[Paused, PvtProgram]:
         """The program that continues the paused motion from where its axes stand, at rest, at its planned
-        timing: a ramp up to the planned speed (``RESUME_RAMP_SHARES`` of 0x60C5 tried in turn), then the
+        timing: a ramp up to the planned speed (``BACK_RAMP_SHARES`` of 0x60C5 tried in turn), then the
         motion's own records to its end (``onpath_program.resumed_program``, validated as every program); where
-        no ramp joins them, the rest of the path placed from rest as a plan (``_from_rest``). NOT_ALLOWED when
-        nothing is paused."""
+        no ramp joins them, for a motion planned with a jerk limit the re-timing from rest that joins them
+        (``_resume_rejoined``), else the rest of the path placed from rest as a plan (``_from_rest``). NOT_ALLOWED
+        when nothing is paused."""
         paused = self.paused
         if paused is None or self.board.state != CellState.PAUSED:
             raise ApiError(ErrorCode.NOT_ALLOWED, "nothing is paused on this cell: resume continues a paused motion")
@@ -233,7 +237,7 @@ class PathChanges:
         failed: Exception | None = None
         program = None
         joined = True  # the program's own records after the ramp, or (False) the rest placed from rest
-        for share, jerk_share in self._ramps(jerk, RESUME_RAMP_SHARES if jerk is None else RAMP_SHARES):
+        for share, jerk_share in self._ramps(jerk, BACK_RAMP_SHARES if jerk is None else RAMP_SHARES):
             try:
                 back = back_to_plan_on_grid(
                     path.planned,
@@ -257,6 +261,11 @@ class PathChanges:
                 break  # nor at any lower share
             except _CHANGE_ERRORS as exc:
                 failed = exc
+        if program is None and jerk is not None:  # no S-curve joins: the re-timing from rest that joins the plan
+            try:
+                program = self._resume_rejoined(path, rest, phase, grid_ms, jerk)
+            except _CHANGE_ERRORS as exc:
+                failed = exc
         if program is None:  # no ramp joins the planned records: the rest of the path from rest, placed as a plan
             log.info("resume of %s from rest to its end as a plan: %s", paused.motion.motion_id, failed)
             joined = False
@@ -275,6 +284,27 @@ class PathChanges:
                 ErrorCode.PLAN_FAILED, f"the resumed motion would start at {start} qc, the axes are at {here}"
             )
         return paused, program
+
+    def _resume_rejoined(
+        self, path: MotionPath, rest: float, phase: float, grid_ms: int, jerk: NDArray[np.float64]
+    ) -> PvtProgram:
+        """A jerk-limited motion's resume as the re-timing of the rest of its path from rest that joins the plan
+        delayed by the fewest grid steps (``onpath_program.rejoin_on_grid``, ``REJOIN_JERK_SHARES`` in turn), then
+        its own records; ChangeError where none holds the window jerk."""
+        assert path.original is not None
+        failed: Exception = ChangeError("no jerk share tried")
+        for jerk_share in REJOIN_JERK_SHARES:
+            try:
+                back = rejoin_on_grid(
+                    path.planned, path.running, rest, self.limits, jerk, grid_ms, jerk_share, phase_s=phase
+                )
+                program = resumed_program(path.program, back, path.original, rest * 1000.0, self.limits, grid_ms, jerk)
+                self._hold_jerk(program, jerk, 0.0)
+            except _CHANGE_ERRORS as exc:
+                failed = exc
+                continue
+            return program
+        raise failed
 
     def _from_rest(self, path: MotionPath, grid_ms: int, jerk: NDArray[np.float64] | None) -> PvtProgram:
         """The rest of a paused motion's path from rest, as fast as its limits allow under its planned speed
@@ -326,13 +356,14 @@ class PathChanges:
         begin: float,
         grid_ms: int,
         jerk: NDArray[np.float64] | None,
+        in_time: Callable[[], bool] | None = None,
     ) -> tuple[PvtProgram, list[NDArray[np.int64]], Trajectory]:
         """The records that bring the motion back to its planned timing (the original records joined after a
-        ramp, ``_ramps`` tried in turn: within ``jerk`` only, or None: limited by acceleration); ChangeError
-        where none validates."""
+        ramp, ``_ramps`` tried in turn: within ``jerk`` only, or None: limited by acceleration, all of 0x60C5
+        first; for ``jerk`` where no S-curve holds it, ``_rejoin``); ChangeError where none validates."""
         assert path.original is not None
         failed: Exception | None = None
-        for share, jerk_share in self._ramps(jerk):
+        for share, jerk_share in self._ramps(jerk, BACK_RAMP_SHARES if jerk is None else RAMP_SHARES):
             try:
                 back = back_to_plan_on_grid(
                     path.planned,
@@ -356,7 +387,44 @@ class PathChanges:
                 failed = exc
                 continue
             return new, rows, back.motion
+        if jerk is not None:  # no S-curve in path speed holds the limit: a re-timing that joins the plan later
+            try:
+                return self._rejoin(path, program, at, begin, grid_ms, jerk, in_time)
+            except _CHANGE_ERRORS as exc:
+                failed = exc
         raise ChangeError(f"back to the planned timing: {failed}")
+
+    def _rejoin(
+        self,
+        path: MotionPath,
+        program: PvtProgram,
+        at: SpliceAt,
+        begin: float,
+        grid_ms: int,
+        jerk: NDArray[np.float64],
+        in_time: Callable[[], bool] | None,
+    ) -> tuple[PvtProgram, list[NDArray[np.int64]], Trajectory]:
+        """The records that bring a jerk-limited motion back to its planned timing by a re-timing of the rest of its
+        path that joins the plan later (``onpath_program.rejoin_on_grid``, ``REJOIN_JERK_SHARES`` of the limit tried
+        in turn), then the original records; ChangeError where none holds the window jerk, or where ``in_time`` says
+        the drives would need the records before they are made (its linear programs are the longest computation of
+        a change: on the wall clock the drives run on meanwhile)."""
+        assert path.original is not None
+        failed: Exception = ChangeError("no jerk share tried")
+        for jerk_share in REJOIN_JERK_SHARES:
+            try:
+                back = rejoin_on_grid(
+                    path.planned, path.running, begin / 1000.0, self.limits, jerk, grid_ms, jerk_share, in_time
+                )
+                new, rows = rejoined_program(
+                    program, at.first, at.join_ms, begin, back, path.original, self.limits, max_jerk=jerk
+                )
+                self._hold_jerk(new, jerk, begin)
+            except _CHANGE_ERRORS as exc:
+                failed = exc
+                continue
+            return new, rows, back.motion
+        raise failed
 
     def override(self, group: AxisGroup, motion: Motion, scale: float) -> dict[str, Any]:
         """Re-time the rest of the running motion to ``scale`` of its planned speed (drives' lock held);
@@ -376,12 +444,18 @@ class PathChanges:
                 "duration_ms": int(path.program.duration_ms),
             }
         grid_ms = record_grid_ms(group.programs, self.cell.bus.sync_period_ms)
+        period = float(self.cell.bus.sync_period_ms)
         jerk = planned_jerk(path.program.metadata)
         made: dict[str, Any] = {}
 
         def make(at: SpliceAt) -> list[Any]:
             begin = change_start_ms(at.t0_ms, at.join_ms, at.programs)
             program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
+            need_ms = min(at.join_ms) - 2.0 * period  # an axis's new records are due a SYNC before its held ones end
+
+            def in_time() -> bool:  # the drives' clock (on the wall clock it runs on while the change is made)
+                return (group.elapsed_syncs() or 0) * period < need_ms
+
             if path.original is None:
                 path.original = program  # nothing changed yet: the records as started
             failed: Exception | None = None
@@ -394,7 +468,7 @@ class PathChanges:
                 try:
                     if wanted >= 1.0:  # the planned timing, late by a whole number of grid steps
                         within = jerk if jerk_share is not None else None  # (0.0: the jerk-limited ramps)
-                        new, rows, whole = self._back_to_plan(path, program, at, begin, grid_ms, within)
+                        new, rows, whole = self._back_to_plan(path, program, at, begin, grid_ms, within, in_time)
                         applied = 1.0
                     else:
                         whole, applied = override_on_grid(

@@ -10,6 +10,7 @@ from pvtflow.planner.build import build_program
 from pvtflow.planner.knots import DriveAxis
 from pvtflow.planner.limits import JointLimits, joint_limits_from_drives
 from pvtflow.planner.onpath_program import resume_from_rest
+from pvtflow.planner.onpath_rejoin import NoRejoinError, reference_of
 from pvtflow.planner.onpath_stop import (
     brake_on_path,
     jerk_override,
@@ -170,3 +171,16 @@ def test_jerk_override_changes_path_speed_within_its_acceleration_and_jerk(v0: f
     assert np.max(np.abs(np.diff(sdd)) / 1e-4) <= jerk * 1.05
     ramp = t < (abs(v1 - v0) / accel + accel / jerk) * 1.05 + 1e-3  # the S-curve's length at most
     assert np.all(np.abs(sd[~ramp] - v1) < 1e-9)
+
+
+def test_the_rejoin_takes_a_path_along_one_line_only() -> None:
+    """Override 1.0's re-timing that joins the plan later (``onpath_rejoin``) bounds one reference joint's motion:
+    every joint a fixed multiple of it, which holds on a line in joint space and not on a curved path."""
+    jerk = 10.0 * np.asarray(LIMITS.acceleration)
+    line = parameterize(JointPath(WAYPOINTS[:2], LIMITS), LIMITS, timing_constraints(LIMITS))
+    ref, per_unit, sign = reference_of(line, 0.2 * line.duration, jerk)
+    travel = WAYPOINTS[1] - WAYPOINTS[0]
+    np.testing.assert_allclose(per_unit * travel[ref], travel, rtol=1e-6, atol=1e-9)
+    assert sign == np.sign(travel[ref])
+    with pytest.raises(NoRejoinError):
+        reference_of(MOTION, 0.2 * MOTION.duration, jerk)
