@@ -51,7 +51,7 @@ from pvtflow.axes.master.bus.quick_stop import (
     SDO_DOWNLOAD_CONFIRMED,
     quick_stop_request,
 )
-from pvtflow.axes.master.bus.sync import BACKUP_AFTER, ask_realtime, lift, pin, producer_cpus
+from pvtflow.axes.master.bus.sync import ask_realtime, lift
 from pvtflow.axes.master.bus.sync_follower import native_cyclic_task
 from pvtflow.axes.master.group.feeder import (
     BufferFeeder,
@@ -442,9 +442,7 @@ class CyclicLoop:
         early), the time stamp (that SYNC's wire time, sent once it is heard and before the next is due),
         and the gaps.
 
-        On a host of two or more CPUs a second follower on the other CPU sends what this one has not a
-        quarter period later (``_follow_periods``). A period both wake too late for (the next SYNC is
-        due) sends nothing: the drives hold
+        A period this thread wakes too late for (the next SYNC is due) sends nothing: the drives hold
         through that SYNC (``CycleTiming.held``), no second setpoint goes before one SYNC (the drive would
         take the later: a jump), and the next one sent is the next in the program
         (``SetpointFeeder.after_sync``); a SYNC heard before the setpoints sent for it were on the wire
@@ -456,6 +454,7 @@ class CyclicLoop:
         period = spec.period_ms / 1000.0
         after = max(PACE_AFTER_S, PACE_AFTER_PERIODS * period)
         spin = min(SPIN_BEFORE_S, period / 4)
+        buffered = any(isinstance(f, BufferFeeder) for f in self.feeders)
         with self.lock:
             if not (self.running and self._production == production):
                 return
@@ -470,35 +469,6 @@ class CyclicLoop:
         started = getattr(task, "started", None)
         pace = _Pace(asked if started is None else started, any(isinstance(f, SetpointFeeder) for f in self.feeders))
         self.start_sent = pace.phase  # t = 0 of the buffered drives' records
-        cpus = producer_cpus()
-        if cpus:  # a second follower on the other CPU (created here: it inherits this thread's SCHED_FIFO)
-            pin(cpus[0])
-            backup = (production, pace, after + BACKUP_AFTER * period, 0.0, cpus[1])
-            threading.Thread(
-                target=self._follow_periods, args=backup, name="pvtflow-cyclic-backup", daemon=True
-            ).start()
-        try:
-            self._follow_periods(production, pace, after, spin)
-        finally:
-            with self.lock:
-                mine = self._task is task
-                if mine:
-                    self._task = None
-            if mine:
-                task.stop()
-
-    def _follow_periods(self, production: int, pace: _Pace, after: float, spin: float, cpu: int | None = None) -> None:
-        """Each period's setpoints and records ``after`` its SYNC was due, unless the other follower sent them
-        (``pace`` is shared under the lock: one sending per SYNC whoever sends it). On a host of two or more
-        CPUs a second follower, pinned to the other CPU, wakes ``BACKUP_AFTER`` of a period later than the
-        first, as the master's second SYNC thread does (``axes.master.bus.sync``): the host stalls the timer
-        wake-ups of one CPU at a time for about 4 ms, two periods of a 2 ms SYNC, which a drive that takes
-        one setpoint per SYNC does not ride out."""
-        pin(cpu)
-        spec = self.spec
-        assert spec is not None
-        period = spec.period_ms / 1000.0
-        buffered = any(isinstance(f, BufferFeeder) for f in self.feeders)
         try:
             while True:
                 self._sleep_until(pace.phase + pace.number * period + after, spin)
@@ -511,8 +481,6 @@ class CyclicLoop:
                     if behind > 0:  # the next SYNC is due already: its setpoints would come with the one after
                         pace.number += behind
                         continue
-                    if now < pace.phase + pace.number * period + after:
-                        continue  # the other follower sent this period's while this one slept
                     number = pace.number
                     self.count = spec.start_count + number
                     self.sent_at = now
@@ -527,13 +495,20 @@ class CyclicLoop:
                     self._write_progress()
                     pace.number += 1
                 if spec.stamp_cob_id is not None:
-                    self._stamp(pace, number, pace.phase + (number + 1) * period - min(SPIN_BEFORE_S, period / 4))
+                    self._stamp(pace, number, pace.phase + (number + 1) * period - spin)
         except _ReserveError as exc:
             self._failed(FaultKind.TX_FAILED, str(exc), exc.node_id)
         except (can.CanError, OSError) as exc:
             self._failed(FaultKind.TX_FAILED, f"what follows SYNC {self.count} not sent: {exc}")
         except Exception as exc:  # never silent: the master halts on it
             self._failed(FaultKind.SYNC_STOPPED, f"the cyclic process's SYNC follower ended: {exc!r}")
+        finally:
+            with self.lock:
+                mine = self._task is task
+                if mine:
+                    self._task = None
+            if mine:
+                task.stop()
 
     def _hear(self, pace: _Pace) -> None:
         """The SYNCs the bus brought since the last look, in bus order (lock held): the schedule's phase,
