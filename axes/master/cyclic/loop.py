@@ -725,8 +725,10 @@ _NEVER = 1 << 62  # no setpoints were sent for that SYNC
 
 def _sent_after(after: list[float | None]) -> str:
     """When the setpoints of the SYNCs that held were sent, after the SYNC before each was due."""
-    said = ", ".join("not sent" if a is None else f"{a * 1000:.2f}" for a in after)
-    return f"the setpoints for those SYNCs sent {said} ms after the SYNC before was due"
+    said = ", ".join(
+        "not sent" if a is None else f"sent {a * 1000:.2f} ms after the SYNC before was due" for a in after
+    )
+    return f"the setpoints for those SYNCs: {said}"
 
 
 class _SyncRefusedError(Exception):
