@@ -20,7 +20,9 @@ the dense check slows it down uniformly until every limit holds, as it does any 
 from __future__ import annotations
 
 import dataclasses
+import functools
 
+import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
@@ -71,6 +73,13 @@ def row_joints(
     return np.sort(np.argsort(-rank, axis=1, kind="stable")[:, :k], axis=1)
 
 
+@functools.lru_cache(maxsize=8)
+def _stages(n: int, dof: int, torque: bool) -> ca.Function:
+    """The whole program's stage function mapped over n stages: built once per shape (2-3 ms of casadi
+    each time, after a solve within a deadline, where every ms is the answer's: bench/RESULTS.md)."""
+    return stage_function(dof, torque).map(n)
+
+
 def largest_row(
     rows: Rows,
     sd: NDArray[np.float64],
@@ -84,7 +93,7 @@ def largest_row(
     for the solution (s', s'' at the gridpoints, each interval's time and jerk): the program's own
     stage rows (``nlp.stage_function``), the middles following from the solution as its equalities do."""
     n, dof = rows.q1.shape
-    stage = stage_function(dof, rows.torque is not None).map(n)
+    stage = _stages(n, dof, rows.torque is not None)
     s0, a0 = sd[:-1], sdd[:-1]
     middles_sigma, middles_sd = [], []
     for f in FRACTIONS:

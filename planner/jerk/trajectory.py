@@ -125,21 +125,25 @@ class JerkTrajectory(PathTiming):
         sigma = tau * (sd + tau * (0.5 * a + tau * j / 6.0))
         return k, sigma, sd + tau * (a + 0.5 * j * tau), a + j * tau, j
 
-    def _joint(self, t: ArrayLike, order: int) -> NDArray[np.float64]:
+    def _joint(self, t: ArrayLike, order: int, joint: NDArray[np.intp] | None = None) -> NDArray[np.float64]:
         """(len(t), dof): the order-th time derivative of q at t (0..3), from the interval's exact
-        Taylor polynomial of the path."""
+        Taylor polynomial of the path; with ``joint`` (one per time), (len(t),): that joint's only (the
+        same numbers: the peaks' bisection asks for one joint per peak, a sixth of the work)."""
         k, sg, sd, sdd, sddd = self._path_state(t)
-        q0, q1, q2, q3 = (c[k] for c in self.coefficients)
-        sg = sg[:, None]
+        if joint is None:
+            q0, q1, q2, q3 = (c[k] for c in self.coefficients)
+            sg, sd, sdd, sddd = sg[:, None], sd[:, None], sdd[:, None], sddd[:, None]
+        else:
+            q0, q1, q2, q3 = (c[k, joint] for c in self.coefficients)
         q_s = q1 + sg * (q2 + 0.5 * sg * q3)
         if order == 0:
             return q0 + sg * (q1 + sg * (0.5 * q2 + sg * q3 / 6.0))
         if order == 1:
-            return q_s * sd[:, None]
+            return q_s * sd
         q_ss = q2 + sg * q3
         if order == 2:
-            return q_ss * (sd * sd)[:, None] + q_s * sdd[:, None]
-        return q3 * (sd**3)[:, None] + 3.0 * q_ss * (sd * sdd)[:, None] + q_s * sddd[:, None]
+            return q_ss * (sd * sd) + q_s * sdd
+        return q3 * (sd**3) + 3.0 * q_ss * (sd * sdd) + q_s * sddd
 
     def position(self, t: ArrayLike) -> NDArray[np.float64]:
         return self._scalar(t, self._joint(t, 0))
@@ -192,13 +196,12 @@ class JerkTrajectory(PathTiming):
         if len(i) == 0:
             return 0.0
         lo, hi, f_lo = t2d[i, p], t2d[i, p + 1], d[i, p, j]
-        rows = np.arange(len(i))
         for _ in range(_BISECTIONS):
             mid = 0.5 * (lo + hi)
-            f_mid = self._joint(mid, order + 1)[rows, j]
+            f_mid = self._joint(mid, order + 1, j)
             left = np.sign(f_mid) == np.sign(f_lo)
             lo, f_lo, hi = np.where(left, mid, lo), np.where(left, f_mid, f_lo), np.where(left, hi, mid)
-        return float(np.max(np.abs(self._joint(0.5 * (lo + hi), order)[rows, j]) / bound[j]))
+        return float(np.max(np.abs(self._joint(0.5 * (lo + hi), order, j)) / bound[j]))
 
     def speed_ratio(self, constraints: Sequence[constraint.Constraint]) -> float:
         """Worst speed / limit of the cell's TCP speed constraints over the check times (1 / 0: none)."""
