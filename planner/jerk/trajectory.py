@@ -129,6 +129,12 @@ class JerkTrajectory(PathTiming):
         """(len(t), dof): the order-th time derivative of q at t (0..3), from the interval's exact
         Taylor polynomial of the path; with ``joint`` (one per time), (len(t),): that joint's only (the
         same numbers: the peaks' bisection asks for one joint per peak, a sixth of the work)."""
+        return self._joints(t, (order,), joint)[0]
+
+    def _joints(
+        self, t: ArrayLike, orders: tuple[int, ...], joint: NDArray[np.intp] | None = None
+    ) -> list[NDArray[np.float64]]:
+        """``_joint`` of each of ``orders`` at the same times, the path's state there found once."""
         k, sg, sd, sdd, sddd = self._path_state(t)
         if joint is None:
             q0, q1, q2, q3 = (c[k] for c in self.coefficients)
@@ -136,14 +142,14 @@ class JerkTrajectory(PathTiming):
         else:
             q0, q1, q2, q3 = (c[k, joint] for c in self.coefficients)
         q_s = q1 + sg * (q2 + 0.5 * sg * q3)
-        if order == 0:
-            return q0 + sg * (q1 + sg * (0.5 * q2 + sg * q3 / 6.0))
-        if order == 1:
-            return q_s * sd
         q_ss = q2 + sg * q3
-        if order == 2:
-            return q_ss * (sd * sd) + q_s * sdd
-        return q3 * (sd**3) + 3.0 * q_ss * (sd * sdd) + q_s * sddd
+        derivatives = {
+            0: lambda: q0 + sg * (q1 + sg * (0.5 * q2 + sg * q3 / 6.0)),
+            1: lambda: q_s * sd,
+            2: lambda: q_ss * (sd * sd) + q_s * sdd,
+            3: lambda: q3 * (sd**3) + 3.0 * q_ss * (sd * sdd) + q_s * sddd,
+        }
+        return [derivatives[order]() for order in orders]
 
     def position(self, t: ArrayLike) -> NDArray[np.float64]:
         return self._scalar(t, self._joint(t, 0))
@@ -179,19 +185,22 @@ class JerkTrajectory(PathTiming):
         t = self.check_times()
         jmax = np.asarray(max_jerk, dtype=float)
         t2d = t.reshape(len(self.sddd), -1)
-        rv = float(np.max(np.abs(self._joint(t, 1)) / limits.velocity))
-        ra = float(np.max(np.abs(self._joint(t, 2)) / limits.acceleration))
+        velocity, acceleration, jerk = self._joints(t, (1, 2, 3))
+        rv = float(np.max(np.abs(velocity) / limits.velocity))
+        ra = float(np.max(np.abs(acceleration) / limits.acceleration))
         return (
-            max(rv, self._peak_ratio(t2d, 1, limits.velocity)),
-            max(ra, self._peak_ratio(t2d, 2, limits.acceleration)),
-            float(np.max(np.abs(self._joint(t, 3)) / jmax)),
+            max(rv, self._peak_ratio(t2d, 1, limits.velocity, acceleration)),
+            max(ra, self._peak_ratio(t2d, 2, limits.acceleration, jerk)),
+            float(np.max(np.abs(jerk) / jmax)),
         )
 
-    def _peak_ratio(self, t2d: NDArray[np.float64], order: int, bound: NDArray[np.float64]) -> float:
+    def _peak_ratio(
+        self, t2d: NDArray[np.float64], order: int, bound: NDArray[np.float64], following: NDArray[np.float64]
+    ) -> float:
         """Worst |order-th derivative| / bound at its extrema between consecutive check times of an
-        interval (rows of ``t2d``): where the next derivative changes sign, found by bisection. The
-        samples alone can miss a peak between them by 1e-4 of the limit."""
-        d = self._joint(t2d.ravel(), order + 1).reshape(*t2d.shape, -1)
+        interval (rows of ``t2d``; ``following``: the next derivative at them): where the next derivative
+        changes sign, found by bisection. The samples alone can miss a peak between them by 1e-4 of the limit."""
+        d = following.reshape(*t2d.shape, -1)
         i, p, j = np.nonzero(d[:, :-1] * d[:, 1:] < 0.0)
         if len(i) == 0:
             return 0.0
