@@ -68,9 +68,8 @@ _FATROP_ITERATIONS = 24
 # fatrop's p90 on the screened 96-interval program, arm6 8-waypoint paths (28 on 20 paths of seed 1, 24 on 30 of
 # seed 2; max 33), bench/RESULTS.md "Issue 39 item 2: the finer grid's choice"
 GRID_ITERATIONS = 28
-# the host's slowness over the last few fatrop solves of any program within the last minute (``host_slowness``)
+# the host's slowness over the last few fatrop solves of any program (``host_slowness``)
 _SLOWNESS_HISTORY = 10
-_SLOWNESS_AGE_S = 60.0
 _IPOPT_TIME_S = 0.04  # with less time left ipopt's iterates were never usable: no solve, the floor
 # building a program and its two solvers: 0.28 s for 48 intervals on the 2-core test host (casadi 3.8.2),
 # about in proportion to them; twice that is the time a plan must have left to build one (``expected_build_s``)
@@ -209,18 +208,14 @@ def _solver_options(name: str, equality: list[bool]) -> dict[str, Any]:
     return base | {"ipopt": common | {"sb": "yes"}}
 
 
-# per fatrop solve: when it ended (time.perf_counter) and its time per iteration over its program's least
-_slowness: deque[tuple[float, float]] = deque(maxlen=_SLOWNESS_HISTORY)
+_slowness: deque[float] = deque(maxlen=_SLOWNESS_HISTORY)  # per fatrop solve: its time per iteration / its least
 
 
 def host_slowness() -> float:
     """How much slower than at its fastest this process's fatrop iterates now: the median over the last
-    ``_SLOWNESS_HISTORY`` solves of any program of their time per iteration over that program's least, those
-    of the last ``_SLOWNESS_AGE_S`` only (1 where there are none). The others' load on a shared host doubled it
-    within minutes (bench/RESULTS.md); a solve is started only where it fits at this speed, so a slow spell
-    that keeps every solve out is forgotten after a minute, not kept until solves start again."""
-    recent = [value for at, value in list(_slowness) if at >= time.perf_counter() - _SLOWNESS_AGE_S]
-    return float(np.median(recent)) if recent else 1.0
+    ``_SLOWNESS_HISTORY`` solves of any program of their time per iteration over that program's least (1
+    before any is known). The others' load on a shared host doubled it within minutes (bench/RESULTS.md)."""
+    return float(np.median(_slowness)) if _slowness else 1.0
 
 
 def expected_solve_s(n: int) -> float:
@@ -356,7 +351,7 @@ def _solve_now(
                 program.iteration_s.append(per_iteration)
                 if program.first_iteration_s is None:
                     program.first_iteration_s = per_iteration
-                _slowness.append((time.perf_counter(), per_iteration / min(program.iteration_s)))
+                _slowness.append(per_iteration / min(program.iteration_s))
             program.solved = True
         if stats["success"]:
             return solution(out["x"], name, int(stats.get("iter_count", 0))), "", False

@@ -279,14 +279,12 @@ def test_a_finer_grid_is_chosen_where_its_solve_fits_at_the_hosts_present_speed(
             return {48: coarse, 96: fine}[n]
 
     monkeypatch.setattr(jerk_module, "PROGRAMS", Built())
-    now = time.perf_counter()
-    monkeypatch.setattr(solve, "_slowness", deque([(now, 1.0)]))
+    monkeypatch.setattr(solve, "_slowness", deque([1.0]))
     # the coarsest iterates twice as fast as when both were first timed: so does the finer one, 1 ms x 28
     assert fine.likely_fatrop_s(coarse) == pytest.approx(0.001 * solve.GRID_ITERATIONS)
     assert fine.likely_fatrop_s() == pytest.approx(0.002 * solve.GRID_ITERATIONS)
     assert jerk_module._program_for([48, 96], 4, False, time.perf_counter() + 0.035) == (fine, 96)
-    # the others' load: 1.5x slower now (a slow spell over a minute ago forgotten)
-    monkeypatch.setattr(solve, "_slowness", deque([(now - 61.0, 4.0), (now, 1.5), (now, 1.5), (now, 3.0)]))
+    monkeypatch.setattr(solve, "_slowness", deque([1.5, 1.5, 3.0]))  # the others' load: 1.5x slower now
     assert solve.host_slowness() == 1.5
     assert jerk_module._program_for([48, 96], 4, False, time.perf_counter() + 0.035) == (coarse, 48)
     assert jerk_module._program_for([48, 96], 4, False, time.perf_counter() + 0.050) == (fine, 96)
