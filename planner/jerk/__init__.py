@@ -187,8 +187,9 @@ def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | Non
     A finer size's solve time is ``GRID_ITERATIONS`` of its own at the host's present speed
     (``Program.likely_fatrop_s``: its least time per iteration, the warm-up's included, times the recent
     slowness of every program's solves), else the coarsest's longest recent solve times the square of
-    the ratio of their intervals, else twice its expected one (without a warm-up, a first request at the
-    cell's 200 ms solves the coarsest, one with seconds to spare the finest)."""
+    the ratio of their intervals, else twice its expected one: a first request after the start at the
+    cell's 200 ms solves the coarsest (a late solve costs the whole budget: the floor comes after it),
+    one with seconds to spare the finest."""
     if deadline is None:
         return cached_program(sizes[-1], dof, torque), sizes[-1]
     coarsest = PROGRAMS.ready(sizes[0], dof, torque)

@@ -21,14 +21,14 @@ costs its CPU only, not the floor's time after the budget.
 
 A solve is started only where it has a chance to finish (``_solvers_for``): fatrop has no time
 limit nor iteration callback in casadi 3.8.2, and a late one runs on in its thread, its program
-held (``Program.lock``). So fatrop runs only with at least its typical time left: ``_FATROP_ITERATIONS``
-of the program's least time per iteration (the warm-up's included) times the host's present slowness
-(``host_slowness``: the recent solves of every program, each over its own least; ``_FATROP_TIME_S`` per
-48 intervals before any solve), a measured figure that follows the machine and the others' load on it;
-ipopt (stopped at the deadline) only with at least ``_IPOPT_TIME_S`` left, below which its iterates
-were never usable (bench/RESULTS.md); with less than both, no solver, the floor at once. Which grid a
-deadline gets (``planner.jerk``) is judged on ``GRID_ITERATIONS`` instead (fatrop's p90): there a late
-finer solve is the floor where a coarser one would have answered.
+held (``Program.lock``). So fatrop runs only with at least its typical time left: the median of this
+program shape's last ``_SOLVE_HISTORY`` fatrop solves (until ``_MIN_HISTORY`` are known, its least time per
+iteration, the warm-up's included, times ``_FATROP_ITERATIONS``; ``_FATROP_TIME_S`` per 48 intervals
+before any solve), a measured figure that follows the machine; ipopt (stopped at the deadline) only with at
+least ``_IPOPT_TIME_S`` left, below which its iterates were never usable (bench/RESULTS.md); with
+less than both, no solver, the floor at once. Which grid a deadline gets (``planner.jerk``) is judged
+on the longest of the recent solves instead: there a late finer solve is the floor where a coarser
+one would have answered.
 """
 
 from __future__ import annotations
@@ -52,15 +52,15 @@ _MAX_ITER = 300
 _TOL = 1e-6  # optimality (relative duration)
 _CONSTRAINT_TOL = 1e-9  # the residuals: positions along the path continuous to 1e-9 of an interval
 _ITERATE_TOL = 1e-8  # an unfinished ipopt iterate is a motion where its residuals are this small
-# fatrop's expected solve time per 48 intervals until a program shape's time per iteration is known
+# fatrop's expected solve time per 48 intervals until _MIN_HISTORY solves of a program shape were timed
 # (``_solvers_for``): twice its p50 on 8-waypoint arm6 paths, so that a fresh process (``pvtflow plan``)
 # solves at 200 ms; its time grows with the intervals (bench/RESULTS.md, "Issue 39 item 2")
 _FATROP_TIME_S = 0.06
 _FATROP_INTERVALS = 48
 _SOLVE_HISTORY = 50
-_MIN_HISTORY = 10  # solves of the coarsest grid before its longest is a finer one's guess (``planner.jerk``)
-# where the program's time per iteration is known (the warm-up's solves: a program's iterations cost
-# about the same on any path, their count is the path's): that times this many iterations,
+_MIN_HISTORY = 10
+# until then, where the program's time per iteration is known (the warm-up's solves: a program's
+# iterations cost about the same on any path, their count is the path's): that times this many iterations,
 # fatrop's p50 on arm6 8-waypoint paths on the screened programs being 18-21 at 48 intervals and 22 at 96
 # (bench/RESULTS.md, "Issue 39 item 2 at `budget_ms: 50`: the floor's knots beside the solve")
 _FATROP_ITERATIONS = 24
@@ -102,12 +102,20 @@ class Program:
     compiled: bool = False  # whether fatrop evaluates the program's compiled functions (``use_compiled``)
 
     def typical_fatrop_s(self) -> float:
-        """fatrop's typical wall time on this program, the start rule's (``_solvers_for``): ``_FATROP_ITERATIONS``
-        at the host's present speed (``likely_fatrop_s``), else ``expected_solve_s`` before its time per
-        iteration is known. Not the median of its own recent solves: a grid chosen on its likely time
-        (``planner.jerk``) must start where that fits, whatever its own last solves met."""
-        likely = self.likely_fatrop_s(iterations=_FATROP_ITERATIONS)
-        return expected_solve_s(self.n) if likely is None else likely
+        """fatrop's typical wall time on this program: the median of its recent solves (before
+        ``_MIN_HISTORY`` are known: ``expected_fatrop_s``)."""
+        times = list(self.fatrop_s)
+        return float(np.median(times)) if len(times) >= _MIN_HISTORY else self.expected_fatrop_s()
+
+    def expected_fatrop_s(self) -> float:
+        """fatrop's expected time on this program before its solves are known: the least of its times
+        per iteration times ``_FATROP_ITERATIONS``, else ``expected_solve_s``. The least: the
+        machine's own speed (a warm-up on a host loaded by others took twice a request's time per
+        iteration on it), where a solve that turns out late costs its CPU only, the floor being
+        ready (``planner.jerk``); after ``_MIN_HISTORY`` solves their median decides."""
+        if not self.iteration_s:
+            return expected_solve_s(self.n)
+        return min(self.iteration_s) * _FATROP_ITERATIONS
 
     def likely_fatrop_s(self, coarsest: Program | None = None, iterations: int = GRID_ITERATIONS) -> float | None:
         """fatrop's time on this program for ``iterations`` at the host's present speed: its least time per
