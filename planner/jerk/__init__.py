@@ -184,12 +184,10 @@ def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | Non
     and twice its expected solve), else the coarsest, built now only where the time left covers the
     build (its solvers then decide, ``solve.solve_in_time``), else None (the floor; build it later).
 
-    A finer size's solve time is ``GRID_ITERATIONS`` of its own at the host's present speed
-    (``Program.likely_fatrop_s``: its least time per iteration, the warm-up's included, times the recent
-    slowness of every program's solves), else the coarsest's longest recent solve times the square of
-    the ratio of their intervals, else twice its expected one: a first request after the start at the
-    cell's 200 ms solves the coarsest (a late solve costs the whole budget: the floor comes after it),
-    one with seconds to spare the finest."""
+    A finer size's solve time is its own measured one (``Program.measured_fatrop_s``), else the
+    coarsest's measured one times the square of the ratio of their intervals, else twice its expected one: a first
+    request after the start at the cell's 200 ms solves the coarsest (a late solve costs the whole
+    budget: the floor comes after it), one with seconds to spare the finest."""
     if deadline is None:
         return cached_program(sizes[-1], dof, torque), sizes[-1]
     coarsest = PROGRAMS.ready(sizes[0], dof, torque)
@@ -200,12 +198,14 @@ def _program_for(sizes: list[int], dof: int, torque: bool, deadline: float | Non
             program = cached_program(n, dof, torque)
         if program is None:
             continue
-        likely = program.likely_fatrop_s(coarsest)
-        if likely is None:
+        measured = program.measured_fatrop_s()
+        if measured is None:
             # fatrop's time grows about as the square of the intervals (more iterations, each longer): 96
             # intervals took 3.8-4.1x 48's at the median (bench/jerk_rows.py, bench/RESULTS.md)
-            likely = 2.0 * expected_solve_s(n) if coarsest_s is None else coarsest_s * (n / sizes[0]) ** 2
-        if deadline - time.perf_counter() >= likely:
+            # (not its time per iteration from the warm-up: a late finer solve is the floor where a coarser one
+            # answers, and under load 96 intervals took 4x 48's; bench/RESULTS.md)
+            measured = 2.0 * expected_solve_s(n) if coarsest_s is None else coarsest_s * (n / sizes[0]) ** 2
+        if deadline - time.perf_counter() >= measured:
             return program, n
     program = coarsest
     if program is None and deadline - time.perf_counter() >= expected_build_s(sizes[0]):

@@ -64,12 +64,6 @@ _MIN_HISTORY = 10
 # fatrop's p50 on arm6 8-waypoint paths on the screened programs being 18-21 at 48 intervals and 22 at 96
 # (bench/RESULTS.md, "Issue 39 item 2 at `budget_ms: 50`: the floor's knots beside the solve")
 _FATROP_ITERATIONS = 24
-# a grid finer than the coarsest is chosen within a deadline where this many iterations fit (``likely_fatrop_s``):
-# fatrop's p90 on the screened 96-interval program, arm6 8-waypoint paths (28 on 20 paths of seed 1, 24 on 30 of
-# seed 2; max 33), bench/RESULTS.md "Issue 39 item 2: the finer grid's choice"
-GRID_ITERATIONS = 28
-# the host's slowness over the last few fatrop solves of any program (``host_slowness``)
-_SLOWNESS_HISTORY = 10
 _IPOPT_TIME_S = 0.04  # with less time left ipopt's iterates were never usable: no solve, the floor
 # building a program and its two solvers: 0.28 s for 48 intervals on the 2-core test host (casadi 3.8.2),
 # about in proportion to them; twice that is the time a plan must have left to build one (``expected_build_s``)
@@ -98,7 +92,6 @@ class Program:
     # recent times per iteration, the warm-up's kept (``planner.jerk.warm_up`` forgets its ``fatrop_s``)
     iteration_s: deque[float] = field(default_factory=lambda: deque(maxlen=_SOLVE_HISTORY))
     solved: bool = False  # whether fatrop has solved this program once (``iteration_s`` from its second solve)
-    first_iteration_s: float | None = None  # its first time per iteration (the warm-up's: ``likely_fatrop_s``)
     compiled: bool = False  # whether fatrop evaluates the program's compiled functions (``use_compiled``)
 
     def typical_fatrop_s(self) -> float:
@@ -116,20 +109,6 @@ class Program:
         if not self.iteration_s:
             return expected_solve_s(self.n)
         return min(self.iteration_s) * _FATROP_ITERATIONS
-
-    def likely_fatrop_s(self, coarsest: Program | None = None, iterations: int = GRID_ITERATIONS) -> float | None:
-        """fatrop's time on this program for ``iterations`` at the host's present speed: its least time per
-        iteration (the warm-up's included) times ``host_slowness``; None before that is known. Not the longest
-        of its own recent solves: those are taken only where it was chosen, so one slow spell would keep it
-        out for good; the slowness follows every program's solves. Where ``coarsest`` (solved more often) got
-        faster than when both were first timed (a warm-up while the host was loaded), this one is taken to
-        have too, in proportion."""
-        if not self.iteration_s:
-            return None
-        least = min(self.iteration_s)
-        if coarsest is not None and coarsest.iteration_s and coarsest.first_iteration_s and self.first_iteration_s:
-            least = min(least, self.first_iteration_s * min(coarsest.iteration_s) / coarsest.first_iteration_s)
-        return least * host_slowness() * iterations
 
     def measured_fatrop_s(self) -> float | None:
         """The longest of fatrop's recent solves of this program, None until ``_MIN_HISTORY`` are known."""
@@ -149,7 +128,7 @@ class Program:
             return False
         with self.lock:  # not in the middle of a solve's bookkeeping
             self.solvers["fatrop"] = solver
-            self.compiled, self.solved, self.first_iteration_s = True, False, None
+            self.compiled, self.solved = True, False
             self.fatrop_s.clear()
             self.iteration_s.clear()
         return True
@@ -214,16 +193,6 @@ def _solver_options(name: str, equality: list[bool]) -> dict[str, Any]:
     if name == "fatrop":
         return base | {"structure_detection": "auto", "equality": equality, "fatrop": common}
     return base | {"ipopt": common | {"sb": "yes"}}
-
-
-_slowness: deque[float] = deque(maxlen=_SLOWNESS_HISTORY)  # per fatrop solve: its time per iteration / its least
-
-
-def host_slowness() -> float:
-    """How much slower than at its fastest this process's fatrop iterates now: the median over the last
-    ``_SLOWNESS_HISTORY`` solves of any program of their time per iteration over that program's least (1
-    before any is known). The others' load on a shared host doubled it within minutes (bench/RESULTS.md)."""
-    return float(np.median(_slowness)) if _slowness else 1.0
 
 
 def expected_solve_s(n: int) -> float:
@@ -355,11 +324,7 @@ def _solve_now(
             took = time.perf_counter() - began
             program.fatrop_s.append(took)
             if program.solved:  # a solver's first solve sets up its memory: twice the time per iteration
-                per_iteration = took / max(1, int(stats.get("iter_count", 0)))
-                program.iteration_s.append(per_iteration)
-                if program.first_iteration_s is None:
-                    program.first_iteration_s = per_iteration
-                _slowness.append(per_iteration / min(program.iteration_s))
+                program.iteration_s.append(took / max(1, int(stats.get("iter_count", 0))))
             program.solved = True
         if stats["success"]:
             return solution(out["x"], name, int(stats.get("iter_count", 0))), "", False

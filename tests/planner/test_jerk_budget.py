@@ -253,38 +253,3 @@ def test_a_late_solve_answers_the_floors_program_placed_while_it_ran(monkeypatch
         1e-3 * (budget_ms - cell_planner_module.knots_reserve_ms(budget_ms, True)), abs=0.02
     )
     assert validate_program(res.program).ok
-
-
-def test_a_finer_grid_is_chosen_where_its_solve_fits_at_the_hosts_present_speed(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    """The finer grid's time within a deadline: its least time per iteration x the host's recent slowness
-    x ``GRID_ITERATIONS``, scaled down where the coarsest got faster since both were first timed (a warm-up
-    on a loaded host); the coarsest where that does not fit the time left (planner/jerk ``_program_for``)."""
-    from collections import deque
-
-    import pvtflow.planner.jerk as jerk_module
-    from pvtflow.planner.jerk import solve
-
-    def timed(n: int, first: float, least: float) -> solve.Program:
-        program = solve.Program(n, 4, False, {}, [])
-        program.first_iteration_s = first
-        program.iteration_s.extend([first, least])
-        return program
-
-    coarse, fine = timed(48, 0.0010, 0.0005), timed(96, 0.0020, 0.0020)
-
-    class Built:
-        def ready(self, n: int, dof: int, torque: bool) -> solve.Program:
-            return {48: coarse, 96: fine}[n]
-
-    monkeypatch.setattr(jerk_module, "PROGRAMS", Built())
-    monkeypatch.setattr(solve, "_slowness", deque([1.0]))
-    # the coarsest iterates twice as fast as when both were first timed: so does the finer one, 1 ms x 28
-    assert fine.likely_fatrop_s(coarse) == pytest.approx(0.001 * solve.GRID_ITERATIONS)
-    assert fine.likely_fatrop_s() == pytest.approx(0.002 * solve.GRID_ITERATIONS)
-    assert jerk_module._program_for([48, 96], 4, False, time.perf_counter() + 0.035) == (fine, 96)
-    monkeypatch.setattr(solve, "_slowness", deque([1.5, 1.5, 3.0]))  # the others' load: 1.5x slower now
-    assert solve.host_slowness() == 1.5
-    assert jerk_module._program_for([48, 96], 4, False, time.perf_counter() + 0.035) == (coarse, 48)
-    assert jerk_module._program_for([48, 96], 4, False, time.perf_counter() + 0.050) == (fine, 96)
