@@ -141,6 +141,8 @@ def test_stop_stays_on_the_path_and_rests_on_one_sync(service: MotionService) ->
     move_again(service)  # a new motion from where the axes stand runs to its end
 
 
+# the quick stop on every profile and clock: tests/service/test_stop_then_move.py; here that the mode keeps it
+@pytest.mark.parametrize("service", ["gantry3-mixed"], indirect=True)
 def test_quick_stop_is_the_old_stop(service: MotionService) -> None:
     start(service, 0.4)
     reply = service.stop(parse_stop({"mode": "quick"}))
@@ -184,6 +186,8 @@ def test_pause_then_resume_reaches_the_original_end(service: MotionService) -> N
     assert service.journal_entry(out["motion_id"]) is not None
 
 
+# the service's rule, whatever the profiles: one cell with three (the pause itself: every cell, above)
+@pytest.mark.parametrize("service", ["gantry3-mixed"], indirect=True)
 def test_stop_while_paused_ends_it(service: MotionService) -> None:
     start(service, 0.3)
     assert service.pause(parse_pause({}))["paused"]
