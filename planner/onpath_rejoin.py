@@ -134,6 +134,210 @@ def _program(
     )
 
 
+# --- any path: the path speed s(t), the joints' limits linearised around an iterate (sequential linear programs) ---
+WINDOW_S = 0.005  # half the drives' 10-ms jerk window: the path's derivatives are taken over it (planner.knots)
+SLP_ITERATIONS = 5  # linear programs per join tried, at most
+SLP_GIVE_UP = 0.25  # a least excess over the limits (of them) this large after the second program: no join
+SLP_ACCEPT = 1.02  # the true (not linearised) ratio to the limits asked of a solution at its steps
+SLP_MARGIN = 0.15  # the most room under the limits the programs look for (the linearisation errs by some)
+
+
+class PathCoefficients:
+    """The path's derivatives in s where a re-timing needs them: q' exactly, q'' and q''' over the drives' jerk
+    window (central differences of q' over +-``WINDOW_S``). The program's path is the records' cubics: q'' jumps at
+    every knot and q''' is a sum of pulses there, which the drives judge over a 10-ms window, not pointwise."""
+
+    def __init__(self, planned: Trajectory) -> None:
+        self.path = planned.path
+        self.end = float(planned.gridpoints[-1])
+
+    def __call__(self, s: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+        h = WINDOW_S
+        lo, hi = np.clip(s - h, 0.0, self.end), np.clip(s + h, 0.0, self.end)
+        d1 = self.path(np.clip(s, 0.0, self.end), 1)
+        d1_lo, d1_hi = self.path(lo, 1), self.path(hi, 1)
+        d2 = (d1_hi - d1_lo) / np.maximum(hi - lo, 1e-9)[:, None]
+        d3 = (d1_hi - 2.0 * d1 + d1_lo) / (h * h)
+        return d1, d2, d3
+
+
+def path_ratios(
+    coef: PathCoefficients, x: NDArray[np.float64], jerk: NDArray[np.float64], lim: NDArray[np.float64]
+) -> float:
+    """The joints' largest |velocity|, |acceleration|, |jerk| (on both steps at every point) of ``lim`` (3, dof)
+    along s(t): ``x`` (n + 1, 3) the states (s, s', s'') at every step, ``jerk`` (n,) s''' on each."""
+    d1, d2, d3 = coef(x[:, 0])
+    v, a = x[:, 1:2], x[:, 2:3]
+    vel = np.abs(d1 * v) / lim[0]
+    acc = np.abs(d2 * v * v + d1 * a) / lim[1]
+    base = d3 * v**3 + 3.0 * d2 * v * a
+    w_before = np.concatenate(([jerk[0]], jerk))[:, None]
+    w_after = np.concatenate((jerk, [jerk[-1]]))[:, None]
+    jrk = np.maximum(np.abs(base + d1 * w_before), np.abs(base + d1 * w_after)) / lim[2]
+    return float(max(vel.max(), acc.max(), jrk.max()))
+
+
+def _integrate(start: tuple[float, float, float], jerk: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(s, s', s'') at every step from ``start`` with s''' = ``jerk`` on each."""
+    h = STEP_S
+    out = np.empty((len(jerk) + 1, 3))
+    out[0] = start
+    for k, w in enumerate(jerk):
+        p, v, a = out[k]
+        out[k + 1] = (p + v * h + a * h * h / 2.0 + w * h**3 / 6.0, v + a * h + w * h * h / 2.0, a + w * h)
+    return out
+
+
+def _guess(start: tuple[float, float, float], n: int, end: tuple[float, float, float]) -> NDArray[np.float64]:
+    """(s, s', s'') at every step of the quintic in t from ``start`` to ``end`` over ``n`` steps: a first iterate."""
+    T = n * STEP_S
+    a0, a1, a2 = start[0], start[1], start[2] / 2.0
+    m = np.array([[T**3, T**4, T**5], [3 * T**2, 4 * T**3, 5 * T**4], [6 * T, 12 * T**2, 20 * T**3]])
+    rhs = np.array([end[0] - (a0 + a1 * T + a2 * T * T), end[1] - (a1 + 2 * a2 * T), end[2] - 2 * a2])
+    a3, a4, a5 = np.linalg.solve(m, rhs)
+    t = STEP_S * np.arange(n + 1)
+    s = a0 + t * (a1 + t * (a2 + t * (a3 + t * (a4 + t * a5))))
+    v = a1 + t * (2 * a2 + t * (3 * a3 + t * (4 * a4 + t * 5 * a5)))
+    a = 2 * a2 + t * (6 * a3 + t * (12 * a4 + t * 20 * a5))
+    return np.column_stack((s, np.maximum(v, 0.0), a))
+
+
+def _resampled(prev: NDArray[np.float64], n: int) -> NDArray[np.float64]:
+    """A solution over another number of steps as the iterate for ``n`` steps (its profile stretched in time)."""
+    m = len(prev) - 1
+    u, k = np.linspace(0.0, 1.0, n + 1), np.linspace(0.0, 1.0, m + 1)
+    return np.column_stack([np.interp(u, k, prev[:, i]) for i in range(3)])
+
+
+def _dynamics(start: tuple[float, float, float], n: int, nvar: int) -> tuple[sp.csr_matrix, NDArray[np.float64]]:
+    """x_k+1 = F x_k + g j_k (k = 0..n-1), x_0 = ``start``: the variables p, v, a at steps 1..n, then j on 0..n-1."""
+    h = STEP_S
+    ip, iv, ia, ij = 0, n, 2 * n, 3 * n
+    f = ((1.0, h, h * h / 2.0), (0.0, 1.0, h), (0.0, 0.0, 1.0))
+    g = (h**3 / 6.0, h * h / 2.0, h)
+    rows: list[int] = []
+    cols: list[int] = []
+    vals: list[float] = []
+    rhs: list[float] = []
+    for k in range(n):
+        for m, base in enumerate((ip, iv, ia)):
+            r = 3 * k + m
+            rows += [r, r]
+            cols += [base + k, ij + k]
+            vals += [1.0, -g[m]]
+            if k == 0:
+                rhs.append(sum(f[m][i] * start[i] for i in range(3)))
+                continue
+            rhs.append(0.0)
+            for i, b in enumerate((ip, iv, ia)):
+                if f[m][i] != 0.0:
+                    rows.append(r)
+                    cols.append(b + k - 1)
+                    vals.append(-f[m][i])
+    return sp.csr_matrix((vals, (rows, cols)), shape=(3 * n, nvar)), np.asarray(rhs)
+
+
+class _Rows:
+    """Rows |sum(c * x) + const| <= L (1 + slack) of a linear program, both signs, gathered as sparse triplets."""
+
+    def __init__(self, slack: int) -> None:
+        self.slack = slack
+        self.rows: list[NDArray[np.int64]] = []
+        self.cols: list[NDArray[np.int64]] = []
+        self.vals: list[NDArray[np.float64]] = []
+        self.b: list[NDArray[np.float64]] = []
+        self.count = 0
+
+    def add(self, terms: list[tuple[NDArray[np.int64], NDArray[np.float64]]], const: NDArray[np.float64], L: float):
+        m = len(const)
+        for sign in (1.0, -1.0):
+            idx = self.count + np.arange(m)
+            for var, c in terms:
+                self.rows.append(idx)
+                self.cols.append(np.broadcast_to(var, (m,)))
+                self.vals.append(sign * np.broadcast_to(c, (m,)))
+            self.rows.append(idx)
+            self.cols.append(np.full(m, self.slack))
+            self.vals.append(np.full(m, -L))
+            self.b.append(L - sign * const)
+            self.count += m
+
+    def matrix(self, nvar: int) -> tuple[sp.csr_matrix, NDArray[np.float64]]:
+        a = sp.csr_matrix(
+            (np.concatenate(self.vals), (np.concatenate(self.rows), np.concatenate(self.cols))),
+            shape=(self.count, nvar),
+        )
+        return a, np.concatenate(self.b)
+
+
+def _path_program(
+    coef: PathCoefficients,
+    start: tuple[float, float, float],
+    n: int,
+    end: tuple[float, float, float],
+    lim: NDArray[np.float64],
+    iterate: NDArray[np.float64],
+    smooth: bool,
+    in_time: Callable[[], bool] | None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """s(t) over ``n`` steps from ``start`` to ``end`` (s, s', s'') with s''' constant on each step whose joints hold
+    ``lim`` (3, dof: |velocity|, |acceleration|, |jerk|) at every step: linear programs with the joints' limits
+    linearised around ``iterate`` (the coefficients at its s, the products of s' and s'' at its values, s' within a
+    trust region of it) and one slack on all of them (the least), each from the last one's solution until the true
+    ratios hold; (the states at every step, the jerk on each), None: none found (``smooth``: then the least summed
+    jerk within the limits)."""
+    dof = lim.shape[1]
+    ip, iv, ia, ij, isg = 0, n, 2 * n, 3 * n, 4 * n
+    nvar = 4 * n + 1 + (n if smooth else 0)
+    a_eq, b_eq = _dynamics(start, n, nvar)
+    x_bar = iterate
+    radius = 0.3
+    k = np.arange(1, n)  # the points whose states are variables; the ends' are fixed
+    for it in range(SLP_ITERATIONS):
+        if in_time is not None and not in_time():
+            raise NoRejoinError("the drives would need the change's records before it is made")
+        d1, d2, d3 = coef(x_bar[:, 0])
+        vb, ab = x_bar[:, 1], x_bar[:, 2]
+        rows = _Rows(isg)
+        for j in range(dof):
+            vl, al, jl = (float(x) for x in lim[:, j])
+            c1, c2, c3 = d1[k, j], d2[k, j], d3[k, j]
+            rows.add([(iv + k - 1, c1)], np.zeros(len(k)), vl)
+            rows.add([(iv + k - 1, 2.0 * c2 * vb[k]), (ia + k - 1, c1)], -c2 * vb[k] ** 2, al)
+            if not np.isfinite(jl):
+                continue
+            # d3 v^3 + 3 d2 v a + d1 j around (vb, ab), on the step before the point and the one after
+            jv = 3.0 * c3 * vb[k] ** 2 + 3.0 * c2 * ab[k]
+            ja = 3.0 * c2 * vb[k]
+            jc = -2.0 * c3 * vb[k] ** 3 - 3.0 * c2 * vb[k] * ab[k]
+            for w in (ij + k - 1, ij + k):
+                rows.add([(iv + k - 1, jv), (ia + k - 1, ja), (w, c1)], jc, jl)
+            for e, w in ((0, ij), (n, ij + n - 1)):  # the ends' own states: their step's jerk only
+                const = d3[e, j] * vb[e] ** 3 + 3.0 * d2[e, j] * vb[e] * ab[e]
+                rows.add([(np.array([w]), np.array([d1[e, j]]))], np.array([const]), jl)
+        a_ub, b_ub = rows.matrix(nvar)
+        bounds: list[tuple[float | None, float | None]] = [(None, None)] * n
+        bounds += [(max(0.0, float(v) - radius), float(v) + radius) for v in vb[1 : n + 1]]
+        bounds += [(None, None)] * (2 * n) + [(-SLP_MARGIN, None)] + [(0.0, None)] * (nvar - 4 * n - 1)
+        bounds[ip + n - 1] = (end[0], end[0])
+        bounds[iv + n - 1] = (end[1], end[1])
+        bounds[ia + n - 1] = (end[2], end[2])
+        cost = np.zeros(nvar)
+        cost[isg] = 1.0
+        res = linprog(cost, A_ub=a_ub, b_ub=b_ub, A_eq=a_eq, b_eq=b_eq, bounds=bounds, method="highs")
+        if res.status != 0:
+            return None
+        jerk = res.x[ij : ij + n]
+        states = _integrate(start, jerk)
+        if path_ratios(coef, states, jerk, lim) <= SLP_ACCEPT:
+            return states, jerk
+        if it >= 1 and res.x[isg] > SLP_GIVE_UP:
+            return None
+        x_bar = states
+        radius *= 0.6
+    return None
+
+
 def _least(feasible: Callable[[int], bool], lo: int, hi: int, hi_holds: bool = False) -> int | None:
     """The least integer in [lo, hi] at which ``feasible`` (false below it, true from it on) holds, None: none;
     from ``lo`` upwards in doubling steps, then bisection (``hi_holds``: known to hold at ``hi``, bisection only)."""
@@ -154,32 +358,74 @@ def _least(feasible: Callable[[int], bool], lo: int, hi: int, hi_holds: bool = F
     return k
 
 
-def rejoin_plan(
+def _rejoin_along_path(
     planned: Trajectory,
-    running: Trajectory,
-    t0_s: float,
+    start: tuple[float, float, float],
+    t0: float,
+    lim: NDArray[np.float64],
+    grid_s: float,
+    phase_s: float,
+    in_time: Callable[[], bool] | None,
+) -> tuple[NDArray[np.float64], int, float]:
+    """``rejoin_plan`` on any path: the path speed s(t) from ``start`` (s, s', s'' at ``t0``) to the plan's (s_join,
+    1, 0) by ``_path_program``, the fewest grid steps of delay (joined ``MIN_TAIL_S`` before the plan's end), then the
+    soonest join with it; (the states at every step, the steps, the delay)."""
+    coef = PathCoefficients(planned)
+    s0 = start[0]
+    last = float(planned.gridpoints[-1]) - MIN_TAIL_S
+    found: dict[tuple[int, int], NDArray[np.float64]] = {}
+    warm: list[NDArray[np.float64]] = []
+
+    def steps_to(s_join: float, delay: float) -> int:
+        return math.floor((s_join + delay - t0) / STEP_S + 1e-9)
+
+    def joins(delay_steps: int, n: int) -> bool:
+        if (delay_steps, n) in found:
+            return True
+        delay = delay_steps * grid_s + phase_s
+        s_join = t0 + n * STEP_S - delay
+        if n < 2 or s_join <= s0 or s_join > last + 1e-9:
+            return False
+        end = (s_join, 1.0, 0.0)
+        first = _resampled(warm[-1], n) if warm else _guess(start, n, end)
+        first[0], first[-1] = start, end
+        out = _path_program(coef, start, n, end, lim, first, False, in_time)
+        if out is None:
+            return False
+        warm.append(out[0])
+        found[(delay_steps, n)] = out[0]
+        return True
+
+    lag = max(0, math.ceil((t0 - s0 - phase_s) / grid_s - 1e-9))
+    delay_steps = _least(lambda k: joins(k, steps_to(last, k * grid_s + phase_s)), lag, lag + MAX_DELAY_STEPS)
+    if delay_steps is None:
+        raise NoRejoinError("no re-timing of the rest of the path joins the planned timing within the limits")
+    delay = delay_steps * grid_s + phase_s
+    hi = steps_to(last, delay)
+    n = _least(lambda k: joins(delay_steps, k), steps_to(s0, delay) + 1, hi, hi_holds=True)
+    assert n is not None  # it holds at hi
+    return found[(delay_steps, n)], n, delay
+
+
+def _rejoin_on_line(
+    planned: Trajectory,
+    t0: float,
+    s0: float,
+    sd0: float,
+    sdd0: float,
+    ref: int,
+    c: NDArray[np.float64],
+    sign: float,
     limits: JointLimits,
-    max_jerk: NDArray[np.float64],
+    jmax_j: NDArray[np.float64],
     grid_s: float,
     share: float,
     jerk_share: float,
-    in_time: Callable[[], bool] | None = None,
-    phase_s: float = 0.0,
-) -> tuple[Trajectory, float, float]:
-    """The rest of ``running`` from ``t0_s`` re-timed to join ``planned`` delayed by the fewest whole grid steps (plus
-    ``phase_s``: a resume's rest, which need not be a grid time), as early as that delay allows, within ``share`` of
-    0x60C5, ``jerk_share`` of ``max_jerk`` (joint units/s^3) and 0x607F until it joins; (the whole motion, program
-    time; the plan's s where it joins; the delay, s). NoRejoinError where none joins it ``MIN_TAIL_S`` before its end,
-    or where ``in_time`` (asked before each linear program) says the change's records would come too late (on the
-    wall clock the drives run on meanwhile)."""
-    jmax_j = np.asarray(max_jerk, dtype=float)
-    t0 = float(np.clip(t0_s, 0.0, running.duration))
-    s0, sd0 = _s_at(running, t0), _sd_at(running, t0)
-    i = int(np.clip(np.searchsorted(running.breakpoints, t0, side="right") - 1, 0, len(running.sdd) - 1))
-    sdd0 = float(running.sdd[i])
-    if sd0 < REST_SD or t0 >= running.duration - 1e-9:  # at rest (a braking's end, to rounding): a resume's start
-        sd0, sdd0 = 0.0, 0.0
-    ref, c, sign = reference_of(planned, s0, jmax_j)
+    in_time: Callable[[], bool] | None,
+    phase_s: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float, float]:
+    """``rejoin_plan`` on a line in joint space: the linear program on the reference joint ``ref`` (``reference_of``);
+    (s, s', t at every step, the plan's s where it joins, the delay)."""
     end = planned.duration
 
     def state(s: float) -> tuple[float, float, float]:  # the reference joint on the plan at s (s' = 1)
@@ -227,6 +473,53 @@ def rejoin_plan(
     grid_new = np.concatenate(([s0], s_new, [s_join]))
     sd_new = np.concatenate(([sd0], out[1:n, 1] / np.maximum(u1, 1e-12), [1.0]))
     t_new = t0 + STEP_S * np.arange(n + 1)
+    return grid_new, sd_new, t_new, s_join, delay
+
+
+def rejoin_plan(
+    planned: Trajectory,
+    running: Trajectory,
+    t0_s: float,
+    limits: JointLimits,
+    max_jerk: NDArray[np.float64],
+    grid_s: float,
+    share: float,
+    jerk_share: float,
+    in_time: Callable[[], bool] | None = None,
+    phase_s: float = 0.0,
+) -> tuple[Trajectory, float, float]:
+    """The rest of ``running`` from ``t0_s`` re-timed to join ``planned`` delayed by the fewest whole grid steps (plus
+    ``phase_s``: a resume's rest, which need not be a grid time), as early as that delay allows, within ``share`` of
+    0x60C5, ``jerk_share`` of ``max_jerk`` (joint units/s^3) and 0x607F until it joins; (the whole motion, program
+    time; the plan's s where it joins; the delay, s). NoRejoinError where none joins it ``MIN_TAIL_S`` before its end,
+    or where ``in_time`` (asked before each linear program) says the change's records would come too late (on the
+    wall clock the drives run on meanwhile)."""
+    jmax_j = np.asarray(max_jerk, dtype=float)
+    t0 = float(np.clip(t0_s, 0.0, running.duration))
+    s0, sd0 = _s_at(running, t0), _sd_at(running, t0)
+    i = int(np.clip(np.searchsorted(running.breakpoints, t0, side="right") - 1, 0, len(running.sdd) - 1))
+    sdd0 = float(running.sdd[i])
+    if sd0 < REST_SD or t0 >= running.duration - 1e-9:  # at rest (a braking's end, to rounding): a resume's start
+        sd0, sdd0 = 0.0, 0.0
+    try:
+        ref, c, sign = reference_of(planned, s0, jmax_j)
+    except NoRejoinError as exc:
+        if "does not move" in str(exc):
+            raise
+        lim = np.vstack(
+            (
+                np.asarray(limits.velocity, dtype=float),
+                share * np.asarray(limits.acceleration, dtype=float),
+                jerk_share * jmax_j,
+            )
+        )
+        x, n, delay = _rejoin_along_path(planned, (s0, sd0, sdd0), t0, lim, grid_s, phase_s, in_time)
+        grid_new, sd_new, t_new = x[:, 0], x[:, 1], t0 + STEP_S * np.arange(n + 1)
+        s_join = float(grid_new[-1])
+    else:
+        grid_new, sd_new, t_new, s_join, delay = _rejoin_on_line(
+            planned, t0, s0, sd0, sdd0, ref, c, sign, limits, jmax_j, grid_s, share, jerk_share, in_time, phase_s
+        )
     keep = np.concatenate(([True], np.diff(grid_new) > 1e-12))
     keep[-1] = True
     grid_new, sd_new, t_new = grid_new[keep], sd_new[keep], t_new[keep]
