@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from functools import partial
 
 import numpy as np
 import scipy.sparse as sp
@@ -136,9 +137,13 @@ def _program(
 
 # --- any path: the path speed s(t), the joints' limits linearised around an iterate (sequential linear programs) ---
 WINDOW_S = 0.005  # half the drives' 10-ms jerk window: the path's derivatives are taken over it (planner.knots)
-SLP_ITERATIONS = 5  # linear programs per join tried, at most
-SLP_GIVE_UP = 0.25  # a least excess over the limits (of them) this large after the second program: no join
+SLP_ITERATIONS = 4  # linear programs per join tried, at most
+SLP_GIVE_UP = 0.05  # a least excess over the linearised limits (of them) this large from the second program: no join
+SLP_FAR = 1.15  # a true ratio to the limits this large from the second program: no join (it would not converge)
 SLP_ACCEPT = 1.02  # the true (not linearised) ratio to the limits asked of a solution at its steps
+COARSE_STEPS = 2  # a join is looked for on steps of this many STEP_S (each program a third the size), then checked
+JOIN_PARTS = 4  # the soonest join with the least delay, to this part of the steps it may be in
+FINE_TRIES = 3  # delays tried in turn where the coarse solution does not hold at every STEP_S
 SLP_MARGIN = 0.15  # the most room under the limits the programs look for (the linearisation errs by some)
 
 
@@ -165,7 +170,8 @@ def path_ratios(
     coef: PathCoefficients, x: NDArray[np.float64], jerk: NDArray[np.float64], lim: NDArray[np.float64]
 ) -> float:
     """The joints' largest |velocity|, |acceleration|, |jerk| (on both steps at every point) of ``lim`` (3, dof)
-    along s(t): ``x`` (n + 1, 3) the states (s, s', s'') at every step, ``jerk`` (n,) s''' on each."""
+    along s(t): ``x`` (n + 1, 3) the states (s, s', s'') at every step, ``jerk`` (n,) s''' on each; the jerk at
+    every step but the last (the join: the plan's jerk from there on, ``_path_program``)."""
     d1, d2, d3 = coef(x[:, 0])
     v, a = x[:, 1:2], x[:, 2:3]
     vel = np.abs(d1 * v) / lim[0]
@@ -173,13 +179,12 @@ def path_ratios(
     base = d3 * v**3 + 3.0 * d2 * v * a
     w_before = np.concatenate(([jerk[0]], jerk))[:, None]
     w_after = np.concatenate((jerk, [jerk[-1]]))[:, None]
-    jrk = np.maximum(np.abs(base + d1 * w_before), np.abs(base + d1 * w_after)) / lim[2]
+    jrk = np.maximum(np.abs(base + d1 * w_before), np.abs(base + d1 * w_after))[:-1] / lim[2]
     return float(max(vel.max(), acc.max(), jrk.max()))
 
 
-def _integrate(start: tuple[float, float, float], jerk: NDArray[np.float64]) -> NDArray[np.float64]:
-    """(s, s', s'') at every step from ``start`` with s''' = ``jerk`` on each."""
-    h = STEP_S
+def _integrate(start: tuple[float, float, float], jerk: NDArray[np.float64], h: float) -> NDArray[np.float64]:
+    """(s, s', s'') at every step (of ``h``) from ``start`` with s''' = ``jerk`` on each."""
     out = np.empty((len(jerk) + 1, 3))
     out[0] = start
     for k, w in enumerate(jerk):
@@ -188,14 +193,14 @@ def _integrate(start: tuple[float, float, float], jerk: NDArray[np.float64]) -> 
     return out
 
 
-def _guess(start: tuple[float, float, float], n: int, end: tuple[float, float, float]) -> NDArray[np.float64]:
+def _guess(start: tuple[float, float, float], n: int, end: tuple[float, float, float], h: float) -> NDArray[np.float64]:
     """(s, s', s'') at every step of the quintic in t from ``start`` to ``end`` over ``n`` steps: a first iterate."""
-    T = n * STEP_S
+    T = n * h
     a0, a1, a2 = start[0], start[1], start[2] / 2.0
     m = np.array([[T**3, T**4, T**5], [3 * T**2, 4 * T**3, 5 * T**4], [6 * T, 12 * T**2, 20 * T**3]])
     rhs = np.array([end[0] - (a0 + a1 * T + a2 * T * T), end[1] - (a1 + 2 * a2 * T), end[2] - 2 * a2])
     a3, a4, a5 = np.linalg.solve(m, rhs)
-    t = STEP_S * np.arange(n + 1)
+    t = h * np.arange(n + 1)
     s = a0 + t * (a1 + t * (a2 + t * (a3 + t * (a4 + t * a5))))
     v = a1 + t * (2 * a2 + t * (3 * a3 + t * (4 * a4 + t * 5 * a5)))
     a = 2 * a2 + t * (6 * a3 + t * (12 * a4 + t * 20 * a5))
@@ -209,9 +214,10 @@ def _resampled(prev: NDArray[np.float64], n: int) -> NDArray[np.float64]:
     return np.column_stack([np.interp(u, k, prev[:, i]) for i in range(3)])
 
 
-def _dynamics(start: tuple[float, float, float], n: int, nvar: int) -> tuple[sp.csr_matrix, NDArray[np.float64]]:
+def _dynamics(
+    start: tuple[float, float, float], n: int, nvar: int, h: float
+) -> tuple[sp.csr_matrix, NDArray[np.float64]]:
     """x_k+1 = F x_k + g j_k (k = 0..n-1), x_0 = ``start``: the variables p, v, a at steps 1..n, then j on 0..n-1."""
-    h = STEP_S
     ip, iv, ia, ij = 0, n, 2 * n, 3 * n
     f = ((1.0, h, h * h / 2.0), (0.0, 1.0, h), (0.0, 0.0, 1.0))
     g = (h**3 / 6.0, h * h / 2.0, h)
@@ -277,19 +283,18 @@ def _path_program(
     end: tuple[float, float, float],
     lim: NDArray[np.float64],
     iterate: NDArray[np.float64],
-    smooth: bool,
+    h: float,
     in_time: Callable[[], bool] | None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """s(t) over ``n`` steps from ``start`` to ``end`` (s, s', s'') with s''' constant on each step whose joints hold
     ``lim`` (3, dof: |velocity|, |acceleration|, |jerk|) at every step: linear programs with the joints' limits
     linearised around ``iterate`` (the coefficients at its s, the products of s' and s'' at its values, s' within a
     trust region of it) and one slack on all of them (the least), each from the last one's solution until the true
-    ratios hold; (the states at every step, the jerk on each), None: none found (``smooth``: then the least summed
-    jerk within the limits)."""
+    ratios hold; (the states at every step, the jerk on each), None: none found."""
     dof = lim.shape[1]
     ip, iv, ia, ij, isg = 0, n, 2 * n, 3 * n, 4 * n
-    nvar = 4 * n + 1 + (n if smooth else 0)
-    a_eq, b_eq = _dynamics(start, n, nvar)
+    nvar = 4 * n + 1
+    a_eq, b_eq = _dynamics(start, n, nvar, h)
     x_bar = iterate
     radius = 0.3
     k = np.arange(1, n)  # the points whose states are variables; the ends' are fixed
@@ -312,9 +317,9 @@ def _path_program(
             jc = -2.0 * c3 * vb[k] ** 3 - 3.0 * c2 * vb[k] * ab[k]
             for w in (ij + k - 1, ij + k):
                 rows.add([(iv + k - 1, jv), (ia + k - 1, ja), (w, c1)], jc, jl)
-            for e, w in ((0, ij), (n, ij + n - 1)):  # the ends' own states: their step's jerk only
-                const = d3[e, j] * vb[e] ** 3 + 3.0 * d2[e, j] * vb[e] * ab[e]
-                rows.add([(np.array([w]), np.array([d1[e, j]]))], np.array([const]), jl)
+            # the start's own state: its step's jerk (the join's is the plan's from there: its jerk jumps to the plan's)
+            const = d3[0, j] * vb[0] ** 3 + 3.0 * d2[0, j] * vb[0] * ab[0]
+            rows.add([(np.array([ij]), np.array([d1[0, j]]))], np.array([const]), jl)
         a_ub, b_ub = rows.matrix(nvar)
         bounds: list[tuple[float | None, float | None]] = [(None, None)] * n
         bounds += [(max(0.0, float(v) - radius), float(v) + radius) for v in vb[1 : n + 1]]
@@ -328,20 +333,25 @@ def _path_program(
         if res.status != 0:
             return None
         jerk = res.x[ij : ij + n]
-        states = _integrate(start, jerk)
-        if path_ratios(coef, states, jerk, lim) <= SLP_ACCEPT:
+        states = _integrate(start, jerk, h)
+        ratio = path_ratios(coef, states, jerk, lim)
+        if ratio <= SLP_ACCEPT:
             return states, jerk
-        if it >= 1 and res.x[isg] > SLP_GIVE_UP:
+        if it >= 1 and (res.x[isg] > SLP_GIVE_UP or ratio > SLP_FAR):
             return None
         x_bar = states
         radius *= 0.6
     return None
 
 
-def _least(feasible: Callable[[int], bool], lo: int, hi: int, hi_holds: bool = False) -> int | None:
+def _least(
+    feasible: Callable[[int], bool], lo: int, hi: int, hi_holds: bool = False, resolution: int = 1, first_step: int = 1
+) -> int | None:
     """The least integer in [lo, hi] at which ``feasible`` (false below it, true from it on) holds, None: none;
-    from ``lo`` upwards in doubling steps, then bisection (``hi_holds``: known to hold at ``hi``, bisection only)."""
-    step, below = 1, lo - 1
+    from ``lo`` upwards in doubling steps, then bisection (``hi_holds``: known to hold at ``hi``, bisection only) to
+    ``resolution`` (the integer returned holds; up to ``resolution`` - 1 below it may too); ``first_step``: the
+    first of the doubling steps."""
+    step, below = first_step, lo - 1
     k = hi if hi_holds else lo
     while not feasible(k):
         below = k
@@ -349,7 +359,7 @@ def _least(feasible: Callable[[int], bool], lo: int, hi: int, hi_holds: bool = F
             return None
         k = min(hi, k + step)
         step *= 2
-    while k - below > 1:
+    while k - below > resolution:
         mid = (below + k) // 2
         if feasible(mid):
             k = mid
@@ -368,43 +378,66 @@ def _rejoin_along_path(
     in_time: Callable[[], bool] | None,
 ) -> tuple[NDArray[np.float64], int, float]:
     """``rejoin_plan`` on any path: the path speed s(t) from ``start`` (s, s', s'' at ``t0``) to the plan's (s_join,
-    1, 0) by ``_path_program``, the fewest grid steps of delay (joined ``MIN_TAIL_S`` before the plan's end), then the
-    soonest join with it; (the states at every step, the steps, the delay)."""
+    1, 0) by ``_path_program`` on steps of ``COARSE_STEPS`` x ``STEP_S``: the fewest grid steps of delay (joined
+    ``MIN_TAIL_S`` before the plan's end), then the soonest join with it (to a ``JOIN_PARTS``-th of its range); the
+    solution checked at every ``STEP_S`` (its jerk constant on each, ``path_ratios``), re-solved on them where it does
+    not hold, one grid step later where that fails too; (the states at every ``STEP_S``, their steps, the delay)."""
     coef = PathCoefficients(planned)
     s0 = start[0]
     last = float(planned.gridpoints[-1]) - MIN_TAIL_S
+    big = COARSE_STEPS * STEP_S
     found: dict[tuple[int, int], NDArray[np.float64]] = {}
     warm: list[NDArray[np.float64]] = []
 
     def steps_to(s_join: float, delay: float) -> int:
-        return math.floor((s_join + delay - t0) / STEP_S + 1e-9)
+        return math.floor((s_join + delay - t0) / big + 1e-9)
 
     def joins(delay_steps: int, n: int) -> bool:
         if (delay_steps, n) in found:
             return True
         delay = delay_steps * grid_s + phase_s
-        s_join = t0 + n * STEP_S - delay
+        s_join = t0 + n * big - delay
         if n < 2 or s_join <= s0 or s_join > last + 1e-9:
             return False
         end = (s_join, 1.0, 0.0)
-        first = _resampled(warm[-1], n) if warm else _guess(start, n, end)
+        first = _resampled(warm[-1], n) if warm else _guess(start, n, end, big)
         first[0], first[-1] = start, end
-        out = _path_program(coef, start, n, end, lim, first, False, in_time)
+        out = _path_program(coef, start, n, end, lim, first, big, in_time)
         if out is None:
             return False
         warm.append(out[0])
-        found[(delay_steps, n)] = out[0]
+        found[(delay_steps, n)] = out[1]
         return True
 
-    lag = max(0, math.ceil((t0 - s0 - phase_s) / grid_s - 1e-9))
-    delay_steps = _least(lambda k: joins(k, steps_to(last, k * grid_s + phase_s)), lag, lag + MAX_DELAY_STEPS)
-    if delay_steps is None:
-        raise NoRejoinError("no re-timing of the rest of the path joins the planned timing within the limits")
-    delay = delay_steps * grid_s + phase_s
-    hi = steps_to(last, delay)
-    n = _least(lambda k: joins(delay_steps, k), steps_to(s0, delay) + 1, hi, hi_holds=True)
-    assert n is not None  # it holds at hi
-    return found[(delay_steps, n)], n, delay
+    def fine(delay_steps: int, n: int) -> NDArray[np.float64] | None:
+        jerk = np.repeat(found[(delay_steps, n)], COARSE_STEPS)
+        states = _integrate(start, jerk, STEP_S)
+        if path_ratios(coef, states, jerk, lim) <= SLP_ACCEPT:
+            return states
+        out = _path_program(coef, start, len(jerk), tuple(states[-1]), lim, states, STEP_S, in_time)
+        return None if out is None else out[0]
+
+    lag = max(0, math.ceil((t0 - s0 - phase_s) / grid_s - 1e-9))  # delayed by at least the lag it has now
+    least = lag
+    for _ in range(FINE_TRIES):
+        delay_steps = _least(
+            lambda k: joins(k, steps_to(last, k * grid_s + phase_s)), least, lag + MAX_DELAY_STEPS, first_step=4
+        )
+        if delay_steps is None:
+            break
+        delay = delay_steps * grid_s + phase_s
+        hi = steps_to(last, delay)
+        lo = steps_to(s0, delay) + 1
+        n = _least(partial(joins, delay_steps), lo, hi, hi_holds=True, resolution=max(1, (hi - lo) // JOIN_PARTS))
+        assert n is not None  # it holds at hi
+        x = fine(delay_steps, n)
+        if x is None and n < hi:
+            x = fine(delay_steps, hi)
+            n = hi
+        if x is not None:
+            return x, n * COARSE_STEPS, delay
+        least = delay_steps + 1
+    raise NoRejoinError("no re-timing of the rest of the path joins the planned timing within the limits")
 
 
 def _rejoin_on_line(
