@@ -144,6 +144,8 @@ SLP_ACCEPT = 1.02  # the true (not linearised) ratio to the limits asked of a so
 COARSE_STEPS = 2  # a join is looked for on steps of this many STEP_S (each program a third the size), then checked
 JOIN_PARTS = 4  # the soonest join with the least delay, to this part of the steps it may be in
 FINE_TRIES = 3  # delays tried in turn where the coarse solution does not hold at every STEP_S
+MOST_DELAY_S = 0.5  # the most delay looked at on any path, past the lag: this, or the rest's plan time ...
+MOST_DELAY_REST = 3.0  # ... times this where longer
 SLP_MARGIN = 0.15  # the most room under the limits the programs look for (the linearisation errs by some)
 
 
@@ -418,11 +420,11 @@ def _rejoin_along_path(
         return None if out is None else out[0]
 
     lag = max(0, math.ceil((t0 - s0 - phase_s) / grid_s - 1e-9))  # delayed by at least the lag it has now
+    # the most delay looked at: a join later than braking to rest and starting again would take is no join worth it
+    most = min(MAX_DELAY_STEPS, math.ceil(max(MOST_DELAY_S, MOST_DELAY_REST * (last - s0)) / grid_s))
     least = lag
     for _ in range(FINE_TRIES):
-        delay_steps = _least(
-            lambda k: joins(k, steps_to(last, k * grid_s + phase_s)), least, lag + MAX_DELAY_STEPS, first_step=4
-        )
+        delay_steps = _least(lambda k: joins(k, steps_to(last, k * grid_s + phase_s)), least, lag + most, first_step=4)
         if delay_steps is None:
             break
         delay = delay_steps * grid_s + phase_s
