@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from functools import partial
 
 import numpy as np
 import scipy.sparse as sp
@@ -139,10 +138,11 @@ def _program(
 WINDOW_S = 0.005  # half the drives' 10-ms jerk window: the path's derivatives are taken over it (planner.knots)
 SLP_ITERATIONS = 4  # linear programs per join tried, at most
 SLP_GIVE_UP = 0.05  # a least excess over the linearised limits (of them) this large from the second program: no join
+SLP_NEAR_GIVE_UP = 0.2  # a least excess this large in the first program from a neighbouring join's solution: no join
 SLP_FAR = 1.15  # a true ratio to the limits this large from the second program: no join (it would not converge)
 SLP_ACCEPT = 1.02  # the true (not linearised) ratio to the limits asked of a solution at its steps
 COARSE_STEPS = 2  # a join is looked for on steps of this many STEP_S (each program a third the size), then checked
-JOIN_PARTS = 4  # the soonest join with the least delay, to this part of the steps it may be in
+GUESS_SHARE = 1.3  # the first delay tried past the lag: this many times the S-curve's (``_ramp_lag_s``)
 FINE_TRIES = 3  # delays tried in turn where the coarse solution does not hold at every STEP_S
 MOST_DELAY_S = 0.5  # the most delay looked at on any path, past the lag: this, or the rest's plan time ...
 MOST_DELAY_REST = 3.0  # ... times this where longer
@@ -287,12 +287,14 @@ def _path_program(
     iterate: NDArray[np.float64],
     h: float,
     in_time: Callable[[], bool] | None,
+    near: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """s(t) over ``n`` steps from ``start`` to ``end`` (s, s', s'') with s''' constant on each step whose joints hold
     ``lim`` (3, dof: |velocity|, |acceleration|, |jerk|) at every step: linear programs with the joints' limits
     linearised around ``iterate`` (the coefficients at its s, the products of s' and s'' at its values, s' within a
     trust region of it) and one slack on all of them (the least), each from the last one's solution until the true
-    ratios hold; (the states at every step, the jerk on each), None: none found."""
+    ratios hold; (the states at every step, the jerk on each), None: none found (``near``: ``iterate`` is the solution
+    of a neighbouring join, so that the first program's slack already tells: more than ``SLP_NEAR_GIVE_UP``, none)."""
     dof = lim.shape[1]
     ip, iv, ia, ij, isg = 0, n, 2 * n, 3 * n, 4 * n
     nvar = 4 * n + 1
@@ -309,7 +311,9 @@ def _path_program(
         for j in range(dof):
             vl, al, jl = (float(x) for x in lim[:, j])
             c1, c2, c3 = d1[k, j], d2[k, j], d3[k, j]
-            rows.add([(iv + k - 1, c1)], np.zeros(len(k)), vl)
+            fast = np.abs(c1) * (vb[k] + radius) > vl  # elsewhere the trust region holds 0x607F
+            if fast.any():
+                rows.add([(iv + k[fast] - 1, c1[fast])], np.zeros(int(fast.sum())), vl)
             rows.add([(iv + k - 1, 2.0 * c2 * vb[k]), (ia + k - 1, c1)], -c2 * vb[k] ** 2, al)
             if not np.isfinite(jl):
                 continue
@@ -339,21 +343,17 @@ def _path_program(
         ratio = path_ratios(coef, states, jerk, lim)
         if ratio <= SLP_ACCEPT:
             return states, jerk
-        if it >= 1 and (res.x[isg] > SLP_GIVE_UP or ratio > SLP_FAR):
+        if (it >= 1 or (near and res.x[isg] > SLP_NEAR_GIVE_UP)) and (res.x[isg] > SLP_GIVE_UP or ratio > SLP_FAR):
             return None
         x_bar = states
         radius *= 0.6
     return None
 
 
-def _least(
-    feasible: Callable[[int], bool], lo: int, hi: int, hi_holds: bool = False, resolution: int = 1, first_step: int = 1
-) -> int | None:
+def _least(feasible: Callable[[int], bool], lo: int, hi: int, hi_holds: bool = False) -> int | None:
     """The least integer in [lo, hi] at which ``feasible`` (false below it, true from it on) holds, None: none;
-    from ``lo`` upwards in doubling steps, then bisection (``hi_holds``: known to hold at ``hi``, bisection only) to
-    ``resolution`` (the integer returned holds; up to ``resolution`` - 1 below it may too); ``first_step``: the
-    first of the doubling steps."""
-    step, below = first_step, lo - 1
+    from ``lo`` upwards in doubling steps, then bisection (``hi_holds``: known to hold at ``hi``, bisection only)."""
+    step, below = 1, lo - 1
     k = hi if hi_holds else lo
     while not feasible(k):
         below = k
@@ -361,13 +361,67 @@ def _least(
             return None
         k = min(hi, k + step)
         step *= 2
-    while k - below > resolution:
+    while k - below > 1:
         mid = (below + k) // 2
         if feasible(mid):
             k = mid
         else:
             below = mid
     return k
+
+
+def _least_from(feasible: Callable[[int], bool], guess: int, lo: int, hi: int) -> int | None:
+    """``_least`` from a ``guess``: downwards from it in doubling steps where it holds, upwards where not, then
+    bisection (a good guess: a few tries)."""
+    k = min(max(guess, lo), hi)
+    step = 1
+    if feasible(k):
+        top = k
+        while top > lo:
+            k = max(lo, top - step)
+            if not feasible(k):
+                break
+            top, step = k, step * 2
+        else:
+            return top
+        below = k
+    else:
+        below = k
+        while True:
+            if below >= hi:
+                return None
+            k = min(hi, below + step)
+            if feasible(k):
+                break
+            below, step = k, step * 2
+        top = k
+    while top - below > 1:
+        mid = (below + top) // 2
+        if feasible(mid):
+            top = mid
+        else:
+            below = mid
+    return top
+
+
+def _ramp_lag_s(coef: PathCoefficients, start: tuple[float, float, float], lim: NDArray[np.float64]) -> float:
+    """The lag an S-curve in path speed from ``start`` up to s' = 1 adds, with the path's acceleration and jerk
+    bounds where it starts (the joints' limits over |q'|, the path's bend not counted): where ``_rejoin_along_path``
+    begins to look for the delay (gantry3: 13 of the 20 grid steps it needs, arm6 4.5 of 5)."""
+    d1 = np.abs(coef(np.array([start[0]]))[0][0])
+    moving = d1 > 1e-9 * max(float(d1.max()), 1e-30)
+    if not moving.any():
+        return 0.0
+    amax = float(np.min(lim[1][moving] / d1[moving]))
+    jmax = float(np.min(lim[2][moving] / d1[moving]))
+    h, v, a, lost = 1e-3, start[1], start[2], 0.0
+    for _ in range(2000):
+        if v >= 1.0:
+            break
+        a = min(amax, a + jmax * h) if 1.0 - v > a * a / (2.0 * jmax) else max(0.0, a - jmax * h)
+        v += max(a, 1e-3) * h
+        lost += (1.0 - min(v, 1.0)) * h
+    return lost
 
 
 def _rejoin_along_path(
@@ -380,10 +434,11 @@ def _rejoin_along_path(
     in_time: Callable[[], bool] | None,
 ) -> tuple[NDArray[np.float64], int, float]:
     """``rejoin_plan`` on any path: the path speed s(t) from ``start`` (s, s', s'' at ``t0``) to the plan's (s_join,
-    1, 0) by ``_path_program`` on steps of ``COARSE_STEPS`` x ``STEP_S``: the fewest grid steps of delay (joined
-    ``MIN_TAIL_S`` before the plan's end), then the soonest join with it (to a ``JOIN_PARTS``-th of its range); the
-    solution checked at every ``STEP_S`` (its jerk constant on each, ``path_ratios``), re-solved on them where it does
-    not hold, one grid step later where that fails too; (the states at every ``STEP_S``, their steps, the delay)."""
+    1, 0) by ``_path_program`` on steps of ``COARSE_STEPS`` x ``STEP_S``: the fewest grid steps of delay, joined
+    ``MIN_TAIL_S`` before the plan's end (not sooner: each try is a few linear programs, made while the drives' lock is
+    held, and the motion's end is the same), looked for from ``_ramp_lag_s``; the solution checked at every ``STEP_S``
+    (its jerk constant on each, ``path_ratios``), re-solved on them where it does not hold, one grid step later where
+    that fails too; (the states at every ``STEP_S``, their steps, the delay)."""
     coef = PathCoefficients(planned)
     s0 = start[0]
     last = float(planned.gridpoints[-1]) - MIN_TAIL_S
@@ -404,7 +459,7 @@ def _rejoin_along_path(
         end = (s_join, 1.0, 0.0)
         first = _resampled(warm[-1], n) if warm else _guess(start, n, end, big)
         first[0], first[-1] = start, end
-        out = _path_program(coef, start, n, end, lim, first, big, in_time)
+        out = _path_program(coef, start, n, end, lim, first, big, in_time, near=bool(warm))
         if out is None:
             return False
         warm.append(out[0])
@@ -422,20 +477,17 @@ def _rejoin_along_path(
     lag = max(0, math.ceil((t0 - s0 - phase_s) / grid_s - 1e-9))  # delayed by at least the lag it has now
     # the most delay looked at: a join later than braking to rest and starting again would take is no join worth it
     most = min(MAX_DELAY_STEPS, math.ceil(max(MOST_DELAY_S, MOST_DELAY_REST * (last - s0)) / grid_s))
+    guess = lag + round(GUESS_SHARE * _ramp_lag_s(coef, start, lim) / grid_s)
     least = lag
     for _ in range(FINE_TRIES):
-        delay_steps = _least(lambda k: joins(k, steps_to(last, k * grid_s + phase_s)), least, lag + most, first_step=4)
+        delay_steps = _least_from(
+            lambda k: joins(k, steps_to(last, k * grid_s + phase_s)), max(guess, least), least, lag + most
+        )
         if delay_steps is None:
             break
         delay = delay_steps * grid_s + phase_s
-        hi = steps_to(last, delay)
-        lo = steps_to(s0, delay) + 1
-        n = _least(partial(joins, delay_steps), lo, hi, hi_holds=True, resolution=max(1, (hi - lo) // JOIN_PARTS))
-        assert n is not None  # it holds at hi
+        n = steps_to(last, delay)
         x = fine(delay_steps, n)
-        if x is None and n < hi:
-            x = fine(delay_steps, hi)
-            n = hi
         if x is not None:
             return x, n * COARSE_STEPS, delay
         least = delay_steps + 1
