@@ -142,6 +142,7 @@ SLP_NEAR_GIVE_UP = 0.2  # a least excess this large in the first program from a 
 SLP_FAR = 1.15  # a true ratio to the limits this large from the second program: no join (it would not converge)
 SLP_ACCEPT = 1.02  # the true (not linearised) ratio to the limits asked of a solution at its steps
 COARSE_STEPS = 2  # a join is looked for on steps of this many STEP_S (each program a third the size), then checked
+JOIN_BACK_S = 0.032  # the sooner join tried with the least delay: the plan's own last segment or two (30-60 ms on gantry3)
 GUESS_SHARE = 1.3  # the first delay tried past the lag: this many times the S-curve's (``_ramp_lag_s``)
 FINE_TRIES = 3  # delays tried in turn where the coarse solution does not hold at every STEP_S
 MOST_DELAY_S = 0.5  # the most delay looked at on any path, past the lag: this, or the rest's plan time ...
@@ -435,8 +436,9 @@ def _rejoin_along_path(
 ) -> tuple[NDArray[np.float64], int, float]:
     """``rejoin_plan`` on any path: the path speed s(t) from ``start`` (s, s', s'' at ``t0``) to the plan's (s_join,
     1, 0) by ``_path_program`` on steps of ``COARSE_STEPS`` x ``STEP_S``: the fewest grid steps of delay, joined
-    ``MIN_TAIL_S`` before the plan's end (not sooner: each try is a few linear programs, made while the drives' lock is
-    held, and the motion's end is the same), looked for from ``_ramp_lag_s``; the solution checked at every ``STEP_S``
+    ``MIN_TAIL_S`` before the plan's end, looked for from ``_ramp_lag_s``, then joined ``JOIN_BACK_S`` sooner where
+    that holds with the same delay (one try, not the soonest: each is a few linear programs, made while the drives'
+    lock is held, and the motion's end is the same); the solution checked at every ``STEP_S``
     (its jerk constant on each, ``path_ratios``), re-solved on them where it does not hold, one grid step later where
     that fails too; (the states at every ``STEP_S``, their steps, the delay)."""
     coef = PathCoefficients(planned)
@@ -487,6 +489,9 @@ def _rejoin_along_path(
             break
         delay = delay_steps * grid_s + phase_s
         n = steps_to(last, delay)
+        back = n - round(JOIN_BACK_S / big)  # the plan's own records for its last segments: one try
+        if joins(delay_steps, back) and (x := fine(delay_steps, back)) is not None:
+            return x, back * COARSE_STEPS, delay
         x = fine(delay_steps, n)
         if x is not None:
             return x, n * COARSE_STEPS, delay

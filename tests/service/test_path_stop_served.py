@@ -463,9 +463,6 @@ def test_override_and_resume_of_a_jerk_limited_motion_hold_the_jerk_limit(tmp_pa
         # the path speed re-timed to join the plan (the joints' limits along the curve), not a share of its speed
         lo, hi = np.asarray(limits.lower), np.asarray(limits.upper)
         bent = [list(lo + np.asarray(f) * (hi - lo)) for f in ((0.5, 0.8, 0.3), (0.85, 0.3, 0.8))]
-        import time
-
-        T0 = time.perf_counter()
         for fraction, change in ((0.5, "override"), (0.6, "pause")):
             before = go(fraction, waypoints=bent)  # from where the last motion ended
             if change == "override":
@@ -488,7 +485,6 @@ def test_override_and_resume_of_a_jerk_limited_motion_hold_the_jerk_limit(tmp_pa
             assert window_jerk_ratio(after, max_jerk, since) <= 1.2, change
             assert_on_path(before, after, since)
             no_faults(svc)
-        print("DBGT", time.perf_counter() - T0)
 
         # paused early (the ramp joins the planned records) and late (at rest near the plan's deceleration: from
         # rest to the end as a plan, within the jerk limit; before, the acceleration-limited ramp at 8.7 x it)
