@@ -16,8 +16,17 @@ jerk limit), so the joints' limits are bounds on u's derivatives (the share of 0
 delayed plan's state where it joins: the fewest grid steps of delay for which it joins at all (by bisection, joining
 ``MIN_TAIL_S`` before the plan's end: any later join holds with the same delay), then the soonest join with that
 delay (bisection), the least summed jerk. The path positions are s(t) = u^-1(u(t)) until the join, the plan's after,
-so the tool stays on the path. Other paths: NoRejoinError (the caller's fallback: the highest scale whose S-curve
-holds). Pure: numbers in, numbers out.
+so the tool stays on the path.
+
+Any other path (several waypoints, a tool line through IK, a sequence's blends): the path speed s(t) itself, jerk
+constant on each step, from the running (s, s', s'') to the delayed plan's (s_join, 1, 0). The joints' limits are not
+linear in it there (the jerk's q''' s'^3 + 3 q'' s' s''), so each linear program has them linearised around the last
+solution (sequential linear programs, a trust region on s', the most room under the limits asked so that the
+linearisation's error stays inside them) and is repeated until the true ratios hold; the path's q'' and q''' are
+taken over the drives' 10-ms jerk window, as they judge them (the records' cubics make q''' a sum of pulses). The
+delay is looked for on 8-ms steps from the lag an S-curve in s' would add, the solution checked on 4-ms steps. The
+caller judges the records (0x607F, 0x60C5, the window jerk within 1.2 x) as for any change. Pure: numbers in,
+numbers out.
 """
 
 from __future__ import annotations
@@ -41,7 +50,11 @@ MIN_TAIL_S = 0.02  # the latest join, before the plan's end: planned records lef
 
 
 class NoRejoinError(ValueError):
-    """No re-timing of the rest of the path joins the planned timing within the limits (or the path is no line)."""
+    """No re-timing of the rest of the path joins the planned timing within the limits."""
+
+
+class NotALineError(NoRejoinError):
+    """The rest of the path is not one line in joint space, along which one joint moves one way (``reference_of``)."""
 
 
 def reference_of(
@@ -58,10 +71,10 @@ def reference_of(
     c = travel / travel[r]
     off = q - q[0] - np.outer(q[:, r] - q[0, r], c)
     if np.any(np.abs(off) > LINE_TOLERANCE * np.maximum(np.abs(travel), 1e-9)):
-        raise NoRejoinError("the rest of the path is not one line in joint space")
+        raise NotALineError("the rest of the path is not one line in joint space")
     sign = 1.0 if travel[r] > 0 else -1.0
     if np.any(np.diff(sign * q[:, r]) < -LINE_TOLERANCE * abs(travel[r])):
-        raise NoRejoinError("the reference joint does not move one way along the rest of the path")
+        raise NotALineError("the reference joint does not move one way along the rest of the path")
     return r, c, sign
 
 
@@ -142,7 +155,9 @@ SLP_NEAR_GIVE_UP = 0.2  # a least excess this large in the first program from a 
 SLP_FAR = 1.15  # a true ratio to the limits this large from the second program: no join (it would not converge)
 SLP_ACCEPT = 1.02  # the true (not linearised) ratio to the limits asked of a solution at its steps
 COARSE_STEPS = 2  # a join is looked for on steps of this many STEP_S (each program a third the size), then checked
-JOIN_BACK_S = 0.032  # the sooner join tried with the least delay: the plan's own last segment or two (30-60 ms on gantry3)
+JOIN_BACK_S = (
+    0.032  # the sooner join tried with the least delay: the plan's own last segment or two (30-60 ms on gantry3)
+)
 GUESS_SHARE = 1.3  # the first delay tried past the lag: this many times the S-curve's (``_ramp_lag_s``)
 FINE_TRIES = 3  # delays tried in turn where the coarse solution does not hold at every STEP_S
 MOST_DELAY_S = 0.5  # the most delay looked at on any path, past the lag: this, or the rest's plan time ...
@@ -595,9 +610,7 @@ def rejoin_plan(
         sd0, sdd0 = 0.0, 0.0
     try:
         ref, c, sign = reference_of(planned, s0, jmax_j)
-    except NoRejoinError as exc:
-        if "does not move" in str(exc):
-            raise
+    except NotALineError:  # any other path: its path speed
         lim = np.vstack(
             (
                 np.asarray(limits.velocity, dtype=float),
