@@ -51,6 +51,7 @@ from pvtflow.axes.master.group import axis_group  # noqa: E402
 from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk_profile  # noqa: E402
 from pvtflow.service.api import (  # noqa: E402
     ApiError,
+    ErrorCode,
     parse_execute,
     parse_home,
     parse_override,
@@ -408,7 +409,9 @@ def bent_changes(name: str, fractions: tuple[float, ...]) -> None:
             for wps, wait in (([at(svc.cell, 0.15)], True), (bent, False)):
                 req = {"waypoints": wps, "start": "current", "max_jerk": max_jerk, "budget_ms": 10000}
                 plan = svc.plan(parse_plan(req, svc.cell.joint_names, limits))
-                svc.execute(parse_execute({"plan_id": plan["plan_id"], "wait": wait}))
+                out = svc.execute(parse_execute({"plan_id": plan["plan_id"], "wait": wait}))
+                if wait and out["outcome"]["result"] != "finished":
+                    raise ApiError(ErrorCode.NOT_ALLOWED, f"the move to 15 % ended {out['outcome']['result']}")
             before = PvtProgram(svc.cell.name, svc.group.programs)
             wait_ms(svc, fraction * before.duration_ms)
             return before

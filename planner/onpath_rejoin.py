@@ -61,7 +61,7 @@ def reference_of(
     planned: Trajectory, s0: float, max_jerk: NDArray[np.float64]
 ) -> tuple[int, NDArray[np.float64], float]:
     """(the reference joint: the largest travel against its jerk limit, every joint's travel per unit of its own, the
-    sign of its travel). NoRejoinError where the rest of the path is not one line in joint space."""
+    sign of its travel). NotALineError where the rest of the path is not one line in joint space."""
     t = np.linspace(s0, planned.duration, 400)
     q = planned.position(t)
     travel = q[-1] - q[0]
