@@ -420,17 +420,11 @@ def _least_from(feasible: Callable[[int], bool], guess: int, lo: int, hi: int) -
     return top
 
 
-def _ramp_lag_s(coef: PathCoefficients, start: tuple[float, float, float], lim: NDArray[np.float64]) -> float:
-    """The lag an S-curve in path speed from ``start`` up to s' = 1 adds, with the path's acceleration and jerk
-    bounds where it starts (the joints' limits over |q'|, the path's bend not counted): where ``_rejoin_along_path``
-    begins to look for the delay (gantry3: 13 of the 20 grid steps it needs, arm6 4.5 of 5)."""
-    d1 = np.abs(coef(np.array([start[0]]))[0][0])
-    moving = d1 > 1e-9 * max(float(d1.max()), 1e-30)
-    if not moving.any():
-        return 0.0
-    amax = float(np.min(lim[1][moving] / d1[moving]))
-    jmax = float(np.min(lim[2][moving] / d1[moving]))
-    h, v, a, lost = 1e-3, start[1], start[2], 0.0
+def _ramp_lag_s(v0: float, a0: float, amax: float, jmax: float) -> float:
+    """The lag an S-curve in path speed adds from s' = ``v0`` (s'' = ``a0``) up to s' = 1 within |s''| <= ``amax``
+    and |s'''| <= ``jmax`` (the joints' limits over |q'| where it starts, the path's bend not counted): where the
+    delay is first looked for (gantry3's bent path: 13 of the 20 grid steps it needs, arm6's 4.5 of 5)."""
+    h, v, a, lost = 1e-3, v0, a0, 0.0
     for _ in range(2000):
         if v >= 1.0:
             break
@@ -494,7 +488,10 @@ def _rejoin_along_path(
     lag = max(0, math.ceil((t0 - s0 - phase_s) / grid_s - 1e-9))  # delayed by at least the lag it has now
     # the most delay looked at: a join later than braking to rest and starting again would take is no join worth it
     most = min(MAX_DELAY_STEPS, math.ceil(max(MOST_DELAY_S, MOST_DELAY_REST * (last - s0)) / grid_s))
-    guess = lag + round(GUESS_SHARE * _ramp_lag_s(coef, start, lim) / grid_s)
+    d1 = np.abs(coef(np.array([s0]))[0][0])
+    moving = d1 > 1e-9 * max(float(d1.max()), 1e-30)
+    amax, jmax = (float(np.min(lim[i][moving] / d1[moving])) for i in (1, 2))
+    guess = lag + round(GUESS_SHARE * _ramp_lag_s(start[1], start[2], amax, jmax) / grid_s)
     least = lag
     for _ in range(FINE_TRIES):
         delay_steps = _least_from(
@@ -560,8 +557,13 @@ def _rejoin_on_line(
         return _program(start, n, state(s_join), vmax, amax, jmax, smooth)
 
     lag = max(0, math.ceil((t0 - s0 - phase_s) / grid_s - 1e-9))  # delayed by at least the lag it has now
-    delay_steps = _least(
-        lambda k: joins(k, steps_to(last, k * grid_s + phase_s)) is not None, lag, lag + MAX_DELAY_STEPS
+    u1 = max(q1, 1e-12)  # u' on the plan where it starts: the S-curve's path speed in its units
+    ramp = _ramp_lag_s(start[1] / u1, start[2] / u1, amax / u1, jmax / u1)
+    delay_steps = _least_from(
+        lambda k: joins(k, steps_to(last, k * grid_s + phase_s)) is not None,
+        lag + round(GUESS_SHARE * ramp / grid_s),
+        lag,
+        lag + MAX_DELAY_STEPS,
     )
     if delay_steps is None:
         raise NoRejoinError("no re-timing of the rest of the path joins the planned timing within the limits")
