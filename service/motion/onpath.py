@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,6 +32,7 @@ from pvtflow.planner.onpath_program import (
     REJOIN_JERK_SHARES,
     WINDOW_JERK_RATIO,
     ChangeError,
+    NoJoinError,
     NoRampError,
     back_to_plan_on_grid,
     brake_on_grid,
@@ -58,6 +59,7 @@ from pvtflow.service.motion.drives import CellDrives
 from pvtflow.service.motion.runs import Motion
 
 log = logging.getLogger("pvtflow.motion")
+_T = TypeVar("_T")
 
 
 class _RunsToItsEnd(Exception):  # noqa: N818 (not an error: the motion's own end is its stop)
@@ -292,18 +294,32 @@ class PathChanges:
         delayed by the fewest grid steps (``onpath_program.rejoin_on_grid``, ``REJOIN_JERK_SHARES`` in turn), then
         its own records; ChangeError where none holds the window jerk."""
         assert path.original is not None
+
+        def attempt(jerk_share: float) -> PvtProgram:
+            back = rejoin_on_grid(
+                path.planned, path.running, rest, self.limits, jerk, grid_ms, jerk_share, phase_s=phase
+            )
+            program = resumed_program(path.program, back, path.original, rest * 1000.0, self.limits, grid_ms, jerk)
+            self._hold_jerk(program, jerk, 0.0)
+            return program
+
+        return self._rejoin_shares(attempt)
+
+    @staticmethod
+    def _rejoin_shares(attempt: Callable[[float], _T]) -> _T:
+        """``attempt`` at each of ``REJOIN_JERK_SHARES`` in turn until one holds; none lower than one where no
+        re-timing joins the plan (``NoJoinError``); the last failure where none holds."""
         failed: Exception = ChangeError("no jerk share tried")
+        floor = 0.0
         for jerk_share in REJOIN_JERK_SHARES:
+            if jerk_share <= floor:
+                continue
             try:
-                back = rejoin_on_grid(
-                    path.planned, path.running, rest, self.limits, jerk, grid_ms, jerk_share, phase_s=phase
-                )
-                program = resumed_program(path.program, back, path.original, rest * 1000.0, self.limits, grid_ms, jerk)
-                self._hold_jerk(program, jerk, 0.0)
+                return attempt(jerk_share)
+            except NoJoinError as exc:
+                failed, floor = exc, jerk_share
             except _CHANGE_ERRORS as exc:
                 failed = exc
-                continue
-            return program
         raise failed
 
     def _from_rest(self, path: MotionPath, grid_ms: int, jerk: NDArray[np.float64] | None) -> PvtProgram:
@@ -410,21 +426,18 @@ class PathChanges:
         the drives would need the records before they are made (its linear programs are the longest computation of
         a change: on the wall clock the drives run on meanwhile)."""
         assert path.original is not None
-        failed: Exception = ChangeError("no jerk share tried")
-        for jerk_share in REJOIN_JERK_SHARES:
-            try:
-                back = rejoin_on_grid(
-                    path.planned, path.running, begin / 1000.0, self.limits, jerk, grid_ms, jerk_share, in_time
-                )
-                new, rows = rejoined_program(
-                    program, at.first, at.join_ms, begin, back, path.original, self.limits, max_jerk=jerk
-                )
-                self._hold_jerk(new, jerk, begin)
-            except _CHANGE_ERRORS as exc:
-                failed = exc
-                continue
+
+        def attempt(jerk_share: float) -> tuple[PvtProgram, list[NDArray[np.int64]], Trajectory]:
+            back = rejoin_on_grid(
+                path.planned, path.running, begin / 1000.0, self.limits, jerk, grid_ms, jerk_share, in_time
+            )
+            new, rows = rejoined_program(
+                program, at.first, at.join_ms, begin, back, path.original, self.limits, max_jerk=jerk
+            )
+            self._hold_jerk(new, jerk, begin)
             return new, rows, back.motion
-        raise failed
+
+        return self._rejoin_shares(attempt)
 
     def override(self, group: AxisGroup, motion: Motion, scale: float) -> dict[str, Any]:
         """Re-time the rest of the running motion to ``scale`` of its planned speed (drives' lock held);
