@@ -11,6 +11,7 @@ group halts them the quick way.
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
@@ -459,6 +460,7 @@ class PathChanges:
         grid_ms = record_grid_ms(group.programs, self.cell.bus.sync_period_ms)
         period = float(self.cell.bus.sync_period_ms)
         jerk = planned_jerk(path.program.metadata)
+        wall = not group.bus.sync.clock.lockstep
         made: dict[str, Any] = {}
 
         def make(at: SpliceAt) -> list[Any]:
@@ -466,8 +468,17 @@ class PathChanges:
             program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
             need_ms = min(at.join_ms) - 2.0 * period  # an axis's new records are due a SYNC before its held ones end
 
+            asked = [time.monotonic(), 0.0]  # when in_time was last asked, the longest step between two asks
+
             def in_time() -> bool:  # the drives' clock (on the wall clock it runs on while the change is made)
-                return (group.elapsed_syncs() or 0) * period < need_ms
+                now = time.monotonic()
+                asked[1], asked[0] = max(asked[1], now - asked[0]), now
+                # on the wall clock the next step (a linear program) may take as long as the longest so far, and
+                # the records must still come before the held ones end: a step begun in time and ended too late
+                # would leave the drives without records while the change is refused (lockstep: their clock
+                # stands while the lock is held)
+                ahead_ms = 1000.0 * asked[1] if wall else 0.0
+                return (group.elapsed_syncs() or 0) * period + ahead_ms < need_ms
 
             if path.original is None:
                 path.original = program  # nothing changed yet: the records as started
