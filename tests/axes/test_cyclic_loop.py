@@ -413,3 +413,38 @@ def test_a_follower_held_three_periods_misses_no_sync_where_the_interface_keeps_
         finally:
             bus.shutdown()
             listener.shutdown()
+
+
+@pytest.mark.wall
+def test_a_change_begins_after_the_setpoints_the_schedule_holds() -> None:
+    """What the transmit schedule holds is committed, as an EPOS2's FIFO records are: ``hold`` (a path stop,
+    a pause, an override) moves its t0 past the last setpoint scheduled, which is ``schedule_periods`` SYNCs
+    ahead of the last SYNC, and nothing ending after t0 is scheduled or reaches the wire until ``splice``."""
+    period_ms = 2.0
+    setpoints = np.array([[1000 * k, 0, 2] for k in range(200)], dtype=np.int64)
+    channel = f"cyco-{uuid.uuid4().hex[:8]}"
+    bus = SimWireBus(channel, clock="wall", receive_own_messages=True, node_name="cyclic")
+    listener = SimWireBus(channel, node_name="listener")
+    try:
+        _ours, theirs = multiprocessing.Pipe()
+        loop = CyclicLoop(bus, theirs, [0] * 8, 0, 0.002, 0.01)
+        feeds = [FeedSpec(12, setpoints, lambda r: target_frame(0x20C, r), next=1, lead=1)]
+        loop.begin(CycleSpec(1, period_ms, 1, None, 0.5, 1, interface_sync=True, feeds=feeds))
+        time.sleep(0.03)
+        t0, nexts = loop.hold(0.0, 2)
+        with loop.lock:
+            elapsed = loop.count - 1  # SYNCs since the start SYNC
+        feeder = loop.feeders[0]
+        assert nexts == [feeder.next] and feeder.next >= elapsed + schedule_periods(period_ms, None)
+        assert t0 == float(setpoints[: feeder.next, 2].sum())  # the change begins where the scheduled ones end
+        time.sleep(0.03)
+        assert feeder.next == nexts[0]  # nothing more scheduled while the change is made
+        loop.stop()
+        heard = []
+        while (msg := listener.recv(0.05)) is not None:
+            heard.append(msg)
+        targets = [int.from_bytes(m.data, "little", signed=True) for m in heard if m.arbitration_id == 0x20C]
+        assert targets and max(targets) <= 1000 * (nexts[0] - 1)  # none past t0 on the wire
+    finally:
+        bus.shutdown()
+        listener.shutdown()
