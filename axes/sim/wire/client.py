@@ -172,6 +172,11 @@ class WireLink:
                 raise bus_off_error(self.node)
         self._write(p.pack_timed(msgs, due))
 
+    def cancel_timed(self) -> None:
+        """The frames of ``post_at`` not yet due are taken back (``Medium.cancel_posts``), no answer: a quick
+        stop that follows never waits for the medium's process."""
+        self._write(p.pack(p.UNTIME))
+
     def _wait_for_room(self, deadline: float) -> None:
         """The waiting sender reads the server's DONE reports itself (a frame's slot is free as soon
         as its report is in, whichever thread reads it)."""

@@ -180,8 +180,8 @@ class SimWireBus(can.BusABC):
         if self._node is not None:
             self._medium.cancel_posts(self._node)
         else:
-            with contextlib.suppress(can.CanError, ValueError):  # a closed link: the node left, its frames with it
-                self._link.call("cancel_posts")
+            with contextlib.suppress(can.CanError):  # a closed link: the node left, its frames with it
+                self._link.cancel_timed()
 
     def accept_only(self, accepts: Callable[[int], bool] | None) -> bool:
         """A receive filter the medium applies before a frame reaches this node's queue, as a CAN

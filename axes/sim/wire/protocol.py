@@ -21,7 +21,8 @@ connections to the server:
   CLOCK_MONOTONIC, the host's clock) and the medium queues it at that time: the loopback's delay
   is the host's, not the wire's. ``TIMED`` (a due bus time and frames, no answer) hands frames to the
   medium's transmit schedule (``Medium.post_at``): they enter the node's FIFO at that time, not
-  counted in flight (the interface's until then), and no ``DONE`` is reported for them.
+  counted in flight (the interface's until then), and no ``DONE`` is reported for them; ``UNTIME`` (no
+  body, no answer) takes back those not yet due (``Medium.cancel_posts``).
 * the **receive** connection: ``ATTACH`` (JSON: the token) and then the server streams ``FRAME``s
   (time stamp, identifier, flags, DLC, 8 data bytes), in bus order, batched when they come fast,
   and on the wall clock ``DONE`` (count) when frames of this client left its FIFO (sent, or
@@ -38,7 +39,7 @@ from typing import Any
 
 import can
 
-HELLO, WELCOME, SEND, OK, FAIL, CALL, REPLY, ATTACH, FRAME, POST, DONE, REFUSED, TIMED = b"HWSKFCRAMPDNT"
+HELLO, WELCOME, SEND, OK, FAIL, CALL, REPLY, ATTACH, FRAME, POST, DONE, REFUSED, TIMED, UNTIME = b"HWSKFCRAMPDNTU"
 _LEN = struct.Struct("<I")
 _FRAME = struct.Struct("<dIBB8s")  # time stamp, identifier, flags, dlc, data
 _SEND = struct.Struct("<ddIBB8s")  # local time, timeout (< 0: None), identifier, flags, dlc, data

@@ -59,7 +59,7 @@ def require_loopback(host: str) -> str:
 
 # what the wall driver takes in itself before it delivers (``WireServer.catch_up``): frames (posted, scheduled), and the
 # refusals that count against a node; anything else (a call, a blocking send) is left to the selector thread
-CAUGHT_UP_KINDS = frozenset({p.POST, p.REFUSED, p.TIMED})
+CAUGHT_UP_KINDS = frozenset({p.POST, p.REFUSED, p.TIMED, p.UNTIME})
 
 
 class _Outbox:
@@ -413,6 +413,8 @@ class WireServer:
             msgs, due = p.unpack_timed(body)
             with contextlib.suppress(can.CanOperationError):  # bus off: lost, as a posted frame is
                 medium.post_at(node, msgs, due)
+        elif kind == p.UNTIME:
+            medium.cancel_posts(node)
         elif kind == p.SEND:
             msg, local_time, timeout = p.unpack_send(body)
             medium.received(node, local_time)
@@ -530,8 +532,6 @@ class WireServer:
                 task = self.medium.add_cyclic(node, msg, float(call["period"]), None if start is None else float(start))
                 self._cyclic[id(task)] = task
                 result = id(task)
-            elif what == "cancel_posts":  # the schedule's frames not yet due (``Medium.cancel_posts``)
-                result = self.medium.cancel_posts(node)
             elif what == "remove_cyclic":
                 task = self._cyclic.pop(call["task"], None)
                 if task is not None:

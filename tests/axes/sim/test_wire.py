@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 import tomllib
 import uuid
 from collections.abc import Iterator
@@ -724,3 +725,20 @@ def test_a_medium_held_for_periods_judges_each_timed_frames_fifo_at_its_due_time
         medium.post_at(child, [frame(0x20B + k, bytes(4)) for k in range(3)], t0 + n * period + 1e-6)
     medium.step(t0 + 6 * period - 1e-4)
     assert heard == [SYNC, 0x20B, 0x20C, 0x20D] * 6 and child.dropped == 0
+
+
+@pytest.mark.wall
+def test_a_client_of_a_served_medium_schedules_frames_and_takes_back_those_not_yet_due(buses: Buses) -> None:
+    """``send_at`` through the loopback server (the cyclic process's path): the frame goes on the wire at
+    its due bus time, whatever the client does meanwhile; ``cancel_scheduled`` takes back the one not yet due."""
+    with wire_in_a_child("wall", 1_000_000, PERIOD) as (address, _):
+        sender = buses.open(address, node_name="sender")
+        listener = buses.open(address, node_name="listener")
+        due = sender.bus_epoch + time.monotonic() + 0.02
+        sender.send_at([frame(0x20C, b"\x01")], due)
+        sender.send_at([frame(0x20D, b"\x02")], due + 0.2)
+        first = listener.recv(1.0)
+        sender.cancel_scheduled()
+        assert first is not None and first.arbitration_id == 0x20C
+        assert first.timestamp == pytest.approx(due + frame_bits(0x20C, b"\x01") * 1e-6, abs=1e-6)
+        assert listener.recv(0.3) is None  # the second was taken back
