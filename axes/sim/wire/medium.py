@@ -467,7 +467,10 @@ class Medium:
                 start = max(self.bus_end, min(n.fifo[0].enqueued for n in heads))
                 next_due = self._next_due()
                 if next_due is not None and next_due <= start:
-                    self._queue_cyclic(start)  # a timed frame due before it takes part (the kernel's timer)
+                    # a timed frame due before it takes part (the kernel's timer): the earliest due first,
+                    # then the wire again from there, so each one's FIFO is judged as it stood at its due
+                    # time (a frame posted periods later must not find them all queued at once)
+                    self._queue_cyclic(next_due)
                     continue
                 winner = min((n for n in heads if n.fifo[0].enqueued <= start), key=lambda n: n.fifo[0].priority)
                 pending = winner.fifo[0]

@@ -713,8 +713,9 @@ def test_a_scheduled_frame_meeting_a_full_fifo_is_dropped_and_a_cancel_takes_bac
 @pytest.mark.wall
 def test_a_medium_held_for_periods_judges_each_timed_frames_fifo_at_its_due_time() -> None:
     """The medium gets to the wire only 12 ms after a client's SYNC and scheduled setpoints (three per
-    period) were due: each is queued as the FIFO stood at its due time, when the frames before it had long
-    left the wire, so none is dropped (queued all at once, the FIFO of 10 would have dropped the last)."""
+    period) were due, a frame of another node posted just before it resumed: each timed frame is queued as
+    the FIFO stood at its due time, when the frames before it had long left the wire, so none is dropped
+    (queued all at once, the FIFO of 10 would have dropped the last)."""
     medium = Medium(f"sch-{uuid.uuid4().hex[:8]}", clock="wall")
     heard: list[int] = []
     child = medium.attach(lambda m: heard.append(m.arbitration_id), name="child", receive_own=True)
@@ -723,8 +724,10 @@ def test_a_medium_held_for_periods_judges_each_timed_frames_fifo_at_its_due_time
     medium.add_cyclic(child, frame(SYNC), period, start=t0)
     for n in range(6):
         medium.post_at(child, [frame(0x20B + k, bytes(4)) for k in range(3)], t0 + n * period + 1e-6)
+    drive = medium.attach(lambda m: None, name="drive")
+    medium.submit(drive, frame(0x70B, b"\x05"), now=t0 + 6 * period - 2e-4)  # posted as the medium resumed
     medium.step(t0 + 6 * period - 1e-4)
-    assert heard == [SYNC, 0x20B, 0x20C, 0x20D] * 6 and child.dropped == 0
+    assert heard == [SYNC, 0x20B, 0x20C, 0x20D] * 6 + [0x70B] and child.dropped == 0
 
 
 @pytest.mark.wall
