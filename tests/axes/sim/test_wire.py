@@ -589,7 +589,8 @@ def test_canopen_sdo_over_the_loopback_server(buses: Buses, server: tuple[str, s
 def test_a_served_medium_times_a_clients_cyclic_send_when_asked(buses: Buses) -> None:
     """``cyclic_by_medium``: ``send_periodic`` of a client is timed by the medium in the server's process
     (SocketCAN's broadcast manager in the kernel): each SYNC queued at its due bus time, heard by the
-    sender too; stopped, none follows. Without it, python-can's thread of the client's process sends."""
+    sender too; stopped, none follows. Without it, python-can's thread of the client's process sends. The
+    client's transmit schedule is the medium's too."""
     with wire_in_a_child("wall", 1_000_000, PERIOD) as (address, _):
         plain = buses.open(address, node_name="plain")
         task = plain.send_periodic(frame(SYNC), 0.005, autostart=False)
@@ -608,6 +609,16 @@ def test_a_served_medium_times_a_clients_cyclic_send_when_asked(buses: Buses) ->
         while listener.recv(0.05) is not None:  # what was queued as it stopped
             pass
         assert listener.recv(0.05) is None
+        # the transmit schedule through the server (``send_at``): on the wire at its due bus time, whatever
+        # the client does meanwhile; ``cancel_scheduled`` takes back the frame not yet due
+        due = master.bus_epoch + time.monotonic() + 0.02
+        master.send_at([frame(0x20C, b"\x01")], due)
+        master.send_at([frame(0x20D, b"\x02")], due + 0.2)
+        first = listener.recv(1.0)
+        master.cancel_scheduled()
+        assert first is not None and first.arbitration_id == 0x20C
+        assert first.timestamp == pytest.approx(due + frame_bits(0x20C, b"\x01") * 1e-6, abs=1e-6)
+        assert listener.recv(0.3) is None  # the second was taken back
 
 
 @pytest.mark.wall
@@ -728,20 +739,3 @@ def test_a_medium_held_for_periods_judges_each_timed_frames_fifo_at_its_due_time
     medium.submit(drive, frame(0x70B, b"\x05"), now=t0 + 6 * period - 2e-4)  # posted as the medium resumed
     medium.step(t0 + 6 * period - 1e-4)
     assert heard == [SYNC, 0x20B, 0x20C, 0x20D] * 6 + [0x70B] and child.dropped == 0
-
-
-@pytest.mark.wall
-def test_a_client_of_a_served_medium_schedules_frames_and_takes_back_those_not_yet_due(buses: Buses) -> None:
-    """``send_at`` through the loopback server (the cyclic process's path): the frame goes on the wire at
-    its due bus time, whatever the client does meanwhile; ``cancel_scheduled`` takes back the one not yet due."""
-    with wire_in_a_child("wall", 1_000_000, PERIOD) as (address, _):
-        sender = buses.open(address, node_name="sender")
-        listener = buses.open(address, node_name="listener")
-        due = sender.bus_epoch + time.monotonic() + 0.02
-        sender.send_at([frame(0x20C, b"\x01")], due)
-        sender.send_at([frame(0x20D, b"\x02")], due + 0.2)
-        first = listener.recv(1.0)
-        sender.cancel_scheduled()
-        assert first is not None and first.arbitration_id == 0x20C
-        assert first.timestamp == pytest.approx(due + frame_bits(0x20C, b"\x01") * 1e-6, abs=1e-6)
-        assert listener.recv(0.3) is None  # the second was taken back
