@@ -363,7 +363,11 @@ class Medium:
         """Queue every cyclic and scheduled frame due by ``now`` at its due time; the next due time (None: none)."""
         for task in self._cyclic:
             while task.due <= now:
-                pending = Pending(task.msg, task.bits, task.due, arbitration_priority(task.msg), cyclic=True)
+                # the interface's own frame: its sender never counted it, so it is not reported as left
+                # (reported, it took one off the sender's count of its posts each period)
+                pending = Pending(
+                    task.msg, task.bits, task.due, arbitration_priority(task.msg), cyclic=True, reported=False
+                )
                 task.sent += 1
                 self._queue_due(task.node, pending)
         scheduled = self._scheduled

@@ -42,8 +42,8 @@ class Pending:
     enqueued: float
     priority: tuple[int, int, int]
     cyclic: bool = False  # sent by a cyclic task: heard by its own node too, as a broadcast manager's
-    # a post its sender counts in flight until told it left (``Node.on_done``); a scheduled frame
-    # (``Medium.post_at``) is the interface's until its due time, not counted against the sender's queue
+    # a post its sender counts in flight until told it left (``Node.on_done``); a cyclic or scheduled frame
+    # (``Medium.add_cyclic``, ``Medium.post_at``) is the interface's, not counted against the sender's queue
     reported: bool = True
 
 

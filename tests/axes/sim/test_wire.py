@@ -609,6 +609,9 @@ def test_a_served_medium_times_a_clients_cyclic_send_when_asked(buses: Buses) ->
         while listener.recv(0.05) is not None:  # what was queued as it stopped
             pass
         assert listener.recv(0.05) is None
+        # the SYNCs were the interface's, never the sender's posts: its count of its queue did not move (told
+        # each had left, it went one lower per SYNC, and its own ENOBUFS could never come)
+        assert master._link is not None and master._link._inflight == 0
         # the transmit schedule through the server (``send_at``): on the wire at its due bus time, whatever
         # the client does meanwhile; ``cancel_scheduled`` takes back the frame not yet due
         due = master.bus_epoch + time.monotonic() + 0.02
