@@ -22,7 +22,8 @@ of its duration.
 - ``--part transitions``: per cell at 20-80 %, override 0.3 (request -> new speed, |v| |a| peaks in the 300 ms
   after it applies) and pause + resume (the total motion time against the uninterrupted plan, the braking's and the
   resume ramp's peaks, the ramp's length before every axis runs the program's own records again).
-- ``--part jerk-changes``: the jerk-limited plan's override 0.5 -> 1.0 and pause + resume: the records' window jerk.
+- ``--part jerk-changes``: the jerk-limited plan's override 0.5 -> 1.0 and pause + resume: the records' window jerk;
+  the same late on a path of two waypoints off one line in joint space (gantry3, arm6): 1.0 reached, its call's time.
 - ``--part cyclic``: gantry3 with ``bus.cyclic_process`` on the wall clock (SYNC 3 and 10 ms, the drives in their
   own process): path stop, override, pause + resume through the cyclic process's feeders.
 
@@ -50,6 +51,7 @@ from pvtflow.axes.master.group import axis_group  # noqa: E402
 from pvtflow.planner.knots.window_jerk import WINDOW_MS, window_jerk_profile  # noqa: E402
 from pvtflow.service.api import (  # noqa: E402
     ApiError,
+    ErrorCode,
     parse_execute,
     parse_home,
     parse_override,
@@ -321,8 +323,14 @@ def transitions(runs: int) -> None:
     print("command: PYTHONPATH=. python3 bench/onpath_service.py --part transitions")
 
 
+# a path off one line in joint space: two waypoints, the joints' shares of their ranges differing (gantry3's x, y, z;
+# arm6's six joints), from 15 % of every range
+BENT = ((0.5, 0.8, 0.3, 0.5, 0.5, 0.5), (0.85, 0.3, 0.8, 0.7, 0.3, 0.6))
+
+
 def jerk_changes() -> None:
-    """A jerk-limited plan on gantry3: override 0.5 then 1.0, pause + resume at 20-80 %: the records' window jerk."""
+    """A jerk-limited plan on gantry3: override 0.5 then 1.0, pause + resume at 20-80 %: the records' window jerk;
+    then the same late ones on paths off one line in joint space (gantry3, arm6)."""
     print("gantry3, jerk-limited plan | override 0.5 / 1.0 window jerk / limit max | resume: window jerk max, extra ms")
     svc = open_cell("gantry3")
     try:
@@ -378,7 +386,86 @@ def jerk_changes() -> None:
             print(f"{'':26s} | override 0.5 then {line}")
     finally:
         svc.close()
+    for name, fractions in (("gantry3", (0.4, 0.5, 0.55, 0.6)), ("arm6", (0.6, 0.7, 0.75))):
+        bent_changes(name, fractions)
     print("command: PYTHONPATH=. python3 bench/onpath_service.py --part jerk-changes")
+
+
+def bent_changes(name: str, fractions: tuple[float, ...]) -> None:
+    """A jerk-limited plan along ``BENT`` on ``name``: override 0.5 at each fraction, 1.0 150 ms after it applied
+    (scale applied, why not 1, how much after the plan the motion ends, the call's wall time, the records' window
+    jerk of the limit from the 1.0 on); pause at each fraction + resume (on the plan's records or placed from rest,
+    the extra ms against the plan, the window jerk); the drives' faults."""
+    svc = open_cell(name)
+    try:
+        limits = svc.cell.joint_limits()
+        dof = len(limits.lower)
+        max_jerk = [float(j) for j in 10.0 * np.asarray(limits.acceleration)]
+        bent = [
+            [lo + f * (hi - lo) for f, lo, hi in zip(fs[:dof], limits.lower, limits.upper, strict=True)] for fs in BENT
+        ]
+
+        def go(fraction: float) -> PvtProgram:
+            for wps, wait in (([at(svc.cell, 0.15)], True), (bent, False)):
+                req = {"waypoints": wps, "start": "current", "max_jerk": max_jerk, "budget_ms": 10000}
+                plan = svc.plan(parse_plan(req, svc.cell.joint_names, limits))
+                out = svc.execute(parse_execute({"plan_id": plan["plan_id"], "wait": wait}))
+                if wait and out["outcome"]["result"] != "finished":
+                    raise ApiError(ErrorCode.NOT_ALLOWED, f"the move to 15 % ended {out['outcome']['result']}")
+            before = PvtProgram(svc.cell.name, svc.group.programs)
+            wait_ms(svc, fraction * before.duration_ms)
+            return before
+
+        def started(fraction: float) -> PvtProgram | None:
+            """``go``; None where the cell faulted on the way (a loaded host starves the lockstep wire: noted)."""
+            try:
+                return go(fraction)
+            except ApiError as exc:
+                print(f"  at {fraction:g}: not started ({exc}); recovered")
+                svc.recover(parse_recover({}))
+                return None
+
+        print(f"{name}, jerk-limited, two waypoints off one line:")
+        for fraction in fractions:
+            if (before := started(fraction)) is None:
+                continue
+            try:
+                slow = svc.override(parse_override({"scale": 0.5}))
+            except ApiError as exc:
+                print(f"  override 0.5 at {fraction:g}: refused ({exc})")
+                svc.motion.done.wait(60.0)
+                continue
+            wait_ms(svc, slow["from_ms"] + 150.0)
+            began = time.perf_counter()
+            back = svc.override(parse_override({"scale": 1.0}))
+            call_ms = (time.perf_counter() - began) * 1000.0
+            jerk = jerk_ratio(PvtProgram(svc.cell.name, svc.group.programs), max_jerk, back["from_ms"])
+            svc.motion.done.wait(60.0)
+            print(
+                f"  override 0.5 at {fraction:g}, 1.0 from {back['from_ms']:.0f} of {before.duration_ms} ms: scale "
+                f"{back['scale']:.4g}{' (' + back['limited'] + ')' if back['limited'] else ''}, ends "
+                f"{back['duration_ms'] - before.duration_ms} ms after the plan, the call {call_ms:.0f} ms (wall), "
+                f"window jerk {jerk:.2f}, {svc.motion.outcome['result']}"
+            )
+        for fraction in fractions:
+            if (before := started(fraction)) is None:
+                continue
+            paused = svc.pause(parse_pause({}))
+            if not paused["paused"]:
+                svc.motion.done.wait(60.0)
+                continue
+            out = svc.resume(parse_resume({"wait": True}))
+            how = "on the plan's records" if svc.motion.program.metadata["resumed_on_planned_records"] else "from rest"
+            print(
+                f"  pause at {fraction:g} (rest at {paused['braking']['ended_ms']:.0f} of {before.duration_ms} ms) + "
+                f"resume: {how}, "
+                f"+{paused['braking']['ended_ms'] + out['duration_ms'] - before.duration_ms:.0f} ms, window jerk "
+                f"{jerk_ratio(PvtProgram(svc.cell.name, svc.group.programs), max_jerk, 0.0):.2f}, "
+                f"{out['outcome']['result']}"
+            )
+        print(f"  faults: {sum(len(d.faults) for d in svc.sim)}")
+    finally:
+        svc.close()
 
 
 ALL_CELLS = (*CELLS, "arm6")

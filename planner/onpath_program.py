@@ -486,8 +486,14 @@ def _back_on_grid(
 
 
 # the shares of the jerk limit a re-timing that joins the plan later (``rejoin_on_grid``) is tried with, in turn: the
-# records sampled from it add the rounding of their integers to its jerk (up to some 0.45 x the limit on gantry3's z)
-REJOIN_JERK_SHARES = (0.7, 0.5)
+# records sampled from it add the rounding of their integers to its jerk (up to some 0.45 x the limit on gantry3's z);
+# all of it last, where no lower share joins (a curved path's last deceleration, the plan itself at its jerk limit
+# there: arm6's second joint at 1.15 x its limit over the drives' window; the records' window check judges)
+REJOIN_JERK_SHARES = (0.7, 0.5, 1.0)
+
+
+class NoJoinError(ChangeError):
+    """No re-timing joins the plan within this share of the jerk limit: none will within a lower one either."""
 
 
 def rejoin_on_grid(
@@ -511,7 +517,7 @@ def rejoin_on_grid(
             planned, running, t0_s, limits, max_jerk, grid_ms / 1000.0, BRAKING_SHARE, jerk_share, in_time, phase_s
         )
     except NoRejoinError as exc:
-        raise ChangeError(f"re-timed to join the plan: {exc}") from None
+        raise NoJoinError(f"re-timed to join the plan: {exc}") from None
     return BackToPlan(whole, s_join * 1000.0, float(round(delay * 1000.0)) if phase_s == 0.0 else delay * 1000.0)
 
 

@@ -14,7 +14,7 @@ import argparse
 import contextlib
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -120,6 +120,41 @@ def _terminate_as_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+@contextlib.contextmanager
+def signals_stop(stop: Callable[[str], object]) -> Iterator[None]:
+    """Ctrl-C or SIGTERM while a motion runs calls ``stop("interrupted")`` from a thread of its own.
+
+    Raised as KeyboardInterrupt in the main thread, the signal lands between any two bytecodes of the
+    start or the wait (a start half done, a lock's block left early); here the handler only notes it,
+    and the group's ``stop``, which any thread may call and which a start in progress never loses,
+    halts the motion (or the next start, which then moves nothing). A second signal is the same request."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    asked = threading.Event()
+    done = threading.Event()
+
+    def on_signal(signum: int, frame: object) -> None:
+        del signum, frame
+        asked.set()
+
+    def stopper() -> None:  # asked again every 50 ms: a start that begins after the signal stops too
+        while not done.wait(0.05):
+            if asked.is_set():
+                stop("interrupted")
+
+    thread = threading.Thread(target=stopper, name="pvtflow-signal-stop", daemon=True)
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    thread.start()
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        done.set()
+        thread.join()
 
 
 def record_problem(path: str) -> str | None:

@@ -23,7 +23,7 @@ from pvtflow.axes.drive.program import PvtProgram, program_mismatch
 from pvtflow.axes.master.group.axis_group import AxisGroup
 from pvtflow.axes.master.group.outcome import Event, EventKind, Progress, Result, RunResult
 from pvtflow.service.api import refusals
-from pvtflow.service.cell_bus import CellBusError, add_bus_options, open_cell_bus, record_problem
+from pvtflow.service.cell_bus import CellBusError, add_bus_options, open_cell_bus, record_problem, signals_stop
 from pvtflow.service.cli import can_log_problem
 from pvtflow.service.config import CellConfig, ConfigError, load_cell_config
 from pvtflow.service.home_cmd import describe_homing, home_cell
@@ -183,13 +183,10 @@ def run(args: argparse.Namespace) -> int:
                     if not homing.ok:
                         print(f"{PROG}: the homing failed: the program was not sent", file=sys.stderr)
                         return EXIT_FAILED
-                if args.approach and (refused := approach(cell, group, program, quiet)) is not None:
-                    return refused
-                try:
+                with signals_stop(group.stop):  # Ctrl-C halts the motion, the run ends STOPPED
+                    if args.approach and (refused := approach(cell, group, program, quiet)) is not None:
+                        return refused
                     result = group.run(program)
-                except KeyboardInterrupt:
-                    group.stop("interrupted")
-                    result = group.wait(10.0)
             finally:
                 group.close()
                 if recorder is not None:

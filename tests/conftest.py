@@ -23,6 +23,8 @@ from pvtflow.service.config import CellConfig, load_cell_config
 if TYPE_CHECKING:
     from svc_helpers import Served
 
+    from pvtflow.service.motion import MotionService
+
 # The suite is a gate: the property tests draw the same examples on every run (a new failing draw
 # would otherwise fail an unrelated change). ``--hypothesis-profile=explore`` draws new ones.
 settings.register_profile("default", derandomize=True, database=None)
@@ -93,6 +95,21 @@ def arm6() -> CellConfig:
 @pytest.fixture(scope="session")
 def gantry3() -> CellConfig:
     return load_cell_config(REPO / "configs" / "cells" / "gantry3.yaml")
+
+
+@pytest.fixture(scope="session")
+def arm6_planning(arm6: CellConfig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[MotionService]:
+    """arm6's service planning in a process of its own (as real cells plan), not opened (no bus): one
+    child for the tests that compare its plans with this process's (its start-up and warm-up are seconds)."""
+    from pvtflow.service.motion import MotionService
+    from pvtflow.service.planning import PlanningProcess
+
+    service = MotionService(arm6, journal_dir=tmp_path_factory.mktemp("planning"), planner_process=True)
+    try:
+        assert isinstance(service.planner, PlanningProcess)
+        yield service
+    finally:
+        service.close()
 
 
 @pytest.fixture

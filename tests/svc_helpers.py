@@ -29,6 +29,9 @@ from pvtflow.service.request_cmd import Client
 from pvtflow.service.server import Server, peer_config
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+# the deadline of plans in tests that are not about deadlines (the API's largest): a time-optimal plan
+# takes 20-100 ms, and a loaded host (3-7 busy processes on 2 cores) pushed some past the cells' 200 ms
+UNHURRIED_BUDGET_MS = 60000.0
 
 
 def free_port() -> int:

@@ -21,6 +21,9 @@ WALL_CLOCK_SYNC = re.compile(
     r"real_time\s*=\s*True|lockstep\s*=\s*False|--real-time|clock\s*=\s*[\"']wall[\"']|Clock\.WALL"
 )
 Function = ast.FunctionDef | ast.AsyncFunctionDef
+# what one scan learnt of each function (by id: its trees live as long as the scan), every helper and
+# fixture otherwise looked at again for every test file
+_SEEN: dict[tuple[str, int], object] = {}
 
 
 def _functions(tree: ast.Module) -> dict[str, Function]:
@@ -43,17 +46,33 @@ def _lets_time_pass(f: Function) -> bool:
 
 
 def _on_the_wall_clock(src: str, f: Function) -> bool:
-    return bool(WALL_CLOCK_SYNC.search(ast.get_source_segment(src, f) or "")) or _lets_time_pass(f)
+    key = ("wall", id(f))
+    if key not in _SEEN:
+        lines = _SEEN.setdefault(("lines", id(src)), src.splitlines())  # ast.get_source_segment splits it each call
+        segment = "\n".join(lines[f.lineno - 1 : f.end_lineno])  # type: ignore[index]
+        _SEEN[key] = bool(WALL_CLOCK_SYNC.search(segment)) or _lets_time_pass(f)
+    return bool(_SEEN[key])
+
+
+def _names(node: ast.AST) -> frozenset[str]:
+    """What the node names: calls, attributes, fixture arguments."""
+    found: set[str] = set()
+    for sub in ast.walk(node):
+        if isinstance(sub, ast.Name):
+            found.add(sub.id)
+        elif isinstance(sub, ast.Attribute):
+            found.add(sub.attr)
+        elif isinstance(sub, ast.arg):
+            found.add(sub.arg)
+    return frozenset(found)
 
 
 def _uses(node: ast.AST, names: set[str]) -> bool:
     """The node names one of ``names`` (a call, an attribute, a fixture argument)."""
-    for sub in ast.walk(node):
-        if (isinstance(sub, ast.Name) and sub.id in names) or (isinstance(sub, ast.Attribute) and sub.attr in names):
-            return True
-        if isinstance(sub, ast.arg) and sub.arg in names:
-            return True
-    return False
+    key = ("names", id(node))
+    if key not in _SEEN:
+        _SEEN[key] = _names(node)
+    return not _SEEN[key].isdisjoint(names)  # type: ignore[union-attr]
 
 
 def _wall_names(trees: list[tuple[str, ast.Module]]) -> set[str]:
@@ -81,6 +100,7 @@ def _module_marked(tree: ast.Module) -> bool:
 
 
 def unmarked_wall_tests() -> list[str]:
+    _SEEN.clear()
     parsed = {p: (p.read_text(), ast.parse(p.read_text())) for p in sorted(TESTS.rglob("*.py"))}
     shared = [(src, tree) for p, (src, tree) in parsed.items() if not p.name.startswith("test_")]
     offenders = []

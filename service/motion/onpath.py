@@ -11,9 +11,10 @@ group halts them the quick way.
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,6 +33,7 @@ from pvtflow.planner.onpath_program import (
     REJOIN_JERK_SHARES,
     WINDOW_JERK_RATIO,
     ChangeError,
+    NoJoinError,
     NoRampError,
     back_to_plan_on_grid,
     brake_on_grid,
@@ -58,6 +60,7 @@ from pvtflow.service.motion.drives import CellDrives
 from pvtflow.service.motion.runs import Motion
 
 log = logging.getLogger("pvtflow.motion")
+_T = TypeVar("_T")
 
 
 class _RunsToItsEnd(Exception):  # noqa: N818 (not an error: the motion's own end is its stop)
@@ -292,18 +295,32 @@ class PathChanges:
         delayed by the fewest grid steps (``onpath_program.rejoin_on_grid``, ``REJOIN_JERK_SHARES`` in turn), then
         its own records; ChangeError where none holds the window jerk."""
         assert path.original is not None
+
+        def attempt(jerk_share: float) -> PvtProgram:
+            back = rejoin_on_grid(
+                path.planned, path.running, rest, self.limits, jerk, grid_ms, jerk_share, phase_s=phase
+            )
+            program = resumed_program(path.program, back, path.original, rest * 1000.0, self.limits, grid_ms, jerk)
+            self._hold_jerk(program, jerk, 0.0)
+            return program
+
+        return self._rejoin_shares(attempt)
+
+    @staticmethod
+    def _rejoin_shares(attempt: Callable[[float], _T]) -> _T:
+        """``attempt`` at each of ``REJOIN_JERK_SHARES`` in turn until one holds; none lower than one where no
+        re-timing joins the plan (``NoJoinError``); the last failure where none holds."""
         failed: Exception = ChangeError("no jerk share tried")
+        floor = 0.0
         for jerk_share in REJOIN_JERK_SHARES:
+            if jerk_share <= floor:
+                continue
             try:
-                back = rejoin_on_grid(
-                    path.planned, path.running, rest, self.limits, jerk, grid_ms, jerk_share, phase_s=phase
-                )
-                program = resumed_program(path.program, back, path.original, rest * 1000.0, self.limits, grid_ms, jerk)
-                self._hold_jerk(program, jerk, 0.0)
+                return attempt(jerk_share)
+            except NoJoinError as exc:
+                failed, floor = exc, jerk_share
             except _CHANGE_ERRORS as exc:
                 failed = exc
-                continue
-            return program
         raise failed
 
     def _from_rest(self, path: MotionPath, grid_ms: int, jerk: NDArray[np.float64] | None) -> PvtProgram:
@@ -410,21 +427,18 @@ class PathChanges:
         the drives would need the records before they are made (its linear programs are the longest computation of
         a change: on the wall clock the drives run on meanwhile)."""
         assert path.original is not None
-        failed: Exception = ChangeError("no jerk share tried")
-        for jerk_share in REJOIN_JERK_SHARES:
-            try:
-                back = rejoin_on_grid(
-                    path.planned, path.running, begin / 1000.0, self.limits, jerk, grid_ms, jerk_share, in_time
-                )
-                new, rows = rejoined_program(
-                    program, at.first, at.join_ms, begin, back, path.original, self.limits, max_jerk=jerk
-                )
-                self._hold_jerk(new, jerk, begin)
-            except _CHANGE_ERRORS as exc:
-                failed = exc
-                continue
+
+        def attempt(jerk_share: float) -> tuple[PvtProgram, list[NDArray[np.int64]], Trajectory]:
+            back = rejoin_on_grid(
+                path.planned, path.running, begin / 1000.0, self.limits, jerk, grid_ms, jerk_share, in_time
+            )
+            new, rows = rejoined_program(
+                program, at.first, at.join_ms, begin, back, path.original, self.limits, max_jerk=jerk
+            )
+            self._hold_jerk(new, jerk, begin)
             return new, rows, back.motion
-        raise failed
+
+        return self._rejoin_shares(attempt)
 
     def override(self, group: AxisGroup, motion: Motion, scale: float) -> dict[str, Any]:
         """Re-time the rest of the running motion to ``scale`` of its planned speed (drives' lock held);
@@ -446,6 +460,7 @@ class PathChanges:
         grid_ms = record_grid_ms(group.programs, self.cell.bus.sync_period_ms)
         period = float(self.cell.bus.sync_period_ms)
         jerk = planned_jerk(path.program.metadata)
+        wall = not group.bus.sync.clock.lockstep
         made: dict[str, Any] = {}
 
         def make(at: SpliceAt) -> list[Any]:
@@ -453,8 +468,17 @@ class PathChanges:
             program = PvtProgram(self.cell.name, at.programs, dict(path.program.metadata))
             need_ms = min(at.join_ms) - 2.0 * period  # an axis's new records are due a SYNC before its held ones end
 
+            asked = [time.monotonic(), 0.0]  # when in_time was last asked, the longest step between two asks
+
             def in_time() -> bool:  # the drives' clock (on the wall clock it runs on while the change is made)
-                return (group.elapsed_syncs() or 0) * period < need_ms
+                now = time.monotonic()
+                asked[1], asked[0] = max(asked[1], now - asked[0]), now
+                # on the wall clock the next step (a linear program) may take as long as the longest so far, and
+                # the records must still come before the held ones end: a step begun in time and ended too late
+                # would leave the drives without records while the change is refused (lockstep: their clock
+                # stands while the lock is held)
+                ahead_ms = 1000.0 * asked[1] if wall else 0.0
+                return (group.elapsed_syncs() or 0) * period + ahead_ms < need_ms
 
             if path.original is None:
                 path.original = program  # nothing changed yet: the records as started

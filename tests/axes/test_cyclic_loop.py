@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import multiprocessing
+import time
 import uuid
 from collections.abc import Callable
 
@@ -19,7 +20,14 @@ import pytest
 from pvtflow.axes.drive.config import BufferConfig
 from pvtflow.axes.drive.objects import SYNC_COB_ID, Record
 from pvtflow.axes.drive.scaling import AxisScaling, DriveLimits
-from pvtflow.axes.master.cyclic.loop import PROGRESS_COUNT, PROGRESS_FEEDERS, CycleSpec, CyclicLoop, FeedSpec
+from pvtflow.axes.master.cyclic.loop import (
+    PROGRESS_COUNT,
+    PROGRESS_FEEDERS,
+    CycleSpec,
+    CyclicLoop,
+    FeedSpec,
+    schedule_periods,
+)
 from pvtflow.axes.master.group.feeder import (
     MIN_HELD,
     BufferFeeder,
@@ -29,6 +37,7 @@ from pvtflow.axes.master.group.feeder import (
 )
 from pvtflow.axes.master.profiles.cia402_ip_linear import target_frame
 from pvtflow.axes.master.profiles.epos2_pvt import record_frame
+from pvtflow.axes.sim.wire import SimWireBus
 
 PERIOD_MS = 10.0
 STAMP = 0x0FF
@@ -341,6 +350,101 @@ def test_following_the_interfaces_sync_each_sync_gets_the_next_setpoint_and_its_
                 assert int.from_bytes(stamp.data, "little") == round(heard[before].timestamp * 1e6) & 0xFFFFFFFF
         assert len(targets) >= 5 and len(targets) <= loop.count <= len(syncs)  # one per SYNC followed
         assert loop.progress[PROGRESS_COUNT] == loop.count
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+
+
+class _HeldOnce(CyclicLoop):
+    """A follower whose thread is held for three SYNC periods once, in the fourth period (as this host's
+    scheduler holds it beside CPU-bound processes, bench/RESULTS.md)."""
+
+    held = False
+
+    def _write_progress(self) -> None:
+        super()._write_progress()
+        spec = self.spec
+        if spec is not None and not self.held and self.count >= spec.start_count + 3:
+            self.held = True
+            time.sleep(3 * spec.period_ms / 1000.0)
+
+
+class _NoSchedule(SimWireBus):
+    """simwire without its transmit schedule: the follower posts each setpoint when it wakes (socketcan)."""
+
+    @property
+    def timed_transmit(self) -> bool:
+        return False
+
+
+@pytest.mark.wall
+def test_a_follower_held_three_periods_misses_no_sync_where_the_interface_keeps_a_schedule() -> None:
+    """The setpoints go into the interface's transmit schedule ``schedule_periods`` SYNCs ahead (2 ms: 4),
+    so a follower held for three periods still has one setpoint on the wire before every SYNC (none held,
+    the program's setpoints in order); posted when it wakes (no schedule), the same hold leaves SYNCs
+    without one."""
+    period_ms = 2.0
+    assert schedule_periods(period_ms, 200.0) == 4
+    setpoints = np.array([[1000 * k, 0, 2] for k in range(60)], dtype=np.int64)
+    for bus_class, scheduled in ((SimWireBus, True), (_NoSchedule, False)):
+        channel = f"cych-{uuid.uuid4().hex[:8]}"
+        bus = bus_class(channel, clock="wall", receive_own_messages=True, node_name="cyclic")
+        listener = SimWireBus(channel, node_name="listener")
+        try:
+            _ours, theirs = multiprocessing.Pipe()
+            loop = _HeldOnce(bus, theirs, [0] * 8, 0, 0.002, 0.01)
+            feeds = [FeedSpec(12, setpoints, lambda r: target_frame(0x20C, r), next=1, lead=1)]
+            loop.begin(CycleSpec(1, period_ms, 1, None, 0.5, 1, interface_sync=True, feeds=feeds))
+            heard: list[can.Message] = []
+            while sum(m.arbitration_id == SYNC_COB_ID for m in heard) < 16:
+                msg = listener.recv(2.0)
+                assert msg is not None, "the interface stopped sending SYNC"
+                heard.append(msg)
+            loop.stop()
+            assert loop.held
+            syncs = [i for i, m in enumerate(heard) if m.arbitration_id == SYNC_COB_ID]
+            fed = [any(m.arbitration_id == 0x20C for m in heard[a + 1 : b]) for a, b in itertools.pairwise(syncs)]
+            targets = [int.from_bytes(m.data, "little", signed=True) for m in heard if m.arbitration_id == 0x20C]
+            assert targets == [1000 * k for k in range(1, len(targets) + 1)]  # in order, none twice, no jump
+            if scheduled:
+                assert all(fed) and loop.timing.held == 0, (fed, loop.timing.held)
+            else:
+                assert not all(fed) and loop.timing.held >= 1  # the same hold without the schedule
+        finally:
+            bus.shutdown()
+            listener.shutdown()
+
+
+@pytest.mark.wall
+def test_a_change_begins_after_the_setpoints_the_schedule_holds() -> None:
+    """What the transmit schedule holds is committed, as an EPOS2's FIFO records are: ``hold`` (a path stop,
+    a pause, an override) moves its t0 past the last setpoint scheduled, which is ``schedule_periods`` SYNCs
+    ahead of the last SYNC, and nothing ending after t0 is scheduled or reaches the wire until ``splice``."""
+    period_ms = 2.0
+    setpoints = np.array([[1000 * k, 0, 2] for k in range(200)], dtype=np.int64)
+    channel = f"cyco-{uuid.uuid4().hex[:8]}"
+    bus = SimWireBus(channel, clock="wall", receive_own_messages=True, node_name="cyclic")
+    listener = SimWireBus(channel, node_name="listener")
+    try:
+        _ours, theirs = multiprocessing.Pipe()
+        loop = CyclicLoop(bus, theirs, [0] * 8, 0, 0.002, 0.01)
+        feeds = [FeedSpec(12, setpoints, lambda r: target_frame(0x20C, r), next=1, lead=1)]
+        loop.begin(CycleSpec(1, period_ms, 1, None, 0.5, 1, interface_sync=True, feeds=feeds))
+        time.sleep(0.03)
+        t0, nexts = loop.hold(0.0, 2)
+        with loop.lock:
+            elapsed = loop.count - 1  # SYNCs since the start SYNC
+        feeder = loop.feeders[0]
+        assert nexts == [feeder.next] and feeder.next >= elapsed + schedule_periods(period_ms, None)
+        assert t0 == float(setpoints[: feeder.next, 2].sum())  # the change begins where the scheduled ones end
+        time.sleep(0.03)
+        assert feeder.next == nexts[0]  # nothing more scheduled while the change is made
+        loop.stop()
+        heard = []
+        while (msg := listener.recv(0.05)) is not None:
+            heard.append(msg)
+        targets = [int.from_bytes(m.data, "little", signed=True) for m in heard if m.arbitration_id == 0x20C]
+        assert targets and max(targets) <= 1000 * (nexts[0] - 1)  # none past t0 on the wire
     finally:
         bus.shutdown()
         listener.shutdown()

@@ -66,6 +66,7 @@ def test_the_master_beats_while_it_supervises_and_falls_silent_when_it_hangs(arm
         while heartbeat.withheld is None and time.monotonic() < deadline:
             time.sleep(0.01)
         assert heartbeat.withheld is not None and "receive thread" in heartbeat.withheld
+        assert "on_message_received" in heartbeat.withheld  # where it stands: the listener that holds it
         assert heartbeat.last_beat is not None and heartbeat.last_beat - hung_at <= window_s + 0.1
         silent_from = time.monotonic()
         time.sleep(0.3)

@@ -180,23 +180,16 @@ def test_a_plan_request_with_max_jerk_through_the_service(arm6, tmp_path: Path) 
     assert limited.data["duration_s"] > plain.data["duration_s"]
 
 
-def test_the_planning_process_plans_jerk_limited_like_the_service_s_own_planner(arm6, tmp_path: Path) -> None:
+def test_the_planning_process_plans_jerk_limited_like_the_service_s_own_planner(arm6, arm6_planning) -> None:
     """A request's max_jerk crosses to the planning child (real cells plan there) and back."""
     from pvtflow.service.api import PlanRequest
-    from pvtflow.service.motion import MotionService
-    from pvtflow.service.planning import PlanningProcess
 
     waypoints = np.array([[0.0] * 6, [0.3, -0.2, 0.3, -0.2, 0.3, -0.2]])
     jerk = 4.0 * LIMITS.acceleration
-    service = MotionService(arm6, journal_dir=tmp_path, planner_process=True)  # planning only: no bus needed
-    try:
-        assert isinstance(service.planner, PlanningProcess)
-        reply = service.plan(
-            PlanRequest(waypoints, start="first", include_program=True, max_jerk=jerk, budget_ms=60000.0)
-        )
-        assert reply["optimal"] is True  # a budget the solve fits in: the same plan as without one
-    finally:
-        service.close()
+    reply = arm6_planning.plan(
+        PlanRequest(waypoints, start="first", include_program=True, max_jerk=jerk, budget_ms=60000.0)
+    )
+    assert reply["optimal"] is True  # a budget the solve fits in: the same plan as without one
     here = CellPlanner(arm6).plan(PlanInput(waypoints, max_jerk=jerk))
     assert here.program is not None
     assert reply["program"]["metadata"]["max_jerk"] == pytest.approx(list(jerk))

@@ -173,33 +173,27 @@ def test_a_plan_reply_splits_its_time(arm6, serve):
     assert again.ok and s.service.planner is planner  # one planner for the life of the service
 
 
-def test_the_planning_process_plans_like_the_service_s_own_planner_and_survives_its_child(arm6, tmp_path):
+def test_the_planning_process_plans_like_the_service_s_own_planner_and_survives_its_child(arm6, arm6_planning):
     import os
     import signal
 
     from pvtflow.service.api import PlanRequest
-    from pvtflow.service.motion import MotionService
-    from pvtflow.service.planning import PlanningError, PlanningProcess
+    from pvtflow.service.planning import PlanningError
 
     waypoints = np.array([[0.0] * DOF, SHORT_TARGET])
-    service = MotionService(arm6, journal_dir=tmp_path, planner_process=True)  # planning only: no bus needed
-    try:
-        assert isinstance(service.planner, PlanningProcess)
-        reply = service.plan(PlanRequest(waypoints, start="first", include_program=True))
-        here = CellPlanner(arm6).plan(PlanInput(waypoints))
-        assert here.program is not None
-        for axis, expected in zip(reply["program"]["axes"], here.program.axes, strict=True):
-            assert np.array_equal(np.asarray(axis["records"]), expected.records)
-        assert reply["timing_ms"]["total"] > 0
+    service = arm6_planning
+    reply = service.plan(PlanRequest(waypoints, start="first", include_program=True))
+    here = CellPlanner(arm6).plan(PlanInput(waypoints))
+    assert here.program is not None
+    for axis, expected in zip(reply["program"]["axes"], here.program.axes, strict=True):
+        assert np.array_equal(np.asarray(axis["records"]), expected.records)
+    assert reply["timing_ms"]["total"] > 0
 
-        os.kill(service.planner._process.pid, signal.SIGKILL)  # the child dies: one request fails, clearly
-        with pytest.raises(PlanningError, match="restarted"):
-            service.planner.plan(PlanInput(waypoints))
-        again = service.plan(PlanRequest(waypoints, start="first"))  # and a new child answers the next one
-        assert again["records"] == reply["records"]
-    finally:
-        service.close()
-    assert service.planner._process is None
+    os.kill(service.planner._process.pid, signal.SIGKILL)  # the child dies: one request fails, clearly
+    with pytest.raises(PlanningError, match="restarted"):
+        service.planner.plan(PlanInput(waypoints))
+    again = service.plan(PlanRequest(waypoints, start="first"))  # and a new child answers the next one
+    assert again["records"] == reply["records"]
 
 
 def test_a_service_planning_in_a_process_is_open_once_that_process_is_warmed_up(tmp_path) -> None:
@@ -218,3 +212,4 @@ def test_a_service_planning_in_a_process_is_open_once_that_process_is_warmed_up(
         assert service.planner.ready
     finally:
         service.close()
+    assert service.planner._process is None  # closed with the service

@@ -145,25 +145,18 @@ def test_a_linear_move_runs_on_the_simulated_arm_and_ends_on_the_pose(arm6, serv
     assert far.data["error"]["details"]["result"] == "unreachable" and far.data["error"]["details"]["pose"] == 0
 
 
-def test_the_planning_process_plans_poses_like_the_service_s_own_planner(arm6, tmp_path) -> None:
+def test_the_planning_process_plans_poses_like_the_service_s_own_planner(arm6, arm6_planning) -> None:
     from pvtflow.service.api import PlanRequest
     from pvtflow.service.cell_planner import CellPlanner
-    from pvtflow.service.motion import MotionService
-    from pvtflow.service.planning import PlanningProcess
 
     req = parse_plan({"poses": [POSE], "start": Q1, "include_program": True}, NAMES, LIMITS)
     assert isinstance(req, PlanRequest)
-    service = MotionService(arm6, journal_dir=tmp_path, planner_process=True)  # planning only: no bus needed
-    try:
-        assert isinstance(service.planner, PlanningProcess)
-        reply = service.plan(req)
-        here = CellPlanner(arm6).plan(PlanInput(np.array(Q1), [POSE], "linear"))
-        assert here.program is not None and here.waypoints is not None
-        assert reply["waypoints"] == len(here.waypoints)
-        for axis, expected in zip(reply["program"]["axes"], here.program.axes, strict=True):
-            assert np.array_equal(np.asarray(axis["records"]), expected.records)
-    finally:
-        service.close()
+    reply = arm6_planning.plan(req)
+    here = CellPlanner(arm6).plan(PlanInput(np.array(Q1), [POSE], "linear"))
+    assert here.program is not None and here.waypoints is not None
+    assert reply["waypoints"] == len(here.waypoints)
+    for axis, expected in zip(reply["program"]["axes"], here.program.axes, strict=True):
+        assert np.array_equal(np.asarray(axis["records"]), expected.records)
 
 
 def test_pvtflow_request_plan_sends_a_pose_file_as_a_poses_request(arm6, serve, tmp_path, capsys) -> None:

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from svc_helpers import CONFIGS, on_own_channel, wait_until
+from svc_helpers import CONFIGS, UNHURRIED_BUDGET_MS, on_own_channel, wait_until
 
 from pvtflow.axes.canbus.clock import Clock
 from pvtflow.axes.sim.profiles.epos2 import Epos2Drive
@@ -73,7 +73,11 @@ def service(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[MotionSe
 
 
 def plan(svc: MotionService, waypoints: list[list[float]]) -> str:
-    req = parse_plan({"waypoints": waypoints, "start": "current"}, svc.cell.joint_names, svc.cell.joint_limits())
+    req = parse_plan(
+        {"waypoints": waypoints, "start": "current", "budget_ms": UNHURRIED_BUDGET_MS},
+        svc.cell.joint_names,
+        svc.cell.joint_limits(),
+    )
     return str(svc.plan(req)["plan_id"])
 
 

@@ -8,8 +8,11 @@ sent by a free-running timer. Started and stopped by ``CellBus.open`` / ``close`
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 import time
+import traceback
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import can
@@ -25,16 +28,28 @@ if TYPE_CHECKING:
     from pvtflow.axes.master.bus.watch import BusWatch
 
 log = logging.getLogger("pvtflow.bus")
+WHERE_FRAMES = 4  # of a silent receive thread's stack, innermost first, in the reason a beat is withheld
 
 
 class _ReceiveStamp(can.Listener):
-    """Notes when the bus's receive thread last dispatched a frame (one assignment per frame)."""
+    """Notes when the bus's receive thread last dispatched a frame (one assignment per frame), and
+    which thread that is: a silent one is asked where it stands (``where``)."""
 
     def __init__(self) -> None:
         self.at = time.monotonic()
+        self.thread_id: int | None = None
 
     def on_message_received(self, msg: can.Message) -> None:
         self.at = time.monotonic()
+        self.thread_id = threading.get_ident()
+
+    def where(self) -> str:
+        """Where the receive thread stands now (its innermost frames), or why that is not known."""
+        frame = sys._current_frames().get(self.thread_id) if self.thread_id is not None else None
+        if frame is None:
+            return "the receive thread is gone" if self.thread_id is not None else "no frame dispatched yet"
+        stack = traceback.extract_stack(frame)[-WHERE_FRAMES:]
+        return "; ".join(f"{Path(f.filename).name}:{f.lineno} {f.name}" for f in reversed(stack))
 
 
 class MasterHeartbeat:
@@ -116,7 +131,7 @@ class MasterHeartbeat:
         heard = any(self.watch.heartbeat_state(n) is not None for n in list(self.nodes))
         silent = now - self._received.at
         if heard and silent > self.stall_s:
-            return f"the receive thread has dispatched no frame for {silent:.3f} s"
+            return f"the receive thread has dispatched no frame for {silent:.3f} s (at {self._received.where()})"
         sync = self.sync
         if sync.clock.lockstep or not sync.running:
             self._sync_count = -1

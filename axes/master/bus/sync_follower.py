@@ -87,6 +87,42 @@ def native_cyclic_task(bus: can.BusABC, msg: can.Message, period_s: float) -> ca
     return task
 
 
+class TransmitSchedule:
+    """Frames the interface puts in its transmit queue at a given instant, timed by itself, not by this
+    process (``transmit_schedule``): a follower of SYNC can hand over the setpoints for several SYNCs ahead
+    and a late wake of its thread no longer makes them late. Instants on ``time.monotonic()``."""
+
+    def __init__(self, bus: can.BusABC) -> None:
+        self.bus = bus
+        self._epoch = float(bus.bus_epoch)  # the interface's time = epoch + CLOCK_MONOTONIC (one clock per host)
+
+    def post(self, msgs: list[can.Message], due: float) -> None:
+        """``msgs`` into the transmit queue at ``due``, in this order (a full queue then drops them)."""
+        self.bus.send_at(msgs, self._epoch + due)
+
+    def cancel(self) -> None:
+        """The frames not yet due are taken back."""
+        self.bus.cancel_scheduled()
+
+
+def transmit_schedule(bus: can.BusABC) -> TransmitSchedule | None:
+    """The interface's transmit schedule, None where it has none.
+
+    simwire on the wall clock has one (``SimWireBus.send_at``: the medium queues the frames at their due
+    bus time, as it queues a cyclic SYNC). Real interfaces keep one in hardware or in the kernel: IXXAT
+    VCI's delayed transmit, esd NTCAN's scheduled transmit objects, and SocketCAN's broadcast manager.
+    SocketCAN is not used for it here (python-can's socketcan bus offers periodic sends only, and this
+    kernel has no CAN to test one): the broadcast manager would do it with one TX_SETUP per RPDO COB-ID
+    (its operations are keyed by identifier) holding the next setpoints as its ``nframes`` frames, with
+    SETTIMER|STARTTIMER|TX_COUNTEVT, ``count`` = the frames, ``ival1`` = the SYNC period, frame i going at
+    the i-th expiry; its timer starts at the syscall, so the op is set up in the period before the SYNC it
+    follows and updated (TX_SETUP without SETTIMER replaces the frames, the timer kept) once per period
+    with the next setpoint; TX_DELETE takes it back. Until then socketcan keeps the follower's posts."""
+    if not getattr(bus, "timed_transmit", False):
+        return None
+    return TransmitSchedule(bus)
+
+
 class SyncFollower:
     """Follows the SYNCs the interface sends (``SyncClock.native``) for one ``SyncClock``."""
 

@@ -32,6 +32,7 @@ import os
 import struct
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from typing import Any
@@ -52,7 +53,7 @@ from pvtflow.axes.master.bus.quick_stop import (
     quick_stop_request,
 )
 from pvtflow.axes.master.bus.sync import ask_realtime, lift
-from pvtflow.axes.master.bus.sync_follower import native_cyclic_task
+from pvtflow.axes.master.bus.sync_follower import TransmitSchedule, native_cyclic_task, transmit_schedule
 from pvtflow.axes.master.group.feeder import (
     BufferFeeder,
     Feeder,
@@ -102,6 +103,7 @@ class CycleSpec:
     records_per_sync: int
     tx_queue_frames: int = 10  # this node's transmit queue (BusConfig.tx_queue_frames: socketcan's txqueuelen)
     interface_sync: bool = False  # the interface sends SYNC and this process follows it (BusConfig.interface_sync)
+    max_lookahead_ms: float | None = None  # what a change of the motion leaves the drives (BusConfig.max_lookahead_ms)
     feeds: list[FeedSpec] = field(default_factory=list)
 
 
@@ -115,6 +117,23 @@ PACE_AFTER_PERIODS = 0.05
 # heard; hearing none at all for this much longer than they ride out means the interface stopped sending
 # (hearing them late is the host's delay: measured up to 2-4 ms on this VM, bench/RESULTS.md)
 SILENCE_GRACE_S = 0.02
+# where the interface keeps a transmit schedule (``transmit_schedule``), the setpoints go into it this far
+# ahead at least: a follower held up to this long still has every SYNC's setpoints on the wire (this VM's
+# timer wakes measured 0.5-1.5 ms late quiet, 2-4.9 ms beside two CPU-bound processes: bench/RESULTS.md).
+# What is scheduled is committed, as an EPOS2's FIFO records are: a stop or a change begins after it
+# (``hold``), so it is kept to a few periods and at most half the cell's ``max_lookahead_ms``
+SCHEDULE_AHEAD_MS = 8.0
+# each SYNC's setpoints enter the queue this long after the SYNC's due instant: after the SYNC the
+# interface queued then (a FIFO: never ahead of it, whatever rounding the two clocks' sums carry), and
+# well before its frame ends (47 bits, 47 us at 1 Mbit/s), so they are pending when it ends and take the
+# next arbitration before the drives' TPDOs, which the SYNC itself produces
+SCHEDULE_AFTER_SYNC_S = 5e-6
+
+
+def schedule_periods(period_ms: float, max_lookahead_ms: float | None) -> int:
+    """The SYNCs whose setpoints are in the transmit schedule at once (``SCHEDULE_AHEAD_MS``)."""
+    ahead = SCHEDULE_AHEAD_MS if max_lookahead_ms is None else min(SCHEDULE_AHEAD_MS, max_lookahead_ms / 2)
+    return max(1, math.ceil(ahead / period_ms - 1e-9))
 
 
 @dataclass
@@ -175,6 +194,12 @@ class CyclicLoop:
         # setpoints sent for it were on the wire before it), and the frames sent up to those setpoints
         self._heard: list[tuple[float, float, int]] = []  # (wire time, heard here, own echoes before it)
         self._task: can.broadcastmanager.CyclicTask | None = None
+        # the interface's transmit schedule (``_schedule``): the setpoints of a SYNC gathered for it, the
+        # schedule in use, and what it holds not yet due: (due, frames, the SYNC they are for), in due order
+        self._batch: list[can.Message] | None = None
+        self._schedule: TransmitSchedule | None = None
+        self._timed: deque[tuple[float, int, int]] = deque()
+        self._pace: _Pace | None = None
 
     # --- to the master ---------------------------------------------------------------------------
     def tell(self, *message: object) -> None:
@@ -195,7 +220,7 @@ class CyclicLoop:
         while True:
             try:
                 self.bus.send(msg, timeout=0.0)
-                self._sent_frames += 1
+                self._count_sent()
                 return
             except can.CanOperationError:
                 if time.monotonic() >= deadline:
@@ -220,7 +245,31 @@ class CyclicLoop:
             self.bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False), timeout=0.0)
         except can.CanOperationError as exc:
             raise RecordRefusedError(str(exc)) from None
+        self._count_sent()
+
+    def _count_sent(self) -> None:
+        """A frame posted now: behind the scheduled ones due by now in the queue (``_due_in``)."""
+        self._due_in(time.monotonic())
         self._sent_frames += 1
+
+    def _due_in(self, now: float) -> None:
+        """The scheduled frames due by ``now`` are in the transmit queue, in order among this node's posts
+        (a frame posted later is behind them): counted as sent, each SYNC's mark where its setpoints end."""
+        timed, pace = self._timed, self._pace
+        while timed and timed[0][0] <= now:
+            _, frames, validated_by = timed.popleft()
+            self._sent_frames += frames
+            if pace is not None:
+                pace.marks[validated_by] = self._sent_frames
+
+    def _send_setpoint(self, cob_id: int, data: bytes) -> None:
+        """A fixed-period setpoint: into the SYNC's batch for the transmit schedule while one is gathered
+        (``_schedule``), else sent now (``send_now``)."""
+        batch = self._batch
+        if batch is None:
+            self.send_now(cob_id, data)
+        else:
+            batch.append(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
 
     def _queue_said(self) -> str:
         """The transmit queue as this process counts it, for a refusal's message."""
@@ -234,6 +283,7 @@ class CyclicLoop:
         of a quick stop, and this process's own SYNC echoes. Read by the SYNC thread between SYNCs,
         not by a reader thread of its own, which would take the GIL from the SYNC thread at any instant."""
         with self._reading:
+            self._due_in(time.monotonic())  # their echoes come after their due time
             while True:
                 try:
                     msg = self.bus.recv(0.0)
@@ -275,7 +325,7 @@ class CyclicLoop:
             for f in spec.feeds:
                 feeder: Feeder
                 if f.lead is not None:
-                    feeder = SetpointFeeder(f.records, f.packer, self.send_now, spec.period_ms, f.lead)
+                    feeder = SetpointFeeder(f.records, f.packer, self._send_setpoint, spec.period_ms, f.lead)
                 else:
                     assert f.buffer is not None
                     feeder = BufferFeeder(
@@ -295,6 +345,7 @@ class CyclicLoop:
             self.drain()  # the echoes of SYNCs before this run are not this run's
             self._echoes, self._echo_of = 0, None
             self._heard = []
+            self._timed.clear()
             self._sent_frames = self._own_echoes  # between runs the queue has long emptied: none lost is counted on
             self.timing = CycleTiming()
             self.progress[PROGRESS_RUN] = spec.run
@@ -353,8 +404,13 @@ class CyclicLoop:
             was, self.running = self.running, False
             self._production += 1
             task, self._task = self._task, None
+            schedule, self._schedule = self._schedule, None
+            self._timed.clear()
         if task is not None:  # no SYNC from the interface after this returns
             task.stop()
+        if schedule is not None:  # nor a setpoint it still held (none after the last SYNC: a stale one)
+            with contextlib.suppress(can.CanError, OSError):
+                schedule.cancel()
         if was:
             t = self.timing
             self.tell("timing", t.late_us, t.echo_us, t.unstamped, t.refused, t.followed_us, t.held)
@@ -469,7 +525,13 @@ class CyclicLoop:
         started = getattr(task, "started", None)
         pace = _Pace(asked if started is None else started, any(isinstance(f, SetpointFeeder) for f in self.feeders))
         self.start_sent = pace.phase  # t = 0 of the buffered drives' records
+        schedule = transmit_schedule(self.bus) if pace.fixed else None
+        with self.lock:
+            self._pace, self._schedule = pace, schedule
         try:
+            if schedule is not None:
+                self._pace_scheduled(production, pace, schedule)
+                return
             while True:
                 self._sleep_until(pace.phase + pace.number * period + after, spin)
                 with self.lock:
@@ -507,8 +569,74 @@ class CyclicLoop:
                 mine = self._task is task
                 if mine:
                     self._task = None
+                if self._pace is pace:
+                    self._pace = None
             if mine:
                 task.stop()
+
+    def _pace_scheduled(self, production: int, pace: _Pace, schedule: TransmitSchedule) -> None:
+        """``_follow`` where the interface keeps a transmit schedule: the setpoints SYNC n + 1 validates are
+        handed to it up to ``schedule_periods`` SYNCs ahead, timed ``SCHEDULE_AFTER_SYNC_S`` after SYNC n is
+        due, and the interface queues them then, whatever this thread is doing (a synchronous RPDO takes the
+        last setpoint before the SYNC that validates it, so each must still enter the queue in its own
+        period: the schedule, not this thread, times that). This thread wakes once per period for what
+        needs the present: the records for the buffered drives' clock, the time stamp of the SYNC heard,
+        the gaps. What is scheduled is committed (``hold`` moves a change past it; a halt brakes from the
+        last one: ``SetpointFeeder.last_commanded``); a stop takes back what is not yet due. A SYNC whose
+        setpoints were not in the schedule before it was due (this thread held longer than the schedule
+        reaches) went without them: the drives held, as in ``_follow``, and the marks judge it the same
+        way (the setpoints' echoes before the SYNC's)."""
+        spec = self.spec
+        assert spec is not None
+        period = spec.period_ms / 1000.0
+        after = max(PACE_AFTER_S, PACE_AFTER_PERIODS * period)
+        spin = min(SPIN_BEFORE_S, period / 4)
+        ahead = schedule_periods(spec.period_ms, spec.max_lookahead_ms)
+        buffered = any(isinstance(f, BufferFeeder) for f in self.feeders)
+        current = 0  # the SYNC whose period this is (the last one due)
+        first = True  # the start SYNC's period: its setpoints at once, not a wake later
+        while True:
+            if not first:
+                self._sleep_until(pace.phase + current * period + after, spin)
+            first = False
+            with self.lock:
+                if not (self.running and self._production == production):
+                    return
+                self._hear(pace)
+                now = time.monotonic()
+                current = max(current, int((now - pace.phase) // period))
+                # a batch for a SYNC already due would be validated by the one after it, with that one's
+                pace.number = max(pace.number, current)
+                while pace.number < current + ahead:
+                    self._schedule_setpoints(pace, schedule, pace.number, now)
+                    pace.number += 1
+                self.count = spec.start_count + current
+                self.sent_at = now
+                if buffered:
+                    self._top_up(current * spec.period_ms)
+                self._write_progress()
+            if spec.stamp_cob_id is not None:
+                self._stamp(pace, current, pace.phase + (current + 1) * period - spin)
+            current += 1
+
+    def _schedule_setpoints(self, pace: _Pace, schedule: TransmitSchedule, number: int, now: float) -> None:
+        """The setpoints SYNC ``number`` + 1 validates, to the transmit schedule just after SYNC ``number`` is
+        due (lock held)."""
+        spec = self.spec
+        assert spec is not None
+        due = pace.phase + number * spec.period_ms / 1000.0
+        self._batch = batch = []
+        try:
+            for feeder in self.feeders:
+                feeder.after_sync(number)
+        finally:
+            self._batch = None
+        at = due + SCHEDULE_AFTER_SYNC_S
+        if batch:
+            schedule.post(batch, at)
+        self._timed.append((at, len(batch), number + 1))
+        pace.sent_after[number + 1] = now - due
+        self.timing.followed_us.append((now - due) * 1e6)
 
     def _hear(self, pace: _Pace) -> None:
         """The SYNCs the bus brought since the last look, in bus order (lock held): the schedule's phase,
@@ -726,7 +854,12 @@ _NEVER = 1 << 62  # no setpoints were sent for that SYNC
 def _sent_after(after: list[float | None]) -> str:
     """When the setpoints of the SYNCs that held were sent, after the SYNC before each was due."""
     said = ", ".join(
-        "not sent" if a is None else f"sent {a * 1000:.2f} ms after the SYNC before was due" for a in after
+        "not sent"
+        if a is None
+        else f"sent {a * 1000:.2f} ms after the SYNC before was due"
+        if a >= 0
+        else f"scheduled {-a * 1000:.2f} ms before the SYNC before was due"
+        for a in after
     )
     return f"the setpoints for those SYNCs: {said}"
 

@@ -224,6 +224,7 @@ class CyclicProcess:
             records_per_sync=allowance.per_sync,
             tx_queue_frames=self.config.tx_queue_frames,
             interface_sync=interface_times_sync(self.config),
+            max_lookahead_ms=self.config.max_lookahead_ms,
             feeds=specs,
         )
 

@@ -233,7 +233,17 @@ class AxisGroup:
 
         ``before_records``: called once the start's checks are asked, before the first record goes
         out (a service journals the motion there, while the drives answer); what it raises ends
-        the start with nothing sent, and is raised from here."""
+        the start with nothing sent, and is raised from here.
+
+        A ``stop`` from any thread while this runs is never lost: before the motion is begun it ends
+        the start with nothing moving; once begun (under the SYNC lock, which ``stop`` waits for) the
+        run halts on its first SYNCs."""
+        try:
+            return self._start(program, before_records)
+        finally:
+            self._starting = False
+
+    def _start(self, program: PvtProgram, before_records: Callable[[], object] | None) -> RunResult | None:
         with self._lock:
             if self.running:
                 raise GroupError("a program is already running on this cell")
@@ -265,8 +275,6 @@ class AxisGroup:
                 # was counted); the next start asks every drive by SDO (its readiness was taken)
                 self.setup.expect_answers()
                 return self._finish_early(Result.BUS_ERROR, f"the start's check could not be sent: {exc}")
-            finally:
-                self._starting = False
             if self._stop_request is not None:
                 return self._finish_early(Result.STOPPED, self._stop_request)
             run.take_feeders(
@@ -316,6 +324,8 @@ class AxisGroup:
                 # before it, so a full queue only delays the start by the wire time of what is ahead
                 with self.bus.network.patient(PRELOAD_PATIENCE_S):
                     sync.start(max_gap_s=run_gap_s, setpoints_per_sync=any(not p.name.buffered for p in self.profiles))
+                if self._stop_request is not None:  # asked while the start went on: it found no run to halt
+                    self._halt(run, self._stop_request)
         return None
 
     def append(
@@ -427,15 +437,20 @@ class AxisGroup:
             self._stop_request = reason
         if self.state.holder is not self:  # a homing holds the cell
             self.state.stop(reason)
-        sync = self.bus.sync
-        with sync.lock, self._lock:
+        with self.bus.sync.lock, self._lock:
             run = self._run
-            if run is None or not run.live or run.ending is not None:
-                return
-            if not sync.running and not sync.clock.lockstep:  # no SYNC to carry the halt word
-                run.halting.quick(Result.STOPPED, reason, None)
-            else:
-                run.halting.halt(Result.STOPPED, reason, None)
+            if run is not None:
+                self._halt(run, reason)
+
+    def _halt(self, run: Run, reason: str) -> None:
+        """Halt a live run that is not ending yet (SYNC lock and group lock held)."""
+        if not run.live or run.ending is not None:
+            return
+        sync = self.bus.sync
+        if not sync.running and not sync.clock.lockstep:  # no SYNC to carry the halt word
+            run.halting.quick(Result.STOPPED, reason, None)
+        else:
+            run.halting.halt(Result.STOPPED, reason, None)
 
     def recover(self) -> RunResult:
         """Fault reset and re-enable every axis (by SDO), and put lost nodes back to OPERATIONAL."""

@@ -29,7 +29,9 @@ Two kinds, both driven by events only (the SYNC answers and the status TPDO), ne
   packed before the start and go out right after each SYNC, from the thread that sends the SYNC
   (``after_sync``): a drive's answers never pace them, so on the wall clock a setpoint is never
   late for its SYNC. Where the interface sends SYNC, a held follower leaves SYNCs without a setpoint:
-  the drive holds through them and the feeder goes on with the next record (never a jump).
+  the drive holds through them and the feeder goes on with the next record (never a jump). Where the
+  interface also keeps a transmit schedule, the cyclic process asks for a SYNC's setpoint several SYNCs
+  ahead and the interface times it (``axes.master.cyclic.loop``): what went out is then committed ahead.
   A stop of a drive without a ramp of its own replaces the records not yet sent by the master's
   braking ramp (``decelerate``, ``axes.drive.stop_ramp``); the feeder sends them as it sent the program.
 """

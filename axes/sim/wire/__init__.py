@@ -49,6 +49,11 @@ medium with these semantics:
   - A cyclic send (``send_periodic``) on an in-process wall-clock medium is timed by the medium,
     as SocketCAN's broadcast manager times it: each frame queued at its due bus time, heard by
     its own node too; a client of a served medium asks for the same with ``cyclic_by_medium=True``.
+  - A transmit schedule (``bus.send_at(msgs, due)``, wall clock, in-process or served): the frames
+    enter the node's FIFO at bus time ``due``, as a cyclic frame at its due time (placed by it among the
+    node's posts, arbitrated from it, dropped where the FIFO is full then); ``bus.cancel_scheduled()``
+    takes back those not yet due. The sender hears them as its own (``is_rx`` False); a client does not
+    count them in flight.
 * **Bus states and error frames** (test hooks on the medium, ``bus.medium``): ``set_state(node,
   state)`` with python-can's ``BusState``: ACTIVE, PASSIVE (error passive) or ERROR (bus off;
   ``bus_states.BUS_OFF``). The node's ``bus.state`` reports it and its reader gets the SocketCAN

@@ -160,6 +160,23 @@ class WireLink:
             raise transmit_queue_full(self.node, self.txqueuelen)
         self._write(p.pack_post(msg, self.bus_time()))
 
+    def post_at(self, msgs: list[can.Message], due: float) -> None:
+        """Wall clock: ``msgs`` for the medium's transmit schedule at bus time ``due`` (``Medium.post_at``),
+        no answer (a round trip would hold the sender as long as the medium's process is held): not counted
+        in flight, the FIFO judged by the medium at their due time."""
+        for msg in msgs:
+            if msg.is_fd or msg.dlc > 8 or len(msg.data) > 8 or msg.is_error_frame:
+                raise can.CanOperationError(f"simwire carries classic CAN data and remote frames, got {msg}")
+        with self._room:
+            if self.state == BUS_OFF:
+                raise bus_off_error(self.node)
+        self._write(p.pack_timed(msgs, due))
+
+    def cancel_timed(self) -> None:
+        """The frames of ``post_at`` not yet due are taken back (``Medium.cancel_posts``), no answer: a quick
+        stop that follows never waits for the medium's process."""
+        self._write(p.pack(p.UNTIME))
+
     def _wait_for_room(self, deadline: float) -> None:
         """The waiting sender reads the server's DONE reports itself (a frame's slot is free as soon
         as its report is in, whichever thread reads it)."""

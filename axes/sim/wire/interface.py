@@ -149,6 +149,40 @@ class SimWireBus(can.BusABC):
         else:
             self._link.send(msg, self._local_time, timeout)
 
+    @property
+    def timed_transmit(self) -> bool:
+        """This bus can hand frames to the medium's transmit schedule (``send_at``): the wall clock only."""
+        return self.clock is Clock.WALL and not self._closed
+
+    @property
+    def bus_epoch(self) -> float:
+        """Bus time = ``bus_epoch`` + ``time.monotonic()`` (the wall-clock medium's time base)."""
+        return self._medium.epoch if self._medium is not None else self._link.epoch
+
+    def send_at(self, msgs: Sequence[can.Message], due: float) -> None:
+        """``msgs`` go into this node's transmit FIFO at bus time ``due`` (``bus_epoch`` + monotonic), timed
+        by the medium, whatever this process is doing then (``Medium.post_at``: SocketCAN's broadcast
+        manager, IXXAT's delayed transmit, esd's scheduling); a full FIFO then drops them, as the broadcast
+        manager's timer does. Wall clock only."""
+        if self._closed:
+            raise can.CanOperationError(f"{self.channel_info}: the bus is closed")
+        if self.clock is not Clock.WALL:
+            raise WireConfigError("a transmit schedule is timed by the wall-clock medium; lockstep has no time")
+        if self._node is not None:
+            self._medium.post_at(self._node, list(msgs), due)
+        else:
+            self._link.post_at(list(msgs), due)
+
+    def cancel_scheduled(self) -> None:
+        """This node's scheduled frames not yet due are dropped (the broadcast manager's TX_DELETE)."""
+        if self._closed or self.clock is not Clock.WALL:
+            return
+        if self._node is not None:
+            self._medium.cancel_posts(self._node)
+        else:
+            with contextlib.suppress(can.CanError):  # a closed link: the node left, its frames with it
+                self._link.cancel_timed()
+
     def accept_only(self, accepts: Callable[[int], bool] | None) -> bool:
         """A receive filter the medium applies before a frame reaches this node's queue, as a CAN
         controller's acceptance filter or SocketCAN's CAN_RAW_FILTER does in the kernel: the frames it

@@ -12,6 +12,7 @@ medium holds two parts under its lock: ``accounting`` (``accounting.py``: what t
 from __future__ import annotations
 
 import contextlib
+import heapq
 import itertools
 import math
 import threading
@@ -92,6 +93,9 @@ class Medium:
         self._on_wire: tuple[Node, Pending, float, float] | None = None  # wall: (node, frame, start, end)
         self._stepped = -math.inf  # wall: the bus time of the last step (every frame ending by then delivered)
         self._cyclic: list[Cyclic] = []  # wall: cyclic sends the medium times (``add_cyclic``)
+        # wall: frames a node handed over to go at a bus time (``post_at``): (due, order, node, frame)
+        self._scheduled: list[tuple[float, int, Node, Pending]] = []
+        self._order = itertools.count()
         self._seconds_per_bit = 1.0 / bitrate
         self.epoch = self._epoch = time.time() - time.monotonic()  # wall: bus time = epoch + time.monotonic()
         self.closed = False
@@ -176,6 +180,8 @@ class Medium:
                 self.accounting.departed(node)
             node.fifo = deque(p for p in node.fifo if self._on_wire and self._on_wire[1] is p)
             self._cyclic = [t for t in self._cyclic if t.node is not node]
+            self._scheduled = [s for s in self._scheduled if s[2] is not node]
+            heapq.heapify(self._scheduled)
             self.cond.notify_all()
 
     def node(self, name: str) -> Node:
@@ -312,38 +318,105 @@ class Medium:
             if task in self._cyclic:
                 self._cyclic.remove(task)
 
+    def post_at(self, node: Node, msgs: list[can.Message], due: float) -> None:
+        """Wall clock: ``msgs`` go into ``node``'s transmit FIFO at bus time ``due``, in this order, each as
+        a cyclic frame at its due time (``_queue_due``: its place in the FIFO, its arbitration, dropped
+        where the FIFO is full then). A due time already past is queued at it when the medium gets to it.
+
+        This is the transmit schedule real CAN interfaces keep so that a host's late wake does not make a
+        frame late: SocketCAN's broadcast manager (a TX_SETUP of ``nframes`` frames with ``count`` and
+        ``ival1``: frame i goes at the i-th timer expiry, timed by the kernel), IXXAT VCI's delayed
+        transmit (a frame's delay in the controller's ticks), esd NTCAN's scheduling (``canIoctl``
+        NTCAN_IOCTL_TX_OBJ_SCHEDULE). The frames are the sender's from the moment it hands them over
+        (``cancel_posts`` takes back those not yet due: the broadcast manager's TX_DELETE)."""
+        if self.clock is not Clock.WALL:
+            raise WireConfigError("a transmit schedule is timed by the wall-clock medium; lockstep has no time")
+        frames = []
+        for msg in msgs:
+            if msg.is_fd or msg.dlc > 8 or len(msg.data) > 8 or msg.is_error_frame:
+                raise can.CanOperationError(f"simwire carries classic CAN data and remote frames, got {msg}")
+            bits = frame_bits(
+                msg.arbitration_id,
+                bytes(msg.data),
+                extended=msg.is_extended_id,
+                remote=msg.is_remote_frame,
+                dlc=msg.dlc,
+            )
+            frames.append(Pending(msg, bits, due, arbitration_priority(msg), reported=False))
+        with self.cond:
+            if node.state == BUS_OFF:
+                raise bus_off_error(node.name)
+            for pending in frames:
+                heapq.heappush(self._scheduled, (due, next(self._order), node, pending))
+            self.cond.notify_all()
+
+    def cancel_posts(self, node: Node) -> int:
+        """``node``'s scheduled frames not yet due are dropped (the broadcast manager's TX_DELETE); how many."""
+        with self.cond:
+            kept = [s for s in self._scheduled if s[2] is not node]
+            dropped = len(self._scheduled) - len(kept)
+            heapq.heapify(kept)
+            self._scheduled = kept
+            return dropped
+
     def _queue_cyclic(self, now: float) -> float | None:
-        """Queue every cyclic frame due by ``now`` at its due time; the next due time (None: none)."""
+        """Queue every cyclic and scheduled frame due by ``now`` at its due time; the next due time (None: none)."""
         for task in self._cyclic:
             while task.due <= now:
-                due, node = task.due, task.node
+                # the interface's own frame: its sender never counted it, so it is not reported as left
+                # (reported, it took one off the sender's count of its posts each period)
+                pending = Pending(
+                    task.msg, task.bits, task.due, arbitration_priority(task.msg), cyclic=True, reported=False
+                )
                 task.sent += 1
-                # pending from its due time: in the arbitration of a frame placed to start after it
-                self._rearbitrate(due)
-                # its node's FIFO as it was at the due time: the frames posted after it were not in it yet
-                queued = sum(1 for q in node.fifo if q.enqueued <= due)
-                if node.state != BUS_OFF and node in self.nodes and queued < node.txqueuelen:
-                    # in the queue where its due time puts it: the kernel's timer queued it then, before
-                    # the frames its node posted later that this process happened to take in first
-                    place = len(node.fifo)
-                    first = 0 if self._on_wire is None or self._on_wire[0] is not node else 1
-                    while place > first and node.fifo[place - 1].enqueued > due:
-                        place -= 1
-                    node.fifo.insert(
-                        place, Pending(task.msg, task.bits, due, arbitration_priority(task.msg), cyclic=True)
-                    )
-                    node.max_depth = max(node.max_depth, len(node.fifo))
-        return min((t.due for t in self._cyclic), default=None)
+                self._queue_due(task.node, pending)
+        scheduled = self._scheduled
+        while scheduled and scheduled[0][0] <= now:
+            _, _, node, pending = heapq.heappop(scheduled)
+            self._queue_due(node, pending)
+        return self._next_due()
+
+    def _next_due(self) -> float | None:
+        """The next cyclic or scheduled frame's due time (None: none)."""
+        due = min((t.due for t in self._cyclic), default=None)
+        if self._scheduled and (due is None or self._scheduled[0][0] < due):
+            due = self._scheduled[0][0]
+        return due
+
+    def _queue_due(self, node: Node, pending: Pending) -> None:
+        """A frame timed by the interface (a cyclic or scheduled one) into ``node``'s FIFO at its due time
+        (``pending.enqueued``); dropped where that FIFO was full then, as the broadcast manager's is."""
+        due = pending.enqueued
+        # pending from its due time: in the arbitration of a frame placed to start after it
+        self._rearbitrate(due)
+        # its node's FIFO as it was at the due time: the frames posted after it were not in it yet
+        queued = sum(1 for q in node.fifo if q.enqueued <= due)
+        if node.state != BUS_OFF and node in self.nodes and queued < node.txqueuelen:
+            # in the queue where its due time puts it: the kernel's timer queued it then, before
+            # the frames its node posted later that this process happened to take in first
+            place = len(node.fifo)
+            first = 0 if self._on_wire is None or self._on_wire[0] is not node else 1
+            while place > first and node.fifo[place - 1].enqueued > due:
+                place -= 1
+            node.fifo.insert(place, pending)
+            node.max_depth = max(node.max_depth, len(node.fifo))
+        else:
+            node.dropped += 1
 
     def step(self, now: float) -> float | None:
         """Wall clock: deliver every frame whose last bit has left the wire by ``now`` and start the
         next by arbitration. Returns when the frame on the wire ends or a cyclic frame is due (None:
         the bus is idle)."""
         with self.cond:
-            # the wire up to now first: a cyclic frame due meanwhile is queued when the wire gets to its
-            # due time (``_step``), so its node's FIFO is judged then; those due on a bus idle since, after
-            self._step(now)
-            next_cyclic = self._queue_cyclic(now)
+            # the wire up to each due time in turn, then what is due then: a timed frame's node's FIFO is
+            # judged as it was at its due time (frames that left the wire by then are out of it), also
+            # on a bus idle since, where a medium held for several periods would otherwise find every
+            # frame due meanwhile in the FIFO at once and drop the last ones (measured: a held drives'
+            # process dropped a period's scheduled setpoints, bench/RESULTS.md)
+            while (next_due := self._next_due()) is not None and next_due <= now:
+                self._step(next_due)
+                self._queue_cyclic(next_due)
+            next_cyclic = self._next_due()
             due = self._step(now)
             self._stepped = max(self._stepped, now)
             if next_cyclic is None:
@@ -356,7 +429,8 @@ class Medium:
         with self.cond:
             now = self.now()
             idle = self._on_wire is None and not any(n.fifo for n in self.nodes)
-            if idle and not any(t.due <= now for t in self._cyclic):
+            due = self._next_due()
+            if idle and (due is None or due > now):
                 return now
             return self._stepped
 
@@ -371,7 +445,7 @@ class Medium:
                 return float("-inf")
             else:
                 due = None
-            next_cyclic = min((t.due for t in self._cyclic), default=None)
+            next_cyclic = self._next_due()
             if next_cyclic is None:
                 return due
             return next_cyclic if due is None else min(due, next_cyclic)
@@ -385,7 +459,7 @@ class Medium:
                         return end
                     self._on_wire = None
                     node.fifo.popleft()
-                    if node.on_done is not None:
+                    if node.on_done is not None and pending.reported:
                         node.on_done(1)
                     if self._is_sync(pending.msg):
                         self.accounting.sync(float("nan"), start)
@@ -395,8 +469,12 @@ class Medium:
                 if not heads:
                     return None
                 start = max(self.bus_end, min(n.fifo[0].enqueued for n in heads))
-                if self._cyclic and min(t.due for t in self._cyclic) <= start:
-                    self._queue_cyclic(start)  # a cyclic frame due before it takes part (the kernel's timer)
+                next_due = self._next_due()
+                if next_due is not None and next_due <= start:
+                    # a timed frame due before it takes part (the kernel's timer): the earliest due first,
+                    # then the wire again from there, so each one's FIFO is judged as it stood at its due
+                    # time (a frame posted periods later must not find them all queued at once)
+                    self._queue_cyclic(next_due)
                     continue
                 winner = min((n for n in heads if n.fifo[0].enqueued <= start), key=lambda n: n.fifo[0].priority)
                 pending = winner.fifo[0]
@@ -409,7 +487,7 @@ class Medium:
             if self._on_wire is not None and self._on_wire[0] is node:
                 self.bus_end = max(self.bus_end, self._on_wire[2])
                 self._on_wire = None
-            dropped = len(node.fifo)
+            dropped = sum(1 for q in node.fifo if q.reported)
             node.fifo.clear()
             node.ends.clear()
             if dropped and node.on_done is not None:

@@ -42,6 +42,9 @@ class Pending:
     enqueued: float
     priority: tuple[int, int, int]
     cyclic: bool = False  # sent by a cyclic task: heard by its own node too, as a broadcast manager's
+    # a post its sender counts in flight until told it left (``Node.on_done``); a cyclic or scheduled frame
+    # (``Medium.add_cyclic``, ``Medium.post_at``) is the interface's, not counted against the sender's queue
+    reported: bool = True
 
 
 @dataclass(slots=True)
@@ -78,6 +81,7 @@ class Node:
     ends: deque[float] = field(default_factory=deque)  # lockstep: end times of its frames still queued
     fifo: deque[Pending] = field(default_factory=deque)  # wall: queued frames, the one on the wire first
     enobufs: int = 0
+    dropped: int = 0  # frames timed by the medium (cyclic, scheduled) dropped: the FIFO full at their due time
     max_depth: int = 0
     frames: int = 0
     waiters: int = 0  # senders waiting for room (send with a timeout)

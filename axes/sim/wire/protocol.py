@@ -19,7 +19,10 @@ connections to the server:
   the socket count as queued: the client's FIFO is never emptier than the medium's. Each ``POST``
   carries the bus time its sender queued it (the medium's ``epoch`` from ``WELCOME`` +
   CLOCK_MONOTONIC, the host's clock) and the medium queues it at that time: the loopback's delay
-  is the host's, not the wire's.
+  is the host's, not the wire's. ``TIMED`` (a due bus time and frames, no answer) hands frames to the
+  medium's transmit schedule (``Medium.post_at``): they enter the node's FIFO at that time, not
+  counted in flight (the interface's until then), and no ``DONE`` is reported for them; ``UNTIME`` (no
+  body, no answer) takes back those not yet due (``Medium.cancel_posts``).
 * the **receive** connection: ``ATTACH`` (JSON: the token) and then the server streams ``FRAME``s
   (time stamp, identifier, flags, DLC, 8 data bytes), in bus order, batched when they come fast,
   and on the wall clock ``DONE`` (count) when frames of this client left its FIFO (sent, or
@@ -36,12 +39,14 @@ from typing import Any
 
 import can
 
-HELLO, WELCOME, SEND, OK, FAIL, CALL, REPLY, ATTACH, FRAME, POST, DONE, REFUSED = b"HWSKFCRAMPDN"
+HELLO, WELCOME, SEND, OK, FAIL, CALL, REPLY, ATTACH, FRAME, POST, DONE, REFUSED, TIMED, UNTIME = b"HWSKFCRAMPDNTU"
 _LEN = struct.Struct("<I")
 _FRAME = struct.Struct("<dIBB8s")  # time stamp, identifier, flags, dlc, data
 _SEND = struct.Struct("<ddIBB8s")  # local time, timeout (< 0: None), identifier, flags, dlc, data
 _FAIL = struct.Struct("<i")
 _COUNT = struct.Struct("<I")
+_TIMED = struct.Struct("<dI")  # due bus time, frames
+_TIMED_FRAME = struct.Struct("<IBB8s")  # identifier, flags, dlc, data
 EXTENDED, REMOTE, ERROR, RX = 1, 2, 4, 8
 MAX_MESSAGE = 16 * 1024 * 1024
 
@@ -112,6 +117,32 @@ def unpack_send(body: bytes) -> tuple[can.Message, float, float | None]:
 def pack_post(msg: can.Message, sent_at: float) -> bytes:
     """``sent_at``: the wall-clock bus time the sender queued it (the loopback's delay is not the wire's)."""
     return pack(POST, _SEND.pack(sent_at, -1.0, msg.arbitration_id, _flags(msg), msg.dlc, bytes(msg.data)))
+
+
+def pack_timed(msgs: list[can.Message], due: float) -> bytes:
+    """Frames for the medium's transmit schedule at bus time ``due`` (``Medium.post_at``)."""
+    body = _TIMED.pack(due, len(msgs)) + b"".join(
+        _TIMED_FRAME.pack(m.arbitration_id, _flags(m), m.dlc, bytes(m.data)) for m in msgs
+    )
+    return pack(TIMED, body)
+
+
+def unpack_timed(body: bytes) -> tuple[list[can.Message], float]:
+    due, count = _TIMED.unpack_from(body)
+    msgs = []
+    for i in range(count):
+        can_id, flags, dlc, data = _TIMED_FRAME.unpack_from(body, _TIMED.size + i * _TIMED_FRAME.size)
+        msgs.append(
+            can.Message(
+                arbitration_id=can_id,
+                is_extended_id=bool(flags & EXTENDED),
+                is_remote_frame=bool(flags & REMOTE),
+                dlc=dlc,
+                data=b"" if flags & REMOTE else data[: min(dlc, 8)],
+                check=False,
+            )
+        )
+    return msgs, due
 
 
 def pack_count(kind: int, count: int) -> bytes:

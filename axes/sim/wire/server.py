@@ -57,9 +57,9 @@ def require_loopback(host: str) -> str:
     return host
 
 
-# what the wall driver takes in itself before it delivers (``WireServer.catch_up``): frames, and the
+# what the wall driver takes in itself before it delivers (``WireServer.catch_up``): frames (posted, scheduled), and the
 # refusals that count against a node; anything else (a call, a blocking send) is left to the selector thread
-CAUGHT_UP_KINDS = frozenset({p.POST, p.REFUSED})
+CAUGHT_UP_KINDS = frozenset({p.POST, p.REFUSED, p.TIMED, p.UNTIME})
 
 
 class _Outbox:
@@ -409,6 +409,12 @@ class WireServer:
                 medium.submit(node, msg, now=min(sent_at, medium.now()))
             except can.CanOperationError:
                 client.frames.put_done(1)  # bus off meanwhile: the frame is lost, its place freed
+        elif kind == p.TIMED:
+            msgs, due = p.unpack_timed(body)
+            with contextlib.suppress(can.CanOperationError):  # bus off: lost, as a posted frame is
+                medium.post_at(node, msgs, due)
+        elif kind == p.UNTIME:
+            medium.cancel_posts(node)
         elif kind == p.SEND:
             msg, local_time, timeout = p.unpack_send(body)
             medium.received(node, local_time)

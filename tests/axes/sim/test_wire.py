@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 import tomllib
 import uuid
 from collections.abc import Iterator
@@ -588,7 +589,8 @@ def test_canopen_sdo_over_the_loopback_server(buses: Buses, server: tuple[str, s
 def test_a_served_medium_times_a_clients_cyclic_send_when_asked(buses: Buses) -> None:
     """``cyclic_by_medium``: ``send_periodic`` of a client is timed by the medium in the server's process
     (SocketCAN's broadcast manager in the kernel): each SYNC queued at its due bus time, heard by the
-    sender too; stopped, none follows. Without it, python-can's thread of the client's process sends."""
+    sender too; stopped, none follows. Without it, python-can's thread of the client's process sends. The
+    client's transmit schedule is the medium's too."""
     with wire_in_a_child("wall", 1_000_000, PERIOD) as (address, _):
         plain = buses.open(address, node_name="plain")
         task = plain.send_periodic(frame(SYNC), 0.005, autostart=False)
@@ -607,6 +609,19 @@ def test_a_served_medium_times_a_clients_cyclic_send_when_asked(buses: Buses) ->
         while listener.recv(0.05) is not None:  # what was queued as it stopped
             pass
         assert listener.recv(0.05) is None
+        # the SYNCs were the interface's, never the sender's posts: its count of its queue did not move (told
+        # each had left, it went one lower per SYNC, and its own ENOBUFS could never come)
+        assert master._link is not None and master._link._inflight == 0
+        # the transmit schedule through the server (``send_at``): on the wire at its due bus time, whatever
+        # the client does meanwhile; ``cancel_scheduled`` takes back the frame not yet due
+        due = master.bus_epoch + time.monotonic() + 0.02
+        master.send_at([frame(0x20C, b"\x01")], due)
+        master.send_at([frame(0x20D, b"\x02")], due + 0.2)
+        first = listener.recv(1.0)
+        master.cancel_scheduled()
+        assert first is not None and first.arbitration_id == 0x20C
+        assert first.timestamp == pytest.approx(due + frame_bits(0x20C, b"\x01") * 1e-6, abs=1e-6)
+        assert listener.recv(0.3) is None  # the second was taken back
 
 
 @pytest.mark.wall
@@ -657,3 +672,73 @@ def test_a_cyclic_frame_stays_on_its_schedule_over_thousands_of_periods() -> Non
     assert len(heard) == count
     ends = np.array(heard) - t0 - bits * 1e-6
     assert np.abs(ends - period * np.arange(count)).max() < 1e-6
+
+
+@pytest.mark.wall
+def test_a_scheduled_frame_goes_on_the_wire_at_its_due_time_after_the_sync_due_with_it() -> None:
+    """``Medium.post_at`` (the transmit schedule: SocketCAN's broadcast manager, IXXAT's delayed transmit):
+    frames handed over long before are queued at their due time, as a cyclic SYNC is, whenever the medium
+    gets to it: due a microsecond after a SYNC of the same node, they follow it (a FIFO) and are pending
+    when it ends, so the first takes the next arbitration before a drive's TPDO produced by that SYNC; the
+    next then loses to the TPDO by identifier, as on a real bus. The sender hears them as its own."""
+    medium = Medium(f"sch-{uuid.uuid4().hex[:8]}", clock="wall")
+    heard: list[tuple[int, float, bool]] = []
+    child = medium.attach(
+        lambda m: heard.append((m.arbitration_id, m.timestamp, m.is_rx)), name="child", receive_own=True
+    )
+    drive = medium.attach(lambda m: None, name="drive")
+    period = 0.002
+    t0 = medium.now() - 0.05  # all of it asked for 50 ms ago: the medium gets to it only now
+    medium.add_cyclic(child, frame(SYNC), period, start=t0)
+    medium.post_at(child, [frame(0x20C, bytes(4)), frame(0x20D, bytes(4))], t0 + period + 1e-6)
+    sync_bits = frame_bits(SYNC, b"")
+    sync_end = t0 + period + sync_bits * 1e-6
+    medium.submit(drive, frame(0x18C, bytes(8)), now=sync_end + 2e-6)  # the drive's answer to SYNC 1
+    medium.step(t0 + 3 * period)
+    order = [cob for cob, _, _ in heard]
+    assert order[:5] == [SYNC, SYNC, 0x20C, 0x18C, 0x20D] and order[5] == SYNC
+    ends = {cob: t for cob, t, _ in heard[1:5]}
+    assert heard[1][1] == pytest.approx(sync_end, abs=1e-6)  # SYNC 1 on its due time
+    assert ends[0x20C] == pytest.approx(sync_end + frame_bits(0x20C, bytes(4)) * 1e-6, abs=1e-6)  # right after it
+    assert [rx for cob, _, rx in heard if cob in (0x20C, 0x20D)] == [False, False]  # its own frames
+
+
+@pytest.mark.wall
+def test_a_scheduled_frame_meeting_a_full_fifo_is_dropped_and_a_cancel_takes_back_the_rest() -> None:
+    """At its due time the node's FIFO is full (two frames of a txqueuelen of 2 queued before it): the
+    scheduled frame is dropped, as the broadcast manager's is, and counted; one due once they left goes;
+    ``cancel_posts`` (TX_DELETE) takes back those not yet due."""
+    medium = Medium(f"sch-{uuid.uuid4().hex[:8]}", clock="wall")
+    heard: list[int] = []
+    node = medium.attach(lambda m: heard.append(m.arbitration_id), name="node", receive_own=True, txqueuelen=2)
+    t = medium.now() - 0.05
+    medium.submit(node, frame(0x300, bytes(8)), now=t)
+    medium.submit(node, frame(0x301, bytes(8)), now=t)
+    medium.post_at(node, [frame(0x20C, bytes(8))], t + 1e-6)  # both still queued then
+    medium.post_at(node, [frame(0x20D, bytes(8))], t + 0.001)  # both gone by then (2 x 111-135 us)
+    medium.post_at(node, [frame(0x20E, bytes(8))], t + 0.04)
+    medium.step(t + 2e-6)
+    medium.step(t + 0.002)
+    assert medium.cancel_posts(node) == 1
+    medium.step(t + 0.045)
+    assert heard == [0x300, 0x301, 0x20D] and node.dropped == 1
+
+
+@pytest.mark.wall
+def test_a_medium_held_for_periods_judges_each_timed_frames_fifo_at_its_due_time() -> None:
+    """The medium gets to the wire only 12 ms after a client's SYNC and scheduled setpoints (three per
+    period) were due, a frame of another node posted just before it resumed: each timed frame is queued as
+    the FIFO stood at its due time, when the frames before it had long left the wire, so none is dropped
+    (queued all at once, the FIFO of 10 would have dropped the last)."""
+    medium = Medium(f"sch-{uuid.uuid4().hex[:8]}", clock="wall")
+    heard: list[int] = []
+    child = medium.attach(lambda m: heard.append(m.arbitration_id), name="child", receive_own=True)
+    period = 0.002
+    t0 = medium.now() - 0.05
+    medium.add_cyclic(child, frame(SYNC), period, start=t0)
+    for n in range(6):
+        medium.post_at(child, [frame(0x20B + k, bytes(4)) for k in range(3)], t0 + n * period + 1e-6)
+    drive = medium.attach(lambda m: None, name="drive")
+    medium.submit(drive, frame(0x70B, b"\x05"), now=t0 + 6 * period - 2e-4)  # posted as the medium resumed
+    medium.step(t0 + 6 * period - 1e-4)
+    assert heard == [SYNC, 0x20B, 0x20C, 0x20D] * 6 + [0x70B] and child.dropped == 0
