@@ -254,10 +254,11 @@ class PathChanges:
                     jerk_share or JERK_SHARES[0],
                 )
                 within = jerk if jerk_share is not None else None
-                program = resumed_program(
+                candidate = resumed_program(
                     path.program, back, path.original, rest * 1000.0, self.limits, grid_ms, within
                 )
-                self._hold_jerk(program, within, 0.0)
+                self._hold_jerk(candidate, within, 0.0)
+                program = candidate  # only one that holds: a refused one must not be left in ``program``
                 break
             except NoRampError as exc:
                 failed = exc
