@@ -90,32 +90,10 @@ def _program(
     """(u, u', u'') at every step (row 0: ``start``, row ``n``: ``end``) with |u'''| <= ``jmax`` (constant on each
     step), |u''| <= ``amax``, 0 <= u' <= ``vmax``; the least jerk summed over the steps (``smooth``; else any: whether
     there is one); None: none."""
-    h = STEP_S
-    # the variables: p, v, a at steps 1..n (index k - 1), the jerk on steps 0..n-1, |jerk| (smooth); x_k+1 = F x_k + g j
+    # the variables: p, v, a at steps 1..n (index k - 1), the jerk on steps 0..n-1, |jerk| (smooth)
     ip, iv, ia, ij, ie = 0, n, 2 * n, 3 * n, 4 * n
-    f = ((1.0, h, h * h / 2.0), (0.0, 1.0, h), (0.0, 0.0, 1.0))
-    g = (h**3 / 6.0, h * h / 2.0, h)
-    rows: list[int] = []
-    cols: list[int] = []
-    vals: list[float] = []
-    rhs: list[float] = []
-    for k in range(n):
-        for m, base in enumerate((ip, iv, ia)):
-            r = 3 * k + m
-            rows += [r, r]
-            cols += [base + k, ij + k]
-            vals += [1.0, -g[m]]
-            if k == 0:
-                rhs.append(sum(f[m][i] * start[i] for i in range(3)))
-                continue
-            rhs.append(0.0)
-            for i, b in enumerate((ip, iv, ia)):
-                if f[m][i] != 0.0:
-                    rows.append(r)
-                    cols.append(b + k - 1)
-                    vals.append(-f[m][i])
     size = 5 * n if smooth else 4 * n
-    a_eq = sp.csr_matrix((vals, (rows, cols)), shape=(3 * n, size))
+    a_eq, b_eq = _dynamics(start, n, size, STEP_S)
     bounds = [(None, None)] * n + [(0.0, vmax)] * n + [(-amax, amax)] * n + [(-jmax, jmax)] * n
     bounds[ip + n - 1] = (end[0], end[0])
     bounds[iv + n - 1] = (end[1], end[1])
@@ -134,7 +112,7 @@ def _program(
         b_ub = np.zeros(2 * n)
         bounds += [(0.0, None)] * n
         cost[ie:] = 1.0
-    res = linprog(cost, A_ub=a_ub, b_ub=b_ub, A_eq=a_eq, b_eq=np.asarray(rhs), bounds=bounds, method="highs")
+    res = linprog(cost, A_ub=a_ub, b_ub=b_ub, A_eq=a_eq, b_eq=b_eq, bounds=bounds, method="highs")
     if res.status != 0:
         return None
     x = res.x
