@@ -355,13 +355,7 @@ def _least(feasible: Callable[[int], bool], lo: int, hi: int, hi_holds: bool = F
             return None
         k = min(hi, k + step)
         step *= 2
-    while k - below > 1:
-        mid = (below + k) // 2
-        if feasible(mid):
-            k = mid
-        else:
-            below = mid
-    return k
+    return _bisect(feasible, below, k)
 
 
 def _least_from(feasible: Callable[[int], bool], guess: int, lo: int, hi: int) -> int | None:
@@ -389,6 +383,11 @@ def _least_from(feasible: Callable[[int], bool], guess: int, lo: int, hi: int) -
                 break
             below, step = k, step * 2
         top = k
+    return _bisect(feasible, below, top)
+
+
+def _bisect(feasible: Callable[[int], bool], below: int, top: int) -> int:
+    """The least integer in (``below``, ``top``] at which ``feasible`` holds, known to hold at ``top``."""
     while top - below > 1:
         mid = (below + top) // 2
         if feasible(mid):
